@@ -1,0 +1,44 @@
+"""Errors that reach the user as one clear line.
+
+Every error thermonet raises for bad user input is a :class:`ThermonetError`
+(a ``ValueError``), whose message names the file, the column or key, and the
+row where it applies.  The CLI prints ``str(err)`` and exits with status 1.
+"""
+
+from __future__ import annotations
+
+__all__ = ["ThermonetError", "InputError", "ConfigError", "FitError", "ExportError"]
+
+
+class ThermonetError(ValueError):
+    """Base class of every user-facing error; its message is one line."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(" ".join(str(message).split()))
+
+
+class InputError(ThermonetError):
+    """A recording or mapping file that cannot be read as a thermal test."""
+
+    @classmethod
+    def at(cls, source: object, message: str, *, column: str | None = None,
+           row: int | None = None) -> "InputError":
+        """Build ``"<source>: column 'x', row 12: message"``."""
+        where = [str(source)] if source else []
+        if column is not None:
+            where.append(f"column '{column}'")
+        if row is not None:
+            where.append(f"row {row}")
+        return cls(", ".join(where) + ": " + message if where else message)
+
+
+class ConfigError(ThermonetError):
+    """A configuration file with an unknown key, a wrong type or a bad value."""
+
+
+class FitError(ThermonetError):
+    """A model family that cannot be fitted on the given data (reason in the message)."""
+
+
+class ExportError(ThermonetError):
+    """An export that was refused (NaN model, failed parity check, wrong family)."""
