@@ -1,0 +1,154 @@
+"""The ``thermonet`` command line.
+
+Exit codes: 0 success, 1 bad input (file, column, config key or value — one
+line on stderr naming it), 2 usage error (argparse).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from . import __version__
+from .errors import ThermonetError
+
+__all__ = ["main", "build_parser"]
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from .io import write_parquet
+    from .sim import simulate
+
+    ds = simulate(args.preset, runs=args.runs, seed=args.seed)
+    path = write_parquet(ds, args.out)
+    n = sum(r.n_samples for r in ds)
+    print(f"wrote {path}: preset {args.preset}, {len(ds)} runs, {n} samples, "
+          f"outputs {', '.join(ds.axes)}")
+    return 0
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from .info import format_summary, summarize
+    from .io import read_datasets
+
+    ds = read_datasets(args.files, mapping=args.mapping)
+    summary = summarize(ds)
+    print(json.dumps(summary, indent=2, default=str) if args.json else format_summary(summary))
+    return 0
+
+
+def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
+    from .compare import format_table, run_compare
+    from .config import load_config
+
+    cfg = load_config(args.config)
+    if only is not None:
+        fams = [f for f in cfg.families if f.label == only]
+        if not fams:
+            raise ThermonetError(f"{args.config}: no family named '{only}' (families: "
+                                 f"{', '.join(f.label for f in cfg.families)})")
+        cfg.families = fams
+        cfg.baseline = None
+    results = run_compare(cfg, args.out, track=False if args.no_track else None,
+                          tracking_uri=args.tracking_uri, quiet=args.quiet)
+    if not args.quiet:
+        print(format_table(results))
+        print(f"\nresults: {Path(args.out) / 'results.json'}")
+    return 0
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    return _compare_common(args)
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    return _compare_common(args, only=args.family)
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from .exporting import export_source
+
+    path = export_source(args.source, fmt=args.format, out=args.out, family=args.family,
+                         tracking_uri=args.tracking_uri)
+    print(f"wrote {path}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="thermonet",
+        description="Train, judge and export temperature-drift models for inertial sensors.")
+    p.add_argument("--version", action="version", version=f"thermonet {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    s = sub.add_parser("simulate", help="simulate a thermal-chamber test (a study preset)",
+                       description="Simulate a thermal-chamber test from a study preset "
+                                   "and write it as a thermonet Parquet file.")
+    s.add_argument("preset", help="accel | hrg | mems-gyro | patent-gyro")
+    s.add_argument("--runs", type=int, default=None, help="number of runs (default: the preset's)")
+    s.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
+    s.add_argument("--out", required=True, help="output .parquet file")
+    s.set_defaults(func=_cmd_simulate)
+
+    i = sub.add_parser("info", help="summarise recordings",
+                       description="Channels, units, runs, duration, rate, temperature span, "
+                                   "noise floor and binned peak-to-peak per channel.")
+    i.add_argument("files", nargs="+", help="recording files (one run per file unless the file "
+                                            "has a 'run' column)")
+    i.add_argument("--mapping", default=None, help="YAML column mapping (configs/data/*.yaml)")
+    i.add_argument("--json", action="store_true", help="print the summary as JSON")
+    i.set_defaults(func=_cmd_info)
+
+    def tracking_args(q: argparse.ArgumentParser) -> None:
+        q.add_argument("--out", required=True, help="output directory")
+        q.add_argument("--no-track", action="store_true", help="do not record the run in MLflow")
+        q.add_argument("--tracking-uri", default=None,
+                       help="MLflow tracking URI (default sqlite:///mlflow.db in the working dir)")
+        q.add_argument("-q", "--quiet", action="store_true", help="no progress, no table")
+
+    c = sub.add_parser("compare", help="fit every family, judge on held-out runs",
+                       description="Fit every model family of CONFIG, judge them on held-out "
+                                   "data, write results.json, plots and checkpoints to --out.")
+    c.add_argument("config", nargs="?", default=None,
+                   help="comparison YAML (default: built-in, the patent-gyro simulator)")
+    tracking_args(c)
+    c.set_defaults(func=_cmd_compare)
+
+    t = sub.add_parser("train", help="fit one family of a config",
+                       description="Fit and judge one family of CONFIG (by its name).")
+    t.add_argument("config", help="comparison YAML")
+    t.add_argument("--family", required=True, help="the family's name in the config")
+    tracking_args(t)
+    t.set_defaults(func=_cmd_train)
+
+    e = sub.add_parser("export", help="export a fitted model (onnx, c, px4-params, ardupilot-params)",
+                       description="Export a model from a compare directory (its chosen family "
+                                   "by default), a checkpoint, or an MLflow run id.")
+    e.add_argument("source", help="compare output dir, checkpoint .pt, or MLflow run id")
+    e.add_argument("--format", required=True,
+                   choices=["onnx", "c", "px4-params", "ardupilot-params"])
+    e.add_argument("--out", required=True, help="output file")
+    e.add_argument("--family", default=None, help="family name in a compare dir (default: chosen)")
+    e.add_argument("--tracking-uri", default=None, help="MLflow URI for a run-id source")
+    e.set_defaults(func=_cmd_export)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except ThermonetError as err:
+        print(f"thermonet: error: {err}", file=sys.stderr)
+        return 1
+    except FileNotFoundError as err:
+        print(f"thermonet: error: {err.filename or err}: file not found", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

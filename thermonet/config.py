@@ -1,0 +1,235 @@
+"""Typed configuration: dataclasses hold the defaults, YAML files only override them.
+
+A comparison config (``configs/*.yaml``) has the sections below; every key is
+optional and falls back to the dataclass default.  Unknown keys and wrong
+types are errors that name the file and the dotted key
+(``configs/x.yaml: key 'families[1].param': unknown key``).  The resolved
+config (defaults filled in) is saved with every run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Union
+
+import yaml
+
+from .errors import ConfigError
+
+__all__ = [
+    "DataConfig", "SplitConfig", "FeatureConfig", "FamilyConfig", "TrainSettings",
+    "TrackingConfig", "CompareConfig", "load_config", "from_dict", "to_dict",
+]
+
+
+@dataclass
+class DataConfig:
+    """Where the recordings come from: the simulator (default) or files."""
+
+    preset: str | None = "patent-gyro"   # simulator preset; ignored when `paths` is set
+    runs: int | None = None              # simulated runs (None: the preset's own number)
+    seed: int = 0                        # simulator seed
+    paths: list[str] = field(default_factory=list)  # recording files (one run per file)
+    mapping: str | None = None           # YAML column mapping for non-native files
+    outputs: list[str] = field(default_factory=list)  # axes to model (empty: all outputs)
+
+
+@dataclass
+class SplitConfig:
+    """How runs are split; never by random sample.
+
+    ``auto``: ≥ 3 runs → train on all but the last two, validate on the
+    second-to-last, test on the last; 2 runs → train+validate on contiguous
+    blocks of the first run (last ``val_fraction`` of it validates), test on
+    the second; 1 run → three contiguous time blocks (train / val / test by
+    ``val_fraction`` and ``test_fraction`` at the end of the run).
+    ``runs``: the run ids named in ``train``, ``val``, ``test``.
+    ``leave-one-run-out``: each run is the test run once (needs ≥ 3 runs);
+    the report gives the mean over folds and the chosen family's per-fold values.
+    """
+
+    strategy: Literal["auto", "runs", "time-blocks", "leave-one-run-out"] = "auto"
+    train: list[str] = field(default_factory=list)
+    val: str | None = None
+    test: str | None = None
+    val_fraction: float = 0.2            # of a run, contiguous, when one run must give two parts
+    test_fraction: float = 0.3           # of the only run, contiguous, at its end
+
+
+@dataclass
+class FeatureConfig:
+    """The one feature layer shared by every family."""
+
+    t_ref: float | Literal["start"] = "start"  # °C, or mean of the first minutes of the first training run
+    t_ref_window_min: float = 10.0             # minutes averaged for t_ref "start"
+    rate_window_s: float = 60.0                # Savitzky–Golay window of dT/dt, s
+
+
+@dataclass
+class TrainSettings:
+    """Gradient refinement after each family's closed-form start."""
+
+    optimizer: Literal["adam", "lbfgs"] = "adam"
+    lr: float = 0.01
+    max_epochs: int = 300
+    patience: int = 30                   # epochs without validation improvement before stopping
+    min_delta: float = 1e-6              # relative improvement that counts
+    seed: int = 0
+    device: Literal["auto", "cpu", "cuda"] = "cpu"
+    max_train_samples: int = 20000       # even decimation of long runs (never random sampling)
+
+
+@dataclass
+class FamilyConfig:
+    """One entry of the comparison: a registered family with its inputs and hyper-parameters."""
+
+    family: str = "poly"
+    name: str | None = None              # label in reports (default: the family name)
+    inputs: list[str] = field(default_factory=lambda: ["dT"])
+    params: dict[str, Any] = field(default_factory=dict)   # family hyper-parameters
+    train: dict[str, Any] = field(default_factory=dict)    # overrides of the `train` section
+
+    @property
+    def label(self) -> str:
+        return self.name or self.family
+
+
+@dataclass
+class TrackingConfig:
+    """MLflow tracking (embedded SQLite store in the working directory by default)."""
+
+    enabled: bool = True
+    uri: str | None = None               # None: sqlite:///mlflow.db in the working directory
+    experiment: str = "thermonet"
+
+
+def _default_families() -> list[FamilyConfig]:
+    return [
+        FamilyConfig(family="poly", name="cubic", inputs=["dT"], params={"degree": 3}),
+        FamilyConfig(family="linear", name="linear", inputs=["dT"]),
+        FamilyConfig(family="lorentz", name="lorentz", inputs=["dT"]),
+        FamilyConfig(family="ts-fuzzy", name="ts-fuzzy", inputs=["dT"], params={"n_sets": 6}),
+        FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"], params={"n_centres": 16}),
+    ]
+
+
+@dataclass
+class CompareConfig:
+    """A whole comparison: data, split, features, families, training, tracking."""
+
+    data: DataConfig = field(default_factory=DataConfig)
+    split: SplitConfig = field(default_factory=SplitConfig)
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    families: list[FamilyConfig] = field(default_factory=_default_families)
+    train: TrainSettings = field(default_factory=TrainSettings)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    # drift: per sample, output − reference.  four-position: per soak, the bias K0 and scale
+    # factor K1 of each axis from a static multi-position test (study 000); outputs
+    # `<axis>.bias` and `<axis>.scale` are then modelled together.
+    target: Literal["drift", "four-position"] = "drift"
+    baseline: str | None = "cubic"       # the family label the report compares against (PX4/ArduPilot's)
+    description: str = ""
+
+
+# ----------------------------------------------------------------- loading
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
+
+
+def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
+    """Check ``value`` against the annotation ``tp``; return the typed value."""
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if tp is Any:
+        return value
+    if origin in (Union, types.UnionType):
+        errors = []
+        for alt in args:
+            try:
+                return _coerce(value, alt, key, source)
+            except ConfigError as err:
+                errors.append(err)
+        raise ConfigError(f"{source}: key '{key}': {value!r} is not "
+                          f"{' or '.join(_type_name(a) for a in args)}")
+    if tp is type(None):
+        if value is None:
+            return None
+        raise ConfigError(f"{source}: key '{key}': expected null, got {value!r}")
+    if origin is Literal:
+        if value in args:
+            return value
+        raise ConfigError(f"{source}: key '{key}': {value!r} is not one of "
+                          f"{', '.join(repr(a) for a in args)}")
+    if dataclasses.is_dataclass(tp):
+        return from_dict(tp, value, source=source, prefix=key)
+    if origin is list:
+        if not isinstance(value, list):
+            raise ConfigError(f"{source}: key '{key}': expected a list, got {value!r}")
+        return [_coerce(v, args[0], f"{key}[{i}]", source) for i, v in enumerate(value)]
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{source}: key '{key}': expected a mapping, got {value!r}")
+        return dict(value)
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+    elif tp is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+    elif tp is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+    elif tp is str:
+        if isinstance(value, str):
+            return value
+    raise ConfigError(f"{source}: key '{key}': expected {_type_name(tp)}, got {value!r}")
+
+
+def from_dict(cls: type, data: Any, *, source: str = "config", prefix: str = "") -> Any:
+    """Build dataclass ``cls`` from a mapping, refusing unknown keys and wrong types."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: key '{prefix or '<top>'}': expected a mapping, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    kwargs = {}
+    for key, value in data.items():
+        dotted = f"{prefix}.{key}" if prefix else str(key)
+        if key not in names:
+            raise ConfigError(f"{source}: key '{dotted}': unknown key (known: "
+                              f"{', '.join(sorted(names))})")
+        kwargs[key] = _coerce(value, hints[key], dotted, source)
+    return cls(**kwargs)
+
+
+def to_dict(obj: Any) -> Any:
+    """The resolved config as plain data (for YAML, JSON and MLflow params)."""
+    return dataclasses.asdict(obj)
+
+
+def load_config(path: str | Path | None) -> CompareConfig:
+    """Load a comparison config; ``None`` gives the built-in default (the simulator)."""
+    if path is None:
+        return CompareConfig()
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{p}: config file not found")
+    try:
+        data = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{p}:{where} not valid YAML ({getattr(err, 'problem', err)})") from None
+    cfg = from_dict(CompareConfig, data, source=str(p))
+    labels = [f.label for f in cfg.families]
+    dup = sorted({x for x in labels if labels.count(x) > 1})
+    if dup:
+        raise ConfigError(f"{p}: key 'families': duplicate family name {dup[0]!r} (give each a distinct 'name')")
+    if not cfg.families:
+        raise ConfigError(f"{p}: key 'families': empty list (need at least one family)")
+    return cfg

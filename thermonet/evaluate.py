@@ -1,0 +1,236 @@
+"""Honest evaluation: data loading, splits by run or contiguous time, targets, per-axis metrics.
+
+Splits never sample at random.  With three runs or more the split is by run
+(train on all but the last two, stop early on the second-to-last, report on
+the last; or leave-one-run-out).  With one or two runs each run is cut into
+contiguous time blocks (train | validate | test, in that order), so the
+held-out samples come after the training samples in time.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .config import DataConfig, SplitConfig
+from .errors import ConfigError
+from .recording import Dataset, Recording
+
+__all__ = ["Split", "Part", "load_data", "make_splits", "build_part", "data_hash",
+           "FOURPOS_SUFFIXES"]
+
+#: Output names of the four-position target: per axis its bias K0 and scale factor K1.
+FOURPOS_SUFFIXES = (".bias", ".scale")
+
+
+def load_data(cfg: DataConfig) -> Dataset:
+    """The configured recordings: files (with an optional mapping) or the simulator."""
+    if cfg.paths:
+        from .io import read_datasets
+
+        ds = read_datasets(cfg.paths, mapping=cfg.mapping)
+    else:
+        from .sim import simulate
+
+        if not cfg.preset:
+            raise ConfigError("config: key 'data': give 'paths' or a simulator 'preset'")
+        ds = simulate(cfg.preset, runs=cfg.runs, seed=cfg.seed)
+    if cfg.outputs:
+        missing = [o for o in cfg.outputs if o not in ds.axes]
+        if missing:
+            raise ConfigError(f"config: key 'data.outputs': no output '{missing[0]}' in the data "
+                              f"(outputs: {', '.join(ds.axes)})")
+    return ds
+
+
+def data_hash(ds: Dataset) -> str:
+    """SHA-256 (first 16 hex digits) over every run's samples, in run order."""
+    h = hashlib.sha256()
+    for r in ds:
+        h.update(r.run_id.encode())
+        chans = [r.time_s] + ([r.temperature_c] if r.temperature_c is not None else [])
+        for group in (r.outputs, r.references, r.proxies):
+            chans += [group[k] for k in sorted(group)]
+        for c in chans:
+            h.update(np.ascontiguousarray(c, dtype=np.float64).tobytes())
+    return h.hexdigest()[:16]
+
+
+@dataclass
+class Split:
+    """One train / validate / test assignment."""
+
+    train: list[Recording]
+    val: Recording | None
+    test: Recording
+    label: str = "split"
+    describe: dict[str, Any] = field(default_factory=dict)
+
+
+def _blocks(rec: Recording, val_fraction: float, test_fraction: float
+            ) -> tuple[Recording, Recording, Recording | None]:
+    """Contiguous train | val | test blocks of one run (test None when test_fraction is 0)."""
+    n = rec.n_samples
+    t = rec.time_s
+    # cut on time, not on sample index, so gaps (burst recordings) do not skew the split
+    span = t[-1] - t[0]
+    cut_test = t[-1] - test_fraction * span
+    cut_val = cut_test - val_fraction * span
+    train = rec.select(t < cut_val, run_id=f"{rec.run_id}[train]")
+    val = rec.select((t >= cut_val) & (t < cut_test), run_id=f"{rec.run_id}[val]")
+    test = rec.select(t >= cut_test, run_id=f"{rec.run_id}[test]") if test_fraction > 0 else None
+    for part in (train, val) + ((test,) if test is not None else ()):
+        if part.n_samples < 10:
+            raise ConfigError(f"split: run '{rec.run_id}' has too few samples ({n}) for "
+                              "contiguous train/val/test blocks")
+    return train, val, test
+
+
+def make_splits(ds: Dataset, cfg: SplitConfig) -> list[Split]:
+    """Splits for the configured strategy (one split, or one per fold)."""
+    runs = list(ds)
+    ids = [r.run_id for r in runs]
+    strategy = cfg.strategy
+    if strategy == "auto":
+        strategy = "runs" if len(runs) >= 3 else "time-blocks"
+    if strategy == "runs":
+        if cfg.train or cfg.val or cfg.test:
+            for key, names in (("train", cfg.train), ("val", [cfg.val] if cfg.val else []),
+                               ("test", [cfg.test] if cfg.test else [])):
+                for name in names:
+                    if name not in ids:
+                        raise ConfigError(f"config: key 'split.{key}': no run '{name}' "
+                                          f"(runs: {', '.join(ids)})")
+            if not cfg.test:
+                raise ConfigError("config: key 'split.test': name the held-out test run")
+            train_ids = cfg.train or [i for i in ids if i not in (cfg.val, cfg.test)]
+            val = ds[cfg.val] if cfg.val else None
+            return [Split([ds[i] for i in train_ids], val, ds[cfg.test], "runs",
+                          {"train": train_ids, "val": cfg.val, "test": cfg.test})]
+        if len(runs) < 3:
+            raise ConfigError(f"config: key 'split.strategy': 'runs' needs at least 3 runs, "
+                              f"the data has {len(runs)} (use 'time-blocks')")
+        return [Split(runs[:-2], runs[-2], runs[-1], "runs",
+                      {"train": ids[:-2], "val": ids[-2], "test": ids[-1]})]
+    if strategy == "leave-one-run-out":
+        if len(runs) < 3:
+            raise ConfigError("config: key 'split.strategy': leave-one-run-out needs at least "
+                              f"3 runs, the data has {len(runs)}")
+        splits = []
+        for k, test in enumerate(runs):
+            val = runs[k - 1]  # the previous run (cyclically) validates
+            train = [r for r in runs if r is not test and r is not val]
+            splits.append(Split(train, val, test, f"fold{k}",
+                                {"train": [r.run_id for r in train], "val": val.run_id,
+                                 "test": test.run_id}))
+        return splits
+    # time-blocks: every run gives a train, a val and a test block
+    if len(runs) == 1:
+        train, val, test = _blocks(runs[0], cfg.val_fraction, cfg.test_fraction)
+        assert test is not None
+        return [Split([train], val, test, "time-blocks",
+                      {"train": train.run_id, "val": val.run_id, "test": test.run_id})]
+    trains, vals, tests = [], [], []
+    for r in runs:
+        tr, va, te = _blocks(r, cfg.val_fraction, cfg.test_fraction)
+        trains.append(tr), vals.append(va), tests.append(te)
+    return [Split(trains, _stack(vals, "val"), _stack(tests, "test"), "time-blocks",
+                  {"train": [r.run_id for r in trains], "val": [r.run_id for r in vals],
+                   "test": [r.run_id for r in tests]})]
+
+
+def _stack(parts: list[Recording], run_id: str) -> Recording:
+    """Several held-out blocks judged as one: samples concatenated in run order.
+
+    Time is shifted so it keeps increasing across blocks; per-sample metrics
+    do not depend on it, and the Allan deviation is computed per block only
+    through the samples (documented in :mod:`thermonet.metrics`).
+    """
+    if len(parts) == 1:
+        return parts[0]
+    first = parts[0]
+    times, offset = [], 0.0
+    for p in parts:
+        t = p.time_s - p.time_s[0] + offset
+        times.append(t)
+        offset = t[-1] + 1.0 / p.effective_rate_hz
+
+    def cat(name_group: str) -> dict[str, np.ndarray]:
+        keys = getattr(first, name_group).keys()
+        return {k: np.concatenate([getattr(p, name_group)[k] for p in parts]) for k in keys}
+
+    temps = None
+    if first.temperature_c is not None:
+        temps = np.concatenate([p.temperature_c for p in parts])
+    return Recording(time_s=np.concatenate(times), temperature_c=temps,
+                     outputs=cat("outputs"), references=cat("references"),
+                     proxies=cat("proxies"), drift=cat("drift"), units=dict(first.units),
+                     device_id=first.device_id, sensor_kind=first.sensor_kind,
+                     run_id=run_id, sample_rate_hz=first.sample_rate_hz, meta=dict(first.meta))
+
+
+@dataclass
+class Part:
+    """One recording turned into model inputs and targets.
+
+    ``signals`` (n, S) physical signals; ``target`` (n, A) the observed
+    drift (or per-soak K0/K1); ``raw_error`` (n, A) what an uncompensated
+    sensor would be wrong by; ``bin_by`` the variable for 1-unit bins
+    (°C, or the proxy); ``true_drift`` (n, A) where simulated.
+    """
+
+    signals: np.ndarray
+    target: np.ndarray
+    time_s: np.ndarray
+    bin_by: np.ndarray
+    bin_width: float
+    rate_hz: float
+    true_drift: np.ndarray | None
+    outputs: list[str]
+
+
+def build_part(rec: Recording, *, signals: list[str], outputs: list[str], target: str,
+               rate_window_s: float) -> Part:
+    """Signals and targets of one recording for the configured target."""
+    from .features import signal_matrix
+
+    if target == "four-position":
+        return _fourpos_part(rec, signals=signals, outputs=outputs)
+    sig = signal_matrix(rec, signals, rate_window_s=rate_window_s)
+    y = np.column_stack([rec.drift_observed(a) for a in outputs])
+    true = None
+    if all(f"drift_{a}" in rec.drift for a in outputs):
+        true = np.column_stack([rec.drift[f"drift_{a}"] for a in outputs])
+    if rec.temperature_c is not None:
+        bin_by, width = rec.temperature_c, 1.0
+    else:
+        name = sorted(rec.proxies)[0]
+        bin_by = rec.proxies[name]
+        # one bin per 1/50 of the proxy's span: about the resolution of 1 °C bins
+        # over a 50 °C test when the proxy's scale to °C is unknown
+        width = max(float(np.ptp(bin_by)) / 50.0, 1e-12)
+    return Part(sig, y, rec.time_s, bin_by, width, rec.effective_rate_hz, true, outputs)
+
+
+def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> Part:
+    from .sim.fourpos import four_position_estimates
+
+    if signals != ["temperature_c"]:
+        raise ConfigError("config: key 'target': four-position models take temperature inputs "
+                          f"only (T, dT, dT2), got signals {signals}")
+    axes = sorted({o.rsplit(".", 1)[0] for o in outputs})
+    cols: dict[str, np.ndarray] = {}
+    temps = None
+    for axis in axes:
+        est = np.asarray(four_position_estimates(rec, axis), dtype=np.float64)
+        if temps is None:
+            temps = est[:, 0]
+        cols[f"{axis}.bias"] = est[:, 1]
+        cols[f"{axis}.scale"] = est[:, 2]
+    assert temps is not None
+    y = np.column_stack([cols[o] for o in outputs])
+    return Part(temps[:, None], y, np.arange(temps.size, dtype=np.float64), temps, 1.0,
+                float("nan"), None, outputs)
