@@ -118,7 +118,7 @@ def _evaluate_part(model: Any, part: Part) -> tuple[np.ndarray, dict[str, dict[s
         else:
             raw = part.target[:, j]
             m = axis_metrics(
-                temperature_c=part.bin_by, time_s=part.time_s, raw=raw,
+                bin_by=part.bin_by, time_s=part.time_s, raw=raw,
                 reference=np.zeros_like(raw), predicted_drift=pred[:, j],
                 true_drift=None if part.true_drift is None else part.true_drift[:, j],
                 rate_hz=part.rate_hz, bin_width=part.bin_width)

@@ -1,0 +1,111 @@
+"""Plots: readable PNGs of the documented size, fast, no figure leak."""
+
+from __future__ import annotations
+
+import time
+
+import matplotlib.image as mpimg
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+
+from thermonet.plots import (
+    DPI,
+    FIGSIZE_IN,
+    _gap_breaks,
+    _minmax_indices,
+    plot_allan,
+    plot_drift_vs_temperature,
+    plot_residual_vs_time,
+)
+
+N = 50_000
+RATE_HZ = 10.0
+EXPECTED_SHAPE = (int(FIGSIZE_IN[1] * DPI), int(FIGSIZE_IN[0] * DPI))
+
+
+@pytest.fixture(scope="module")
+def run():
+    rng = np.random.default_rng(0)
+    time_s = np.arange(N) / RATE_HZ
+    temperature_c = -20.0 + 80.0 * np.arange(N) / N
+    drift = 0.002 * (temperature_c - 25.0) + 1e-4 * (temperature_c - 25.0) ** 2
+    raw_error = drift + 0.01 * rng.normal(size=N)
+    return time_s, temperature_c, drift, raw_error
+
+
+def _read_png(path):
+    assert path.stat().st_size > 10_000
+    img = mpimg.imread(path)
+    assert img.shape[:2] == EXPECTED_SHAPE
+    # Something was drawn: the image is not one flat colour.
+    assert img[..., :3].std() > 0.05
+    return img
+
+
+def test_drift_vs_temperature(tmp_path, run):
+    time_s, temp, drift, raw_error = run
+    grid = np.linspace(-20, 60, 200)
+    curves = {"linear": (grid, 0.002 * (grid - 25.0)),
+              "quadratic": (grid[::-1], (0.002 * (grid - 25.0) + 1e-4 * (grid - 25.0) ** 2)[::-1])}
+    before = set(plt.get_fignums())
+    t0 = time.perf_counter()
+    path = plot_drift_vs_temperature(tmp_path / "new" / "dir" / "drift.png", temperature_c=temp,
+                                     observed_drift=raw_error, curves=curves, axis="gyro_x",
+                                     units="deg/s")
+    assert time.perf_counter() - t0 < 1.0
+    assert path == tmp_path / "new" / "dir" / "drift.png"
+    _read_png(path)
+    assert set(plt.get_fignums()) == before
+
+
+def test_residual_vs_time_and_allan(tmp_path, run):
+    time_s, temp, drift, raw_error = run
+    residuals = {"linear": raw_error - 0.002 * (temp - 25.0), "perfect": raw_error - drift}
+    t0 = time.perf_counter()
+    p1 = plot_residual_vs_time(tmp_path / "res.png", time_s=time_s, raw_error=raw_error,
+                               compensated=residuals, axis="gyro_x", units="deg/s")
+    t1 = time.perf_counter()
+    p2 = plot_allan(str(tmp_path / "allan.png"), rate_hz=RATE_HZ, raw_error=raw_error,
+                    compensated=residuals, axis="gyro_x", units="deg/s")
+    t2 = time.perf_counter()
+    assert t1 - t0 < 1.0 and t2 - t1 < 1.0
+    _read_png(p1)
+    _read_png(p2)
+
+
+def test_many_calls_leak_no_figures(tmp_path):
+    before = set(plt.get_fignums())
+    y = np.random.default_rng(1).normal(size=500)
+    for i in range(10):
+        plot_allan(tmp_path / f"a{i}.png", rate_hz=1.0, raw_error=y, compensated={},
+                   axis="acc_z", units="mg")
+    assert set(plt.get_fignums()) == before
+    assert len(list(tmp_path.glob("a*.png"))) == 10
+
+
+def test_minmax_decimation_keeps_the_envelope_and_gaps():
+    rng = np.random.default_rng(2)
+    y = rng.normal(size=100_003)
+    y[54_321] = 40.0  # a spike plain striding would miss
+    keep = _minmax_indices(y, 8000)
+    assert keep.size <= 8000
+    assert np.all(np.diff(keep) > 0)
+    assert y[keep].max() == 40.0 and y[keep].min() == y.min()
+    # A burst log: 1 s steps with one 1000 s pause after sample 60_000.
+    t = np.arange(y.size, dtype=float)
+    t[60_000:] += 1000.0
+    breaks = _gap_breaks(t, keep)
+    assert breaks.size == 1
+    assert keep[breaks[0] - 1] < 60_000 <= keep[breaks[0]]
+
+
+def test_mismatched_lengths_name_the_series(tmp_path):
+    with pytest.raises(ValueError, match=r"compensated\['lorentz'\]' has 9 samples"):
+        plot_residual_vs_time(tmp_path / "x.png", time_s=np.arange(10.0),
+                              raw_error=np.zeros(10), compensated={"lorentz": np.zeros(9)},
+                              axis="acc_x", units="mg")
+    with pytest.raises(ValueError, match="curve 'linear'"):
+        plot_drift_vs_temperature(tmp_path / "y.png", temperature_c=np.arange(10.0),
+                                  observed_drift=np.zeros(10), curves={"linear": (np.arange(3.0),)},
+                                  axis="acc_x", units="mg")

@@ -1,0 +1,522 @@
+"""Recording files: thermonet's Parquet format, native CSV, and mapped foreign files.
+
+On-disk format (Parquet, format version :data:`FORMAT_VERSION`)
+----------------------------------------------------------------
+One row per sample; several runs stack in one file, told apart by ``run``:
+
+``run`` (string), ``time_s`` (s), ``temperature_c`` (°C; omitted when no run
+has one), outputs ``<kind>_<axis>``, references ``ref_<kind>_<axis>``,
+simulated truth ``drift_<kind>_<axis>``, proxies by name (``freq_hz``,
+``temp_raw``).  A channel a run lacks is null in that run's rows.  The schema
+metadata key ``thermonet`` holds one JSON blob::
+
+    {"format": "thermonet", "version": 1, "meta": {...dataset meta...},
+     "runs": [{"run_id", "device_id", "sensor_kind", "sample_rate_hz", "meta",
+               "units", "temperature", "outputs", "references", "drift",
+               "proxies", "n_samples"}, ...]}
+
+Values are float64 and JSON floats round-trip exactly, so a write/read round
+trip is lossless.
+
+Reading
+-------
+* ``.parquet`` with the blob: the format above.  Without it but with the
+  conventional column names: default units (:func:`thermonet.mapping.default_unit`),
+  one run per ``run`` value, or one run named after the file stem.
+* ``.csv`` / ``.tsv`` / ``.txt`` whose header uses the conventional names
+  (``time_s`` and at least one output): read as is, separator sniffed.
+* Anything else: a column mapping (:mod:`thermonet.mapping`).
+
+Row numbers in error messages are **1-based data rows**: row 1 is the first
+line after the skipped banner lines and the header (the first row of a
+Parquet table); the message also gives the physical file line for text files.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import os
+import tempfile
+from collections import Counter
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from .errors import InputError
+from .mapping import ChannelSpec, ColumnMapping, TimeSpec, default_unit, load_mapping
+from .recording import OUTPUT_NAME, Dataset, Recording
+
+__all__ = ["FORMAT_VERSION", "METADATA_KEY", "write_parquet", "read_dataset", "read_datasets"]
+
+log = logging.getLogger(__name__)
+
+#: Version of the Parquet layout written by :func:`write_parquet`.
+FORMAT_VERSION = 1
+#: Schema-metadata key of the JSON blob.
+METADATA_KEY = "thermonet"
+
+_PARQUET = (".parquet", ".pq")
+_TEXT = (".csv", ".tsv", ".txt")
+_SNIFF_DELIMITERS = ",;\t|"
+_GROUPS = ("outputs", "references", "drift", "proxies")
+
+
+# ----------------------------------------------------------------- writing
+def write_parquet(dataset: Dataset, path: str | Path) -> Path:
+    """Write ``dataset`` to ``path`` atomically; return the path.
+
+    The table is written to a temporary file in the same directory and moved
+    over ``path`` with :func:`os.replace`, so a failed write leaves nothing new
+    at ``path`` (and an existing file there untouched).
+    """
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise InputError.at(path, f"output directory '{path.parent}' does not exist")
+    for run in dataset:
+        run.validate()
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        pq.write_table(_to_table(dataset), tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        # Never leave a half-written temp file behind, whatever failed.
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _to_table(dataset: Dataset) -> pa.Table:
+    runs = list(dataset)
+    names: list[str] = []
+    for group in _GROUPS:
+        for run in runs:
+            names += [k for k in getattr(run, group) if k not in names]
+    has_temp = any(r.temperature_c is not None for r in runs)
+    cols: dict[str, pa.Array] = {
+        "run": pa.array(np.concatenate([[r.run_id] * r.n_samples for r in runs]), pa.string()),
+        "time_s": pa.array(np.concatenate([r.time_s for r in runs]), pa.float64()),
+    }
+    for name in (["temperature_c"] if has_temp else []) + names:
+        parts, masks = [], []
+        for r in runs:
+            try:
+                parts.append(np.asarray(r.channel(name), dtype=np.float64))
+                masks.append(np.zeros(r.n_samples, dtype=bool))
+            except KeyError:
+                parts.append(np.zeros(r.n_samples))
+                masks.append(np.ones(r.n_samples, dtype=bool))
+        cols[name] = pa.array(np.concatenate(parts), pa.float64(), mask=np.concatenate(masks))
+    blob = {"format": "thermonet", "version": FORMAT_VERSION,
+            "meta": _str_dict(dataset.meta, "dataset meta"), "runs": []}
+    for r in runs:
+        blob["runs"].append({
+            "run_id": r.run_id, "device_id": r.device_id, "sensor_kind": r.sensor_kind,
+            "sample_rate_hz": None if r.sample_rate_hz is None else float(r.sample_rate_hz),
+            "meta": _str_dict(r.meta, f"run '{r.run_id}' meta"),
+            "units": _str_dict(r.units, f"run '{r.run_id}' units"),
+            "temperature": r.temperature_c is not None,
+            **{g: list(getattr(r, g)) for g in _GROUPS}, "n_samples": r.n_samples})
+    table = pa.table(cols)
+    return table.replace_schema_metadata(
+        {METADATA_KEY: json.dumps(blob, allow_nan=False, ensure_ascii=False)})
+
+
+def _str_dict(d: dict, what: str) -> dict[str, str]:
+    for k, v in d.items():
+        if not isinstance(k, str) or not isinstance(v, str):
+            raise InputError(f"{what}: key {k!r} has value {v!r}; only strings can be stored")
+    return dict(d)
+
+
+# ----------------------------------------------------------------- reading
+def read_dataset(path: str | Path, mapping: ColumnMapping | str | Path | None = None
+                 ) -> Dataset:
+    """Read one recording file into a validated :class:`Dataset`.
+
+    Parameters
+    ----------
+    path : path
+        A thermonet Parquet file, a CSV/TSV with conventional column names, or
+        any file ``mapping`` describes.
+    mapping : ColumnMapping, path to a YAML mapping, or None
+
+    Raises
+    ------
+    InputError
+        One line naming the file, the column and the 1-based data row.
+    """
+    return read_datasets([path], mapping)
+
+
+def read_datasets(paths: Sequence[str | Path] | str | Path,
+                  mapping: ColumnMapping | str | Path | None = None) -> Dataset:
+    """Read several files into one validated :class:`Dataset`.
+
+    Each file gives one run (id: the mapping's ``run_id``, else the file stem)
+    unless it has a run column; thermonet Parquet files keep their runs.
+    Skipped malformed rows are summed into ``Dataset.meta['skipped_rows']``.
+    """
+    if isinstance(paths, (str, Path)):
+        paths = [paths]
+    if not paths:
+        raise InputError("no input files given")
+    if mapping is not None and not isinstance(mapping, ColumnMapping):
+        mapping = load_mapping(mapping)
+    runs: list[Recording] = []
+    meta: dict[str, str] = {}
+    skipped: int | None = None
+    for p in paths:
+        file_runs, file_meta, n_skipped = _read_one(Path(p), mapping)
+        runs += file_runs
+        for k, v in file_meta.items():
+            meta.setdefault(k, v)
+        if n_skipped is not None:
+            skipped = (skipped or 0) + n_skipped
+    if skipped is not None:
+        meta["skipped_rows"] = str(skipped)
+    seen: dict[str, str] = {}
+    for r in runs:
+        if r.run_id in seen:
+            raise InputError.at(r.meta.get("source", ""), f"run id '{r.run_id}' already used "
+                                f"by {seen[r.run_id]} (run ids must be unique; set 'run_id' "
+                                "per file or rename the files)")
+        seen[r.run_id] = r.meta.get("source", "")
+    source = str(paths[0]) if len(paths) == 1 else ""
+    return Dataset(runs=runs, meta=meta).validate(source)
+
+
+def _read_one(path: Path, mapping: ColumnMapping | None
+              ) -> tuple[list[Recording], dict[str, str], int | None]:
+    if not path.is_file():
+        raise InputError.at(path, "file not found")
+    fmt = mapping.format if mapping is not None else "auto"
+    ext = path.suffix.lower()
+    if fmt == "auto":
+        fmt = "parquet" if ext in _PARQUET else "tsv" if ext == ".tsv" else \
+            "csv" if ext in _TEXT or mapping is not None else ""
+    if not fmt:
+        raise InputError.at(path, f"unknown file type '{ext}' (thermonet reads .parquet, "
+                            ".csv, .tsv, .txt; for other files give a mapping with 'format')")
+    if fmt == "parquet":
+        table = _read_parquet_table(path)
+        blob = (table.schema.metadata or {}).get(METADATA_KEY.encode())
+        if blob is not None and mapping is None:
+            runs, meta = _from_thermonet_table(path, table, blob)
+            return runs, meta, None
+        frame = _Frame(path=path, data=table.to_pandas(),
+                       rows=np.arange(1, table.num_rows + 1), lines=None)
+    else:
+        frame = _read_text(path, mapping, sep="\t" if fmt == "tsv" else None)
+    if mapping is None:
+        mapping = _native_mapping(path, list(frame.data.columns))
+    runs, n_skipped = _apply_mapping(frame, mapping)
+    return runs, {}, (n_skipped if mapping.malformed_rows == "skip" else None)
+
+
+def _read_parquet_table(path: Path) -> pa.Table:
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError) as err:
+        raise InputError.at(path, f"not a readable Parquet file ({err})") from err
+    dup = [n for n, c in Counter(table.column_names).items() if c > 1]
+    if dup:
+        raise InputError.at(path, "duplicate column", column=dup[0])
+    return table
+
+
+def _from_thermonet_table(path: Path, table: pa.Table, blob: bytes
+                          ) -> tuple[list[Recording], dict[str, str]]:
+    try:
+        info = json.loads(blob)
+        version = int(info["version"])
+        entries = list(info["runs"])
+    except (ValueError, KeyError, TypeError) as err:
+        raise InputError.at(path, f"corrupt '{METADATA_KEY}' metadata ({err})") from err
+    if version > FORMAT_VERSION:
+        raise InputError.at(path, f"format version {version} is newer than this thermonet "
+                            f"reads ({FORMAT_VERSION}); upgrade thermonet")
+    for col in ("run", "time_s"):
+        if col not in table.column_names:
+            raise InputError.at(path, "missing column", column=col)
+    run_col = np.asarray(table.column("run").to_pylist(), dtype=object)
+    runs = []
+    for e in entries:
+        idx = np.flatnonzero(run_col == e["run_id"])
+        rows = idx + 1
+
+        def take(name: str) -> np.ndarray:
+            if name not in table.column_names:
+                raise InputError.at(path, f"missing column (run '{e['run_id']}' lists it)",
+                                    column=name)
+            values = table.column(name).to_numpy(zero_copy_only=False)[idx]
+            return _check_finite(path, name, np.asarray(values, dtype=np.float64), rows, None)
+
+        time_s = take("time_s")
+        _check_time(path, "time_s", time_s, rows, None)
+        groups = {g: {k: take(k) for k in e[g]} for g in _GROUPS}
+        runs.append(Recording(
+            time_s=time_s, temperature_c=take("temperature_c") if e["temperature"] else None,
+            **groups, units=dict(e["units"]), device_id=e["device_id"],
+            sensor_kind=e["sensor_kind"], run_id=e["run_id"],
+            sample_rate_hz=e["sample_rate_hz"], meta=dict(e["meta"])))
+    return runs, dict(info.get("meta", {}))
+
+
+# ----------------------------------------------------------- text parsing
+class _Frame:
+    """Cells of one source file, with the 1-based data row (and file line) of each."""
+
+    def __init__(self, *, path: Path, data: pd.DataFrame, rows: np.ndarray,
+                 lines: np.ndarray | None, skipped_lines: Sequence[int] = ()) -> None:
+        self.path, self.data, self.rows, self.lines = path, data, rows, lines
+        self.skipped_lines = list(skipped_lines)
+
+
+def _read_text(path: Path, mapping: ColumnMapping | None, sep: str | None) -> _Frame:
+    try:
+        # utf-8-sig drops the byte-order mark spreadsheet exports put before the header.
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise InputError.at(path, f"not UTF-8 text (byte {err.start})") from err
+    skip = mapping.skip_lines if mapping else 0
+    header = mapping.header if mapping else True
+    malformed = mapping.malformed_rows if mapping else "error"
+    lines = text.splitlines()[skip:]
+    if mapping is not None and mapping.separator is not None:
+        sep = mapping.separator
+    if sep is None:
+        sep = _sniff(path, [ln for ln in lines if ln.strip()][:50])
+    records = list(csv.reader(lines, delimiter=sep))
+    names: list[str] | None = None
+    first_data = skip + 1  # physical line of data row 1, before the header shift
+    if header:
+        while records and not records[0]:  # blank lines before the header
+            records.pop(0)
+            lines.pop(0)
+            first_data += 1
+        if not records:
+            raise InputError.at(path, "no header line (file is empty after the banner)")
+        names = [c.strip() for c in records.pop(0)]
+        lines.pop(0)
+        first_data += 1
+        dup = [n for n, c in Counter(names).items() if c > 1]
+        if dup:
+            raise InputError.at(path, "duplicate column in the header", column=dup[0])
+    counts = [len(r) for r in records if r]
+    if names is not None:
+        n_fields = len(names)
+    elif mapping is not None and mapping.n_fields is not None:
+        n_fields = mapping.n_fields
+    elif counts:
+        n_fields = Counter(counts).most_common(1)[0][0]
+    else:
+        raise InputError.at(path, "no data rows")
+    keep: list[int] = []
+    skipped_lines: list[int] = []
+    for i, rec in enumerate(records):
+        if not rec:
+            continue  # blank lines carry no sample
+        if len(rec) != n_fields:
+            if malformed == "error":
+                raise InputError.at(path, f"expected {n_fields} fields, found {len(rec)} "
+                                    f"(file line {first_data + i}; set malformed_rows: skip "
+                                    "in a mapping to drop such rows)", row=i + 1)
+            skipped_lines.append(first_data + i)
+            continue
+        keep.append(i)
+    if not keep:
+        raise InputError.at(path, "no data rows")
+    # The csv pre-scan only sorts rows by field count; pandas does the parsing.
+    data = pd.read_csv(io.StringIO("\n".join(lines[i] for i in keep)), sep=sep, header=None,
+                       names=names if names is not None else list(range(n_fields)),
+                       dtype=str, keep_default_na=False, skip_blank_lines=False)
+    rows = np.asarray(keep) + 1
+    return _Frame(path=path, data=data, rows=rows, lines=rows - 1 + first_data,
+                  skipped_lines=skipped_lines)
+
+
+def _sniff(path: Path, sample: list[str]) -> str:
+    """The candidate separator that splits most sample lines into the same number
+    (> 1) of fields.  csv.Sniffer gives up on a sample with one broken line,
+    which is exactly the file a user most needs a clear error for."""
+    if not sample:
+        raise InputError.at(path, "no data rows")
+    best: tuple[float, int, str] | None = None
+    for sep in _SNIFF_DELIMITERS:
+        counts = Counter(len(rec) for rec in csv.reader(sample, delimiter=sep))
+        n_fields, hits = counts.most_common(1)[0]
+        if n_fields > 1 and (best is None or (hits, n_fields) > best[:2]):
+            best = (hits, n_fields, sep)
+    return "," if best is None else best[2]  # no separator at all: a single column
+
+
+# ------------------------------------------------------------ mapping
+def _native_mapping(path: Path, columns: list) -> ColumnMapping:
+    names = [str(c) for c in columns]
+    if "time_s" not in names or not any(OUTPUT_NAME.match(n) for n in names):
+        raise InputError.at(path, "columns are not thermonet's conventional names (need "
+                            "'time_s' and an output like 'gyro_x'; found "
+                            f"{', '.join(names[:8])}); describe the file with a mapping (YAML)")
+    channels = [ChannelSpec(name=n, column=n, unit=default_unit(n))
+                for n in names if n not in ("time_s", "run")]
+    bad = [c.name for c in channels if not c.name.replace("_", "a").isalnum()]
+    if bad:
+        raise InputError.at(path, "not a thermonet channel name (letters, digits, '_'); "
+                            "describe the file with a mapping", column=bad[0])
+    return ColumnMapping(channels=tuple(channels), time=TimeSpec(column="time_s", unit="s"),
+                         run_column="run" if "run" in names else None, run_id=path.stem,
+                         source="<conventional names>")
+
+
+def _resolve(frame: _Frame, col: str | int, key: str) -> str | int:
+    """The DataFrame label of a mapping column (a header name or 0-based index)."""
+    labels = list(frame.data.columns)
+    if isinstance(col, int):
+        if col >= len(labels):
+            raise InputError.at(frame.path, f"column index {col} out of range (rows have "
+                                f"{len(labels)} fields; mapping key '{key}')")
+        return labels[col]
+    if col not in labels:
+        raise InputError.at(frame.path, "missing column (mapping key "
+                            f"'{key}'; file has: {', '.join(map(str, labels))})", column=col)
+    return col
+
+
+def _apply_mapping(frame: _Frame, mapping: ColumnMapping) -> tuple[list[Recording], int]:
+    path = frame.path
+    numeric_keys: list[tuple[str, str | int]] = []
+    if mapping.time is not None:
+        numeric_keys.append(("time.column", _resolve(frame, mapping.time.column, "time.column")))
+    for ch in mapping.channels:
+        numeric_keys.append((f"channels.{ch.name}.column",
+                             _resolve(frame, ch.column, f"channels.{ch.name}.column")))
+    values: dict[str | int, np.ndarray] = {}
+    bad_any = np.zeros(len(frame.data), dtype=bool)
+    first_bad: tuple[int, str | int] | None = None
+    for _, label in numeric_keys:
+        if label in values:
+            continue
+        cells = frame.data[label]
+        v = pd.to_numeric(cells.str.strip() if cells.dtype != np.float64 and
+                          hasattr(cells, "str") else cells, errors="coerce")
+        v = np.asarray(v, dtype=np.float64)
+        bad = ~np.isfinite(v)
+        values[label] = v
+        if bad.any():
+            bad_any |= bad
+            i = int(np.argmax(bad))
+            if first_bad is None or i < first_bad[0]:
+                first_bad = (i, label)
+    n_skipped = len(frame.skipped_lines)
+    if first_bad is not None:
+        if mapping.malformed_rows == "error":
+            i, label = first_bad
+            cell = frame.data[label].iloc[i]
+            what = ("empty cell" if str(cell).strip() == "" else
+                    f"non-finite value {str(cell).strip()!r}" if _is_float(cell) else
+                    f"non-numeric cell {str(cell).strip()!r}")
+            raise InputError.at(path, what + _line(frame, i), column=_label(label),
+                                row=int(frame.rows[i]))
+        n_skipped += int(bad_any.sum())
+        frame.skipped_lines += list(np.asarray(frame.lines if frame.lines is not None
+                                               else frame.rows)[bad_any])
+    keep = ~bad_any
+    rows = frame.rows[keep]
+    lines = None if frame.lines is None else frame.lines[keep]
+    if mapping.malformed_rows == "skip":
+        log.warning("%s: skipped %d malformed row(s)", path, n_skipped)
+    if mapping.time is not None:
+        t_label = _resolve(frame, mapping.time.column, "time.column")
+        time_s = values[t_label][keep] * mapping.time.seconds_per_unit
+    else:
+        t_label = "time_s"
+        time_s = (rows - 1) / mapping.sample_rate_hz
+    if mapping.run_column is not None:
+        r_label = _resolve(frame, mapping.run_column, "run_column")
+        run_ids = frame.data[r_label].astype(str).str.strip().to_numpy()[keep]
+        groups = [(str(rid), run_ids == rid) for rid in pd.unique(run_ids)]
+    else:
+        groups = [(mapping.run_id or path.stem, np.ones(int(keep.sum()), dtype=bool))]
+    kinds = {m.group(1) for c in mapping.channels if c.role == "output"
+             for m in [OUTPUT_NAME.match(c.name)]}
+    sensor_kind = mapping.sensor_kind or (kinds.pop() if len(kinds) == 1 else "mixed")
+    runs = []
+    for run_id, sel in groups:
+        t = time_s[sel]
+        _check_time(path, _label(t_label), t, rows[sel], None if lines is None else lines[sel])
+        chans: dict[str, dict[str, np.ndarray]] = {g: {} for g in _GROUPS}
+        temperature = None
+        units = {"time_s": "s"}
+        for ch in mapping.channels:
+            raw = values[_resolve(frame, ch.column, "")][keep][sel]
+            v = raw * ch.scale + ch.offset
+            units[ch.name] = ch.unit
+            role = ch.role
+            if role == "temperature":
+                temperature = v
+            else:
+                group = {"output": "outputs", "reference": "references", "drift": "drift",
+                         "proxy": "proxies"}[role]
+                chans[group][ch.name] = v
+        meta = dict(mapping.meta)
+        meta["source"] = str(path)
+        if mapping.source != "<conventional names>":
+            meta["mapping"] = mapping.source
+        if mapping.malformed_rows == "skip":
+            meta["skipped_rows"] = str(n_skipped)
+            # The first few only: enough to find them in an editor, short in a log.
+            meta["skipped_lines"] = ",".join(str(int(x)) for x in sorted(frame.skipped_lines)[:20])
+        runs.append(Recording(time_s=t, temperature_c=temperature, **chans, units=units,
+                              device_id=mapping.device_id, sensor_kind=sensor_kind,
+                              run_id=run_id, sample_rate_hz=mapping.sample_rate_hz, meta=meta))
+    return runs, n_skipped
+
+
+# ---------------------------------------------------------------- checks
+def _is_float(cell: object) -> bool:
+    try:
+        float(str(cell))
+    except ValueError:
+        return False
+    return True
+
+
+def _label(label: str | int) -> str:
+    return f"#{label} (0-based)" if isinstance(label, int) else str(label)
+
+
+def _line(frame: _Frame, i: int) -> str:
+    return "" if frame.lines is None else f" (file line {int(frame.lines[i])})"
+
+
+def _check_finite(path: Path, name: str, v: np.ndarray, rows: np.ndarray,
+                  lines: np.ndarray | None) -> np.ndarray:
+    bad = np.flatnonzero(~np.isfinite(v))
+    if bad.size:
+        i = int(bad[0])
+        where = "" if lines is None else f" (file line {int(lines[i])})"
+        raise InputError.at(path, f"non-finite value {float(v[i])!r}{where}", column=name,
+                            row=int(rows[i]))
+    return v
+
+
+def _check_time(path: Path, name: str, t: np.ndarray, rows: np.ndarray,
+                lines: np.ndarray | None) -> None:
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        kind = "duplicate" if dt[i - 1] == 0 else "decreasing"
+        where = "" if lines is None else f"; file line {int(lines[i])}"
+        raise InputError.at(path, f"{kind} timestamp {float(t[i])!r} s after "
+                            f"{float(t[i - 1])!r} s "
+                            f"(time must increase strictly{where})", column=name,
+                            row=int(rows[i]))
