@@ -1,0 +1,214 @@
+"""The contract every model family follows, and the wrapper that makes it a drift model.
+
+A :class:`Family` is the core of one model family.  It works in
+**standardised** units: features :math:`z = (x - \\bar x)/s_x` in, standardised
+drift :math:`(y - \\bar y)/s_y` out.  :class:`DriftModel` wraps it:
+
+.. math::
+
+    s \\xrightarrow{\\text{clamp}} [s_{lo}, s_{hi}]
+      \\xrightarrow{\\text{Features}} x
+      \\xrightarrow{} z = (x - \\bar x)/s_x
+      \\xrightarrow{\\text{Family}} \\hat y_z
+      \\xrightarrow{} \\hat y = \\hat y_z\\, s_y + \\bar y
+
+Everything in ``forward`` exports to ONNX (opset 18) and is simple enough to
+emit as C99: gather, add, mul, div, exp, abs, min/max, matmul.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..errors import ConfigError
+from ..features import FeatureSpec, Features
+
+__all__ = ["TINY", "Family", "DriftModel", "distinct_levels", "as_numpy", "least_squares"]
+
+#: Guard for every denominator (lmfit's ``max(tiny, sigma)``); float32-safe:
+#: its square (1e-12) is still a normal float32.
+TINY = 1e-6
+
+
+def as_numpy(a: object) -> np.ndarray:
+    """float64 copy of a tensor or array."""
+    if isinstance(a, torch.Tensor):
+        return a.detach().cpu().double().numpy()
+    return np.asarray(a, dtype=np.float64)
+
+
+def distinct_levels(values: np.ndarray, resolution: float = 0.005) -> int:
+    """Number of distinct levels of a 1-D series.
+
+    Sorted values are grouped greedily: a group holds every value within
+    ``resolution`` × the series' span of its smallest member.  Sensor noise
+    around one soak temperature thus counts as one level, while a ramp counts
+    as up to ``1/resolution + 1`` levels.  A constant series has one level.
+    """
+    v = np.sort(np.asarray(values, dtype=np.float64).ravel())
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return 0
+    tol = resolution * float(v[-1] - v[0])
+    if tol <= TINY * max(1.0, float(np.max(np.abs(v)))) * resolution:
+        return 1
+    levels, i = 0, 0
+    while i < v.size:  # at most 1/resolution + 1 iterations
+        levels += 1
+        i = int(np.searchsorted(v, v[i] + tol, side="right"))
+    return levels
+
+
+def least_squares(design: np.ndarray, y: np.ndarray, ridge: float = 1e-10) -> np.ndarray:
+    """Least-squares coefficients of ``design @ c ≈ y`` with a tiny ridge.
+
+    The ridge (relative to the mean diagonal of :math:`D^T D`) only decides
+    directions the data cannot see (a fuzzy rule no sample reaches); it does
+    not move a well-posed solution measurably.
+    """
+    d = np.asarray(design, dtype=np.float64)
+    g = d.T @ d
+    lam = ridge * max(float(np.trace(g)) / max(g.shape[0], 1), TINY)
+    return np.linalg.solve(g + lam * np.eye(g.shape[0]), d.T @ np.asarray(y, dtype=np.float64))
+
+
+class Family(nn.Module):
+    """Core of one model family, in standardised units.
+
+    Subclasses set ``name`` and ``max_inputs``, take their hyper-parameters as
+    keyword-only arguments (stored, validated, turned into parameters of a
+    shape fixed by ``n_inputs``, ``n_outputs`` and the hyper-parameters so a
+    checkpoint's ``state_dict`` loads into a fresh instance), and implement
+    :meth:`forward`, :meth:`initialize`, :meth:`check_fittable` and
+    :meth:`hyper`.
+
+    Parameters
+    ----------
+    n_inputs : int
+        Number of features F.
+    n_outputs : int
+        Number of output axes A.
+    """
+
+    name: ClassVar[str] = ""
+    max_inputs: ClassVar[int | None] = None
+    #: Inputs a config gets when it names none (study 003's RBF: ``[dT, dT2]``).
+    default_inputs: ClassVar[list[str]] = ["dT"]
+
+    def __init__(self, *, n_inputs: int, n_outputs: int) -> None:
+        super().__init__()
+        if int(n_inputs) < 1 or int(n_outputs) < 1:
+            raise ConfigError(f"model '{self.name}' needs at least one input and one output, "
+                              f"got {n_inputs} inputs, {n_outputs} outputs")
+        if self.max_inputs is not None and n_inputs > self.max_inputs:
+            raise ConfigError(f"model '{self.name}' takes at most {self.max_inputs} input(s), "
+                              f"got {n_inputs}")
+        self.n_inputs = int(n_inputs)
+        self.n_outputs = int(n_outputs)
+
+    def initialize(self, x: torch.Tensor, y: torch.Tensor, *, seed: int = 0,
+                   x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None) -> None:
+        """Closed-form or heuristic start from standardised data.
+
+        Parameters
+        ----------
+        x : (N, F) standardised features
+        y : (N, A) standardised targets
+        seed : int
+            For anything random (k-means).
+        x_mean, x_std : (F,)
+            The standardisation, for hyper-parameters given in physical
+            feature units (the fuzzy universe).
+        """
+        raise NotImplementedError
+
+    def check_fittable(self, x: torch.Tensor) -> str | None:
+        """Why this data cannot carry the family, or None when it can."""
+        return None
+
+    def hyper(self) -> dict[str, Any]:
+        """JSON-able hyper-parameters; ``type(self)(n_inputs=, n_outputs=, **hyper())``
+        rebuilds the same architecture."""
+        return {}
+
+    def extra_repr(self) -> str:
+        return f"n_inputs={self.n_inputs}, n_outputs={self.n_outputs}, {self.hyper()}"
+
+
+class DriftModel(nn.Module):
+    """Physical signals (N, S) → drift (N, A): Features, standardise, Family, de-standardise.
+
+    Signals are first clamped to the range seen in training (buffers
+    ``sig_lo``, ``sig_hi``): on board, a temperature outside the trained range
+    is evaluated at the edge (as PX4 does), and :meth:`out_of_range` says where
+    that happened so the host can flag it.
+
+    Parameters
+    ----------
+    family : Family
+        The core (available as ``model.family``; its name as ``model.family_name``).
+    spec : FeatureSpec
+        Inputs and references.
+    outputs : list of str
+        Output axis names (``gyro_x`` …), in column order of the drift.
+
+    Attributes
+    ----------
+    inputs, signals, outputs : list of str
+    spec : FeatureSpec
+    """
+
+    def __init__(self, *, family: Family, spec: FeatureSpec, outputs: list[str]) -> None:
+        super().__init__()
+        if family.n_inputs != len(spec.inputs):
+            raise ConfigError(f"family '{family.name}' built for {family.n_inputs} inputs, "
+                              f"spec has {len(spec.inputs)}: {spec.inputs}")
+        if family.n_outputs != len(outputs):
+            raise ConfigError(f"family '{family.name}' built for {family.n_outputs} outputs, "
+                              f"got {len(outputs)}: {list(outputs)}")
+        self.spec = spec
+        self.inputs = list(spec.inputs)
+        self.signals = spec.signals
+        self.outputs = list(outputs)
+        self.features = Features(spec)
+        self.family = family
+        f, a, s = len(self.inputs), len(self.outputs), len(self.signals)
+        self.register_buffer("x_mean", torch.zeros(f))
+        self.register_buffer("x_std", torch.ones(f))
+        self.register_buffer("y_mean", torch.zeros(a))
+        self.register_buffer("y_std", torch.ones(a))
+        self.register_buffer("sig_lo", torch.full((s,), -torch.inf))
+        self.register_buffer("sig_hi", torch.full((s,), torch.inf))
+
+    @property
+    def family_name(self) -> str:
+        return self.family.name
+
+    @property
+    def n_params(self) -> int:
+        """Number of trained parameters."""
+        return int(sum(p.numel() for p in self.parameters() if p.requires_grad))
+
+    def set_scaling(self, *, x_mean: np.ndarray, x_std: np.ndarray, y_mean: np.ndarray,
+                    y_std: np.ndarray, sig_lo: np.ndarray, sig_hi: np.ndarray) -> None:
+        """Store the standardisation and the trained signal range (float32 buffers)."""
+        for name, value in (("x_mean", x_mean), ("x_std", x_std), ("y_mean", y_mean),
+                            ("y_std", y_std), ("sig_lo", sig_lo), ("sig_hi", sig_hi)):
+            buf = getattr(self, name)
+            buf.copy_(torch.as_tensor(np.asarray(value, dtype=np.float64), dtype=buf.dtype))
+
+    def out_of_range(self, signals: torch.Tensor | np.ndarray) -> torch.Tensor:
+        """Bool (N,): true where any signal lies outside the trained range or is NaN."""
+        s = torch.as_tensor(signals, dtype=torch.float32, device=self.sig_lo.device)
+        inside = (s >= self.sig_lo) & (s <= self.sig_hi)  # NaN compares false
+        return ~inside.all(dim=1)
+
+    def forward(self, signals: torch.Tensor) -> torch.Tensor:
+        s = signals.to(torch.float32)
+        s = torch.minimum(torch.maximum(s, self.sig_lo), self.sig_hi)
+        z = (self.features(s) - self.x_mean) / self.x_std
+        return self.family(z) * self.y_std + self.y_mean

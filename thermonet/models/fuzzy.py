@@ -1,0 +1,105 @@
+"""One-input Takagi–Sugeno fuzzy model (study 002).
+
+``n_sets`` triangular membership functions with peaks :math:`p_i` evenly
+spaced over the universe :math:`[l, h]` and half-width the spacing
+:math:`\\delta = (h - l)/(n - 1)`, so inside the universe they sum to one:
+
+.. math::
+
+    \\lambda_i(z) = \\max\\!\\left(0,\\ 1 - \\frac{|\\tilde z - p_i|}{\\delta}\\right),
+    \\quad \\tilde z = \\min(\\max(z, l), h)
+
+    y_i = b_i + a_i \\tilde z, \\qquad
+    \\hat y = \\frac{\\sum_i \\lambda_i y_i}{\\max(\\text{tiny}, \\sum_i \\lambda_i)}
+
+The universe defaults to the trained input range; ``universe=[lo, hi]`` gives
+it in the input feature's own units (``T``: °C, e.g. study 002's [−40, 75];
+``dT``: °C relative to T_ref) and is converted to standardised units at
+:meth:`TSFuzzy.initialize`.  The sets are fixed (as in the study); the rule
+coefficients :math:`a_i, b_i` (per axis) are found by least squares — the
+output is linear in them — and then refined by the training loop.  Rules whose
+set no sample reaches keep the minimum-norm (ridge) value, zero.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..errors import ConfigError
+from .base import TINY, Family, as_numpy, distinct_levels, least_squares
+
+__all__ = ["TSFuzzy"]
+
+
+class TSFuzzy(Family):
+    """Takagi–Sugeno fuzzy model: triangular sets, first-order rules, per-axis coefficients."""
+
+    name = "ts-fuzzy"
+    max_inputs = 1
+    default_inputs = ["T"]
+
+    def __init__(self, *, n_inputs: int, n_outputs: int, n_sets: int = 6,
+                 universe: list[float] | None = None) -> None:
+        super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
+        if isinstance(n_sets, bool) or not isinstance(n_sets, int) or not 2 <= n_sets <= 64:
+            raise ConfigError(f"ts-fuzzy: n_sets must be an integer in 2..64, got {n_sets!r}")
+        if universe is not None:
+            try:
+                lo, hi = (float(v) for v in universe)
+            except (TypeError, ValueError):
+                raise ConfigError(f"ts-fuzzy: universe must be [lo, hi], got {universe!r}") from None
+            if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+                raise ConfigError(f"ts-fuzzy: universe must be finite with lo < hi, got {universe!r}")
+            universe = [lo, hi]
+        self.n_sets = int(n_sets)
+        self.universe = universe
+        self.slope = nn.Parameter(torch.zeros(n_outputs, n_sets))      # a_i
+        self.intercept = nn.Parameter(torch.zeros(n_outputs, n_sets))  # b_i
+        self.register_buffer("peaks", torch.linspace(-1.0, 1.0, n_sets))
+        self.register_buffer("spacing", torch.tensor([2.0 / (n_sets - 1)]))
+        self.register_buffer("bounds", torch.tensor([-1.0, 1.0]))
+
+    def memberships(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Clamped input (N, 1) and normalised memberships (N, n_sets)."""
+        x = torch.minimum(torch.maximum(z[:, 0:1], self.bounds[0:1]), self.bounds[1:2])
+        lam = torch.relu(1.0 - torch.abs(x - self.peaks) / torch.clamp(self.spacing, min=TINY))
+        return x, lam / torch.clamp(lam.sum(dim=1, keepdim=True), min=TINY)
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        x, lam = self.memberships(z)
+        return lam @ self.intercept.T + (lam * x) @ self.slope.T
+
+    def check_fittable(self, x: torch.Tensor) -> str | None:
+        levels = distinct_levels(as_numpy(x)[:, 0])
+        if levels < 2:
+            return "the input takes a single value; the fuzzy rules need at least 2"
+        return None
+
+    def initialize(self, x: torch.Tensor, y: torch.Tensor, *, seed: int = 0,
+                   x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None) -> None:
+        xn = as_numpy(x)
+        if self.universe is None:
+            lo, hi = float(xn[:, 0].min()), float(xn[:, 0].max())
+        else:
+            m = 0.0 if x_mean is None else float(np.asarray(x_mean).ravel()[0])
+            s = 1.0 if x_std is None else float(np.asarray(x_std).ravel()[0])
+            lo, hi = ((u - m) / s for u in self.universe)
+        if hi - lo <= TINY:
+            raise ConfigError(f"ts-fuzzy: empty universe [{lo}, {hi}] (standardised)")
+        with torch.no_grad():
+            self.bounds.copy_(torch.tensor([lo, hi]))
+            self.peaks.copy_(torch.linspace(lo, hi, self.n_sets))
+            self.spacing.fill_((hi - lo) / (self.n_sets - 1))
+            xc, lam = self.memberships(torch.as_tensor(xn, dtype=torch.float32))
+        lam_n, xc_n = as_numpy(lam), as_numpy(xc)
+        coef = least_squares(np.hstack([lam_n, lam_n * xc_n]), as_numpy(y))  # (2n, A)
+        with torch.no_grad():
+            self.intercept.copy_(torch.as_tensor(coef[:self.n_sets].T))
+            self.slope.copy_(torch.as_tensor(coef[self.n_sets:].T))
+
+    def hyper(self) -> dict[str, Any]:
+        return {"n_sets": self.n_sets, "universe": self.universe}

@@ -1,0 +1,57 @@
+"""Linear drift model (study 000's baseline).
+
+.. math:: \\hat y = W z + b
+
+on standardised features :math:`z`; per axis, study 000's
+:math:`B(T) = k\\,T + b`.  Fitted in closed form (least squares); training only
+polishes it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from .base import Family, as_numpy, distinct_levels, least_squares
+
+__all__ = ["Linear"]
+
+
+class Linear(Family):
+    """:math:`\\hat y = W z + b`, ``W`` of shape (A, F)."""
+
+    name = "linear"
+    max_inputs = None
+    default_inputs = ["T"]
+
+    def __init__(self, *, n_inputs: int, n_outputs: int) -> None:
+        super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
+        self.weight = nn.Parameter(torch.zeros(n_outputs, n_inputs))
+        self.bias = nn.Parameter(torch.zeros(n_outputs))
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        return z @ self.weight.T + self.bias
+
+    def check_fittable(self, x: torch.Tensor) -> str | None:
+        xn = as_numpy(x)
+        if xn.shape[0] < self.n_inputs + 1:
+            return f"{xn.shape[0]} samples for {self.n_inputs + 1} coefficients per axis"
+        for j in range(xn.shape[1]):
+            if distinct_levels(xn[:, j]) < 2:
+                return f"input {j + 1} takes a single value: no slope to fit"
+        return None
+
+    def initialize(self, x: torch.Tensor, y: torch.Tensor, *, seed: int = 0,
+                   x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None) -> None:
+        xn, yn = as_numpy(x), as_numpy(y)
+        design = np.hstack([xn, np.ones((xn.shape[0], 1))])
+        coef = least_squares(design, yn)  # (F + 1, A)
+        with torch.no_grad():
+            self.weight.copy_(torch.as_tensor(coef[:-1].T))
+            self.bias.copy_(torch.as_tensor(coef[-1]))
+
+    def hyper(self) -> dict[str, Any]:
+        return {}

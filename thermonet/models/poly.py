@@ -1,0 +1,102 @@
+"""Polynomial drift model (PX4/ArduPilot's cubic on dT; study 001's quadratic in Δf).
+
+With one input :math:`z` and degree :math:`n`:
+
+.. math:: \\hat y_a = b_a + \\sum_{k=1}^{n} c_{a,k}\\, z^k
+
+With several inputs, by default each input contributes its own powers
+:math:`z_i^1 \\dots z_i^n` and there are **no cross terms** (``cross=False``):
+thermal models are built from one temperature-like input plus, at most, a
+rate, and cross terms multiply the parameter count for no documented gain.
+``cross=True`` uses every monomial of total degree 1…n instead.
+"""
+
+from __future__ import annotations
+
+from itertools import combinations_with_replacement
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..errors import ConfigError
+from .base import Family, as_numpy, distinct_levels, least_squares
+
+__all__ = ["Poly", "monomials"]
+
+
+def monomials(n_inputs: int, degree: int, cross: bool) -> list[tuple[int, ...]]:
+    """Exponent tuples (one entry per input) of the polynomial's terms, constant excluded."""
+    if not cross:
+        return [tuple(k if i == j else 0 for i in range(n_inputs))
+                for j in range(n_inputs) for k in range(1, degree + 1)]
+    terms = []
+    for d in range(1, degree + 1):
+        for combo in combinations_with_replacement(range(n_inputs), d):
+            terms.append(tuple(combo.count(i) for i in range(n_inputs)))
+    return terms
+
+
+class Poly(Family):
+    """Polynomial of degree ``degree`` in each input (cross terms with ``cross=True``)."""
+
+    name = "poly"
+    max_inputs = None
+    default_inputs = ["dT"]
+
+    def __init__(self, *, n_inputs: int, n_outputs: int, degree: int = 3,
+                 cross: bool = False) -> None:
+        super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
+        if isinstance(degree, bool) or not isinstance(degree, int) or not 1 <= degree <= 12:
+            raise ConfigError(f"poly: degree must be an integer in 1..12, got {degree!r}")
+        self.degree = int(degree)
+        self.cross = bool(cross)
+        self.terms = monomials(n_inputs, self.degree, self.cross)
+        self.weight = nn.Parameter(torch.zeros(n_outputs, len(self.terms)))
+        self.bias = nn.Parameter(torch.zeros(n_outputs))
+
+    def design(self, z: torch.Tensor) -> torch.Tensor:
+        """Term matrix (N, n_terms), built by repeated multiplication (exports as Mul)."""
+        cols = [z[:, i:i + 1] for i in range(self.n_inputs)]
+        powers = []
+        for c in cols:
+            p = [c]
+            for _ in range(1, self.degree):
+                p.append(p[-1] * c)
+            powers.append(p)
+        out = []
+        for exps in self.terms:
+            term = None
+            for i, e in enumerate(exps):
+                if e:
+                    term = powers[i][e - 1] if term is None else term * powers[i][e - 1]
+            out.append(term)
+        return torch.cat(out, dim=1)
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        return self.design(z) @ self.weight.T + self.bias
+
+    def check_fittable(self, x: torch.Tensor) -> str | None:
+        xn = as_numpy(x)
+        n_coef = len(self.terms) + 1
+        if xn.shape[0] < n_coef:
+            return f"{xn.shape[0]} samples for {n_coef} coefficients per axis"
+        for j in range(xn.shape[1]):
+            levels = distinct_levels(xn[:, j])
+            if levels < self.degree + 1:
+                return (f"input {j + 1} takes {levels} distinct value(s); a degree-"
+                        f"{self.degree} polynomial needs at least {self.degree + 1}")
+        return None
+
+    def initialize(self, x: torch.Tensor, y: torch.Tensor, *, seed: int = 0,
+                   x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None) -> None:
+        with torch.no_grad():
+            d = as_numpy(self.design(torch.as_tensor(as_numpy(x))))
+        coef = least_squares(np.hstack([d, np.ones((d.shape[0], 1))]), as_numpy(y))
+        with torch.no_grad():
+            self.weight.copy_(torch.as_tensor(coef[:-1].T))
+            self.bias.copy_(torch.as_tensor(coef[-1]))
+
+    def hyper(self) -> dict[str, Any]:
+        return {"degree": self.degree, "cross": self.cross}

@@ -1,0 +1,332 @@
+"""The one training loop every family goes through.
+
+``fit`` standardises the training data, asks the family whether the data can
+carry it (:meth:`~thermonet.models.base.Family.check_fittable`), starts it in
+closed form (:meth:`~thermonet.models.base.Family.initialize`), then refines
+it by full-batch gradient descent (skorch's ``fit_loop → run_epoch →
+train_step / valid_step``), keeping the parameters with the best validation
+loss.  The loss is the mean squared error in standardised units:
+
+.. math:: L = \\frac{1}{N A} \\sum_{n, a} \\left(\\frac{\\hat y_{na} - y_{na}}{s_{y,a}}\\right)^2
+
+Epoch 0 in the history is the initialised model, so the history always shows
+what training added to the closed-form start.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+
+from .errors import ConfigError, FitError, InputError
+from .features import FeatureSpec
+from .models import DriftModel, build_family
+
+__all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate"]
+
+_OPTIMIZERS = ("adam", "lbfgs")
+_DEVICES = ("auto", "cpu", "cuda")
+
+
+@dataclass
+class TrainConfig:
+    """How a family is trained (all losses in standardised MSE units).
+
+    Attributes
+    ----------
+    optimizer : "adam" or "lbfgs"
+    lr : float
+        Learning rate (Adam step size; L-BFGS initial step, 1.0 is usual).
+    max_epochs : int
+        Full-batch epochs at most (one optimizer step each; an L-BFGS step runs
+        up to 20 inner iterations).
+    patience : int
+        Epochs without an improvement larger than ``min_delta`` of the
+        monitored loss (validation, or training without a validation run)
+        before stopping.
+    min_delta : float
+        Smallest improvement that counts, standardised MSE (absolute).
+    seed : int
+        Seeds torch and every numpy/scikit-learn draw (k-means, random centres).
+    device : "auto", "cpu" or "cuda"
+        "auto" is CUDA when available; the returned model is always on CPU.
+    max_train_samples : int
+        Training (and, separately, validation) samples kept per fit.  Longer
+        data are **decimated evenly** — every k-th sample of every run, with
+        k = ceil(total / max) — never randomly sampled, so the time structure
+        (ramps, soaks) is kept.
+    """
+
+    optimizer: str = "adam"
+    lr: float = 1e-2
+    max_epochs: int = 2000
+    patience: int = 100
+    min_delta: float = 1e-7
+    seed: int = 0
+    device: str = "cpu"
+    max_train_samples: int = 20000
+
+    def __post_init__(self) -> None:
+        if self.optimizer not in _OPTIMIZERS:
+            raise ConfigError(f"train.optimizer must be one of {', '.join(_OPTIMIZERS)}, "
+                              f"got {self.optimizer!r}")
+        if self.device not in _DEVICES:
+            raise ConfigError(f"train.device must be one of {', '.join(_DEVICES)}, "
+                              f"got {self.device!r}")
+        for key, lo in (("max_epochs", 0), ("patience", 1), ("max_train_samples", 10)):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                raise ConfigError(f"train.{key} must be an integer >= {lo}, got {v!r}")
+        for key in ("lr", "min_delta"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or v < 0 or (key == "lr" and v == 0):
+                raise ConfigError(f"train.{key} must be a finite number "
+                                  f"{'> 0' if key == 'lr' else '>= 0'}, got {v!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
+            raise ConfigError(f"train.seed must be an integer, got {self.seed!r}")
+
+
+@dataclass
+class FitResult:
+    """What :func:`fit` returns."""
+
+    model: DriftModel
+    history: list[dict] = field(default_factory=list)
+    best_epoch: int = 0
+    best_val_loss: float | None = None
+    fit_seconds: float = 0.0
+    n_params: int = 0
+
+
+def decimate(runs: Sequence[tuple[np.ndarray, np.ndarray]], max_samples: int
+             ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Keep every k-th sample of every run, k = ceil(total / max_samples)."""
+    total = sum(s.shape[0] for s, _ in runs)
+    step = max(1, math.ceil(total / max_samples))
+    return [(s[::step], y[::step]) for s, y in runs]
+
+
+def _check_run(what: str, signals: object, targets: object, n_sig: int, outputs: list[str],
+               signal_names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    s = np.asarray(signals, dtype=np.float64)
+    y = np.asarray(targets, dtype=np.float64)
+    if y.ndim == 1:
+        y = y[:, None]
+    if s.ndim != 2 or s.shape[1] != n_sig:
+        raise InputError(f"{what}: signals have shape {s.shape}, expected (n, {n_sig}) "
+                         f"for {signal_names}")
+    if y.ndim != 2 or y.shape != (s.shape[0], len(outputs)):
+        raise InputError(f"{what}: targets have shape {y.shape}, expected "
+                         f"({s.shape[0]}, {len(outputs)}) for {outputs}")
+    for arr, names, kind in ((s, signal_names, "signal"), (y, outputs, "target")):
+        bad = np.argwhere(~np.isfinite(arr))
+        if bad.size:
+            row, col = (int(v) for v in bad[0])
+            raise FitError(f"{what}: {kind} '{names[col]}' is {float(arr[row, col])} at row {row}; "
+                           "remove or fill non-finite samples before fitting")
+    return s, y
+
+
+def _resolve_device(name: str) -> torch.device:
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("train.device is 'cuda' but no CUDA device is available")
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def _std(a: np.ndarray) -> np.ndarray:
+    mean, std = a.mean(axis=0), a.std(axis=0)
+    # A constant column (rate on soaks, an axis with no drift) keeps unit scale.
+    return np.where(std > 1e-12 * np.maximum(1.0, np.abs(mean)), std, 1.0)
+
+
+def fit(*, family: str, inputs: list[str], outputs: list[str],
+        train: list[tuple[np.ndarray, np.ndarray]], val: tuple[np.ndarray, np.ndarray] | None,
+        spec: FeatureSpec, hyper: dict | None, config: TrainConfig,
+        on_epoch: Callable[[int, float, float | None], None] | None = None) -> FitResult:
+    """Fit one family to drift.
+
+    Parameters
+    ----------
+    family : str
+        A name in :data:`thermonet.models.MODELS`.
+    inputs : list of str
+        Feature names; must equal ``spec.inputs``.
+    outputs : list of str
+        Output axis names (columns of the targets).
+    train : list of (signals (n, S), targets (n, A))
+        One pair per training run; signals in ``spec.signals`` order
+        (see :func:`thermonet.features.run_arrays`), targets = observed drift.
+    val : (signals, targets) or None
+        The held-out run for early stopping; None stops on a training-loss plateau.
+    spec : FeatureSpec
+    hyper : dict
+        Family hyper-parameters.
+    config : TrainConfig
+    on_epoch : callable(epoch, train_loss, val_loss), optional
+        Called after every epoch, epoch 0 (the initialised model) included.
+
+    Returns
+    -------
+    FitResult
+        ``model`` in eval mode on CPU, holding the best-monitored-loss parameters.
+
+    Raises
+    ------
+    FitError
+        The data cannot carry the family (reason given), a non-finite target,
+        a NaN loss, or a model whose outputs are not finite.
+    ConfigError
+        Unknown family / hyper-parameter, inputs not matching the spec.
+    """
+    t0 = time.perf_counter()
+    if list(inputs) != list(spec.inputs):
+        raise ConfigError(f"inputs {list(inputs)} differ from the feature spec's {spec.inputs}")
+    if not outputs:
+        raise ConfigError("outputs: need at least one output axis")
+    if not train:
+        raise InputError("no training run")
+    signal_names = spec.signals
+    fam = build_family(family, n_inputs=len(inputs), n_outputs=len(outputs), hyper=hyper)
+    model = DriftModel(family=fam, spec=spec, outputs=list(outputs))
+
+    runs = [_check_run(f"training run {i + 1}", s, y, len(signal_names), list(outputs),
+                       signal_names) for i, (s, y) in enumerate(train)]
+    val_run = None if val is None else _check_run("validation run", val[0], val[1],
+                                                  len(signal_names), list(outputs), signal_names)
+    sig_all = np.vstack([s for s, _ in runs])
+    sig_lo, sig_hi = sig_all.min(axis=0), sig_all.max(axis=0)
+    runs = decimate(runs, config.max_train_samples)
+    s_tr = np.vstack([s for s, _ in runs])
+    y_tr = np.vstack([y for _, y in runs])
+
+    with torch.no_grad():
+        x_tr = model.features(torch.as_tensor(s_tr)).numpy()
+    x_mean, x_std = x_tr.mean(axis=0), _std(x_tr)
+    y_mean, y_std = y_tr.mean(axis=0), _std(y_tr)
+    model.set_scaling(x_mean=x_mean, x_std=x_std, y_mean=y_mean, y_std=y_std,
+                      sig_lo=sig_lo, sig_hi=sig_hi)
+    z_tr = (x_tr - x_mean) / x_std
+    yz_tr = (y_tr - y_mean) / y_std
+
+    reason = fam.check_fittable(torch.as_tensor(z_tr))
+    if reason:
+        raise FitError(f"model '{family}' with inputs {list(inputs)} cannot be fitted: {reason}")
+
+    torch.manual_seed(config.seed)
+    fam.initialize(torch.as_tensor(z_tr), torch.as_tensor(yz_tr), seed=config.seed,
+                   x_mean=x_mean, x_std=x_std)
+
+    z_v = y_vz = None
+    if val_run is not None:
+        (s_v, y_v), = decimate([val_run], config.max_train_samples)
+        # Validation goes through the deployed path: clamp to the trained range first.
+        with torch.no_grad():
+            x_v = model.features(torch.as_tensor(np.clip(s_v, sig_lo, sig_hi))).numpy()
+        z_v, y_vz = (x_v - x_mean) / x_std, (y_v - y_mean) / y_std
+
+    device = _resolve_device(config.device)
+    model.to(device)
+
+    def dev(a: np.ndarray | None) -> torch.Tensor | None:
+        return None if a is None else torch.as_tensor(a, dtype=torch.float32, device=device)
+
+    history, best_epoch, best_val = _fit_loop(fam, dev(z_tr), dev(yz_tr), dev(z_v), dev(y_vz),
+                                              config, family, on_epoch)
+
+    model.to("cpu").eval()
+    with torch.no_grad():
+        pred = model(torch.as_tensor(s_tr, dtype=torch.float32))
+    if not torch.isfinite(pred).all():
+        raise FitError(f"model '{family}': the fitted model gives non-finite drift on the "
+                       "training data; refusing it")
+    return FitResult(model=model, history=history, best_epoch=best_epoch, best_val_loss=best_val,
+                     fit_seconds=time.perf_counter() - t0, n_params=model.n_params)
+
+
+def _mse(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    return torch.mean((fam(z) - y) ** 2)
+
+
+def _train_step(fam: torch.nn.Module, opt: torch.optim.Optimizer, z: torch.Tensor,
+                y: torch.Tensor) -> None:
+    def closure() -> torch.Tensor:
+        opt.zero_grad()
+        loss = _mse(fam, z, y)
+        loss.backward()
+        return loss
+    opt.step(closure)
+
+
+def _valid_step(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> float:
+    with torch.no_grad():
+        return float(_mse(fam, z, y))
+
+
+def _fit_loop(fam: torch.nn.Module, zt: torch.Tensor, yt: torch.Tensor, zv: torch.Tensor | None,
+              yv: torch.Tensor | None, config: TrainConfig, family: str,
+              on_epoch: Callable | None) -> tuple[list[dict], int, float | None]:
+    params = [p for p in fam.parameters() if p.requires_grad]
+    if config.optimizer == "lbfgs":
+        opt: torch.optim.Optimizer = torch.optim.LBFGS(params, lr=config.lr, max_iter=20,
+                                                       line_search_fn="strong_wolfe")
+    else:
+        opt = torch.optim.Adam(params, lr=config.lr)
+    history: list[dict] = []
+    best = math.inf
+    best_state = copy.deepcopy(fam.state_dict())
+    best_epoch, wait = 0, 0
+    best_val: float | None = None
+    fam.train()
+    for epoch in range(config.max_epochs + 1):
+        if epoch > 0:
+            _train_step(fam, opt, zt, yt)
+        train_loss = _valid_step(fam, zt, yt)
+        val_loss = None if zv is None else _valid_step(fam, zv, yv)
+        if not math.isfinite(train_loss) or (val_loss is not None and not math.isfinite(val_loss)):
+            raise FitError(f"model '{family}': NaN loss at epoch {epoch} "
+                           f"(optimizer {config.optimizer}, lr {config.lr:g}; try a lower lr)")
+        history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
+        if on_epoch is not None:
+            on_epoch(epoch, train_loss, val_loss)
+        monitored = train_loss if val_loss is None else val_loss
+        if monitored < best - config.min_delta:
+            best, best_epoch, wait = monitored, epoch, 0
+            best_state = copy.deepcopy(fam.state_dict())
+            best_val = val_loss
+        else:
+            wait += 1
+            if wait >= config.patience:
+                break
+    fam.load_state_dict(best_state)
+    fam.eval()
+    return history, best_epoch, best_val
+
+
+def predict(model: DriftModel, signals: np.ndarray) -> np.ndarray:
+    """Drift (n, A), float64, from signals (n, S) in ``model.signals`` order.
+
+    Evaluated on CPU under ``torch.no_grad()``, through the same clamp as on
+    board (use ``model.out_of_range`` to flag samples outside the trained range).
+    """
+    s = np.asarray(signals, dtype=np.float64)
+    if s.ndim != 2 or s.shape[1] != len(model.signals):
+        raise InputError(f"signals have shape {s.shape}, expected (n, {len(model.signals)}) "
+                         f"for {model.signals}")
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.no_grad():
+            out = model(torch.as_tensor(s, dtype=torch.float32,
+                                        device=model.sig_lo.device))
+    finally:
+        model.train(was_training)
+    return out.cpu().double().numpy()
