@@ -1,0 +1,44 @@
+"""Shared fixtures: small recordings the tests make themselves."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thermonet.io import write_parquet
+from thermonet.recording import Dataset, Recording
+
+REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+
+
+def toy_dataset(*, n_runs: int = 4, drift_scale: float = 1.0, noise: float = 0.002,
+                seed: int = 0, soak_levels: list[float] | None = None) -> Dataset:
+    """A 1-axis gyro on 2-hour ramps −20 → 50 °C, drift 0.05 + 0.01·ΔT − 2e-4·ΔT² deg/s.
+
+    With ``soak_levels`` the temperature steps through those levels instead
+    (few distinct temperatures, for the can-not-fit cases).
+    """
+    rng = np.random.default_rng(seed)
+    runs = []
+    for k in range(n_runs):
+        t = np.arange(0.0, 2 * 3600.0, 1.0)
+        if soak_levels:
+            temp = np.repeat(soak_levels, int(np.ceil(t.size / len(soak_levels))))[: t.size]
+            temp = temp + rng.normal(0, 0.01, t.size)
+        else:
+            temp = -20.0 + 70.0 * t / t[-1] + 0.2 * k
+        d = temp + 20.0
+        drift = drift_scale * (0.05 + 0.01 * d - 2e-4 * d ** 2)
+        runs.append(Recording(
+            time_s=t, temperature_c=temp,
+            outputs={"gyro_x": drift + rng.normal(0.0, noise, t.size)},
+            drift={"drift_gyro_x": drift}, units={"gyro_x": "deg/s", "temperature_c": "degC"},
+            device_id="toy", run_id=f"run{k}", sample_rate_hz=1.0))
+    return Dataset(runs)
+
+
+@pytest.fixture
+def toy_parquet(tmp_path: Path) -> Path:
+    return write_parquet(toy_dataset(), tmp_path / "toy.parquet")

@@ -1,0 +1,113 @@
+"""`compare` end to end on data the tests make: honest split, metrics, choice, tracking."""
+
+from __future__ import annotations
+
+import json
+
+import mlflow
+import numpy as np
+import pytest
+
+from conftest import toy_dataset
+from thermonet.checkpoint import load_checkpoint
+from thermonet.compare import format_table, run_compare
+from thermonet.config import CompareConfig, DataConfig, FamilyConfig, TrainSettings
+from thermonet.io import write_parquet
+from thermonet.train import predict
+
+FAST = TrainSettings(max_epochs=60, patience=10)
+
+
+def config(path, families, **kw) -> CompareConfig:
+    return CompareConfig(data=DataConfig(paths=[str(path)]), families=families, train=FAST, **kw)
+
+
+def test_compare_recovers_quadratic_drift_and_writes_everything(tmp_path):
+    path = write_parquet(toy_dataset(), tmp_path / "toy.parquet")
+    fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
+            FamilyConfig(family="linear", name="linear")]
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    res = run_compare(config(path, fams), tmp_path / "out", tracking_uri=uri, quiet=True)
+
+    # split by run: train run0, run1; validate run2; test run3
+    assert res["split"]["folds"] == [{"train": ["run0", "run1"], "val": "run2", "test": "run3"}]
+    cubic = res["families"]["cubic"]["axes"]["gyro_x"]
+    linear = res["families"]["linear"]["axes"]["gyro_x"]
+    # the drift is quadratic: the cubic leaves only the noise (σ = 0.002), the line does not
+    assert cubic["rms_comp"] == pytest.approx(0.002, rel=0.1)
+    assert cubic["drift_error_rms"] < 0.001
+    assert linear["rms_comp"] > 10 * cubic["rms_comp"]
+    # raw pp of 1 °C-binned means of 0.05 + 0.01 d − 2e-4 d²  over d in [0.6, 70.6]
+    d = np.linspace(0.6, 70.6, 1000)
+    assert cubic["pp_raw"] == pytest.approx(np.ptp(0.01 * d - 2e-4 * d ** 2), rel=0.05)
+    assert cubic["pp_raw"] / cubic["pp_comp"] > 10
+    assert res["chosen"] == "cubic"
+
+    out = tmp_path / "out"
+    on_disk = json.loads((out / "results.json").read_text())
+    assert on_disk["chosen"] == "cubic"
+    assert set(on_disk["families"]["cubic"]) >= {"fit_seconds", "n_params", "axes", "status"}
+    assert on_disk["families"]["cubic"]["n_params"] == 4
+    assert sorted(p.name for p in (out / "plots").glob("*.png")) == [
+        "allan_gyro_x.png", "drift_vs_temperature_gyro_x.png", "residual_vs_time_gyro_x.png"]
+    model, meta = load_checkpoint(out / "models" / "cubic.pt")
+    sig = np.array([[-20.0], [15.0], [50.0]])
+    truth = 0.05 + 0.01 * (sig[:, 0] + 20) - 2e-4 * (sig[:, 0] + 20) ** 2
+    assert np.allclose(predict(model, sig)[:, 0], truth, atol=2e-3)
+
+    client = mlflow.tracking.MlflowClient(tracking_uri=uri)
+    parent = client.get_run(res["mlflow_run_id"])
+    assert parent.data.tags["chosen"] == "cubic"
+    child = client.get_run(res["families"]["cubic"]["mlflow_run_id"])
+    assert child.data.tags["mlflow.parentRunId"] == parent.info.run_id
+    assert child.data.tags["family"] == "poly"
+    assert child.data.metrics["test/gyro_x/rms_comp"] == pytest.approx(cubic["rms_comp"])
+    assert len(client.get_metric_history(child.info.run_id, "val/loss")) >= 2
+    arts = {a.path for a in client.list_artifacts(parent.info.run_id)}
+    assert {"results.json", "config.resolved.yaml", "plots"} <= arts
+    assert "cubic" in format_table(res) and "chosen: cubic" in format_table(res)
+
+
+def test_family_that_cannot_fit_is_reported_and_others_go_on(tmp_path):
+    path = write_parquet(toy_dataset(soak_levels=[0.0, 20.0, 40.0]), tmp_path / "soaks.parquet")
+    fams = [FamilyConfig(family="poly", name="poly6", params={"degree": 6}),
+            FamilyConfig(family="linear", name="linear")]
+    res = run_compare(config(path, fams), tmp_path / "out", track=False, quiet=True)
+    bad = res["families"]["poly6"]
+    assert bad["status"] == "failed"
+    assert "3 distinct" in bad["reason"]
+    assert bad["checkpoint"] is None
+    assert res["families"]["linear"]["status"] == "ok"
+    assert not (tmp_path / "out" / "models" / "poly6.pt").exists()
+    assert "poly6" in format_table(res) and "not fitted" in format_table(res)
+
+
+def test_do_no_harm_when_nothing_beats_raw(tmp_path):
+    # no thermal drift at all: every model can only add error on held-out data
+    path = write_parquet(toy_dataset(drift_scale=0.0, noise=0.01), tmp_path / "flat.parquet")
+    fams = [FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"], params={"n_centres": 8})]
+    res = run_compare(config(path, fams), tmp_path / "out", track=False, quiet=True)
+    assert res["chosen"] is None
+    assert "do no harm" in res["chosen_reason"]
+
+
+def test_single_run_is_split_in_contiguous_time_blocks(tmp_path):
+    ds = toy_dataset(n_runs=1)
+    path = write_parquet(ds, tmp_path / "one.parquet")
+    fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3})]
+    res = run_compare(config(path, fams), tmp_path / "out", track=False, quiet=True)
+    fold = res["split"]["folds"][0]
+    assert fold == {"train": "run0[train]", "val": "run0[val]", "test": "run0[test]"}
+    assert res["split"]["strategy"] == "time-blocks"
+
+
+def test_leave_one_run_out_reports_folds(tmp_path):
+    path = write_parquet(toy_dataset(n_runs=3), tmp_path / "three.parquet")
+    cfg = config(path, [FamilyConfig(family="poly", name="quad", params={"degree": 2})])
+    cfg.split.strategy = "leave-one-run-out"
+    res = run_compare(cfg, tmp_path / "out", track=False, quiet=True)
+    assert [f["test"] for f in res["split"]["folds"]] == ["run0", "run1", "run2"]
+    fam = res["families"]["quad"]
+    assert len(fam["folds"]) == 3
+    mean = np.mean([f["gyro_x"]["rms_comp"] for f in fam["folds"]])
+    assert fam["axes"]["gyro_x"]["rms_comp"] == pytest.approx(mean)
