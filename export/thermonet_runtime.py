@@ -1,0 +1,390 @@
+"""Run a thermonet drift-compensation model on board: numpy + onnxruntime only.
+
+This file is the whole runtime.  Copy it next to the ``.onnx`` file a
+thermonet training run exported; it never imports torch or thermonet.
+
+.. math::
+
+    \\text{compensated} = \\text{raw} - \\text{drift}(\\text{signals})
+
+The graph evaluates the features (ΔT, ΔT², rate, Δproxy), the model and the
+clamp of every signal to the range it was trained on; ``out_of_range`` is true
+where a signal was outside that range (the drift is then the edge value) or
+was not finite (the drift and the compensated output are then NaN).
+
+Python use::
+
+    from thermonet_runtime import Compensator
+    comp = Compensator("model.onnx")
+    res = comp.compensate(temperature_c=41.2, raw=[0.011, -0.004, 0.002])
+    res.compensated, res.drift, res.out_of_range
+
+Command line::
+
+    python thermonet_runtime.py model.onnx input.csv --out output.csv
+
+See ``README.md`` beside this file for units, the flag and threading.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import onnxruntime as ort
+
+__all__ = ["Compensator", "Compensation", "RuntimeInputError", "SUPPORTED_FORMATS",
+           "SUPPORTED_OPSETS", "time_batch", "main"]
+
+#: Metadata format versions this runtime understands (``thermonet_format``).
+SUPPORTED_FORMATS = ("1",)
+#: ONNX opsets the exporter writes and this runtime was checked against.
+SUPPORTED_OPSETS = (17, 18, 19, 20, 21)
+#: Name of the raw-output graph input and the three graph outputs.
+RAW_INPUT = "raw"
+GRAPH_OUTPUTS = ("compensated", "drift", "out_of_range")
+#: Keyword aliases accepted by :meth:`Compensator.compensate`.
+_ALIASES = {"rate": "rate_c_per_min"}
+
+
+class RuntimeInputError(ValueError):
+    """A model file or an input the runtime refuses; the message is one line."""
+
+
+class Compensation:
+    """Result of one :meth:`Compensator.compensate` call.
+
+    Attributes
+    ----------
+    compensated : numpy.ndarray
+        ``raw - drift``, float32, shape (N, A) for a batch or (A,) for one
+        sample; units of the raw output (see ``output_units``).
+    drift : numpy.ndarray
+        The model's drift estimate, same shape and units.
+    out_of_range : numpy.ndarray or bool
+        (N,) bool for a batch, a plain bool for one sample.
+    """
+
+    __slots__ = ("compensated", "drift", "out_of_range")
+
+    def __init__(self, compensated: np.ndarray, drift: np.ndarray, out_of_range: Any) -> None:
+        self.compensated = compensated
+        self.drift = drift
+        self.out_of_range = out_of_range
+
+    def __getitem__(self, key: str) -> Any:
+        if key not in GRAPH_OUTPUTS:
+            raise KeyError(f"no result '{key}'; results are {', '.join(GRAPH_OUTPUTS)}")
+        return getattr(self, key)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The three results as a plain dict."""
+        return {k: getattr(self, k) for k in GRAPH_OUTPUTS}
+
+
+def _meta_json(meta: Mapping[str, str], key: str, path: Path) -> Any:
+    if key not in meta:
+        raise RuntimeInputError(f"{path}: metadata key '{key}' is missing; "
+                                "not a thermonet model (or exported by an older thermonet)")
+    try:
+        return json.loads(meta[key])
+    except json.JSONDecodeError as exc:
+        raise RuntimeInputError(f"{path}: metadata key '{key}' is not valid JSON ({exc.msg})") from None
+
+
+class Compensator:
+    """A loaded thermonet model, checked before its first use.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.onnx`` file written by ``thermonet.exporting.export_onnx``.
+    providers : sequence of str
+        onnxruntime execution providers, in order of preference.  Named
+        explicitly (default CPU only) so that a GPU build of onnxruntime does
+        not silently move a tiny model onto a device.
+    threads : int
+        Intra-op threads.  1 (default) suits an on-board loop: these models
+        are a few hundred flops per sample and thread start-up costs more.
+
+    Raises
+    ------
+    RuntimeInputError
+        Not a thermonet model, an unknown format or opset, or graph inputs
+        and outputs that do not match the metadata (a tampered file).
+    """
+
+    def __init__(self, path: str | Path, *, providers: Sequence[str] = ("CPUExecutionProvider",),
+                 threads: int = 1) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise RuntimeInputError(f"{self.path}: no such model file")
+        if int(threads) < 1:
+            raise RuntimeInputError(f"threads must be >= 1, got {threads}")
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = int(threads)
+        options.inter_op_num_threads = 1
+        # Warnings only: onnxruntime's info-level log is noise in a flight log.
+        options.log_severity_level = 3
+        try:
+            self._session = ort.InferenceSession(str(self.path), sess_options=options,
+                                                 providers=list(providers))
+        except Exception as exc:  # onnxruntime raises its own untyped errors for any bad file
+            raise RuntimeInputError(f"{self.path}: onnxruntime cannot load it "
+                                    f"({type(exc).__name__}: {str(exc).splitlines()[0]})") from None
+        self.metadata: dict[str, str] = dict(self._session.get_modelmeta().custom_metadata_map)
+        self._check_metadata()
+
+    # -- checks -------------------------------------------------------------------------------
+    def _check_metadata(self) -> None:
+        meta, path = self.metadata, self.path
+        fmt = meta.get("thermonet_format")
+        if fmt is None:
+            raise RuntimeInputError(f"{path}: not a thermonet model (no 'thermonet_format' metadata)")
+        if fmt not in SUPPORTED_FORMATS:
+            raise RuntimeInputError(f"{path}: thermonet_format {fmt!r} is not supported by this "
+                                    f"runtime (supports {', '.join(SUPPORTED_FORMATS)})")
+        try:
+            opset = int(meta.get("onnx_opset", ""))
+        except ValueError:
+            raise RuntimeInputError(f"{path}: metadata 'onnx_opset' is missing or not an integer") from None
+        if opset not in SUPPORTED_OPSETS:
+            raise RuntimeInputError(f"{path}: ONNX opset {opset} is not supported "
+                                    f"(supports {SUPPORTED_OPSETS[0]}..{SUPPORTED_OPSETS[-1]})")
+        self.family: str = meta.get("family", "?")
+        self.signals: list[str] = list(_meta_json(meta, "signals", path))
+        self.outputs: list[str] = list(_meta_json(meta, "outputs", path))
+        self.trained_range: dict[str, list[float]] = dict(_meta_json(meta, "trained_range", path))
+        self.signal_units: dict[str, str] = dict(json.loads(meta.get("signal_units", "{}")))
+        self.output_units: dict[str, str] = dict(json.loads(meta.get("output_units", "{}")))
+        if not self.signals or not self.outputs:
+            raise RuntimeInputError(f"{path}: metadata lists no signals or no outputs")
+
+        graph_inputs = self._session.get_inputs()
+        names = [i.name for i in graph_inputs]
+        expected = self.signals + [RAW_INPUT]
+        if names != expected:
+            raise RuntimeInputError(f"{path}: graph inputs {names} do not match the metadata's "
+                                    f"{expected}; the file was modified after export")
+        for inp in graph_inputs:
+            if inp.type != "tensor(float)":
+                raise RuntimeInputError(f"{path}: graph input '{inp.name}' is {inp.type}, "
+                                        "expected tensor(float)")
+        raw_shape = graph_inputs[-1].shape
+        if len(raw_shape) != 2 or raw_shape[1] != len(self.outputs):
+            raise RuntimeInputError(f"{path}: graph input 'raw' has shape {raw_shape}, expected "
+                                    f"[N, {len(self.outputs)}] for outputs {self.outputs}")
+        for inp in graph_inputs[:-1]:
+            if len(inp.shape) != 1:
+                raise RuntimeInputError(f"{path}: graph input '{inp.name}' has shape {inp.shape}, "
+                                        "expected [N]")
+        outs = [o.name for o in self._session.get_outputs()]
+        if outs != list(GRAPH_OUTPUTS):
+            raise RuntimeInputError(f"{path}: graph outputs {outs}, expected {list(GRAPH_OUTPUTS)}")
+        for name in self.signals:
+            if name not in self.trained_range:
+                raise RuntimeInputError(f"{path}: metadata 'trained_range' has no entry for '{name}'")
+
+    @staticmethod
+    def _as_float32(name: str, values: Any) -> np.ndarray:
+        arr = np.asarray(values)
+        if arr.dtype == np.float32:
+            return arr
+        if arr.dtype.kind not in "fiu":
+            raise RuntimeInputError(f"input '{name}' has dtype {arr.dtype}; expected numbers")
+        # Explicit cast: the graph is float32 and onnxruntime would refuse float64.
+        return arr.astype(np.float32)
+
+    # -- evaluation ---------------------------------------------------------------------------
+    def compensate(self, temperature_c: Any = None, raw: Any = None, *, proxy: Any = None,
+                   rate: Any = None, **signals: Any) -> Compensation:
+        """Compensate one sample or a batch.
+
+        Parameters
+        ----------
+        temperature_c : float or array (N,), optional
+            Device temperature in °C (when the model uses it).
+        raw : array (A,) or (N, A)
+            Raw outputs, one column per axis in the order of :attr:`outputs`.
+        proxy : float, array (N,) or dict, optional
+            The proxy signal (e.g. ``freq_hz`` in Hz) for a model with exactly
+            one proxy, or a dict ``{name: values}``.
+        rate : float or array (N,), optional
+            dT/dt in °C/min (signal ``rate_c_per_min``).
+        **signals
+            Any signal by its own name (``freq_hz=...``).
+
+        Returns
+        -------
+        Compensation
+            ``compensated``, ``drift`` (float32) and ``out_of_range`` (bool).
+            One sample (scalar signals and 1-D ``raw``) gives 1-D arrays and a
+            plain bool.
+
+        Raises
+        ------
+        RuntimeInputError
+            A missing or unknown signal, a non-numeric dtype or inconsistent shapes.
+        """
+        given: dict[str, Any] = {}
+        for key, value in signals.items():
+            given[_ALIASES.get(key, key)] = value
+        if temperature_c is not None:
+            given["temperature_c"] = temperature_c
+        if rate is not None:
+            given["rate_c_per_min"] = rate
+        if proxy is not None:
+            proxies = [s for s in self.signals if s not in ("temperature_c", "rate_c_per_min")]
+            if isinstance(proxy, Mapping):
+                given.update(proxy)
+            elif len(proxies) == 1:
+                given[proxies[0]] = proxy
+            else:
+                raise RuntimeInputError(f"proxy= given but the model has proxies {proxies}; "
+                                        "pass them by name")
+        unknown = sorted(set(given) - set(self.signals))
+        if unknown:
+            raise RuntimeInputError(f"unknown signal(s) {unknown}; this model uses {self.signals}")
+        missing = [s for s in self.signals if s not in given]
+        if missing:
+            raise RuntimeInputError(f"missing signal(s) {missing}; this model uses {self.signals}")
+        if raw is None:
+            raise RuntimeInputError(f"missing 'raw' (one value per axis {self.outputs})")
+
+        n_axes = len(self.outputs)
+        raw_arr = self._as_float32("raw", raw)
+        single = raw_arr.ndim == 1
+        if single:
+            raw_arr = raw_arr.reshape(1, -1)
+        if raw_arr.ndim != 2 or raw_arr.shape[1] != n_axes:
+            raise RuntimeInputError(f"'raw' has shape {np.shape(raw)}; expected ({n_axes},) or "
+                                    f"(N, {n_axes}) for axes {self.outputs}")
+        n = raw_arr.shape[0]
+        feeds: dict[str, np.ndarray] = {}
+        for name in self.signals:
+            arr = self._as_float32(name, given[name])
+            if arr.ndim == 0:
+                arr = np.full(n, arr, dtype=np.float32) if not single else arr.reshape(1)
+            if arr.ndim != 1 or arr.shape[0] != n:
+                raise RuntimeInputError(f"signal '{name}' has shape {arr.shape}; expected ({n},) "
+                                        "to match 'raw'")
+            feeds[name] = np.ascontiguousarray(arr)
+        feeds[RAW_INPUT] = np.ascontiguousarray(raw_arr)
+
+        if n == 0:
+            # onnxruntime's broadcasting of empty tensors is not uniform across ops; an
+            # empty batch has a well-defined answer without running the graph.
+            empty = np.zeros((0, n_axes), dtype=np.float32)
+            return Compensation(empty, empty.copy(), np.zeros(0, dtype=bool))
+        comp, drift, flag = self._session.run(list(GRAPH_OUTPUTS), feeds)
+        if single:
+            return Compensation(comp[0], drift[0], bool(flag[0]))
+        return Compensation(comp, drift, flag.astype(bool))
+
+    def __repr__(self) -> str:
+        return (f"Compensator({str(self.path)!r}, family={self.family!r}, signals={self.signals}, "
+                f"outputs={self.outputs})")
+
+
+def time_batch(compensator: Compensator, batch_size: int = 1000, *, repeats: int = 50,
+               seed: int = 0) -> float:
+    """Median seconds of one ``compensate`` call on a batch inside the trained range.
+
+    Used by the benchmarks; the first call (graph warm-up) is not counted.
+    """
+    rng = np.random.default_rng(seed)
+    sig = {s: rng.uniform(*compensator.trained_range[s], size=batch_size).astype(np.float32)
+           for s in compensator.signals}
+    raw = np.zeros((batch_size, len(compensator.outputs)), dtype=np.float32)
+    compensator.compensate(raw=raw, **sig)
+    times = []
+    for _ in range(max(1, int(repeats))):
+        t0 = time.perf_counter()
+        compensator.compensate(raw=raw, **sig)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+# -- command line -----------------------------------------------------------------------------
+def _read_csv(path: Path, needed: list[str]) -> tuple[list[str], list[list[str]], dict[str, np.ndarray]]:
+    try:
+        with path.open(newline="") as fh:
+            rows = list(csv.reader(fh))
+    except OSError as exc:
+        raise RuntimeInputError(f"{path}: cannot read ({exc.strerror})") from None
+    if not rows:
+        raise RuntimeInputError(f"{path}: empty file (expected a header row)")
+    header = [h.strip() for h in rows[0]]
+    body = [r for r in rows[1:] if any(c.strip() for c in r)]
+    for name in needed:
+        if name not in header:
+            raise RuntimeInputError(f"{path}: missing column '{name}' (needs {', '.join(needed)})")
+    cols: dict[str, np.ndarray] = {}
+    for name in needed:
+        j = header.index(name)
+        values = np.empty(len(body), dtype=np.float64)
+        for i, row in enumerate(body):
+            cell = row[j].strip() if j < len(row) else ""
+            if cell == "":
+                values[i] = math.nan  # an empty cell is a missing sample: NaN out, flag set
+                continue
+            try:
+                values[i] = float(cell)
+            except ValueError:
+                # row numbers as a spreadsheet shows them: header is row 1
+                raise RuntimeInputError(f"{path}: column '{name}', row {i + 2}: "
+                                        f"not a number {cell!r}") from None
+        cols[name] = values
+    return header, body, cols
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Compensate a CSV file; returns the exit status (0 ok, 1 bad input)."""
+    parser = argparse.ArgumentParser(
+        prog="thermonet_runtime",
+        description="Apply a thermonet drift model (.onnx) to a CSV of raw sensor outputs.")
+    parser.add_argument("model", type=Path, help="the exported .onnx file")
+    parser.add_argument("input", type=Path, help="CSV with the model's signal columns and one "
+                        "raw column per axis (named by the axis, e.g. gyro_x)")
+    parser.add_argument("--out", type=Path, required=True, help="output CSV")
+    parser.add_argument("--threads", type=int, default=1, help="onnxruntime threads (default 1)")
+    args = parser.parse_args(argv)
+    try:
+        comp = Compensator(args.model, threads=args.threads)
+        header, body, cols = _read_csv(args.input, comp.signals + comp.outputs)
+        raw = np.stack([cols[a] for a in comp.outputs], axis=1) if body else \
+            np.zeros((0, len(comp.outputs)))
+        res = comp.compensate(raw=raw, **{s: cols[s] for s in comp.signals})
+        extra = [f"{a}_comp" for a in comp.outputs] + [f"{a}_drift" for a in comp.outputs] + \
+            ["out_of_range"]
+        tmp = args.out.with_name(args.out.name + ".tmp")
+        with tmp.open("w", newline="") as fh:
+            writer = csv.writer(fh)
+            writer.writerow(header + extra)
+            for i, row in enumerate(body):
+                row = list(row) + [""] * (len(header) - len(row))
+                writer.writerow(row + [repr(float(v)) for v in res.compensated[i]]
+                                + [repr(float(v)) for v in res.drift[i]]
+                                + [str(int(res.out_of_range[i]))])
+        tmp.replace(args.out)
+    except RuntimeInputError as exc:
+        print(f"thermonet_runtime: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"thermonet_runtime: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 1
+    n_flag = int(np.count_nonzero(res.out_of_range))
+    print(f"{len(body)} rows compensated with {comp.family} model; {n_flag} out of range "
+          f"-> {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,130 @@
+"""PX4 / ArduPilot parameter files: written, parsed back, evaluated with the autopilots' formulas."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from thermonet.errors import ExportError
+from thermonet.exporting import (autopilot_coefficients, export_ardupilot_params,
+                                 export_px4_params, read_ardupilot_params, read_px4_params)
+from thermonet.features import FeatureSpec
+from thermonet.train import TrainConfig, fit
+
+AXES = ["gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"]
+UNITS = {"gyro_x": "deg/s", "gyro_y": "deg/s", "gyro_z": "deg/s", "acc_x": "mg", "acc_y": "mg",
+         "acc_z": "mg"}
+T_REF = 22.0
+# drift per axis = c0 + c1 dT + c2 dT^2 + c3 dT^3 (deg/s for gyro, mg for accel), dT = T - 22
+COEF = np.array([[0.05, 1e-3, 2e-5, -1e-7], [-0.02, -5e-4, 1e-5, 3e-8], [0.01, 2e-3, 0.0, 1e-7],
+                 [3.0, 0.2, -4e-3, 2e-5], [-1.0, 0.1, 1e-3, 0.0], [0.5, -0.3, 2e-3, -1e-5]])
+SI = np.array([math.pi / 180] * 3 + [9.80665e-3] * 3)
+
+
+def _drift(temp: np.ndarray) -> np.ndarray:
+    dt = np.asarray(temp, dtype=np.float64)[:, None] - T_REF
+    return sum(COEF[:, k] * dt ** k for k in range(4))
+
+
+def _model(inputs=("dT",), degree=3, family="poly", temp=None):
+    temp = np.linspace(-10.0, 55.0, 300) if temp is None else temp
+    spec = FeatureSpec(inputs=list(inputs), t_ref=T_REF)
+    hyper = {"degree": degree} if family == "poly" else {}
+    return fit(family=family, inputs=list(inputs), outputs=AXES, train=[(temp[:, None], _drift(temp))],
+               val=None, spec=spec, hyper=hyper, config=TrainConfig(max_epochs=0)).model
+
+
+@pytest.fixture(scope="module")
+def model():
+    return _model()
+
+
+def _thermonet_si(model, temp: np.ndarray) -> np.ndarray:
+    with torch.no_grad():
+        return model(torch.tensor(temp[:, None], dtype=torch.float32)).double().numpy() * SI
+
+
+def test_coefficients_recovered_in_si(model):
+    co = autopilot_coefficients(model, output_units=UNITS)
+    assert co.t_ref == T_REF and (co.t_min, co.t_max) == pytest.approx((-10.0, 55.0), abs=1e-4)
+    np.testing.assert_allclose(co.coef["gyro"], COEF[:3] * SI[:3, None], rtol=2e-3, atol=1e-11)
+    np.testing.assert_allclose(co.coef["acc"], COEF[3:] * SI[3:, None], rtol=2e-3, atol=1e-9)
+
+
+def test_px4_file_reproduces_drift_and_clamp(model, tmp_path):
+    path = export_px4_params(model, tmp_path / "tc.params", output_units=UNITS, device_id=2490378)
+    lines = path.read_text().splitlines()
+    assert "# Vehicle-Id Component-Id Name Value Type" in lines
+    assert "1\t1\tTC_G0_ID\t2490378\t6" in lines and "1\t1\tTC_A_ENABLE\t1\t6" in lines
+    p = read_px4_params(path)
+    assert p["TC_G0_TREF"] == T_REF and p["TC_A0_TMIN"] == pytest.approx(-10.0, abs=1e-4)
+    temp = np.concatenate([np.linspace(-10.0, 55.0, 131), [-30.0, 80.0]])
+    want = _thermonet_si(model, temp)
+    for kind, t, cols in (("gyro", "G", slice(0, 3)), ("acc", "A", slice(3, 6))):
+        pre = f"TC_{t}0_"
+        # PX4 TemperatureCompensation::calc_thermal_offsets_3D, written out again here
+        tc = np.clip(temp, p[pre + "TMIN"], p[pre + "TMAX"])
+        dt = tc - p[pre + "TREF"]
+        offs = np.stack([sum(np.float32(p[f"{pre}X{k}_{i}"]) * dt ** k for k in range(4))
+                         for i in range(3)], axis=1)
+        scale = np.abs(want[:, cols]).max(axis=0)
+        np.testing.assert_allclose(offs, want[:, cols], rtol=0, atol=1e-5 * scale.max())
+        # clamp: below TMIN / above TMAX the offset is the edge value, for both
+        np.testing.assert_allclose(offs[-2], offs[0], rtol=1e-12)
+        np.testing.assert_allclose(offs[-1], offs[130], rtol=1e-12)
+
+
+def test_ardupilot_file_reproduces_drift_and_clamp(model, tmp_path):
+    path = export_ardupilot_params(model, tmp_path / "tcal.param", output_units=UNITS)
+    text = path.read_text()
+    assert "INS_TCAL1_ENABLE,1" in text and "INS_TCAL1_GYR3_Z," in text
+    p = read_ardupilot_params(path)
+    cal_temp = 30.0           # temperature of the ordinary offset calibration
+    temp = np.concatenate([np.linspace(-10.0, 55.0, 131), [-40.0, 79.0]])
+    want = _thermonet_si(model, temp) - _thermonet_si(model, np.array([cal_temp]))
+    for kind, cols in (("GYR", slice(0, 3)), ("ACC", slice(3, 6))):
+        # AP_InertialSensor_TCal::correct_sensor + polynomial_eval, written out again here
+        def poly(x, i):
+            c = [p[f"INS_TCAL1_{kind}{k}_{'XYZ'[i]}"] for k in (1, 2, 3)]
+            return (c[0] + (c[1] + c[2] * x) * x) * x * 1e-6
+        t = np.clip(temp, p["INS_TCAL1_TMIN"], p["INS_TCAL1_TMAX"])
+        tc = min(max(cal_temp, p["INS_TCAL1_TMIN"]), p["INS_TCAL1_TMAX"])
+        subtracted = np.stack([poly(t - 35.0, i) - poly(tc - 35.0, i) for i in range(3)], axis=1)
+        scale = np.abs(_thermonet_si(model, temp)[:, cols]).max()
+        np.testing.assert_allclose(subtracted, want[:, cols], rtol=0, atol=1e-5 * scale)
+        np.testing.assert_allclose(subtracted[-2], subtracted[0], rtol=1e-12)
+        np.testing.assert_allclose(subtracted[-1], subtracted[130], rtol=1e-12)
+    spaced = read_ardupilot_params(export_ardupilot_params(model, tmp_path / "b.parm",
+                                                           output_units=UNITS, sep=" "))
+    assert spaced == p
+
+
+def test_absolute_temperature_input(tmp_path):
+    model = _model(inputs=("T",))
+    co = autopilot_coefficients(model, output_units=UNITS)
+    assert co.t_ref == pytest.approx(22.5)     # centre of the trained range
+    dt = np.linspace(-30, 30, 7)
+    got = sum(co.coef["gyro"][:, k][None] * dt[:, None] ** k for k in range(4))
+    want = _drift(co.t_ref + dt)[:, :3] * SI[:3]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max())
+
+
+def test_refusals(model, tmp_path):
+    with pytest.raises(ExportError, match="need the 'poly' family.*this model is 'linear'"):
+        export_px4_params(_model(family="linear"), tmp_path / "x.params", output_units=UNITS)
+    with pytest.raises(ExportError, match="evaluate a cubic; this poly model has degree 4"):
+        export_px4_params(_model(degree=4), tmp_path / "x.params", output_units=UNITS)
+    with pytest.raises(ExportError, match=r"one input, dT or T; this model reads \['dT', 'dT2'\]"):
+        export_ardupilot_params(_model(inputs=("dT", "dT2")), tmp_path / "x.param",
+                                output_units=UNITS)
+    with pytest.raises(ExportError, match="unit 'furlong' cannot be converted"):
+        export_px4_params(model, tmp_path / "x.params", output_units={**UNITS, "acc_y": "furlong"})
+    with pytest.raises(ExportError, match="'gyro_x' has unit 'mg', which is not a gyro unit"):
+        export_px4_params(model, tmp_path / "x.params", output_units="mg")
+    wide = _model(temp=np.linspace(-40.0, 95.0, 300))
+    with pytest.raises(ExportError, match="outside ArduPilot's INS_TCAL TMIN/TMAX range"):
+        export_ardupilot_params(wide, tmp_path / "x.param", output_units=UNITS)
+    assert list(tmp_path.iterdir()) == []

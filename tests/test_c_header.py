@@ -1,0 +1,111 @@
+"""C99 header: compiled with gcc -Werror, run on 10,000 points, compared with onnxruntime."""
+
+from __future__ import annotations
+
+import subprocess
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+
+from thermonet.errors import ExportError
+from thermonet.exporting import export_c_header, export_onnx, render_c_header
+from thermonet.features import FeatureSpec
+from thermonet.models import MODELS
+from thermonet.train import TrainConfig, fit
+
+AXES = ["acc_x", "acc_y"]
+DRIVER = r"""
+#include <stdio.h>
+#include "model.h"
+/* in: int n, then per point S signals and A raw floats; out: A comp, A drift, int flag */
+int main(int argc, char **argv)
+{
+    FILE *in, *out;
+    int n, k, flag;
+    float s[THERMONET_N_SIGNALS], raw[THERMONET_N_AXES];
+    float comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
+    if (argc != 3) return 2;
+    in = fopen(argv[1], "rb");
+    out = fopen(argv[2], "wb");
+    if (!in || !out || fread(&n, sizeof n, 1, in) != 1) return 3;
+    for (k = 0; k < n; ++k) {
+        if (fread(s, sizeof(float), THERMONET_N_SIGNALS, in) != THERMONET_N_SIGNALS) return 4;
+        if (fread(raw, sizeof(float), THERMONET_N_AXES, in) != THERMONET_N_AXES) return 4;
+        flag = thermonet_compensate(s, raw, comp, drift);
+        fwrite(comp, sizeof(float), THERMONET_N_AXES, out);
+        fwrite(drift, sizeof(float), THERMONET_N_AXES, out);
+        fwrite(&flag, sizeof flag, 1, out);
+    }
+    fclose(in);
+    fclose(out);
+    return 0;
+}
+"""
+
+
+def _model(family: str):
+    """Two signals (temperature and a frequency proxy) where the family allows several inputs."""
+    rng = np.random.default_rng(3)
+    temp = np.linspace(-10.0, 60.0, 500)
+    freq = 4517.0 + 0.4 * (temp - 20.0) + rng.normal(0, 0.05, temp.size)
+    multi = MODELS[family].max_inputs is None
+    inputs = ["dT", "d_freq_hz2"] if multi else ["d_freq_hz"]
+    spec = FeatureSpec(inputs=inputs, t_ref=20.0, proxy_ref={"freq_hz": 4517.0})
+    df = freq - 4517.0
+    y = np.stack([2e-3 * df + 1e-4 * df ** 2 + 0.003 * np.tanh(df / 5), -1e-3 * df + 5e-5 * df ** 2], 1)
+    sig = np.stack([temp, freq], 1) if multi else freq[:, None]
+    return fit(family=family, inputs=inputs, outputs=AXES, train=[(sig, y)], val=None, spec=spec,
+               hyper={}, config=TrainConfig(max_epochs=20, seed=0)).model
+
+
+@pytest.mark.parametrize("family", list(MODELS))
+def test_header_matches_onnxruntime(family, tmp_path):
+    model = _model(family)
+    onnx_path = export_onnx(model, tmp_path / "m.onnx")
+    export_c_header(model, tmp_path / "model.h")
+    (tmp_path / "driver.c").write_text(DRIVER)
+    exe = tmp_path / "driver"
+    subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-o", str(exe),
+                    str(tmp_path / "driver.c"), "-lm"], check=True, capture_output=True, text=True)
+
+    n_sig, n_ax = len(model.signals), len(AXES)
+    lo = model.sig_lo.numpy().astype(np.float64)
+    hi = model.sig_hi.numpy().astype(np.float64)
+    rng = np.random.default_rng(0)
+    span = hi - lo
+    sig = rng.uniform(lo - 0.1 * span, hi + 0.1 * span, size=(10_000, n_sig)).astype(np.float32)
+    sig[:9000] = rng.uniform(lo, hi, size=(9000, n_sig))       # mostly inside the range
+    sig[-3, 0] = np.nan
+    sig[-2, 0] = np.inf
+    sig[-1, -1] = -np.inf
+    raw = rng.normal(0, 0.01, size=(10_000, n_ax)).astype(np.float32)
+    blob = np.int32(10_000).tobytes() + np.concatenate([sig, raw], axis=1).astype(np.float32).tobytes()
+    (tmp_path / "in.bin").write_bytes(blob)
+    subprocess.run([str(exe), str(tmp_path / "in.bin"), str(tmp_path / "out.bin")], check=True)
+    rec = np.dtype([("comp", np.float32, n_ax), ("drift", np.float32, n_ax), ("flag", np.int32)])
+    c_out = np.fromfile(tmp_path / "out.bin", dtype=rec)
+
+    sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+    feeds = {s: np.ascontiguousarray(sig[:, i]) for i, s in enumerate(model.signals)}
+    comp, drift, flag = sess.run(None, {**feeds, "raw": raw})
+    np.testing.assert_array_equal(c_out["flag"].astype(bool), flag)
+    assert flag[9000:].sum() > 100 and not flag[:9000].any()
+    finite = np.isfinite(sig).all(axis=1)
+    assert np.isnan(c_out["drift"][~finite]).all() and np.isnan(c_out["comp"][~finite]).all()
+    # Tolerance: 1e-5 relative to the axis's largest drift (as the ONNX parity check).
+    scale = np.abs(drift[finite]).max(axis=0)
+    err = np.abs(c_out["drift"][finite] - drift[finite])
+    assert (err <= 1e-5 * scale).all(), (err.max(axis=0), scale)
+    err_c = np.abs(c_out["comp"][finite] - comp[finite])
+    assert (err_c <= 1e-5 * scale + 1e-6 * np.abs(raw[finite])).all()
+
+
+def test_header_text_and_refusals():
+    model = _model("poly")
+    text = render_c_header(model, prefix="imu0")
+    assert "static inline int imu0_compensate(const float *signals" in text
+    assert "#define IMU0_N_AXES 2" in text and '#define IMU0_AXIS_NAMES {"acc_x", "acc_y"}' in text
+    assert "malloc" not in text and "double" not in text
+    with pytest.raises(ExportError, match="not a C identifier"):
+        render_c_header(model, prefix="9bad-name")

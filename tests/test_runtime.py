@@ -1,0 +1,187 @@
+"""The torch-free runtime: loading checks, compensate(), NaN/empty/shape handling, CLI."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from thermonet.exporting import export_onnx
+from thermonet.features import FeatureSpec
+from thermonet.train import TrainConfig, fit
+
+RUNTIME = Path(__file__).resolve().parents[1] / "export" / "thermonet_runtime.py"
+AXES = ["gyro_x", "gyro_y", "gyro_z"]
+# deg/s per degC, degC^2, degC^3: recovered by the cubic model
+COEF = np.array([[1e-3, 2e-5, -1e-7], [-5e-4, 1e-5, 0.0], [2e-3, -3e-5, 2e-7]])
+
+
+def _load_runtime():
+    spec = importlib.util.spec_from_file_location("thermonet_runtime", RUNTIME)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["thermonet_runtime"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+rt = _load_runtime()
+
+
+def _true_drift(temp: np.ndarray) -> np.ndarray:
+    dt = np.asarray(temp, dtype=np.float64)[..., None] - 25.0
+    return (COEF[:, 0] * dt + COEF[:, 1] * dt ** 2 + COEF[:, 2] * dt ** 3) + 0.01
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    temp = np.linspace(-20.0, 60.0, 400)
+    spec = FeatureSpec(inputs=["dT"], t_ref=25.0)
+    model = fit(family="poly", inputs=["dT"], outputs=AXES, train=[(temp[:, None], _true_drift(temp))],
+                val=None, spec=spec, hyper={"degree": 3}, config=TrainConfig(max_epochs=5)).model
+    path = export_onnx(model, tmp_path_factory.mktemp("rt") / "poly.onnx",
+                       metadata={"output_units": {a: "deg/s" for a in AXES}, "device_id": "X1"})
+    return path
+
+
+def test_batch_and_single_sample(model_path):
+    comp = rt.Compensator(model_path)
+    assert comp.signals == ["temperature_c"] and comp.outputs == AXES
+    temp = np.linspace(-20.0, 60.0, 81)            # float64 on purpose: cast by the runtime
+    raw = _true_drift(temp) + 0.5
+    res = comp.compensate(temp, raw)
+    assert res.compensated.dtype == np.float32 and res.compensated.shape == (81, 3)
+    np.testing.assert_allclose(res.drift, _true_drift(temp), atol=2e-6)
+    np.testing.assert_allclose(res.compensated, 0.5, atol=2e-6)
+    assert not res.out_of_range.any()
+    one = comp.compensate(temperature_c=41.0, raw=_true_drift(np.array(41.0)))
+    assert one.drift.shape == (3,) and one.out_of_range is False
+    np.testing.assert_allclose(one.compensated, 0.0, atol=2e-6)
+    assert set(one.as_dict()) == {"compensated", "drift", "out_of_range"}
+    assert one["drift"] is one.drift
+
+
+def test_out_of_range_nan_inf_and_empty(model_path):
+    comp = rt.Compensator(model_path)
+    temp = np.array([-30.0, 75.0, np.nan, np.inf, 10.0])
+    res = comp.compensate(temp, np.zeros((5, 3)))
+    assert res.out_of_range.tolist() == [True, True, True, True, False]
+    np.testing.assert_allclose(res.drift[0], _true_drift(np.array(-20.0)), atol=2e-6)   # clamped
+    np.testing.assert_allclose(res.drift[1], _true_drift(np.array(60.0)), atol=2e-6)
+    assert np.isnan(res.drift[2:4]).all() and np.isnan(res.compensated[2:4]).all()
+    empty = comp.compensate(np.zeros(0), np.zeros((0, 3)))
+    assert empty.compensated.shape == (0, 3) and empty.out_of_range.shape == (0,)
+
+
+def test_refuses_bad_inputs(model_path):
+    comp = rt.Compensator(model_path)
+    with pytest.raises(rt.RuntimeInputError, match=r"'raw' has shape \(4, 2\); expected"):
+        comp.compensate(np.zeros(4), np.zeros((4, 2)))
+    with pytest.raises(rt.RuntimeInputError, match=r"signal 'temperature_c' has shape \(3,\)"):
+        comp.compensate(np.zeros(3), np.zeros((4, 3)))
+    with pytest.raises(rt.RuntimeInputError, match="dtype <U"):
+        comp.compensate(np.array(["a", "b"]), np.zeros((2, 3)))
+    with pytest.raises(rt.RuntimeInputError, match=r"missing signal\(s\) \['temperature_c'\]"):
+        comp.compensate(raw=np.zeros(3))
+    with pytest.raises(rt.RuntimeInputError, match=r"unknown signal\(s\) \['freq_hz'\]"):
+        comp.compensate(20.0, np.zeros(3), freq_hz=4517.0)
+
+
+def _rewrite(src: Path, dst: Path, edit) -> Path:
+    proto = onnx.load(str(src))
+    edit(proto)
+    onnx.save(proto, str(dst))
+    return dst
+
+
+def test_refuses_foreign_and_tampered_files(model_path, tmp_path):
+    plain = tmp_path / "plain.onnx"
+    torch.onnx.export(torch.nn.Linear(1, 1), (torch.zeros(2, 1),), str(plain), dynamo=False)
+    with pytest.raises(rt.RuntimeInputError, match="not a thermonet model"):
+        rt.Compensator(plain)
+
+    def set_meta(key, value):
+        def edit(proto):
+            for p in proto.metadata_props:
+                if p.key == key:
+                    p.value = value
+        return edit
+
+    bad_opset = _rewrite(model_path, tmp_path / "o.onnx", set_meta("onnx_opset", "9"))
+    with pytest.raises(rt.RuntimeInputError, match="opset 9 is not supported"):
+        rt.Compensator(bad_opset)
+    bad_fmt = _rewrite(model_path, tmp_path / "f.onnx", set_meta("thermonet_format", "2"))
+    with pytest.raises(rt.RuntimeInputError, match="thermonet_format '2' is not supported"):
+        rt.Compensator(bad_fmt)
+    renamed = _rewrite(model_path, tmp_path / "r.onnx",
+                       set_meta("signals", '["freq_hz"]'))
+    with pytest.raises(rt.RuntimeInputError, match="graph inputs .* do not match the metadata"):
+        rt.Compensator(renamed)
+    with pytest.raises(rt.RuntimeInputError, match="no such model file"):
+        rt.Compensator(tmp_path / "missing.onnx")
+    garbage = tmp_path / "garbage.onnx"
+    garbage.write_bytes(b"not an onnx file")
+    with pytest.raises(rt.RuntimeInputError, match="onnxruntime cannot load it"):
+        rt.Compensator(garbage)
+
+
+def test_time_batch(model_path):
+    seconds = rt.time_batch(rt.Compensator(model_path), 1000, repeats=5)
+    assert 0 < seconds < 0.5
+
+
+# Importing torch or thermonet inside the runtime would raise ImportError: both are
+# set to None in sys.modules before the runtime file runs.
+_NO_TORCH = (
+    "import sys, runpy; sys.modules['torch'] = None; sys.modules['thermonet'] = None; "
+    "sys.argv = ['thermonet_runtime'] + sys.argv[1:]; "
+    "runpy.run_path({runtime!r}, run_name='__main__')"
+)
+
+
+def _run_cli(*args: str) -> subprocess.CompletedProcess:
+    code = _NO_TORCH.format(runtime=str(RUNTIME))
+    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
+                          timeout=60)
+
+
+def test_cli_without_torch(model_path, tmp_path):
+    temp = [-25.0, 0.0, 25.0, 50.0]
+    rows = [{"time_s": i, "temperature_c": t, **{a: v for a, v in zip(AXES, _true_drift(np.array(t)) + 1.0)}}
+            for i, t in enumerate(temp)]
+    src = tmp_path / "in.csv"
+    with src.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    out = tmp_path / "out.csv"
+    proc = _run_cli(str(model_path), str(src), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    with out.open() as fh:
+        got = list(csv.DictReader(fh))
+    assert list(got[0]) == ["time_s", "temperature_c", *AXES, *(f"{a}_comp" for a in AXES),
+                            *(f"{a}_drift" for a in AXES), "out_of_range"]
+    assert [r["out_of_range"] for r in got] == ["1", "0", "0", "0"]
+    for r in got[1:]:
+        for a in AXES:
+            assert float(r[f"{a}_comp"]) == pytest.approx(1.0, abs=5e-6)
+
+
+def test_cli_bad_input_exits_1(model_path, tmp_path):
+    src = tmp_path / "bad.csv"
+    src.write_text("temperature_c,gyro_x,gyro_y\n20,0,0\n")
+    proc = _run_cli(str(model_path), str(src), "--out", str(tmp_path / "o.csv"))
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines() == [
+        f"thermonet_runtime: {src}: missing column 'gyro_z' (needs temperature_c, gyro_x, gyro_y, gyro_z)"]
+    src.write_text("temperature_c,gyro_x,gyro_y,gyro_z\n20,0,0,0\nhot,0,0,0\n")
+    proc = _run_cli(str(model_path), str(src), "--out", str(tmp_path / "o.csv"))
+    assert proc.returncode == 1
+    assert "column 'temperature_c', row 3: not a number 'hot'" in proc.stderr
+    assert not (tmp_path / "o.csv").exists()

@@ -1,0 +1,344 @@
+"""PX4 and ArduPilot thermal-calibration parameter files for the cubic-on-temperature model.
+
+Both autopilots compensate IMU offsets with a polynomial of degree 3 in the
+sensor temperature; thermonet's ``poly`` family of degree ≤ 3 on one input
+(``dT`` or ``T``) is exactly that model, so it can be written in their own
+parameter format.  Every other family is refused.
+
+PX4 (``src/modules/temperature_compensation/TemperatureCompensation.cpp``,
+``TemperatureCompensation::calc_thermal_offsets_3D``, PX4-Autopilot commit
+09f282b2; parameter names from ``initialize_parameter_handles`` in the same
+file; the offset is *subtracted* in ``src/lib/sensor_calibration/Gyroscope.hpp``
+/ ``Accelerometer.hpp``, ``Correct()``: ``data - _thermal_offset - _offset``)::
+
+    dT = clamp(T, TC_G0_TMIN, TC_G0_TMAX) - TC_G0_TREF
+    offset[i] = X0_i + X1_i dT + X2_i dT^2 + X3_i dT^3       (rad/s; accel m/s^2)
+    corrected = raw - offset
+
+ArduPilot (``libraries/AP_InertialSensor/AP_InertialSensor_tempcal.cpp``,
+``TCal::polynomial_eval`` and ``TCal::correct_sensor``, ardupilot commit
+025810d3; ``SCALE_FACTOR 1.0e6``, ``TEMP_REFERENCE 35.0`` at the top of that
+file)::
+
+    P(x) = (c1 x + c2 x^2 + c3 x^3) * 1e-6,  x = T - 35 degC     (no constant term)
+    T, T_cal clamped to [INS_TCALn_TMIN, INS_TCALn_TMAX]
+    corrected = raw - P(T - 35) + P(T_cal - 35)                   (rad/s; m/s^2)
+
+``T_cal`` is the temperature at which the ordinary offset calibration
+(``INS_GYROFFS``/``INS_ACCOFFS``) was made, so that calibration absorbs the
+constant term: thermonet's drift :math:`d(T)` is written as
+:math:`c_k = 10^6 a_k` where :math:`d(T) = a_0 + a_1 x + a_2 x^2 + a_3 x^3`,
+and ``raw - P(T-35) + P(T_cal-35) = raw - d(T) + d(T_cal)``.
+
+Conversion.  thermonet's polynomial lives in standardised units
+(:math:`z = (x - \\bar x)/s_x`, :math:`d = s_y\\,p(z) + \\bar y`); it is expanded
+in float64 into a plain polynomial of :math:`T - T_{ref}` (PX4: ``TREF`` = the
+model's :math:`T_{ref}` for input ``dT``, the centre of the trained range for
+input ``T``; ArduPilot: 35 °C), then scaled to SI units (rad/s, m/s²) from the
+axis units given (``deg/s``, ``deg/h``, ``rad/s``, ``g``, ``mg``, ``m/s^2``).
+``TMIN``/``TMAX`` are the trained temperature range — the same clamp the
+thermonet model applies.
+
+File formats.  PX4: QGroundControl parameter file, tab-separated
+``Vehicle-Id Component-Id Name Value Type`` (type 6 = INT32, 9 = REAL32), as PX4's
+``Tools/process_sensor_caldata.py`` writes it.  ArduPilot: Mission Planner
+``NAME,VALUE`` lines (``sep=" "`` gives MAVProxy's ``NAME VALUE``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+from numpy.polynomial import polynomial as P
+from torch import nn
+
+from ..errors import ExportError
+from ..recording import output_kind
+from .onnx_export import family_name
+
+__all__ = [
+    "SI_FACTOR",
+    "ARDUPILOT_TEMP_REFERENCE",
+    "ARDUPILOT_SCALE",
+    "AutopilotCoefficients",
+    "autopilot_coefficients",
+    "export_px4_params",
+    "export_ardupilot_params",
+    "read_px4_params",
+    "read_ardupilot_params",
+    "px4_offsets",
+    "ardupilot_correction",
+]
+
+#: Multiply a value in this unit by the factor to get rad/s (gyro) or m/s² (accel).
+SI_FACTOR = {
+    "rad/s": 1.0, "deg/s": math.pi / 180.0, "deg/h": math.pi / 180.0 / 3600.0,
+    "m/s^2": 1.0, "g": 9.80665, "mg": 9.80665e-3,
+}
+_SI_UNIT = {"gyro": "rad/s", "acc": "m/s^2"}
+_UNIT_KIND = {"rad/s": "gyro", "deg/s": "gyro", "deg/h": "gyro",
+              "m/s^2": "acc", "g": "acc", "mg": "acc"}
+#: ArduPilot's fixed reference temperature (°C) and coefficient scale.
+ARDUPILOT_TEMP_REFERENCE = 35.0
+ARDUPILOT_SCALE = 1.0e6
+_AXES = ("x", "y", "z")
+_PX4_TYPE = {"gyro": "G", "acc": "A"}
+_AP_TYPE = {"gyro": "GYR", "acc": "ACC"}
+
+
+@dataclass
+class AutopilotCoefficients:
+    """Drift as a cubic in :math:`T - T_{ref}`, per sensor kind, in SI units.
+
+    Attributes
+    ----------
+    t_ref : float
+        Reference temperature, °C.
+    t_min, t_max : float
+        Valid (trained) temperature range, °C; outside it the autopilot clamps.
+    coef : dict
+        ``{"gyro" | "acc": array (3 axes, 4)}`` — column k multiplies
+        :math:`(T - T_{ref})^k`; rad/s for gyro, m/s² for accel.  Axes the
+        model does not have are zero.
+    present : dict
+        ``{kind: [axis letters the model provides]}``.
+    """
+
+    t_ref: float
+    t_min: float
+    t_max: float
+    coef: dict[str, np.ndarray] = field(default_factory=dict)
+    present: dict[str, list[str]] = field(default_factory=dict)
+
+
+def _unit_of(axis: str, units: str | Mapping[str, str]) -> str:
+    unit = units if isinstance(units, str) else units.get(axis)
+    if unit is None:
+        raise ExportError(f"no unit given for output '{axis}' (units: {dict(units)})")
+    if unit not in SI_FACTOR:
+        raise ExportError(f"output '{axis}': unit '{unit}' cannot be converted for an autopilot "
+                          f"(known: {', '.join(SI_FACTOR)})")
+    return unit
+
+
+def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str, str],
+                           t_ref: float | None = None) -> AutopilotCoefficients:
+    """Expand a poly (degree ≤ 3, one input ``dT`` or ``T``) model into SI cubic coefficients.
+
+    Parameters
+    ----------
+    model : DriftModel
+    output_units : str or dict axis -> unit
+        Units of the model's outputs (``deg/s``, ``deg/h``, ``rad/s``, ``g``,
+        ``mg``, ``m/s^2``).
+    t_ref : float, optional
+        Reference temperature of the expansion (°C); default the model's
+        :math:`T_{ref}` (input ``dT``) or the centre of the trained range (``T``).
+
+    Raises
+    ------
+    ExportError
+        Any other family, degree or input; an axis that is not gyro/acc x/y/z;
+        a unit that does not match the axis kind.
+    """
+    family = family_name(model)
+    fam = model.family
+    if family != "poly":
+        raise ExportError(f"PX4/ArduPilot parameter files need the 'poly' family (degree <= 3 on "
+                          f"input dT or T); this model is '{family}' — export it as ONNX or C")
+    if list(model.inputs) not in (["dT"], ["T"]):
+        raise ExportError(f"PX4/ArduPilot parameter files need one input, dT or T; this model "
+                          f"reads {list(model.inputs)}")
+    if int(fam.degree) > 3:
+        raise ExportError(f"PX4/ArduPilot evaluate a cubic; this poly model has degree {fam.degree}")
+    lo = float(model.sig_lo[0])
+    hi = float(model.sig_hi[0])
+    if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
+        raise ExportError(f"trained temperature range [{lo}, {hi}] is not usable (model not fitted?)")
+    t_model = float(model.spec.t_ref) if model.inputs == ["dT"] else 0.0
+    if t_ref is None:
+        t_ref = t_model if model.inputs == ["dT"] else round((lo + hi) / 2.0, 1)
+    # x = T - t_model = u + (t_ref - t_model); z = (x - x_mean)/x_std = alpha*u + beta
+    x_mean, x_std = float(model.x_mean[0]), float(model.x_std[0])
+    alpha = 1.0 / x_std
+    beta = (t_ref - t_model - x_mean) / x_std
+    weight = fam.weight.detach().double().numpy()      # (A, n_terms), terms z^1..z^n
+    bias = fam.bias.detach().double().numpy()
+    y_mean = model.y_mean.detach().double().numpy()
+    y_std = model.y_std.detach().double().numpy()
+    out = AutopilotCoefficients(t_ref=float(t_ref), t_min=lo, t_max=hi)
+    for a, axis in enumerate(model.outputs):
+        kind = output_kind(axis)
+        letter = axis.split("_", 1)[1]
+        if kind not in _SI_UNIT or letter not in _AXES:
+            raise ExportError(f"output '{axis}' is not a gyro or accelerometer x/y/z axis; "
+                              "autopilots compensate only those")
+        unit = _unit_of(axis, output_units)
+        if _UNIT_KIND[unit] != kind:
+            raise ExportError(f"output '{axis}' has unit '{unit}', which is not a {kind} unit")
+        pz = np.concatenate([[bias[a]], weight[a]])     # coefficients in z, ascending
+        pu = np.zeros(1)
+        for k, c in enumerate(pz):                      # p(alpha*u + beta), ascending in u
+            pu = P.polyadd(pu, c * P.polypow([beta, alpha], k))
+        pu = pu * y_std[a]
+        pu[0] += y_mean[a]
+        coef = out.coef.setdefault(kind, np.zeros((3, 4)))
+        coef[_AXES.index(letter), :pu.size] = pu[:4] * SI_FACTOR[unit]
+        out.present.setdefault(kind, []).append(letter)
+    return out
+
+
+def px4_offsets(params: Mapping[str, float], kind: str, temperature_c: np.ndarray,
+                instance: int = 0) -> np.ndarray:
+    """PX4's ``calc_thermal_offsets_3D`` on parameters read back from a file: (N, 3) SI."""
+    t = _PX4_TYPE[kind]
+    pre = f"TC_{t}{instance}_"
+    temp = np.asarray(temperature_c, dtype=np.float64)
+    dt = np.where(temp > params[pre + "TMAX"], params[pre + "TMAX"] - params[pre + "TREF"],
+                  np.where(temp < params[pre + "TMIN"], params[pre + "TMIN"] - params[pre + "TREF"],
+                           temp - params[pre + "TREF"]))
+    out = np.zeros((temp.size, 3))
+    for i in range(3):
+        out[:, i] = sum(params[f"{pre}X{k}_{i}"] * dt ** k for k in range(4))
+    return out
+
+
+def ardupilot_correction(params: Mapping[str, float], kind: str, temperature_c: np.ndarray,
+                         cal_temp_c: float, imu: int = 1) -> np.ndarray:
+    """What ArduPilot's ``correct_sensor`` subtracts from ``raw``: P(T−35) − P(T_cal−35), (N, 3) SI."""
+    pre = f"INS_TCAL{imu}_"
+    tmin, tmax = params[pre + "TMIN"], params[pre + "TMAX"]
+    t = np.clip(np.asarray(temperature_c, dtype=np.float64), tmin, tmax) - ARDUPILOT_TEMP_REFERENCE
+    tc = float(np.clip(cal_temp_c, tmin, tmax)) - ARDUPILOT_TEMP_REFERENCE
+    out = np.zeros((t.size, 3))
+    for i, ax in enumerate(_AXES):
+        c = [params[f"{pre}{_AP_TYPE[kind]}{k}_{ax.upper()}"] for k in (1, 2, 3)]
+        poly = lambda x: (c[0] + (c[1] + c[2] * x) * x) * x / ARDUPILOT_SCALE  # noqa: E731
+        out[:, i] = poly(t) - poly(tc)
+    return out
+
+
+def _atomic_write(path: Path, text: str) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def _g(v: float) -> str:
+    return f"{float(v):.9g}"
+
+
+def export_px4_params(model: nn.Module, path: str | Path, *, output_units: str | Mapping[str, str],
+                      device_id: int = 0, instance: int = 0) -> Path:
+    """Write PX4 ``TC_G<i>_*`` / ``TC_A<i>_*`` parameters as a QGC ``.params`` file.
+
+    Parameters
+    ----------
+    model : DriftModel
+        ``poly`` of degree ≤ 3 on ``dT`` or ``T`` (gyro and/or accel axes).
+    path : str or Path
+    output_units : str or dict
+        Units of the model's outputs (converted to rad/s, m/s²).
+    device_id : int
+        The sensor's PX4 device id (``TC_G0_ID``), which PX4 matches at boot.
+    instance : int
+        Calibration slot 0..3.
+
+    Returns
+    -------
+    Path
+    """
+    if not 0 <= int(instance) <= 3:
+        raise ExportError(f"PX4 calibration instance must be 0..3, got {instance}")
+    co = autopilot_coefficients(model, output_units=output_units)
+    lines = ["# Sensor thermal compensation parameters (thermonet, poly on temperature)",
+             f"# family poly, T_ref {co.t_ref:g} degC, range [{co.t_min:g}, {co.t_max:g}] degC",
+             "#",
+             "# Vehicle-Id Component-Id Name Value Type"]
+    rows: list[tuple[str, str, int]] = []
+    for kind, coef in co.coef.items():
+        t = _PX4_TYPE[kind]
+        rows.append((f"TC_{t}_ENABLE", "1", 6))
+        pre = f"TC_{t}{instance}_"
+        rows.append((pre + "ID", str(int(device_id)), 6))
+        rows += [(pre + "TMAX", _g(co.t_max), 9), (pre + "TMIN", _g(co.t_min), 9),
+                 (pre + "TREF", _g(co.t_ref), 9)]
+        for k in range(4):
+            for i in range(3):
+                rows.append((f"{pre}X{k}_{i}", _g(coef[i, k]), 9))
+    lines += [f"1\t1\t{name}\t{value}\t{ptype}" for name, value, ptype in rows]
+    return _atomic_write(Path(path), "\n".join(lines) + "\n")
+
+
+def export_ardupilot_params(model: nn.Module, path: str | Path, *,
+                            output_units: str | Mapping[str, str], imu: int = 1,
+                            sep: str = ",") -> Path:
+    """Write ArduPilot ``INS_TCAL<n>_*`` parameters (``NAME,VALUE`` lines).
+
+    The constant term of the drift is not written (ArduPilot's polynomial has
+    none; the ordinary offset calibration at ``T_cal`` absorbs it, see the
+    module docstring).  ``INS_TCALn_TMIN``/``TMAX`` must lie in ArduPilot's
+    documented −70…80 °C.
+    """
+    if not 1 <= int(imu) <= 3:
+        raise ExportError(f"ArduPilot IMU number must be 1..3, got {imu}")
+    if sep not in (",", " ", "\t"):
+        raise ExportError(f"separator must be ',', ' ' or a tab, got {sep!r}")
+    co = autopilot_coefficients(model, output_units=output_units,
+                                t_ref=ARDUPILOT_TEMP_REFERENCE)
+    if co.t_min < -70.0 or co.t_max > 80.0:
+        raise ExportError(f"trained range [{co.t_min:g}, {co.t_max:g}] degC is outside "
+                          "ArduPilot's INS_TCAL TMIN/TMAX range -70..80 degC")
+    pre = f"INS_TCAL{imu}_"
+    rows = [(pre + "ENABLE", "1"), (pre + "TMIN", _g(co.t_min)), (pre + "TMAX", _g(co.t_max))]
+    for kind in ("acc", "gyro"):
+        coef = co.coef.get(kind, np.zeros((3, 4)))
+        for k in (1, 2, 3):
+            for i, ax in enumerate(_AXES):
+                rows.append((f"{pre}{_AP_TYPE[kind]}{k}_{ax.upper()}",
+                             _g(coef[i, k] * ARDUPILOT_SCALE)))
+    header = ["# ArduPilot IMU temperature calibration (thermonet, poly on temperature)",
+              f"# drift constant at {ARDUPILOT_TEMP_REFERENCE:g} degC is left to the offset "
+              "calibration at INS_*_CALTEMP"]
+    return _atomic_write(Path(path), "\n".join(header + [f"{n}{sep}{v}" for n, v in rows]) + "\n")
+
+
+def read_px4_params(path: str | Path) -> dict[str, float]:
+    """Parse a QGC ``.params`` file into ``{name: value}`` (comments skipped)."""
+    out: dict[str, float] = {}
+    for no, line in enumerate(Path(path).read_text().splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        parts = line.split()
+        if len(parts) != 5:
+            raise ExportError(f"{path}: line {no}: expected 5 fields "
+                              f"(Vehicle-Id Component-Id Name Value Type), got {len(parts)}")
+        out[parts[2]] = float(parts[3])
+    return out
+
+
+def read_ardupilot_params(path: str | Path) -> dict[str, float]:
+    """Parse ArduPilot ``NAME,VALUE`` or ``NAME VALUE`` lines into ``{name: value}``."""
+    out: dict[str, float] = {}
+    for no, line in enumerate(Path(path).read_text().splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        parts = line.replace(",", " ").split()
+        if len(parts) != 2:
+            raise ExportError(f"{path}: line {no}: expected NAME,VALUE, got {line!r}")
+        out[parts[0]] = float(parts[1])
+    return out

@@ -1,0 +1,448 @@
+"""ONNX export of a drift model, with the features, clamp and flag inside the graph.
+
+The exported graph is what runs on board (``export/thermonet_runtime.py``):
+
+.. math::
+
+    \\text{drift} = f(\\operatorname{clip}(s, s_{lo}, s_{hi})), \\qquad
+    \\text{compensated} = \\text{raw} - \\text{drift}
+
+with one float32 [N] graph input per physical signal the model reads
+(``temperature_c``, ``rate_c_per_min``, proxies such as ``freq_hz``) plus
+``raw`` float32 [N, A]; outputs ``compensated`` [N, A], ``drift`` [N, A] and
+``out_of_range`` bool [N].  ``out_of_range`` is true where a signal lay outside
+the trained range (the drift is then the edge value, PX4-style) or was not
+finite (NaN/±inf: the drift and the compensated output are then NaN, so a
+broken thermometer can never yield a plausible-looking correction).
+
+Exporter.  torch 2.13's default ``torch.export``-based exporter (``dynamo=True``,
+onnxscript) is used with a dynamic batch dimension and opset 18; the
+TorchScript exporter (``dynamo=False``, deprecated since torch 2.9) is the
+fallback when the first fails, and ``metadata_props['exporter']`` says which
+one wrote the file.  The debug annotations the dynamo exporter attaches to every
+node (source stack traces, original names) and the intermediate ``value_info``
+are stripped: they triple the file size and mean nothing on board.  Weights are
+stored inside the file (no external data), constants folded by the exporter.
+
+Parity tolerance.  onnxruntime and torch evaluate the same float32 graph with
+different kernels (fused ops, other summation orders), so they differ by a few
+float32 rounding steps of the *intermediate* values, whose size is that of the
+output's scale (``y_std``, ``y_mean``), not of one small output value.  The check
+is therefore, per axis :math:`a` over the check points,
+
+.. math::
+
+    |d_{ort} - d_{torch}| \\le 10^{-5} \\cdot \\max(|d_{torch}|, \\max_k |d_{torch,k,a}|)
+
+i.e. 1e-5 relative to the larger of the value and the axis's largest drift on
+the checked set — about 80 float32 ulps, far above kernel-order noise
+(≈ 1e-7 relative) and far below any real graph error (a wrong sign, a missing
+clamp, a wrong reference: ≥ 1e-3 relative).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+import time
+import warnings
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from .. import __version__
+from ..errors import ExportError
+
+__all__ = [
+    "THERMONET_FORMAT",
+    "OPSET",
+    "PARITY_RTOL",
+    "SIGNAL_UNITS",
+    "CompensatorGraph",
+    "export_onnx",
+    "parity_check",
+    "check_model_finite",
+    "family_name",
+    "trained_range",
+    "onnx_file_size",
+    "time_onnxruntime",
+    "log_onnx_to_mlflow",
+]
+
+_log = logging.getLogger(__name__)
+
+#: Format marker written to ``metadata_props['thermonet_format']``.
+THERMONET_FORMAT = 1
+#: ONNX opset of the exported graph.
+OPSET = 18
+#: Relative parity tolerance (see the module docstring).
+PARITY_RTOL = 1e-5
+#: Units of the signals thermonet itself defines; proxies take theirs from metadata.
+SIGNAL_UNITS = {"temperature_c": "degC", "rate_c_per_min": "degC/min"}
+#: Points per signal on the parity grid and random parity points.
+GRID_POINTS = 201
+RANDOM_POINTS = 10_000
+
+
+def trained_range(model: nn.Module) -> dict[str, tuple[float, float]]:
+    """Trained range ``{signal: (lo, hi)}`` from the model's ``sig_lo``/``sig_hi`` buffers."""
+    lo = model.sig_lo.detach().cpu().double().numpy().reshape(-1)
+    hi = model.sig_hi.detach().cpu().double().numpy().reshape(-1)
+    return {s: (float(lo[i]), float(hi[i])) for i, s in enumerate(model.signals)}
+
+
+def family_name(model: nn.Module) -> str:
+    """The registered family name of a DriftModel (``model.family`` is the family module)."""
+    name = getattr(model, "family_name", None)
+    if name is None:
+        name = getattr(model.family, "name", model.family)
+    return str(name)
+
+
+def check_model_finite(model: nn.Module) -> None:
+    """Refuse a model with a NaN/inf parameter or buffer (:class:`ExportError` naming it)."""
+    for name, tensor in list(model.named_parameters()) + list(model.named_buffers()):
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise ExportError(f"model parameter '{name}' contains NaN or inf; refusing to export "
+                              "(retrain the model)")
+
+
+class CompensatorGraph(nn.Module):
+    """The on-board graph: signals and raw outputs in, compensated outputs out.
+
+    Parameters
+    ----------
+    model : DriftModel
+        ``forward(signals (N, S)) -> drift (N, A)`` with the clamp inside,
+        ``out_of_range(signals) -> bool (N,)``, attributes ``signals`` and
+        ``outputs``.
+
+    Notes
+    -----
+    ``forward(*signals, raw)`` takes one [N] tensor per entry of
+    ``model.signals`` (in that order) then ``raw`` [N, A], and returns
+    ``(compensated, drift, out_of_range)``.
+    """
+
+    def __init__(self, model: nn.Module) -> None:
+        super().__init__()
+        self.model = model
+        self.signals = list(model.signals)
+        self.outputs = list(model.outputs)
+
+    def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        *signal_list, raw = inputs
+        sig = torch.stack(signal_list, dim=1)
+        # Non-finite signals must not be clamped into a plausible edge value.
+        nonfinite = (torch.isnan(sig) | torch.isinf(sig)).any(dim=1)
+        flag = self.model.out_of_range(sig) | nonfinite
+        drift = self.model(sig)
+        drift = torch.where(nonfinite.unsqueeze(1), torch.full_like(drift, float("nan")), drift)
+        return raw - drift, drift, flag
+
+
+def _strip_debug(proto: Any) -> None:
+    """Drop per-node debug annotations and intermediate shapes (size only; semantics kept)."""
+    for node in proto.graph.node:
+        del node.metadata_props[:]
+        node.doc_string = ""
+    for value in list(proto.graph.input) + list(proto.graph.output):
+        del value.metadata_props[:]
+    for init in proto.graph.initializer:
+        del init.metadata_props[:]
+    del proto.graph.value_info[:]
+    del proto.metadata_props[:]
+    proto.doc_string = ""
+
+
+def _export_proto(graph: CompensatorGraph, exporter: str) -> tuple[Any, str]:
+    import onnx
+
+    n_ex = 4
+    example = tuple(torch.zeros(n_ex) for _ in graph.signals) + \
+        (torch.zeros(n_ex, len(graph.outputs)),)
+    names = list(graph.signals) + ["raw"]
+    out_names = ["compensated", "drift", "out_of_range"]
+    errors = []
+    order = ["dynamo", "torchscript"] if exporter == "auto" else [exporter]
+    for kind in order:
+        try:
+            with warnings.catch_warnings():
+                # Both exporters warn about things that do not apply here (torchvision
+                # ops, the legacy path's deprecation); the result is checked by parity.
+                warnings.simplefilter("ignore")
+                if kind == "dynamo":
+                    batch = torch.export.Dim("N")
+                    program = torch.onnx.export(
+                        graph, example, None, input_names=names, output_names=out_names,
+                        opset_version=OPSET, dynamo=True, external_data=False, optimize=True,
+                        # forward(*inputs): the varargs tuple is one argument
+                        dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False)
+                    proto = program.model_proto
+                else:
+                    with tempfile.TemporaryDirectory() as tmp:
+                        f = Path(tmp) / "m.onnx"
+                        torch.onnx.export(
+                            graph, example, str(f), input_names=names, output_names=out_names,
+                            opset_version=OPSET, dynamo=False, do_constant_folding=True,
+                            dynamic_axes={n: {0: "N"} for n in names + out_names})
+                        proto = onnx.load(str(f))
+            _strip_debug(proto)
+            return proto, kind
+        except Exception as exc:  # any exporter failure: record it, try the next exporter
+            errors.append(f"{kind}: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+            _log.warning("ONNX exporter '%s' failed: %s", kind, errors[-1])
+    raise ExportError("torch.onnx.export failed (" + "; ".join(errors) + ")")
+
+
+def _json(value: Any) -> str:
+    return value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=float)
+
+
+def _metadata_props(model: nn.Module, metadata: Mapping[str, Any], exporter: str) -> dict[str, str]:
+    meta = dict(metadata)
+    spec = getattr(model, "spec", None)
+    t_ref = getattr(spec, "t_ref", None)
+    proxy_ref = getattr(spec, "proxy_ref", {}) or {}
+    signal_units = dict(SIGNAL_UNITS)
+    signal_units.update(meta.pop("signal_units", {}) or {})
+    output_units = dict(meta.pop("output_units", {}) or {})
+    props = {
+        "thermonet_format": str(THERMONET_FORMAT),
+        "thermonet_version": __version__,
+        "onnx_opset": str(OPSET),
+        "exporter": exporter,
+        "family": family_name(model),
+        "inputs": _json(list(model.inputs)),
+        "signals": _json(list(model.signals)),
+        "signal_units": _json({s: signal_units.get(s, "") for s in model.signals}),
+        "outputs": _json(list(model.outputs)),
+        "output_units": _json({a: output_units.get(a, "") for a in model.outputs}),
+        "t_ref": "" if t_ref is None else repr(float(t_ref)),
+        "proxy_ref": _json({k: float(v) for k, v in dict(proxy_ref).items()}),
+        "trained_range": _json({k: list(v) for k, v in trained_range(model).items()}),
+        "device_id": _json(meta.pop("device_id", "")),
+        "training_run_id": _json(meta.pop("training_run_id", meta.pop("run_id", ""))),
+        "validation_metrics": _json(meta.pop("validation_metrics", {})),
+        "data_hash": _json(meta.pop("data_hash", "")),
+    }
+    for key, value in meta.items():
+        if key in props:
+            raise ExportError(f"metadata key '{key}' is reserved (written by thermonet itself)")
+        props[str(key)] = _json(value)
+    return props
+
+
+def _check_points(ranges: Sequence[tuple[float, float]], seed: int) -> np.ndarray:
+    """Grid over the trained range (full product up to 2 signals, else per-signal sweeps)
+    plus seeded uniform random points in range; float32 (N, S)."""
+    lo = np.array([r[0] for r in ranges])
+    hi = np.array([r[1] for r in ranges])
+    axes = [np.linspace(a, b, GRID_POINTS) for a, b in zip(lo, hi)]
+    if len(ranges) <= 2:
+        grid = np.stack([g.reshape(-1) for g in np.meshgrid(*axes, indexing="ij")], axis=1)
+    else:
+        mid = (lo + hi) / 2
+        sweeps = []
+        for i, ax in enumerate(axes):
+            block = np.tile(mid, (GRID_POINTS, 1))
+            block[:, i] = ax
+            sweeps.append(block)
+        grid = np.concatenate(sweeps)
+    rng = np.random.default_rng(seed)
+    rand = rng.uniform(lo, hi, size=(RANDOM_POINTS, len(ranges)))
+    return np.concatenate([grid, rand]).astype(np.float32)
+
+
+def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
+                 rtol: float = PARITY_RTOL) -> dict[str, float]:
+    """Compare onnxruntime (CPU) with torch on the grid and the random points.
+
+    Also checks the out-of-range flag on points just outside the range and on
+    NaN.  Returns ``{"n_points", "max_abs_diff", "max_rel_diff"}``.
+
+    Raises
+    ------
+    ExportError
+        Naming the worst point (signal values, axis, both drift values).
+    """
+    import onnxruntime as ort
+
+    ranges = list(trained_range(model).values())
+    points = _check_points(ranges, seed)
+    n, n_axes = points.shape[0], len(model.outputs)
+    raw = np.random.default_rng(seed + 1).normal(size=(n, n_axes)).astype(np.float32)
+    with torch.no_grad():
+        d_torch = model(torch.from_numpy(points)).double().numpy()
+    opts = ort.SessionOptions()
+    opts.log_severity_level = 3
+    sess = ort.InferenceSession(str(onnx_path), sess_options=opts,
+                                providers=["CPUExecutionProvider"])
+    feeds = {s: np.ascontiguousarray(points[:, i]) for i, s in enumerate(model.signals)}
+    comp, d_ort, flag = sess.run(None, {**feeds, "raw": raw})
+    d_ort = d_ort.astype(np.float64)
+    scale = np.maximum(np.abs(d_torch), np.abs(d_torch).max(axis=0, keepdims=True))
+    err = np.abs(d_ort - d_torch)
+    excess = np.where(np.isfinite(d_ort), err - rtol * scale, np.inf)
+    k, a = np.unravel_index(int(np.argmax(excess)), excess.shape)
+    if excess[k, a] > 0:
+        where = ", ".join(f"{s}={points[k, i]:.6g}" for i, s in enumerate(model.signals))
+        raise ExportError(f"ONNX parity check failed at {where}, axis '{model.outputs[a]}': "
+                          f"onnxruntime {d_ort[k, a]:.9g} vs torch {d_torch[k, a]:.9g} "
+                          f"(tolerance {rtol:g} x {scale[k, a]:.3g})")
+    comp_err = np.abs(comp.astype(np.float64) - (raw.astype(np.float64) - d_torch))
+    if not bool(np.all(comp_err <= rtol * (np.abs(raw) + scale) + 1e-30)):
+        raise ExportError("ONNX parity check failed: 'compensated' is not raw - drift")
+    if bool(flag.any()):
+        k = int(np.argmax(flag))
+        where = ", ".join(f"{s}={points[k, i]:.6g}" for i, s in enumerate(model.signals))
+        raise ExportError(f"ONNX out_of_range flag set inside the trained range at {where}")
+    # Just outside each side of the range, and NaN: the flag must be set, NaN must propagate.
+    lo = np.array([r[0] for r in ranges])
+    hi = np.array([r[1] for r in ranges])
+    span = np.maximum(hi - lo, 1e-3)
+    outside = np.stack([lo - 0.1 * span, hi + 0.1 * span, np.full_like(lo, np.nan)]).astype(np.float32)
+    _, d_out, f_out = sess.run(None, {**{s: np.ascontiguousarray(outside[:, i])
+                                         for i, s in enumerate(model.signals)},
+                                      "raw": np.zeros((3, n_axes), np.float32)})
+    if not bool(f_out.all()):
+        raise ExportError("ONNX out_of_range flag not set for a signal outside the trained range")
+    if not bool(np.isnan(d_out[2]).all()):
+        raise ExportError("ONNX graph does not return NaN drift for a NaN signal")
+    return {"n_points": float(n), "max_abs_diff": float(err.max()),
+            "max_rel_diff": float((err / np.maximum(scale, 1e-30)).max())}
+
+
+def export_onnx(model: nn.Module, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
+                check: bool = True, exporter: str = "auto", seed: int = 0) -> Path:
+    """Export a drift model to ``path`` as a self-describing ONNX file.
+
+    Parameters
+    ----------
+    model : DriftModel
+        A trained model (any registered family).
+    path : str or Path
+        Destination ``.onnx``; written atomically (temp file + ``os.replace``),
+        so a failed export or parity check never leaves a half-written file.
+    metadata : dict, optional
+        Provenance written to ``metadata_props``: ``device_id``,
+        ``training_run_id``, ``validation_metrics`` (dict), ``data_hash``,
+        ``signal_units`` / ``output_units`` (dicts name → unit); any other
+        key is written as given (JSON when not a string).
+    check : bool
+        Run :func:`parity_check` before the file is moved into place.
+    exporter : {"auto", "dynamo", "torchscript"}
+        ``auto`` tries the dynamo exporter first, then the TorchScript one.
+    seed : int
+        Seed of the random parity points.
+
+    Returns
+    -------
+    Path
+        The written file.
+
+    Raises
+    ------
+    ExportError
+        NaN parameters, an exporter failure or a failed parity check.
+    """
+    import onnx
+
+    if exporter not in ("auto", "dynamo", "torchscript"):
+        raise ExportError(f"exporter must be 'auto', 'dynamo' or 'torchscript', got '{exporter}'")
+    check_model_finite(model)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    was_training = model.training
+    model.eval()
+    try:
+        graph = CompensatorGraph(model).eval()
+        proto, used = _export_proto(graph, exporter)
+        for key, value in _metadata_props(model, metadata or {}, used).items():
+            entry = proto.metadata_props.add()
+            entry.key, entry.value = key, value
+        proto.producer_name = "thermonet"
+        proto.producer_version = __version__
+        fd, tmp_name = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+        os.close(fd)
+        tmp = Path(tmp_name)
+        try:
+            onnx.save_model(proto, str(tmp), save_as_external_data=False)
+            onnx.checker.check_model(str(tmp))
+            if check:
+                stats = parity_check(model, tmp, seed=seed)
+                _log.info("ONNX parity: %d points, max |diff| %.3g (rel %.3g)",
+                          int(stats["n_points"]), stats["max_abs_diff"], stats["max_rel_diff"])
+            os.replace(tmp, path)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+    finally:
+        model.train(was_training)
+    return path
+
+
+def onnx_file_size(path: str | Path) -> int:
+    """Size of an exported file in bytes (for the size benchmark)."""
+    return Path(path).stat().st_size
+
+
+def time_onnxruntime(path: str | Path, *, batch_size: int = 1000, repeats: int = 50,
+                     threads: int = 1, seed: int = 0) -> float:
+    """Median seconds per onnxruntime call on a batch of in-range points (``threads`` threads).
+
+    The first call (session warm-up) is not counted.
+    """
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = int(threads)
+    opts.inter_op_num_threads = 1
+    opts.log_severity_level = 3
+    sess = ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
+    meta = sess.get_modelmeta().custom_metadata_map
+    signals = json.loads(meta["signals"])
+    ranges = json.loads(meta["trained_range"])
+    n_axes = len(json.loads(meta["outputs"]))
+    rng = np.random.default_rng(seed)
+    feeds = {s: rng.uniform(*ranges[s], size=batch_size).astype(np.float32) for s in signals}
+    feeds["raw"] = np.zeros((batch_size, n_axes), np.float32)
+    sess.run(None, feeds)
+    times = []
+    for _ in range(max(1, int(repeats))):
+        t0 = time.perf_counter()
+        sess.run(None, feeds)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def log_onnx_to_mlflow(path: str | Path, run_id: str, tracking_uri: str, *,
+                       artifact_path: str = "onnx") -> None:
+    """Log an exported file to an existing MLflow run, as a file and as an ONNX model.
+
+    The file goes under ``<artifact_path>/`` as is; ``mlflow.onnx.log_model``
+    adds an MLflow model named ``<artifact_path>_model`` (with its
+    ``MLmodel`` descriptor) so that ``mlflow.onnx.load_model`` can read it.
+    The global tracking URI is restored afterwards.
+    """
+    import mlflow
+    import mlflow.onnx
+    import onnx
+
+    path = Path(path)
+    if not path.is_file():
+        raise ExportError(f"{path}: no such ONNX file to log")
+    client = mlflow.MlflowClient(tracking_uri=tracking_uri)
+    client.log_artifact(run_id, str(path), artifact_path=artifact_path)
+    previous = mlflow.get_tracking_uri()
+    mlflow.set_tracking_uri(tracking_uri)
+    try:
+        with mlflow.start_run(run_id=run_id):
+            mlflow.onnx.log_model(onnx.load(str(path)), name=f"{artifact_path}_model")
+    finally:
+        mlflow.set_tracking_uri(previous)
