@@ -1,7 +1,6 @@
 """MLflow tracking against a real embedded SQLite store in a temporary directory."""
 
 import mlflow
-import pytest
 
 from thermonet.tracking import Tracker, flatten_params
 

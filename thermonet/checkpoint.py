@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from .fileio import atomic_path
 from .errors import ExportError, InputError
 from .features import FeatureSpec
 from .models import DriftModel, build_family
@@ -104,16 +104,8 @@ def save_checkpoint(path: str | os.PathLike, model: DriftModel, *, config: dict,
         "extra": _plain(dict(extra or {}), "extra"),
     }
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            torch.save(payload, fh)
-        os.replace(tmp, path)
-    except BaseException:
-        # Leave no temporary file behind; the original error propagates.
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
     return path
 
 

@@ -38,8 +38,6 @@ import csv
 import io
 import json
 import logging
-import os
-import tempfile
 from collections import Counter
 from pathlib import Path
 from typing import Sequence
@@ -49,6 +47,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from .fileio import atomic_path
 from .errors import InputError
 from .mapping import ChannelSpec, ColumnMapping, TimeSpec, default_unit, load_mapping
 from .recording import OUTPUT_NAME, Dataset, Recording
@@ -81,15 +80,8 @@ def write_parquet(dataset: Dataset, path: str | Path) -> Path:
         raise InputError.at(path, f"output directory '{path.parent}' does not exist")
     for run in dataset:
         run.validate()
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path, make_parents=False) as tmp:
         pq.write_table(_to_table(dataset), tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        # Never leave a half-written temp file behind, whatever failed.
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 

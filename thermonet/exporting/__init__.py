@@ -17,6 +17,7 @@ from .autopilot import (
     read_px4_params,
 )
 from .c_header import export_c_header, render_c_header
+from .source import FORMATS, export_source, resolve_checkpoint
 from .onnx_export import (
     CompensatorGraph,
     export_onnx,
@@ -27,6 +28,9 @@ from .onnx_export import (
 )
 
 __all__ = [
+    "FORMATS",
+    "export_source",
+    "resolve_checkpoint",
     "CompensatorGraph",
     "export_onnx",
     "parity_check",

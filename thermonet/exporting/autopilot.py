@@ -48,8 +48,6 @@ File formats.  PX4: QGroundControl parameter file, tab-separated
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
@@ -58,6 +56,7 @@ import numpy as np
 from numpy.polynomial import polynomial as P
 from torch import nn
 
+from ..fileio import atomic_write_text
 from ..errors import ExportError
 from ..recording import output_kind
 from .onnx_export import family_name
@@ -225,17 +224,7 @@ def ardupilot_correction(params: Mapping[str, float], kind: str, temperature_c: 
 
 
 def _atomic_write(path: Path, text: str) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
+    return atomic_write_text(path, text)
 
 
 def _g(v: float) -> str:

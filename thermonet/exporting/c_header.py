@@ -37,9 +37,7 @@ largest drift): only summation order and ``expf`` rounding differ.
 from __future__ import annotations
 
 import math
-import os
 import re
-import tempfile
 from pathlib import Path
 from typing import Callable
 
@@ -47,6 +45,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..fileio import atomic_write_text
 from .. import __version__
 from ..errors import ExportError
 from .onnx_export import check_model_finite, family_name
@@ -268,7 +267,7 @@ def render_c_header(model: nn.Module, *, prefix: str = "thermonet") -> str:
         *fam_consts,
         "",
         f"static inline int {p}_compensate(const float *signals, const float *raw,",
-        f"                                 float *compensated, float *drift)",
+        "                                 float *compensated, float *drift)",
         "{",
         f"    float s[{P}_N_SIGNALS];",
         f"    float z[{P}_N_FEATURES];",
@@ -327,14 +326,4 @@ def export_c_header(model: nn.Module, path: str | Path, *, prefix: str = "thermo
         Unknown family, NaN/inf parameters, or a prefix that is not a C identifier.
     """
     text = render_c_header(model, prefix=prefix)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
+    return atomic_write_text(path, text)

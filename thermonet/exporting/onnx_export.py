@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import tempfile
 import time
 import warnings
@@ -55,6 +54,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..fileio import atomic_path
 from .. import __version__
 from ..errors import ExportError
 
@@ -368,20 +368,13 @@ def export_onnx(model: nn.Module, path: str | Path, *, metadata: Mapping[str, An
             entry.key, entry.value = key, value
         proto.producer_name = "thermonet"
         proto.producer_version = __version__
-        fd, tmp_name = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-        os.close(fd)
-        tmp = Path(tmp_name)
-        try:
+        with atomic_path(path) as tmp:
             onnx.save_model(proto, str(tmp), save_as_external_data=False)
             onnx.checker.check_model(str(tmp))
             if check:
                 stats = parity_check(model, tmp, seed=seed)
                 _log.info("ONNX parity: %d points, max |diff| %.3g (rel %.3g)",
                           int(stats["n_points"]), stats["max_abs_diff"], stats["max_rel_diff"])
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
     finally:
         model.train(was_training)
     return path

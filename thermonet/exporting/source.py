@@ -1,0 +1,139 @@
+"""``thermonet export SOURCE``: find the model, write the requested form, log it to its run.
+
+SOURCE is one of
+
+* a ``compare`` output directory — its chosen family, or ``--family NAME``;
+  a comparison that chose none ("do no harm") refuses unless a family is named;
+* a checkpoint file (``models/<family>.pt``);
+* an MLflow run id of a family's nested run (its ``model/<family>.pt``
+  artifact is downloaded from the tracking store).
+
+The ONNX file is also logged to the training run (as an artifact and as an
+MLflow ONNX model) when the checkpoint names one and the store is reachable.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from ..errors import ExportError, InputError
+
+__all__ = ["resolve_checkpoint", "export_source", "FORMATS"]
+
+FORMATS = ("onnx", "c", "px4-params", "ardupilot-params")
+
+_RUN_ID = re.compile(r"^[0-9a-f]{32}$")
+
+
+def _from_compare_dir(path: Path, family: str | None) -> Path:
+    results_file = path / "results.json"
+    if not results_file.is_file():
+        raise InputError(f"{path}: not a compare output directory (no results.json)")
+    try:
+        results = json.loads(results_file.read_text())
+    except json.JSONDecodeError as err:
+        raise InputError(f"{results_file}: not valid JSON ({err.msg}, line {err.lineno})") from None
+    fams = results.get("families", {})
+    name = family or results.get("chosen")
+    if name is None:
+        raise ExportError(f"{results_file}: the comparison chose no family "
+                          f"({results.get('chosen_reason', 'do no harm')}); pass --family NAME "
+                          f"to export one anyway (families: {', '.join(fams)})")
+    if name not in fams:
+        raise InputError(f"{results_file}: no family '{name}' (families: {', '.join(fams)})")
+    ckpt = fams[name].get("checkpoint")
+    if not ckpt:
+        raise ExportError(f"{results_file}: family '{name}' has no checkpoint "
+                          f"({fams[name].get('reason') or 'not fitted'})")
+    p = Path(ckpt)
+    if not p.is_absolute() and not p.is_file():
+        p = path / "models" / p.name  # the directory was moved: look beside results.json
+    return p
+
+
+def _from_run_id(run_id: str, tracking_uri: str | None, workdir: Path) -> Path:
+    import mlflow
+
+    from ..tracking import default_tracking_uri
+
+    uri = tracking_uri or default_tracking_uri()
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    try:
+        arts = [a.path for a in client.list_artifacts(run_id, "model")]
+    except Exception as err:  # noqa: BLE001 - MLflow raises its own exception types
+        raise InputError(f"MLflow run '{run_id}' at {uri}: {err}".splitlines()[0]) from None
+    pts = [a for a in arts if a.endswith(".pt")]
+    if not pts:
+        raise InputError(f"MLflow run '{run_id}' at {uri}: no model/*.pt checkpoint artifact "
+                         "(give the run id of a family's nested run)")
+    local = mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=pts[0],
+                                                dst_path=str(workdir), tracking_uri=uri)
+    return Path(local)
+
+
+def resolve_checkpoint(source: str, *, family: str | None = None,
+                       tracking_uri: str | None = None, workdir: Path | None = None) -> Path:
+    """The checkpoint file that SOURCE designates (downloaded when SOURCE is a run id)."""
+    p = Path(source)
+    if p.is_dir():
+        return _from_compare_dir(p, family)
+    if p.is_file():
+        return p
+    if _RUN_ID.match(source):
+        return _from_run_id(source, tracking_uri, workdir or Path(tempfile.mkdtemp()))
+    raise InputError(f"{source}: no such compare directory, checkpoint file or MLflow run id")
+
+
+def export_source(source: str, *, fmt: str, out: str | Path, family: str | None = None,
+                  tracking_uri: str | None = None) -> Path:
+    """Export the model SOURCE designates as ``fmt`` to ``out``; return the written path."""
+    from ..checkpoint import load_checkpoint
+    from . import export_ardupilot_params, export_c_header, export_onnx, export_px4_params
+
+    if fmt not in FORMATS:
+        raise InputError(f"unknown export format '{fmt}' (formats: {', '.join(FORMATS)})")
+    with tempfile.TemporaryDirectory() as tmp:
+        ckpt = resolve_checkpoint(source, family=family, tracking_uri=tracking_uri,
+                                  workdir=Path(tmp))
+        model, meta = load_checkpoint(ckpt)
+    extra: dict[str, Any] = meta.get("extra", {}) or {}
+    units = extra.get("units", {}) or {}
+    if fmt == "onnx":
+        path = export_onnx(model, out, metadata={
+            "device_id": extra.get("device_id", ""),
+            "training_run_id": extra.get("mlflow_run_id", ""),
+            "validation_metrics": {"val_score": extra.get("val_score"),
+                                   "test": extra.get("test_metrics", {})},
+            "data_hash": extra.get("data_hash", ""),
+            "output_units": units,
+        })
+        run_id = extra.get("mlflow_run_id")
+        if run_id:
+            _log_to_run(path, run_id, tracking_uri, meta)
+        return path
+    if fmt == "c":
+        return export_c_header(model, out)
+    if fmt == "px4-params":
+        return export_px4_params(model, out, output_units=units)
+    return export_ardupilot_params(model, out, output_units=units)
+
+
+def _log_to_run(path: Path, run_id: str, tracking_uri: str | None, meta: dict) -> None:
+    """Log the ONNX file to its training run; a store that is gone is reported, not fatal."""
+    import logging
+
+    from ..tracking import default_tracking_uri
+    from .onnx_export import log_onnx_to_mlflow
+
+    uri = tracking_uri or (meta.get("config", {}).get("tracking", {}) or {}).get("uri") \
+        or default_tracking_uri()
+    try:
+        log_onnx_to_mlflow(path, run_id, uri)
+    except Exception as err:  # noqa: BLE001 - the file is written; tracking is best effort here
+        logging.getLogger(__name__).warning(
+            "wrote %s but could not log it to MLflow run %s at %s: %s",
+            path, run_id, uri, str(err).splitlines()[0] if str(err) else type(err).__name__)
