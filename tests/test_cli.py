@@ -1,0 +1,92 @@
+"""The command line end to end, from a subprocess, as a user runs it."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import REAL_DATA
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def thermonet(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "thermonet.cli", *map(str, args)],
+                          capture_output=True, text=True, cwd=cwd, timeout=600)
+
+
+@pytest.mark.parametrize("args", [["--help"], ["simulate", "--help"], ["info", "--help"],
+                                  ["compare", "--help"], ["train", "--help"],
+                                  ["export", "--help"]])
+def test_help_everywhere(args):
+    r = thermonet(*args)
+    assert r.returncode == 0
+    assert "usage: thermonet" in r.stdout
+
+
+@pytest.mark.parametrize("args", [[], ["frobnicate"], ["simulate"], ["export", "x", "--format", "pdf",
+                                                                     "--out", "y"]])
+def test_usage_errors_exit_2(args):
+    assert thermonet(*args).returncode == 2
+
+
+def test_bad_input_exits_1_with_one_line(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,temperature_c,gyro_x\n0,20,0.1\n1,21,abc\n")
+    r = thermonet("info", bad)
+    assert r.returncode == 1
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1
+    assert "bad.csv" in lines[0] and "gyro_x" in lines[0]
+    r = thermonet("compare", tmp_path / "missing.yaml", "--out", tmp_path / "o")
+    assert r.returncode == 1 and "missing.yaml" in r.stderr
+
+
+def test_info_on_both_real_recordings():
+    pan = thermonet("info", REAL_DATA / "pan_tvac_gyro" / "TVCtest3_7_20.csv",
+                    "--mapping", CONFIGS / "data" / "pan_tvac_gyro.yaml", "--json")
+    assert pan.returncode == 0, pan.stderr
+    summary = json.loads(pan.stdout)
+    text = json.dumps(summary)
+    assert "gyro_x" in text and "temp_raw" in text and "6250" in text
+    bmi = thermonet("info", REAL_DATA / "bmi270_two_soaks" / "BMI_270_cold_test_.csv",
+                    REAL_DATA / "bmi270_two_soaks" / "BMI_270_hot_test.csv",
+                    "--mapping", CONFIGS / "data" / "bmi270.yaml")
+    assert bmi.returncode == 0, bmi.stderr
+    assert "12.98..13.30" in bmi.stdout and "47.22..49.36" in bmi.stdout
+    assert "skipped malformed rows: 5" in bmi.stdout
+
+
+def test_simulate_then_info_then_compare_then_export(tmp_path):
+    sim = tmp_path / "pg.parquet"
+    r = thermonet("simulate", "patent-gyro", "--runs", "3", "--seed", "7", "--out", sim)
+    assert r.returncode == 0, r.stderr
+    assert sim.is_file()
+    r = thermonet("info", sim)
+    assert r.returncode == 0, r.stderr
+    for axis in ("gyro_x", "gyro_y", "gyro_z"):
+        assert axis in r.stdout
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"data: {{paths: ['{sim}']}}\n"
+                   "train: {max_epochs: 30, patience: 5}\n"
+                   "families:\n"
+                   "  - {name: cubic, family: poly, inputs: [dT], params: {degree: 3}}\n"
+                   "  - {name: rbf, family: rbf, inputs: [dT, dT2], params: {n_centres: 8}}\n")
+    r = thermonet("compare", cfg, "--out", tmp_path / "out", "--tracking-uri",
+                  f"sqlite:///{tmp_path / 'mlflow.db'}", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "chosen:" in r.stdout
+    res = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert res["chosen"] in ("cubic", "rbf")
+    r = thermonet("export", tmp_path / "out", "--format", "onnx", "--out", tmp_path / "m.onnx",
+                  "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "m.onnx").stat().st_size > 500
+    r = thermonet("export", tmp_path / "out", "--family", "rbf", "--format", "px4-params",
+                  "--out", tmp_path / "p.params")
+    assert r.returncode == 1 and "poly" in r.stderr
+    assert not (tmp_path / "p.params").exists()
