@@ -212,15 +212,20 @@ def _choose(families: dict[str, dict[str, Any]]) -> tuple[str | None, str]:
 
 def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None = None,
                 tracking_uri: str | None = None, quiet: bool = False,
-                progress: Progress | None = None) -> dict[str, Any]:
-    """Fit every family of ``cfg``, judge on held-out data, write ``out_dir``; return results."""
+                progress: Progress | None = None, dataset: Dataset | None = None
+                ) -> dict[str, Any]:
+    """Fit every family of ``cfg``, judge on held-out data, write ``out_dir``; return results.
+
+    ``dataset`` replaces the configured data (benchmarks feed variants of one
+    simulation this way); the config's ``data`` section is then ignored.
+    """
     from .checkpoint import save_checkpoint
     from .tracking import Tracker
 
     progress = progress or Progress(quiet)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    ds = load_data(cfg.data)
+    ds = dataset if dataset is not None else load_data(cfg.data)
     outputs = _outputs(ds, cfg)
     splits = make_splits(ds, cfg.split)
     dhash = data_hash(ds)
