@@ -111,3 +111,22 @@ def test_leave_one_run_out_reports_folds(tmp_path):
     assert len(fam["folds"]) == 3
     mean = np.mean([f["gyro_x"]["rms_comp"] for f in fam["folds"]])
     assert fam["axes"]["gyro_x"]["rms_comp"] == pytest.approx(mean)
+
+
+def test_two_runs_train_then_verify_with_interleaved_validation_blocks(tmp_path):
+    from thermonet.config import SplitConfig
+    from thermonet.evaluate import make_splits
+
+    ds = toy_dataset(n_runs=2)
+    split, = make_splits(ds, SplitConfig())
+    assert split.label == "train-then-verify"
+    assert split.test is ds["run1"]
+    train, val = split.train[0], split.val
+    # contiguous blocks: 20 blocks of 6 min; every 5th block (index 2 mod 5) validates
+    assert val.n_samples == pytest.approx(0.2 * ds["run0"].n_samples, rel=0.01)
+    assert train.n_samples + val.n_samples == ds["run0"].n_samples
+    assert not set(train.time_s) & set(val.time_s)
+    gaps = np.flatnonzero(np.diff(val.time_s) > 1.5)
+    assert len(gaps) == 3  # four contiguous validation blocks
+    # the validation blocks sample the whole temperature range
+    assert val.temperature_c.min() < -5 and val.temperature_c.max() > 35

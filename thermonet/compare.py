@@ -97,24 +97,38 @@ def _train_config(cfg: CompareConfig, fam: FamilyConfig) -> Any:
     return TrainConfig(**to_dict(merged))
 
 
+def _per_soak_metrics(k: np.ndarray, pred: np.ndarray, temps: np.ndarray, scale: bool
+                      ) -> dict[str, float]:
+    """Metrics of per-soak four-position estimates (study 000).
+
+    Bias K0: the raw error is K0 itself, compensated K0 − K̂0.  Scale factor
+    K1: its nominal value is no error, so raw is K1 − mean(K1); compensated
+    is K1 − K̂1(T) (+ mean(K1) for the ppm/°C coefficient, which needs the
+    nominal scale factor in its denominator).
+    """
+    from .metrics import rms, scale_factor_tempco_ppm_per_c
+
+    nominal = float(np.mean(k)) if scale else 0.0
+    raw, comp = k - nominal, k - pred
+    m = {"rms_raw": rms(raw), "rms_comp": rms(comp), "pp_raw": float(np.ptp(raw)),
+         "pp_comp": float(np.ptp(comp)), "msd_raw": float(np.mean(raw ** 2)),
+         "msd_comp": float(np.mean(comp ** 2))}
+    if scale:
+        m["ppm_per_c_raw"] = scale_factor_tempco_ppm_per_c(temps, k)
+        m["ppm_per_c_comp"] = scale_factor_tempco_ppm_per_c(temps, comp + nominal)
+    return m
+
+
 def _evaluate_part(model: Any, part: Part) -> tuple[np.ndarray, dict[str, dict[str, float]]]:
-    from .metrics import axis_metrics, scale_factor_tempco_ppm_per_c
+    from .metrics import axis_metrics
     from .train import predict
 
     pred = predict(model, part.signals)
     out: dict[str, dict[str, float]] = {}
     for j, axis in enumerate(part.outputs):
-        if axis.endswith(".scale"):
-            k = part.target[:, j]
-            # a scale factor after compensation: the measured K divided by the modelled K(T),
-            # rescaled to the mean K, so ppm/°C before and after compare like for like
-            k_comp = k - pred[:, j] + float(np.mean(k))
-            m = {"rms_raw": float(np.std(k)), "rms_comp": float(np.std(k_comp)),
-                 "pp_raw": float(np.ptp(k)), "pp_comp": float(np.ptp(k_comp)),
-                 "ppm_per_c_raw": scale_factor_tempco_ppm_per_c(part.bin_by, k),
-                 "ppm_per_c_comp": scale_factor_tempco_ppm_per_c(part.bin_by, k_comp)}
-            m["msd_raw"] = float(np.mean((k - np.mean(k)) ** 2))
-            m["msd_comp"] = float(np.mean((k_comp - np.mean(k)) ** 2))
+        if part.per_soak:
+            m = _per_soak_metrics(part.target[:, j], pred[:, j], part.bin_by,
+                                  scale=axis.endswith(".scale"))
         else:
             raw = part.target[:, j]
             m = axis_metrics(

@@ -40,24 +40,25 @@ class DataConfig:
 
 @dataclass
 class SplitConfig:
-    """How runs are split; never by random sample.
+    """How runs are split; never by random sample (see :mod:`thermonet.evaluate`).
 
-    ``auto``: ≥ 3 runs → train on all but the last two, validate on the
-    second-to-last, test on the last; 2 runs → train+validate on contiguous
-    blocks of the first run (last ``val_fraction`` of it validates), test on
-    the second; 1 run → three contiguous time blocks (train / val / test by
-    ``val_fraction`` and ``test_fraction`` at the end of the run).
-    ``runs``: the run ids named in ``train``, ``val``, ``test``.
-    ``leave-one-run-out``: each run is the test run once (needs ≥ 3 runs);
-    the report gives the mean over folds and the chosen family's per-fold values.
+    ``auto``: ≥ 3 runs → ``runs``; 2 runs → ``train-then-verify``; 1 run →
+    ``time-blocks``.  ``runs``: train on all but the last two runs, validate on
+    the second-to-last, test on the last — or on the run ids named in
+    ``train``, ``val``, ``test``.  ``train-then-verify``: train on the first
+    run (validating on interleaved contiguous blocks of it), test on the
+    second.  ``time-blocks``: every run cut into ``n_blocks`` contiguous time
+    blocks, interleaved train / val / test (60 / 20 / 20 %).
+    ``leave-one-run-out``: each run is the test run once (≥ 3 runs), the
+    previous run validates; the report gives the mean over folds.
     """
 
-    strategy: Literal["auto", "runs", "time-blocks", "leave-one-run-out"] = "auto"
+    strategy: Literal["auto", "runs", "train-then-verify", "time-blocks",
+                      "leave-one-run-out"] = "auto"
     train: list[str] = field(default_factory=list)
     val: str | None = None
     test: str | None = None
-    val_fraction: float = 0.2            # of a run, contiguous, when one run must give two parts
-    test_fraction: float = 0.3           # of the only run, contiguous, at its end
+    n_blocks: int = 20                   # contiguous time blocks per run (time-blocks)
 
 
 @dataclass

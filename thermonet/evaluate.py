@@ -1,10 +1,21 @@
 """Honest evaluation: data loading, splits by run or contiguous time, targets, per-axis metrics.
 
-Splits never sample at random.  With three runs or more the split is by run
-(train on all but the last two, stop early on the second-to-last, report on
-the last; or leave-one-run-out).  With one or two runs each run is cut into
-contiguous time blocks (train | validate | test, in that order), so the
-held-out samples come after the training samples in time.
+Splits never sample at random.  ``auto`` picks by the number of runs:
+
+* ≥ 3 runs: by run — train on all but the last two, stop early on the
+  second-to-last, report on the last (or ``leave-one-run-out``);
+* 2 runs: train on the first, report on the second (study 001 and 002's
+  procedure: calibration run, then a verification run); early stopping
+  watches interleaved contiguous blocks of the first run (below);
+* 1 run: interleaved contiguous blocks of that run.
+
+Interleaved contiguous blocks: the run is cut by time into ``n_blocks``
+equal blocks; in every group of five, the third validates and the fifth
+tests, the rest train (20 % / 20 % / 60 %).  Every held-out block is a
+contiguous stretch of minutes to hours, and the held-out blocks sample the
+whole temperature range, so a soak-by-soak recording is not judged on
+temperatures it never trained on.  ``time-blocks`` applies the same cut to
+every run (e.g. two isothermal soaks that only together span the range).
 """
 
 from __future__ import annotations
@@ -70,22 +81,23 @@ class Split:
     describe: dict[str, Any] = field(default_factory=dict)
 
 
-def _blocks(rec: Recording, val_fraction: float, test_fraction: float
+def _blocks(rec: Recording, n_blocks: int, *, with_test: bool = True
             ) -> tuple[Recording, Recording, Recording | None]:
-    """Contiguous train | val | test blocks of one run (test None when test_fraction is 0)."""
-    n = rec.n_samples
+    """Interleaved contiguous train | val | test blocks of one run (cut on time)."""
     t = rec.time_s
-    # cut on time, not on sample index, so gaps (burst recordings) do not skew the split
-    span = t[-1] - t[0]
-    cut_test = t[-1] - test_fraction * span
-    cut_val = cut_test - val_fraction * span
-    train = rec.select(t < cut_val, run_id=f"{rec.run_id}[train]")
-    val = rec.select((t >= cut_val) & (t < cut_test), run_id=f"{rec.run_id}[val]")
-    test = rec.select(t >= cut_test, run_id=f"{rec.run_id}[test]") if test_fraction > 0 else None
+    # cut on time, not on sample index, so gaps (burst recordings) do not skew the blocks
+    block = np.minimum(((t - t[0]) / max(t[-1] - t[0], 1e-12) * n_blocks).astype(int), n_blocks - 1)
+    role = block % 5
+    is_val = role == 2
+    is_test = (role == 4) if with_test else np.zeros_like(is_val)
+    is_train = ~(is_val | is_test)
+    train = rec.select(is_train, run_id=f"{rec.run_id}[train]")
+    val = rec.select(is_val, run_id=f"{rec.run_id}[val]")
+    test = rec.select(is_test, run_id=f"{rec.run_id}[test]") if with_test else None
     for part in (train, val) + ((test,) if test is not None else ()):
         if part.n_samples < 10:
-            raise ConfigError(f"split: run '{rec.run_id}' has too few samples ({n}) for "
-                              "contiguous train/val/test blocks")
+            raise ConfigError(f"split: run '{rec.run_id}' has too few samples ({rec.n_samples}) "
+                              f"for {n_blocks} contiguous blocks (lower split.n_blocks)")
     return train, val, test
 
 
@@ -95,7 +107,11 @@ def make_splits(ds: Dataset, cfg: SplitConfig) -> list[Split]:
     ids = [r.run_id for r in runs]
     strategy = cfg.strategy
     if strategy == "auto":
-        strategy = "runs" if len(runs) >= 3 else "time-blocks"
+        strategy = {1: "time-blocks", 2: "train-then-verify"}.get(len(runs), "runs")
+    if strategy == "train-then-verify":
+        train, val, _ = _blocks(runs[0], cfg.n_blocks, with_test=False)
+        return [Split([train], val, runs[1], "train-then-verify",
+                      {"train": train.run_id, "val": val.run_id, "test": runs[1].run_id})]
     if strategy == "runs":
         if cfg.train or cfg.val or cfg.test:
             for key, names in (("train", cfg.train), ("val", [cfg.val] if cfg.val else []),
@@ -127,15 +143,14 @@ def make_splits(ds: Dataset, cfg: SplitConfig) -> list[Split]:
                                 {"train": [r.run_id for r in train], "val": val.run_id,
                                  "test": test.run_id}))
         return splits
-    # time-blocks: every run gives a train, a val and a test block
+    # time-blocks: every run gives interleaved train, val and test blocks
     if len(runs) == 1:
-        train, val, test = _blocks(runs[0], cfg.val_fraction, cfg.test_fraction)
-        assert test is not None
+        train, val, test = _blocks(runs[0], cfg.n_blocks)
         return [Split([train], val, test, "time-blocks",
                       {"train": train.run_id, "val": val.run_id, "test": test.run_id})]
     trains, vals, tests = [], [], []
     for r in runs:
-        tr, va, te = _blocks(r, cfg.val_fraction, cfg.test_fraction)
+        tr, va, te = _blocks(r, cfg.n_blocks)
         trains.append(tr), vals.append(va), tests.append(te)
     return [Split(trains, _stack(vals, "val"), _stack(tests, "test"), "time-blocks",
                   {"train": [r.run_id for r in trains], "val": [r.run_id for r in vals],
@@ -190,6 +205,7 @@ class Part:
     rate_hz: float
     true_drift: np.ndarray | None
     outputs: list[str]
+    per_soak: bool = False               # one sample per soak (four-position target)
 
 
 def build_part(rec: Recording, *, signals: list[str], outputs: list[str], target: str,
@@ -233,4 +249,4 @@ def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> 
     assert temps is not None
     y = np.column_stack([cols[o] for o in outputs])
     return Part(temps[:, None], y, np.arange(temps.size, dtype=np.float64), temps, 1.0,
-                float("nan"), None, outputs)
+                float("nan"), None, outputs, per_soak=True)

@@ -185,10 +185,14 @@ class NoiseConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class UnitSpreadConfig:
-    """Unit-to-unit spread of the law coefficients, drawn per run (1σ values)."""
+    """Unit-to-unit spread of the law coefficients (1σ values).
+
+    Gains and the temperature shift are drawn once per seed (one unit per
+    dataset); ``bias_offset`` is drawn per run (turn-on repeatability).
+    """
 
     bias_gain_rel: float = 0.0  # relative, multiplies the bias law's temperature dependence
-    bias_offset: float = 0.0  # output unit, added to the bias
+    bias_offset: float = 0.0  # output unit, turn-on bias added per run
     scale_gain_rel: float = 0.0  # relative, multiplies the scale-factor law
     temperature_shift_c: float = 0.0  # °C, shifts the laws along temperature
 

@@ -74,7 +74,9 @@ class SimConfig:
     """Everything one simulated device and its test procedure need.
 
     ``procedures`` are chamber programmes; run *i* follows procedure
-    ``i % len(procedures)`` and, with unit spread on, is a different unit.
+    ``i % len(procedures)``.  All runs of one :func:`simulate` call are the same
+    unit (unit spread is drawn once per seed); each run has its own turn-on
+    bias offset (``unit_spread.bias_offset``, run-to-run repeatability).
     """
 
     name: str = "custom"
@@ -140,11 +142,15 @@ def simulate_run(cfg: SimConfig, run_index: int, seed: int = 0) -> tuple[Recordi
     rng = np.random.default_rng([int(seed), int(run_index)])
 
     us = cfg.unit_spread
+    # The runs of one dataset are one device: its law gains and temperature shift are
+    # drawn once per seed (another seed is another unit of the same type).  Each run
+    # (each power-up) adds its own turn-on bias offset: run-to-run repeatability.
     spread = rng.standard_normal(4) * sw.unit_spread
-    bias_gain = 1.0 + spread[0] * us.bias_gain_rel
+    unit = np.random.default_rng([int(seed)]).standard_normal(4) * sw.unit_spread
+    bias_gain = 1.0 + unit[0] * us.bias_gain_rel
     bias_offset = spread[1] * us.bias_offset
-    scale_gain = 1.0 + spread[2] * us.scale_gain_rel
-    t_shift = spread[3] * us.temperature_shift_c
+    scale_gain = 1.0 + unit[2] * us.scale_gain_rel
+    t_shift = unit[3] * us.temperature_shift_c
     th = cfg.thermometer
     th_offset = rng.uniform(-1.0, 1.0) * th.offset_spread_c
     rates = rng.uniform(cfg.table.rate_min, cfg.table.rate_max, len(cfg.axes)) \
