@@ -86,6 +86,16 @@ def test_simulate_then_info_then_compare_then_export(tmp_path):
                   "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "m.onnx").stat().st_size > 500
+    # the exported file is logged to the family's training run, as a file and as an ONNX model
+    import mlflow
+
+    client = mlflow.tracking.MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
+    run_id = res["families"][res["chosen"]]["mlflow_run_id"]
+    logged = {a.path for a in client.list_artifacts(run_id, "onnx")}
+    assert logged == {"onnx/m.onnx"}
+    models = client.search_logged_models(
+        experiment_ids=[client.get_run(run_id).info.experiment_id])
+    assert [(m.name, m.source_run_id) for m in models] == [("onnx_model", run_id)]
     r = thermonet("export", tmp_path / "out", "--family", "rbf", "--format", "px4-params",
                   "--out", tmp_path / "p.params")
     assert r.returncode == 1 and "poly" in r.stderr
