@@ -93,7 +93,8 @@ def rbf_numpy(model):
     """The same RBF in numpy (float32), for the throughput comparison."""
     p = {k: v.detach().numpy().astype(np.float32) for k, v in model.state_dict().items()}
     lo, hi = p["sig_lo"], p["sig_hi"]
-    ref, square, idx = p["features.ref"], p["features.square"], p["features.index"]
+    ref, square = p["features.ref"], p["features.square"]
+    idx = model.features.index.numpy()
     c, sigma2 = p["family.centres"], np.exp(2 * p["family.log_sigma"])
     w, b = p["family.weight"], p["family.bias"]
 

@@ -65,7 +65,7 @@ def test_noise_instability(ds: Dataset, cfg) -> dict[str, float]:
 
 
 def main() -> None:
-    rows, repro, data = [], [], {}
+    rows, data = [], {}
     for study in STUDIES:
         cfg = load_config(CONFIGS / f"{study}.yaml")
         ds = load_data(cfg.data)

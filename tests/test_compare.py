@@ -11,11 +11,11 @@ import pytest
 from conftest import toy_dataset
 from thermonet.checkpoint import load_checkpoint
 from thermonet.compare import format_table, run_compare
-from thermonet.config import CompareConfig, DataConfig, FamilyConfig, TrainSettings
+from thermonet.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
 from thermonet.io import write_parquet
 from thermonet.train import predict
 
-FAST = TrainSettings(max_epochs=60, patience=10)
+FAST = TrainConfig(max_epochs=20, patience=5)
 
 
 def config(path, families, **kw) -> CompareConfig:

@@ -37,7 +37,7 @@ def test_nan_target_is_a_fit_error_naming_the_row():
 
 def test_diverging_optimizer_reports_nan_loss_epoch():
     with pytest.raises(FitError, match="NaN loss at epoch 1"):
-        _fit(family="poly", hyper={"degree": 3}, max_epochs=5, lr=1e20)
+        _fit(family="poly", hyper={"degree": 3}, max_epochs=5, lr=1e20, optimizer="adam")
 
 
 def test_early_stopping_on_validation_stops_and_keeps_best_state():

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from . import __version__
-from .config import CompareConfig, FamilyConfig, TrainSettings, from_dict, to_dict
+from .config import CompareConfig, FamilyConfig, from_dict, to_dict
 from .errors import ConfigError, FitError, ThermonetError
 from .evaluate import Part, Split, build_part, data_hash, load_data, make_splits
 from .recording import Dataset
@@ -90,11 +90,11 @@ def _outputs(ds: Dataset, cfg: CompareConfig) -> list[str]:
 
 
 def _train_config(cfg: CompareConfig, fam: FamilyConfig) -> Any:
+    """The ``train`` section with the family's own overrides applied."""
     from .train import TrainConfig
 
-    merged = from_dict(TrainSettings, {**to_dict(cfg.train), **fam.train},
-                       source="config", prefix=f"families[{fam.label}].train")
-    return TrainConfig(**to_dict(merged))
+    return from_dict(TrainConfig, {**to_dict(cfg.train), **fam.train},
+                     source="config", prefix=f"families[{fam.label}].train")
 
 
 def _per_soak_metrics(k: np.ndarray, pred: np.ndarray, temps: np.ndarray, scale: bool

@@ -19,9 +19,10 @@ from typing import Any, Literal, Union
 import yaml
 
 from .errors import ConfigError
+from .train import TrainConfig  # the ``train`` section is TrainConfig itself
 
 __all__ = [
-    "DataConfig", "SplitConfig", "FeatureConfig", "FamilyConfig", "TrainSettings",
+    "DataConfig", "SplitConfig", "FeatureConfig", "FamilyConfig", "TrainConfig",
     "TrackingConfig", "CompareConfig", "load_config", "from_dict", "to_dict",
 ]
 
@@ -71,20 +72,6 @@ class FeatureConfig:
 
 
 @dataclass
-class TrainSettings:
-    """Gradient refinement after each family's closed-form start."""
-
-    optimizer: Literal["adam", "lbfgs"] = "adam"
-    lr: float = 0.01
-    max_epochs: int = 300
-    patience: int = 30                   # epochs without validation improvement before stopping
-    min_delta: float = 1e-6              # relative improvement that counts
-    seed: int = 0
-    device: Literal["auto", "cpu", "cuda"] = "cpu"
-    max_train_samples: int = 20000       # even decimation of long runs (never random sampling)
-
-
-@dataclass
 class FamilyConfig:
     """One entry of the comparison: a registered family with its inputs and hyper-parameters."""
 
@@ -126,7 +113,7 @@ class CompareConfig:
     split: SplitConfig = field(default_factory=SplitConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
     families: list[FamilyConfig] = field(default_factory=_default_families)
-    train: TrainSettings = field(default_factory=TrainSettings)
+    train: TrainConfig = field(default_factory=TrainConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     # drift: per sample, output − reference.  four-position: per soak, the bias K0 and scale
     # factor K1 of each axis from a static multi-position test (study 000); outputs
@@ -205,7 +192,10 @@ def from_dict(cls: type, data: Any, *, source: str = "config", prefix: str = "")
             raise ConfigError(f"{source}: key '{dotted}': unknown key (known: "
                               f"{', '.join(sorted(names))})")
         kwargs[key] = _coerce(value, hints[key], dotted, source)
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except ConfigError as err:  # a dataclass's own value check: add the file name
+        raise ConfigError(f"{source}: {err}") from None
 
 
 def to_dict(obj: Any) -> Any:

@@ -63,10 +63,13 @@ class TrainConfig:
         (ramps, soaks) is kept.
     """
 
-    optimizer: str = "adam"
-    lr: float = 1e-2
-    max_epochs: int = 2000
-    patience: int = 100
+    # L-BFGS by default: every family starts from a closed-form or heuristic fit, and
+    # full-batch L-BFGS polishes such a start in a few steps where Adam first wanders
+    # off it (experiments/bench_rbf_speed.py measures both).
+    optimizer: str = "lbfgs"
+    lr: float = 1.0
+    max_epochs: int = 100
+    patience: int = 10
     min_delta: float = 1e-7
     seed: int = 0
     device: str = "cpu"

@@ -75,6 +75,8 @@ __all__ = [
 ]
 
 _log = logging.getLogger(__name__)
+# torch's exporter warns once per export that torchvision (not a dependency) is absent
+logging.getLogger("torch.onnx._internal.exporter._registration").setLevel(logging.ERROR)
 
 #: Format marker written to ``metadata_props['thermonet_format']``.
 THERMONET_FORMAT = 1
