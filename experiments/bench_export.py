@@ -178,6 +178,12 @@ def main() -> None:
         with torch.no_grad():
             return model(s)
 
+    # the numpy evaluator is only a fair competitor if it computes the same drift
+    ref = torch_eval(sig_t[:1000]).numpy()
+    worst = float(np.max(np.abs(npf(sig_n[:1000]) - ref)) / np.max(np.abs(ref)))
+    if worst > 1e-5:
+        raise RuntimeError(f"numpy RBF differs from torch by {worst:.3g} (relative)")
+
     res = {
         "onnxruntime (session)": (rate(sess.run, None, feeds),
                                   rate(sess.run, None, {"temperature_c": temps[:1], "raw": raw[:1]},

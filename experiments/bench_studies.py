@@ -100,7 +100,8 @@ def main() -> None:
         data[study] = entry
         data[study]["results"] = res
         if study == "mems-gyro":
-            data[study]["offset_65c"] = soak_offset(cfg, ds, res, 65.0)
+            data[study]["offset_65c"] = soak_offset(cfg, ds, res, 65.0, "ts-fuzzy")
+            data[study]["allan_self_heating"] = allan_on_run(cfg, ds["run5"], res, "ts-fuzzy")
     md = ["### Accuracy on each study preset's held-out run\n",
           table(["preset", "family", "axis", "pp raw", "pp comp", "pp cut ×", "drift err rms",
                  "noise allows", "err / allowed", "msd comp", "ppm/°C raw", "ppm/°C comp"], rows)]
@@ -111,10 +112,16 @@ def main() -> None:
     save("studies", data, "\n".join(md))
 
 
-def soak_offset(cfg, ds: Dataset, res: dict, temperature_c: float) -> dict[str, float]:
-    """Mean raw and compensated error over the settled part of the soak at ``temperature_c``."""
+def soak_offset(cfg, ds: Dataset, res: dict, temperature_c: float, family: str
+                ) -> dict[str, float]:
+    """Drift over the settled part of the soak at ``temperature_c``, before and after.
+
+    Uses the simulator's exact drift: a 1-hour soak mean of the measured output
+    carries ±0.007 °/s of flicker wander on this device (its Allan floor), as
+    much as the thermal offset itself; the true drift shows what the model removes.
+    """
     split = make_splits(ds, cfg.split)[0]
-    fam = res["families"][res["chosen"]]
+    fam = res["families"][family]
     model, _ = load_checkpoint(fam["checkpoint"])
     part = build_part(split.test, signals=model.signals, outputs=model.outputs, target="drift",
                       rate_window_s=cfg.features.rate_window_s)
@@ -122,8 +129,18 @@ def soak_offset(cfg, ds: Dataset, res: dict, temperature_c: float) -> dict[str, 
     # settled: within 0.5 °C of the level, and the last half of that stretch
     idx = np.flatnonzero(np.abs(split.test.temperature_c - temperature_c) < 0.5)
     idx = idx[len(idx) // 2:]
-    return {"raw": float(part.target[idx, 0].mean()),
-            "comp": float((part.target[idx, 0] - pred[idx, 0]).mean())}
+    true = part.true_drift[idx, 0]
+    return {"raw": float(true.mean()), "comp": float((true - pred[idx, 0]).mean())}
+
+
+def allan_on_run(cfg, rec, res: dict, family: str) -> dict[str, float]:
+    """Allan bias stability (min of OADEV) of one run's error before and after ``family``."""
+    model, _ = load_checkpoint(res["families"][family]["checkpoint"])
+    part = build_part(rec, signals=model.signals, outputs=model.outputs, target="drift",
+                      rate_window_s=cfg.features.rate_window_s)
+    resid = part.target[:, 0] - predict(model, part.signals)[:, 0]
+    return {"raw": bias_instability(part.target[:, 0], part.rate_hz),
+            "comp": bias_instability(resid, part.rate_hz)}
 
 
 def reproduction(data: dict) -> list[list[str]]:
@@ -143,11 +160,13 @@ def reproduction(data: dict) -> list[list[str]]:
               f"{h_f['pp_raw']:.1f} → {h_f['pp_comp']:.2f} (same quadratic on the thermometer: "
               f"{h_t['pp_comp']:.2f})"]]
     m = data["mems-gyro"]
-    mf = fam("mems-gyro", "ts-fuzzy")["gyro_x"]
-    rows += [["002 mems-gyro", "offset at 65 °C raw → compensated (°/s)", "0.025 → ≈0",
-              f"{m['offset_65c']['raw']:.4f} → {m['offset_65c']['comp']:.4f} ({m['chosen']})"],
-             ["002 mems-gyro", "Allan bias stability raw → fuzzy (°/s, min of OADEV)", "0.0075 → 0.007",
-              f"{mf['bias_instability_raw']:.4f} → {mf['bias_instability_comp']:.4f}"]]
+    rows += [["002 mems-gyro", "offset at 65 °C raw → compensated (°/s, exact simulated drift)",
+              "0.025 → ≈0",
+              f"{m['offset_65c']['raw']:.4f} → {m['offset_65c']['comp']:.4f} (ts-fuzzy; "
+              f"chosen by validation: {m['chosen'] or 'none'})"],
+             ["002 mems-gyro", "Allan bias stability, self-heating run, raw → fuzzy (°/s, min of OADEV)",
+              "0.0075 → 0.007", f"{m['allan_self_heating']['raw']:.4f} → "
+                                f"{m['allan_self_heating']['comp']:.4f} (held-out run5)"]]
     p = data["patent-gyro"]["results"]["families"]
     imp, trad = p["rbf-dT-dT2"]["axes"], p["rbf-dT"]["axes"]
     orders = np.mean([math.log10(v["msd_raw"] / v["msd_comp"]) for v in imp.values()])
