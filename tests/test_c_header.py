@@ -7,9 +7,11 @@ import subprocess
 import numpy as np
 import onnxruntime as ort
 import pytest
+import torch
 
 from thermonet.errors import ExportError
 from thermonet.exporting import export_c_header, export_onnx, render_c_header
+from thermonet.exporting.onnx_export import float32_tolerance
 from thermonet.features import FeatureSpec
 from thermonet.models import MODELS
 from thermonet.train import TrainConfig, fit
@@ -93,12 +95,15 @@ def test_header_matches_onnxruntime(family, tmp_path):
     assert flag[9000:].sum() > 100 and not flag[:9000].any()
     finite = np.isfinite(sig).all(axis=1)
     assert np.isnan(c_out["drift"][~finite]).all() and np.isnan(c_out["comp"][~finite]).all()
-    # Tolerance: 1e-5 relative to the axis's largest drift (as the ONNX parity check).
-    scale = np.abs(drift[finite]).max(axis=0)
+    # Tolerance: the ONNX parity check's — 1e-5 of the axis's largest drift, or 4x what
+    # float32 rounding costs torch itself against a float64 evaluation, whichever is larger.
+    with torch.no_grad():
+        d_torch = model(torch.from_numpy(sig[finite])).double().numpy()
+    tol = float32_tolerance(model, sig[finite], d_torch)
     err = np.abs(c_out["drift"][finite] - drift[finite])
-    assert (err <= 1e-5 * scale).all(), (err.max(axis=0), scale)
+    assert (err <= tol).all(), (err.max(axis=0), tol)
     err_c = np.abs(c_out["comp"][finite] - comp[finite])
-    assert (err_c <= 1e-5 * scale + 1e-6 * np.abs(raw[finite])).all()
+    assert (err_c <= tol + 1e-6 * np.abs(raw[finite])).all()
 
 
 def test_header_text_and_refusals():

@@ -28,16 +28,21 @@ Parity tolerance.  onnxruntime and torch evaluate the same float32 graph with
 different kernels (fused ops, other summation orders), so they differ by a few
 float32 rounding steps of the *intermediate* values, whose size is that of the
 output's scale (``y_std``, ``y_mean``), not of one small output value.  The check
-is therefore, per axis :math:`a` over the check points,
+is, per axis :math:`a` over the check points,
 
 .. math::
 
-    |d_{ort} - d_{torch}| \\le 10^{-5} \\cdot \\max(|d_{torch}|, \\max_k |d_{torch,k,a}|)
+    |d_{ort} - d_{torch}| \le \max\big(10^{-5} \max_k |d_{torch,k,a}|,\;
+    4 \max_k |d_{torch,k,a} - d_{float64,k,a}|\big)
 
-i.e. 1e-5 relative to the larger of the value and the axis's largest drift on
-the checked set — about 80 float32 ulps, far above kernel-order noise
-(≈ 1e-7 relative) and far below any real graph error (a wrong sign, a missing
-clamp, a wrong reference: ≥ 1e-3 relative).
+i.e. 1e-5 relative to the axis's largest drift on the checked set — about 80
+float32 ulps, far above kernel-order noise (≈ 1e-7 relative) and far below any
+real graph error (a wrong sign, a missing clamp, a wrong reference: ≥ 1e-3
+relative) — unless the model is itself more sensitive to float32 rounding than
+that: a narrow Lorentz peak on a 4,500 Hz proxy turns one ulp of an intermediate
+into 2e-5 of the output.  The same parameters evaluated in float64 measure that
+sensitivity (:func:`float32_tolerance`), and a second float32 implementation may
+differ from torch by four times torch's own rounding error, never more.
 """
 
 from __future__ import annotations
@@ -261,6 +266,26 @@ def _check_points(ranges: Sequence[tuple[float, float]], seed: int) -> np.ndarra
     return np.concatenate([grid, rand]).astype(np.float32)
 
 
+def float32_tolerance(model: nn.Module, points: np.ndarray, d_float32: np.ndarray, *,
+                      rtol: float = PARITY_RTOL) -> np.ndarray:
+    """Per-axis tolerance of a float32 evaluation of ``model`` at ``points``.
+
+    ``max(rtol · max|d|, 4 · max|d_float32 − d_float64|)`` per axis: ``rtol`` of the
+    axis's largest drift, unless the model itself is more sensitive to float32
+    rounding than that (a narrow Lorentz peak or a proxy near 4,500 Hz amplifies
+    one ulp of an intermediate value).  The float64 evaluation of the same
+    parameters measures that sensitivity, so a second float32 implementation
+    (onnxruntime, the C header) may differ from torch by a few times what torch's
+    own float32 rounding costs, and no more.
+    """
+    import copy
+
+    with torch.no_grad():
+        d64 = copy.deepcopy(model).double()(torch.from_numpy(points.astype(np.float64)))
+    rounding = np.abs(d_float32 - d64.numpy()).max(axis=0)
+    return np.maximum(rtol * np.abs(d_float32).max(axis=0), 4.0 * rounding)
+
+
 def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
                  rtol: float = PARITY_RTOL) -> dict[str, float]:
     """Compare onnxruntime (CPU) with torch on the grid and the random points.
@@ -281,6 +306,7 @@ def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
     raw = np.random.default_rng(seed + 1).normal(size=(n, n_axes)).astype(np.float32)
     with torch.no_grad():
         d_torch = model(torch.from_numpy(points)).double().numpy()
+    tol = float32_tolerance(model, points, d_torch, rtol=rtol)
     opts = ort.SessionOptions()
     opts.log_severity_level = 3
     sess = ort.InferenceSession(str(onnx_path), sess_options=opts,
@@ -290,15 +316,15 @@ def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
     d_ort = d_ort.astype(np.float64)
     scale = np.maximum(np.abs(d_torch), np.abs(d_torch).max(axis=0, keepdims=True))
     err = np.abs(d_ort - d_torch)
-    excess = np.where(np.isfinite(d_ort), err - rtol * scale, np.inf)
+    excess = np.where(np.isfinite(d_ort), err - tol, np.inf)
     k, a = np.unravel_index(int(np.argmax(excess)), excess.shape)
     if excess[k, a] > 0:
         where = ", ".join(f"{s}={points[k, i]:.6g}" for i, s in enumerate(model.signals))
         raise ExportError(f"ONNX parity check failed at {where}, axis '{model.outputs[a]}': "
                           f"onnxruntime {d_ort[k, a]:.9g} vs torch {d_torch[k, a]:.9g} "
-                          f"(tolerance {rtol:g} x {scale[k, a]:.3g})")
+                          f"(tolerance {tol[a]:.3g})")
     comp_err = np.abs(comp.astype(np.float64) - (raw.astype(np.float64) - d_torch))
-    if not bool(np.all(comp_err <= rtol * (np.abs(raw) + scale) + 1e-30)):
+    if not bool(np.all(comp_err <= rtol * np.abs(raw) + tol + 1e-30)):
         raise ExportError("ONNX parity check failed: 'compensated' is not raw - drift")
     if bool(flag.any()):
         k = int(np.argmax(flag))

@@ -208,7 +208,9 @@ class DriftModel(nn.Module):
         return ~inside.all(dim=1)
 
     def forward(self, signals: torch.Tensor) -> torch.Tensor:
-        s = signals.to(torch.float32)
+        # float32 as trained and exported; a float64 copy (model.double()) computes in
+        # float64 — the export's parity check uses one as its reference
+        s = signals.to(self.sig_lo.dtype)
         s = torch.minimum(torch.maximum(s, self.sig_lo), self.sig_hi)
         z = (self.features(s) - self.x_mean) / self.x_std
         return self.family(z) * self.y_std + self.y_mean
