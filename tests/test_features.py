@@ -98,3 +98,20 @@ def test_errors_name_the_offending_item():
         signal_matrix(rec, ["freq_hz"])
     with pytest.raises(InputError, match="column 'acc_z'"):
         target_matrix(rec, ["acc_z"])
+
+
+def test_rate_is_computed_per_contiguous_segment():
+    """A ramp cut into blocks (as a held-out split does) keeps its slope at every sample."""
+    from thermonet.features import contiguous_segments, signal_matrix
+    from thermonet.recording import Recording
+
+    t = np.arange(0.0, 3600.0, 1.0)
+    temp = 20.0 + 0.5 * t / 60.0                      # 0.5 °C/min
+    keep = (t < 1000) | ((t >= 1500) & (t < 2500)) | (t >= 3000)
+    rec = Recording(time_s=t[keep], temperature_c=temp[keep] + 7.0 * (t[keep] >= 1500),
+                    outputs={"gyro_x": np.zeros(keep.sum())}, sample_rate_hz=1.0)
+    assert [(s.start, s.stop) for s in contiguous_segments(rec.time_s)] == \
+        [(0, 1000), (1000, 2000), (2000, 2600)]
+    rate = signal_matrix(rec, ["rate_c_per_min"])[:, 0]
+    # the 7 °C step at the gap would give a spike if differentiated across it
+    np.testing.assert_allclose(rate, 0.5, atol=1e-9)

@@ -251,19 +251,42 @@ def reference_values(recordings: object, spec_inputs: Sequence[str], t_ref: str 
     return t_value, p_values
 
 
-def _rate_c_per_min(rec: Recording, window_s: float) -> np.ndarray:
-    temp = np.asarray(rec.temperature_c, dtype=np.float64)
+#: A time step over this many median steps starts a new contiguous segment.
+GAP_FACTOR = 5.0
+
+
+def contiguous_segments(time_s: np.ndarray, gap_factor: float = GAP_FACTOR) -> list[slice]:
+    """Slices of contiguous sampling: a step over ``gap_factor`` × the median step is a gap
+    (burst recordings, held-out time blocks cut out of a run)."""
+    t = np.asarray(time_s, dtype=np.float64)
+    if t.size < 2:
+        return [slice(0, t.size)]
+    dt = np.diff(t)
+    cuts = np.flatnonzero(dt > gap_factor * np.median(dt)) + 1
+    edges = np.concatenate([[0], cuts, [t.size]])
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def _segment_rate(temp: np.ndarray, time_s: np.ndarray, fs: float, window_s: float) -> np.ndarray:
     n = temp.shape[0]
-    fs = rec.effective_rate_hz
     # Savitzky–Golay needs an odd window longer than its polynomial order (2);
     # a window in seconds keeps the smoothing independent of the sample rate.
-    win = int(round(window_s * fs)) | 1
-    win = max(win, 5)
+    win = max(int(round(window_s * fs)) | 1, 5)
     if win > n:
         win = n if n % 2 else n - 1
     if win < 5:
-        return np.gradient(temp, rec.time_s) * 60.0
+        return np.gradient(temp, time_s) * 60.0 if n > 1 else np.zeros(n)
     return savgol_filter(temp, window_length=win, polyorder=2, deriv=1, delta=1.0 / fs) * 60.0
+
+
+def _rate_c_per_min(rec: Recording, window_s: float) -> np.ndarray:
+    temp = np.asarray(rec.temperature_c, dtype=np.float64)
+    fs = rec.effective_rate_hz
+    rate = np.empty_like(temp)
+    # per contiguous segment: a derivative across a gap would mix two distant moments
+    for seg in contiguous_segments(rec.time_s):
+        rate[seg] = _segment_rate(temp[seg], rec.time_s[seg], fs, window_s)
+    return rate
 
 
 def signal_matrix(recording: Recording, signals: Sequence[str], rate_window_s: float = 60.0
@@ -277,7 +300,10 @@ def signal_matrix(recording: Recording, signals: Sequence[str], rate_window_s: f
 
     .. math:: \\dot T_k = 60 \\cdot \\frac{d}{dt} \\hat T(t_k) \\quad [°C/min]
 
-    It assumes near-uniform sampling (the median sample interval).
+    It assumes near-uniform sampling (the median sample interval) within each
+    contiguous segment and is computed segment by segment
+    (:func:`contiguous_segments`): a burst recording, or a run with held-out
+    time blocks cut out, never differentiates across a gap.
 
     Returns
     -------
