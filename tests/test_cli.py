@@ -96,6 +96,15 @@ def test_simulate_then_info_then_compare_then_export(tmp_path):
     models = client.search_logged_models(
         experiment_ids=[client.get_run(run_id).info.experiment_id])
     assert [(m.name, m.source_run_id) for m in models] == [("onnx_model", run_id)]
+    # an MLflow run id is a source too: the checkpoint artifact is fetched from the store
+    r = thermonet("export", run_id, "--format", "c", "--out", tmp_path / "m.h",
+                  "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "thermonet_compensate" in (tmp_path / "m.h").read_text()
+    r = thermonet("export", "0" * 32, "--format", "c", "--out", tmp_path / "n.h",
+                  "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}", cwd=tmp_path)
+    assert r.returncode == 1 and "0" * 32 in r.stderr
+    assert not (tmp_path / "n.h").exists()
     r = thermonet("export", tmp_path / "out", "--family", "rbf", "--format", "px4-params",
                   "--out", tmp_path / "p.params")
     assert r.returncode == 1 and "poly" in r.stderr

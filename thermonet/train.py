@@ -23,6 +23,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 import torch
+import torch._dynamo  # noqa: F401  torch.optim imports it on the first step; importing it here
+# keeps that one-time second out of the first family's fit_seconds
 
 from .errors import ConfigError, FitError, InputError
 from .features import FeatureSpec
