@@ -130,3 +130,33 @@ def test_two_runs_train_then_verify_with_interleaved_validation_blocks(tmp_path)
     assert len(gaps) == 3  # four contiguous validation blocks
     # the validation blocks sample the whole temperature range
     assert val.temperature_c.min() < -5 and val.temperature_c.max() > 35
+
+
+def test_train_on_heating_fits_only_the_heating_branch(tmp_path):
+    """PX4/ArduPilot practice: a cubic fitted on heating samples learns the heating branch."""
+    from thermonet.recording import Dataset, Recording
+
+    rng = np.random.default_rng(3)
+    runs = []
+    for k in range(3):
+        t = np.arange(0.0, 4 * 3600.0, 1.0)
+        temp = 30.0 - np.abs(30.0 - 60.0 * t / t[-1])           # ramps 0 → 30 → 0 °C
+        heating = t < t[-1] / 2
+        drift = 1e-3 * temp + np.where(heating, 0.05, -0.05)      # ±0.05 hysteresis
+        runs.append(Recording(time_s=t, temperature_c=temp,
+                              outputs={"gyro_x": drift + rng.normal(0, 1e-3, t.size)},
+                              drift={"drift_gyro_x": drift}, run_id=f"run{k}",
+                              units={"gyro_x": "deg/s"}, sample_rate_hz=1.0))
+    path = write_parquet(Dataset(runs), tmp_path / "cycles.parquet")
+    fams = [FamilyConfig(family="poly", name="heating", params={"degree": 3}, train_on="heating"),
+            FamilyConfig(family="poly", name="all", params={"degree": 3})]
+    res = run_compare(config(path, fams), tmp_path / "out", track=False, quiet=True)
+    assert res["families"]["heating"]["train_on"] == "heating"
+    mid = np.array([[15.0]])
+    heat_model, _ = load_checkpoint(tmp_path / "out" / "models" / "heating.pt")
+    all_model, _ = load_checkpoint(tmp_path / "out" / "models" / "all.pt")
+    assert predict(heat_model, mid)[0, 0] == pytest.approx(0.015 + 0.05, abs=0.005)
+    assert predict(all_model, mid)[0, 0] == pytest.approx(0.015, abs=0.005)
+    # on a run that cools as much as it heats, the heating-only fit is off by the hysteresis
+    assert res["families"]["heating"]["axes"]["gyro_x"]["drift_error_rms"] == \
+        pytest.approx(0.05 * np.sqrt(2), rel=0.15)

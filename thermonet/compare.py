@@ -47,7 +47,7 @@ import numpy as np
 from . import __version__
 from .config import CompareConfig, FamilyConfig, from_dict, to_dict
 from .errors import ConfigError, FitError, ThermonetError
-from .evaluate import Part, Split, build_part, data_hash, load_data, make_splits
+from .evaluate import Part, Split, build_part, data_hash, heating_only, load_data, make_splits
 from .recording import Dataset
 
 __all__ = ["run_compare", "format_table", "Progress"]
@@ -171,7 +171,8 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
     from .train import fit
 
     res: dict[str, Any] = {"family": fam.family, "inputs": list(fam.inputs),
-                           "params": dict(fam.params), "status": "ok", "reason": None}
+                           "params": dict(fam.params), "train_on": fam.train_on,
+                           "status": "ok", "reason": None}
     fold_axes, scores, seconds = [], [], 0.0
     outcome = _FamilyOutcome(res, test_parts=[], test_preds=[])
     try:
@@ -183,6 +184,9 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
             kw = dict(signals=spec.signals, outputs=outputs, target=cfg.target,
                       rate_window_s=cfg.features.rate_window_s)
             train_parts = [build_part(r, **kw) for r in split.train]
+            if fam.train_on == "heating":
+                train_parts = [heating_only(p, r, cfg.features.rate_window_s)
+                               for p, r in zip(train_parts, split.train)]
             val_part = build_part(split.val, **kw) if split.val is not None else None
             test_part = build_part(split.test, **kw)
             fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=outputs,

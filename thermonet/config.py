@@ -80,6 +80,9 @@ class FamilyConfig:
     inputs: list[str] = field(default_factory=lambda: ["dT"])
     params: dict[str, Any] = field(default_factory=dict)   # family hyper-parameters
     train: dict[str, Any] = field(default_factory=dict)    # overrides of the `train` section
+    # "heating": fit only on samples where the temperature is not falling (dT/dt > −0.05 °C/min),
+    # as PX4's and ArduPilot's calibrations do — to reproduce that anchor faithfully
+    train_on: Literal["all", "heating"] = "all"
 
     @property
     def label(self) -> str:

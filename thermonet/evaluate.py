@@ -31,7 +31,10 @@ from .errors import ConfigError
 from .recording import Dataset, Recording
 
 __all__ = ["Split", "Part", "load_data", "make_splits", "build_part", "data_hash",
-           "FOURPOS_SUFFIXES"]
+           "heating_only", "FOURPOS_SUFFIXES", "HEATING_MIN_RATE_C_PER_MIN"]
+
+#: Samples with dT/dt above this count as heating (or soaking) for ``train_on: heating``.
+HEATING_MIN_RATE_C_PER_MIN = -0.05
 
 #: Output names of the four-position target: per axis its bias K0 and scale factor K1.
 FOURPOS_SUFFIXES = (".bias", ".scale")
@@ -250,3 +253,20 @@ def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> 
     y = np.column_stack([cols[o] for o in outputs])
     return Part(temps[:, None], y, np.arange(temps.size, dtype=np.float64), temps, 1.0,
                 float("nan"), None, outputs, per_soak=True)
+
+
+def heating_only(part: Part, rec: Recording, rate_window_s: float) -> Part:
+    """The samples of ``part`` where ``rec``'s temperature is not falling (PX4/ArduPilot practice)."""
+    from .features import RATE, signal_matrix
+
+    if part.per_soak:
+        raise ConfigError("config: key 'train_on': 'heating' applies to per-sample targets, "
+                          "not to the four-position target")
+    rate = signal_matrix(rec, [RATE], rate_window_s=rate_window_s)[:, 0]
+    keep = rate > HEATING_MIN_RATE_C_PER_MIN
+    if keep.sum() < 10:
+        raise ConfigError(f"train_on 'heating': run '{rec.run_id}' has {int(keep.sum())} heating "
+                          "samples")
+    return Part(part.signals[keep], part.target[keep], part.time_s[keep], part.bin_by[keep],
+                part.bin_width, part.rate_hz, None if part.true_drift is None
+                else part.true_drift[keep], part.outputs)
