@@ -27,8 +27,9 @@
       }
     }
 
-With leave-one-run-out the per-axis metrics are means over folds and
-``folds`` under each family holds the per-fold values.
+With leave-one-run-out the per-axis metrics are means over folds,
+``folds`` under each family holds the per-fold values, and the checkpoint is
+the last fold's model.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ import numpy as np
 
 from . import __version__
 from .config import CompareConfig, FamilyConfig, from_dict, to_dict
-from .errors import ConfigError, FitError, ThermonetError
+from .errors import ThermonetError
 from .evaluate import Part, Split, build_part, data_hash, heating_only, load_data, make_splits
 from .recording import Dataset
 
@@ -202,7 +203,7 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
             outcome.test_parts.append(test_part)
             outcome.test_preds.append(pred)
             res.update(n_params=int(fitted.n_params), best_epoch=int(fitted.best_epoch))
-    except (FitError, ConfigError, ThermonetError) as err:
+    except ThermonetError as err:  # FitError, ConfigError: reported, the comparison goes on
         res.update(status="failed", reason=str(err))
         outcome.model = None
         return outcome

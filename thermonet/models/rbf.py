@@ -62,7 +62,14 @@ class RBF(Family):
 
     def basis(self, z: torch.Tensor) -> torch.Tensor:
         """Unit activations φ (N, J)."""
-        d2 = ((z.unsqueeze(1) - self.centres.unsqueeze(0)) ** 2).sum(dim=2)
+        # one (N, J) difference per input, summed: the same value as broadcasting
+        # (N, 1, F) − (1, J, F), but exported as trailing-axis broadcasts, which
+        # onnxruntime runs several times faster than a middle-axis one
+        diff = z[:, 0:1] - self.centres[:, 0]
+        d2 = diff * diff
+        for f in range(1, self.n_inputs):
+            diff = z[:, f:f + 1] - self.centres[:, f]
+            d2 = d2 + diff * diff
         two_sigma2 = 2.0 * torch.exp(torch.clamp(2.0 * self.log_sigma, min=-60.0, max=60.0))
         return torch.exp(-d2 / two_sigma2)
 
