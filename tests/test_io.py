@@ -29,10 +29,11 @@ def _dataset() -> Dataset:
                          "freq_hz": "Hz"},
                   device_id="hrg-7", sensor_kind="gyro", run_id="soak_a", sample_rate_hz=10.0,
                   meta={"preset": "hrg", "seed": "0"})
-    b = Recording(time_s=t[:50] + 1000.0, temperature_c=None,
+    # run b lacks the reference and drift channels: they are null in its Parquet rows
+    b = Recording(time_s=t[:50] + 1000.0, temperature_c=np.linspace(40.0, 60.0, 50),
                   outputs={"gyro_x": rng.normal(0, 1, 50), "gyro_y": rng.normal(0, 1, 50)},
-                  proxies={"temp_raw": np.linspace(65249.0, 63123.0, 50)},
-                  units={"gyro_x": "rad/s", "temp_raw": "counts"},
+                  proxies={"freq_hz": np.linspace(4517.0, 4525.0, 50)},
+                  units={"gyro_x": "deg/s", "freq_hz": "Hz"},
                   device_id="hrg-7", sensor_kind="gyro", run_id="soak b/ü", meta={})
     return Dataset(runs=[a, b], meta={"study": "001"})
 
@@ -58,9 +59,10 @@ def test_parquet_round_trip_is_lossless(tmp_path):
             assert _bits(r0.temperature_c) == _bits(r1.temperature_c)
         assert (r1.units, r1.meta, r1.device_id, r1.sensor_kind, r1.sample_rate_hz) == \
             (r0.units, r0.meta, r0.device_id, r0.sensor_kind, r0.sample_rate_hz)
-    # One stacked table: the proxy-only run has null temperature, not a fake value.
+    # One stacked table: run b, without reference and drift, has nulls there, not fake values.
     table = pd.read_parquet(path)
-    assert len(table) == 250 and table["temperature_c"].isna().sum() == 50
+    assert len(table) == 250 and table["ref_gyro_x"].isna().sum() == 50
+    assert table["drift_gyro_x"].isna().sum() == 50 and table["temperature_c"].notna().all()
     assert set(table["run"]) == {"soak_a", "soak b/ü"}
 
 
@@ -140,7 +142,7 @@ HEADER = "time_s,temperature_c,gyro_x"
     (lambda r: r[:8] + ["2,28,0.8"] + r[9:],
      r"column 'time_s', row 9: decreasing timestamp 2\.0 s"),
     (lambda r: r[:3] + ["3,23"] + r[4:], r"row 4: expected 3 fields, found 2 \(file line 5;"),
-    (lambda r: r[:5], r"bad\.csv: too few samples: 5"),
+    (lambda r: r[:5], r"bad\.csv, run 'bad': too few samples: 5"),
 ])
 def test_bad_rows_name_file_column_row(tmp_path, rows, pattern):
     path = _write(tmp_path, "\n".join([HEADER] + rows(_good_rows())) + "\n")

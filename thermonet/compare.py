@@ -47,7 +47,7 @@ import numpy as np
 
 from . import __version__
 from .config import CompareConfig, FamilyConfig, from_dict, to_dict
-from .errors import ThermonetError
+from .errors import ConfigError, FitError, ThermonetError
 from .evaluate import Part, Split, build_part, data_hash, heating_only, load_data, make_splits
 from .recording import Dataset
 
@@ -203,7 +203,7 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
             outcome.test_parts.append(test_part)
             outcome.test_preds.append(pred)
             res.update(n_params=int(fitted.n_params), best_epoch=int(fitted.best_epoch))
-    except ThermonetError as err:  # FitError, ConfigError: reported, the comparison goes on
+    except FitError as err:  # this data cannot carry the family: reported, the comparison goes on
         res.update(status="failed", reason=str(err))
         outcome.model = None
         return outcome
@@ -241,12 +241,30 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
     from .checkpoint import save_checkpoint
     from .tracking import Tracker
 
+    from .config import check_families
+    from .features import signals_for
+
     progress = progress or Progress(quiet)
+    source = getattr(cfg, "_source", "config")
+    check_families(cfg, source=source)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    ds = dataset if dataset is not None else load_data(cfg.data)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"{out}: --out must be a directory, and this is a file")
+    ds = dataset if dataset is not None else load_data(cfg.data, source=source)
+    for i, fam in enumerate(cfg.families):
+        for sig in signals_for(fam.inputs):
+            if sig in ("temperature_c", "rate_c_per_min"):
+                if any(r.temperature_c is None for r in ds):
+                    raise ConfigError(f"{source}: key 'families[{i}].inputs': {fam.inputs} need "
+                                      "a thermometer in °C and the data has none (proxies: "
+                                      f"{', '.join(sorted(ds[0].proxies)) or 'none'})")
+            elif sig not in ds[0].proxies:
+                raise ConfigError(f"{source}: key 'families[{i}].inputs': no proxy channel "
+                                  f"'{sig}' in the data (proxies: "
+                                  f"{', '.join(sorted(ds[0].proxies)) or 'none'})")
     outputs = _outputs(ds, cfg)
-    splits = make_splits(ds, cfg.split)
+    splits = make_splits(ds, cfg.split, source=source)
+    out.mkdir(parents=True, exist_ok=True)
     dhash = data_hash(ds)
     units = {o: ds[0].units.get(o.split(".")[0], "") for o in outputs}
     for o in outputs:

@@ -20,6 +20,7 @@ import yaml
 
 from .errors import ConfigError
 from .train import TrainConfig  # the ``train`` section is TrainConfig itself
+from .yamlio import DuplicateKeyError, load_yaml
 
 __all__ = [
     "DataConfig", "SplitConfig", "FeatureConfig", "FamilyConfig", "TrainConfig",
@@ -46,7 +47,8 @@ class SplitConfig:
     ``auto``: ≥ 3 runs → ``runs``; 2 runs → ``train-then-verify``; 1 run →
     ``time-blocks``.  ``runs``: train on all but the last two runs, validate on
     the second-to-last, test on the last — or on the run ids named in
-    ``train``, ``val``, ``test``.  ``train-then-verify``: train on the first
+    ``train``, ``val``, ``test`` (without ``val``, interleaved blocks of the
+    training runs validate; runs may not be in two roles).  ``train-then-verify``: train on the first
     run (validating on interleaved contiguous blocks of it), test on the
     second.  ``time-blocks``: every run cut into ``n_blocks`` contiguous time
     blocks, interleaved train / val / test (60 / 20 / 20 %).
@@ -60,6 +62,11 @@ class SplitConfig:
     val: str | None = None
     test: str | None = None
     n_blocks: int = 20                   # contiguous time blocks per run (time-blocks)
+
+    def __post_init__(self) -> None:
+        if self.n_blocks < 5:
+            raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is below 5 (every group "
+                              "of five blocks gives one validation and one test block)")
 
 
 @dataclass
@@ -214,7 +221,9 @@ def load_config(path: str | Path | None) -> CompareConfig:
     if not p.is_file():
         raise ConfigError(f"{p}: config file not found")
     try:
-        data = yaml.safe_load(p.read_text())
+        data = load_yaml(p)
+    except DuplicateKeyError as err:
+        raise ConfigError(f"{p}: {err}") from None
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
@@ -226,4 +235,33 @@ def load_config(path: str | Path | None) -> CompareConfig:
         raise ConfigError(f"{p}: key 'families': duplicate family name {dup[0]!r} (give each a distinct 'name')")
     if not cfg.families:
         raise ConfigError(f"{p}: key 'families': empty list (need at least one family)")
+    check_families(cfg, source=str(p))
+    cfg._source = str(p)  # not a field: names the file in later errors
     return cfg
+
+
+def check_families(cfg: CompareConfig, *, source: str = "config") -> None:
+    """Refuse an unknown family, input or hyper-parameter before any data is read.
+
+    A family that cannot be fitted *on the data* is reported by ``compare`` and
+    the comparison goes on; a family the config names wrongly is an error.
+    """
+    from .features import signals_for
+    from .models import build_family
+
+    for i, fam in enumerate(cfg.families):
+        key = f"families[{i}]"
+        try:
+            signals_for(fam.inputs)
+        except ConfigError as err:
+            raise ConfigError(f"{source}: key '{key}.inputs': {err}") from None
+        try:
+            family = build_family(fam.family, n_inputs=len(fam.inputs), n_outputs=1,
+                                  hyper=fam.params)
+        except ConfigError as err:
+            raise ConfigError(f"{source}: key '{key}': {err}") from None
+        except TypeError as err:  # a hyper-parameter of the wrong type
+            raise ConfigError(f"{source}: key '{key}.params': {err}") from None
+        if family.max_inputs is not None and len(fam.inputs) > family.max_inputs:
+            raise ConfigError(f"{source}: key '{key}.inputs': family '{fam.family}' takes "
+                              f"{family.max_inputs} input(s), got {fam.inputs}")

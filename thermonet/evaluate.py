@@ -40,7 +40,7 @@ HEATING_MIN_RATE_C_PER_MIN = -0.05
 FOURPOS_SUFFIXES = (".bias", ".scale")
 
 
-def load_data(cfg: DataConfig) -> Dataset:
+def load_data(cfg: DataConfig, *, source: str = "config") -> Dataset:
     """The configured recordings: files (with an optional mapping) or the simulator."""
     if cfg.paths:
         from .io import read_datasets
@@ -50,12 +50,12 @@ def load_data(cfg: DataConfig) -> Dataset:
         from .sim import simulate
 
         if not cfg.preset:
-            raise ConfigError("config: key 'data': give 'paths' or a simulator 'preset'")
+            raise ConfigError(f"{source}: key 'data': give 'paths' or a simulator 'preset'")
         ds = simulate(cfg.preset, runs=cfg.runs, seed=cfg.seed)
     if cfg.outputs:
         missing = [o for o in cfg.outputs if o not in ds.axes]
         if missing:
-            raise ConfigError(f"config: key 'data.outputs': no output '{missing[0]}' in the data "
+            raise ConfigError(f"{source}: key 'data.outputs': no output '{missing[0]}' in the data "
                               f"(outputs: {', '.join(ds.axes)})")
     return ds
 
@@ -100,19 +100,31 @@ def _blocks(rec: Recording, n_blocks: int, *, with_test: bool = True
     for part in (train, val) + ((test,) if test is not None else ()):
         if part.n_samples < 10:
             raise ConfigError(f"split: run '{rec.run_id}' has too few samples ({rec.n_samples}) "
-                              f"for {n_blocks} contiguous blocks (lower split.n_blocks)")
+                              f"for {n_blocks} contiguous train/val/test blocks")
     return train, val, test
 
 
-def make_splits(ds: Dataset, cfg: SplitConfig) -> list[Split]:
-    """Splits for the configured strategy (one split, or one per fold)."""
+def _carve_val(train: list[Recording], n_blocks: int) -> tuple[list[Recording], Recording]:
+    """Validation from interleaved contiguous blocks of the training runs."""
+    parts = [_blocks(r, n_blocks, with_test=False) for r in train]
+    return [p[0] for p in parts], _stack([p[1] for p in parts], "val")
+
+
+def make_splits(ds: Dataset, cfg: SplitConfig, *, source: str = "config") -> list[Split]:
+    """Splits for the configured strategy (one split, or one per fold).
+
+    ``source`` names the config file in error messages.
+    """
     runs = list(ds)
     ids = [r.run_id for r in runs]
     strategy = cfg.strategy
     if strategy == "auto":
         strategy = {1: "time-blocks", 2: "train-then-verify"}.get(len(runs), "runs")
     if strategy == "train-then-verify":
-        train, val, _ = _blocks(runs[0], cfg.n_blocks, with_test=False)
+        if len(runs) != 2:
+            raise ConfigError(f"{source}: key 'split.strategy': train-then-verify needs exactly "
+                              f"2 runs, the data has {len(runs)}")
+        (train,), val = _carve_val([runs[0]], cfg.n_blocks)
         return [Split([train], val, runs[1], "train-then-verify",
                       {"train": train.run_id, "val": val.run_id, "test": runs[1].run_id})]
     if strategy == "runs":
@@ -121,23 +133,36 @@ def make_splits(ds: Dataset, cfg: SplitConfig) -> list[Split]:
                                ("test", [cfg.test] if cfg.test else [])):
                 for name in names:
                     if name not in ids:
-                        raise ConfigError(f"config: key 'split.{key}': no run '{name}' "
+                        raise ConfigError(f"{source}: key 'split.{key}': no run '{name}' "
                                           f"(runs: {', '.join(ids)})")
             if not cfg.test:
-                raise ConfigError("config: key 'split.test': name the held-out test run")
+                raise ConfigError(f"{source}: key 'split.test': name the held-out test run")
             train_ids = cfg.train or [i for i in ids if i not in (cfg.val, cfg.test)]
-            val = ds[cfg.val] if cfg.val else None
-            return [Split([ds[i] for i in train_ids], val, ds[cfg.test], "runs",
-                          {"train": train_ids, "val": cfg.val, "test": cfg.test})]
+            for key, name in (("test", cfg.test), ("val", cfg.val)):
+                if name in train_ids:
+                    raise ConfigError(f"{source}: key 'split.{key}': run '{name}' is also a "
+                                      "training run")
+            if cfg.val is not None and cfg.val == cfg.test:
+                raise ConfigError(f"{source}: key 'split.val': run '{cfg.val}' is also the test run")
+            if not train_ids:
+                raise ConfigError(f"{source}: key 'split.train': no training run left")
+            train = [ds[i] for i in train_ids]
+            if cfg.val:
+                val = ds[cfg.val]
+            else:  # never choose on training data: validate on blocks cut out of it
+                train, val = _carve_val(train, cfg.n_blocks)
+            return [Split(train, val, ds[cfg.test], "runs",
+                          {"train": [r.run_id for r in train], "val": val.run_id,
+                           "test": cfg.test})]
         if len(runs) < 3:
-            raise ConfigError(f"config: key 'split.strategy': 'runs' needs at least 3 runs, "
+            raise ConfigError(f"{source}: key 'split.strategy': 'runs' needs at least 3 runs, "
                               f"the data has {len(runs)} (use 'time-blocks')")
         return [Split(runs[:-2], runs[-2], runs[-1], "runs",
                       {"train": ids[:-2], "val": ids[-2], "test": ids[-1]})]
     if strategy == "leave-one-run-out":
         if len(runs) < 3:
-            raise ConfigError("config: key 'split.strategy': leave-one-run-out needs at least "
-                              f"3 runs, the data has {len(runs)}")
+            raise ConfigError(f"{source}: key 'split.strategy': leave-one-run-out needs at "
+                              f"least 3 runs, the data has {len(runs)}")
         splits = []
         for k, test in enumerate(runs):
             val = runs[k - 1]  # the previous run (cyclically) validates
@@ -180,12 +205,19 @@ def _stack(parts: list[Recording], run_id: str) -> Recording:
         keys = getattr(first, name_group).keys()
         return {k: np.concatenate([getattr(p, name_group)[k] for p in parts]) for k in keys}
 
+    # a run without a reference had a static input (zeros); truth is kept only where
+    # every run has it
+    references = {f"ref_{a}": np.concatenate([p.reference(a) for p in parts])
+                  for a in first.outputs if any(f"ref_{a}" in p.references for p in parts)}
+    drift = {k: np.concatenate([p.drift[k] for p in parts]) for k in first.drift
+             if all(k in p.drift for p in parts)}
+
     temps = None
     if first.temperature_c is not None:
         temps = np.concatenate([p.temperature_c for p in parts])
     return Recording(time_s=np.concatenate(times), temperature_c=temps,
-                     outputs=cat("outputs"), references=cat("references"),
-                     proxies=cat("proxies"), drift=cat("drift"), units=dict(first.units),
+                     outputs=cat("outputs"), references=references,
+                     proxies=cat("proxies"), drift=drift, units=dict(first.units),
                      device_id=first.device_id, sensor_kind=first.sensor_kind,
                      run_id=run_id, sample_rate_hz=first.sample_rate_hz, meta=dict(first.meta))
 

@@ -56,6 +56,7 @@ import yaml
 
 from .errors import ConfigError, InputError
 from .recording import KNOWN_UNITS, OUTPUT_NAME
+from .yamlio import DuplicateKeyError, load_yaml
 
 __all__ = [
     "MappingError",
@@ -194,7 +195,9 @@ def load_mapping(path: str | Path) -> ColumnMapping:
     if not path.is_file():
         raise MappingError.at(path, "mapping file not found")
     try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+        raw = load_yaml(path)
+    except DuplicateKeyError as err:
+        raise MappingError.at(path, str(err)) from None
     except yaml.YAMLError as err:
         line = getattr(getattr(err, "problem_mark", None), "line", None)
         raise MappingError.at(path, f"not valid YAML ({getattr(err, 'problem', err)})",
@@ -340,6 +343,11 @@ class _Parser:
             if unit not in KNOWN_UNITS:
                 raise self.fail(key + ".unit", f"unknown unit '{unit}' "
                                 f"(known: {', '.join(sorted(KNOWN_UNITS))})")
+            if not proxy and channel_role(name) == "proxy" and KNOWN_UNITS[unit] not in (
+                    "frequency", "raw", "dimensionless"):
+                raise self.fail(key, f"'{name}' is not a thermonet channel name "
+                                "(temperature_c, <kind>_<axis>, ref_…, drift_…); a proxy in "
+                                f"'{unit}' must say 'proxy: true' — or is it a misspelling?")
             if name == "temperature_c" and unit != "degC":
                 raise self.fail(key + ".unit", f"temperature_c must be in degC, got '{unit}' "
                                 "(convert with scale/offset, or map it as a proxy)")

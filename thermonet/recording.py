@@ -139,7 +139,8 @@ class Recording:
         InputError
             One line naming ``source``, the column and the row at fault.
         """
-        source = source or self.meta.get("source", "") or f"run '{self.run_id}'"
+        source = source or self.meta.get("source", "")
+        source = f"{source}, run '{self.run_id}'" if source else f"run '{self.run_id}'"
         self.time_s = _as_1d("time_s", self.time_s, None, source)
         n = self.time_s.shape[0]
         if n < MIN_SAMPLES:
@@ -278,10 +279,24 @@ class Dataset:
             r.validate(source or r.meta.get("source", ""))
         first = self.runs[0]
         for r in self.runs[1:]:
-            if sorted(r.outputs) != sorted(first.outputs):
-                raise InputError.at(source or r.meta.get("source", ""),
-                                    f"run '{r.run_id}' has outputs {sorted(r.outputs)}, "
-                                    f"run '{first.run_id}' has {sorted(first.outputs)}")
+            where = source or r.meta.get("source", "")
+            # references and simulated drift may be absent in some runs (absent reference:
+            # a static input; absent drift: truth unknown); outputs and proxies may not
+            for group in ("outputs", "proxies"):
+                mine, theirs = sorted(getattr(r, group)), sorted(getattr(first, group))
+                if mine != theirs:
+                    raise InputError.at(where, f"run '{r.run_id}' has {group} {mine}, "
+                                        f"run '{first.run_id}' has {theirs} (the runs of one "
+                                        "device must carry the same channels)")
+            if (r.temperature_c is None) != (first.temperature_c is None):
+                raise InputError.at(where, f"run '{r.run_id}' and run '{first.run_id}' differ in "
+                                    "having a temperature_c channel", column="temperature_c")
+            for name, unit in r.units.items():
+                other = first.units.get(name)
+                if other is not None and other != unit:
+                    raise InputError.at(where, f"run '{r.run_id}' is in '{unit}', run "
+                                        f"'{first.run_id}' in '{other}' (convert one with a "
+                                        "mapping scale)", column=name)
         temps = [r.temperature_c for r in self.runs if r.temperature_c is not None]
         if temps and len(temps) == len(self.runs):
             lo = min(float(t.min()) for t in temps)
