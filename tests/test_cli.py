@@ -105,6 +105,20 @@ def test_simulate_then_info_then_compare_then_export(tmp_path):
                   "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}", cwd=tmp_path)
     assert r.returncode == 1 and "0" * 32 in r.stderr
     assert not (tmp_path / "n.h").exists()
+    r = thermonet("export", tmp_path / "out", "--family", "cubic", "--format", "px4-params",
+                  "--out", tmp_path / "noid.params")
+    assert r.returncode == 1 and "--device-id" in r.stderr
+    assert not (tmp_path / "noid.params").exists()
+    r = thermonet("export", tmp_path / "out", "--family", "cubic", "--format", "px4-params",
+                  "--device-id", "2490378", "--out", tmp_path / "tc.params")
+    assert r.returncode == 0, r.stderr
+    assert "1\t1\tTC_G0_ID\t2490378\t6" in (tmp_path / "tc.params").read_text()
+    r = thermonet("export", tmp_path / "out", "--family", "cubic", "--format", "ardupilot-params",
+                  "--out", tmp_path / "tcal.parm")
+    assert r.returncode == 0, r.stderr
+    text = (tmp_path / "tcal.parm").read_text()
+    # a gyro model leaves the accelerometer's calibration alone
+    assert "INS_TCAL1_GYR1_X," in text and "INS_TCAL1_ACC" not in text
     r = thermonet("export", tmp_path / "out", "--family", "rbf", "--format", "px4-params",
                   "--out", tmp_path / "p.params")
     assert r.returncode == 1 and "poly" in r.stderr

@@ -72,7 +72,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from .exporting import export_source
 
     path = export_source(args.source, fmt=args.format, out=args.out, family=args.family,
-                         tracking_uri=args.tracking_uri)
+                         tracking_uri=args.tracking_uri, device_id=args.device_id,
+                         instance=args.instance)
     print(f"wrote {path}")
     return 0
 
@@ -133,6 +134,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", required=True, help="output file")
     e.add_argument("--family", default=None, help="family name in a compare dir (default: chosen)")
     e.add_argument("--tracking-uri", default=None, help="MLflow URI for a run-id source")
+    e.add_argument("--device-id", type=int, default=None,
+                   help="px4-params: the sensor's device id (TC_*_ID; 'listener sensor_gyro')")
+    e.add_argument("--instance", type=int, default=None,
+                   help="px4-params: calibration slot 0..3 (default 0); "
+                        "ardupilot-params: IMU 1..3 (default 1)")
     e.set_defaults(func=_cmd_export)
     return p
 

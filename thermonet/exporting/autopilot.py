@@ -232,7 +232,7 @@ def _g(v: float) -> str:
 
 
 def export_px4_params(model: nn.Module, path: str | Path, *, output_units: str | Mapping[str, str],
-                      device_id: int = 0, instance: int = 0) -> Path:
+                      device_id: int | None = None, instance: int = 0) -> Path:
     """Write PX4 ``TC_G<i>_*`` / ``TC_A<i>_*`` parameters as a QGC ``.params`` file.
 
     Parameters
@@ -243,7 +243,9 @@ def export_px4_params(model: nn.Module, path: str | Path, *, output_units: str |
     output_units : str or dict
         Units of the model's outputs (converted to rad/s, m/s²).
     device_id : int
-        The sensor's PX4 device id (``TC_G0_ID``), which PX4 matches at boot.
+        The sensor's PX4 device id (``TC_G0_ID``), which PX4 matches at boot:
+        a slot whose ID matches no sensor is never applied, silently, so it is
+        required (read it with ``listener sensor_gyro`` / ``sensor_accel``).
     instance : int
         Calibration slot 0..3.
 
@@ -254,6 +256,10 @@ def export_px4_params(model: nn.Module, path: str | Path, *, output_units: str |
     if not 0 <= int(instance) <= 3:
         raise ExportError(f"PX4 calibration instance must be 0..3, got {instance}")
     co = autopilot_coefficients(model, output_units=output_units)
+    if device_id is None or isinstance(device_id, bool) or int(device_id) <= 0:
+        raise ExportError("PX4 applies TC_*_ parameters only to the sensor whose device id "
+                          "equals TC_*_ID: give the sensor's device id (--device-id; read it "
+                          f"with 'listener sensor_gyro'), got {device_id!r}")
     lines = ["# Sensor thermal compensation parameters (thermonet, poly on temperature)",
              f"# family poly, T_ref {co.t_ref:g} degC, range [{co.t_min:g}, {co.t_max:g}] degC",
              "#",
@@ -294,13 +300,16 @@ def export_ardupilot_params(model: nn.Module, path: str | Path, *,
                           "ArduPilot's INS_TCAL TMIN/TMAX range -70..80 degC")
     pre = f"INS_TCAL{imu}_"
     rows = [(pre + "ENABLE", "1"), (pre + "TMIN", _g(co.t_min)), (pre + "TMAX", _g(co.t_max))]
-    for kind in ("acc", "gyro"):
-        coef = co.coef.get(kind, np.zeros((3, 4)))
+    # only the sensor kinds the model covers: writing zeros for the other would wipe an
+    # existing calibration of that sensor when the file is loaded
+    for kind in (k for k in ("acc", "gyro") if k in co.coef):
+        coef = co.coef[kind]
         for k in (1, 2, 3):
             for i, ax in enumerate(_AXES):
                 rows.append((f"{pre}{_AP_TYPE[kind]}{k}_{ax.upper()}",
                              _g(coef[i, k] * ARDUPILOT_SCALE)))
     header = ["# ArduPilot IMU temperature calibration (thermonet, poly on temperature)",
+              "# axes the model does not cover are written as 0 (no correction on that axis)",
               f"# drift constant at {ARDUPILOT_TEMP_REFERENCE:g} degC is left to the offset "
               "calibration at INS_*_CALTEMP"]
     return _atomic_write(Path(path), "\n".join(header + [f"{n}{sep}{v}" for n, v in rows]) + "\n")

@@ -89,8 +89,13 @@ def resolve_checkpoint(source: str, *, family: str | None = None,
 
 
 def export_source(source: str, *, fmt: str, out: str | Path, family: str | None = None,
-                  tracking_uri: str | None = None) -> Path:
-    """Export the model SOURCE designates as ``fmt`` to ``out``; return the written path."""
+                  tracking_uri: str | None = None, device_id: int | None = None,
+                  instance: int | None = None) -> Path:
+    """Export the model SOURCE designates as ``fmt`` to ``out``; return the written path.
+
+    ``device_id`` (PX4's ``TC_*_ID``) and ``instance`` (PX4 slot 0–3, default 0;
+    ArduPilot IMU 1–3, default 1) apply to the autopilot formats.
+    """
     from ..checkpoint import load_checkpoint
     from . import export_ardupilot_params, export_c_header, export_onnx, export_px4_params
 
@@ -118,8 +123,10 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
     if fmt == "c":
         return export_c_header(model, out)
     if fmt == "px4-params":
-        return export_px4_params(model, out, output_units=units)
-    return export_ardupilot_params(model, out, output_units=units)
+        return export_px4_params(model, out, output_units=units, device_id=device_id,
+                                 instance=0 if instance is None else instance)
+    return export_ardupilot_params(model, out, output_units=units,
+                                   imu=1 if instance is None else instance)
 
 
 def _log_to_run(path: Path, run_id: str, tracking_uri: str | None, meta: dict) -> None:
