@@ -193,3 +193,25 @@ def test_log_to_mlflow_sqlite(exported, tmp_path):
     finally:
         mlflow.set_tracking_uri(None)
     assert {p.key: p.value for p in loaded.metadata_props}["family"] == "linear"
+
+
+def test_parity_check_catches_a_graph_without_the_clamp(tmp_path):
+    """A graph that evaluates outside the trained range (no clamp) must be refused."""
+    import torch
+
+    from thermonet.errors import ExportError
+    from thermonet.exporting.onnx_export import parity_check
+
+    model = _fit("poly", ["dT"], hyper={"degree": 3})
+    good = export_onnx(model, tmp_path / "good.onnx")
+    lo, hi = model.sig_lo.clone(), model.sig_hi.clone()
+    with torch.no_grad():  # the same model, its range opened wide: the graph no longer clamps
+        model.sig_lo.fill_(-1e6)
+        model.sig_hi.fill_(1e6)
+    unclamped = export_onnx(model, tmp_path / "unclamped.onnx", check=False)
+    with torch.no_grad():
+        model.sig_lo.copy_(lo)
+        model.sig_hi.copy_(hi)
+    parity_check(model, good)
+    with pytest.raises(ExportError, match="out_of_range flag not set|not the clamped value"):
+        parity_check(model, unclamped)

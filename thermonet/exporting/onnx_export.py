@@ -330,18 +330,40 @@ def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
         k = int(np.argmax(flag))
         where = ", ".join(f"{s}={points[k, i]:.6g}" for i, s in enumerate(model.signals))
         raise ExportError(f"ONNX out_of_range flag set inside the trained range at {where}")
-    # Just outside each side of the range, and NaN: the flag must be set, NaN must propagate.
+    # One signal at a time just outside each side of the range (the clamp: drift must
+    # equal torch's clamped value), then NaN, +inf and -inf (drift must be NaN); the
+    # flag must be set on every one of these rows.
     lo = np.array([r[0] for r in ranges])
     hi = np.array([r[1] for r in ranges])
     span = np.maximum(hi - lo, 1e-3)
-    outside = np.stack([lo - 0.1 * span, hi + 0.1 * span, np.full_like(lo, np.nan)]).astype(np.float32)
+    rows, finite = [], []
+    for i in range(len(ranges)):
+        for value, ok in ((lo[i] - 0.1 * span[i], True), (hi[i] + 0.1 * span[i], True),
+                          (np.nan, False), (np.inf, False), (-np.inf, False)):
+            row = (lo + hi) / 2.0
+            row[i] = value
+            rows.append(row)
+            finite.append(ok)
+    outside = np.array(rows, dtype=np.float32)
+    finite_rows = np.array(finite)
     _, d_out, f_out = sess.run(None, {**{s: np.ascontiguousarray(outside[:, i])
                                          for i, s in enumerate(model.signals)},
-                                      "raw": np.zeros((3, n_axes), np.float32)})
+                                      "raw": np.zeros((len(rows), n_axes), np.float32)})
     if not bool(f_out.all()):
-        raise ExportError("ONNX out_of_range flag not set for a signal outside the trained range")
-    if not bool(np.isnan(d_out[2]).all()):
-        raise ExportError("ONNX graph does not return NaN drift for a NaN signal")
+        k = int(np.argmin(f_out))
+        raise ExportError("ONNX out_of_range flag not set at "
+                          + ", ".join(f"{s}={outside[k, i]:.6g}"
+                                      for i, s in enumerate(model.signals)))
+    with torch.no_grad():
+        d_clamped = model(torch.from_numpy(outside[finite_rows])).double().numpy()
+    bad = np.abs(d_out[finite_rows].astype(np.float64) - d_clamped) > tol
+    if bool(bad.any()):
+        k, a = np.argwhere(bad)[0]
+        raise ExportError(f"ONNX drift outside the trained range is not the clamped value "
+                          f"(axis '{model.outputs[a]}': onnxruntime {d_out[finite_rows][k, a]:.9g} "
+                          f"vs torch {d_clamped[k, a]:.9g})")
+    if not bool(np.isnan(d_out[~finite_rows]).all()):
+        raise ExportError("ONNX graph does not return NaN drift for a NaN or infinite signal")
     return {"n_points": float(n), "max_abs_diff": float(err.max()),
             "max_rel_diff": float((err / np.maximum(scale, 1e-30)).max())}
 
