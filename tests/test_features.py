@@ -115,3 +115,18 @@ def test_rate_is_computed_per_contiguous_segment():
     rate = signal_matrix(rec, ["rate_c_per_min"])[:, 0]
     # the 7 °C step at the gap would give a spike if differentiated across it
     np.testing.assert_allclose(rate, 0.5, atol=1e-9)
+
+
+def test_rate_is_causal_no_look_ahead():
+    """A ramp starting at t = 150 s: no rate before it starts, the full slope a window later."""
+    from thermonet.features import signal_matrix
+    from thermonet.recording import Recording
+
+    t = np.arange(0.0, 600.0, 1.0)
+    temp = 20.0 + np.clip(t - 150.0, 0.0, None) / 60.0          # 1 °C/min from t = 150 s
+    rec = Recording(time_s=t, temperature_c=temp, outputs={"gyro_x": np.zeros(t.size)},
+                    sample_rate_hz=1.0)
+    rate = signal_matrix(rec, ["rate_c_per_min"], rate_window_s=61.0)[:, 0]
+    np.testing.assert_allclose(rate[:151], 0.0, atol=1e-12)
+    assert 0.0 < rate[160] < 1.0
+    np.testing.assert_allclose(rate[150 + 61:], 1.0, atol=1e-9)

@@ -306,6 +306,8 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
                         save_checkpoint(ckpt, oc.model, config=resolved,
                                         extra={"label": fam.label, "device_id": ds.device_id,
                                                "data_hash": dhash, "units": units,
+                                               "signal_units": {p: ds[0].units.get(p, "")
+                                                                for p in ds[0].proxies},
                                                "val_score": r["val_score"],
                                                "test_metrics": r["axes"],
                                                "mlflow_run_id": run_id or ""})

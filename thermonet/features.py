@@ -37,7 +37,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 import torch
-from scipy.signal import savgol_filter
+from scipy.signal import savgol_coeffs
 from torch import nn
 
 from .errors import ConfigError, InputError
@@ -268,15 +268,30 @@ def contiguous_segments(time_s: np.ndarray, gap_factor: float = GAP_FACTOR) -> l
 
 
 def _segment_rate(temp: np.ndarray, time_s: np.ndarray, fs: float, window_s: float) -> np.ndarray:
+    """Causal dT/dt (°C/min) of one contiguous segment.
+
+    At each sample, the slope at that sample of a least-squares parabola through the
+    last ``window_s`` seconds (Savitzky–Golay, order 2, evaluated at the window's
+    newest end) — what a device can compute on board, with no look-ahead.  Before
+    a full window has passed, the mean slope since the segment's start.
+    """
     n = temp.shape[0]
-    # Savitzky–Golay needs an odd window longer than its polynomial order (2);
-    # a window in seconds keeps the smoothing independent of the sample rate.
+    rate = np.zeros(n)
+    if n < 2:
+        return rate
+    # an odd window longer than the polynomial order; in seconds, so independent of the rate
     win = max(int(round(window_s * fs)) | 1, 5)
-    if win > n:
-        win = n if n % 2 else n - 1
-    if win < 5:
-        return np.gradient(temp, time_s) * 60.0 if n > 1 else np.zeros(n)
-    return savgol_filter(temp, window_length=win, polyorder=2, deriv=1, delta=1.0 / fs) * 60.0
+    start = 1
+    if win <= n:
+        coef = savgol_coeffs(win, 2, deriv=1, delta=1.0 / fs, pos=win - 1, use="dot")
+        rate[win - 1:] = np.correlate(temp, coef, mode="valid")
+        start, stop = 1, win - 1
+    else:
+        stop = n
+    k = np.arange(start, stop)
+    rate[k] = (temp[k] - temp[0]) / (time_s[k] - time_s[0])
+    rate[0] = rate[1] if n > 1 else 0.0
+    return rate * 60.0
 
 
 def _rate_c_per_min(rec: Recording, window_s: float) -> np.ndarray:
@@ -293,12 +308,14 @@ def signal_matrix(recording: Recording, signals: Sequence[str], rate_window_s: f
                   ) -> np.ndarray:
     """Physical signals of a recording as a matrix.
 
-    ``rate_c_per_min`` is the first derivative of a Savitzky–Golay fit
-    (polynomial order 2) to ``temperature_c`` over a window of
-    ``rate_window_s`` seconds, converted to samples with the recording's
-    sample rate (rounded to an odd count, at least 5, at most the run length):
+    ``rate_c_per_min`` is causal, as a device computes it on board: at each
+    sample, the slope at that sample of a least-squares parabola through the
+    last ``rate_window_s`` seconds of ``temperature_c`` (Savitzky–Golay, order
+    2, evaluated at the newest end of the window; rounded to an odd sample
+    count, at least 5); before a full window has passed, the mean slope since
+    the start of the segment:
 
-    .. math:: \\dot T_k = 60 \\cdot \\frac{d}{dt} \\hat T(t_k) \\quad [°C/min]
+    .. math:: \dot T_k = 60 \cdot \frac{d}{dt} \hat T_{[t_k - w,\, t_k]}(t_k) \quad [°C/min]
 
     It assumes near-uniform sampling (the median sample interval) within each
     contiguous segment and is computed segment by segment
