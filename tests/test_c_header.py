@@ -114,3 +114,17 @@ def test_header_text_and_refusals():
     assert "malloc" not in text and "double" not in text
     with pytest.raises(ExportError, match="not a C identifier"):
         render_c_header(model, prefix="9bad-name")
+
+
+def test_header_refuses_fast_math(tmp_path):
+    """-ffast-math would fold away the NaN test: the header must not compile that way."""
+    header = export_c_header(_model("poly"), tmp_path / "thermonet_model.h")
+    src = tmp_path / "use.c"
+    src.write_text('#include "thermonet_model.h"\nint main(void) { return 0; }\n')
+    ok = subprocess.run(["gcc", "-std=c99", "-O2", "-c", str(src), "-o", str(tmp_path / "a.o")],
+                        capture_output=True, text=True, cwd=tmp_path)
+    assert ok.returncode == 0, ok.stderr
+    fast = subprocess.run(["gcc", "-std=c99", "-Ofast", "-c", str(src), "-o", str(tmp_path / "b.o")],
+                          capture_output=True, text=True, cwd=tmp_path)
+    assert fast.returncode != 0 and "fast-math" in fast.stderr
+    assert header.name == "thermonet_model.h"

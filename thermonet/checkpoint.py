@@ -134,6 +134,9 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
     if not isinstance(payload, dict) or any(k not in payload for k in _KEYS):
         missing = [k for k in _KEYS if not isinstance(payload, dict) or k not in payload]
         raise InputError.at(path, f"not a thermonet checkpoint (missing {', '.join(missing)})")
+    if payload.get("format", CHECKPOINT_FORMAT) != CHECKPOINT_FORMAT:
+        raise InputError.at(path, f"checkpoint format {payload.get('format')!r}; this thermonet "
+                            f"reads format {CHECKPOINT_FORMAT}")
     spec = FeatureSpec(inputs=payload["inputs"], t_ref=payload["spec"]["t_ref"],
                        proxy_ref=payload["spec"]["proxy_ref"])
     family = build_family(payload["family"], n_inputs=len(payload["inputs"]),
