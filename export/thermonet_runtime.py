@@ -234,18 +234,26 @@ class Compensator:
             A missing or unknown signal, a non-numeric dtype or inconsistent shapes.
         """
         given: dict[str, Any] = {}
+
+        def put(name: str, value: Any) -> None:
+            name = _ALIASES.get(name, name)
+            if name in given:  # e.g. rate= and rate_c_per_min=: never guess which one is meant
+                raise RuntimeInputError(f"signal '{name}' given twice")
+            given[name] = value
+
         for key, value in signals.items():
-            given[_ALIASES.get(key, key)] = value
+            put(key, value)
         if temperature_c is not None:
-            given["temperature_c"] = temperature_c
+            put("temperature_c", temperature_c)
         if rate is not None:
-            given["rate_c_per_min"] = rate
+            put("rate_c_per_min", rate)
         if proxy is not None:
             proxies = [s for s in self.signals if s not in ("temperature_c", "rate_c_per_min")]
             if isinstance(proxy, Mapping):
-                given.update(proxy)
+                for key, value in proxy.items():
+                    put(key, value)
             elif len(proxies) == 1:
-                given[proxies[0]] = proxy
+                put(proxies[0], proxy)
             else:
                 raise RuntimeInputError(f"proxy= given but the model has proxies {proxies}; "
                                         "pass them by name")
@@ -326,6 +334,12 @@ def _read_csv(path: Path, needed: list[str]) -> tuple[list[str], list[list[str]]
     for name in needed:
         if name not in header:
             raise RuntimeInputError(f"{path}: missing column '{name}' (needs {', '.join(needed)})")
+    for i, row in enumerate(body):
+        # a trailing separator gives an empty extra cell; anything more is a misaligned row
+        if len(row) > len(header) and any(c.strip() for c in row[len(header):]):
+            raise RuntimeInputError(f"{path}: row {i + 2}: {len(row)} cells, the header has "
+                                    f"{len(header)}")
+        del row[len(header):]
     cols: dict[str, np.ndarray] = {}
     for name in needed:
         j = header.index(name)
@@ -364,6 +378,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         res = comp.compensate(raw=raw, **{s: cols[s] for s in comp.signals})
         extra = [f"{a}_comp" for a in comp.outputs] + [f"{a}_drift" for a in comp.outputs] + \
             ["out_of_range"]
+        clash = sorted(set(extra) & set(header))
+        if clash:
+            raise RuntimeInputError(f"{args.input}: already has output column(s) {clash}; "
+                                    "compensate the raw file, not an output")
         tmp = args.out.with_name(args.out.name + ".tmp")
         with tmp.open("w", newline="") as fh:
             writer = csv.writer(fh)

@@ -91,6 +91,8 @@ def test_refuses_bad_inputs(model_path):
         comp.compensate(raw=np.zeros(3))
     with pytest.raises(rt.RuntimeInputError, match=r"unknown signal\(s\) \['freq_hz'\]"):
         comp.compensate(20.0, np.zeros(3), freq_hz=4517.0)
+    with pytest.raises(rt.RuntimeInputError, match="signal 'rate_c_per_min' given twice"):
+        comp.compensate(20.0, np.zeros(3), rate=0.1, rate_c_per_min=5.0)
 
 
 def _rewrite(src: Path, dst: Path, edit) -> Path:
@@ -185,3 +187,18 @@ def test_cli_bad_input_exits_1(model_path, tmp_path):
     assert proc.returncode == 1
     assert "column 'temperature_c', row 3: not a number 'hot'" in proc.stderr
     assert not (tmp_path / "o.csv").exists()
+    # a misaligned row (more cells than the header) and an output fed back in are refused
+    src.write_text("temperature_c,gyro_x,gyro_y,gyro_z\n20,0,0,0,\n21,0,0,0,5\n")
+    proc = _run_cli(str(model_path), str(src), "--out", str(tmp_path / "o.csv"))
+    assert proc.returncode == 1 and "row 3: 5 cells, the header has 4" in proc.stderr
+    src.write_text("temperature_c,gyro_x,gyro_y,gyro_z,gyro_x_comp\n20,0,0,0,1\n")
+    proc = _run_cli(str(model_path), str(src), "--out", str(tmp_path / "o.csv"))
+    assert proc.returncode == 1 and "already has output column(s) ['gyro_x_comp']" in proc.stderr
+    # a trailing separator alone is fine: the output stays aligned with its header
+    src.write_text("temperature_c,gyro_x,gyro_y,gyro_z\n20,1,0,0,\n")
+    proc = _run_cli(str(model_path), str(src), "--out", str(tmp_path / "o.csv"))
+    assert proc.returncode == 0, proc.stderr
+    import csv
+    row, = csv.DictReader((tmp_path / "o.csv").open())
+    assert row["out_of_range"] in ("0", "1") and float(row["gyro_x_comp"]) == pytest.approx(
+        1.0 - float(row["gyro_x_drift"]), abs=1e-6)
