@@ -100,3 +100,43 @@ def test_missing_signal_stops_compare_before_writing(tmp_path):
     with pytest.raises(ConfigError, match=r"key 'families\[0\]\.inputs': no proxy channel 'freq_hz'"):
         run_compare(cfg, tmp_path / "out", track=False, quiet=True)
     assert not (tmp_path / "out").exists()
+
+
+def test_negative_seed_and_wrong_suffix_are_one_line_errors(tmp_path):
+    from thermonet.sim import simulate
+
+    with pytest.raises(ConfigError, match="seed must be a non-negative integer, got -1"):
+        simulate("mems-gyro", runs=1, seed=-1)
+    with pytest.raises(InputError, match=r"x\.csv: a thermonet recording file ends in \.parquet"):
+        write_parquet(toy_dataset(n_runs=1), tmp_path / "x.csv")
+    assert not (tmp_path / "x.csv").exists()
+
+
+def test_datetime_time_column_becomes_seconds(tmp_path):
+    import pandas as pd
+
+    from thermonet.io import read_dataset
+
+    n = 100
+    pd.DataFrame({"ts": pd.date_range("2026-01-01", periods=n, freq="500ms"),
+                  "temp": np.linspace(20.0, 30.0, n), "gx": np.zeros(n)}).to_parquet(
+        tmp_path / "dt.parquet")
+    (tmp_path / "dt.yaml").write_text("time: {column: ts, unit: ms}\nchannels:\n"
+                                      "  temperature_c: {column: temp}\n  gyro_x: {column: gx}\n")
+    rec, = read_dataset(tmp_path / "dt.parquet", mapping=tmp_path / "dt.yaml")
+    np.testing.assert_allclose(rec.time_s, 0.5 * np.arange(n))
+
+
+def test_four_position_on_a_run_shorter_than_the_window():
+    from thermonet.recording import Recording
+    from thermonet.sim.fourpos import four_position_estimates
+
+    t = np.arange(0.0, 300.0, 1.0)
+    ref = np.repeat([1.0, 0.0, -1.0, 0.0], 75)
+    rec = Recording(time_s=t, temperature_c=np.full(t.size, 25.0),
+                    outputs={"acc_x": 0.002 + 1.0001 * ref}, references={"ref_acc_x": ref},
+                    sample_rate_hz=1.0)
+    est = four_position_estimates(rec, "acc_x", settle_s=0.0, window_s=600.0)
+    assert len(est) == 1
+    temp, k0, k1 = est[0]
+    assert temp == pytest.approx(25.0) and k0 == pytest.approx(0.002) and k1 == pytest.approx(1.0001)

@@ -151,8 +151,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ThermonetError as err:
         print(f"thermonet: error: {err}", file=sys.stderr)
         return 1
-    except FileNotFoundError as err:
-        print(f"thermonet: error: {err.filename or err}: file not found", file=sys.stderr)
+    except OSError as err:  # a path that cannot be read or written: one line, not a traceback
+        print(f"thermonet: error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
         return 1
 
 

@@ -315,7 +315,7 @@ def signal_matrix(recording: Recording, signals: Sequence[str], rate_window_s: f
     count, at least 5); before a full window has passed, the mean slope since
     the start of the segment:
 
-    .. math:: \dot T_k = 60 \cdot \frac{d}{dt} \hat T_{[t_k - w,\, t_k]}(t_k) \quad [°C/min]
+    .. math:: \\dot T_k = 60 \\cdot \\frac{d}{dt} \\hat T_{[t_k - w,\\, t_k]}(t_k) \\quad [°C/min]
 
     It assumes near-uniform sampling (the median sample interval) within each
     contiguous segment and is computed segment by segment

@@ -76,6 +76,10 @@ def write_parquet(dataset: Dataset, path: str | Path) -> Path:
     at ``path`` (and an existing file there untouched).
     """
     path = Path(path)
+    if path.suffix.lower() not in (".parquet", ".pq"):
+        raise InputError.at(path, "a thermonet recording file ends in .parquet (or .pq)")
+    if path.is_dir():
+        raise InputError.at(path, "is a directory; give a .parquet file name")
     if not path.parent.is_dir():
         raise InputError.at(path, f"output directory '{path.parent}' does not exist")
     for run in dataset:
@@ -397,6 +401,25 @@ def _apply_mapping(frame: _Frame, mapping: ColumnMapping) -> tuple[list[Recordin
         if label in values:
             continue
         cells = frame.data[label]
+        if pd.api.types.is_datetime64_any_dtype(cells) or pd.api.types.is_timedelta64_dtype(cells):
+            # a timestamp column: seconds since its first sample, whatever its own unit
+            # (to_numeric would give µs or ns counts that a 'unit: s' then misreads)
+            if label != numeric_keys[0][1] or mapping.time is None:
+                raise InputError.at(path, "a date/time column can only be the time column",
+                                    column=str(label))
+            stamps = cells.astype("datetime64[ns]") if pd.api.types.is_datetime64_any_dtype(
+                cells) else cells.astype("timedelta64[ns]")
+            ns = stamps.to_numpy().astype("int64").astype(np.float64)
+            v = (ns - ns[0]) * 1e-9 / mapping.time.seconds_per_unit
+            v[np.asarray(stamps.isna())] = np.nan
+            values[label] = v
+            bad = ~np.isfinite(v)
+            if bad.any():
+                bad_any |= bad
+                i = int(np.argmax(bad))
+                if first_bad is None or i < first_bad[0]:
+                    first_bad = (i, label)
+            continue
         v = pd.to_numeric(cells.str.strip() if cells.dtype != np.float64 and
                           hasattr(cells, "str") else cells, errors="coerce")
         v = np.asarray(v, dtype=np.float64)

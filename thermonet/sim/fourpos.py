@@ -64,7 +64,7 @@ def four_position_estimates(recording: Recording, output: str | None = None, *,
     y = np.asarray(recording.outputs[output], dtype=np.float64)
     ref = recording.references[f"ref_{output}"]
     dt = float(np.median(np.diff(t)))
-    w = max(3, int(round(window_s / dt)))
+    w = min(max(3, int(round(window_s / dt))), len(t))  # a run shorter than the window
     # a moving mean over the window hides thermometer quantisation steps
     smooth = np.convolve(temp, np.ones(w) / w, mode="same")
     rate = np.abs(np.gradient(smooth, t)) * 3600.0

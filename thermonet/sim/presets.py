@@ -267,6 +267,8 @@ def simulate(preset: str | SimConfig, *, runs: int | None = None, seed: int = 0,
     """
     cfg = get_preset(preset) if isinstance(preset, str) else preset
     cfg = _apply_overrides(cfg, overrides)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
     n_runs = cfg.default_runs if runs is None else int(runs)
     if n_runs < 1:
         raise ConfigError(f"runs must be at least 1, got {runs!r}")
