@@ -202,8 +202,8 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path):
         write_parquet(ds, target)
     assert target.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.parquet"]
-    # The final rename itself failing (target is a directory) also leaves no temp file.
+    # A directory where the file should go is refused before anything is written.
     (tmp_path / "dir.parquet").mkdir()
-    with pytest.raises(OSError):
+    with pytest.raises(InputError, match="is a directory"):
         write_parquet(_dataset(), tmp_path / "dir.parquet")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dir.parquet", "out.parquet"]

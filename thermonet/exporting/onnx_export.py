@@ -32,8 +32,8 @@ is, per axis :math:`a` over the check points,
 
 .. math::
 
-    |d_{ort} - d_{torch}| \le \max\big(10^{-5} \max_k |d_{torch,k,a}|,\;
-    4 \max_k |d_{torch,k,a} - d_{float64,k,a}|\big)
+    |d_{ort} - d_{torch}| \\le \\max\\big(10^{-5} \\max_k |d_{torch,k,a}|,\\;
+    4 \\max_k |d_{torch,k,a} - d_{float64,k,a}|\\big)
 
 i.e. 1e-5 relative to the axis's largest drift on the checked set — about 80
 float32 ulps, far above kernel-order noise (≈ 1e-7 relative) and far below any
