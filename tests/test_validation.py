@@ -140,3 +140,12 @@ def test_four_position_on_a_run_shorter_than_the_window():
     assert len(est) == 1
     temp, k0, k1 = est[0]
     assert temp == pytest.approx(25.0) and k0 == pytest.approx(0.002) and k1 == pytest.approx(1.0001)
+
+
+def test_empty_run_id_names_column_and_row(tmp_path):
+    from thermonet.io import read_dataset
+
+    lines = ["run,time_s,temperature_c,gyro_x"] + [f"a,{i},{20 + i},0.1" for i in range(15)]
+    (tmp_path / "r.csv").write_text("\n".join(lines + [",15,35,0.1"]) + "\n")
+    with pytest.raises(InputError, match=r"r\.csv, column 'run', row 16: empty run id"):
+        read_dataset(tmp_path / "r.csv")

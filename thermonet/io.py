@@ -456,7 +456,13 @@ def _apply_mapping(frame: _Frame, mapping: ColumnMapping) -> tuple[list[Recordin
         time_s = (rows - 1) / mapping.sample_rate_hz
     if mapping.run_column is not None:
         r_label = _resolve(frame, mapping.run_column, "run_column")
-        run_ids = frame.data[r_label].astype(str).str.strip().to_numpy()[keep]
+        cells = frame.data[r_label]
+        empty = (cells.isna() | (cells.astype(str).str.strip() == "")).to_numpy()[keep]
+        if empty.any():
+            i = int(np.flatnonzero(keep)[np.argmax(empty)])
+            raise InputError.at(path, "empty run id" + _line(frame, i),
+                                column=_label(r_label), row=int(frame.rows[i]))
+        run_ids = cells.astype(str).str.strip().to_numpy()[keep]
         groups = [(str(rid), run_ids == rid) for rid in pd.unique(run_ids)]
     else:
         groups = [(mapping.run_id or path.stem, np.ones(int(keep.sum()), dtype=bool))]
