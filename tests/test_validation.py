@@ -149,3 +149,19 @@ def test_empty_run_id_names_column_and_row(tmp_path):
     (tmp_path / "r.csv").write_text("\n".join(lines + [",15,35,0.1"]) + "\n")
     with pytest.raises(InputError, match=r"r\.csv, column 'run', row 16: empty run id"):
         read_dataset(tmp_path / "r.csv")
+
+
+def test_skipped_rows_are_counted_per_run(tmp_path):
+    from thermonet.io import read_dataset
+
+    lines = ["run,time_s,temperature_c,gyro_x"]
+    lines += [f"a,{i},{20 + i},0.1" for i in range(15)] + ["a,15,35,oops"]
+    lines += [f"b,{i},{20 + i},0.1" for i in range(15)]
+    (tmp_path / "r.csv").write_text("\n".join(lines) + "\n")
+    (tmp_path / "m.yaml").write_text("run_column: run\nmalformed_rows: skip\n"
+                                     "time: {column: time_s, unit: s}\nchannels:\n"
+                                     "  temperature_c: {column: temperature_c}\n"
+                                     "  gyro_x: {column: gyro_x}\n")
+    ds = read_dataset(tmp_path / "r.csv", mapping=tmp_path / "m.yaml")
+    assert ds.meta["skipped_rows"] == "1"
+    assert [(r.run_id, r.meta["skipped_rows"]) for r in ds] == [("a", "1"), ("b", "0")]

@@ -462,7 +462,8 @@ def _apply_mapping(frame: _Frame, mapping: ColumnMapping) -> tuple[list[Recordin
             i = int(np.flatnonzero(keep)[np.argmax(empty)])
             raise InputError.at(path, "empty run id" + _line(frame, i),
                                 column=_label(r_label), row=int(frame.rows[i]))
-        run_ids = cells.astype(str).str.strip().to_numpy()[keep]
+        run_all = cells.astype(str).str.strip().to_numpy()
+        run_ids = run_all[keep]
         groups = [(str(rid), run_ids == rid) for rid in pd.unique(run_ids)]
     else:
         groups = [(mapping.run_id or path.stem, np.ones(int(keep.sum()), dtype=bool))]
@@ -492,9 +493,17 @@ def _apply_mapping(frame: _Frame, mapping: ColumnMapping) -> tuple[list[Recordin
         if mapping.source != "<conventional names>":
             meta["mapping"] = mapping.source
         if mapping.malformed_rows == "skip":
-            meta["skipped_rows"] = str(n_skipped)
+            if mapping.run_column is None:
+                run_skipped, run_lines = n_skipped, sorted(frame.skipped_lines)
+            else:
+                # rows with a bad mapped cell belong to the run their run cell names; a row
+                # with a wrong field count has no readable run cell and counts for the file only
+                mine = bad_any & (run_all == run_id)
+                at = frame.lines if frame.lines is not None else frame.rows
+                run_skipped, run_lines = int(mine.sum()), sorted(np.asarray(at)[mine])
+            meta["skipped_rows"] = str(run_skipped)
             # The first few only: enough to find them in an editor, short in a log.
-            meta["skipped_lines"] = ",".join(str(int(x)) for x in sorted(frame.skipped_lines)[:20])
+            meta["skipped_lines"] = ",".join(str(int(x)) for x in run_lines[:20])
         runs.append(Recording(time_s=t, temperature_c=temperature, **chans, units=units,
                               device_id=mapping.device_id, sensor_kind=sensor_kind,
                               run_id=run_id, sample_rate_hz=mapping.sample_rate_hz, meta=meta))
