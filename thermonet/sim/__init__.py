@@ -1,14 +1,16 @@
 """Thermal-chamber simulator and the four study presets.
 
-``simulate(preset, runs=, seed=, **overrides) -> Dataset``.  Presets (study
-numbers each reproduced within 10 %, checked in ``tests/test_presets.py``):
+``simulate(preset, runs=, seed=, **overrides) -> Dataset``.  The runs of one
+call are one device: its unit-to-unit spread is drawn once per seed, and each
+run (power-up) adds its own turn-on bias offset.  Presets (study numbers each
+reproduced within 10 %, checked in ``tests/test_presets.py``):
 
 ``accel`` (study 000)
     Single-axis accelerometer ``acc_x`` (g) at 0.2 Hz; −20…60 °C in 10 °C steps,
     10 °C/h ramps, each point 1 h soak + four-position test (+1, 0, −1, 0 g,
     15 min each, ``ref_acc_x``).  Per-soak bias pp 14 mg, linear-fit residual
     6.9 mg, Lorentz residual 1.3 mg; scale-factor coefficient 151.6 ppm/°C
-    (→ ≈46 linear, ≈12 Lorentz).  3 runs (units) by default.
+    (→ ≈46 linear, ≈12 Lorentz).  3 runs by default.
 ``hrg`` (study 001)
     HRG ``gyro_x`` (°/h) at 0.1 Hz, proxy ``freq_hz`` = 4517 Hz + 0.4 Hz/°C of
     the resonator temperature, 0.03 Hz resolution; case thermometer lags.
@@ -16,8 +18,8 @@ numbers each reproduced within 10 %, checked in ``tests/test_presets.py``):
     60 °C.  Bias 30 °/h pp over −10…60 °C, quadratic-in-Δf fit leaves 2.8 °/h.
 ``mems-gyro`` (study 002)
     ADIS16355-like ``gyro_x`` (°/s) at 1 Hz; run0 soaks 25/45/50/55/65/70 °C ×
-    1 h, run1 closed-box self-heating 25 → 45 °C in 2 h; further runs repeat
-    with unit spread.  Bias 0.025 °/s at 65 °C relative to 25 °C.  Allan bias
+    1 h, run1 closed-box self-heating 25 → 45 °C in 2 h; further runs alternate
+    the two procedures.  Bias 0.025 °/s at 65 °C relative to 25 °C.  Allan bias
     stability = minimum of the overlapping Allan deviation over τ ≤ 1000 s ≈
     0.0075 °/s (ARW 4.2 °/√h, flicker floor 0.0072 °/s).
 ``patent-gyro`` (study 003)
