@@ -128,3 +128,19 @@ def test_header_refuses_fast_math(tmp_path):
                           capture_output=True, text=True, cwd=tmp_path)
     assert fast.returncode != 0 and "fast-math" in fast.stderr
     assert header.name == "thermonet_model.h"
+
+
+def test_export_compiles_and_checks_the_header_before_writing(tmp_path):
+    """A header that does not evaluate the model is refused and nothing is written."""
+    from thermonet.exporting.c_header import c_parity_check
+
+    model = _model("rbf")
+    stats = c_parity_check(model, render_c_header(model))
+    assert stats is not None and stats["n_points"] >= 10_000
+    stale = render_c_header(model)
+    with torch.no_grad():
+        model.y_mean += 1.0  # the model moved on; the header text did not
+    with pytest.raises(ExportError, match="C header parity check failed"):
+        c_parity_check(model, stale)
+    out = export_c_header(model, tmp_path / "ok.h")  # a fresh header passes its own check
+    assert out.is_file()

@@ -45,10 +45,11 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..fileio import atomic_write_text
 from .. import __version__
 from ..errors import ExportError
-from .onnx_export import check_model_finite, family_name
+from ..fileio import atomic_write_text
+from .onnx_export import (_check_points, check_model_finite, family_name, float32_tolerance,
+                          trained_range)
 
 __all__ = ["export_c_header", "render_c_header", "EMITTERS"]
 
@@ -309,7 +310,99 @@ def render_c_header(model: nn.Module, *, prefix: str = "thermonet") -> str:
     return "\n".join(lines)
 
 
-def export_c_header(model: nn.Module, path: str | Path, *, prefix: str = "thermonet") -> Path:
+#: A driver that evaluates the header on points read from a file (parity check, tests).
+PARITY_DRIVER = r"""
+#include <stdio.h>
+#include "model.h"
+/* in: int n, then per point S signals and A raw floats; out: A comp, A drift, int flag */
+int main(int argc, char **argv)
+{
+    FILE *in, *out;
+    int n, k, flag;
+    float s[PFX_N_SIGNALS], raw[PFX_N_AXES];
+    float comp[PFX_N_AXES], drift[PFX_N_AXES];
+    if (argc != 3) return 2;
+    in = fopen(argv[1], "rb");
+    out = fopen(argv[2], "wb");
+    if (!in || !out || fread(&n, sizeof n, 1, in) != 1) return 3;
+    for (k = 0; k < n; ++k) {
+        if (fread(s, sizeof(float), PFX_N_SIGNALS, in) != PFX_N_SIGNALS) return 4;
+        if (fread(raw, sizeof(float), PFX_N_AXES, in) != PFX_N_AXES) return 4;
+        flag = pfx_compensate(s, raw, comp, drift);
+        fwrite(comp, sizeof(float), PFX_N_AXES, out);
+        fwrite(drift, sizeof(float), PFX_N_AXES, out);
+        fwrite(&flag, sizeof flag, 1, out);
+    }
+    fclose(in);
+    fclose(out);
+    return 0;
+}
+"""
+
+
+def c_parity_check(model: nn.Module, header_text: str, *, prefix: str = "thermonet",
+                   seed: int = 0) -> dict[str, float] | None:
+    """Compile the header with the system C compiler and compare it with torch.
+
+    The points are the ONNX check's (grid and random points in range, float32);
+    the tolerance is :func:`~.onnx_export.float32_tolerance`.  Returns ``None``
+    (and logs it) when no C compiler is found — the header is then unchecked.
+
+    Raises
+    ------
+    ExportError
+        The header does not compile, or a drift or flag differs from torch.
+    """
+    import logging
+    import shutil
+    import subprocess
+    import tempfile
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        logging.getLogger(__name__).warning("no C compiler found: the C header is not checked")
+        return None
+    points = _check_points(list(trained_range(model).values()), seed)
+    n, n_axes = points.shape[0], len(model.outputs)
+    with torch.no_grad():
+        d_torch = model(torch.from_numpy(points)).double().numpy()
+        flag_torch = model.out_of_range(torch.from_numpy(points)).numpy()
+    tol = float32_tolerance(model, points, d_torch)
+    driver = PARITY_DRIVER.replace("PFX", prefix.upper()).replace("pfx", prefix)
+    with tempfile.TemporaryDirectory() as tmp_dir:
+        tmp = Path(tmp_dir)
+        (tmp / "model.h").write_text(header_text)
+        (tmp / "driver.c").write_text(driver)
+        built = subprocess.run([cc, "-std=c99", "-O2", "-o", str(tmp / "driver"),
+                                str(tmp / "driver.c"), "-lm"], capture_output=True, text=True)
+        if built.returncode != 0:
+            first = (built.stderr.strip().splitlines() or ["?"])[0]
+            raise ExportError(f"the C header does not compile: {first}")
+        blob = np.int32(n).tobytes() + np.concatenate(
+            [points, np.zeros((n, n_axes))], axis=1).astype(np.float32).tobytes()
+        (tmp / "in.bin").write_bytes(blob)
+        run = subprocess.run([str(tmp / "driver"), str(tmp / "in.bin"), str(tmp / "out.bin")],
+                             capture_output=True, text=True)
+        if run.returncode != 0:
+            raise ExportError(f"the C parity driver failed (exit {run.returncode})")
+        rec = np.dtype([("comp", np.float32, n_axes), ("drift", np.float32, n_axes),
+                        ("flag", np.int32)])
+        c_out = np.fromfile(tmp / "out.bin", dtype=rec)
+    err = np.abs(c_out["drift"].astype(np.float64) - d_torch)
+    excess = np.where(np.isfinite(err), err - tol, np.inf)
+    k, a = np.unravel_index(int(np.argmax(excess)), excess.shape)
+    if excess[k, a] > 0:
+        where = ", ".join(f"{s}={points[k, i]:.6g}" for i, s in enumerate(model.signals))
+        raise ExportError(f"C header parity check failed at {where}, axis '{model.outputs[a]}': "
+                          f"C {c_out['drift'][k, a]:.9g} vs torch {d_torch[k, a]:.9g} "
+                          f"(tolerance {tol[a]:.3g})")
+    if not np.array_equal(c_out["flag"].astype(bool), flag_torch):
+        raise ExportError("C header parity check failed: out_of_range flag differs from torch")
+    return {"n_points": float(n), "max_abs_diff": float(err.max())}
+
+
+def export_c_header(model: nn.Module, path: str | Path, *, prefix: str = "thermonet",
+                    check: bool = True) -> Path:
     """Write the model as a C99 header (atomic: temp file + ``os.replace``).
 
     Parameters
@@ -321,6 +414,9 @@ def export_c_header(model: nn.Module, path: str | Path, *, prefix: str = "thermo
     prefix : str
         Prefix of every symbol (``<prefix>_compensate``, ``<PREFIX>_N_AXES``);
         a C identifier.
+    check : bool
+        Compile the header and compare it with torch before writing
+        (:func:`c_parity_check`; skipped with a warning when no C compiler exists).
 
     Returns
     -------
@@ -329,7 +425,10 @@ def export_c_header(model: nn.Module, path: str | Path, *, prefix: str = "thermo
     Raises
     ------
     ExportError
-        Unknown family, NaN/inf parameters, or a prefix that is not a C identifier.
+        Unknown family, NaN/inf parameters, a prefix that is not a C identifier, or a
+        failed parity check (nothing is written then).
     """
     text = render_c_header(model, prefix=prefix)
+    if check:
+        c_parity_check(model, text, prefix=prefix)
     return atomic_write_text(path, text)
