@@ -194,7 +194,14 @@ class Compensator:
 
     @staticmethod
     def _as_float32(name: str, values: Any) -> np.ndarray:
-        arr = np.asarray(values)
+        if isinstance(values, np.ma.MaskedArray):
+            # a masked sample is a missing sample: NaN in, NaN out, flag set
+            values = values.astype(np.float64).filled(np.nan)
+        try:
+            arr = np.asarray(values)
+        except ValueError as exc:  # ragged nested lists
+            raise RuntimeInputError(f"input '{name}' is not a rectangular array "
+                                    f"({str(exc).splitlines()[0]})") from None
         if arr.dtype == np.float32:
             return arr
         if arr.dtype.kind not in "fiu":

@@ -91,6 +91,12 @@ def test_refuses_bad_inputs(model_path):
         comp.compensate(raw=np.zeros(3))
     with pytest.raises(rt.RuntimeInputError, match=r"unknown signal\(s\) \['freq_hz'\]"):
         comp.compensate(20.0, np.zeros(3), freq_hz=4517.0)
+    with pytest.raises(rt.RuntimeInputError, match="input 'raw' is not a rectangular array"):
+        comp.compensate([20.0, 21.0], [[0.0, 0.0, 0.0], [0.0, 0.0]])
+    masked = comp.compensate(np.ma.masked_array([20.0, 21.0], mask=[False, True]),
+                             np.zeros((2, 3)))
+    assert np.isnan(masked.drift[1]).all() and bool(masked.out_of_range[1])
+    assert np.isfinite(masked.drift[0]).all()
     with pytest.raises(rt.RuntimeInputError, match="signal 'rate_c_per_min' given twice"):
         comp.compensate(20.0, np.zeros(3), rate=0.1, rate_c_per_min=5.0)
 
