@@ -166,8 +166,24 @@ class _FamilyOutcome:
     history: list[dict[str, float]] | None = None
 
 
+class _Parts:
+    """Signals and targets of each (run, signals) pair, built once for all families."""
+
+    def __init__(self, cfg: CompareConfig, outputs: list[str]) -> None:
+        self.cfg, self.outputs = cfg, outputs
+        self._cache: dict[tuple[int, tuple[str, ...]], Part] = {}
+
+    def __call__(self, rec: Any, signals: list[str]) -> Part:
+        key = (id(rec), tuple(signals))
+        if key not in self._cache:
+            self._cache[key] = build_part(rec, signals=signals, outputs=self.outputs,
+                                          target=self.cfg.target,
+                                          rate_window_s=self.cfg.features.rate_window_s)
+        return self._cache[key]
+
+
 def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outputs: list[str],
-                progress: Progress) -> _FamilyOutcome:
+                progress: Progress, parts: _Parts) -> _FamilyOutcome:
     from .features import FeatureSpec, reference_values
     from .train import fit
 
@@ -182,14 +198,12 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
             t_ref, proxy_ref = reference_values(split.train, fam.inputs, t_ref=cfg.features.t_ref,
                                                 window_min=cfg.features.t_ref_window_min)
             spec = FeatureSpec(inputs=list(fam.inputs), t_ref=t_ref, proxy_ref=proxy_ref)
-            kw = dict(signals=spec.signals, outputs=outputs, target=cfg.target,
-                      rate_window_s=cfg.features.rate_window_s)
-            train_parts = [build_part(r, **kw) for r in split.train]
+            train_parts = [parts(r, spec.signals) for r in split.train]
             if fam.train_on == "heating":
                 train_parts = [heating_only(p, r, cfg.features.rate_window_s)
                                for p, r in zip(train_parts, split.train)]
-            val_part = build_part(split.val, **kw) if split.val is not None else None
-            test_part = build_part(split.test, **kw)
+            val_part = parts(split.val, spec.signals) if split.val is not None else None
+            test_part = parts(split.test, spec.signals)
             fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=outputs,
                          train=[(p.signals, p.target) for p in train_parts],
                          val=(val_part.signals, val_part.target) if val_part else None,
@@ -285,13 +299,14 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
     progress.line(f"thermonet compare: {ds.device_id} ({len(ds)} runs, outputs "
                   f"{', '.join(outputs)}), split {results['split']['strategy']}")
     outcomes: dict[str, _FamilyOutcome] = {}
+    parts = _Parts(cfg, outputs)
     with tracker.run(f"compare-{ds.device_id}", params=resolved, tags=tags) as parent_id:
         results["mlflow_run_id"] = parent_id
         for fam in cfg.families:
             with tracker.run(fam.label, params={"family": fam.family, "inputs": fam.inputs,
                                                 "params": fam.params},
                              tags={**tags, "family": fam.family}, nested=True) as run_id:
-                oc = _fit_family(cfg, fam, splits, outputs, progress)
+                oc = _fit_family(cfg, fam, splits, outputs, progress, parts)
                 r = oc.result
                 r["mlflow_run_id"] = run_id
                 r["checkpoint"] = None
