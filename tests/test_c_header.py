@@ -11,39 +11,15 @@ import torch
 
 from thermonet.errors import ExportError
 from thermonet.exporting import export_c_header, export_onnx, render_c_header
+from thermonet.exporting.c_header import PARITY_DRIVER
 from thermonet.exporting.onnx_export import float32_tolerance
 from thermonet.features import FeatureSpec
 from thermonet.models import MODELS
 from thermonet.train import TrainConfig, fit
 
 AXES = ["acc_x", "acc_y"]
-DRIVER = r"""
-#include <stdio.h>
-#include "model.h"
-/* in: int n, then per point S signals and A raw floats; out: A comp, A drift, int flag */
-int main(int argc, char **argv)
-{
-    FILE *in, *out;
-    int n, k, flag;
-    float s[THERMONET_N_SIGNALS], raw[THERMONET_N_AXES];
-    float comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
-    if (argc != 3) return 2;
-    in = fopen(argv[1], "rb");
-    out = fopen(argv[2], "wb");
-    if (!in || !out || fread(&n, sizeof n, 1, in) != 1) return 3;
-    for (k = 0; k < n; ++k) {
-        if (fread(s, sizeof(float), THERMONET_N_SIGNALS, in) != THERMONET_N_SIGNALS) return 4;
-        if (fread(raw, sizeof(float), THERMONET_N_AXES, in) != THERMONET_N_AXES) return 4;
-        flag = thermonet_compensate(s, raw, comp, drift);
-        fwrite(comp, sizeof(float), THERMONET_N_AXES, out);
-        fwrite(drift, sizeof(float), THERMONET_N_AXES, out);
-        fwrite(&flag, sizeof flag, 1, out);
-    }
-    fclose(in);
-    fclose(out);
-    return 0;
-}
-"""
+# the export's own parity driver, with the default prefix
+DRIVER = PARITY_DRIVER.replace("PFX", "THERMONET").replace("pfx", "thermonet")
 
 
 def _model(family: str):

@@ -48,8 +48,8 @@ from torch import nn
 from .. import __version__
 from ..errors import ExportError
 from ..fileio import atomic_write_text
-from .onnx_export import (_check_points, check_model_finite, family_name, float32_tolerance,
-                          trained_range)
+from .onnx_export import (_check_points, check_drift_parity, check_model_finite, family_name,
+                          float32_tolerance, trained_range)
 
 __all__ = ["export_c_header", "render_c_header", "EMITTERS"]
 
@@ -388,14 +388,8 @@ def c_parity_check(model: nn.Module, header_text: str, *, prefix: str = "thermon
         rec = np.dtype([("comp", np.float32, n_axes), ("drift", np.float32, n_axes),
                         ("flag", np.int32)])
         c_out = np.fromfile(tmp / "out.bin", dtype=rec)
-    err = np.abs(c_out["drift"].astype(np.float64) - d_torch)
-    excess = np.where(np.isfinite(err), err - tol, np.inf)
-    k, a = np.unravel_index(int(np.argmax(excess)), excess.shape)
-    if excess[k, a] > 0:
-        where = ", ".join(f"{s}={points[k, i]:.6g}" for i, s in enumerate(model.signals))
-        raise ExportError(f"C header parity check failed at {where}, axis '{model.outputs[a]}': "
-                          f"C {c_out['drift'][k, a]:.9g} vs torch {d_torch[k, a]:.9g} "
-                          f"(tolerance {tol[a]:.3g})")
+    err = check_drift_parity(model, points, c_out["drift"], d_torch, tol, what="C header",
+                             who="C")
     if not np.array_equal(c_out["flag"].astype(bool), flag_torch):
         raise ExportError("C header parity check failed: out_of_range flag differs from torch")
     return {"n_points": float(n), "max_abs_diff": float(err.max())}

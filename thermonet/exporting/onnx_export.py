@@ -286,6 +286,22 @@ def float32_tolerance(model: nn.Module, points: np.ndarray, d_float32: np.ndarra
     return np.maximum(rtol * np.abs(d_float32).max(axis=0), 4.0 * rounding)
 
 
+def check_drift_parity(model: nn.Module, points: np.ndarray, got: np.ndarray,
+                       want: np.ndarray, tol: np.ndarray, *, what: str, who: str) -> np.ndarray:
+    """``|got − want| ≤ tol`` per axis at every point, else :class:`ExportError` naming the
+    worst point (signal values, axis, both drifts); returns the absolute errors."""
+    got = np.asarray(got, dtype=np.float64)
+    err = np.abs(got - want)
+    excess = np.where(np.isfinite(got), err - tol, np.inf)
+    k, a = np.unravel_index(int(np.argmax(excess)), excess.shape)
+    if excess[k, a] > 0:
+        where = ", ".join(f"{s}={points[k, i]:.6g}" for i, s in enumerate(model.signals))
+        raise ExportError(f"{what} parity check failed at {where}, axis '{model.outputs[a]}': "
+                          f"{who} {got[k, a]:.9g} vs torch {want[k, a]:.9g} "
+                          f"(tolerance {tol[a]:.3g})")
+    return err
+
+
 def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
                  rtol: float = PARITY_RTOL) -> dict[str, float]:
     """Compare onnxruntime (CPU) with torch on the grid and the random points.
@@ -315,14 +331,7 @@ def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
     comp, d_ort, flag = sess.run(None, {**feeds, "raw": raw})
     d_ort = d_ort.astype(np.float64)
     scale = np.maximum(np.abs(d_torch), np.abs(d_torch).max(axis=0, keepdims=True))
-    err = np.abs(d_ort - d_torch)
-    excess = np.where(np.isfinite(d_ort), err - tol, np.inf)
-    k, a = np.unravel_index(int(np.argmax(excess)), excess.shape)
-    if excess[k, a] > 0:
-        where = ", ".join(f"{s}={points[k, i]:.6g}" for i, s in enumerate(model.signals))
-        raise ExportError(f"ONNX parity check failed at {where}, axis '{model.outputs[a]}': "
-                          f"onnxruntime {d_ort[k, a]:.9g} vs torch {d_torch[k, a]:.9g} "
-                          f"(tolerance {tol[a]:.3g})")
+    err = check_drift_parity(model, points, d_ort, d_torch, tol, what="ONNX", who="onnxruntime")
     comp_err = np.abs(comp.astype(np.float64) - (raw.astype(np.float64) - d_torch))
     if not bool(np.all(comp_err <= rtol * np.abs(raw) + tol + 1e-30)):
         raise ExportError("ONNX parity check failed: 'compensated' is not raw - drift")
