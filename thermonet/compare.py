@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 import time
 from dataclasses import dataclass
@@ -48,7 +47,9 @@ import numpy as np
 from . import __version__
 from .config import CompareConfig, FamilyConfig, from_dict, to_dict
 from .errors import ConfigError, FitError, ThermonetError
-from .evaluate import Part, Split, build_part, data_hash, heating_only, load_data, make_splits
+from .evaluate import (FOURPOS_SUFFIXES, Part, Split, build_part, data_hash, heating_only,
+                       load_data, make_splits)
+from .fileio import atomic_write_text
 from .recording import Dataset
 
 __all__ = ["run_compare", "format_table", "Progress"]
@@ -86,7 +87,7 @@ class Progress:
 def _outputs(ds: Dataset, cfg: CompareConfig) -> list[str]:
     axes = cfg.data.outputs or ds.axes
     if cfg.target == "four-position":
-        return [f"{a}{s}" for a in axes for s in (".bias", ".scale")]
+        return [f"{a}{s}" for a in axes for s in FOURPOS_SUFFIXES]
     return list(axes)
 
 
@@ -341,8 +342,8 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
         results["chosen"], results["chosen_reason"] = chosen, why
         _baseline_ratios(results)
         plots = _plots(out, outcomes, results, ds)
-        _write_json(out / "results.json", results)
-        (out / "config.resolved.yaml").write_text(_yaml(resolved))
+        atomic_write_text(out / "results.json", json.dumps(_clean(results), indent=2))
+        atomic_write_text(out / "config.resolved.yaml", _yaml(resolved))
         tracker.set_tags({"chosen": chosen or "none"})
         tracker.log_artifact(out / "results.json")
         tracker.log_artifact(out / "config.resolved.yaml")
@@ -405,12 +406,6 @@ def _clean(obj: Any) -> Any:
     if isinstance(obj, np.generic):
         return _clean(obj.item())
     return obj
-
-
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(_clean(data), indent=2))
-    os.replace(tmp, path)
 
 
 def _yaml(data: Any) -> str:
