@@ -10,7 +10,8 @@ import pytest
 from thermonet.io import write_parquet
 from thermonet.recording import Dataset, Recording
 
-REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+#: Real recordings copied into the repository with their licences (tests/data/real/README.md).
+REAL_DATA = Path(__file__).resolve().parent / "data" / "real"
 
 
 def toy_dataset(*, n_runs: int = 4, drift_scale: float = 1.0, noise: float = 0.002,

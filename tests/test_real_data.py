@@ -11,8 +11,7 @@ from thermonet.errors import InputError
 from thermonet.io import read_dataset, read_datasets
 
 REPO = Path(__file__).resolve().parents[1]
-# The repository is /work/main; the shared real recordings sit beside it.
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parent / "data" / "real"  # copied in, with licences
 PAN = REAL / "pan_tvac_gyro" / "TVCtest3_7_20.csv"
 BMI = [REAL / "bmi270_two_soaks" / "BMI_270_cold_test_.csv",
        REAL / "bmi270_two_soaks" / "BMI_270_hot_test.csv"]
