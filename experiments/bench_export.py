@@ -79,7 +79,7 @@ def fitted_models() -> dict:
     for label, (family, inputs, hyper) in FAMILIES.items():
         t_ref, proxy_ref = reference_values(split.train, inputs, t_ref="start")
         spec = FeatureSpec(inputs=inputs, t_ref=t_ref, proxy_ref=proxy_ref)
-        kw = dict(signals=spec.signals, outputs=ds.axes, target="drift", rate_window_s=60.0)
+        kw = dict(signals=spec.signals, outputs=ds.axes, target="drift")
         train = [build_part(r, **kw) for r in split.train]
         val = build_part(split.val, **kw)
         res = fit(family=family, inputs=inputs, outputs=ds.axes,

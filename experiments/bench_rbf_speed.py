@@ -42,7 +42,7 @@ def run(init: str, config: TrainConfig, target: float | None = None) -> dict:
     t_ref, proxy_ref = reference_values(split.train, inputs, t_ref="start")
     spec = FeatureSpec(inputs=inputs, t_ref=t_ref, proxy_ref=proxy_ref)
     outputs = ds.axes
-    kw = dict(signals=spec.signals, outputs=outputs, target="drift", rate_window_s=60.0)
+    kw = dict(signals=spec.signals, outputs=outputs, target="drift")
     train = [build_part(r, **kw) for r in split.train]
     test = build_part(split.test, **kw)
     marks: list[tuple[int, float, float]] = []

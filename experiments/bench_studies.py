@@ -124,7 +124,7 @@ def soak_offset(cfg, ds: Dataset, res: dict, temperature_c: float, family: str
     fam = res["families"][family]
     model, _ = load_checkpoint(fam["checkpoint"])
     part = build_part(split.test, signals=model.signals, outputs=model.outputs, target="drift",
-                      rate_window_s=cfg.features.rate_window_s)
+                      gap_s=model.spec.gap_s)
     pred = predict(model, part.signals)
     # settled: within 0.5 °C of the level, and the last half of that stretch
     idx = np.flatnonzero(np.abs(split.test.temperature_c - temperature_c) < 0.5)
@@ -137,7 +137,7 @@ def allan_on_run(cfg, rec, res: dict, family: str) -> dict[str, float]:
     """Allan bias stability (min of OADEV) of one run's error before and after ``family``."""
     model, _ = load_checkpoint(res["families"][family]["checkpoint"])
     part = build_part(rec, signals=model.signals, outputs=model.outputs, target="drift",
-                      rate_window_s=cfg.features.rate_window_s)
+                      gap_s=model.spec.gap_s)
     resid = part.target[:, 0] - predict(model, part.signals)[:, 0]
     return {"raw": bias_instability(part.target[:, 0], part.rate_hz),
             "comp": bias_instability(resid, part.rate_hz)}

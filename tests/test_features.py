@@ -37,23 +37,26 @@ def test_proxy_features_and_signal_order():
 
 
 def test_rate_from_known_ramp_in_c_per_min():
+    """A first-order filtered derivative (τ = 60 s) started at rest: slope·(1 − e^(−t/τ))."""
     slope = 0.3  # °C/min = 18 °C/h, study 003's ramp
     t = np.arange(3600.0)
     rec = _recording(-20.0 + slope * t / 60.0)
-    rate = signal_matrix(rec, ["rate_c_per_min"], rate_window_s=60.0)[:, 0]
-    np.testing.assert_allclose(rate, slope, rtol=1e-6)
+    rate = signal_matrix(rec, ["rate_c_per_min"])[:, 0]
+    np.testing.assert_allclose(rate, slope * (1.0 - np.exp(-t / 60.0)), rtol=1e-9, atol=1e-12)
 
 
 def test_rate_smooths_noise_and_follows_a_sine():
     rng = np.random.default_rng(1)
     t = np.arange(7200.0)
-    period_s = 3600.0
-    temp = 20 + 10 * np.sin(2 * np.pi * t / period_s) + rng.normal(0, 0.01, t.size)
+    period_s, tau = 3600.0, 60.0
+    w = 2 * np.pi / period_s
+    temp = 20 + 10 * np.sin(w * t) + rng.normal(0, 0.01, t.size)
     rec = _recording(temp)
-    rate = signal_matrix(rec, ["rate_c_per_min"], rate_window_s=120.0)[:, 0]
-    true = 10 * 2 * np.pi / period_s * np.cos(2 * np.pi * t / period_s) * 60.0  # °C/min
-    inner = slice(200, -200)
-    # amplitude 1.05 °C/min; a 120 s window keeps the error a few % of it
+    rate = signal_matrix(rec, ["rate_c_per_min"])[:, 0]
+    # first-order filter 1/(1 + jωτ) then d/dt: gain ω/√(1+ω²τ²), phase lag atan(ωτ)
+    true = 60.0 * 10 * w / np.hypot(1.0, w * tau) * np.cos(w * t - np.arctan(w * tau))
+    inner = slice(600, None)                       # after 10 τ the start-up has died out
+    # amplitude 1.04 °C/min; thermometer noise 0.01 °C gives ≈ 60·0.01/τ = 0.01 °C/min
     assert np.max(np.abs(rate[inner] - true[inner])) < 0.05
 
 
@@ -100,10 +103,11 @@ def test_errors_name_the_offending_item():
         target_matrix(rec, ["acc_z"])
 
 
-def test_rate_is_computed_per_contiguous_segment():
-    """A ramp cut into blocks (as a held-out split does) keeps its slope at every sample."""
-    from thermonet.features import contiguous_segments, signal_matrix
-    from thermonet.recording import Recording
+def test_rate_restarts_after_a_gap():
+    """A ramp cut into blocks (as a held-out split does): the state restarts after each gap
+    (rate 0, then the ramp's slope·(1 − e^(−t/τ)) again); the 7 °C step across the gap is
+    never differentiated."""
+    from thermonet.features import contiguous_segments
 
     t = np.arange(0.0, 3600.0, 1.0)
     temp = 20.0 + 0.5 * t / 60.0                      # 0.5 °C/min
@@ -113,20 +117,17 @@ def test_rate_is_computed_per_contiguous_segment():
     assert [(s.start, s.stop) for s in contiguous_segments(rec.time_s)] == \
         [(0, 1000), (1000, 2000), (2000, 2600)]
     rate = signal_matrix(rec, ["rate_c_per_min"])[:, 0]
-    # the 7 °C step at the gap would give a spike if differentiated across it
-    np.testing.assert_allclose(rate, 0.5, atol=1e-9)
+    start = np.select([rec.time_s >= 3000, rec.time_s >= 1500], [3000.0, 1500.0], 0.0)
+    np.testing.assert_allclose(rate, 0.5 * (1 - np.exp(-(rec.time_s - start) / 60.0)),
+                               rtol=1e-9, atol=1e-12)
 
 
 def test_rate_is_causal_no_look_ahead():
-    """A ramp starting at t = 150 s: no rate before it starts, the full slope a window later."""
-    from thermonet.features import signal_matrix
-    from thermonet.recording import Recording
-
+    """A ramp starting at t = 150 s: no rate before it starts, then 1 − e^(−(t−150)/τ)."""
     t = np.arange(0.0, 600.0, 1.0)
     temp = 20.0 + np.clip(t - 150.0, 0.0, None) / 60.0          # 1 °C/min from t = 150 s
     rec = Recording(time_s=t, temperature_c=temp, outputs={"gyro_x": np.zeros(t.size)},
                     sample_rate_hz=1.0)
-    rate = signal_matrix(rec, ["rate_c_per_min"], rate_window_s=61.0)[:, 0]
+    rate = signal_matrix(rec, ["rate_c_per_min"])[:, 0]
     np.testing.assert_allclose(rate[:151], 0.0, atol=1e-12)
-    assert 0.0 < rate[160] < 1.0
-    np.testing.assert_allclose(rate[150 + 61:], 1.0, atol=1e-9)
+    np.testing.assert_allclose(rate[150:], 1 - np.exp(-(t[150:] - 150.0) / 60.0), rtol=1e-9)

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from .fileio import atomic_path
-from .errors import ExportError, InputError
+from .errors import ConfigError, ExportError, InputError
 from .features import FeatureSpec
 from .models import DriftModel, build_family
 
@@ -97,7 +97,7 @@ def save_checkpoint(path: str | os.PathLike, model: DriftModel, *, config: dict,
         "inputs": list(model.inputs),
         "signals": list(model.signals),
         "outputs": list(model.outputs),
-        "spec": {"t_ref": model.spec.t_ref, "proxy_ref": dict(model.spec.proxy_ref)},
+        "spec": model.spec.to_dict(),
         "config": _plain(dict(config), "config"),
         "epoch": None if epoch is None else int(epoch),
         "best_val": None if best_val is None or not math.isfinite(best_val) else float(best_val),
@@ -137,8 +137,11 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
     if payload.get("format", CHECKPOINT_FORMAT) != CHECKPOINT_FORMAT:
         raise InputError.at(path, f"checkpoint format {payload.get('format')!r}; this thermonet "
                             f"reads format {CHECKPOINT_FORMAT}")
-    spec = FeatureSpec(inputs=payload["inputs"], t_ref=payload["spec"]["t_ref"],
-                       proxy_ref=payload["spec"]["proxy_ref"])
+    try:
+        spec = FeatureSpec.from_dict({**payload["spec"], "inputs": payload["inputs"]},
+                                     source="spec")
+    except ConfigError as err:
+        raise InputError.at(path, str(err)) from None
     family = build_family(payload["family"], n_inputs=len(payload["inputs"]),
                           n_outputs=len(payload["outputs"]), hyper=payload["hyper"])
     model = DriftModel(family=family, spec=spec, outputs=payload["outputs"])

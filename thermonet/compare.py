@@ -172,20 +172,19 @@ class _Parts:
 
     def __init__(self, cfg: CompareConfig, outputs: list[str]) -> None:
         self.cfg, self.outputs = cfg, outputs
-        self._cache: dict[tuple[int, tuple[str, ...]], Part] = {}
+        self._cache: dict[tuple[int, tuple[str, ...], float | None], Part] = {}
 
-    def __call__(self, rec: Any, signals: list[str]) -> Part:
-        key = (id(rec), tuple(signals))
+    def __call__(self, rec: Any, signals: list[str], gap_s: float | None = None) -> Part:
+        key = (id(rec), tuple(signals), gap_s)
         if key not in self._cache:
             self._cache[key] = build_part(rec, signals=signals, outputs=self.outputs,
-                                          target=self.cfg.target,
-                                          rate_window_s=self.cfg.features.rate_window_s)
+                                          target=self.cfg.target, gap_s=gap_s)
         return self._cache[key]
 
 
 def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outputs: list[str],
                 progress: Progress, parts: _Parts) -> _FamilyOutcome:
-    from .features import FeatureSpec, reference_values
+    from .features import FeatureSpec, reference_values, resolve_gap_s
     from .train import fit
 
     res: dict[str, Any] = {"family": fam.family, "inputs": list(fam.inputs),
@@ -198,13 +197,16 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
         for split in splits:
             t_ref, proxy_ref = reference_values(split.train, fam.inputs, t_ref=cfg.features.t_ref,
                                                 window_min=cfg.features.t_ref_window_min)
-            spec = FeatureSpec(inputs=list(fam.inputs), t_ref=t_ref, proxy_ref=proxy_ref)
-            train_parts = [parts(r, spec.signals) for r in split.train]
+            spec = FeatureSpec(inputs=list(fam.inputs), t_ref=t_ref, proxy_ref=proxy_ref,
+                               gap_s=resolve_gap_s(cfg.features.gap_s, split.train, fam.inputs))
+            gap = spec.gap_s
+            train_parts = [parts(r, spec.signals, gap) for r in split.train]
             if fam.train_on == "heating":
-                train_parts = [heating_only(p, r, cfg.features.rate_window_s)
+                heat_gap = resolve_gap_s(cfg.features.gap_s, split.train, ["rate"])
+                train_parts = [heating_only(p, r, heat_gap)
                                for p, r in zip(train_parts, split.train)]
-            val_part = parts(split.val, spec.signals) if split.val is not None else None
-            test_part = parts(split.test, spec.signals)
+            val_part = parts(split.val, spec.signals, gap) if split.val is not None else None
+            test_part = parts(split.test, spec.signals, gap)
             fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=outputs,
                          train=[(p.signals, p.target) for p in train_parts],
                          val=(val_part.signals, val_part.target) if val_part else None,

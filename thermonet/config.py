@@ -75,7 +75,20 @@ class FeatureConfig:
 
     t_ref: float | Literal["start"] = "start"  # °C, or mean of the first minutes of the first training run
     t_ref_window_min: float = 10.0             # minutes averaged for t_ref "start"
-    rate_window_s: float = 60.0                # Savitzky–Golay window of dT/dt, s
+    # dynamic inputs (rate, lag_<tau>, play_<w>): a time step over gap_s seconds restarts their
+    # state; "auto": 5 × the median sample interval of the first training run (thermonet.dynamics)
+    gap_s: float | Literal["auto"] = "auto"
+    rate_window_s: float | None = None         # removed (the Savitzky–Golay rate): an error if set
+
+    def __post_init__(self) -> None:
+        if self.rate_window_s is not None:
+            raise ConfigError("key 'features.rate_window_s' was removed: 'rate' is now a causal "
+                              "filtered derivative with a 60 s time constant stored in the model "
+                              "(thermonet.dynamics); name the input 'rate_<tau>' (e.g. rate_30) "
+                              "for another time constant")
+        if not isinstance(self.gap_s, str) and not self.gap_s > 0:
+            raise ConfigError(f"key 'features.gap_s': {self.gap_s!r} is not a positive number "
+                              "of seconds or 'auto'")
 
 
 @dataclass

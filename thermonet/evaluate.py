@@ -190,7 +190,10 @@ def _stack(parts: list[Recording], run_id: str) -> Recording:
 
     Time is shifted so it keeps increasing across blocks; per-sample metrics
     do not depend on it, and the Allan deviation is computed per block only
-    through the samples (documented in :mod:`thermonet.metrics`).
+    through the samples (documented in :mod:`thermonet.metrics`).  The first
+    sample index of each block is kept in ``meta["segment_starts"]``: the
+    dynamic inputs restart there (:func:`thermonet.features.signal_matrix`),
+    never carrying state from one block into an unrelated one.
     """
     if len(parts) == 1:
         return parts[0]
@@ -219,7 +222,9 @@ def _stack(parts: list[Recording], run_id: str) -> Recording:
                      outputs=cat("outputs"), references=references,
                      proxies=cat("proxies"), drift=drift, units=dict(first.units),
                      device_id=first.device_id, sensor_kind=first.sensor_kind,
-                     run_id=run_id, sample_rate_hz=first.sample_rate_hz, meta=dict(first.meta))
+                     run_id=run_id, sample_rate_hz=first.sample_rate_hz,
+                     meta={**first.meta, "segment_starts": [int(x) for x in np.cumsum(
+                         [0] + [p.n_samples for p in parts[:-1]])]})
 
 
 @dataclass
@@ -244,13 +249,14 @@ class Part:
 
 
 def build_part(rec: Recording, *, signals: list[str], outputs: list[str], target: str,
-               rate_window_s: float) -> Part:
-    """Signals and targets of one recording for the configured target."""
+               gap_s: float | None = None) -> Part:
+    """Signals and targets of one recording for the configured target (``gap_s``: the
+    dynamic inputs' gap limit, :func:`thermonet.features.signal_matrix`)."""
     from .features import signal_matrix
 
     if target == "four-position":
         return _fourpos_part(rec, signals=signals, outputs=outputs)
-    sig = signal_matrix(rec, signals, rate_window_s=rate_window_s)
+    sig = signal_matrix(rec, signals, gap_s)
     y = np.column_stack([rec.drift_observed(a) for a in outputs])
     true = None
     if all(f"drift_{a}" in rec.drift for a in outputs):
@@ -287,14 +293,14 @@ def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> 
                 float("nan"), None, outputs, per_soak=True)
 
 
-def heating_only(part: Part, rec: Recording, rate_window_s: float) -> Part:
+def heating_only(part: Part, rec: Recording, gap_s: float | None = None) -> Part:
     """The samples of ``part`` where ``rec``'s temperature is not falling (PX4/ArduPilot practice)."""
     from .features import RATE, signal_matrix
 
     if part.per_soak:
         raise ConfigError("config: key 'train_on': 'heating' applies to per-sample targets, "
                           "not to the four-position target")
-    rate = signal_matrix(rec, [RATE], rate_window_s=rate_window_s)[:, 0]
+    rate = signal_matrix(rec, [RATE], gap_s)[:, 0]
     keep = rate > HEATING_MIN_RATE_C_PER_MIN
     if keep.sum() < 10:
         raise ConfigError(f"train_on 'heating': run '{rec.run_id}' has {int(keep.sum())} heating "

@@ -5,8 +5,10 @@ board — to the drift of each output axis.  Signals are named:
 
 ``temperature_c``
     The device thermometer, °C.
-``rate_c_per_min``
-    Its time derivative dT/dt, °C/min (computed by :func:`signal_matrix`).
+``rate_c_per_min``, ``lag_<tau>_c``, ``play_<w>_c``
+    Dynamic signals computed from time and ``temperature_c`` by the causal
+    recurrences of :mod:`thermonet.dynamics` (one definition, mirrored by the
+    runtime and the C header).
 ``<proxy>``
     A temperature proxy channel by its own name (``freq_hz``, ``temp_raw``).
 
@@ -18,7 +20,10 @@ feature         value                                   signal
 ``T``           :math:`T` (°C)                          ``temperature_c``
 ``dT``          :math:`\\Delta T = T - T_{ref}` (°C)     ``temperature_c``
 ``dT2``         :math:`\\Delta T^2` (°C²)                ``temperature_c``
-``rate``        :math:`dT/dt` (°C/min)                  ``rate_c_per_min``
+``rate``        filtered :math:`dT/dt` (°C/min)         ``rate_c_per_min``
+``rate_<tau>``  the same, time constant ``tau`` s        ``rate_<tau>_c_per_min``
+``lag_<tau>``   :math:`T - EMA_\tau(T)` (°C)             ``lag_<tau>_c``
+``play_<w>``    :math:`T - P_w(T)` (°C)                  ``play_<w>_c``
 ``d_<proxy>``   :math:`p - p_{ref}` (proxy units)       ``<proxy>``
 ``d_<proxy>2``  :math:`(p - p_{ref})^2`                 ``<proxy>``
 =============== ======================================= ==================
@@ -37,9 +42,9 @@ from typing import Iterable, Sequence
 
 import numpy as np
 import torch
-from scipy.signal import savgol_coeffs
 from torch import nn
 
+from . import dynamics
 from .errors import ConfigError, InputError
 from .recording import Dataset, Recording
 
@@ -49,6 +54,9 @@ __all__ = [
     "FeatureSpec",
     "parse_feature",
     "signals_for",
+    "dynamic_signal",
+    "resolve_gap_s",
+    "contiguous_segments",
     "reference_values",
     "signal_matrix",
     "target_matrix",
@@ -73,13 +81,15 @@ def parse_feature(name: str) -> tuple[str, bool, bool]:
     Raises
     ------
     ConfigError
-        For a name that is none of ``T, dT, dT2, rate, d_<proxy>, d_<proxy>2``.
+        For a name that is none of ``T, dT, dT2, rate, rate_<tau>, lag_<tau>, play_<w>,
+        d_<proxy>, d_<proxy>2``.
     """
     if name in _TEMPERATURE_FEATURES:
         rel, sq = _TEMPERATURE_FEATURES[name]
         return TEMPERATURE, rel, sq
-    if name == "rate":
-        return RATE, False, False
+    dyn = dynamics.parse_dynamic(name)
+    if dyn is not None:
+        return dyn.signal, False, False
     if name.startswith("d_") and len(name) > 2:
         proxy = name[2:]
         if proxy.endswith("2"):
@@ -87,16 +97,29 @@ def parse_feature(name: str) -> tuple[str, bool, bool]:
                 raise ConfigError(f"input '{name}': empty proxy name")
             return proxy[:-1], True, True
         return proxy, True, False
-    raise ConfigError(f"unknown model input '{name}' (valid: T, dT, dT2, rate, "
-                      "d_<proxy>, d_<proxy>2)")
+    raise ConfigError(f"unknown model input '{name}' (valid: T, dT, dT2, rate, rate_<tau>, "
+                      "lag_<tau>, play_<w>, d_<proxy>, d_<proxy>2)")
 
 
 def signals_for(inputs: Iterable[str]) -> list[str]:
     """Physical signals the features need, in the fixed order
-    ``temperature_c, rate_c_per_min, <proxies sorted by name>``."""
+    ``temperature_c, rate_c_per_min, <other dynamic signals sorted>, <proxies sorted>``."""
+    inputs = list(inputs)
     needed = {parse_feature(f)[0] for f in inputs}
+    dyn = {d.signal for d in dynamics.dynamic_signals(inputs)}
     fixed = [s for s in (TEMPERATURE, RATE) if s in needed]
-    return fixed + sorted(needed - {TEMPERATURE, RATE})
+    return fixed + sorted(dyn - {RATE}) + sorted(needed - dyn - {TEMPERATURE})
+
+
+def dynamic_signal(name: str) -> dynamics.DynamicInput | None:
+    """The dynamic input whose signal is ``name`` (``lag_300_c`` → ``lag_300``), or None."""
+    for suffix in ("_c_per_min", "_c"):
+        if name.endswith(suffix):
+            stem = name[: -len(suffix)]
+            d = dynamics.parse_dynamic("rate" if name == RATE else stem)
+            if d is not None and d.signal == name:
+                return d
+    return None
 
 
 @dataclass
@@ -112,6 +135,11 @@ class FeatureSpec:
     proxy_ref : dict str -> float
         Reference value per proxy for ``d_<proxy>``/``d_<proxy>2``, in the
         proxy's units.
+    gap_s : float or None
+        Gap limit of the dynamic inputs (s, see :mod:`thermonet.dynamics`),
+        stored with the model; None with dynamic inputs means
+        :data:`thermonet.dynamics.DEFAULT_GAP_S` (``compare`` derives it from
+        the data, config ``features.gap_s``).
 
     Attributes
     ----------
@@ -122,6 +150,7 @@ class FeatureSpec:
     inputs: list[str]
     t_ref: float | None = None
     proxy_ref: dict[str, float] = field(default_factory=dict)
+    gap_s: float | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.inputs, str) or not list(self.inputs):
@@ -134,10 +163,24 @@ class FeatureSpec:
             parse_feature(name)
         self.t_ref = None if self.t_ref is None else float(self.t_ref)
         self.proxy_ref = {str(k): float(v) for k, v in dict(self.proxy_ref).items()}
+        if self.gap_s is None and dynamics.dynamic_signals(self.inputs):
+            self.gap_s = dynamics.DEFAULT_GAP_S
+        if self.gap_s is not None:
+            gap = float(self.gap_s)
+            if not (np.isfinite(gap) and gap > 0):
+                raise ConfigError(f"gap_s must be a positive number of seconds, got {self.gap_s!r}")
+            self.gap_s = gap
 
     @property
     def signals(self) -> list[str]:
         return signals_for(self.inputs)
+
+    @property
+    def dynamic(self) -> dict | None:
+        """The dynamic inputs' constants (:func:`thermonet.dynamics.constants`), or None."""
+        if not dynamics.dynamic_signals(self.inputs):
+            return None
+        return dynamics.constants(self.inputs, float(self.gap_s or dynamics.DEFAULT_GAP_S))
 
     def check_references(self) -> None:
         """Raise :class:`ConfigError` when a relative feature has no reference."""
@@ -153,17 +196,45 @@ class FeatureSpec:
 
     def to_dict(self) -> dict:
         """Plain-data form (for checkpoints and the saved config)."""
-        return {"inputs": list(self.inputs), "t_ref": self.t_ref,
-                "proxy_ref": dict(self.proxy_ref)}
+        out = {"inputs": list(self.inputs), "t_ref": self.t_ref,
+               "proxy_ref": dict(self.proxy_ref)}
+        if self.dynamic is not None:
+            out["dynamic"] = self.dynamic
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "model") -> "FeatureSpec":
+        """Inverse of :meth:`to_dict`; dynamic constants are checked against their definitions."""
+        inputs = list(data["inputs"])
+        gap = None
+        if dynamics.dynamic_signals(inputs):
+            gap = dynamics.from_constants(data.get("dynamic"), inputs, source)
+        return cls(inputs=inputs, t_ref=data.get("t_ref"), proxy_ref=data.get("proxy_ref", {}),
+                   gap_s=gap)
 
     @classmethod
     def from_recordings(cls, inputs: Sequence[str], recordings: object, *,
                         t_ref: str | float = "start", proxy_ref: object = "start",
-                        window_min: float = 10.0) -> "FeatureSpec":
-        """Spec whose references come from :func:`reference_values`."""
+                        window_min: float = 10.0, gap_s: str | float = "auto") -> "FeatureSpec":
+        """Spec whose references come from :func:`reference_values` (gap_s "auto":
+        :func:`thermonet.dynamics.default_gap_s` of the first run)."""
         tr, pr = reference_values(recordings, inputs, t_ref=t_ref, window_min=window_min,
                                   proxy_ref=proxy_ref)
-        return cls(inputs=list(inputs), t_ref=tr, proxy_ref=pr)
+        return cls(inputs=list(inputs), t_ref=tr, proxy_ref=pr,
+                   gap_s=resolve_gap_s(gap_s, recordings, inputs))
+
+
+def resolve_gap_s(gap_s: str | float | None, recordings: object, inputs: Sequence[str]
+                  ) -> float | None:
+    """The gap limit a spec stores: None without dynamic inputs, "auto" →
+    :data:`thermonet.dynamics.GAP_FACTOR` × the first run's median sample interval."""
+    if not dynamics.dynamic_signals(inputs):
+        return None
+    if gap_s is None or gap_s == "auto":
+        return dynamics.default_gap_s([_first_run(recordings)])
+    if isinstance(gap_s, str):
+        raise ConfigError(f"gap_s must be a number of seconds or 'auto', got '{gap_s}'")
+    return float(gap_s)
 
 
 def _first_run(recordings: object) -> Recording:
@@ -267,78 +338,51 @@ def contiguous_segments(time_s: np.ndarray, gap_factor: float = GAP_FACTOR) -> l
     return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
-def _segment_rate(temp: np.ndarray, time_s: np.ndarray, fs: float, window_s: float) -> np.ndarray:
-    """Causal dT/dt (°C/min) of one contiguous segment.
-
-    At each sample, the slope at that sample of a least-squares parabola through the
-    last ``window_s`` seconds (Savitzky–Golay, order 2, evaluated at the window's
-    newest end) — what a device can compute on board, with no look-ahead.  Before
-    a full window has passed, the mean slope since the segment's start.
-    """
-    n = temp.shape[0]
-    rate = np.zeros(n)
-    if n < 2:
-        return rate
-    # an odd window longer than the polynomial order; in seconds, so independent of the rate
-    win = max(int(round(window_s * fs)) | 1, 5)
-    start = 1
-    if win <= n:
-        coef = savgol_coeffs(win, 2, deriv=1, delta=1.0 / fs, pos=win - 1, use="dot")
-        rate[win - 1:] = np.correlate(temp, coef, mode="valid")
-        start, stop = 1, win - 1
-    else:
-        stop = n
-    k = np.arange(start, stop)
-    rate[k] = (temp[k] - temp[0]) / (time_s[k] - time_s[0])
-    rate[0] = rate[1] if n > 1 else 0.0
-    return rate * 60.0
-
-
-def _rate_c_per_min(rec: Recording, window_s: float) -> np.ndarray:
-    temp = np.asarray(rec.temperature_c, dtype=np.float64)
-    fs = rec.effective_rate_hz
-    rate = np.empty_like(temp)
-    # per contiguous segment: a derivative across a gap would mix two distant moments
-    for seg in contiguous_segments(rec.time_s):
-        rate[seg] = _segment_rate(temp[seg], rec.time_s[seg], fs, window_s)
-    return rate
-
-
-def signal_matrix(recording: Recording, signals: Sequence[str], rate_window_s: float = 60.0
+def signal_matrix(recording: Recording, signals: Sequence[str], gap_s: float | None = None
                   ) -> np.ndarray:
     """Physical signals of a recording as a matrix.
 
-    ``rate_c_per_min`` is causal, as a device computes it on board: at each
-    sample, the slope at that sample of a least-squares parabola through the
-    last ``rate_window_s`` seconds of ``temperature_c`` (Savitzky–Golay, order
-    2, evaluated at the newest end of the window; rounded to an odd sample
-    count, at least 5); before a full window has passed, the mean slope since
-    the start of the segment:
-
-    .. math:: \\dot T_k = 60 \\cdot \\frac{d}{dt} \\hat T_{[t_k - w,\\, t_k]}(t_k) \\quad [°C/min]
-
-    It assumes near-uniform sampling (the median sample interval) within each
-    contiguous segment and is computed segment by segment
-    (:func:`contiguous_segments`): a burst recording, or a run with held-out
-    time blocks cut out, never differentiates across a gap.
+    Dynamic signals (``rate_c_per_min``, ``lag_<tau>_c``, ``play_<w>_c``) are
+    computed from ``time_s`` and ``temperature_c`` by
+    :func:`thermonet.dynamics.compute` — causal, as the board computes them,
+    the state restarting at the run's start and after every gap longer than
+    ``gap_s`` seconds (None: :func:`thermonet.dynamics.default_gap_s` of this
+    recording), and at every index of ``recording.meta["segment_starts"]``
+    (held-out blocks stacked into one recording).
 
     Returns
     -------
     ndarray, shape (n, S), float64
     """
     source = recording.meta.get("source", "") or f"run '{recording.run_id}'"
+    dyn = {s: d for s in signals if (d := dynamic_signal(s)) is not None}
+    computed: dict[str, np.ndarray] = {}
+    if dyn:
+        if recording.temperature_c is None:
+            raise InputError.at(source, f"signals {sorted(dyn)} need a thermometer in °C",
+                                column=TEMPERATURE)
+        gap = dynamics.default_gap_s([recording]) if gap_s is None else gap_s
+        names = [d.name for d in dyn.values()]
+        n = recording.n_samples
+        starts = sorted({0, *(int(i) for i in recording.meta.get("segment_starts", [])
+                              if 0 < int(i) < n)}) + [n]
+        parts: list[dict[str, np.ndarray]] = []
+        try:
+            for a, b in zip(starts[:-1], starts[1:]):
+                parts.append(dynamics.compute(recording.time_s[a:b],
+                                              recording.temperature_c[a:b], names, gap)[0])
+        except InputError as err:
+            raise InputError(f"{source}: {err}") from None
+        computed = {s: np.concatenate([p[s] for p in parts]) for s in parts[0]}
     cols = []
     for name in signals:
-        if name in (TEMPERATURE, RATE):
+        if name == TEMPERATURE:
             if recording.temperature_c is None:
                 raise InputError.at(source, f"signal '{name}' needs a thermometer in °C",
                                     column=TEMPERATURE)
-            if name == TEMPERATURE:
-                cols.append(np.asarray(recording.temperature_c, dtype=np.float64))
-            else:
-                if rate_window_s <= 0:
-                    raise ConfigError(f"rate_window_s must be > 0 s, got {rate_window_s!r}")
-                cols.append(_rate_c_per_min(recording, rate_window_s))
+            cols.append(np.asarray(recording.temperature_c, dtype=np.float64))
+        elif name in computed:
+            cols.append(computed[name])
         elif name in recording.proxies:
             cols.append(np.asarray(recording.proxies[name], dtype=np.float64))
         else:
@@ -359,10 +403,10 @@ def target_matrix(recording: Recording, outputs: Sequence[str]) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def run_arrays(recording: Recording, spec: FeatureSpec, outputs: Sequence[str],
-               rate_window_s: float = 60.0) -> tuple[np.ndarray, np.ndarray]:
+def run_arrays(recording: Recording, spec: FeatureSpec, outputs: Sequence[str]
+               ) -> tuple[np.ndarray, np.ndarray]:
     """``(signal_matrix, target_matrix)`` of one run: the pair :func:`thermonet.train.fit` takes."""
-    return (signal_matrix(recording, spec.signals, rate_window_s),
+    return (signal_matrix(recording, spec.signals, spec.gap_s),
             target_matrix(recording, outputs))
 
 

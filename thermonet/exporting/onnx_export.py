@@ -238,6 +238,13 @@ def _metadata_props(model: nn.Module, metadata: Mapping[str, Any], exporter: str
         "validation_metrics": _json(meta.pop("validation_metrics", {})),
         "data_hash": _json(meta.pop("data_hash", "")),
     }
+    dynamic = spec.dynamic if spec is not None else None
+    if dynamic is not None:
+        # the runtime computes these signals from time_s with exactly these constants
+        props["dynamic_inputs"] = _json(dynamic)
+        for d in dynamic["inputs"]:
+            props["signal_units"] = _json({**json.loads(props["signal_units"]),
+                                           d["signal"]: d["unit"]})
     for key, value in meta.items():
         if key in props:
             raise ExportError(f"metadata key '{key}' is reserved (written by thermonet itself)")

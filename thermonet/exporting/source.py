@@ -116,7 +116,6 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
             "data_hash": extra.get("data_hash", ""),
             "output_units": units,
             "signal_units": extra.get("signal_units", {}) or {},
-            **_rate_definition(model, meta),
         })
         run_id = extra.get("mlflow_run_id")
         if run_id:
@@ -129,16 +128,6 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
                                  instance=0 if instance is None else instance)
     return export_ardupilot_params(model, out, output_units=units,
                                    imu=1 if instance is None else instance)
-
-
-def _rate_definition(model: Any, meta: dict) -> dict[str, str]:
-    """How the board must compute ``rate_c_per_min`` for a model that reads it."""
-    if "rate_c_per_min" not in model.signals:
-        return {}
-    window = (meta.get("config", {}).get("features", {}) or {}).get("rate_window_s", 60.0)
-    return {"rate_definition": f"causal Savitzky-Golay (order 2) slope at the newest sample of "
-                               f"the last {window:g} s of temperature_c, degC/min "
-                               "(thermonet.features.signal_matrix)"}
 
 
 def _log_to_run(path: Path, run_id: str, tracking_uri: str | None, meta: dict) -> None:
