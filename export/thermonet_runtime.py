@@ -7,10 +7,17 @@ thermonet training run exported; it never imports torch or thermonet.
 
     \\text{compensated} = \\text{raw} - \\text{drift}(\\text{signals})
 
-The graph evaluates the features (ΔT, ΔT², rate, Δproxy), the model and the
+The graph evaluates the features (ΔT, ΔT², Δproxy …), the model and the
 clamp of every signal to the range it was trained on; ``out_of_range`` is true
 where a signal was outside that range (the drift is then the edge value) or
 was not finite (the drift and the compensated output are then NaN).
+
+Dynamic inputs (``rate``, ``lag_<tau>``, ``play_<w>``: see ``README.md``) are
+computed here from ``time_s`` and ``temperature_c`` by the same causal
+recurrences as in training (``thermonet.dynamics``, mirrored below and checked
+against it by thermonet's tests), with the constants stored in the model's
+metadata ``dynamic_inputs``; a sample after a gap in time also raises
+``out_of_range``.
 
 Python use::
 
@@ -18,6 +25,10 @@ Python use::
     comp = Compensator("model.onnx")
     res = comp.compensate(temperature_c=41.2, raw=[0.011, -0.004, 0.002])
     res.compensated, res.drift, res.out_of_range
+    # a model with dynamic inputs: whole sequences with time, or one sample at a time
+    res = comp.compensate(temperature_c=temps, raw=raws, time_s=times)
+    for t, temp, raw in stream:
+        res = comp.step(t, temp, raw)
 
 Command line::
 
@@ -34,14 +45,15 @@ import json
 import math
 import sys
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import onnxruntime as ort
 
 __all__ = ["Compensator", "Compensation", "RuntimeInputError", "SUPPORTED_FORMATS",
-           "SUPPORTED_OPSETS", "time_batch", "main"]
+           "SUPPORTED_OPSETS", "DYNAMIC_VERSION", "dynamic_signals", "time_batch", "main"]
 
 #: Metadata format versions this runtime understands (``thermonet_format``).
 SUPPORTED_FORMATS = ("1",)
@@ -52,6 +64,9 @@ RAW_INPUT = "raw"
 GRAPH_OUTPUTS = ("compensated", "drift", "out_of_range")
 #: Keyword aliases accepted by :meth:`Compensator.compensate`.
 _ALIASES = {"rate": "rate_c_per_min"}
+#: Version of the ``dynamic_inputs`` metadata block this runtime computes.
+DYNAMIC_VERSION = 1
+_DYNAMIC_KINDS = {"rate": "tau_s", "lag": "tau_s", "play": "half_width_c"}
 
 
 class RuntimeInputError(ValueError):
@@ -97,6 +112,209 @@ def _meta_json(meta: Mapping[str, str], key: str, path: Path) -> Any:
         return json.loads(meta[key])
     except json.JSONDecodeError as exc:
         raise RuntimeInputError(f"{path}: metadata key '{key}' is not valid JSON ({exc.msg})") from None
+
+
+# -- dynamic inputs: a copy of thermonet.dynamics (this file imports no thermonet) -----------------
+def _check_time(time_s: Any, what: str = "time_s") -> np.ndarray:
+    try:
+        t = np.asarray(time_s, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise RuntimeInputError(f"{what}: not numbers") from None
+    if t.ndim != 1:
+        raise RuntimeInputError(f"{what}: expected shape (N,), got {t.shape}")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise RuntimeInputError(f"{what}: sample {int(bad[0])}: time is {t[bad[0]]!r} "
+                                "(must be finite seconds)")
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        k = int(back[0]) + 1
+        how = "repeated" if t[k] == t[k - 1] else "decreasing"
+        raise RuntimeInputError(f"{what}: sample {k}: time {how} ({t[k - 1]!r} then {t[k]!r} s); "
+                                "time must increase strictly")
+    return t
+
+
+def _scan(step: Any, first: np.ndarray, second: np.ndarray, pad: tuple[float, float]
+          ) -> np.ndarray:
+    """y_k = step(y_{k-1}, first_k, second_k) over √N blocks in three O(N) passes.
+
+    ``step`` is a linear map (y·a + c) or a clamp (min(max(y, lo), hi)); both compose,
+    so each block's map is built once, the ≈√N block maps are chained, and every block
+    is replayed from its incoming value.
+    """
+    n = first.size
+    if n == 0:
+        return np.zeros(0)
+    b = min(256, max(16, math.isqrt(n)))
+    m = -(-n // b)
+
+    def blocks(x: np.ndarray, fill: float) -> np.ndarray:
+        out = np.full(b * m, fill)
+        out[:n] = x
+        return np.ascontiguousarray(out.reshape(m, b).T)
+
+    f, g = blocks(first, pad[0]), blocks(second, pad[1])
+    linear = step is _lin
+    ya = np.ones(m) if linear else np.full(m, -np.inf)
+    yb = np.zeros(m) if linear else np.full(m, np.inf)
+    for i in range(b):  # the composed map of each block: (product, offset) or (low, high)
+        if linear:
+            ya, yb = ya * f[i], yb * f[i] + g[i]
+        else:
+            ya, yb = _clamp(ya, f[i], g[i]), _clamp(yb, f[i], g[i])
+    inc = np.empty(m)
+    s = 0.0
+    for j in range(m):
+        inc[j] = s
+        s = float(s * ya[j] + yb[j]) if linear else min(max(s, float(ya[j])), float(yb[j]))
+    out = np.empty((b, m))
+    y = inc
+    for i in range(b):
+        y = step(y, f[i], g[i])
+        out[i] = y
+    return out.T.reshape(-1)[:n]
+
+
+def _lin(y: Any, a: Any, c: Any) -> Any:
+    return a * y + c
+
+
+def _clamp(y: Any, lo: Any, hi: Any) -> Any:
+    return np.minimum(np.maximum(y, lo), hi)
+
+
+def _g(h: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(h > 0, -np.expm1(-h) / h, 1.0)
+
+
+def dynamic_signals(time_s: Any, temperature_c: Any, dynamic: Mapping[str, Any]
+                    ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Every dynamic signal of one stream from time (s) and temperature (°C).
+
+    ``dynamic`` is the model's ``dynamic_inputs`` metadata.  With e = T − EMA_τ(T)
+    (T linear between samples), h = Δt/τ and g(h) = (1 − e^(−h))/h:
+    ``e_k = e_{k-1} + g(h)·[(T_k − T_{k-1}) − h·e_{k-1}]``; ``lag`` is e (°C),
+    ``rate`` is 60·e/τ (°C/min); ``play`` is T − P with
+    ``P_k = min(max(P_{k-1}, T_k − w), T_k + w)`` (°C).  The first sample and the first
+    after a gap (Δt since the last finite temperature > ``gap_s``) restart the state
+    (e = 0, P = T); a NaN temperature gives NaN and leaves the state alone.
+
+    Returns
+    -------
+    (signals, gap) : dict name -> (N,) float64, and (N,) bool true after a gap
+    """
+    t = _check_time(time_s)
+    temp = np.asarray(temperature_c, dtype=np.float64).reshape(-1)
+    if temp.shape != t.shape:
+        raise RuntimeInputError(f"temperature_c has {temp.size} samples, time_s {t.size}")
+    gap_s = float(dynamic["gap_s"])
+    valid = np.isfinite(temp)
+    tv, tempv = t[valid], temp[valid]
+    restart = np.ones(tv.size, dtype=bool)
+    restart[1:] = np.diff(tv) > gap_s
+    out: dict[str, np.ndarray] = {}
+    dt = np.diff(tv, prepend=tv[:1])
+    dT = np.diff(tempv, prepend=tempv[:1])
+    for d in dynamic["inputs"]:
+        col = np.full(t.size, np.nan)
+        if tv.size and d["kind"] == "play":
+            w = float(d["half_width_c"])
+            lo = np.where(restart, tempv, tempv - w)
+            hi = np.where(restart, tempv, tempv + w)
+            col[valid] = tempv - _scan(_clamp, lo, hi, (-np.inf, np.inf))
+        elif tv.size:
+            tau = float(d["tau_s"])
+            h = dt / tau
+            g = _g(h)
+            a = np.where(restart, 0.0, 1.0 - h * g)
+            c = np.where(restart, 0.0, dT * g)
+            e = _scan(_lin, a, c, (1.0, 0.0))
+            col[valid] = 60.0 * e / tau if d["kind"] == "rate" else e
+        out[d["signal"]] = col
+    gap = np.zeros(t.size, dtype=bool)
+    idx = np.flatnonzero(valid)
+    if idx.size:
+        gap[idx[1:]] = restart[1:]
+    return out, gap
+
+
+class _Stream:
+    """The O(1) state of :meth:`Compensator.step` (what the C header's state struct holds)."""
+
+    __slots__ = ("started", "t_last", "t_prev", "temp_prev", "state")
+
+    def __init__(self, n: int) -> None:
+        self.started = False
+        self.t_last = -math.inf      # last time seen (any sample): time must increase
+        self.t_prev = 0.0            # time and temperature of the last finite-temperature sample
+        self.temp_prev = 0.0
+        self.state = [0.0] * n
+
+    def update(self, t: float, temp: float, dynamic: Mapping[str, Any]
+               ) -> tuple[dict[str, float], bool]:
+        if not math.isfinite(t):
+            raise RuntimeInputError(f"time_s is {t!r} (must be finite seconds)")
+        if t <= self.t_last:
+            how = "repeated" if t == self.t_last else "decreasing"
+            raise RuntimeInputError(f"time_s {how} ({self.t_last!r} then {t!r} s); "
+                                    "time must increase strictly")
+        self.t_last = t
+        items = dynamic["inputs"]
+        if not math.isfinite(temp):
+            return {d["signal"]: math.nan for d in items}, False
+        restart = not self.started or (t - self.t_prev) > float(dynamic["gap_s"])
+        gap = self.started and restart
+        out = {}
+        for j, d in enumerate(items):
+            if d["kind"] == "play":
+                w = float(d["half_width_c"])
+                v = temp if restart else min(max(self.state[j], temp - w), temp + w)
+                self.state[j] = v
+                out[d["signal"]] = temp - v
+            else:
+                tau = float(d["tau_s"])
+                if restart:
+                    e = 0.0
+                else:
+                    h = (t - self.t_prev) / tau
+                    g = -math.expm1(-h) / h
+                    e = self.state[j] + g * ((temp - self.temp_prev) - h * self.state[j])
+                self.state[j] = e
+                out[d["signal"]] = 60.0 * e / tau if d["kind"] == "rate" else e
+        self.started, self.t_prev, self.temp_prev = True, t, temp
+        return out, gap
+
+
+def _check_dynamic(block: Any, signals: list[str], path: Path) -> dict[str, Any] | None:
+    """The validated ``dynamic_inputs`` metadata block (None when the model has none)."""
+    if block is None:
+        return None
+    if not isinstance(block, dict) or block.get("version") != DYNAMIC_VERSION:
+        raise RuntimeInputError(f"{path}: metadata 'dynamic_inputs' is not version "
+                                f"{DYNAMIC_VERSION}; this runtime cannot compute its inputs")
+    gap = block.get("gap_s")
+    if isinstance(gap, bool) or not isinstance(gap, (int, float)) or not (
+            math.isfinite(gap) and gap > 0):
+        raise RuntimeInputError(f"{path}: metadata 'dynamic_inputs': gap_s {gap!r} is not a "
+                                "positive number of seconds")
+    items = block.get("inputs")
+    if not isinstance(items, list) or not items:
+        raise RuntimeInputError(f"{path}: metadata 'dynamic_inputs' lists no inputs")
+    for d in items:
+        key = _DYNAMIC_KINDS.get(d.get("kind")) if isinstance(d, dict) else None
+        if key is None:
+            raise RuntimeInputError(f"{path}: metadata 'dynamic_inputs': unknown entry {d!r}")
+        value = d.get(key)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                math.isfinite(value) and value > 0):
+            raise RuntimeInputError(f"{path}: metadata 'dynamic_inputs': {d.get('name')!r} has "
+                                    f"{key} {value!r} (must be a positive number)")
+        if d.get("signal") not in signals:
+            raise RuntimeInputError(f"{path}: metadata 'dynamic_inputs': signal "
+                                    f"{d.get('signal')!r} is not a graph input {signals}")
+    return block
 
 
 class Compensator:
@@ -166,6 +384,20 @@ class Compensator:
         self.output_units: dict[str, str] = dict(json.loads(meta.get("output_units", "{}")))
         if not self.signals or not self.outputs:
             raise RuntimeInputError(f"{path}: metadata lists no signals or no outputs")
+        block = _meta_json(meta, "dynamic_inputs", path) if "dynamic_inputs" in meta else None
+        self.dynamic: dict[str, Any] | None = _check_dynamic(block, self.signals, path)
+        #: Graph inputs this runtime computes from time_s and temperature_c.
+        self.dynamic_signals: list[str] = [d["signal"] for d in (self.dynamic or {}).get(
+            "inputs", [])]
+        if "rate_c_per_min" in self.signals and "rate_c_per_min" not in self.dynamic_signals:
+            raise RuntimeInputError(f"{path}: the model reads rate_c_per_min but its metadata has "
+                                    "no 'dynamic_inputs' definition (exported by an older "
+                                    "thermonet); export it again")
+        #: What the caller supplies: time_s (models with dynamic inputs), temperature, proxies.
+        self.needs: list[str] = (["time_s", "temperature_c"] if self.dynamic else []) + [
+            x for x in self.signals if x not in self.dynamic_signals
+            and not (self.dynamic and x == "temperature_c")]
+        self._stream = _Stream(len(self.dynamic_signals))
 
         graph_inputs = self._session.get_inputs()
         names = [i.name for i in graph_inputs]
@@ -210,9 +442,9 @@ class Compensator:
         return arr.astype(np.float32)
 
     # -- evaluation ---------------------------------------------------------------------------
-    def compensate(self, temperature_c: Any = None, raw: Any = None, *, proxy: Any = None,
-                   rate: Any = None, **signals: Any) -> Compensation:
-        """Compensate one sample or a batch.
+    def compensate(self, temperature_c: Any = None, raw: Any = None, *, time_s: Any = None,
+                   proxy: Any = None, rate: Any = None, **signals: Any) -> Compensation:
+        """Compensate one sample or a batch (a whole sequence for dynamic inputs).
 
         Parameters
         ----------
@@ -220,26 +452,88 @@ class Compensator:
             Device temperature in °C (when the model uses it).
         raw : array (A,) or (N, A)
             Raw outputs, one column per axis in the order of :attr:`outputs`.
+        time_s : array (N,), optional
+            Sample times in seconds, finite and strictly increasing; required
+            by a model with dynamic inputs (:attr:`dynamic_signals`), which are
+            computed from it and ``temperature_c`` as one stream starting at
+            the first sample (use :meth:`step` to carry state across calls).
         proxy : float, array (N,) or dict, optional
             The proxy signal (e.g. ``freq_hz`` in Hz) for a model with exactly
             one proxy, or a dict ``{name: values}``.
-        rate : float or array (N,), optional
-            dT/dt in °C/min (signal ``rate_c_per_min``).
+        rate : never
+            Dynamic signals are computed, not passed (kept for a clear error).
         **signals
-            Any signal by its own name (``freq_hz=...``).
+            Any proxy by its own name (``freq_hz=...``).
 
         Returns
         -------
         Compensation
-            ``compensated``, ``drift`` (float32) and ``out_of_range`` (bool).
-            One sample (scalar signals and 1-D ``raw``) gives 1-D arrays and a
-            plain bool.
+            ``compensated``, ``drift`` (float32) and ``out_of_range`` (bool;
+            also true at the first sample after a gap in time).  One sample
+            (scalar signals and 1-D ``raw``) gives 1-D arrays and a plain bool.
 
         Raises
         ------
         RuntimeInputError
-            A missing or unknown signal, a non-numeric dtype or inconsistent shapes.
+            A missing or unknown signal, missing or bad time, a non-numeric
+            dtype or inconsistent shapes.
         """
+        given = self._collect(temperature_c, proxy, rate, signals)
+        raw_arr, single = self._raw(raw)
+        gap = None
+        if self.dynamic:
+            if time_s is None:
+                raise RuntimeInputError(
+                    f"missing 'time_s': this model's dynamic input(s) {self.dynamic_signals} "
+                    "are computed from time_s (seconds, strictly increasing) and temperature_c")
+            temp = self._as_float32("temperature_c", given["temperature_c"]).astype(np.float64)
+            t = np.asarray(time_s, dtype=np.float64) if np.ndim(time_s) else \
+                np.full(1, float(time_s))
+            if temp.ndim == 0:
+                temp = np.full(t.shape, float(temp))
+            if t.shape != (raw_arr.shape[0],) or temp.shape != t.shape:
+                raise RuntimeInputError(f"time_s has shape {t.shape}, temperature_c "
+                                        f"{temp.shape}; expected ({raw_arr.shape[0]},) to match "
+                                        "'raw'")
+            values, gap = dynamic_signals(t, temp, self.dynamic)
+            given.update(values)
+        elif time_s is not None:
+            _check_time(np.atleast_1d(np.asarray(time_s, dtype=np.float64)))
+        return self._evaluate(given, raw_arr, single, gap)
+
+    def step(self, time_s: float, temperature_c: float, raw: Any, *, proxy: Any = None,
+             **signals: Any) -> Compensation:
+        """Compensate one sample of a stream, keeping the dynamic inputs' state.
+
+        The first call (and the first after :meth:`reset`) starts the state;
+        a sample whose time is not after the previous one is refused and leaves
+        the state unchanged; a sample more than ``gap_s`` after the last one
+        with a finite temperature restarts the state and raises the flag.
+
+        Returns
+        -------
+        Compensation
+            1-D ``compensated`` and ``drift`` (A,), plain bool ``out_of_range``.
+        """
+        given = self._collect(temperature_c, proxy, None, signals)
+        raw_arr, single = self._raw(raw)
+        if not single:
+            raise RuntimeInputError(f"step() takes one sample: 'raw' must have shape "
+                                    f"({len(self.outputs)},), got {np.shape(raw)}")
+        try:
+            t, temp = float(time_s), float(np.asarray(given.get("temperature_c", np.nan)))
+        except (TypeError, ValueError):
+            raise RuntimeInputError("step(): time_s and temperature_c must be numbers") from None
+        values, gap = self._stream.update(t, temp, self.dynamic or {"inputs": [], "gap_s": 1.0})
+        given.update(values)
+        return self._evaluate(given, raw_arr, True, np.array([gap]))
+
+    def reset(self) -> None:
+        """Forget the stream's state: the next :meth:`step` starts afresh."""
+        self._stream = _Stream(len(self.dynamic_signals))
+
+    def _collect(self, temperature_c: Any, proxy: Any, rate: Any, signals: Mapping[str, Any]
+                 ) -> dict[str, Any]:
         given: dict[str, Any] = {}
 
         def put(name: str, value: Any) -> None:
@@ -255,7 +549,8 @@ class Compensator:
         if rate is not None:
             put("rate_c_per_min", rate)
         if proxy is not None:
-            proxies = [s for s in self.signals if s not in ("temperature_c", "rate_c_per_min")]
+            proxies = [s for s in self.signals
+                       if s not in ("temperature_c", "rate_c_per_min", *self.dynamic_signals)]
             if isinstance(proxy, Mapping):
                 for key, value in proxy.items():
                     put(key, value)
@@ -264,15 +559,23 @@ class Compensator:
             else:
                 raise RuntimeInputError(f"proxy= given but the model has proxies {proxies}; "
                                         "pass them by name")
-        unknown = sorted(set(given) - set(self.signals))
+        computed = sorted(set(given) & set(self.dynamic_signals))
+        if computed:
+            raise RuntimeInputError(f"signal(s) {computed} are computed by the runtime from "
+                                    "time_s and temperature_c; pass time_s, not the signal")
+        unknown = sorted(set(given) - set(self.signals) - {"temperature_c"})
+        if "temperature_c" in given and "temperature_c" not in self.needs:
+            unknown = sorted(set(unknown) | {"temperature_c"})
         if unknown:
-            raise RuntimeInputError(f"unknown signal(s) {unknown}; this model uses {self.signals}")
-        missing = [s for s in self.signals if s not in given]
+            raise RuntimeInputError(f"unknown signal(s) {unknown}; this model uses {self.needs}")
+        missing = [s for s in self.needs if s != "time_s" and s not in given]
         if missing:
-            raise RuntimeInputError(f"missing signal(s) {missing}; this model uses {self.signals}")
+            raise RuntimeInputError(f"missing signal(s) {missing}; this model uses {self.needs}")
+        return given
+
+    def _raw(self, raw: Any) -> tuple[np.ndarray, bool]:
         if raw is None:
             raise RuntimeInputError(f"missing 'raw' (one value per axis {self.outputs})")
-
         n_axes = len(self.outputs)
         raw_arr = self._as_float32("raw", raw)
         single = raw_arr.ndim == 1
@@ -281,7 +584,11 @@ class Compensator:
         if raw_arr.ndim != 2 or raw_arr.shape[1] != n_axes:
             raise RuntimeInputError(f"'raw' has shape {np.shape(raw)}; expected ({n_axes},) or "
                                     f"(N, {n_axes}) for axes {self.outputs}")
-        n = raw_arr.shape[0]
+        return raw_arr, single
+
+    def _evaluate(self, given: Mapping[str, Any], raw_arr: np.ndarray, single: bool,
+                  gap: np.ndarray | None) -> Compensation:
+        n, n_axes = raw_arr.shape[0], len(self.outputs)
         feeds: dict[str, np.ndarray] = {}
         for name in self.signals:
             arr = self._as_float32(name, given[name])
@@ -299,9 +606,12 @@ class Compensator:
             empty = np.zeros((0, n_axes), dtype=np.float32)
             return Compensation(empty, empty.copy(), np.zeros(0, dtype=bool))
         comp, drift, flag = self._session.run(list(GRAPH_OUTPUTS), feeds)
+        flag = flag.astype(bool)
+        if gap is not None:
+            flag = flag | gap
         if single:
             return Compensation(comp[0], drift[0], bool(flag[0]))
-        return Compensation(comp, drift, flag.astype(bool))
+        return Compensation(comp, drift, flag)
 
     def __repr__(self) -> str:
         return (f"Compensator({str(self.path)!r}, family={self.family!r}, signals={self.signals}, "
@@ -315,8 +625,12 @@ def time_batch(compensator: Compensator, batch_size: int = 1000, *, repeats: int
     Used by the benchmarks; the first call (graph warm-up) is not counted.
     """
     rng = np.random.default_rng(seed)
-    sig = {s: rng.uniform(*compensator.trained_range[s], size=batch_size).astype(np.float32)
-           for s in compensator.signals}
+    sig: dict[str, Any] = {
+        s: rng.uniform(*compensator.trained_range.get(s, (20.0, 30.0)),
+                       size=batch_size).astype(np.float32)
+        for s in compensator.needs if s != "time_s"}
+    if "time_s" in compensator.needs:
+        sig["time_s"] = np.arange(batch_size, dtype=np.float64)
     raw = np.zeros((batch_size, len(compensator.outputs)), dtype=np.float32)
     compensator.compensate(raw=raw, **sig)
     times = []
@@ -372,17 +686,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         prog="thermonet_runtime",
         description="Apply a thermonet drift model (.onnx) to a CSV of raw sensor outputs.")
     parser.add_argument("model", type=Path, help="the exported .onnx file")
-    parser.add_argument("input", type=Path, help="CSV with the model's signal columns and one "
-                        "raw column per axis (named by the axis, e.g. gyro_x)")
+    parser.add_argument("input", type=Path, help="CSV with the model's signal columns (time_s "
+                        "and temperature_c for a model with dynamic inputs) and one raw column "
+                        "per axis (named by the axis, e.g. gyro_x)")
     parser.add_argument("--out", type=Path, required=True, help="output CSV")
     parser.add_argument("--threads", type=int, default=1, help="onnxruntime threads (default 1)")
     args = parser.parse_args(argv)
     try:
         comp = Compensator(args.model, threads=args.threads)
-        header, body, cols = _read_csv(args.input, comp.signals + comp.outputs)
+        header, body, cols = _read_csv(args.input, comp.needs + comp.outputs)
         raw = np.stack([cols[a] for a in comp.outputs], axis=1) if body else \
             np.zeros((0, len(comp.outputs)))
-        res = comp.compensate(raw=raw, **{s: cols[s] for s in comp.signals})
+        given = {s: cols[s] for s in comp.needs}
+        if "time_s" in given:
+            try:
+                _check_time(given["time_s"])
+            except RuntimeInputError as exc:  # name the column and the row as a spreadsheet does
+                k = int(str(exc).split("sample ", 1)[1].split(":", 1)[0])
+                reason = str(exc).split(": ", 2)[-1]
+                raise RuntimeInputError(f"{args.input}: column 'time_s', row {k + 2}: "
+                                        f"{reason}") from None
+        res = comp.compensate(raw=raw, **given)
         extra = [f"{a}_comp" for a in comp.outputs] + [f"{a}_drift" for a in comp.outputs] + \
             ["out_of_range"]
         clash = sorted(set(extra) & set(header))

@@ -34,6 +34,19 @@ def _trained(name):
     return res, sig
 
 
+def spec_dict(inputs):
+    """What the checkpoint stores: references, and the dynamic inputs' constants."""
+    out = {"inputs": inputs, "t_ref": 25.0, "proxy_ref": {}}
+    if "rate" in inputs:
+        out["dynamic"] = {"version": 1, "gap_s": 10.0,
+                          "start": "E = T (lag 0, rate 0), P = T (play 0)",
+                          "gap": "dt since the last finite-temperature sample > gap_s: "
+                                 "restart, flag set",
+                          "inputs": [{"name": "rate", "kind": "rate", "signal": "rate_c_per_min",
+                                      "unit": "degC/min", "tau_s": 60.0}]}
+    return out
+
+
 @pytest.mark.parametrize("name", list(MODELS))
 def test_checkpoint_round_trip_identical_predictions(name, tmp_path):
     res, sig = _trained(name)
@@ -48,7 +61,8 @@ def test_checkpoint_round_trip_identical_predictions(name, tmp_path):
     np.testing.assert_array_equal(predict(model, sig), predict(res.model, sig))
     assert meta["config"] == {"family": name, "lr": 0.01, "runs": ["a", "b"]}
     assert meta["extra"] == {"rms": [1.0, 2.0]}
-    assert meta["spec"] == {"t_ref": 25.0, "proxy_ref": {}}
+    assert meta["spec"] == spec_dict(_inputs(name))
+    assert model.spec.to_dict() == res.model.spec.to_dict()
     assert meta["inputs"] == _inputs(name) and meta["signals"] == model.signals
     assert meta["hyper"] == res.model.family.hyper()
     assert meta["epoch"] == res.best_epoch

@@ -204,7 +204,7 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
             if fam.train_on == "heating":
                 heat_gap = resolve_gap_s(cfg.features.gap_s, split.train, ["rate"])
                 train_parts = [heating_only(p, r, heat_gap)
-                               for p, r in zip(train_parts, split.train)]
+                               for p, r in zip(train_parts, split.train, strict=True)]
             val_part = parts(split.val, spec.signals, gap) if split.val is not None else None
             test_part = parts(split.test, spec.signals, gap)
             fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=outputs,

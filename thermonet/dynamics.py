@@ -58,16 +58,17 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Sequence
+from typing import Any, ClassVar
 
 import numpy as np
 
 from .errors import ConfigError, InputError
 
-__all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInput", "Rate", "Lag", "Play",
-           "REGISTRY", "parse_dynamic", "is_dynamic", "check_time", "dynamic_signals",
-           "default_gap_s", "constants", "from_constants", "lag_error", "play_state",
+__all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInput", "Rate",
+           "Lag", "Play", "REGISTRY", "compute", "parse_dynamic", "is_dynamic", "check_time",
+           "dynamic_signals",           "default_gap_s", "constants", "from_constants", "lag_error", "play_state",
            "reference_signals"]
 
 #: Time constant of ``rate`` (s).
@@ -268,7 +269,8 @@ def from_constants(block: Any, inputs: Sequence[str], source: str = "model") -> 
     gap = block.get("gap_s")
     if isinstance(gap, bool) or not isinstance(gap, (int, float)) or not (
             math.isfinite(gap) and gap > 0):
-        raise ConfigError(f"{source}: dynamic-input constant gap_s {gap!r} is not a positive number")
+        raise ConfigError(f"{source}: dynamic-input constant gap_s {gap!r} is not a positive "
+                          "number")
     expected = constants(inputs, gap)["inputs"]
     if block.get("inputs") != expected:
         raise ConfigError(f"{source}: stored dynamic-input constants {block.get('inputs')!r} "
@@ -310,7 +312,7 @@ def _linear_scan(a: np.ndarray, c: np.ndarray) -> np.ndarray:
         p = p * ab[i]
     inc = np.empty(m)
     s = 0.0
-    for j, (pj, yj) in enumerate(zip(p.tolist(), y.tolist())):
+    for j, (pj, yj) in enumerate(zip(p.tolist(), y.tolist(), strict=True)):
         inc[j] = s
         s = pj * s + yj
     out = np.empty((b, m))
@@ -339,7 +341,7 @@ def _clamp_scan(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         ch = np.minimum(np.maximum(ch, lob[i]), hib[i])
     inc = np.empty(m)
     s = 0.0
-    for j, (lj, hj) in enumerate(zip(cl.tolist(), ch.tolist())):
+    for j, (lj, hj) in enumerate(zip(cl.tolist(), ch.tolist(), strict=True)):
         inc[j] = s
         s = min(max(s, lj), hj)
     out = np.empty((b, m))
@@ -358,7 +360,7 @@ def _g(h: np.ndarray) -> np.ndarray:
 
 
 def lag_error(t: np.ndarray, temp: np.ndarray, restart: np.ndarray, tau_s: float) -> np.ndarray:
-    """:math:`e = T - \\mathrm{EMA}_\\tau(T)` on samples with finite T (see the module docstring)."""
+    """:math:`e = T - \\mathrm{EMA}_\\tau(T)` on finite-T samples (see the module docstring)."""
     dt = np.diff(t, prepend=t[:1])
     dT = np.diff(temp, prepend=temp[:1])
     h = dt / tau_s

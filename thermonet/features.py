@@ -368,7 +368,7 @@ def signal_matrix(recording: Recording, signals: Sequence[str], gap_s: float | N
                               if 0 < int(i) < n)}) + [n]
         parts: list[dict[str, np.ndarray]] = []
         try:
-            for a, b in zip(starts[:-1], starts[1:]):
+            for a, b in zip(starts[:-1], starts[1:], strict=True):
                 parts.append(dynamics.compute(recording.time_s[a:b],
                                               recording.temperature_c[a:b], names, gap)[0])
         except InputError as err:
