@@ -68,8 +68,8 @@ from .errors import ConfigError, InputError
 
 __all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInput", "Rate",
            "Lag", "Play", "REGISTRY", "compute", "parse_dynamic", "is_dynamic", "check_time",
-           "dynamic_signals",           "default_gap_s", "constants", "from_constants", "lag_error", "play_state",
-           "reference_signals"]
+           "dynamic_signals", "default_gap_s", "constants", "from_constants", "lag_error",
+           "play_state", "reference_signals"]
 
 #: Time constant of ``rate`` (s).
 RATE_TAU_S = 60.0

@@ -48,6 +48,7 @@ from torch import nn
 from .. import __version__
 from ..errors import ExportError
 from ..fileio import atomic_write_text
+from .c_stream import render_stream_c
 from .onnx_export import (_check_points, check_drift_parity, check_model_finite, family_name,
                           float32_tolerance, trained_range)
 
@@ -303,6 +304,7 @@ def render_c_header(model: nn.Module, *, prefix: str = "thermonet") -> str:
         "    (void)i; (void)f;",
         "    return flag | nonfinite;",
         "}",
+        *render_stream_c(model, p),
         "",
         f"#endif /* {guard} */",
         "",

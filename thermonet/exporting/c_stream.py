@@ -1,0 +1,265 @@
+"""The C header's streaming form: a state struct, ``init`` and ``step`` (dynamic inputs in C).
+
+Every header gets, after ``<prefix>_compensate``::
+
+    typedef struct { ... } <prefix>_state;
+    void <prefix>_init(<prefix>_state *st);
+    int  <prefix>_step(<prefix>_state *st, double time_s, float temperature_c,
+                       [const float *proxies,]            -- only when the model reads proxies
+                       const float *raw, float *compensated, float *drift, int *flag);
+
+``step`` computes the model's dynamic inputs (``rate``, ``lag_<tau>``,
+``play_<w>``) from time and temperature with the recurrences of
+:mod:`thermonet.dynamics`, in float32 — time is a ``double`` so that the
+difference of two large timestamps keeps its precision; only that difference
+is rounded to float — with :math:`g(h) = -\\mathrm{expm1f}(-h)/h` so a step
+much shorter than τ loses nothing.  Its constants (time constants, widths,
+``<PREFIX>_GAP_S``) are the ones stored in the model.  Start-up, gaps and a
+non-finite temperature follow the definition (state restart; flag set after a
+gap; NaN drift and an untouched state for a NaN temperature).  A time that is
+not finite or not after the previous call's is refused: NaN outputs, flag set,
+return −1, state unchanged; otherwise ``step`` returns 0.  No heap; libm
+``expf``/``expm1f`` only.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from torch import nn
+
+from .. import dynamics
+from ..errors import ExportError
+
+__all__ = ["render_stream_c", "STREAM_DRIVER", "run_stream_c", "stream_signature_has_proxies"]
+
+_KIND_CODE = {"rate": 0, "lag": 1, "play": 2}
+
+
+def _float(v: float) -> str:
+    return f"{float(np.float32(v)):.9e}f"
+
+
+def _proxies(model: nn.Module) -> list[str]:
+    dyn = {d.signal for d in dynamics.dynamic_signals(model.inputs)}
+    return [s for s in model.signals if s != "temperature_c" and s not in dyn]
+
+
+def stream_signature_has_proxies(model: nn.Module) -> bool:
+    """Whether ``<prefix>_step`` takes a ``proxies`` argument (the model reads proxies)."""
+    return bool(_proxies(model))
+
+
+def render_stream_c(model: nn.Module, p: str) -> list[str]:
+    """Lines of the state struct, ``<p>_init`` and ``<p>_step`` for ``model``."""
+    P = p.upper()
+    signals = list(model.signals)
+    dyn = dynamics.dynamic_signals(model.inputs)
+    proxies = _proxies(model)
+    gap_s = float(model.spec.gap_s) if dyn else 0.0
+    nd = len(dyn)
+    lines = [
+        "",
+        "/* ---- streaming form: dynamic inputs from time and temperature (thermonet.dynamics) */",
+        f"#define {P}_N_DYNAMIC {nd}",
+        f"#define {P}_N_PROXIES {len(proxies)}",
+    ]
+    if nd:
+        lines += [
+            f"#define {P}_GAP_S {gap_s!r} /* s: a longer step restarts the state, flag set */",
+            "/* kind: 0 rate (degC/min, tau s), 1 lag (degC, tau s), 2 play (degC, half-width) */",
+            f"static const int {p}_dyn_kind[{P}_N_DYNAMIC] = "
+            "{" + ", ".join(str(_KIND_CODE[d.kind]) for d in dyn) + "};",
+            f"static const float {p}_dyn_param[{P}_N_DYNAMIC] = "
+            "{" + ", ".join(_float(d.param) for d in dyn) + "};",
+            f"static const int {p}_dyn_signal[{P}_N_DYNAMIC] = "
+            "{" + ", ".join(str(signals.index(d.signal)) for d in dyn) + "};",
+        ]
+    if proxies:
+        lines.append(f"static const int {p}_proxy_signal[{P}_N_PROXIES] = "
+                     "{" + ", ".join(str(signals.index(x)) for x in proxies) + "};")
+    state_x = f"    float x[{P}_N_DYNAMIC];      /* e (rate, lag) or P (play), per input */" \
+        if nd else "    float x[1];                 /* unused: no dynamic input */"
+    lines += [
+        "",
+        "typedef struct {",
+        "    double t_last;              /* time of the last accepted call, s */",
+        "    double t_prev;              /* time of the last finite temperature, s */",
+        "    float temp_prev;            /* that temperature, degC */",
+        state_x,
+        "    int seen, started;",
+        f"}} {p}_state;",
+        "",
+        f"static inline void {p}_init({p}_state *st)",
+        "{",
+        "    int j;",
+        "    st->t_last = 0.0;",
+        "    st->t_prev = 0.0;",
+        "    st->temp_prev = 0.0f;",
+        "    for (j = 0; j < (int)(sizeof st->x / sizeof st->x[0]); ++j) st->x[j] = 0.0f;",
+        "    st->seen = 0;",
+        "    st->started = 0;",
+        "}",
+        "",
+        f"static inline int {p}_step({p}_state *st, double time_s, float temperature_c,",
+        *(["                              const float *proxies,"] if proxies else []),
+        "                              const float *raw, float *compensated, float *drift,",
+        "                              int *flag)",
+        "{",
+        f"    float s[{P}_N_SIGNALS];",
+        "    int a, gap = 0;",
+        "    if (!(time_s - time_s == 0.0) || (st->seen && !(time_s > st->t_last))) {",
+        f"        for (a = 0; a < {P}_N_AXES; ++a) {{",
+        "            drift[a] = NAN;",
+        "            compensated[a] = NAN;",
+        "        }",
+        "        *flag = 1;",
+        "        return -1;",
+        "    }",
+        "    st->t_last = time_s;",
+        "    st->seen = 1;",
+    ]
+    if "temperature_c" in signals:
+        lines.append(f"    s[{signals.index('temperature_c')}] = temperature_c;")
+    for k, _ in enumerate(proxies):
+        lines.append(f"    s[{p}_proxy_signal[{k}]] = proxies[{k}];")
+    if nd:
+        lines += [
+            "    {",
+            "        int j;",
+            "        const float T = temperature_c;",
+            "        if (!(T - T == 0.0f)) {",
+            f"            for (j = 0; j < {P}_N_DYNAMIC; ++j) s[{p}_dyn_signal[j]] = NAN;",
+            "        } else {",
+            f"            int restart = !st->started || (time_s - st->t_prev) > {P}_GAP_S;",
+            "            gap = st->started && restart;",
+            "            if (restart) {",
+            f"                for (j = 0; j < {P}_N_DYNAMIC; ++j)",
+            f"                    st->x[j] = {p}_dyn_kind[j] == 2 ? T : 0.0f;",
+            "            } else {",
+            "                const float dt = (float)(time_s - st->t_prev);",
+            "                const float dT = T - st->temp_prev;",
+            f"                for (j = 0; j < {P}_N_DYNAMIC; ++j) {{",
+            f"                    const float c = {p}_dyn_param[j];",
+            f"                    if ({p}_dyn_kind[j] == 2) {{",
+            "                        float v = st->x[j];",
+            "                        if (v < T - c) v = T - c;",
+            "                        if (v > T + c) v = T + c;",
+            "                        st->x[j] = v;",
+            "                    } else {",
+            "                        const float h = dt / c;",
+            "                        const float g = -expm1f(-h) / h;",
+            "                        st->x[j] = st->x[j] + g * (dT - h * st->x[j]);",
+            "                    }",
+            "                }",
+            "            }",
+            f"            for (j = 0; j < {P}_N_DYNAMIC; ++j) {{",
+            f"                const float c = {p}_dyn_param[j], v = st->x[j];",
+            f"                s[{p}_dyn_signal[j]] = {p}_dyn_kind[j] == 2 ? T - v",
+            f"                    : ({p}_dyn_kind[j] == 0 ? 60.0f * v / c : v);",
+            "            }",
+            "            st->started = 1;",
+            "            st->t_prev = time_s;",
+            "            st->temp_prev = T;",
+            "        }",
+            "    }",
+        ]
+    else:
+        lines.append("    (void)temperature_c;")
+    lines += [
+        f"    *flag = {p}_compensate(s, raw, compensated, drift) | gap;",
+        "    return 0;",
+        "}",
+    ]
+    return lines
+
+
+#: A driver that runs ``step`` over a sequence read from a file (tests, export check, bench).
+STREAM_DRIVER = r"""
+#include <stdio.h>
+#include "model.h"
+/* in: int n, then per sample: double t, float T, NP proxies, A raw;
+ * out: per sample A comp, A drift, int flag, int ret */
+int main(int argc, char **argv)
+{
+    FILE *in, *out;
+    int n, k, flag, ret;
+    double t;
+    float temp, prox[PFX_N_PROXIES > 0 ? PFX_N_PROXIES : 1], raw[PFX_N_AXES];
+    float comp[PFX_N_AXES], drift[PFX_N_AXES];
+    pfx_state st;
+    if (argc != 3) return 2;
+    in = fopen(argv[1], "rb");
+    out = fopen(argv[2], "wb");
+    if (!in || !out || fread(&n, sizeof n, 1, in) != 1) return 3;
+    pfx_init(&st);
+    for (k = 0; k < n; ++k) {
+        if (fread(&t, sizeof t, 1, in) != 1 || fread(&temp, sizeof temp, 1, in) != 1) return 4;
+        if (PFX_N_PROXIES > 0 &&
+            fread(prox, sizeof(float), PFX_N_PROXIES, in) != PFX_N_PROXIES) return 4;
+        if (fread(raw, sizeof(float), PFX_N_AXES, in) != PFX_N_AXES) return 4;
+        ret = pfx_step(&st, t, temp, PROXY_ARG raw, comp, drift, &flag);
+        fwrite(comp, sizeof(float), PFX_N_AXES, out);
+        fwrite(drift, sizeof(float), PFX_N_AXES, out);
+        fwrite(&flag, sizeof flag, 1, out);
+        fwrite(&ret, sizeof ret, 1, out);
+    }
+    (void)prox;
+    fclose(in);
+    fclose(out);
+    return 0;
+}
+"""
+
+
+def run_stream_c(model: nn.Module, header_text: str, time_s: np.ndarray,
+                 temperature_c: np.ndarray, raw: np.ndarray, proxies: np.ndarray | None = None,
+                 *, prefix: str = "thermonet", cflags: tuple[str, ...] = ("-O2",)
+                 ) -> dict[str, np.ndarray]:
+    """Compile the header with a driver and run ``step`` over one sequence.
+
+    Returns ``{"compensated", "drift", "flag", "ret"}`` per sample.
+
+    Raises
+    ------
+    ExportError
+        No C compiler, or the header or driver does not compile or run.
+    """
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        raise ExportError("no C compiler found")
+    n, n_axes = len(time_s), len(model.outputs)
+    n_prox = len(_proxies(model))
+    driver = (STREAM_DRIVER.replace("PROXY_ARG", "prox," if n_prox else "")
+              .replace("PFX", prefix.upper()).replace("pfx", prefix))
+    rec_in = np.dtype([("t", np.float64), ("T", np.float32), ("p", np.float32, (n_prox,)),
+                       ("raw", np.float32, (n_axes,))])
+    rows = np.zeros(n, dtype=rec_in)
+    rows["t"], rows["T"], rows["raw"] = time_s, temperature_c, raw
+    if n_prox:
+        rows["p"] = np.asarray(proxies, dtype=np.float32).reshape(n, n_prox)
+    with tempfile.TemporaryDirectory() as tmp_dir:
+        tmp = Path(tmp_dir)
+        (tmp / "model.h").write_text(header_text)
+        (tmp / "driver.c").write_text(driver)
+        built = subprocess.run([cc, "-std=c99", "-Wall", "-Wextra", "-Werror", *cflags, "-o",
+                                str(tmp / "driver"), str(tmp / "driver.c"), "-lm"],
+                               capture_output=True, text=True)
+        if built.returncode != 0:
+            first = (built.stderr.strip().splitlines() or ["?"])[0]
+            raise ExportError(f"the C header's step() does not compile: {first}")
+        # packed records (no padding), read field by field by the driver
+        (tmp / "in.bin").write_bytes(np.int32(n).tobytes() + rows.tobytes())
+        run = subprocess.run([str(tmp / "driver"), str(tmp / "in.bin"), str(tmp / "out.bin")],
+                             capture_output=True, text=True)
+        if run.returncode != 0:
+            raise ExportError(f"the C stream driver failed (exit {run.returncode})")
+        rec_out = np.dtype([("comp", np.float32, (n_axes,)), ("drift", np.float32, (n_axes,)),
+                            ("flag", np.int32), ("ret", np.int32)])
+        out = np.fromfile(tmp / "out.bin", dtype=rec_out)
+    return {"compensated": out["comp"], "drift": out["drift"], "flag": out["flag"].astype(bool),
+            "ret": out["ret"]}
