@@ -124,13 +124,14 @@ def _check_time(time_s: Any, what: str = "time_s") -> np.ndarray:
         raise RuntimeInputError(f"{what}: expected shape (N,), got {t.shape}")
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
-        raise RuntimeInputError(f"{what}: sample {int(bad[0])}: time is {t[bad[0]]!r} "
+        raise RuntimeInputError(f"{what}: sample {int(bad[0])}: time is {float(t[bad[0]])!r} "
                                 "(must be finite seconds)")
     back = np.flatnonzero(np.diff(t) <= 0)
     if back.size:
         k = int(back[0]) + 1
         how = "repeated" if t[k] == t[k - 1] else "decreasing"
-        raise RuntimeInputError(f"{what}: sample {k}: time {how} ({t[k - 1]!r} then {t[k]!r} s); "
+        raise RuntimeInputError(f"{what}: sample {k}: time {how} ({float(t[k - 1])!r} then "
+                                f"{float(t[k])!r} s); "
                                 "time must increase strictly")
     return t
 

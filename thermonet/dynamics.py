@@ -69,7 +69,7 @@ from .errors import ConfigError, InputError
 __all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInput", "Rate",
            "Lag", "Play", "REGISTRY", "compute", "parse_dynamic", "is_dynamic", "check_time",
            "dynamic_signals", "default_gap_s", "constants", "from_constants", "lag_error",
-           "play_state", "reference_signals"]
+           "play_state", "reference_signals", "saturation_margin"]
 
 #: Time constant of ``rate`` (s).
 RATE_TAU_S = 60.0
@@ -100,14 +100,15 @@ def check_time(time_s: np.ndarray, source: str = "time_s") -> np.ndarray:
         raise TimeError(f"{source}: expected a 1-D array of seconds, got shape {t.shape}")
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
-        raise TimeError(f"{source}: sample {int(bad[0])}: time is {t[bad[0]]!r} "
+        raise TimeError(f"{source}: sample {int(bad[0])}: time is {float(t[bad[0]])!r} "
                         "(must be finite seconds)")
     dt = np.diff(t)
     back = np.flatnonzero(dt <= 0)
     if back.size:
         k = int(back[0]) + 1
         what = "repeated" if dt[k - 1] == 0 else "decreasing"
-        raise TimeError(f"{source}: sample {k}: time {what} ({t[k - 1]!r} then {t[k]!r} s); "
+        raise TimeError(f"{source}: sample {k}: time {what} ({float(t[k - 1])!r} then "
+                        f"{float(t[k])!r} s); "
                         "time must increase strictly")
     return t
 
@@ -276,6 +277,26 @@ def from_constants(block: Any, inputs: Sequence[str], source: str = "model") -> 
         raise ConfigError(f"{source}: stored dynamic-input constants {block.get('inputs')!r} "
                           f"differ from the definitions {expected!r}")
     return float(gap)
+
+
+def saturation_margin(inputs: Sequence[str], signals: Sequence[str], lo: np.ndarray,
+                      hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The trained range with a margin where a ``play_<w>`` input reached its bound ±w.
+
+    ``T − P`` sits exactly at ±w on every steady ramp; a float32 board computes it
+    a few ulps of T away, which must not raise the out-of-range flag on every
+    heating sample.  A reached bound moves out by 0.1 % of w (the input can never
+    exceed ±w, so the clamp is unchanged in effect); an unreached one stays.
+    """
+    lo, hi = np.array(lo, dtype=np.float64), np.array(hi, dtype=np.float64)
+    for d in dynamic_signals(inputs):
+        if isinstance(d, Play) and d.signal in signals:
+            j, w = list(signals).index(d.signal), d.half_width_c
+            if hi[j] >= w * (1 - 1e-6):
+                hi[j] = w * (1 + 1e-3)
+            if lo[j] <= -w * (1 - 1e-6):
+                lo[j] = -w * (1 + 1e-3)
+    return lo, hi
 
 
 # -- the recurrences, vectorised (training) -------------------------------------------------------

@@ -27,6 +27,7 @@ import torch._dynamo  # noqa: F401  torch.optim imports it on the first step; im
 # keeps that one-time second out of the first family's fit_seconds
 
 from .errors import ConfigError, FitError, InputError
+from .dynamics import saturation_margin
 from .features import FeatureSpec
 from .models import DriftModel, build_family
 
@@ -208,7 +209,8 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
     val_run = None if val is None else _check_run("validation run", val[0], val[1],
                                                   len(signal_names), list(outputs), signal_names)
     sig_all = np.vstack([s for s, _ in runs])
-    sig_lo, sig_hi = sig_all.min(axis=0), sig_all.max(axis=0)
+    sig_lo, sig_hi = saturation_margin(spec.inputs, signal_names, sig_all.min(axis=0),
+                                       sig_all.max(axis=0))
     runs = decimate(runs, config.max_train_samples)
     s_tr = np.vstack([s for s, _ in runs])
     y_tr = np.vstack([y for _, y in runs])

@@ -243,22 +243,19 @@ def play_operator(x: np.ndarray, width: float) -> np.ndarray:
 
     The state follows ``x`` only once ``x`` has moved ``width/2`` past it, so
     the output is +1 while heating, −1 while cooling and keeps its last value
-    in a soak (memory).
+    in a soak (memory).  The state is :func:`thermonet.dynamics.play_state` of
+    half-width ``width/2`` — the same definition as the ``play_<w>`` model input
+    (``play_<width/2>`` sees exactly this shape, in °C).
     """
+    from ..dynamics import play_state
+
     x = np.asarray(x, dtype=np.float64)
     if width <= 0 or x.size == 0:
         return np.zeros_like(x)
     half = width / 2.0
-    z = np.empty_like(x)
-    state = x[0]
-    # sequential by nature (the state depends on the whole past path)
-    for i, v in enumerate(x.tolist()):
-        if v - state > half:
-            state = v - half
-        elif state - v > half:
-            state = v + half
-        z[i] = state
-    return (x - z) / half
+    restart = np.zeros(x.size, dtype=bool)
+    restart[0] = True
+    return (x - play_state(x, restart, half)) / half
 
 
 def white_noise(n: int, fs_hz: float, density: float, rng: np.random.Generator) -> np.ndarray:

@@ -1,0 +1,284 @@
+"""Dynamic inputs (rate, lag_<tau>, play_<w>): one definition, computed identically in training
+(vectorised), by the plain loop, by the torch-free runtime (batch and streaming) and by the C
+header's step(); constants round-trip through checkpoint, ONNX metadata and C header."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from thermonet import dynamics
+from thermonet.checkpoint import load_checkpoint, save_checkpoint
+from thermonet.config import FeatureConfig
+from thermonet.errors import ConfigError
+from thermonet.exporting import export_onnx, render_c_header
+from thermonet.exporting.c_stream import run_stream_c
+from thermonet.features import FeatureSpec, parse_feature, signals_for
+from thermonet.sim.device import play_operator
+from thermonet.train import TrainConfig, fit
+
+RUNTIME = Path(__file__).resolve().parents[1] / "export" / "thermonet_runtime.py"
+INPUTS = ["dT", "rate", "lag_300", "play_0.5"]
+AXES = ["gyro_x", "gyro_y"]
+GAP_S = 5.0
+
+
+def _load_runtime():
+    spec = importlib.util.spec_from_file_location("thermonet_runtime", RUNTIME)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["thermonet_runtime"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+rt = _load_runtime()
+
+
+def _triangle(t: np.ndarray, lo: float, hi: float, period_s: float) -> np.ndarray:
+    phase = (t % period_s) / period_s
+    return lo + (hi - lo) * (1.0 - np.abs(2.0 * phase - 1.0))
+
+
+def _drift(sig: dict[str, np.ndarray], temp: np.ndarray) -> np.ndarray:
+    return np.column_stack([0.01 * (temp - 20.0) + 0.02 * sig["rate_c_per_min"],
+                            0.003 * sig["play_0.5_c"] + 0.001 * sig["lag_300_c"]])
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A cross-term poly on every kind of dynamic input, fitted on wide heat/cool cycles."""
+    t = np.arange(0.0, 30000.0, 2.0)
+    temp = _triangle(t, -10.0, 60.0, 8000.0)          # ±1.05 °C/min
+    sig, _ = dynamics.compute(t, temp, INPUTS, GAP_S)
+    spec = FeatureSpec(inputs=INPUTS, t_ref=20.0, gap_s=GAP_S)
+    s = np.column_stack([temp] + [sig[x] for x in spec.signals[1:]])
+    model = fit(family="poly", inputs=INPUTS, outputs=AXES, train=[(s, _drift(sig, temp))],
+                val=None, spec=spec, hyper={"degree": 2, "cross": True},
+                config=TrainConfig(max_epochs=3)).model
+    path = export_onnx(model, tmp_path_factory.mktemp("dyn") / "m.onnx")
+    return model, path
+
+
+def _sequence(seed: int = 0):
+    """Jittered sampling, heat/cool inside the trained range, a gap, NaN temperatures."""
+    rng = np.random.default_rng(seed)
+    n = 3000
+    t = 1.7e9 + np.cumsum(rng.uniform(0.5, 1.5, n))   # Unix-epoch seconds: float32 cannot hold
+    t[1200:] += 40.0                                    # a 40 s gap (> gap_s)
+    temp = _triangle(t - t[0], 5.0, 45.0, 5000.0) + rng.normal(0.0, 0.005, n)
+    temp[300] = np.nan
+    temp[2000:2004] = np.nan                           # 4 missing samples: ≈ 4 s, no gap
+    raw = rng.normal(0.0, 0.01, (n, len(AXES)))
+    return t, temp, raw
+
+
+def test_names_signals_and_constants():
+    assert parse_feature("lag_300") == ("lag_300_c", False, False)
+    assert signals_for(["d_freq_hz", "play_0.5", "rate", "dT", "lag_30"]) == \
+        ["temperature_c", "rate_c_per_min", "lag_30_c", "play_0.5_c", "freq_hz"]
+    d = dynamics.parse_dynamic("rate_12.5")
+    assert (d.kind, d.param, d.signal) == ("rate", 12.5, "rate_12.5_c_per_min")
+    assert dynamics.parse_dynamic("rate").param == dynamics.RATE_TAU_S == 60.0
+    with pytest.raises(ConfigError, match="'lag_0'.*positive"):
+        FeatureSpec(inputs=["lag_0"])
+    with pytest.raises(ConfigError, match="unknown model input 'lag_x'"):
+        FeatureSpec(inputs=["lag_x"])
+    with pytest.raises(ConfigError, match="rate_window_s' was removed.*rate_<tau>"):
+        FeatureConfig(rate_window_s=60.0)
+
+
+def test_known_values_exact_for_any_sample_interval():
+    """On a ramp of slope r from rest: lag = rτ(1 − e^(−t/τ)) exactly, even with jittered dt
+    (T is linear between samples); rate = 60·lag/τ; play = ±w once T moved 2w, memory in a soak."""
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.1, 3.0, 4000)) - 0.5
+    t -= t[0]
+    r = 0.02                                             # °C/s
+    sig, gap = dynamics.compute(t, 10.0 + r * t, ["lag_100", "rate_50"], 10.0)
+    np.testing.assert_allclose(sig["lag_100_c"], r * 100 * (1 - np.exp(-t / 100)), rtol=1e-9,
+                               atol=1e-13)
+    np.testing.assert_allclose(sig["rate_50_c_per_min"], 60 * r * (1 - np.exp(-t / 50)),
+                               rtol=1e-9, atol=1e-13)
+    assert not gap.any()
+    temp = np.concatenate([np.linspace(20, 30, 101), np.full(50, 30.0), np.linspace(30, 25, 51)])
+    play = dynamics.compute(np.arange(temp.size, dtype=float), temp, ["play_2"], 5.0)[0]
+    p = play["play_2_c"]
+    assert p[0] == 0.0 and p[20] == pytest.approx(2.0) and p[100] == pytest.approx(2.0)
+    assert p[120] == pytest.approx(2.0)                  # soak: memory of the heating branch
+    assert p[-1] == pytest.approx(-2.0)                  # cooled by 5 > 2w: the cooling branch
+    # the simulator's hysteresis is the same operator (width = 2w), normalised to ±1
+    np.testing.assert_array_equal(play_operator(temp, 4.0), p / 2.0)
+
+
+def test_vectorised_equals_the_plain_loop_with_gaps_and_nan():
+    """Many blocks of the O(N) scan, jitter, gaps and NaN: same as one-sample-at-a-time."""
+    rng = np.random.default_rng(1)
+    n = 70_000
+    dt = rng.uniform(0.05, 0.15, n)
+    dt[[5000, 40000, 40002]] += [3.0, 50.0, 2.0]       # three gaps over 1 s
+    t = np.cumsum(dt)
+    temp = 20 + np.cumsum(rng.normal(0, 0.01, n))
+    temp[[0, 17, 39999]] = np.nan
+    temp[60000:60100] = np.nan                          # 10 s without temperature: a gap
+    names = ["rate", "lag_300", "play_0.2", "rate_5"]
+    fast, gap = dynamics.compute(t, temp, names, 1.0)
+    slow, gap_ref = dynamics.reference_signals(t, temp, names, 1.0)
+    for name in fast:
+        np.testing.assert_allclose(fast[name], slow[name], rtol=1e-9, atol=1e-12)
+        assert np.array_equal(np.isnan(fast[name]), np.isnan(temp))
+    assert np.array_equal(gap, gap_ref)
+    assert np.flatnonzero(gap).tolist() == [5000, 40000, 40002, 60100]
+    assert fast["rate_c_per_min"][1] == 0.0              # start-up at the first finite sample
+    assert fast["lag_300_c"][60100] == 0.0 and fast["play_0.2_c"][60100] == 0.0  # restart
+    # the runtime's own copy of the recurrences
+    const = dynamics.constants(names, 1.0)
+    mirror, gap_rt = rt.dynamic_signals(t, temp, const)
+    for name in fast:
+        np.testing.assert_allclose(mirror[name], fast[name], rtol=1e-9, atol=1e-12)
+    assert np.array_equal(gap_rt, gap)
+
+
+@pytest.mark.parametrize("bad, what", [([0.0, 1.0, 1.0, 2.0], "sample 2: time repeated"),
+                                       ([0.0, 2.0, 1.0], "sample 2: time decreasing"),
+                                       ([0.0, np.nan, 2.0], "sample 1: time is nan")])
+def test_bad_time_is_refused_everywhere(trained, bad, what, tmp_path):
+    _, path = trained
+    temp = np.full(len(bad), 20.0)
+    with pytest.raises(dynamics.TimeError, match=what):
+        dynamics.compute(np.array(bad), temp, ["rate"], 5.0)
+    comp = rt.Compensator(path)
+    with pytest.raises(rt.RuntimeInputError, match=what):
+        comp.compensate(temperature_c=temp, raw=np.zeros((len(bad), 2)), time_s=bad)
+    # CSV: one line naming the column and the spreadsheet row; nothing written
+    src, out = tmp_path / "in.csv", tmp_path / "out.csv"
+    with src.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["time_s", "temperature_c", *AXES])
+        for v in bad:
+            w.writerow(["" if np.isnan(v) else v, 20.0, 0.0, 0.0])
+    proc = subprocess.run([sys.executable, str(RUNTIME), str(path), str(src), "--out", str(out)],
+                          capture_output=True, text=True)
+    row = int(re.search(r"sample (\d+)", what).group(1)) + 2
+    assert proc.returncode == 1 and f"column 'time_s', row {row}" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_runtime_needs_time_and_refuses_computed_signals(trained):
+    _, path = trained
+    comp = rt.Compensator(path)
+    assert comp.needs == ["time_s", "temperature_c"]
+    assert comp.dynamic_signals == ["rate_c_per_min", "lag_300_c", "play_0.5_c"]
+    with pytest.raises(rt.RuntimeInputError, match=r"missing 'time_s'.*\['rate_c_per_min', "
+                                                   r"'lag_300_c', 'play_0.5_c'\]"):
+        comp.compensate(temperature_c=[20.0, 21.0], raw=np.zeros((2, 2)))
+    with pytest.raises(rt.RuntimeInputError, match="computed by the runtime from time_s"):
+        comp.compensate(temperature_c=20.0, raw=np.zeros(2), time_s=0.0, rate=0.3)
+    comp.step(10.0, 20.0, np.zeros(2))
+    with pytest.raises(rt.RuntimeInputError, match="time_s repeated"):
+        comp.step(10.0, 20.0, np.zeros(2))
+    with pytest.raises(rt.RuntimeInputError, match="time_s decreasing"):
+        comp.step(9.0, 20.0, np.zeros(2))
+    assert comp.step(11.0, 20.0, np.zeros(2)).out_of_range is False  # state survived refusals
+
+
+def test_training_runtime_and_c_match_sample_by_sample(trained):
+    """Whole sequence with jitter, a gap, NaN temperatures and a restart: training features →
+    torch, onnxruntime batch, onnxruntime streaming and the C header's step() agree."""
+    model, path = trained
+    t, temp, raw = _sequence()
+    sig, gap = dynamics.compute(t, temp, INPUTS, GAP_S)
+    s = np.column_stack([temp] + [sig[x] for x in model.signals[1:]])
+    with torch.no_grad():
+        want = model(torch.from_numpy(s)).double().numpy()
+        flag_want = model.out_of_range(torch.from_numpy(s)).numpy() | gap
+    scale = np.nanmax(np.abs(want), axis=0)
+    nan_rows = np.isnan(temp)
+    assert np.isnan(want[nan_rows]).all() and np.isfinite(want[~nan_rows]).all()
+    assert np.flatnonzero(gap).tolist() == [1200]
+
+    comp = rt.Compensator(path)
+    batch = comp.compensate(temperature_c=temp, raw=raw, time_s=t)
+    np.testing.assert_allclose(batch.drift, want, atol=1e-5 * scale.max(), rtol=0)
+    assert np.array_equal(batch.out_of_range, flag_want)
+    np.testing.assert_allclose(batch.compensated, raw - want, atol=1e-5 * scale.max(), rtol=0)
+
+    stream = [comp.step(t[k], temp[k], raw[k]) for k in range(len(t))]
+    np.testing.assert_allclose(np.array([r.drift for r in stream]), batch.drift,
+                               atol=1e-6 * scale.max(), rtol=0)
+    assert [r.out_of_range for r in stream] == batch.out_of_range.tolist()
+    # a restart (reset) is a fresh stream: the same numbers as the first samples again
+    comp.reset()
+    again = [comp.step(t[k], temp[k], raw[k]).drift for k in range(20)]
+    np.testing.assert_array_equal(np.array(again), np.array([r.drift for r in stream[:20]]))
+
+    header = render_c_header(model)
+    c = run_stream_c(model, header, t, temp, raw)
+    assert (c["ret"] == 0).all()
+    np.testing.assert_allclose(c["drift"], want, atol=1e-5 * scale.max(), rtol=0)
+    assert np.array_equal(np.isnan(c["drift"]), nan_rows[:, None].repeat(2, 1))
+    assert np.array_equal(c["flag"], flag_want)
+    # the same C, restarted by a second init: run it on the tail as a new sequence
+    tail = run_stream_c(model, header, t[1500:], temp[1500:], raw[1500:])
+    fresh = comp.compensate(temperature_c=temp[1500:], raw=raw[1500:], time_s=t[1500:])
+    np.testing.assert_allclose(tail["drift"], fresh.drift, atol=1e-5 * scale.max(), rtol=0)
+    # bad time in C: refused (NaN, flag, -1), state unchanged for the next sample
+    t_bad = t[:10].copy()
+    t_bad[5] = t_bad[4]
+    cb = run_stream_c(model, header, t_bad, temp[:10], raw[:10])
+    assert cb["ret"].tolist() == [0] * 5 + [-1] + [0] * 4
+    assert np.isnan(cb["drift"][5]).all() and cb["flag"][5]
+    np.testing.assert_allclose(cb["drift"][6:], c["drift"][6:10], atol=1e-5 * scale.max())
+
+
+def test_constants_round_trip_checkpoint_onnx_c(trained, tmp_path):
+    model, path = trained
+    const = model.spec.dynamic
+    assert const["gap_s"] == GAP_S and [d["name"] for d in const["inputs"]] == INPUTS[1:]
+    ckpt = save_checkpoint(tmp_path / "m.pt", model, config={})
+    loaded, meta = load_checkpoint(ckpt)
+    assert loaded.spec.dynamic == const and meta["spec"]["dynamic"] == const
+    props = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
+    assert json.loads(props["dynamic_inputs"]) == json.loads(json.dumps(const))
+    assert json.loads(props["signal_units"])["rate_c_per_min"] == "degC/min"
+    header = render_c_header(loaded)
+    assert "#define THERMONET_GAP_S 5.0 " in header
+    assert "thermonet_dyn_kind[THERMONET_N_DYNAMIC] = {0, 1, 2};" in header
+    assert re.search(r"dyn_param\[THERMONET_N_DYNAMIC\] = \{6\.0+e\+01f, 3\.0+e\+02f, "
+                     r"5\.0+e-01f\};", header)
+    # a checkpoint whose stored constants disagree with the definition is refused
+    payload = torch.load(ckpt, weights_only=True)
+    payload["spec"]["dynamic"]["inputs"][0]["tau_s"] = 30.0
+    torch.save(payload, tmp_path / "bad.pt")
+    with pytest.raises(Exception, match="differ from the definitions"):
+        load_checkpoint(tmp_path / "bad.pt")
+
+
+def test_csv_command_from_time_and_temperature_alone(trained, tmp_path):
+    _, path = trained
+    t, temp, raw = _sequence(1)
+    src, out = tmp_path / "in.csv", tmp_path / "out.csv"
+    with src.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["time_s", "temperature_c", *AXES])
+        for k in range(len(t)):
+            w.writerow([repr(float(t[k])), "" if np.isnan(temp[k]) else repr(float(temp[k])),
+                        *(repr(float(v)) for v in raw[k])])
+    proc = subprocess.run([sys.executable, str(RUNTIME), str(path), str(src), "--out", str(out)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    with out.open() as fh:
+        rows = list(csv.DictReader(fh))
+    got = np.array([[float(r[f"{a}_drift"]) for a in AXES] for r in rows])
+    want = rt.Compensator(path).compensate(temperature_c=temp, raw=raw, time_s=t).drift
+    np.testing.assert_array_equal(got, want.astype(np.float64))
+    assert rows[1200]["out_of_range"] == "1" and rows[300]["out_of_range"] == "1"
