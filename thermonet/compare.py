@@ -259,7 +259,7 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
     from .tracking import Tracker
 
     from .config import check_families
-    from .features import signals_for
+    from .features import dynamic_signal, signals_for
 
     progress = progress or Progress(quiet)
     source = getattr(cfg, "_source", "config")
@@ -270,7 +270,7 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
     ds = dataset if dataset is not None else load_data(cfg.data, source=source)
     for i, fam in enumerate(cfg.families):
         for sig in signals_for(fam.inputs):
-            if sig in ("temperature_c", "rate_c_per_min"):
+            if sig == "temperature_c" or dynamic_signal(sig) is not None:
                 if any(r.temperature_c is None for r in ds):
                     raise ConfigError(f"{source}: key 'families[{i}].inputs': {fam.inputs} need "
                                       "a thermometer in °C and the data has none (proxies: "

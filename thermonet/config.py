@@ -119,12 +119,29 @@ class TrackingConfig:
 
 
 def _default_families() -> list[FamilyConfig]:
+    """The recommended set a config gets when it names no families (README "Default families").
+
+    * ``cubic``: PX4's / ArduPilot's cubic in ΔT — the baseline every report compares with;
+    * the studies' families: ``linear``, ``lorentz`` (000), ``ts-fuzzy`` (002), ``rbf`` on
+      [ΔT, ΔT²] (003);
+    * models with dynamic inputs (:mod:`thermonet.dynamics`): ``poly3-rate`` (all monomials
+      of total degree ≤ 3 in ΔT and dT/dt: the cubic plus rate, rate², rate³ and the cross
+      terms) and ``poly3-hyst`` (the same on [ΔT, dT/dt, play_1]: a hysteresis memory of
+      half-width 1 °C that tells the heating from the cooling branch and keeps it through a
+      soak).  Both fit in closed form (least squares) in about a second; an RBF on dynamic
+      inputs fits no better on the heat/cool benchmark and costs minutes, so it is not in the
+      default set (name it in a config).
+    """
     return [
         FamilyConfig(family="poly", name="cubic", inputs=["dT"], params={"degree": 3}),
         FamilyConfig(family="linear", name="linear", inputs=["dT"]),
         FamilyConfig(family="lorentz", name="lorentz", inputs=["dT"]),
         FamilyConfig(family="ts-fuzzy", name="ts-fuzzy", inputs=["dT"], params={"n_sets": 6}),
         FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"], params={"n_centres": 16}),
+        FamilyConfig(family="poly", name="poly3-rate", inputs=["dT", "rate"],
+                     params={"degree": 3, "cross": True}),
+        FamilyConfig(family="poly", name="poly3-hyst", inputs=["dT", "rate", "play_1"],
+                     params={"degree": 3, "cross": True}),
     ]
 
 
