@@ -87,7 +87,13 @@ def test_header_text_and_refusals():
     text = render_c_header(model, prefix="imu0")
     assert "static inline int imu0_compensate(const float *signals" in text
     assert "#define IMU0_N_AXES 2" in text and '#define IMU0_AXIS_NAMES {"acc_x", "acc_y"}' in text
-    assert "malloc" not in text and "double" not in text
+    assert "malloc" not in text
+    # float32 arithmetic; only the streaming form's timestamps are double (a difference of
+    # two Unix-epoch seconds would lose the step in float)
+    assert [ln.strip() for ln in text.splitlines() if "double" in ln] == [
+        "double t_last;              /* time of the last accepted call, s */",
+        "double t_prev;              /* time of the last finite temperature, s */",
+        "static inline int imu0_step(imu0_state *st, double time_s, float temperature_c,"]
     with pytest.raises(ExportError, match="not a C identifier"):
         render_c_header(model, prefix="9bad-name")
 

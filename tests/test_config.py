@@ -21,7 +21,13 @@ def write(tmp_path: Path, text: str) -> Path:
 def test_default_is_the_simulator():
     cfg = load_config(None)
     assert cfg.data.preset == "patent-gyro"
-    assert [f.label for f in cfg.families] == ["cubic", "linear", "lorentz", "ts-fuzzy", "rbf"]
+    assert [f.label for f in cfg.families] == ["cubic", "linear", "lorentz", "ts-fuzzy", "rbf",
+                                               "poly3-rate", "poly3-hyst"]
+    hyst = cfg.families[-1]
+    assert hyst.inputs == ["dT", "rate", "play_1"] and hyst.params == {"degree": 3, "cross": True}
+    # configs/default.yaml (make demo) names no families: it gets the same set
+    assert [f.label for f in load_config(CONFIGS / "default.yaml").families] == \
+        [f.label for f in cfg.families]
 
 
 @pytest.mark.parametrize("path", sorted(CONFIGS.glob("*.yaml")), ids=lambda p: p.stem)
