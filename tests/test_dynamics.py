@@ -282,3 +282,48 @@ def test_csv_command_from_time_and_temperature_alone(trained, tmp_path):
     want = rt.Compensator(path).compensate(temperature_c=temp, raw=raw, time_s=t).drift
     np.testing.assert_array_equal(got, want.astype(np.float64))
     assert rows[1200]["out_of_range"] == "1" and rows[300]["out_of_range"] == "1"
+
+
+def test_runtime_and_c_reproduce_compare_on_held_out_heat_cool(tmp_path):
+    """compare → checkpoint → ONNX / C; the runtime and the C step compensate the held-out run
+    from time + temperature + raw alone and give the msd compare reported for it."""
+    import dataclasses
+
+    from thermonet.compare import run_compare
+    from thermonet.config import CompareConfig, FamilyConfig
+    from thermonet.exporting import export_source
+    from thermonet.sim import PRESETS, simulate
+    from thermonet.sim.chamber import ChamberProfile, cycle
+    from thermonet.sim.device import HysteresisConfig
+
+    base = PRESETS["patent-gyro"]
+    profile = ChamberProfile(name="heat/cool", start_c=-10.0,
+                             segments=cycle(-10.0, 40.0, rate_c_per_h=30.0, soak_h=0.5))
+    axes = tuple(dataclasses.replace(a, hysteresis=HysteresisConfig(amplitude=0.02, width_c=2.0))
+                 for a in base.axes)
+    device = dataclasses.replace(base, name="heat-cool", procedures=(profile,), axes=axes,
+                                 sample_rate_hz=0.2, default_runs=3)
+    ds = simulate(device, seed=2)
+    cfg = CompareConfig(families=[
+        FamilyConfig(family="poly", name="cubic", inputs=["dT"], params={"degree": 3}),
+        FamilyConfig(family="poly", name="poly3-hyst", inputs=["dT", "rate", "play_1"],
+                     params={"degree": 3, "cross": True})])
+    res = run_compare(cfg, tmp_path / "cmp", track=False, quiet=True, dataset=ds)
+    fam = res["families"]["poly3-hyst"]
+    assert fam["status"] == "ok"
+    onnx_path = export_source(tmp_path / "cmp", fmt="onnx", out=tmp_path / "m.onnx",
+                              family="poly3-hyst")
+    test = ds["run2"]                                   # 3 runs: train run0, val run1, test run2
+    raw = np.column_stack([test.outputs[a] for a in ds.axes])
+    ref = np.column_stack([test.reference(a) for a in ds.axes])
+    comp = rt.Compensator(onnx_path)
+    out = comp.compensate(temperature_c=test.temperature_c, raw=raw, time_s=test.time_s)
+    model, _ = load_checkpoint(fam["checkpoint"])
+    c = run_stream_c(model, render_c_header(model), test.time_s, test.temperature_c, raw)
+    for name, compensated in (("runtime", out.compensated), ("C", c["compensated"])):
+        msd = np.mean((compensated.astype(np.float64) - ref) ** 2, axis=0)
+        want = [fam["axes"][a]["msd_comp"] for a in ds.axes]
+        np.testing.assert_allclose(msd, want, rtol=1e-3, err_msg=name)
+    # the dynamic model beats the cubic on every axis of this held-out heat/cool run
+    for a in ds.axes:
+        assert fam["axes"][a]["msd_comp"] < res["families"]["cubic"]["axes"][a]["msd_comp"]
