@@ -51,6 +51,7 @@ STEP_DRIVER = r"""
 #include "model.h"
 int main(int argc, char **argv) {
     int n = atoi(argv[1]), mode = atoi(argv[2]), flag = 0, i, a;
+    (void)argc;
     float raw[THERMONET_N_AXES], comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
     float sig[THERMONET_N_SIGNALS];
     volatile float sink = 0.0f;
