@@ -28,12 +28,15 @@ import shutil
 import subprocess
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from torch import nn
 
 from .. import dynamics
 from ..errors import ExportError
+
+if TYPE_CHECKING:
+    from ..models import DriftModel
 
 __all__ = ["render_stream_c", "STREAM_DRIVER", "run_stream_c", "stream_signature_has_proxies"]
 
@@ -44,23 +47,23 @@ def _float(v: float) -> str:
     return f"{float(np.float32(v)):.9e}f"
 
 
-def _proxies(model: nn.Module) -> list[str]:
+def _proxies(model: DriftModel) -> list[str]:
     dyn = {d.signal for d in dynamics.dynamic_signals(model.inputs)}
     return [s for s in model.signals if s != "temperature_c" and s not in dyn]
 
 
-def stream_signature_has_proxies(model: nn.Module) -> bool:
+def stream_signature_has_proxies(model: DriftModel) -> bool:
     """Whether ``<prefix>_step`` takes a ``proxies`` argument (the model reads proxies)."""
     return bool(_proxies(model))
 
 
-def render_stream_c(model: nn.Module, p: str) -> list[str]:
+def render_stream_c(model: DriftModel, p: str) -> list[str]:
     """Lines of the state struct, ``<p>_init`` and ``<p>_step`` for ``model``."""
     P = p.upper()
     signals = list(model.signals)
     dyn = dynamics.dynamic_signals(model.inputs)
     proxies = _proxies(model)
-    gap_s = float(model.spec.gap_s) if dyn else 0.0
+    gap_s = float(model.spec.gap_s or dynamics.DEFAULT_GAP_S) if dyn else 0.0
     nd = len(dyn)
     lines = [
         "",
@@ -216,7 +219,7 @@ int main(int argc, char **argv)
 """
 
 
-def run_stream_c(model: nn.Module, header_text: str, time_s: np.ndarray,
+def run_stream_c(model: DriftModel, header_text: str, time_s: np.ndarray,
                  temperature_c: np.ndarray, raw: np.ndarray, proxies: np.ndarray | None = None,
                  *, prefix: str = "thermonet", cflags: tuple[str, ...] = ("-O2",)
                  ) -> dict[str, np.ndarray]:
