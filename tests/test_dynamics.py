@@ -327,3 +327,19 @@ def test_runtime_and_c_reproduce_compare_on_held_out_heat_cool(tmp_path):
     # the dynamic model beats the cubic on every axis of this held-out heat/cool run
     for a in ds.axes:
         assert fam["axes"][a]["msd_comp"] < res["families"]["cubic"]["axes"][a]["msd_comp"]
+
+
+def test_c_export_checks_step_and_refuses_a_wrong_recurrence(trained, tmp_path):
+    from thermonet.errors import ExportError
+    from thermonet.exporting import export_c_header
+    from thermonet.exporting.c_stream import check_stream
+
+    model, _ = trained
+    path = export_c_header(model, tmp_path / "m.h")
+    assert "thermonet_step(thermonet_state *st, double time_s" in path.read_text()
+    report = check_stream(model, path.read_text())
+    assert report is not None and report["n_samples"] == 3000
+    # a header whose lag recurrence uses the wrong step (g replaced by 1) is refused
+    broken = path.read_text().replace("const float g = -expm1f(-h) / h;", "const float g = 1.0f;")
+    with pytest.raises(ExportError, match=r"step\(\) parity check failed"):
+        check_stream(model, broken)

@@ -48,7 +48,7 @@ from torch import nn
 from .. import __version__
 from ..errors import ExportError
 from ..fileio import atomic_write_text
-from .c_stream import render_stream_c
+from .c_stream import check_stream, render_stream_c
 from .onnx_export import (_check_points, check_drift_parity, check_model_finite, family_name,
                           float32_tolerance, trained_range)
 
@@ -412,7 +412,9 @@ def export_c_header(model: nn.Module, path: str | Path, *, prefix: str = "thermo
         a C identifier.
     check : bool
         Compile the header and compare it with torch before writing
-        (:func:`c_parity_check`; skipped with a warning when no C compiler exists).
+        (:func:`c_parity_check`, and for dynamic inputs the streaming ``step()`` on a
+        sequence, :func:`.c_stream.check_stream`; skipped with a warning when no C
+        compiler exists).
 
     Returns
     -------
@@ -427,4 +429,5 @@ def export_c_header(model: nn.Module, path: str | Path, *, prefix: str = "thermo
     text = render_c_header(model, prefix=prefix)
     if check:
         c_parity_check(model, text, prefix=prefix)
+        check_stream(model, text, prefix=prefix)  # step(): the dynamic inputs in C
     return atomic_write_text(path, text)

@@ -38,7 +38,8 @@ from ..errors import ExportError
 if TYPE_CHECKING:
     from ..models import DriftModel
 
-__all__ = ["render_stream_c", "STREAM_DRIVER", "run_stream_c", "stream_signature_has_proxies"]
+__all__ = ["render_stream_c", "STREAM_DRIVER", "run_stream_c", "check_stream",
+           "stream_signature_has_proxies"]
 
 _KIND_CODE = {"rate": 0, "lag": 1, "play": 2}
 
@@ -266,3 +267,71 @@ def run_stream_c(model: DriftModel, header_text: str, time_s: np.ndarray,
         out = np.fromfile(tmp / "out.bin", dtype=rec_out)
     return {"compensated": out["comp"], "drift": out["drift"], "flag": out["flag"].astype(bool),
             "ret": out["ret"]}
+
+
+def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermonet",
+                 seed: int = 0, rtol: float = 1e-4) -> dict[str, float] | None:
+    """Run ``<prefix>_step`` over a synthetic sequence and compare it with torch.
+
+    For a model with dynamic inputs: 3,000 jittered samples of heat/cool triangles inside
+    the trained temperature range, a gap (> ``gap_s``) and a missing temperature; torch
+    evaluates the same model on :func:`thermonet.dynamics.compute` of the sequence
+    (float64 recurrences).  The drift must agree within ``rtol`` of the axis's largest drift
+    (the C recurrences run in float32), NaN exactly where the temperature is missing, and
+    the flag must be set after the gap.  Returns None (nothing to check) for a model
+    without dynamic inputs or without a C compiler.
+
+    Raises
+    ------
+    ExportError
+        A drift outside the tolerance, or a missing NaN or gap flag.
+    """
+    import torch
+
+    if not dynamics.dynamic_signals(model.inputs) or not (shutil.which("cc")
+                                                          or shutil.which("gcc")):
+        return None
+    rng = np.random.default_rng(seed)
+    gap_s = float(model.spec.gap_s or dynamics.DEFAULT_GAP_S)
+    n = 3000
+    t = 1.7e9 + np.cumsum(rng.uniform(0.1, 0.3, n) * gap_s)
+    t[n // 2:] += 2.0 * gap_s
+    signals = list(model.signals)
+    if "temperature_c" in signals:
+        j = signals.index("temperature_c")
+        lo, hi = float(model.sig_lo[j]), float(model.sig_hi[j])
+    else:
+        lo, hi = 20.0, 30.0
+    span = t - t[0]
+    period = span[-1] / 3.0
+    temp = lo + (hi - lo) * (0.1 + 0.8 * (1.0 - np.abs(2.0 * ((span % period) / period) - 1.0)))
+    temp[n // 3] = np.nan
+    proxies = _proxies(model)
+    prox = np.column_stack([np.full(n, 0.5 * (float(model.sig_lo[signals.index(x)])
+                                             + float(model.sig_hi[signals.index(x)])))
+                            for x in proxies]) if proxies else None
+    raw = np.zeros((n, len(model.outputs)))
+    dyn, gap = dynamics.compute(t, temp, model.inputs, gap_s)
+    cols = {"temperature_c": temp, **dyn}
+    for k, x in enumerate(proxies):
+        cols[x] = prox[:, k]  # type: ignore[index]
+    s = np.column_stack([cols[x] for x in signals])
+    with torch.no_grad():
+        want = model(torch.from_numpy(s)).double().numpy()
+    got = run_stream_c(model, header_text, t, temp, raw, prox, prefix=prefix)
+    drift = got["drift"].astype(np.float64)
+    nan_want = np.isnan(want)
+    if not np.array_equal(np.isnan(drift), nan_want):
+        raise ExportError("C header step() parity check failed: NaN drift where torch has none "
+                          "(or the reverse) on the test sequence")
+    tol = rtol * np.nanmax(np.abs(want), axis=0)
+    err = np.where(nan_want, 0.0, np.abs(drift - want))
+    k, a = np.unravel_index(int(np.argmax(err - tol)), err.shape)
+    if err[k, a] > tol[a]:
+        raise ExportError(f"C header step() parity check failed at sample {k} (t = {t[k]:.3f} s, "
+                          f"T = {temp[k]:.4g} degC), axis '{model.outputs[a]}': C "
+                          f"{drift[k, a]:.9g} vs torch {want[k, a]:.9g} (tolerance {tol[a]:.3g})")
+    if not got["flag"][gap].all() or not got["flag"][np.isnan(temp)].all():
+        raise ExportError("C header step() parity check failed: flag not set after the gap or "
+                          "at the missing temperature")
+    return {"n_samples": float(n), "max_abs_diff": float(err.max())}
