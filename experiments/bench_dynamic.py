@@ -148,7 +148,8 @@ def runtime_cost(model, rec) -> list[list]:
         comp.compensate(temperature_c=temp, raw=raw, time_s=t)
         times.append(time.perf_counter() - t0)
     med, lo, hi = _spread(times)
-    rows = [["batch with time_s (dynamic inputs computed)", t.size / med / 1e6, lo, hi]]
+    rows = [["batch of 100,000 with time_s (dynamic inputs computed)", t.size / med / 1e6,
+             t.size / hi / 1e6, t.size / lo / 1e6]]
     steps = []
     for _ in range(5):
         comp.reset()
@@ -192,28 +193,31 @@ def c_cost(models: dict) -> list[list]:
     return rows
 
 
-def main() -> None:
+def main(parts: list[str]) -> None:
+    """``accuracy`` and/or ``cost`` (default both); each saves its own result file."""
     torch.set_num_threads(1)
     (OUT / "dynamic").mkdir(parents=True, exist_ok=True)
-    acc_rows, acc = accuracy()
-    train_rows = training_cost()
-    poly, rec = _fit(["dT", "rate", "play_1"], "poly", {"degree": 3, "cross": True})
-    rbf, _ = _fit(["dT", "dT2", "rate"], "rbf", {"n_centres": 16})
-    rt_rows = runtime_cost(poly, rec)
-    c_rows = c_cost({"poly3-hyst": poly, "rbf16 [dT, dT2, rate]": rbf})
-    md = ("### Default family set on heat/cool presets with hysteresis (held-out run)\n\n"
-          + table(["preset", "chosen", "axis", "pp raw", "pp cubic", "pp chosen",
-                   "drift err cubic", "drift err chosen", "chosen / cubic",
-                   "msd chosen / raw"], acc_rows)
-          + "\n\n### dynamics.compute on 2 M samples (s; median, min, max of 5)\n\n"
-          + table(["inputs", "median s", "min s", "max s", "M samples/s"], train_rows)
-          + "\n\n### Runtime (one thread; M samples/s: median, then min, max)\n\n"
-          + table(["form", "M samples/s", "min", "max"], rt_rows)
-          + "\n\n### C instructions per call (callgrind, x86-64, gcc -O2, 3 axes)\n\n"
-          + table(["model", "inputs", "step()", "compensate() alone"], c_rows))
-    save("dynamic", {"accuracy": acc, "accuracy_rows": acc_rows, "training": train_rows,
-                     "runtime": rt_rows, "c": c_rows}, md)
+    if "accuracy" in parts:
+        acc_rows, acc = accuracy()
+        md = ("### Default family set on heat/cool presets with hysteresis (held-out run)\n\n"
+              + table(["preset", "chosen", "axis", "pp raw", "pp cubic", "pp chosen",
+                       "drift err cubic", "drift err chosen", "chosen / cubic",
+                       "msd chosen / raw"], acc_rows))
+        save("dynamic_accuracy", {"accuracy": acc, "rows": acc_rows}, md)
+    if "cost" in parts:
+        train_rows = training_cost()
+        poly, rec = _fit(["dT", "rate", "play_1"], "poly", {"degree": 3, "cross": True})
+        rbf, _ = _fit(["dT", "dT2", "rate"], "rbf", {"n_centres": 16})
+        rt_rows = runtime_cost(poly, rec)
+        c_rows = c_cost({"poly3-hyst": poly, "rbf16 [dT, dT2, rate]": rbf})
+        md = ("### dynamics.compute on 2 M samples (s; median, min, max of 5)\n\n"
+              + table(["inputs", "median s", "min s", "max s", "M samples/s"], train_rows)
+              + "\n\n### Runtime, poly3-hyst (one thread; M samples/s: median, min, max)\n\n"
+              + table(["form", "M samples/s", "min", "max"], rt_rows)
+              + "\n\n### C instructions per call (callgrind, x86-64, gcc -O2, 3 axes)\n\n"
+              + table(["model", "inputs", "step()", "compensate() alone"], c_rows))
+        save("dynamic_cost", {"training": train_rows, "runtime": rt_rows, "c": c_rows}, md)
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:] or ["accuracy", "cost"])
