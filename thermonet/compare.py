@@ -9,6 +9,7 @@
       "device": str, "data_hash": str, "target": "drift" | "four-position",
       "split": {"strategy": str, "folds": [{"train": ..., "val": ..., "test": ...}]},
       "units": {axis: unit},
+      "targets": {axis: "channel" | "zero" | "at-t-ref" | "four-position"},  # thermonet.target
       "chosen": name | null,          # by validation error only
       "chosen_reason": str,           # why (or why none: "do no harm")
       "baseline": name | null,        # PX4/ArduPilot's cubic, for the ratios below
@@ -48,7 +49,7 @@ from . import __version__
 from .config import CompareConfig, FamilyConfig, from_dict, to_dict
 from .errors import ConfigError, FitError, ThermonetError
 from .evaluate import (FOURPOS_SUFFIXES, Part, Split, build_part, data_hash, heating_only,
-                       load_data, make_splits)
+                       load_data, make_splits, targets_for)
 from .fileio import atomic_write_text
 from .recording import Dataset
 
@@ -150,10 +151,12 @@ def _val_score(model: Any, part: Part) -> float:
     ratios = []
     for j in range(part.target.shape[1]):
         y = part.target[:, j]
-        if part.outputs[j].endswith(".scale"):
-            y = y - np.mean(y)  # a scale factor's nominal value is not an error
+        r = y - pred[:, j]
+        if part.offset_free(j):  # a scale factor's nominal value, gravity (at-t-ref): no error
+            y = y - np.mean(y)
+            r = r - np.mean(r) if not part.per_soak else r
         raw = float(np.mean(y ** 2))
-        comp = float(np.mean((part.target[:, j] - pred[:, j]) ** 2))
+        comp = float(np.mean(r ** 2))
         ratios.append(comp / raw if raw > 0 else float("inf"))
     return float(np.mean(ratios))
 
@@ -170,22 +173,23 @@ class _FamilyOutcome:
 class _Parts:
     """Signals and targets of each (run, signals) pair, built once for all families."""
 
-    def __init__(self, cfg: CompareConfig, outputs: list[str]) -> None:
+    def __init__(self, cfg: CompareConfig, outputs: list[str], targets: Any = None) -> None:
         self.cfg, self.outputs = cfg, outputs
+        self.targets = targets if targets is not None else cfg.target  # thermonet.target.Target
         self._cache: dict[tuple[int, tuple[str, ...]], Part] = {}
 
     def __call__(self, rec: Any, signals: list[str]) -> Part:
         key = (id(rec), tuple(signals))
         if key not in self._cache:
             self._cache[key] = build_part(rec, signals=signals, outputs=self.outputs,
-                                          target=self.cfg.target,
+                                          target=self.targets,
                                           rate_window_s=self.cfg.features.rate_window_s)
         return self._cache[key]
 
 
 def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outputs: list[str],
                 progress: Progress, parts: _Parts) -> _FamilyOutcome:
-    from .features import FeatureSpec, reference_values
+    from .features import FeatureSpec, reference_values, signals_for
     from .train import fit
 
     res: dict[str, Any] = {"family": fam.family, "inputs": list(fam.inputs),
@@ -196,7 +200,10 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
     try:
         tcfg = _train_config(cfg, fam)
         for split in splits:
-            t_ref, proxy_ref = reference_values(split.train, fam.inputs, t_ref=cfg.features.t_ref,
+            # T_ref also for a model on T alone: at-t-ref axes are normalised there
+            ref_inputs = list(fam.inputs) + (["dT"] if "temperature_c" in signals_for(fam.inputs)
+                                             else [])
+            t_ref, proxy_ref = reference_values(split.train, ref_inputs, t_ref=cfg.features.t_ref,
                                                 window_min=cfg.features.t_ref_window_min)
             spec = FeatureSpec(inputs=list(fam.inputs), t_ref=t_ref, proxy_ref=proxy_ref)
             train_parts = [parts(r, spec.signals) for r in split.train]
@@ -209,7 +216,8 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
                          train=[(p.signals, p.target) for p in train_parts],
                          val=(val_part.signals, val_part.target) if val_part else None,
                          spec=spec, hyper=dict(fam.params), config=tcfg,
-                         on_epoch=lambda e, tl, vl: progress.epoch(fam.label, e, tl, vl))
+                         on_epoch=lambda e, tl, vl: progress.epoch(fam.label, e, tl, vl),
+                         target=getattr(parts.targets, "modes", None))
             seconds += fitted.fit_seconds
             scores.append(_val_score(fitted.model, val_part if val_part else train_parts[-1]))
             pred, axes = _evaluate_part(fitted.model, test_part)
@@ -278,6 +286,7 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
                                   f"'{sig}' in the data (proxies: "
                                   f"{', '.join(sorted(ds[0].proxies)) or 'none'})")
     outputs = _outputs(ds, cfg)
+    targets = targets_for(ds, cfg.target, outputs, source=source)
     splits = make_splits(ds, cfg.split, source=source)
     out.mkdir(parents=True, exist_ok=True)
     dhash = data_hash(ds)
@@ -288,19 +297,21 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
     tracker = Tracker(enabled=cfg.tracking.enabled if track is None else track,
                       uri=tracking_uri or cfg.tracking.uri, experiment=cfg.tracking.experiment)
     preset = ds.runs[0].meta.get("preset", "")
-    tags = {"device": ds.device_id, "preset": preset, "data_hash": dhash, "target": cfg.target}
+    tags = {"device": ds.device_id, "preset": preset, "data_hash": dhash,
+            "target": targets.kind}
     resolved = to_dict(cfg)
     results: dict[str, Any] = {
         "schema": 1, "thermonet_version": __version__, "config": resolved,
-        "device": ds.device_id, "data_hash": dhash, "target": cfg.target,
+        "device": ds.device_id, "data_hash": dhash, "target": targets.kind,
         "split": {"strategy": splits[0].label if len(splits) == 1 else "leave-one-run-out",
                   "folds": [s.describe for s in splits]},
-        "units": units, "baseline": cfg.baseline, "families": {},
+        "units": units, "targets": targets.as_dict(), "baseline": cfg.baseline,
+        "families": {},
     }
     progress.line(f"thermonet compare: {ds.device_id} ({len(ds)} runs, outputs "
                   f"{', '.join(outputs)}), split {results['split']['strategy']}")
     outcomes: dict[str, _FamilyOutcome] = {}
-    parts = _Parts(cfg, outputs)
+    parts = _Parts(cfg, outputs, targets)
     with tracker.run(f"compare-{ds.device_id}", params=resolved, tags=tags) as parent_id:
         results["mlflow_run_id"] = parent_id
         for fam in cfg.families:

@@ -125,10 +125,12 @@ class CompareConfig:
     families: list[FamilyConfig] = field(default_factory=_default_families)
     train: TrainConfig = field(default_factory=TrainConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
-    # drift: per sample, output − reference.  four-position: per soak, the bias K0 and scale
-    # factor K1 of each axis from a static multi-position test (study 000); outputs
-    # `<axis>.bias` and `<axis>.scale` are then modelled together.
-    target: Literal["drift", "four-position"] = "drift"
+    # What each output's drift is relative to (thermonet.target): "drift" = every axis at its
+    # default (a ref_ channel → channel; gyro → zero; acc/mag/baro/out → at-t-ref), or a
+    # mapping {kind or output name: channel | zero | at-t-ref}.  four-position: per soak, the
+    # bias K0 and scale factor K1 of each axis from a static multi-position test (study 000);
+    # outputs `<axis>.bias` and `<axis>.scale` are then modelled together.
+    target: Literal["drift", "four-position"] | dict[str, str] = "drift"
     baseline: str | None = "cubic"       # the family label the report compares against (PX4/ArduPilot's)
     description: str = ""
 

@@ -29,15 +29,14 @@ import numpy as np
 from .config import DataConfig, SplitConfig
 from .errors import ConfigError
 from .recording import Dataset, Recording
+from .target import CHANNEL, FOUR_POSITION, FOURPOS_SUFFIXES, Target, resolve_targets
 
 __all__ = ["Split", "Part", "load_data", "make_splits", "build_part", "data_hash",
-           "heating_only", "FOURPOS_SUFFIXES", "HEATING_MIN_RATE_C_PER_MIN"]
+           "heating_only", "FOURPOS_SUFFIXES", "HEATING_MIN_RATE_C_PER_MIN", "targets_for"]
 
 #: Samples with dT/dt above this count as heating (or soaking) for ``train_on: heating``.
 HEATING_MIN_RATE_C_PER_MIN = -0.05
 
-#: Output names of the four-position target: per axis its bias K0 and scale factor K1.
-FOURPOS_SUFFIXES = (".bias", ".scale")
 
 
 def load_data(cfg: DataConfig, *, source: str = "config") -> Dataset:
@@ -241,17 +240,42 @@ class Part:
     true_drift: np.ndarray | None
     outputs: list[str]
     per_soak: bool = False               # one sample per soak (four-position target)
+    targets: Target | None = None        # per-axis target modes (None: every axis 'channel')
+
+    def offset_free(self, j: int) -> bool:
+        """True where a constant in axis ``j``'s target is no error (``at-t-ref``, a scale factor)."""
+        if self.targets is not None:
+            return self.targets.offset_free(self.outputs[j])
+        return self.outputs[j].endswith(FOURPOS_SUFFIXES[1])
 
 
-def build_part(rec: Recording, *, signals: list[str], outputs: list[str], target: str,
-               rate_window_s: float) -> Part:
-    """Signals and targets of one recording for the configured target."""
+def targets_for(ds: Dataset, spec: Any, outputs: list[str], *, source: str = "config") -> Target:
+    """The per-output target modes of a comparison (:func:`thermonet.target.resolve_targets`)
+    with the reference channels the dataset carries (in any of its runs)."""
+    has_ref = {o: any(f"ref_{o}" in r.references for r in ds) for o in outputs}
+    return resolve_targets(spec, outputs, has_reference=has_ref, source=source)
+
+
+def build_part(rec: Recording, *, signals: list[str], outputs: list[str],
+               target: Target | str, rate_window_s: float) -> Part:
+    """Signals and targets of one recording for the configured target.
+
+    Per axis the target is ``output − ref_<axis>`` (mode ``channel``) or the
+    output itself (``zero``, ``at-t-ref``: the model's normalisation at
+    :math:`T_{ref}` then removes the unknown constant, see
+    :mod:`thermonet.target`).  A plain string is the whole-comparison kind
+    (``"drift"``: every axis ``channel``, the reference being zero where none
+    was recorded; ``"four-position"``).
+    """
     from .features import signal_matrix
 
-    if target == "four-position":
+    if isinstance(target, str):
+        target = Target.uniform(outputs, FOUR_POSITION if target == FOUR_POSITION else CHANNEL)
+    if target.kind == FOUR_POSITION:
         return _fourpos_part(rec, signals=signals, outputs=outputs)
     sig = signal_matrix(rec, signals, rate_window_s=rate_window_s)
-    y = np.column_stack([rec.drift_observed(a) for a in outputs])
+    y = np.column_stack([rec.drift_observed(a) if target.mode(a) == CHANNEL
+                         else np.asarray(rec.outputs[a], dtype=np.float64) for a in outputs])
     true = None
     if all(f"drift_{a}" in rec.drift for a in outputs):
         true = np.column_stack([rec.drift[f"drift_{a}"] for a in outputs])
@@ -263,7 +287,8 @@ def build_part(rec: Recording, *, signals: list[str], outputs: list[str], target
         # one bin per 1/50 of the proxy's span: about the resolution of 1 °C bins
         # over a 50 °C test when the proxy's scale to °C is unknown
         width = max(float(np.ptp(bin_by)) / 50.0, 1e-12)
-    return Part(sig, y, rec.time_s, bin_by, width, rec.effective_rate_hz, true, outputs)
+    return Part(sig, y, rec.time_s, bin_by, width, rec.effective_rate_hz, true, outputs,
+                targets=target)
 
 
 def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> Part:
@@ -284,7 +309,8 @@ def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> 
     assert temps is not None
     y = np.column_stack([cols[o] for o in outputs])
     return Part(temps[:, None], y, np.arange(temps.size, dtype=np.float64), temps, 1.0,
-                float("nan"), None, outputs, per_soak=True)
+                float("nan"), None, outputs, per_soak=True,
+                targets=Target.uniform(outputs, FOUR_POSITION))
 
 
 def heating_only(part: Part, rec: Recording, rate_window_s: float) -> Part:
@@ -301,4 +327,4 @@ def heating_only(part: Part, rec: Recording, rate_window_s: float) -> Part:
                           "samples")
     return Part(part.signals[keep], part.target[keep], part.time_s[keep], part.bin_by[keep],
                 part.bin_width, part.rate_hz, None if part.true_drift is None
-                else part.true_drift[keep], part.outputs)
+                else part.true_drift[keep], part.outputs, targets=part.targets)

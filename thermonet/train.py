@@ -30,7 +30,7 @@ from .errors import ConfigError, FitError, InputError
 from .features import FeatureSpec
 from .models import DriftModel, build_family
 
-__all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate"]
+__all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "rest_signals"]
 
 _OPTIMIZERS = ("adam", "lbfgs")
 _DEVICES = ("auto", "cpu", "cuda")
@@ -156,7 +156,8 @@ def _std(a: np.ndarray) -> np.ndarray:
 def fit(*, family: str, inputs: list[str], outputs: list[str],
         train: list[tuple[np.ndarray, np.ndarray]], val: tuple[np.ndarray, np.ndarray] | None,
         spec: FeatureSpec, hyper: dict | None, config: TrainConfig,
-        on_epoch: Callable[[int, float, float | None], None] | None = None) -> FitResult:
+        on_epoch: Callable[[int, float, float | None], None] | None = None,
+        target: Sequence[str] | None = None) -> FitResult:
     """Fit one family to drift.
 
     Parameters
@@ -178,6 +179,12 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
     config : TrainConfig
     on_epoch : callable(epoch, train_loss, val_loss), optional
         Called after every epoch, epoch 0 (the initialised model) included.
+    target : sequence of str, optional
+        Target mode per output (:mod:`thermonet.target`; default ``channel``
+        for every axis: the targets are the drift itself).  ``at-t-ref`` axes
+        are normalised to zero at the rest signals (:func:`rest_signals`).
+        Whatever the modes, the mean training target is removed in float64
+        before standardisation and kept in the model's float64 ``y_offset``.
 
     Returns
     -------
@@ -207,8 +214,15 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
                        signal_names) for i, (s, y) in enumerate(train)]
     val_run = None if val is None else _check_run("validation run", val[0], val[1],
                                                   len(signal_names), list(outputs), signal_names)
+    modes = ["channel"] * len(outputs) if target is None else list(target)
+    rest = rest_signals(spec, need_temperature="at-t-ref" in modes)
     sig_all = np.vstack([s for s, _ in runs])
     sig_lo, sig_hi = sig_all.min(axis=0), sig_all.max(axis=0)
+    # the constant of every axis leaves in float64, before anything is rounded to float32
+    offset = np.vstack([y for _, y in runs]).mean(axis=0)
+    runs = [(s, y - offset) for s, y in runs]
+    if val_run is not None:
+        val_run = (val_run[0], val_run[1] - offset)
     runs = decimate(runs, config.max_train_samples)
     s_tr = np.vstack([s for s, _ in runs])
     y_tr = np.vstack([y for _, y in runs])
@@ -248,6 +262,7 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
                                               config, family, on_epoch)
 
     model.to("cpu").eval()
+    model.set_target(modes=modes, offset=offset, rest=rest)
     with torch.no_grad():
         pred = model(torch.as_tensor(s_tr, dtype=torch.float32))
     if not torch.isfinite(pred).all():
@@ -330,8 +345,45 @@ def predict(model: DriftModel, signals: np.ndarray) -> np.ndarray:
     model.eval()
     try:
         with torch.no_grad():
-            out = model(torch.as_tensor(s, dtype=torch.float32,
-                                        device=model.sig_lo.device))
+            out = model.drift64(torch.as_tensor(s, dtype=torch.float32,
+                                                device=model.sig_lo.device))
     finally:
         model.train(was_training)
-    return out.cpu().double().numpy()
+    return out.cpu().numpy()
+
+
+def rest_signals(spec: FeatureSpec, *, need_temperature: bool = True) -> np.ndarray:
+    """The signals at rest, where ``at-t-ref`` axes are normalised to zero drift.
+
+    ``temperature_c`` at :math:`T_{ref}`, ``rate_c_per_min`` 0, a proxy at its
+    reference value; a signal named ``lag_*``/``play_*`` (a filtered
+    temperature) at :math:`T_{ref}` too — at rest it equals the temperature.
+
+    With ``need_temperature`` false (no ``at-t-ref`` axis) a value that cannot
+    be known is 0 (stored, never used).
+
+    Raises
+    ------
+    ConfigError
+        With ``need_temperature``: a temperature-like signal with no
+        :math:`T_{ref}`, or a signal with no known rest value.
+    """
+    out = []
+    for name in spec.signals:
+        if name == "rate_c_per_min":
+            out.append(0.0)
+        elif name in spec.proxy_ref:
+            out.append(float(spec.proxy_ref[name]))
+        elif name == "temperature_c" or name.startswith(("lag_", "play_")):
+            if spec.t_ref is None:
+                if need_temperature:
+                    raise ConfigError(f"signal '{name}': target 'at-t-ref' needs t_ref (a "
+                                      "temperature in °C or 'start')")
+                out.append(0.0)
+            else:
+                out.append(float(spec.t_ref))
+        elif need_temperature:
+            raise ConfigError(f"signal '{name}' has no rest value for target 'at-t-ref'")
+        else:
+            out.append(0.0)
+    return np.asarray(out, dtype=np.float64)
