@@ -62,7 +62,7 @@ def test_onnx_matches_torch_and_recovers_drift(exported, family):
     assert [i.name for i in sess.get_inputs()] == ["temperature_c", "raw"]
     assert [o.name for o in sess.get_outputs()] == ["compensated", "drift", "out_of_range"]
     temp = np.linspace(-20.0, 60.0, 1001, dtype=np.float32)
-    raw = _drift(temp.astype(np.float64)).astype(np.float32)
+    raw = _drift(temp.astype(np.float64))
     comp, drift, flag = sess.run(None, {"temperature_c": temp, "raw": raw})
     with torch.no_grad():
         ref = model(torch.from_numpy(temp[:, None])).numpy()
@@ -80,7 +80,7 @@ def test_clamp_flag_and_nan_inside_graph(exported, family):
     model, path = exported[family]
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     temp = np.array([-40.0, -20.0, 60.0, 90.0, np.nan, np.inf, 20.0], dtype=np.float32)
-    raw = np.ones((7, 3), np.float32)
+    raw = np.ones((7, 3))
     comp, drift, flag = sess.run(None, {"temperature_c": temp, "raw": raw})
     assert flag.tolist() == [True, False, False, True, True, True, False]
     np.testing.assert_array_equal(drift[0], drift[1])      # clamped to the low edge
@@ -93,8 +93,14 @@ def test_clamp_flag_and_nan_inside_graph(exported, family):
 def test_metadata_props(exported):
     model, path = exported["rbf"]
     meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
-    assert meta["thermonet_format"] == "1"
+    assert meta["thermonet_format"] == "2"
     assert meta["family"] == "rbf"
+    # what the drift is relative to: the fixture's gyro axes are plain drift (channel)
+    assert json.loads(meta["targets"]) == {a: "channel" for a in AXES}
+    assert json.loads(meta["compensate"]) == {a: True for a in AXES}
+    const = json.loads(meta["drift_constant"])
+    np.testing.assert_allclose([const[a] for a in AXES], model.y_offset.numpy(), rtol=1e-15)
+    assert json.loads(meta["rest_signals"]) == {"temperature_c": pytest.approx(T_REF)}
     assert meta["onnx_opset"] == "18"
     assert json.loads(meta["signals"]) == ["temperature_c"]
     assert json.loads(meta["inputs"]) == ["dT", "dT2"]
@@ -125,7 +131,7 @@ def test_dynamic_batch_and_timing(exported):
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     for n in (1, 7, 5000):
         out = sess.run(None, {"temperature_c": np.full(n, 30.0, np.float32),
-                              "raw": np.zeros((n, 3), np.float32)})
+                              "raw": np.zeros((n, 3))})
         assert out[0].shape == (n, 3) and out[2].shape == (n,)
     seconds = time_onnxruntime(path, batch_size=1000, repeats=5, threads=1)
     assert 0 < seconds < 0.5
@@ -168,7 +174,7 @@ def test_torchscript_exporter_gives_same_numbers(exported, tmp_path):
     meta = {p.key: p.value for p in onnx.load(str(ts_path)).metadata_props}
     assert meta["exporter"] == "torchscript"
     temp = np.linspace(-25.0, 65.0, 301, dtype=np.float32)
-    feeds = {"temperature_c": temp, "raw": np.zeros((301, 3), np.float32)}
+    feeds = {"temperature_c": temp, "raw": np.zeros((301, 3))}
     a = ort.InferenceSession(str(dyn_path), providers=["CPUExecutionProvider"]).run(None, feeds)
     b = ort.InferenceSession(str(ts_path), providers=["CPUExecutionProvider"]).run(None, feeds)
     np.testing.assert_allclose(a[1], b[1], rtol=1e-5, atol=1e-8)

@@ -30,6 +30,18 @@ constant term: thermonet's drift :math:`d(T)` is written as
 :math:`c_k = 10^6 a_k` where :math:`d(T) = a_0 + a_1 x + a_2 x^2 + a_3 x^3`,
 and ``raw - P(T-35) + P(T_cal-35) = raw - d(T) + d(T_cal)``.
 
+Targets (:mod:`thermonet.target`).  The file says what the model says: a
+``zero``-target gyro keeps its absolute bias in ``X0`` (PX4's gyro calibration
+fits the static rate and keeps ``X0``: ``temperature_calibration/gyro.cpp``,
+``finish_sensor_instance``); an ``at-t-ref`` accelerometer is normalised to
+zero at ``TREF`` = the model's :math:`T_{ref}` — exactly what PX4's own
+accelerometer calibration writes (``temperature_calibration/accel.cpp``,
+``finish_sensor_instance``: ``res[i][3] = 0.0; // normalise the correction to
+be zero at the reference temperature``, PX4-Autopilot commit 25ed6b67), so a
+level vehicle still reads 1 g; an axis the model leaves uncompensated is all
+zeros.  ArduPilot subtracts the polynomial's value at the calibration
+temperature anyway (above), i.e. it applies every axis "at T_cal".
+
 Conversion.  thermonet's polynomial lives in standardised units
 (:math:`z = (x - \\bar x)/s_x`, :math:`d = s_y\\,p(z) + \\bar y`); it is expanded
 in float64 into a plain polynomial of :math:`T - T_{ref}` (PX4: ``TREF`` = the
@@ -138,7 +150,8 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
         ``mg``, ``m/s^2``).
     t_ref : float, optional
         Reference temperature of the expansion (°C); default the model's
-        :math:`T_{ref}` (input ``dT``) or the centre of the trained range (``T``).
+        :math:`T_{ref}` (where ``at-t-ref`` axes are zero), or the centre of the
+        trained range for a model on ``T`` with no :math:`T_{ref}`.
 
     Raises
     ------
@@ -161,8 +174,9 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
     if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
         raise ExportError(f"trained temperature range [{lo}, {hi}] is not usable (model not fitted?)")
     t_model = float(model.spec.t_ref) if model.inputs == ["dT"] else 0.0
-    if t_ref is None:
-        t_ref = t_model if model.inputs == ["dT"] else round((lo + hi) / 2.0, 1)
+    if t_ref is None:  # the model's T_ref: where at-t-ref axes are zero, as PX4's accel X0
+        spec_t_ref = getattr(model.spec, "t_ref", None)
+        t_ref = float(spec_t_ref) if spec_t_ref is not None else round((lo + hi) / 2.0, 1)
     # x = T - t_model = u + (t_ref - t_model); z = (x - x_mean)/x_std = alpha*u + beta
     x_mean, x_std = float(model.x_mean[0]), float(model.x_std[0])
     alpha = 1.0 / x_std
@@ -171,6 +185,12 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
     bias = fam.bias.detach().double().numpy()
     y_mean = model.y_mean.detach().double().numpy()
     y_std = model.y_std.detach().double().numpy()
+    # the target (thermonet.models.base): at-t-ref axes minus their value at rest, the
+    # float64 constant on channel/zero axes, and zero on an uncompensated axis
+    y_ref = model.y_ref.detach().double().numpy()
+    at_t_ref = model._at_t_ref(model.y_ref.dtype).detach().double().numpy()
+    mask = model.compensate.detach().double().numpy()
+    const = model.constant().detach().double().numpy()
     out = AutopilotCoefficients(t_ref=float(t_ref), t_min=lo, t_max=hi)
     for a, axis in enumerate(model.outputs):
         kind = output_kind(axis)
@@ -186,7 +206,9 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
         for k, c in enumerate(pz):                      # p(alpha*u + beta), ascending in u
             pu = P.polyadd(pu, c * P.polypow([beta, alpha], k))
         pu = pu * y_std[a]
-        pu[0] += y_mean[a]
+        pu[0] += y_mean[a] - at_t_ref[a] * y_ref[a]
+        pu = pu * mask[a]
+        pu[0] += const[a]
         coef = out.coef.setdefault(kind, np.zeros((3, 4)))
         coef[_AXES.index(letter), :pu.size] = pu[:4] * SI_FACTOR[unit]
         out.present.setdefault(kind, []).append(letter)
