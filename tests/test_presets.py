@@ -162,3 +162,49 @@ def test_every_preset_simulates_fast_and_validates(name):
         for ax in rec.outputs:
             assert f"drift_{ax}" in rec.drift
             assert rec.units[ax] == rec.units[f"drift_{ax}"]
+
+
+def test_consumer_imu_climate_cycle_gravity_hysteresis_and_a_drift_free_axis():
+    ds = simulate("consumer-imu", seed=0)
+    assert len(ds) == 2
+    r0, r1 = ds["run0"], ds["run1"]
+    assert sorted(r0.outputs) == ["acc_x", "acc_y", "acc_z", "gyro_x", "gyro_y", "gyro_z"]
+    assert r0.references == {}                       # no reference channel
+    temp = r0.temperature_c
+    # 50 → −20 → 75 → 35 °C at 1 °C/min
+    assert temp[0] == pytest.approx(50.0, abs=0.5) and temp[-1] == pytest.approx(35.0, abs=0.5)
+    assert temp.min() == pytest.approx(-20.0, abs=0.5) and temp.max() == pytest.approx(75.0, abs=0.5)
+    ramp = np.abs(np.gradient(temp, r0.time_s))[(temp > 0) & (temp < 30)] * 60
+    assert np.median(ramp) == pytest.approx(1.0, rel=0.1)
+    # gravity on z, a small tilt on x and y (m/s²), kept in the raw output
+    assert r0.outputs["acc_z"].mean() == pytest.approx(-9.80665, abs=0.15)
+    assert 0.05 < abs(r0.outputs["acc_x"].mean()) < 0.3
+    # consumer noise: 0.007 °/s and 160 µg per 1 Hz sample
+    white = lambda y: np.std(np.diff(y)) / np.sqrt(2)  # noqa: E731
+    assert white(r0.outputs["gyro_z"]) == pytest.approx(0.007, rel=0.1)
+    assert white(r0.outputs["acc_x"]) == pytest.approx(160e-6 * 9.80665, rel=0.1)
+    # gyro_z: no temperature drift, only a turn-on bias that differs per run
+    d0, d1 = r0.drift["drift_gyro_z"], r1.drift["drift_gyro_z"]
+    assert np.ptp(d0) == 0.0 and np.ptp(d1) == 0.0 and d0[0] != d1[0]
+    # thermal history: a cubic in T fitted before the last cooling branch (which follows the
+    # hotter 75 °C excursion) is worse than raw on gyro_x there, better on gyro_y
+    last = np.flatnonzero(temp > 74.5)[-1]
+    for axis, worse in (("gyro_x", True), ("gyro_y", False)):
+        y = r0.outputs[axis]
+        c = np.polyfit(temp[:last] - 25.0, y[:last], 3)
+        ratio = np.std(y[last:] - np.polyval(c, temp[last:] - 25.0)) / np.std(y[last:])
+        assert (ratio > 1.1) if worse else (ratio < 0.7)
+
+
+def test_accel_ramp_is_noise_dominated():
+    ds = simulate("accel-ramp", seed=0)
+    assert len(ds) == 1
+    rec = ds["run0"]
+    temp = rec.temperature_c
+    assert temp.min() == pytest.approx(15.0, abs=0.3) and temp.max() == pytest.approx(45.0, abs=0.3)
+    drift = rec.drift["drift_acc_x"]
+    noise = rec.outputs["acc_x"] - 1.0 - drift
+    assert rec.outputs["acc_x"].mean() == pytest.approx(1.0, abs=0.01)     # +1 g, static
+    assert np.ptp(drift) == pytest.approx(3.6e-3, rel=0.1)                 # ≈ 4 mg over 30 °C
+    assert np.std(noise) == pytest.approx(0.02, rel=0.1)                   # 20 mg per sample
+    assert np.std(noise) > 5 * np.ptp(drift)
