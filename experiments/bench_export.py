@@ -59,12 +59,13 @@ DRIVER = r"""
 int main(int argc, char **argv) {
     int n = atoi(argv[1]);
     float lo = (float)atof(argv[2]), hi = (float)atof(argv[3]);
-    float sig[THERMONET_N_SIGNALS], raw[THERMONET_N_AXES], comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
-    volatile float sink = 0.0f;
-    for (int a = 0; a < THERMONET_N_AXES; a++) raw[a] = 0.0f;
+    float sig[THERMONET_N_SIGNALS];
+    double raw[THERMONET_N_AXES], comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
+    volatile double sink = 0.0;
+    for (int a = 0; a < THERMONET_N_AXES; a++) raw[a] = 0.0;
     for (int i = 0; i < n; i++) {
         for (int s = 0; s < THERMONET_N_SIGNALS; s++) sig[s] = lo + (hi - lo) * (float)i / (float)(n + 1);
-        sink += (float)thermonet_compensate(sig, raw, comp, drift) + drift[0];
+        sink += (double)thermonet_compensate(sig, raw, comp, drift) + drift[0];
     }
     printf("%f\n", (double)sink);
     return 0;
@@ -97,6 +98,7 @@ def rbf_numpy(model):
     idx = model.features.index.numpy()
     c, sigma2 = p["family.centres"], np.exp(2 * p["family.log_sigma"])
     w, b = p["family.weight"], p["family.bias"]
+    const = model.constant().detach().numpy().astype(np.float32)   # the target's constant
 
     def run(signals: np.ndarray) -> np.ndarray:
         s = np.clip(signals, lo, hi)
@@ -105,7 +107,7 @@ def rbf_numpy(model):
         z = (x - p["x_mean"]) / p["x_std"]
         d2 = ((z[:, None, :] - c[None, :, :]) ** 2).sum(-1)
         phi = np.exp(-d2 / (2 * sigma2))
-        return (phi @ w.T + b) * p["y_std"] + p["y_mean"]
+        return (phi @ w.T + b) * p["y_std"] + p["y_mean"] + const
     return run
 
 
@@ -163,7 +165,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     lo, hi = float(model.sig_lo[0]), float(model.sig_hi[0])
     temps = rng.uniform(lo, hi, BATCH).astype(np.float32)
-    raw = np.zeros((BATCH, len(model.outputs)), dtype=np.float32)
+    raw = np.zeros((BATCH, len(model.outputs)))   # float64 (ONNX format 2)
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1
     opts.inter_op_num_threads = 1

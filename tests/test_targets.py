@@ -19,8 +19,13 @@ import torch
 
 from thermonet.checkpoint import load_checkpoint, save_checkpoint
 from thermonet.errors import ConfigError
-from thermonet.exporting import (autopilot_coefficients, export_c_header, export_onnx,
-                                 export_px4_params, read_px4_params)
+from thermonet.exporting import (
+    autopilot_coefficients,
+    export_c_header,
+    export_onnx,
+    export_px4_params,
+    read_px4_params,
+)
 from thermonet.exporting.autopilot import px4_offsets
 from thermonet.exporting.c_header import PARITY_DRIVER
 from thermonet.features import FeatureSpec
@@ -134,7 +139,7 @@ def test_level_accelerometer_keeps_gravity_in_torch_onnx_c_and_px4(tmp_path):
 def test_consumer_imu_compare_keeps_gravity_and_gyro_bias(tmp_path):
     """Through `compare` on the consumer-imu preset: default targets, gravity kept on acc_z."""
     from thermonet.compare import run_compare
-    from thermonet.config import from_dict, CompareConfig
+    from thermonet.config import CompareConfig, from_dict
     from thermonet.sim import simulate
 
     cfg = from_dict(CompareConfig, {

@@ -41,8 +41,9 @@ and every other kind (``acc``, ``mag``, ``baro``, ``out``) → ``at-t-ref``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 from .errors import ConfigError
 
@@ -82,7 +83,7 @@ class Target:
     def __post_init__(self) -> None:
         if len(self.outputs) != len(self.modes):
             raise ConfigError(f"target: {len(self.modes)} modes for {len(self.outputs)} outputs")
-        for o, m in zip(self.outputs, self.modes):
+        for o, m in zip(self.outputs, self.modes, strict=True):
             if m not in MODE_CODES:
                 raise ConfigError(f"target: output '{o}': mode {m!r} is not one of "
                                   f"{', '.join(MODE_CODES)}")
@@ -103,10 +104,10 @@ class Target:
 
     def as_dict(self) -> dict[str, str]:
         """``{output: mode}`` for results.json and export metadata."""
-        return dict(zip(self.outputs, self.modes))
+        return dict(zip(self.outputs, self.modes, strict=True))
 
     @classmethod
-    def uniform(cls, outputs: Sequence[str], mode: str) -> "Target":
+    def uniform(cls, outputs: Sequence[str], mode: str) -> Target:
         """Every output in one mode."""
         return cls(list(outputs), [mode] * len(outputs),
                    kind=FOUR_POSITION if mode == FOUR_POSITION else "drift")

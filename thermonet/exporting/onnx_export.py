@@ -18,9 +18,9 @@ files had a float32 ``raw``).  The metadata carry each axis's target mode
 (``targets``: channel, zero, at-t-ref — :mod:`thermonet.target`), whether it is
 compensated (``compensate``: an axis where the chosen model does not beat the
 raw output has drift 0), the float64 constant (``drift_constant``) and the
-signals at rest where ``at-t-ref`` axes are zero (``rest_signals``).  ``out_of_range`` is true where a signal lay outside
-the trained range (the drift is then the edge value, PX4-style) or was not
-finite (NaN/±inf: the drift and the compensated output are then NaN, so a
+signals at rest where ``at-t-ref`` axes are zero (``rest_signals``).
+``out_of_range`` is true where a signal lay outside the trained range (the
+drift is then the edge value, PX4-style) or was not finite (NaN/±inf: the drift and the compensated output are then NaN, so a
 broken thermometer can never yield a plausible-looking correction).
 
 Exporter.  torch 2.13's default ``torch.export``-based exporter (``dynamo=True``,
@@ -268,11 +268,11 @@ def target_metadata(model: nn.Module) -> dict[str, str]:
     const = model.constant().detach().cpu().double().numpy()
     rest = model.sig_ref.detach().cpu().double().numpy()
     return {
-        "targets": _json(dict(zip(outputs, model.target_modes))),
-        "compensate": _json(dict(zip(outputs, model.compensated_axes))),
-        "drift_constant": json.dumps({a: float(c) for a, c in zip(outputs, const)},
+        "targets": _json(dict(zip(outputs, model.target_modes, strict=True))),
+        "compensate": _json(dict(zip(outputs, model.compensated_axes, strict=True))),
+        "drift_constant": json.dumps({a: float(c) for a, c in zip(outputs, const, strict=True)},
                                      sort_keys=True),
-        "rest_signals": _json({sig: float(v) for sig, v in zip(model.signals, rest)}),
+        "rest_signals": _json({sig: float(v) for sig, v in zip(model.signals, rest, strict=True)}),
     }
 
 

@@ -410,8 +410,8 @@ def _consumer_gyro(name: str, c1: float, c2: float, hysteresis: float,
 
 def _consumer_acc(name: str, level: float, c1: float, c2: float,
                   hysteresis: float) -> AxisConfig:
-    # 0.15–0.35 mg/K offset tempco with curvature, 160 µg/√Hz noise density (in m/s²); ``level`` is the
-    # static input: gravity on z, a small tilt on x and y (no reference channel)
+    # 0.15–0.35 mg/K offset tempco with curvature, 160 µg/√Hz noise density (in m/s²);
+    # ``level`` is the static input: gravity on z, a small tilt on x and y (no reference channel)
     return AxisConfig(
         name=name, unit="m/s^2", bias_reference_c=25.0, reference_level=level,
         bias=Polynomial(coefficients=(0.0, c1 * 1e-3 * _G, c2 * 1e-3 * _G), reference_c=25.0),
