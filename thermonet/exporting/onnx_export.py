@@ -20,8 +20,9 @@ compensated (``compensate``: an axis where the chosen model does not beat the
 raw output has drift 0), the float64 constant (``drift_constant``) and the
 signals at rest where ``at-t-ref`` axes are zero (``rest_signals``).
 ``out_of_range`` is true where a signal lay outside the trained range (the
-drift is then the edge value, PX4-style) or was not finite (NaN/±inf: the drift and the compensated output are then NaN, so a
-broken thermometer can never yield a plausible-looking correction).
+drift is then the edge value, PX4-style) or was not finite (NaN/±inf: the
+drift and the compensated output are then NaN, so a broken thermometer can
+never yield a plausible-looking correction).
 
 Exporter.  torch 2.13's default ``torch.export``-based exporter (``dynamo=True``,
 onnxscript) is used with a dynamic batch dimension and opset 18; the
