@@ -236,3 +236,20 @@ def test_mask_leaves_an_axis_uncompensated_in_every_export(tmp_path):
     torch.save(payload, tmp_path / "old.pt")
     old, _ = load_checkpoint(tmp_path / "old.pt")
     assert old.target_modes == ["channel"] * 3 and old.compensated_axes == [True] * 3
+
+
+def test_config_target_section_is_checked_before_anything_is_written(tmp_path):
+    from thermonet.compare import run_compare
+    from thermonet.config import load_config
+
+    cfg_file = tmp_path / "c.yaml"
+    cfg_file.write_text("data: {preset: accel-ramp}\ntarget: {acc: channel}\n")
+    cfg = load_config(cfg_file)
+    assert cfg.target == {"acc": "channel"}
+    with pytest.raises(ConfigError, match=r"c.yaml: key 'target.acc': 'channel' needs a "
+                                          r"reference column ref_acc_x and the data has none"):
+        run_compare(cfg, tmp_path / "out", track=False, quiet=True)
+    assert not (tmp_path / "out").exists()
+    cfg_file.write_text("data: {preset: accel-ramp}\ntarget: [zero]\n")
+    with pytest.raises(ConfigError, match=r"key 'target'"):
+        load_config(cfg_file)

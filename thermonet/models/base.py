@@ -185,6 +185,19 @@ class DriftModel(nn.Module):
     spec : FeatureSpec
     """
 
+    # buffers (registered in __init__), declared for the type checker
+    x_mean: torch.Tensor
+    x_std: torch.Tensor
+    y_mean: torch.Tensor
+    y_std: torch.Tensor
+    sig_lo: torch.Tensor
+    sig_hi: torch.Tensor
+    y_offset: torch.Tensor
+    y_ref: torch.Tensor
+    sig_ref: torch.Tensor
+    target_code: torch.Tensor
+    compensate: torch.Tensor
+
     def __init__(self, *, family: Family, spec: FeatureSpec, outputs: list[str]) -> None:
         super().__init__()
         if family.n_inputs != len(spec.inputs):
