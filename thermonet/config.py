@@ -19,7 +19,7 @@ from typing import Any, Literal, Union
 import yaml
 
 from .errors import ConfigError
-from .train import TrainConfig  # the ``train`` section is TrainConfig itself
+from .trainconfig import TrainConfig  # the ``train`` section is TrainConfig itself
 from .yamlio import DuplicateKeyError, load_yaml
 
 __all__ = [

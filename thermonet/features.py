@@ -37,7 +37,6 @@ from typing import Iterable, Sequence
 
 import numpy as np
 import torch
-from scipy.signal import savgol_coeffs
 from torch import nn
 
 from .errors import ConfigError, InputError
@@ -283,6 +282,8 @@ def _segment_rate(temp: np.ndarray, time_s: np.ndarray, fs: float, window_s: flo
     win = max(int(round(window_s * fs)) | 1, 5)
     start = 1
     if win <= n:
+        from scipy.signal import savgol_coeffs  # scipy.signal loads only when a rate is computed
+
         coef = savgol_coeffs(win, 2, deriv=1, delta=1.0 / fs, pos=win - 1, use="dot")
         rate[win - 1:] = np.correlate(temp, coef, mode="valid")
         start, stop = 1, win - 1

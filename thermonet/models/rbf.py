@@ -24,7 +24,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from sklearn.cluster import KMeans
 from torch import nn
 
 from ..errors import ConfigError
@@ -100,6 +99,8 @@ class RBF(Family):
                 self.bias.zero_()
             return
         step = max(1, xn.shape[0] // 5000)  # even decimation bounds k-means cost
+        from sklearn.cluster import KMeans  # heavy: loaded when an RBF is initialised
+
         km = KMeans(n_clusters=self.n_centres, random_state=seed, n_init=4).fit(xn[::step])
         centres = km.cluster_centers_
         dist = np.sqrt(((centres[:, None, :] - centres[None, :, :]) ** 2).sum(-1))

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 from typing import Protocol, Union
 
 import numpy as np
-from scipy.signal import lfilter
 
 __all__ = [
     "Law", "Polynomial", "Lorentz", "Sinusoid", "LawSum",
@@ -228,6 +227,8 @@ def first_order_lag(x: np.ndarray, tau_s: float, dt_s: float) -> np.ndarray:
     c = tau_s / dt_s * (1.0 - a)
     b0, b1 = 1.0 - c, c - a
     zi = np.array([x[0] * (1.0 - b0)])  # steady state y = x[0]: y0 = b0 x0 + z
+    from scipy.signal import lfilter  # loaded when simulating, not at import
+
     y, _ = lfilter([b0, b1], [1.0, -a], x, zi=zi)
     return y
 
