@@ -42,7 +42,7 @@ class DataConfig:
 
 @dataclass
 class SplitConfig:
-    """How runs are split; never by random sample (see :mod:`thermonet.evaluate`).
+    """How runs are split; never by random sample (see :mod:`thermonet.splits`).
 
     ``auto``: ≥ 3 runs → ``runs``; 2 runs → ``train-then-verify``; 1 run →
     ``time-blocks``.  ``runs``: train on all but the last two runs, validate on
@@ -56,14 +56,18 @@ class SplitConfig:
     previous run validates; the report gives the mean over folds.
     """
 
-    strategy: Literal["auto", "runs", "train-then-verify", "time-blocks",
-                      "leave-one-run-out"] = "auto"
+    strategy: str = "auto"               # a name in thermonet.splits.SPLITS
     train: list[str] = field(default_factory=list)
     val: str | None = None
     test: str | None = None
     n_blocks: int = 20                   # contiguous time blocks per run (time-blocks)
 
     def __post_init__(self) -> None:
+        from .splits import SPLITS  # the registry is the list of valid strategies
+
+        if self.strategy not in SPLITS:
+            raise ConfigError(f"key 'split.strategy': {self.strategy!r} is not one of "
+                              f"{', '.join(repr(k) for k in SPLITS)}")
         if self.n_blocks < 5:
             raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is below 5 (every group "
                               "of five blocks gives one validation and one test block)")
