@@ -112,9 +112,23 @@ def test_absolute_temperature_input(tmp_path):
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max())
 
 
+def test_a_linear_model_exports_as_a_degree_one_polynomial():
+    temp = np.linspace(-10.0, 55.0, 300)
+    line = COEF[:, :2].copy()               # drift c0 + c1 dT, known coefficients
+    spec = FeatureSpec(inputs=["dT"], t_ref=T_REF)
+    drift = line[:, 0] + line[:, 1] * (temp[:, None] - T_REF)
+    model = fit(family="linear", inputs=["dT"], outputs=AXES, train=[(temp[:, None], drift)],
+                val=None, spec=spec, hyper={}, config=TrainConfig(max_epochs=0)).model
+    co = autopilot_coefficients(model, output_units=UNITS)
+    want = np.zeros((6, 4))
+    want[:, :2] = line
+    np.testing.assert_allclose(co.coef["gyro"], want[:3] * SI[:3, None], rtol=1e-4, atol=1e-12)
+    np.testing.assert_allclose(co.coef["acc"], want[3:] * SI[3:, None], rtol=1e-4, atol=1e-10)
+
+
 def test_refusals(model, tmp_path):
-    with pytest.raises(ExportError, match="need the 'poly' family.*this model is 'linear'"):
-        export_px4_params(_model(family="linear"), tmp_path / "x.params", output_units=UNITS)
+    with pytest.raises(ExportError, match="this model is 'lorentz', which has no polynomial form"):
+        export_px4_params(_model(family="lorentz"), tmp_path / "x.params", output_units=UNITS)
     with pytest.raises(ExportError, match="evaluate a cubic; this poly model has degree 4"):
         export_px4_params(_model(degree=4), tmp_path / "x.params", output_units=UNITS)
     with pytest.raises(ExportError, match=r"one input, dT or T; this model reads \['dT', 'dT2'\]"):

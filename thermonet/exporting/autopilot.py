@@ -71,8 +71,6 @@ __all__ = [
     "export_ardupilot_params",
     "read_px4_params",
     "read_ardupilot_params",
-    "px4_offsets",
-    "ardupilot_correction",
 ]
 
 #: Multiply a value in this unit by the factor to get rad/s (gyro) or m/s² (accel).
@@ -128,7 +126,11 @@ def _unit_of(axis: str, units: str | Mapping[str, str]) -> str:
 
 def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str, str],
                            t_ref: float | None = None) -> AutopilotCoefficients:
-    """Expand a poly (degree ≤ 3, one input ``dT`` or ``T``) model into SI cubic coefficients.
+    """Expand a polynomial model (degree ≤ 3, one input ``dT`` or ``T``) into SI cubic coefficients.
+
+    The family supplies its coefficients through
+    :meth:`~thermonet.models.base.Family.polynomial_form` (``poly``, and ``linear``
+    as a degree-1 polynomial); a family without one is refused.
 
     Parameters
     ----------
@@ -143,19 +145,22 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
     Raises
     ------
     ExportError
-        Any other family, degree or input; an axis that is not gyro/acc x/y/z;
+        A family without a polynomial form, a degree above 3, another input; an axis that is not gyro/acc x/y/z;
         a unit that does not match the axis kind.
     """
     family = family_name(model)
-    fam = model.family
-    if family != "poly":
-        raise ExportError(f"PX4/ArduPilot parameter files need the 'poly' family (degree <= 3 on "
-                          f"input dT or T); this model is '{family}' — export it as ONNX or C")
     if list(model.inputs) not in (["dT"], ["T"]):
         raise ExportError(f"PX4/ArduPilot parameter files need one input, dT or T; this model "
                           f"reads {list(model.inputs)}")
-    if int(fam.degree) > 3:
-        raise ExportError(f"PX4/ArduPilot evaluate a cubic; this poly model has degree {fam.degree}")
+    form = model.family.polynomial_form()  # the family says whether it is a polynomial
+    if form is None:
+        raise ExportError(f"PX4/ArduPilot parameter files need a polynomial of degree <= 3 in "
+                          f"dT or T; this model is '{family}', which has no polynomial form "
+                          "— export it as ONNX or C")
+    degree = form.shape[1] - 1
+    if degree > 3:
+        raise ExportError(f"PX4/ArduPilot evaluate a cubic; this {family} model has degree "
+                          f"{degree}")
     lo = float(model.sig_lo[0])
     hi = float(model.sig_hi[0])
     if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
@@ -167,8 +172,6 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
     x_mean, x_std = float(model.x_mean[0]), float(model.x_std[0])
     alpha = 1.0 / x_std
     beta = (t_ref - t_model - x_mean) / x_std
-    weight = fam.weight.detach().double().numpy()      # (A, n_terms), terms z^1..z^n
-    bias = fam.bias.detach().double().numpy()
     y_mean = model.y_mean.detach().double().numpy()
     y_std = model.y_std.detach().double().numpy()
     out = AutopilotCoefficients(t_ref=float(t_ref), t_min=lo, t_max=hi)
@@ -181,7 +184,7 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
         unit = _unit_of(axis, output_units)
         if _UNIT_KIND[unit] != kind:
             raise ExportError(f"output '{axis}' has unit '{unit}', which is not a {kind} unit")
-        pz = np.concatenate([[bias[a]], weight[a]])     # coefficients in z, ascending
+        pz = form[a]                                    # coefficients in z, ascending
         pu = np.zeros(1)
         for k, c in enumerate(pz):                      # p(alpha*u + beta), ascending in u
             pu = P.polyadd(pu, c * P.polypow([beta, alpha], k))
@@ -191,40 +194,6 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
         coef[_AXES.index(letter), :pu.size] = pu[:4] * SI_FACTOR[unit]
         out.present.setdefault(kind, []).append(letter)
     return out
-
-
-def px4_offsets(params: Mapping[str, float], kind: str, temperature_c: np.ndarray,
-                instance: int = 0) -> np.ndarray:
-    """PX4's ``calc_thermal_offsets_3D`` on parameters read back from a file: (N, 3) SI."""
-    t = _PX4_TYPE[kind]
-    pre = f"TC_{t}{instance}_"
-    temp = np.asarray(temperature_c, dtype=np.float64)
-    dt = np.where(temp > params[pre + "TMAX"], params[pre + "TMAX"] - params[pre + "TREF"],
-                  np.where(temp < params[pre + "TMIN"], params[pre + "TMIN"] - params[pre + "TREF"],
-                           temp - params[pre + "TREF"]))
-    out = np.zeros((temp.size, 3))
-    for i in range(3):
-        out[:, i] = sum(params[f"{pre}X{k}_{i}"] * dt ** k for k in range(4))
-    return out
-
-
-def ardupilot_correction(params: Mapping[str, float], kind: str, temperature_c: np.ndarray,
-                         cal_temp_c: float, imu: int = 1) -> np.ndarray:
-    """What ArduPilot's ``correct_sensor`` subtracts from ``raw``: P(T−35) − P(T_cal−35), (N, 3) SI."""
-    pre = f"INS_TCAL{imu}_"
-    tmin, tmax = params[pre + "TMIN"], params[pre + "TMAX"]
-    t = np.clip(np.asarray(temperature_c, dtype=np.float64), tmin, tmax) - ARDUPILOT_TEMP_REFERENCE
-    tc = float(np.clip(cal_temp_c, tmin, tmax)) - ARDUPILOT_TEMP_REFERENCE
-    out = np.zeros((t.size, 3))
-    for i, ax in enumerate(_AXES):
-        c = [params[f"{pre}{_AP_TYPE[kind]}{k}_{ax.upper()}"] for k in (1, 2, 3)]
-        poly = lambda x: (c[0] + (c[1] + c[2] * x) * x) * x / ARDUPILOT_SCALE  # noqa: E731
-        out[:, i] = poly(t) - poly(tc)
-    return out
-
-
-def _atomic_write(path: Path, text: str) -> Path:
-    return atomic_write_text(path, text)
 
 
 def _g(v: float) -> str:
@@ -276,7 +245,7 @@ def export_px4_params(model: nn.Module, path: str | Path, *, output_units: str |
             for i in range(3):
                 rows.append((f"{pre}X{k}_{i}", _g(coef[i, k]), 9))
     lines += [f"1\t1\t{name}\t{value}\t{ptype}" for name, value, ptype in rows]
-    return _atomic_write(Path(path), "\n".join(lines) + "\n")
+    return atomic_write_text(Path(path), "\n".join(lines) + "\n")
 
 
 def export_ardupilot_params(model: nn.Module, path: str | Path, *,
@@ -312,7 +281,7 @@ def export_ardupilot_params(model: nn.Module, path: str | Path, *,
               "# axes the model does not cover are written as 0 (no correction on that axis)",
               f"# drift constant at {ARDUPILOT_TEMP_REFERENCE:g} degC is left to the offset "
               "calibration at INS_*_CALTEMP"]
-    return _atomic_write(Path(path), "\n".join(header + [f"{n}{sep}{v}" for n, v in rows]) + "\n")
+    return atomic_write_text(Path(path), "\n".join(header + [f"{n}{sep}{v}" for n, v in rows]) + "\n")
 
 
 def read_px4_params(path: str | Path) -> dict[str, float]:

@@ -135,6 +135,15 @@ class Family(nn.Module):
         rebuilds the same architecture."""
         return {}
 
+    def polynomial_form(self) -> np.ndarray | None:
+        """Coefficients (A, degree + 1), ascending in the one standardised input z,
+        when this fitted family *is* a polynomial in one input; None otherwise.
+
+        Exporters that need a polynomial (PX4's and ArduPilot's parameter files)
+        ask for it here instead of checking the family's name.
+        """
+        return None
+
     def extra_repr(self) -> str:
         return f"n_inputs={self.n_inputs}, n_outputs={self.n_outputs}, {self.hyper()}"
 

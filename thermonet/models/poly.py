@@ -100,3 +100,10 @@ class Poly(Family):
 
     def hyper(self) -> dict[str, Any]:
         return {"degree": self.degree, "cross": self.cross}
+
+    def polynomial_form(self) -> np.ndarray | None:
+        """:math:`[b_a, c_{a,1} \\dots c_{a,n}]` per axis when there is one input."""
+        if self.n_inputs != 1:
+            return None
+        return np.column_stack([as_numpy(self.bias),
+                                as_numpy(self.weight)])
