@@ -165,6 +165,7 @@ class _FamilyOutcome:
     test_parts: list[Part] | None = None
     test_preds: list[np.ndarray] | None = None
     history: list[dict[str, float]] | None = None
+    best_val: float | None = None
 
 
 class _Parts:
@@ -215,6 +216,7 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
             pred, axes = _evaluate_part(fitted.model, test_part)
             fold_axes.append(axes)
             outcome.model, outcome.history = fitted.model, fitted.history
+            outcome.best_val = fitted.best_val_loss
             outcome.test_parts.append(test_part)
             outcome.test_preds.append(pred)
             res.update(n_params=int(fitted.n_params), best_epoch=int(fitted.best_epoch))
@@ -229,6 +231,14 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
     if len(fold_axes) > 1:
         res["folds"] = fold_axes
     return outcome
+
+
+def _family_config(cfg: CompareConfig, fam: FamilyConfig) -> dict[str, Any]:
+    """What a family's checkpoint carries: its own resolved config, not the whole comparison's
+    (the same layout :meth:`thermonet.DriftEstimator.save` writes)."""
+    return {"family": to_dict(fam), "train": to_dict(_train_config(cfg, fam)),
+            "features": to_dict(cfg.features), "target": cfg.target,
+            "tracking": to_dict(cfg.tracking)}
 
 
 def _choose(families: dict[str, dict[str, Any]]) -> tuple[str | None, str]:
@@ -319,7 +329,8 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
                                          "fit_seconds": r["fit_seconds"]})
                     ckpt = out / "models" / f"{fam.label}.pt"
                     try:
-                        save_checkpoint(ckpt, oc.model, config=resolved,
+                        save_checkpoint(ckpt, oc.model, config=_family_config(cfg, fam),
+                                        epoch=r["best_epoch"], best_val=oc.best_val,
                                         extra={"label": fam.label, "device_id": ds.device_id,
                                                "data_hash": dhash, "units": units,
                                                "signal_units": {p: ds[0].units.get(p, "")
