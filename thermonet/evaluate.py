@@ -85,12 +85,12 @@ class Part:
 def build_part(rec: Recording, *, signals: list[str], outputs: list[str], target: str,
                rate_window_s: float) -> Part:
     """Signals and targets of one recording for the configured target."""
-    from .features import signal_matrix
+    from .features import signal_matrix, target_matrix
 
     if target == "four-position":
         return _fourpos_part(rec, signals=signals, outputs=outputs)
     sig = signal_matrix(rec, signals, rate_window_s=rate_window_s)
-    y = np.column_stack([rec.drift_observed(a) for a in outputs])
+    y = target_matrix(rec, outputs)
     true = None
     if all(f"drift_{a}" in rec.drift for a in outputs):
         true = np.column_stack([rec.drift[f"drift_{a}"] for a in outputs])

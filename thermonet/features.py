@@ -40,7 +40,7 @@ import torch
 from torch import nn
 
 from .errors import ConfigError, InputError
-from .recording import Dataset, Recording
+from .recording import GAP_FACTOR, Dataset, Recording
 
 __all__ = [
     "TEMPERATURE",
@@ -51,7 +51,6 @@ __all__ = [
     "reference_values",
     "signal_matrix",
     "target_matrix",
-    "run_arrays",
     "Features",
 ]
 
@@ -250,10 +249,6 @@ def reference_values(recordings: object, spec_inputs: Sequence[str], t_ref: str 
     return t_value, p_values
 
 
-#: A time step over this many median steps starts a new contiguous segment.
-GAP_FACTOR = 5.0
-
-
 def contiguous_segments(time_s: np.ndarray, gap_factor: float = GAP_FACTOR) -> list[slice]:
     """Slices of contiguous sampling: a step over ``gap_factor`` × the median step is a gap
     (burst recordings, held-out time blocks cut out of a run)."""
@@ -358,13 +353,6 @@ def target_matrix(recording: Recording, outputs: Sequence[str]) -> np.ndarray:
                                 column=name)
         cols.append(np.asarray(recording.drift_observed(name), dtype=np.float64))
     return np.stack(cols, axis=1)
-
-
-def run_arrays(recording: Recording, spec: FeatureSpec, outputs: Sequence[str],
-               rate_window_s: float = 60.0) -> tuple[np.ndarray, np.ndarray]:
-    """``(signal_matrix, target_matrix)`` of one run: the pair :func:`thermonet.train.fit` takes."""
-    return (signal_matrix(recording, spec.signals, rate_window_s),
-            target_matrix(recording, outputs))
 
 
 class Features(nn.Module):

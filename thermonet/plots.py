@@ -14,13 +14,14 @@ before drawing so a plot takes well under a second on 50k samples.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .metrics import allan
+from .metrics import _series, allan  # one 1-D series check for metrics and plots
+from .recording import GAP_FACTOR
 
 __all__ = [
     "plot_drift_vs_temperature",
@@ -41,19 +42,11 @@ MAX_SCATTER_POINTS = 5000
 #: Time series keep at most about this many vertices (min/max per bucket).
 MAX_LINE_POINTS = 8000
 
-# A step longer than this many median sample intervals is a gap in the log
-# (burst mode, a pause between soaks); the line is broken there instead of
-# drawing a straight segment across hours without data.
-_GAP_FACTOR = 5.0
+# A step longer than GAP_FACTOR median sample intervals is a gap in the log (burst mode, a
+# pause between soaks); the line is broken there instead of drawing a straight segment across
+# hours without data.
 
 _RAW_COLOR = "0.55"
-
-
-def _series(name: str, values: object) -> np.ndarray:
-    arr = np.asarray(values, dtype=np.float64)
-    if arr.ndim != 1:
-        raise ValueError(f"'{name}' must be a 1-D series, got shape {arr.shape}")
-    return arr
 
 
 def _check_length(name: str, arr: np.ndarray, n: int, against: str) -> None:
@@ -109,7 +102,7 @@ def _gap_breaks(t: np.ndarray, keep: np.ndarray) -> np.ndarray:
     steps = np.diff(t)
     if steps.size == 0:
         return np.empty(0, dtype=np.int64)
-    gaps = np.flatnonzero(steps > _GAP_FACTOR * np.median(steps)) + 1
+    gaps = np.flatnonzero(steps > GAP_FACTOR * np.median(steps)) + 1
     pos = np.unique(np.searchsorted(keep, gaps))
     return pos[(pos > 0) & (pos < keep.size)]
 

@@ -30,6 +30,7 @@ __all__ = [
     "KNOWN_UNITS",
     "MIN_SAMPLES",
     "MIN_TEMPERATURE_SPAN_C",
+    "GAP_FACTOR",
     "output_kind",
 ]
 
@@ -58,6 +59,10 @@ KNOWN_UNITS: dict[str, str] = {
 MIN_SAMPLES = 10
 #: A recording whose temperature moves less than this has no thermal information.
 MIN_TEMPERATURE_SPAN_C = 1.0
+
+#: A time step over this many median steps is a gap in a log (burst mode, a pause between
+#: soaks, held-out blocks cut out of a run): rates restart there, plotted lines break there.
+GAP_FACTOR = 5.0
 
 
 def output_kind(name: str) -> str:

@@ -104,7 +104,7 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
         Output axis names (columns of the targets).
     train : list of (signals (n, S), targets (n, A))
         One pair per training run; signals in ``spec.signals`` order
-        (see :func:`thermonet.features.run_arrays`), targets = observed drift.
+        (see :func:`thermonet.evaluate.build_part`), targets = observed drift.
     val : (signals, targets) or None
         The held-out run for early stopping; None stops on a training-loss plateau.
     spec : FeatureSpec

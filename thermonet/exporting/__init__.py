@@ -37,7 +37,7 @@ __all__ = [
     "ExportFormat", "ExportRequest", "Exporter", "FORMATS", "register_format", "get_format",
     "export_source", "resolve_checkpoint",
     "CompensatorGraph", "export_onnx", "parity_check", "log_onnx_to_mlflow", "onnx_file_size",
-    "time_onnxruntime", "export_c_header", "render_c_header",
+    "export_c_header", "render_c_header",
     "AutopilotCoefficients", "autopilot_coefficients", "export_px4_params",
     "export_ardupilot_params", "read_px4_params", "read_ardupilot_params",
 ]
@@ -143,7 +143,7 @@ _LAZY = {
     "export_source": "source", "resolve_checkpoint": "source",
     "CompensatorGraph": "onnx_export", "export_onnx": "onnx_export",
     "parity_check": "onnx_export", "log_onnx_to_mlflow": "onnx_export",
-    "onnx_file_size": "onnx_export", "time_onnxruntime": "onnx_export",
+    "onnx_file_size": "onnx_export",
     "export_c_header": "c_header", "render_c_header": "c_header",
     "AutopilotCoefficients": "autopilot", "autopilot_coefficients": "autopilot",
     "export_px4_params": "autopilot", "export_ardupilot_params": "autopilot",

@@ -50,7 +50,6 @@ from __future__ import annotations
 import json
 import logging
 import tempfile
-import time
 import warnings
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -75,7 +74,6 @@ __all__ = [
     "family_name",
     "trained_range",
     "onnx_file_size",
-    "time_onnxruntime",
     "log_onnx_to_mlflow",
 ]
 
@@ -442,35 +440,6 @@ def export_onnx(model: nn.Module, path: str | Path, *, metadata: Mapping[str, An
 def onnx_file_size(path: str | Path) -> int:
     """Size of an exported file in bytes (for the size benchmark)."""
     return Path(path).stat().st_size
-
-
-def time_onnxruntime(path: str | Path, *, batch_size: int = 1000, repeats: int = 50,
-                     threads: int = 1, seed: int = 0) -> float:
-    """Median seconds per onnxruntime call on a batch of in-range points (``threads`` threads).
-
-    The first call (session warm-up) is not counted.
-    """
-    import onnxruntime as ort
-
-    opts = ort.SessionOptions()
-    opts.intra_op_num_threads = int(threads)
-    opts.inter_op_num_threads = 1
-    opts.log_severity_level = 3
-    sess = ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
-    meta = sess.get_modelmeta().custom_metadata_map
-    signals = json.loads(meta["signals"])
-    ranges = json.loads(meta["trained_range"])
-    n_axes = len(json.loads(meta["outputs"]))
-    rng = np.random.default_rng(seed)
-    feeds = {s: rng.uniform(*ranges[s], size=batch_size).astype(np.float32) for s in signals}
-    feeds["raw"] = np.zeros((batch_size, n_axes), np.float32)
-    sess.run(None, feeds)
-    times = []
-    for _ in range(max(1, int(repeats))):
-        t0 = time.perf_counter()
-        sess.run(None, feeds)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def log_onnx_to_mlflow(path: str | Path, run_id: str, tracking_uri: str, *,
