@@ -32,14 +32,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT / "export"))
 from common import OUT, save, table  # noqa: E402
-from thermonet_runtime import Compensator  # noqa: E402
-
-from thermonet.evaluate import build_part, make_splits  # noqa: E402
 from thermonet.config import SplitConfig  # noqa: E402
+from thermonet.evaluate import build_part, make_splits  # noqa: E402
 from thermonet.exporting import export_c_header, export_onnx  # noqa: E402
 from thermonet.features import FeatureSpec, reference_values  # noqa: E402
 from thermonet.sim import simulate  # noqa: E402
 from thermonet.train import TrainConfig, fit  # noqa: E402
+from thermonet_runtime import Compensator  # noqa: E402
 
 FAMILIES = {
     "linear": ("linear", ["dT"], {}),
@@ -59,11 +58,13 @@ DRIVER = r"""
 int main(int argc, char **argv) {
     int n = atoi(argv[1]);
     float lo = (float)atof(argv[2]), hi = (float)atof(argv[3]);
-    float sig[THERMONET_N_SIGNALS], raw[THERMONET_N_AXES], comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
+    float sig[THERMONET_N_SIGNALS], raw[THERMONET_N_AXES];
+    float comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
     volatile float sink = 0.0f;
     for (int a = 0; a < THERMONET_N_AXES; a++) raw[a] = 0.0f;
     for (int i = 0; i < n; i++) {
-        for (int s = 0; s < THERMONET_N_SIGNALS; s++) sig[s] = lo + (hi - lo) * (float)i / (float)(n + 1);
+        for (int s = 0; s < THERMONET_N_SIGNALS; s++)
+            sig[s] = lo + (hi - lo) * (float)i / (float)(n + 1);
         sink += (float)thermonet_compensate(sig, raw, comp, drift) + drift[0];
     }
     printf("%f\n", (double)sink);
@@ -199,7 +200,9 @@ def main() -> None:
              for name, (t_batch, t_one) in res.items()]
     md += ["### RBF (16 centres, 3 axes) evaluation on one thread\n",
            table(["evaluator", "M samples/s (100k batch)", "× torch", "single-sample µs"], trows)]
-    data["throughput"] = {k: {"batch_seconds": v[0], "single_seconds": v[1]} for k, v in res.items()}
+    data["throughput"] = {
+        k: {"batch_seconds": v[0], "single_seconds": v[1]} for k, v in res.items()
+    }
     save("export", data, "\n".join(md))
 
 

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import REAL_DATA, toy_dataset
 from torch import nn
 
 import thermonet
+from conftest import REAL_DATA, toy_dataset
 from thermonet.api import NotFittedError
 from thermonet.errors import ConfigError
 from thermonet.exporting import FORMATS, ExportFormat, register_format

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from conftest import REAL_DATA
 
+from conftest import REAL_DATA
 from thermonet.cli import main
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"

@@ -6,8 +6,7 @@ import torch
 
 from thermonet.errors import ConfigError, InputError
 from thermonet.evaluate import build_part
-from thermonet.features import (FeatureSpec, Features, reference_values, signal_matrix,
-                                target_matrix)
+from thermonet.features import Features, FeatureSpec, reference_values, signal_matrix, target_matrix
 from thermonet.recording import Recording
 
 

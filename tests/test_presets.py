@@ -59,7 +59,7 @@ def _soak_means(rec, x, y, tol_c_per_h=0.5):
     steady = np.r_[0, (rate < tol_c_per_h).astype(int), 0]
     d = np.diff(steady)
     means = []
-    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=False):
         if (b - a) * dt >= 1800:
             mid = (a + b) // 2
             means.append((x[mid:b].mean(), y[mid:b].mean()))
@@ -101,7 +101,7 @@ def test_mems_gyro_offset_at_65c_and_allan_stability_match_study_002():
                                                     "self-heating closed box 25 -> 45 C"]
     rec = ds["run0"]
     soaks = _soak_means(rec, rec.temperature_c, rec.drift["drift_gyro_x"], tol_c_per_h=0.5)
-    by_t = dict(zip(np.round(soaks[:, 0]), soaks[:, 1]))
+    by_t = dict(zip(np.round(soaks[:, 0]), soaks[:, 1], strict=True))
     t65 = min(by_t, key=lambda k: abs(k - 65))
     t25 = min(by_t, key=lambda k: abs(k - 25))
     assert _within(by_t[t65] - by_t[t25], 0.025)
@@ -114,6 +114,7 @@ def test_mems_gyro_offset_at_65c_and_allan_stability_match_study_002():
 
 def test_mems_gyro_allan_bias_stability():
     import allantools
+
     from thermonet.sim.device import sensor_noise
     noise = PRESETS["mems-gyro"].axes[0].noise
     mins = []

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import toy_dataset
 
+from conftest import toy_dataset
 from thermonet.config import SplitConfig, from_dict
 from thermonet.errors import ConfigError
 from thermonet.splits import SPLITS, Split, make_splits, register_split

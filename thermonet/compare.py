@@ -47,8 +47,16 @@ import numpy as np
 from . import __version__
 from .config import CompareConfig, FamilyConfig, from_dict, to_dict
 from .errors import ConfigError, FitError, ThermonetError
-from .evaluate import (FOURPOS_SUFFIXES, Part, Split, build_part, data_hash, heating_only,
-                       load_data, make_splits)
+from .evaluate import (
+    FOURPOS_SUFFIXES,
+    Part,
+    Split,
+    build_part,
+    data_hash,
+    heating_only,
+    load_data,
+    make_splits,
+)
 from .fileio import atomic_write_text
 from .recording import Dataset
 
@@ -56,7 +64,7 @@ __all__ = ["run_compare", "format_table", "Progress"]
 
 
 class Progress:
-    """One status line per family on stderr (rewritten in place on a terminal); silent when quiet."""
+    """One status line per family on stderr (rewritten in place on a terminal); silent if quiet."""
 
     def __init__(self, quiet: bool = False, stream: Any = None) -> None:
         self.quiet = quiet
@@ -203,7 +211,7 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
             train_parts = [parts(r, spec.signals) for r in split.train]
             if fam.train_on == "heating":
                 train_parts = [heating_only(p, r, cfg.features.rate_window_s)
-                               for p, r in zip(train_parts, split.train)]
+                               for p, r in zip(train_parts, split.train, strict=True)]
             val_part = parts(split.val, spec.signals) if split.val is not None else None
             test_part = parts(split.test, spec.signals)
             fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=outputs,
@@ -264,10 +272,9 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
     simulation this way); the config's ``data`` section is then ignored.
     """
     from .checkpoint import save_checkpoint
-    from .tracking import Tracker
-
     from .config import check_families
     from .features import signals_for
+    from .tracking import Tracker
 
     progress = progress or Progress(quiet)
     source = getattr(cfg, "_source", "config")
@@ -372,7 +379,9 @@ def _baseline_ratios(results: dict[str, Any]) -> None:
             continue
         for axis, m in fam["axes"].items():
             b = base["axes"][axis]
-            m["pp_ratio_vs_baseline"] = (m["pp_comp"] / b["pp_comp"]) if b["pp_comp"] > 0 else float("nan")
+            m["pp_ratio_vs_baseline"] = (
+                (m["pp_comp"] / b["pp_comp"]) if b["pp_comp"] > 0 else float("nan")
+            )
 
 
 def _plots(out: Path, outcomes: dict[str, _FamilyOutcome], results: dict[str, Any],
@@ -397,7 +406,9 @@ def _plots(out: Path, outcomes: dict[str, _FamilyOutcome], results: dict[str, An
             pdir / f"drift_vs_temperature_{safe}.png", temperature_c=part.bin_by,
             observed_drift=part.target[:, j], curves=curves, axis=axis, units=unit))
         if results["target"] == "drift":
-            resid = {label: part.target[:, j] - oc.test_preds[-1][:, j] for label, oc in fitted.items()}
+            resid = {
+                label: part.target[:, j] - oc.test_preds[-1][:, j] for label, oc in fitted.items()
+            }
             paths.append(plot_residual_vs_time(
                 pdir / f"residual_vs_time_{safe}.png", time_s=part.time_s,
                 raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit))
@@ -444,8 +455,14 @@ def format_table(results: dict[str, Any]) -> str:
             continue
         for i, a in enumerate(axes):
             m = f["axes"][a]
-            pre = (f"{name:<14} {a:<14} {f['fit_seconds']:6.2f} {f['n_params']:6d} "
-                   f"{f['val_score']:7.3g} ") if i == 0 else f"{'':<14} {a:<14} {'':>6} {'':>6} {'':>7} "
+            pre = (
+                (
+                    f"{name:<14} {a:<14} {f['fit_seconds']:6.2f} {f['n_params']:6d} "
+                    f"{f['val_score']:7.3g} "
+                )
+                if i == 0
+                else f"{'':<14} {a:<14} {'':>6} {'':>6} {'':>7} "
+            )
             lines.append(pre + " ".join(f"{m.get(c, float('nan')):12.4g}" for c in cols))
     chosen = results.get("chosen")
     lines.append("")

@@ -48,8 +48,8 @@ class SplitConfig:
     ``time-blocks``.  ``runs``: train on all but the last two runs, validate on
     the second-to-last, test on the last — or on the run ids named in
     ``train``, ``val``, ``test`` (without ``val``, interleaved blocks of the
-    training runs validate; runs may not be in two roles).  ``train-then-verify``: train on the first
-    run (validating on interleaved contiguous blocks of it), test on the
+    training runs validate; runs may not be in two roles).  ``train-then-verify``: train on
+    the first run (validating on interleaved contiguous blocks of it), test on the
     second.  ``time-blocks``: every run cut into ``n_blocks`` contiguous time
     blocks, interleaved train / val / test (60 / 20 / 20 %).
     ``leave-one-run-out``: each run is the test run once (≥ 3 runs), the
@@ -77,7 +77,9 @@ class SplitConfig:
 class FeatureConfig:
     """The one feature layer shared by every family."""
 
-    t_ref: float | Literal["start"] = "start"  # °C, or mean of the first minutes of the first training run
+    t_ref: float | Literal["start"] = (
+        "start"  # °C, or mean of the first minutes of the first training run
+    )
     t_ref_window_min: float = 10.0             # minutes averaged for t_ref "start"
     rate_window_s: float = 60.0                # Savitzky–Golay window of dT/dt, s
 
@@ -133,7 +135,7 @@ class CompareConfig:
     # factor K1 of each axis from a static multi-position test (study 000); outputs
     # `<axis>.bias` and `<axis>.scale` are then modelled together.
     target: Literal["drift", "four-position"] = "drift"
-    baseline: str | None = "cubic"       # the family label the report compares against (PX4/ArduPilot's)
+    baseline: str | None = "cubic"  # the family label the report compares against (PX4/ArduPilot's)
     description: str = ""
 
 
@@ -236,7 +238,9 @@ def load_config(path: str | Path | None) -> CompareConfig:
     labels = [f.label for f in cfg.families]
     dup = sorted({x for x in labels if labels.count(x) > 1})
     if dup:
-        raise ConfigError(f"{p}: key 'families': duplicate family name {dup[0]!r} (give each a distinct 'name')")
+        raise ConfigError(
+            f"{p}: key 'families': duplicate family name {dup[0]!r} (give each a distinct 'name')"
+        )
     if not cfg.families:
         raise ConfigError(f"{p}: key 'families': empty list (need at least one family)")
     check_families(cfg, source=str(p))

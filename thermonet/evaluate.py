@@ -127,7 +127,7 @@ def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> 
 
 
 def heating_only(part: Part, rec: Recording, rate_window_s: float) -> Part:
-    """The samples of ``part`` where ``rec``'s temperature is not falling (PX4/ArduPilot practice)."""
+    """The samples of ``part`` where ``rec``'s temperature is not falling (PX4/ArduPilot way)."""
     from .features import RATE, signal_matrix
 
     if part.per_soak:

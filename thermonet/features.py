@@ -32,8 +32,8 @@ exported graph, so it uses only gather, subtract and multiply.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
 
 import numpy as np
 import torch
@@ -157,7 +157,7 @@ class FeatureSpec:
     @classmethod
     def from_recordings(cls, inputs: Sequence[str], recordings: object, *,
                         t_ref: str | float = "start", proxy_ref: object = "start",
-                        window_min: float = 10.0) -> "FeatureSpec":
+                        window_min: float = 10.0) -> FeatureSpec:
         """Spec whose references come from :func:`reference_values`."""
         tr, pr = reference_values(recordings, inputs, t_ref=t_ref, window_min=window_min,
                                   proxy_ref=proxy_ref)
@@ -258,7 +258,7 @@ def contiguous_segments(time_s: np.ndarray, gap_factor: float = GAP_FACTOR) -> l
     dt = np.diff(t)
     cuts = np.flatnonzero(dt > gap_factor * np.median(dt)) + 1
     edges = np.concatenate([[0], cuts, [t.size]])
-    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
 def _segment_rate(temp: np.ndarray, time_s: np.ndarray, fs: float, window_s: float) -> np.ndarray:

@@ -39,16 +39,17 @@ import io
 import json
 import logging
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from .fileio import atomic_path
 from .errors import InputError
+from .fileio import atomic_path
 from .mapping import ChannelSpec, ColumnMapping, TimeSpec, default_unit, load_mapping
 from .recording import OUTPUT_NAME, Dataset, Recording
 
@@ -248,7 +249,8 @@ def _from_thermonet_table(path: Path, table: pa.Table, blob: bytes
         idx = np.flatnonzero(run_col == e["run_id"])
         rows = idx + 1
 
-        def take(name: str) -> np.ndarray:
+        def take(name: str, e: Any = e, idx: np.ndarray = idx, rows: np.ndarray = rows
+                 ) -> np.ndarray:  # this run's e, idx, rows bound now (called in this loop only)
             if name not in table.column_names:
                 raise InputError.at(path, f"missing column (run '{e['run_id']}' lists it)",
                                     column=name)

@@ -179,7 +179,7 @@ class ColumnMapping:
     source: str = "<mapping>"
 
     @classmethod
-    def from_dict(cls, raw: object, *, source: str = "<mapping>") -> "ColumnMapping":
+    def from_dict(cls, raw: object, *, source: str = "<mapping>") -> ColumnMapping:
         """Check a mapping read from YAML; raise :class:`MappingError` naming the key."""
         return _Parser(source).mapping(raw)
 

@@ -16,9 +16,10 @@ import json
 import logging
 import math
 import os
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import Any
 
 __all__ = ["Tracker", "default_tracking_uri", "flatten_params"]
 

@@ -18,14 +18,14 @@ from __future__ import annotations
 import copy
 import math
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 import numpy as np
 import torch
 import torch._dynamo  # noqa: F401  torch.optim imports it on the first step; importing it here
-# keeps that one-time second out of the first family's fit_seconds
 
+# keeps that one-time second out of the first family's fit_seconds
 from .errors import ConfigError, FitError, InputError
 from .features import FeatureSpec
 from .models import DriftModel, build_family

@@ -48,16 +48,16 @@ File formats.  PX4: QGroundControl parameter file, tab-separated
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 from numpy.polynomial import polynomial as P
 from torch import nn
 
-from ..fileio import atomic_write_text
 from ..errors import ExportError
+from ..fileio import atomic_write_text
 from ..recording import output_kind
 from .onnx_export import family_name
 
@@ -145,7 +145,8 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
     Raises
     ------
     ExportError
-        A family without a polynomial form, a degree above 3, another input; an axis that is not gyro/acc x/y/z;
+        A family without a polynomial form, a degree above 3, another input; an axis
+        that is not gyro/acc x/y/z;
         a unit that does not match the axis kind.
     """
     family = family_name(model)
@@ -164,7 +165,9 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
     lo = float(model.sig_lo[0])
     hi = float(model.sig_hi[0])
     if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
-        raise ExportError(f"trained temperature range [{lo}, {hi}] is not usable (model not fitted?)")
+        raise ExportError(
+            f"trained temperature range [{lo}, {hi}] is not usable (model not fitted?)"
+        )
     t_model = float(model.spec.t_ref) if model.inputs == ["dT"] else 0.0
     if t_ref is None:
         t_ref = t_model if model.inputs == ["dT"] else round((lo + hi) / 2.0, 1)
@@ -281,7 +284,9 @@ def export_ardupilot_params(model: nn.Module, path: str | Path, *,
               "# axes the model does not cover are written as 0 (no correction on that axis)",
               f"# drift constant at {ARDUPILOT_TEMP_REFERENCE:g} degC is left to the offset "
               "calibration at INS_*_CALTEMP"]
-    return atomic_write_text(Path(path), "\n".join(header + [f"{n}{sep}{v}" for n, v in rows]) + "\n")
+    return atomic_write_text(
+        Path(path), "\n".join(header + [f"{n}{sep}{v}" for n, v in rows]) + "\n"
+    )
 
 
 def read_px4_params(path: str | Path) -> dict[str, float]:

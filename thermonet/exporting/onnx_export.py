@@ -51,16 +51,17 @@ import json
 import logging
 import tempfile
 import warnings
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
-from ..fileio import atomic_path
 from .. import __version__
 from ..errors import ExportError
+from ..fileio import atomic_path
 
 __all__ = [
     "THERMONET_FORMAT",
@@ -200,7 +201,9 @@ def _export_proto(graph: CompensatorGraph, exporter: str) -> tuple[Any, str]:
             _strip_debug(proto)
             return proto, kind
         except Exception as exc:  # any exporter failure: record it, try the next exporter
-            errors.append(f"{kind}: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+            errors.append(
+                f"{kind}: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+            )
             _log.warning("ONNX exporter '%s' failed: %s", kind, errors[-1])
     raise ExportError("torch.onnx.export failed (" + "; ".join(errors) + ")")
 
@@ -248,7 +251,7 @@ def _check_points(ranges: Sequence[tuple[float, float]], seed: int) -> np.ndarra
     plus seeded uniform random points in range; float32 (N, S)."""
     lo = np.array([r[0] for r in ranges])
     hi = np.array([r[1] for r in ranges])
-    axes = [np.linspace(a, b, GRID_POINTS) for a, b in zip(lo, hi)]
+    axes = [np.linspace(a, b, GRID_POINTS) for a, b in zip(lo, hi, strict=True)]
     if len(ranges) <= 2:
         grid = np.stack([g.reshape(-1) for g in np.meshgrid(*axes, indexing="ij")], axis=1)
     else:

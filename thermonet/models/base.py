@@ -25,7 +25,7 @@ import torch
 from torch import nn
 
 from ..errors import ConfigError
-from ..features import FeatureSpec, Features
+from ..features import Features, FeatureSpec
 
 __all__ = ["TINY", "Family", "DriftModel", "distinct_levels", "as_numpy", "least_squares"]
 

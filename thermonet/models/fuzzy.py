@@ -51,9 +51,13 @@ class TSFuzzy(Family):
             try:
                 lo, hi = (float(v) for v in universe)
             except (TypeError, ValueError):
-                raise ConfigError(f"ts-fuzzy: universe must be [lo, hi], got {universe!r}") from None
+                raise ConfigError(
+                    f"ts-fuzzy: universe must be [lo, hi], got {universe!r}"
+                ) from None
             if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
-                raise ConfigError(f"ts-fuzzy: universe must be finite with lo < hi, got {universe!r}")
+                raise ConfigError(
+                    f"ts-fuzzy: universe must be finite with lo < hi, got {universe!r}"
+                )
             universe = [lo, hi]
         self.n_sets = int(n_sets)
         self.universe = universe

@@ -44,7 +44,11 @@ class RBF(Family):
     def __init__(self, *, n_inputs: int, n_outputs: int, n_centres: int = 16,
                  init: str = "kmeans", width_scale: float = 1.0) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        if isinstance(n_centres, bool) or not isinstance(n_centres, int) or not 1 <= n_centres <= 4096:
+        if (
+            isinstance(n_centres, bool)
+            or not isinstance(n_centres, int)
+            or not 1 <= n_centres <= 4096
+        ):
             raise ConfigError(f"rbf: n_centres must be an integer in 1..4096, got {n_centres!r}")
         if init not in _INITS:
             raise ConfigError(f"rbf: init must be one of {', '.join(_INITS)}, got {init!r}")
@@ -91,7 +95,9 @@ class RBF(Family):
         xn, yn = as_numpy(x), as_numpy(y)
         if self.init == "random":
             rng = np.random.default_rng(seed)
-            centres = rng.uniform(xn.min(axis=0), xn.max(axis=0), size=(self.n_centres, xn.shape[1]))
+            centres = rng.uniform(
+                xn.min(axis=0), xn.max(axis=0), size=(self.n_centres, xn.shape[1])
+            )
             with torch.no_grad():
                 self.centres.copy_(torch.as_tensor(centres))
                 self.log_sigma.zero_()

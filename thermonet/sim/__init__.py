@@ -30,12 +30,32 @@ reproduced within 10 %, checked in ``tests/test_presets.py``):
 """
 
 from .chamber import Approach, ChamberProfile, Ramp, Soak, cycle, staircase
-from .device import (AxisConfig, HysteresisConfig, LawSum, Lorentz, NoiseConfig, Polynomial,
-                     ProxyConfig, RateTermConfig, SelfHeatingConfig, Sinusoid, ThermalConfig,
-                     ThermometerConfig, UnitSpreadConfig)
+from .device import (
+                     AxisConfig,
+                     HysteresisConfig,
+                     LawSum,
+                     Lorentz,
+                     NoiseConfig,
+                     Polynomial,
+                     ProxyConfig,
+                     RateTermConfig,
+                     SelfHeatingConfig,
+                     Sinusoid,
+                     ThermalConfig,
+                     ThermometerConfig,
+                     UnitSpreadConfig,
+)
 from .fourpos import four_position_estimates
-from .presets import (PRESETS, RunTruth, SimConfig, Switches, TableConfig, get_preset, simulate,
-                      simulate_run)
+from .presets import (
+                     PRESETS,
+                     RunTruth,
+                     SimConfig,
+                     Switches,
+                     TableConfig,
+                     get_preset,
+                     simulate,
+                     simulate_run,
+)
 
 __all__ = [
     "simulate", "simulate_run", "get_preset", "PRESETS", "SimConfig", "Switches", "TableConfig",

@@ -24,7 +24,8 @@ __all__ = ["four_position_estimates"]
 def _blocks(mask: np.ndarray) -> list[tuple[int, int]]:
     """Start/stop indices (stop exclusive) of the runs of True in ``mask``."""
     d = np.diff(np.r_[0, mask.astype(np.int8), 0])
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(),
+                    strict=False))
 
 
 def four_position_estimates(recording: Recording, output: str | None = None, *,
@@ -58,7 +59,9 @@ def four_position_estimates(recording: Recording, output: str | None = None, *,
         raise InputError.at(src, "a four-position test needs the reference channel",
                             column=f"ref_{output}")
     if recording.temperature_c is None:
-        raise InputError.at(src, "a four-position test needs the thermometer", column="temperature_c")
+        raise InputError.at(
+            src, "a four-position test needs the thermometer", column="temperature_c"
+        )
     t = np.asarray(recording.time_s, dtype=np.float64)
     temp = np.asarray(recording.temperature_c, dtype=np.float64)
     y = np.asarray(recording.outputs[output], dtype=np.float64)

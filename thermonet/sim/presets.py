@@ -23,10 +23,24 @@ import numpy as np
 from ..errors import ConfigError
 from ..recording import Dataset, Recording
 from .chamber import Approach, ChamberProfile, Ramp, Soak, staircase
-from .device import (AxisConfig, LawSum, Lorentz, NoiseConfig, Polynomial,
-                     ProxyConfig, RateTermConfig, SelfHeatingConfig, Sinusoid, ThermalConfig,
-                     ThermometerConfig, UnitSpreadConfig, first_order_lag, play_operator,
-                     quantise, sensor_noise)
+from .device import (
+    AxisConfig,
+    LawSum,
+    Lorentz,
+    NoiseConfig,
+    Polynomial,
+    ProxyConfig,
+    RateTermConfig,
+    SelfHeatingConfig,
+    Sinusoid,
+    ThermalConfig,
+    ThermometerConfig,
+    UnitSpreadConfig,
+    first_order_lag,
+    play_operator,
+    quantise,
+    sensor_noise,
+)
 
 __all__ = ["TableConfig", "Switches", "SimConfig", "RunTruth", "PRESETS", "get_preset",
            "simulate", "simulate_run"]
@@ -111,7 +125,7 @@ def _reference(cfg: SimConfig, profile: ChamberProfile, t: np.ndarray, axis: Axi
         ref[:] = rate
     elif cfg.table.program == "four_position":
         seq = np.asarray(cfg.table.positions, dtype=np.float64)
-        for t0, t1, _, seg in profile.bounds():
+        for _t0, t1, _, seg in profile.bounds():
             if isinstance(seg, Soak) and seg.four_position:
                 start = t1 - seq.size * cfg.table.dwell_s
                 m = (t >= start) & (t < t1)
