@@ -38,7 +38,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -170,9 +170,9 @@ def _val_score(model: Any, part: Part) -> float:
 class _FamilyOutcome:
     result: dict[str, Any]
     model: Any = None
-    test_parts: list[Part] | None = None
-    test_preds: list[np.ndarray] | None = None
-    history: list[dict[str, float]] | None = None
+    test_parts: list[Part] = field(default_factory=list)
+    test_preds: list[np.ndarray] = field(default_factory=list)
+    history: list[dict[str, Any]] | None = None
     best_val: float | None = None
 
 
@@ -329,7 +329,7 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
                 r["mlflow_run_id"] = run_id
                 r["checkpoint"] = None
                 if r["status"] == "ok":
-                    tracker.log_history(oc.history or [])
+                    tracker.log_history(list(oc.history or []))
                     tracker.log_metrics({f"test/{a}/{k}": v for a, m in r["axes"].items()
                                          for k, v in m.items()})
                     tracker.log_metrics({"val/score": r["val_score"],

@@ -168,7 +168,7 @@ def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
             return value
         raise ConfigError(f"{source}: key '{key}': {value!r} is not one of "
                           f"{', '.join(repr(a) for a in args)}")
-    if dataclasses.is_dataclass(tp):
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         return from_dict(tp, value, source=source, prefix=key)
     if origin is list:
         if not isinstance(value, list):

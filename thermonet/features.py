@@ -34,6 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 import torch
@@ -167,7 +168,8 @@ class FeatureSpec:
 def _first_run(recordings: object) -> Recording:
     if isinstance(recordings, Recording):
         return recordings
-    runs = list(recordings.runs if isinstance(recordings, Dataset) else recordings)  # type: ignore[attr-defined]
+    runs = list(recordings.runs if isinstance(recordings, Dataset)
+                else cast(Iterable[Recording], recordings))
     if not runs:
         raise InputError("no training run to take the reference values from")
     return runs[0]
@@ -366,6 +368,10 @@ class Features(nn.Module):
     and the mask :math:`m_f \\in \\{0, 1\\}`, so there is no data-dependent
     branch (buffers ``index``, ``ref``, ``square``).
     """
+
+    index: torch.Tensor      # buffers, declared for the type checker
+    ref: torch.Tensor
+    square: torch.Tensor
 
     def __init__(self, spec: FeatureSpec) -> None:
         super().__init__()

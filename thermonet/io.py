@@ -111,7 +111,7 @@ def _to_table(dataset: Dataset) -> pa.Table:
                 parts.append(np.zeros(r.n_samples))
                 masks.append(np.ones(r.n_samples, dtype=bool))
         cols[name] = pa.array(np.concatenate(parts), pa.float64(), mask=np.concatenate(masks))
-    blob = {"format": "thermonet", "version": FORMAT_VERSION,
+    blob: dict[str, Any] = {"format": "thermonet", "version": FORMAT_VERSION,
             "meta": _str_dict(dataset.meta, "dataset meta"), "runs": []}
     for r in runs:
         blob["runs"].append({
@@ -470,7 +470,7 @@ def _apply_mapping(frame: _Frame, mapping: ColumnMapping) -> tuple[list[Recordin
     else:
         groups = [(mapping.run_id or path.stem, np.ones(int(keep.sum()), dtype=bool))]
     kinds = {m.group(1) for c in mapping.channels if c.role == "output"
-             for m in [OUTPUT_NAME.match(c.name)]}
+             for m in [OUTPUT_NAME.match(c.name)] if m is not None}
     sensor_kind = mapping.sensor_kind or (kinds.pop() if len(kinds) == 1 else "mixed")
     runs = []
     for run_id, sel in groups:

@@ -15,8 +15,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
@@ -54,7 +56,7 @@ def _check_length(name: str, arr: np.ndarray, n: int, against: str) -> None:
         raise ValueError(f"'{name}' has {arr.shape[0]} samples, '{against}' has {n}")
 
 
-def _new_figure() -> tuple[Figure, object]:
+def _new_figure() -> tuple[Figure, Axes]:
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI)
     FigureCanvasAgg(fig)
     return fig, fig.add_subplot(1, 1, 1)
@@ -192,8 +194,8 @@ def plot_residual_vs_time(path: str | Path, *, time_s: np.ndarray, raw_error: np
     scale, t_unit = (3600.0, "h") if span > 7200.0 else (1.0, "s")
 
     fig, ax = _new_figure()
-    for name, y, kw in [("raw", raw, {"color": _RAW_COLOR})] + [
-            (name, r, {}) for name, r in residuals.items()]:
+    series: list[tuple[str, np.ndarray, dict[str, Any]]] = [("raw", raw, {"color": _RAW_COLOR})]
+    for name, y, kw in series + [(name, r, {}) for name, r in residuals.items()]:
         keep = _minmax_indices(y, MAX_LINE_POINTS)
         breaks = _gap_breaks(t, keep)
         x_d = np.insert(t[keep], breaks, np.nan)

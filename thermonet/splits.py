@@ -149,10 +149,10 @@ def _named_runs(runs: list[Recording], cfg: SplitConfig, source: str) -> list[Sp
                                   f"(runs: {', '.join(by_id)})")
     if not cfg.test:
         raise ConfigError(f"{source}: key 'split.test': name the held-out test run")
-    train_ids = cfg.train or [i for i in by_id if i not in (cfg.val, cfg.test)]
-    for key, name in (("test", cfg.test), ("val", cfg.val)):
-        if name in train_ids:
-            raise ConfigError(f"{source}: key 'split.{key}': run '{name}' is also a training run")
+    train_ids: list[str] = cfg.train or [i for i in by_id if i not in (cfg.val, cfg.test)]
+    for key, run in (("test", cfg.test), ("val", cfg.val)):
+        if run is not None and run in train_ids:
+            raise ConfigError(f"{source}: key 'split.{key}': run '{run}' is also a training run")
     if cfg.val is not None and cfg.val == cfg.test:
         raise ConfigError(f"{source}: key 'split.val': run '{cfg.val}' is also the test run")
     if not train_ids:

@@ -176,11 +176,12 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
     device = _resolve_device(config.device)
     model.to(device)
 
-    def dev(a: np.ndarray | None) -> torch.Tensor | None:
-        return None if a is None else torch.as_tensor(a, dtype=torch.float32, device=device)
+    def dev(a: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(a, dtype=torch.float32, device=device)
 
-    history, best_epoch, best_val = _fit_loop(fam, dev(z_tr), dev(yz_tr), dev(z_v), dev(y_vz),
-                                              config, family, on_epoch)
+    val_t = None if z_v is None or y_vz is None else (dev(z_v), dev(y_vz))
+    history, best_epoch, best_val = _fit_loop(fam, dev(z_tr), dev(yz_tr), val_t, config, family,
+                                              on_epoch)
 
     model.to("cpu").eval()
     with torch.no_grad():
@@ -203,7 +204,7 @@ def _train_step(fam: torch.nn.Module, opt: torch.optim.Optimizer, z: torch.Tenso
         loss = _mse(fam, z, y)
         loss.backward()
         return loss
-    opt.step(closure)
+    opt.step(closure)  # type: ignore[arg-type]  # the stub says float; LBFGS takes the tensor
 
 
 def _valid_step(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> float:
@@ -211,8 +212,8 @@ def _valid_step(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> float
         return float(_mse(fam, z, y))
 
 
-def _fit_loop(fam: torch.nn.Module, zt: torch.Tensor, yt: torch.Tensor, zv: torch.Tensor | None,
-              yv: torch.Tensor | None, config: TrainConfig, family: str,
+def _fit_loop(fam: torch.nn.Module, zt: torch.Tensor, yt: torch.Tensor,
+              val: tuple[torch.Tensor, torch.Tensor] | None, config: TrainConfig, family: str,
               on_epoch: Callable | None) -> tuple[list[dict], int, float | None]:
     params = [p for p in fam.parameters() if p.requires_grad]
     if config.optimizer == "lbfgs":
@@ -230,7 +231,7 @@ def _fit_loop(fam: torch.nn.Module, zt: torch.Tensor, yt: torch.Tensor, zv: torc
         if epoch > 0:
             _train_step(fam, opt, zt, yt)
         train_loss = _valid_step(fam, zt, yt)
-        val_loss = None if zv is None else _valid_step(fam, zv, yv)
+        val_loss = None if val is None else _valid_step(fam, *val)
         if not math.isfinite(train_loss) or (val_loss is not None and not math.isfinite(val_loss)):
             raise FitError(f"model '{family}': NaN loss at epoch {epoch} "
                            f"(optimizer {config.optimizer}, lr {config.lr:g}; try a lower lr)")

@@ -54,10 +54,10 @@ from pathlib import Path
 
 import numpy as np
 from numpy.polynomial import polynomial as P
-from torch import nn
 
 from ..errors import ExportError
 from ..fileio import atomic_write_text
+from ..models import DriftModel
 from ..recording import output_kind
 from .onnx_export import family_name
 
@@ -117,14 +117,14 @@ class AutopilotCoefficients:
 def _unit_of(axis: str, units: str | Mapping[str, str]) -> str:
     unit = units if isinstance(units, str) else units.get(axis)
     if unit is None:
-        raise ExportError(f"no unit given for output '{axis}' (units: {dict(units)})")
+        raise ExportError(f"no unit given for output '{axis}' (units: {units})")
     if unit not in SI_FACTOR:
         raise ExportError(f"output '{axis}': unit '{unit}' cannot be converted for an autopilot "
                           f"(known: {', '.join(SI_FACTOR)})")
     return unit
 
 
-def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str, str],
+def autopilot_coefficients(model: DriftModel, *, output_units: str | Mapping[str, str],
                            t_ref: float | None = None) -> AutopilotCoefficients:
     """Expand a polynomial model (degree ≤ 3, one input ``dT`` or ``T``) into SI cubic coefficients.
 
@@ -168,7 +168,7 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
         raise ExportError(
             f"trained temperature range [{lo}, {hi}] is not usable (model not fitted?)"
         )
-    t_model = float(model.spec.t_ref) if model.inputs == ["dT"] else 0.0
+    t_model = float(model.spec.t_ref or 0.0) if model.inputs == ["dT"] else 0.0
     if t_ref is None:
         t_ref = t_model if model.inputs == ["dT"] else round((lo + hi) / 2.0, 1)
     # x = T - t_model = u + (t_ref - t_model); z = (x - x_mean)/x_std = alpha*u + beta
@@ -203,7 +203,7 @@ def _g(v: float) -> str:
     return f"{float(v):.9g}"
 
 
-def export_px4_params(model: nn.Module, path: str | Path, *, output_units: str | Mapping[str, str],
+def export_px4_params(model: DriftModel, path: str | Path, *, output_units: str | Mapping[str, str],
                       device_id: int | None = None, instance: int = 0) -> Path:
     """Write PX4 ``TC_G<i>_*`` / ``TC_A<i>_*`` parameters as a QGC ``.params`` file.
 
@@ -251,7 +251,7 @@ def export_px4_params(model: nn.Module, path: str | Path, *, output_units: str |
     return atomic_write_text(Path(path), "\n".join(lines) + "\n")
 
 
-def export_ardupilot_params(model: nn.Module, path: str | Path, *,
+def export_ardupilot_params(model: DriftModel, path: str | Path, *,
                             output_units: str | Mapping[str, str], imu: int = 1,
                             sep: str = ",") -> Path:
     """Write ArduPilot ``INS_TCAL<n>_*`` parameters (``NAME,VALUE`` lines).

@@ -62,6 +62,7 @@ from torch import nn
 from .. import __version__
 from ..errors import ExportError
 from ..fileio import atomic_path
+from ..models import DriftModel
 
 __all__ = [
     "THERMONET_FORMAT",
@@ -95,14 +96,14 @@ GRID_POINTS = 201
 RANDOM_POINTS = 10_000
 
 
-def trained_range(model: nn.Module) -> dict[str, tuple[float, float]]:
+def trained_range(model: DriftModel) -> dict[str, tuple[float, float]]:
     """Trained range ``{signal: (lo, hi)}`` from the model's ``sig_lo``/``sig_hi`` buffers."""
     lo = model.sig_lo.detach().cpu().double().numpy().reshape(-1)
     hi = model.sig_hi.detach().cpu().double().numpy().reshape(-1)
     return {s: (float(lo[i]), float(hi[i])) for i, s in enumerate(model.signals)}
 
 
-def family_name(model: nn.Module) -> str:
+def family_name(model: DriftModel) -> str:
     """The registered family name of a DriftModel (``model.family`` is the family module)."""
     name = getattr(model, "family_name", None)
     if name is None:
@@ -110,7 +111,7 @@ def family_name(model: nn.Module) -> str:
     return str(name)
 
 
-def check_model_finite(model: nn.Module) -> None:
+def check_model_finite(model: DriftModel) -> None:
     """Refuse a model with a NaN/inf parameter or buffer (:class:`ExportError` naming it)."""
     for name, tensor in list(model.named_parameters()) + list(model.named_buffers()):
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
@@ -135,7 +136,7 @@ class CompensatorGraph(nn.Module):
     ``(compensated, drift, out_of_range)``.
     """
 
-    def __init__(self, model: nn.Module) -> None:
+    def __init__(self, model: DriftModel) -> None:
         super().__init__()
         self.model = model
         self.signals = list(model.signals)
@@ -189,6 +190,8 @@ def _export_proto(graph: CompensatorGraph, exporter: str) -> tuple[Any, str]:
                         opset_version=OPSET, dynamo=True, external_data=False, optimize=True,
                         # forward(*inputs): the varargs tuple is one argument
                         dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False)
+                    if program is None:
+                        raise ExportError("torch.onnx.export (dynamo) returned no program")
                     proto = program.model_proto
                 else:
                     with tempfile.TemporaryDirectory() as tmp:
@@ -212,7 +215,8 @@ def _json(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=float)
 
 
-def _metadata_props(model: nn.Module, metadata: Mapping[str, Any], exporter: str) -> dict[str, str]:
+def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: str
+                    ) -> dict[str, str]:
     meta = dict(metadata)
     spec = getattr(model, "spec", None)
     t_ref = getattr(spec, "t_ref", None)
@@ -267,7 +271,7 @@ def _check_points(ranges: Sequence[tuple[float, float]], seed: int) -> np.ndarra
     return np.concatenate([grid, rand]).astype(np.float32)
 
 
-def float32_tolerance(model: nn.Module, points: np.ndarray, d_float32: np.ndarray, *,
+def float32_tolerance(model: DriftModel, points: np.ndarray, d_float32: np.ndarray, *,
                       rtol: float = PARITY_RTOL) -> np.ndarray:
     """Per-axis tolerance of a float32 evaluation of ``model`` at ``points``.
 
@@ -287,7 +291,7 @@ def float32_tolerance(model: nn.Module, points: np.ndarray, d_float32: np.ndarra
     return np.maximum(rtol * np.abs(d_float32).max(axis=0), 4.0 * rounding)
 
 
-def check_drift_parity(model: nn.Module, points: np.ndarray, got: np.ndarray,
+def check_drift_parity(model: DriftModel, points: np.ndarray, got: np.ndarray,
                        want: np.ndarray, tol: np.ndarray, *, what: str, who: str) -> np.ndarray:
     """``|got − want| ≤ tol`` per axis at every point, else :class:`ExportError` naming the
     worst point (signal values, axis, both drifts); returns the absolute errors."""
@@ -303,7 +307,7 @@ def check_drift_parity(model: nn.Module, points: np.ndarray, got: np.ndarray,
     return err
 
 
-def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
+def parity_check(model: DriftModel, onnx_path: str | Path, *, seed: int = 0,
                  rtol: float = PARITY_RTOL) -> dict[str, float]:
     """Compare onnxruntime (CPU) with torch on the grid and the random points.
 
@@ -378,7 +382,7 @@ def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
             "max_rel_diff": float((err / np.maximum(scale, 1e-30)).max())}
 
 
-def export_onnx(model: nn.Module, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
+def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
                 check: bool = True, exporter: str = "auto", seed: int = 0) -> Path:
     """Export a drift model to ``path`` as a self-describing ONNX file.
 

@@ -171,6 +171,15 @@ class DriftModel(nn.Module):
     spec : FeatureSpec
     """
 
+    # buffers (registered in __init__), declared here for the type checker
+    x_mean: torch.Tensor
+    x_std: torch.Tensor
+    y_mean: torch.Tensor
+    y_std: torch.Tensor
+    sig_lo: torch.Tensor
+    sig_hi: torch.Tensor
+    family: Family
+
     def __init__(self, *, family: Family, spec: FeatureSpec, outputs: list[str]) -> None:
         super().__init__()
         if family.n_inputs != len(spec.inputs):

@@ -38,6 +38,10 @@ __all__ = ["TSFuzzy"]
 class TSFuzzy(Family):
     """Takagi–Sugeno fuzzy model: triangular sets, first-order rules, per-axis coefficients."""
 
+    peaks: torch.Tensor      # buffers, declared for the type checker
+    spacing: torch.Tensor
+    bounds: torch.Tensor
+
     name = "ts-fuzzy"
     max_inputs = 1
     default_inputs = ["T"]

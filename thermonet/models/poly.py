@@ -67,11 +67,12 @@ class Poly(Family):
             powers.append(p)
         out = []
         for exps in self.terms:
-            term = None
+            term: torch.Tensor | None = None
             for i, e in enumerate(exps):
                 if e:
                     term = powers[i][e - 1] if term is None else term * powers[i][e - 1]
-            out.append(term)
+            if term is not None:  # every term has a positive exponent
+                out.append(term)
         return torch.cat(out, dim=1)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:

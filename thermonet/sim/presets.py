@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 
@@ -228,12 +229,12 @@ def simulate_run(cfg: SimConfig, run_index: int, seed: int = 0) -> tuple[Recordi
     return rec, RunTruth(chamber_c=chamber, die_c=die, case_c=case, thermometer_c=reading)
 
 
-def _apply_overrides(cfg: SimConfig, overrides: dict[str, object]) -> SimConfig:
+def _apply_overrides(cfg: SimConfig, overrides: dict[str, Any]) -> SimConfig:
     """Top-level fields (``sample_rate_hz=0.5``), switches (``hysteresis=False``) and
     nested fields as ``section__field`` (``thermal__die_lag_s=60``)."""
     top = {f.name for f in dataclasses.fields(SimConfig)}
     sw_names = {f.name for f in dataclasses.fields(Switches)}
-    sw_changes: dict[str, object] = {}
+    sw_changes: dict[str, Any] = {}
     for key, value in overrides.items():
         if key in sw_names:
             if not isinstance(value, bool):
@@ -243,11 +244,12 @@ def _apply_overrides(cfg: SimConfig, overrides: dict[str, object]) -> SimConfig:
             cfg = dataclasses.replace(cfg, **{key: value})
         elif "__" in key and key.split("__", 1)[0] in top:
             section, sub = key.split("__", 1)
-            part = getattr(cfg, section)
+            part: Any = getattr(cfg, section)
             if part is None or not dataclasses.is_dataclass(part) or \
                     sub not in {f.name for f in dataclasses.fields(part)}:
                 raise ConfigError(f"unknown simulation setting '{key}'")
-            cfg = dataclasses.replace(cfg, **{section: dataclasses.replace(part, **{sub: value})})
+            new_part: Any = dataclasses.replace(cast(Any, part), **{sub: value})
+            cfg = dataclasses.replace(cfg, **{section: new_part})
         else:
             raise ConfigError(f"unknown simulation setting '{key}' (valid: "
                               f"{', '.join(sorted(top | sw_names))}, or section__field)")
