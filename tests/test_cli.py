@@ -93,6 +93,7 @@ def test_info_on_both_real_recordings(thermonet):
     assert "skipped malformed rows: 5" in bmi.stdout
 
 
+@pytest.mark.slow
 def test_simulate_then_info_then_compare_then_export(thermonet, tmp_path):
     sim = tmp_path / "pg.parquet"
     r = thermonet("simulate", "patent-gyro", "--runs", "3", "--seed", "7", "--out", sim)
