@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -45,24 +46,29 @@ def _commands(tmp: Path) -> dict[str, list[str]]:
     }
 
 
-def _run(tree: Path, args: list[str]) -> float:
+def _run(tree: Path, args: list[str]) -> tuple[float, float]:
+    """Wall seconds and CPU seconds (user + system, the OS's accounting of the child):
+    on a shared machine the CPU figure is the one that does not grow with the load."""
     env = {**os.environ, "PYTHONPATH": str(tree)}
+    c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-m", "thermonet.cli", *args], cwd=tree, env=env,
                    capture_output=True, check=False)
-    return time.perf_counter() - t0
+    wall = time.perf_counter() - t0
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (c1.ru_utime + c1.ru_stime) - (c0.ru_utime + c0.ru_stime)
 
 
 def _heavy_imports(tree: Path, args: list[str]) -> list[str]:
     """Heavy modules loaded by the command (run in-process under a module snapshot)."""
     code = ("import sys\nfrom thermonet.cli import main\n"
             f"try:\n    main({args!r})\nexcept SystemExit:\n    pass\n"
-            f"print(','.join(m for m in {HEAVY!r} if m in sys.modules))")
+            f"print('HEAVY=' + ','.join(m for m in {HEAVY!r} if m in sys.modules))")
     env = {**os.environ, "PYTHONPATH": str(tree)}
     out = subprocess.run([sys.executable, "-c", code], cwd=tree, env=env, capture_output=True,
                          text=True, check=False)
-    return [m for m in out.stdout.strip().splitlines()[-1:][0].split(",") if m] \
-        if out.stdout.strip() else []
+    line = [ln for ln in out.stdout.splitlines() if ln.startswith("HEAVY=")]
+    return [m for m in line[-1][len("HEAVY="):].split(",") if m] if line else []
 
 
 def _fmt(xs: list[float]) -> str:
@@ -87,18 +93,22 @@ def main() -> None:
                 if args.baseline:
                     base.append(_run(args.baseline, cmd))
             heavy = _heavy_imports(ROOT, cmd)
-            entry = {"seconds": ours, "heavy_imports": heavy}
-            row = [label, _fmt(ours), ", ".join(heavy) or "none"]
+            wall, cpu = [w for w, _ in ours], [c for _, c in ours]
+            entry = {"wall_s": wall, "cpu_s": cpu, "heavy_imports": heavy}
+            row = [label, _fmt(wall), _fmt(cpu), ", ".join(heavy) or "none"]
             if args.baseline:
-                ratios = [b / o for o, b in zip(ours, base, strict=True)]
-                entry.update(baseline_seconds=base, speedup=ratios,
-                             baseline_heavy_imports=_heavy_imports(args.baseline, cmd))
-                row += [_fmt(base), f"{statistics.median(ratios):.1f}×"]
+                b_cpu = [c for _, c in base]
+                ratios = [b / o for o, b in zip(cpu, b_cpu, strict=True)]
+                b_heavy = _heavy_imports(args.baseline, cmd)
+                entry.update(baseline_wall_s=[w for w, _ in base], baseline_cpu_s=b_cpu,
+                             cpu_speedup=ratios, baseline_heavy_imports=b_heavy)
+                row += [_fmt(b_cpu), ", ".join(b_heavy) or "none",
+                        f"{statistics.median(ratios):.1f}×"]
             data[label] = entry
             rows.append(row)
-    header = ["command", "wall s, median (min–max)", "heavy modules loaded"]
+    header = ["command", "wall s, median (min–max)", "CPU s", "heavy modules loaded"]
     if args.baseline:
-        header += ["baseline wall s", "speed-up (pairwise median)"]
+        header += ["baseline CPU s", "baseline heavy modules", "CPU ratio (pairwise median)"]
     save("bench_imports", {"runs": args.runs, "results": data},
          "### Command start-up — `bench_imports.py`\n\n" + table(header, rows))
 
