@@ -32,14 +32,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT / "export"))
 from common import OUT, save, table  # noqa: E402
-from thermonet_runtime import Compensator  # noqa: E402
-
-from thermonet.evaluate import build_part, make_splits  # noqa: E402
+from thermonet.api import DriftEstimator  # noqa: E402
 from thermonet.config import SplitConfig  # noqa: E402
+from thermonet.evaluate import make_splits  # noqa: E402
 from thermonet.exporting import export_c_header, export_onnx  # noqa: E402
-from thermonet.features import FeatureSpec, reference_values  # noqa: E402
 from thermonet.sim import simulate  # noqa: E402
-from thermonet.train import TrainConfig, fit  # noqa: E402
+from thermonet.trainconfig import TrainConfig  # noqa: E402
+from thermonet_runtime import Compensator  # noqa: E402
 
 FAMILIES = {
     "linear": ("linear", ["dT"], {}),
@@ -78,15 +77,9 @@ def fitted_models() -> dict:
     split = make_splits(ds, SplitConfig())[0]
     models = {}
     for label, (family, inputs, hyper) in FAMILIES.items():
-        t_ref, proxy_ref = reference_values(split.train, inputs, t_ref="start")
-        spec = FeatureSpec(inputs=inputs, t_ref=t_ref, proxy_ref=proxy_ref)
-        kw = dict(signals=spec.signals, outputs=ds.axes, target="drift", rate_window_s=60.0)
-        train = [build_part(r, **kw) for r in split.train]
-        val = build_part(split.val, **kw)
-        res = fit(family=family, inputs=inputs, outputs=ds.axes,
-                  train=[(p.signals, p.target) for p in train], val=(val.signals, val.target),
-                  spec=spec, hyper=hyper, config=TrainConfig(max_epochs=100, patience=20))
-        models[label] = res.model
+        est = DriftEstimator(family, inputs, train=TrainConfig(max_epochs=100, patience=20),
+                             **hyper)
+        models[label] = est.fit(split.train, val=split.val).model_
     return models
 
 
@@ -201,7 +194,9 @@ def main() -> None:
              for name, (t_batch, t_one) in res.items()]
     md += ["### RBF (16 centres, 3 axes) evaluation on one thread\n",
            table(["evaluator", "M samples/s (100k batch)", "× torch", "single-sample µs"], trows)]
-    data["throughput"] = {k: {"batch_seconds": v[0], "single_seconds": v[1]} for k, v in res.items()}
+    data["throughput"] = {
+        k: {"batch_seconds": v[0], "single_seconds": v[1]} for k, v in res.items()
+    }
     save("export", data, "\n".join(md))
 
 

@@ -34,8 +34,9 @@ import json
 import math
 import sys
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import onnxruntime as ort
@@ -96,7 +97,9 @@ def _meta_json(meta: Mapping[str, str], key: str, path: Path) -> Any:
     try:
         return json.loads(meta[key])
     except json.JSONDecodeError as exc:
-        raise RuntimeInputError(f"{path}: metadata key '{key}' is not valid JSON ({exc.msg})") from None
+        raise RuntimeInputError(
+            f"{path}: metadata key '{key}' is not valid JSON ({exc.msg})"
+        ) from None
 
 
 class Compensator:
@@ -147,14 +150,18 @@ class Compensator:
         meta, path = self.metadata, self.path
         fmt = meta.get("thermonet_format")
         if fmt is None:
-            raise RuntimeInputError(f"{path}: not a thermonet model (no 'thermonet_format' metadata)")
+            raise RuntimeInputError(
+                f"{path}: not a thermonet model (no 'thermonet_format' metadata)"
+            )
         if fmt not in SUPPORTED_FORMATS:
             raise RuntimeInputError(f"{path}: thermonet_format {fmt!r} is not supported by this "
                                     f"runtime (supports {', '.join(SUPPORTED_FORMATS)})")
         try:
             opset = int(meta.get("onnx_opset", ""))
         except ValueError:
-            raise RuntimeInputError(f"{path}: metadata 'onnx_opset' is missing or not an integer") from None
+            raise RuntimeInputError(
+                f"{path}: metadata 'onnx_opset' is missing or not an integer"
+            ) from None
         if opset not in SUPPORTED_OPSETS:
             raise RuntimeInputError(f"{path}: ONNX opset {opset} is not supported "
                                     f"(supports {SUPPORTED_OPSETS[0]}..{SUPPORTED_OPSETS[-1]})")
@@ -195,7 +202,9 @@ class Compensator:
             raise RuntimeInputError(f"{path}: graph outputs {outs}, expected {list(GRAPH_OUTPUTS)}")
         for name in self.signals:
             if name not in self.trained_range:
-                raise RuntimeInputError(f"{path}: metadata 'trained_range' has no entry for '{name}'")
+                raise RuntimeInputError(
+                    f"{path}: metadata 'trained_range' has no entry for '{name}'"
+                )
 
     @staticmethod
     def _as_float32(name: str, values: Any, dtype: Any = np.float32) -> np.ndarray:
@@ -335,7 +344,9 @@ def time_batch(compensator: Compensator, batch_size: int = 1000, *, repeats: int
 
 
 # -- command line -----------------------------------------------------------------------------
-def _read_csv(path: Path, needed: list[str]) -> tuple[list[str], list[list[str]], dict[str, np.ndarray]]:
+def _read_csv(
+    path: Path, needed: list[str]
+) -> tuple[list[str], list[list[str]], dict[str, np.ndarray]]:
     try:
         with path.open(newline="") as fh:
             rows = list(csv.reader(fh))

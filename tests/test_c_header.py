@@ -31,7 +31,7 @@ def _model(family: str):
     inputs = ["dT", "d_freq_hz2"] if multi else ["d_freq_hz"]
     spec = FeatureSpec(inputs=inputs, t_ref=20.0, proxy_ref={"freq_hz": 4517.0})
     df = freq - 4517.0
-    y = np.stack([2e-3 * df + 1e-4 * df ** 2 + 0.003 * np.tanh(df / 5), -1e-3 * df + 5e-5 * df ** 2], 1)
+    y = np.stack([2e-3 * df + 1e-4 * df**2 + 0.003 * np.tanh(df / 5), -1e-3 * df + 5e-5 * df**2], 1)
     sig = np.stack([temp, freq], 1) if multi else freq[:, None]
     return fit(family=family, inputs=inputs, outputs=AXES, train=[(sig, y)], val=None, spec=spec,
                hyper={}, config=TrainConfig(max_epochs=20, seed=0)).model
@@ -104,8 +104,12 @@ def test_header_refuses_fast_math(tmp_path):
     ok = subprocess.run(["gcc", "-std=c99", "-O2", "-c", str(src), "-o", str(tmp_path / "a.o")],
                         capture_output=True, text=True, cwd=tmp_path)
     assert ok.returncode == 0, ok.stderr
-    fast = subprocess.run(["gcc", "-std=c99", "-Ofast", "-c", str(src), "-o", str(tmp_path / "b.o")],
-                          capture_output=True, text=True, cwd=tmp_path)
+    fast = subprocess.run(
+        ["gcc", "-std=c99", "-Ofast", "-c", str(src), "-o", str(tmp_path / "b.o")],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
     assert fast.returncode != 0 and "fast-math" in fast.stderr
     assert header.name == "thermonet_model.h"
 

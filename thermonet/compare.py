@@ -39,7 +39,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -48,8 +48,17 @@ import numpy as np
 from . import __version__
 from .config import CompareConfig, FamilyConfig, from_dict, to_dict
 from .errors import ConfigError, FitError, ThermonetError
-from .evaluate import (FOURPOS_SUFFIXES, Part, Split, build_part, data_hash, heating_only,
-                       load_data, make_splits, targets_for)
+from .evaluate import (
+    FOURPOS_SUFFIXES,
+    Part,
+    Split,
+    build_part,
+    data_hash,
+    heating_only,
+    load_data,
+    make_splits,
+    targets_for,
+)
 from .fileio import atomic_write_text
 from .recording import Dataset
 
@@ -57,7 +66,7 @@ __all__ = ["run_compare", "format_table", "Progress"]
 
 
 class Progress:
-    """One status line per family on stderr (rewritten in place on a terminal); silent when quiet."""
+    """One status line per family on stderr (rewritten in place on a terminal); silent if quiet."""
 
     def __init__(self, quiet: bool = False, stream: Any = None) -> None:
         self.quiet = quiet
@@ -165,9 +174,10 @@ def _val_score(model: Any, part: Part) -> float:
 class _FamilyOutcome:
     result: dict[str, Any]
     model: Any = None
-    test_parts: list[Part] | None = None
-    test_preds: list[np.ndarray] | None = None
-    history: list[dict[str, float]] | None = None
+    test_parts: list[Part] = field(default_factory=list)
+    test_preds: list[np.ndarray] = field(default_factory=list)
+    history: list[dict[str, Any]] | None = None
+    best_val: float | None = None
 
 
 class _Parts:
@@ -175,7 +185,8 @@ class _Parts:
 
     def __init__(self, cfg: CompareConfig, outputs: list[str], targets: Any = None) -> None:
         self.cfg, self.outputs = cfg, outputs
-        self.targets = targets if targets is not None else cfg.target  # thermonet.target.Target
+        # thermonet.target.Target, or the config's plain kind ("drift" / "four-position")
+        self.targets: Any = targets if targets is not None else cfg.target
         self._cache: dict[tuple[int, tuple[str, ...]], Part] = {}
 
     def __call__(self, rec: Any, signals: list[str]) -> Part:
@@ -209,7 +220,7 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
             train_parts = [parts(r, spec.signals) for r in split.train]
             if fam.train_on == "heating":
                 train_parts = [heating_only(p, r, cfg.features.rate_window_s)
-                               for p, r in zip(train_parts, split.train)]
+                               for p, r in zip(train_parts, split.train, strict=True)]
             val_part = parts(split.val, spec.signals) if split.val is not None else None
             test_part = parts(split.test, spec.signals)
             fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=outputs,
@@ -223,6 +234,7 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
             pred, axes = _evaluate_part(fitted.model, test_part)
             fold_axes.append(axes)
             outcome.model, outcome.history = fitted.model, fitted.history
+            outcome.best_val = fitted.best_val_loss
             outcome.test_parts.append(test_part)
             outcome.test_preds.append(pred)
             res.update(n_params=int(fitted.n_params), best_epoch=int(fitted.best_epoch))
@@ -237,6 +249,14 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
     if len(fold_axes) > 1:
         res["folds"] = fold_axes
     return outcome
+
+
+def _family_config(cfg: CompareConfig, fam: FamilyConfig) -> dict[str, Any]:
+    """What a family's checkpoint carries: its own resolved config, not the whole comparison's
+    (the same layout :meth:`thermonet.DriftEstimator.save` writes)."""
+    return {"family": to_dict(fam), "train": to_dict(_train_config(cfg, fam)),
+            "features": to_dict(cfg.features), "target": cfg.target,
+            "tracking": to_dict(cfg.tracking)}
 
 
 def _choose(families: dict[str, dict[str, Any]]) -> tuple[str | None, str]:
@@ -262,10 +282,9 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
     simulation this way); the config's ``data`` section is then ignored.
     """
     from .checkpoint import save_checkpoint
-    from .tracking import Tracker
-
     from .config import check_families
     from .features import signals_for
+    from .tracking import Tracker
 
     progress = progress or Progress(quiet)
     source = getattr(cfg, "_source", "config")
@@ -323,14 +342,15 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
                 r["mlflow_run_id"] = run_id
                 r["checkpoint"] = None
                 if r["status"] == "ok":
-                    tracker.log_history(oc.history or [])
+                    tracker.log_history(list(oc.history or []))
                     tracker.log_metrics({f"test/{a}/{k}": v for a, m in r["axes"].items()
                                          for k, v in m.items()})
                     tracker.log_metrics({"val/score": r["val_score"],
                                          "fit_seconds": r["fit_seconds"]})
                     ckpt = out / "models" / f"{fam.label}.pt"
                     try:
-                        save_checkpoint(ckpt, oc.model, config=resolved,
+                        save_checkpoint(ckpt, oc.model, config=_family_config(cfg, fam),
+                                        epoch=r["best_epoch"], best_val=oc.best_val,
                                         extra={"label": fam.label, "device_id": ds.device_id,
                                                "data_hash": dhash, "units": units,
                                                "signal_units": {p: ds[0].units.get(p, "")
@@ -372,7 +392,9 @@ def _baseline_ratios(results: dict[str, Any]) -> None:
             continue
         for axis, m in fam["axes"].items():
             b = base["axes"][axis]
-            m["pp_ratio_vs_baseline"] = (m["pp_comp"] / b["pp_comp"]) if b["pp_comp"] > 0 else float("nan")
+            m["pp_ratio_vs_baseline"] = (
+                (m["pp_comp"] / b["pp_comp"]) if b["pp_comp"] > 0 else float("nan")
+            )
 
 
 def _plots(out: Path, outcomes: dict[str, _FamilyOutcome], results: dict[str, Any],
@@ -397,7 +419,9 @@ def _plots(out: Path, outcomes: dict[str, _FamilyOutcome], results: dict[str, An
             pdir / f"drift_vs_temperature_{safe}.png", temperature_c=part.bin_by,
             observed_drift=part.target[:, j], curves=curves, axis=axis, units=unit))
         if results["target"] == "drift":
-            resid = {label: part.target[:, j] - oc.test_preds[-1][:, j] for label, oc in fitted.items()}
+            resid = {
+                label: part.target[:, j] - oc.test_preds[-1][:, j] for label, oc in fitted.items()
+            }
             paths.append(plot_residual_vs_time(
                 pdir / f"residual_vs_time_{safe}.png", time_s=part.time_s,
                 raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit))
@@ -444,8 +468,14 @@ def format_table(results: dict[str, Any]) -> str:
             continue
         for i, a in enumerate(axes):
             m = f["axes"][a]
-            pre = (f"{name:<14} {a:<14} {f['fit_seconds']:6.2f} {f['n_params']:6d} "
-                   f"{f['val_score']:7.3g} ") if i == 0 else f"{'':<14} {a:<14} {'':>6} {'':>6} {'':>7} "
+            pre = (
+                (
+                    f"{name:<14} {a:<14} {f['fit_seconds']:6.2f} {f['n_params']:6d} "
+                    f"{f['val_score']:7.3g} "
+                )
+                if i == 0
+                else f"{'':<14} {a:<14} {'':>6} {'':>6} {'':>7} "
+            )
             lines.append(pre + " ".join(f"{m.get(c, float('nan')):12.4g}" for c in cols))
     chosen = results.get("chosen")
     lines.append("")

@@ -47,8 +47,8 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
@@ -57,8 +57,14 @@ from torch import nn
 from .. import __version__
 from ..errors import ExportError
 from ..fileio import atomic_write_text
-from .onnx_export import (_check_points, check_drift_parity, check_model_finite, family_name,
-                          float32_tolerance, trained_range)
+from .onnx_export import (
+    _check_points,
+    check_drift_parity,
+    check_model_finite,
+    family_name,
+    float32_tolerance,
+    trained_range,
+)
 
 __all__ = ["export_c_header", "render_c_header", "EMITTERS"]
 

@@ -59,18 +59,19 @@ from __future__ import annotations
 import json
 import logging
 import tempfile
-import time
 import warnings
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
-from ..fileio import atomic_path
 from .. import __version__
 from ..errors import ExportError
+from ..fileio import atomic_path
+from ..models import DriftModel
 
 __all__ = [
     "THERMONET_FORMAT",
@@ -85,7 +86,6 @@ __all__ = [
     "trained_range",
     "target_metadata",
     "onnx_file_size",
-    "time_onnxruntime",
     "log_onnx_to_mlflow",
 ]
 
@@ -106,14 +106,14 @@ GRID_POINTS = 201
 RANDOM_POINTS = 10_000
 
 
-def trained_range(model: nn.Module) -> dict[str, tuple[float, float]]:
+def trained_range(model: DriftModel) -> dict[str, tuple[float, float]]:
     """Trained range ``{signal: (lo, hi)}`` from the model's ``sig_lo``/``sig_hi`` buffers."""
     lo = model.sig_lo.detach().cpu().double().numpy().reshape(-1)
     hi = model.sig_hi.detach().cpu().double().numpy().reshape(-1)
     return {s: (float(lo[i]), float(hi[i])) for i, s in enumerate(model.signals)}
 
 
-def family_name(model: nn.Module) -> str:
+def family_name(model: DriftModel) -> str:
     """The registered family name of a DriftModel (``model.family`` is the family module)."""
     name = getattr(model, "family_name", None)
     if name is None:
@@ -121,7 +121,7 @@ def family_name(model: nn.Module) -> str:
     return str(name)
 
 
-def check_model_finite(model: nn.Module) -> None:
+def check_model_finite(model: DriftModel) -> None:
     """Refuse a model with a NaN/inf parameter or buffer (:class:`ExportError` naming it)."""
     for name, tensor in list(model.named_parameters()) + list(model.named_buffers()):
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
@@ -146,7 +146,7 @@ class CompensatorGraph(nn.Module):
     ``(compensated, drift, out_of_range)``.
     """
 
-    def __init__(self, model: nn.Module) -> None:
+    def __init__(self, model: DriftModel) -> None:
         super().__init__()
         self.model = model
         self.signals = list(model.signals)
@@ -202,6 +202,8 @@ def _export_proto(graph: CompensatorGraph, exporter: str) -> tuple[Any, str]:
                         opset_version=OPSET, dynamo=True, external_data=False, optimize=True,
                         # forward(*inputs): the varargs tuple is one argument
                         dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False)
+                    if program is None:
+                        raise ExportError("torch.onnx.export (dynamo) returned no program")
                     proto = program.model_proto
                 else:
                     with tempfile.TemporaryDirectory() as tmp:
@@ -214,7 +216,9 @@ def _export_proto(graph: CompensatorGraph, exporter: str) -> tuple[Any, str]:
             _strip_debug(proto)
             return proto, kind
         except Exception as exc:  # any exporter failure: record it, try the next exporter
-            errors.append(f"{kind}: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+            errors.append(
+                f"{kind}: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+            )
             _log.warning("ONNX exporter '%s' failed: %s", kind, errors[-1])
     raise ExportError("torch.onnx.export failed (" + "; ".join(errors) + ")")
 
@@ -223,7 +227,8 @@ def _json(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=float)
 
 
-def _metadata_props(model: nn.Module, metadata: Mapping[str, Any], exporter: str) -> dict[str, str]:
+def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: str
+                    ) -> dict[str, str]:
     meta = dict(metadata)
     spec = getattr(model, "spec", None)
     t_ref = getattr(spec, "t_ref", None)
@@ -258,7 +263,7 @@ def _metadata_props(model: nn.Module, metadata: Mapping[str, Any], exporter: str
     return props
 
 
-def target_metadata(model: nn.Module) -> dict[str, str]:
+def target_metadata(model: DriftModel) -> dict[str, str]:
     """What each axis's drift is relative to, as metadata strings (ONNX, C comments).
 
     ``targets`` {axis: channel | zero | at-t-ref | four-position}, ``compensate``
@@ -282,7 +287,7 @@ def _check_points(ranges: Sequence[tuple[float, float]], seed: int) -> np.ndarra
     plus seeded uniform random points in range; float32 (N, S)."""
     lo = np.array([r[0] for r in ranges])
     hi = np.array([r[1] for r in ranges])
-    axes = [np.linspace(a, b, GRID_POINTS) for a, b in zip(lo, hi)]
+    axes = [np.linspace(a, b, GRID_POINTS) for a, b in zip(lo, hi, strict=True)]
     if len(ranges) <= 2:
         grid = np.stack([g.reshape(-1) for g in np.meshgrid(*axes, indexing="ij")], axis=1)
     else:
@@ -298,7 +303,7 @@ def _check_points(ranges: Sequence[tuple[float, float]], seed: int) -> np.ndarra
     return np.concatenate([grid, rand]).astype(np.float32)
 
 
-def float32_tolerance(model: nn.Module, points: np.ndarray, d_float32: np.ndarray, *,
+def float32_tolerance(model: DriftModel, points: np.ndarray, d_float32: np.ndarray, *,
                       rtol: float = PARITY_RTOL) -> np.ndarray:
     """Per-axis tolerance of a float32 evaluation of ``model`` at ``points``.
 
@@ -318,7 +323,7 @@ def float32_tolerance(model: nn.Module, points: np.ndarray, d_float32: np.ndarra
     return np.maximum(rtol * np.abs(d_float32).max(axis=0), 4.0 * rounding)
 
 
-def check_drift_parity(model: nn.Module, points: np.ndarray, got: np.ndarray,
+def check_drift_parity(model: DriftModel, points: np.ndarray, got: np.ndarray,
                        want: np.ndarray, tol: np.ndarray, *, what: str, who: str) -> np.ndarray:
     """``|got − want| ≤ tol`` per axis at every point, else :class:`ExportError` naming the
     worst point (signal values, axis, both drifts); returns the absolute errors."""
@@ -334,7 +339,7 @@ def check_drift_parity(model: nn.Module, points: np.ndarray, got: np.ndarray,
     return err
 
 
-def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
+def parity_check(model: DriftModel, onnx_path: str | Path, *, seed: int = 0,
                  rtol: float = PARITY_RTOL) -> dict[str, float]:
     """Compare onnxruntime (CPU) with torch on the grid and the random points.
 
@@ -415,7 +420,7 @@ def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
             "max_rel_diff": float((err / np.maximum(scale, 1e-30)).max())}
 
 
-def export_onnx(model: nn.Module, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
+def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
                 check: bool = True, exporter: str = "auto", seed: int = 0) -> Path:
     """Export a drift model to ``path`` as a self-describing ONNX file.
 
@@ -480,36 +485,6 @@ def export_onnx(model: nn.Module, path: str | Path, *, metadata: Mapping[str, An
 def onnx_file_size(path: str | Path) -> int:
     """Size of an exported file in bytes (for the size benchmark)."""
     return Path(path).stat().st_size
-
-
-def time_onnxruntime(path: str | Path, *, batch_size: int = 1000, repeats: int = 50,
-                     threads: int = 1, seed: int = 0) -> float:
-    """Median seconds per onnxruntime call on a batch of in-range points (``threads`` threads).
-
-    The first call (session warm-up) is not counted.
-    """
-    import onnxruntime as ort
-
-    opts = ort.SessionOptions()
-    opts.intra_op_num_threads = int(threads)
-    opts.inter_op_num_threads = 1
-    opts.log_severity_level = 3
-    sess = ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
-    meta = sess.get_modelmeta().custom_metadata_map
-    signals = json.loads(meta["signals"])
-    ranges = json.loads(meta["trained_range"])
-    n_axes = len(json.loads(meta["outputs"]))
-    rng = np.random.default_rng(seed)
-    feeds = {s: rng.uniform(*ranges[s], size=batch_size).astype(np.float32) for s in signals}
-    feeds["raw"] = np.zeros((batch_size, n_axes),
-                            np.float64 if meta.get("thermonet_format") != "1" else np.float32)
-    sess.run(None, feeds)
-    times = []
-    for _ in range(max(1, int(repeats))):
-        t0 = time.perf_counter()
-        sess.run(None, feeds)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def log_onnx_to_mlflow(path: str | Path, run_id: str, tracking_uri: str, *,

@@ -48,7 +48,7 @@ import torch
 from torch import nn
 
 from ..errors import ConfigError
-from ..features import FeatureSpec, Features
+from ..features import Features, FeatureSpec
 
 __all__ = ["TINY", "Family", "DriftModel", "distinct_levels", "as_numpy", "least_squares"]
 
@@ -158,6 +158,15 @@ class Family(nn.Module):
         rebuilds the same architecture."""
         return {}
 
+    def polynomial_form(self) -> np.ndarray | None:
+        """Coefficients (A, degree + 1), ascending in the one standardised input z,
+        when this fitted family *is* a polynomial in one input; None otherwise.
+
+        Exporters that need a polynomial (PX4's and ArduPilot's parameter files)
+        ask for it here instead of checking the family's name.
+        """
+        return None
+
     def extra_repr(self) -> str:
         return f"n_inputs={self.n_inputs}, n_outputs={self.n_outputs}, {self.hyper()}"
 
@@ -197,6 +206,7 @@ class DriftModel(nn.Module):
     sig_ref: torch.Tensor
     target_code: torch.Tensor
     compensate: torch.Tensor
+    family: Family
 
     def __init__(self, *, family: Family, spec: FeatureSpec, outputs: list[str]) -> None:
         super().__init__()

@@ -50,12 +50,32 @@ Realistic presets (what real chamber data does; no study to reproduce):
 """
 
 from .chamber import Approach, ChamberProfile, Ramp, Soak, cycle, staircase
-from .device import (AxisConfig, HysteresisConfig, LawSum, Lorentz, NoiseConfig, Polynomial,
-                     ProxyConfig, RateTermConfig, SelfHeatingConfig, Sinusoid, ThermalConfig,
-                     ThermometerConfig, UnitSpreadConfig)
-from .fourpos import four_position_estimates, scale_factor_coefficient_ppm_per_c
-from .presets import (PRESETS, RunTruth, SimConfig, Switches, TableConfig, get_preset, simulate,
-                      simulate_run)
+from .device import (
+                     AxisConfig,
+                     HysteresisConfig,
+                     LawSum,
+                     Lorentz,
+                     NoiseConfig,
+                     Polynomial,
+                     ProxyConfig,
+                     RateTermConfig,
+                     SelfHeatingConfig,
+                     Sinusoid,
+                     ThermalConfig,
+                     ThermometerConfig,
+                     UnitSpreadConfig,
+)
+from .fourpos import four_position_estimates
+from .presets import (
+                     PRESETS,
+                     RunTruth,
+                     SimConfig,
+                     Switches,
+                     TableConfig,
+                     get_preset,
+                     simulate,
+                     simulate_run,
+)
 
 __all__ = [
     "simulate", "simulate_run", "get_preset", "PRESETS", "SimConfig", "Switches", "TableConfig",
@@ -63,5 +83,5 @@ __all__ = [
     "AxisConfig", "ThermalConfig", "ThermometerConfig", "ProxyConfig", "SelfHeatingConfig",
     "HysteresisConfig", "RateTermConfig", "NoiseConfig", "UnitSpreadConfig",
     "Polynomial", "Lorentz", "Sinusoid", "LawSum",
-    "four_position_estimates", "scale_factor_coefficient_ppm_per_c",
+    "four_position_estimates",
 ]

@@ -19,16 +19,32 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 
 from ..errors import ConfigError
 from ..recording import Dataset, Recording
 from .chamber import Approach, ChamberProfile, Ramp, Soak, staircase
-from .device import (AxisConfig, HysteresisConfig, LawSum, Lorentz, NoiseConfig, Polynomial,
-                     ProxyConfig, RateTermConfig, SelfHeatingConfig, Sinusoid, ThermalConfig,
-                     ThermometerConfig, UnitSpreadConfig, first_order_lag, play_operator,
-                     quantise, sensor_noise)
+from .device import (
+    AxisConfig,
+    HysteresisConfig,
+    LawSum,
+    Lorentz,
+    NoiseConfig,
+    Polynomial,
+    ProxyConfig,
+    RateTermConfig,
+    SelfHeatingConfig,
+    Sinusoid,
+    ThermalConfig,
+    ThermometerConfig,
+    UnitSpreadConfig,
+    first_order_lag,
+    play_operator,
+    quantise,
+    sensor_noise,
+)
 
 __all__ = ["TableConfig", "Switches", "SimConfig", "RunTruth", "PRESETS", "get_preset",
            "simulate", "simulate_run"]
@@ -113,7 +129,7 @@ def _reference(cfg: SimConfig, profile: ChamberProfile, t: np.ndarray, axis: Axi
         ref[:] = rate
     elif cfg.table.program == "four_position":
         seq = np.asarray(cfg.table.positions, dtype=np.float64)
-        for t0, t1, _, seg in profile.bounds():
+        for _t0, t1, _, seg in profile.bounds():
             if isinstance(seg, Soak) and seg.four_position:
                 start = t1 - seq.size * cfg.table.dwell_s
                 m = (t >= start) & (t < t1)
@@ -216,12 +232,12 @@ def simulate_run(cfg: SimConfig, run_index: int, seed: int = 0) -> tuple[Recordi
     return rec, RunTruth(chamber_c=chamber, die_c=die, case_c=case, thermometer_c=reading)
 
 
-def _apply_overrides(cfg: SimConfig, overrides: dict[str, object]) -> SimConfig:
+def _apply_overrides(cfg: SimConfig, overrides: dict[str, Any]) -> SimConfig:
     """Top-level fields (``sample_rate_hz=0.5``), switches (``hysteresis=False``) and
     nested fields as ``section__field`` (``thermal__die_lag_s=60``)."""
     top = {f.name for f in dataclasses.fields(SimConfig)}
     sw_names = {f.name for f in dataclasses.fields(Switches)}
-    sw_changes: dict[str, object] = {}
+    sw_changes: dict[str, Any] = {}
     for key, value in overrides.items():
         if key in sw_names:
             if not isinstance(value, bool):
@@ -231,11 +247,12 @@ def _apply_overrides(cfg: SimConfig, overrides: dict[str, object]) -> SimConfig:
             cfg = dataclasses.replace(cfg, **{key: value})
         elif "__" in key and key.split("__", 1)[0] in top:
             section, sub = key.split("__", 1)
-            part = getattr(cfg, section)
+            part: Any = getattr(cfg, section)
             if part is None or not dataclasses.is_dataclass(part) or \
                     sub not in {f.name for f in dataclasses.fields(part)}:
                 raise ConfigError(f"unknown simulation setting '{key}'")
-            cfg = dataclasses.replace(cfg, **{section: dataclasses.replace(part, **{sub: value})})
+            new_part: Any = dataclasses.replace(cast(Any, part), **{sub: value})
+            cfg = dataclasses.replace(cfg, **{section: new_part})
         else:
             raise ConfigError(f"unknown simulation setting '{key}' (valid: "
                               f"{', '.join(sorted(top | sw_names))}, or section__field)")
