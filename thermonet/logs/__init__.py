@@ -1,0 +1,37 @@
+"""Flight-controller logs: PX4 ULog (``.ulg``, pyulog) and ArduPilot DataFlash (``.bin``, pymavlink).
+
+``read_log(path)`` dispatches on the file suffix and returns a
+:class:`FlightLog`: one :class:`SensorInstance` per sensor, with no mapping.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import InputError
+from .base import AXES, UNITS, FlightLog, SensorInstance, temperature_step
+
+__all__ = ["read_log", "is_log", "LOG_SUFFIXES", "FlightLog", "SensorInstance", "AXES", "UNITS",
+           "temperature_step"]
+
+#: File suffixes read as flight-controller logs (case-insensitive).
+LOG_SUFFIXES = {".ulg": "ulog", ".bin": "dataflash"}
+
+
+def is_log(path: str | Path) -> bool:
+    """True for a ``.ulg`` / ``.bin`` (any case) path."""
+    return Path(path).suffix.lower() in LOG_SUFFIXES
+
+
+def read_log(path: str | Path) -> FlightLog:
+    """Read a PX4 ULog or an ArduPilot DataFlash log (by suffix)."""
+    kind = LOG_SUFFIXES.get(Path(path).suffix.lower())
+    if kind == "ulog":
+        from .ulog import read_ulog
+
+        return read_ulog(path)
+    if kind == "dataflash":
+        from .dataflash import read_dataflash
+
+        return read_dataflash(path)
+    raise InputError.at(path, "not a flight-controller log (expected .ulg or .bin)")
