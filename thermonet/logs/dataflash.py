@@ -65,10 +65,8 @@ def ardupilot_tcal_correction(params: dict[str, float], imu: int, kind: str,
     if params.get(pre + "ENABLE", 0.0) != 1.0:
         return None
     tmin, tmax = params.get(pre + "TMIN", 0.0), params.get(pre + "TMAX", 0.0)
-    cal_name = (f"INS_GYR{'' if imu == 1 else imu}_CALTEMP" if kind == "gyro"
-                else f"INS_ACC{'' if imu == 1 else imu}_CALTEMP")
-    tcal = params.get(cal_name, params.get(cal_name.replace("GYR_", "GYR1_")
-                                           .replace("ACC_", "ACC1_"), _TEMP_REF))
+    # INS_GYR1_CALTEMP / INS_ACC1_CALTEMP: the temperature of the offset calibration
+    tcal = params.get(f"INS_{'GYR' if kind == 'gyro' else 'ACC'}{imu}_CALTEMP", _TEMP_REF)
     stype = "GYR" if kind == "gyro" else "ACC"
     t = np.clip(temperature_c, tmin, tmax) - _TEMP_REF
     tc = float(np.clip(tcal, tmin, tmax)) - _TEMP_REF
