@@ -9,9 +9,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
+from ..recording import Dataset
 from .base import AXES, UNITS, FlightLog, SensorInstance, temperature_step
 
-__all__ = ["read_log", "is_log", "LOG_SUFFIXES", "FlightLog", "SensorInstance", "AXES", "UNITS",
+__all__ = ["read_log", "read_log_instance", "is_log", "LOG_SUFFIXES", "FlightLog", "SensorInstance", "AXES", "UNITS",
            "temperature_step"]
 
 #: File suffixes read as flight-controller logs (case-insensitive).
@@ -35,3 +36,25 @@ def read_log(path: str | Path) -> FlightLog:
 
         return read_dataflash(path)
     raise InputError.at(path, "not a flight-controller log (expected .ulg or .bin)")
+
+
+def read_log_instance(path: str | Path) -> Dataset:
+    """One sensor instance of a log as a :class:`Dataset`: ``LOG#gyro0`` (``#`` + instance name).
+
+    Without ``#name`` the log must hold exactly one calibratable instance
+    (gyro, accel or baro).  This is how :func:`thermonet.io.read_datasets`
+    reads a ``.ulg`` / ``.bin`` path.
+    """
+    text = str(path)
+    file, _, name = text.partition("#")
+    log = read_log(file)
+    insts = [i for i in log.instances if i.kind != "mag"]
+    if name:
+        insts = [i for i in log.instances if i.name == name]
+        if not insts:
+            raise InputError.at(file, f"no sensor instance '{name}' (instances: "
+                                f"{', '.join(i.name for i in log.instances)})")
+    if len(insts) != 1:
+        raise InputError.at(file, "the log holds several sensor instances; name one as "
+                            f"'{file}#<instance>' ({', '.join(i.name for i in insts)})")
+    return insts[0].to_dataset(file)

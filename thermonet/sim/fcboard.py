@@ -6,7 +6,7 @@ Presets (``simulate_board(name, autopilot=..., seed=...)``):
     The board is powered after a cold soak and left still while it warms
     (PX4's ``process_sensor_caldata.py`` steps 4–6; ArduPilot's "log while
     warming"): the board temperature rises as 52 − 45·exp(−t / 12 min) °C over
-    45 minutes (7 → ≈49 °C), logged at 2 Hz (small, so tests are fast; the
+    45 minutes (7 → ≈49 °C), logged at 1 Hz (small, so tests are fast; the
     autopilots log at hundreds of Hz).  Three IMUs (gyro + accelerometer, each
     with its own thermometer, device id and drift law) and one barometer:
 
@@ -41,7 +41,7 @@ __all__ = ["BOARD_PRESETS", "simulate_board", "board_params"]
 
 BOARD_PRESETS = ("fc-board", "fc-board-cycle")
 _G = 9.80665
-_RATE_HZ = 2.0
+_RATE_HZ = 1.0
 _WARM_S = 45 * 60.0
 # device ids: PX4-style ids for (gyro, accel) of each IMU, and the baro
 _PX4_IDS = [(2424842, 2424842), (3670050, 3670058), (2621474, 2621482)]
