@@ -95,7 +95,7 @@ def board_params(autopilot: str) -> dict[str, float]:
 
 
 def simulate_board(preset: str = "fc-board", *, autopilot: str = "px4", seed: int = 0,
-                   path: str | Path = "<simulated>") -> FlightLog:
+                   rate_hz: float = _RATE_HZ, path: str | Path = "<simulated>") -> FlightLog:
     """Simulate the board's log (instances with their true drift, and the logged parameters).
 
     Parameters
@@ -105,15 +105,19 @@ def simulate_board(preset: str = "fc-board", *, autopilot: str = "px4", seed: in
         Which parameters are logged (the sensor data are the same).
     seed : int
         Same seed, same log.
+    rate_hz : float
+        Logging rate, Hz (default 1; tests use less).
     """
     if preset not in BOARD_PRESETS:
         raise InputError(f"unknown board preset '{preset}' (known: {', '.join(BOARD_PRESETS)})")
     if autopilot not in ("px4", "ardupilot"):
         raise InputError(f"autopilot must be 'px4' or 'ardupilot', got '{autopilot}'")
+    if not (isinstance(rate_hz, (int, float)) and 0.01 <= rate_hz <= 1000.0):
+        raise InputError(f"rate_hz must be within 0.01..1000 Hz, got {rate_hz!r}")
     cycle = preset == "fc-board-cycle"
     rng = np.random.default_rng(seed)
     duration = 2 * _WARM_S if cycle else _WARM_S
-    t = np.arange(0.0, duration, 1.0 / _RATE_HZ) + 1.0
+    t = np.arange(0.0, duration, 1.0 / rate_hz) + 1.0
     board = _board_temperature(t - t[0], cycle)
     instances: list[SensorInstance] = []
     for k in range(3):
