@@ -59,9 +59,17 @@ import numpy as np
 
 from . import __version__
 from .errors import ThermonetError
-from .exporting.autopilot import (ARDUPILOT_TEMP_REFERENCE, FirmwareFit, ardupilot_calibration_text,
-                                  ardupilot_correction, px4_calibration_text, px4_offsets,
-                                  px4_offsets_1d, read_ardupilot_params, read_px4_params)
+from .exporting.autopilot import (
+    ARDUPILOT_TEMP_REFERENCE,
+    FirmwareFit,
+    ardupilot_calibration_text,
+    ardupilot_correction,
+    px4_calibration_text,
+    px4_offsets,
+    px4_offsets_1d,
+    read_ardupilot_params,
+    read_px4_params,
+)
 from .fileio import atomic_write_text
 from .logs import FlightLog, SensorInstance, read_log, temperature_step
 from .metrics import binned_peak_to_peak
@@ -288,7 +296,7 @@ def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True
         r.summary["slot"] = slots[r.name]
         r.summary["firmware_check"] = {"pp_raw": before, "pp_corrected": after,
                                        "cut": [b / a if a > 0 else math.inf
-                                               for b, a in zip(before, after)]}
+                                               for b, a in zip(before, after, strict=True)]}
     doc = _results_doc(log, results, param_path)
     atomic_write_text(out / "results.json", json.dumps(doc, indent=2, default=_json_default))
     atomic_write_text(out / "report.txt", format_report(doc))

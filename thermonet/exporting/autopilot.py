@@ -48,16 +48,16 @@ File formats.  PX4: QGroundControl parameter file, tab-separated
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 from numpy.polynomial import polynomial as P
 from torch import nn
 
-from ..fileio import atomic_write_text
 from ..errors import ExportError
+from ..fileio import atomic_write_text
 from ..recording import output_kind
 from .onnx_export import family_name
 
@@ -160,11 +160,13 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
         raise ExportError(f"PX4/ArduPilot parameter files need one input, dT or T; this model "
                           f"reads {list(model.inputs)}")
     if int(fam.degree) > 3:
-        raise ExportError(f"PX4/ArduPilot evaluate a cubic; this poly model has degree {fam.degree}")
+        raise ExportError("PX4/ArduPilot evaluate a cubic; this poly model has degree "
+                          f"{fam.degree}")
     lo = float(model.sig_lo[0])
     hi = float(model.sig_hi[0])
     if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
-        raise ExportError(f"trained temperature range [{lo}, {hi}] is not usable (model not fitted?)")
+        raise ExportError(f"trained temperature range [{lo}, {hi}] is not usable "
+                          "(model not fitted?)")
     t_model = float(model.spec.t_ref) if model.inputs == ["dT"] else 0.0
     if t_ref is None:
         t_ref = t_model if model.inputs == ["dT"] else round((lo + hi) / 2.0, 1)
@@ -215,16 +217,21 @@ def px4_offsets(params: Mapping[str, float], kind: str, temperature_c: np.ndarra
 
 def ardupilot_correction(params: Mapping[str, float], kind: str, temperature_c: np.ndarray,
                          cal_temp_c: float, imu: int = 1) -> np.ndarray:
-    """What ArduPilot's ``correct_sensor`` subtracts from ``raw``: P(T−35) − P(T_cal−35), (N, 3) SI."""
+    """What ArduPilot's ``correct_sensor`` subtracts from ``raw``.
+
+    P(T−35) − P(T_cal−35), (N, 3) SI.
+    """
     pre = f"INS_TCAL{imu}_"
     tmin, tmax = params[pre + "TMIN"], params[pre + "TMAX"]
     t = np.clip(np.asarray(temperature_c, dtype=np.float64), tmin, tmax) - ARDUPILOT_TEMP_REFERENCE
     tc = float(np.clip(cal_temp_c, tmin, tmax)) - ARDUPILOT_TEMP_REFERENCE
     out = np.zeros((t.size, 3))
+    def poly(c: list[float], x: np.ndarray | float) -> np.ndarray | float:
+        return (c[0] + (c[1] + c[2] * x) * x) * x / ARDUPILOT_SCALE
+
     for i, ax in enumerate(_AXES):
         c = [params[f"{pre}{_AP_TYPE[kind]}{k}_{ax.upper()}"] for k in (1, 2, 3)]
-        poly = lambda x: (c[0] + (c[1] + c[2] * x) * x) * x / ARDUPILOT_SCALE  # noqa: E731
-        out[:, i] = poly(t) - poly(tc)
+        out[:, i] = poly(c, t) - poly(c, tc)
     return out
 
 
@@ -382,7 +389,10 @@ def px4_offsets_1d(params: Mapping[str, float], temperature_c: np.ndarray,
     pre = f"TC_B{instance}_"
     temp = np.asarray(temperature_c, dtype=np.float64)
     dt = np.clip(temp, params[pre + "TMIN"], params[pre + "TMAX"]) - params[pre + "TREF"]
-    return sum(params[f"{pre}X{k}"] * dt ** k for k in range(6))
+    out = np.zeros_like(dt)
+    for k in range(6):
+        out = out + params[f"{pre}X{k}"] * dt ** k
+    return out
 
 
 def px4_calibration_text(fits: Mapping[str, list[FirmwareFit]], *, header: list[str]) -> str:

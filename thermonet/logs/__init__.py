@@ -1,4 +1,4 @@
-"""Flight-controller logs: PX4 ULog (``.ulg``, pyulog) and ArduPilot DataFlash (``.bin``, pymavlink).
+"""Flight-controller logs: PX4 ULog (``.ulg``, pyulog), ArduPilot DataFlash (``.bin``, pymavlink).
 
 ``read_log(path)`` dispatches on the file suffix and returns a
 :class:`FlightLog`: one :class:`SensorInstance` per sensor, with no mapping.
@@ -12,8 +12,8 @@ from ..errors import InputError
 from ..recording import Dataset
 from .base import AXES, UNITS, FlightLog, SensorInstance, temperature_step
 
-__all__ = ["read_log", "read_log_instance", "is_log", "LOG_SUFFIXES", "FlightLog", "SensorInstance", "AXES", "UNITS",
-           "temperature_step"]
+__all__ = ["read_log", "read_log_instance", "is_log", "LOG_SUFFIXES", "FlightLog",
+           "SensorInstance", "AXES", "UNITS", "temperature_step"]
 
 #: File suffixes read as flight-controller logs (case-insensitive).
 LOG_SUFFIXES = {".ulg": "ulog", ".bin": "dataflash"}

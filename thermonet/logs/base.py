@@ -126,7 +126,7 @@ class FlightLog:
     params: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
-    def check(self) -> "FlightLog":
+    def check(self) -> FlightLog:
         """Refuse a log with no usable sensor data: one line naming the file and what is missing."""
         if not self.instances:
             raise InputError.at(self.path, "no sensor topics (sensor_gyro / sensor_accel / "

@@ -72,9 +72,8 @@ def ardupilot_tcal_correction(params: dict[str, float], imu: int, kind: str,
     tc = float(np.clip(tcal, tmin, tmax)) - _TEMP_REF
     out = np.zeros((t.size, 3))
     for j, ax in enumerate("XYZ"):
-        c = [params.get(f"{pre}{stype}{k}_{ax}", 0.0) / _SCALE for k in (1, 2, 3)]
-        p = lambda x: (c[0] + (c[1] + c[2] * x) * x) * x  # noqa: E731
-        out[:, j] = p(t) - p(tc)
+        c1, c2, c3 = (params.get(f"{pre}{stype}{k}_{ax}", 0.0) / _SCALE for k in (1, 2, 3))
+        out[:, j] = ((c1 + (c2 + c3 * t) * t) * t) - ((c1 + (c2 + c3 * tc) * tc) * tc)
     return out
 
 

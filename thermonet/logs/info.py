@@ -61,7 +61,7 @@ def format_log_summary(s: dict[str, Any]) -> str:
                      r["unit"]])
     widths = [max(len(h), *(len(x[i]) for x in rows)) for i, h in enumerate(head)]
     out = [f"{s['log']}: {s['autopilot']} log, {len(rows)} sensor instances", ""]
-    out += ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip()
+    out += ["  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)).rstrip()
             for line in [head, ["-" * w for w in widths]] + rows]
     notes = [f"{r['name']}: {n}" for r in s["instances"] for n in r["notes"]]
     if notes:

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..fileio import atomic_path
-from .base import FlightLog
+from .base import FlightLog, SensorInstance
 
 __all__ = ["write_ulog", "write_dataflash", "write_log"]
 
@@ -104,7 +104,7 @@ def _dataflash_bytes(log: FlightLog) -> bytes:
     for name, value in sorted(log.params.items()):
         out += _df(64, struct.pack("<Q16sf", 0, name.encode()[:16], float(value)))
     records: list[tuple[int, int, bytes]] = []
-    imus = {}
+    imus: dict[int, dict[str, SensorInstance]] = {}
     for inst in log.instances:
         if inst.kind in ("gyro", "acc"):
             imus.setdefault(inst.instance, {})[inst.kind] = inst
