@@ -80,19 +80,21 @@ __all__ = [
     "ardupilot_calibration_text",
 ]
 
-#: Multiply a value in this unit by the factor to get rad/s (gyro) or m/s² (accel).
+#: Multiply a value in this unit by the factor to get rad/s (gyro), m/s² (accel) or Pa (baro).
 SI_FACTOR = {
     "rad/s": 1.0, "deg/s": math.pi / 180.0, "deg/h": math.pi / 180.0 / 3600.0,
-    "m/s^2": 1.0, "g": 9.80665, "mg": 9.80665e-3,
+    "m/s^2": 1.0, "g": 9.80665, "mg": 9.80665e-3, "Pa": 1.0, "hPa": 100.0,
 }
-_SI_UNIT = {"gyro": "rad/s", "acc": "m/s^2"}
+_SI_UNIT = {"gyro": "rad/s", "acc": "m/s^2", "baro": "Pa"}
 _UNIT_KIND = {"rad/s": "gyro", "deg/s": "gyro", "deg/h": "gyro",
-              "m/s^2": "acc", "g": "acc", "mg": "acc"}
+              "m/s^2": "acc", "g": "acc", "mg": "acc", "Pa": "baro", "hPa": "baro"}
+#: PX4 evaluates a cubic for gyro/accel (``calc_thermal_offsets_3D``), order 5 for baro (``_1D``).
+_PX4_ORDER = {"gyro": 3, "acc": 3, "baro": 5}
 #: ArduPilot's fixed reference temperature (°C) and coefficient scale.
 ARDUPILOT_TEMP_REFERENCE = 35.0
 ARDUPILOT_SCALE = 1.0e6
 _AXES = ("x", "y", "z")
-_PX4_TYPE = {"gyro": "G", "acc": "A"}
+_PX4_TYPE = {"gyro": "G", "acc": "A", "baro": "B"}
 _AP_TYPE = {"gyro": "GYR", "acc": "ACC"}
 
 
@@ -159,8 +161,11 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
     if list(model.inputs) not in (["dT"], ["T"]):
         raise ExportError(f"PX4/ArduPilot parameter files need one input, dT or T; this model "
                           f"reads {list(model.inputs)}")
-    if int(fam.degree) > 3:
-        raise ExportError("PX4/ArduPilot evaluate a cubic; this poly model has degree "
+    kinds = {output_kind(a) for a in model.outputs}
+    max_degree = 5 if kinds == {"baro"} else 3
+    if int(fam.degree) > max_degree:
+        form = "an order-5 polynomial (baro)" if max_degree == 5 else "a cubic"
+        raise ExportError(f"PX4/ArduPilot evaluate {form}; this poly model has degree "
                           f"{fam.degree}")
     lo = float(model.sig_lo[0])
     hi = float(model.sig_hi[0])
@@ -182,9 +187,9 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
     for a, axis in enumerate(model.outputs):
         kind = output_kind(axis)
         letter = axis.split("_", 1)[1]
-        if kind not in _SI_UNIT or letter not in _AXES:
-            raise ExportError(f"output '{axis}' is not a gyro or accelerometer x/y/z axis; "
-                              "autopilots compensate only those")
+        if kind not in _SI_UNIT or (letter not in _AXES and kind != "baro"):
+            raise ExportError(f"output '{axis}' is not a gyro or accelerometer x/y/z axis or a "
+                              "barometer; autopilots compensate only those")
         unit = _unit_of(axis, output_units)
         if _UNIT_KIND[unit] != kind:
             raise ExportError(f"output '{axis}' has unit '{unit}', which is not a {kind} unit")
@@ -194,8 +199,15 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
             pu = P.polyadd(pu, c * P.polypow([beta, alpha], k))
         pu = pu * y_std[a]
         pu[0] += y_mean[a]
-        coef = out.coef.setdefault(kind, np.zeros((3, 4)))
-        coef[_AXES.index(letter), :pu.size] = pu[:4] * SI_FACTOR[unit]
+        n = _PX4_ORDER[kind] + 1
+        if kind == "baro":
+            if kind in out.coef:
+                raise ExportError(f"one barometer output per model, got {model.outputs}")
+            coef = out.coef.setdefault(kind, np.zeros((1, n)))
+            coef[0, :pu.size] = pu[:n] * SI_FACTOR[unit]
+        else:
+            coef = out.coef.setdefault(kind, np.zeros((3, n)))
+            coef[_AXES.index(letter), :pu.size] = pu[:n] * SI_FACTOR[unit]
         out.present.setdefault(kind, []).append(letter)
     return out
 
@@ -284,6 +296,9 @@ def export_px4_params(model: nn.Module, path: str | Path, *, output_units: str |
         rows.append((pre + "ID", str(int(device_id)), 6))
         rows += [(pre + "TMAX", _g(co.t_max), 9), (pre + "TMIN", _g(co.t_min), 9),
                  (pre + "TREF", _g(co.t_ref), 9)]
+        if kind == "baro":          # TC_B<i>_X0..X5, Pa (calc_thermal_offsets_1D)
+            rows += [(f"{pre}X{k}", _g(coef[0, k]), 9) for k in range(6)]
+            continue
         for k in range(4):
             for i in range(3):
                 rows.append((f"{pre}X{k}_{i}", _g(coef[i, k]), 9))
@@ -307,6 +322,10 @@ def export_ardupilot_params(model: nn.Module, path: str | Path, *,
         raise ExportError(f"separator must be ',', ' ' or a tab, got {sep!r}")
     co = autopilot_coefficients(model, output_units=output_units,
                                 t_ref=ARDUPILOT_TEMP_REFERENCE)
+    if "baro" in co.coef:
+        raise ExportError("ArduPilot has no barometer temperature-calibration parameters "
+                          "(INS_TCAL covers gyros and accelerometers); export PX4 params, "
+                          "ONNX or C")
     if co.t_min < -70.0 or co.t_max > 80.0:
         raise ExportError(f"trained range [{co.t_min:g}, {co.t_max:g}] degC is outside "
                           "ArduPilot's INS_TCAL TMIN/TMAX range -70..80 degC")
