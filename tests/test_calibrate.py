@@ -173,3 +173,19 @@ def test_calibrate_real_sample_log_refuses_every_instance(tmp_path: Path,
     assert "no sensor instance can be calibrated" in err and "too few samples: 6" in err
     assert "mag0" in err and not (tmp_path / "o" / "px4.params").exists()
     assert read_log(ulg).instances                                          # the log itself reads
+
+
+def test_simulate_board_cli_writes_both_log_formats(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    for name, autopilot in (("b.ulg", "px4"), ("b.BIN", "ardupilot")):
+        path = tmp_path / name
+        assert main(["simulate", "fc-board", "--seed", "3", "--out", str(path)]) == 0
+        log = read_log(path)
+        assert log.autopilot == autopilot and len(log.instances) == 7
+        same = read_log(path)                                 # same seed, same data
+        assert np.array_equal(log.instances[0].values, same.instances[0].values)
+    capsys.readouterr()
+    assert main(["simulate", "fc-board", "--out", str(tmp_path / "b.parquet")]) == 1
+    assert "FILE.ulg" in capsys.readouterr().err
+    assert main(["simulate", "patent-gyro", "--out", str(tmp_path / "p.ulg")]) == 1
+    assert "only the flight-controller presets" in capsys.readouterr().err

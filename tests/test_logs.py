@@ -211,3 +211,30 @@ def test_bad_logs_one_line_exit_1(tmp_path: Path, what: str,
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and str(path) in err and expect in err
     assert not (tmp_path / "o").exists()
+
+
+def test_dataflash_tclr_used_when_no_imu_messages(tmp_path: Path) -> None:
+    """ArduPilot's learning log (TCLR: TimeUS, I, SType, Temp, X, Y, Z; SType 0 accel, 1 gyro)."""
+    import struct
+
+    def msg(mtype: int, payload: bytes) -> bytes:
+        return b"\xa3\x95" + bytes([mtype]) + payload
+
+    fmt = "<BB4s16s64s"
+    data = msg(128, struct.pack(fmt, 128, 89, b"FMT", b"BBnNZ", b"Type,Length,Name,Format,Columns"))
+    data += msg(128, struct.pack(fmt, 64, 31, b"PARM", b"QNf", b"TimeUS,Name,Value"))
+    data += msg(128, struct.pack(fmt, 67, 29, b"TCLR", b"QBBffff", b"TimeUS,I,SType,Temp,X,Y,Z"))
+    data += msg(64, struct.pack("<Q16sf", 0, b"INS_GYR_ID", 2424842.0))
+    t = np.arange(50) * 0.5
+    for i, ti in enumerate(t):
+        for stype, xyz in ((0, (0.1, 0.2, -9.8)), (1, (0.01 * i, 0.0, -0.01))):
+            data += msg(67, struct.pack("<QBBffff", int(ti * 1e6), 0, stype, 20.0 + 0.1 * i,
+                                        *xyz))
+    path = _bad(tmp_path, "tclr.bin", data)
+    log = read_log(path)
+    by = {i.name: i for i in log.instances}
+    assert sorted(by) == ["acc0", "gyro0"] and by["gyro0"].device_id == 2424842
+    assert np.allclose(by["gyro0"].values[:, 0], 0.01 * np.arange(50), atol=1e-6)
+    assert np.allclose(by["acc0"].values[0], [0.1, 0.2, -9.8], atol=1e-6)
+    assert np.allclose(by["gyro0"].temperature_c, 20.0 + 0.1 * np.arange(50), atol=1e-5)
+    assert "TCLR" in by["gyro0"].notes[0]

@@ -4,11 +4,12 @@ Messages read (``libraries/AP_InertialSensor/AP_InertialSensor_Logging.cpp``,
 ``libraries/AP_Baro/AP_Baro_Logging.cpp``): ``IMU`` (multi-instance form with an
 ``I`` field, or the older ``IMU``/``IMU2``/``IMU3``), ``BARO`` (``I`` field or
 ``BARO``/``BAR2``/``BAR3``), each with its own temperature (``T``, ``Temp``).
-``TCLR`` (the raw samples ArduPilot logs while it learns a calibration with
-``INS_TCAL_OPTIONS``) is not read: ``IMU`` carries the same sensors at a higher
-rate.  Units as logged: gyro rad/s, accel m/s², pressure Pa.  Device ids
-from ``INS_GYR_ID`` / ``INS_GYR2_ID`` / ``INS_GYR3_ID`` (``INS_ACC*_ID``,
-``BARO*_DEVID``).
+``TCLR`` (``TimeUS, I, SType, Temp, X, Y, Z``: the sensor-frame samples
+ArduPilot logs while it learns a calibration on board, ``SType`` 0 accel, 1 gyro)
+is used for an IMU that has no ``IMU`` messages, as ``tempcal_IMU.py --tclr``
+does; it is logged before any temperature correction, so nothing is undone.
+Units as logged: gyro rad/s, accel m/s², pressure Pa.  Device ids from
+``INS_GYR_ID`` / ``INS_GYR2_ID`` / ``INS_GYR3_ID`` (``INS_ACC*_ID``, ``BARO*_DEVID``).
 
 Calibration already applied, undone as ArduPilot's own
 ``Tools/scripts/tempcal_IMU.py`` does (``IMUfit``): the logged ``IMU`` values
@@ -108,7 +109,8 @@ def read_dataflash(path: str | Path) -> FlightLog:
                             ) from None
     rows: dict[tuple[str, int], list[list[float]]] = {}
     params: dict[str, float] = {}
-    types = ["PARM"] + list(_IMU_NAMES) + list(_BARO_NAMES)
+    types = ["PARM", "TCLR"] + list(_IMU_NAMES) + list(_BARO_NAMES)
+    tclr: dict[tuple[str, int], list[list[float]]] = {}
     while True:
         try:
             m = reader.recv_match(type=types)
@@ -122,6 +124,11 @@ def read_dataflash(path: str | Path) -> FlightLog:
             params[str(m.Name)] = float(m.Value)
             continue
         d = m.to_dict()
+        if mtype == "TCLR":
+            kind = "acc" if int(d["SType"]) == 0 else "gyro"
+            tclr.setdefault((kind, int(d["I"])), []).append(
+                [d["TimeUS"] * 1e-6, d["X"], d["Y"], d["Z"], d["Temp"]])
+            continue
         if mtype in _IMU_NAMES:
             idx = int(d["I"]) if "I" in d else _IMU_NAMES[mtype]
             rows.setdefault(("imu", idx), []).append(
@@ -164,6 +171,16 @@ def read_dataflash(path: str | Path) -> FlightLog:
                                  "log applied was added back")
             instances.append(SensorInstance(kind, idx, _id(params, kind, idx), t, temperature,
                                             v, notes=notes))
+    have_imu = {idx for (group, idx) in rows if group == "imu"}
+    for (kind, idx), data in sorted(tclr.items()):
+        if idx in have_imu:
+            continue
+        a = np.asarray(data, dtype=np.float64)
+        a = a[np.all(np.isfinite(a), axis=1)]
+        a = a[np.argsort(a[:, 0], kind="stable")]
+        instances.append(SensorInstance(kind, idx, _id(params, kind, idx), a[:, 0], a[:, -1],
+                                        a[:, 1:4], notes=["from TCLR (sensor frame, before "
+                                                          "temperature correction)"]))
     names = sorted(params)
     if names and not any(re.match(r"^(INS_|AHRS_)", n) for n in names):
         raise InputError.at(path, "no INS_* parameters: not an ArduPilot log")
