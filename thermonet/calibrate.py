@@ -7,8 +7,8 @@ For every sensor instance of a PX4 ULog or ArduPilot DataFlash log:
    under :data:`MIN_SPAN_C` (PX4's ``SYS_CAL_TDEL`` defaults to 24 °C; 10 °C is
    the least a cubic can be trusted on), or a thermometer that reports whole
    degrees or coarser (:data:`MAX_STEP_C`: a cubic through a staircase, whose
-   error inside each step is the quantisation; half-degree steps still pass).  Magnetometers are listed only:
-   neither autopilot has a thermal model for them.
+   error inside each step is the quantisation; half-degree steps still pass).
+   Magnetometers are listed only: neither autopilot has a thermal model for them.
 2. **The firmware's own form on all the data** (heating and cooling; both
    autopilots' scripts use what the log has — the procedure only heats):
 
