@@ -31,7 +31,7 @@ def summarize_log(path: str | Path) -> dict[str, Any]:
     rows = []
     for inst in log.instances:
         t = inst.time_s
-        temp = inst.temperature_c
+        temp = inst.temperature_c if inst.temperature_c is not None and inst.n_samples else None
         rows.append({
             "name": inst.name, "kind": inst.kind, "device_id": inst.device_id,
             "samples": inst.n_samples,
