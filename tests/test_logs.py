@@ -12,7 +12,7 @@ from pyulog import ULog
 
 from thermonet.cli import main
 from thermonet.errors import InputError
-from thermonet.exporting.autopilot import ardupilot_correction
+from thermonet.exporting.firmware import ardupilot_correction
 from thermonet.io import read_datasets
 from thermonet.logs import read_log, temperature_step
 from thermonet.logs.base import FlightLog

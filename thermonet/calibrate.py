@@ -59,16 +59,15 @@ import numpy as np
 
 from . import __version__
 from .errors import ThermonetError
-from .exporting.autopilot import (
+from .exporting.autopilot import read_ardupilot_params, read_px4_params
+from .exporting.firmware import (
     ARDUPILOT_TEMP_REFERENCE,
     FirmwareFit,
     ardupilot_calibration_text,
     ardupilot_correction,
     px4_calibration_text,
-    px4_offsets,
     px4_offsets_1d,
-    read_ardupilot_params,
-    read_px4_params,
+    px4_offsets_3d,
 )
 from .fileio import atomic_write_text
 from .logs import FlightLog, SensorInstance, read_log, temperature_step
@@ -160,7 +159,7 @@ def apply_firmware(params: dict[str, float], autopilot: str, inst: SensorInstanc
     if autopilot == "px4":
         if inst.kind == "baro":
             return px4_offsets_1d(params, temp, slot)[:, None]
-        return px4_offsets(params, inst.kind, temp, slot)
+        return px4_offsets_3d(params, inst.kind, temp, slot)
     cal = params.get(f"INS_{'GYR' if inst.kind == 'gyro' else 'ACC'}{slot + 1}_CALTEMP",
                      ARDUPILOT_TEMP_REFERENCE)
     return ardupilot_correction(params, inst.kind, temp, cal, imu=slot + 1)

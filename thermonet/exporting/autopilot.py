@@ -48,16 +48,16 @@ File formats.  PX4: QGroundControl parameter file, tab-separated
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 from numpy.polynomial import polynomial as P
 from torch import nn
 
-from ..errors import ExportError
 from ..fileio import atomic_write_text
+from ..errors import ExportError
 from ..recording import output_kind
 from .onnx_export import family_name
 
@@ -73,11 +73,6 @@ __all__ = [
     "read_ardupilot_params",
     "px4_offsets",
     "ardupilot_correction",
-    "FirmwareFit",
-    "PX4_SLOTS",
-    "px4_offsets_1d",
-    "px4_calibration_text",
-    "ardupilot_calibration_text",
 ]
 
 #: Multiply a value in this unit by the factor to get rad/s (gyro), m/s² (accel) or Pa (baro).
@@ -161,17 +156,15 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
     if list(model.inputs) not in (["dT"], ["T"]):
         raise ExportError(f"PX4/ArduPilot parameter files need one input, dT or T; this model "
                           f"reads {list(model.inputs)}")
-    kinds = {output_kind(a) for a in model.outputs}
-    max_degree = 5 if kinds == {"baro"} else 3
-    if int(fam.degree) > max_degree:
-        form = "an order-5 polynomial (baro)" if max_degree == 5 else "a cubic"
+    baro_only = {output_kind(a) for a in model.outputs} == {"baro"}
+    if int(fam.degree) > (5 if baro_only else 3):
+        form = "an order-5 polynomial (baro)" if baro_only else "a cubic"
         raise ExportError(f"PX4/ArduPilot evaluate {form}; this poly model has degree "
                           f"{fam.degree}")
     lo = float(model.sig_lo[0])
     hi = float(model.sig_hi[0])
     if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
-        raise ExportError(f"trained temperature range [{lo}, {hi}] is not usable "
-                          "(model not fitted?)")
+        raise ExportError(f"trained temperature range [{lo}, {hi}] is not usable (model not fitted?)")
     t_model = float(model.spec.t_ref) if model.inputs == ["dT"] else 0.0
     if t_ref is None:
         t_ref = t_model if model.inputs == ["dT"] else round((lo + hi) / 2.0, 1)
@@ -200,7 +193,7 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
         pu = pu * y_std[a]
         pu[0] += y_mean[a]
         n = _PX4_ORDER[kind] + 1
-        if kind == "baro":
+        if kind == "baro":      # one pressure output: row 0, order 5 (TC_B*_X0..X5)
             if kind in out.coef:
                 raise ExportError(f"one barometer output per model, got {model.outputs}")
             coef = out.coef.setdefault(kind, np.zeros((1, n)))
@@ -229,21 +222,16 @@ def px4_offsets(params: Mapping[str, float], kind: str, temperature_c: np.ndarra
 
 def ardupilot_correction(params: Mapping[str, float], kind: str, temperature_c: np.ndarray,
                          cal_temp_c: float, imu: int = 1) -> np.ndarray:
-    """What ArduPilot's ``correct_sensor`` subtracts from ``raw``.
-
-    P(T−35) − P(T_cal−35), (N, 3) SI.
-    """
+    """What ArduPilot's ``correct_sensor`` subtracts from ``raw``: P(T−35) − P(T_cal−35), (N, 3) SI."""
     pre = f"INS_TCAL{imu}_"
     tmin, tmax = params[pre + "TMIN"], params[pre + "TMAX"]
     t = np.clip(np.asarray(temperature_c, dtype=np.float64), tmin, tmax) - ARDUPILOT_TEMP_REFERENCE
     tc = float(np.clip(cal_temp_c, tmin, tmax)) - ARDUPILOT_TEMP_REFERENCE
     out = np.zeros((t.size, 3))
-    def poly(c: list[float], x: np.ndarray | float) -> np.ndarray | float:
-        return (c[0] + (c[1] + c[2] * x) * x) * x / ARDUPILOT_SCALE
-
     for i, ax in enumerate(_AXES):
         c = [params[f"{pre}{_AP_TYPE[kind]}{k}_{ax.upper()}"] for k in (1, 2, 3)]
-        out[:, i] = poly(c, t) - poly(c, tc)
+        poly = lambda x: (c[0] + (c[1] + c[2] * x) * x) * x / ARDUPILOT_SCALE  # noqa: E731
+        out[:, i] = poly(t) - poly(tc)
     return out
 
 
@@ -371,116 +359,3 @@ def read_ardupilot_params(path: str | Path) -> dict[str, float]:
             raise ExportError(f"{path}: line {no}: expected NAME,VALUE, got {line!r}")
         out[parts[0]] = float(parts[1])
     return out
-
-
-# ------------------------------------------------------------------ calibrate
-#: PX4's slots per sensor kind (GYRO_COUNT_MAX, ACCEL_COUNT_MAX, BARO_COUNT_MAX = 4).
-PX4_SLOTS = 4
-_PX4_KIND = {"gyro": "G", "acc": "A", "baro": "B"}
-
-
-@dataclass
-class FirmwareFit:
-    """One sensor instance's drift in the autopilot's own form, SI units.
-
-    Attributes
-    ----------
-    kind : ``gyro`` | ``acc`` | ``baro``
-    device_id : int
-    t_ref, t_min, t_max : float
-        °C; PX4: TREF (centre of the range, as ``process_sensor_caldata.py``),
-        TMIN, TMAX; ArduPilot: 35 °C, TMIN, TMAX.
-    coef : array (axes, order + 1)
-        Column k multiplies :math:`(T - T_{ref})^k`; rad/s, m/s², Pa.
-    """
-
-    kind: str
-    device_id: int
-    t_ref: float
-    t_min: float
-    t_max: float
-    coef: np.ndarray
-
-
-def px4_offsets_1d(params: Mapping[str, float], temperature_c: np.ndarray,
-                   instance: int = 0) -> np.ndarray:
-    """PX4's ``calc_thermal_offsets_1D`` (baro, order 5, Pa) on parameters read back: (N,)."""
-    pre = f"TC_B{instance}_"
-    temp = np.asarray(temperature_c, dtype=np.float64)
-    dt = np.clip(temp, params[pre + "TMIN"], params[pre + "TMAX"]) - params[pre + "TREF"]
-    out = np.zeros_like(dt)
-    for k in range(6):
-        out = out + params[f"{pre}X{k}"] * dt ** k
-    return out
-
-
-def px4_calibration_text(fits: Mapping[str, list[FirmwareFit]], *, header: list[str]) -> str:
-    """A QGC ``.params`` file with every ``TC_G*``, ``TC_A*``, ``TC_B*`` slot.
-
-    ``fits[kind]`` lists the fitted instances in slot order; the remaining
-    slots (up to 4) are written with ID 0 and zero coefficients, so that a
-    calibration left over from an earlier board can never be applied.
-    ``TC_<k>_ENABLE`` is 1 where at least one instance of the kind was fitted.
-    """
-    rows: list[tuple[str, str, int]] = []
-    for kind, t in (("acc", "A"), ("baro", "B"), ("gyro", "G")):
-        kind_fits = list(fits.get(kind, []))
-        if len(kind_fits) > PX4_SLOTS:
-            raise ExportError(f"PX4 has {PX4_SLOTS} {kind} calibration slots; {len(kind_fits)} "
-                              "instances were fitted")
-        rows.append((f"TC_{t}_ENABLE", "1" if kind_fits else "0", 6))
-        for slot in range(PX4_SLOTS):
-            fit = kind_fits[slot] if slot < len(kind_fits) else None
-            pre = f"TC_{t}{slot}_"
-            rows.append((pre + "ID", str(int(fit.device_id)) if fit else "0", 6))
-            rows += [(pre + "TMAX", _g(fit.t_max if fit else 0.0), 9),
-                     (pre + "TMIN", _g(fit.t_min if fit else 0.0), 9),
-                     (pre + "TREF", _g(fit.t_ref if fit else 0.0), 9)]
-            if kind == "baro":
-                for k in range(6):
-                    v = fit.coef[0, k] if fit is not None else 0.0
-                    rows.append((f"{pre}X{k}", _g(v), 9))
-            else:
-                for k in range(4):
-                    for i in range(3):
-                        v = fit.coef[i, k] if fit is not None else 0.0
-                        rows.append((f"{pre}X{k}_{i}", _g(v), 9))
-    for _, value, ptype in rows:
-        if ptype == 9 and not math.isfinite(float(value)):
-            raise ExportError("a PX4 coefficient is not finite; nothing written")
-    lines = [f"# {h}" for h in header] + ["#", "# Vehicle-Id Component-Id Name Value Type"]
-    lines += [f"1\t1\t{name}\t{value}\t{ptype}" for name, value, ptype in rows]
-    return "\n".join(lines) + "\n"
-
-
-def ardupilot_calibration_text(imus: Mapping[int, Mapping[str, FirmwareFit]], *,
-                               header: list[str]) -> str:
-    """ArduPilot ``INS_TCAL<n>_*`` lines (``NAME,VALUE``) for each fitted IMU (0-based keys).
-
-    ``INS_TCAL_OPTIONS`` is not written (left as the board has it).  A sensor
-    of a fitted IMU that was not fitted gets zero coefficients (no correction).
-    """
-    lines = [f"# {h}" for h in header]
-    for idx in sorted(imus):
-        pair = imus[idx]
-        if not 0 <= idx <= 2:
-            raise ExportError(f"ArduPilot has INS_TCAL1..3; IMU index {idx} has no slot")
-        first = next(iter(pair.values()))
-        t_min = min(f.t_min for f in pair.values())
-        t_max = max(f.t_max for f in pair.values())
-        if t_min < -70.0 or t_max > 80.0:
-            raise ExportError(f"IMU {idx + 1}: range [{t_min:g}, {t_max:g}] degC is outside "
-                              "ArduPilot's INS_TCAL TMIN/TMAX range -70..80 degC")
-        if first.t_ref != ARDUPILOT_TEMP_REFERENCE:
-            raise ExportError("ArduPilot coefficients must be relative to 35 degC")
-        pre = f"INS_TCAL{idx + 1}_"
-        lines += [f"{pre}ENABLE,1", f"{pre}TMIN,{_g(t_min)}", f"{pre}TMAX,{_g(t_max)}"]
-        for kind in ("acc", "gyro"):
-            fit = pair.get(kind)
-            for k in (1, 2, 3):
-                for i, ax in enumerate(_AXES):
-                    v = fit.coef[i, k] * ARDUPILOT_SCALE if fit is not None else 0.0
-                    if not math.isfinite(v):
-                        raise ExportError("an ArduPilot coefficient is not finite; nothing written")
-                    lines.append(f"{pre}{_AP_TYPE[kind]}{k}_{ax.upper()},{_g(v)}")
-    return "\n".join(lines) + "\n"

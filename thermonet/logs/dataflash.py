@@ -40,7 +40,6 @@ __all__ = ["read_dataflash", "ardupilot_tcal_correction", "orientation_matrix"]
 _IMU_NAMES = {"IMU": 0, "IMU2": 1, "IMU3": 2}
 _BARO_NAMES = {"BARO": 0, "BAR2": 1, "BAR3": 2}
 _TEMP_REF = 35.0
-_SCALE = 1.0e6
 
 
 def orientation_matrix(orientation: int) -> np.ndarray:
@@ -60,22 +59,20 @@ def ardupilot_tcal_correction(params: dict[str, float], imu: int, kind: str,
                               temperature_c: np.ndarray) -> np.ndarray | None:
     """What ``TCal::correct_sensor`` subtracted, (n, 3) SI, or None when the slot is off.
 
-    ``imu`` is 1-based (``INS_TCAL1``); ``kind`` ``gyro`` or ``acc``.
+    ``imu`` is 1-based (``INS_TCAL1``); ``kind`` ``gyro`` or ``acc``; T_cal is
+    ``INS_GYR<n>_CALTEMP`` / ``INS_ACC<n>_CALTEMP`` (the offset calibration's temperature).
     """
+    from ..exporting.firmware import ardupilot_correction
+
     pre = f"INS_TCAL{imu}_"
     if params.get(pre + "ENABLE", 0.0) != 1.0:
         return None
-    tmin, tmax = params.get(pre + "TMIN", 0.0), params.get(pre + "TMAX", 0.0)
-    # INS_GYR1_CALTEMP / INS_ACC1_CALTEMP: the temperature of the offset calibration
-    tcal = params.get(f"INS_{'GYR' if kind == 'gyro' else 'ACC'}{imu}_CALTEMP", _TEMP_REF)
     stype = "GYR" if kind == "gyro" else "ACC"
-    t = np.clip(temperature_c, tmin, tmax) - _TEMP_REF
-    tc = float(np.clip(tcal, tmin, tmax)) - _TEMP_REF
-    out = np.zeros((t.size, 3))
-    for j, ax in enumerate("XYZ"):
-        c1, c2, c3 = (params.get(f"{pre}{stype}{k}_{ax}", 0.0) / _SCALE for k in (1, 2, 3))
-        out[:, j] = ((c1 + (c2 + c3 * t) * t) * t) - ((c1 + (c2 + c3 * tc) * tc) * tc)
-    return out
+    names = [pre + "TMIN", pre + "TMAX"] + [f"{pre}{stype}{k}_{ax}" for k in (1, 2, 3)
+                                            for ax in "XYZ"]
+    full = {n: params.get(n, 0.0) for n in names}
+    tcal = params.get(f"INS_{stype}{imu}_CALTEMP", _TEMP_REF)
+    return ardupilot_correction(full, kind, temperature_c, tcal, imu=imu)
 
 
 def _id(params: dict[str, float], kind: str, idx: int) -> int:
