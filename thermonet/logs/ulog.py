@@ -8,8 +8,8 @@ initial parameters (``ULog.initial_parameters``).
 
 Units.  ``sensor_gyro`` x/y/z are rad/s and ``sensor_accel`` m/s² (kept).
 ``sensor_baro.pressure`` is Pa in current PX4 (``msg/SensorBaro.msg``: "static
-pressure measurement in Pascals"); logs from before the move (PX4 ≤ 1.12) hold
-hPa (mbar), which ``process_sensor_caldata.py`` still assumes (it multiplies by
+pressure measurement in Pascals"); logs from older releases (the sample log in
+tests/data/real) hold hPa (mbar), which ``process_sensor_caldata.py`` still assumes (it multiplies by
 100).  thermonet decides per instance from the value itself: a median below
 2,000 can only be hPa (sea-level air is ≈101,325 Pa, ≈1,013 hPa; no flight
 controller works at 2 kPa) and is converted to Pa, with a note.
@@ -84,7 +84,7 @@ def read_ulog(path: str | Path) -> FlightLog:
         notes: list[str] = []
         if kind == "baro" and values.size and np.median(values[:, 0]) < HPA_MAX:
             values = values * 100.0
-            notes.append("pressure logged in hPa (PX4 before 1.13), converted to Pa")
+            notes.append("pressure logged in hPa (an older PX4), converted to Pa")
         if kind in _TC and params.get(_TC[kind], 0.0) == 1.0:
             notes.append(f"{_TC[kind]}=1 in the log; {d.name} is logged before thermal "
                          "compensation, so nothing was undone")
