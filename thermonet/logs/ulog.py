@@ -9,10 +9,11 @@ initial parameters (``ULog.initial_parameters``).
 Units.  ``sensor_gyro`` x/y/z are rad/s and ``sensor_accel`` m/s² (kept).
 ``sensor_baro.pressure`` is Pa in current PX4 (``msg/SensorBaro.msg``: "static
 pressure measurement in Pascals"); logs from older releases (the sample log in
-tests/data/real) hold hPa (mbar), which ``process_sensor_caldata.py`` still assumes (it multiplies by
-100).  thermonet decides per instance from the value itself: a median below
-2,000 can only be hPa (sea-level air is ≈101,325 Pa, ≈1,013 hPa; no flight
-controller works at 2 kPa) and is converted to Pa, with a note.
+tests/data/real) hold hPa (mbar), which ``process_sensor_caldata.py`` still
+assumes (it multiplies by 100).  thermonet decides per instance from the value
+itself: a median below 2,000 can only be hPa (sea-level air is ≈101,325 Pa,
+≈1,013 hPa; no flight controller works at 2 kPa) and is converted to Pa, with a
+note.
 
 Calibration already applied.  PX4's ``sensor_gyro`` / ``sensor_accel`` /
 ``sensor_baro`` are the drivers' output; the thermal offsets (``TC_*``,
