@@ -62,6 +62,7 @@ from .errors import ThermonetError
 from .exporting.autopilot import read_ardupilot_params, read_px4_params
 from .exporting.firmware import (
     ARDUPILOT_TEMP_REFERENCE,
+    PX4_SLOTS,
     FirmwareFit,
     ardupilot_calibration_text,
     ardupilot_correction,
@@ -238,6 +239,11 @@ def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ThermonetError(f"{out}: --out must be a directory, and this is a file")
+    ok_kinds = [i.kind for i in log.instances if check_instance(i) is None]
+    per_kind = {k: ok_kinds.count(k) for k in _FIT_KINDS}
+    if log.autopilot == "px4" and max(per_kind.values()) > PX4_SLOTS:
+        raise ThermonetError(f"{log.path}: PX4 has {PX4_SLOTS} calibration slots per sensor "
+                             f"kind; the log has {per_kind} calibratable instances")
     results: list[InstanceResult] = []
     for inst in log.instances:
         why = check_instance(inst)
@@ -253,7 +259,13 @@ def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True
             r.fit = fit_firmware(inst, log.autopilot)
             r.status = "fitted"
             if compare:
-                cmp = _compare(inst, log.autopilot, out / "instances" / inst.name, str(log.path))
+                try:
+                    cmp = _compare(inst, log.autopilot, out / "instances" / inst.name,
+                                   str(log.path))
+                except ThermonetError as err:   # this instance cannot be judged: reported, skipped
+                    r.status, r.reason, r.fit = "skipped", f"comparison failed: {err}", None
+                    results.append(r)
+                    continue
                 ok, line = _verdict(cmp)
                 r.summary["compare"] = cmp
                 r.summary["verdict"] = line
