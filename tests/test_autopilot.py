@@ -157,3 +157,27 @@ def test_refusals(model, tmp_path):
     with pytest.raises(ExportError, match="outside ArduPilot's INS_TCAL TMIN/TMAX range"):
         export_ardupilot_params(wide, tmp_path / "x.param", output_units=UNITS)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_px4_baro_order5_in_pascals(tmp_path):
+    """TC_B0_X0..X5 in Pa, evaluated as PX4's calc_thermal_offsets_1D (written out again here)."""
+    temp = np.linspace(5.0, 55.0, 400)
+    x = temp - T_REF
+    coef_hpa = np.array([0.1, 0.02, -1e-3, 2e-5, 3e-7, -1e-8])         # the model is in hPa
+    drift = sum(c * x ** k for k, c in enumerate(coef_hpa))[:, None]
+    spec = FeatureSpec(inputs=["dT"], t_ref=T_REF)
+    m = fit(family="poly", inputs=["dT"], outputs=["baro_p"], train=[(temp[:, None], drift)],
+            val=None, spec=spec, hyper={"degree": 5}, config=TrainConfig(max_epochs=0)).model
+    path = export_px4_params(m, tmp_path / "b.params", output_units={"baro_p": "hPa"},
+                             device_id=3997706, instance=1)
+    p = read_px4_params(path)
+    assert p["TC_B_ENABLE"] == 1 and p["TC_B1_ID"] == 3997706 and p["TC_B1_TREF"] == T_REF
+    np.testing.assert_allclose([p[f"TC_B1_X{k}"] for k in range(6)], 100.0 * coef_hpa,
+                               rtol=5e-3, atol=1e-9)
+    t = np.concatenate([temp, [-20.0, 90.0]])
+    dt = np.clip(t, p["TC_B1_TMIN"], p["TC_B1_TMAX"]) - p["TC_B1_TREF"]
+    offs = sum(np.float32(p[f"TC_B1_X{k}"]) * dt ** k for k in range(6))
+    np.testing.assert_allclose(offs[:400], 100.0 * drift[:, 0], atol=1e-3 * np.ptp(drift) * 100)
+    assert offs[-2] == pytest.approx(offs[0]) and offs[-1] == pytest.approx(offs[399])
+    with pytest.raises(ExportError, match="no barometer"):
+        export_ardupilot_params(m, tmp_path / "b.parm", output_units={"baro_p": "Pa"})

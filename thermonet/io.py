@@ -192,6 +192,15 @@ def read_datasets(paths: Sequence[str | Path] | str | Path,
 
 def _read_one(path: Path, mapping: ColumnMapping | None
               ) -> tuple[list[Recording], dict[str, str], int | None]:
+    from .logs import is_log
+
+    if is_log(str(path).partition("#")[0]):
+        from .logs import read_log_instance
+
+        if mapping is not None:
+            raise InputError.at(path, "a flight-controller log is read with no mapping")
+        ds = read_log_instance(path)
+        return list(ds.runs), dict(ds.meta), None
     if not path.is_file():
         raise InputError.at(path, "file not found")
     fmt = mapping.format if mapping is not None else "auto"

@@ -103,7 +103,7 @@ def channel_role(name: str, *, proxy: bool = False) -> str:
     return "proxy"
 
 
-_KIND_UNITS = {"gyro": "deg/s", "acc": "g", "mag": "uT", "out": "1"}
+_KIND_UNITS = {"gyro": "deg/s", "acc": "g", "mag": "uT", "baro": "Pa", "out": "1"}
 
 
 def default_unit(name: str, *, proxy: bool = False) -> str:

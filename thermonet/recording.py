@@ -34,8 +34,9 @@ __all__ = [
     "output_kind",
 ]
 
-#: An output channel is ``<kind>_<axis>``: ``gyro_x``, ``acc_z``, ``mag_y``.
-OUTPUT_NAME = re.compile(r"^(gyro|acc|mag|out)_([a-z0-9]+)$")
+#: An output channel is ``<kind>_<axis>``: ``gyro_x``, ``acc_z``, ``mag_y``, ``baro_p`` (a
+#: barometer's pressure: the absolute value is the weather, only its change with T is drift).
+OUTPUT_NAME = re.compile(r"^(gyro|acc|mag|baro|out)_([a-z0-9]+)$")
 
 #: Units thermonet understands, per physical quantity.  Anything else is refused
 #: so that a typo ("deg/sec") never silently changes the meaning of a number.
@@ -50,6 +51,8 @@ KNOWN_UNITS: dict[str, str] = {
     "m/s^2": "acceleration",
     "T": "field",
     "uT": "field",
+    "Pa": "pressure",
+    "hPa": "pressure",
     "Hz": "frequency",
     "counts": "raw",
     "1": "dimensionless",
@@ -70,7 +73,7 @@ def output_kind(name: str) -> str:
     m = OUTPUT_NAME.match(name)
     if not m:
         raise InputError(f"output channel '{name}' is not named <kind>_<axis> "
-                         "(kind one of gyro, acc, mag, out)")
+                         "(kind one of gyro, acc, mag, baro, out)")
     return m.group(1)
 
 

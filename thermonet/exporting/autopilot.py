@@ -85,19 +85,21 @@ __all__ = [
     "read_ardupilot_params",
 ]
 
-#: Multiply a value in this unit by the factor to get rad/s (gyro) or m/s² (accel).
+#: Multiply a value in this unit by the factor to get rad/s (gyro), m/s² (accel) or Pa (baro).
 SI_FACTOR = {
     "rad/s": 1.0, "deg/s": math.pi / 180.0, "deg/h": math.pi / 180.0 / 3600.0,
-    "m/s^2": 1.0, "g": 9.80665, "mg": 9.80665e-3,
+    "m/s^2": 1.0, "g": 9.80665, "mg": 9.80665e-3, "Pa": 1.0, "hPa": 100.0,
 }
-_SI_UNIT = {"gyro": "rad/s", "acc": "m/s^2"}
+_SI_UNIT = {"gyro": "rad/s", "acc": "m/s^2", "baro": "Pa"}
 _UNIT_KIND = {"rad/s": "gyro", "deg/s": "gyro", "deg/h": "gyro",
-              "m/s^2": "acc", "g": "acc", "mg": "acc"}
+              "m/s^2": "acc", "g": "acc", "mg": "acc", "Pa": "baro", "hPa": "baro"}
+#: PX4 evaluates a cubic for gyro/accel (``calc_thermal_offsets_3D``), order 5 for baro (``_1D``).
+_PX4_ORDER = {"gyro": 3, "acc": 3, "baro": 5}
 #: ArduPilot's fixed reference temperature (°C) and coefficient scale.
 ARDUPILOT_TEMP_REFERENCE = 35.0
 ARDUPILOT_SCALE = 1.0e6
 _AXES = ("x", "y", "z")
-_PX4_TYPE = {"gyro": "G", "acc": "A"}
+_PX4_TYPE = {"gyro": "G", "acc": "A", "baro": "B"}
 _AP_TYPE = {"gyro": "GYR", "acc": "ACC"}
 
 
@@ -168,12 +170,14 @@ def autopilot_coefficients(model: DriftModel, *, output_units: str | Mapping[str
                           f"reads {list(model.inputs)}")
     form = model.family.polynomial_form()  # the family says whether it is a polynomial
     if form is None:
-        raise ExportError(f"PX4/ArduPilot parameter files need a polynomial of degree <= 3 in "
-                          f"dT or T; this model is '{family}', which has no polynomial form "
+        raise ExportError(f"PX4/ArduPilot parameter files need a polynomial in dT or T; this "
+                          f"model is '{family}', which has no polynomial form "
                           "— export it as ONNX or C")
     degree = form.shape[1] - 1
-    if degree > 3:
-        raise ExportError(f"PX4/ArduPilot evaluate a cubic; this {family} model has degree "
+    baro_only = {output_kind(a) for a in model.outputs} == {"baro"}
+    if degree > (5 if baro_only else 3):
+        what = "an order-5 polynomial (baro)" if baro_only else "a cubic"
+        raise ExportError(f"PX4/ArduPilot evaluate {what}; this {family} model has degree "
                           f"{degree}")
     lo = float(model.sig_lo[0])
     hi = float(model.sig_hi[0])
@@ -201,9 +205,9 @@ def autopilot_coefficients(model: DriftModel, *, output_units: str | Mapping[str
     for a, axis in enumerate(model.outputs):
         kind = output_kind(axis)
         letter = axis.split("_", 1)[1]
-        if kind not in _SI_UNIT or letter not in _AXES:
-            raise ExportError(f"output '{axis}' is not a gyro or accelerometer x/y/z axis; "
-                              "autopilots compensate only those")
+        if kind not in _SI_UNIT or (letter not in _AXES and kind != "baro"):
+            raise ExportError(f"output '{axis}' is not a gyro or accelerometer x/y/z axis or a "
+                              "barometer; autopilots compensate only those")
         unit = _unit_of(axis, output_units)
         if _UNIT_KIND[unit] != kind:
             raise ExportError(f"output '{axis}' has unit '{unit}', which is not a {kind} unit")
@@ -215,8 +219,15 @@ def autopilot_coefficients(model: DriftModel, *, output_units: str | Mapping[str
         pu[0] += y_mean[a] - at_t_ref[a] * y_ref[a]
         pu = pu * mask[a]
         pu[0] += const[a]
-        coef = out.coef.setdefault(kind, np.zeros((3, 4)))
-        coef[_AXES.index(letter), :pu.size] = pu[:4] * SI_FACTOR[unit]
+        n = _PX4_ORDER[kind] + 1
+        if kind == "baro":      # one pressure output: row 0, order 5 (TC_B*_X0..X5)
+            if kind in out.coef:
+                raise ExportError(f"one barometer output per model, got {model.outputs}")
+            coef = out.coef.setdefault(kind, np.zeros((1, n)))
+            coef[0, :pu.size] = pu[:n] * SI_FACTOR[unit]
+        else:
+            coef = out.coef.setdefault(kind, np.zeros((3, n)))
+            coef[_AXES.index(letter), :pu.size] = pu[:n] * SI_FACTOR[unit]
         out.present.setdefault(kind, []).append(letter)
     return out
 
@@ -266,6 +277,9 @@ def export_px4_params(model: DriftModel, path: str | Path, *, output_units: str 
         rows.append((pre + "ID", str(int(device_id)), 6))
         rows += [(pre + "TMAX", _g(co.t_max), 9), (pre + "TMIN", _g(co.t_min), 9),
                  (pre + "TREF", _g(co.t_ref), 9)]
+        if kind == "baro":          # TC_B<i>_X0..X5, Pa (calc_thermal_offsets_1D)
+            rows += [(f"{pre}X{k}", _g(coef[0, k]), 9) for k in range(6)]
+            continue
         for k in range(4):
             for i in range(3):
                 rows.append((f"{pre}X{k}_{i}", _g(coef[i, k]), 9))
@@ -289,6 +303,10 @@ def export_ardupilot_params(model: DriftModel, path: str | Path, *,
         raise ExportError(f"separator must be ',', ' ' or a tab, got {sep!r}")
     co = autopilot_coefficients(model, output_units=output_units,
                                 t_ref=ARDUPILOT_TEMP_REFERENCE)
+    if "baro" in co.coef:
+        raise ExportError("ArduPilot has no barometer temperature-calibration parameters "
+                          "(INS_TCAL covers gyros and accelerometers); export PX4 params, "
+                          "ONNX or C")
     if co.t_min < -70.0 or co.t_max > 80.0:
         raise ExportError(f"trained range [{co.t_min:g}, {co.t_max:g}] degC is outside "
                           "ArduPilot's INS_TCAL TMIN/TMAX range -70..80 degC")
