@@ -33,8 +33,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT / "export"))
 from bench_anchor import cycling_device  # noqa: E402
 from common import OUT, save, table  # noqa: E402
-from thermonet_runtime import Compensator  # noqa: E402
-
 from thermonet import dynamics  # noqa: E402
 from thermonet.compare import run_compare  # noqa: E402
 from thermonet.config import CompareConfig  # noqa: E402
@@ -42,6 +40,7 @@ from thermonet.exporting import export_onnx, render_c_header  # noqa: E402
 from thermonet.features import FeatureSpec, signal_matrix, target_matrix  # noqa: E402
 from thermonet.sim import PRESETS, simulate  # noqa: E402
 from thermonet.train import TrainConfig, fit  # noqa: E402
+from thermonet_runtime import Compensator  # noqa: E402
 
 N_TRAINING = 2_000_000
 N_CALLGRIND = 1000

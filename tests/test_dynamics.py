@@ -343,3 +343,60 @@ def test_c_export_checks_step_and_refuses_a_wrong_recurrence(trained, tmp_path):
     broken = path.read_text().replace("const float g = -expm1f(-h) / h;", "const float g = 1.0f;")
     with pytest.raises(ExportError, match=r"step\(\) parity check failed"):
         check_stream(model, broken)
+
+
+def test_stacked_held_out_blocks_restart_the_state_at_each_block():
+    """Blocks stacked by splits.stack_blocks are computed as separate streams: the signals of the
+    stack equal each block's own signals, although the stacked time has no gap between them."""
+    from thermonet.errors import InputError
+    from thermonet.features import signal_matrix
+    from thermonet.recording import Recording
+    from thermonet.splits import stack_blocks
+
+    t = np.arange(0.0, 6000.0, 1.0)
+    temp = _triangle(t, 10.0, 40.0, 3000.0)
+    blocks = [Recording(time_s=t[a:b], temperature_c=temp[a:b],
+                        outputs={"gyro_x": np.zeros(b - a)}, run_id=f"b{k}", sample_rate_hz=1.0)
+              for k, (a, b) in enumerate([(0, 1000), (2500, 4000), (4800, 6000)])]
+    stacked = stack_blocks(blocks, "test")
+    assert stacked.meta["segment_starts"] == "0,1000,2500"
+    signals = ["rate_c_per_min", "lag_300_c", "play_0.5_c"]
+    want = np.vstack([signal_matrix(b, signals, GAP_S) for b in blocks])
+    np.testing.assert_array_equal(signal_matrix(stacked, signals, GAP_S), want)
+    # every block starts afresh: rate, lag and play are 0 at its first sample
+    assert not want[[0, 1000, 2500]].any()
+    bad = Recording(time_s=t[:10], temperature_c=temp[:10], outputs={"gyro_x": np.zeros(10)},
+                    meta={"segment_starts": "0,five"})
+    with pytest.raises(InputError, match="segment_starts"):
+        signal_matrix(bad, signals, GAP_S)
+
+
+def test_at_t_ref_target_rests_with_dynamic_inputs_at_zero(trained):
+    """At rest (T = T_ref after a soak) every dynamic input is 0 — rate, T − EMA(T) and T − P(T)
+    by their definitions — and an at-t-ref axis has zero drift there."""
+    from thermonet.train import rest_signals
+
+    model, _ = trained
+    spec = model.spec
+    assert spec.signals == ["temperature_c", "rate_c_per_min", "lag_300_c", "play_0.5_c"]
+    np.testing.assert_array_equal(rest_signals(spec), [20.0, 0.0, 0.0, 0.0])
+    t = np.arange(0.0, 30000.0, 2.0)
+    temp = _triangle(t, -10.0, 60.0, 8000.0)
+    sig, _ = dynamics.compute(t, temp, INPUTS, GAP_S)
+    s = np.column_stack([temp] + [sig[x] for x in spec.signals[1:]])
+    # axis 0 read with an unknown constant (+5): at-t-ref removes it, the slope stays
+    y = _drift(sig, temp) + np.array([5.0, 0.0])
+    at_ref = fit(family="poly", inputs=INPUTS, outputs=AXES, train=[(s, y)],
+                 val=None, spec=spec, hyper={"degree": 2, "cross": True},
+                 config=TrainConfig(max_epochs=3), target=["at-t-ref", "channel"]).model
+    # soaks at T_ref and at T_ref + 20 °C, the dynamic inputs computed by the recurrences
+    soak_t = np.arange(0.0, 4000.0, 2.0)
+    rest = []
+    for temp_c in (20.0, 40.0):
+        soak, _ = dynamics.compute(soak_t, np.full(soak_t.size, temp_c), INPUTS, GAP_S)
+        rest.append([temp_c] + [soak[x][-1] for x in spec.signals[1:]])
+    np.testing.assert_array_equal(rest, [[20.0, 0.0, 0.0, 0.0], [40.0, 0.0, 0.0, 0.0]])
+    with torch.no_grad():
+        d = at_ref.drift64(torch.tensor(rest, dtype=torch.float64)).numpy()
+    assert abs(d[0, 0]) < 1e-6           # zero at rest (float32 rounding), the +5 removed
+    assert d[1, 0] == pytest.approx(0.01 * 20.0, abs=0.01)  # 0.01 /degC above T_ref

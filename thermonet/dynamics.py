@@ -66,6 +66,10 @@ import numpy as np
 
 from .errors import ConfigError, InputError
 
+# ``gap_s`` "auto" is GAP_FACTOR × the median sample interval of the first training run: the
+# same factor that cuts a log into contiguous segments (re-exported here)
+from .recording import GAP_FACTOR
+
 __all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInput", "Rate",
            "Lag", "Play", "REGISTRY", "compute", "parse_dynamic", "is_dynamic", "check_time",
            "dynamic_signals", "default_gap_s", "constants", "from_constants", "lag_error",
@@ -75,8 +79,6 @@ __all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInp
 RATE_TAU_S = 60.0
 #: Gap limit (s) of a spec built without data and without an explicit ``gap_s``.
 DEFAULT_GAP_S = 10.0
-#: ``gap_s`` "auto": this many times the median sample interval of the first training run.
-GAP_FACTOR = 5.0
 #: Format of the constants block stored with a model.
 CONSTANTS_VERSION = 1
 

@@ -37,8 +37,9 @@ exported graph, so it uses only gather, subtract and multiply.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
+from typing import cast
 
 import numpy as np
 import torch
@@ -46,7 +47,7 @@ from torch import nn
 
 from . import dynamics
 from .errors import ConfigError, InputError
-from .recording import Dataset, Recording
+from .recording import GAP_FACTOR, Dataset, Recording
 
 __all__ = [
     "TEMPERATURE",
@@ -60,7 +61,6 @@ __all__ = [
     "reference_values",
     "signal_matrix",
     "target_matrix",
-    "run_arrays",
     "Features",
 ]
 
@@ -203,7 +203,7 @@ class FeatureSpec:
         return out
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "model") -> "FeatureSpec":
+    def from_dict(cls, data: dict, source: str = "model") -> FeatureSpec:
         """Inverse of :meth:`to_dict`; dynamic constants are checked against their definitions."""
         inputs = list(data["inputs"])
         gap = None
@@ -215,7 +215,7 @@ class FeatureSpec:
     @classmethod
     def from_recordings(cls, inputs: Sequence[str], recordings: object, *,
                         t_ref: str | float = "start", proxy_ref: object = "start",
-                        window_min: float = 10.0, gap_s: str | float = "auto") -> "FeatureSpec":
+                        window_min: float = 10.0, gap_s: str | float = "auto") -> FeatureSpec:
         """Spec whose references come from :func:`reference_values` (gap_s "auto":
         :func:`thermonet.dynamics.default_gap_s` of the first run)."""
         tr, pr = reference_values(recordings, inputs, t_ref=t_ref, window_min=window_min,
@@ -234,13 +234,16 @@ def resolve_gap_s(gap_s: str | float | None, recordings: object, inputs: Sequenc
         return dynamics.default_gap_s([_first_run(recordings)])
     if isinstance(gap_s, str):
         raise ConfigError(f"gap_s must be a number of seconds or 'auto', got '{gap_s}'")
+    if not (np.isfinite(float(gap_s)) and float(gap_s) > 0):
+        raise ConfigError(f"gap_s must be a positive number of seconds, got {gap_s!r}")
     return float(gap_s)
 
 
 def _first_run(recordings: object) -> Recording:
     if isinstance(recordings, Recording):
         return recordings
-    runs = list(recordings.runs if isinstance(recordings, Dataset) else recordings)  # type: ignore[attr-defined]
+    runs = list(recordings.runs if isinstance(recordings, Dataset)
+                else cast(Iterable[Recording], recordings))
     if not runs:
         raise InputError("no training run to take the reference values from")
     return runs[0]
@@ -322,10 +325,6 @@ def reference_values(recordings: object, spec_inputs: Sequence[str], t_ref: str 
     return t_value, p_values
 
 
-#: A time step over this many median steps starts a new contiguous segment.
-GAP_FACTOR = 5.0
-
-
 def contiguous_segments(time_s: np.ndarray, gap_factor: float = GAP_FACTOR) -> list[slice]:
     """Slices of contiguous sampling: a step over ``gap_factor`` × the median step is a gap
     (burst recordings, held-out time blocks cut out of a run)."""
@@ -335,7 +334,18 @@ def contiguous_segments(time_s: np.ndarray, gap_factor: float = GAP_FACTOR) -> l
     dt = np.diff(t)
     cuts = np.flatnonzero(dt > gap_factor * np.median(dt)) + 1
     edges = np.concatenate([[0], cuts, [t.size]])
-    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+def _segment_starts(recording: Recording, n: int, source: str) -> list[int]:
+    """0, the indices of ``meta["segment_starts"]`` (comma-separated) inside the run, and n."""
+    text = str(recording.meta.get("segment_starts", ""))
+    try:
+        idx = [int(i) for i in text.split(",") if i.strip()]
+    except ValueError:
+        raise InputError.at(source, f"meta 'segment_starts' {text!r} is not a comma-separated "
+                            "list of sample indices") from None
+    return sorted({0, *(i for i in idx if 0 < i < n)}) + [n]
 
 
 def signal_matrix(recording: Recording, signals: Sequence[str], gap_s: float | None = None
@@ -348,7 +358,7 @@ def signal_matrix(recording: Recording, signals: Sequence[str], gap_s: float | N
     the state restarting at the run's start and after every gap longer than
     ``gap_s`` seconds (None: :func:`thermonet.dynamics.default_gap_s` of this
     recording), and at every index of ``recording.meta["segment_starts"]``
-    (held-out blocks stacked into one recording).
+    (comma-separated; held-out blocks stacked into one recording).
 
     Returns
     -------
@@ -364,8 +374,7 @@ def signal_matrix(recording: Recording, signals: Sequence[str], gap_s: float | N
         gap = dynamics.default_gap_s([recording]) if gap_s is None else gap_s
         names = [d.name for d in dyn.values()]
         n = recording.n_samples
-        starts = sorted({0, *(int(i) for i in recording.meta.get("segment_starts", [])
-                              if 0 < int(i) < n)}) + [n]
+        starts = _segment_starts(recording, n, source)
         parts: list[dict[str, np.ndarray]] = []
         try:
             for a, b in zip(starts[:-1], starts[1:], strict=True):
@@ -403,13 +412,6 @@ def target_matrix(recording: Recording, outputs: Sequence[str]) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def run_arrays(recording: Recording, spec: FeatureSpec, outputs: Sequence[str]
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """``(signal_matrix, target_matrix)`` of one run: the pair :func:`thermonet.train.fit` takes."""
-    return (signal_matrix(recording, spec.signals, spec.gap_s),
-            target_matrix(recording, outputs))
-
-
 class Features(nn.Module):
     """Signals (N, S) → features (N, F), inside the exported graph.
 
@@ -421,6 +423,10 @@ class Features(nn.Module):
     and the mask :math:`m_f \\in \\{0, 1\\}`, so there is no data-dependent
     branch (buffers ``index``, ``ref``, ``square``).
     """
+
+    index: torch.Tensor      # buffers, declared for the type checker
+    ref: torch.Tensor
+    square: torch.Tensor
 
     def __init__(self, spec: FeatureSpec) -> None:
         super().__init__()

@@ -6,7 +6,7 @@ Every header gets, after ``<prefix>_compensate``::
     void <prefix>_init(<prefix>_state *st);
     int  <prefix>_step(<prefix>_state *st, double time_s, float temperature_c,
                        [const float *proxies,]            -- only when the model reads proxies
-                       const float *raw, float *compensated, float *drift, int *flag);
+                       const double *raw, double *compensated, double *drift, int *flag);
 
 ``step`` computes the model's dynamic inputs (``rate``, ``lag_<tau>``,
 ``play_<w>``) from time and temperature with the recurrences of
@@ -19,7 +19,8 @@ non-finite temperature follow the definition (state restart; flag set after a
 gap; NaN drift and an untouched state for a NaN temperature).  A time that is
 not finite or not after the previous call's is refused: NaN outputs, flag set,
 return −1, state unchanged; otherwise ``step`` returns 0.  No heap; libm
-``expf``/``expm1f`` only.
+``expf``/``expm1f`` only.  ``raw``, ``compensated`` and ``drift`` are ``double``
+as in ``<prefix>_compensate`` (the drift's per-axis constant is a double).
 """
 
 from __future__ import annotations
@@ -111,7 +112,7 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
         "",
         f"static inline int {p}_step({p}_state *st, double time_s, float temperature_c,",
         *(["                              const float *proxies,"] if proxies else []),
-        "                              const float *raw, float *compensated, float *drift,",
+        "                              const double *raw, double *compensated, double *drift,",
         "                              int *flag)",
         "{",
         f"    float s[{P}_N_SIGNALS];",
@@ -186,15 +187,15 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
 STREAM_DRIVER = r"""
 #include <stdio.h>
 #include "model.h"
-/* in: int n, then per sample: double t, float T, NP proxies, A raw;
- * out: per sample A comp, A drift, int flag, int ret */
+/* in: int n, then per sample: double t, float T, NP proxy floats, A raw doubles;
+ * out: per sample A comp doubles, A drift doubles, int flag, int ret */
 int main(int argc, char **argv)
 {
     FILE *in, *out;
     int n, k, flag, ret;
     double t;
-    float temp, prox[PFX_N_PROXIES > 0 ? PFX_N_PROXIES : 1], raw[PFX_N_AXES];
-    float comp[PFX_N_AXES], drift[PFX_N_AXES];
+    float temp, prox[PFX_N_PROXIES > 0 ? PFX_N_PROXIES : 1];
+    double raw[PFX_N_AXES], comp[PFX_N_AXES], drift[PFX_N_AXES];
     pfx_state st;
     if (argc != 3) return 2;
     in = fopen(argv[1], "rb");
@@ -205,10 +206,10 @@ int main(int argc, char **argv)
         if (fread(&t, sizeof t, 1, in) != 1 || fread(&temp, sizeof temp, 1, in) != 1) return 4;
         if (PFX_N_PROXIES > 0 &&
             fread(prox, sizeof(float), PFX_N_PROXIES, in) != PFX_N_PROXIES) return 4;
-        if (fread(raw, sizeof(float), PFX_N_AXES, in) != PFX_N_AXES) return 4;
+        if (fread(raw, sizeof(double), PFX_N_AXES, in) != PFX_N_AXES) return 4;
         ret = pfx_step(&st, t, temp, PROXY_ARG raw, comp, drift, &flag);
-        fwrite(comp, sizeof(float), PFX_N_AXES, out);
-        fwrite(drift, sizeof(float), PFX_N_AXES, out);
+        fwrite(comp, sizeof(double), PFX_N_AXES, out);
+        fwrite(drift, sizeof(double), PFX_N_AXES, out);
         fwrite(&flag, sizeof flag, 1, out);
         fwrite(&ret, sizeof ret, 1, out);
     }
@@ -241,7 +242,7 @@ def run_stream_c(model: DriftModel, header_text: str, time_s: np.ndarray,
     driver = (STREAM_DRIVER.replace("PROXY_ARG", "prox," if n_prox else "")
               .replace("PFX", prefix.upper()).replace("pfx", prefix))
     rec_in = np.dtype([("t", np.float64), ("T", np.float32), ("p", np.float32, (n_prox,)),
-                       ("raw", np.float32, (n_axes,))])
+                       ("raw", np.float64, (n_axes,))])
     rows = np.zeros(n, dtype=rec_in)
     rows["t"], rows["T"], rows["raw"] = time_s, temperature_c, raw
     if n_prox:
@@ -262,7 +263,7 @@ def run_stream_c(model: DriftModel, header_text: str, time_s: np.ndarray,
                              capture_output=True, text=True)
         if run.returncode != 0:
             raise ExportError(f"the C stream driver failed (exit {run.returncode})")
-        rec_out = np.dtype([("comp", np.float32, (n_axes,)), ("drift", np.float32, (n_axes,)),
+        rec_out = np.dtype([("comp", np.float64, (n_axes,)), ("drift", np.float64, (n_axes,)),
                             ("flag", np.int32), ("ret", np.int32)])
         out = np.fromfile(tmp / "out.bin", dtype=rec_out)
     return {"compensated": out["comp"], "drift": out["drift"], "flag": out["flag"].astype(bool),
@@ -276,9 +277,11 @@ def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermone
     For a model with dynamic inputs: 3,000 jittered samples of heat/cool triangles inside
     the trained temperature range, a gap (> ``gap_s``) and a missing temperature; torch
     evaluates the same model on :func:`thermonet.dynamics.compute` of the sequence
-    (float64 recurrences).  The drift must agree within ``rtol`` of the axis's largest drift
-    (the C recurrences run in float32), NaN exactly where the temperature is missing, and
-    the flag must be set after the gap.  Returns None (nothing to check) for a model
+    (float64 recurrences).  The drift less its float64 per-axis constant
+    (``model.constant()``, added in double on both sides) must agree within ``rtol`` of the
+    axis's largest such value (the C recurrences run in float32), ``compensated`` must be
+    ``raw - drift``, the drift NaN exactly where the temperature is missing, and the flag
+    set after the gap.  Returns None (nothing to check) for a model
     without dynamic inputs or without a C compiler.
 
     Raises
@@ -317,16 +320,19 @@ def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermone
         cols[x] = prox[:, k]  # type: ignore[index]
     s = np.column_stack([cols[x] for x in signals])
     with torch.no_grad():
-        want = model(torch.from_numpy(s)).double().numpy()
+        want = model.relative(torch.from_numpy(s)).double().numpy()
+        const = model.constant().detach().cpu().double().numpy()
     got = run_stream_c(model, header_text, t, temp, raw, prox, prefix=prefix)
-    drift = got["drift"].astype(np.float64)
+    if not np.array_equal(got["compensated"], raw - got["drift"], equal_nan=True):
+        raise ExportError("C header step() parity check failed: 'compensated' is not raw - drift")
+    drift = got["drift"] - const
     nan_want = np.isnan(want)
     if not np.array_equal(np.isnan(drift), nan_want):
         raise ExportError("C header step() parity check failed: NaN drift where torch has none "
                           "(or the reverse) on the test sequence")
     tol = rtol * np.nanmax(np.abs(want), axis=0)
     err = np.where(nan_want, 0.0, np.abs(drift - want))
-    k, a = np.unravel_index(int(np.argmax(err - tol)), err.shape)
+    k, a = (int(i) for i in np.unravel_index(int(np.argmax(err - tol)), err.shape))
     if err[k, a] > tol[a]:
         raise ExportError(f"C header step() parity check failed at sample {k} (t = {t[k]:.3f} s, "
                           f"T = {temp[k]:.4g} degC), axis '{model.outputs[a]}': C "
