@@ -51,12 +51,12 @@ STEP_DRIVER = r"""
 int main(int argc, char **argv) {
     int n = atoi(argv[1]), mode = atoi(argv[2]), flag = 0, i, a;
     (void)argc;
-    float raw[THERMONET_N_AXES], comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
+    double raw[THERMONET_N_AXES], comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
     float sig[THERMONET_N_SIGNALS];
-    volatile float sink = 0.0f;
+    volatile double sink = 0.0;
     thermonet_state st;
     thermonet_init(&st);
-    for (a = 0; a < THERMONET_N_AXES; a++) raw[a] = 0.0f;
+    for (a = 0; a < THERMONET_N_AXES; a++) raw[a] = 0.0;
     for (i = 0; i < THERMONET_N_SIGNALS; i++) sig[i] = 0.0f;
     for (i = 0; i < n; i++) {
         /* 0.1 s steps; a 25 <-> 35 degC triangle at 1 degC/min */
@@ -68,7 +68,7 @@ int main(int argc, char **argv) {
             sig[0] = temp;
             flag = thermonet_compensate(sig, raw, comp, drift);
         }
-        sink += (float)flag + drift[0];
+        sink += (double)flag + drift[0];
     }
     printf("%f\n", (double)sink);
     return 0;
