@@ -134,6 +134,26 @@ def _pool(fn: Callable[[Any], Any], items: Sequence[Any], workers: int,
     return out
 
 
+def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """A TCP connect to ``host:port`` (or ``ray://host:port``) first: Ray itself retries an
+    unreachable head for minutes, logging a warning every few seconds."""
+    import socket
+
+    if address == "auto":
+        return  # a local cluster found through Ray's own session files
+    hostport = address.split("://", 1)[-1]
+    host, _, port = hostport.rpartition(":")
+    if not host or not port.isdigit():
+        raise ExecutorError(f"--ray-address '{address}': expected host:port, ray://host:port "
+                            "or auto")
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout_s):
+            pass
+    except OSError as err:
+        raise ExecutorError(f"Ray cluster at '{address}' not reachable: {err.strerror or err}"
+                            ) from None
+
+
 def _ray(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, address: str | None,
          on_done: Callable[[int, Any], None] | None) -> list[Any]:
     try:
@@ -142,6 +162,8 @@ def _ray(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, address: 
         raise ExecutorError(f"--executor ray: ray is not installed ({err})") from None
     env = {"env_vars": {v: "1" for v in _THREAD_VARS}}
     started = False
+    if address:
+        _check_reachable(address)
     if not ray.is_initialized():
         try:
             if address:

@@ -77,7 +77,7 @@ from .executors import TaskFailure, run_tasks
 from .fleetstats import ROBUST_Z_THRESHOLD, flag_outliers, judge_unit, parse_limits, spread
 from .recording import Dataset, split_units
 
-__all__ = ["FleetOptions", "UnitSource", "run_fleet", "sources_from_dataset", "check_no_fleet",
+__all__ = ["FleetOptions", "UnitSource", "run_fleet", "sources_from_dataset",
            "physical_coefficients",
            "sources_from_simulation", "format_fleet_table", "plot_coefficient_spread",
            "EXIT_LIMITS_FAILED", "COEF_T0_C"]
@@ -124,15 +124,18 @@ def sources_from_dataset(ds: Dataset) -> list[UnitSource]:
 
 
 def sources_from_simulation(preset: str, *, units: int, runs: int | None = None, seed: int = 0,
-                            outliers: int = 0) -> list[UnitSource]:
-    """Sources for a simulated fleet: each worker simulates its own unit."""
+                            outliers: int = 0, **overrides: Any) -> list[UnitSource]:
+    """Sources for a simulated fleet: each worker simulates its own unit.
+
+    ``overrides`` go to the simulator (``sample_rate_hz=0.1``, ``white_noise=False``).
+    """
     from .sim.fleet import simulate_fleet, unit_device_id
 
     simulate_fleet(preset, units=units, runs=1, seed=seed, outliers=outliers,
                    unit_indices=[])  # checks the arguments here, before any worker starts
     return [UnitSource(unit_device_id(preset, k, units),
                        sim={"preset": preset, "units": units, "runs": runs, "seed": seed,
-                            "outliers": outliers, "unit_indices": [k]})
+                            "outliers": outliers, "unit_indices": [k], **overrides})
             for k in range(units)]
 
 
@@ -564,16 +567,6 @@ def plot_coefficient_spread(path: Path, results: dict[str, Any]) -> Path | None:
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
-
-
-def check_no_fleet(ds: Dataset, where: str) -> None:
-    """Refuse a dataset of several units where one device is expected."""
-    if ds.is_fleet:
-        ids = ds.unit_ids
-        raise InputError(f"{where}: the data holds {len(ids)} units ({', '.join(ids[:4])}"
-                         f"{', …' if len(ids) > 4 else ''}); calibrate them with "
-                         "'thermonet fleet'")
-
 
 
 def _clean(obj: Any) -> Any:
