@@ -39,7 +39,8 @@ from thermonet.config import load_config
 from thermonet.fleet import FleetOptions, run_fleet, sources_from_simulation
 cfg = load_config(sys.argv[1])
 cfg.tracking.enabled = False
-units, runs, ex, workers, out = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], int(sys.argv[5]), sys.argv[6]
+units, runs, ex = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+workers, out = int(sys.argv[5]), sys.argv[6]
 src = sources_from_simulation(cfg.data.preset, units=units, runs=runs, seed=0)
 res = run_fleet(cfg, out, src, options=FleetOptions(executor=ex, workers=workers, folds=0),
                 quiet=True)
@@ -70,7 +71,7 @@ def bench_accel(runs: int, units: int, repeats: int) -> dict[str, Any]:
         d = Path(tmp)
         cfg = d / "accel.yaml"
         cfg.write_text((ROOT / "configs" / "accel.yaml").read_text()
-                       + f"\ntracking: {{enabled: false}}\n")
+                       + "\ntracking: {enabled: false}\n")
         text = cfg.read_text().replace("  seed: 0", f"  seed: 0\n  runs: {runs}")
         cfg.write_text(text)
         one, many, ratio = [], [], []

@@ -13,8 +13,13 @@ from thermonet.cli import main
 from thermonet.config import CompareConfig, FamilyConfig, load_config
 from thermonet.errors import ConfigError, InputError
 from thermonet.executors import ExecutorError, TaskFailure, run_tasks
-from thermonet.fleet import (EXIT_LIMITS_FAILED, FleetOptions, UnitSource, run_fleet,
-                             sources_from_dataset)
+from thermonet.fleet import (
+    EXIT_LIMITS_FAILED,
+    FleetOptions,
+    UnitSource,
+    run_fleet,
+    sources_from_dataset,
+)
 from thermonet.fleetstats import MAD_TO_SIGMA, flag_outliers, parse_limits, robust_z
 from thermonet.io import read_datasets, write_parquet
 from thermonet.recording import Dataset, Recording, split_units
@@ -156,7 +161,8 @@ def test_robust_z_and_outlier_rule_by_hand():
     assert z["a"] == pytest.approx(2 / MAD_TO_SIGMA)
     flags = flag_outliers({"c1": values})
     assert list(flags) == ["e"] and flags["e"][0]["quantity"] == "c1"
-    assert robust_z({"a": 1.0, "b": 1.0, "c": 1.0, "d": 5.0}) == {}  # MAD 0: no verdict
+    assert robust_z({"a": 1.0, "b": 1.0, "c": 1.0, "d": 1.0, "e": 5.0}) == {}  # MAD 0
+    assert robust_z({"a": 1.0, "b": 2.0, "c": 3.0, "d": 100.0}) == {}  # too few units
 
 
 def test_limits_are_checked_key_by_key(tmp_path):
@@ -219,7 +225,8 @@ def test_fleet_recovers_coefficients_flags_the_outlier_and_judges_limits(tmp_pat
     exp = client.get_experiment_by_name("thermonet")
     runs = client.search_runs([exp.experiment_id])
     parents = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
-    children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == on_disk["mlflow_run_id"]]
+    children = [r for r in runs
+                if r.data.tags.get("mlflow.parentRunId") == on_disk["mlflow_run_id"]]
     assert len(parents) == 1 and len(children) == len(GAINS)
     assert {r.data.tags["verdict"] for r in children} == {"PASS"}
 

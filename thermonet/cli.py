@@ -41,8 +41,13 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _cmd_fleet(args: argparse.Namespace) -> int:
     from .config import load_config
     from .evaluate import load_data
-    from .fleet import (EXIT_LIMITS_FAILED, FleetOptions, run_fleet, sources_from_dataset,
-                        sources_from_simulation)
+    from .fleet import (
+        EXIT_LIMITS_FAILED,
+        FleetOptions,
+        run_fleet,
+        sources_from_dataset,
+        sources_from_simulation,
+    )
 
     cfg = load_config(args.config)
     opts = FleetOptions(executor=args.executor, workers=args.workers,

@@ -74,7 +74,14 @@ import numpy as np
 from .config import CompareConfig, FamilyConfig, check_families, to_dict
 from .errors import ConfigError, InputError
 from .executors import TaskFailure, run_tasks
-from .fleetstats import ROBUST_Z_THRESHOLD, flag_outliers, judge_unit, parse_limits, spread
+from .fleetstats import (
+    MIN_UNITS_FOR_OUTLIERS,
+    ROBUST_Z_THRESHOLD,
+    flag_outliers,
+    judge_unit,
+    parse_limits,
+    spread,
+)
 from .recording import Dataset, split_units
 
 __all__ = ["FleetOptions", "UnitSource", "run_fleet", "sources_from_dataset",
@@ -462,7 +469,8 @@ def _summary(units: dict[str, Any], family: str, folds: dict[str, Any],
         "spread": {q: spread(v) for q, v in quantities.items()},
         "outliers": flag_outliers(quantities),
         "outlier_rule": f"robust z = |x - median| / (1.4826 * MAD) > {ROBUST_Z_THRESHOLD} on any "
-                        "coefficient or held-out error of the fleet family",
+                        "coefficient or held-out error of the fleet family (at least "
+                        f"{MIN_UNITS_FOR_OUTLIERS} units)",
         "leave_units_out": {
             "family": family, "folds": folds,
             "median_ratio": {a: float(np.median(r)) for a, r in luo_ratios.items()},

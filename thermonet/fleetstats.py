@@ -9,7 +9,9 @@ Iglewicz & Hoaglin's modified z):
 a unit is flagged when :math:`z_u > 3.5` for any fitted coefficient or
 held-out error (1.4826·MAD estimates σ for normal data, so 3.5 is ≈3.5σ, and
 one wild unit cannot hide itself by inflating the spread as it does with
-mean ± k·std).  A quantity whose MAD is 0 (every unit equal) flags nothing.
+mean ± k·std).  A quantity whose MAD is 0 (every unit equal) flags nothing, and
+fewer than :data:`MIN_UNITS_FOR_OUTLIERS` units flag nothing (with three units
+the MAD is the gap to the nearer neighbour and z-scores run into thousands).
 
 Limits (the ``limits:`` config section) turn a unit's held-out results into
 PASS/FAIL, per output axis or ``"*"`` for every axis (an axis entry overrides
@@ -44,12 +46,15 @@ from .errors import ConfigError
 
 __all__ = ["LimitSpec", "parse_limits", "limits_for", "judge_unit", "spread",
            "robust_z", "flag_outliers", "ROBUST_Z_THRESHOLD", "MAD_TO_SIGMA",
+           "MIN_UNITS_FOR_OUTLIERS",
            "fleet_html_fragment"]
 
 #: Units whose robust z-score exceeds this are flagged (Iglewicz & Hoaglin).
 ROBUST_Z_THRESHOLD = 3.5
 #: MAD × this estimates the standard deviation of normal data.
 MAD_TO_SIGMA = 1.4826
+#: Below this many units no unit is flagged as an outlier.
+MIN_UNITS_FOR_OUTLIERS = 5
 
 
 @dataclass
@@ -163,9 +168,10 @@ def spread(values: dict[str, float]) -> dict[str, Any]:
 
 
 def robust_z(values: dict[str, float]) -> dict[str, float]:
-    """|x − median| / (1.4826 · MAD) per unit; empty when MAD is 0 or fewer than 3 units."""
+    """|x − median| / (1.4826 · MAD) per unit; empty when MAD is 0 or fewer than
+    :data:`MIN_UNITS_FOR_OUTLIERS` units."""
     s = spread(values)
-    if s["n"] < 3 or not s["mad"]:
+    if s["n"] < MIN_UNITS_FOR_OUTLIERS or not s["mad"]:
         return {}
     scale = MAD_TO_SIGMA * s["mad"]
     return {u: abs(x - s["median"]) / scale for u, x in values.items()
