@@ -158,9 +158,12 @@ def test_robust_z_and_outlier_rule_by_hand():
     values = {"a": 1.0, "b": 2.0, "c": 3.0, "d": 4.0, "e": 100.0}
     z = robust_z(values)  # median 3, MAD 1
     assert z["e"] == pytest.approx(97 / MAD_TO_SIGMA)
-    assert z["a"] == pytest.approx(2 / MAD_TO_SIGMA)
+    assert z["a"] == pytest.approx(-2 / MAD_TO_SIGMA)
     flags = flag_outliers({"c1": values})
     assert list(flags) == ["e"] and flags["e"][0]["quantity"] == "c1"
+    low = {"a": -100.0, "b": 2.0, "c": 3.0, "d": 4.0, "e": 5.0}
+    assert list(flag_outliers({"err": low})) == ["a"]
+    assert flag_outliers({"err": low}, high_only={"err"}) == {}  # lower error is no fault
     assert robust_z({"a": 1.0, "b": 1.0, "c": 1.0, "d": 1.0, "e": 5.0}) == {}  # MAD 0
     assert robust_z({"a": 1.0, "b": 2.0, "c": 3.0, "d": 100.0}) == {}  # too few units
 
@@ -203,6 +206,9 @@ def test_fleet_recovers_coefficients_flags_the_outlier_and_judges_limits(tmp_pat
         assert (tmp_path / "fleet" / "units" / dev / "models" / "cubic.pt").is_file()
     fleet = res["fleet"]
     assert list(fleet["outliers"]) == ["toy-u005"]
+    # flagged on its drift curve: 50 % off the fleet's, far beyond 3.5 robust σ
+    assert any(f["quantity"].startswith("cubic.gyro_x.drift@") and abs(f["z"]) > 10
+               for f in fleet["outliers"]["toy-u005"])
     assert fleet["all_passed"] and fleet["verdicts"] == {"PASS": len(GAINS)}
     # leave units out: the fleet model is as good as the unit's own on the normal units
     # (gains within 1 %: 0.5 % of a 0.1 deg/s drift is below the noise) and far worse on the

@@ -24,9 +24,9 @@ and writes nothing shared: the driver alone writes files and MLflow.  A task
 that raises, or a worker process that dies (killed, out of memory, a segfault
 in native code), gives a :class:`TaskFailure` for that item and the other
 items finish.  In the process pool a dead worker breaks the pool for every
-task in flight; the unfinished items are then re-run one at a time, each in a
-fresh one-worker pool, so only the item that kills its worker is reported
-failed.
+task in flight: the items a worker had started (shared flags say which) are
+re-run one at a time, each in a fresh one-worker pool, so only the item that
+kills its worker is reported failed; items not yet started go to a fresh pool.
 """
 
 from __future__ import annotations
@@ -93,44 +93,69 @@ def _serial(fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
         torch.set_num_threads(before)
 
 
+_STARTED: Any = None  # a worker's view of the pool's shared "started" flags
+
+
+def _init_worker(started: Any) -> None:
+    global _STARTED
+    _STARTED = started
+    pin_one_thread()
+
+
+def _tracked(fn: Callable[[Any], Any], i: int, item: Any) -> Any:
+    if _STARTED is not None:
+        _STARTED[i] = 1
+    return _call(fn, item)
+
+
 def _pool(fn: Callable[[Any], Any], items: Sequence[Any], workers: int,
           on_done: Callable[[int, Any], None] | None) -> list[Any]:
     import multiprocessing
+    from concurrent.futures import as_completed
 
     ctx = multiprocessing.get_context("spawn")
     out: list[Any] = [None] * len(items)
     done = [False] * len(items)
-    try:
-        with ProcessPoolExecutor(max_workers=min(workers, len(items)), mp_context=ctx,
-                                 initializer=pin_one_thread) as pool:
-            futures: dict[Future[Any], int] = {pool.submit(_call, fn, it): i
-                                               for i, it in enumerate(items)}
-            from concurrent.futures import as_completed
 
-            for fut in as_completed(futures):
-                i = futures[fut]
-                try:
-                    out[i] = fut.result()
-                except BrokenProcessPool:
-                    continue  # re-run below, one at a time
-                done[i] = True
-                if on_done is not None:
-                    on_done(i, out[i])
-    except BrokenProcessPool:
-        pass
-    for i, it in enumerate(items):
-        if done[i]:
-            continue
-        # isolate: only the item that kills its own worker fails
-        try:
-            with ProcessPoolExecutor(max_workers=1, mp_context=ctx,
-                                     initializer=pin_one_thread) as solo:
-                out[i] = solo.submit(_call, fn, it).result()
-        except BrokenProcessPool:
-            out[i] = TaskFailure("worker process died (killed, out of memory or crashed) "
-                                 "while running this unit")
+    def finish(i: int, value: Any) -> None:
+        out[i], done[i] = value, True
         if on_done is not None:
-            on_done(i, out[i])
+            on_done(i, value)
+
+    todo = list(range(len(items)))
+    while todo:
+        # shared flags say which items a worker had started when the pool broke: those are
+        # the suspects; items never started go to a fresh pool as before
+        started = ctx.Array("b", len(items), lock=False)
+        try:
+            with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx,
+                                     initializer=_init_worker, initargs=(started,)) as pool:
+                futures: dict[Future[Any], int] = {pool.submit(_tracked, fn, i, items[i]): i
+                                                   for i in todo}
+                for fut in as_completed(futures):
+                    try:
+                        value = fut.result()
+                    except BrokenProcessPool:
+                        continue
+                    finish(futures[fut], value)
+        except BrokenProcessPool:
+            pass
+        left = [i for i in todo if not done[i]]
+        suspects = [i for i in left if started[i]]
+        if left and not suspects and len(left) == len(todo):  # no worker even started
+            for i in left:
+                finish(i, TaskFailure("worker processes could not start"))
+            break
+        for i in suspects:  # alone in a fresh worker: only the item that kills it fails
+            try:
+                with ProcessPoolExecutor(max_workers=1, mp_context=ctx,
+                                         initializer=pin_one_thread) as solo:
+                    value = solo.submit(_call, fn, items[i]).result()
+            except BrokenProcessPool:
+                value = TaskFailure("worker process died (killed, out of memory or crashed) "
+                                    "while running this unit")
+            finish(i, value)
+        todo = [i for i in left if not started[i]]
     return out
 
 

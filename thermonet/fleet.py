@@ -231,11 +231,15 @@ def _unit_task(item: _UnitItem) -> dict[str, Any]:
             if temps and len(temps) == len(ds) else None
         payload: dict[str, Any] = {"results": results, "files": files, "root": str(udir),
                                    "temperature_span_c": span, "coefficients": {},
-                                   "leave_units_out": None, "n_runs": len(ds)}
+                                   "leave_units_out": None, "n_runs": len(ds),
+                                   "temperature_range_c": None}
         fam = results["families"].get(item.family)
         if fam and fam.get("status") == "ok" and fam.get("checkpoint"):
             own, _ = load_checkpoint(fam["checkpoint"])
             payload["coefficients"] = physical_coefficients(own)
+            lo, hi = float(own.sig_lo[0]), float(own.sig_hi[0])
+            if list(own.signals) == ["temperature_c"] and np.isfinite([lo, hi]).all():
+                payload["temperature_range_c"] = [lo, hi]
             if item.fleet_model is not None:
                 part = _test_part(item.cfg, ds, own)
                 s_own = _residual_std(own, part)
@@ -405,7 +409,8 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
                 r = _relocate(res["results"], res["root"], str(final))
                 r.update(status="ok", temperature_span_c=res["temperature_span_c"],
                          coefficients=res["coefficients"],
-                         leave_units_out=res["leave_units_out"], n_runs=res["n_runs"])
+                         leave_units_out=res["leave_units_out"], n_runs=res["n_runs"],
+                         temperature_range_c=res["temperature_range_c"])
                 if r.get("device") != dev:
                     r["device"] = dev
                 atomic_write_text(udir / "results.json", json.dumps(_clean(r), indent=2))
@@ -442,17 +447,43 @@ def _move_into_place(stage: Path, out: Path) -> None:
         os.replace(stage, out)
 
 
+def _curve_points(ok: dict[str, Any], family: str) -> dict[str, dict[str, float]]:
+    """The fleet family's curve of every unit at five temperatures of the range all units
+    were trained on (from the physical coefficients)."""
+    ranges = [u["temperature_range_c"] for u in ok.values() if u.get("temperature_range_c")]
+    if len(ranges) < len(ok) or not ranges:
+        return {}
+    lo, hi = max(r[0] for r in ranges), min(r[1] for r in ranges)
+    if not hi > lo:
+        return {}
+    out: dict[str, dict[str, float]] = {}
+    for t in np.round(np.linspace(lo, hi, 5), 1):
+        for dev, u in ok.items():
+            coefs: dict[str, dict[int, float]] = {}
+            for name, v in u["coefficients"].items():
+                axis, _, k = name.rpartition(".c")
+                coefs.setdefault(axis, {})[int(k)] = v
+            for axis, c in coefs.items():
+                value = sum(v * (t - COEF_T0_C) ** k for k, v in c.items())
+                out.setdefault(f"{family}.{axis}.drift@{t:g}C", {})[dev] = float(value)
+    return out
+
+
 def _summary(units: dict[str, Any], family: str, folds: dict[str, Any],
              limits: dict[str, Any]) -> dict[str, Any]:
     ok = {d: u for d, u in units.items() if u.get("status") == "ok"}
-    quantities: dict[str, dict[str, float]] = {}
+    coefficients: dict[str, dict[str, float]] = {}
     for dev, u in ok.items():
         for name, v in u.get("coefficients", {}).items():
-            quantities.setdefault(f"{family}.{name}", {})[dev] = v
+            coefficients.setdefault(f"{family}.{name}", {})[dev] = v
+    quantities = _curve_points(ok, family)
+    errors: set[str] = set()
+    for dev, u in ok.items():
         fam = u["families"].get(family, {})
         for axis, m in fam.get("axes", {}).items():
             for metric in ("rms_comp", "pp_comp"):
                 if metric in m:
+                    errors.add(f"{family}.{axis}.{metric}")
                     quantities.setdefault(f"{family}.{axis}.{metric}", {})[dev] = m[metric]
     luo_ratios: dict[str, list[float]] = {}
     for u in ok.values():
@@ -466,11 +497,13 @@ def _summary(units: dict[str, Any], family: str, folds: dict[str, Any],
     all_passed = n_failed == 0 and verdicts.get("FAIL", 0) == 0
     return {
         "n_units": len(units), "n_failed": n_failed, "family": family,
-        "spread": {q: spread(v) for q, v in quantities.items()},
-        "outliers": flag_outliers(quantities),
-        "outlier_rule": f"robust z = |x - median| / (1.4826 * MAD) > {ROBUST_Z_THRESHOLD} on any "
-                        "coefficient or held-out error of the fleet family (at least "
-                        f"{MIN_UNITS_FOR_OUTLIERS} units)",
+        "spread": {q: spread(v) for q, v in {**coefficients, **quantities}.items()},
+        "outliers": flag_outliers(quantities, high_only=errors),
+        "outlier_rule": f"robust z = |x - median| / (1.4826 * MAD) > {ROBUST_Z_THRESHOLD} on the "
+                        "fleet family's curve at five temperatures of the common range, or "
+                        "above the median on its held-out rms_comp / pp_comp (at least "
+                        f"{MIN_UNITS_FOR_OUTLIERS} units; coefficients are reported, not "
+                        "flagged: the higher ones are ill-conditioned)",
         "leave_units_out": {
             "family": family, "folds": folds,
             "median_ratio": {a: float(np.median(r)) for a, r in luo_ratios.items()},
@@ -553,10 +586,7 @@ def plot_coefficient_spread(path: Path, results: dict[str, Any]) -> Path | None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    signed: dict[str, dict[str, float]] = {}
-    for q, z in zs.items():
-        med = float(np.median(list(quantities[q].values())))
-        signed[q] = {u: z[u] * (1 if quantities[q][u] >= med else -1) for u in z}
+    signed = zs
     fig, ax = plt.subplots(figsize=(max(4.0, 0.8 * len(signed) + 2), 4.0))
     for i, z in enumerate(signed.values()):
         vals = np.array(list(z.values()))

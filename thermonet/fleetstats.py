@@ -6,8 +6,12 @@ Iglewicz & Hoaglin's modified z):
 
 .. math:: z_u = \\frac{|x_u - \\operatorname{median}(x)|}{1.4826 \\cdot \\operatorname{MAD}(x)}
 
-a unit is flagged when :math:`z_u > 3.5` for any fitted coefficient or
-held-out error (1.4826·MAD estimates σ for normal data, so 3.5 is ≈3.5σ, and
+a unit is flagged when :math:`z_u > 3.5` for any quantity the fleet judges
+(:func:`thermonet.fleet.run_fleet`: the fleet family's curve at five
+temperatures of the common range — well conditioned, unlike the higher
+polynomial coefficients, which are reported but do not flag — and, one-sided,
+the held-out errors: a unit better than its peers is no outlier).
+1.4826·MAD estimates σ for normal data, so 3.5 is ≈3.5σ, and
 one wild unit cannot hide itself by inflating the spread as it does with
 mean ± k·std).  A quantity whose MAD is 0 (every unit equal) flags nothing, and
 fewer than :data:`MIN_UNITS_FOR_OUTLIERS` units flag nothing (with three units
@@ -168,37 +172,42 @@ def spread(values: dict[str, float]) -> dict[str, Any]:
 
 
 def robust_z(values: dict[str, float]) -> dict[str, float]:
-    """|x − median| / (1.4826 · MAD) per unit; empty when MAD is 0 or fewer than
+    """Signed (x − median) / (1.4826 · MAD) per unit; empty when MAD is 0 or fewer than
     :data:`MIN_UNITS_FOR_OUTLIERS` units."""
     s = spread(values)
     if s["n"] < MIN_UNITS_FOR_OUTLIERS or not s["mad"]:
         return {}
     scale = MAD_TO_SIGMA * s["mad"]
-    return {u: abs(x - s["median"]) / scale for u, x in values.items()
+    return {u: (x - s["median"]) / scale for u, x in values.items()
             if x is not None and math.isfinite(x)}
 
 
 def flag_outliers(quantities: dict[str, dict[str, float]],
-                  threshold: float = ROBUST_Z_THRESHOLD) -> dict[str, list[dict[str, Any]]]:
-    """Units with a robust z-score above ``threshold`` on any quantity.
+                  threshold: float = ROBUST_Z_THRESHOLD, *,
+                  high_only: set[str] | frozenset[str] = frozenset()
+                  ) -> dict[str, list[dict[str, Any]]]:
+    """Units with a robust |z| above ``threshold`` on any quantity.
 
     Parameters
     ----------
     quantities : dict
         quantity name → {unit → value}.
+    threshold : float
+    high_only : set of str
+        Quantities flagged only above the median (errors: lower is not a fault).
 
     Returns
     -------
     dict
-        unit → [{"quantity", "value", "z"}], only flagged units, largest z first.
+        unit → [{"quantity", "value", "z"}] (z signed), only flagged units, largest |z| first.
     """
     flags: dict[str, list[dict[str, Any]]] = {}
     for name, values in quantities.items():
         for unit, z in robust_z(values).items():
-            if z > threshold:
+            if (z if name in high_only else abs(z)) > threshold:
                 flags.setdefault(unit, []).append({"quantity": name, "value": values[unit],
                                                    "z": z})
-    return {u: sorted(f, key=lambda d: -d["z"]) for u, f in sorted(flags.items())}
+    return {u: sorted(f, key=lambda d: -abs(d["z"])) for u, f in sorted(flags.items())}
 
 
 def fleet_html_fragment(results: dict[str, Any], spread_png: str | None = None) -> str:
