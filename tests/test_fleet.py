@@ -330,3 +330,17 @@ def test_executor_arguments_are_checked():
         run_tasks(abs, [1], workers=0)
     with pytest.raises(InputError, match="device id 'x' given twice"):
         run_fleet(toy_config(), Path("unused"), [UnitSource("x"), UnitSource("x")], quiet=True)
+
+
+def test_a_unit_with_too_few_runs_for_the_split_fails_alone(tmp_path):
+    runs = toy_unit("toy-ok", 1.0, n_runs=2) + toy_unit("toy-short", 1.0, n_runs=1)
+    cfg = toy_config()
+    cfg.families = cfg.families[:1]
+    cfg.split.strategy = "train-then-verify"
+    res = run_fleet(cfg, tmp_path / "f", sources_from_dataset(Dataset(runs).validate()),
+                    options=FleetOptions(executor="serial", folds=0), quiet=True)
+    short = res["units"]["toy-short"]
+    assert short["status"] == "failed"
+    assert "train-then-verify needs exactly 2 runs, the data has 1" in short["reason"]
+    assert res["units"]["toy-ok"]["status"] == "ok"
+    assert res["fleet"]["n_failed"] == 1 and not res["fleet"]["all_passed"]

@@ -17,10 +17,11 @@ mapping's ``device_column``, or :func:`thermonet.sim.simulate_fleet`) and:
    ``poly``/``linear`` (exact for those families) and cubic otherwise — and the
    held-out error of each axis: spread (median, MAD, min, max) and robust
    outlier flags (:mod:`thermonet.fleetstats`: robust z > 3.5).
-3. **Leave units out**: the units are dealt into ``folds`` groups (unit *i* in
-   group *i* mod k); for each group, one fleet model of the fleet family is
-   fitted on the calibration runs (train + validation part of each unit's own
-   split) of up to ``fleet_units_max`` units of the *other* groups, and
+3. **Leave units out** (after the units): the units are dealt into ``folds``
+   groups (unit *i* in group *i* mod k); for each group, one fleet model of the
+   fleet family is fitted on the calibration runs (train + validation part of
+   each unit's own split) of up to ``fleet_units_max`` units of the *other*
+   groups — flagged outliers and failed units left out — and
    evaluated on each held-out unit's test run next to that unit's own
    calibration of the same family.  Reported per unit and axis: the standard
    deviation of the compensated error with the fleet model and with its own
@@ -208,8 +209,6 @@ class _UnitItem:
     cfg: CompareConfig
     source: UnitSource
     family: str
-    fleet_model: Any = None
-    fold: int | None = None
 
 
 def _unit_task(item: _UnitItem) -> dict[str, Any]:
@@ -231,26 +230,16 @@ def _unit_task(item: _UnitItem) -> dict[str, Any]:
             if temps and len(temps) == len(ds) else None
         payload: dict[str, Any] = {"results": results, "files": files, "root": str(udir),
                                    "temperature_span_c": span, "coefficients": {},
-                                   "leave_units_out": None, "n_runs": len(ds),
-                                   "temperature_range_c": None}
+                                   "n_runs": len(ds), "temperature_range_c": None,
+                                   "own_model": None}
         fam = results["families"].get(item.family)
         if fam and fam.get("status") == "ok" and fam.get("checkpoint"):
             own, _ = load_checkpoint(fam["checkpoint"])
+            payload["own_model"] = own  # for leave-units-out, evaluated by the fold tasks
             payload["coefficients"] = physical_coefficients(own)
             lo, hi = float(own.sig_lo[0]), float(own.sig_hi[0])
             if list(own.signals) == ["temperature_c"] and np.isfinite([lo, hi]).all():
                 payload["temperature_range_c"] = [lo, hi]
-            if item.fleet_model is not None:
-                part = _test_part(item.cfg, ds, own)
-                s_own = _residual_std(own, part)
-                s_fleet = _residual_std(item.fleet_model, part)
-                s_raw = np.std(part.target, axis=0)
-                payload["leave_units_out"] = {
-                    "fold": item.fold, "family": item.family, "axes": {
-                        a: {"std_raw": float(s_raw[j]), "std_own": float(s_own[j]),
-                            "std_fleet": float(s_fleet[j]),
-                            "ratio": float(s_fleet[j] / s_own[j]) if s_own[j] > 0 else None}
-                        for j, a in enumerate(own.outputs)}}
         return payload
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -261,11 +250,13 @@ class _FoldItem:
     cfg: CompareConfig
     family: str
     fold: int
-    sources: list[UnitSource] = field(default_factory=list)
+    sources: list[UnitSource] = field(default_factory=list)       # the fleet model's units
+    held_out: list[tuple[UnitSource, Any]] = field(default_factory=list)  # (unit, own model)
 
 
 def _fold_task(item: _FoldItem) -> dict[str, Any]:
-    """Fit one fleet model of the fleet family on other units' calibration runs."""
+    """Fit one fleet model of the fleet family on other units' calibration runs, and
+    evaluate it on each held-out unit's test run next to the unit's own model."""
     from .config import from_dict
     from .evaluate import build_part, make_splits
     from .features import FeatureSpec, reference_values
@@ -298,19 +289,39 @@ def _fold_task(item: _FoldItem) -> dict[str, Any]:
                  hyper=dict(fam.params),
                  config=from_dict(TrainConfig, {**to_dict(cfg.train), **fam.train},
                                   source="config", prefix=f"families[{fam.label}].train"))
-    return {"model": fitted.model, "units": [s.device_id for s in item.sources],
-            "fold": item.fold}
+    evaluations = {}
+    for src, own in item.held_out:  # one unit's data at a time
+        part = _test_part(cfg, src.load(), own)
+        s_own, s_fleet = _residual_std(own, part), _residual_std(fitted.model, part)
+        s_raw = np.std(part.target, axis=0)
+        evaluations[src.device_id] = {
+            "fold": item.fold, "family": item.family,
+            "fitted_on": [s.device_id for s in item.sources], "axes": {
+                a: {"std_raw": float(s_raw[j]), "std_own": float(s_own[j]),
+                    "std_fleet": float(s_fleet[j]),
+                    "ratio": float(s_fleet[j] / s_own[j]) if s_own[j] > 0 else None}
+                for j, a in enumerate(own.outputs)}}
+    return {"units": [s.device_id for s in item.sources], "fold": item.fold,
+            "evaluations": evaluations}
 
 
 def _fold_items(cfg: CompareConfig, family: str, sources: list[UnitSource], k: int,
-                per_fit: int) -> list[_FoldItem]:
+                per_fit: int, own: dict[str, Any], excluded: set[str]) -> list[_FoldItem]:
+    """Unit *i* is in group *i* mod k; each group's fleet model is fitted on up to
+    ``per_fit`` units of the other groups (evenly spaced), leaving out ``excluded`` units
+    (flagged outliers, failed units)."""
     items = []
     for f in range(k):
-        others = [s for i, s in enumerate(sources) if i % k != f]
+        others = [s for i, s in enumerate(sources)
+                  if i % k != f and s.device_id not in excluded]
         if len(others) > per_fit:  # evenly spaced, deterministic
             pick = np.linspace(0, len(others) - 1, per_fit).round().astype(int)
             others = [others[i] for i in sorted(set(pick.tolist()))]
-        items.append(_FoldItem(cfg=cfg, family=family, fold=f, sources=others))
+        held = [(s, own[s.device_id]) for i, s in enumerate(sources)
+                if i % k == f and own.get(s.device_id) is not None]
+        if others and held:
+            items.append(_FoldItem(cfg=cfg, family=family, fold=f, sources=others,
+                                   held_out=held))
     return items
 
 
@@ -372,19 +383,7 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
     say(f"thermonet fleet: {len(sources)} units, executor {opts.executor}, fleet family "
         f"{family}, leave-units-out in {k} groups")
     run_kw = {"executor": opts.executor, "workers": opts.workers, "ray_address": opts.ray_address}
-    fleet_models: dict[int, Any] = {}
-    fold_info: dict[str, Any] = {}
-    if k:
-        folds = _fold_items(cfg, family, sources, k, opts.fleet_units_max)
-        for item, res in zip(folds, run_tasks(_fold_task, folds, **run_kw), strict=True):
-            if isinstance(res, TaskFailure):
-                fold_info[str(item.fold)] = {"status": "failed", "reason": res.reason}
-            else:
-                fleet_models[item.fold] = res["model"]
-                fold_info[str(item.fold)] = {"status": "ok", "fitted_on": res["units"]}
-    items = [_UnitItem(cfg=cfg, source=s, family=family, fleet_model=fleet_models.get(i % k)
-                       if k else None, fold=(i % k) if k else None)
-             for i, s in enumerate(sources)]
+    items = [_UnitItem(cfg=cfg, source=s, family=family) for s in sources]
 
     def progress(i: int, res: Any) -> None:
         status = f"failed: {res.reason}" if isinstance(res, TaskFailure) else \
@@ -396,26 +395,44 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
     stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
         units: dict[str, Any] = {}
+        own: dict[str, Any] = {}
         for dev, res in zip(ids, payloads, strict=True):
             if isinstance(res, TaskFailure):
                 units[dev] = {"device": dev, "status": "failed", "reason": res.reason}
-            else:
-                udir = stage / "units" / dev
-                final = out / "units" / dev
-                for rel, data in res["files"].items():
-                    p = udir / rel
-                    p.parent.mkdir(parents=True, exist_ok=True)
-                    p.write_bytes(data)
-                r = _relocate(res["results"], res["root"], str(final))
-                r.update(status="ok", temperature_span_c=res["temperature_span_c"],
-                         coefficients=res["coefficients"],
-                         leave_units_out=res["leave_units_out"], n_runs=res["n_runs"],
-                         temperature_range_c=res["temperature_range_c"])
-                if r.get("device") != dev:
-                    r["device"] = dev
-                atomic_write_text(udir / "results.json", json.dumps(_clean(r), indent=2))
-                units[dev] = r
-            units[dev]["limits"] = judge_unit(units[dev], limits)
+                continue
+            udir = stage / "units" / dev
+            for rel, data in res["files"].items():
+                p = udir / rel
+                p.parent.mkdir(parents=True, exist_ok=True)
+                p.write_bytes(data)
+            r = _relocate(res["results"], res["root"], str(out / "units" / dev))
+            r.update(status="ok", temperature_span_c=res["temperature_span_c"],
+                     coefficients=res["coefficients"], leave_units_out=None,
+                     n_runs=res["n_runs"], temperature_range_c=res["temperature_range_c"])
+            r["device"] = dev
+            units[dev] = r
+            own[dev] = res["own_model"]
+        # leave units out, after the units: flagged outliers and failed units stay out of
+        # every fleet model (a production line would not build its fleet model on them)
+        flagged = set(_summary(units, family, {}, limits)["outliers"])
+        fold_info: dict[str, Any] = {}
+        if k:
+            excluded = flagged | {d for d, u in units.items() if u["status"] != "ok"}
+            folds = _fold_items(cfg, family, sources, k, opts.fleet_units_max, own, excluded)
+            say(f"  leave-units-out: {len(folds)} fleet fits (outliers left out: "
+                f"{', '.join(sorted(flagged)) or 'none'})")
+            for item, fres in zip(folds, run_tasks(_fold_task, folds, **run_kw), strict=True):
+                if isinstance(fres, TaskFailure):
+                    fold_info[str(item.fold)] = {"status": "failed", "reason": fres.reason}
+                    continue
+                fold_info[str(item.fold)] = {"status": "ok", "fitted_on": fres["units"]}
+                for dev, ev in fres["evaluations"].items():
+                    units[dev]["leave_units_out"] = ev
+        for dev, u in units.items():
+            u["limits"] = judge_unit(u, limits)
+            if u["status"] == "ok":
+                atomic_write_text(stage / "units" / dev / "results.json",
+                                  json.dumps(_clean(u), indent=2))
         summary = _summary(units, family, fold_info, limits)
         summary["seconds"] = time.perf_counter() - t_start
         results = {"schema": 1, "kind": "fleet", "config": to_dict(cfg), "fleet_family": family,
@@ -492,7 +509,9 @@ def _summary(units: dict[str, Any], family: str, folds: dict[str, Any],
                 luo_ratios.setdefault(axis, []).append(a["ratio"])
     verdicts: dict[str, int] = {}
     for u in units.values():
-        verdicts[u["limits"]["verdict"]] = verdicts.get(u["limits"]["verdict"], 0) + 1
+        if "limits" in u:
+            v = u["limits"]["verdict"]
+            verdicts[v] = verdicts.get(v, 0) + 1
     n_failed = len(units) - len(ok)
     all_passed = n_failed == 0 and verdicts.get("FAIL", 0) == 0
     return {

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..recording import Dataset
-from .device import LawSum, Lorentz, Polynomial, Sinusoid
+from .device import AnyLaw, LawSum, Lorentz, Polynomial, Sinusoid
 from .presets import SimConfig, get_preset, simulate
 
 __all__ = ["simulate_fleet", "unit_seed", "unit_device_id", "outlier_config",
@@ -49,7 +49,7 @@ def unit_device_id(preset: str, unit: int, n_units: int) -> str:
     return f"{preset}-u{unit:0{width}d}"
 
 
-def _scaled(law: object, factor: float) -> object:
+def _scaled(law: AnyLaw, factor: float) -> AnyLaw:
     """A drift law multiplied by ``factor`` (every law here is linear in its amplitudes)."""
     if isinstance(law, Polynomial):
         return dataclasses.replace(law, coefficients=tuple(c * factor for c in law.coefficients))
