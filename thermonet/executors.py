@@ -31,6 +31,7 @@ kills its worker is reported failed; items not yet started go to a fresh pool.
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -193,10 +194,10 @@ def _ray(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, address: 
         try:
             if address:
                 ray.init(address=address, runtime_env=env, log_to_driver=False,
-                         logging_level="ERROR")
+                         logging_level=logging.ERROR)
             else:
                 ray.init(num_cpus=workers, include_dashboard=False, runtime_env=env,
-                         log_to_driver=False, logging_level="ERROR")
+                         log_to_driver=False, logging_level=logging.ERROR)
         except (ConnectionError, RuntimeError, ValueError, TimeoutError) as err:
             where = f"at '{address}'" if address else "(local)"
             raise ExecutorError(f"Ray cluster {where} not reachable: {_one_line(err)}") from None

@@ -68,7 +68,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -161,6 +161,11 @@ def _family(cfg: CompareConfig, label: str) -> FamilyConfig:
     return next(f for f in cfg.families if f.label == label)
 
 
+def _buffer(model: Any, name: str) -> np.ndarray:
+    """A model buffer as float64 NumPy (the trained signal range ``sig_lo``/``sig_hi``)."""
+    return np.asarray(getattr(model, name).detach().cpu().numpy(), dtype=np.float64)
+
+
 def physical_coefficients(model: Any, t0_c: float = COEF_T0_C) -> dict[str, float]:
     """Polynomial coefficients of a temperature-only model's drift in (T − t0), per axis.
 
@@ -173,7 +178,8 @@ def physical_coefficients(model: Any, t0_c: float = COEF_T0_C) -> dict[str, floa
 
     if list(model.signals) != ["temperature_c"]:
         return {}
-    lo, hi = float(model.sig_lo[0]), float(model.sig_hi[0])
+    lo, hi = (float(v) for v in np.concatenate([_buffer(model, "sig_lo")[:1],
+                                                 _buffer(model, "sig_hi")[:1]]))
     if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
         return {}
     hyper = model.family.hyper()
@@ -237,7 +243,7 @@ def _unit_task(item: _UnitItem) -> dict[str, Any]:
             own, _ = load_checkpoint(fam["checkpoint"])
             payload["own_model"] = own  # for leave-units-out, evaluated by the fold tasks
             payload["coefficients"] = physical_coefficients(own)
-            lo, hi = float(own.sig_lo[0]), float(own.sig_hi[0])
+            lo, hi = float(_buffer(own, "sig_lo")[0]), float(_buffer(own, "sig_hi")[0])
             if list(own.signals) == ["temperature_c"] and np.isfinite([lo, hi]).all():
                 payload["temperature_range_c"] = [lo, hi]
         return payload
@@ -291,9 +297,9 @@ def _fold_task(item: _FoldItem) -> dict[str, Any]:
                                   source="config", prefix=f"families[{fam.label}].train"))
     evaluations = {}
     for src, own in item.held_out:  # one unit's data at a time
-        part = _test_part(cfg, src.load(), own)
-        s_own, s_fleet = _residual_std(own, part), _residual_std(fitted.model, part)
-        s_raw = np.std(part.target, axis=0)
+        test = _test_part(cfg, src.load(), own)
+        s_own, s_fleet = _residual_std(own, test), _residual_std(fitted.model, test)
+        s_raw = np.std(test.target, axis=0)
         evaluations[src.device_id] = {
             "fold": item.fold, "family": item.family,
             "fitted_on": [s.device_id for s in item.sources], "axes": {
@@ -382,7 +388,11 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
     k = min(opts.folds, len(sources)) if len(sources) >= 2 else 0
     say(f"thermonet fleet: {len(sources)} units, executor {opts.executor}, fleet family "
         f"{family}, leave-units-out in {k} groups")
-    run_kw = {"executor": opts.executor, "workers": opts.workers, "ray_address": opts.ray_address}
+
+    def run(fn: Any, todo: list[Any], on_done: Any = None) -> list[Any]:
+        return run_tasks(fn, todo, executor=cast(Any, opts.executor), workers=opts.workers,
+                         ray_address=opts.ray_address, on_done=on_done)
+
     items = [_UnitItem(cfg=cfg, source=s, family=family) for s in sources]
 
     def progress(i: int, res: Any) -> None:
@@ -390,7 +400,7 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
             f"chosen {res['results'].get('chosen') or 'none'}"
         say(f"  {ids[i]:<20} {status}")
 
-    payloads = run_tasks(_unit_task, items, on_done=progress, **run_kw)
+    payloads = run(_unit_task, items, progress)
 
     stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
@@ -421,7 +431,7 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
             folds = _fold_items(cfg, family, sources, k, opts.fleet_units_max, own, excluded)
             say(f"  leave-units-out: {len(folds)} fleet fits (outliers left out: "
                 f"{', '.join(sorted(flagged)) or 'none'})")
-            for item, fres in zip(folds, run_tasks(_fold_task, folds, **run_kw), strict=True):
+            for item, fres in zip(folds, run(_fold_task, folds), strict=True):
                 if isinstance(fres, TaskFailure):
                     fold_info[str(item.fold)] = {"status": "failed", "reason": fres.reason}
                     continue

@@ -131,7 +131,7 @@ def judge_unit(unit: dict[str, Any], limits: dict[str, LimitSpec]) -> dict[str, 
     for axis in unit["units"]:
         lim = limits_for(limits, axis)
         m = axes_src.get(axis)
-        checks = []
+        checks: list[dict[str, Any]] = []
         if m is None:
             checks.append({"limit": "calibrated", "value": None, "ok": False})
         else:
