@@ -123,10 +123,20 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=1)
     args = ap.parse_args()
     load = os.getloadavg()
-    accel = bench_accel(args.accel_runs, args.accel_units, args.repeats)
+    partial = Path(__file__).resolve().parent / "out" / "bench_fleet.partial.json"
+    partial.parent.mkdir(parents=True, exist_ok=True)
+    done: dict[str, Any] = {}
+
+    def keep(name: str, value: Any) -> Any:  # a long benchmark keeps what it has measured
+        done[name] = value
+        partial.write_text(json.dumps(done, indent=2))
+        return value
+
+    accel = keep("accel", bench_accel(args.accel_runs, args.accel_units, args.repeats))
+    ray = keep("ray", bench_gyro([int(x) for x in args.ray_units.split(",")], "ray",
+                                 args.repeats))
     sizes = [int(x) for x in args.gyro_units.split(",")]
-    gyro = bench_gyro(sizes, "process", args.repeats)
-    ray = bench_gyro([int(x) for x in args.ray_units.split(",")], "ray", args.repeats)
+    gyro = keep("gyro", bench_gyro(sizes, "process", args.repeats))
     load_after = os.getloadavg()
 
     import numpy as np

@@ -198,9 +198,10 @@ def _ray(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, address: 
             else:
                 ray.init(num_cpus=workers, include_dashboard=False, runtime_env=env,
                          log_to_driver=False, logging_level=logging.ERROR)
-        except (ConnectionError, RuntimeError, ValueError, TimeoutError) as err:
+        except Exception as err:  # ray.init raises a bare Exception when a node cannot start
             where = f"at '{address}'" if address else "(local)"
-            raise ExecutorError(f"Ray cluster {where} not reachable: {_one_line(err)}") from None
+            raise ExecutorError(f"Ray cluster {where} not reachable or not started: "
+                                f"{_one_line(err)}") from None
         started = True
     try:
         task = ray.remote(num_cpus=1, max_retries=0)(_ray_call)
