@@ -274,8 +274,15 @@ def _square_or_die(x: int) -> int:
 def test_process_pool_survives_a_dead_worker():
     out = run_tasks(_square_or_die, list(range(7)), executor="process", workers=2)
     assert [o for i, o in enumerate(out) if i not in (3, 5)] == [0, 1, 4, 16, 36]
+    assert run_tasks(_threads, [0, 1], executor="process", workers=2) == [1, 1]
     assert isinstance(out[3], TaskFailure) and "worker process died" in out[3].reason
     assert isinstance(out[5], TaskFailure) and "unit 5 is broken" in out[5].reason
+
+
+def _threads(_: int) -> int:
+    import torch  # imported after the initializer: one thread from the environment
+
+    return torch.get_num_threads()
 
 
 class DyingSource(UnitSource):
@@ -311,7 +318,7 @@ def test_serial_process_and_ray_give_identical_results(tmp_path):
     got = {}
     for ex in ("serial", "process", "ray"):
         got[ex] = _numbers(run_fleet(cfg, tmp_path / ex, sources, quiet=True,
-                                     options=FleetOptions(executor=ex, workers=2, folds=3)))
+                                     options=FleetOptions(executor=ex, workers=2, folds=2)))
     assert got["serial"] == got["process"] == got["ray"]
     assert got["serial"]["toy-u000"][2]["axes"]["gyro_x"]["ratio"] > 0
 

@@ -60,12 +60,18 @@ class TaskFailure:
 
 
 def pin_one_thread() -> None:
-    """Pin this process's numerical libraries to one thread (a pool worker's initializer)."""
+    """Pin this process's numerical libraries to one thread (a pool worker's initializer).
+
+    The environment variables are read when torch and NumPy's BLAS start, so a worker that
+    imports torch later gets one thread without paying the import here; a process that has
+    already imported torch is pinned with ``torch.set_num_threads(1)``.
+    """
+    import sys
+
     for var in _THREAD_VARS:
         os.environ[var] = "1"
-    import torch
-
-    torch.set_num_threads(1)
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(1)
 
 
 def _one_line(err: BaseException) -> str:
