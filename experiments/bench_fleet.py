@@ -121,7 +121,9 @@ def main() -> None:
     ap.add_argument("--gyro-units", default="4,8,16")
     ap.add_argument("--ray-units", default="8,16")
     ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--parts", default="accel,ray,gyro", help="which parts to run")
     args = ap.parse_args()
+    parts = set(args.parts.split(","))
     load = os.getloadavg()
     partial = Path(__file__).resolve().parent / "out" / "bench_fleet.partial.json"
     partial.parent.mkdir(parents=True, exist_ok=True)
@@ -132,16 +134,21 @@ def main() -> None:
         partial.write_text(json.dumps(done, indent=2))
         return value
 
-    accel = keep("accel", bench_accel(args.accel_runs, args.accel_units, args.repeats))
+    empty: dict[str, Any] = {"runs": 0, "units": 0, "one_unit_s": [0.0], "fleet_s": [0.0],
+                             "ratio": [0.0]}
+    accel = keep("accel", bench_accel(args.accel_runs, args.accel_units, args.repeats)
+                 if "accel" in parts else empty)
     ray = keep("ray", bench_gyro([int(x) for x in args.ray_units.split(",")], "ray",
-                                 args.repeats))
+                                 args.repeats) if "ray" in parts else [])
     sizes = [int(x) for x in args.gyro_units.split(",")]
-    gyro = keep("gyro", bench_gyro(sizes, "process", args.repeats))
+    gyro = keep("gyro", bench_gyro(sizes, "process", args.repeats) if "gyro" in parts else [])
     load_after = os.getloadavg()
 
     import numpy as np
 
     def fit(rows: list[dict[str, Any]]) -> tuple[float, float]:
+        if not rows:
+            return float("nan"), float("nan")
         n = np.array([r["units"] for r in rows], dtype=float)
         w = np.array([statistics.median(x["wall_s"] for x in r["runs"]) for r in rows])
         slope, icpt = np.polyfit(n, w, 1) if len(n) > 1 else (w[0] / n[0], 0.0)
