@@ -203,11 +203,14 @@ def _residual_std(model: Any, part: Any) -> np.ndarray:
 
 
 def _test_part(cfg: CompareConfig, ds: Dataset, model: Any) -> Any:
-    from .evaluate import build_part, make_splits
+    from .evaluate import build_part, make_splits, targets_for
 
-    split = make_splits(ds, cfg.split, source=f"unit '{ds.device_id}'")[-1]
-    return build_part(split.test, signals=list(model.signals), outputs=list(model.outputs),
-                      target=cfg.target, rate_window_s=cfg.features.rate_window_s)
+    where = f"unit '{ds.device_id}'"
+    split = make_splits(ds, cfg.split, source=where)[-1]
+    outputs = list(model.outputs)
+    return build_part(split.test, signals=list(model.signals), outputs=outputs,
+                      target=targets_for(ds, cfg.target, outputs, source=where),
+                      rate_window_s=cfg.features.rate_window_s)
 
 
 @dataclass
@@ -264,17 +267,19 @@ def _fold_task(item: _FoldItem) -> dict[str, Any]:
     """Fit one fleet model of the fleet family on other units' calibration runs, and
     evaluate it on each held-out unit's test run next to the unit's own model."""
     from .config import from_dict
-    from .evaluate import build_part, make_splits
+    from .evaluate import build_part, make_splits, targets_for
     from .features import FeatureSpec, reference_values
     from .train import TrainConfig, fit
 
     cfg, fam = item.cfg, _family(item.cfg, item.family)
     train, val = [], []
     outputs: list[str] = []
+    target: Any = cfg.target
     for src in item.sources:
         ds = src.load()
         split = make_splits(ds, cfg.split, source=f"unit '{src.device_id}'")[-1]
         outputs = _outputs(ds, cfg)
+        target = targets_for(ds, cfg.target, outputs, source=f"unit '{src.device_id}'")
         train += split.train
         if split.val is not None:
             val.append(split.val)
@@ -283,7 +288,7 @@ def _fold_task(item: _FoldItem) -> dict[str, Any]:
     spec = FeatureSpec(inputs=list(fam.inputs), t_ref=t_ref, proxy_ref=proxy_ref)
 
     def part(r: Any) -> Any:
-        return build_part(r, signals=spec.signals, outputs=outputs, target=cfg.target,
+        return build_part(r, signals=spec.signals, outputs=outputs, target=target,
                           rate_window_s=cfg.features.rate_window_s)
 
     tparts = [part(r) for r in train]
