@@ -28,8 +28,13 @@ HEATING_MIN_RATE_C_PER_MIN = -0.05
 
 
 
-def load_data(cfg: DataConfig, *, source: str = "config") -> Dataset:
-    """The configured recordings: files (with an optional mapping) or the simulator."""
+def load_data(cfg: DataConfig, *, source: str = "config", allow_fleet: bool = False
+              ) -> Dataset:
+    """The configured recordings: files (with an optional mapping) or the simulator.
+
+    Data holding several units (device ids) is refused unless ``allow_fleet``
+    (``thermonet fleet`` calibrates them one by one).
+    """
     if cfg.paths:
         from .io import read_datasets
 
@@ -45,6 +50,11 @@ def load_data(cfg: DataConfig, *, source: str = "config") -> Dataset:
         if missing:
             raise ConfigError(f"{source}: key 'data.outputs': no output '{missing[0]}' in the data "
                               f"(outputs: {', '.join(ds.axes)})")
+    if ds.is_fleet and not allow_fleet:
+        ids = ds.unit_ids
+        raise ConfigError(f"{source}: the data holds {len(ids)} units ({', '.join(ids[:3])}"
+                          f"{', …' if len(ids) > 3 else ''}); calibrate them with "
+                          "'thermonet fleet'")
     return ds
 
 
