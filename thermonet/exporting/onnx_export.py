@@ -144,12 +144,9 @@ class CompensatorGraph(nn.Module):
 
     def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         *signal_list, raw = inputs
-        sig = torch.stack(signal_list, dim=1)
-        # Non-finite signals must not be clamped into a plausible edge value.
-        nonfinite = (torch.isnan(sig) | torch.isinf(sig)).any(dim=1)
-        flag = self.model.out_of_range(sig) | nonfinite
-        drift = self.model(sig)
-        drift = torch.where(nonfinite.unsqueeze(1), torch.full_like(drift, float("nan")), drift)
+        # The signals stay 1-D columns; DriftModel.evaluate adds s - s (NaN for NaN/±inf)
+        # to the drift so a broken thermometer never gives a plausible clamped correction.
+        drift, flag = self.model.evaluate(signal_list)
         return raw - drift, drift, flag
 
 

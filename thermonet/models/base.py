@@ -12,13 +12,21 @@ drift :math:`(y - \\bar y)/s_y` out.  :class:`DriftModel` wraps it:
       \\xrightarrow{\\text{Family}} \\hat y_z
       \\xrightarrow{} \\hat y = \\hat y_z\\, s_y + \\bar y
 
-Everything in ``forward`` exports to ONNX (opset 18) and is simple enough to
-emit as C99: gather, add, mul, div, exp, abs, min/max, matmul.
+Training runs the family on the standardised feature matrix
+(:meth:`Family.forward`).  Evaluation — ``DriftModel.forward``, the exported
+ONNX graph and the C header — runs :meth:`DriftModel.evaluate`, laid out for
+speed on a batch: every signal and feature stays a 1-D column (one pass per
+operation over N values, no (N, 1) broadcasts), the de-standardisation is folded
+into the family's last matrix product (:meth:`Family.drift`), a non-finite
+signal reaches the drift arithmetically (``s - s`` is 0 for a finite value and
+NaN for NaN/±inf, added to the drift) instead of through a ``Where``, and the
+out-of-range flag is ``clip(s) != s`` (true outside the range and for NaN).
+The two paths are the same function; they differ by float32 rounding only.
 """
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Sequence
 
 import numpy as np
 import torch
@@ -26,12 +34,16 @@ from torch import nn
 
 from ..errors import ConfigError
 from ..features import FeatureSpec, Features
+from .cgen import CBody
 
-__all__ = ["TINY", "Family", "DriftModel", "distinct_levels", "as_numpy", "least_squares"]
+__all__ = ["TINY", "LOG_CLIP", "Family", "DriftModel", "distinct_levels", "as_numpy",
+           "least_squares"]
 
 #: Guard for every denominator (lmfit's ``max(tiny, sigma)``); float32-safe:
 #: its square (1e-12) is still a normal float32.
 TINY = 1e-6
+#: Bound on a log-parametrised quantity before ``exp`` (e^±60 stays a normal float32).
+LOG_CLIP = 60.0
 
 
 def as_numpy(a: object) -> np.ndarray:
@@ -135,6 +147,24 @@ class Family(nn.Module):
         rebuilds the same architecture."""
         return {}
 
+    def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
+              y_mean: torch.Tensor) -> torch.Tensor:
+        """Drift in output units (N, A) from standardised feature columns (each (N,)).
+
+        The same function as ``forward(z) * y_std + y_mean``, laid out for
+        evaluation: families fold ``y_std``/``y_mean`` into their last matrix
+        product.  This default stacks the columns and calls :meth:`forward`.
+        """
+        return self(torch.stack(list(z), dim=1)) * y_std + y_mean
+
+    def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
+        """The C99 constants and body of :meth:`drift` (see :mod:`.cgen`).
+
+        A family without one cannot be exported as a C header.
+        """
+        from ..errors import ExportError
+        raise ExportError(f"model family '{self.name}' has no C emitter")
+
     def extra_repr(self) -> str:
         return f"n_inputs={self.n_inputs}, n_outputs={self.n_outputs}, {self.hyper()}"
 
@@ -207,10 +237,36 @@ class DriftModel(nn.Module):
         inside = (s >= self.sig_lo) & (s <= self.sig_hi)  # NaN compares false
         return ~inside.all(dim=1)
 
-    def forward(self, signals: torch.Tensor) -> torch.Tensor:
+    def evaluate(self, signals: Sequence[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Drift (N, A) and out-of-range flag (N,) from one (N,) column per signal.
+
+        .. math::
+
+            s' = \\min(\\max(s, s_{lo}), s_{hi}),\\quad
+            z_f = (x_f(s') - \\bar x_f)\\, s_{x,f}^{-1},\\quad
+            d = \\mathrm{drift}(z) + \\textstyle\\sum_i (s_i - s_i)
+
+        The last term is 0 for finite signals and NaN for NaN/±inf, so a broken
+        thermometer gives NaN drift (never the clamped edge value); the flag is
+        :math:`\\bigvee_i s'_i \\ne s_i`.  This is what the ONNX graph and the
+        C header evaluate.
+        """
         # float32 as trained and exported; a float64 copy (model.double()) computes in
         # float64 — the export's parity check uses one as its reference
-        s = signals.to(self.sig_lo.dtype)
-        s = torch.minimum(torch.maximum(s, self.sig_lo), self.sig_hi)
-        z = (self.features(s) - self.x_mean) / self.x_std
-        return self.family(z) * self.y_std + self.y_mean
+        cols = [s.to(self.sig_lo.dtype) for s in signals]
+        lo, hi = self.sig_lo, self.sig_hi
+        clamped = [torch.minimum(torch.maximum(s, lo[i]), hi[i]) for i, s in enumerate(cols)]
+        flag = clamped[0] != cols[0]
+        nonfinite = cols[0] - cols[0]
+        for s, c in zip(cols[1:], clamped[1:]):
+            flag = flag | (c != s)
+            nonfinite = nonfinite + (s - s)
+        inv_std = 1.0 / self.x_std
+        z = [(x - self.x_mean[f]) * inv_std[f]
+             for f, x in enumerate(self.features.columns(clamped))]
+        drift = self.family.drift(z, self.y_std, self.y_mean)
+        return drift + nonfinite.unsqueeze(1), flag
+
+    def forward(self, signals: torch.Tensor) -> torch.Tensor:
+        """Drift (N, A) from signals (N, S); NaN where a signal is not finite."""
+        return self.evaluate(signals.unbind(1))[0]
