@@ -206,8 +206,8 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
             val_part = parts(split.val, spec.signals) if split.val is not None else None
             test_part = parts(split.test, spec.signals)
             fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=outputs,
-                         train=[(p.signals, p.target) for p in train_parts],
-                         val=(val_part.signals, val_part.target) if val_part else None,
+                         train=[_fit_arrays(p) for p in train_parts],
+                         val=_fit_arrays(val_part) if val_part else None,
                          spec=spec, hyper=dict(fam.params), config=tcfg,
                          on_epoch=lambda e, tl, vl: progress.epoch(fam.label, e, tl, vl))
             seconds += fitted.fit_seconds
@@ -229,6 +229,14 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
     if len(fold_axes) > 1:
         res["folds"] = fold_axes
     return outcome
+
+
+def _fit_arrays(part: Part) -> tuple[np.ndarray, ...]:
+    """What :func:`~thermonet.train.fit` takes: with the time, so it averages (per-sample
+    targets); a per-soak part is one sample per soak already."""
+    if part.per_soak:
+        return part.signals, part.target
+    return part.signals, part.target, part.time_s
 
 
 def _choose(families: dict[str, dict[str, Any]]) -> tuple[str | None, str]:

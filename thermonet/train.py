@@ -30,7 +30,7 @@ from .errors import ConfigError, FitError, InputError
 from .features import FeatureSpec
 from .models import DriftModel, build_family
 
-__all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate"]
+__all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "average_windows"]
 
 _OPTIMIZERS = ("adam", "lbfgs")
 _DEVICES = ("auto", "cpu", "cuda")
@@ -59,10 +59,26 @@ class TrainConfig:
     device : "auto", "cpu" or "cuda"
         "auto" is CUDA when available; the returned model is always on CPU.
     max_train_samples : int
-        Training (and, separately, validation) samples kept per fit.  Longer
-        data are **decimated evenly** — every k-th sample of every run, with
-        k = ceil(total / max) — never randomly sampled, so the time structure
-        (ramps, soaks) is kept.
+        Training (and, separately, validation) samples kept per fit, after the
+        averaging below.  Longer data are averaged over longer windows (k
+        samples each, k = ceil(total / max)) — or, for runs given without their
+        time, decimated evenly (every k-th sample) — never randomly sampled, so
+        the time structure (ramps, soaks) is kept.
+    average_s : float
+        Training and validation data are **averaged** into windows of this many
+        seconds before fitting (signals and targets alike, the signals after
+        they were computed at full rate, a window never spanning a gap in time),
+        instead of being thinned: a 100 Hz recording keeps its information and
+        its noise falls √100-fold, where thinning would throw 99 % of it away.
+        Default 1 s: far below any thermal time constant (minutes), so the
+        drift is unchanged, and a no-op at ≤ 1 Hz.  0 turns it off.  Held-out
+        metrics are computed at full resolution regardless (``compare``).
+    threads : int
+        torch intra-op threads while this fit runs (restored afterwards).
+        Default 1: these models are small, a second thread buys little, and on
+        a busy machine (families, units or other jobs side by side) it costs
+        2–3× in wall time (``experiments/bench_threads.py``); parallelism comes
+        from running fits side by side.  0 keeps torch's own setting.
     """
 
     # L-BFGS by default: every family starts from a closed-form or heuristic fit, and
@@ -76,6 +92,8 @@ class TrainConfig:
     seed: int = 0
     device: str = "cpu"
     max_train_samples: int = 20000
+    average_s: float = 1.0     # s
+    threads: int = 1
 
     def __post_init__(self) -> None:
         if self.optimizer not in _OPTIMIZERS:
@@ -84,11 +102,12 @@ class TrainConfig:
         if self.device not in _DEVICES:
             raise ConfigError(f"train.device must be one of {', '.join(_DEVICES)}, "
                               f"got {self.device!r}")
-        for key, lo in (("max_epochs", 0), ("patience", 1), ("max_train_samples", 10)):
+        for key, lo in (("max_epochs", 0), ("patience", 1), ("max_train_samples", 10),
+                        ("threads", 0)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ConfigError(f"train.{key} must be an integer >= {lo}, got {v!r}")
-        for key in ("lr", "min_delta"):
+        for key in ("lr", "min_delta", "average_s"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
                     or v < 0 or (key == "lr" and v == 0):
@@ -139,6 +158,19 @@ def _check_run(what: str, signals: object, targets: object, n_sig: int, outputs:
     return s, y
 
 
+def _time(what: str, run: Sequence[object]) -> tuple[np.ndarray, ...]:
+    """The run's time column as a 1-tuple, or () when the run was given without one."""
+    if len(run) < 3:
+        return ()
+    t = np.asarray(run[2], dtype=np.float64)
+    n = np.asarray(run[0]).shape[0]
+    if t.ndim != 1 or t.shape[0] != n:
+        raise InputError(f"{what}: time_s has shape {t.shape}, expected ({n},)")
+    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise InputError(f"{what}: time_s must be finite and strictly increasing")
+    return (t,)
+
+
 def _resolve_device(name: str) -> torch.device:
     if name == "cuda" and not torch.cuda.is_available():
         raise ConfigError("train.device is 'cuda' but no CUDA device is available")
@@ -154,7 +186,7 @@ def _std(a: np.ndarray) -> np.ndarray:
 
 
 def fit(*, family: str, inputs: list[str], outputs: list[str],
-        train: list[tuple[np.ndarray, np.ndarray]], val: tuple[np.ndarray, np.ndarray] | None,
+        train: Sequence[tuple[np.ndarray, ...]], val: tuple[np.ndarray, ...] | None,
         spec: FeatureSpec, hyper: dict | None, config: TrainConfig,
         on_epoch: Callable[[int, float, float | None], None] | None = None) -> FitResult:
     """Fit one family to drift.
@@ -167,11 +199,15 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
         Feature names; must equal ``spec.inputs``.
     outputs : list of str
         Output axis names (columns of the targets).
-    train : list of (signals (n, S), targets (n, A))
-        One pair per training run; signals in ``spec.signals`` order
-        (see :func:`thermonet.features.run_arrays`), targets = observed drift.
-    val : (signals, targets) or None
-        The held-out run for early stopping; None stops on a training-loss plateau.
+    train : list of (signals (n, S), targets (n, A)[, time_s (n,)])
+        One tuple per training run; signals in ``spec.signals`` order
+        (see :func:`thermonet.features.run_arrays`), targets = observed drift,
+        time in s.  With time, the run is averaged into ``config.average_s``
+        windows (:func:`average_windows`); without, only decimated to
+        ``config.max_train_samples``.
+    val : (signals, targets[, time_s]) or None
+        The held-out run for early stopping (reduced the same way); None stops on
+        a training-loss plateau.
     spec : FeatureSpec
     hyper : dict
         Family hyper-parameters.
@@ -192,6 +228,20 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
     ConfigError
         Unknown family / hyper-parameter, inputs not matching the spec.
     """
+    previous_threads = torch.get_num_threads()
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    try:
+        return _fit(family=family, inputs=inputs, outputs=outputs, train=train, val=val,
+                    spec=spec, hyper=hyper, config=config, on_epoch=on_epoch)
+    finally:
+        torch.set_num_threads(previous_threads)
+
+
+def _fit(*, family: str, inputs: list[str], outputs: list[str],
+         train: Sequence[tuple[np.ndarray, ...]], val: tuple[np.ndarray, ...] | None,
+         spec: FeatureSpec, hyper: dict | None, config: TrainConfig,
+         on_epoch: Callable[[int, float, float | None], None] | None) -> FitResult:
     t0 = time.perf_counter()
     if list(inputs) != list(spec.inputs):
         raise ConfigError(f"inputs {list(inputs)} differ from the feature spec's {spec.inputs}")
@@ -203,13 +253,15 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
     fam = build_family(family, n_inputs=len(inputs), n_outputs=len(outputs), hyper=hyper)
     model = DriftModel(family=fam, spec=spec, outputs=list(outputs))
 
-    runs = [_check_run(f"training run {i + 1}", s, y, len(signal_names), list(outputs),
-                       signal_names) for i, (s, y) in enumerate(train)]
-    val_run = None if val is None else _check_run("validation run", val[0], val[1],
-                                                  len(signal_names), list(outputs), signal_names)
-    sig_all = np.vstack([s for s, _ in runs])
+    runs = [(*_check_run(f"training run {i + 1}", r[0], r[1], len(signal_names), list(outputs),
+                         signal_names), *_time(f"training run {i + 1}", r))
+            for i, r in enumerate(train)]
+    val_run = None if val is None else (
+        *_check_run("validation run", val[0], val[1], len(signal_names), list(outputs),
+                    signal_names), *_time("validation run", val))
+    sig_all = np.vstack([r[0] for r in runs])
     sig_lo, sig_hi = sig_all.min(axis=0), sig_all.max(axis=0)
-    runs = decimate(runs, config.max_train_samples)
+    runs = _reduce(runs, config)
     s_tr = np.vstack([s for s, _ in runs])
     y_tr = np.vstack([y for _, y in runs])
 
@@ -232,7 +284,7 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
 
     z_v = y_vz = None
     if val_run is not None:
-        (s_v, y_v), = decimate([val_run], config.max_train_samples)
+        (s_v, y_v), = _reduce([val_run], config)
         # Validation goes through the deployed path: clamp to the trained range first.
         with torch.no_grad():
             x_v = model.features(torch.as_tensor(np.clip(s_v, sig_lo, sig_hi))).numpy()

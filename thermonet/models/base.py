@@ -153,7 +153,9 @@ class Family(nn.Module):
 
         The same function as ``forward(z) * y_std + y_mean``, laid out for
         evaluation: families fold ``y_std``/``y_mean`` into their last matrix
-        product.  This default stacks the columns and calls :meth:`forward`.
+        product.  Contract: a NaN in ``z[0]`` gives NaN on every axis of that row
+        (how :class:`DriftModel` marks a non-finite signal; the export's parity
+        check verifies it).  This default stacks the columns and calls :meth:`forward`.
         """
         return self(torch.stack(list(z), dim=1)) * y_std + y_mean
 
@@ -244,10 +246,12 @@ class DriftModel(nn.Module):
 
             s' = \\min(\\max(s, s_{lo}), s_{hi}),\\quad
             z_f = (x_f(s') - \\bar x_f)\\, s_{x,f}^{-1},\\quad
-            d = \\mathrm{drift}(z) + \\textstyle\\sum_i (s_i - s_i)
+            z_1 \\leftarrow z_1 + \\textstyle\\sum_i (s_i - s_i),\\quad
+            d = \\mathrm{drift}(z)
 
-        The last term is 0 for finite signals and NaN for NaN/±inf, so a broken
-        thermometer gives NaN drift (never the clamped edge value); the flag is
+        The added term is 0 for finite signals and NaN for NaN/±inf, and every
+        family's :meth:`Family.drift` carries a NaN in ``z[0]`` to every axis, so a
+        broken thermometer gives NaN drift (never the clamped edge value); the flag is
         :math:`\\bigvee_i s'_i \\ne s_i`.  This is what the ONNX graph and the
         C header evaluate.
         """
@@ -264,8 +268,10 @@ class DriftModel(nn.Module):
         inv_std = 1.0 / self.x_std
         z = [(x - self.x_mean[f]) * inv_std[f]
              for f, x in enumerate(self.features.columns(clamped))]
-        drift = self.family.drift(z, self.y_std, self.y_mean)
-        return drift + nonfinite.unsqueeze(1), flag
+        # one (N,) addition; every family carries a NaN in z[0] to every output axis
+        # (cheaper than adding an (N, 1) column to the (N, A) drift, a broadcast)
+        z[0] = z[0] + nonfinite
+        return self.family.drift(z, self.y_std, self.y_mean), flag
 
     def forward(self, signals: torch.Tensor) -> torch.Tensor:
         """Drift (N, A) from signals (N, S); NaN where a signal is not finite."""
