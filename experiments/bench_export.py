@@ -46,8 +46,7 @@ from threadpoolctl import threadpool_limits  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT / "export"))
-from common import (OUT, fmt_spread, interleaved, ratio_spread, save, spread,  # noqa: E402
-                    table)
+from common import OUT, fmt_spread, interleaved, ratio_spread, save, spread, table  # noqa: E402
 from thermonet_runtime import Compensator  # noqa: E402
 
 from thermonet.config import SplitConfig  # noqa: E402
@@ -290,13 +289,14 @@ def throughput(model, work: Path, data: dict) -> str:
 
     # every competitor must compute the same drift (and NaN) as the exported graph
     check = np.concatenate([temps[:1000], np.float32([np.nan, np.inf])])
-    d_ref = sess.run(None, {"temperature_c": check, "raw": np.zeros((check.size, 3), np.float32)})[1]
+    zeros = np.zeros((check.size, 3), np.float32)
+    d_ref = sess.run(None, {"temperature_c": check, "raw": zeros})[1]
     scale = np.abs(d_ref[:-2]).max()
     for name, fn in numpys.items():
         got = fn(check, np.zeros((check.size, 3), np.float32))[1]
         if np.abs(got[:-2] - d_ref[:-2]).max() > 1e-5 * scale or not np.isnan(got[-2:]).all():
             raise RuntimeError(f"numpy '{name}' does not compute the exported drift")
-    d_prev = prev.run(None, {"temperature_c": check[:-2], "raw": np.zeros((1000, 3), np.float32)})[1]
+    d_prev = prev.run(None, {"temperature_c": check[:-2], "raw": zeros[:-2]})[1]
     if np.abs(d_prev - d_ref[:-2]).max() > 1e-5 * scale:
         raise RuntimeError("the previous layout does not compute the same drift")
 

@@ -12,9 +12,10 @@ import os
 import platform
 import subprocess
 import time
+from collections.abc import Callable
 from datetime import date
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 OUT = Path(__file__).resolve().parent / "out"
 
@@ -80,7 +81,7 @@ def interleaved(fns: dict[str, Callable[[], Any]], repeats: int, warmup: int = 1
 
 def ratio_spread(num: list[float], den: list[float]) -> dict[str, float]:
     """Spread of the per-repeat ratios num[i] / den[i] (paired, same moment)."""
-    return spread([a / b for a, b in zip(num, den)])
+    return spread([a / b for a, b in zip(num, den, strict=True)])
 
 
 def save(name: str, data: dict[str, Any], markdown: str) -> Path:

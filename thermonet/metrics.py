@@ -333,7 +333,8 @@ def allan(y: np.ndarray, rate_hz: float, taus: str | np.ndarray = "octave"
     phase = allantools.frequency2phase(y, rate)
     phase, ms, taus_used = allantools.tau_generator(phase, rate, taus)
     keep_t, keep_d = [], []
-    for tau, m in zip(np.asarray(taus_used, dtype=np.float64), np.asarray(ms, dtype=np.int64)):
+    for tau, m in zip(np.asarray(taus_used, dtype=np.float64), np.asarray(ms, dtype=np.int64),
+                      strict=True):
         m = int(m)
         stride = max(1, m // ALLAN_OVERLAP)
         n = (phase.size - 2 * m + stride - 1) // stride

@@ -137,6 +137,65 @@ def decimate(runs: Sequence[tuple[np.ndarray, np.ndarray]], max_samples: int
     return [(s[::step], y[::step]) for s, y in runs]
 
 
+def average_windows(signals: np.ndarray, targets: np.ndarray, time_s: np.ndarray,
+                    window_s: float, *, min_samples: int = 1
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Means of signals, targets and time over consecutive windows, O(n).
+
+    A window is ``window_s`` seconds long, aligned on the start of its
+    contiguous segment (:func:`thermonet.features.contiguous_segments`: a time
+    step over :data:`~thermonet.features.GAP_FACTOR` × the median step starts a
+    new segment), so a window never spans a gap.  With ``window_s = 0`` the
+    windows are ``min_samples`` consecutive samples instead (bringing a long
+    series under a sample budget by averaging rather than thinning).
+
+    .. math:: \\bar s_w = \\frac{1}{|w|} \\sum_{k \\in w} s_k
+
+    Returns
+    -------
+    (signals, targets, time_s) averaged, each with one row per window.
+    """
+    from .features import contiguous_segments
+
+    t = np.asarray(time_s, dtype=np.float64)
+    n = t.shape[0]
+    if n == 0 or (window_s <= 0 and min_samples <= 1):
+        return signals, targets, t
+    key = np.empty(n, dtype=np.int64)
+    offset = 0
+    for seg in contiguous_segments(t):
+        if window_s > 0:
+            w = np.floor((t[seg] - t[seg.start]) / window_s).astype(np.int64)
+        else:
+            w = np.arange(seg.stop - seg.start) // max(min_samples, 1)
+        key[seg] = offset + w
+        offset = int(key[seg.stop - 1]) + 1
+    starts = np.concatenate([[0], np.flatnonzero(np.diff(key)) + 1])
+    counts = np.diff(np.append(starts, n)).astype(np.float64)
+
+    def mean(a: np.ndarray) -> np.ndarray:
+        a = np.asarray(a, dtype=np.float64)
+        sums = np.add.reduceat(a, starts, axis=0)
+        return sums / (counts if a.ndim == 1 else counts[:, None])
+
+    return mean(signals), mean(targets), mean(t)
+
+
+def _reduce(runs: Sequence[tuple[np.ndarray, ...]], config: TrainConfig
+            ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Average each run into ``config.average_s`` windows, then — if still over
+    ``max_train_samples`` — into windows of k consecutive samples; runs given
+    without time are decimated instead."""
+    if any(len(r) < 3 for r in runs):
+        return decimate([(r[0], r[1]) for r in runs], config.max_train_samples)
+    avg = [average_windows(r[0], r[1], r[2], config.average_s) for r in runs]
+    total = sum(s.shape[0] for s, _, _ in avg)
+    k = math.ceil(total / config.max_train_samples)
+    if k > 1:
+        avg = [average_windows(s, y, t, 0.0, min_samples=k) for s, y, t in avg]
+    return [(s, y) for s, y, _ in avg]
+
+
 def _check_run(what: str, signals: object, targets: object, n_sig: int, outputs: list[str],
                signal_names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     s = np.asarray(signals, dtype=np.float64)

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+
 import numpy as np
 import torch
 from torch import nn

@@ -26,14 +26,15 @@ The two paths are the same function; they differ by float32 rounding only.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, Sequence
+from collections.abc import Sequence
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 from torch import nn
 
 from ..errors import ConfigError
-from ..features import FeatureSpec, Features
+from ..features import Features, FeatureSpec
 from .cgen import CBody
 
 __all__ = ["TINY", "LOG_CLIP", "Family", "DriftModel", "distinct_levels", "as_numpy",
@@ -262,7 +263,7 @@ class DriftModel(nn.Module):
         clamped = [torch.minimum(torch.maximum(s, lo[i]), hi[i]) for i, s in enumerate(cols)]
         flag = clamped[0] != cols[0]
         nonfinite = cols[0] - cols[0]
-        for s, c in zip(cols[1:], clamped[1:]):
+        for s, c in zip(cols[1:], clamped[1:], strict=True):
             flag = flag | (c != s)
             nonfinite = nonfinite + (s - s)
         inv_std = 1.0 / self.x_std

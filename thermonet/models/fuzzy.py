@@ -23,7 +23,8 @@ set no sample reaches keep the minimum-norm (ridge) value, zero.
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch

@@ -18,7 +18,8 @@ range) is then represented by a far centre and a wide curve.
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch

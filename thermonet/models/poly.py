@@ -13,8 +13,9 @@ rate, and cross terms multiply the parameter count for no documented gain.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from itertools import combinations_with_replacement
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import torch
