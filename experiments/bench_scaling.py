@@ -1,4 +1,4 @@
-"""How the default comparison scales: 5 / 50 runs at 10 / 100 Hz, wall time and peak memory.
+"""How the default comparison scales: 5 / 50 runs at 1 / 10 / 100 Hz, wall time and peak memory.
 
 The patent-gyro preset (5.9 h runs, 3 axes) is simulated at the given rate and
 written to Parquet; then ``thermonet compare`` runs in a child process on the
@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import fmt_spread, save, spread, table  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SIZES = [(5, 10.0), (5, 100.0), (50, 10.0)]
+SIZES = [(5, 1.0), (50, 1.0), (5, 10.0), (5, 100.0), (50, 10.0)]
 REPEATS = int(os.environ.get("BENCH_SCALING_REPEATS", "2"))
 
 CHILD = textwrap.dedent("""
@@ -86,10 +86,14 @@ def main() -> None:
             rows.append([runs, f"{rate:g}", f"{n:,}", fmt_spread(wall), fmt_spread(cpu),
                          fmt_spread(mem, digits=4)])
             f.unlink()
+            _save(rows, data)      # after each size: a long run still leaves what it measured
+
+
+def _save(rows: list, data: dict) -> None:
     md = ("### Scaling of the default comparison (patent-gyro, all five families, tracking off)"
           f"\n\nMedians of {REPEATS} child processes (min–max).\n\n"
           + table(["runs", "rate Hz", "samples", "wall s", "CPU s", "peak RSS MB"], rows))
-    save("scaling", data, md)
+    save("scaling", dict(data), md)
 
 
 if __name__ == "__main__":

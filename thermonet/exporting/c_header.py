@@ -16,8 +16,8 @@ evaluates:
 
     s' = \\operatorname{clip}(s, s_{lo}, s_{hi}),\\;
     x_f = (s'_{i_f} - r_f)^{q_f},\\;
-    z = (x - \\bar x)/s_x,\\;
-    d = f(z)\\, s_y + \\bar y,\\;
+    z = (x - \\bar x)\\, s_x^{-1},\\;
+    d = \\mathrm{drift}(z),\\;
     \\text{compensated} = \\text{raw} - d
 
 and returns 1 when a signal was outside the trained range or not finite (the
@@ -25,8 +25,10 @@ out-of-range flag), else 0.  A non-finite signal gives NaN drift and NaN
 compensated output.  No heap, no libm beyond ``expf`` (RBF only); the only
 headers are ``<math.h>`` (``expf``, ``NAN``).  Parameters the model stores in a
 transformed form (Lorentz centre through a sigmoid, width through softplus; RBF
-widths as log σ) are converted once here with torch's own float32 operations,
-so the header's constants are the values the graph computes.
+widths as log σ) and the de-standardisation (folded into each family's last
+product, as in the graph: :meth:`~thermonet.models.base.Family.drift`) are
+computed by the family's own torch expressions in float32, so the header's
+constants are the values the graph computes and nothing numeric is restated in C.
 
 Each family owns its C code (:meth:`~thermonet.models.base.Family.emit_c`,
 see :mod:`thermonet.models.cgen`): constants computed by the same torch
