@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import fmt_spread, save, spread, table  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SIZES = [(5, 1.0), (50, 1.0), (5, 10.0), (5, 100.0), (50, 10.0)]
+SIZES = [(5, 1.0), (5, 10.0), (50, 1.0), (5, 100.0), (50, 10.0)]
 REPEATS = int(os.environ.get("BENCH_SCALING_REPEATS", "2"))
 
 CHILD = textwrap.dedent("""
