@@ -85,11 +85,16 @@ def main() -> None:
             for k in range(REPEATS):
                 for name, (cfg, env) in variants.items():
                     res[name].append(run(cfg, Path(tmp) / f"out_{k}_{len(res[name])}", env))
+                _save(res)      # after each round: a long run still leaves what it measured
         finally:
             stop.set()
             hog.join(timeout=10)
+
+
+def _save(res: dict[str, list[dict]]) -> None:
     ref = [r["wall_s"] for r in res["OMP_NUM_THREADS=1"]]
-    rows, data = [], {"cores": os.cpu_count(), "repeats": REPEATS, "variants": {}}
+    done = len(ref)
+    rows, data = [], {"cores": os.cpu_count(), "repeats": done, "variants": {}}
     for name, rs in res.items():
         wall, cpu = [r["wall_s"] for r in rs], [r["cpu_s"] for r in rs]
         ratio = ratio_spread(wall, ref)
@@ -98,7 +103,7 @@ def main() -> None:
         rows.append([name, fmt_spread(spread(wall)), fmt_spread(spread(cpu)),
                      fmt_spread(ratio)])
     md = ("### Threads: default comparison with one core kept busy by a CPU hog\n\n"
-          f"`thermonet compare configs/default.yaml --no-track`, {REPEATS} interleaved repeats "
+          f"`thermonet compare configs/default.yaml --no-track`, {done} interleaved repeats "
           "per variant (median, min–max).\n\n"
           + table(["variant", "wall s", "CPU s", "wall / OMP_NUM_THREADS=1 (paired)"], rows))
     save("threads", data, md)
