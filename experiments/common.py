@@ -31,7 +31,7 @@ def machine() -> str:
     except OSError:
         pass
     try:
-        load = "load average {:.1f} / {:.1f} / {:.1f} (1/5/15 min) at the start".format(
+        load = "load average {:.1f} / {:.1f} / {:.1f} (1/5/15 min) when saved".format(
             *os.getloadavg())
     except OSError:
         load = "load unknown"
