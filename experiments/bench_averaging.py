@@ -27,7 +27,6 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import fmt_spread, save, spread, table  # noqa: E402
-
 from thermonet.config import SplitConfig  # noqa: E402
 from thermonet.evaluate import build_part, make_splits  # noqa: E402
 from thermonet.features import FeatureSpec, reference_values  # noqa: E402

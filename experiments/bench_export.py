@@ -47,14 +47,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT / "export"))
 from common import OUT, fmt_spread, interleaved, ratio_spread, save, spread, table  # noqa: E402
-from thermonet_runtime import Compensator  # noqa: E402
-
+from thermonet.api import DriftEstimator  # noqa: E402
 from thermonet.config import SplitConfig  # noqa: E402
-from thermonet.evaluate import build_part, make_splits  # noqa: E402
+from thermonet.evaluate import make_splits  # noqa: E402
 from thermonet.exporting import export_c_header, export_onnx  # noqa: E402
-from thermonet.features import FeatureSpec, reference_values  # noqa: E402
 from thermonet.sim import simulate  # noqa: E402
-from thermonet.train import TrainConfig, fit  # noqa: E402
+from thermonet.trainconfig import TrainConfig  # noqa: E402
+from thermonet_runtime import Compensator  # noqa: E402
 
 FAMILIES = {
     "linear": ("linear", ["dT"], {}),
@@ -80,12 +79,13 @@ DRIVER = r"""
 int main(int argc, char **argv) {
     int n = atoi(argv[1]);
     float lo = (float)atof(argv[2]), hi = (float)atof(argv[3]);
-    float sig[THERMONET_N_SIGNALS], raw[THERMONET_N_AXES], comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
-    volatile float sink = 0.0f;
-    for (int a = 0; a < THERMONET_N_AXES; a++) raw[a] = 0.0f;
+    float sig[THERMONET_N_SIGNALS];
+    double raw[THERMONET_N_AXES], comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
+    volatile double sink = 0.0;
+    for (int a = 0; a < THERMONET_N_AXES; a++) raw[a] = 0.0;
     for (int i = 0; i < n; i++) {
         for (int s = 0; s < THERMONET_N_SIGNALS; s++) sig[s] = lo + (hi - lo) * (float)i / (float)(n + 1);
-        sink += (float)thermonet_compensate(sig, raw, comp, drift) + drift[0];
+        sink += (double)thermonet_compensate(sig, raw, comp, drift) + drift[0];
     }
     printf("%f\n", (double)sink);
     return 0;
@@ -98,15 +98,9 @@ def fitted_models() -> dict:
     split = make_splits(ds, SplitConfig())[0]
     models = {}
     for label, (family, inputs, hyper) in FAMILIES.items():
-        t_ref, proxy_ref = reference_values(split.train, inputs, t_ref="start")
-        spec = FeatureSpec(inputs=inputs, t_ref=t_ref, proxy_ref=proxy_ref)
-        kw = dict(signals=spec.signals, outputs=ds.axes, target="drift", rate_window_s=60.0)
-        train = [build_part(r, **kw) for r in split.train]
-        val = build_part(split.val, **kw)
-        res = fit(family=family, inputs=inputs, outputs=ds.axes,
-                  train=[(p.signals, p.target) for p in train], val=(val.signals, val.target),
-                  spec=spec, hyper=hyper, config=TrainConfig(max_epochs=100, patience=20))
-        models[label] = res.model
+        est = DriftEstimator(family, inputs, train=TrainConfig(max_epochs=100, patience=20),
+                             **hyper)
+        models[label] = est.fit(split.train, val=split.val).model_
     return models
 
 
@@ -115,7 +109,10 @@ def _consts(model) -> dict:
     with torch.no_grad():
         fam = model.family
         m, b = fam.exponent()
-        w, c = fam.output_layer(model.y_std, model.y_mean)
+        # the target normalisation and mask folded in, as in the graph; the float64
+        # constant joins in float32 here (the graph adds it in float64)
+        w, c = fam.output_layer(*model.output_scaling())
+        c = c + model.constant().float()
         g = fam.inv_two_sigma2()
         out = {"lo": model.sig_lo, "hi": model.sig_hi, "ref": model.features.ref,
                "mean": model.x_mean, "inv_std": 1.0 / model.x_std, "m": m, "b": b, "w": w,
@@ -202,16 +199,18 @@ class _PreviousLayout(torch.nn.Module):
             d2 = d2 + diff * diff
         two_sigma2 = 2.0 * torch.exp(torch.clamp(2.0 * fam.log_sigma, min=-60.0, max=60.0))
         yz = torch.exp(-d2 / two_sigma2) @ fam.weight.T + fam.bias
-        drift = yz * m.y_std + m.y_mean
-        drift = torch.where(nonfinite.unsqueeze(1), torch.full_like(drift, float("nan")), drift)
-        return raw - drift, drift, flag
+        rel = yz * m.y_std + m.y_mean
+        rel = torch.where(nonfinite.unsqueeze(1), torch.full_like(rel, float("nan")), rel)
+        drift = rel.to(torch.float64) + m.constant()   # format 2: the constant in float64
+        return raw.to(torch.float64) - drift, drift, flag
 
 
 def export_previous_layout(model, path: Path) -> Path:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         prog = torch.onnx.export(
-            _PreviousLayout(model).eval(), (torch.zeros(4), torch.zeros(4, 3)), None,
+            _PreviousLayout(model).eval(), (torch.zeros(4), torch.zeros(4, 3, dtype=torch.float64)),
+            None,
             input_names=["temperature_c", "raw"], output_names=["compensated", "drift", "flag"],
             opset_version=18, dynamo=True, external_data=False, optimize=True,
             dynamic_shapes=({0: torch.export.Dim("N")}, {0: torch.export.Dim("N")}))
@@ -270,7 +269,7 @@ def throughput(model, work: Path, data: dict) -> str:
     rng = np.random.default_rng(0)
     lo, hi = float(model.sig_lo[0]), float(model.sig_hi[0])
     temps = rng.uniform(lo, hi, BATCH).astype(np.float32)
-    raw = np.zeros((BATCH, len(model.outputs)), dtype=np.float32)
+    raw = np.zeros((BATCH, len(model.outputs)))   # float64 (ONNX format 2)
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1
     opts.inter_op_num_threads = 1
@@ -289,7 +288,7 @@ def throughput(model, work: Path, data: dict) -> str:
 
     # every competitor must compute the same drift (and NaN) as the exported graph
     check = np.concatenate([temps[:1000], np.float32([np.nan, np.inf])])
-    zeros = np.zeros((check.size, 3), np.float32)
+    zeros = np.zeros((check.size, 3))    # float64 raw (ONNX format 2)
     d_ref = sess.run(None, {"temperature_c": check, "raw": zeros})[1]
     scale = np.abs(d_ref[:-2]).max()
     for name, fn in numpys.items():

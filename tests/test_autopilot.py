@@ -1,4 +1,5 @@
-"""PX4 / ArduPilot parameter files: written, parsed back, evaluated with the autopilots' formulas."""
+"""PX4 / ArduPilot parameter files: written, parsed back, evaluated with the autopilots'
+formulas."""
 
 from __future__ import annotations
 
@@ -9,8 +10,13 @@ import pytest
 import torch
 
 from thermonet.errors import ExportError
-from thermonet.exporting import (autopilot_coefficients, export_ardupilot_params,
-                                 export_px4_params, read_ardupilot_params, read_px4_params)
+from thermonet.exporting import (
+    autopilot_coefficients,
+    export_ardupilot_params,
+    export_px4_params,
+    read_ardupilot_params,
+    read_px4_params,
+)
 from thermonet.features import FeatureSpec
 from thermonet.train import TrainConfig, fit
 
@@ -33,8 +39,16 @@ def _model(inputs=("dT",), degree=3, family="poly", temp=None):
     temp = np.linspace(-10.0, 55.0, 300) if temp is None else temp
     spec = FeatureSpec(inputs=list(inputs), t_ref=T_REF)
     hyper = {"degree": degree} if family == "poly" else {}
-    return fit(family=family, inputs=list(inputs), outputs=AXES, train=[(temp[:, None], _drift(temp))],
-               val=None, spec=spec, hyper=hyper, config=TrainConfig(max_epochs=0)).model
+    return fit(
+        family=family,
+        inputs=list(inputs),
+        outputs=AXES,
+        train=[(temp[:, None], _drift(temp))],
+        val=None,
+        spec=spec,
+        hyper=hyper,
+        config=TrainConfig(max_epochs=0),
+    ).model
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +77,7 @@ def test_px4_file_reproduces_drift_and_clamp(model, tmp_path):
     assert p["TC_G0_TREF"] == T_REF and p["TC_A0_TMIN"] == pytest.approx(-10.0, abs=1e-4)
     temp = np.concatenate([np.linspace(-10.0, 55.0, 131), [-30.0, 80.0]])
     want = _thermonet_si(model, temp)
-    for kind, t, cols in (("gyro", "G", slice(0, 3)), ("acc", "A", slice(3, 6))):
+    for _kind, t, cols in (("gyro", "G", slice(0, 3)), ("acc", "A", slice(3, 6))):
         pre = f"TC_{t}0_"
         # PX4 TemperatureCompensation::calc_thermal_offsets_3D, written out again here
         tc = np.clip(temp, p[pre + "TMIN"], p[pre + "TMAX"])
@@ -87,7 +101,7 @@ def test_ardupilot_file_reproduces_drift_and_clamp(model, tmp_path):
     want = _thermonet_si(model, temp) - _thermonet_si(model, np.array([cal_temp]))
     for kind, cols in (("GYR", slice(0, 3)), ("ACC", slice(3, 6))):
         # AP_InertialSensor_TCal::correct_sensor + polynomial_eval, written out again here
-        def poly(x, i):
+        def poly(x, i, kind=kind):
             c = [p[f"INS_TCAL1_{kind}{k}_{'XYZ'[i]}"] for k in (1, 2, 3)]
             return (c[0] + (c[1] + c[2] * x) * x) * x * 1e-6
         t = np.clip(temp, p["INS_TCAL1_TMIN"], p["INS_TCAL1_TMAX"])
@@ -105,16 +119,31 @@ def test_ardupilot_file_reproduces_drift_and_clamp(model, tmp_path):
 def test_absolute_temperature_input(tmp_path):
     model = _model(inputs=("T",))
     co = autopilot_coefficients(model, output_units=UNITS)
-    assert co.t_ref == pytest.approx(22.5)     # centre of the trained range
+    # the model's T_ref (where at-t-ref axes are zero), even for an input on T
+    assert co.t_ref == pytest.approx(model.spec.t_ref)
     dt = np.linspace(-30, 30, 7)
     got = sum(co.coef["gyro"][:, k][None] * dt[:, None] ** k for k in range(4))
     want = _drift(co.t_ref + dt)[:, :3] * SI[:3]
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max())
 
 
+def test_a_linear_model_exports_as_a_degree_one_polynomial():
+    temp = np.linspace(-10.0, 55.0, 300)
+    line = COEF[:, :2].copy()               # drift c0 + c1 dT, known coefficients
+    spec = FeatureSpec(inputs=["dT"], t_ref=T_REF)
+    drift = line[:, 0] + line[:, 1] * (temp[:, None] - T_REF)
+    model = fit(family="linear", inputs=["dT"], outputs=AXES, train=[(temp[:, None], drift)],
+                val=None, spec=spec, hyper={}, config=TrainConfig(max_epochs=0)).model
+    co = autopilot_coefficients(model, output_units=UNITS)
+    want = np.zeros((6, 4))
+    want[:, :2] = line
+    np.testing.assert_allclose(co.coef["gyro"], want[:3] * SI[:3, None], rtol=1e-4, atol=1e-12)
+    np.testing.assert_allclose(co.coef["acc"], want[3:] * SI[3:, None], rtol=1e-4, atol=1e-10)
+
+
 def test_refusals(model, tmp_path):
-    with pytest.raises(ExportError, match="need the 'poly' family.*this model is 'linear'"):
-        export_px4_params(_model(family="linear"), tmp_path / "x.params", output_units=UNITS)
+    with pytest.raises(ExportError, match="this model is 'lorentz', which has no polynomial form"):
+        export_px4_params(_model(family="lorentz"), tmp_path / "x.params", output_units=UNITS)
     with pytest.raises(ExportError, match="evaluate a cubic; this poly model has degree 4"):
         export_px4_params(_model(degree=4), tmp_path / "x.params", output_units=UNITS)
     with pytest.raises(ExportError, match=r"one input, dT or T; this model reads \['dT', 'dT2'\]"):

@@ -6,6 +6,8 @@ fast-length simulator noise are checked here too.  No timing assertions (experim
 
 from __future__ import annotations
 
+import copy
+
 import allantools
 import numpy as np
 import onnx
@@ -48,15 +50,14 @@ def models():
 
 
 def _training_path(model, temp: np.ndarray) -> np.ndarray:
-    """float64 drift the way training sees it: stacked features, family forward, de-standardise."""
-    m = model.double()
-    try:
-        with torch.no_grad():
-            s = torch.clamp(torch.as_tensor(temp[:, None]), m.sig_lo, m.sig_hi)
-            z = (m.features(s) - m.x_mean) / m.x_std
-            return (m.family(z) * m.y_std + m.y_mean).numpy()
-    finally:
-        model.float()
+    """float64 drift the way training sees it: stacked features, family forward, de-standardise,
+    plus the float64 constant removed before standardisation (``channel`` targets)."""
+    # a float64 copy: .double() then .float() would round the float64 y_offset buffer
+    m = copy.deepcopy(model).double()
+    with torch.no_grad():
+        s = torch.clamp(torch.as_tensor(temp[:, None]), m.sig_lo, m.sig_hi)
+        z = (m.features(s) - m.x_mean) / m.x_std
+        return (m.family(z) * m.y_std + m.y_mean + m.y_offset).numpy()
 
 
 @pytest.mark.parametrize("family", list(MODELS))
@@ -70,8 +71,7 @@ def test_evaluation_path_is_the_trained_function(models, family):
     assert (np.abs(got - want) <= 2e-5 * scale).all(), np.abs(got - want).max(axis=0) / scale
     # the same function evaluated in float64 agrees to float64 rounding
     with torch.no_grad():
-        d64 = model.double()(torch.as_tensor(temp[:, None])).numpy()
-    model.float()
+        d64 = copy.deepcopy(model).double()(torch.as_tensor(temp[:, None])).numpy()
     np.testing.assert_allclose(d64, want, rtol=0, atol=1e-9 * scale.max())
 
 
@@ -84,12 +84,55 @@ def test_nan_inf_and_clamp_without_branches(models, family):
     with torch.no_grad():
         drift, flag = model.evaluate([sig])
     assert flag.tolist() == [True, True, True, True, True, False]
-    with torch.no_grad():
-        edges = model(torch.tensor([[lo], [hi]]))
+    with torch.no_grad():   # evaluate gives the drift relative to the float64 constant
+        edges = model.relative(torch.tensor([[lo], [hi]]))
     np.testing.assert_array_equal(drift[:2].numpy(), edges.numpy())
     assert torch.isnan(drift[2:5]).all()          # every axis, never the clamped edge value
     assert torch.isfinite(drift[5]).all()
     np.testing.assert_array_equal(flag.numpy(), model.out_of_range(sig[:, None]).numpy())
+
+
+@pytest.mark.parametrize("family", list(MODELS))
+def test_mask_and_at_t_ref_folded_into_the_output_layer(models, family, tmp_path):
+    """The per-axis target (at-t-ref) and the uncompensated mask are folded into each family's
+    last product (DriftModel.output_scaling): the same drift as applying them afterwards,
+    exactly 0 on a masked axis for every finite signal, NaN there for NaN, in torch,
+    onnxruntime and C."""
+    import onnxruntime as ort
+
+    from thermonet.exporting.c_header import c_parity_check
+
+    plain = models[family]
+    model = copy.deepcopy(plain)
+    model.set_target(modes=["at-t-ref", "channel", "channel"],
+                     offset=plain.y_offset.numpy(), rest=np.array([T_REF]))
+    model.set_compensate([True, True, False])
+    temp = np.linspace(-30.0, 70.0, 201)              # beyond the trained range on both sides
+    sig = torch.tensor(np.append(temp, np.nan), dtype=torch.float32)
+    with torch.no_grad():
+        rel, _ = model.evaluate([sig])
+        want = plain.relative(sig[:-1, None]).double()
+        want_rest = copy.deepcopy(plain).double().relative(torch.tensor([[T_REF]]))[0]
+    scale = want.abs().max(dim=0).values
+    assert (rel[:-1, 2] == 0).all()                   # exactly, not nearly
+    assert torch.isnan(rel[-1]).all()                 # NaN × 0 is still NaN
+    np.testing.assert_allclose(rel[:-1, 1], want[:, 1], rtol=0, atol=2e-6 * float(scale[1]))
+    np.testing.assert_allclose(rel[:-1, 0], want[:, 0] - want_rest[0], rtol=0,
+                               atol=2e-6 * float(scale[0]))
+    # the at-t-ref axis is 0 at rest, its constant cancels; the masked axis has none either
+    with torch.no_grad():
+        at_rest = float(model.relative(torch.tensor([[T_REF]]))[0, 0])
+    assert abs(at_rest) <= 2e-6 * float(scale[0])
+    const = model.constant().numpy()
+    assert const[0] == 0.0 and const[2] == 0.0 and const[1] == plain.y_offset.numpy()[1]
+    path = export_onnx(model, tmp_path / "m.onnx")    # parity: a masked axis has tolerance 0
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    raw = np.full((sig.shape[0], 3), 5.0)
+    comp, drift, _ = sess.run(None, {"temperature_c": sig.numpy(), "raw": raw})
+    assert (drift[:-1, 2] == 0.0).all() and (comp[:-1, 2] == 5.0).all()
+    assert np.isnan(drift[-1]).all()
+    # the C header, the same exactness (compiled: None would mean no compiler was found)
+    assert c_parity_check(model, render_c_header(model)) is not None
 
 
 @pytest.mark.parametrize("family", list(MODELS))

@@ -9,8 +9,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 from . import __version__
 from .errors import ThermonetError
@@ -79,6 +79,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .exporting import FORMATS  # the registry only: no torch, no onnx
+
     p = argparse.ArgumentParser(
         prog="thermonet",
         description="Train, judge and export temperature-drift models for inertial sensors.")
@@ -125,12 +127,15 @@ def build_parser() -> argparse.ArgumentParser:
     tracking_args(t)
     t.set_defaults(func=_cmd_train)
 
-    e = sub.add_parser("export", help="export a fitted model (onnx, c, px4-params, ardupilot-params)",
+    e = sub.add_parser("export", help=f"export a fitted model ({', '.join(FORMATS)})",
                        description="Export a model from a compare directory (its chosen family "
-                                   "by default), a checkpoint, or an MLflow run id.")
+                                   "by default), a checkpoint, or an MLflow run id.",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="formats:\n" + "\n".join(f"  {f.name:<18} {f.description}"
+                                                        for f in FORMATS.values()))
     e.add_argument("source", help="compare output dir, checkpoint .pt, or MLflow run id")
-    e.add_argument("--format", required=True,
-                   choices=["onnx", "c", "px4-params", "ardupilot-params"])
+    e.add_argument("--format", required=True, choices=list(FORMATS),
+                   help="export format (listed below)")
     e.add_argument("--out", required=True, help="output file")
     e.add_argument("--family", default=None, help="family name in a compare dir (default: chosen)")
     e.add_argument("--tracking-uri", default=None, help="MLflow URI for a run-id source")

@@ -63,7 +63,6 @@ __all__ = [
     "ChannelSpec",
     "TimeSpec",
     "ColumnMapping",
-    "Mapping",
     "TIME_UNITS",
     "FORMATS",
     "channel_role",
@@ -180,13 +179,9 @@ class ColumnMapping:
     source: str = "<mapping>"
 
     @classmethod
-    def from_dict(cls, raw: object, *, source: str = "<mapping>") -> "ColumnMapping":
+    def from_dict(cls, raw: object, *, source: str = "<mapping>") -> ColumnMapping:
         """Check a mapping read from YAML; raise :class:`MappingError` naming the key."""
         return _Parser(source).mapping(raw)
-
-
-#: The name the rest of thermonet uses for a column mapping.
-Mapping = ColumnMapping
 
 
 def load_mapping(path: str | Path) -> ColumnMapping:

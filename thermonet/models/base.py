@@ -22,6 +22,36 @@ signal reaches the drift arithmetically (``s - s`` is 0 for a finite value and
 NaN for NaN/±inf, added to the drift) instead of through a ``Where``, and the
 out-of-range flag is ``clip(s) != s`` (true outside the range and for NaN).
 The two paths are the same function; they differ by float32 rounding only.
+
+What the drift is relative to (:mod:`thermonet.target`) lives in the model's
+buffers, so checkpoints, ONNX, the C header and the autopilot files all carry
+it.  Per axis :math:`a`:
+
+.. math::
+
+    r_a(s) &= m_a\\,\\big(\\hat y_a(s) - \\alpha_a\\, \\hat y_a(s_{ref})\\big)
+        \\qquad \\text{(float32: ``relative``)} \\\\
+    c_a &= m_a\\,(1 - \\alpha_a)\\, o_a \\qquad \\text{(float64: ``constant``)} \\\\
+    d_a(s) &= c_a + r_a(s)
+
+``o`` (buffer ``y_offset``, float64) is the mean training target, removed in
+float64 *before* anything is rounded to float32: an output with a large
+constant (1e6 counts, 4,517 Hz, 101,325 Pa) keeps its drift's precision, and
+the constant is added back in float64 (:meth:`DriftModel.drift64`; the
+exports carry it in float64 and compute ``raw − drift`` in float64).
+``α`` is 1 for ``at-t-ref`` axes (buffer ``target_code`` = 2): the model is
+normalised to zero at the rest signals :math:`s_{ref}` (buffer ``sig_ref``:
+temperature at :math:`T_{ref}`, rate 0, proxies at their reference), whose
+drift :math:`\\hat y(s_{ref})` is buffer ``y_ref``; the offset then cancels.
+``m`` (buffer ``compensate``, 1 or 0) leaves an axis uncompensated: its
+drift is exactly 0 for every finite input (a NaN signal still gives NaN).
+
+Both the mask and the normalisation at rest cost nothing at evaluation:
+:meth:`DriftModel.output_scaling` folds them into the de-standardisation,
+scale :math:`m_a s_{y,a}` and shift :math:`m_a(\\bar y_a - \\alpha_a\\, \\hat y_a(s_{ref}))`,
+which each family folds into its last matrix product (:meth:`Family.drift`).
+With :math:`m_a = 0` every coefficient of that axis is 0, so a finite input
+gives exactly 0 and a NaN (NaN × 0) still gives NaN.
 """
 
 from __future__ import annotations
@@ -168,6 +198,15 @@ class Family(nn.Module):
         from ..errors import ExportError
         raise ExportError(f"model family '{self.name}' has no C emitter")
 
+    def polynomial_form(self) -> np.ndarray | None:
+        """Coefficients (A, degree + 1), ascending in the one standardised input z,
+        when this fitted family *is* a polynomial in one input; None otherwise.
+
+        Exporters that need a polynomial (PX4's and ArduPilot's parameter files)
+        ask for it here instead of checking the family's name.
+        """
+        return None
+
     def extra_repr(self) -> str:
         return f"n_inputs={self.n_inputs}, n_outputs={self.n_outputs}, {self.hyper()}"
 
@@ -195,6 +234,20 @@ class DriftModel(nn.Module):
     spec : FeatureSpec
     """
 
+    # buffers (registered in __init__), declared for the type checker
+    x_mean: torch.Tensor
+    x_std: torch.Tensor
+    y_mean: torch.Tensor
+    y_std: torch.Tensor
+    sig_lo: torch.Tensor
+    sig_hi: torch.Tensor
+    y_offset: torch.Tensor
+    y_ref: torch.Tensor
+    sig_ref: torch.Tensor
+    target_code: torch.Tensor
+    compensate: torch.Tensor
+    family: Family
+
     def __init__(self, *, family: Family, spec: FeatureSpec, outputs: list[str]) -> None:
         super().__init__()
         if family.n_inputs != len(spec.inputs):
@@ -216,6 +269,112 @@ class DriftModel(nn.Module):
         self.register_buffer("y_std", torch.ones(a))
         self.register_buffer("sig_lo", torch.full((s,), -torch.inf))
         self.register_buffer("sig_hi", torch.full((s,), torch.inf))
+        # target (see the module docstring): defaults reproduce a plain drift model
+        self.register_buffer("y_offset", torch.zeros(a, dtype=torch.float64))
+        self.register_buffer("y_ref", torch.zeros(a))
+        self.register_buffer("sig_ref", torch.zeros(s))
+        self.register_buffer("target_code", torch.zeros(a, dtype=torch.int64))
+        self.register_buffer("compensate", torch.ones(a))
+
+    #: Buffers added with targets; a checkpoint written before them loads with their defaults.
+    _TARGET_BUFFERS = ("y_offset", "y_ref", "sig_ref", "target_code", "compensate")
+
+    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args: Any,
+                              **kwargs: Any) -> None:
+        for name in self._TARGET_BUFFERS:
+            state_dict.setdefault(prefix + name, getattr(self, name).detach().clone())
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    @property
+    def target_modes(self) -> list[str]:
+        """Target mode per output axis (``channel``, ``zero``, ``at-t-ref``, ``four-position``)."""
+        from ..target import MODE_CODES
+
+        names = {v: k for k, v in MODE_CODES.items()}
+        return [names.get(int(c), "channel") for c in self.target_code.tolist()]
+
+    @property
+    def compensated_axes(self) -> list[bool]:
+        """Per output axis: False where the model leaves the axis uncompensated (drift 0)."""
+        return [bool(v) for v in (self.compensate.detach().cpu() != 0).tolist()]
+
+    def set_compensate(self, mask: Any) -> None:
+        """Per-axis mask: False leaves that axis uncompensated (drift 0 in every export)."""
+        m = np.asarray(mask, dtype=bool).reshape(-1)
+        if m.size != len(self.outputs):
+            raise ConfigError(f"compensate mask has {m.size} entries for {len(self.outputs)} "
+                              f"outputs {self.outputs}")
+        self.compensate.copy_(torch.as_tensor(m.astype(np.float64), dtype=self.compensate.dtype))
+
+    def set_target(self, *, modes: Any, offset: np.ndarray, rest: np.ndarray) -> None:
+        """Store the target modes, the float64 offset and the normalisation at rest.
+
+        Parameters
+        ----------
+        modes : sequence of str
+            Per axis, a key of :data:`thermonet.target.MODE_CODES`.
+        offset : (A,) float64
+            The constant removed from the training target before standardisation.
+        rest : (S,) float64
+            Signals at rest (T_ref, rate 0, proxy references): ``at-t-ref`` axes
+            are normalised to zero there (evaluated in float64, through the clamp).
+        """
+        import copy
+
+        from ..target import MODE_CODES
+
+        modes = list(modes)
+        if len(modes) != len(self.outputs):
+            raise ConfigError(f"{len(modes)} target modes for {len(self.outputs)} outputs")
+        bad = [m for m in modes if m not in MODE_CODES]
+        if bad:
+            raise ConfigError(f"unknown target mode {bad[0]!r} (valid: {', '.join(MODE_CODES)})")
+        rest = np.asarray(rest, dtype=np.float64).reshape(-1)
+        if rest.size != len(self.signals) or not np.all(np.isfinite(rest)):
+            raise ConfigError(f"rest signals {rest.tolist()} do not fit signals {self.signals}")
+        with torch.no_grad():
+            self.y_offset.copy_(torch.as_tensor(np.asarray(offset, dtype=np.float64)))
+            self.sig_ref.copy_(torch.as_tensor(rest, dtype=self.sig_ref.dtype))
+            plain = copy.deepcopy(self).double()
+            plain.target_code.zero_()
+            plain.compensate.fill_(1.0)
+            at_rest = plain.relative(torch.as_tensor(rest[None, :]))[0]
+            self.y_ref.copy_(at_rest.to(self.y_ref.dtype))
+            self.target_code.copy_(torch.as_tensor([MODE_CODES[m] for m in modes]))
+
+    def _at_t_ref(self, dtype: torch.dtype) -> torch.Tensor:
+        from ..target import MODE_CODES
+
+        return (self.target_code == MODE_CODES["at-t-ref"]).to(dtype)
+
+    def constant(self) -> torch.Tensor:
+        """Per-axis float64 constant of the drift: the offset on ``channel``/``zero`` axes
+        (0 on ``at-t-ref`` axes, where it cancels, and on uncompensated axes)."""
+        a = self._at_t_ref(torch.float64)
+        return self.y_offset.double() * (1.0 - a) * self.compensate.double()
+
+    def output_scaling(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Scale and shift (A,) that map the family's standardised output to :meth:`relative`.
+
+        .. math:: r_a = \\hat y_{z,a}\\, m_a s_{y,a} + m_a(\\bar y_a - \\alpha_a\\, y_{ref,a})
+
+        The target normalisation and the mask folded into the de-standardisation:
+        :meth:`Family.drift` and :meth:`Family.emit_c` take these in place of
+        ``y_std``/``y_mean``, so neither costs an operation at evaluation.
+        """
+        m = self.compensate.to(self.y_std.dtype)
+        shift = self.y_mean - self._at_t_ref(self.y_mean.dtype) * self.y_ref.to(self.y_mean.dtype)
+        return self.y_std * m, shift * m
+
+    def relative(self, signals: torch.Tensor) -> torch.Tensor:
+        """Drift minus :meth:`constant`, in the model's dtype (float32 as trained and
+        exported): what the ONNX graph and the C header compute in float32
+        (:meth:`evaluate` on the columns of ``signals`` (N, S))."""
+        return self.evaluate(signals.unbind(1))[0]
+
+    def drift64(self, signals: torch.Tensor) -> torch.Tensor:
+        """Drift in float64: :meth:`relative` (model dtype) plus the float64 constant."""
+        return self.relative(signals).double() + self.constant()
 
     @property
     def family_name(self) -> str:
@@ -241,14 +400,18 @@ class DriftModel(nn.Module):
         return ~inside.all(dim=1)
 
     def evaluate(self, signals: Sequence[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        """Drift (N, A) and out-of-range flag (N,) from one (N,) column per signal.
+        """Relative drift (N, A) and out-of-range flag (N,) from one (N,) column per signal.
+
+        The drift is :meth:`relative`'s (drift minus the float64 :meth:`constant`),
+        de-standardised by :meth:`output_scaling` (target normalisation and mask
+        folded in).
 
         .. math::
 
             s' = \\min(\\max(s, s_{lo}), s_{hi}),\\quad
             z_f = (x_f(s') - \\bar x_f)\\, s_{x,f}^{-1},\\quad
             z_1 \\leftarrow z_1 + \\textstyle\\sum_i (s_i - s_i),\\quad
-            d = \\mathrm{drift}(z)
+            r = \\mathrm{drift}(z;\\ m\\, s_y,\\ m(\\bar y - \\alpha\\, y_{ref}))
 
         The added term is 0 for finite signals and NaN for NaN/±inf, and every
         family's :meth:`Family.drift` carries a NaN in ``z[0]`` to every axis, so a
@@ -272,8 +435,16 @@ class DriftModel(nn.Module):
         # one (N,) addition; every family carries a NaN in z[0] to every output axis
         # (cheaper than adding an (N, 1) column to the (N, A) drift, a broadcast)
         z[0] = z[0] + nonfinite
-        return self.family.drift(z, self.y_std, self.y_mean), flag
+        scale, shift = self.output_scaling()
+        return self.family.drift(z, scale, shift), flag
 
     def forward(self, signals: torch.Tensor) -> torch.Tensor:
-        """Drift (N, A) from signals (N, S); NaN where a signal is not finite."""
-        return self.evaluate(signals.unbind(1))[0]
+        """Drift (N, A) from signals (N, S); NaN where a signal is not finite.
+
+        In the model's dtype: float32 as trained (a large constant then loses
+        precision: use :meth:`drift64` / :func:`thermonet.train.predict`); a float64
+        copy (``model.double()``) computes in float64 — the export's parity check
+        uses one as its reference.
+        """
+        r = self.relative(signals)
+        return r + self.constant().to(r.dtype)
