@@ -54,6 +54,7 @@ from .evaluate import (
     Split,
     build_part,
     data_hash,
+    fit_arrays,
     heating_only,
     load_data,
     make_splits,
@@ -224,8 +225,8 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
             val_part = parts(split.val, spec.signals) if split.val is not None else None
             test_part = parts(split.test, spec.signals)
             fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=outputs,
-                         train=[(p.signals, p.target) for p in train_parts],
-                         val=(val_part.signals, val_part.target) if val_part else None,
+                         train=[fit_arrays(p) for p in train_parts],
+                         val=fit_arrays(val_part) if val_part else None,
                          spec=spec, hyper=dict(fam.params), config=tcfg,
                          on_epoch=lambda e, tl, vl: progress.epoch(fam.label, e, tl, vl),
                          target=getattr(parts.targets, "modes", None))
