@@ -27,7 +27,6 @@ from thermonet.exporting import (
     read_px4_params,
 )
 from thermonet.exporting.c_header import PARITY_DRIVER
-from thermonet.exporting.firmware import px4_offsets_3d as px4_offsets
 from thermonet.features import FeatureSpec
 from thermonet.target import resolve_targets
 from thermonet.train import TrainConfig, fit, predict
