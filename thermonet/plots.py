@@ -115,7 +115,16 @@ def _centred(y: np.ndarray) -> np.ndarray:
 
 
 def _binned(x: np.ndarray, y: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
-    return binned_means(x, y, bin_c=width)
+    """Binned means, with a NaN between bins that are not neighbours (no line across a
+    temperature range without data, e.g. between two isothermal soaks)."""
+    centres, means = binned_means(x, y, bin_c=width)
+    cuts = np.flatnonzero(np.diff(centres) > 1.5 * width) + 1
+    return np.insert(centres, cuts, np.nan), np.insert(means, cuts, np.nan)
+
+
+def _bin_text(width: float, x_label: str) -> str:
+    unit = x_label[x_label.rfind("(") + 1: -1] if x_label.endswith(")") else ""
+    return f"{width:.3g} {unit}".strip() + " binned means"
 
 
 def _series(name: str, values: object) -> np.ndarray:
@@ -244,7 +253,7 @@ def plot_drift_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
     if t.size:
         bx, by = _binned(t, dc, bin_width)
         ax.plot(bx, by, "o-", color=_RAW_BINNED_COLOR, markersize=3, linewidth=1.0,
-                label=f"raw output error, {bin_width:.3g}-wide binned means", zorder=6)
+                label=f"raw output error, {_bin_text(bin_width, x_label)}", zorder=6)
     for i, (name, curve) in enumerate(curves.items()):
         if len(curve) != 2:
             raise ValueError(f"curve '{name}' must be (temperature_grid, predicted), "
@@ -378,8 +387,8 @@ def plot_residual_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
         if t.size:
             bx, by = _binned(t, y, bin_width)
             ax.plot(bx, by, **style)  # type: ignore[arg-type]
-    ax.set_title(f"{axis}: residual vs temperature, {bin_width:.3g}-wide binned means "
-                 "(about their means)")
+    ax.set_title(f"{axis}: error vs temperature after compensation, "
+                 f"{_bin_text(bin_width, x_label)} (about their means)")
     ax.set_xlabel(x_label)
     ax.set_ylabel(f"error after compensation, mean removed ({units})")
     ax.grid(True, alpha=0.3)

@@ -115,6 +115,21 @@ def _scores_table(res: dict[str, Any]) -> str:
             "<th>compensated</th></tr>" + "".join(rows) + "</table>")
 
 
+def _duration(seconds: float) -> str:
+    if seconds >= 7200.0:
+        return f"{seconds / 3600.0:.3g} h"
+    if seconds >= 120.0:
+        return f"{seconds / 60.0:.3g} min"
+    return f"{seconds:.3g} s"
+
+
+def _fold(fold: dict[str, Any]) -> str:
+    def names(v: Any) -> str:
+        return ", ".join(map(str, v)) if isinstance(v, list) else str(v)
+
+    return "; ".join(f"{k}: {names(v)}" for k, v in fold.items())
+
+
 def _data_table(res: dict[str, Any]) -> str:
     rows = []
     for r in res.get("data", {}).get("runs", []):
@@ -122,15 +137,15 @@ def _data_table(res: dict[str, Any]) -> str:
                 f"{_num(r.get('temperature_max_c'), '.1f')} °C"
                 if r.get("temperature_min_c") is not None else "no thermometer (proxy)")
         rows.append(f"<tr><td>{_e(r['run_id'])}</td><td>{_num(r['samples'], 'd')}</td>"
-                    f"<td>{_num(r['duration_s'] / 3600.0)} h</td><td>{_num(r['rate_hz'])} Hz</td>"
+                    f"<td>{_duration(float(r['duration_s']))}</td><td>{_num(r['rate_hz'])} Hz</td>"
                     f"<td>{span}</td></tr>")
     outside = res.get("data", {}).get("outside_trained_range", {})
     ext = ", ".join(f"{_e(k)}: {v:.0%}" for k, v in outside.items() if v is not None) or "–"
     split = res.get("split", {})
-    folds = "; ".join(_e(f) for f in split.get("folds", []))
+    folds = "<br>".join(_e(_fold(f)) for f in split.get("folds", []))
     return ("<table><tr><th>run</th><th>samples</th><th>duration</th><th>rate</th>"
             "<th>temperature</th></tr>" + "".join(rows) + "</table>"
-            f"<p class='small'>split: {_e(split.get('strategy'))} — {folds}<br>"
+            f"<p class='small'>split: {_e(split.get('strategy'))}<br>{folds}<br>"
             f"test samples outside the trained range: {ext}</p>")
 
 
