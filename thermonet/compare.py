@@ -231,7 +231,7 @@ class _Fitted:
 
     result: FamilyResult
     model: Any = None
-    history: list[dict[str, float]] | None = None
+    history: list[Any] | None = None
     val: BlockStats | None = None
     test: BlockStats | None = None
     test_parts: list[Part] = field(default_factory=list)
@@ -254,6 +254,7 @@ def _fold_stats(part: Part, pred: np.ndarray) -> BlockStats:
 def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts) -> _Fitted:
     from .diagnostics import outside_fraction
     from .features import FeatureSpec, reference_values
+    from .models.base import as_numpy
     from .train import fit, predict
     from .verdicts import pool
 
@@ -289,8 +290,8 @@ def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts) 
             tests.append(_fold_stats(test_part, pred))
             fold_axes.append(axes)
             model = fitted.model
-            lo = model.sig_lo.detach().cpu().double().numpy()
-            hi = model.sig_hi.detach().cpu().double().numpy()
+            lo = np.asarray(as_numpy(model.sig_lo))
+            hi = np.asarray(as_numpy(model.sig_hi))
             frac = outside_fraction(test_part.signals, lo, hi)
             for k, sig in enumerate(model.signals):
                 outside.setdefault(sig, []).append((float(frac[k]), test_part.signals.shape[0]))
@@ -560,7 +561,7 @@ def _plots(out: Path, fitted: dict[str, _Fitted], results: dict[str, Any],
     paths: list[Path] = []
     part = next(iter(ok.values())).test_parts[-1]
     colours = family_colours(list(fitted))
-    style = {"chosen": results.get("chosen"), "baseline": results.get("baseline"),
+    style: dict[str, Any] = {"chosen": results.get("chosen"), "baseline": results.get("baseline"),
              "colours": colours}
     x_label = "temperature (°C)" if ds[0].temperature_c is not None else \
         f"{sorted(ds[0].proxies)[0]} ({ds[0].units.get(sorted(ds[0].proxies)[0], '') or 'proxy'})"

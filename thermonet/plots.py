@@ -32,8 +32,10 @@ from __future__ import annotations
 import colorsys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
@@ -114,7 +116,7 @@ def family_colours(labels: Sequence[str]) -> dict[str, str]:
 
 
 def _style(name: str, colours: Mapping[str, str] | None, chosen: str | None,
-           baseline: str | None, index: int) -> dict[str, object]:
+           baseline: str | None, index: int) -> dict[str, Any]:
     """Line style of one family: its colour, stronger when chosen or the baseline."""
     colour = (colours or {}).get(name) or family_colours([f"_{k}" for k in range(index + 1)]
                                                           )[f"_{index}"]
@@ -156,7 +158,7 @@ def _check_length(name: str, arr: np.ndarray, n: int, against: str) -> None:
         raise ValueError(f"'{name}' has {arr.shape[0]} samples, '{against}' has {n}")
 
 
-def _new_figure() -> tuple[Figure, object]:
+def _new_figure() -> tuple[Figure, Axes]:
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI)
     FigureCanvasAgg(fig)
     return fig, fig.add_subplot(1, 1, 1)
@@ -209,10 +211,10 @@ def _gap_breaks(t: np.ndarray, keep: np.ndarray) -> np.ndarray:
     return pos[(pos > 0) & (pos < keep.size)]
 
 
-def _legend(ax: object) -> None:
-    handles, labels = ax.get_legend_handles_labels()  # type: ignore[attr-defined]
+def _legend(ax: Axes) -> None:
+    handles, labels = ax.get_legend_handles_labels()
     if handles:
-        ax.legend(loc="best", fontsize=8, ncol=2 if len(handles) > 8 else 1)  # type: ignore
+        ax.legend(loc="best", fontsize=8, ncol=2 if len(handles) > 8 else 1)
 
 
 def plot_drift_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
@@ -282,7 +284,7 @@ def plot_drift_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
         sel = order[_stride(order.size, MAX_LINE_POINTS)]
         style = _style(name, colours, chosen, baseline, i)
         style["label"] = f"predicted drift: {style['label']}"
-        ax.plot(grid[sel], _centred(pred)[sel], **style)  # type: ignore[arg-type]
+        ax.plot(grid[sel], _centred(pred)[sel], **style)
     ax.set_title(f"{axis}: raw output error and predicted drift vs temperature (about their means)")
     ax.set_xlabel(x_label)
     ax.set_ylabel(f"raw output error / drift, mean removed ({units})")
@@ -331,7 +333,7 @@ def plot_residual_vs_time(path: str | Path, *, time_s: np.ndarray, raw_error: np
     colours = colours or family_colours(list(residuals))
     hours = _hours(t)
     fig, ax = _new_figure()
-    series: list[tuple[np.ndarray, dict[str, object]]] = [
+    series: list[tuple[np.ndarray, dict[str, Any]]] = [
         (raw, {"color": _RAW_COLOR, "linewidth": 0.8, "label": "raw output error", "zorder": 2})]
     series += [(r, _style(name, colours, chosen, baseline, i))
                for i, (name, r) in enumerate(residuals.items())]
@@ -341,8 +343,8 @@ def plot_residual_vs_time(path: str | Path, *, time_s: np.ndarray, raw_error: np
         breaks = _gap_breaks(t, keep)
         x_d = np.insert(hours[keep], breaks, np.nan)
         y_d = np.insert(y[keep], breaks, np.nan)
-        kw = {**kw, "linewidth": min(float(kw.get("linewidth", 1.0)), 1.4)}  # type: ignore
-        ax.plot(x_d, y_d, **kw)  # type: ignore[arg-type]
+        kw = {**kw, "linewidth": min(float(kw.get("linewidth", 1.0)), 1.4)}
+        ax.plot(x_d, y_d, **kw)
     ax.set_title(f"{axis}: error vs time before and after compensation (about its mean)")
     ax.set_xlabel("time from start (h)")
     ax.set_ylabel(f"error, mean removed ({units})")
@@ -403,7 +405,7 @@ def plot_residual_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
                        rasterized=True)
         if t.size:
             bx, by = _binned(t, y, bin_width)
-            ax.plot(bx, by, **style)  # type: ignore[arg-type]
+            ax.plot(bx, by, **style)
     ax.set_title(f"{axis}: error vs temperature after compensation, "
                  f"{_bin_text(bin_width, x_label)} (about their means)")
     ax.set_xlabel(x_label)
@@ -446,7 +448,7 @@ def plot_allan(path: str | Path, *, rate_hz: float, raw_error: np.ndarray,
     raw = _series("raw_error", raw_error)
     colours = colours or family_colours(list(compensated))
     fig, ax = _new_figure()
-    series: list[tuple[np.ndarray, dict[str, object]]] = [
+    series: list[tuple[np.ndarray, dict[str, Any]]] = [
         (raw, {"color": _RAW_COLOR, "linewidth": 1.2, "label": "raw output error"})]
     series += [(_series(f"compensated['{name}']", r), _style(name, colours, chosen, baseline, i))
                for i, (name, r) in enumerate(compensated.items())]
@@ -455,7 +457,7 @@ def plot_allan(path: str | Path, *, rate_hz: float, raw_error: np.ndarray,
         positive = adev > 0  # a log axis cannot show a zero deviation
         if positive.any():
             ax.loglog(taus[positive], adev[positive], marker="o", markersize=3,
-                      **kw)  # type: ignore[arg-type]
+                      **kw)
     ax.set_title(f"{axis}: overlapping Allan deviation")
     ax.set_xlabel("averaging time τ (s)")
     ax.set_ylabel(f"Allan deviation ({units})")
