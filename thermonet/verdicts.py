@@ -278,13 +278,17 @@ def choose(scores: dict[str, tuple[float, np.ndarray]], n_params: dict[str, int]
 def apply_compensate_mask(model: object, compensate: Sequence[bool]) -> bool:
     """Leave the axes where ``compensate`` is false uncompensated (drift 0) in ``model``.
 
-    Sets the model's ``compensate`` buffer (a per-axis mask the exports carry)
-    when the model has one and returns True; returns False when it has none, in
-    which case the mask lives only in ``results.json`` and the checkpoint's extra
-    data (``compensate``).
+    Uses the model's ``set_compensate`` (or sets its ``compensate`` buffer: a
+    per-axis mask the exports carry) when the model has one and returns True;
+    returns False when it has none, in which case the mask lives only in
+    ``results.json`` and the checkpoint's extra data (``compensate``).
     """
     import torch
 
+    setter = getattr(model, "set_compensate", None)
+    if callable(setter):  # the DriftModel's own validated setter
+        setter(list(compensate))
+        return True
     buf = getattr(model, "compensate", None)
     if not isinstance(buf, torch.Tensor):
         return False
