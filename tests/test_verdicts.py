@@ -162,6 +162,8 @@ def test_verification_after_a_hotter_excursion_is_worse_and_warned(tmp_path):
                for w in res["warnings"])
     on_disk = json.loads((tmp_path / "out" / "results.json").read_text())
     assert on_disk["warnings"] == res["warnings"]
+    html = (tmp_path / "out" / "report.html").read_text()
+    assert "Worse than raw on the held-out test data: <b>gyro_x</b>" in html
 
 
 def test_baseline_that_is_not_a_family_is_an_error_before_fitting(tmp_path):

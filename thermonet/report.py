@@ -154,6 +154,9 @@ def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
     chosen = results.get("chosen")
     unc = results.get("uncompensated_axes") or []
     boot = results.get("bootstrap", {})
+    chosen_axes = results.get("families", {}).get(chosen or "", {}).get("axes", {})
+    worse = [a for a, m in chosen_axes.items()
+             if m.get("compensate") and m.get("verdict") == "worse"]
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
         f"<title>thermonet report — {_e(results.get('device', ''))}</title>",
@@ -165,6 +168,8 @@ def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
         f"<div class='chosen'>Chosen: <b>{_e(chosen or 'none')}</b> — "
         f"{_e(results.get('chosen_reason', ''))}"
         + (f"<br>Left uncompensated (drift 0): <b>{_e(', '.join(unc))}</b>" if unc else "")
+        + (f"<br><span style='color:#b71c1c'>Worse than raw on the held-out test data: "
+           f"<b>{_e(', '.join(worse))}</b></span>" if worse else "")
         + "</div>",
         "<h2>Warnings</h2>",
     ]
