@@ -201,3 +201,22 @@ def test_implausible_inputs_are_warned():
     w = input_warnings(Dataset([bursts]), signals=["temperature_c", "rate_c_per_min"],
                        rate_window_s=60.0)
     assert len(w) == 1 and "the rate input (dT/dt over 60 s)" in w[0] and "gaps up to 302 s" in w[0]
+
+
+def test_default_baseline_applies_only_where_a_cubic_exists(tmp_path):
+    from thermonet.compare import plan
+    from thermonet.config import load_config
+
+    rng = np.random.default_rng(7)
+    path = write_parquet(Dataset([_run(f"run{k}", _ramp(), {"gyro_x": 0.01 * _ramp()},
+                                       noise=0.01, rng=rng) for k in range(3)]),
+                         tmp_path / "d.parquet")
+    body = f"data: {{paths: ['{path}']}}\nfamilies: [{{family: linear, name: line}}]\n"
+    (tmp_path / "implicit.yaml").write_text(body)
+    cfg = load_config(tmp_path / "implicit.yaml")
+    plan(cfg)  # no 'baseline' key, no cubic: no baseline
+    assert cfg.baseline is None
+    (tmp_path / "explicit.yaml").write_text(body + "baseline: cubic\n")
+    with pytest.raises(ConfigError, match=r"explicit\.yaml: key 'baseline': no family named "
+                                          r"'cubic' \(families: line\)"):
+        plan(load_config(tmp_path / "explicit.yaml"))

@@ -172,8 +172,30 @@ class _Plan:
     warnings: list[str] = field(default_factory=list)
 
 
+def _baseline_named(cfg: CompareConfig) -> bool:
+    """Whether the config file names ``baseline`` itself (rather than taking the default)."""
+    import yaml
+
+    src = getattr(cfg, "_source", None)
+    if not src or not Path(src).is_file():
+        return cfg.baseline != _DEFAULT_BASELINE
+    try:
+        data = yaml.safe_load(Path(src).read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError):  # load_config read it already; be conservative
+        return True
+    return isinstance(data, dict) and "baseline" in data
+
+
+_DEFAULT_BASELINE = CompareConfig.__dataclass_fields__["baseline"].default
+
+
 def _check_baseline(cfg: CompareConfig, source: str) -> None:
+    """A ``baseline`` the config names must be one of its families (an error before fitting);
+    the default (``cubic``, PX4/ArduPilot's anchor) applies only where such a family exists."""
     labels = [f.label for f in cfg.families]
+    if cfg.baseline is not None and cfg.baseline not in labels and not _baseline_named(cfg):
+        cfg.baseline = None
+        return
     if cfg.baseline is not None and cfg.baseline not in labels:
         raise ConfigError(f"{source}: key 'baseline': no family named '{cfg.baseline}' "
                           f"(families: {', '.join(labels)}); name one of them or set "
