@@ -1,6 +1,6 @@
 # Two commands do all the set-up on a fresh machine:
 #   make demo   -> creates .venv, installs torch (CPU) + thermonet, runs the main job
-#   make test   -> same set-up plus pytest (and Debian's chromium), runs the test suite
+#   make test   -> same set-up plus Debian's chromium, then ruff, mypy and the test suite
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -27,6 +27,8 @@ chromium:
 	command -v chromium >/dev/null || (apt-get update && apt-get install -y --no-install-recommends chromium)
 
 test: $(STAMP) chromium
+	$(VENV)/bin/ruff check thermonet tests experiments export
+	$(VENV)/bin/mypy thermonet
 	$(PY) -m pytest -q -n 2 tests
 
 bench: $(STAMP)

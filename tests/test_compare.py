@@ -63,6 +63,16 @@ def test_compare_recovers_quadratic_drift_and_writes_everything(tmp_path):
     sig = np.array([[-20.0], [15.0], [50.0]])
     truth = 0.05 + 0.01 * (sig[:, 0] + 20) - 2e-4 * (sig[:, 0] + 20) ** 2
     assert np.allclose(predict(model, sig)[:, 0], truth, atol=2e-3)
+    # the checkpoint carries the family's own resolved config and its best epoch
+    assert meta["config"]["family"]["params"] == {"degree": 3}
+    assert meta["config"]["train"]["optimizer"] == "lbfgs" and "data" not in meta["config"]
+    assert meta["epoch"] == res["families"]["cubic"]["best_epoch"] and meta["best_val"] > 0
+    # and loads as an estimator
+    from thermonet import DriftEstimator
+    est = DriftEstimator.load(out / "models" / "cubic.pt")
+    assert est.best_epoch_ == meta["epoch"] and est.hyper["degree"] == 3
+    np.testing.assert_allclose(est.predict(toy_dataset()[3]), predict(model, toy_dataset()[3]
+                                                                      .temperature_c[:, None]))
 
     client = mlflow.tracking.MlflowClient(tracking_uri=uri)
     parent = client.get_run(res["mlflow_run_id"])
@@ -164,6 +174,11 @@ def test_train_on_heating_fits_only_the_heating_branch(tmp_path):
     mid = np.array([[15.0]])
     heat_model, _ = load_checkpoint(tmp_path / "out" / "models" / "heating.pt")
     all_model, _ = load_checkpoint(tmp_path / "out" / "models" / "all.pt")
+    # the checkpoints carry the per-axis do-no-harm mask of results.json; the fitted curves
+    # themselves are judged here, so the mask is lifted
+    for label, model in (("heating", heat_model), ("all", all_model)):
+        assert model.compensated_axes == [res["families"][label]["axes"]["gyro_x"]["compensate"]]
+        model.set_compensate([True])
     assert predict(heat_model, mid)[0, 0] == pytest.approx(0.015 + 0.05, abs=0.005)
     assert predict(all_model, mid)[0, 0] == pytest.approx(0.015, abs=0.005)
     # on a run that cools as much as it heats, the heating-only fit is off by the hysteresis

@@ -1,4 +1,4 @@
-"""Plots: readable PNGs of the documented size, fast, no figure leak."""
+"""Plots: readable PNGs of the documented size, distinct colours, no figure leak."""
 
 from __future__ import annotations
 

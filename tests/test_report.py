@@ -10,8 +10,8 @@ from html.parser import HTMLParser
 import matplotlib.image as mpimg
 import numpy as np
 import pytest
-from conftest import toy_dataset
 
+from conftest import toy_dataset
 from thermonet.compare import run_compare
 from thermonet.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
 from thermonet.io import write_parquet

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +15,7 @@ from thermonet.compare import format_table, run_compare
 from thermonet.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
 from thermonet.diagnostics import input_warnings
 from thermonet.errors import ConfigError
+from thermonet.exporting import export_onnx
 from thermonet.io import write_parquet
 from thermonet.recording import Dataset, Recording
 from thermonet.train import predict
@@ -40,6 +44,17 @@ def _compare(tmp_path, ds: Dataset, families: list[FamilyConfig], **kw) -> dict:
     kw.setdefault("baseline", None)
     cfg = CompareConfig(data=DataConfig(paths=[str(path)]), families=families, train=FAST, **kw)
     return run_compare(cfg, tmp_path / "out", track=False, quiet=True, plots=False)
+
+
+def _runtime():
+    """The torch-free runtime (export/thermonet_runtime.py), as firmware teams load it."""
+    path = Path(__file__).resolve().parents[1] / "export" / "thermonet_runtime.py"
+    spec = importlib.util.spec_from_file_location("thermonet_runtime", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["thermonet_runtime"] = mod
+    spec.loader.exec_module(mod)
+    return mod
 
 
 # ------------------------------------------------------------------ the statistics alone
@@ -98,8 +113,16 @@ def test_do_no_harm_fires_on_an_axis_without_drift(tmp_path):
     assert any(w.startswith("gyro_y: left uncompensated") for w in res["warnings"])
     model, meta = load_checkpoint(tmp_path / "out" / "models" / "cubic.pt")
     assert meta["extra"]["compensate"] == {"gyro_x": True, "gyro_y": False}
-    if res["families"]["cubic"]["compensate_in_model"]:  # the model carries the mask
-        assert np.all(predict(model, np.array([[-5.0], [40.0]]))[:, 1] == 0.0)
+    # the model carries the mask (set before the checkpoint was written), and so does its export
+    assert res["families"]["cubic"]["compensate_in_model"] is True
+    assert model.compensated_axes == [True, False]
+    temps = np.linspace(-10.0, 50.0, 61)
+    assert np.all(predict(model, temps[:, None])[:, 1] == 0.0)
+    raw = np.column_stack([0.01 * (temps - 20.0), np.full_like(temps, 0.123)])
+    comp = _runtime().Compensator(export_onnx(model, tmp_path / "cubic.onnx")).compensate(
+        temperature_c=temps, raw=raw)
+    assert np.all(comp.drift[:, 1] == 0.0) and np.all(comp.compensated[:, 1] == raw[:, 1])
+    np.testing.assert_allclose(comp.drift[:, 0], 0.01 * (temps - 20.0), atol=0.02)
     assert "left uncompensated: gyro_y" in format_table(res)
     html = (tmp_path / "out" / "report.html").read_text()
     assert "Left uncompensated (drift 0): <b>gyro_y</b>" in html

@@ -21,9 +21,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from .fileio import atomic_path
 from .errors import ExportError, InputError
 from .features import FeatureSpec
+from .fileio import atomic_path
 from .models import DriftModel, build_family
 
 __all__ = ["save_checkpoint", "load_checkpoint", "CHECKPOINT_FORMAT"]

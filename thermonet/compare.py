@@ -45,17 +45,19 @@ from .evaluate import (
     heating_only,
     load_data,
     make_splits,
+    targets_for,
 )
 from .fileio import atomic_write_text
 from .recording import Dataset
 from .results import AxisResult, ComparisonResult, FamilyResult, Verdict
+from .target import CHANNEL, FOUR_POSITION, ZERO, Target
 from .verdicts import BlockStats
 
 __all__ = ["run_compare", "format_table", "Progress"]
 
 
 class Progress:
-    """One status line per family on stderr (rewritten in place on a terminal); quiet: silent."""
+    """One status line per family on stderr (rewritten in place on a terminal); silent if quiet."""
 
     def __init__(self, quiet: bool = False, stream: Any = None) -> None:
         self.quiet = quiet
@@ -145,15 +147,17 @@ def _evaluate_part(model: Any, part: Part) -> tuple[np.ndarray, dict[str, dict[s
 class _Parts:
     """Signals and targets of each (run, signals) pair, built once for all families."""
 
-    def __init__(self, cfg: CompareConfig, outputs: list[str]) -> None:
+    def __init__(self, cfg: CompareConfig, outputs: list[str], targets: Any = None) -> None:
         self.cfg, self.outputs = cfg, outputs
+        # thermonet.target.Target, or the config's plain kind ("drift" / "four-position")
+        self.targets: Any = targets if targets is not None else cfg.target
         self._cache: dict[tuple[int, tuple[str, ...]], Part] = {}
 
     def __call__(self, rec: Any, signals: list[str]) -> Part:
         key = (id(rec), tuple(signals))
         if key not in self._cache:
             self._cache[key] = build_part(rec, signals=signals, outputs=self.outputs,
-                                          target=self.cfg.target,
+                                          target=self.targets,
                                           rate_window_s=self.cfg.features.rate_window_s)
         return self._cache[key]
 
@@ -166,6 +170,7 @@ class _Plan:
     cfg: CompareConfig
     ds: Dataset
     outputs: list[str]
+    targets: Target
     splits: list[Split]
     units: dict[str, str]
     source: str
@@ -226,13 +231,14 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> _Plan:
                                   f"'{sig}' in the data (proxies: "
                                   f"{', '.join(sorted(ds[0].proxies)) or 'none'})")
     outputs = _outputs(ds, cfg)
+    targets = targets_for(ds, cfg.target, outputs, source=source)
     splits = make_splits(ds, cfg.split, source=source)
     units = {o: ds[0].units.get(o.split(".")[0], "") for o in outputs}
     for o in outputs:
         if o.endswith(".scale"):
             units[o] = "1"
     warns = input_warnings(ds, signals=signals, rate_window_s=cfg.features.rate_window_s)
-    return _Plan(cfg, ds, outputs, splits, units, source, warns)
+    return _Plan(cfg, ds, outputs, targets, splits, units, source, warns)
 
 
 def _data_summary(ds: Dataset) -> list[dict[str, Any]]:
@@ -260,6 +266,7 @@ class _Fitted:
     test_preds: list[np.ndarray] = field(default_factory=list)
     ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
     val_draws: np.ndarray | None = None  # bootstrap draws of the masked validation score
+    best_val: float | None = None        # the last fold's best validation loss
 
 
 def _fold_stats(part: Part, pred: np.ndarray) -> BlockStats:
@@ -267,15 +274,15 @@ def _fold_stats(part: Part, pred: np.ndarray) -> BlockStats:
     from .verdicts import block_labels, block_stats
 
     raw = part.target.copy()
-    for j, axis in enumerate(part.outputs):
-        if axis.endswith(".scale"):  # a scale factor's nominal value is not an error
+    for j in range(len(part.outputs)):
+        if part.offset_free(j):  # a scale factor's nominal value, gravity (at-t-ref): no error
             raw[:, j] -= np.mean(raw[:, j])
     return block_stats(raw, pred - (part.target - raw), block_labels(part.time_s))
 
 
 def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts) -> _Fitted:
     from .diagnostics import outside_fraction
-    from .features import FeatureSpec, reference_values
+    from .features import FeatureSpec, reference_values, signals_for
     from .models.base import as_numpy
     from .train import fit, predict
     from .verdicts import pool
@@ -290,7 +297,10 @@ def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts) 
     try:
         tcfg = _train_config(cfg, fam)
         for split in p.splits:
-            t_ref, proxy_ref = reference_values(split.train, fam.inputs, t_ref=cfg.features.t_ref,
+            # T_ref also for a model on T alone: at-t-ref axes are normalised there
+            ref_inputs = list(fam.inputs) + (["dT"] if "temperature_c" in signals_for(fam.inputs)
+                                             else [])
+            t_ref, proxy_ref = reference_values(split.train, ref_inputs, t_ref=cfg.features.t_ref,
                                                 window_min=cfg.features.t_ref_window_min)
             spec = FeatureSpec(inputs=list(fam.inputs), t_ref=t_ref, proxy_ref=proxy_ref)
             train_parts = [parts(r, spec.signals) for r in split.train]
@@ -303,7 +313,8 @@ def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts) 
                          train=[(q.signals, q.target) for q in train_parts],
                          val=(val_part.signals, val_part.target) if val_part else None,
                          spec=spec, hyper=dict(fam.params), config=tcfg,
-                         on_epoch=lambda e, tl, vl: progress.epoch(fam.label, e, tl, vl))
+                         on_epoch=lambda e, tl, vl: progress.epoch(fam.label, e, tl, vl),
+                         target=p.targets.modes)
             res.fit_seconds = (0.0 if math.isnan(res.fit_seconds) else res.fit_seconds) \
                 + fitted.fit_seconds
             held = val_part or train_parts[-1]
@@ -319,6 +330,7 @@ def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts) 
                 outside.setdefault(sig, []).append((float(frac[k]), test_part.signals.shape[0]))
                 out.ranges[sig] = (float(lo[k]), float(hi[k]))
             out.model, out.history = model, fitted.history
+            out.best_val = fitted.best_val_loss
             out.test_parts.append(test_part)
             out.test_preds.append(pred)
             res.n_params, res.best_epoch = int(fitted.n_params), int(fitted.best_epoch)
@@ -356,17 +368,19 @@ def _verdicts(num: np.ndarray, den: np.ndarray) -> tuple[list[Verdict], np.ndarr
             ratio, boot)
 
 
-def _offset_meaningful(ds: Dataset, target: str, axis: str) -> bool:
+def _offset_meaningful(targets: Target, axis: str) -> bool:
     """Whether the absolute offset of ``axis`` is an error (not an unknown constant).
 
-    With a reference channel, or for a static gyro (true rate ≈ 0), the offset
-    is an error; an accelerometer's or magnetometer's offset without a
-    reference is gravity or the field's projection.  (h7t's per-output
-    ``target`` section will make this ``target in ("channel", "zero")``.)
+    Where the target mode makes the true input known — a reference channel
+    (``channel``), a static gyro's true rate 0 (``zero``), study 000's per-soak
+    bias K0 — the offset is an error; ``at-t-ref`` axes (gravity's or the
+    field's projection, a pressure) and scale factors have none
+    (:mod:`thermonet.target`).
     """
-    if target == "four-position":
+    mode = targets.mode(axis)
+    if mode == FOUR_POSITION:
         return axis.endswith(".bias")
-    return f"ref_{axis}" in ds[0].references or axis.startswith("gyro")
+    return mode in (CHANNEL, ZERO)
 
 
 def _judge_against_raw(f: _Fitted, metrics: dict[str, dict[str, float]], p: _Plan) -> None:
@@ -387,11 +401,19 @@ def _judge_against_raw(f: _Fitted, metrics: dict[str, dict[str, float]], p: _Pla
     sr, sc = f.test.score_raw, f.test.score_comp
     orw, ocp = f.test.offset_raw, f.test.offset_comp
     for j, axis in enumerate(p.outputs):
-        meaningful = _offset_meaningful(p.ds, p.cfg.target, axis)
+        meaningful = _offset_meaningful(p.targets, axis)
         res.axes[axis] = AxisResult(
             score_raw=float(sr[j]), score_comp=float(sc[j]), test=test[j], val=val[j],
             compensate=bool(mask[j]), offset_raw=float(orw[j]) if meaningful else None,
             offset_comp=float(ocp[j]) if meaningful else None, metrics=metrics[axis])
+
+
+def _family_config(cfg: CompareConfig, fam: FamilyConfig) -> dict[str, Any]:
+    """What a family's checkpoint carries: its own resolved config, not the whole comparison's
+    (the same layout :meth:`thermonet.DriftEstimator.save` writes)."""
+    return {"family": to_dict(fam), "train": to_dict(_train_config(cfg, fam)),
+            "features": to_dict(cfg.features), "target": cfg.target,
+            "tracking": to_dict(cfg.tracking)}
 
 
 # ---------------------------------------------------------------------------------- report
@@ -481,21 +503,23 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
     tracker = Tracker(enabled=cfg.tracking.enabled if track is None else track,
                       uri=tracking_uri or cfg.tracking.uri, experiment=cfg.tracking.experiment)
     preset = ds.runs[0].meta.get("preset", "")
-    tags = {"device": ds.device_id, "preset": preset, "data_hash": dhash, "target": cfg.target}
+    tags = {"device": ds.device_id, "preset": preset, "data_hash": dhash,
+            "target": p.targets.kind}
     resolved = to_dict(cfg)
     splits = p.splits
     result = ComparisonResult(
-        config=resolved, device=ds.device_id, data_hash=dhash, target=cfg.target,
+        config=resolved, device=ds.device_id, data_hash=dhash, target=p.targets.kind,
         split={"strategy": splits[0].label if len(splits) == 1 else "leave-one-run-out",
                "folds": [s.describe for s in splits]},
-        units=units, baseline=cfg.baseline, data={"runs": _data_summary(ds)},
+        units=units, targets=p.targets.as_dict(), baseline=cfg.baseline,
+        data={"runs": _data_summary(ds)},
         thermonet_version=__version__)
     for w in p.warnings:
         result.warn(w)
     progress.line(f"thermonet compare: {ds.device_id} ({len(ds)} runs, outputs "
                   f"{', '.join(outputs)}), split {result.split['strategy']}")
     fitted: dict[str, _Fitted] = {}
-    parts = _Parts(cfg, outputs)
+    parts = _Parts(cfg, outputs, p.targets)
     with tracker.run(f"compare-{ds.device_id}", params=resolved, tags=tags) as parent_id:
         result.mlflow_run_id = parent_id
         for fam in cfg.families:
@@ -508,7 +532,7 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
                 if r.ok:
                     mask = [r.axes[a].compensate for a in outputs]
                     r.compensate_in_model = apply_compensate_mask(f.model, mask)
-                    tracker.log_history(f.history or [])
+                    tracker.log_history(list(f.history or []))
                     tracker.log_metrics({f"test/{a}/{k}": v for a, m in r.axes.items()
                                          for k, v in {**m.metrics, "score_ratio": m.test.ratio,
                                                       "score_raw": m.score_raw,
@@ -517,7 +541,8 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None =
                                          "fit_seconds": r.fit_seconds})
                     ckpt = out / "models" / f"{fam.label}.pt"
                     try:
-                        save_checkpoint(ckpt, f.model, config=resolved,
+                        save_checkpoint(ckpt, f.model, config=_family_config(cfg, fam),
+                                        epoch=r.best_epoch, best_val=f.best_val,
                                         extra={"label": fam.label, "device_id": ds.device_id,
                                                "data_hash": dhash, "units": units,
                                                "signal_units": {s: ds[0].units.get(s, "")

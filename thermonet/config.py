@@ -19,7 +19,7 @@ from typing import Any, Literal, Union
 import yaml
 
 from .errors import ConfigError
-from .train import TrainConfig  # the ``train`` section is TrainConfig itself
+from .trainconfig import TrainConfig  # the ``train`` section is TrainConfig itself
 from .yamlio import DuplicateKeyError, load_yaml
 
 __all__ = [
@@ -42,28 +42,32 @@ class DataConfig:
 
 @dataclass
 class SplitConfig:
-    """How runs are split; never by random sample (see :mod:`thermonet.evaluate`).
+    """How runs are split; never by random sample (see :mod:`thermonet.splits`).
 
     ``auto``: ≥ 3 runs → ``runs``; 2 runs → ``train-then-verify``; 1 run →
     ``time-blocks``.  ``runs``: train on all but the last two runs, validate on
     the second-to-last, test on the last — or on the run ids named in
     ``train``, ``val``, ``test`` (without ``val``, interleaved blocks of the
-    training runs validate; runs may not be in two roles).  ``train-then-verify``: train on the first
-    run (validating on interleaved contiguous blocks of it), test on the
+    training runs validate; runs may not be in two roles).  ``train-then-verify``: train on
+    the first run (validating on interleaved contiguous blocks of it), test on the
     second.  ``time-blocks``: every run cut into ``n_blocks`` contiguous time
     blocks, interleaved train / val / test (60 / 20 / 20 %).
     ``leave-one-run-out``: each run is the test run once (≥ 3 runs), the
     previous run validates; the report gives the mean over folds.
     """
 
-    strategy: Literal["auto", "runs", "train-then-verify", "time-blocks",
-                      "leave-one-run-out"] = "auto"
+    strategy: str = "auto"               # a name in thermonet.splits.SPLITS
     train: list[str] = field(default_factory=list)
     val: str | None = None
     test: str | None = None
     n_blocks: int = 20                   # contiguous time blocks per run (time-blocks)
 
     def __post_init__(self) -> None:
+        from .splits import SPLITS  # the registry is the list of valid strategies
+
+        if self.strategy not in SPLITS:
+            raise ConfigError(f"key 'split.strategy': {self.strategy!r} is not one of "
+                              f"{', '.join(repr(k) for k in SPLITS)}")
         if self.n_blocks < 5:
             raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is below 5 (every group "
                               "of five blocks gives one validation and one test block)")
@@ -73,7 +77,9 @@ class SplitConfig:
 class FeatureConfig:
     """The one feature layer shared by every family."""
 
-    t_ref: float | Literal["start"] = "start"  # °C, or mean of the first minutes of the first training run
+    t_ref: float | Literal["start"] = (
+        "start"  # °C, or mean of the first minutes of the first training run
+    )
     t_ref_window_min: float = 10.0             # minutes averaged for t_ref "start"
     rate_window_s: float = 60.0                # Savitzky–Golay window of dT/dt, s
 
@@ -125,10 +131,12 @@ class CompareConfig:
     families: list[FamilyConfig] = field(default_factory=_default_families)
     train: TrainConfig = field(default_factory=TrainConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
-    # drift: per sample, output − reference.  four-position: per soak, the bias K0 and scale
-    # factor K1 of each axis from a static multi-position test (study 000); outputs
-    # `<axis>.bias` and `<axis>.scale` are then modelled together.
-    target: Literal["drift", "four-position"] = "drift"
+    # What each output's drift is relative to (thermonet.target): "drift" = every axis at its
+    # default (a ref_ channel → channel; gyro → zero; acc/mag/baro/out → at-t-ref), or a
+    # mapping {kind or output name: channel | zero | at-t-ref}.  four-position: per soak, the
+    # bias K0 and scale factor K1 of each axis from a static multi-position test (study 000);
+    # outputs `<axis>.bias` and `<axis>.scale` are then modelled together.
+    target: Literal["drift", "four-position"] | dict[str, str] = "drift"
     baseline: str | None = "cubic"       # the family label the report compares against (PX4/ArduPilot's)
     description: str = ""
 
@@ -162,7 +170,7 @@ def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
             return value
         raise ConfigError(f"{source}: key '{key}': {value!r} is not one of "
                           f"{', '.join(repr(a) for a in args)}")
-    if dataclasses.is_dataclass(tp):
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         return from_dict(tp, value, source=source, prefix=key)
     if origin is list:
         if not isinstance(value, list):
@@ -232,7 +240,9 @@ def load_config(path: str | Path | None) -> CompareConfig:
     labels = [f.label for f in cfg.families]
     dup = sorted({x for x in labels if labels.count(x) > 1})
     if dup:
-        raise ConfigError(f"{p}: key 'families': duplicate family name {dup[0]!r} (give each a distinct 'name')")
+        raise ConfigError(
+            f"{p}: key 'families': duplicate family name {dup[0]!r} (give each a distinct 'name')"
+        )
     if not cfg.families:
         raise ConfigError(f"{p}: key 'families': empty list (need at least one family)")
     check_families(cfg, source=str(p))

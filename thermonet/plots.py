@@ -39,7 +39,8 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .metrics import allan, binned_means
+from .metrics import _series, allan, binned_means  # one 1-D series check for metrics and plots
+from .recording import GAP_FACTOR
 
 __all__ = [
     "family_colours",
@@ -63,10 +64,9 @@ MAX_SCATTER_POINTS = 5000
 #: Time series keep at most about this many vertices: a min and a max per pixel column.
 MAX_LINE_POINTS = 2 * int(FIGSIZE_IN[0] * DPI)
 
-# A step longer than this many median sample intervals is a gap in the log
-# (burst mode, a pause between soaks); the line is broken there instead of
-# drawing a straight segment across hours without data.
-_GAP_FACTOR = 5.0
+# A step longer than GAP_FACTOR median sample intervals is a gap in the log (burst mode, a
+# pause between soaks); the line is broken there instead of drawing a straight segment across
+# hours without data.
 
 _RAW_COLOR = "0.55"
 _RAW_BINNED_COLOR = "0.2"
@@ -146,13 +146,6 @@ def _bin_text(width: float, x_label: str) -> str:
     return f"{width:.3g} {unit}".strip() + " binned means"
 
 
-def _series(name: str, values: object) -> np.ndarray:
-    arr = np.asarray(values, dtype=np.float64)
-    if arr.ndim != 1:
-        raise ValueError(f"'{name}' must be a 1-D series, got shape {arr.shape}")
-    return arr
-
-
 def _check_length(name: str, arr: np.ndarray, n: int, against: str) -> None:
     if arr.shape[0] != n:
         raise ValueError(f"'{name}' has {arr.shape[0]} samples, '{against}' has {n}")
@@ -206,7 +199,7 @@ def _gap_breaks(t: np.ndarray, keep: np.ndarray) -> np.ndarray:
     steps = np.diff(t)
     if steps.size == 0:
         return np.empty(0, dtype=np.int64)
-    gaps = np.flatnonzero(steps > _GAP_FACTOR * np.median(steps)) + 1
+    gaps = np.flatnonzero(steps > GAP_FACTOR * np.median(steps)) + 1
     pos = np.unique(np.searchsorted(keep, gaps))
     return pos[(pos > 0) & (pos < keep.size)]
 

@@ -9,6 +9,7 @@
       "device": str, "data_hash": str, "target": "drift" | "four-position",
       "split": {"strategy": str, "folds": [{"train": ..., "val": ..., "test": ...}]},
       "units": {axis: unit},
+      "targets": {axis: "channel" | "zero" | "at-t-ref" | "four-position"},  # thermonet.target
       "data": {"runs": [{"run_id", "samples", "duration_s", "rate_hz",
                          "temperature_min_c", "temperature_max_c"}],
                "outside_trained_range": {signal: fraction of test samples},
@@ -180,6 +181,7 @@ class ComparisonResult:
     split: dict[str, Any]
     units: dict[str, str]
     baseline: str | None
+    targets: dict[str, str] = field(default_factory=dict)
     data: dict[str, Any] = field(default_factory=dict)
     bootstrap: dict[str, Any] = field(default_factory=dict)
     families: dict[str, FamilyResult] = field(default_factory=dict)
@@ -201,7 +203,8 @@ class ComparisonResult:
             "schema": SCHEMA, "thermonet_version": self.thermonet_version,
             "config": self.config, "device": self.device, "data_hash": self.data_hash,
             "target": self.target, "split": self.split, "units": self.units,
-            "data": self.data, "bootstrap": self.bootstrap, "chosen": self.chosen,
+            "targets": dict(self.targets), "data": self.data, "bootstrap": self.bootstrap,
+            "chosen": self.chosen,
             "chosen_reason": self.chosen_reason, "tie": list(self.tie),
             "uncompensated_axes": list(self.uncompensated_axes), "baseline": self.baseline,
             "warnings": list(self.warnings),

@@ -16,9 +16,10 @@ import json
 import logging
 import math
 import os
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import Any
 
 __all__ = ["Tracker", "default_tracking_uri", "flatten_params"]
 
@@ -143,7 +144,3 @@ class Tracker:
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
         if self.enabled:
             self._client().log_artifact(str(path), artifact_path=artifact_path)
-
-    def log_dict(self, data: Mapping[str, Any], name: str) -> None:
-        if self.enabled:
-            self._client().log_dict(dict(data), name)
