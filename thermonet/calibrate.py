@@ -81,7 +81,7 @@ __all__ = ["calibrate", "fit_firmware", "check_instance", "apply_firmware",
 MIN_SPAN_C = 10.0
 #: A thermometer reporting in steps this coarse (°C, whole degrees) or coarser is refused.
 MAX_STEP_C = 1.0
-#: A thermonet family is reported as better only when its validation msd ratio is below
+#: A thermonet family is reported as better only when its validation score ratio is below
 #: this fraction of the firmware form's (smaller differences are within the noise of a split).
 BETTER_BY = 0.8
 #: Least samples per instance.
@@ -210,7 +210,7 @@ def _verdict(summary: dict[str, Any]) -> tuple[bool, str]:
     comp = np.array(list(f["held_out_pp_comp"].values()))
     cut = raw / np.maximum(comp, 1e-300)
     line = (f"{fw} on held-out blocks: binned drift p-p cut {', '.join(f'{c:.1f}x' for c in cut)}"
-            f" (val msd ratio {f['val_score']:.3g})")
+            f" (val score ratio {f['val_score']:.3g})")
     chosen = summary.get("chosen")
     if chosen and chosen != fw:
         other = summary["families"][chosen]

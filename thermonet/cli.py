@@ -128,10 +128,12 @@ def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
         cfg.families = fams
         cfg.baseline = None
     results = run_compare(cfg, args.out, track=False if args.no_track else None,
-                          tracking_uri=args.tracking_uri, quiet=args.quiet)
+                          tracking_uri=args.tracking_uri, quiet=args.quiet,
+                          plots=not args.no_plots)
     if not args.quiet:
         print(format_table(results))
-        print(f"\nresults: {Path(args.out) / 'results.json'}")
+        print(f"\nresults: {Path(args.out) / 'results.json'}, report: "
+              f"{Path(args.out) / 'report.html'}")
     return 0
 
 
@@ -244,6 +246,8 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--tracking-uri", default=None,
                        help="MLflow tracking URI (default sqlite:///mlflow.db in the working dir)")
         q.add_argument("-q", "--quiet", action="store_true", help="no progress, no table")
+        q.add_argument("--no-plots", action="store_true",
+                       help="write no PNG plots (report.html then has no figures)")
 
     c = sub.add_parser("compare", help="fit every family, judge on held-out runs",
                        description="Fit every model family of CONFIG, judge them on held-out "
