@@ -169,6 +169,9 @@ class CompareConfig:
     target: Literal["drift", "four-position"] | dict[str, str] = "drift"
     baseline: str | None = "cubic"       # the family label the report compares against (PX4/ArduPilot's)
     description: str = ""
+    # pass/fail limits per output axis or "*" (thermonet.fleetstats.LimitSpec), judged per
+    # unit on held-out data by `thermonet fleet`
+    limits: dict[str, Any] = field(default_factory=dict)
 
 
 # ----------------------------------------------------------------- loading
@@ -276,6 +279,9 @@ def load_config(path: str | Path | None) -> CompareConfig:
     if not cfg.families:
         raise ConfigError(f"{p}: key 'families': empty list (need at least one family)")
     check_families(cfg, source=str(p))
+    from .fleetstats import parse_limits
+
+    parse_limits(cfg.limits, source=str(p))
     cfg._source = str(p)  # not a field: names the file in later errors
     return cfg
 
