@@ -21,10 +21,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from .fileio import atomic_path
-from .errors import ExportError, InputError
+from .errors import ExportError, InputError, ThermonetError
 from .features import FeatureSpec
+from .fileio import atomic_path
 from .models import DriftModel, build_family
+from .names import (AXIS, FAMILY, FEATURE, HASH, LABEL, RUN_ID, SIGNAL, TEXT_ID, check_finite,
+                    check_name, check_names, check_units)
 
 __all__ = ["save_checkpoint", "load_checkpoint", "CHECKPOINT_FORMAT"]
 
@@ -137,16 +139,95 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
     if payload.get("format", CHECKPOINT_FORMAT) != CHECKPOINT_FORMAT:
         raise InputError.at(path, f"checkpoint format {payload.get('format')!r}; this thermonet "
                             f"reads format {CHECKPOINT_FORMAT}")
-    spec = FeatureSpec(inputs=payload["inputs"], t_ref=payload["spec"]["t_ref"],
-                       proxy_ref=payload["spec"]["proxy_ref"])
-    family = build_family(payload["family"], n_inputs=len(payload["inputs"]),
-                          n_outputs=len(payload["outputs"]), hyper=payload["hyper"])
-    model = DriftModel(family=family, spec=spec, outputs=payload["outputs"])
+    _check_payload(path, payload)
+    try:
+        spec = FeatureSpec(inputs=payload["inputs"], t_ref=payload["spec"]["t_ref"],
+                           proxy_ref=payload["spec"]["proxy_ref"])
+        family = build_family(payload["family"], n_inputs=len(payload["inputs"]),
+                              n_outputs=len(payload["outputs"]), hyper=payload["hyper"])
+        model = DriftModel(family=family, spec=spec, outputs=payload["outputs"])
+    except (ThermonetError, TypeError, ValueError) as err:  # the names passed, the combination not
+        raise InputError.at(path, f"key 'family'/'hyper'/'inputs': {err}") from None
+    if list(model.signals) != list(payload["signals"]):
+        raise InputError.at(path, f"key 'signals': {payload['signals']} do not match the inputs "
+                            f"{payload['inputs']} (expected {list(model.signals)})")
     try:
         model.load_state_dict(payload["state_dict"], strict=True)
     except RuntimeError as err:
         raise InputError.at(path, "parameters do not match the stored family "
                             f"'{payload['family']}' ({str(err).splitlines()[0]})") from err
+    lo, hi = model.sig_lo.detach(), model.sig_hi.detach()
+    bad = torch.isnan(lo) | torch.isnan(hi) | (lo > hi)
+    if bool(bad.any()):
+        j = int(torch.nonzero(bad)[0, 0])
+        raise InputError.at(path, f"trained range of signal '{model.signals[j]}' is "
+                            f"[{float(lo[j]):g}, {float(hi[j]):g}] (low must be <= high)")
     model.eval()
     meta = {k: v for k, v in payload.items() if k != "state_dict"}
     return model, meta
+
+
+def _check_payload(path: Path, p: dict) -> None:
+    """Every name and value of a loaded payload against :mod:`thermonet.names`.
+
+    A checkpoint is data from a file, not code: its strings reach generated C
+    source and ONNX metadata, so each is checked with the rule it was created
+    under before anything is built from it.
+    """
+    def at(key: str) -> str:
+        return f"{path}: key '{key}'"
+
+    check_name(p["family"], FAMILY, at("family"))
+    check_names(p["inputs"], FEATURE, at("inputs"))
+    check_names(p["signals"], SIGNAL, at("signals"))
+    check_names(p["outputs"], AXIS, at("outputs"))
+    if not isinstance(p["hyper"], dict):
+        raise InputError(f"{at('hyper')}: expected a mapping, got {type(p['hyper']).__name__}")
+    spec = p["spec"]
+    if not isinstance(spec, dict) or set(spec) != {"t_ref", "proxy_ref"}:
+        raise InputError(f"{at('spec')}: expected a mapping with t_ref and proxy_ref")
+    if spec["t_ref"] is not None:
+        check_finite(spec["t_ref"], at("spec.t_ref"))
+    if not isinstance(spec["proxy_ref"], dict):
+        raise InputError(f"{at('spec.proxy_ref')}: expected a mapping signal -> number")
+    for name, value in spec["proxy_ref"].items():
+        check_name(name, SIGNAL, at("spec.proxy_ref"))
+        check_finite(value, at(f"spec.proxy_ref.{name}"))
+    if not isinstance(p["config"], dict):
+        raise InputError(f"{at('config')}: expected a mapping")
+    if not isinstance(p["state_dict"], dict):
+        raise InputError(f"{at('state_dict')}: expected a mapping name -> tensor")
+    if p["epoch"] is not None and (isinstance(p["epoch"], bool) or not isinstance(p["epoch"], int)):
+        raise InputError(f"{at('epoch')}: {p['epoch']!r} is not an integer")
+    if p["best_val"] is not None:
+        check_finite(p["best_val"], at("best_val"))
+    extra = p["extra"]
+    if not isinstance(extra, dict):
+        raise InputError(f"{at('extra')}: expected a mapping")
+    for key, pattern in (("label", LABEL), ("device_id", TEXT_ID), ("data_hash", HASH),
+                         ("mlflow_run_id", RUN_ID)):
+        if extra.get(key) not in (None, ""):
+            check_name(extra[key], pattern, at(f"extra.{key}"))
+    if "units" in extra:
+        check_units(extra["units"], AXIS, at("extra.units"))
+    if "signal_units" in extra:
+        check_units(extra["signal_units"], SIGNAL, at("extra.signal_units"))
+    if extra.get("val_score") is not None:
+        _number(extra["val_score"], at("extra.val_score"))
+    metrics = extra.get("test_metrics", {})
+    if not isinstance(metrics, dict):
+        raise InputError(f"{at('extra.test_metrics')}: expected a mapping axis -> metrics")
+    for axis, values in metrics.items():
+        check_name(axis, AXIS, at("extra.test_metrics"))
+        if not isinstance(values, dict):
+            raise InputError(f"{at(f'extra.test_metrics.{axis}')}: expected a mapping")
+        for k, v in values.items():
+            check_name(k, SIGNAL, at(f"extra.test_metrics.{axis}"))
+            if v is not None:
+                _number(v, at(f"extra.test_metrics.{axis}.{k}"))
+
+
+def _number(value: Any, where: str) -> None:
+    """A metric: any real number (NaN/inf included: a metric may be undefined)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(f"{where}: {value!r} is not a number")
