@@ -21,7 +21,11 @@ __all__ = ["main", "build_parser"]
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from .io import write_parquet
     from .sim import simulate
+    from .sim.presets import MAX_RUNS
 
+    if args.runs is not None and not 1 <= args.runs <= MAX_RUNS:
+        raise ThermonetError(f"--runs {args.runs}: not in 1..{MAX_RUNS} (the upper bound keeps "
+                             "a request within memory)")
     ds = simulate(args.preset, runs=args.runs, seed=args.seed)
     path = write_parquet(ds, args.out)
     n = sum(r.n_samples for r in ds)
