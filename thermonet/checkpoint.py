@@ -23,10 +23,22 @@ import torch
 
 from .errors import ExportError, InputError, ThermonetError
 from .features import FeatureSpec
-from .fileio import atomic_path
+from .fileio import atomic_path, not_a_file
 from .models import DriftModel, build_family
-from .names import (AXIS, FAMILY, FEATURE, HASH, LABEL, RUN_ID, SIGNAL, TEXT_ID, check_finite,
-                    check_name, check_names, check_units)
+from .names import (
+    AXIS,
+    FAMILY,
+    FEATURE,
+    HASH,
+    LABEL,
+    RUN_ID,
+    SIGNAL,
+    TEXT_ID,
+    check_finite,
+    check_name,
+    check_names,
+    check_units,
+)
 
 __all__ = ["save_checkpoint", "load_checkpoint", "CHECKPOINT_FORMAT"]
 
@@ -126,8 +138,9 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
         Missing/unreadable file or a payload that is not a thermonet checkpoint.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError.at(path, "no such checkpoint file")
+    why = not_a_file(path, "checkpoint file")
+    if why:
+        raise InputError.at(path, why)
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises several unrelated types for a bad file

@@ -244,15 +244,33 @@ def _choose(families: dict[str, dict[str, Any]]) -> tuple[str | None, str]:
     return best, f"lowest validation msd ratio ({score:.3g} of raw)"
 
 
-def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None = None,
-                tracking_uri: str | None = None, quiet: bool = False,
-                progress: Progress | None = None, dataset: Dataset | None = None
-                ) -> dict[str, Any]:
+def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = False,
+                **kwargs: Any) -> dict[str, Any]:
     """Fit every family of ``cfg``, judge on held-out data, write ``out_dir``; return results.
 
-    ``dataset`` replaces the configured data (benchmarks feed variants of one
-    simulation this way); the config's ``data`` section is then ignored.
+    The output appears whole or not at all (:mod:`thermonet.outdir`): it is
+    built in a staging directory beside ``out_dir`` and moved into place when
+    complete; ``results.json`` records each checkpoint's SHA-256.  A non-empty
+    ``out_dir`` that is not a complete comparison is refused; a previous
+    comparison is replaced only with ``overwrite=True``.
+
+    Keyword arguments: ``track``, ``tracking_uri``, ``quiet``, ``progress``,
+    ``dataset`` (replaces the configured data — benchmarks feed variants of
+    one simulation this way; the config's ``data`` section is then ignored).
     """
+    from .outdir import staged_output
+
+    with staged_output(out_dir, overwrite=overwrite) as stage:
+        results = _run_compare_in(cfg, stage.path, **kwargs)
+        stage.finish(results, _clean)
+    return results
+
+
+def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None = None,
+                    tracking_uri: str | None = None, quiet: bool = False,
+                    progress: Progress | None = None, dataset: Dataset | None = None
+                    ) -> dict[str, Any]:
+    """The comparison itself, written into ``out_dir`` (a staging directory)."""
     from .checkpoint import save_checkpoint
     from .tracking import Tracker
 

@@ -19,6 +19,7 @@ from typing import Any, Literal, Union
 import yaml
 
 from .errors import ConfigError
+from .fileio import not_a_file
 from .train import TrainConfig  # the ``train`` section is TrainConfig itself
 from .yamlio import YamlRefusal, load_yaml
 
@@ -228,8 +229,9 @@ def load_config(path: str | Path | None) -> CompareConfig:
     if path is None:
         return CompareConfig()
     p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"{p}: {_not_a_file(p)}")
+    why = not_a_file(p, "config file")
+    if why:
+        raise ConfigError(f"{p}: {why}")
     try:
         data = load_yaml(p)
     except YamlRefusal as err:
@@ -265,7 +267,6 @@ def check_families(cfg: CompareConfig, *, source: str = "config") -> None:
     """
     from .features import signals_for
     from .models import build_family
-
     from .names import LABEL
     from .train import TrainConfig
 
@@ -304,20 +305,3 @@ def _check_data(data: DataConfig, source: str) -> None:
                           "(the upper bound keeps a request within memory)")
     if data.seed < 0:
         raise ConfigError(f"{source}: key 'data.seed': {data.seed} is negative")
-
-
-def _not_a_file(p: Path) -> str:
-    """Why ``p`` cannot be read as a file: missing, a directory, a FIFO, a device."""
-    import stat
-
-    try:
-        mode = p.stat().st_mode
-    except FileNotFoundError:
-        return "config file not found"
-    except OSError as err:
-        return f"cannot read ({err.strerror})"
-    if stat.S_ISDIR(mode):
-        return "is a directory, not a config file"
-    if stat.S_ISFIFO(mode):
-        return "is a FIFO, not a config file"
-    return "is not a regular file (a device?)"

@@ -8,7 +8,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["atomic_path", "atomic_write_text"]
+__all__ = ["atomic_path", "atomic_write_text", "not_a_file"]
 
 
 def _umask() -> int:
@@ -46,3 +46,29 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return Path(path)
+
+
+def not_a_file(path: str | os.PathLike, what: str = "file") -> str | None:
+    """Why ``path`` cannot be read as a regular file, or None when it can.
+
+    Says what the path is — ``<what> not found``, ``is a directory``, ``is a
+    FIFO``, ``is a device`` — instead of a misleading "file not found"; a FIFO
+    is refused before it is opened (reading one would block).
+    """
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return f"{what} not found"
+    except OSError as err:
+        return f"cannot read ({err.strerror or err})"
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISDIR(mode):
+        return f"is a directory, not a {what}"
+    if stat.S_ISFIFO(mode):
+        return f"is a FIFO, not a {what}"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return f"is a device, not a {what}"
+    return f"is not a regular file, not a {what}"

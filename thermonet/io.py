@@ -47,7 +47,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from .fileio import atomic_path
+from .fileio import atomic_path, not_a_file
 from .errors import InputError
 from .mapping import ChannelSpec, ColumnMapping, TimeSpec, default_unit, load_mapping
 from .recording import OUTPUT_NAME, Dataset, Recording
@@ -191,8 +191,9 @@ def read_datasets(paths: Sequence[str | Path] | str | Path,
 
 def _read_one(path: Path, mapping: ColumnMapping | None
               ) -> tuple[list[Recording], dict[str, str], int | None]:
-    if not path.is_file():
-        raise InputError.at(path, "file not found")
+    why = not_a_file(path)
+    if why:
+        raise InputError.at(path, why)
     fmt = mapping.format if mapping is not None else "auto"
     ext = path.suffix.lower()
     if fmt == "auto":

@@ -55,6 +55,7 @@ from typing import Any
 import yaml
 
 from .errors import ConfigError, InputError
+from .fileio import not_a_file
 from .names import TEXT_ID
 from .recording import KNOWN_UNITS, OUTPUT_NAME
 from .yamlio import YamlRefusal, load_yaml
@@ -193,8 +194,9 @@ Mapping = ColumnMapping
 def load_mapping(path: str | Path) -> ColumnMapping:
     """Read and check a YAML mapping file."""
     path = Path(path)
-    if not path.is_file():
-        raise MappingError.at(path, "mapping file not found")
+    why = not_a_file(path, "mapping file")
+    if why:
+        raise MappingError.at(path, why)
     try:
         raw = load_yaml(path)
     except YamlRefusal as err:
