@@ -235,6 +235,10 @@ def _choose(families: dict[str, dict[str, Any]]) -> tuple[str | None, str]:
     ok = {k: v for k, v in families.items()
           if v["status"] == "ok" and math.isfinite(v.get("val_score", float("nan")))}
     if not ok:
+        if any(v["status"] == "ok" for v in families.values()):
+            # fitted, but msd_raw was exactly 0 on validation: the score is undefined
+            return None, ("nothing to compensate: the raw output has exactly zero error on "
+                          "the validation data (every family fitted)")
         return None, "no family could be fitted"
     best = min(ok, key=lambda k: ok[k]["val_score"])
     score = ok[best]["val_score"]
