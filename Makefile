@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/thermonet compare configs/default.yaml --out runs/demo
+	$(VENV)/bin/thermonet compare configs/default.yaml --out runs/demo --overwrite
 
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 tests

@@ -23,7 +23,8 @@ CONFIG = Path(__file__).resolve().parents[1] / "configs" / "default.yaml"
 def main() -> None:
     out = OUT / "default"
     t0 = time.perf_counter()
-    res = run_compare(load_config(CONFIG), out, tracking_uri=f"sqlite:///{OUT / 'mlflow.db'}",
+    res = run_compare(load_config(CONFIG), out, overwrite=True,
+                      tracking_uri=f"sqlite:///{OUT / 'mlflow.db'}",
                       quiet=True)
     total = time.perf_counter() - t0
     rows = []
