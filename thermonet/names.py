@@ -113,7 +113,7 @@ def check_units(values: Any, keys: re.Pattern[str], where: str, *,
     if not isinstance(values, dict):
         raise error(f"{where}: expected a mapping name -> unit, got {_short(values)}")
     return {check_name(k, keys, f"{where} key", error=error):
-            check_name(v, UNIT, f"{where}.{k}", error=error) for k, v in values.items()}
+            check_name(v, UNIT, f"{where}[{k!r}]", error=error) for k, v in values.items()}
 
 
 def check_finite(value: Any, where: str, *, low: float = -math.inf, high: float = math.inf,
