@@ -24,19 +24,26 @@ def atomic_path(path: str | os.PathLike, *, make_parents: bool = True) -> Iterat
     Whatever the body writes to the temporary path (and whatever it checks
     there: parity, schema) becomes ``path`` only if the body finishes without
     an exception; otherwise the temporary file is removed and an existing file
-    at ``path`` is left untouched.  The result gets the usual permissions
+    at ``path`` is left untouched.  An ``OSError`` creating or renaming the
+    temporary file names ``path`` (the user's ``--out``), not the hidden name.  The result gets the usual permissions
     (0666 less the umask), not ``mkstemp``'s private 0600.
     """
     path = Path(path)
     if make_parents:
         path.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as err:  # name the file the user asked for, not the hidden temporary one
+        raise type(err)(err.errno, err.strerror, str(path)) from None
     os.close(fd)
     tmp = Path(name)
     try:
         yield tmp
         os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as err:
+            raise type(err)(err.errno, err.strerror, str(path)) from None
     finally:
         tmp.unlink(missing_ok=True)
 
