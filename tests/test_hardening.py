@@ -15,23 +15,24 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import pyarrow.parquet as pq
 import pytest
 import torch
+from conftest import toy_dataset
 
 from thermonet.cli import main
 from thermonet.io import METADATA_KEY, write_parquet
 
-from conftest import toy_dataset
-
 ROOT = Path(__file__).resolve().parent.parent
 
-# 630 bytes: 10 chained anchors of 9 aliases each ("billion laughs").
+# The bomb ("billion laughs"), 421 bytes here: 10 chained anchors of 9 aliases each,
+# 9**9 ≈ 387 million leaves if expanded.
 BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
-    f"{n}: &{n} [{', '.join(['*' + p] * 9)}]\n" for p, n in zip("abcdefghi", "bcdefghij"))
+    f"{n}: &{n} [{', '.join(['*' + p] * 9)}]\n"
+    for p, n in zip("abcdefghi", "bcdefghij", strict=True))
 
 
 def _cfg(tmp: Path, body: str, name: str = "c.yaml") -> Path:
@@ -310,7 +311,7 @@ def test_export_never_logs_where_the_checkpoint_says(compared, tmp_path, capsys,
     assert "192.0.2.1" not in logged
 
 
-def test_runtime_refuses_hostile_metadata_and_csv(compared, tmp_path):
+def test_runtime_refuses_hostile_metadata_and_csv(compared, tmp_path, capsys):
     import onnx
 
     sys.path.insert(0, str(ROOT / "export"))
@@ -339,9 +340,12 @@ def test_runtime_refuses_hostile_metadata_and_csv(compared, tmp_path):
                                 ("semi.csv", b"temperature_c;gyro_x\n20;0.1\n", "separated by ';'"),
                                 ("latin.csv", header.encode() + b"20,0.1\xe9\n", "not UTF-8")]:
         (tmp_path / name).write_bytes(data)
+        capsys.readouterr()
         assert rt.main([str(model), str(tmp_path / name), "--out", str(tmp_path / "o.csv")]) == 1
+        assert re.search(f"{name}: .*{pattern}", capsys.readouterr().err)
     os.mkfifo(tmp_path / "fifo.csv")
     assert rt.main([str(model), str(tmp_path / "fifo.csv"), "--out", str(tmp_path / "o.csv")]) == 1
+    assert "fifo.csv: is a FIFO, not a CSV file" in capsys.readouterr().err
     assert not (tmp_path / "o.csv").exists()
 
 
