@@ -463,3 +463,24 @@ def test_two_comparisons_at_once_on_a_new_store(tmp_path):
             _, stderr = p.communicate(timeout=300)
             assert p.returncode == 0, f"{round_}: {stderr}"
     assert _statuses(db) == ["FINISHED"] * 8  # 4 comparisons × (parent + one family)
+
+
+def test_c_escaping_round_trips_through_a_compiler(tmp_path):
+    """Defence in depth: an escaped name is inert in a comment and exact in a string literal."""
+    import shutil
+
+    from thermonet.names import c_comment, c_string
+
+    nasty = 'gyro_x"}\n*/ system("x"); /* ??= \\ é\t' + C_PAYLOAD
+    assert "*/" not in c_comment(nasty) and "/*" not in c_comment(nasty)
+    assert "\n" not in c_comment(nasty)
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.fail("no C compiler: the C header export checks need one")
+    src = tmp_path / "t.c"
+    src.write_text(f"#include <stdio.h>\n/* {c_comment(nasty)} */\n"
+                   f"int main(void) {{ fputs({c_string(nasty)}, stdout); return 0; }}\n")
+    subprocess.run([cc, "-std=c99", "-Wall", "-Werror", "-o", str(tmp_path / "t"), str(src)],
+                   check=True, capture_output=True)
+    out = subprocess.run([str(tmp_path / "t")], check=True, capture_output=True).stdout
+    assert out == nasty.encode("utf-8")

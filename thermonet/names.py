@@ -127,9 +127,14 @@ def check_finite(value: Any, where: str, *, low: float = -math.inf, high: float 
 
 
 def c_comment(text: Iterable[str] | str) -> str:
-    """Text safe inside a C ``/* ... */`` comment: no ``*/``, no ``/*``, no line breaks."""
+    """Text safe inside a C ``/* ... */`` comment: no ``*/``, ``/*``, line breaks or trigraphs.
+
+    A backslash is replaced too (``\\`` at a line end would splice the next line in).
+    """
     s = text if isinstance(text, str) else ", ".join(text)
-    s = "".join(ch if ch.isprintable() else "?" for ch in s)
+    s = "".join(ch if ch.isprintable() and ch != "\\" else "?" for ch in s)
+    while "??" in s:  # trigraphs (C99): ??/ is a backslash
+        s = s.replace("??", "? ?")
     return s.replace("*/", "* /").replace("/*", "/ *")
 
 
