@@ -296,19 +296,25 @@ def test_export_verifies_checkpoint_hash(compared, tmp_path, capsys):
     assert not (tmp_path / "m.h").exists()
 
 
-def test_export_never_logs_where_the_checkpoint_says(compared, tmp_path, capsys, caplog,
-                                                     monkeypatch):
-    payload = _checkpoint(compared)
-    payload["config"]["tracking"]["uri"] = "http://192.0.2.1:5000"  # TEST-NET-1: unreachable
-    payload["extra"]["mlflow_run_id"] = "0" * 32
-    torch.save(payload, tmp_path / "k.pt")
+def test_export_never_logs_where_the_checkpoint_says(compared, tmp_path, caplog, monkeypatch):
+    import mlflow
+
+    from thermonet.tracking import Tracker
+
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    local = f"sqlite:///{tmp_path.resolve() / 'mlflow.db'}"
+    with Tracker(uri=local).run("family") as run_id:  # the working directory's store
+        pass
+    payload = _checkpoint(compared)
+    payload["config"]["tracking"]["uri"] = "http://192.0.2.1:5000"  # TEST-NET-1: unreachable
+    payload["extra"]["mlflow_run_id"] = run_id
+    torch.save(payload, tmp_path / "k.pt")
     assert main(["export", str(tmp_path / "k.pt"), "--format", "onnx",
                  "--out", str(tmp_path / "m.onnx")]) == 0
-    logged = " ".join(r.getMessage() for r in caplog.records)
-    assert f"sqlite:///{tmp_path.resolve() / 'mlflow.db'}" in logged
-    assert "192.0.2.1" not in logged
+    assert "192.0.2.1" not in " ".join(r.getMessage() for r in caplog.records)
+    client = mlflow.MlflowClient(tracking_uri=local)
+    assert [a.path for a in client.list_artifacts(run_id, "onnx")] == ["onnx/m.onnx"]
 
 
 def test_runtime_refuses_hostile_metadata_and_csv(compared, tmp_path, capsys):
