@@ -1,6 +1,6 @@
 # Two commands do all the set-up on a fresh machine:
 #   make demo   -> creates .venv, installs torch (CPU) + thermonet, runs the main job
-#   make test   -> same set-up plus pytest, runs the test suite
+#   make test   -> same set-up, then ruff, mypy and the test suite
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -23,6 +23,8 @@ demo: $(STAMP)
 	$(VENV)/bin/thermonet compare configs/default.yaml --out runs/demo --overwrite
 
 test: $(STAMP)
+	$(VENV)/bin/ruff check thermonet tests experiments export
+	$(VENV)/bin/mypy thermonet
 	$(PY) -m pytest -q -n 2 tests
 
 bench: $(STAMP)

@@ -22,7 +22,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import OUT, save, table  # noqa: E402
-
 from thermonet.compare import run_compare  # noqa: E402
 from thermonet.config import CompareConfig, FamilyConfig  # noqa: E402
 from thermonet.sim import PRESETS, simulate  # noqa: E402
@@ -56,9 +55,13 @@ def main() -> None:
             rows.append([name + (" (chosen)" if name == res["chosen"] else ""), axis,
                          m["pp_comp"], m["msd_comp"], m["drift_error_rms"],
                          m.get("pp_ratio_vs_baseline", float("nan"))])
-    md = ("### Against the PX4/ArduPilot anchor on a heat/cool cycling gyro (hysteresis 0.02 °/s)\n\n"
-          + table(["family", "axis", "pp comp [°/s]", "msd comp", "drift err rms [°/s]",
-                   "pp / anchor's"], rows))
+    md = (
+        "### Against the PX4/ArduPilot anchor on a heat/cool cycling gyro (hysteresis 0.02 °/s)\n\n"
+        + table(
+            ["family", "axis", "pp comp [°/s]", "msd comp", "drift err rms [°/s]", "pp / anchor's"],
+            rows,
+        )
+    )
     save("anchor", {"results": res}, md)
 
 

@@ -13,7 +13,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import OUT, save, table  # noqa: E402
-
 from thermonet.compare import run_compare  # noqa: E402
 from thermonet.config import load_config  # noqa: E402
 
@@ -33,11 +32,20 @@ def main() -> None:
             rows.append([name, "not fitted", "", "", "", fam["reason"]])
             continue
         for axis, m in fam["axes"].items():
-            rows.append([name + (" (chosen)" if name == res["chosen"] else ""), axis,
-                         fam["fit_seconds"], m["pp_raw"] / m["pp_comp"], m["msd_raw"] / m["msd_comp"],
-                         m["drift_error_rms"]])
-    md = (f"### Default comparison (patent-gyro, all families): {total:.1f} s wall, tracking on\n\n"
-          + table(["family", "axis", "fit s", "pp cut ×", "msd cut ×", "drift err rms [deg/s]"], rows))
+            rows.append(
+                [
+                    name + (" (chosen)" if name == res["chosen"] else ""),
+                    axis,
+                    fam["fit_seconds"],
+                    m["pp_raw"] / m["pp_comp"],
+                    m["msd_raw"] / m["msd_comp"],
+                    m["drift_error_rms"],
+                ]
+            )
+    md = (
+        f"### Default comparison (patent-gyro, all families): {total:.1f} s wall, tracking on\n\n"
+        + table(["family", "axis", "fit s", "pp cut ×", "msd cut ×", "drift err rms [deg/s]"], rows)
+    )
     save("default", {"wall_seconds": total, "chosen": res["chosen"],
                      "families": res["families"]}, md)
 

@@ -25,7 +25,6 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import save, table  # noqa: E402
-
 from thermonet.config import load_config  # noqa: E402
 from thermonet.evaluate import build_part, load_data, make_splits  # noqa: E402
 from thermonet.features import FeatureSpec, reference_values  # noqa: E402
@@ -57,9 +56,15 @@ def run(init: str, config: TrainConfig, target: float | None = None) -> dict:
               config=config,
               on_epoch=on_epoch)
     total = time.perf_counter() - t0
-    out = {"init": init, "optimizer": config.optimizer, "seconds_total": total, "epochs": marks[-1][0],
-           "final_heldout_mse": marks[-1][2], "best_heldout_mse": min(m[2] for m in marks),
-           "n_params": res.n_params}
+    out = {
+        "init": init,
+        "optimizer": config.optimizer,
+        "seconds_total": total,
+        "epochs": marks[-1][0],
+        "final_heldout_mse": marks[-1][2],
+        "best_heldout_mse": min(m[2] for m in marks),
+        "n_params": res.n_params,
+    }
     if target is not None:
         reached = [(e, s) for e, s, v in marks if v <= target]
         out["reached_target"] = bool(reached)

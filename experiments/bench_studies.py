@@ -30,15 +30,17 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import OUT, save, table  # noqa: E402
-
 from thermonet.checkpoint import load_checkpoint  # noqa: E402
 from thermonet.compare import run_compare  # noqa: E402
-from thermonet.evaluate import build_part  # noqa: E402
-from thermonet.train import predict  # noqa: E402
 from thermonet.config import load_config  # noqa: E402
-from thermonet.evaluate import load_data, make_splits  # noqa: E402
+from thermonet.evaluate import (  # noqa: E402
+    build_part,  # noqa: E402
+    load_data,
+    make_splits,
+)
 from thermonet.metrics import bias_instability  # noqa: E402
 from thermonet.recording import Dataset  # noqa: E402
+from thermonet.train import predict  # noqa: E402
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 STUDIES = ["accel", "hrg", "mems-gyro", "patent-gyro"]
@@ -90,7 +92,9 @@ def main() -> None:
                 allowed = float("nan")
                 if cfg.target == "drift":
                     o = oracle["families"][name]
-                    e_oracle = o["axes"][axis]["drift_error_rms"] if o["status"] == "ok" else math.nan
+                    e_oracle = (
+                        o["axes"][axis]["drift_error_rms"] if o["status"] == "ok" else math.nan
+                    )
                     allowed = math.sqrt(e_oracle ** 2 + bi[axis] ** 2)
                     ratio = m["drift_error_rms"] / allowed
                 entry["families"].setdefault(name, {})[axis] = {
@@ -152,23 +156,42 @@ def reproduction(data: dict) -> list[list[str]]:
     a_lor, a_lin = fam("accel", "lorentz")["acc_x.bias"], fam("accel", "linear")["acc_x.bias"]
     s_lor, s_lin = fam("accel", "lorentz")["acc_x.scale"], fam("accel", "linear")["acc_x.scale"]
     rows += [
-        ["000 accel", "bias error raw → linear → Lorentz (mg)", "14 → 6.91 → 1.3",
-         f"{a_lor['pp_raw'] * 1e3:.2f} → {a_lin['pp_comp'] * 1e3:.2f} → {a_lor['pp_comp'] * 1e3:.2f}"],
-        ["000 accel", "scale factor raw → linear → Lorentz (ppm/°C)", "151.6 → 45.89 → 11.8",
-         f"{s_lor['ppm_per_c_raw']:.1f} → {s_lin['ppm_per_c_comp']:.1f} → {s_lor['ppm_per_c_comp']:.1f}"],
+        [
+            "000 accel",
+            "bias error raw → linear → Lorentz (mg)",
+            "14 → 6.91 → 1.3",
+            f"{a_lor['pp_raw'] * 1e3:.2f} → {a_lin['pp_comp'] * 1e3:.2f} → "
+            f"{a_lor['pp_comp'] * 1e3:.2f}",
+        ],
+        [
+            "000 accel",
+            "scale factor raw → linear → Lorentz (ppm/°C)",
+            "151.6 → 45.89 → 11.8",
+            f"{s_lor['ppm_per_c_raw']:.1f} → {s_lin['ppm_per_c_comp']:.1f} → "
+            f"{s_lor['ppm_per_c_comp']:.1f}",
+        ],
     ]
     h_f, h_t = fam("hrg", "quad-freq")["gyro_x"], fam("hrg", "quad-thermometer")["gyro_x"]
     rows += [["001 hrg", "bias drift −10…60 °C raw → quadratic in Δf (°/h)", "30 → 2.8",
               f"{h_f['pp_raw']:.1f} → {h_f['pp_comp']:.2f} (same quadratic on the thermometer: "
               f"{h_t['pp_comp']:.2f})"]]
     m = data["mems-gyro"]
-    rows += [["002 mems-gyro", "offset at 65 °C raw → compensated (°/s, exact simulated drift)",
-              "0.025 → ≈0",
-              f"{m['offset_65c']['raw']:.4f} → {m['offset_65c']['comp']:.4f} (ts-fuzzy; "
-              f"chosen by validation: {m['chosen'] or 'none'})"],
-             ["002 mems-gyro", "Allan bias stability, self-heating run, raw → fuzzy (°/s, min of OADEV)",
-              "0.0075 → 0.007", f"{m['allan_self_heating']['raw']:.4f} → "
-                                f"{m['allan_self_heating']['comp']:.4f} (held-out run5)"]]
+    rows += [
+        [
+            "002 mems-gyro",
+            "offset at 65 °C raw → compensated (°/s, exact simulated drift)",
+            "0.025 → ≈0",
+            f"{m['offset_65c']['raw']:.4f} → {m['offset_65c']['comp']:.4f} (ts-fuzzy; "
+            f"chosen by validation: {m['chosen'] or 'none'})",
+        ],
+        [
+            "002 mems-gyro",
+            "Allan bias stability, self-heating run, raw → fuzzy (°/s, min of OADEV)",
+            "0.0075 → 0.007",
+            f"{m['allan_self_heating']['raw']:.4f} → "
+            f"{m['allan_self_heating']['comp']:.4f} (held-out run5)",
+        ],
+    ]
     p = data["patent-gyro"]["results"]["families"]
     imp, trad = p["rbf-dT-dT2"]["axes"], p["rbf-dT"]["axes"]
     orders = np.mean([math.log10(v["msd_raw"] / v["msd_comp"]) for v in imp.values()])

@@ -36,8 +36,9 @@ import re
 import stat
 import sys
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import onnxruntime as ort
@@ -46,7 +47,7 @@ __all__ = ["Compensator", "Compensation", "RuntimeInputError", "SUPPORTED_FORMAT
            "SUPPORTED_OPSETS", "time_batch", "main"]
 
 #: Metadata format versions this runtime understands (``thermonet_format``).
-SUPPORTED_FORMATS = ("1",)
+SUPPORTED_FORMATS = ("1", "2")  # 2: float64 raw, compensated and drift (large constants)
 #: ONNX opsets the exporter writes and this runtime was checked against.
 SUPPORTED_OPSETS = (17, 18, 19, 20, 21)
 #: Name of the raw-output graph input and the three graph outputs.
@@ -66,7 +67,7 @@ class Compensation:
     Attributes
     ----------
     compensated : numpy.ndarray
-        ``raw - drift``, float32, shape (N, A) for a batch or (A,) for one
+        ``raw - drift``, float64 (float32 for a format-1 file), shape (N, A) for a batch or (A,) for one
         sample; units of the raw output (see ``output_units``).
     drift : numpy.ndarray
         The model's drift estimate, same shape and units.
@@ -98,7 +99,9 @@ def _meta_json(meta: Mapping[str, str], key: str, path: Path) -> Any:
     try:
         return json.loads(meta[key])
     except json.JSONDecodeError as exc:
-        raise RuntimeInputError(f"{path}: metadata key '{key}' is not valid JSON ({exc.msg})") from None
+        raise RuntimeInputError(
+            f"{path}: metadata key '{key}' is not valid JSON ({exc.msg})"
+        ) from None
 
 
 # The runtime's own copy of thermonet.names (it imports neither torch nor thermonet):
@@ -199,14 +202,18 @@ class Compensator:
         meta, path = self.metadata, self.path
         fmt = meta.get("thermonet_format")
         if fmt is None:
-            raise RuntimeInputError(f"{path}: not a thermonet model (no 'thermonet_format' metadata)")
+            raise RuntimeInputError(
+                f"{path}: not a thermonet model (no 'thermonet_format' metadata)"
+            )
         if fmt not in SUPPORTED_FORMATS:
             raise RuntimeInputError(f"{path}: thermonet_format {fmt!r} is not supported by this "
                                     f"runtime (supports {', '.join(SUPPORTED_FORMATS)})")
         try:
             opset = int(meta.get("onnx_opset", ""))
         except ValueError:
-            raise RuntimeInputError(f"{path}: metadata 'onnx_opset' is missing or not an integer") from None
+            raise RuntimeInputError(
+                f"{path}: metadata 'onnx_opset' is missing or not an integer"
+            ) from None
         if opset not in SUPPORTED_OPSETS:
             raise RuntimeInputError(f"{path}: ONNX opset {opset} is not supported "
                                     f"(supports {SUPPORTED_OPSETS[0]}..{SUPPORTED_OPSETS[-1]})")
@@ -223,10 +230,15 @@ class Compensator:
         if names != expected:
             raise RuntimeInputError(f"{path}: graph inputs {names} do not match the metadata's "
                                     f"{expected}; the file was modified after export")
+        # signals are float32; raw is float64 from format 2 on (the drift's float64 constant
+        # and raw - drift keep the precision of a large raw value), float32 in format 1
+        raw_type = "tensor(float)" if fmt == "1" else "tensor(double)"
         for inp in graph_inputs:
-            if inp.type != "tensor(float)":
+            want = raw_type if inp.name == RAW_INPUT else "tensor(float)"
+            if inp.type != want:
                 raise RuntimeInputError(f"{path}: graph input '{inp.name}' is {inp.type}, "
-                                        "expected tensor(float)")
+                                        f"expected {want}")
+        self._raw_dtype = np.float32 if fmt == "1" else np.float64
         raw_shape = graph_inputs[-1].shape
         if len(raw_shape) != 2 or raw_shape[1] != len(self.outputs):
             raise RuntimeInputError(f"{path}: graph input 'raw' has shape {raw_shape}, expected "
@@ -240,10 +252,12 @@ class Compensator:
             raise RuntimeInputError(f"{path}: graph outputs {outs}, expected {list(GRAPH_OUTPUTS)}")
         for name in self.signals:
             if name not in self.trained_range:
-                raise RuntimeInputError(f"{path}: metadata 'trained_range' has no entry for '{name}'")
+                raise RuntimeInputError(
+                    f"{path}: metadata 'trained_range' has no entry for '{name}'"
+                )
 
     @staticmethod
-    def _as_float32(name: str, values: Any) -> np.ndarray:
+    def _as_float32(name: str, values: Any, dtype: Any = np.float32) -> np.ndarray:
         if isinstance(values, np.ma.MaskedArray):
             # a masked sample is a missing sample: NaN in, NaN out, flag set
             values = values.astype(np.float64).filled(np.nan)
@@ -252,12 +266,13 @@ class Compensator:
         except ValueError as exc:  # ragged nested lists
             raise RuntimeInputError(f"input '{name}' is not a rectangular array "
                                     f"({str(exc).splitlines()[0]})") from None
-        if arr.dtype == np.float32:
+        if arr.dtype == dtype:
             return arr
         if arr.dtype.kind not in "fiu":
             raise RuntimeInputError(f"input '{name}' has dtype {arr.dtype}; expected numbers")
-        # Explicit cast: the graph is float32 and onnxruntime would refuse float64.
-        return arr.astype(np.float32)
+        # Explicit cast to the graph input's type (float32 signals, float64 raw from format 2):
+        # onnxruntime refuses any other
+        return arr.astype(dtype)
 
     # -- evaluation ---------------------------------------------------------------------------
     def compensate(self, temperature_c: Any = None, raw: Any = None, *, proxy: Any = None,
@@ -281,7 +296,8 @@ class Compensator:
         Returns
         -------
         Compensation
-            ``compensated``, ``drift`` (float32) and ``out_of_range`` (bool).
+            ``compensated``, ``drift`` (float64; float32 for a format-1 file) and
+            ``out_of_range`` (bool).
             One sample (scalar signals and 1-D ``raw``) gives 1-D arrays and a
             plain bool.
 
@@ -324,7 +340,7 @@ class Compensator:
             raise RuntimeInputError(f"missing 'raw' (one value per axis {self.outputs})")
 
         n_axes = len(self.outputs)
-        raw_arr = self._as_float32("raw", raw)
+        raw_arr = self._as_float32("raw", raw, self._raw_dtype)
         single = raw_arr.ndim == 1
         if single:
             raw_arr = raw_arr.reshape(1, -1)
@@ -346,7 +362,7 @@ class Compensator:
         if n == 0:
             # onnxruntime's broadcasting of empty tensors is not uniform across ops; an
             # empty batch has a well-defined answer without running the graph.
-            empty = np.zeros((0, n_axes), dtype=np.float32)
+            empty = np.zeros((0, n_axes), dtype=self._raw_dtype)
             return Compensation(empty, empty.copy(), np.zeros(0, dtype=bool))
         comp, drift, flag = self._session.run(list(GRAPH_OUTPUTS), feeds)
         if single:
@@ -367,7 +383,7 @@ def time_batch(compensator: Compensator, batch_size: int = 1000, *, repeats: int
     rng = np.random.default_rng(seed)
     sig = {s: rng.uniform(*compensator.trained_range[s], size=batch_size).astype(np.float32)
            for s in compensator.signals}
-    raw = np.zeros((batch_size, len(compensator.outputs)), dtype=np.float32)
+    raw = np.zeros((batch_size, len(compensator.outputs)), dtype=compensator._raw_dtype)
     compensator.compensate(raw=raw, **sig)
     times = []
     for _ in range(max(1, int(repeats))):
@@ -394,7 +410,9 @@ def _check_regular(path: Path, what: str) -> None:
         raise RuntimeInputError(f"{path}: is {kind}, not a {what}")
 
 
-def _read_csv(path: Path, needed: list[str]) -> tuple[list[str], list[list[str]], dict[str, np.ndarray]]:
+def _read_csv(
+    path: Path, needed: list[str]
+) -> tuple[list[str], list[list[str]], dict[str, np.ndarray]]:
     _check_regular(path, "CSV file")
     try:
         data = path.read_bytes()

@@ -1,4 +1,5 @@
-"""PX4 / ArduPilot parameter files: written, parsed back, evaluated with the autopilots' formulas."""
+"""PX4 / ArduPilot parameter files: written, parsed back, evaluated with the autopilots'
+formulas."""
 
 from __future__ import annotations
 
@@ -9,8 +10,13 @@ import pytest
 import torch
 
 from thermonet.errors import ExportError
-from thermonet.exporting import (autopilot_coefficients, export_ardupilot_params,
-                                 export_px4_params, read_ardupilot_params, read_px4_params)
+from thermonet.exporting import (
+    autopilot_coefficients,
+    export_ardupilot_params,
+    export_px4_params,
+    read_ardupilot_params,
+    read_px4_params,
+)
 from thermonet.features import FeatureSpec
 from thermonet.train import TrainConfig, fit
 
@@ -33,8 +39,16 @@ def _model(inputs=("dT",), degree=3, family="poly", temp=None):
     temp = np.linspace(-10.0, 55.0, 300) if temp is None else temp
     spec = FeatureSpec(inputs=list(inputs), t_ref=T_REF)
     hyper = {"degree": degree} if family == "poly" else {}
-    return fit(family=family, inputs=list(inputs), outputs=AXES, train=[(temp[:, None], _drift(temp))],
-               val=None, spec=spec, hyper=hyper, config=TrainConfig(max_epochs=0)).model
+    return fit(
+        family=family,
+        inputs=list(inputs),
+        outputs=AXES,
+        train=[(temp[:, None], _drift(temp))],
+        val=None,
+        spec=spec,
+        hyper=hyper,
+        config=TrainConfig(max_epochs=0),
+    ).model
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +77,7 @@ def test_px4_file_reproduces_drift_and_clamp(model, tmp_path):
     assert p["TC_G0_TREF"] == T_REF and p["TC_A0_TMIN"] == pytest.approx(-10.0, abs=1e-4)
     temp = np.concatenate([np.linspace(-10.0, 55.0, 131), [-30.0, 80.0]])
     want = _thermonet_si(model, temp)
-    for kind, t, cols in (("gyro", "G", slice(0, 3)), ("acc", "A", slice(3, 6))):
+    for _kind, t, cols in (("gyro", "G", slice(0, 3)), ("acc", "A", slice(3, 6))):
         pre = f"TC_{t}0_"
         # PX4 TemperatureCompensation::calc_thermal_offsets_3D, written out again here
         tc = np.clip(temp, p[pre + "TMIN"], p[pre + "TMAX"])
@@ -87,7 +101,7 @@ def test_ardupilot_file_reproduces_drift_and_clamp(model, tmp_path):
     want = _thermonet_si(model, temp) - _thermonet_si(model, np.array([cal_temp]))
     for kind, cols in (("GYR", slice(0, 3)), ("ACC", slice(3, 6))):
         # AP_InertialSensor_TCal::correct_sensor + polynomial_eval, written out again here
-        def poly(x, i):
+        def poly(x, i, kind=kind):
             c = [p[f"INS_TCAL1_{kind}{k}_{'XYZ'[i]}"] for k in (1, 2, 3)]
             return (c[0] + (c[1] + c[2] * x) * x) * x * 1e-6
         t = np.clip(temp, p["INS_TCAL1_TMIN"], p["INS_TCAL1_TMAX"])
@@ -105,16 +119,31 @@ def test_ardupilot_file_reproduces_drift_and_clamp(model, tmp_path):
 def test_absolute_temperature_input(tmp_path):
     model = _model(inputs=("T",))
     co = autopilot_coefficients(model, output_units=UNITS)
-    assert co.t_ref == pytest.approx(22.5)     # centre of the trained range
+    # the model's T_ref (where at-t-ref axes are zero), even for an input on T
+    assert co.t_ref == pytest.approx(model.spec.t_ref)
     dt = np.linspace(-30, 30, 7)
     got = sum(co.coef["gyro"][:, k][None] * dt[:, None] ** k for k in range(4))
     want = _drift(co.t_ref + dt)[:, :3] * SI[:3]
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max())
 
 
+def test_a_linear_model_exports_as_a_degree_one_polynomial():
+    temp = np.linspace(-10.0, 55.0, 300)
+    line = COEF[:, :2].copy()               # drift c0 + c1 dT, known coefficients
+    spec = FeatureSpec(inputs=["dT"], t_ref=T_REF)
+    drift = line[:, 0] + line[:, 1] * (temp[:, None] - T_REF)
+    model = fit(family="linear", inputs=["dT"], outputs=AXES, train=[(temp[:, None], drift)],
+                val=None, spec=spec, hyper={}, config=TrainConfig(max_epochs=0)).model
+    co = autopilot_coefficients(model, output_units=UNITS)
+    want = np.zeros((6, 4))
+    want[:, :2] = line
+    np.testing.assert_allclose(co.coef["gyro"], want[:3] * SI[:3, None], rtol=1e-4, atol=1e-12)
+    np.testing.assert_allclose(co.coef["acc"], want[3:] * SI[3:, None], rtol=1e-4, atol=1e-10)
+
+
 def test_refusals(model, tmp_path):
-    with pytest.raises(ExportError, match="need the 'poly' family.*this model is 'linear'"):
-        export_px4_params(_model(family="linear"), tmp_path / "x.params", output_units=UNITS)
+    with pytest.raises(ExportError, match="this model is 'lorentz', which has no polynomial form"):
+        export_px4_params(_model(family="lorentz"), tmp_path / "x.params", output_units=UNITS)
     with pytest.raises(ExportError, match="evaluate a cubic; this poly model has degree 4"):
         export_px4_params(_model(degree=4), tmp_path / "x.params", output_units=UNITS)
     with pytest.raises(ExportError, match=r"one input, dT or T; this model reads \['dT', 'dT2'\]"):
@@ -128,3 +157,27 @@ def test_refusals(model, tmp_path):
     with pytest.raises(ExportError, match="outside ArduPilot's INS_TCAL TMIN/TMAX range"):
         export_ardupilot_params(wide, tmp_path / "x.param", output_units=UNITS)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_px4_baro_order5_in_pascals(tmp_path):
+    """TC_B0_X0..X5 in Pa, evaluated as PX4's calc_thermal_offsets_1D (written out again here)."""
+    temp = np.linspace(5.0, 55.0, 400)
+    x = temp - T_REF
+    coef_hpa = np.array([0.1, 0.02, -1e-3, 2e-5, 3e-7, -1e-8])         # the model is in hPa
+    drift = sum(c * x ** k for k, c in enumerate(coef_hpa))[:, None]
+    spec = FeatureSpec(inputs=["dT"], t_ref=T_REF)
+    m = fit(family="poly", inputs=["dT"], outputs=["baro_p"], train=[(temp[:, None], drift)],
+            val=None, spec=spec, hyper={"degree": 5}, config=TrainConfig(max_epochs=0)).model
+    path = export_px4_params(m, tmp_path / "b.params", output_units={"baro_p": "hPa"},
+                             device_id=3997706, instance=1)
+    p = read_px4_params(path)
+    assert p["TC_B_ENABLE"] == 1 and p["TC_B1_ID"] == 3997706 and p["TC_B1_TREF"] == T_REF
+    np.testing.assert_allclose([p[f"TC_B1_X{k}"] for k in range(6)], 100.0 * coef_hpa,
+                               rtol=5e-3, atol=1e-9)
+    t = np.concatenate([temp, [-20.0, 90.0]])
+    dt = np.clip(t, p["TC_B1_TMIN"], p["TC_B1_TMAX"]) - p["TC_B1_TREF"]
+    offs = sum(np.float32(p[f"TC_B1_X{k}"]) * dt ** k for k in range(6))
+    np.testing.assert_allclose(offs[:400], 100.0 * drift[:, 0], atol=1e-3 * np.ptp(drift) * 100)
+    assert offs[-2] == pytest.approx(offs[0]) and offs[-1] == pytest.approx(offs[399])
+    with pytest.raises(ExportError, match="no barometer"):
+        export_ardupilot_params(m, tmp_path / "b.parm", output_units={"baro_p": "Pa"})

@@ -1,40 +1,72 @@
-"""The command line end to end, from a subprocess, as a user runs it."""
+"""The command line end to end, in-process through ``thermonet.cli.main`` (what the console
+script calls); one test runs it as a separate process, where exit codes come from ``sys.exit``."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
 from conftest import REAL_DATA
+from thermonet.cli import main
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
-def thermonet(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "thermonet.cli", *map(str, args)],
-                          capture_output=True, text=True, cwd=cwd, timeout=600)
+@dataclass
+class Result:
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+@pytest.fixture
+def thermonet(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+              ) -> Callable[..., Result]:
+    """Run the CLI in this process; argparse's exits (help, usage) become return codes."""
+    def run(*args: object, cwd: Path | None = None) -> Result:
+        if cwd is not None:
+            monkeypatch.chdir(cwd)
+        capsys.readouterr()
+        try:
+            rc = main([str(a) for a in args])
+        except SystemExit as exc:
+            rc = exc.code if isinstance(exc.code, int) else 1
+        out = capsys.readouterr()
+        return Result(rc, out.out, out.err)
+    return run
+
+
+def test_the_console_entry_point_runs_as_a_process(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,temperature_c,gyro_x\n0,20,0.1\n1,21,abc\n")
+    r = subprocess.run([sys.executable, "-m", "thermonet.cli", "info", str(bad)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1
+    assert "bad.csv" in r.stderr and "gyro_x" in r.stderr
 
 
 @pytest.mark.parametrize("args", [["--help"], ["simulate", "--help"], ["info", "--help"],
                                   ["compare", "--help"], ["train", "--help"],
                                   ["export", "--help"]])
-def test_help_everywhere(args):
+def test_help_everywhere(thermonet, args):
     r = thermonet(*args)
     assert r.returncode == 0
     assert "usage: thermonet" in r.stdout
 
 
-@pytest.mark.parametrize("args", [[], ["frobnicate"], ["simulate"], ["export", "x", "--format", "pdf",
-                                                                     "--out", "y"]])
-def test_usage_errors_exit_2(args):
+@pytest.mark.parametrize("args", [[], ["frobnicate"], ["simulate"],
+                                  ["export", "x", "--format", "pdf", "--out", "y"]])
+def test_usage_errors_exit_2(thermonet, args):
     assert thermonet(*args).returncode == 2
 
 
-def test_bad_input_exits_1_with_one_line(tmp_path):
+def test_bad_input_exits_1_with_one_line(thermonet, tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("time_s,temperature_c,gyro_x\n0,20,0.1\n1,21,abc\n")
     r = thermonet("info", bad)
@@ -46,7 +78,7 @@ def test_bad_input_exits_1_with_one_line(tmp_path):
     assert r.returncode == 1 and "missing.yaml" in r.stderr
 
 
-def test_info_on_both_real_recordings():
+def test_info_on_both_real_recordings(thermonet):
     pan = thermonet("info", REAL_DATA / "pan_tvac_gyro" / "TVCtest3_7_20.csv",
                     "--mapping", CONFIGS / "data" / "pan_tvac_gyro.yaml", "--json")
     assert pan.returncode == 0, pan.stderr
@@ -61,7 +93,8 @@ def test_info_on_both_real_recordings():
     assert "skipped malformed rows: 5" in bmi.stdout
 
 
-def test_simulate_then_info_then_compare_then_export(tmp_path):
+@pytest.mark.slow
+def test_simulate_then_info_then_compare_then_export(thermonet, tmp_path):
     sim = tmp_path / "pg.parquet"
     r = thermonet("simulate", "patent-gyro", "--runs", "3", "--seed", "7", "--out", sim)
     assert r.returncode == 0, r.stderr
@@ -72,7 +105,7 @@ def test_simulate_then_info_then_compare_then_export(tmp_path):
         assert axis in r.stdout
     cfg = tmp_path / "c.yaml"
     cfg.write_text(f"data: {{paths: ['{sim}']}}\n"
-                   "train: {max_epochs: 30, patience: 5}\n"
+                   "train: {max_epochs: 30, patience: 5, max_train_samples: 3000}\n"
                    "families:\n"
                    "  - {name: cubic, family: poly, inputs: [dT], params: {degree: 3}}\n"
                    "  - {name: rbf, family: rbf, inputs: [dT, dT2], params: {n_centres: 8}}\n")
@@ -121,5 +154,5 @@ def test_simulate_then_info_then_compare_then_export(tmp_path):
     assert "INS_TCAL1_GYR1_X," in text and "INS_TCAL1_ACC" not in text
     r = thermonet("export", tmp_path / "out", "--family", "rbf", "--format", "px4-params",
                   "--out", tmp_path / "p.params")
-    assert r.returncode == 1 and "poly" in r.stderr
+    assert r.returncode == 1 and "one input, dT or T" in r.stderr
     assert not (tmp_path / "p.params").exists()

@@ -54,6 +54,16 @@ def test_compare_recovers_quadratic_drift_and_writes_everything(tmp_path):
     sig = np.array([[-20.0], [15.0], [50.0]])
     truth = 0.05 + 0.01 * (sig[:, 0] + 20) - 2e-4 * (sig[:, 0] + 20) ** 2
     assert np.allclose(predict(model, sig)[:, 0], truth, atol=2e-3)
+    # the checkpoint carries the family's own resolved config and its best epoch
+    assert meta["config"]["family"]["params"] == {"degree": 3}
+    assert meta["config"]["train"]["optimizer"] == "lbfgs" and "data" not in meta["config"]
+    assert meta["epoch"] == res["families"]["cubic"]["best_epoch"] and meta["best_val"] > 0
+    # and loads as an estimator
+    from thermonet import DriftEstimator
+    est = DriftEstimator.load(out / "models" / "cubic.pt")
+    assert est.best_epoch_ == meta["epoch"] and est.hyper["degree"] == 3
+    np.testing.assert_allclose(est.predict(toy_dataset()[3]), predict(model, toy_dataset()[3]
+                                                                      .temperature_c[:, None]))
 
     client = mlflow.tracking.MlflowClient(tracking_uri=uri)
     parent = client.get_run(res["mlflow_run_id"])

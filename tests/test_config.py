@@ -1,8 +1,7 @@
 """Config loading: defaults, overrides, unknown keys and wrong types named."""
 
-from pathlib import Path
-
 import re
+from pathlib import Path
 
 import pytest
 

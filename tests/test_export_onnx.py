@@ -12,7 +12,6 @@ import torch
 
 from thermonet.errors import ExportError
 from thermonet.exporting import export_onnx, log_onnx_to_mlflow, onnx_file_size, parity_check
-from thermonet.exporting.onnx_export import time_onnxruntime
 from thermonet.features import FeatureSpec
 from thermonet.models import MODELS
 from thermonet.train import TrainConfig, fit
@@ -25,7 +24,9 @@ def _drift(temp: np.ndarray) -> np.ndarray:
     """Known smooth drift (deg/s) per axis: a cubic in ΔT plus a bump, different per axis."""
     dt = temp - T_REF
     base = 1e-3 * dt + 2e-5 * dt ** 2 - 1e-7 * dt ** 3
-    return np.stack([base + 0.01, -0.5 * base + 0.004 * np.exp(-(dt / 15) ** 2), 2 * base - 0.02], 1)
+    return np.stack(
+        [base + 0.01, -0.5 * base + 0.004 * np.exp(-((dt / 15) ** 2)), 2 * base - 0.02], 1
+    )
 
 
 def _fit(family: str, inputs: list[str], epochs: int = 10, hyper: dict | None = None):
@@ -47,10 +48,17 @@ def exported(tmp_path_factory):
     d = tmp_path_factory.mktemp("onnx")
     for name in MODELS:
         model = _fit(name, _inputs_for(name))
-        path = export_onnx(model, d / f"{name}.onnx",
-                           metadata={"device_id": "IMU-7", "training_run_id": "run42",
-                                     "validation_metrics": {"val/rms": 0.0012},
-                                     "data_hash": "sha256:abc", "output_units": {a: "deg/s" for a in AXES}})
+        path = export_onnx(
+            model,
+            d / f"{name}.onnx",
+            metadata={
+                "device_id": "IMU-7",
+                "training_run_id": "run42",
+                "validation_metrics": {"val/rms": 0.0012},
+                "data_hash": "sha256:abc",
+                "output_units": {a: "deg/s" for a in AXES},
+            },
+        )
         out[name] = (model, path)
     return out
 
@@ -62,13 +70,17 @@ def test_onnx_matches_torch_and_recovers_drift(exported, family):
     assert [i.name for i in sess.get_inputs()] == ["temperature_c", "raw"]
     assert [o.name for o in sess.get_outputs()] == ["compensated", "drift", "out_of_range"]
     temp = np.linspace(-20.0, 60.0, 1001, dtype=np.float32)
-    raw = _drift(temp.astype(np.float64)).astype(np.float32)
+    raw = _drift(temp.astype(np.float64))
     comp, drift, flag = sess.run(None, {"temperature_c": temp, "raw": raw})
     with torch.no_grad():
         ref = model(torch.from_numpy(temp[:, None])).numpy()
     scale = np.abs(ref).max(axis=0)
     err = np.abs(drift - ref)
-    assert (err <= 1e-5 * scale).all(), (err.max(axis=0), scale, np.unravel_index(err.argmax(), err.shape))
+    assert (err <= 1e-5 * scale).all(), (
+        err.max(axis=0),
+        scale,
+        np.unravel_index(err.argmax(), err.shape),
+    )
     np.testing.assert_allclose(comp, raw - drift, rtol=0, atol=1e-6 * scale.max())
     assert not flag.any()
     # the compensated output is much flatter than the raw one (the model learnt the drift)
@@ -80,7 +92,7 @@ def test_clamp_flag_and_nan_inside_graph(exported, family):
     model, path = exported[family]
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     temp = np.array([-40.0, -20.0, 60.0, 90.0, np.nan, np.inf, 20.0], dtype=np.float32)
-    raw = np.ones((7, 3), np.float32)
+    raw = np.ones((7, 3))
     comp, drift, flag = sess.run(None, {"temperature_c": temp, "raw": raw})
     assert flag.tolist() == [True, False, False, True, True, True, False]
     np.testing.assert_array_equal(drift[0], drift[1])      # clamped to the low edge
@@ -93,8 +105,14 @@ def test_clamp_flag_and_nan_inside_graph(exported, family):
 def test_metadata_props(exported):
     model, path = exported["rbf"]
     meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
-    assert meta["thermonet_format"] == "1"
+    assert meta["thermonet_format"] == "2"
     assert meta["family"] == "rbf"
+    # what the drift is relative to: the fixture's gyro axes are plain drift (channel)
+    assert json.loads(meta["targets"]) == {a: "channel" for a in AXES}
+    assert json.loads(meta["compensate"]) == {a: True for a in AXES}
+    const = json.loads(meta["drift_constant"])
+    np.testing.assert_allclose([const[a] for a in AXES], model.y_offset.numpy(), rtol=1e-15)
+    assert json.loads(meta["rest_signals"]) == {"temperature_c": pytest.approx(T_REF)}
     assert meta["onnx_opset"] == "18"
     assert json.loads(meta["signals"]) == ["temperature_c"]
     assert json.loads(meta["inputs"]) == ["dT", "dT2"]
@@ -111,7 +129,9 @@ def test_metadata_props(exported):
     assert meta["thermonet_version"]
     proto = onnx.load(str(path))
     assert [o.version for o in proto.opset_import if o.domain in ("", "ai.onnx")] == [18]
-    assert not any(init.data_location == onnx.TensorProto.EXTERNAL for init in proto.graph.initializer)
+    assert not any(
+        init.data_location == onnx.TensorProto.EXTERNAL for init in proto.graph.initializer
+    )
 
 
 def test_rbf_16_centres_is_small(exported):
@@ -120,15 +140,13 @@ def test_rbf_16_centres_is_small(exported):
     assert onnx_file_size(path) <= 16 * 1024
 
 
-def test_dynamic_batch_and_timing(exported):
+def test_dynamic_batch(exported):
     _, path = exported["poly"]
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     for n in (1, 7, 5000):
         out = sess.run(None, {"temperature_c": np.full(n, 30.0, np.float32),
-                              "raw": np.zeros((n, 3), np.float32)})
+                              "raw": np.zeros((n, 3))})
         assert out[0].shape == (n, 3) and out[2].shape == (n,)
-    seconds = time_onnxruntime(path, batch_size=1000, repeats=5, threads=1)
-    assert 0 < seconds < 0.5
 
 
 def test_parity_failure_names_the_worst_point(exported):
@@ -168,7 +186,7 @@ def test_torchscript_exporter_gives_same_numbers(exported, tmp_path):
     meta = {p.key: p.value for p in onnx.load(str(ts_path)).metadata_props}
     assert meta["exporter"] == "torchscript"
     temp = np.linspace(-25.0, 65.0, 301, dtype=np.float32)
-    feeds = {"temperature_c": temp, "raw": np.zeros((301, 3), np.float32)}
+    feeds = {"temperature_c": temp, "raw": np.zeros((301, 3))}
     a = ort.InferenceSession(str(dyn_path), providers=["CPUExecutionProvider"]).run(None, feeds)
     b = ort.InferenceSession(str(ts_path), providers=["CPUExecutionProvider"]).run(None, feeds)
     np.testing.assert_allclose(a[1], b[1], rtol=1e-5, atol=1e-8)

@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from thermonet.errors import ConfigError, InputError
-from thermonet.features import (FeatureSpec, Features, reference_values, run_arrays,
-                                signal_matrix, target_matrix)
+from thermonet.evaluate import build_part
+from thermonet.features import Features, FeatureSpec, reference_values, signal_matrix, target_matrix
 from thermonet.recording import Recording
 
 
@@ -83,9 +83,10 @@ def test_target_matrix_is_output_minus_reference():
                      references={"ref_gyro_x": np.full(n, 5.0)})
     y = target_matrix(rec, ["gyro_x", "gyro_y"])
     np.testing.assert_allclose(y, np.stack([temp, 2 * temp], 1))
-    s, y2 = run_arrays(rec, FeatureSpec(inputs=["dT"], t_ref=0.0), ["gyro_y"])
-    np.testing.assert_allclose(s[:, 0], temp)
-    np.testing.assert_allclose(y2[:, 0], 2 * temp)
+    part = build_part(rec, signals=FeatureSpec(inputs=["dT"], t_ref=0.0).signals,
+                      outputs=["gyro_y"], target="drift", rate_window_s=60.0)
+    np.testing.assert_allclose(part.signals[:, 0], temp)
+    np.testing.assert_allclose(part.target[:, 0], 2 * temp)
 
 
 def test_errors_name_the_offending_item():

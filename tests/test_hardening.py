@@ -21,8 +21,8 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 import torch
-from conftest import toy_dataset
 
+from conftest import toy_dataset
 from thermonet.cli import main
 from thermonet.io import METADATA_KEY, write_parquet
 
@@ -116,6 +116,9 @@ CASES: list[tuple[str, Callable[[Path], list[str]], int, str, tuple[str, ...]]] 
     ("inputs-twice", lambda t: _compare(_cfg(t, _tiny(t).replace(
         "inputs: [dT]}", "inputs: [dT, dT]}")), t),
      1, r"c\.yaml: key 'families\[0\]\.inputs'.*twice", ("out", "mlflow.db")),
+    ("target-mode-unknown", lambda t: _compare(_cfg(t, _tiny(t, "target: {gyro: bogus}\n")), t),
+     1, r"c\.yaml: key 'target\.gyro': 'bogus' is not one of channel, zero, at-t-ref",
+     ("out", "mlflow.db")),
     ("baseline-unknown", lambda t: _compare(_cfg(t, _tiny(t, "baseline: nope\n")), t),
      1, r"c\.yaml: key 'baseline': no family named 'nope'", ("out", "mlflow.db")),
     ("empty-config", lambda t: _compare(_cfg(t, "# nothing\n"), t),
@@ -224,12 +227,18 @@ def test_crafted_axis_name_never_reaches_generated_code(compared, tmp_path, caps
     ("extra.device_id", "a\nb", r"key 'extra\.device_id'"),
     ("spec.t_ref", float("nan"), r"key 'spec\.t_ref': nan is not a finite number"),
     ("range", None, r"trained range of signal 'temperature_c' is \[10, -10\]"),
+    ("state.target_code", 7, r"buffer 'target_code' holds 7, not a target mode code"),
+    ("state.compensate", 0.5, r"buffer 'compensate' is \[0\.5\], expected 0 or 1"),
+    ("state.y_offset", float("inf"), r"buffer 'y_offset' holds a non-finite value"),
 ])
 def test_crafted_checkpoint_values_refused(compared, tmp_path, capsys, key, value, pattern):
     payload = _checkpoint(compared)
     if key == "range":
         payload["state_dict"]["sig_lo"] = torch.tensor([10.0])
         payload["state_dict"]["sig_hi"] = torch.tensor([-10.0])
+    elif key.startswith("state."):  # a target buffer (thermonet.target) of the model
+        state = payload["state_dict"]
+        state[key[6:]] = torch.full_like(state[key[6:]], value)
     elif "." in key:
         outer, inner = key.split(".")
         payload[outer][inner] = value

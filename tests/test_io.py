@@ -48,7 +48,7 @@ def test_parquet_round_trip_is_lossless(tmp_path):
     back = read_dataset(path)
     assert back.meta == {"study": "001"}
     assert back.run_ids == ["soak_a", "soak b/ü"]
-    for r0, r1 in zip(ds, back):
+    for r0, r1 in zip(ds, back, strict=True):
         assert _bits(r0.time_s) == _bits(r1.time_s)
         for group in ("outputs", "references", "drift", "proxies"):
             g0, g1 = getattr(r0, group), getattr(r1, group)

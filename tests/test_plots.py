@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import matplotlib.image as mpimg
 import matplotlib.pyplot as plt
 import numpy as np
@@ -49,11 +47,9 @@ def test_drift_vs_temperature(tmp_path, run):
     curves = {"linear": (grid, 0.002 * (grid - 25.0)),
               "quadratic": (grid[::-1], (0.002 * (grid - 25.0) + 1e-4 * (grid - 25.0) ** 2)[::-1])}
     before = set(plt.get_fignums())
-    t0 = time.perf_counter()
     path = plot_drift_vs_temperature(tmp_path / "new" / "dir" / "drift.png", temperature_c=temp,
                                      observed_drift=raw_error, curves=curves, axis="gyro_x",
                                      units="deg/s")
-    assert time.perf_counter() - t0 < 1.0
     assert path == tmp_path / "new" / "dir" / "drift.png"
     _read_png(path)
     assert set(plt.get_fignums()) == before
@@ -62,14 +58,10 @@ def test_drift_vs_temperature(tmp_path, run):
 def test_residual_vs_time_and_allan(tmp_path, run):
     time_s, temp, drift, raw_error = run
     residuals = {"linear": raw_error - 0.002 * (temp - 25.0), "perfect": raw_error - drift}
-    t0 = time.perf_counter()
     p1 = plot_residual_vs_time(tmp_path / "res.png", time_s=time_s, raw_error=raw_error,
                                compensated=residuals, axis="gyro_x", units="deg/s")
-    t1 = time.perf_counter()
     p2 = plot_allan(str(tmp_path / "allan.png"), rate_hz=RATE_HZ, raw_error=raw_error,
                     compensated=residuals, axis="gyro_x", units="deg/s")
-    t2 = time.perf_counter()
-    assert t1 - t0 < 1.0 and t2 - t1 < 1.0
     _read_png(p1)
     _read_png(p2)
 

@@ -6,10 +6,26 @@ import pytest
 
 from thermonet.errors import ConfigError
 from thermonet.metrics import noise_floor
-from thermonet.sim import (AxisConfig, ChamberProfile, HysteresisConfig, NoiseConfig, Polynomial,
-                           Ramp, RateTermConfig, SelfHeatingConfig, SimConfig, Soak, Switches,
-                           ThermalConfig, ThermometerConfig, UnitSpreadConfig, cycle, get_preset,
-                           simulate, simulate_run)
+from thermonet.sim import (
+    AxisConfig,
+    ChamberProfile,
+    HysteresisConfig,
+    NoiseConfig,
+    Polynomial,
+    Ramp,
+    RateTermConfig,
+    SelfHeatingConfig,
+    SimConfig,
+    Soak,
+    Switches,
+    ThermalConfig,
+    ThermometerConfig,
+    UnitSpreadConfig,
+    cycle,
+    get_preset,
+    simulate,
+    simulate_run,
+)
 from thermonet.sim.device import first_order_lag, flicker_noise, play_operator, white_noise
 
 RAMP = ChamberProfile(name="ramp", start_c=0.0, segments=(
@@ -32,7 +48,7 @@ def test_same_seed_identical_different_seed_different_noise():
     a = simulate("patent-gyro", runs=2, seed=7)
     b = simulate("patent-gyro", runs=2, seed=7)
     c = simulate("patent-gyro", runs=2, seed=8)
-    for ra, rb, rc in zip(a, b, c):
+    for ra, rb, rc in zip(a, b, c, strict=True):
         np.testing.assert_array_equal(ra.outputs["gyro_x"], rb.outputs["gyro_x"])
         np.testing.assert_array_equal(ra.temperature_c, rb.temperature_c)
         assert not np.array_equal(ra.outputs["gyro_x"], rc.outputs["gyro_x"])
@@ -168,7 +184,7 @@ def test_self_heating_raises_die_temperature():
 
 
 def test_unknown_preset_and_setting_are_named():
-    with pytest.raises(ValueError, match="valid: accel, hrg, mems-gyro, patent-gyro"):
+    with pytest.raises(ValueError, match="valid: accel, accel-ramp, consumer-imu, hrg, mems-gyro, patent-gyro"):
         simulate("gyro9000")
     with pytest.raises(ConfigError, match="unknown simulation setting 'hysterisis'"):
         simulate("accel", hysterisis=False)

@@ -39,7 +39,9 @@ def test_family_mistakes_stop_before_any_data(tmp_path, families, key, what):
 
 def test_duplicate_yaml_keys_are_errors(tmp_path):
     with pytest.raises(ConfigError, match=r"c\.yaml: key 'split' given twice \(line 3\)"):
-        load_config(cfg_file(tmp_path, "split: {strategy: runs}\ntarget: drift\nsplit: {n_blocks: 10}\n"))
+        load_config(
+            cfg_file(tmp_path, "split: {strategy: runs}\ntarget: drift\nsplit: {n_blocks: 10}\n")
+        )
     m = tmp_path / "m.yaml"
     m.write_text("sample_rate_hz: 1\nheader: false\nchannels:\n  temperature_c: {column: 0}\n"
                  "  gyro_x: {column: 1}\n  gyro_x: {column: 0}\n")
@@ -97,7 +99,9 @@ def test_missing_signal_stops_compare_before_writing(tmp_path):
     path = write_parquet(toy_dataset(n_runs=3), tmp_path / "toy.parquet")
     cfg = load_config(cfg_file(tmp_path, f"data: {{paths: ['{path}']}}\n"
                                          "families: [{family: poly, inputs: [d_freq_hz]}]\n"))
-    with pytest.raises(ConfigError, match=r"key 'families\[0\]\.inputs': no proxy channel 'freq_hz'"):
+    with pytest.raises(
+        ConfigError, match=r"key 'families\[0\]\.inputs': no proxy channel 'freq_hz'"
+    ):
         run_compare(cfg, tmp_path / "out", track=False, quiet=True)
     assert not (tmp_path / "out").exists()
 
@@ -139,7 +143,9 @@ def test_four_position_on_a_run_shorter_than_the_window():
     est = four_position_estimates(rec, "acc_x", settle_s=0.0, window_s=600.0)
     assert len(est) == 1
     temp, k0, k1 = est[0]
-    assert temp == pytest.approx(25.0) and k0 == pytest.approx(0.002) and k1 == pytest.approx(1.0001)
+    assert (
+        temp == pytest.approx(25.0) and k0 == pytest.approx(0.002) and k1 == pytest.approx(1.0001)
+    )
 
 
 def test_empty_run_id_names_column_and_row(tmp_path):

@@ -1,3 +1,37 @@
-"""thermonet: train, judge and export temperature-drift models for inertial sensors."""
+"""thermonet: train, judge and export temperature-drift models for inertial sensors.
+
+The Python API (:class:`DriftEstimator`, :func:`simulate`, :func:`read`,
+:class:`TrainConfig`, :class:`Recording`, :class:`Dataset`) is importable from
+here; each name loads its module on first access, so ``import thermonet`` (and
+the command line's start-up) stays free of torch.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
+
+if TYPE_CHECKING:
+    from .api import DriftEstimator, NotFittedError, read, simulate
+    from .recording import Dataset, Recording
+    from .trainconfig import TrainConfig
+
+__all__ = ["DriftEstimator", "NotFittedError", "simulate", "read", "TrainConfig", "Recording",
+           "Dataset", "__version__"]
+
+_LAZY = {
+    "DriftEstimator": "api", "NotFittedError": "api", "simulate": "api", "read": "api",
+    "TrainConfig": "trainconfig", "Recording": "recording", "Dataset": "recording",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -175,6 +175,7 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
         j = int(torch.nonzero(bad)[0, 0])
         raise InputError.at(path, f"trained range of signal '{model.signals[j]}' is "
                             f"[{float(lo[j]):g}, {float(hi[j]):g}] (low must be <= high)")
+    _check_target_buffers(path, model)
     model.eval()
     meta = {k: v for k, v in payload.items() if k != "state_dict"}
     return model, meta
@@ -238,6 +239,24 @@ def _check_payload(path: Path, p: dict) -> None:
             check_name(k, SIGNAL, at(f"extra.test_metrics.{axis}"))
             if v is not None:
                 _number(v, at(f"extra.test_metrics.{axis}.{k}"))
+
+
+def _check_target_buffers(path: Path, model: DriftModel) -> None:
+    """Target buffers read from the file: known mode codes, a 0/1 mask, finite constants."""
+    from .target import MODE_CODES
+
+    codes = model.target_code.tolist()
+    bad = [c for c in codes if c not in MODE_CODES.values()]
+    if bad:
+        raise InputError.at(path, f"buffer 'target_code' holds {bad[0]}, not a target mode code "
+                            f"({', '.join(f'{v} {k}' for k, v in MODE_CODES.items())})")
+    mask = model.compensate.detach()
+    if not bool(((mask == 0) | (mask == 1)).all()):
+        raise InputError.at(path, f"buffer 'compensate' is {mask.tolist()}, expected 0 or 1 per "
+                            "axis")
+    for name in ("y_offset", "y_ref", "sig_ref"):
+        if not bool(torch.isfinite(getattr(model, name).detach()).all()):
+            raise InputError.at(path, f"buffer '{name}' holds a non-finite value")
 
 
 def _number(value: Any, where: str) -> None:

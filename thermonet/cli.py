@@ -13,8 +13,8 @@ import argparse
 import json
 import signal
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 from . import __version__
 from .errors import Interrupted, ThermonetError
@@ -24,12 +24,16 @@ __all__ = ["main", "build_parser"]
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from .io import write_parquet
+    from .logs import is_log
     from .sim import simulate
+    from .sim.fcboard import BOARD_PRESETS
     from .sim.presets import MAX_RUNS
 
     if args.runs is not None and not 1 <= args.runs <= MAX_RUNS:
         raise ThermonetError(f"--runs {args.runs}: not in 1..{MAX_RUNS} (the upper bound keeps "
                              "a request within memory)")
+    if args.preset in BOARD_PRESETS or is_log(args.out):
+        return _simulate_board(args)
     ds = simulate(args.preset, runs=args.runs, seed=args.seed)
     path = write_parquet(ds, args.out)
     n = sum(r.n_samples for r in ds)
@@ -38,10 +42,39 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _simulate_board(args: argparse.Namespace) -> int:
+    from .logs import is_log
+    from .logs.writers import write_log
+    from .sim.fcboard import BOARD_PRESETS, simulate_board
+
+    if args.preset not in BOARD_PRESETS:
+        raise ThermonetError(f"{args.out}: only the flight-controller presets "
+                             f"({', '.join(BOARD_PRESETS)}) are written as .ulg / .bin logs")
+    if not is_log(args.out):
+        raise ThermonetError(f"{args.out}: preset '{args.preset}' is a flight-controller log: "
+                             "write it as FILE.ulg (PX4) or FILE.bin (ArduPilot)")
+    autopilot = "px4" if Path(args.out).suffix.lower() == ".ulg" else "ardupilot"
+    log = simulate_board(args.preset, autopilot=autopilot, seed=args.seed)
+    path = write_log(log, args.out)
+    print(f"wrote {path}: preset {args.preset} ({autopilot}), "
+          f"{len(log.instances)} sensor instances, {log.instances[0].n_samples} samples each")
+    return 0
+
+
 def _cmd_info(args: argparse.Namespace) -> int:
     from .info import format_summary, summarize
     from .io import read_datasets
+    from .logs import is_log
 
+    if any(is_log(f) for f in args.files):
+        from .logs.info import format_log_summary, summarize_log
+
+        if len(args.files) != 1 or args.mapping:
+            raise ThermonetError("info reads one flight-controller log at a time, with no "
+                                 "mapping")
+        s = summarize_log(args.files[0])
+        print(json.dumps(s, indent=2) if args.json else format_log_summary(s))
+        return 0
     ds = read_datasets(args.files, mapping=args.mapping)
     summary = summarize(ds)
     print(json.dumps(summary, indent=2, default=str) if args.json else format_summary(summary))
@@ -87,7 +120,19 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from .calibrate import calibrate, format_report
+
+    doc = calibrate(args.log, args.out)
+    if not args.quiet:
+        print(format_report(doc), end="")
+        print(f"results: {Path(args.out) / 'results.json'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from .exporting import FORMATS  # the registry only: no torch, no onnx
+
     p = argparse.ArgumentParser(
         prog="thermonet",
         description="Train, judge and export temperature-drift models for inertial sensors.")
@@ -97,10 +142,11 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("simulate", help="simulate a thermal-chamber test (a study preset)",
                        description="Simulate a thermal-chamber test from a study preset "
                                    "and write it as a thermonet Parquet file.")
-    s.add_argument("preset", help="accel | hrg | mems-gyro | patent-gyro")
+    s.add_argument("preset", help="accel | hrg | mems-gyro | patent-gyro | fc-board | "
+                                  "fc-board-cycle (the last two: --out FILE.ulg or FILE.bin)")
     s.add_argument("--runs", type=int, default=None, help="number of runs (default: the preset's)")
     s.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
-    s.add_argument("--out", required=True, help="output .parquet file")
+    s.add_argument("--out", required=True, help="output .parquet file (.ulg / .bin for fc-board)")
     s.set_defaults(func=_cmd_simulate)
 
     i = sub.add_parser("info", help="summarise recordings",
@@ -138,12 +184,15 @@ def build_parser() -> argparse.ArgumentParser:
     tracking_args(t)
     t.set_defaults(func=_cmd_train)
 
-    e = sub.add_parser("export", help="export a fitted model (onnx, c, px4-params, ardupilot-params)",
+    e = sub.add_parser("export", help=f"export a fitted model ({', '.join(FORMATS)})",
                        description="Export a model from a compare directory (its chosen family "
-                                   "by default), a checkpoint, or an MLflow run id.")
+                                   "by default), a checkpoint, or an MLflow run id.",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="formats:\n" + "\n".join(f"  {f.name:<18} {f.description}"
+                                                        for f in FORMATS.values()))
     e.add_argument("source", help="compare output dir, checkpoint .pt, or MLflow run id")
-    e.add_argument("--format", required=True,
-                   choices=["onnx", "c", "px4-params", "ardupilot-params"])
+    e.add_argument("--format", required=True, choices=list(FORMATS),
+                   help="export format (listed below)")
     e.add_argument("--out", required=True, help="output file")
     e.add_argument("--family", default=None, help="family name in a compare dir (default: chosen)")
     e.add_argument("--tracking-uri", default=None, help="MLflow URI for a run-id source")
@@ -153,6 +202,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="px4-params: calibration slot 0..3 (default 0); "
                         "ardupilot-params: IMU 1..3 (default 1)")
     e.set_defaults(func=_cmd_export)
+    k = sub.add_parser("calibrate", help="PX4 / ArduPilot thermal calibration from a log",
+                       description="Fit every sensor instance of a PX4 ULog (.ulg) or "
+                                   "ArduPilot DataFlash log (.bin) in the autopilot's own form "
+                                   "and side by side with thermonet's families, judge on "
+                                   "held-out blocks, write px4.params or ardupilot.parm, "
+                                   "results.json and report.txt to --out.")
+    k.add_argument("log", help="flight-controller log recorded while the board warmed")
+    k.add_argument("--out", required=True, help="output directory")
+    k.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
+    k.set_defaults(func=_cmd_calibrate)
     return p
 
 
@@ -163,10 +222,11 @@ def _raise_interrupted(signum: int, frame: object) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    previous = None
+    installed, previous = False, None
     try:
         # SIGTERM unwinds like Ctrl-C (finally blocks run, runs end KILLED, staging removed).
         previous = signal.signal(signal.SIGTERM, _raise_interrupted)
+        installed = True
     except ValueError:  # not the main thread (an embedding application): leave signals alone
         pass
     try:
@@ -183,8 +243,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"thermonet: error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
         return 1
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        if installed:  # None: a handler not set from Python; the default is the closest
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 if __name__ == "__main__":

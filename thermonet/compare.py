@@ -9,6 +9,7 @@
       "device": str, "data_hash": str, "target": "drift" | "four-position",
       "split": {"strategy": str, "folds": [{"train": ..., "val": ..., "test": ...}]},
       "units": {axis: unit},
+      "targets": {axis: "channel" | "zero" | "at-t-ref" | "four-position"},  # thermonet.target
       "chosen": name | null,          # by validation error only
       "chosen_reason": str,           # why (or why none: "do no harm")
       "baseline": name | null,        # PX4/ArduPilot's cubic, for the ratios below
@@ -38,7 +39,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -47,8 +48,17 @@ import numpy as np
 from . import __version__
 from .config import CompareConfig, FamilyConfig, from_dict, to_dict
 from .errors import ConfigError, FitError, ThermonetError
-from .evaluate import (FOURPOS_SUFFIXES, Part, Split, build_part, data_hash, heating_only,
-                       load_data, make_splits)
+from .evaluate import (
+    FOURPOS_SUFFIXES,
+    Part,
+    Split,
+    build_part,
+    data_hash,
+    heating_only,
+    load_data,
+    make_splits,
+    targets_for,
+)
 from .fileio import atomic_write_text
 from .recording import Dataset
 
@@ -56,7 +66,7 @@ __all__ = ["run_compare", "format_table", "Progress"]
 
 
 class Progress:
-    """One status line per family on stderr (rewritten in place on a terminal); silent when quiet."""
+    """One status line per family on stderr (rewritten in place on a terminal); silent if quiet."""
 
     def __init__(self, quiet: bool = False, stream: Any = None) -> None:
         self.quiet = quiet
@@ -150,10 +160,12 @@ def _val_score(model: Any, part: Part) -> float:
     ratios = []
     for j in range(part.target.shape[1]):
         y = part.target[:, j]
-        if part.outputs[j].endswith(".scale"):
-            y = y - np.mean(y)  # a scale factor's nominal value is not an error
+        r = y - pred[:, j]
+        if part.offset_free(j):  # a scale factor's nominal value, gravity (at-t-ref): no error
+            y = y - np.mean(y)
+            r = r - np.mean(r) if not part.per_soak else r
         raw = float(np.mean(y ** 2))
-        comp = float(np.mean((part.target[:, j] - pred[:, j]) ** 2))
+        comp = float(np.mean(r ** 2))
         ratios.append(comp / raw if raw > 0 else float("inf"))
     return float(np.mean(ratios))
 
@@ -162,30 +174,33 @@ def _val_score(model: Any, part: Part) -> float:
 class _FamilyOutcome:
     result: dict[str, Any]
     model: Any = None
-    test_parts: list[Part] | None = None
-    test_preds: list[np.ndarray] | None = None
-    history: list[dict[str, float]] | None = None
+    test_parts: list[Part] = field(default_factory=list)
+    test_preds: list[np.ndarray] = field(default_factory=list)
+    history: list[dict[str, Any]] | None = None
+    best_val: float | None = None
 
 
 class _Parts:
     """Signals and targets of each (run, signals) pair, built once for all families."""
 
-    def __init__(self, cfg: CompareConfig, outputs: list[str]) -> None:
+    def __init__(self, cfg: CompareConfig, outputs: list[str], targets: Any = None) -> None:
         self.cfg, self.outputs = cfg, outputs
+        # thermonet.target.Target, or the config's plain kind ("drift" / "four-position")
+        self.targets: Any = targets if targets is not None else cfg.target
         self._cache: dict[tuple[int, tuple[str, ...]], Part] = {}
 
     def __call__(self, rec: Any, signals: list[str]) -> Part:
         key = (id(rec), tuple(signals))
         if key not in self._cache:
             self._cache[key] = build_part(rec, signals=signals, outputs=self.outputs,
-                                          target=self.cfg.target,
+                                          target=self.targets,
                                           rate_window_s=self.cfg.features.rate_window_s)
         return self._cache[key]
 
 
 def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outputs: list[str],
                 progress: Progress, parts: _Parts) -> _FamilyOutcome:
-    from .features import FeatureSpec, reference_values
+    from .features import FeatureSpec, reference_values, signals_for
     from .train import fit
 
     res: dict[str, Any] = {"family": fam.family, "inputs": list(fam.inputs),
@@ -196,25 +211,30 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
     try:
         tcfg = _train_config(cfg, fam)
         for split in splits:
-            t_ref, proxy_ref = reference_values(split.train, fam.inputs, t_ref=cfg.features.t_ref,
+            # T_ref also for a model on T alone: at-t-ref axes are normalised there
+            ref_inputs = list(fam.inputs) + (["dT"] if "temperature_c" in signals_for(fam.inputs)
+                                             else [])
+            t_ref, proxy_ref = reference_values(split.train, ref_inputs, t_ref=cfg.features.t_ref,
                                                 window_min=cfg.features.t_ref_window_min)
             spec = FeatureSpec(inputs=list(fam.inputs), t_ref=t_ref, proxy_ref=proxy_ref)
             train_parts = [parts(r, spec.signals) for r in split.train]
             if fam.train_on == "heating":
                 train_parts = [heating_only(p, r, cfg.features.rate_window_s)
-                               for p, r in zip(train_parts, split.train)]
+                               for p, r in zip(train_parts, split.train, strict=True)]
             val_part = parts(split.val, spec.signals) if split.val is not None else None
             test_part = parts(split.test, spec.signals)
             fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=outputs,
                          train=[(p.signals, p.target) for p in train_parts],
                          val=(val_part.signals, val_part.target) if val_part else None,
                          spec=spec, hyper=dict(fam.params), config=tcfg,
-                         on_epoch=lambda e, tl, vl: progress.epoch(fam.label, e, tl, vl))
+                         on_epoch=lambda e, tl, vl: progress.epoch(fam.label, e, tl, vl),
+                         target=getattr(parts.targets, "modes", None))
             seconds += fitted.fit_seconds
             scores.append(_val_score(fitted.model, val_part if val_part else train_parts[-1]))
             pred, axes = _evaluate_part(fitted.model, test_part)
             fold_axes.append(axes)
             outcome.model, outcome.history = fitted.model, fitted.history
+            outcome.best_val = fitted.best_val_loss
             outcome.test_parts.append(test_part)
             outcome.test_preds.append(pred)
             res.update(n_params=int(fitted.n_params), best_epoch=int(fitted.best_epoch))
@@ -229,6 +249,14 @@ def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outp
     if len(fold_axes) > 1:
         res["folds"] = fold_axes
     return outcome
+
+
+def _family_config(cfg: CompareConfig, fam: FamilyConfig) -> dict[str, Any]:
+    """What a family's checkpoint carries: its own resolved config, not the whole comparison's
+    (the same layout :meth:`thermonet.DriftEstimator.save` writes)."""
+    return {"family": to_dict(fam), "train": to_dict(_train_config(cfg, fam)),
+            "features": to_dict(cfg.features), "target": cfg.target,
+            "tracking": to_dict(cfg.tracking)}
 
 
 def _choose(families: dict[str, dict[str, Any]]) -> tuple[str | None, str]:
@@ -276,10 +304,9 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                     ) -> dict[str, Any]:
     """The comparison itself, written into ``out_dir`` (a staging directory)."""
     from .checkpoint import save_checkpoint
-    from .tracking import Tracker
-
     from .config import check_families
     from .features import signals_for
+    from .tracking import Tracker
 
     progress = progress or Progress(quiet)
     source = getattr(cfg, "_source", "config")
@@ -300,6 +327,7 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                                   f"'{sig}' in the data (proxies: "
                                   f"{', '.join(sorted(ds[0].proxies)) or 'none'})")
     outputs = _outputs(ds, cfg)
+    targets = targets_for(ds, cfg.target, outputs, source=source)
     splits = make_splits(ds, cfg.split, source=source)
     out.mkdir(parents=True, exist_ok=True)
     dhash = data_hash(ds)
@@ -310,19 +338,21 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
     tracker = Tracker(enabled=cfg.tracking.enabled if track is None else track,
                       uri=tracking_uri or cfg.tracking.uri, experiment=cfg.tracking.experiment)
     preset = ds.runs[0].meta.get("preset", "")
-    tags = {"device": ds.device_id, "preset": preset, "data_hash": dhash, "target": cfg.target}
+    tags = {"device": ds.device_id, "preset": preset, "data_hash": dhash,
+            "target": targets.kind}
     resolved = to_dict(cfg)
     results: dict[str, Any] = {
         "schema": 1, "thermonet_version": __version__, "config": resolved,
-        "device": ds.device_id, "data_hash": dhash, "target": cfg.target,
+        "device": ds.device_id, "data_hash": dhash, "target": targets.kind,
         "split": {"strategy": splits[0].label if len(splits) == 1 else "leave-one-run-out",
                   "folds": [s.describe for s in splits]},
-        "units": units, "baseline": cfg.baseline, "families": {},
+        "units": units, "targets": targets.as_dict(), "baseline": cfg.baseline,
+        "families": {},
     }
     progress.line(f"thermonet compare: {ds.device_id} ({len(ds)} runs, outputs "
                   f"{', '.join(outputs)}), split {results['split']['strategy']}")
     outcomes: dict[str, _FamilyOutcome] = {}
-    parts = _Parts(cfg, outputs)
+    parts = _Parts(cfg, outputs, targets)
     with tracker.run(f"compare-{ds.device_id}", params=resolved, tags=tags) as parent_id:
         results["mlflow_run_id"] = parent_id
         for fam in cfg.families:
@@ -334,14 +364,15 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                 r["mlflow_run_id"] = run_id
                 r["checkpoint"] = None
                 if r["status"] == "ok":
-                    tracker.log_history(oc.history or [])
+                    tracker.log_history(list(oc.history or []))
                     tracker.log_metrics({f"test/{a}/{k}": v for a, m in r["axes"].items()
                                          for k, v in m.items()})
                     tracker.log_metrics({"val/score": r["val_score"],
                                          "fit_seconds": r["fit_seconds"]})
                     ckpt = out / "models" / f"{fam.label}.pt"
                     try:
-                        save_checkpoint(ckpt, oc.model, config=resolved,
+                        save_checkpoint(ckpt, oc.model, config=_family_config(cfg, fam),
+                                        epoch=r["best_epoch"], best_val=oc.best_val,
                                         extra={"label": fam.label, "device_id": ds.device_id,
                                                "data_hash": dhash, "units": units,
                                                "signal_units": {p: ds[0].units.get(p, "")
@@ -383,7 +414,9 @@ def _baseline_ratios(results: dict[str, Any]) -> None:
             continue
         for axis, m in fam["axes"].items():
             b = base["axes"][axis]
-            m["pp_ratio_vs_baseline"] = (m["pp_comp"] / b["pp_comp"]) if b["pp_comp"] > 0 else float("nan")
+            m["pp_ratio_vs_baseline"] = (
+                (m["pp_comp"] / b["pp_comp"]) if b["pp_comp"] > 0 else float("nan")
+            )
 
 
 def _plots(out: Path, outcomes: dict[str, _FamilyOutcome], results: dict[str, Any],
@@ -408,7 +441,9 @@ def _plots(out: Path, outcomes: dict[str, _FamilyOutcome], results: dict[str, An
             pdir / f"drift_vs_temperature_{safe}.png", temperature_c=part.bin_by,
             observed_drift=part.target[:, j], curves=curves, axis=axis, units=unit))
         if results["target"] == "drift":
-            resid = {label: part.target[:, j] - oc.test_preds[-1][:, j] for label, oc in fitted.items()}
+            resid = {
+                label: part.target[:, j] - oc.test_preds[-1][:, j] for label, oc in fitted.items()
+            }
             paths.append(plot_residual_vs_time(
                 pdir / f"residual_vs_time_{safe}.png", time_s=part.time_s,
                 raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit))
@@ -455,8 +490,14 @@ def format_table(results: dict[str, Any]) -> str:
             continue
         for i, a in enumerate(axes):
             m = f["axes"][a]
-            pre = (f"{name:<14} {a:<14} {f['fit_seconds']:6.2f} {f['n_params']:6d} "
-                   f"{f['val_score']:7.3g} ") if i == 0 else f"{'':<14} {a:<14} {'':>6} {'':>6} {'':>7} "
+            pre = (
+                (
+                    f"{name:<14} {a:<14} {f['fit_seconds']:6.2f} {f['n_params']:6d} "
+                    f"{f['val_score']:7.3g} "
+                )
+                if i == 0
+                else f"{'':<14} {a:<14} {'':>6} {'':>6} {'':>7} "
+            )
             lines.append(pre + " ".join(f"{m.get(c, float('nan')):12.4g}" for c in cols))
     chosen = results.get("chosen")
     lines.append("")

@@ -20,7 +20,7 @@ import yaml
 
 from .errors import ConfigError
 from .fileio import not_a_file
-from .train import TrainConfig  # the ``train`` section is TrainConfig itself
+from .trainconfig import TrainConfig  # the ``train`` section is TrainConfig itself
 from .yamlio import YamlRefusal, load_yaml
 
 __all__ = [
@@ -43,28 +43,32 @@ class DataConfig:
 
 @dataclass
 class SplitConfig:
-    """How runs are split; never by random sample (see :mod:`thermonet.evaluate`).
+    """How runs are split; never by random sample (see :mod:`thermonet.splits`).
 
     ``auto``: ≥ 3 runs → ``runs``; 2 runs → ``train-then-verify``; 1 run →
     ``time-blocks``.  ``runs``: train on all but the last two runs, validate on
     the second-to-last, test on the last — or on the run ids named in
     ``train``, ``val``, ``test`` (without ``val``, interleaved blocks of the
-    training runs validate; runs may not be in two roles).  ``train-then-verify``: train on the first
-    run (validating on interleaved contiguous blocks of it), test on the
+    training runs validate; runs may not be in two roles).  ``train-then-verify``: train on
+    the first run (validating on interleaved contiguous blocks of it), test on the
     second.  ``time-blocks``: every run cut into ``n_blocks`` contiguous time
     blocks, interleaved train / val / test (60 / 20 / 20 %).
     ``leave-one-run-out``: each run is the test run once (≥ 3 runs), the
     previous run validates; the report gives the mean over folds.
     """
 
-    strategy: Literal["auto", "runs", "train-then-verify", "time-blocks",
-                      "leave-one-run-out"] = "auto"
+    strategy: str = "auto"               # a name in thermonet.splits.SPLITS
     train: list[str] = field(default_factory=list)
     val: str | None = None
     test: str | None = None
     n_blocks: int = 20                   # contiguous time blocks per run (time-blocks)
 
     def __post_init__(self) -> None:
+        from .splits import SPLITS  # the registry is the list of valid strategies
+
+        if self.strategy not in SPLITS:
+            raise ConfigError(f"key 'split.strategy': {self.strategy!r} is not one of "
+                              f"{', '.join(repr(k) for k in SPLITS)}")
         if self.n_blocks < 5:
             raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is below 5 (every group "
                               "of five blocks gives one validation and one test block)")
@@ -74,7 +78,9 @@ class SplitConfig:
 class FeatureConfig:
     """The one feature layer shared by every family."""
 
-    t_ref: float | Literal["start"] = "start"  # °C, or mean of the first minutes of the first training run
+    t_ref: float | Literal["start"] = (
+        "start"  # °C, or mean of the first minutes of the first training run
+    )
     t_ref_window_min: float = 10.0             # minutes averaged for t_ref "start"
     rate_window_s: float = 60.0                # Savitzky–Golay window of dT/dt, s
 
@@ -126,10 +132,12 @@ class CompareConfig:
     families: list[FamilyConfig] = field(default_factory=_default_families)
     train: TrainConfig = field(default_factory=TrainConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
-    # drift: per sample, output − reference.  four-position: per soak, the bias K0 and scale
-    # factor K1 of each axis from a static multi-position test (study 000); outputs
-    # `<axis>.bias` and `<axis>.scale` are then modelled together.
-    target: Literal["drift", "four-position"] = "drift"
+    # What each output's drift is relative to (thermonet.target): "drift" = every axis at its
+    # default (a ref_ channel → channel; gyro → zero; acc/mag/baro/out → at-t-ref), or a
+    # mapping {kind or output name: channel | zero | at-t-ref}.  four-position: per soak, the
+    # bias K0 and scale factor K1 of each axis from a static multi-position test (study 000);
+    # outputs `<axis>.bias` and `<axis>.scale` are then modelled together.
+    target: Literal["drift", "four-position"] | dict[str, str] = "drift"
     baseline: str | None = "cubic"       # the family label the report compares against (PX4/ArduPilot's)
     description: str = ""
 
@@ -163,7 +171,7 @@ def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
             return value
         raise ConfigError(f"{source}: key '{key}': {value!r} is not one of "
                           f"{', '.join(repr(a) for a in args)}")
-    if dataclasses.is_dataclass(tp):
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         return from_dict(tp, value, source=source, prefix=key)
     if origin is list:
         if not isinstance(value, list):
@@ -222,9 +230,10 @@ def load_config(path: str | Path | None) -> CompareConfig:
     (every family's ``train:`` overrides included), family names that are not
     safe file names (:data:`thermonet.names.LABEL`), duplicate names or
     inputs, unknown families, inputs or hyper-parameters, and a ``baseline``
-    that names no family.  An empty file is an error (it would otherwise run
-    the built-in simulator comparison without a word); only *no* config
-    argument runs the default.
+    that names no family, and a ``target`` mode that does not exist (whether
+    a ``target`` key names an output is checked against the data, once read).
+    An empty file is an error (it would otherwise run the built-in simulator
+    comparison without a word); only *no* config argument runs the default.
     """
     if path is None:
         return CompareConfig()
@@ -247,11 +256,14 @@ def load_config(path: str | Path | None) -> CompareConfig:
     labels = [f.label for f in cfg.families]
     dup = sorted({x for x in labels if labels.count(x) > 1})
     if dup:
-        raise ConfigError(f"{p}: key 'families': duplicate family name {dup[0]!r} (give each a distinct 'name')")
+        raise ConfigError(
+            f"{p}: key 'families': duplicate family name {dup[0]!r} (give each a distinct 'name')"
+        )
     if not cfg.families:
         raise ConfigError(f"{p}: key 'families': empty list (need at least one family)")
     check_families(cfg, source=str(p))
     _check_data(cfg.data, str(p))
+    _check_target(cfg.target, str(p))
     if data.get("baseline") is not None and cfg.baseline not in labels:  # the default may lapse
         raise ConfigError(f"{p}: key 'baseline': no family named {cfg.baseline!r} (families: "
                           f"{', '.join(labels)})")
@@ -268,7 +280,6 @@ def check_families(cfg: CompareConfig, *, source: str = "config") -> None:
     from .features import signals_for
     from .models import build_family
     from .names import LABEL
-    from .train import TrainConfig
 
     for i, fam in enumerate(cfg.families):
         key = f"families[{i}]"
@@ -305,3 +316,17 @@ def _check_data(data: DataConfig, source: str) -> None:
                           "(the upper bound keeps a request within memory)")
     if data.seed < 0:
         raise ConfigError(f"{source}: key 'data.seed': {data.seed} is negative")
+
+
+def _check_target(target: str | dict[str, str], source: str) -> None:
+    """The ``target`` section's modes (its keys name outputs: checked once the data are read)."""
+    from .target import MODES
+
+    if not isinstance(target, dict):
+        return  # a Literal: already checked by from_dict
+    for key, mode in target.items():
+        if not isinstance(key, str) or not key:
+            raise ConfigError(f"{source}: key 'target': {key!r} is not an output or kind name")
+        if mode not in MODES:
+            raise ConfigError(f"{source}: key 'target.{key[:64]}': {mode!r} is not one of "
+                              f"{', '.join(MODES)}")

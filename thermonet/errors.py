@@ -23,7 +23,7 @@ class InputError(ThermonetError):
 
     @classmethod
     def at(cls, source: object, message: str, *, column: str | None = None,
-           row: int | None = None) -> "InputError":
+           row: int | None = None) -> InputError:
         """Build ``"<source>: column 'x', row 12: message"``."""
         where = [str(source)] if source else []
         if column is not None:

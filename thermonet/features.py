@@ -32,16 +32,16 @@ exported graph, so it uses only gather, subtract and multiply.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
+from typing import cast
 
 import numpy as np
 import torch
-from scipy.signal import savgol_coeffs
 from torch import nn
 
 from .errors import ConfigError, InputError
-from .recording import Dataset, Recording
+from .recording import GAP_FACTOR, Dataset, Recording
 
 __all__ = [
     "TEMPERATURE",
@@ -52,7 +52,6 @@ __all__ = [
     "reference_values",
     "signal_matrix",
     "target_matrix",
-    "run_arrays",
     "Features",
 ]
 
@@ -159,7 +158,7 @@ class FeatureSpec:
     @classmethod
     def from_recordings(cls, inputs: Sequence[str], recordings: object, *,
                         t_ref: str | float = "start", proxy_ref: object = "start",
-                        window_min: float = 10.0) -> "FeatureSpec":
+                        window_min: float = 10.0) -> FeatureSpec:
         """Spec whose references come from :func:`reference_values`."""
         tr, pr = reference_values(recordings, inputs, t_ref=t_ref, window_min=window_min,
                                   proxy_ref=proxy_ref)
@@ -169,7 +168,8 @@ class FeatureSpec:
 def _first_run(recordings: object) -> Recording:
     if isinstance(recordings, Recording):
         return recordings
-    runs = list(recordings.runs if isinstance(recordings, Dataset) else recordings)  # type: ignore[attr-defined]
+    runs = list(recordings.runs if isinstance(recordings, Dataset)
+                else cast(Iterable[Recording], recordings))
     if not runs:
         raise InputError("no training run to take the reference values from")
     return runs[0]
@@ -251,10 +251,6 @@ def reference_values(recordings: object, spec_inputs: Sequence[str], t_ref: str 
     return t_value, p_values
 
 
-#: A time step over this many median steps starts a new contiguous segment.
-GAP_FACTOR = 5.0
-
-
 def contiguous_segments(time_s: np.ndarray, gap_factor: float = GAP_FACTOR) -> list[slice]:
     """Slices of contiguous sampling: a step over ``gap_factor`` × the median step is a gap
     (burst recordings, held-out time blocks cut out of a run)."""
@@ -264,7 +260,7 @@ def contiguous_segments(time_s: np.ndarray, gap_factor: float = GAP_FACTOR) -> l
     dt = np.diff(t)
     cuts = np.flatnonzero(dt > gap_factor * np.median(dt)) + 1
     edges = np.concatenate([[0], cuts, [t.size]])
-    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
 def _segment_rate(temp: np.ndarray, time_s: np.ndarray, fs: float, window_s: float) -> np.ndarray:
@@ -283,6 +279,8 @@ def _segment_rate(temp: np.ndarray, time_s: np.ndarray, fs: float, window_s: flo
     win = max(int(round(window_s * fs)) | 1, 5)
     start = 1
     if win <= n:
+        from scipy.signal import savgol_coeffs  # scipy.signal loads only when a rate is computed
+
         coef = savgol_coeffs(win, 2, deriv=1, delta=1.0 / fs, pos=win - 1, use="dot")
         rate[win - 1:] = np.correlate(temp, coef, mode="valid")
         start, stop = 1, win - 1
@@ -359,13 +357,6 @@ def target_matrix(recording: Recording, outputs: Sequence[str]) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def run_arrays(recording: Recording, spec: FeatureSpec, outputs: Sequence[str],
-               rate_window_s: float = 60.0) -> tuple[np.ndarray, np.ndarray]:
-    """``(signal_matrix, target_matrix)`` of one run: the pair :func:`thermonet.train.fit` takes."""
-    return (signal_matrix(recording, spec.signals, rate_window_s),
-            target_matrix(recording, outputs))
-
-
 class Features(nn.Module):
     """Signals (N, S) → features (N, F), inside the exported graph.
 
@@ -377,6 +368,10 @@ class Features(nn.Module):
     and the mask :math:`m_f \\in \\{0, 1\\}`, so there is no data-dependent
     branch (buffers ``index``, ``ref``, ``square``).
     """
+
+    index: torch.Tensor      # buffers, declared for the type checker
+    ref: torch.Tensor
+    square: torch.Tensor
 
     def __init__(self, spec: FeatureSpec) -> None:
         super().__init__()

@@ -92,12 +92,12 @@ def summarize(dataset: Dataset, *, bin_c: float = 1.0) -> dict[str, Any]:
                                           np.concatenate([r.drift_observed(name) for r in with_t]),
                                           bin_c))
         outputs.append({"name": name, "unit": units.get(name, "?"),
-                        "noise_floor": _num(np.mean(floors)) if floors else None,
+                        "noise_floor": _num(float(np.mean(floors))) if floors else None,
                         "drift_peak_to_peak": pp})
     t_range = None
     if with_t:
-        t_range = [min(float(r.temperature_c.min()) for r in with_t),
-                   max(float(r.temperature_c.max()) for r in with_t)]
+        temps = [r.temperature_c for r in with_t if r.temperature_c is not None]
+        t_range = [min(float(t.min()) for t in temps), max(float(t.max()) for t in temps)]
     skipped = dataset.meta.get("skipped_rows")
     return {"device_id": dataset.device_id, "sensor_kind": first.sensor_kind,
             "n_runs": len(runs), "channels": channels, "runs": run_rows,
@@ -114,7 +114,7 @@ def _table(header: list[str], rows: list[list[str]]) -> list[str]:
               for i, h in enumerate(header)]
 
     def line(cells: list[str]) -> str:
-        return "  ".join(c.ljust(w) for c, w in zip(cells, widths)).rstrip()
+        return "  ".join(c.ljust(w) for c, w in zip(cells, widths, strict=False)).rstrip()
 
     return [line(header), line(["-" * w for w in widths])] + [line(r) for r in rows]
 

@@ -39,16 +39,17 @@ import io
 import json
 import logging
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from .fileio import atomic_path, not_a_file
 from .errors import InputError
+from .fileio import atomic_path, not_a_file
 from .mapping import ChannelSpec, ColumnMapping, TimeSpec, default_unit, load_mapping
 from .recording import OUTPUT_NAME, Dataset, Recording
 
@@ -110,7 +111,7 @@ def _to_table(dataset: Dataset) -> pa.Table:
                 parts.append(np.zeros(r.n_samples))
                 masks.append(np.ones(r.n_samples, dtype=bool))
         cols[name] = pa.array(np.concatenate(parts), pa.float64(), mask=np.concatenate(masks))
-    blob = {"format": "thermonet", "version": FORMAT_VERSION,
+    blob: dict[str, Any] = {"format": "thermonet", "version": FORMAT_VERSION,
             "meta": _str_dict(dataset.meta, "dataset meta"), "runs": []}
     for r in runs:
         blob["runs"].append({
@@ -191,6 +192,15 @@ def read_datasets(paths: Sequence[str | Path] | str | Path,
 
 def _read_one(path: Path, mapping: ColumnMapping | None
               ) -> tuple[list[Recording], dict[str, str], int | None]:
+    from .logs import is_log
+
+    if is_log(str(path).partition("#")[0]):
+        from .logs import read_log_instance
+
+        if mapping is not None:
+            raise InputError.at(path, "a flight-controller log is read with no mapping")
+        ds = read_log_instance(path)
+        return list(ds.runs), dict(ds.meta), None
     why = not_a_file(path)
     if why:
         raise InputError.at(path, why)
@@ -249,7 +259,8 @@ def _from_thermonet_table(path: Path, table: pa.Table, blob: bytes
         idx = np.flatnonzero(run_col == e["run_id"])
         rows = idx + 1
 
-        def take(name: str) -> np.ndarray:
+        def take(name: str, e: Any = e, idx: np.ndarray = idx, rows: np.ndarray = rows
+                 ) -> np.ndarray:  # this run's e, idx, rows bound now (called in this loop only)
             if name not in table.column_names:
                 raise InputError.at(path, f"missing column (run '{e['run_id']}' lists it)",
                                     column=name)
@@ -535,7 +546,7 @@ def _apply_mapping(frame: _Frame, mapping: ColumnMapping) -> tuple[list[Recordin
     else:
         groups = [(mapping.run_id or path.stem, np.ones(int(keep.sum()), dtype=bool))]
     kinds = {m.group(1) for c in mapping.channels if c.role == "output"
-             for m in [OUTPUT_NAME.match(c.name)]}
+             for m in [OUTPUT_NAME.match(c.name)] if m is not None}
     sensor_kind = mapping.sensor_kind or (kinds.pop() if len(kinds) == 1 else "mixed")
     runs = []
     for run_id, sel in groups:

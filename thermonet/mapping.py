@@ -65,7 +65,6 @@ __all__ = [
     "ChannelSpec",
     "TimeSpec",
     "ColumnMapping",
-    "Mapping",
     "TIME_UNITS",
     "FORMATS",
     "channel_role",
@@ -106,7 +105,7 @@ def channel_role(name: str, *, proxy: bool = False) -> str:
     return "proxy"
 
 
-_KIND_UNITS = {"gyro": "deg/s", "acc": "g", "mag": "uT", "out": "1"}
+_KIND_UNITS = {"gyro": "deg/s", "acc": "g", "mag": "uT", "baro": "Pa", "out": "1"}
 
 
 def default_unit(name: str, *, proxy: bool = False) -> str:
@@ -182,13 +181,9 @@ class ColumnMapping:
     source: str = "<mapping>"
 
     @classmethod
-    def from_dict(cls, raw: object, *, source: str = "<mapping>") -> "ColumnMapping":
+    def from_dict(cls, raw: object, *, source: str = "<mapping>") -> ColumnMapping:
         """Check a mapping read from YAML; raise :class:`MappingError` naming the key."""
         return _Parser(source).mapping(raw)
-
-
-#: The name the rest of thermonet uses for a column mapping.
-Mapping = ColumnMapping
 
 
 def load_mapping(path: str | Path) -> ColumnMapping:

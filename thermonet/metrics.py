@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 
-import allantools
 import numpy as np
 
 __all__ = [
@@ -314,6 +313,8 @@ def allan(y: np.ndarray, rate_hz: float, taus: str | np.ndarray = "octave"
     if y.size < 3:
         # allantools raises an IndexError / UserWarning here; an empty curve is the honest answer.
         return np.empty(0), np.empty(0)
+    import allantools  # 1.3 s of imports: loaded only when an Allan deviation is computed
+
     taus_s, adev, _, _ = allantools.oadev(y, rate=rate, data_type="freq", taus=taus)
     return np.asarray(taus_s, dtype=np.float64), np.asarray(adev, dtype=np.float64)
 

@@ -13,14 +13,17 @@ before drawing so a plot takes well under a second on 50k samples.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
+from typing import Any
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .metrics import allan
+from .metrics import _series, allan  # one 1-D series check for metrics and plots
+from .recording import GAP_FACTOR
 
 __all__ = [
     "plot_drift_vs_temperature",
@@ -41,19 +44,11 @@ MAX_SCATTER_POINTS = 5000
 #: Time series keep at most about this many vertices (min/max per bucket).
 MAX_LINE_POINTS = 8000
 
-# A step longer than this many median sample intervals is a gap in the log
-# (burst mode, a pause between soaks); the line is broken there instead of
-# drawing a straight segment across hours without data.
-_GAP_FACTOR = 5.0
+# A step longer than GAP_FACTOR median sample intervals is a gap in the log (burst mode, a
+# pause between soaks); the line is broken there instead of drawing a straight segment across
+# hours without data.
 
 _RAW_COLOR = "0.55"
-
-
-def _series(name: str, values: object) -> np.ndarray:
-    arr = np.asarray(values, dtype=np.float64)
-    if arr.ndim != 1:
-        raise ValueError(f"'{name}' must be a 1-D series, got shape {arr.shape}")
-    return arr
 
 
 def _check_length(name: str, arr: np.ndarray, n: int, against: str) -> None:
@@ -61,7 +56,7 @@ def _check_length(name: str, arr: np.ndarray, n: int, against: str) -> None:
         raise ValueError(f"'{name}' has {arr.shape[0]} samples, '{against}' has {n}")
 
 
-def _new_figure() -> tuple[Figure, object]:
+def _new_figure() -> tuple[Figure, Axes]:
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI)
     FigureCanvasAgg(fig)
     return fig, fig.add_subplot(1, 1, 1)
@@ -109,7 +104,7 @@ def _gap_breaks(t: np.ndarray, keep: np.ndarray) -> np.ndarray:
     steps = np.diff(t)
     if steps.size == 0:
         return np.empty(0, dtype=np.int64)
-    gaps = np.flatnonzero(steps > _GAP_FACTOR * np.median(steps)) + 1
+    gaps = np.flatnonzero(steps > GAP_FACTOR * np.median(steps)) + 1
     pos = np.unique(np.searchsorted(keep, gaps))
     return pos[(pos > 0) & (pos < keep.size)]
 
@@ -199,8 +194,8 @@ def plot_residual_vs_time(path: str | Path, *, time_s: np.ndarray, raw_error: np
     scale, t_unit = (3600.0, "h") if span > 7200.0 else (1.0, "s")
 
     fig, ax = _new_figure()
-    for name, y, kw in [("raw", raw, {"color": _RAW_COLOR})] + [
-            (name, r, {}) for name, r in residuals.items()]:
+    series: list[tuple[str, np.ndarray, dict[str, Any]]] = [("raw", raw, {"color": _RAW_COLOR})]
+    for name, y, kw in series + [(name, r, {}) for name, r in residuals.items()]:
         keep = _minmax_indices(y, MAX_LINE_POINTS)
         breaks = _gap_breaks(t, keep)
         x_d = np.insert(t[keep], breaks, np.nan)

@@ -16,8 +16,8 @@ own name (``freq_hz``, ``temp_raw``).
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Iterator, Mapping
 
 import numpy as np
 
@@ -30,11 +30,13 @@ __all__ = [
     "KNOWN_UNITS",
     "MIN_SAMPLES",
     "MIN_TEMPERATURE_SPAN_C",
+    "GAP_FACTOR",
     "output_kind",
 ]
 
-#: An output channel is ``<kind>_<axis>``: ``gyro_x``, ``acc_z``, ``mag_y``.
-OUTPUT_NAME = re.compile(r"^(gyro|acc|mag|out)_([a-z0-9]+)$")
+#: An output channel is ``<kind>_<axis>``: ``gyro_x``, ``acc_z``, ``mag_y``, ``baro_p`` (a
+#: barometer's pressure: the absolute value is the weather, only its change with T is drift).
+OUTPUT_NAME = re.compile(r"^(gyro|acc|mag|baro|out)_([a-z0-9]+)$")
 
 #: Units thermonet understands, per physical quantity.  Anything else is refused
 #: so that a typo ("deg/sec") never silently changes the meaning of a number.
@@ -49,6 +51,8 @@ KNOWN_UNITS: dict[str, str] = {
     "m/s^2": "acceleration",
     "T": "field",
     "uT": "field",
+    "Pa": "pressure",
+    "hPa": "pressure",
     "Hz": "frequency",
     "counts": "raw",
     "1": "dimensionless",
@@ -59,13 +63,17 @@ MIN_SAMPLES = 10
 #: A recording whose temperature moves less than this has no thermal information.
 MIN_TEMPERATURE_SPAN_C = 1.0
 
+#: A time step over this many median steps is a gap in a log (burst mode, a pause between
+#: soaks, held-out blocks cut out of a run): rates restart there, plotted lines break there.
+GAP_FACTOR = 5.0
+
 
 def output_kind(name: str) -> str:
     """Return the sensor kind (``gyro``, ``acc`` …) of an output channel name."""
     m = OUTPUT_NAME.match(name)
     if not m:
         raise InputError(f"output channel '{name}' is not named <kind>_<axis> "
-                         "(kind one of gyro, acc, mag, out)")
+                         "(kind one of gyro, acc, mag, baro, out)")
     return m.group(1)
 
 
@@ -77,7 +85,9 @@ def _as_1d(name: str, values: object, n: int | None, source: str) -> np.ndarray:
         raise InputError.at(source, f"has {arr.shape[0]} samples, time has {n}", column=name)
     bad = np.flatnonzero(~np.isfinite(arr))
     if bad.size:
-        raise InputError.at(source, f"non-finite value {arr[bad[0]]!r}", column=name, row=int(bad[0]))
+        raise InputError.at(
+            source, f"non-finite value {arr[bad[0]]!r}", column=name, row=int(bad[0])
+        )
     return arr
 
 
@@ -127,7 +137,7 @@ class Recording:
 
     # ------------------------------------------------------------------ checks
     def validate(self, source: str = "", *, min_span_c: float = MIN_TEMPERATURE_SPAN_C,
-                 require_temperature_span: bool = False) -> "Recording":
+                 require_temperature_span: bool = False) -> Recording:
         """Check shapes, finiteness, time order and units; return ``self``.
 
         The temperature span is checked per dataset (:meth:`Dataset.validate`):
@@ -226,7 +236,7 @@ class Recording:
                 return group[name]
         raise KeyError(name)
 
-    def select(self, mask: np.ndarray, run_id: str | None = None) -> "Recording":
+    def select(self, mask: np.ndarray, run_id: str | None = None) -> Recording:
         """A new recording holding the samples where ``mask`` is true (a contiguous block
         in practice: thermonet never splits by random sample)."""
         def sub(d: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -270,7 +280,7 @@ class Dataset:
         return self.runs[key]
 
     def validate(self, source: str = "", *, min_span_c: float = MIN_TEMPERATURE_SPAN_C
-                 ) -> "Dataset":
+                 ) -> Dataset:
         """Validate every run, check they share channels, and that the runs together
         span at least ``min_span_c`` °C (or carry a proxy); return ``self``."""
         if not self.runs:

@@ -264,7 +264,3 @@ class Tracker:
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
         if self.enabled:
             _retry(self._client().log_artifact, str(path), artifact_path=artifact_path)
-
-    def log_dict(self, data: Mapping[str, Any], name: str) -> None:
-        if self.enabled:
-            _retry(self._client().log_dict, dict(data), name)

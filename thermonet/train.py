@@ -18,85 +18,20 @@ from __future__ import annotations
 import copy
 import math
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 import numpy as np
 import torch
 import torch._dynamo  # noqa: F401  torch.optim imports it on the first step; importing it here
-# keeps that one-time second out of the first family's fit_seconds
 
+# keeps that one-time second out of the first family's fit_seconds
 from .errors import ConfigError, FitError, InputError
 from .features import FeatureSpec
 from .models import DriftModel, build_family
+from .trainconfig import TrainConfig  # re-exported: the ``train`` section
 
-__all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate"]
-
-_OPTIMIZERS = ("adam", "lbfgs")
-_DEVICES = ("auto", "cpu", "cuda")
-
-
-@dataclass
-class TrainConfig:
-    """How a family is trained (all losses in standardised MSE units).
-
-    Attributes
-    ----------
-    optimizer : "adam" or "lbfgs"
-    lr : float
-        Learning rate (Adam step size; L-BFGS initial step, 1.0 is usual).
-    max_epochs : int
-        Full-batch epochs at most (one optimizer step each; an L-BFGS step runs
-        up to 20 inner iterations).
-    patience : int
-        Epochs without an improvement larger than ``min_delta`` of the
-        monitored loss (validation, or training without a validation run)
-        before stopping.
-    min_delta : float
-        Smallest improvement that counts, standardised MSE (absolute).
-    seed : int
-        Seeds torch and every numpy/scikit-learn draw (k-means, random centres).
-    device : "auto", "cpu" or "cuda"
-        "auto" is CUDA when available; the returned model is always on CPU.
-    max_train_samples : int
-        Training (and, separately, validation) samples kept per fit.  Longer
-        data are **decimated evenly** — every k-th sample of every run, with
-        k = ceil(total / max) — never randomly sampled, so the time structure
-        (ramps, soaks) is kept.
-    """
-
-    # L-BFGS by default: every family starts from a closed-form or heuristic fit, and
-    # full-batch L-BFGS polishes such a start in a few steps where Adam first wanders
-    # off it (experiments/bench_rbf_speed.py measures both).
-    optimizer: str = "lbfgs"
-    lr: float = 1.0
-    max_epochs: int = 100
-    patience: int = 10
-    min_delta: float = 1e-7
-    seed: int = 0
-    device: str = "cpu"
-    max_train_samples: int = 20000
-
-    def __post_init__(self) -> None:
-        if self.optimizer not in _OPTIMIZERS:
-            raise ConfigError(f"train.optimizer must be one of {', '.join(_OPTIMIZERS)}, "
-                              f"got {self.optimizer!r}")
-        if self.device not in _DEVICES:
-            raise ConfigError(f"train.device must be one of {', '.join(_DEVICES)}, "
-                              f"got {self.device!r}")
-        for key, lo in (("max_epochs", 0), ("patience", 1), ("max_train_samples", 10)):
-            v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise ConfigError(f"train.{key} must be an integer >= {lo}, got {v!r}")
-        for key in ("lr", "min_delta"):
-            v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v < 0 or (key == "lr" and v == 0):
-                raise ConfigError(f"train.{key} must be a finite number "
-                                  f"{'> 0' if key == 'lr' else '>= 0'}, got {v!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
-            raise ConfigError(f"train.seed must be an integer, got {self.seed!r}")
-
+__all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "rest_signals"]
 
 @dataclass
 class FitResult:
@@ -156,7 +91,8 @@ def _std(a: np.ndarray) -> np.ndarray:
 def fit(*, family: str, inputs: list[str], outputs: list[str],
         train: list[tuple[np.ndarray, np.ndarray]], val: tuple[np.ndarray, np.ndarray] | None,
         spec: FeatureSpec, hyper: dict | None, config: TrainConfig,
-        on_epoch: Callable[[int, float, float | None], None] | None = None) -> FitResult:
+        on_epoch: Callable[[int, float, float | None], None] | None = None,
+        target: Sequence[str] | None = None) -> FitResult:
     """Fit one family to drift.
 
     Parameters
@@ -169,7 +105,7 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
         Output axis names (columns of the targets).
     train : list of (signals (n, S), targets (n, A))
         One pair per training run; signals in ``spec.signals`` order
-        (see :func:`thermonet.features.run_arrays`), targets = observed drift.
+        (see :func:`thermonet.evaluate.build_part`), targets = observed drift.
     val : (signals, targets) or None
         The held-out run for early stopping; None stops on a training-loss plateau.
     spec : FeatureSpec
@@ -178,6 +114,12 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
     config : TrainConfig
     on_epoch : callable(epoch, train_loss, val_loss), optional
         Called after every epoch, epoch 0 (the initialised model) included.
+    target : sequence of str, optional
+        Target mode per output (:mod:`thermonet.target`; default ``channel``
+        for every axis: the targets are the drift itself).  ``at-t-ref`` axes
+        are normalised to zero at the rest signals (:func:`rest_signals`).
+        Whatever the modes, the mean training target is removed in float64
+        before standardisation and kept in the model's float64 ``y_offset``.
 
     Returns
     -------
@@ -207,8 +149,15 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
                        signal_names) for i, (s, y) in enumerate(train)]
     val_run = None if val is None else _check_run("validation run", val[0], val[1],
                                                   len(signal_names), list(outputs), signal_names)
+    modes = ["channel"] * len(outputs) if target is None else list(target)
+    rest = rest_signals(spec, need_temperature="at-t-ref" in modes)
     sig_all = np.vstack([s for s, _ in runs])
     sig_lo, sig_hi = sig_all.min(axis=0), sig_all.max(axis=0)
+    # the constant of every axis leaves in float64, before anything is rounded to float32
+    offset = np.vstack([y for _, y in runs]).mean(axis=0)
+    runs = [(s, y - offset) for s, y in runs]
+    if val_run is not None:
+        val_run = (val_run[0], val_run[1] - offset)
     runs = decimate(runs, config.max_train_samples)
     s_tr = np.vstack([s for s, _ in runs])
     y_tr = np.vstack([y for _, y in runs])
@@ -241,13 +190,15 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
     device = _resolve_device(config.device)
     model.to(device)
 
-    def dev(a: np.ndarray | None) -> torch.Tensor | None:
-        return None if a is None else torch.as_tensor(a, dtype=torch.float32, device=device)
+    def dev(a: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(a, dtype=torch.float32, device=device)
 
-    history, best_epoch, best_val = _fit_loop(fam, dev(z_tr), dev(yz_tr), dev(z_v), dev(y_vz),
-                                              config, family, on_epoch)
+    val_t = None if z_v is None or y_vz is None else (dev(z_v), dev(y_vz))
+    history, best_epoch, best_val = _fit_loop(fam, dev(z_tr), dev(yz_tr), val_t, config, family,
+                                              on_epoch)
 
     model.to("cpu").eval()
+    model.set_target(modes=modes, offset=offset, rest=rest)
     with torch.no_grad():
         pred = model(torch.as_tensor(s_tr, dtype=torch.float32))
     if not torch.isfinite(pred).all():
@@ -268,7 +219,7 @@ def _train_step(fam: torch.nn.Module, opt: torch.optim.Optimizer, z: torch.Tenso
         loss = _mse(fam, z, y)
         loss.backward()
         return loss
-    opt.step(closure)
+    opt.step(closure)  # type: ignore[arg-type]  # the stub says float; LBFGS takes the tensor
 
 
 def _valid_step(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> float:
@@ -276,8 +227,8 @@ def _valid_step(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> float
         return float(_mse(fam, z, y))
 
 
-def _fit_loop(fam: torch.nn.Module, zt: torch.Tensor, yt: torch.Tensor, zv: torch.Tensor | None,
-              yv: torch.Tensor | None, config: TrainConfig, family: str,
+def _fit_loop(fam: torch.nn.Module, zt: torch.Tensor, yt: torch.Tensor,
+              val: tuple[torch.Tensor, torch.Tensor] | None, config: TrainConfig, family: str,
               on_epoch: Callable | None) -> tuple[list[dict], int, float | None]:
     params = [p for p in fam.parameters() if p.requires_grad]
     if config.optimizer == "lbfgs":
@@ -295,7 +246,7 @@ def _fit_loop(fam: torch.nn.Module, zt: torch.Tensor, yt: torch.Tensor, zv: torc
         if epoch > 0:
             _train_step(fam, opt, zt, yt)
         train_loss = _valid_step(fam, zt, yt)
-        val_loss = None if zv is None else _valid_step(fam, zv, yv)
+        val_loss = None if val is None else _valid_step(fam, *val)
         if not math.isfinite(train_loss) or (val_loss is not None and not math.isfinite(val_loss)):
             raise FitError(f"model '{family}': NaN loss at epoch {epoch} "
                            f"(optimizer {config.optimizer}, lr {config.lr:g}; try a lower lr)")
@@ -330,8 +281,45 @@ def predict(model: DriftModel, signals: np.ndarray) -> np.ndarray:
     model.eval()
     try:
         with torch.no_grad():
-            out = model(torch.as_tensor(s, dtype=torch.float32,
-                                        device=model.sig_lo.device))
+            out = model.drift64(torch.as_tensor(s, dtype=torch.float32,
+                                                device=model.sig_lo.device))
     finally:
         model.train(was_training)
-    return out.cpu().double().numpy()
+    return out.cpu().numpy()
+
+
+def rest_signals(spec: FeatureSpec, *, need_temperature: bool = True) -> np.ndarray:
+    """The signals at rest, where ``at-t-ref`` axes are normalised to zero drift.
+
+    ``temperature_c`` at :math:`T_{ref}`, ``rate_c_per_min`` 0, a proxy at its
+    reference value; a signal named ``lag_*``/``play_*`` (a filtered
+    temperature) at :math:`T_{ref}` too — at rest it equals the temperature.
+
+    With ``need_temperature`` false (no ``at-t-ref`` axis) a value that cannot
+    be known is 0 (stored, never used).
+
+    Raises
+    ------
+    ConfigError
+        With ``need_temperature``: a temperature-like signal with no
+        :math:`T_{ref}`, or a signal with no known rest value.
+    """
+    out = []
+    for name in spec.signals:
+        if name == "rate_c_per_min":
+            out.append(0.0)
+        elif name in spec.proxy_ref:
+            out.append(float(spec.proxy_ref[name]))
+        elif name == "temperature_c" or name.startswith(("lag_", "play_")):
+            if spec.t_ref is None:
+                if need_temperature:
+                    raise ConfigError(f"signal '{name}': target 'at-t-ref' needs t_ref (a "
+                                      "temperature in °C or 'start')")
+                out.append(0.0)
+            else:
+                out.append(float(spec.t_ref))
+        elif need_temperature:
+            raise ConfigError(f"signal '{name}' has no rest value for target 'at-t-ref'")
+        else:
+            out.append(0.0)
+    return np.asarray(out, dtype=np.float64)

@@ -1,48 +1,158 @@
-"""Export a trained drift model for use on board.
+"""Export a trained drift model for use on board: one registry of formats.
 
-* :func:`export_onnx` — an ONNX file with the features, the clamp to the trained
-  range and the out-of-range flag inside the graph, checked against torch with
+:data:`FORMATS` maps a format's name (what ``thermonet export --format`` and
+:meth:`thermonet.DriftEstimator.export` take) to an :class:`ExportFormat`: a
+one-line description (the CLI's help is built from it) and its exporter,
+``exporter(model, out, request) -> Path``.  Built-in exporters are named as
+``"module:function"`` and imported only when used, so this registry (and the
+CLI that lists it) stays light; a new format is a module with its exporter and
+one :func:`register_format` line below.
+
+* ``onnx`` — an ONNX file with the features, the clamp to the trained range and
+  the out-of-range flag inside the graph, checked against torch with
   onnxruntime before it is written (run it with ``export/thermonet_runtime.py``);
-* :func:`export_c_header` — a dependency-free C99 header, float32, no heap;
-* :func:`export_px4_params` / :func:`export_ardupilot_params` — the autopilots'
-  own thermal-calibration parameter files, for the cubic-on-temperature model.
+* ``c`` — a dependency-free C99 header, float32, no heap;
+* ``px4-params`` / ``ardupilot-params`` — the autopilots' own thermal-calibration
+  parameter files, for a family that has a polynomial form in one temperature input.
+
+The heavy functions of the sub-modules (:func:`export_onnx`,
+:func:`export_c_header`, ...) are importable from here too; they load on
+first access.
 """
 
-from .autopilot import (
-    AutopilotCoefficients,
-    autopilot_coefficients,
-    export_ardupilot_params,
-    export_px4_params,
-    read_ardupilot_params,
-    read_px4_params,
-)
-from .c_header import export_c_header, render_c_header
-from .source import FORMATS, export_source, resolve_checkpoint
-from .onnx_export import (
-    CompensatorGraph,
-    export_onnx,
-    log_onnx_to_mlflow,
-    onnx_file_size,
-    parity_check,
-    time_onnxruntime,
-)
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ..errors import InputError
+
+if TYPE_CHECKING:
+    from ..models import DriftModel
 
 __all__ = [
-    "FORMATS",
-    "export_source",
-    "resolve_checkpoint",
-    "CompensatorGraph",
-    "export_onnx",
-    "parity_check",
-    "log_onnx_to_mlflow",
-    "onnx_file_size",
-    "time_onnxruntime",
-    "export_c_header",
-    "render_c_header",
-    "AutopilotCoefficients",
-    "autopilot_coefficients",
-    "export_px4_params",
-    "export_ardupilot_params",
-    "read_px4_params",
-    "read_ardupilot_params",
+    "ExportFormat", "ExportRequest", "Exporter", "FORMATS", "register_format", "get_format",
+    "export_source", "resolve_checkpoint",
+    "CompensatorGraph", "export_onnx", "parity_check", "log_onnx_to_mlflow", "onnx_file_size",
+    "export_c_header", "render_c_header",
+    "AutopilotCoefficients", "autopilot_coefficients", "export_px4_params",
+    "export_ardupilot_params", "read_px4_params", "read_ardupilot_params",
 ]
+
+
+@dataclass(frozen=True)
+class ExportRequest:
+    """What an exporter receives beside the model and the output path.
+
+    Attributes
+    ----------
+    meta : dict
+        The checkpoint's metadata (``extra`` holds units, device id, data hash,
+        the training run id, validation metrics); empty for an in-memory model.
+    device_id : int or None
+        PX4's ``TC_*_ID`` of the sensor (``px4-params``).
+    instance : int or None
+        PX4 calibration slot 0..3 (default 0) or ArduPilot IMU 1..3 (default 1).
+    tracking_uri : str or None
+        MLflow store to log the exported file to (``onnx``).
+    """
+
+    meta: dict[str, Any] = field(default_factory=dict)
+    device_id: int | None = None
+    instance: int | None = None
+    tracking_uri: str | None = None
+
+    @property
+    def extra(self) -> dict[str, Any]:
+        return dict(self.meta.get("extra") or {})
+
+    @property
+    def output_units(self) -> dict[str, str]:
+        return dict(self.extra.get("units") or {})
+
+
+#: ``exporter(model, out, request) -> written path``.
+Exporter = Callable[["DriftModel", Path, ExportRequest], Path]
+
+
+@dataclass(frozen=True)
+class ExportFormat:
+    """One export format: its name, a one-line description and its exporter.
+
+    ``exporter`` is a callable or ``"package.module:function"`` (imported on
+    first use, which keeps the registry free of torch and onnx).
+    """
+
+    name: str
+    description: str
+    exporter: str | Exporter
+
+    def resolve(self) -> Exporter:
+        """The exporter function (importing its module when named as a string)."""
+        if not isinstance(self.exporter, str):
+            return self.exporter
+        module, _, attr = self.exporter.partition(":")
+        fn: Exporter = getattr(importlib.import_module(module), attr)
+        return fn
+
+    def write(self, model: DriftModel, out: str | Path, request: ExportRequest | None = None
+              ) -> Path:
+        """Export ``model`` to ``out``; return the written path."""
+        return self.resolve()(model, Path(out), request or ExportRequest())
+
+
+#: Registered export formats, by name.
+FORMATS: dict[str, ExportFormat] = {}
+
+
+def register_format(fmt: ExportFormat) -> ExportFormat:
+    """Add ``fmt`` to :data:`FORMATS` (a name registered twice is a ``ValueError``)."""
+    if fmt.name in FORMATS:
+        raise ValueError(f"export format {fmt.name!r} is already registered")
+    FORMATS[fmt.name] = fmt
+    return fmt
+
+
+def get_format(name: str) -> ExportFormat:
+    """The format registered as ``name``; an unknown name is an :class:`InputError` listing them."""
+    try:
+        return FORMATS[name]
+    except KeyError:
+        raise InputError(f"unknown export format '{name}' (formats: {', '.join(FORMATS)})"
+                         ) from None
+
+
+register_format(ExportFormat(
+    "onnx", "ONNX graph with features, clamp and out-of-range flag (onnxruntime, "
+    "export/thermonet_runtime.py)", "thermonet.exporting.source:write_onnx"))
+register_format(ExportFormat(
+    "c", "C99 header: float32, no heap, only expf from libm",
+    "thermonet.exporting.source:write_c"))
+register_format(ExportFormat(
+    "px4-params", "PX4 thermal-calibration parameters TC_* (a polynomial of degree <= 3 in T; "
+    "needs --device-id)", "thermonet.exporting.source:write_px4_params"))
+register_format(ExportFormat(
+    "ardupilot-params", "ArduPilot INS_TCAL* parameters (a polynomial of degree <= 3 in T)",
+    "thermonet.exporting.source:write_ardupilot_params"))
+
+
+_LAZY = {
+    "export_source": "source", "resolve_checkpoint": "source",
+    "CompensatorGraph": "onnx_export", "export_onnx": "onnx_export",
+    "parity_check": "onnx_export", "log_onnx_to_mlflow": "onnx_export",
+    "onnx_file_size": "onnx_export",
+    "export_c_header": "c_header", "render_c_header": "c_header",
+    "AutopilotCoefficients": "autopilot", "autopilot_coefficients": "autopilot",
+    "export_px4_params": "autopilot", "export_ardupilot_params": "autopilot",
+    "read_px4_params": "autopilot", "read_ardupilot_params": "autopilot",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """Load the heavy export functions (torch, onnx) on first access only."""
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

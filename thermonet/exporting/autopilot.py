@@ -30,6 +30,18 @@ constant term: thermonet's drift :math:`d(T)` is written as
 :math:`c_k = 10^6 a_k` where :math:`d(T) = a_0 + a_1 x + a_2 x^2 + a_3 x^3`,
 and ``raw - P(T-35) + P(T_cal-35) = raw - d(T) + d(T_cal)``.
 
+Targets (:mod:`thermonet.target`).  The file says what the model says: a
+``zero``-target gyro keeps its absolute bias in ``X0`` (PX4's gyro calibration
+fits the static rate and keeps ``X0``: ``temperature_calibration/gyro.cpp``,
+``finish_sensor_instance``); an ``at-t-ref`` accelerometer is normalised to
+zero at ``TREF`` = the model's :math:`T_{ref}` — exactly what PX4's own
+accelerometer calibration writes (``temperature_calibration/accel.cpp``,
+``finish_sensor_instance``: ``res[i][3] = 0.0; // normalise the correction to
+be zero at the reference temperature``, PX4-Autopilot commit 25ed6b67), so a
+level vehicle still reads 1 g; an axis the model leaves uncompensated is all
+zeros.  ArduPilot subtracts the polynomial's value at the calibration
+temperature anyway (above), i.e. it applies every axis "at T_cal".
+
 Conversion.  thermonet's polynomial lives in standardised units
 (:math:`z = (x - \\bar x)/s_x`, :math:`d = s_y\\,p(z) + \\bar y`); it is expanded
 in float64 into a plain polynomial of :math:`T - T_{ref}` (PX4: ``TREF`` = the
@@ -48,16 +60,16 @@ File formats.  PX4: QGroundControl parameter file, tab-separated
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 from numpy.polynomial import polynomial as P
-from torch import nn
 
-from ..fileio import atomic_write_text
 from ..errors import ExportError
+from ..fileio import atomic_write_text
+from ..models import DriftModel
 from ..recording import output_kind
 from .onnx_export import family_name
 
@@ -71,23 +83,23 @@ __all__ = [
     "export_ardupilot_params",
     "read_px4_params",
     "read_ardupilot_params",
-    "px4_offsets",
-    "ardupilot_correction",
 ]
 
-#: Multiply a value in this unit by the factor to get rad/s (gyro) or m/s² (accel).
+#: Multiply a value in this unit by the factor to get rad/s (gyro), m/s² (accel) or Pa (baro).
 SI_FACTOR = {
     "rad/s": 1.0, "deg/s": math.pi / 180.0, "deg/h": math.pi / 180.0 / 3600.0,
-    "m/s^2": 1.0, "g": 9.80665, "mg": 9.80665e-3,
+    "m/s^2": 1.0, "g": 9.80665, "mg": 9.80665e-3, "Pa": 1.0, "hPa": 100.0,
 }
-_SI_UNIT = {"gyro": "rad/s", "acc": "m/s^2"}
+_SI_UNIT = {"gyro": "rad/s", "acc": "m/s^2", "baro": "Pa"}
 _UNIT_KIND = {"rad/s": "gyro", "deg/s": "gyro", "deg/h": "gyro",
-              "m/s^2": "acc", "g": "acc", "mg": "acc"}
+              "m/s^2": "acc", "g": "acc", "mg": "acc", "Pa": "baro", "hPa": "baro"}
+#: PX4 evaluates a cubic for gyro/accel (``calc_thermal_offsets_3D``), order 5 for baro (``_1D``).
+_PX4_ORDER = {"gyro": 3, "acc": 3, "baro": 5}
 #: ArduPilot's fixed reference temperature (°C) and coefficient scale.
 ARDUPILOT_TEMP_REFERENCE = 35.0
 ARDUPILOT_SCALE = 1.0e6
 _AXES = ("x", "y", "z")
-_PX4_TYPE = {"gyro": "G", "acc": "A"}
+_PX4_TYPE = {"gyro": "G", "acc": "A", "baro": "B"}
 _AP_TYPE = {"gyro": "GYR", "acc": "ACC"}
 
 
@@ -119,16 +131,20 @@ class AutopilotCoefficients:
 def _unit_of(axis: str, units: str | Mapping[str, str]) -> str:
     unit = units if isinstance(units, str) else units.get(axis)
     if unit is None:
-        raise ExportError(f"no unit given for output '{axis}' (units: {dict(units)})")
+        raise ExportError(f"no unit given for output '{axis}' (units: {units})")
     if unit not in SI_FACTOR:
         raise ExportError(f"output '{axis}': unit '{unit}' cannot be converted for an autopilot "
                           f"(known: {', '.join(SI_FACTOR)})")
     return unit
 
 
-def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str, str],
+def autopilot_coefficients(model: DriftModel, *, output_units: str | Mapping[str, str],
                            t_ref: float | None = None) -> AutopilotCoefficients:
-    """Expand a poly (degree ≤ 3, one input ``dT`` or ``T``) model into SI cubic coefficients.
+    """Expand a polynomial model (degree ≤ 3, one input ``dT`` or ``T``) into SI cubic coefficients.
+
+    The family supplies its coefficients through
+    :meth:`~thermonet.models.base.Family.polynomial_form` (``poly``, and ``linear``
+    as a degree-1 polynomial); a family without one is refused.
 
     Parameters
     ----------
@@ -138,100 +154,89 @@ def autopilot_coefficients(model: nn.Module, *, output_units: str | Mapping[str,
         ``mg``, ``m/s^2``).
     t_ref : float, optional
         Reference temperature of the expansion (°C); default the model's
-        :math:`T_{ref}` (input ``dT``) or the centre of the trained range (``T``).
+        :math:`T_{ref}` (where ``at-t-ref`` axes are zero), or the centre of the
+        trained range for a model on ``T`` with no :math:`T_{ref}`.
 
     Raises
     ------
     ExportError
-        Any other family, degree or input; an axis that is not gyro/acc x/y/z;
+        A family without a polynomial form, a degree above 3, another input; an axis
+        that is not gyro/acc x/y/z;
         a unit that does not match the axis kind.
     """
     family = family_name(model)
-    fam = model.family
-    if family != "poly":
-        raise ExportError(f"PX4/ArduPilot parameter files need the 'poly' family (degree <= 3 on "
-                          f"input dT or T); this model is '{family}' — export it as ONNX or C")
     if list(model.inputs) not in (["dT"], ["T"]):
         raise ExportError(f"PX4/ArduPilot parameter files need one input, dT or T; this model "
                           f"reads {list(model.inputs)}")
-    if int(fam.degree) > 3:
-        raise ExportError(f"PX4/ArduPilot evaluate a cubic; this poly model has degree {fam.degree}")
+    form = model.family.polynomial_form()  # the family says whether it is a polynomial
+    if form is None:
+        raise ExportError(f"PX4/ArduPilot parameter files need a polynomial in dT or T; this "
+                          f"model is '{family}', which has no polynomial form "
+                          "— export it as ONNX or C")
+    degree = form.shape[1] - 1
+    baro_only = {output_kind(a) for a in model.outputs} == {"baro"}
+    if degree > (5 if baro_only else 3):
+        what = "an order-5 polynomial (baro)" if baro_only else "a cubic"
+        raise ExportError(f"PX4/ArduPilot evaluate {what}; this {family} model has degree "
+                          f"{degree}")
     lo = float(model.sig_lo[0])
     hi = float(model.sig_hi[0])
     if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
-        raise ExportError(f"trained temperature range [{lo}, {hi}] is not usable (model not fitted?)")
-    t_model = float(model.spec.t_ref) if model.inputs == ["dT"] else 0.0
-    if t_ref is None:
-        t_ref = t_model if model.inputs == ["dT"] else round((lo + hi) / 2.0, 1)
+        raise ExportError(
+            f"trained temperature range [{lo}, {hi}] is not usable (model not fitted?)"
+        )
+    t_model = float(model.spec.t_ref or 0.0) if model.inputs == ["dT"] else 0.0
+    if t_ref is None:  # the model's T_ref: where at-t-ref axes are zero, as PX4's accel X0
+        spec_t_ref = model.spec.t_ref
+        t_ref = float(spec_t_ref) if spec_t_ref is not None else round((lo + hi) / 2.0, 1)
     # x = T - t_model = u + (t_ref - t_model); z = (x - x_mean)/x_std = alpha*u + beta
     x_mean, x_std = float(model.x_mean[0]), float(model.x_std[0])
     alpha = 1.0 / x_std
     beta = (t_ref - t_model - x_mean) / x_std
-    weight = fam.weight.detach().double().numpy()      # (A, n_terms), terms z^1..z^n
-    bias = fam.bias.detach().double().numpy()
     y_mean = model.y_mean.detach().double().numpy()
     y_std = model.y_std.detach().double().numpy()
+    # the target (thermonet.models.base): at-t-ref axes minus their value at rest, the
+    # float64 constant on channel/zero axes, and zero on an uncompensated axis
+    y_ref = model.y_ref.detach().double().numpy()
+    at_t_ref = model._at_t_ref(model.y_ref.dtype).detach().double().numpy()
+    mask = model.compensate.detach().double().numpy()
+    const = model.constant().detach().double().numpy()
     out = AutopilotCoefficients(t_ref=float(t_ref), t_min=lo, t_max=hi)
     for a, axis in enumerate(model.outputs):
         kind = output_kind(axis)
         letter = axis.split("_", 1)[1]
-        if kind not in _SI_UNIT or letter not in _AXES:
-            raise ExportError(f"output '{axis}' is not a gyro or accelerometer x/y/z axis; "
-                              "autopilots compensate only those")
+        if kind not in _SI_UNIT or (letter not in _AXES and kind != "baro"):
+            raise ExportError(f"output '{axis}' is not a gyro or accelerometer x/y/z axis or a "
+                              "barometer; autopilots compensate only those")
         unit = _unit_of(axis, output_units)
         if _UNIT_KIND[unit] != kind:
             raise ExportError(f"output '{axis}' has unit '{unit}', which is not a {kind} unit")
-        pz = np.concatenate([[bias[a]], weight[a]])     # coefficients in z, ascending
+        pz = form[a]                                    # coefficients in z, ascending
         pu = np.zeros(1)
         for k, c in enumerate(pz):                      # p(alpha*u + beta), ascending in u
             pu = P.polyadd(pu, c * P.polypow([beta, alpha], k))
         pu = pu * y_std[a]
-        pu[0] += y_mean[a]
-        coef = out.coef.setdefault(kind, np.zeros((3, 4)))
-        coef[_AXES.index(letter), :pu.size] = pu[:4] * SI_FACTOR[unit]
+        pu[0] += y_mean[a] - at_t_ref[a] * y_ref[a]
+        pu = pu * mask[a]
+        pu[0] += const[a]
+        n = _PX4_ORDER[kind] + 1
+        if kind == "baro":      # one pressure output: row 0, order 5 (TC_B*_X0..X5)
+            if kind in out.coef:
+                raise ExportError(f"one barometer output per model, got {model.outputs}")
+            coef = out.coef.setdefault(kind, np.zeros((1, n)))
+            coef[0, :pu.size] = pu[:n] * SI_FACTOR[unit]
+        else:
+            coef = out.coef.setdefault(kind, np.zeros((3, n)))
+            coef[_AXES.index(letter), :pu.size] = pu[:n] * SI_FACTOR[unit]
         out.present.setdefault(kind, []).append(letter)
     return out
-
-
-def px4_offsets(params: Mapping[str, float], kind: str, temperature_c: np.ndarray,
-                instance: int = 0) -> np.ndarray:
-    """PX4's ``calc_thermal_offsets_3D`` on parameters read back from a file: (N, 3) SI."""
-    t = _PX4_TYPE[kind]
-    pre = f"TC_{t}{instance}_"
-    temp = np.asarray(temperature_c, dtype=np.float64)
-    dt = np.where(temp > params[pre + "TMAX"], params[pre + "TMAX"] - params[pre + "TREF"],
-                  np.where(temp < params[pre + "TMIN"], params[pre + "TMIN"] - params[pre + "TREF"],
-                           temp - params[pre + "TREF"]))
-    out = np.zeros((temp.size, 3))
-    for i in range(3):
-        out[:, i] = sum(params[f"{pre}X{k}_{i}"] * dt ** k for k in range(4))
-    return out
-
-
-def ardupilot_correction(params: Mapping[str, float], kind: str, temperature_c: np.ndarray,
-                         cal_temp_c: float, imu: int = 1) -> np.ndarray:
-    """What ArduPilot's ``correct_sensor`` subtracts from ``raw``: P(T−35) − P(T_cal−35), (N, 3) SI."""
-    pre = f"INS_TCAL{imu}_"
-    tmin, tmax = params[pre + "TMIN"], params[pre + "TMAX"]
-    t = np.clip(np.asarray(temperature_c, dtype=np.float64), tmin, tmax) - ARDUPILOT_TEMP_REFERENCE
-    tc = float(np.clip(cal_temp_c, tmin, tmax)) - ARDUPILOT_TEMP_REFERENCE
-    out = np.zeros((t.size, 3))
-    for i, ax in enumerate(_AXES):
-        c = [params[f"{pre}{_AP_TYPE[kind]}{k}_{ax.upper()}"] for k in (1, 2, 3)]
-        poly = lambda x: (c[0] + (c[1] + c[2] * x) * x) * x / ARDUPILOT_SCALE  # noqa: E731
-        out[:, i] = poly(t) - poly(tc)
-    return out
-
-
-def _atomic_write(path: Path, text: str) -> Path:
-    return atomic_write_text(path, text)
 
 
 def _g(v: float) -> str:
     return f"{float(v):.9g}"
 
 
-def export_px4_params(model: nn.Module, path: str | Path, *, output_units: str | Mapping[str, str],
+def export_px4_params(model: DriftModel, path: str | Path, *, output_units: str | Mapping[str, str],
                       device_id: int | None = None, instance: int = 0) -> Path:
     """Write PX4 ``TC_G<i>_*`` / ``TC_A<i>_*`` parameters as a QGC ``.params`` file.
 
@@ -272,14 +277,17 @@ def export_px4_params(model: nn.Module, path: str | Path, *, output_units: str |
         rows.append((pre + "ID", str(int(device_id)), 6))
         rows += [(pre + "TMAX", _g(co.t_max), 9), (pre + "TMIN", _g(co.t_min), 9),
                  (pre + "TREF", _g(co.t_ref), 9)]
+        if kind == "baro":          # TC_B<i>_X0..X5, Pa (calc_thermal_offsets_1D)
+            rows += [(f"{pre}X{k}", _g(coef[0, k]), 9) for k in range(6)]
+            continue
         for k in range(4):
             for i in range(3):
                 rows.append((f"{pre}X{k}_{i}", _g(coef[i, k]), 9))
     lines += [f"1\t1\t{name}\t{value}\t{ptype}" for name, value, ptype in rows]
-    return _atomic_write(Path(path), "\n".join(lines) + "\n")
+    return atomic_write_text(Path(path), "\n".join(lines) + "\n")
 
 
-def export_ardupilot_params(model: nn.Module, path: str | Path, *,
+def export_ardupilot_params(model: DriftModel, path: str | Path, *,
                             output_units: str | Mapping[str, str], imu: int = 1,
                             sep: str = ",") -> Path:
     """Write ArduPilot ``INS_TCAL<n>_*`` parameters (``NAME,VALUE`` lines).
@@ -295,6 +303,10 @@ def export_ardupilot_params(model: nn.Module, path: str | Path, *,
         raise ExportError(f"separator must be ',', ' ' or a tab, got {sep!r}")
     co = autopilot_coefficients(model, output_units=output_units,
                                 t_ref=ARDUPILOT_TEMP_REFERENCE)
+    if "baro" in co.coef:
+        raise ExportError("ArduPilot has no barometer temperature-calibration parameters "
+                          "(INS_TCAL covers gyros and accelerometers); export PX4 params, "
+                          "ONNX or C")
     if co.t_min < -70.0 or co.t_max > 80.0:
         raise ExportError(f"trained range [{co.t_min:g}, {co.t_max:g}] degC is outside "
                           "ArduPilot's INS_TCAL TMIN/TMAX range -70..80 degC")
@@ -312,7 +324,9 @@ def export_ardupilot_params(model: nn.Module, path: str | Path, *,
               "# axes the model does not cover are written as 0 (no correction on that axis)",
               f"# drift constant at {ARDUPILOT_TEMP_REFERENCE:g} degC is left to the offset "
               "calibration at INS_*_CALTEMP"]
-    return _atomic_write(Path(path), "\n".join(header + [f"{n}{sep}{v}" for n, v in rows]) + "\n")
+    return atomic_write_text(
+        Path(path), "\n".join(header + [f"{n}{sep}{v}" for n, v in rows]) + "\n"
+    )
 
 
 def read_px4_params(path: str | Path) -> dict[str, float]:

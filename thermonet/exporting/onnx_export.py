@@ -9,11 +9,20 @@ The exported graph is what runs on board (``export/thermonet_runtime.py``):
 
 with one float32 [N] graph input per physical signal the model reads
 (``temperature_c``, ``rate_c_per_min``, proxies such as ``freq_hz``) plus
-``raw`` float32 [N, A]; outputs ``compensated`` [N, A], ``drift`` [N, A] and
-``out_of_range`` bool [N].  ``out_of_range`` is true where a signal lay outside
-the trained range (the drift is then the edge value, PX4-style) or was not
-finite (NaN/±inf: the drift and the compensated output are then NaN, so a
-broken thermometer can never yield a plausible-looking correction).
+``raw`` float64 [N, A]; outputs ``compensated`` float64 [N, A], ``drift``
+float64 [N, A] and ``out_of_range`` bool [N].  The model runs in float32 on
+the drift relative to its per-axis constant (:mod:`thermonet.models.base`);
+the constant (an output's 1e6 counts, 4,517 Hz) is added and ``raw − drift``
+computed in float64, so a large constant costs no precision (format 2; format 1
+files had a float32 ``raw``).  The metadata carry each axis's target mode
+(``targets``: channel, zero, at-t-ref — :mod:`thermonet.target`), whether it is
+compensated (``compensate``: an axis where the chosen model does not beat the
+raw output has drift 0), the float64 constant (``drift_constant``) and the
+signals at rest where ``at-t-ref`` axes are zero (``rest_signals``).
+``out_of_range`` is true where a signal lay outside the trained range (the
+drift is then the edge value, PX4-style) or was not finite (NaN/±inf: the
+drift and the compensated output are then NaN, so a broken thermometer can
+never yield a plausible-looking correction).
 
 Exporter.  torch 2.13's default ``torch.export``-based exporter (``dynamo=True``,
 onnxscript) is used with a dynamic batch dimension and opset 18; the
@@ -50,18 +59,19 @@ from __future__ import annotations
 import json
 import logging
 import tempfile
-import time
 import warnings
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
-from ..fileio import atomic_path
 from .. import __version__
 from ..errors import ExportError
+from ..fileio import atomic_path
+from ..models import DriftModel
 from ..names import AXIS, SIGNAL, TEXT_ID, check_model_names, check_name, check_units
 
 __all__ = [
@@ -75,8 +85,8 @@ __all__ = [
     "check_model_finite",
     "family_name",
     "trained_range",
+    "target_metadata",
     "onnx_file_size",
-    "time_onnxruntime",
     "log_onnx_to_mlflow",
 ]
 
@@ -84,8 +94,8 @@ _log = logging.getLogger(__name__)
 # torch's exporter warns once per export that torchvision (not a dependency) is absent
 logging.getLogger("torch.onnx._internal.exporter._registration").setLevel(logging.ERROR)
 
-#: Format marker written to ``metadata_props['thermonet_format']``.
-THERMONET_FORMAT = 1
+#: Format marker written to ``metadata_props['thermonet_format']`` (2: float64 raw/outputs).
+THERMONET_FORMAT = 2
 #: ONNX opset of the exported graph.
 OPSET = 18
 #: Relative parity tolerance (see the module docstring).
@@ -97,14 +107,14 @@ GRID_POINTS = 201
 RANDOM_POINTS = 10_000
 
 
-def trained_range(model: nn.Module) -> dict[str, tuple[float, float]]:
+def trained_range(model: DriftModel) -> dict[str, tuple[float, float]]:
     """Trained range ``{signal: (lo, hi)}`` from the model's ``sig_lo``/``sig_hi`` buffers."""
     lo = model.sig_lo.detach().cpu().double().numpy().reshape(-1)
     hi = model.sig_hi.detach().cpu().double().numpy().reshape(-1)
     return {s: (float(lo[i]), float(hi[i])) for i, s in enumerate(model.signals)}
 
 
-def family_name(model: nn.Module) -> str:
+def family_name(model: DriftModel) -> str:
     """The registered family name of a DriftModel (``model.family`` is the family module)."""
     name = getattr(model, "family_name", None)
     if name is None:
@@ -112,7 +122,7 @@ def family_name(model: nn.Module) -> str:
     return str(name)
 
 
-def check_model_finite(model: nn.Module) -> None:
+def check_model_finite(model: DriftModel) -> None:
     """Refuse a model with a NaN/inf parameter or buffer (:class:`ExportError` naming it)."""
     for name, tensor in list(model.named_parameters()) + list(model.named_buffers()):
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
@@ -137,7 +147,7 @@ class CompensatorGraph(nn.Module):
     ``(compensated, drift, out_of_range)``.
     """
 
-    def __init__(self, model: nn.Module) -> None:
+    def __init__(self, model: DriftModel) -> None:
         super().__init__()
         self.model = model
         self.signals = list(model.signals)
@@ -149,9 +159,11 @@ class CompensatorGraph(nn.Module):
         # Non-finite signals must not be clamped into a plausible edge value.
         nonfinite = (torch.isnan(sig) | torch.isinf(sig)).any(dim=1)
         flag = self.model.out_of_range(sig) | nonfinite
-        drift = self.model(sig)
-        drift = torch.where(nonfinite.unsqueeze(1), torch.full_like(drift, float("nan")), drift)
-        return raw - drift, drift, flag
+        rel = self.model.relative(sig)
+        rel = torch.where(nonfinite.unsqueeze(1), torch.full_like(rel, float("nan")), rel)
+        # the per-axis constant joins in float64: a large offset keeps the drift's precision
+        drift = rel.to(torch.float64) + self.model.constant()
+        return raw.to(torch.float64) - drift, drift, flag
 
 
 def _strip_debug(proto: Any) -> None:
@@ -173,7 +185,7 @@ def _export_proto(graph: CompensatorGraph, exporter: str) -> tuple[Any, str]:
 
     n_ex = 4
     example = tuple(torch.zeros(n_ex) for _ in graph.signals) + \
-        (torch.zeros(n_ex, len(graph.outputs)),)
+        (torch.zeros(n_ex, len(graph.outputs), dtype=torch.float64),)
     names = list(graph.signals) + ["raw"]
     out_names = ["compensated", "drift", "out_of_range"]
     errors = []
@@ -191,6 +203,8 @@ def _export_proto(graph: CompensatorGraph, exporter: str) -> tuple[Any, str]:
                         opset_version=OPSET, dynamo=True, external_data=False, optimize=True,
                         # forward(*inputs): the varargs tuple is one argument
                         dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False)
+                    if program is None:
+                        raise ExportError("torch.onnx.export (dynamo) returned no program")
                     proto = program.model_proto
                 else:
                     with tempfile.TemporaryDirectory() as tmp:
@@ -203,7 +217,9 @@ def _export_proto(graph: CompensatorGraph, exporter: str) -> tuple[Any, str]:
             _strip_debug(proto)
             return proto, kind
         except Exception as exc:  # any exporter failure: record it, try the next exporter
-            errors.append(f"{kind}: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+            errors.append(
+                f"{kind}: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+            )
             _log.warning("ONNX exporter '%s' failed: %s", kind, errors[-1])
     raise ExportError("torch.onnx.export failed (" + "; ".join(errors) + ")")
 
@@ -212,7 +228,7 @@ def _json(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=float)
 
 
-def _check_metadata(model: nn.Module, meta: Mapping[str, Any]) -> None:
+def _check_metadata(model: DriftModel, meta: Mapping[str, Any]) -> None:
     """Names and provenance strings by :mod:`thermonet.names` before they enter the file.
 
     Structured values are JSON-encoded; plain strings (device id, run id, data
@@ -227,7 +243,8 @@ def _check_metadata(model: nn.Module, meta: Mapping[str, Any]) -> None:
             check_units(meta[key], names, f"ONNX metadata '{key}'", error=ExportError)
 
 
-def _metadata_props(model: nn.Module, metadata: Mapping[str, Any], exporter: str) -> dict[str, str]:
+def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: str
+                    ) -> dict[str, str]:
     meta = dict(metadata)
     _check_metadata(model, meta)
     spec = getattr(model, "spec", None)
@@ -250,6 +267,7 @@ def _metadata_props(model: nn.Module, metadata: Mapping[str, Any], exporter: str
         "t_ref": "" if t_ref is None else repr(float(t_ref)),
         "proxy_ref": _json({k: float(v) for k, v in dict(proxy_ref).items()}),
         "trained_range": _json({k: list(v) for k, v in trained_range(model).items()}),
+        **target_metadata(model),
         "device_id": _json(meta.pop("device_id", "")),
         "training_run_id": _json(meta.pop("training_run_id", meta.pop("run_id", ""))),
         "validation_metrics": _json(meta.pop("validation_metrics", {})),
@@ -262,12 +280,31 @@ def _metadata_props(model: nn.Module, metadata: Mapping[str, Any], exporter: str
     return props
 
 
+def target_metadata(model: DriftModel) -> dict[str, str]:
+    """What each axis's drift is relative to, as metadata strings (ONNX, C comments).
+
+    ``targets`` {axis: channel | zero | at-t-ref | four-position}, ``compensate``
+    {axis: bool}, ``drift_constant`` {axis: float64 constant added to the float32
+    drift}, ``rest_signals`` {signal: value where at-t-ref axes are zero}.
+    """
+    outputs = list(model.outputs)
+    const = model.constant().detach().cpu().double().numpy()
+    rest = model.sig_ref.detach().cpu().double().numpy()
+    return {
+        "targets": _json(dict(zip(outputs, model.target_modes, strict=True))),
+        "compensate": _json(dict(zip(outputs, model.compensated_axes, strict=True))),
+        "drift_constant": json.dumps({a: float(c) for a, c in zip(outputs, const, strict=True)},
+                                     sort_keys=True),
+        "rest_signals": _json({sig: float(v) for sig, v in zip(model.signals, rest, strict=True)}),
+    }
+
+
 def _check_points(ranges: Sequence[tuple[float, float]], seed: int) -> np.ndarray:
     """Grid over the trained range (full product up to 2 signals, else per-signal sweeps)
     plus seeded uniform random points in range; float32 (N, S)."""
     lo = np.array([r[0] for r in ranges])
     hi = np.array([r[1] for r in ranges])
-    axes = [np.linspace(a, b, GRID_POINTS) for a, b in zip(lo, hi)]
+    axes = [np.linspace(a, b, GRID_POINTS) for a, b in zip(lo, hi, strict=True)]
     if len(ranges) <= 2:
         grid = np.stack([g.reshape(-1) for g in np.meshgrid(*axes, indexing="ij")], axis=1)
     else:
@@ -283,7 +320,7 @@ def _check_points(ranges: Sequence[tuple[float, float]], seed: int) -> np.ndarra
     return np.concatenate([grid, rand]).astype(np.float32)
 
 
-def float32_tolerance(model: nn.Module, points: np.ndarray, d_float32: np.ndarray, *,
+def float32_tolerance(model: DriftModel, points: np.ndarray, d_float32: np.ndarray, *,
                       rtol: float = PARITY_RTOL) -> np.ndarray:
     """Per-axis tolerance of a float32 evaluation of ``model`` at ``points``.
 
@@ -297,13 +334,13 @@ def float32_tolerance(model: nn.Module, points: np.ndarray, d_float32: np.ndarra
     """
     import copy
 
-    with torch.no_grad():
-        d64 = copy.deepcopy(model).double()(torch.from_numpy(points.astype(np.float64)))
+    with torch.no_grad():  # relative drifts: the float64 constant is exact in every format
+        d64 = copy.deepcopy(model).double().relative(torch.from_numpy(points.astype(np.float64)))
     rounding = np.abs(d_float32 - d64.numpy()).max(axis=0)
     return np.maximum(rtol * np.abs(d_float32).max(axis=0), 4.0 * rounding)
 
 
-def check_drift_parity(model: nn.Module, points: np.ndarray, got: np.ndarray,
+def check_drift_parity(model: DriftModel, points: np.ndarray, got: np.ndarray,
                        want: np.ndarray, tol: np.ndarray, *, what: str, who: str) -> np.ndarray:
     """``|got − want| ≤ tol`` per axis at every point, else :class:`ExportError` naming the
     worst point (signal values, axis, both drifts); returns the absolute errors."""
@@ -319,7 +356,7 @@ def check_drift_parity(model: nn.Module, points: np.ndarray, got: np.ndarray,
     return err
 
 
-def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
+def parity_check(model: DriftModel, onnx_path: str | Path, *, seed: int = 0,
                  rtol: float = PARITY_RTOL) -> dict[str, float]:
     """Compare onnxruntime (CPU) with torch on the grid and the random points.
 
@@ -336,9 +373,12 @@ def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
     ranges = list(trained_range(model).values())
     points = _check_points(ranges, seed)
     n, n_axes = points.shape[0], len(model.outputs)
-    raw = np.random.default_rng(seed + 1).normal(size=(n, n_axes)).astype(np.float32)
-    with torch.no_grad():
-        d_torch = model(torch.from_numpy(points)).double().numpy()
+    const = model.constant().detach().cpu().double().numpy()
+    # raw around the constant (a 1e6-count output is fed 1e6 + noise): compensated must
+    # keep the precision of the float64 input
+    raw = np.random.default_rng(seed + 1).normal(size=(n, n_axes)) + const
+    with torch.no_grad():  # drift relative to the float64 constant, as computed in float32
+        d_torch = model.relative(torch.from_numpy(points)).double().numpy()
     tol = float32_tolerance(model, points, d_torch, rtol=rtol)
     opts = ort.SessionOptions()
     opts.log_severity_level = 3
@@ -346,11 +386,13 @@ def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
                                 providers=["CPUExecutionProvider"])
     feeds = {s: np.ascontiguousarray(points[:, i]) for i, s in enumerate(model.signals)}
     comp, d_ort, flag = sess.run(None, {**feeds, "raw": raw})
-    d_ort = d_ort.astype(np.float64)
+    d_ort = d_ort.astype(np.float64) - const
     scale = np.maximum(np.abs(d_torch), np.abs(d_torch).max(axis=0, keepdims=True))
     err = check_drift_parity(model, points, d_ort, d_torch, tol, what="ONNX", who="onnxruntime")
-    comp_err = np.abs(comp.astype(np.float64) - (raw.astype(np.float64) - d_torch))
-    if not bool(np.all(comp_err <= rtol * np.abs(raw) + tol + 1e-30)):
+    # compensated = raw − constant − relative drift, in float64: only the float32 drift's
+    # parity tolerance and float64 rounding of the raw value may separate them
+    comp_err = np.abs(comp.astype(np.float64) - ((raw - const) - d_torch))
+    if not bool(np.all(comp_err <= tol + 4 * np.finfo(np.float64).eps * np.abs(raw) + 1e-30)):
         raise ExportError("ONNX parity check failed: 'compensated' is not raw - drift")
     if bool(flag.any()):
         k = int(np.argmax(flag))
@@ -374,14 +416,15 @@ def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
     finite_rows = np.array(finite)
     _, d_out, f_out = sess.run(None, {**{s: np.ascontiguousarray(outside[:, i])
                                          for i, s in enumerate(model.signals)},
-                                      "raw": np.zeros((len(rows), n_axes), np.float32)})
+                                      "raw": np.zeros((len(rows), n_axes))})
+    d_out = d_out - const
     if not bool(f_out.all()):
         k = int(np.argmin(f_out))
         raise ExportError("ONNX out_of_range flag not set at "
                           + ", ".join(f"{s}={outside[k, i]:.6g}"
                                       for i, s in enumerate(model.signals)))
     with torch.no_grad():
-        d_clamped = model(torch.from_numpy(outside[finite_rows])).double().numpy()
+        d_clamped = model.relative(torch.from_numpy(outside[finite_rows])).double().numpy()
     bad = np.abs(d_out[finite_rows].astype(np.float64) - d_clamped) > tol
     if bool(bad.any()):
         k, a = np.argwhere(bad)[0]
@@ -394,7 +437,7 @@ def parity_check(model: nn.Module, onnx_path: str | Path, *, seed: int = 0,
             "max_rel_diff": float((err / np.maximum(scale, 1e-30)).max())}
 
 
-def export_onnx(model: nn.Module, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
+def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
                 check: bool = True, exporter: str = "auto", seed: int = 0) -> Path:
     """Export a drift model to ``path`` as a self-describing ONNX file.
 
@@ -459,35 +502,6 @@ def export_onnx(model: nn.Module, path: str | Path, *, metadata: Mapping[str, An
 def onnx_file_size(path: str | Path) -> int:
     """Size of an exported file in bytes (for the size benchmark)."""
     return Path(path).stat().st_size
-
-
-def time_onnxruntime(path: str | Path, *, batch_size: int = 1000, repeats: int = 50,
-                     threads: int = 1, seed: int = 0) -> float:
-    """Median seconds per onnxruntime call on a batch of in-range points (``threads`` threads).
-
-    The first call (session warm-up) is not counted.
-    """
-    import onnxruntime as ort
-
-    opts = ort.SessionOptions()
-    opts.intra_op_num_threads = int(threads)
-    opts.inter_op_num_threads = 1
-    opts.log_severity_level = 3
-    sess = ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
-    meta = sess.get_modelmeta().custom_metadata_map
-    signals = json.loads(meta["signals"])
-    ranges = json.loads(meta["trained_range"])
-    n_axes = len(json.loads(meta["outputs"]))
-    rng = np.random.default_rng(seed)
-    feeds = {s: rng.uniform(*ranges[s], size=batch_size).astype(np.float32) for s in signals}
-    feeds["raw"] = np.zeros((batch_size, n_axes), np.float32)
-    sess.run(None, feeds)
-    times = []
-    for _ in range(max(1, int(repeats))):
-        t0 = time.perf_counter()
-        sess.run(None, feeds)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def log_onnx_to_mlflow(path: str | Path, run_id: str, tracking_uri: str, *,

@@ -23,13 +23,16 @@ import os
 import re
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ExportError, InputError
 
-__all__ = ["resolve_checkpoint", "export_source", "FORMATS"]
+if TYPE_CHECKING:
+    from ..models import DriftModel
+    from . import ExportRequest
 
-FORMATS = ("onnx", "c", "px4-params", "ardupilot-params")
+__all__ = ["resolve_checkpoint", "export_source", "write_onnx", "write_c", "write_px4_params",
+           "write_ardupilot_params"]
 
 _RUN_ID = re.compile(r"[0-9a-f]{32}")
 
@@ -124,45 +127,69 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
                   instance: int | None = None) -> Path:
     """Export the model SOURCE designates as ``fmt`` to ``out``; return the written path.
 
-    ``device_id`` (PX4's ``TC_*_ID``) and ``instance`` (PX4 slot 0–3, default 0;
-    ArduPilot IMU 1–3, default 1) apply to the autopilot formats.
+    ``fmt`` is a name in :data:`thermonet.exporting.FORMATS`.  ``device_id``
+    (PX4's ``TC_*_ID``) and ``instance`` (PX4 slot 0–3, default 0; ArduPilot
+    IMU 1–3, default 1) apply to the autopilot formats.
     """
     from ..checkpoint import load_checkpoint
-    from . import export_ardupilot_params, export_c_header, export_onnx, export_px4_params
+    from . import ExportRequest, get_format
 
-    if fmt not in FORMATS:
-        raise InputError(f"unknown export format '{fmt}' (formats: {', '.join(FORMATS)})")
+    export_format = get_format(fmt)
     with tempfile.TemporaryDirectory() as tmp:
         ckpt = resolve_checkpoint(source, family=family, tracking_uri=tracking_uri,
                                   workdir=Path(tmp))
         model, meta = load_checkpoint(ckpt)
-    extra: dict[str, Any] = meta.get("extra", {}) or {}
-    units = extra.get("units", {}) or {}
-    if fmt == "onnx":
-        path = export_onnx(model, out, metadata={
-            "device_id": extra.get("device_id", ""),
-            "training_run_id": extra.get("mlflow_run_id", ""),
-            "validation_metrics": {"val_score": extra.get("val_score"),
-                                   "test": extra.get("test_metrics", {})},
-            "data_hash": extra.get("data_hash", ""),
-            "output_units": units,
-            "signal_units": extra.get("signal_units", {}) or {},
-            **_rate_definition(model, meta),
-        })
-        run_id = extra.get("mlflow_run_id")
-        if run_id:
-            _log_to_run(path, run_id, tracking_uri, meta)
-        return path
-    if fmt == "c":
-        return export_c_header(model, out)
-    if fmt == "px4-params":
-        return export_px4_params(model, out, output_units=units, device_id=device_id,
-                                 instance=0 if instance is None else instance)
-    return export_ardupilot_params(model, out, output_units=units,
-                                   imu=1 if instance is None else instance)
+    return export_format.write(model, out, ExportRequest(
+        meta=meta, device_id=device_id, instance=instance, tracking_uri=tracking_uri))
 
 
-def _rate_definition(model: Any, meta: dict) -> dict[str, str]:
+# ----------------------------------------------------- the built-in exporters
+def write_onnx(model: DriftModel, out: Path, request: ExportRequest) -> Path:
+    """``onnx``: the graph with the checkpoint's metadata, logged to its training run."""
+    from .onnx_export import export_onnx
+
+    extra, meta = request.extra, request.meta
+    path = export_onnx(model, out, metadata={
+        "device_id": extra.get("device_id", ""),
+        "training_run_id": extra.get("mlflow_run_id", ""),
+        "validation_metrics": {"val_score": extra.get("val_score"),
+                               "test": extra.get("test_metrics", {})},
+        "data_hash": extra.get("data_hash", ""),
+        "output_units": request.output_units,
+        "signal_units": extra.get("signal_units", {}) or {},
+        **_rate_definition(model, meta),
+    })
+    run_id = extra.get("mlflow_run_id")
+    if run_id:
+        _log_to_run(path, run_id, request.tracking_uri, meta)
+    return path
+
+
+def write_c(model: DriftModel, out: Path, request: ExportRequest) -> Path:
+    """``c``: the C99 header."""
+    from .c_header import export_c_header
+
+    return export_c_header(model, out)
+
+
+def write_px4_params(model: DriftModel, out: Path, request: ExportRequest) -> Path:
+    """``px4-params``: PX4's TC_* parameter file (slot ``request.instance``, default 0)."""
+    from .autopilot import export_px4_params
+
+    return export_px4_params(model, out, output_units=request.output_units,
+                             device_id=request.device_id,
+                             instance=0 if request.instance is None else request.instance)
+
+
+def write_ardupilot_params(model: DriftModel, out: Path, request: ExportRequest) -> Path:
+    """``ardupilot-params``: ArduPilot's INS_TCAL* file (IMU ``request.instance``, default 1)."""
+    from .autopilot import export_ardupilot_params
+
+    return export_ardupilot_params(model, out, output_units=request.output_units,
+                                   imu=1 if request.instance is None else request.instance)
+
+
+def _rate_definition(model: DriftModel, meta: dict[str, Any]) -> dict[str, str]:
     """How the board must compute ``rate_c_per_min`` for a model that reads it."""
     if "rate_c_per_min" not in model.signals:
         return {}

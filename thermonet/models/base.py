@@ -14,6 +14,29 @@ drift :math:`(y - \\bar y)/s_y` out.  :class:`DriftModel` wraps it:
 
 Everything in ``forward`` exports to ONNX (opset 18) and is simple enough to
 emit as C99: gather, add, mul, div, exp, abs, min/max, matmul.
+
+What the drift is relative to (:mod:`thermonet.target`) lives in the model's
+buffers, so checkpoints, ONNX, the C header and the autopilot files all carry
+it.  Per axis :math:`a`:
+
+.. math::
+
+    r_a(s) &= m_a\\,\\big(\\hat y_a(s) - \\alpha_a\\, \\hat y_a(s_{ref})\\big)
+        \\qquad \\text{(float32: ``relative``)} \\\\
+    c_a &= m_a\\,(1 - \\alpha_a)\\, o_a \\qquad \\text{(float64: ``constant``)} \\\\
+    d_a(s) &= c_a + r_a(s)
+
+``o`` (buffer ``y_offset``, float64) is the mean training target, removed in
+float64 *before* anything is rounded to float32: an output with a large
+constant (1e6 counts, 4,517 Hz, 101,325 Pa) keeps its drift's precision, and
+the constant is added back in float64 (:meth:`DriftModel.drift64`; the
+exports carry it in float64 and compute ``raw − drift`` in float64).
+``α`` is 1 for ``at-t-ref`` axes (buffer ``target_code`` = 2): the model is
+normalised to zero at the rest signals :math:`s_{ref}` (buffer ``sig_ref``:
+temperature at :math:`T_{ref}`, rate 0, proxies at their reference), whose
+drift :math:`\\hat y(s_{ref})` is buffer ``y_ref``; the offset then cancels.
+``m`` (buffer ``compensate``, 1 or 0) leaves an axis uncompensated: its
+drift is exactly 0 for every finite input (a NaN signal still gives NaN).
 """
 
 from __future__ import annotations
@@ -25,7 +48,7 @@ import torch
 from torch import nn
 
 from ..errors import ConfigError
-from ..features import FeatureSpec, Features
+from ..features import Features, FeatureSpec
 
 __all__ = ["TINY", "Family", "DriftModel", "distinct_levels", "as_numpy", "least_squares"]
 
@@ -135,6 +158,15 @@ class Family(nn.Module):
         rebuilds the same architecture."""
         return {}
 
+    def polynomial_form(self) -> np.ndarray | None:
+        """Coefficients (A, degree + 1), ascending in the one standardised input z,
+        when this fitted family *is* a polynomial in one input; None otherwise.
+
+        Exporters that need a polynomial (PX4's and ArduPilot's parameter files)
+        ask for it here instead of checking the family's name.
+        """
+        return None
+
     def extra_repr(self) -> str:
         return f"n_inputs={self.n_inputs}, n_outputs={self.n_outputs}, {self.hyper()}"
 
@@ -162,6 +194,20 @@ class DriftModel(nn.Module):
     spec : FeatureSpec
     """
 
+    # buffers (registered in __init__), declared for the type checker
+    x_mean: torch.Tensor
+    x_std: torch.Tensor
+    y_mean: torch.Tensor
+    y_std: torch.Tensor
+    sig_lo: torch.Tensor
+    sig_hi: torch.Tensor
+    y_offset: torch.Tensor
+    y_ref: torch.Tensor
+    sig_ref: torch.Tensor
+    target_code: torch.Tensor
+    compensate: torch.Tensor
+    family: Family
+
     def __init__(self, *, family: Family, spec: FeatureSpec, outputs: list[str]) -> None:
         super().__init__()
         if family.n_inputs != len(spec.inputs):
@@ -183,6 +229,102 @@ class DriftModel(nn.Module):
         self.register_buffer("y_std", torch.ones(a))
         self.register_buffer("sig_lo", torch.full((s,), -torch.inf))
         self.register_buffer("sig_hi", torch.full((s,), torch.inf))
+        # target (see the module docstring): defaults reproduce a plain drift model
+        self.register_buffer("y_offset", torch.zeros(a, dtype=torch.float64))
+        self.register_buffer("y_ref", torch.zeros(a))
+        self.register_buffer("sig_ref", torch.zeros(s))
+        self.register_buffer("target_code", torch.zeros(a, dtype=torch.int64))
+        self.register_buffer("compensate", torch.ones(a))
+
+    #: Buffers added with targets; a checkpoint written before them loads with their defaults.
+    _TARGET_BUFFERS = ("y_offset", "y_ref", "sig_ref", "target_code", "compensate")
+
+    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args: Any,
+                              **kwargs: Any) -> None:
+        for name in self._TARGET_BUFFERS:
+            state_dict.setdefault(prefix + name, getattr(self, name).detach().clone())
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    @property
+    def target_modes(self) -> list[str]:
+        """Target mode per output axis (``channel``, ``zero``, ``at-t-ref``, ``four-position``)."""
+        from ..target import MODE_CODES
+
+        names = {v: k for k, v in MODE_CODES.items()}
+        return [names.get(int(c), "channel") for c in self.target_code.tolist()]
+
+    @property
+    def compensated_axes(self) -> list[bool]:
+        """Per output axis: False where the model leaves the axis uncompensated (drift 0)."""
+        return [bool(v) for v in (self.compensate.detach().cpu() != 0).tolist()]
+
+    def set_compensate(self, mask: Any) -> None:
+        """Per-axis mask: False leaves that axis uncompensated (drift 0 in every export)."""
+        m = np.asarray(mask, dtype=bool).reshape(-1)
+        if m.size != len(self.outputs):
+            raise ConfigError(f"compensate mask has {m.size} entries for {len(self.outputs)} "
+                              f"outputs {self.outputs}")
+        self.compensate.copy_(torch.as_tensor(m.astype(np.float64), dtype=self.compensate.dtype))
+
+    def set_target(self, *, modes: Any, offset: np.ndarray, rest: np.ndarray) -> None:
+        """Store the target modes, the float64 offset and the normalisation at rest.
+
+        Parameters
+        ----------
+        modes : sequence of str
+            Per axis, a key of :data:`thermonet.target.MODE_CODES`.
+        offset : (A,) float64
+            The constant removed from the training target before standardisation.
+        rest : (S,) float64
+            Signals at rest (T_ref, rate 0, proxy references): ``at-t-ref`` axes
+            are normalised to zero there (evaluated in float64, through the clamp).
+        """
+        import copy
+
+        from ..target import MODE_CODES
+
+        modes = list(modes)
+        if len(modes) != len(self.outputs):
+            raise ConfigError(f"{len(modes)} target modes for {len(self.outputs)} outputs")
+        bad = [m for m in modes if m not in MODE_CODES]
+        if bad:
+            raise ConfigError(f"unknown target mode {bad[0]!r} (valid: {', '.join(MODE_CODES)})")
+        rest = np.asarray(rest, dtype=np.float64).reshape(-1)
+        if rest.size != len(self.signals) or not np.all(np.isfinite(rest)):
+            raise ConfigError(f"rest signals {rest.tolist()} do not fit signals {self.signals}")
+        with torch.no_grad():
+            self.y_offset.copy_(torch.as_tensor(np.asarray(offset, dtype=np.float64)))
+            self.sig_ref.copy_(torch.as_tensor(rest, dtype=self.sig_ref.dtype))
+            plain = copy.deepcopy(self).double()
+            plain.target_code.zero_()
+            plain.compensate.fill_(1.0)
+            at_rest = plain.relative(torch.as_tensor(rest[None, :]))[0]
+            self.y_ref.copy_(at_rest.to(self.y_ref.dtype))
+            self.target_code.copy_(torch.as_tensor([MODE_CODES[m] for m in modes]))
+
+    def _at_t_ref(self, dtype: torch.dtype) -> torch.Tensor:
+        from ..target import MODE_CODES
+
+        return (self.target_code == MODE_CODES["at-t-ref"]).to(dtype)
+
+    def constant(self) -> torch.Tensor:
+        """Per-axis float64 constant of the drift: the offset on ``channel``/``zero`` axes
+        (0 on ``at-t-ref`` axes, where it cancels, and on uncompensated axes)."""
+        a = self._at_t_ref(torch.float64)
+        return self.y_offset.double() * (1.0 - a) * self.compensate.double()
+
+    def relative(self, signals: torch.Tensor) -> torch.Tensor:
+        """Drift minus :meth:`constant`, in the model's dtype (float32 as trained and
+        exported): what the ONNX graph and the C header compute in float32."""
+        s = signals.to(self.sig_lo.dtype)
+        s = torch.minimum(torch.maximum(s, self.sig_lo), self.sig_hi)
+        z = (self.features(s) - self.x_mean) / self.x_std
+        y = self.family(z) * self.y_std + self.y_mean
+        return (y - self._at_t_ref(y.dtype) * self.y_ref) * self.compensate
+
+    def drift64(self, signals: torch.Tensor) -> torch.Tensor:
+        """Drift in float64: :meth:`relative` (model dtype) plus the float64 constant."""
+        return self.relative(signals).double() + self.constant()
 
     @property
     def family_name(self) -> str:
@@ -208,9 +350,8 @@ class DriftModel(nn.Module):
         return ~inside.all(dim=1)
 
     def forward(self, signals: torch.Tensor) -> torch.Tensor:
-        # float32 as trained and exported; a float64 copy (model.double()) computes in
-        # float64 — the export's parity check uses one as its reference
-        s = signals.to(self.sig_lo.dtype)
-        s = torch.minimum(torch.maximum(s, self.sig_lo), self.sig_hi)
-        z = (self.features(s) - self.x_mean) / self.x_std
-        return self.family(z) * self.y_std + self.y_mean
+        # the drift in the model's dtype: float32 as trained (a large constant then loses
+        # precision: use drift64 / thermonet.train.predict); a float64 copy (model.double())
+        # computes in float64 — the export's parity check uses one as its reference
+        r = self.relative(signals)
+        return r + self.constant().to(r.dtype)

@@ -38,6 +38,10 @@ __all__ = ["TSFuzzy"]
 class TSFuzzy(Family):
     """Takagi–Sugeno fuzzy model: triangular sets, first-order rules, per-axis coefficients."""
 
+    peaks: torch.Tensor      # buffers, declared for the type checker
+    spacing: torch.Tensor
+    bounds: torch.Tensor
+
     name = "ts-fuzzy"
     max_inputs = 1
     default_inputs = ["T"]
@@ -51,9 +55,13 @@ class TSFuzzy(Family):
             try:
                 lo, hi = (float(v) for v in universe)
             except (TypeError, ValueError):
-                raise ConfigError(f"ts-fuzzy: universe must be [lo, hi], got {universe!r}") from None
+                raise ConfigError(
+                    f"ts-fuzzy: universe must be [lo, hi], got {universe!r}"
+                ) from None
             if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
-                raise ConfigError(f"ts-fuzzy: universe must be finite with lo < hi, got {universe!r}")
+                raise ConfigError(
+                    f"ts-fuzzy: universe must be finite with lo < hi, got {universe!r}"
+                )
             universe = [lo, hi]
         self.n_sets = int(n_sets)
         self.universe = universe

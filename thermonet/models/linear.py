@@ -55,3 +55,10 @@ class Linear(Family):
 
     def hyper(self) -> dict[str, Any]:
         return {}
+
+    def polynomial_form(self) -> np.ndarray | None:
+        """A line is a degree-1 polynomial: :math:`[b_a, w_a]` when there is one input."""
+        if self.n_inputs != 1:
+            return None
+        return np.column_stack([as_numpy(self.bias),
+                                as_numpy(self.weight)])

@@ -64,6 +64,9 @@ def _grid_guess(x: np.ndarray, y: np.ndarray, lo: float, hi: float
 class Lorentz(Family):
     """Origin's Lorentz curve on one input, per-axis ``y0, A, xc, w``."""
 
+    xc_lo: torch.Tensor      # buffers, declared for the type checker
+    xc_hi: torch.Tensor
+
     name = "lorentz"
     max_inputs = 1
     default_inputs = ["T"]

@@ -67,11 +67,12 @@ class Poly(Family):
             powers.append(p)
         out = []
         for exps in self.terms:
-            term = None
+            term: torch.Tensor | None = None
             for i, e in enumerate(exps):
                 if e:
                     term = powers[i][e - 1] if term is None else term * powers[i][e - 1]
-            out.append(term)
+            if term is not None:  # every term has a positive exponent
+                out.append(term)
         return torch.cat(out, dim=1)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
@@ -100,3 +101,10 @@ class Poly(Family):
 
     def hyper(self) -> dict[str, Any]:
         return {"degree": self.degree, "cross": self.cross}
+
+    def polynomial_form(self) -> np.ndarray | None:
+        """:math:`[b_a, c_{a,1} \\dots c_{a,n}]` per axis when there is one input."""
+        if self.n_inputs != 1:
+            return None
+        return np.column_stack([as_numpy(self.bias),
+                                as_numpy(self.weight)])

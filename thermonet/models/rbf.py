@@ -24,7 +24,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from sklearn.cluster import KMeans
 from torch import nn
 
 from ..errors import ConfigError
@@ -45,7 +44,11 @@ class RBF(Family):
     def __init__(self, *, n_inputs: int, n_outputs: int, n_centres: int = 16,
                  init: str = "kmeans", width_scale: float = 1.0) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        if isinstance(n_centres, bool) or not isinstance(n_centres, int) or not 1 <= n_centres <= 4096:
+        if (
+            isinstance(n_centres, bool)
+            or not isinstance(n_centres, int)
+            or not 1 <= n_centres <= 4096
+        ):
             raise ConfigError(f"rbf: n_centres must be an integer in 1..4096, got {n_centres!r}")
         if init not in _INITS:
             raise ConfigError(f"rbf: init must be one of {', '.join(_INITS)}, got {init!r}")
@@ -92,7 +95,9 @@ class RBF(Family):
         xn, yn = as_numpy(x), as_numpy(y)
         if self.init == "random":
             rng = np.random.default_rng(seed)
-            centres = rng.uniform(xn.min(axis=0), xn.max(axis=0), size=(self.n_centres, xn.shape[1]))
+            centres = rng.uniform(
+                xn.min(axis=0), xn.max(axis=0), size=(self.n_centres, xn.shape[1])
+            )
             with torch.no_grad():
                 self.centres.copy_(torch.as_tensor(centres))
                 self.log_sigma.zero_()
@@ -100,6 +105,8 @@ class RBF(Family):
                 self.bias.zero_()
             return
         step = max(1, xn.shape[0] // 5000)  # even decimation bounds k-means cost
+        from sklearn.cluster import KMeans  # heavy: loaded when an RBF is initialised
+
         km = KMeans(n_clusters=self.n_centres, random_state=seed, n_init=4).fit(xn[::step])
         centres = km.cluster_centers_
         dist = np.sqrt(((centres[:, None, :] - centres[None, :, :]) ** 2).sum(-1))

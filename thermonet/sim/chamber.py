@@ -10,7 +10,6 @@ soak staircases are built from these by :func:`staircase` and :func:`cycle`.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Union
 
 import numpy as np
 
@@ -50,7 +49,7 @@ class Approach:
     duration_h: float  # h
 
 
-Segment = Union[Soak, Ramp, Approach]
+Segment = Soak | Ramp | Approach
 
 
 def _segment_duration_s(seg: Segment, start_c: float) -> float:

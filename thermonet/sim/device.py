@@ -6,7 +6,8 @@ rate-independent hysteresis which needs the sample order):
 .. math::
 
     T_{die} &= \\mathrm{lag}_{\\tau_d}(T_{chamber}) + \\Delta T_{self}(t) \\\\
-    T_{read} &= Q_{r}\\big(\\mathrm{lag}_{\\tau_t}(\\mathrm{lag}_{\\tau_c}(T_{chamber})) + e\\big) \\\\
+    T_{read} &= Q_{r}\\big(\\mathrm{lag}_{\\tau_t}(\\mathrm{lag}_{\\tau_c}(T_{chamber}))
+                + e\\big) \\\\
     d(t) &= b(T_{die}) + s(T_{die})\\,10^{-6}\\,x_{ref} + h(T_{die}) + k\\,\\dot T_{die} \\\\
     y(t) &= x_{ref} + d(t) + n(t)
 
@@ -18,10 +19,9 @@ hysteresis, ``k`` the temperature-rate coefficient and ``n`` the noise.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, Union
+from typing import Protocol
 
 import numpy as np
-from scipy.signal import lfilter
 
 __all__ = [
     "Law", "Polynomial", "Lorentz", "Sinusoid", "LawSum",
@@ -92,7 +92,7 @@ class Sinusoid:
 class LawSum:
     """Sum of laws."""
 
-    parts: tuple["AnyLaw", ...]
+    parts: tuple[AnyLaw, ...]
 
     def __call__(self, temperature_c: np.ndarray) -> np.ndarray:
         t = np.asarray(temperature_c, dtype=np.float64)
@@ -102,7 +102,7 @@ class LawSum:
         return out
 
 
-AnyLaw = Union[Polynomial, Lorentz, Sinusoid, LawSum]
+AnyLaw = Polynomial | Lorentz | Sinusoid | LawSum
 
 
 # ------------------------------------------------------------ configuration
@@ -205,7 +205,9 @@ class AxisConfig:
     unit: str = "deg/s"
     bias: AnyLaw = Polynomial(coefficients=(0.0,))
     scale_factor_ppm: AnyLaw | None = None  # ppm of the reference, None: no scale-factor error
-    bias_reference_c: float | None = None  # °C; bias taken relative to its value here (None: absolute)
+    bias_reference_c: float | None = (
+        None  # °C; bias taken relative to its value here (None: absolute)
+    )
     hysteresis: HysteresisConfig = HysteresisConfig()
     rate_term: RateTermConfig = RateTermConfig()
     noise: NoiseConfig = NoiseConfig()
@@ -228,6 +230,8 @@ def first_order_lag(x: np.ndarray, tau_s: float, dt_s: float) -> np.ndarray:
     c = tau_s / dt_s * (1.0 - a)
     b0, b1 = 1.0 - c, c - a
     zi = np.array([x[0] * (1.0 - b0)])  # steady state y = x[0]: y0 = b0 x0 + z
+    from scipy.signal import lfilter  # loaded when simulating, not at import
+
     y, _ = lfilter([b0, b1], [1.0, -a], x, zi=zi)
     return y
 

@@ -5,10 +5,10 @@ projection of the table's positions):
 
 .. math:: y = K_0 + K_1\\, x_{ref}
 
-and the scale-factor temperature coefficient over the soaks is
-
-.. math:: \\Delta K = \\frac{K_{max} - K_{min}}{\\bar K}\\,\\frac{10^6}{T_{max} - T_{min}}
-          \\quad [\\mathrm{ppm/°C}]
+and the scale-factor temperature coefficient over the soaks is study 000's
+:math:`\\Delta K`, defined once in
+:func:`thermonet.metrics.scale_factor_tempco_ppm_per_c` (ppm/°C, positive for a
+negative scale factor too).
 """
 
 from __future__ import annotations
@@ -18,13 +18,14 @@ import numpy as np
 from ..errors import InputError
 from ..recording import Recording
 
-__all__ = ["four_position_estimates", "scale_factor_coefficient_ppm_per_c"]
+__all__ = ["four_position_estimates"]
 
 
 def _blocks(mask: np.ndarray) -> list[tuple[int, int]]:
     """Start/stop indices (stop exclusive) of the runs of True in ``mask``."""
     d = np.diff(np.r_[0, mask.astype(np.int8), 0])
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(),
+                    strict=False))
 
 
 def four_position_estimates(recording: Recording, output: str | None = None, *,
@@ -58,7 +59,9 @@ def four_position_estimates(recording: Recording, output: str | None = None, *,
         raise InputError.at(src, "a four-position test needs the reference channel",
                             column=f"ref_{output}")
     if recording.temperature_c is None:
-        raise InputError.at(src, "a four-position test needs the thermometer", column="temperature_c")
+        raise InputError.at(
+            src, "a four-position test needs the thermometer", column="temperature_c"
+        )
     t = np.asarray(recording.time_s, dtype=np.float64)
     temp = np.asarray(recording.temperature_c, dtype=np.float64)
     y = np.asarray(recording.outputs[output], dtype=np.float64)
@@ -86,15 +89,3 @@ def four_position_estimates(recording: Recording, output: str | None = None, *,
                             f"(temperature rate below {max_rate_c_per_h:g} °C/h)",
                             column="temperature_c")
     return out
-
-
-def scale_factor_coefficient_ppm_per_c(estimates: list[tuple[float, float, float]]) -> float:
-    """Study 000's ΔK in ppm/°C from :func:`four_position_estimates` output."""
-    arr = np.asarray(estimates, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[0] < 2:
-        raise ValueError(f"need at least two soaks, got {arr.shape[0] if arr.ndim == 2 else 0}")
-    temp, k1 = arr[:, 0], arr[:, 2]
-    span = float(np.ptp(temp))
-    if span <= 0:
-        raise ValueError("all soaks at the same temperature: ΔK undefined")
-    return float(np.ptp(k1) / np.mean(k1) * 1e6 / span)

@@ -10,6 +10,8 @@ accel      0.2 Hz  2 h per temperature point (1 h soak + 4 × 15 min positions)
 hrg        0.1 Hz  4 h soaks and a 15 h validation soak; slow thermal physics
 mems-gyro  1 Hz    1 h soaks; Allan deviation needs τ down to seconds
 patent-gyro 1 Hz   the patent's thermometer reads at 1 Hz
+consumer-imu 1 Hz  a 4.6 h climate cycle; 1 °C/min ramps need no more
+accel-ramp 2 Hz    noise-dominated on purpose: 14,400 samples per run
 ========== ======= ==========================================================
 """
 
@@ -17,16 +19,32 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 
 from ..errors import ConfigError
 from ..recording import Dataset, Recording
 from .chamber import Approach, ChamberProfile, Ramp, Soak, staircase
-from .device import (AxisConfig, LawSum, Lorentz, NoiseConfig, Polynomial,
-                     ProxyConfig, RateTermConfig, SelfHeatingConfig, Sinusoid, ThermalConfig,
-                     ThermometerConfig, UnitSpreadConfig, first_order_lag, play_operator,
-                     quantise, sensor_noise)
+from .device import (
+    AxisConfig,
+    HysteresisConfig,
+    LawSum,
+    Lorentz,
+    NoiseConfig,
+    Polynomial,
+    ProxyConfig,
+    RateTermConfig,
+    SelfHeatingConfig,
+    Sinusoid,
+    ThermalConfig,
+    ThermometerConfig,
+    UnitSpreadConfig,
+    first_order_lag,
+    play_operator,
+    quantise,
+    sensor_noise,
+)
 
 __all__ = ["TableConfig", "Switches", "SimConfig", "RunTruth", "PRESETS", "get_preset",
            "simulate", "simulate_run"]
@@ -111,7 +129,7 @@ def _reference(cfg: SimConfig, profile: ChamberProfile, t: np.ndarray, axis: Axi
         ref[:] = rate
     elif cfg.table.program == "four_position":
         seq = np.asarray(cfg.table.positions, dtype=np.float64)
-        for t0, t1, _, seg in profile.bounds():
+        for _t0, t1, _, seg in profile.bounds():
             if isinstance(seg, Soak) and seg.four_position:
                 start = t1 - seq.size * cfg.table.dwell_s
                 m = (t >= start) & (t < t1)
@@ -214,12 +232,12 @@ def simulate_run(cfg: SimConfig, run_index: int, seed: int = 0) -> tuple[Recordi
     return rec, RunTruth(chamber_c=chamber, die_c=die, case_c=case, thermometer_c=reading)
 
 
-def _apply_overrides(cfg: SimConfig, overrides: dict[str, object]) -> SimConfig:
+def _apply_overrides(cfg: SimConfig, overrides: dict[str, Any]) -> SimConfig:
     """Top-level fields (``sample_rate_hz=0.5``), switches (``hysteresis=False``) and
     nested fields as ``section__field`` (``thermal__die_lag_s=60``)."""
     top = {f.name for f in dataclasses.fields(SimConfig)}
     sw_names = {f.name for f in dataclasses.fields(Switches)}
-    sw_changes: dict[str, object] = {}
+    sw_changes: dict[str, Any] = {}
     for key, value in overrides.items():
         if key in sw_names:
             if not isinstance(value, bool):
@@ -229,11 +247,12 @@ def _apply_overrides(cfg: SimConfig, overrides: dict[str, object]) -> SimConfig:
             cfg = dataclasses.replace(cfg, **{key: value})
         elif "__" in key and key.split("__", 1)[0] in top:
             section, sub = key.split("__", 1)
-            part = getattr(cfg, section)
+            part: Any = getattr(cfg, section)
             if part is None or not dataclasses.is_dataclass(part) or \
                     sub not in {f.name for f in dataclasses.fields(part)}:
                 raise ConfigError(f"unknown simulation setting '{key}'")
-            cfg = dataclasses.replace(cfg, **{section: dataclasses.replace(part, **{sub: value})})
+            new_part: Any = dataclasses.replace(cast(Any, part), **{sub: value})
+            cfg = dataclasses.replace(cfg, **{section: new_part})
         else:
             raise ConfigError(f"unknown simulation setting '{key}' (valid: "
                               f"{', '.join(sorted(top | sw_names))}, or section__field)")
@@ -405,7 +424,83 @@ PATENT_GYRO = SimConfig(
     unit_spread=UnitSpreadConfig(bias_gain_rel=0.01, bias_offset=0.005, temperature_shift_c=0.2),
 )
 
+# ------------------------------------------------ realistic presets (no study to reproduce)
+# A climate chamber (not a precision thermal test): 50 → −20 → 75 → 35 °C at 1 °C/min,
+# 30 min holds at the turning points.  The final cooling branch starts from a hotter
+# excursion (75 °C) than the first one (50 °C): a bias with thermal history differs there.
+_CLIMATE_CYCLE = ChamberProfile(name="climate cycle 50 -> -20 -> 75 -> 35 C at 1 C/min",
+                                start_c=50.0, segments=(
+    Soak(temperature_c=50.0, duration_h=0.5), Ramp(to_c=-20.0, rate_c_per_h=60.0),
+    Soak(temperature_c=-20.0, duration_h=0.5), Ramp(to_c=75.0, rate_c_per_h=60.0),
+    Soak(temperature_c=75.0, duration_h=0.5), Ramp(to_c=35.0, rate_c_per_h=60.0),
+    Soak(temperature_c=35.0, duration_h=0.5)))
+
+_G = 9.80665  # m/s² per g
+
+
+def _consumer_gyro(name: str, c1: float, c2: float, hysteresis: float,
+                   width_c: float = 8.0) -> AxisConfig:
+    # BMI270/ICM-42688-class: 0.003–0.004 °/s/K offset tempco, 0.007 °/s/√Hz noise density
+    return AxisConfig(
+        name=name, unit="deg/s", bias_reference_c=25.0,
+        bias=Polynomial(coefficients=(0.0, c1, c2), reference_c=25.0),
+        hysteresis=HysteresisConfig(amplitude=hysteresis, width_c=width_c),
+        noise=NoiseConfig(white_density=0.007, bias_instability=0.002, rate_random_walk=0.0))
+
+
+def _consumer_acc(name: str, level: float, c1: float, c2: float,
+                  hysteresis: float) -> AxisConfig:
+    # 0.15–0.35 mg/K offset tempco with curvature, 160 µg/√Hz noise density (in m/s²);
+    # ``level`` is the static input: gravity on z, a small tilt on x and y (no reference channel)
+    return AxisConfig(
+        name=name, unit="m/s^2", bias_reference_c=25.0, reference_level=level,
+        bias=Polynomial(coefficients=(0.0, c1 * 1e-3 * _G, c2 * 1e-3 * _G), reference_c=25.0),
+        hysteresis=HysteresisConfig(amplitude=hysteresis * 1e-3 * _G, width_c=8.0),
+        noise=NoiseConfig(white_density=160e-6 * _G, bias_instability=40e-6 * _G,
+                          rate_random_walk=0.0))
+
+
+CONSUMER_IMU = SimConfig(
+    name="consumer-imu", sensor_kind="imu", sample_rate_hz=1.0, default_runs=2,
+    procedures=(_CLIMATE_CYCLE,),
+    # gyro_x: a bias that depends on thermal history — a wide hysteresis (40 °C) against
+    # its static tempco: on the last cooling branch (after 75 °C) the two nearly cancel, so
+    # a temperature-only model does worse than the raw output there (as on real units)
+    axes=(_consumer_gyro("gyro_x", 0.0015, 1e-5, -0.03, width_c=40.0),
+          _consumer_gyro("gyro_y", -0.003, 4e-5, 0.015),
+          # essentially no drift: only noise and the turn-on bias (do-no-harm must fire)
+          _consumer_gyro("gyro_z", 0.0, 0.0, 0.0),
+          _consumer_acc("acc_x", 0.12, 0.25, 2e-3, 0.3),    # tilt ≈ 0.7°
+          _consumer_acc("acc_y", -0.08, -0.15, 1.5e-3, 0.2),
+          _consumer_acc("acc_z", -_G, 0.35, -2.5e-3, 0.4)),  # level: z reads −1 g
+    thermal=ThermalConfig(die_lag_s=60.0, case_lag_s=90.0),
+    # on-die thermometer: 1/512 °C steps, a little noise, lags the die slightly
+    thermometer=ThermometerConfig(lag_s=20.0, resolution_c=1.0 / 512.0, noise_c=0.02),
+    # per power-up offset (turn-on bias) 0.05 °/s or 0.05 m/s² (5 mg): draw per run
+    unit_spread=UnitSpreadConfig(bias_gain_rel=0.05, bias_offset=0.05,
+                                 temperature_shift_c=0.5),
+)
+
+_ACCEL_RAMP = ChamberProfile(name="slow ramp 15 -> 45 C at 15 C/h", start_c=15.0, segments=(
+    Soak(temperature_c=15.0, duration_h=0.25), Ramp(to_c=45.0, rate_c_per_h=15.0),
+    Soak(temperature_c=45.0, duration_h=0.25)))
+
+ACCEL_RAMP = SimConfig(
+    name="accel-ramp", sensor_kind="acc", sample_rate_hz=2.0, default_runs=1,
+    procedures=(_ACCEL_RAMP,),
+    # a static inclinometer axis at +1 g: 4 mg of drift over 30 °C under 20 mg of
+    # per-sample noise (white density 14 mg·√s at 2 Hz) — only binned means show it
+    axes=(AxisConfig(name="acc_x", unit="g", bias_reference_c=30.0, reference_level=1.0,
+                     bias=Polynomial(coefficients=(0.0, 1.2e-4, 1.0e-6), reference_c=30.0),
+                     noise=NoiseConfig(white_density=0.0141, bias_instability=1e-4,
+                                       rate_random_walk=0.0)),),
+    thermal=ThermalConfig(die_lag_s=120.0, case_lag_s=180.0),
+    thermometer=ThermometerConfig(lag_s=30.0, resolution_c=0.0625, noise_c=0.0),
+    unit_spread=UnitSpreadConfig(bias_offset=0.5e-3),
+)
+
 #: name → preset; docstrings of the study numbers are in :mod:`thermonet.sim`.
 PRESETS: dict[str, SimConfig] = {
     "accel": ACCEL, "hrg": HRG, "mems-gyro": MEMS_GYRO, "patent-gyro": PATENT_GYRO,
+    "consumer-imu": CONSUMER_IMU, "accel-ramp": ACCEL_RAMP,
 }

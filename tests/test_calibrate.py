@@ -1,0 +1,191 @@
+"""``thermonet calibrate``: simulate a board → calibrate → apply the autopilot's own formula to the
+written parameter file → compare with the simulated truth, for PX4 and ArduPilot, every instance.
+
+The formulas below are re-implemented here from the firmware sources, independently of
+thermonet.exporting.autopilot:
+
+* PX4 ``TemperatureCompensation::calc_thermal_offsets_3D`` / ``_1D``: T clamped to
+  [TMIN, TMAX], offset = sum_k X_k (T - TREF)^k, corrected = raw - offset (rad/s, m/s^2, Pa);
+  a slot applies to the sensor whose device id equals ``TC_*_ID`` (``set_sensor_id``).
+* ArduPilot ``TCal::correct_sensor``: T and T_cal clamped to [TMIN, TMAX],
+  P(x) = (c1 x + c2 x^2 + c3 x^3) * 1e-6, corrected = raw - P(T - 35) + P(T_cal - 35).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thermonet.calibrate import calibrate
+from thermonet.cli import main
+from thermonet.logs import read_log
+from thermonet.logs.writers import write_log
+from thermonet.sim.fcboard import simulate_board
+
+
+def _px4_file(path: Path) -> dict[str, float]:
+    out = {}
+    for line in path.read_text().splitlines():
+        if line.startswith("#") or not line.strip():
+            continue
+        vehicle, comp, name, value, ptype = line.split("\t")
+        assert (vehicle, comp) == ("1", "1") and ptype in ("6", "9")
+        out[name] = float(value)
+    return out
+
+
+def _ap_file(path: Path) -> dict[str, float]:
+    out = {}
+    for line in path.read_text().splitlines():
+        if line.startswith("#") or not line.strip():
+            continue
+        name, value = line.split(",")
+        out[name] = float(value)
+    return out
+
+
+def _px4_correction(p: dict[str, float], kind: str, device_id: int, temp: np.ndarray
+                    ) -> np.ndarray:
+    t = {"gyro": "G", "acc": "A", "baro": "B"}[kind]
+    assert p[f"TC_{t}_ENABLE"] == 1
+    slot = next(s for s in range(4) if int(p[f"TC_{t}{s}_ID"]) == device_id)
+    pre = f"TC_{t}{slot}_"
+    x = np.where(temp > p[pre + "TMAX"], p[pre + "TMAX"] - p[pre + "TREF"],
+                 np.where(temp < p[pre + "TMIN"], p[pre + "TMIN"] - p[pre + "TREF"],
+                          temp - p[pre + "TREF"]))
+    if kind == "baro":
+        return sum(p[f"{pre}X{k}"] * x ** k for k in range(6))[:, None]
+    return np.column_stack([sum(p[f"{pre}X{k}_{i}"] * x ** k for k in range(4))
+                            for i in range(3)])
+
+
+def _ap_correction(p: dict[str, float], kind: str, imu: int, temp: np.ndarray, t_cal: float
+                   ) -> np.ndarray:
+    pre = f"INS_TCAL{imu + 1}_"
+    assert p[pre + "ENABLE"] == 1
+    lo, hi = p[pre + "TMIN"], p[pre + "TMAX"]
+    x, xc = np.clip(temp, lo, hi) - 35.0, float(np.clip(t_cal, lo, hi)) - 35.0
+    s = "GYR" if kind == "gyro" else "ACC"
+    cols = []
+    for ax in "XYZ":
+        c1, c2, c3 = (p[f"{pre}{s}{k}_{ax}"] * 1e-6 for k in (1, 2, 3))
+        cols.append((c1 * x + c2 * x ** 2 + c3 * x ** 3) - (c1 * xc + c2 * xc ** 2 + c3 * xc ** 3))
+    return np.column_stack(cols)
+
+
+def _binned_pp(temp: np.ndarray, y: np.ndarray) -> float:
+    bins = np.floor(temp)
+    means = [y[bins == b].mean() for b in np.unique(bins) if np.sum(bins == b) >= 5]
+    return float(np.ptp(means))
+
+
+@pytest.mark.parametrize("autopilot,preset", [("px4", "fc-board"), ("ardupilot", "fc-board"),
+                                              ("px4", "fc-board-cycle"),
+                                              ("ardupilot", "fc-board-cycle")])
+def test_autopilot_formula_on_the_written_file_cuts_true_drift(tmp_path: Path, autopilot: str,
+                                                               preset: str) -> None:
+    board = simulate_board(preset, autopilot=autopilot, seed=11, rate_hz=0.5)
+    log_path = write_log(board, tmp_path / ("b.ulg" if autopilot == "px4" else "b.bin"))
+    doc = calibrate(log_path, tmp_path / "cal", compare=False)
+    insts = doc["instances"]
+    # the whole-degree IMU is left out with its reason; PX4 fits the baro, ArduPilot cannot
+    for name in ("gyro2", "acc2"):
+        assert insts[name]["status"] == "skipped" and "1 °C steps" in insts[name]["reason"]
+    assert insts["baro0"]["status"] == ("fitted" if autopilot == "px4" else "skipped")
+    truth = {i.name: i for i in board.instances}
+    if autopilot == "px4":
+        p = _px4_file(tmp_path / "cal" / "px4.params")
+        for t in "GAB":                      # every slot of every kind is in the file
+            for s in range(4):
+                assert f"TC_{t}{s}_ID" in p and f"TC_{t}{s}_TREF" in p
+        assert p["TC_G2_ID"] == 0 and p["TC_G3_ID"] == 0        # nothing left in unused slots
+    else:
+        p = _ap_file(tmp_path / "cal" / "ardupilot.parm")
+        assert "INS_TCAL_OPTIONS" not in p and "INS_TCAL3_ENABLE" not in p
+    fitted = [n for n, d in insts.items() if d["status"] == "fitted"]
+    assert sorted(fitted) == sorted(["gyro0", "gyro1", "acc0", "acc1"]
+                                    + (["baro0"] if autopilot == "px4" else []))
+    for name in fitted:
+        inst = truth[name]
+        temp = inst.temperature_c
+        if autopilot == "px4":
+            corr = _px4_correction(p, inst.kind, inst.device_id, temp)
+        else:
+            corr = _ap_correction(p, inst.kind, inst.instance, temp, t_cal=25.0)
+        for j in range(inst.truth.shape[1]):
+            before = _binned_pp(temp, inst.truth[:, j])
+            after = _binned_pp(temp, inst.truth[:, j] - corr[:, j])
+            assert before / after >= 5.0, (name, j, before, after)
+        if autopilot == "px4" and inst.kind == "gyro":
+            # PX4 keeps the constant: what is left of the gyro's true drift is near zero
+            resid = inst.truth - corr
+            assert np.max(np.abs(resid.mean(axis=0))) < 0.05 * np.ptp(inst.truth)
+
+
+def test_calibrate_cli_side_by_side_and_left_out_lines(tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]
+                                                       ) -> None:
+    board = simulate_board("fc-board-cycle", autopilot="px4", seed=12, rate_hz=0.1)
+    board.instances = [i for i in board.instances if i.name != "acc0"]   # two comparisons: fast
+    gyro1 = next(i for i in board.instances if i.name == "gyro1")
+    gyro1.temperature_c = 30.0 + 0.1 * np.sin(np.arange(gyro1.n_samples))   # too little span
+    acc1 = next(i for i in board.instances if i.name == "acc1")
+    acc1.temperature_c = None                                               # no thermometer
+    path = write_log(board, tmp_path / "board.ulg")
+    out = tmp_path / "cal"
+    assert main(["calibrate", str(path), "--out", str(out)]) == 0
+    report = capsys.readouterr().out
+    lines = {ln.split()[0]: ln for ln in report.splitlines() if ln[:1].isalpha() and
+             ln.split()[0] in ("gyro0", "gyro1", "gyro2", "acc1", "acc2", "baro0")}
+    assert "LEFT OUT" in lines["gyro1"] and "spans only" in lines["gyro1"]
+    assert "LEFT OUT" in lines["acc1"] and "no temperature" in lines["acc1"]
+    assert "LEFT OUT" in lines["gyro2"] and "1 °C steps" in lines["gyro2"]
+    for name in ("gyro0", "baro0"):
+        assert "fitted" in lines[name]
+    doc = json.loads((out / "results.json").read_text())
+    assert (out / "report.txt").read_text().startswith("thermonet calibrate")
+    for name in ("gyro0", "baro0"):
+        cmp = doc["instances"][name]["compare"]
+        sub = json.loads((Path(cmp["dir"]) / "results.json").read_text())
+        # thermonet's families were fitted side by side with the firmware form, on held-out
+        # contiguous blocks, the firmware form as the baseline
+        assert sub["split"]["strategy"] == "time-blocks"
+        assert sub["baseline"] == cmp["firmware_family"]
+        assert {"linear", "rbf", cmp["firmware_family"]} <= set(sub["families"])
+        fw = cmp["families"][cmp["firmware_family"]]
+        assert fw["val_score"] < 0.2
+    p = _px4_file(out / "px4.params")
+    assert p["TC_G0_ID"] == 2424842 and p["TC_G1_ID"] == 0 and p["TC_A0_ID"] == 0
+    assert p["TC_G_ENABLE"] == 1 and p["TC_A_ENABLE"] == 0
+    assert p["TC_B0_ID"] == 3997706
+
+
+def test_calibrate_real_sample_log_refuses_every_instance(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]
+                                                          ) -> None:
+    ulg = Path(__file__).parent / "data" / "real" / "px4_ulog_sample" / "sample_log_small.ulg"
+    assert main(["calibrate", str(ulg), "--out", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1
+    assert "no sensor instance can be calibrated" in err and "too few samples: 6" in err
+    assert "mag0" in err and not (tmp_path / "o" / "px4.params").exists()
+    assert read_log(ulg).instances                                          # the log itself reads
+
+
+def test_simulate_board_cli_writes_both_log_formats(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    for name, autopilot in (("b.ulg", "px4"), ("b.BIN", "ardupilot")):
+        path = tmp_path / name
+        assert main(["simulate", "fc-board", "--seed", "3", "--out", str(path)]) == 0
+        log = read_log(path)
+        assert log.autopilot == autopilot and len(log.instances) == 7
+        same = read_log(path)                                 # same seed, same data
+        assert np.array_equal(log.instances[0].values, same.instances[0].values)
+    capsys.readouterr()
+    assert main(["simulate", "fc-board", "--out", str(tmp_path / "b.parquet")]) == 1
+    assert "FILE.ulg" in capsys.readouterr().err
+    assert main(["simulate", "patent-gyro", "--out", str(tmp_path / "p.ulg")]) == 1
+    assert "only the flight-controller presets" in capsys.readouterr().err

@@ -1,0 +1,368 @@
+"""The researcher's Python API: :class:`DriftEstimator`, :func:`simulate`, :func:`read`.
+
+A drift model in the scikit-learn / skorch mould::
+
+    import thermonet
+
+    ds = thermonet.simulate("patent-gyro", runs=3, seed=0)
+    est = thermonet.DriftEstimator("poly", ["dT"], degree=3).fit(ds[0], val=ds[1])
+    drift = est.predict(ds[2])                 # (N, axes), in the outputs' units
+    print(est.score(ds[2]))                    # 1 − msd after / msd before, mean over axes
+    est.save("cubic.pt")
+    est.export("cubic.onnx", format="onnx")
+
+The constructor only stores its arguments; :meth:`DriftEstimator.fit`
+resolves the feature references from the training runs
+(:meth:`~thermonet.features.FeatureSpec.from_recordings`), builds each run's
+signals and targets (:func:`~thermonet.evaluate.build_part`, the function
+``compare`` uses) and runs the one training loop
+(:func:`thermonet.train.fit`).  Learned state ends in ``_``.  A saved
+estimator is an ordinary thermonet checkpoint (``thermonet export`` reads it).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .errors import ThermonetError
+from .recording import Dataset, Recording
+from .trainconfig import TrainConfig
+
+if TYPE_CHECKING:
+    from .features import FeatureSpec
+    from .models import DriftModel
+
+__all__ = ["DriftEstimator", "NotFittedError", "simulate", "read"]
+
+_TARGETS = ("drift", "four-position")
+
+
+class NotFittedError(ThermonetError, AttributeError):
+    """``predict``/``compensate``/``score``/``save``/``export`` before ``fit``."""
+
+
+def _runs(data: Dataset | Recording | Iterable[Recording], what: str) -> list[Recording]:
+    if isinstance(data, Recording):
+        return [data]
+    runs = list(data)
+    if not runs or not all(isinstance(r, Recording) for r in runs):
+        raise ThermonetError(f"{what}: expected a Dataset, a Recording or a list of Recordings, "
+                             f"got {type(data).__name__}")
+    return runs
+
+
+class DriftEstimator:
+    """One model family fitted to drift vs temperature (or a proxy).
+
+    Parameters
+    ----------
+    family : str
+        A name in :data:`thermonet.models.MODELS` (``linear``, ``poly``, ...).
+    inputs : list of str, optional
+        Features (``T``, ``dT``, ``dT2``, ``rate``, ``d_<proxy>``...); default
+        the family's own (``default_inputs``).
+    t_ref : "start" or float
+        :math:`T_{ref}` in °C, or the mean over the first ``t_ref_window_min``
+        minutes of the first training run.
+    target : "drift" or "four-position"
+        What is fitted: per-sample drift (output − reference), or study 000's
+        per-soak bias and scale factor (outputs ``<axis>.bias``/``<axis>.scale``).
+    train : TrainConfig, optional
+        The training loop's settings (default ``TrainConfig()``).
+    outputs : list of str, optional
+        Output axes to model (default: every output of the training data).
+    train_on : "all" or "heating"
+        ``heating`` fits only samples with dT/dt > −0.05 °C/min (PX4/ArduPilot practice).
+    rate_window_s : float
+        Window of the causal dT/dt estimate, s.
+    t_ref_window_min : float
+        Minutes averaged for ``t_ref="start"``.
+    **hyper
+        The family's hyper-parameters (``degree=3``, ``n_centres=16``...).
+
+    Attributes
+    ----------
+    model_ : DriftModel
+        The fitted torch module (eval mode, CPU).
+    spec_ : FeatureSpec
+        Inputs and the references resolved from the training runs.
+    outputs_ : list of str
+    units_ : dict
+        Unit per output (from the training data).
+    history_ : list of dict
+        Per epoch ``train_loss`` and ``val_loss`` (standardised MSE); epoch 0 is
+        the closed-form start.
+    best_epoch_ : int
+    best_val_ : float or None
+        Validation loss at ``best_epoch_`` (None without a validation run).
+    n_params_ : int
+    fit_seconds_ : float
+    """
+
+    def __init__(self, family: str, inputs: Sequence[str] | None = None, *,
+                 t_ref: str | float = "start", target: str = "drift",
+                 train: TrainConfig | None = None, outputs: Sequence[str] | None = None,
+                 train_on: str = "all", rate_window_s: float = 60.0,
+                 t_ref_window_min: float = 10.0, **hyper: Any) -> None:
+        self.family = family
+        self.inputs = inputs
+        self.t_ref = t_ref
+        self.target = target
+        self.train = train
+        self.outputs = outputs
+        self.train_on = train_on
+        self.rate_window_s = rate_window_s
+        self.t_ref_window_min = t_ref_window_min
+        self.hyper = hyper
+
+    def __repr__(self) -> str:
+        hyper = "".join(f", {k}={v!r}" for k, v in self.hyper.items())
+        return f"DriftEstimator({self.family!r}, {self.inputs!r}{hyper})"
+
+    # ------------------------------------------------------------------ fitting
+    def _resolved_inputs(self) -> list[str]:
+        if self.inputs is not None:
+            return list(self.inputs)
+        from .models import get_family
+
+        return list(get_family(self.family).default_inputs)
+
+    def _outputs_for(self, runs: list[Recording]) -> list[str]:
+        from .evaluate import FOURPOS_SUFFIXES
+
+        axes = list(self.outputs) if self.outputs is not None else list(runs[0].axes)
+        if self.target == "four-position":
+            return [f"{a}{s}" for a in axes for s in FOURPOS_SUFFIXES]
+        return axes
+
+    def fit(self, train: Dataset | Recording | Iterable[Recording],
+            val: Dataset | Recording | Iterable[Recording] | None = None) -> DriftEstimator:
+        """Fit on ``train``; stop early on ``val`` (held-out runs) when given.
+
+        Without ``val`` the loop stops on a training-loss plateau; thermonet
+        never carves validation samples at random (see :mod:`thermonet.splits`
+        for contiguous blocks).
+
+        Returns
+        -------
+        DriftEstimator
+            ``self``, fitted.
+
+        Raises
+        ------
+        ConfigError
+            Unknown family, input, hyper-parameter, target or ``train_on``.
+        FitError
+            The data cannot carry the family (reason given).
+        """
+        from .errors import ConfigError
+        from .evaluate import build_part, heating_only
+        from .features import FeatureSpec
+        from .splits import stack_blocks
+        from .train import fit
+
+        if self.target not in _TARGETS:
+            raise ConfigError(f"target: {self.target!r} is not one of {', '.join(_TARGETS)}")
+        if self.train_on not in ("all", "heating"):
+            raise ConfigError(f"train_on: {self.train_on!r} is not 'all' or 'heating'")
+        runs = _runs(train, "fit(train)")
+        val_runs = None if val is None else _runs(val, "fit(val)")
+        inputs = self._resolved_inputs()
+        outputs = self._outputs_for(runs)
+        config = self.train if self.train is not None else TrainConfig()
+        spec = FeatureSpec.from_recordings(inputs, runs, t_ref=self.t_ref,
+                                           window_min=self.t_ref_window_min)
+        parts = [self._part(r, spec, outputs) for r in runs]
+        if self.train_on == "heating":
+            parts = [heating_only(p, r, self.rate_window_s) for p, r in zip(parts, runs,
+                                                                            strict=True)]
+        val_part = None
+        if val_runs is not None:
+            val_rec = stack_blocks(val_runs, "val") if len(val_runs) > 1 else val_runs[0]
+            val_part = build_part(val_rec, signals=spec.signals, outputs=outputs,
+                                  target=self.target, rate_window_s=self.rate_window_s)
+        result = fit(family=self.family, inputs=inputs, outputs=outputs,
+                     train=[(p.signals, p.target) for p in parts],
+                     val=None if val_part is None else (val_part.signals, val_part.target),
+                     spec=spec, hyper=dict(self.hyper), config=config)
+        self.model_: DriftModel = result.model
+        self.spec_: FeatureSpec = spec
+        self.outputs_: list[str] = outputs
+        self.units_: dict[str, str] = {o: ("1" if o.endswith(".scale")
+                                           else runs[0].units.get(o.split(".")[0], ""))
+                                       for o in outputs}
+        self.signal_units_: dict[str, str] = {p: runs[0].units.get(p, "")
+                                              for p in runs[0].proxies}
+        self.device_id_: str = runs[0].device_id
+        self.train_config_: TrainConfig = config
+        self.history_: list[dict[str, Any]] = list(result.history)
+        self.best_epoch_: int = int(result.best_epoch)
+        self.best_val_: float | None = result.best_val_loss
+        self.n_params_: int = int(result.n_params)
+        self.fit_seconds_: float = float(result.fit_seconds)
+        return self
+
+    def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
+        from .evaluate import build_part
+
+        return build_part(rec, signals=spec.signals, outputs=outputs, target=self.target,
+                          rate_window_s=self.rate_window_s)
+
+    def _check_fitted(self, what: str) -> DriftModel:
+        model = getattr(self, "model_", None)
+        if model is None:
+            raise NotFittedError(f"this DriftEstimator({self.family!r}) is not fitted yet; "
+                                 f"call fit(...) before {what}()")
+        return model
+
+    # --------------------------------------------------------------- prediction
+    def predict(self, recording: Recording) -> np.ndarray:
+        """Predicted drift (N, axes) of ``recording``, float64, in the outputs' units.
+
+        Evaluated as on board: signals clamped to the trained range
+        (``model_.out_of_range`` flags the samples outside it).
+        """
+        model = self._check_fitted("predict")
+        from .features import signal_matrix
+        from .train import predict
+
+        signals = signal_matrix(recording, self.spec_.signals, rate_window_s=self.rate_window_s)
+        return predict(model, signals)
+
+    def compensate(self, recording: Recording) -> Recording:
+        """A copy of ``recording`` with the predicted drift subtracted from each modelled output."""
+        self._check_fitted("compensate")
+        if self.target != "drift":
+            raise ThermonetError("compensate: a four-position model predicts per-soak bias and "
+                                 "scale factor, not a drift to subtract sample by sample")
+        drift = self.predict(recording)
+        outputs = dict(recording.outputs)
+        for j, axis in enumerate(self.outputs_):
+            outputs[axis] = recording.outputs[axis] - drift[:, j]
+        return replace(recording, outputs=outputs, run_id=f"{recording.run_id}[compensated]")
+
+    def score(self, recording: Recording) -> float:
+        """Fraction of the drift's mean square removed, mean over axes (higher is better).
+
+        .. math:: s = 1 - \\frac{1}{A}\\sum_a \\frac{\\overline{(y_a - \\hat y_a)^2}}
+                                                  {\\overline{y_a^2}}
+
+        with :math:`y_a` the observed drift (output − reference; for a scale
+        factor its deviation from the mean, which is no error).  1 is perfect,
+        0 no better than the raw output, negative worse.  ``compare`` chooses
+        on the same ratio (its ``val_score`` is :math:`1 - s`).
+        """
+        model = self._check_fitted("score")
+        from .train import predict
+
+        part = self._part(recording, self.spec_, self.outputs_)
+        pred = predict(model, part.signals)
+        ratios = []
+        for j, axis in enumerate(self.outputs_):
+            y = part.target[:, j]
+            raw_err = y - np.mean(y) if axis.endswith(".scale") else y
+            raw = float(np.mean(raw_err ** 2))
+            comp = float(np.mean((y - pred[:, j]) ** 2))
+            ratios.append(comp / raw if raw > 0 else float("inf"))
+        return 1.0 - float(np.mean(ratios))
+
+    # ---------------------------------------------------------------- save, load
+    def _checkpoint_config(self) -> dict[str, Any]:
+        """The family's resolved configuration, as a checkpoint stores it."""
+        return {
+            "family": {"family": self.family, "inputs": list(self.spec_.inputs),
+                       "params": dict(self.hyper), "train_on": self.train_on},
+            "train": asdict(self.train_config_),
+            "features": {"t_ref": self.t_ref, "t_ref_window_min": self.t_ref_window_min,
+                         "rate_window_s": self.rate_window_s},
+            "target": self.target,
+        }
+
+    def _extra(self) -> dict[str, Any]:
+        return {"units": self.units_, "signal_units": self.signal_units_,
+                "device_id": self.device_id_, "history": self.history_}
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the fitted model as a thermonet checkpoint (atomic; loads with
+        ``weights_only=True``; ``thermonet export`` reads it)."""
+        model = self._check_fitted("save")
+        from .checkpoint import save_checkpoint
+
+        return save_checkpoint(path, model, config=self._checkpoint_config(), extra=self._extra(),
+                               epoch=self.best_epoch_, best_val=self.best_val_)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> DriftEstimator:
+        """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
+        from .checkpoint import load_checkpoint
+        from .config import from_dict
+
+        model, meta = load_checkpoint(path)
+        config = meta.get("config") or {}
+        fam = config.get("family") or {}
+        features = config.get("features") or {}
+        extra = meta.get("extra") or {}
+        train = from_dict(TrainConfig, config.get("train") or {}, source=str(path),
+                          prefix="config.train")
+        est = cls(meta["family"], list(meta["inputs"]),
+                  t_ref=features.get("t_ref", "start"), target=config.get("target", "drift"),
+                  train=train, outputs=list(meta["outputs"]),
+                  train_on=fam.get("train_on", "all"),
+                  rate_window_s=float(features.get("rate_window_s", 60.0)),
+                  t_ref_window_min=float(features.get("t_ref_window_min", 10.0)),
+                  **dict(meta["hyper"]))
+        est.model_ = model
+        est.spec_ = model.spec
+        est.outputs_ = list(meta["outputs"])
+        est.units_ = dict(extra.get("units") or {})
+        est.signal_units_ = dict(extra.get("signal_units") or {})
+        est.device_id_ = str(extra.get("device_id", ""))
+        est.train_config_ = train
+        est.history_ = list(extra.get("history") or [])
+        est.best_epoch_ = int(meta["epoch"]) if meta.get("epoch") is not None else 0
+        est.best_val_ = meta.get("best_val")
+        est.n_params_ = int(model.n_params)
+        est.fit_seconds_ = float("nan")
+        return est
+
+    def export(self, path: str | os.PathLike[str], format: str = "onnx", *,
+               device_id: int | None = None, instance: int | None = None) -> Path:
+        """Export through the format registry (:data:`thermonet.exporting.FORMATS`).
+
+        ``device_id``/``instance`` apply to the autopilot formats (see
+        ``thermonet export --help``).
+        """
+        model = self._check_fitted("export")
+        from .exporting import ExportRequest, get_format
+
+        meta = {"config": self._checkpoint_config(), "extra": self._extra()}
+        return get_format(format).write(model, Path(path), ExportRequest(
+            meta=meta, device_id=device_id, instance=instance))
+
+
+def simulate(preset: str, runs: int | None = None, seed: int = 0) -> Dataset:
+    """A simulated chamber test from a study preset (``patent-gyro``, ``accel``...).
+
+    Same preset, runs and seed give identical data.
+    """
+    from .sim import simulate as _simulate
+
+    return _simulate(preset, runs=runs, seed=seed)
+
+
+def read(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+         mapping: str | os.PathLike[str] | None = None) -> Dataset:
+    """Recordings from CSV/TSV/Parquet files (one run per file unless a ``run`` column),
+    through a YAML column mapping when the columns are not thermonet's own."""
+    from .io import read_datasets
+
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    return read_datasets([Path(p) for p in paths], mapping=None if mapping is None
+                         else Path(mapping))

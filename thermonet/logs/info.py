@@ -1,0 +1,72 @@
+"""``thermonet info LOG``: every sensor instance of a flight-controller log at a glance."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import read_log, temperature_step
+
+__all__ = ["summarize_log", "format_log_summary"]
+
+
+def summarize_log(path: str | Path) -> dict[str, Any]:
+    """Per instance: kind, device id, samples, rate, temperature span and step, notes.
+
+    Returns
+    -------
+    dict
+        ``log``, ``autopilot``, ``instances`` (list of dicts: ``name``, ``kind``,
+        ``device_id``, ``samples``, ``duration_s``, ``rate_hz``, ``temperature_min_c``
+        / ``temperature_max_c`` / ``temperature_step_c`` (None without a
+        thermometer), ``unit``, ``notes``), ``params`` (the thermal-calibration
+        parameters the log carries: ``TC_*``, ``SYS_CAL_*``, ``INS_TCAL*``,
+        ``AHRS_ORIENTATION``).
+    """
+    from .base import UNITS
+
+    log = read_log(path)
+    rows = []
+    for inst in log.instances:
+        t = inst.time_s
+        temp = inst.temperature_c if inst.temperature_c is not None and inst.n_samples else None
+        rows.append({
+            "name": inst.name, "kind": inst.kind, "device_id": inst.device_id,
+            "samples": inst.n_samples,
+            "duration_s": float(t[-1] - t[0]) if inst.n_samples > 1 else 0.0,
+            "rate_hz": float(1.0 / np.median(np.diff(t))) if inst.n_samples > 1 else None,
+            "temperature_min_c": None if temp is None else float(temp.min()),
+            "temperature_max_c": None if temp is None else float(temp.max()),
+            "temperature_step_c": temperature_step(temp),
+            "unit": UNITS[inst.kind], "notes": list(inst.notes)})
+    keep = ("TC_", "SYS_CAL_", "INS_TCAL", "AHRS_ORIENTATION")
+    params = {k: v for k, v in sorted(log.params.items()) if k.startswith(keep)}
+    return {"log": str(log.path), "autopilot": log.autopilot, "instances": rows,
+            "params": params}
+
+
+def format_log_summary(s: dict[str, Any]) -> str:
+    """Render :func:`summarize_log` as a table, then the notes and calibration parameters."""
+    head = ["instance", "device id", "samples", "rate Hz", "temperature °C", "T step °C", "unit"]
+    rows = []
+    for r in s["instances"]:
+        span = ("none (no thermometer)" if r["temperature_min_c"] is None
+                else f"{r['temperature_min_c']:.2f}..{r['temperature_max_c']:.2f} "
+                     f"(span {r['temperature_max_c'] - r['temperature_min_c']:.2f})")
+        step = "n/a" if r["temperature_step_c"] is None else f"{r['temperature_step_c']:.3g}"
+        rate = "n/a" if r["rate_hz"] is None else f"{r['rate_hz']:.3g}"
+        rows.append([r["name"], str(r["device_id"]), str(r["samples"]), rate, span, step,
+                     r["unit"]])
+    widths = [max(len(h), *(len(x[i]) for x in rows)) for i, h in enumerate(head)]
+    out = [f"{s['log']}: {s['autopilot']} log, {len(rows)} sensor instances", ""]
+    out += ["  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)).rstrip()
+            for line in [head, ["-" * w for w in widths]] + rows]
+    notes = [f"{r['name']}: {n}" for r in s["instances"] for n in r["notes"]]
+    if notes:
+        out += ["", "notes:"] + [f"  {n}" for n in notes]
+    if s["params"]:
+        out += ["", "calibration parameters in the log: " + ", ".join(
+            f"{k}={v:g}" for k, v in s["params"].items())]
+    return "\n".join(out)
