@@ -1,6 +1,6 @@
 # Two commands do all the set-up on a fresh machine:
 #   make demo   -> creates .venv, installs torch (CPU) + thermonet, runs the main job
-#   make test   -> same set-up, then ruff, mypy and the test suite
+#   make test   -> same set-up plus Debian's chromium, then ruff, mypy and the test suite
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -8,7 +8,7 @@ PIP    := $(PY) -m pip
 TORCH  := torch==2.13.0
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test bench clean
+.PHONY: venv demo test bench clean chromium
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,7 +22,11 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/thermonet compare configs/default.yaml --out runs/demo --overwrite
 
-test: $(STAMP)
+# the report test renders report.html in a real headless browser (Debian's chromium)
+chromium:
+	command -v chromium >/dev/null || (apt-get update && apt-get install -y --no-install-recommends chromium)
+
+test: $(STAMP) chromium
 	$(VENV)/bin/ruff check thermonet tests experiments export
 	$(VENV)/bin/mypy thermonet
 	$(PY) -m pytest -q -n 2 tests

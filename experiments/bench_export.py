@@ -4,34 +4,49 @@ Every family is fitted on the `patent-gyro` preset (3 axes; inputs as in
 `configs/default.yaml`) and exported.  Then:
 
 * ONNX file size per family (target ≤ 16 KB for the RBF of 16 centres);
-* one thread, a 100,000-sample batch: samples/s of onnxruntime (raw session),
-  of the shipped runtime (`export/thermonet_runtime.py`, with its checks), of
-  torch, and of numpy evaluating the same RBF (target ≥ 2 M samples/s for
-  onnxruntime); single-sample call latency of each;
+* one thread everywhere — onnxruntime (intra/inter-op 1), torch
+  (``set_num_threads(1)``) and numpy's BLAS (``OPENBLAS_NUM_THREADS`` etc. set
+  before numpy is imported, and threadpoolctl) — on a 100,000-sample batch:
+  samples/s of onnxruntime (raw session), of the shipped runtime
+  (`export/thermonet_runtime.py`, with its checks), of torch, of the graph
+  layout thermonet exported before (per-input broadcasts, ``Where`` for NaN)
+  and of numpy evaluating the same RBF three ways (the best is the
+  competitor); all timed interleaved, medians of repeats with min–max, the
+  ratio onnxruntime / best numpy as the median of per-repeat ratios.  Targets:
+  onnxruntime ≥ the best numpy and ≥ 15 M samples/s.  Single-sample call
+  latency of each;
 * instructions per evaluation of the C header, counted with
-  ``valgrind --tool=callgrind`` (repeatable, unlike seconds): a driver
-  evaluates N points; (Ir(N) − Ir(0)) / N.  Target ≤ 2,000 for the RBF of 16
-  centres; study 002 quotes ≈3,200 cycles for its fuzzy model and ≈46,800 for
-  a 6th-order polynomial on a 160 MHz DSP.
+  ``valgrind --tool=callgrind`` (repeatable, unlike seconds, and independent of
+  the machine's load): a driver evaluates N points; (Ir(N) − Ir(0)) / N.
+  Target ≤ 2,000 for the RBF of 16 centres and no more than the previous
+  header's (README); study 002 quotes ≈3,200 cycles for its fuzzy model and
+  ≈46,800 for a 6th-order polynomial on a 160 MHz DSP.
 """
 
 from __future__ import annotations
 
-import re
-import shutil
-import subprocess
-import sys
-import time
-from pathlib import Path
+import os
 
-import numpy as np
-import onnxruntime as ort
-import torch
+# numpy's BLAS reads these when numpy is first imported: one thread, like the others
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import re  # noqa: E402
+import shutil  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import warnings  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import onnxruntime as ort  # noqa: E402
+import torch  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT / "export"))
-from common import OUT, save, table  # noqa: E402
+from common import OUT, fmt_spread, interleaved, ratio_spread, save, spread, table  # noqa: E402
 from thermonet.api import DriftEstimator  # noqa: E402
 from thermonet.config import SplitConfig  # noqa: E402
 from thermonet.evaluate import make_splits  # noqa: E402
@@ -50,6 +65,12 @@ FAMILIES = {
 }
 BATCH = 100_000
 N_CALLGRIND = 1000
+REPEATS_BATCH = 30
+#: Instructions per evaluation of the header before each family owned its emitter
+#: (callgrind, README at commit 3b8e19b; callgrind counts do not depend on the load).
+PREVIOUS_IR = {"linear": 79, "cubic": 155, "poly6": 256, "lorentz": 122, "ts-fuzzy": 350,
+               "rbf16": 1024}
+REPEATS_SINGLE = 2000
 
 DRIVER = r"""
 #include <stdio.h>
@@ -83,35 +104,118 @@ def fitted_models() -> dict:
     return models
 
 
-def rbf_numpy(model):
-    """The same RBF in numpy (float32), for the throughput comparison."""
-    p = {k: v.detach().numpy().astype(np.float32) for k, v in model.state_dict().items()}
-    lo, hi = p["sig_lo"], p["sig_hi"]
-    ref, square = p["features.ref"], p["features.square"]
-    idx = model.features.index.numpy()
-    c, sigma2 = p["family.centres"], np.exp(2 * p["family.log_sigma"])
-    w, b = p["family.weight"], p["family.bias"]
-    const = model.constant().detach().numpy().astype(np.float32)   # the target's constant
-
-    def run(signals: np.ndarray) -> np.ndarray:
-        s = np.clip(signals, lo, hi)
-        d = s[:, idx] - ref
-        x = d * (d * square + (1 - square))
-        z = (x - p["x_mean"]) / p["x_std"]
-        d2 = ((z[:, None, :] - c[None, :, :]) ** 2).sum(-1)
-        phi = np.exp(-d2 / (2 * sigma2))
-        return (phi @ w.T + b) * p["y_std"] + p["y_mean"] + const
-    return run
+def _consts(model) -> dict:
+    """The float32 constants of the RBF's evaluation path, as numpy arrays."""
+    with torch.no_grad():
+        fam = model.family
+        m, b = fam.exponent()
+        # the target normalisation and mask folded in, as in the graph; the float64
+        # constant joins in float32 here (the graph adds it in float64)
+        w, c = fam.output_layer(*model.output_scaling())
+        c = c + model.constant().float()
+        g = fam.inv_two_sigma2()
+        out = {"lo": model.sig_lo, "hi": model.sig_hi, "ref": model.features.ref,
+               "mean": model.x_mean, "inv_std": 1.0 / model.x_std, "m": m, "b": b, "w": w,
+               "c": c, "centres": fam.centres, "g": g}
+        return {k: v.numpy().astype(np.float32) for k, v in out.items()}
 
 
-def rate(fn, *args, repeats: int = 20) -> float:
-    fn(*args)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn(*args)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
+def rbf_numpy(model, variant: str):
+    """The same RBF evaluation in numpy, float32, the graph's outputs (compensated, drift,
+    flag, NaN for a non-finite signal) on one signal: ``broadcast`` computes
+    ‖z − c‖² by an (N, J, F) broadcast, ``expanded`` by the graph's one matrix product,
+    ``inplace`` the same with preallocated buffers and in-place operations."""
+    k = _consts(model)
+    layout = model.features._layout
+    lo, hi = float(k["lo"][0]), float(k["hi"][0])
+
+    def features(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        s = np.clip(t, lo, hi)
+        cols = []
+        for f, (_, squared, relative) in enumerate(layout):
+            d = s - k["ref"][f] if relative else s
+            x = d * d if squared else d
+            cols.append((x - k["mean"][f]) * k["inv_std"][f])
+        return s, np.stack(cols, axis=1)
+
+    def broadcast(t: np.ndarray, raw: np.ndarray):
+        s, z = features(t)
+        d2 = ((z[:, None, :] - k["centres"][None, :, :]) ** 2).sum(-1)
+        drift = np.exp(-d2 * k["g"]) @ k["w"] + k["c"] + (t - t)[:, None]
+        return raw - drift, drift, s != t
+
+    def expanded(t: np.ndarray, raw: np.ndarray):
+        s, z = features(t)
+        u = np.concatenate([z, (z * z).sum(1, keepdims=True)], axis=1)
+        drift = np.exp(u @ k["m"] + k["b"]) @ k["w"] + k["c"] + (t - t)[:, None]
+        return raw - drift, drift, s != t
+
+    def inplace(t: np.ndarray, raw: np.ndarray):
+        n, nf = t.shape[0], len(layout)
+        s = np.clip(t, lo, hi)
+        u = np.empty((n, nf + 1), np.float32)
+        tmp = np.empty(n, np.float32)
+        for f, (_, squared, relative) in enumerate(layout):
+            np.subtract(s, k["ref"][f] if relative else 0.0, out=tmp)
+            if squared:
+                np.multiply(tmp, tmp, out=tmp)
+            np.subtract(tmp, k["mean"][f], out=tmp)
+            np.multiply(tmp, k["inv_std"][f], out=u[:, f])
+        np.einsum("nf,nf->n", u[:, :nf], u[:, :nf], out=u[:, nf])
+        np.subtract(t, t, out=tmp)
+        u[:, 0] += tmp                     # NaN for a non-finite signal, as in the graph
+        e = u @ k["m"]
+        e += k["b"]
+        np.exp(e, out=e)
+        drift = e @ k["w"]
+        drift += k["c"]
+        return raw - drift, drift, s != t
+
+    return {"broadcast": broadcast, "expanded": expanded, "inplace": inplace}[variant]
+
+
+class _PreviousLayout(torch.nn.Module):
+    """The graph thermonet exported before this layout, for comparison in the same run:
+    stacked (N, S) signals, isnan/isinf + ``Where`` for NaN, (N, 1) feature columns, one
+    (N, J) broadcast per input for the RBF distance, de-standardisation after the matmul."""
+
+    def __init__(self, model) -> None:
+        super().__init__()
+        self.m = model
+
+    def forward(self, t: torch.Tensor, raw: torch.Tensor):
+        m, fam = self.m, self.m.family
+        sig = torch.stack([t], dim=1)
+        nonfinite = (torch.isnan(sig) | torch.isinf(sig)).any(dim=1)
+        flag = ~((sig >= m.sig_lo) & (sig <= m.sig_hi)).all(dim=1) | nonfinite
+        s = torch.minimum(torch.maximum(sig, m.sig_lo), m.sig_hi)
+        d = s.index_select(1, m.features.index) - m.features.ref
+        x = d * (d * m.features.square + (1.0 - m.features.square))
+        z = (x - m.x_mean) / m.x_std
+        diff = z[:, 0:1] - fam.centres[:, 0]
+        d2 = diff * diff
+        for f in range(1, fam.n_inputs):
+            diff = z[:, f:f + 1] - fam.centres[:, f]
+            d2 = d2 + diff * diff
+        two_sigma2 = 2.0 * torch.exp(torch.clamp(2.0 * fam.log_sigma, min=-60.0, max=60.0))
+        yz = torch.exp(-d2 / two_sigma2) @ fam.weight.T + fam.bias
+        rel = yz * m.y_std + m.y_mean
+        rel = torch.where(nonfinite.unsqueeze(1), torch.full_like(rel, float("nan")), rel)
+        drift = rel.to(torch.float64) + m.constant()   # format 2: the constant in float64
+        return raw.to(torch.float64) - drift, drift, flag
+
+
+def export_previous_layout(model, path: Path) -> Path:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        prog = torch.onnx.export(
+            _PreviousLayout(model).eval(), (torch.zeros(4), torch.zeros(4, 3, dtype=torch.float64)),
+            None,
+            input_names=["temperature_c", "raw"], output_names=["compensated", "drift", "flag"],
+            opset_version=18, dynamo=True, external_data=False, optimize=True,
+            dynamic_shapes=({0: torch.export.Dim("N")}, {0: torch.export.Dim("N")}))
+    prog.save(str(path))
+    return path
 
 
 def callgrind_ir(binary: Path, n: int, lo: float, hi: float) -> int:
@@ -147,14 +251,21 @@ def main() -> None:
                   - callgrind_ir(hdir / "driver", 0, lo, hi)) / N_CALLGRIND
         data[label] = {"onnx_bytes": size, "c_instructions_per_eval": ir,
                        "n_params": model.n_params}
-        rows.append([label, model.n_params, size, "n/a" if ir is None else f"{ir:.0f}"])
+        rows.append([label, model.n_params, size, "n/a" if ir is None else f"{ir:.0f}",
+                     PREVIOUS_IR[label]])
     md = ["### Export size and C cost per family (patent-gyro, 3 axes)\n",
-          table(["family", "params", "ONNX bytes", "C instructions / eval (callgrind)"], rows),
+          table(["family", "params", "ONNX bytes", "C instructions / eval (callgrind)",
+                 "before (3b8e19b)"], rows),
           "\nStudy 002 (TMS320VC5416 at 160 MHz, one axis): fuzzy ≈3,200 cycles, 6th-order "
           "polynomial ≈46,800 cycles per evaluation.\n"]
 
-    # throughput and latency for the RBF of 16 centres
-    model = models["rbf16"]
+    md.append(throughput(models["rbf16"], work, data))
+    save("export", data, "\n".join(md))
+
+
+def throughput(model, work: Path, data: dict) -> str:
+    """One thread, 100k batch, interleaved: onnxruntime vs the runtime, torch, the previous
+    graph layout and numpy; single-sample latency of each."""
     rng = np.random.default_rng(0)
     lo, hi = float(model.sig_lo[0]), float(model.sig_hi[0])
     temps = rng.uniform(lo, hi, BATCH).astype(np.float32)
@@ -162,42 +273,84 @@ def main() -> None:
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1
     opts.inter_op_num_threads = 1
-    sess = ort.InferenceSession(str(work / "rbf16.onnx"), opts, providers=["CPUExecutionProvider"])
-    feeds = {"temperature_c": temps, "raw": raw}
+    opts.log_severity_level = 3
+    sess = ort.InferenceSession(str(work / "rbf16.onnx"), opts,
+                                providers=["CPUExecutionProvider"])
+    prev = ort.InferenceSession(str(export_previous_layout(model, work / "rbf16_previous.onnx")),
+                                opts, providers=["CPUExecutionProvider"])
     comp = Compensator(work / "rbf16.onnx", threads=1)
-    npf = rbf_numpy(model)
-    sig_t = torch.as_tensor(temps[:, None])
-    sig_n = temps[:, None]
+    numpys = {v: rbf_numpy(model, v) for v in ("broadcast", "expanded", "inplace")}
 
-    def torch_eval(s):
+    def torch_eval(t: np.ndarray, r: np.ndarray):
         with torch.no_grad():
-            return model(s)
+            d = model(torch.from_numpy(t)[:, None])
+            return torch.from_numpy(r) - d, d
 
-    # the numpy evaluator is only a fair competitor if it computes the same drift
-    ref = torch_eval(sig_t[:1000]).numpy()
-    worst = float(np.max(np.abs(npf(sig_n[:1000]) - ref)) / np.max(np.abs(ref)))
-    if worst > 1e-5:
-        raise RuntimeError(f"numpy RBF differs from torch by {worst:.3g} (relative)")
+    # every competitor must compute the same drift (and NaN) as the exported graph
+    check = np.concatenate([temps[:1000], np.float32([np.nan, np.inf])])
+    zeros = np.zeros((check.size, 3))    # float64 raw (ONNX format 2)
+    d_ref = sess.run(None, {"temperature_c": check, "raw": zeros})[1]
+    scale = np.abs(d_ref[:-2]).max()
+    for name, fn in numpys.items():
+        got = fn(check, np.zeros((check.size, 3), np.float32))[1]
+        if np.abs(got[:-2] - d_ref[:-2]).max() > 1e-5 * scale or not np.isnan(got[-2:]).all():
+            raise RuntimeError(f"numpy '{name}' does not compute the exported drift")
+    d_prev = prev.run(None, {"temperature_c": check[:-2], "raw": zeros[:-2]})[1]
+    if np.abs(d_prev - d_ref[:-2]).max() > 1e-5 * scale:
+        raise RuntimeError("the previous layout does not compute the same drift")
 
-    res = {
-        "onnxruntime (session)": (rate(sess.run, None, feeds),
-                                  rate(sess.run, None, {"temperature_c": temps[:1], "raw": raw[:1]},
-                                       repeats=2000)),
-        "thermonet runtime": (rate(lambda: comp.compensate(temperature_c=temps, raw=raw)),
-                              rate(lambda: comp.compensate(temperature_c=temps[0], raw=raw[0]),
-                                   repeats=2000)),
-        "torch": (rate(torch_eval, sig_t), rate(torch_eval, sig_t[:1], repeats=2000)),
-        "numpy": (rate(npf, sig_n), rate(npf, sig_n[:1], repeats=2000)),
-    }
-    base = res["torch"][0]
-    trows = [[name, BATCH / t_batch / 1e6, base / t_batch, t_one * 1e6]
-             for name, (t_batch, t_one) in res.items()]
-    md += ["### RBF (16 centres, 3 axes) evaluation on one thread\n",
-           table(["evaluator", "M samples/s (100k batch)", "× torch", "single-sample µs"], trows)]
+    def feeds(n: int) -> dict:
+        return {"temperature_c": temps[:n], "raw": raw[:n]}
+
+    def evaluators(n: int) -> dict:
+        return {
+            "onnxruntime session (this layout)": lambda: sess.run(None, feeds(n)),
+            "onnxruntime session (previous layout)": lambda: prev.run(None, feeds(n)),
+            "thermonet runtime (checks included)":
+                lambda: comp.compensate(temperature_c=temps[:n], raw=raw[:n]),
+            "torch": lambda: torch_eval(temps[:n], raw[:n]),
+            **{f"numpy, {v}": (lambda f=fn: f(temps[:n], raw[:n])) for v, fn in numpys.items()},
+        }
+
+    cpu: dict[str, list[float]] = {}
+    cpu1: dict[str, list[float]] = {}
+    with threadpool_limits(1):
+        batch = interleaved(evaluators(BATCH), repeats=REPEATS_BATCH, warmup=2, cpu=cpu)
+        single = interleaved(evaluators(1), repeats=REPEATS_SINGLE, warmup=20, cpu=cpu1)
+    ort_name = "onnxruntime session (this layout)"
+    numpy_names = [k for k in batch if k.startswith("numpy")]
+    best_numpy = min(numpy_names, key=lambda k: spread(cpu[k])["median"])
+    vs_numpy = ratio_spread(cpu[best_numpy], cpu[ort_name])
+    vs_numpy_wall = ratio_spread(batch[best_numpy], batch[ort_name])
+    vs_prev = ratio_spread(cpu["onnxruntime session (previous layout)"], cpu[ort_name])
+    rows = []
+    for name in batch:
+        rows.append([name + (" — best numpy" if name == best_numpy else ""),
+                     fmt_spread(spread([BATCH / t / 1e6 for t in cpu[name]])),
+                     fmt_spread(spread([BATCH / t / 1e6 for t in batch[name]])),
+                     fmt_spread(spread(cpu1[name]), 1e6), fmt_spread(spread(single[name]), 1e6)])
     data["throughput"] = {
-        k: {"batch_seconds": v[0], "single_seconds": v[1]} for k, v in res.items()
+        "batch": BATCH, "repeats": REPEATS_BATCH,
+        "evaluators": {k: {"batch_wall_seconds": spread(batch[k]),
+                           "batch_cpu_seconds": spread(cpu[k]),
+                           "msamples_per_cpu_s": spread([BATCH / t / 1e6 for t in cpu[k]]),
+                           "msamples_per_wall_s": spread([BATCH / t / 1e6 for t in batch[k]]),
+                           "single_cpu_seconds": spread(cpu1[k]),
+                           "single_wall_seconds": spread(single[k])} for k in batch},
+        "best_numpy": best_numpy,
+        "onnxruntime_over_best_numpy_cpu": vs_numpy,
+        "onnxruntime_over_best_numpy_wall": vs_numpy_wall,
+        "onnxruntime_over_previous_layout_cpu": vs_prev,
     }
-    save("export", data, "\n".join(md))
+    return ("### RBF (16 centres, 3 axes) evaluation on one thread, 100k batch\n\n"
+            f"Medians of {REPEATS_BATCH} interleaved repeats (min–max); single-sample calls: "
+            f"{REPEATS_SINGLE} repeats.  Per CPU second (the process's CPU time: the work, "
+            "nearly independent of other load) and per wall second.\n\n"
+            + table(["evaluator", "M samples / CPU s", "M samples / wall s",
+                     "single-sample CPU µs", "single-sample wall µs"], rows)
+            + f"\n\nonnxruntime / best numpy ({best_numpy}), per-repeat ratios: "
+            f"**{fmt_spread(vs_numpy)}×** in CPU time, {fmt_spread(vs_numpy_wall)}× in wall "
+            f"time; this layout / previous layout: **{fmt_spread(vs_prev)}×** (CPU time).\n")
 
 
 if __name__ == "__main__":

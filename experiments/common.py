@@ -1,4 +1,9 @@
-"""Shared bits of the benchmarks: where results go and which machine made them."""
+"""Shared bits of the benchmarks: where results go, which machine made them, how to time.
+
+Timings are medians of repeats with their min–max spread; competing variants
+are timed interleaved (A, B, A, B, …) so a change in the machine's load hits
+them alike, and their ratio is the median of the per-repeat ratios.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +11,8 @@ import json
 import os
 import platform
 import subprocess
+import time
+from collections.abc import Callable
 from datetime import date
 from pathlib import Path
 from typing import Any
@@ -23,8 +30,58 @@ def machine() -> str:
                 break
     except OSError:
         pass
+    try:
+        load = "load average {:.1f} / {:.1f} / {:.1f} (1/5/15 min) when saved".format(
+            *os.getloadavg())
+    except OSError:
+        load = "load unknown"
     return f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, " \
-           f"Python {platform.python_version()}, {date.today().isoformat()}"
+           f"Python {platform.python_version()}, {date.today().isoformat()}, {load}"
+
+
+def spread(values: list[float]) -> dict[str, float]:
+    """Median, min and max of repeated measurements."""
+    v = sorted(float(x) for x in values)
+    n = len(v)
+    med = v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
+    return {"median": med, "min": v[0], "max": v[-1], "n": n}
+
+
+def fmt_spread(s: dict[str, float], scale: float = 1.0, digits: int = 3) -> str:
+    """``median (min–max)`` of a :func:`spread`, each times ``scale``."""
+    g = f"{{:.{digits}g}}"
+    return (g.format(s["median"] * scale) + " (" + g.format(s["min"] * scale) + "–"
+            + g.format(s["max"] * scale) + ")")
+
+
+def interleaved(fns: dict[str, Callable[[], Any]], repeats: int, warmup: int = 1, *,
+                cpu: dict[str, list[float]] | None = None) -> dict[str, list[float]]:
+    """Wall seconds per call of each function, timed in turn (A, B, C, A, B, C, …).
+
+    ``cpu``, when given, receives the process CPU seconds of each call as well: for a
+    single-threaded call this is the work itself, nearly free of what other
+    processes on a loaded machine do to the wall time.
+    """
+    for fn in fns.values():
+        for _ in range(warmup):
+            fn()
+    times: dict[str, list[float]] = {k: [] for k in fns}
+    if cpu is not None:
+        cpu.update({k: [] for k in fns})
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            c0 = time.process_time()
+            t0 = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t0)
+            if cpu is not None:
+                cpu[k].append(max(time.process_time() - c0, 1e-9))
+    return times
+
+
+def ratio_spread(num: list[float], den: list[float]) -> dict[str, float]:
+    """Spread of the per-repeat ratios num[i] / den[i] (paired, same moment)."""
+    return spread([a / b for a, b in zip(num, den, strict=True)])
 
 
 def save(name: str, data: dict[str, Any], markdown: str) -> Path:

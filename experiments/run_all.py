@@ -1,16 +1,30 @@
-"""Run every benchmark; results land in experiments/out/*.md and *.json."""
+"""Run every benchmark (``make bench``); results land in experiments/out/*.md and *.json.
+
+Each benchmark runs in its own child process: thread settings made before
+numpy is imported (bench_export pins numpy's BLAS to one thread) take effect,
+and one benchmark's memory or thread pools do not leak into the next.
+``python experiments/run_all.py NAME ...`` runs only those.
+"""
 
 from __future__ import annotations
 
-import runpy
+import os
+import subprocess
 import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+ALL = ["bench_default", "bench_studies", "bench_anchor", "bench_rbf_speed", "bench_export",
+       "bench_threads", "bench_averaging", "bench_scaling"]
 
 if __name__ == "__main__":
-    names = sys.argv[1:] or ["bench_default", "bench_studies", "bench_anchor", "bench_rbf_speed",
-                             "bench_export"]
-    for name in names:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(HERE.parent) + os.pathsep + env.get("PYTHONPATH", "")
+    failed = []
+    for name in sys.argv[1:] or ALL:
         print(f"== {name}", flush=True)
-        runpy.run_path(str(HERE / f"{name}.py"), run_name="__main__")
+        if subprocess.run([sys.executable, str(HERE / f"{name}.py")], env=env).returncode:
+            failed.append(name)
+    if failed:
+        print("failed: " + ", ".join(failed), file=sys.stderr)
+        sys.exit(1)

@@ -14,6 +14,7 @@ thermonet.exporting.autopilot:
 from __future__ import annotations
 
 import json
+from html.parser import HTMLParser
 from pathlib import Path
 
 import numpy as np
@@ -147,6 +148,11 @@ def test_calibrate_cli_side_by_side_and_left_out_lines(tmp_path: Path,
         assert "fitted" in lines[name]
     doc = json.loads((out / "results.json").read_text())
     assert (out / "report.txt").read_text().startswith("thermonet calibrate")
+    page = (out / "report.html").read_text()
+    HTMLParser().feed(page)   # well-formed enough to parse
+    for name in ("gyro0", "gyro1", "gyro2", "acc1", "acc2", "baro0"):
+        assert f"<td>{name}</td>" in page
+    assert "spans only" in page and 'href="instances/gyro0/report.html"' in page
     for name in ("gyro0", "baro0"):
         cmp = doc["instances"][name]["compare"]
         sub = json.loads((Path(cmp["dir"]) / "results.json").read_text())

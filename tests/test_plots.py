@@ -1,7 +1,8 @@
-"""Plots: readable PNGs of the documented size, fast, no figure leak."""
+"""Plots: readable PNGs of the documented size, distinct colours, no figure leak."""
 
 from __future__ import annotations
 
+import matplotlib.colors as mcolors
 import matplotlib.image as mpimg
 import matplotlib.pyplot as plt
 import numpy as np
@@ -10,10 +11,14 @@ import pytest
 from thermonet.plots import (
     DPI,
     FIGSIZE_IN,
+    MAX_LINE_POINTS,
+    _binned,
     _gap_breaks,
     _minmax_indices,
+    family_colours,
     plot_allan,
     plot_drift_vs_temperature,
+    plot_residual_vs_temperature,
     plot_residual_vs_time,
 )
 
@@ -48,8 +53,9 @@ def test_drift_vs_temperature(tmp_path, run):
               "quadratic": (grid[::-1], (0.002 * (grid - 25.0) + 1e-4 * (grid - 25.0) ** 2)[::-1])}
     before = set(plt.get_fignums())
     path = plot_drift_vs_temperature(tmp_path / "new" / "dir" / "drift.png", temperature_c=temp,
-                                     observed_drift=raw_error, curves=curves, axis="gyro_x",
-                                     units="deg/s")
+                                     observed_drift=raw_error + 9.81, curves=curves,
+                                     axis="acc_z", units="m/s^2", chosen="quadratic",
+                                     baseline="linear")
     assert path == tmp_path / "new" / "dir" / "drift.png"
     _read_png(path)
     assert set(plt.get_fignums()) == before
@@ -58,12 +64,41 @@ def test_drift_vs_temperature(tmp_path, run):
 def test_residual_vs_time_and_allan(tmp_path, run):
     time_s, temp, drift, raw_error = run
     residuals = {"linear": raw_error - 0.002 * (temp - 25.0), "perfect": raw_error - drift}
-    p1 = plot_residual_vs_time(tmp_path / "res.png", time_s=time_s, raw_error=raw_error,
-                               compensated=residuals, axis="gyro_x", units="deg/s")
+    p1 = plot_residual_vs_time(tmp_path / "res.png", time_s=time_s + 2.5655e8,
+                               raw_error=raw_error, compensated=residuals, axis="gyro_x",
+                               units="deg/s", chosen="perfect")
     p2 = plot_allan(str(tmp_path / "allan.png"), rate_hz=RATE_HZ, raw_error=raw_error,
                     compensated=residuals, axis="gyro_x", units="deg/s")
-    _read_png(p1)
-    _read_png(p2)
+    p3 = plot_residual_vs_temperature(tmp_path / "rt.png", temperature_c=temp,
+                                      raw_error=raw_error, compensated=residuals, axis="gyro_x",
+                                      units="deg/s", chosen="perfect", baseline="linear")
+    for p in (p1, p2, p3):
+        _read_png(p)
+
+
+def test_every_family_gets_its_own_colour_never_raw_grey():
+    labels = [f"family{i}" for i in range(40)]
+    colours = family_colours(labels)
+    rgb = np.array([mcolors.to_rgb(colours[k]) for k in labels])
+    # distinct (no wrapping at 10 or 20) …
+    dist = np.abs(rgb[:, None, :] - rgb[None, :, :]).max(axis=2) + np.eye(len(labels))
+    assert dist.min() > 0.05
+    # … and none a grey like the raw output's (saturation well above 0)
+    sat = np.array([mcolors.rgb_to_hsv(c)[1] for c in rgb])
+    assert sat.min() > 0.2
+    assert family_colours(["a", "b"]) == {"a": colours["family0"], "b": colours["family1"]}
+
+
+def test_binned_means_do_not_bridge_empty_temperature_ranges():
+    t = np.r_[np.full(50, 13.2), np.full(50, 48.4)]  # two isothermal soaks
+    y = np.r_[np.zeros(50), np.ones(50)]
+    x, m = _binned(t, y, 1.0)
+    assert np.isnan(x).sum() == 1 and np.isnan(m).sum() == 1
+    np.testing.assert_allclose(m[~np.isnan(m)], [0.0, 1.0])
+
+
+def test_lines_keep_about_two_points_per_pixel_column():
+    assert MAX_LINE_POINTS == 2 * FIGSIZE_IN[0] * DPI
 
 
 def test_many_calls_leak_no_figures(tmp_path):

@@ -27,7 +27,6 @@ from thermonet.exporting import (
     read_px4_params,
 )
 from thermonet.exporting.c_header import PARITY_DRIVER
-from thermonet.exporting.firmware import px4_offsets_3d as px4_offsets
 from thermonet.features import FeatureSpec
 from thermonet.target import resolve_targets
 from thermonet.train import TrainConfig, fit, predict
@@ -35,6 +34,14 @@ from thermonet.train import TrainConfig, fit, predict
 G = 9.80665
 T_REF = 25.0
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def _px4_offsets(params, t: str, temperature_c: np.ndarray) -> np.ndarray:
+    """PX4's TemperatureCompensation::calc_thermal_offsets_3D, written out here: (N, 3)."""
+    pre = f"TC_{t}0_"
+    dt = np.clip(temperature_c, params[pre + "TMIN"], params[pre + "TMAX"]) - params[pre + "TREF"]
+    return np.stack([sum(params[f"{pre}X{k}_{i}"] * dt ** k for k in range(4))
+                     for i in range(3)], axis=1)
 
 
 def _runtime():
@@ -132,7 +139,7 @@ def test_level_accelerometer_keeps_gravity_in_torch_onnx_c_and_px4(tmp_path):
     assert p["TC_A0_TREF"] == pytest.approx(T_REF)
     for i in range(3):
         assert abs(p[f"TC_A0_X0_{i}"]) < 1e-5
-    px4 = px4_offsets(p, "acc", temp)
+    px4 = _px4_offsets(p, "A", temp)
     np.testing.assert_allclose((raw - px4).mean(axis=0), level, atol=1e-3)
 
 

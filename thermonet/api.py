@@ -162,7 +162,7 @@ class DriftEstimator:
             The data cannot carry the family (reason given).
         """
         from .errors import ConfigError
-        from .evaluate import build_part, heating_only
+        from .evaluate import build_part, fit_arrays, heating_only
         from .features import FeatureSpec
         from .splits import stack_blocks
         from .train import fit
@@ -188,8 +188,8 @@ class DriftEstimator:
             val_part = build_part(val_rec, signals=spec.signals, outputs=outputs,
                                   target=self.target, rate_window_s=self.rate_window_s)
         result = fit(family=self.family, inputs=inputs, outputs=outputs,
-                     train=[(p.signals, p.target) for p in parts],
-                     val=None if val_part is None else (val_part.signals, val_part.target),
+                     train=[fit_arrays(p) for p in parts],
+                     val=None if val_part is None else fit_arrays(val_part),
                      spec=spec, hyper=dict(self.hyper), config=config)
         self.model_: DriftModel = result.model
         self.spec_: FeatureSpec = spec

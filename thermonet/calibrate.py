@@ -39,7 +39,7 @@ For every sensor instance of a PX4 ULog or ArduPilot DataFlash log:
    out of the parameter file (loading it would do harm).
 4. **Files**: ``DIR/px4.params`` (QGroundControl, every TC_G/A/B slot) or
    ``DIR/ardupilot.parm`` (``INS_TCAL1..3_*``, ``INS_TCAL_OPTIONS`` not
-   written), ``DIR/results.json``, ``DIR/report.txt``, per instance
+   written), ``DIR/results.json``, ``DIR/report.txt`` and ``DIR/report.html``, per instance
    ``DIR/instances/<name>/`` (the comparison's results, plots, checkpoints).
 
 After writing, the parameter file is read back and the autopilot's formula is
@@ -81,7 +81,7 @@ __all__ = ["calibrate", "fit_firmware", "check_instance", "apply_firmware",
 MIN_SPAN_C = 10.0
 #: A thermometer reporting in steps this coarse (°C, whole degrees) or coarser is refused.
 MAX_STEP_C = 1.0
-#: A thermonet family is reported as better only when its validation msd ratio is below
+#: A thermonet family is reported as better only when its validation score ratio is below
 #: this fraction of the firmware form's (smaller differences are within the noise of a split).
 BETTER_BY = 0.8
 #: Least samples per instance.
@@ -212,7 +212,7 @@ def _verdict(summary: dict[str, Any]) -> tuple[bool, str]:
     comp = np.array(list(f["held_out_pp_comp"].values()))
     cut = raw / np.maximum(comp, 1e-300)
     line = (f"{fw} on held-out blocks: binned drift p-p cut {', '.join(f'{c:.1f}x' for c in cut)}"
-            f" (val msd ratio {f['val_score']:.3g})")
+            f" (val score ratio {f['val_score']:.3g})")
     chosen = summary.get("chosen")
     if chosen and chosen != fw:
         other = summary["families"][chosen]
@@ -321,6 +321,7 @@ def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True
     doc = _results_doc(log, results, param_path)
     atomic_write_text(out / "results.json", json.dumps(doc, indent=2, default=_json_default))
     atomic_write_text(out / "report.txt", format_report(doc))
+    atomic_write_text(out / "report.html", render_calibration_report(doc, out))
     return doc
 
 
@@ -345,6 +346,54 @@ def _results_doc(log: FlightLog, results: list[InstanceResult], param_path: Path
     return {"schema": 1, "thermonet_version": __version__, "log": str(log.path),
             "autopilot": log.autopilot, "params_file": str(param_path),
             "log_notes": list(log.notes), "instances": inst_doc}
+
+
+def render_calibration_report(doc: dict[str, Any], out: Path) -> str:
+    """``DIR/report.html``: the calibration page a person opens first.
+
+    One self-contained page (inline CSS, no script): a table of every sensor
+    instance — fitted with the cut of the autopilot's own correction read back
+    from the written file, or left out with its reason — colour-coded like the
+    comparison report, the full text report, and a link to each instance's own
+    comparison report (``instances/<name>/report.html``, itself self-contained,
+    with the verdict table, warnings and plots).  Every string is HTML-escaped.
+    """
+    import html
+
+    from .report import _CSS, VERDICT_COLOURS
+
+    rows = []
+    for name, d in doc["instances"].items():
+        span = d.get("temperature_c")
+        where = f"{span[0]:.1f} … {span[1]:.1f} °C" if span else "no temperature"
+        if d["status"] == "fitted":
+            cuts = ", ".join(f"{c:.1f}×" for c in d["firmware_check"]["cut"])
+            what = f"fitted, slot {d['slot']}; binned drift cut {cuts}"
+            colour = VERDICT_COLOURS["better"]
+        else:
+            what = f"left out: {d['reason']}"
+            colour = VERDICT_COLOURS["worse"]
+        cmp = d.get("compare") or {}
+        sub = Path(str(cmp.get("dir", ""))) / "report.html" if cmp.get("dir") else None
+        link = ""
+        if sub is not None and sub.is_file():
+            rel = sub.relative_to(out) if sub.is_relative_to(out) else sub
+            link = f'<a href="{html.escape(str(rel))}">comparison</a>'
+        rows.append(f"<tr><td>{html.escape(name)}</td><td>{html.escape(str(d['kind']))}</td>"
+                    f"<td>{html.escape(str(d['device_id']))}</td><td>{d['n_samples']}</td>"
+                    f"<td>{html.escape(where)}</td><td style=\"background:{colour}\">"
+                    f"{html.escape(what)}</td><td>{link}</td></tr>")
+    return ("<!DOCTYPE html><html><head><meta charset=\"utf-8\">"
+            f"<title>thermonet calibrate: {html.escape(Path(doc['log']).name)}</title>"
+            f"<style>{_CSS}</style></head><body>"
+            f"<h1>Thermal calibration of {html.escape(Path(doc['log']).name)} "
+            f"({html.escape(doc['autopilot'])})</h1>"
+            f"<p class=\"chosen\">Parameter file: {html.escape(Path(doc['params_file']).name)}"
+            " — load it only on the board whose device ids are listed below.</p>"
+            "<h2>Sensor instances</h2><table><tr><th>instance</th><th>kind</th>"
+            "<th>device id</th><th>samples</th><th>temperature</th><th>result</th>"
+            "<th>details</th></tr>" + "".join(rows) + "</table>"
+            f"<h2>Report</h2><pre>{html.escape(format_report(doc))}</pre></body></html>\n")
 
 
 def format_report(doc: dict[str, Any]) -> str:

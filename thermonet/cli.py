@@ -1,7 +1,8 @@
 """The ``thermonet`` command line.
 
 Exit codes: 0 success, 1 bad input (file, column, config key or value — one
-line on stderr naming it), 2 usage error (argparse), 130 interrupted by
+line on stderr naming it), 2 usage error (argparse), 3 (``fleet`` only) some
+unit failed its limits or could not be calibrated, 130 interrupted by
 SIGINT (Ctrl-C), 143 terminated by SIGTERM.  An interrupted command prints
 one line, not a traceback; its open MLflow runs are ended as KILLED and a
 comparison's ``--out`` is left as it was (see :mod:`thermonet.outdir`).
@@ -25,7 +26,7 @@ __all__ = ["main", "build_parser"]
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from .io import write_parquet
     from .logs import is_log
-    from .sim import simulate
+    from .sim import simulate, simulate_fleet
     from .sim.fcboard import BOARD_PRESETS
     from .sim.presets import MAX_RUNS
 
@@ -34,10 +35,17 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                              "a request within memory)")
     if args.preset in BOARD_PRESETS or is_log(args.out):
         return _simulate_board(args)
-    ds = simulate(args.preset, runs=args.runs, seed=args.seed)
+    if args.units is None and args.outliers:
+        raise ThermonetError("--outliers needs --units (outliers are units of a fleet)")
+    if args.units is None:
+        ds = simulate(args.preset, runs=args.runs, seed=args.seed)
+    else:
+        ds = simulate_fleet(args.preset, units=args.units, runs=args.runs, seed=args.seed,
+                            outliers=args.outliers)
     path = write_parquet(ds, args.out)
     n = sum(r.n_samples for r in ds)
-    print(f"wrote {path}: preset {args.preset}, {len(ds)} runs, {n} samples, "
+    fleet = f"{len(ds.unit_ids)} units ({args.outliers} outliers), " if args.units else ""
+    print(f"wrote {path}: preset {args.preset}, {fleet}{len(ds)} runs, {n} samples, "
           f"outputs {', '.join(ds.axes)}")
     return 0
 
@@ -59,6 +67,40 @@ def _simulate_board(args: argparse.Namespace) -> int:
     print(f"wrote {path}: preset {args.preset} ({autopilot}), "
           f"{len(log.instances)} sensor instances, {log.instances[0].n_samples} samples each")
     return 0
+
+
+def _cmd_fleet(args: argparse.Namespace) -> int:
+    from .config import load_config
+    from .evaluate import load_data
+    from .fleet import (
+        EXIT_LIMITS_FAILED,
+        FleetOptions,
+        run_fleet,
+        sources_from_dataset,
+        sources_from_simulation,
+    )
+
+    cfg = load_config(args.config)
+    opts = FleetOptions(executor=args.executor, workers=args.workers,
+                        ray_address=args.ray_address, family=args.family, folds=args.folds)
+    if args.units is not None:
+        if cfg.data.paths:
+            raise ThermonetError(f"{args.config}: --units simulates a fleet of the config's "
+                                 "preset; this config reads files (data.paths)")
+        sources = sources_from_simulation(cfg.data.preset or "", units=args.units,
+                                          runs=cfg.data.runs, seed=cfg.data.seed,
+                                          outliers=args.outliers)
+    else:
+        if args.outliers:
+            raise ThermonetError("--outliers needs --units (outliers are simulated units)")
+        sources = sources_from_dataset(load_data(cfg.data, source=str(args.config),
+                                                 allow_fleet=True))
+    results = run_fleet(cfg, args.out, sources, options=opts,
+                        track=False if args.no_track else None,
+                        tracking_uri=args.tracking_uri, quiet=args.quiet)
+    if not args.quiet:
+        print(f"\nresults: {Path(args.out) / 'results.json'}")
+    return 0 if results["fleet"]["all_passed"] else EXIT_LIMITS_FAILED
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -95,10 +137,12 @@ def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
         cfg.baseline = None
     results = run_compare(cfg, args.out, overwrite=args.overwrite,
                           track=False if args.no_track else None,
-                          tracking_uri=args.tracking_uri, quiet=args.quiet)
+                          tracking_uri=args.tracking_uri, quiet=args.quiet,
+                          plots=not args.no_plots)
     if not args.quiet:
         print(format_table(results))
-        print(f"\nresults: {Path(args.out) / 'results.json'}")
+        print(f"\nresults: {Path(args.out) / 'results.json'}, report: "
+              f"{Path(args.out) / 'report.html'}")
     return 0
 
 
@@ -110,9 +154,51 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return _compare_common(args, only=args.family)
 
 
+_EXTENSIONS = {"onnx": ".onnx", "c": ".h", "px4-params": ".params",
+               "ardupilot-params": ".parm"}
+
+
+def _export_all_units(args: argparse.Namespace) -> int:
+    """One file per unit of a fleet directory, ``OUT/<device_id><ext>``; each verified as a
+    single export is.  Units that cannot be exported are listed; exit 1 if any."""
+    from .exporting import export_source
+
+    src = Path(args.source)
+    try:
+        units = json.loads((src / "results.json").read_text())["units"]
+        if not isinstance(units, dict):
+            raise TypeError("'units' is not a mapping")
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise ThermonetError(f"{src}: not a fleet directory (results.json with 'units': "
+                             f"{err})") from None
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ThermonetError(f"{out}: --out must be a directory with --all-units")
+    out.mkdir(parents=True, exist_ok=True)
+    failed = 0
+    for dev in units:
+        udir = src / "units" / dev
+        if not udir.resolve().is_relative_to(src.resolve()) or not udir.is_dir():
+            print(f"thermonet: {dev}: skipped (no unit directory {udir})", file=sys.stderr)
+            failed += 1
+            continue
+        try:
+            path = export_source(str(udir), fmt=args.format, out=out / f"{dev}"
+                                 f"{_EXTENSIONS.get(args.format, '.' + args.format)}", family=args.family,
+                                 device_id=args.device_id, instance=args.instance)
+            print(f"wrote {path}")
+        except ThermonetError as err:
+            print(f"thermonet: {dev}: not exported: {err}", file=sys.stderr)
+            failed += 1
+    print(f"{len(units) - failed} of {len(units)} units exported to {out}")
+    return 1 if failed else 0
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
     from .exporting import export_source
 
+    if args.all_units:
+        return _export_all_units(args)
     path = export_source(args.source, fmt=args.format, out=args.out, family=args.family,
                          tracking_uri=args.tracking_uri, device_id=args.device_id,
                          instance=args.instance)
@@ -147,6 +233,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--runs", type=int, default=None, help="number of runs (default: the preset's)")
     s.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
     s.add_argument("--out", required=True, help="output .parquet file (.ulg / .bin for fc-board)")
+    s.add_argument("--units", type=int, default=None,
+                   help="simulate a fleet of N units (device ids <preset>-u000 …), each with "
+                        "the preset's unit-to-unit spread")
+    s.add_argument("--outliers", type=int, default=0,
+                   help="with --units: the last K units follow a drift law 10σ off the fleet's")
     s.set_defaults(func=_cmd_simulate)
 
     i = sub.add_parser("info", help="summarise recordings",
@@ -168,6 +259,8 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--tracking-uri", default=None,
                        help="MLflow tracking URI (default sqlite:///mlflow.db in the working dir)")
         q.add_argument("-q", "--quiet", action="store_true", help="no progress, no table")
+        q.add_argument("--no-plots", action="store_true",
+                       help="write no PNG plots (report.html then has no figures)")
 
     c = sub.add_parser("compare", help="fit every family, judge on held-out runs",
                        description="Fit every model family of CONFIG, judge them on held-out "
@@ -193,7 +286,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("source", help="compare output dir, checkpoint .pt, or MLflow run id")
     e.add_argument("--format", required=True, choices=list(FORMATS),
                    help="export format (listed below)")
-    e.add_argument("--out", required=True, help="output file")
+    e.add_argument("--out", required=True,
+                   help="output file (with --all-units: output directory)")
+    e.add_argument("--all-units", action="store_true",
+                   help="SOURCE is a fleet directory: write one file per unit, "
+                        "OUT/<device_id>.<ext>")
     e.add_argument("--family", default=None, help="family name in a compare dir (default: chosen)")
     e.add_argument("--tracking-uri", default=None, help="MLflow URI for a run-id source")
     e.add_argument("--device-id", type=int, default=None,
@@ -212,6 +309,29 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--out", required=True, help="output directory")
     k.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
     k.set_defaults(func=_cmd_calibrate)
+
+    f = sub.add_parser("fleet", help="calibrate many units in one job, with pass/fail limits",
+                       description="Run the comparison of CONFIG on every unit (device id) of "
+                                   "the data, summarise the fleet (coefficient spread, robust "
+                                   "outliers, leave-units-out) and judge the config's limits. "
+                                   "Exit 0: every unit passed; 3: some unit failed its limits "
+                                   "or could not be calibrated; 1: bad input.")
+    f.add_argument("config", help="comparison YAML (its data holds several units, or --units)")
+    tracking_args(f)
+    f.add_argument("--units", type=int, default=None,
+                   help="simulate N units of the config's preset instead of reading data")
+    f.add_argument("--outliers", type=int, default=0, help="with --units: K outlier units")
+    f.add_argument("--executor", choices=["process", "serial", "ray"], default="process",
+                   help="process pool (default), this process, or a Ray cluster")
+    f.add_argument("--workers", type=int, default=None,
+                   help="worker processes / local Ray CPUs (default: all cores)")
+    f.add_argument("--ray-address", default=None,
+                   help="Ray cluster address (default: start a local Ray)")
+    f.add_argument("--family", default=None,
+                   help="fleet family for spread and leave-units-out (default: the baseline)")
+    f.add_argument("--folds", type=int, default=5,
+                   help="leave-units-out groups (0: skip)")
+    f.set_defaults(func=_cmd_fleet)
     return p
 
 

@@ -1,36 +1,24 @@
-"""``thermonet compare``: every configured family fitted, judged on held-out data, tracked, plotted.
+"""``thermonet compare``: every configured family fitted, judged on held-out data, reported.
 
-``results.json`` schema (version 1)::
+Three steps:
 
-    {
-      "schema": 1,
-      "thermonet_version": str,
-      "config": {...resolved config...},
-      "device": str, "data_hash": str, "target": "drift" | "four-position",
-      "split": {"strategy": str, "folds": [{"train": ..., "val": ..., "test": ...}]},
-      "units": {axis: unit},
-      "targets": {axis: "channel" | "zero" | "at-t-ref" | "four-position"},  # thermonet.target
-      "chosen": name | null,          # by validation error only
-      "chosen_reason": str,           # why (or why none: "do no harm")
-      "baseline": name | null,        # PX4/ArduPilot's cubic, for the ratios below
-      "families": {
-        name: {
-          "family": registry key, "inputs": [...], "params": {...},
-          "status": "ok" | "failed", "reason": str | null,
-          "fit_seconds": s, "n_params": k, "best_epoch": int,
-          "val_score": float,         # mean over axes of val msd_comp / msd_raw (< 1 beats raw)
-          "checkpoint": path | null, "mlflow_run_id": str | null,
-          "axes": {axis: {"rms_raw", "rms_comp", "pp_raw", "pp_comp", "msd_raw", "msd_comp",
-                          "noise_floor", "bias_instability_raw", "bias_instability_comp",
-                          "drift_error_rms" (simulated data), "ppm_per_c_raw", "ppm_per_c_comp"
-                          (scale-factor outputs), "pp_ratio_vs_baseline"}}
-        }
-      }
-    }
+* **plan** — check the config against the data before anything is fitted or
+  written (a ``baseline`` that names no family is an error; inputs the data
+  cannot supply are errors), make the splits, collect warnings about
+  implausible inputs (:mod:`thermonet.diagnostics`);
+* **fit** — per family and fold: fit, predict the validation and test data,
+  sum the offset-free score per contiguous held-out block
+  (:mod:`thermonet.verdicts`), set the per-axis mask from the validation
+  verdict, save the checkpoint;
+* **report** — choose (per-axis masked validation score, ties → fewest
+  parameters, do no harm), verdicts against raw and the baseline from a
+  paired block bootstrap, warnings, ``results.json`` (schema in
+  :mod:`thermonet.results`), plots, ``report.html`` (:mod:`thermonet.report`).
 
-With leave-one-run-out the per-axis metrics are means over folds,
-``folds`` under each family holds the per-fold values, and the checkpoint is
-the last fold's model.
+:func:`run_compare` returns the ``results.json`` document as a dict.  With
+leave-one-run-out the per-axis metrics are means over folds, ``folds`` under
+each family holds the per-fold values, the verdicts pool every fold's
+held-out blocks, and the checkpoint is the last fold's model.
 """
 
 from __future__ import annotations
@@ -54,6 +42,7 @@ from .evaluate import (
     Split,
     build_part,
     data_hash,
+    fit_arrays,
     heating_only,
     load_data,
     make_splits,
@@ -61,6 +50,9 @@ from .evaluate import (
 )
 from .fileio import atomic_write_text
 from .recording import Dataset
+from .results import AxisResult, ComparisonResult, FamilyResult, Verdict
+from .target import CHANNEL, FOUR_POSITION, ZERO, Target
+from .verdicts import BlockStats
 
 __all__ = ["run_compare", "format_table", "Progress"]
 
@@ -152,33 +144,6 @@ def _evaluate_part(model: Any, part: Part) -> tuple[np.ndarray, dict[str, dict[s
     return pred, out
 
 
-def _val_score(model: Any, part: Part) -> float:
-    """Mean over axes of msd_comp / msd_raw on the validation part (< 1: better than raw)."""
-    from .train import predict
-
-    pred = predict(model, part.signals)
-    ratios = []
-    for j in range(part.target.shape[1]):
-        y = part.target[:, j]
-        r = y - pred[:, j]
-        if part.offset_free(j):  # a scale factor's nominal value, gravity (at-t-ref): no error
-            y = y - np.mean(y)
-            r = r - np.mean(r) if not part.per_soak else r
-        raw = float(np.mean(y ** 2))
-        comp = float(np.mean(r ** 2))
-        ratios.append(comp / raw if raw > 0 else float("inf"))
-    return float(np.mean(ratios))
-
-
-@dataclass
-class _FamilyOutcome:
-    result: dict[str, Any]
-    model: Any = None
-    test_parts: list[Part] = field(default_factory=list)
-    test_preds: list[np.ndarray] = field(default_factory=list)
-    history: list[dict[str, Any]] | None = None
-    best_val: float | None = None
-
 
 class _Parts:
     """Signals and targets of each (run, signals) pair, built once for all families."""
@@ -198,125 +163,65 @@ class _Parts:
         return self._cache[key]
 
 
-def _fit_family(cfg: CompareConfig, fam: FamilyConfig, splits: list[Split], outputs: list[str],
-                progress: Progress, parts: _Parts) -> _FamilyOutcome:
-    from .features import FeatureSpec, reference_values, signals_for
-    from .train import fit
+# ------------------------------------------------------------------------------------ plan
+@dataclass
+class _Plan:
+    """Everything decided before fitting."""
 
-    res: dict[str, Any] = {"family": fam.family, "inputs": list(fam.inputs),
-                           "params": dict(fam.params), "train_on": fam.train_on,
-                           "status": "ok", "reason": None}
-    fold_axes, scores, seconds = [], [], 0.0
-    outcome = _FamilyOutcome(res, test_parts=[], test_preds=[])
+    cfg: CompareConfig
+    ds: Dataset
+    outputs: list[str]
+    targets: Target
+    splits: list[Split]
+    units: dict[str, str]
+    source: str
+    warnings: list[str] = field(default_factory=list)
+
+
+def _baseline_named(cfg: CompareConfig) -> bool:
+    """Whether the config file names ``baseline`` itself (rather than taking the default)."""
+    import yaml
+
+    src = getattr(cfg, "_source", None)
+    if not src or not Path(src).is_file():
+        return cfg.baseline != _DEFAULT_BASELINE
     try:
-        tcfg = _train_config(cfg, fam)
-        for split in splits:
-            # T_ref also for a model on T alone: at-t-ref axes are normalised there
-            ref_inputs = list(fam.inputs) + (["dT"] if "temperature_c" in signals_for(fam.inputs)
-                                             else [])
-            t_ref, proxy_ref = reference_values(split.train, ref_inputs, t_ref=cfg.features.t_ref,
-                                                window_min=cfg.features.t_ref_window_min)
-            spec = FeatureSpec(inputs=list(fam.inputs), t_ref=t_ref, proxy_ref=proxy_ref)
-            train_parts = [parts(r, spec.signals) for r in split.train]
-            if fam.train_on == "heating":
-                train_parts = [heating_only(p, r, cfg.features.rate_window_s)
-                               for p, r in zip(train_parts, split.train, strict=True)]
-            val_part = parts(split.val, spec.signals) if split.val is not None else None
-            test_part = parts(split.test, spec.signals)
-            fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=outputs,
-                         train=[(p.signals, p.target) for p in train_parts],
-                         val=(val_part.signals, val_part.target) if val_part else None,
-                         spec=spec, hyper=dict(fam.params), config=tcfg,
-                         on_epoch=lambda e, tl, vl: progress.epoch(fam.label, e, tl, vl),
-                         target=getattr(parts.targets, "modes", None))
-            seconds += fitted.fit_seconds
-            scores.append(_val_score(fitted.model, val_part if val_part else train_parts[-1]))
-            pred, axes = _evaluate_part(fitted.model, test_part)
-            fold_axes.append(axes)
-            outcome.model, outcome.history = fitted.model, fitted.history
-            outcome.best_val = fitted.best_val_loss
-            outcome.test_parts.append(test_part)
-            outcome.test_preds.append(pred)
-            res.update(n_params=int(fitted.n_params), best_epoch=int(fitted.best_epoch))
-    except FitError as err:  # this data cannot carry the family: reported, the comparison goes on
-        res.update(status="failed", reason=str(err))
-        outcome.model = None
-        return outcome
-    res["fit_seconds"] = seconds
-    res["val_score"] = float(np.mean(scores))
-    res["axes"] = {a: {k: float(np.mean([f[a][k] for f in fold_axes])) for k in fold_axes[0][a]}
-                   for a in outputs}
-    if len(fold_axes) > 1:
-        res["folds"] = fold_axes
-    return outcome
+        data = yaml.safe_load(Path(src).read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError):  # load_config read it already; be conservative
+        return True
+    return isinstance(data, dict) and "baseline" in data
 
 
-def _family_config(cfg: CompareConfig, fam: FamilyConfig) -> dict[str, Any]:
-    """What a family's checkpoint carries: its own resolved config, not the whole comparison's
-    (the same layout :meth:`thermonet.DriftEstimator.save` writes)."""
-    return {"family": to_dict(fam), "train": to_dict(_train_config(cfg, fam)),
-            "features": to_dict(cfg.features), "target": cfg.target,
-            "tracking": to_dict(cfg.tracking)}
+_DEFAULT_BASELINE = CompareConfig.__dataclass_fields__["baseline"].default
 
 
-def _choose(families: dict[str, dict[str, Any]]) -> tuple[str | None, str]:
-    ok = {k: v for k, v in families.items()
-          if v["status"] == "ok" and math.isfinite(v.get("val_score", float("nan")))}
-    if not ok:
-        if any(v["status"] == "ok" for v in families.values()):
-            # fitted, but msd_raw was exactly 0 on validation: the score is undefined
-            return None, ("nothing to compensate: the raw output has exactly zero error on "
-                          "the validation data (every family fitted)")
-        return None, "no family could be fitted"
-    best = min(ok, key=lambda k: ok[k]["val_score"])
-    score = ok[best]["val_score"]
-    if score >= 1.0:
-        return None, (f"do no harm: no family beats the raw output on validation "
-                      f"(best {best}: msd ratio {score:.3g} ≥ 1)")
-    return best, f"lowest validation msd ratio ({score:.3g} of raw)"
+def _check_baseline(cfg: CompareConfig, source: str) -> None:
+    """A ``baseline`` the config names must be one of its families (an error before fitting);
+    the default (``cubic``, PX4/ArduPilot's anchor) applies only where such a family exists."""
+    labels = [f.label for f in cfg.families]
+    if cfg.baseline is not None and cfg.baseline not in labels and not _baseline_named(cfg):
+        cfg.baseline = None
+        return
+    if cfg.baseline is not None and cfg.baseline not in labels:
+        raise ConfigError(f"{source}: key 'baseline': no family named '{cfg.baseline}' "
+                          f"(families: {', '.join(labels)}); name one of them or set "
+                          "'baseline: null'")
 
 
-def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = False,
-                **kwargs: Any) -> dict[str, Any]:
-    """Fit every family of ``cfg``, judge on held-out data, write ``out_dir``; return results.
-
-    The output appears whole or not at all (:mod:`thermonet.outdir`): it is
-    built in a staging directory beside ``out_dir`` and moved into place when
-    complete; ``results.json`` records each checkpoint's SHA-256.  A non-empty
-    ``out_dir`` that is not a complete comparison is refused; a previous
-    comparison is replaced only with ``overwrite=True``.
-
-    Keyword arguments: ``track``, ``tracking_uri``, ``quiet``, ``progress``,
-    ``dataset`` (replaces the configured data — benchmarks feed variants of
-    one simulation this way; the config's ``data`` section is then ignored).
-    """
-    from .outdir import staged_output
-
-    with staged_output(out_dir, overwrite=overwrite) as stage:
-        results = _run_compare_in(cfg, stage.path, **kwargs)
-        stage.finish(results, _clean)
-    return results
-
-
-def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None = None,
-                    tracking_uri: str | None = None, quiet: bool = False,
-                    progress: Progress | None = None, dataset: Dataset | None = None
-                    ) -> dict[str, Any]:
-    """The comparison itself, written into ``out_dir`` (a staging directory)."""
-    from .checkpoint import save_checkpoint
+def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> _Plan:
+    """Check ``cfg`` against the data, make the splits, collect input warnings (no fitting)."""
     from .config import check_families
+    from .diagnostics import input_warnings
     from .features import signals_for
-    from .tracking import Tracker
 
-    progress = progress or Progress(quiet)
     source = getattr(cfg, "_source", "config")
     check_families(cfg, source=source)
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"{out}: --out must be a directory, and this is a file")
+    _check_baseline(cfg, source)
     ds = dataset if dataset is not None else load_data(cfg.data, source=source)
+    signals: set[str] = set()
     for i, fam in enumerate(cfg.families):
         for sig in signals_for(fam.inputs):
+            signals.add(sig)
             if sig in ("temperature_c", "rate_c_per_min"):
                 if any(r.temperature_c is None for r in ds):
                     raise ConfigError(f"{source}: key 'families[{i}].inputs': {fam.inputs} need "
@@ -329,140 +234,428 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
     outputs = _outputs(ds, cfg)
     targets = targets_for(ds, cfg.target, outputs, source=source)
     splits = make_splits(ds, cfg.split, source=source)
-    out.mkdir(parents=True, exist_ok=True)
-    dhash = data_hash(ds)
     units = {o: ds[0].units.get(o.split(".")[0], "") for o in outputs}
     for o in outputs:
         if o.endswith(".scale"):
             units[o] = "1"
+    warns = input_warnings(ds, signals=signals, rate_window_s=cfg.features.rate_window_s)
+    return _Plan(cfg, ds, outputs, targets, splits, units, source, warns)
+
+
+def _data_summary(ds: Dataset) -> list[dict[str, Any]]:
+    rows = []
+    for r in ds:
+        t = r.temperature_c
+        rows.append({"run_id": r.run_id, "samples": int(r.n_samples),
+                     "duration_s": float(r.duration_s), "rate_hz": float(r.effective_rate_hz),
+                     "temperature_min_c": None if t is None else float(np.nanmin(t)),
+                     "temperature_max_c": None if t is None else float(np.nanmax(t))})
+    return rows
+
+
+# ------------------------------------------------------------------------------------- fit
+@dataclass
+class _Fitted:
+    """One family after fitting: its record, last model, and its held-out block sums."""
+
+    result: FamilyResult
+    model: Any = None
+    history: list[Any] | None = None
+    val: BlockStats | None = None
+    test: BlockStats | None = None
+    test_parts: list[Part] = field(default_factory=list)
+    test_preds: list[np.ndarray] = field(default_factory=list)
+    ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
+    val_draws: np.ndarray | None = None  # bootstrap draws of the masked validation score
+    best_val: float | None = None        # the last fold's best validation loss
+
+
+def _fold_stats(part: Part, pred: np.ndarray) -> BlockStats:
+    """Block sums of one held-out part: raw error = the target, residual = target − drift."""
+    from .verdicts import block_labels, block_stats
+
+    raw = part.target.copy()
+    for j in range(len(part.outputs)):
+        if part.offset_free(j):  # a scale factor's nominal value, gravity (at-t-ref): no error
+            raw[:, j] -= np.mean(raw[:, j])
+    return block_stats(raw, pred - (part.target - raw), block_labels(part.time_s))
+
+
+def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts) -> _Fitted:
+    from .diagnostics import outside_fraction
+    from .features import FeatureSpec, reference_values, signals_for
+    from .models.base import as_numpy
+    from .train import fit, predict
+    from .verdicts import pool
+
+    cfg = p.cfg
+    res = FamilyResult(label=fam.label, family=fam.family, inputs=list(fam.inputs),
+                       params=dict(fam.params), train_on=fam.train_on)
+    out = _Fitted(res)
+    fold_axes: list[dict[str, dict[str, float]]] = []
+    vals, tests = [], []
+    outside: dict[str, list[tuple[float, int]]] = {}
+    try:
+        tcfg = _train_config(cfg, fam)
+        for split in p.splits:
+            # T_ref also for a model on T alone: at-t-ref axes are normalised there
+            ref_inputs = list(fam.inputs) + (["dT"] if "temperature_c" in signals_for(fam.inputs)
+                                             else [])
+            t_ref, proxy_ref = reference_values(split.train, ref_inputs, t_ref=cfg.features.t_ref,
+                                                window_min=cfg.features.t_ref_window_min)
+            spec = FeatureSpec(inputs=list(fam.inputs), t_ref=t_ref, proxy_ref=proxy_ref)
+            train_parts = [parts(r, spec.signals) for r in split.train]
+            if fam.train_on == "heating":
+                train_parts = [heating_only(q, r, cfg.features.rate_window_s)
+                               for q, r in zip(train_parts, split.train, strict=True)]
+            val_part = parts(split.val, spec.signals) if split.val is not None else None
+            test_part = parts(split.test, spec.signals)
+            fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=p.outputs,
+                         train=[fit_arrays(q) for q in train_parts],
+                         val=fit_arrays(val_part) if val_part else None,
+                         spec=spec, hyper=dict(fam.params), config=tcfg,
+                         on_epoch=lambda e, tl, vl: progress.epoch(fam.label, e, tl, vl),
+                         target=p.targets.modes)
+            res.fit_seconds = (0.0 if math.isnan(res.fit_seconds) else res.fit_seconds) \
+                + fitted.fit_seconds
+            held = val_part or train_parts[-1]
+            vals.append(_fold_stats(held, predict(fitted.model, held.signals)))
+            pred, axes = _evaluate_part(fitted.model, test_part)
+            tests.append(_fold_stats(test_part, pred))
+            fold_axes.append(axes)
+            model = fitted.model
+            lo = np.asarray(as_numpy(model.sig_lo))
+            hi = np.asarray(as_numpy(model.sig_hi))
+            frac = outside_fraction(test_part.signals, lo, hi)
+            for k, sig in enumerate(model.signals):
+                outside.setdefault(sig, []).append((float(frac[k]), test_part.signals.shape[0]))
+                out.ranges[sig] = (float(lo[k]), float(hi[k]))
+            out.model, out.history = model, fitted.history
+            out.best_val = fitted.best_val_loss
+            out.test_parts.append(test_part)
+            out.test_preds.append(pred)
+            res.n_params, res.best_epoch = int(fitted.n_params), int(fitted.best_epoch)
+    except FitError as err:  # this data cannot carry the family: reported, the comparison goes on
+        res.status, res.reason, out.model = "failed", str(err), None
+        return out
+    out.val, out.test = pool(vals), pool(tests)
+    res.outside_trained_range = {s: sum(f * n for f, n in v) / max(sum(n for _, n in v), 1)
+                                 for s, v in outside.items()}
+    metrics = {a: {k: float(np.mean([f[a][k] for f in fold_axes])) for k in fold_axes[0][a]}
+               for a in p.outputs}
+    if len(fold_axes) > 1:
+        res.folds = fold_axes
+    _judge_against_raw(out, metrics, p)
+    return out
+
+
+_DRAWS: dict[int, np.ndarray] = {}
+
+
+def _draws(n_blocks: int) -> np.ndarray:
+    from .verdicts import draws
+
+    if n_blocks not in _DRAWS:
+        _DRAWS[n_blocks] = draws(n_blocks)
+    return _DRAWS[n_blocks]
+
+
+def _verdicts(num: np.ndarray, den: np.ndarray) -> tuple[list[Verdict], np.ndarray, np.ndarray]:
+    from .verdicts import ratio_interval, verdict_of
+
+    ratio, boot, iv = ratio_interval(num, den, _draws(num.shape[0]))
+    return ([Verdict(float(ratio[j]), float(iv[0, j]), float(iv[1, j]),
+                     verdict_of(float(iv[0, j]), float(iv[1, j]))) for j in range(ratio.size)],
+            ratio, boot)
+
+
+def _offset_meaningful(targets: Target, axis: str) -> bool:
+    """Whether the absolute offset of ``axis`` is an error (not an unknown constant).
+
+    Where the target mode makes the true input known — a reference channel
+    (``channel``), a static gyro's true rate 0 (``zero``), study 000's per-soak
+    bias K0 — the offset is an error; ``at-t-ref`` axes (gravity's or the
+    field's projection, a pressure) and scale factors have none
+    (:mod:`thermonet.target`).
+    """
+    mode = targets.mode(axis)
+    if mode == FOUR_POSITION:
+        return axis.endswith(".bias")
+    return mode in (CHANNEL, ZERO)
+
+
+def _judge_against_raw(f: _Fitted, metrics: dict[str, dict[str, float]], p: _Plan) -> None:
+    """Validation and test verdicts against raw, the per-axis mask, the masked scores."""
+    from .verdicts import masked_scores
+
+    assert f.val is not None and f.test is not None
+    res = f.result
+    val, val_ratio, val_boot = _verdicts(f.val.ss_comp, f.val.ss_raw)
+    test, test_ratio, test_boot = _verdicts(f.test.ss_comp, f.test.ss_raw)
+    mask = np.array([v.verdict == "better" for v in val])
+    res.val_score, draws_ = masked_scores(val_ratio, val_boot, mask)
+    q = [2.5, 97.5]
+    lo_hi = np.nanpercentile(draws_, q) if np.isfinite(draws_).any() else [math.nan] * 2
+    res.val_interval = (float(lo_hi[0]), float(lo_hi[1]))
+    res.test_score = float(np.mean(np.where(mask, test_ratio, 1.0)))
+    f.val_draws = draws_
+    sr, sc = f.test.score_raw, f.test.score_comp
+    orw, ocp = f.test.offset_raw, f.test.offset_comp
+    for j, axis in enumerate(p.outputs):
+        meaningful = _offset_meaningful(p.targets, axis)
+        res.axes[axis] = AxisResult(
+            score_raw=float(sr[j]), score_comp=float(sc[j]), test=test[j], val=val[j],
+            compensate=bool(mask[j]), offset_raw=float(orw[j]) if meaningful else None,
+            offset_comp=float(ocp[j]) if meaningful else None, metrics=metrics[axis])
+
+
+def _family_config(cfg: CompareConfig, fam: FamilyConfig) -> dict[str, Any]:
+    """What a family's checkpoint carries: its own resolved config, not the whole comparison's
+    (the same layout :meth:`thermonet.DriftEstimator.save` writes)."""
+    return {"family": to_dict(fam), "train": to_dict(_train_config(cfg, fam)),
+            "features": to_dict(cfg.features), "target": cfg.target,
+            "tracking": to_dict(cfg.tracking)}
+
+
+# ---------------------------------------------------------------------------------- report
+def _choose_and_judge(fitted: dict[str, _Fitted], result: ComparisonResult, p: _Plan) -> None:
+    """Choice with ties, verdicts against the baseline, warnings about the chosen model."""
+    from .verdicts import choose
+
+    ok = {k: f for k, f in fitted.items() if f.result.ok and f.val_draws is not None}
+    scores = {k: (f.result.val_score, f.val_draws) for k, f in ok.items()
+              if f.val_draws is not None}
+    chosen, tied, why = choose(scores, {k: f.result.n_params for k, f in ok.items()})
+    result.chosen, result.chosen_reason, result.tie = chosen, why, tied
+    if tied:
+        result.warn(why)
+    base = ok.get(p.cfg.baseline or "")
+    if base is not None and base.test is not None:
+        for f in ok.values():
+            assert f.test is not None
+            vs, _, _ = _verdicts(f.test.ss_comp, base.test.ss_comp)
+            for j, axis in enumerate(p.outputs):
+                ax = f.result.axes[axis]
+                ax.vs_baseline = vs[j]
+                b = base.result.axes[axis].metrics.get("pp_comp", math.nan)
+                ax.metrics["pp_ratio_vs_baseline"] = (
+                    ax.metrics.get("pp_comp", math.nan) / b if b > 0 else math.nan)
+    if chosen is None:
+        return
+    fam = result.families[chosen]
+    for axis, ax in fam.axes.items():
+        if not ax.compensate:
+            result.uncompensated_axes.append(axis)
+            result.warn(f"{axis}: left uncompensated by the chosen model {chosen} (drift 0 on "
+                        f"this axis): it does not beat the raw output on the validation data "
+                        f"(score ratio {ax.val.ratio:.3g}, interval {ax.val.low:.3g} … "
+                        f"{ax.val.high:.3g})")
+        elif ax.test.verdict == "worse":
+            result.warn(f"{axis}: the chosen model {chosen} is worse than raw on the held-out "
+                        f"test data (score ratio {ax.test.ratio:.3g}, 95 % interval "
+                        f"{ax.test.low:.3g} … {ax.test.high:.3g}); the drift may depend on "
+                        "more than temperature (thermal history, hysteresis)")
+    if not fam.compensate_in_model and result.uncompensated_axes:
+        result.warn(f"the model file of {chosen} does not carry the per-axis mask yet; export "
+                    f"it with care: {', '.join(result.uncompensated_axes)} should stay "
+                    "uncompensated")
+
+
+def _extrapolation(fitted: dict[str, _Fitted], result: ComparisonResult) -> None:
+    from .diagnostics import extrapolation_warnings
+
+    fractions: dict[str, float] = {}
+    ranges: dict[str, tuple[float, float]] = {}
+    for f in fitted.values():
+        if not f.result.ok:
+            continue
+        for sig, frac in f.result.outside_trained_range.items():
+            fractions[sig] = max(fractions.get(sig, 0.0), frac)
+            ranges.setdefault(sig, f.ranges[sig])
+    result.data["outside_trained_range"] = fractions
+    result.data["trained_range"] = {k: list(v) for k, v in ranges.items()}
+    for w in extrapolation_warnings(fractions, ranges):
+        result.warn(w)
+
+
+def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = False,
+                track: bool | None = None, tracking_uri: str | None = None,
+                quiet: bool = False, progress: Progress | None = None,
+                dataset: Dataset | None = None, plots: bool = True) -> dict[str, Any]:
+    """Fit every family of ``cfg``, judge on held-out data, write ``out_dir``; return results.
+
+    ``dataset`` replaces the configured data (benchmarks feed variants of one
+    simulation this way); the config's ``data`` section is then ignored.
+    ``plots=False`` writes no PNG files (the report then has no figures).
+    Returns the ``results.json`` document (:meth:`ComparisonResult.to_json`).
+
+    The output appears whole or not at all (:mod:`thermonet.outdir`): it is
+    built in a staging directory beside ``out_dir`` and moved into place when
+    complete; ``results.json`` records each checkpoint's SHA-256.  A non-empty
+    ``out_dir`` that is not a complete comparison is refused; a previous
+    comparison is replaced only with ``overwrite=True``.
+    """
+    from .outdir import staged_output
+
+    with staged_output(out_dir, overwrite=overwrite) as stage:
+        results = _run_compare_in(cfg, stage.path, track=track, tracking_uri=tracking_uri,
+                                  quiet=quiet, progress=progress, dataset=dataset,
+                                  plots=plots)
+        stage.finish(results, lambda doc: doc)
+    return results
+
+
+def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None = None,
+                    tracking_uri: str | None = None, quiet: bool = False,
+                    progress: Progress | None = None, dataset: Dataset | None = None,
+                    plots: bool = True) -> dict[str, Any]:
+    """The comparison itself, written into ``out_dir`` (a staging directory)."""
+    from .checkpoint import save_checkpoint
+    from .tracking import Tracker
+    from .verdicts import LEVEL, MIN_BLOCKS, RESAMPLES, SEED, apply_compensate_mask
+
+    progress = progress or Progress(quiet)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"{out}: --out must be a directory, and this is a file")
+    p = plan(cfg, dataset)
+    ds, outputs, units = p.ds, p.outputs, p.units
+    out.mkdir(parents=True, exist_ok=True)
+    dhash = data_hash(ds)
     tracker = Tracker(enabled=cfg.tracking.enabled if track is None else track,
                       uri=tracking_uri or cfg.tracking.uri, experiment=cfg.tracking.experiment)
     preset = ds.runs[0].meta.get("preset", "")
     tags = {"device": ds.device_id, "preset": preset, "data_hash": dhash,
-            "target": targets.kind}
+            "target": p.targets.kind}
     resolved = to_dict(cfg)
-    results: dict[str, Any] = {
-        "schema": 1, "thermonet_version": __version__, "config": resolved,
-        "device": ds.device_id, "data_hash": dhash, "target": targets.kind,
-        "split": {"strategy": splits[0].label if len(splits) == 1 else "leave-one-run-out",
-                  "folds": [s.describe for s in splits]},
-        "units": units, "targets": targets.as_dict(), "baseline": cfg.baseline,
-        "families": {},
-    }
+    splits = p.splits
+    result = ComparisonResult(
+        config=resolved, device=ds.device_id, data_hash=dhash, target=p.targets.kind,
+        split={"strategy": splits[0].label if len(splits) == 1 else "leave-one-run-out",
+               "folds": [s.describe for s in splits]},
+        units=units, targets=p.targets.as_dict(), baseline=cfg.baseline,
+        data={"runs": _data_summary(ds)},
+        thermonet_version=__version__)
+    for w in p.warnings:
+        result.warn(w)
     progress.line(f"thermonet compare: {ds.device_id} ({len(ds)} runs, outputs "
-                  f"{', '.join(outputs)}), split {results['split']['strategy']}")
-    outcomes: dict[str, _FamilyOutcome] = {}
-    parts = _Parts(cfg, outputs, targets)
+                  f"{', '.join(outputs)}), split {result.split['strategy']}")
+    fitted: dict[str, _Fitted] = {}
+    parts = _Parts(cfg, outputs, p.targets)
     with tracker.run(f"compare-{ds.device_id}", params=resolved, tags=tags) as parent_id:
-        results["mlflow_run_id"] = parent_id
+        result.mlflow_run_id = parent_id
         for fam in cfg.families:
             with tracker.run(fam.label, params={"family": fam.family, "inputs": fam.inputs,
                                                 "params": fam.params},
                              tags={**tags, "family": fam.family}, nested=True) as run_id:
-                oc = _fit_family(cfg, fam, splits, outputs, progress, parts)
-                r = oc.result
-                r["mlflow_run_id"] = run_id
-                r["checkpoint"] = None
-                if r["status"] == "ok":
-                    tracker.log_history(list(oc.history or []))
-                    tracker.log_metrics({f"test/{a}/{k}": v for a, m in r["axes"].items()
-                                         for k, v in m.items()})
-                    tracker.log_metrics({"val/score": r["val_score"],
-                                         "fit_seconds": r["fit_seconds"]})
+                f = _fit_family(p, fam, progress, parts)
+                r = f.result
+                r.mlflow_run_id = run_id
+                if r.ok:
+                    mask = [r.axes[a].compensate for a in outputs]
+                    r.compensate_in_model = apply_compensate_mask(f.model, mask)
+                    tracker.log_history(list(f.history or []))
+                    tracker.log_metrics({f"test/{a}/{k}": v for a, m in r.axes.items()
+                                         for k, v in {**m.metrics, "score_ratio": m.test.ratio,
+                                                      "score_raw": m.score_raw,
+                                                      "score_comp": m.score_comp}.items()})
+                    tracker.log_metrics({"val/score": r.val_score,
+                                         "fit_seconds": r.fit_seconds})
                     ckpt = out / "models" / f"{fam.label}.pt"
                     try:
-                        save_checkpoint(ckpt, oc.model, config=_family_config(cfg, fam),
-                                        epoch=r["best_epoch"], best_val=oc.best_val,
+                        save_checkpoint(ckpt, f.model, config=_family_config(cfg, fam),
+                                        epoch=r.best_epoch, best_val=f.best_val,
                                         extra={"label": fam.label, "device_id": ds.device_id,
                                                "data_hash": dhash, "units": units,
-                                               "signal_units": {p: ds[0].units.get(p, "")
-                                                                for p in ds[0].proxies},
-                                               "val_score": r["val_score"],
-                                               "test_metrics": r["axes"],
+                                               "signal_units": {s: ds[0].units.get(s, "")
+                                                                for s in ds[0].proxies},
+                                               "val_score": r.val_score,
+                                               "compensate": dict(zip(outputs, mask, strict=True)),
+                                               "test_metrics": r.to_json()["axes"],
                                                "mlflow_run_id": run_id or ""})
-                        r["checkpoint"] = str(ckpt)
+                        r.checkpoint = str(ckpt)
                         tracker.log_artifact(ckpt, "model")
                     except ThermonetError as err:  # a NaN model is never saved
-                        r.update(status="failed", reason=str(err))
-                    progress.line(f"  {fam.label:<14} fitted in {r['fit_seconds']:.2f} s, "
-                                  f"{r['n_params']} params, val msd ratio {r['val_score']:.3g}")
+                        r.status, r.reason = "failed", str(err)
+                    kept = sum(mask)
+                    progress.line(f"  {fam.label:<14} fitted in {r.fit_seconds:.2f} s, "
+                                  f"{r.n_params} params, val score {r.val_score:.3g} "
+                                  f"({kept}/{len(mask)} axes compensated)")
                 else:
                     tracker.set_tags({"status": "failed"})
-                    progress.line(f"  {fam.label:<14} not fitted: {r['reason']}")
-                results["families"][fam.label] = r
-                outcomes[fam.label] = oc
-        chosen, why = _choose(results["families"])
-        results["chosen"], results["chosen_reason"] = chosen, why
-        _baseline_ratios(results)
-        plots = _plots(out, outcomes, results, ds)
-        atomic_write_text(out / "results.json", json.dumps(_clean(results), indent=2))
+                    progress.line(f"  {fam.label:<14} not fitted: {r.reason}")
+                result.families[fam.label] = r
+                fitted[fam.label] = f
+        n_val = next((f.val.n.size for f in fitted.values() if f.val is not None), 0)
+        n_test = next((f.test.n.size for f in fitted.values() if f.test is not None), 0)
+        result.bootstrap = {
+            "method": "non-overlapping block bootstrap over contiguous held-out blocks "
+                      "(paired across families), percentile interval",
+            "resamples": RESAMPLES, "level": LEVEL, "seed": SEED, "min_blocks": MIN_BLOCKS,
+            "blocks": {"val": n_val, "test": n_test}}
+        _choose_and_judge(fitted, result, p)
+        _extrapolation(fitted, result)
+        doc = result.to_json()
+        plot_paths = _plots(out, fitted, doc, ds) if plots else []
+        from .report import write_report
+
+        atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
         atomic_write_text(out / "config.resolved.yaml", _yaml(resolved))
-        tracker.set_tags({"chosen": chosen or "none"})
+        write_report(out / "report.html", doc, plot_paths)
+        tracker.set_tags({"chosen": result.chosen or "none"})
         tracker.log_artifact(out / "results.json")
         tracker.log_artifact(out / "config.resolved.yaml")
-        for p in plots:
-            tracker.log_artifact(p, "plots")
-    return results
+        tracker.log_artifact(out / "report.html")
+        for path in plot_paths:
+            tracker.log_artifact(path, "plots")
+    for w in result.warnings:
+        progress.line(f"warning: {w}")
+    return doc
 
 
-def _baseline_ratios(results: dict[str, Any]) -> None:
-    base = results["families"].get(results.get("baseline") or "")
-    if not base or base["status"] != "ok":
-        return
-    for fam in results["families"].values():
-        if fam["status"] != "ok":
-            continue
-        for axis, m in fam["axes"].items():
-            b = base["axes"][axis]
-            m["pp_ratio_vs_baseline"] = (
-                (m["pp_comp"] / b["pp_comp"]) if b["pp_comp"] > 0 else float("nan")
-            )
-
-
-def _plots(out: Path, outcomes: dict[str, _FamilyOutcome], results: dict[str, Any],
+def _plots(out: Path, fitted: dict[str, _Fitted], results: dict[str, Any],
            ds: Dataset) -> list[Path]:
-    from .plots import plot_allan, plot_drift_vs_temperature, plot_residual_vs_time
+    """PNG figures of the last fold's test data, every fitted family in its own colour."""
+    from .plots import (
+        family_colours,
+        plot_allan,
+        plot_drift_vs_temperature,
+        plot_residual_vs_temperature,
+        plot_residual_vs_time,
+    )
 
-    fitted = {k: oc for k, oc in outcomes.items() if oc.model is not None and oc.test_parts}
-    if not fitted:
+    ok = {k: f for k, f in fitted.items() if f.model is not None and f.test_parts}
+    if not ok:
         return []
     paths: list[Path] = []
-    any_oc = next(iter(fitted.values()))
-    part = any_oc.test_parts[-1]
+    part = next(iter(ok.values())).test_parts[-1]
+    colours = family_colours(list(fitted))
+    style: dict[str, Any] = {"chosen": results.get("chosen"), "baseline": results.get("baseline"),
+             "colours": colours}
+    x_label = "temperature (°C)" if ds[0].temperature_c is not None else \
+        f"{sorted(ds[0].proxies)[0]} ({ds[0].units.get(sorted(ds[0].proxies)[0], '') or 'proxy'})"
     pdir = out / "plots"
     for j, axis in enumerate(part.outputs):
         unit = results["units"].get(axis, "")
-        curves = {}
-        order = np.argsort(part.bin_by)
-        for label, oc in fitted.items():
-            curves[label] = (part.bin_by[order], oc.test_preds[-1][order, j])
+        curves = {label: (part.bin_by, f.test_preds[-1][:, j]) for label, f in ok.items()}
         safe = axis.replace(".", "_")
         paths.append(plot_drift_vs_temperature(
             pdir / f"drift_vs_temperature_{safe}.png", temperature_c=part.bin_by,
-            observed_drift=part.target[:, j], curves=curves, axis=axis, units=unit))
+            observed_drift=part.target[:, j], curves=curves, axis=axis, units=unit,
+            bin_width=part.bin_width, x_label=x_label, **style))
         if results["target"] == "drift":
-            resid = {
-                label: part.target[:, j] - oc.test_preds[-1][:, j] for label, oc in fitted.items()
-            }
+            resid = {label: part.target[:, j] - f.test_preds[-1][:, j] for label, f in ok.items()}
             paths.append(plot_residual_vs_time(
                 pdir / f"residual_vs_time_{safe}.png", time_s=part.time_s,
-                raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit))
+                raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit, **style))
+            paths.append(plot_residual_vs_temperature(
+                pdir / f"residual_vs_temperature_{safe}.png", temperature_c=part.bin_by,
+                raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit,
+                bin_width=part.bin_width, x_label=x_label, **style))
             paths.append(plot_allan(pdir / f"allan_{safe}.png", rate_hz=part.rate_hz,
                                     raw_error=part.target[:, j], compensated=resid,
-                                    axis=axis, units=unit))
+                                    axis=axis, units=unit, **style))
     return paths
-
-
-def _clean(obj: Any) -> Any:
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return _clean(obj.item())
-    return obj
 
 
 def _yaml(data: Any) -> str:
@@ -471,36 +664,54 @@ def _yaml(data: Any) -> str:
     return yaml.safe_dump(data, sort_keys=False)
 
 
-_METRIC_COLS = ("rms_raw", "rms_comp", "pp_raw", "pp_comp", "msd_raw", "msd_comp",
-                "drift_error_rms", "ppm_per_c_raw", "ppm_per_c_comp")
+_METRIC_COLS = ("pp_raw", "pp_comp", "drift_error_rms", "ppm_per_c_raw", "ppm_per_c_comp")
+
+
+def _ratio_cell(v: dict[str, Any] | None) -> str:
+    if not v or v.get("ratio") is None:
+        return f"{'-':>22}"
+    lo, hi = (x if x is not None else math.nan for x in v["interval"])
+    mark = {"better": "+", "worse": "!", "indistinguishable": "="}[v["verdict"]]
+    return f"{v['ratio']:6.3g} [{lo:5.3g},{hi:5.3g}] {mark}"
 
 
 def format_table(results: dict[str, Any]) -> str:
-    """The comparison as a text table: family × axis × metrics, failures with their reason."""
+    """The comparison as a text table: family × axis, scores, verdicts, the ratio to the baseline.
+
+    ``vs raw`` and ``vs baseline`` are offset-free score ratios on the test
+    data with their 95 % bootstrap interval and verdict (+ better, ! worse,
+    = indistinguishable); ``comp`` says whether the axis is compensated.
+    """
     fams = results["families"]
     axes = list(results["units"])
     cols = [c for c in _METRIC_COLS
             if any(c in f.get("axes", {}).get(a, {}) for f in fams.values() for a in axes)]
-    head = f"{'family':<14} {'axis':<14} {'fit s':>6} {'params':>6} {'val':>7} " + \
-        " ".join(f"{c:>12}" for c in cols)
+    base = results.get("baseline")
+    head = (f"{'family':<14} {'axis':<14} {'fit s':>6} {'params':>6} {'val':>6} {'comp':>4} "
+            f"{'vs raw':>22} {'vs ' + (base or 'baseline'):>22} "
+            + " ".join(f"{c:>12}" for c in cols))
     lines = [head, "-" * len(head)]
     for name, f in fams.items():
         if f["status"] != "ok":
             lines.append(f"{name:<14} not fitted: {f['reason']}")
             continue
+        val = f.get("val_score")
         for i, a in enumerate(axes):
             m = f["axes"][a]
-            pre = (
-                (
-                    f"{name:<14} {a:<14} {f['fit_seconds']:6.2f} {f['n_params']:6d} "
-                    f"{f['val_score']:7.3g} "
-                )
-                if i == 0
-                else f"{'':<14} {a:<14} {'':>6} {'':>6} {'':>7} "
-            )
-            lines.append(pre + " ".join(f"{m.get(c, float('nan')):12.4g}" for c in cols))
-    chosen = results.get("chosen")
+            pre = (f"{name:<14} {a:<14} {f['fit_seconds']:6.2f} {f['n_params']:6d} "
+                   f"{(val if val is not None else math.nan):6.3g} ") if i == 0 else \
+                f"{'':<14} {a:<14} {'':>6} {'':>6} {'':>6} "
+            vs_raw = {"ratio": m.get("score_ratio"), "interval": m.get("interval", [None, None]),
+                      "verdict": m.get("verdict", "indistinguishable")}
+            metrics = " ".join(f"{(m.get(c) if m.get(c) is not None else math.nan):12.4g}"
+                               for c in cols)
+            lines.append(pre + f"{'yes' if m.get('compensate') else 'no':>4} "
+                         f"{_ratio_cell(vs_raw)} {_ratio_cell(m.get('vs_baseline'))} " + metrics)
     lines.append("")
-    lines.append(f"chosen: {chosen or 'none'} — {results.get('chosen_reason', '')}")
+    lines.append(f"chosen: {results.get('chosen') or 'none'} — {results.get('chosen_reason', '')}")
+    if results.get("uncompensated_axes"):
+        lines.append(f"left uncompensated: {', '.join(results['uncompensated_axes'])}")
+    lines.append("scores: spread of the error about its mean on held-out data, family / raw "
+                 "(< 1 better); [95 % block-bootstrap interval]")
     lines.append("units: " + ", ".join(f"{a} [{u}]" for a, u in results["units"].items()))
     return "\n".join(lines)

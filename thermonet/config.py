@@ -140,6 +140,9 @@ class CompareConfig:
     target: Literal["drift", "four-position"] | dict[str, str] = "drift"
     baseline: str | None = "cubic"       # the family label the report compares against (PX4/ArduPilot's)
     description: str = ""
+    # pass/fail limits per output axis or "*" (thermonet.fleetstats.LimitSpec), judged per
+    # unit on held-out data by `thermonet fleet`
+    limits: dict[str, Any] = field(default_factory=dict)
 
 
 # ----------------------------------------------------------------- loading
@@ -267,6 +270,9 @@ def load_config(path: str | Path | None) -> CompareConfig:
     if data.get("baseline") is not None and cfg.baseline not in labels:  # the default may lapse
         raise ConfigError(f"{p}: key 'baseline': no family named {cfg.baseline!r} (families: "
                           f"{', '.join(labels)})")
+    from .fleetstats import parse_limits
+
+    parse_limits(cfg.limits, source=str(p))
     cfg._source = str(p)  # not a field: names the file in later errors
     return cfg
 

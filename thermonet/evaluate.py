@@ -21,15 +21,21 @@ from .splits import Split, make_splits
 from .target import CHANNEL, FOUR_POSITION, FOURPOS_SUFFIXES, Target, resolve_targets
 
 __all__ = ["Split", "Part", "load_data", "make_splits", "build_part", "data_hash",
-           "heating_only", "FOURPOS_SUFFIXES", "HEATING_MIN_RATE_C_PER_MIN", "targets_for"]
+           "heating_only", "fit_arrays", "FOURPOS_SUFFIXES", "HEATING_MIN_RATE_C_PER_MIN",
+           "targets_for"]
 
 #: Samples with dT/dt above this count as heating (or soaking) for ``train_on: heating``.
 HEATING_MIN_RATE_C_PER_MIN = -0.05
 
 
 
-def load_data(cfg: DataConfig, *, source: str = "config") -> Dataset:
-    """The configured recordings: files (with an optional mapping) or the simulator."""
+def load_data(cfg: DataConfig, *, source: str = "config", allow_fleet: bool = False
+              ) -> Dataset:
+    """The configured recordings: files (with an optional mapping) or the simulator.
+
+    Data holding several units (device ids) is refused unless ``allow_fleet``
+    (``thermonet fleet`` calibrates them one by one).
+    """
     if cfg.paths:
         from .io import read_datasets
 
@@ -45,6 +51,11 @@ def load_data(cfg: DataConfig, *, source: str = "config") -> Dataset:
         if missing:
             raise ConfigError(f"{source}: key 'data.outputs': no output '{missing[0]}' in the data "
                               f"(outputs: {', '.join(ds.axes)})")
+    if ds.is_fleet and not allow_fleet:
+        ids = ds.unit_ids
+        raise ConfigError(f"{source}: the data holds {len(ids)} units ({', '.join(ids[:3])}"
+                          f"{', …' if len(ids) > 3 else ''}); calibrate them with "
+                          "'thermonet fleet'")
     return ds
 
 
@@ -168,3 +179,12 @@ def heating_only(part: Part, rec: Recording, rate_window_s: float) -> Part:
     return Part(part.signals[keep], part.target[keep], part.time_s[keep], part.bin_by[keep],
                 part.bin_width, part.rate_hz, None if part.true_drift is None
                 else part.true_drift[keep], part.outputs, targets=part.targets)
+
+
+def fit_arrays(part: Part) -> tuple[np.ndarray, ...]:
+    """What :func:`thermonet.train.fit` takes for one run: signals, targets and the time
+    in s, so that it averages into ``train.average_s`` windows (per-sample targets); a
+    per-soak part is one sample per soak already and goes without its time."""
+    if part.per_soak:
+        return part.signals, part.target
+    return part.signals, part.target, part.time_s

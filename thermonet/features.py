@@ -360,13 +360,14 @@ def target_matrix(recording: Recording, outputs: Sequence[str]) -> np.ndarray:
 class Features(nn.Module):
     """Signals (N, S) → features (N, F), inside the exported graph.
 
-    Each feature is a gathered signal minus its reference, optionally squared:
+    Each feature is a signal minus its reference, optionally squared:
 
     .. math:: x_f = (s_{i_f} - r_f)^{q_f}, \\quad q_f \\in \\{1, 2\\}
 
-    written as :math:`d\\,(d\\,m_f + 1 - m_f)` with :math:`d = s_{i_f} - r_f`
-    and the mask :math:`m_f \\in \\{0, 1\\}`, so there is no data-dependent
-    branch (buffers ``index``, ``ref``, ``square``).
+    Buffers ``index``, ``ref``, ``square`` hold :math:`i_f, r_f, q_f - 1` (the
+    checkpoint's record of the layout); :meth:`columns` evaluates the features
+    as 1-D columns — one subtraction per feature and one multiplication per
+    squared feature, the fewest passes over a batch.
     """
 
     index: torch.Tensor      # buffers, declared for the type checker
@@ -388,10 +389,19 @@ class Features(nn.Module):
             else:
                 ref.append(spec.proxy_ref[sig])
             square.append(1.0 if sq else 0.0)
+        # the layout as Python values: it fixes the graph's structure, not its numbers
+        self._layout = [(i, bool(q), r != 0.0) for i, q, r in zip(index, square, ref, strict=True)]
         self.register_buffer("index", torch.tensor(index, dtype=torch.int64))
         self.register_buffer("ref", torch.tensor(ref, dtype=torch.float32))
         self.register_buffer("square", torch.tensor(square, dtype=torch.float32))
 
+    def columns(self, signals: Sequence[torch.Tensor]) -> list[torch.Tensor]:
+        """Feature columns (each (N,)) from one (N,) column per signal."""
+        out = []
+        for f, (i, squared, relative) in enumerate(self._layout):
+            d = signals[i] - self.ref[f] if relative else signals[i]
+            out.append(d * d if squared else d)
+        return out
+
     def forward(self, signals: torch.Tensor) -> torch.Tensor:
-        d = signals.index_select(1, self.index) - self.ref
-        return d * (d * self.square + (1.0 - self.square))
+        return torch.stack(self.columns(signals.unbind(1)), dim=1)

@@ -4,7 +4,9 @@ On-disk format (Parquet, format version :data:`FORMAT_VERSION`)
 ----------------------------------------------------------------
 One row per sample; several runs stack in one file, told apart by ``run``:
 
-``run`` (string), ``time_s`` (s), ``temperature_c`` (°C; omitted when no run
+``run`` (string), ``device`` (string; only when the file holds several units —
+a fleet — whose runs are then told apart by ``device`` and ``run`` together),
+``time_s`` (s), ``temperature_c`` (°C; omitted when no run
 has one), outputs ``<kind>_<axis>``, references ``ref_<kind>_<axis>``,
 simulated truth ``drift_<kind>_<axis>``, proxies by name (``freq_hz``,
 ``temp_raw``).  A channel a run lacks is null in that run's rows.  The schema
@@ -98,9 +100,11 @@ def _to_table(dataset: Dataset) -> pa.Table:
             names += [k for k in getattr(run, group) if k not in names]
     has_temp = any(r.temperature_c is not None for r in runs)
     cols: dict[str, pa.Array] = {
-        "run": pa.array(np.concatenate([[r.run_id] * r.n_samples for r in runs]), pa.string()),
-        "time_s": pa.array(np.concatenate([r.time_s for r in runs]), pa.float64()),
-    }
+        "run": pa.array(np.concatenate([[r.run_id] * r.n_samples for r in runs]), pa.string())}
+    if dataset.is_fleet:
+        cols["device"] = pa.array(np.concatenate([[r.device_id] * r.n_samples for r in runs]),
+                                  pa.string())
+    cols["time_s"] = pa.array(np.concatenate([r.time_s for r in runs]), pa.float64())
     for name in (["temperature_c"] if has_temp else []) + names:
         parts, masks = [], []
         for r in runs:
@@ -179,13 +183,17 @@ def read_datasets(paths: Sequence[str | Path] | str | Path,
             skipped = (skipped or 0) + n_skipped
     if skipped is not None:
         meta["skipped_rows"] = str(skipped)
-    seen: dict[str, str] = {}
+    seen: dict[tuple[str, str], str] = {}
+    several = len({r.device_id for r in runs}) > 1
     for r in runs:
-        if r.run_id in seen:
-            raise InputError.at(r.meta.get("source", ""), f"run id '{r.run_id}' already used "
-                                f"by {seen[r.run_id]} (run ids must be unique; set 'run_id' "
-                                "per file or rename the files)")
-        seen[r.run_id] = r.meta.get("source", "")
+        key = (r.device_id, r.run_id)
+        if key in seen:
+            unit = f" of unit '{r.device_id}'" if several else ""
+            raise InputError.at(r.meta.get("source", ""), f"run id '{r.run_id}'{unit} already "
+                                f"used by {seen[key]} (a unit's run ids must be unique; set "
+                                "'run_id' per file, rename the files, or give each unit its "
+                                "own device id)")
+        seen[key] = r.meta.get("source", "")
     source = str(paths[0]) if len(paths) == 1 else ""
     return Dataset(runs=runs, meta=meta).validate(source)
 
@@ -254,9 +262,14 @@ def _from_thermonet_table(path: Path, table: pa.Table, blob: bytes
         if col not in table.column_names:
             raise InputError.at(path, "missing column", column=col)
     run_col = np.asarray(table.column("run").to_pylist(), dtype=object)
+    dev_col = (np.asarray(table.column("device").to_pylist(), dtype=object)
+               if "device" in table.column_names else None)
     runs = []
     for e in entries:
-        idx = np.flatnonzero(run_col == e["run_id"])
+        sel = run_col == e["run_id"]
+        if dev_col is not None:
+            sel &= dev_col == e["device_id"]
+        idx = np.flatnonzero(sel)
         rows = idx + 1
 
         def take(name: str, e: Any = e, idx: np.ndarray = idx, rows: np.ndarray = rows
@@ -438,13 +451,15 @@ def _native_mapping(path: Path, columns: list) -> ColumnMapping:
                             "'time_s' and an output like 'gyro_x'; found "
                             f"{', '.join(names[:8])}); describe the file with a mapping (YAML)")
     channels = [ChannelSpec(name=n, column=n, unit=default_unit(n))
-                for n in names if n not in ("time_s", "run")]
+                for n in names if n not in ("time_s", "run", "device")]
     bad = [c.name for c in channels if not c.name.replace("_", "a").isalnum()]
     if bad:
         raise InputError.at(path, "not a thermonet channel name (letters, digits, '_'); "
                             "describe the file with a mapping", column=bad[0])
     return ColumnMapping(channels=tuple(channels), time=TimeSpec(column="time_s", unit="s"),
-                         run_column="run" if "run" in names else None, run_id=path.stem,
+                         run_column="run" if "run" in names else None,
+                         device_column="device" if "device" in names else None,
+                         run_id=path.stem,
                          source="<conventional names>")
 
 
@@ -532,24 +547,25 @@ def _apply_mapping(frame: _Frame, mapping: ColumnMapping) -> tuple[list[Recordin
     else:
         t_label = "time_s"
         time_s = (rows - 1) / mapping.sample_rate_hz
+    n_keep = int(keep.sum())
     if mapping.run_column is not None:
-        r_label = _resolve(frame, mapping.run_column, "run_column")
-        cells = frame.data[r_label]
-        empty = (cells.isna() | (cells.astype(str).str.strip() == "")).to_numpy()[keep]
-        if empty.any():
-            i = int(np.flatnonzero(keep)[np.argmax(empty)])
-            raise InputError.at(path, "empty run id" + _line(frame, i),
-                                column=_label(r_label), row=int(frame.rows[i]))
-        run_all = cells.astype(str).str.strip().to_numpy()
+        run_all = _id_column(frame, mapping.run_column, "run_column", "run id", keep)
         run_ids = run_all[keep]
-        groups = [(str(rid), run_ids == rid) for rid in pd.unique(run_ids)]
     else:
-        groups = [(mapping.run_id or path.stem, np.ones(int(keep.sum()), dtype=bool))]
+        run_all = np.full(len(keep), mapping.run_id or path.stem, dtype=object)
+        run_ids = run_all[keep]
+    if mapping.device_column is not None:
+        dev_ids = _id_column(frame, mapping.device_column, "device_column", "device id",
+                             keep)[keep]
+    else:
+        dev_ids = np.full(n_keep, mapping.device_id, dtype=object)
+    pairs = pd.unique(pd.Series(list(zip(dev_ids, run_ids, strict=True)), dtype=object))
+    groups = [(str(dev), str(rid), (dev_ids == dev) & (run_ids == rid)) for dev, rid in pairs]
     kinds = {m.group(1) for c in mapping.channels if c.role == "output"
              for m in [OUTPUT_NAME.match(c.name)] if m is not None}
     sensor_kind = mapping.sensor_kind or (kinds.pop() if len(kinds) == 1 else "mixed")
     runs = []
-    for run_id, sel in groups:
+    for device_id, run_id, sel in groups:
         t = time_s[sel]
         _check_time(path, _label(t_label), t, rows[sel], None if lines is None else lines[sel])
         chans: dict[str, dict[str, np.ndarray]] = {g: {} for g in _GROUPS}
@@ -577,15 +593,31 @@ def _apply_mapping(frame: _Frame, mapping: ColumnMapping) -> tuple[list[Recordin
                 # rows with a bad mapped cell belong to the run their run cell names; a row
                 # with a wrong field count has no readable run cell and counts for the file only
                 mine = bad_any & (run_all == run_id)
+                if mapping.device_column is not None:
+                    dev_all = frame.data[_resolve(frame, mapping.device_column, "")]
+                    mine &= dev_all.astype(str).str.strip().to_numpy() == device_id
                 at = frame.lines if frame.lines is not None else frame.rows
                 run_skipped, run_lines = int(mine.sum()), sorted(np.asarray(at)[mine])
             meta["skipped_rows"] = str(run_skipped)
             # The first few only: enough to find them in an editor, short in a log.
             meta["skipped_lines"] = ",".join(str(int(x)) for x in run_lines[:20])
         runs.append(Recording(time_s=t, temperature_c=temperature, **chans, units=units,
-                              device_id=mapping.device_id, sensor_kind=sensor_kind,
+                              device_id=device_id, sensor_kind=sensor_kind,
                               run_id=run_id, sample_rate_hz=mapping.sample_rate_hz, meta=meta))
     return runs, n_skipped
+
+
+def _id_column(frame: _Frame, column: str | int, key: str, what: str,
+               keep: np.ndarray) -> np.ndarray:
+    """The stripped string cells of a run or device column; an empty kept cell is an error."""
+    label = _resolve(frame, column, key)
+    cells = frame.data[label]
+    empty = (cells.isna() | (cells.astype(str).str.strip() == "")).to_numpy()[keep]
+    if empty.any():
+        i = int(np.flatnonzero(keep)[np.argmax(empty)])
+        raise InputError.at(frame.path, f"empty {what}" + _line(frame, i),
+                            column=_label(label), row=int(frame.rows[i]))
+    return np.asarray(cells.astype(str).str.strip().to_numpy(), dtype=object)
 
 
 # ---------------------------------------------------------------- checks

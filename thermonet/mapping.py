@@ -25,6 +25,8 @@ Schema
     sample_rate_hz: 50.0    # ... or a fixed rate when there is no time column:
                             # t = (data row - 1) / rate, so a skipped row leaves a gap
     run_column: null        # optional column whose values split the file into runs
+    device_column: null     # optional column naming each row's unit (a fleet file): runs are
+                            # then told apart by unit and run; device_id is the default unit
     channels:               # thermonet channel name -> source column
       gyro_x:
         column: "gyrox rad/s"   # header name, or 0-based index
@@ -78,7 +80,7 @@ TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "
 FORMATS = ("auto", "csv", "tsv", "parquet")
 _MALFORMED = ("error", "skip")
 _CHANNEL_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,63}")  # fullmatch: no trailing newline
-_RESERVED = ("time_s", "run")
+_RESERVED = ("time_s", "run", "device")
 
 
 class MappingError(InputError, ConfigError):
@@ -174,6 +176,7 @@ class ColumnMapping:
     time: TimeSpec | None = None
     sample_rate_hz: float | None = None
     run_column: str | int | None = None
+    device_column: str | int | None = None
     device_id: str = "device"
     sensor_kind: str | None = None  # None: the kind of the outputs (gyro_x -> gyro)
     run_id: str | None = None  # None: the file stem
@@ -207,7 +210,7 @@ class _Parser:
     """Strict YAML-to-dataclass checks; every error names ``source`` and the key."""
 
     _TOP = {"format", "separator", "skip_lines", "header", "n_fields", "malformed_rows",
-            "time", "sample_rate_hz", "run_column", "channels", "device_id",
+            "time", "sample_rate_hz", "run_column", "device_column", "channels", "device_id",
             "sensor_kind", "run_id", "meta"}
     _CHANNEL = {"column", "unit", "scale", "offset", "proxy"}
     _TIME = {"column", "unit"}
@@ -290,6 +293,8 @@ class _Parser:
                             "'sample_rate_hz' (a fixed rate)")
         if raw.get("run_column") is not None:
             kw["run_column"] = self.column("run_column", raw["run_column"], header)
+        if raw.get("device_column") is not None:
+            kw["device_column"] = self.column("device_column", raw["device_column"], header)
         for key in ("device_id", "sensor_kind", "run_id"):
             if raw.get(key) is not None:
                 kw[key] = str(self.typed(key, raw[key], (str, int, float), "a string"))
@@ -329,7 +334,7 @@ class _Parser:
             if not isinstance(name, str) or not _CHANNEL_NAME.fullmatch(name) \
                     or name in _RESERVED:
                 raise self.fail(key, "invalid channel name (letters, digits, '_'; "
-                                "not 'time_s' or 'run')")
+                                "not 'time_s', 'run' or 'device')")
             if not isinstance(spec, dict):
                 raise self.fail(key, f"expected a mapping with 'column', got {spec!r}")
             self.keys(spec, self._CHANNEL, key + ".")

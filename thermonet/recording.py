@@ -32,6 +32,7 @@ __all__ = [
     "MIN_TEMPERATURE_SPAN_C",
     "GAP_FACTOR",
     "output_kind",
+    "split_units",
 ]
 
 #: An output channel is ``<kind>_<axis>``: ``gyro_x``, ``acc_z``, ``mag_y``, ``baro_p`` (a
@@ -259,11 +260,13 @@ class Dataset:
     meta: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        seen: set[str] = set()
+        # a run is named by its unit and its id: a fleet file holds run0 of every unit
+        seen: set[tuple[str, str]] = set()
         for r in self.runs:
-            if r.run_id in seen:
-                raise InputError(f"duplicate run id '{r.run_id}' in dataset")
-            seen.add(r.run_id)
+            if (r.device_id, r.run_id) in seen:
+                where = f" of unit '{r.device_id}'" if self.is_fleet else ""
+                raise InputError(f"duplicate run id '{r.run_id}'{where} in dataset")
+            seen.add((r.device_id, r.run_id))
 
     def __iter__(self) -> Iterator[Recording]:
         return iter(self.runs)
@@ -288,6 +291,12 @@ class Dataset:
         for r in self.runs:
             r.validate(source or r.meta.get("source", ""))
         first = self.runs[0]
+        fleet = self.is_fleet
+        what = "units of one fleet" if fleet else "runs of one device"
+
+        def who(r: Recording) -> str:
+            return f"unit '{r.device_id}' run '{r.run_id}'" if fleet else f"run '{r.run_id}'"
+
         for r in self.runs[1:]:
             where = source or r.meta.get("source", "")
             # references and simulated drift may be absent in some runs (absent reference:
@@ -295,17 +304,17 @@ class Dataset:
             for group in ("outputs", "proxies"):
                 mine, theirs = sorted(getattr(r, group)), sorted(getattr(first, group))
                 if mine != theirs:
-                    raise InputError.at(where, f"run '{r.run_id}' has {group} {mine}, "
-                                        f"run '{first.run_id}' has {theirs} (the runs of one "
-                                        "device must carry the same channels)")
+                    raise InputError.at(where, f"{who(r)} has {group} {mine}, "
+                                        f"{who(first)} has {theirs} (the {what} "
+                                        "must carry the same channels)")
             if (r.temperature_c is None) != (first.temperature_c is None):
-                raise InputError.at(where, f"run '{r.run_id}' and run '{first.run_id}' differ in "
+                raise InputError.at(where, f"{who(r)} and {who(first)} differ in "
                                     "having a temperature_c channel", column="temperature_c")
             for name, unit in r.units.items():
                 other = first.units.get(name)
                 if other is not None and other != unit:
-                    raise InputError.at(where, f"run '{r.run_id}' is in '{unit}', run "
-                                        f"'{first.run_id}' in '{other}' (convert one with a "
+                    raise InputError.at(where, f"{who(r)} is in '{unit}', {who(first)} "
+                                        f"in '{other}' (convert one with a "
                                         "mapping scale)", column=name)
         temps = [r.temperature_c for r in self.runs if r.temperature_c is not None]
         if temps and len(temps) == len(self.runs):
@@ -327,5 +336,27 @@ class Dataset:
         return self.runs[0].device_id if self.runs else "device"
 
     @property
+    def unit_ids(self) -> list[str]:
+        """Device ids of the units in this dataset, in order of first appearance."""
+        return list(dict.fromkeys(r.device_id for r in self.runs))
+
+    @property
+    def is_fleet(self) -> bool:
+        """True when the runs come from more than one device (unit)."""
+        return len({r.device_id for r in self.runs}) > 1
+
+    @property
     def axes(self) -> list[str]:
         return self.runs[0].axes if self.runs else []
+
+
+def split_units(ds: Dataset) -> dict[str, Dataset]:
+    """The runs of each unit (device id) as its own :class:`Dataset`, in order of appearance.
+
+    A dataset of one device gives one entry.  The dataset's ``meta`` is copied to
+    every unit.
+    """
+    out: dict[str, list[Recording]] = {}
+    for r in ds.runs:
+        out.setdefault(r.device_id, []).append(r)
+    return {dev: Dataset(runs=runs, meta=dict(ds.meta)) for dev, runs in out.items()}

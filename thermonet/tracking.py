@@ -34,6 +34,7 @@ import json
 import logging
 import math
 import os
+import re
 import socket
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -54,6 +55,8 @@ _log = logging.getLogger(__name__)
 
 # MLflow refuses param values over this many characters.
 _MAX_PARAM_LEN = 6000
+# Characters MLflow refuses in a param name (a limits key "*", say) become "_".
+_BAD_PARAM_CHARS = re.compile(r"[^\w\-. :/]")
 
 
 def default_tracking_uri(workdir: str | Path | None = None) -> str:
@@ -138,7 +141,7 @@ def flatten_params(data: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
     """Flatten a nested config into MLflow params ``a.b.c -> value``."""
     out: dict[str, str] = {}
     for key, value in data.items():
-        name = f"{prefix}{key}"
+        name = _BAD_PARAM_CHARS.sub("_", f"{prefix}{key}")
         if isinstance(value, Mapping):
             out.update(flatten_params(value, name + "."))
         elif isinstance(value, list) and value and all(isinstance(v, Mapping) for v in value):

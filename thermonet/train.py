@@ -31,7 +31,9 @@ from .features import FeatureSpec
 from .models import DriftModel, build_family
 from .trainconfig import TrainConfig  # re-exported: the ``train`` section
 
-__all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "rest_signals"]
+__all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "average_windows",
+           "rest_signals"]
+
 
 @dataclass
 class FitResult:
@@ -51,6 +53,65 @@ def decimate(runs: Sequence[tuple[np.ndarray, np.ndarray]], max_samples: int
     total = sum(s.shape[0] for s, _ in runs)
     step = max(1, math.ceil(total / max_samples))
     return [(s[::step], y[::step]) for s, y in runs]
+
+
+def average_windows(signals: np.ndarray, targets: np.ndarray, time_s: np.ndarray,
+                    window_s: float, *, min_samples: int = 1
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Means of signals, targets and time over consecutive windows, O(n).
+
+    A window is ``window_s`` seconds long, aligned on the start of its
+    contiguous segment (:func:`thermonet.features.contiguous_segments`: a time
+    step over :data:`~thermonet.features.GAP_FACTOR` × the median step starts a
+    new segment), so a window never spans a gap.  With ``window_s = 0`` the
+    windows are ``min_samples`` consecutive samples instead (bringing a long
+    series under a sample budget by averaging rather than thinning).
+
+    .. math:: \\bar s_w = \\frac{1}{|w|} \\sum_{k \\in w} s_k
+
+    Returns
+    -------
+    (signals, targets, time_s) averaged, each with one row per window.
+    """
+    from .features import contiguous_segments
+
+    t = np.asarray(time_s, dtype=np.float64)
+    n = t.shape[0]
+    if n == 0 or (window_s <= 0 and min_samples <= 1):
+        return signals, targets, t
+    key = np.empty(n, dtype=np.int64)
+    offset = 0
+    for seg in contiguous_segments(t):
+        if window_s > 0:
+            w = np.floor((t[seg] - t[seg.start]) / window_s).astype(np.int64)
+        else:
+            w = np.arange(seg.stop - seg.start) // max(min_samples, 1)
+        key[seg] = offset + w
+        offset = int(key[seg.stop - 1]) + 1
+    starts = np.concatenate([[0], np.flatnonzero(np.diff(key)) + 1])
+    counts = np.diff(np.append(starts, n)).astype(np.float64)
+
+    def mean(a: np.ndarray) -> np.ndarray:
+        a = np.asarray(a, dtype=np.float64)
+        sums = np.add.reduceat(a, starts, axis=0)
+        return sums / (counts if a.ndim == 1 else counts[:, None])
+
+    return mean(signals), mean(targets), mean(t)
+
+
+def _reduce(runs: Sequence[tuple[np.ndarray, ...]], config: TrainConfig
+            ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Average each run into ``config.average_s`` windows, then — if still over
+    ``max_train_samples`` — into windows of k consecutive samples; runs given
+    without time are decimated instead."""
+    if any(len(r) < 3 for r in runs):
+        return decimate([(r[0], r[1]) for r in runs], config.max_train_samples)
+    avg = [average_windows(r[0], r[1], r[2], config.average_s) for r in runs]
+    total = sum(s.shape[0] for s, _, _ in avg)
+    k = math.ceil(total / config.max_train_samples)
+    if k > 1:
+        avg = [average_windows(s, y, t, 0.0, min_samples=k) for s, y, t in avg]
+    return [(s, y) for s, y, _ in avg]
 
 
 def _check_run(what: str, signals: object, targets: object, n_sig: int, outputs: list[str],
@@ -74,6 +135,19 @@ def _check_run(what: str, signals: object, targets: object, n_sig: int, outputs:
     return s, y
 
 
+def _time(what: str, run: Sequence[object]) -> tuple[np.ndarray, ...]:
+    """The run's time column as a 1-tuple, or () when the run was given without one."""
+    if len(run) < 3:
+        return ()
+    t = np.asarray(run[2], dtype=np.float64)
+    n = np.asarray(run[0]).shape[0]
+    if t.ndim != 1 or t.shape[0] != n:
+        raise InputError(f"{what}: time_s has shape {t.shape}, expected ({n},)")
+    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise InputError(f"{what}: time_s must be finite and strictly increasing")
+    return (t,)
+
+
 def _resolve_device(name: str) -> torch.device:
     if name == "cuda" and not torch.cuda.is_available():
         raise ConfigError("train.device is 'cuda' but no CUDA device is available")
@@ -89,7 +163,7 @@ def _std(a: np.ndarray) -> np.ndarray:
 
 
 def fit(*, family: str, inputs: list[str], outputs: list[str],
-        train: list[tuple[np.ndarray, np.ndarray]], val: tuple[np.ndarray, np.ndarray] | None,
+        train: Sequence[tuple[np.ndarray, ...]], val: tuple[np.ndarray, ...] | None,
         spec: FeatureSpec, hyper: dict | None, config: TrainConfig,
         on_epoch: Callable[[int, float, float | None], None] | None = None,
         target: Sequence[str] | None = None) -> FitResult:
@@ -103,11 +177,15 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
         Feature names; must equal ``spec.inputs``.
     outputs : list of str
         Output axis names (columns of the targets).
-    train : list of (signals (n, S), targets (n, A))
-        One pair per training run; signals in ``spec.signals`` order
-        (see :func:`thermonet.evaluate.build_part`), targets = observed drift.
-    val : (signals, targets) or None
-        The held-out run for early stopping; None stops on a training-loss plateau.
+    train : list of (signals (n, S), targets (n, A)[, time_s (n,)])
+        One tuple per training run; signals in ``spec.signals`` order
+        (see :func:`thermonet.evaluate.build_part`), targets = observed drift,
+        time in s.  With time, the run is averaged into ``config.average_s``
+        windows (:func:`average_windows`); without, only decimated to
+        ``config.max_train_samples``.
+    val : (signals, targets[, time_s]) or None
+        The held-out run for early stopping (reduced the same way); None stops on
+        a training-loss plateau.
     spec : FeatureSpec
     hyper : dict
         Family hyper-parameters.
@@ -134,6 +212,21 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
     ConfigError
         Unknown family / hyper-parameter, inputs not matching the spec.
     """
+    previous_threads = torch.get_num_threads()
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    try:
+        return _fit(family=family, inputs=inputs, outputs=outputs, train=train, val=val,
+                    spec=spec, hyper=hyper, config=config, on_epoch=on_epoch, target=target)
+    finally:
+        torch.set_num_threads(previous_threads)
+
+
+def _fit(*, family: str, inputs: list[str], outputs: list[str],
+         train: Sequence[tuple[np.ndarray, ...]], val: tuple[np.ndarray, ...] | None,
+         spec: FeatureSpec, hyper: dict | None, config: TrainConfig,
+         on_epoch: Callable[[int, float, float | None], None] | None,
+         target: Sequence[str] | None) -> FitResult:
     t0 = time.perf_counter()
     if list(inputs) != list(spec.inputs):
         raise ConfigError(f"inputs {list(inputs)} differ from the feature spec's {spec.inputs}")
@@ -145,22 +238,24 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
     fam = build_family(family, n_inputs=len(inputs), n_outputs=len(outputs), hyper=hyper)
     model = DriftModel(family=fam, spec=spec, outputs=list(outputs))
 
-    runs = [_check_run(f"training run {i + 1}", s, y, len(signal_names), list(outputs),
-                       signal_names) for i, (s, y) in enumerate(train)]
-    val_run = None if val is None else _check_run("validation run", val[0], val[1],
-                                                  len(signal_names), list(outputs), signal_names)
+    runs = [(*_check_run(f"training run {i + 1}", r[0], r[1], len(signal_names), list(outputs),
+                         signal_names), *_time(f"training run {i + 1}", r))
+            for i, r in enumerate(train)]
+    val_run = None if val is None else (
+        *_check_run("validation run", val[0], val[1], len(signal_names), list(outputs),
+                    signal_names), *_time("validation run", val))
     modes = ["channel"] * len(outputs) if target is None else list(target)
     rest = rest_signals(spec, need_temperature="at-t-ref" in modes)
-    sig_all = np.vstack([s for s, _ in runs])
+    sig_all = np.vstack([r[0] for r in runs])
     sig_lo, sig_hi = sig_all.min(axis=0), sig_all.max(axis=0)
     # the constant of every axis leaves in float64, before anything is rounded to float32
-    offset = np.vstack([y for _, y in runs]).mean(axis=0)
-    runs = [(s, y - offset) for s, y in runs]
+    offset = np.vstack([r[1] for r in runs]).mean(axis=0)
+    runs = [(r[0], r[1] - offset, *r[2:]) for r in runs]
     if val_run is not None:
-        val_run = (val_run[0], val_run[1] - offset)
-    runs = decimate(runs, config.max_train_samples)
-    s_tr = np.vstack([s for s, _ in runs])
-    y_tr = np.vstack([y for _, y in runs])
+        val_run = (val_run[0], val_run[1] - offset, *val_run[2:])
+    reduced = _reduce(runs, config)
+    s_tr = np.vstack([s for s, _ in reduced])
+    y_tr = np.vstack([y for _, y in reduced])
 
     with torch.no_grad():
         x_tr = model.features(torch.as_tensor(s_tr)).numpy()
@@ -181,7 +276,7 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
 
     z_v = y_vz = None
     if val_run is not None:
-        (s_v, y_v), = decimate([val_run], config.max_train_samples)
+        (s_v, y_v), = _reduce([val_run], config)
         # Validation goes through the deployed path: clamp to the trained range first.
         with torch.no_grad():
             x_v = model.features(torch.as_tensor(np.clip(s_v, sig_lo, sig_hi))).numpy()

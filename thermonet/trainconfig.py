@@ -40,10 +40,26 @@ class TrainConfig:
     device : "auto", "cpu" or "cuda"
         "auto" is CUDA when available; the returned model is always on CPU.
     max_train_samples : int
-        Training (and, separately, validation) samples kept per fit.  Longer
-        data are **decimated evenly** — every k-th sample of every run, with
-        k = ceil(total / max) — never randomly sampled, so the time structure
-        (ramps, soaks) is kept.
+        Training (and, separately, validation) samples kept per fit, after the
+        averaging below.  Longer data are averaged over longer windows (k
+        samples each, k = ceil(total / max)) — or, for runs given without their
+        time, decimated evenly (every k-th sample) — never randomly sampled, so
+        the time structure (ramps, soaks) is kept.
+    average_s : float
+        Training and validation data are **averaged** into windows of this many
+        seconds before fitting (signals and targets alike, the signals after
+        they were computed at full rate, a window never spanning a gap in time),
+        instead of being thinned: a 100 Hz recording keeps its information and
+        its noise falls √100-fold, where thinning would throw 99 % of it away.
+        Default 1 s: far below any thermal time constant (minutes), so the
+        drift is unchanged, and a no-op at ≤ 1 Hz.  0 turns it off.  Held-out
+        metrics are computed at full resolution regardless (``compare``).
+    threads : int
+        torch intra-op threads while this fit runs (restored afterwards).
+        Default 1: these models are small, a second thread buys little, and on
+        a busy machine (families, units or other jobs side by side) it costs
+        2–3× in wall time (``experiments/bench_threads.py``); parallelism comes
+        from running fits side by side.  0 keeps torch's own setting.
     """
 
     # L-BFGS by default: every family starts from a closed-form or heuristic fit, and
@@ -57,6 +73,8 @@ class TrainConfig:
     seed: int = 0
     device: str = "cpu"
     max_train_samples: int = 20000
+    average_s: float = 1.0     # s
+    threads: int = 1
 
     def __post_init__(self) -> None:
         if self.optimizer not in _OPTIMIZERS:
@@ -65,11 +83,12 @@ class TrainConfig:
         if self.device not in _DEVICES:
             raise ConfigError(f"train.device must be one of {', '.join(_DEVICES)}, "
                               f"got {self.device!r}")
-        for key, lo in (("max_epochs", 0), ("patience", 1), ("max_train_samples", 10)):
+        for key, lo in (("max_epochs", 0), ("patience", 1), ("max_train_samples", 10),
+                        ("threads", 0)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ConfigError(f"train.{key} must be an integer >= {lo}, got {v!r}")
-        for key in ("lr", "min_delta"):
+        for key in ("lr", "min_delta", "average_s"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
                     or v < 0 or (key == "lr" and v == 0):

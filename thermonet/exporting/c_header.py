@@ -16,8 +16,8 @@ evaluates:
 
     s' = \\operatorname{clip}(s, s_{lo}, s_{hi}),\\;
     x_f = (s'_{i_f} - r_f)^{q_f},\\;
-    z = (x - \\bar x)/s_x,\\;
-    r = m\\,\\big(f(z)\\, s_y + \\bar y - \\alpha\\, y_{ref}\\big),\\;
+    z = (x - \\bar x)\\, s_x^{-1},\\;
+    r = \\mathrm{drift}\\big(z;\\ m\\, s_y,\\ m(\\bar y - \\alpha\\, y_{ref})\\big),\\;
     d = c + r,\\;
     \\text{compensated} = \\text{raw} - d
 
@@ -29,34 +29,38 @@ with the target of each axis as in :mod:`thermonet.models.base`: ``α`` = 1 on
 counts) keeps its drift's precision.  The axes' target modes and
 compensation flags are written in the header's comment.
 
-and returns 1 when a signal was outside the trained range or not finite (the
+The function returns 1 when a signal was outside the trained range or not finite (the
 out-of-range flag), else 0.  A non-finite signal gives NaN drift and NaN
 compensated output.  No heap, no libm beyond ``expf`` (RBF only); the only
 headers are ``<math.h>`` (``expf``, ``NAN``).  Parameters the model stores in a
 transformed form (Lorentz centre through a sigmoid, width through softplus; RBF
-widths as log σ) are converted once here with torch's own float32 operations,
-so the header's constants are the values the graph computes.
+widths as log σ) and the de-standardisation (folded into each family's last
+product, as in the graph: :meth:`~thermonet.models.base.Family.drift`) are
+computed by the family's own torch expressions in float32, so the header's
+constants are the values the graph computes and nothing numeric is restated in C.
 
-Each family registers an emitter in :data:`EMITTERS`; a family without one is
-refused with :class:`~thermonet.errors.ExportError`.  Parity with onnxruntime
+Each family owns its C code (:meth:`~thermonet.models.base.Family.emit_c`,
+see :mod:`thermonet.models.cgen`): constants computed by the same torch
+expressions as its exported graph, and a body from ``z[f]`` to the drift
+``y[a]``; this module assembles the header around it.  A family without one
+is refused with :class:`~thermonet.errors.ExportError`.  Parity with onnxruntime
 is tested to the tolerance of :mod:`.onnx_export` (1e-5 relative to the axis's
 largest drift): only summation order and ``expf`` rounding differ.
 """
 
 from __future__ import annotations
 
-import math
 import re
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import torch
-from torch import nn
 
 from .. import __version__
 from ..errors import ExportError
 from ..fileio import atomic_write_text
+from ..models import DriftModel
+from ..models.cgen import as_float32, c_array, c_float
 from ..names import c_comment, c_string, check_model_names
 from .onnx_export import (
     _check_points,
@@ -67,30 +71,14 @@ from .onnx_export import (
     trained_range,
 )
 
-__all__ = ["export_c_header", "render_c_header", "EMITTERS"]
+__all__ = ["export_c_header", "render_c_header"]
 
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
-def _f(value: float) -> str:
-    """A float32 literal that round-trips exactly (9 significant digits)."""
-    v = float(np.float32(value))
-    if not math.isfinite(v):
-        raise ExportError(f"non-finite constant {v!r} cannot be written to a C header")
-    return f"{v:.9e}f"
-
-
-def _array(name: str, values: object, ctype: str = "float") -> str:
-    arr = np.asarray(values, dtype=np.float64)
-    shape = "".join(f"[{n}]" for n in arr.shape)
-    fmt = _f if ctype == "float" else (lambda v: str(int(v)))
-
-    def rows(a: np.ndarray) -> str:
-        if a.ndim == 1:
-            return "{" + ", ".join(fmt(v) for v in a) + "}"
-        return "{\n    " + ",\n    ".join(rows(r) for r in a) + "}"
-
-    return f"static const {ctype} {name}{shape} = {rows(arr)};"
+_f = c_float
+_array = c_array
+_t = as_float32
 
 
 def _double_array(name: str, values: object) -> str:
@@ -102,165 +90,20 @@ def _double_array(name: str, values: object) -> str:
         f"{float(v):.17g}" for v in arr) + "};"
 
 
-def _t(tensor: torch.Tensor) -> np.ndarray:
-    return tensor.detach().cpu().to(torch.float32).numpy().astype(np.float64)
-
-
-# -- family emitters: (constants, body) computing yz[A] from z[F] --------------------------------
-Emitter = Callable[[nn.Module, str], tuple[list[str], str]]
-
-
-def _emit_linear(fam: nn.Module, p: str) -> tuple[list[str], str]:
-    consts = [_array(f"{p}_lin_w", _t(fam.weight)), _array(f"{p}_lin_b", _t(fam.bias))]
-    body = f"""\
-    for (a = 0; a < {p.upper()}_N_AXES; ++a) {{
-        float acc = {p}_lin_b[a];
-        for (f = 0; f < {p.upper()}_N_FEATURES; ++f) acc += {p}_lin_w[a][f] * z[f];
-        yz[a] = acc;
-    }}"""
-    return consts, body
-
-
-def _emit_poly(fam: nn.Module, p: str) -> tuple[list[str], str]:
-    terms = np.asarray(fam.terms, dtype=np.int64).reshape(len(fam.terms), fam.n_inputs)
-    consts = [f"#define {p.upper()}_POLY_DEGREE {int(fam.degree)}",
-              f"#define {p.upper()}_POLY_TERMS {terms.shape[0]}",
-              _array(f"{p}_poly_exp", terms, "int"),
-              _array(f"{p}_poly_w", _t(fam.weight)), _array(f"{p}_poly_b", _t(fam.bias))]
-    P = p.upper()
-    # powers[f][k] = z^(k+1) by repeated multiplication, as the torch module does.
-    body = f"""\
-    {{
-        float powers[{P}_N_FEATURES][{P}_POLY_DEGREE];
-        float term[{P}_POLY_TERMS];
-        int k, t;
-        for (f = 0; f < {P}_N_FEATURES; ++f) {{
-            powers[f][0] = z[f];
-            for (k = 1; k < {P}_POLY_DEGREE; ++k) powers[f][k] = powers[f][k - 1] * z[f];
-        }}
-        for (t = 0; t < {P}_POLY_TERMS; ++t) {{
-            int first = 1;
-            float v = 0.0f;
-            for (f = 0; f < {P}_N_FEATURES; ++f) {{
-                int e = {p}_poly_exp[t][f];
-                if (e == 0) continue;
-                v = first ? powers[f][e - 1] : v * powers[f][e - 1];
-                first = 0;
-            }}
-            term[t] = v;
-        }}
-        for (a = 0; a < {P}_N_AXES; ++a) {{
-            float acc = {p}_poly_b[a];
-            for (t = 0; t < {P}_POLY_TERMS; ++t) acc += {p}_poly_w[a][t] * term[t];
-            yz[a] = acc;
-        }}
-    }}"""
-    return consts, body
-
-
-def _emit_lorentz(fam: nn.Module, p: str) -> tuple[list[str], str]:
-    with torch.no_grad():
-        center = _t(fam.center.reshape(-1))
-        width = _t(torch.clamp(fam.width, min=1e-6).reshape(-1))
-    consts = [_array(f"{p}_lor_y0", _t(fam.y0)), _array(f"{p}_lor_amp", _t(fam.amplitude)),
-              _array(f"{p}_lor_xc", center), _array(f"{p}_lor_w", width)]
-    body = f"""\
-    for (a = 0; a < {p.upper()}_N_AXES; ++a) {{
-        float dx = z[0] - {p}_lor_xc[a];
-        float w = {p}_lor_w[a];
-        yz[a] = {p}_lor_y0[a] + 0.636619772f * {p}_lor_amp[a] * w / (4.0f * dx * dx + w * w);
-    }}"""
-    return consts, body
-
-
-def _emit_fuzzy(fam: nn.Module, p: str) -> tuple[list[str], str]:
-    P = p.upper()
-    consts = [f"#define {P}_FUZZY_SETS {int(fam.n_sets)}",
-              _array(f"{p}_fz_peaks", _t(fam.peaks)),
-              _array(f"{p}_fz_bounds", _t(fam.bounds)),
-              f"static const float {p}_fz_spacing = {_f(max(float(_t(fam.spacing)[0]), 1e-6))};",
-              _array(f"{p}_fz_slope", _t(fam.slope)),
-              _array(f"{p}_fz_intercept", _t(fam.intercept))]
-    body = f"""\
-    {{
-        float lam[{P}_FUZZY_SETS];
-        float x = z[0], total = 0.0f;
-        int i;
-        if (x < {p}_fz_bounds[0]) x = {p}_fz_bounds[0];
-        if (x > {p}_fz_bounds[1]) x = {p}_fz_bounds[1];
-        for (i = 0; i < {P}_FUZZY_SETS; ++i) {{
-            float dx = x - {p}_fz_peaks[i];
-            float m = 1.0f - (dx < 0.0f ? -dx : dx) / {p}_fz_spacing;
-            lam[i] = m > 0.0f ? m : 0.0f;
-            total += lam[i];
-        }}
-        if (total < 1e-6f) total = 1e-6f;
-        for (i = 0; i < {P}_FUZZY_SETS; ++i) lam[i] /= total;
-        for (a = 0; a < {P}_N_AXES; ++a) {{
-            float acc = 0.0f, acc_x = 0.0f;
-            for (i = 0; i < {P}_FUZZY_SETS; ++i) {{
-                acc += lam[i] * {p}_fz_intercept[a][i];
-                acc_x += lam[i] * x * {p}_fz_slope[a][i];
-            }}
-            yz[a] = acc + acc_x;
-        }}
-    }}"""
-    return consts, body
-
-
-def _emit_rbf(fam: nn.Module, p: str) -> tuple[list[str], str]:
-    P = p.upper()
-    with torch.no_grad():
-        two_sigma2 = 2.0 * torch.exp(torch.clamp(2.0 * fam.log_sigma, min=-60.0, max=60.0))
-    consts = [f"#define {P}_RBF_CENTRES {int(fam.n_centres)}",
-              _array(f"{p}_rbf_c", _t(fam.centres)),
-              _array(f"{p}_rbf_two_sigma2", _t(two_sigma2)),
-              _array(f"{p}_rbf_w", _t(fam.weight)), _array(f"{p}_rbf_b", _t(fam.bias))]
-    body = f"""\
-    {{
-        float phi[{P}_RBF_CENTRES];
-        int j;
-        for (j = 0; j < {P}_RBF_CENTRES; ++j) {{
-            float d2 = 0.0f;
-            for (f = 0; f < {P}_N_FEATURES; ++f) {{
-                float dz = z[f] - {p}_rbf_c[j][f];
-                d2 += dz * dz;
-            }}
-            phi[j] = expf(-d2 / {p}_rbf_two_sigma2[j]);
-        }}
-        for (a = 0; a < {P}_N_AXES; ++a) {{
-            float acc = {p}_rbf_b[a];
-            for (j = 0; j < {P}_RBF_CENTRES; ++j) acc += {p}_rbf_w[a][j] * phi[j];
-            yz[a] = acc;
-        }}
-    }}"""
-    return consts, body
-
-
-#: Family name → emitter of its C constants and body.
-EMITTERS: dict[str, Emitter] = {
-    "linear": _emit_linear,
-    "poly": _emit_poly,
-    "lorentz": _emit_lorentz,
-    "ts-fuzzy": _emit_fuzzy,
-    "rbf": _emit_rbf,
-}
-
-
-def render_c_header(model: nn.Module, *, prefix: str = "thermonet") -> str:
+def render_c_header(model: DriftModel, *, prefix: str = "thermonet") -> str:
     """The header text for ``model`` (see :func:`export_c_header`)."""
     if not _IDENT.fullmatch(prefix):
         raise ExportError(f"C prefix {prefix!r} is not a C identifier")
     check_model_names(model, error=ExportError)  # names reach C source: checked, then escaped
     check_model_finite(model)
     family = family_name(model)
-    if family not in EMITTERS:
-        raise ExportError(f"no C emitter for model family '{family}' "
-                          f"(supported: {', '.join(EMITTERS)})")
     p, P = prefix, prefix.upper()
     feats = model.features
     signals, outputs = list(model.signals), list(model.outputs)
-    fam_consts, fam_body = EMITTERS[family](model.family, p)
+    # the target normalisation and the mask, folded into the family's output layer
+    y_scale, y_shift = model.output_scaling()
+    fam_c = model.family.emit_c(p, y_scale, y_shift)
+    fam_consts, fam_body = fam_c.constants, fam_c.body
     guard = f"{P}_MODEL_H"
     t_ref = getattr(model.spec, "t_ref", None)
     names = lambda xs: "{" + ", ".join(c_string(x) for x in xs) + "}"  # noqa: E731
@@ -299,12 +142,7 @@ def render_c_header(model: nn.Module, *, prefix: str = "thermonet") -> str:
         _array(f"{p}_feat_ref", _t(feats.ref)),
         _array(f"{p}_feat_square", feats.square.cpu().numpy(), "int"),
         _array(f"{p}_x_mean", _t(model.x_mean)),
-        _array(f"{p}_x_std", _t(model.x_std)),
-        _array(f"{p}_y_mean", _t(model.y_mean)),
-        _array(f"{p}_y_std", _t(model.y_std)),
-        _array(f"{p}_y_ref", _t(model.y_ref)),
-        _array(f"{p}_at_t_ref", _t(model._at_t_ref(torch.float32))),
-        _array(f"{p}_compensate_axis", _t(model.compensate)),
+        _array(f"{p}_x_inv_std", _t(1.0 / model.x_std)),
         _double_array(f"{P}_DRIFT_CONSTANT", model.constant().detach().cpu().double().numpy()),
         *fam_consts,
         "",
@@ -313,7 +151,7 @@ def render_c_header(model: nn.Module, *, prefix: str = "thermonet") -> str:
         "{",
         f"    float s[{P}_N_SIGNALS];",
         f"    float z[{P}_N_FEATURES];",
-        f"    float yz[{P}_N_AXES];",
+        f"    float y[{P}_N_AXES];",
         "    int i, f, a, flag = 0, nonfinite = 0;",
         f"    for (i = 0; i < {P}_N_SIGNALS; ++i) {{",
         "        float v = signals[i];",
@@ -327,13 +165,11 @@ def render_c_header(model: nn.Module, *, prefix: str = "thermonet") -> str:
         f"    for (f = 0; f < {P}_N_FEATURES; ++f) {{",
         f"        float d = s[{p}_feat_index[f]] - {p}_feat_ref[f];",
         f"        float x = {p}_feat_square[f] ? d * d : d;",
-        f"        z[f] = (x - {p}_x_mean[f]) / {p}_x_std[f];",
+        f"        z[f] = (x - {p}_x_mean[f]) * {p}_x_inv_std[f];",
         "    }",
         fam_body,
         f"    for (a = 0; a < {P}_N_AXES; ++a) {{",
-        f"        float y = yz[a] * {p}_y_std[a] + {p}_y_mean[a];",
-        f"        float r = nonfinite ? NAN : (y - {p}_at_t_ref[a] * {p}_y_ref[a]) "
-        f"* {p}_compensate_axis[a];",
+        "        float r = nonfinite ? NAN : y[a];",
         f"        double d = (double)r + {P}_DRIFT_CONSTANT[a];",
         "        drift[a] = d;",
         "        compensated[a] = raw[a] - d;",
@@ -379,7 +215,7 @@ int main(int argc, char **argv)
 """
 
 
-def c_parity_check(model: nn.Module, header_text: str, *, prefix: str = "thermonet",
+def c_parity_check(model: DriftModel, header_text: str, *, prefix: str = "thermonet",
                    seed: int = 0) -> dict[str, float] | None:
     """Compile the header with the system C compiler and compare it with torch.
 
@@ -440,14 +276,14 @@ def c_parity_check(model: nn.Module, header_text: str, *, prefix: str = "thermon
     return {"n_points": float(n), "max_abs_diff": float(err.max())}
 
 
-def export_c_header(model: nn.Module, path: str | Path, *, prefix: str = "thermonet",
+def export_c_header(model: DriftModel, path: str | Path, *, prefix: str = "thermonet",
                     check: bool = True) -> Path:
     """Write the model as a C99 header (atomic: temp file + ``os.replace``).
 
     Parameters
     ----------
     model : DriftModel
-        Any family with an entry in :data:`EMITTERS`.
+        Any family with a C emitter (:meth:`Family.emit_c`).
     path : str or Path
         Destination ``.h``.
     prefix : str

@@ -155,12 +155,9 @@ class CompensatorGraph(nn.Module):
 
     def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         *signal_list, raw = inputs
-        sig = torch.stack(signal_list, dim=1)
-        # Non-finite signals must not be clamped into a plausible edge value.
-        nonfinite = (torch.isnan(sig) | torch.isinf(sig)).any(dim=1)
-        flag = self.model.out_of_range(sig) | nonfinite
-        rel = self.model.relative(sig)
-        rel = torch.where(nonfinite.unsqueeze(1), torch.full_like(rel, float("nan")), rel)
+        # The signals stay 1-D columns; DriftModel.evaluate adds s - s (NaN for NaN/±inf)
+        # to the drift so a broken thermometer never gives a plausible clamped correction.
+        rel, flag = self.model.evaluate(signal_list)
         # the per-axis constant joins in float64: a large offset keeps the drift's precision
         drift = rel.to(torch.float64) + self.model.constant()
         return raw.to(torch.float64) - drift, drift, flag

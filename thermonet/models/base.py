@@ -12,8 +12,16 @@ drift :math:`(y - \\bar y)/s_y` out.  :class:`DriftModel` wraps it:
       \\xrightarrow{\\text{Family}} \\hat y_z
       \\xrightarrow{} \\hat y = \\hat y_z\\, s_y + \\bar y
 
-Everything in ``forward`` exports to ONNX (opset 18) and is simple enough to
-emit as C99: gather, add, mul, div, exp, abs, min/max, matmul.
+Training runs the family on the standardised feature matrix
+(:meth:`Family.forward`).  Evaluation — ``DriftModel.forward``, the exported
+ONNX graph and the C header — runs :meth:`DriftModel.evaluate`, laid out for
+speed on a batch: every signal and feature stays a 1-D column (one pass per
+operation over N values, no (N, 1) broadcasts), the de-standardisation is folded
+into the family's last matrix product (:meth:`Family.drift`), a non-finite
+signal reaches the drift arithmetically (``s - s`` is 0 for a finite value and
+NaN for NaN/±inf, added to the drift) instead of through a ``Where``, and the
+out-of-range flag is ``clip(s) != s`` (true outside the range and for NaN).
+The two paths are the same function; they differ by float32 rounding only.
 
 What the drift is relative to (:mod:`thermonet.target`) lives in the model's
 buffers, so checkpoints, ONNX, the C header and the autopilot files all carry
@@ -37,10 +45,18 @@ temperature at :math:`T_{ref}`, rate 0, proxies at their reference), whose
 drift :math:`\\hat y(s_{ref})` is buffer ``y_ref``; the offset then cancels.
 ``m`` (buffer ``compensate``, 1 or 0) leaves an axis uncompensated: its
 drift is exactly 0 for every finite input (a NaN signal still gives NaN).
+
+Both the mask and the normalisation at rest cost nothing at evaluation:
+:meth:`DriftModel.output_scaling` folds them into the de-standardisation,
+scale :math:`m_a s_{y,a}` and shift :math:`m_a(\\bar y_a - \\alpha_a\\, \\hat y_a(s_{ref}))`,
+which each family folds into its last matrix product (:meth:`Family.drift`).
+With :math:`m_a = 0` every coefficient of that axis is 0, so a finite input
+gives exactly 0 and a NaN (NaN × 0) still gives NaN.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -49,12 +65,16 @@ from torch import nn
 
 from ..errors import ConfigError
 from ..features import Features, FeatureSpec
+from .cgen import CBody
 
-__all__ = ["TINY", "Family", "DriftModel", "distinct_levels", "as_numpy", "least_squares"]
+__all__ = ["TINY", "LOG_CLIP", "Family", "DriftModel", "distinct_levels", "as_numpy",
+           "least_squares"]
 
 #: Guard for every denominator (lmfit's ``max(tiny, sigma)``); float32-safe:
 #: its square (1e-12) is still a normal float32.
 TINY = 1e-6
+#: Bound on a log-parametrised quantity before ``exp`` (e^±60 stays a normal float32).
+LOG_CLIP = 60.0
 
 
 def as_numpy(a: object) -> np.ndarray:
@@ -157,6 +177,26 @@ class Family(nn.Module):
         """JSON-able hyper-parameters; ``type(self)(n_inputs=, n_outputs=, **hyper())``
         rebuilds the same architecture."""
         return {}
+
+    def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
+              y_mean: torch.Tensor) -> torch.Tensor:
+        """Drift in output units (N, A) from standardised feature columns (each (N,)).
+
+        The same function as ``forward(z) * y_std + y_mean``, laid out for
+        evaluation: families fold ``y_std``/``y_mean`` into their last matrix
+        product.  Contract: a NaN in ``z[0]`` gives NaN on every axis of that row
+        (how :class:`DriftModel` marks a non-finite signal; the export's parity
+        check verifies it).  This default stacks the columns and calls :meth:`forward`.
+        """
+        return self(torch.stack(list(z), dim=1)) * y_std + y_mean
+
+    def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
+        """The C99 constants and body of :meth:`drift` (see :mod:`.cgen`).
+
+        A family without one cannot be exported as a C header.
+        """
+        from ..errors import ExportError
+        raise ExportError(f"model family '{self.name}' has no C emitter")
 
     def polynomial_form(self) -> np.ndarray | None:
         """Coefficients (A, degree + 1), ascending in the one standardised input z,
@@ -313,14 +353,24 @@ class DriftModel(nn.Module):
         a = self._at_t_ref(torch.float64)
         return self.y_offset.double() * (1.0 - a) * self.compensate.double()
 
+    def output_scaling(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Scale and shift (A,) that map the family's standardised output to :meth:`relative`.
+
+        .. math:: r_a = \\hat y_{z,a}\\, m_a s_{y,a} + m_a(\\bar y_a - \\alpha_a\\, y_{ref,a})
+
+        The target normalisation and the mask folded into the de-standardisation:
+        :meth:`Family.drift` and :meth:`Family.emit_c` take these in place of
+        ``y_std``/``y_mean``, so neither costs an operation at evaluation.
+        """
+        m = self.compensate.to(self.y_std.dtype)
+        shift = self.y_mean - self._at_t_ref(self.y_mean.dtype) * self.y_ref.to(self.y_mean.dtype)
+        return self.y_std * m, shift * m
+
     def relative(self, signals: torch.Tensor) -> torch.Tensor:
         """Drift minus :meth:`constant`, in the model's dtype (float32 as trained and
-        exported): what the ONNX graph and the C header compute in float32."""
-        s = signals.to(self.sig_lo.dtype)
-        s = torch.minimum(torch.maximum(s, self.sig_lo), self.sig_hi)
-        z = (self.features(s) - self.x_mean) / self.x_std
-        y = self.family(z) * self.y_std + self.y_mean
-        return (y - self._at_t_ref(y.dtype) * self.y_ref) * self.compensate
+        exported): what the ONNX graph and the C header compute in float32
+        (:meth:`evaluate` on the columns of ``signals`` (N, S))."""
+        return self.evaluate(signals.unbind(1))[0]
 
     def drift64(self, signals: torch.Tensor) -> torch.Tensor:
         """Drift in float64: :meth:`relative` (model dtype) plus the float64 constant."""
@@ -349,9 +399,52 @@ class DriftModel(nn.Module):
         inside = (s >= self.sig_lo) & (s <= self.sig_hi)  # NaN compares false
         return ~inside.all(dim=1)
 
+    def evaluate(self, signals: Sequence[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Relative drift (N, A) and out-of-range flag (N,) from one (N,) column per signal.
+
+        The drift is :meth:`relative`'s (drift minus the float64 :meth:`constant`),
+        de-standardised by :meth:`output_scaling` (target normalisation and mask
+        folded in).
+
+        .. math::
+
+            s' = \\min(\\max(s, s_{lo}), s_{hi}),\\quad
+            z_f = (x_f(s') - \\bar x_f)\\, s_{x,f}^{-1},\\quad
+            z_1 \\leftarrow z_1 + \\textstyle\\sum_i (s_i - s_i),\\quad
+            r = \\mathrm{drift}(z;\\ m\\, s_y,\\ m(\\bar y - \\alpha\\, y_{ref}))
+
+        The added term is 0 for finite signals and NaN for NaN/±inf, and every
+        family's :meth:`Family.drift` carries a NaN in ``z[0]`` to every axis, so a
+        broken thermometer gives NaN drift (never the clamped edge value); the flag is
+        :math:`\\bigvee_i s'_i \\ne s_i`.  This is what the ONNX graph and the
+        C header evaluate.
+        """
+        # float32 as trained and exported; a float64 copy (model.double()) computes in
+        # float64 — the export's parity check uses one as its reference
+        cols = [s.to(self.sig_lo.dtype) for s in signals]
+        lo, hi = self.sig_lo, self.sig_hi
+        clamped = [torch.minimum(torch.maximum(s, lo[i]), hi[i]) for i, s in enumerate(cols)]
+        flag = clamped[0] != cols[0]
+        nonfinite = cols[0] - cols[0]
+        for s, c in zip(cols[1:], clamped[1:], strict=True):
+            flag = flag | (c != s)
+            nonfinite = nonfinite + (s - s)
+        inv_std = 1.0 / self.x_std
+        z = [(x - self.x_mean[f]) * inv_std[f]
+             for f, x in enumerate(self.features.columns(clamped))]
+        # one (N,) addition; every family carries a NaN in z[0] to every output axis
+        # (cheaper than adding an (N, 1) column to the (N, A) drift, a broadcast)
+        z[0] = z[0] + nonfinite
+        scale, shift = self.output_scaling()
+        return self.family.drift(z, scale, shift), flag
+
     def forward(self, signals: torch.Tensor) -> torch.Tensor:
-        # the drift in the model's dtype: float32 as trained (a large constant then loses
-        # precision: use drift64 / thermonet.train.predict); a float64 copy (model.double())
-        # computes in float64 — the export's parity check uses one as its reference
+        """Drift (N, A) from signals (N, S); NaN where a signal is not finite.
+
+        In the model's dtype: float32 as trained (a large constant then loses
+        precision: use :meth:`drift64` / :func:`thermonet.train.predict`); a float64
+        copy (``model.double()``) computes in float64 — the export's parity check
+        uses one as its reference.
+        """
         r = self.relative(signals)
         return r + self.constant().to(r.dtype)

@@ -23,6 +23,7 @@ set no sample reaches keep the minimum-norm (ridge) value, zero.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -31,6 +32,7 @@ from torch import nn
 
 from ..errors import ConfigError
 from .base import TINY, Family, as_numpy, distinct_levels, least_squares
+from .cgen import CBody, as_float32, c_array, c_float
 
 __all__ = ["TSFuzzy"]
 
@@ -80,6 +82,61 @@ class TSFuzzy(Family):
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         x, lam = self.memberships(z)
         return lam @ self.intercept.T + (lam * x) @ self.slope.T
+
+    def rules(self, y_std: torch.Tensor, y_mean: torch.Tensor) -> torch.Tensor:
+        """Rule coefficients in output units, (2 n_sets, A): intercepts then slopes.
+
+        Since the normalised memberships sum to one, :math:`\\bar y` folds into
+        every intercept: :math:`b'_i = b_i s_y + \\bar y`, :math:`a'_i = a_i s_y`.
+        """
+        return torch.cat([self.intercept * y_std[:, None] + y_mean[:, None],
+                          self.slope * y_std[:, None]], dim=1).T
+
+    def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
+              y_mean: torch.Tensor) -> torch.Tensor:
+        x = torch.minimum(torch.maximum(z[0], self.bounds[0]), self.bounds[1])
+        inv = 1.0 / torch.clamp(self.spacing, min=TINY)
+        xs = (x * inv).unsqueeze(1)
+        lam = torch.relu(1.0 - torch.abs(xs - self.peaks * inv))
+        u = torch.cat([lam, lam * x.unsqueeze(1)], dim=1)
+        # the clamp of x would hide a NaN input: z0 - z0 (0 or NaN) brings it back
+        total = torch.clamp(lam.sum(dim=1), min=TINY) + (z[0] - z[0])
+        return torch.mm(u, self.rules(y_std, y_mean)) / total.unsqueeze(1)
+
+    def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
+        # At most two neighbouring sets are non-zero at any x: find them by index
+        # instead of evaluating all n_sets (the same memberships, fewer instructions).
+        p, P = prefix, prefix.upper()
+        with torch.no_grad():
+            rules = as_float32(self.rules(y_std, y_mean).T)  # (A, 2n)
+            lo, hi = (float(v) for v in as_float32(self.bounds))
+            inv = float(as_float32(1.0 / torch.clamp(self.spacing, min=TINY))[0])
+        n = self.n_sets
+        consts = [f"#define {P}_FUZZY_SETS {n}",
+                  c_array(f"{p}_fz_intercept", rules[:, :n]),
+                  c_array(f"{p}_fz_slope", rules[:, n:])]
+        body = f"""\
+    {{
+        float x = z[0], t, lam0, lam1, inv_total;
+        int i;
+        if (!(x >= {c_float(lo)})) x = {c_float(lo)};  /* NaN too: it is flagged later */
+        if (x > {c_float(hi)}) x = {c_float(hi)};
+        t = (x - {c_float(lo)}) * {c_float(inv)};
+        i = (int)t;
+        if (i > {P}_FUZZY_SETS - 2) i = {P}_FUZZY_SETS - 2;
+        if (i < 0) i = 0;
+        lam1 = t - (float)i;
+        lam0 = 1.0f - lam1;
+        if (lam0 < 0.0f) lam0 = 0.0f;
+        if (lam1 > 1.0f) lam1 = 1.0f;
+        inv_total = 1.0f / (lam0 + lam1);
+        for (a = 0; a < {P}_N_AXES; ++a) {{
+            y[a] = (lam0 * ({p}_fz_intercept[a][i] + {p}_fz_slope[a][i] * x)
+                    + lam1 * ({p}_fz_intercept[a][i + 1] + {p}_fz_slope[a][i + 1] * x))
+                   * inv_total;
+        }}
+    }}"""
+        return CBody(consts, body)
 
     def check_fittable(self, x: torch.Tensor) -> str | None:
         levels = distinct_levels(as_numpy(x)[:, 0])

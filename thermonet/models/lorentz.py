@@ -18,6 +18,7 @@ range) is then represented by a far centre and a wide curve.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -27,6 +28,7 @@ from torch.nn import functional as F
 
 from ..errors import ConfigError
 from .base import TINY, Family, as_numpy, distinct_levels
+from .cgen import CBody, as_float32, c_array
 
 __all__ = ["Lorentz", "lorentzian"]
 
@@ -95,6 +97,34 @@ class Lorentz(Family):
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         return lorentzian(z[:, 0:1], self.y0, self.amplitude, self.center, self.width)
+
+    def output_form(self, y_std: torch.Tensor, y_mean: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(y0, k, xc, h)`` (each (A,)) of the curve in output units,
+        :math:`y = y_0 + k / ((z - x_c)^2 + h)` with :math:`k = A w s_y / (2\\pi)`,
+        :math:`h = w^2/4`, :math:`w = \\max(\\text{tiny}, w)`."""
+        w = torch.clamp(self.width, min=TINY)
+        return (self.y0 * y_std + y_mean, self.amplitude * w * y_std * (0.5 / math.pi),
+                self.center, 0.25 * w * w)
+
+    def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
+              y_mean: torch.Tensor) -> torch.Tensor:
+        y0, k, xc, h = self.output_form(y_std, y_mean)
+        dx = z[0].unsqueeze(1) - xc
+        return y0 + k / (dx * dx + h)
+
+    def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
+        p, P = prefix, prefix.upper()
+        with torch.no_grad():
+            y0, k, xc, h = (as_float32(v) for v in self.output_form(y_std, y_mean))
+        consts = [c_array(f"{p}_lor_y0", y0), c_array(f"{p}_lor_k", k),
+                  c_array(f"{p}_lor_xc", xc), c_array(f"{p}_lor_h", h)]
+        body = f"""\
+    for (a = 0; a < {P}_N_AXES; ++a) {{
+        float dx = z[0] - {p}_lor_xc[a];
+        y[a] = {p}_lor_y0[a] + {p}_lor_k[a] / (dx * dx + {p}_lor_h[a]);
+    }}"""
+        return CBody(consts, body)
 
     def check_fittable(self, x: torch.Tensor) -> str | None:
         xn = as_numpy(x)

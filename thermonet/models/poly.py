@@ -13,6 +13,7 @@ rate, and cross terms multiply the parameter count for no documented gain.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from itertools import combinations_with_replacement
 from typing import Any
 
@@ -22,6 +23,7 @@ from torch import nn
 
 from ..errors import ConfigError
 from .base import Family, as_numpy, distinct_levels, least_squares
+from .cgen import CBody, as_float32, c_array
 
 __all__ = ["Poly", "monomials"]
 
@@ -58,7 +60,10 @@ class Poly(Family):
 
     def design(self, z: torch.Tensor) -> torch.Tensor:
         """Term matrix (N, n_terms), built by repeated multiplication (exports as Mul)."""
-        cols = [z[:, i:i + 1] for i in range(self.n_inputs)]
+        return torch.stack(self.term_columns(list(z.unbind(1))), dim=1)
+
+    def term_columns(self, cols: Sequence[torch.Tensor]) -> list[torch.Tensor]:
+        """The terms as 1-D columns: powers by repeated multiplication, each power once."""
         powers = []
         for c in cols:
             p = [c]
@@ -73,10 +78,46 @@ class Poly(Family):
                     term = powers[i][e - 1] if term is None else term * powers[i][e - 1]
             if term is not None:  # every term has a positive exponent
                 out.append(term)
-        return torch.cat(out, dim=1)
+        return out
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         return self.design(z) @ self.weight.T + self.bias
+
+    def output_layer(self, y_std: torch.Tensor, y_mean: torch.Tensor
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Weights (n_terms, A) and bias (A,) in output units."""
+        return (self.weight * y_std[:, None]).T, self.bias * y_std + y_mean
+
+    def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
+              y_mean: torch.Tensor) -> torch.Tensor:
+        w, b = self.output_layer(y_std, y_mean)
+        return torch.addmm(b, torch.stack(self.term_columns(z), dim=1), w)
+
+    def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
+        p, P = prefix, prefix.upper()
+        with torch.no_grad():
+            w, b = self.output_layer(y_std, y_mean)
+        consts = [f"#define {P}_POLY_TERMS {len(self.terms)}",
+                  c_array(f"{p}_poly_w", as_float32(w.T)), c_array(f"{p}_poly_b", as_float32(b))]
+        # straight-line powers and terms (the exponents are known now): no table, no branch
+        lines = [f"        float term[{P}_POLY_TERMS];"]
+        for i in range(self.n_inputs):
+            need = max(e[i] for e in self.terms)
+            if need:
+                lines.append(f"        float p{i}_1 = z[{i}];")
+            for k in range(2, need + 1):
+                lines.append(f"        float p{i}_{k} = p{i}_{k - 1} * z[{i}];")
+        for t, exps in enumerate(self.terms):
+            factors = [f"p{i}_{e}" for i, e in enumerate(exps) if e]
+            lines.append(f"        term[{t}] = {' * '.join(factors)};")
+        body = "    {\n" + "\n".join(lines) + f"""
+        for (a = 0; a < {P}_N_AXES; ++a) {{
+            float acc = {p}_poly_b[a];
+            for (f = 0; f < {P}_POLY_TERMS; ++f) acc += {p}_poly_w[a][f] * term[f];
+            y[a] = acc;
+        }}
+    }}"""
+        return CBody(consts, body)
 
     def check_fittable(self, x: torch.Tensor) -> str | None:
         xn = as_numpy(x)

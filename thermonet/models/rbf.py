@@ -6,8 +6,8 @@
     \\qquad \\hat y_a = \\sum_j w_{a j}\\, \\varphi_j(z) + b_a
 
 Centres :math:`c_j`, widths :math:`\\sigma_j = e^{s_j}` (log-parametrised,
-with :math:`2 s_j` clipped to ±60 so :math:`\\sigma_j^2` stays a positive
-float32) and output weights are all trained; centres and widths are shared by
+with :math:`2 s_j` clipped to ±:data:`~.base.LOG_CLIP` so :math:`\\sigma_j^2` stays a
+positive float32) and output weights are all trained; centres and widths are shared by
 the axes, the weights form an (A, J) matrix.  Study 003 uses inputs
 ``[dT, dT2]`` (``[dT]`` is its "traditional" model).
 
@@ -20,6 +20,7 @@ scratch, for comparison.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -27,7 +28,8 @@ import torch
 from torch import nn
 
 from ..errors import ConfigError
-from .base import TINY, Family, as_numpy, least_squares
+from .base import LOG_CLIP, TINY, Family, as_numpy, least_squares
+from .cgen import CBody, as_float32, c_array
 
 __all__ = ["RBF"]
 
@@ -73,11 +75,77 @@ class RBF(Family):
         for f in range(1, self.n_inputs):
             diff = z[:, f:f + 1] - self.centres[:, f]
             d2 = d2 + diff * diff
-        two_sigma2 = 2.0 * torch.exp(torch.clamp(2.0 * self.log_sigma, min=-60.0, max=60.0))
-        return torch.exp(-d2 / two_sigma2)
+        return torch.exp(-d2 * self.inv_two_sigma2())
+
+    def inv_two_sigma2(self) -> torch.Tensor:
+        """:math:`1 / (2\\sigma_j^2)` (J,), with :math:`2 s_j` clipped to ±LOG_CLIP."""
+        return 0.5 * torch.exp(-torch.clamp(2.0 * self.log_sigma, min=-LOG_CLIP, max=LOG_CLIP))
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         return self.basis(z) @ self.weight.T + self.bias
+
+    def exponent(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(M, b)``: the exponent of every unit as one matrix product.
+
+        With :math:`g_j = 1/(2\\sigma_j^2)`,
+
+        .. math::
+
+            -g_j \\lVert z - c_j \\rVert^2
+            = \\underbrace{[z_1 \\dots z_F,\\ \\lVert z \\rVert^2]}_{u}\\,
+              \\underbrace{\\begin{bmatrix} 2 g_j c_j \\\\ -g_j \\end{bmatrix}}_{M_{:,j}}
+              \\; \\underbrace{-\\, g_j \\lVert c_j \\rVert^2}_{b_j}
+
+        M is (F + 1, J), b is (J,).
+        """
+        g = self.inv_two_sigma2()
+        m = torch.cat([2.0 * self.centres * g[:, None], -g[:, None]], dim=1).T
+        return m, -g * (self.centres * self.centres).sum(dim=1)
+
+    def output_layer(self, y_std: torch.Tensor, y_mean: torch.Tensor
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Weights (J, A) and bias (A,) in output units (de-standardisation folded in)."""
+        return (self.weight * y_std[:, None]).T, self.bias * y_std + y_mean
+
+    def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
+              y_mean: torch.Tensor) -> torch.Tensor:
+        # ‖z − c‖² expanded: one (N, F+1) × (F+1, J) product, exp, one (N, J) × (J, A)
+        # product — two Gemm nodes instead of F broadcast passes over (N, J) per input
+        zz = z[0] * z[0]
+        for zf in z[1:]:
+            zz = zz + zf * zf
+        m, b = self.exponent()
+        phi = torch.exp(torch.addmm(b, torch.stack([*z, zz], dim=1), m))
+        w, c = self.output_layer(y_std, y_mean)
+        return torch.addmm(c, phi, w)
+
+    def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
+        p, P = prefix, prefix.upper()
+        with torch.no_grad():
+            m, b = self.exponent()
+            w, c = self.output_layer(y_std, y_mean)
+        consts = [f"#define {P}_RBF_CENTRES {int(self.n_centres)}",
+                  # one row per centre: F coefficients of z, then that of ||z||^2
+                  c_array(f"{p}_rbf_m", as_float32(m.T)), c_array(f"{p}_rbf_b", as_float32(b)),
+                  c_array(f"{p}_rbf_w", as_float32(w.T)), c_array(f"{p}_rbf_c", as_float32(c))]
+        body = f"""\
+    {{
+        float phi[{P}_RBF_CENTRES];
+        float zz = 0.0f;
+        int j;
+        for (f = 0; f < {P}_N_FEATURES; ++f) zz += z[f] * z[f];
+        for (j = 0; j < {P}_RBF_CENTRES; ++j) {{
+            float e = {p}_rbf_b[j] + {p}_rbf_m[j][{P}_N_FEATURES] * zz;
+            for (f = 0; f < {P}_N_FEATURES; ++f) e += {p}_rbf_m[j][f] * z[f];
+            phi[j] = expf(e);
+        }}
+        for (a = 0; a < {P}_N_AXES; ++a) {{
+            float acc = {p}_rbf_c[a];
+            for (j = 0; j < {P}_RBF_CENTRES; ++j) acc += {p}_rbf_w[a][j] * phi[j];
+            y[a] = acc;
+        }}
+    }}"""
+        return CBody(consts, body)
 
     def check_fittable(self, x: torch.Tensor) -> str | None:
         xn = as_numpy(x)

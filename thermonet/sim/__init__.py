@@ -1,6 +1,8 @@
 """Thermal-chamber simulator, the four study presets and two realistic ones.
 
-``simulate(preset, runs=, seed=, **overrides) -> Dataset``.  The runs of one
+``simulate(preset, runs=, seed=, **overrides) -> Dataset``; many units in one
+dataset: ``simulate_fleet(preset, units=, runs=, seed=, outliers=)``
+(:mod:`thermonet.sim.fleet`).  The runs of one
 call are one device: its unit-to-unit spread is drawn once per seed, and each
 run (power-up) adds its own turn-on bias offset.  Presets (study numbers each
 reproduced within 10 %, checked in ``tests/test_presets.py``):
@@ -65,6 +67,7 @@ from .device import (
                      ThermometerConfig,
                      UnitSpreadConfig,
 )
+from .fleet import simulate_fleet, unit_seed
 from .fourpos import four_position_estimates
 from .presets import (
                      PRESETS,
@@ -78,7 +81,8 @@ from .presets import (
 )
 
 __all__ = [
-    "simulate", "simulate_run", "get_preset", "PRESETS", "SimConfig", "Switches", "TableConfig",
+    "simulate", "simulate_run", "simulate_fleet", "unit_seed", "get_preset", "PRESETS",
+    "SimConfig", "Switches", "TableConfig",
     "RunTruth", "ChamberProfile", "Soak", "Ramp", "Approach", "staircase", "cycle",
     "AxisConfig", "ThermalConfig", "ThermometerConfig", "ProxyConfig", "SelfHeatingConfig",
     "HysteresisConfig", "RateTermConfig", "NoiseConfig", "UnitSpreadConfig",

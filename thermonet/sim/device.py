@@ -281,13 +281,19 @@ def flicker_noise(n: int, fs_hz: float, bias_instability: float,
     """
     if n < 2:
         return np.zeros(n)
-    f = np.fft.rfftfreq(n, d=1.0 / fs_hz)
+    # Shaped on a fast FFT length (5-smooth, ≥ n) and truncated: a stretch of a stationary
+    # series has the same statistics, and an awkward n (a large prime factor) costs
+    # 10-50× more than the next fast length.  Same n, same seed -> same noise.
+    import scipy.fft  # loaded when simulating, not at import
+
+    m = scipy.fft.next_fast_len(n, real=True)
+    f = np.fft.rfftfreq(m, d=1.0 / fs_hz)
     psd = np.zeros_like(f)
     psd[1:] = bias_instability ** 2 / (np.pi * f[1:])
-    # E|X_k|^2 = S(f_k) n fs / 2 for the unnormalised rfft of a one-sided PSD
-    sigma = np.sqrt(psd * n * fs_hz / 2.0)
+    # E|X_k|^2 = S(f_k) m fs / 2 for the unnormalised rfft of a one-sided PSD
+    sigma = np.sqrt(psd * m * fs_hz / 2.0)
     spec = sigma * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size)) / np.sqrt(2.0)
-    return np.fft.irfft(spec, n=n)
+    return scipy.fft.irfft(spec, n=m)[:n]
 
 
 def random_walk_noise(n: int, fs_hz: float, k: float, rng: np.random.Generator) -> np.ndarray:

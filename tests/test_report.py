@@ -1,0 +1,118 @@
+"""report.html: one self-contained page, parsed and rendered in a real headless chromium."""
+
+from __future__ import annotations
+
+import base64
+import shutil
+import subprocess
+from html.parser import HTMLParser
+
+import matplotlib.image as mpimg
+import numpy as np
+import pytest
+
+from conftest import toy_dataset
+from thermonet.compare import run_compare
+from thermonet.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
+from thermonet.io import write_parquet
+from thermonet.report import VERDICT_COLOURS, render_report
+
+
+class _Page(HTMLParser):
+    """Collects what a reader sees: tags, image sources, table cells, external references."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.tags: list[str] = []
+        self.images: list[str] = []
+        self.cells: list[str] = []
+        self.external: list[str] = []
+        self._cell: list[str] | None = None
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append(tag)
+        a = dict(attrs)
+        if tag == "img":
+            self.images.append(a.get("src", ""))
+        for key in ("src", "href"):
+            if a.get(key) and not a[key].startswith("data:"):
+                self.external.append(a[key])
+        if tag == "td":
+            self._cell = []
+
+    def handle_endtag(self, tag):
+        if tag == "td" and self._cell is not None:
+            self.cells.append(" ".join(self._cell))
+            self._cell = None
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._cell.append(data.strip())
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("report")
+    path = write_parquet(toy_dataset(n_runs=3), tmp / "toy.parquet")
+    fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
+            FamilyConfig(family="linear", name="<linear & co>")]  # a name that needs escaping
+    cfg = CompareConfig(data=DataConfig(paths=[str(path)]), families=fams,
+                        train=TrainConfig(max_epochs=15, patience=4), baseline="cubic")
+    res = run_compare(cfg, tmp / "out", track=False, quiet=True)
+    return res, tmp / "out" / "report.html"
+
+
+def test_report_is_one_self_contained_page(report):
+    res, path = report
+    page = _Page()
+    page.feed(path.read_text(encoding="utf-8"))
+    assert page.tags[0] == "html" and "table" in page.tags
+    assert page.external == []  # nothing outside the file: no link, no script, no remote image
+    assert "script" not in page.tags
+    # every plot embedded as a PNG
+    n_plots = len(list((path.parent / "plots").glob("*.png")))
+    assert n_plots == 4 and len(page.images) == n_plots
+    for src in page.images:
+        assert src.startswith("data:image/png;base64,")
+        assert base64.b64decode(src.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"
+    # the verdict table: the cubic beats raw on the quadratic drift, with its interval
+    cubic = res["families"]["cubic"]["axes"]["gyro_x"]
+    lo, hi = cubic["interval"]
+    assert f"better {cubic['score_ratio']:.3g} [{lo:.3g}, {hi:.3g}]" in page.cells
+    text = path.read_text(encoding="utf-8")
+    assert f"background:{VERDICT_COLOURS['better']}" in text
+    assert "&lt;linear &amp; co&gt;" in text and "<linear & co>" not in text
+    assert "Chosen: <b>cubic</b>" in text
+
+
+def test_report_renders_in_headless_chromium(report, tmp_path):
+    _, path = report
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    if chromium is None:
+        pytest.fail("chromium is not installed: the report must be checked in a real browser "
+                    "(apt-get install chromium; the Makefile's test set-up does it)")
+    shot = tmp_path / "shot.png"
+    cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu",
+           "--disable-background-networking", "--disable-component-update", "--disable-sync",
+           "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
+           f"--screenshot={shot}", "--window-size=1200,1600", path.as_uri()]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    img = mpimg.imread(shot)[..., :3]
+    assert img.shape[:2] == (1600, 1200)
+    # not blank: text, coloured verdict cells and plots vary the pixels …
+    assert img.std() > 0.08
+    dark = (img.mean(axis=2) < 0.5).mean()
+    assert 0.01 < dark < 0.5
+    # … and the green of a "better" cell is on screen
+    green = np.array([int(VERDICT_COLOURS["better"][i:i + 2], 16) / 255 for i in (1, 3, 5)])
+    assert (np.abs(img - green).max(axis=2) < 0.02).sum() > 500
+
+
+def test_render_report_without_plots_and_with_a_failed_family():
+    res = {"device": "d", "units": {"acc_x": "mg"}, "baseline": None, "chosen": None,
+           "chosen_reason": "do no harm", "warnings": ["a <warning>"],
+           "families": {"poly6": {"status": "failed", "reason": "3 distinct temperatures"}}}
+    html = render_report(res)
+    assert "not fitted: 3 distinct temperatures" in html
+    assert "a &lt;warning&gt;" in html and "<img" not in html

@@ -1,0 +1,245 @@
+"""Offset-free scores, block-bootstrap verdicts, per-axis do-no-harm, ties and warnings."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thermonet.checkpoint import load_checkpoint
+from thermonet.compare import format_table, run_compare
+from thermonet.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
+from thermonet.diagnostics import input_warnings
+from thermonet.errors import ConfigError
+from thermonet.exporting import export_onnx
+from thermonet.io import write_parquet
+from thermonet.recording import Dataset, Recording
+from thermonet.train import predict
+from thermonet.verdicts import block_labels, block_stats, choose, draws, ratio_interval, verdict_of
+
+FAST = TrainConfig(max_epochs=15, patience=4)
+RATE_HZ = 0.5  # one sample every 2 s: small recordings, fast tests
+
+
+def _run(run_id: str, temp: np.ndarray, drift: dict[str, np.ndarray], *, noise: float,
+         rng: np.random.Generator) -> Recording:
+    t = np.arange(temp.size) / RATE_HZ
+    return Recording(time_s=t, temperature_c=temp,
+                     outputs={a: d + rng.normal(0.0, noise, t.size) for a, d in drift.items()},
+                     drift={f"drift_{a}": d for a, d in drift.items()},
+                     units={a: "deg/s" for a in drift} | {"temperature_c": "degC"},
+                     device_id="synthetic", run_id=run_id, sample_rate_hz=RATE_HZ)
+
+
+def _ramp(n: int = 1800, lo: float = -10.0, hi: float = 50.0) -> np.ndarray:
+    return np.linspace(lo, hi, n)
+
+
+def _compare(tmp_path, ds: Dataset, families: list[FamilyConfig], **kw) -> dict:
+    path = write_parquet(ds, tmp_path / "data.parquet")
+    kw.setdefault("baseline", None)
+    cfg = CompareConfig(data=DataConfig(paths=[str(path)]), families=families, train=FAST, **kw)
+    return run_compare(cfg, tmp_path / "out", track=False, quiet=True, plots=False)
+
+
+def _runtime():
+    """The torch-free runtime (export/thermonet_runtime.py), as firmware teams load it."""
+    path = Path(__file__).resolve().parents[1] / "export" / "thermonet_runtime.py"
+    spec = importlib.util.spec_from_file_location("thermonet_runtime", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["thermonet_runtime"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+# ------------------------------------------------------------------ the statistics alone
+def test_block_labels_cut_at_gaps_and_into_enough_pieces():
+    t = np.r_[np.arange(100.0), 1000.0 + np.arange(100.0)]  # two stretches, a gap between
+    labels = block_labels(t, min_blocks=20)
+    assert labels.max() + 1 == 20
+    assert len(set(labels[:100]) & set(labels[100:])) == 0  # no block spans the gap
+    assert np.all(np.diff(labels) >= 0)
+    assert np.bincount(labels).min() == 10
+
+
+def test_ratio_interval_and_verdicts_on_known_ratios():
+    rng = np.random.default_rng(0)
+    raw = rng.normal(size=(400, 2))
+    pred = np.column_stack([0.5 * raw[:, 0], -0.5 * raw[:, 1]])  # residual 0.5× / 1.5× raw
+    s = block_stats(raw, pred, block_labels(np.arange(400.0)))
+    ratio, boot, iv = ratio_interval(s.ss_comp, s.ss_raw, draws(s.n.size))
+    np.testing.assert_allclose(ratio, [0.5, 1.5], rtol=1e-9)
+    np.testing.assert_allclose(iv[:, 0], 0.5, rtol=1e-9)  # exact in every draw
+    assert verdict_of(*iv[:, 0]) == "better" and verdict_of(*iv[:, 1]) == "worse"
+    assert verdict_of(0.9, 1.1) == "indistinguishable"
+    # the offset is reported, not scored: a constant added to raw changes no score
+    s2 = block_stats(raw + 7.0, pred, block_labels(np.arange(400.0)))
+    np.testing.assert_allclose(s2.ss_raw, s.ss_raw)
+    assert s2.offset_raw[0] == pytest.approx(7.0 + raw[:, 0].mean())
+
+
+def test_choose_one_standard_error_rule():
+    boot_best = np.linspace(0.40, 0.60, 1000)  # interval about [0.405, 0.595]
+    scores = {"rbf": (0.50, boot_best), "cubic": (0.55, boot_best + 0.05),
+              "linear": (0.80, boot_best + 0.3)}
+    chosen, tied, why = choose(scores, {"rbf": 99, "cubic": 12, "linear": 6})
+    assert chosen == "cubic" and tied == ["cubic", "rbf"]
+    assert why.startswith("tie:") and "fewest parameters" in why
+    none, _, why = choose({"a": (1.0, np.ones(10))}, {"a": 2})
+    assert none is None and "do no harm" in why
+
+
+# --------------------------------------------------------------------- whole comparisons
+def test_do_no_harm_fires_on_an_axis_without_drift(tmp_path):
+    rng = np.random.default_rng(1)
+    runs = []
+    for k in range(4):
+        temp = _ramp() + 0.3 * k
+        runs.append(_run(f"run{k}", temp, {"gyro_x": 0.01 * (temp - 20.0),
+                                           "gyro_y": np.zeros_like(temp)}, noise=0.01, rng=rng))
+    res = _compare(tmp_path, Dataset(runs),
+                   [FamilyConfig(family="poly", name="cubic", params={"degree": 3})])
+    assert res["chosen"] == "cubic"
+    axes = res["families"]["cubic"]["axes"]
+    assert axes["gyro_x"]["compensate"] is True and axes["gyro_x"]["verdict"] == "better"
+    assert axes["gyro_y"]["compensate"] is False
+    assert axes["gyro_y"]["val_verdict"] != "better"
+    assert res["uncompensated_axes"] == ["gyro_y"]
+    assert any(w.startswith("gyro_y: left uncompensated") for w in res["warnings"])
+    model, meta = load_checkpoint(tmp_path / "out" / "models" / "cubic.pt")
+    assert meta["extra"]["compensate"] == {"gyro_x": True, "gyro_y": False}
+    # the model carries the mask (set before the checkpoint was written), and so does its export
+    assert res["families"]["cubic"]["compensate_in_model"] is True
+    assert model.compensated_axes == [True, False]
+    temps = np.linspace(-10.0, 50.0, 61)
+    assert np.all(predict(model, temps[:, None])[:, 1] == 0.0)
+    raw = np.column_stack([0.01 * (temps - 20.0), np.full_like(temps, 0.123)])
+    comp = _runtime().Compensator(export_onnx(model, tmp_path / "cubic.onnx")).compensate(
+        temperature_c=temps, raw=raw)
+    assert np.all(comp.drift[:, 1] == 0.0) and np.all(comp.compensated[:, 1] == raw[:, 1])
+    np.testing.assert_allclose(comp.drift[:, 0], 0.01 * (temps - 20.0), atol=0.02)
+    assert "left uncompensated: gyro_y" in format_table(res)
+    html = (tmp_path / "out" / "report.html").read_text()
+    assert "Left uncompensated (drift 0): <b>gyro_y</b>" in html
+
+
+def test_ties_are_called_ties_and_the_fewest_parameters_win(tmp_path):
+    rng = np.random.default_rng(2)
+    runs = [_run(f"run{k}", _ramp() + 0.2 * k, {"gyro_x": 0.004 * (_ramp() + 0.2 * k)},
+                 noise=0.02, rng=rng) for k in range(4)]
+    fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
+            FamilyConfig(family="poly", name="quadratic", params={"degree": 2}),
+            FamilyConfig(family="linear", name="linear")]
+    res = _compare(tmp_path, Dataset(runs), fams, baseline="cubic")
+    # the drift is a line: the three families are the same model on held-out data
+    assert res["chosen"] == "linear"
+    assert set(res["tie"]) == {"cubic", "quadratic", "linear"}
+    assert res["chosen_reason"].startswith("tie:")
+    assert any(w.startswith("tie:") for w in res["warnings"])
+    vs = res["families"]["linear"]["axes"]["gyro_x"]["vs_baseline"]
+    assert vs["verdict"] == "indistinguishable" and vs["ratio"] == pytest.approx(1.0, abs=0.01)
+    assert "vs cubic" in format_table(res)
+
+
+def test_chronological_split_of_a_ramp_warns_of_extrapolation(tmp_path):
+    rng = np.random.default_rng(3)
+    temp = _ramp(3600, 0.0, 60.0)
+    drift = 0.002 * temp + 1e-4 * temp ** 2
+    first = _run("first-half", temp[:1800], {"gyro_x": drift[:1800]}, noise=0.005, rng=rng)
+    second = _run("second-half", temp[1800:], {"gyro_x": drift[1800:]}, noise=0.005, rng=rng)
+    second.time_s = second.time_s + 1800 / RATE_HZ
+    res = _compare(tmp_path, Dataset([first, second]),
+                   [FamilyConfig(family="poly", name="quadratic", params={"degree": 2})])
+    assert res["split"]["strategy"] == "train-then-verify"
+    assert res["data"]["outside_trained_range"]["temperature_c"] > 0.99
+    assert any(w.startswith("extrapolation: 100% of the test samples of temperature_c")
+               for w in res["warnings"])
+
+
+def test_verification_after_a_hotter_excursion_is_worse_and_warned(tmp_path):
+    """The bias depends on thermal history: after 75 °C the slope of the cooling branch flips."""
+    rng = np.random.default_rng(4)
+    cycle = np.r_[_ramp(900, 20.0, 50.0), _ramp(900, 50.0, 20.0)]
+    runs = [_run(f"cal{k}", cycle + 0.1 * k, {"gyro_x": 0.01 * (cycle + 0.1 * k - 35.0)},
+                 noise=0.01, rng=rng) for k in range(2)]
+    branch = _ramp(900, 50.0, 20.0)  # recorded after an excursion to 75 °C
+    runs.append(_run("verify-after-75C", branch, {"gyro_x": -0.01 * (branch - 35.0)},
+                     noise=0.01, rng=rng))
+    fams = [FamilyConfig(family="linear", name="linear"),
+            FamilyConfig(family="poly", name="cubic", params={"degree": 3})]
+    res = _compare(tmp_path, Dataset(runs), fams, baseline="cubic")
+    assert res["split"]["folds"][0]["test"] == "verify-after-75C"
+    for name in ("linear", "cubic"):
+        ax = res["families"][name]["axes"]["gyro_x"]
+        assert ax["val_verdict"] == "better"        # fine on the calibration cycle …
+        assert ax["verdict"] == "worse"             # … twice the raw error after 75 °C
+        assert ax["score_ratio"] == pytest.approx(2.0, rel=0.1)
+        assert ax["interval"][0] > 1.0
+    chosen = res["chosen"]
+    assert any(w.startswith(f"gyro_x: the chosen model {chosen} is worse than raw")
+               for w in res["warnings"])
+    on_disk = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert on_disk["warnings"] == res["warnings"]
+    html = (tmp_path / "out" / "report.html").read_text()
+    assert "Worse than raw on the held-out test data: <b>gyro_x</b>" in html
+
+
+def test_baseline_that_is_not_a_family_is_an_error_before_fitting(tmp_path):
+    rng = np.random.default_rng(5)
+    ds = Dataset([_run(f"run{k}", _ramp(), {"gyro_x": 0.01 * _ramp()}, noise=0.01, rng=rng)
+                  for k in range(3)])
+    with pytest.raises(ConfigError, match=r"key 'baseline': no family named 'px4' "
+                                          r"\(families: linear\)"):
+        _compare(tmp_path, ds, [FamilyConfig(family="linear", name="linear")], baseline="px4")
+    assert not (tmp_path / "out").exists()
+
+
+# ------------------------------------------------------------------ implausible inputs
+def test_implausible_inputs_are_warned():
+    rng = np.random.default_rng(6)
+    kelvin = _run("kelvin", _ramp() + 273.15, {"gyro_x": np.zeros(1800)}, noise=0.01, rng=rng)
+    ms_as_s = _run("ms-as-s", _ramp(), {"gyro_x": np.zeros(1800)}, noise=0.01, rng=rng)
+    ms_as_s.time_s = ms_as_s.time_s * 1e4          # a 1-h test that lasts 41 days …
+    ms_as_s.sample_rate_hz = RATE_HZ / 1e4          # … at one sample every 5.6 h
+    too_fast = _run("s-as-ms", _ramp(), {"gyro_x": np.zeros(1800)}, noise=0.01, rng=rng)
+    too_fast.time_s = too_fast.time_s / 1000.0      # 60 °C in 3.6 s
+    too_fast.sample_rate_hz = RATE_HZ * 1000.0
+    bursts = _run("bursts", _ramp(), {"gyro_x": np.zeros(1800)}, noise=0.01, rng=rng)
+    bursts.time_s = bursts.time_s + 300.0 * (np.arange(1800) // 5)  # 10-s bursts, 300-s gaps
+    w = input_warnings(Dataset([kelvin]), signals=["temperature_c"], rate_window_s=60.0)
+    assert len(w) == 1 and w[0].startswith("run 'kelvin': temperature_c spans 263.1 … 323.1 °C")
+    assert "Kelvin" in w[0]
+    w = input_warnings(Dataset([ms_as_s]), signals=["temperature_c"], rate_window_s=60.0)
+    assert any("ms or µs read as seconds" in x for x in w)
+    assert any("sample rate 5e-05 Hz" in x for x in w)
+    w = input_warnings(Dataset([too_fast]), signals=["temperature_c"], rate_window_s=60.0)
+    assert any("too short by a time-unit factor" in x for x in w)
+    quiet = input_warnings(Dataset([bursts]), signals=["temperature_c"], rate_window_s=60.0)
+    assert quiet == []  # gaps only matter to the rate input
+    w = input_warnings(Dataset([bursts]), signals=["temperature_c", "rate_c_per_min"],
+                       rate_window_s=60.0)
+    assert len(w) == 1 and "the rate input (dT/dt over 60 s)" in w[0] and "gaps up to 302 s" in w[0]
+
+
+def test_default_baseline_applies_only_where_a_cubic_exists(tmp_path):
+    from thermonet.compare import plan
+    from thermonet.config import load_config
+
+    rng = np.random.default_rng(7)
+    path = write_parquet(Dataset([_run(f"run{k}", _ramp(), {"gyro_x": 0.01 * _ramp()},
+                                       noise=0.01, rng=rng) for k in range(3)]),
+                         tmp_path / "d.parquet")
+    body = f"data: {{paths: ['{path}']}}\nfamilies: [{{family: linear, name: line}}]\n"
+    (tmp_path / "implicit.yaml").write_text(body)
+    cfg = load_config(tmp_path / "implicit.yaml")
+    plan(cfg)  # no 'baseline' key, no cubic: no baseline
+    assert cfg.baseline is None
+    (tmp_path / "explicit.yaml").write_text(body + "baseline: cubic\n")
+    with pytest.raises(ConfigError, match=r"explicit\.yaml: key 'baseline': no family named "
+                                          r"'cubic' \(families: line\)"):
+        plan(load_config(tmp_path / "explicit.yaml"))

@@ -1,0 +1,105 @@
+"""Warnings about the data a comparison was given: implausible inputs and extrapolation.
+
+Each check returns plain sentences naming the run, signal or key; ``compare``
+prints them and lists them under ``"warnings"`` in ``results.json``.  None of
+them stops a comparison: the data may be right (a cryogenic test, a one-day
+soak), and the person reading the report decides.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from .features import RATE, contiguous_segments
+from .recording import Dataset
+
+__all__ = ["TEMPERATURE_PLAUSIBLE_C", "MAX_RAMP_C_PER_MIN", "MAX_DURATION_S",
+           "RATE_HZ_PLAUSIBLE", "OUTSIDE_RANGE_WARN", "input_warnings",
+           "outside_fraction", "extrapolation_warnings"]
+
+#: Temperatures outside this range (°C) are implausible for a sensor test (Kelvin? m°C?).
+TEMPERATURE_PLAUSIBLE_C = (-100.0, 200.0)
+#: A mean temperature change faster than this (°C/min) over a run suggests the time stamps
+#: are too short by a time-unit factor (s read as ms…); chambers ramp at ≤ ~10 °C/min.
+MAX_RAMP_C_PER_MIN = 30.0
+#: A run longer than this (s, 60 days) suggests ms or µs read as s.
+MAX_DURATION_S = 60 * 86400.0
+#: Sample rates outside this range (Hz) suggest a time-unit factor.
+RATE_HZ_PLAUSIBLE = (1e-3, 1e5)
+#: Warn when at least this fraction of the test samples lies outside the trained range.
+OUTSIDE_RANGE_WARN = 0.01
+
+
+def input_warnings(ds: Dataset, *, signals: Iterable[str], rate_window_s: float) -> list[str]:
+    """Implausible inputs: temperature units, time units, rate input across gaps.
+
+    Parameters
+    ----------
+    ds : Dataset
+    signals : iterable of str
+        Every signal the configured families read (``rate_c_per_min`` triggers the gap check).
+    rate_window_s : float
+        Window of the rate input, s.
+    """
+    out: list[str] = []
+    wants_rate = RATE in set(signals)
+    lo_ok, hi_ok = TEMPERATURE_PLAUSIBLE_C
+    for r in ds:
+        name = f"run '{r.run_id}'"
+        temp = r.temperature_c
+        if temp is not None and temp.size:
+            lo, hi = float(np.nanmin(temp)), float(np.nanmax(temp))
+            if lo < lo_ok or hi > hi_ok:
+                hint = ("Kelvin? subtract 273.15" if 150.0 < lo and hi < 500.0 else
+                        "m°C? divide by 1000" if abs(hi) > 1000.0 or abs(lo) > 1000.0 else
+                        "check the mapping's temperature unit")
+                out.append(f"{name}: temperature_c spans {lo:.4g} … {hi:.4g} °C, outside the "
+                           f"plausible {lo_ok:g} … {hi_ok:g} °C ({hint})")
+        dur = r.duration_s
+        rate = r.effective_rate_hz
+        if dur > MAX_DURATION_S:
+            out.append(f"{name}: time_s spans {dur / 86400.0:.3g} days; are the time stamps "
+                       "ms or µs read as seconds? (check the mapping's time unit)")
+        if not RATE_HZ_PLAUSIBLE[0] <= rate <= RATE_HZ_PLAUSIBLE[1]:
+            out.append(f"{name}: sample rate {rate:.4g} Hz is outside {RATE_HZ_PLAUSIBLE[0]:g} … "
+                       f"{RATE_HZ_PLAUSIBLE[1]:g} Hz; is the time column's unit right?")
+        if temp is not None and dur > 0:
+            ramp = float(np.ptp(temp)) / (dur / 60.0)
+            if ramp > MAX_RAMP_C_PER_MIN:
+                out.append(f"{name}: temperature_c changes {np.ptp(temp):.3g} °C in {dur:.3g} s "
+                           f"({ramp:.3g} °C/min); are the time stamps too short by a "
+                           "time-unit factor (s read as ms)?")
+        if wants_rate and r.time_s.size > 1:
+            gap = float(np.max(np.diff(r.time_s)))
+            if gap > rate_window_s:
+                segs = contiguous_segments(r.time_s)
+                longest = max(float(r.time_s[s.stop - 1] - r.time_s[s.start]) for s in segs)
+                out.append(f"{name}: the rate input (dT/dt over {rate_window_s:g} s) is used on "
+                           f"data with gaps up to {gap:.3g} s and {len(segs)} contiguous "
+                           f"segments (longest {longest:.3g} s): dT/dt restarts at every gap "
+                           "and is noisy on short bursts")
+    return out
+
+
+def outside_fraction(signals: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(S,) fraction of samples of each signal column outside ``[lo, hi]`` (NaN counts outside)."""
+    s = np.asarray(signals, dtype=np.float64)
+    if s.shape[0] == 0:
+        return np.zeros(s.shape[1])
+    inside = (s >= np.asarray(lo)[None, :]) & (s <= np.asarray(hi)[None, :])
+    return 1.0 - inside.mean(axis=0)
+
+
+def extrapolation_warnings(fractions: dict[str, float], ranges: dict[str, tuple[float, float]]
+                           ) -> list[str]:
+    """One sentence per signal whose test samples lie outside the trained range."""
+    out = []
+    for sig, frac in fractions.items():
+        if frac >= OUTSIDE_RANGE_WARN:
+            lo, hi = ranges.get(sig, (float("nan"), float("nan")))
+            out.append(f"extrapolation: {frac:.0%} of the test samples of {sig} lie outside the "
+                       f"trained range {lo:.4g} … {hi:.4g}; the models clamp there, so those "
+                       "samples get the drift at the range's edge")
+    return out
