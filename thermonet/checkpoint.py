@@ -237,8 +237,7 @@ def _check_payload(path: Path, p: dict) -> None:
             raise InputError(f"{at(f'extra.test_metrics.{axis}')}: expected a mapping")
         for k, v in values.items():
             check_name(k, SIGNAL, at(f"extra.test_metrics.{axis}"))
-            if v is not None:
-                _number(v, at(f"extra.test_metrics.{axis}.{k}"))
+            _metric(v, at(f"extra.test_metrics.{axis}.{k}"))
 
 
 def _check_target_buffers(path: Path, model: DriftModel) -> None:
@@ -257,6 +256,34 @@ def _check_target_buffers(path: Path, model: DriftModel) -> None:
     for name in ("y_offset", "y_ref", "sig_ref"):
         if not bool(torch.isfinite(getattr(model, name).detach()).all()):
             raise InputError.at(path, f"buffer '{name}' holds a non-finite value")
+
+
+_VERDICT_WORDS = ("better", "worse", "indistinguishable")
+
+
+def _metric(value: Any, where: str) -> None:
+    """A test metric of results.json: a number, an interval (two numbers), a verdict word,
+    the ``compensate`` flag, a verdict against the baseline (a mapping of those) or null."""
+    if value is None or isinstance(value, bool):
+        return
+    if isinstance(value, str):
+        if value not in _VERDICT_WORDS:
+            raise InputError(f"{where}: {value!r} is not a verdict "
+                             f"({', '.join(_VERDICT_WORDS)})")
+        return
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise InputError(f"{where}: expected an interval of two numbers")
+        for i, v in enumerate(value):
+            _number(v, f"{where}[{i}]")
+        return
+    if isinstance(value, dict):
+        for k, v in value.items():
+            if k not in ("ratio", "interval", "verdict"):
+                raise InputError(f"{where}: unexpected key {str(k)[:40]!r}")
+            _metric(v, f"{where}.{k}")
+        return
+    _number(value, where)
 
 
 def _number(value: Any, where: str) -> None:
