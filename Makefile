@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/thermonet compare configs/default.yaml --out runs/demo
+	$(VENV)/bin/thermonet compare configs/default.yaml --out runs/demo --overwrite
 
 # the report test renders report.html in a real headless browser (Debian's chromium)
 chromium:

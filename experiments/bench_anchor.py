@@ -48,7 +48,7 @@ def main() -> None:
         FamilyConfig(family="rbf", name="rbf-rate", inputs=["dT", "dT2", "rate"],
                      params={"n_centres": 16}),
     ], baseline="px4")
-    res = run_compare(cfg, OUT / "anchor", track=False, quiet=True, dataset=ds)
+    res = run_compare(cfg, OUT / "anchor", overwrite=True, track=False, quiet=True, dataset=ds)
     rows = []
     for name, fam in res["families"].items():
         for axis, m in fam["axes"].items():

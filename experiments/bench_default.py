@@ -32,7 +32,8 @@ def main() -> None:
         store.mkdir(parents=True)
         t0 = time.perf_counter()
         uri = f"sqlite:///{store / 'mlflow.db'}"
-        res = run_compare(load_config(CONFIG), out, tracking_uri=uri, quiet=True)
+        res = run_compare(load_config(CONFIG), out, overwrite=True, tracking_uri=uri,
+                          quiet=True)
         walls.append(time.perf_counter() - t0)
         shutil.rmtree(store, ignore_errors=True)
     wall = spread(walls)

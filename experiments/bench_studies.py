@@ -72,12 +72,14 @@ def main() -> None:
         cfg = load_config(CONFIGS / f"{study}.yaml")
         ds = load_data(cfg.data)
         t0 = time.perf_counter()
-        res = run_compare(cfg, OUT / "studies" / study, track=False, quiet=True, dataset=ds)
+        res = run_compare(cfg, OUT / "studies" / study, overwrite=True, track=False,
+                          quiet=True, dataset=ds)
         seconds = time.perf_counter() - t0
         chosen = res["chosen"]
         entry = {"seconds": seconds, "chosen": chosen, "families": {}}
         if cfg.target == "drift":
-            oracle = run_compare(cfg, OUT / "studies" / f"{study}-noise-free", track=False,
+            oracle = run_compare(cfg, OUT / "studies" / f"{study}-noise-free",
+                                 overwrite=True, track=False,
                                  quiet=True, dataset=noise_free(ds))
             bi = test_noise_instability(ds, cfg)
         for name, fam in res["families"].items():

@@ -43,6 +43,8 @@ import argparse
 import csv
 import json
 import math
+import re
+import stat
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -320,6 +322,57 @@ def _check_dynamic(block: Any, signals: list[str], path: Path) -> dict[str, Any]
     return block
 
 
+# The runtime's own copy of thermonet.names (it imports neither torch nor thermonet):
+# metadata is read from a file, so every name is checked before it is used or printed.
+_AXIS = re.compile(r"(?=.{1,64}\Z)[a-z][a-z0-9]*_[a-z0-9]+(?:\.bias|\.scale)?")
+_SIGNAL = re.compile(r"[A-Za-z][A-Za-z0-9_.]{0,63}")
+_FAMILY = re.compile(r"[a-z?][a-z0-9_-]{0,31}")
+_UNIT = re.compile(r"[A-Za-z0-9°µμΩ%/^._-]{0,32}")
+
+
+def _meta_name(value: Any, pattern: re.Pattern[str], key: str, path: Path) -> str:
+    if not isinstance(value, str) or pattern.fullmatch(value) is None:
+        text = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
+        raise RuntimeInputError(f"{path}: metadata '{key}': {text} is not a valid name")
+    return value
+
+
+def _meta_names(meta: Mapping[str, str], key: str, pattern: re.Pattern[str],
+                path: Path) -> list[str]:
+    values = _meta_json(meta, key, path)
+    if not isinstance(values, list) or not values:
+        raise RuntimeInputError(f"{path}: metadata '{key}' is not a non-empty list of names")
+    names = [_meta_name(v, pattern, key, path) for v in values]
+    if len(set(names)) != len(names):
+        raise RuntimeInputError(f"{path}: metadata '{key}' names one entry twice")
+    return names
+
+
+def _meta_units(meta: Mapping[str, str], key: str, pattern: re.Pattern[str],
+                path: Path) -> dict[str, str]:
+    units = _meta_json(meta, key, path) if key in meta else {}
+    if not isinstance(units, dict):
+        raise RuntimeInputError(f"{path}: metadata '{key}' is not a mapping name -> unit")
+    return {_meta_name(k, pattern, key, path): _meta_name(v, _UNIT, key, path)
+            for k, v in units.items()}
+
+
+def _meta_ranges(meta: Mapping[str, str], path: Path) -> dict[str, list[float]]:
+    ranges = _meta_json(meta, "trained_range", path)
+    if not isinstance(ranges, dict):
+        raise RuntimeInputError(f"{path}: metadata 'trained_range' is not a mapping")
+    out: dict[str, list[float]] = {}
+    for name, pair in ranges.items():
+        _meta_name(name, _SIGNAL, "trained_range", path)
+        ok = isinstance(pair, list) and len(pair) == 2 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in pair)
+        if not ok or not pair[0] <= pair[1]:
+            raise RuntimeInputError(f"{path}: metadata 'trained_range' of '{name}' is "
+                                    f"{pair!r}, expected [low, high] with low <= high")
+        out[name] = [float(pair[0]), float(pair[1])]
+    return out
+
+
 class Compensator:
     """A loaded thermonet model, checked before its first use.
 
@@ -345,8 +398,7 @@ class Compensator:
     def __init__(self, path: str | Path, *, providers: Sequence[str] = ("CPUExecutionProvider",),
                  threads: int = 1) -> None:
         self.path = Path(path)
-        if not self.path.is_file():
-            raise RuntimeInputError(f"{self.path}: no such model file")
+        _check_regular(self.path, "model file")
         if int(threads) < 1:
             raise RuntimeInputError(f"threads must be >= 1, got {threads}")
         options = ort.SessionOptions()
@@ -383,12 +435,12 @@ class Compensator:
         if opset not in SUPPORTED_OPSETS:
             raise RuntimeInputError(f"{path}: ONNX opset {opset} is not supported "
                                     f"(supports {SUPPORTED_OPSETS[0]}..{SUPPORTED_OPSETS[-1]})")
-        self.family: str = meta.get("family", "?")
-        self.signals: list[str] = list(_meta_json(meta, "signals", path))
-        self.outputs: list[str] = list(_meta_json(meta, "outputs", path))
-        self.trained_range: dict[str, list[float]] = dict(_meta_json(meta, "trained_range", path))
-        self.signal_units: dict[str, str] = dict(json.loads(meta.get("signal_units", "{}")))
-        self.output_units: dict[str, str] = dict(json.loads(meta.get("output_units", "{}")))
+        self.family: str = _meta_name(meta.get("family", "?"), _FAMILY, "family", path)
+        self.signals: list[str] = _meta_names(meta, "signals", _SIGNAL, path)
+        self.outputs: list[str] = _meta_names(meta, "outputs", _AXIS, path)
+        self.trained_range: dict[str, list[float]] = _meta_ranges(meta, path)
+        self.signal_units: dict[str, str] = _meta_units(meta, "signal_units", _SIGNAL, path)
+        self.output_units: dict[str, str] = _meta_units(meta, "output_units", _AXIS, path)
         if not self.signals or not self.outputs:
             raise RuntimeInputError(f"{path}: metadata lists no signals or no outputs")
         block = _meta_json(meta, "dynamic_inputs", path) if "dynamic_inputs" in meta else None
@@ -658,16 +710,43 @@ def time_batch(compensator: Compensator, batch_size: int = 1000, *, repeats: int
 
 
 # -- command line -----------------------------------------------------------------------------
+def _check_regular(path: Path, what: str) -> None:
+    """Refuse a missing path, a directory, a FIFO or a device by what it is (a FIFO would block)."""
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise RuntimeInputError(f"{path}: no such {what}") from None
+    except OSError as exc:
+        raise RuntimeInputError(f"{path}: cannot read ({exc.strerror})") from None
+    if stat.S_ISDIR(mode):
+        raise RuntimeInputError(f"{path}: is a directory, not a {what}")
+    if not stat.S_ISREG(mode):
+        kind = "a FIFO" if stat.S_ISFIFO(mode) else "a device" if (
+            stat.S_ISCHR(mode) or stat.S_ISBLK(mode)) else "not a regular file"
+        raise RuntimeInputError(f"{path}: is {kind}, not a {what}")
+
+
 def _read_csv(
     path: Path, needed: list[str]
 ) -> tuple[list[str], list[list[str]], dict[str, np.ndarray]]:
+    _check_regular(path, "CSV file")
     try:
-        with path.open(newline="") as fh:
-            rows = list(csv.reader(fh))
+        data = path.read_bytes()
     except OSError as exc:
         raise RuntimeInputError(f"{path}: cannot read ({exc.strerror})") from None
+    if data.startswith(b"\xef\xbb\xbf"):
+        raise RuntimeInputError(f"{path}: starts with a UTF-8 byte-order mark; save it as plain "
+                                "UTF-8 CSV without BOM")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise RuntimeInputError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    rows = list(csv.reader(text.splitlines()))
     if not rows:
         raise RuntimeInputError(f"{path}: empty file (expected a header row)")
+    if len(rows[0]) == 1 and ";" in rows[0][0]:
+        raise RuntimeInputError(f"{path}: the header is separated by ';'; this runtime reads "
+                                "comma-separated CSV")
     header = [h.strip() for h in rows[0]]
     body = [r for r in rows[1:] if any(c.strip() for c in r)]
     for name in needed:

@@ -87,7 +87,7 @@ def test_loading_a_non_checkpoint_is_an_input_error(tmp_path):
     torch.save({"state_dict": {}}, tmp_path / "partial.pt")
     with pytest.raises(InputError, match="missing family"):
         load_checkpoint(tmp_path / "partial.pt")
-    with pytest.raises(InputError, match="no such checkpoint"):
+    with pytest.raises(InputError, match="checkpoint file not found"):
         load_checkpoint(tmp_path / "missing.pt")
 
 

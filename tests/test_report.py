@@ -55,7 +55,7 @@ def report(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("report")
     path = write_parquet(toy_dataset(n_runs=3), tmp / "toy.parquet")
     fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
-            FamilyConfig(family="linear", name="<linear & co>")]  # a name that needs escaping
+            FamilyConfig(family="linear", name="linear.co-1")]  # markup in names is refused (names.py)
     cfg = CompareConfig(data=DataConfig(paths=[str(path)]), families=fams,
                         train=TrainConfig(max_epochs=15, patience=4), baseline="cubic")
     res = run_compare(cfg, tmp / "out", track=False, quiet=True)
@@ -81,7 +81,7 @@ def test_report_is_one_self_contained_page(report):
     assert f"better {cubic['score_ratio']:.3g} [{lo:.3g}, {hi:.3g}]" in page.cells
     text = path.read_text(encoding="utf-8")
     assert f"background:{VERDICT_COLOURS['better']}" in text
-    assert "&lt;linear &amp; co&gt;" in text and "<linear & co>" not in text
+    assert "linear.co-1" in text
     assert "Chosen: <b>cubic</b>" in text
 
 

@@ -183,7 +183,9 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str) -> di
         ],
         tracking=TrackingConfig(enabled=False), baseline=fw)
     ds = inst.to_dataset(source).validate(source)
-    res = run_compare(cfg, out, track=False, quiet=True, dataset=ds)
+    # calibrate rewrites its own DIR on a re-run: a previous comparison of this instance is
+    # replaced (once the new one is complete); a non-empty directory that is not one is refused
+    res = run_compare(cfg, out, overwrite=True, track=False, quiet=True, dataset=ds)
     fams = res["families"]
     summary: dict[str, Any] = {"dir": str(out), "chosen": res.get("chosen"),
                                "chosen_reason": res.get("chosen_reason"), "firmware_family": fw,

@@ -21,10 +21,24 @@ from typing import Any
 import numpy as np
 import torch
 
-from .errors import ConfigError, ExportError, InputError
+from .errors import ConfigError, ExportError, InputError, ThermonetError
 from .features import FeatureSpec
-from .fileio import atomic_path
+from .fileio import atomic_path, not_a_file
 from .models import DriftModel, build_family
+from .names import (
+    AXIS,
+    FAMILY,
+    FEATURE,
+    HASH,
+    LABEL,
+    RUN_ID,
+    SIGNAL,
+    TEXT_ID,
+    check_finite,
+    check_name,
+    check_names,
+    check_units,
+)
 
 __all__ = ["save_checkpoint", "load_checkpoint", "CHECKPOINT_FORMAT"]
 
@@ -124,8 +138,9 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
         Missing/unreadable file or a payload that is not a thermonet checkpoint.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError.at(path, "no such checkpoint file")
+    why = not_a_file(path, "checkpoint file")
+    if why:
+        raise InputError.at(path, why)
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises several unrelated types for a bad file
@@ -137,19 +152,148 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
     if payload.get("format", CHECKPOINT_FORMAT) != CHECKPOINT_FORMAT:
         raise InputError.at(path, f"checkpoint format {payload.get('format')!r}; this thermonet "
                             f"reads format {CHECKPOINT_FORMAT}")
+    _check_payload(path, payload)
     try:
         spec = FeatureSpec.from_dict({**payload["spec"], "inputs": payload["inputs"]},
                                      source="spec")
     except ConfigError as err:
         raise InputError.at(path, str(err)) from None
-    family = build_family(payload["family"], n_inputs=len(payload["inputs"]),
-                          n_outputs=len(payload["outputs"]), hyper=payload["hyper"])
-    model = DriftModel(family=family, spec=spec, outputs=payload["outputs"])
+    try:
+        family = build_family(payload["family"], n_inputs=len(payload["inputs"]),
+                              n_outputs=len(payload["outputs"]), hyper=payload["hyper"])
+        model = DriftModel(family=family, spec=spec, outputs=payload["outputs"])
+    except (ThermonetError, TypeError, ValueError) as err:  # the names passed, the combination not
+        raise InputError.at(path, f"key 'family'/'hyper'/'inputs': {err}") from None
+    if list(model.signals) != list(payload["signals"]):
+        raise InputError.at(path, f"key 'signals': {payload['signals']} do not match the inputs "
+                            f"{payload['inputs']} (expected {list(model.signals)})")
     try:
         model.load_state_dict(payload["state_dict"], strict=True)
     except RuntimeError as err:
         raise InputError.at(path, "parameters do not match the stored family "
                             f"'{payload['family']}' ({str(err).splitlines()[0]})") from err
+    lo, hi = model.sig_lo.detach(), model.sig_hi.detach()
+    bad = torch.isnan(lo) | torch.isnan(hi) | (lo > hi)
+    if bool(bad.any()):
+        j = int(torch.nonzero(bad)[0, 0])
+        raise InputError.at(path, f"trained range of signal '{model.signals[j]}' is "
+                            f"[{float(lo[j]):g}, {float(hi[j]):g}] (low must be <= high)")
+    _check_target_buffers(path, model)
     model.eval()
     meta = {k: v for k, v in payload.items() if k != "state_dict"}
     return model, meta
+
+
+def _check_payload(path: Path, p: dict) -> None:
+    """Every name and value of a loaded payload against :mod:`thermonet.names`.
+
+    A checkpoint is data from a file, not code: its strings reach generated C
+    source and ONNX metadata, so each is checked with the rule it was created
+    under before anything is built from it.
+    """
+    def at(key: str) -> str:
+        return f"{path}: key '{key}'"
+
+    check_name(p["family"], FAMILY, at("family"))
+    check_names(p["inputs"], FEATURE, at("inputs"))
+    check_names(p["signals"], SIGNAL, at("signals"))
+    check_names(p["outputs"], AXIS, at("outputs"))
+    if not isinstance(p["hyper"], dict):
+        raise InputError(f"{at('hyper')}: expected a mapping, got {type(p['hyper']).__name__}")
+    spec = p["spec"]
+    # t_ref and proxy_ref, plus the dynamic-input constants (checked against their
+    # definitions by FeatureSpec.from_dict) and, in newer files, the inputs again
+    if (not isinstance(spec, dict) or not {"t_ref", "proxy_ref"} <= set(spec)
+            or not set(spec) <= {"t_ref", "proxy_ref", "dynamic", "inputs"}):
+        raise InputError(f"{at('spec')}: expected a mapping with t_ref and proxy_ref "
+                         "(and optionally the dynamic-input constants)")
+    if spec["t_ref"] is not None:
+        check_finite(spec["t_ref"], at("spec.t_ref"))
+    if not isinstance(spec["proxy_ref"], dict):
+        raise InputError(f"{at('spec.proxy_ref')}: expected a mapping signal -> number")
+    for name, value in spec["proxy_ref"].items():
+        check_name(name, SIGNAL, at("spec.proxy_ref"))
+        check_finite(value, at(f"spec.proxy_ref.{name}"))
+    if not isinstance(p["config"], dict):
+        raise InputError(f"{at('config')}: expected a mapping")
+    if not isinstance(p["state_dict"], dict):
+        raise InputError(f"{at('state_dict')}: expected a mapping name -> tensor")
+    if p["epoch"] is not None and (isinstance(p["epoch"], bool) or not isinstance(p["epoch"], int)):
+        raise InputError(f"{at('epoch')}: {p['epoch']!r} is not an integer")
+    if p["best_val"] is not None:
+        check_finite(p["best_val"], at("best_val"))
+    extra = p["extra"]
+    if not isinstance(extra, dict):
+        raise InputError(f"{at('extra')}: expected a mapping")
+    for key, pattern in (("label", LABEL), ("device_id", TEXT_ID), ("data_hash", HASH),
+                         ("mlflow_run_id", RUN_ID)):
+        if extra.get(key) not in (None, ""):
+            check_name(extra[key], pattern, at(f"extra.{key}"))
+    if "units" in extra:
+        check_units(extra["units"], AXIS, at("extra.units"))
+    if "signal_units" in extra:
+        check_units(extra["signal_units"], SIGNAL, at("extra.signal_units"))
+    if extra.get("val_score") is not None:
+        _number(extra["val_score"], at("extra.val_score"))
+    metrics = extra.get("test_metrics", {})
+    if not isinstance(metrics, dict):
+        raise InputError(f"{at('extra.test_metrics')}: expected a mapping axis -> metrics")
+    for axis, values in metrics.items():
+        check_name(axis, AXIS, at("extra.test_metrics"))
+        if not isinstance(values, dict):
+            raise InputError(f"{at(f'extra.test_metrics.{axis}')}: expected a mapping")
+        for k, v in values.items():
+            check_name(k, SIGNAL, at(f"extra.test_metrics.{axis}"))
+            _metric(v, at(f"extra.test_metrics.{axis}.{k}"))
+
+
+def _check_target_buffers(path: Path, model: DriftModel) -> None:
+    """Target buffers read from the file: known mode codes, a 0/1 mask, finite constants."""
+    from .target import MODE_CODES
+
+    codes = model.target_code.tolist()
+    bad = [c for c in codes if c not in MODE_CODES.values()]
+    if bad:
+        raise InputError.at(path, f"buffer 'target_code' holds {bad[0]}, not a target mode code "
+                            f"({', '.join(f'{v} {k}' for k, v in MODE_CODES.items())})")
+    mask = model.compensate.detach()
+    if not bool(((mask == 0) | (mask == 1)).all()):
+        raise InputError.at(path, f"buffer 'compensate' is {mask.tolist()}, expected 0 or 1 per "
+                            "axis")
+    for name in ("y_offset", "y_ref", "sig_ref"):
+        if not bool(torch.isfinite(getattr(model, name).detach()).all()):
+            raise InputError.at(path, f"buffer '{name}' holds a non-finite value")
+
+
+_VERDICT_WORDS = ("better", "worse", "indistinguishable")
+
+
+def _metric(value: Any, where: str) -> None:
+    """A test metric of results.json: a number, an interval (two numbers), a verdict word,
+    the ``compensate`` flag, a verdict against the baseline (a mapping of those) or null."""
+    if value is None or isinstance(value, bool):
+        return
+    if isinstance(value, str):
+        if value not in _VERDICT_WORDS:
+            raise InputError(f"{where}: {value!r} is not a verdict "
+                             f"({', '.join(_VERDICT_WORDS)})")
+        return
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise InputError(f"{where}: expected an interval of two numbers")
+        for i, v in enumerate(value):
+            _number(v, f"{where}[{i}]")
+        return
+    if isinstance(value, dict):
+        for k, v in value.items():
+            if k not in ("ratio", "interval", "verdict"):
+                raise InputError(f"{where}: unexpected key {str(k)[:40]!r}")
+            _metric(v, f"{where}.{k}")
+        return
+    _number(value, where)
+
+
+def _number(value: Any, where: str) -> None:
+    """A metric: any real number (NaN/inf included: a metric may be undefined)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(f"{where}: {value!r} is not a number")

@@ -2,19 +2,23 @@
 
 Exit codes: 0 success, 1 bad input (file, column, config key or value — one
 line on stderr naming it), 2 usage error (argparse), 3 (``fleet`` only) some
-unit failed its limits or could not be calibrated.
+unit failed its limits or could not be calibrated, 130 interrupted by
+SIGINT (Ctrl-C), 143 terminated by SIGTERM.  An interrupted command prints
+one line, not a traceback; its open MLflow runs are ended as KILLED and a
+comparison's ``--out`` is left as it was (see :mod:`thermonet.outdir`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from . import __version__
-from .errors import ThermonetError
+from .errors import Interrupted, ThermonetError
 
 __all__ = ["main", "build_parser"]
 
@@ -24,7 +28,11 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from .logs import is_log
     from .sim import simulate, simulate_fleet
     from .sim.fcboard import BOARD_PRESETS
+    from .sim.presets import MAX_RUNS
 
+    if args.runs is not None and not 1 <= args.runs <= MAX_RUNS:
+        raise ThermonetError(f"--runs {args.runs}: not in 1..{MAX_RUNS} (the upper bound keeps "
+                             "a request within memory)")
     if args.preset in BOARD_PRESETS or is_log(args.out):
         return _simulate_board(args)
     if args.units is None and args.outliers:
@@ -127,7 +135,8 @@ def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
                                  f"{', '.join(f.label for f in cfg.families)})")
         cfg.families = fams
         cfg.baseline = None
-    results = run_compare(cfg, args.out, track=False if args.no_track else None,
+    results = run_compare(cfg, args.out, overwrite=args.overwrite,
+                          track=False if args.no_track else None,
                           tracking_uri=args.tracking_uri, quiet=args.quiet,
                           plots=not args.no_plots)
     if not args.quiet:
@@ -241,7 +250,11 @@ def build_parser() -> argparse.ArgumentParser:
     i.set_defaults(func=_cmd_info)
 
     def tracking_args(q: argparse.ArgumentParser) -> None:
-        q.add_argument("--out", required=True, help="output directory")
+        q.add_argument("--out", required=True, help="output directory (created whole when the "
+                                                    "comparison finishes)")
+        q.add_argument("--overwrite", action="store_true",
+                       help="replace a previous comparison in --out (removed only once the new "
+                            "one is complete)")
         q.add_argument("--no-track", action="store_true", help="do not record the run in MLflow")
         q.add_argument("--tracking-uri", default=None,
                        help="MLflow tracking URI (default sqlite:///mlflow.db in the working dir)")
@@ -322,17 +335,36 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _raise_interrupted(signum: int, frame: object) -> None:
+    raise Interrupted(signum)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    installed, previous = False, None
+    try:
+        # SIGTERM unwinds like Ctrl-C (finally blocks run, runs end KILLED, staging removed).
+        previous = signal.signal(signal.SIGTERM, _raise_interrupted)
+        installed = True
+    except ValueError:  # not the main thread (an embedding application): leave signals alone
+        pass
     try:
         return int(args.func(args))
+    except (KeyboardInterrupt, Interrupted) as err:
+        signum = err.signum if isinstance(err, Interrupted) else int(signal.SIGINT)
+        print(f"thermonet: interrupted by {signal.Signals(signum).name}; stopped (outputs are "
+              "written whole or not at all)", file=sys.stderr)
+        return 128 + signum
     except ThermonetError as err:
         print(f"thermonet: error: {err}", file=sys.stderr)
         return 1
     except OSError as err:  # a path that cannot be read or written: one line, not a traceback
         print(f"thermonet: error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
         return 1
+    finally:
+        if installed:  # None: a handler not set from Python; the default is the closest
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 if __name__ == "__main__":

@@ -482,17 +482,38 @@ def _extrapolation(fitted: dict[str, _Fitted], result: ComparisonResult) -> None
         result.warn(w)
 
 
-def run_compare(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None = None,
-                tracking_uri: str | None = None, quiet: bool = False,
-                progress: Progress | None = None, dataset: Dataset | None = None,
-                plots: bool = True) -> dict[str, Any]:
+def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = False,
+                track: bool | None = None, tracking_uri: str | None = None,
+                quiet: bool = False, progress: Progress | None = None,
+                dataset: Dataset | None = None, plots: bool = True) -> dict[str, Any]:
     """Fit every family of ``cfg``, judge on held-out data, write ``out_dir``; return results.
 
     ``dataset`` replaces the configured data (benchmarks feed variants of one
     simulation this way); the config's ``data`` section is then ignored.
     ``plots=False`` writes no PNG files (the report then has no figures).
     Returns the ``results.json`` document (:meth:`ComparisonResult.to_json`).
+
+    The output appears whole or not at all (:mod:`thermonet.outdir`): it is
+    built in a staging directory beside ``out_dir`` and moved into place when
+    complete; ``results.json`` records each checkpoint's SHA-256.  A non-empty
+    ``out_dir`` that is not a complete comparison is refused; a previous
+    comparison is replaced only with ``overwrite=True``.
     """
+    from .outdir import staged_output
+
+    with staged_output(out_dir, overwrite=overwrite) as stage:
+        results = _run_compare_in(cfg, stage.path, track=track, tracking_uri=tracking_uri,
+                                  quiet=quiet, progress=progress, dataset=dataset,
+                                  plots=plots)
+        stage.finish(results, lambda doc: doc)
+    return results
+
+
+def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None = None,
+                    tracking_uri: str | None = None, quiet: bool = False,
+                    progress: Progress | None = None, dataset: Dataset | None = None,
+                    plots: bool = True) -> dict[str, Any]:
+    """The comparison itself, written into ``out_dir`` (a staging directory)."""
     from .checkpoint import save_checkpoint
     from .tracking import Tracker
     from .verdicts import LEVEL, MIN_BLOCKS, RESAMPLES, SEED, apply_compensate_mask

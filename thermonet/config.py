@@ -19,8 +19,9 @@ from typing import Any, Literal, Union
 import yaml
 
 from .errors import ConfigError
+from .fileio import not_a_file
 from .trainconfig import TrainConfig  # the ``train`` section is TrainConfig itself
-from .yamlio import DuplicateKeyError, load_yaml
+from .yamlio import YamlRefusal, load_yaml
 
 __all__ = [
     "DataConfig", "SplitConfig", "FeatureConfig", "FamilyConfig", "TrainConfig",
@@ -255,20 +256,35 @@ def to_dict(obj: Any) -> Any:
 
 
 def load_config(path: str | Path | None) -> CompareConfig:
-    """Load a comparison config; ``None`` gives the built-in default (the simulator)."""
+    """Load a comparison config and check all of it; ``None`` gives the built-in default.
+
+    Everything a config can get wrong is found here, before any data is read,
+    any directory created or anything logged: unknown keys and wrong types
+    (every family's ``train:`` overrides included), family names that are not
+    safe file names (:data:`thermonet.names.LABEL`), duplicate names or
+    inputs, unknown families, inputs or hyper-parameters, and a ``baseline``
+    that names no family, and a ``target`` mode that does not exist (whether
+    a ``target`` key names an output is checked against the data, once read).
+    An empty file is an error (it would otherwise run the built-in simulator
+    comparison without a word); only *no* config argument runs the default.
+    """
     if path is None:
         return CompareConfig()
     p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"{p}: config file not found")
+    why = not_a_file(p, "config file")
+    if why:
+        raise ConfigError(f"{p}: {why}")
     try:
         data = load_yaml(p)
-    except DuplicateKeyError as err:
+    except YamlRefusal as err:
         raise ConfigError(f"{p}: {err}") from None
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
         raise ConfigError(f"{p}:{where} not valid YAML ({getattr(err, 'problem', err)})") from None
+    if data is None:
+        raise ConfigError(f"{p}: empty config file (give at least one section; run "
+                          "'thermonet compare' without a config for the built-in default)")
     cfg = from_dict(CompareConfig, data, source=str(p))
     labels = [f.label for f in cfg.families]
     dup = sorted({x for x in labels if labels.count(x) > 1})
@@ -279,6 +295,11 @@ def load_config(path: str | Path | None) -> CompareConfig:
     if not cfg.families:
         raise ConfigError(f"{p}: key 'families': empty list (need at least one family)")
     check_families(cfg, source=str(p))
+    _check_data(cfg.data, str(p))
+    _check_target(cfg.target, str(p))
+    if data.get("baseline") is not None and cfg.baseline not in labels:  # the default may lapse
+        raise ConfigError(f"{p}: key 'baseline': no family named {cfg.baseline!r} (families: "
+                          f"{', '.join(labels)})")
     from .fleetstats import parse_limits
 
     parse_limits(cfg.limits, source=str(p))
@@ -294,9 +315,18 @@ def check_families(cfg: CompareConfig, *, source: str = "config") -> None:
     """
     from .features import signals_for
     from .models import build_family
+    from .names import LABEL
 
     for i, fam in enumerate(cfg.families):
         key = f"families[{i}]"
+        if LABEL.fullmatch(fam.label) is None:  # the label names models/<label>.pt
+            raise ConfigError(f"{source}: key '{key}.name': {fam.label[:60]!r} is not a safe "
+                              "family name (letters, digits, '_', '.', '-', not starting with "
+                              "'.' or '-', at most 64 characters)")
+        if len(set(fam.inputs)) != len(fam.inputs):
+            raise ConfigError(f"{source}: key '{key}.inputs': {fam.inputs} names an input twice")
+        from_dict(TrainConfig, {**to_dict(cfg.train), **fam.train}, source=source,
+                  prefix=f"{key}.train")
         try:
             signals_for(fam.inputs)
         except ConfigError as err:
@@ -311,3 +341,28 @@ def check_families(cfg: CompareConfig, *, source: str = "config") -> None:
         if family.max_inputs is not None and len(fam.inputs) > family.max_inputs:
             raise ConfigError(f"{source}: key '{key}.inputs': family '{fam.family}' takes "
                               f"{family.max_inputs} input(s), got {fam.inputs}")
+
+
+def _check_data(data: DataConfig, source: str) -> None:
+    """Bounds of the ``data`` section that need no data: run count, seed."""
+    from .sim.presets import MAX_RUNS
+
+    if data.runs is not None and not 1 <= data.runs <= MAX_RUNS:
+        raise ConfigError(f"{source}: key 'data.runs': {data.runs} is not in 1..{MAX_RUNS} "
+                          "(the upper bound keeps a request within memory)")
+    if data.seed < 0:
+        raise ConfigError(f"{source}: key 'data.seed': {data.seed} is negative")
+
+
+def _check_target(target: str | dict[str, str], source: str) -> None:
+    """The ``target`` section's modes (its keys name outputs: checked once the data are read)."""
+    from .target import MODES
+
+    if not isinstance(target, dict):
+        return  # a Literal: already checked by from_dict
+    for key, mode in target.items():
+        if not isinstance(key, str) or not key:
+            raise ConfigError(f"{source}: key 'target': {key!r} is not an output or kind name")
+        if mode not in MODES:
+            raise ConfigError(f"{source}: key 'target.{key[:64]}': {mode!r} is not one of "
+                              f"{', '.join(MODES)}")

@@ -7,7 +7,8 @@ row where it applies.  The CLI prints ``str(err)`` and exits with status 1.
 
 from __future__ import annotations
 
-__all__ = ["ThermonetError", "InputError", "ConfigError", "FitError", "ExportError"]
+__all__ = ["ThermonetError", "InputError", "ConfigError", "FitError", "ExportError",
+           "Interrupted"]
 
 
 class ThermonetError(ValueError):
@@ -42,3 +43,18 @@ class FitError(ThermonetError):
 
 class ExportError(ThermonetError):
     """An export that was refused (NaN model, failed parity check, wrong family)."""
+
+
+class Interrupted(BaseException):
+    """SIGINT/SIGTERM reached a command: unwinds like ``KeyboardInterrupt`` (not an error).
+
+    A ``BaseException`` so that no ``except Exception`` swallows it; the CLI
+    prints one line and exits ``128 + signum`` (130 for SIGINT, 143 for
+    SIGTERM); open MLflow runs are ended as KILLED on the way out.
+    """
+
+    def __init__(self, signum: int) -> None:
+        import signal
+
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "atomic_write_text"]
+__all__ = ["atomic_path", "atomic_write_text", "not_a_file"]
 
 
 def _umask() -> int:
@@ -24,19 +24,26 @@ def atomic_path(path: str | os.PathLike, *, make_parents: bool = True) -> Iterat
     Whatever the body writes to the temporary path (and whatever it checks
     there: parity, schema) becomes ``path`` only if the body finishes without
     an exception; otherwise the temporary file is removed and an existing file
-    at ``path`` is left untouched.  The result gets the usual permissions
+    at ``path`` is left untouched.  An ``OSError`` creating or renaming the
+    temporary file names ``path`` (the user's ``--out``), not the hidden name.  The result gets the usual permissions
     (0666 less the umask), not ``mkstemp``'s private 0600.
     """
     path = Path(path)
     if make_parents:
         path.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as err:  # name the file the user asked for, not the hidden temporary one
+        raise type(err)(err.errno, err.strerror, str(path)) from None
     os.close(fd)
     tmp = Path(name)
     try:
         yield tmp
         os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as err:
+            raise type(err)(err.errno, err.strerror, str(path)) from None
     finally:
         tmp.unlink(missing_ok=True)
 
@@ -46,3 +53,29 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return Path(path)
+
+
+def not_a_file(path: str | os.PathLike, what: str = "file") -> str | None:
+    """Why ``path`` cannot be read as a regular file, or None when it can.
+
+    Says what the path is — ``<what> not found``, ``is a directory``, ``is a
+    FIFO``, ``is a device`` — instead of a misleading "file not found"; a FIFO
+    is refused before it is opened (reading one would block).
+    """
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return f"{what} not found"
+    except OSError as err:
+        return f"cannot read ({err.strerror or err})"
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISDIR(mode):
+        return f"is a directory, not a {what}"
+    if stat.S_ISFIFO(mode):
+        return f"is a FIFO, not a {what}"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return f"is a device, not a {what}"
+    return f"is not a regular file, not a {what}"

@@ -51,7 +51,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from .errors import InputError
-from .fileio import atomic_path
+from .fileio import atomic_path, not_a_file
 from .mapping import ChannelSpec, ColumnMapping, TimeSpec, default_unit, load_mapping
 from .recording import OUTPUT_NAME, Dataset, Recording
 
@@ -209,8 +209,9 @@ def _read_one(path: Path, mapping: ColumnMapping | None
             raise InputError.at(path, "a flight-controller log is read with no mapping")
         ds = read_log_instance(path)
         return list(ds.runs), dict(ds.meta), None
-    if not path.is_file():
-        raise InputError.at(path, "file not found")
+    why = not_a_file(path)
+    if why:
+        raise InputError.at(path, why)
     fmt = mapping.format if mapping is not None else "auto"
     ext = path.suffix.lower()
     if fmt == "auto":
@@ -250,10 +251,10 @@ def _from_thermonet_table(path: Path, table: pa.Table, blob: bytes
                           ) -> tuple[list[Recording], dict[str, str]]:
     try:
         info = json.loads(blob)
-        version = int(info["version"])
-        entries = list(info["runs"])
-    except (ValueError, KeyError, TypeError) as err:
-        raise InputError.at(path, f"corrupt '{METADATA_KEY}' metadata ({err})") from err
+    except (ValueError, UnicodeDecodeError) as err:
+        raise InputError.at(path, f"corrupt '{METADATA_KEY}' metadata (not JSON: {err})") from None
+    entries = _check_blob(path, info)
+    version = info["version"]
     if version > FORMAT_VERSION:
         raise InputError.at(path, f"format version {version} is newer than this thermonet "
                             f"reads ({FORMAT_VERSION}); upgrade thermonet")
@@ -276,6 +277,8 @@ def _from_thermonet_table(path: Path, table: pa.Table, blob: bytes
             if name not in table.column_names:
                 raise InputError.at(path, f"missing column (run '{e['run_id']}' lists it)",
                                     column=name)
+            if pa.types.is_boolean(table.schema.field(name).type):
+                raise InputError.at(path, "a boolean column, not a measurement", column=name)
             values = table.column(name).to_numpy(zero_copy_only=False)[idx]
             return _check_finite(path, name, np.asarray(values, dtype=np.float64), rows, None)
 
@@ -288,6 +291,68 @@ def _from_thermonet_table(path: Path, table: pa.Table, blob: bytes
             sensor_kind=e["sensor_kind"], run_id=e["run_id"],
             sample_rate_hz=e["sample_rate_hz"], meta=dict(e["meta"])))
     return runs, dict(info.get("meta", {}))
+
+
+#: Highest sample rate accepted from a file's metadata (Hz); absurd values are corrupt files.
+MAX_SAMPLE_RATE_HZ = 1e6
+
+
+def _check_blob(path: Path, info: Any) -> list[dict[str, Any]]:
+    """Every field of the ``thermonet`` metadata blob, by type and rule; return the run entries.
+
+    A Parquet file is input: each value is checked before use and a bad one
+    is named (``runs[0].units``), never a traceback.
+    """
+    from .names import AXIS, SIGNAL, TEXT_ID, UNIT, check_finite, check_name
+
+    def bad(key: str, why: str) -> InputError:
+        return InputError.at(path, f"corrupt '{METADATA_KEY}' metadata: field '{key}': {why}")
+
+    if not isinstance(info, dict):
+        raise bad("<top>", f"expected a mapping, got {type(info).__name__}")
+    for key in ("version", "runs"):
+        if key not in info:
+            raise bad(key, "missing")
+    if isinstance(info["version"], bool) or not isinstance(info["version"], int):
+        raise bad("version", f"{info['version']!r} is not an integer")
+    if not isinstance(info["runs"], list) or not info["runs"]:
+        raise bad("runs", "expected a non-empty list of runs")
+    if not isinstance(info.get("meta", {}), dict):
+        raise bad("meta", "expected a mapping")
+    need = ("run_id", "device_id", "sensor_kind", "sample_rate_hz", "meta", "units",
+            "temperature") + _GROUPS
+    for i, e in enumerate(info["runs"]):
+        at = f"runs[{i}]"
+        if not isinstance(e, dict):
+            raise bad(at, "expected a mapping")
+        for key in need:
+            if key not in e:
+                raise bad(f"{at}.{key}", "missing")
+        for key in ("run_id", "device_id"):
+            check_name(e[key], TEXT_ID, f"{path}: '{METADATA_KEY}' metadata field '{at}.{key}'")
+        if e["sensor_kind"] is not None and not isinstance(e["sensor_kind"], str):
+            raise bad(f"{at}.sensor_kind", f"{e['sensor_kind']!r} is not a string")
+        if e["sample_rate_hz"] is not None:
+            check_finite(e["sample_rate_hz"], f"{path}: '{METADATA_KEY}' metadata field "
+                         f"'{at}.sample_rate_hz' (Hz, > 0)", low=1e-9, high=MAX_SAMPLE_RATE_HZ)
+        if not isinstance(e["temperature"], bool):
+            raise bad(f"{at}.temperature", f"{e['temperature']!r} is not true or false")
+        if not isinstance(e["meta"], dict):
+            raise bad(f"{at}.meta", "expected a mapping")
+        for group in _GROUPS:
+            names = e[group]
+            if not isinstance(names, list):
+                raise bad(f"{at}.{group}", f"expected a list of channel names, got {names!r}")
+            for name in names:
+                check_name(name, AXIS if group == "outputs" else SIGNAL,
+                           f"{path}: '{METADATA_KEY}' metadata field '{at}.{group}'")
+        units = e["units"]
+        if not isinstance(units, dict):
+            raise bad(f"{at}.units", f"expected a mapping channel -> unit, got {units!r}")
+        for name, unit in units.items():
+            check_name(name, SIGNAL, f"{path}: '{METADATA_KEY}' metadata field '{at}.units'")
+            check_name(unit, UNIT, f"{path}: '{METADATA_KEY}' metadata field '{at}.units.{name}'")
+    return list(info["runs"])
 
 
 # ----------------------------------------------------------- text parsing
@@ -427,6 +492,8 @@ def _apply_mapping(frame: _Frame, mapping: ColumnMapping) -> tuple[list[Recordin
         if label in values:
             continue
         cells = frame.data[label]
+        if pd.api.types.is_bool_dtype(cells):  # True/False read as 1/0 would be a silent guess
+            raise InputError.at(path, "a boolean column, not a measurement", column=str(label))
         if pd.api.types.is_datetime64_any_dtype(cells) or pd.api.types.is_timedelta64_dtype(cells):
             # a timestamp column: seconds since its first sample, whatever its own unit
             # (to_numeric would give µs or ns counts that a 'unit: s' then misreads)

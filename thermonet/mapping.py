@@ -57,8 +57,10 @@ from typing import Any
 import yaml
 
 from .errors import ConfigError, InputError
+from .fileio import not_a_file
+from .names import TEXT_ID
 from .recording import KNOWN_UNITS, OUTPUT_NAME
-from .yamlio import DuplicateKeyError, load_yaml
+from .yamlio import YamlRefusal, load_yaml
 
 __all__ = [
     "MappingError",
@@ -77,7 +79,7 @@ TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "
 #: Values of the ``format`` key.
 FORMATS = ("auto", "csv", "tsv", "parquet")
 _MALFORMED = ("error", "skip")
-_CHANNEL_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+_CHANNEL_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,63}")  # fullmatch: no trailing newline
 _RESERVED = ("time_s", "run", "device")
 
 
@@ -190,11 +192,12 @@ class ColumnMapping:
 def load_mapping(path: str | Path) -> ColumnMapping:
     """Read and check a YAML mapping file."""
     path = Path(path)
-    if not path.is_file():
-        raise MappingError.at(path, "mapping file not found")
+    why = not_a_file(path, "mapping file")
+    if why:
+        raise MappingError.at(path, why)
     try:
         raw = load_yaml(path)
-    except DuplicateKeyError as err:
+    except YamlRefusal as err:
         raise MappingError.at(path, str(err)) from None
     except yaml.YAMLError as err:
         line = getattr(getattr(err, "problem_mark", None), "line", None)
@@ -295,6 +298,9 @@ class _Parser:
         for key in ("device_id", "sensor_kind", "run_id"):
             if raw.get(key) is not None:
                 kw[key] = str(self.typed(key, raw[key], (str, int, float), "a string"))
+                if TEXT_ID.fullmatch(kw[key]) is None:  # it reaches results, metadata, exports
+                    raise self.fail(key, f"{kw[key]!r} is not printable text of 1 to 128 "
+                                    "characters")
         meta = raw.get("meta") or {}
         self.typed("meta", meta, (dict,), "a mapping of strings")
         kw["meta"] = {str(k): str(v) for k, v in meta.items()}
@@ -325,7 +331,8 @@ class _Parser:
         out = []
         for name, spec in raw.items():
             key = f"channels.{name}"
-            if not isinstance(name, str) or not _CHANNEL_NAME.match(name) or name in _RESERVED:
+            if not isinstance(name, str) or not _CHANNEL_NAME.fullmatch(name) \
+                    or name in _RESERVED:
                 raise self.fail(key, "invalid channel name (letters, digits, '_'; "
                                 "not 'time_s', 'run' or 'device')")
             if not isinstance(spec, dict):

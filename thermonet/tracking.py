@@ -7,7 +7,25 @@ Metric keys are namespaced: ``train/loss``, ``val/loss`` per epoch;
 ``test/<axis>/<metric>`` at the end.  ``--no-track`` gives a :class:`Tracker`
 whose methods do nothing; ``--tracking-uri`` points at a team server.
 
-Open the runs with ``mlflow ui --backend-store-uri sqlite:///mlflow.db``.
+Open the runs with ``mlflow ui --backend-store-uri sqlite:///mlflow.db`` (it
+binds to 127.0.0.1 unless given ``--host``).
+
+Robustness (issue 9):
+
+* Interrupted runs: a run interrupted by SIGINT/SIGTERM (the CLI turns both
+  into :class:`~thermonet.errors.Interrupted` / ``KeyboardInterrupt``) is
+  ended as ``KILLED``; any other exception ends it ``FAILED``.
+* Runs left ``RUNNING`` by a process that died without unwinding (SIGKILL,
+  power cut): every run is tagged ``thermonet.host`` and ``thermonet.pid``; when
+  a :class:`Tracker` opens a store it marks ``KILLED`` every ``RUNNING`` run of
+  its experiment tagged with *this* host whose process no longer exists
+  (:func:`tidy_orphaned_runs`, also callable by hand).  Runs of other hosts
+  are left alone (their processes cannot be checked from here); a reused pid
+  keeps a dead run ``RUNNING`` until that pid is gone too.
+* Concurrent processes on a new SQLite store: creating the store (schema
+  migrations) and the experiment is serialised by an ``fcntl`` lock on
+  ``<db>.lock`` beside the database, and writes are retried briefly on
+  SQLite's ``database is locked``.
 """
 
 from __future__ import annotations
@@ -17,12 +35,21 @@ import logging
 import math
 import os
 import re
-from collections.abc import Iterator, Mapping
+import socket
+import time
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Tracker", "default_tracking_uri", "flatten_params"]
+from .errors import Interrupted
+
+__all__ = ["Tracker", "default_tracking_uri", "flatten_params", "tidy_orphaned_runs"]
+
+#: Tags identifying the process that owns a run (for :func:`tidy_orphaned_runs`).
+HOST_TAG, PID_TAG = "thermonet.host", "thermonet.pid"
+#: Attempts and first pause (doubled each time) when SQLite says ``database is locked``.
+_LOCK_RETRIES, _LOCK_PAUSE_S = 8, 0.1
 
 _log = logging.getLogger(__name__)
 
@@ -36,6 +63,78 @@ def default_tracking_uri(workdir: str | Path | None = None) -> str:
     """``sqlite:///<workdir>/mlflow.db`` (absolute, so a later ``cd`` does not move it)."""
     root = Path(workdir or os.getcwd()).resolve()
     return f"sqlite:///{root / 'mlflow.db'}"
+
+
+def _retry(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+    """Call ``fn``, retrying briefly while SQLite reports ``database is locked``."""
+    for attempt in range(_LOCK_RETRIES):
+        try:
+            return fn(*args, **kwargs)
+        except Exception as err:  # noqa: BLE001 - MLflow wraps SQLAlchemy's OperationalError
+            if "database is locked" not in str(err) or attempt == _LOCK_RETRIES - 1:
+                raise
+            time.sleep(_LOCK_PAUSE_S * 2 ** attempt)
+    raise AssertionError("unreachable")
+
+
+@contextmanager
+def _store_lock(uri: str) -> Iterator[None]:
+    """An exclusive ``fcntl`` lock on ``<db>.lock`` for a SQLite URI (nothing otherwise)."""
+    if not uri.startswith("sqlite:///"):
+        yield
+        return
+    import fcntl
+
+    lock = Path(uri[len("sqlite:///"):] + ".lock")
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    with open(lock, "a") as fh:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def tidy_orphaned_runs(uri: str | None = None, experiment: str = "thermonet") -> list[str]:
+    """Mark ``KILLED`` the runs left ``RUNNING`` by dead thermonet processes of this host.
+
+    Returns the ids of the runs it ended.  Called by :class:`Tracker` when it
+    opens a store; call it by hand to tidy a store without running anything::
+
+        python -c "from thermonet.tracking import tidy_orphaned_runs as t; print(t())"
+    """
+    import mlflow
+
+    client = mlflow.MlflowClient(tracking_uri=uri or default_tracking_uri())
+    exp = client.get_experiment_by_name(experiment)
+    if exp is None:
+        return []
+    host = socket.gethostname()
+    ended = []
+    runs = client.search_runs([exp.experiment_id], filter_string=(
+        f"attributes.status = 'RUNNING' and tags.`{HOST_TAG}` = '{host}'"), max_results=1000)
+    for run in runs:
+        try:
+            pid = int(run.data.tags.get(PID_TAG, ""))
+        except ValueError:
+            continue
+        if pid != os.getpid() and not _pid_alive(pid):
+            _retry(client.set_terminated, run.info.run_id, "KILLED")
+            ended.append(run.info.run_id)
+    if ended:
+        _log.warning("marked %d run(s) KILLED: left RUNNING by dead process(es) on %s",
+                     len(ended), host)
+    return ended
 
 
 def flatten_params(data: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
@@ -82,13 +181,21 @@ class Tracker:
             logging.getLogger("mlflow").setLevel(logging.WARNING)
             logging.getLogger("alembic").setLevel(logging.WARNING)
             mlflow.set_tracking_uri(self.uri)
-            if mlflow.get_experiment_by_name(self.experiment) is None:
-                artifact_location = None
-                if self.uri.startswith("sqlite:///"):
-                    store = Path(self.uri[len("sqlite:///"):])
-                    artifact_location = (store.parent / "mlruns").resolve().as_uri()
-                mlflow.create_experiment(self.experiment, artifact_location=artifact_location)
-            mlflow.set_experiment(self.experiment)
+            # Two processes creating a new SQLite store at once race in its schema
+            # migrations ("table already exists"): one creates, the other waits.
+            with _store_lock(self.uri):
+                if _retry(mlflow.get_experiment_by_name, self.experiment) is None:
+                    artifact_location = None
+                    if self.uri.startswith("sqlite:///"):
+                        store = Path(self.uri[len("sqlite:///"):])
+                        artifact_location = (store.parent / "mlruns").resolve().as_uri()
+                    _retry(mlflow.create_experiment, self.experiment,
+                           artifact_location=artifact_location)
+            _retry(mlflow.set_experiment, self.experiment)
+            try:
+                tidy_orphaned_runs(self.uri, self.experiment)
+            except Exception as err:  # noqa: BLE001 - tidying is best effort, never fatal
+                _log.warning("could not tidy orphaned runs: %s", str(err).splitlines()[0])
             self._mlflow = mlflow
         return self._mlflow
 
@@ -101,12 +208,25 @@ class Tracker:
             yield None
             return
         mlflow = self._client()
-        with mlflow.start_run(run_name=name, nested=nested) as active:
+        active = _retry(mlflow.start_run, run_name=name, nested=nested,
+                        tags={HOST_TAG: socket.gethostname(), PID_TAG: str(os.getpid())})
+        # Not ``with start_run``: its exit ends whichever run is active as FAILED, which
+        # after an interrupted nested run would be the parent.
+        status = "FINISHED"
+        try:
             if params:
-                mlflow.log_params(flatten_params(params))
+                _retry(mlflow.log_params, flatten_params(params))
             if tags:
-                mlflow.set_tags({k: str(v) for k, v in tags.items()})
+                _retry(mlflow.set_tags, {k: str(v) for k, v in tags.items()})
             yield active.info.run_id
+        except (KeyboardInterrupt, Interrupted):
+            status = "KILLED"
+            raise
+        except BaseException:
+            status = "FAILED"
+            raise
+        finally:
+            _retry(mlflow.end_run, status)
 
     def log_history(self, history: list[Mapping[str, float]]) -> None:
         """Per-epoch losses, sent in batches (one call per 1000 values, not one per epoch)."""
@@ -126,10 +246,10 @@ class Tracker:
                 if value is not None and math.isfinite(value):
                     batch.append(Metric(name, float(value), now, step))
             if len(batch) >= 900:
-                client.log_batch(run_id, metrics=batch)
+                _retry(client.log_batch, run_id, metrics=batch)
                 batch = []
         if batch:
-            client.log_batch(run_id, metrics=batch)
+            _retry(client.log_batch, run_id, metrics=batch)
 
     def log_metrics(self, metrics: Mapping[str, float]) -> None:
         """Final metrics; non-finite values are skipped (MLflow cannot store NaN usefully)."""
@@ -138,12 +258,12 @@ class Tracker:
         clean = {k: float(v) for k, v in metrics.items()
                  if isinstance(v, (int, float)) and math.isfinite(float(v))}
         if clean:
-            self._client().log_metrics(clean)
+            _retry(self._client().log_metrics, clean)
 
     def set_tags(self, tags: Mapping[str, Any]) -> None:
         if self.enabled:
-            self._client().set_tags({k: str(v) for k, v in tags.items()})
+            _retry(self._client().set_tags, {k: str(v) for k, v in tags.items()})
 
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
         if self.enabled:
-            self._client().log_artifact(str(path), artifact_path=artifact_path)
+            _retry(self._client().log_artifact, str(path), artifact_path=artifact_path)

@@ -1,4 +1,16 @@
-"""Strict YAML for config and mapping files: a repeated key is an error, not a silent override."""
+"""Strict YAML for every YAML file thermonet reads (configs, column mappings).
+
+One loader, YAML's safe loader, with two refusals made at parse time:
+
+* a repeated key in one mapping is an error, not a silent override;
+* anchors and aliases (``&a`` / ``*a``) are refused.  A config or a mapping
+  never needs them, and 630 bytes of chained aliases (a "billion laughs"
+  bomb) expand to gigabytes: the composer stops at the first anchor, before
+  anything is expanded.
+
+Both raise a :class:`YamlRefusal` (a ``ValueError``) whose message names the
+1-based line; callers add the file name.
+"""
 
 from __future__ import annotations
 
@@ -7,19 +19,39 @@ from typing import Any
 
 import yaml
 
-__all__ = ["load_yaml", "DuplicateKeyError"]
+__all__ = ["load_yaml", "YamlRefusal", "DuplicateKeyError", "AliasError"]
 
 
-class DuplicateKeyError(ValueError):
-    """A mapping in the YAML file names the same key twice (``line`` is 1-based)."""
+class YamlRefusal(ValueError):
+    """A YAML construct thermonet refuses (``line`` is 1-based)."""
+
+    def __init__(self, message: str, line: int) -> None:
+        super().__init__(f"{message} (line {line})")
+        self.line = line
+
+
+class DuplicateKeyError(YamlRefusal):
+    """A mapping in the YAML file names the same key twice."""
 
     def __init__(self, key: str, line: int) -> None:
-        super().__init__(f"key '{key}' given twice (line {line})")
-        self.key, self.line = key, line
+        super().__init__(f"key '{key}' given twice", line)
+        self.key = key
+
+
+class AliasError(YamlRefusal):
+    """An anchor or alias: refused so that no file can expand into a bomb."""
 
 
 class _StrictLoader(yaml.SafeLoader):
-    pass
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        event = self.peek_event()
+        if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None) is not None:
+            kind = "alias" if isinstance(event, yaml.AliasEvent) else "anchor"
+            sign = "*" if kind == "alias" else "&"
+            raise AliasError(f"YAML {kind} '{sign}{event.anchor}' refused (thermonet reads no "
+                             "anchors or aliases; write the value out)",
+                             event.start_mark.line + 1)
+        return super().compose_node(parent, index)
 
 
 def _mapping(loader: _StrictLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
@@ -36,13 +68,20 @@ _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _m
 
 
 def load_yaml(path: str | Path) -> Any:
-    """Parse ``path`` with YAML's safe loader, refusing duplicate keys.
+    """Parse ``path`` with YAML's safe loader, refusing duplicate keys, anchors and aliases.
 
     Raises
     ------
     yaml.YAMLError
         Not valid YAML.
-    DuplicateKeyError
-        A key repeated in one mapping.
+    YamlRefusal
+        A key repeated in one mapping (:class:`DuplicateKeyError`), an anchor
+        or alias (:class:`AliasError`), or a file that is not UTF-8 text.
     """
-    return yaml.load(Path(path).read_text(encoding="utf-8"), Loader=_StrictLoader)  # noqa: S506
+    data = Path(path).read_bytes()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = data[:err.start].count(b"\n") + 1
+        raise YamlRefusal(f"not UTF-8 text (byte {err.start})", line) from None
+    return yaml.load(text, Loader=_StrictLoader)  # noqa: S506

@@ -72,6 +72,7 @@ from .. import __version__
 from ..errors import ExportError
 from ..fileio import atomic_path
 from ..models import DriftModel
+from ..names import AXIS, SIGNAL, TEXT_ID, check_model_names, check_name, check_units
 
 __all__ = [
     "THERMONET_FORMAT",
@@ -224,9 +225,25 @@ def _json(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=float)
 
 
+def _check_metadata(model: DriftModel, meta: Mapping[str, Any]) -> None:
+    """Names and provenance strings by :mod:`thermonet.names` before they enter the file.
+
+    Structured values are JSON-encoded; plain strings (device id, run id, data
+    hash) are stored as they are, which is safe because they were checked here.
+    """
+    check_model_names(model, error=ExportError)
+    for key in ("device_id", "training_run_id", "data_hash"):
+        if meta.get(key) not in (None, ""):
+            check_name(meta[key], TEXT_ID, f"ONNX metadata '{key}'", error=ExportError)
+    for key, names in (("signal_units", SIGNAL), ("output_units", AXIS)):
+        if meta.get(key):
+            check_units(meta[key], names, f"ONNX metadata '{key}'", error=ExportError)
+
+
 def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: str
                     ) -> dict[str, str]:
     meta = dict(metadata)
+    _check_metadata(model, meta)
     spec = getattr(model, "spec", None)
     t_ref = getattr(spec, "t_ref", None)
     proxy_ref = getattr(spec, "proxy_ref", {}) or {}

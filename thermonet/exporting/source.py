@@ -9,12 +9,17 @@ SOURCE is one of
   artifact is downloaded from the tracking store).
 
 The ONNX file is also logged to the training run (as an artifact and as an
-MLflow ONNX model) when the checkpoint names one and the store is reachable.
+MLflow ONNX model) when the checkpoint names one and the store is reachable —
+the store named by ``--tracking-uri``, ``MLFLOW_TRACKING_URI`` or the working
+directory's ``mlflow.db``, never a URI read from the checkpoint.  A compare
+directory's checkpoint is verified against the SHA-256 in its
+``results.json`` before it is loaded.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import re
 import tempfile
 from pathlib import Path
@@ -29,32 +34,54 @@ if TYPE_CHECKING:
 __all__ = ["resolve_checkpoint", "export_source", "write_onnx", "write_c", "write_px4_params",
            "write_ardupilot_params"]
 
-_RUN_ID = re.compile(r"^[0-9a-f]{32}$")
+_RUN_ID = re.compile(r"[0-9a-f]{32}")
 
 
 def _from_compare_dir(path: Path, family: str | None) -> Path:
+    """The checkpoint of a family of a compare directory, verified against ``results.json``.
+
+    The checkpoint is always ``<dir>/models/<family>.pt`` (the path recorded
+    in ``results.json`` is informational: a file does not choose what else is
+    read), and its SHA-256 must equal ``checkpoint_sha256`` recorded when the
+    comparison was written.
+    """
+    from ..names import LABEL, check_name
+    from ..outdir import sha256_file
+
     results_file = path / "results.json"
     if not results_file.is_file():
         raise InputError(f"{path}: not a compare output directory (no results.json)")
     try:
-        results = json.loads(results_file.read_text())
+        results = json.loads(results_file.read_text(encoding="utf-8"))
     except json.JSONDecodeError as err:
         raise InputError(f"{results_file}: not valid JSON ({err.msg}, line {err.lineno})") from None
-    fams = results.get("families", {})
+    except UnicodeDecodeError as err:
+        raise InputError(f"{results_file}: not UTF-8 text (byte {err.start})") from None
+    fams = results.get("families") if isinstance(results, dict) else None
+    if not isinstance(fams, dict) or not all(isinstance(v, dict) for v in fams.values()):
+        raise InputError(f"{results_file}: key 'families': not a mapping of family results")
+    listed = ", ".join(str(k)[:64] for k in fams)
     name = family or results.get("chosen")
     if name is None:
         raise ExportError(f"{results_file}: the comparison chose no family "
-                          f"({results.get('chosen_reason', 'do no harm')}); pass --family NAME "
-                          f"to export one anyway (families: {', '.join(fams)})")
+                          f"({str(results.get('chosen_reason', 'do no harm'))[:200]}); pass "
+                          f"--family NAME to export one anyway (families: {listed})")
+    check_name(name, LABEL, f"{results_file}: key 'chosen'" if family is None else "--family")
     if name not in fams:
-        raise InputError(f"{results_file}: no family '{name}' (families: {', '.join(fams)})")
-    ckpt = fams[name].get("checkpoint")
-    if not ckpt:
+        raise InputError(f"{results_file}: no family '{name}' (families: {listed})")
+    if not fams[name].get("checkpoint"):
         raise ExportError(f"{results_file}: family '{name}' has no checkpoint "
-                          f"({fams[name].get('reason') or 'not fitted'})")
-    p = Path(ckpt)
-    if not p.is_absolute() and not p.is_file():
-        p = path / "models" / p.name  # the directory was moved: look beside results.json
+                          f"({str(fams[name].get('reason') or 'not fitted')[:200]})")
+    p = path / "models" / f"{name}.pt"
+    if not p.is_file():
+        raise InputError(f"{p}: checkpoint listed in {results_file} is missing")
+    recorded = fams[name].get("checkpoint_sha256")
+    if not isinstance(recorded, str) or not recorded:
+        raise ExportError(f"{results_file}: family '{name}' records no checkpoint_sha256, so "
+                          f"{p} cannot be verified (written by an older thermonet? re-run compare)")
+    if sha256_file(p) != recorded:
+        raise ExportError(f"{p}: content does not match the SHA-256 in {results_file} (replaced "
+                          "or modified after the comparison); refusing to export it")
     return p
 
 
@@ -63,7 +90,7 @@ def _from_run_id(run_id: str, tracking_uri: str | None, workdir: Path) -> Path:
 
     from ..tracking import default_tracking_uri
 
-    uri = tracking_uri or default_tracking_uri()
+    uri = tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
     client = mlflow.MlflowClient(tracking_uri=uri)
     try:
         arts = [a.path for a in client.list_artifacts(run_id, "model")]
@@ -86,7 +113,11 @@ def resolve_checkpoint(source: str, *, family: str | None = None,
         return _from_compare_dir(p, family)
     if p.is_file():
         return p
-    if _RUN_ID.match(source):
+    if p.exists():  # a FIFO, a device: say what it is (and never open a FIFO)
+        from ..fileio import not_a_file
+
+        raise InputError(f"{source}: {not_a_file(p, 'checkpoint file')}")
+    if _RUN_ID.fullmatch(source):
         return _from_run_id(source, tracking_uri, workdir or Path(tempfile.mkdtemp()))
     raise InputError(f"{source}: no such compare directory, checkpoint file or MLflow run id")
 
@@ -158,14 +189,20 @@ def write_ardupilot_params(model: DriftModel, out: Path, request: ExportRequest)
 
 
 def _log_to_run(path: Path, run_id: str, tracking_uri: str | None, meta: dict) -> None:
-    """Log the ONNX file to its training run; a store that is gone is reported, not fatal."""
+    """Log the ONNX file to its training run; a store that is gone is reported, not fatal.
+
+    The store is the one the user names (``--tracking-uri``, else
+    ``MLFLOW_TRACKING_URI``, else ``sqlite:///mlflow.db`` in the working
+    directory), never the URI recorded in the checkpoint's config.
+    """
     import logging
 
     from ..tracking import default_tracking_uri
     from .onnx_export import log_onnx_to_mlflow
 
-    uri = tracking_uri or (meta.get("config", {}).get("tracking", {}) or {}).get("uri") \
-        or default_tracking_uri()
+    # Only where the user says: the flag, MLFLOW_TRACKING_URI, or the working directory's store.
+    # Never a URI stored in the checkpoint: a file must not choose where thermonet connects.
+    uri = tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
     try:
         log_onnx_to_mlflow(path, run_id, uri)
     except Exception as err:  # noqa: BLE001 - the file is written; tracking is best effort here

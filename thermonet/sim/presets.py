@@ -269,6 +269,28 @@ def get_preset(name: str) -> SimConfig:
     return PRESETS[key]
 
 
+#: Bounds of one simulation request: what it may allocate is known before it starts, so an
+#: absurd request (100,000 runs) is refused at once with the reason, not after a minute of
+#: swapping.  50 M samples × (time, temperature, outputs, truth) is a few GB at most.
+MAX_RUNS = 1000
+MAX_SAMPLES = 50_000_000
+
+
+def _check_request_size(cfg: SimConfig, n_runs: int) -> None:
+    if n_runs > MAX_RUNS:
+        raise ConfigError(f"runs={n_runs} is above the limit of {MAX_RUNS} runs per simulation "
+                          "(bounded so that a request cannot exhaust memory)")
+    fs = float(cfg.sample_rate_hz)
+    if not fs > 0 or not cfg.procedures:
+        return  # simulate_run says why
+    total = sum(int(np.floor(cfg.procedures[i % len(cfg.procedures)].duration_s * fs)) + 1
+                for i in range(n_runs))
+    if total > MAX_SAMPLES:
+        raise ConfigError(f"{n_runs} runs of preset '{cfg.name}' are {total:,} samples, above the "
+                          f"limit of {MAX_SAMPLES:,} per simulation (bounded so that a request "
+                          "cannot exhaust memory)")
+
+
 def simulate(preset: str | SimConfig, *, runs: int | None = None, seed: int = 0,
              **overrides: object) -> Dataset:
     """Simulate a device's thermal test as a :class:`~thermonet.recording.Dataset`.
@@ -291,6 +313,7 @@ def simulate(preset: str | SimConfig, *, runs: int | None = None, seed: int = 0,
     n_runs = cfg.default_runs if runs is None else int(runs)
     if n_runs < 1:
         raise ConfigError(f"runs must be at least 1, got {runs!r}")
+    _check_request_size(cfg, n_runs)
     recs = [simulate_run(cfg, i, seed)[0] for i in range(n_runs)]
     return Dataset(runs=recs, meta={"preset": cfg.name, "seed": str(seed), "source": "simulator"})
 
