@@ -122,18 +122,22 @@ class DynamicInput:
     name: str
     kind: ClassVar[str] = ""
     unit: ClassVar[str] = "degC"
+    #: Name of the field holding the recurrence's one constant (``tau_s``, ``half_width_c``).
+    param_key: ClassVar[str] = ""
 
     @property
     def signal(self) -> str:
-        raise NotImplementedError
+        return f"{self.name}_c"
 
     @property
     def param(self) -> float:
         """The one constant of the recurrence (τ in s, or w in °C)."""
-        raise NotImplementedError
+        return float(getattr(self, self.param_key))
 
     def constants(self) -> dict[str, Any]:
-        raise NotImplementedError
+        """What the model stores and every mirror (runtime, C) reads back."""
+        return {"name": self.name, "kind": self.kind, "signal": self.signal,
+                "unit": self.unit, self.param_key: getattr(self, self.param_key)}
 
     def from_state(self, temperature: np.ndarray, e: np.ndarray) -> np.ndarray:
         raise NotImplementedError
@@ -146,18 +150,11 @@ class Rate(DynamicInput):
     tau_s: float = RATE_TAU_S
     kind: ClassVar[str] = "rate"
     unit: ClassVar[str] = "degC/min"
+    param_key: ClassVar[str] = "tau_s"
 
     @property
     def signal(self) -> str:
         return "rate_c_per_min" if self.name == "rate" else f"{self.name}_c_per_min"
-
-    @property
-    def param(self) -> float:
-        return self.tau_s
-
-    def constants(self) -> dict[str, Any]:
-        return {"name": self.name, "kind": self.kind, "signal": self.signal,
-                "unit": self.unit, "tau_s": self.tau_s}
 
 
 @dataclass(frozen=True)
@@ -166,18 +163,7 @@ class Lag(DynamicInput):
 
     tau_s: float = RATE_TAU_S
     kind: ClassVar[str] = "lag"
-
-    @property
-    def signal(self) -> str:
-        return f"{self.name}_c"
-
-    @property
-    def param(self) -> float:
-        return self.tau_s
-
-    def constants(self) -> dict[str, Any]:
-        return {"name": self.name, "kind": self.kind, "signal": self.signal,
-                "unit": self.unit, "tau_s": self.tau_s}
+    param_key: ClassVar[str] = "tau_s"
 
 
 @dataclass(frozen=True)
@@ -186,18 +172,7 @@ class Play(DynamicInput):
 
     half_width_c: float = 0.5
     kind: ClassVar[str] = "play"
-
-    @property
-    def signal(self) -> str:
-        return f"{self.name}_c"
-
-    @property
-    def param(self) -> float:
-        return self.half_width_c
-
-    def constants(self) -> dict[str, Any]:
-        return {"name": self.name, "kind": self.kind, "signal": self.signal,
-                "unit": self.unit, "half_width_c": self.half_width_c}
+    param_key: ClassVar[str] = "half_width_c"
 
 
 def _positive(name: str, text: str) -> float:
