@@ -151,6 +151,16 @@ def _check_length(name: str, arr: np.ndarray, n: int, against: str) -> None:
         raise ValueError(f"'{name}' has {arr.shape[0]} samples, '{against}' has {n}")
 
 
+def _residuals(compensated: Mapping[str, np.ndarray], n: int, against: str
+               ) -> dict[str, np.ndarray]:
+    """Each family's residual as a checked 1-D series of ``n`` samples (as long as ``against``)."""
+    out = {}
+    for name, r in compensated.items():
+        out[name] = _series(f"compensated['{name}']", r)
+        _check_length(f"compensated['{name}']", out[name], n, against)
+    return out
+
+
 def _new_figure() -> tuple[Figure, Axes]:
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI)
     FigureCanvasAgg(fig)
@@ -319,10 +329,7 @@ def plot_residual_vs_time(path: str | Path, *, time_s: np.ndarray, raw_error: np
     t = _series("time_s", time_s)
     raw = _series("raw_error", raw_error)
     _check_length("raw_error", raw, t.size, "time_s")
-    residuals = {}
-    for name, r in compensated.items():
-        residuals[name] = _series(f"compensated['{name}']", r)
-        _check_length(f"compensated['{name}']", residuals[name], t.size, "time_s")
+    residuals = _residuals(compensated, t.size, "time_s")
     colours = colours or family_colours(list(residuals))
     hours = _hours(t)
     fig, ax = _new_figure()
@@ -389,9 +396,8 @@ def plot_residual_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
         bx, by = _binned(t, raw, bin_width)
         ax.plot(bx, by, "o-", color=_RAW_BINNED_COLOR, markersize=3, linewidth=1.2, zorder=6,
                 label="raw output error (binned means)")
-    for i, (name, r) in enumerate(compensated.items()):
-        y = _centred(_series(f"compensated['{name}']", r))
-        _check_length(f"compensated['{name}']", y, t.size, "temperature_c")
+    for i, (name, r) in enumerate(_residuals(compensated, t.size, "temperature_c").items()):
+        y = _centred(r)
         style = _style(name, colours, chosen, baseline, i)
         if name == chosen:
             ax.scatter(t[keep], y[keep], s=3, color=style["color"], alpha=0.15, linewidths=0,
