@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ThermonetError
-from .fileio import atomic_write_text
+from .fileio import _umask, atomic_write_text
 
 __all__ = ["staged_output", "is_comparison", "sha256_file", "Stage"]
 
@@ -87,12 +87,6 @@ class Stage:
                 fam["checkpoint"] = str(self.out / "models" / Path(staged).name)
         atomic_write_text(self.path / "results.json", json.dumps(clean(results), indent=2))
         self.finished = True
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 @contextmanager
