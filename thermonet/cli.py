@@ -304,7 +304,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "ArduPilot DataFlash log (.bin) in the autopilot's own form "
                                    "and side by side with thermonet's families, judge on "
                                    "held-out blocks, write px4.params or ardupilot.parm, "
-                                   "results.json and report.txt to --out.")
+                                   "results.json, report.html and report.txt to --out.")
     k.add_argument("log", help="flight-controller log recorded while the board warmed")
     k.add_argument("--out", required=True, help="output directory")
     k.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")

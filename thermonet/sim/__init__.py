@@ -53,31 +53,31 @@ Realistic presets (what real chamber data does; no study to reproduce):
 
 from .chamber import Approach, ChamberProfile, Ramp, Soak, cycle, staircase
 from .device import (
-                     AxisConfig,
-                     HysteresisConfig,
-                     LawSum,
-                     Lorentz,
-                     NoiseConfig,
-                     Polynomial,
-                     ProxyConfig,
-                     RateTermConfig,
-                     SelfHeatingConfig,
-                     Sinusoid,
-                     ThermalConfig,
-                     ThermometerConfig,
-                     UnitSpreadConfig,
+    AxisConfig,
+    HysteresisConfig,
+    LawSum,
+    Lorentz,
+    NoiseConfig,
+    Polynomial,
+    ProxyConfig,
+    RateTermConfig,
+    SelfHeatingConfig,
+    Sinusoid,
+    ThermalConfig,
+    ThermometerConfig,
+    UnitSpreadConfig,
 )
 from .fleet import simulate_fleet, unit_seed
 from .fourpos import four_position_estimates
 from .presets import (
-                     PRESETS,
-                     RunTruth,
-                     SimConfig,
-                     Switches,
-                     TableConfig,
-                     get_preset,
-                     simulate,
-                     simulate_run,
+    PRESETS,
+    RunTruth,
+    SimConfig,
+    Switches,
+    TableConfig,
+    get_preset,
+    simulate,
+    simulate_run,
 )
 
 __all__ = [
