@@ -148,15 +148,6 @@ def sources_from_simulation(preset: str, *, units: int, runs: int | None = None,
 
 
 # ------------------------------------------------------------------ workers
-def _outputs(ds: Dataset, cfg: CompareConfig) -> list[str]:
-    from .evaluate import FOURPOS_SUFFIXES
-
-    axes = cfg.data.outputs or ds.axes
-    if cfg.target == "four-position":
-        return [f"{a}{s}" for a in axes for s in FOURPOS_SUFFIXES]
-    return list(axes)
-
-
 def _family(cfg: CompareConfig, label: str) -> FamilyConfig:
     return next(f for f in cfg.families if f.label == label)
 
@@ -266,10 +257,10 @@ class _FoldItem:
 def _fold_task(item: _FoldItem) -> dict[str, Any]:
     """Fit one fleet model of the fleet family on other units' calibration runs, and
     evaluate it on each held-out unit's test run next to the unit's own model."""
-    from .config import from_dict
+    from .compare import _outputs, _train_config  # the same outputs and train section as a unit's
     from .evaluate import build_part, make_splits, targets_for
     from .features import FeatureSpec, reference_values, resolve_gap_s
-    from .train import TrainConfig, fit
+    from .train import fit
 
     cfg, fam = item.cfg, _family(item.cfg, item.family)
     train, val = [], []
@@ -299,8 +290,7 @@ def _fold_task(item: _FoldItem) -> dict[str, Any]:
     fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=outputs,
                  train=[(p.signals, p.target) for p in tparts], val=v, spec=spec,
                  hyper=dict(fam.params),
-                 config=from_dict(TrainConfig, {**to_dict(cfg.train), **fam.train},
-                                  source="config", prefix=f"families[{fam.label}].train"))
+                 config=_train_config(cfg, fam))
     evaluations = {}
     for src, own in item.held_out:  # one unit's data at a time
         test = _test_part(cfg, src.load(), own)
