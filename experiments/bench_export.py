@@ -110,24 +110,33 @@ def _consts(model) -> dict:
         fam = model.family
         m, b = fam.exponent()
         # the target normalisation and mask folded in, as in the graph; the float64
-        # constant joins in float32 here (the graph adds it in float64)
+        # constant is added in float64, as in the graph (``c64``)
         w, c = fam.output_layer(*model.output_scaling())
-        c = c + model.constant().float()
         g = fam.inv_two_sigma2()
         out = {"lo": model.sig_lo, "hi": model.sig_hi, "ref": model.features.ref,
                "mean": model.x_mean, "inv_std": 1.0 / model.x_std, "m": m, "b": b, "w": w,
                "c": c, "centres": fam.centres, "g": g}
-        return {k: v.numpy().astype(np.float32) for k, v in out.items()}
+        return {**{k: v.numpy().astype(np.float32) for k, v in out.items()},
+                "c64": model.constant().numpy().astype(np.float64)}
 
 
 def rbf_numpy(model, variant: str):
     """The same RBF evaluation in numpy, float32, the graph's outputs (compensated, drift,
-    flag, NaN for a non-finite signal) on one signal: ``broadcast`` computes
-    ‖z − c‖² by an (N, J, F) broadcast, ``expanded`` by the graph's one matrix product,
-    ``inplace`` the same with preallocated buffers and in-place operations."""
+    flag, NaN for a non-finite signal; format 2: the float32 drift plus the float64
+    constant, and ``raw − drift``, in float64 — what the graph returns) on one signal: ``broadcast`` computes
+    ‖z − c‖² by an (N, J, F) broadcast, ``expanded`` by one (N, F+1) × (F+1, J) matrix
+    product, ``inplace`` the same with preallocated buffers and in-place operations,
+    ``axis-major`` the exported graph's layout ((F+2, N) rows, bias in the product) in
+    place."""
     k = _consts(model)
     layout = model.features._layout
     lo, hi = float(k["lo"][0]), float(k["hi"][0])
+
+    def finish(rel: np.ndarray, raw: np.ndarray, s: np.ndarray, t: np.ndarray):
+        """float32 (N, A) relative drift (any strides) → the graph's float64 outputs."""
+        drift = np.empty(rel.shape, np.float64)
+        np.add(rel, k["c64"], out=drift)
+        return np.subtract(raw, drift), drift, s != t
 
     def features(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         s = np.clip(t, lo, hi)
@@ -141,14 +150,14 @@ def rbf_numpy(model, variant: str):
     def broadcast(t: np.ndarray, raw: np.ndarray):
         s, z = features(t)
         d2 = ((z[:, None, :] - k["centres"][None, :, :]) ** 2).sum(-1)
-        drift = np.exp(-d2 * k["g"]) @ k["w"] + k["c"] + (t - t)[:, None]
-        return raw - drift, drift, s != t
+        rel = np.exp(-d2 * k["g"]) @ k["w"] + k["c"] + (t - t)[:, None]
+        return finish(rel, raw, s, t)
 
     def expanded(t: np.ndarray, raw: np.ndarray):
         s, z = features(t)
         u = np.concatenate([z, (z * z).sum(1, keepdims=True)], axis=1)
-        drift = np.exp(u @ k["m"] + k["b"]) @ k["w"] + k["c"] + (t - t)[:, None]
-        return raw - drift, drift, s != t
+        rel = np.exp(u @ k["m"] + k["b"]) @ k["w"] + k["c"] + (t - t)[:, None]
+        return finish(rel, raw, s, t)
 
     def inplace(t: np.ndarray, raw: np.ndarray):
         n, nf = t.shape[0], len(layout)
@@ -169,9 +178,37 @@ def rbf_numpy(model, variant: str):
         np.exp(e, out=e)
         drift = e @ k["w"]
         drift += k["c"]
-        return raw - drift, drift, s != t
+        return finish(drift, raw, s, t)
 
-    return {"broadcast": broadcast, "expanded": expanded, "inplace": inplace}[variant]
+    m4 = np.concatenate([k["m"].T, k["b"][:, None]], axis=1)     # (J, F + 2)
+    wt, ct = np.ascontiguousarray(k["w"].T), k["c"][:, None]      # (A, J), (A, 1)
+
+    def axis_major(t: np.ndarray, raw: np.ndarray):
+        n, nf = t.shape[0], len(layout)
+        s = np.clip(t, lo, hi)
+        u = np.empty((nf + 2, n), np.float32)     # rows z_1..z_F, ‖z‖², 1: the graph's layout
+        tmp = np.empty(n, np.float32)
+        for f, (_, squared, relative) in enumerate(layout):
+            np.subtract(s, k["ref"][f] if relative else 0.0, out=tmp)
+            if squared:
+                np.multiply(tmp, tmp, out=tmp)
+            np.subtract(tmp, k["mean"][f], out=tmp)
+            np.multiply(tmp, k["inv_std"][f], out=u[f])
+        np.multiply(u[0], u[0], out=u[nf])
+        for f in range(1, nf):
+            np.multiply(u[f], u[f], out=tmp)
+            u[nf] += tmp
+        u[nf + 1] = 1.0
+        np.subtract(t, t, out=tmp)
+        u[0] += tmp                        # NaN for a non-finite signal, as in the graph
+        e = m4 @ u
+        np.exp(e, out=e)
+        drift = wt @ e
+        drift += ct
+        return finish(drift.T, raw, s, t)
+
+    return {"broadcast": broadcast, "expanded": expanded, "inplace": inplace,
+            "axis-major": axis_major}[variant]
 
 
 class _PreviousLayout(torch.nn.Module):
@@ -279,22 +316,26 @@ def throughput(model, work: Path, data: dict) -> str:
     prev = ort.InferenceSession(str(export_previous_layout(model, work / "rbf16_previous.onnx")),
                                 opts, providers=["CPUExecutionProvider"])
     comp = Compensator(work / "rbf16.onnx", threads=1)
-    numpys = {v: rbf_numpy(model, v) for v in ("broadcast", "expanded", "inplace")}
+    numpys = {v: rbf_numpy(model, v) for v in ("broadcast", "expanded", "inplace", "axis-major")}
 
     def torch_eval(t: np.ndarray, r: np.ndarray):
-        with torch.no_grad():
-            d = model(torch.from_numpy(t)[:, None])
+        with torch.no_grad():     # the graph's outputs: float64 drift and compensated
+            d = model.drift64(torch.from_numpy(t)[:, None])
             return torch.from_numpy(r) - d, d
 
     # every competitor must compute the same drift (and NaN) as the exported graph
     check = np.concatenate([temps[:1000], np.float32([np.nan, np.inf])])
     zeros = np.zeros((check.size, 3))    # float64 raw (ONNX format 2)
-    d_ref = sess.run(None, {"temperature_c": check, "raw": zeros})[1]
+    raw_check = rng.normal(0.0, 1.0, (check.size, 3))
+    c_ref, d_ref, _ = sess.run(None, {"temperature_c": check, "raw": raw_check})
     scale = np.abs(d_ref[:-2]).max()
-    for name, fn in numpys.items():
-        got = fn(check, np.zeros((check.size, 3), np.float32))[1]
-        if np.abs(got[:-2] - d_ref[:-2]).max() > 1e-5 * scale or not np.isnan(got[-2:]).all():
-            raise RuntimeError(f"numpy '{name}' does not compute the exported drift")
+    for name, fn in {**{f"numpy '{k}'": f for k, f in numpys.items()}, "torch": torch_eval}.items():
+        c_got, got = (np.asarray(v) for v in fn(check, raw_check)[:2])
+        if got.dtype != np.float64 or c_got.dtype != np.float64 \
+                or np.abs(got[:-2] - d_ref[:-2]).max() > 1e-5 * scale \
+                or np.abs(c_got[:-2] - c_ref[:-2]).max() > 1e-5 * scale \
+                or not np.isnan(got[-2:]).all():
+            raise RuntimeError(f"{name} does not compute the exported float64 outputs")
     d_prev = prev.run(None, {"temperature_c": check[:-2], "raw": zeros[:-2]})[1]
     if np.abs(d_prev - d_ref[:-2]).max() > 1e-5 * scale:
         raise RuntimeError("the previous layout does not compute the same drift")

@@ -83,6 +83,7 @@ def test_nan_inf_and_clamp_without_branches(models, family):
                        dtype=torch.float32)
     with torch.no_grad():
         drift, flag = model.evaluate([sig])
+    drift = drift.T                                # evaluate is axis-major (A, N)
     assert flag.tolist() == [True, True, True, True, True, False]
     with torch.no_grad():   # evaluate gives the drift relative to the float64 constant
         edges = model.relative(torch.tensor([[lo], [hi]]))
@@ -110,7 +111,7 @@ def test_mask_and_at_t_ref_folded_into_the_output_layer(models, family, tmp_path
     temp = np.linspace(-30.0, 70.0, 201)              # beyond the trained range on both sides
     sig = torch.tensor(np.append(temp, np.nan), dtype=torch.float32)
     with torch.no_grad():
-        rel, _ = model.evaluate([sig])
+        rel = model.evaluate([sig])[0].T               # axis-major (A, N)
         want = plain.relative(sig[:-1, None]).double()
         want_rest = copy.deepcopy(plain).double().relative(torch.tensor([[T_REF]]))[0]
     scale = want.abs().max(dim=0).values

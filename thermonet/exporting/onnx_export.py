@@ -158,8 +158,10 @@ class CompensatorGraph(nn.Module):
         # The signals stay 1-D columns; DriftModel.evaluate adds s - s (NaN for NaN/±inf)
         # to the drift so a broken thermometer never gives a plausible clamped correction.
         rel, flag = self.model.evaluate(signal_list)
-        # the per-axis constant joins in float64: a large offset keeps the drift's precision
-        drift = rel.to(torch.float64) + self.model.constant()
+        # the per-axis constant joins in float64 (a large offset keeps the drift's
+        # precision) while the drift is still axis-major (A, N): one row-wise add per
+        # axis, then a single transpose to the (N, A) outputs
+        drift = (rel.to(torch.float64) + self.model.constant()[:, None]).T
         return raw.to(torch.float64) - drift, drift, flag
 
 

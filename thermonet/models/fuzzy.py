@@ -96,12 +96,12 @@ class TSFuzzy(Family):
               y_mean: torch.Tensor) -> torch.Tensor:
         x = torch.minimum(torch.maximum(z[0], self.bounds[0]), self.bounds[1])
         inv = 1.0 / torch.clamp(self.spacing, min=TINY)
-        xs = (x * inv).unsqueeze(1)
-        lam = torch.relu(1.0 - torch.abs(xs - self.peaks * inv))
-        u = torch.cat([lam, lam * x.unsqueeze(1)], dim=1)
+        xs = x * inv
+        lam = torch.relu(1.0 - torch.abs(xs - (self.peaks * inv)[:, None]))   # (n_sets, N)
+        u = torch.cat([lam, lam * x])
         # the clamp of x would hide a NaN input: z0 - z0 (0 or NaN) brings it back
-        total = torch.clamp(lam.sum(dim=1), min=TINY) + (z[0] - z[0])
-        return torch.mm(u, self.rules(y_std, y_mean)) / total.unsqueeze(1)
+        total = torch.clamp(lam.sum(dim=0), min=TINY) + (z[0] - z[0])
+        return torch.mm(self.rules(y_std, y_mean).T, u) / total
 
     def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
         # At most two neighbouring sets are non-zero at any x: find them by index

@@ -110,8 +110,8 @@ class Lorentz(Family):
     def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
               y_mean: torch.Tensor) -> torch.Tensor:
         y0, k, xc, h = self.output_form(y_std, y_mean)
-        dx = z[0].unsqueeze(1) - xc
-        return y0 + k / (dx * dx + h)
+        dx = z[0] - xc[:, None]
+        return y0[:, None] + k[:, None] / (dx * dx + h[:, None])
 
     def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
         p, P = prefix, prefix.upper()

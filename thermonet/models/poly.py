@@ -91,7 +91,7 @@ class Poly(Family):
     def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
               y_mean: torch.Tensor) -> torch.Tensor:
         w, b = self.output_layer(y_std, y_mean)
-        return torch.addmm(b, torch.stack(self.term_columns(z), dim=1), w)
+        return torch.addmm(b[:, None], w.T, torch.stack(self.term_columns(z)))
 
     def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
         p, P = prefix, prefix.upper()

@@ -109,15 +109,18 @@ class RBF(Family):
 
     def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
               y_mean: torch.Tensor) -> torch.Tensor:
-        # ‖z − c‖² expanded: one (N, F+1) × (F+1, J) product, exp, one (N, J) × (J, A)
-        # product — two Gemm nodes instead of F broadcast passes over (N, J) per input
+        # ‖z − c‖² expanded: one (J, F+2) × (F+2, N) product — the rows of u are z,
+        # ‖z‖² and ones, so the bias b rides in the product instead of a pass over
+        # (J, N) — then exp, then one (A, J) × (J, N) product: two Gemm nodes
+        # instead of F broadcast passes over (N, J) per input
         zz = z[0] * z[0]
         for zf in z[1:]:
             zz = zz + zf * zf
         m, b = self.exponent()
-        phi = torch.exp(torch.addmm(b, torch.stack([*z, zz], dim=1), m))
+        u = torch.stack([*z, zz, torch.ones_like(zz)])
+        phi = torch.exp(torch.mm(torch.cat([m.T, b[:, None]], dim=1), u))
         w, c = self.output_layer(y_std, y_mean)
-        return torch.addmm(c, phi, w)
+        return torch.addmm(c[:, None], w.T, phi)
 
     def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
         p, P = prefix, prefix.upper()
