@@ -5,9 +5,11 @@ Three ways to run ``thermonet compare configs/default.yaml --no-track`` in a
 child process, interleaved, while a CPU hog (a busy loop in another process)
 keeps one core of the machine busy:
 
-* ``default``: thermonet as shipped (``train.threads: 1``);
+* ``default``: thermonet as shipped (``train.threads: 1``; families fitted side by
+  side, ``workers: 0`` = one per core);
+* ``workers: 1``: the same with the families fitted one after another;
 * ``OMP_NUM_THREADS=1``: the same with every thread pool pinned by the environment;
-* ``torch's default``: ``train.threads: 0`` (torch picks one thread per core —
+* ``torch's default``: ``train.threads: 0``, ``workers: 1`` (torch picks one thread per core, families one after another —
   what thermonet did before).
 
 Wall and CPU seconds of each child (medians of ``REPEATS`` with min–max) and
@@ -70,9 +72,12 @@ def main() -> None:
         cfg_default = Path(tmp) / "default.yaml"
         cfg_default.write_text(base)
         cfg_torch = Path(tmp) / "torch_threads.yaml"
-        cfg_torch.write_text(base + "train:\n  threads: 0\n")
+        cfg_torch.write_text(base + "train:\n  threads: 0\nworkers: 1\n")   # as before
+        cfg_serial = Path(tmp) / "serial.yaml"
+        cfg_serial.write_text(base + "workers: 1\n")
         variants = {
-            "default (train.threads: 1)": (cfg_default, {}),
+            "default (train.threads: 1, families side by side)": (cfg_default, {}),
+            "families one after another (workers: 1)": (cfg_serial, {}),
             "OMP_NUM_THREADS=1": (cfg_default, {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                                                 "OPENBLAS_NUM_THREADS": "1"}),
             "torch's default threads (train.threads: 0, before)": (cfg_torch, {}),

@@ -184,3 +184,78 @@ def test_train_on_heating_fits_only_the_heating_branch(tmp_path):
     # on a run that cools as much as it heats, the heating-only fit is off by the hysteresis
     assert res["families"]["heating"]["axes"]["gyro_x"]["drift_error_rms"] == \
         pytest.approx(0.05 * np.sqrt(2), rel=0.15)
+
+
+def _numbers(res: dict) -> dict:
+    """Everything a comparison decides, without what differs between runs (paths, times)."""
+    return {label: {"params": f["n_params"], "best_epoch": f["best_epoch"],
+                    "val_score": f["val_score"], "axes": f["axes"]}
+            for label, f in res["families"].items()} | {"chosen": res["chosen"]}
+
+
+def test_families_side_by_side_give_the_serial_results(tmp_path):
+    """Families fitted in threads (config `workers`, CLI --workers) share the built parts and
+    their window means, and every number is the one-after-another run's, bit for bit."""
+    path = write_parquet(toy_dataset(), tmp_path / "toy.parquet")
+    fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
+            FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"], params={"n_centres": 8}),
+            FamilyConfig(family="lorentz", name="lorentz"),
+            FamilyConfig(family="linear", name="linear")]
+    serial = run_compare(config(path, fams, workers=1), tmp_path / "serial", track=False,
+                         quiet=True, plots=False)
+    side = run_compare(config(path, fams, workers=3), tmp_path / "side", track=False,
+                       quiet=True, plots=False)
+    assert _numbers(side) == _numbers(serial)
+    assert list(side["families"]) == [f.label for f in fams]     # config order kept
+    override = run_compare(config(path, fams), tmp_path / "over", track=False, quiet=True,
+                           plots=False, workers=2)
+    assert _numbers(override) == _numbers(serial)
+
+
+def test_family_workers_rule_and_validation():
+    from thermonet.compare import family_workers
+    from thermonet.config import from_dict
+    from thermonet.errors import ConfigError
+
+    fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
+            FamilyConfig(family="linear", name="linear")]
+    assert family_workers(CompareConfig(families=fams, workers=8)) == 2   # at most one per family
+    assert family_workers(CompareConfig(families=fams, workers=1)) == 1
+    assert family_workers(CompareConfig(families=fams, workers=8), workers=1) == 1
+    # a family with its own torch thread count makes the comparison serial
+    fams[1].train = {"threads": 2}
+    assert family_workers(CompareConfig(families=fams, workers=2)) == 1
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ConfigError, match="'workers'"):
+            from_dict(CompareConfig, {"data": {"preset": "patent-gyro"}, "workers": bad},
+                      source="c.yaml")
+
+
+def test_a_fit_that_raises_stops_the_others_and_is_reported(tmp_path, monkeypatch):
+    """An unexpected error in one family's fit (not a FitError, which is a result) ends the
+    comparison with that error while the other threads stop at their next epoch; nothing is
+    written to --out."""
+    import thermonet.train as train_mod
+
+    path = write_parquet(toy_dataset(), tmp_path / "toy.parquet")
+    fams = [FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"], params={"n_centres": 8},
+                         train={"max_epochs": 2000, "patience": 2000, "min_delta": 0.0}),
+            FamilyConfig(family="linear", name="linear")]
+    real_fit = train_mod.fit
+    epochs = []
+
+    def fit(*, family, on_epoch, **kw):
+        if family == "linear":
+            raise RuntimeError("disk on fire")
+
+        def counted(*a):
+            epochs.append(a[0])
+            on_epoch(*a)
+        return real_fit(family=family, on_epoch=counted, **kw)
+
+    monkeypatch.setattr(train_mod, "fit", fit)
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        run_compare(config(path, fams, workers=2), tmp_path / "out", track=False, quiet=True,
+                    plots=False)
+    assert not (tmp_path / "out").exists()
+    assert len(epochs) < 2000          # the RBF stopped early instead of running its course

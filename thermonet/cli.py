@@ -138,7 +138,7 @@ def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
     results = run_compare(cfg, args.out, overwrite=args.overwrite,
                           track=False if args.no_track else None,
                           tracking_uri=args.tracking_uri, quiet=args.quiet,
-                          plots=not args.no_plots)
+                          plots=not args.no_plots, workers=args.workers)
     if not args.quiet:
         print(format_table(results))
         print(f"\nresults: {Path(args.out) / 'results.json'}, report: "
@@ -249,6 +249,11 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--json", action="store_true", help="print the summary as JSON")
     i.set_defaults(func=_cmd_info)
 
+    def family_workers_arg(q: argparse.ArgumentParser) -> None:
+        q.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="families fitted side by side (default: the config's 'workers', "
+                            "0 = one per CPU)")
+
     def tracking_args(q: argparse.ArgumentParser) -> None:
         q.add_argument("--out", required=True, help="output directory (created whole when the "
                                                     "comparison finishes)")
@@ -268,6 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("config", nargs="?", default=None,
                    help="comparison YAML (default: built-in, the patent-gyro simulator)")
     tracking_args(c)
+    family_workers_arg(c)
     c.set_defaults(func=_cmd_compare)
 
     t = sub.add_parser("train", help="fit one family of a config",
@@ -275,6 +281,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("config", help="comparison YAML")
     t.add_argument("--family", required=True, help="the family's name in the config")
     tracking_args(t)
+    family_workers_arg(t)
     t.set_defaults(func=_cmd_train)
 
     e = sub.add_parser("export", help=f"export a fitted model ({', '.join(FORMATS)})",

@@ -25,9 +25,11 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
+import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -153,13 +155,16 @@ class _Parts:
         # thermonet.target.Target, or the config's plain kind ("drift" / "four-position")
         self.targets: Any = targets if targets is not None else cfg.target
         self._cache: dict[tuple[int, tuple[str, ...], float | None], Part] = {}
+        # families fitted side by side ask for the same parts: each is built once
+        self._lock = threading.Lock()
 
     def __call__(self, rec: Any, signals: list[str], gap_s: float | None = None) -> Part:
         key = (id(rec), tuple(signals), gap_s)
-        if key not in self._cache:
-            self._cache[key] = build_part(rec, signals=signals, outputs=self.outputs,
-                                          target=self.targets, gap_s=gap_s)
-        return self._cache[key]
+        with self._lock:
+            if key not in self._cache:
+                self._cache[key] = build_part(rec, signals=signals, outputs=self.outputs,
+                                              target=self.targets, gap_s=gap_s)
+            return self._cache[key]
 
 
 # ------------------------------------------------------------------------------------ plan
@@ -282,7 +287,12 @@ def _fold_stats(part: Part, pred: np.ndarray) -> BlockStats:
     return block_stats(raw, pred - (part.target - raw), block_labels(part.time_s))
 
 
-def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts) -> _Fitted:
+class _Cancelled(Exception):
+    """Another family's fit failed or the run was interrupted: stop this one at its next epoch."""
+
+
+def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts,
+                cancel: threading.Event | None = None) -> _Fitted:
     from .diagnostics import outside_fraction
     from .features import FeatureSpec, reference_values, resolve_gap_s, signals_for
     from .models.base import as_numpy
@@ -296,6 +306,12 @@ def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts) 
     fold_axes: list[dict[str, dict[str, float]]] = []
     vals, tests = [], []
     outside: dict[str, list[tuple[float, int]]] = {}
+
+    def on_epoch(epoch: int, train_loss: float, val_loss: float | None) -> None:
+        if cancel is not None and cancel.is_set():
+            raise _Cancelled(fam.label)
+        progress.epoch(fam.label, epoch, train_loss, val_loss)
+
     try:
         tcfg = _train_config(cfg, fam)
         for split in p.splits:
@@ -314,11 +330,14 @@ def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts) 
                                for q, r in zip(train_parts, split.train, strict=True)]
             val_part = parts(split.val, spec.signals, gap) if split.val is not None else None
             test_part = parts(split.test, spec.signals, gap)
+            # averaged once per part and window length, shared by the families; fit
+            # then only applies the sample budget (average_s 0: already averaged)
+            avg = tcfg.average_s
             fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=p.outputs,
-                         train=[fit_arrays(q) for q in train_parts],
-                         val=fit_arrays(val_part) if val_part else None,
-                         spec=spec, hyper=dict(fam.params), config=tcfg,
-                         on_epoch=lambda e, tl, vl: progress.epoch(fam.label, e, tl, vl),
+                         train=[fit_arrays(q, avg) for q in train_parts],
+                         val=fit_arrays(val_part, avg) if val_part else None,
+                         spec=spec, hyper=dict(fam.params),
+                         config=replace(tcfg, average_s=0.0), on_epoch=on_epoch,
                          target=p.targets.modes)
             res.fit_seconds = (0.0 if math.isnan(res.fit_seconds) else res.fit_seconds) \
                 + fitted.fit_seconds
@@ -351,6 +370,55 @@ def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts) 
         res.folds = fold_axes
     _judge_against_raw(out, metrics, p)
     return out
+
+
+def family_workers(cfg: CompareConfig, workers: int | None = None) -> int:
+    """How many families are fitted side by side: ``workers`` (the caller's: a fleet runs
+    units side by side and passes 1), else the config's ``workers``; 0 is automatic —
+    one per CPU this process may use, at most one per family.  Each fit runs its own
+    ``train.threads`` torch threads (default 1); a family that overrides ``threads``
+    makes the comparison serial (torch's thread count is one setting per process)."""
+    n = cfg.workers if workers is None else workers
+    if any("threads" in fam.train for fam in cfg.families):
+        return 1
+    if n == 0:
+        try:
+            cores = len(os.sched_getaffinity(0))
+        except AttributeError:            # not on Linux
+            cores = os.cpu_count() or 1
+        n = cores
+    return max(1, min(n, len(cfg.families)))
+
+
+def _fit_families(p: _Plan, progress: Progress, parts: _Parts, workers: int
+                  ) -> dict[str, _Fitted]:
+    """Every family of the plan, fitted ``workers`` at a time (threads: torch and numpy
+    release the GIL in their kernels, and the fits share the built parts and their
+    window means).  Results in config order; they do not depend on ``workers`` (each
+    fit is seeded by its own config and draws from no shared random state).  A fit that
+    raises (anything but a FitError, which is a reported result) stops the others at
+    their next epoch and is re-raised, as is an interrupt."""
+    fams = p.cfg.families
+    if workers <= 1:
+        return {fam.label: _fit_family(p, fam, progress, parts) for fam in fams}
+    from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
+
+    cancel = threading.Event()
+    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="thermonet-fit")
+    try:
+        futures = {fam.label: pool.submit(_fit_family, p, fam, progress, parts, cancel)
+                   for fam in fams}
+        done, _ = wait(futures.values(), return_when=FIRST_EXCEPTION)
+        for fut in done:               # the first error, raised now, not after the others end
+            err = fut.exception()
+            if err is not None:
+                raise err
+        return {label: fut.result() for label, fut in futures.items()}
+    except BaseException:
+        cancel.set()
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 _DRAWS: dict[int, np.ndarray] = {}
@@ -485,12 +553,15 @@ def _extrapolation(fitted: dict[str, _Fitted], result: ComparisonResult) -> None
 def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = False,
                 track: bool | None = None, tracking_uri: str | None = None,
                 quiet: bool = False, progress: Progress | None = None,
-                dataset: Dataset | None = None, plots: bool = True) -> dict[str, Any]:
+                dataset: Dataset | None = None, plots: bool = True,
+                workers: int | None = None) -> dict[str, Any]:
     """Fit every family of ``cfg``, judge on held-out data, write ``out_dir``; return results.
 
     ``dataset`` replaces the configured data (benchmarks feed variants of one
     simulation this way); the config's ``data`` section is then ignored.
     ``plots=False`` writes no PNG files (the report then has no figures).
+    ``workers`` overrides the config's ``workers`` (families fitted side by side,
+    :func:`family_workers`).
     Returns the ``results.json`` document (:meth:`ComparisonResult.to_json`).
 
     The output appears whole or not at all (:mod:`thermonet.outdir`): it is
@@ -504,7 +575,7 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
     with staged_output(out_dir, overwrite=overwrite) as stage:
         results = _run_compare_in(cfg, stage.path, track=track, tracking_uri=tracking_uri,
                                   quiet=quiet, progress=progress, dataset=dataset,
-                                  plots=plots)
+                                  plots=plots, workers=workers)
         stage.finish(results, lambda doc: doc)
     return results
 
@@ -512,7 +583,7 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
 def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None = None,
                     tracking_uri: str | None = None, quiet: bool = False,
                     progress: Progress | None = None, dataset: Dataset | None = None,
-                    plots: bool = True) -> dict[str, Any]:
+                    plots: bool = True, workers: int | None = None) -> dict[str, Any]:
     """The comparison itself, written into ``out_dir`` (a staging directory)."""
     from .checkpoint import save_checkpoint
     from .tracking import Tracker
@@ -548,11 +619,15 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
     parts = _Parts(cfg, outputs, p.targets)
     with tracker.run(f"compare-{ds.device_id}", params=resolved, tags=tags) as parent_id:
         result.mlflow_run_id = parent_id
+        n_workers = family_workers(cfg, workers)
+        if n_workers > 1:
+            progress.line(f"fitting {len(cfg.families)} families, {n_workers} side by side")
+        all_fitted = _fit_families(p, progress, parts, n_workers)
         for fam in cfg.families:
             with tracker.run(fam.label, params={"family": fam.family, "inputs": fam.inputs,
                                                 "params": fam.params},
                              tags={**tags, "family": fam.family}, nested=True) as run_id:
-                f = _fit_family(p, fam, progress, parts)
+                f = all_fitted[fam.label]
                 r = f.result
                 r.mlflow_run_id = run_id
                 if r.ok:

@@ -173,6 +173,16 @@ class CompareConfig:
     # pass/fail limits per output axis or "*" (thermonet.fleetstats.LimitSpec), judged per
     # unit on held-out data by `thermonet fleet`
     limits: dict[str, Any] = field(default_factory=dict)
+    # families fitted side by side (threads; thermonet.compare.family_workers): 0 = one per
+    # CPU this process may use, 1 = one after another.  `thermonet fleet` runs units side
+    # by side instead and fits each unit's families one after another.
+    workers: int = 0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) \
+                or self.workers < 0:
+            raise ConfigError(f"key 'workers': must be an integer >= 0 (0: one per "
+                              f"CPU), got {self.workers!r}")
 
 
 # ----------------------------------------------------------------- loading

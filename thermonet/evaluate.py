@@ -9,7 +9,8 @@ are re-exported here.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+import threading
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -72,6 +73,9 @@ def data_hash(ds: Dataset) -> str:
     return h.hexdigest()[:16]
 
 
+_AVERAGE_LOCK = threading.Lock()
+
+
 @dataclass
 class Part:
     """One recording turned into model inputs and targets.
@@ -92,6 +96,9 @@ class Part:
     outputs: list[str]
     per_soak: bool = False               # one sample per soak (four-position target)
     targets: Target | None = None        # per-axis target modes (None: every axis 'channel')
+    # fit_arrays' window means, per window length: computed once, shared by every family
+    _averaged: dict[float, tuple[np.ndarray, ...]] = field(default_factory=dict, repr=False,
+                                                            compare=False)
 
     def offset_free(self, j: int) -> bool:
         """True where a constant in axis ``j``'s target is no error (``at-t-ref``, a scale factor)."""
@@ -182,10 +189,25 @@ def heating_only(part: Part, rec: Recording, gap_s: float | None = None) -> Part
                 else part.true_drift[keep], part.outputs, targets=part.targets)
 
 
-def fit_arrays(part: Part) -> tuple[np.ndarray, ...]:
+def fit_arrays(part: Part, average_s: float = 0.0) -> tuple[np.ndarray, ...]:
     """What :func:`thermonet.train.fit` takes for one run: signals, targets and the time
-    in s, so that it averages into ``train.average_s`` windows (per-sample targets); a
-    per-soak part is one sample per soak already and goes without its time."""
+    in s (per-sample targets); a per-soak part is one sample per soak already and goes
+    without its time.
+
+    With ``average_s`` > 0 the arrays are already averaged into windows of that length
+    (:func:`thermonet.train.average_windows`, what ``fit`` would do with
+    ``train.average_s``), computed once per part and window and cached on it: the
+    families of a comparison share one pass over a long recording instead of one each
+    (``fit``'s own averaging then finds one sample per window, a cheap pass).
+    """
     if part.per_soak:
         return part.signals, part.target
+    if average_s > 0:
+        with _AVERAGE_LOCK:      # families fitted side by side share one computation
+            if average_s not in part._averaged:
+                from .train import average_windows
+
+                part._averaged[average_s] = average_windows(part.signals, part.target,
+                                                            part.time_s, average_s)
+            return part._averaged[average_s]
     return part.signals, part.target, part.time_s

@@ -222,7 +222,8 @@ def _unit_task(item: _UnitItem) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="thermonet-unit-"))
     try:
         udir = tmp / "unit"
-        results = run_compare(item.cfg, udir, dataset=ds, track=False, quiet=True)
+        results = run_compare(item.cfg, udir, dataset=ds, track=False, quiet=True,
+                              workers=1)   # units run side by side, not families
         files = {p.relative_to(udir).as_posix(): p.read_bytes()
                  for p in sorted(udir.rglob("*")) if p.is_file()}
         temps = [r.temperature_c for r in ds if r.temperature_c is not None]
