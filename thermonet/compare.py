@@ -29,6 +29,7 @@ import os
 import sys
 import threading
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -390,35 +391,58 @@ def family_workers(cfg: CompareConfig, workers: int | None = None) -> int:
     return max(1, min(n, len(cfg.families)))
 
 
-def _fit_families(p: _Plan, progress: Progress, parts: _Parts, workers: int
-                  ) -> dict[str, _Fitted]:
+class _FitQueue:
     """Every family of the plan, fitted ``workers`` at a time (threads: torch and numpy
     release the GIL in their kernels, and the fits share the built parts and their
-    window means).  Results in config order; they do not depend on ``workers`` (each
-    fit is seeded by its own config and draws from no shared random state).  A fit that
-    raises (anything but a FitError, which is a reported result) stops the others at
-    their next epoch and is re-raised, as is an interrupt."""
-    fams = p.cfg.families
-    if workers <= 1:
-        return {fam.label: _fit_family(p, fam, progress, parts) for fam in fams}
-    from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
+    window means); :meth:`result` hands them out in config order.
 
-    cancel = threading.Event()
-    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="thermonet-fit")
-    try:
-        futures = {fam.label: pool.submit(_fit_family, p, fam, progress, parts, cancel)
-                   for fam in fams}
-        done, _ = wait(futures.values(), return_when=FIRST_EXCEPTION)
-        for fut in done:               # the first error, raised now, not after the others end
-            err = fut.exception()
-            if err is not None:
-                raise err
-        return {label: fut.result() for label, fut in futures.items()}
-    except BaseException:
-        cancel.set()
-        raise
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+    With one worker each fit runs when asked for (inside its MLflow run, as before);
+    with more, all are submitted on entry and :meth:`result` waits for the one asked
+    for.  Results do not depend on ``workers`` (each fit is seeded by its own config and
+    draws from no shared random state).  A fit that raises (anything but a FitError,
+    which is a reported result) is re-raised at once, and on any error or interrupt
+    the other fits stop at their next epoch before the queue closes.
+    """
+
+    def __init__(self, p: _Plan, progress: Progress, parts: _Parts, workers: int) -> None:
+        self.p, self.progress, self.parts, self.workers = p, progress, parts, workers
+        self.cancel = threading.Event()
+        self.pool: Any = None
+        self.futures: dict[str, Any] = {}
+
+    def __enter__(self) -> _FitQueue:
+        if self.workers > 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self.pool = ThreadPoolExecutor(max_workers=self.workers,
+                                           thread_name_prefix="thermonet-fit")
+            self.futures = {fam.label: self.pool.submit(_fit_family, self.p, fam, self.progress,
+                                                        self.parts, self.cancel)
+                            for fam in self.p.cfg.families}
+        return self
+
+    def result(self, fam: FamilyConfig) -> _Fitted:
+        if self.pool is None:
+            return _fit_family(self.p, fam, self.progress, self.parts)
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        target = self.futures[fam.label]
+        while True:
+            pending = [f for f in self.futures.values() if not f.done()]
+            done = [f for f in self.futures.values() if f.done()]
+            for f in done:          # another family's error, raised now, not at its turn
+                err = f.exception()
+                if err is not None:
+                    raise err
+            if target.done():
+                return target.result()
+            wait(pending, return_when=FIRST_COMPLETED)
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.pool is not None:
+            if exc[0] is not None:
+                self.cancel.set()
+            self.pool.shutdown(wait=True, cancel_futures=True)
 
 
 _DRAWS: dict[int, np.ndarray] = {}
@@ -617,17 +641,18 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                   f"{', '.join(outputs)}), split {result.split['strategy']}")
     fitted: dict[str, _Fitted] = {}
     parts = _Parts(cfg, outputs, p.targets)
-    with tracker.run(f"compare-{ds.device_id}", params=resolved, tags=tags) as parent_id:
+    with tracker.run(f"compare-{ds.device_id}", params=resolved, tags=tags) as parent_id, \
+            ExitStack() as stack:
         result.mlflow_run_id = parent_id
         n_workers = family_workers(cfg, workers)
         if n_workers > 1:
             progress.line(f"fitting {len(cfg.families)} families, {n_workers} side by side")
-        all_fitted = _fit_families(p, progress, parts, n_workers)
+        queue = stack.enter_context(_FitQueue(p, progress, parts, n_workers))
         for fam in cfg.families:
             with tracker.run(fam.label, params={"family": fam.family, "inputs": fam.inputs,
                                                 "params": fam.params},
                              tags={**tags, "family": fam.family}, nested=True) as run_id:
-                f = all_fitted[fam.label]
+                f = queue.result(fam)
                 r = f.result
                 r.mlflow_run_id = run_id
                 if r.ok:

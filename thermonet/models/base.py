@@ -162,7 +162,10 @@ class Family(nn.Module):
         x : (N, F) standardised features
         y : (N, A) standardised targets
         seed : int
-            For anything random (k-means).
+            For anything random (k-means).  Draw from generators made from it
+            (numpy, scikit-learn ``random_state``), never from torch's or numpy's
+            global random state: the families of a comparison may be fitted side by
+            side in threads (:func:`thermonet.compare.family_workers`).
         x_mean, x_std : (F,)
             The standardisation, for hyper-parameters given in physical
             feature units (the fuzzy universe).
