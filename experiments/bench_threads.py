@@ -88,8 +88,8 @@ def main() -> None:
         try:
             res: dict[str, list[dict]] = {k: [] for k in variants}
             for k in range(REPEATS):
-                for name, (cfg, env) in variants.items():
-                    res[name].append(run(cfg, Path(tmp) / f"out_{k}_{len(res[name])}", env))
+                for v, (name, (cfg, env)) in enumerate(variants.items()):
+                    res[name].append(run(cfg, Path(tmp) / f"out_{k}_{v}", env))
                 _save(res)      # after each round: a long run still leaves what it measured
         finally:
             stop.set()

@@ -106,6 +106,20 @@ def test_import_thermonet_cli_and_config_stays_light():
     assert out.stdout.strip() == "[]"
 
 
+def test_a_config_error_is_refused_before_anything_heavy_loads(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("split: {strategy: random}\n")
+    code = ("import sys\nfrom thermonet.cli import main\n"
+            f"rc = main(['compare', {str(bad)!r}, '--out', {str(tmp_path / 'out')!r}])\n"
+            "heavy = [m for m in ('torch', 'sklearn', 'pandas', 'matplotlib', 'mlflow')\n"
+            "         if m in sys.modules]\n"
+            "print(rc, heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=ROOT)
+    assert out.stdout.strip() == "1 []", (out.stdout, out.stderr[-300:])
+    assert "split.strategy" in out.stderr and not (tmp_path / "out").exists()
+
+
 def test_readme_python_example_runs(tmp_path, monkeypatch, capsys):
     text = (ROOT / "README.md").read_text()
     section = text[text.index("## Python API"):]

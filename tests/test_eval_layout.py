@@ -202,13 +202,27 @@ def test_averaging_fits_a_noisy_100hz_recording_no_worse_than_thinning():
 def test_threads_are_set_for_the_fit_and_restored():
     spec = FeatureSpec(inputs=["dT"], t_ref=T_REF)
     temp = np.linspace(-20.0, 60.0, 200)
-    before = torch.get_num_threads()
-    seen = []
+    from threadpoolctl import threadpool_info
+
+    def native() -> set[int]:
+        """Threads of every native pool numpy / scikit-learn loaded (BLAS, OpenMP)."""
+        return {int(p["num_threads"]) for p in threadpool_info()}
+
+    import sklearn.cluster  # noqa: F401  loads scikit-learn's OpenMP runtime before the check
+
+    before, before_native = torch.get_num_threads(), native()
+    seen, seen_native = [], []
+
+    def on_epoch(*a):
+        seen.append(torch.get_num_threads())
+        seen_native.append(native())
+
     fit(family="linear", inputs=["dT"], outputs=AXES, train=[(temp[:, None], _drift(temp))],
         val=None, spec=spec, hyper={}, config=TrainConfig(max_epochs=1, threads=1),
-        on_epoch=lambda *a: seen.append(torch.get_num_threads()))
+        on_epoch=on_epoch)
     assert seen and set(seen) == {1}
-    assert torch.get_num_threads() == before
+    assert seen_native and all(s == {1} for s in seen_native), seen_native
+    assert torch.get_num_threads() == before and native() == before_native
     with pytest.raises(ConfigError, match="train.threads"):
         TrainConfig(threads=-1)
     with pytest.raises(ConfigError, match="train.average_s"):

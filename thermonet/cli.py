@@ -124,10 +124,13 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
-    from .compare import format_table, run_compare
     from .config import load_config
 
+    # the config is checked whole before the comparison machinery (torch) is imported:
+    # a wrong key or value is refused in a fraction of a second
     cfg = load_config(args.config)
+    from .compare import format_table, run_compare
+
     if only is not None:
         fams = [f for f in cfg.families if f.label == only]
         if not fams:

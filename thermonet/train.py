@@ -15,11 +15,13 @@ what training added to the closed-form start.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -217,10 +219,24 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
     if config.threads:
         torch.set_num_threads(config.threads)
     try:
-        return _fit(family=family, inputs=inputs, outputs=outputs, train=train, val=val,
-                    spec=spec, hyper=hyper, config=config, on_epoch=on_epoch, target=target)
+        with thread_limits(config.threads):
+            return _fit(family=family, inputs=inputs, outputs=outputs, train=train, val=val,
+                        spec=spec, hyper=hyper, config=config, on_epoch=on_epoch,
+                        target=target)
     finally:
         torch.set_num_threads(previous_threads)
+
+
+def thread_limits(threads: int) -> Any:
+    """Context that caps the native thread pools numpy and scikit-learn use (OpenBLAS,
+    MKL, OpenMP: k-means, least squares) at ``threads`` — what ``OMP_NUM_THREADS`` would
+    do, for the duration only; ``threads`` 0 leaves them alone.  torch's own pool is
+    set separately (:func:`fit`)."""
+    if not threads:
+        return contextlib.nullcontext()
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=threads)
 
 
 def _fit(*, family: str, inputs: list[str], outputs: list[str],

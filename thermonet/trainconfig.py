@@ -55,7 +55,10 @@ class TrainConfig:
         drift is unchanged, and a no-op at ≤ 1 Hz.  0 turns it off.  Held-out
         metrics are computed at full resolution regardless (``compare``).
     threads : int
-        torch intra-op threads while this fit runs (restored afterwards).
+        torch intra-op threads while this fit runs (restored afterwards), and the
+        cap on numpy's and scikit-learn's native pools (OpenBLAS/MKL/OpenMP, via
+        threadpoolctl) meanwhile — what ``OMP_NUM_THREADS`` would set, for the fit
+        (a comparison: for the whole comparison) only.
         Default 1: these models are small, a second thread buys little, and on
         a busy machine (families, units or other jobs side by side) it costs
         2–3× in wall time (``experiments/bench_threads.py``); parallelism comes
