@@ -19,9 +19,8 @@ import contextlib
 import copy
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import torch
@@ -215,28 +214,30 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
     ConfigError
         Unknown family / hyper-parameter, inputs not matching the spec.
     """
-    previous_threads = torch.get_num_threads()
-    if config.threads:
-        torch.set_num_threads(config.threads)
-    try:
-        with thread_limits(config.threads):
-            return _fit(family=family, inputs=inputs, outputs=outputs, train=train, val=val,
-                        spec=spec, hyper=hyper, config=config, on_epoch=on_epoch,
-                        target=target)
-    finally:
-        torch.set_num_threads(previous_threads)
+    with thread_limits(config.threads):
+        return _fit(family=family, inputs=inputs, outputs=outputs, train=train, val=val,
+                    spec=spec, hyper=hyper, config=config, on_epoch=on_epoch, target=target)
 
 
-def thread_limits(threads: int) -> Any:
-    """Context that caps the native thread pools numpy and scikit-learn use (OpenBLAS,
-    MKL, OpenMP: k-means, least squares) at ``threads`` — what ``OMP_NUM_THREADS`` would
-    do, for the duration only; ``threads`` 0 leaves them alone.  torch's own pool is
-    set separately (:func:`fit`)."""
+@contextlib.contextmanager
+def thread_limits(threads: int) -> Iterator[None]:
+    """Cap torch's intra-op threads and the native pools numpy and scikit-learn use
+    (OpenBLAS, MKL, OpenMP: k-means, least squares; threadpoolctl) at ``threads`` for
+    the duration — what ``OMP_NUM_THREADS`` would do, restored afterwards; ``threads``
+    0 leaves them alone.  :func:`fit` runs under it, and a comparison as a whole
+    (its evaluation at full resolution too)."""
     if not threads:
-        return contextlib.nullcontext()
+        yield
+        return
     from threadpoolctl import threadpool_limits
 
-    return threadpool_limits(limits=threads)
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        with threadpool_limits(limits=threads):
+            yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def _fit(*, family: str, inputs: list[str], outputs: list[str],
