@@ -108,6 +108,17 @@ def bench_gyro(sizes: list[int], executor: str, repeats: int) -> list[dict[str, 
     return out
 
 
+def _extrapolation(name: str, slope: float, icpt: float) -> str:
+    """The per-unit cost (least-squares slope over the fleet sizes, 2 workers) and 500 units
+    from it — or why none can be read (a slope within the run-to-run noise)."""
+    if not slope > 0:
+        return (f"{name}: no per-unit cost can be read (slope {slope:.2f} s/unit: start-up and "
+                "run-to-run noise dominate at these sizes).")
+    return (f"{name}: {slope:.2f} s/unit (+{icpt:.1f} s start-up); 500 units extrapolated "
+            f"{icpt + 500 * slope:.0f} s on this machine, on M machines of c cores "
+            f"≈ start-up + 500 · {2 * slope:.2f} s / (M · c).")
+
+
 def _med(xs: list[float]) -> str:
     if len(xs) == 1:
         return f"{xs[0]:.1f}"
@@ -120,7 +131,7 @@ def main() -> None:
     ap.add_argument("--accel-units", type=int, default=20)
     ap.add_argument("--gyro-units", default="4,8,16")
     ap.add_argument("--ray-units", default="8,16")
-    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--parts", default="accel,ray,gyro", help="which parts to run")
     args = ap.parse_args()
     parts = set(args.parts.split(","))
@@ -156,8 +167,8 @@ def main() -> None:
 
     slope, icpt = fit(gyro)
     rslope, ricpt = fit(ray)
-    md = [f"Load average before/after: {load[0]:.1f} / {load_after[0]:.1f} (2 cores shared "
-          "with other jobs: figures are upper bounds).", "",
+    md = [f"Load average before/after: {load[0]:.1f} / {load_after[0]:.1f}; wall seconds, "
+          f"median of {args.repeats} (min–max).", "",
           f"### A. accel (study 000), {accel['runs']} runs a unit, Lorentz + linear + cubic", "",
           table(["job", "wall s (median, min–max)"],
                 [["one unit: `thermonet compare`", _med(accel["one_unit_s"])],
@@ -169,11 +180,8 @@ def main() -> None:
                 [[r["executor"], r["units"], _med([x["wall_s"] for x in r["runs"]]),
                   _med([x["driver_peak_mib"] for x in r["runs"]]),
                   _med([x["worker_peak_mib"] for x in r["runs"]])] for r in gyro + ray]), "",
-          f"Per-unit cost (slope, 2 workers): process pool {slope:.2f} s/unit "
-          f"(+{icpt:.1f} s start-up), Ray local {rslope:.2f} s/unit (+{ricpt:.1f} s). "
-          f"500 units, extrapolated: process pool {icpt + 500 * slope:.0f} s, Ray local "
-          f"{ricpt + 500 * rslope:.0f} s on this machine; on M machines of c cores "
-          f"≈ start-up + 500 · {2 * slope:.2f} s / (M · c)."]
+          _extrapolation("process pool", slope, icpt) + " " + _extrapolation("Ray local", rslope,
+                                                                              ricpt)]
     save("bench_fleet", {"git": git_rev(), "load_before": load, "load_after": load_after,
                          "accel": accel, "gyro": gyro, "ray": ray,
                          "per_unit_s": {"process": slope, "ray": rslope},

@@ -595,8 +595,12 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
     comparison is replaced only with ``overwrite=True``.
     """
     from .outdir import staged_output
+    from .train import thread_limits
 
-    with staged_output(out_dir, overwrite=overwrite) as stage:
+    # torch's and the native pools (BLAS, OpenMP) capped at train.threads for the whole
+    # comparison, data preparation and evaluation included: the cap is process-wide, so
+    # fits side by side must not lift it when one of them ends
+    with thread_limits(cfg.train.threads), staged_output(out_dir, overwrite=overwrite) as stage:
         results = _run_compare_in(cfg, stage.path, track=track, tracking_uri=tracking_uri,
                                   quiet=quiet, progress=progress, dataset=dataset,
                                   plots=plots, workers=workers)
@@ -611,7 +615,6 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
     """The comparison itself, written into ``out_dir`` (a staging directory)."""
     from .checkpoint import save_checkpoint
     from .tracking import Tracker
-    from .train import thread_limits
     from .verdicts import LEVEL, MIN_BLOCKS, RESAMPLES, SEED, apply_compensate_mask
 
     progress = progress or Progress(quiet)
@@ -648,9 +651,6 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
         n_workers = family_workers(cfg, workers)
         if n_workers > 1:
             progress.line(f"fitting {len(cfg.families)} families, {n_workers} side by side")
-        # the native pools (BLAS, OpenMP) capped like torch's for the whole comparison: the
-        # cap is process-wide, so fits side by side must not lift it when one of them ends
-        stack.enter_context(thread_limits(cfg.train.threads))
         queue = stack.enter_context(_FitQueue(p, progress, parts, n_workers))
         for fam in cfg.families:
             with tracker.run(fam.label, params={"family": fam.family, "inputs": fam.inputs,
