@@ -75,10 +75,10 @@ def bench_accel(runs: int, units: int, repeats: int) -> dict[str, Any]:
         text = cfg.read_text().replace("  seed: 0", f"  seed: 0\n  runs: {runs}")
         cfg.write_text(text)
         one, many, ratio = [], [], []
-        for _ in range(repeats):  # A B A B: the ratio pairs runs taken close in time
-            a = _wall([PY, "-m", "thermonet.cli", "compare", str(cfg), "--out", str(d / "one"),
-                       "-q"], d)
-            b = _wall([PY, "-m", "thermonet.cli", "fleet", str(cfg), "--out", str(d / "fleet"),
+        for k in range(repeats):  # A B A B: the ratio pairs runs taken close in time
+            a = _wall([PY, "-m", "thermonet.cli", "compare", str(cfg), "--out",
+                       str(d / f"one{k}"), "-q"], d)
+            b = _wall([PY, "-m", "thermonet.cli", "fleet", str(cfg), "--out", str(d / f"fleet{k}"),
                        "--units", str(units), "--workers", "2", "-q"], d)
             one.append(a)
             many.append(b)
@@ -97,9 +97,9 @@ def bench_gyro(sizes: list[int], executor: str, repeats: int) -> list[dict[str, 
                        "  - {name: linear, family: linear, inputs: [dT]}\n")
         for n in sizes:
             rows = []
-            for _ in range(repeats):
+            for k in range(repeats):
                 r = subprocess.run([PY, "-c", _HARNESS, str(cfg), str(n), "3", executor, "2",
-                                    str(d / f"f{n}")], cwd=d, env=_env(), capture_output=True,
+                                    str(d / f"f{n}_{k}")], cwd=d, env=_env(), capture_output=True,
                                    text=True)
                 if r.returncode != 0:
                     raise RuntimeError(r.stderr[-2000:])
