@@ -159,17 +159,21 @@ def rbf_numpy(model, variant: str):
         rel = np.exp(u @ k["m"] + k["b"]) @ k["w"] + k["c"] + (t - t)[:, None]
         return finish(rel, raw, s, t)
 
-    def inplace(t: np.ndarray, raw: np.ndarray):
-        n, nf = t.shape[0], len(layout)
-        s = np.clip(t, lo, hi)
-        u = np.empty((n, nf + 1), np.float32)
-        tmp = np.empty(n, np.float32)
+    def features_into(s: np.ndarray, cols: list[np.ndarray], tmp: np.ndarray) -> None:
+        """The standardised features of the clamped signal ``s``, in place, into ``cols``."""
         for f, (_, squared, relative) in enumerate(layout):
             np.subtract(s, k["ref"][f] if relative else 0.0, out=tmp)
             if squared:
                 np.multiply(tmp, tmp, out=tmp)
             np.subtract(tmp, k["mean"][f], out=tmp)
-            np.multiply(tmp, k["inv_std"][f], out=u[:, f])
+            np.multiply(tmp, k["inv_std"][f], out=cols[f])
+
+    def inplace(t: np.ndarray, raw: np.ndarray):
+        n, nf = t.shape[0], len(layout)
+        s = np.clip(t, lo, hi)
+        u = np.empty((n, nf + 1), np.float32)
+        tmp = np.empty(n, np.float32)
+        features_into(s, [u[:, f] for f in range(nf)], tmp)
         np.einsum("nf,nf->n", u[:, :nf], u[:, :nf], out=u[:, nf])
         np.subtract(t, t, out=tmp)
         u[:, 0] += tmp                     # NaN for a non-finite signal, as in the graph
@@ -188,12 +192,7 @@ def rbf_numpy(model, variant: str):
         s = np.clip(t, lo, hi)
         u = np.empty((nf + 2, n), np.float32)     # rows z_1..z_F, ‖z‖², 1: the graph's layout
         tmp = np.empty(n, np.float32)
-        for f, (_, squared, relative) in enumerate(layout):
-            np.subtract(s, k["ref"][f] if relative else 0.0, out=tmp)
-            if squared:
-                np.multiply(tmp, tmp, out=tmp)
-            np.subtract(tmp, k["mean"][f], out=tmp)
-            np.multiply(tmp, k["inv_std"][f], out=u[f])
+        features_into(s, list(u[:nf]), tmp)
         np.multiply(u[0], u[0], out=u[nf])
         for f in range(1, nf):
             np.multiply(u[f], u[f], out=tmp)
