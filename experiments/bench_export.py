@@ -51,6 +51,7 @@ from thermonet.api import DriftEstimator  # noqa: E402
 from thermonet.config import SplitConfig  # noqa: E402
 from thermonet.evaluate import make_splits  # noqa: E402
 from thermonet.exporting import export_c_header, export_onnx  # noqa: E402
+from thermonet.models.base import output_layer  # noqa: E402
 from thermonet.sim import simulate  # noqa: E402
 from thermonet.trainconfig import TrainConfig  # noqa: E402
 from thermonet_runtime import Compensator  # noqa: E402
@@ -111,7 +112,8 @@ def _consts(model) -> dict:
         m, b = fam.exponent()
         # the target normalisation and mask folded in, as in the graph; the float64
         # constant is added in float64, as in the graph (``c64``)
-        w, c = fam.output_layer(*model.output_scaling())
+        w, c = output_layer(fam.weight, fam.bias, *model.output_scaling())
+        w = w.T                                   # (J, A): the (N, K) numpy variants' side
         g = fam.inv_two_sigma2()
         out = {"lo": model.sig_lo, "hi": model.sig_hi, "ref": model.features.ref,
                "mean": model.x_mean, "inv_std": 1.0 / model.x_std, "m": m, "b": b, "w": w,

@@ -18,11 +18,10 @@ import os
 import subprocess
 import sys
 import tempfile
-import textwrap
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import fmt_spread, save, spread, table  # noqa: E402
+from common import COMPARE_CHILD, fmt_spread, save, spread, table  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: (runs, rate): the default (5 runs at 1 Hz) and the issue's grid of 5 / 50 runs at 10 / 100 Hz
@@ -30,16 +29,6 @@ ROOT = Path(__file__).resolve().parents[1]
 SIZES = [(5, 1.0), (5, 10.0), (50, 10.0), (5, 100.0)]
 REPEATS = int(os.environ.get("BENCH_SCALING_REPEATS", "2"))
 
-CHILD = textwrap.dedent("""
-    import json, resource, sys, time
-    from thermonet.cli import main
-    t0, c0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
-    rc = main(["compare", sys.argv[1], "--out", sys.argv[2], "--no-track", "-q"])
-    c1 = resource.getrusage(resource.RUSAGE_SELF)
-    print(json.dumps({"rc": rc, "wall_s": time.perf_counter() - t0,
-                      "cpu_s": c1.ru_utime + c1.ru_stime - c0.ru_utime - c0.ru_stime,
-                      "maxrss_mb": c1.ru_maxrss / 1024.0}))
-""")
 
 
 def simulate_file(runs: int, rate_hz: float, path: Path) -> int:
@@ -62,7 +51,7 @@ def compare_once(data: Path, work: Path) -> dict:
     cfg = work / "config.yaml"
     cfg.write_text((ROOT / "configs" / "default.yaml").read_text().replace(
         "data:\n  preset: patent-gyro\n  seed: 0\n", f"data:\n  paths: [{data}]\n"))
-    out = subprocess.run([sys.executable, "-c", CHILD, str(cfg), str(work / "out")],
+    out = subprocess.run([sys.executable, "-c", COMPARE_CHILD, str(cfg), str(work / "out")],
                          check=True, text=True, capture_output=True, env=_env(), cwd=work)
     res = json.loads(out.stdout.strip().splitlines()[-1])
     if res["rc"] != 0:

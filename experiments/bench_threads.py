@@ -25,24 +25,14 @@ import os
 import subprocess
 import sys
 import tempfile
-import textwrap
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import fmt_spread, ratio_spread, save, spread, table  # noqa: E402
+from common import COMPARE_CHILD, fmt_spread, ratio_spread, save, spread, table  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 REPEATS = int(os.environ.get("BENCH_THREADS_REPEATS", "3"))
 
-CHILD = textwrap.dedent("""
-    import json, resource, sys, time
-    from thermonet.cli import main
-    t0, c0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
-    rc = main(["compare", sys.argv[1], "--out", sys.argv[2], "--no-track", "-q"])
-    c1 = resource.getrusage(resource.RUSAGE_SELF)
-    print(json.dumps({"rc": rc, "wall_s": time.perf_counter() - t0,
-                      "cpu_s": c1.ru_utime + c1.ru_stime - c0.ru_utime - c0.ru_stime}))
-""")
 
 
 def _hog(stop) -> None:  # noqa: ANN001 - a multiprocessing.Event
@@ -58,7 +48,7 @@ def run(config: Path, out: Path, env_extra: dict[str, str]) -> dict:
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         env.pop(var, None)
     env.update(env_extra)
-    p = subprocess.run([sys.executable, "-c", CHILD, str(config), str(out)], check=True,
+    p = subprocess.run([sys.executable, "-c", COMPARE_CHILD, str(config), str(out)], check=True,
                        text=True, capture_output=True, env=env, cwd=ROOT)
     res = json.loads(p.stdout.strip().splitlines()[-1])
     if res["rc"] != 0:

@@ -19,6 +19,19 @@ from typing import Any
 
 OUT = Path(__file__).resolve().parent / "out"
 
+#: ``python -c COMPARE_CHILD CONFIG OUT``: one ``thermonet compare --no-track -q`` in a fresh
+#: process; prints its return code, wall and CPU seconds and peak resident memory as JSON.
+COMPARE_CHILD = """
+import json, resource, sys, time
+from thermonet.cli import main
+t0, c0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
+rc = main(["compare", sys.argv[1], "--out", sys.argv[2], "--no-track", "-q"])
+c1 = resource.getrusage(resource.RUSAGE_SELF)
+print(json.dumps({"rc": rc, "wall_s": time.perf_counter() - t0,
+                  "cpu_s": c1.ru_utime + c1.ru_stime - c0.ru_utime - c0.ru_stime,
+                  "maxrss_mb": c1.ru_maxrss / 1024.0}))
+"""
+
 
 def machine() -> str:
     """One line naming the machine a figure came from."""

@@ -29,7 +29,6 @@ import os
 import sys
 import threading
 import time
-from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -645,13 +644,12 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                   f"{', '.join(outputs)}), split {result.split['strategy']}")
     fitted: dict[str, _Fitted] = {}
     parts = _Parts(cfg, outputs, p.targets)
+    n_workers = family_workers(cfg, workers)
+    if n_workers > 1:
+        progress.line(f"fitting {len(cfg.families)} families, {n_workers} side by side")
     with tracker.run(f"compare-{ds.device_id}", params=resolved, tags=tags) as parent_id, \
-            ExitStack() as stack:
+            _FitQueue(p, progress, parts, n_workers) as queue:
         result.mlflow_run_id = parent_id
-        n_workers = family_workers(cfg, workers)
-        if n_workers > 1:
-            progress.line(f"fitting {len(cfg.families)} families, {n_workers} side by side")
-        queue = stack.enter_context(_FitQueue(p, progress, parts, n_workers))
         for fam in cfg.families:
             with tracker.run(fam.label, params={"family": fam.family, "inputs": fam.inputs,
                                                 "params": fam.params},

@@ -68,7 +68,7 @@ from ..features import Features, FeatureSpec
 from .cgen import CBody
 
 __all__ = ["TINY", "LOG_CLIP", "Family", "DriftModel", "distinct_levels", "as_numpy",
-           "least_squares"]
+           "least_squares", "output_layer"]
 
 #: Guard for every denominator (lmfit's ``max(tiny, sigma)``); float32-safe:
 #: its square (1e-12) is still a normal float32.
@@ -117,6 +117,14 @@ def least_squares(design: np.ndarray, y: np.ndarray, ridge: float = 1e-10) -> np
     g = d.T @ d
     lam = ridge * max(float(np.trace(g)) / max(g.shape[0], 1), TINY)
     return np.linalg.solve(g + lam * np.eye(g.shape[0]), d.T @ np.asarray(y, dtype=np.float64))
+
+
+def output_layer(weight: torch.Tensor, bias: torch.Tensor, y_std: torch.Tensor,
+                 y_mean: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """A last linear layer's weights (A, K) and bias (A,) in output units: the
+    de-standardisation :math:`y = \\hat y_z s_y + \\bar y` folded in, one row per axis
+    (the axis-major layout of :meth:`Family.drift`: ``addmm(b[:, None], w, rows)``)."""
+    return weight * y_std[:, None], bias * y_std + y_mean
 
 
 class Family(nn.Module):

@@ -84,13 +84,13 @@ class TSFuzzy(Family):
         return lam @ self.intercept.T + (lam * x) @ self.slope.T
 
     def rules(self, y_std: torch.Tensor, y_mean: torch.Tensor) -> torch.Tensor:
-        """Rule coefficients in output units, (2 n_sets, A): intercepts then slopes.
+        """Rule coefficients in output units, (A, 2 n_sets): intercepts then slopes.
 
         Since the normalised memberships sum to one, :math:`\\bar y` folds into
         every intercept: :math:`b'_i = b_i s_y + \\bar y`, :math:`a'_i = a_i s_y`.
         """
         return torch.cat([self.intercept * y_std[:, None] + y_mean[:, None],
-                          self.slope * y_std[:, None]], dim=1).T
+                          self.slope * y_std[:, None]], dim=1)
 
     def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
               y_mean: torch.Tensor) -> torch.Tensor:
@@ -101,14 +101,14 @@ class TSFuzzy(Family):
         u = torch.cat([lam, lam * x])
         # the clamp of x would hide a NaN input: z0 - z0 (0 or NaN) brings it back
         total = torch.clamp(lam.sum(dim=0), min=TINY) + (z[0] - z[0])
-        return torch.mm(self.rules(y_std, y_mean).T, u) / total
+        return torch.mm(self.rules(y_std, y_mean), u) / total
 
     def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
         # At most two neighbouring sets are non-zero at any x: find them by index
         # instead of evaluating all n_sets (the same memberships, fewer instructions).
         p, P = prefix, prefix.upper()
         with torch.no_grad():
-            rules = as_float32(self.rules(y_std, y_mean).T)  # (A, 2n)
+            rules = as_float32(self.rules(y_std, y_mean))  # (A, 2n)
             lo, hi = (float(v) for v in as_float32(self.bounds))
             inv = float(as_float32(1.0 / torch.clamp(self.spacing, min=TINY))[0])
         n = self.n_sets

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .base import Family, as_numpy, distinct_levels, least_squares
+from .base import Family, as_numpy, distinct_levels, least_squares, output_layer
 from .cgen import CBody, as_float32, c_array
 
 __all__ = ["Linear"]
@@ -37,21 +37,16 @@ class Linear(Family):
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         return z @ self.weight.T + self.bias
 
-    def output_layer(self, y_std: torch.Tensor, y_mean: torch.Tensor
-                     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Weights (F, A) and bias (A,) in output units."""
-        return (self.weight * y_std[:, None]).T, self.bias * y_std + y_mean
-
     def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
               y_mean: torch.Tensor) -> torch.Tensor:
-        w, b = self.output_layer(y_std, y_mean)
-        return torch.addmm(b[:, None], w.T, torch.stack(list(z)))
+        w, b = output_layer(self.weight, self.bias, y_std, y_mean)
+        return torch.addmm(b[:, None], w, torch.stack(list(z)))
 
     def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
         p, P = prefix, prefix.upper()
         with torch.no_grad():
-            w, b = self.output_layer(y_std, y_mean)
-        consts = [c_array(f"{p}_lin_w", as_float32(w.T)), c_array(f"{p}_lin_b", as_float32(b))]
+            w, b = output_layer(self.weight, self.bias, y_std, y_mean)
+        consts = [c_array(f"{p}_lin_w", as_float32(w)), c_array(f"{p}_lin_b", as_float32(b))]
         body = f"""\
     for (a = 0; a < {P}_N_AXES; ++a) {{
         float acc = {p}_lin_b[a];

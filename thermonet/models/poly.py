@@ -22,7 +22,7 @@ import torch
 from torch import nn
 
 from ..errors import ConfigError
-from .base import Family, as_numpy, distinct_levels, least_squares
+from .base import Family, as_numpy, distinct_levels, least_squares, output_layer
 from .cgen import CBody, as_float32, c_array
 
 __all__ = ["Poly", "monomials"]
@@ -83,22 +83,17 @@ class Poly(Family):
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         return self.design(z) @ self.weight.T + self.bias
 
-    def output_layer(self, y_std: torch.Tensor, y_mean: torch.Tensor
-                     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Weights (n_terms, A) and bias (A,) in output units."""
-        return (self.weight * y_std[:, None]).T, self.bias * y_std + y_mean
-
     def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
               y_mean: torch.Tensor) -> torch.Tensor:
-        w, b = self.output_layer(y_std, y_mean)
-        return torch.addmm(b[:, None], w.T, torch.stack(self.term_columns(z)))
+        w, b = output_layer(self.weight, self.bias, y_std, y_mean)
+        return torch.addmm(b[:, None], w, torch.stack(self.term_columns(z)))
 
     def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
         p, P = prefix, prefix.upper()
         with torch.no_grad():
-            w, b = self.output_layer(y_std, y_mean)
+            w, b = output_layer(self.weight, self.bias, y_std, y_mean)
         consts = [f"#define {P}_POLY_TERMS {len(self.terms)}",
-                  c_array(f"{p}_poly_w", as_float32(w.T)), c_array(f"{p}_poly_b", as_float32(b))]
+                  c_array(f"{p}_poly_w", as_float32(w)), c_array(f"{p}_poly_b", as_float32(b))]
         # straight-line powers and terms (the exponents are known now): no table, no branch
         lines = [f"        float term[{P}_POLY_TERMS];"]
         for i in range(self.n_inputs):

@@ -28,7 +28,7 @@ import torch
 from torch import nn
 
 from ..errors import ConfigError
-from .base import LOG_CLIP, TINY, Family, as_numpy, least_squares
+from .base import LOG_CLIP, TINY, Family, as_numpy, least_squares, output_layer
 from .cgen import CBody, as_float32, c_array
 
 __all__ = ["RBF"]
@@ -102,11 +102,6 @@ class RBF(Family):
         m = torch.cat([2.0 * self.centres * g[:, None], -g[:, None]], dim=1).T
         return m, -g * (self.centres * self.centres).sum(dim=1)
 
-    def output_layer(self, y_std: torch.Tensor, y_mean: torch.Tensor
-                     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Weights (J, A) and bias (A,) in output units (de-standardisation folded in)."""
-        return (self.weight * y_std[:, None]).T, self.bias * y_std + y_mean
-
     def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
               y_mean: torch.Tensor) -> torch.Tensor:
         # ‖z − c‖² expanded: one (J, F+2) × (F+2, N) product — the rows of u are z,
@@ -119,18 +114,18 @@ class RBF(Family):
         m, b = self.exponent()
         u = torch.stack([*z, zz, torch.ones_like(zz)])
         phi = torch.exp(torch.mm(torch.cat([m.T, b[:, None]], dim=1), u))
-        w, c = self.output_layer(y_std, y_mean)
-        return torch.addmm(c[:, None], w.T, phi)
+        w, c = output_layer(self.weight, self.bias, y_std, y_mean)
+        return torch.addmm(c[:, None], w, phi)
 
     def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
         p, P = prefix, prefix.upper()
         with torch.no_grad():
             m, b = self.exponent()
-            w, c = self.output_layer(y_std, y_mean)
+            w, c = output_layer(self.weight, self.bias, y_std, y_mean)
         consts = [f"#define {P}_RBF_CENTRES {int(self.n_centres)}",
                   # one row per centre: F coefficients of z, then that of ||z||^2
                   c_array(f"{p}_rbf_m", as_float32(m.T)), c_array(f"{p}_rbf_b", as_float32(b)),
-                  c_array(f"{p}_rbf_w", as_float32(w.T)), c_array(f"{p}_rbf_c", as_float32(c))]
+                  c_array(f"{p}_rbf_w", as_float32(w)), c_array(f"{p}_rbf_c", as_float32(c))]
         body = f"""\
     {{
         float phi[{P}_RBF_CENTRES];
