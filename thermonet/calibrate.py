@@ -108,6 +108,8 @@ def check_instance(inst: SensorInstance) -> str | None:
         return f"{inst.kind}: neither autopilot compensates it for temperature (listed only)"
     if inst.temperature_c is None:
         return "no temperature: the sensor has no thermometer in the log"
+    if inst.untrusted:   # too many of its samples damaged (thermonet.logs.base.screen_samples)
+        return inst.untrusted
     if inst.n_samples < MIN_SAMPLES:
         return f"too few samples: {inst.n_samples} (need at least {MIN_SAMPLES})"
     if not np.any(inst.values != 0):
@@ -345,7 +347,8 @@ def _results_doc(log: FlightLog, results: list[InstanceResult], param_path: Path
         inst_doc[r.name] = d
     return {"schema": 1, "thermonet_version": __version__, "log": str(log.path),
             "autopilot": log.autopilot, "params_file": str(param_path),
-            "log_notes": list(log.notes), "instances": inst_doc}
+            "log_notes": list(log.notes), "log_damage": list(log.damage),
+            "instances": inst_doc}
 
 
 def render_calibration_report(doc: dict[str, Any], out: Path) -> str:
@@ -400,6 +403,10 @@ def format_report(doc: dict[str, Any]) -> str:
     """One block per instance: fitted (with verdict and check) or left out (with the reason)."""
     lines = [f"thermonet calibrate: {doc['log']} ({doc['autopilot']})",
              f"parameter file: {doc['params_file']}", ""]
+    # what the log reader found damaged and where, and the log's own notes (gaps)
+    lines += [f"log: {n}" for n in doc.get("log_damage", []) + doc.get("log_notes", [])]
+    if doc.get("log_damage") or doc.get("log_notes"):
+        lines.append("")
     for name, d in doc["instances"].items():
         span = d.get("temperature_c")
         where = f"{span[0]:.1f}..{span[1]:.1f} °C" if span else "no temperature"

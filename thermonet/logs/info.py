@@ -40,11 +40,12 @@ def summarize_log(path: str | Path) -> dict[str, Any]:
             "temperature_min_c": None if temp is None else float(temp.min()),
             "temperature_max_c": None if temp is None else float(temp.max()),
             "temperature_step_c": temperature_step(temp),
-            "unit": UNITS[inst.kind], "notes": list(inst.notes)})
+            "unit": UNITS[inst.kind], "notes": list(inst.notes),
+            "damaged_samples": inst.damaged, "untrusted": inst.untrusted})
     keep = ("TC_", "SYS_CAL_", "INS_TCAL", "AHRS_ORIENTATION")
     params = {k: v for k, v in sorted(log.params.items()) if k.startswith(keep)}
     return {"log": str(log.path), "autopilot": log.autopilot, "instances": rows,
-            "params": params}
+            "params": params, "log_notes": list(log.notes), "damage": list(log.damage)}
 
 
 def format_log_summary(s: dict[str, Any]) -> str:
@@ -63,9 +64,15 @@ def format_log_summary(s: dict[str, Any]) -> str:
     out = [f"{s['log']}: {s['autopilot']} log, {len(rows)} sensor instances", ""]
     out += ["  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)).rstrip()
             for line in [head, ["-" * w for w in widths]] + rows]
-    notes = [f"{r['name']}: {n}" for r in s["instances"] for n in r["notes"]]
+    notes = list(s.get("log_notes", [])) + [f"{r['name']}: {n}" for r in s["instances"]
+                                            for n in r["notes"]]
     if notes:
         out += ["", "notes:"] + [f"  {n}" for n in notes]
+    untrusted = [f"{r['name']}: {r['untrusted']}" for r in s["instances"] if r.get("untrusted")]
+    if s.get("damage") or untrusted:
+        out += ["", "damaged (what could not be read or trusted, and where):"]
+        out += [f"  {n}" for n in s.get("damage", [])]
+        out += [f"  not trusted — {n}" for n in untrusted]
     if s["params"]:
         out += ["", "calibration parameters in the log: " + ", ".join(
             f"{k}={v:g}" for k, v in s["params"].items())]
