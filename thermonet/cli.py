@@ -33,6 +33,17 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.runs is not None and not 1 <= args.runs <= MAX_RUNS:
         raise ThermonetError(f"--runs {args.runs}: not in 1..{MAX_RUNS} (the upper bound keeps "
                              "a request within memory)")
+    if args.preset in BOARD_PRESETS:
+        # a board log is one board warmed once: options it does not use are refused, not ignored
+        unused = [f"--{name} {value}" for name, value in (("runs", args.runs),
+                                                           ("units", args.units),
+                                                           ("outliers", args.outliers or None))
+                  if value is not None]
+        if unused:
+            raise ThermonetError(f"{unused[0]}: preset '{args.preset}' simulates one board "
+                                 "warmed once (a single log); it takes only --seed and --out")
+    if args.seed < 0:
+        raise ThermonetError(f"--seed {args.seed}: must be a non-negative integer")
     if args.preset in BOARD_PRESETS or is_log(args.out):
         return _simulate_board(args)
     if args.units is None and args.outliers:

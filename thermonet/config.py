@@ -41,6 +41,10 @@ class DataConfig:
     outputs: list[str] = field(default_factory=list)  # axes to model (empty: all outputs)
 
 
+#: Most contiguous time blocks per run (``split.n_blocks``): beyond it a block is a few samples.
+MAX_BLOCKS = 1000
+
+
 @dataclass
 class SplitConfig:
     """How runs are split; never by random sample (see :mod:`thermonet.splits`).
@@ -69,9 +73,15 @@ class SplitConfig:
         if self.strategy not in SPLITS:
             raise ConfigError(f"key 'split.strategy': {self.strategy!r} is not one of "
                               f"{', '.join(repr(k) for k in SPLITS)}")
+        if isinstance(self.n_blocks, bool) or not isinstance(self.n_blocks, int):
+            raise ConfigError(f"key 'split.n_blocks': {self.n_blocks!r} is not an integer")
         if self.n_blocks < 5:
             raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is below 5 (every group "
                               "of five blocks gives one validation and one test block)")
+        if self.n_blocks > MAX_BLOCKS:
+            raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is above {MAX_BLOCKS} "
+                              "(blocks that short put correlated neighbouring samples in "
+                              "train and test: a split by sample in disguise)")
 
 
 @dataclass

@@ -25,10 +25,22 @@ import numpy as np
 from ..errors import ConfigError
 from ..recording import Dataset
 from .device import AnyLaw, LawSum, Lorentz, Polynomial, Sinusoid
-from .presets import SimConfig, get_preset, simulate
+from .presets import (
+    MAX_RUNS,
+    MAX_SAMPLES,
+    SimConfig,
+    _apply_overrides,
+    get_preset,
+    request_samples,
+    simulate,
+)
 
 __all__ = ["simulate_fleet", "unit_seed", "unit_device_id", "outlier_config",
-           "OUTLIER_SIGMAS", "MIN_GAIN_SIGMA"]
+           "OUTLIER_SIGMAS", "MIN_GAIN_SIGMA", "MAX_UNITS"]
+
+#: Most units one fleet may have (a production line's week; the fleet's tables and the
+#: per-unit bookkeeping grow with it).  Checked before anything is simulated or listed.
+MAX_UNITS = 10_000
 
 #: How far an outlier unit's drift law is off the fleet's, in unit-to-unit standard deviations.
 OUTLIER_SIGMAS = 10.0
@@ -101,6 +113,9 @@ def simulate_fleet(preset: str | SimConfig, *, units: int, runs: int | None = No
             raise ConfigError(f"{name} must be an integer, got {value!r}")
     if units < 1:
         raise ConfigError(f"units must be at least 1, got {units}")
+    if units > MAX_UNITS:
+        raise ConfigError(f"units={units} is above the limit of {MAX_UNITS:,} units per fleet "
+                          "(bounded so that a request cannot exhaust memory)")
     if not 0 <= outliers <= units:
         raise ConfigError(f"outliers must be between 0 and units ({units}), got {outliers}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -109,6 +124,16 @@ def simulate_fleet(preset: str | SimConfig, *, units: int, runs: int | None = No
     bad = [k for k in indices if not 0 <= k < units]
     if bad:
         raise ConfigError(f"unit index {bad[0]} is outside the fleet of {units} units")
+    n_runs = cfg.default_runs if runs is None else int(runs)
+    if not 1 <= n_runs <= MAX_RUNS:
+        raise ConfigError(f"runs={n_runs} is not in 1..{MAX_RUNS} (runs per unit)")
+    # what this call holds at once: every simulated unit's runs, counted before any is made
+    held = request_samples(_apply_overrides(cfg, dict(overrides)), n_runs) * len(indices)
+    if held > MAX_SAMPLES:
+        raise ConfigError(f"{len(indices)} units × {n_runs} runs of preset '{cfg.name}' are "
+                          f"{held:,} samples, above the limit of {MAX_SAMPLES:,} per simulation "
+                          "(bounded so that a request cannot exhaust memory; simulate fewer "
+                          "units, or let `thermonet fleet --units` simulate one unit per worker)")
     odd = outlier_config(cfg) if outliers else cfg
     recs = []
     for k in indices:

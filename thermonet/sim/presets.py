@@ -18,6 +18,7 @@ accel-ramp 2 Hz    noise-dominated on purpose: 14,400 samples per run
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, cast
 
@@ -276,15 +277,22 @@ MAX_RUNS = 1000
 MAX_SAMPLES = 50_000_000
 
 
+def request_samples(cfg: SimConfig, n_runs: int) -> int:
+    """Samples that ``n_runs`` runs of ``cfg`` hold (0 when the rate or procedures are invalid:
+    :func:`simulate_run` says why), computed before anything is allocated."""
+    fs = float(cfg.sample_rate_hz)
+    if not fs > 0 or not math.isfinite(fs) or not cfg.procedures:
+        return 0
+    per = [int(np.floor(p.duration_s * fs)) + 1 for p in cfg.procedures]
+    full, rest = divmod(int(n_runs), len(per))
+    return full * sum(per) + sum(per[:rest])
+
+
 def _check_request_size(cfg: SimConfig, n_runs: int) -> None:
     if n_runs > MAX_RUNS:
         raise ConfigError(f"runs={n_runs} is above the limit of {MAX_RUNS} runs per simulation "
                           "(bounded so that a request cannot exhaust memory)")
-    fs = float(cfg.sample_rate_hz)
-    if not fs > 0 or not cfg.procedures:
-        return  # simulate_run says why
-    total = sum(int(np.floor(cfg.procedures[i % len(cfg.procedures)].duration_s * fs)) + 1
-                for i in range(n_runs))
+    total = request_samples(cfg, n_runs)
     if total > MAX_SAMPLES:
         raise ConfigError(f"{n_runs} runs of preset '{cfg.name}' are {total:,} samples, above the "
                           f"limit of {MAX_SAMPLES:,} per simulation (bounded so that a request "
