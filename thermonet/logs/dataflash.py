@@ -118,7 +118,7 @@ def _open_reader(path: Path) -> tuple[Any, str]:
     prints, captured and returned: the C indexer writes them to the process's stderr)."""
     from pymavlink import DFReader
 
-    class Reader(DFReader.DFReader_binary):  # type: ignore[misc]
+    class Reader(DFReader.DFReader_binary):
         def init_arrays_fast(self, progress_callback: Any = None) -> None:
             self.init_arrays(progress_callback)
 
