@@ -8,7 +8,7 @@ PIP    := $(PY) -m pip
 TORCH  := torch==2.13.0
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test bench clean chromium
+.PHONY: venv demo test test-cpus qemu bench clean chromium
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,6 +30,27 @@ test: $(STAMP) chromium
 	$(VENV)/bin/ruff check thermonet tests experiments export
 	$(VENV)/bin/mypy thermonet
 	$(PY) -m pytest -q -n 2 tests
+
+# The numerics subset (pytest -m numerics: parity, export, runtime, dynamics, decisions) as on
+# two other CPUs, under Debian's qemu-user: an AMD EPYC (AVX2, FMA; torch dispatches AVX2) and
+# a Nehalem (no AVX; torch's default kernels).  qemu-user emulates one process, so pytest runs
+# without xdist workers (they would start natively) and the two CPUs run side by side.
+# NPY_DISABLE_CPU_FEATURES: Debian 12's qemu 7.2 crashes inside numpy's AVX2 sort; numpy's own
+# dispatch is turned off (torch, onnxruntime and the math libraries still see the CPU).
+QEMU     := qemu-x86_64
+NUMERICS := $(PY) -m pytest -q -p no:xdist -p no:cacheprovider -m numerics tests
+NPY_OFF  := NPY_DISABLE_CPU_FEATURES="X86_V3 X86_V4 AVX512_ICL AVX512_SPR"
+
+qemu:
+	command -v $(QEMU) >/dev/null || (apt-get update && apt-get install -y --no-install-recommends qemu-user)
+
+test-cpus: $(STAMP) qemu
+	$(NPY_OFF) $(QEMU) -cpu EPYC-Rome $(NUMERICS) > .test-epyc-rome.log 2>&1 & epyc=$$!; \
+	$(QEMU) -cpu Nehalem $(NUMERICS) > .test-nehalem.log 2>&1; nehalem=$$?; \
+	wait $$epyc; epyc=$$?; \
+	echo "== -cpu EPYC-Rome"; tail -n 15 .test-epyc-rome.log; \
+	echo "== -cpu Nehalem"; tail -n 15 .test-nehalem.log; \
+	test $$epyc -eq 0 && test $$nehalem -eq 0
 
 bench: $(STAMP)
 	$(PY) experiments/run_all.py

@@ -1,4 +1,10 @@
-"""Shared fixtures: small recordings the tests make themselves."""
+"""Shared fixtures: small recordings the tests make themselves.
+
+Every float comparison in the suite follows the tolerance policy in ``tests/tolerances.py``
+(float32 and float64 bounds derived from the precision, exact equality only where the code
+promises bit-identity), so the suite passes on any x86-64 CPU; the header of every run names
+the CPU and the kernels torch and numpy dispatch on it.
+"""
 
 from __future__ import annotations
 
@@ -9,6 +15,23 @@ import pytest
 
 from thermonet.io import write_parquet
 from thermonet.recording import Dataset, Recording
+
+
+def pytest_report_header(config: pytest.Config) -> list[str]:
+    """The CPU the floats were computed on (``make test-cpus`` runs the suite as on others)."""
+    import platform
+
+    import torch
+
+    model = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text()
+                  .splitlines() if ln.startswith("model name")), platform.processor()) \
+        if Path("/proc/cpuinfo").exists() else platform.processor()
+    simd = np.__config__.CONFIG.get("SIMD Extensions", {}) if hasattr(np.__config__, "CONFIG") \
+        else {}
+    found = ",".join(simd.get("found", [])[-3:]) if isinstance(simd, dict) else ""
+    return [f"cpu: {model}; torch kernels: {torch.backends.cpu.get_cpu_capability()}; "
+            f"numpy dispatch (last 3): {found or 'baseline'}"]
+
 
 #: Real recordings copied into the repository with their licences (tests/data/real/README.md).
 REAL_DATA = Path(__file__).resolve().parent / "data" / "real"

@@ -72,6 +72,7 @@ def test_save_load_round_trip_carries_the_family_config_and_best_epoch(tmp_path)
                                    train=thermonet.TrainConfig(max_epochs=7)).fit(ds[0], val=ds[1])
     path = est.save(tmp_path / "m.pt")
     back = thermonet.DriftEstimator.load(path)
+    # saved and loaded: the same weights through the same computation, bit for bit
     np.testing.assert_array_equal(back.predict(ds[2]), est.predict(ds[2]))
     assert (back.family, back.inputs, back.hyper) == ("poly", ["dT"], {"degree": 3, "cross": False})
     assert back.best_epoch_ == est.best_epoch_ and back.best_val_ == pytest.approx(est.best_val_)
@@ -93,6 +94,7 @@ def test_read_real_recordings_through_a_mapping():
 def test_simulate_is_seeded():
     a = thermonet.simulate("patent-gyro", runs=1, seed=3)
     b = thermonet.simulate("patent-gyro", runs=1, seed=3)
+    # the same seed, the same computation: bit-identical (the simulator's promise)
     np.testing.assert_array_equal(a[0].outputs["gyro_x"], b[0].outputs["gyro_x"])
 
 
@@ -180,6 +182,7 @@ def test_a_family_and_a_format_are_added_by_registration_only(toy_extensions, tm
     assert np.max(np.abs(est.predict(ds[2])[:, 0] - _true_drift(ds[2]))[inside]) < 5e-4
     # save/load, the ONNX export and its parity check, the autopilot formats through the hook
     back = thermonet.DriftEstimator.load(est.save(tmp_path / "toy.pt"))
+    # saved and loaded: the same weights through the same computation, bit for bit
     np.testing.assert_array_equal(back.predict(ds[2]), est.predict(ds[2]))
     assert est.export(tmp_path / "toy.onnx", format="onnx").stat().st_size > 0
     params = read_px4_params(est.export(tmp_path / "toy.params", format="px4-params",
@@ -191,6 +194,7 @@ def test_a_family_and_a_format_are_added_by_registration_only(toy_extensions, tm
     assert main(["export", str(tmp_path / "toy.pt"), "--format", "toy-npz",
                  "--out", str(tmp_path / "cli.npz")]) == 0
     assert "wrote" in capsys.readouterr().out
+    # the same checkpoint through the same exporter: bit-identical
     np.testing.assert_array_equal(np.load(tmp_path / "cli.npz")["form"], npz["form"])
 
 

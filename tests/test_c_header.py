@@ -17,6 +17,9 @@ from thermonet.features import FeatureSpec
 from thermonet.models import MODELS
 from thermonet.train import TrainConfig, fit
 
+#: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
+pytestmark = pytest.mark.numerics
+
 AXES = ["acc_x", "acc_y"]
 # the export's own parity driver, with the default prefix
 DRIVER = PARITY_DRIVER.replace("PFX", "THERMONET").replace("pfx", "thermonet")

@@ -188,7 +188,7 @@ def test_simulate_board_cli_writes_both_log_formats(tmp_path: Path,
         assert main(["simulate", "fc-board", "--seed", "3", "--out", str(path)]) == 0
         log = read_log(path)
         assert log.autopilot == autopilot and len(log.instances) == 7
-        same = read_log(path)                                 # same seed, same data
+        same = read_log(path)               # the same file read twice: values copied, exact
         assert np.array_equal(log.instances[0].values, same.instances[0].values)
     capsys.readouterr()
     assert main(["simulate", "fc-board", "--out", str(tmp_path / "b.parquet")]) == 1

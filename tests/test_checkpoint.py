@@ -13,6 +13,9 @@ from thermonet.features import FeatureSpec
 from thermonet.models import MODELS
 from thermonet.train import TrainConfig, fit, predict
 
+#: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
+pytestmark = pytest.mark.numerics
+
 # a heating-then-cooling run: temperature and rate both vary
 _t = np.linspace(0.0, 3.0, 300)
 TEMP = 20.0 + 40.0 * np.sin(_t)
@@ -58,6 +61,7 @@ def test_checkpoint_round_trip_identical_predictions(name, tmp_path):
     raw = torch.load(path, weights_only=True)                 # plain data only
     assert raw["family"] == name and raw["outputs"] == ["gyro_x", "gyro_y"]
     model, meta = load_checkpoint(path)
+    # saved and loaded: the same weights through the same computation, bit for bit
     np.testing.assert_array_equal(predict(model, sig), predict(res.model, sig))
     assert meta["config"] == {"family": name, "lr": 0.01, "runs": ["a", "b"]}
     assert meta["extra"] == {"rms": [1.0, 2.0]}

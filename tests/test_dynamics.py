@@ -26,6 +26,10 @@ from thermonet.exporting.c_stream import run_stream_c
 from thermonet.features import FeatureSpec, parse_feature, signals_for
 from thermonet.sim.device import play_operator
 from thermonet.train import TrainConfig, fit
+from tolerances import assert_f64_close
+
+#: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
+pytestmark = pytest.mark.numerics
 
 RUNTIME = Path(__file__).resolve().parents[1] / "export" / "thermonet_runtime.py"
 INPUTS = ["dT", "rate", "lag_300", "play_0.5"]
@@ -117,6 +121,8 @@ def test_known_values_exact_for_any_sample_interval():
     assert p[120] == pytest.approx(2.0)                  # soak: memory of the heating branch
     assert p[-1] == pytest.approx(-2.0)                  # cooled by 5 > 2w: the cooling branch
     # the simulator's hysteresis is the same operator (width = 2w), normalised to ±1
+    # only correctly rounded elementwise operations (±, min, max, ÷2) on both sides: exact on
+    # every CPU
     np.testing.assert_array_equal(play_operator(temp, 4.0), p / 2.0)
 
 
@@ -219,6 +225,7 @@ def test_training_runtime_and_c_match_sample_by_sample(trained):
     # a restart (reset) is a fresh stream: the same numbers as the first samples again
     comp.reset()
     again = [comp.step(t[k], temp[k], raw[k]).drift for k in range(20)]
+    # the same stream of the same computation again: bit-identical
     np.testing.assert_array_equal(np.array(again), np.array([r.drift for r in stream[:20]]))
 
     header = render_c_header(model)
@@ -280,6 +287,7 @@ def test_csv_command_from_time_and_temperature_alone(trained, tmp_path):
         rows = list(csv.DictReader(fh))
     got = np.array([[float(r[f"{a}_drift"]) for a in AXES] for r in rows])
     want = rt.Compensator(path).compensate(temperature_c=temp, raw=raw, time_s=t).drift
+    # the same Compensator behind the command line; floats written with repr: exact
     np.testing.assert_array_equal(got, want.astype(np.float64))
     assert rows[1200]["out_of_range"] == "1" and rows[300]["out_of_range"] == "1"
 
@@ -362,7 +370,8 @@ def test_stacked_held_out_blocks_restart_the_state_at_each_block():
     assert stacked.meta["segment_starts"] == "0,1000,2500"
     signals = ["rate_c_per_min", "lag_300_c", "play_0.5_c"]
     want = np.vstack([signal_matrix(b, signals, GAP_S) for b in blocks])
-    np.testing.assert_array_equal(signal_matrix(stacked, signals, GAP_S), want)
+    # the recursions over the stacked blocks and over each block: float64 rounding
+    assert_f64_close(signal_matrix(stacked, signals, GAP_S), want, atol=1e-12)
     # every block starts afresh: rate, lag and play are 0 at its first sample
     assert not want[[0, 1000, 2500]].any()
     bad = Recording(time_s=t[:10], temperature_c=temp[:10], outputs={"gyro_x": np.zeros(10)},

@@ -79,6 +79,7 @@ def test_fleet_parquet_round_trip_keeps_units_apart(tmp_path):
     assert back.unit_ids == ds.unit_ids
     for a, b in zip(ds, back, strict=True):
         assert (a.device_id, a.run_id) == (b.device_id, b.run_id)
+        # written and read back: values copied, exact
         np.testing.assert_array_equal(a.outputs["gyro_x"], b.outputs["gyro_x"])
     units = split_units(back)
     assert list(units) == ds.unit_ids and all(len(u) == 2 for u in units.values())
@@ -88,6 +89,7 @@ def test_unit_k_is_the_same_whatever_the_fleet_size():
     small = simulate_fleet("patent-gyro", units=2, runs=1, seed=7, sample_rate_hz=0.05)
     big = simulate_fleet("patent-gyro", units=5, runs=1, seed=7, sample_rate_hz=0.05,
                          unit_indices=[1])
+    # unit k is drawn from its own seed: the same computation, bit-identical
     np.testing.assert_array_equal(small[1].outputs["gyro_y"], big[0].outputs["gyro_y"])
     assert big[0].device_id == "patent-gyro-u001"
     # and unit k is the single-device simulator at the derived seed
@@ -101,6 +103,7 @@ def test_outlier_unit_law_is_scaled_by_the_stated_sigmas():
                  flicker_noise=False, random_walk_noise=False)
     normal = simulate_fleet("patent-gyro", units=2, runs=1, seed=3, **quiet)
     odd = simulate_fleet("patent-gyro", units=2, runs=1, seed=3, outliers=1, **quiet)
+    # unit 0 is not the outlier: its law is the same computation, bit-identical
     np.testing.assert_array_equal(normal[0].drift["drift_gyro_x"], odd[0].drift["drift_gyro_x"])
     factor = 1.0 + OUTLIER_SIGMAS * 0.01  # patent-gyro's bias_gain_rel is 1 %
     rec_n, rec_o = normal[1], odd[1]

@@ -25,6 +25,9 @@ from thermonet.metrics import (
     scale_factor_tempco_ppm_per_c,
 )
 
+#: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
+pytestmark = pytest.mark.numerics
+
 
 def _flicker(rng: np.random.Generator, n: int) -> np.ndarray:
     """Unit-variance 1/f noise by spectral shaping of white noise."""

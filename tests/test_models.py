@@ -12,6 +12,9 @@ from thermonet.features import FeatureSpec
 from thermonet.models import MODELS, TINY, build_family, get_family
 from thermonet.train import TrainConfig, fit, predict
 
+#: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
+pytestmark = pytest.mark.numerics
+
 T = np.linspace(-20.0, 60.0, 801)  # study 000's range, °C
 
 

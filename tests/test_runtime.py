@@ -17,6 +17,9 @@ from thermonet.exporting import export_onnx
 from thermonet.features import FeatureSpec
 from thermonet.train import TrainConfig, fit
 
+#: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
+pytestmark = pytest.mark.numerics
+
 RUNTIME = Path(__file__).resolve().parents[1] / "export" / "thermonet_runtime.py"
 AXES = ["gyro_x", "gyro_y", "gyro_z"]
 # deg/s per degC, degC^2, degC^3: recovered by the cubic model

@@ -48,7 +48,7 @@ def test_same_seed_identical_different_seed_different_noise():
     a = simulate("patent-gyro", runs=2, seed=7)
     b = simulate("patent-gyro", runs=2, seed=7)
     c = simulate("patent-gyro", runs=2, seed=8)
-    for ra, rb, rc in zip(a, b, c, strict=True):
+    for ra, rb, rc in zip(a, b, c, strict=True):   # same seed, same computation: exact
         np.testing.assert_array_equal(ra.outputs["gyro_x"], rb.outputs["gyro_x"])
         np.testing.assert_array_equal(ra.temperature_c, rb.temperature_c)
         assert not np.array_equal(ra.outputs["gyro_x"], rc.outputs["gyro_x"])

@@ -19,7 +19,21 @@ from thermonet.exporting import export_onnx
 from thermonet.io import write_parquet
 from thermonet.recording import Dataset, Recording
 from thermonet.train import predict
-from thermonet.verdicts import block_labels, block_stats, choose, draws, ratio_interval, verdict_of
+from thermonet.verdicts import (
+    DECISION_RTOL,
+    above,
+    below,
+    block_labels,
+    block_stats,
+    choose,
+    draws,
+    ratio_interval,
+    same,
+    verdict_of,
+)
+
+#: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
+pytestmark = pytest.mark.numerics
 
 FAST = TrainConfig(max_epochs=15, patience=4)
 RATE_HZ = 0.5  # one sample every 2 s: small recordings, fast tests
@@ -92,6 +106,35 @@ def test_choose_one_standard_error_rule():
     assert why.startswith("tie:") and "fewest parameters" in why
     none, _, why = choose({"a": (1.0, np.ones(10))}, {"a": 2})
     assert none is None and "do no harm" in why
+
+
+def test_decisions_do_not_turn_on_the_last_bits():
+    """Scores equal up to rounding (the poly3 family and the cubic baseline are one model) are
+    one score for every decision, whichever of the two a CPU rounds lower: the fewest
+    parameters, then the family listed first, decide (thermonet.verdicts, DECISION_RTOL)."""
+    boot = np.linspace(0.30, 0.50, 1000)
+    for bump in (-3e-7, 0.0, 3e-7):       # float32 rounding of a ratio of 0.4, either way
+        scores = {"cubic": (0.40, boot), "poly3": (0.40 * (1 + bump), boot),
+                  "rbf": (0.20, boot - 0.2)}
+        chosen, tied, _ = choose(scores, {"cubic": 4, "poly3": 4, "rbf": 99})
+        assert chosen == "rbf" and tied == []
+        scores["rbf"] = (0.40 * (1 - bump), boot)            # now all three tie
+        chosen, tied, _ = choose(scores, {"cubic": 4, "poly3": 4, "rbf": 99})
+        assert chosen == "cubic" and tied == ["cubic", "poly3", "rbf"]
+        # listed the other way round, the first listed wins: config order, never the bits
+        flipped = dict(reversed(list(scores.items())))
+        assert choose(flipped, {"cubic": 4, "poly3": 4, "rbf": 99})[0] == "poly3"
+    # a score of 1 up to rounding does not beat raw; an interval edge at 1 is no verdict
+    for eps in (-1e-9, 0.0, 1e-9):
+        assert choose({"a": (1.0 + eps, np.full(10, 1.0))}, {"a": 2})[0] is None
+        assert verdict_of(0.5, 1.0 + eps) == "indistinguishable"
+        assert verdict_of(1.0 + eps, 1.5) == "indistinguishable"
+    # clear of the margin, the plain comparison holds
+    assert verdict_of(0.5, 1.0 - 10 * DECISION_RTOL) == "better"
+    assert verdict_of(1.0 + 10 * DECISION_RTOL, 1.5) == "worse"
+    assert same(1.0, 1.0 + 0.5 * DECISION_RTOL) and not same(1.0, 1.0 + 2 * DECISION_RTOL)
+    assert below(0.9, 1.0) and not below(1.0 - 0.5 * DECISION_RTOL, 1.0)
+    assert above(1.1, 1.0) and not above(float("nan"), 1.0) and not below(float("nan"), 1.0)
 
 
 # --------------------------------------------------------------------- whole comparisons

@@ -73,6 +73,7 @@ from .exporting.firmware import (
 from .fileio import atomic_write_text
 from .logs import FlightLog, SensorInstance, read_log, temperature_step
 from .metrics import binned_peak_to_peak
+from .verdicts import below
 
 __all__ = ["calibrate", "fit_firmware", "check_instance", "apply_firmware",
            "MIN_SPAN_C", "MAX_STEP_C", "MIN_SAMPLES", "InstanceResult"]
@@ -225,7 +226,9 @@ def _verdict(summary: dict[str, Any]) -> tuple[bool, str]:
         else:
             line += (f"; thermonet's best ({chosen}, {other['val_score']:.3g}) is within "
                      f"{100 * (1 - BETTER_BY):.0f} % of it: the firmware form is enough")
-    return bool(f["val_score"] < 1.0 and np.all(comp < raw)), line
+    # "helps" beyond the decision margin (thermonet.verdicts.DECISION_RTOL), never by rounding
+    helps = below(f["val_score"], 1.0) and all(below(c, r) for c, r in zip(comp, raw, strict=True))
+    return helps, line
 
 
 def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True

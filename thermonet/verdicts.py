@@ -53,6 +53,21 @@ and the family's validation score counts 1 there.  A family's validation score
 is the mean over axes of those (masked) ratios.  Families whose validation
 score lies within the best family's 95 % interval are tied with it; among them
 the one with the fewest parameters is chosen (the one-standard-error rule).
+
+Decisions that do not depend on the CPU
+---------------------------------------
+Every decision above compares floats: a score with 1, a score with another, a
+score with an interval's edge.  The float32 evaluation differs between CPUs in its
+last bits (vector width, fused multiply-add, the math library's dispatch), so two
+scores that are equal in exact arithmetic — the ``poly3`` family and the cubic
+baseline are the same model — differ by rounding, and a plain ``<`` would let the
+instruction set choose.  Every comparison therefore goes through :func:`below`,
+:func:`above` and :func:`same` with the relative margin :data:`DECISION_RTOL`
+(1e-4, a hundred times the float32 residual's rounding on a fit that removes 99 %
+of the drift): a difference inside it is *no* difference, and a documented rule
+settles it — ``better``/``worse`` need the interval clear of 1 by the margin;
+among scores within the margin of each other the fewest parameters win, then the
+family listed first in the config (never the last bits, never the name).
 """
 
 from __future__ import annotations
@@ -69,6 +84,7 @@ from .features import contiguous_segments
 __all__ = [
     "MIN_BLOCKS", "RESAMPLES", "LEVEL", "SEED", "BlockStats", "block_labels", "block_stats",
     "pool", "draws", "ratio_interval", "verdict_of", "masked_scores", "choose",
+    "DECISION_RTOL", "same", "below", "above",
     "apply_compensate_mask", "VerdictName",
 ]
 
@@ -217,11 +233,35 @@ def ratio_interval(ss_num: np.ndarray, ss_den: np.ndarray, counts: np.ndarray
     return ratio, boot, np.asarray(interval)
 
 
+#: Relative margin inside which two scores (or a score and 1) count as equal: see the module
+#: docstring, "Decisions that do not depend on the CPU".
+DECISION_RTOL = 1e-4
+
+
+def same(a: float, b: float, rtol: float = DECISION_RTOL) -> bool:
+    """``a`` and ``b`` are equal for every decision: within ``rtol`` of the larger magnitude."""
+    return abs(a - b) <= rtol * max(abs(a), abs(b))
+
+
+def below(a: float, b: float, rtol: float = DECISION_RTOL) -> bool:
+    """``a < b`` by more than the decision margin (false for NaN)."""
+    return bool(a < b) and not same(a, b, rtol)
+
+
+def above(a: float, b: float, rtol: float = DECISION_RTOL) -> bool:
+    """``a > b`` by more than the decision margin (false for NaN)."""
+    return bool(a > b) and not same(a, b, rtol)
+
+
 def verdict_of(low: float, high: float) -> VerdictName:
-    """``better`` if the interval lies below 1, ``worse`` above 1, else ``indistinguishable``."""
-    if math.isfinite(high) and high < 1.0:
+    """``better`` if the interval lies below 1, ``worse`` above 1, else ``indistinguishable``.
+
+    "Below" and "above" by more than :data:`DECISION_RTOL`: an interval edge at 1 up to
+    rounding is ``indistinguishable`` on every CPU.
+    """
+    if math.isfinite(high) and below(high, 1.0):
         return "better"
-    if math.isfinite(low) and low > 1.0:
+    if math.isfinite(low) and above(low, 1.0):
         return "worse"
     return "indistinguishable"
 
@@ -257,16 +297,27 @@ def choose(scores: dict[str, tuple[float, np.ndarray]], n_params: dict[str, int]
     ok = {k: v for k, v in scores.items() if math.isfinite(v[0])}
     if not ok:
         return None, [], "no family could be fitted"
-    best = min(ok, key=lambda k: ok[k][0])
+    order = {k: i for i, k in enumerate(ok)}        # config order: the last tie-breaker
+    low = min(v[0] for v in ok.values())
+    # the best: the lowest score, scores within the decision margin of it counting as equal
+    # (fewest parameters, then config order) -- never the last bits of a float
+    best = min((k for k, v in ok.items() if same(v[0], low)),
+               key=lambda k: (n_params[k], order[k]))
     score, boot = ok[best]
-    if score >= 1.0:
+    if not below(score, 1.0):
         return None, [], ("do no harm: no family beats the raw output on any axis of the "
                           f"validation data (best {best}: score ratio {score:.3g})")
     q = 100.0 * (1.0 - LEVEL) / 2.0
     upper = float(np.nanpercentile(boot, 100.0 - q))
-    tied = sorted((k for k, v in ok.items() if v[0] <= upper and v[0] < 1.0),
-                  key=lambda k: (n_params[k], ok[k][0]))
-    chosen = tied[0]
+    tied = sorted((k for k, v in ok.items()
+                   if (v[0] <= upper or same(v[0], upper)) and below(v[0], 1.0)),
+                  key=lambda k: (n_params[k], ok[k][0], order[k]))
+    # fewest parameters; among those the lowest score, where "lower" beats the margin;
+    # scores the same within it go to the family listed first
+    cands = [k for k in tied if n_params[k] == n_params[tied[0]]]
+    low_c = min(ok[k][0] for k in cands)
+    chosen = min((k for k in cands if same(ok[k][0], low_c)), key=lambda k: order[k])
+    tied = [chosen] + [k for k in tied if k != chosen]
     if len(tied) > 1:
         return chosen, tied, (
             f"tie: {', '.join(tied)} score within the {LEVEL:.0%} bootstrap interval of the "

@@ -1,0 +1,100 @@
+"""The model that ships does not depend on the CPU (issue 20).
+
+The default comparison and the realistic presets, on data small enough to run under
+``qemu-x86_64 -cpu Nehalem`` (``make test-cpus``), make the same decisions — the chosen family,
+the axes each family compensates, every validation and test verdict — as recorded in
+``tests/data/cpu_choices.json``.  The record was made natively on an AMD EPYC (AVX2, FMA) and
+checked unchanged on the CPUs the README lists; the decisions go through
+:mod:`thermonet.verdicts`' margin (:data:`~thermonet.verdicts.DECISION_RTOL`), so a last-bit
+difference between instruction sets cannot flip one.
+
+A change that *means* to change a decision re-records the file with
+``THERMONET_RECORD_CHOICES=1 .venv/bin/python -m pytest tests/test_cpu_choices.py`` and says
+why in its commit; the test then fails until the variable is unset, so a recording run can
+never pass for a check.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from thermonet.compare import run_compare
+from thermonet.config import load_config
+from thermonet.sim import simulate
+from thermonet.verdicts import DECISION_RTOL
+
+pytestmark = pytest.mark.numerics
+
+ROOT = Path(__file__).resolve().parents[1]
+RECORD = Path(__file__).resolve().parent / "data" / "cpu_choices.json"
+
+#: (case name, config file, simulated data: preset, runs, sample rate).  Rates are cut from the
+#: presets' 1 Hz so that each case runs in seconds natively (about ten times that emulated);
+#: the decisions are those of the full configs' family sets, splits and targets.
+CASES = [
+    ("default", "configs/default.yaml", ("patent-gyro", 5, 0.1)),
+    ("consumer-imu", "configs/consumer-imu.yaml", ("consumer-imu", 2, 0.2)),
+]
+
+
+def _decisions(res: dict[str, Any]) -> dict[str, Any]:
+    """What a CPU must not change: the choice, the masks and the verdicts."""
+    fams = {}
+    for label, fam in sorted(res["families"].items()):
+        if fam.get("status") != "ok":
+            fams[label] = {"status": fam.get("status")}
+            continue
+        fams[label] = {
+            "compensate": {a: ax["compensate"] for a, ax in sorted(fam["axes"].items())},
+            "val": {a: ax["val_verdict"] for a, ax in sorted(fam["axes"].items())},
+            "test": {a: ax["verdict"] for a, ax in sorted(fam["axes"].items())},
+            "vs_baseline": {a: (ax["vs_baseline"] or {}).get("verdict")
+                            for a, ax in sorted(fam["axes"].items())},
+        }
+    return {"chosen": res["chosen"], "tie": sorted(res.get("tie") or []),
+            "uncompensated": sorted(res.get("uncompensated_axes") or []), "families": fams}
+
+
+@pytest.fixture(scope="module")
+def decisions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    out = {}
+    for name, config, (preset, runs, rate) in CASES:
+        cfg = load_config(ROOT / config)
+        ds = simulate(preset, runs=runs, seed=0, sample_rate_hz=rate)
+        res = run_compare(cfg, tmp_path_factory.mktemp(name) / "out", dataset=ds, track=False,
+                          quiet=True, plots=False)
+        out[name] = _decisions(res)
+    return out
+
+
+def test_choices_are_the_recorded_ones(decisions: dict[str, Any]) -> None:
+    if os.environ.get("THERMONET_RECORD_CHOICES") == "1":
+        RECORD.write_text(json.dumps(decisions, indent=1, sort_keys=True) + "\n")
+        pytest.fail(f"recorded {RECORD.name}; unset THERMONET_RECORD_CHOICES and run again")
+    want = json.loads(RECORD.read_text())
+    assert set(decisions) == set(want)
+    for name, got in decisions.items():
+        # compared piece by piece so that a failure names the decision that moved
+        assert got["chosen"] == want[name]["chosen"], name
+        assert got["tie"] == want[name]["tie"], name
+        assert got["uncompensated"] == want[name]["uncompensated"], name
+        assert got["families"] == want[name]["families"], name
+
+
+def test_the_record_is_not_trivial(decisions: dict[str, Any]) -> None:
+    """The cases exercise every kind of decision: a choice, a tie, an axis left raw, verdicts of
+    every kind — a record of all-``better`` would check little."""
+    want = json.loads(RECORD.read_text())
+    assert all(w["chosen"] for w in want.values())
+    assert any(w["tie"] for w in want.values())
+    assert any(not c for w in want.values() for f in w["families"].values()
+               for c in f.get("compensate", {}).values())          # an axis left raw
+    kinds = {v for w in want.values() for f in w["families"].values()
+             for part in ("val", "test", "vs_baseline") for v in f.get(part, {}).values()}
+    assert kinds == {"better", "indistinguishable", "worse"}
+    assert 0 < DECISION_RTOL <= 1e-3
