@@ -169,9 +169,13 @@ def apply_firmware(params: dict[str, float], autopilot: str, inst: SensorInstanc
     return ardupilot_correction(params, inst.kind, temp, cal, imu=slot + 1)
 
 
-def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str) -> dict[str, Any]:
+def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
+             final: Path | None = None) -> dict[str, Any]:
+    """Compare the families on ``inst`` into ``out`` (inside the staging directory); paths
+    recorded in its results name ``final``, where ``out`` will be once the output is moved."""
     from .compare import run_compare
     from .config import CompareConfig, FamilyConfig, SplitConfig, TrackingConfig
+    from .outdir import relocate_json
 
     fw = ("px4-poly5" if inst.kind == "baro" else "px4-cubic") if autopilot == "px4" \
         else "ardupilot-cubic"
@@ -186,11 +190,12 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str) -> di
         ],
         tracking=TrackingConfig(enabled=False), baseline=fw)
     ds = inst.to_dataset(source).validate(source)
-    # calibrate rewrites its own DIR on a re-run: a previous comparison of this instance is
-    # replaced (once the new one is complete); a non-empty directory that is not one is refused
+    # built inside calibrate's own staging directory (a fresh one on every run)
     res = run_compare(cfg, out, overwrite=True, track=False, quiet=True, dataset=ds)
+    if final is not None:
+        relocate_json(out / "results.json", out, final)
     fams = res["families"]
-    summary: dict[str, Any] = {"dir": str(out), "chosen": res.get("chosen"),
+    summary: dict[str, Any] = {"dir": str(final or out), "chosen": res.get("chosen"),
                                "chosen_reason": res.get("chosen_reason"), "firmware_family": fw,
                                "families": {}}
     for label, fr in fams.items():
@@ -231,21 +236,42 @@ def _verdict(summary: dict[str, Any]) -> tuple[bool, str]:
     return helps, line
 
 
-def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True
-              ) -> dict[str, Any]:
+def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True,
+              overwrite: bool = False) -> dict[str, Any]:
     """Calibrate every instance of a flight-controller log; write ``out_dir``; return results.
+
+    ``out_dir`` appears whole or not at all (:mod:`thermonet.outdir`,
+    ``kind="calibration"``): it is built in a hidden staging directory beside it
+    and moved into place at the end, so an interruption (Ctrl-C, SIGTERM, an
+    error) leaves no half-written ``instances/``.  A non-empty ``out_dir`` that
+    is not a previous calibration is refused; a previous one is replaced only
+    with ``overwrite`` — whole, so an older ``ardupilot.parm`` never stays beside
+    a new ``px4.params`` — and the user's own files beside it are kept.
 
     Raises
     ------
     InputError
         A bad log (one line naming the file and what is missing).
     ThermonetError
-        No instance can be calibrated (each reason listed).
+        No instance can be calibrated (each reason listed), or ``out_dir`` is refused.
     """
+    from .outdir import check_target, staged_output
+
     log: FlightLog = read_log(log_path)
     out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise ThermonetError(f"{out}: --out must be a directory, and this is a file")
+    check_target(out, overwrite, "calibration")   # before anything is fitted
+    with staged_output(out, overwrite=overwrite, kind="calibration") as stage:
+        doc = _calibrate_into(log, stage.path, out, compare=compare)
+        stage.done()
+    return doc
+
+
+def _calibrate_into(log: FlightLog, stage: Path, out: Path, *, compare: bool
+                    ) -> dict[str, Any]:
+    """The calibration, written into ``stage``; recorded paths name ``out``."""
+    from .names import inside, path_components
+
+    dirs = path_components(i.name for i in log.instances)
     ok_kinds = [i.kind for i in log.instances if check_instance(i) is None]
     per_kind = {k: ok_kinds.count(k) for k in _FIT_KINDS}
     if log.autopilot == "px4" and max(per_kind.values()) > PX4_SLOTS:
@@ -267,8 +293,9 @@ def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True
             r.status = "fitted"
             if compare:
                 try:
-                    cmp = _compare(inst, log.autopilot, out / "instances" / inst.name,
-                                   str(log.path))
+                    cmp = _compare(inst, log.autopilot,
+                                   inside(stage, "instances", dirs[inst.name]), str(log.path),
+                                   final=out / "instances" / dirs[inst.name])
                 except ThermonetError as err:   # this instance cannot be judged: reported, skipped
                     r.status, r.reason, r.fit = "skipped", f"comparison failed: {err}", None
                     results.append(r)
@@ -296,7 +323,7 @@ def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True
             slots[r.name] = len(fits.setdefault(r.kind, []))
             fits[r.kind].append(r.fit)
         text = px4_calibration_text(fits, header=header)
-        param_path = out / "px4.params"
+        param_path = stage / "px4.params"
     else:
         imus: dict[int, dict[str, FirmwareFit]] = {}
         for r in fitted:
@@ -305,8 +332,7 @@ def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True
             imus.setdefault(idx, {})[r.kind] = r.fit
             slots[r.name] = idx
         text = ardupilot_calibration_text(imus, header=header)
-        param_path = out / "ardupilot.parm"
-    out.mkdir(parents=True, exist_ok=True)
+        param_path = stage / "ardupilot.parm"
     atomic_write_text(param_path, text)
     params = (read_px4_params(param_path) if log.autopilot == "px4"
               else read_ardupilot_params(param_path))
@@ -323,10 +349,10 @@ def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True
         r.summary["firmware_check"] = {"pp_raw": before, "pp_corrected": after,
                                        "cut": [b / a if a > 0 else math.inf
                                                for b, a in zip(before, after, strict=True)]}
-    doc = _results_doc(log, results, param_path)
-    atomic_write_text(out / "results.json", json.dumps(doc, indent=2, default=_json_default))
-    atomic_write_text(out / "report.txt", format_report(doc))
-    atomic_write_text(out / "report.html", render_calibration_report(doc, out))
+    doc = _results_doc(log, results, out / param_path.name)
+    atomic_write_text(stage / "results.json", json.dumps(doc, indent=2, default=_json_default))
+    atomic_write_text(stage / "report.txt", format_report(doc))
+    atomic_write_text(stage / "report.html", render_calibration_report(doc, out, staged=stage))
     return doc
 
 
@@ -354,7 +380,8 @@ def _results_doc(log: FlightLog, results: list[InstanceResult], param_path: Path
             "instances": inst_doc}
 
 
-def render_calibration_report(doc: dict[str, Any], out: Path) -> str:
+def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | None = None
+                              ) -> str:
     """``DIR/report.html``: the calibration page a person opens first.
 
     One self-contained page (inline CSS, no script): a table of every sensor
@@ -363,6 +390,7 @@ def render_calibration_report(doc: dict[str, Any], out: Path) -> str:
     comparison report, the full text report, and a link to each instance's own
     comparison report (``instances/<name>/report.html``, itself self-contained,
     with the verdict table, warnings and plots).  Every string is HTML-escaped.
+    ``staged``: where ``out``'s files are while it is being built (links are checked there).
     """
     import html
 
@@ -382,8 +410,9 @@ def render_calibration_report(doc: dict[str, Any], out: Path) -> str:
         cmp = d.get("compare") or {}
         sub = Path(str(cmp.get("dir", ""))) / "report.html" if cmp.get("dir") else None
         link = ""
-        if sub is not None and sub.is_file():
-            rel = sub.relative_to(out) if sub.is_relative_to(out) else sub
+        rel = None if sub is None else sub.relative_to(out) if sub.is_relative_to(out) else sub
+        found = rel if rel is None or staged is None or rel.is_absolute() else staged / rel
+        if rel is not None and found is not None and found.is_file():
             link = f'<a href="{html.escape(str(rel))}">comparison</a>'
         rows.append(f"<tr><td>{html.escape(name)}</td><td>{html.escape(str(d['kind']))}</td>"
                     f"<td>{html.escape(str(d['device_id']))}</td><td>{d['n_samples']}</td>"

@@ -106,9 +106,13 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
             raise ThermonetError("--outliers needs --units (outliers are simulated units)")
         sources = sources_from_dataset(load_data(cfg.data, source=str(args.config),
                                                  allow_fleet=True))
+        for s in sources:
+            if s.error is not None:  # that unit fails alone; the fleet goes on
+                print(f"thermonet: warning: {s.error}", file=sys.stderr)
     results = run_fleet(cfg, args.out, sources, options=opts,
                         track=False if args.no_track else None,
-                        tracking_uri=args.tracking_uri, quiet=args.quiet)
+                        tracking_uri=args.tracking_uri, quiet=args.quiet,
+                        overwrite=args.overwrite, plots=not args.no_plots)
     if not args.quiet:
         print(f"\nresults: {Path(args.out) / 'results.json'}")
     return 0 if results["fleet"]["all_passed"] else EXIT_LIMITS_FAILED
@@ -176,6 +180,7 @@ def _export_all_units(args: argparse.Namespace) -> int:
     """One file per unit of a fleet directory, ``OUT/<device_id><ext>``; each verified as a
     single export is.  Units that cannot be exported are listed; exit 1 if any."""
     from .exporting import export_source
+    from .names import path_components
 
     src = Path(args.source)
     try:
@@ -190,15 +195,19 @@ def _export_all_units(args: argparse.Namespace) -> int:
         raise ThermonetError(f"{out}: --out must be a directory with --all-units")
     out.mkdir(parents=True, exist_ok=True)
     failed = 0
+    # a device id read from results.json never becomes a path as it is: the same safe
+    # file name as `fleet` gave its unit directory (thermonet.names.path_component)
+    names = path_components(units)
     for dev in units:
-        udir = src / "units" / dev
+        udir = src / "units" / names[dev]
         if not udir.resolve().is_relative_to(src.resolve()) or not udir.is_dir():
             print(f"thermonet: {dev}: skipped (no unit directory {udir})", file=sys.stderr)
             failed += 1
             continue
         try:
-            path = export_source(str(udir), fmt=args.format, out=out / f"{dev}"
-                                 f"{_EXTENSIONS.get(args.format, '.' + args.format)}", family=args.family,
+            path = export_source(str(udir), fmt=args.format, out=out / f"{names[dev]}"
+                                 f"{_EXTENSIONS.get(args.format, '.' + args.format)}",
+                                 family=args.family,
                                  device_id=args.device_id, instance=args.instance)
             print(f"wrote {path}")
         except ThermonetError as err:
@@ -223,7 +232,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .calibrate import calibrate, format_report
 
-    doc = calibrate(args.log, args.out)
+    doc = calibrate(args.log, args.out, overwrite=args.overwrite)
     if not args.quiet:
         print(format_report(doc), end="")
         print(f"results: {Path(args.out) / 'results.json'}")
@@ -327,7 +336,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "held-out blocks, write px4.params or ardupilot.parm, "
                                    "results.json, report.html and report.txt to --out.")
     k.add_argument("log", help="flight-controller log recorded while the board warmed")
-    k.add_argument("--out", required=True, help="output directory")
+    k.add_argument("--out", required=True, help="output directory (created whole at the end)")
+    k.add_argument("--overwrite", action="store_true",
+                   help="replace a previous calibration in --out (its own files only; removed "
+                        "only once the new one is complete)")
     k.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
     k.set_defaults(func=_cmd_calibrate)
 

@@ -722,6 +722,7 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
 def _plots(out: Path, fitted: dict[str, _Fitted], results: dict[str, Any],
            ds: Dataset) -> list[Path]:
     """PNG figures of the last fold's test data, every fitted family in its own colour."""
+    from .names import path_component
     from .plots import (
         family_colours,
         plot_allan,
@@ -744,7 +745,7 @@ def _plots(out: Path, fitted: dict[str, _Fitted], results: dict[str, Any],
     for j, axis in enumerate(part.outputs):
         unit = results["units"].get(axis, "")
         curves = {label: (part.bin_by, f.test_preds[-1][:, j]) for label, f in ok.items()}
-        safe = axis.replace(".", "_")
+        safe = path_component(axis.replace(".", "_"))  # a name from data, made a file name
         paths.append(plot_drift_vs_temperature(
             pdir / f"drift_vs_temperature_{safe}.png", temperature_c=part.bin_by,
             observed_drift=part.target[:, j], curves=curves, axis=axis, units=unit,

@@ -40,7 +40,8 @@ def load_data(cfg: DataConfig, *, source: str = "config", allow_fleet: bool = Fa
     if cfg.paths:
         from .io import read_datasets
 
-        ds = read_datasets(cfg.paths, mapping=cfg.mapping)
+        # a fleet is validated unit by unit (thermonet.fleet.sources_from_dataset)
+        ds = read_datasets(cfg.paths, mapping=cfg.mapping, validate=not allow_fleet)
     else:
         from .sim import simulate
 

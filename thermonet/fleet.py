@@ -103,8 +103,11 @@ class UnitSource:
     device_id: str
     dataset: Dataset | None = None
     sim: dict[str, Any] | None = None   # simulate_fleet kwargs with unit_indices=[k]
+    error: str | None = None            # why this unit's data cannot be used (it fails alone)
 
     def load(self) -> Dataset:
+        if self.error is not None:
+            raise InputError(self.error)
         if self.dataset is not None:
             return self.dataset
         from .sim import simulate_fleet
@@ -126,9 +129,27 @@ class FleetOptions:
     fleet_units_max: int = 20          # units per fleet fit
 
 
-def sources_from_dataset(ds: Dataset) -> list[UnitSource]:
-    """One source per unit of a (validated) dataset."""
-    return [UnitSource(dev, dataset=d) for dev, d in split_units(ds).items()]
+def sources_from_dataset(ds: Dataset, source: str = "") -> list[UnitSource]:
+    """One source per unit of a dataset, each unit validated on its own.
+
+    A unit whose runs fail validation (too few samples, no temperature span,
+    bad time stamps …) becomes a source that fails with the reason, naming the
+    unit, so the fleet goes on without it; the units left must agree with each
+    other (same outputs, proxies and units of measure), else one line names both.
+    """
+    by_unit: dict[str, list[Any]] = {}
+    for r in ds.runs:
+        by_unit.setdefault(r.device_id, []).append(r)
+    bad: dict[str, str] = {}
+    for dev, runs in by_unit.items():
+        try:
+            Dataset(runs=runs, meta=dict(ds.meta)).validate(source)
+        except InputError as err:
+            bad[dev] = f"unit '{dev}': {err}"
+    good = [r for r in ds.runs if r.device_id not in bad]
+    units = split_units(Dataset(runs=good, meta=dict(ds.meta)).validate(source)) if good else {}
+    return [UnitSource(dev, error=bad[dev]) if dev in bad else UnitSource(dev, dataset=units[dev])
+            for dev in by_unit]
 
 
 def sources_from_simulation(preset: str, *, units: int, runs: int | None = None, seed: int = 0,
@@ -209,6 +230,7 @@ class _UnitItem:
     cfg: CompareConfig
     source: UnitSource
     family: str
+    plots: bool = True
 
 
 def _unit_task(item: _UnitItem) -> dict[str, Any]:
@@ -223,6 +245,7 @@ def _unit_task(item: _UnitItem) -> dict[str, Any]:
     try:
         udir = tmp / "unit"
         results = run_compare(item.cfg, udir, dataset=ds, track=False, quiet=True,
+                              plots=item.plots,
                               workers=1)   # units run side by side, not families
         files = {p.relative_to(udir).as_posix(): p.read_bytes()
                  for p in sorted(udir.rglob("*")) if p.is_file()}
@@ -351,12 +374,22 @@ def _fleet_family(cfg: CompareConfig, name: str | None, source: str) -> str:
 
 def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource], *,
               options: FleetOptions | None = None, track: bool | None = None,
-              tracking_uri: str | None = None, quiet: bool = False) -> dict[str, Any]:
+              tracking_uri: str | None = None, quiet: bool = False, overwrite: bool = False,
+              plots: bool = True) -> dict[str, Any]:
     """Calibrate every unit of ``sources``, summarise the fleet, judge limits; write ``out_dir``.
+
+    ``out_dir`` follows :mod:`thermonet.outdir` (``kind="fleet"``): a non-empty
+    directory that is not a previous fleet is refused, a previous fleet is replaced
+    only with ``overwrite`` (the user's own files beside it are kept).  Each unit's
+    directory is ``units/<component>``, the device id made a safe file name
+    (:func:`thermonet.names.path_component`; recorded as the unit's ``dir``).
+    ``plots=False`` writes no PNG files, per unit or for the fleet.
 
     Returns the fleet results (the dict written to ``out_dir/results.json``).
     """
-    from .fileio import atomic_write_text
+    from .fileio import _umask, atomic_write_text
+    from .names import inside, path_components
+    from .outdir import check_target, install
 
     t_start = time.perf_counter()
     opts = options or FleetOptions()
@@ -374,9 +407,9 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
         raise ConfigError(f"fleet: folds must be ≥ 0 and fleet_units_max ≥ 1, got "
                           f"{opts.folds}, {opts.fleet_units_max}")
     out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"{out}: --out must be a directory, and this is a file")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    check_target(out, overwrite, "fleet")  # before any unit is fitted
+    dirs = path_components(ids)            # a device id never becomes a path as it is
+    out.absolute().parent.mkdir(parents=True, exist_ok=True)
 
     def say(msg: str) -> None:
         if not quiet:
@@ -390,7 +423,7 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
         return run_tasks(fn, todo, executor=cast(Any, opts.executor), workers=opts.workers,
                          ray_address=opts.ray_address, on_done=on_done)
 
-    items = [_UnitItem(cfg=cfg, source=s, family=family) for s in sources]
+    items = [_UnitItem(cfg=cfg, source=s, family=family, plots=plots) for s in sources]
 
     def progress(i: int, res: Any) -> None:
         status = f"failed: {res.reason}" if isinstance(res, TaskFailure) else \
@@ -399,24 +432,30 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
 
     payloads = run(_unit_task, items, progress)
 
-    stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial",
+                                  dir=out.absolute().parent))
     try:
+        os.chmod(stage, 0o777 & ~_umask())
         units: dict[str, Any] = {}
         own: dict[str, Any] = {}
         for dev, res in zip(ids, payloads, strict=True):
             if isinstance(res, TaskFailure):
                 units[dev] = {"device": dev, "status": "failed", "reason": res.reason}
                 continue
-            udir = stage / "units" / dev
+            udir = inside(stage, "units", dirs[dev])
             for rel, data in res["files"].items():
                 p = udir / rel
+                if not p.resolve().is_relative_to(udir.resolve()):
+                    raise InputError(f"unit '{dev}': its worker returned a file outside its "
+                                     f"directory ({rel!r})")
                 p.parent.mkdir(parents=True, exist_ok=True)
                 p.write_bytes(data)
-            r = _relocate(res["results"], res["root"], str(out / "units" / dev))
+            r = _relocate(res["results"], res["root"], str(out / "units" / dirs[dev]))
             r.update(status="ok", temperature_span_c=res["temperature_span_c"],
                      coefficients=res["coefficients"], leave_units_out=None,
                      n_runs=res["n_runs"], temperature_range_c=res["temperature_range_c"])
             r["device"] = dev
+            r["dir"] = f"units/{dirs[dev]}"
             units[dev] = r
             own[dev] = res["own_model"]
         # leave units out, after the units: flagged outliers and failed units stay out of
@@ -438,13 +477,14 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
         for dev, u in units.items():
             u["limits"] = judge_unit(u, limits)
             if u["status"] == "ok":
-                atomic_write_text(stage / "units" / dev / "results.json",
+                atomic_write_text(inside(stage, "units", dirs[dev]) / "results.json",
                                   json.dumps(_clean(u), indent=2))
         summary = _summary(units, family, fold_info, limits)
         summary["seconds"] = time.perf_counter() - t_start
         results = {"schema": 1, "kind": "fleet", "config": to_dict(cfg), "fleet_family": family,
                    "options": dataclasses.asdict(opts), "units": units, "fleet": summary}
-        plot = plot_coefficient_spread(stage / "plots" / "coefficient_spread.png", results)
+        plot = plot_coefficient_spread(stage / "plots" / "coefficient_spread.png", results) \
+            if plots else None
         summary["spread_plot"] = None if plot is None else "plots/coefficient_spread.png"
         results = _clean(results)
         atomic_write_text(stage / "results.json", json.dumps(results, indent=2))
@@ -454,21 +494,11 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
                           "<title>thermonet fleet</title>\n"
                           + fleet_html_fragment(results, summary["spread_plot"]))
         _track(cfg, results, track, tracking_uri, stage)
-        _move_into_place(stage, out)
+        install(stage, out, overwrite, "fleet")
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     say(format_fleet_table(results))
     return results
-
-
-def _move_into_place(stage: Path, out: Path) -> None:
-    if out.exists():
-        old = out.with_name(f".{out.name}.old-{os.getpid()}")
-        os.replace(out, old)
-        os.replace(stage, out)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.replace(stage, out)
 
 
 def _curve_points(ok: dict[str, Any], family: str) -> dict[str, dict[str, float]]:

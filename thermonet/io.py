@@ -158,12 +158,15 @@ def read_dataset(path: str | Path, mapping: ColumnMapping | str | Path | None = 
 
 
 def read_datasets(paths: Sequence[str | Path] | str | Path,
-                  mapping: ColumnMapping | str | Path | None = None) -> Dataset:
+                  mapping: ColumnMapping | str | Path | None = None, *,
+                  validate: bool = True) -> Dataset:
     """Read several files into one validated :class:`Dataset`.
 
     Each file gives one run (id: the mapping's ``run_id``, else the file stem)
     unless it has a run column; thermonet Parquet files keep their runs.
     Skipped malformed rows are summed into ``Dataset.meta['skipped_rows']``.
+    ``validate=False`` leaves the runs unvalidated (``fleet`` validates unit by
+    unit, so that one bad unit fails alone).
     """
     if isinstance(paths, (str, Path)):
         paths = [paths]
@@ -195,6 +198,10 @@ def read_datasets(paths: Sequence[str | Path] | str | Path,
                                 "own device id)")
         seen[key] = r.meta.get("source", "")
     source = str(paths[0]) if len(paths) == 1 else ""
+    if not validate:
+        if not runs:
+            raise InputError.at(source, "no runs")
+        return Dataset(runs=runs, meta=meta)
     return Dataset(runs=runs, meta=meta).validate(source)
 
 

@@ -32,13 +32,25 @@ for every file system.  Axis names must also be unique within a model.
 
 Generated source never relies on these rules alone: :func:`c_comment` and
 :func:`c_string` escape what they are given as well (defence in depth).
+
+**Names that become paths.**  A device, run or instance id read from data may
+hold ``/``, ``..``, a drive letter or a control character (``TEXT_ID`` admits
+them).  Such a name never becomes a path directly: :func:`path_component` turns
+it into one safe file-name component (the name itself when it already is one,
+else the name with every other character replaced and a digest of the
+original appended, so two different names never meet), :func:`path_components`
+does so for a set of names (also apart when they differ only by case), and
+:func:`inside` joins components under a root and refuses any result that
+leaves it (defence in depth).
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 import re
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 from .errors import InputError
@@ -46,6 +58,7 @@ from .errors import InputError
 __all__ = [
     "AXIS", "SIGNAL", "FEATURE", "FAMILY", "LABEL", "UNIT", "TEXT_ID", "RUN_ID", "HASH",
     "check_name", "check_names", "check_units", "check_finite", "c_comment", "c_string",
+    "path_component", "path_components", "inside",
 ]
 
 AXIS = re.compile(r"(?=.{1,64}\Z)[a-z][a-z0-9]*_[a-z0-9]+(?:\.bias|\.scale)?")
@@ -157,3 +170,66 @@ def check_model_names(model: Any, *, error: type[Exception] = InputError) -> Non
     check_names(list(model.inputs), FEATURE, "model inputs", error=error)
     check_names(list(model.signals), SIGNAL, "model signals", error=error)
     check_names(list(model.outputs), AXIS, "model axes", error=error)
+
+
+#: A name that is already a safe file-name component (the family-label rule).
+_COMPONENT = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+#: Names Windows reserves for devices, whatever the extension.
+_RESERVED = {"con", "prn", "aux", "nul", *(f"com{i}" for i in range(10)),
+             *(f"lpt{i}" for i in range(10))}
+
+
+def path_component(name: Any) -> str:
+    """One safe file-name component for ``name`` (an id read from data or a file).
+
+    ``name`` itself when it matches ``[A-Za-z0-9][A-Za-z0-9_.-]{0,63}``, does
+    not end in ``.`` and is no Windows device name; otherwise the name's
+    letters, digits, ``_``, ``.`` and ``-`` (others become ``_``; leading
+    ``.``/``-``/``_`` dropped; at most 40 characters) followed by ``-`` and 8
+    hex digits of the SHA-256 of the name: ``../../../X`` → ``X-<hash>``.  Never
+    empty, never ``.`` or ``..``, never holds a separator.
+    """
+    text = str(name)
+    if _COMPONENT.fullmatch(text) and not text.endswith(".") \
+            and text.split(".")[0].lower() not in _RESERVED:
+        return text
+    digest = hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest()[:8]
+    body = re.sub(r"[^A-Za-z0-9_.-]", "_", text).lstrip("._-")[:40].rstrip(".")
+    if body.split(".")[0].lower() in _RESERVED:
+        body = f"id-{body}"
+    return f"{body}-{digest}" if body else f"id-{digest}"
+
+
+def path_components(names: Iterable[Any]) -> dict[str, str]:
+    """``{name: component}`` for several names (order kept), pairwise distinct even on a
+    case-insensitive file system: names whose components would meet get the digest form."""
+    names = [str(n) for n in names]
+    comps = {n: path_component(n) for n in names}
+    folded: dict[str, list[str]] = {}
+    for n, c in comps.items():
+        folded.setdefault(c.lower(), []).append(n)
+    for group in folded.values():
+        if len(group) > 1:
+            for n in group:
+                digest = hashlib.sha256(n.encode("utf-8", "surrogatepass")).hexdigest()[:8]
+                comps[n] = f"{comps[n][:40].rstrip('.')}-{digest}"
+    if len({c.lower() for c in comps.values()}) < len(comps):  # a digest collision: no way on
+        raise InputError("names that become file names collide after making them safe: "
+                         + ", ".join(repr(n) for n in names[:5]))
+    return comps
+
+
+def inside(root: str | Path, *components: str) -> Path:
+    """``root / components...``, refused (:class:`InputError`) unless it stays inside ``root``.
+
+    Each component must be a single safe name (:func:`path_component` makes one);
+    the joined path, symbolic links resolved, must lie under ``root``.
+    """
+    base = Path(root)
+    for c in components:
+        if not c or c in (".", "..") or "/" in c or "\\" in c or "\x00" in c:
+            raise InputError(f"{base}: {_short(c)} is not a single file name")
+    path = base.joinpath(*components)
+    if not path.resolve().is_relative_to(base.resolve()):
+        raise InputError(f"{path}: leaves {base}; refusing to write there")
+    return path

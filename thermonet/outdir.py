@@ -1,4 +1,4 @@
-"""A comparison's output directory appears whole or not at all.
+"""An output directory (comparison, fleet, calibration) appears whole or not at all.
 
 ``compare`` / ``train`` build their output (checkpoints, plots,
 ``results.json``) in a staging directory beside ``--out``
@@ -14,6 +14,12 @@ when everything is written.  So:
 * a previous comparison is replaced only with ``--overwrite``
   (``overwrite=True``), and the old one is removed only after the new one is
   complete.  Between the two renames ``--out`` is briefly absent, never mixed.
+  Only thermonet's own outputs are replaced (:data:`KINDS`: ``results.json``,
+  ``report.html``, ``models/`` …); any other entry the user put beside them is
+  moved into the new directory, never deleted.
+
+``fleet`` (``kind="fleet"``) and ``calibrate`` (``kind="calibration"``) follow
+the same rules with their own outputs.
 
 ``results.json`` records each checkpoint's SHA-256 (``checkpoint_sha256``);
 ``thermonet export DIR`` refuses a checkpoint whose content does not match it,
@@ -35,7 +41,8 @@ from typing import Any
 from .errors import ThermonetError
 from .fileio import _umask, atomic_write_text
 
-__all__ = ["staged_output", "is_comparison", "sha256_file", "Stage"]
+__all__ = ["staged_output", "is_comparison", "is_output", "check_target", "install",
+           "relocate_json", "sha256_file", "Stage", "KINDS"]
 
 
 def sha256_file(path: str | os.PathLike) -> str:
@@ -47,6 +54,24 @@ def sha256_file(path: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
+def relocate_json(path: Path, old: Path, new: Path) -> None:
+    """Rewrite the JSON file ``path`` so that every string naming ``old`` or a path under it
+    names the same place under ``new`` (an output built in a staging directory)."""
+    prefix, target = str(old), str(new)
+
+    def move(obj: Any) -> Any:
+        if isinstance(obj, str) and (obj == prefix or obj.startswith(prefix + os.sep)):
+            return target + obj[len(prefix):]
+        if isinstance(obj, dict):
+            return {k: move(v) for k, v in obj.items()}
+        if isinstance(obj, list):
+            return [move(v) for v in obj]
+        return obj
+
+    data = json.loads(path.read_text(encoding="utf-8"))
+    atomic_write_text(path, json.dumps(move(data), indent=2))
+
+
 def is_comparison(path: Path) -> bool:
     """True when ``path`` holds a complete comparison (a parseable ``results.json``)."""
     try:
@@ -56,19 +81,52 @@ def is_comparison(path: Path) -> bool:
     return isinstance(data, dict) and "schema" in data and isinstance(data.get("families"), dict)
 
 
-def _check_target(out: Path, overwrite: bool) -> None:
+def _results(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads((path / "results.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+#: What each kind of output directory holds at its top level: only these entries are
+#: thermonet's own (replaced with ``--overwrite``); anything else there is the user's.
+KINDS: dict[str, frozenset[str]] = {
+    "comparison": frozenset({"results.json", "report.html", "config.resolved.yaml", "plots",
+                             "models"}),
+    "fleet": frozenset({"results.json", "fleet.html", "plots", "units"}),
+    "calibration": frozenset({"results.json", "report.html", "report.txt", "px4.params",
+                              "ardupilot.parm", "instances"}),
+}
+
+
+def is_output(path: Path, kind: str) -> bool:
+    """True when ``path`` holds a complete thermonet output of ``kind`` (see :data:`KINDS`)."""
+    if kind == "comparison":
+        return is_comparison(path)
+    data = _results(path)
+    if kind == "fleet":
+        return data.get("kind") == "fleet" and isinstance(data.get("units"), dict)
+    return "schema" in data and isinstance(data.get("instances"), dict) \
+        and "autopilot" in data
+
+
+def check_target(out: Path, overwrite: bool, kind: str = "comparison") -> None:
+    """Refuse an ``--out`` that is a file, or a non-empty directory that is not a previous
+    output of ``kind`` (or is one and ``overwrite`` is false): one line naming it."""
     if not out.exists():
         return
     if not out.is_dir():
         raise ThermonetError(f"{out}: --out must be a directory, and this is a file")
     if not any(out.iterdir()):
         return
-    if not is_comparison(out):
-        raise ThermonetError(f"{out}: --out is not empty and holds no thermonet comparison "
+    if not is_output(out, kind):
+        raise ThermonetError(f"{out}: --out is not empty and holds no thermonet {kind} "
                              "(no complete results.json); refusing to write into it")
     if not overwrite:
-        raise ThermonetError(f"{out}: --out holds a previous comparison; pass --overwrite to "
+        raise ThermonetError(f"{out}: --out holds a previous {kind}; pass --overwrite to "
                              "replace it, or choose another --out")
+
 
 
 class Stage:
@@ -88,10 +146,18 @@ class Stage:
         atomic_write_text(self.path / "results.json", json.dumps(clean(results), indent=2))
         self.finished = True
 
+    def done(self) -> None:
+        """Mark the staging directory complete (outputs that record no checkpoints)."""
+        self.finished = True
+
 
 @contextmanager
-def staged_output(out_dir: str | os.PathLike, *, overwrite: bool = False) -> Iterator[Stage]:
-    """Yield a :class:`Stage`; on success (and ``Stage.finish``) move it to ``out_dir``.
+def staged_output(out_dir: str | os.PathLike, *, overwrite: bool = False,
+                  kind: str = "comparison") -> Iterator[Stage]:
+    """Yield a :class:`Stage`; on success (and ``Stage.finish``/``done``) move it to ``out_dir``.
+
+    ``kind`` (a key of :data:`KINDS`) says what a previous output looks like and
+    which of its entries are thermonet's own.
 
     Raises
     ------
@@ -101,7 +167,7 @@ def staged_output(out_dir: str | os.PathLike, *, overwrite: bool = False) -> Ite
         message names ``out_dir``, never the staging directory).
     """
     out = Path(out_dir)
-    _check_target(out, overwrite)
+    check_target(out, overwrite, kind)
     parent = out.absolute().parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -114,23 +180,44 @@ def staged_output(out_dir: str | os.PathLike, *, overwrite: bool = False) -> Ite
     try:
         yield st
         if not st.finished:
-            raise ThermonetError(f"{out}: the comparison did not finish its output")
-        _install(stage, out, overwrite)
+            raise ThermonetError(f"{out}: the {kind} did not finish its output")
+        install(stage, out, overwrite, kind)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
 
 
-def _install(stage: Path, out: Path, overwrite: bool) -> None:
-    _check_target(out, overwrite)  # again: another process may have written there meanwhile
+def install(stage: Path, out: Path, overwrite: bool, kind: str = "comparison") -> None:
+    """Move the complete ``stage`` to ``out`` (checked again), replacing a previous output of
+    ``kind`` only with ``overwrite``; the user's entries beside it are carried over."""
+    check_target(out, overwrite, kind)  # again: another process may have written there meanwhile
     try:
         if out.exists() and any(out.iterdir()):
             old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old",
                                         dir=out.absolute().parent))
-            os.rename(out, old / "previous")
-            os.rename(stage, out)
-            shutil.rmtree(old, ignore_errors=True)
+            previous = old / "previous"
+            os.rename(out, previous)
+            try:
+                os.rename(stage, out)
+            except OSError:
+                os.rename(previous, out)  # put the previous output back as it was
+                raise
+            # the user's own files beside the previous output move into the new one;
+            # until they have, they stay in the hidden .old directory (never deleted)
+            kept = True
+            for entry in sorted(previous.iterdir()):
+                if entry.name in KINDS[kind]:
+                    continue
+                if os.path.lexists(out / entry.name):
+                    kept = False
+                    continue
+                try:
+                    os.rename(entry, out / entry.name)
+                except OSError:
+                    kept = False
+            if kept:
+                shutil.rmtree(old, ignore_errors=True)
         else:
             os.rename(stage, out)  # over an empty directory too (POSIX rename)
     except OSError as err:
-        raise ThermonetError(f"{out}: cannot move the finished comparison into place "
+        raise ThermonetError(f"{out}: cannot move the finished {kind} into place "
                              f"({err.strerror or err})") from None

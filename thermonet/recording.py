@@ -37,7 +37,7 @@ __all__ = [
 
 #: An output channel is ``<kind>_<axis>``: ``gyro_x``, ``acc_z``, ``mag_y``, ``baro_p`` (a
 #: barometer's pressure: the absolute value is the weather, only its change with T is drift).
-OUTPUT_NAME = re.compile(r"^(gyro|acc|mag|baro|out)_([a-z0-9]+)$")
+OUTPUT_NAME = re.compile(r"^(gyro|acc|mag|baro|out)_([a-z0-9]+)\Z")  # \Z: no trailing newline
 
 #: Units thermonet understands, per physical quantity.  Anything else is refused
 #: so that a typo ("deg/sec") never silently changes the meaning of a number.

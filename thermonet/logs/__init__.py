@@ -26,7 +26,12 @@ def is_log(path: str | Path) -> bool:
 
 def read_log(path: str | Path) -> FlightLog:
     """Read a PX4 ULog or an ArduPilot DataFlash log (by suffix)."""
+    from ..fileio import not_a_file
+
     kind = LOG_SUFFIXES.get(Path(path).suffix.lower())
+    why = not_a_file(path, "flight-controller log")  # a directory, FIFO or device by name
+    if why:
+        raise InputError.at(path, why)
     if kind == "ulog":
         from .ulog import read_ulog
 
