@@ -55,7 +55,8 @@ import numpy as np
 import onnxruntime as ort
 
 __all__ = ["Compensator", "Compensation", "RuntimeInputError", "SUPPORTED_FORMATS",
-           "SUPPORTED_OPSETS", "DYNAMIC_VERSION", "dynamic_signals", "time_batch", "main"]
+           "SUPPORTED_OPSETS", "DYNAMIC_VERSION", "dynamic_signals", "parse_number", "time_batch",
+           "main"]
 
 #: Metadata format versions this runtime understands (``thermonet_format``).
 SUPPORTED_FORMATS = ("1", "2")  # 2: float64 raw, compensated and drift (large constants)
@@ -69,6 +70,55 @@ _ALIASES = {"rate": "rate_c_per_min"}
 #: Version of the ``dynamic_inputs`` metadata block this runtime computes.
 DYNAMIC_VERSION = 1
 _DYNAMIC_KINDS = {"rate": "tau_s", "lag": "tau_s", "play": "half_width_c"}
+#: A CSV cell the command reads as a number: a decimal number (ASCII digits, optional sign,
+#: fraction and exponent), as CSV writers and pandas' reader mean one — never Python's
+#: literal syntax ('1_000'), other scripts' digits ('١٢٣'), hex or complex numbers.
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+#: Infinity as pandas reads it: inf / infinity, any case, optional sign.
+_INFINITY = re.compile(r"([+-]?)(?:inf|infinity)", re.IGNORECASE)
+#: A missing sample (NaN: drift NaN, flag set): an empty cell or pandas' default
+#: missing-value spellings (``read_csv`` ``na_values``), exactly as written there.
+_MISSING = frozenset({"", "#N/A", "#N/A N/A", "#NA", "-1.#IND", "-1.#QNAN", "-NaN", "-nan",
+                      "1.#IND", "1.#QNAN", "<NA>", "N/A", "NA", "NULL", "NaN", "None", "n/a",
+                      "nan", "null"})
+
+
+def parse_number(cell: str) -> float:
+    """A CSV cell as a number, as a CSV reader (pandas) reads a numeric field.
+
+    Spaces and tabs around the value are ignored.  Accepted: a decimal number
+    with an optional exponent (``-1.5e-3``, ``.5``, ``5.``); ``inf``/``infinity``
+    in any case with an optional sign; and, as a missing sample (NaN), an
+    empty cell or one of pandas' missing-value spellings (``nan``, ``NaN``,
+    ``-nan``, ``NA``, ``N/A``, ``NULL``, ``None`` …, :data:`_MISSING`).
+    Everything else raises ``ValueError`` — Python's literal syntax (``1_000``),
+    non-ASCII digits, hex, complex numbers — and so does a decimal number
+    beyond the range of a 64-bit float (``1e400``), which no writer of
+    float64 data means.
+    """
+    text = cell.strip(" \t")
+    if text in _MISSING:
+        return math.nan
+    if _DECIMAL.fullmatch(text):
+        value = float(text)
+        if math.isinf(value):
+            raise ValueError(f"{text!r} is beyond the range of a 64-bit float")
+        return value
+    m = _INFINITY.fullmatch(text)
+    if m:
+        return -math.inf if m.group(1) == "-" else math.inf
+    raise ValueError(f"not a number {text!r} (a decimal number such as -1.5e-3, inf, "
+                     "nan or an empty cell)")
+
+
+def _scalar(name: str, value: Any) -> float:
+    """A single number given to the Python API (a Python or NumPy real, not a string or bool)."""
+    arr = np.asarray(value)
+    if arr.size != 1 or arr.dtype.kind not in "fiu":
+        shown = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
+        raise RuntimeInputError(f"input '{name}' must be one number, got "
+                                f"{type(value).__name__} {shown}")
+    return float(arr.reshape(()))
 
 
 class RuntimeInputError(ValueError):
@@ -555,8 +605,8 @@ class Compensator:
                     f"missing 'time_s': this model's dynamic input(s) {self.dynamic_signals} "
                     "are computed from time_s (seconds, strictly increasing) and temperature_c")
             temp = self._as_float32("temperature_c", given["temperature_c"]).astype(np.float64)
-            t = np.asarray(time_s, dtype=np.float64) if np.ndim(time_s) else \
-                np.full(1, float(time_s))
+            t = self._as_float32("time_s", time_s, np.float64) if np.ndim(time_s) else \
+                np.full(1, _scalar("time_s", time_s))
             if temp.ndim == 0:
                 temp = np.full(t.shape, float(temp))
             if t.shape != (raw_arr.shape[0],) or temp.shape != t.shape:
@@ -566,7 +616,7 @@ class Compensator:
             values, gap = dynamic_signals(t, temp, self.dynamic)
             given.update(values)
         elif time_s is not None:
-            _check_time(np.atleast_1d(np.asarray(time_s, dtype=np.float64)))
+            _check_time(np.atleast_1d(self._as_float32("time_s", time_s, np.float64)))
         return self._evaluate(given, raw_arr, single, gap)
 
     def step(self, time_s: float, temperature_c: float, raw: Any, *, proxy: Any = None,
@@ -589,9 +639,10 @@ class Compensator:
             raise RuntimeInputError(f"step() takes one sample: 'raw' must have shape "
                                     f"({len(self.outputs)},), got {np.shape(raw)}")
         try:
-            t, temp = float(time_s), float(np.asarray(given.get("temperature_c", np.nan)))
-        except (TypeError, ValueError):
-            raise RuntimeInputError("step(): time_s and temperature_c must be numbers") from None
+            t = _scalar("time_s", time_s)
+            temp = _scalar("temperature_c", given.get("temperature_c", np.nan))
+        except RuntimeInputError as exc:
+            raise RuntimeInputError(f"step(): {exc}") from None
         values, gap = self._stream.update(t, temp, self.dynamic or {"inputs": [], "gap_s": 1.0})
         given.update(values)
         return self._evaluate(given, raw_arr, True, np.array([gap]))
@@ -763,16 +814,14 @@ def _read_csv(
         j = header.index(name)
         values = np.empty(len(body), dtype=np.float64)
         for i, row in enumerate(body):
-            cell = row[j].strip() if j < len(row) else ""
-            if cell == "":
-                values[i] = math.nan  # an empty cell is a missing sample: NaN out, flag set
-                continue
+            # an empty cell (or nan, NA …) is a missing sample: NaN out, flag set
+            cell = row[j] if j < len(row) else ""
             try:
-                values[i] = float(cell)
-            except ValueError:
+                values[i] = parse_number(cell)
+            except ValueError as exc:
                 # row numbers as a spreadsheet shows them: header is row 1
                 raise RuntimeInputError(f"{path}: column '{name}', row {i + 2}: "
-                                        f"not a number {cell!r}") from None
+                                        f"{exc}") from None
         cols[name] = values
     return header, body, cols
 

@@ -48,13 +48,49 @@ class NotFittedError(ThermonetError, AttributeError):
 
 
 def _runs(data: Dataset | Recording | Iterable[Recording], what: str) -> list[Recording]:
+    """The runs of ``data``: each a :class:`Recording` with samples, else one ValueError line."""
+    expected = "expected a Dataset, a Recording or a list of Recordings"
     if isinstance(data, Recording):
-        return [data]
-    runs = list(data)
-    if not runs or not all(isinstance(r, Recording) for r in runs):
-        raise ThermonetError(f"{what}: expected a Dataset, a Recording or a list of Recordings, "
-                             f"got {type(data).__name__}")
+        runs = [data]
+    elif isinstance(data, (str, bytes, os.PathLike)) or not isinstance(data, Iterable):
+        hint = " (read files with thermonet.read(paths, mapping))" \
+            if isinstance(data, (str, bytes, os.PathLike)) else ""
+        raise ThermonetError(f"{what}: {expected}, got {type(data).__name__}{hint}")
+    else:
+        runs = list(data)
+    if not runs:
+        raise ThermonetError(f"{what}: no recordings (an empty {type(data).__name__}); "
+                             "give at least one run")
+    for i, r in enumerate(runs):
+        if not isinstance(r, Recording):
+            raise ThermonetError(f"{what}: {expected}; item {i} is a {type(r).__name__}")
+        _has_samples(r, what)
     return runs
+
+
+def _has_samples(rec: Recording, what: str) -> Recording:
+    if rec.n_samples == 0:
+        raise ThermonetError(f"{what}: run '{rec.run_id}' has no samples")
+    return rec
+
+
+def _recording(data: Any, what: str) -> Recording:
+    """``data`` when it is one :class:`Recording`, else one ValueError line saying what to pass."""
+    if isinstance(data, Recording):
+        return data
+    hint = " (one run at a time: pass ds[i], or loop over the Dataset)" \
+        if isinstance(data, Dataset) or isinstance(data, (list, tuple)) else ""
+    raise ThermonetError(f"{what}: expected a Recording, got {type(data).__name__}{hint}")
+
+
+def _needs_outputs(rec: Recording, outputs: Sequence[str], what: str) -> None:
+    """Every output channel the model needs (``gyro_x`` for ``gyro_x.bias`` too) is in ``rec``."""
+    needed = list(dict.fromkeys(o.split(".")[0] for o in outputs))
+    missing = [a for a in needed if a not in rec.outputs]
+    if missing:
+        raise ThermonetError(f"{what}: run '{rec.run_id}' has no output channel '{missing[0]}' "
+                             f"(the model needs {', '.join(needed)}; the run has "
+                             f"{', '.join(rec.outputs) or 'none'})")
 
 
 class DriftEstimator:
@@ -182,6 +218,10 @@ class DriftEstimator:
         val_runs = None if val is None else _runs(val, "fit(val)")
         inputs = self._resolved_inputs()
         outputs = self._outputs_for(runs)
+        for r in runs:
+            _needs_outputs(r, outputs, "fit(train)")
+        for r in val_runs or []:
+            _needs_outputs(r, outputs, "fit(val)")
         config = self.train if self.train is not None else TrainConfig()
         spec = FeatureSpec.from_recordings(inputs, runs, t_ref=self.t_ref,
                                            window_min=self.t_ref_window_min, gap_s=self.gap_s)
@@ -239,6 +279,7 @@ class DriftEstimator:
         from .features import signal_matrix
         from .train import predict
 
+        recording = _recording(recording, "predict")
         signals = signal_matrix(recording, self.spec_.signals, self.spec_.gap_s)
         return predict(model, signals)
 
@@ -248,6 +289,8 @@ class DriftEstimator:
         if self.target != "drift":
             raise ThermonetError("compensate: a four-position model predicts per-soak bias and "
                                  "scale factor, not a drift to subtract sample by sample")
+        recording = _recording(recording, "compensate")
+        _needs_outputs(recording, self.outputs_, "compensate")
         drift = self.predict(recording)
         outputs = dict(recording.outputs)
         for j, axis in enumerate(self.outputs_):
@@ -268,6 +311,8 @@ class DriftEstimator:
         model = self._check_fitted("score")
         from .train import predict
 
+        recording = _has_samples(_recording(recording, "score"), "score")
+        _needs_outputs(recording, self.outputs_, "score")
         part = self._part(recording, self.spec_, self.outputs_)
         pred = predict(model, part.signals)
         ratios = []

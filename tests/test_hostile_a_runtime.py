@@ -1,0 +1,179 @@
+"""Hostile inputs, round three (issue 25), part A: the torch-free runtime's number parser.
+
+``export/thermonet_runtime.py`` reads a CSV cell as a CSV reader (pandas) reads a numeric
+field — a decimal number with an optional exponent, inf/infinity, and pandas' missing-value
+spellings as a missing sample — and refuses what no CSV writer means as a number (Python's
+literal syntax ``1_000``, other scripts' digits, hex, complex), naming the column and row.
+The Python API refuses strings where numbers are meant (``step("1_000", ...)``).
+"""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import io
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from thermonet.exporting import export_onnx
+from thermonet.features import FeatureSpec
+from thermonet.train import TrainConfig, fit
+
+RUNTIME = Path(__file__).resolve().parents[1] / "export" / "thermonet_runtime.py"
+AXES = ["gyro_x", "gyro_y"]
+
+
+def _load_runtime():
+    if "thermonet_runtime" in sys.modules:
+        return sys.modules["thermonet_runtime"]
+    spec = importlib.util.spec_from_file_location("thermonet_runtime", RUNTIME)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["thermonet_runtime"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+rt = _load_runtime()
+
+#: Cells a CSV writer means as numbers, and the value each one is.
+NUMBERS = {"1": 1.0, "-2": -2.0, "+3": 3.0, "0.5": 0.5, ".5": 0.5, "5.": 5.0, "-.5e-3": -5e-4,
+           "1e5": 1e5, "1E+05": 1e5, "2.5e-310": 2.5e-310, "  7 ": 7.0, "\t8": 8.0,
+           "0012": 12.0, "1e-400": 0.0, "-0": 0.0}
+#: Infinity as pandas reads it.
+INFINITIES = {"inf": math.inf, "-inf": -math.inf, "+inf": math.inf, "Inf": math.inf,
+              "INF": math.inf, "infinity": math.inf, "-Infinity": -math.inf,
+              "+INFINITY": math.inf}
+#: A missing sample (NaN): empty, and pandas' default missing-value spellings.
+MISSING = ["", "   ", "nan", "NaN", "-nan", "-NaN", "NA", "N/A", "n/a", "NULL", "null", "None",
+           "#N/A", "<NA>", "1.#QNAN"]
+#: Not numbers: Python's literal syntax and other things no CSV writer means.
+REFUSED = ["1_000", "1_0.5", "0x10", "0b1", "0o7", "1e3j", "3+4j", "١٢٣", "１２", "\u00a07",
+           "7\u00a0", "\u22121", "1,5", "1e", "e5", "1d3", "1.5f", "nan(1)", "+nan", "NAN",
+           "infinit", "Inf.", "--1", "1..2", "hot", "True", "1e400", "-1e400"]
+
+
+@pytest.mark.parametrize("cell, value", sorted(NUMBERS.items()))
+def test_decimal_numbers_are_read_as_pandas_reads_them(cell: str, value: float) -> None:
+    got = rt.parse_number(cell)
+    np.testing.assert_allclose(got, value, rtol=1e-15, atol=0)
+    theirs = pd.read_csv(io.StringIO(f"a,b\n\"{cell}\",1\n"))["a"][0]
+    np.testing.assert_allclose(float(theirs), got, rtol=1e-15, atol=0)
+
+
+@pytest.mark.parametrize("cell, value", sorted(INFINITIES.items()))
+def test_infinities_are_read_as_pandas_reads_them(cell: str, value: float) -> None:
+    assert rt.parse_number(cell) == value              # exact: ±inf
+    assert pd.read_csv(io.StringIO(f"a,b\n{cell},1\n"))["a"][0] == value
+
+
+@pytest.mark.parametrize("cell", MISSING)
+def test_missing_value_spellings_are_a_missing_sample(cell: str) -> None:
+    assert math.isnan(rt.parse_number(cell))
+    theirs = pd.read_csv(io.StringIO(f"a,b\n\"{cell}\",1\n"))["a"][0]
+    assert pd.isna(theirs) or str(theirs).strip() == ""
+
+
+@pytest.mark.parametrize("cell", REFUSED)
+def test_what_no_csv_writer_means_as_a_number_is_refused(cell: str) -> None:
+    with pytest.raises(ValueError) as info:
+        rt.parse_number(cell)
+    assert "\n" not in str(info.value)
+    if "e400" not in cell:  # pandas keeps every one of them a string, never a number
+        theirs = pd.read_csv(io.StringIO(f"a,b\n\"{cell}\",1\n"), dtype={"a": str})["a"][0]
+        assert pd.to_numeric(pd.Series([theirs]), errors="coerce").isna().all()
+    else:
+        assert "beyond the range of a 64-bit float" in str(info.value)
+
+
+# ------------------------------------------------------------------ command line
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    temp = np.linspace(-20.0, 60.0, 400)
+    drift = np.column_stack([1e-3 * (temp - 25.0), -5e-4 * (temp - 25.0)]) + 0.01
+    model = fit(family="poly", inputs=["dT"], outputs=AXES, train=[(temp[:, None], drift)],
+                val=None, spec=FeatureSpec(inputs=["dT"], t_ref=25.0), hyper={"degree": 1},
+                config=TrainConfig(max_epochs=5)).model
+    return export_onnx(model, tmp_path_factory.mktemp("rt") / "lin.onnx",
+                       metadata={"output_units": {a: "deg/s" for a in AXES}})
+
+
+def _cli(model: Path, src: Path, out: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, str(RUNTIME), str(model), str(src), "--out", str(out)],
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("cell, column, row", [
+    ("1_000", "temperature_c", 3), ("0x1A", "gyro_y", 2), ("  1e3j", "gyro_x", 4),
+    ("２５", "temperature_c", 2), ("1e400", "gyro_x", 3), ("infinit", "temperature_c", 4),
+])
+def test_cli_refuses_python_literals_naming_column_and_row(model_path: Path, tmp_path: Path,
+                                                           cell: str, column: str, row: int
+                                                           ) -> None:
+    rows = [["temperature_c", "gyro_x", "gyro_y"], ["20", "0", "0"], ["21", "0", "0"],
+            ["22", "0", "0"]]
+    rows[row - 1][rows[0].index(column)] = cell
+    src = tmp_path / "in.csv"
+    with src.open("w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    proc = _cli(model_path, src, tmp_path / "out.csv")
+    assert proc.returncode == 1
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert f"{src}: column '{column}', row {row}: " in lines[0]
+    assert repr(cell.strip(" \t")) in lines[0]
+    assert not (tmp_path / "out.csv").exists()
+
+
+def test_cli_reads_numbers_infinities_and_missing_values_as_a_csv_reader(model_path: Path,
+                                                                         tmp_path: Path
+                                                                         ) -> None:
+    src = tmp_path / "in.csv"
+    src.write_text("temperature_c,gyro_x,gyro_y\n"
+                   " 25 ,1.0,2.0\n"          # spaces around a number
+                   "3.5e1,1,2\n"             # 35 °C
+                   "NA,1,2\n"                # missing temperature: NaN drift, flag
+                   "Infinity,1,2\n"          # not finite: NaN drift, flag
+                   ",1,2\n"                  # empty: missing
+                   "25,nan,2\n")             # a missing raw value: NaN compensated only
+    out = tmp_path / "out.csv"
+    proc = _cli(model_path, src, out)
+    assert proc.returncode == 0, proc.stderr
+    got = list(csv.DictReader(out.open()))
+    assert [r["out_of_range"] for r in got] == ["0", "0", "1", "1", "1", "0"]
+    np.testing.assert_allclose(float(got[0]["gyro_x_drift"]), 0.01, atol=1e-6)
+    np.testing.assert_allclose(float(got[1]["gyro_x_drift"]), 0.01 + 1e-3 * 10.0, atol=1e-6)
+    np.testing.assert_allclose(float(got[1]["gyro_y_comp"]), 2.0 - (0.01 - 5e-4 * 10.0),
+                               atol=1e-6)
+    for r in got[2:5]:
+        assert math.isnan(float(r["gyro_x_drift"])) and math.isnan(float(r["gyro_x_comp"]))
+    assert math.isnan(float(got[5]["gyro_x_comp"]))
+    np.testing.assert_allclose(float(got[5]["gyro_y_comp"]), 2.0 - 0.01, atol=1e-6)
+    # what the runtime writes it reads back: its own output is valid input
+    again = _cli(model_path, out, tmp_path / "again.csv")
+    assert again.returncode == 1 and "already has output column" in again.stderr
+
+
+# ------------------------------------------------------------------ Python API
+def test_step_and_compensate_refuse_strings_where_numbers_are_meant(model_path: Path) -> None:
+    comp = rt.Compensator(model_path)
+    raw = [1.0, 2.0]
+    for t, temp in (("1_000", 25.0), (0.0, "25"), (b"1", 25.0), (True, 25.0), ([1, 2], 25.0),
+                    (None, 25.0)):
+        with pytest.raises(rt.RuntimeInputError, match=r"step\(\): input '(time_s|"
+                           r"temperature_c)' must be one number"):
+            comp.step(t, temp, raw)
+    with pytest.raises(rt.RuntimeInputError, match="input 'time_s' has dtype"):
+        comp.compensate(temperature_c=[25.0, 26.0], raw=[raw, raw], time_s=["1_000", "2"])
+    with pytest.raises(rt.RuntimeInputError, match="input 'temperature_c' has dtype"):
+        comp.compensate(temperature_c=["25"], raw=[raw])
+    # numbers of any real type are fine
+    a = comp.step(np.float32(1.0), np.int64(35), raw)
+    b = comp.step(2, 35.0, np.array(raw))
+    np.testing.assert_allclose(a.drift, b.drift, rtol=1e-7)
+    np.testing.assert_allclose(b.drift, [0.02, 0.005], atol=1e-6)

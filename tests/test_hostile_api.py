@@ -1,0 +1,162 @@
+"""Hostile inputs, round three (issue 25), part A: the Python API (``DriftEstimator``).
+
+A recording without a channel the model needs, a run with no samples, an empty list,
+``None``, a file name or a whole Dataset where one Recording is meant: each is one
+``ValueError`` (thermonet's ``ThermonetError``) naming the channel, the run or the
+problem — never a bare ``KeyError``, ``IndexError``, ``AttributeError`` or ``TypeError``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import thermonet
+from conftest import toy_dataset
+from thermonet.errors import ThermonetError
+from thermonet.recording import Dataset, Recording
+
+
+def _two_axes(ds: Dataset) -> Dataset:
+    """The toy runs with a second output ``gyro_y`` (half the drift of ``gyro_x``)."""
+    return Dataset([replace(r, outputs={**r.outputs, "gyro_y": 0.5 * r.outputs["gyro_x"]},
+                            units={**r.units, "gyro_y": "deg/s"}) for r in ds])
+
+
+def _without(rec: Recording, channel: str) -> Recording:
+    return replace(rec, outputs={k: v for k, v in rec.outputs.items() if k != channel},
+                   references={k: v for k, v in rec.references.items()
+                               if k != f"ref_{channel}"},
+                   drift={k: v for k, v in rec.drift.items() if k != f"drift_{channel}"})
+
+
+def _empty(rec: Recording) -> Recording:
+    return rec.select(np.zeros(rec.n_samples, dtype=bool))
+
+
+@pytest.fixture(scope="module")
+def data() -> Dataset:
+    return _two_axes(toy_dataset(n_runs=3, noise=0.0005))
+
+
+@pytest.fixture(scope="module")
+def fitted(data: Dataset) -> thermonet.DriftEstimator:
+    return thermonet.DriftEstimator("poly", ["dT"], degree=2).fit(data.runs[:2])
+
+
+def _one_value_error(call, *patterns: str) -> str:
+    with pytest.raises(ValueError) as info:
+        call()
+    assert isinstance(info.value, ThermonetError), type(info.value)
+    msg = str(info.value)
+    assert "\n" not in msg
+    for p in patterns:
+        assert p in msg, msg
+    return msg
+
+
+# ------------------------------------------------------------------ fit
+@pytest.mark.parametrize("train, patterns", [
+    ([], ("fit(train)", "no recordings", "empty list")),
+    ((), ("fit(train)", "no recordings", "empty tuple")),
+    (Dataset([]), ("fit(train)", "no recordings", "empty Dataset")),
+    (None, ("fit(train)", "expected a Dataset, a Recording or a list", "NoneType")),
+    (42, ("fit(train)", "got int",)),
+    ("runs/pg.parquet", ("fit(train)", "got str", "thermonet.read")),
+    (Path("runs/pg.parquet"), ("fit(train)", "thermonet.read")),
+    ([None], ("fit(train)", "item 0 is a NoneType")),
+])
+def test_fit_on_nothing_or_not_recordings_is_one_clear_error(train, patterns) -> None:
+    _one_value_error(lambda: thermonet.DriftEstimator("poly", ["dT"], degree=2).fit(train),
+                     *patterns)
+
+
+def test_fit_on_zero_samples_names_the_run(data: Dataset) -> None:
+    est = thermonet.DriftEstimator("poly", ["dT"], degree=2)
+    empty = _empty(data[0])
+    _one_value_error(lambda: est.fit(empty), "fit(train)", f"run '{empty.run_id}'",
+                     "no samples")
+    _one_value_error(lambda: est.fit([data[0], empty]), "no samples")
+    _one_value_error(lambda: est.fit(data[0], val=empty), "fit(val)", "no samples")
+    _one_value_error(lambda: est.fit(data[0], val=[]), "fit(val)", "no recordings")
+    assert not hasattr(est, "model_")
+
+
+def test_fit_without_a_channel_the_model_needs_names_it(data: Dataset) -> None:
+    no_y = _without(data[1], "gyro_y")
+    est = thermonet.DriftEstimator("poly", ["dT"], degree=2)
+    # a second training run without gyro_y (the first run's outputs are the model's)
+    _one_value_error(lambda: est.fit([data[0], no_y]), "fit(train)", "run 'run1'",
+                     "no output channel 'gyro_y'", "the run has gyro_x")
+    _one_value_error(lambda: est.fit(data[0], val=no_y), "fit(val)", "'gyro_y'")
+    # outputs= names a channel no run has
+    _one_value_error(lambda: thermonet.DriftEstimator("poly", ["dT"], degree=2,
+                                                      outputs=["gyro_q"]).fit(data[0]),
+                     "no output channel 'gyro_q'", "gyro_x, gyro_y")
+    # a four-position model needs the axis behind '<axis>.bias'
+    _one_value_error(lambda: thermonet.DriftEstimator("poly", ["dT"], degree=2,
+                                                      target="four-position",
+                                                      outputs=["acc_x"]).fit(data[0]),
+                     "no output channel 'acc_x'")
+
+
+def test_fit_without_the_signal_an_input_needs_names_the_column(data: Dataset) -> None:
+    no_temp = replace(data[0], temperature_c=None)
+    with pytest.raises(ValueError, match="temperature_c"):
+        thermonet.DriftEstimator("poly", ["dT"], degree=2).fit(no_temp)
+    with pytest.raises(ValueError, match="freq_hz"):
+        thermonet.DriftEstimator("poly", ["d_freq_hz"], degree=2).fit(data[0])
+
+
+# ----------------------------------------------- predict, score, compensate
+def test_score_and_compensate_without_a_channel_name_it(fitted: thermonet.DriftEstimator,
+                                                        data: Dataset) -> None:
+    no_x = _without(data[2], "gyro_x")
+    for name, call in (("score", fitted.score), ("compensate", fitted.compensate)):
+        _one_value_error(lambda call=call: call(no_x), f"{name}:", "run 'run2'",
+                         "no output channel 'gyro_x'", "the model needs gyro_x, gyro_y",
+                         "the run has gyro_y")
+    # predict needs only the model's signals (the drift it predicts is for every axis)
+    pred = fitted.predict(no_x)
+    # exact: the same signals through the same model in the same process (bit-identical)
+    np.testing.assert_allclose(pred, fitted.predict(data[2]), rtol=0, atol=0)
+
+
+def test_predict_score_compensate_without_the_thermometer_name_it(
+        fitted: thermonet.DriftEstimator, data: Dataset) -> None:
+    no_temp = replace(data[2], temperature_c=None)
+    for call in (fitted.predict, fitted.score, fitted.compensate):
+        with pytest.raises(ValueError, match="temperature_c") as info:
+            call(no_temp)
+        assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("method", ["predict", "score", "compensate"])
+def test_one_recording_is_expected_not_a_dataset_or_list(fitted: thermonet.DriftEstimator,
+                                                         data: Dataset, method: str) -> None:
+    call = getattr(fitted, method)
+    _one_value_error(lambda: call(data), f"{method}: expected a Recording, got Dataset",
+                     "one run at a time")
+    _one_value_error(lambda: call([data[2]]), "got list")
+    _one_value_error(lambda: call(None), "got NoneType")
+    _one_value_error(lambda: call("run.csv"), "got str")
+
+
+def test_empty_recordings_predict_empty_but_cannot_be_scored(fitted: thermonet.DriftEstimator,
+                                                             data: Dataset) -> None:
+    empty = _empty(data[2])
+    assert fitted.predict(empty).shape == (0, 2)          # an empty batch: empty output
+    assert fitted.compensate(empty).n_samples == 0
+    _one_value_error(lambda: fitted.score(empty), "score: run 'run2' has no samples")
+
+
+def test_the_good_path_is_unchanged(fitted: thermonet.DriftEstimator, data: Dataset) -> None:
+    drift = data[2].drift["drift_gyro_x"]
+    inside = data[2].temperature_c <= data[1].temperature_c.max()
+    pred = fitted.predict(data[2])
+    np.testing.assert_allclose(pred[inside, 0], drift[inside], atol=5e-4)
+    np.testing.assert_allclose(pred[:, 1], 0.5 * pred[:, 0], rtol=1e-3, atol=1e-6)
+    assert fitted.score(data[2]) > 0.99
