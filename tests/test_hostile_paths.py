@@ -450,3 +450,23 @@ def test_a_directory_fifo_or_missing_log_is_named_for_what_it_is(
         assert f"{tmp_path / name}: {what}" in line, line
         assert "file not found" not in line
     assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------ compare, the same rules
+def test_compare_overwrite_keeps_the_users_files_beside_its_outputs(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]
+                                                                    ) -> None:
+    data = _fleet_csv(tmp_path / "one.csv", ["only-unit"])
+    cfg = _config(tmp_path / "c.yaml", data)
+    out = tmp_path / "cmp"
+    args = ["compare", str(cfg), "--out", str(out), "--no-track", "-q", "--no-plots"]
+    assert main(args) == 0
+    (out / "notes.txt").write_text("mine")
+    (out / "models" / "stale.pt").write_bytes(b"not a checkpoint")   # inside its own models/
+    assert main(args) == 1
+    assert "pass --overwrite" in _one_line(capsys.readouterr().err)
+    assert main([*args, "--overwrite"]) == 0
+    assert (out / "notes.txt").read_text() == "mine"
+    assert not (out / "models" / "stale.pt").exists()
+    assert (out / "models" / "cubic.pt").is_file()
+    assert not list(tmp_path.glob(".cmp.*"))
