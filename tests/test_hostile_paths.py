@@ -470,3 +470,25 @@ def test_compare_overwrite_keeps_the_users_files_beside_its_outputs(tmp_path: Pa
     assert not (out / "models" / "stale.pt").exists()
     assert (out / "models" / "cubic.pt").is_file()
     assert not list(tmp_path.glob(".cmp.*"))
+
+
+def test_export_all_units_never_replaces_a_file_already_there(hostile_fleet: Path,
+                                                              tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]
+                                                              ) -> None:
+    out = tmp_path / "hdr"
+    out.mkdir()
+    (out / "good-unit.h").write_text("/* the user's own header */")
+    (out / "README").write_text("mine")
+    assert main(["export", str(hostile_fleet), "--all-units", "--format", "c",
+                 "--out", str(out)]) == 1
+    line = _one_line(capsys.readouterr().err)
+    assert f"{out}: already holds good-unit.h" in line
+    assert _tree(out) == {"good-unit.h", "README"}                      # nothing written
+    assert (out / "good-unit.h").read_text() == "/* the user's own header */"
+    # other files in the folder are no obstacle
+    (out / "good-unit.h").unlink()
+    assert main(["export", str(hostile_fleet), "--all-units", "--format", "c",
+                 "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert (out / "README").read_text() == "mine" and (out / "good-unit.h").is_file()

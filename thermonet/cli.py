@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 from collections.abc import Sequence
@@ -193,11 +194,19 @@ def _export_all_units(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ThermonetError(f"{out}: --out must be a directory with --all-units")
-    out.mkdir(parents=True, exist_ok=True)
-    failed = 0
     # a device id read from results.json never becomes a path as it is: the same safe
     # file name as `fleet` gave its unit directory (thermonet.names.path_component)
     names = path_components(units)
+    ext = _EXTENSIONS.get(args.format, "." + args.format)
+    # file names come from the data, so a file already there is never replaced: it may be
+    # the user's (refused before anything is written)
+    taken = [f"{names[d]}{ext}" for d in units if os.path.lexists(out / f"{names[d]}{ext}")]
+    if taken:
+        more = f" and {len(taken) - 1} more" if len(taken) > 1 else ""
+        raise ThermonetError(f"{out}: already holds {taken[0]}{more}; --all-units writes only "
+                             "new files: choose an empty --out or remove them")
+    out.mkdir(parents=True, exist_ok=True)
+    failed = 0
     for dev in units:
         udir = src / "units" / names[dev]
         if not udir.resolve().is_relative_to(src.resolve()) or not udir.is_dir():
@@ -205,8 +214,7 @@ def _export_all_units(args: argparse.Namespace) -> int:
             failed += 1
             continue
         try:
-            path = export_source(str(udir), fmt=args.format, out=out / f"{names[dev]}"
-                                 f"{_EXTENSIONS.get(args.format, '.' + args.format)}",
+            path = export_source(str(udir), fmt=args.format, out=out / f"{names[dev]}{ext}",
                                  family=args.family,
                                  device_id=args.device_id, instance=args.instance)
             print(f"wrote {path}")
