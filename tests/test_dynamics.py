@@ -18,7 +18,7 @@ import pytest
 import torch
 
 from thermonet import dynamics
-from thermonet.checkpoint import load_checkpoint, save_checkpoint
+from thermonet.checkpoint import load_checkpoint, save_checkpoint, seal_checkpoint
 from thermonet.config import FeatureConfig
 from thermonet.errors import ConfigError
 from thermonet.exporting import export_onnx, render_c_header
@@ -266,6 +266,7 @@ def test_constants_round_trip_checkpoint_onnx_c(trained, tmp_path):
     payload = torch.load(ckpt, weights_only=True)
     payload["spec"]["dynamic"]["inputs"][0]["tau_s"] = 30.0
     torch.save(payload, tmp_path / "bad.pt")
+    seal_checkpoint(tmp_path / "bad.pt")  # sealed again: the check below, not the digest
     with pytest.raises(Exception, match="differ from the definitions"):
         load_checkpoint(tmp_path / "bad.pt")
 

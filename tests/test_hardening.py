@@ -23,6 +23,7 @@ import pytest
 import torch
 
 from conftest import toy_dataset
+from thermonet.checkpoint import seal_checkpoint
 from thermonet.cli import main
 from thermonet.io import METADATA_KEY, write_parquet
 
@@ -209,6 +210,7 @@ def test_crafted_axis_name_never_reaches_generated_code(compared, tmp_path, caps
     payload = _checkpoint(compared)
     payload["outputs"] = [C_PAYLOAD.replace("MARKER", str(marker))]
     torch.save(payload, tmp_path / "evil.pt")
+    seal_checkpoint(tmp_path / "evil.pt")  # sealed again: the checks below, not the digest
     out = tmp_path / ("m.h" if fmt == "c" else "m.onnx")
     assert main(["export", str(tmp_path / "evil.pt"), "--format", fmt, "--out", str(out)]) == 1
     err = capsys.readouterr().err.strip()
@@ -245,6 +247,7 @@ def test_crafted_checkpoint_values_refused(compared, tmp_path, capsys, key, valu
     else:
         payload[key] = value
     torch.save(payload, tmp_path / "bad.pt")
+    seal_checkpoint(tmp_path / "bad.pt")  # sealed again: the checks below, not the digest
     assert main(["export", str(tmp_path / "bad.pt"), "--format", "c",
                  "--out", str(tmp_path / "m.h")]) == 1
     err = capsys.readouterr().err.strip()
@@ -319,6 +322,7 @@ def test_export_never_logs_where_the_checkpoint_says(compared, tmp_path, caplog,
     payload["config"]["tracking"]["uri"] = "http://192.0.2.1:5000"  # TEST-NET-1: unreachable
     payload["extra"]["mlflow_run_id"] = run_id
     torch.save(payload, tmp_path / "k.pt")
+    seal_checkpoint(tmp_path / "k.pt")  # sealed again: the checks below, not the digest
     assert main(["export", str(tmp_path / "k.pt"), "--format", "onnx",
                  "--out", str(tmp_path / "m.onnx")]) == 0
     assert "192.0.2.1" not in " ".join(r.getMessage() for r in caplog.records)

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 
-from thermonet.checkpoint import load_checkpoint, save_checkpoint
+from thermonet.checkpoint import load_checkpoint, save_checkpoint, seal_checkpoint
 from thermonet.errors import ConfigError
 from thermonet.exporting import (
     autopilot_coefficients,
@@ -246,6 +246,7 @@ def test_mask_leaves_an_axis_uncompensated_in_every_export(tmp_path):
     for name in ("y_offset", "y_ref", "sig_ref", "target_code", "compensate"):
         del payload["state_dict"][name]
     torch.save(payload, tmp_path / "old.pt")
+    seal_checkpoint(tmp_path / "old.pt")  # edited on purpose: sealed again
     old, _ = load_checkpoint(tmp_path / "old.pt")
     assert old.target_modes == ["channel"] * 3 and old.compensated_axes == [True] * 3
 

@@ -9,10 +9,25 @@ Only tensors, numbers, strings, None, lists and dicts are stored, so
 ``torch.load(path, weights_only=True)`` can read it without executing code.
 Writes are atomic (temporary file in the same folder, then ``os.replace``):
 a crash never leaves a half-written checkpoint under the final name.
+
+Integrity.  Every checkpoint carries ``sha256``, a SHA-256 digest over everything
+else it stores (each tensor's name, dtype, shape and bytes; the config, spec,
+names and metadata), and :func:`load_checkpoint` recomputes it before anything
+is built from the file: a checkpoint edited after it was written (a weight
+×1000, a changed config) or damaged is refused in one line naming the file —
+standalone files as well as those inside a comparison (whose ``results.json``
+also records the file's SHA-256).  A checkpoint *without* a digest (written
+before thermonet stored one, or with it removed) is refused too, never loaded
+with a warning: removing the key would otherwise be all an edit needs.  A file
+you trust (your own older checkpoint, or one you edited on purpose) is sealed
+again with :func:`seal_checkpoint`.  The digest detects edits and damage, not
+a forger: anyone who can write the file can also recompute it (that would take
+a signature with a key, which thermonet does not manage).
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 from pathlib import Path
@@ -40,13 +55,68 @@ from .names import (
     check_units,
 )
 
-__all__ = ["save_checkpoint", "load_checkpoint", "CHECKPOINT_FORMAT"]
+__all__ = ["save_checkpoint", "load_checkpoint", "seal_checkpoint", "checkpoint_digest",
+           "CHECKPOINT_FORMAT", "DIGEST_KEY"]
 
 #: Bumped when the layout changes incompatibly.
 CHECKPOINT_FORMAT = 1
 
 _KEYS = ("state_dict", "family", "hyper", "inputs", "signals", "outputs", "spec", "config",
          "epoch", "best_val", "extra")
+#: Key of the integrity digest (:func:`checkpoint_digest`) in a checkpoint's payload.
+DIGEST_KEY = "sha256"
+
+
+def _feed(h: Any, value: Any, where: str) -> None:
+    """Feed ``value`` to the hash ``h`` in a canonical, type-tagged, length-prefixed form."""
+    if value is None:
+        h.update(b"N")
+    elif isinstance(value, bool):
+        h.update(b"T" if value else b"F")
+    elif isinstance(value, int):
+        h.update(b"i%d;" % value)
+    elif isinstance(value, float):
+        h.update(b"f" + float.hex(value).encode("ascii") + b";")
+    elif isinstance(value, str):
+        data = value.encode("utf-8", "surrogatepass")
+        h.update(b"s%d:" % len(data) + data)
+    elif isinstance(value, (list, tuple)):
+        h.update(b"l%d:" % len(value))
+        for i, v in enumerate(value):
+            _feed(h, v, f"{where}[{i}]")
+    elif isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            raise ValueError(f"'{where}' has a key that is not a string")
+        h.update(b"d%d:" % len(value))
+        for k in sorted(value):
+            _feed(h, k, where)
+            _feed(h, value[k], f"{where}.{k}")
+    elif isinstance(value, torch.Tensor):
+        if value.layout != torch.strided or value.is_quantized:
+            raise ValueError(f"'{where}' is not a dense tensor")
+        t = value.detach().cpu().contiguous()
+        head = f"{t.dtype}{tuple(t.shape)}".encode("ascii")
+        h.update(b"t%d:" % len(head) + head)
+        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+    else:
+        raise ValueError(f"'{where}' holds a {type(value).__name__}")
+
+
+def checkpoint_digest(payload: dict) -> str:
+    """SHA-256 (hex) over every key of a checkpoint payload but :data:`DIGEST_KEY`.
+
+    Canonical: keys sorted, every value tagged with its type and length, floats
+    by their exact hex form, tensors by dtype, shape and raw bytes — so the same
+    content gives the same digest whatever pickle made of it.
+
+    Raises
+    ------
+    ValueError
+        A value that is not plain data (numbers, strings, lists, dicts, dense tensors).
+    """
+    h = hashlib.sha256(b"thermonet-checkpoint\0")
+    _feed(h, {k: v for k, v in payload.items() if k != DIGEST_KEY}, "checkpoint")
+    return h.hexdigest()
 
 
 def _plain(value: Any, where: str) -> Any:
@@ -117,27 +187,38 @@ def save_checkpoint(path: str | os.PathLike, model: DriftModel, *, config: dict,
         "best_val": None if best_val is None or not math.isfinite(best_val) else float(best_val),
         "extra": _plain(dict(extra or {}), "extra"),
     }
+    payload[DIGEST_KEY] = checkpoint_digest(payload)
     path = Path(path)
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
     return path
 
 
-def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
-    """Rebuild the model saved by :func:`save_checkpoint` (``weights_only=True``).
+def seal_checkpoint(path: str | os.PathLike) -> Path:
+    """Store a fresh integrity digest in the checkpoint at ``path`` (atomic); return the path.
 
-    Returns
-    -------
-    (DriftModel, dict)
-        The model in eval mode on CPU, and the checkpoint's metadata (every
-        key but ``state_dict``).
+    For a file you trust and that :func:`load_checkpoint` refuses for its digest:
+    a checkpoint written before thermonet stored one, or one edited on purpose.
+    Nothing else is checked here (the next load checks everything).
 
     Raises
     ------
     InputError
-        Missing/unreadable file or a payload that is not a thermonet checkpoint.
+        A file that is not a readable checkpoint payload.
     """
     path = Path(path)
+    payload = _read_payload(path)
+    try:
+        payload[DIGEST_KEY] = checkpoint_digest(payload)
+    except ValueError as err:
+        raise InputError.at(path, f"not a thermonet checkpoint ({err})") from None
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return path
+
+
+def _read_payload(path: Path) -> dict:
+    """The dict a checkpoint file holds (``weights_only``), with every key of :data:`_KEYS`."""
     why = not_a_file(path, "checkpoint file")
     if why:
         raise InputError.at(path, why)
@@ -149,9 +230,48 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
     if not isinstance(payload, dict) or any(k not in payload for k in _KEYS):
         missing = [k for k in _KEYS if not isinstance(payload, dict) or k not in payload]
         raise InputError.at(path, f"not a thermonet checkpoint (missing {', '.join(missing)})")
+    return payload
+
+
+def _check_digest(path: Path, payload: dict) -> None:
+    """The stored digest against the content (see the module docstring)."""
+    stored = payload.get(DIGEST_KEY)
+    if stored is None:
+        raise InputError.at(path, "checkpoint carries no integrity digest ('sha256'; written "
+                            "by an older thermonet, or removed), so it cannot be verified; if "
+                            "you trust this file, seal it with "
+                            "thermonet.checkpoint.seal_checkpoint(path)")
+    try:
+        actual = checkpoint_digest(payload)
+    except ValueError as err:
+        raise InputError.at(path, f"not a thermonet checkpoint ({err})") from None
+    if not isinstance(stored, str) or stored != actual:
+        raise InputError.at(path, "content does not match the checkpoint's SHA-256 digest "
+                            "(edited or damaged after it was written); refusing to load it")
+
+
+def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
+    """Rebuild the model saved by :func:`save_checkpoint` (``weights_only=True``).
+
+    Returns
+    -------
+    (DriftModel, dict)
+        The model in eval mode on CPU, and the checkpoint's metadata (every
+        key but ``state_dict``; ``sha256`` is the verified digest).
+
+    Raises
+    ------
+    InputError
+        Missing/unreadable file, a payload that is not a thermonet checkpoint, or
+        one whose ``sha256`` digest is missing or does not match its content
+        (:func:`seal_checkpoint` re-seals a file you trust).
+    """
+    path = Path(path)
+    payload = _read_payload(path)
     if payload.get("format", CHECKPOINT_FORMAT) != CHECKPOINT_FORMAT:
         raise InputError.at(path, f"checkpoint format {payload.get('format')!r}; this thermonet "
                             f"reads format {CHECKPOINT_FORMAT}")
+    _check_digest(path, payload)
     _check_payload(path, payload)
     try:
         spec = FeatureSpec.from_dict({**payload["spec"], "inputs": payload["inputs"]},
@@ -180,7 +300,7 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
                             f"[{float(lo[j]):g}, {float(hi[j]):g}] (low must be <= high)")
     _check_target_buffers(path, model)
     model.eval()
-    meta = {k: v for k, v in payload.items() if k != "state_dict"}
+    meta = {k: v for k, v in payload.items() if k != "state_dict"}  # the digest included
     return model, meta
 
 

@@ -58,12 +58,16 @@ class ExportRequest:
         PX4 calibration slot 0..3 (default 0) or ArduPilot IMU 1..3 (default 1).
     tracking_uri : str or None
         MLflow store to log the exported file to (``onnx``).
+    source : str or None
+        Where the model came from (its checkpoint file), named in errors; None for
+        an in-memory model.
     """
 
     meta: dict[str, Any] = field(default_factory=dict)
     device_id: int | None = None
     instance: int | None = None
     tracking_uri: str | None = None
+    source: str | None = None
 
     @property
     def extra(self) -> dict[str, Any]:
@@ -100,8 +104,19 @@ class ExportFormat:
 
     def write(self, model: DriftModel, out: str | Path, request: ExportRequest | None = None
               ) -> Path:
-        """Export ``model`` to ``out``; return the written path."""
-        return self.resolve()(model, Path(out), request or ExportRequest())
+        """Export ``model`` to ``out``; return the written path.
+
+        Every format passes here: the model's output is first checked on its trained
+        range (finite, within the training targets' mean ± K std —
+        :func:`thermonet.exporting.domain.check_output_range`), so no format writes a
+        model whose drift is absurd; nothing is written when it is refused.
+        """
+        from .domain import check_output_range
+
+        request = request or ExportRequest()
+        check_output_range(model, units=request.output_units,
+                           source=request.source or f"model '{model.family_name}' (in memory)")
+        return self.resolve()(model, Path(out), request)
 
 
 #: Registered export formats, by name.

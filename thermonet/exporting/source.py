@@ -139,8 +139,10 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
         ckpt = resolve_checkpoint(source, family=family, tracking_uri=tracking_uri,
                                   workdir=Path(tmp))
         model, meta = load_checkpoint(ckpt)
+        named = str(ckpt) if Path(source).exists() else f"MLflow run '{source}' ({ckpt.name})"
     return export_format.write(model, out, ExportRequest(
-        meta=meta, device_id=device_id, instance=instance, tracking_uri=tracking_uri))
+        meta=meta, device_id=device_id, instance=instance, tracking_uri=tracking_uri,
+        source=named))
 
 
 # ----------------------------------------------------- the built-in exporters
