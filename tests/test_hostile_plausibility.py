@@ -81,3 +81,89 @@ def test_impossible_split_settings_refused(tmp_path: Path, capsys, value, expect
     load_config_ok = tmp_path / "ok.yaml"
     load_config_ok.write_text(f"data: {{preset: accel-ramp}}\nsplit: {{n_blocks: {MAX_BLOCKS}}}\n")
     assert load_config(load_config_ok).split.n_blocks == MAX_BLOCKS
+
+
+# ---------------------------------------------------------------- info's plausibility (class 8)
+def _temp_csv(path: Path, temps, *, values=None, dt: float = 1.0) -> Path:
+    import numpy as np
+
+    temps = np.asarray(temps, dtype=float)
+    t = np.arange(temps.size) * dt
+    g = np.zeros(temps.size) if values is None else np.asarray(values, dtype=float)
+    path.write_text("time_s,temperature_c,gyro_x\n" + "".join(
+        f"{a!r},{b!r},{c!r}\n" for a, b, c in zip(t.tolist(), temps.tolist(), g.tolist(),
+                                                    strict=True)))
+    return path
+
+
+def _info_json(path: Path, capsys, *extra: str) -> dict:
+    import json
+
+    assert main(["info", str(path), "--json", *extra]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+@pytest.mark.parametrize("lo,hi,hint", [
+    (253.15, 343.15, "Kelvin? subtract 273.15"),            # −20 … 70 °C in K
+    (-4.0, 257.0, "°F? subtract 32, then multiply by 5/9"),   # −20 … 125 °C in °F
+    (-20000.0, 70000.0, "m°C? divide by 1000"),              # −20 … 70 °C in m°C
+    (1e305, 1e306, "check the mapping's temperature unit and scale"),
+])
+def test_info_hints_at_temperature_units(tmp_path, capsys, lo, hi, hint):
+    import numpy as np
+
+    from thermonet.diagnostics import input_warnings
+    from thermonet.io import read_datasets
+
+    f = _temp_csv(tmp_path / "t.csv", np.linspace(lo, hi, 3600))
+    s = _info_json(f, capsys)
+    temp = [w for w in s["warnings"] if "temperature_c spans" in w]
+    assert len(temp) == 1 and hint in temp[0], s["warnings"]
+    # the same sentences compare gives: one function, not a copy
+    assert s["warnings"] == input_warnings(read_datasets([f]))
+    # and the text view shows them
+    assert main(["info", str(f)]) == 0
+    assert f"warning: {temp[0]}" in capsys.readouterr().out
+
+
+def test_info_warns_on_absurd_values_and_rates(tmp_path, capsys):
+    import warnings
+
+    import numpy as np
+
+    temps = np.linspace(20.0, 40.0, 600)
+    f = _temp_csv(tmp_path / "big.csv", temps, values=np.tile([1e306, -1e306], 300))
+    with warnings.catch_warnings():  # no numpy overflow warning on the way
+        warnings.simplefilter("error", RuntimeWarning)
+        s = _info_json(f, capsys)
+    assert any("gyro_x reaches 1e+306 deg/s" in w for w in s["warnings"]), s["warnings"]
+    f = _temp_csv(tmp_path / "slow.csv", temps, dt=1e300)
+    s = _info_json(f, capsys)
+    assert any("sample rate 1e-300 Hz is outside" in w for w in s["warnings"]), s["warnings"]
+    f = _temp_csv(tmp_path / "fast.csv", temps, dt=1e-7)
+    s = _info_json(f, capsys)
+    assert any("sample rate 1e+07 Hz is outside" in w for w in s["warnings"]), s["warnings"]
+    # plausible data: no warning at all
+    f = _temp_csv(tmp_path / "ok.csv", temps, dt=10.0)
+    assert _info_json(f, capsys)["warnings"] == []
+
+
+@pytest.mark.parametrize("setting,expect", [
+    ("sample_rate_hz: 1.0e-300", "key 'sample_rate_hz': 1e-300 Hz is not a possible sample rate"),
+    ("sample_rate_hz: 1.0e+12", "key 'sample_rate_hz': 1e+12 Hz is not a possible sample rate"),
+    ("sample_rate_hz: 0", "key 'sample_rate_hz': must be > 0"),
+    ("sample_rate_hz: -5", "key 'sample_rate_hz': must be > 0"),
+    ("sample_rate_hz: .inf", "key 'sample_rate_hz': expected a finite number"),
+    ("scale0", "key 'channels.gyro_x.scale': is 0"),
+])
+def test_impossible_mapping_settings_refused_in_one_line(tmp_path, capsys, setting, expect):
+    f = tmp_path / "d.csv"
+    f.write_text("temp,g\n" + "".join(f"{20 + k * 0.05!r},0.0\n" for k in range(400)))
+    m = tmp_path / "m.yaml"
+    time = "sample_rate_hz: 1.0" if setting == "scale0" else setting
+    scale = ", scale: 0" if setting == "scale0" else ""
+    m.write_text(f"{time}\nchannels:\n  temperature_c: {{column: temp}}\n"
+                 f"  gyro_x: {{column: g{scale}}}\n")
+    assert main(["info", str(f), "--mapping", str(m)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(m) in err and expect in err, err

@@ -4,7 +4,12 @@
 as a text table.  Per output channel it reports the white-noise floor
 (:func:`thermonet.metrics.noise_floor`, per run then averaged) and the thermal
 drift seen in the data, the peak-to-peak of 1 °C-binned means of the observed
-drift over all runs (:func:`thermonet.metrics.binned_peak_to_peak`).
+drift over all runs (:func:`thermonet.metrics.binned_peak_to_peak`).  The noise
+floor is a standard deviation per sample at the file's own sample rate (not a
+density: the same sensor logged at 4× the rate shows about twice the floor).
+``warnings`` are the plausibility sentences ``compare`` gives, from the same
+function (:func:`thermonet.diagnostics.input_warnings`): temperatures that look
+like Kelvin, °F or m°C, absurd values or rates, a header line that is a data row.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ def _num(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
+@np.errstate(over="ignore", invalid="ignore")  # absurd values: warned about, not a traceback
 def summarize(dataset: Dataset, *, bin_c: float = 1.0) -> dict[str, Any]:
     """Summarize channels, runs and per-output noise and drift.
 
@@ -44,7 +50,9 @@ def summarize(dataset: Dataset, *, bin_c: float = 1.0) -> dict[str, Any]:
         proxies {name: [min, max]}, skipped_rows), ``outputs`` (name, unit,
         noise_floor, drift_peak_to_peak; units of the channel; the latter None
         without a °C thermometer), ``temperature_range_c`` ([min, max] or None),
-        ``skipped_rows`` (int or None when no row could be skipped).
+        ``skipped_rows`` (int or None when no row could be skipped),
+        ``noise_floor_basis`` (what the noise floor is: 1σ per sample at which rate),
+        ``warnings`` (plausibility sentences, as ``compare`` gives them).
 
     Notes
     -----
@@ -99,14 +107,26 @@ def summarize(dataset: Dataset, *, bin_c: float = 1.0) -> dict[str, Any]:
         temps = [r.temperature_c for r in with_t if r.temperature_c is not None]
         t_range = [min(float(t.min()) for t in temps), max(float(t.max()) for t in temps)]
     skipped = dataset.meta.get("skipped_rows")
+    from .diagnostics import input_warnings
+
+    rates = sorted({float(f"{r.effective_rate_hz:.4g}") for r in runs})
+    at = f"{rates[0]:g} Hz" if len(rates) == 1 else f"each run's rate ({rates[0]:g} … " \
+        f"{rates[-1]:g} Hz)"
     return {"device_id": dataset.device_id, "sensor_kind": first.sensor_kind,
             "n_runs": len(runs), "channels": channels, "runs": run_rows,
             "outputs": outputs, "temperature_range_c": t_range, "bin_c": bin_c,
-            "skipped_rows": None if skipped is None else int(skipped)}
+            "skipped_rows": None if skipped is None else int(skipped),
+            "noise_floor_basis": f"1 sigma per sample at {at}",
+            "warnings": input_warnings(dataset)}
 
 
 def _fmt(x: float | None, spec: str = ".4g") -> str:
     return "n/a" if x is None else format(x, spec)
+
+
+def _c(x: float) -> str:
+    """A temperature: 2 decimals, or 4 digits where it is absurd (1e306 °C is one line)."""
+    return f"{x:.2f}" if abs(x) < 1e6 else f"{x:.4g}"
 
 
 def _table(header: list[str], rows: list[list[str]]) -> list[str]:
@@ -129,7 +149,7 @@ def format_summary(summary: dict[str, Any]) -> str:
     rows = []
     for r in summary["runs"]:
         if r["temperature_min_c"] is not None:
-            temp = f"{r['temperature_min_c']:.2f}..{r['temperature_max_c']:.2f}"
+            temp = f"{_c(r['temperature_min_c'])}..{_c(r['temperature_max_c'])}"
         else:
             proxy = "; ".join(f"{k} {lo:.6g}..{hi:.6g}" for k, (lo, hi) in r["proxies"].items())
             temp = f"n/a (no °C thermometer; proxy: {proxy or 'none'})"
@@ -144,9 +164,14 @@ def format_summary(summary: dict[str, Any]) -> str:
              else "n/a (no °C thermometer)"] for o in summary["outputs"]]
     out += _table(["output", "unit", "noise floor",
                    f"drift p-p ({summary['bin_c']:g} °C bins)"], rows)
+    out.append(f"noise floor: {summary['noise_floor_basis']} (a standard deviation, not a "
+               "density)")
     if summary["temperature_range_c"] is not None:
         lo, hi = summary["temperature_range_c"]
-        out += ["", f"temperature range {lo:.2f}..{hi:.2f} °C over all runs"]
+        out += ["", f"temperature range {_c(lo)}..{_c(hi)} °C over all runs"]
     if summary["skipped_rows"] is not None:
         out.append(f"skipped malformed rows: {summary['skipped_rows']}")
+    if summary["warnings"]:
+        out.append("")
+        out += [f"warning: {w}" for w in summary["warnings"]]
     return "\n".join(out)

@@ -238,7 +238,7 @@ def _read_one(path: Path, mapping: ColumnMapping | None
     else:
         frame = _read_text(path, mapping, sep="\t" if fmt == "tsv" else None)
     if mapping is None:
-        mapping = _native_mapping(path, list(frame.data.columns))
+        mapping = _native_mapping(path, list(frame.data.columns), frame.numeric_header)
     runs, n_skipped = _apply_mapping(frame, mapping)
     return runs, {}, (n_skipped if mapping.malformed_rows == "skip" else None)
 
@@ -367,9 +367,12 @@ class _Frame:
     """Cells of one source file, with the 1-based data row (and file line) of each."""
 
     def __init__(self, *, path: Path, data: pd.DataFrame, rows: np.ndarray,
-                 lines: np.ndarray | None, skipped_lines: Sequence[int] = ()) -> None:
+                 lines: np.ndarray | None, skipped_lines: Sequence[int] = (),
+                 numeric_header: Sequence[str] = ()) -> None:
         self.path, self.data, self.rows, self.lines = path, data, rows, lines
         self.skipped_lines = list(skipped_lines)
+        # header names that all parse as numbers: most likely a first data row
+        self.numeric_header = list(numeric_header)
 
 
 def _read_text(path: Path, mapping: ColumnMapping | None, sep: str | None) -> _Frame:
@@ -431,8 +434,9 @@ def _read_text(path: Path, mapping: ColumnMapping | None, sep: str | None) -> _F
                        names=names if names is not None else list(range(n_fields)),
                        dtype=str, keep_default_na=False, skip_blank_lines=False)
     rows = np.asarray(keep) + 1
+    numeric = names if names and all(n and _is_float(n) for n in names) else []
     return _Frame(path=path, data=data, rows=rows, lines=rows - 1 + first_data,
-                  skipped_lines=skipped_lines)
+                  skipped_lines=skipped_lines, numeric_header=numeric)
 
 
 def _sniff(path: Path, sample: list[str]) -> str:
@@ -451,12 +455,16 @@ def _sniff(path: Path, sample: list[str]) -> str:
 
 
 # ------------------------------------------------------------ mapping
-def _native_mapping(path: Path, columns: list) -> ColumnMapping:
+def _native_mapping(path: Path, columns: list, numeric_header: Sequence[str] = ()
+                    ) -> ColumnMapping:
     names = [str(c) for c in columns]
     if "time_s" not in names or not any(OUTPUT_NAME.match(n) for n in names):
+        hint = ("; its first line is all numbers, so the file has no header line: describe "
+                "it with a mapping with 'header: false' and columns by 0-based index"
+                if numeric_header else "; describe the file with a mapping (YAML)")
         raise InputError.at(path, "columns are not thermonet's conventional names (need "
                             "'time_s' and an output like 'gyro_x'; found "
-                            f"{', '.join(names[:8])}); describe the file with a mapping (YAML)")
+                            f"{', '.join(names[:8])}){hint}")
     channels = [ChannelSpec(name=n, column=n, unit=default_unit(n))
                 for n in names if n not in ("time_s", "run", "device")]
     bad = [c.name for c in channels if not c.name.replace("_", "a").isalnum()]
@@ -593,6 +601,8 @@ def _apply_mapping(frame: _Frame, mapping: ColumnMapping) -> tuple[list[Recordin
         meta["source"] = str(path)
         if mapping.source != "<conventional names>":
             meta["mapping"] = mapping.source
+        if frame.numeric_header:  # diagnostics.input_warnings suggests 'header: false'
+            meta["numeric_header"] = ",".join(frame.numeric_header[:8])
         if mapping.malformed_rows == "skip":
             if mapping.run_column is None:
                 run_skipped, run_lines = n_skipped, sorted(frame.skipped_lines)

@@ -284,9 +284,15 @@ class _Parser:
         kw["malformed_rows"] = mal
         kw["time"] = self.time(raw.get("time"), header)
         if raw.get("sample_rate_hz") is not None:
+            from .diagnostics import RATE_HZ_POSSIBLE
+
             rate = self.number("sample_rate_hz", raw["sample_rate_hz"])
             if rate <= 0:
                 raise self.fail("sample_rate_hz", f"must be > 0, got {rate:g}")
+            if not RATE_HZ_POSSIBLE[0] <= rate <= RATE_HZ_POSSIBLE[1]:
+                raise self.fail("sample_rate_hz", f"{rate:g} Hz is not a possible sample rate "
+                                f"of a thermal test (expected {RATE_HZ_POSSIBLE[0]:g} … "
+                                f"{RATE_HZ_POSSIBLE[1]:g} Hz)")
             kw["sample_rate_hz"] = rate
         if (kw["time"] is None) == ("sample_rate_hz" not in kw):
             raise self.fail("time", "give exactly one of 'time' (a time column) and "
@@ -358,9 +364,13 @@ class _Parser:
             if name == "temperature_c" and unit != "degC":
                 raise self.fail(key + ".unit", f"temperature_c must be in degC, got '{unit}' "
                                 "(convert with scale/offset, or map it as a proxy)")
+            scale = self.number(key + ".scale", spec.get("scale", 1.0))
+            if scale == 0.0:
+                raise self.fail(key + ".scale", "is 0: every value of the channel would be its "
+                                "offset")
             out.append(ChannelSpec(
                 name=name, column=self.column(key + ".column", spec["column"], header),
-                unit=unit, scale=self.number(key + ".scale", spec.get("scale", 1.0)),
+                unit=unit, scale=scale,
                 offset=self.number(key + ".offset", spec.get("offset", 0.0)), proxy=proxy))
         if not any(c.role == "output" for c in out):
             raise self.fail("channels", "no output channel (need at least one "
