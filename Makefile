@@ -8,7 +8,7 @@ PIP    := $(PY) -m pip
 TORCH  := torch==2.13.0
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test test-cpus qemu bench clean chromium
+.PHONY: venv demo test test-cpus qemu bench clean chromium arm-toolchain
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -26,7 +26,14 @@ demo: $(STAMP)
 chromium:
 	command -v chromium >/dev/null || (apt-get update && apt-get install -y --no-install-recommends chromium)
 
-test: $(STAMP) chromium
+# the C header is cross-compiled for Cortex-M0+/M4F/M7 and emulated (tests/test_mcu.py):
+# Debian's bare-metal Arm toolchain and its C library
+arm-toolchain:
+	command -v arm-none-eabi-gcc >/dev/null && test -d /usr/lib/arm-none-eabi/newlib || \
+	  (apt-get update && apt-get install -y --no-install-recommends gcc-arm-none-eabi \
+	   libnewlib-arm-none-eabi)
+
+test: $(STAMP) chromium arm-toolchain
 	$(VENV)/bin/ruff check thermonet tests experiments export
 	$(VENV)/bin/mypy thermonet
 	$(PY) -m pytest -q -n 2 tests

@@ -89,17 +89,23 @@ def test_header_matches_onnxruntime(family, tmp_path):
 def test_header_text_and_refusals():
     model = _model("poly")
     text = render_c_header(model, prefix="imu0")
-    assert "static inline int imu0_compensate(const float *signals, const double *raw" in text
+    assert ("static inline int imu0_compensate(const float *signals, const thermonet_real_t *raw"
+            in text)
     assert "#define IMU0_N_AXES 2" in text and '#define IMU0_AXIS_NAMES {"acc_x", "acc_y"}' in text
     assert "malloc" not in text
-    # only the per-axis constant and raw/compensated/drift are double; the model is float32
+    # only the per-axis constant and raw/compensated/drift are double (on a double FPU; float
+    # and the constant split in two floats on a single-precision one); the model is float32
     assert "static const double IMU0_DRIFT_CONSTANT[2]" in text
+    assert "static const float IMU0_DRIFT_HI[2]" in text and "IMU0_DRIFT_LO[2]" in text
+    assert "typedef double thermonet_real_t;" in text and "typedef float thermonet_real_t;" in text
     assert "drift relative to (per axis): acc_x channel, acc_y channel." in text
-    # the streaming form keeps its timestamps in double (a difference of two Unix-epoch
-    # seconds would lose the step in float); its dynamic inputs are float32
-    assert "static inline int imu0_step(imu0_state *st, double time_s, float temperature_c," \
+    # the streaming form keeps its timestamps in double seconds or integer microseconds (a
+    # difference of two Unix-epoch seconds would lose the step in float); its dynamic inputs
+    # are float32
+    assert "static inline int imu0_step(imu0_state *st, thermonet_time_t time_s," in text
+    assert "typedef double thermonet_time_t;" in text and "typedef uint64_t thermonet_time_t;" \
         in text
-    assert "double t_last;              /* time of the last accepted call, s */" in text
+    assert "thermonet_time_t t_last;    /* time of the last accepted call (s, or us) */" in text
     with pytest.raises(ExportError, match="not a C identifier"):
         render_c_header(model, prefix="9bad-name")
 

@@ -345,13 +345,18 @@ def test_c_export_checks_step_and_refuses_a_wrong_recurrence(trained, tmp_path):
 
     model, _ = trained
     path = export_c_header(model, tmp_path / "m.h")
-    assert "thermonet_step(thermonet_state *st, double time_s" in path.read_text()
+    assert "thermonet_step(thermonet_state *st, thermonet_time_t time_s" in path.read_text()
     report = check_stream(model, path.read_text())
     assert report is not None and report["n_samples"] == 3000
+    # the float path (float outputs, microsecond time, the fast expm1f): the same check
+    assert check_stream(model, path.read_text(), real="float") is not None
     # a header whose lag recurrence uses the wrong step (g replaced by 1) is refused
-    broken = path.read_text().replace("const float g = -expm1f(-h) / h;", "const float g = 1.0f;")
-    with pytest.raises(ExportError, match=r"step\(\) parity check failed"):
-        check_stream(model, broken)
+    broken = path.read_text().replace("const float g = -THERMONET_EXPM1F(-h) / h;",
+                                      "const float g = 1.0f;")
+    assert broken != path.read_text()
+    for real in ("auto", "float"):
+        with pytest.raises(ExportError, match=r"step\(\) parity check failed"):
+            check_stream(model, broken, real=real)
 
 
 def test_stacked_held_out_blocks_restart_the_state_at_each_block():

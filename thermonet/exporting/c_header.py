@@ -60,9 +60,9 @@ from .. import __version__
 from ..errors import ExportError
 from ..fileio import atomic_write_text
 from ..models import DriftModel
-from ..models.cgen import as_float32, c_array, c_float
+from ..models.cgen import as_float32, c_array, c_float, c_target_prelude
 from ..names import c_comment, c_string, check_model_names
-from .c_stream import check_stream, render_stream_c
+from .c_stream import REAL_FLAGS, check_stream, float_path_slack, render_stream_c
 from .onnx_export import (
     _check_points,
     check_drift_parity,
@@ -89,6 +89,44 @@ def _double_array(name: str, values: object) -> str:
         raise ExportError(f"non-finite constant in {name} cannot be written to a C header")
     return f"static const double {name}[{arr.size}] = {{" + ", ".join(
         f"{float(v):.17g}" for v in arr) + "};"
+
+
+def _drift_constant_lines(P: str, constant: np.ndarray) -> list[str]:
+    """The per-axis drift constant c, in the arithmetic of the target.
+
+    Double path: c as a ``double``.  Float path: c = hi + lo with hi = float(c) and lo =
+    float(c − hi) (|c − hi − lo| ≤ 2⁻²⁴·|lo|): ``compensated = (raw − hi) − (lo + r)``
+    subtracts the large part first, exactly for raw near c (Sterbenz), so a 1e-3 drift on a
+    1e6 constant keeps float's relative precision on the small result.
+    """
+    c = np.asarray(constant, dtype=np.float64).reshape(-1)
+    hi = c.astype(np.float32)
+    lo = (c - hi.astype(np.float64)).astype(np.float32)
+    return [
+        "#if THERMONET_REAL_IS_DOUBLE",
+        _double_array(f"{P}_DRIFT_CONSTANT", c),
+        "#else",
+        "/* the drift constant c = hi + lo in two floats (c - hi is exact in float64) */",
+        _array(f"{P}_DRIFT_HI", hi.astype(np.float64)),
+        _array(f"{P}_DRIFT_LO", lo.astype(np.float64)),
+        "#endif",
+    ]
+
+
+def _output_lines(P: str, n_axes: int) -> list[str]:
+    """drift = c + y and compensated = raw − drift per axis, straight-line (the sizes are
+    known: no loop on the part), NaN for a non-finite signal decided once."""
+    lines = ["    if (nonfinite) {", *(f"        y[{k}] = NAN;" for k in range(n_axes)), "    }",
+             "#if THERMONET_REAL_IS_DOUBLE"]
+    for k in range(n_axes):
+        lines += [f"    drift[{k}] = (double)y[{k}] + {P}_DRIFT_CONSTANT[{k}];",
+                  f"    compensated[{k}] = raw[{k}] - drift[{k}];"]
+    lines += ["#else", "    /* raw - hi first: exact for raw near the constant (Sterbenz) */"]
+    for k in range(n_axes):
+        lines += [f"    y[{k}] += {P}_DRIFT_LO[{k}];",
+                  f"    drift[{k}] = {P}_DRIFT_HI[{k}] + y[{k}];",
+                  f"    compensated[{k}] = (raw[{k}] - {P}_DRIFT_HI[{k}]) - y[{k}];"]
+    return [*lines, "#endif"]
 
 
 def render_c_header(model: DriftModel, *, prefix: str = "thermonet") -> str:
@@ -118,12 +156,13 @@ def render_c_header(model: DriftModel, *, prefix: str = "thermonet") -> str:
         f" * T_ref: {t_ref if t_ref is not None else 'n/a'} degC.",
         f" * signals: {c_comment(signals)}; axes: {c_comment(outputs)}.",
         f" * drift relative to (per axis): {c_comment(targets)}.",
-        " * compensated = raw - drift (double); returns 1 when a signal is outside the trained",
+        " * compensated = raw - drift (thermonet_real_t); returns 1 when a signal is outside the trained",
         " * range (drift evaluated at the clamped value) or not finite (drift = NaN). */",
         f"#ifndef {guard}",
         f"#define {guard}",
         "",
         "#include <math.h>",
+        *c_target_prelude(),
         "",
         "/* The NaN/inf test (v - v == 0) is folded away under fast-math, which would turn a",
         " * broken thermometer into a plausible correction: refuse to compile that way. */",
@@ -144,11 +183,12 @@ def render_c_header(model: DriftModel, *, prefix: str = "thermonet") -> str:
         _array(f"{p}_feat_square", feats.square.cpu().numpy(), "int"),
         _array(f"{p}_x_mean", _t(model.x_mean)),
         _array(f"{p}_x_inv_std", _t(1.0 / model.x_std)),
-        _double_array(f"{P}_DRIFT_CONSTANT", model.constant().detach().cpu().double().numpy()),
+        *_drift_constant_lines(P, model.constant().detach().cpu().double().numpy()),
         *fam_consts,
         "",
-        f"static inline int {p}_compensate(const float *signals, const double *raw,",
-        "                                 double *compensated, double *drift)",
+        f"static inline int {p}_compensate(const float *signals, const thermonet_real_t *raw,",
+        "                                 thermonet_real_t *compensated,",
+        "                                 thermonet_real_t *drift)",
         "{",
         f"    float s[{P}_N_SIGNALS];",
         f"    float z[{P}_N_FEATURES];",
@@ -169,13 +209,8 @@ def render_c_header(model: DriftModel, *, prefix: str = "thermonet") -> str:
         f"        z[f] = (x - {p}_x_mean[f]) * {p}_x_inv_std[f];",
         "    }",
         fam_body,
-        f"    for (a = 0; a < {P}_N_AXES; ++a) {{",
-        "        float r = nonfinite ? NAN : y[a];",
-        f"        double d = (double)r + {P}_DRIFT_CONSTANT[a];",
-        "        drift[a] = d;",
-        "        compensated[a] = raw[a] - d;",
-        "    }",
-        "    (void)i; (void)f;",
+        *_output_lines(P, len(outputs)),
+        "    (void)i; (void)f; (void)a;",
         "    return flag | nonfinite;",
         "}",
         *render_stream_c(model, p),
@@ -191,23 +226,31 @@ PARITY_DRIVER = r"""
 #include <stdio.h>
 #include "model.h"
 /* in: int n, then per point S signal floats and A raw doubles;
-   out: A comp doubles, A drift doubles, int flag */
+   out: A comp doubles, A drift doubles, int flag (raw and the outputs converted to and from
+   thermonet_real_t: float where the header chose float) */
 int main(int argc, char **argv)
 {
     FILE *in, *out;
     int n, k, flag;
     float s[PFX_N_SIGNALS];
-    double raw[PFX_N_AXES], comp[PFX_N_AXES], drift[PFX_N_AXES];
+    double raw_in[PFX_N_AXES], comp_out[PFX_N_AXES], drift_out[PFX_N_AXES];
+    thermonet_real_t raw[PFX_N_AXES], comp[PFX_N_AXES], drift[PFX_N_AXES];
+    int a;
     if (argc != 3) return 2;
     in = fopen(argv[1], "rb");
     out = fopen(argv[2], "wb");
     if (!in || !out || fread(&n, sizeof n, 1, in) != 1) return 3;
     for (k = 0; k < n; ++k) {
         if (fread(s, sizeof(float), PFX_N_SIGNALS, in) != PFX_N_SIGNALS) return 4;
-        if (fread(raw, sizeof(double), PFX_N_AXES, in) != PFX_N_AXES) return 4;
+        if (fread(raw_in, sizeof(double), PFX_N_AXES, in) != PFX_N_AXES) return 4;
+        for (a = 0; a < PFX_N_AXES; ++a) raw[a] = (thermonet_real_t)raw_in[a];
         flag = pfx_compensate(s, raw, comp, drift);
-        fwrite(comp, sizeof(double), PFX_N_AXES, out);
-        fwrite(drift, sizeof(double), PFX_N_AXES, out);
+        for (a = 0; a < PFX_N_AXES; ++a) {
+            comp_out[a] = (double)comp[a];
+            drift_out[a] = (double)drift[a];
+        }
+        fwrite(comp_out, sizeof(double), PFX_N_AXES, out);
+        fwrite(drift_out, sizeof(double), PFX_N_AXES, out);
         fwrite(&flag, sizeof flag, 1, out);
     }
     fclose(in);
@@ -218,12 +261,15 @@ int main(int argc, char **argv)
 
 
 def c_parity_check(model: DriftModel, header_text: str, *, prefix: str = "thermonet",
-                   seed: int = 0) -> dict[str, float] | None:
+                   seed: int = 0, real: str = "auto") -> dict[str, float] | None:
     """Compile the header with the system C compiler and compare it with torch.
 
     The points are the ONNX check's (grid and random points in range, float32);
     the tolerance is :func:`~.onnx_export.float32_tolerance`.  Returns ``None``
     (and logs it) when no C compiler is found — the header is then unchecked.
+    ``real="float"`` compiles the header's float path on the host
+    (``-DTHERMONET_USE_FLOAT``: float raw/drift/compensated, the fast ``expf``), with
+    :func:`float_path_slack` added to the tolerance; ``"double"`` forces double.
 
     Raises
     ------
@@ -246,12 +292,15 @@ def c_parity_check(model: DriftModel, header_text: str, *, prefix: str = "thermo
         d_torch = model.relative(torch.from_numpy(points)).double().numpy()
         flag_torch = model.out_of_range(torch.from_numpy(points)).numpy()
     tol = float32_tolerance(model, points, d_torch)
+    if real == "float":
+        tol = tol + float_path_slack(const, d_torch)
     driver = PARITY_DRIVER.replace("PFX", prefix.upper()).replace("pfx", prefix)
     with tempfile.TemporaryDirectory() as tmp_dir:
         tmp = Path(tmp_dir)
         (tmp / "model.h").write_text(header_text)
         (tmp / "driver.c").write_text(driver)
-        built = subprocess.run([cc, "-std=c99", "-O2", "-o", str(tmp / "driver"),
+        built = subprocess.run([cc, "-std=c99", "-O2", *REAL_FLAGS[real], "-o",
+                                str(tmp / "driver"),
                                 str(tmp / "driver.c"), "-lm"], capture_output=True, text=True)
         if built.returncode != 0:
             first = (built.stderr.strip().splitlines() or ["?"])[0]
@@ -270,8 +319,10 @@ def c_parity_check(model: DriftModel, header_text: str, *, prefix: str = "thermo
         c_out = np.fromfile(tmp / "out.bin", dtype=rec)
     err = check_drift_parity(model, points, c_out["drift"] - const, d_torch, tol,
                              what="C header", who="C")
-    # raw = the constant: compensated is minus the relative drift, computed in double
-    if not bool(np.all(np.abs(c_out["comp"] + d_torch) <= tol)):
+    # raw = the constant: compensated is minus the relative drift, computed in double (on
+    # the float path raw is the constant rounded to float: raw - hi is exact, lo remains)
+    raw_used = const.astype(np.float32).astype(np.float64) if real == "float" else const
+    if not bool(np.all(np.abs(c_out["comp"] - (raw_used - const - d_torch)) <= tol)):
         raise ExportError("C header parity check failed: 'compensated' is not raw - drift")
     if not np.array_equal(c_out["flag"].astype(bool), flag_torch):
         raise ExportError("C header parity check failed: out_of_range flag differs from torch")

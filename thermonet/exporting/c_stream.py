@@ -35,14 +35,29 @@ import numpy as np
 
 from .. import dynamics
 from ..errors import ExportError
+from ..models.cgen import c_expm1
 
 if TYPE_CHECKING:
     from ..models import DriftModel
 
 __all__ = ["render_stream_c", "STREAM_DRIVER", "run_stream_c", "check_stream",
-           "stream_signature_has_proxies"]
+           "stream_signature_has_proxies", "REAL_FLAGS", "float_path_slack"]
 
 _KIND_CODE = {"rate": 0, "lag": 1, "play": 2}
+
+#: compiler flags that select the header's arithmetic on the host (``real=``)
+REAL_FLAGS = {"auto": (), "double": ("-DTHERMONET_USE_DOUBLE",),
+              "float": ("-DTHERMONET_USE_FLOAT",)}
+
+
+def float_path_slack(const: np.ndarray, drift: np.ndarray) -> np.ndarray:
+    """What the float path adds to the drift's error, per axis: its ``drift`` output
+    (the constant plus the model) is a float, rounded twice at its own magnitude (lo + y,
+    hi + that: one ulp in all), and the fast
+    ``expf``/``expm1f`` are inside :func:`~.onnx_export.float32_tolerance`'s margin
+    (their errors, :data:`~thermonet.models.cgen.FAST_EXPF_MAX_REL_ERR`, are ≤ 2.5 ε32)."""
+    big = np.abs(np.asarray(const, dtype=np.float64)) + np.nanmax(np.abs(drift), axis=0)
+    return np.spacing(big.astype(np.float32)).astype(np.float64)  # two roundings of ½ ulp
 
 
 def _float(v: float) -> str:
@@ -73,9 +88,11 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
         f"#define {P}_N_DYNAMIC {nd}",
         f"#define {P}_N_PROXIES {len(proxies)}",
     ]
+    gap_us = int(round(gap_s * 1e6))
     if nd:
         lines += [
             f"#define {P}_GAP_S {gap_s!r} /* s: a longer step restarts the state, flag set */",
+            f"#define {P}_GAP_US {gap_us}u /* the same in microseconds (integer time) */",
             "/* kind: 0 rate (degC/min, tau s), 1 lag (degC, tau s), 2 play (degC, half-width) */",
             f"static const int {p}_dyn_kind[{P}_N_DYNAMIC] = "
             "{" + ", ".join(str(_KIND_CODE[d.kind]) for d in dyn) + "};",
@@ -92,8 +109,8 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
     lines += [
         "",
         "typedef struct {",
-        "    double t_last;              /* time of the last accepted call, s */",
-        "    double t_prev;              /* time of the last finite temperature, s */",
+        "    thermonet_time_t t_last;    /* time of the last accepted call (s, or us) */",
+        "    thermonet_time_t t_prev;    /* time of the last finite temperature */",
         "    float temp_prev;            /* that temperature, degC */",
         state_x,
         "    int seen, started;",
@@ -102,22 +119,30 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
         f"static inline void {p}_init({p}_state *st)",
         "{",
         "    int j;",
-        "    st->t_last = 0.0;",
-        "    st->t_prev = 0.0;",
+        "    st->t_last = 0;",
+        "    st->t_prev = 0;",
         "    st->temp_prev = 0.0f;",
         "    for (j = 0; j < (int)(sizeof st->x / sizeof st->x[0]); ++j) st->x[j] = 0.0f;",
         "    st->seen = 0;",
         "    st->started = 0;",
         "}",
         "",
-        f"static inline int {p}_step({p}_state *st, double time_s, float temperature_c,",
+        "/* time_s: double seconds, or uint64_t microseconds where THERMONET_TIME_US",
+        " * (the float path); THERMONET_TIME_FROM_US(us) converts a microsecond clock. */",
+        f"static inline int {p}_step({p}_state *st, thermonet_time_t time_s,",
+        "                              float temperature_c,",
         *(["                              const float *proxies,"] if proxies else []),
-        "                              const double *raw, double *compensated, double *drift,",
+        "                              const thermonet_real_t *raw,",
+        "                              thermonet_real_t *compensated, thermonet_real_t *drift,",
         "                              int *flag)",
         "{",
         f"    float s[{P}_N_SIGNALS];",
         "    int a, gap = 0;",
+        "#if THERMONET_TIME_US",
+        "    if (st->seen && !(time_s > st->t_last)) {",
+        "#else",
         "    if (!(time_s - time_s == 0.0) || (st->seen && !(time_s > st->t_last))) {",
+        "#endif",
         f"        for (a = 0; a < {P}_N_AXES; ++a) {{",
         "            drift[a] = NAN;",
         "            compensated[a] = NAN;",
@@ -140,13 +165,23 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
             "        if (!(T - T == 0.0f)) {",
             f"            for (j = 0; j < {P}_N_DYNAMIC; ++j) s[{p}_dyn_signal[j]] = NAN;",
             "        } else {",
+            "#if THERMONET_TIME_US",
+            f"            int restart = !st->started || (time_s - st->t_prev) > {P}_GAP_US;",
+            "#else",
             f"            int restart = !st->started || (time_s - st->t_prev) > {P}_GAP_S;",
+            "#endif",
             "            gap = st->started && restart;",
             "            if (restart) {",
             f"                for (j = 0; j < {P}_N_DYNAMIC; ++j)",
             f"                    st->x[j] = {p}_dyn_kind[j] == 2 ? T : 0.0f;",
             "            } else {",
+            "#if THERMONET_TIME_US",
+            # the step is at most the gap: a 32-bit conversion (one instruction) when it fits
+            "                const float dt = (float)(" + (
+                "(uint32_t)" if gap_us <= 0xFFFFFFFF else "") + "(time_s - st->t_prev)) * 1.0e-6f;",
+            "#else",
             "                const float dt = (float)(time_s - st->t_prev);",
+            "#endif",
             "                const float dT = T - st->temp_prev;",
             f"                for (j = 0; j < {P}_N_DYNAMIC; ++j) {{",
             f"                    const float c = {p}_dyn_param[j];",
@@ -157,7 +192,7 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
             "                        st->x[j] = v;",
             "                    } else {",
             "                        const float h = dt / c;",
-            "                        const float g = -expm1f(-h) / h;",
+            f"                        const float g = -{c_expm1('-h')} / h;",
             "                        st->x[j] = st->x[j] + g * (dT - h * st->x[j]);",
             "                    }",
             "                }",
@@ -188,14 +223,17 @@ STREAM_DRIVER = r"""
 #include <stdio.h>
 #include "model.h"
 /* in: int n, then per sample: double t, float T, NP proxy floats, A raw doubles;
- * out: per sample A comp doubles, A drift doubles, int flag, int ret */
+ * out: per sample A comp doubles, A drift doubles, int flag, int ret (converted to and from
+ * the header's types: float raw/outputs and microsecond time on its float path) */
 int main(int argc, char **argv)
 {
     FILE *in, *out;
     int n, k, flag, ret;
-    double t;
+    double t, raw_in[PFX_N_AXES], comp_out[PFX_N_AXES], drift_out[PFX_N_AXES];
     float temp, prox[PFX_N_PROXIES > 0 ? PFX_N_PROXIES : 1];
-    double raw[PFX_N_AXES], comp[PFX_N_AXES], drift[PFX_N_AXES];
+    thermonet_real_t raw[PFX_N_AXES], comp[PFX_N_AXES], drift[PFX_N_AXES];
+    thermonet_time_t time;
+    int a;
     pfx_state st;
     if (argc != 3) return 2;
     in = fopen(argv[1], "rb");
@@ -206,10 +244,20 @@ int main(int argc, char **argv)
         if (fread(&t, sizeof t, 1, in) != 1 || fread(&temp, sizeof temp, 1, in) != 1) return 4;
         if (PFX_N_PROXIES > 0 &&
             fread(prox, sizeof(float), PFX_N_PROXIES, in) != PFX_N_PROXIES) return 4;
-        if (fread(raw, sizeof(double), PFX_N_AXES, in) != PFX_N_AXES) return 4;
-        ret = pfx_step(&st, t, temp, PROXY_ARG raw, comp, drift, &flag);
-        fwrite(comp, sizeof(double), PFX_N_AXES, out);
-        fwrite(drift, sizeof(double), PFX_N_AXES, out);
+        if (fread(raw_in, sizeof(double), PFX_N_AXES, in) != PFX_N_AXES) return 4;
+        for (a = 0; a < PFX_N_AXES; ++a) raw[a] = (thermonet_real_t)raw_in[a];
+#if THERMONET_TIME_US
+        time = (thermonet_time_t)(t * 1e6 + 0.5);   /* microseconds, as a sensor clock */
+#else
+        time = t;
+#endif
+        ret = pfx_step(&st, time, temp, PROXY_ARG raw, comp, drift, &flag);
+        for (a = 0; a < PFX_N_AXES; ++a) {
+            comp_out[a] = (double)comp[a];
+            drift_out[a] = (double)drift[a];
+        }
+        fwrite(comp_out, sizeof(double), PFX_N_AXES, out);
+        fwrite(drift_out, sizeof(double), PFX_N_AXES, out);
         fwrite(&flag, sizeof flag, 1, out);
         fwrite(&ret, sizeof ret, 1, out);
     }
@@ -271,7 +319,8 @@ def run_stream_c(model: DriftModel, header_text: str, time_s: np.ndarray,
 
 
 def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermonet",
-                 seed: int = 0, rtol: float = 1e-4) -> dict[str, float] | None:
+                 seed: int = 0, rtol: float = 1e-4, real: str = "auto"
+                 ) -> dict[str, float] | None:
     """Run ``<prefix>_step`` over a synthetic sequence and compare it with torch.
 
     For a model with dynamic inputs: 3,000 jittered samples of heat/cool triangles inside
@@ -281,7 +330,9 @@ def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermone
     (``model.constant()``, added in double on both sides) must agree within ``rtol`` of the
     axis's largest such value (the C recurrences run in float32), ``compensated`` must be
     ``raw - drift``, the drift NaN exactly where the temperature is missing, and the flag
-    set after the gap.  Returns None (nothing to check) for a model
+    set after the gap.  ``real="float"`` runs the header's float path on the host
+    (float raw/outputs, microsecond time, fast ``expm1f``; :func:`float_path_slack` added
+    to the tolerance).  Returns None (nothing to check) for a model
     without dynamic inputs or without a C compiler.
 
     Raises
@@ -322,7 +373,8 @@ def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermone
     with torch.no_grad():
         want = model.relative(torch.from_numpy(s)).double().numpy()
         const = model.constant().detach().cpu().double().numpy()
-    got = run_stream_c(model, header_text, t, temp, raw, prox, prefix=prefix)
+    got = run_stream_c(model, header_text, t, temp, raw, prox, prefix=prefix,
+                       cflags=("-O2", *REAL_FLAGS[real]))
     if not np.array_equal(got["compensated"], raw - got["drift"], equal_nan=True):
         raise ExportError("C header step() parity check failed: 'compensated' is not raw - drift")
     drift = got["drift"] - const
@@ -331,6 +383,8 @@ def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermone
         raise ExportError("C header step() parity check failed: NaN drift where torch has none "
                           "(or the reverse) on the test sequence")
     tol = rtol * np.nanmax(np.abs(want), axis=0)
+    if real == "float":
+        tol = tol + float_path_slack(const, want)
     err = np.where(nan_want, 0.0, np.abs(drift - want))
     k, a = (int(i) for i in np.unravel_index(int(np.argmax(err - tol)), err.shape))
     if err[k, a] > tol[a]:

@@ -118,21 +118,21 @@ class TSFuzzy(Family):
         body = f"""\
     {{
         float x = z[0], t, lam0, lam1, inv_total;
-        int i;
+        int k;  /* the left set (not i: the generator's loop variable) */
         if (!(x >= {c_float(lo)})) x = {c_float(lo)};  /* NaN too: it is flagged later */
         if (x > {c_float(hi)}) x = {c_float(hi)};
         t = (x - {c_float(lo)}) * {c_float(inv)};
-        i = (int)t;
-        if (i > {P}_FUZZY_SETS - 2) i = {P}_FUZZY_SETS - 2;
-        if (i < 0) i = 0;
-        lam1 = t - (float)i;
+        k = (int)t;
+        if (k > {P}_FUZZY_SETS - 2) k = {P}_FUZZY_SETS - 2;
+        if (k < 0) k = 0;
+        lam1 = t - (float)k;
         lam0 = 1.0f - lam1;
         if (lam0 < 0.0f) lam0 = 0.0f;
         if (lam1 > 1.0f) lam1 = 1.0f;
         inv_total = 1.0f / (lam0 + lam1);
         for (a = 0; a < {P}_N_AXES; ++a) {{
-            y[a] = (lam0 * ({p}_fz_intercept[a][i] + {p}_fz_slope[a][i] * x)
-                    + lam1 * ({p}_fz_intercept[a][i + 1] + {p}_fz_slope[a][i + 1] * x))
+            y[a] = (lam0 * ({p}_fz_intercept[a][k] + {p}_fz_slope[a][k] * x)
+                    + lam1 * ({p}_fz_intercept[a][k + 1] + {p}_fz_slope[a][k + 1] * x))
                    * inv_total;
         }}
     }}"""

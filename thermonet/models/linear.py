@@ -17,7 +17,7 @@ import torch
 from torch import nn
 
 from .base import Family, as_numpy, distinct_levels, least_squares, output_layer
-from .cgen import CBody, as_float32, c_array
+from .cgen import CBody, as_float32, c_affine, c_array
 
 __all__ = ["Linear"]
 
@@ -43,16 +43,12 @@ class Linear(Family):
         return torch.addmm(b[:, None], w, torch.stack(list(z)))
 
     def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
-        p, P = prefix, prefix.upper()
+        p = prefix
         with torch.no_grad():
             w, b = output_layer(self.weight, self.bias, y_std, y_mean)
         consts = [c_array(f"{p}_lin_w", as_float32(w)), c_array(f"{p}_lin_b", as_float32(b))]
-        body = f"""\
-    for (a = 0; a < {P}_N_AXES; ++a) {{
-        float acc = {p}_lin_b[a];
-        for (f = 0; f < {P}_N_FEATURES; ++f) acc += {p}_lin_w[a][f] * z[f];
-        y[a] = acc;
-    }}"""
+        body = c_affine("y", f"{p}_lin_w", f"{p}_lin_b", int(w.shape[0]),
+                        [(f, f"z[{f}]") for f in range(int(w.shape[1]))])
         return CBody(consts, body)
 
     def check_fittable(self, x: torch.Tensor) -> str | None:

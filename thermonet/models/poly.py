@@ -23,7 +23,7 @@ from torch import nn
 
 from ..errors import ConfigError
 from .base import Family, as_numpy, distinct_levels, least_squares, output_layer
-from .cgen import CBody, as_float32, c_array
+from .cgen import CBody, as_float32, c_affine, c_array
 
 __all__ = ["Poly", "monomials"]
 
@@ -105,13 +105,9 @@ class Poly(Family):
         for t, exps in enumerate(self.terms):
             factors = [f"p{i}_{e}" for i, e in enumerate(exps) if e]
             lines.append(f"        term[{t}] = {' * '.join(factors)};")
-        body = "    {\n" + "\n".join(lines) + f"""
-        for (a = 0; a < {P}_N_AXES; ++a) {{
-            float acc = {p}_poly_b[a];
-            for (f = 0; f < {P}_POLY_TERMS; ++f) acc += {p}_poly_w[a][f] * term[f];
-            y[a] = acc;
-        }}
-    }}"""
+        lines.append(c_affine("y", f"{p}_poly_w", f"{p}_poly_b", int(w.shape[0]),
+                              [(t, f"term[{t}]") for t in range(len(self.terms))], " " * 8))
+        body = "    {\n" + "\n".join(lines) + "\n    }"
         return CBody(consts, body)
 
     def check_fittable(self, x: torch.Tensor) -> str | None:

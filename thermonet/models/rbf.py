@@ -29,7 +29,7 @@ from torch import nn
 
 from ..errors import ConfigError
 from .base import LOG_CLIP, TINY, Family, as_numpy, least_squares, output_layer
-from .cgen import CBody, as_float32, c_array
+from .cgen import CBody, as_float32, c_affine, c_array, c_exp
 
 __all__ = ["RBF"]
 
@@ -126,22 +126,20 @@ class RBF(Family):
                   # one row per centre: F coefficients of z, then that of ||z||^2
                   c_array(f"{p}_rbf_m", as_float32(m.T)), c_array(f"{p}_rbf_b", as_float32(b)),
                   c_array(f"{p}_rbf_w", as_float32(w)), c_array(f"{p}_rbf_c", as_float32(c))]
+        n_c, n_f = int(self.n_centres), int(m.shape[0]) - 1
+        # exponent of centre j: b_j + m_j,F·||z||² + Σ_f m_j,f·z_f (this order), then exp
+        exponent = c_affine("phi", f"{p}_rbf_m", f"{p}_rbf_b", n_c,
+                            [(n_f, "zz")] + [(f, f"z[{f}]") for f in range(n_f)], " " * 8)
         body = f"""\
     {{
         float phi[{P}_RBF_CENTRES];
         float zz = 0.0f;
         int j;
         for (f = 0; f < {P}_N_FEATURES; ++f) zz += z[f] * z[f];
-        for (j = 0; j < {P}_RBF_CENTRES; ++j) {{
-            float e = {p}_rbf_b[j] + {p}_rbf_m[j][{P}_N_FEATURES] * zz;
-            for (f = 0; f < {P}_N_FEATURES; ++f) e += {p}_rbf_m[j][f] * z[f];
-            phi[j] = expf(e);
-        }}
-        for (a = 0; a < {P}_N_AXES; ++a) {{
-            float acc = {p}_rbf_c[a];
-            for (j = 0; j < {P}_RBF_CENTRES; ++j) acc += {p}_rbf_w[a][j] * phi[j];
-            y[a] = acc;
-        }}
+{exponent}
+        for (j = 0; j < {P}_RBF_CENTRES; ++j) phi[j] = {c_exp('phi[j]')};
+{c_affine("y", f"{p}_rbf_w", f"{p}_rbf_c", int(w.shape[0]),
+          [(j, f"phi[{j}]") for j in range(n_c)], " " * 8)}
     }}"""
         return CBody(consts, body)
 
