@@ -374,7 +374,10 @@ def _results_doc(log: FlightLog, results: list[InstanceResult], param_path: Path
             d["firmware"] = {"t_ref": r.fit.t_ref, "t_min": r.fit.t_min, "t_max": r.fit.t_max,
                              "coef": r.fit.coef.tolist()}
         inst_doc[r.name] = d
+    from .outdir import sha256_file
+
     return {"schema": 1, "thermonet_version": __version__, "log": str(log.path),
+            "log_sha256": sha256_file(log.path),  # provenance: the very bytes calibrated
             "autopilot": log.autopilot, "params_file": str(param_path),
             "log_notes": list(log.notes), "log_damage": list(log.damage),
             "instances": inst_doc}
@@ -434,6 +437,7 @@ def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | 
 def format_report(doc: dict[str, Any]) -> str:
     """One block per instance: fitted (with verdict and check) or left out (with the reason)."""
     lines = [f"thermonet calibrate: {doc['log']} ({doc['autopilot']})",
+             *([f"log sha256: {doc['log_sha256']}"] if doc.get("log_sha256") else []),
              f"parameter file: {doc['params_file']}", ""]
     # what the log reader found damaged and where, and the log's own notes (gaps)
     lines += [f"log: {n}" for n in doc.get("log_damage", []) + doc.get("log_notes", [])]

@@ -504,12 +504,92 @@ def _judge_against_raw(f: _Fitted, metrics: dict[str, dict[str, float]], p: _Pla
             offset_comp=float(ocp[j]) if meaningful else None, metrics=metrics[axis])
 
 
-def _family_config(cfg: CompareConfig, fam: FamilyConfig) -> dict[str, Any]:
+def _family_config(cfg: CompareConfig, fam: FamilyConfig,
+                   tracking: dict[str, Any] | None = None) -> dict[str, Any]:
     """What a family's checkpoint carries: its own resolved config, not the whole comparison's
-    (the same layout :meth:`thermonet.DriftEstimator.save` writes)."""
+    (the same layout :meth:`thermonet.DriftEstimator.save` writes); ``tracking`` as it was
+    actually used (:func:`resolved_config`)."""
     return {"family": to_dict(fam), "train": to_dict(_train_config(cfg, fam)),
             "features": to_dict(cfg.features), "target": cfg.target,
-            "tracking": to_dict(cfg.tracking)}
+            "tracking": to_dict(cfg.tracking) if tracking is None else dict(tracking)}
+
+
+def data_source(cfg: CompareConfig, ds: Dataset | None, *, given: bool) -> dict[str, Any]:
+    """Where the data of a comparison actually came from, for ``results.json``'s
+    ``provenance`` and each checkpoint: the files with their SHA-256 (and the mapping's),
+    or the simulator's preset, run count and seed, or a dataset the caller passed in."""
+    from .outdir import sha256_file
+
+    def file(path: str | Path) -> dict[str, Any]:
+        p = Path(path)
+        return {"path": str(path), "sha256": sha256_file(p) if p.is_file() else None}
+
+    if given and ds is not None:
+        sources = sorted({r.meta.get("source", "") for r in ds} - {""})
+        return {"kind": "dataset", "device": ds.device_id, "runs": [r.run_id for r in ds],
+                "preset": ds.meta.get("preset") or None, "sources": sources[:20]}
+    if cfg.data.paths:
+        return {"kind": "files", "files": [file(p) for p in cfg.data.paths],
+                "mapping": None if cfg.data.mapping is None else file(cfg.data.mapping)}
+    return {"kind": "simulated", "preset": cfg.data.preset,
+            "runs": cfg.data.runs if ds is None else len(ds), "seed": cfg.data.seed}
+
+
+def resolved_config(cfg: CompareConfig, ds: Dataset | None, *, given: bool,
+                    tracking_enabled: bool,
+                    tracking_uri: str | None, workers: int) -> dict[str, Any]:
+    """The config as the comparison actually used it — ``config.resolved.yaml``, results.json's
+    ``config``, the MLflow params — and still a config ``load_config`` reads back.
+
+    Not the config's defaults where they did not apply: a comparison on files has no
+    ``preset``, ``runs`` or ``seed``, nor has one on a dataset the caller passed (a
+    calibrate instance) unless the data say which preset made them; ``tracking.enabled``
+    is false under ``--no-track``
+    and ``tracking.uri`` is the store written to (None when none was); ``workers`` is the
+    number of families actually fitted side by side; a simulated comparison names the runs
+    simulated.
+    """
+    d = to_dict(cfg)
+    if cfg.data.paths:
+        d["data"] = {"preset": None, "paths": list(cfg.data.paths), "mapping": cfg.data.mapping,
+                     "outputs": list(cfg.data.outputs)}
+    elif given:  # the caller's dataset (a fleet unit, a calibrate instance): not the default
+        preset = None if ds is None else (ds.meta.get("preset") or ds[0].meta.get("preset"))
+        d["data"] = {"preset": preset or None, "outputs": list(cfg.data.outputs)}
+        if preset and ds is not None:
+            d["data"]["runs"] = len(ds)
+    elif ds is not None:
+        d["data"]["runs"] = len(ds)
+    d["tracking"] = {"enabled": bool(tracking_enabled),
+                     "uri": tracking_uri if tracking_enabled else None,
+                     "experiment": cfg.tracking.experiment}
+    d["workers"] = int(workers)
+    return d
+
+
+def _resolved_yaml(resolved: dict[str, Any], provenance: dict[str, Any]) -> str:
+    """``config.resolved.yaml``: the resolved config, headed by comments saying where the
+    data came from (with digests) and the options as given."""
+    src = provenance["data"]
+    lines = [f"# thermonet {provenance['thermonet_version']}: the configuration this comparison "
+             "actually used"]
+    if src["kind"] == "files":
+        lines.append("# data files (sha256  path):")
+        lines += [f"#   {f['sha256'] or 'missing'}  {f['path']}" for f in src["files"]]
+        if src["mapping"]:
+            lines.append(f"# mapping: {src['mapping']['sha256'] or 'missing'}  "
+                         f"{src['mapping']['path']}")
+    elif src["kind"] == "simulated":
+        lines.append(f"# data: simulated, preset {src['preset']}, {src['runs']} runs, "
+                     f"seed {src['seed']}")
+    else:
+        lines.append(f"# data: a dataset passed by the caller (device {src['device']}, "
+                     f"runs {', '.join(src['runs'])})")
+    t = provenance["tracking"]
+    lines.append("# tracking: " + (f"MLflow at {t['uri']}" if t["enabled"] else "off"))
+    lines.append("# options as given: " + ", ".join(f"{k}={v!r}" for k, v in
+                                                     provenance["options"].items()))
+    return "\n".join(lines) + "\n" + _yaml(resolved)
 
 
 # ---------------------------------------------------------------------------------- report
@@ -626,10 +706,17 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
     dhash = data_hash(ds)
     tracker = Tracker(enabled=cfg.tracking.enabled if track is None else track,
                       uri=tracking_uri or cfg.tracking.uri, experiment=cfg.tracking.experiment)
-    preset = ds.runs[0].meta.get("preset", "")
+    preset = ds.runs[0].meta.get("preset", "") if dataset is not None or not cfg.data.paths \
+        else ""
     tags = {"device": ds.device_id, "preset": preset, "data_hash": dhash,
             "target": p.targets.kind}
-    resolved = to_dict(cfg)
+    resolved = resolved_config(cfg, ds, given=dataset is not None, workers=family_workers(
+        cfg, workers), tracking_enabled=tracker.enabled, tracking_uri=tracker.uri)
+    provenance = {"thermonet_version": __version__,
+                  "data": data_source(cfg, ds, given=dataset is not None),
+                  "tracking": resolved["tracking"],
+                  "options": {"track": track, "tracking_uri": tracking_uri, "workers": workers,
+                              "plots": plots}}
     splits = p.splits
     result = ComparisonResult(
         config=resolved, device=ds.device_id, data_hash=dhash, target=p.targets.kind,
@@ -669,7 +756,8 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                                          "fit_seconds": r.fit_seconds})
                     ckpt = out / "models" / f"{fam.label}.pt"
                     try:
-                        save_checkpoint(ckpt, f.model, config=_family_config(cfg, fam),
+                        save_checkpoint(ckpt, f.model, config=_family_config(
+                                            cfg, fam, resolved["tracking"]),
                                         epoch=r.best_epoch, best_val=f.best_val,
                                         extra={"label": fam.label, "device_id": ds.device_id,
                                                "data_hash": dhash, "units": units,
@@ -678,7 +766,8 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                                                "val_score": r.val_score,
                                                "compensate": dict(zip(outputs, mask, strict=True)),
                                                "test_metrics": r.to_json()["axes"],
-                                               "mlflow_run_id": run_id or ""})
+                                               "mlflow_run_id": run_id or "",
+                                               "provenance": provenance})
                         r.checkpoint = str(ckpt)
                         tracker.log_artifact(ckpt, "model")
                     except ThermonetError as err:  # a NaN model is never saved
@@ -702,11 +791,12 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
         _choose_and_judge(fitted, result, p)
         _extrapolation(fitted, result)
         doc = result.to_json()
+        doc["provenance"] = provenance
         plot_paths = _plots(out, fitted, doc, ds) if plots else []
         from .report import write_report
 
         atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
-        atomic_write_text(out / "config.resolved.yaml", _yaml(resolved))
+        atomic_write_text(out / "config.resolved.yaml", _resolved_yaml(resolved, provenance))
         write_report(out / "report.html", doc, plot_paths)
         tracker.set_tags({"chosen": result.chosen or "none"})
         tracker.log_artifact(out / "results.json")

@@ -72,7 +72,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from .config import CompareConfig, FamilyConfig, check_families, to_dict
+from .config import CompareConfig, FamilyConfig, check_families
 from .errors import ConfigError, InputError
 from .executors import TaskFailure, run_tasks
 from .fleetstats import (
@@ -481,7 +481,17 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
                                   json.dumps(_clean(u), indent=2))
         summary = _summary(units, family, fold_info, limits)
         summary["seconds"] = time.perf_counter() - t_start
-        results = {"schema": 1, "kind": "fleet", "config": to_dict(cfg), "fleet_family": family,
+        from .compare import data_source, resolved_config
+        from .tracking import default_tracking_uri
+
+        tracking = cfg.tracking.enabled if track is None else track
+        results = {"schema": 1, "kind": "fleet", "fleet_family": family,
+                   "config": resolved_config(  # as used: tracking, no preset for files
+                       cfg, None, given=False, tracking_enabled=tracking, workers=1,
+                       tracking_uri=tracking_uri or cfg.tracking.uri or default_tracking_uri()),
+                   "provenance": {"data": data_source(cfg, None, given=False),
+                                  "options": {"track": track, "tracking_uri": tracking_uri,
+                                              "plots": plots}},
                    "options": dataclasses.asdict(opts), "units": units, "fleet": summary}
         plot = plot_coefficient_spread(stage / "plots" / "coefficient_spread.png", results) \
             if plots else None

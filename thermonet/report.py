@@ -149,6 +149,27 @@ def _data_table(res: dict[str, Any]) -> str:
             f"test samples outside the trained range: {ext}</p>")
 
 
+def _provenance_html(prov: Any) -> str:
+    """What the comparison actually used: data files with their SHA-256 (or the simulator's
+    preset), tracking, options as given (results.json ``provenance``)."""
+    if not isinstance(prov, dict) or not isinstance(prov.get("data"), dict):
+        return ""
+    src = prov["data"]
+    if src.get("kind") == "files":
+        files = list(src.get("files") or []) + ([src["mapping"]] if src.get("mapping") else [])
+        data = "data files: " + "; ".join(f"{_e(f.get('path'))} (sha256 {_e(f.get('sha256'))})"
+                                          for f in files if isinstance(f, dict))
+    elif src.get("kind") == "simulated":
+        data = (f"data simulated: preset {_e(src.get('preset'))}, {_e(src.get('runs'))} runs, "
+                f"seed {_e(src.get('seed'))}")
+    else:
+        data = f"data passed by the caller (device {_e(src.get('device'))})"
+    t = prov.get("tracking") or {}
+    track = f"MLflow at {_e(t.get('uri'))}" if t.get("enabled") else "off"
+    opts = ", ".join(f"{_e(k)}={_e(v)}" for k, v in (prov.get("options") or {}).items())
+    return f"<p class='small'>{data}<br>tracking: {track}; options as given: {opts}</p>"
+
+
 def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
     """The report page as one HTML string (plots read and embedded as base64 PNG)."""
     chosen = results.get("chosen")
@@ -165,6 +186,7 @@ def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
         f"<p class='small'>thermonet {_e(results.get('thermonet_version', ''))}, "
         f"results schema {_e(results.get('schema'))}, data hash "
         f"{_e(results.get('data_hash', ''))}, target {_e(results.get('target', ''))}</p>",
+        _provenance_html(results.get("provenance")),
         f"<div class='chosen'>Chosen: <b>{_e(chosen or 'none')}</b> — "
         f"{_e(results.get('chosen_reason', ''))}"
         + (f"<br>Left uncompensated (drift 0): <b>{_e(', '.join(unc))}</b>" if unc else "")

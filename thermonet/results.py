@@ -48,7 +48,13 @@
           "folds": [per-fold metrics] (leave-one-run-out only)
         }
       },
-      "mlflow_run_id": str | null
+      "mlflow_run_id": str | null,
+      "provenance": {                   # what was actually used (thermonet.compare)
+        "data": {"kind": "files", "files": [{"path", "sha256"}], "mapping": {...} | null}
+              | {"kind": "simulated", "preset", "runs", "seed"}
+              | {"kind": "dataset", "device", "runs", "preset", "sources"},
+        "tracking": {"enabled", "uri", "experiment"}, "options": {...as given...},
+        "thermonet_version": str}
     }
 
 Non-finite floats are written as ``null``.  Schema 1 (before the offset-free

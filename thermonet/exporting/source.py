@@ -151,6 +151,8 @@ def write_onnx(model: DriftModel, out: Path, request: ExportRequest) -> Path:
     from .onnx_export import export_onnx
 
     extra, meta = request.extra, request.meta
+    prov = extra.get("provenance")
+    source = prov.get("data") if isinstance(prov, dict) else None
     path = export_onnx(model, out, metadata={
         "device_id": extra.get("device_id", ""),
         "training_run_id": extra.get("mlflow_run_id", ""),
@@ -159,6 +161,9 @@ def write_onnx(model: DriftModel, out: Path, request: ExportRequest) -> Path:
         "data_hash": extra.get("data_hash", ""),
         "output_units": request.output_units,
         "signal_units": extra.get("signal_units", {}) or {},
+        # provenance: the verified digest of the checkpoint it came from, and its data's
+        "checkpoint_sha256": str(meta.get("sha256") or ""),
+        "data_source": source if isinstance(source, dict) else {},
     })
     run_id = extra.get("mlflow_run_id")
     if run_id:
