@@ -11,6 +11,7 @@ arm-toolchain`); without it these tests fail, they do not skip.
 from __future__ import annotations
 
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -376,3 +377,43 @@ def test_emulated_fast_exp_fused_within_its_documented_error(tmp_path):
     nz = x64 != 0
     assert np.max(np.abs(got[nz, 1] - np.expm1(x64[nz])) / np.abs(np.expm1(x64[nz]))) \
         <= FAST_EXPM1F_MAX_REL_ERR
+
+
+# ------------------------------------------------------------------ the README's example
+README_EXAMPLE = r"""#include "thermonet_model.h"      /* thermonet export runs/demo --format c --out ... */
+
+static thermonet_state tc;        /* thermonet_init(&tc) once, at start-up */
+
+void imu_sample(uint64_t t_us, float temp_c, const int32_t counts[THERMONET_N_AXES],
+                float out[THERMONET_N_AXES])
+{
+    thermonet_real_t raw[THERMONET_N_AXES], comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
+    int a, out_of_range;
+    for (a = 0; a < THERMONET_N_AXES; ++a) raw[a] = (thermonet_real_t)counts[a];
+    if (thermonet_step(&tc, THERMONET_TIME_FROM_US(t_us), temp_c, raw, comp, drift,
+                       &out_of_range) == 0)
+        for (a = 0; a < THERMONET_N_AXES; ++a) out[a] = (float)comp[a];
+}
+"""
+
+
+def test_readme_example_builds_for_every_target(models, tmp_path):
+    """The README's sensor-driver example, verbatim, under the strict flags on each target
+    and on the host (a model without proxies: step takes no proxies argument)."""
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert README_EXAMPLE in readme
+    model = models["poly", "stream"]
+    assert not stream_signature_has_proxies(model)
+    (tmp_path / "thermonet_model.h").write_text(render_c_header(model))
+    src = tmp_path / "driver.c"
+    src.write_text(README_EXAMPLE.replace(
+        "void imu_sample(", "void imu_sample(uint64_t t_us, float temp_c, "
+        "const int32_t counts[THERMONET_N_AXES], float out[THERMONET_N_AXES]);\nvoid imu_sample(",
+        1))
+    tools = toolchain()
+    strict = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wshadow", "-Wdouble-promotion",
+              "-Wconversion", "-Werror", "-O2", "-c", str(src)]
+    for target, flags in TARGETS.items():
+        subprocess.run([tools["gcc"], *flags, *strict, "-o", str(tmp_path / f"{target}.o")],
+                       check=True, cwd=tmp_path)
+    subprocess.run(["gcc", *strict, "-o", str(tmp_path / "host.o")], check=True, cwd=tmp_path)

@@ -3,8 +3,13 @@
 The header holds the model's constants as ``static const float`` arrays and one
 ``static inline`` function::
 
-    int <prefix>_compensate(const float *signals, const double *raw,
-                            double *compensated, double *drift);
+    int <prefix>_compensate(const float *signals, const thermonet_real_t *raw,
+                            thermonet_real_t *compensated, thermonet_real_t *drift);
+
+``thermonet_real_t`` is chosen by the header from the target
+(:func:`thermonet.models.cgen.c_target_prelude`): ``double`` where the FPU has double
+precision (every host, Cortex-M7 ``fpv5-d16``), ``float`` where it has not (Cortex-M0+,
+M4F, M33): no double arithmetic in software on a microcontroller.
 
 ``signals`` holds ``<PREFIX>_N_SIGNALS`` values in the order of
 ``<PREFIX>_SIGNAL_NAMES`` (e.g. ``temperature_c`` in °C); ``raw``,
@@ -26,13 +31,18 @@ with the target of each axis as in :mod:`thermonet.models.base`: ``α`` = 1 on
 0 on an axis left uncompensated, and ``c`` the per-axis drift constant, a
 ``double`` (``<PREFIX>_DRIFT_CONSTANT``): ``r`` is float32, ``d`` and
 ``raw − d`` are computed in double, so an output with a large constant (1e6
-counts) keeps its drift's precision.  The axes' target modes and
+counts) keeps its drift's precision.  On the float path ``c`` = hi + lo, two floats
+(``<PREFIX>_DRIFT_HI``/``_LO``), and ``compensated = (raw − hi) − (lo + r)``: the first
+subtraction is exact for raw near c, so the small result keeps float's relative
+precision (a 1e-3 drift on 1e6 counts; ``tests/test_mcu.py``).  The axes' target modes and
 compensation flags are written in the header's comment.
 
 The function returns 1 when a signal was outside the trained range or not finite (the
 out-of-range flag), else 0.  A non-finite signal gives NaN drift and NaN
-compensated output.  No heap, no libm beyond ``expf`` (RBF only); the only
-headers are ``<math.h>`` (``expf``, ``NAN``).  Parameters the model stores in a
+compensated output.  No heap, no libm beyond ``expf``/``expm1f`` on the double path
+(RBF; dynamic inputs) and none on the float path (its own bounded polynomial ones,
+:data:`~thermonet.models.cgen.FAST_EXPF_MAX_REL_ERR`); the only headers are ``<math.h>``
+and ``<stdint.h>``.  Parameters the model stores in a
 transformed form (Lorentz centre through a sigmoid, width through softplus; RBF
 widths as log σ) and the de-standardisation (folded into each family's last
 product, as in the graph: :meth:`~thermonet.models.base.Family.drift`) are
@@ -156,8 +166,9 @@ def render_c_header(model: DriftModel, *, prefix: str = "thermonet") -> str:
         f" * T_ref: {t_ref if t_ref is not None else 'n/a'} degC.",
         f" * signals: {c_comment(signals)}; axes: {c_comment(outputs)}.",
         f" * drift relative to (per axis): {c_comment(targets)}.",
-        " * compensated = raw - drift (thermonet_real_t); returns 1 when a signal is outside the trained",
-        " * range (drift evaluated at the clamped value) or not finite (drift = NaN). */",
+        " * compensated = raw - drift (thermonet_real_t: double, or float on a single-precision",
+        " * FPU); returns 1 when a signal is outside the trained range (drift evaluated at the",
+        " * clamped value) or not finite (drift = NaN). */",
         f"#ifndef {guard}",
         f"#define {guard}",
         "",

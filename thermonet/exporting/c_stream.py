@@ -4,23 +4,27 @@ Every header gets, after ``<prefix>_compensate``::
 
     typedef struct { ... } <prefix>_state;
     void <prefix>_init(<prefix>_state *st);
-    int  <prefix>_step(<prefix>_state *st, double time_s, float temperature_c,
+    int  <prefix>_step(<prefix>_state *st, thermonet_time_t time_s, float temperature_c,
                        [const float *proxies,]            -- only when the model reads proxies
-                       const double *raw, double *compensated, double *drift, int *flag);
+                       const thermonet_real_t *raw, thermonet_real_t *compensated,
+                       thermonet_real_t *drift, int *flag);
 
 ``step`` computes the model's dynamic inputs (``rate``, ``lag_<tau>``,
 ``play_<w>``) from time and temperature with the recurrences of
-:mod:`thermonet.dynamics`, in float32 — time is a ``double`` so that the
-difference of two large timestamps keeps its precision; only that difference
-is rounded to float — with :math:`g(h) = -\\mathrm{expm1f}(-h)/h` so a step
+:mod:`thermonet.dynamics`, in float32 — time is a ``double`` (seconds) so that the
+difference of two large timestamps keeps its precision, or on the float path (no
+double-precision FPU) a ``uint64_t`` count of microseconds (``THERMONET_TIME_US``, as
+PX4's ``hrt_absolute_time()``); only that difference is rounded to float — with
+:math:`g(h) = -\\mathrm{expm1f}(-h)/h` so a step
 much shorter than τ loses nothing.  Its constants (time constants, widths,
 ``<PREFIX>_GAP_S``) are the ones stored in the model.  Start-up, gaps and a
 non-finite temperature follow the definition (state restart; flag set after a
 gap; NaN drift and an untouched state for a NaN temperature).  A time that is
 not finite or not after the previous call's is refused: NaN outputs, flag set,
 return −1, state unchanged; otherwise ``step`` returns 0.  No heap; libm
-``expf``/``expm1f`` only.  ``raw``, ``compensated`` and ``drift`` are ``double``
-as in ``<prefix>_compensate`` (the drift's per-axis constant is a double).
+``expf``/``expm1f`` only on the double path, the header's bounded fast ones on the float
+path.  ``raw``, ``compensated`` and ``drift`` are ``thermonet_real_t`` as in
+``<prefix>_compensate``.
 """
 
 from __future__ import annotations

@@ -252,6 +252,10 @@ class Emulator:
             _run([tools["objcopy"], "-O", "binary", str(elf), str(image)], "objcopy")
             code = image.read_bytes()
             symbols = _run([tools["nm"], "-S", "-n", str(elf)], "nm")
+            own = _run([tools["nm"], "--defined-only", str(build.obj)], "nm")
+        #: the object's own functions (the header and the entry points); the rest is libraries
+        self.own = {ln.split()[-1] for ln in own.splitlines() if len(ln.split()) == 3
+                    and ln.split()[1] in "tT"}
         self.image_bytes = len(code)
         self.sym: dict[str, int] = {}
         funcs: list[tuple[int, int, str]] = []
@@ -267,7 +271,7 @@ class Emulator:
         funcs.sort()
         self._func_start = [f[0] for f in funcs]
         self._funcs = funcs
-        self.library_code_bytes = sum(s for _, s, n in funcs if not n.startswith("mcu_"))
+        self.library_code_bytes = sum(s for _, s, n in funcs if n not in self.own)
         self.uc = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
         self.uc.mem_map(0, self.RAM + self.RAM_SIZE)
         self.uc.mem_write(self.RAM, code)
@@ -357,7 +361,7 @@ class Emulator:
 
     def function_kind(self, name: str) -> str:
         """``header`` (the header's own code), ``soft-double``, ``libm`` or ``other``."""
-        if name.startswith("mcu_"):
+        if name in self.own:
             return "header"
         if _SOFT_DOUBLE.match(name):
             return "soft-double"
