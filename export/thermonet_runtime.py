@@ -464,8 +464,27 @@ class Compensator:
                                     f"({type(exc).__name__}: {str(exc).splitlines()[0]})") from None
         self.metadata: dict[str, str] = dict(self._session.get_modelmeta().custom_metadata_map)
         self._check_metadata()
+        self._check_digest()
 
     # -- checks -------------------------------------------------------------------------------
+    def _check_digest(self) -> None:
+        """The file's own SHA-256 (``thermonet_sha256``: the digest of its bytes with those 64
+        hex digits as zeros): a file edited after export (a weight by hand) is refused, and
+        so is one without a digest (re-export it, or re-seal a trusted one with
+        ``thermonet.exporting.onnx_export.seal_onnx``)."""
+        import hashlib
+
+        path, digest = self.path, self.metadata.get("thermonet_sha256")
+        if digest is None:
+            raise RuntimeInputError(f"{path}: carries no integrity digest ('thermonet_sha256'; "
+                                    "exported by an older thermonet, or removed); re-export "
+                                    "the model")
+        data = path.read_bytes()
+        if re.fullmatch(r"[0-9a-f]{64}", digest) is None or data.count(digest.encode()) != 1 \
+                or hashlib.sha256(data.replace(digest.encode(), b"0" * 64)).hexdigest() != digest:
+            raise RuntimeInputError(f"{path}: content does not match its SHA-256 digest (edited "
+                                    "or damaged after export); refusing to run it")
+
     def _check_metadata(self) -> None:
         meta, path = self.metadata, self.path
         fmt = meta.get("thermonet_format")

@@ -265,3 +265,64 @@ def test_save_then_edit_in_python_then_save_again_is_fine(fitted, tmp_path):
         model.family.bias.add_(1e-3)
     p = save_checkpoint(tmp_path / "re.pt", model, config={})
     load_checkpoint(p)
+
+
+# ------------------------------------------------- the exported ONNX file is sealed too
+def _edit_onnx(src: Path, dst: Path, how: str) -> Path:
+    import onnx
+    from onnx import numpy_helper
+
+    proto = onnx.load(str(src))
+    if how in ("weight x1000", "weight 3e38"):
+        init = max(proto.graph.initializer, key=lambda t: numpy_helper.to_array(t).size)
+        arr = numpy_helper.to_array(init).copy()
+        if how == "weight x1000":
+            arr = arr * 1000
+        else:
+            arr.reshape(-1)[0] = 3e38
+        init.CopyFrom(numpy_helper.from_array(arr.astype(arr.dtype), init.name))
+    else:
+        for p in proto.metadata_props:
+            if how == "device_id" and p.key == "device_id":
+                p.value = '"someone-else"'
+        if how == "digest removed":
+            keep = [p for p in proto.metadata_props if p.key != "thermonet_sha256"]
+            del proto.metadata_props[:]
+            proto.metadata_props.extend(keep)
+    onnx.save(proto, str(dst))
+    return dst
+
+
+@pytest.fixture(scope="module")
+def runtime():
+    sys.path.insert(0, str(ROOT / "export"))
+    try:
+        import thermonet_runtime as rt
+    finally:
+        sys.path.pop(0)
+    return rt
+
+
+@pytest.mark.parametrize("how", ["weight x1000", "weight 3e38", "device_id", "digest removed"])
+def test_the_runtime_refuses_an_edited_onnx_file(fitted, tmp_path, capsys, runtime, how):
+    from thermonet.exporting.onnx_export import DIGEST_KEY as ONNX_DIGEST
+    from thermonet.exporting.onnx_export import seal_onnx
+
+    _, path = fitted
+    good = tmp_path / "m.onnx"
+    assert main(["export", str(path), "--format", "onnx", "--out", str(good)]) == 0
+    comp = runtime.Compensator(good)  # the file as exported runs
+    assert len(comp.metadata[ONNX_DIGEST]) == 64
+    bad = _edit_onnx(good, tmp_path / "edited.onnx", how)
+    want = "carries no integrity digest" if how == "digest removed" else \
+        "content does not match its SHA-256 digest"
+    with pytest.raises(runtime.RuntimeInputError, match=want) as err:
+        runtime.Compensator(bad)
+    assert str(bad) in str(err.value) and "\n" not in str(err.value)
+    csv = tmp_path / "in.csv"
+    csv.write_text("temperature_c,gyro_x\n20.0,0.0\n")
+    assert runtime.main([str(bad), str(csv), "--out", str(tmp_path / "o.csv")]) == 1
+    assert want in capsys.readouterr().err and not (tmp_path / "o.csv").exists()
+    # re-sealed by its owner it runs again (and a re-sealed 3e38 is the owner's business)
+    seal_onnx(bad)
+    runtime.Compensator(bad)

@@ -52,6 +52,13 @@ that: a narrow Lorentz peak on a 4,500 Hz proxy turns one ulp of an intermediate
 into 2e-5 of the output.  The same parameters evaluated in float64 measure that
 sensitivity (:func:`float32_tolerance`), and a second float32 implementation may
 differ from torch by four times torch's own rounding error, never more.
+
+Integrity.  The file carries its own SHA-256 in ``metadata_props['thermonet_sha256']``:
+the digest of the file's bytes with those 64 hex digits written as zeros
+(:func:`seal_onnx`).  The runtime recomputes it after its metadata checks and
+refuses a file whose weights, graph or metadata were edited after export (a weight
+set to 3e38 by hand), or that carries no digest; :func:`seal_onnx` re-seals a file
+edited on purpose.
 """
 
 from __future__ import annotations
@@ -88,12 +95,17 @@ __all__ = [
     "target_metadata",
     "onnx_file_size",
     "log_onnx_to_mlflow",
+    "seal_onnx",
+    "DIGEST_KEY",
 ]
 
 _log = logging.getLogger(__name__)
 # torch's exporter warns once per export that torchvision (not a dependency) is absent
 logging.getLogger("torch.onnx._internal.exporter._registration").setLevel(logging.ERROR)
 
+#: Metadata key of the file's own SHA-256 (see the module docstring and :func:`seal_onnx`).
+DIGEST_KEY = "thermonet_sha256"
+_UNSEALED = "0" * 64
 #: Format marker written to ``metadata_props['thermonet_format']`` (2: float64 raw/outputs).
 THERMONET_FORMAT = 2
 #: ONNX opset of the exported graph.
@@ -271,6 +283,7 @@ def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: st
         "training_run_id": _json(meta.pop("training_run_id", meta.pop("run_id", ""))),
         "validation_metrics": _json(meta.pop("validation_metrics", {})),
         "data_hash": _json(meta.pop("data_hash", "")),
+        DIGEST_KEY: _UNSEALED,  # filled in by _seal_bytes once the file is written
     }
     dynamic = spec.dynamic if spec is not None else None
     if dynamic is not None:
@@ -495,6 +508,7 @@ def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, A
         proto.producer_version = __version__
         with atomic_path(path) as tmp:
             onnx.save_model(proto, str(tmp), save_as_external_data=False)
+            _seal_bytes(Path(tmp))
             onnx.checker.check_model(str(tmp))
             if check:
                 stats = parity_check(model, tmp, seed=seed)
@@ -503,6 +517,42 @@ def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, A
     finally:
         model.train(was_training)
     return path
+
+
+def _seal_bytes(path: Path) -> str:
+    """Replace the zero placeholder of :data:`DIGEST_KEY` in the file at ``path`` by the
+    SHA-256 of the file's bytes (taken with the placeholder in place); return the digest."""
+    import hashlib
+
+    data = path.read_bytes()
+    marker = _UNSEALED.encode("ascii")
+    if data.count(marker) != 1:
+        raise ExportError(f"{path}: cannot seal the ONNX file (its digest placeholder occurs "
+                          f"{data.count(marker)} times)")
+    digest = hashlib.sha256(data).hexdigest()
+    path.write_bytes(data.replace(marker, digest.encode("ascii")))
+    return digest
+
+
+def seal_onnx(path: str | Path) -> str:
+    """Store a fresh integrity digest in the exported ONNX file at ``path``; return it.
+
+    For a file you trust that the runtime refuses for its digest (edited on purpose,
+    or exported before thermonet sealed its files).  Written atomically.
+    """
+    import onnx
+
+    path = Path(path)
+    proto = onnx.load(str(path))
+    props = [p for p in proto.metadata_props if p.key != DIGEST_KEY]
+    del proto.metadata_props[:]
+    proto.metadata_props.extend(props)
+    entry = proto.metadata_props.add()
+    entry.key, entry.value = DIGEST_KEY, _UNSEALED
+    with atomic_path(path) as tmp:
+        onnx.save_model(proto, str(tmp), save_as_external_data=False)
+        digest = _seal_bytes(Path(tmp))
+    return digest
 
 
 def onnx_file_size(path: str | Path) -> int:
