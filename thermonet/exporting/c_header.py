@@ -356,8 +356,8 @@ def export_c_header(model: DriftModel, path: str | Path, *, prefix: str = "therm
     check : bool
         Compile the header and compare it with torch before writing
         (:func:`c_parity_check`, and for dynamic inputs the streaming ``step()`` on a
-        sequence, :func:`.c_stream.check_stream`; skipped with a warning when no C
-        compiler exists).
+        sequence, :func:`.c_stream.check_stream`), on its double path and on its float
+        path (``-DTHERMONET_USE_FLOAT``); skipped with a warning when no C compiler exists.
 
     Returns
     -------
@@ -371,6 +371,9 @@ def export_c_header(model: DriftModel, path: str | Path, *, prefix: str = "therm
     """
     text = render_c_header(model, prefix=prefix)
     if check:
-        c_parity_check(model, text, prefix=prefix)
-        check_stream(model, text, prefix=prefix)  # step(): the dynamic inputs in C
+        # both arithmetic paths: the host's double and the float path a single-precision
+        # microcontroller compiles (-DTHERMONET_USE_FLOAT: float outputs, fast exp)
+        for real in ("auto", "float"):
+            c_parity_check(model, text, prefix=prefix, real=real)
+            check_stream(model, text, prefix=prefix, real=real)  # step(): dynamic inputs in C
     return atomic_write_text(path, text)
