@@ -167,3 +167,28 @@ def test_impossible_mapping_settings_refused_in_one_line(tmp_path, capsys, setti
     assert main(["info", str(f), "--mapping", str(m)]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(m) in err and expect in err, err
+
+
+@pytest.mark.parametrize("section,expect", [
+    ("features: {gap_s: 1.0e-300}", "key 'features.gap_s': 1e-300 is not a number of seconds"),
+    ("features: {gap_s: 1.0e+300}", "key 'features.gap_s': 1e+300 is not a number of seconds"),
+    ("features: {t_ref: 1.0e+306}", "key 'features.t_ref': 1e+306 °C is not a reference"),
+    ("features: {t_ref: .nan}", "key 'features.t_ref': nan °C"),
+    ("features: {t_ref: 300.0}", "key 'features.t_ref': 300.0 °C"),   # Kelvin
+    ("features: {t_ref_window_min: 0}", "key 'features.t_ref_window_min'"),
+    ("train: {lr: 1.0e+300}", "train.lr must be a finite number > 0 and <= 1000, got 1e+300"),
+    ("train: {max_epochs: 1000000000000}", "train.max_epochs must be an integer in 0..1,000,000"),
+    ("train: {average_s: 1.0e+300}", "train.average_s must be a finite number >= 0 and <= 86400"),
+    ("train: {threads: 100000}", "train.threads must be an integer in 0..1,024"),
+    ("families: [{family: poly, name: c, inputs: [dT], train: {lr: 1.0e+9}}]", "train.lr"),
+])
+def test_impossible_config_settings_refused_before_anything_runs(tmp_path, capsys, section,
+                                                                  expect):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"data: {{preset: accel-ramp}}\n{section}\n")
+    with pytest.raises(ConfigError):
+        load_config(cfg)
+    assert main(["compare", str(cfg), "--out", str(tmp_path / "o"), "--no-track", "-q"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and expect in err and str(cfg) in err, err
+    assert not (tmp_path / "o").exists()

@@ -417,3 +417,26 @@ def test_readme_example_builds_for_every_target(models, tmp_path):
         subprocess.run([tools["gcc"], *flags, *strict, "-o", str(tmp_path / f"{target}.o")],
                        check=True, cwd=tmp_path)
     subprocess.run(["gcc", *strict, "-o", str(tmp_path / "host.o")], check=True, cwd=tmp_path)
+
+
+def test_two_headers_in_one_translation_unit(models, tmp_path):
+    """One header per IMU, different prefixes, included together: the shared type, time
+    type and fast exponentials are defined once (THERMONET_REAL_T_DEFINED)."""
+    from thermonet.exporting.c_header import render_c_header as render
+
+    (tmp_path / "imu0.h").write_text(render(models["rbf", "plain"], prefix="imu0"))
+    (tmp_path / "imu1.h").write_text(render(models["poly", "stream"], prefix="imu1"))
+    src = tmp_path / "both.c"
+    src.write_text('#include "imu0.h"\n#include "imu1.h"\n'
+                   "int both(const float *s, const thermonet_real_t *raw, thermonet_real_t *c,\n"
+                   "         thermonet_real_t *d);\n"
+                   "int both(const float *s, const thermonet_real_t *raw, thermonet_real_t *c,\n"
+                   "         thermonet_real_t *d)\n"
+                   "{\n    return imu0_compensate(s, raw, c, d)"
+                   " | imu1_compensate(s, raw, c, d);\n}\n")
+    tools = toolchain()
+    for target, flags in TARGETS.items():
+        subprocess.run([tools["gcc"], *flags, "-std=c99", "-Wall", "-Wextra", "-Wpedantic",
+                        "-Wshadow", "-Wdouble-promotion", "-Wconversion", "-Werror", "-O2",
+                        "-c", str(src), "-o", str(tmp_path / f"{target}.o")], check=True,
+                       cwd=tmp_path)

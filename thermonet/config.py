@@ -103,9 +103,19 @@ class FeatureConfig:
                               "filtered derivative with a 60 s time constant stored in the model "
                               "(thermonet.dynamics); name the input 'rate_<tau>' (e.g. rate_30) "
                               "for another time constant")
-        if not isinstance(self.gap_s, str) and not self.gap_s > 0:
-            raise ConfigError(f"key 'features.gap_s': {self.gap_s!r} is not a positive number "
-                              "of seconds or 'auto'")
+        if not isinstance(self.gap_s, str) and not 1e-6 <= self.gap_s <= 1e7:
+            raise ConfigError(f"key 'features.gap_s': {self.gap_s!r} is not a number of seconds "
+                              "in 1e-06 … 1e+07 (a µs … 116 days) or 'auto'")
+        if not isinstance(self.t_ref, str):
+            from .diagnostics import TEMPERATURE_PLAUSIBLE_C
+
+            lo, hi = TEMPERATURE_PLAUSIBLE_C
+            if not lo <= self.t_ref <= hi:  # NaN fails too
+                raise ConfigError(f"key 'features.t_ref': {self.t_ref!r} °C is not a reference "
+                                  f"temperature in {lo:g} … {hi:g} °C (or 'start')")
+        if not 0 < self.t_ref_window_min <= 1440:
+            raise ConfigError(f"key 'features.t_ref_window_min': {self.t_ref_window_min!r} is "
+                              "not a number of minutes in (0, 1440]")
 
 
 @dataclass
