@@ -93,12 +93,12 @@ class TrainConfig:
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ConfigError(f"train.{key} must be an integer in {lo}..{hi:,}, got {v!r}")
-        for key, hi in (("lr", 1000.0), ("min_delta", 1.0), ("average_s", 86400.0)):
+        for key, top in (("lr", 1000.0), ("min_delta", 1.0), ("average_s", 86400.0)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v < 0 or (key == "lr" and v == 0) or v > hi:
+                    or v < 0 or (key == "lr" and v == 0) or v > top:
                 raise ConfigError(f"train.{key} must be a finite number "
-                                  f"{'> 0' if key == 'lr' else '>= 0'} and <= {hi:g}, "
+                                  f"{'> 0' if key == 'lr' else '>= 0'} and <= {top:g}, "
                                   f"got {v!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int):
             raise ConfigError(f"train.seed must be an integer, got {self.seed!r}")
