@@ -234,3 +234,23 @@ def test_calibrate_records_the_log_digest_and_no_default_preset(tmp_path):
         cfg = yaml.safe_load(text)
         assert cfg["data"]["preset"] is None and cfg["tracking"]["enabled"] is False, path
         assert "patent-gyro" not in text and "# data: a dataset passed by the caller" in text
+
+
+def test_an_api_checkpoint_records_what_it_was_fitted_on(tmp_path):
+    import thermonet
+    from thermonet.evaluate import data_hash
+
+    ds = toy_dataset(n_runs=3)
+    path = write_parquet(ds, tmp_path / "toy.parquet")
+    runs = read_datasets([path])
+    est = thermonet.DriftEstimator("linear", ["dT"], train=thermonet.TrainConfig(max_epochs=3))
+    est.fit([runs[0], runs[1]], val=runs[2])
+    payload = torch.load(est.save(tmp_path / "m.pt"), weights_only=True)
+    src = payload["extra"]["provenance"]["data"]
+    assert src["runs"] == ["run0", "run1"] and src["val"] == ["run2"]
+    assert src["data_hash"] == payload["extra"]["data_hash"] == data_hash(Dataset(list(runs)))
+    # loaded back and saved again, the record is kept as it was
+    back = thermonet.DriftEstimator.load(tmp_path / "m.pt")
+    again = torch.load(back.save(tmp_path / "again.pt"), weights_only=True)
+    assert again["extra"]["provenance"] == payload["extra"]["provenance"]
+    assert again["extra"]["data_hash"] == payload["extra"]["data_hash"]

@@ -68,6 +68,19 @@ def _runs(data: Dataset | Recording | Iterable[Recording], what: str) -> list[Re
     return runs
 
 
+def _data_source(runs: list[Recording], val: list[Recording] | None) -> dict[str, Any]:
+    """What a fit was given (a checkpoint's ``extra.provenance.data``): the runs, where they
+    came from (the files read, or the simulator) and the digest of their samples."""
+    from .evaluate import data_hash
+
+    every = runs + list(val or [])
+    return {"kind": "dataset", "device": runs[0].device_id,
+            "runs": [r.run_id for r in runs], "val": [r.run_id for r in val or []],
+            "sources": sorted({r.meta.get("source", "") for r in every} - {""})[:20],
+            "preset": runs[0].meta.get("preset") or None,
+            "data_hash": data_hash(Dataset(every))}
+
+
 def _has_samples(rec: Recording, what: str) -> Recording:
     if rec.n_samples == 0:
         raise ThermonetError(f"{what}: run '{rec.run_id}' has no samples")
@@ -247,6 +260,7 @@ class DriftEstimator:
         self.signal_units_: dict[str, str] = {p: runs[0].units.get(p, "")
                                               for p in runs[0].proxies}
         self.device_id_: str = runs[0].device_id
+        self.data_source_: dict[str, Any] = _data_source(runs, val_runs)
         self.train_config_: TrainConfig = config
         self.history_: list[dict[str, Any]] = list(result.history)
         self.best_epoch_: int = int(result.best_epoch)
@@ -337,8 +351,12 @@ class DriftEstimator:
         }
 
     def _extra(self) -> dict[str, Any]:
-        return {"units": self.units_, "signal_units": self.signal_units_,
-                "device_id": self.device_id_, "history": self.history_}
+        extra = {"units": self.units_, "signal_units": self.signal_units_,
+                 "device_id": self.device_id_, "history": self.history_}
+        source = getattr(self, "data_source_", None)  # an estimator made by load() has none
+        if source is not None:  # provenance: what it was fitted on (as compare records it)
+            extra.update(data_hash=source["data_hash"], provenance={"data": source})
+        return extra
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the fitted model as a thermonet checkpoint (atomic; loads with
@@ -377,6 +395,10 @@ class DriftEstimator:
         est.device_id_ = str(extra.get("device_id", ""))
         est.train_config_ = train
         est.history_ = list(extra.get("history") or [])
+        prov = extra.get("provenance")
+        source = prov.get("data") if isinstance(prov, dict) else None
+        if isinstance(source, dict):  # kept, so that saving it again keeps the record
+            est.data_source_ = {**source, "data_hash": str(extra.get("data_hash") or "")}
         est.best_epoch_ = int(meta["epoch"]) if meta.get("epoch") is not None else 0
         est.best_val_ = meta.get("best_val")
         est.n_params_ = int(model.n_params)
