@@ -41,7 +41,9 @@ test: $(STAMP) chromium arm-toolchain
 # The numerics subset (pytest -m numerics: parity, export, runtime, dynamics, decisions) as on
 # two other CPUs, under Debian's qemu-user: an AMD EPYC (AVX2, FMA; torch dispatches AVX2) and
 # a Nehalem (no AVX; torch's default kernels).  qemu-user emulates one process, so pytest runs
-# without xdist workers (they would start natively) and the two CPUs run side by side.
+# without xdist workers (they would start natively) and the two CPUs run side by side, one
+# thread each.  Subprocesses a test starts (a compiled C program, the command line) run
+# natively: the emulated part is this pytest process, where torch, numpy and onnxruntime run.
 # NPY_DISABLE_CPU_FEATURES: Debian 12's qemu 7.2 crashes inside numpy's AVX2 sort; numpy's own
 # dispatch is turned off (torch, onnxruntime and the math libraries still see the CPU).
 QEMU     := qemu-x86_64
@@ -52,8 +54,8 @@ qemu:
 	command -v $(QEMU) >/dev/null || (apt-get update && apt-get install -y --no-install-recommends qemu-user)
 
 test-cpus: $(STAMP) qemu
-	$(NPY_OFF) $(QEMU) -cpu EPYC-Rome $(NUMERICS) > .test-epyc-rome.log 2>&1 & epyc=$$!; \
-	$(QEMU) -cpu Nehalem $(NUMERICS) > .test-nehalem.log 2>&1; nehalem=$$?; \
+	env OMP_NUM_THREADS=1 $(NPY_OFF) $(QEMU) -cpu EPYC-Rome $(NUMERICS) > .test-epyc-rome.log 2>&1 & epyc=$$!; \
+	env OMP_NUM_THREADS=1 $(QEMU) -cpu Nehalem $(NUMERICS) > .test-nehalem.log 2>&1; nehalem=$$?; \
 	wait $$epyc; epyc=$$?; \
 	echo "== -cpu EPYC-Rome"; tail -n 15 .test-epyc-rome.log; \
 	echo "== -cpu Nehalem"; tail -n 15 .test-nehalem.log; \
