@@ -88,7 +88,7 @@ class TrainConfig:
                               f"got {self.device!r}")
         # upper bounds: a setting beyond them is no training anyone means (1e12 epochs,
         # a step of 1e300, windows longer than a day), refused before anything runs
-        for key, lo, hi in (("max_epochs", 0, 1_000_000), ("patience", 1, 1_000_000),
+        for key, lo, hi in (("max_epochs", 0, 1_000_000_000), ("patience", 1, 1_000_000_000),
                             ("max_train_samples", 10, 50_000_000), ("threads", 0, 1024)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
