@@ -440,7 +440,7 @@ def _statuses(db: Path) -> list[str]:
 @pytest.fixture
 def endless(tmp_path) -> Path:
     return _cfg(tmp_path, _tiny(tmp_path).replace(
-        "max_epochs: 5, patience: 2", "max_epochs: 100000000, patience: 100000000, "
+        "max_epochs: 5, patience: 2", "max_epochs: 1000000, patience: 1000000, "
         "min_delta: 0.0, optimizer: adam, lr: 1.0e-9"))
 
 
