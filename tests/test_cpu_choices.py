@@ -1,8 +1,9 @@
 """The model that ships does not depend on the CPU (issue 20).
 
-The default comparison and the realistic presets, on data small enough to run under
-``qemu-x86_64 -cpu Nehalem`` (``make test-cpus``), make the same decisions — the chosen family,
-the axes each family compensates, every validation and test verdict — as recorded in
+The default comparison and the realistic presets (``consumer-imu``, the noise-dominated
+``accel-ramp``), on data small enough to run under ``qemu-x86_64 -cpu Nehalem``
+(``make test-cpus``), make the same decisions — the chosen family (or none: do no harm), the
+axes each family compensates, every validation, test and baseline verdict — as recorded in
 ``tests/data/cpu_choices.json``.  The record was made natively on an AMD EPYC (AVX2, FMA) and
 checked unchanged on the CPUs the README lists; the decisions go through
 :mod:`thermonet.verdicts`' margin (:data:`~thermonet.verdicts.DECISION_RTOL`), so a last-bit
@@ -39,6 +40,7 @@ RECORD = Path(__file__).resolve().parent / "data" / "cpu_choices.json"
 CASES = [
     ("default", "configs/default.yaml", ("patent-gyro", 5, 0.1)),
     ("consumer-imu", "configs/consumer-imu.yaml", ("consumer-imu", 2, 0.2)),
+    ("accel-ramp", "configs/default.yaml", ("accel-ramp", 1, 0.5)),
 ]
 
 
@@ -87,11 +89,12 @@ def test_choices_are_the_recorded_ones(decisions: dict[str, Any]) -> None:
 
 
 def test_the_record_is_not_trivial(decisions: dict[str, Any]) -> None:
-    """The cases exercise every kind of decision: a choice, a tie, an axis left raw, verdicts of
-    every kind — a record of all-``better`` would check little."""
+    """The cases exercise every kind of decision: a choice, do no harm (nothing chosen), an
+    axis left raw, verdicts of every kind — a record of all-``better`` would check little.
+    (Ties and their rule are checked on constructed scores in test_verdicts / test_selection.)"""
     want = json.loads(RECORD.read_text())
-    assert all(w["chosen"] for w in want.values())
-    assert any(w["tie"] for w in want.values())
+    assert any(w["chosen"] for w in want.values())
+    assert any(w["chosen"] is None for w in want.values())             # do no harm
     assert any(not c for w in want.values() for f in w["families"].values()
                for c in f.get("compensate", {}).values())          # an axis left raw
     kinds = {v for w in want.values() for f in w["families"].values()

@@ -180,6 +180,8 @@ class _Plan:
     units: dict[str, str]
     source: str
     warnings: list[str] = field(default_factory=list)
+    folds: Any = None                # thermonet.selection.FoldPlan of the last split's pool
+    fold_note: str = ""              # why there is none (the single validation part decides)
 
 
 def _baseline_named(cfg: CompareConfig) -> bool:
@@ -245,7 +247,29 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> _Plan:
     from .dynamics import RATE_TAU_S
 
     warns = input_warnings(ds, signals=signals, rate_window_s=RATE_TAU_S)
-    return _Plan(cfg, ds, outputs, targets, splits, units, source, warns)
+    folds, note = _fold_plan(cfg, splits)
+    return _Plan(cfg, ds, outputs, targets, splits, units, source, warns, folds, note)
+
+
+def _fold_plan(cfg: CompareConfig, splits: list[Split]) -> tuple[Any, str]:
+    """The cross-validation folds of the last split's pool (thermonet.selection), or why not."""
+    from .dynamics import dynamic_signals
+    from .selection import plan_folds
+
+    sel = cfg.selection
+    if sel.folds == 0:
+        return None, "selection.folds is 0: chosen on the split's validation part"
+    if cfg.target == "four-position":
+        return None, ("the four-position target has one sample per soak: chosen on the "
+                      "split's validation part")
+    tau = max((d.param for fam in cfg.families for d in dynamic_signals(fam.inputs)
+               if d.kind in ("rate", "lag")), default=0.0)
+    plan = plan_folds(splits[-1].pool, folds=sel.folds, blocks_per_fold=sel.blocks_per_fold,
+                      tau_s=tau, purge_s=sel.purge_s, window_s=sel.window_s)
+    if plan is None:
+        return None, (f"too little training data for {sel.folds} cross-validation folds: "
+                      "chosen on the split's validation part")
+    return plan, ""
 
 
 def _data_summary(ds: Dataset) -> list[dict[str, Any]]:
@@ -274,6 +298,11 @@ class _Fitted:
     ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
     val_draws: np.ndarray | None = None  # bootstrap draws of the masked validation score
     best_val: float | None = None        # the last fold's best validation loss
+    oof: Any = None                      # thermonet.selection.CandidateOOF (cross-validation)
+    cv_mask: list[bool] | None = None    # per-axis compensate decision out of fold
+    single: Any = None                   # (score, draws, mask) by the single validation part
+    pool_targets: list[np.ndarray] = field(default_factory=list)
+    pool_times: list[np.ndarray] = field(default_factory=list)
 
 
 def _fold_stats(part: Part, pred: np.ndarray) -> BlockStats:
@@ -361,6 +390,8 @@ def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts,
     except FitError as err:  # this data cannot carry the family: reported, the comparison goes on
         res.status, res.reason, out.model = "failed", str(err), None
         return out
+    if p.folds is not None:
+        _cross_validate(out, p, fam, tcfg, spec, parts, on_epoch)
     out.val, out.test = pool(vals), pool(tests)
     res.outside_trained_range = {s: sum(f * n for f, n in v) / max(sum(n for _, n in v), 1)
                                  for s, v in outside.items()}
@@ -370,6 +401,57 @@ def _fit_family(p: _Plan, fam: FamilyConfig, progress: Progress, parts: _Parts,
         res.folds = fold_axes
     _judge_against_raw(out, metrics, p)
     return out
+
+
+def _cross_validate(out: _Fitted, p: _Plan, fam: FamilyConfig, tcfg: Any, spec: Any,
+                    parts: _Parts, on_epoch: Any) -> None:
+    """Out-of-fold predictions of one family on the last split's pool (thermonet.selection):
+    one fit per fold on the purged training rows of the whole runs, predictions on the
+    fold's validation rows, and which of them lie inside the fold's trained domain."""
+    from .evaluate import HEATING_MIN_RATE_C_PER_MIN
+    from .features import RATE, resolve_gap_s, signal_matrix
+    from .selection import CandidateOOF, in_domain, noise_widths, select
+    from .train import fit, predict
+
+    plan = p.folds
+    split = p.splits[-1]
+    oof = CandidateOOF(fam.label, out.result.n_params)
+    whole = [parts(rec, spec.signals, spec.gap_s) for rec, _ in split.pool]
+    keep = [np.ones(q.target.shape[0], dtype=bool) for q in whole]
+    if fam.train_on == "heating":
+        gap = resolve_gap_s(p.cfg.features.gap_s, [r for r, _ in split.pool], ["rate"])
+        keep = [signal_matrix(rec, [RATE], gap)[:, 0] > HEATING_MIN_RATE_C_PER_MIN
+                for rec, _ in split.pool]
+    widen = [noise_widths(q.signals) for q in whole]
+    for f in range(plan.k):
+        train = [(q.signals[m & h], q.target[m & h], q.time_s[m & h])
+                 for q, m, h in zip(whole, plan.train_masks[f], keep, strict=True)
+                 if (m & h).any()]
+        try:
+            fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=p.outputs,
+                         train=train, val=None, spec=spec, hyper=dict(fam.params),
+                         config=tcfg, on_epoch=on_epoch, target=p.targets.modes)
+        except FitError as err:   # e.g. a fold's span too short for the family: said, left out
+            oof.failed = f"cross-validation fold {f}: {err}"
+            break
+        sig = np.vstack([x[0] for x in train])
+        with np.errstate(invalid="ignore"):
+            lo, hi = np.nanmin(sig, axis=0), np.nanmax(sig, axis=0)
+        preds, inside = [], []
+        for j, q in enumerate(whole):
+            rows = np.flatnonzero(plan.fold_of[j] == f)
+            x = q.signals[rows]
+            preds.append(predict(fitted.model, x) if rows.size
+                         else np.zeros((0, len(p.outputs))))
+            inside.append(in_domain(x, lo, hi, widen[j]) & np.isfinite(preds[-1]).all(axis=1))
+        oof.pred.append(preds)
+        oof.inside.append(inside)
+    out.oof = oof
+    out.pool_targets = [q.target for q in whole]
+    out.pool_times = [q.time_s for q in whole]
+    if oof.failed is None:
+        own = select(plan, out.pool_targets, out.pool_times, {fam.label: oof}, p.outputs)
+        out.cv_mask = own.compensate.get(fam.label)
 
 
 def family_workers(cfg: CompareConfig, workers: int | None = None) -> int:
@@ -487,7 +569,9 @@ def _judge_against_raw(f: _Fitted, metrics: dict[str, dict[str, float]], p: _Pla
     res = f.result
     val, val_ratio, val_boot = _verdicts(f.val.ss_comp, f.val.ss_raw)
     test, test_ratio, test_boot = _verdicts(f.test.ss_comp, f.test.ss_raw)
-    mask = np.array([v.verdict == "better" for v in val])
+    single = np.array([v.verdict == "better" for v in val])   # the single-part rule's mask
+    mask = single if f.cv_mask is None else np.array(f.cv_mask)   # out of fold where it ran
+    f.single = (*masked_scores(val_ratio, val_boot, single), single.tolist())
     res.val_score, draws_ = masked_scores(val_ratio, val_boot, mask)
     q = [2.5, 97.5]
     lo_hi = np.nanpercentile(draws_, q) if np.isfinite(draws_).any() else [math.nan] * 2
@@ -598,9 +682,34 @@ def _choose_and_judge(fitted: dict[str, _Fitted], result: ComparisonResult, p: _
     from .verdicts import choose
 
     ok = {k: f for k, f in fitted.items() if f.result.ok and f.val_draws is not None}
-    scores = {k: (f.result.val_score, f.val_draws) for k, f in ok.items()
-              if f.val_draws is not None}
-    chosen, tied, why = choose(scores, {k: f.result.n_params for k, f in ok.items()})
+    cv = {k: f for k, f in ok.items() if f.oof is not None}
+    if p.folds is not None and cv:
+        from .selection import select
+
+        first = next(iter(cv.values()))
+        sel = select(p.folds, first.pool_targets, first.pool_times,
+                     {k: f.oof for k, f in cv.items()}, p.outputs)
+        chosen, tied, why = sel.chosen, sel.tied, sel.reason
+        result.selection = sel.record
+        # what the single validation part would have chosen: how close the call was
+        alt = choose({k: (f.single[0], f.single[1]) for k, f in ok.items()},
+                     {k: f.result.n_params for k, f in ok.items()})
+        result.selection["single_split"] = {
+            "chosen": alt[0], "reason": alt[2],
+            "compensate": {k: dict(zip(p.outputs, f.single[2], strict=True))
+                           for k, f in ok.items()}}
+        if alt[0] != chosen:
+            result.warn(f"the split's single validation part would have chosen "
+                        f"{alt[0] or 'nothing'} instead of {chosen or 'nothing'}: the call rests "
+                        "on the cross-validation (see 'How the model was chosen')")
+        for k, f in cv.items():
+            if f.oof.failed is not None:
+                result.warn(f"{k}: not a candidate: {f.oof.failed}")
+    else:
+        scores = {k: (f.result.val_score, f.val_draws) for k, f in ok.items()
+                  if f.val_draws is not None}
+        chosen, tied, why = choose(scores, {k: f.result.n_params for k, f in ok.items()})
+        result.selection = {"method": "single validation part", "note": p.fold_note}
     result.chosen, result.chosen_reason, result.tie = chosen, why, tied
     if tied:
         result.warn(why)
@@ -789,6 +898,9 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
             "resamples": RESAMPLES, "level": LEVEL, "seed": SEED, "min_blocks": MIN_BLOCKS,
             "blocks": {"val": n_val, "test": n_test}}
         _choose_and_judge(fitted, result, p)
+        # the out-of-fold scores the choice rests on, in the comparison's own run
+        tracker.log_metrics({f"cv/{k}/score": c["score"] for k, c in
+                             result.selection.get("candidates", {}).items() if "score" in c})
         _extrapolation(fitted, result)
         doc = result.to_json()
         doc["provenance"] = provenance
@@ -905,6 +1017,20 @@ def format_table(results: dict[str, Any]) -> str:
             lines.append(pre + f"{'yes' if m.get('compensate') else 'no':>4} "
                          f"{_ratio_cell(vs_raw)} {_ratio_cell(m.get('vs_baseline'))} " + metrics)
     lines.append("")
+    sel = results.get("selection") or {}
+    if sel.get("candidates"):
+        lines.append(f"selection: {sel.get('kind')}, {sel.get('folds')} folds, purge "
+                     f"{sel.get('purge_s', 0):.0f} s, score windows {sel.get('window_s', 0):.0f} s "
+                     "(out-of-fold low-frequency residual / raw, [95 % interval], per fold)")
+        for name, c in sel["candidates"].items():
+            if c.get("status") != "ok":
+                lines.append(f"  {name:<14} not a candidate: {c.get('reason')}")
+                continue
+            lo, hi = c["interval"]
+            folds = " ".join(f"{x:.3g}" for x in c["fold_scores"])
+            lines.append(f"  {name:<14} {c['score']:.4g} [{lo:.4g}, {hi:.4g}]  folds {folds}")
+    elif sel.get("note"):
+        lines.append(f"selection: {sel['note']}")
     lines.append(f"chosen: {results.get('chosen') or 'none'} — {results.get('chosen_reason', '')}")
     if results.get("uncompensated_axes"):
         lines.append(f"left uncompensated: {', '.join(results['uncompensated_axes'])}")

@@ -10,6 +10,7 @@ config (defaults filled in) is saved with every run.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -24,7 +25,7 @@ from .trainconfig import TrainConfig  # the ``train`` section is TrainConfig its
 from .yamlio import YamlRefusal, load_yaml
 
 __all__ = [
-    "DataConfig", "SplitConfig", "FeatureConfig", "FamilyConfig", "TrainConfig",
+    "DataConfig", "SplitConfig", "SelectionConfig", "FeatureConfig", "FamilyConfig", "TrainConfig",
     "TrackingConfig", "CompareConfig", "load_config", "from_dict", "to_dict",
 ]
 
@@ -82,6 +83,38 @@ class SplitConfig:
             raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is above {MAX_BLOCKS} "
                               "(blocks that short put correlated neighbouring samples in "
                               "train and test: a split by sample in disguise)")
+
+
+@dataclass
+class SelectionConfig:
+    """How the model that ships is chosen (:mod:`thermonet.selection`).
+
+    ``folds``: K of the purged, blocked cross-validation over the training data (one run:
+    ``folds × blocks_per_fold`` short contiguous blocks dealt round-robin; several runs:
+    leave one run out); 0 chooses on the split's single validation part instead (the rule
+    before issue 19).  ``purge_s`` and ``window_s``: ``None`` takes the documented rules.
+    """
+
+    folds: int = 5
+    blocks_per_fold: int = 8
+    purge_s: float | None = None
+    window_s: float | None = None
+
+    def __post_init__(self) -> None:
+        for key, lo, hi in (("folds", 0, 50), ("blocks_per_fold", 1, 100)):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise ConfigError(f"key 'selection.{key}': must be an integer from {lo} to "
+                                  f"{hi}, got {v!r}")
+        if self.folds == 1:
+            raise ConfigError("key 'selection.folds': 1 fold validates on nothing; use 0 (the "
+                              "split's validation part) or 2 and more")
+        for key in ("purge_s", "window_s"):
+            v = getattr(self, key)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int | float)
+                                  or not math.isfinite(v) or v < 0):
+                raise ConfigError(f"key 'selection.{key}': must be a number of seconds >= 0 "
+                                  f"or null (the documented rule), got {v!r}")
 
 
 @dataclass
@@ -178,6 +211,7 @@ class CompareConfig:
 
     data: DataConfig = field(default_factory=DataConfig)
     split: SplitConfig = field(default_factory=SplitConfig)
+    selection: SelectionConfig = field(default_factory=SelectionConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
     families: list[FamilyConfig] = field(default_factory=_default_families)
     train: TrainConfig = field(default_factory=TrainConfig)

@@ -115,6 +115,36 @@ def _scores_table(res: dict[str, Any]) -> str:
             "<th>compensated</th></tr>" + "".join(rows) + "</table>")
 
 
+def _selection_table(res: dict[str, Any]) -> str:
+    """The out-of-fold scores the choice rests on (thermonet.selection), per candidate."""
+    sel = res.get("selection") or {}
+    if not sel.get("candidates"):
+        return f"<p class='small'>{_e(sel.get('note') or 'single validation part')}</p>"
+    rows = []
+    for name, c in sel["candidates"].items():
+        if c.get("status") != "ok":
+            rows.append(f"<tr><td>{_e(name)}</td><td colspan='6'>not a candidate: "
+                        f"{_e(c.get('reason'))}</td></tr>")
+            continue
+        lo, hi = c.get("interval", [None, None])
+        left = max(c.get("left_out_fraction") or [0.0])
+        raw_axes = [a for a, v in c.get("axes", {}).items() if not v.get("compensate")]
+        rows.append(f"<tr><td>{_e(name)}</td><td>{_e(c.get('n_params'))}</td>"
+                    f"<td>{_num(c.get('score'), '.4g')} [{_num(lo, '.4g')}, {_num(hi, '.4g')}]"
+                    f"</td><td>{_e(' '.join(_num(x) for x in c.get('fold_scores', [])))}</td>"
+                    f"<td>{_num(c.get('diff_to_best'), '.2g')} ± {_num(c.get('se_of_diff'), '.2g')}"
+                    f"</td><td>{_num(100 * left, '.2g')} %</td>"
+                    f"<td>{_e(', '.join(raw_axes) or '—')}</td></tr>")
+    return (f"<p class='small'>{_e(sel.get('kind', ''))}, {_e(sel.get('folds', ''))} folds, "
+            f"purge {_num(sel.get('purge_s'))} s, score windows {_num(sel.get('window_s'))} s: "
+            "the low-frequency residual out of fold over raw on the same windows (&lt; 1 better), "
+            "paired across candidates. " + _e(sel.get("rule", "")) + "</p>"
+            "<table><tr><th>candidate</th><th>params</th><th>out-of-fold score [95 %]</th>"
+            "<th>per fold</th><th>paired difference to the best ± SE</th>"
+            "<th>most left out of a fold (outside its trained domain)</th>"
+            "<th>left raw</th></tr>" + "".join(rows) + "</table>")
+
+
 def _duration(seconds: float) -> str:
     if seconds >= 7200.0:
         return f"{seconds / 3600.0:.3g} h"
@@ -199,13 +229,16 @@ def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
     parts += [f"<div class='warn'>{_e(w)}</div>" for w in warnings] or \
         ["<p class='none'>none</p>"]
     parts += [
+        "<h2>How the model was chosen (cross-validation on the training data)</h2>",
+        _selection_table(results),
         "<h2>Verdicts on the held-out test data</h2>",
         "<p class='small'>Score: the spread of the error about its mean on held-out data "
         "(the temperature-dependent error; offsets removed). Cells: score ratio family / raw "
         "(or / baseline) [" + _e(f"{boot.get('level', 0.95):.0%}") + " interval of a "
         + _e(boot.get("method", "block bootstrap")) + ", "
         + _e(boot.get("resamples", "")) + " resamples]; &lt; 1 is better. An axis is "
-        "compensated only where the family beats raw on the validation data.</p>",
+        "compensated only where the family beats raw out of fold (or on the validation data "
+        "where cross-validation could not run).</p>",
         _verdict_table(results),
         "<h2>Scores and offsets (test data)</h2>", _scores_table(results),
         "<h2>Data</h2>", _data_table(results),

@@ -193,6 +193,7 @@ class ComparisonResult:
     families: dict[str, FamilyResult] = field(default_factory=dict)
     chosen: str | None = None
     chosen_reason: str = ""
+    selection: dict[str, Any] = field(default_factory=dict)   # thermonet.selection's record
     tie: list[str] = field(default_factory=list)
     uncompensated_axes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
@@ -212,6 +213,7 @@ class ComparisonResult:
             "targets": dict(self.targets), "data": self.data, "bootstrap": self.bootstrap,
             "chosen": self.chosen,
             "chosen_reason": self.chosen_reason, "tie": list(self.tie),
+            "selection": self.selection,
             "uncompensated_axes": list(self.uncompensated_axes), "baseline": self.baseline,
             "warnings": list(self.warnings),
             "families": {k: f.to_json() for k, f in self.families.items()},

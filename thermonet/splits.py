@@ -40,7 +40,7 @@ if TYPE_CHECKING:
     from .config import SplitConfig
 
 __all__ = ["Split", "SplitStrategy", "SPLITS", "register_split", "make_splits",
-           "time_blocks", "stack_blocks"]
+           "time_blocks", "block_roles", "stack_blocks"]
 
 
 @dataclass
@@ -52,6 +52,10 @@ class Split:
     test: Recording
     label: str = "split"
     describe: dict[str, Any] = field(default_factory=dict)
+    #: The data model selection may use (:mod:`thermonet.selection`): every run that is not
+    #: the test run, *whole* (dynamic inputs are computed on the whole run before any cut),
+    #: with a mask of its rows that are not test rows.
+    pool: list[tuple[Recording, np.ndarray]] = field(default_factory=list)
 
 
 #: A strategy: (runs, split config, source for error messages) -> splits.
@@ -91,14 +95,23 @@ def make_splits(ds: Dataset | list[Recording], cfg: SplitConfig, *, source: str 
     return strategy(list(ds), cfg, source)
 
 
-def time_blocks(rec: Recording, n_blocks: int, *, with_test: bool = True
-                ) -> tuple[Recording, Recording, Recording | None]:
-    """Interleaved contiguous train | val | test blocks of one run (cut on time)."""
+def _whole(runs: list[Recording]) -> list[tuple[Recording, np.ndarray]]:
+    return [(r, np.ones(r.n_samples, dtype=bool)) for r in runs]
+
+
+def block_roles(rec: Recording, n_blocks: int) -> np.ndarray:
+    """Role of every sample in :func:`time_blocks`: 0, 1, 3 train, 2 val, 4 test."""
     t = rec.time_s
     # cut on time, not on sample index, so gaps (burst recordings) do not skew the blocks
     span = max(float(t[-1] - t[0]), 1e-12)
     block = np.minimum(((t - t[0]) / span * n_blocks).astype(int), n_blocks - 1)
-    role = block % 5
+    return np.asarray(block % 5)
+
+
+def time_blocks(rec: Recording, n_blocks: int, *, with_test: bool = True
+                ) -> tuple[Recording, Recording, Recording | None]:
+    """Interleaved contiguous train | val | test blocks of one run (cut on time)."""
+    role = block_roles(rec, n_blocks)
     is_val = role == 2
     is_test = (role == 4) if with_test else np.zeros_like(is_val)
     is_train = ~(is_val | is_test)
@@ -135,7 +148,8 @@ def _train_then_verify(runs: list[Recording], cfg: SplitConfig, source: str) -> 
                           f"2 runs, the data has {len(runs)}")
     (train,), val = _carve_val([runs[0]], cfg.n_blocks)
     return [Split([train], val, runs[1], "train-then-verify",
-                  {"train": train.run_id, "val": val.run_id, "test": runs[1].run_id})]
+                  {"train": train.run_id, "val": val.run_id, "test": runs[1].run_id},
+                  pool=_whole([runs[0]]))]
 
 
 def _named_runs(runs: list[Recording], cfg: SplitConfig, source: str) -> list[Split]:
@@ -158,12 +172,13 @@ def _named_runs(runs: list[Recording], cfg: SplitConfig, source: str) -> list[Sp
     if not train_ids:
         raise ConfigError(f"{source}: key 'split.train': no training run left")
     train = [by_id[i] for i in train_ids]
+    pool = _whole(train + ([by_id[cfg.val]] if cfg.val else []))
     if cfg.val:
         val = by_id[cfg.val]
     else:  # never choose on training data: validate on blocks cut out of it
         train, val = _carve_val(train, cfg.n_blocks)
     return [Split(train, val, by_id[cfg.test], "runs",
-                  {"train": _ids(train), "val": val.run_id, "test": cfg.test})]
+                  {"train": _ids(train), "val": val.run_id, "test": cfg.test}, pool=pool)]
 
 
 @register_split("runs")
@@ -175,7 +190,7 @@ def _runs(runs: list[Recording], cfg: SplitConfig, source: str) -> list[Split]:
                           f"the data has {len(runs)} (use 'time-blocks')")
     ids = _ids(runs)
     return [Split(runs[:-2], runs[-2], runs[-1], "runs",
-                  {"train": ids[:-2], "val": ids[-2], "test": ids[-1]})]
+                  {"train": ids[:-2], "val": ids[-2], "test": ids[-1]}, pool=_whole(runs[:-1]))]
 
 
 @register_split("leave-one-run-out")
@@ -188,22 +203,24 @@ def _leave_one_run_out(runs: list[Recording], cfg: SplitConfig, source: str) -> 
         val = runs[k - 1]  # the previous run (cyclically) validates
         train = [r for r in runs if r is not test and r is not val]
         splits.append(Split(train, val, test, f"fold{k}",
-                            {"train": _ids(train), "val": val.run_id, "test": test.run_id}))
+                            {"train": _ids(train), "val": val.run_id, "test": test.run_id},
+                            pool=_whole([r for r in runs if r is not test])))
     return splits
 
 
 @register_split("time-blocks")
 def _time_blocks(runs: list[Recording], cfg: SplitConfig, source: str) -> list[Split]:
     blocks = [time_blocks(r, cfg.n_blocks) for r in runs]
+    pool = [(r, block_roles(r, cfg.n_blocks) != 4) for r in runs]
     trains = [b[0] for b in blocks]
     vals = [b[1] for b in blocks]
     tests = [b[2] for b in blocks if b[2] is not None]
     if len(runs) == 1:
         return [Split(trains, vals[0], tests[0], "time-blocks",
                       {"train": trains[0].run_id, "val": vals[0].run_id,
-                       "test": tests[0].run_id})]
+                       "test": tests[0].run_id}, pool=pool)]
     return [Split(trains, stack_blocks(vals, "val"), stack_blocks(tests, "test"), "time-blocks",
-                  {"train": _ids(trains), "val": _ids(vals), "test": _ids(tests)})]
+                  {"train": _ids(trains), "val": _ids(vals), "test": _ids(tests)}, pool=pool)]
 
 
 def stack_blocks(parts: list[Recording], run_id: str) -> Recording:

@@ -1,0 +1,164 @@
+"""Regret of the selection rules (issue 19): cross-validation against one validation part.
+
+Over simulated devices from the realistic presets (different seeds: heat/cool paths,
+hysteresis, turn-on biases, noise) and the real recordings in ``tests/data/real/`` (copies of
+``../shared/data/real/`` with their licences), every device is compared once with the default
+family set; ``results.json`` records what the new rule (purged blocked cross-validation,
+``selection.folds: 5``) and the single validation part (the rule before issue 19,
+``selection.folds: 0``) choose from the same fits, and the held-out test part judges, once,
+what each rule shipped.
+
+Per axis, the test error of a rule is the test score of the family it chose, on that axis —
+the raw score where its mask leaves the axis raw, or where it chose nothing (do no harm) —
+and the *regret* is that error over the best any candidate achieved on the axis in hindsight
+(its test score, compensated, or raw if nothing beats raw).  Rules: the new one, the old one,
+and always-cubic with every axis compensated (what PX4 and ArduPilot ship).
+
+Goal (issue 19): median regret ≤ 1.05 and ≤ 1.10 on 90 % of devices for the new rule
+(a device's regret: the mean over its axes).  ``BENCH_SELECTION_DEVICES`` sets the number of
+simulated devices per preset (default 8, 8, 4).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import save, table  # noqa: E402
+from thermonet.compare import run_compare  # noqa: E402
+from thermonet.config import CompareConfig, load_config  # noqa: E402
+from thermonet.sim import simulate  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL = ROOT / "tests" / "data" / "real"
+N = int(os.environ.get("BENCH_SELECTION_DEVICES", "8"))
+
+#: (preset, config, runs, sample rate Hz, devices): rates cut from the presets' so that forty
+#: comparisons run in minutes on two cores; the procedures and laws are the presets'.
+SIMULATED = [("consumer-imu", "configs/consumer-imu.yaml", 2, 0.2, N),
+             ("patent-gyro", "configs/default.yaml", 5, 0.1, N),
+             ("accel-ramp", None, 1, 0.5, max(N // 2, 1))]
+
+
+def _errors(res: dict[str, Any], family: str | None, masked: bool = True) -> np.ndarray:
+    """Per-axis test error of ``family`` (raw where masked out or None)."""
+    any_fam = next(f for f in res["families"].values() if f.get("status") == "ok")
+    axes = list(any_fam["axes"])
+    raw = np.array([any_fam["axes"][a]["score_raw"] for a in axes])
+    if family is None or res["families"].get(family, {}).get("status") != "ok":
+        return raw
+    ax = res["families"][family]["axes"]
+    comp = np.array([ax[a]["score_comp"] for a in axes])
+    if not masked:
+        return comp
+    keep = np.array([ax[a]["compensate"] for a in axes])
+    return np.where(keep, comp, raw)
+
+
+def _best(res: dict[str, Any]) -> np.ndarray:
+    errs = [_errors(res, None)] + [_errors(res, k, masked=False) for k, f in
+                                   res["families"].items() if f.get("status") == "ok"]
+    return np.min(errs, axis=0)
+
+
+def _run(cfg: CompareConfig, ds: Any) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory() as tmp:
+        return run_compare(cfg, Path(tmp) / "out", dataset=ds, track=False, quiet=True,
+                           plots=False)
+
+
+def _single(res: dict[str, Any]) -> dict[str, Any]:
+    """The comparison as the single-validation-part rule would have shipped it (the same
+    fits: results.json records that rule's choice and masks beside the new one's)."""
+    alt = res["selection"]["single_split"]
+    fams = {}
+    for k, f in res["families"].items():
+        if f.get("status") != "ok":
+            fams[k] = f
+            continue
+        fams[k] = {**f, "axes": {a: {**m, "compensate": alt["compensate"][k][a]}
+                                 for a, m in f["axes"].items()}}
+    return {**res, "families": fams, "chosen": alt["chosen"]}
+
+
+def _device(name: str, cfg: CompareConfig, ds: Any) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    new = _run(cfg, ds)
+    old = _single(new)
+    best = _best(new)
+    out = {"device": name, "chosen_new": new["chosen"], "chosen_old": old["chosen"],
+           "seconds": time.perf_counter() - t0}
+    for rule, res, fam, masked in (("new", new, new["chosen"], True),
+                                   ("old", old, old["chosen"], True),
+                                   ("cubic", new, "cubic", False)):
+        r = _errors(res, fam, masked) / np.maximum(best, 1e-300)
+        out[f"regret_{rule}_axes"] = r.tolist()
+        out[f"regret_{rule}"] = float(np.mean(r))
+        out[f"worse_than_cubic_{rule}"] = bool(
+            (_errors(res, fam, masked) > _errors(new, "cubic", False) * (1 + 1e-9)).any())
+    print(f"{name}: new {out['chosen_new']} {out['regret_new']:.3f}, old {out['chosen_old']} "
+          f"{out['regret_old']:.3f}, cubic {out['regret_cubic']:.3f} "
+          f"({out['seconds']:.0f} s)", flush=True)
+    return out
+
+
+def _devices() -> list[tuple[str, CompareConfig, Any]]:
+    items = []
+    for preset, config, runs, rate, count in SIMULATED:
+        for seed in range(count):
+            ds = simulate(preset, runs=runs, seed=seed, sample_rate_hz=rate)
+            def mk(c: str | None = config) -> CompareConfig:
+                return load_config(ROOT / c) if c else CompareConfig()
+
+            items.append((f"{preset}#{seed}", mk(), ds))
+    # the real recordings with their configs' splits: the BMI270 soaks with the default family
+    # set, the cubesat gyro (temperature only as raw counts) with its config's proxy families
+    for cfg_name in ("bmi270", "pan-tvac"):
+        def mk_real(name: str = cfg_name) -> CompareConfig:
+            cfg = load_config(ROOT / "configs" / f"{name}.yaml")
+            cfg.data.paths = [str(REAL / Path(p).parent.name / Path(p).name)
+                              for p in cfg.data.paths]
+            if cfg.data.mapping:
+                cfg.data.mapping = str(ROOT / cfg.data.mapping)
+            if name == "bmi270":
+                cfg.families, cfg.baseline = CompareConfig().families, "cubic"
+            return cfg
+        from thermonet.evaluate import load_data
+
+        cfg = mk_real()
+        items.append((f"real:{cfg_name}", cfg, load_data(cfg.data)))
+    return items
+
+
+def main() -> None:
+    rows = [_device(*item) for item in _devices()]
+    sim = [r for r in rows if not r["device"].startswith("real:")]
+
+    def summary(rule: str, rs: list[dict[str, Any]]) -> list[Any]:
+        reg = np.array([r[f"regret_{rule}"] for r in rs])
+        return [rule, float(np.median(reg)), float(np.quantile(reg, 0.9)), float(reg.max()),
+                sum(r[f"worse_than_cubic_{rule}"] for r in rs)]
+
+    head = ["rule", "median regret", "90th percentile", "max", "devices worse than cubic on an axis"]
+    md = (f"{len(sim)} simulated devices (realistic presets, different seeds) and "
+          f"{len(rows) - len(sim)} real recordings; regret = test error of the chosen model "
+          "over the best candidate's in hindsight, mean over axes.\n\n"
+          + table(head, [summary(k, sim) for k in ("new", "old", "cubic")])
+          + "\n\nPer device:\n\n"
+          + table(["device", "new rule chose", "regret", "old rule chose", "regret",
+                   "always cubic"],
+                  [[r["device"], r["chosen_new"] or "none", r["regret_new"],
+                    r["chosen_old"] or "none", r["regret_old"], r["regret_cubic"]]
+                   for r in rows]))
+    save("bench_selection", {"devices": rows}, md)
+
+
+if __name__ == "__main__":
+    main()
