@@ -267,3 +267,23 @@ def test_time_blocks_pool_never_holds_a_test_block():
     for f in range(plan.k):
         assert not ((plan.fold_of[0] == f) & ~mask).any()
         assert not (plan.train_masks[f][0] & ~mask).any()
+
+
+def test_a_time_block_split_of_several_runs_deals_blocks_inside_every_run():
+    """Two isothermal soaks split by time blocks are tested inside each soak: leaving one soak
+    out would ask for a temperature never trained on, so the folds are blocks in both runs."""
+    from thermonet.config import SplitConfig
+    from thermonet.splits import make_splits
+
+    cold, hot = _cycle(3000, seed=1), _cycle(3000, seed=2)
+    cold.temperature_c = 13.0 + 0.05 * np.sin(np.arange(3000) / 50)
+    hot.temperature_c = 48.0 + 0.05 * np.sin(np.arange(3000) / 50)
+    hot.run_id = "hot"
+    (split,) = make_splits([cold, hot], SplitConfig(strategy="time-blocks", n_blocks=20))
+    by_run = plan_folds(split.pool, folds=5, blocks_per_fold=8, tau_s=0.0)
+    blocks = plan_folds(split.pool, folds=5, blocks_per_fold=8, tau_s=0.0, by_run=False)
+    assert by_run is not None and by_run.kind == "leave-one-run-out"
+    assert blocks is not None and blocks.kind == "blocks" and blocks.k == 5
+    for f in range(5):                       # every fold validates in both runs
+        assert all((fo == f).any() for fo in blocks.fold_of)
+        assert all(m.any() for m in blocks.train_masks[f])

@@ -264,8 +264,11 @@ def _fold_plan(cfg: CompareConfig, splits: list[Split]) -> tuple[Any, str]:
                       "split's validation part")
     tau = max((d.param for fam in cfg.families for d in dynamic_signals(fam.inputs)
                if d.kind in ("rate", "lag")), default=0.0)
+    # the folds look like the test: whole runs left out where the test is a run of its own,
+    # blocks inside the runs where the test is blocks inside them (a time-block split)
     plan = plan_folds(splits[-1].pool, folds=sel.folds, blocks_per_fold=sel.blocks_per_fold,
-                      tau_s=tau, purge_s=sel.purge_s, window_s=sel.window_s)
+                      tau_s=tau, purge_s=sel.purge_s, window_s=sel.window_s,
+                      by_run=splits[-1].label != "time-blocks")
     if plan is None:
         return None, (f"too little training data for {sel.folds} cross-validation folds: "
                       "chosen on the split's validation part")

@@ -12,11 +12,15 @@ The *pool* is every run that is not the test run, whole, minus any test rows
 (:attr:`thermonet.splits.Split.pool`).  Dynamic inputs are computed on each whole run before
 any cut: a board does not restart at a fold boundary.
 
-* **Several runs** in the pool: leave one run out (K = the number of runs).
-* **One run**: cut by time into ``folds × blocks_per_fold`` short contiguous blocks (5 × 8 =
-  40 by default: tens of blocks, not K slabs) dealt round-robin to the K folds
-  (scikit-learn's :class:`~sklearn.model_selection.PredefinedSplit` over the block's fold),
-  so every fold's validation blocks sample the whole temperature history.
+* **Several runs** in the pool, where the test is a run of its own (split by runs,
+  train-then-verify, leave-one-run-out): leave one run out (K = the number of runs).
+* **One run**, or a time-block split (the test is blocks inside the runs): every run cut by
+  time into ``folds × blocks_per_fold`` short contiguous blocks (5 × 8 = 40 by default: tens
+  of blocks, not K slabs) dealt round-robin to the K folds (scikit-learn's
+  :class:`~sklearn.model_selection.PredefinedSplit` over the block's fold), so every fold's
+  validation blocks sample the whole temperature history.  Two isothermal soaks (the BMI270
+  recording) validated by leaving one soak out would ask the model for a temperature it never
+  saw, which the time-block test never does.
 
 **Purge.**  Training samples within ``purge_s`` of a validation block (on either side, same
 run) are left out of that fold's training, so validation does not leak into training through
@@ -129,9 +133,14 @@ def _purged(t: np.ndarray, val: np.ndarray, purge_s: float) -> np.ndarray:
 
 
 def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per_fold: int,
-               tau_s: float, purge_s: float | None = None, window_s: float | None = None
-               ) -> FoldPlan | None:
-    """Folds of ``pool`` ((recording, row mask) pairs), or None where K folds cannot be made."""
+               tau_s: float, purge_s: float | None = None, window_s: float | None = None,
+               by_run: bool = True) -> FoldPlan | None:
+    """Folds of ``pool`` ((recording, row mask) pairs), or None where K folds cannot be made.
+
+    ``by_run``: with several runs, leave one run out (the test is a run the model never
+    saw); False deals blocks inside every run (the test is blocks inside the runs: a
+    time-block split), as with one run.
+    """
     from sklearn.model_selection import PredefinedSplit
 
     if folds < 2 or not pool:
@@ -140,7 +149,7 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
     rate = float(np.median([r.effective_rate_hz for r, _ in pool]))
     fold_of: list[np.ndarray] = []
     block_of: list[np.ndarray] = []
-    if len(pool) >= 2:
+    if len(pool) >= 2 and by_run:
         kind, k, block_s = "leave-one-run-out", len(pool), None
         for j, (_, m) in enumerate(pool):
             fold_of.append(np.where(m, j, -1))
@@ -150,24 +159,27 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
             span = max(float(t[-1] - t[0]), 1e-9)
             block_of.append(np.minimum(((t - t[0]) / span * 8).astype(int), 7) + 8 * j)
     else:
-        (_, m), t = pool[0], times[0]
         kind, k = "blocks", folds
         n_blocks = folds * blocks_per_fold
-        tm = t[m]
-        if tm.size < n_blocks * 2:
-            return None
-        span = max(float(tm[-1] - tm[0]), 1e-9)
-        block_s = span / n_blocks
-        block = np.minimum(((t - tm[0]) / block_s).astype(int), n_blocks - 1)
-        block = np.maximum(block, 0)
-        # the deal is scikit-learn's PredefinedSplit over each block's fold (round-robin)
-        test_fold = np.where(m, block % folds, -1)
-        fold_of.append(test_fold)
-        block_of.append(block)
+        spans = []
+        for (_, m), t in zip(pool, times, strict=True):
+            tm = t[m]
+            if tm.size < n_blocks * 2:
+                return None
+            spans.append(max(float(tm[-1] - tm[0]), 1e-9))
+        block_s = float(np.median(spans)) / n_blocks
+        for j, ((_, m), t) in enumerate(zip(pool, times, strict=True)):
+            tm = t[m]
+            bs = spans[j] / n_blocks
+            block = np.clip(((t - tm[0]) / bs).astype(int), 0, n_blocks - 1)
+            # the deal is scikit-learn's PredefinedSplit over each block's fold (round-robin,
+            # shifted by the run so that every fold sees every run's start and end)
+            test_fold = np.where(m, (block + j) % folds, -1)
+            if PredefinedSplit(test_fold).get_n_splits() != folds:
+                return None
+            fold_of.append(test_fold)
+            block_of.append(block + n_blocks * j)
         win = window_s if window_s is not None else window_rule(rate, block_s)
-        splitter = PredefinedSplit(test_fold)
-        if splitter.get_n_splits() != folds:
-            return None
     purge = purge_s if purge_s is not None else purge_rule(tau_s, win, block_s)
     train_masks: list[list[np.ndarray]] = []
     for f in range(k):
