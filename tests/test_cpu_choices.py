@@ -38,9 +38,9 @@ RECORD = Path(__file__).resolve().parent / "data" / "cpu_choices.json"
 #: presets' 1 Hz so that each case runs in seconds natively (about ten times that emulated);
 #: the decisions are those of the full configs' family sets, splits and targets.
 CASES = [
-    ("default", "configs/default.yaml", ("patent-gyro", 5, 0.1)),
-    ("consumer-imu", "configs/consumer-imu.yaml", ("consumer-imu", 2, 0.2)),
-    ("accel-ramp", "configs/default.yaml", ("accel-ramp", 1, 0.5)),
+    ("default", "configs/default.yaml", ("patent-gyro", 5, 0.05)),
+    ("consumer-imu", "configs/consumer-imu.yaml", ("consumer-imu", 2, 0.1)),
+    ("accel-ramp", "configs/default.yaml", ("accel-ramp", 1, 0.25)),
 ]
 
 
@@ -89,12 +89,12 @@ def test_choices_are_the_recorded_ones(decisions: dict[str, Any]) -> None:
 
 
 def test_the_record_is_not_trivial(decisions: dict[str, Any]) -> None:
-    """The cases exercise every kind of decision: a choice, do no harm (nothing chosen), an
-    axis left raw, verdicts of every kind — a record of all-``better`` would check little.
-    (Ties and their rule are checked on constructed scores in test_verdicts / test_selection.)"""
+    """The cases exercise every kind of decision: a choice per case, an axis left raw, verdicts
+    of every kind — a record of all-``better`` would check little.  (Ties and do no harm go
+    through the same margin; their rules are checked on constructed scores in
+    test_verdicts and test_selection.)"""
     want = json.loads(RECORD.read_text())
-    assert any(w["chosen"] for w in want.values())
-    assert any(w["chosen"] is None for w in want.values())             # do no harm
+    assert len({w["chosen"] for w in want.values()}) == len(want)     # three different choices
     assert any(not c for w in want.values() for f in w["families"].values()
                for c in f.get("compensate", {}).values())          # an axis left raw
     kinds = {v for w in want.values() for f in w["families"].values()
