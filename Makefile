@@ -38,7 +38,8 @@ test: $(STAMP) chromium arm-toolchain
 	$(VENV)/bin/mypy thermonet
 	$(PY) -m pytest -q -n 2 tests
 
-# The numerics subset (pytest -m numerics: parity, export, runtime, dynamics, decisions) as on
+# The numerics subset (pytest -m "numerics and not slow": parity, export, runtime, dynamics,
+# decisions; the few end-to-end runs marked slow stay native) as on
 # two other CPUs, under Debian's qemu-user: an AMD EPYC (AVX2, FMA; torch dispatches AVX2) and
 # a Nehalem (no AVX; torch's default kernels).  qemu-user emulates one process, so pytest runs
 # without xdist workers (they would start natively) and the two CPUs run side by side, one
@@ -47,7 +48,7 @@ test: $(STAMP) chromium arm-toolchain
 # NPY_DISABLE_CPU_FEATURES: Debian 12's qemu 7.2 crashes inside numpy's AVX2 sort; numpy's own
 # dispatch is turned off (torch, onnxruntime and the math libraries still see the CPU).
 QEMU     := qemu-x86_64
-NUMERICS := $(PY) -m pytest -q -p no:xdist -p no:cacheprovider -m numerics tests
+NUMERICS := $(PY) -m pytest -q -p no:xdist -p no:cacheprovider -m "numerics and not slow" tests
 NPY_OFF  := NPY_DISABLE_CPU_FEATURES="X86_V3 X86_V4 AVX512_ICL AVX512_SPR"
 
 qemu:

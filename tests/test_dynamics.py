@@ -293,6 +293,7 @@ def test_csv_command_from_time_and_temperature_alone(trained, tmp_path):
     assert rows[1200]["out_of_range"] == "1" and rows[300]["out_of_range"] == "1"
 
 
+@pytest.mark.slow   # an end-to-end run: native only (make test-cpus skips slow)
 def test_runtime_and_c_reproduce_compare_on_held_out_heat_cool(tmp_path):
     """compare → checkpoint → ONNX / C; the runtime and the C step compensate the held-out run
     from time + temperature + raw alone and give the msd compare reported for it."""

@@ -203,6 +203,7 @@ def test_torchscript_exporter_gives_same_numbers(exported, tmp_path):
     np.testing.assert_array_equal(a[2], b[2])   # flags: booleans
 
 
+@pytest.mark.slow   # an end-to-end run: native only (make test-cpus skips slow)
 def test_log_to_mlflow_sqlite(exported, tmp_path):
     import mlflow
     import mlflow.onnx

@@ -146,6 +146,7 @@ def test_level_accelerometer_keeps_gravity_in_torch_onnx_c_and_px4(tmp_path):
     np.testing.assert_allclose((raw - px4).mean(axis=0), level, atol=1e-3)
 
 
+@pytest.mark.slow   # an end-to-end run: native only (make test-cpus skips slow)
 def test_consumer_imu_compare_keeps_gravity_and_gyro_bias(tmp_path):
     """Through `compare` on the consumer-imu preset: default targets, gravity kept on acc_z."""
     from thermonet.compare import run_compare
