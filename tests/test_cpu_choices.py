@@ -5,7 +5,8 @@ The default comparison and the realistic presets (``consumer-imu``, the noise-do
 (``make test-cpus``), make the same decisions — the chosen family (or none: do no harm), the
 axes each family compensates, every validation, test and baseline verdict — as recorded in
 ``tests/data/cpu_choices.json``.  The record was made natively on an AMD EPYC (AVX2, FMA) and
-checked unchanged on the CPUs the README lists; the decisions go through
+checked unchanged under ``-cpu EPYC-Rome``; under ``-cpu Nehalem`` (no AVX) it does not yet
+pass — an open finding (README, "On any x86-64 CPU"). The decisions go through
 :mod:`thermonet.verdicts`' margin (:data:`~thermonet.verdicts.DECISION_RTOL`), so a last-bit
 difference between instruction sets cannot flip one.
 

@@ -26,7 +26,7 @@ from thermonet.exporting.c_stream import run_stream_c
 from thermonet.features import FeatureSpec, parse_feature, signals_for
 from thermonet.sim.device import play_operator
 from thermonet.train import TrainConfig, fit
-from tolerances import assert_f64_close
+from tolerances import assert_f32_close, assert_f64_close
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
 pytestmark = pytest.mark.numerics
@@ -288,8 +288,10 @@ def test_csv_command_from_time_and_temperature_alone(trained, tmp_path):
         rows = list(csv.DictReader(fh))
     got = np.array([[float(r[f"{a}_drift"]) for a in AXES] for r in rows])
     want = rt.Compensator(path).compensate(temperature_c=temp, raw=raw, time_s=t).drift
-    # the same Compensator behind the command line; floats written with repr: exact
-    np.testing.assert_array_equal(got, want.astype(np.float64))
+    # the same Compensator behind the command line, floats written with repr: bit-identical
+    # on one CPU, but the command runs in its own process — under qemu-user natively, on
+    # another CPU than this emulated one — so compared to float32 rounding
+    assert_f32_close(got, want, "dynamic")
     assert rows[1200]["out_of_range"] == "1" and rows[300]["out_of_range"] == "1"
 
 
