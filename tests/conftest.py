@@ -9,6 +9,7 @@ the CPU and the kernels torch and numpy dispatch on it.
 from __future__ import annotations
 
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import pytest
@@ -31,6 +32,23 @@ def pytest_report_header(config: pytest.Config) -> list[str]:
     found = ",".join(simd.get("found", [])[-3:]) if isinstance(simd, dict) else ""
     return [f"cpu: {model}; torch kernels: {torch.backends.cpu.get_cpu_capability()}; "
             f"numpy dispatch (last 3): {found or 'baseline'}"]
+
+
+#: The torch-free runtime shipped beside exported models (export/thermonet_runtime.py).
+RUNTIME = Path(__file__).resolve().parents[1] / "export" / "thermonet_runtime.py"
+
+
+def load_runtime() -> ModuleType:
+    """Import export/thermonet_runtime.py as ``thermonet_runtime`` (it is not a package)."""
+    import importlib.util
+    import sys
+
+    spec = importlib.util.spec_from_file_location("thermonet_runtime", RUNTIME)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["thermonet_runtime"] = mod
+    spec.loader.exec_module(mod)
+    return mod
 
 
 #: Real recordings copied into the repository with their licences (tests/data/real/README.md).

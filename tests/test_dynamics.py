@@ -5,18 +5,17 @@ header's step(); constants round-trip through checkpoint, ONNX metadata and C he
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 import re
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import onnx
 import pytest
 import torch
 
+from conftest import RUNTIME, load_runtime
 from thermonet import dynamics
 from thermonet.checkpoint import load_checkpoint, save_checkpoint, seal_checkpoint
 from thermonet.config import FeatureConfig
@@ -31,21 +30,14 @@ from tolerances import assert_f32_close, assert_f64_close
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
 pytestmark = pytest.mark.numerics
 
-RUNTIME = Path(__file__).resolve().parents[1] / "export" / "thermonet_runtime.py"
 INPUTS = ["dT", "rate", "lag_300", "play_0.5"]
 AXES = ["gyro_x", "gyro_y"]
 GAP_S = 5.0
 
 
-def _load_runtime():
-    spec = importlib.util.spec_from_file_location("thermonet_runtime", RUNTIME)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["thermonet_runtime"] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
-rt = _load_runtime()
+rt = load_runtime()
 
 
 def _triangle(t: np.ndarray, lo: float, hi: float, period_s: float) -> np.ndarray:

@@ -10,7 +10,6 @@ The Python API refuses strings where numbers are meant (``step("1_000", ...)``).
 from __future__ import annotations
 
 import csv
-import importlib.util
 import io
 import math
 import subprocess
@@ -21,25 +20,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import RUNTIME, load_runtime
 from thermonet.exporting import export_onnx
 from thermonet.features import FeatureSpec
 from thermonet.train import TrainConfig, fit
 
-RUNTIME = Path(__file__).resolve().parents[1] / "export" / "thermonet_runtime.py"
 AXES = ["gyro_x", "gyro_y"]
 
 
-def _load_runtime():
-    if "thermonet_runtime" in sys.modules:
-        return sys.modules["thermonet_runtime"]
-    spec = importlib.util.spec_from_file_location("thermonet_runtime", RUNTIME)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["thermonet_runtime"] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
-rt = _load_runtime()
+rt = load_runtime()
 
 #: Cells a CSV writer means as numbers, and the value each one is.
 NUMBERS = {"1": 1.0, "-2": -2.0, "+3": 3.0, "0.5": 0.5, ".5": 0.5, "5.": 5.0, "-.5e-3": -5e-4,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -13,6 +12,7 @@ import onnx
 import pytest
 import torch
 
+from conftest import RUNTIME, load_runtime
 from thermonet.exporting import export_onnx
 from thermonet.features import FeatureSpec
 from thermonet.train import TrainConfig, fit
@@ -20,21 +20,14 @@ from thermonet.train import TrainConfig, fit
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
 pytestmark = pytest.mark.numerics
 
-RUNTIME = Path(__file__).resolve().parents[1] / "export" / "thermonet_runtime.py"
 AXES = ["gyro_x", "gyro_y", "gyro_z"]
 # deg/s per degC, degC^2, degC^3: recovered by the cubic model
 COEF = np.array([[1e-3, 2e-5, -1e-7], [-5e-4, 1e-5, 0.0], [2e-3, -3e-5, 2e-7]])
 
 
-def _load_runtime():
-    spec = importlib.util.spec_from_file_location("thermonet_runtime", RUNTIME)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["thermonet_runtime"] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
-rt = _load_runtime()
+rt = load_runtime()
 
 
 def _true_drift(temp: np.ndarray) -> np.ndarray:
