@@ -450,7 +450,12 @@ def test_interrupt_one_line_runs_killed_out_untouched(endless, tmp_path, signum,
     proc = _start(endless, tmp_path / "out", db)
     _wait_running(db, proc)
     proc.send_signal(signum)
-    stdout, stderr = proc.communicate(timeout=120)
+    try:
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:  # a child that ignored the signal must not outlive the test
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
     assert proc.returncode == code, stderr
     assert stderr.strip() == (f"thermonet: interrupted by {signal.Signals(signum).name}; "
                               "stopped (outputs are written whole or not at all)")

@@ -383,11 +383,14 @@ def _raise_interrupted(signum: int, frame: object) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    installed, previous = False, None
+    previous: dict[int, object] = {}
     try:
-        # SIGTERM unwinds like Ctrl-C (finally blocks run, runs end KILLED, staging removed).
-        previous = signal.signal(signal.SIGTERM, _raise_interrupted)
-        installed = True
+        # SIGINT and SIGTERM both unwind like Ctrl-C (finally blocks run, runs end KILLED,
+        # staging removed). SIGINT is set explicitly too: a process started with SIGINT
+        # ignored (a parent's SIG_IGN is inherited across exec, as under pytest-xdist's
+        # workers or a non-interactive shell's `&`) would otherwise never see Ctrl-C and run on.
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            previous[signum] = signal.signal(signum, _raise_interrupted)
     except ValueError:  # not the main thread (an embedding application): leave signals alone
         pass
     try:
@@ -404,8 +407,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"thermonet: error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
         return 1
     finally:
-        if installed:  # None: a handler not set from Python; the default is the closest
-            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+        for signum, handler in previous.items():  # None: not set from Python; default is closest
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
 
 
 if __name__ == "__main__":
