@@ -1,0 +1,230 @@
+"""The documentation: every relative link in every markdown file of the repository resolves,
+README.md stays a front page (at most 300 lines), and configs/README.md documents every key
+the config loader accepts.
+
+Links are read from the real files: inline links and images ``[text](target)`` and reference
+definitions ``[id]: target`` outside code; a target with a scheme (``https:``, ``mailto:``) is
+not followed. A relative target must name a file or folder inside the repository (a fresh clone
+has nothing beside it); a ``#anchor`` into a markdown file must name one of its headings, as
+GitHub makes the anchor from the heading (lower case, punctuation dropped, spaces as hyphens,
+``-1``, ``-2`` … for repeats) or an explicit ``<a name=…>``/``id=…``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import re
+import subprocess
+import unicodedata
+from pathlib import Path
+from urllib.parse import unquote
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README_MAX_LINES = 300
+
+_FENCE = re.compile(r"^ {0,3}(`{3,}|~{3,})")
+_INLINE_LINK = re.compile(r"!?\[(?:[^\[\]]|\[[^\]]*\])*\]\(\s*(<[^>]*>|[^()\s]+)"
+                          r"(?:\s+(?:\"[^\"]*\"|'[^']*'))?\s*\)")
+_REF_DEF = re.compile(r"^ {0,3}\[[^\]]+\]:\s*(<[^>]*>|\S+)")
+_CODE_SPAN = re.compile(r"(`+)(?:(?!\1).)+?\1")
+_HEADING = re.compile(r"^ {0,3}(#{1,6})\s+(.*?)\s*#*\s*$")
+_HTML_ANCHOR = re.compile(r"""<a\s[^>]*(?:name|id)\s*=\s*["']([^"']+)["']""", re.I)
+_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:")
+
+
+def markdown_files() -> list[Path]:
+    """Every markdown file git tracks (and new ones it would track), else every one on disk
+    outside hidden and build folders (a copy without ``.git``)."""
+    try:
+        out = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z", "--",
+                              "*.md"], cwd=ROOT, capture_output=True, check=True)
+        names = [n for n in out.stdout.decode().split("\0") if n]
+        files = [ROOT / n for n in names if (ROOT / n).is_file()]
+    except (OSError, subprocess.CalledProcessError):
+        skip = {"runs", "mlruns", "build", "dist", "node_modules"}
+        files = [p for p in ROOT.rglob("*.md")
+                 if not any(part.startswith(".") or part in skip or part.endswith(".egg-info")
+                            for part in p.relative_to(ROOT).parts[:-1])]
+    return sorted(files)
+
+
+def _prose_lines(text: str, blank_code: bool = True) -> list[tuple[int, str]]:
+    """(line number, line) outside fenced code blocks, inline code spans blanked."""
+    out, fence = [], None
+    for no, line in enumerate(text.splitlines(), 1):
+        m = _FENCE.match(line)
+        if fence is None and m:
+            fence = m.group(1)[0] * len(m.group(1))
+            continue
+        if fence is not None:
+            if line.strip().startswith(fence) and set(line.strip()) <= {fence[0]}:
+                fence = None
+            continue
+        out.append((no, _CODE_SPAN.sub(lambda s: " " * len(s.group(0)), line)
+                    if blank_code else line))
+    return out
+
+
+def links(path: Path) -> list[tuple[int, str]]:
+    """(line number, target) of every link in a markdown file."""
+    found = []
+    for no, line in _prose_lines(path.read_text(encoding="utf-8")):
+        for m in _INLINE_LINK.finditer(line):
+            found.append((no, m.group(1)))
+        m = _REF_DEF.match(line)
+        if m:
+            found.append((no, m.group(1)))
+    return [(no, t[1:-1] if t.startswith("<") and t.endswith(">") else t) for no, t in found]
+
+
+def github_slug(heading: str) -> str:
+    """The anchor GitHub gives a heading's text (as github-slugger makes it)."""
+    text = re.sub(r"!?\[([^\]]*)\]\([^)]*\)", r"\1", heading)   # links: their text
+    text = re.sub(r"<[^>]+>", "", text)                            # inline HTML
+    text = text.replace("`", "").replace("*", "").lower()
+    kept = "".join(c for c in text
+                   if c in " -_" or unicodedata.category(c)[0] in "LNM")
+    return kept.replace(" ", "-")
+
+
+def anchors(path: Path) -> set[str]:
+    """Every anchor a markdown file offers: its headings' slugs (repeats numbered) and
+    explicit HTML anchors."""
+    seen: dict[str, int] = {}
+    out: set[str] = set()
+    for _, line in _prose_lines(path.read_text(encoding="utf-8"), blank_code=False):
+        m = _HEADING.match(line)
+        if m:
+            slug = github_slug(m.group(2))
+            n = seen.get(slug, 0)
+            seen[slug] = n + 1
+            out.add(slug if n == 0 else f"{slug}-{n}")
+        out.update(_HTML_ANCHOR.findall(line))
+    return out
+
+
+def broken_links(path: Path, root: Path = ROOT) -> list[str]:
+    """One line per link of ``path`` (a file under ``root``) that does not resolve."""
+    bad = []
+    rel = path.relative_to(root)
+    for no, target in links(path):
+        if not target or _SCHEME.match(target) or target.startswith("//"):
+            continue
+        where = f"{rel}:{no}: ({target})"
+        file_part, _, anchor = target.partition("#")
+        file_part = unquote(file_part.split("?", 1)[0])
+        if file_part.startswith("/"):
+            bad.append(f"{where} is absolute: write it relative to {rel}")
+            continue
+        dest = (path.parent / file_part).resolve() if file_part else path
+        if dest != root and root not in dest.parents:
+            bad.append(f"{where} leaves the repository")
+        elif not dest.exists():
+            bad.append(f"{where}: no such file or folder")
+        elif anchor and dest.suffix.lower() == ".md" and dest.is_file() \
+                and unquote(anchor) not in anchors(dest):
+            bad.append(f"{where}: no heading with anchor #{anchor} in {dest.relative_to(root)}")
+    return bad
+
+
+# ------------------------------------------------------------------ the checker itself
+def test_slugs_follow_github():
+    assert github_slug("Two commands") == "two-commands"
+    assert github_slug("From a PX4 or ArduPilot log") == "from-a-px4-or-ardupilot-log"
+    assert github_slug("Command start-up — `bench_imports.py`") == \
+        "command-start-up--bench_importspy"
+    assert github_slug("Default comparison (`make demo`) — `bench_default.py`") == \
+        "default-comparison-make-demo--bench_defaultpy"
+    assert github_slug("On any x86-64 CPU") == "on-any-x86-64-cpu"
+    assert github_slug("Targets: what the drift is relative to") == \
+        "targets-what-the-drift-is-relative-to"
+
+
+def test_the_checker_finds_a_broken_link_and_a_missing_heading(tmp_path):
+    """The checker on real files in a scratch tree: good links pass, each kind of bad one is
+    named with its line."""
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "a.md").write_text("# Alpha\n## Beta: two\n## Beta: two\n")
+    doc = tmp_path / "doc.md"
+    doc.write_text("# Doc\n[ok](sub/a.md#beta-two-1) [ok](#doc) [web](https://x.invalid/y)\n"
+                   "`[not a link](nowhere.md)`\n```\n[nor this](nowhere.md)\n```\n"
+                   "[gone](sub/b.md) [bad](sub/a.md#gamma) [out](../x.md) [ok](sub)\n"
+                   "[ref]: sub/a.md#alpha\n")
+    bad = broken_links(doc, root=tmp_path)
+    assert len(bad) == 3, bad
+    assert bad[0].startswith("doc.md:7: (sub/b.md)") and "no such file" in bad[0]
+    assert "#gamma" in bad[1] and "leaves the repository" in bad[2]
+
+
+# ------------------------------------------------------------------ the repository's docs
+@pytest.mark.parametrize("path", markdown_files(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_relative_link_resolves(path):
+    bad = broken_links(path)
+    assert not bad, "\n".join(bad)
+
+
+def test_the_markdown_files_are_found():
+    names = {str(p.relative_to(ROOT)) for p in markdown_files()}
+    assert {"README.md", "configs/README.md", "export/README.md", "experiments/README.md",
+            "tests/README.md"} <= names
+
+
+def test_readme_is_a_front_page():
+    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    assert len(lines) <= README_MAX_LINES, \
+        f"README.md has {len(lines)} lines; move detail next to what it documents"
+
+
+# ------------------------------------------------------------------ every config key
+def _default_config():
+    """The built-in default config, through the public loader where there is one."""
+    import thermonet
+
+    load = getattr(thermonet, "load_config", None)
+    if load is None:
+        load = importlib.import_module("thermonet.training.config").load_config
+    return load(None)
+
+
+def _keys(obj, prefix: str = ""):
+    for f in dataclasses.fields(obj):
+        key = f"{prefix}{f.name}"
+        yield key
+        value = getattr(obj, f.name)
+        if dataclasses.is_dataclass(value):
+            yield from _keys(value, f"{key}.")
+        elif isinstance(value, list) and value and dataclasses.is_dataclass(value[0]):
+            yield from _keys(value[0], f"{key}[].")
+
+
+def test_configs_readme_documents_every_key():
+    """Each key the loader accepts (its dataclasses, walked from the default config) appears
+    in configs/README.md as a dotted key in code (`train.average_s`, `families[].inputs`)."""
+    text = (ROOT / "configs" / "README.md").read_text(encoding="utf-8")
+    keys = list(_keys(_default_config()))
+    assert len(keys) > 30
+    missing = [k for k in keys if f"`{k}`" not in text]
+    assert not missing, f"configs/README.md does not document: {missing}"
+
+
+# ------------------------------------------------------------------ no tracking store in git
+def test_no_tracking_store_is_committed():
+    """The MLflow store a run leaves in the working directory (``mlflow.db``, its lock file and
+    SQLite's journals, ``mlruns/``) is ignored by git, and none of it is tracked."""
+    if not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    try:
+        tracked = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True,
+                                 check=True).stdout.decode().split("\0")
+        ignored = subprocess.run(["git", "check-ignore", "--no-index", "mlflow.db",
+                                  "mlflow.db.lock", "mlflow.db-journal", "mlruns/0/meta.yaml"],
+                                 cwd=ROOT, capture_output=True, text=True).stdout.split()
+    except OSError:
+        pytest.skip("git is not installed")
+    store = [n for n in tracked if re.search(r"(^|/)(mlflow\.db[^/]*|mlruns/.*)$", n)]
+    assert not store, f"tracking-store files committed: {store}"
+    assert set(ignored) == {"mlflow.db", "mlflow.db.lock", "mlflow.db-journal",
+                            "mlruns/0/meta.yaml"}
