@@ -1,6 +1,7 @@
 # Two commands do all the set-up on a fresh machine:
 #   make demo   -> creates .venv, installs torch (CPU) + thermonet, runs the main job
-#   make test   -> same set-up plus Debian's chromium, then ruff, mypy and the test suite
+#   make test   -> same set-up plus Debian's chromium, then ruff, mypy, the import layers
+#                  (lint-imports) and the test suite
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -36,6 +37,7 @@ arm-toolchain:
 test: $(STAMP) chromium arm-toolchain
 	$(VENV)/bin/ruff check thermonet tests experiments export
 	$(VENV)/bin/mypy thermonet
+	$(VENV)/bin/lint-imports
 	$(PY) -m pytest -q -n 2 tests
 
 # The numerics subset (pytest -m "numerics and not slow": parity, export, runtime, dynamics,

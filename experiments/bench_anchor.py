@@ -22,11 +22,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import OUT, save, table  # noqa: E402
-from thermonet.compare import run_compare  # noqa: E402
-from thermonet.config import CompareConfig, FamilyConfig  # noqa: E402
 from thermonet.sim import PRESETS, simulate  # noqa: E402
 from thermonet.sim.chamber import ChamberProfile, cycle  # noqa: E402
 from thermonet.sim.device import HysteresisConfig  # noqa: E402
+from thermonet.training.config import CompareConfig, FamilyConfig  # noqa: E402
+from thermonet.workflows.compare import run_compare  # noqa: E402
 
 
 def cycling_device():

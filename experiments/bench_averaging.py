@@ -7,7 +7,7 @@ RBF[ΔT, ΔT²] with 16 centres and the PX4/ArduPilot cubic are fitted on
 * **thinning** (thermonet before): every k-th sample, down to the 20,000-sample budget;
 * **averaging** (the default now): 1 s windows (``train.average_s``), then windows of k
   of those down to the same budget — computed once per run and shared by both
-  families, as ``compare`` does (:func:`thermonet.evaluate.fit_arrays`).
+  families, as ``compare`` does (:func:`thermonet.training.parts.fit_arrays`).
 
 Reported per family: fit CPU seconds (one torch thread; the averaging pass counted
 in full with the first family that needs it), and on the held-out run at full
@@ -28,11 +28,11 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import fmt_spread, save, spread, table  # noqa: E402
-from thermonet.config import SplitConfig  # noqa: E402
-from thermonet.evaluate import build_part, fit_arrays, make_splits  # noqa: E402
-from thermonet.features import FeatureSpec, reference_values  # noqa: E402
+from thermonet.features.inputs import FeatureSpec, reference_values  # noqa: E402
 from thermonet.sim import simulate  # noqa: E402
-from thermonet.train import TrainConfig, fit, predict  # noqa: E402
+from thermonet.training.config import SplitConfig  # noqa: E402
+from thermonet.training.parts import build_part, fit_arrays, make_splits  # noqa: E402
+from thermonet.training.train import TrainConfig, fit, predict  # noqa: E402
 
 RATE_HZ = 100.0
 SEEDS = int(os.environ.get("BENCH_AVERAGING_SEEDS", "5"))

@@ -16,8 +16,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import OUT, fmt_spread, save, spread, table  # noqa: E402
-from thermonet.compare import run_compare  # noqa: E402
-from thermonet.config import load_config  # noqa: E402
+from thermonet.training.config import load_config  # noqa: E402
+from thermonet.workflows.compare import run_compare  # noqa: E402
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "default.yaml"
 REPEATS = int(os.environ.get("BENCH_DEFAULT_REPEATS", "3"))

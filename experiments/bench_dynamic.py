@@ -6,7 +6,7 @@
   (no ``families`` in the config), the chosen model against the PX4/ArduPilot cubic and against
   the raw output on every axis of the held-out (verification) run.  Goal: better than the cubic
   on every axis, never worse than raw.
-* **Training cost** — :func:`thermonet.dynamics.compute` on 2 M samples (100 Hz, 5.6 h):
+* **Training cost** — :func:`thermonet.features.dynamics.compute` on 2 M samples (100 Hz, 5.6 h):
   median of 5 with min–max, per kind of input (O(N), no window factor).
 * **Runtime** — ``export/thermonet_runtime.py`` on the default dynamic model: batch
   (100,000 samples with ``time_s``, dynamic inputs computed by the runtime) and streaming
@@ -33,13 +33,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT / "export"))
 from bench_anchor import cycling_device  # noqa: E402
 from common import OUT, save, table  # noqa: E402
-from thermonet import dynamics  # noqa: E402
-from thermonet.compare import run_compare  # noqa: E402
-from thermonet.config import CompareConfig  # noqa: E402
 from thermonet.exporting import export_onnx, render_c_header  # noqa: E402
-from thermonet.features import FeatureSpec, signal_matrix, target_matrix  # noqa: E402
+from thermonet.features import dynamics  # noqa: E402
+from thermonet.features.inputs import FeatureSpec, signal_matrix, target_matrix  # noqa: E402
 from thermonet.sim import PRESETS, simulate  # noqa: E402
-from thermonet.train import TrainConfig, fit  # noqa: E402
+from thermonet.training.config import CompareConfig  # noqa: E402
+from thermonet.training.train import TrainConfig, fit  # noqa: E402
+from thermonet.workflows.compare import run_compare  # noqa: E402
 from thermonet_runtime import Compensator  # noqa: E402
 
 N_TRAINING = 2_000_000

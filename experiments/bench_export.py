@@ -48,12 +48,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT / "export"))
 from common import OUT, fmt_spread, interleaved, ratio_spread, save, spread, table  # noqa: E402
 from thermonet.api import DriftEstimator  # noqa: E402
-from thermonet.config import SplitConfig  # noqa: E402
-from thermonet.evaluate import make_splits  # noqa: E402
+from thermonet.core.trainconfig import TrainConfig  # noqa: E402
 from thermonet.exporting import export_c_header, export_onnx  # noqa: E402
 from thermonet.models.base import output_layer  # noqa: E402
 from thermonet.sim import simulate  # noqa: E402
-from thermonet.trainconfig import TrainConfig  # noqa: E402
+from thermonet.training.config import SplitConfig  # noqa: E402
+from thermonet.training.parts import make_splits  # noqa: E402
 from thermonet_runtime import Compensator  # noqa: E402
 
 FAMILIES = {

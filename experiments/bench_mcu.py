@@ -41,7 +41,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_export import DRIVER as X86_DRIVER  # noqa: E402
 from bench_export import callgrind_ir  # noqa: E402
 from common import OUT, git_rev, save, table  # noqa: E402
-from thermonet import dynamics  # noqa: E402
 from thermonet.exporting import render_c_header  # noqa: E402
 from thermonet.exporting.c_stream import (  # noqa: E402
     float_path_slack,
@@ -49,9 +48,10 @@ from thermonet.exporting.c_stream import (  # noqa: E402
 )
 from thermonet.exporting.mcu import Emulator, cross_compile, toolchain  # noqa: E402
 from thermonet.exporting.onnx_export import float32_tolerance  # noqa: E402
-from thermonet.features import FeatureSpec, signal_matrix, target_matrix  # noqa: E402
+from thermonet.features import dynamics  # noqa: E402
+from thermonet.features.inputs import FeatureSpec, signal_matrix, target_matrix  # noqa: E402
 from thermonet.sim import simulate  # noqa: E402
-from thermonet.train import TrainConfig, fit  # noqa: E402
+from thermonet.training.train import TrainConfig, fit  # noqa: E402
 
 FAMILIES = {
     "linear": ("linear", ["dT"], {}),

@@ -26,10 +26,10 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import fmt_spread, save, spread, table  # noqa: E402
-from thermonet.config import load_config  # noqa: E402
-from thermonet.evaluate import build_part, load_data, make_splits  # noqa: E402
-from thermonet.features import FeatureSpec, reference_values  # noqa: E402
-from thermonet.train import TrainConfig, fit  # noqa: E402
+from thermonet.features.inputs import FeatureSpec, reference_values  # noqa: E402
+from thermonet.training.config import load_config  # noqa: E402
+from thermonet.training.parts import build_part, load_data, make_splits  # noqa: E402
+from thermonet.training.train import TrainConfig, fit  # noqa: E402
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "patent-gyro.yaml"
 REPEATS = int(os.environ.get("BENCH_RBF_SPEED_REPEATS", "3"))

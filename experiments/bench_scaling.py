@@ -33,7 +33,7 @@ REPEATS = int(os.environ.get("BENCH_SCALING_REPEATS", "2"))
 
 def simulate_file(runs: int, rate_hz: float, path: Path) -> int:
     code = ("import sys; from thermonet.sim import simulate; "
-            "from thermonet.io import write_parquet; "
+            "from thermonet.data.io import write_parquet; "
             f"ds = simulate('patent-gyro', runs={runs}, seed=0, sample_rate_hz={rate_hz});"
             "write_parquet(ds, sys.argv[1]); print(sum(r.n_samples for r in ds.runs))")
     out = subprocess.run([sys.executable, "-c", code, str(path)], check=True, text=True,

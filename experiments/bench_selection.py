@@ -32,9 +32,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import save, table  # noqa: E402
-from thermonet.compare import run_compare  # noqa: E402
-from thermonet.config import CompareConfig, load_config  # noqa: E402
 from thermonet.sim import simulate  # noqa: E402
+from thermonet.training.config import CompareConfig, load_config  # noqa: E402
+from thermonet.workflows.compare import run_compare  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT / "tests" / "data" / "real"
@@ -130,7 +130,7 @@ def _devices() -> list[tuple[str, CompareConfig, Any]]:
             if name == "bmi270":
                 cfg.families, cfg.baseline = CompareConfig().families, "cubic"
             return cfg
-        from thermonet.evaluate import load_data
+        from thermonet.training.parts import load_data
 
         cfg = mk_real()
         items.append((f"real:{cfg_name}", cfg, load_data(cfg.data)))

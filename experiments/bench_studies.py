@@ -30,17 +30,17 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import OUT, save, table  # noqa: E402
-from thermonet.checkpoint import load_checkpoint  # noqa: E402
-from thermonet.compare import run_compare  # noqa: E402
-from thermonet.config import load_config  # noqa: E402
-from thermonet.evaluate import (  # noqa: E402
+from thermonet.core.recording import Dataset  # noqa: E402
+from thermonet.scoring.metrics import bias_instability  # noqa: E402
+from thermonet.training.checkpoint import load_checkpoint  # noqa: E402
+from thermonet.training.config import load_config  # noqa: E402
+from thermonet.training.parts import (  # noqa: E402
     build_part,  # noqa: E402
     load_data,
     make_splits,
 )
-from thermonet.metrics import bias_instability  # noqa: E402
-from thermonet.recording import Dataset  # noqa: E402
-from thermonet.train import predict  # noqa: E402
+from thermonet.training.train import predict  # noqa: E402
+from thermonet.workflows.compare import run_compare  # noqa: E402
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 STUDIES = ["accel", "hrg", "mems-gyro", "patent-gyro"]

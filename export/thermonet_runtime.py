@@ -14,7 +14,7 @@ was not finite (the drift and the compensated output are then NaN).
 
 Dynamic inputs (``rate``, ``lag_<tau>``, ``play_<w>``: see ``README.md``) are
 computed here from ``time_s`` and ``temperature_c`` by the same causal
-recurrences as in training (``thermonet.dynamics``, mirrored below and checked
+recurrences as in training (``thermonet.features.dynamics``, mirrored below and checked
 against it by thermonet's tests), with the constants stored in the model's
 metadata ``dynamic_inputs``; a sample after a gap in time also raises
 ``out_of_range``.
@@ -168,7 +168,7 @@ def _meta_json(meta: Mapping[str, str], key: str, path: Path) -> Any:
         ) from None
 
 
-# -- dynamic inputs: a copy of thermonet.dynamics (this file imports no thermonet) -----------------
+# -- dynamic inputs: a copy of thermonet.features.dynamics (this file imports no thermonet) -----------------
 def _check_time(time_s: Any, what: str = "time_s") -> np.ndarray:
     try:
         t = np.asarray(time_s, dtype=np.float64)
@@ -372,7 +372,7 @@ def _check_dynamic(block: Any, signals: list[str], path: Path) -> dict[str, Any]
     return block
 
 
-# The runtime's own copy of thermonet.names (it imports neither torch nor thermonet):
+# The runtime's own copy of thermonet.core.names (it imports neither torch nor thermonet):
 # metadata is read from a file, so every name is checked before it is used or printed.
 _AXIS = re.compile(r"(?=.{1,64}\Z)[a-z][a-z0-9]*_[a-z0-9]+(?:\.bias|\.scale)?")
 _SIGNAL = re.compile(r"[A-Za-z][A-Za-z0-9_.]{0,63}")

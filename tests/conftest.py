@@ -14,8 +14,8 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-from thermonet.io import write_parquet
-from thermonet.recording import Dataset, Recording
+from thermonet.core.recording import Dataset, Recording
+from thermonet.data.io import write_parquet
 
 
 def pytest_report_header(config: pytest.Config) -> list[str]:

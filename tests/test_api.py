@@ -16,7 +16,7 @@ from torch import nn
 import thermonet
 from conftest import REAL_DATA, toy_dataset
 from thermonet.api import NotFittedError
-from thermonet.errors import ConfigError
+from thermonet.core.errors import ConfigError
 from thermonet.exporting import FORMATS, ExportFormat, register_format
 from thermonet.models import MODELS
 from thermonet.models.base import Family, as_numpy, least_squares
@@ -99,7 +99,7 @@ def test_simulate_is_seeded():
 
 
 def test_import_thermonet_cli_and_config_stays_light():
-    code = ("import sys, thermonet, thermonet.cli, thermonet.config; thermonet.cli.build_parser()\n"
+    code = ("import sys, thermonet, thermonet.cli, thermonet.training.config; thermonet.cli.build_parser()\n"
             "heavy = [m for m in ('torch', 'allantools', 'scipy.signal', 'sklearn', 'pandas',\n"
             "         'matplotlib', 'mlflow', 'onnx') if m in sys.modules]\n"
             "print(heavy)")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from thermonet.errors import ExportError
+from thermonet.core.errors import ExportError
 from thermonet.exporting import (
     autopilot_coefficients,
     export_ardupilot_params,
@@ -17,8 +17,8 @@ from thermonet.exporting import (
     read_ardupilot_params,
     read_px4_params,
 )
-from thermonet.features import FeatureSpec
-from thermonet.train import TrainConfig, fit
+from thermonet.features.inputs import FeatureSpec
+from thermonet.training.train import TrainConfig, fit
 
 AXES = ["gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"]
 UNITS = {"gyro_x": "deg/s", "gyro_y": "deg/s", "gyro_z": "deg/s", "acc_x": "mg", "acc_y": "mg",

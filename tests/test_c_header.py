@@ -9,13 +9,13 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from thermonet.errors import ExportError
+from thermonet.core.errors import ExportError
 from thermonet.exporting import export_c_header, export_onnx, render_c_header
 from thermonet.exporting.c_header import PARITY_DRIVER
 from thermonet.exporting.onnx_export import float32_tolerance
-from thermonet.features import FeatureSpec
+from thermonet.features.inputs import FeatureSpec
 from thermonet.models import MODELS
-from thermonet.train import TrainConfig, fit
+from thermonet.training.train import TrainConfig, fit
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
 pytestmark = pytest.mark.numerics

@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thermonet.calibrate import calibrate
 from thermonet.cli import main
-from thermonet.logs import read_log
-from thermonet.logs.writers import write_log
+from thermonet.data.logs import read_log
+from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
+from thermonet.workflows.calibrate import calibrate
 
 
 def _px4_file(path: Path) -> dict[str, float]:

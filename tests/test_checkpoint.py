@@ -7,11 +7,11 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from thermonet.checkpoint import load_checkpoint, save_checkpoint
-from thermonet.errors import ExportError, InputError
-from thermonet.features import FeatureSpec
+from thermonet.core.errors import ExportError, InputError
+from thermonet.features.inputs import FeatureSpec
 from thermonet.models import MODELS
-from thermonet.train import TrainConfig, fit, predict
+from thermonet.training.checkpoint import load_checkpoint, save_checkpoint
+from thermonet.training.train import TrainConfig, fit, predict
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
 pytestmark = pytest.mark.numerics

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from conftest import toy_dataset
-from thermonet.checkpoint import load_checkpoint
-from thermonet.compare import format_table, run_compare
-from thermonet.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
-from thermonet.io import write_parquet
-from thermonet.train import predict
+from thermonet.data.io import write_parquet
+from thermonet.training.checkpoint import load_checkpoint
+from thermonet.training.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
+from thermonet.training.train import predict
+from thermonet.workflows.compare import format_table, run_compare
 
 FAST = TrainConfig(max_epochs=20, patience=5)
 
@@ -133,8 +133,8 @@ def test_leave_one_run_out_reports_folds(tmp_path):
 
 
 def test_two_runs_train_then_verify_with_interleaved_validation_blocks(tmp_path):
-    from thermonet.config import SplitConfig
-    from thermonet.evaluate import make_splits
+    from thermonet.training.config import SplitConfig
+    from thermonet.training.parts import make_splits
 
     ds = toy_dataset(n_runs=2)
     split, = make_splits(ds, SplitConfig())
@@ -153,7 +153,7 @@ def test_two_runs_train_then_verify_with_interleaved_validation_blocks(tmp_path)
 
 def test_train_on_heating_fits_only_the_heating_branch(tmp_path):
     """PX4/ArduPilot practice: a cubic fitted on heating samples learns the heating branch."""
-    from thermonet.recording import Dataset, Recording
+    from thermonet.core.recording import Dataset, Recording
 
     rng = np.random.default_rng(3)
     runs = []
@@ -213,9 +213,9 @@ def test_families_side_by_side_give_the_serial_results(tmp_path):
 
 
 def test_family_workers_rule_and_validation():
-    from thermonet.compare import family_workers
-    from thermonet.config import from_dict
-    from thermonet.errors import ConfigError
+    from thermonet.core.errors import ConfigError
+    from thermonet.training.config import from_dict
+    from thermonet.workflows.compare import family_workers
 
     fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
             FamilyConfig(family="linear", name="linear")]
@@ -235,7 +235,7 @@ def test_a_fit_that_raises_stops_the_others_and_is_reported(tmp_path, monkeypatc
     """An unexpected error in one family's fit (not a FitError, which is a result) ends the
     comparison with that error while the other threads stop at their next epoch; nothing is
     written to --out."""
-    import thermonet.train as train_mod
+    import thermonet.training.train as train_mod
 
     path = write_parquet(toy_dataset(), tmp_path / "toy.parquet")
     fams = [FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"], params={"n_centres": 8},

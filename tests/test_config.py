@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from thermonet.config import CompareConfig, load_config, to_dict
-from thermonet.errors import ConfigError
+from thermonet.core.errors import ConfigError
+from thermonet.training.config import CompareConfig, load_config, to_dict
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 

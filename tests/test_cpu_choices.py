@@ -7,7 +7,7 @@ axes each family compensates, every validation, test and baseline verdict — as
 ``tests/data/cpu_choices.json``.  The record was made natively on an AMD EPYC (AVX2, FMA) and
 checked unchanged under ``-cpu EPYC-Rome``; under ``-cpu Nehalem`` (no AVX) it does not yet
 pass — an open finding (README, "On any x86-64 CPU"). The decisions go through
-:mod:`thermonet.verdicts`' margin (:data:`~thermonet.verdicts.DECISION_RTOL`), so a last-bit
+:mod:`thermonet.scoring.verdicts`' margin (:data:`~thermonet.scoring.verdicts.DECISION_RTOL`), so a last-bit
 difference between instruction sets cannot flip one.
 
 A change that *means* to change a decision re-records the file with
@@ -25,10 +25,10 @@ from typing import Any
 
 import pytest
 
-from thermonet.compare import run_compare
-from thermonet.config import load_config
+from thermonet.scoring.verdicts import DECISION_RTOL
 from thermonet.sim import simulate
-from thermonet.verdicts import DECISION_RTOL
+from thermonet.training.config import load_config
+from thermonet.workflows.compare import run_compare
 
 pytestmark = pytest.mark.numerics
 

@@ -16,15 +16,15 @@ import pytest
 import torch
 
 from conftest import RUNTIME, load_runtime
-from thermonet import dynamics
-from thermonet.checkpoint import load_checkpoint, save_checkpoint, seal_checkpoint
-from thermonet.config import FeatureConfig
-from thermonet.errors import ConfigError
+from thermonet.core.errors import ConfigError
 from thermonet.exporting import export_onnx, render_c_header
 from thermonet.exporting.c_stream import run_stream_c
-from thermonet.features import FeatureSpec, parse_feature, signals_for
+from thermonet.features import dynamics
+from thermonet.features.inputs import FeatureSpec, parse_feature, signals_for
 from thermonet.sim.device import play_operator
-from thermonet.train import TrainConfig, fit
+from thermonet.training.checkpoint import load_checkpoint, save_checkpoint, seal_checkpoint
+from thermonet.training.config import FeatureConfig
+from thermonet.training.train import TrainConfig, fit
 from tolerances import assert_f32_close, assert_f64_close
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
@@ -293,12 +293,12 @@ def test_runtime_and_c_reproduce_compare_on_held_out_heat_cool(tmp_path):
     from time + temperature + raw alone and give the msd compare reported for it."""
     import dataclasses
 
-    from thermonet.compare import run_compare
-    from thermonet.config import CompareConfig, FamilyConfig
     from thermonet.exporting import export_source
     from thermonet.sim import PRESETS, simulate
     from thermonet.sim.chamber import ChamberProfile, cycle
     from thermonet.sim.device import HysteresisConfig
+    from thermonet.training.config import CompareConfig, FamilyConfig
+    from thermonet.workflows.compare import run_compare
 
     base = PRESETS["patent-gyro"]
     profile = ChamberProfile(name="heat/cool", start_c=-10.0,
@@ -334,7 +334,7 @@ def test_runtime_and_c_reproduce_compare_on_held_out_heat_cool(tmp_path):
 
 
 def test_c_export_checks_step_and_refuses_a_wrong_recurrence(trained, tmp_path):
-    from thermonet.errors import ExportError
+    from thermonet.core.errors import ExportError
     from thermonet.exporting import export_c_header
     from thermonet.exporting.c_stream import check_stream
 
@@ -357,10 +357,10 @@ def test_c_export_checks_step_and_refuses_a_wrong_recurrence(trained, tmp_path):
 def test_stacked_held_out_blocks_restart_the_state_at_each_block():
     """Blocks stacked by splits.stack_blocks are computed as separate streams: the signals of the
     stack equal each block's own signals, although the stacked time has no gap between them."""
-    from thermonet.errors import InputError
-    from thermonet.features import signal_matrix
-    from thermonet.recording import Recording
-    from thermonet.splits import stack_blocks
+    from thermonet.core.errors import InputError
+    from thermonet.core.recording import Recording
+    from thermonet.features.inputs import signal_matrix
+    from thermonet.training.splits import stack_blocks
 
     t = np.arange(0.0, 6000.0, 1.0)
     temp = _triangle(t, 10.0, 40.0, 3000.0)
@@ -384,7 +384,7 @@ def test_stacked_held_out_blocks_restart_the_state_at_each_block():
 def test_at_t_ref_target_rests_with_dynamic_inputs_at_zero(trained):
     """At rest (T = T_ref after a soak) every dynamic input is 0 — rate, T − EMA(T) and T − P(T)
     by their definitions — and an at-t-ref axis has zero drift there."""
-    from thermonet.train import rest_signals
+    from thermonet.training.train import rest_signals
 
     model, _ = trained
     spec = model.spec

@@ -14,13 +14,13 @@ import onnx
 import pytest
 import torch
 
-from thermonet import metrics
-from thermonet.errors import ConfigError, InputError
+from thermonet.core.errors import ConfigError, InputError
 from thermonet.exporting import export_onnx, render_c_header
-from thermonet.features import FeatureSpec
+from thermonet.features.inputs import FeatureSpec
 from thermonet.models import MODELS, Family
+from thermonet.scoring import metrics
 from thermonet.sim.device import flicker_noise
-from thermonet.train import TrainConfig, average_windows, fit, predict
+from thermonet.training.train import TrainConfig, average_windows, fit, predict
 from tolerances import assert_f32_close
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)

@@ -10,11 +10,11 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from thermonet.errors import ExportError
+from thermonet.core.errors import ExportError
 from thermonet.exporting import export_onnx, log_onnx_to_mlflow, onnx_file_size, parity_check
-from thermonet.features import FeatureSpec
+from thermonet.features.inputs import FeatureSpec
 from thermonet.models import MODELS
-from thermonet.train import TrainConfig, fit
+from thermonet.training.train import TrainConfig, fit
 from tolerances import assert_f32_close
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
@@ -228,7 +228,7 @@ def test_parity_check_catches_a_graph_without_the_clamp(tmp_path):
     """A graph that evaluates outside the trained range (no clamp) must be refused."""
     import torch
 
-    from thermonet.errors import ExportError
+    from thermonet.core.errors import ExportError
     from thermonet.exporting.onnx_export import parity_check
 
     model = _fit("poly", ["dT"], hyper={"degree": 3})

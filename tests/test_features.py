@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from thermonet.errors import ConfigError, InputError
-from thermonet.evaluate import build_part
-from thermonet.features import Features, FeatureSpec, reference_values, signal_matrix, target_matrix
-from thermonet.recording import Recording
+from thermonet.core.errors import ConfigError, InputError
+from thermonet.core.recording import Recording
+from thermonet.features.inputs import FeatureSpec, reference_values, signal_matrix, target_matrix
+from thermonet.features.module import Features
+from thermonet.training.parts import build_part
 
 
 def _recording(temperature, rate_hz=1.0, **kw):
@@ -108,7 +109,7 @@ def test_rate_restarts_after_a_gap():
     """A ramp cut into blocks (as a held-out split does): the state restarts after each gap
     (rate 0, then the ramp's slope·(1 − e^(−t/τ)) again); the 7 °C step across the gap is
     never differentiated."""
-    from thermonet.features import contiguous_segments
+    from thermonet.features.inputs import contiguous_segments
 
     t = np.arange(0.0, 3600.0, 1.0)
     temp = 20.0 + 0.5 * t / 60.0                      # 0.5 °C/min

@@ -5,7 +5,7 @@ import stat
 
 import pytest
 
-from thermonet.fileio import atomic_path, atomic_write_text
+from thermonet.core.fileio import atomic_path, atomic_write_text
 
 
 def test_failure_leaves_old_file_and_no_temp(tmp_path):

@@ -10,21 +10,21 @@ import numpy as np
 import pytest
 
 from thermonet.cli import main
-from thermonet.config import CompareConfig, FamilyConfig, load_config
-from thermonet.errors import ConfigError, InputError
-from thermonet.executors import ExecutorError, TaskFailure, run_tasks
-from thermonet.fleet import (
+from thermonet.core.errors import ConfigError, InputError
+from thermonet.core.executors import ExecutorError, TaskFailure, run_tasks
+from thermonet.core.recording import Dataset, Recording, split_units
+from thermonet.data.io import read_datasets, write_parquet
+from thermonet.scoring.fleetstats import MAD_TO_SIGMA, flag_outliers, parse_limits, robust_z
+from thermonet.sim import simulate, simulate_fleet, unit_seed
+from thermonet.sim.fleet import OUTLIER_SIGMAS, outlier_config
+from thermonet.training.config import CompareConfig, FamilyConfig, load_config
+from thermonet.workflows.fleet import (
     EXIT_LIMITS_FAILED,
     FleetOptions,
     UnitSource,
     run_fleet,
     sources_from_dataset,
 )
-from thermonet.fleetstats import MAD_TO_SIGMA, flag_outliers, parse_limits, robust_z
-from thermonet.io import read_datasets, write_parquet
-from thermonet.recording import Dataset, Recording, split_units
-from thermonet.sim import simulate, simulate_fleet, unit_seed
-from thermonet.sim.fleet import OUTLIER_SIGMAS, outlier_config
 
 #: Unit gains of the toy fleet; the last unit is off the fleet's law (an outlier).
 GAINS = (1.0, 1.01, 0.99, 1.005, 0.995, 1.5)
@@ -150,7 +150,7 @@ def test_compare_refuses_a_fleet_and_points_to_fleet(tmp_path):
     path = write_parquet(toy_fleet(GAINS[:2]), tmp_path / "f.parquet")
     cfg_path = tmp_path / "c.yaml"
     cfg_path.write_text(f"data: {{paths: ['{path}']}}\n")
-    from thermonet.compare import run_compare
+    from thermonet.workflows.compare import run_compare
 
     with pytest.raises(ConfigError, match=r"holds 2 units .*thermonet fleet"):
         run_compare(load_config(cfg_path), tmp_path / "out", track=False, quiet=True)

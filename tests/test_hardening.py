@@ -23,9 +23,9 @@ import pytest
 import torch
 
 from conftest import toy_dataset
-from thermonet.checkpoint import seal_checkpoint
 from thermonet.cli import main
-from thermonet.io import METADATA_KEY, write_parquet
+from thermonet.data.io import METADATA_KEY, write_parquet
+from thermonet.training.checkpoint import seal_checkpoint
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -238,7 +238,7 @@ def test_crafted_checkpoint_values_refused(compared, tmp_path, capsys, key, valu
     if key == "range":
         payload["state_dict"]["sig_lo"] = torch.tensor([10.0])
         payload["state_dict"]["sig_hi"] = torch.tensor([-10.0])
-    elif key.startswith("state."):  # a target buffer (thermonet.target) of the model
+    elif key.startswith("state."):  # a target buffer (thermonet.features.target) of the model
         state = payload["state_dict"]
         state[key[6:]] = torch.full_like(state[key[6:]], value)
     elif "." in key:
@@ -493,7 +493,7 @@ def test_c_escaping_round_trips_through_a_compiler(tmp_path):
     """Defence in depth: an escaped name is inert in a comment and exact in a string literal."""
     import shutil
 
-    from thermonet.names import c_comment, c_string
+    from thermonet.core.names import c_comment, c_string
 
     nasty = 'gyro_x"}\n*/ system("x"); /* ??= \\ é\t' + C_PAYLOAD
     assert "*/" not in c_comment(nasty) and "/*" not in c_comment(nasty)

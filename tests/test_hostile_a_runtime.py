@@ -22,8 +22,8 @@ import pytest
 
 from conftest import RUNTIME, load_runtime
 from thermonet.exporting import export_onnx
-from thermonet.features import FeatureSpec
-from thermonet.train import TrainConfig, fit
+from thermonet.features.inputs import FeatureSpec
+from thermonet.training.train import TrainConfig, fit
 
 AXES = ["gyro_x", "gyro_y"]
 

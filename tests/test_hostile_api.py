@@ -16,8 +16,8 @@ import pytest
 
 import thermonet
 from conftest import toy_dataset
-from thermonet.errors import ThermonetError
-from thermonet.recording import Dataset, Recording
+from thermonet.core.errors import ThermonetError
+from thermonet.core.recording import Dataset, Recording
 
 
 def _two_axes(ds: Dataset) -> Dataset:

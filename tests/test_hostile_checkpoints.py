@@ -21,16 +21,16 @@ import torch
 
 import thermonet
 from conftest import toy_dataset
-from thermonet.checkpoint import (
+from thermonet.cli import main
+from thermonet.core.errors import ExportError, InputError
+from thermonet.exporting.domain import MAX_STD, check_output_range
+from thermonet.training.checkpoint import (
     DIGEST_KEY,
     checkpoint_digest,
     load_checkpoint,
     save_checkpoint,
     seal_checkpoint,
 )
-from thermonet.cli import main
-from thermonet.errors import ExportError, InputError
-from thermonet.exporting.domain import MAX_STD, check_output_range
 
 ROOT = Path(__file__).resolve().parent.parent
 FORMATS = ["onnx", "c", "px4-params", "ardupilot-params"]
@@ -237,11 +237,11 @@ def test_range_check_passes_a_fitted_model_and_names_a_non_fitted_one(fitted):
 
 def test_a_compare_checkpoint_is_sealed_too(tmp_path):
     """The checkpoints compare writes carry the same digest (and results.json's SHA-256)."""
-    from thermonet.compare import run_compare
-    from thermonet.config import load_config
+    from thermonet.training.config import load_config
+    from thermonet.workflows.compare import run_compare
 
     cfg_file = tmp_path / "c.yaml"
-    from thermonet.io import write_parquet
+    from thermonet.data.io import write_parquet
 
     data = write_parquet(toy_dataset(n_runs=3), tmp_path / "toy.parquet")
     cfg_file.write_text(f"data: {{paths: ['{data}']}}\nfamilies:\n"

@@ -11,13 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thermonet.calibrate import check_instance
 from thermonet.cli import main
-from thermonet.errors import InputError
-from thermonet.logs import read_log
-from thermonet.logs.base import MAX_DAMAGED_FRACTION, screen_samples
-from thermonet.logs.writers import write_log
+from thermonet.core.errors import InputError
+from thermonet.data.logs import read_log
+from thermonet.data.logs.base import MAX_DAMAGED_FRACTION, screen_samples
+from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
+from thermonet.workflows.calibrate import check_instance
 
 REAL = Path(__file__).parent / "data" / "real"
 ULG = REAL / "px4_ulog_sample" / "sample_log_small.ulg"

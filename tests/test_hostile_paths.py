@@ -1,7 +1,7 @@
 """Hostile inputs, round three (issue 25), part A: paths and output directories.
 
 * Names read from data (device ids, instance names, channel names) never become paths as
-  they are: ``thermonet.names.path_component`` makes each one a single safe file name, and
+  they are: ``thermonet.core.names.path_component`` makes each one a single safe file name, and
   nothing is ever written outside ``--out``.
 * ``fleet`` and ``calibrate`` refuse a non-empty ``--out`` that is not their own previous
   output, replace a previous one only with ``--overwrite`` — thermonet's own files only, the
@@ -26,15 +26,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thermonet.calibrate import calibrate
 from thermonet.cli import main
-from thermonet.config import CompareConfig, FamilyConfig
-from thermonet.errors import InputError, ThermonetError
-from thermonet.fleet import FleetOptions, run_fleet, sources_from_dataset
-from thermonet.logs.writers import write_log
-from thermonet.names import inside, path_component, path_components
-from thermonet.recording import OUTPUT_NAME, Dataset, Recording
+from thermonet.core.errors import InputError, ThermonetError
+from thermonet.core.names import inside, path_component, path_components
+from thermonet.core.recording import OUTPUT_NAME, Dataset, Recording
+from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
+from thermonet.training.config import CompareConfig, FamilyConfig
+from thermonet.workflows.calibrate import calibrate
+from thermonet.workflows.fleet import FleetOptions, run_fleet, sources_from_dataset
 
 #: Device ids a fleet file may hold that must not become paths as they are.
 HOSTILE_IDS = ("../../../ESCAPE", "/tmp/abs-evil", "..", "a/../../b", "C:\\win\\x", "con")

@@ -8,11 +8,11 @@ from pathlib import Path
 import pytest
 
 from thermonet.cli import main
-from thermonet.config import MAX_BLOCKS, load_config
-from thermonet.errors import ConfigError
+from thermonet.core.errors import ConfigError
 from thermonet.sim import simulate_fleet
 from thermonet.sim.fleet import MAX_UNITS
 from thermonet.sim.presets import MAX_SAMPLES, get_preset, request_samples
+from thermonet.training.config import MAX_BLOCKS, load_config
 
 
 @pytest.mark.parametrize("argv,expect", [
@@ -112,8 +112,8 @@ def _info_json(path: Path, capsys, *extra: str) -> dict:
 def test_info_hints_at_temperature_units(tmp_path, capsys, lo, hi, hint):
     import numpy as np
 
-    from thermonet.diagnostics import input_warnings
-    from thermonet.io import read_datasets
+    from thermonet.data.diagnostics import input_warnings
+    from thermonet.data.io import read_datasets
 
     f = _temp_csv(tmp_path / "t.csv", np.linspace(lo, hi, 3600))
     s = _info_json(f, capsys)

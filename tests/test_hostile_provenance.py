@@ -22,10 +22,10 @@ import yaml
 
 from conftest import toy_dataset
 from thermonet.cli import main
-from thermonet.config import load_config
-from thermonet.info import summarize
-from thermonet.io import read_datasets, write_parquet
-from thermonet.recording import Dataset, Recording
+from thermonet.core.recording import Dataset, Recording
+from thermonet.data.io import read_datasets, write_parquet
+from thermonet.training.config import load_config
+from thermonet.workflows.info import summarize
 
 FAMILY = "families:\n  - {family: poly, name: cubic, inputs: [dT], params: {degree: 3}}\n" \
          "train: {max_epochs: 3}\nbaseline: null\n"
@@ -238,7 +238,7 @@ def test_calibrate_records_the_log_digest_and_no_default_preset(tmp_path):
 
 def test_an_api_checkpoint_records_what_it_was_fitted_on(tmp_path):
     import thermonet
-    from thermonet.evaluate import data_hash
+    from thermonet.training.parts import data_hash
 
     ds = toy_dataset(n_runs=3)
     path = write_parquet(ds, tmp_path / "toy.parquet")

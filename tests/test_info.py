@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from thermonet.info import format_summary, summarize
-from thermonet.recording import Dataset, Recording
+from thermonet.core.recording import Dataset, Recording
+from thermonet.workflows.info import format_summary, summarize
 
 SLOPE = 0.01  # deg/s per °C
 

@@ -8,9 +8,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from thermonet.errors import InputError
-from thermonet.io import read_dataset, read_datasets, write_parquet
-from thermonet.recording import Dataset, Recording
+from thermonet.core.errors import InputError
+from thermonet.core.recording import Dataset, Recording
+from thermonet.data.io import read_dataset, read_datasets, write_parquet
 
 
 def _dataset() -> Dataset:

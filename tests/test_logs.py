@@ -11,12 +11,12 @@ from pymavlink import DFReader
 from pyulog import ULog
 
 from thermonet.cli import main
-from thermonet.errors import InputError
-from thermonet.exporting.firmware import ardupilot_correction
-from thermonet.io import read_datasets
-from thermonet.logs import read_log, temperature_step
-from thermonet.logs.base import FlightLog
-from thermonet.logs.writers import write_dataflash, write_log, write_ulog
+from thermonet.core.errors import InputError
+from thermonet.data.firmware import ardupilot_correction
+from thermonet.data.io import read_datasets
+from thermonet.data.logs import read_log, temperature_step
+from thermonet.data.logs.base import FlightLog
+from thermonet.data.logs.writers import write_dataflash, write_log, write_ulog
 from thermonet.sim.fcboard import simulate_board
 
 REAL = Path(__file__).parent / "data" / "real"

@@ -8,9 +8,9 @@ import textwrap
 import numpy as np
 import pytest
 
-from thermonet.errors import ConfigError, InputError
-from thermonet.io import read_dataset
-from thermonet.mapping import ColumnMapping, MappingError, load_mapping
+from thermonet.core.errors import ConfigError, InputError
+from thermonet.data.io import read_dataset
+from thermonet.data.mapping import ColumnMapping, MappingError, load_mapping
 
 
 def _yaml(tmp_path, text: str, name: str = "map.yaml"):
@@ -75,7 +75,7 @@ def test_skip_counts_malformed_rows_and_logs_them(tmp_path, caplog):
                        r"\(file line 8;"):
         read_dataset(path, _yaml(tmp_path, BANNER_MAPPING.format(malformed="error")))
     mp = _yaml(tmp_path, BANNER_MAPPING.format(malformed="skip"))
-    with caplog.at_level(logging.WARNING, logger="thermonet.io"):
+    with caplog.at_level(logging.WARNING, logger="thermonet.data.io"):
         ds = read_dataset(path, mp)
     assert ds.meta["skipped_rows"] == "3"
     r = ds[0]

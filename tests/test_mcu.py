@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 import torch
 
-from thermonet import dynamics
 from thermonet.exporting import render_c_header
 from thermonet.exporting.c_header import c_parity_check
 from thermonet.exporting.c_stream import (
@@ -34,7 +33,8 @@ from thermonet.exporting.mcu import (
     soft_double_symbols,
     toolchain,
 )
-from thermonet.features import FeatureSpec
+from thermonet.features import dynamics
+from thermonet.features.inputs import FeatureSpec
 from thermonet.models import MODELS
 from thermonet.models.cgen import (
     FAST_EXP_DOMAIN,
@@ -42,7 +42,7 @@ from thermonet.models.cgen import (
     FAST_EXPM1F_MAX_REL_ERR,
     c_target_prelude,
 )
-from thermonet.train import TrainConfig, fit
+from thermonet.training.train import TrainConfig, fit
 from tolerances import DEPTH, f32_atol
 
 AXES = ["gyro_x", "acc_y"]

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from thermonet.metrics import (
+from thermonet.scoring.metrics import (
     AXIS_METRIC_KEYS,
     IEEE952_FLICKER_FACTOR,
     MIN_ALLAN_SAMPLES,

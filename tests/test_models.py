@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from thermonet.errors import ConfigError, FitError
-from thermonet.features import FeatureSpec
+from thermonet.core.errors import ConfigError, FitError
+from thermonet.features.inputs import FeatureSpec
 from thermonet.models import MODELS, TINY, build_family, get_family
-from thermonet.train import TrainConfig, fit, predict
+from thermonet.training.train import TrainConfig, fit, predict
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
 pytestmark = pytest.mark.numerics

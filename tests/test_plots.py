@@ -8,7 +8,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from thermonet.plots import (
+from thermonet.reporting.plots import (
     DPI,
     FIGSIZE_IN,
     MAX_LINE_POINTS,

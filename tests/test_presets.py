@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.optimize import curve_fit
 
-from thermonet.metrics import scale_factor_tempco_ppm_per_c
+from thermonet.scoring.metrics import scale_factor_tempco_ppm_per_c
 from thermonet.sim import PRESETS, four_position_estimates, simulate
 
 

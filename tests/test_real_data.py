@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thermonet.errors import InputError
-from thermonet.io import read_dataset, read_datasets
+from thermonet.core.errors import InputError
+from thermonet.data.io import read_dataset, read_datasets
 
 REPO = Path(__file__).resolve().parents[1]
 REAL = Path(__file__).resolve().parent / "data" / "real"  # copied in, with licences

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from conftest import toy_dataset
-from thermonet.compare import run_compare
-from thermonet.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
-from thermonet.io import write_parquet
-from thermonet.report import VERDICT_COLOURS, render_report
+from thermonet.data.io import write_parquet
+from thermonet.reporting.report import VERDICT_COLOURS, render_report
+from thermonet.training.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
+from thermonet.workflows.compare import run_compare
 
 
 class _Page(HTMLParser):

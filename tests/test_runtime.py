@@ -14,8 +14,8 @@ import torch
 
 from conftest import RUNTIME, load_runtime
 from thermonet.exporting import export_onnx
-from thermonet.features import FeatureSpec
-from thermonet.train import TrainConfig, fit
+from thermonet.features.inputs import FeatureSpec
+from thermonet.training.train import TrainConfig, fit
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
 pytestmark = pytest.mark.numerics

@@ -1,12 +1,12 @@
-"""Model selection by purged, blocked cross-validation (thermonet.selection, issue 19)."""
+"""Model selection by purged, blocked cross-validation (thermonet.scoring.selection, issue 19)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from thermonet.recording import Recording
-from thermonet.selection import (
+from thermonet.core.recording import Recording
+from thermonet.scoring.selection import (
     CandidateOOF,
     in_domain,
     noise_widths,
@@ -224,9 +224,9 @@ def test_compare_chooses_out_of_fold_and_records_it(tmp_path):
     """compare end to end: the choice, the masks and every figure of the record come from the
     cross-validation over the pool (train + validation runs), never the test run."""
     from conftest import toy_dataset
-    from thermonet.compare import format_table, run_compare
-    from thermonet.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
-    from thermonet.io import write_parquet
+    from thermonet.data.io import write_parquet
+    from thermonet.training.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
+    from thermonet.workflows.compare import format_table, run_compare
 
     path = write_parquet(toy_dataset(n_runs=4), tmp_path / "toy.parquet")
     fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
@@ -252,8 +252,8 @@ def test_compare_chooses_out_of_fold_and_records_it(tmp_path):
 
 
 def test_time_blocks_pool_never_holds_a_test_block():
-    from thermonet.config import SplitConfig
-    from thermonet.splits import block_roles, make_splits
+    from thermonet.training.config import SplitConfig
+    from thermonet.training.splits import block_roles, make_splits
 
     rec = _cycle(6000)
     (split,) = make_splits([rec], SplitConfig(strategy="time-blocks", n_blocks=20))
@@ -272,8 +272,8 @@ def test_time_blocks_pool_never_holds_a_test_block():
 def test_a_time_block_split_of_several_runs_deals_blocks_inside_every_run():
     """Two isothermal soaks split by time blocks are tested inside each soak: leaving one soak
     out would ask for a temperature never trained on, so the folds are blocks in both runs."""
-    from thermonet.config import SplitConfig
-    from thermonet.splits import make_splits
+    from thermonet.training.config import SplitConfig
+    from thermonet.training.splits import make_splits
 
     cold, hot = _cycle(3000, seed=1), _cycle(3000, seed=2)
     cold.temperature_c = 13.0 + 0.05 * np.sin(np.arange(3000) / 50)

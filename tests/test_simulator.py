@@ -4,8 +4,8 @@ import allantools
 import numpy as np
 import pytest
 
-from thermonet.errors import ConfigError
-from thermonet.metrics import noise_floor
+from thermonet.core.errors import ConfigError
+from thermonet.scoring.metrics import noise_floor
 from thermonet.sim import (
     AxisConfig,
     ChamberProfile,

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from conftest import toy_dataset
-from thermonet.config import SplitConfig, from_dict
-from thermonet.errors import ConfigError
-from thermonet.splits import SPLITS, Split, make_splits, register_split
+from thermonet.core.errors import ConfigError
+from thermonet.training.config import SplitConfig, from_dict
+from thermonet.training.splits import SPLITS, Split, make_splits, register_split
 
 
 def _keys(recs) -> set[float]:

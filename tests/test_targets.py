@@ -17,8 +17,7 @@ import numpy as np
 import pytest
 import torch
 
-from thermonet.checkpoint import load_checkpoint, save_checkpoint, seal_checkpoint
-from thermonet.errors import ConfigError
+from thermonet.core.errors import ConfigError
 from thermonet.exporting import (
     autopilot_coefficients,
     export_c_header,
@@ -27,9 +26,10 @@ from thermonet.exporting import (
     read_px4_params,
 )
 from thermonet.exporting.c_header import PARITY_DRIVER
-from thermonet.features import FeatureSpec
-from thermonet.target import resolve_targets
-from thermonet.train import TrainConfig, fit, predict
+from thermonet.features.inputs import FeatureSpec
+from thermonet.features.target import resolve_targets
+from thermonet.training.checkpoint import load_checkpoint, save_checkpoint, seal_checkpoint
+from thermonet.training.train import TrainConfig, fit, predict
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
 pytestmark = pytest.mark.numerics
@@ -149,9 +149,9 @@ def test_level_accelerometer_keeps_gravity_in_torch_onnx_c_and_px4(tmp_path):
 @pytest.mark.slow   # an end-to-end run: native only (make test-cpus skips slow)
 def test_consumer_imu_compare_keeps_gravity_and_gyro_bias(tmp_path):
     """Through `compare` on the consumer-imu preset: default targets, gravity kept on acc_z."""
-    from thermonet.compare import run_compare
-    from thermonet.config import CompareConfig, from_dict
     from thermonet.sim import simulate
+    from thermonet.training.config import CompareConfig, from_dict
+    from thermonet.workflows.compare import run_compare
 
     cfg = from_dict(CompareConfig, {
         "data": {"preset": "consumer-imu", "seed": 0},
@@ -253,8 +253,8 @@ def test_mask_leaves_an_axis_uncompensated_in_every_export(tmp_path):
 
 
 def test_config_target_section_is_checked_before_anything_is_written(tmp_path):
-    from thermonet.compare import run_compare
-    from thermonet.config import load_config
+    from thermonet.training.config import load_config
+    from thermonet.workflows.compare import run_compare
 
     cfg_file = tmp_path / "c.yaml"
     cfg_file.write_text("data: {preset: accel-ramp}\ntarget: {acc: channel}\n")

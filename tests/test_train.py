@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from thermonet.errors import ConfigError, FitError, InputError
-from thermonet.features import FeatureSpec
-from thermonet.train import TrainConfig, decimate, fit, predict
+from thermonet.core.errors import ConfigError, FitError, InputError
+from thermonet.features.inputs import FeatureSpec
+from thermonet.training.train import TrainConfig, decimate, fit, predict
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
 pytestmark = pytest.mark.numerics

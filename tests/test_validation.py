@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from conftest import toy_dataset
-from thermonet.compare import run_compare
-from thermonet.config import SplitConfig, load_config
-from thermonet.errors import ConfigError, InputError
-from thermonet.evaluate import make_splits
-from thermonet.io import write_parquet
-from thermonet.mapping import load_mapping
-from thermonet.recording import Dataset
+from thermonet.core.errors import ConfigError, InputError
+from thermonet.core.recording import Dataset
+from thermonet.data.io import write_parquet
+from thermonet.data.mapping import load_mapping
+from thermonet.training.config import SplitConfig, load_config
+from thermonet.training.parts import make_splits
+from thermonet.workflows.compare import run_compare
 
 
 def cfg_file(tmp_path, text):
@@ -119,7 +119,7 @@ def test_negative_seed_and_wrong_suffix_are_one_line_errors(tmp_path):
 def test_datetime_time_column_becomes_seconds(tmp_path):
     import pandas as pd
 
-    from thermonet.io import read_dataset
+    from thermonet.data.io import read_dataset
 
     n = 100
     pd.DataFrame({"ts": pd.date_range("2026-01-01", periods=n, freq="500ms"),
@@ -132,7 +132,7 @@ def test_datetime_time_column_becomes_seconds(tmp_path):
 
 
 def test_four_position_on_a_run_shorter_than_the_window():
-    from thermonet.recording import Recording
+    from thermonet.core.recording import Recording
     from thermonet.sim.fourpos import four_position_estimates
 
     t = np.arange(0.0, 300.0, 1.0)
@@ -149,7 +149,7 @@ def test_four_position_on_a_run_shorter_than_the_window():
 
 
 def test_empty_run_id_names_column_and_row(tmp_path):
-    from thermonet.io import read_dataset
+    from thermonet.data.io import read_dataset
 
     lines = ["run,time_s,temperature_c,gyro_x"] + [f"a,{i},{20 + i},0.1" for i in range(15)]
     (tmp_path / "r.csv").write_text("\n".join(lines + [",15,35,0.1"]) + "\n")
@@ -158,7 +158,7 @@ def test_empty_run_id_names_column_and_row(tmp_path):
 
 
 def test_skipped_rows_are_counted_per_run(tmp_path):
-    from thermonet.io import read_dataset
+    from thermonet.data.io import read_dataset
 
     lines = ["run,time_s,temperature_c,gyro_x"]
     lines += [f"a,{i},{20 + i},0.1" for i in range(15)] + ["a,15,35,oops"]

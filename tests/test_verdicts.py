@@ -10,16 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thermonet.checkpoint import load_checkpoint
-from thermonet.compare import format_table, run_compare
-from thermonet.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
-from thermonet.diagnostics import input_warnings
-from thermonet.errors import ConfigError
+from thermonet.core.errors import ConfigError
+from thermonet.core.recording import Dataset, Recording
+from thermonet.data.diagnostics import input_warnings
+from thermonet.data.io import write_parquet
 from thermonet.exporting import export_onnx
-from thermonet.io import write_parquet
-from thermonet.recording import Dataset, Recording
-from thermonet.train import predict
-from thermonet.verdicts import (
+from thermonet.scoring.verdicts import (
     DECISION_RTOL,
     above,
     below,
@@ -31,6 +27,10 @@ from thermonet.verdicts import (
     same,
     verdict_of,
 )
+from thermonet.training.checkpoint import load_checkpoint
+from thermonet.training.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
+from thermonet.training.train import predict
+from thermonet.workflows.compare import format_table, run_compare
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
 pytestmark = pytest.mark.numerics
@@ -111,7 +111,7 @@ def test_choose_one_standard_error_rule():
 def test_decisions_do_not_turn_on_the_last_bits():
     """Scores equal up to rounding (the poly3 family and the cubic baseline are one model) are
     one score for every decision, whichever of the two a CPU rounds lower: the fewest
-    parameters, then the family listed first, decide (thermonet.verdicts, DECISION_RTOL)."""
+    parameters, then the family listed first, decide (thermonet.scoring.verdicts, DECISION_RTOL)."""
     boot = np.linspace(0.30, 0.50, 1000)
     for bump in (-3e-7, 0.0, 3e-7):       # float32 rounding of a ratio of 0.4, either way
         scores = {"cubic": (0.40, boot), "poly3": (0.40 * (1 + bump), boot),
@@ -270,8 +270,8 @@ def test_implausible_inputs_are_warned():
 
 
 def test_default_baseline_applies_only_where_a_cubic_exists(tmp_path):
-    from thermonet.compare import plan
-    from thermonet.config import load_config
+    from thermonet.training.config import load_config
+    from thermonet.workflows.compare import plan
 
     rng = np.random.default_rng(7)
     path = write_parquet(Dataset([_run(f"run{k}", _ramp(), {"gyro_x": 0.01 * _ramp()},

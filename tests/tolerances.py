@@ -30,7 +30,7 @@ and matrix products.  None of that is a bug, so no test may depend on it:
    coefficients of a noisy law) come from the noise, not from the precision, and are
    explained where they are used.
 5. **Decisions** (which family, which axes, which verdict) are discrete and compared exactly;
-   the code makes them CPU-independent (:data:`thermonet.verdicts.DECISION_RTOL`), and
+   the code makes them CPU-independent (:data:`thermonet.scoring.verdicts.DECISION_RTOL`), and
    ``tests/test_cpu_choices.py`` checks them against the choices recorded in
    ``tests/data/cpu_choices.json``.
 """

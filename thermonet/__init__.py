@@ -1,8 +1,8 @@
 """thermonet: train, judge and export temperature-drift models for inertial sensors.
 
 The Python API (:class:`DriftEstimator`, :func:`simulate`, :func:`read`,
-:class:`TrainConfig`, :class:`Recording`, :class:`Dataset`) is importable from
-here; each name loads its module on first access, so ``import thermonet`` (and
+:class:`TrainConfig`, :class:`Recording`, :class:`Dataset`, :func:`load_config`) is
+importable from here; each name loads its module on first access, so ``import thermonet`` (and
 the command line's start-up) stays free of torch.
 """
 
@@ -15,15 +15,17 @@ __version__ = "0.1.0"
 
 if TYPE_CHECKING:
     from .api import DriftEstimator, NotFittedError, read, simulate
-    from .recording import Dataset, Recording
-    from .trainconfig import TrainConfig
+    from .core.recording import Dataset, Recording
+    from .core.trainconfig import TrainConfig
+    from .training.config import load_config
 
 __all__ = ["DriftEstimator", "NotFittedError", "simulate", "read", "TrainConfig", "Recording",
-           "Dataset", "__version__"]
+           "Dataset", "load_config", "__version__"]
 
 _LAZY = {
     "DriftEstimator": "api", "NotFittedError": "api", "simulate": "api", "read": "api",
-    "TrainConfig": "trainconfig", "Recording": "recording", "Dataset": "recording",
+    "TrainConfig": "core.trainconfig", "Recording": "core.recording", "Dataset": "core.recording",
+    "load_config": "training.config",
 }
 
 

@@ -13,10 +13,10 @@ A drift model in the scikit-learn / skorch mould::
 
 The constructor only stores its arguments; :meth:`DriftEstimator.fit`
 resolves the feature references from the training runs
-(:meth:`~thermonet.features.FeatureSpec.from_recordings`), builds each run's
-signals and targets (:func:`~thermonet.evaluate.build_part`, the function
+(:meth:`~thermonet.features.inputs.FeatureSpec.from_recordings`), builds each run's
+signals and targets (:func:`~thermonet.training.parts.build_part`, the function
 ``compare`` uses) and runs the one training loop
-(:func:`thermonet.train.fit`).  Learned state ends in ``_``.  A saved
+(:func:`thermonet.training.train.fit`).  Learned state ends in ``_``.  A saved
 estimator is an ordinary thermonet checkpoint (``thermonet export`` reads it).
 """
 
@@ -30,12 +30,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .errors import ThermonetError
-from .recording import Dataset, Recording
-from .trainconfig import TrainConfig
+from .core.errors import ThermonetError
+from .core.recording import Dataset, Recording
+from .core.trainconfig import TrainConfig
 
 if TYPE_CHECKING:
-    from .features import FeatureSpec
+    from .features.inputs import FeatureSpec
     from .models import DriftModel
 
 __all__ = ["DriftEstimator", "NotFittedError", "simulate", "read"]
@@ -71,7 +71,7 @@ def _runs(data: Dataset | Recording | Iterable[Recording], what: str) -> list[Re
 def _data_source(runs: list[Recording], val: list[Recording] | None) -> dict[str, Any]:
     """What a fit was given (a checkpoint's ``extra.provenance.data``): the runs, where they
     came from (the files read, or the simulator) and the digest of their samples."""
-    from .evaluate import data_hash
+    from .training.parts import data_hash
 
     every = runs + list(val or [])
     return {"kind": "dataset", "device": runs[0].device_id,
@@ -129,9 +129,9 @@ class DriftEstimator:
     train_on : "all" or "heating"
         ``heating`` fits only samples with dT/dt > −0.05 °C/min (PX4/ArduPilot practice).
     gap_s : float or "auto"
-        Dynamic inputs (``rate``, ``lag_<tau>``, ``play_<w>``, :mod:`thermonet.dynamics`):
+        Dynamic inputs (``rate``, ``lag_<tau>``, ``play_<w>``, :mod:`thermonet.features.dynamics`):
         a time step over ``gap_s`` seconds restarts their state; ``"auto"`` is
-        :data:`thermonet.dynamics.GAP_FACTOR` × the first training run's median
+        :data:`thermonet.features.dynamics.GAP_FACTOR` × the first training run's median
         sample interval.  Stored with the model.
     t_ref_window_min : float
         Minutes averaged for ``t_ref="start"``.
@@ -186,7 +186,7 @@ class DriftEstimator:
         return list(get_family(self.family).default_inputs)
 
     def _outputs_for(self, runs: list[Recording]) -> list[str]:
-        from .evaluate import FOURPOS_SUFFIXES
+        from .training.parts import FOURPOS_SUFFIXES
 
         axes = list(self.outputs) if self.outputs is not None else list(runs[0].axes)
         if self.target == "four-position":
@@ -198,7 +198,7 @@ class DriftEstimator:
         """Fit on ``train``; stop early on ``val`` (held-out runs) when given.
 
         Without ``val`` the loop stops on a training-loss plateau; thermonet
-        never carves validation samples at random (see :mod:`thermonet.splits`
+        never carves validation samples at random (see :mod:`thermonet.training.splits`
         for contiguous blocks).
 
         Returns
@@ -213,11 +213,9 @@ class DriftEstimator:
         FitError
             The data cannot carry the family (reason given).
         """
-        from .errors import ConfigError
-        from .evaluate import build_part, fit_arrays, heating_only
-        from .features import FeatureSpec, resolve_gap_s
-        from .splits import stack_blocks
-        from .train import fit
+        from .core.errors import ConfigError
+        from .training.fold import fit_fold, fold_parts, fold_spec
+        from .training.splits import stack_blocks
 
         if self.target not in _TARGETS:
             raise ConfigError(f"target: {self.target!r} is not one of {', '.join(_TARGETS)}")
@@ -225,7 +223,7 @@ class DriftEstimator:
             raise ConfigError(f"train_on: {self.train_on!r} is not 'all' or 'heating'")
         if "rate_window_s" in self.hyper:
             raise ConfigError("rate_window_s was removed: 'rate' is a causal filtered derivative "
-                              "with a 60 s time constant (thermonet.dynamics); use the input "
+                              "with a 60 s time constant (thermonet.features.dynamics); use the input "
                               "'rate_<tau>' (e.g. rate_30) for another time constant")
         runs = _runs(train, "fit(train)")
         val_runs = None if val is None else _runs(val, "fit(val)")
@@ -236,21 +234,15 @@ class DriftEstimator:
         for r in val_runs or []:
             _needs_outputs(r, outputs, "fit(val)")
         config = self.train if self.train is not None else TrainConfig()
-        spec = FeatureSpec.from_recordings(inputs, runs, t_ref=self.t_ref,
-                                           window_min=self.t_ref_window_min, gap_s=self.gap_s)
-        parts = [self._part(r, spec, outputs) for r in runs]
-        if self.train_on == "heating":
-            heat_gap = resolve_gap_s(self.gap_s, runs, ["rate"])
-            parts = [heating_only(p, r, heat_gap) for p, r in zip(parts, runs, strict=True)]
-        val_part = None
+        spec = fold_spec(inputs, runs, t_ref=self.t_ref, window_min=self.t_ref_window_min,
+                         gap_s=self.gap_s)
+        val_rec = None
         if val_runs is not None:
             val_rec = stack_blocks(val_runs, "val") if len(val_runs) > 1 else val_runs[0]
-            val_part = build_part(val_rec, signals=spec.signals, outputs=outputs,
-                                  target=self.target, gap_s=spec.gap_s)
-        result = fit(family=self.family, inputs=inputs, outputs=outputs,
-                     train=[fit_arrays(p) for p in parts],
-                     val=None if val_part is None else fit_arrays(val_part),
-                     spec=spec, hyper=dict(self.hyper), config=config)
+        parts = fold_parts(spec, runs, outputs=outputs, target=self.target, val=val_rec,
+                           train_on=self.train_on, gap_s=self.gap_s)
+        result = fit_fold(parts, family=self.family, outputs=outputs, hyper=self.hyper,
+                          config=config)
         self.model_: DriftModel = result.model
         self.spec_: FeatureSpec = spec
         self.outputs_: list[str] = outputs
@@ -270,7 +262,7 @@ class DriftEstimator:
         return self
 
     def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
-        from .evaluate import build_part
+        from .training.parts import build_part
 
         return build_part(rec, signals=spec.signals, outputs=outputs, target=self.target,
                           gap_s=spec.gap_s)
@@ -290,8 +282,8 @@ class DriftEstimator:
         (``model_.out_of_range`` flags the samples outside it).
         """
         model = self._check_fitted("predict")
-        from .features import signal_matrix
-        from .train import predict
+        from .features.inputs import signal_matrix
+        from .training.train import predict
 
         recording = _recording(recording, "predict")
         signals = signal_matrix(recording, self.spec_.signals, self.spec_.gap_s)
@@ -323,7 +315,7 @@ class DriftEstimator:
         on the same ratio (its ``val_score`` is :math:`1 - s`).
         """
         model = self._check_fitted("score")
-        from .train import predict
+        from .training.train import predict
 
         recording = _has_samples(_recording(recording, "score"), "score")
         _needs_outputs(recording, self.outputs_, "score")
@@ -362,7 +354,7 @@ class DriftEstimator:
         """Write the fitted model as a thermonet checkpoint (atomic; loads with
         ``weights_only=True``; ``thermonet export`` reads it)."""
         model = self._check_fitted("save")
-        from .checkpoint import save_checkpoint
+        from .training.checkpoint import save_checkpoint
 
         return save_checkpoint(path, model, config=self._checkpoint_config(), extra=self._extra(),
                                epoch=self.best_epoch_, best_val=self.best_val_)
@@ -370,8 +362,8 @@ class DriftEstimator:
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DriftEstimator:
         """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
-        from .checkpoint import load_checkpoint
-        from .config import from_dict
+        from .training.checkpoint import load_checkpoint
+        from .training.config import from_dict
 
         model, meta = load_checkpoint(path)
         config = meta.get("config") or {}
@@ -434,7 +426,7 @@ def read(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
          mapping: str | os.PathLike[str] | None = None) -> Dataset:
     """Recordings from CSV/TSV/Parquet files (one run per file unless a ``run`` column),
     through a YAML column mapping when the columns are not thermonet's own."""
-    from .io import read_datasets
+    from .data.io import read_datasets
 
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]

@@ -5,7 +5,7 @@ line on stderr naming it), 2 usage error (argparse), 3 (``fleet`` only) some
 unit failed its limits or could not be calibrated, 130 interrupted by
 SIGINT (Ctrl-C), 143 terminated by SIGTERM.  An interrupted command prints
 one line, not a traceback; its open MLflow runs are ended as KILLED and a
-comparison's ``--out`` is left as it was (see :mod:`thermonet.outdir`).
+comparison's ``--out`` is left as it was (see :mod:`thermonet.core.outdir`).
 """
 
 from __future__ import annotations
@@ -19,14 +19,14 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from . import __version__
-from .errors import Interrupted, ThermonetError
+from .core.errors import Interrupted, ThermonetError
 
 __all__ = ["main", "build_parser"]
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from .io import write_parquet
-    from .logs import is_log
+    from .data.io import write_parquet
+    from .data.logs import is_log
     from .sim import simulate, simulate_fleet
     from .sim.fcboard import BOARD_PRESETS
     from .sim.presets import MAX_RUNS
@@ -63,8 +63,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _simulate_board(args: argparse.Namespace) -> int:
-    from .logs import is_log
-    from .logs.writers import write_log
+    from .data.logs import is_log
+    from .data.logs.writers import write_log
     from .sim.fcboard import BOARD_PRESETS, simulate_board
 
     if args.preset not in BOARD_PRESETS:
@@ -82,9 +82,9 @@ def _simulate_board(args: argparse.Namespace) -> int:
 
 
 def _cmd_fleet(args: argparse.Namespace) -> int:
-    from .config import load_config
-    from .evaluate import load_data
-    from .fleet import (
+    from .training.config import load_config
+    from .training.parts import load_data
+    from .workflows.fleet import (
         EXIT_LIMITS_FAILED,
         FleetOptions,
         run_fleet,
@@ -120,12 +120,12 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from .info import format_summary, summarize
-    from .io import read_datasets
-    from .logs import is_log
+    from .data.io import read_datasets
+    from .data.logs import is_log
+    from .workflows.info import format_summary, summarize
 
     if any(is_log(f) for f in args.files):
-        from .logs.info import format_log_summary, summarize_log
+        from .data.logs.info import format_log_summary, summarize_log
 
         if len(args.files) != 1 or args.mapping:
             raise ThermonetError("info reads one flight-controller log at a time, with no "
@@ -140,12 +140,12 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
-    from .config import load_config
+    from .training.config import load_config
 
     # the config is checked whole before the comparison machinery (torch) is imported:
     # a wrong key or value is refused in a fraction of a second
     cfg = load_config(args.config)
-    from .compare import format_table, run_compare
+    from .workflows.compare import format_table, run_compare
 
     if only is not None:
         fams = [f for f in cfg.families if f.label == only]
@@ -180,8 +180,8 @@ _EXTENSIONS = {"onnx": ".onnx", "c": ".h", "px4-params": ".params",
 def _export_all_units(args: argparse.Namespace) -> int:
     """One file per unit of a fleet directory, ``OUT/<device_id><ext>``; each verified as a
     single export is.  Units that cannot be exported are listed; exit 1 if any."""
+    from .core.names import path_components
     from .exporting import export_source
-    from .names import path_components
 
     src = Path(args.source)
     try:
@@ -195,7 +195,7 @@ def _export_all_units(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise ThermonetError(f"{out}: --out must be a directory with --all-units")
     # a device id read from results.json never becomes a path as it is: the same safe
-    # file name as `fleet` gave its unit directory (thermonet.names.path_component)
+    # file name as `fleet` gave its unit directory (thermonet.core.names.path_component)
     names = path_components(units)
     ext = _EXTENSIONS.get(args.format, "." + args.format)
     # file names come from the data, so a file already there is never replaced: it may be
@@ -238,7 +238,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from .calibrate import calibrate, format_report
+    from .workflows.calibrate import calibrate, format_report
 
     doc = calibrate(args.log, args.out, overwrite=args.overwrite)
     if not args.quiet:

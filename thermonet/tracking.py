@@ -13,7 +13,7 @@ binds to 127.0.0.1 unless given ``--host``).
 Robustness (issue 9):
 
 * Interrupted runs: a run interrupted by SIGINT/SIGTERM (the CLI turns both
-  into :class:`~thermonet.errors.Interrupted` / ``KeyboardInterrupt``) is
+  into :class:`~thermonet.core.errors.Interrupted` / ``KeyboardInterrupt``) is
   ended as ``KILLED``; any other exception ends it ``FAILED``.
 * Runs left ``RUNNING`` by a process that died without unwinding (SIGKILL,
   power cut): every run is tagged ``thermonet.host`` and ``thermonet.pid``; when
@@ -42,7 +42,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from .errors import Interrupted
+from .core.errors import Interrupted
 
 __all__ = ["Tracker", "default_tracking_uri", "flatten_params", "tidy_orphaned_runs"]
 

@@ -30,7 +30,7 @@ constant term: thermonet's drift :math:`d(T)` is written as
 :math:`c_k = 10^6 a_k` where :math:`d(T) = a_0 + a_1 x + a_2 x^2 + a_3 x^3`,
 and ``raw - P(T-35) + P(T_cal-35) = raw - d(T) + d(T_cal)``.
 
-Targets (:mod:`thermonet.target`).  The file says what the model says: a
+Targets (:mod:`thermonet.features.target`).  The file says what the model says: a
 ``zero``-target gyro keeps its absolute bias in ``X0`` (PX4's gyro calibration
 fits the static rate and keeps ``X0``: ``temperature_calibration/gyro.cpp``,
 ``finish_sensor_instance``); an ``at-t-ref`` accelerometer is normalised to
@@ -67,10 +67,10 @@ from pathlib import Path
 import numpy as np
 from numpy.polynomial import polynomial as P
 
-from ..errors import ExportError
-from ..fileio import atomic_write_text
+from ..core.errors import ExportError
+from ..core.fileio import atomic_write_text
+from ..core.recording import output_kind
 from ..models import DriftModel
-from ..recording import output_kind
 from .onnx_export import family_name
 
 __all__ = [

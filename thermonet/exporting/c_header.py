@@ -53,7 +53,7 @@ Each family owns its C code (:meth:`~thermonet.models.base.Family.emit_c`,
 see :mod:`thermonet.models.cgen`): constants computed by the same torch
 expressions as its exported graph, and a body from ``z[f]`` to the drift
 ``y[a]``; this module assembles the header around it.  A family without one
-is refused with :class:`~thermonet.errors.ExportError`.  Parity with onnxruntime
+is refused with :class:`~thermonet.core.errors.ExportError`.  Parity with onnxruntime
 is tested to the tolerance of :mod:`.onnx_export` (1e-5 relative to the axis's
 largest drift): only summation order and ``expf`` rounding differ.
 """
@@ -67,11 +67,11 @@ import numpy as np
 import torch
 
 from .. import __version__
-from ..errors import ExportError
-from ..fileio import atomic_write_text
+from ..core.errors import ExportError
+from ..core.fileio import atomic_write_text
+from ..core.names import c_comment, c_string, check_model_names
 from ..models import DriftModel
 from ..models.cgen import as_float32, c_array, c_float, c_target_prelude
-from ..names import c_comment, c_string, check_model_names
 from .c_stream import REAL_FLAGS, check_stream, float_path_slack, render_stream_c
 from .onnx_export import (
     _check_points,

@@ -11,7 +11,7 @@ Every header gets, after ``<prefix>_compensate``::
 
 ``step`` computes the model's dynamic inputs (``rate``, ``lag_<tau>``,
 ``play_<w>``) from time and temperature with the recurrences of
-:mod:`thermonet.dynamics`, in float32 — time is a ``double`` (seconds) so that the
+:mod:`thermonet.features.dynamics`, in float32 — time is a ``double`` (seconds) so that the
 difference of two large timestamps keeps its precision, or on the float path (no
 double-precision FPU) a ``uint64_t`` count of microseconds (``THERMONET_TIME_US``, as
 PX4's ``hrt_absolute_time()``); only that difference is rounded to float — with
@@ -37,8 +37,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import dynamics
-from ..errors import ExportError
+from ..core.errors import ExportError
+from ..features import dynamics
 from ..models.cgen import c_expm1
 
 if TYPE_CHECKING:
@@ -88,7 +88,7 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
     nd = len(dyn)
     lines = [
         "",
-        "/* ---- streaming form: dynamic inputs from time and temperature (thermonet.dynamics) */",
+        "/* ---- streaming form: dynamic inputs from time and temperature (thermonet.features.dynamics) */",
         f"#define {P}_N_DYNAMIC {nd}",
         f"#define {P}_N_PROXIES {len(proxies)}",
     ]
@@ -329,7 +329,7 @@ def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermone
 
     For a model with dynamic inputs: 3,000 jittered samples of heat/cool triangles inside
     the trained temperature range, a gap (> ``gap_s``) and a missing temperature; torch
-    evaluates the same model on :func:`thermonet.dynamics.compute` of the sequence
+    evaluates the same model on :func:`thermonet.features.dynamics.compute` of the sequence
     (float64 recurrences).  The drift less its float64 per-axis constant
     (``model.constant()``, added in double on both sides) must agree within ``rtol`` of the
     axis's largest such value (the C recurrences run in float32), ``compensated`` must be

@@ -17,7 +17,7 @@ covers the range, 23 for the BMI270 cubic across the gap between its two soaks,
 K = 1000 leaves a wide margin for such honest extrapolation inside the box and
 still refuses what no fit produces: a weight set to 3e38 (the runtime would answer
 −1.8e38 °/s), an inf, a weight scaled by 1e6.  (An edited checkpoint is refused
-before this, by its digest: :mod:`thermonet.checkpoint`.)  An uncompensated axis
+before this, by its digest: :mod:`thermonet.training.checkpoint`.)  An uncompensated axis
 (scale 0) must be exactly 0.
 """
 
@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import ExportError
+from ..core.errors import ExportError
 
 if TYPE_CHECKING:
     from ..models import DriftModel

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ExportError
+from ..core.errors import ExportError
 
 __all__ = ["TARGETS", "STRICT_FLAGS", "CrossBuild", "Emulator", "cross_compile",
            "soft_double_symbols", "toolchain", "FLOAT_TARGETS"]

@@ -15,7 +15,7 @@ the drift relative to its per-axis constant (:mod:`thermonet.models.base`);
 the constant (an output's 1e6 counts, 4,517 Hz) is added and ``raw − drift``
 computed in float64, so a large constant costs no precision (format 2; format 1
 files had a float32 ``raw``).  The metadata carry each axis's target mode
-(``targets``: channel, zero, at-t-ref — :mod:`thermonet.target`), whether it is
+(``targets``: channel, zero, at-t-ref — :mod:`thermonet.features.target`), whether it is
 compensated (``compensate``: an axis where the chosen model does not beat the
 raw output has drift 0), the float64 constant (``drift_constant``) and the
 signals at rest where ``at-t-ref`` axes are zero (``rest_signals``).
@@ -76,10 +76,10 @@ import torch
 from torch import nn
 
 from .. import __version__
-from ..errors import ExportError
-from ..fileio import atomic_path
+from ..core.errors import ExportError
+from ..core.fileio import atomic_path
+from ..core.names import AXIS, SIGNAL, TEXT_ID, check_model_names, check_name, check_units
 from ..models import DriftModel
-from ..names import AXIS, SIGNAL, TEXT_ID, check_model_names, check_name, check_units
 
 __all__ = [
     "THERMONET_FORMAT",
@@ -240,7 +240,7 @@ def _json(value: Any) -> str:
 
 
 def _check_metadata(model: DriftModel, meta: Mapping[str, Any]) -> None:
-    """Names and provenance strings by :mod:`thermonet.names` before they enter the file.
+    """Names and provenance strings by :mod:`thermonet.core.names` before they enter the file.
 
     Structured values are JSON-encoded; plain strings (device id, run id, data
     hash) are stored as they are, which is safe because they were checked here.

@@ -25,7 +25,7 @@ import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..errors import ExportError, InputError
+from ..core.errors import ExportError, InputError
 
 if TYPE_CHECKING:
     from ..models import DriftModel
@@ -45,8 +45,8 @@ def _from_compare_dir(path: Path, family: str | None) -> Path:
     read), and its SHA-256 must equal ``checkpoint_sha256`` recorded when the
     comparison was written.
     """
-    from ..names import LABEL, check_name
-    from ..outdir import sha256_file
+    from ..core.names import LABEL, check_name
+    from ..core.outdir import sha256_file
 
     results_file = path / "results.json"
     if not results_file.is_file():
@@ -114,7 +114,7 @@ def resolve_checkpoint(source: str, *, family: str | None = None,
     if p.is_file():
         return p
     if p.exists():  # a FIFO, a device: say what it is (and never open a FIFO)
-        from ..fileio import not_a_file
+        from ..core.fileio import not_a_file
 
         raise InputError(f"{source}: {not_a_file(p, 'checkpoint file')}")
     if _RUN_ID.fullmatch(source):
@@ -131,7 +131,7 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
     (PX4's ``TC_*_ID``) and ``instance`` (PX4 slot 0–3, default 0; ArduPilot
     IMU 1–3, default 1) apply to the autopilot formats.
     """
-    from ..checkpoint import load_checkpoint
+    from ..training.checkpoint import load_checkpoint
     from . import ExportRequest, get_format
 
     export_format = get_format(fmt)

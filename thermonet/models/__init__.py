@@ -1,59 +1,49 @@
-"""The model families, by name.
+"""The model families, by name: the fourth layer, above :mod:`thermonet.features`.
 
-``MODELS`` maps the lowercase name a config uses to the :class:`Family`
-subclass; tests parametrise over it, so registering a family here is what
-makes it tested (fit, predict, save/load, ONNX parity).
+``MODELS`` maps the lowercase name a config uses to the :class:`Family` subclass — the
+built-in ones (``linear``, ``poly``, ``lorentz``, ``ts-fuzzy``, ``rbf``) and every family an
+installed package registers under the entry-point group ``thermonet.families``
+(:mod:`thermonet.models.registry`); tests parametrise over it, so registering a family is
+what makes it tested (fit, predict, save/load, ONNX parity).  The names here load on first
+access: the registry itself (:func:`get_family`, :func:`build_family`) is torch-free until a
+family is built, so a config is checked without loading torch.
 """
 
 from __future__ import annotations
 
-import inspect
+import importlib
+from typing import TYPE_CHECKING, Any
 
-from ..errors import ConfigError
-from .base import TINY, DriftModel, Family
-from .fuzzy import TSFuzzy
-from .linear import Linear
-from .lorentz import Lorentz
-from .poly import Poly
-from .rbf import RBF
+from .registry import ENTRY_POINT_GROUP, build_family, family_names, get_family
 
-__all__ = ["MODELS", "get_family", "build_family", "Family", "DriftModel", "TINY",
-           "Linear", "Poly", "Lorentz", "TSFuzzy", "RBF"]
+if TYPE_CHECKING:
+    from .base import TINY, DriftModel, Family
+    from .fuzzy import TSFuzzy
+    from .linear import Linear
+    from .lorentz import Lorentz
+    from .poly import Poly
+    from .rbf import RBF
 
-MODELS: dict[str, type[Family]] = {
-    "linear": Linear,
-    "poly": Poly,
-    "lorentz": Lorentz,
-    "ts-fuzzy": TSFuzzy,
-    "rbf": RBF,
+    MODELS: dict[str, type[Family]]
+
+__all__ = ["MODELS", "get_family", "build_family", "family_names", "ENTRY_POINT_GROUP",
+           "Family", "DriftModel", "TINY", "Linear", "Poly", "Lorentz", "TSFuzzy", "RBF"]
+
+_LAZY = {
+    "Family": "base", "DriftModel": "base", "TINY": "base",
+    "Linear": "linear", "Poly": "poly", "Lorentz": "lorentz", "TSFuzzy": "fuzzy", "RBF": "rbf",
 }
 
 
-def get_family(name: str) -> type[Family]:
-    """The family class registered as ``name``.
+def __getattr__(name: str) -> Any:
+    if name == "MODELS":  # every registered family, built-in and plug-in, imported now
+        from .registry import models
 
-    Raises
-    ------
-    ConfigError
-        (a ``ValueError``) naming the valid families.
-    """
-    try:
-        return MODELS[name]
-    except (KeyError, TypeError):
-        raise ConfigError(f"unknown model family {name!r} (valid: {', '.join(MODELS)})") from None
+        return models()
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def build_family(name: str, *, n_inputs: int, n_outputs: int,
-                 hyper: dict | None = None) -> Family:
-    """Instantiate family ``name`` with ``hyper``; an unknown hyper-parameter is a
-    :class:`ConfigError` naming it and the valid ones."""
-    cls = get_family(name)
-    hyper = dict(hyper or {})
-    params = inspect.signature(cls.__init__).parameters
-    valid = [k for k, p in params.items()
-             if p.kind is inspect.Parameter.KEYWORD_ONLY and k not in ("n_inputs", "n_outputs")]
-    for key in hyper:
-        if key not in valid:
-            raise ConfigError(f"model '{name}': unknown hyper-parameter '{key}' "
-                              f"(valid: {', '.join(valid) or 'none'})")
-    return cls(n_inputs=n_inputs, n_outputs=n_outputs, **hyper)
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

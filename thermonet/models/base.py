@@ -23,7 +23,7 @@ NaN for NaN/±inf, added to the drift) instead of through a ``Where``, and the
 out-of-range flag is ``clip(s) != s`` (true outside the range and for NaN).
 The two paths are the same function; they differ by float32 rounding only.
 
-What the drift is relative to (:mod:`thermonet.target`) lives in the model's
+What the drift is relative to (:mod:`thermonet.features.target`) lives in the model's
 buffers, so checkpoints, ONNX, the C header and the autopilot files all carry
 it.  Per axis :math:`a`:
 
@@ -63,8 +63,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..errors import ConfigError
-from ..features import Features, FeatureSpec
+from ..core.errors import ConfigError
+from ..features.inputs import FeatureSpec
+from ..features.module import Features
 from .cgen import CBody
 
 __all__ = ["TINY", "LOG_CLIP", "Family", "DriftModel", "distinct_levels", "as_numpy",
@@ -173,7 +174,7 @@ class Family(nn.Module):
             For anything random (k-means).  Draw from generators made from it
             (numpy, scikit-learn ``random_state``), never from torch's or numpy's
             global random state: the families of a comparison may be fitted side by
-            side in threads (:func:`thermonet.compare.family_workers`).
+            side in threads (:func:`thermonet.workflows.compare.family_workers`).
         x_mean, x_std : (F,)
             The standardisation, for hyper-parameters given in physical
             feature units (the fuzzy universe).
@@ -188,6 +189,12 @@ class Family(nn.Module):
         """JSON-able hyper-parameters; ``type(self)(n_inputs=, n_outputs=, **hyper())``
         rebuilds the same architecture."""
         return {}
+
+    def coefficient_degree(self, inputs: Sequence[str]) -> int:
+        """Degree of the polynomial in (T − t0) that summarises this family's curve as
+        physical coefficients (a fleet's per-unit ``c0``, ``c1``, ...): a cubic, unless the
+        family *is* a polynomial in the temperature alone, whose own degree is then exact."""
+        return 3
 
     def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
               y_mean: torch.Tensor) -> torch.Tensor:
@@ -212,7 +219,7 @@ class Family(nn.Module):
 
         A family without one cannot be exported as a C header.
         """
-        from ..errors import ExportError
+        from ..core.errors import ExportError
         raise ExportError(f"model family '{self.name}' has no C emitter")
 
     def polynomial_form(self) -> np.ndarray | None:
@@ -305,7 +312,7 @@ class DriftModel(nn.Module):
     @property
     def target_modes(self) -> list[str]:
         """Target mode per output axis (``channel``, ``zero``, ``at-t-ref``, ``four-position``)."""
-        from ..target import MODE_CODES
+        from ..features.target import MODE_CODES
 
         names = {v: k for k, v in MODE_CODES.items()}
         return [names.get(int(c), "channel") for c in self.target_code.tolist()]
@@ -329,7 +336,7 @@ class DriftModel(nn.Module):
         Parameters
         ----------
         modes : sequence of str
-            Per axis, a key of :data:`thermonet.target.MODE_CODES`.
+            Per axis, a key of :data:`thermonet.features.target.MODE_CODES`.
         offset : (A,) float64
             The constant removed from the training target before standardisation.
         rest : (S,) float64
@@ -338,7 +345,7 @@ class DriftModel(nn.Module):
         """
         import copy
 
-        from ..target import MODE_CODES
+        from ..features.target import MODE_CODES
 
         modes = list(modes)
         if len(modes) != len(self.outputs):
@@ -360,7 +367,7 @@ class DriftModel(nn.Module):
             self.target_code.copy_(torch.as_tensor([MODE_CODES[m] for m in modes]))
 
     def _at_t_ref(self, dtype: torch.dtype) -> torch.Tensor:
-        from ..target import MODE_CODES
+        from ..features.target import MODE_CODES
 
         return (self.target_code == MODE_CODES["at-t-ref"]).to(dtype)
 
@@ -460,7 +467,7 @@ class DriftModel(nn.Module):
         """Drift (N, A) from signals (N, S); NaN where a signal is not finite.
 
         In the model's dtype: float32 as trained (a large constant then loses
-        precision: use :meth:`drift64` / :func:`thermonet.train.predict`); a float64
+        precision: use :meth:`drift64` / :func:`thermonet.training.train.predict`); a float64
         copy (``model.double()``) computes in float64 — the export's parity check
         uses one as its reference.
         """

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..errors import ExportError
+from ..core.errors import ExportError
 
 __all__ = ["CBody", "c_float", "c_array", "as_float32", "c_exp", "c_expm1", "c_target_prelude",
            "c_affine",

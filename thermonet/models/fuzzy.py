@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 from .base import TINY, Family, as_numpy, distinct_levels, least_squares
 from .cgen import CBody, as_float32, c_array, c_float
 

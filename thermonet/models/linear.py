@@ -37,6 +37,10 @@ class Linear(Family):
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         return z @ self.weight.T + self.bias
 
+    def coefficient_degree(self, inputs: Sequence[str]) -> int:
+        """A straight line on ``T`` or ``dT`` alone (exact); a cubic summary otherwise."""
+        return 1 if list(inputs) in (["dT"], ["T"]) else 3
+
     def drift(self, z: Sequence[torch.Tensor], y_std: torch.Tensor,
               y_mean: torch.Tensor) -> torch.Tensor:
         w, b = output_layer(self.weight, self.bias, y_std, y_mean)

@@ -26,7 +26,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 from .base import TINY, Family, as_numpy, distinct_levels
 from .cgen import CBody, as_float32, c_array
 

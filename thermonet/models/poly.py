@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 from .base import Family, as_numpy, distinct_levels, least_squares, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array
 
@@ -133,6 +133,10 @@ class Poly(Family):
 
     def hyper(self) -> dict[str, Any]:
         return {"degree": self.degree, "cross": self.cross}
+
+    def coefficient_degree(self, inputs: Sequence[str]) -> int:
+        """Its own degree on ``T`` or ``dT`` alone (exact); a cubic summary otherwise."""
+        return self.degree if list(inputs) in (["dT"], ["T"]) else 3
 
     def polynomial_form(self) -> np.ndarray | None:
         """:math:`[b_a, c_{a,1} \\dots c_{a,n}]` per axis when there is one input."""

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 from .base import LOG_CLIP, TINY, Family, as_numpy, least_squares, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array, c_exp
 

@@ -247,11 +247,11 @@ def play_operator(x: np.ndarray, width: float) -> np.ndarray:
 
     The state follows ``x`` only once ``x`` has moved ``width/2`` past it, so
     the output is +1 while heating, −1 while cooling and keeps its last value
-    in a soak (memory).  The state is :func:`thermonet.dynamics.play_state` of
+    in a soak (memory).  The state is :func:`thermonet.features.dynamics.play_state` of
     half-width ``width/2`` — the same definition as the ``play_<w>`` model input
     (``play_<width/2>`` sees exactly this shape, in °C).
     """
-    from ..dynamics import play_state
+    from ..features.dynamics import play_state
 
     x = np.asarray(x, dtype=np.float64)
     if width <= 0 or x.size == 0:

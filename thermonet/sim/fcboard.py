@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..logs.base import FlightLog, SensorInstance
+from ..core.errors import InputError
+from ..data.logs.base import FlightLog, SensorInstance
 
 __all__ = ["BOARD_PRESETS", "simulate_board", "board_params"]
 

@@ -22,8 +22,8 @@ import dataclasses
 
 import numpy as np
 
-from ..errors import ConfigError
-from ..recording import Dataset
+from ..core.errors import ConfigError
+from ..core.recording import Dataset
 from .device import AnyLaw, LawSum, Lorentz, Polynomial, Sinusoid
 from .presets import (
     MAX_RUNS,

@@ -7,7 +7,7 @@ projection of the table's positions):
 
 and the scale-factor temperature coefficient over the soaks is study 000's
 :math:`\\Delta K`, defined once in
-:func:`thermonet.metrics.scale_factor_tempco_ppm_per_c` (ppm/°C, positive for a
+:func:`thermonet.scoring.metrics.scale_factor_tempco_ppm_per_c` (ppm/°C, positive for a
 negative scale factor too).
 """
 
@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InputError
-from ..recording import Recording
+from ..core.errors import InputError
+from ..core.recording import Recording
 
 __all__ = ["four_position_estimates"]
 

@@ -24,8 +24,8 @@ from typing import Any, cast
 
 import numpy as np
 
-from ..errors import ConfigError
-from ..recording import Dataset, Recording
+from ..core.errors import ConfigError
+from ..core.recording import Dataset, Recording
 from .chamber import Approach, ChamberProfile, Ramp, Soak, staircase
 from .device import (
     AxisConfig,
@@ -301,7 +301,7 @@ def _check_request_size(cfg: SimConfig, n_runs: int) -> None:
 
 def simulate(preset: str | SimConfig, *, runs: int | None = None, seed: int = 0,
              **overrides: object) -> Dataset:
-    """Simulate a device's thermal test as a :class:`~thermonet.recording.Dataset`.
+    """Simulate a device's thermal test as a :class:`~thermonet.core.recording.Dataset`.
 
     Parameters
     ----------

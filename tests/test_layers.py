@@ -1,0 +1,54 @@
+"""The package's layers: a config loads without torch, and the family registry reads a
+built-in family's hyper-parameters from its source exactly as the class declares them."""
+
+from __future__ import annotations
+
+import inspect
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_load_config_is_public_and_torch_free():
+    code = ("import sys, thermonet\n"
+            "cfg = thermonet.load_config('configs/default.yaml')\n"
+            "print(len(cfg.families), cfg.families[0].label, 'torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=ROOT)
+    n, first, torch_loaded = out.stdout.split()
+    assert int(n) >= 5 and first == "cubic"
+    assert torch_loaded == "False"
+
+
+def test_a_wrong_hyper_parameter_is_refused_without_torch(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("families: [{family: ts-fuzzy, params: {n_set: 4}}]\n")
+    code = ("import sys, thermonet\n"
+            "from thermonet.core.errors import ConfigError\n"
+            f"try:\n    thermonet.load_config({str(cfg)!r})\n"
+            "except ConfigError as err:\n    print(err)\n"
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=ROOT)
+    msg, torch_loaded = out.stdout.strip().splitlines()
+    assert msg.startswith(f"{cfg}: key 'families[0]': model 'ts-fuzzy': unknown hyper-parameter "
+                          "'n_set' (valid: n_sets")
+    assert torch_loaded == "False"
+
+
+@pytest.mark.parametrize("name", ["linear", "poly", "lorentz", "ts-fuzzy", "rbf"])
+def test_signature_from_source_matches_the_class(name):
+    from thermonet.models.registry import BUILTIN, _signature_from_source, get_family
+
+    sig = _signature_from_source(BUILTIN[name])
+    cls = get_family(name)
+    params = inspect.signature(cls.__init__).parameters
+    hyper = tuple(k for k, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY
+                  and k not in ("n_inputs", "n_outputs"))
+    assert sig is not None
+    assert sig.hyper == hyper
+    assert sig.max_inputs == cls.max_inputs

@@ -1,0 +1,96 @@
+"""Typed dataclasses from YAML mappings: unknown keys and wrong types refused with the key.
+
+:func:`from_dict` builds a dataclass from a mapping, checking each value against its
+annotation (unions, literals, lists, nested dataclasses); every error is one
+:class:`~thermonet.core.errors.ConfigError` line naming the file and the dotted key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from typing import Any, Literal, Union
+
+from .errors import ConfigError
+
+__all__ = ["from_dict", "to_dict"]
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
+
+
+def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
+    """Check ``value`` against the annotation ``tp``; return the typed value."""
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if tp is Any:
+        return value
+    if origin in (Union, types.UnionType):
+        errors = []
+        for alt in args:
+            try:
+                return _coerce(value, alt, key, source)
+            except ConfigError as err:
+                errors.append(err)
+        raise ConfigError(f"{source}: key '{key}': {value!r} is not "
+                          f"{' or '.join(_type_name(a) for a in args)}")
+    if tp is type(None):
+        if value is None:
+            return None
+        raise ConfigError(f"{source}: key '{key}': expected null, got {value!r}")
+    if origin is Literal:
+        if value in args:
+            return value
+        raise ConfigError(f"{source}: key '{key}': {value!r} is not one of "
+                          f"{', '.join(repr(a) for a in args)}")
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
+        return from_dict(tp, value, source=source, prefix=key)
+    if origin is list:
+        if not isinstance(value, list):
+            raise ConfigError(f"{source}: key '{key}': expected a list, got {value!r}")
+        return [_coerce(v, args[0], f"{key}[{i}]", source) for i, v in enumerate(value)]
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{source}: key '{key}': expected a mapping, got {value!r}")
+        return dict(value)
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+    elif tp is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+    elif tp is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+    elif tp is str:
+        if isinstance(value, str):
+            return value
+    raise ConfigError(f"{source}: key '{key}': expected {_type_name(tp)}, got {value!r}")
+
+
+def from_dict(cls: type, data: Any, *, source: str = "config", prefix: str = "") -> Any:
+    """Build dataclass ``cls`` from a mapping, refusing unknown keys and wrong types."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: key '{prefix or '<top>'}': expected a mapping, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    kwargs = {}
+    for key, value in data.items():
+        dotted = f"{prefix}.{key}" if prefix else str(key)
+        if key not in names:
+            raise ConfigError(f"{source}: key '{dotted}': unknown key (known: "
+                              f"{', '.join(sorted(names))})")
+        kwargs[key] = _coerce(value, hints[key], dotted, source)
+    try:
+        return cls(**kwargs)
+    except ConfigError as err:  # a dataclass's own value check: add the file name
+        raise ConfigError(f"{source}: {err}") from None
+
+
+def to_dict(obj: Any) -> Any:
+    """The resolved config as plain data (for YAML, JSON and MLflow params)."""
+    return dataclasses.asdict(obj)

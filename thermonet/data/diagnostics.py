@@ -1,0 +1,141 @@
+"""Warnings about the data a comparison was given: implausible inputs and extrapolation.
+
+Each check returns plain sentences naming the run, signal or key; ``compare``
+prints them and lists them under ``"warnings"`` in ``results.json``, and
+``thermonet info`` shows the same sentences from the same function
+(:func:`input_warnings`).  None of them stops a comparison: the data may be right
+(a cryogenic test, a one-day soak), and the person reading the report decides.
+Settings that cannot be right (a mapping's ``sample_rate_hz`` outside
+:data:`RATE_HZ_POSSIBLE`) are refused where they are read, not warned about here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from ..core.recording import RATE, Dataset, contiguous_segments
+
+__all__ = ["TEMPERATURE_PLAUSIBLE_C", "MAX_RAMP_C_PER_MIN", "MAX_DURATION_S",
+           "RATE_HZ_PLAUSIBLE", "RATE_HZ_POSSIBLE", "VALUE_PLAUSIBLE_MAX", "OUTSIDE_RANGE_WARN",
+           "input_warnings", "temperature_hint", "outside_fraction", "extrapolation_warnings"]
+
+#: Temperatures outside this range (°C) are implausible for a sensor test (Kelvin? m°C?).
+TEMPERATURE_PLAUSIBLE_C = (-100.0, 200.0)
+#: A mean temperature change faster than this (°C/min) over a run suggests the time stamps
+#: are too short by a time-unit factor (s read as ms…); chambers ramp at ≤ ~10 °C/min.
+MAX_RAMP_C_PER_MIN = 30.0
+#: A run longer than this (s, 60 days) suggests ms or µs read as s.
+MAX_DURATION_S = 60 * 86400.0
+#: Sample rates outside this range (Hz) suggest a time-unit factor.
+RATE_HZ_PLAUSIBLE = (1e-3, 1e5)
+#: A configured sample rate outside this range (Hz: a sample every 11.6 days … 1 GHz) is
+#: refused: no thermal test is sampled so.
+RATE_HZ_POSSIBLE = (1e-6, 1e9)
+#: Output, reference or proxy values beyond this magnitude (in any unit thermonet knows:
+#: °/s, g, Pa, Hz, counts) suggest a wrong scale or a corrupt file.
+VALUE_PLAUSIBLE_MAX = 1e12
+#: Warn when at least this fraction of the test samples lies outside the trained range.
+OUTSIDE_RANGE_WARN = 0.01
+
+
+def temperature_hint(lo: float, hi: float) -> str:
+    """What a temperature span outside :data:`TEMPERATURE_PLAUSIBLE_C` may be in: every unit
+    (Kelvin, °F, m°C) whose conversion lands the whole span in the plausible range."""
+    lo_ok, hi_ok = TEMPERATURE_PLAUSIBLE_C
+    hints = []
+    if lo > 0.0 and lo_ok <= lo - 273.15 and hi - 273.15 <= hi_ok:
+        hints.append("Kelvin? subtract 273.15")
+    if lo_ok <= (lo - 32.0) * 5.0 / 9.0 and (hi - 32.0) * 5.0 / 9.0 <= hi_ok:
+        hints.append("°F? subtract 32, then multiply by 5/9")
+    if max(abs(lo), abs(hi)) > 1000.0 and lo_ok <= lo / 1000.0 and hi / 1000.0 <= hi_ok:
+        hints.append("m°C? divide by 1000")
+    return "; or ".join(hints) if hints else "check the mapping's temperature unit and scale"
+
+
+@np.errstate(over="ignore", invalid="ignore")  # 1e306 values are what it warns about
+def input_warnings(ds: Dataset, *, signals: Iterable[str] = (),
+                   rate_window_s: float | None = None) -> list[str]:
+    """Implausible inputs: temperature units, value magnitudes, time units, a header that
+    is a data row, the rate input across gaps.
+
+    Parameters
+    ----------
+    ds : Dataset
+    signals : iterable of str
+        Every signal the configured families read (``rate_c_per_min`` triggers the gap
+        check); ``thermonet info``, which fits nothing, passes none.
+    rate_window_s : float, optional
+        Window of the rate input, s (needed for the gap check).
+    """
+    out: list[str] = []
+    wants_rate = RATE in set(signals) and rate_window_s is not None
+    lo_ok, hi_ok = TEMPERATURE_PLAUSIBLE_C
+    for r in ds:
+        name = f"run '{r.run_id}'"
+        if r.meta.get("numeric_header"):
+            first = ", ".join(r.meta["numeric_header"].split(",")[:4])
+            out.append(f"{name}: the header line of {r.meta.get('source', 'the file')} ({first}"
+                       " …) is all numbers: a file without a header, whose first sample was "
+                       "read as column names? set 'header: false' in the mapping")
+        temp = r.temperature_c
+        if temp is not None and temp.size:
+            lo, hi = float(np.nanmin(temp)), float(np.nanmax(temp))
+            if lo < lo_ok or hi > hi_ok:
+                out.append(f"{name}: temperature_c spans {lo:.4g} … {hi:.4g} °C, outside the "
+                           f"plausible {lo_ok:g} … {hi_ok:g} °C ({temperature_hint(lo, hi)})")
+        for ch, v in {**r.outputs, **r.references, **r.proxies}.items():
+            big = float(np.nanmax(np.abs(v))) if v.size else 0.0
+            if big > VALUE_PLAUSIBLE_MAX:
+                out.append(f"{name}: {ch} reaches {big:.4g} {r.units.get(ch, '')}".rstrip()
+                           + f", beyond any plausible reading (|value| > "
+                           f"{VALUE_PLAUSIBLE_MAX:g}); a wrong scale in the mapping, or a "
+                           "corrupt file?")
+        dur = r.duration_s
+        rate = r.effective_rate_hz
+        if dur > MAX_DURATION_S:
+            out.append(f"{name}: time_s spans {dur / 86400.0:.3g} days; are the time stamps "
+                       "ms or µs read as seconds? (check the mapping's time unit)")
+        if not RATE_HZ_PLAUSIBLE[0] <= rate <= RATE_HZ_PLAUSIBLE[1]:
+            out.append(f"{name}: sample rate {rate:.4g} Hz is outside {RATE_HZ_PLAUSIBLE[0]:g} … "
+                       f"{RATE_HZ_PLAUSIBLE[1]:g} Hz; is the time column's unit (or the "
+                       "mapping's sample_rate_hz) right?")
+        if temp is not None and dur > 0:
+            ramp = float(np.ptp(temp)) / (dur / 60.0)
+            if ramp > MAX_RAMP_C_PER_MIN:
+                out.append(f"{name}: temperature_c changes {np.ptp(temp):.3g} °C in {dur:.3g} s "
+                           f"({ramp:.3g} °C/min); are the time stamps too short by a "
+                           "time-unit factor (s read as ms)?")
+        if wants_rate and r.time_s.size > 1:
+            gap = float(np.max(np.diff(r.time_s)))
+            if rate_window_s is not None and gap > rate_window_s:
+                segs = contiguous_segments(r.time_s)
+                longest = max(float(r.time_s[s.stop - 1] - r.time_s[s.start]) for s in segs)
+                out.append(f"{name}: the rate input (dT/dt over {rate_window_s:g} s) is used on "
+                           f"data with gaps up to {gap:.3g} s and {len(segs)} contiguous "
+                           f"segments (longest {longest:.3g} s): dT/dt restarts at every gap "
+                           "and is noisy on short bursts")
+    return out
+
+
+def outside_fraction(signals: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(S,) fraction of samples of each signal column outside ``[lo, hi]`` (NaN counts outside)."""
+    s = np.asarray(signals, dtype=np.float64)
+    if s.shape[0] == 0:
+        return np.zeros(s.shape[1])
+    inside = (s >= np.asarray(lo)[None, :]) & (s <= np.asarray(hi)[None, :])
+    return 1.0 - inside.mean(axis=0)
+
+
+def extrapolation_warnings(fractions: dict[str, float], ranges: dict[str, tuple[float, float]]
+                           ) -> list[str]:
+    """One sentence per signal whose test samples lie outside the trained range."""
+    out = []
+    for sig, frac in fractions.items():
+        if frac >= OUTSIDE_RANGE_WARN:
+            lo, hi = ranges.get(sig, (float("nan"), float("nan")))
+            out.append(f"extrapolation: {frac:.0%} of the test samples of {sig} lie outside the "
+                       f"trained range {lo:.4g} … {hi:.4g}; the models clamp there, so those "
+                       "samples get the drift at the range's edge")
+    return out

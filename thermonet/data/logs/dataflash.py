@@ -1,0 +1,291 @@
+"""ArduPilot DataFlash (``.bin``) reader, through pymavlink's ``DFReader_binary``.
+
+Messages read (``libraries/AP_InertialSensor/AP_InertialSensor_Logging.cpp``,
+``libraries/AP_Baro/AP_Baro_Logging.cpp``): ``IMU`` (multi-instance form with an
+``I`` field, or the older ``IMU``/``IMU2``/``IMU3``), ``BARO`` (``I`` field or
+``BARO``/``BAR2``/``BAR3``), each with its own temperature (``T``, ``Temp``).
+``TCLR`` (``TimeUS, I, SType, Temp, X, Y, Z``: the sensor-frame samples
+ArduPilot logs while it learns a calibration on board, ``SType`` 0 accel, 1 gyro)
+is used for an IMU that has no ``IMU`` messages, as ``tempcal_IMU.py --tclr``
+does; it is logged before any temperature correction, so nothing is undone.
+Units as logged: gyro rad/s, accel m/s², pressure Pa.  Device ids from
+``INS_GYR_ID`` / ``INS_GYR2_ID`` / ``INS_GYR3_ID`` (``INS_ACC*_ID``, ``BARO*_DEVID``).
+
+Calibration already applied, undone as ArduPilot's own
+``Tools/scripts/tempcal_IMU.py`` does (``IMUfit``): the logged ``IMU`` values
+are in the board frame after the offset/scale calibration and, where
+``INS_TCALn_ENABLE = 1``, after the temperature correction
+(``AP_InertialSensor_tempcal.cpp``, ``TCal::correct_sensor``: ``v -= P(T-35) -
+P(T_cal-35)``, T and T_cal clamped to TMIN..TMAX).  thermonet rotates back by
+the inverse of ``AHRS_ORIENTATION`` (pymavlink's ``Vector3.rotate_by_inverse_id``,
+as tempcal_IMU.py), then adds the temperature correction back — so the
+instance is the raw sensor-frame output.  Constant offsets (``INS_GYROFFS``,
+``INS_ACCOFFS``) only shift the drift by a constant, which the fits absorb (and
+ArduPilot's polynomial has no constant term), so they are left; an
+accelerometer scale other than 1 is undone (the drift is fitted before it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...core.errors import InputError
+from .base import (
+    FlightLog,
+    SensorInstance,
+    byte_ranges_note,
+    drop_phantoms,
+    screen_samples,
+    time_gaps,
+)
+
+__all__ = ["read_dataflash", "ardupilot_tcal_correction", "orientation_matrix"]
+
+_IMU_NAMES = {"IMU": 0, "IMU2": 1, "IMU3": 2}
+_BARO_NAMES = {"BARO": 0, "BAR2": 1, "BAR3": 2}
+_TEMP_REF = 35.0
+
+
+def orientation_matrix(orientation: int) -> np.ndarray:
+    """Matrix R with ``R @ v`` = ``v.rotate_by_inverse_id(orientation)`` (board → sensor frame)."""
+    from pymavlink.rotmat import Vector3
+
+    cols = []
+    for e in np.eye(3):
+        v = Vector3(*e).rotate_by_inverse_id(int(orientation))
+        if v is None:
+            raise InputError(f"AHRS_ORIENTATION {orientation} is not a rotation pymavlink knows")
+        cols.append([v.x, v.y, v.z])
+    return np.array(cols).T
+
+
+def ardupilot_tcal_correction(params: dict[str, float], imu: int, kind: str,
+                              temperature_c: np.ndarray) -> np.ndarray | None:
+    """What ``TCal::correct_sensor`` subtracted, (n, 3) SI, or None when the slot is off.
+
+    ``imu`` is 1-based (``INS_TCAL1``); ``kind`` ``gyro`` or ``acc``; T_cal is
+    ``INS_GYR<n>_CALTEMP`` / ``INS_ACC<n>_CALTEMP`` (the offset calibration's temperature).
+    """
+    from ..firmware import ardupilot_correction
+
+    pre = f"INS_TCAL{imu}_"
+    if params.get(pre + "ENABLE", 0.0) != 1.0:
+        return None
+    stype = "GYR" if kind == "gyro" else "ACC"
+    names = [pre + "TMIN", pre + "TMAX"] + [f"{pre}{stype}{k}_{ax}" for k in (1, 2, 3)
+                                            for ax in "XYZ"]
+    full = {n: params.get(n, 0.0) for n in names}
+    tcal = params.get(f"INS_{stype}{imu}_CALTEMP", _TEMP_REF)
+    return ardupilot_correction(full, kind, temperature_c, tcal, imu=imu)
+
+
+def _id(params: dict[str, float], kind: str, idx: int) -> int:
+    n = "" if idx == 0 else str(idx + 1)
+    name = {"gyro": f"INS_GYR{n}_ID", "acc": f"INS_ACC{n}_ID", "baro": f"BARO{idx + 1}_DEVID"}
+    return int(params.get(name[kind], 0))
+
+
+def _ranges(offsets: list[int]) -> list[tuple[int, int]]:
+    """Consecutive byte offsets grouped into [start, end) ranges."""
+    out: list[tuple[int, int]] = []
+    for o in sorted(set(offsets)):
+        if out and o == out[-1][1]:
+            out[-1] = (out[-1][0], o + 1)
+        else:
+            out.append((o, o + 1))
+    return out
+
+
+def _merge(ranges: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """Byte ranges, touching or overlapping ones joined."""
+    out: list[tuple[int, int]] = []
+    for a, b in sorted(ranges):
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
+def _open_reader(path: Path) -> tuple[Any, str]:
+    """pymavlink's reader with its index built in Python (its warnings are then Python
+    prints, captured and returned: the C indexer writes them to the process's stderr)."""
+    from pymavlink import DFReader
+
+    class Reader(DFReader.DFReader_binary):
+        def init_arrays_fast(self, progress_callback: Any = None) -> None:
+            self.init_arrays(progress_callback)
+
+    chatter = io.StringIO()
+    with contextlib.redirect_stderr(chatter), contextlib.redirect_stdout(chatter):
+        reader = Reader(str(path), zero_time_base=True)
+    return reader, chatter.getvalue()
+
+
+def _messages(reader: Any, types: list[str], sequential: bool, chatter: io.StringIO) -> Any:
+    """Yield the messages of ``types``: through pymavlink's index, or — when the index
+    stopped at a damaged message — by parsing every message in order, which resynchronises
+    on the next message header after damage."""
+    wanted = set(types)
+    while True:
+        with contextlib.redirect_stderr(chatter), contextlib.redirect_stdout(chatter):
+            m = reader.recv_msg() if sequential else reader.recv_match(type=types)
+        if m is None:
+            return
+        if not sequential or m.get_type() in wanted:
+            yield m
+
+
+def read_dataflash(path: str | Path) -> FlightLog:
+    """Read an ArduPilot DataFlash log into its sensor instances and parameters.
+
+    Raises
+    ------
+    InputError
+        Not a DataFlash log, truncated before any sensor data, no IMU/BARO
+        messages, no temperature, only zeros (one line naming the file).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError.at(path, "file not found")
+    with open(path, "rb") as fh:
+        head = fh.read(3)
+    if len(head) < 3 or head[:2] != b"\xa3\x95":
+        raise InputError.at(path, "not an ArduPilot DataFlash log (no 0xA3 0x95 header)")
+    size = path.stat().st_size
+    try:
+        reader, index_chatter = _open_reader(path)
+    except Exception as err:  # noqa: BLE001 — pymavlink raises anything on a corrupt file
+        # the 0xA3 0x95 header is there: what follows is a damaged DataFlash log
+        raise InputError.at(path, "damaged: a DataFlash header followed by messages that cannot "
+                            f"be parsed ({type(err).__name__}: "
+                            f"{str(err).splitlines()[0] if str(err) else ''})") from None
+    # pymavlink's index stops at the first message of an unknown type (a damaged type byte),
+    # silently dropping the rest of the log: read every message in order instead
+    stop = re.search(r"unknown msg type \S+ \(\d+\) at (\d+)", index_chatter)
+    sequential = stop is not None
+    damage: list[str] = []
+    chatter = io.StringIO()
+    rows: dict[tuple[str, int], list[list[float]]] = {}
+    params: dict[str, float] = {}
+    types = ["PARM", "TCLR"] + list(_IMU_NAMES) + list(_BARO_NAMES)
+    tclr: dict[tuple[str, int], list[list[float]]] = {}
+    skipped_msgs = 0
+    messages = _messages(reader, types, sequential, chatter)
+    while True:
+        try:
+            m = next(messages, None)
+        except Exception as err:  # noqa: BLE001
+            raise InputError.at(path, f"corrupt DataFlash message at byte "
+                                f"{getattr(reader, 'offset', 0):,} ({type(err).__name__}: "
+                                f"{str(err).splitlines()[0] if str(err) else ''})") from None
+        if m is None:
+            break
+        mtype = m.get_type()
+        try:
+            if mtype == "PARM":
+                params[str(m.Name)] = float(m.Value)
+                continue
+            d = m.to_dict()
+            _ = [float(d[k]) for k in ("TimeUS", "I") if k in d]
+        except (AttributeError, KeyError, TypeError, ValueError, UnicodeDecodeError):
+            skipped_msgs += 1    # a message whose fields do not parse: damaged, skipped
+            continue
+        if mtype == "TCLR":
+            kind = "acc" if int(d["SType"]) == 0 else "gyro"
+            tclr.setdefault((kind, int(d["I"])), []).append(
+                [d["TimeUS"] * 1e-6, d["X"], d["Y"], d["Z"], d["Temp"]])
+            continue
+        if mtype in _IMU_NAMES:
+            idx = int(d["I"]) if "I" in d else _IMU_NAMES[mtype]
+            rows.setdefault(("imu", idx), []).append(
+                [d["TimeUS"] * 1e-6, d["GyrX"], d["GyrY"], d["GyrZ"], d["AccX"], d["AccY"],
+                 d["AccZ"], d.get("T", np.nan)])
+        else:
+            idx = int(d["I"]) if "I" in d else _BARO_NAMES[mtype]
+            rows.setdefault(("baro", idx), []).append(
+                [d["TimeUS"] * 1e-6, d["Press"], d.get("Temp", np.nan)])
+    text = index_chatter + chatter.getvalue()
+    if sequential:   # the sequential pass reports every damaged stretch itself
+        bad = _merge([(int(o), int(o) + int(n)) for n, o in re.findall(
+            r"Skipped (\d+) bad bytes in log at offset (\d+)", chatter.getvalue())])
+        assert stop is not None
+        damage.append(f"a message of unknown type at byte {int(stop.group(1)):,} (pymavlink's "
+                      "index stops there; the rest was read message by message)")
+    else:
+        bad = _ranges([int(o) for o in re.findall(r"bad header .* at (\d+)", text)])
+    if bad:
+        damage.append(byte_ranges_note(bad, size))
+    if skipped_msgs:
+        damage.append(f"{skipped_msgs} messages whose fields do not parse skipped")
+    unread = sum(b - a for a, b in bad) / max(size, 1)
+    orient = int(params.get("AHRS_ORIENTATION", 0))
+    rot = orientation_matrix(orient) if orient else None
+    instances: list[SensorInstance] = []
+    for (group, idx), data in sorted(rows.items()):
+        a = np.asarray(data, dtype=np.float64)
+        n_read = a.shape[0]
+        has_temp = bool(np.any(np.isfinite(a[:, -1])))  # NaN throughout: no thermometer
+        kind0 = "baro" if group == "baro" else "gyro"
+        keep, dropped = screen_samples(kind0, a[:, 0], a[:, 1:-1] if group == "baro"
+                                       else a[:, 1:4], a[:, -1] if has_temp else None)
+        if group != "baro":   # the accelerometer's values of the same IMU messages
+            keep2, dropped2 = screen_samples("acc", a[:, 0], a[:, 4:7], None)
+            dropped += [x for x in dropped2 if x not in dropped]
+            keep &= keep2
+        a = a[keep]
+        a = a[np.argsort(a[:, 0], kind="stable")]
+        t, temp = a[:, 0], a[:, -1]
+        temperature = temp if has_temp and a.shape[0] else None
+        if group == "baro":
+            inst = SensorInstance("baro", idx, _id(params, "baro", idx), t, temperature,
+                                  a[:, 1:2], notes=[])
+            inst.mark_damage(n_read, dropped)
+            instances.append(inst)
+            continue
+        for kind, cols in (("gyro", slice(1, 4)), ("acc", slice(4, 7))):
+            v = a[:, cols].copy()
+            notes: list[str] = []
+            if rot is not None:
+                v = v @ rot.T
+                notes.append(f"rotated back to the sensor frame (AHRS_ORIENTATION {orient})")
+            if kind == "acc":
+                n = "" if idx == 0 else str(idx + 1)
+                scale = np.array([params.get(f"INS_ACC{n}SCAL_{ax}", 1.0) for ax in "XYZ"])
+                if np.all(scale > 0) and np.any(scale != 1.0):
+                    v = v / scale
+                    notes.append("accelerometer scale calibration (INS_ACC*SCAL) undone")
+            if temperature is not None:
+                corr = ardupilot_tcal_correction(params, idx + 1, kind, temperature)
+                if corr is not None:
+                    v = v + corr
+                    notes.append(f"INS_TCAL{idx + 1}_ENABLE=1: the temperature correction the "
+                                 "log applied was added back")
+            inst = SensorInstance(kind, idx, _id(params, kind, idx), t, temperature, v,
+                                  notes=notes)
+            inst.mark_damage(n_read, dropped)
+            instances.append(inst)
+    have_imu = {idx for (group, idx) in rows if group == "imu"}
+    for (kind, idx), data in sorted(tclr.items()):
+        if idx in have_imu:
+            continue
+        a = np.asarray(data, dtype=np.float64)
+        a = a[np.all(np.isfinite(a), axis=1)]
+        a = a[np.argsort(a[:, 0], kind="stable")]
+        instances.append(SensorInstance(kind, idx, _id(params, kind, idx), a[:, 0], a[:, -1],
+                                        a[:, 1:4], notes=["from TCLR (sensor frame, before "
+                                                          "temperature correction)"]))
+    instances, phantoms = drop_phantoms(instances, "ardupilot")
+    damage += phantoms
+    names = sorted(params)
+    if names and not any(re.match(r"^(INS_|AHRS_)", n) for n in names):
+        raise InputError.at(path, "no INS_* parameters: " + (
+            f"damaged ({'; '.join(damage)})" if damage else "not an ArduPilot log"))
+    return FlightLog(path=path, autopilot="ardupilot", instances=instances, params=params,
+                     notes=time_gaps(instances), damage=damage, unread_fraction=unread).check()

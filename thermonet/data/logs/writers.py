@@ -1,0 +1,159 @@
+"""Write a :class:`~thermonet.data.logs.base.FlightLog` as a PX4 ULog or an ArduPilot DataFlash log.
+
+Used by the simulator (``thermonet simulate fc-board --out FILE.ulg|.bin``) so
+that simulated boards go through the same readers — and the autopilots' own
+tools (pyulog, pymavlink) — as real logs.
+
+ULog (PX4 ``docs``: "ULog File Format"): the 16-byte header (``ULog`` magic
+``55 4c 6f 67 01 12 35``, version 1, start timestamp µs), a flag-bits
+message ``B``, format messages ``F`` (``sensor_gyro:uint64_t timestamp;...``),
+an info message ``I`` (``sys_name``), parameters ``P`` (``int32_t`` / ``float``),
+subscriptions ``A`` (multi id, msg id, topic) and data ``D``.  Fields as in
+PX4's ``msg/SensorGyro.msg`` / ``SensorAccel.msg`` / ``SensorBaro.msg``
+(``timestamp``, ``timestamp_sample``, ``device_id``, values, ``temperature``);
+pressure in Pa, as current PX4.
+
+DataFlash (``libraries/AP_Logger/LogStructure.h``): every message starts
+``A3 95 <type>``; type 128 is ``FMT`` (``BBnNZ``: type, length, name, format,
+columns), then the ``PARM`` (``QNf``), ``IMU`` (``QBfffffff``: TimeUS, I, GyrX,
+GyrY, GyrZ, AccX, AccY, AccZ, T — the multi-instance form with an ``I`` field)
+and ``BARO`` (``QBff``: TimeUS, I, Press, Temp) formats, packed little-endian.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from ...core.errors import InputError
+from ...core.fileio import atomic_path
+from .base import FlightLog, SensorInstance
+
+__all__ = ["write_ulog", "write_dataflash", "write_log"]
+
+_ULOG_MAGIC = b"ULog\x01\x12\x35"
+_INT_PARAMS = ("_ID", "_ENABLE", "SDLOG_", "_DEVID", "ORIENTATION", "_OPTIONS")
+
+
+def _is_int_param(name: str) -> bool:
+    return any(tag in name for tag in _INT_PARAMS)
+
+
+def _umsg(mtype: bytes, payload: bytes) -> bytes:
+    return struct.pack("<HB", len(payload), mtype[0]) + payload
+
+
+def _ulog_bytes(log: FlightLog) -> bytes:
+    out = bytearray(_ULOG_MAGIC + bytes([1]) + struct.pack("<Q", 0))
+    out += _umsg(b"B", bytes(16) + struct.pack("<QQQ", 0, 0, 0))
+    formats = {
+        "gyro": ("sensor_gyro", "uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;"
+                 "float x;float y;float z;float temperature;", "<QQIffff"),
+        "acc": ("sensor_accel", "uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;"
+                "float x;float y;float z;float temperature;", "<QQIffff"),
+        "baro": ("sensor_baro", "uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;"
+                 "float pressure;float temperature;", "<QQIff"),
+    }
+    for topic, fields, _ in formats.values():
+        out += _umsg(b"F", f"{topic}:{fields}".encode())
+    key = b"char[6] sys_name"
+    out += _umsg(b"I", bytes([len(key)]) + key + b"PX4sim")
+    for name, value in sorted(log.params.items()):
+        if _is_int_param(name):
+            k = f"int32_t {name}".encode()
+            out += _umsg(b"P", bytes([len(k)]) + k + struct.pack("<i", int(value)))
+        else:
+            k = f"float {name}".encode()
+            out += _umsg(b"P", bytes([len(k)]) + k + struct.pack("<f", float(value)))
+    records: list[tuple[int, bytes]] = []
+    for msg_id, inst in enumerate(log.instances):
+        if inst.kind not in formats:
+            continue
+        topic, _, fmt = formats[inst.kind]
+        out += _umsg(b"A", struct.pack("<BH", inst.instance, msg_id) + topic.encode())
+        temp = inst.temperature_c if inst.temperature_c is not None else np.full(
+            inst.n_samples, np.nan)
+        us = np.round(inst.time_s * 1e6).astype(np.int64)
+        for i in range(inst.n_samples):
+            body = struct.pack(fmt, int(us[i]), int(us[i]), inst.device_id,
+                               *[float(v) for v in inst.values[i]], float(temp[i]))
+            records.append((int(us[i]), _umsg(b"D", struct.pack("<H", msg_id) + body)))
+    records.sort(key=lambda r: r[0])
+    for _, rec in records:
+        out += rec
+    return bytes(out)
+
+
+def _df(mtype: int, payload: bytes) -> bytes:
+    return b"\xa3\x95" + bytes([mtype]) + payload
+
+
+def _dataflash_bytes(log: FlightLog) -> bytes:
+    defs = {128: ("FMT", "BBnNZ", "Type,Length,Name,Format,Columns"),
+            64: ("PARM", "QNf", "TimeUS,Name,Value"),
+            65: ("IMU", "QBfffffff", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,T"),
+            66: ("BARO", "QBff", "TimeUS,I,Press,Temp")}
+    sizes = {"FMT": struct.calcsize("<BB4s16s64s"), "PARM": struct.calcsize("<Q16sf"),
+             "IMU": struct.calcsize("<QB7f"), "BARO": struct.calcsize("<QBff")}
+    out = bytearray()
+    for mtype, (name, fmt, cols) in sorted(defs.items(), key=lambda d: d[0] != 128):
+        out += _df(128, struct.pack("<BB4s16s64s", mtype, sizes[name] + 3, name.encode(),
+                                    fmt.encode(), cols.encode()))
+    for name, value in sorted(log.params.items()):
+        out += _df(64, struct.pack("<Q16sf", 0, name.encode()[:16], float(value)))
+    records: list[tuple[int, int, bytes]] = []
+    imus: dict[int, dict[str, SensorInstance]] = {}
+    for inst in log.instances:
+        if inst.kind in ("gyro", "acc"):
+            imus.setdefault(inst.instance, {})[inst.kind] = inst
+    for k, pair in sorted(imus.items()):
+        if set(pair) != {"gyro", "acc"}:
+            raise InputError(f"IMU {k} needs both a gyro and an accelerometer for a DataFlash IMU")
+        g, a = pair["gyro"], pair["acc"]
+        temp = g.temperature_c if g.temperature_c is not None else np.zeros(g.n_samples)
+        us = np.round(g.time_s * 1e6).astype(np.int64)
+        for i in range(g.n_samples):
+            records.append((int(us[i]), k, _df(65, struct.pack(
+                "<QB7f", int(us[i]), k, *[float(v) for v in g.values[i]],
+                *[float(v) for v in a.values[i]], float(temp[i])))))
+    for inst in log.instances:
+        if inst.kind != "baro":
+            continue
+        temp = inst.temperature_c if inst.temperature_c is not None else np.zeros(inst.n_samples)
+        us = np.round(inst.time_s * 1e6).astype(np.int64)
+        for i in range(inst.n_samples):
+            records.append((int(us[i]), 10 + inst.instance, _df(66, struct.pack(
+                "<QBff", int(us[i]), inst.instance, float(inst.values[i, 0]), float(temp[i])))))
+    records.sort(key=lambda r: (r[0], r[1]))
+    for _, _, rec in records:
+        out += rec
+    return bytes(out)
+
+
+def _write_bytes(path: Path, data: bytes) -> Path:
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return path
+
+
+def write_ulog(log: FlightLog, path: str | Path) -> Path:
+    """Write ``log`` as a PX4 ULog (atomically)."""
+    return _write_bytes(Path(path), _ulog_bytes(log))
+
+
+def write_dataflash(log: FlightLog, path: str | Path) -> Path:
+    """Write ``log`` as an ArduPilot DataFlash ``.bin`` (atomically)."""
+    return _write_bytes(Path(path), _dataflash_bytes(log))
+
+
+def write_log(log: FlightLog, path: str | Path) -> Path:
+    """By suffix: ``.ulg`` → ULog, ``.bin`` → DataFlash."""
+    ext = Path(path).suffix.lower()
+    if ext == ".ulg":
+        return write_ulog(log, path)
+    if ext == ".bin":
+        return write_dataflash(log, path)
+    raise InputError.at(path, "a flight-controller log is written as .ulg (PX4) or .bin "
+                        "(ArduPilot)")

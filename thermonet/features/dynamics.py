@@ -1,0 +1,465 @@
+"""Dynamic inputs: temperature rate, thermal lag and hysteresis memory, one definition each.
+
+A *dynamic input* depends on the temperature's past, not only on its present
+value.  Each is a causal recurrence with O(1) state per sample — what a
+microcontroller runs — defined once here; the training features
+(:func:`thermonet.features.inputs.signal_matrix`), the torch-free runtime
+(``export/thermonet_runtime.py``, its own copy, checked against this module by
+the tests) and the C header's ``<prefix>_step`` compute the same numbers.
+
+=================== ============================================ ====================== =====
+feature             value                                        signal                 unit
+=================== ============================================ ====================== =====
+``rate``            :math:`\\dot T`, filtered, τ = 60 s            ``rate_c_per_min``      °C/min
+``rate_<tau>``      the same with time constant ``tau`` s         ``rate_<tau>_c_per_min`` °C/min
+``lag_<tau>``       :math:`T - \\mathrm{EMA}_\\tau(T)`              ``lag_<tau>_c``          °C
+``play_<w>``        :math:`T - P_w(T)`, play of half-width w °C   ``play_<w>_c``           °C
+=================== ============================================ ====================== =====
+
+``tau`` and ``w`` are written as decimal numbers (``lag_300``, ``play_0.5``).
+
+**Lag** (first-order thermal lag).  :math:`E` follows :math:`\\tau\\,\\dot E = T - E`
+with :math:`T` linear between samples (exact for any sample interval
+:math:`\\Delta t_k`).  With :math:`e = T - E`, :math:`h = \\Delta t_k/\\tau` and
+:math:`g(h) = (1 - e^{-h})/h`:
+
+.. math:: e_k = e_{k-1} + g(h)\\,\\big[(T_k - T_{k-1}) - h\\, e_{k-1}\\big]
+
+(the same as :math:`e_k = e^{-h} e_{k-1} + (T_k - T_{k-1})\\, g(h)`, written so
+float32 keeps its precision when :math:`h \\ll 1`).  On a ramp of slope
+:math:`r`, :math:`e \\to r\\tau`: ``lag_<tau>`` is the case-to-die gradient a
+thermometer with time constant τ lags behind.
+
+**Rate** is the time derivative of that filtered temperature,
+:math:`\\dot E = e/\\tau`, in °C/min: :math:`\\text{rate} = 60\\, e/\\tau_r`.  It is
+exact (after ~5 τ) on a ramp, lags a change of slope by τ, and turns white
+thermometer noise σ into about :math:`60\\,σ/\\tau_r` °C/min.  Default τ_r = 60 s
+(:data:`RATE_TAU_S`): chamber ramps change over minutes to hours.
+
+**Play** (backlash, the simulator's own hysteresis model,
+:func:`thermonet.sim.device.play_operator`): the state follows T only once T
+has moved more than w away from it,
+
+.. math:: P_k = \\min(\\max(P_{k-1},\\, T_k - w),\\, T_k + w),
+
+and the input is :math:`T_k - P_k \\in [-w, w]`: +w while heating, −w while
+cooling, and in a soak the value the last excursion left behind (memory).
+
+**Start-up and gaps.**  The first sample of a stream, and the first sample after
+a gap (time since the last sample with a finite temperature > ``gap_s``, stored
+with the model), start the state afresh: :math:`E = T` (lag 0, rate 0) and
+:math:`P = T` (play 0).  A sample after a gap raises the out-of-range flag.
+**Missing temperature** (NaN/inf) gives NaN dynamic inputs (so NaN drift, flag
+set) and leaves the state untouched.  **Time** must be finite and strictly
+increasing: anything else is refused (:class:`TimeError`).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ..core.errors import ConfigError, InputError
+
+# ``gap_s`` "auto" is GAP_FACTOR × the median sample interval of the first training run: the
+# same factor that cuts a log into contiguous segments (re-exported here)
+from ..core.recording import GAP_FACTOR
+
+__all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInput", "Rate",
+           "Lag", "Play", "REGISTRY", "compute", "parse_dynamic", "is_dynamic", "check_time",
+           "dynamic_signals", "default_gap_s", "constants", "from_constants", "lag_error",
+           "play_state", "reference_signals", "saturation_margin"]
+
+#: Time constant of ``rate`` (s).
+RATE_TAU_S = 60.0
+#: Gap limit (s) of a spec built without data and without an explicit ``gap_s``.
+DEFAULT_GAP_S = 10.0
+#: Format of the constants block stored with a model.
+CONSTANTS_VERSION = 1
+
+_NUM = r"(\d+(?:\.\d+)?)"
+
+
+class TimeError(InputError):
+    """Time that is not finite and strictly increasing."""
+
+
+def check_time(time_s: np.ndarray, source: str = "time_s") -> np.ndarray:
+    """float64 copy of ``time_s`` after checking it is finite and strictly increasing.
+
+    Raises
+    ------
+    TimeError
+        Naming the first bad index (0-based) and the values.
+    """
+    t = np.asarray(time_s, dtype=np.float64)
+    if t.ndim != 1:
+        raise TimeError(f"{source}: expected a 1-D array of seconds, got shape {t.shape}")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise TimeError(f"{source}: sample {int(bad[0])}: time is {float(t[bad[0]])!r} "
+                        "(must be finite seconds)")
+    dt = np.diff(t)
+    back = np.flatnonzero(dt <= 0)
+    if back.size:
+        k = int(back[0]) + 1
+        what = "repeated" if dt[k - 1] == 0 else "decreasing"
+        raise TimeError(f"{source}: sample {k}: time {what} ({float(t[k - 1])!r} then "
+                        f"{float(t[k])!r} s); "
+                        "time must increase strictly")
+    return t
+
+
+@dataclass(frozen=True)
+class DynamicInput:
+    """One dynamic input: its feature name, signal name, unit and constants."""
+
+    name: str
+    kind: ClassVar[str] = ""
+    unit: ClassVar[str] = "degC"
+    #: Name of the field holding the recurrence's one constant (``tau_s``, ``half_width_c``).
+    param_key: ClassVar[str] = ""
+
+    @property
+    def signal(self) -> str:
+        return f"{self.name}_c"
+
+    @property
+    def param(self) -> float:
+        """The one constant of the recurrence (τ in s, or w in °C)."""
+        return float(getattr(self, self.param_key))
+
+    def constants(self) -> dict[str, Any]:
+        """What the model stores and every mirror (runtime, C) reads back."""
+        return {"name": self.name, "kind": self.kind, "signal": self.signal,
+                "unit": self.unit, self.param_key: getattr(self, self.param_key)}
+
+    def from_state(self, temperature: np.ndarray, e: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
+@dataclass(frozen=True)
+class Rate(DynamicInput):
+    """Filtered dT/dt in °C/min: :math:`60\\, e_\\tau / \\tau`."""
+
+    tau_s: float = RATE_TAU_S
+    kind: ClassVar[str] = "rate"
+    unit: ClassVar[str] = "degC/min"
+    param_key: ClassVar[str] = "tau_s"
+
+    @property
+    def signal(self) -> str:
+        return "rate_c_per_min" if self.name == "rate" else f"{self.name}_c_per_min"
+
+
+@dataclass(frozen=True)
+class Lag(DynamicInput):
+    """:math:`T - \\mathrm{EMA}_\\tau(T)` in °C."""
+
+    tau_s: float = RATE_TAU_S
+    kind: ClassVar[str] = "lag"
+    param_key: ClassVar[str] = "tau_s"
+
+
+@dataclass(frozen=True)
+class Play(DynamicInput):
+    """:math:`T - P_w(T)` in °C, the play operator of half-width ``w``."""
+
+    half_width_c: float = 0.5
+    kind: ClassVar[str] = "play"
+    param_key: ClassVar[str] = "half_width_c"
+
+
+def _positive(name: str, text: str) -> float:
+    v = float(text)
+    if not (math.isfinite(v) and v > 0):
+        raise ConfigError(f"input '{name}': the constant must be a positive number, got {text}")
+    return v
+
+
+#: Name pattern → constructor.  ``rate`` alone has τ = :data:`RATE_TAU_S`.
+REGISTRY: list[tuple[re.Pattern[str], Callable[[str, re.Match[str]], DynamicInput]]] = [
+    (re.compile(r"^rate$"), lambda n, m: Rate(n, RATE_TAU_S)),
+    (re.compile(rf"^rate_{_NUM}$"), lambda n, m: Rate(n, _positive(n, m.group(1)))),
+    (re.compile(rf"^lag_{_NUM}$"), lambda n, m: Lag(n, _positive(n, m.group(1)))),
+    (re.compile(rf"^play_{_NUM}$"), lambda n, m: Play(n, _positive(n, m.group(1)))),
+]
+_KINDS: dict[str, type[DynamicInput]] = {"rate": Rate, "lag": Lag, "play": Play}
+
+
+def parse_dynamic(name: str) -> DynamicInput | None:
+    """The dynamic input a feature name denotes, or None for a static feature."""
+    for pattern, make in REGISTRY:
+        m = pattern.match(name)
+        if m:
+            return make(name, m)
+    return None
+
+
+def is_dynamic(name: str) -> bool:
+    return parse_dynamic(name) is not None
+
+
+def dynamic_signals(inputs: Sequence[str]) -> list[DynamicInput]:
+    """The dynamic inputs among feature names, in input order."""
+    out = []
+    for name in inputs:
+        d = parse_dynamic(name)
+        if d is not None:
+            out.append(d)
+    return out
+
+
+def default_gap_s(runs: Sequence[Any]) -> float:
+    """``gap_s`` "auto": :data:`GAP_FACTOR` × the median sample interval of the first run."""
+    t = np.asarray(runs[0].time_s, dtype=np.float64)
+    if t.size < 2:
+        raise InputError(f"run '{runs[0].run_id}': one sample; cannot derive a sample interval "
+                         "for the dynamic inputs' gap rule")
+    return float(GAP_FACTOR * np.median(np.diff(t)))
+
+
+def constants(inputs: Sequence[str], gap_s: float) -> dict[str, Any]:
+    """The block stored with a model (checkpoint, ONNX metadata ``dynamic_inputs``, C header)."""
+    return {"version": CONSTANTS_VERSION, "gap_s": float(gap_s),
+            "start": "E = T (lag 0, rate 0), P = T (play 0)",
+            "gap": "dt since the last finite-temperature sample > gap_s: restart, flag set",
+            "inputs": [d.constants() for d in dynamic_signals(inputs)]}
+
+
+def from_constants(block: Any, inputs: Sequence[str], source: str = "model") -> float:
+    """Check a stored constants block against the inputs' own definitions; return gap_s.
+
+    Raises
+    ------
+    ConfigError
+        A missing or malformed block, or constants that differ from this
+        version's definition of the input (a model is never re-interpreted).
+    """
+    if not isinstance(block, dict) or block.get("version") != CONSTANTS_VERSION:
+        raise ConfigError(f"{source}: dynamic-input constants missing or of an unknown version "
+                          f"(need version {CONSTANTS_VERSION}); refit the model")
+    gap = block.get("gap_s")
+    if isinstance(gap, bool) or not isinstance(gap, (int, float)) or not (
+            math.isfinite(gap) and gap > 0):
+        raise ConfigError(f"{source}: dynamic-input constant gap_s {gap!r} is not a positive "
+                          "number")
+    expected = constants(inputs, gap)["inputs"]
+    if block.get("inputs") != expected:
+        raise ConfigError(f"{source}: stored dynamic-input constants {block.get('inputs')!r} "
+                          f"differ from the definitions {expected!r}")
+    return float(gap)
+
+
+def saturation_margin(inputs: Sequence[str], signals: Sequence[str], lo: np.ndarray,
+                      hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The trained range with a margin where a ``play_<w>`` input reached its bound ±w.
+
+    ``T − P`` sits exactly at ±w on every steady ramp; a float32 board computes it
+    a few ulps of T away, which must not raise the out-of-range flag on every
+    heating sample.  A reached bound moves out by 0.1 % of w (the input can never
+    exceed ±w, so the clamp is unchanged in effect); an unreached one stays.
+    """
+    lo, hi = np.array(lo, dtype=np.float64), np.array(hi, dtype=np.float64)
+    for d in dynamic_signals(inputs):
+        if isinstance(d, Play) and d.signal in signals:
+            j, w = list(signals).index(d.signal), d.half_width_c
+            if hi[j] >= w * (1 - 1e-6):
+                hi[j] = w * (1 + 1e-3)
+            if lo[j] <= -w * (1 - 1e-6):
+                lo[j] = -w * (1 + 1e-3)
+    return lo, hi
+
+
+# -- the recurrences, vectorised (training) -------------------------------------------------------
+def _block_layout(n: int) -> tuple[int, int]:
+    # ≈√N blocks, at most 256 long: long enough to vectorise, short enough for the cache
+    b = min(256, max(16, math.isqrt(max(n, 1))))
+    return b, -(-n // b)
+
+
+def _blocked(x: np.ndarray, fill: float, b: int, m: int) -> np.ndarray:
+    """(b, m) layout: column j is block j, row i its i-th sample (contiguous rows)."""
+    out = np.full(b * m, fill, dtype=np.float64)
+    out[:x.size] = x
+    return np.ascontiguousarray(out.reshape(m, b).T)
+
+
+def _linear_scan(a: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """:math:`y_k = a_k y_{k-1} + c_k` (y_{-1} = 0) in O(N), no division, no window factor.
+
+    Samples are cut into √N blocks; one pass composes each block's map
+    (vectorised over blocks), a scalar pass chains the ≈√N block maps, and a
+    last pass replays every block from its incoming value.  Underflow of a
+    product to 0 is exact here (the past is forgotten), so it is stable for
+    any time constant.
+    """
+    n = a.size
+    if n == 0:
+        return np.zeros(0)
+    b, m = _block_layout(n)
+    ab, cb = _blocked(a, 1.0, b, m), _blocked(c, 0.0, b, m)
+    y, p = np.zeros(m), np.ones(m)
+    for i in range(b):
+        y = ab[i] * y + cb[i]
+        p = p * ab[i]
+    inc = np.empty(m)
+    s = 0.0
+    for j, (pj, yj) in enumerate(zip(p.tolist(), y.tolist(), strict=True)):
+        inc[j] = s
+        s = pj * s + yj
+    out = np.empty((b, m))
+    y = inc
+    for i in range(b):
+        y = ab[i] * y + cb[i]
+        out[i] = y
+    return out.T.reshape(-1)[:n]
+
+
+def _clamp_scan(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """:math:`z_k = \\min(\\max(z_{k-1}, lo_k), hi_k)` in O(N) (z_0 = lo_0 = hi_0 at a restart).
+
+    Clamps compose into clamps, so the same three-pass block scan as
+    :func:`_linear_scan` applies; every value is produced by exactly the
+    comparisons the sequential loop makes (bitwise identical).
+    """
+    n = lo.size
+    if n == 0:
+        return np.zeros(0)
+    b, m = _block_layout(n)
+    lob, hib = _blocked(lo, -np.inf, b, m), _blocked(hi, np.inf, b, m)
+    cl, ch = np.full(m, -np.inf), np.full(m, np.inf)
+    for i in range(b):
+        cl = np.minimum(np.maximum(cl, lob[i]), hib[i])
+        ch = np.minimum(np.maximum(ch, lob[i]), hib[i])
+    inc = np.empty(m)
+    s = 0.0
+    for j, (lj, hj) in enumerate(zip(cl.tolist(), ch.tolist(), strict=True)):
+        inc[j] = s
+        s = min(max(s, lj), hj)
+    out = np.empty((b, m))
+    z = inc
+    for i in range(b):
+        z = np.minimum(np.maximum(z, lob[i]), hib[i])
+        out[i] = z
+    return out.T.reshape(-1)[:n]
+
+
+def _g(h: np.ndarray) -> np.ndarray:
+    """:math:`(1 - e^{-h})/h`, 1 at h = 0."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        g = -np.expm1(-h) / h
+    return np.where(h > 0, g, 1.0)
+
+
+def lag_error(t: np.ndarray, temp: np.ndarray, restart: np.ndarray, tau_s: float) -> np.ndarray:
+    """:math:`e = T - \\mathrm{EMA}_\\tau(T)` on finite-T samples (see the module docstring)."""
+    dt = np.diff(t, prepend=t[:1])
+    dT = np.diff(temp, prepend=temp[:1])
+    h = dt / tau_s
+    g = _g(h)
+    a = 1.0 - h * g                # e^{-h}, as the C header computes it
+    c = dT * g
+    a = np.where(restart, 0.0, a)
+    c = np.where(restart, 0.0, c)
+    return _linear_scan(a, c)
+
+
+def play_state(temp: np.ndarray, restart: np.ndarray, half_width: float) -> np.ndarray:
+    """State :math:`P` of the play operator of half-width ``half_width`` (restart: P = T)."""
+    lo = np.where(restart, temp, temp - half_width)
+    hi = np.where(restart, temp, temp + half_width)
+    return _clamp_scan(lo, hi)
+
+
+def _prepare(time_s: np.ndarray, temperature_c: np.ndarray, gap_s: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    t = check_time(time_s)
+    temp = np.asarray(temperature_c, dtype=np.float64)
+    if temp.shape != t.shape:
+        raise InputError(f"temperature_c has shape {temp.shape}, time_s {t.shape}")
+    valid = np.isfinite(temp)
+    tv, Tv = t[valid], temp[valid]
+    restart = np.ones(tv.size, dtype=bool)
+    restart[1:] = np.diff(tv) > gap_s
+    return valid, tv, Tv, restart
+
+
+def compute(time_s: np.ndarray, temperature_c: np.ndarray, inputs: Sequence[str],
+            gap_s: float) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Every dynamic signal of ``inputs`` for one stream, vectorised, O(N).
+
+    Parameters
+    ----------
+    time_s : (N,) s, finite and strictly increasing
+    temperature_c : (N,) °C; NaN/inf samples are missing
+    inputs : feature names (static ones are ignored)
+    gap_s : the gap limit, s
+
+    Returns
+    -------
+    signals : dict signal name -> (N,) float64 (NaN where T is missing)
+    gap : (N,) bool, true at the first sample after a gap (start-up excluded)
+    """
+    if not (math.isfinite(gap_s) and gap_s > 0):
+        raise ConfigError(f"gap_s must be a positive number of seconds, got {gap_s!r}")
+    valid, tv, Tv, restart = _prepare(time_s, temperature_c, gap_s)
+    n = valid.size
+    out: dict[str, np.ndarray] = {}
+    cache: dict[float, np.ndarray] = {}
+    for d in dynamic_signals(inputs):
+        col = np.full(n, np.nan)
+        if tv.size:
+            if isinstance(d, Play):
+                col[valid] = Tv - play_state(Tv, restart, d.half_width_c)
+            else:
+                tau = d.param
+                if tau not in cache:
+                    cache[tau] = lag_error(tv, Tv, restart, tau)
+                e = cache[tau]
+                col[valid] = 60.0 * e / tau if isinstance(d, Rate) else e
+        out[d.signal] = col
+    gap = np.zeros(n, dtype=bool)
+    idx = np.flatnonzero(valid)
+    if idx.size:
+        gap[idx[1:]] = restart[1:]
+    return out, gap
+
+
+def reference_signals(time_s: Sequence[float], temperature_c: Sequence[float],
+                      inputs: Sequence[str], gap_s: float
+                      ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The same as :func:`compute`, one sample at a time (plain loop; the tests' oracle)."""
+    check_time(np.asarray(time_s, dtype=np.float64))
+    dyn = dynamic_signals(inputs)
+    n = len(time_s)
+    out = {d.signal: np.full(n, np.nan) for d in dyn}
+    gap = np.zeros(n, dtype=bool)
+    started = False
+    t_prev = T_prev = 0.0
+    state: list[float] = [0.0] * len(dyn)
+    for k in range(n):
+        t, T = float(time_s[k]), float(temperature_c[k])
+        if not math.isfinite(T):
+            continue
+        restart = not started or (t - t_prev) > gap_s
+        gap[k] = started and restart
+        for j, d in enumerate(dyn):
+            if restart:
+                state[j] = T if isinstance(d, Play) else 0.0
+            elif isinstance(d, Play):
+                state[j] = min(max(state[j], T - d.half_width_c), T + d.half_width_c)
+            else:
+                h = (t - t_prev) / d.param
+                g = -math.expm1(-h) / h
+                state[j] = state[j] + g * ((T - T_prev) - h * state[j])
+            v = state[j]
+            out[d.signal][k] = (T - v if isinstance(d, Play)
+                                else 60.0 * v / d.param if isinstance(d, Rate) else v)
+        started, t_prev, T_prev = True, t, T
+    return out, gap

@@ -1,0 +1,220 @@
+"""The family registry: the built-in families by name, plug-ins by entry point (torch-free).
+
+A family is a subclass of :class:`thermonet.models.Family` registered under the lowercase
+name a config uses.  The built-in ones are listed in :data:`BUILTIN` as ``"module:Class"``;
+a researcher's own family, in their own installed package, joins through the entry-point
+group :data:`ENTRY_POINT_GROUP` (``thermonet.families``)::
+
+    [project.entry-points."thermonet.families"]
+    my-family = "my_package.family:MyFamily"
+
+Names are listed without importing anything; a family's class is imported when it is
+built.  :func:`models` is the registry as one dict of classes (``thermonet.models.MODELS``):
+once it exists, a family set into it (``MODELS["mine"] = Mine``) is registered too.  :func:`family_signature` reads a family's hyper-parameter names and input limit from
+its source without importing it where it can (the built-ins: a config is checked before
+torch loads) and imports the class otherwise.  A plug-in cannot take a built-in's name.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import importlib.util
+import inspect
+import warnings
+from dataclasses import dataclass
+from importlib.metadata import EntryPoint, entry_points
+from typing import TYPE_CHECKING, Any
+
+from ..core.errors import ConfigError
+
+if TYPE_CHECKING:
+    from .base import Family
+
+__all__ = ["BUILTIN", "ENTRY_POINT_GROUP", "FamilySignature", "family_names", "get_family",
+           "build_family", "family_signature", "check_hyper", "models"]
+
+#: The built-in families: name -> ``"module:Class"``.
+BUILTIN: dict[str, str] = {
+    "linear": "thermonet.models.linear:Linear",
+    "poly": "thermonet.models.poly:Poly",
+    "lorentz": "thermonet.models.lorentz:Lorentz",
+    "ts-fuzzy": "thermonet.models.fuzzy:TSFuzzy",
+    "rbf": "thermonet.models.rbf:RBF",
+}
+
+#: The entry-point group a package registers its own families in (name -> Family subclass).
+ENTRY_POINT_GROUP = "thermonet.families"
+
+#: Keyword arguments of every family's constructor that are not hyper-parameters.
+_SHAPE = ("n_inputs", "n_outputs")
+
+
+#: The registry as classes, made on first use of :func:`models` (it imports every family).
+_MODELS: dict[str, type[Family]] | None = None
+
+
+def _plugins() -> dict[str, EntryPoint]:
+    """The installed plug-in families (the first of a name wins; built-in names are kept)."""
+    out: dict[str, EntryPoint] = {}
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name not in BUILTIN and ep.name not in out:
+            out[ep.name] = ep
+    return out
+
+
+def family_names() -> list[str]:
+    """Every registered family's name: the built-ins, then the installed plug-ins."""
+    if _MODELS is not None:
+        return list(_MODELS)
+    return [*BUILTIN, *_plugins()]
+
+
+def _target(name: str) -> str:
+    if isinstance(name, str) and _MODELS is None:
+        if name in BUILTIN:
+            return BUILTIN[name]
+        ep = _plugins().get(name)
+        if ep is not None:
+            return str(ep.value)
+    raise ConfigError(f"unknown model family {name!r} (valid: {', '.join(family_names())})")
+
+
+def get_family(name: str) -> type[Family]:
+    """The family class registered as ``name`` (imported now).
+
+    Raises
+    ------
+    ConfigError
+        (a ``ValueError``) naming the valid families; or naming a plug-in whose entry point
+        does not load or is not a :class:`~thermonet.models.Family` subclass.
+    """
+    from .base import Family
+
+    if _MODELS is not None:
+        try:
+            return _MODELS[name]
+        except (KeyError, TypeError):
+            raise ConfigError(f"unknown model family {name!r} "
+                              f"(valid: {', '.join(family_names())})") from None
+    target = _target(name)
+    module, _, attr = target.partition(":")
+    try:
+        obj: Any = importlib.import_module(module)
+        for part in attr.split("."):
+            obj = getattr(obj, part)
+    except (ImportError, AttributeError) as err:
+        raise ConfigError(f"model family {name!r}: entry point {target!r} does not load "
+                          f"({type(err).__name__}: {err})") from None
+    if not (inspect.isclass(obj) and issubclass(obj, Family)):
+        raise ConfigError(f"model family {name!r}: entry point {target!r} is not a subclass "
+                          "of thermonet.models.Family")
+    return obj
+
+
+def models() -> dict[str, type[Family]]:
+    """Every registered family by name, each class imported: the one registry dict
+    (``thermonet.models.MODELS``), made on first use."""
+    global _MODELS
+    if _MODELS is None:
+        out: dict[str, type[Family]] = {}
+        for name in family_names():
+            try:
+                out[name] = get_family(name)
+            except ConfigError as err:  # a broken plug-in is said, the others still work
+                if name in BUILTIN:
+                    raise
+                warnings.warn(str(err), stacklevel=2)
+        _MODELS = out
+    return _MODELS
+
+
+@dataclass(frozen=True)
+class FamilySignature:
+    """What a config may give a family: its hyper-parameters' names and its input limit."""
+
+    hyper: tuple[str, ...]
+    max_inputs: int | None
+
+
+def _signature_of_class(cls: type) -> FamilySignature:
+    params = inspect.signature(cls.__init__).parameters  # type: ignore[misc]
+    hyper = tuple(k for k, p in params.items()
+                  if p.kind is inspect.Parameter.KEYWORD_ONLY and k not in _SHAPE)
+    return FamilySignature(hyper=hyper, max_inputs=getattr(cls, "max_inputs", None))
+
+
+def _signature_from_source(target: str) -> FamilySignature | None:
+    """The signature read from the class's own source, or None where that is not certain
+    (no ``__init__`` or no literal ``max_inputs`` in the class body, ``**kwargs``)."""
+    module, _, attr = target.partition(":")
+    try:
+        spec = importlib.util.find_spec(module)
+    except (ImportError, ValueError):
+        return None
+    if spec is None or not spec.origin or not spec.origin.endswith(".py"):
+        return None
+    with open(spec.origin, encoding="utf-8") as fh:
+        tree = ast.parse(fh.read(), spec.origin)
+    cls = next((n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == attr), None)
+    if cls is None:
+        return None
+    init = next((n for n in cls.body if isinstance(n, ast.FunctionDef)
+                 and n.name == "__init__"), None)
+    max_inputs: Any = ...
+    for node in cls.body:
+        target_names: list[str] = []
+        value = None
+        if isinstance(node, ast.Assign):
+            target_names = [t.id for t in node.targets if isinstance(t, ast.Name)]
+            value = node.value
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            target_names, value = [node.target.id], node.value
+        if "max_inputs" in target_names and isinstance(value, ast.Constant):
+            max_inputs = value.value
+    if init is None or init.args.kwarg is not None or max_inputs is ...:
+        return None
+    if not (max_inputs is None or isinstance(max_inputs, int)):
+        return None
+    hyper = tuple(a.arg for a in init.args.kwonlyargs if a.arg not in _SHAPE)
+    return FamilySignature(hyper=hyper, max_inputs=max_inputs)
+
+
+def family_signature(name: str) -> FamilySignature:
+    """Hyper-parameter names and input limit of family ``name`` — for a built-in, without
+    importing it (torch); raises :class:`ConfigError` for an unknown name."""
+    if _MODELS is not None:
+        return _signature_of_class(get_family(name))
+    target = _target(name)
+    if name in BUILTIN:
+        sig = _signature_from_source(target)
+        if sig is not None:
+            return sig
+    return _signature_of_class(get_family(name))
+
+
+def check_hyper(name: str, hyper: dict | None, n_inputs: int) -> None:
+    """Refuse an unknown family, an unknown hyper-parameter or too many inputs (the checks
+    :func:`build_family` makes by name), torch-free for the built-in families."""
+    sig = family_signature(name)
+    for key in dict(hyper or {}):
+        if key not in sig.hyper:
+            raise ConfigError(f"model '{name}': unknown hyper-parameter '{key}' "
+                              f"(valid: {', '.join(sig.hyper) or 'none'})")
+    if sig.max_inputs is not None and n_inputs > sig.max_inputs:
+        raise ConfigError(f"model '{name}' takes at most {sig.max_inputs} input(s), "
+                          f"got {n_inputs}")
+
+
+def build_family(name: str, *, n_inputs: int, n_outputs: int,
+                 hyper: dict | None = None) -> Family:
+    """Instantiate family ``name`` with ``hyper``; an unknown hyper-parameter is a
+    :class:`ConfigError` naming it and the valid ones."""
+    cls = get_family(name)
+    hyper = dict(hyper or {})
+    valid = _signature_of_class(cls).hyper
+    for key in hyper:
+        if key not in valid:
+            raise ConfigError(f"model '{name}': unknown hyper-parameter '{key}' "
+                              f"(valid: {', '.join(valid) or 'none'})")
+    return cls(n_inputs=n_inputs, n_outputs=n_outputs, **hyper)

@@ -1,0 +1,260 @@
+"""``DIR/report.html``: one self-contained page per comparison, opened first.
+
+The page needs nothing beside itself: inline CSS, no script, the plots
+embedded as base64 PNG (``data:`` URIs).  Sections, in reading order:
+
+1. the verdict — chosen family, why, axes left uncompensated;
+2. warnings (the same sentences as ``results.json``'s ``"warnings"``);
+3. the verdict table: one row per family, one cell per axis with the
+   offset-free score ratio against raw, its 95 % block-bootstrap interval and
+   the verdict, colour-coded (green better, red worse, grey
+   indistinguishable), then the same against the baseline;
+4. the data summary (runs, samples, duration, rate, temperature span, split);
+5. the plots.
+
+Every string taken from the results (family names, run ids, warnings) is
+HTML-escaped.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from ..core.fileio import atomic_write_text
+
+__all__ = ["render_report", "write_report", "VERDICT_COLOURS"]
+
+#: Cell background per verdict.
+VERDICT_COLOURS = {"better": "#c8e6c9", "worse": "#ffcdd2", "indistinguishable": "#eeeeee",
+                   "uncompensated": "#fff3c4"}
+
+_CSS = """
+body { font-family: system-ui, sans-serif; margin: 24px; color: #222; max-width: 1180px; }
+h1 { font-size: 22px; margin-bottom: 4px; } h2 { font-size: 17px; margin-top: 28px; }
+table { border-collapse: collapse; margin: 8px 0; font-size: 13px; }
+th, td { border: 1px solid #bbb; padding: 4px 7px; text-align: left; vertical-align: top; }
+th { background: #f0f0f0; }
+.chosen { font-size: 16px; padding: 10px; background: #e8f0fe; border-left: 5px solid #1f77b4; }
+.warn { background: #fff3c4; border-left: 5px solid #e6ab02; padding: 6px 10px; margin: 4px 0; }
+.none { color: #666; }
+.small { font-size: 12px; color: #555; }
+img { max-width: 100%; border: 1px solid #ddd; margin: 6px 0; }
+"""
+
+
+def _e(x: object) -> str:
+    return html.escape(str(x), quote=True)
+
+
+def _num(x: Any, fmt: str = ".3g") -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "–"
+    return format(x, fmt) if isinstance(x, (int, float)) else _e(x)
+
+
+def _cell(v: dict[str, Any] | None, compensate: bool | None = None) -> str:
+    if not v or v.get("ratio") is None:
+        return "<td class='none'>–</td>"
+    verdict = v.get("verdict", "indistinguishable")
+    lo, hi = v.get("interval") or [None, None]
+    note = "" if compensate in (None, True) else "<br><i>left uncompensated</i>"
+    colour = VERDICT_COLOURS.get(verdict, "#ffffff")
+    return (f"<td style='background:{colour}'><b>{_e(verdict)}</b><br>{_num(v['ratio'])} "
+            f"[{_num(lo)}, {_num(hi)}]{note}</td>")
+
+
+def _verdict_table(res: dict[str, Any]) -> str:
+    axes = list(res.get("units", {}))
+    base = res.get("baseline")
+    head = "".join(f"<th>{_e(a)}<br>vs raw</th>" for a in axes)
+    if base:
+        head += "".join(f"<th>{_e(a)}<br>vs {_e(base)}</th>" for a in axes)
+    rows = []
+    for name, f in res.get("families", {}).items():
+        label = _e(name) + (" <b>(chosen)</b>" if name == res.get("chosen") else "") + \
+            (" <i>(baseline)</i>" if name == base else "")
+        if f.get("status") != "ok":
+            span = len(axes) * (2 if base else 1) + 2
+            rows.append(f"<tr><td>{label}</td><td colspan='{span}' class='none'>not fitted: "
+                        f"{_e(f.get('reason'))}</td></tr>")
+            continue
+        cells = []
+        for a in axes:
+            m = f["axes"][a]
+            cells.append(_cell({"ratio": m.get("score_ratio"), "interval": m.get("interval"),
+                                "verdict": m.get("verdict")}, m.get("compensate")))
+        if base:
+            cells += [_cell(f["axes"][a].get("vs_baseline")) for a in axes]
+        rows.append(f"<tr><td>{label}</td><td>{_num(f.get('n_params'), 'd')}</td>"
+                    f"<td>{_num(f.get('val_score'))}</td>{''.join(cells)}</tr>")
+    return ("<table><tr><th>family</th><th>params</th><th>validation score</th>" + head +
+            "</tr>" + "".join(rows) + "</table>")
+
+
+def _scores_table(res: dict[str, Any]) -> str:
+    """Absolute offset-free scores and offsets per axis, in the axis' unit."""
+    rows = []
+    for name, f in res.get("families", {}).items():
+        if f.get("status") != "ok":
+            continue
+        for a, m in f["axes"].items():
+            unit = res.get("units", {}).get(a, "")
+            off = (f"{_num(m.get('offset_raw'))} → {_num(m.get('offset_comp'))}"
+                   if "offset_raw" in m else "<span class='none'>not meaningful</span>")
+            rows.append(f"<tr><td>{_e(name)}</td><td>{_e(a)} [{_e(unit)}]</td>"
+                        f"<td>{_num(m.get('score_raw'))} → {_num(m.get('score_comp'))}</td>"
+                        f"<td>{_num(m.get('pp_raw'))} → {_num(m.get('pp_comp'))}</td>"
+                        f"<td>{off}</td><td>{'yes' if m.get('compensate') else 'no'}</td></tr>")
+    return ("<table><tr><th>family</th><th>axis</th><th>score raw → compensated</th>"
+            "<th>pp of binned means raw → compensated</th><th>offset raw → compensated</th>"
+            "<th>compensated</th></tr>" + "".join(rows) + "</table>")
+
+
+def _selection_table(res: dict[str, Any]) -> str:
+    """The out-of-fold scores the choice rests on (thermonet.scoring.selection), per candidate."""
+    sel = res.get("selection") or {}
+    if not sel.get("candidates"):
+        return f"<p class='small'>{_e(sel.get('note') or 'single validation part')}</p>"
+    rows = []
+    for name, c in sel["candidates"].items():
+        if c.get("status") != "ok":
+            rows.append(f"<tr><td>{_e(name)}</td><td colspan='6'>not a candidate: "
+                        f"{_e(c.get('reason'))}</td></tr>")
+            continue
+        lo, hi = c.get("interval", [None, None])
+        left = max(c.get("left_out_fraction") or [0.0])
+        raw_axes = [a for a, v in c.get("axes", {}).items() if not v.get("compensate")]
+        rows.append(f"<tr><td>{_e(name)}</td><td>{_e(c.get('n_params'))}</td>"
+                    f"<td>{_num(c.get('score'), '.4g')} [{_num(lo, '.4g')}, {_num(hi, '.4g')}]"
+                    f"</td><td>{_e(' '.join(_num(x) for x in c.get('fold_scores', [])))}</td>"
+                    f"<td>{_num(c.get('diff_to_best'), '.2g')} ± {_num(c.get('se_of_diff'), '.2g')}"
+                    f"</td><td>{_num(100 * left, '.2g')} %</td>"
+                    f"<td>{_e(', '.join(raw_axes) or '—')}</td></tr>")
+    return (f"<p class='small'>{_e(sel.get('kind', ''))}, {_e(sel.get('folds', ''))} folds, "
+            f"purge {_num(sel.get('purge_s'))} s, score windows {_num(sel.get('window_s'))} s: "
+            "the low-frequency residual out of fold over raw on the same windows (&lt; 1 better), "
+            "paired across candidates. " + _e(sel.get("rule", "")) + "</p>"
+            "<table><tr><th>candidate</th><th>params</th><th>out-of-fold score [95 %]</th>"
+            "<th>per fold</th><th>paired difference to the best ± SE</th>"
+            "<th>most left out of a fold (outside its trained domain)</th>"
+            "<th>left raw</th></tr>" + "".join(rows) + "</table>")
+
+
+def _duration(seconds: float) -> str:
+    if seconds >= 7200.0:
+        return f"{seconds / 3600.0:.3g} h"
+    if seconds >= 120.0:
+        return f"{seconds / 60.0:.3g} min"
+    return f"{seconds:.3g} s"
+
+
+def _fold(fold: dict[str, Any]) -> str:
+    def names(v: Any) -> str:
+        return ", ".join(map(str, v)) if isinstance(v, list) else str(v)
+
+    return "; ".join(f"{k}: {names(v)}" for k, v in fold.items())
+
+
+def _data_table(res: dict[str, Any]) -> str:
+    rows = []
+    for r in res.get("data", {}).get("runs", []):
+        span = (f"{_num(r.get('temperature_min_c'), '.1f')} … "
+                f"{_num(r.get('temperature_max_c'), '.1f')} °C"
+                if r.get("temperature_min_c") is not None else "no thermometer (proxy)")
+        rows.append(f"<tr><td>{_e(r['run_id'])}</td><td>{_num(r['samples'], 'd')}</td>"
+                    f"<td>{_duration(float(r['duration_s']))}</td><td>{_num(r['rate_hz'])} Hz</td>"
+                    f"<td>{span}</td></tr>")
+    outside = res.get("data", {}).get("outside_trained_range", {})
+    ext = ", ".join(f"{_e(k)}: {v:.0%}" for k, v in outside.items() if v is not None) or "–"
+    split = res.get("split", {})
+    folds = "<br>".join(_e(_fold(f)) for f in split.get("folds", []))
+    return ("<table><tr><th>run</th><th>samples</th><th>duration</th><th>rate</th>"
+            "<th>temperature</th></tr>" + "".join(rows) + "</table>"
+            f"<p class='small'>split: {_e(split.get('strategy'))}<br>{folds}<br>"
+            f"test samples outside the trained range: {ext}</p>")
+
+
+def _provenance_html(prov: Any) -> str:
+    """What the comparison actually used: data files with their SHA-256 (or the simulator's
+    preset), tracking, options as given (results.json ``provenance``)."""
+    if not isinstance(prov, dict) or not isinstance(prov.get("data"), dict):
+        return ""
+    src = prov["data"]
+    if src.get("kind") == "files":
+        files = list(src.get("files") or []) + ([src["mapping"]] if src.get("mapping") else [])
+        data = "data files: " + "; ".join(f"{_e(f.get('path'))} (sha256 {_e(f.get('sha256'))})"
+                                          for f in files if isinstance(f, dict))
+    elif src.get("kind") == "simulated":
+        data = (f"data simulated: preset {_e(src.get('preset'))}, {_e(src.get('runs'))} runs, "
+                f"seed {_e(src.get('seed'))}")
+    else:
+        data = f"data passed by the caller (device {_e(src.get('device'))})"
+    t = prov.get("tracking") or {}
+    track = f"MLflow at {_e(t.get('uri'))}" if t.get("enabled") else "off"
+    opts = ", ".join(f"{_e(k)}={_e(v)}" for k, v in (prov.get("options") or {}).items())
+    return f"<p class='small'>{data}<br>tracking: {track}; options as given: {opts}</p>"
+
+
+def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
+    """The report page as one HTML string (plots read and embedded as base64 PNG)."""
+    chosen = results.get("chosen")
+    unc = results.get("uncompensated_axes") or []
+    boot = results.get("bootstrap", {})
+    chosen_axes = results.get("families", {}).get(chosen or "", {}).get("axes", {})
+    worse = [a for a, m in chosen_axes.items()
+             if m.get("compensate") and m.get("verdict") == "worse"]
+    parts = [
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
+        f"<title>thermonet report — {_e(results.get('device', ''))}</title>",
+        f"<style>{_CSS}</style></head><body>",
+        f"<h1>thermonet comparison: {_e(results.get('device', ''))}</h1>",
+        f"<p class='small'>thermonet {_e(results.get('thermonet_version', ''))}, "
+        f"results schema {_e(results.get('schema'))}, data hash "
+        f"{_e(results.get('data_hash', ''))}, target {_e(results.get('target', ''))}</p>",
+        _provenance_html(results.get("provenance")),
+        f"<div class='chosen'>Chosen: <b>{_e(chosen or 'none')}</b> — "
+        f"{_e(results.get('chosen_reason', ''))}"
+        + (f"<br>Left uncompensated (drift 0): <b>{_e(', '.join(unc))}</b>" if unc else "")
+        + (f"<br><span style='color:#b71c1c'>Worse than raw on the held-out test data: "
+           f"<b>{_e(', '.join(worse))}</b></span>" if worse else "")
+        + "</div>",
+        "<h2>Warnings</h2>",
+    ]
+    warnings = results.get("warnings") or []
+    parts += [f"<div class='warn'>{_e(w)}</div>" for w in warnings] or \
+        ["<p class='none'>none</p>"]
+    parts += [
+        "<h2>How the model was chosen (cross-validation on the training data)</h2>",
+        _selection_table(results),
+        "<h2>Verdicts on the held-out test data</h2>",
+        "<p class='small'>Score: the spread of the error about its mean on held-out data "
+        "(the temperature-dependent error; offsets removed). Cells: score ratio family / raw "
+        "(or / baseline) [" + _e(f"{boot.get('level', 0.95):.0%}") + " interval of a "
+        + _e(boot.get("method", "block bootstrap")) + ", "
+        + _e(boot.get("resamples", "")) + " resamples]; &lt; 1 is better. An axis is "
+        "compensated only where the family beats raw out of fold (or on the validation data "
+        "where cross-validation could not run).</p>",
+        _verdict_table(results),
+        "<h2>Scores and offsets (test data)</h2>", _scores_table(results),
+        "<h2>Data</h2>", _data_table(results),
+    ]
+    if plots:
+        parts.append("<h2>Plots (last fold's test data)</h2>")
+    for p in plots:
+        data = base64.b64encode(Path(p).read_bytes()).decode("ascii")
+        parts.append(f"<div><img alt='{_e(Path(p).stem)}' src='data:image/png;base64,{data}'>"
+                     "</div>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def write_report(path: str | Path, results: dict[str, Any], plots: Sequence[Path] = ()) -> Path:
+    """Write :func:`render_report` to ``path`` atomically; returns the path."""
+    path = Path(path)
+    atomic_write_text(path, render_report(results, plots))
+    return path

@@ -1,0 +1,419 @@
+"""Checkpoints that carry their own config (nanoGPT style) and load with ``weights_only=True``.
+
+A checkpoint is a ``torch.save`` of a plain dict::
+
+    {state_dict, family, hyper, inputs, signals, outputs,
+     spec: {t_ref, proxy_ref}, config, epoch, best_val, extra, format}
+
+Only tensors, numbers, strings, None, lists and dicts are stored, so
+``torch.load(path, weights_only=True)`` can read it without executing code.
+Writes are atomic (temporary file in the same folder, then ``os.replace``):
+a crash never leaves a half-written checkpoint under the final name.
+
+Integrity.  Every checkpoint carries ``sha256``, a SHA-256 digest over everything
+else it stores (each tensor's name, dtype, shape and bytes; the config, spec,
+names and metadata), and :func:`load_checkpoint` recomputes it before anything
+is built from the file: a checkpoint edited after it was written (a weight
+×1000, a changed config) or damaged is refused in one line naming the file —
+standalone files as well as those inside a comparison (whose ``results.json``
+also records the file's SHA-256).  A checkpoint *without* a digest (written
+before thermonet stored one, or with it removed) is refused too, never loaded
+with a warning: removing the key would otherwise be all an edit needs.  A file
+you trust (your own older checkpoint, or one you edited on purpose) is sealed
+again with :func:`seal_checkpoint`.  The digest detects edits and damage, not
+a forger: anyone who can write the file can also recompute it (that would take
+a signature with a key, which thermonet does not manage).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..core.errors import ConfigError, ExportError, InputError, ThermonetError
+from ..core.fileio import atomic_path, not_a_file
+from ..core.names import (
+    AXIS,
+    FAMILY,
+    FEATURE,
+    HASH,
+    LABEL,
+    RUN_ID,
+    SIGNAL,
+    TEXT_ID,
+    check_finite,
+    check_name,
+    check_names,
+    check_units,
+)
+from ..features.inputs import FeatureSpec
+from ..models import DriftModel, build_family
+
+__all__ = ["save_checkpoint", "load_checkpoint", "seal_checkpoint", "checkpoint_digest",
+           "CHECKPOINT_FORMAT", "DIGEST_KEY"]
+
+#: Bumped when the layout changes incompatibly.
+CHECKPOINT_FORMAT = 1
+
+_KEYS = ("state_dict", "family", "hyper", "inputs", "signals", "outputs", "spec", "config",
+         "epoch", "best_val", "extra")
+#: Key of the integrity digest (:func:`checkpoint_digest`) in a checkpoint's payload.
+DIGEST_KEY = "sha256"
+
+
+def _feed(h: Any, value: Any, where: str) -> None:
+    """Feed ``value`` to the hash ``h`` in a canonical, type-tagged, length-prefixed form."""
+    if value is None:
+        h.update(b"N")
+    elif isinstance(value, bool):
+        h.update(b"T" if value else b"F")
+    elif isinstance(value, int):
+        h.update(b"i%d;" % value)
+    elif isinstance(value, float):
+        h.update(b"f" + float.hex(value).encode("ascii") + b";")
+    elif isinstance(value, str):
+        data = value.encode("utf-8", "surrogatepass")
+        h.update(b"s%d:" % len(data) + data)
+    elif isinstance(value, (list, tuple)):
+        h.update(b"l%d:" % len(value))
+        for i, v in enumerate(value):
+            _feed(h, v, f"{where}[{i}]")
+    elif isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            raise ValueError(f"'{where}' has a key that is not a string")
+        h.update(b"d%d:" % len(value))
+        for k in sorted(value):
+            _feed(h, k, where)
+            _feed(h, value[k], f"{where}.{k}")
+    elif isinstance(value, torch.Tensor):
+        if value.layout != torch.strided or value.is_quantized:
+            raise ValueError(f"'{where}' is not a dense tensor")
+        t = value.detach().cpu().contiguous()
+        head = f"{t.dtype}{tuple(t.shape)}".encode("ascii")
+        h.update(b"t%d:" % len(head) + head)
+        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+    else:
+        raise ValueError(f"'{where}' holds a {type(value).__name__}")
+
+
+def checkpoint_digest(payload: dict) -> str:
+    """SHA-256 (hex) over every key of a checkpoint payload but :data:`DIGEST_KEY`.
+
+    Canonical: keys sorted, every value tagged with its type and length, floats
+    by their exact hex form, tensors by dtype, shape and raw bytes — so the same
+    content gives the same digest whatever pickle made of it.
+
+    Raises
+    ------
+    ValueError
+        A value that is not plain data (numbers, strings, lists, dicts, dense tensors).
+    """
+    h = hashlib.sha256(b"thermonet-checkpoint\0")
+    _feed(h, {k: v for k, v in payload.items() if k != DIGEST_KEY}, "checkpoint")
+    return h.hexdigest()
+
+
+def _plain(value: Any, where: str) -> Any:
+    """``value`` as plain data (numpy scalars/arrays become numbers/lists)."""
+    # numpy scalars first: np.float64 is also a float, but pickles as a numpy
+    # global that weights_only loading refuses.
+    if isinstance(value, np.generic):
+        return value.item()
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, (list, tuple)):
+        return [_plain(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if isinstance(value, dict):
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise ExportError(f"checkpoint: key {k!r} in '{where}' is not a string")
+            out[k] = _plain(v, f"{where}.{k}")
+        return out
+    raise ExportError(f"checkpoint: '{where}' holds a {type(value).__name__}; only numbers, "
+                      "strings, lists and dicts can be stored")
+
+
+def save_checkpoint(path: str | os.PathLike, model: DriftModel, *, config: dict,
+                    extra: dict | None = None, epoch: int | None = None,
+                    best_val: float | None = None) -> Path:
+    """Write ``model`` with its config to ``path`` atomically; return the path.
+
+    Parameters
+    ----------
+    path : path-like
+    model : DriftModel
+    config : dict
+        The resolved run configuration (plain data).
+    extra : dict, optional
+        Anything else worth keeping (metrics, data hashes), plain data.
+    epoch, best_val : optional
+        Best epoch and its validation loss (standardised MSE).
+
+    Raises
+    ------
+    ExportError
+        A parameter or buffer holding NaN (or ±inf outside the signal range),
+        or a config/extra value that is not plain data.
+    """
+    state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
+    for name, tensor in state.items():
+        if tensor.is_floating_point() and torch.isnan(tensor).any():
+            raise ExportError(f"checkpoint: model parameter '{name}' holds NaN; refusing to save")
+        if tensor.is_floating_point() and not name.startswith("sig_") \
+                and not torch.isfinite(tensor).all():
+            raise ExportError(f"checkpoint: model parameter '{name}' is infinite; refusing to save")
+    payload = {
+        "format": CHECKPOINT_FORMAT,
+        "state_dict": state,
+        "family": model.family_name,
+        "hyper": _plain(model.family.hyper(), "hyper"),
+        "inputs": list(model.inputs),
+        "signals": list(model.signals),
+        "outputs": list(model.outputs),
+        "spec": model.spec.to_dict(),
+        "config": _plain(dict(config), "config"),
+        "epoch": None if epoch is None else int(epoch),
+        "best_val": None if best_val is None or not math.isfinite(best_val) else float(best_val),
+        "extra": _plain(dict(extra or {}), "extra"),
+    }
+    payload[DIGEST_KEY] = checkpoint_digest(payload)
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return path
+
+
+def seal_checkpoint(path: str | os.PathLike) -> Path:
+    """Store a fresh integrity digest in the checkpoint at ``path`` (atomic); return the path.
+
+    For a file you trust and that :func:`load_checkpoint` refuses for its digest:
+    a checkpoint written before thermonet stored one, or one edited on purpose.
+    Nothing else is checked here (the next load checks everything).
+
+    Raises
+    ------
+    InputError
+        A file that is not a readable checkpoint payload.
+    """
+    path = Path(path)
+    payload = _read_payload(path)
+    try:
+        payload[DIGEST_KEY] = checkpoint_digest(payload)
+    except ValueError as err:
+        raise InputError.at(path, f"not a thermonet checkpoint ({err})") from None
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return path
+
+
+def _read_payload(path: Path) -> dict:
+    """The dict a checkpoint file holds (``weights_only``), with every key of :data:`_KEYS`."""
+    why = not_a_file(path, "checkpoint file")
+    if why:
+        raise InputError.at(path, why)
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises several unrelated types for a bad file
+        raise InputError.at(path, f"not a readable checkpoint ({type(err).__name__}: "
+                            f"{str(err).splitlines()[0] if str(err) else ''})") from err
+    if not isinstance(payload, dict) or any(k not in payload for k in _KEYS):
+        missing = [k for k in _KEYS if not isinstance(payload, dict) or k not in payload]
+        raise InputError.at(path, f"not a thermonet checkpoint (missing {', '.join(missing)})")
+    return payload
+
+
+def _check_digest(path: Path, payload: dict) -> None:
+    """The stored digest against the content (see the module docstring)."""
+    stored = payload.get(DIGEST_KEY)
+    if stored is None:
+        raise InputError.at(path, "checkpoint carries no integrity digest ('sha256'; written "
+                            "by an older thermonet, or removed), so it cannot be verified; if "
+                            "you trust this file, seal it with "
+                            "thermonet.training.checkpoint.seal_checkpoint(path)")
+    try:
+        actual = checkpoint_digest(payload)
+    except ValueError as err:
+        raise InputError.at(path, f"not a thermonet checkpoint ({err})") from None
+    if not isinstance(stored, str) or stored != actual:
+        raise InputError.at(path, "content does not match the checkpoint's SHA-256 digest "
+                            "(edited or damaged after it was written); refusing to load it")
+
+
+def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
+    """Rebuild the model saved by :func:`save_checkpoint` (``weights_only=True``).
+
+    Returns
+    -------
+    (DriftModel, dict)
+        The model in eval mode on CPU, and the checkpoint's metadata (every
+        key but ``state_dict``; ``sha256`` is the verified digest).
+
+    Raises
+    ------
+    InputError
+        Missing/unreadable file, a payload that is not a thermonet checkpoint, or
+        one whose ``sha256`` digest is missing or does not match its content
+        (:func:`seal_checkpoint` re-seals a file you trust).
+    """
+    path = Path(path)
+    payload = _read_payload(path)
+    if payload.get("format", CHECKPOINT_FORMAT) != CHECKPOINT_FORMAT:
+        raise InputError.at(path, f"checkpoint format {payload.get('format')!r}; this thermonet "
+                            f"reads format {CHECKPOINT_FORMAT}")
+    _check_digest(path, payload)
+    _check_payload(path, payload)
+    try:
+        spec = FeatureSpec.from_dict({**payload["spec"], "inputs": payload["inputs"]},
+                                     source="spec")
+    except ConfigError as err:
+        raise InputError.at(path, str(err)) from None
+    try:
+        family = build_family(payload["family"], n_inputs=len(payload["inputs"]),
+                              n_outputs=len(payload["outputs"]), hyper=payload["hyper"])
+        model = DriftModel(family=family, spec=spec, outputs=payload["outputs"])
+    except (ThermonetError, TypeError, ValueError) as err:  # the names passed, the combination not
+        raise InputError.at(path, f"key 'family'/'hyper'/'inputs': {err}") from None
+    if list(model.signals) != list(payload["signals"]):
+        raise InputError.at(path, f"key 'signals': {payload['signals']} do not match the inputs "
+                            f"{payload['inputs']} (expected {list(model.signals)})")
+    try:
+        model.load_state_dict(payload["state_dict"], strict=True)
+    except RuntimeError as err:
+        raise InputError.at(path, "parameters do not match the stored family "
+                            f"'{payload['family']}' ({str(err).splitlines()[0]})") from err
+    lo, hi = model.sig_lo.detach(), model.sig_hi.detach()
+    bad = torch.isnan(lo) | torch.isnan(hi) | (lo > hi)
+    if bool(bad.any()):
+        j = int(torch.nonzero(bad)[0, 0])
+        raise InputError.at(path, f"trained range of signal '{model.signals[j]}' is "
+                            f"[{float(lo[j]):g}, {float(hi[j]):g}] (low must be <= high)")
+    _check_target_buffers(path, model)
+    model.eval()
+    meta = {k: v for k, v in payload.items() if k != "state_dict"}  # the digest included
+    return model, meta
+
+
+def _check_payload(path: Path, p: dict) -> None:
+    """Every name and value of a loaded payload against :mod:`thermonet.core.names`.
+
+    A checkpoint is data from a file, not code: its strings reach generated C
+    source and ONNX metadata, so each is checked with the rule it was created
+    under before anything is built from it.
+    """
+    def at(key: str) -> str:
+        return f"{path}: key '{key}'"
+
+    check_name(p["family"], FAMILY, at("family"))
+    check_names(p["inputs"], FEATURE, at("inputs"))
+    check_names(p["signals"], SIGNAL, at("signals"))
+    check_names(p["outputs"], AXIS, at("outputs"))
+    if not isinstance(p["hyper"], dict):
+        raise InputError(f"{at('hyper')}: expected a mapping, got {type(p['hyper']).__name__}")
+    spec = p["spec"]
+    # t_ref and proxy_ref, plus the dynamic-input constants (checked against their
+    # definitions by FeatureSpec.from_dict) and, in newer files, the inputs again
+    if (not isinstance(spec, dict) or not {"t_ref", "proxy_ref"} <= set(spec)
+            or not set(spec) <= {"t_ref", "proxy_ref", "dynamic", "inputs"}):
+        raise InputError(f"{at('spec')}: expected a mapping with t_ref and proxy_ref "
+                         "(and optionally the dynamic-input constants)")
+    if spec["t_ref"] is not None:
+        check_finite(spec["t_ref"], at("spec.t_ref"))
+    if not isinstance(spec["proxy_ref"], dict):
+        raise InputError(f"{at('spec.proxy_ref')}: expected a mapping signal -> number")
+    for name, value in spec["proxy_ref"].items():
+        check_name(name, SIGNAL, at("spec.proxy_ref"))
+        check_finite(value, at(f"spec.proxy_ref.{name}"))
+    if not isinstance(p["config"], dict):
+        raise InputError(f"{at('config')}: expected a mapping")
+    if not isinstance(p["state_dict"], dict):
+        raise InputError(f"{at('state_dict')}: expected a mapping name -> tensor")
+    if p["epoch"] is not None and (isinstance(p["epoch"], bool) or not isinstance(p["epoch"], int)):
+        raise InputError(f"{at('epoch')}: {p['epoch']!r} is not an integer")
+    if p["best_val"] is not None:
+        check_finite(p["best_val"], at("best_val"))
+    extra = p["extra"]
+    if not isinstance(extra, dict):
+        raise InputError(f"{at('extra')}: expected a mapping")
+    for key, pattern in (("label", LABEL), ("device_id", TEXT_ID), ("data_hash", HASH),
+                         ("mlflow_run_id", RUN_ID)):
+        if extra.get(key) not in (None, ""):
+            check_name(extra[key], pattern, at(f"extra.{key}"))
+    if "units" in extra:
+        check_units(extra["units"], AXIS, at("extra.units"))
+    if "signal_units" in extra:
+        check_units(extra["signal_units"], SIGNAL, at("extra.signal_units"))
+    if extra.get("val_score") is not None:
+        _number(extra["val_score"], at("extra.val_score"))
+    metrics = extra.get("test_metrics", {})
+    if not isinstance(metrics, dict):
+        raise InputError(f"{at('extra.test_metrics')}: expected a mapping axis -> metrics")
+    for axis, values in metrics.items():
+        check_name(axis, AXIS, at("extra.test_metrics"))
+        if not isinstance(values, dict):
+            raise InputError(f"{at(f'extra.test_metrics.{axis}')}: expected a mapping")
+        for k, v in values.items():
+            check_name(k, SIGNAL, at(f"extra.test_metrics.{axis}"))
+            _metric(v, at(f"extra.test_metrics.{axis}.{k}"))
+
+
+def _check_target_buffers(path: Path, model: DriftModel) -> None:
+    """Target buffers read from the file: known mode codes, a 0/1 mask, finite constants."""
+    from ..features.target import MODE_CODES
+
+    codes = model.target_code.tolist()
+    bad = [c for c in codes if c not in MODE_CODES.values()]
+    if bad:
+        raise InputError.at(path, f"buffer 'target_code' holds {bad[0]}, not a target mode code "
+                            f"({', '.join(f'{v} {k}' for k, v in MODE_CODES.items())})")
+    mask = model.compensate.detach()
+    if not bool(((mask == 0) | (mask == 1)).all()):
+        raise InputError.at(path, f"buffer 'compensate' is {mask.tolist()}, expected 0 or 1 per "
+                            "axis")
+    for name in ("y_offset", "y_ref", "sig_ref"):
+        if not bool(torch.isfinite(getattr(model, name).detach()).all()):
+            raise InputError.at(path, f"buffer '{name}' holds a non-finite value")
+
+
+_VERDICT_WORDS = ("better", "worse", "indistinguishable")
+
+
+def _metric(value: Any, where: str) -> None:
+    """A test metric of results.json: a number, an interval (two numbers), a verdict word,
+    the ``compensate`` flag, a verdict against the baseline (a mapping of those) or null."""
+    if value is None or isinstance(value, bool):
+        return
+    if isinstance(value, str):
+        if value not in _VERDICT_WORDS:
+            raise InputError(f"{where}: {value!r} is not a verdict "
+                             f"({', '.join(_VERDICT_WORDS)})")
+        return
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise InputError(f"{where}: expected an interval of two numbers")
+        for i, v in enumerate(value):
+            _number(v, f"{where}[{i}]")
+        return
+    if isinstance(value, dict):
+        for k, v in value.items():
+            if k not in ("ratio", "interval", "verdict"):
+                raise InputError(f"{where}: unexpected key {str(k)[:40]!r}")
+            _metric(v, f"{where}.{k}")
+        return
+    _number(value, where)
+
+
+def _number(value: Any, where: str) -> None:
+    """A metric: any real number (NaN/inf included: a metric may be undefined)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(f"{where}: {value!r} is not a number")

@@ -1,0 +1,374 @@
+"""Typed configuration: dataclasses hold the defaults, YAML files only override them.
+
+A comparison config (``configs/*.yaml``) has the sections below; every key is
+optional and falls back to the dataclass default.  Unknown keys and wrong
+types are errors that name the file and the dotted key
+(``configs/x.yaml: key 'families[1].param': unknown key``).  The resolved
+config (defaults filled in) is saved with every run.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+
+from ..core.errors import ConfigError
+from ..core.fileio import not_a_file
+from ..core.schema import from_dict, to_dict
+from ..core.trainconfig import TrainConfig  # the ``train`` section is TrainConfig itself
+from ..core.yamlio import YamlRefusal, load_yaml
+
+__all__ = [
+    "DataConfig", "SplitConfig", "SelectionConfig", "FeatureConfig", "FamilyConfig", "TrainConfig",
+    "TrackingConfig", "CompareConfig", "load_config", "from_dict", "to_dict",
+    "outputs_of", "train_config_of",
+]
+
+
+@dataclass
+class DataConfig:
+    """Where the recordings come from: the simulator (default) or files."""
+
+    preset: str | None = "patent-gyro"   # simulator preset; ignored when `paths` is set
+    runs: int | None = None              # simulated runs (None: the preset's own number)
+    seed: int = 0                        # simulator seed
+    paths: list[str] = field(default_factory=list)  # recording files (one run per file)
+    mapping: str | None = None           # YAML column mapping for non-native files
+    outputs: list[str] = field(default_factory=list)  # axes to model (empty: all outputs)
+
+
+#: Most contiguous time blocks per run (``split.n_blocks``): beyond it a block is a few samples.
+MAX_BLOCKS = 1000
+
+
+@dataclass
+class SplitConfig:
+    """How runs are split; never by random sample (see :mod:`thermonet.training.splits`).
+
+    ``auto``: ≥ 3 runs → ``runs``; 2 runs → ``train-then-verify``; 1 run →
+    ``time-blocks``.  ``runs``: train on all but the last two runs, validate on
+    the second-to-last, test on the last — or on the run ids named in
+    ``train``, ``val``, ``test`` (without ``val``, interleaved blocks of the
+    training runs validate; runs may not be in two roles).  ``train-then-verify``: train on
+    the first run (validating on interleaved contiguous blocks of it), test on the
+    second.  ``time-blocks``: every run cut into ``n_blocks`` contiguous time
+    blocks, interleaved train / val / test (60 / 20 / 20 %).
+    ``leave-one-run-out``: each run is the test run once (≥ 3 runs), the
+    previous run validates; the report gives the mean over folds.
+    """
+
+    strategy: str = "auto"               # a name in thermonet.training.splits.SPLITS
+    train: list[str] = field(default_factory=list)
+    val: str | None = None
+    test: str | None = None
+    n_blocks: int = 20                   # contiguous time blocks per run (time-blocks)
+
+    def __post_init__(self) -> None:
+        from .splits import SPLITS  # the registry is the list of valid strategies
+
+        if self.strategy not in SPLITS:
+            raise ConfigError(f"key 'split.strategy': {self.strategy!r} is not one of "
+                              f"{', '.join(repr(k) for k in SPLITS)}")
+        if isinstance(self.n_blocks, bool) or not isinstance(self.n_blocks, int):
+            raise ConfigError(f"key 'split.n_blocks': {self.n_blocks!r} is not an integer")
+        if self.n_blocks < 5:
+            raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is below 5 (every group "
+                              "of five blocks gives one validation and one test block)")
+        if self.n_blocks > MAX_BLOCKS:
+            raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is above {MAX_BLOCKS} "
+                              "(blocks that short put correlated neighbouring samples in "
+                              "train and test: a split by sample in disguise)")
+
+
+@dataclass
+class SelectionConfig:
+    """How the model that ships is chosen (:mod:`thermonet.scoring.selection`).
+
+    ``folds``: K of the purged, blocked cross-validation over the training data (one run:
+    ``folds × blocks_per_fold`` short contiguous blocks dealt round-robin; several runs:
+    leave one run out); 0 chooses on the split's single validation part instead (the rule
+    before issue 19).  ``purge_s`` and ``window_s``: ``None`` takes the documented rules.
+    """
+
+    folds: int = 5
+    blocks_per_fold: int = 8
+    purge_s: float | None = None
+    window_s: float | None = None
+
+    def __post_init__(self) -> None:
+        for key, lo, hi in (("folds", 0, 50), ("blocks_per_fold", 1, 100)):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise ConfigError(f"key 'selection.{key}': must be an integer from {lo} to "
+                                  f"{hi}, got {v!r}")
+        if self.folds == 1:
+            raise ConfigError("key 'selection.folds': 1 fold validates on nothing; use 0 (the "
+                              "split's validation part) or 2 and more")
+        for key in ("purge_s", "window_s"):
+            v = getattr(self, key)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int | float)
+                                  or not math.isfinite(v) or v < 0):
+                raise ConfigError(f"key 'selection.{key}': must be a number of seconds >= 0 "
+                                  f"or null (the documented rule), got {v!r}")
+
+
+@dataclass
+class FeatureConfig:
+    """The one feature layer shared by every family."""
+
+    t_ref: float | Literal["start"] = (
+        "start"  # °C, or mean of the first minutes of the first training run
+    )
+    t_ref_window_min: float = 10.0             # minutes averaged for t_ref "start"
+    # dynamic inputs (rate, lag_<tau>, play_<w>): a time step over gap_s seconds restarts their
+    # state; "auto": 5 × the median sample interval of the first training run (thermonet.features.dynamics)
+    gap_s: float | Literal["auto"] = "auto"
+    rate_window_s: float | None = None         # removed (the Savitzky–Golay rate): an error if set
+
+    def __post_init__(self) -> None:
+        if self.rate_window_s is not None:
+            raise ConfigError("key 'features.rate_window_s' was removed: 'rate' is now a causal "
+                              "filtered derivative with a 60 s time constant stored in the model "
+                              "(thermonet.features.dynamics); name the input 'rate_<tau>' (e.g. rate_30) "
+                              "for another time constant")
+        if not isinstance(self.gap_s, str) and not 1e-6 <= self.gap_s <= 1e7:
+            raise ConfigError(f"key 'features.gap_s': {self.gap_s!r} is not a number of seconds "
+                              "in 1e-06 … 1e+07 (a µs … 116 days) or 'auto'")
+        if not isinstance(self.t_ref, str):
+            from ..data.diagnostics import TEMPERATURE_PLAUSIBLE_C
+
+            lo, hi = TEMPERATURE_PLAUSIBLE_C
+            if not lo <= self.t_ref <= hi:  # NaN fails too
+                raise ConfigError(f"key 'features.t_ref': {self.t_ref!r} °C is not a reference "
+                                  f"temperature in {lo:g} … {hi:g} °C (or 'start')")
+        if not 0 < self.t_ref_window_min <= 1440:
+            raise ConfigError(f"key 'features.t_ref_window_min': {self.t_ref_window_min!r} is "
+                              "not a number of minutes in (0, 1440]")
+
+
+@dataclass
+class FamilyConfig:
+    """One entry of the comparison: a registered family with its inputs and hyper-parameters."""
+
+    family: str = "poly"
+    name: str | None = None              # label in reports (default: the family name)
+    inputs: list[str] = field(default_factory=lambda: ["dT"])
+    params: dict[str, Any] = field(default_factory=dict)   # family hyper-parameters
+    train: dict[str, Any] = field(default_factory=dict)    # overrides of the `train` section
+    # "heating": fit only on samples where the temperature is not falling (dT/dt > −0.05 °C/min),
+    # as PX4's and ArduPilot's calibrations do — to reproduce that anchor faithfully
+    train_on: Literal["all", "heating"] = "all"
+
+    @property
+    def label(self) -> str:
+        return self.name or self.family
+
+
+@dataclass
+class TrackingConfig:
+    """MLflow tracking (embedded SQLite store in the working directory by default)."""
+
+    enabled: bool = True
+    uri: str | None = None               # None: sqlite:///mlflow.db in the working directory
+    experiment: str = "thermonet"
+
+
+def _default_families() -> list[FamilyConfig]:
+    """The recommended set a config gets when it names no families (README "Default families").
+
+    * ``cubic``: PX4's / ArduPilot's cubic in ΔT — the baseline every report compares with;
+    * the studies' families: ``linear``, ``lorentz`` (000), ``ts-fuzzy`` (002), ``rbf`` on
+      [ΔT, ΔT²] (003);
+    * models with dynamic inputs (:mod:`thermonet.features.dynamics`): ``poly3-rate`` (all monomials
+      of total degree ≤ 3 in ΔT and dT/dt: the cubic plus rate, rate², rate³ and the cross
+      terms) and ``poly3-hyst`` (the same on [ΔT, dT/dt, play_1]: a hysteresis memory of
+      half-width 1 °C that tells the heating from the cooling branch and keeps it through a
+      soak).  Both fit in closed form (least squares) in about a second; an RBF on dynamic
+      inputs fits no better on the heat/cool benchmark and costs minutes, so it is not in the
+      default set (name it in a config).
+    """
+    return [
+        FamilyConfig(family="poly", name="cubic", inputs=["dT"], params={"degree": 3}),
+        FamilyConfig(family="linear", name="linear", inputs=["dT"]),
+        FamilyConfig(family="lorentz", name="lorentz", inputs=["dT"]),
+        FamilyConfig(family="ts-fuzzy", name="ts-fuzzy", inputs=["dT"], params={"n_sets": 6}),
+        FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"], params={"n_centres": 16}),
+        FamilyConfig(family="poly", name="poly3-rate", inputs=["dT", "rate"],
+                     params={"degree": 3, "cross": True}),
+        FamilyConfig(family="poly", name="poly3-hyst", inputs=["dT", "rate", "play_1"],
+                     params={"degree": 3, "cross": True}),
+    ]
+
+
+@dataclass
+class CompareConfig:
+    """A whole comparison: data, split, features, families, training, tracking."""
+
+    data: DataConfig = field(default_factory=DataConfig)
+    split: SplitConfig = field(default_factory=SplitConfig)
+    selection: SelectionConfig = field(default_factory=SelectionConfig)
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    families: list[FamilyConfig] = field(default_factory=_default_families)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    # What each output's drift is relative to (thermonet.features.target): "drift" = every axis at its
+    # default (a ref_ channel → channel; gyro → zero; acc/mag/baro/out → at-t-ref), or a
+    # mapping {kind or output name: channel | zero | at-t-ref}.  four-position: per soak, the
+    # bias K0 and scale factor K1 of each axis from a static multi-position test (study 000);
+    # outputs `<axis>.bias` and `<axis>.scale` are then modelled together.
+    target: Literal["drift", "four-position"] | dict[str, str] = "drift"
+    baseline: str | None = "cubic"       # the family label the report compares against (PX4/ArduPilot's)
+    description: str = ""
+    # pass/fail limits per output axis or "*" (thermonet.scoring.fleetstats.LimitSpec), judged per
+    # unit on held-out data by `thermonet fleet`
+    limits: dict[str, Any] = field(default_factory=dict)
+    # families fitted side by side (threads; thermonet.workflows.compare.family_workers): 0 = one per
+    # CPU this process may use, 1 = one after another.  `thermonet fleet` runs units side
+    # by side instead and fits each unit's families one after another.
+    workers: int = 0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) \
+                or self.workers < 0:
+            raise ConfigError(f"key 'workers': must be an integer >= 0 (0: one per "
+                              f"CPU), got {self.workers!r}")
+
+
+# ----------------------------------------------------------------- loading
+def outputs_of(cfg: CompareConfig, ds: Any) -> list[str]:
+    """The outputs a comparison fits: the config's ``data.outputs`` or the data's axes (each
+    axis's bias and scale for the four-position target)."""
+    from ..features.target import FOURPOS_SUFFIXES
+
+    axes = cfg.data.outputs or ds.axes
+    if cfg.target == "four-position":
+        return [f"{a}{s}" for a in axes for s in FOURPOS_SUFFIXES]
+    return list(axes)
+
+
+def train_config_of(cfg: CompareConfig, fam: FamilyConfig) -> TrainConfig:
+    """The ``train`` section with the family's own overrides applied."""
+    return from_dict(TrainConfig, {**to_dict(cfg.train), **fam.train},
+                     source="config", prefix=f"families[{fam.label}].train")
+
+
+def load_config(path: str | Path | None) -> CompareConfig:
+    """Load a comparison config and check all of it; ``None`` gives the built-in default.
+
+    Everything a config can get wrong is found here, before any data is read,
+    any directory created or anything logged: unknown keys and wrong types
+    (every family's ``train:`` overrides included), family names that are not
+    safe file names (:data:`thermonet.core.names.LABEL`), duplicate names or
+    inputs, unknown families, inputs or hyper-parameters, and a ``baseline``
+    that names no family, and a ``target`` mode that does not exist (whether
+    a ``target`` key names an output is checked against the data, once read).
+    An empty file is an error (it would otherwise run the built-in simulator
+    comparison without a word); only *no* config argument runs the default.
+    """
+    if path is None:
+        return CompareConfig()
+    p = Path(path)
+    why = not_a_file(p, "config file")
+    if why:
+        raise ConfigError(f"{p}: {why}")
+    try:
+        data = load_yaml(p)
+    except YamlRefusal as err:
+        raise ConfigError(f"{p}: {err}") from None
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{p}:{where} not valid YAML ({getattr(err, 'problem', err)})") from None
+    if data is None:
+        raise ConfigError(f"{p}: empty config file (give at least one section; run "
+                          "'thermonet compare' without a config for the built-in default)")
+    cfg = from_dict(CompareConfig, data, source=str(p))
+    labels = [f.label for f in cfg.families]
+    dup = sorted({x for x in labels if labels.count(x) > 1})
+    if dup:
+        raise ConfigError(
+            f"{p}: key 'families': duplicate family name {dup[0]!r} (give each a distinct 'name')"
+        )
+    if not cfg.families:
+        raise ConfigError(f"{p}: key 'families': empty list (need at least one family)")
+    check_families(cfg, source=str(p), build=False)  # torch-free; compare builds them
+    _check_data(cfg.data, str(p))
+    _check_target(cfg.target, str(p))
+    if data.get("baseline") is not None and cfg.baseline not in labels:  # the default may lapse
+        raise ConfigError(f"{p}: key 'baseline': no family named {cfg.baseline!r} (families: "
+                          f"{', '.join(labels)})")
+    from ..scoring.fleetstats import parse_limits
+
+    parse_limits(cfg.limits, source=str(p))
+    cfg._source = str(p)  # not a field: names the file in later errors
+    return cfg
+
+
+def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = True) -> None:
+    """Refuse an unknown family, input or hyper-parameter before any data is read.
+
+    A family that cannot be fitted *on the data* is reported by ``compare`` and
+    the comparison goes on; a family the config names wrongly is an error.  Names,
+    inputs and input counts are checked without torch; ``build`` (what ``compare``,
+    ``fleet`` and the API do before reading data) also builds each family, which checks
+    the hyper-parameters' values.
+    """
+    from ..core.names import LABEL
+    from ..features.inputs import signals_for
+    from ..models.registry import build_family, check_hyper
+
+    for i, fam in enumerate(cfg.families):
+        key = f"families[{i}]"
+        if LABEL.fullmatch(fam.label) is None:  # the label names models/<label>.pt
+            raise ConfigError(f"{source}: key '{key}.name': {fam.label[:60]!r} is not a safe "
+                              "family name (letters, digits, '_', '.', '-', not starting with "
+                              "'.' or '-', at most 64 characters)")
+        if len(set(fam.inputs)) != len(fam.inputs):
+            raise ConfigError(f"{source}: key '{key}.inputs': {fam.inputs} names an input twice")
+        from_dict(TrainConfig, {**to_dict(cfg.train), **fam.train}, source=source,
+                  prefix=f"{key}.train")
+        try:
+            signals_for(fam.inputs)
+        except ConfigError as err:
+            raise ConfigError(f"{source}: key '{key}.inputs': {err}") from None
+        try:
+            check_hyper(fam.family, fam.params, n_inputs=len(fam.inputs))
+        except ConfigError as err:
+            raise ConfigError(f"{source}: key '{key}': {err}") from None
+        if not build:
+            continue
+        try:
+            build_family(fam.family, n_inputs=len(fam.inputs), n_outputs=1, hyper=fam.params)
+        except ConfigError as err:
+            raise ConfigError(f"{source}: key '{key}': {err}") from None
+        except TypeError as err:  # a hyper-parameter of the wrong type
+            raise ConfigError(f"{source}: key '{key}.params': {err}") from None
+
+
+def _check_data(data: DataConfig, source: str) -> None:
+    """Bounds of the ``data`` section that need no data: run count, seed."""
+    from ..sim.presets import MAX_RUNS
+
+    if data.runs is not None and not 1 <= data.runs <= MAX_RUNS:
+        raise ConfigError(f"{source}: key 'data.runs': {data.runs} is not in 1..{MAX_RUNS} "
+                          "(the upper bound keeps a request within memory)")
+    if data.seed < 0:
+        raise ConfigError(f"{source}: key 'data.seed': {data.seed} is negative")
+
+
+def _check_target(target: str | dict[str, str], source: str) -> None:
+    """The ``target`` section's modes (its keys name outputs: checked once the data are read)."""
+    from ..features.target import MODES
+
+    if not isinstance(target, dict):
+        return  # a Literal: already checked by from_dict
+    for key, mode in target.items():
+        if not isinstance(key, str) or not key:
+            raise ConfigError(f"{source}: key 'target': {key!r} is not an output or kind name")
+        if mode not in MODES:
+            raise ConfigError(f"{source}: key 'target.{key[:64]}': {mode!r} is not one of "
+                              f"{', '.join(MODES)}")

@@ -1,0 +1,170 @@
+"""The one fold pipeline: parts → fit → score, run by compare, fleet and the Python API.
+
+One fold is a family fitted on training runs (stopping early on a validation run where
+there is one) and judged on a held-out run:
+
+1. :func:`fold_spec` — the feature references (:math:`T_{ref}`, proxy references) and the
+   dynamic inputs' gap limit, from the training runs only;
+2. :func:`fold_parts` — each run's signal and target matrices (:mod:`thermonet.training.parts`),
+   the training runs cut to their heating samples for ``train_on: heating``;
+3. :func:`fit_fold` — the family fitted (:func:`thermonet.training.train.fit`) on the
+   training parts, each averaged into ``train.average_s`` windows once (a part's windows
+   are cached on it and shared by the families of a comparison);
+4. :func:`score_part` and :func:`block_sums` — a held-out part's per-axis metrics and its
+   per-block sums, what the verdicts (:mod:`thermonet.scoring.verdicts`) are drawn from.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from ..core.recording import Recording
+from ..core.trainconfig import TrainConfig
+from ..features.inputs import FeatureSpec, reference_values, resolve_gap_s, signals_for
+from ..features.target import Target
+from .parts import Part, build_part, fit_arrays, heating_only
+
+__all__ = ["FoldParts", "PartBuilder", "fold_spec", "fold_parts", "fit_fold", "score_part",
+           "block_sums", "per_soak_metrics"]
+
+#: ``(recording, signals, gap_s) -> Part``: how a fold gets a run's part (compare shares
+#: one cache between its families).
+PartBuilder = Callable[[Recording, list[str], "float | None"], Part]
+
+
+def fold_spec(inputs: Sequence[str], train: Sequence[Recording], *, t_ref: str | float = "start",
+              window_min: float = 10.0, gap_s: str | float | None = "auto",
+              reference_for_targets: bool = False) -> FeatureSpec:
+    """The feature spec of a fold: references and gap limit from its training runs.
+
+    ``reference_for_targets``: compute :math:`T_{ref}` also for a model on the absolute
+    temperature alone (``T``) — a comparison's at-t-ref targets are normalised there.
+    """
+    ref_inputs = list(inputs)
+    if reference_for_targets and "temperature_c" in signals_for(inputs):
+        ref_inputs.append("dT")
+    t_value, proxy_ref = reference_values(train, ref_inputs, t_ref=t_ref, window_min=window_min)
+    return FeatureSpec(inputs=list(inputs), t_ref=t_value, proxy_ref=proxy_ref,
+                       gap_s=resolve_gap_s(gap_s, train, inputs))
+
+
+@dataclass
+class FoldParts:
+    """The parts of one fold: training parts, the validation part (or None) and the test
+    part (or None)."""
+
+    spec: FeatureSpec
+    train: list[Part]
+    val: Part | None = None
+    test: Part | None = None
+
+
+def fold_parts(spec: FeatureSpec, train: Sequence[Recording], *, outputs: list[str],
+               target: Target | str, val: Recording | None = None,
+               test: Recording | None = None, train_on: str = "all",
+               gap_s: str | float | None = "auto", part: PartBuilder | None = None
+               ) -> FoldParts:
+    """Each run's part for ``spec``; with ``train_on == "heating"`` the training parts keep
+    the samples where the temperature is not falling (its rate's gap limit from
+    ``gap_s``, the configured setting, as the dynamic inputs')."""
+    if part is None:
+        def part(rec: Recording, signals: list[str], gap: float | None) -> Part:
+            return build_part(rec, signals=signals, outputs=outputs, target=target, gap_s=gap)
+
+    gap = spec.gap_s
+    train_parts = [part(r, spec.signals, gap) for r in train]
+    if train_on == "heating":
+        heat_gap = resolve_gap_s(gap_s, train, ["rate"])
+        train_parts = [heating_only(q, r, heat_gap) for q, r in zip(train_parts, train, strict=True)]
+    return FoldParts(spec=spec, train=train_parts,
+                     val=part(val, spec.signals, gap) if val is not None else None,
+                     test=part(test, spec.signals, gap) if test is not None else None)
+
+
+def fit_fold(parts: FoldParts, *, family: str, outputs: list[str], hyper: dict | None,
+             config: TrainConfig, target_modes: Sequence[str] | None = None,
+             on_epoch: Callable[[int, float, float | None], None] | None = None,
+             val: tuple[np.ndarray, ...] | None = None, windows: bool = True) -> Any:
+    """Fit ``family`` on a fold's training parts, stopping early on its validation part
+    (or on ``val``, arrays given whole); returns the :class:`~thermonet.training.train.FitResult`.
+
+    ``windows``: each part goes with its time, averaged into ``config.average_s`` windows
+    (once per part and window length); False gives the arrays without time, so the fit
+    thins them to its sample budget instead (the fleet's pooled model).
+    """
+    from .train import fit
+
+    spec = parts.spec
+    if windows:
+        avg = config.average_s
+        train = [fit_arrays(q, avg) for q in parts.train]
+        if val is None and parts.val is not None:
+            val = fit_arrays(parts.val, avg)
+        config = replace(config, average_s=0.0)  # already averaged: fit applies the budget
+    else:
+        train = [(q.signals, q.target) for q in parts.train]
+        if val is None and parts.val is not None:
+            val = (parts.val.signals, parts.val.target)
+    return fit(family=family, inputs=list(spec.inputs), outputs=outputs, train=train, val=val,
+               spec=spec, hyper=dict(hyper or {}), config=config, on_epoch=on_epoch,
+               target=target_modes)
+
+
+def per_soak_metrics(k: np.ndarray, pred: np.ndarray, temps: np.ndarray, scale: bool
+                     ) -> dict[str, float]:
+    """Metrics of per-soak four-position estimates (study 000).
+
+    Bias K0: the raw error is K0 itself, compensated K0 − K̂0.  Scale factor
+    K1: its nominal value is no error, so raw is K1 − mean(K1); compensated
+    is K1 − K̂1(T) (+ mean(K1) for the ppm/°C coefficient, which needs the
+    nominal scale factor in its denominator).
+    """
+    from ..scoring.metrics import rms, scale_factor_tempco_ppm_per_c
+
+    nominal = float(np.mean(k)) if scale else 0.0
+    raw, comp = k - nominal, k - pred
+    m = {"rms_raw": rms(raw), "rms_comp": rms(comp), "pp_raw": float(np.ptp(raw)),
+         "pp_comp": float(np.ptp(comp)), "msd_raw": float(np.mean(raw ** 2)),
+         "msd_comp": float(np.mean(comp ** 2))}
+    if scale:
+        m["ppm_per_c_raw"] = scale_factor_tempco_ppm_per_c(temps, k)
+        m["ppm_per_c_comp"] = scale_factor_tempco_ppm_per_c(temps, comp + nominal)
+    return m
+
+
+def score_part(model: Any, part: Part) -> tuple[np.ndarray, dict[str, dict[str, float]]]:
+    """The model's predicted drift on a held-out part and the per-axis metrics."""
+    from ..scoring.metrics import axis_metrics
+    from .train import predict
+
+    pred = predict(model, part.signals)
+    out: dict[str, dict[str, float]] = {}
+    for j, axis in enumerate(part.outputs):
+        if part.per_soak:
+            m = per_soak_metrics(part.target[:, j], pred[:, j], part.bin_by,
+                                 scale=axis.endswith(".scale"))
+        else:
+            raw = part.target[:, j]
+            m = axis_metrics(
+                bin_by=part.bin_by, time_s=part.time_s, raw=raw,
+                reference=np.zeros_like(raw), predicted_drift=pred[:, j],
+                true_drift=None if part.true_drift is None else part.true_drift[:, j],
+                rate_hz=part.rate_hz, bin_width=part.bin_width)
+        out[axis] = {k: float(v) for k, v in m.items()}
+    return pred, out
+
+
+def block_sums(part: Part, pred: np.ndarray) -> Any:
+    """Block sums of one held-out part (:class:`~thermonet.scoring.verdicts.BlockStats`):
+    raw error = the target, residual = target − drift."""
+    from ..scoring.verdicts import block_labels, block_stats
+
+    raw = part.target.copy()
+    for j in range(len(part.outputs)):
+        if part.offset_free(j):  # a scale factor's nominal value, gravity (at-t-ref): no error
+            raw[:, j] -= np.mean(raw[:, j])
+    return block_stats(raw, pred - (part.target - raw), block_labels(part.time_s))

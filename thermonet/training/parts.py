@@ -1,0 +1,214 @@
+"""Honest evaluation: data loading, hashing, targets, per-axis metrics.
+
+Splits (never random: by run or contiguous time) live in
+:mod:`thermonet.training.splits`, one registered function per strategy;
+:class:`~thermonet.training.splits.Split` and :func:`~thermonet.training.splits.make_splits`
+are re-exported here.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ConfigError
+from ..core.recording import Dataset, Recording
+from ..features.target import CHANNEL, FOUR_POSITION, FOURPOS_SUFFIXES, Target, resolve_targets
+from .config import DataConfig
+from .splits import Split, make_splits
+
+__all__ = ["Split", "Part", "load_data", "make_splits", "build_part", "data_hash",
+           "heating_only", "fit_arrays", "FOURPOS_SUFFIXES", "HEATING_MIN_RATE_C_PER_MIN",
+           "targets_for"]
+
+#: Samples with dT/dt above this count as heating (or soaking) for ``train_on: heating``.
+HEATING_MIN_RATE_C_PER_MIN = -0.05
+
+
+
+def load_data(cfg: DataConfig, *, source: str = "config", allow_fleet: bool = False
+              ) -> Dataset:
+    """The configured recordings: files (with an optional mapping) or the simulator.
+
+    Data holding several units (device ids) is refused unless ``allow_fleet``
+    (``thermonet fleet`` calibrates them one by one).
+    """
+    if cfg.paths:
+        from ..data.io import read_datasets
+
+        # a fleet is validated unit by unit (thermonet.workflows.fleet.sources_from_dataset)
+        ds = read_datasets(cfg.paths, mapping=cfg.mapping, validate=not allow_fleet)
+    else:
+        from ..sim import simulate
+
+        if not cfg.preset:
+            raise ConfigError(f"{source}: key 'data': give 'paths' or a simulator 'preset'")
+        ds = simulate(cfg.preset, runs=cfg.runs, seed=cfg.seed)
+    if cfg.outputs:
+        missing = [o for o in cfg.outputs if o not in ds.axes]
+        if missing:
+            raise ConfigError(f"{source}: key 'data.outputs': no output '{missing[0]}' in the data "
+                              f"(outputs: {', '.join(ds.axes)})")
+    if ds.is_fleet and not allow_fleet:
+        ids = ds.unit_ids
+        raise ConfigError(f"{source}: the data holds {len(ids)} units ({', '.join(ids[:3])}"
+                          f"{', …' if len(ids) > 3 else ''}); calibrate them with "
+                          "'thermonet fleet'")
+    return ds
+
+
+def data_hash(ds: Dataset) -> str:
+    """SHA-256 (first 16 hex digits) over every run's samples, in run order."""
+    h = hashlib.sha256()
+    for r in ds:
+        h.update(r.run_id.encode())
+        chans = [r.time_s] + ([r.temperature_c] if r.temperature_c is not None else [])
+        for group in (r.outputs, r.references, r.proxies):
+            chans += [group[k] for k in sorted(group)]
+        for c in chans:
+            h.update(np.ascontiguousarray(c, dtype=np.float64).tobytes())
+    return h.hexdigest()[:16]
+
+
+_AVERAGE_LOCK = threading.Lock()
+
+
+@dataclass
+class Part:
+    """One recording turned into model inputs and targets.
+
+    ``signals`` (n, S) physical signals; ``target`` (n, A) the observed
+    drift (or per-soak K0/K1); ``raw_error`` (n, A) what an uncompensated
+    sensor would be wrong by; ``bin_by`` the variable for 1-unit bins
+    (°C, or the proxy); ``true_drift`` (n, A) where simulated.
+    """
+
+    signals: np.ndarray
+    target: np.ndarray
+    time_s: np.ndarray
+    bin_by: np.ndarray
+    bin_width: float
+    rate_hz: float
+    true_drift: np.ndarray | None
+    outputs: list[str]
+    per_soak: bool = False               # one sample per soak (four-position target)
+    targets: Target | None = None        # per-axis target modes (None: every axis 'channel')
+    # fit_arrays' window means, per window length: computed once, shared by every family
+    _averaged: dict[float, tuple[np.ndarray, ...]] = field(default_factory=dict, repr=False,
+                                                            compare=False)
+
+    def offset_free(self, j: int) -> bool:
+        """True where a constant in axis ``j``'s target is no error (``at-t-ref``, a scale factor)."""
+        if self.targets is not None:
+            return self.targets.offset_free(self.outputs[j])
+        return self.outputs[j].endswith(FOURPOS_SUFFIXES[1])
+
+
+def targets_for(ds: Dataset, spec: Any, outputs: list[str], *, source: str = "config") -> Target:
+    """The per-output target modes of a comparison (:func:`thermonet.features.target.resolve_targets`)
+    with the reference channels the dataset carries (in any of its runs)."""
+    has_ref = {o: any(f"ref_{o}" in r.references for r in ds) for o in outputs}
+    return resolve_targets(spec, outputs, has_reference=has_ref, source=source)
+
+
+def build_part(rec: Recording, *, signals: list[str], outputs: list[str],
+               target: Target | str, gap_s: float | None = None) -> Part:
+    """Signals and targets of one recording for the configured target.
+
+    Per axis the target is ``output − ref_<axis>`` (mode ``channel``) or the
+    output itself (``zero``, ``at-t-ref``: the model's normalisation at
+    :math:`T_{ref}` then removes the unknown constant, see
+    :mod:`thermonet.features.target`).  A plain string is the whole-comparison kind
+    (``"drift"``: every axis ``channel``, the reference being zero where none
+    was recorded; ``"four-position"``).  ``gap_s`` is the dynamic inputs' gap
+    limit (:func:`thermonet.features.inputs.signal_matrix`).
+    """
+    from ..features.inputs import signal_matrix
+
+    if isinstance(target, str):
+        target = Target.uniform(outputs, FOUR_POSITION if target == FOUR_POSITION else CHANNEL)
+    if target.kind == FOUR_POSITION:
+        return _fourpos_part(rec, signals=signals, outputs=outputs)
+    sig = signal_matrix(rec, signals, gap_s)
+    y = np.column_stack([rec.drift_observed(a) if target.mode(a) == CHANNEL
+                         else np.asarray(rec.outputs[a], dtype=np.float64) for a in outputs])
+    true = None
+    if all(f"drift_{a}" in rec.drift for a in outputs):
+        true = np.column_stack([rec.drift[f"drift_{a}"] for a in outputs])
+    if rec.temperature_c is not None:
+        bin_by, width = rec.temperature_c, 1.0
+    else:
+        name = sorted(rec.proxies)[0]
+        bin_by = rec.proxies[name]
+        # one bin per 1/50 of the proxy's span: about the resolution of 1 °C bins
+        # over a 50 °C test when the proxy's scale to °C is unknown
+        width = max(float(np.ptp(bin_by)) / 50.0, 1e-12)
+    return Part(sig, y, rec.time_s, bin_by, width, rec.effective_rate_hz, true, outputs,
+                targets=target)
+
+
+def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> Part:
+    from ..sim.fourpos import four_position_estimates
+
+    if signals != ["temperature_c"]:
+        raise ConfigError("config: key 'target': four-position models take temperature inputs "
+                          f"only (T, dT, dT2), got signals {signals}")
+    axes = sorted({o.rsplit(".", 1)[0] for o in outputs})
+    cols: dict[str, np.ndarray] = {}
+    temps = None
+    for axis in axes:
+        est = np.asarray(four_position_estimates(rec, axis), dtype=np.float64)
+        if temps is None:
+            temps = est[:, 0]
+        cols[f"{axis}.bias"] = est[:, 1]
+        cols[f"{axis}.scale"] = est[:, 2]
+    assert temps is not None
+    y = np.column_stack([cols[o] for o in outputs])
+    return Part(temps[:, None], y, np.arange(temps.size, dtype=np.float64), temps, 1.0,
+                float("nan"), None, outputs, per_soak=True,
+                targets=Target.uniform(outputs, FOUR_POSITION))
+
+
+def heating_only(part: Part, rec: Recording, gap_s: float | None = None) -> Part:
+    """The samples of ``part`` where ``rec``'s temperature is not falling (PX4/ArduPilot way)."""
+    from ..features.inputs import RATE, signal_matrix
+
+    if part.per_soak:
+        raise ConfigError("config: key 'train_on': 'heating' applies to per-sample targets, "
+                          "not to the four-position target")
+    rate = signal_matrix(rec, [RATE], gap_s)[:, 0]
+    keep = rate > HEATING_MIN_RATE_C_PER_MIN
+    if keep.sum() < 10:
+        raise ConfigError(f"train_on 'heating': run '{rec.run_id}' has {int(keep.sum())} heating "
+                          "samples")
+    return Part(part.signals[keep], part.target[keep], part.time_s[keep], part.bin_by[keep],
+                part.bin_width, part.rate_hz, None if part.true_drift is None
+                else part.true_drift[keep], part.outputs, targets=part.targets)
+
+
+def fit_arrays(part: Part, average_s: float = 0.0) -> tuple[np.ndarray, ...]:
+    """What :func:`thermonet.training.train.fit` takes for one run: signals, targets and the time
+    in s (per-sample targets); a per-soak part is one sample per soak already and goes
+    without its time.
+
+    With ``average_s`` > 0 the arrays are already averaged into windows of that length
+    (:func:`thermonet.training.train.average_windows`, what ``fit`` would do with
+    ``train.average_s``), computed once per part and window and cached on it: the
+    families of a comparison share one pass over a long recording instead of one each
+    (``fit``'s own averaging then finds one sample per window, a cheap pass).
+    """
+    if part.per_soak:
+        return part.signals, part.target
+    if average_s > 0:
+        with _AVERAGE_LOCK:      # families fitted side by side share one computation
+            if average_s not in part._averaged:
+                from .train import average_windows
+
+                part._averaged[average_s] = average_windows(part.signals, part.target,
+                                                            part.time_s, average_s)
+            return part._averaged[average_s]
+    return part.signals, part.target, part.time_s
