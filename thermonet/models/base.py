@@ -222,6 +222,16 @@ class Family(nn.Module):
         from ..core.errors import ExportError
         raise ExportError(f"model family '{self.name}' has no C emitter")
 
+    def trainable(self) -> bool:
+        """Whether the training loop refines :meth:`initialize`'s fit by gradient descent
+        (False: the closed-form fit is final, the loop records epoch 0 only)."""
+        return True
+
+    def tuned(self) -> dict[str, Any]:
+        """Hyper-parameters the family chose itself on its training data (inner
+        cross-validation), JSON-able; empty when it chooses none."""
+        return {}
+
     def polynomial_form(self) -> np.ndarray | None:
         """Coefficients (A, degree + 1), ascending in the one standardised input z,
         when this fitted family *is* a polynomial in one input; None otherwise.

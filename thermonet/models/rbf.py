@@ -16,11 +16,45 @@ the distance to the nearest other centre × ``width_scale``, weights and bias
 by least squares.  ``init="random"``: centres drawn uniformly in the data's
 bounding box (seeded), unit widths, zero weights — plain gradient descent from
 scratch, for comparison.
+
+The polynomial tail (``tail: 3``; the default family set's ``rbf``)
+---------------------------------------------------------------------
+With ``tail = d > 0`` the network gains an unpenalised polynomial of degree ``d`` in the
+first input (ΔT by default; on ``[dT, dT2]`` standardised ΔT is affine in ΔT, so the tail is
+the cubic in ΔT that PX4 and ArduPilot fit) and the Gaussian part is penalised:
+
+.. math::
+
+    \\hat y_a = \\sum_j w_{aj}\\,\\varphi_j(z) + \\sum_{k=1}^{d} t_{ak} z_1^k + b_a,
+    \\qquad \\min_{w,t,b}\\ \\lVert \\Phi w + P t - y \\rVert^2 + \\lambda_a\\, w^\\top K w
+
+with one shared width (:math:`K_{ij} = \\varphi_j(c_i)`, the kernel between centres: the
+penalty is the norm of the Gaussian part in the kernel's own space, the regularisation
+network of Poggio & Girosi).  Its two limits are the reason for it: :math:`\\lambda\\to\\infty`
+gives exactly the polynomial tail (the cubic — so the patent's model is at worst the
+baseline it should contain), and with the samples at the centres the solution *is*
+``scipy.interpolate.RBFInterpolator(kernel="gaussian", degree=d, smoothing=λ)`` (its
+linear system :math:`(K + \\lambda I)w + Pt = y,\\ P^\\top w = 0` is this problem's
+stationarity condition) — the independent oracle of ``tests/test_rbf_tail.py``.  (Note that
+``RBFInterpolator``'s own ``degree=3`` tail on ``[dT, dT2]`` would be degree 6 in ΔT.)
+
+``ridge: cv`` (default in tail mode) chooses, on the training rows only, the shared width
+(``width_scale`` × 0.5, 1, 2 of the median nearest-centre distance) and each axis's
+:math:`\\lambda_a` (relative to :math:`\\operatorname{tr}(\\Phi^\\top\\Phi)/J`, from
+:data:`RIDGE_GRID`, :math:`\\infty` included) by an inner cross-validation over
+:data:`INNER_BLOCKS` contiguous blocks dealt round-robin into :data:`INNER_FOLDS` folds, a
+block's neighbours purged from its fold's training rows; the largest :math:`\\lambda` within
+one standard error of the best is taken (the smoother model).  A number fixes
+:math:`\\lambda` for every axis.  The fit is then closed-form and final: gradient refinement
+of an unpenalised loss would undo the penalty, so the training loop skips its epochs
+(:meth:`trainable` is False).  ``tuned()`` reports the
+chosen width and :math:`\\lambda_a`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -28,12 +62,19 @@ import torch
 from torch import nn
 
 from ..core.errors import ConfigError
-from .base import LOG_CLIP, TINY, Family, as_numpy, least_squares, output_layer
+from .base import LOG_CLIP, TINY, Family, as_numpy, distinct_levels, least_squares, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array, c_exp
 
-__all__ = ["RBF"]
+__all__ = ["RBF", "RIDGE_GRID"]
 
 _INITS = ("kmeans", "random")
+#: relative ridge strengths tried by ``ridge: cv`` (× tr(ΦᵀΦ)/J); ∞ is the tail alone
+RIDGE_GRID = (1e-6, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0, math.inf)
+#: width multipliers tried by ``ridge: cv`` (× width_scale × median nearest-centre distance)
+WIDTH_GRID = (0.5, 1.0, 2.0)
+INNER_FOLDS, INNER_BLOCKS = 5, 40
+#: jitter on the kernel's diagonal before its Cholesky factor (relative; K's diagonal is 1)
+_JITTER = 1e-9
 
 
 class RBF(Family):
@@ -44,7 +85,8 @@ class RBF(Family):
     default_inputs = ["dT", "dT2"]
 
     def __init__(self, *, n_inputs: int, n_outputs: int, n_centres: int = 16,
-                 init: str = "kmeans", width_scale: float = 1.0) -> None:
+                 init: str = "kmeans", width_scale: float = 1.0, tail: int = 0,
+                 ridge: float | str = "cv") -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
         if (
             isinstance(n_centres, bool)
@@ -57,13 +99,29 @@ class RBF(Family):
         if isinstance(width_scale, bool) or not isinstance(width_scale, (int, float)) \
                 or not width_scale > 0:
             raise ConfigError(f"rbf: width_scale must be a number > 0, got {width_scale!r}")
+        if isinstance(tail, bool) or not isinstance(tail, int) or not 0 <= tail <= 3:
+            raise ConfigError(f"rbf: tail must be an integer in 0..3 (the degree of the "
+                              f"polynomial in the first input; 0: none), got {tail!r}")
+        if tail and init != "kmeans":
+            raise ConfigError("rbf: a polynomial tail needs init 'kmeans' (a closed-form fit)")
+        if ridge != "cv" and (isinstance(ridge, bool) or not isinstance(ridge, (int, float))
+                              or not 0 <= ridge < math.inf):
+            raise ConfigError(f"rbf: ridge must be 'cv' or a finite number >= 0, got {ridge!r}")
         self.n_centres = int(n_centres)
         self.init = init
         self.width_scale = float(width_scale)
+        self.tail = int(tail)
+        self.ridge = ridge if ridge == "cv" else float(ridge)
         self.centres = nn.Parameter(torch.zeros(n_centres, n_inputs))
         self.log_sigma = nn.Parameter(torch.zeros(n_centres))
         self.weight = nn.Parameter(torch.zeros(n_outputs, n_centres))
         self.bias = nn.Parameter(torch.zeros(n_outputs))
+        if self.tail:
+            # tail coefficients (A, d) on z_1 … z_1^d
+            self.tail_weight = nn.Parameter(torch.zeros(n_outputs, self.tail))
+        # what ridge 'cv' chose (reported by tuned(); not model state: inference needs only
+        # the weights, and a checkpoint refuses the infinite ridge of "the tail alone")
+        self._tuned: dict[str, Any] = {}
 
     def basis(self, z: torch.Tensor) -> torch.Tensor:
         """Unit activations φ (N, J)."""
@@ -81,8 +139,27 @@ class RBF(Family):
         """:math:`1 / (2\\sigma_j^2)` (J,), with :math:`2 s_j` clipped to ±LOG_CLIP."""
         return 0.5 * torch.exp(-torch.clamp(2.0 * self.log_sigma, min=-LOG_CLIP, max=LOG_CLIP))
 
+    def tail_columns(self, z1: torch.Tensor) -> list[torch.Tensor]:
+        """z_1, z_1², … z_1^d by repeated multiplication (exports as Mul)."""
+        cols = [z1]
+        for _ in range(1, self.tail):
+            cols.append(cols[-1] * z1)
+        return cols
+
     def forward(self, z: torch.Tensor) -> torch.Tensor:
-        return self.basis(z) @ self.weight.T + self.bias
+        out = self.basis(z) @ self.weight.T + self.bias
+        if self.tail:
+            out = out + torch.stack(self.tail_columns(z[:, 0]), dim=1) @ self.tail_weight.T
+        return out
+
+    def trainable(self) -> bool:
+        """False in tail mode: the closed-form penalised fit is final (module docstring)."""
+        return not self.tail
+
+    def tuned(self) -> dict[str, Any]:
+        """What ``ridge: cv`` chose: the width multiplier and each axis's relative ridge
+        (``inf``: the tail alone); empty without a tail."""
+        return dict(self._tuned)
 
     def exponent(self) -> tuple[torch.Tensor, torch.Tensor]:
         """``(M, b)``: the exponent of every unit as one matrix product.
@@ -115,6 +192,9 @@ class RBF(Family):
         u = torch.stack([*z, zz, torch.ones_like(zz)])
         phi = torch.exp(torch.mm(torch.cat([m.T, b[:, None]], dim=1), u))
         w, c = output_layer(self.weight, self.bias, y_std, y_mean)
+        if self.tail:  # the tail's powers ride in the same product: one Gemm
+            w = torch.cat([w, self.tail_weight * y_std[:, None]], dim=1)
+            phi = torch.cat([phi, torch.stack(self.tail_columns(z[0]))])
         return torch.addmm(c[:, None], w, phi)
 
     def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
@@ -122,11 +202,15 @@ class RBF(Family):
         with torch.no_grad():
             m, b = self.exponent()
             w, c = output_layer(self.weight, self.bias, y_std, y_mean)
+            if self.tail:  # columns J … J+d-1 of the weights: the tail's z_1 … z_1^d
+                w = torch.cat([w, self.tail_weight * y_std[:, None]], dim=1)
         consts = [f"#define {P}_RBF_CENTRES {int(self.n_centres)}",
                   # one row per centre: F coefficients of z, then that of ||z||^2
                   c_array(f"{p}_rbf_m", as_float32(m.T)), c_array(f"{p}_rbf_b", as_float32(b)),
                   c_array(f"{p}_rbf_w", as_float32(w)), c_array(f"{p}_rbf_c", as_float32(c))]
         n_c, n_f = int(self.n_centres), int(m.shape[0]) - 1
+        tail = "".join(f"        float zt{k} = {'z[0]' if k == 1 else f'zt{k - 1} * z[0]'};\n"
+                       for k in range(1, self.tail + 1))
         # exponent of centre j: b_j + m_j,F·||z||² + Σ_f m_j,f·z_f (this order), then exp
         exponent = c_affine("phi", f"{p}_rbf_m", f"{p}_rbf_b", n_c,
                             [(n_f, "zz")] + [(f, f"z[{f}]") for f in range(n_f)], " " * 8)
@@ -138,8 +222,9 @@ class RBF(Family):
         for (f = 0; f < {P}_N_FEATURES; ++f) zz += z[f] * z[f];
 {exponent}
         for (j = 0; j < {P}_RBF_CENTRES; ++j) phi[j] = {c_exp('phi[j]')};
-{c_affine("y", f"{p}_rbf_w", f"{p}_rbf_c", int(w.shape[0]),
-          [(j, f"phi[{j}]") for j in range(n_c)], " " * 8)}
+{tail}{c_affine("y", f"{p}_rbf_w", f"{p}_rbf_c", int(w.shape[0]),
+          [(j, f"phi[{j}]") for j in range(n_c)]
+          + [(n_c + k, f"zt{k + 1}") for k in range(self.tail)], " " * 8)}
     }}"""
         return CBody(consts, body)
 
@@ -152,6 +237,12 @@ class RBF(Family):
         if rows < self.n_centres:
             return (f"the inputs take {rows} distinct value(s), fewer than the "
                     f"{self.n_centres} centres (lower n_centres)")
+        if self.tail and distinct_levels(xn[:, 0]) < self.tail + 1:
+            return (f"input 1 takes {distinct_levels(xn[:, 0])} distinct value(s); a degree-"
+                    f"{self.tail} tail needs at least {self.tail + 1}")
+        if self.tail and self.ridge == "cv" and xn.shape[0] < 2 * INNER_BLOCKS:
+            return (f"{xn.shape[0]} samples: ridge 'cv' needs at least {2 * INNER_BLOCKS} "
+                    "(or give ridge a number)")
         return None
 
     def initialize(self, x: torch.Tensor, y: torch.Tensor, *, seed: int = 0,
@@ -181,6 +272,9 @@ class RBF(Family):
         ok = np.isfinite(nearest) & (nearest > TINY)
         fallback = float(np.median(nearest[ok])) if ok.any() else 1.0
         sigma = np.where(ok, nearest, fallback) * self.width_scale
+        if self.tail:
+            self._fit_tail(xn, yn, centres, float(np.median(sigma)))
+            return
         with torch.no_grad():
             self.centres.copy_(torch.as_tensor(centres))
             self.log_sigma.copy_(torch.as_tensor(np.log(sigma)))
@@ -190,5 +284,95 @@ class RBF(Family):
             self.weight.copy_(torch.as_tensor(coef[:-1].T))
             self.bias.copy_(torch.as_tensor(coef[-1]))
 
+    def _fit_tail(self, xn: np.ndarray, yn: np.ndarray, centres: np.ndarray,
+                  sigma0: float) -> None:
+        """The penalised closed-form fit of the tail mode (module docstring)."""
+        tail = np.column_stack([xn[:, 0] ** k for k in range(1, self.tail + 1)])
+        poly = np.column_stack([tail, np.ones(xn.shape[0])])
+        widths = [sigma0 * g for g in WIDTH_GRID] if self.ridge == "cv" else [sigma0]
+        ridges = RIDGE_GRID if self.ridge == "cv" else (float(self.ridge),)
+        if self.ridge == "cv":
+            folds = _inner_folds(xn.shape[0])
+            # (width, ridge, fold, axis) validation mean squared errors
+            err = np.array([[[_penalised(xn, yn, poly, centres, s, lam, tr)[1](va)
+                              for tr, va in folds] for lam in ridges] for s in widths])
+            mean = err.mean(axis=2)                       # (width, ridge, axis)
+            se = err.std(axis=2, ddof=1) / math.sqrt(len(folds))
+            best = mean.min(axis=1)                       # (width, axis)
+            iw = int(np.argmin(best.sum(axis=1)))         # one width for every axis
+            lam_idx = []
+            for a in range(yn.shape[1]):
+                ib = int(np.argmin(mean[iw, :, a]))
+                ok = np.flatnonzero(mean[iw, :, a] <= mean[iw, ib, a] + se[iw, ib, a])
+                lam_idx.append(int(ok.max()))            # the largest ridge within one SE
+            sigma, lams = widths[iw], [ridges[i] for i in lam_idx]
+            scale = WIDTH_GRID[iw]
+        else:
+            sigma, lams, scale = widths[0], [ridges[0]] * yn.shape[1], 1.0
+        coef = np.stack([_penalised(xn, yn[:, [a]], poly, centres, sigma, lam, None)[0][:, 0]
+                         for a, lam in enumerate(lams)])          # (A, J + d + 1)
+        n_c = centres.shape[0]
+        with torch.no_grad():
+            self.centres.copy_(torch.as_tensor(centres))
+            self.log_sigma.fill_(math.log(sigma))
+            self.weight.copy_(torch.as_tensor(coef[:, :n_c]))
+            self.tail_weight.copy_(torch.as_tensor(coef[:, n_c:n_c + self.tail]))
+            self.bias.copy_(torch.as_tensor(coef[:, -1]))
+        self._tuned = {"width_scale": scale * self.width_scale,
+                       "ridge": [lam if math.isfinite(lam) else "inf" for lam in lams]}
+
     def hyper(self) -> dict[str, Any]:
-        return {"n_centres": self.n_centres, "init": self.init, "width_scale": self.width_scale}
+        out: dict[str, Any] = {"n_centres": self.n_centres, "init": self.init,
+                               "width_scale": self.width_scale}
+        if self.tail:  # only then: a checkpoint from before the tail rebuilds unchanged
+            out.update(tail=self.tail, ridge=self.ridge)
+        return out
+
+
+def _gaussian(x: np.ndarray, centres: np.ndarray, sigma: float) -> np.ndarray:
+    d2 = ((x[:, None, :] - centres[None, :, :]) ** 2).sum(axis=-1)
+    return np.exp(-d2 / (2.0 * sigma * sigma))
+
+
+def _penalised(x: np.ndarray, y: np.ndarray, poly: np.ndarray, centres: np.ndarray,
+               sigma: float, lam: float, rows: np.ndarray | None
+               ) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]:
+    """Coefficients [w; t; b] of min ‖Φw + Pt − y‖² + λ' wᵀKw on ``rows`` (all if None), λ'
+    = λ·tr(ΦᵀΦ)/J, and a scorer: validation rows → per-axis mean squared error."""
+    phi_all = _gaussian(x, centres, sigma)
+    r = slice(None) if rows is None else rows
+    phi, p, yy = phi_all[r], poly[r], y[r]
+    n_c = centres.shape[0]
+    if math.isinf(lam):  # the tail alone
+        c_p = np.linalg.lstsq(p, yy, rcond=None)[0]
+        coef = np.vstack([np.zeros((n_c, y.shape[1])), c_p])
+    else:
+        k = _gaussian(centres, centres, sigma) + _JITTER * np.eye(n_c)
+        lam_abs = lam * max(float((phi * phi).sum()) / n_c, TINY)
+        chol = np.linalg.cholesky(k)                      # K = L Lᵀ: wᵀKw = ‖Lᵀw‖²
+        design = np.vstack([np.hstack([phi, p]),
+                            np.hstack([math.sqrt(lam_abs) * chol.T,
+                                       np.zeros((n_c, p.shape[1]))])])
+        target = np.vstack([yy, np.zeros((n_c, y.shape[1]))])
+        coef = np.linalg.lstsq(design, target, rcond=None)[0]
+
+    def score(val: np.ndarray) -> np.ndarray:
+        pred = np.hstack([phi_all[val], poly[val]]) @ coef
+        return ((pred - y[val]) ** 2).mean(axis=0)
+
+    return coef, score
+
+
+def _inner_folds(n: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:data:`INNER_BLOCKS` contiguous blocks of the (time-ordered) training rows dealt
+    round-robin into :data:`INNER_FOLDS` folds; the rows of a validation block's neighbours
+    (one block each side) are purged from that fold's training rows."""
+    block = np.minimum(np.arange(n) * INNER_BLOCKS // n, INNER_BLOCKS - 1)
+    folds = []
+    for f in range(INNER_FOLDS):
+        val_blocks = np.arange(f, INNER_BLOCKS, INNER_FOLDS)
+        near = np.union1d(val_blocks - 1, val_blocks + 1)
+        va = np.flatnonzero(np.isin(block, val_blocks))
+        tr = np.flatnonzero(~np.isin(block, np.union1d(val_blocks, near)))
+        folds.append((tr, va))
+    return folds

@@ -20,7 +20,7 @@ import copy
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -34,6 +34,7 @@ from ..core.trainconfig import TrainConfig  # re-exported: the ``train`` section
 from ..features.dynamics import dynamic_signals, saturation_margin
 from ..features.inputs import FeatureSpec
 from ..models import DriftModel, build_family
+from ..models.base import Family
 
 __all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "average_windows",
            "rest_signals"]
@@ -343,10 +344,13 @@ def _valid_step(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> float
         return float(_mse(fam, z, y))
 
 
-def _fit_loop(fam: torch.nn.Module, zt: torch.Tensor, yt: torch.Tensor,
+def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
               val: tuple[torch.Tensor, torch.Tensor] | None, config: TrainConfig, family: str,
               on_epoch: Callable | None) -> tuple[list[dict], int, float | None]:
     params = [p for p in fam.parameters() if p.requires_grad]
+    if not fam.trainable():
+        # a closed-form fit that is final (the RBF's penalised tail): epoch 0 only
+        config = replace(config, max_epochs=0)
     if config.optimizer == "lbfgs":
         opt: torch.optim.Optimizer = torch.optim.LBFGS(params, lr=config.lr, max_iter=20,
                                                        line_search_fn="strong_wolfe")

@@ -1,0 +1,118 @@
+"""The RBF's polynomial tail (issue 19 point 4): the patent's network that is at worst the cubic.
+
+Independent oracles:
+
+* ``scipy.interpolate.RBFInterpolator`` (scipy 1.x, ``scipy/interpolate/_rbfinterp.py``):
+  with the samples at the centres, the penalised least-squares fit
+  ``min ‖Φw + Pt − y‖² + λ wᵀKw`` has the stationarity conditions ``(K + λI)w + Pt = y,
+  Pᵀw = 0`` — exactly the linear system ``RBFInterpolator(kernel="gaussian", degree=d,
+  smoothing=λ)`` solves.  Its Gaussian is ``exp(−(εr)²)``, so ``ε = 1 / (σ√2)``.
+* ``numpy.polynomial.Polynomial.fit``: the limit λ → ∞ is the least-squares polynomial.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from numpy.polynomial import Polynomial
+from scipy.interpolate import RBFInterpolator
+
+from thermonet.core.errors import ConfigError
+from thermonet.models.rbf import RBF, RIDGE_GRID
+from tolerances import assert_f32_close
+
+pytestmark = pytest.mark.numerics
+
+
+def _fit(x: np.ndarray, y: np.ndarray, **hyper) -> RBF:
+    fam = RBF(n_inputs=x.shape[1], n_outputs=y.shape[1], **hyper)
+    fam.initialize(torch.as_tensor(x), torch.as_tensor(y), seed=0)
+    return fam
+
+
+def _predict(fam: RBF, x: np.ndarray) -> np.ndarray:
+    with torch.no_grad():
+        return fam(torch.as_tensor(x, dtype=torch.float32)).double().numpy()
+
+
+@pytest.mark.parametrize("tail", [1, 2, 3])
+@pytest.mark.parametrize("lam", [1e-3, 1e-1, 10.0])
+def test_samples_at_the_centres_give_scipys_smoothing_rbf(tail, lam):
+    rng = np.random.default_rng(tail)
+    x = np.sort(rng.uniform(-2.0, 2.0, 12))[:, None]
+    y = np.column_stack([np.sin(2.0 * x[:, 0]) + 0.3 * x[:, 0] ** 3,
+                         np.exp(-x[:, 0] ** 2) - 0.5 * x[:, 0]])
+    fam = _fit(x, y, n_centres=12, tail=tail, ridge=lam)      # k-means on 12 points: the points
+    np.testing.assert_allclose(np.sort(fam.centres.detach().double().numpy()[:, 0]), x[:, 0],
+                               rtol=0, atol=1e-6)            # float32 storage of the points
+    sigma = math.exp(float(fam.log_sigma.detach()[0]))
+    assert np.allclose(fam.log_sigma.detach().numpy(), math.log(sigma))   # one shared width
+    k = np.exp(-((x - x.T) ** 2) / (2.0 * sigma * sigma))
+    smoothing = lam * float((k * k).sum()) / 12             # λ relative to tr(ΦᵀΦ)/J
+    oracle = RBFInterpolator(x, y, kernel="gaussian", epsilon=1.0 / (sigma * math.sqrt(2.0)),
+                             degree=tail, smoothing=smoothing)
+    xt = np.linspace(-2.5, 2.5, 61)[:, None]                # between and beyond the centres
+    assert_f32_close(_predict(fam, xt), oracle(xt), "family")
+
+
+def test_infinite_ridge_is_the_least_squares_cubic():
+    rng = np.random.default_rng(0)
+    x = rng.uniform(-1.5, 1.5, 400)[:, None]
+    y = (0.2 * x - 0.1 * x ** 3 + 0.3 * np.sin(3 * x)) + 0.01 * rng.standard_normal(x.shape)
+    fam = _fit(x, y, n_centres=16, tail=3, ridge=1e12)
+    xt = np.linspace(-1.5, 1.5, 31)[:, None]
+    cubic = Polynomial.fit(x[:, 0], y[:, 0], 3)(xt[:, 0])
+    # the Gaussian part's weights are penalised to ~1e-12 of the data: float32 rounding only
+    assert_f32_close(_predict(fam, xt)[:, 0], cubic, "family")
+
+
+def test_cv_keeps_the_cubic_when_the_law_is_cubic_and_bends_when_it_is_not():
+    """``ridge: cv``: white noise about a cubic → the tail alone (λ = ∞, the one-SE rule
+    prefers the smoother model); a resonance the cubic cannot follow (study 000's Lorentz
+    curve) → a finite λ, and on held-out samples the network beats the cubic clearly."""
+    rng = np.random.default_rng(1)
+    x = np.linspace(-1.7, 1.7, 2000)[:, None]
+    cubic_law = 0.4 * x - 0.2 * x ** 3
+    bump = 0.5 / (1.0 + ((x - 0.4) / 0.15) ** 2)
+    noise = 0.02 * rng.standard_normal(x.shape)
+    y = np.hstack([cubic_law + noise, cubic_law + bump + noise])
+    # every other 50-sample block held out (contiguous, like time)
+    held = (np.arange(x.shape[0]) // 50) % 2 == 1
+    fam = _fit(x[~held], y[~held], n_centres=16, tail=3, ridge="cv")
+    tuned = fam.tuned()
+    assert tuned["ridge"][0] == "inf"
+    assert tuned["ridge"][1] != "inf" and tuned["ridge"][1] in RIDGE_GRID
+    assert tuned["width_scale"] in (0.5, 1.0, 2.0)
+    assert not fam.trainable()                               # the penalised fit is final
+    pred = _predict(fam, x[held])
+    cubic = np.column_stack([Polynomial.fit(x[~held, 0], y[~held, a], 3)(x[held, 0])
+                             for a in range(2)])
+    truth = np.hstack([cubic_law, cubic_law + bump])[held]
+    rms = lambda p: np.sqrt(((p - truth) ** 2).mean(axis=0))  # noqa: E731
+    # axis 0: the cubic itself (to float32 rounding of the fit at the data's scale)
+    assert_f32_close(pred[:, 0], cubic[:, 0], "family", scale=np.abs(y[:, 0]).max())
+    assert rms(pred)[1] < 0.5 * rms(cubic)[1]               # measured 0.26 of the cubic's error
+
+
+@pytest.mark.parametrize("hyper, pattern", [
+    ({"tail": 4}, "tail must be an integer in 0..3"),
+    ({"tail": True}, "tail must be an integer"),
+    ({"tail": 3, "init": "random"}, "needs init 'kmeans'"),
+    ({"tail": 3, "ridge": -1.0}, "ridge must be 'cv' or a finite number >= 0"),
+    ({"tail": 3, "ridge": math.inf}, "ridge must be 'cv' or a finite number >= 0"),
+    ({"tail": 3, "ridge": "auto"}, "ridge must be 'cv'"),
+])
+def test_bad_tail_hyper_parameters_are_refused(hyper, pattern):
+    with pytest.raises(ConfigError, match=pattern):
+        RBF(n_inputs=2, n_outputs=1, **hyper)
+
+
+def test_without_a_tail_nothing_changes():
+    """``tail: 0`` (the default) keeps the original network, hyper-parameters and state."""
+    fam = RBF(n_inputs=2, n_outputs=3, n_centres=4)
+    assert fam.hyper() == {"n_centres": 4, "init": "kmeans", "width_scale": 1.0}
+    assert set(fam.state_dict()) == {"centres", "log_sigma", "weight", "bias"}
+    assert fam.trainable() and fam.tuned() == {}
