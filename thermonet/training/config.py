@@ -182,7 +182,9 @@ def _default_families() -> list[FamilyConfig]:
 
     * ``cubic``: PX4's / ArduPilot's cubic in ΔT — the baseline every report compares with;
     * the studies' families: ``linear``, ``lorentz`` (000), ``ts-fuzzy`` (002), ``rbf`` on
-      [ΔT, ΔT²] (003);
+      [ΔT, ΔT²] (003) with the cubic in ΔT as its unpenalised tail and the Gaussian part's
+      ridge and width chosen by inner cross-validation (:mod:`thermonet.models.rbf`): at
+      worst it is the cubic;
     * models with dynamic inputs (:mod:`thermonet.features.dynamics`): ``poly3-rate`` (all monomials
       of total degree ≤ 3 in ΔT and dT/dt: the cubic plus rate, rate², rate³ and the cross
       terms) and ``poly3-hyst`` (the same on [ΔT, dT/dt, play_1]: a hysteresis memory of
@@ -196,7 +198,8 @@ def _default_families() -> list[FamilyConfig]:
         FamilyConfig(family="linear", name="linear", inputs=["dT"]),
         FamilyConfig(family="lorentz", name="lorentz", inputs=["dT"]),
         FamilyConfig(family="ts-fuzzy", name="ts-fuzzy", inputs=["dT"], params={"n_sets": 6}),
-        FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"], params={"n_centres": 16}),
+        FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
+                     params={"n_centres": 16, "tail": 3}),
         FamilyConfig(family="poly", name="poly3-rate", inputs=["dT", "rate"],
                      params={"degree": 3, "cross": True}),
         FamilyConfig(family="poly", name="poly3-hyst", inputs=["dT", "rate", "play_1"],
@@ -226,7 +229,7 @@ class CompareConfig:
     # pass/fail limits per output axis or "*" (thermonet.scoring.fleetstats.LimitSpec), judged per
     # unit on held-out data by `thermonet fleet`
     limits: dict[str, Any] = field(default_factory=dict)
-    # families fitted side by side (threads; thermonet.workflows.compare.family_workers): 0 = one per
+    # families fitted side by side (threads; thermonet.workflows.compare_fit.family_workers): 0 = one per
     # CPU this process may use, 1 = one after another.  `thermonet fleet` runs units side
     # by side instead and fits each unit's families one after another.
     workers: int = 0

@@ -1,0 +1,193 @@
+"""``thermonet compare``, step 3 — judging: verdicts against raw from a paired block bootstrap
+of the held-out blocks, the per-axis mask, the choice (per-axis masked validation score, ties →
+fewest parameters, do no harm), the verdicts against the baseline and the extrapolation
+warnings; :class:`Fitted` is one family after fitting, what is judged.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..features.target import CHANNEL, FOUR_POSITION, ZERO, Target
+from ..reporting.results import AxisResult, ComparisonResult, FamilyResult, Verdict
+from ..scoring.verdicts import BlockStats
+from ..training.parts import (
+    Part,
+)
+from .compare_plan import Plan
+
+__all__ = ["Fitted", "judge_against_raw", "choose_and_judge", "extrapolation"]
+
+
+# ------------------------------------------------------------------------------------- fit
+@dataclass
+class Fitted:
+    """One family after fitting: its record, last model, and its held-out block sums."""
+
+    result: FamilyResult
+    model: Any = None
+    history: list[Any] | None = None
+    val: BlockStats | None = None
+    test: BlockStats | None = None
+    test_parts: list[Part] = field(default_factory=list)
+    test_preds: list[np.ndarray] = field(default_factory=list)
+    ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
+    val_draws: np.ndarray | None = None  # bootstrap draws of the masked validation score
+    best_val: float | None = None        # the last fold's best validation loss
+    oof: Any = None                      # thermonet.scoring.selection.CandidateOOF (cross-validation)
+    cv_mask: list[bool] | None = None    # per-axis compensate decision out of fold
+    single: Any = None                   # (score, draws, mask) by the single validation part
+    pool_targets: list[np.ndarray] = field(default_factory=list)
+    pool_times: list[np.ndarray] = field(default_factory=list)
+
+
+_DRAWS: dict[int, np.ndarray] = {}
+
+
+def _draws(n_blocks: int) -> np.ndarray:
+    from ..scoring.verdicts import draws
+
+    if n_blocks not in _DRAWS:
+        _DRAWS[n_blocks] = draws(n_blocks)
+    return _DRAWS[n_blocks]
+
+
+def _verdicts(num: np.ndarray, den: np.ndarray) -> tuple[list[Verdict], np.ndarray, np.ndarray]:
+    from ..scoring.verdicts import ratio_interval, verdict_of
+
+    ratio, boot, iv = ratio_interval(num, den, _draws(num.shape[0]))
+    return ([Verdict(float(ratio[j]), float(iv[0, j]), float(iv[1, j]),
+                     verdict_of(float(iv[0, j]), float(iv[1, j]))) for j in range(ratio.size)],
+            ratio, boot)
+
+
+def _offset_meaningful(targets: Target, axis: str) -> bool:
+    """Whether the absolute offset of ``axis`` is an error (not an unknown constant).
+
+    Where the target mode makes the true input known — a reference channel
+    (``channel``), a static gyro's true rate 0 (``zero``), study 000's per-soak
+    bias K0 — the offset is an error; ``at-t-ref`` axes (gravity's or the
+    field's projection, a pressure) and scale factors have none
+    (:mod:`thermonet.features.target`).
+    """
+    mode = targets.mode(axis)
+    if mode == FOUR_POSITION:
+        return axis.endswith(".bias")
+    return mode in (CHANNEL, ZERO)
+
+
+def judge_against_raw(f: Fitted, metrics: dict[str, dict[str, float]], p: Plan) -> None:
+    """Validation and test verdicts against raw, the per-axis mask, the masked scores."""
+    from ..scoring.verdicts import masked_scores
+
+    assert f.val is not None and f.test is not None
+    res = f.result
+    val, val_ratio, val_boot = _verdicts(f.val.ss_comp, f.val.ss_raw)
+    test, test_ratio, test_boot = _verdicts(f.test.ss_comp, f.test.ss_raw)
+    single = np.array([v.verdict == "better" for v in val])   # the single-part rule's mask
+    mask = single if f.cv_mask is None else np.array(f.cv_mask)   # out of fold where it ran
+    f.single = (*masked_scores(val_ratio, val_boot, single), single.tolist())
+    res.val_score, draws_ = masked_scores(val_ratio, val_boot, mask)
+    q = [2.5, 97.5]
+    lo_hi = np.nanpercentile(draws_, q) if np.isfinite(draws_).any() else [math.nan] * 2
+    res.val_interval = (float(lo_hi[0]), float(lo_hi[1]))
+    res.test_score = float(np.mean(np.where(mask, test_ratio, 1.0)))
+    f.val_draws = draws_
+    sr, sc = f.test.score_raw, f.test.score_comp
+    orw, ocp = f.test.offset_raw, f.test.offset_comp
+    for j, axis in enumerate(p.outputs):
+        meaningful = _offset_meaningful(p.targets, axis)
+        res.axes[axis] = AxisResult(
+            score_raw=float(sr[j]), score_comp=float(sc[j]), test=test[j], val=val[j],
+            compensate=bool(mask[j]), offset_raw=float(orw[j]) if meaningful else None,
+            offset_comp=float(ocp[j]) if meaningful else None, metrics=metrics[axis])
+
+
+# ---------------------------------------------------------------------------------- report
+def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Plan) -> None:
+    """Choice with ties, verdicts against the baseline, warnings about the chosen model."""
+    from ..scoring.verdicts import choose
+
+    ok = {k: f for k, f in fitted.items() if f.result.ok and f.val_draws is not None}
+    cv = {k: f for k, f in ok.items() if f.oof is not None}
+    if p.folds is not None and cv:
+        from ..scoring.selection import select
+
+        first = next(iter(cv.values()))
+        sel = select(p.folds, first.pool_targets, first.pool_times,
+                     {k: f.oof for k, f in cv.items()}, p.outputs, baseline=p.cfg.baseline)
+        chosen, tied, why = sel.chosen, sel.tied, sel.reason
+        result.selection = sel.record
+        # what the single validation part would have chosen: how close the call was
+        alt = choose({k: (f.single[0], f.single[1]) for k, f in ok.items()},
+                     {k: f.result.n_params for k, f in ok.items()})
+        result.selection["single_split"] = {
+            "chosen": alt[0], "reason": alt[2],
+            "compensate": {k: dict(zip(p.outputs, f.single[2], strict=True))
+                           for k, f in ok.items()}}
+        if alt[0] != chosen:
+            result.warn(f"the split's single validation part would have chosen "
+                        f"{alt[0] or 'nothing'} instead of {chosen or 'nothing'}: the call rests "
+                        "on the cross-validation (see 'How the model was chosen')")
+        for k, f in cv.items():
+            if f.oof.failed is not None:
+                result.warn(f"{k}: not a candidate: {f.oof.failed}")
+    else:
+        scores = {k: (f.result.val_score, f.val_draws) for k, f in ok.items()
+                  if f.val_draws is not None}
+        chosen, tied, why = choose(scores, {k: f.result.n_params for k, f in ok.items()})
+        result.selection = {"method": "single validation part", "note": p.fold_note}
+    result.chosen, result.chosen_reason, result.tie = chosen, why, tied
+    if tied:
+        result.warn(why)
+    base = ok.get(p.cfg.baseline or "")
+    if base is not None and base.test is not None:
+        for f in ok.values():
+            assert f.test is not None
+            vs, _, _ = _verdicts(f.test.ss_comp, base.test.ss_comp)
+            for j, axis in enumerate(p.outputs):
+                ax = f.result.axes[axis]
+                ax.vs_baseline = vs[j]
+                b = base.result.axes[axis].metrics.get("pp_comp", math.nan)
+                ax.metrics["pp_ratio_vs_baseline"] = (
+                    ax.metrics.get("pp_comp", math.nan) / b if b > 0 else math.nan)
+    if chosen is None:
+        return
+    fam = result.families[chosen]
+    for axis, ax in fam.axes.items():
+        if not ax.compensate:
+            result.uncompensated_axes.append(axis)
+            result.warn(f"{axis}: left uncompensated by the chosen model {chosen} (drift 0 on "
+                        f"this axis): it does not beat the raw output on the validation data "
+                        f"(score ratio {ax.val.ratio:.3g}, interval {ax.val.low:.3g} … "
+                        f"{ax.val.high:.3g})")
+        elif ax.test.verdict == "worse":
+            result.warn(f"{axis}: the chosen model {chosen} is worse than raw on the held-out "
+                        f"test data (score ratio {ax.test.ratio:.3g}, 95 % interval "
+                        f"{ax.test.low:.3g} … {ax.test.high:.3g}); the drift may depend on "
+                        "more than temperature (thermal history, hysteresis)")
+    if not fam.compensate_in_model and result.uncompensated_axes:
+        result.warn(f"the model file of {chosen} does not carry the per-axis mask yet; export "
+                    f"it with care: {', '.join(result.uncompensated_axes)} should stay "
+                    "uncompensated")
+
+
+def extrapolation(fitted: dict[str, Fitted], result: ComparisonResult) -> None:
+    from ..data.diagnostics import extrapolation_warnings
+
+    fractions: dict[str, float] = {}
+    ranges: dict[str, tuple[float, float]] = {}
+    for f in fitted.values():
+        if not f.result.ok:
+            continue
+        for sig, frac in f.result.outside_trained_range.items():
+            fractions[sig] = max(fractions.get(sig, 0.0), frac)
+            ranges.setdefault(sig, f.ranges[sig])
+    result.data["outside_trained_range"] = fractions
+    result.data["trained_range"] = {k: list(v) for k, v in ranges.items()}
+    for w in extrapolation_warnings(fractions, ranges):
+        result.warn(w)
