@@ -36,7 +36,8 @@ _HARNESS = r"""
 import json, resource, sys, time
 t0 = time.perf_counter()
 from thermonet.training.config import load_config
-from thermonet.workflows.fleet import FleetOptions, run_fleet, sources_from_simulation
+from thermonet.workflows.fleet import FleetOptions, run_fleet
+from thermonet.workflows.fleet_units import sources_from_simulation
 cfg = load_config(sys.argv[1])
 cfg.tracking.enabled = False
 units, runs, ex = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]

@@ -47,7 +47,7 @@ from thermonet.exporting.c_stream import (  # noqa: E402
     stream_signature_has_proxies,
 )
 from thermonet.exporting.mcu import Emulator, cross_compile, toolchain  # noqa: E402
-from thermonet.exporting.onnx_export import float32_tolerance  # noqa: E402
+from thermonet.exporting.parity import float32_tolerance  # noqa: E402
 from thermonet.features import dynamics  # noqa: E402
 from thermonet.features.inputs import FeatureSpec, signal_matrix, target_matrix  # noqa: E402
 from thermonet.sim import simulate  # noqa: E402

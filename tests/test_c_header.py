@@ -12,7 +12,7 @@ import torch
 from thermonet.core.errors import ExportError
 from thermonet.exporting import export_c_header, export_onnx, render_c_header
 from thermonet.exporting.c_header import PARITY_DRIVER
-from thermonet.exporting.onnx_export import float32_tolerance
+from thermonet.exporting.parity import float32_tolerance
 from thermonet.features.inputs import FeatureSpec
 from thermonet.models import MODELS
 from thermonet.training.train import TrainConfig, fit

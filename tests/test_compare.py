@@ -215,7 +215,7 @@ def test_families_side_by_side_give_the_serial_results(tmp_path):
 def test_family_workers_rule_and_validation():
     from thermonet.core.errors import ConfigError
     from thermonet.training.config import from_dict
-    from thermonet.workflows.compare import family_workers
+    from thermonet.workflows.compare_fit import family_workers
 
     fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
             FamilyConfig(family="linear", name="linear")]

@@ -229,7 +229,7 @@ def test_parity_check_catches_a_graph_without_the_clamp(tmp_path):
     import torch
 
     from thermonet.core.errors import ExportError
-    from thermonet.exporting.onnx_export import parity_check
+    from thermonet.exporting.parity import parity_check
 
     model = _fit("poly", ["dT"], hyper={"degree": 3})
     good = export_onnx(model, tmp_path / "good.onnx")

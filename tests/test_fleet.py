@@ -18,13 +18,8 @@ from thermonet.scoring.fleetstats import MAD_TO_SIGMA, flag_outliers, parse_limi
 from thermonet.sim import simulate, simulate_fleet, unit_seed
 from thermonet.sim.fleet import OUTLIER_SIGMAS, outlier_config
 from thermonet.training.config import CompareConfig, FamilyConfig, load_config
-from thermonet.workflows.fleet import (
-    EXIT_LIMITS_FAILED,
-    FleetOptions,
-    UnitSource,
-    run_fleet,
-    sources_from_dataset,
-)
+from thermonet.workflows.fleet import EXIT_LIMITS_FAILED, FleetOptions, run_fleet
+from thermonet.workflows.fleet_units import UnitSource, sources_from_dataset
 
 #: Unit gains of the toy fleet; the last unit is off the fleet's law (an outlier).
 GAINS = (1.0, 1.01, 0.99, 1.005, 0.995, 1.5)

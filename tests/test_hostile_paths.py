@@ -34,7 +34,8 @@ from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
 from thermonet.training.config import CompareConfig, FamilyConfig
 from thermonet.workflows.calibrate import calibrate
-from thermonet.workflows.fleet import FleetOptions, run_fleet, sources_from_dataset
+from thermonet.workflows.fleet import FleetOptions, run_fleet
+from thermonet.workflows.fleet_units import sources_from_dataset
 
 #: Device ids a fleet file may hold that must not become paths as they are.
 HOSTILE_IDS = ("../../../ESCAPE", "/tmp/abs-evil", "..", "a/../../b", "C:\\win\\x", "con")

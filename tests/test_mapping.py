@@ -75,7 +75,7 @@ def test_skip_counts_malformed_rows_and_logs_them(tmp_path, caplog):
                        r"\(file line 8;"):
         read_dataset(path, _yaml(tmp_path, BANNER_MAPPING.format(malformed="error")))
     mp = _yaml(tmp_path, BANNER_MAPPING.format(malformed="skip"))
-    with caplog.at_level(logging.WARNING, logger="thermonet.data.io"):
+    with caplog.at_level(logging.WARNING, logger="thermonet.data.tables"):
         ds = read_dataset(path, mp)
     assert ds.meta["skipped_rows"] == "3"
     r = ds[0]

@@ -271,7 +271,7 @@ def test_implausible_inputs_are_warned():
 
 def test_default_baseline_applies_only_where_a_cubic_exists(tmp_path):
     from thermonet.training.config import load_config
-    from thermonet.workflows.compare import plan
+    from thermonet.workflows.compare_plan import plan
 
     rng = np.random.default_rng(7)
     path = write_parquet(Dataset([_run(f"run{k}", _ramp(), {"gyro_x": 0.01 * _ramp()},

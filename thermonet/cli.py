@@ -17,6 +17,7 @@ import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from . import __version__
 from .core.errors import Interrupted, ThermonetError
@@ -88,9 +89,8 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
         EXIT_LIMITS_FAILED,
         FleetOptions,
         run_fleet,
-        sources_from_dataset,
-        sources_from_simulation,
     )
+    from .workflows.fleet_units import sources_from_dataset, sources_from_simulation
 
     cfg = load_config(args.config)
     opts = FleetOptions(executor=args.executor, workers=args.workers,
@@ -383,14 +383,14 @@ def _raise_interrupted(signum: int, frame: object) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    previous: dict[int, object] = {}
+    previous: dict[signal.Signals, Any] = {}
     try:
         # SIGINT and SIGTERM both unwind like Ctrl-C (finally blocks run, runs end KILLED,
         # staging removed). SIGINT is set explicitly too: a process started with SIGINT
         # ignored (a parent's SIG_IGN is inherited across exec, as under pytest-xdist's
         # workers or a non-interactive shell's `&`) would otherwise never see Ctrl-C and run on.
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            previous[signum] = signal.signal(signum, _raise_interrupted)
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, _raise_interrupted)
     except ValueError:  # not the main thread (an embedding application): leave signals alone
         pass
     try:
@@ -407,8 +407,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"thermonet: error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
         return 1
     finally:
-        for signum, handler in previous.items():  # None: not set from Python; default is closest
-            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
+        for sig, handler in previous.items():  # None: not set from Python; default is closest
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
 
 
 if __name__ == "__main__":

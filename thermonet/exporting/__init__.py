@@ -157,7 +157,7 @@ register_format(ExportFormat(
 _LAZY = {
     "export_source": "source", "resolve_checkpoint": "source",
     "CompensatorGraph": "onnx_export", "export_onnx": "onnx_export",
-    "parity_check": "onnx_export", "log_onnx_to_mlflow": "onnx_export",
+    "parity_check": "parity", "log_onnx_to_mlflow": "onnx_export",
     "onnx_file_size": "onnx_export",
     "export_c_header": "c_header", "render_c_header": "c_header",
     "AutopilotCoefficients": "autopilot", "autopilot_coefficients": "autopilot",

@@ -73,14 +73,8 @@ from ..core.names import c_comment, c_string, check_model_names
 from ..models import DriftModel
 from ..models.cgen import as_float32, c_array, c_float, c_target_prelude
 from .c_stream import REAL_FLAGS, check_stream, float_path_slack, render_stream_c
-from .onnx_export import (
-    _check_points,
-    check_drift_parity,
-    check_model_finite,
-    family_name,
-    float32_tolerance,
-    trained_range,
-)
+from .onnx_export import check_model_finite, family_name
+from .parity import check_drift_parity, check_points, float32_tolerance, trained_range
 
 __all__ = ["export_c_header", "render_c_header"]
 
@@ -276,7 +270,7 @@ def c_parity_check(model: DriftModel, header_text: str, *, prefix: str = "thermo
     """Compile the header with the system C compiler and compare it with torch.
 
     The points are the ONNX check's (grid and random points in range, float32);
-    the tolerance is :func:`~.onnx_export.float32_tolerance`.  Returns ``None``
+    the tolerance is :func:`~.parity.float32_tolerance`.  Returns ``None``
     (and logs it) when no C compiler is found — the header is then unchecked.
     ``real="float"`` compiles the header's float path on the host
     (``-DTHERMONET_USE_FLOAT``: float raw/drift/compensated, the fast ``expf``), with
@@ -296,7 +290,7 @@ def c_parity_check(model: DriftModel, header_text: str, *, prefix: str = "thermo
     if cc is None:
         logging.getLogger(__name__).warning("no C compiler found: the C header is not checked")
         return None
-    points = _check_points(list(trained_range(model).values()), seed)
+    points = check_points(list(trained_range(model).values()), seed)
     n, n_axes = points.shape[0], len(model.outputs)
     const = model.constant().detach().cpu().double().numpy()
     with torch.no_grad():  # float32 drift relative to the float64 constant

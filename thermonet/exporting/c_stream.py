@@ -58,7 +58,7 @@ def float_path_slack(const: np.ndarray, drift: np.ndarray) -> np.ndarray:
     """What the float path adds to the drift's error, per axis: its ``drift`` output
     (the constant plus the model) is a float, rounded twice at its own magnitude (lo + y,
     hi + that: one ulp in all), and the fast
-    ``expf``/``expm1f`` are inside :func:`~.onnx_export.float32_tolerance`'s margin
+    ``expf``/``expm1f`` are inside :func:`~.parity.float32_tolerance`'s margin
     (their errors, :data:`~thermonet.models.cgen.FAST_EXPF_MAX_REL_ERR`, are ≤ 2.5 ε32)."""
     big = np.abs(np.asarray(const, dtype=np.float64)) + np.nanmax(np.abs(drift), axis=0)
     return np.spacing(big.astype(np.float32)).astype(np.float64)  # two roundings of ½ ulp

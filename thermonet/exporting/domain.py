@@ -60,14 +60,14 @@ def check_output_range(model: DriftModel, *, source: str,
     """
     import torch
 
-    from .onnx_export import _check_points, trained_range
+    from .parity import check_points, trained_range
 
     ranges = trained_range(model)
     for sig, (lo, hi) in ranges.items():
         if not (math.isfinite(lo) and math.isfinite(hi)):
             raise ExportError(f"{source}: trained range of signal '{sig}' is [{lo:g}, {hi:g}], "
                               "not a fitted model's; refusing to export")
-    points = _check_points(list(ranges.values()), seed=0)
+    points = check_points(list(ranges.values()), seed=0)
     with torch.no_grad():
         drift = model.relative(torch.from_numpy(points)).double().numpy()
         scale, shift = (t.detach().cpu().double().numpy() for t in model.output_scaling())

@@ -40,7 +40,7 @@ def load_data(cfg: DataConfig, *, source: str = "config", allow_fleet: bool = Fa
     if cfg.paths:
         from ..data.io import read_datasets
 
-        # a fleet is validated unit by unit (thermonet.workflows.fleet.sources_from_dataset)
+        # a fleet is validated unit by unit (thermonet.workflows.fleet_units.sources_from_dataset)
         ds = read_datasets(cfg.paths, mapping=cfg.mapping, validate=not allow_fleet)
     else:
         from ..sim import simulate

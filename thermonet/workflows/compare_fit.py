@@ -1,0 +1,253 @@
+"""``thermonet compare``, step 2 — fitting: per family and fold, the one fold pipeline
+(:mod:`thermonet.training.fold`: parts → fit → score), the held-out block sums, the
+cross-validated out-of-fold predictions of model selection, and the families fitted side by side
+(:class:`FitQueue`, :func:`family_workers`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import FitError
+from ..reporting.results import FamilyResult
+from ..training.config import (
+    CompareConfig,
+    FamilyConfig,
+    train_config_of,
+)
+from .compare_judge import Fitted, judge_against_raw
+from .compare_plan import PartCache, Plan
+
+__all__ = ["Progress", "fit_family", "family_workers", "FitQueue"]
+
+
+class Progress:
+    """One status line per family on stderr (rewritten in place on a terminal); silent if quiet."""
+
+    def __init__(self, quiet: bool = False, stream: Any = None) -> None:
+        self.quiet = quiet
+        self.stream = stream or sys.stderr
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self._last = 0.0
+
+    def epoch(self, label: str, epoch: int, train_loss: float, val_loss: float | None) -> None:
+        if self.quiet or not self.tty:
+            return
+        now = time.monotonic()
+        if now - self._last < 0.2:
+            return
+        self._last = now
+        val = f"{val_loss:.4g}" if val_loss is not None else "-"
+        self.stream.write(f"\r  {label:<14} epoch {epoch:5d}  train {train_loss:.4g}  val {val}   ")
+        self.stream.flush()
+
+    def line(self, text: str) -> None:
+        if self.quiet:
+            return
+        if self.tty:
+            self.stream.write("\r" + " " * 78 + "\r")
+        self.stream.write(text + "\n")
+        self.stream.flush()
+
+
+class _Cancelled(Exception):
+    """Another family's fit failed or the run was interrupted: stop this one at its next epoch."""
+
+
+def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
+                cancel: threading.Event | None = None) -> Fitted:
+    from ..data.diagnostics import outside_fraction
+    from ..models.base import as_numpy
+    from ..scoring.verdicts import pool
+    from ..training.fold import block_sums, fit_fold, fold_parts, fold_spec, score_part
+    from ..training.train import predict
+
+    cfg = p.cfg
+    res = FamilyResult(label=fam.label, family=fam.family, inputs=list(fam.inputs),
+                       params=dict(fam.params), train_on=fam.train_on)
+    out = Fitted(res)
+    fold_axes: list[dict[str, dict[str, float]]] = []
+    vals, tests = [], []
+    outside: dict[str, list[tuple[float, int]]] = {}
+
+    def on_epoch(epoch: int, train_loss: float, val_loss: float | None) -> None:
+        if cancel is not None and cancel.is_set():
+            raise _Cancelled(fam.label)
+        progress.epoch(fam.label, epoch, train_loss, val_loss)
+
+    try:
+        tcfg = train_config_of(cfg, fam)
+        for split in p.splits:
+            spec = fold_spec(fam.inputs, split.train, t_ref=cfg.features.t_ref,
+                             window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s,
+                             reference_for_targets=True)
+            fp = fold_parts(spec, split.train, outputs=p.outputs, target=p.targets,
+                            val=split.val, test=split.test, train_on=fam.train_on,
+                            gap_s=cfg.features.gap_s, part=parts)
+            fitted = fit_fold(fp, family=fam.family, outputs=p.outputs, hyper=fam.params,
+                              config=tcfg, target_modes=p.targets.modes, on_epoch=on_epoch)
+            res.fit_seconds = (0.0 if math.isnan(res.fit_seconds) else res.fit_seconds) \
+                + fitted.fit_seconds
+            held = fp.val or fp.train[-1]
+            vals.append(block_sums(held, predict(fitted.model, held.signals)))
+            test_part = fp.test
+            assert test_part is not None
+            pred, axes = score_part(fitted.model, test_part)
+            tests.append(block_sums(test_part, pred))
+            fold_axes.append(axes)
+            model = fitted.model
+            lo = np.asarray(as_numpy(model.sig_lo))
+            hi = np.asarray(as_numpy(model.sig_hi))
+            frac = outside_fraction(test_part.signals, lo, hi)
+            for k, sig in enumerate(model.signals):
+                outside.setdefault(sig, []).append((float(frac[k]), test_part.signals.shape[0]))
+                out.ranges[sig] = (float(lo[k]), float(hi[k]))
+            out.model, out.history = model, fitted.history
+            out.best_val = fitted.best_val_loss
+            out.test_parts.append(test_part)
+            out.test_preds.append(pred)
+            res.n_params, res.best_epoch = int(fitted.n_params), int(fitted.best_epoch)
+    except FitError as err:  # this data cannot carry the family: reported, the comparison goes on
+        res.status, res.reason, out.model = "failed", str(err), None
+        return out
+    if p.folds is not None:
+        _cross_validate(out, p, fam, tcfg, spec, parts, on_epoch)
+    out.val, out.test = pool(vals), pool(tests)
+    res.outside_trained_range = {s: sum(f * n for f, n in v) / max(sum(n for _, n in v), 1)
+                                 for s, v in outside.items()}
+    metrics = {a: {k: float(np.mean([f[a][k] for f in fold_axes])) for k in fold_axes[0][a]}
+               for a in p.outputs}
+    if len(fold_axes) > 1:
+        res.folds = fold_axes
+    judge_against_raw(out, metrics, p)
+    return out
+
+
+def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any,
+                    parts: PartCache, on_epoch: Any) -> None:
+    """Out-of-fold predictions of one family on the last split's pool (thermonet.scoring.selection):
+    one fit per fold on the purged training rows of the whole runs, predictions on the
+    fold's validation rows, and which of them lie inside the fold's trained domain."""
+    from ..features.inputs import RATE, resolve_gap_s, signal_matrix
+    from ..scoring.selection import CandidateOOF, in_domain, noise_widths, select
+    from ..training.parts import HEATING_MIN_RATE_C_PER_MIN
+    from ..training.train import fit, predict
+
+    plan = p.folds
+    split = p.splits[-1]
+    oof = CandidateOOF(fam.label, out.result.n_params)
+    whole = [parts(rec, spec.signals, spec.gap_s) for rec, _ in split.pool]
+    keep = [np.ones(q.target.shape[0], dtype=bool) for q in whole]
+    if fam.train_on == "heating":
+        gap = resolve_gap_s(p.cfg.features.gap_s, [r for r, _ in split.pool], ["rate"])
+        keep = [signal_matrix(rec, [RATE], gap)[:, 0] > HEATING_MIN_RATE_C_PER_MIN
+                for rec, _ in split.pool]
+    widen = [noise_widths(q.signals) for q in whole]
+    for f in range(plan.k):
+        train = [(q.signals[m & h], q.target[m & h], q.time_s[m & h])
+                 for q, m, h in zip(whole, plan.train_masks[f], keep, strict=True)
+                 if (m & h).any()]
+        try:
+            fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=p.outputs,
+                         train=train, val=None, spec=spec, hyper=dict(fam.params),
+                         config=tcfg, on_epoch=on_epoch, target=p.targets.modes)
+        except FitError as err:   # e.g. a fold's span too short for the family: said, left out
+            oof.failed = f"cross-validation fold {f}: {err}"
+            break
+        sig = np.vstack([x[0] for x in train])
+        with np.errstate(invalid="ignore"):
+            lo, hi = np.nanmin(sig, axis=0), np.nanmax(sig, axis=0)
+        preds, inside = [], []
+        for j, q in enumerate(whole):
+            rows = np.flatnonzero(plan.fold_of[j] == f)
+            x = q.signals[rows]
+            preds.append(predict(fitted.model, x) if rows.size
+                         else np.zeros((0, len(p.outputs))))
+            inside.append(in_domain(x, lo, hi, widen[j]) & np.isfinite(preds[-1]).all(axis=1))
+        oof.pred.append(preds)
+        oof.inside.append(inside)
+    out.oof = oof
+    out.pool_targets = [q.target for q in whole]
+    out.pool_times = [q.time_s for q in whole]
+    if oof.failed is None:
+        own = select(plan, out.pool_targets, out.pool_times, {fam.label: oof}, p.outputs)
+        out.cv_mask = own.compensate.get(fam.label)
+
+
+def family_workers(cfg: CompareConfig, workers: int | None = None) -> int:
+    """How many families are fitted side by side: ``workers`` (the caller's: a fleet runs
+    units side by side and passes 1), else the config's ``workers``; 0 is automatic —
+    one per CPU this process may use, at most one per family.  Each fit runs its own
+    ``train.threads`` torch threads (default 1); a family that overrides ``threads``
+    makes the comparison serial (torch's thread count is one setting per process)."""
+    n = cfg.workers if workers is None else workers
+    if any("threads" in fam.train for fam in cfg.families):
+        return 1
+    if n == 0:
+        try:
+            cores = len(os.sched_getaffinity(0))
+        except AttributeError:            # not on Linux
+            cores = os.cpu_count() or 1
+        n = cores
+    return max(1, min(n, len(cfg.families)))
+
+
+class FitQueue:
+    """Every family of the plan, fitted ``workers`` at a time (threads: torch and numpy
+    release the GIL in their kernels, and the fits share the built parts and their
+    window means); :meth:`result` hands them out in config order.
+
+    With one worker each fit runs when asked for (inside its MLflow run, as before);
+    with more, all are submitted on entry and :meth:`result` waits for the one asked
+    for.  Results do not depend on ``workers`` (each fit is seeded by its own config and
+    draws from no shared random state).  A fit that raises (anything but a FitError,
+    which is a reported result) is re-raised at once, and on any error or interrupt
+    the other fits stop at their next epoch before the queue closes.
+    """
+
+    def __init__(self, p: Plan, progress: Progress, parts: PartCache, workers: int) -> None:
+        self.p, self.progress, self.parts, self.workers = p, progress, parts, workers
+        self.cancel = threading.Event()
+        self.pool: Any = None
+        self.futures: dict[str, Any] = {}
+
+    def __enter__(self) -> FitQueue:
+        if self.workers > 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self.pool = ThreadPoolExecutor(max_workers=self.workers,
+                                           thread_name_prefix="thermonet-fit")
+            self.futures = {fam.label: self.pool.submit(fit_family, self.p, fam, self.progress,
+                                                        self.parts, self.cancel)
+                            for fam in self.p.cfg.families}
+        return self
+
+    def result(self, fam: FamilyConfig) -> Fitted:
+        if self.pool is None:
+            return fit_family(self.p, fam, self.progress, self.parts)
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        target = self.futures[fam.label]
+        while True:
+            pending = [f for f in self.futures.values() if not f.done()]
+            done = [f for f in self.futures.values() if f.done()]
+            for f in done:          # another family's error, raised now, not at its turn
+                err = f.exception()
+                if err is not None:
+                    raise err
+            if target.done():
+                return target.result()
+            wait(pending, return_when=FIRST_COMPLETED)
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.pool is not None:
+            if exc[0] is not None:
+                self.cancel.set()
+            self.pool.shutdown(wait=True, cancel_futures=True)

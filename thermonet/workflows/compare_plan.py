@@ -1,0 +1,172 @@
+"""``thermonet compare``, step 1 — the plan: the config checked against the data before anything
+is fitted or written (a ``baseline`` that names no family is an error; inputs the data cannot
+supply are errors), the splits made, the folds of cross-validated selection laid out, and
+warnings about implausible inputs collected (:mod:`thermonet.data.diagnostics`).  The parts
+each family is fitted on are built once and shared (:class:`PartCache`).
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ConfigError
+from ..core.recording import Dataset
+from ..features.target import Target
+from ..training.config import (
+    CompareConfig,
+    outputs_of,
+)
+from ..training.parts import (
+    Part,
+    Split,
+    build_part,
+    load_data,
+    make_splits,
+    targets_for,
+)
+
+__all__ = ["PartCache", "Plan", "plan", "data_summary"]
+
+
+class PartCache:
+    """Signals and targets of each (run, signals) pair, built once for all families."""
+
+    def __init__(self, cfg: CompareConfig, outputs: list[str], targets: Any = None) -> None:
+        self.cfg, self.outputs = cfg, outputs
+        # thermonet.features.target.Target, or the config's plain kind ("drift" / "four-position")
+        self.targets: Any = targets if targets is not None else cfg.target
+        self._cache: dict[tuple[int, tuple[str, ...], float | None], Part] = {}
+        # families fitted side by side ask for the same parts: each is built once
+        self._lock = threading.Lock()
+
+    def __call__(self, rec: Any, signals: list[str], gap_s: float | None = None) -> Part:
+        key = (id(rec), tuple(signals), gap_s)
+        with self._lock:
+            if key not in self._cache:
+                self._cache[key] = build_part(rec, signals=signals, outputs=self.outputs,
+                                              target=self.targets, gap_s=gap_s)
+            return self._cache[key]
+
+
+# ------------------------------------------------------------------------------------ plan
+@dataclass
+class Plan:
+    """Everything decided before fitting."""
+
+    cfg: CompareConfig
+    ds: Dataset
+    outputs: list[str]
+    targets: Target
+    splits: list[Split]
+    units: dict[str, str]
+    source: str
+    warnings: list[str] = field(default_factory=list)
+    folds: Any = None                # thermonet.scoring.selection.FoldPlan of the last split's pool
+    fold_note: str = ""              # why there is none (the single validation part decides)
+
+
+def _baseline_named(cfg: CompareConfig) -> bool:
+    """Whether the config file names ``baseline`` itself (rather than taking the default)."""
+    import yaml
+
+    src = getattr(cfg, "_source", None)
+    if not src or not Path(src).is_file():
+        return cfg.baseline != _DEFAULT_BASELINE
+    try:
+        data = yaml.safe_load(Path(src).read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError):  # load_config read it already; be conservative
+        return True
+    return isinstance(data, dict) and "baseline" in data
+
+
+_DEFAULT_BASELINE = CompareConfig.__dataclass_fields__["baseline"].default
+
+
+def _check_baseline(cfg: CompareConfig, source: str) -> None:
+    """A ``baseline`` the config names must be one of its families (an error before fitting);
+    the default (``cubic``, PX4/ArduPilot's anchor) applies only where such a family exists."""
+    labels = [f.label for f in cfg.families]
+    if cfg.baseline is not None and cfg.baseline not in labels and not _baseline_named(cfg):
+        cfg.baseline = None
+        return
+    if cfg.baseline is not None and cfg.baseline not in labels:
+        raise ConfigError(f"{source}: key 'baseline': no family named '{cfg.baseline}' "
+                          f"(families: {', '.join(labels)}); name one of them or set "
+                          "'baseline: null'")
+
+
+def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
+    """Check ``cfg`` against the data, make the splits, collect input warnings (no fitting)."""
+    from ..data.diagnostics import input_warnings
+    from ..features.inputs import dynamic_signal, signals_for
+    from ..training.config import check_families
+
+    source = getattr(cfg, "_source", "config")
+    check_families(cfg, source=source)
+    _check_baseline(cfg, source)
+    ds = dataset if dataset is not None else load_data(cfg.data, source=source)
+    signals: set[str] = set()
+    for i, fam in enumerate(cfg.families):
+        for sig in signals_for(fam.inputs):
+            signals.add(sig)
+            if sig == "temperature_c" or dynamic_signal(sig) is not None:
+                if any(r.temperature_c is None for r in ds):
+                    raise ConfigError(f"{source}: key 'families[{i}].inputs': {fam.inputs} need "
+                                      "a thermometer in °C and the data has none (proxies: "
+                                      f"{', '.join(sorted(ds[0].proxies)) or 'none'})")
+            elif sig not in ds[0].proxies:
+                raise ConfigError(f"{source}: key 'families[{i}].inputs': no proxy channel "
+                                  f"'{sig}' in the data (proxies: "
+                                  f"{', '.join(sorted(ds[0].proxies)) or 'none'})")
+    outputs = outputs_of(cfg, ds)
+    targets = targets_for(ds, cfg.target, outputs, source=source)
+    splits = make_splits(ds, cfg.split, source=source)
+    units = {o: ds[0].units.get(o.split(".")[0], "") for o in outputs}
+    for o in outputs:
+        if o.endswith(".scale"):
+            units[o] = "1"
+    from ..features.dynamics import RATE_TAU_S
+
+    warns = input_warnings(ds, signals=signals, rate_window_s=RATE_TAU_S)
+    folds, note = _fold_plan(cfg, splits)
+    return Plan(cfg, ds, outputs, targets, splits, units, source, warns, folds, note)
+
+
+def _fold_plan(cfg: CompareConfig, splits: list[Split]) -> tuple[Any, str]:
+    """The cross-validation folds of the last split's pool (thermonet.scoring.selection), or why not."""
+    from ..features.dynamics import dynamic_signals
+    from ..scoring.selection import plan_folds
+
+    sel = cfg.selection
+    if sel.folds == 0:
+        return None, "selection.folds is 0: chosen on the split's validation part"
+    if cfg.target == "four-position":
+        return None, ("the four-position target has one sample per soak: chosen on the "
+                      "split's validation part")
+    tau = max((d.param for fam in cfg.families for d in dynamic_signals(fam.inputs)
+               if d.kind in ("rate", "lag")), default=0.0)
+    # the folds look like the test: whole runs left out where the test is a run of its own,
+    # blocks inside the runs where the test is blocks inside them (a time-block split)
+    plan = plan_folds(splits[-1].pool, folds=sel.folds, blocks_per_fold=sel.blocks_per_fold,
+                      tau_s=tau, purge_s=sel.purge_s, window_s=sel.window_s,
+                      by_run=splits[-1].label != "time-blocks")
+    if plan is None:
+        return None, (f"too little training data for {sel.folds} cross-validation folds: "
+                      "chosen on the split's validation part")
+    return plan, ""
+
+
+def data_summary(ds: Dataset) -> list[dict[str, Any]]:
+    rows = []
+    for r in ds:
+        t = r.temperature_c
+        rows.append({"run_id": r.run_id, "samples": int(r.n_samples),
+                     "duration_s": float(r.duration_s), "rate_hz": float(r.effective_rate_hz),
+                     "temperature_min_c": None if t is None else float(np.nanmin(t)),
+                     "temperature_max_c": None if t is None else float(np.nanmax(t))})
+    return rows

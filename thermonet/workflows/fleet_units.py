@@ -1,0 +1,258 @@
+"""A fleet's units and the work done per unit: where each unit's runs come from
+(:class:`UnitSource`: a file, a split dataset, a simulation), the per-unit task (its own
+comparison, :func:`thermonet.workflows.compare.run_compare`, and the physical coefficients of
+its model) and the per-fold task of leave-units-out (one pooled fleet model fitted through the
+one fold pipeline, :mod:`thermonet.training.fold`, and judged on each held-out unit next to
+the unit's own model).  Tasks are plain picklable items, run by :mod:`thermonet.core.executors`.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..core.recording import Dataset, split_units
+from ..training.config import CompareConfig, FamilyConfig
+
+__all__ = ["UnitSource", "sources_from_dataset", "sources_from_simulation",
+           "physical_coefficients", "COEF_T0_C", "UnitItem", "unit_task", "FoldItem",
+           "fold_task", "fold_items"]
+
+
+#: Reference temperature of the fleet's physical coefficients (°C).
+COEF_T0_C = 25.0
+
+
+@dataclass
+class UnitSource:
+    """Where a worker finds one unit's data: the runs themselves, or simulator arguments."""
+
+    device_id: str
+    dataset: Dataset | None = None
+    sim: dict[str, Any] | None = None   # simulate_fleet kwargs with unit_indices=[k]
+    error: str | None = None            # why this unit's data cannot be used (it fails alone)
+
+    def load(self) -> Dataset:
+        if self.error is not None:
+            raise InputError(self.error)
+        if self.dataset is not None:
+            return self.dataset
+        from ..sim import simulate_fleet
+
+        if self.sim is None:
+            raise InputError(f"unit '{self.device_id}': no data")
+        return simulate_fleet(**self.sim)
+
+
+def sources_from_dataset(ds: Dataset, source: str = "") -> list[UnitSource]:
+    """One source per unit of a dataset, each unit validated on its own.
+
+    A unit whose runs fail validation (too few samples, no temperature span,
+    bad time stamps …) becomes a source that fails with the reason, naming the
+    unit, so the fleet goes on without it; the units left must agree with each
+    other (same outputs, proxies and units of measure), else one line names both.
+    """
+    by_unit: dict[str, list[Any]] = {}
+    for r in ds.runs:
+        by_unit.setdefault(r.device_id, []).append(r)
+    bad: dict[str, str] = {}
+    for dev, runs in by_unit.items():
+        try:
+            Dataset(runs=runs, meta=dict(ds.meta)).validate(source)
+        except InputError as err:
+            bad[dev] = f"unit '{dev}': {err}"
+    good = [r for r in ds.runs if r.device_id not in bad]
+    units = split_units(Dataset(runs=good, meta=dict(ds.meta)).validate(source)) if good else {}
+    return [UnitSource(dev, error=bad[dev]) if dev in bad else UnitSource(dev, dataset=units[dev])
+            for dev in by_unit]
+
+
+def sources_from_simulation(preset: str, *, units: int, runs: int | None = None, seed: int = 0,
+                            outliers: int = 0, **overrides: Any) -> list[UnitSource]:
+    """Sources for a simulated fleet: each worker simulates its own unit.
+
+    ``overrides`` go to the simulator (``sample_rate_hz=0.1``, ``white_noise=False``).
+    """
+    from ..sim.fleet import simulate_fleet, unit_device_id
+
+    simulate_fleet(preset, units=units, runs=1, seed=seed, outliers=outliers,
+                   unit_indices=[])  # checks the arguments here, before any worker starts
+    return [UnitSource(unit_device_id(preset, k, units),
+                       sim={"preset": preset, "units": units, "runs": runs, "seed": seed,
+                            "outliers": outliers, "unit_indices": [k], **overrides})
+            for k in range(units)]
+
+
+# ------------------------------------------------------------------ workers
+def _family(cfg: CompareConfig, label: str) -> FamilyConfig:
+    return next(f for f in cfg.families if f.label == label)
+
+
+def _buffer(model: Any, name: str) -> np.ndarray:
+    """A model buffer as float64 NumPy (the trained signal range ``sig_lo``/``sig_hi``)."""
+    return np.asarray(getattr(model, name).detach().cpu().numpy(), dtype=np.float64)
+
+
+def physical_coefficients(model: Any, t0_c: float = COEF_T0_C) -> dict[str, float]:
+    """Polynomial coefficients of a temperature-only model's drift in (T − t0), per axis.
+
+    ``{"<axis>.c<k>": value}`` in output unit / °C^k; empty when the model takes
+    other signals than the temperature.  Degree: the family's own
+    (:meth:`thermonet.models.Family.coefficient_degree`: a polynomial's degree on ``T`` or
+    ``dT`` alone, else 3 — then a summary of the curve, not its parameters).
+    """
+    from ..training.train import predict
+
+    if list(model.signals) != ["temperature_c"]:
+        return {}
+    lo, hi = (float(v) for v in np.concatenate([_buffer(model, "sig_lo")[:1],
+                                                 _buffer(model, "sig_hi")[:1]]))
+    if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+        return {}
+    degree = int(model.family.coefficient_degree(list(model.inputs)))  # the family's own say
+    grid = np.linspace(lo, hi, 201)
+    drift = predict(model, grid[:, None])
+    out: dict[str, float] = {}
+    for j, axis in enumerate(model.outputs):
+        c = np.polynomial.polynomial.polyfit(grid - t0_c, drift[:, j].astype(np.float64), degree)
+        out.update({f"{axis}.c{k}": float(v) for k, v in enumerate(c)})
+    return out
+
+
+def _residual_std(model: Any, part: Any) -> np.ndarray:
+    from ..training.train import predict
+
+    return np.std(part.target - predict(model, part.signals), axis=0)
+
+
+def _test_part(cfg: CompareConfig, ds: Dataset, model: Any) -> Any:
+    from ..training.parts import build_part, make_splits, targets_for
+
+    where = f"unit '{ds.device_id}'"
+    split = make_splits(ds, cfg.split, source=where)[-1]
+    outputs = list(model.outputs)
+    return build_part(split.test, signals=list(model.signals), outputs=outputs,
+                      target=targets_for(ds, cfg.target, outputs, source=where),
+                      gap_s=model.spec.gap_s)
+
+
+@dataclass
+class UnitItem:
+    cfg: CompareConfig
+    source: UnitSource
+    family: str
+    plots: bool = True
+
+
+def unit_task(item: UnitItem) -> dict[str, Any]:
+    """One unit in a worker: compare in a private temp dir, return plain data."""
+    from ..training.checkpoint import load_checkpoint
+    from .compare import run_compare
+
+    ds = item.source.load()
+    if ds.is_fleet:
+        raise InputError(f"unit '{item.source.device_id}': its data holds several devices")
+    tmp = Path(tempfile.mkdtemp(prefix="thermonet-unit-"))
+    try:
+        udir = tmp / "unit"
+        results = run_compare(item.cfg, udir, dataset=ds, track=False, quiet=True,
+                              plots=item.plots,
+                              workers=1)   # units run side by side, not families
+        files = {p.relative_to(udir).as_posix(): p.read_bytes()
+                 for p in sorted(udir.rglob("*")) if p.is_file()}
+        temps = [r.temperature_c for r in ds if r.temperature_c is not None]
+        span = float(max(t.max() for t in temps) - min(t.min() for t in temps)) \
+            if temps and len(temps) == len(ds) else None
+        payload: dict[str, Any] = {"results": results, "files": files, "root": str(udir),
+                                   "temperature_span_c": span, "coefficients": {},
+                                   "n_runs": len(ds), "temperature_range_c": None,
+                                   "own_model": None}
+        fam = results["families"].get(item.family)
+        if fam and fam.get("status") == "ok" and fam.get("checkpoint"):
+            own, _ = load_checkpoint(fam["checkpoint"])
+            payload["own_model"] = own  # for leave-units-out, evaluated by the fold tasks
+            payload["coefficients"] = physical_coefficients(own)
+            lo, hi = float(_buffer(own, "sig_lo")[0]), float(_buffer(own, "sig_hi")[0])
+            if list(own.signals) == ["temperature_c"] and np.isfinite([lo, hi]).all():
+                payload["temperature_range_c"] = [lo, hi]
+        return payload
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+@dataclass
+class FoldItem:
+    cfg: CompareConfig
+    family: str
+    fold: int
+    sources: list[UnitSource] = field(default_factory=list)       # the fleet model's units
+    held_out: list[tuple[UnitSource, Any]] = field(default_factory=list)  # (unit, own model)
+
+
+def fold_task(item: FoldItem) -> dict[str, Any]:
+    """Fit one fleet model of the fleet family on other units' calibration runs, and
+    evaluate it on each held-out unit's test run next to the unit's own model."""
+    from ..training.config import outputs_of, train_config_of
+    from ..training.fold import fit_fold, fold_parts, fold_spec
+    from ..training.parts import make_splits, targets_for
+
+    cfg, fam = item.cfg, _family(item.cfg, item.family)
+    train, val = [], []
+    outputs: list[str] = []
+    target: Any = cfg.target
+    for src in item.sources:
+        ds = src.load()
+        split = make_splits(ds, cfg.split, source=f"unit '{src.device_id}'")[-1]
+        outputs = outputs_of(cfg, ds)   # the same outputs and train section as a unit's
+        target = targets_for(ds, cfg.target, outputs, source=f"unit '{src.device_id}'")
+        train += split.train
+        if split.val is not None:
+            val.append(split.val)
+    spec = fold_spec(fam.inputs, train, t_ref=cfg.features.t_ref,
+                     window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s)
+    parts = fold_parts(spec, train, outputs=outputs, target=target)
+    vparts = fold_parts(spec, val, outputs=outputs, target=target).train
+    v = (np.concatenate([p.signals for p in vparts]), np.concatenate([p.target for p in vparts])) \
+        if vparts else None
+    fitted = fit_fold(parts, family=fam.family, outputs=outputs, hyper=fam.params,
+                      config=train_config_of(cfg, fam), val=v, windows=False)
+    evaluations = {}
+    for src, own in item.held_out:  # one unit's data at a time
+        test = _test_part(cfg, src.load(), own)
+        s_own, s_fleet = _residual_std(own, test), _residual_std(fitted.model, test)
+        s_raw = np.std(test.target, axis=0)
+        evaluations[src.device_id] = {
+            "fold": item.fold, "family": item.family,
+            "fitted_on": [s.device_id for s in item.sources], "axes": {
+                a: {"std_raw": float(s_raw[j]), "std_own": float(s_own[j]),
+                    "std_fleet": float(s_fleet[j]),
+                    "ratio": float(s_fleet[j] / s_own[j]) if s_own[j] > 0 else None}
+                for j, a in enumerate(own.outputs)}}
+    return {"units": [s.device_id for s in item.sources], "fold": item.fold,
+            "evaluations": evaluations}
+
+
+def fold_items(cfg: CompareConfig, family: str, sources: list[UnitSource], k: int,
+                per_fit: int, own: dict[str, Any], excluded: set[str]) -> list[FoldItem]:
+    """Unit *i* is in group *i* mod k; each group's fleet model is fitted on up to
+    ``per_fit`` units of the other groups (evenly spaced), leaving out ``excluded`` units
+    (flagged outliers, failed units)."""
+    items = []
+    for f in range(k):
+        others = [s for i, s in enumerate(sources)
+                  if i % k != f and s.device_id not in excluded]
+        if len(others) > per_fit:  # evenly spaced, deterministic
+            pick = np.linspace(0, len(others) - 1, per_fit).round().astype(int)
+            others = [others[i] for i in sorted(set(pick.tolist()))]
+        held = [(s, own[s.device_id]) for i, s in enumerate(sources)
+                if i % k == f and own.get(s.device_id) is not None]
+        if others and held:
+            items.append(FoldItem(cfg=cfg, family=family, fold=f, sources=others,
+                                   held_out=held))
+    return items
