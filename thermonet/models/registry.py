@@ -18,6 +18,7 @@ torch loads) and imports the class otherwise.  A plug-in cannot take a built-in'
 from __future__ import annotations
 
 import ast
+import functools
 import importlib
 import importlib.util
 import inspect
@@ -41,6 +42,7 @@ BUILTIN: dict[str, str] = {
     "lorentz": "thermonet.models.lorentz:Lorentz",
     "ts-fuzzy": "thermonet.models.fuzzy:TSFuzzy",
     "rbf": "thermonet.models.rbf:RBF",
+    "mlp": "thermonet.models.mlp:MLP",
 }
 
 #: The entry-point group a package registers its own families in (name -> Family subclass).
@@ -54,8 +56,10 @@ _SHAPE = ("n_inputs", "n_outputs")
 _MODELS: dict[str, type[Family]] | None = None
 
 
+@functools.cache
 def _plugins() -> dict[str, EntryPoint]:
-    """The installed plug-in families (the first of a name wins; built-in names are kept)."""
+    """The installed plug-in families (the first of a name wins; built-in names are kept),
+    read once per process."""
     out: dict[str, EntryPoint] = {}
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         if ep.name not in BUILTIN and ep.name not in out:

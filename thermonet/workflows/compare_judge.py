@@ -119,7 +119,7 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
 
         first = next(iter(cv.values()))
         sel = select(p.folds, first.pool_targets, first.pool_times,
-                     {k: f.oof for k, f in cv.items()}, p.outputs)
+                     {k: f.oof for k, f in cv.items()}, p.outputs, baseline=p.cfg.baseline)
         chosen, tied, why = sel.chosen, sel.tied, sel.reason
         result.selection = sel.record
         # what the single validation part would have chosen: how close the call was
