@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from thermonet.models.registry import BUILTIN
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -40,9 +42,9 @@ def test_a_wrong_hyper_parameter_is_refused_without_torch(tmp_path):
     assert torch_loaded == "False"
 
 
-@pytest.mark.parametrize("name", ["linear", "poly", "lorentz", "ts-fuzzy", "rbf"])
+@pytest.mark.parametrize("name", list(BUILTIN))
 def test_signature_from_source_matches_the_class(name):
-    from thermonet.models.registry import BUILTIN, _signature_from_source, get_family
+    from thermonet.models.registry import _signature_from_source, get_family
 
     sig = _signature_from_source(BUILTIN[name])
     cls = get_family(name)

@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from thermonet.models.registry import BUILTIN
+
 ROOT = Path(__file__).resolve().parents[1]
 
 PYPROJECT = """\
@@ -139,4 +141,4 @@ def test_an_unknown_name_lists_the_installed_family(plugin_path, tmp_path):
     assert r.returncode == 1
     line = r.stderr.strip()
     assert "\n" not in line and "unknown model family 'my-quadratc'" in line
-    assert line.endswith("valid: linear, poly, lorentz, ts-fuzzy, rbf, my-quadratic)")
+    assert line.endswith(f"valid: {', '.join(BUILTIN)}, my-quadratic)")   # built-ins, then it
