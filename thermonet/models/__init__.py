@@ -1,8 +1,8 @@
 """The model families, by name: the fourth layer, above :mod:`thermonet.features`.
 
 ``MODELS`` maps the lowercase name a config uses to the :class:`Family` subclass — the
-built-in ones (``linear``, ``poly``, ``lorentz``, ``ts-fuzzy``, ``rbf``) and every family an
-installed package registers under the entry-point group ``thermonet.families``
+built-in ones (``linear``, ``poly``, ``lorentz``, ``ts-fuzzy``, ``rbf``, ``mlp``) and every
+family an installed package registers under the entry-point group ``thermonet.families``
 (:mod:`thermonet.models.registry`); tests parametrise over it, so registering a family is
 what makes it tested (fit, predict, save/load, ONNX parity).  The names here load on first
 access: the registry itself (:func:`get_family`, :func:`build_family`) is torch-free until a
@@ -21,17 +21,20 @@ if TYPE_CHECKING:
     from .fuzzy import TSFuzzy
     from .linear import Linear
     from .lorentz import Lorentz
+    from .mlp import MLP
     from .poly import Poly
     from .rbf import RBF
 
     MODELS: dict[str, type[Family]]
 
 __all__ = ["MODELS", "get_family", "build_family", "family_names", "ENTRY_POINT_GROUP",
-           "Family", "DriftModel", "TINY", "Linear", "Poly", "Lorentz", "TSFuzzy", "RBF"]
+           "Family", "DriftModel", "TINY", "Linear", "Poly", "Lorentz", "TSFuzzy", "RBF",
+           "MLP"]
 
 _LAZY = {
     "Family": "base", "DriftModel": "base", "TINY": "base",
     "Linear": "linear", "Poly": "poly", "Lorentz": "lorentz", "TSFuzzy": "fuzzy", "RBF": "rbf",
+    "MLP": "mlp",
 }
 
 

@@ -232,6 +232,58 @@ class Family(nn.Module):
         cross-validation), JSON-able; empty when it chooses none."""
         return {}
 
+    def penalty(self) -> torch.Tensor | None:
+        """A regularisation term the training loop adds to the loss it minimises, or None.
+
+        A scalar tensor in the loss's units (the mean squared error in standardised units)
+        built from this family's parameters, so its gradient reaches them: the MLP's
+        ``weight_decay`` is :math:`\\lambda \\sum W^2` over its weight matrices.  Only the
+        optimizer sees it: the losses the loop records and early stopping monitors stay
+        the plain mean squared error, comparable between families.
+        """
+        return None
+
+    def op_count(self) -> tuple[int, int] | None:
+        """``(ops, transcendentals)`` of one sample of :meth:`emit_c`'s body, counted from
+        this family's own shapes (see :meth:`cost`); None where the family does not count."""
+        return None
+
+    def cost(self) -> dict[str, int | None]:
+        """What one sample costs on board: the family's share of the C header.
+
+        ``ops_per_sample``
+            Floating-point operations of :meth:`emit_c`'s body for one sample (features
+            ``z`` in, drift ``y`` out), counted from the model's own shapes
+            (:meth:`op_count`): a multiply-add (one term of :func:`~.cgen.c_affine`, fused
+            where the FPU fuses) is one, so is a lone multiply, add, division or clamp
+            (``max``), and so is each call of a transcendental (``exp``, ``expm1``).
+        ``transcendentals``
+            The calls of a transcendental among them (each costs tens of instructions on a
+            Cortex-M4F: the header's polynomial ``expf``).
+        ``c_bytes``
+            The constant data of the family's arrays in the header
+            (:func:`~.cgen.c_constant_bytes` of :meth:`emit_c`'s constants).
+
+        Not counted: integer work (loop counters, indices), comparisons and copies, and the
+        part of the header every family shares (clamp the signals, features, standardise,
+        add the drift constant, ``raw − drift``).  None where the family does not count
+        (a plug-in without :meth:`op_count`) or has no C emitter.
+        """
+        from ..core.errors import ExportError
+        from .cgen import c_constant_bytes
+
+        counted = self.op_count()
+        ones = torch.ones(self.n_outputs)
+        try:  # the shapes, not the values, decide the size: any scaling will do
+            with torch.no_grad():
+                body = self.emit_c("thermonet", ones, 0.0 * ones)
+            c_bytes: int | None = c_constant_bytes(body.constants)
+        except ExportError:
+            c_bytes = None
+        return {"ops_per_sample": None if counted is None else int(counted[0]),
+                "transcendentals": None if counted is None else int(counted[1]),
+                "c_bytes": c_bytes}
+
     def polynomial_form(self) -> np.ndarray | None:
         """Coefficients (A, degree + 1), ascending in the one standardised input z,
         when this fitted family *is* a polynomial in one input; None otherwise.

@@ -24,6 +24,7 @@ in the export layer.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,7 +33,7 @@ import torch
 from ..core.errors import ExportError
 
 __all__ = ["CBody", "c_float", "c_array", "as_float32", "c_exp", "c_expm1", "c_target_prelude",
-           "c_affine",
+           "c_affine", "c_constant_bytes", "C_TYPE_BYTES",
            "FAST_EXPF_MAX_REL_ERR", "FAST_EXPM1F_MAX_REL_ERR", "FAST_EXP_DOMAIN"]
 
 
@@ -81,6 +82,32 @@ def c_array(name: str, values: object, ctype: str = "float") -> str:
         return "{\n    " + ",\n    ".join(rows(r) for r in a) + "}"
 
     return f"static const {ctype} {name}{shape} = {rows(arr)};"
+
+
+#: Bytes of the C types a family's constants use (``int`` is 32 bits on every target the
+#: header supports: Cortex-M, RISC-V, x86-64).
+C_TYPE_BYTES = {"float": 4, "double": 8, "int": 4, "int8_t": 1, "uint8_t": 1, "int16_t": 2,
+                "uint16_t": 2, "int32_t": 4, "uint32_t": 4}
+_C_ARRAY = re.compile(r"^\s*static\s+const\s+(\w+)\s+\w+((?:\[\d+\])+)\s*=", re.MULTILINE)
+
+
+def c_constant_bytes(constants: list[str]) -> int:
+    """Bytes of constant data the declarations hold: every ``static const`` array (as
+    :func:`c_array` writes them), element size × element count; ``#define`` lines and
+    comments hold none.
+
+    Raises
+    ------
+    ExportError
+        For an array of a type not in :data:`C_TYPE_BYTES`.
+    """
+    total = 0
+    for decl in constants:
+        for ctype, dims in _C_ARRAY.findall(decl):
+            if ctype not in C_TYPE_BYTES:
+                raise ExportError(f"constant of unknown C type {ctype!r}: cannot count its bytes")
+            total += C_TYPE_BYTES[ctype] * math.prod(int(d) for d in re.findall(r"\d+", dims))
+    return total
 
 
 def as_float32(tensor: torch.Tensor) -> np.ndarray:

@@ -138,6 +138,13 @@ class TSFuzzy(Family):
     }}"""
         return CBody(consts, body)
 
+    def op_count(self) -> tuple[int, int]:
+        """The two neighbouring sets only (:meth:`emit_c`): the input's clamp (2), its
+        position (2), the two memberships (2) and their clamps (2), the normalisation (2);
+        per axis the two rules (2 multiply-adds), their weighted sum (2) and the
+        normalisation (1): :math:`10 + 5A`, whatever ``n_sets``."""
+        return 10 + 5 * self.n_outputs, 0
+
     def check_fittable(self, x: torch.Tensor) -> str | None:
         levels = distinct_levels(as_numpy(x)[:, 0])
         if levels < 2:

@@ -55,6 +55,10 @@ class Linear(Family):
                         [(f, f"z[{f}]") for f in range(int(w.shape[1]))])
         return CBody(consts, body)
 
+    def op_count(self) -> tuple[int, int]:
+        """One multiply-add per weight: :math:`A F`."""
+        return self.n_outputs * self.n_inputs, 0
+
     def check_fittable(self, x: torch.Tensor) -> str | None:
         xn = as_numpy(x)
         if xn.shape[0] < self.n_inputs + 1:

@@ -126,6 +126,11 @@ class Lorentz(Family):
     }}"""
         return CBody(consts, body)
 
+    def op_count(self) -> tuple[int, int]:
+        """Per axis ``z − xc``, ``dx·dx + h`` (one multiply-add), the division and
+        ``y0 +``: :math:`4A`."""
+        return 4 * self.n_outputs, 0
+
     def check_fittable(self, x: torch.Tensor) -> str | None:
         xn = as_numpy(x)
         levels = distinct_levels(xn[:, 0])

@@ -110,6 +110,14 @@ class Poly(Family):
         body = "    {\n" + "\n".join(lines) + "\n    }"
         return CBody(consts, body)
 
+    def op_count(self) -> tuple[int, int]:
+        """The powers (``need − 1`` multiplies per input), the cross terms (one multiply per
+        extra factor) and one multiply-add per coefficient: a cubic in one input on A axes
+        is :math:`2 + 3A`."""
+        powers = sum(max(max(e[i] for e in self.terms) - 1, 0) for i in range(self.n_inputs))
+        products = sum(sum(1 for e in exps if e) - 1 for exps in self.terms)
+        return powers + products + self.n_outputs * len(self.terms), 0
+
     def check_fittable(self, x: torch.Tensor) -> str | None:
         xn = as_numpy(x)
         n_coef = len(self.terms) + 1

@@ -228,6 +228,14 @@ class RBF(Family):
     }}"""
         return CBody(consts, body)
 
+    def op_count(self) -> tuple[int, int]:
+        """:math:`\\lVert z \\rVert^2` (F multiply-adds), the exponents (J(F + 1)), the J
+        ``exp`` calls, the tail's powers (d − 1 multiplies) and the output (A(J + d)):
+        16 centres on 2 inputs, 3 axes, no tail: 2 + 48 + 16 + 48 = 114, 16 of them
+        ``exp``."""
+        f, j, d = self.n_inputs, self.n_centres, self.tail
+        return f + j * (f + 1) + j + max(d - 1, 0) + self.n_outputs * (j + d), j
+
     def check_fittable(self, x: torch.Tensor) -> str | None:
         xn = as_numpy(x)
         if xn.shape[0] < self.n_centres:

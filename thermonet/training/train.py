@@ -9,6 +9,10 @@ loss.  The loss is the mean squared error in standardised units:
 
 .. math:: L = \\frac{1}{N A} \\sum_{n, a} \\left(\\frac{\\hat y_{na} - y_{na}}{s_{y,a}}\\right)^2
 
+The optimizer minimises :math:`L` plus the family's own penalty where it has one
+(:meth:`~thermonet.models.base.Family.penalty`: the MLP's weight decay); the history and
+early stopping use :math:`L` alone.
+
 Epoch 0 in the history is the initialised model, so the history always shows
 what training added to the closed-form start.
 """
@@ -329,11 +333,14 @@ def _mse(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> torch.Tensor
     return torch.mean((fam(z) - y) ** 2)
 
 
-def _train_step(fam: torch.nn.Module, opt: torch.optim.Optimizer, z: torch.Tensor,
+def _train_step(fam: Family, opt: torch.optim.Optimizer, z: torch.Tensor,
                 y: torch.Tensor) -> None:
     def closure() -> torch.Tensor:
         opt.zero_grad()
         loss = _mse(fam, z, y)
+        penalty = fam.penalty()  # the family's regularisation (MLP weight decay), if any
+        if penalty is not None:
+            loss = loss + penalty
         loss.backward()
         return loss
     opt.step(closure)  # type: ignore[arg-type]  # the stub says float; LBFGS takes the tensor
