@@ -21,8 +21,18 @@ Conventions, so a figure does not mislead:
 * errors are drawn about their mean (the offset removed): a model can only
   remove the temperature-dependent part, and a raw offset (gyro bias,
   gravity) would squash everything else;
-* noisy scatters are light, with 1 °C (one bin width) binned means on top;
-* time in hours from the start of the held-out data;
+* noisy samples (scatters, the min/max band of a time series) are drawn
+  faintly behind binned means: 1 °C (one bin width) against temperature,
+  :data:`LIMIT_BINS` time bins over the recording against time;
+* the y-scale is set by binned means only (:func:`y_limits`): of the raw
+  output's error, the baseline's and the chosen family's curves, with a
+  :data:`Y_MARGIN` margin.  Never by single samples (white noise at 500 Hz
+  would flatten a 4 mg drift) nor by a candidate that is neither chosen nor
+  the baseline: such a curve may leave the frame, is clipped by the axes and
+  says "(off scale)" in the legend;
+* time from the start of the held-out data in the unit that suits its length
+  (:func:`time_unit`: s up to 10 min, min up to 3 h, h beyond), named in the
+  axis label;
 * y labels say what is drawn: the raw output's error, a model's predicted
   drift, a residual.
 """
@@ -30,6 +40,7 @@ Conventions, so a figure does not mislead:
 from __future__ import annotations
 
 import colorsys
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -38,12 +49,12 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from ..core.recording import GAP_FACTOR
 from ..scoring.metrics import (  # one 1-D series check for metrics and plots
     _series,
     allan,
-    binned_means,
 )
 
 __all__ = [
@@ -53,10 +64,19 @@ __all__ = [
     "plot_residual_vs_time",
     "plot_residual_vs_temperature",
     "plot_allan",
+    "drift_vs_temperature_figure",
+    "residual_vs_time_figure",
+    "residual_vs_temperature_figure",
+    "y_limits",
+    "time_unit",
     "FIGSIZE_IN",
     "DPI",
     "MAX_SCATTER_POINTS",
     "MAX_LINE_POINTS",
+    "LIMIT_BINS",
+    "MIN_BIN_SAMPLES",
+    "Y_MARGIN",
+    "OFF_SCALE",
 ]
 
 #: Figure size, inches (width, height); with :data:`DPI` gives 1000 × 600 px.
@@ -67,6 +87,25 @@ DPI = 100
 MAX_SCATTER_POINTS = 5000
 #: Time series keep at most about this many vertices: a min and a max per pixel column.
 MAX_LINE_POINTS = 2 * int(FIGSIZE_IN[0] * DPI)
+
+#: Time series are averaged in at most this many equal time bins (about 1/200 of the span,
+#: 5 px each), for the lines drawn over the noise and for the y-scale.
+LIMIT_BINS = 200
+#: … and in fewer bins where there are not this many samples per bin.
+MIN_BIN_SAMPLES = 10
+#: Margin added below and above the binned means' range, as a fraction of that range.
+Y_MARGIN = 0.08
+#: Added to the legend label of a curve whose binned means leave the frame.
+OFF_SCALE = "(off scale)"
+# A bin counts for the y-scale when it holds at least this fraction of the median bin's
+# samples: a sparsely filled bin (the end of a ramp, a stray thermometer reading) has a
+# noise-level mean.
+_DENSE_FRACTION = 0.25
+# Time units by the recording's length: (longest span shown in the unit, name, seconds).
+_TIME_UNITS = ((600.0, "s", 1.0), (3 * 3600.0, "min", 60.0), (math.inf, "h", 3600.0))
+# Tick steps (MaxNLocator's nice mantissas) that suit each unit: 15 / 30 min, 6 / 12 h.
+_TIME_STEPS = {"s": [1, 2, 2.5, 5, 10], "min": [1, 1.5, 2, 3, 5, 6, 10],
+               "h": [1, 2, 2.5, 3, 5, 6, 10]}
 
 # A step longer than GAP_FACTOR median sample intervals is a gap in the log (burst mode, a
 # pause between soaks); the line is broken there instead of drawing a straight segment across
@@ -134,15 +173,129 @@ def _style(name: str, colours: Mapping[str, str] | None, chosen: str | None,
 
 
 def _centred(y: np.ndarray) -> np.ndarray:
-    return y - np.mean(y) if y.size else y
+    """``y`` minus its mean over the finite samples (a NaN, e.g. a warm-up sample, stays NaN)."""
+    finite = np.isfinite(y)
+    return y - np.mean(y[finite]) if finite.any() else y
+
+
+def _bin_means(x: np.ndarray, y: np.ndarray, width: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Means of ``y`` in ``width``-wide bins :math:`[k\\,w, (k+1)\\,w)` of ``x`` (the
+    convention of :func:`thermonet.scoring.metrics.binned_means`), over the pairs where both
+    are finite: occupied bins' centres (ascending), means and sample counts."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    if not ok.any() or not (math.isfinite(width) and width > 0):
+        empty = np.empty(0)
+        return empty, empty, np.empty(0, dtype=np.int64)
+    idx = np.floor(x[ok] / width).astype(np.int64)
+    keys, inv = np.unique(idx, return_inverse=True)
+    counts = np.bincount(inv)
+    return (keys + 0.5) * width, np.bincount(inv, weights=y[ok]) / counts, counts
 
 
 def _binned(x: np.ndarray, y: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
     """Binned means, with a NaN between bins that are not neighbours (no line across a
     temperature range without data, e.g. between two isothermal soaks)."""
-    centres, means = binned_means(x, y, bin_c=width)
+    centres, means, _ = _bin_means(x, y, width)
     cuts = np.flatnonzero(np.diff(centres) > 1.5 * width) + 1
     return np.insert(centres, cuts, np.nan), np.insert(means, cuts, np.nan)
+
+
+def _n_bins(n: int) -> int:
+    """How many bins a series of ``n`` samples is averaged in: :data:`LIMIT_BINS`, fewer where
+    a bin would hold less than :data:`MIN_BIN_SAMPLES` samples."""
+    return max(1, min(LIMIT_BINS, n // MIN_BIN_SAMPLES))
+
+
+def _dense(means: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """``means`` with NaN where a bin holds under a quarter of the median occupied bin's
+    samples: those do not set the y-scale."""
+    occupied = counts > 0
+    if not occupied.any():
+        return np.full(means.shape, np.nan)
+    floor = max(1.0, _DENSE_FRACTION * float(np.median(counts[occupied])))
+    return np.where(counts >= floor, means, np.nan)
+
+
+def _even_bins(x: np.ndarray, y: np.ndarray, smooth: bool = False
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Means of ``y`` in :func:`_n_bins` equal bins spanning ``x``'s finite range: every bin's
+    centre, mean (NaN where empty: a gap in the log breaks the line) and count.
+
+    A ``smooth`` series (a model's curve, not noise to average away) takes up to
+    :data:`LIMIT_BINS` bins however few its samples: ten soaks' curve keeps its ten values.
+    """
+    ok = np.isfinite(x) & np.isfinite(y)
+    nb = min(LIMIT_BINS, max(1, int(ok.sum()))) if smooth else _n_bins(int(ok.sum()))
+    if not ok.any():
+        empty = np.empty(0)
+        return empty, empty, np.empty(0, dtype=np.int64)
+    lo, hi = float(x[ok].min()), float(x[ok].max())
+    if hi <= lo:
+        return np.array([lo]), np.array([float(np.mean(y[ok]))]), np.array([int(ok.sum())])
+    edges = np.linspace(lo, hi, nb + 1)
+    idx = np.clip(np.searchsorted(edges, x[ok], side="right") - 1, 0, nb - 1)
+    counts = np.bincount(idx, minlength=nb)
+    sums = np.bincount(idx, weights=y[ok], minlength=nb)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    return 0.5 * (edges[:-1] + edges[1:]), means, counts
+
+
+def y_limits(series: Sequence[np.ndarray], margin: float = Y_MARGIN
+             ) -> tuple[float, float] | None:
+    """The y-limits that show every finite value of ``series`` (binned means), with ``margin``
+    of their range added below and above; None where there is no finite value or no range
+    (matplotlib's own autoscaling then applies)."""
+    finite = [v[np.isfinite(v)] for v in (np.asarray(s, dtype=np.float64).ravel()
+                                          for s in series)]
+    values = np.concatenate(finite) if finite else np.empty(0)
+    if values.size == 0:
+        return None
+    lo, hi = float(values.min()), float(values.max())
+    span = hi - lo
+    if not (span > 0 and math.isfinite(span)):
+        return None
+    return lo - margin * span, hi + margin * span
+
+
+def _off_scale(values: np.ndarray, limits: tuple[float, float] | None) -> bool:
+    """True where a finite value of ``values`` lies outside ``limits``."""
+    if limits is None:
+        return False
+    v = values[np.isfinite(values)]
+    return bool(v.size) and bool((v.min() < limits[0]) or (v.max() > limits[1]))
+
+
+def _scale_sources(names: Sequence[str], chosen: str | None, baseline: str | None) -> list[str]:
+    """The families whose binned means set the y-scale besides raw: the chosen and the baseline."""
+    return [n for n in names if n in (chosen, baseline)]
+
+
+def _apply_limits(ax: Axes, limits: tuple[float, float] | None, any_off_scale: bool) -> None:
+    """Set the y-limits from the binned means (the noise and any off-scale curve are clipped)."""
+    if limits is None:
+        return
+    ax.set_ylim(*limits)
+    ax.yaxis.set_major_locator(MaxNLocator(nbins="auto", steps=[1, 2, 2.5, 5, 10]))
+    if any_off_scale:
+        ax.text(0.01, 0.01, f"y-scale: binned means of raw, the baseline and the chosen family; "
+                f"curves marked {OFF_SCALE} leave the frame",
+                transform=ax.transAxes, fontsize=7, color="0.3", ha="left", va="bottom",
+                zorder=10, bbox={"facecolor": "white", "alpha": 0.7, "edgecolor": "none"})
+
+
+def time_unit(span_s: float) -> tuple[str, float]:
+    """The unit a time axis spanning ``span_s`` seconds is drawn in, and its length in s.
+
+    ``("s", 1.0)`` up to 10 min, ``("min", 60.0)`` up to 3 h, ``("h", 3600.0)`` beyond: a
+    200 s recording runs 0–200 s, not 0–0.056 h.
+    """
+    span = float(span_s) if math.isfinite(float(span_s)) else 0.0
+    for longest, name, seconds in _TIME_UNITS:
+        if span <= longest:
+            return name, seconds
+    return _TIME_UNITS[-1][1], _TIME_UNITS[-1][2]  # pragma: no cover - inf covers every span
 
 
 def _bin_text(width: float, x_label: str) -> str:
@@ -224,6 +377,64 @@ def _legend(ax: Axes) -> None:
         ax.legend(loc="best", fontsize=8, ncol=2 if len(handles) > 8 else 1)
 
 
+def drift_vs_temperature_figure(*, temperature_c: np.ndarray, observed_drift: np.ndarray,
+                                curves: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                                axis: str, units: str, chosen: str | None = None,
+                                baseline: str | None = None,
+                                colours: Mapping[str, str] | None = None,
+                                bin_width: float = 1.0,
+                                x_label: str = "temperature (°C)") -> Figure:
+    """The figure :func:`plot_drift_vs_temperature` writes, not yet saved (its axes can be
+    read: limits, labels, legend); same parameters but the path."""
+    t = _series("temperature_c", temperature_c)
+    d = _series("observed_drift", observed_drift)
+    _check_length("observed_drift", d, t.size, "temperature_c")
+    checked: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for name, curve in curves.items():
+        if len(curve) != 2:
+            raise ValueError(f"curve '{name}' must be (temperature_grid, predicted), "
+                             f"got {len(curve)} items")
+        grid = _series(f"curves['{name}'][0]", curve[0])
+        pred = _series(f"curves['{name}'][1]", curve[1])
+        _check_length(f"curves['{name}'][1]", pred, grid.size, f"curves['{name}'][0]")
+        checked[name] = (grid, _centred(pred))
+    colours = colours or family_colours(list(curves))
+    fig, ax = _new_figure()
+    dc = _centred(d)
+    keep = _stride(t.size, MAX_SCATTER_POINTS)
+    ax.scatter(t[keep], dc[keep], s=3, color=_RAW_COLOR, alpha=0.25, linewidths=0,
+               label=f"raw output error ({t.size} samples)", rasterized=True, zorder=1)
+    # The y-scale: the raw error's binned means as drawn, and the chosen family's and the
+    # baseline's curves averaged in fine bins of temperature (a curve of a model with noisy
+    # dynamic inputs is noisy sample by sample too).
+    _, raw_means, raw_counts = _bin_means(t, dc, bin_width)
+    fine = {name: _dense(*_even_bins(grid, pred, smooth=True)[1:])
+            for name, (grid, pred) in checked.items()}
+    limits = y_limits([_dense(raw_means, raw_counts)]
+                      + [fine[n] for n in _scale_sources(list(checked), chosen, baseline)])
+    if t.size:
+        bx, by = _binned(t, dc, bin_width)
+        ax.plot(bx, by, "o-", color=_RAW_BINNED_COLOR, markersize=3, linewidth=1.0,
+                label=f"raw output error, {_bin_text(bin_width, x_label)}", zorder=6)
+    off = False
+    for i, (name, (grid, pred)) in enumerate(checked.items()):
+        order = np.argsort(grid, kind="stable")
+        sel = order[_stride(order.size, MAX_LINE_POINTS)]
+        style = _style(name, colours, chosen, baseline, i)
+        style["label"] = f"predicted drift: {style['label']}"
+        if _off_scale(fine[name], limits):
+            style["label"] += f" {OFF_SCALE}"
+            off = True
+        ax.plot(grid[sel], pred[sel], **style)
+    ax.set_title(f"{axis}: raw output error and predicted drift vs temperature (about their means)")
+    ax.set_xlabel(x_label)
+    ax.set_ylabel(f"raw output error / drift, mean removed ({units})")
+    _apply_limits(ax, limits, off)
+    ax.grid(True, alpha=0.3)
+    _legend(ax)
+    return fig
+
+
 def plot_drift_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
                               observed_drift: np.ndarray,
                               curves: Mapping[str, tuple[np.ndarray, np.ndarray]],
@@ -236,7 +447,10 @@ def plot_drift_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
     Everything is drawn about its mean over the samples given: the raw error
     as a light scatter with its ``bin_width`` binned means on top, each
     family's curve minus its own mean over the grid (an unknown constant, such
-    as gravity's projection, is not what a model compensates).
+    as gravity's projection, is not what a model compensates).  The y-scale
+    comes from the raw error's binned means and the chosen family's and the
+    baseline's curves (:func:`y_limits`); another family's curve may leave
+    the frame, marked "(off scale)".
 
     Parameters
     ----------
@@ -254,7 +468,7 @@ def plot_drift_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
     units : str
         Units of the drift (``deg/s``).
     chosen, baseline : str, optional
-        Families drawn stronger (the baseline dashed).
+        Families drawn stronger (the baseline dashed); with the raw error they set the y-scale.
     colours : mapping of str to str, optional
         Family → colour (default :func:`family_colours` in the order given).
     bin_width : float
@@ -267,41 +481,68 @@ def plot_drift_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
     Path
         The file written.
     """
-    t = _series("temperature_c", temperature_c)
-    d = _series("observed_drift", observed_drift)
-    _check_length("observed_drift", d, t.size, "temperature_c")
-    colours = colours or family_colours(list(curves))
+    return _save(drift_vs_temperature_figure(
+        temperature_c=temperature_c, observed_drift=observed_drift, curves=curves, axis=axis,
+        units=units, chosen=chosen, baseline=baseline, colours=colours, bin_width=bin_width,
+        x_label=x_label), path)
+
+
+def _faint_line(ax: Axes, t: np.ndarray, x: np.ndarray, y: np.ndarray, **kw: Any) -> None:
+    """Every sample of ``y`` as a faint min/max band (broken at gaps in the log) under the
+    binned means."""
+    keep = _minmax_indices(y, MAX_LINE_POINTS)
+    breaks = _gap_breaks(t, keep)
+    ax.plot(np.insert(x[keep], breaks, np.nan), np.insert(y[keep], breaks, np.nan),
+            linewidth=0.6, **kw)
+
+
+def residual_vs_time_figure(*, time_s: np.ndarray, raw_error: np.ndarray,
+                            compensated: Mapping[str, np.ndarray], axis: str, units: str,
+                            chosen: str | None = None, baseline: str | None = None,
+                            colours: Mapping[str, str] | None = None) -> Figure:
+    """The figure :func:`plot_residual_vs_time` writes, not yet saved (its axes can be read:
+    limits, labels, legend); same parameters but the path."""
+    t = _series("time_s", time_s)
+    raw = _series("raw_error", raw_error)
+    _check_length("raw_error", raw, t.size, "time_s")
+    residuals = {name: _centred(r) for name, r in _residuals(compensated, t.size, "time_s").items()}
+    colours = colours or family_colours(list(residuals))
+    start = t[0] if t.size else 0.0
+    unit, seconds = time_unit(float(np.nanmax(t) - start) if t.size else 0.0)
+    x = (t - start) / seconds
     fig, ax = _new_figure()
-    dc = _centred(d)
-    keep = _stride(t.size, MAX_SCATTER_POINTS)
-    ax.scatter(t[keep], dc[keep], s=3, color=_RAW_COLOR, alpha=0.25, linewidths=0,
-               label=f"raw output error ({t.size} samples)", rasterized=True)
-    if t.size:
-        bx, by = _binned(t, dc, bin_width)
-        ax.plot(bx, by, "o-", color=_RAW_BINNED_COLOR, markersize=3, linewidth=1.0,
-                label=f"raw output error, {_bin_text(bin_width, x_label)}", zorder=6)
-    for i, (name, curve) in enumerate(curves.items()):
-        if len(curve) != 2:
-            raise ValueError(f"curve '{name}' must be (temperature_grid, predicted), "
-                             f"got {len(curve)} items")
-        grid = _series(f"curves['{name}'][0]", curve[0])
-        pred = _series(f"curves['{name}'][1]", curve[1])
-        _check_length(f"curves['{name}'][1]", pred, grid.size, f"curves['{name}'][0]")
-        order = np.argsort(grid, kind="stable")
-        sel = order[_stride(order.size, MAX_LINE_POINTS)]
-        style = _style(name, colours, chosen, baseline, i)
-        style["label"] = f"predicted drift: {style['label']}"
-        ax.plot(grid[sel], _centred(pred)[sel], **style)
-    ax.set_title(f"{axis}: raw output error and predicted drift vs temperature (about their means)")
-    ax.set_xlabel(x_label)
-    ax.set_ylabel(f"raw output error / drift, mean removed ({units})")
+    rawc = _centred(raw)
+    if t.size:  # the samples: a faint band (a residual's band would only cover it again)
+        _faint_line(ax, t, x, rawc, color=_RAW_COLOR, alpha=0.3, zorder=1,
+                    label="raw output error, samples")
+    styles = {name: _style(name, colours, chosen, baseline, i)
+              for i, name in enumerate(residuals)}
+    bx, raw_means, raw_counts = _even_bins(x, rawc)
+    binned = {name: _even_bins(x, y) for name, y in residuals.items()}
+    dense = {name: _dense(b[1], b[2]) for name, b in binned.items()}
+    limits = y_limits([_dense(raw_means, raw_counts)]
+                      + [dense[n] for n in _scale_sources(list(residuals), chosen, baseline)])
+    width = (float(bx[1] - bx[0]) if bx.size > 1 else 0.0)
+    what = f"{width:.3g} {unit} means" if width > 0 else "mean"
+    if bx.size:
+        ax.plot(bx, raw_means, color=_RAW_BINNED_COLOR, linewidth=1.4, zorder=6,
+                label=f"raw output error, {what}")
+    off = False
+    for name, (cx, means, _) in binned.items():
+        kw = dict(styles[name])
+        if _off_scale(dense[name], limits):
+            kw["label"] += f" {OFF_SCALE}"
+            off = True
+        ax.plot(cx, means, **kw)
+    ax.set_title(f"{axis}: error vs time before and after compensation, {what} "
+                 "(about its mean)")
+    ax.set_xlabel(f"time from start ({unit})")
+    ax.xaxis.set_major_locator(MaxNLocator(nbins="auto", steps=_TIME_STEPS[unit]))
+    ax.set_ylabel(f"error, mean removed ({units})")
+    _apply_limits(ax, limits, off)
     ax.grid(True, alpha=0.3)
     _legend(ax)
-    return _save(fig, path)
-
-
-def _hours(t: np.ndarray) -> np.ndarray:
-    return (t - t[0]) / 3600.0 if t.size else t
+    return fig
 
 
 def plot_residual_vs_time(path: str | Path, *, time_s: np.ndarray, raw_error: np.ndarray,
@@ -310,12 +551,20 @@ def plot_residual_vs_time(path: str | Path, *, time_s: np.ndarray, raw_error: np
                           colours: Mapping[str, str] | None = None) -> Path:
     """Error against time before compensation and after each family's, offsets removed.
 
+    Every family and the raw error are drawn as means over :data:`LIMIT_BINS`
+    equal time bins (fewer on short series, see :data:`MIN_BIN_SAMPLES`); the
+    raw error's samples lie faintly behind them (a min/max band).  The
+    y-scale comes from the binned means of raw, the chosen family and the
+    baseline (:func:`y_limits`); another family may leave the frame, marked
+    "(off scale)".  Time runs from the first sample in the unit
+    :func:`time_unit` gives for the span.
+
     Parameters
     ----------
     path : str or Path
         PNG file to write.
     time_s : ndarray, shape (n,)
-        Sample times, s; plotted in hours from the first sample.
+        Sample times, s; plotted from the first sample in s, min or h.
     raw_error : ndarray, shape (n,)
         Output minus reference before compensation, ``units``.
     compensated : mapping of str to ndarray
@@ -330,31 +579,57 @@ def plot_residual_vs_time(path: str | Path, *, time_s: np.ndarray, raw_error: np
     Path
         The file written.
     """
-    t = _series("time_s", time_s)
-    raw = _series("raw_error", raw_error)
-    _check_length("raw_error", raw, t.size, "time_s")
-    residuals = _residuals(compensated, t.size, "time_s")
-    colours = colours or family_colours(list(residuals))
-    hours = _hours(t)
+    return _save(residual_vs_time_figure(
+        time_s=time_s, raw_error=raw_error, compensated=compensated, axis=axis, units=units,
+        chosen=chosen, baseline=baseline, colours=colours), path)
+
+
+def residual_vs_temperature_figure(*, temperature_c: np.ndarray, raw_error: np.ndarray,
+                                   compensated: Mapping[str, np.ndarray], axis: str, units: str,
+                                   chosen: str | None = None, baseline: str | None = None,
+                                   colours: Mapping[str, str] | None = None,
+                                   bin_width: float = 1.0,
+                                   x_label: str = "temperature (°C)") -> Figure:
+    """The figure :func:`plot_residual_vs_temperature` writes, not yet saved (its axes can be
+    read: limits, labels, legend); same parameters but the path."""
+    t = _series("temperature_c", temperature_c)
+    raw = _centred(_series("raw_error", raw_error))
+    _check_length("raw_error", raw, t.size, "temperature_c")
+    residuals = {name: _centred(r)
+                 for name, r in _residuals(compensated, t.size, "temperature_c").items()}
+    colours = colours or family_colours(list(compensated))
     fig, ax = _new_figure()
-    series: list[tuple[np.ndarray, dict[str, Any]]] = [
-        (raw, {"color": _RAW_COLOR, "linewidth": 0.8, "label": "raw output error", "zorder": 2})]
-    series += [(r, _style(name, colours, chosen, baseline, i))
-               for i, (name, r) in enumerate(residuals.items())]
-    for y, kw in series:
-        y = _centred(y)
-        keep = _minmax_indices(y, MAX_LINE_POINTS)
-        breaks = _gap_breaks(t, keep)
-        x_d = np.insert(hours[keep], breaks, np.nan)
-        y_d = np.insert(y[keep], breaks, np.nan)
-        kw = {**kw, "linewidth": min(float(kw.get("linewidth", 1.0)), 1.4)}
-        ax.plot(x_d, y_d, **kw)
-    ax.set_title(f"{axis}: error vs time before and after compensation (about its mean)")
-    ax.set_xlabel("time from start (h)")
-    ax.set_ylabel(f"error, mean removed ({units})")
+    keep = _stride(t.size, MAX_SCATTER_POINTS)
+    ax.scatter(t[keep], raw[keep], s=3, color=_RAW_COLOR, alpha=0.2, linewidths=0,
+               rasterized=True, zorder=1)
+    _, raw_means, raw_counts = _bin_means(t, raw, bin_width)
+    dense = {name: _dense(*_bin_means(t, y, bin_width)[1:]) for name, y in residuals.items()}
+    limits = y_limits([_dense(raw_means, raw_counts)]
+                      + [dense[n] for n in _scale_sources(list(residuals), chosen, baseline)])
+    if t.size:
+        bx, by = _binned(t, raw, bin_width)
+        ax.plot(bx, by, "o-", color=_RAW_BINNED_COLOR, markersize=3, linewidth=1.2, zorder=6,
+                label="raw output error (binned means)")
+    off = False
+    for i, (name, y) in enumerate(residuals.items()):
+        style = _style(name, colours, chosen, baseline, i)
+        if name == chosen:
+            ax.scatter(t[keep], y[keep], s=3, color=style["color"], alpha=0.15, linewidths=0,
+                       rasterized=True, zorder=2)
+        if _off_scale(dense[name], limits):
+            style["label"] += f" {OFF_SCALE}"
+            off = True
+        if t.size:
+            bx, by = _binned(t, y, bin_width)
+            ax.plot(bx, by, **style)
+    ax.set_title(f"{axis}: error vs temperature after compensation, "
+                 f"{_bin_text(bin_width, x_label)} (about their means)")
+    ax.set_xlabel(x_label)
+    ax.set_ylabel(f"error after compensation, mean removed ({units})")
+    _apply_limits(ax, limits, off)
     ax.grid(True, alpha=0.3)
     _legend(ax)
-    return _save(fig, path)
+    return fig
 
 
 def plot_residual_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
@@ -368,7 +643,9 @@ def plot_residual_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
 
     A light scatter of the raw error and of the chosen family's residual sits
     under the ``bin_width`` binned means (offsets removed): thousands of noisy
-    points would otherwise hide a drift smaller than the noise.
+    points would otherwise hide a drift smaller than the noise.  The y-scale
+    comes from the binned means of raw, the chosen family and the baseline
+    (:func:`y_limits`); another family may leave the frame, marked "(off scale)".
 
     Parameters
     ----------
@@ -388,34 +665,10 @@ def plot_residual_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
     Path
         The file written.
     """
-    t = _series("temperature_c", temperature_c)
-    raw = _centred(_series("raw_error", raw_error))
-    _check_length("raw_error", raw, t.size, "temperature_c")
-    colours = colours or family_colours(list(compensated))
-    fig, ax = _new_figure()
-    keep = _stride(t.size, MAX_SCATTER_POINTS)
-    ax.scatter(t[keep], raw[keep], s=3, color=_RAW_COLOR, alpha=0.2, linewidths=0,
-               rasterized=True)
-    if t.size:
-        bx, by = _binned(t, raw, bin_width)
-        ax.plot(bx, by, "o-", color=_RAW_BINNED_COLOR, markersize=3, linewidth=1.2, zorder=6,
-                label="raw output error (binned means)")
-    for i, (name, r) in enumerate(_residuals(compensated, t.size, "temperature_c").items()):
-        y = _centred(r)
-        style = _style(name, colours, chosen, baseline, i)
-        if name == chosen:
-            ax.scatter(t[keep], y[keep], s=3, color=style["color"], alpha=0.15, linewidths=0,
-                       rasterized=True)
-        if t.size:
-            bx, by = _binned(t, y, bin_width)
-            ax.plot(bx, by, **style)
-    ax.set_title(f"{axis}: error vs temperature after compensation, "
-                 f"{_bin_text(bin_width, x_label)} (about their means)")
-    ax.set_xlabel(x_label)
-    ax.set_ylabel(f"error after compensation, mean removed ({units})")
-    ax.grid(True, alpha=0.3)
-    _legend(ax)
-    return _save(fig, path)
+    return _save(residual_vs_temperature_figure(
+        temperature_c=temperature_c, raw_error=raw_error, compensated=compensated, axis=axis,
+        units=units, chosen=chosen, baseline=baseline, colours=colours, bin_width=bin_width,
+        x_label=x_label), path)
 
 
 def plot_allan(path: str | Path, *, rate_hz: float, raw_error: np.ndarray,
