@@ -22,7 +22,7 @@ from scipy.interpolate import RBFInterpolator
 
 from thermonet.core.errors import ConfigError
 from thermonet.models.rbf import RBF, RIDGE_GRID
-from tolerances import assert_f32_close
+from tolerances import DEPTH, EPS32, assert_f32_close
 
 pytestmark = pytest.mark.numerics
 
@@ -116,3 +116,31 @@ def test_without_a_tail_nothing_changes():
     assert fam.hyper() == {"n_centres": 4, "init": "kmeans", "width_scale": 1.0}
     assert set(fam.state_dict()) == {"centres", "log_sigma", "weight", "bias"}
     assert fam.trainable() and fam.tuned() == {}
+
+
+def test_a_comparison_records_what_the_tail_network_chose_and_costs(tmp_path):
+    """results.json carries the inner cross-validation's choice and the cost per sample; the
+    closed-form fit records no gradient epoch; an axis whose ridge went to ∞ is the cubic."""
+    from thermonet.sim import simulate
+    from thermonet.training.config import CompareConfig, FamilyConfig
+    from thermonet.workflows.compare import run_compare
+
+    cfg = CompareConfig(families=[
+        FamilyConfig(family="poly", name="cubic", inputs=["dT"], params={"degree": 3}),
+        FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
+                     params={"n_centres": 16, "tail": 3})])
+    ds = simulate("patent-gyro", runs=4, seed=0, sample_rate_hz=0.05)
+    res = run_compare(cfg, tmp_path / "out", dataset=ds, track=False, quiet=True, plots=False)
+    rbf, cubic = res["families"]["rbf"], res["families"]["cubic"]
+    axes = list(rbf["axes"])
+    assert rbf["best_epoch"] == 0 and cubic["tuned"] == {}
+    assert rbf["tuned"]["width_scale"] in (0.5, 1.0, 2.0) and len(rbf["tuned"]["ridge"]) == 3
+    assert all(r == "inf" or r in RIDGE_GRID for r in rbf["tuned"]["ridge"])
+    # F + J(F+1) + J + (d−1) + A(J+d) = 2 + 48 + 16 + 2 + 3·19 (tests/test_mlp.py derives it)
+    assert rbf["cost"] == {"ops_per_sample": 125, "transcendentals": 16, "c_bytes": 496}
+    assert cubic["cost"]["transcendentals"] == 0
+    assert "inf" in rbf["tuned"]["ridge"]      # measured: gyro_x ∞, gyro_y 1, gyro_z 0.1
+    for axis, ridge in zip(axes, rbf["tuned"]["ridge"], strict=True):
+        if ridge == "inf":   # the tail alone: the cubic's test score to float32 rounding
+            assert rbf["axes"][axis]["score_comp"] == pytest.approx(
+                cubic["axes"][axis]["score_comp"], rel=DEPTH["family"] * EPS32)

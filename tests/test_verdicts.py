@@ -202,6 +202,12 @@ def test_chronological_split_of_a_ramp_warns_of_extrapolation(tmp_path):
     assert res["data"]["outside_trained_range"]["temperature_c"] > 0.99
     assert any(w.startswith("extrapolation: 100% of the test samples of temperature_c")
                for w in res["warnings"])
+    # how far: the test ramp ends at 60 °C, the trained range at the first half's top
+    lo, hi = res["data"]["trained_range"]["temperature_c"]
+    far = res["data"]["outside_trained_range_max"]["temperature_c"]
+    assert far == pytest.approx(temp.max() - hi, rel=1e-9) and 29.0 < far < 31.0
+    warning, = (w for w in res["warnings"] if w.startswith("extrapolation:"))
+    assert f"up to {far:.3g} °C beyond it ({far / (hi - lo):.0%} of the trained span)" in warning
 
 
 def test_verification_after_a_hotter_excursion_is_worse_and_warned(tmp_path):

@@ -19,7 +19,8 @@ from ..core.recording import RATE, Dataset, contiguous_segments
 
 __all__ = ["TEMPERATURE_PLAUSIBLE_C", "MAX_RAMP_C_PER_MIN", "MAX_DURATION_S",
            "RATE_HZ_PLAUSIBLE", "RATE_HZ_POSSIBLE", "VALUE_PLAUSIBLE_MAX", "OUTSIDE_RANGE_WARN",
-           "input_warnings", "temperature_hint", "outside_fraction", "extrapolation_warnings"]
+           "input_warnings", "temperature_hint", "outside_fraction", "outside_distance",
+           "extrapolation_warnings"]
 
 #: Temperatures outside this range (°C) are implausible for a sensor test (Kelvin? m°C?).
 TEMPERATURE_PLAUSIBLE_C = (-100.0, 200.0)
@@ -128,14 +129,35 @@ def outside_fraction(signals: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.
     return 1.0 - inside.mean(axis=0)
 
 
-def extrapolation_warnings(fractions: dict[str, float], ranges: dict[str, tuple[float, float]]
-                           ) -> list[str]:
-    """One sentence per signal whose test samples lie outside the trained range."""
+def outside_distance(signals: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(S,) farthest distance of a sample of each signal column outside ``[lo, hi]`` (0 when
+    every finite sample is inside; NaN samples are not a distance)."""
+    s = np.asarray(signals, dtype=np.float64)
+    if s.shape[0] == 0:
+        return np.zeros(s.shape[1])
+    d = np.maximum(np.asarray(lo)[None, :] - s, s - np.asarray(hi)[None, :])
+    d = np.where(np.isfinite(d), d, 0.0)
+    return np.maximum(d.max(axis=0), 0.0)
+
+
+def extrapolation_warnings(fractions: dict[str, float], ranges: dict[str, tuple[float, float]],
+                           distances: dict[str, float] | None = None,
+                           units: dict[str, str] | None = None) -> list[str]:
+    """One sentence per signal whose test samples lie outside the trained range: how many, and
+    how far (in the signal's unit and as a fraction of the trained span)."""
     out = []
     for sig, frac in fractions.items():
         if frac >= OUTSIDE_RANGE_WARN:
             lo, hi = ranges.get(sig, (float("nan"), float("nan")))
+            far = ""
+            if distances and distances.get(sig, 0.0) > 0.0:
+                d = distances[sig]
+                unit = (units or {}).get(sig) or ("°C" if sig == "temperature_c" else "")
+                # other signals (a raw-count proxy) carry no unit here: the number alone
+                span = hi - lo
+                rel = f" ({d / span:.0%} of the trained span)" if span > 0 else ""
+                far = f", up to {d:.3g}{' ' + unit if unit else ''} beyond it{rel}"
             out.append(f"extrapolation: {frac:.0%} of the test samples of {sig} lie outside the "
-                       f"trained range {lo:.4g} … {hi:.4g}; the models clamp there, so those "
-                       "samples get the drift at the range's edge")
+                       f"trained range {lo:.4g} … {hi:.4g}{far}; the models clamp there, so "
+                       "those samples get the drift at the range's edge")
     return out

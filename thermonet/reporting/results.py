@@ -27,6 +27,10 @@
           "family": registry key, "inputs": [...], "params": {...}, "train_on": str,
           "status": "ok" | "failed", "reason": str | null,
           "fit_seconds": s, "n_params": k, "best_epoch": int,
+          "tuned": {...},              # hyper-parameters the family chose on its training
+                                       # data (the RBF tail's width and ridge per axis)
+          "cost": {"ops_per_sample", "transcendentals", "c_bytes"},   # on board, per sample
+                                       # (thermonet.models.base.Family.cost; null: unknown)
           "val_score": float,          # mean over axes of the validation score ratio, 1 where
                                        # the axis is left uncompensated (< 1 beats raw)
           "val_interval": [lo, hi],    # its 95 % block-bootstrap interval
@@ -153,6 +157,8 @@ class FamilyResult:
     outside_trained_range: dict[str, float] = field(default_factory=dict)
     axes: dict[str, AxisResult] = field(default_factory=dict)
     folds: list[dict[str, dict[str, float]]] | None = None
+    tuned: dict[str, Any] = field(default_factory=dict)   # what the family chose itself
+    cost: dict[str, int | None] | None = None             # Family.cost(): per sample on board
 
     @property
     def ok(self) -> bool:
@@ -170,6 +176,7 @@ class FamilyResult:
                  val_interval=list(self.val_interval), test_score=self.test_score,
                  compensate_in_model=self.compensate_in_model,
                  outside_trained_range=dict(self.outside_trained_range),
+                 tuned=dict(self.tuned), cost=None if self.cost is None else dict(self.cost),
                  axes={a: r.to_json() for a, r in self.axes.items()})
         if self.folds is not None:
             d["folds"] = self.folds

@@ -63,7 +63,7 @@ class _Cancelled(Exception):
 
 def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
                 cancel: threading.Event | None = None) -> Fitted:
-    from ..data.diagnostics import outside_fraction
+    from ..data.diagnostics import outside_distance, outside_fraction
     from ..models.base import as_numpy
     from ..scoring.verdicts import pool
     from ..training.fold import block_sums, fit_fold, fold_parts, fold_spec, score_part
@@ -106,14 +106,17 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
             lo = np.asarray(as_numpy(model.sig_lo))
             hi = np.asarray(as_numpy(model.sig_hi))
             frac = outside_fraction(test_part.signals, lo, hi)
+            beyond = outside_distance(test_part.signals, lo, hi)
             for k, sig in enumerate(model.signals):
                 outside.setdefault(sig, []).append((float(frac[k]), test_part.signals.shape[0]))
                 out.ranges[sig] = (float(lo[k]), float(hi[k]))
+                out.excursion[sig] = max(out.excursion.get(sig, 0.0), float(beyond[k]))
             out.model, out.history = model, fitted.history
             out.best_val = fitted.best_val_loss
             out.test_parts.append(test_part)
             out.test_preds.append(pred)
             res.n_params, res.best_epoch = int(fitted.n_params), int(fitted.best_epoch)
+            res.tuned, res.cost = model.family.tuned(), model.family.cost()
     except FitError as err:  # this data cannot carry the family: reported, the comparison goes on
         res.status, res.reason, out.model = "failed", str(err), None
         return out

@@ -36,6 +36,7 @@ class Fitted:
     test_parts: list[Part] = field(default_factory=list)
     test_preds: list[np.ndarray] = field(default_factory=list)
     ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
+    excursion: dict[str, float] = field(default_factory=dict)  # farthest test sample outside
     val_draws: np.ndarray | None = None  # bootstrap draws of the masked validation score
     best_val: float | None = None        # the last fold's best validation loss
     oof: Any = None                      # thermonet.scoring.selection.CandidateOOF (cross-validation)
@@ -181,13 +182,16 @@ def extrapolation(fitted: dict[str, Fitted], result: ComparisonResult) -> None:
 
     fractions: dict[str, float] = {}
     ranges: dict[str, tuple[float, float]] = {}
+    excursions: dict[str, float] = {}
     for f in fitted.values():
         if not f.result.ok:
             continue
         for sig, frac in f.result.outside_trained_range.items():
             fractions[sig] = max(fractions.get(sig, 0.0), frac)
             ranges.setdefault(sig, f.ranges[sig])
+            excursions[sig] = max(excursions.get(sig, 0.0), f.excursion.get(sig, 0.0))
     result.data["outside_trained_range"] = fractions
     result.data["trained_range"] = {k: list(v) for k, v in ranges.items()}
-    for w in extrapolation_warnings(fractions, ranges):
+    result.data["outside_trained_range_max"] = excursions
+    for w in extrapolation_warnings(fractions, ranges, excursions):
         result.warn(w)
