@@ -50,7 +50,7 @@ def test_compare_recovers_quadratic_drift_and_writes_everything(tmp_path):
     assert set(on_disk["families"]["cubic"]) >= {"fit_seconds", "n_params", "axes", "status"}
     assert on_disk["families"]["cubic"]["n_params"] == 4
     assert sorted(p.name for p in (out / "plots").glob("*.png")) == [
-        "allan_gyro_x.png", "drift_vs_temperature_gyro_x.png",
+        "accuracy_vs_cost.png", "allan_gyro_x.png", "drift_vs_temperature_gyro_x.png",
         "residual_vs_temperature_gyro_x.png", "residual_vs_time_gyro_x.png"]
     assert (out / "report.html").stat().st_size > 10_000
     assert on_disk["schema"] == 2

@@ -136,3 +136,27 @@ def test_mismatched_lengths_name_the_series(tmp_path):
         plot_drift_vs_temperature(tmp_path / "y.png", temperature_c=np.arange(10.0),
                                   observed_drift=np.zeros(10), curves={"linear": (np.arange(3.0),)},
                                   axis="acc_x", units="mg")
+
+
+def test_accuracy_against_cost_marks_the_front_and_the_chosen(tmp_path):
+    """Issue 26: held-out error against operations per sample, log x; the front joins the
+    families nothing beats on both (here linear, cubic, rbf — not mlp: rbf is cheaper and
+    better); a family without a known cost is left out; the chosen one is ringed."""
+    from thermonet.reporting.plots import accuracy_cost_figure, plot_accuracy_cost
+
+    points = {"linear": (2.0, 0.9), "cubic": (5.0, 0.5), "rbf": (125.0, 0.45),
+              "mlp": (144.0, 0.6), "plug-in": (None, 0.3)}
+    fig = accuracy_cost_figure(points, chosen="rbf", baseline="cubic")
+    ax = fig.axes[0]
+    assert ax.get_xscale() == "log"
+    front, = (ln for ln in ax.get_lines() if ln.get_label().startswith("front"))
+    assert list(front.get_xdata()) == [2.0, 5.0, 125.0]
+    assert list(front.get_ydata()) == [0.9, 0.5, 0.45]
+    offsets = {c.get_label(): tuple(c.get_offsets()[0]) for c in ax.collections}
+    assert offsets == {"linear": (2.0, 0.9), "cubic (baseline)": (5.0, 0.5),
+                       "rbf (chosen)": (125.0, 0.45), "mlp": (144.0, 0.6)}
+    ringed = [c.get_label() for c in ax.collections
+              if c.get_linewidths()[0] > 0 and mcolors.to_hex(c.get_edgecolors()[0]) == "#000000"]
+    assert ringed == ["rbf (chosen)"]
+    path = plot_accuracy_cost(tmp_path / "front.png", points, chosen="rbf", baseline="cubic")
+    assert mpimg.imread(path).shape[:2] == (600, 1000)

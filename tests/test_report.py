@@ -71,7 +71,7 @@ def test_report_is_one_self_contained_page(report):
     assert "script" not in page.tags
     # every plot embedded as a PNG
     n_plots = len(list((path.parent / "plots").glob("*.png")))
-    assert n_plots == 4 and len(page.images) == n_plots
+    assert n_plots == 5 and len(page.images) == n_plots  # 4 per axis + accuracy vs cost
     for src in page.images:
         assert src.startswith("data:image/png;base64,")
         assert base64.b64decode(src.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"

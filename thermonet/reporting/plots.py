@@ -64,6 +64,8 @@ __all__ = [
     "plot_residual_vs_time",
     "plot_residual_vs_temperature",
     "plot_allan",
+    "plot_accuracy_cost",
+    "accuracy_cost_figure",
     "drift_vs_temperature_figure",
     "residual_vs_time_figure",
     "residual_vs_temperature_figure",
@@ -720,3 +722,49 @@ def plot_allan(path: str | Path, *, rate_hz: float, raw_error: np.ndarray,
     ax.grid(True, which="both", alpha=0.3)
     _legend(ax)
     return _save(fig, path)
+
+
+def accuracy_cost_figure(points: Mapping[str, tuple[float | None, float | None]], *,
+                         chosen: str | None = None, baseline: str | None = None,
+                         colours: Mapping[str, str] | None = None) -> Figure:
+    """Held-out error against cost on board, one point per family (issue 26's front).
+
+    ``points``: family → (operations per sample, test score ratio to raw — the masked mean
+    over axes, < 1 better).  The x axis is logarithmic (a cubic costs a few operations, an
+    RBF or a perceptron a hundred or more); the chosen family is ringed, the baseline a
+    square; the families no other beats on both axes (the Pareto front) are joined.
+    """
+    fig, ax = _new_figure()
+    pts = {k: (float(c), float(e)) for k, (c, e) in points.items()
+           if c is not None and e is not None and c > 0 and np.isfinite(e)}  # known cost only
+    for i, (name, (c, e)) in enumerate(pts.items()):
+        st = _style(name, colours, chosen, baseline, i)
+        ax.scatter([c], [e], s=140 if name == chosen else 60, color=st["color"],
+                   marker="s" if name == baseline else "o", zorder=st["zorder"],
+                   edgecolors="black" if name == chosen else "none",
+                   linewidths=2.0 if name == chosen else 0.0, label=st["label"])
+        ax.annotate(name, (c, e), textcoords="offset points", xytext=(6, 4), fontsize=8)
+    front = sorted((c, e) for k, (c, e) in pts.items()
+                   if not any(c2 <= c and e2 <= e and (c2, e2) != (c, e)
+                              for k2, (c2, e2) in pts.items() if k2 != k))
+    if len(front) > 1:
+        ax.plot([c for c, _ in front], [e for _, e in front], color="0.4", linewidth=1.0,
+                linestyle=":", zorder=1, label="front (nothing better and cheaper)")
+    if pts:
+        ax.set_xscale("log")
+    ax.axhline(1.0, color=_RAW_COLOR, linewidth=1.0, label="raw (no compensation)")
+    ax.set_title("held-out error against cost on board")
+    ax.set_xlabel("operations per sample (multiply-adds and transcendental calls)")
+    ax.set_ylabel("test score / raw (< 1 better)")
+    ax.grid(True, which="both", alpha=0.3)
+    _legend(ax)
+    return fig
+
+
+def plot_accuracy_cost(path: str | Path,
+                       points: Mapping[str, tuple[float | None, float | None]], *,
+                       chosen: str | None = None, baseline: str | None = None,
+                       colours: Mapping[str, str] | None = None) -> Path:
+    """:func:`accuracy_cost_figure` written as a PNG."""
+    return _save(accuracy_cost_figure(points, chosen=chosen, baseline=baseline,
+                                      colours=colours), path)

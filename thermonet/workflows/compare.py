@@ -213,6 +213,7 @@ def _plots(out: Path, fitted: dict[str, Fitted], results: dict[str, Any],
     from ..core.names import path_component
     from ..reporting.plots import (
         family_colours,
+        plot_accuracy_cost,
         plot_allan,
         plot_drift_vs_temperature,
         plot_residual_vs_temperature,
@@ -250,6 +251,11 @@ def _plots(out: Path, fitted: dict[str, Fitted], results: dict[str, Any],
             paths.append(plot_allan(pdir / f"allan_{safe}.png", rate_hz=part.rate_hz,
                                     raw_error=part.target[:, j], compensated=resid,
                                     axis=axis, units=unit, **style))
+    fams = results["families"]
+    points = {k: ((fams[k].get("cost") or {}).get("ops_per_sample"), fams[k].get("test_score"))
+              for k in ok if fams.get(k, {}).get("status") == "ok"}
+    if any(c is not None for c, _ in points.values()):
+        paths.append(plot_accuracy_cost(pdir / "accuracy_vs_cost.png", points, **style))
     return paths
 
 
