@@ -137,3 +137,33 @@ def test_every_input_c_step_matches_the_definition():
         # float32 state and arithmetic in C; the fit itself is exact to ~1e-9 of the scale
         np.testing.assert_allclose(c["drift"][:, k], r, rtol=0, atol=2e-5 * scale + t_ulps,
                                    err_msg=d.signal)
+
+
+def test_an_input_twice_and_an_input_that_acts_as_a_clock_are_warned():
+    """rate_τ = 60·lag_τ/τ exactly (one EMA's lag error): a family reading both reads one
+    signal twice; a τ over a third of the shortest run never settles there (a clock)."""
+    from thermonet.features.dynamics import SETTLE_TIME_CONSTANTS, input_set_warnings
+
+    runs = {"soak": 3600.0, "short": 900.0}
+    warns = input_set_warnings({"twice": ["dT", "rate_120", "lag_120", "play_1"],
+                                "rate-and-default": ["dT", "rate", "rate_60"],
+                                "fine": ["dT", "rate", "lag_300", "play_0.5"],
+                                "clock": ["dT", "lag_600"]}, runs)
+    assert warns == [
+        "family 'twice': inputs 'rate_120' and 'lag_120' are the same signal up to a constant "
+        "factor (one lag error of τ = 120 s): drop one",
+        "family 'rate-and-default': inputs 'rate' and 'rate_60' are the same signal up to a "
+        "constant factor (one lag error of τ = 60 s): drop one",
+        "family 'clock': input 'lag_600' has a time constant of 600 s, and run 'short' lasts "
+        "900 s (< 3 τ): it never settles there and acts as a clock (time since the start), "
+        "which a longer run will not repeat"]
+    assert SETTLE_TIME_CONSTANTS == 3.0
+    # the identity behind the first warning, on a real recursion: rate = 60·lag/τ
+    from thermonet.features.dynamics import lag_error
+
+    t = np.arange(0.0, 2000.0, 1.0)
+    temp = 20.0 + 10.0 * np.sin(t / 300.0)
+    restart = np.zeros(t.size, dtype=bool)
+    restart[0] = True
+    e = lag_error(t, temp, restart, 120.0)
+    assert np.all(np.isfinite(e)) and np.ptp(e) > 1.0

@@ -73,7 +73,8 @@ from ..core.recording import GAP_FACTOR
 __all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInput", "Rate",
            "Lag", "Play", "REGISTRY", "compute", "parse_dynamic", "is_dynamic", "check_time",
            "dynamic_signals", "default_gap_s", "constants", "from_constants", "lag_error",
-           "play_state", "reference_signals", "saturation_margin"]
+           "play_state", "reference_signals", "saturation_margin", "input_set_warnings",
+           "SETTLE_TIME_CONSTANTS"]
 
 #: Time constant of ``rate`` (s).
 RATE_TAU_S = 60.0
@@ -463,3 +464,43 @@ def reference_signals(time_s: Sequence[float], temperature_c: Sequence[float],
                                 else 60.0 * v / d.param if isinstance(d, Rate) else v)
         started, t_prev, T_prev = True, t, T
     return out, gap
+
+
+#: A time-constant input settles (its start-up transient falls below e⁻³ ≈ 5 %) in this many
+#: time constants; a run shorter than that never shows it settled.
+SETTLE_TIME_CONSTANTS = 3.0
+
+
+def input_set_warnings(inputs_by_family: dict[str, list[str]],
+                       run_durations_s: dict[str, float]) -> list[str]:
+    """Inputs that cannot carry what they are meant to (issue 19's cross-validation warnings).
+
+    * **The same signal twice.** ``rate_<τ>`` is ``60 · lag_<τ> / τ`` exactly (both are the
+      lag error e of one EMA, :data:`module docstring <thermonet.features.dynamics>`), so a
+      family that reads both with the same τ (or ``rate`` and ``rate_60``) reads one signal
+      up to a constant factor: its least squares are singular in that direction.
+    * **A clock.** An input with a time constant τ longer than a run / :data:`SETTLE_TIME_CONSTANTS`
+      never settles in that run: its start-up transient follows the time since the start, so
+      a model can fit elapsed time through it, which a board that runs longer will not repeat.
+    """
+    out: list[str] = []
+    shortest = min(run_durations_s.items(), key=lambda kv: kv[1]) if run_durations_s else None
+    for label, names in inputs_by_family.items():
+        seen: dict[float, str] = {}
+        for name in names:
+            dyn = parse_dynamic(name)
+            if dyn is None or dyn.kind == "play":
+                continue
+            tau = dyn.param
+            if tau in seen:
+                out.append(f"family '{label}': inputs '{seen[tau]}' and '{name}' are the same "
+                           f"signal up to a constant factor (one lag error of τ = {tau:g} s): "
+                           "drop one")
+            else:
+                seen[tau] = name
+            if shortest is not None and SETTLE_TIME_CONSTANTS * tau > shortest[1]:
+                out.append(f"family '{label}': input '{name}' has a time constant of {tau:g} s, "
+                           f"and run '{shortest[0]}' lasts {shortest[1]:.4g} s (< "
+                           f"{SETTLE_TIME_CONSTANTS:g} τ): it never settles there and acts as "
+                           "a clock (time since the start), which a longer run will not repeat")
+    return out

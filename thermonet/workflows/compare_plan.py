@@ -130,9 +130,12 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
     for o in outputs:
         if o.endswith(".scale"):
             units[o] = "1"
-    from ..features.dynamics import RATE_TAU_S
+    from ..features.dynamics import RATE_TAU_S, input_set_warnings
 
     warns = input_warnings(ds, signals=signals, rate_window_s=RATE_TAU_S)
+    warns += input_set_warnings(
+        {fam.label: list(fam.inputs) for fam in cfg.families},
+        {r.run_id: float(r.time_s[-1] - r.time_s[0]) for r in ds if r.time_s.size > 1})
     folds, note = _fold_plan(cfg, splits)
     return Plan(cfg, ds, outputs, targets, splits, units, source, warns, folds, note)
 
