@@ -158,12 +158,10 @@ def test_an_input_twice_and_an_input_that_acts_as_a_clock_are_warned():
         "900 s (< 3 τ): it never settles there and acts as a clock (time since the start), "
         "which a longer run will not repeat"]
     assert SETTLE_TIME_CONSTANTS == 3.0
-    # the identity behind the first warning, on a real recursion: rate = 60·lag/τ
-    from thermonet.features.dynamics import lag_error
-
+    # the identity behind the first warning, on the real recursion: rate_τ = 60·lag_τ/τ
     t = np.arange(0.0, 2000.0, 1.0)
     temp = 20.0 + 10.0 * np.sin(t / 300.0)
-    restart = np.zeros(t.size, dtype=bool)
-    restart[0] = True
-    e = lag_error(t, temp, restart, 120.0)
-    assert np.all(np.isfinite(e)) and np.ptp(e) > 1.0
+    sig, _ = dynamics.compute(t, temp, ["rate_120", "lag_120"], gap_s=10.0)
+    rate, lag = sig["rate_120_c_per_min"], sig["lag_120_c"]
+    assert np.ptp(lag) > 1.0
+    np.testing.assert_allclose(rate, 60.0 * lag / 120.0, rtol=1e-12, atol=1e-12 * np.ptp(rate))
