@@ -39,37 +39,14 @@ my-quadratic = "thermonet_quadratic:Quadratic"
 py-modules = ["thermonet_quadratic"]
 """
 
-FAMILY = '''\
-"""A quadratic in one input: b + c1 z + c2 z^2 (a researcher's own family)."""
-import numpy as np
-import torch
-from torch import nn
-
-from thermonet.models import Family
-from thermonet.models.base import as_numpy, least_squares
+def _documented_family() -> str:
+    """The example of configs/README.md ("A family of your own"), run as the user's module."""
+    text = (ROOT / "configs" / "README.md").read_text(encoding="utf-8")
+    section = text.split("### A family of your own (plug-in)", 1)[1]
+    return section.split("```python\n", 1)[1].split("```", 1)[0]
 
 
-class Quadratic(Family):
-    name = "my-quadratic"
-    max_inputs = 1
-
-    def __init__(self, *, n_inputs: int, n_outputs: int, ridge: float = 0.0) -> None:
-        super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        self.ridge = float(ridge)
-        self.coef = nn.Parameter(torch.zeros(n_outputs, 3))
-
-    def forward(self, z):
-        return self.coef[:, 0] + z * self.coef[:, 1] + z * z * self.coef[:, 2]
-
-    def initialize(self, x, y, *, seed=0, x_mean=None, x_std=None):
-        xn = as_numpy(x)[:, 0]
-        coef = least_squares(np.column_stack([np.ones_like(xn), xn, xn * xn]), as_numpy(y))
-        with torch.no_grad():
-            self.coef.copy_(torch.as_tensor(coef.T))
-
-    def hyper(self):
-        return {"ridge": self.ridge}
-'''
+FAMILY = _documented_family()
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +81,7 @@ def test_an_installed_family_is_compared_judged_and_exported(plugin_path, tmp_pa
         train: {{max_epochs: 20, patience: 5, max_train_samples: 3000}}
         families:
           - {{name: cubic, family: poly, inputs: [dT], params: {{degree: 3}}}}
-          - {{name: mine, family: my-quadratic, inputs: [dT], params: {{ridge: 0.0}}}}
+          - {{name: mine, family: my-quadratic, inputs: [dT]}}
         """))
     r = _thermonet(plugin_path, "compare", cfg, "--out", tmp_path / "out", "--no-track",
                    "--no-plots", "-q", cwd=tmp_path)
