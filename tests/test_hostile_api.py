@@ -1,9 +1,9 @@
 """Hostile inputs, round three (issue 25), part A: the Python API (``DriftEstimator``).
 
 A recording without a channel the model needs, a run with no samples, an empty list,
-``None``, a file name or a whole Dataset where one Recording is meant: each is one
-``ValueError`` (thermonet's ``ThermonetError``) naming the channel, the run or the
-problem — never a bare ``KeyError``, ``IndexError``, ``AttributeError`` or ``TypeError``.
+``None`` or a file name where recordings are meant: each is one ``ValueError`` (thermonet's
+``ThermonetError``) naming the channel, the run or the problem — never a bare ``KeyError``,
+``IndexError``, ``AttributeError`` or ``TypeError``.
 """
 
 from __future__ import annotations
@@ -134,15 +134,37 @@ def test_predict_score_compensate_without_the_thermometer_name_it(
         assert "\n" not in str(info.value)
 
 
+def test_a_dataset_or_a_list_is_taken_run_by_run(fitted: thermonet.DriftEstimator,
+                                                 data: Dataset) -> None:
+    """predict, score and compensate take a Recording, a list or a Dataset, as fit does."""
+    runs = [data[1], data[2]]
+    one_by_one = [fitted.predict(r) for r in runs]
+    for given in (runs, Dataset(runs)):
+        # the same runs through the same model: bit-identical, rows run after run
+        np.testing.assert_array_equal(fitted.predict(given), np.concatenate(one_by_one))
+    # score pools the squares of every run: by hand from the predictions and the outputs
+    # (the toy runs have no reference channel: the observed drift is the output itself)
+    y = np.concatenate([np.column_stack([r.outputs["gyro_x"], r.outputs["gyro_y"]])
+                        for r in runs])
+    pred = np.concatenate(one_by_one)
+    expected = 1.0 - np.mean(np.sum((y - pred) ** 2, axis=0) / np.sum(y ** 2, axis=0))
+    assert fitted.score(Dataset(runs)) == pytest.approx(expected, rel=1e-12)
+    assert fitted.score(runs) == pytest.approx(expected, rel=1e-12)
+    clean = fitted.compensate(Dataset(runs))
+    assert isinstance(clean, Dataset) and isinstance(fitted.compensate(runs), list)
+    for r, c, p in zip(runs, clean, one_by_one, strict=True):
+        np.testing.assert_array_equal(c.outputs["gyro_x"], r.outputs["gyro_x"] - p[:, 0])
+
+
 @pytest.mark.parametrize("method", ["predict", "score", "compensate"])
-def test_one_recording_is_expected_not_a_dataset_or_list(fitted: thermonet.DriftEstimator,
-                                                         data: Dataset, method: str) -> None:
+def test_not_recordings_are_one_clear_error(fitted: thermonet.DriftEstimator, data: Dataset,
+                                            method: str) -> None:
     call = getattr(fitted, method)
-    _one_value_error(lambda: call(data), f"{method}: expected a Recording, got Dataset",
-                     "one run at a time")
-    _one_value_error(lambda: call([data[2]]), "got list")
-    _one_value_error(lambda: call(None), "got NoneType")
-    _one_value_error(lambda: call("run.csv"), "got str")
+    _one_value_error(lambda: call(None), f"{method}: expected a Dataset, a Recording or a list",
+                     "got NoneType")
+    _one_value_error(lambda: call("run.csv"), "got str", "thermonet.read")
+    _one_value_error(lambda: call([data[2], 7]), "item 1 is a int")
+    _one_value_error(lambda: call([]), "no recordings")
 
 
 def test_empty_recordings_predict_empty_but_cannot_be_scored(fitted: thermonet.DriftEstimator,

@@ -1,7 +1,8 @@
 """thermonet: train, judge and export temperature-drift models for inertial sensors.
 
-The Python API (:class:`DriftEstimator`, :func:`simulate`, :func:`read`,
-:class:`TrainConfig`, :class:`Recording`, :class:`Dataset`, :func:`load_config`) is
+The Python API (:class:`DriftEstimator`, :func:`compare`, :func:`simulate`, :func:`read`,
+:func:`time_blocks`, :class:`TimeBlockSplit`, :class:`TrainConfig`, :class:`Recording`,
+:class:`Dataset`, :func:`load_config`; :mod:`thermonet.api` describes it) is
 importable from here; each name loads its module on first access, so ``import thermonet`` (and
 the command line's start-up) stays free of torch.
 """
@@ -14,16 +15,27 @@ from typing import TYPE_CHECKING, Any
 __version__ = "0.1.0"
 
 if TYPE_CHECKING:
-    from .api import DriftEstimator, NotFittedError, read, simulate
+    from .api import (
+        ComparisonResult,
+        DriftEstimator,
+        NotFittedError,
+        TimeBlockSplit,
+        compare,
+        read,
+        simulate,
+        time_blocks,
+    )
     from .core.recording import Dataset, Recording
     from .core.trainconfig import TrainConfig
     from .training.config import load_config
 
-__all__ = ["DriftEstimator", "NotFittedError", "simulate", "read", "TrainConfig", "Recording",
-           "Dataset", "load_config", "__version__"]
+__all__ = ["DriftEstimator", "NotFittedError", "simulate", "read", "compare", "ComparisonResult",
+           "time_blocks", "TimeBlockSplit", "TrainConfig", "Recording", "Dataset", "load_config",
+           "__version__"]
 
 _LAZY = {
     "DriftEstimator": "api", "NotFittedError": "api", "simulate": "api", "read": "api",
+    "compare": "api", "ComparisonResult": "api", "time_blocks": "api", "TimeBlockSplit": "api",
     "TrainConfig": "core.trainconfig", "Recording": "core.recording", "Dataset": "core.recording",
     "load_config": "training.config",
 }

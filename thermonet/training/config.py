@@ -25,7 +25,7 @@ from ..core.yamlio import YamlRefusal, load_yaml
 __all__ = [
     "DataConfig", "SplitConfig", "SelectionConfig", "FeatureConfig", "FamilyConfig", "TrainConfig",
     "TrackingConfig", "CompareConfig", "load_config", "from_dict", "to_dict",
-    "outputs_of", "train_config_of",
+    "outputs_of", "train_config_of", "config_from_mapping",
 ]
 
 
@@ -289,7 +289,14 @@ def load_config(path: str | Path | None) -> CompareConfig:
     if data is None:
         raise ConfigError(f"{p}: empty config file (give at least one section; run "
                           "'thermonet compare' without a config for the built-in default)")
-    cfg = from_dict(CompareConfig, data, source=str(p))
+    return config_from_mapping(data, source=str(p))
+
+
+def config_from_mapping(data: Any, *, source: str = "config") -> CompareConfig:
+    """A comparison config from a mapping (a config file's content, or a dict in Python),
+    checked as :func:`load_config` checks a file; ``source`` names it in errors."""
+    p = source
+    cfg = from_dict(CompareConfig, data, source=p)
     labels = [f.label for f in cfg.families]
     dup = sorted({x for x in labels if labels.count(x) > 1})
     if dup:
@@ -298,16 +305,16 @@ def load_config(path: str | Path | None) -> CompareConfig:
         )
     if not cfg.families:
         raise ConfigError(f"{p}: key 'families': empty list (need at least one family)")
-    check_families(cfg, source=str(p), build=False)  # torch-free; compare builds them
-    _check_data(cfg.data, str(p))
-    _check_target(cfg.target, str(p))
+    check_families(cfg, source=p, build=False)  # torch-free; compare builds them
+    _check_data(cfg.data, p)
+    _check_target(cfg.target, p)
     if data.get("baseline") is not None and cfg.baseline not in labels:  # the default may lapse
         raise ConfigError(f"{p}: key 'baseline': no family named {cfg.baseline!r} (families: "
                           f"{', '.join(labels)})")
     from ..scoring.fleetstats import parse_limits
 
-    parse_limits(cfg.limits, source=str(p))
-    cfg._source = str(p)  # not a field: names the file in later errors
+    parse_limits(cfg.limits, source=p)
+    cfg._source = p  # not a field: names the file in later errors
     return cfg
 
 

@@ -1,0 +1,324 @@
+"""The researcher's API (issue 28): scikit-learn's contract checked with scikit-learn's own
+tools, parameters with standard errors against independent least squares and their coverage
+over seeds, the guards, and ``thermonet.compare`` against the command line's workflow."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from sklearn.base import clone
+from sklearn.linear_model import LinearRegression
+from sklearn.model_selection import GridSearchCV, cross_val_score
+
+import thermonet
+from conftest import toy_dataset
+from thermonet.core.errors import ConfigError, ThermonetError
+from thermonet.core.recording import Dataset, Recording
+
+C_TRUE = np.array([0.1, 0.02, -3e-4, 4e-6])     # deg/s / °C^k about 25 °C
+
+
+def cubic_run(seed: int, *, n: int = 400, sigma: float = 0.01, t0: float = 0.0,
+              t1: float = 50.0, run_id: str | None = None) -> Recording:
+    """A 1 Hz ramp t0 → t1 °C with drift sum_k C_TRUE[k] (T − 25)^k + white noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n, dtype=float)
+    temp = t0 + (t1 - t0) * t / t[-1]
+    drift = np.polynomial.polynomial.polyval(temp - 25.0, C_TRUE)
+    return Recording(time_s=t, temperature_c=temp,
+                     outputs={"gyro_x": drift + rng.normal(0.0, sigma, n)},
+                     drift={"drift_gyro_x": drift},
+                     units={"gyro_x": "deg/s", "temperature_c": "degC"}, device_id="syn",
+                     run_id=run_id or f"s{seed}", sample_rate_hz=1.0)
+
+
+def _one_line(call, exc=ValueError) -> str:
+    with pytest.raises(exc) as info:
+        call()
+    msg = str(info.value)
+    assert "\n" not in msg and isinstance(info.value, ThermonetError), (type(info.value), msg)
+    return msg
+
+
+# ------------------------------------------------------- scikit-learn's contract
+def test_params_are_constructor_keywords_and_clone_round_trips():
+    est = thermonet.DriftEstimator("poly", "dT", degree=2, seed=3, max_epochs=5)
+    params = est.get_params()
+    assert params["family"] == "poly" and params["inputs"] == "dT"
+    assert params["degree"] == 2 and params["seed"] == 3 and params["max_epochs"] == 5
+    assert params["lr"] is None and est.degree == 2          # a hyper-parameter reads as one
+    twin = clone(est)                                          # scikit-learn's own clone
+    assert twin is not est and twin.get_params() == params
+    assert est.set_params(degree=4, max_epochs=7) is est
+    assert (est.degree, est.max_epochs) == (4, 7) and twin.degree == 2
+    # set_params(**get_params()) is the identity, as scikit-learn requires
+    assert clone(twin).set_params(**twin.get_params()).get_params() == params
+    msg = _one_line(lambda: est.set_params(degre=3))
+    assert "'degre'" in msg and "degree, cross" in msg
+    # a fitted estimator clones unfitted, with the same parameters
+    fitted = thermonet.DriftEstimator("poly", "dT", degree=2).fit(cubic_run(0))
+    again = clone(fitted)
+    assert hasattr(fitted, "model_") and not hasattr(again, "model_")
+    assert again.get_params() == fitted.get_params()
+
+
+def test_learned_state_ends_in_underscore_and_is_set_by_fit_only():
+    est = thermonet.DriftEstimator("poly", "dT", degree=3)
+    before = set(vars(est))
+    est.fit(cubic_run(1))
+    learned = set(vars(est)) - before
+    assert learned and all(k.endswith("_") for k in learned), sorted(learned)
+    assert {"model_", "spec_", "parameters_", "covariance_", "n_features_in_",
+            "units_"} <= learned
+    assert est.n_features_in_ == 1
+    assert set(vars(est)) - learned == before                 # the parameters untouched
+
+
+def test_training_settings_as_keywords_or_a_dict():
+    rec = cubic_run(2)
+    a = thermonet.DriftEstimator("poly", "dT", degree=3, train={"max_epochs": 5}).fit(rec)
+    b = thermonet.DriftEstimator("poly", ["dT"], degree=3, max_epochs=5).fit(rec)
+    c = thermonet.DriftEstimator("poly", ["dT"], degree=3,
+                                 train=thermonet.TrainConfig(max_epochs=9), max_epochs=5).fit(rec)
+    assert a.train_config_.max_epochs == b.train_config_.max_epochs == c.train_config_.max_epochs == 5
+    # the same settings, the same computation: bit-identical (inputs "dT" is ["dT"])
+    np.testing.assert_array_equal(a.predict(rec), b.predict(rec))
+    np.testing.assert_array_equal(a.predict(rec), c.predict(rec))
+    assert thermonet.DriftEstimator("poly", "dT", degree=3, seed=3).fit(rec) \
+        .train_config_.seed == 3
+    d = thermonet.DriftEstimator("poly", "dT", degree=3, outputs="gyro_x").fit(rec)
+    assert d.outputs_ == ["gyro_x"]
+
+
+@pytest.mark.parametrize("kwargs, patterns", [
+    ({"train": {"max_epoch": 5}}, ("train.max_epoch", "unknown key")),
+    ({"train": 5}, ("train: expected a TrainConfig or a dict", "got int")),
+    ({"max_epochs": -1}, ("train.max_epochs", "-1")),
+    ({"seed": "three"}, ("train.seed", "'three'")),
+    ({"inputs": ["dT", 3]}, ("inputs: expected names", "3")),
+    ({"inputs": []}, ("inputs: an empty list",)),
+    ({"outputs": 7}, ("outputs: expected a name or a list of names", "7")),
+    ({"family": 3}, ("family: expected a family name", "3")),
+    ({"inputs": "dTT"}, ("dTT",)),
+    ({"degree": 0}, ("degree", "0")),
+])
+def test_bad_arguments_are_one_line_naming_the_argument(kwargs, patterns):
+    kwargs = {"family": "poly", "inputs": "dT", **kwargs}
+    msg = _one_line(lambda: thermonet.DriftEstimator(**kwargs).fit(cubic_run(3)))
+    for p in patterns:
+        assert p in msg, msg
+
+
+# ------------------------------------------------------------------------ guards
+def test_scoring_data_in_another_unit_is_refused_naming_both():
+    est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(cubic_run(4))
+    other = cubic_run(5)
+    rad = replace(other, outputs={"gyro_x": np.deg2rad(other.outputs["gyro_x"])},
+                  units={**other.units, "gyro_x": "rad/s"})
+    for call in (est.score, est.compensate):
+        msg = _one_line(lambda call=call: call(rad))
+        assert "'rad/s'" in msg and "'deg/s'" in msg and "run 's5'" in msg
+    msg = _one_line(lambda: thermonet.DriftEstimator("poly", "dT", degree=3)
+                    .fit(cubic_run(4), val=rad))
+    assert "fit(val)" in msg and "'rad/s'" in msg and "'deg/s'" in msg
+
+
+def test_a_validation_run_that_is_also_a_training_run_is_refused():
+    ds = Dataset([cubic_run(k) for k in range(3)])
+    est = thermonet.DriftEstimator("poly", "dT", degree=3)
+    msg = _one_line(lambda: est.fit(ds, val=ds[2]))
+    assert "fit(val): run 's2' is also a training run" in msg
+    # the same run read twice (another object, the same samples) is the same run
+    _one_line(lambda: est.fit(ds[:2] if isinstance(ds[:2], list) else ds.runs[:2],
+                              val=replace(ds[1])))
+    assert not hasattr(est, "model_")
+    assert est.fit(ds.runs[:2], val=ds[2]) is est
+
+
+def test_too_narrow_a_temperature_span_is_refused_as_compare_refuses_it():
+    soak = cubic_run(6, t0=24.9, t1=25.21)                    # a 0.31 °C soak
+    msg = _one_line(lambda: thermonet.DriftEstimator("poly", "dT", degree=3).fit(soak))
+    assert "fit(train)" in msg and "temperature spans only 0.31 °C" in msg
+    # two soaks together span enough (the BMI270 case: one soak each, 13 and 49 °C)
+    other = cubic_run(7, t0=30.0, t1=30.3, run_id="hot")
+    assert thermonet.DriftEstimator("poly", "dT", degree=1).fit([soak, other]).n_params_ == 2
+
+
+# ---------------------------------------------------------- parameters, stderr
+def test_polynomial_coefficients_equal_least_squares_in_physical_units():
+    rec = cubic_run(8)
+    est = thermonet.DriftEstimator("poly", "dT", t_ref=25.0, degree=3, max_epochs=0).fit(rec)
+    table = est.parameters_
+    assert list(table.columns) == ["axis", "name", "value", "stderr", "unit"]
+    assert list(table["name"]) == ["c0", "c1", "c2", "c3"]
+    assert list(table["unit"]) == ["deg/s", "deg/s/°C", "deg/s/°C^2", "deg/s/°C^3"]
+    # oracle: scikit-learn's least squares on (T − 25)^k
+    u = rec.temperature_c - 25.0
+    x = np.column_stack([u, u ** 2, u ** 3])
+    y = rec.outputs["gyro_x"]
+    lr = LinearRegression().fit(x, y)
+    oracle = np.concatenate([[lr.intercept_], lr.coef_])
+    stderr = table["stderr"].to_numpy()
+    # the model's coefficients are float32 (as exported): within 1e-3 standard errors
+    assert np.all(np.abs(table["value"].to_numpy() - oracle) < 1e-3 * stderr)
+    # stderr: residual variance × (XᵀX)⁻¹, by hand
+    d = np.column_stack([np.ones_like(u), x])
+    resid = y - d @ oracle
+    cov = resid @ resid / (u.size - 4) * np.linalg.inv(d.T @ d)
+    np.testing.assert_allclose(stderr, np.sqrt(np.diag(cov)), rtol=1e-4)
+    got = est.covariance_["gyro_x"]
+    scale = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    np.testing.assert_allclose(got / scale, cov / scale, rtol=0, atol=1e-6)   # correlations
+    # a T model reports the same curve about T_ref (its coefficients are in T − T_ref)
+    on_t = thermonet.DriftEstimator("poly", "T", t_ref=25.0, degree=3, max_epochs=0).fit(rec)
+    np.testing.assert_allclose(on_t.parameters_["value"], oracle, rtol=1e-4,
+                               atol=1e-3 * stderr.min())
+    assert "c3" in est.report() and "+/-" in est.report()
+
+
+def test_stated_uncertainties_cover_the_true_coefficients_over_100_seeds():
+    values, errors = [], []
+    for seed in range(100):
+        est = thermonet.DriftEstimator("poly", "dT", t_ref=25.0, degree=3,
+                                       max_epochs=0).fit(cubic_run(1000 + seed, n=200))
+        values.append(est.parameters_["value"].to_numpy())
+        errors.append(est.parameters_["stderr"].to_numpy())
+    v, e = np.array(values), np.array(errors)
+    inside = np.abs(v - C_TRUE) <= 2.0 * e                    # (100 seeds, 4 coefficients)
+    # ±2 standard errors hold 95.4 % for white noise: binomial sd over 400 trials 1.05 %
+    assert 0.92 <= inside.mean() <= 0.985, inside.mean(axis=0)
+    assert np.all(inside.mean(axis=0) >= 0.88), inside.mean(axis=0)
+    # the stated error is the spread over seeds (sd of a sd from 100 draws: 7 %)
+    np.testing.assert_allclose(v.std(axis=0, ddof=1), e.mean(axis=0), rtol=0.2)
+
+
+def test_linear_and_lorentz_parameters_in_physical_units():
+    rec = cubic_run(9)
+    lin = thermonet.DriftEstimator("linear", "T", t_ref=25.0, max_epochs=0).fit(rec)
+    u = rec.temperature_c - 25.0
+    slope, icpt = np.polyfit(u, rec.outputs["gyro_x"], 1)
+    np.testing.assert_allclose(lin.parameters_["value"], [icpt, slope], rtol=1e-5)
+    assert list(lin.parameters_["unit"]) == ["deg/s", "deg/s/°C"]
+    assert lin.parameters_["stderr"].notna().all()
+    # a Lorentz peak: y0 + 2A/pi w / (4 (T - xc)^2 + w^2), y0 0.01 deg/s, A 2 deg/s °C,
+    # centre 32 °C, width 8 °C
+    t = np.arange(600.0)
+    temp = 10.0 + 40.0 * t / t[-1]
+    y0, amp, xc, w = 0.01, 2.0, 32.0, 8.0
+    peak = y0 + 2 * amp / np.pi * w / (4 * (temp - xc) ** 2 + w * w)
+    noise = np.random.default_rng(0).normal(0, 1e-4, t.size)
+    lor = Recording(time_s=t, temperature_c=temp, outputs={"gyro_x": peak + noise},
+                    units={"gyro_x": "deg/s", "temperature_c": "degC"}, run_id="lor",
+                    sample_rate_hz=1.0)
+    for inputs in ("T", "dT"):
+        est = thermonet.DriftEstimator("lorentz", inputs, max_epochs=300).fit(lor)
+        p = est.parameters_.set_index("name")
+        np.testing.assert_allclose(p.loc[["y0", "amplitude", "centre", "width"], "value"],
+                                   [y0, amp, xc, w], rtol=2e-2, atol=1e-3)
+        assert p.loc["centre", "unit"] == "°C" and p.loc["amplitude", "unit"] == "deg/s*°C"
+        assert p["stderr"].isna().all()
+
+
+def test_parameters_survive_save_and_load(tmp_path):
+    est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(cubic_run(10))
+    back = thermonet.DriftEstimator.load(est.save(tmp_path / "m.pt"))
+    np.testing.assert_allclose(back.parameters_["value"], est.parameters_["value"], rtol=1e-12)
+    assert back.parameters_["stderr"].isna().all()           # no training data in a checkpoint
+    assert back.get_params()["degree"] == 3
+
+
+# --------------------------------------------- scikit-learn's model selection
+def test_time_blocks_and_the_splitter_never_mix_a_block():
+    ds = toy_dataset(n_runs=2, noise=0.002)
+    blocks = thermonet.time_blocks(ds, n_blocks=20, purge_s=60)
+    assert len(blocks) == 40 and blocks[0].run_id == "run0[b0]"
+    for b in blocks:                                           # contiguous: 1 s steps inside
+        assert np.all(np.diff(b.time_s) == 1.0)
+    # adjacent blocks are 60 s apart (30 s cut from each side of each boundary)
+    assert blocks[1].time_s[0] - blocks[0].time_s[-1] == pytest.approx(61.0, abs=1.0)
+    cv = thermonet.TimeBlockSplit(n_splits=5)
+    seen = np.zeros(len(blocks), int)
+    for train, val in cv.split(blocks):
+        assert not set(train) & set(val)
+        seen[val] += 1
+        temps = np.concatenate([blocks[i].temperature_c for i in val])
+        # every fold's blocks reach within one fold's share (70 / 5 °C) of both ends
+        assert temps.min() < -20 + 14 and temps.max() > 50.2 - 14
+    assert np.all(seen == 1) and cv.get_n_splits() == 5
+    # whole runs: one fold per run
+    assert [list(v) for _, v in thermonet.TimeBlockSplit(2).split(ds.runs)] == [[0], [1]]
+    _one_line(lambda: list(thermonet.TimeBlockSplit(5).split(ds.runs)))   # 2 runs, 5 folds
+
+
+def test_cross_val_score_and_grid_search_over_time_blocks():
+    ds = toy_dataset(n_runs=1, noise=0.002)
+    blocks = thermonet.time_blocks(ds, n_blocks=20)
+    cv = thermonet.TimeBlockSplit(n_splits=4)
+    est = thermonet.DriftEstimator("poly", "T", degree=1, max_epochs=0)
+    scores = cross_val_score(est, blocks, cv=cv)
+    # oracle: numpy's least squares on the same folds, scored as DriftEstimator.score
+    expected = []
+    for train, val in cv.split(blocks):
+        t = np.concatenate([blocks[i].temperature_c for i in train])
+        y = np.concatenate([blocks[i].outputs["gyro_x"] for i in train])
+        coef = np.polyfit(t, y, 1)
+        # evaluated as on board: clamped to the trained range
+        tv = np.clip(np.concatenate([blocks[i].temperature_c for i in val]), t.min(), t.max())
+        yv = np.concatenate([blocks[i].outputs["gyro_x"] for i in val])
+        expected.append(1.0 - np.sum((yv - np.polyval(coef, tv)) ** 2) / np.sum(yv ** 2))
+    np.testing.assert_allclose(scores, expected, atol=1e-6)
+    search = GridSearchCV(est, {"degree": [1, 2, 3]}, cv=cv).fit(blocks)
+    means = search.cv_results_["mean_test_score"]
+    # the toy drift is quadratic: a line leaves its curvature, degree 2 and 3 do not
+    assert means[0] < means[1] - 1e-3 and search.best_params_["degree"] in (2, 3)
+    assert search.best_estimator_.degree == search.best_params_["degree"]
+    assert search.best_estimator_.score(ds[0]) > 0.99
+
+
+# --------------------------------------------------------------- compare()
+def test_compare_from_python_is_the_command_lines_comparison(tmp_path, monkeypatch):
+    from thermonet.training.config import config_from_mapping
+    from thermonet.workflows.compare import run_compare
+
+    monkeypatch.chdir(tmp_path)
+    ds = toy_dataset(n_runs=3, noise=0.002)
+    config = {"families": [{"name": "line", "family": "poly", "inputs": ["dT"],
+                            "params": {"degree": 1}},
+                           {"name": "cubic", "family": "poly", "inputs": ["dT"],
+                            "params": {"degree": 3}}],
+              "baseline": "cubic"}
+    res = thermonet.compare(config, data=ds)
+    assert list(tmp_path.iterdir()) == []                      # nothing written without out
+    assert set(res.families) == {"line", "cubic"} and res.chosen in res.families
+    assert res.families["cubic"].ok and res.families["cubic"].axes["gyro_x"].score_ratio < 0.5
+    assert isinstance(res.warnings, list) and "chosen" in res.table()
+    # the workflow itself, as the command line runs it: the same numbers
+    cli = run_compare(config_from_mapping(config), tmp_path / "cli", dataset=ds, quiet=True,
+                      plots=False, track=False)
+    # every number but the wall-clock time and where the checkpoint was written: identical
+    skip = ("checkpoint", "checkpoint_sha256", "fit_seconds")
+
+    def same(doc):
+        return json.loads(json.dumps({k: {f: x for f, x in v.items() if f not in skip}
+                                      for k, v in doc["families"].items()}))
+
+    assert same(cli) == same(res.results)
+    for key in ("chosen", "chosen_reason", "selection", "warnings", "data_hash", "split"):
+        assert cli[key] == res.results[key], key
+    est = res.estimator("cubic")
+    from_cli = thermonet.DriftEstimator.load(tmp_path / "cli" / "models" / "cubic.pt")
+    np.testing.assert_array_equal(est.predict(ds[2]), from_cli.predict(ds[2]))
+    scores = res.scores()
+    assert list(scores["family"]) == ["line", "cubic"]
+    # with out, the files are there
+    kept = thermonet.compare(config, data=ds, out=tmp_path / "kept", plots=False)
+    assert (tmp_path / "kept" / "results.json").is_file() and kept.out == tmp_path / "kept"
+    with pytest.raises(ThermonetError, match="no family named 'quartic'"):
+        res.estimator("quartic")
+    with pytest.raises(ConfigError, match="compare\\(config\\): expected"):
+        thermonet.compare(42)
+    with pytest.raises(ConfigError, match="compare\\(config\\): key 'famiiles'"):
+        thermonet.compare({"famiiles": []}, data=ds)

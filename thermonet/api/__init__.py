@@ -1,0 +1,71 @@
+"""The researcher's Python API: :class:`DriftEstimator`, :func:`compare`, :func:`simulate`,
+:func:`read`, :func:`time_blocks` and :class:`TimeBlockSplit`.
+
+A drift model in the scikit-learn / lmfit mould::
+
+    import thermonet
+
+    ds = thermonet.simulate("patent-gyro", runs=3, seed=0)
+    est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(ds[0], val=ds[1])
+    drift = est.predict(ds[2])                 # (N, axes), in the outputs' units
+    print(est.score(ds[2]))                    # 1 − msd after / msd before, mean over axes
+    print(est.parameters_)                     # axis, name, value, stderr, unit
+    est.save("cubic.pt")
+    est.export("cubic.onnx", format="onnx")
+
+The estimator (:mod:`thermonet.api.estimator`)
+    The constructor only stores its arguments: the family, the inputs, the target and
+    feature settings, every field of :class:`~thermonet.TrainConfig` as a keyword of its own
+    (``seed=3``, ``max_epochs=50``) and the family's hyper-parameters (``degree=3``) —
+    all listed by ``get_params()``, set by ``set_params()``, copied by
+    :func:`sklearn.base.clone`.  :meth:`~DriftEstimator.fit` checks them (an error names the
+    argument and value), resolves the feature references from the training runs, builds each
+    run's signals and targets and fits through the one fold pipeline
+    (:mod:`thermonet.training.fold`, what ``compare`` runs).  Learned state ends in ``_``.
+    ``fit``, ``predict``, ``score`` and ``compensate`` each take a Recording, a list of them
+    or a Dataset.  Guards: the training runs must span at least 1 °C and share units (as
+    ``compare`` checks the data it reads); a validation run that is also a training run, and
+    scoring or compensating data in another unit than the training data, are refused, naming
+    the run and both units.
+
+Parameters with uncertainties (:mod:`thermonet.api.parameters`)
+    ``est.parameters_`` is a pandas table ``axis, name, value, stderr, unit``: a polynomial's
+    ``c0 … cN`` in output unit / °C^k about :math:`T_{ref}` with least-squares standard
+    errors (``est.covariance_`` holds the matrices; the residuals of a time series are
+    correlated, so read them as a lower bound — the module says how much), Lorentz and RBF
+    parameters in physical units, other families' stored parameters (stderr NaN).
+    ``est.report()`` is the fit report as text.
+
+Hyper-parameter searches (:mod:`thermonet.api.splits`)
+    scikit-learn's ``GridSearchCV`` and ``cross_val_score`` work on a DriftEstimator whose
+    ``X`` is a list of recordings — whole runs, or contiguous time blocks cut by
+    :func:`time_blocks` — split by :class:`TimeBlockSplit` (blocks dealt round-robin to the
+    folds, as ``compare``'s model selection deals them; never random samples)::
+
+        from sklearn.model_selection import GridSearchCV
+        blocks = thermonet.time_blocks(ds, n_blocks=40, purge_s=60)
+        search = GridSearchCV(thermonet.DriftEstimator("poly", "dT"),
+                              {"degree": [1, 2, 3, 4]},
+                              cv=thermonet.TimeBlockSplit(n_splits=5)).fit(blocks)
+        search.best_params_
+
+    The score is :meth:`DriftEstimator.score` (the fraction of the drift's mean square
+    removed); scikit-learn's ``y`` is None throughout (the drift is in the recordings).
+
+Comparisons (:mod:`thermonet.api.comparison`)
+    ``thermonet.compare(config, data=None, out=None, track=False)`` runs ``thermonet
+    compare``'s workflow and returns a :class:`ComparisonResult` (``.chosen``,
+    ``.families[name].axes[axis]``, ``.warnings``, ``.scores()``, ``.table()``,
+    ``.estimator(name)``); files are written only where ``out`` is given.
+
+A saved estimator is an ordinary thermonet checkpoint (``thermonet export`` reads it).
+"""
+
+from __future__ import annotations
+
+from .comparison import AxisSummary, ComparisonResult, FamilySummary, compare
+from .estimator import DriftEstimator, NotFittedError, read, simulate
+from .splits import TimeBlockSplit, time_blocks
+
+__all__ = ["DriftEstimator", "NotFittedError", "simulate", "read", "compare",
+           "ComparisonResult", "FamilySummary", "AxisSummary", "time_blocks", "TimeBlockSplit"]

@@ -1,0 +1,208 @@
+"""``thermonet.compare``: the command line's comparison from Python, with typed results.
+
+:func:`compare` runs :func:`thermonet.workflows.compare.run_compare` — the comparison
+``thermonet compare`` runs, nothing re-implemented — and returns a :class:`ComparisonResult`
+read from its ``results.json`` document: ``.chosen``, ``.families[name]`` (scores, verdicts,
+per-axis metrics), ``.warnings``, ``.estimator(name)`` (a fitted
+:class:`~thermonet.api.DriftEstimator` loaded from the family's checkpoint) and ``.table()``
+(the command line's table).  Files are written only where ``out`` names a directory;
+without it the comparison runs in a temporary directory that is removed before
+:func:`compare` returns (the checkpoints are loaded first, no plots are drawn).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ..core.errors import ConfigError, ThermonetError
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from .estimator import DriftEstimator
+
+__all__ = ["compare", "ComparisonResult", "FamilySummary", "AxisSummary"]
+
+
+@dataclass(frozen=True)
+class AxisSummary:
+    """One family on one axis of the held-out test data (``results.json`` ``axes``)."""
+
+    score_ratio: float | None       # offset-free score, family / raw (< 1 better)
+    interval: tuple[float | None, float | None]   # its 95 % block-bootstrap interval
+    verdict: str                    # better, worse, indistinguishable (against raw)
+    compensate: bool                # whether the shipped model compensates this axis
+    vs_baseline: dict[str, Any] | None
+    metrics: dict[str, Any]         # everything results.json holds for the axis
+
+
+@dataclass(frozen=True)
+class FamilySummary:
+    """One configured family of a comparison."""
+
+    name: str
+    family: str
+    inputs: list[str]
+    params: dict[str, Any]
+    status: str                     # "ok" or "failed"
+    reason: str | None
+    val_score: float | None
+    test_score: float | None
+    n_params: int | None
+    fit_seconds: float | None
+    axes: dict[str, AxisSummary] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+class ComparisonResult:
+    """What :func:`compare` returns; ``results`` is the ``results.json`` document itself.
+
+    Attributes
+    ----------
+    chosen : str or None
+        The family that ships (None: none beats raw; see ``chosen_reason``).
+    chosen_reason : str
+    baseline : str or None
+    families : dict of str to FamilySummary
+    warnings : list of str
+    units : dict of str to str
+    out : Path or None
+        Where the files are (None: nothing was kept).
+    results : dict
+    """
+
+    def __init__(self, results: dict[str, Any], estimators: dict[str, DriftEstimator],
+                 out: Path | None) -> None:
+        self.results = results
+        self.out = out
+        self._estimators = estimators
+        self.chosen: str | None = results.get("chosen")
+        self.chosen_reason: str = results.get("chosen_reason", "")
+        self.baseline: str | None = results.get("baseline")
+        self.warnings: list[str] = list(results.get("warnings") or [])
+        self.units: dict[str, str] = dict(results.get("units") or {})
+        self.families: dict[str, FamilySummary] = {
+            name: _family(name, f) for name, f in (results.get("families") or {}).items()}
+
+    def __repr__(self) -> str:
+        return (f"ComparisonResult(chosen={self.chosen!r}, families={list(self.families)}, "
+                f"warnings={len(self.warnings)})")
+
+    def estimator(self, name: str) -> DriftEstimator:
+        """The fitted estimator of family ``name`` (the model ``compare`` saved for it)."""
+        if name not in self.families:
+            raise ThermonetError(f"estimator: no family named {name!r} (families: "
+                                 f"{', '.join(self.families)})")
+        if name not in self._estimators:
+            f = self.families[name]
+            raise ThermonetError(f"estimator: family {name!r} was not fitted "
+                                 f"({f.reason or f.status})")
+        return self._estimators[name]
+
+    def scores(self) -> pd.DataFrame:
+        """One row per family and axis: ``family, axis, score_ratio, low, high, verdict,
+        compensate`` (held-out test data; ratio < 1 is better than raw)."""
+        import pandas as pd
+
+        rows = [{"family": name, "axis": axis, "score_ratio": a.score_ratio,
+                 "low": a.interval[0], "high": a.interval[1], "verdict": a.verdict,
+                 "compensate": a.compensate}
+                for name, f in self.families.items() for axis, a in f.axes.items()]
+        return pd.DataFrame(rows, columns=["family", "axis", "score_ratio", "low", "high",
+                                           "verdict", "compensate"])
+
+    def table(self) -> str:
+        """The comparison as the command line prints it."""
+        from ..workflows.compare import format_table
+
+        return format_table(self.results)
+
+
+def _family(name: str, f: dict[str, Any]) -> FamilySummary:
+    axes = {}
+    for axis, a in (f.get("axes") or {}).items():
+        lo, hi = (list(a.get("interval") or [None, None]) + [None, None])[:2]
+        axes[axis] = AxisSummary(score_ratio=a.get("score_ratio"), interval=(lo, hi),
+                                 verdict=a.get("verdict", ""),
+                                 compensate=bool(a.get("compensate")),
+                                 vs_baseline=a.get("vs_baseline"), metrics=dict(a))
+    return FamilySummary(name=name, family=f.get("family", ""), inputs=list(f.get("inputs") or []),
+                         params=dict(f.get("params") or {}), status=f.get("status", ""),
+                         reason=f.get("reason"), val_score=f.get("val_score"),
+                         test_score=f.get("test_score"), n_params=f.get("n_params"),
+                         fit_seconds=f.get("fit_seconds"), axes=axes)
+
+
+def _config(config: Any) -> Any:
+    from ..training.config import CompareConfig, config_from_mapping, load_config
+
+    if config is None or isinstance(config, (str, os.PathLike)):
+        return load_config(None if config is None else Path(config))
+    if isinstance(config, CompareConfig):
+        return config
+    if isinstance(config, dict):
+        return config_from_mapping(config, source="compare(config)")
+    raise ConfigError(f"compare(config): expected a config file's path, a dict of config "
+                      f"sections or a CompareConfig, got {type(config).__name__}")
+
+
+def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | None = None,
+            track: bool = False, *, tracking_uri: str | None = None, overwrite: bool = False,
+            plots: bool = True, workers: int | None = None,
+            quiet: bool = True) -> ComparisonResult:
+    """Compare model families as ``thermonet compare`` does; return the typed results.
+
+    Parameters
+    ----------
+    config : path, dict or CompareConfig, optional
+        A config file, the same sections as a dict (``{"families": [...], "split": ...}``,
+        checked as a file is), or a loaded config; None is the built-in default.
+    data : Dataset, Recording or list of Recordings, optional
+        The data, in place of the config's ``data`` section (validated as read data is).
+    out : path, optional
+        Directory for ``results.json``, the report, plots and checkpoints; None writes
+        nothing that outlives the call.
+    track : bool
+        Log to MLflow (``tracking_uri``, else the config's) as the command line does.
+    overwrite, plots, workers, quiet
+        As ``thermonet compare``'s ``--overwrite``, ``--no-plots``, ``--workers`` and
+        ``--quiet`` (quiet by default here; ``plots`` only where ``out`` is given).
+    """
+    from ..core.recording import Dataset
+    from ..workflows.compare import run_compare
+    from .estimator import DriftEstimator, _runs
+
+    cfg = _config(config)
+    dataset = None
+    if data is not None:
+        dataset = Dataset(_runs(data, "compare(data)")).validate("compare(data)")
+    tmp = None
+    if out is None:
+        tmp = Path(tempfile.mkdtemp(prefix="thermonet-compare-"))
+        target = tmp / "out"
+    else:
+        target = Path(out)
+    try:
+        results = run_compare(cfg, target, overwrite=overwrite, track=track,
+                              tracking_uri=tracking_uri, quiet=quiet, dataset=dataset,
+                              plots=plots and out is not None, workers=workers)
+        estimators = {}
+        for name, f in (results.get("families") or {}).items():
+            ckpt = f.get("checkpoint")
+            if f.get("status") == "ok" and ckpt:
+                path = Path(ckpt)
+                if not path.is_absolute() or not path.exists():
+                    path = target / "models" / f"{name}.pt"
+                estimators[name] = DriftEstimator.load(path)
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return ComparisonResult(results, estimators, None if out is None else target)

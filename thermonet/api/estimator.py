@@ -1,0 +1,635 @@
+"""The estimator: :class:`DriftEstimator`, and :func:`simulate`, :func:`read` (see :mod:`thermonet.api`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..core.errors import ConfigError, ThermonetError
+from ..core.recording import Dataset, Recording
+from ..core.trainconfig import TrainConfig
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from ..features.inputs import FeatureSpec
+    from ..models import DriftModel
+
+__all__ = ["DriftEstimator", "NotFittedError", "simulate", "read", "Data"]
+
+_TARGETS = ("drift", "four-position")
+
+#: What ``fit``, ``predict``, ``score`` and ``compensate`` take: one run, a list of runs or a
+#: Dataset (each run's dynamic inputs computed on that run alone).
+Data = Dataset | Recording | Sequence[Recording]
+
+#: The constructor's own keywords (the family's hyper-parameters come on top, as ``**hyper``).
+_OWN = ("family", "inputs", "t_ref", "target", "outputs", "train_on", "gap_s",
+        "t_ref_window_min", "train")
+#: The training settings, each a keyword of its own (None: from ``train``, else TrainConfig's).
+_TRAIN_KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig))
+
+
+class NotFittedError(ThermonetError, AttributeError):
+    """``predict``/``compensate``/``score``/``save``/``export`` before ``fit``."""
+
+
+def _runs(data: Any, what: str, *, allow_empty: bool = False) -> list[Recording]:
+    """The runs of ``data``: each a :class:`Recording` (with samples unless ``allow_empty``),
+    else one ValueError line naming the argument."""
+    expected = "expected a Dataset, a Recording or a list of Recordings"
+    if isinstance(data, Recording):
+        runs = [data]
+    elif isinstance(data, (str, bytes, os.PathLike)) or not isinstance(data, Iterable) \
+            or isinstance(data, dict):
+        hint = " (read files with thermonet.read(paths, mapping))" \
+            if isinstance(data, (str, bytes, os.PathLike)) else ""
+        raise ThermonetError(f"{what}: {expected}, got {type(data).__name__}{hint}")
+    else:
+        runs = list(data)
+    if not runs:
+        raise ThermonetError(f"{what}: no recordings (an empty {type(data).__name__}); "
+                             "give at least one run")
+    for i, r in enumerate(runs):
+        if not isinstance(r, Recording):
+            raise ThermonetError(f"{what}: {expected}; item {i} is a {type(r).__name__}")
+        if not allow_empty:
+            _has_samples(r, what)
+    return runs
+
+
+def _data_source(runs: list[Recording], val: list[Recording] | None) -> dict[str, Any]:
+    """What a fit was given (a checkpoint's ``extra.provenance.data``): the runs, where they
+    came from (the files read, or the simulator) and the digest of their samples."""
+    from ..training.parts import data_hash
+
+    every = runs + list(val or [])
+    return {"kind": "dataset", "device": runs[0].device_id,
+            "runs": [r.run_id for r in runs], "val": [r.run_id for r in val or []],
+            "sources": sorted({r.meta.get("source", "") for r in every} - {""})[:20],
+            "preset": runs[0].meta.get("preset") or None,
+            "data_hash": data_hash(Dataset(every))}
+
+
+def _has_samples(rec: Recording, what: str) -> Recording:
+    if rec.n_samples == 0:
+        raise ThermonetError(f"{what}: run '{rec.run_id}' has no samples")
+    return rec
+
+
+def _names(value: Any, what: str) -> list[str] | None:
+    """``inputs``/``outputs`` as a list of names: None stays None, one name is a list of one."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, Iterable) and not isinstance(value, (bytes, dict)):
+        names = list(value)
+        bad = [v for v in names if not isinstance(v, str)]
+        if not bad and names:
+            return names
+        if not names:
+            raise ConfigError(f"{what}: an empty list; name at least one, or leave it None")
+        raise ConfigError(f"{what}: expected names (strings), got {bad[0]!r} "
+                          f"({type(bad[0]).__name__}) in {names!r}")
+    raise ConfigError(f"{what}: expected a name or a list of names, got {value!r}")
+
+
+def _needs_outputs(rec: Recording, outputs: Sequence[str], what: str) -> None:
+    """Every output channel the model needs (``gyro_x`` for ``gyro_x.bias`` too) is in ``rec``."""
+    needed = list(dict.fromkeys(o.split(".")[0] for o in outputs))
+    missing = [a for a in needed if a not in rec.outputs]
+    if missing:
+        raise ThermonetError(f"{what}: run '{rec.run_id}' has no output channel '{missing[0]}' "
+                             f"(the model needs {', '.join(needed)}; the run has "
+                             f"{', '.join(rec.outputs) or 'none'})")
+
+
+def _same_units(rec: Recording, units: dict[str, str], what: str, trained: str) -> None:
+    """Each channel of ``units`` that ``rec`` carries is in the same unit (where both say)."""
+    for name, unit in units.items():
+        channel = name.split(".")[0]
+        if name.endswith(".scale"):
+            continue
+        theirs = rec.units.get(channel, "")
+        if unit and theirs and theirs != unit and channel in {**rec.outputs, **rec.proxies}:
+            raise ThermonetError(f"{what}: run '{rec.run_id}' has {channel} in '{theirs}', "
+                                 f"{trained} in '{unit}' (convert one with a mapping scale)")
+
+
+def _same_run(a: Recording, b: Recording) -> bool:
+    """Whether two recordings are one run (the same object, or the same id and samples)."""
+    if a is b:
+        return True
+    if a.run_id != b.run_id or a.n_samples != b.n_samples:
+        return False
+    return bool(np.array_equal(a.time_s, b.time_s))
+
+
+class DriftEstimator:
+    """One model family fitted to drift vs temperature (or a proxy), scikit-learn style.
+
+    Every argument is a keyword the estimator stores as given (``get_params``,
+    ``set_params`` and :func:`sklearn.base.clone` see all of them); :meth:`fit` checks
+    them and names the argument at fault.
+
+    Parameters
+    ----------
+    family : str
+        A name in :data:`thermonet.models.MODELS` (``linear``, ``poly``, ...).
+    inputs : list of str or str, optional
+        Features (``T``, ``dT``, ``dT2``, ``rate``, ``d_<proxy>``...); one name may be
+        given alone.  Default: the family's own (``default_inputs``).
+    t_ref : "start" or float
+        :math:`T_{ref}` in °C, or the mean over the first ``t_ref_window_min``
+        minutes of the first training run.
+    target : "drift" or "four-position"
+        What is fitted: per-sample drift (output − reference), or study 000's
+        per-soak bias and scale factor (outputs ``<axis>.bias``/``<axis>.scale``).
+    outputs : list of str or str, optional
+        Output axes to model (default: every output of the first training run).
+    train_on : "all" or "heating"
+        ``heating`` fits only samples with dT/dt > −0.05 °C/min (PX4/ArduPilot practice).
+    gap_s : float or "auto"
+        Dynamic inputs (``rate``, ``lag_<tau>``, ``play_<w>``): a time step over ``gap_s``
+        seconds restarts their state; ``"auto"`` is
+        :data:`thermonet.features.dynamics.GAP_FACTOR` × the first training run's median
+        sample interval.  Stored with the model.
+    t_ref_window_min : float
+        Minutes averaged for ``t_ref="start"``.
+    train : TrainConfig or dict, optional
+        The training loop's settings as one object (``{"max_epochs": 5}`` is read as
+        ``TrainConfig(max_epochs=5)``); the keywords below override single fields.
+    optimizer, lr, max_epochs, patience, min_delta, seed, device, max_train_samples, \
+average_s, threads
+        The fields of :class:`~thermonet.TrainConfig`, each a keyword of its own (None:
+        from ``train``, else TrainConfig's default), so that a hyper-parameter search can
+        set them: ``DriftEstimator("mlp", seed=3, max_epochs=200)``.
+    **hyper
+        The family's hyper-parameters (``degree=3``, ``n_centres=16``...).  They are
+        parameters like the others: ``get_params()`` lists them, ``set_params(degree=2)``
+        sets them (checked against the family's own), ``est.degree`` reads them.
+
+    Attributes
+    ----------
+    model_ : DriftModel
+        The fitted torch module (eval mode, CPU).
+    spec_ : FeatureSpec
+        Inputs and the references resolved from the training runs.
+    n_features_in_ : int
+        Number of model inputs (features) the model was fitted on.
+    outputs_ : list of str
+    units_ : dict
+        Unit per output (from the training data); scoring data in another unit is refused.
+    parameters_ : pandas.DataFrame
+        The fitted parameters in physical units with standard errors: columns ``axis,
+        name, value, stderr, unit`` (:mod:`thermonet.api.parameters`).
+    covariance_ : dict of str to ndarray
+        Per axis, the covariance of the polynomial coefficients ``c0 … cN`` (families
+        that are a polynomial in one input; empty otherwise).
+    history_ : list of dict
+        Per epoch ``train_loss`` and ``val_loss`` (standardised MSE); epoch 0 is
+        the closed-form start.
+    best_epoch_ : int
+    best_val_ : float or None
+        Validation loss at ``best_epoch_`` (None without a validation run).
+    n_params_ : int
+    fit_seconds_ : float
+    """
+
+    def __init__(self, family: str, inputs: Sequence[str] | str | None = None, *,
+                 t_ref: str | float = "start", target: str = "drift",
+                 outputs: Sequence[str] | str | None = None, train_on: str = "all",
+                 gap_s: float | str = "auto", t_ref_window_min: float = 10.0,
+                 train: TrainConfig | dict[str, Any] | None = None,
+                 optimizer: str | None = None, lr: float | None = None,
+                 max_epochs: int | None = None, patience: int | None = None,
+                 min_delta: float | None = None, seed: int | None = None,
+                 device: str | None = None, max_train_samples: int | None = None,
+                 average_s: float | None = None, threads: int | None = None,
+                 **hyper: Any) -> None:
+        self.family = family
+        self.inputs = inputs
+        self.t_ref = t_ref
+        self.target = target
+        self.outputs = outputs
+        self.train_on = train_on
+        self.gap_s = gap_s
+        self.t_ref_window_min = t_ref_window_min
+        self.train = train
+        self.optimizer = optimizer
+        self.lr = lr
+        self.max_epochs = max_epochs
+        self.patience = patience
+        self.min_delta = min_delta
+        self.seed = seed
+        self.device = device
+        self.max_train_samples = max_train_samples
+        self.average_s = average_s
+        self.threads = threads
+        self.hyper = hyper
+
+    # ------------------------------------------------------ scikit-learn's contract
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """Every constructor argument by name, the family's hyper-parameters included."""
+        params = {k: getattr(self, k) for k in _OWN + _TRAIN_KEYS}
+        params.update(self.hyper)
+        return params
+
+    def set_params(self, **params: Any) -> DriftEstimator:
+        """Set constructor arguments by name (a hyper-parameter must be the family's own);
+        returns ``self``.  A name that is neither is one error naming the valid ones."""
+        if "family" in params:
+            self.family = params["family"]
+        for key, value in params.items():
+            if key in _OWN or key in _TRAIN_KEYS:
+                setattr(self, key, value)
+                continue
+            from ..models.registry import family_signature
+
+            valid = family_signature(self.family).hyper
+            if key not in valid:
+                raise ConfigError(f"set_params: {key!r} is not a parameter of "
+                                  f"DriftEstimator({self.family!r}) (its own: "
+                                  f"{', '.join(_OWN + _TRAIN_KEYS)}; the family's: "
+                                  f"{', '.join(valid) or 'none'})")
+            self.hyper[key] = value
+        return self
+
+    def __getattr__(self, name: str) -> Any:
+        # a family hyper-parameter reads like any other parameter (est.degree)
+        hyper = self.__dict__.get("hyper") or {}
+        if name in hyper:
+            return hyper[name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def __sklearn_tags__(self) -> Any:
+        """scikit-learn's tags: a regressor whose ``X`` is recordings and that needs no ``y``."""
+        from sklearn.utils import InputTags, RegressorTags, Tags, TargetTags
+
+        return Tags(estimator_type="regressor", target_tags=TargetTags(required=False),
+                    regressor_tags=RegressorTags(), non_deterministic=False,
+                    input_tags=InputTags(two_d_array=False))
+
+    def __repr__(self) -> str:
+        defaults = {"inputs": None, "t_ref": "start", "target": "drift", "outputs": None,
+                    "train_on": "all", "gap_s": "auto", "t_ref_window_min": 10.0, "train": None}
+        shown = [repr(self.family)]
+        shown += [f"{k}={getattr(self, k)!r}" for k in _OWN[1:]
+                  if getattr(self, k) != defaults.get(k)]
+        shown += [f"{k}={getattr(self, k)!r}" for k in _TRAIN_KEYS if getattr(self, k) is not None]
+        shown += [f"{k}={v!r}" for k, v in self.hyper.items()]
+        return f"DriftEstimator({', '.join(shown)})"
+
+    # ------------------------------------------------------------------ fitting
+    def _train_config(self) -> TrainConfig:
+        """``train`` (a TrainConfig, a dict of its fields or None) with the keywords over it."""
+        from ..core.schema import from_dict
+
+        base = self.train
+        if base is None:
+            config = TrainConfig()
+        elif isinstance(base, TrainConfig):
+            config = base
+        elif isinstance(base, dict):
+            config = from_dict(TrainConfig, base, source="DriftEstimator", prefix="train")
+        else:
+            raise ConfigError(f"train: expected a TrainConfig or a dict of its fields "
+                              f"({', '.join(_TRAIN_KEYS)}), got {type(base).__name__}; or set "
+                              "them as keywords (DriftEstimator(..., max_epochs=5))")
+        overrides = {k: getattr(self, k) for k in _TRAIN_KEYS if getattr(self, k) is not None}
+        return replace(config, **overrides) if overrides else config
+
+    def _resolved_inputs(self) -> list[str]:
+        names = _names(self.inputs, "inputs")
+        if names is not None:
+            return names
+        from ..models import get_family
+
+        return list(get_family(self.family).default_inputs)
+
+    def _outputs_for(self, runs: list[Recording]) -> list[str]:
+        from ..training.parts import FOURPOS_SUFFIXES
+
+        axes = _names(self.outputs, "outputs") or list(runs[0].axes)
+        if self.target == "four-position":
+            return [f"{a}{s}" for a in axes for s in FOURPOS_SUFFIXES]
+        return axes
+
+    def fit(self, train: Data, val: Data | None = None) -> DriftEstimator:
+        """Fit on ``train``; stop early on ``val`` (held-out runs) when given.
+
+        ``train`` and ``val`` are each a Recording, a list of them or a Dataset.  Without
+        ``val`` the loop stops on a training-loss plateau; thermonet never carves
+        validation samples at random (:func:`thermonet.api.time_blocks` cuts contiguous
+        blocks).  scikit-learn's tools call ``fit(X, y)`` with ``y=None``: the drift is
+        in the recordings, so ``y`` takes the place of ``val`` and must be None there.
+
+        The data is checked as ``compare`` checks what it reads
+        (:meth:`~thermonet.core.recording.Dataset.validate`): the training runs must span
+        at least :data:`~thermonet.core.recording.MIN_TEMPERATURE_SPAN_C` °C together
+        and share channels and units; the validation runs must carry the same units and
+        may not be training runs themselves.
+
+        Returns
+        -------
+        DriftEstimator
+            ``self``, fitted.
+
+        Raises
+        ------
+        ConfigError
+            Unknown family, input, hyper-parameter, target, ``train_on`` or training setting.
+        InputError
+            Data that cannot be trained on (too narrow a temperature span, mixed units).
+        FitError
+            The data cannot carry the family (reason given).
+        """
+        from ..training.fold import fit_fold, fold_parts, fold_spec
+        from ..training.parts import fit_arrays
+        from ..training.splits import stack_blocks
+        from .parameters import parameter_table
+
+        if not isinstance(self.family, str):
+            raise ConfigError(f"family: expected a family name such as 'poly', got "
+                              f"{self.family!r}")
+        if self.target not in _TARGETS:
+            raise ConfigError(f"target: {self.target!r} is not one of {', '.join(_TARGETS)}")
+        if self.train_on not in ("all", "heating"):
+            raise ConfigError(f"train_on: {self.train_on!r} is not 'all' or 'heating'")
+        if "rate_window_s" in self.hyper:
+            raise ConfigError("rate_window_s was removed: 'rate' is a causal filtered derivative "
+                              "with a 60 s time constant (thermonet.features.dynamics); use the "
+                              "input 'rate_<tau>' (e.g. rate_30) for another time constant")
+        config = self._train_config()
+        runs = _runs(train, "fit(train)")
+        val_runs = None if val is None else _runs(val, "fit(val)")
+        inputs = self._resolved_inputs()
+        outputs = self._outputs_for(runs)
+        for r in runs:
+            _needs_outputs(r, outputs, "fit(train)")
+        for v in val_runs or []:
+            _needs_outputs(v, outputs, "fit(val)")
+            for r in runs:
+                if _same_run(v, r):
+                    raise ThermonetError(f"fit(val): run '{v.run_id}' is also a training run "
+                                         "(validate on a run the model is not fitted on)")
+        Dataset(runs).validate("fit(train)")
+        for v in val_runs or []:
+            _same_units(v, runs[0].units, "fit(val)",
+                        f"the training run '{runs[0].run_id}' has it")
+        spec = fold_spec(inputs, runs, t_ref=self.t_ref, window_min=self.t_ref_window_min,
+                         gap_s=self.gap_s, reference_for_targets=True)
+        val_rec = None
+        if val_runs is not None:
+            val_rec = stack_blocks(val_runs, "val") if len(val_runs) > 1 else val_runs[0]
+        parts = fold_parts(spec, runs, outputs=outputs, target=self.target, val=val_rec,
+                           train_on=self.train_on, gap_s=self.gap_s)
+        result = fit_fold(parts, family=self.family, outputs=outputs, hyper=self.hyper,
+                          config=config)
+        self.model_: DriftModel = result.model
+        self.spec_: FeatureSpec = spec
+        self.n_features_in_: int = len(spec.inputs)
+        self.outputs_: list[str] = outputs
+        self.units_: dict[str, str] = {o: ("1" if o.endswith(".scale")
+                                           else runs[0].units.get(o.split(".")[0], ""))
+                                       for o in outputs}
+        self.signal_units_: dict[str, str] = {p: runs[0].units.get(p, "")
+                                              for p in runs[0].proxies}
+        self.device_id_: str = runs[0].device_id
+        self.data_source_: dict[str, Any] = _data_source(runs, val_runs)
+        self.train_config_: TrainConfig = config
+        self.history_: list[dict[str, Any]] = list(result.history)
+        self.best_epoch_: int = int(result.best_epoch)
+        self.best_val_: float | None = result.best_val_loss
+        self.n_params_: int = int(result.n_params)
+        self.fit_seconds_: float = float(result.fit_seconds)
+        arrays = [fit_arrays(q, config.average_s) for q in parts.train]
+        self.parameters_: pd.DataFrame
+        self.covariance_: dict[str, np.ndarray]
+        self.parameters_, self.covariance_ = parameter_table(
+            self.model_, self.units_, self.signal_units_,
+            train=(np.concatenate([a[0] for a in arrays]), np.concatenate([a[1] for a in arrays])))
+        return self
+
+    def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
+        from ..training.parts import build_part
+
+        return build_part(rec, signals=spec.signals, outputs=outputs, target=self.target,
+                          gap_s=spec.gap_s)
+
+    def _check_fitted(self, what: str) -> DriftModel:
+        model = self.__dict__.get("model_")
+        if model is None:
+            raise NotFittedError(f"this DriftEstimator({self.family!r}) is not fitted yet; "
+                                 f"call fit(...) before {what}()")
+        return model
+
+    # --------------------------------------------------------------- prediction
+    def predict(self, data: Data) -> np.ndarray:
+        """Predicted drift (N, axes), float64, in the outputs' units.
+
+        ``data``: a Recording, a list of them or a Dataset; for several runs the rows are
+        the runs' samples one run after the other (each run's dynamic inputs computed on
+        that run alone).  Evaluated as on board: signals clamped to the trained range
+        (``model_.out_of_range`` flags the samples outside it).
+        """
+        model = self._check_fitted("predict")
+        from ..features.inputs import signal_matrix
+        from ..training.train import predict
+
+        out = []
+        for rec in _runs(data, "predict", allow_empty=True):
+            _same_units(rec, self.signal_units_, "predict", "the model was trained on it")
+            out.append(predict(model, signal_matrix(rec, self.spec_.signals, self.spec_.gap_s)))
+        return out[0] if len(out) == 1 else np.concatenate(out)
+
+    def compensate(self, data: Data) -> Any:
+        """``data`` with the predicted drift subtracted from each modelled output: a
+        Recording for a Recording, a Dataset for a Dataset, a list for a list."""
+        self._check_fitted("compensate")
+        if self.target != "drift":
+            raise ThermonetError("compensate: a four-position model predicts per-soak bias and "
+                                 "scale factor, not a drift to subtract sample by sample")
+        done = []
+        for rec in _runs(data, "compensate", allow_empty=True):
+            _needs_outputs(rec, self.outputs_, "compensate")
+            _same_units(rec, self.units_, "compensate", "the model was trained in")
+            drift = self.predict(rec)
+            outputs = dict(rec.outputs)
+            for j, axis in enumerate(self.outputs_):
+                outputs[axis] = rec.outputs[axis] - drift[:, j]
+            done.append(replace(rec, outputs=outputs, run_id=f"{rec.run_id}[compensated]"))
+        if isinstance(data, Recording):
+            return done[0]
+        return Dataset(done) if isinstance(data, Dataset) else done
+
+    def score(self, data: Data, y: None = None) -> float:
+        """Fraction of the drift's mean square removed, mean over axes (higher is better).
+
+        .. math:: s = 1 - \\frac{1}{A}\\sum_a \\frac{\\sum_i (y_{a,i} - \\hat y_{a,i})^2}
+                                                  {\\sum_i y_{a,i}^2}
+
+        with :math:`y_a` the observed drift (output − reference; for a scale
+        factor its deviation from the mean, which is no error), summed over every sample
+        of every run of ``data`` (a Recording, a list of them or a Dataset).  1 is perfect,
+        0 no better than the raw output, negative worse.  ``y`` is scikit-learn's slot and
+        must be None (the drift is in the recordings).  Data in another unit than the
+        training data is refused, naming both units.
+        """
+        model = self._check_fitted("score")
+        from ..training.train import predict
+
+        if y is not None:
+            raise ThermonetError(f"score(y): expected None (the drift is taken from the "
+                                 f"recordings), got {type(y).__name__}")
+        raw = np.zeros(len(self.outputs_))
+        comp = np.zeros(len(self.outputs_))
+        for rec in _runs(data, "score"):
+            _needs_outputs(rec, self.outputs_, "score")
+            _same_units(rec, self.units_, "score", "the model was trained in")
+            _same_units(rec, self.signal_units_, "score", "the model was trained on it")
+            part = self._part(rec, self.spec_, self.outputs_)
+            pred = predict(model, part.signals)
+            for j, axis in enumerate(self.outputs_):
+                yj = part.target[:, j]
+                raw_err = yj - np.mean(yj) if axis.endswith(".scale") else yj
+                raw[j] += float(np.sum(raw_err ** 2))
+                comp[j] += float(np.sum((yj - pred[:, j]) ** 2))
+        ratios = [c / r if r > 0 else float("inf") for c, r in zip(comp, raw, strict=True)]
+        return 1.0 - float(np.mean(ratios))
+
+    # ------------------------------------------------------------ parameters
+    def report(self) -> str:
+        """A fit report in lmfit's manner: the family, data and fit, then per axis each
+        parameter's value ± standard error and unit (:attr:`parameters_`)."""
+        self._check_fitted("report")
+        table = self.parameters_
+        lines = [f"[[Model]] {self!r}",
+                 f"[[Fit]] inputs {', '.join(self.spec_.inputs)}; t_ref "
+                 f"{self.spec_.t_ref if self.spec_.t_ref is not None else '-'} °C; "
+                 f"{self.n_params_} parameters; best epoch {self.best_epoch_}",
+                 "[[Parameters]] (stderr: least squares, white residuals assumed — "
+                 "see thermonet.api.parameters)"]
+        for axis, rows in table.groupby("axis", sort=False):
+            lines.append(f"  {axis}:")
+            for r in rows.itertuples():
+                err = "" if not np.isfinite(r.stderr) else f" +/- {r.stderr:.4g}"
+                rel = "" if not (np.isfinite(r.stderr) and r.value) else \
+                    f" ({abs(r.stderr / r.value):.2%})"
+                lines.append(f"    {r.name:<12} {r.value: .6g}{err}{rel} {r.unit}")
+        return "\n".join(lines)
+
+    # ---------------------------------------------------------------- save, load
+    def _checkpoint_config(self) -> dict[str, Any]:
+        """The family's resolved configuration, as a checkpoint stores it."""
+        return {
+            "family": {"family": self.family, "inputs": list(self.spec_.inputs),
+                       "params": dict(self.hyper), "train_on": self.train_on},
+            "train": asdict(self.train_config_),
+            "features": {"t_ref": self.t_ref, "t_ref_window_min": self.t_ref_window_min,
+                         "gap_s": self.gap_s},
+            "target": self.target,
+        }
+
+    def _extra(self) -> dict[str, Any]:
+        extra = {"units": self.units_, "signal_units": self.signal_units_,
+                 "device_id": self.device_id_, "history": self.history_}
+        source = getattr(self, "data_source_", None)  # an estimator made by load() has none
+        if source is not None:  # provenance: what it was fitted on (as compare records it)
+            extra.update(data_hash=source["data_hash"], provenance={"data": source})
+        return extra
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the fitted model as a thermonet checkpoint (atomic; loads with
+        ``weights_only=True``; ``thermonet export`` reads it)."""
+        model = self._check_fitted("save")
+        from ..training.checkpoint import save_checkpoint
+
+        return save_checkpoint(path, model, config=self._checkpoint_config(), extra=self._extra(),
+                               epoch=self.best_epoch_, best_val=self.best_val_)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> DriftEstimator:
+        """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
+        from ..training.checkpoint import load_checkpoint
+        from ..training.config import from_dict
+
+        model, meta = load_checkpoint(path)
+        config = meta.get("config") or {}
+        fam = config.get("family") or {}
+        features = config.get("features") or {}
+        extra = meta.get("extra") or {}
+        train = from_dict(TrainConfig, config.get("train") or {}, source=str(path),
+                          prefix="config.train")
+        est = cls(meta["family"], list(meta["inputs"]),
+                  t_ref=features.get("t_ref", "start"), target=config.get("target", "drift"),
+                  train=train, outputs=list(meta["outputs"]),
+                  train_on=fam.get("train_on", "all"),
+                  gap_s=features.get("gap_s", "auto"),
+                  t_ref_window_min=float(features.get("t_ref_window_min", 10.0)),
+                  **dict(meta["hyper"]))
+        est.model_ = model
+        est.spec_ = model.spec
+        est.outputs_ = list(meta["outputs"])
+        est.units_ = dict(extra.get("units") or {})
+        est.signal_units_ = dict(extra.get("signal_units") or {})
+        est.device_id_ = str(extra.get("device_id", ""))
+        est.train_config_ = train
+        est.history_ = list(extra.get("history") or [])
+        prov = extra.get("provenance")
+        source = prov.get("data") if isinstance(prov, dict) else None
+        if isinstance(source, dict):  # kept, so that saving it again keeps the record
+            est.data_source_ = {**source, "data_hash": str(extra.get("data_hash") or "")}
+        est.n_features_in_ = len(model.spec.inputs)
+        from .parameters import parameter_table
+
+        est.parameters_, est.covariance_ = parameter_table(model, est.units_,
+                                                           est.signal_units_)
+        est.best_epoch_ = int(meta["epoch"]) if meta.get("epoch") is not None else 0
+        est.best_val_ = meta.get("best_val")
+        est.n_params_ = int(model.n_params)
+        est.fit_seconds_ = float("nan")
+        return est
+
+    def export(self, path: str | os.PathLike[str], format: str = "onnx", *,
+               device_id: int | None = None, instance: int | None = None) -> Path:
+        """Export through the format registry (:data:`thermonet.exporting.FORMATS`).
+
+        ``device_id``/``instance`` apply to the autopilot formats (see
+        ``thermonet export --help``).
+        """
+        model = self._check_fitted("export")
+        from ..exporting import ExportRequest, get_format
+
+        meta = {"config": self._checkpoint_config(), "extra": self._extra()}
+        return get_format(format).write(model, Path(path), ExportRequest(
+            meta=meta, device_id=device_id, instance=instance))
+
+
+def simulate(preset: str, runs: int | None = None, seed: int = 0) -> Dataset:
+    """A simulated chamber test from a study preset (``patent-gyro``, ``consumer-imu``...).
+
+    Same preset, runs and seed give identical data.
+    """
+    from ..sim import simulate as _simulate
+
+    return _simulate(preset, runs=runs, seed=seed)
+
+
+def read(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+         mapping: str | os.PathLike[str] | None = None) -> Dataset:
+    """Recordings from CSV/TSV/Parquet files (one run per file unless a ``run`` column),
+    through a YAML column mapping when the columns are not thermonet's own."""
+    from ..data.io import read_datasets
+
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    return read_datasets([Path(p) for p in paths], mapping=None if mapping is None
+                         else Path(mapping))

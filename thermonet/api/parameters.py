@@ -1,0 +1,240 @@
+"""A fitted model's parameters in physical units, with standard errors (``est.parameters_``).
+
+One row per axis and named parameter: columns ``axis, name, value, stderr, unit``.
+
+Polynomials in one input (``poly``, ``linear`` and any family whose
+:meth:`~thermonet.models.Family.polynomial_form` says it is one)
+    ``c0 … cN``, the coefficients of
+
+    .. math:: d_a(x) = \\sum_{k=0}^{N} c_{a,k}\\,(x - x_{ref})^k
+
+    in output unit / input unit^k, with :math:`x_{ref}` = :math:`T_{ref}` for ``T`` and
+    ``dT`` (unit °C), the proxy's reference for ``d_<proxy>``, 0 for a dynamic input.
+    The values are the model's own (its float32 parameters, every scaling and the
+    float64 offset included), read off the model evaluated in float64 at ``N + 1``
+    Chebyshev points of the trained range: exact for a polynomial, to rounding.
+
+    **Standard errors** are those of ordinary least squares on the data the model was
+    fitted on (after ``train.average_s`` averaging):
+
+    .. math:: \\operatorname{Cov}(c_a) = s_a^2\\,(D^T D)^{-1},\\qquad
+              s_a^2 = \\frac{\\sum_i r_{a,i}^2}{n - (N + 1)}
+
+    with :math:`D` the design :math:`[(x_i - x_{ref})^k]` and :math:`r` the model's
+    residuals on those samples; ``est.covariance_[axis]`` is the matrix.  It assumes
+    independent residuals of equal variance.  **The residuals of a time series are not
+    independent**: slow noise (bias instability, random walk) and a model that does not
+    quite fit leave residuals correlated over minutes, and the least-squares standard
+    errors are then too small — by about :math:`\\sqrt{\\tau_c / \\Delta t}` for a
+    correlation time :math:`\\tau_c` and sampling interval :math:`\\Delta t`.  Read them as
+    a lower bound unless the residuals are white (check
+    ``np.corrcoef(r[:-1], r[1:])``), or judge the model on held-out runs
+    (``thermonet.compare``), which does not rest on this assumption.  The training
+    loop may polish the closed-form fit; the covariance is that of the least-squares
+    solution about the coefficients reported.
+
+Lorentz (``lorentz``)
+    ``y0`` (output unit), ``amplitude`` :math:`A` (output unit × input unit: the area of
+    Origin's curve :math:`y_0 + \\frac{2A}{\\pi}\\frac{w}{4(x - x_c)^2 + w^2}`), ``centre``
+    :math:`x_c` (°C for ``T`` and ``dT``: the absolute temperature; input units otherwise)
+    and ``width`` :math:`w` (FWHM, input units).
+RBF (``rbf``)
+    ``bias`` and ``w<k>`` (output unit), and ``centre<k>`` (input units: °C for ``T``,
+    °C about :math:`T_{ref}` for ``dT``) and ``sigma<k>`` (input units) of each
+    Gaussian, with one input; in standardised units (unit ``standardised``) with several.
+Other families
+    Their torch parameters as they are stored (unit ``standardised``: the family works on
+    standardised features and targets, :mod:`thermonet.models.base`).
+
+Every family but the polynomials reports ``stderr`` NaN: no covariance is computed for
+a nonlinear fit (a profile or a bootstrap would be needed, and is not made here).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+__all__ = ["parameter_table", "polynomial_coefficients", "COLUMNS"]
+
+#: The columns of ``est.parameters_``.
+COLUMNS = ["axis", "name", "value", "stderr", "unit"]
+
+
+def _input_of(model: Any, signal_units: dict[str, str]) -> tuple[str, float, str]:
+    """The one signal of a one-input model, its expansion point and its unit."""
+    from ..features.inputs import TEMPERATURE, dynamic_signal, parse_feature
+
+    signal, _, _ = parse_feature(model.inputs[0])
+    spec = model.spec
+    if signal == TEMPERATURE:
+        return signal, float(spec.t_ref) if spec.t_ref is not None else 0.0, "°C"
+    dyn = dynamic_signal(signal)
+    if dyn is not None:
+        return signal, 0.0, "°C/min" if dyn.kind == "rate" else "°C"
+    return signal, float(spec.proxy_ref.get(signal, 0.0)), signal_units.get(signal, "") or "1"
+
+
+def _drift64(model: Any, signals: np.ndarray) -> np.ndarray:
+    """The model's drift in float64 (its float32 parameters evaluated in float64)."""
+    import torch
+
+    m = copy.deepcopy(model).double().eval()
+    with torch.no_grad():
+        return np.asarray(m.drift64(torch.as_tensor(np.asarray(signals, dtype=np.float64)))
+                          .numpy(), dtype=np.float64)
+
+
+def _power_unit(out: str, unit: str, k: int) -> str:
+    if k == 0:
+        return out
+    return f"{out}/{unit}" if k == 1 else f"{out}/{unit}^{k}"
+
+
+def polynomial_coefficients(model: Any, signal_units: dict[str, str] | None = None
+                            ) -> tuple[np.ndarray, float, str] | None:
+    """``(coefficients (A, N + 1), x_ref, input unit)`` of a model that is a polynomial in
+    one input, ascending in :math:`x - x_{ref}`; None for any other model."""
+    form = model.family.polynomial_form()
+    if form is None or len(model.signals) != 1:
+        return None
+    degree = int(np.asarray(form).shape[1]) - 1
+    signal, ref, unit = _input_of(model, signal_units or {})
+    lo, hi = float(model.sig_lo[0]), float(model.sig_hi[0])
+    if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
+        return None
+    # Chebyshev points of the trained range (clamped outside it: the polynomial lives inside)
+    n = degree + 1
+    nodes = 0.5 * (lo + hi) + 0.5 * (hi - lo) * np.cos(np.pi * (np.arange(n) + 0.5) / n)
+    drift = _drift64(model, nodes[:, None])                      # (n, A)
+    h = max(abs(lo - ref), abs(hi - ref), 1e-12)                  # scale: a well-posed solve
+    v = np.vander((nodes - ref) / h, n, increasing=True)
+    coef = np.linalg.solve(v, drift) / (h ** np.arange(n))[:, None]  # (n, A)
+    return coef.T, ref, unit
+
+
+def _polynomial_rows(model: Any, units: dict[str, str], signal_units: dict[str, str],
+                     train: tuple[np.ndarray, np.ndarray] | None
+                     ) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]] | None:
+    got = polynomial_coefficients(model, signal_units)
+    if got is None:
+        return None
+    coef, ref, unit = got
+    n = coef.shape[1]
+    cov: dict[str, np.ndarray] = {}
+    stderr = np.full(coef.shape, np.nan)
+    if train is not None:
+        signals, target = (np.asarray(a, dtype=np.float64) for a in train)
+        ok = np.all(np.isfinite(signals), axis=1) & np.all(np.isfinite(target), axis=1)
+        signals, target = signals[ok], target[ok]
+        if signals.shape[0] > n:
+            u = signals[:, 0] - ref
+            h = max(float(np.max(np.abs(u))), 1e-12)
+            d = np.vander(u / h, n, increasing=True)
+            inv = np.linalg.pinv(d.T @ d) / np.outer(h ** np.arange(n), h ** np.arange(n))
+            resid = target - _drift64(model, signals)
+            s2 = np.sum(resid ** 2, axis=0) / (signals.shape[0] - n)
+            inv = 0.5 * (inv + inv.T)
+            for j, axis in enumerate(model.outputs):
+                cov[axis] = s2[j] * inv
+                stderr[j] = np.sqrt(np.clip(np.diag(cov[axis]), 0.0, None))
+    rows = [{"axis": axis, "name": f"c{k}", "value": float(coef[j, k]),
+             "stderr": float(stderr[j, k]), "unit": _power_unit(units.get(axis, ""), unit, k)}
+            for j, axis in enumerate(model.outputs) for k in range(n)]
+    return rows, cov
+
+
+def _lorentz_rows(model: Any, units: dict[str, str], signal_units: dict[str, str]
+                  ) -> list[dict[str, Any]]:
+    import torch
+
+    fam = model.family
+    _, ref, unit = _input_of(model, signal_units)
+    relative = model.inputs[0] != "T" and unit == "°C"          # dT: centre about T_ref
+    with torch.no_grad():
+        scale, shift = (t.double() for t in model.output_scaling())
+        y0, k, xc, hh = (np.asarray(t.double().numpy()) for t in fam.output_form(scale, shift))
+    const = np.asarray(model.constant().double().numpy())
+    xm, xs = float(model.x_mean[0]), float(model.x_std[0])
+    width = 2.0 * np.sqrt(hh) * xs                                # FWHM in input units
+    amplitude = k * xs * xs * 2.0 * np.pi / np.maximum(width, 1e-300)
+    centre = xc * xs + xm + (ref if relative else 0.0)
+    rows = []
+    for j, axis in enumerate(model.outputs):
+        out = units.get(axis, "")
+        for name, value, u in (("y0", y0[j] + const[j], out),
+                               ("amplitude", amplitude[j], f"{out}*{unit}"),
+                               ("centre", centre[j], unit), ("width", width[j], unit)):
+            rows.append({"axis": axis, "name": name, "value": float(value),
+                         "stderr": math.nan, "unit": u})
+    return rows
+
+
+def _rbf_rows(model: Any, units: dict[str, str], signal_units: dict[str, str]
+              ) -> list[dict[str, Any]] | None:
+    import torch
+
+    fam = model.family
+    if fam.n_inputs != 1 or getattr(fam, "tail", 0):
+        return None
+    _, _, unit = _input_of(model, signal_units)
+    xm, xs = float(model.x_mean[0]), float(model.x_std[0])
+    with torch.no_grad():
+        scale, shift = (np.asarray(t.double().numpy()) for t in model.output_scaling())
+        centres = np.asarray(fam.centres.double().numpy())[:, 0] * xs + xm
+        sigma = np.exp(np.asarray(fam.log_sigma.double().numpy())) * xs
+        w = np.asarray(fam.weight.double().numpy()) * scale[:, None]
+        b = np.asarray(fam.bias.double().numpy()) * scale + shift
+    const = np.asarray(model.constant().double().numpy())
+    rows = []
+    for j, axis in enumerate(model.outputs):
+        out = units.get(axis, "")
+        rows.append({"axis": axis, "name": "bias", "value": float(b[j] + const[j]),
+                     "stderr": math.nan, "unit": out})
+        for c in range(centres.size):
+            rows += [{"axis": axis, "name": f"centre{c}", "value": float(centres[c]),
+                      "stderr": math.nan, "unit": unit},
+                     {"axis": axis, "name": f"sigma{c}", "value": float(sigma[c]),
+                      "stderr": math.nan, "unit": unit},
+                     {"axis": axis, "name": f"w{c}", "value": float(w[j, c]),
+                      "stderr": math.nan, "unit": out}]
+    return rows
+
+
+def _raw_rows(model: Any) -> list[dict[str, Any]]:
+    """The family's torch parameters as stored (standardised units), one row per entry."""
+    rows = []
+    for pname, p in model.family.named_parameters():
+        values = np.asarray(p.detach().double().numpy())
+        for idx in np.ndindex(values.shape):
+            index = ",".join(str(i) for i in idx)
+            rows.append({"axis": "", "name": f"{pname}[{index}]" if index else pname,
+                         "value": float(values[idx]), "stderr": math.nan,
+                         "unit": "standardised"})
+    return rows
+
+
+def parameter_table(model: Any, units: dict[str, str], signal_units: dict[str, str],
+                    train: tuple[np.ndarray, np.ndarray] | None = None
+                    ) -> tuple[pd.DataFrame, dict[str, np.ndarray]]:
+    """The parameter table of a fitted model (module docstring) and, for a polynomial,
+    its per-axis covariance; ``train`` = (signals, targets) the model was fitted on (None:
+    a loaded model, stderr NaN)."""
+    import pandas as pd
+
+    cov: dict[str, np.ndarray] = {}
+    poly = _polynomial_rows(model, units, signal_units, train)
+    if poly is not None:
+        rows, cov = poly
+    elif model.family.name == "lorentz":
+        rows = _lorentz_rows(model, units, signal_units)
+    else:
+        rows = (_rbf_rows(model, units, signal_units) if model.family.name == "rbf" else None) \
+            or _raw_rows(model)
+    return pd.DataFrame(rows, columns=COLUMNS), cov
