@@ -31,7 +31,7 @@ Data = Dataset | Recording | Sequence[Recording]
 
 #: The constructor's own keywords (the family's hyper-parameters come on top, as ``**hyper``).
 _OWN = ("family", "inputs", "t_ref", "target", "outputs", "train_on", "gap_s",
-        "t_ref_window_min", "train")
+        "t_ref_window_min", "stderr", "train")
 #: The training settings, each a keyword of its own (None: from ``train``, else TrainConfig's).
 _TRAIN_KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig))
 
@@ -163,6 +163,10 @@ class DriftEstimator:
         sample interval.  Stored with the model.
     t_ref_window_min : float
         Minutes averaged for ``t_ref="start"``.
+    stderr : "ols" or "block-bootstrap"
+        How :attr:`parameters_` gets its standard errors: least squares (white residuals
+        assumed), or a moving-block residual bootstrap that keeps the residuals'
+        correlation in time (:mod:`thermonet.api.parameters`).
     train : TrainConfig or dict, optional
         The training loop's settings as one object (``{"max_epochs": 5}`` is read as
         ``TrainConfig(max_epochs=5)``); the keywords below override single fields.
@@ -207,7 +211,7 @@ average_s, threads
                  t_ref: str | float = "start", target: str = "drift",
                  outputs: Sequence[str] | str | None = None, train_on: str = "all",
                  gap_s: float | str = "auto", t_ref_window_min: float = 10.0,
-                 train: TrainConfig | dict[str, Any] | None = None,
+                 stderr: str = "ols", train: TrainConfig | dict[str, Any] | None = None,
                  optimizer: str | None = None, lr: float | None = None,
                  max_epochs: int | None = None, patience: int | None = None,
                  min_delta: float | None = None, seed: int | None = None,
@@ -222,6 +226,7 @@ average_s, threads
         self.train_on = train_on
         self.gap_s = gap_s
         self.t_ref_window_min = t_ref_window_min
+        self.stderr = stderr
         self.train = train
         self.optimizer = optimizer
         self.lr = lr
@@ -279,7 +284,8 @@ average_s, threads
 
     def __repr__(self) -> str:
         defaults = {"inputs": None, "t_ref": "start", "target": "drift", "outputs": None,
-                    "train_on": "all", "gap_s": "auto", "t_ref_window_min": 10.0, "train": None}
+                    "train_on": "all", "gap_s": "auto", "t_ref_window_min": 10.0, "train": None,
+                    "stderr": "ols"}
         shown = [repr(self.family)]
         shown += [f"{k}={getattr(self, k)!r}" for k in _OWN[1:]
                   if getattr(self, k) != defaults.get(k)]
@@ -354,7 +360,7 @@ average_s, threads
         from ..training.fold import fit_fold, fold_parts, fold_spec
         from ..training.parts import fit_arrays
         from ..training.splits import stack_blocks
-        from .parameters import parameter_table
+        from .parameters import STDERR_METHODS, parameter_table
 
         if not isinstance(self.family, str):
             raise ConfigError(f"family: expected a family name such as 'poly', got "
@@ -363,6 +369,9 @@ average_s, threads
             raise ConfigError(f"target: {self.target!r} is not one of {', '.join(_TARGETS)}")
         if self.train_on not in ("all", "heating"):
             raise ConfigError(f"train_on: {self.train_on!r} is not 'all' or 'heating'")
+        if self.stderr not in STDERR_METHODS:
+            raise ConfigError(f"stderr: {self.stderr!r} is not one of "
+                              f"{', '.join(STDERR_METHODS)}")
         if "rate_window_s" in self.hyper:
             raise ConfigError("rate_window_s was removed: 'rate' is a causal filtered derivative "
                               "with a 60 s time constant (thermonet.features.dynamics); use the "
@@ -415,7 +424,9 @@ average_s, threads
         self.covariance_: dict[str, np.ndarray]
         self.parameters_, self.covariance_ = parameter_table(
             self.model_, self.units_, self.signal_units_,
-            train=(np.concatenate([a[0] for a in arrays]), np.concatenate([a[1] for a in arrays])))
+            train=(np.concatenate([a[0] for a in arrays]), np.concatenate([a[1] for a in arrays]),
+                   [a[0].shape[0] for a in arrays]),
+            method=self.stderr, seed=config.seed)
         return self
 
     def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
@@ -515,8 +526,10 @@ average_s, threads
                  f"[[Fit]] inputs {', '.join(self.spec_.inputs)}; t_ref "
                  f"{self.spec_.t_ref if self.spec_.t_ref is not None else '-'} °C; "
                  f"{self.n_params_} parameters; best epoch {self.best_epoch_}",
-                 "[[Parameters]] (stderr: least squares, white residuals assumed — "
-                 "see thermonet.api.parameters)"]
+                 "[[Parameters]] (stderr: " + ("least squares, white residuals assumed"
+                                              if self.stderr == "ols" else
+                                              "moving-block residual bootstrap")
+                 + " — see thermonet.api.parameters)"]
         for axis, rows in table.groupby("axis", sort=False):
             lines.append(f"  {axis}:")
             for r in rows.itertuples():

@@ -29,9 +29,21 @@ Polynomials in one input (``poly``, ``linear`` and any family whose
     correlation time :math:`\\tau_c` and sampling interval :math:`\\Delta t`.  Read them as
     a lower bound unless the residuals are white (check
     ``np.corrcoef(r[:-1], r[1:])``), or judge the model on held-out runs
-    (``thermonet.compare``), which does not rest on this assumption.  The training
-    loop may polish the closed-form fit; the covariance is that of the least-squares
-    solution about the coefficients reported.
+    (``thermonet.compare``), which does not rest on this assumption.
+
+    ``DriftEstimator(..., stderr="block-bootstrap")`` does not assume white residuals: a
+    moving-block residual bootstrap (Künsch 1989, :func:`block_bootstrap_cov`) keeps the
+    design, resamples the residuals in contiguous blocks inside each run — each block
+    :func:`block_length` samples long, twice the residuals' integrated autocorrelation time
+    (at least :math:`n^{1/3}`) — adds them to the fitted curve and refits, :data:`N_BOOTSTRAP`
+    times (seeded by the training seed); the covariance is that of the refitted
+    coefficients.  With white residuals it agrees with least squares; with correlated ones
+    it is larger, as it should be (``tests/test_api_contract.py`` measures both against the
+    spread over seeds).  It still needs many blocks: a run a few correlation times long
+    cannot say how uncertain its curve is.
+
+    The training loop may polish the closed-form fit; the covariance is that of the
+    least-squares solution about the coefficients reported.
 
 Lorentz (``lorentz``)
     ``y0`` (output unit), ``amplitude`` :math:`A` (output unit × input unit: the area of
@@ -61,7 +73,8 @@ import numpy as np
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["parameter_table", "polynomial_coefficients", "COLUMNS"]
+__all__ = ["parameter_table", "polynomial_coefficients", "block_bootstrap_cov", "block_length",
+           "COLUMNS", "STDERR_METHODS", "N_BOOTSTRAP"]
 
 #: The columns of ``est.parameters_``.
 COLUMNS = ["axis", "name", "value", "stderr", "unit"]
@@ -119,9 +132,61 @@ def polynomial_coefficients(model: Any, signal_units: dict[str, str] | None = No
     return coef.T, ref, unit
 
 
+STDERR_METHODS = ("ols", "block-bootstrap")
+#: Resamples of the block bootstrap (its stderr carries a relative error of about 1/sqrt(2 B)).
+N_BOOTSTRAP = 400
+
+
+def block_length(resid: np.ndarray) -> int:
+    """Samples per bootstrap block: twice the residuals' integrated autocorrelation time
+    (``1 + 2 Σ ρ_k``, summed while ρ_k > 0, the largest over axes), at least ``n^(1/3)``,
+    at most a quarter of the samples."""
+    r = np.asarray(resid, dtype=np.float64)
+    r = r.reshape(r.shape[0], -1)
+    n = r.shape[0]
+    tau = 1.0
+    for j in range(r.shape[1]):
+        x = r[:, j] - r[:, j].mean()
+        f = np.fft.rfft(x, 2 * n)
+        acf = np.fft.irfft(f * np.conj(f))[:n]
+        if acf[0] <= 0:
+            continue
+        rho = acf[1:] / acf[0]
+        stop = int(np.argmax(rho <= 0)) if np.any(rho <= 0) else rho.size
+        tau = max(tau, 1.0 + 2.0 * float(np.sum(rho[:stop])))
+    return int(min(max(math.ceil(2.0 * tau), math.ceil(n ** (1.0 / 3.0)), 1), max(n // 4, 1)))
+
+
+def block_bootstrap_cov(design: np.ndarray, fitted: np.ndarray, resid: np.ndarray,
+                        runs: list[int], *, n_boot: int = N_BOOTSTRAP, seed: int = 0,
+                        block: int | None = None) -> list[np.ndarray]:
+    """Per axis, the covariance of least-squares coefficients under a moving-block residual
+    bootstrap (Künsch 1989): residuals resampled in contiguous blocks of ``block`` samples
+    (:func:`block_length`) taken inside one run each, added to the fitted values, refitted.
+
+    ``design`` (n, p), ``fitted`` and ``resid`` (n, A); ``runs``: samples per run, in order.
+    """
+    rng = np.random.default_rng(seed)
+    n, a = resid.shape
+    length = block or block_length(resid)
+    ends = np.cumsum(runs)
+    starts_of_run = ends - np.asarray(runs)
+    valid = np.concatenate([np.arange(s, e - length + 1) for s, e in
+                            zip(starts_of_run, ends, strict=True) if e - s >= length]
+                           or [np.arange(0, max(n - length + 1, 1))])
+    n_blocks = math.ceil(n / length)
+    pinv = np.linalg.pinv(design)                                   # (p, n)
+    draws = np.empty((n_boot, design.shape[1], a))
+    offsets = np.arange(length)
+    for b in range(n_boot):
+        idx = (rng.choice(valid, n_blocks)[:, None] + offsets).ravel()[:n]
+        draws[b] = pinv @ (fitted + resid[idx])
+    return [np.cov(draws[:, :, j], rowvar=False) for j in range(a)]
+
+
 def _polynomial_rows(model: Any, units: dict[str, str], signal_units: dict[str, str],
-                     train: tuple[np.ndarray, np.ndarray] | None
-                     ) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]] | None:
+                     train: tuple[np.ndarray, ...] | None, method: str = "ols",
+                     seed: int = 0) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]] | None:
     got = polynomial_coefficients(model, signal_units)
     if got is None:
         return None
@@ -130,19 +195,29 @@ def _polynomial_rows(model: Any, units: dict[str, str], signal_units: dict[str, 
     cov: dict[str, np.ndarray] = {}
     stderr = np.full(coef.shape, np.nan)
     if train is not None:
-        signals, target = (np.asarray(a, dtype=np.float64) for a in train)
+        signals, target = (np.asarray(a, dtype=np.float64) for a in train[:2])
+        runs = list(train[2]) if len(train) > 2 else [signals.shape[0]]
         ok = np.all(np.isfinite(signals), axis=1) & np.all(np.isfinite(target), axis=1)
+        if not ok.all():  # a run's share of the samples dropped
+            bounds = np.cumsum([0] + runs)
+            runs = [int(ok[s:e].sum()) for s, e in zip(bounds[:-1], bounds[1:], strict=True)]
         signals, target = signals[ok], target[ok]
         if signals.shape[0] > n:
             u = signals[:, 0] - ref
             h = max(float(np.max(np.abs(u))), 1e-12)
             d = np.vander(u / h, n, increasing=True)
-            inv = np.linalg.pinv(d.T @ d) / np.outer(h ** np.arange(n), h ** np.arange(n))
-            resid = target - _drift64(model, signals)
-            s2 = np.sum(resid ** 2, axis=0) / (signals.shape[0] - n)
-            inv = 0.5 * (inv + inv.T)
+            unscale = np.outer(h ** np.arange(n), h ** np.arange(n))
+            fitted = _drift64(model, signals)
+            resid = target - fitted
+            if method == "block-bootstrap":
+                covs = block_bootstrap_cov(d, fitted, resid, runs, seed=seed)
+            else:
+                inv = np.linalg.pinv(d.T @ d)
+                inv = 0.5 * (inv + inv.T)
+                s2 = np.sum(resid ** 2, axis=0) / (signals.shape[0] - n)
+                covs = [s2[j] * inv for j in range(resid.shape[1])]
             for j, axis in enumerate(model.outputs):
-                cov[axis] = s2[j] * inv
+                cov[axis] = covs[j] / unscale
                 stderr[j] = np.sqrt(np.clip(np.diag(cov[axis]), 0.0, None))
     rows = [{"axis": axis, "name": f"c{k}", "value": float(coef[j, k]),
              "stderr": float(stderr[j, k]), "unit": _power_unit(units.get(axis, ""), unit, k)}
@@ -221,15 +296,19 @@ def _raw_rows(model: Any) -> list[dict[str, Any]]:
 
 
 def parameter_table(model: Any, units: dict[str, str], signal_units: dict[str, str],
-                    train: tuple[np.ndarray, np.ndarray] | None = None
-                    ) -> tuple[pd.DataFrame, dict[str, np.ndarray]]:
+                    train: tuple[Any, ...] | None = None, *, method: str = "ols",
+                    seed: int = 0) -> tuple[pd.DataFrame, dict[str, np.ndarray]]:
     """The parameter table of a fitted model (module docstring) and, for a polynomial,
-    its per-axis covariance; ``train`` = (signals, targets) the model was fitted on (None:
-    a loaded model, stderr NaN)."""
+    its per-axis covariance.
+
+    ``train`` = (signals, targets[, samples per run]) the model was fitted on (None: a
+    loaded model, stderr NaN); ``method``: ``"ols"`` or ``"block-bootstrap"`` (seeded by
+    ``seed``).
+    """
     import pandas as pd
 
     cov: dict[str, np.ndarray] = {}
-    poly = _polynomial_rows(model, units, signal_units, train)
+    poly = _polynomial_rows(model, units, signal_units, train, method, seed)
     if poly is not None:
         rows, cov = poly
     elif model.family.name == "lorentz":
