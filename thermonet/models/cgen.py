@@ -168,7 +168,7 @@ def c_expm1(arg: str) -> str:
 
 
 def c_target_prelude() -> list[str]:
-    """The header's target-selection block (see the README's firmware section).
+    """The header's target-selection block (export/README.md, "On a microcontroller").
 
     * ``THERMONET_REAL_IS_DOUBLE``: 1 where the FPU has double precision — x86 and other
       hosts, an Arm FPU with ``__ARM_FP`` bit 3 (Cortex-M7 ``fpv5-d16``, Cortex-A), a RISC-V

@@ -178,7 +178,7 @@ class TrackingConfig:
 
 
 def _default_families() -> list[FamilyConfig]:
-    """The recommended set a config gets when it names no families (README "Default families").
+    """The recommended set a config gets when it names no families (configs/README.md, "Default families").
 
     * ``cubic``: PX4's / ArduPilot's cubic in ΔT — the baseline every report compares with;
     * the studies' families: ``linear``, ``lorentz`` (000), ``ts-fuzzy`` (002), ``rbf`` on
