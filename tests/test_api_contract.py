@@ -367,3 +367,33 @@ def test_compare_from_python_is_the_command_lines_comparison(tmp_path, monkeypat
         thermonet.compare(42)
     with pytest.raises(ConfigError, match="compare\\(config\\): key 'famiiles'"):
         thermonet.compare({"famiiles": []}, data=ds)
+
+
+# ------------------------------------------------------------------ the README
+def test_readme_api_section_runs_and_shows_what_it_prints(tmp_path, monkeypatch, capsys):
+    """Every python block of the README's "Python API" section, run in order in one
+    namespace; the ``text`` block is what the coefficient table prints."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = text[text.index("## Python API"):]
+    section = section[:section.index("\n## ", 5)]
+    blocks = re.findall(r"```python\n(.*?)```", section, re.S)
+    assert len(blocks) == 4
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    for code in blocks:
+        exec(compile(code, "README.md", "exec"), namespace)
+    out = capsys.readouterr().out
+    res, search = namespace["res"], namespace["search"]
+    assert res.chosen in ("quadratic", "cubic") and "chosen: " + res.chosen in out
+    assert set(res.scores()["family"]) == {"line", "quadratic", "cubic"}
+    # the simulated drift is quadratic: a line does not find it, degree 2 and up do
+    means = search.cv_results_["mean_test_score"]
+    assert means[0] < min(means[1:]) and search.best_params_["degree"] >= 2
+    shown = re.search(r"```text\n(.*?)```", section, re.S).group(1).strip().splitlines()
+    printed = [line.strip() for line in out.splitlines()]
+    for line in shown:
+        assert line.strip() in printed, (line, out[-2000:])
+    assert namespace["est"].parameters_["stderr"].notna().all()
