@@ -304,7 +304,8 @@ def test_cross_val_score_and_grid_search_over_time_blocks():
     cv = thermonet.TimeBlockSplit(n_splits=4)
     est = thermonet.DriftEstimator("poly", "T", degree=1, max_epochs=0)
     scores = cross_val_score(est, blocks, cv=cv)
-    # oracle: numpy's least squares on the same folds, scored as DriftEstimator.score
+    # oracle: numpy's least squares on the same folds, scored as DriftEstimator.score (the
+    # error's spread about its mean over the fold's blocks of the one run, as compare's)
     expected = []
     for train, val in cv.split(blocks):
         t = np.concatenate([blocks[i].temperature_c for i in train])
@@ -313,7 +314,8 @@ def test_cross_val_score_and_grid_search_over_time_blocks():
         # evaluated as on board: clamped to the trained range
         tv = np.clip(np.concatenate([blocks[i].temperature_c for i in val]), t.min(), t.max())
         yv = np.concatenate([blocks[i].outputs["gyro_x"] for i in val])
-        expected.append(1.0 - np.sum((yv - np.polyval(coef, tv)) ** 2) / np.sum(yv ** 2))
+        ev = yv - np.polyval(coef, tv)
+        expected.append(1.0 - np.sum((ev - ev.mean()) ** 2) / np.sum((yv - yv.mean()) ** 2))
     np.testing.assert_allclose(scores, expected, atol=1e-6)
     search = GridSearchCV(est, {"degree": [1, 2, 3]}, cv=cv).fit(blocks)
     means = search.cv_results_["mean_test_score"]
@@ -397,3 +399,40 @@ def test_readme_api_section_runs_and_shows_what_it_prints(tmp_path, monkeypatch,
     for line in shown:
         assert line.strip() in printed, (line, out[-2000:])
     assert namespace["est"].parameters_["stderr"].notna().all()
+
+
+# ---------------------------------------- the API and the command line agree
+def test_api_fit_is_compares_model_gravity_included(tmp_path):
+    """consumer-imu (gyros and accelerometers, no reference channels): the estimator fitted
+    as compare fits it (runs split: train run0, validate run1) is compare's model — the same
+    drift on every axis compare compensates, its score is compare's test ratio, and the PX4
+    file is the same once the API model carries compare's per-axis mask.  Gravity is no
+    drift: the accelerometers' curves are zero at T_ref (the issue's TC_A0_X0_2 −9.81)."""
+    from thermonet.exporting import read_px4_params
+
+    ds = thermonet.simulate("consumer-imu", runs=3, seed=0)
+    res = thermonet.compare({"families": [{"name": "cubic", "family": "poly",
+                                           "inputs": ["dT"], "params": {"degree": 3}}]},
+                            data=ds)
+    cli = res.estimator("cubic")
+    est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(ds.runs[:1], val=ds[1])
+    assert est.targets_.as_dict() == res.results["targets"]
+    mask = [res.families["cubic"].axes[a].compensate for a in est.outputs_]
+    assert mask == cli.model_.compensated_axes and mask.count(False) == 1   # gyro_z left raw
+    api, ref = est.predict(ds[2]), cli.predict(ds[2])
+    # the same fit of the same parts: bit-identical where compare compensates, 0 where not
+    np.testing.assert_array_equal(api[:, mask], ref[:, mask])
+    assert np.all(ref[:, ~np.array(mask)] == 0.0)
+    ratios = np.array([res.families["cubic"].axes[a].score_ratio for a in est.outputs_])
+    assert est.score(ds[2]) == pytest.approx(1.0 - np.mean(ratios ** 2), rel=1e-9)
+    table = est.parameters_.set_index(["axis", "name"])
+    for axis in ("acc_x", "acc_y", "acc_z"):
+        assert abs(table.loc[(axis, "c0"), "value"]) < 1e-6                 # not −9.81
+        assert table.loc[(axis, "c0"), "stderr"] == 0.0
+        assert table.loc[(axis, "c1"), "stderr"] > 0.0
+    est.model_.set_compensate(mask)
+    ours = read_px4_params(est.export(tmp_path / "api.params", format="px4-params",
+                                      device_id=1234))
+    theirs = read_px4_params(cli.export(tmp_path / "cli.params", format="px4-params",
+                                        device_id=1234))
+    assert ours == theirs and abs(ours["TC_A0_X0_2"]) < 1e-6

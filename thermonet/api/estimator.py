@@ -19,11 +19,14 @@ if TYPE_CHECKING:
     import pandas as pd
 
     from ..features.inputs import FeatureSpec
+    from ..features.target import Target
     from ..models import DriftModel
 
 __all__ = ["DriftEstimator", "NotFittedError", "simulate", "read", "Data"]
 
 _TARGETS = ("drift", "four-position")
+#: ``meta`` key naming the run a time block was cut from (:func:`thermonet.api.time_blocks`).
+BLOCK_RUN = "block_of_run"
 
 #: What ``fit``, ``predict``, ``score`` and ``compensate`` take: one run, a list of runs or a
 #: Dataset (each run's dynamic inputs computed on that run alone).
@@ -149,9 +152,14 @@ class DriftEstimator:
     t_ref : "start" or float
         :math:`T_{ref}` in °C, or the mean over the first ``t_ref_window_min``
         minutes of the first training run.
-    target : "drift" or "four-position"
-        What is fitted: per-sample drift (output − reference), or study 000's
-        per-soak bias and scale factor (outputs ``<axis>.bias``/``<axis>.scale``).
+    target : "drift", "four-position" or dict
+        What is fitted, as a comparison's ``target`` (:mod:`thermonet.features.target`):
+        ``"drift"`` puts every axis at its default — ``output − ref_<axis>`` where the data
+        has a reference channel, else the output itself for a gyro (``zero``) and its change
+        from :math:`T_{ref}` for any other kind (``at-t-ref``: an accelerometer's gravity is
+        no drift); a dict ``{"acc": "at-t-ref", "gyro_z": "channel"}`` sets kinds or axes;
+        ``"four-position"`` is study 000's per-soak bias and scale factor (outputs
+        ``<axis>.bias``/``<axis>.scale``).
     outputs : list of str or str, optional
         Output axes to model (default: every output of the first training run).
     train_on : "all" or "heating"
@@ -358,15 +366,17 @@ average_s, threads
             The data cannot carry the family (reason given).
         """
         from ..training.fold import fit_fold, fold_parts, fold_spec
-        from ..training.parts import fit_arrays
+        from ..training.parts import fit_arrays, targets_for
         from ..training.splits import stack_blocks
         from .parameters import STDERR_METHODS, parameter_table
 
         if not isinstance(self.family, str):
             raise ConfigError(f"family: expected a family name such as 'poly', got "
                               f"{self.family!r}")
-        if self.target not in _TARGETS:
-            raise ConfigError(f"target: {self.target!r} is not one of {', '.join(_TARGETS)}")
+        if not (isinstance(self.target, dict) or (isinstance(self.target, str)
+                                                  and self.target in _TARGETS)):
+            raise ConfigError(f"target: {self.target!r} is not one of {', '.join(_TARGETS)} "
+                              "or a mapping {output kind or name: channel | zero | at-t-ref}")
         if self.train_on not in ("all", "heating"):
             raise ConfigError(f"train_on: {self.train_on!r} is not 'all' or 'heating'")
         if self.stderr not in STDERR_METHODS:
@@ -390,6 +400,11 @@ average_s, threads
                     raise ThermonetError(f"fit(val): run '{v.run_id}' is also a training run "
                                          "(validate on a run the model is not fitted on)")
         Dataset(runs).validate("fit(train)")
+        # per axis what the drift is relative to, resolved as compare resolves it
+        # (thermonet.features.target: a reference channel, else zero for a gyro, else the
+        # change from T_ref — an accelerometer's gravity is no drift)
+        targets = targets_for(Dataset(runs + list(val_runs or [])), self.target, outputs,
+                              source="DriftEstimator(target)")
         for v in val_runs or []:
             _same_units(v, runs[0].units, "fit(val)",
                         f"the training run '{runs[0].run_id}' has it")
@@ -398,12 +413,13 @@ average_s, threads
         val_rec = None
         if val_runs is not None:
             val_rec = stack_blocks(val_runs, "val") if len(val_runs) > 1 else val_runs[0]
-        parts = fold_parts(spec, runs, outputs=outputs, target=self.target, val=val_rec,
+        parts = fold_parts(spec, runs, outputs=outputs, target=targets, val=val_rec,
                            train_on=self.train_on, gap_s=self.gap_s)
         result = fit_fold(parts, family=self.family, outputs=outputs, hyper=self.hyper,
-                          config=config)
+                          config=config, target_modes=targets.modes)
         self.model_: DriftModel = result.model
         self.spec_: FeatureSpec = spec
+        self.targets_: Target = targets
         self.n_features_in_: int = len(spec.inputs)
         self.outputs_: list[str] = outputs
         self.units_: dict[str, str] = {o: ("1" if o.endswith(".scale")
@@ -432,7 +448,7 @@ average_s, threads
     def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
         from ..training.parts import build_part
 
-        return build_part(rec, signals=spec.signals, outputs=outputs, target=self.target,
+        return build_part(rec, signals=spec.signals, outputs=outputs, target=self.targets_,
                           gap_s=spec.gap_s)
 
     def _check_fitted(self, what: str) -> DriftModel:
@@ -465,7 +481,7 @@ average_s, threads
         """``data`` with the predicted drift subtracted from each modelled output: a
         Recording for a Recording, a Dataset for a Dataset, a list for a list."""
         self._check_fitted("compensate")
-        if self.target != "drift":
+        if self.targets_.kind == "four-position":
             raise ThermonetError("compensate: a four-position model predicts per-soak bias and "
                                  "scale factor, not a drift to subtract sample by sample")
         done = []
@@ -482,17 +498,23 @@ average_s, threads
         return Dataset(done) if isinstance(data, Dataset) else done
 
     def score(self, data: Data, y: None = None) -> float:
-        """Fraction of the drift's mean square removed, mean over axes (higher is better).
+        """Fraction of the error's variance removed, mean over axes (higher is better):
+        ``compare``'s offset-free score.
 
-        .. math:: s = 1 - \\frac{1}{A}\\sum_a \\frac{\\sum_i (y_{a,i} - \\hat y_{a,i})^2}
-                                                  {\\sum_i y_{a,i}^2}
+        .. math:: s = 1 - \\frac{1}{A}\\sum_a \\frac{\\sum_g \\sum_{i \\in g}
+                  (e_{a,i} - \\bar e_{a,g})^2}{\\sum_g \\sum_{i \\in g}
+                  (y_{a,i} - \\bar y_{a,g})^2},\\qquad e = y - \\hat y
 
-        with :math:`y_a` the observed drift (output − reference; for a scale
-        factor its deviation from the mean, which is no error), summed over every sample
-        of every run of ``data`` (a Recording, a list of them or a Dataset).  1 is perfect,
-        0 no better than the raw output, negative worse.  ``y`` is scikit-learn's slot and
-        must be None (the drift is in the recordings).  Data in another unit than the
-        training data is refused, naming both units.
+        with :math:`y_a` the target (output − reference; the output itself for a ``zero`` or
+        ``at-t-ref`` axis), summed over every sample of ``data`` (a Recording, a list of
+        them or a Dataset), each source run :math:`g` about its own mean (blocks cut by
+        :func:`~thermonet.api.time_blocks` count as their run): a constant — a bias, gravity,
+        a scale factor's nominal value — is no error, as in every thermonet score.
+        :math:`1 - s` is the square of ``compare``'s score ratio on the same data
+        (``results.json`` ``axes.<axis>.score_ratio``).  1 is perfect, 0 no better than the
+        raw output, negative worse.  ``y`` is scikit-learn's slot and must be None (the
+        drift is in the recordings).  Data in another unit than the training data is
+        refused, naming both units.
         """
         model = self._check_fitted("score")
         from ..training.train import predict
@@ -500,19 +522,22 @@ average_s, threads
         if y is not None:
             raise ThermonetError(f"score(y): expected None (the drift is taken from the "
                                  f"recordings), got {type(y).__name__}")
-        raw = np.zeros(len(self.outputs_))
-        comp = np.zeros(len(self.outputs_))
+        sums: dict[str, list[np.ndarray]] = {}     # per source run: n, Σy, Σy², Σe, Σe²
         for rec in _runs(data, "score"):
             _needs_outputs(rec, self.outputs_, "score")
             _same_units(rec, self.units_, "score", "the model was trained in")
             _same_units(rec, self.signal_units_, "score", "the model was trained on it")
             part = self._part(rec, self.spec_, self.outputs_)
-            pred = predict(model, part.signals)
-            for j, axis in enumerate(self.outputs_):
-                yj = part.target[:, j]
-                raw_err = yj - np.mean(yj) if axis.endswith(".scale") else yj
-                raw[j] += float(np.sum(raw_err ** 2))
-                comp[j] += float(np.sum((yj - pred[:, j]) ** 2))
+            target = np.asarray(part.target, dtype=np.float64)
+            err = target - predict(model, part.signals)
+            acc = sums.setdefault(rec.meta.get(BLOCK_RUN, rec.run_id),
+                                  [np.zeros(target.shape[1]) for _ in range(5)])
+            for k, v in enumerate((np.full(target.shape[1], target.shape[0]),
+                                   target.sum(0), (target ** 2).sum(0), err.sum(0),
+                                   (err ** 2).sum(0))):
+                acc[k] += v
+        raw = sum(a[2] - a[1] ** 2 / a[0] for a in sums.values())
+        comp = sum(a[4] - a[3] ** 2 / a[0] for a in sums.values())
         ratios = [c / r if r > 0 else float("inf") for c, r in zip(comp, raw, strict=True)]
         return 1.0 - float(np.mean(ratios))
 
@@ -601,6 +626,11 @@ average_s, threads
         if isinstance(source, dict):  # kept, so that saving it again keeps the record
             est.data_source_ = {**source, "data_hash": str(extra.get("data_hash") or "")}
         est.n_features_in_ = len(model.spec.inputs)
+        from ..features.target import FOUR_POSITION, Target
+
+        modes = model.target_modes
+        est.targets_ = Target(list(meta["outputs"]), modes,
+                              kind=FOUR_POSITION if FOUR_POSITION in modes else "drift")
         from .parameters import parameter_table
 
         est.parameters_, est.covariance_ = parameter_table(model, est.units_,

@@ -31,6 +31,10 @@ Polynomials in one input (``poly``, ``linear`` and any family whose
     ``np.corrcoef(r[:-1], r[1:])``), or judge the model on held-out runs
     (``thermonet.compare``), which does not rest on this assumption.
 
+    On an ``at-t-ref`` axis (an accelerometer: the change from :math:`T_{ref}` is the drift,
+    gravity is not) the model is zero at :math:`x_{ref}` by construction: ``c0`` is 0 with
+    stderr 0, and the residuals are taken about their mean (the unknown constant).
+
     ``DriftEstimator(..., stderr="block-bootstrap")`` does not assume white residuals: a
     moving-block residual bootstrap (Künsch 1989, :func:`block_bootstrap_cov`) keeps the
     design, resamples the residuals in contiguous blocks inside each run — each block
@@ -209,6 +213,12 @@ def _polynomial_rows(model: Any, units: dict[str, str], signal_units: dict[str, 
             unscale = np.outer(h ** np.arange(n), h ** np.arange(n))
             fitted = _drift64(model, signals)
             resid = target - fitted
+            # an at-t-ref axis's target holds an unknown constant (gravity) the model does
+            # not predict: its residuals are taken about their mean, and its c0 is 0 by
+            # definition (the change from x_ref), with no uncertainty
+            fixed = np.array([m == "at-t-ref" for m in model.target_modes])
+            resid[:, fixed] -= resid[:, fixed].mean(axis=0)
+            fitted[:, fixed] += (target - fitted)[:, fixed].mean(axis=0)
             if method == "block-bootstrap":
                 covs = block_bootstrap_cov(d, fitted, resid, runs, seed=seed)
             else:
@@ -218,6 +228,8 @@ def _polynomial_rows(model: Any, units: dict[str, str], signal_units: dict[str, 
                 covs = [s2[j] * inv for j in range(resid.shape[1])]
             for j, axis in enumerate(model.outputs):
                 cov[axis] = covs[j] / unscale
+                if fixed[j]:
+                    cov[axis][0, :] = cov[axis][:, 0] = 0.0
                 stderr[j] = np.sqrt(np.clip(np.diag(cov[axis]), 0.0, None))
     rows = [{"axis": axis, "name": f"c{k}", "value": float(coef[j, k]),
              "stderr": float(stderr[j, k]), "unit": _power_unit(units.get(axis, ""), unit, k)}

@@ -32,11 +32,12 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.recording import Recording
+from .estimator import BLOCK_RUN
 
 __all__ = ["time_blocks", "TimeBlockSplit"]
 
-#: ``meta`` keys a block carries: the run it was cut from and its index in that run.
-BLOCK_RUN, BLOCK_INDEX = "block_of_run", "block_index"
+#: ``meta`` key of a block's index in its run (:data:`BLOCK_RUN` names the run).
+BLOCK_INDEX = "block_index"
 
 
 def time_blocks(data: Any, n_blocks: int = 40, *, purge_s: float = 0.0) -> list[Recording]:
