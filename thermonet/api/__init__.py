@@ -8,7 +8,7 @@ A drift model in the scikit-learn / lmfit mould::
     ds = thermonet.simulate("patent-gyro", runs=3, seed=0)
     est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(ds[0], val=ds[1])
     drift = est.predict(ds[2])                 # (N, axes), in the outputs' units
-    print(est.score(ds[2]))                    # 1 − msd after / msd before, mean over axes
+    print(est.score(ds[2]))                    # 1 − error variance after / before, axis mean
     print(est.parameters_)                     # axis, name, value, stderr, unit
     est.save("cubic.pt")
     est.export("cubic.onnx", format="onnx")
@@ -21,7 +21,10 @@ The estimator (:mod:`thermonet.api.estimator`)
     :func:`sklearn.base.clone`.  :meth:`~DriftEstimator.fit` checks them (an error names the
     argument and value), resolves the feature references from the training runs, builds each
     run's signals and targets and fits through the one fold pipeline
-    (:mod:`thermonet.training.fold`, what ``compare`` runs).  Learned state ends in ``_``.
+    (:mod:`thermonet.training.fold`, what ``compare`` runs), with the targets resolved as
+    ``compare`` resolves them (:mod:`thermonet.features.target`: a reference channel, else
+    zero for a gyro, else the change from :math:`T_{ref}` — gravity is no drift).  Learned
+    state ends in ``_``.
     ``fit``, ``predict``, ``score`` and ``compensate`` each take a Recording, a list of them
     or a Dataset.  Guards: the training runs must span at least 1 °C and share units (as
     ``compare`` checks the data it reads); a validation run that is also a training run, and
@@ -49,8 +52,10 @@ Hyper-parameter searches (:mod:`thermonet.api.splits`)
                               cv=thermonet.TimeBlockSplit(n_splits=5)).fit(blocks)
         search.best_params_
 
-    The score is :meth:`DriftEstimator.score` (the fraction of the drift's mean square
-    removed); scikit-learn's ``y`` is None throughout (the drift is in the recordings).
+    The score is :meth:`DriftEstimator.score` (``compare``'s offset-free score: the fraction
+    of the error's variance removed, each source run about its own mean, so the blocks of a
+    fold count as their run); scikit-learn's ``y`` is None throughout (the drift is in the
+    recordings).
 
 Comparisons (:mod:`thermonet.api.comparison`)
     ``thermonet.compare(config, data=None, out=None, track=False)`` runs ``thermonet
