@@ -262,12 +262,23 @@ def _plots(out: Path, fitted: dict[str, Fitted], results: dict[str, Any],
 _METRIC_COLS = ("pp_raw", "pp_comp", "drift_error_rms", "ppm_per_c_raw", "ppm_per_c_comp")
 
 
+def ratio_text(x: float) -> str:
+    """A ratio to 3 significant digits, or as many more (up to 7) as it takes not to print a
+    ratio that differs from 1 as "1": an interval [0.985, 0.99995] must not read [0.985, 1]
+    beside a "better" verdict."""
+    for digits in range(3, 8):
+        text = f"{x:.{digits}g}"
+        if not math.isfinite(x) or x == 1.0 or float(text) != 1.0:
+            return text
+    return text
+
+
 def _ratio_cell(v: dict[str, Any] | None) -> str:
     if not v or v.get("ratio") is None:
         return f"{'-':>22}"
     lo, hi = (x if x is not None else math.nan for x in v["interval"])
     mark = {"better": "+", "worse": "!", "indistinguishable": "="}[v["verdict"]]
-    return f"{v['ratio']:6.3g} [{lo:5.3g},{hi:5.3g}] {mark}"
+    return f"{ratio_text(v['ratio']):>6} [{ratio_text(lo):>5},{ratio_text(hi):>5}] {mark}"
 
 
 def format_table(results: dict[str, Any]) -> str:
