@@ -436,3 +436,40 @@ def test_api_fit_is_compares_model_gravity_included(tmp_path):
     theirs = read_px4_params(cli.export(tmp_path / "cli.params", format="px4-params",
                                         device_id=1234))
     assert ours == theirs and abs(ours["TC_A0_X0_2"]) < 1e-6
+
+
+# ------------------------------------------------------ provenance and tracking
+def test_exports_carry_the_data_digest_validation_metrics_and_the_tracked_run(tmp_path,
+                                                                              monkeypatch):
+    import onnx
+
+    monkeypatch.chdir(tmp_path)
+    ds = Dataset([cubic_run(20 + k) for k in range(3)])
+    est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(
+        ds.runs[:2], val=ds[2], tracking_uri=f"sqlite:///{tmp_path / 'ml.db'}")
+    # compare's validation score: the offset-free RMS ratio on the validation run, by hand
+    y = ds[2].outputs["gyro_x"]
+    e = y - est.predict(ds[2])[:, 0]
+    ratio = np.sqrt(np.sum((e - e.mean()) ** 2) / np.sum((y - y.mean()) ** 2))
+    assert est.val_score_ == pytest.approx(ratio, rel=1e-9)
+    assert est.val_ratios_ == {"gyro_x": pytest.approx(ratio, rel=1e-9)}
+    assert len(est.mlflow_run_id_) == 32
+    meta = {p.key: p.value for p in onnx.load(str(est.export(tmp_path / "m.onnx"))).metadata_props}
+    assert meta["training_run_id"] == est.mlflow_run_id_         # strings are written as is
+    assert meta["data_hash"] == est.data_source_["data_hash"] and len(meta["data_hash"]) == 16
+    assert json.loads(meta["validation_metrics"])["val_score"] == pytest.approx(ratio, rel=1e-9)
+    back = thermonet.DriftEstimator.load(est.save(tmp_path / "m.pt"))
+    assert (back.val_score_, back.mlflow_run_id_) == (est.val_score_, est.mlflow_run_id_)
+    # the run in the store: the parameters, the validation score and the model
+    import mlflow
+
+    mlflow.set_tracking_uri(f"sqlite:///{tmp_path / 'ml.db'}")
+    run = mlflow.get_run(est.mlflow_run_id_)
+    assert run.data.params["family"] == "poly" and run.data.params["degree"] == "3"
+    assert run.data.metrics["val/score"] == pytest.approx(ratio, rel=1e-9)
+    assert run.data.tags["data_hash"] == est.data_source_["data_hash"]
+    artifacts = mlflow.tracking.MlflowClient().list_artifacts(est.mlflow_run_id_, "model")
+    assert [a.path for a in artifacts] == ["model/poly.pt"]
+    # untracked: no run, and nothing written
+    plain = thermonet.DriftEstimator("poly", "dT", degree=3).fit(ds.runs[:2])
+    assert plain.mlflow_run_id_ == "" and plain.val_score_ is None

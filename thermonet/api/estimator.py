@@ -211,6 +211,11 @@ average_s, threads
     best_epoch_ : int
     best_val_ : float or None
         Validation loss at ``best_epoch_`` (None without a validation run).
+    val_score_ : float or None
+        ``compare``'s validation score on ``val``: the mean over axes of the offset-free
+        RMS ratio compensated / raw (< 1 better); ``val_ratios_`` per axis.
+    mlflow_run_id_ : str
+        The MLflow run of a tracked fit ("" untracked).
     n_params_ : int
     fit_seconds_ : float
     """
@@ -336,7 +341,8 @@ average_s, threads
             return [f"{a}{s}" for a in axes for s in FOURPOS_SUFFIXES]
         return axes
 
-    def fit(self, train: Data, val: Data | None = None) -> DriftEstimator:
+    def fit(self, train: Data, val: Data | None = None, *, track: bool = False,
+            tracking_uri: str | None = None, experiment: str = "thermonet") -> DriftEstimator:
         """Fit on ``train``; stop early on ``val`` (held-out runs) when given.
 
         ``train`` and ``val`` are each a Recording, a list of them or a Dataset.  Without
@@ -350,6 +356,13 @@ average_s, threads
         at least :data:`~thermonet.core.recording.MIN_TEMPERATURE_SPAN_C` °C together
         and share channels and units; the validation runs must carry the same units and
         may not be training runs themselves.
+
+        With ``val``, :attr:`val_score_` and :attr:`val_ratios_` are ``compare``'s validation
+        score and per-axis ratios on it; they, the data digest and the MLflow run travel with
+        every save and export.  ``track=True`` (or a ``tracking_uri``) logs the fit to MLflow
+        as ``compare`` logs a family: the parameters, the epoch history, ``val/score`` and
+        ``fit_seconds``, the checkpoint as artifact ``model/``; :attr:`mlflow_run_id_` is the
+        run (store: ``tracking_uri``, else ``sqlite:///mlflow.db`` in the working directory).
 
         Returns
         -------
@@ -435,6 +448,13 @@ average_s, threads
         self.best_val_: float | None = result.best_val_loss
         self.n_params_: int = int(result.n_params)
         self.fit_seconds_: float = float(result.fit_seconds)
+        self.val_ratios_: dict[str, float] | None = None
+        self.val_score_: float | None = None
+        if val_runs is not None:   # compare's validation score: mean over axes of RMS ratios
+            ratios = np.sqrt(self._ratios(val_runs, "fit(val)"))
+            self.val_ratios_ = {a: float(r) for a, r in zip(outputs, ratios, strict=True)}
+            self.val_score_ = float(np.mean(ratios))
+        self.mlflow_run_id_: str = ""
         arrays = [fit_arrays(q, config.average_s) for q in parts.train]
         self.parameters_: pd.DataFrame
         self.covariance_: dict[str, np.ndarray]
@@ -443,7 +463,33 @@ average_s, threads
             train=(np.concatenate([a[0] for a in arrays]), np.concatenate([a[1] for a in arrays]),
                    [a[0].shape[0] for a in arrays]),
             method=self.stderr, seed=config.seed)
+        if track or tracking_uri:
+            self._track(tracking_uri, experiment)
         return self
+
+    def _track(self, uri: str | None, experiment: str) -> None:
+        """Log this fit to MLflow (one run: parameters, history, metrics, the checkpoint)."""
+        import json
+        import tempfile
+
+        from ..tracking import Tracker
+
+        tracker = Tracker(enabled=True, uri=uri, experiment=experiment)
+        params = json.loads(json.dumps({k: v for k, v in self.get_params().items()
+                                        if v is not None}, default=repr))
+        tags = {"device": self.device_id_, "data_hash": self.data_source_["data_hash"],
+                "family": self.family, "source": "thermonet.api"}
+        with tracker.run(f"fit-{self.family}", params=params, tags=tags) as run_id:
+            self.mlflow_run_id_ = run_id or ""
+            tracker.log_history(list(self.history_))
+            metrics = {"fit_seconds": self.fit_seconds_, "n_params": float(self.n_params_)}
+            if self.val_score_ is not None:
+                metrics["val/score"] = self.val_score_
+                metrics.update({f"val/{a}/score_ratio": r
+                                for a, r in (self.val_ratios_ or {}).items()})
+            tracker.log_metrics(metrics)
+            with tempfile.TemporaryDirectory() as tmp:
+                tracker.log_artifact(self.save(Path(tmp) / f"{self.family}.pt"), "model")
 
     def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
         from ..training.parts import build_part
@@ -516,17 +562,22 @@ average_s, threads
         drift is in the recordings).  Data in another unit than the training data is
         refused, naming both units.
         """
-        model = self._check_fitted("score")
-        from ..training.train import predict
-
+        self._check_fitted("score")
         if y is not None:
             raise ThermonetError(f"score(y): expected None (the drift is taken from the "
                                  f"recordings), got {type(y).__name__}")
+        return 1.0 - float(np.mean(self._ratios(data, "score")))
+
+    def _ratios(self, data: Data, what: str) -> np.ndarray:
+        """Per axis, the error's variance after / before (each source run about its mean)."""
+        from ..training.train import predict
+
+        model = self._check_fitted(what)
         sums: dict[str, list[np.ndarray]] = {}     # per source run: n, Σy, Σy², Σe, Σe²
-        for rec in _runs(data, "score"):
-            _needs_outputs(rec, self.outputs_, "score")
-            _same_units(rec, self.units_, "score", "the model was trained in")
-            _same_units(rec, self.signal_units_, "score", "the model was trained on it")
+        for rec in _runs(data, what):
+            _needs_outputs(rec, self.outputs_, what)
+            _same_units(rec, self.units_, what, "the model was trained in")
+            _same_units(rec, self.signal_units_, what, "the model was trained on it")
             part = self._part(rec, self.spec_, self.outputs_)
             target = np.asarray(part.target, dtype=np.float64)
             err = target - predict(model, part.signals)
@@ -538,8 +589,7 @@ average_s, threads
                 acc[k] += v
         raw = sum(a[2] - a[1] ** 2 / a[0] for a in sums.values())
         comp = sum(a[4] - a[3] ** 2 / a[0] for a in sums.values())
-        ratios = [c / r if r > 0 else float("inf") for c, r in zip(comp, raw, strict=True)]
-        return 1.0 - float(np.mean(ratios))
+        return np.array([c / r if r > 0 else float("inf") for c, r in zip(comp, raw, strict=True)])
 
     # ------------------------------------------------------------ parameters
     def report(self) -> str:
@@ -577,8 +627,11 @@ average_s, threads
         }
 
     def _extra(self) -> dict[str, Any]:
-        extra = {"units": self.units_, "signal_units": self.signal_units_,
-                 "device_id": self.device_id_, "history": self.history_}
+        extra: dict[str, Any] = {"units": self.units_, "signal_units": self.signal_units_,
+                                 "device_id": self.device_id_, "history": self.history_,
+                                 "mlflow_run_id": self.__dict__.get("mlflow_run_id_", "")}
+        if self.__dict__.get("val_score_") is not None:   # the validation metrics, as compare's
+            extra.update(val_score=self.val_score_, val_ratios=dict(self.val_ratios_ or {}))
         source = getattr(self, "data_source_", None)  # an estimator made by load() has none
         if source is not None:  # provenance: what it was fitted on (as compare records it)
             extra.update(data_hash=source["data_hash"], provenance={"data": source})
@@ -621,6 +674,9 @@ average_s, threads
         est.device_id_ = str(extra.get("device_id", ""))
         est.train_config_ = train
         est.history_ = list(extra.get("history") or [])
+        est.val_score_ = extra.get("val_score")
+        est.val_ratios_ = extra.get("val_ratios")
+        est.mlflow_run_id_ = str(extra.get("mlflow_run_id") or "")
         prov = extra.get("provenance")
         source = prov.get("data") if isinstance(prov, dict) else None
         if isinstance(source, dict):  # kept, so that saving it again keeps the record
