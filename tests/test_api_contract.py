@@ -267,6 +267,26 @@ def test_linear_and_lorentz_parameters_in_physical_units():
         assert p["stderr"].isna().all()
 
 
+def test_rbf_and_lorentz_tables_reproduce_the_models_curve():
+    """The physical parameters are the model: the curve rebuilt from the table alone (numpy,
+    float64) is the model's prediction, so the units and references in the table are right."""
+    rec = cubic_run(11, n=600)
+    t = rec.temperature_c
+    rbf = thermonet.DriftEstimator("rbf", "dT", n_centres=6).fit(rec)
+    p = rbf.parameters_.set_index("name")["value"]
+    x = t - rbf.spec_.t_ref                                    # dT, °C about T_ref
+    curve = p["bias"] + sum(p[f"w{c}"] * np.exp(-(x - p[f"centre{c}"]) ** 2
+                                                / (2.0 * p[f"sigma{c}"] ** 2)) for c in range(6))
+    scale = np.ptp(rbf.predict(rec))
+    np.testing.assert_allclose(curve, rbf.predict(rec)[:, 0], atol=1e-5 * scale)
+    assert set(rbf.parameters_["unit"]) == {"deg/s", "°C"}
+    lor = thermonet.DriftEstimator("lorentz", "T", max_epochs=50).fit(rec)
+    q = lor.parameters_.set_index("name")["value"]
+    curve = q["y0"] + 2 * q["amplitude"] / np.pi * q["width"] / (
+        4 * (t - q["centre"]) ** 2 + q["width"] ** 2)
+    np.testing.assert_allclose(curve, lor.predict(rec)[:, 0], atol=1e-5 * np.ptp(lor.predict(rec)))
+
+
 def test_parameters_survive_save_and_load(tmp_path):
     est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(cubic_run(10))
     back = thermonet.DriftEstimator.load(est.save(tmp_path / "m.pt"))
