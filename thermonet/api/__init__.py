@@ -29,7 +29,9 @@ The estimator (:mod:`thermonet.api.estimator`)
     or a Dataset.  Guards: the training runs must span at least 1 °C and share units (as
     ``compare`` checks the data it reads); a validation run that is also a training run, and
     scoring or compensating data in another unit than the training data, are refused, naming
-    the run and both units.
+    the run and both units.  ``fit(..., val=...)`` records ``compare``'s validation score
+    (``val_score_``); ``fit(..., track=True)`` logs the fit to MLflow (``mlflow_run_id_``);
+    saves and exports carry the data digest, the validation score and the run id.
 
 Parameters with uncertainties (:mod:`thermonet.api.parameters`)
     ``est.parameters_`` is a pandas table ``axis, name, value, stderr, unit``: a polynomial's
