@@ -71,7 +71,8 @@ A saved estimator is an ordinary thermonet checkpoint (``thermonet export`` read
 from __future__ import annotations
 
 from .comparison import AxisSummary, ComparisonResult, FamilySummary, compare
-from .estimator import DriftEstimator, NotFittedError, read, simulate
+from .data import read, simulate
+from .estimator import DriftEstimator, NotFittedError
 from .splits import TimeBlockSplit, time_blocks
 
 __all__ = ["DriftEstimator", "NotFittedError", "simulate", "read", "compare",

@@ -178,12 +178,13 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
     """
     from ..core.recording import Dataset
     from ..workflows.compare import run_compare
-    from .estimator import DriftEstimator, _runs
+    from .data import runs_of
+    from .estimator import DriftEstimator
 
     cfg = _config(config)
     dataset = None
     if data is not None:
-        dataset = Dataset(_runs(data, "compare(data)")).validate("compare(data)")
+        dataset = Dataset(runs_of(data, "compare(data)")).validate("compare(data)")
     tmp = None
     if out is None:
         tmp = Path(tempfile.mkdtemp(prefix="thermonet-compare-"))

@@ -1,11 +1,11 @@
-"""The estimator: :class:`DriftEstimator`, and :func:`simulate`, :func:`read` (see :mod:`thermonet.api`)."""
+"""The estimator: :class:`DriftEstimator` (see :mod:`thermonet.api`)."""
 
 from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Iterable, Sequence
-from dataclasses import asdict, replace
+from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -14,6 +14,17 @@ import numpy as np
 from ..core.errors import ConfigError, ThermonetError
 from ..core.recording import Dataset, Recording
 from ..core.trainconfig import TrainConfig
+from .data import (
+    BLOCK_RUN,
+    Data,
+    data_source,
+    names_of,
+    needs_outputs,
+    runs_of,
+    same_run,
+    same_units,
+)
+from .persistence import track as track_fit
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -22,15 +33,9 @@ if TYPE_CHECKING:
     from ..features.target import Target
     from ..models import DriftModel
 
-__all__ = ["DriftEstimator", "NotFittedError", "simulate", "read", "Data"]
+__all__ = ["DriftEstimator", "NotFittedError"]
 
 _TARGETS = ("drift", "four-position")
-#: ``meta`` key naming the run a time block was cut from (:func:`thermonet.api.time_blocks`).
-BLOCK_RUN = "block_of_run"
-
-#: What ``fit``, ``predict``, ``score`` and ``compensate`` take: one run, a list of runs or a
-#: Dataset (each run's dynamic inputs computed on that run alone).
-Data = Dataset | Recording | Sequence[Recording]
 
 #: The constructor's own keywords (the family's hyper-parameters come on top, as ``**hyper``).
 _OWN = ("family", "inputs", "t_ref", "target", "outputs", "train_on", "gap_s",
@@ -41,98 +46,6 @@ _TRAIN_KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig))
 
 class NotFittedError(ThermonetError, AttributeError):
     """``predict``/``compensate``/``score``/``save``/``export`` before ``fit``."""
-
-
-def _runs(data: Any, what: str, *, allow_empty: bool = False) -> list[Recording]:
-    """The runs of ``data``: each a :class:`Recording` (with samples unless ``allow_empty``),
-    else one ValueError line naming the argument."""
-    expected = "expected a Dataset, a Recording or a list of Recordings"
-    if isinstance(data, Recording):
-        runs = [data]
-    elif isinstance(data, (str, bytes, os.PathLike)) or not isinstance(data, Iterable) \
-            or isinstance(data, dict):
-        hint = " (read files with thermonet.read(paths, mapping))" \
-            if isinstance(data, (str, bytes, os.PathLike)) else ""
-        raise ThermonetError(f"{what}: {expected}, got {type(data).__name__}{hint}")
-    else:
-        runs = list(data)
-    if not runs:
-        raise ThermonetError(f"{what}: no recordings (an empty {type(data).__name__}); "
-                             "give at least one run")
-    for i, r in enumerate(runs):
-        if not isinstance(r, Recording):
-            raise ThermonetError(f"{what}: {expected}; item {i} is a {type(r).__name__}")
-        if not allow_empty:
-            _has_samples(r, what)
-    return runs
-
-
-def _data_source(runs: list[Recording], val: list[Recording] | None) -> dict[str, Any]:
-    """What a fit was given (a checkpoint's ``extra.provenance.data``): the runs, where they
-    came from (the files read, or the simulator) and the digest of their samples."""
-    from ..training.parts import data_hash
-
-    every = runs + list(val or [])
-    return {"kind": "dataset", "device": runs[0].device_id,
-            "runs": [r.run_id for r in runs], "val": [r.run_id for r in val or []],
-            "sources": sorted({r.meta.get("source", "") for r in every} - {""})[:20],
-            "preset": runs[0].meta.get("preset") or None,
-            "data_hash": data_hash(Dataset(every))}
-
-
-def _has_samples(rec: Recording, what: str) -> Recording:
-    if rec.n_samples == 0:
-        raise ThermonetError(f"{what}: run '{rec.run_id}' has no samples")
-    return rec
-
-
-def _names(value: Any, what: str) -> list[str] | None:
-    """``inputs``/``outputs`` as a list of names: None stays None, one name is a list of one."""
-    if value is None:
-        return None
-    if isinstance(value, str):
-        return [value]
-    if isinstance(value, Iterable) and not isinstance(value, (bytes, dict)):
-        names = list(value)
-        bad = [v for v in names if not isinstance(v, str)]
-        if not bad and names:
-            return names
-        if not names:
-            raise ConfigError(f"{what}: an empty list; name at least one, or leave it None")
-        raise ConfigError(f"{what}: expected names (strings), got {bad[0]!r} "
-                          f"({type(bad[0]).__name__}) in {names!r}")
-    raise ConfigError(f"{what}: expected a name or a list of names, got {value!r}")
-
-
-def _needs_outputs(rec: Recording, outputs: Sequence[str], what: str) -> None:
-    """Every output channel the model needs (``gyro_x`` for ``gyro_x.bias`` too) is in ``rec``."""
-    needed = list(dict.fromkeys(o.split(".")[0] for o in outputs))
-    missing = [a for a in needed if a not in rec.outputs]
-    if missing:
-        raise ThermonetError(f"{what}: run '{rec.run_id}' has no output channel '{missing[0]}' "
-                             f"(the model needs {', '.join(needed)}; the run has "
-                             f"{', '.join(rec.outputs) or 'none'})")
-
-
-def _same_units(rec: Recording, units: dict[str, str], what: str, trained: str) -> None:
-    """Each channel of ``units`` that ``rec`` carries is in the same unit (where both say)."""
-    for name, unit in units.items():
-        channel = name.split(".")[0]
-        if name.endswith(".scale"):
-            continue
-        theirs = rec.units.get(channel, "")
-        if unit and theirs and theirs != unit and channel in {**rec.outputs, **rec.proxies}:
-            raise ThermonetError(f"{what}: run '{rec.run_id}' has {channel} in '{theirs}', "
-                                 f"{trained} in '{unit}' (convert one with a mapping scale)")
-
-
-def _same_run(a: Recording, b: Recording) -> bool:
-    """Whether two recordings are one run (the same object, or the same id and samples)."""
-    if a is b:
-        return True
-    if a.run_id != b.run_id or a.n_samples != b.n_samples:
-        return False
-    return bool(np.array_equal(a.time_s, b.time_s))
 
 
 class DriftEstimator:
@@ -326,7 +239,7 @@ average_s, threads
         return replace(config, **overrides) if overrides else config
 
     def _resolved_inputs(self) -> list[str]:
-        names = _names(self.inputs, "inputs")
+        names = names_of(self.inputs, "inputs")
         if names is not None:
             return names
         from ..models import get_family
@@ -336,7 +249,7 @@ average_s, threads
     def _outputs_for(self, runs: list[Recording]) -> list[str]:
         from ..training.parts import FOURPOS_SUFFIXES
 
-        axes = _names(self.outputs, "outputs") or list(runs[0].axes)
+        axes = names_of(self.outputs, "outputs") or list(runs[0].axes)
         if self.target == "four-position":
             return [f"{a}{s}" for a in axes for s in FOURPOS_SUFFIXES]
         return axes
@@ -400,16 +313,16 @@ average_s, threads
                               "with a 60 s time constant (thermonet.features.dynamics); use the "
                               "input 'rate_<tau>' (e.g. rate_30) for another time constant")
         config = self._train_config()
-        runs = _runs(train, "fit(train)")
-        val_runs = None if val is None else _runs(val, "fit(val)")
+        runs = runs_of(train, "fit(train)")
+        val_runs = None if val is None else runs_of(val, "fit(val)")
         inputs = self._resolved_inputs()
         outputs = self._outputs_for(runs)
         for r in runs:
-            _needs_outputs(r, outputs, "fit(train)")
+            needs_outputs(r, outputs, "fit(train)")
         for v in val_runs or []:
-            _needs_outputs(v, outputs, "fit(val)")
+            needs_outputs(v, outputs, "fit(val)")
             for r in runs:
-                if _same_run(v, r):
+                if same_run(v, r):
                     raise ThermonetError(f"fit(val): run '{v.run_id}' is also a training run "
                                          "(validate on a run the model is not fitted on)")
         Dataset(runs).validate("fit(train)")
@@ -419,7 +332,7 @@ average_s, threads
         targets = targets_for(Dataset(runs + list(val_runs or [])), self.target, outputs,
                               source="DriftEstimator(target)")
         for v in val_runs or []:
-            _same_units(v, runs[0].units, "fit(val)",
+            same_units(v, runs[0].units, "fit(val)",
                         f"the training run '{runs[0].run_id}' has it")
         spec = fold_spec(inputs, runs, t_ref=self.t_ref, window_min=self.t_ref_window_min,
                          gap_s=self.gap_s, reference_for_targets=True)
@@ -441,7 +354,7 @@ average_s, threads
         self.signal_units_: dict[str, str] = {p: runs[0].units.get(p, "")
                                               for p in runs[0].proxies}
         self.device_id_: str = runs[0].device_id
-        self.data_source_: dict[str, Any] = _data_source(runs, val_runs)
+        self.data_source_: dict[str, Any] = data_source(runs, val_runs)
         self.train_config_: TrainConfig = config
         self.history_: list[dict[str, Any]] = list(result.history)
         self.best_epoch_: int = int(result.best_epoch)
@@ -464,32 +377,8 @@ average_s, threads
                    [a[0].shape[0] for a in arrays]),
             method=self.stderr, seed=config.seed)
         if track or tracking_uri:
-            self._track(tracking_uri, experiment)
+            track_fit(self, tracking_uri, experiment)
         return self
-
-    def _track(self, uri: str | None, experiment: str) -> None:
-        """Log this fit to MLflow (one run: parameters, history, metrics, the checkpoint)."""
-        import json
-        import tempfile
-
-        from ..tracking import Tracker
-
-        tracker = Tracker(enabled=True, uri=uri, experiment=experiment)
-        params = json.loads(json.dumps({k: v for k, v in self.get_params().items()
-                                        if v is not None}, default=repr))
-        tags = {"device": self.device_id_, "data_hash": self.data_source_["data_hash"],
-                "family": self.family, "source": "thermonet.api"}
-        with tracker.run(f"fit-{self.family}", params=params, tags=tags) as run_id:
-            self.mlflow_run_id_ = run_id or ""
-            tracker.log_history(list(self.history_))
-            metrics = {"fit_seconds": self.fit_seconds_, "n_params": float(self.n_params_)}
-            if self.val_score_ is not None:
-                metrics["val/score"] = self.val_score_
-                metrics.update({f"val/{a}/score_ratio": r
-                                for a, r in (self.val_ratios_ or {}).items()})
-            tracker.log_metrics(metrics)
-            with tempfile.TemporaryDirectory() as tmp:
-                tracker.log_artifact(self.save(Path(tmp) / f"{self.family}.pt"), "model")
 
     def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
         from ..training.parts import build_part
@@ -518,8 +407,8 @@ average_s, threads
         from ..training.train import predict
 
         out = []
-        for rec in _runs(data, "predict", allow_empty=True):
-            _same_units(rec, self.signal_units_, "predict", "the model was trained on it")
+        for rec in runs_of(data, "predict", allow_empty=True):
+            same_units(rec, self.signal_units_, "predict", "the model was trained on it")
             out.append(predict(model, signal_matrix(rec, self.spec_.signals, self.spec_.gap_s)))
         return out[0] if len(out) == 1 else np.concatenate(out)
 
@@ -531,9 +420,9 @@ average_s, threads
             raise ThermonetError("compensate: a four-position model predicts per-soak bias and "
                                  "scale factor, not a drift to subtract sample by sample")
         done = []
-        for rec in _runs(data, "compensate", allow_empty=True):
-            _needs_outputs(rec, self.outputs_, "compensate")
-            _same_units(rec, self.units_, "compensate", "the model was trained in")
+        for rec in runs_of(data, "compensate", allow_empty=True):
+            needs_outputs(rec, self.outputs_, "compensate")
+            same_units(rec, self.units_, "compensate", "the model was trained in")
             drift = self.predict(rec)
             outputs = dict(rec.outputs)
             for j, axis in enumerate(self.outputs_):
@@ -574,10 +463,10 @@ average_s, threads
 
         model = self._check_fitted(what)
         sums: dict[str, list[np.ndarray]] = {}     # per source run: n, Σy, Σy², Σe, Σe²
-        for rec in _runs(data, what):
-            _needs_outputs(rec, self.outputs_, what)
-            _same_units(rec, self.units_, what, "the model was trained in")
-            _same_units(rec, self.signal_units_, what, "the model was trained on it")
+        for rec in runs_of(data, what):
+            needs_outputs(rec, self.outputs_, what)
+            same_units(rec, self.units_, what, "the model was trained in")
+            same_units(rec, self.signal_units_, what, "the model was trained on it")
             part = self._part(rec, self.spec_, self.outputs_)
             target = np.asarray(part.target, dtype=np.float64)
             err = target - predict(model, part.signals)
@@ -614,88 +503,20 @@ average_s, threads
                 lines.append(f"    {r.name:<12} {r.value: .6g}{err}{rel} {r.unit}")
         return "\n".join(lines)
 
-    # ---------------------------------------------------------------- save, load
-    def _checkpoint_config(self) -> dict[str, Any]:
-        """The family's resolved configuration, as a checkpoint stores it."""
-        return {
-            "family": {"family": self.family, "inputs": list(self.spec_.inputs),
-                       "params": dict(self.hyper), "train_on": self.train_on},
-            "train": asdict(self.train_config_),
-            "features": {"t_ref": self.t_ref, "t_ref_window_min": self.t_ref_window_min,
-                         "gap_s": self.gap_s},
-            "target": self.target,
-        }
-
-    def _extra(self) -> dict[str, Any]:
-        extra: dict[str, Any] = {"units": self.units_, "signal_units": self.signal_units_,
-                                 "device_id": self.device_id_, "history": self.history_,
-                                 "mlflow_run_id": self.__dict__.get("mlflow_run_id_", "")}
-        if self.__dict__.get("val_score_") is not None:   # the validation metrics, as compare's
-            extra.update(val_score=self.val_score_, val_ratios=dict(self.val_ratios_ or {}))
-        source = getattr(self, "data_source_", None)  # an estimator made by load() has none
-        if source is not None:  # provenance: what it was fitted on (as compare records it)
-            extra.update(data_hash=source["data_hash"], provenance={"data": source})
-        return extra
-
+    # ----------------------------------------- save, load, export (thermonet.api.persistence)
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the fitted model as a thermonet checkpoint (atomic; loads with
         ``weights_only=True``; ``thermonet export`` reads it)."""
-        model = self._check_fitted("save")
-        from ..training.checkpoint import save_checkpoint
+        from .persistence import save
 
-        return save_checkpoint(path, model, config=self._checkpoint_config(), extra=self._extra(),
-                               epoch=self.best_epoch_, best_val=self.best_val_)
+        return save(self, path)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DriftEstimator:
         """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
-        from ..training.checkpoint import load_checkpoint
-        from ..training.config import from_dict
+        from .persistence import load
 
-        model, meta = load_checkpoint(path)
-        config = meta.get("config") or {}
-        fam = config.get("family") or {}
-        features = config.get("features") or {}
-        extra = meta.get("extra") or {}
-        train = from_dict(TrainConfig, config.get("train") or {}, source=str(path),
-                          prefix="config.train")
-        est = cls(meta["family"], list(meta["inputs"]),
-                  t_ref=features.get("t_ref", "start"), target=config.get("target", "drift"),
-                  train=train, outputs=list(meta["outputs"]),
-                  train_on=fam.get("train_on", "all"),
-                  gap_s=features.get("gap_s", "auto"),
-                  t_ref_window_min=float(features.get("t_ref_window_min", 10.0)),
-                  **dict(meta["hyper"]))
-        est.model_ = model
-        est.spec_ = model.spec
-        est.outputs_ = list(meta["outputs"])
-        est.units_ = dict(extra.get("units") or {})
-        est.signal_units_ = dict(extra.get("signal_units") or {})
-        est.device_id_ = str(extra.get("device_id", ""))
-        est.train_config_ = train
-        est.history_ = list(extra.get("history") or [])
-        est.val_score_ = extra.get("val_score")
-        est.val_ratios_ = extra.get("val_ratios")
-        est.mlflow_run_id_ = str(extra.get("mlflow_run_id") or "")
-        prov = extra.get("provenance")
-        source = prov.get("data") if isinstance(prov, dict) else None
-        if isinstance(source, dict):  # kept, so that saving it again keeps the record
-            est.data_source_ = {**source, "data_hash": str(extra.get("data_hash") or "")}
-        est.n_features_in_ = len(model.spec.inputs)
-        from ..features.target import FOUR_POSITION, Target
-
-        modes = model.target_modes
-        est.targets_ = Target(list(meta["outputs"]), modes,
-                              kind=FOUR_POSITION if FOUR_POSITION in modes else "drift")
-        from .parameters import parameter_table
-
-        est.parameters_, est.covariance_ = parameter_table(model, est.units_,
-                                                           est.signal_units_)
-        est.best_epoch_ = int(meta["epoch"]) if meta.get("epoch") is not None else 0
-        est.best_val_ = meta.get("best_val")
-        est.n_params_ = int(model.n_params)
-        est.fit_seconds_ = float("nan")
-        return est
+        return load(cls, path)
 
     def export(self, path: str | os.PathLike[str], format: str = "onnx", *,
                device_id: int | None = None, instance: int | None = None) -> Path:
@@ -704,31 +525,6 @@ average_s, threads
         ``device_id``/``instance`` apply to the autopilot formats (see
         ``thermonet export --help``).
         """
-        model = self._check_fitted("export")
-        from ..exporting import ExportRequest, get_format
+        from .persistence import export
 
-        meta = {"config": self._checkpoint_config(), "extra": self._extra()}
-        return get_format(format).write(model, Path(path), ExportRequest(
-            meta=meta, device_id=device_id, instance=instance))
-
-
-def simulate(preset: str, runs: int | None = None, seed: int = 0) -> Dataset:
-    """A simulated chamber test from a study preset (``patent-gyro``, ``consumer-imu``...).
-
-    Same preset, runs and seed give identical data.
-    """
-    from ..sim import simulate as _simulate
-
-    return _simulate(preset, runs=runs, seed=seed)
-
-
-def read(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
-         mapping: str | os.PathLike[str] | None = None) -> Dataset:
-    """Recordings from CSV/TSV/Parquet files (one run per file unless a ``run`` column),
-    through a YAML column mapping when the columns are not thermonet's own."""
-    from ..data.io import read_datasets
-
-    if isinstance(paths, (str, os.PathLike)):
-        paths = [paths]
-    return read_datasets([Path(p) for p in paths], mapping=None if mapping is None
-                         else Path(mapping))
+        return export(self, path, format, device_id=device_id, instance=instance)

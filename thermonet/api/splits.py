@@ -32,7 +32,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.recording import Recording
-from .estimator import BLOCK_RUN
+from .data import BLOCK_RUN
 
 __all__ = ["time_blocks", "TimeBlockSplit"]
 
@@ -48,7 +48,7 @@ def time_blocks(data: Any, n_blocks: int = 40, *, purge_s: float = 0.0) -> list[
     Each block is a :class:`Recording` named ``<run>[b<k>]`` whose ``meta`` names its run
     (``block_of_run``) and index (``block_index``), which :class:`TimeBlockSplit` reads.
     """
-    from .estimator import _runs
+    from .data import runs_of
 
     if isinstance(n_blocks, bool) or not isinstance(n_blocks, int) or n_blocks < 2:
         raise ConfigError(f"time_blocks(n_blocks): expected an integer >= 2, got {n_blocks!r}")
@@ -56,7 +56,7 @@ def time_blocks(data: Any, n_blocks: int = 40, *, purge_s: float = 0.0) -> list[
             or not np.isfinite(purge_s) or purge_s < 0:
         raise ConfigError(f"time_blocks(purge_s): expected seconds >= 0, got {purge_s!r}")
     out = []
-    for rec in _runs(data, "time_blocks(data)"):
+    for rec in runs_of(data, "time_blocks(data)"):
         t = np.asarray(rec.time_s, dtype=np.float64)
         span = max(float(t[-1] - t[0]), 1e-12)
         width = span / n_blocks
@@ -110,10 +110,10 @@ class TimeBlockSplit:
 
     def folds(self, X: Sequence[Recording]) -> np.ndarray:
         """The fold of each row of ``X``."""
-        from .estimator import _runs
+        from .data import runs_of
 
         self._check()
-        rows = _runs(X, "TimeBlockSplit.split(X)")
+        rows = runs_of(X, "TimeBlockSplit.split(X)")
         run_no: dict[str, int] = {}
         fold = np.empty(len(rows), dtype=int)
         for i, r in enumerate(rows):

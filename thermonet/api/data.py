@@ -1,0 +1,138 @@
+"""What the API takes: runs (one, a list or a Dataset), the checks on them that name the
+argument in one line, and :func:`simulate` / :func:`read` to make them (see :mod:`thermonet.api`)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ConfigError, ThermonetError
+from ..core.recording import Dataset, Recording
+
+__all__ = ["Data", "BLOCK_RUN", "runs_of", "data_source", "has_samples", "names_of",
+           "needs_outputs", "same_units", "same_run", "simulate", "read"]
+
+#: ``meta`` key naming the run a time block was cut from (:func:`thermonet.api.time_blocks`).
+BLOCK_RUN = "block_of_run"
+
+#: What ``fit``, ``predict``, ``score`` and ``compensate`` take: one run, a list of runs or a
+#: Dataset (each run's dynamic inputs computed on that run alone).
+Data = Dataset | Recording | Sequence[Recording]
+
+
+def runs_of(data: Any, what: str, *, allow_empty: bool = False) -> list[Recording]:
+    """The runs of ``data``: each a :class:`Recording` (with samples unless ``allow_empty``),
+    else one ValueError line naming the argument."""
+    expected = "expected a Dataset, a Recording or a list of Recordings"
+    if isinstance(data, Recording):
+        runs = [data]
+    elif isinstance(data, (str, bytes, os.PathLike)) or not isinstance(data, Iterable) \
+            or isinstance(data, dict):
+        hint = " (read files with thermonet.read(paths, mapping))" \
+            if isinstance(data, (str, bytes, os.PathLike)) else ""
+        raise ThermonetError(f"{what}: {expected}, got {type(data).__name__}{hint}")
+    else:
+        runs = list(data)
+    if not runs:
+        raise ThermonetError(f"{what}: no recordings (an empty {type(data).__name__}); "
+                             "give at least one run")
+    for i, r in enumerate(runs):
+        if not isinstance(r, Recording):
+            raise ThermonetError(f"{what}: {expected}; item {i} is a {type(r).__name__}")
+        if not allow_empty:
+            has_samples(r, what)
+    return runs
+
+
+def data_source(runs: list[Recording], val: list[Recording] | None) -> dict[str, Any]:
+    """What a fit was given (a checkpoint's ``extra.provenance.data``): the runs, where they
+    came from (the files read, or the simulator) and the digest of their samples."""
+    from ..training.parts import data_hash
+
+    every = runs + list(val or [])
+    return {"kind": "dataset", "device": runs[0].device_id,
+            "runs": [r.run_id for r in runs], "val": [r.run_id for r in val or []],
+            "sources": sorted({r.meta.get("source", "") for r in every} - {""})[:20],
+            "preset": runs[0].meta.get("preset") or None,
+            "data_hash": data_hash(Dataset(every))}
+
+
+def has_samples(rec: Recording, what: str) -> Recording:
+    if rec.n_samples == 0:
+        raise ThermonetError(f"{what}: run '{rec.run_id}' has no samples")
+    return rec
+
+
+def names_of(value: Any, what: str) -> list[str] | None:
+    """``inputs``/``outputs`` as a list of names: None stays None, one name is a list of one."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, Iterable) and not isinstance(value, (bytes, dict)):
+        names = list(value)
+        bad = [v for v in names if not isinstance(v, str)]
+        if not bad and names:
+            return names
+        if not names:
+            raise ConfigError(f"{what}: an empty list; name at least one, or leave it None")
+        raise ConfigError(f"{what}: expected names (strings), got {bad[0]!r} "
+                          f"({type(bad[0]).__name__}) in {names!r}")
+    raise ConfigError(f"{what}: expected a name or a list of names, got {value!r}")
+
+
+def needs_outputs(rec: Recording, outputs: Sequence[str], what: str) -> None:
+    """Every output channel the model needs (``gyro_x`` for ``gyro_x.bias`` too) is in ``rec``."""
+    needed = list(dict.fromkeys(o.split(".")[0] for o in outputs))
+    missing = [a for a in needed if a not in rec.outputs]
+    if missing:
+        raise ThermonetError(f"{what}: run '{rec.run_id}' has no output channel '{missing[0]}' "
+                             f"(the model needs {', '.join(needed)}; the run has "
+                             f"{', '.join(rec.outputs) or 'none'})")
+
+
+def same_units(rec: Recording, units: dict[str, str], what: str, trained: str) -> None:
+    """Each channel of ``units`` that ``rec`` carries is in the same unit (where both say)."""
+    for name, unit in units.items():
+        channel = name.split(".")[0]
+        if name.endswith(".scale"):
+            continue
+        theirs = rec.units.get(channel, "")
+        if unit and theirs and theirs != unit and channel in {**rec.outputs, **rec.proxies}:
+            raise ThermonetError(f"{what}: run '{rec.run_id}' has {channel} in '{theirs}', "
+                                 f"{trained} in '{unit}' (convert one with a mapping scale)")
+
+
+def same_run(a: Recording, b: Recording) -> bool:
+    """Whether two recordings are one run (the same object, or the same id and samples)."""
+    if a is b:
+        return True
+    if a.run_id != b.run_id or a.n_samples != b.n_samples:
+        return False
+    return bool(np.array_equal(a.time_s, b.time_s))
+
+
+def simulate(preset: str, runs: int | None = None, seed: int = 0) -> Dataset:
+    """A simulated chamber test from a study preset (``patent-gyro``, ``consumer-imu``...).
+
+    Same preset, runs and seed give identical data.
+    """
+    from ..sim import simulate as _simulate
+
+    return _simulate(preset, runs=runs, seed=seed)
+
+
+def read(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+         mapping: str | os.PathLike[str] | None = None) -> Dataset:
+    """Recordings from CSV/TSV/Parquet files (one run per file unless a ``run`` column),
+    through a YAML column mapping when the columns are not thermonet's own."""
+    from ..data.io import read_datasets
+
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    return read_datasets([Path(p) for p in paths], mapping=None if mapping is None
+                         else Path(mapping))

@@ -1,0 +1,138 @@
+"""Saving, loading, exporting and tracking a :class:`~thermonet.api.DriftEstimator`: its fitted
+model as a thermonet checkpoint (what ``compare`` writes too), through the export registry,
+and as an MLflow run (see :mod:`thermonet.api`)."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ..core.trainconfig import TrainConfig
+
+if TYPE_CHECKING:
+    from .estimator import DriftEstimator
+
+__all__ = ["checkpoint_config", "extra", "save", "load", "export", "track"]
+
+
+def checkpoint_config(est: DriftEstimator) -> dict[str, Any]:
+    """The family's resolved configuration, as a checkpoint stores it."""
+    return {
+        "family": {"family": est.family, "inputs": list(est.spec_.inputs),
+                   "params": dict(est.hyper), "train_on": est.train_on},
+        "train": asdict(est.train_config_),
+        "features": {"t_ref": est.t_ref, "t_ref_window_min": est.t_ref_window_min,
+                     "gap_s": est.gap_s},
+        "target": est.target,
+    }
+
+def extra(est: DriftEstimator) -> dict[str, Any]:
+    extra: dict[str, Any] = {"units": est.units_, "signal_units": est.signal_units_,
+                             "device_id": est.device_id_, "history": est.history_,
+                             "mlflow_run_id": est.__dict__.get("mlflow_run_id_", "")}
+    if est.__dict__.get("val_score_") is not None:   # the validation metrics, as compare's
+        extra.update(val_score=est.val_score_, val_ratios=dict(est.val_ratios_ or {}))
+    source = getattr(est, "data_source_", None)  # an estimator made by load() has none
+    if source is not None:  # provenance: what it was fitted on (as compare records it)
+        extra.update(data_hash=source["data_hash"], provenance={"data": source})
+    return extra
+
+def save(est: DriftEstimator, path: str | os.PathLike[str]) -> Path:
+    """Write the fitted model as a thermonet checkpoint (atomic; loads with
+    ``weights_only=True``; ``thermonet export`` reads it)."""
+    model = est._check_fitted("save")
+    from ..training.checkpoint import save_checkpoint
+
+    return save_checkpoint(path, model, config=checkpoint_config(est), extra=extra(est),
+                           epoch=est.best_epoch_, best_val=est.best_val_)
+
+def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstimator:
+    """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
+    from ..training.checkpoint import load_checkpoint
+    from ..training.config import from_dict
+
+    model, meta = load_checkpoint(path)
+    config = meta.get("config") or {}
+    fam = config.get("family") or {}
+    features = config.get("features") or {}
+    extra = meta.get("extra") or {}
+    train = from_dict(TrainConfig, config.get("train") or {}, source=str(path),
+                      prefix="config.train")
+    est = cls(meta["family"], list(meta["inputs"]),
+              t_ref=features.get("t_ref", "start"), target=config.get("target", "drift"),
+              train=train, outputs=list(meta["outputs"]),
+              train_on=fam.get("train_on", "all"),
+              gap_s=features.get("gap_s", "auto"),
+              t_ref_window_min=float(features.get("t_ref_window_min", 10.0)),
+              **dict(meta["hyper"]))
+    est.model_ = model
+    est.spec_ = model.spec
+    est.outputs_ = list(meta["outputs"])
+    est.units_ = dict(extra.get("units") or {})
+    est.signal_units_ = dict(extra.get("signal_units") or {})
+    est.device_id_ = str(extra.get("device_id", ""))
+    est.train_config_ = train
+    est.history_ = list(extra.get("history") or [])
+    est.val_score_ = extra.get("val_score")
+    est.val_ratios_ = extra.get("val_ratios")
+    est.mlflow_run_id_ = str(extra.get("mlflow_run_id") or "")
+    prov = extra.get("provenance")
+    source = prov.get("data") if isinstance(prov, dict) else None
+    if isinstance(source, dict):  # kept, so that saving it again keeps the record
+        est.data_source_ = {**source, "data_hash": str(extra.get("data_hash") or "")}
+    est.n_features_in_ = len(model.spec.inputs)
+    from ..features.target import FOUR_POSITION, Target
+
+    modes = model.target_modes
+    est.targets_ = Target(list(meta["outputs"]), modes,
+                          kind=FOUR_POSITION if FOUR_POSITION in modes else "drift")
+    from .parameters import parameter_table
+
+    est.parameters_, est.covariance_ = parameter_table(model, est.units_,
+                                                       est.signal_units_)
+    est.best_epoch_ = int(meta["epoch"]) if meta.get("epoch") is not None else 0
+    est.best_val_ = meta.get("best_val")
+    est.n_params_ = int(model.n_params)
+    est.fit_seconds_ = float("nan")
+    return est
+
+def export(est: DriftEstimator, path: str | os.PathLike[str], format: str = "onnx", *,
+           device_id: int | None = None, instance: int | None = None) -> Path:
+    """Export through the format registry (:data:`thermonet.exporting.FORMATS`).
+
+    ``device_id``/``instance`` apply to the autopilot formats (see
+    ``thermonet export --help``).
+    """
+    model = est._check_fitted("export")
+    from ..exporting import ExportRequest, get_format
+
+    meta = {"config": checkpoint_config(est), "extra": extra(est)}
+    return get_format(format).write(model, Path(path), ExportRequest(
+        meta=meta, device_id=device_id, instance=instance))
+
+
+def track(est: DriftEstimator, uri: str | None, experiment: str) -> None:
+    """Log this fit to MLflow (one run: parameters, history, metrics, the checkpoint)."""
+    import json
+    import tempfile
+
+    from ..tracking import Tracker
+
+    tracker = Tracker(enabled=True, uri=uri, experiment=experiment)
+    params = json.loads(json.dumps({k: v for k, v in est.get_params().items()
+                                    if v is not None}, default=repr))
+    tags = {"device": est.device_id_, "data_hash": est.data_source_["data_hash"],
+            "family": est.family, "source": "thermonet.api"}
+    with tracker.run(f"fit-{est.family}", params=params, tags=tags) as run_id:
+        est.mlflow_run_id_ = run_id or ""
+        tracker.log_history(list(est.history_))
+        metrics = {"fit_seconds": est.fit_seconds_, "n_params": float(est.n_params_)}
+        if est.val_score_ is not None:
+            metrics["val/score"] = est.val_score_
+            metrics.update({f"val/{a}/score_ratio": r
+                            for a, r in (est.val_ratios_ or {}).items()})
+        tracker.log_metrics(metrics)
+        with tempfile.TemporaryDirectory() as tmp:
+            tracker.log_artifact(est.save(Path(tmp) / f"{est.family}.pt"), "model")
