@@ -8,15 +8,14 @@ generating law, not from thermonet).
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from conftest import load_runtime
 from thermonet.core.errors import ConfigError
 from thermonet.exporting import (
     autopilot_coefficients,
@@ -45,15 +44,6 @@ def _px4_offsets(params, t: str, temperature_c: np.ndarray) -> np.ndarray:
     dt = np.clip(temperature_c, params[pre + "TMIN"], params[pre + "TMAX"]) - params[pre + "TREF"]
     return np.stack([sum(params[f"{pre}X{k}_{i}"] * dt ** k for k in range(4))
                      for i in range(3)], axis=1)
-
-
-def _runtime():
-    spec = importlib.util.spec_from_file_location("thermonet_runtime",
-                                                  ROOT / "export" / "thermonet_runtime.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["thermonet_runtime"] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _run_c(model, tmp_path: Path, sig: np.ndarray, raw: np.ndarray) -> np.ndarray:
@@ -123,7 +113,7 @@ def test_level_accelerometer_keeps_gravity_in_torch_onnx_c_and_px4(tmp_path):
     np.testing.assert_allclose(comp[:, 2].std(), 0.002, rtol=0.1)     # only the noise left
 
     # onnxruntime, through the torch-free runtime
-    rt = _runtime()
+    rt = load_runtime()
     onnx_path = export_onnx(model, tmp_path / "acc.onnx")
     res = rt.Compensator(onnx_path).compensate(temperature_c=temp, raw=raw)
     np.testing.assert_allclose(res.compensated.mean(axis=0), level, atol=1e-3)
@@ -198,7 +188,7 @@ def test_large_constant_keeps_drift_precision_through_fit_onnx_and_c(tmp_path):
     assert abs(pred[:, 1].mean() - truth[:, 1].mean()) < 5 * sigma / np.sqrt(temp.size) + 1e-9
 
     comp = raw - pred
-    rt = _runtime()
+    rt = load_runtime()
     res = rt.Compensator(export_onnx(model, tmp_path / "big.onnx")).compensate(
         temperature_c=temp, raw=raw)
     assert res.compensated.dtype == np.float64
@@ -224,7 +214,7 @@ def test_mask_leaves_an_axis_uncompensated_in_every_export(tmp_path):
     pred = predict(model, temp[:, None])
     assert np.all(pred[:, 1] == 0.0) and np.abs(pred[:, 0]).max() > 0.05
 
-    rt = _runtime()
+    rt = load_runtime()
     comp = rt.Compensator(export_onnx(model, tmp_path / "m.onnx"))
     assert comp.metadata["compensate"] == '{"acc_x": true, "acc_y": false, "acc_z": true}'
     res = comp.compensate(temperature_c=temp, raw=raw)

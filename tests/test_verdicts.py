@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from conftest import load_runtime
 from thermonet.core.errors import ConfigError
 from thermonet.core.recording import Dataset, Recording
 from thermonet.data.diagnostics import input_warnings
@@ -58,17 +56,6 @@ def _compare(tmp_path, ds: Dataset, families: list[FamilyConfig], **kw) -> dict:
     kw.setdefault("baseline", None)
     cfg = CompareConfig(data=DataConfig(paths=[str(path)]), families=families, train=FAST, **kw)
     return run_compare(cfg, tmp_path / "out", track=False, quiet=True, plots=False)
-
-
-def _runtime():
-    """The torch-free runtime (export/thermonet_runtime.py), as firmware teams load it."""
-    path = Path(__file__).resolve().parents[1] / "export" / "thermonet_runtime.py"
-    spec = importlib.util.spec_from_file_location("thermonet_runtime", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["thermonet_runtime"] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 # ------------------------------------------------------------------ the statistics alone
@@ -162,7 +149,7 @@ def test_do_no_harm_fires_on_an_axis_without_drift(tmp_path):
     temps = np.linspace(-10.0, 50.0, 61)
     assert np.all(predict(model, temps[:, None])[:, 1] == 0.0)
     raw = np.column_stack([0.01 * (temps - 20.0), np.full_like(temps, 0.123)])
-    comp = _runtime().Compensator(export_onnx(model, tmp_path / "cubic.onnx")).compensate(
+    comp = load_runtime().Compensator(export_onnx(model, tmp_path / "cubic.onnx")).compensate(
         temperature_c=temps, raw=raw)
     assert np.all(comp.drift[:, 1] == 0.0) and np.all(comp.compensated[:, 1] == raw[:, 1])
     np.testing.assert_allclose(comp.drift[:, 0], 0.01 * (temps - 20.0), atol=0.02)
