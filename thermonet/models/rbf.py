@@ -299,11 +299,12 @@ class RBF(Family):
         poly = np.column_stack([tail, np.ones(xn.shape[0])])
         widths = [sigma0 * g for g in WIDTH_GRID] if self.ridge == "cv" else [sigma0]
         ridges = RIDGE_GRID if self.ridge == "cv" else (float(self.ridge),)
+        designs = [_design(xn, centres, s) for s in widths]   # Φ and chol(K), once a width
         if self.ridge == "cv":
             folds = _inner_folds(xn.shape[0])
             # (width, ridge, fold, axis) validation mean squared errors
-            err = np.array([[[_penalised(xn, yn, poly, centres, s, lam, tr)[1](va)
-                              for tr, va in folds] for lam in ridges] for s in widths])
+            err = np.array([[[_penalised(*dz, poly, yn, lam, tr)[1](va)
+                              for tr, va in folds] for lam in ridges] for dz in designs])
             mean = err.mean(axis=2)                       # (width, ridge, axis)
             se = err.std(axis=2, ddof=1) / math.sqrt(len(folds))
             best = mean.min(axis=1)                       # (width, axis)
@@ -313,11 +314,12 @@ class RBF(Family):
                 ib = int(np.argmin(mean[iw, :, a]))
                 ok = np.flatnonzero(mean[iw, :, a] <= mean[iw, ib, a] + se[iw, ib, a])
                 lam_idx.append(int(ok.max()))            # the largest ridge within one SE
-            sigma, lams = widths[iw], [ridges[i] for i in lam_idx]
+            lams = [ridges[i] for i in lam_idx]
             scale = WIDTH_GRID[iw]
         else:
-            sigma, lams, scale = widths[0], [ridges[0]] * yn.shape[1], 1.0
-        coef = np.stack([_penalised(xn, yn[:, [a]], poly, centres, sigma, lam, None)[0][:, 0]
+            iw, lams, scale = 0, [ridges[0]] * yn.shape[1], 1.0
+        sigma = widths[iw]
+        coef = np.stack([_penalised(*designs[iw], poly, yn[:, [a]], lam, None)[0][:, 0]
                          for a, lam in enumerate(lams)])          # (A, J + d + 1)
         n_c = centres.shape[0]
         with torch.no_grad():
@@ -342,22 +344,26 @@ def _gaussian(x: np.ndarray, centres: np.ndarray, sigma: float) -> np.ndarray:
     return np.exp(-d2 / (2.0 * sigma * sigma))
 
 
-def _penalised(x: np.ndarray, y: np.ndarray, poly: np.ndarray, centres: np.ndarray,
-               sigma: float, lam: float, rows: np.ndarray | None
+def _design(x: np.ndarray, centres: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Φ (N, J) of every row, and the Cholesky factor L of the kernel between centres
+    (K = L Lᵀ, jittered: wᵀKw = ‖Lᵀw‖²) — what every fold and ridge of one width shares."""
+    k = _gaussian(centres, centres, sigma) + _JITTER * np.eye(centres.shape[0])
+    return _gaussian(x, centres, sigma), np.linalg.cholesky(k)
+
+
+def _penalised(phi_all: np.ndarray, chol: np.ndarray, poly: np.ndarray, y: np.ndarray,
+               lam: float, rows: np.ndarray | None
                ) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]:
     """Coefficients [w; t; b] of min ‖Φw + Pt − y‖² + λ' wᵀKw on ``rows`` (all if None), λ'
     = λ·tr(ΦᵀΦ)/J, and a scorer: validation rows → per-axis mean squared error."""
-    phi_all = _gaussian(x, centres, sigma)
     r = slice(None) if rows is None else rows
     phi, p, yy = phi_all[r], poly[r], y[r]
-    n_c = centres.shape[0]
+    n_c = chol.shape[0]
     if math.isinf(lam):  # the tail alone
         c_p = np.linalg.lstsq(p, yy, rcond=None)[0]
         coef = np.vstack([np.zeros((n_c, y.shape[1])), c_p])
     else:
-        k = _gaussian(centres, centres, sigma) + _JITTER * np.eye(n_c)
         lam_abs = lam * max(float((phi * phi).sum()) / n_c, TINY)
-        chol = np.linalg.cholesky(k)                      # K = L Lᵀ: wᵀKw = ‖Lᵀw‖²
         design = np.vstack([np.hstack([phi, p]),
                             np.hstack([math.sqrt(lam_abs) * chol.T,
                                        np.zeros((n_c, p.shape[1]))])])
