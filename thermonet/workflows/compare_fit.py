@@ -116,10 +116,11 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
             out.test_parts.append(test_part)
             out.test_preds.append(pred)
             res.n_params, res.best_epoch = int(fitted.n_params), int(fitted.best_epoch)
-            res.tuned, res.cost = model.family.tuned(), model.family.cost()
     except FitError as err:  # this data cannot carry the family: reported, the comparison goes on
         res.status, res.reason, out.model = "failed", str(err), None
         return out
+    # of the model compare keeps (the last split's), once — not again for every split
+    res.tuned, res.cost = out.model.family.tuned(), out.model.family.cost()
     if p.folds is not None:
         _cross_validate(out, p, fam, tcfg, spec, parts, on_epoch)
     out.val, out.test = pool(vals), pool(tests)
