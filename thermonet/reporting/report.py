@@ -145,6 +145,33 @@ def _selection_table(res: dict[str, Any]) -> str:
             "<th>left raw</th></tr>" + "".join(rows) + "</table>")
 
 
+def tuned_text(tuned: dict[str, Any]) -> str:
+    """A family's tuned hyper-parameters in one line: ``degree=2 (of degree=1 0.061,
+    degree=2 0.0034, …)``; "" when it chose none."""
+    own = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                    for k, v in tuned.items() if k != "tuning" and not isinstance(v, dict | list))
+    grid = (tuned.get("tuning") or {}).get("grid") or {}
+    scores = ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} failed"
+                       for k, v in grid.items())
+    return own + (f" (out-of-fold score: {scores})" if scores else "")
+
+
+def _tuning_list(res: dict[str, Any]) -> str:
+    """Per family, the hyper-parameters chosen on the training folds and the rule's sentence."""
+    items = []
+    for name, f in (res.get("families") or {}).items():
+        tuned = f.get("tuned") or {}
+        if not tuned:
+            continue
+        rule = (tuned.get("tuning") or {}).get("rule", "")
+        items.append(f"<li><b>{_e(name)}</b>: {_e(tuned_text(tuned))}"
+                     + (f" — {_e(rule)}" if rule else "") + "</li>")
+    if not items:
+        return ""
+    return ("<p class='small'>Hyper-parameters chosen by cross-validation on the training data "
+            "(configs/README.md, \"Tuning\"):</p><ul class='small'>" + "".join(items) + "</ul>")
+
+
 def _duration(seconds: float) -> str:
     if seconds >= 7200.0:
         return f"{seconds / 3600.0:.3g} h"
@@ -231,6 +258,7 @@ def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
     parts += [
         "<h2>How the model was chosen (cross-validation on the training data)</h2>",
         _selection_table(results),
+        _tuning_list(results),
         "<h2>Verdicts on the held-out test data</h2>",
         "<p class='small'>Score: the spread of the error about its mean on held-out data "
         "(the temperature-dependent error; offsets removed). Cells: score ratio family / raw "

@@ -25,7 +25,7 @@ from ..core.yamlio import YamlRefusal, load_yaml
 __all__ = [
     "DataConfig", "SplitConfig", "SelectionConfig", "FeatureConfig", "FamilyConfig", "TrainConfig",
     "TrackingConfig", "CompareConfig", "load_config", "from_dict", "to_dict",
-    "outputs_of", "train_config_of", "config_from_mapping",
+    "outputs_of", "train_config_of", "config_from_mapping", "tune_points",
 ]
 
 
@@ -158,6 +158,9 @@ class FamilyConfig:
     name: str | None = None              # label in reports (default: the family name)
     inputs: list[str] = field(default_factory=lambda: ["dT"])
     params: dict[str, Any] = field(default_factory=dict)   # family hyper-parameters
+    # hyper-parameter -> values tried by cross-validation on the training pool (compare
+    # chooses one; configs/README.md "Tuning"); the values override `params`
+    tune: dict[str, list[Any]] = field(default_factory=dict)
     train: dict[str, Any] = field(default_factory=dict)    # overrides of the `train` section
     # "heating": fit only on samples where the temperature is not falling (dT/dt > −0.05 °C/min),
     # as PX4's and ArduPilot's calibrations do — to reproduce that anchor faithfully
@@ -196,14 +199,16 @@ def _default_families() -> list[FamilyConfig]:
     return [
         FamilyConfig(family="poly", name="cubic", inputs=["dT"], params={"degree": 3}),
         FamilyConfig(family="linear", name="linear", inputs=["dT"]),
-        FamilyConfig(family="lorentz", name="lorentz", inputs=["dT"]),
-        FamilyConfig(family="ts-fuzzy", name="ts-fuzzy", inputs=["dT"], params={"n_sets": 6}),
+        FamilyConfig(family="lorentz", name="lorentz", inputs=["dT"],
+                     tune={"xc_margin": [0.25, 1.0, 4.0]}),
+        FamilyConfig(family="ts-fuzzy", name="ts-fuzzy", inputs=["dT"], params={"n_sets": 6},
+                     tune={"n_sets": [3, 4, 6, 8]}),
         FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
-                     params={"n_centres": 16, "tail": 3}),
+                     params={"n_centres": 16, "tail": 3}, tune={"n_centres": [8, 16]}),
         FamilyConfig(family="poly", name="poly3-rate", inputs=["dT", "rate"],
-                     params={"degree": 3, "cross": True}),
+                     params={"degree": 3, "cross": True}, tune={"degree": [1, 2, 3]}),
         FamilyConfig(family="poly", name="poly3-hyst", inputs=["dT", "rate", "play_1"],
-                     params={"degree": 3, "cross": True}),
+                     params={"degree": 3, "cross": True}, tune={"degree": [1, 2, 3]}),
     ]
 
 
@@ -347,16 +352,42 @@ def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = 
             raise ConfigError(f"{source}: key '{key}.inputs': {err}") from None
         try:
             check_hyper(fam.family, fam.params, n_inputs=len(fam.inputs))
+            check_hyper(fam.family, {k: None for k in fam.tune}, n_inputs=len(fam.inputs))
         except ConfigError as err:
             raise ConfigError(f"{source}: key '{key}': {err}") from None
+        points = tune_points(fam, source, key)
         if not build:
             continue
-        try:
-            build_family(fam.family, n_inputs=len(fam.inputs), n_outputs=1, hyper=fam.params)
-        except ConfigError as err:
-            raise ConfigError(f"{source}: key '{key}': {err}") from None
-        except TypeError as err:  # a hyper-parameter of the wrong type
-            raise ConfigError(f"{source}: key '{key}.params': {err}") from None
+        for point in points:
+            sub = f"{key}.tune" if fam.tune else f"{key}.params"
+            try:
+                build_family(fam.family, n_inputs=len(fam.inputs), n_outputs=1,
+                             hyper={**fam.params, **point})
+            except ConfigError as err:
+                raise ConfigError(f"{source}: key '{sub}': {err}") from None
+            except TypeError as err:  # a hyper-parameter of the wrong type
+                raise ConfigError(f"{source}: key '{sub}': {err}") from None
+
+
+#: The most grid points one family may ask to be cross-validated (each costs K fits).
+MAX_TUNE_POINTS = 16
+
+
+def tune_points(fam: FamilyConfig, source: str = "config", key: str = "families") -> list[dict[str, Any]]:
+    """The grid points of ``fam.tune`` (``[{}]`` without one), its shape checked."""
+    import itertools
+
+    n = 1
+    for name, values in fam.tune.items():
+        if not isinstance(values, list) or not values:
+            raise ConfigError(f"{source}: key '{key}.tune.{name}': give a non-empty list of "
+                              f"values to try, got {values!r}")
+        n *= len(values)
+    if n > MAX_TUNE_POINTS:
+        raise ConfigError(f"{source}: key '{key}.tune': {n} grid points (at most "
+                          f"{MAX_TUNE_POINTS}: each costs one fit per cross-validation fold)")
+    keys = list(fam.tune)
+    return [dict(zip(keys, c, strict=True)) for c in itertools.product(*fam.tune.values())]
 
 
 def _check_data(data: DataConfig, source: str) -> None:

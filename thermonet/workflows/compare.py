@@ -33,6 +33,7 @@ from .. import __version__
 from ..core.errors import ConfigError, ThermonetError
 from ..core.fileio import atomic_write_text
 from ..core.recording import Dataset
+from ..reporting.report import tuned_text
 from ..reporting.results import ComparisonResult
 from ..training.config import (
     CompareConfig,
@@ -168,9 +169,11 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                     except ThermonetError as err:  # a NaN model is never saved
                         r.status, r.reason = "failed", str(err)
                     kept = sum(mask)
+                    tuned = tuned_text({k: v for k, v in r.tuned.items() if k != "tuning"})
                     progress.line(f"  {fam.label:<14} fitted in {r.fit_seconds:.2f} s, "
                                   f"{r.n_params} params, val score {r.val_score:.3g} "
-                                  f"({kept}/{len(mask)} axes compensated)")
+                                  f"({kept}/{len(mask)} axes compensated)"
+                                  + (f", tuned {tuned}" if tuned else ""))
                 else:
                     tracker.set_tags({"status": "failed"})
                     progress.line(f"  {fam.label:<14} not fitted: {r.reason}")

@@ -21,6 +21,7 @@ from ..training.config import (
     CompareConfig,
     FamilyConfig,
     train_config_of,
+    tune_points,
 )
 from .compare_judge import Fitted, judge_against_raw
 from .compare_plan import PartCache, Plan
@@ -82,8 +83,19 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
             raise _Cancelled(fam.label)
         progress.epoch(fam.label, epoch, train_loss, val_loss)
 
+    tuned: dict[str, Any] = {}
+    tuned_oof = None
     try:
         tcfg = train_config_of(cfg, fam)
+        if fam.tune and p.folds is not None:
+            spec = fold_spec(fam.inputs, p.splits[-1].train, t_ref=cfg.features.t_ref,
+                             window_min=cfg.features.t_ref_window_min,
+                             gap_s=cfg.features.gap_s, reference_for_targets=True)
+            fam, tuned, tuned_oof = _tune(p, fam, tcfg, spec, parts, on_epoch)
+        elif fam.tune:
+            tuned = {"tuning": {"rule": "not tuned: no cross-validation folds "
+                                f"({p.fold_note or 'selection.folds is 0'}); the configured "
+                                "values are used"}}
         for split in p.splits:
             spec = fold_spec(fam.inputs, split.train, t_ref=cfg.features.t_ref,
                              window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s,
@@ -120,9 +132,10 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
         res.status, res.reason, out.model = "failed", str(err), None
         return out
     # of the model compare keeps (the last split's), once — not again for every split
-    res.tuned, res.cost = out.model.family.tuned(), out.model.family.cost()
+    res.tuned = {**tuned, **out.model.family.tuned()}
+    res.cost = out.model.family.cost()
     if p.folds is not None:
-        _cross_validate(out, p, fam, tcfg, spec, parts, on_epoch)
+        _cross_validate(out, p, fam, tcfg, spec, parts, on_epoch, tuned_oof)
     out.val, out.test = pool(vals), pool(tests)
     res.outside_trained_range = {s: sum(f * n for f, n in v) / max(sum(n for _, n in v), 1)
                                  for s, v in outside.items()}
@@ -134,19 +147,20 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
     return out
 
 
-def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any,
-                    parts: PartCache, on_epoch: Any) -> None:
-    """Out-of-fold predictions of one family on the last split's pool (thermonet.scoring.selection):
-    one fit per fold on the purged training rows of the whole runs, predictions on the
-    fold's validation rows, and which of them lie inside the fold's trained domain."""
+def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
+         on_epoch: Any) -> tuple[Any, list[Any]]:
+    """Out-of-fold predictions of one family (config ``fam``) on the last split's pool
+    (:mod:`thermonet.scoring.selection`): one fit per fold on the purged training rows of the
+    whole runs, predictions on the fold's validation rows, and which of them lie inside the
+    fold's trained domain.  Returns the :class:`CandidateOOF` and the pool's whole parts."""
     from ..features.inputs import RATE, resolve_gap_s, signal_matrix
-    from ..scoring.selection import CandidateOOF, in_domain, noise_widths, select
+    from ..scoring.selection import CandidateOOF, in_domain, noise_widths
     from ..training.parts import HEATING_MIN_RATE_C_PER_MIN
     from ..training.train import fit, predict
 
     plan = p.folds
     split = p.splits[-1]
-    oof = CandidateOOF(fam.label, out.result.n_params)
+    oof = CandidateOOF(fam.label, 0)
     whole = [parts(rec, spec.signals, spec.gap_s) for rec, _ in split.pool]
     keep = [np.ones(q.target.shape[0], dtype=bool) for q in whole]
     if fam.train_on == "heating":
@@ -165,6 +179,7 @@ def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: An
         except FitError as err:   # e.g. a fold's span too short for the family: said, left out
             oof.failed = f"cross-validation fold {f}: {err}"
             break
+        oof.n_params = int(fitted.n_params)
         sig = np.vstack([x[0] for x in train])
         with np.errstate(invalid="ignore"):
             lo, hi = np.nanmin(sig, axis=0), np.nanmax(sig, axis=0)
@@ -177,12 +192,67 @@ def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: An
             inside.append(in_domain(x, lo, hi, widen[j]) & np.isfinite(preds[-1]).all(axis=1))
         oof.pred.append(preds)
         oof.inside.append(inside)
+    return oof, whole
+
+
+def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any,
+                    parts: PartCache, on_epoch: Any, oof: Any = None) -> None:
+    """The family's out-of-fold predictions (:func:`_oof`; ``oof``: already made by the
+    tuning) and the per-axis mask its own cross-validation gives."""
+    from ..scoring.selection import select
+
+    whole = [parts(rec, spec.signals, spec.gap_s) for rec, _ in p.splits[-1].pool]
+    if oof is None:
+        oof, whole = _oof(p, fam, tcfg, spec, parts, on_epoch)
+    oof.label, oof.n_params = fam.label, out.result.n_params
     out.oof = oof
     out.pool_targets = [q.target for q in whole]
     out.pool_times = [q.time_s for q in whole]
     if oof.failed is None:
-        own = select(plan, out.pool_targets, out.pool_times, {fam.label: oof}, p.outputs)
+        own = select(p.folds, out.pool_targets, out.pool_times, {fam.label: oof}, p.outputs)
         out.cv_mask = own.compensate.get(fam.label)
+
+
+def _point_label(point: dict[str, Any]) -> str:
+    return ",".join(f"{k}={v}" for k, v in point.items())
+
+
+def _tune(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
+          on_epoch: Any) -> tuple[FamilyConfig, dict[str, Any], Any]:
+    """Choose ``fam``'s hyper-parameters from its ``tune`` grid on the selection's folds
+    (the training pool only: the test part is not seen), by the same rule that chooses
+    between families (:func:`thermonet.scoring.selection.select`): paired out-of-fold
+    scores, the fewest parameters within one standard error of the best, do no harm.
+
+    Returns the family config with the chosen values, the record (``grid``: each point's
+    out-of-fold score, ``rule``: the sentence) and the chosen point's out-of-fold
+    predictions (reused by the family's own cross-validation).  Where no point beats raw
+    the configured values stay."""
+    from dataclasses import replace
+
+    from ..scoring.selection import select
+
+    points = tune_points(fam)
+    oofs: dict[str, Any] = {}
+    whole: list[Any] = []
+    for point in points:
+        label = _point_label(point)
+        oofs[label], whole = _oof(p, replace(fam, params={**fam.params, **point}), tcfg, spec,
+                                  parts, on_epoch)
+        oofs[label].label = label
+    sel = select(p.folds, [q.target for q in whole], [q.time_s for q in whole], oofs,
+                 p.outputs)
+    cands = sel.record.get("candidates", {})
+    record: dict[str, Any] = {
+        "grid": {k: (c.get("score") if c.get("status") == "ok" else c.get("reason"))
+                 for k, c in cands.items()},
+        "rule": sel.reason}
+    if sel.chosen is None:
+        record["rule"] = f"kept the configured values: {sel.reason}"
+        return fam, record, None
+    point = points[list(oofs).index(sel.chosen)]
+    return replace(fam, params={**fam.params, **point}), {**point, "tuning": record}, \
+        oofs[sel.chosen]
 
 
 def family_workers(cfg: CompareConfig, workers: int | None = None) -> int:
