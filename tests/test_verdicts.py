@@ -187,14 +187,23 @@ def test_chronological_split_of_a_ramp_warns_of_extrapolation(tmp_path):
                    [FamilyConfig(family="poly", name="quadratic", params={"degree": 2})])
     assert res["split"]["strategy"] == "train-then-verify"
     assert res["data"]["outside_trained_range"]["temperature_c"] > 0.99
-    assert any(w.startswith("extrapolation: 100% of the test samples of temperature_c")
+    assert any(w.startswith("extrapolation: 100 % of the test samples of temperature_c")
                for w in res["warnings"])
     # how far: the test ramp ends at 60 °C, the trained range at the first half's top
     lo, hi = res["data"]["trained_range"]["temperature_c"]
     far = res["data"]["outside_trained_range_max"]["temperature_c"]
     assert far == pytest.approx(temp.max() - hi, rel=1e-9) and 29.0 < far < 31.0
     warning, = (w for w in res["warnings"] if w.startswith("extrapolation:"))
-    assert f"up to {far:.3g} °C beyond it ({far / (hi - lo):.0%} of the trained span)" in warning
+    assert f"up to {far:.3g} °C beyond it ({100 * far / (hi - lo):.0f} % of the trained span)" \
+        in warning
+
+
+@pytest.mark.parametrize("fraction, text", [(0.0031, "0.31 %"), (0.047, "4.7 %"),
+                                            (0.47, "47 %"), (1.0, "100 %"), (0.0, "0 %")])
+def test_percentages_in_warnings_never_round_a_small_fraction_to_zero(fraction, text):
+    from thermonet.data.diagnostics import percent
+
+    assert percent(fraction) == text
 
 
 def test_verification_after_a_hotter_excursion_is_worse_and_warned(tmp_path):

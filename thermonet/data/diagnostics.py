@@ -11,6 +11,7 @@ Settings that cannot be right (a mapping's ``sample_rate_hz`` outside
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 
 import numpy as np
@@ -140,6 +141,15 @@ def outside_distance(signals: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.
     return np.maximum(d.max(axis=0), 0.0)
 
 
+def percent(x: float) -> str:
+    """A fraction as a percentage with two significant digits, so that a small one never reads
+    as "0%": 0.0031 → "0.31 %", 0.47 → "47 %", 1 → "100 %"."""
+    if not math.isfinite(x):
+        return "nan %"
+    pct = 100.0 * x
+    return f"{pct:.0f} %" if pct >= 10 else f"{pct:.2g} %"
+
+
 def extrapolation_warnings(fractions: dict[str, float], ranges: dict[str, tuple[float, float]],
                            distances: dict[str, float] | None = None,
                            units: dict[str, str] | None = None) -> list[str]:
@@ -155,9 +165,9 @@ def extrapolation_warnings(fractions: dict[str, float], ranges: dict[str, tuple[
                 unit = (units or {}).get(sig) or ("°C" if sig == "temperature_c" else "")
                 # other signals (a raw-count proxy) carry no unit here: the number alone
                 span = hi - lo
-                rel = f" ({d / span:.0%} of the trained span)" if span > 0 else ""
+                rel = f" ({percent(d / span)} of the trained span)" if span > 0 else ""
                 far = f", up to {d:.3g}{' ' + unit if unit else ''} beyond it{rel}"
-            out.append(f"extrapolation: {frac:.0%} of the test samples of {sig} lie outside the "
+            out.append(f"extrapolation: {percent(frac)} of the test samples of {sig} lie outside the "
                        f"trained range {lo:.4g} … {hi:.4g}{far}; the models clamp there, so "
                        "those samples get the drift at the range's edge")
     return out

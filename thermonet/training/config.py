@@ -352,9 +352,12 @@ def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = 
             raise ConfigError(f"{source}: key '{key}.inputs': {err}") from None
         try:
             check_hyper(fam.family, fam.params, n_inputs=len(fam.inputs))
-            check_hyper(fam.family, {k: None for k in fam.tune}, n_inputs=len(fam.inputs))
         except ConfigError as err:
             raise ConfigError(f"{source}: key '{key}': {err}") from None
+        try:
+            check_hyper(fam.family, {k: None for k in fam.tune}, n_inputs=len(fam.inputs))
+        except ConfigError as err:
+            raise ConfigError(f"{source}: key '{key}.tune': {err}") from None
         points = tune_points(fam, source, key)
         if not build:
             continue
