@@ -147,6 +147,25 @@ def test_too_narrow_a_temperature_span_is_refused_as_compare_refuses_it():
     assert thermonet.DriftEstimator("poly", "dT", degree=1).fit([soak, other]).n_params_ == 2
 
 
+def test_compare_refuses_a_split_whose_training_runs_span_too_little(tmp_path):
+    """compare checks the span of what each split trains on, as the API checks its training
+    runs — not only the whole dataset's (a wide test run does not make a soak trainable)."""
+    from thermonet.core.errors import InputError
+    from thermonet.core.recording import Dataset
+    from thermonet.training.config import config_from_mapping
+    from thermonet.workflows.compare import run_compare
+
+    soak = cubic_run(6, t0=24.9, t1=25.21, run_id="soak")
+    ramp = cubic_run(8, t0=0.0, t1=50.0, run_id="ramp")
+    cfg = config_from_mapping({"split": {"strategy": "train-then-verify"},
+                               "families": [{"family": "poly", "params": {"degree": 1}}],
+                               "tracking": {"enabled": False}})
+    msg = _one_line(lambda: run_compare(cfg, tmp_path / "out", dataset=Dataset([soak, ramp]),
+                                        quiet=True, plots=False), InputError)
+    assert "the training data (runs soak[train]) span only 0.31 °C" in msg
+    assert not (tmp_path / "out").exists()                    # nothing half-written
+
+
 # ---------------------------------------------------------- parameters, stderr
 def test_polynomial_coefficients_equal_least_squares_in_physical_units():
     rec = cubic_run(8)

@@ -100,6 +100,27 @@ def _check_baseline(cfg: CompareConfig, source: str) -> None:
                           "'baseline: null'")
 
 
+def _check_training_spans(splits: list[Split], source: str) -> None:
+    """Each split's *training* data must span what the whole dataset must (the API checks its
+    training runs the same way): a wide dataset whose training part is one soak cannot carry
+    a thermal model, whatever the test part spans."""
+    from ..core.errors import InputError
+    from ..core.recording import MIN_TEMPERATURE_SPAN_C
+
+    for split in splits:
+        temps = [r.temperature_c for r in split.train if r.temperature_c is not None]
+        if not temps or len(temps) != len(split.train) or any(r.proxies for r in split.train):
+            continue            # no thermometer, or a proxy carries the model: as validate()
+        span = max(float(np.nanmax(t)) for t in temps) - min(float(np.nanmin(t)) for t in temps)
+        if span < MIN_TEMPERATURE_SPAN_C:
+            runs = ", ".join(sorted({r.run_id for r in split.train}))
+            raise InputError.at(source, f"split '{split.label}': the training data (runs "
+                                f"{runs}) span only {span:.3g} °C (need at least "
+                                f"{MIN_TEMPERATURE_SPAN_C:g} °C to fit a thermal model; "
+                                "choose a split that trains on more of the temperature range)",
+                                column="temperature_c")
+
+
 def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
     """Check ``cfg`` against the data, make the splits, collect input warnings (no fitting)."""
     from ..data.diagnostics import input_warnings
@@ -126,6 +147,7 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
     outputs = outputs_of(cfg, ds)
     targets = targets_for(ds, cfg.target, outputs, source=source)
     splits = make_splits(ds, cfg.split, source=source)
+    _check_training_spans(splits, source)
     units = {o: ds[0].units.get(o.split(".")[0], "") for o in outputs}
     for o in outputs:
         if o.endswith(".scale"):
