@@ -90,3 +90,14 @@ def test_a_bad_grid_is_one_clear_error_naming_its_key(tune, key):
         check_families(config_from_mapping(mapping, source="c.yaml"), source="c.yaml")
     msg = str(err.value)
     assert f"key '{key}" in msg and "\n" not in msg, msg
+
+
+def test_the_tuned_values_read_in_one_line():
+    from thermonet.reporting.report import tuned_text
+
+    tuned = {"n_centres": 16, "width_scale": 0.5, "ridge": ["inf", 1e-4, "inf"],
+             "tuning": {"grid": {"n_centres=8": 0.0037429, "n_centres=16": 0.0035929},
+                        "rule": "chose n_centres=16"}}
+    assert tuned_text(tuned) == ("n_centres=16, width_scale=0.5, ridge=[inf 0.0001 inf] "
+                                 "(out-of-fold score: n_centres=8 0.00374, n_centres=16 0.00359)")
+    assert tuned_text({}) == ""

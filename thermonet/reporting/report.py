@@ -148,8 +148,13 @@ def _selection_table(res: dict[str, Any]) -> str:
 def tuned_text(tuned: dict[str, Any]) -> str:
     """A family's tuned hyper-parameters in one line: ``degree=2 (of degree=1 0.061,
     degree=2 0.0034, …)``; "" when it chose none."""
-    own = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-                    for k, v in tuned.items() if k != "tuning" and not isinstance(v, dict | list))
+    def value(v: Any) -> str:
+        if isinstance(v, list):             # per axis (the RBF's ridge)
+            return "[" + " ".join(value(x) for x in v) + "]"
+        return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+    own = ", ".join(f"{k}={value(v)}" for k, v in tuned.items()
+                    if k != "tuning" and not isinstance(v, dict))
     grid = (tuned.get("tuning") or {}).get("grid") or {}
     scores = ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} failed"
                        for k, v in grid.items())
