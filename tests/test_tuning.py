@@ -66,6 +66,11 @@ def test_a_quadratic_drift_is_tuned_to_degree_two_on_the_training_pool_only(tmp_
     assert "chose degree=2" in tuned["tuning"]["rule"]
     # the model compare keeps is the tuned one (the checkpointed hyper-parameters)
     assert res["families"]["poly"]["n_params"] == 3        # 2 coefficients + offset, 1 axis
+    # ... and its checkpoint says so: the tuned value is the family config's parameter
+    from thermonet.training.checkpoint import load_checkpoint
+
+    model, meta = load_checkpoint(tmp_path / "a" / "models" / "poly.pt")
+    assert meta["hyper"]["degree"] == 2 == meta["config"]["family"]["params"]["degree"]
     # the baseline is never tuned
     assert "tuning" not in res["families"]["cubic"]["tuned"]
     # the test run is not seen: a cubic added to it alone changes the verdicts, not the tuning

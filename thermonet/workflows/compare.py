@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -152,8 +153,12 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                                          "fit_seconds": r.fit_seconds})
                     ckpt = out / "models" / f"{fam.label}.pt"
                     try:
+                        # the checkpoint's family config holds the tuned values as params
+                        chosen_point = {k: r.tuned[k] for k in fam.tune if k in r.tuned}
                         save_checkpoint(ckpt, f.model, config=family_config(
-                                            cfg, fam, resolved["tracking"]),
+                                            cfg, replace(fam, params={**fam.params,
+                                                                      **chosen_point}),
+                                            resolved["tracking"]),
                                         epoch=r.best_epoch, best_val=f.best_val,
                                         extra={"label": fam.label, "device_id": ds.device_id,
                                                "data_hash": dhash, "units": units,
