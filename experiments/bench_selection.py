@@ -103,6 +103,17 @@ def _device(name: str, cfg: CompareConfig, ds: Any) -> dict[str, Any]:
         out[f"regret_{rule}"] = float(np.mean(r))
         out[f"worse_than_cubic_{rule}"] = bool(
             (_errors(res, fam, masked) > _errors(new, "cubic", False) * (1 + 1e-9)).any())
+    # the refit on training + validation (selection.refit, the default) against the fit on the
+    # training part alone: the chosen model's test error, per axis, refit / no refit
+    import copy
+
+    cfg_nr = copy.deepcopy(cfg)
+    cfg_nr.selection.refit = False
+    nr = _run(cfg_nr, ds)
+    if new["chosen"] is not None and nr["chosen"] == new["chosen"]:
+        gain = _errors(new, new["chosen"]) / np.maximum(_errors(nr, nr["chosen"]), 1e-300)
+        out["refit_ratio_axes"] = gain.tolist()
+        out["refit_ratio"] = float(np.mean(gain))
     print(f"{name}: new {out['chosen_new']} {out['regret_new']:.3f}, old {out['chosen_old']} "
           f"{out['regret_old']:.3f}, cubic {out['regret_cubic']:.3f} "
           f"({out['seconds']:.0f} s)", flush=True)
@@ -137,6 +148,16 @@ def _devices() -> list[tuple[str, CompareConfig, Any]]:
     return items
 
 
+def _refit_summary(rows: list[dict[str, Any]]) -> str:
+    r = np.array([x["refit_ratio"] for x in rows if "refit_ratio" in x])
+    if r.size == 0:
+        return "no device to compare."
+    ax = np.concatenate([x["refit_ratio_axes"] for x in rows if "refit_ratio" in x])
+    return (f"median {np.median(r):.4f} (min {r.min():.4f}, max {r.max():.4f}) over {r.size} "
+            f"devices; per axis {int((ax < 1 - 1e-9).sum())} better, "
+            f"{int((ax > 1 + 1e-9).sum())} worse, {int(ax.size)} in all.")
+
+
 def main() -> None:
     rows = [_device(*item) for item in _devices()]
     sim = [r for r in rows if not r["device"].startswith("real:")]
@@ -151,11 +172,15 @@ def main() -> None:
           f"{len(rows) - len(sim)} real recordings; regret = test error of the chosen model "
           "over the best candidate's in hindsight, mean over axes.\n\n"
           + table(head, [summary(k, sim) for k in ("new", "old", "cubic")])
+          + "\n\nThe refit (`selection.refit`, default) against the fit on the training part "
+          "alone: the chosen model's test error, refit / no refit, mean over axes — "
+          + _refit_summary(rows)
           + "\n\nPer device:\n\n"
           + table(["device", "new rule chose", "regret", "old rule chose", "regret",
-                   "always cubic"],
+                   "always cubic", "refit / no refit"],
                   [[r["device"], r["chosen_new"] or "none", r["regret_new"],
-                    r["chosen_old"] or "none", r["regret_old"], r["regret_cubic"]]
+                    r["chosen_old"] or "none", r["regret_old"], r["regret_cubic"],
+                    r.get("refit_ratio", float("nan"))]
                    for r in rows]))
     save("bench_selection", {"devices": rows}, md)
 

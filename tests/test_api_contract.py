@@ -465,7 +465,8 @@ def test_api_fit_is_compares_model_gravity_included(tmp_path):
                                            "inputs": ["dT"], "params": {"degree": 3}}]},
                             data=ds)
     cli = res.estimator("cubic")
-    est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(ds.runs[:1], val=ds[1])
+    # compare refits on training + validation (selection.refit): the API fits both runs
+    est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(ds.runs[:2])
     assert est.targets_.as_dict() == res.results["targets"]
     mask = [res.families["cubic"].axes[a].compensate for a in est.outputs_]
     assert mask == cli.model_.compensated_axes and mask.count(False) == 1   # gyro_z left raw
@@ -546,7 +547,7 @@ def test_api_fit_is_compares_model_on_a_real_recording(tmp_path):
     res = thermonet.compare(config, data=ds)
     cli = res.estimator("cubic")
     split = make_splits(ds, config_from_mapping(config).split)[-1]
-    est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(split.train, val=split.val)
+    est = thermonet.DriftEstimator("poly", "dT", degree=3).fit([*split.train, split.val])
     for buf in ("sig_lo", "sig_hi", "x_mean", "x_std", "y_mean", "y_std"):
         assert torch_equal(getattr(est.model_, buf), getattr(cli.model_, buf)), buf
     assert cli.model_.compensated_axes == [True] * 6
@@ -604,10 +605,10 @@ def test_every_family_fits_through_the_api_as_compare_fits_it(bmi270_every_famil
     est = thermonet.DriftEstimator(family, inputs)
     if not summary.ok:
         with pytest.raises(FitError) as info:
-            est.fit(split.train, val=split.val)
+            est.fit([*split.train, split.val])
         assert str(info.value) == summary.reason
         return
-    est.fit(split.train, val=split.val)
+    est.fit([*split.train, split.val])      # compare refits on training + validation
     cli = res.estimator(family)
     mask = np.array(cli.model_.compensated_axes)
     assert mask.any()

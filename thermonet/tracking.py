@@ -241,7 +241,8 @@ class Tracker:
         now = 0
         for row in history:
             step = int(row["epoch"])
-            for key, name in (("train_loss", "train/loss"), ("val_loss", "val/loss")):
+            for key, name in (("train_loss", "train/loss"), ("val_loss", "val/loss"),
+                              ("refit_loss", "refit/loss")):
                 value = row.get(key)
                 if value is not None and math.isfinite(value):
                     batch.append(Metric(name, float(value), now, step))

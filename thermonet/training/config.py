@@ -92,12 +92,17 @@ class SelectionConfig:
     ``folds × blocks_per_fold`` short contiguous blocks dealt round-robin; several runs:
     leave one run out); 0 chooses on the split's single validation part instead (the rule
     before issue 19).  ``purge_s`` and ``window_s``: ``None`` takes the documented rules.
+    ``refit``: with cross-validation, every family is refitted on the split's whole pool
+    (training and validation data) by the procedure the folds judged, and that model is
+    the one the test verdicts judge and the exports ship; False keeps the fit on the
+    training part with early stopping on the validation part.
     """
 
     folds: int = 5
     blocks_per_fold: int = 8
     purge_s: float | None = None
     window_s: float | None = None
+    refit: bool = True
 
     def __post_init__(self) -> None:
         for key, lo, hi in (("folds", 0, 50), ("blocks_per_fold", 1, 100)):

@@ -109,6 +109,14 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
                 + fitted.fit_seconds
             held = fp.val or fp.train[-1]
             vals.append(block_sums(held, predict(fitted.model, held.signals)))
+            history = list(fitted.history)
+            if p.folds is not None and split.pool and cfg.selection.refit:
+                fitted = _refit(p, fam, tcfg, split, parts, on_epoch)
+                res.fit_seconds += fitted.fit_seconds
+                # the learning curve of the first fit (train and validation loss), then the
+                # refit's training loss (MLflow: refit/loss)
+                history += [{"epoch": h["epoch"], "refit_loss": h["train_loss"]}
+                            for h in fitted.history]
             test_part = fp.test
             assert test_part is not None
             pred, axes = score_part(fitted.model, test_part)
@@ -123,7 +131,7 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
                 outside.setdefault(sig, []).append((float(frac[k]), test_part.signals.shape[0]))
                 out.ranges[sig] = (float(lo[k]), float(hi[k]))
                 out.excursion[sig] = max(out.excursion.get(sig, 0.0), float(beyond[k]))
-            out.model, out.history = model, fitted.history
+            out.model, out.history = model, history
             out.best_val = fitted.best_val_loss
             out.test_parts.append(test_part)
             out.test_preds.append(pred)
@@ -147,26 +155,56 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
     return out
 
 
+def _pool(p: Plan, fam: FamilyConfig, split: Any, spec: Any, parts: PartCache
+          ) -> tuple[list[Any], list[np.ndarray]]:
+    """A split's pool (every run that is not the test run, whole: dynamic inputs computed
+    before any cut) as parts, and per run the rows a fit may use: not test rows, and for
+    ``train_on: heating`` only the heating ones."""
+    from ..features.inputs import RATE, resolve_gap_s, signal_matrix
+    from ..training.parts import HEATING_MIN_RATE_C_PER_MIN
+
+    whole = [parts(rec, spec.signals, spec.gap_s) for rec, _ in split.pool]
+    keep = [np.asarray(m, dtype=bool).copy() for _, m in split.pool]
+    if fam.train_on == "heating":
+        gap = resolve_gap_s(p.cfg.features.gap_s, [r for r, _ in split.pool], ["rate"])
+        keep = [k & (signal_matrix(rec, [RATE], gap)[:, 0] > HEATING_MIN_RATE_C_PER_MIN)
+                for k, (rec, _) in zip(keep, split.pool, strict=True)]
+    return whole, keep
+
+
+def _refit(p: Plan, fam: FamilyConfig, tcfg: Any, split: Any, parts: PartCache,
+           on_epoch: Any) -> Any:
+    """The family refitted on the split's training and validation data together (never a test
+    row), without a validation part — as each cross-validation fold fits it (a gradient-trained
+    family stops on its training loss): the model the test verdicts judge and the exports
+    ship.  It is what ``DriftEstimator(...).fit(split.train + [split.val])`` fits (the API's
+    equality tests): the feature references come from those runs, each run's part is built
+    as for the first fit."""
+    from ..training.fold import fit_fold, fold_parts, fold_spec
+
+    cfg = p.cfg
+    runs = [*split.train, split.val] if split.val is not None else list(split.train)
+    spec = fold_spec(fam.inputs, runs, t_ref=cfg.features.t_ref,
+                     window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s,
+                     reference_for_targets=True)
+    fp = fold_parts(spec, runs, outputs=p.outputs, target=p.targets, train_on=fam.train_on,
+                    gap_s=cfg.features.gap_s, part=parts)
+    return fit_fold(fp, family=fam.family, outputs=p.outputs, hyper=fam.params, config=tcfg,
+                    target_modes=p.targets.modes, on_epoch=on_epoch)
+
+
 def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
          on_epoch: Any) -> tuple[Any, list[Any]]:
     """Out-of-fold predictions of one family (config ``fam``) on the last split's pool
     (:mod:`thermonet.scoring.selection`): one fit per fold on the purged training rows of the
     whole runs, predictions on the fold's validation rows, and which of them lie inside the
     fold's trained domain.  Returns the :class:`CandidateOOF` and the pool's whole parts."""
-    from ..features.inputs import RATE, resolve_gap_s, signal_matrix
     from ..scoring.selection import CandidateOOF, in_domain, noise_widths
-    from ..training.parts import HEATING_MIN_RATE_C_PER_MIN
     from ..training.train import fit, predict
 
     plan = p.folds
-    split = p.splits[-1]
     oof = CandidateOOF(fam.label, 0)
-    whole = [parts(rec, spec.signals, spec.gap_s) for rec, _ in split.pool]
-    keep = [np.ones(q.target.shape[0], dtype=bool) for q in whole]
-    if fam.train_on == "heating":
-        gap = resolve_gap_s(p.cfg.features.gap_s, [r for r, _ in split.pool], ["rate"])
-        keep = [signal_matrix(rec, [RATE], gap)[:, 0] > HEATING_MIN_RATE_C_PER_MIN
-                for rec, _ in split.pool]
+    whole, keep = _pool(p, fam, p.splits[-1], spec, parts)
     widen = [noise_widths(q.signals) for q in whole]
     for f in range(plan.k):
         train = [(q.signals[m & h], q.target[m & h], q.time_s[m & h])
