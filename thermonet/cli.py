@@ -29,21 +29,24 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from .data.io import write_parquet
     from .data.logs import is_log
     from .sim import simulate, simulate_fleet
-    from .sim.fcboard import BOARD_PRESETS
+    from .sim.fcboard import BOARD_PRESETS, MAX_BOARD_RUNS
     from .sim.presets import MAX_RUNS
 
     if args.runs is not None and not 1 <= args.runs <= MAX_RUNS:
         raise ThermonetError(f"--runs {args.runs}: not in 1..{MAX_RUNS} (the upper bound keeps "
                              "a request within memory)")
     if args.preset in BOARD_PRESETS:
-        # a board log is one board warmed once: options it does not use are refused, not ignored
-        unused = [f"--{name} {value}" for name, value in (("runs", args.runs),
-                                                           ("units", args.units),
+        # a board log is one board (--runs: several warm-ups of it): options it does not use
+        # are refused, not ignored
+        unused = [f"--{name} {value}" for name, value in (("units", args.units),
                                                            ("outliers", args.outliers or None))
                   if value is not None]
         if unused:
             raise ThermonetError(f"{unused[0]}: preset '{args.preset}' simulates one board "
-                                 "warmed once (a single log); it takes only --seed and --out")
+                                 "(one log per warm-up); it takes only --seed, --runs and --out")
+        if args.runs is not None and args.runs > MAX_BOARD_RUNS:
+            raise ThermonetError(f"--runs {args.runs}: preset '{args.preset}' writes at most "
+                                 f"{MAX_BOARD_RUNS} logs (one file per warm-up)")
     if args.seed < 0:
         raise ThermonetError(f"--seed {args.seed}: must be a non-negative integer")
     if args.preset in BOARD_PRESETS or is_log(args.out):
@@ -74,11 +77,18 @@ def _simulate_board(args: argparse.Namespace) -> int:
     if not is_log(args.out):
         raise ThermonetError(f"{args.out}: preset '{args.preset}' is a flight-controller log: "
                              "write it as FILE.ulg (PX4) or FILE.bin (ArduPilot)")
-    autopilot = "px4" if Path(args.out).suffix.lower() == ".ulg" else "ardupilot"
-    log = simulate_board(args.preset, autopilot=autopilot, seed=args.seed)
-    path = write_log(log, args.out)
-    print(f"wrote {path}: preset {args.preset} ({autopilot}), "
-          f"{len(log.instances)} sensor instances, {log.instances[0].n_samples} samples each")
+    out = Path(args.out)
+    autopilot = "px4" if out.suffix.lower() == ".ulg" else "ardupilot"
+    # --runs N: N logs of the same board (same ids and drift laws, new warm-ups and noise),
+    # FILE_run1.ulg .. FILE_runN.ulg; without it one log, FILE itself
+    paths = [out] if args.runs is None else [
+        out.with_name(f"{out.stem}_run{k}{out.suffix}") for k in range(1, args.runs + 1)]
+    for run, target in enumerate(paths):
+        log = simulate_board(args.preset, autopilot=autopilot, seed=args.seed, run=run)
+        path = write_log(log, target)
+        print(f"wrote {path}: preset {args.preset} ({autopilot}), run {run + 1} of "
+              f"{len(paths)}, {len(log.instances)} sensor instances, "
+              f"{log.instances[0].n_samples} samples each")
     return 0
 
 
@@ -261,7 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and write it as a thermonet Parquet file.")
     s.add_argument("preset", help="accel | hrg | mems-gyro | patent-gyro | fc-board | "
                                   "fc-board-cycle (the last two: --out FILE.ulg or FILE.bin)")
-    s.add_argument("--runs", type=int, default=None, help="number of runs (default: the preset's)")
+    s.add_argument("--runs", type=int, default=None,
+                   help="number of runs (default: the preset's); fc-board: N logs of the same "
+                        "board, FILE_run1 .. FILE_runN")
     s.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
     s.add_argument("--out", required=True, help="output .parquet file (.ulg / .bin for fc-board)")
     s.add_argument("--units", type=int, default=None,
