@@ -8,12 +8,16 @@ Followed, file and commit:
   and baro on output − median.  The script averages the samples into 2,000 equal
   temperature bins over [TMIN, TMAX] (``resampleWithDeltaX``: the mean temperature
   and the mean output of each occupied bin) and fits the bin means, unweighted:
-  every temperature counts once, however long the board stayed there.  thermonet
-  does the same (:func:`bin_means`).  A thermometer that reports whole degrees
-  gives one bin per reported value — the script "bins to the resolution" — so
-  the same fit serves it.  Not followed: the script's 31-sample median filter on
-  the outputs (thermonet screens damaged samples when it reads the log instead,
-  :func:`thermonet.data.logs.base.screen_samples`), and its ×100 on the baro
+  every temperature counts once, however long the board stayed there.  Before
+  binning it runs a 31-sample median filter over each output (``median_filter``:
+  ``scipy.signal.medfilt(data, 31)``).  thermonet does the same (:func:`bin_means`,
+  :func:`running_median`), with one difference: the script's ``medfilt`` pads the
+  ends with zeros, which pulls the first and last 15 samples toward zero (by
+  about two noise sigmas on a gyro, and on an accelerometer toward the extreme of
+  its window); thermonet pads with the nearest value (``scipy.ndimage.median_filter``,
+  ``mode="nearest"``).  A thermometer that reports whole degrees gives one bin per
+  reported value — the script "bins to the resolution" — so the same fit serves it.
+  Not followed: its ×100 on the baro
   (it assumes hPa; current PX4 logs ``sensor_baro.pressure`` in Pa, so the script
   writes baro coefficients 100× too large — PX4 issue #20051; thermonet reads the
   unit from the value, :mod:`thermonet.data.logs.ulog`).
@@ -46,6 +50,7 @@ from ..data.firmware import ARDUPILOT_TEMP_REFERENCE, FirmwareFit
 from ..data.logs import SensorInstance, temperature_step
 
 __all__ = ["check_instance", "fit_firmware", "target", "bin_means", "moving_average",
+           "running_median", "PX4_MEDIAN_SAMPLES",
            "resolution_effect", "poly_order", "MIN_SPAN_C", "MIN_SAMPLES", "COARSE_STEP_C",
            "PX4_BINS", "FIT_KINDS"]
 
@@ -59,6 +64,8 @@ MIN_SAMPLES = 200
 COARSE_STEP_C = 0.25
 #: PX4's ``resampleWithDeltaX`` bins (``nbInterval``).
 PX4_BINS = 2000
+#: PX4's median-filter length, samples (``medfilt(data, 31)``).
+PX4_MEDIAN_SAMPLES = 31
 #: ArduPilot's moving-average width, s (``data.Filter(2)``).
 ARDUPILOT_FILTER_S = 2
 FIT_KINDS = ("gyro", "acc", "baro")
@@ -123,6 +130,15 @@ def bin_means(x: np.ndarray, y: np.ndarray, n_bins: int = PX4_BINS
     return mx, my
 
 
+def running_median(y: np.ndarray, size: int = PX4_MEDIAN_SAMPLES) -> np.ndarray:
+    """Each column's ``size``-sample running median, ends padded with the nearest value."""
+    from scipy.ndimage import median_filter
+
+    y = np.asarray(y, dtype=np.float64)
+    return np.column_stack([median_filter(y[:, j], size=size, mode="nearest")
+                            for j in range(y.shape[1])])
+
+
 def moving_average(time_s: np.ndarray, columns: np.ndarray, width_s: float
                    ) -> np.ndarray:
     """ArduPilot's ``IMUData.FilterArray``: a ``int(n / seconds) · width_s``-sample moving
@@ -148,6 +164,10 @@ def fit_firmware(inst: SensorInstance, autopilot: str) -> FirmwareFit:
     if autopilot == "px4":
         t_min, t_max = float(temp.min()), float(temp.max())
         t_ref = 0.5 * (t_min + t_max)
+        # as the script: filtered first, then accel / baro less the filtered median
+        y = running_median(inst.values)
+        if inst.kind != "gyro":
+            y = y - np.median(y, axis=0)
         x, yy = bin_means(temp - t_ref, y)
     else:
         t_ref = ARDUPILOT_TEMP_REFERENCE

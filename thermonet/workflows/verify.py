@@ -25,7 +25,10 @@ Judged per instance and axis on the log: the binned drift (peak-to-peak of the
 after the correction.  An axis PASSes when the correction cuts it at least
 :attr:`Limits.min_cut` times, or when what is left is below the kind's floor
 (:attr:`Limits.floor`: a drift that small no longer matters and its cut is noise).
-Defaults: cut 3×; floors 2e-4 rad/s (0.011 °/s), 5e-3 m/s² (0.5 mg), 1 Pa (≈8 cm).
+Defaults: cut 3×; floors 5e-4 rad/s (0.03 °/s), 5e-3 m/s² (0.5 mg), 1 Pa (≈8 cm) —
+about the bias stability of a good MEMS IMU and a baro's noise; set them for your
+sensors (``--gyro-floor`` …).  The binned drift of pure noise is not zero (the spread
+of ~50 bin means), so a floor far below the sensor's noise makes quiet axes FAIL.
 
 Refused in one line: a file from another board (no device id of the log in the
 file: both lists named), a file of the other autopilot, a file with no thermal
@@ -79,7 +82,7 @@ class Limits:
 
     min_cut: float = 3.0
     floor: dict[str, float] = field(default_factory=lambda: {
-        "gyro": 2e-4, "acc": 5e-3, "baro": 1.0})
+        "gyro": 5e-4, "acc": 5e-3, "baro": 1.0})
 
     def check(self) -> Limits:
         if not (math.isfinite(self.min_cut) and self.min_cut > 1.0):
@@ -231,8 +234,9 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None
     """
     limits = limits or Limits()
     if pf.autopilot != log.autopilot:
-        raise ThermonetError(f"{pf.path} is a {pf.autopilot} parameter file; {log.path} is a "
-                             f"{log.autopilot} log")
+        name = {"px4": "PX4", "ardupilot": "ArduPilot"}
+        raise ThermonetError(f"{pf.path} is a {name[pf.autopilot]} parameter file; {log.path} "
+                             f"is a {name[log.autopilot]} log (verify needs the same autopilot)")
     insts = [i for i in log.instances if i.kind in _PX4_LETTER and i.temperature_c is not None
              and i.n_samples]
     log_ids = sorted({i.device_id for i in insts})
