@@ -207,3 +207,29 @@ def test_simulate_board_cli_writes_both_log_formats(tmp_path: Path,
     assert "FILE.ulg" in capsys.readouterr().err
     assert main(["simulate", "patent-gyro", "--out", str(tmp_path / "p.ulg")]) == 1
     assert "only the flight-controller presets" in capsys.readouterr().err
+
+
+def test_only_what_cannot_be_fitted_is_refused_with_the_reason() -> None:
+    """A whole-degree thermometer is fitted (its cost stated); one reporting 5 °C steps over
+    a 20 °C warm-up gives 5 distinct temperatures, fewer than a cubic needs (order + 3 = 6,
+    so that the fit has residual degrees of freedom), and is refused saying so."""
+    from thermonet.workflows.firmware_fit import check_instance, fit_firmware, resolution_effect
+
+    board = simulate_board("fc-board", autopilot="px4", seed=13, rate_hz=0.5)
+    gyro2 = next(i for i in board.instances if i.name == "gyro2")
+    assert check_instance(gyro2, "px4") is None
+    res = resolution_effect(gyro2, fit_firmware(gyro2, "px4"))
+    assert res is not None and res["step_c"] == 1.0
+    # the stated cost is max |P'(T)| * step / 2 of the fitted polynomial, recomputed here
+    fit = fit_firmware(gyro2, "px4")
+    grid = np.linspace(fit.t_min, fit.t_max, 401) - fit.t_ref
+    slope = [np.max(np.abs(np.polyval(np.polyder(c[::-1]), grid))) for c in fit.coef]
+    assert res["max_error"] == pytest.approx([s * 0.5 for s in slope], rel=1e-9)
+    coarse = next(i for i in board.instances if i.name == "gyro0")
+    coarse.temperature_c = 20.0 + 5.0 * np.floor(np.linspace(0.0, 4.999, coarse.n_samples))
+    why = check_instance(coarse, "px4")
+    assert why is not None and "only 5 distinct temperatures (5 °C steps" in why
+    assert "needs at least 6" in why
+    assert resolution_effect(next(i for i in board.instances if i.name == "gyro1"),
+                             fit_firmware(next(i for i in board.instances
+                                               if i.name == "gyro1"), "px4")) is None

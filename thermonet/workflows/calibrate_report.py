@@ -71,7 +71,10 @@ def format_report(doc: dict[str, Any]) -> str:
     """One block per instance: fitted (with verdict and check) or left out (with the reason)."""
     logs = doc.get("logs") or [doc["log"]]
     lines = [f"thermonet calibrate: {', '.join(logs)} ({doc['autopilot']})",
-             *([f"log sha256: {doc['log_sha256']}"] if doc.get("log_sha256") else []),
+             *([f"log sha256: {doc['log_sha256']}"] if doc.get("log_sha256")
+               and len(logs) == 1 else []),
+             *[f"log sha256: {h} ({Path(p).name})" for p, h in zip(
+                 logs, doc.get("logs_sha256") or [], strict=False) if len(logs) > 1],
              f"parameter file: {doc['params_file']}"]
     if doc.get("held_out_log"):
         lines += [f"{len(logs)} logs of one board: held-out check fitted on the first "
