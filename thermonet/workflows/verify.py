@@ -10,7 +10,8 @@ format is told from the first parameter line (five fields: PX4).  LOG is a ULog
 
 The firmware's formula (:mod:`thermonet.data.firmware`):
 
-* PX4 ``TemperatureCompensation.cpp``: ``TC_<k>_ENABLE`` must be 1; the slot whose
+* PX4 ``TemperatureCompensation.cpp``: ``TC_<k>_ENABLE`` must be 1 (a file without it,
+  as ``process_sensor_caldata.py`` writes, is applied as enabled, with a warning); the slot whose
   ``TC_<k><s>_ID`` equals the instance's device id applies; T clamped to
   [TMIN, TMAX]; offset = Σ X_k (T − TREF)^k subtracted.
 * ArduPilot ``AP_InertialSensor_tempcal.cpp``: ``INS_TCAL<n>_ENABLE`` = 1; T and the
@@ -144,7 +145,9 @@ def read_param_file(path: str | Path) -> ParamFile:
         if not any(k.startswith("TC_") for k in params):
             raise InputError(f"{p}: no PX4 thermal calibration (TC_*) parameters")
         for kind, t in _PX4_LETTER.items():
-            enabled[kind] = params.get(f"TC_{t}_ENABLE", 0.0) == 1.0
+            # process_sensor_caldata.py writes no TC_<k>_ENABLE (its procedure sets them to 1
+            # on the board first): absent means enabled, said per instance
+            enabled[kind] = params.get(f"TC_{t}_ENABLE", 1.0) == 1.0
             for s in range(PX4_SLOTS):
                 dev = int(params.get(f"TC_{t}{s}_ID", 0))
                 if dev:
@@ -256,6 +259,10 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None
             d.update(status="not covered", reason=why)
             out[inst.name] = d
             continue
+        if pf.autopilot == "px4" and f"TC_{_PX4_LETTER[inst.kind]}_ENABLE" not in pf.params:
+            d["warnings"].append(f"the file has no TC_{_PX4_LETTER[inst.kind]}_ENABLE "
+                                 "(process_sensor_caldata.py writes none): applied as the board "
+                                 "has it set to 1 — check it")
         if pf.autopilot == "ardupilot" and not pf.by_id:
             d["warnings"].append(f"the file names no device ids (tempcal_IMU.py writes none): "
                                  f"INS_TCAL{slot + 1} applied to the log's IMU {slot + 1}")
