@@ -92,9 +92,15 @@ def test_autopilot_formula_on_the_written_file_cuts_true_drift(tmp_path: Path, a
     log_path = write_log(board, tmp_path / ("b.ulg" if autopilot == "px4" else "b.bin"))
     doc = calibrate(log_path, tmp_path / "cal", compare=False)
     insts = doc["instances"]
-    # the whole-degree IMU is left out with its reason; PX4 fits the baro, ArduPilot cannot
+    # the whole-degree IMU is fitted, its resolution and what it costs stated; PX4 fits the
+    # baro, ArduPilot cannot
     for name in ("gyro2", "acc2"):
-        assert insts[name]["status"] == "skipped" and "1 °C steps" in insts[name]["reason"]
+        res = insts[name]["resolution"]
+        assert insts[name]["status"] == "fitted" and res["step_c"] == 1.0
+        assert "1 °C steps" in res["line"] and res["levels"] >= 40
+        # max |P'| * step / 2: a whole-degree thermometer costs a few % of the drift
+        assert all(0.0 < r < 0.2 for r in res["relative_error"])
+    assert all("resolution" not in insts[n] for n in ("gyro0", "acc1", "baro0"))
     assert insts["baro0"]["status"] == ("fitted" if autopilot == "px4" else "skipped")
     truth = {i.name: i for i in board.instances}
     if autopilot == "px4":
@@ -102,12 +108,16 @@ def test_autopilot_formula_on_the_written_file_cuts_true_drift(tmp_path: Path, a
         for t in "GAB":                      # every slot of every kind is in the file
             for s in range(4):
                 assert f"TC_{t}{s}_ID" in p and f"TC_{t}{s}_TREF" in p
-        assert p["TC_G2_ID"] == 0 and p["TC_G3_ID"] == 0        # nothing left in unused slots
+        assert p["TC_G2_ID"] == 2621474 and p["TC_G3_ID"] == 0  # nothing left in unused slots
+        assert "# gyro2 (id 2621474): thermometer reports 1 °C steps" in (
+            tmp_path / "cal" / "px4.params").read_text()
     else:
         p = _ap_file(tmp_path / "cal" / "ardupilot.parm")
-        assert "INS_TCAL_OPTIONS" not in p and "INS_TCAL3_ENABLE" not in p
+        assert "INS_TCAL_OPTIONS" not in p and p["INS_TCAL3_ENABLE"] == 1   # IMU 3: whole °C
+        assert "# device ids: INS_TCAL3 gyro 2621474 acc 2621482" in (
+            tmp_path / "cal" / "ardupilot.parm").read_text()
     fitted = [n for n, d in insts.items() if d["status"] == "fitted"]
-    assert sorted(fitted) == sorted(["gyro0", "gyro1", "acc0", "acc1"]
+    assert sorted(fitted) == sorted(["gyro0", "gyro1", "gyro2", "acc0", "acc1", "acc2"]
                                     + (["baro0"] if autopilot == "px4" else []))
     for name in fitted:
         inst = truth[name]
@@ -143,9 +153,11 @@ def test_calibrate_cli_side_by_side_and_left_out_lines(tmp_path: Path,
              ln.split()[0] in ("gyro0", "gyro1", "gyro2", "acc1", "acc2", "baro0")}
     assert "LEFT OUT" in lines["gyro1"] and "spans only" in lines["gyro1"]
     assert "LEFT OUT" in lines["acc1"] and "no temperature" in lines["acc1"]
-    assert "LEFT OUT" in lines["gyro2"] and "1 °C steps" in lines["gyro2"]
-    for name in ("gyro0", "baro0"):
+    for name in ("gyro0", "gyro2", "baro0"):
         assert "fitted" in lines[name]
+    # the whole-degree gyro's verdict says its resolution and what it costs
+    gyro2 = report[report.index(lines["gyro2"]):].splitlines()[1]
+    assert "1 °C steps" in gyro2 and "% of the fitted drift" in gyro2
     doc = json.loads((out / "results.json").read_text())
     assert (out / "report.txt").read_text().startswith("thermonet calibrate")
     page = (out / "report.html").read_text()
@@ -153,7 +165,7 @@ def test_calibrate_cli_side_by_side_and_left_out_lines(tmp_path: Path,
     for name in ("gyro0", "gyro1", "gyro2", "acc1", "acc2", "baro0"):
         assert f"<td>{name}</td>" in page
     assert "spans only" in page and 'href="instances/gyro0/report.html"' in page
-    for name in ("gyro0", "baro0"):
+    for name in ("gyro0", "gyro2", "baro0"):
         cmp = doc["instances"][name]["compare"]
         sub = json.loads((Path(cmp["dir"]) / "results.json").read_text())
         # thermonet's families were fitted side by side with the firmware form, on held-out
@@ -164,8 +176,8 @@ def test_calibrate_cli_side_by_side_and_left_out_lines(tmp_path: Path,
         fw = cmp["families"][cmp["firmware_family"]]
         assert fw["val_score"] < 0.2
     p = _px4_file(out / "px4.params")
-    assert p["TC_G0_ID"] == 2424842 and p["TC_G1_ID"] == 0 and p["TC_A0_ID"] == 0
-    assert p["TC_G_ENABLE"] == 1 and p["TC_A_ENABLE"] == 0
+    assert p["TC_G0_ID"] == 2424842 and p["TC_G1_ID"] == 2621474 and p["TC_A0_ID"] == 2621482
+    assert p["TC_G_ENABLE"] == 1 and p["TC_A_ENABLE"] == 1
     assert p["TC_B0_ID"] == 3997706
 
 
@@ -195,3 +207,29 @@ def test_simulate_board_cli_writes_both_log_formats(tmp_path: Path,
     assert "FILE.ulg" in capsys.readouterr().err
     assert main(["simulate", "patent-gyro", "--out", str(tmp_path / "p.ulg")]) == 1
     assert "only the flight-controller presets" in capsys.readouterr().err
+
+
+def test_only_what_cannot_be_fitted_is_refused_with_the_reason() -> None:
+    """A whole-degree thermometer is fitted (its cost stated); one reporting 5 °C steps over
+    a 20 °C warm-up gives 5 distinct temperatures, fewer than a cubic needs (order + 3 = 6,
+    so that the fit has residual degrees of freedom), and is refused saying so."""
+    from thermonet.workflows.firmware_fit import check_instance, fit_firmware, resolution_effect
+
+    board = simulate_board("fc-board", autopilot="px4", seed=13, rate_hz=0.5)
+    gyro2 = next(i for i in board.instances if i.name == "gyro2")
+    assert check_instance(gyro2, "px4") is None
+    res = resolution_effect(gyro2, fit_firmware(gyro2, "px4"))
+    assert res is not None and res["step_c"] == 1.0
+    # the stated cost is max |P'(T)| * step / 2 of the fitted polynomial, recomputed here
+    fit = fit_firmware(gyro2, "px4")
+    grid = np.linspace(fit.t_min, fit.t_max, 401) - fit.t_ref
+    slope = [np.max(np.abs(np.polyval(np.polyder(c[::-1]), grid))) for c in fit.coef]
+    assert res["max_error"] == pytest.approx([s * 0.5 for s in slope], rel=1e-9)
+    coarse = next(i for i in board.instances if i.name == "gyro0")
+    coarse.temperature_c = 20.0 + 5.0 * np.floor(np.linspace(0.0, 4.999, coarse.n_samples))
+    why = check_instance(coarse, "px4")
+    assert why is not None and "only 5 distinct temperatures (5 °C steps" in why
+    assert "needs at least 6" in why
+    assert resolution_effect(next(i for i in board.instances if i.name == "gyro1"),
+                             fit_firmware(next(i for i in board.instances
+                                               if i.name == "gyro1"), "px4")) is None

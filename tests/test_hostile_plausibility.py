@@ -25,7 +25,7 @@ from thermonet.training.config import MAX_BLOCKS, load_config
     (["accel", "--runs", "1001"], "--runs 1001: not in 1..1000"),
     (["accel", "--seed", "-3"], "--seed -3: must be a non-negative integer"),
     (["fc-board", "--units", "3"], "--units 3: preset 'fc-board' simulates one board"),
-    (["fc-board-cycle", "--runs", "2"], "--runs 2: preset 'fc-board-cycle' simulates one board"),
+    (["fc-board-cycle", "--runs", "101"], "--runs 101: preset 'fc-board-cycle' writes at most 100"),
     (["fc-board", "--outliers", "1"], "--outliers 1: preset 'fc-board' simulates one board"),
 ])
 def test_absurd_simulation_requests_refused_in_one_line(tmp_path, capsys, argv, expect):

@@ -1,9 +1,9 @@
 """The ``thermonet`` command line.
 
 Exit codes: 0 success, 1 bad input (file, column, config key or value — one
-line on stderr naming it), 2 usage error (argparse), 3 (``fleet`` only) some
-unit failed its limits or could not be calibrated, 130 interrupted by
-SIGINT (Ctrl-C), 143 terminated by SIGTERM.  An interrupted command prints
+line on stderr naming it), 2 usage error (argparse), 3 (``fleet``) some
+unit failed its limits or could not be calibrated, (``verify``) an axis failed
+its limits, 130 interrupted by SIGINT (Ctrl-C), 143 terminated by SIGTERM.  An interrupted command prints
 one line, not a traceback; its open MLflow runs are ended as KILLED and a
 comparison's ``--out`` is left as it was (see :mod:`thermonet.core.outdir`).
 """
@@ -29,21 +29,24 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from .data.io import write_parquet
     from .data.logs import is_log
     from .sim import simulate, simulate_fleet
-    from .sim.fcboard import BOARD_PRESETS
+    from .sim.fcboard import BOARD_PRESETS, MAX_BOARD_RUNS
     from .sim.presets import MAX_RUNS
 
     if args.runs is not None and not 1 <= args.runs <= MAX_RUNS:
         raise ThermonetError(f"--runs {args.runs}: not in 1..{MAX_RUNS} (the upper bound keeps "
                              "a request within memory)")
     if args.preset in BOARD_PRESETS:
-        # a board log is one board warmed once: options it does not use are refused, not ignored
-        unused = [f"--{name} {value}" for name, value in (("runs", args.runs),
-                                                           ("units", args.units),
+        # a board log is one board (--runs: several warm-ups of it): options it does not use
+        # are refused, not ignored
+        unused = [f"--{name} {value}" for name, value in (("units", args.units),
                                                            ("outliers", args.outliers or None))
                   if value is not None]
         if unused:
             raise ThermonetError(f"{unused[0]}: preset '{args.preset}' simulates one board "
-                                 "warmed once (a single log); it takes only --seed and --out")
+                                 "(one log per warm-up); it takes only --seed, --runs and --out")
+        if args.runs is not None and args.runs > MAX_BOARD_RUNS:
+            raise ThermonetError(f"--runs {args.runs}: preset '{args.preset}' writes at most "
+                                 f"{MAX_BOARD_RUNS} logs (one file per warm-up)")
     if args.seed < 0:
         raise ThermonetError(f"--seed {args.seed}: must be a non-negative integer")
     if args.preset in BOARD_PRESETS or is_log(args.out):
@@ -74,11 +77,18 @@ def _simulate_board(args: argparse.Namespace) -> int:
     if not is_log(args.out):
         raise ThermonetError(f"{args.out}: preset '{args.preset}' is a flight-controller log: "
                              "write it as FILE.ulg (PX4) or FILE.bin (ArduPilot)")
-    autopilot = "px4" if Path(args.out).suffix.lower() == ".ulg" else "ardupilot"
-    log = simulate_board(args.preset, autopilot=autopilot, seed=args.seed)
-    path = write_log(log, args.out)
-    print(f"wrote {path}: preset {args.preset} ({autopilot}), "
-          f"{len(log.instances)} sensor instances, {log.instances[0].n_samples} samples each")
+    out = Path(args.out)
+    autopilot = "px4" if out.suffix.lower() == ".ulg" else "ardupilot"
+    # --runs N: N logs of the same board (same ids and drift laws, new warm-ups and noise),
+    # FILE_run1.ulg .. FILE_runN.ulg; without it one log, FILE itself
+    paths = [out] if args.runs is None else [
+        out.with_name(f"{out.stem}_run{k}{out.suffix}") for k in range(1, args.runs + 1)]
+    for run, target in enumerate(paths):
+        log = simulate_board(args.preset, autopilot=autopilot, seed=args.seed, run=run)
+        path = write_log(log, target)
+        print(f"wrote {path}: preset {args.preset} ({autopilot}), run {run + 1} of "
+              f"{len(paths)}, {len(log.instances)} sensor instances, "
+              f"{log.instances[0].n_samples} samples each")
     return 0
 
 
@@ -240,11 +250,28 @@ def _cmd_export(args: argparse.Namespace) -> int:
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .workflows.calibrate import calibrate, format_report
 
-    doc = calibrate(args.log, args.out, overwrite=args.overwrite)
+    doc = calibrate(args.log, args.out, overwrite=args.overwrite, compare=not args.no_compare)
     if not args.quiet:
         print(format_report(doc), end="")
         print(f"results: {Path(args.out) / 'results.json'}")
     return 0
+
+
+def _cmd_verify(args: argparse.Namespace) -> int:
+    from .workflows.verify import EXIT_FAILED, Limits, format_verify_report, verify
+
+    limits = Limits()                       # the documented defaults, where not given
+    if args.min_cut is not None:
+        limits.min_cut = args.min_cut
+    for kind in ("gyro", "acc", "baro"):
+        value = getattr(args, f"{kind}_floor")
+        if value is not None:
+            limits.floor[kind] = value
+    doc = verify(args.params, args.log, args.out, limits=limits, overwrite=args.overwrite)
+    if not args.quiet:
+        print(format_verify_report(doc), end="")
+        print(f"report: {Path(args.out) / 'report.html'}")
+    return 0 if doc["passed"] else EXIT_FAILED
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -261,7 +288,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and write it as a thermonet Parquet file.")
     s.add_argument("preset", help="accel | hrg | mems-gyro | patent-gyro | fc-board | "
                                   "fc-board-cycle (the last two: --out FILE.ulg or FILE.bin)")
-    s.add_argument("--runs", type=int, default=None, help="number of runs (default: the preset's)")
+    s.add_argument("--runs", type=int, default=None,
+                   help="number of runs (default: the preset's); fc-board: N logs of the same "
+                        "board, FILE_run1 .. FILE_runN")
     s.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
     s.add_argument("--out", required=True, help="output .parquet file (.ulg / .bin for fc-board)")
     s.add_argument("--units", type=int, default=None,
@@ -343,13 +372,43 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and side by side with thermonet's families, judge on "
                                    "held-out blocks, write px4.params or ardupilot.parm, "
                                    "results.json, report.html and report.txt to --out.")
-    k.add_argument("log", help="flight-controller log recorded while the board warmed")
+    k.add_argument("log", nargs="+",
+                   help="flight-controller log(s) recorded while the board warmed; several "
+                        "logs of one board: fitted on all but the last, checked on the last, "
+                        "the files refitted on all")
     k.add_argument("--out", required=True, help="output directory (created whole at the end)")
     k.add_argument("--overwrite", action="store_true",
                    help="replace a previous calibration in --out (its own files only; removed "
                         "only once the new one is complete)")
+    k.add_argument("--no-compare", action="store_true",
+                   help="fit the firmware form only (no side-by-side comparison with "
+                        "thermonet's families: faster, no instances/ folder)")
     k.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
     k.set_defaults(func=_cmd_calibrate)
+
+    v = sub.add_parser("verify", help="check a PX4 / ArduPilot thermal calibration on a new log",
+                       description="Apply a px4.params or ardupilot.parm (thermonet's or the "
+                                   "autopilot's own tool's) to a log of the same board through "
+                                   "the autopilot's own formula (T clamped to TMIN/TMAX, TREF, "
+                                   "the polynomial, the sensor matched by device id); report the "
+                                   "binned drift before/after per instance and axis, PASS/FAIL. "
+                                   "Exit 3 when an axis fails.")
+    v.add_argument("params", help="px4.params (QGC format) or ardupilot.parm")
+    v.add_argument("log", help="a new log of the same board (.ulg / .bin)")
+    v.add_argument("--out", required=True, help="output directory (created whole at the end)")
+    v.add_argument("--min-cut", type=float, default=None,
+                   help="an axis passes when its binned drift is cut at least this much "
+                        "(default 3)")
+    v.add_argument("--gyro-floor", type=float, default=None,
+                   help="... or left below this, rad/s (default 5e-4)")
+    v.add_argument("--acc-floor", type=float, default=None,
+                   help="... or left below this, m/s^2 (default 5e-3)")
+    v.add_argument("--baro-floor", type=float, default=None,
+                   help="... or left below this, Pa (default 1)")
+    v.add_argument("--overwrite", action="store_true",
+                   help="replace a previous verification in --out")
+    v.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
+    v.set_defaults(func=_cmd_verify)
 
     f = sub.add_parser("fleet", help="calibrate many units in one job, with pass/fail limits",
                        description="Run the comparison of CONFIG on every unit (device id) of "

@@ -18,8 +18,9 @@ when everything is written.  So:
   ``report.html``, ``models/`` …); any other entry the user put beside them is
   moved into the new directory, never deleted.
 
-``fleet`` (``kind="fleet"``) and ``calibrate`` (``kind="calibration"``) follow
-the same rules with their own outputs.
+``fleet`` (``kind="fleet"``), ``calibrate`` (``kind="calibration"``) and ``verify``
+(``kind="verification"``, its ``results.json`` says so) follow the same rules with their
+own outputs.
 
 ``results.json`` records each checkpoint's SHA-256 (``checkpoint_sha256``);
 ``thermonet export DIR`` refuses a checkpoint whose content does not match it,
@@ -97,6 +98,7 @@ KINDS: dict[str, frozenset[str]] = {
     "fleet": frozenset({"results.json", "fleet.html", "plots", "units"}),
     "calibration": frozenset({"results.json", "report.html", "report.txt", "px4.params",
                               "ardupilot.parm", "instances"}),
+    "verification": frozenset({"results.json", "report.html", "report.txt"}),
 }
 
 
@@ -107,6 +109,8 @@ def is_output(path: Path, kind: str) -> bool:
     data = _results(path)
     if kind == "fleet":
         return data.get("kind") == "fleet" and isinstance(data.get("units"), dict)
+    if (data.get("kind") == "verification") != (kind == "verification"):
+        return False
     return "schema" in data and isinstance(data.get("instances"), dict) \
         and "autopilot" in data
 

@@ -15,13 +15,22 @@ Presets (``simulate_board(name, autopilot=..., seed=...)``):
     * IMU 1 — a different law (quadratic-dominated, larger), thermometer 2 °C
       above the board, 0.001 °C resolution;
     * IMU 2 — the same kind of law, but its thermometer reports whole degrees
-      (1 °C steps, as some sensors do): a calibration must refuse it;
+      (1 °C steps, as some sensors do; PX4 issue #13551): a calibration fits it on
+      the per-degree means and says what the resolution costs;
     * baro 0 — pressure 101,325 Pa (constant weather) plus a drift of ≈40 Pa
       over the range (a smooth, order-5-friendly curve), 1 Pa noise.
 
 ``fc-board-cycle``
     The same board warmed for 45 minutes, then cooled by a fan for 45 minutes
     (heating and cooling both in the log).
+
+Several logs of the same board (``simulate_board(..., run=k)``, ``thermonet simulate
+fc-board --runs N``): run 0 is the warm-up above; every run keeps the board — device
+ids, drift laws (drawn from ``seed`` alone), the weather — and draws its own warm-up
+(cold-soak start 7 ± 3 °C, plateau 52 ± 3 °C, time constant 12 ± 2 min, a uniform
+draw per run) and its own noise from ``(seed, run)``.  A later run can therefore
+start below or end above the range of an earlier one (a verification then warns
+that the firmware clamps there).
 
 Units as the autopilots log them: rad/s, m/s² (gravity on −z, board level),
 Pa.  The simulated drift (``SensorInstance.truth``) travels with the instances
@@ -37,9 +46,11 @@ import numpy as np
 from ..core.errors import InputError
 from ..data.logs.base import FlightLog, SensorInstance
 
-__all__ = ["BOARD_PRESETS", "simulate_board", "board_params"]
+__all__ = ["BOARD_PRESETS", "MAX_BOARD_RUNS", "simulate_board", "board_params"]
 
 BOARD_PRESETS = ("fc-board", "fc-board-cycle")
+#: Most logs ``simulate fc-board --runs N`` writes (one file per warm-up).
+MAX_BOARD_RUNS = 100
 _G = 9.80665
 _RATE_HZ = 1.0
 _WARM_S = 45 * 60.0
@@ -48,20 +59,33 @@ _PX4_IDS = [(2424842, 2424842), (3670050, 3670058), (2621474, 2621482)]
 _BARO_ID = 3997706
 
 
-def _board_temperature(t: np.ndarray, cycle: bool) -> np.ndarray:
-    warm = 52.0 - 45.0 * np.exp(-t / 720.0)
+def _warm_up(run: int, seed: int) -> tuple[float, float, float]:
+    """(start °C, plateau °C, time constant s) of run ``run``: run 0 the procedure's own."""
+    if run == 0:
+        return 7.0, 52.0, 720.0
+    r = np.random.default_rng([seed, run, 7])
+    return (7.0 + r.uniform(-3.0, 3.0), 52.0 + r.uniform(-3.0, 3.0),
+            720.0 + r.uniform(-120.0, 120.0))
+
+
+def _board_temperature(t: np.ndarray, cycle: bool,
+                       profile: tuple[float, float, float] = (7.0, 52.0, 720.0)
+                       ) -> np.ndarray:
+    start, plateau, tau = profile
+    warm = plateau - (plateau - start) * np.exp(-t / tau)
     if not cycle:
         return warm
-    top = 52.0 - 45.0 * np.exp(-_WARM_S / 720.0)
+    top = plateau - (plateau - start) * np.exp(-_WARM_S / tau)
     cool = 12.0 + (top - 12.0) * np.exp(-(t - _WARM_S) / 900.0)
     return np.where(t <= _WARM_S, warm, cool)
 
 
-def _law(rng: np.random.Generator, k: int, dT: np.ndarray, scale: float) -> np.ndarray:
-    """Three axes of drift for IMU ``k`` at ``dT`` = T − 25 °C (in units of ``scale``)."""
+def _law(coefs: np.ndarray, k: int, dT: np.ndarray, scale: float) -> np.ndarray:
+    """Three axes of drift for IMU ``k`` at ``dT`` = T − 25 °C (in units of ``scale``);
+    ``coefs`` (3, 4): the board's draws for this sensor."""
     out = np.zeros((dT.size, 3))
     for j in range(3):
-        c = rng.uniform(-1.0, 1.0, 4)
+        c = coefs[j]
         if k == 1:      # quadratic-dominated and larger
             poly = 0.3 * c[0] + 0.6 * c[1] * dT / 20 + 1.2 * (dT / 20) ** 2 * np.sign(c[2])
         else:
@@ -95,7 +119,8 @@ def board_params(autopilot: str) -> dict[str, float]:
 
 
 def simulate_board(preset: str = "fc-board", *, autopilot: str = "px4", seed: int = 0,
-                   rate_hz: float = _RATE_HZ, path: str | Path = "<simulated>") -> FlightLog:
+                   rate_hz: float = _RATE_HZ, path: str | Path = "<simulated>",
+                   run: int = 0) -> FlightLog:
     """Simulate the board's log (instances with their true drift, and the logged parameters).
 
     Parameters
@@ -107,6 +132,8 @@ def simulate_board(preset: str = "fc-board", *, autopilot: str = "px4", seed: in
         Same seed, same log.
     rate_hz : float
         Logging rate, Hz (default 1; tests use less).
+    run : int
+        Which warm-up of the same board (0: the procedure's own; see the module).
     """
     if preset not in BOARD_PRESETS:
         raise InputError(f"unknown board preset '{preset}' (known: {', '.join(BOARD_PRESETS)})")
@@ -114,18 +141,23 @@ def simulate_board(preset: str = "fc-board", *, autopilot: str = "px4", seed: in
         raise InputError(f"autopilot must be 'px4' or 'ardupilot', got '{autopilot}'")
     if not (isinstance(rate_hz, (int, float)) and 0.01 <= rate_hz <= 1000.0):
         raise InputError(f"rate_hz must be within 0.01..1000 Hz, got {rate_hz!r}")
+    if not (isinstance(run, int) and run >= 0):
+        raise InputError(f"run must be a non-negative integer, got {run!r}")
     cycle = preset == "fc-board-cycle"
-    rng = np.random.default_rng(seed)
+    # the board's drift laws come from the seed alone (the same for every run, any rate);
+    # the noise and the warm-up from (seed, run)
+    laws = np.random.default_rng(seed).uniform(-1.0, 1.0, (3, 2, 3, 4))
+    rng = np.random.default_rng([seed, run])
     duration = 2 * _WARM_S if cycle else _WARM_S
     t = np.arange(0.0, duration, 1.0 / rate_hz) + 1.0
-    board = _board_temperature(t - t[0], cycle)
+    board = _board_temperature(t - t[0], cycle, _warm_up(run, seed))
     instances: list[SensorInstance] = []
     for k in range(3):
         sensor_t = board + (0.0, 2.0, -1.0)[k] + rng.normal(0.0, 0.02, t.size)
         logged_t = np.round(sensor_t) if k == 2 else np.round(sensor_t, 2 if k == 0 else 3)
         dT = sensor_t - 25.0
-        gyro_drift = _law(rng, k, dT, 0.01)                   # ~0.01 rad/s
-        acc_drift = _law(rng, k, dT, 0.08)                    # ~0.08 m/s^2
+        gyro_drift = _law(laws[k, 0], k, dT, 0.01)            # ~0.01 rad/s
+        acc_drift = _law(laws[k, 1], k, dT, 0.08)             # ~0.08 m/s^2
         gyro = gyro_drift + rng.normal(0.0, 5e-4, (t.size, 3))
         acc = acc_drift + np.array([0.0, 0.0, -_G]) + rng.normal(0.0, 4e-3, (t.size, 3))
         gid, aid = _PX4_IDS[k]
@@ -140,4 +172,4 @@ def simulate_board(preset: str = "fc-board", *, autopilot: str = "px4", seed: in
                                     truth=baro_drift))
     return FlightLog(path=Path(path), autopilot=autopilot, instances=instances,
                      params=board_params(autopilot),
-                     notes=[f"simulated {preset}, seed {seed}"])
+                     notes=[f"simulated {preset}, seed {seed}, run {run}"])

@@ -1,56 +1,49 @@
-"""``thermonet calibrate LOG --out DIR``: the autopilot's thermal calibration, judged.
+"""``thermonet calibrate LOG [LOG ...] --out DIR``: the autopilot's thermal calibration, judged.
 
-For every sensor instance of a PX4 ULog or ArduPilot DataFlash log:
+For every sensor instance of PX4 ULogs or ArduPilot DataFlash logs of one board:
 
-1. **Checks.**  An instance is left out, with one line saying why, when it has
-   no thermometer, fewer than :data:`MIN_SAMPLES` samples, a temperature span
-   under :data:`MIN_SPAN_C` (PX4's ``SYS_CAL_TDEL`` defaults to 24 °C; 10 °C is
-   the least a cubic can be trusted on), or a thermometer that reports whole
-   degrees or coarser (:data:`MAX_STEP_C`: a cubic through a staircase, whose
-   error inside each step is the quantisation; half-degree steps still pass).
+1. **Checks** (:func:`thermonet.workflows.firmware_fit.check_instance`).  An instance
+   is left out, with one line saying why, only when it cannot be fitted: no
+   thermometer, fewer than ``MIN_SAMPLES`` samples, a temperature span under
+   ``MIN_SPAN_C``, fewer distinct temperatures than the polynomial needs.  A
+   thermometer reporting whole degrees (or coarser) is calibrated: fitted on the
+   means per reported temperature, as PX4's script bins, with its resolution and
+   what it costs stated in the verdict, the report and the parameter file's header.
    Magnetometers are listed only: neither autopilot has a thermal model for them.
-2. **The firmware's own form on all the data** (heating and cooling; both
-   autopilots' scripts use what the log has — the procedure only heats):
-
-   * PX4 (``Tools/process_sensor_caldata.py``): per axis a cubic in
-     T − TREF, TREF the centre of [TMIN, TMAX] (the logged range); baro an
-     order-5 polynomial; the gyro fit keeps its constant (``X0``), accel and
-     baro are fitted as output − median (the script subtracts the median: the
-     constant is gravity or the weather).  Firmware
-     (``TemperatureCompensation.cpp``, ``calc_thermal_offsets_3D/1D``):
-     T clamped to [TMIN, TMAX], offset = Σ X_k (T − TREF)^k, corrected = raw −
-     offset; rad/s, m/s², **Pa** (the current ``sensor_baro.pressure`` unit;
-     the script's ×100 assumed hPa).
-   * ArduPilot (``Tools/scripts/tempcal_IMU.py``): a cubic in T − 35 °C fitted
-     with a constant, the constant dropped (``AP_InertialSensor_tempcal.cpp``
-     has none), coefficients × 1e6; accel fitted as output − mean.
-     Firmware: corrected = raw − P(T − 35) + P(T_cal − 35), T clamped.
-
-   Plain least squares over every sample (PX4's script averages into
-   temperature bins first; with a log that heats at a steady rate the two
-   agree).
+2. **The firmware's own form, fitted as the autopilots' scripts fit it**
+   (:mod:`thermonet.workflows.firmware_fit`: PX4 ``process_sensor_caldata.py``'s
+   2,000 temperature bins; ArduPilot ``tempcal_IMU.py``'s 2-s moving average), on all
+   the data (heating and cooling).  Firmware (``TemperatureCompensation.cpp``;
+   ``AP_InertialSensor_tempcal.cpp``): see :mod:`thermonet.data.firmware`; rad/s,
+   m/s², **Pa** (the script's ×100 assumed hPa, PX4 issue #20051).
 3. **Side by side with thermonet's families**, by calling
    :func:`thermonet.workflows.compare.run_compare` on the instance (the firmware form as
    the baseline family, a line, an RBF on [ΔT, ΔT²]); judged on held-out
    contiguous time blocks (``split: time-blocks``), never random samples.
-   The firmware form is what the parameter file can carry; when a thermonet
-   family does better, the report says by how much.  When the firmware form
-   does not beat the raw output on the held-out blocks, the instance is left
-   out of the parameter file (loading it would do harm).
-4. **Files**: ``DIR/px4.params`` (QGroundControl, every TC_G/A/B slot) or
-   ``DIR/ardupilot.parm`` (``INS_TCAL1..3_*``, ``INS_TCAL_OPTIONS`` not
-   written), ``DIR/results.json``, ``DIR/report.txt`` and ``DIR/report.html``, per instance
-   ``DIR/instances/<name>/`` (the comparison's results, plots, checkpoints).
+   When the firmware form does not beat the raw output on the held-out blocks,
+   the instance is left out of the parameter file (loading it would do harm).
+4. **Several logs** (the same board: every log must have the same device ids, else
+   refused naming both logs' ids): the firmware form is fitted on all but the last
+   log, written as a parameter file, and applied to the last log through the
+   autopilot's own formula (:func:`thermonet.workflows.verify.evaluate`) — the
+   held-out verdict per instance and axis (an instance whose held-out drift is not
+   cut is left out).  The exported files are then refitted on all the logs (the
+   report says so).  The logs are joined in the order given (time restarted after
+   each), so the comparison's time blocks stay contiguous within a log.
+5. **Files**: ``DIR/px4.params`` (QGroundControl, every TC_G/A/B slot) or
+   ``DIR/ardupilot.parm`` (``INS_TCAL1..3_*`` and a ``# device ids:`` comment per IMU,
+   ``INS_TCAL_OPTIONS`` not written), ``DIR/results.json``, ``DIR/report.txt`` and
+   ``DIR/report.html``, per instance ``DIR/instances/<name>/`` (the comparison).
 
-After writing, the parameter file is read back and the autopilot's formula is
-applied to the log (``firmware_check``): the peak-to-peak of 1 °C-binned
-means before and after, per axis.
+After writing, the parameter file is read back and applied to the logs through the
+autopilot's formula, the instance matched by device id (``firmware_check``): the
+peak-to-peak of 1 °C-binned means before and after, per axis.
 """
 
 from __future__ import annotations
 
 import json
-import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -58,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..core.errors import ThermonetError
+from ..core.errors import InputError, ThermonetError
 from ..core.fileio import atomic_write_text
 from ..data.firmware import (
     ARDUPILOT_TEMP_REFERENCE,
@@ -71,23 +64,26 @@ from ..data.firmware import (
     px4_offsets_3d,
 )
 from ..data.logs import FlightLog, SensorInstance, read_log, temperature_step
-from ..exporting.autopilot import read_ardupilot_params, read_px4_params
-from ..scoring.metrics import binned_peak_to_peak
 from ..scoring.verdicts import below
+from .calibrate_report import format_report, render_calibration_report
+from .firmware_fit import (
+    FIT_KINDS,
+    MIN_SAMPLES,
+    MIN_SPAN_C,
+    check_instance,
+    fit_firmware,
+    resolution_effect,
+)
+from .verify import evaluate, read_param_file
 
-__all__ = ["calibrate", "fit_firmware", "check_instance", "apply_firmware",
-           "MIN_SPAN_C", "MAX_STEP_C", "MIN_SAMPLES", "InstanceResult"]
+__all__ = ["calibrate", "fit_firmware", "check_instance", "apply_firmware", "merge_logs",
+           "format_report", "render_calibration_report", "MIN_SPAN_C", "MIN_SAMPLES",
+           "InstanceResult"]
 
-#: Least temperature span (°C) an instance needs to be calibrated.
-MIN_SPAN_C = 10.0
-#: A thermometer reporting in steps this coarse (°C, whole degrees) or coarser is refused.
-MAX_STEP_C = 1.0
 #: A thermonet family is reported as better only when its validation score ratio is below
 #: this fraction of the firmware form's (smaller differences are within the noise of a split).
 BETTER_BY = 0.8
-#: Least samples per instance.
-MIN_SAMPLES = 200
-_FIT_KINDS = ("gyro", "acc", "baro")
+_FIT_KINDS = FIT_KINDS
 
 
 @dataclass
@@ -103,59 +99,6 @@ class InstanceResult:
     summary: dict[str, Any] = field(default_factory=dict)
 
 
-def check_instance(inst: SensorInstance) -> str | None:
-    """Why ``inst`` cannot be calibrated (one phrase), or None when it can."""
-    if inst.kind not in _FIT_KINDS:
-        return f"{inst.kind}: neither autopilot compensates it for temperature (listed only)"
-    if inst.temperature_c is None:
-        return "no temperature: the sensor has no thermometer in the log"
-    if inst.untrusted:   # too many of its samples damaged (thermonet.data.logs.base.screen_samples)
-        return inst.untrusted
-    if inst.n_samples < MIN_SAMPLES:
-        return f"too few samples: {inst.n_samples} (need at least {MIN_SAMPLES})"
-    if not np.any(inst.values != 0):
-        return "every sample is exactly zero (a simulator or a dead sensor)"
-    span = float(np.ptp(inst.temperature_c))
-    if span < MIN_SPAN_C:
-        return (f"temperature spans only {span:.2f} °C (need at least {MIN_SPAN_C:g} °C: "
-                "cold-soak the board, then log while it warms)")
-    step = temperature_step(inst.temperature_c)
-    if step is not None and step >= 0.999 * MAX_STEP_C:
-        return (f"its thermometer reports in {step:g} °C steps: a fit through that staircase "
-                "is not a thermal model (use the sensor's raw temperature, if it has one)")
-    return None
-
-
-def _target(inst: SensorInstance, autopilot: str) -> np.ndarray:
-    v = inst.values.astype(np.float64)
-    if inst.kind == "gyro":
-        return v
-    centre = np.median(v, axis=0) if autopilot == "px4" else np.mean(v, axis=0)
-    return v - centre
-
-
-def fit_firmware(inst: SensorInstance, autopilot: str) -> FirmwareFit:
-    """The autopilot's own polynomial fitted on every sample of ``inst`` (SI units)."""
-    temp = np.asarray(inst.temperature_c, dtype=np.float64)
-    t_min, t_max = float(temp.min()), float(temp.max())
-    if autopilot == "px4":
-        t_ref = 0.5 * (t_min + t_max)
-        order = 5 if inst.kind == "baro" else 3
-    else:
-        t_ref, order = ARDUPILOT_TEMP_REFERENCE, 3
-    x = temp - t_ref
-    y = _target(inst, autopilot)
-    coef = np.zeros((y.shape[1], order + 1))
-    for j in range(y.shape[1]):
-        coef[j] = np.polynomial.polynomial.polyfit(x, y[:, j], order)
-    if autopilot == "ardupilot":
-        coef[:, 0] = 0.0           # no constant term on board
-    if not np.all(np.isfinite(coef)):
-        raise ThermonetError(f"{inst.name}: the firmware fit is not finite")
-    return FirmwareFit(kind=inst.kind, device_id=inst.device_id, t_ref=float(t_ref),
-                       t_min=t_min, t_max=t_max, coef=coef)
-
-
 def apply_firmware(params: dict[str, float], autopilot: str, inst: SensorInstance,
                    slot: int) -> np.ndarray:
     """What the autopilot subtracts from ``inst`` with ``params`` loaded: (n, axes) SI."""
@@ -167,6 +110,54 @@ def apply_firmware(params: dict[str, float], autopilot: str, inst: SensorInstanc
     cal = params.get(f"INS_{'GYR' if inst.kind == 'gyro' else 'ACC'}{slot + 1}_CALTEMP",
                      ARDUPILOT_TEMP_REFERENCE)
     return ardupilot_correction(params, inst.kind, temp, cal, imu=slot + 1)
+
+
+def _board_ids(log: FlightLog) -> list[tuple[str, int]]:
+    return sorted((i.name, i.device_id) for i in log.instances if i.kind in _FIT_KINDS)
+
+
+def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
+    """Several logs of one board as one: the instances joined in the order given (time
+    restarted 1 s after the previous log's end).  Refuses logs of another autopilot or
+    board (different instances or device ids), naming both logs' ids."""
+    first = logs[0]
+    for log in logs[1:]:
+        if log.autopilot != first.autopilot:
+            raise InputError(f"{log.path}: a {log.autopilot} log; {first.path} is "
+                             f"{first.autopilot} (one board, one autopilot)")
+        if _board_ids(log) != _board_ids(first):
+            def ids(lg: FlightLog) -> str:
+                return ", ".join(f"{n} {d}" for n, d in _board_ids(lg))
+            raise InputError(f"{log.path}: not the same board as {first.path} (device ids "
+                             f"{ids(log)} vs {ids(first)})")
+    if len(logs) == 1:
+        return first
+    instances = []
+    for inst in first.instances:
+        parts = [next(i for i in lg.instances if i.name == inst.name
+                      and i.device_id == inst.device_id) for lg in logs]
+        times, t0 = [], 0.0
+        for part in parts:
+            t = np.asarray(part.time_s, dtype=np.float64)
+            times.append(t - (t[0] if t.size else 0.0) + t0)
+            t0 = (times[-1][-1] + 1.0) if t.size else t0
+        temps = None if any(p.temperature_c is None for p in parts) else np.concatenate(
+            [np.asarray(p.temperature_c) for p in parts])
+        truth = None if any(p.truth is None for p in parts) else np.concatenate(
+            [np.asarray(p.truth) for p in parts])
+        notes = [f"{lg.path.name}: {n}" for lg, p in zip(logs, parts, strict=True)
+                 for n in p.notes]
+        untrusted = "; ".join(p.untrusted for p in parts if p.untrusted) or None
+        instances.append(SensorInstance(inst.kind, inst.instance, inst.device_id,
+                                        np.concatenate(times), temps,
+                                        np.concatenate([p.values for p in parts]),
+                                        notes=notes, truth=truth,
+                                        damaged=sum(p.damaged for p in parts),
+                                        untrusted=untrusted))
+    return FlightLog(path=first.path, autopilot=first.autopilot, instances=instances,
+                     params=dict(logs[-1].params),
+                     notes=[f"{lg.path.name}: {n}" for lg in logs for n in lg.notes],
+                     damage=[f"{lg.path.name}: {d}" for lg in logs for d in lg.damage])
 
 
 def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
@@ -236,9 +227,12 @@ def _verdict(summary: dict[str, Any]) -> tuple[bool, str]:
     return helps, line
 
 
-def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True,
-              overwrite: bool = False) -> dict[str, Any]:
-    """Calibrate every instance of a flight-controller log; write ``out_dir``; return results.
+def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, *,
+              compare: bool = True, overwrite: bool = False) -> dict[str, Any]:
+    """Calibrate every instance of one board's log(s); write ``out_dir``; return results.
+
+    ``log_path``: one log, or several logs of the same board (train on all but the
+    last, verify on the last, export the refit on all: see the module).
 
     ``out_dir`` appears whole or not at all (:mod:`thermonet.core.outdir`,
     ``kind="calibration"``): it is built in a hidden staging directory beside it
@@ -251,35 +245,95 @@ def calibrate(log_path: str | Path, out_dir: str | Path, *, compare: bool = True
     Raises
     ------
     InputError
-        A bad log (one line naming the file and what is missing).
+        A bad log (one line naming the file and what is missing), or logs of two boards.
     ThermonetError
         No instance can be calibrated (each reason listed), or ``out_dir`` is refused.
     """
     from ..core.outdir import check_target, staged_output
 
-    log: FlightLog = read_log(log_path)
+    paths = [log_path] if isinstance(log_path, (str, Path)) else list(log_path)
+    if not paths:
+        raise InputError("calibrate needs at least one log")
+    logs = [read_log(p) for p in paths]
+    merge_logs(logs)                              # same board? (refused before anything else)
     out = Path(out_dir)
     check_target(out, overwrite, "calibration")   # before anything is fitted
     with staged_output(out, overwrite=overwrite, kind="calibration") as stage:
-        doc = _calibrate_into(log, stage.path, out, compare=compare)
+        doc = _calibrate_into(logs, stage.path, out, compare=compare)
         stage.done()
     return doc
 
 
-def _calibrate_into(log: FlightLog, stage: Path, out: Path, *, compare: bool
+def _params_text(log: FlightLog, fitted: list[InstanceResult], header: list[str]
+                 ) -> tuple[str, str]:
+    """The parameter file of ``fitted`` (text, file name)."""
+    by_inst = {i.name: i for i in log.instances}
+    if log.autopilot == "px4":
+        fits: dict[str, list[FirmwareFit]] = {}
+        for r in sorted(fitted, key=lambda r: (r.kind, by_inst[r.name].instance)):
+            assert r.fit is not None
+            fits.setdefault(r.kind, []).append(r.fit)
+        return px4_calibration_text(fits, header=header), "px4.params"
+    imus: dict[int, dict[str, FirmwareFit]] = {}
+    for r in fitted:
+        assert r.fit is not None
+        imus.setdefault(by_inst[r.name].instance, {})[r.kind] = r.fit
+    # the device ids each INS_TCAL<n> was fitted for (thermonet verify matches by them)
+    ids = [f"device ids: INS_TCAL{k + 1} gyro {pair['gyro'].device_id if 'gyro' in pair else 0}"
+           f" acc {pair['acc'].device_id if 'acc' in pair else 0}"
+           for k, pair in sorted(imus.items())]
+    return ardupilot_calibration_text(imus, header=header + ids), "ardupilot.parm"
+
+
+def _held_out(logs: list[FlightLog], results: list[InstanceResult], stage: Path
+              ) -> dict[str, dict[str, Any]]:
+    """Fit on all logs but the last, apply the written file to the last (per instance)."""
+    train = merge_logs(logs[:-1])
+    by_name = {i.name: i for i in train.instances}
+    fitted: list[InstanceResult] = []
+    out: dict[str, dict[str, Any]] = {}
+    for r in results:
+        inst = by_name.get(r.name)
+        why = None if inst is None else check_instance(inst, train.autopilot)
+        if r.fit is None or inst is None or why is not None:
+            out[r.name] = {"status": "not judged",
+                           "reason": why or "not fitted on all the logs either"}
+            continue
+        fitted.append(InstanceResult(r.name, r.kind, r.device_id, "fitted",
+                                     fit=fit_firmware(inst, train.autopilot)))
+    if not fitted:
+        return out
+    text, name = _params_text(train, fitted, header=["held-out check"])
+    tmp = stage / f".held-out.{name}"
+    atomic_write_text(tmp, text)
+    try:
+        checked = evaluate(read_param_file(tmp), logs[-1])
+    finally:
+        tmp.unlink()
+    for r in fitted:
+        d: dict[str, Any] = checked.get(r.name) or {"status": "not judged",
+                                                    "reason": "not in the last log"}
+        out[r.name] = {"log": str(logs[-1].path), **{k: d.get(k) for k in (
+            "status", "reason", "pp_raw", "pp_corrected", "cut", "warnings")}}
+    return out
+
+
+def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: bool
                     ) -> dict[str, Any]:
     """The calibration, written into ``stage``; recorded paths name ``out``."""
     from ..core.names import inside, path_components
 
+    log = merge_logs(logs)
+    source = ", ".join(str(lg.path) for lg in logs)
     dirs = path_components(i.name for i in log.instances)
-    ok_kinds = [i.kind for i in log.instances if check_instance(i) is None]
+    ok_kinds = [i.kind for i in log.instances if check_instance(i, log.autopilot) is None]
     per_kind = {k: ok_kinds.count(k) for k in _FIT_KINDS}
     if log.autopilot == "px4" and max(per_kind.values()) > PX4_SLOTS:
         raise ThermonetError(f"{log.path}: PX4 has {PX4_SLOTS} calibration slots per sensor "
                              f"kind; the log has {per_kind} calibratable instances")
     results: list[InstanceResult] = []
     for inst in log.instances:
-        why = check_instance(inst)
+        why = check_instance(inst, log.autopilot)
         r = InstanceResult(inst.name, inst.kind, inst.device_id, "skipped", why)
         r.summary = {"n_samples": inst.n_samples, "notes": list(inst.notes),
                      "temperature_step_c": temperature_step(inst.temperature_c)}
@@ -291,10 +345,13 @@ def _calibrate_into(log: FlightLog, stage: Path, out: Path, *, compare: bool
         if why is None:
             r.fit = fit_firmware(inst, log.autopilot)
             r.status = "fitted"
+            res = resolution_effect(inst, r.fit)
+            if res is not None:
+                r.summary["resolution"] = res
             if compare:
                 try:
                     cmp = _compare(inst, log.autopilot,
-                                   inside(stage, "instances", dirs[inst.name]), str(log.path),
+                                   inside(stage, "instances", dirs[inst.name]), source,
                                    final=out / "instances" / dirs[inst.name])
                 except ThermonetError as err:   # this instance cannot be judged: reported, skipped
                     r.status, r.reason, r.fit = "skipped", f"comparison failed: {err}", None
@@ -302,54 +359,44 @@ def _calibrate_into(log: FlightLog, stage: Path, out: Path, *, compare: bool
                     continue
                 ok, line = _verdict(cmp)
                 r.summary["compare"] = cmp
-                r.summary["verdict"] = line
+                r.summary["verdict"] = line + (f"; {res['line']}" if res else "")
                 if not ok:
                     r.status, r.reason = "skipped", ("the firmware form does not reduce the "
                                                      "drift on held-out data: " + line)
                     r.fit = None
+            elif res is not None:
+                r.summary["verdict"] = res["line"]
         results.append(r)
+    if len(logs) > 1:
+        for name, h in _held_out(logs, results, stage).items():
+            r = next(x for x in results if x.name == name)
+            r.summary["held_out"] = h
+            if r.status == "fitted" and h.get("status") == "judged" and not all(
+                    below(a, b) for a, b in zip(h["pp_corrected"], h["pp_raw"], strict=True)):
+                r.status, r.fit = "skipped", None
+                r.reason = (f"fitted on the earlier logs, the firmware form does not cut the "
+                            f"drift of {Path(h['log']).name}")
     fitted = [r for r in results if r.status == "fitted"]
     if not fitted:
         reasons = "; ".join(f"{r.name}: {r.reason}" for r in results)
-        raise ThermonetError(f"{log.path}: no sensor instance can be calibrated ({reasons})")
-    header = [f"thermonet {__version__} thermal calibration of {log.path.name}",
-              "firmware form fitted on all samples (heating and cooling); see report.txt"]
-    by_inst = {i.name: i for i in log.instances}
-    slots: dict[str, int] = {}
-    if log.autopilot == "px4":
-        fits: dict[str, list[FirmwareFit]] = {}
-        for r in sorted(fitted, key=lambda r: (r.kind, by_inst[r.name].instance)):
-            assert r.fit is not None
-            slots[r.name] = len(fits.setdefault(r.kind, []))
-            fits[r.kind].append(r.fit)
-        text = px4_calibration_text(fits, header=header)
-        param_path = stage / "px4.params"
-    else:
-        imus: dict[int, dict[str, FirmwareFit]] = {}
-        for r in fitted:
-            assert r.fit is not None
-            idx = by_inst[r.name].instance
-            imus.setdefault(idx, {})[r.kind] = r.fit
-            slots[r.name] = idx
-        text = ardupilot_calibration_text(imus, header=header)
-        param_path = stage / "ardupilot.parm"
+        raise ThermonetError(f"{source}: no sensor instance can be calibrated ({reasons})")
+    names = ", ".join(lg.path.name for lg in logs)
+    header = [f"thermonet {__version__} thermal calibration of {names}",
+              "firmware form fitted on all samples (heating and cooling)"
+              + (f" of all {len(logs)} logs (held-out check: fitted on the first "
+                 f"{len(logs) - 1}, applied to {logs[-1].path.name})" if len(logs) > 1 else "")
+              + "; see report.txt"]
+    header += [f"{r.name} (id {r.device_id}): {r.summary['resolution']['line']}"
+               for r in fitted if "resolution" in r.summary]
+    text, fname = _params_text(log, fitted, header)
+    param_path = stage / fname
     atomic_write_text(param_path, text)
-    params = (read_px4_params(param_path) if log.autopilot == "px4"
-              else read_ardupilot_params(param_path))
-    for r in results:
-        if r.status != "fitted":
-            continue
-        inst = by_inst[r.name]
-        corr = apply_firmware(params, log.autopilot, inst, slots[r.name])
-        y = _target(inst, log.autopilot)
-        temp = np.asarray(inst.temperature_c)
-        before = [binned_peak_to_peak(temp, y[:, j]) for j in range(y.shape[1])]
-        after = [binned_peak_to_peak(temp, y[:, j] - corr[:, j]) for j in range(y.shape[1])]
-        r.summary["slot"] = slots[r.name]
-        r.summary["firmware_check"] = {"pp_raw": before, "pp_corrected": after,
-                                       "cut": [b / a if a > 0 else math.inf
-                                               for b, a in zip(before, after, strict=True)]}
-    doc = _results_doc(log, results, out / param_path.name)
+    checked = evaluate(read_param_file(param_path), log)
+    for r in fitted:
+        c = checked[r.name]
+        r.summary["slot"] = c["slot"]
+        r.summary["firmware_check"] = {k: c[k] for k in ("pp_raw", "pp_corrected", "cut")}
+    doc = _results_doc(logs, results, out / param_path.name)
     atomic_write_text(stage / "results.json", json.dumps(doc, indent=2, default=_json_default))
     atomic_write_text(stage / "report.txt", format_report(doc))
     atomic_write_text(stage / "report.html", render_calibration_report(doc, out, staged=stage))
@@ -364,7 +411,7 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(type(obj).__name__)
 
 
-def _results_doc(log: FlightLog, results: list[InstanceResult], param_path: Path
+def _results_doc(logs: list[FlightLog], results: list[InstanceResult], param_path: Path
                  ) -> dict[str, Any]:
     inst_doc: dict[str, Any] = {}
     for r in results:
@@ -376,88 +423,13 @@ def _results_doc(log: FlightLog, results: list[InstanceResult], param_path: Path
         inst_doc[r.name] = d
     from ..core.outdir import sha256_file
 
+    log = logs[0]
     return {"schema": 1, "thermonet_version": __version__, "log": str(log.path),
             "log_sha256": sha256_file(log.path),  # provenance: the very bytes calibrated
+            "logs": [str(lg.path) for lg in logs],
+            "logs_sha256": [sha256_file(lg.path) for lg in logs],
+            "held_out_log": str(logs[-1].path) if len(logs) > 1 else None,
             "autopilot": log.autopilot, "params_file": str(param_path),
-            "log_notes": list(log.notes), "log_damage": list(log.damage),
+            "log_notes": [n for lg in logs for n in lg.notes],
+            "log_damage": [d for lg in logs for d in lg.damage],
             "instances": inst_doc}
-
-
-def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | None = None
-                              ) -> str:
-    """``DIR/report.html``: the calibration page a person opens first.
-
-    One self-contained page (inline CSS, no script): a table of every sensor
-    instance — fitted with the cut of the autopilot's own correction read back
-    from the written file, or left out with its reason — colour-coded like the
-    comparison report, the full text report, and a link to each instance's own
-    comparison report (``instances/<name>/report.html``, itself self-contained,
-    with the verdict table, warnings and plots).  Every string is HTML-escaped.
-    ``staged``: where ``out``'s files are while it is being built (links are checked there).
-    """
-    import html
-
-    from ..reporting.report import _CSS, VERDICT_COLOURS
-
-    rows = []
-    for name, d in doc["instances"].items():
-        span = d.get("temperature_c")
-        where = f"{span[0]:.1f} … {span[1]:.1f} °C" if span else "no temperature"
-        if d["status"] == "fitted":
-            cuts = ", ".join(f"{c:.1f}×" for c in d["firmware_check"]["cut"])
-            what = f"fitted, slot {d['slot']}; binned drift cut {cuts}"
-            colour = VERDICT_COLOURS["better"]
-        else:
-            what = f"left out: {d['reason']}"
-            colour = VERDICT_COLOURS["worse"]
-        cmp = d.get("compare") or {}
-        sub = Path(str(cmp.get("dir", ""))) / "report.html" if cmp.get("dir") else None
-        link = ""
-        rel = None if sub is None else sub.relative_to(out) if sub.is_relative_to(out) else sub
-        found = rel if rel is None or staged is None or rel.is_absolute() else staged / rel
-        if rel is not None and found is not None and found.is_file():
-            link = f'<a href="{html.escape(str(rel))}">comparison</a>'
-        rows.append(f"<tr><td>{html.escape(name)}</td><td>{html.escape(str(d['kind']))}</td>"
-                    f"<td>{html.escape(str(d['device_id']))}</td><td>{d['n_samples']}</td>"
-                    f"<td>{html.escape(where)}</td><td style=\"background:{colour}\">"
-                    f"{html.escape(what)}</td><td>{link}</td></tr>")
-    return ("<!DOCTYPE html><html><head><meta charset=\"utf-8\">"
-            f"<title>thermonet calibrate: {html.escape(Path(doc['log']).name)}</title>"
-            f"<style>{_CSS}</style></head><body>"
-            f"<h1>Thermal calibration of {html.escape(Path(doc['log']).name)} "
-            f"({html.escape(doc['autopilot'])})</h1>"
-            f"<p class=\"chosen\">Parameter file: {html.escape(Path(doc['params_file']).name)}"
-            " — load it only on the board whose device ids are listed below.</p>"
-            "<h2>Sensor instances</h2><table><tr><th>instance</th><th>kind</th>"
-            "<th>device id</th><th>samples</th><th>temperature</th><th>result</th>"
-            "<th>details</th></tr>" + "".join(rows) + "</table>"
-            f"<h2>Report</h2><pre>{html.escape(format_report(doc))}</pre></body></html>\n")
-
-
-def format_report(doc: dict[str, Any]) -> str:
-    """One block per instance: fitted (with verdict and check) or left out (with the reason)."""
-    lines = [f"thermonet calibrate: {doc['log']} ({doc['autopilot']})",
-             *([f"log sha256: {doc['log_sha256']}"] if doc.get("log_sha256") else []),
-             f"parameter file: {doc['params_file']}", ""]
-    # what the log reader found damaged and where, and the log's own notes (gaps)
-    lines += [f"log: {n}" for n in doc.get("log_damage", []) + doc.get("log_notes", [])]
-    if doc.get("log_damage") or doc.get("log_notes"):
-        lines.append("")
-    for name, d in doc["instances"].items():
-        span = d.get("temperature_c")
-        where = f"{span[0]:.1f}..{span[1]:.1f} °C" if span else "no temperature"
-        head = f"{name:<6} id {d['device_id']:<9} {d['n_samples']:>7} samples, {where}"
-        if d["status"] != "fitted":
-            lines.append(f"{head}: LEFT OUT — {d['reason']}")
-        else:
-            chk = d["firmware_check"]
-            cuts = ", ".join(f"{c:.1f}x" for c in chk["cut"])
-            lines.append(f"{head}: fitted, slot {d['slot']}; on the log the autopilot's "
-                         f"correction cuts the binned drift p-p {cuts}")
-            if d.get("verdict"):
-                lines.append(f"       {d['verdict']}")
-        for note in d.get("notes", []):
-            lines.append(f"       note: {note}")
-    lines += ["", "Load the parameter file only for a board whose sensors are the device ids "
-              "above; reboot after loading; re-run the ordinary gyro/accel calibration."]
-    return "\n".join(lines) + "\n"

@@ -1,0 +1,116 @@
+"""The pages of ``thermonet calibrate``: ``report.txt`` (:func:`format_report`) and
+``report.html`` (:func:`render_calibration_report`), both from the results document."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+__all__ = ["format_report", "render_calibration_report"]
+
+
+def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | None = None
+                              ) -> str:
+    """``DIR/report.html``: the calibration page a person opens first.
+
+    One self-contained page (inline CSS, no script): a table of every sensor
+    instance — fitted with the cut of the autopilot's own correction read back
+    from the written file, or left out with its reason — colour-coded like the
+    comparison report, the full text report, and a link to each instance's own
+    comparison report (``instances/<name>/report.html``, itself self-contained,
+    with the verdict table, warnings and plots).  Every string is HTML-escaped.
+    ``staged``: where ``out``'s files are while it is being built (links are checked there).
+    """
+    import html
+
+    from ..reporting.report import _CSS, VERDICT_COLOURS
+
+    names = ", ".join(Path(p).name for p in (doc.get("logs") or [doc["log"]]))
+    rows = []
+    for name, d in doc["instances"].items():
+        span = d.get("temperature_c")
+        where = f"{span[0]:.1f} … {span[1]:.1f} °C" if span else "no temperature"
+        if d["status"] == "fitted":
+            cuts = ", ".join(f"{c:.1f}×" for c in d["firmware_check"]["cut"])
+            what = f"fitted, slot {d['slot']}; binned drift cut {cuts}"
+            h = d.get("held_out") or {}
+            if h.get("status") == "judged":
+                what += (f"; held out on {Path(h['log']).name}: "
+                         + ", ".join(f"{c:.1f}×" for c in h["cut"]))
+            if d.get("resolution"):
+                what += f"; {d['resolution']['line']}"
+            colour = VERDICT_COLOURS["better"]
+        else:
+            what = f"left out: {d['reason']}"
+            colour = VERDICT_COLOURS["worse"]
+        cmp = d.get("compare") or {}
+        sub = Path(str(cmp.get("dir", ""))) / "report.html" if cmp.get("dir") else None
+        link = ""
+        rel = None if sub is None else sub.relative_to(out) if sub.is_relative_to(out) else sub
+        found = rel if rel is None or staged is None or rel.is_absolute() else staged / rel
+        if rel is not None and found is not None and found.is_file():
+            link = f'<a href="{html.escape(str(rel))}">comparison</a>'
+        rows.append(f"<tr><td>{html.escape(name)}</td><td>{html.escape(str(d['kind']))}</td>"
+                    f"<td>{html.escape(str(d['device_id']))}</td><td>{d['n_samples']}</td>"
+                    f"<td>{html.escape(where)}</td><td style=\"background:{colour}\">"
+                    f"{html.escape(what)}</td><td>{link}</td></tr>")
+    return ("<!DOCTYPE html><html><head><meta charset=\"utf-8\">"
+            f"<title>thermonet calibrate: {html.escape(names)}</title>"
+            f"<style>{_CSS}</style></head><body>"
+            f"<h1>Thermal calibration of {html.escape(names)} "
+            f"({html.escape(doc['autopilot'])})</h1>"
+            f"<p class=\"chosen\">Parameter file: {html.escape(Path(doc['params_file']).name)}"
+            " — load it only on the board whose device ids are listed below.</p>"
+            "<h2>Sensor instances</h2><table><tr><th>instance</th><th>kind</th>"
+            "<th>device id</th><th>samples</th><th>temperature</th><th>result</th>"
+            "<th>details</th></tr>" + "".join(rows) + "</table>"
+            f"<h2>Report</h2><pre>{html.escape(format_report(doc))}</pre></body></html>\n")
+
+
+def format_report(doc: dict[str, Any]) -> str:
+    """One block per instance: fitted (with verdict and check) or left out (with the reason)."""
+    logs = doc.get("logs") or [doc["log"]]
+    lines = [f"thermonet calibrate: {', '.join(logs)} ({doc['autopilot']})",
+             *([f"log sha256: {doc['log_sha256']}"] if doc.get("log_sha256")
+               and len(logs) == 1 else []),
+             *[f"log sha256: {h} ({Path(p).name})" for p, h in zip(
+                 logs, doc.get("logs_sha256") or [], strict=False) if len(logs) > 1],
+             f"parameter file: {doc['params_file']}"]
+    if doc.get("held_out_log"):
+        lines += [f"{len(logs)} logs of one board: held-out check fitted on the first "
+                  f"{len(logs) - 1} and applied to {doc['held_out_log']} through the "
+                  "autopilot's own formula; the parameter file is the refit on all "
+                  f"{len(logs)} logs"]
+    lines.append("")
+    # what the log reader found damaged and where, and the log's own notes (gaps)
+    lines += [f"log: {n}" for n in doc.get("log_damage", []) + doc.get("log_notes", [])]
+    if doc.get("log_damage") or doc.get("log_notes"):
+        lines.append("")
+    for name, d in doc["instances"].items():
+        span = d.get("temperature_c")
+        where = f"{span[0]:.1f}..{span[1]:.1f} °C" if span else "no temperature"
+        head = f"{name:<6} id {d['device_id']:<9} {d['n_samples']:>7} samples, {where}"
+        if d["status"] != "fitted":
+            lines.append(f"{head}: LEFT OUT — {d['reason']}")
+        else:
+            chk = d["firmware_check"]
+            cuts = ", ".join(f"{c:.1f}x" for c in chk["cut"])
+            lines.append(f"{head}: fitted, slot {d['slot']}; on the log"
+                         f"{'s' if len(logs) > 1 else ''} the autopilot's "
+                         f"correction cuts the binned drift p-p {cuts}")
+            if d.get("verdict"):
+                lines.append(f"       {d['verdict']}")
+        h = d.get("held_out")
+        if h and h.get("status") == "judged":
+            lines.append(f"       held out ({Path(h['log']).name}, fitted on the earlier logs): "
+                         "binned drift p-p " + ", ".join(
+                             f"{b:.3g}->{a:.3g} ({c:.1f}x)" for b, a, c in zip(
+                                 h["pp_raw"], h["pp_corrected"], h["cut"], strict=True)))
+            lines += [f"       held-out warning: {w}" for w in h.get("warnings") or []]
+        elif h:
+            lines.append(f"       held out: not judged ({h.get('reason')})")
+        for note in d.get("notes", []):
+            lines.append(f"       note: {note}")
+    lines += ["", "Load the parameter file only for a board whose sensors are the device ids "
+              "above; reboot after loading; re-run the ordinary gyro/accel calibration."]
+    return "\n".join(lines) + "\n"
