@@ -133,8 +133,17 @@ def _cmd_info(args: argparse.Namespace) -> int:
         s = summarize_log(args.files[0])
         print(json.dumps(s, indent=2) if args.json else format_log_summary(s))
         return 0
-    ds = read_datasets(args.files, mapping=args.mapping)
-    summary = summarize(ds)
+    if args.chunk_rows is not None and args.chunk_rows < 1:
+        raise ThermonetError(f"--chunk-rows must be >= 1, got {args.chunk_rows}")
+    from .workflows.info_chunked import DEFAULT_CHUNK_ROWS, open_parquet, summarize_parquet
+
+    path = Path(args.files[0])
+    layout = open_parquet(path) if len(args.files) == 1 and not args.mapping and \
+        path.suffix.lower() in (".parquet", ".pq") and path.is_file() else None
+    if layout is not None:  # thermonet's own Parquet: one chunked pass, memory bounded
+        summary = summarize_parquet(layout, chunk_rows=args.chunk_rows or DEFAULT_CHUNK_ROWS)
+    else:
+        summary = summarize(read_datasets(args.files, mapping=args.mapping))
     print(json.dumps(summary, indent=2, default=str) if args.json else format_summary(summary))
     return 0
 
@@ -278,6 +287,9 @@ def build_parser() -> argparse.ArgumentParser:
                                             "has a 'run' column)")
     i.add_argument("--mapping", default=None, help="YAML column mapping (configs/data/*.yaml)")
     i.add_argument("--json", action="store_true", help="print the summary as JSON")
+    i.add_argument("--chunk-rows", type=int, default=None, metavar="N",
+                   help="rows read at a time from one thermonet Parquet file (default 65536; "
+                        "memory stays bounded by it, whatever the file's length)")
     i.set_defaults(func=_cmd_info)
 
     def family_workers_arg(q: argparse.ArgumentParser) -> None:
