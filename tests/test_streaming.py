@@ -196,3 +196,37 @@ def test_c_step_block_is_step_sample_by_sample(trained, block):
     ref = run_stream_c(model, header, t_bad, temp[:20], raw[:20])   # step, one by one
     np.testing.assert_array_equal(cb["drift"], ref["drift"])
     assert (ref["ret"] != 0).tolist() == (np.arange(20) == 5).tolist()
+
+
+def test_normal_equations_over_chunks_recover_known_coefficients():
+    """A cubic in standardised ΔT with known coefficients, 200,000 rows: the normal equations
+    accumulated over chunks (1, 7, 4,096 rows and two workers merged) give the whole-array
+    least squares to float64 rounding, and both recover the coefficients to the noise's
+    standard error (σ/√N per standardised term ≈ 2e-6 here: 1e-4 is ≥ 40 σ)."""
+    from thermonet.models.base import NormalEquations, least_squares
+
+    rng = np.random.default_rng(7)
+    n = 200_000
+    z = rng.uniform(-1.7, 1.7, n)                     # a standardised temperature
+    design = np.column_stack([z, z ** 2, z ** 3, np.ones(n)])
+    coef = np.array([[0.8, -0.3], [0.05, 0.2], [-0.01, 0.07], [0.4, -1.1]])
+    y = design @ coef + rng.normal(0.0, 1e-3, (n, 2))
+    whole = least_squares(design, y)
+    np.testing.assert_allclose(whole, coef, rtol=0, atol=1e-4)
+    for size in (1, 7, 4096):
+        if size == 1:   # row by row (rank-one updates), on a 5,000-row prefix
+            m = 5000
+            ne = NormalEquations(4, 2)
+            for k in range(m):
+                ne.add(design[k:k + 1], y[k:k + 1])
+            assert_f64_close(ne.solve(), least_squares(design[:m], y[:m]), rtol=1e-9)
+            continue
+        ne = NormalEquations(4, 2)
+        for a in range(0, n, size):
+            ne.add(design[a:a + size], y[a:a + size])
+        assert ne.n_rows == n
+        # the solve amplifies the sums' rounding by the Gram matrix's condition (≈ 1e3)
+        assert_f64_close(ne.solve(), whole, rtol=1e-9)
+    left = NormalEquations(4, 2).add(design[:123_457], y[:123_457])
+    right = NormalEquations(4, 2).add(design[123_457:], y[123_457:])
+    assert_f64_close(left.merge(right).solve(), whole, rtol=1e-9)
