@@ -90,7 +90,11 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
         FleetOptions,
         run_fleet,
     )
-    from .workflows.fleet_units import sources_from_dataset, sources_from_simulation
+    from .workflows.fleet_units import (
+        sources_from_dataset,
+        sources_from_files,
+        sources_from_simulation,
+    )
 
     cfg = load_config(args.config)
     opts = FleetOptions(executor=args.executor, workers=args.workers,
@@ -105,8 +109,12 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
     else:
         if args.outliers:
             raise ThermonetError("--outliers needs --units (outliers are simulated units)")
-        sources = sources_from_dataset(load_data(cfg.data, source=str(args.config),
-                                                 allow_fleet=True))
+        # one thermonet Parquet file per unit: each worker reads its own file; otherwise the
+        # driver reads the data and sends each unit's runs to its worker
+        by_file = sources_from_files(cfg.data.paths) if cfg.data.paths and not (
+            cfg.data.mapping or cfg.data.outputs) else None
+        sources = by_file or sources_from_dataset(load_data(cfg.data, source=str(args.config),
+                                                            allow_fleet=True))
         for s in sources:
             if s.error is not None:  # that unit fails alone; the fleet goes on
                 print(f"thermonet: warning: {s.error}", file=sys.stderr)
