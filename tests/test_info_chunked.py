@@ -117,3 +117,17 @@ def test_cli_info_streams_a_thermonet_parquet_file(recording, capsys):
     assert got == json.loads(json.dumps(summarize_parquet(recording, chunk_rows=1000)))
     assert main(["info", str(recording), "--chunk-rows", "0"]) == 1
     assert "--chunk-rows must be >= 1, got 0" in capsys.readouterr().err
+
+
+def test_a_file_the_whole_reader_refuses_is_refused_with_the_same_line(tmp_path):
+    """Dataset-level checks (here: a temperature span below the minimum) run on the chunked
+    pass's per-run extremes and channels: the same one line as the whole-file reader."""
+    soak = _run("soak", 0.002, 20.0, 4, 10.0)
+    soak.temperature_c = 20.0 + 0.01 * np.sin(np.arange(soak.n_samples) / 100.0)
+    path = write_parquet(Dataset(runs=[soak]), tmp_path / "soak.parquet")
+    with pytest.raises(InputError) as whole:
+        read_dataset(path)
+    with pytest.raises(InputError) as chunked:
+        summarize_parquet(path, chunk_rows=1000)
+    assert "temperature spans only" in str(whole.value)
+    assert str(chunked.value) == str(whole.value)

@@ -22,9 +22,13 @@ time) accumulates per run and channel:
 
 Checked while reading: every value finite, time strictly increasing within each run
 (across chunk edges too), each run's sample count equal to the one its metadata
-states and at least :data:`thermonet.core.recording.MIN_SAMPLES`.  The cross-run checks
-of a whole :class:`~thermonet.core.recording.Dataset` (the same channels in every run,
-known units, the temperature span) are the comparison's, which reads the data to fit it.
+states and at least :data:`thermonet.core.recording.MIN_SAMPLES`.  Then the checks of a
+whole :class:`~thermonet.core.recording.Dataset` (``Dataset.validate``: channels and
+units of every run, references and drift matching outputs, the same channels in every
+run, the temperature span) run on a skeleton of each run — its channels, units and
+metadata with ``MIN_SAMPLES`` placeholder samples whose temperature spans the run's own
+minimum to maximum — so a file the whole-file reader refuses is refused here with the
+same line.
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.recording import MIN_SAMPLES
+from ..core.recording import MIN_SAMPLES, Dataset, Recording
 from ..data.chunks import DEFAULT_CHUNK_ROWS, ParquetLayout, iter_run_chunks, open_parquet
 from ..data.diagnostics import run_warnings
 from ..data.mapping import channel_role
@@ -170,6 +174,7 @@ def summarize_parquet(path: str | Path | ParquetLayout, *, bin_c: float = 1.0,
         if e.get("n_samples") is not None and int(e["n_samples"]) != r.n:
             raise InputError.at(layout.path, f"{where}: {r.n} rows, its metadata says "
                                 f"{e['n_samples']}")
+    _validate_skeleton(layout, runs)
     channels = [{"name": n, "role": "time" if n == "time_s" else
                  ("proxy" if any(n in e["proxies"] for e in entries) else channel_role(n)),
                  "unit": units[n]} for n in names]
@@ -216,6 +221,25 @@ def summarize_parquet(path: str | Path | ParquetLayout, *, bin_c: float = 1.0,
             "skipped_rows": None if skipped is None else int(skipped),
             "noise_floor_basis": f"1 sigma per sample at {at}",
             "warnings": warnings}
+
+
+def _validate_skeleton(layout: ParquetLayout, runs: list[_Run]) -> None:
+    """``Dataset.validate`` on each run's channels, units and temperature extremes."""
+    k = MIN_SAMPLES
+    skeleton = []
+    for r in runs:
+        e = r.entry
+        zeros = np.zeros(k)
+        temp = np.linspace(r.lo["temperature_c"], r.hi["temperature_c"], k) \
+            if e["temperature"] else None
+        skeleton.append(Recording(
+            time_s=np.arange(k, dtype=np.float64), temperature_c=temp,
+            outputs={n: zeros for n in e["outputs"]},
+            references={n: zeros for n in e["references"]},
+            drift={n: zeros for n in e["drift"]}, proxies={n: zeros for n in e["proxies"]},
+            units=dict(e["units"]), device_id=e["device_id"], sensor_kind=e["sensor_kind"],
+            run_id=e["run_id"], sample_rate_hz=e["sample_rate_hz"], meta=dict(e["meta"])))
+    Dataset(runs=skeleton, meta=dict(layout.meta)).validate(str(layout.path))
 
 
 def _num(x: float) -> float | None:
