@@ -230,3 +230,35 @@ def test_normal_equations_over_chunks_recover_known_coefficients():
     left = NormalEquations(4, 2).add(design[:123_457], y[:123_457])
     right = NormalEquations(4, 2).add(design[123_457:], y[123_457:])
     assert_f64_close(left.merge(right).solve(), whole, rtol=1e-9)
+
+
+def test_blocks_with_a_proxy_runtime_and_c(tmp_path):
+    """A model that also reads a proxy (``d_freq_hz``, passed by name, row-major in C): the
+    runtime's blocks equal one batch call, the C blocks equal step() sample by sample."""
+    inputs = ["dT", "d_freq_hz", "rate"]
+    t, temp, raw = _sequence(seed=2)
+    freq = 1000.0 + 2.0 * np.nan_to_num(temp, nan=20.0)
+    tt = np.arange(0.0, 30000.0, 2.0)
+    phase = (tt % 8000.0) / 8000.0
+    T = -10.0 + 70.0 * (1.0 - np.abs(2.0 * phase - 1.0))
+    sig, _ = dynamics.compute(tt, T, inputs, GAP_S)
+    spec = FeatureSpec(inputs=inputs, t_ref=20.0, proxy_ref={"freq_hz": 1040.0}, gap_s=GAP_S)
+    cols = {"temperature_c": T, "freq_hz": 1000.0 + 2.0 * T, **sig}
+    s = np.column_stack([cols[x] for x in spec.signals])
+    y = np.column_stack([0.01 * (T - 20.0) + 0.02 * sig["rate_c_per_min"], 0.001 * T])
+    model = fit(family="linear", inputs=inputs, outputs=AXES, train=[(s, y)], val=None,
+                spec=spec, hyper={}, config=TrainConfig(max_epochs=0)).model
+    comp = rt.Compensator(export_onnx(model, tmp_path / "p.onnx"))
+    whole = comp.compensate(temperature_c=temp, raw=raw, time_s=t, freq_hz=freq)
+    cuts = _cuts("at-gaps-and-nans")
+    parts = [comp.step_block(t[a:b], temp[a:b], raw[a:b], freq_hz=freq[a:b])
+             for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
+    assert_f32_close(np.concatenate([p.drift for p in parts]), whole.drift, "dynamic")
+    assert np.array_equal(np.concatenate([p.out_of_range for p in parts]), whole.out_of_range)
+    header = render_c_header(model)
+    assert "const float *proxies," in header.split("_step_block(")[1].split(")")[0]
+    one = run_stream_c(model, header, t, temp, raw, freq[:, None])
+    blk = run_stream_c(model, header, t, temp, raw, freq[:, None], block=7)
+    np.testing.assert_array_equal(blk["drift"], one["drift"])   # step, sample by sample
+    assert np.array_equal(blk["flag"], one["flag"])
+    assert_f32_close(one["drift"], whole.drift, "dynamic")
