@@ -131,3 +131,27 @@ def test_a_file_the_whole_reader_refuses_is_refused_with_the_same_line(tmp_path)
         summarize_parquet(path, chunk_rows=1000)
     assert "temperature spans only" in str(whole.value)
     assert str(chunked.value) == str(whole.value)
+
+
+def test_convert_a_csv_once_then_read_it_in_chunks(tmp_path, capsys):
+    """CSV → thermonet Parquet (``thermonet convert``), then the chunked summary of the Parquet
+    file equals the whole summary of the CSV."""
+    rec = _run("r", 0.002, 0.0, 5, None, n=3000)
+    csv = tmp_path / "r.csv"
+    with csv.open("w") as fh:
+        fh.write("time_s,temperature_c,gyro_x,gyro_y,ref_gyro_x,freq_hz\n")
+        for k in range(rec.n_samples):
+            fh.write(",".join(repr(float(v)) for v in (
+                rec.time_s[k], rec.temperature_c[k], rec.outputs["gyro_x"][k],
+                rec.outputs["gyro_y"][k], rec.references["ref_gyro_x"][k],
+                rec.proxies["freq_hz"][k])) + "\n")
+    out = tmp_path / "r.parquet"
+    assert main(["convert", str(csv), "--out", str(out)]) == 0
+    assert "1 run(s), 3000 samples" in capsys.readouterr().out
+    want = summarize(read_dataset(csv))
+    got = summarize_parquet(out, chunk_rows=2999)   # two chunks; 2,999 intervals: exact median
+    assert got["runs"] == want["runs"] and got["channels"] == want["channels"]
+    assert_f64_close([o["noise_floor"] for o in got["outputs"]],
+                     [o["noise_floor"] for o in want["outputs"]])
+    assert main(["convert", str(csv), "--out", str(out)]) == 1
+    assert "already exists (give --overwrite" in capsys.readouterr().err

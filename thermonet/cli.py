@@ -156,6 +156,21 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_convert(args: argparse.Namespace) -> int:
+    """Recordings (CSV, mapped files, Parquet) to one thermonet Parquet file: the one-time
+    conversion after which a long recording is read in row-group chunks."""
+    from .data.io import read_datasets, write_parquet
+
+    out = Path(args.out)
+    if out.exists() and not args.overwrite:
+        raise ThermonetError(f"{out}: already exists (give --overwrite to replace it)")
+    ds = read_datasets(args.files, mapping=args.mapping)
+    write_parquet(ds, out)
+    n = sum(r.n_samples for r in ds)
+    print(f"{len(ds)} run(s), {n} samples -> {out}")
+    return 0
+
+
 def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
     from .training.config import load_config
 
@@ -299,6 +314,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rows read at a time from one thermonet Parquet file (default 65536; "
                         "memory stays bounded by it, whatever the file's length)")
     i.set_defaults(func=_cmd_info)
+
+    v = sub.add_parser("convert", help="recordings to one thermonet Parquet file",
+                       description="Read recording files (CSV, a mapping's format, Parquet) "
+                                   "once and write them as one thermonet Parquet file, which "
+                                   "info and fleets then read in row-group chunks.")
+    v.add_argument("files", nargs="+", help="recording files (one run per file unless the file "
+                                            "has a 'run' column)")
+    v.add_argument("--mapping", default=None, help="YAML column mapping (configs/data/*.yaml)")
+    v.add_argument("--out", required=True, help="output .parquet file")
+    v.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    v.set_defaults(func=_cmd_convert)
 
     def family_workers_arg(q: argparse.ArgumentParser) -> None:
         q.add_argument("--workers", type=int, default=None, metavar="N",

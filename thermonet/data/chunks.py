@@ -20,10 +20,11 @@ Decisions:
   and 236 MB peak RSS (150 MB of it the interpreter and libraries); 1,048,576 rows, 2.8 s
   and 526 MB — a larger chunk buys nothing once the per-chunk Python overhead is small.
 * **Which files.**  Thermonet's own Parquet format (the metadata blob names every run
-  and channel without reading data).  A CSV is converted once
-  (``thermonet convert``-style: :func:`thermonet.data.io.read_dataset` then
-  :func:`~thermonet.data.io.write_parquet`) and streamed from then on; a foreign
-  Parquet file without the blob is read whole (:func:`open_parquet` returns None).
+  and channel without reading data).  A CSV (or any mapped file) is converted once with
+  ``thermonet convert`` (:func:`thermonet.data.io.read_datasets` then
+  :func:`~thermonet.data.io.write_parquet`: that one read holds the file in memory) and
+  streamed from then on; a foreign Parquet file without the blob is read whole
+  (:func:`open_parquet` returns None).
 * **Runs.**  Rows of one run need not be contiguous (a run's rows are taken in file
   order wherever they are), but a run's time must increase across all its rows.
 """
