@@ -1,14 +1,31 @@
-"""How the default comparison scales: 5 / 50 runs at 10 / 100 Hz, wall time and peak memory.
+"""Recordings larger than memory (issue 23): peak memory and wall time against the number of
+samples, and the streaming runtime against batch.
 
-The patent-gyro preset (5.9 h runs, 3 axes) is simulated at the given rate and
-written to Parquet; then ``thermonet compare`` runs in a child process on the
-default config's families (tracking off) and the child's wall time, CPU time
-and peak resident memory (``resource.getrusage(RUSAGE_CHILDREN).ru_maxrss``,
-the largest child so far — each size runs in a fresh helper process so the
-figure is its own) are recorded.  Medians of ``REPEATS`` runs with min–max.
-50 runs at 100 Hz (106 M samples, ≈ 9 GB of float64 columns before any work, on
-a 23 GB machine, and ≈ 10 minutes of simulation alone) is not run: the 50 × 10 Hz
-and 5 × 100 Hz rows (10.6 M samples each) show how time and memory grow.
+Three parts; the file parts in fresh child processes, each reporting its own peak resident
+memory (``VmHWM`` for info, ``ru_maxrss`` for compare, forked from a small parent so the
+figure is the child's own); medians of repeats with min–max:
+
+``info``
+    ``thermonet info`` on one Parquet file of 1, 2, 10 and 20 M samples (patent-gyro, 5 runs of
+    5.9 h, 3 axes with references and simulated drift: 12 columns, ≈ 50 B a sample on disk) —
+    the chunked pass (:mod:`thermonet.workflows.info_chunked`, default 65,536-row chunks) at
+    every size, the whole-file summary (``read_dataset`` + ``summarize``) at 1 and 2 M for
+    comparison.  Bytes per extra sample: the slope of peak RSS between the smallest and the
+    largest size.
+``compare``
+    ``thermonet compare`` of the default config (the default families, tracking off) at 1
+    and 2 M samples: the in-memory comparison as it is today.  10 and 20 M are not run on
+    this shared 2-core machine (≈ 6 and ≈ 11 GB; the 10.6 M figure measured before is in
+    experiments/README.md).
+``runtime``
+    The torch-free runtime on 1 M samples of a model with dynamic inputs (a poly on
+    ``dT, rate, lag_300, play_0.5``, 3 axes): one ``compensate`` call on the whole array
+    (batch) against ``step_block`` in blocks of 1,024 / 4,096 / 65,536 samples (the state
+    carried), and ``step`` one sample at a time (on 5,000 samples); throughput in samples/s,
+    interleaved repeats, and the paired ratio streaming / batch.
+
+``python experiments/bench_scaling.py [info] [compare] [runtime]`` (default: all three);
+``BENCH_SCALING_REPEATS`` (default 3; compare uses 2).
 """
 
 from __future__ import annotations
@@ -18,27 +35,45 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import COMPARE_CHILD, fmt_spread, save, spread, table  # noqa: E402
+from common import (  # noqa: E402
+    COMPARE_CHILD,
+    fmt_spread,
+    interleaved,
+    ratio_spread,
+    save,
+    spread,
+    table,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
-#: (runs, rate): the default (5 runs at 1 Hz) and the issue's grid of 5 / 50 runs at 10 / 100 Hz
-#: but 50 × 100 Hz (see the module docstring)
-SIZES = [(5, 1.0), (5, 10.0), (50, 10.0), (5, 100.0)]
-REPEATS = int(os.environ.get("BENCH_SCALING_REPEATS", "2"))
+#: target samples; 5 patent-gyro runs of 21,200 s at the rate that gives them
+SIZES = [1_000_000, 2_000_000, 10_000_000, 20_000_000]
+RUNS, RUN_S = 5, 21_200.0
+COMPARE_SIZES = SIZES[:2]
+WHOLE_INFO_SIZES = SIZES[:2]
+REPEATS = int(os.environ.get("BENCH_SCALING_REPEATS", "3"))
 
-
-
-def simulate_file(runs: int, rate_hz: float, path: Path) -> int:
-    code = ("import sys; from thermonet.sim import simulate; "
-            "from thermonet.data.io import write_parquet; "
-            f"ds = simulate('patent-gyro', runs={runs}, seed=0, sample_rate_hz={rate_hz});"
-            "write_parquet(ds, sys.argv[1]); print(sum(r.n_samples for r in ds.runs))")
-    out = subprocess.run([sys.executable, "-c", code, str(path)], check=True, text=True,
-                         capture_output=True, env=_env()).stdout
-    return int(out.strip().splitlines()[-1])
+#: one summary in a fresh process: chunked (argv[2] == "chunked") or whole-file
+INFO_CHILD = """
+import json, sys, time
+t0 = time.perf_counter()
+if sys.argv[2] == "chunked":
+    from thermonet.workflows.info_chunked import summarize_parquet
+    s = summarize_parquet(sys.argv[1])
+else:
+    from thermonet.data.io import read_dataset
+    from thermonet.workflows.info import summarize
+    s = summarize(read_dataset(sys.argv[1]))
+wall = time.perf_counter() - t0
+# VmHWM: this process's own peak (ru_maxrss would keep the parent's at fork across exec)
+hwm = next(int(x.split()[1]) for x in open("/proc/self/status") if x.startswith("VmHWM"))
+print(json.dumps({"wall_s": wall, "maxrss_mb": hwm / 1024.0,
+                  "samples": sum(r["samples"] for r in s["runs"])}))
+"""
 
 
 def _env() -> dict[str, str]:
@@ -47,45 +82,169 @@ def _env() -> dict[str, str]:
     return env
 
 
+def _child(code: str, *args: str, cwd: Path | None = None) -> dict:
+    out = subprocess.run([sys.executable, "-c", code, *args], check=True, text=True,
+                         capture_output=True, env=_env(), cwd=cwd)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def simulate_file(samples: int, path: Path) -> int:
+    rate = samples / (RUNS * RUN_S)
+    code = ("import sys; from thermonet.sim import simulate; "
+            "from thermonet.data.io import write_parquet; "
+            f"ds = simulate('patent-gyro', runs={RUNS}, seed=0, sample_rate_hz={rate!r});"
+            "write_parquet(ds, sys.argv[1]); print(sum(r.n_samples for r in ds.runs))")
+    out = subprocess.run([sys.executable, "-c", code, str(path)], check=True, text=True,
+                         capture_output=True, env=_env()).stdout
+    return int(out.strip().splitlines()[-1])
+
+
 def compare_once(data: Path, work: Path) -> dict:
     cfg = work / "config.yaml"
     cfg.write_text((ROOT / "configs" / "default.yaml").read_text().replace(
         "data:\n  preset: patent-gyro\n  seed: 0\n", f"data:\n  paths: [{data}]\n"))
-    out = subprocess.run([sys.executable, "-c", COMPARE_CHILD, str(cfg), str(work / "out")],
-                         check=True, text=True, capture_output=True, env=_env(), cwd=work)
-    res = json.loads(out.stdout.strip().splitlines()[-1])
+    res = _child(COMPARE_CHILD, str(cfg), str(work / "out"), cwd=work)
     if res["rc"] != 0:
-        raise RuntimeError(f"compare failed on {data}: {out.stderr[-500:]}")
+        raise RuntimeError(f"compare failed on {data}")
     return res
 
 
-def main() -> None:
-    rows, data = [], {}
-    with tempfile.TemporaryDirectory() as tmp:
-        for runs, rate in SIZES:
-            f = Path(tmp) / f"pg_{runs}_{rate:g}.parquet"
-            n = simulate_file(runs, rate, f)
-            results = []
-            for k in range(REPEATS):
-                work = Path(tmp) / f"w_{runs}_{rate:g}_{k}"
+def _slope(points: list[tuple[int, float]]) -> float:
+    """Bytes per extra sample between the smallest and the largest size (MB → B)."""
+    (n0, m0), (n1, m1) = points[0], points[-1]
+    return (m1 - m0) * 1024.0 * 1024.0 / (n1 - n0)
+
+
+def bench_files(parts: set[str], tmp: Path) -> tuple[list[str], dict]:
+    md, data = [], {"info": {}, "compare": {}}
+    info_rows, cmp_rows = [], []
+    info_pts: dict[str, list[tuple[int, float]]] = {"chunked": [], "whole": []}
+    cmp_pts: list[tuple[int, float]] = []
+    for target in SIZES:
+        if "compare" not in parts and "info" not in parts:
+            break
+        if "info" not in parts and target not in COMPARE_SIZES:
+            continue
+        f = tmp / f"pg_{target}.parquet"
+        n = simulate_file(target, f)
+        if "info" in parts:
+            for mode in ("chunked", "whole"):
+                if mode == "whole" and target not in WHOLE_INFO_SIZES:
+                    continue
+                res = [_child(INFO_CHILD, str(f), mode) for _ in range(REPEATS)]
+                wall, mem = spread([r["wall_s"] for r in res]), spread([r["maxrss_mb"]
+                                                                         for r in res])
+                data["info"][f"{mode}_{n}"] = {"samples": n, "wall_s": wall, "maxrss_mb": mem}
+                info_pts[mode].append((n, mem["median"]))
+                info_rows.append([f"{n / 1e6:.2f} M", mode, fmt_spread(wall),
+                                  fmt_spread(mem, digits=4)])
+        if "compare" in parts and target in COMPARE_SIZES:
+            res = []
+            for k in range(2):
+                work = tmp / f"w_{target}_{k}"
                 work.mkdir()
-                results.append(compare_once(f, work))
-            wall = spread([r["wall_s"] for r in results])
-            cpu = spread([r["cpu_s"] for r in results])
-            mem = spread([r["maxrss_mb"] for r in results])
-            data[f"{runs}x{rate:g}Hz"] = {"samples": n, "wall_s": wall, "cpu_s": cpu,
-                                          "maxrss_mb": mem}
-            rows.append([runs, f"{rate:g}", f"{n:,}", fmt_spread(wall), fmt_spread(cpu),
-                         fmt_spread(mem, digits=4)])
-            f.unlink()
-            _save(rows, data)      # after each size: a long run still leaves what it measured
+                res.append(compare_once(f, work))
+            wall, cpu = spread([r["wall_s"] for r in res]), spread([r["cpu_s"] for r in res])
+            mem = spread([r["maxrss_mb"] for r in res])
+            data["compare"][str(n)] = {"samples": n, "wall_s": wall, "cpu_s": cpu,
+                                       "maxrss_mb": mem}
+            cmp_pts.append((n, mem["median"]))
+            cmp_rows.append([f"{n / 1e6:.2f} M", fmt_spread(wall), fmt_spread(cpu),
+                             fmt_spread(mem, digits=4)])
+        f.unlink()
+    if info_rows:
+        slopes = {m: _slope(p) for m, p in info_pts.items() if len(p) > 1}
+        data["info"]["bytes_per_extra_sample"] = slopes
+        md.append("### `thermonet info` on one Parquet file\n\n" + table(
+            ["samples", "pass", "wall s", "peak RSS MB"], info_rows) + "\n\nBytes per extra "
+            "sample (peak RSS slope): " + ", ".join(f"{m} {v:.1f} B" for m, v in slopes.items()))
+    if cmp_rows:
+        slope = _slope(cmp_pts) if len(cmp_pts) > 1 else float("nan")
+        data["compare"]["bytes_per_extra_sample"] = slope
+        md.append("### `thermonet compare` (default config, in memory)\n\n" + table(
+            ["samples", "wall s", "CPU s", "peak RSS MB"], cmp_rows)
+            + f"\n\nBytes per extra sample (peak RSS slope): {slope:.0f} B")
+    return md, data
 
 
-def _save(rows: list, data: dict) -> None:
-    md = ("### Scaling of the default comparison (patent-gyro, the default families, tracking off)"
-          f"\n\nMedians of {REPEATS} child processes (min–max).\n\n"
-          + table(["runs", "rate Hz", "samples", "wall s", "CPU s", "peak RSS MB"], rows))
-    save("scaling", dict(data), md)
+def bench_runtime(tmp: Path) -> tuple[list[str], dict]:
+    sys.path.insert(0, str(ROOT))
+    sys.path.insert(0, str(ROOT / "export"))
+    import numpy as np
+
+    import thermonet_runtime as rt
+    from thermonet.exporting import export_onnx
+    from thermonet.features import dynamics
+    from thermonet.features.inputs import FeatureSpec
+    from thermonet.training.train import TrainConfig, fit
+
+    inputs = ["dT", "rate", "lag_300", "play_0.5"]
+    t = np.arange(0.0, 30000.0, 2.0)
+    temp = 20.0 + 20.0 * np.sin(t / 3000.0)
+    sig, _ = dynamics.compute(t, temp, inputs, 5.0)
+    spec = FeatureSpec(inputs=inputs, t_ref=20.0, gap_s=5.0)
+    s = np.column_stack([temp] + [sig[x] for x in spec.signals[1:]])
+    y = np.column_stack([0.01 * temp, 0.02 * sig["rate_c_per_min"], 0.003 * sig["play_0.5_c"]])
+    model = fit(family="poly", inputs=inputs, outputs=["gyro_x", "gyro_y", "gyro_z"],
+                train=[(s, y)], val=None, spec=spec, hyper={"degree": 2, "cross": True},
+                config=TrainConfig(max_epochs=0)).model
+    comp = rt.Compensator(export_onnx(model, tmp / "m.onnx"))
+    n = 1_000_000
+    times = np.arange(n) * 0.01
+    temps = 20.0 + 20.0 * np.sin(times / 300.0)
+    raw = np.zeros((n, 3))
+
+    def batch() -> None:
+        comp.compensate(temperature_c=temps, raw=raw, time_s=times)
+
+    def blocks(b: int):
+        def run() -> None:
+            comp.reset()
+            for a in range(0, n, b):
+                comp.step_block(times[a:a + b], temps[a:a + b], raw[a:a + b])
+        return run
+
+    m = 5000
+
+    def one_by_one() -> None:
+        comp.reset()
+        for k in range(m):
+            comp.step(times[k], temps[k], raw[k])
+
+    fns = {"batch": batch, **{f"step_block {b}": blocks(b) for b in (1024, 4096, 65536)}}
+    wall = interleaved(fns, repeats=max(REPEATS, 5))
+    step_wall = interleaved({"step": one_by_one}, repeats=3)["step"]
+    rows, data = [], {}
+    for k, v in wall.items():
+        rate = spread([n / x for x in v])
+        ratio = ratio_spread(wall["batch"], v)
+        data[k] = {"samples_per_s": rate, "vs_batch": ratio}
+        rows.append([k, fmt_spread(rate, 1e-6), fmt_spread(ratio)])
+    rate = spread([m / x for x in step_wall])
+    data["step (one sample a call)"] = {"samples_per_s": rate}
+    rows.append(["step, one sample a call", fmt_spread(rate, 1e-6), "—"])
+    md = ["### Runtime: streaming in blocks against batch (1 M samples, dynamic inputs)\n\n"
+          + table(["mode", "M samples/s", "× batch (paired)"], rows)]
+    return md, {"runtime": data}
+
+
+def main() -> None:
+    parts = set(sys.argv[1:]) or {"info", "compare", "runtime"}
+    md, data = [], {}
+    with tempfile.TemporaryDirectory() as tmp_dir:
+        tmp = Path(tmp_dir)
+        t0 = time.perf_counter()
+        # the files first: the runtime part grows this process, and a child forked from a
+        # large parent would report the parent's size as its ru_maxrss (compare's figure)
+        m, d = bench_files(parts, tmp)
+        md += m
+        data.update(d)
+        if "runtime" in parts:
+            m, d = bench_runtime(tmp)
+            md = m + md
+            data.update(d)
+        data["bench_wall_s"] = time.perf_counter() - t0
+    save("scaling", data, "\n\n".join(md))
 
 
 if __name__ == "__main__":

@@ -29,6 +29,9 @@ Python use::
     res = comp.compensate(temperature_c=temps, raw=raws, time_s=times)
     for t, temp, raw in stream:
         res = comp.step(t, temp, raw)
+    # a long recording, block by block (state carried, one graph call per block)
+    for times, temps, raws in blocks:
+        res = comp.step_block(times, temps, raws)
 
 Command line::
 
@@ -190,9 +193,9 @@ def _check_time(time_s: Any, what: str = "time_s") -> np.ndarray:
     return t
 
 
-def _scan(step: Any, first: np.ndarray, second: np.ndarray, pad: tuple[float, float]
-          ) -> np.ndarray:
-    """y_k = step(y_{k-1}, first_k, second_k) over √N blocks in three O(N) passes.
+def _scan(step: Any, first: np.ndarray, second: np.ndarray, pad: tuple[float, float],
+          y0: float = 0.0) -> np.ndarray:
+    """y_k = step(y_{k-1}, first_k, second_k) (y_{-1} = y0) over √N blocks in three O(N) passes.
 
     ``step`` is a linear map (y·a + c) or a clamp (min(max(y, lo), hi)); both compose,
     so each block's map is built once, the ≈√N block maps are chained, and every block
@@ -219,7 +222,7 @@ def _scan(step: Any, first: np.ndarray, second: np.ndarray, pad: tuple[float, fl
         else:
             ya, yb = _clamp(ya, f[i], g[i]), _clamp(yb, f[i], g[i])
     inc = np.empty(m)
-    s = 0.0
+    s = float(y0)
     for j in range(m):
         inc[j] = s
         s = float(s * ya[j] + yb[j]) if linear else min(max(s, float(ya[j])), float(yb[j]))
@@ -244,8 +247,8 @@ def _g(h: np.ndarray) -> np.ndarray:
         return np.where(h > 0, -np.expm1(-h) / h, 1.0)
 
 
-def dynamic_signals(time_s: Any, temperature_c: Any, dynamic: Mapping[str, Any]
-                    ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+def dynamic_signals(time_s: Any, temperature_c: Any, dynamic: Mapping[str, Any],
+                    stream: _Stream | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Every dynamic signal of one stream from time (s) and temperature (°C).
 
     ``dynamic`` is the model's ``dynamic_inputs`` metadata.  With e = T − EMA_τ(T)
@@ -256,6 +259,10 @@ def dynamic_signals(time_s: Any, temperature_c: Any, dynamic: Mapping[str, Any]
     after a gap (Δt since the last finite temperature > ``gap_s``) restart the state
     (e = 0, P = T); a NaN temperature gives NaN and leaves the state alone.
 
+    ``stream``: a block of a longer stream — the scans start from its state (the one
+    :meth:`Compensator.step` keeps) and leave it at the block's end; time must go on
+    after its last time.  A refused block leaves it unchanged.
+
     Returns
     -------
     (signals, gap) : dict name -> (N,) float64, and (N,) bool true after a gap
@@ -264,34 +271,54 @@ def dynamic_signals(time_s: Any, temperature_c: Any, dynamic: Mapping[str, Any]
     temp = np.asarray(temperature_c, dtype=np.float64).reshape(-1)
     if temp.shape != t.shape:
         raise RuntimeInputError(f"temperature_c has {temp.size} samples, time_s {t.size}")
+    if stream is not None and t.size and not t[0] > stream.t_last:
+        how = "repeated" if t[0] == stream.t_last else "decreasing"
+        raise RuntimeInputError(f"time_s: sample 0: time {how} ({stream.t_last!r} then "
+                                f"{float(t[0])!r} s, across the block edge); time must "
+                                "increase strictly")
     gap_s = float(dynamic["gap_s"])
     valid = np.isfinite(temp)
     tv, tempv = t[valid], temp[valid]
     restart = np.ones(tv.size, dtype=bool)
     restart[1:] = np.diff(tv) > gap_s
+    cont = stream is not None and stream.started and tv.size > 0
+    if cont:
+        restart[0] = (tv[0] - stream.t_prev) > gap_s  # type: ignore[union-attr]
     out: dict[str, np.ndarray] = {}
-    dt = np.diff(tv, prepend=tv[:1])
-    dT = np.diff(tempv, prepend=tempv[:1])
-    for d in dynamic["inputs"]:
+    last: list[float] = []
+    dt = np.diff(tv, prepend=stream.t_prev if cont else tv[:1])  # type: ignore[union-attr]
+    dT = np.diff(tempv, prepend=stream.temp_prev if cont else tempv[:1])  # type: ignore[union-attr]
+    for j, d in enumerate(dynamic["inputs"]):
         col = np.full(t.size, np.nan)
+        y0 = stream.state[j] if cont else 0.0  # type: ignore[union-attr]
         if tv.size and d["kind"] == "play":
             w = float(d["half_width_c"])
             lo = np.where(restart, tempv, tempv - w)
             hi = np.where(restart, tempv, tempv + w)
-            col[valid] = tempv - _scan(_clamp, lo, hi, (-np.inf, np.inf))
+            p = _scan(_clamp, lo, hi, (-np.inf, np.inf), y0)
+            col[valid] = tempv - p
+            last.append(float(p[-1]))
         elif tv.size:
             tau = float(d["tau_s"])
             h = dt / tau
             g = _g(h)
             a = np.where(restart, 0.0, 1.0 - h * g)
             c = np.where(restart, 0.0, dT * g)
-            e = _scan(_lin, a, c, (1.0, 0.0))
+            e = _scan(_lin, a, c, (1.0, 0.0), y0)
             col[valid] = 60.0 * e / tau if d["kind"] == "rate" else e
+            last.append(float(e[-1]))
         out[d["signal"]] = col
     gap = np.zeros(t.size, dtype=bool)
     idx = np.flatnonzero(valid)
     if idx.size:
-        gap[idx[1:]] = restart[1:]
+        gap[idx] = restart
+        gap[idx[0]] = cont and restart[0]
+    if stream is not None:
+        if t.size:
+            stream.t_last = float(t[-1])
+        if tv.size:
+            stream.started, stream.t_prev, stream.temp_prev = True, float(tv[-1]), float(tempv[-1])
+            stream.state[:len(last)] = last
     return out, gap
 
 
@@ -665,6 +692,48 @@ class Compensator:
         values, gap = self._stream.update(t, temp, self.dynamic or {"inputs": [], "gap_s": 1.0})
         given.update(values)
         return self._evaluate(given, raw_arr, True, np.array([gap]))
+
+    def step_block(self, time_s: Any, temperature_c: Any, raw: Any, *, proxy: Any = None,
+                   **signals: Any) -> Compensation:
+        """Compensate the next block of N samples of a stream, carrying the state across blocks.
+
+        The streaming mode for a long recording: the same results as :meth:`step` sample
+        by sample (and as one :meth:`compensate` call on the whole sequence, within float64
+        rounding of the dynamic inputs), at batch speed — one onnxruntime call per block,
+        the dynamic inputs by the vectorised scans started from the carried state.  Blocks
+        of any length (1 included) follow one another and :meth:`step` calls; a block is
+        refused whole (state unchanged) when its time is not finite and strictly
+        increasing from the previous sample on.  ``temperature_c`` is read as float32, as
+        :meth:`compensate` reads it.
+
+        Returns
+        -------
+        Compensation
+            ``compensated`` and ``drift`` (N, A), ``out_of_range`` (N,) bool.
+        """
+        given = self._collect(temperature_c, proxy, None, signals)
+        raw_arr, single = self._raw(raw)
+        if single:
+            raise RuntimeInputError(f"step_block() takes a block: 'raw' must have shape "
+                                    f"(N, {len(self.outputs)}), got {np.shape(raw)}")
+        t = self._as_float32("time_s", time_s, np.float64)
+        temp = self._as_float32("temperature_c", given.get("temperature_c", np.full(
+            t.shape, np.nan)), np.float32).astype(np.float64)
+        if t.shape != (raw_arr.shape[0],) or temp.shape != t.shape:
+            raise RuntimeInputError(f"step_block(): time_s has shape {t.shape}, temperature_c "
+                                    f"{temp.shape}; expected ({raw_arr.shape[0]},) to match "
+                                    "'raw'")
+        # the block runs on a copy of the state, kept only once the whole block has succeeded
+        trial = _Stream(len(self._stream.state))
+        for key in _Stream.__slots__:
+            setattr(trial, key, getattr(self._stream, key))
+        trial.state = list(self._stream.state)
+        values, gap = dynamic_signals(t, temp, self.dynamic or {"inputs": [], "gap_s": 1.0},
+                                      trial)
+        given.update(values)
+        res = self._evaluate(given, raw_arr, False, gap)
+        self._stream = trial
+        return res
 
     def reset(self) -> None:
         """Forget the stream's state: the next :meth:`step` starts afresh."""

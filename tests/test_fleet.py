@@ -349,3 +349,41 @@ def test_a_unit_with_too_few_runs_for_the_split_fails_alone(tmp_path):
     assert "train-then-verify needs exactly 2 runs, the data has 1" in short["reason"]
     assert res["units"]["toy-ok"]["status"] == "ok"
     assert res["fleet"]["n_failed"] == 1 and not res["fleet"]["all_passed"]
+
+
+def test_one_file_per_unit_workers_read_their_own_file(tmp_path):
+    """A fleet given as one thermonet Parquet file per unit: the sources carry only the path
+    (what goes to a worker: a few hundred bytes, not the unit's samples), each worker reads
+    its own file, and the results are those of the same units read by the driver — on the
+    serial executor and on a local Ray."""
+    import pickle
+
+    from thermonet.workflows.fleet_units import UnitItem, sources_from_files
+
+    fleet = toy_fleet(GAINS[:3])
+    paths = []
+    for dev, unit in split_units(fleet).items():
+        paths.append(str(write_parquet(unit, tmp_path / f"{dev}.parquet")))
+    sources = sources_from_files(paths)
+    assert sources is not None and [s.device_id for s in sources] == list(split_units(fleet))
+    assert all(s.dataset is None and s.path for s in sources)
+    cfg = toy_config()
+    cfg.families = cfg.families[:1]
+    by_path = len(pickle.dumps(UnitItem(cfg=cfg, source=sources[0], family="cubic")))
+    by_data = len(pickle.dumps(UnitItem(cfg=cfg, source=sources_from_dataset(fleet)[0],
+                                        family="cubic")))
+    assert by_path < 10_000 < 3 * 1200 * 8 * 3 < by_data   # 3 runs × 1,200 samples × 3 columns
+    want = _numbers(run_fleet(cfg, tmp_path / "d", sources_from_dataset(fleet), quiet=True,
+                              options=FleetOptions(executor="serial", folds=2)))
+    for ex in ("serial", "ray"):
+        got = _numbers(run_fleet(cfg, tmp_path / ex, sources, quiet=True,
+                                 options=FleetOptions(executor=ex, workers=2, folds=2)))
+        assert got == want, ex   # the same data, the same computation: identical
+    # a file that is not a single unit's thermonet Parquet: the driver reads the data
+    write_parquet(fleet, tmp_path / "all.parquet")
+    assert sources_from_files([str(tmp_path / "all.parquet")]) is None
+    odd = toy_unit("toy-odd", 1.0, unit="rad/s")
+    write_parquet(Dataset(odd).validate(), tmp_path / "odd.parquet")
+    with pytest.raises(InputError, match=r"odd\.parquet: unit 'toy-odd' has .*rad/s.*"
+                                         r"toy-u000\.parquet has"):
+        sources_from_files([paths[0], str(tmp_path / "odd.parquet")])

@@ -100,7 +100,11 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
         FleetOptions,
         run_fleet,
     )
-    from .workflows.fleet_units import sources_from_dataset, sources_from_simulation
+    from .workflows.fleet_units import (
+        sources_from_dataset,
+        sources_from_files,
+        sources_from_simulation,
+    )
 
     cfg = load_config(args.config)
     opts = FleetOptions(executor=args.executor, workers=args.workers,
@@ -115,8 +119,12 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
     else:
         if args.outliers:
             raise ThermonetError("--outliers needs --units (outliers are simulated units)")
-        sources = sources_from_dataset(load_data(cfg.data, source=str(args.config),
-                                                 allow_fleet=True))
+        # one thermonet Parquet file per unit: each worker reads its own file; otherwise the
+        # driver reads the data and sends each unit's runs to its worker
+        by_file = sources_from_files(cfg.data.paths) if cfg.data.paths and not (
+            cfg.data.mapping or cfg.data.outputs) else None
+        sources = by_file or sources_from_dataset(load_data(cfg.data, source=str(args.config),
+                                                            allow_fleet=True))
         for s in sources:
             if s.error is not None:  # that unit fails alone; the fleet goes on
                 print(f"thermonet: warning: {s.error}", file=sys.stderr)
@@ -143,9 +151,33 @@ def _cmd_info(args: argparse.Namespace) -> int:
         s = summarize_log(args.files[0])
         print(json.dumps(s, indent=2) if args.json else format_log_summary(s))
         return 0
-    ds = read_datasets(args.files, mapping=args.mapping)
-    summary = summarize(ds)
+    if args.chunk_rows is not None and args.chunk_rows < 1:
+        raise ThermonetError(f"--chunk-rows must be >= 1, got {args.chunk_rows}")
+    from .workflows.info_chunked import DEFAULT_CHUNK_ROWS, open_parquet, summarize_parquet
+
+    path = Path(args.files[0])
+    layout = open_parquet(path) if len(args.files) == 1 and not args.mapping and \
+        path.suffix.lower() in (".parquet", ".pq") and path.is_file() else None
+    if layout is not None:  # thermonet's own Parquet: one chunked pass, memory bounded
+        summary = summarize_parquet(layout, chunk_rows=args.chunk_rows or DEFAULT_CHUNK_ROWS)
+    else:
+        summary = summarize(read_datasets(args.files, mapping=args.mapping))
     print(json.dumps(summary, indent=2, default=str) if args.json else format_summary(summary))
+    return 0
+
+
+def _cmd_convert(args: argparse.Namespace) -> int:
+    """Recordings (CSV, mapped files, Parquet) to one thermonet Parquet file: the one-time
+    conversion after which a long recording is read in row-group chunks."""
+    from .data.io import read_datasets, write_parquet
+
+    out = Path(args.out)
+    if out.exists() and not args.overwrite:
+        raise ThermonetError(f"{out}: already exists (give --overwrite to replace it)")
+    ds = read_datasets(args.files, mapping=args.mapping)
+    write_parquet(ds, out)
+    n = sum(r.n_samples for r in ds)
+    print(f"{len(ds)} run(s), {n} samples -> {out}")
     return 0
 
 
@@ -307,7 +339,21 @@ def build_parser() -> argparse.ArgumentParser:
                                             "has a 'run' column)")
     i.add_argument("--mapping", default=None, help="YAML column mapping (configs/data/*.yaml)")
     i.add_argument("--json", action="store_true", help="print the summary as JSON")
+    i.add_argument("--chunk-rows", type=int, default=None, metavar="N",
+                   help="rows read at a time from one thermonet Parquet file (default 65536; "
+                        "memory stays bounded by it, whatever the file's length)")
     i.set_defaults(func=_cmd_info)
+
+    v = sub.add_parser("convert", help="recordings to one thermonet Parquet file",
+                       description="Read recording files (CSV, a mapping's format, Parquet) "
+                                   "once and write them as one thermonet Parquet file, which "
+                                   "info and fleets then read in row-group chunks.")
+    v.add_argument("files", nargs="+", help="recording files (one run per file unless the file "
+                                            "has a 'run' column)")
+    v.add_argument("--mapping", default=None, help="YAML column mapping (configs/data/*.yaml)")
+    v.add_argument("--out", required=True, help="output .parquet file")
+    v.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    v.set_defaults(func=_cmd_convert)
 
     def family_workers_arg(q: argparse.ArgumentParser) -> None:
         q.add_argument("--workers", type=int, default=None, metavar="N",

@@ -20,7 +20,7 @@ from ..core.recording import RATE, Dataset, contiguous_segments
 
 __all__ = ["TEMPERATURE_PLAUSIBLE_C", "MAX_RAMP_C_PER_MIN", "MAX_DURATION_S",
            "RATE_HZ_PLAUSIBLE", "RATE_HZ_POSSIBLE", "VALUE_PLAUSIBLE_MAX", "OUTSIDE_RANGE_WARN",
-           "input_warnings", "temperature_hint", "outside_fraction", "outside_distance",
+           "input_warnings", "run_warnings", "temperature_hint", "outside_fraction", "outside_distance",
            "extrapolation_warnings"]
 
 #: Temperatures outside this range (°C) are implausible for a sensor test (Kelvin? m°C?).
@@ -56,6 +56,51 @@ def temperature_hint(lo: float, hi: float) -> str:
     return "; or ".join(hints) if hints else "check the mapping's temperature unit and scale"
 
 
+@np.errstate(over="ignore", invalid="ignore")
+def run_warnings(name: str, meta: dict[str, str], units: dict[str, str],
+                 temperature: tuple[float, float, float] | None, peaks: dict[str, float],
+                 duration_s: float, rate_hz: float) -> list[str]:
+    """:func:`input_warnings` of one run from its summary numbers (what a chunked pass over a
+    recording larger than memory accumulates: :mod:`thermonet.workflows.info`).
+
+    ``temperature``: (min, max, max − min) of its temperature, or None; ``peaks``: the
+    largest |value| of each output, reference and proxy channel.
+    """
+    out: list[str] = []
+    lo_ok, hi_ok = TEMPERATURE_PLAUSIBLE_C
+    if meta.get("numeric_header"):
+        first = ", ".join(meta["numeric_header"].split(",")[:4])
+        out.append(f"{name}: the header line of {meta.get('source', 'the file')} ({first}"
+                   " …) is all numbers: a file without a header, whose first sample was "
+                   "read as column names? set 'header: false' in the mapping")
+    if temperature is not None:
+        lo, hi = temperature[0], temperature[1]
+        if lo < lo_ok or hi > hi_ok:
+            out.append(f"{name}: temperature_c spans {lo:.4g} … {hi:.4g} °C, outside the "
+                       f"plausible {lo_ok:g} … {hi_ok:g} °C ({temperature_hint(lo, hi)})")
+    for ch, big in peaks.items():
+        if big > VALUE_PLAUSIBLE_MAX:
+            out.append(f"{name}: {ch} reaches {big:.4g} {units.get(ch, '')}".rstrip()
+                       + f", beyond any plausible reading (|value| > "
+                       f"{VALUE_PLAUSIBLE_MAX:g}); a wrong scale in the mapping, or a "
+                       "corrupt file?")
+    dur, rate = duration_s, rate_hz
+    if dur > MAX_DURATION_S:
+        out.append(f"{name}: time_s spans {dur / 86400.0:.3g} days; are the time stamps "
+                   "ms or µs read as seconds? (check the mapping's time unit)")
+    if not RATE_HZ_PLAUSIBLE[0] <= rate <= RATE_HZ_PLAUSIBLE[1]:
+        out.append(f"{name}: sample rate {rate:.4g} Hz is outside {RATE_HZ_PLAUSIBLE[0]:g} … "
+                   f"{RATE_HZ_PLAUSIBLE[1]:g} Hz; is the time column's unit (or the "
+                   "mapping's sample_rate_hz) right?")
+    if temperature is not None and dur > 0:
+        ramp = temperature[2] / (dur / 60.0)
+        if ramp > MAX_RAMP_C_PER_MIN:
+            out.append(f"{name}: temperature_c changes {temperature[2]:.3g} °C in {dur:.3g} s "
+                       f"({ramp:.3g} °C/min); are the time stamps too short by a "
+                       "time-unit factor (s read as ms)?")
+    return out
+
+
 @np.errstate(over="ignore", invalid="ignore")  # 1e306 values are what it warns about
 def input_warnings(ds: Dataset, *, signals: Iterable[str] = (),
                    rate_window_s: float | None = None) -> list[str]:
@@ -73,42 +118,16 @@ def input_warnings(ds: Dataset, *, signals: Iterable[str] = (),
     """
     out: list[str] = []
     wants_rate = RATE in set(signals) and rate_window_s is not None
-    lo_ok, hi_ok = TEMPERATURE_PLAUSIBLE_C
     for r in ds:
         name = f"run '{r.run_id}'"
-        if r.meta.get("numeric_header"):
-            first = ", ".join(r.meta["numeric_header"].split(",")[:4])
-            out.append(f"{name}: the header line of {r.meta.get('source', 'the file')} ({first}"
-                       " …) is all numbers: a file without a header, whose first sample was "
-                       "read as column names? set 'header: false' in the mapping")
         temp = r.temperature_c
+        span = None
         if temp is not None and temp.size:
-            lo, hi = float(np.nanmin(temp)), float(np.nanmax(temp))
-            if lo < lo_ok or hi > hi_ok:
-                out.append(f"{name}: temperature_c spans {lo:.4g} … {hi:.4g} °C, outside the "
-                           f"plausible {lo_ok:g} … {hi_ok:g} °C ({temperature_hint(lo, hi)})")
-        for ch, v in {**r.outputs, **r.references, **r.proxies}.items():
-            big = float(np.nanmax(np.abs(v))) if v.size else 0.0
-            if big > VALUE_PLAUSIBLE_MAX:
-                out.append(f"{name}: {ch} reaches {big:.4g} {r.units.get(ch, '')}".rstrip()
-                           + f", beyond any plausible reading (|value| > "
-                           f"{VALUE_PLAUSIBLE_MAX:g}); a wrong scale in the mapping, or a "
-                           "corrupt file?")
-        dur = r.duration_s
-        rate = r.effective_rate_hz
-        if dur > MAX_DURATION_S:
-            out.append(f"{name}: time_s spans {dur / 86400.0:.3g} days; are the time stamps "
-                       "ms or µs read as seconds? (check the mapping's time unit)")
-        if not RATE_HZ_PLAUSIBLE[0] <= rate <= RATE_HZ_PLAUSIBLE[1]:
-            out.append(f"{name}: sample rate {rate:.4g} Hz is outside {RATE_HZ_PLAUSIBLE[0]:g} … "
-                       f"{RATE_HZ_PLAUSIBLE[1]:g} Hz; is the time column's unit (or the "
-                       "mapping's sample_rate_hz) right?")
-        if temp is not None and dur > 0:
-            ramp = float(np.ptp(temp)) / (dur / 60.0)
-            if ramp > MAX_RAMP_C_PER_MIN:
-                out.append(f"{name}: temperature_c changes {np.ptp(temp):.3g} °C in {dur:.3g} s "
-                           f"({ramp:.3g} °C/min); are the time stamps too short by a "
-                           "time-unit factor (s read as ms)?")
+            span = (float(np.nanmin(temp)), float(np.nanmax(temp)), float(np.ptp(temp)))
+        peaks = {ch: float(np.nanmax(np.abs(v))) if v.size else 0.0
+                 for ch, v in {**r.outputs, **r.references, **r.proxies}.items()}
+        out += run_warnings(name, r.meta, r.units, span, peaks, r.duration_s,
+                            r.effective_rate_hz)
         if wants_rate and r.time_s.size > 1:
             gap = float(np.max(np.diff(r.time_s)))
             if rate_window_s is not None and gap > rate_window_s:

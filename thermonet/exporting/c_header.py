@@ -72,7 +72,13 @@ from ..core.fileio import atomic_write_text
 from ..core.names import c_comment, c_string, check_model_names
 from ..models import DriftModel
 from ..models.cgen import as_float32, c_array, c_float, c_target_prelude
-from .c_stream import REAL_FLAGS, check_stream, float_path_slack, render_stream_c
+from .c_stream import (
+    REAL_FLAGS,
+    check_stream,
+    float_path_slack,
+    render_stream_block_c,
+    render_stream_c,
+)
 from .onnx_export import check_model_finite, family_name
 from .parity import check_drift_parity, check_points, float32_tolerance, trained_range
 
@@ -219,6 +225,7 @@ def render_c_header(model: DriftModel, *, prefix: str = "thermonet") -> str:
         "    return flag | nonfinite;",
         "}",
         *render_stream_c(model, p),
+        *render_stream_block_c(model, p),
         "",
         f"#endif /* {guard} */",
         "",

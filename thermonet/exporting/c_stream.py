@@ -25,6 +25,20 @@ return −1, state unchanged; otherwise ``step`` returns 0.  No heap; libm
 ``expf``/``expm1f`` only on the double path, the header's bounded fast ones on the float
 path.  ``raw``, ``compensated`` and ``drift`` are ``thermonet_real_t`` as in
 ``<prefix>_compensate``.
+
+Blocks (:func:`render_stream_block_c`)::
+
+    int <prefix>_step_block(<prefix>_state *st, int n, const thermonet_time_t *time_s,
+                            const float *temperature_c, [const float *proxies,]
+                            const thermonet_real_t *raw, thermonet_real_t *compensated,
+                            thermonet_real_t *drift, int *flag);
+
+runs ``n`` consecutive samples (``proxies``, ``raw``, ``compensated`` and ``drift``
+row-major, ``n`` × their width) through ``step`` with whatever state the model keeps,
+so a block is exactly the samples one at a time: a buffer filled by a DMA or read from
+a file is compensated in one call.  A refused sample (bad time) is refused as ``step``
+refuses it, and the block goes on; the return value is the number of refused samples
+(0: all accepted).
 """
 
 from __future__ import annotations
@@ -44,7 +58,7 @@ from ..models.cgen import c_expm1
 if TYPE_CHECKING:
     from ..models import DriftModel
 
-__all__ = ["render_stream_c", "STREAM_DRIVER", "run_stream_c", "check_stream",
+__all__ = ["render_stream_c", "render_stream_block_c", "STREAM_DRIVER", "run_stream_c", "check_stream",
            "stream_signature_has_proxies", "REAL_FLAGS", "float_path_slack"]
 
 _KIND_CODE = {"rate": 0, "lag": 1, "play": 2}
@@ -222,6 +236,37 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
     return lines
 
 
+def render_stream_block_c(model: DriftModel, p: str) -> list[str]:
+    """Lines of ``<p>_step_block``: ``n`` samples through ``<p>_step`` (module docstring).
+
+    Generic over the state: it only calls ``step``, so whatever ``<p>_state`` holds is
+    carried from sample to sample and from block to block.
+    """
+    P = p.upper()
+    prox = stream_signature_has_proxies(model)
+    return [
+        "",
+        f"/* n consecutive samples through {p}_step (row-major: proxies n x {P}_N_PROXIES, raw,",
+        f" * compensated and drift n x {P}_N_AXES); returns how many samples were refused */",
+        f"static inline int {p}_step_block({p}_state *st, int n, const thermonet_time_t *time_s,",
+        "                                    const float *temperature_c,",
+        *(["                                    const float *proxies,"] if prox else []),
+        "                                    const thermonet_real_t *raw,",
+        "                                    thermonet_real_t *compensated,",
+        "                                    thermonet_real_t *drift, int *flag)",
+        "{",
+        "    int k, refused = 0;",
+        "    for (k = 0; k < n; ++k) {",
+        f"        const long o = (long)k * {P}_N_AXES;",
+        f"        refused += {p}_step(st, time_s[k], temperature_c[k],",
+        *([f"                            proxies + (long)k * {P}_N_PROXIES,"] if prox else []),
+        "                            raw + o, compensated + o, drift + o, flag + k) != 0;",
+        "    }",
+        "    return refused;",
+        "}",
+    ]
+
+
 #: A driver that runs ``step`` over a sequence read from a file (tests, export check, bench).
 STREAM_DRIVER = r"""
 #include <stdio.h>
@@ -273,11 +318,81 @@ int main(int argc, char **argv)
 """
 
 
+#: The same records through ``step_block`` in blocks of ``argv[3]`` samples (the last one
+#: shorter); ``ret`` of every sample is its block's number of refused samples.
+STREAM_BLOCK_DRIVER = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include "model.h"
+int main(int argc, char **argv)
+{
+    FILE *in, *out;
+    int n, k, a, b, blk;
+    double t, raw_in[PFX_N_AXES], comp_out[PFX_N_AXES], drift_out[PFX_N_AXES];
+    float *temp, *prox;
+    thermonet_real_t *raw, *comp, *drift;
+    thermonet_time_t *time;
+    int *flag, *ret;
+    pfx_state st;
+    if (argc != 4) return 2;
+    blk = atoi(argv[3]);
+    in = fopen(argv[1], "rb");
+    out = fopen(argv[2], "wb");
+    if (blk < 1 || !in || !out || fread(&n, sizeof n, 1, in) != 1 || n < 0) return 3;
+    temp = malloc(sizeof(float) * (n + 1));
+    prox = malloc(sizeof(float) * (n + 1) * (PFX_N_PROXIES > 0 ? PFX_N_PROXIES : 1));
+    raw = malloc(sizeof(thermonet_real_t) * (n + 1) * PFX_N_AXES);
+    comp = malloc(sizeof(thermonet_real_t) * (n + 1) * PFX_N_AXES);
+    drift = malloc(sizeof(thermonet_real_t) * (n + 1) * PFX_N_AXES);
+    time = malloc(sizeof(thermonet_time_t) * (n + 1));
+    flag = malloc(sizeof(int) * (n + 1));
+    ret = malloc(sizeof(int) * (n + 1));
+    if (!temp || !prox || !raw || !comp || !drift || !time || !flag || !ret) return 5;
+    for (k = 0; k < n; ++k) {
+        if (fread(&t, sizeof t, 1, in) != 1 || fread(temp + k, sizeof(float), 1, in) != 1) return 4;
+        if (PFX_N_PROXIES > 0 && fread(prox + (long)k * PFX_N_PROXIES, sizeof(float),
+                                       PFX_N_PROXIES, in) != PFX_N_PROXIES) return 4;
+        if (fread(raw_in, sizeof(double), PFX_N_AXES, in) != PFX_N_AXES) return 4;
+        for (a = 0; a < PFX_N_AXES; ++a) raw[(long)k * PFX_N_AXES + a] = (thermonet_real_t)raw_in[a];
+#if THERMONET_TIME_US
+        time[k] = (thermonet_time_t)(t * 1e6 + 0.5);
+#else
+        time[k] = t;
+#endif
+    }
+    pfx_init(&st);
+    for (k = 0; k < n; k += blk) {
+        const int m = n - k < blk ? n - k : blk;
+        const long o = (long)k * PFX_N_AXES;
+        const int r = pfx_step_block(&st, m, time + k, temp + k, PROXY_ARG raw + o, comp + o,
+                                     drift + o, flag + k);
+        for (b = 0; b < m; ++b) ret[k + b] = r;
+    }
+    for (k = 0; k < n; ++k) {
+        for (a = 0; a < PFX_N_AXES; ++a) {
+            comp_out[a] = (double)comp[(long)k * PFX_N_AXES + a];
+            drift_out[a] = (double)drift[(long)k * PFX_N_AXES + a];
+        }
+        fwrite(comp_out, sizeof(double), PFX_N_AXES, out);
+        fwrite(drift_out, sizeof(double), PFX_N_AXES, out);
+        fwrite(flag + k, sizeof(int), 1, out);
+        fwrite(ret + k, sizeof(int), 1, out);
+    }
+    fclose(in);
+    fclose(out);
+    return 0;
+}
+"""
+
+
 def run_stream_c(model: DriftModel, header_text: str, time_s: np.ndarray,
                  temperature_c: np.ndarray, raw: np.ndarray, proxies: np.ndarray | None = None,
-                 *, prefix: str = "thermonet", cflags: tuple[str, ...] = ("-O2",)
-                 ) -> dict[str, np.ndarray]:
+                 *, prefix: str = "thermonet", cflags: tuple[str, ...] = ("-O2",),
+                 block: int | None = None) -> dict[str, np.ndarray]:
     """Compile the header with a driver and run ``step`` over one sequence.
+
+    ``block``: run it through ``step_block`` in blocks of that many samples instead
+    (:data:`STREAM_BLOCK_DRIVER`; ``ret`` is then each sample's block's refused count).
 
     Returns ``{"compensated", "drift", "flag", "ret"}`` per sample.
 
@@ -291,7 +406,12 @@ def run_stream_c(model: DriftModel, header_text: str, time_s: np.ndarray,
         raise ExportError("no C compiler found")
     n, n_axes = len(time_s), len(model.outputs)
     n_prox = len(_proxies(model))
-    driver = (STREAM_DRIVER.replace("PROXY_ARG", "prox," if n_prox else "")
+    if block is not None and int(block) < 1:
+        raise ExportError(f"block must be >= 1 sample, got {block}")
+    source = STREAM_DRIVER if block is None else STREAM_BLOCK_DRIVER
+    proxy_arg = ("prox + (long)k * PFX_N_PROXIES," if block is not None else "prox,") \
+        if n_prox else ""
+    driver = (source.replace("PROXY_ARG", proxy_arg)
               .replace("PFX", prefix.upper()).replace("pfx", prefix))
     rec_in = np.dtype([("t", np.float64), ("T", np.float32), ("p", np.float32, (n_prox,)),
                        ("raw", np.float64, (n_axes,))])
@@ -311,7 +431,8 @@ def run_stream_c(model: DriftModel, header_text: str, time_s: np.ndarray,
             raise ExportError(f"the C header's step() does not compile: {first}")
         # packed records (no padding), read field by field by the driver
         (tmp / "in.bin").write_bytes(np.int32(n).tobytes() + rows.tobytes())
-        run = subprocess.run([str(tmp / "driver"), str(tmp / "in.bin"), str(tmp / "out.bin")],
+        run = subprocess.run([str(tmp / "driver"), str(tmp / "in.bin"), str(tmp / "out.bin"),
+                              *([str(int(block))] if block is not None else [])],
                              capture_output=True, text=True)
         if run.returncode != 0:
             raise ExportError(f"the C stream driver failed (exit {run.returncode})")

@@ -71,7 +71,7 @@ from ..core.errors import ConfigError, InputError
 from ..core.recording import GAP_FACTOR
 
 __all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInput", "Rate",
-           "Lag", "Play", "REGISTRY", "compute", "parse_dynamic", "is_dynamic", "check_time",
+           "Lag", "Play", "REGISTRY", "compute", "DynamicStream", "parse_dynamic", "is_dynamic", "check_time",
            "dynamic_signals", "default_gap_s", "constants", "from_constants", "lag_error",
            "play_state", "reference_signals", "saturation_margin", "input_set_warnings",
            "SETTLE_TIME_CONSTANTS"]
@@ -291,8 +291,8 @@ def _blocked(x: np.ndarray, fill: float, b: int, m: int) -> np.ndarray:
     return np.ascontiguousarray(out.reshape(m, b).T)
 
 
-def _linear_scan(a: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """:math:`y_k = a_k y_{k-1} + c_k` (y_{-1} = 0) in O(N), no division, no window factor.
+def _linear_scan(a: np.ndarray, c: np.ndarray, y0: float = 0.0) -> np.ndarray:
+    """:math:`y_k = a_k y_{k-1} + c_k` (y_{-1} = ``y0``) in O(N), no division, no window factor.
 
     Samples are cut into √N blocks; one pass composes each block's map
     (vectorised over blocks), a scalar pass chains the ≈√N block maps, and a
@@ -310,7 +310,7 @@ def _linear_scan(a: np.ndarray, c: np.ndarray) -> np.ndarray:
         y = ab[i] * y + cb[i]
         p = p * ab[i]
     inc = np.empty(m)
-    s = 0.0
+    s = float(y0)
     for j, (pj, yj) in enumerate(zip(p.tolist(), y.tolist(), strict=True)):
         inc[j] = s
         s = pj * s + yj
@@ -322,8 +322,9 @@ def _linear_scan(a: np.ndarray, c: np.ndarray) -> np.ndarray:
     return out.T.reshape(-1)[:n]
 
 
-def _clamp_scan(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """:math:`z_k = \\min(\\max(z_{k-1}, lo_k), hi_k)` in O(N) (z_0 = lo_0 = hi_0 at a restart).
+def _clamp_scan(lo: np.ndarray, hi: np.ndarray, z0: float = 0.0) -> np.ndarray:
+    """:math:`z_k = \\min(\\max(z_{k-1}, lo_k), hi_k)` in O(N) (z_{-1} = ``z0``; z_0 = lo_0 =
+    hi_0 at a restart).
 
     Clamps compose into clamps, so the same three-pass block scan as
     :func:`_linear_scan` applies; every value is produced by exactly the
@@ -339,7 +340,7 @@ def _clamp_scan(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         cl = np.minimum(np.maximum(cl, lob[i]), hib[i])
         ch = np.minimum(np.maximum(ch, lob[i]), hib[i])
     inc = np.empty(m)
-    s = 0.0
+    s = float(z0)
     for j, (lj, hj) in enumerate(zip(cl.tolist(), ch.tolist(), strict=True)):
         inc[j] = s
         s = min(max(s, lj), hj)
@@ -358,42 +359,127 @@ def _g(h: np.ndarray) -> np.ndarray:
     return np.where(h > 0, g, 1.0)
 
 
-def lag_error(t: np.ndarray, temp: np.ndarray, restart: np.ndarray, tau_s: float) -> np.ndarray:
-    """:math:`e = T - \\mathrm{EMA}_\\tau(T)` on finite-T samples (see the module docstring)."""
-    dt = np.diff(t, prepend=t[:1])
-    dT = np.diff(temp, prepend=temp[:1])
+def lag_error(t: np.ndarray, temp: np.ndarray, restart: np.ndarray, tau_s: float,
+              prev: tuple[float, float, float] | None = None) -> np.ndarray:
+    """:math:`e = T - \\mathrm{EMA}_\\tau(T)` on finite-T samples (see the module docstring).
+
+    ``prev`` is (time, temperature, e) of the last finite-temperature sample before
+    ``t[0]`` (a chunk's carried state); without it the first sample has no predecessor
+    and must be a restart.
+    """
+    t0, T0, e0 = prev if prev is not None else (t[0] if t.size else 0.0,
+                                                 temp[0] if temp.size else 0.0, 0.0)
+    dt = np.diff(t, prepend=t0)
+    dT = np.diff(temp, prepend=T0)
     h = dt / tau_s
     g = _g(h)
     a = 1.0 - h * g                # e^{-h}, as the C header computes it
     c = dT * g
     a = np.where(restart, 0.0, a)
     c = np.where(restart, 0.0, c)
-    return _linear_scan(a, c)
+    return _linear_scan(a, c, e0)
 
 
-def play_state(temp: np.ndarray, restart: np.ndarray, half_width: float) -> np.ndarray:
-    """State :math:`P` of the play operator of half-width ``half_width`` (restart: P = T)."""
+def play_state(temp: np.ndarray, restart: np.ndarray, half_width: float,
+               p0: float = 0.0) -> np.ndarray:
+    """State :math:`P` of the play operator of half-width ``half_width`` (restart: P = T;
+    ``p0``: the state before the first sample, a chunk's carried state)."""
     lo = np.where(restart, temp, temp - half_width)
     hi = np.where(restart, temp, temp + half_width)
-    return _clamp_scan(lo, hi)
+    return _clamp_scan(lo, hi, p0)
 
 
-def _prepare(time_s: np.ndarray, temperature_c: np.ndarray, gap_s: float
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    t = check_time(time_s)
-    temp = np.asarray(temperature_c, dtype=np.float64)
-    if temp.shape != t.shape:
-        raise InputError(f"temperature_c has shape {temp.shape}, time_s {t.shape}")
-    valid = np.isfinite(temp)
-    tv, Tv = t[valid], temp[valid]
-    restart = np.ones(tv.size, dtype=bool)
-    restart[1:] = np.diff(tv) > gap_s
-    return valid, tv, Tv, restart
+class DynamicStream:
+    """The dynamic inputs of one stream computed chunk by chunk, the state carried across
+    chunk edges (a recording larger than memory, read in row groups).
+
+    The state is what the C header's state struct holds: whether the stream has
+    started, the last time seen (time must keep increasing across chunks), time and
+    temperature of the last finite-temperature sample and one value per recurrence
+    (e per time constant, P per play width).  Each :meth:`push` runs the same
+    vectorised block scans as a whole array, started from that state, so the result
+    equals :func:`compute` on the concatenated chunks: bitwise for ``play`` (comparisons
+    only), within float64 rounding of the signal for ``rate``/``lag`` (the blocked
+    scan composes its block maps in a different order; tests/test_dynamics.py).
+    A chunk that is refused (time not finite or not increasing) leaves the state as
+    it was.
+    """
+
+    def __init__(self, inputs: Sequence[str], gap_s: float) -> None:
+        if not (math.isfinite(gap_s) and gap_s > 0):
+            raise ConfigError(f"gap_s must be a positive number of seconds, got {gap_s!r}")
+        self.inputs = dynamic_signals(inputs)
+        self.gap_s = float(gap_s)
+        self.started = False
+        self.t_last = -math.inf
+        self.t_prev = 0.0
+        self.temp_prev = 0.0
+        #: e per time constant (rate, lag) and P per half-width (play)
+        self.state: dict[tuple[str, float], float] = {}
+        self.n_seen = 0
+
+    def push(self, time_s: np.ndarray, temperature_c: np.ndarray
+             ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """The signals of the next chunk (see :func:`compute`); updates the state."""
+        t = check_time(time_s)
+        if t.size and t[0] <= self.t_last:
+            what = "repeated" if t[0] == self.t_last else "decreasing"
+            raise TimeError(f"time_s: sample {self.n_seen}: time {what} ({self.t_last!r} then "
+                            f"{float(t[0])!r} s across a chunk edge); time must increase "
+                            "strictly")
+        temp = np.asarray(temperature_c, dtype=np.float64)
+        if temp.shape != t.shape:
+            raise InputError(f"temperature_c has shape {temp.shape}, time_s {t.shape}")
+        valid = np.isfinite(temp)
+        tv, Tv = t[valid], temp[valid]
+        restart = np.ones(tv.size, dtype=bool)
+        restart[1:] = np.diff(tv) > self.gap_s
+        cont = self.started and tv.size > 0
+        if cont:
+            restart[0] = (tv[0] - self.t_prev) > self.gap_s
+        n = valid.size
+        out: dict[str, np.ndarray] = {}
+        new: dict[tuple[str, float], float] = {}
+        cache: dict[float, np.ndarray] = {}
+        for d in self.inputs:
+            col = np.full(n, np.nan)
+            if tv.size:
+                if isinstance(d, Play):
+                    key = ("play", d.half_width_c)
+                    p = play_state(Tv, restart, d.half_width_c, self.state.get(key, 0.0))
+                    new[key] = float(p[-1])
+                    col[valid] = Tv - p
+                else:
+                    tau = d.param
+                    if tau not in cache:
+                        prev = (self.t_prev, self.temp_prev, self.state.get(("e", tau), 0.0)) \
+                            if cont else None
+                        cache[tau] = lag_error(tv, Tv, restart, tau, prev)
+                        new[("e", tau)] = float(cache[tau][-1])
+                    e = cache[tau]
+                    col[valid] = 60.0 * e / tau if isinstance(d, Rate) else e
+            out[d.signal] = col
+        gap = np.zeros(n, dtype=bool)
+        idx = np.flatnonzero(valid)
+        if idx.size:
+            gap[idx] = restart
+            gap[idx[0]] = cont and restart[0]
+        # commit the state only once every step has succeeded
+        if t.size:
+            self.t_last = float(t[-1])
+        if tv.size:
+            self.started, self.t_prev, self.temp_prev = True, float(tv[-1]), float(Tv[-1])
+            self.state.update(new)
+        self.n_seen += n
+        return out, gap
 
 
 def compute(time_s: np.ndarray, temperature_c: np.ndarray, inputs: Sequence[str],
             gap_s: float) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Every dynamic signal of ``inputs`` for one stream, vectorised, O(N).
+
+    One :meth:`DynamicStream.push` of the whole array (use a :class:`DynamicStream` to
+    compute a longer stream chunk by chunk).
 
     Parameters
     ----------
@@ -407,29 +493,7 @@ def compute(time_s: np.ndarray, temperature_c: np.ndarray, inputs: Sequence[str]
     signals : dict signal name -> (N,) float64 (NaN where T is missing)
     gap : (N,) bool, true at the first sample after a gap (start-up excluded)
     """
-    if not (math.isfinite(gap_s) and gap_s > 0):
-        raise ConfigError(f"gap_s must be a positive number of seconds, got {gap_s!r}")
-    valid, tv, Tv, restart = _prepare(time_s, temperature_c, gap_s)
-    n = valid.size
-    out: dict[str, np.ndarray] = {}
-    cache: dict[float, np.ndarray] = {}
-    for d in dynamic_signals(inputs):
-        col = np.full(n, np.nan)
-        if tv.size:
-            if isinstance(d, Play):
-                col[valid] = Tv - play_state(Tv, restart, d.half_width_c)
-            else:
-                tau = d.param
-                if tau not in cache:
-                    cache[tau] = lag_error(tv, Tv, restart, tau)
-                e = cache[tau]
-                col[valid] = 60.0 * e / tau if isinstance(d, Rate) else e
-        out[d.signal] = col
-    gap = np.zeros(n, dtype=bool)
-    idx = np.flatnonzero(valid)
-    if idx.size:
-        gap[idx[1:]] = restart[1:]
-    return out, gap
+    return DynamicStream(inputs, gap_s).push(time_s, temperature_c)
 
 
 def reference_signals(time_s: Sequence[float], temperature_c: Sequence[float],

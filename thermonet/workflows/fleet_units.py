@@ -20,7 +20,7 @@ from ..core.errors import InputError
 from ..core.recording import Dataset, split_units
 from ..training.config import CompareConfig, FamilyConfig
 
-__all__ = ["UnitSource", "sources_from_dataset", "sources_from_simulation",
+__all__ = ["UnitSource", "sources_from_dataset", "sources_from_files", "sources_from_simulation",
            "physical_coefficients", "COEF_T0_C", "UnitItem", "unit_task", "FoldItem",
            "fold_task", "fold_items"]
 
@@ -37,12 +37,23 @@ class UnitSource:
     dataset: Dataset | None = None
     sim: dict[str, Any] | None = None   # simulate_fleet kwargs with unit_indices=[k]
     error: str | None = None            # why this unit's data cannot be used (it fails alone)
+    path: str | None = None             # the unit's own thermonet Parquet file: the worker
+    #                                     reads it (only the path crosses the network)
 
     def load(self) -> Dataset:
         if self.error is not None:
             raise InputError(self.error)
         if self.dataset is not None:
             return self.dataset
+        if self.path is not None:
+            from ..data.io import read_dataset
+
+            ds = read_dataset(self.path)
+            if ds.device_id != self.device_id or ds.is_fleet:
+                raise InputError(f"{self.path}: holds unit(s) {ds.unit_ids}, expected "
+                                 f"'{self.device_id}' alone (the file changed since the "
+                                 "fleet started?)")
+            return ds
         from ..sim import simulate_fleet
 
         if self.sim is None:
@@ -71,6 +82,42 @@ def sources_from_dataset(ds: Dataset, source: str = "") -> list[UnitSource]:
     units = split_units(Dataset(runs=good, meta=dict(ds.meta)).validate(source)) if good else {}
     return [UnitSource(dev, error=bad[dev]) if dev in bad else UnitSource(dev, dataset=units[dev])
             for dev in by_unit]
+
+
+def sources_from_files(paths: list[str]) -> list[UnitSource] | None:
+    """One source per file when every file is a thermonet Parquet file holding one unit
+    (read from the files' footers alone, :func:`thermonet.data.chunks.open_parquet`), else
+    None (the driver reads the data and splits it: :func:`sources_from_dataset`).
+
+    Each worker then reads its own unit's file — the path is all that goes to it, so a
+    fleet of recordings larger than the driver's memory runs on storage every worker
+    mounts.  The units must carry the same outputs, proxies and units of measure (from
+    their metadata; one line names both files otherwise); a file whose data fails
+    validation fails alone, in its worker.
+    """
+    from ..data.chunks import open_parquet
+
+    sources, first = [], None
+    for p in paths:
+        path = Path(p)
+        if path.suffix.lower() not in (".parquet", ".pq") or not path.is_file():
+            return None
+        layout = open_parquet(path)
+        if layout is None or len({e["device_id"] for e in layout.runs}) != 1:
+            return None
+        e = layout.runs[0]
+        shape = (sorted(e["outputs"]), sorted(e["proxies"]),
+                 {k: v for k, v in e["units"].items()})
+        if first is None:
+            first = (p, shape)
+        elif shape[:2] != first[1][:2] or any(
+                first[1][2].get(k, v) != v for k, v in shape[2].items()):
+            raise InputError(f"{p}: unit '{e['device_id']}' has outputs {shape[0]}, proxies "
+                             f"{shape[1]} and units {shape[2]}; {first[0]} has "
+                             f"{first[1][0]}, {first[1][1]} and {first[1][2]} (the units of "
+                             "one fleet must carry the same channels)")
+        sources.append(UnitSource(e["device_id"], path=str(path)))
+    return sources
 
 
 def sources_from_simulation(preset: str, *, units: int, runs: int | None = None, seed: int = 0,

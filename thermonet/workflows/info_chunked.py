@@ -1,0 +1,248 @@
+"""``thermonet info`` on recordings larger than memory: the summary in one chunked pass.
+
+:func:`summarize_parquet` returns what :func:`thermonet.workflows.info.summarize` returns
+for the same file, without holding it: the runs, channels and units come from the
+file's footer (:func:`thermonet.data.chunks.open_parquet`), and one pass over its row
+groups (:func:`~thermonet.data.chunks.iter_run_chunks`, at most ``chunk_rows`` rows at a
+time) accumulates per run and channel:
+
+* count, first and last time (duration), temperature and proxy minimum and maximum, the
+  largest |value| of every channel (the plausibility warnings,
+  :func:`thermonet.data.diagnostics.run_warnings`);
+* the noise floor's first differences, the last sample carried across chunk edges, merged
+  chunk by chunk with Chan et al.'s pairwise update of (count, mean, M2) — the variance
+  of all differences, as ``np.std`` computes it in one piece, to float64 rounding;
+* the drift's per-bin sums and counts (bins of ``bin_c`` °C over all runs), whose ratio is
+  :func:`thermonet.scoring.metrics.binned_means`;
+* the sample intervals for the median rate — only for a run without a stored
+  ``sample_rate_hz``: every interval when the run has at most ``chunk_rows`` of them,
+  else every k-th one (k = ⌈intervals / chunk_rows⌉, a fixed stride known from the
+  run's stored sample count), whose median stands for the whole run's (documented
+  approximation; memory stays within the chunk budget).
+
+Checked while reading: every value finite, time strictly increasing within each run
+(across chunk edges too), each run's sample count equal to the one its metadata
+states and at least :data:`thermonet.core.recording.MIN_SAMPLES`.  Then the checks of a
+whole :class:`~thermonet.core.recording.Dataset` (``Dataset.validate``: channels and
+units of every run, references and drift matching outputs, the same channels in every
+run, the temperature span) run on a skeleton of each run — its channels, units and
+metadata with ``MIN_SAMPLES`` placeholder samples whose temperature spans the run's own
+minimum to maximum — so a file the whole-file reader refuses is refused here with the
+same line.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..core.recording import MIN_SAMPLES, Dataset, Recording
+from ..data.chunks import DEFAULT_CHUNK_ROWS, ParquetLayout, iter_run_chunks, open_parquet
+from ..data.diagnostics import run_warnings
+from ..data.mapping import channel_role
+
+__all__ = ["summarize_parquet", "open_parquet", "DEFAULT_CHUNK_ROWS"]
+
+
+class _Moments:
+    """Count, mean and M2 of a stream of numbers, merged piece by piece (Chan et al. 1979)."""
+
+    __slots__ = ("n", "mean", "m2")
+
+    def __init__(self) -> None:
+        self.n, self.mean, self.m2 = 0, 0.0, 0.0
+
+    def add(self, x: np.ndarray) -> None:
+        if x.size == 0:
+            return
+        nb, mb = x.size, float(np.mean(x))
+        m2b = float(np.sum((x - mb) ** 2))
+        n = self.n + nb
+        delta = mb - self.mean
+        self.mean += delta * nb / n
+        self.m2 += m2b + delta * delta * self.n * nb / n
+        self.n = n
+
+    def std(self) -> float:
+        return math.sqrt(self.m2 / self.n) if self.n else math.nan
+
+
+class _Run:
+    """What one run's pass accumulates."""
+
+    def __init__(self, entry: dict[str, Any], cap: int) -> None:
+        self.entry = entry
+        self.n = 0
+        self.t0 = self.t1 = math.nan
+        self.lo: dict[str, float] = {}
+        self.hi: dict[str, float] = {}
+        self.peak: dict[str, float] = {}
+        self.last: dict[str, float] = {}
+        self.noise: dict[str, _Moments] = {o: _Moments() for o in entry["outputs"]}
+        n_int = max(int(entry.get("n_samples") or 0) - 1, 1)
+        self.stride = -(-n_int // cap) if entry["sample_rate_hz"] is None else 0
+        self.intervals: list[np.ndarray] = []
+
+    def add(self, piece: dict[str, np.ndarray]) -> None:
+        t = piece["time_s"]
+        first = self.n
+        if self.stride:
+            prev = [] if first == 0 else [self.t1]
+            dt = np.diff(np.concatenate([prev, t]))
+            k0 = first - 1 if first else 0        # index of dt[0] among the run's intervals
+            self.intervals.append(dt[(-k0) % self.stride::self.stride])
+        if first == 0:
+            self.t0 = float(t[0])
+        self.t1 = float(t[-1])
+        self.n += t.size
+        for name, v in piece.items():
+            if name == "time_s":
+                continue
+            self.lo[name] = min(self.lo.get(name, math.inf), float(v.min()))
+            self.hi[name] = max(self.hi.get(name, -math.inf), float(v.max()))
+            self.peak[name] = max(self.peak.get(name, 0.0), float(np.max(np.abs(v))))
+        for o, mom in self.noise.items():
+            ref = f"ref_{o}"
+            y = piece[o] - piece[ref] if ref in self.entry["references"] else piece[o]
+            mom.add(np.diff(y if first == 0 else np.concatenate([[self.last[o]], y])))
+            self.last[o] = float(y[-1])
+
+    def rate_hz(self) -> float:
+        if self.entry["sample_rate_hz"]:
+            return float(self.entry["sample_rate_hz"])
+        return float(1.0 / np.median(np.concatenate(self.intervals)))
+
+
+@np.errstate(over="ignore", invalid="ignore")  # absurd values: warned about, not a traceback
+def summarize_parquet(path: str | Path | ParquetLayout, *, bin_c: float = 1.0,
+                      chunk_rows: int = DEFAULT_CHUNK_ROWS) -> dict[str, Any]:
+    """:func:`thermonet.workflows.info.summarize` of a thermonet Parquet file, read in chunks.
+
+    Raises
+    ------
+    InputError
+        Not a thermonet Parquet file (no metadata blob: read it whole), or a bad value
+        (named by column and row).
+    """
+    layout = path if isinstance(path, ParquetLayout) else open_parquet(path)
+    if layout is None:
+        raise InputError.at(path, "not a thermonet Parquet file (no 'thermonet' metadata); "
+                            "it is read whole")
+    entries = layout.runs
+    has_temp = any(e["temperature"] for e in entries)
+    names: list[str] = []
+    units: dict[str, str] = {}
+    for e in entries:
+        for n in ["time_s"] + (["temperature_c"] if e["temperature"] else []) + [
+                x for g in ("outputs", "references", "drift", "proxies") for x in e[g]]:
+            if n not in names:
+                names.append(n)
+                units[n] = e["units"].get(n, "s" if n == "time_s" else "?")
+    read = [n for n in names if n == "temperature_c" or any(
+        n in e[g] for e in entries for g in ("outputs", "references", "proxies"))]
+    runs = [_Run(e, int(chunk_rows)) for e in entries]
+    first_out = list(entries[0]["outputs"])
+    bins: dict[str, dict[int, list[float]]] = {o: {} for o in first_out}
+    for i, _rows, piece in iter_run_chunks(layout, read, chunk_rows=chunk_rows):
+        e = entries[i]
+        mine = {k: v for k, v in piece.items()
+                if k == "time_s" or (k == "temperature_c" and e["temperature"])
+                or any(k in e[g] for g in ("outputs", "references", "proxies"))}
+        runs[i].add(mine)
+        if e["temperature"]:
+            idx = np.floor(piece["temperature_c"] / bin_c).astype(np.int64)
+            keys, inv = np.unique(idx, return_inverse=True)
+            counts = np.bincount(inv)
+            for o in first_out:
+                y = piece[o] - piece[f"ref_{o}"] if f"ref_{o}" in e["references"] else piece[o]
+                sums = np.bincount(inv, weights=y)
+                acc = bins[o]
+                for k, s, c in zip(keys.tolist(), sums.tolist(), counts.tolist(), strict=True):
+                    cell = acc.setdefault(k, [0.0, 0])
+                    cell[0] += s
+                    cell[1] += c
+    for r in runs:
+        e = r.entry
+        where = f"run '{e['run_id']}'"
+        if r.n < MIN_SAMPLES:
+            raise InputError.at(layout.path, f"{where}: too few samples: {r.n} (need at least "
+                                f"{MIN_SAMPLES})")
+        if e.get("n_samples") is not None and int(e["n_samples"]) != r.n:
+            raise InputError.at(layout.path, f"{where}: {r.n} rows, its metadata says "
+                                f"{e['n_samples']}")
+    _validate_skeleton(layout, runs)
+    channels = [{"name": n, "role": "time" if n == "time_s" else
+                 ("proxy" if any(n in e["proxies"] for e in entries) else channel_role(n)),
+                 "unit": units[n]} for n in names]
+    run_rows, warnings = [], []
+    for r in runs:
+        e = r.entry
+        temp = e["temperature"]
+        run_rows.append({
+            "run_id": e["run_id"], "samples": r.n, "duration_s": r.t1 - r.t0,
+            "sample_rate_hz": r.rate_hz(),
+            "temperature_min_c": r.lo["temperature_c"] if temp else None,
+            "temperature_max_c": r.hi["temperature_c"] if temp else None,
+            "proxies": {k: [r.lo[k], r.hi[k]] for k in e["proxies"]},
+            "skipped_rows": int(e["meta"]["skipped_rows"]) if "skipped_rows" in e["meta"]
+            else None,
+        })
+        span = (r.lo["temperature_c"], r.hi["temperature_c"],
+                r.hi["temperature_c"] - r.lo["temperature_c"]) if temp else None
+        peaks = {k: r.peak[k] for g in ("outputs", "references", "proxies") for k in e[g]}
+        warnings += run_warnings(f"run '{e['run_id']}'", e["meta"], e["units"], span, peaks,
+                                 r.t1 - r.t0, r.rate_hz())
+    outputs = []
+    for o in first_out:
+        floors = [r.noise[o].std() / math.sqrt(2.0) for r in runs
+                  if o in r.noise and r.noise[o].n >= 2]
+        floors = [f for f in floors if math.isfinite(f)]
+        pp = None
+        if has_temp and bins[o]:
+            means = [s / c for s, c in bins[o].values()]
+            pp = _num(max(means) - min(means))
+        outputs.append({"name": o, "unit": units.get(o, "?"),
+                        "noise_floor": _num(float(np.mean(floors))) if floors else None,
+                        "drift_peak_to_peak": pp})
+    t_rows = [r for r in run_rows if r["temperature_min_c"] is not None]
+    t_range = [min(r["temperature_min_c"] for r in t_rows),
+               max(r["temperature_max_c"] for r in t_rows)] if t_rows else None
+    skipped = layout.meta.get("skipped_rows")
+    rates = sorted({float(f"{r['sample_rate_hz']:.4g}") for r in run_rows})
+    at = f"{rates[0]:g} Hz" if len(rates) == 1 else f"each run's rate ({rates[0]:g} … " \
+        f"{rates[-1]:g} Hz)"
+    return {"device_id": entries[0]["device_id"], "sensor_kind": entries[0]["sensor_kind"],
+            "n_runs": len(entries), "channels": channels, "runs": run_rows,
+            "outputs": outputs, "temperature_range_c": t_range, "bin_c": bin_c,
+            "skipped_rows": None if skipped is None else int(skipped),
+            "noise_floor_basis": f"1 sigma per sample at {at}",
+            "warnings": warnings}
+
+
+def _validate_skeleton(layout: ParquetLayout, runs: list[_Run]) -> None:
+    """``Dataset.validate`` on each run's channels, units and temperature extremes."""
+    k = MIN_SAMPLES
+    skeleton = []
+    for r in runs:
+        e = r.entry
+        zeros = np.zeros(k)
+        temp = np.linspace(r.lo["temperature_c"], r.hi["temperature_c"], k) \
+            if e["temperature"] else None
+        skeleton.append(Recording(
+            time_s=np.arange(k, dtype=np.float64), temperature_c=temp,
+            outputs={n: zeros for n in e["outputs"]},
+            references={n: zeros for n in e["references"]},
+            drift={n: zeros for n in e["drift"]}, proxies={n: zeros for n in e["proxies"]},
+            units=dict(e["units"]), device_id=e["device_id"], sensor_kind=e["sensor_kind"],
+            run_id=e["run_id"], sample_rate_hz=e["sample_rate_hz"], meta=dict(e["meta"])))
+    Dataset(runs=skeleton, meta=dict(layout.meta)).validate(str(layout.path))
+
+
+def _num(x: float) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
