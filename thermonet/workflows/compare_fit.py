@@ -96,7 +96,7 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
             res.fit_seconds = (0.0 if math.isnan(res.fit_seconds) else res.fit_seconds) \
                 + fitted.fit_seconds
             held = fp.val or fp.train[-1]
-            vals.append(block_sums(held, predict(fitted.model, held.signals)))
+            vals.append(block_sums(held, predict(fitted.model, held.signals, held.time_s)))
             test_part = fp.test
             assert test_part is not None
             pred, axes = score_part(fitted.model, test_part)
@@ -172,7 +172,7 @@ def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: An
         for j, q in enumerate(whole):
             rows = np.flatnonzero(plan.fold_of[j] == f)
             x = q.signals[rows]
-            preds.append(predict(fitted.model, x) if rows.size
+            preds.append(predict(fitted.model, x, q.time_s[rows]) if rows.size
                          else np.zeros((0, len(p.outputs))))
             inside.append(in_domain(x, lo, hi, widen[j]) & np.isfinite(preds[-1]).all(axis=1))
         oof.pred.append(preds)

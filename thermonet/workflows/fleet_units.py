@@ -128,7 +128,7 @@ def physical_coefficients(model: Any, t0_c: float = COEF_T0_C) -> dict[str, floa
 def _residual_std(model: Any, part: Any) -> np.ndarray:
     from ..training.train import predict
 
-    return np.std(part.target - predict(model, part.signals), axis=0)
+    return np.std(part.target - predict(model, part.signals, part.time_s), axis=0)
 
 
 def _test_part(cfg: CompareConfig, ds: Dataset, model: Any) -> Any:
