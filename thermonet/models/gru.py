@@ -184,7 +184,8 @@ class GRU(Family):
         w_ih, w_hh, b_ih, b_hh = self._params()
         with torch.no_grad():
             wo, bo = output_layer(self.weight, self.bias, y_std, y_mean)
-        consts = [c_array(f"{p}_gru_w_ih", as_float32(w_ih)),
+        consts = [f"#define {p.upper()}_GRU_HIDDEN {H}",
+                  c_array(f"{p}_gru_w_ih", as_float32(w_ih)),
                   c_array(f"{p}_gru_b_ih", as_float32(b_ih)),
                   c_array(f"{p}_gru_w_hh", as_float32(w_hh)),
                   c_array(f"{p}_gru_b_hh", as_float32(b_hh)),
