@@ -39,7 +39,7 @@ held-out scores keep every sample (the warm-up error counts against the GRU).
 contiguous segment (no step over ``gap_s``) of every training run is one sequence of
 ``step_s`` windows; truncated back-propagation through time over chunks of ``chunk``
 windows (default 64), the state carried from chunk to chunk (detached), one Adam step
-(learning rate ``lr``, default 1e-3; the gradient clipped to norm 1, the usual
+(learning rate ``lr``, default 3e-3; the gradient clipped to norm 1, the usual
 guard against gradients exploding through time) per chunk, epochs and early stopping from the
 ``train`` section (its ``optimizer`` and ``lr`` are for the full-batch families and not
 used here).  ``weight_decay`` :math:`\\lambda` adds :math:`\\lambda \\sum W^2` over the
@@ -104,7 +104,7 @@ class GRU(Family):
     recurrent: ClassVar[bool] = True
 
     def __init__(self, *, n_inputs: int, n_outputs: int, hidden: int = 8, step_s: float = 10.0,
-                 gap_s: float = 60.0, chunk: int = 64, warmup: int = 30, lr: float = 1e-3,
+                 gap_s: float = 60.0, chunk: int = 64, warmup: int = 30, lr: float = 3e-3,
                  weight_decay: float = 1e-6) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
         self.hidden = _checked("hidden", hidden, 1, 64, True)
@@ -228,12 +228,21 @@ class GRU(Family):
         return None
 
     def start(self, seed: int) -> None:
-        """PyTorch's default start (uniform in ±1/√H), drawn from a seeded generator."""
+        """PyTorch's default start (uniform in ±1/√H), drawn from a seeded generator, with
+        the update gate's bias set by the chrono start (Tallec & Ollivier 2018, "Can
+        recurrent neural networks warp time?"): :math:`b_u = \\log U(1, T - 1)`,
+        ``T = chunk``, so that the units start with memories of 2 to ``chunk`` windows —
+        thermal lags are tens of windows, which a start at :math:`u \\approx 0.5` (a
+        memory of one or two windows) has to climb to through flat gradients."""
         gen = torch.Generator().manual_seed(int(seed))
         k = 1.0 / math.sqrt(self.hidden)
+        H = self.hidden
         with torch.no_grad():
             for prm in self.rnn.parameters():
                 prm.copy_(torch.rand(prm.shape, generator=gen, dtype=torch.float64) * 2 * k - k)
+            span = torch.rand(H, generator=gen, dtype=torch.float64) * (self.chunk - 2) + 1.0
+            self.rnn.bias_ih_l0[H:2 * H] = torch.log(span)
+            self.rnn.bias_hh_l0[H:2 * H] = 0.0
 
     def fit_readout(self, states: np.ndarray, y: np.ndarray) -> None:
         """Read-out as the least-squares fit of standardised targets (M, A) to states (M, H)."""
