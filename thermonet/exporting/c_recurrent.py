@@ -37,14 +37,14 @@ import shutil
 import subprocess
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.errors import ExportError
 from .c_stream import REAL_FLAGS, _proxies, float_path_slack, run_stream_c
 from .parity import check_drift_parity, check_points, trained_range
-from .recurrent import _tolerance, step_reference
+from .recurrent import _tolerance, hidden_size, step_reference
 
 if TYPE_CHECKING:
     from ..models import DriftModel
@@ -55,8 +55,8 @@ __all__ = ["render_recurrent_stream_c", "c_step_parity_check", "check_recurrent_
 def render_recurrent_stream_c(model: DriftModel, p: str) -> list[str]:
     """Lines of the state struct, ``<p>_init`` and ``<p>_step`` of a recurrent model."""
     P = p.upper()
-    fam = model.family
-    step_s, gap_s = float(fam.step_s), float(fam.gap_s)  # type: ignore[attr-defined]
+    fam: Any = model.family
+    step_s, gap_s = float(fam.step_s), float(fam.gap_s)
     signals = list(model.signals)
     proxies = _proxies(model)
     lines = [
@@ -225,7 +225,7 @@ def c_step_parity_check(model: DriftModel, header_text: str, *, prefix: str = "t
         return None
     points = check_points(list(trained_range(model).values()), seed)
     n, n_axes = points.shape[0], len(model.outputs)
-    hidden = int(model.family.hidden)  # type: ignore[attr-defined]
+    hidden = hidden_size(model)
     states = np.random.default_rng(seed + 2).uniform(-1.0, 1.0, (n, hidden)).astype(np.float32)
     d_torch, f_torch, h_torch = step_reference(model, points, states)
     tol, h_tol = _tolerance(model, points, states, d_torch, h_torch, 1e-5)
@@ -283,8 +283,8 @@ def check_recurrent_stream(model: DriftModel, header_text: str, *, prefix: str =
 
     if not (shutil.which("cc") or shutil.which("gcc")):
         return None
-    fam = model.family
-    step_s, gap_s = float(fam.step_s), float(fam.gap_s)  # type: ignore[attr-defined]
+    fam: Any = model.family
+    step_s, gap_s = float(fam.step_s), float(fam.gap_s)
     rng = np.random.default_rng(seed)
     n = 3000
     dt = np.minimum(rng.uniform(0.05, 0.15, n) * step_s, 0.5 * gap_s)

@@ -187,7 +187,7 @@ def _strip_debug(proto: Any) -> None:
     proto.doc_string = ""
 
 
-def _export_proto(graph: nn.Module, exporter: str) -> tuple[Any, str]:
+def _export_proto(graph: Any, exporter: str) -> tuple[Any, str]:
     import onnx
 
     n_ex = 4

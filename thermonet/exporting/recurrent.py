@@ -34,12 +34,18 @@ if TYPE_CHECKING:
     from ..models import DriftModel
 
 __all__ = ["RecurrentGraph", "STATE_INPUT", "STATE_OUTPUT", "RECURRENT_VERSION",
-           "recurrent_metadata", "recurrent_parity_check", "step_reference"]
+           "recurrent_metadata", "recurrent_parity_check", "step_reference", "hidden_size"]
 
 STATE_INPUT = "state"
 STATE_OUTPUT = "state_out"
 #: Version of the ``recurrent`` metadata block.
 RECURRENT_VERSION = 1
+
+
+def hidden_size(model: DriftModel) -> int:
+    """The state's size H of a recurrent model."""
+    fam: Any = model.family
+    return int(fam.hidden)
 
 
 class RecurrentGraph(nn.Module):
@@ -50,7 +56,7 @@ class RecurrentGraph(nn.Module):
         self.model = model
         self.signals = list(model.signals)
         self.outputs = list(model.outputs)
-        self.hidden = int(model.family.hidden)  # type: ignore[attr-defined]
+        self.hidden = hidden_size(model)
         self.extra_inputs = [STATE_INPUT]
         self.extra_outputs = [STATE_OUTPUT]
 
@@ -66,9 +72,9 @@ class RecurrentGraph(nn.Module):
 
 def recurrent_metadata(model: DriftModel) -> dict[str, Any]:
     """The ``recurrent`` metadata block: what the runtime needs to run the stream."""
-    fam = model.family
-    return {"version": RECURRENT_VERSION, "hidden": int(fam.hidden),  # type: ignore[attr-defined]
-            "step_s": float(fam.step_s), "gap_s": float(fam.gap_s),  # type: ignore[attr-defined]
+    fam: Any = model.family
+    return {"version": RECURRENT_VERSION, "hidden": int(fam.hidden),
+            "step_s": float(fam.step_s), "gap_s": float(fam.gap_s),
             "state_input": STATE_INPUT, "state_output": STATE_OUTPUT}
 
 
@@ -119,7 +125,7 @@ def recurrent_parity_check(model: DriftModel, onnx_path: str | Path, *, seed: in
     extra[2, 0] = hi[0] + 0.1 * max(hi[0] - lo[0], 1e-3)
     points = np.concatenate([points, extra]).astype(np.float32)
     n, n_axes = points.shape[0], len(model.outputs)
-    hidden = int(model.family.hidden)  # type: ignore[attr-defined]
+    hidden = hidden_size(model)
     states = np.random.default_rng(seed + 2).uniform(-1.0, 1.0, (n, hidden)).astype(np.float32)
     d_torch, f_torch, h_torch = step_reference(model, points, states)
     finite = np.all(np.isfinite(points), axis=1)

@@ -121,7 +121,8 @@ class GRU(Family):
     # ------------------------------------------------------------------ the function
     def _params(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         r = self.rnn
-        return r.weight_ih_l0, r.weight_hh_l0, r.bias_ih_l0, r.bias_hh_l0
+        return (r.weight_ih_l0, r.weight_hh_l0,  # type: ignore[return-value]
+                r.bias_ih_l0, r.bias_hh_l0)
 
     def cell_t(self, z: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
         """The cell, axis-major: features (F, N) and state (H, N) → next state (H, N)."""
@@ -241,8 +242,9 @@ class GRU(Family):
             for prm in self.rnn.parameters():
                 prm.copy_(torch.rand(prm.shape, generator=gen, dtype=torch.float64) * 2 * k - k)
             span = torch.rand(H, generator=gen, dtype=torch.float64) * (self.chunk - 2) + 1.0
-            self.rnn.bias_ih_l0[H:2 * H] = torch.log(span)
-            self.rnn.bias_hh_l0[H:2 * H] = 0.0
+            _, _, b_ih, b_hh = self._params()
+            b_ih[H:2 * H] = torch.log(span)
+            b_hh[H:2 * H] = 0.0
 
     def fit_readout(self, states: np.ndarray, y: np.ndarray) -> None:
         """Read-out as the least-squares fit of standardised targets (M, A) to states (M, H)."""

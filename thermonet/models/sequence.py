@@ -20,7 +20,7 @@ window means, the per-sample steps in one batch through :meth:`DriftModel.evalua
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -106,7 +106,7 @@ def stream_relative(model: DriftModel, time_s: np.ndarray, signals: np.ndarray
     """
     from ..features.dynamics import check_time
 
-    fam = model.family
+    fam: Any = model.family  # a recurrent family (hidden, step_s, gap_s, scan)
     t = check_time(time_s, "time_s")
     s = np.asarray(signals, dtype=np.float64)
     if s.ndim != 2 or s.shape != (t.size, len(model.signals)):
@@ -115,7 +115,7 @@ def stream_relative(model: DriftModel, time_s: np.ndarray, signals: np.ndarray
     n, n_axes = s.shape[0], len(model.outputs)
     rel = np.full((n, n_axes), np.nan)
     flag = np.ones(n, dtype=bool)
-    lay = stream_windows(t, np.all(np.isfinite(s), axis=1), fam.step_s, fam.gap_s)  # type: ignore[attr-defined]
+    lay = stream_windows(t, np.all(np.isfinite(s), axis=1), fam.step_s, fam.gap_s)
     if lay.index.size == 0:
         return rel, flag
     means = running_means(s[lay.index], lay.window)
@@ -124,10 +124,10 @@ def stream_relative(model: DriftModel, time_s: np.ndarray, signals: np.ndarray
         ends = lay.ends
         z_end, _ = model.standardise(torch.as_tensor(means[ends], dtype=dtype).unbind(1))
         z_end_t = torch.stack(z_end, dim=1)                              # (W, F)
-        before = torch.zeros(len(ends), fam.hidden, dtype=dtype)         # type: ignore[attr-defined]
+        before = torch.zeros(len(ends), fam.hidden, dtype=dtype)
         for sg in np.unique(lay.segment):
             rows = np.flatnonzero(lay.segment == sg)
-            states, _ = fam.scan(z_end_t[rows][None])                    # type: ignore[operator]
+            states, _ = fam.scan(z_end_t[rows][None])
             before[rows[1:]] = states[0, :-1]
         h = before[torch.as_tensor(lay.window)].T.contiguous()            # (H, M)
         drift, fl, _ = model.evaluate_state(
