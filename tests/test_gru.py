@@ -263,3 +263,16 @@ def test_cost_counted_by_hand():
     assert (cost["ops_per_sample"], cost["transcendentals"]) == (216 + 120 + 8, 24)
     # float constants: w_ih 24, b_ih 24, w_hh 64 × 3 = 192, b_hh 24, read-out 8 + 1
     assert cost["c_bytes"] == 4 * (24 + 24 + 192 + 24 + 8 + 1)
+
+
+def test_checkpoint_round_trip_keeps_the_stream(fitted, tmp_path):
+    from thermonet.training.checkpoint import load_checkpoint, save_checkpoint
+
+    path = save_checkpoint(tmp_path / "gru.pt", fitted.model, config={"family": "gru"})
+    loaded, _ = load_checkpoint(path)
+    assert loaded.family.recurrent and loaded.family.hyper() == fitted.model.family.hyper()
+    t, temp = _sequence(fitted.model)
+    a, fa = stream_relative(fitted.model, t, temp[:, None])
+    b, fb = stream_relative(loaded, t, temp[:, None])
+    np.testing.assert_array_equal(a, b)        # the same parameters, the same arithmetic
+    np.testing.assert_array_equal(fa, fb)

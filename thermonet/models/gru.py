@@ -40,7 +40,8 @@ contiguous segment (no step over ``gap_s``) of every training run is one sequenc
 ``step_s`` windows; truncated back-propagation through time over chunks of ``chunk``
 windows (default 64), the state carried from chunk to chunk (detached), one Adam step
 (learning rate ``lr``, default 3e-3; the gradient clipped to norm 1, the usual
-guard against gradients exploding through time) per chunk, epochs and early stopping from the
+guard against gradients exploding through time; halved when the monitored loss stalls)
+per chunk, epochs and early stopping from the
 ``train`` section (its ``optimizer`` and ``lr`` are for the full-batch families and not
 used here).  ``weight_decay`` :math:`\\lambda` adds :math:`\\lambda \\sum W^2` over the
 weight matrices (:meth:`penalty`).  Start: weights uniform in
