@@ -276,3 +276,23 @@ def test_checkpoint_round_trip_keeps_the_stream(fitted, tmp_path):
     b, fb = stream_relative(loaded, t, temp[:, None])
     np.testing.assert_array_equal(a, b)        # the same parameters, the same arithmetic
     np.testing.assert_array_equal(fa, fb)
+
+
+def test_header_cross_compiles_for_every_microcontroller(fitted, tmp_path):
+    """The GRU header under the strict Cortex-M flags (-Wdouble-promotion -Wconversion
+    -Werror): no double arithmetic in software anywhere, no libm on the float targets, and
+    on the M4F no arithmetic run-time routine (the window count needs no 64-bit division)."""
+    from thermonet.exporting import render_c_header
+    from thermonet.exporting.mcu import FLOAT_TARGETS, TARGETS, cross_compile
+
+    text = render_c_header(fitted.model)
+    for target in TARGETS:
+        build = cross_compile(text, target, tmp_path / target, recurrent=True)
+        assert build.code_bytes > 0
+        assert build.soft_double == [], (target, build.soft_double)
+        if target in FLOAT_TARGETS:
+            assert build.libm == [], (target, build.libm)
+        if target == "cortex-m4f":
+            # no arithmetic routine; libc's memset is what gcc makes of the zeroing loops of
+            # _init and of a restart
+            assert set(build.undefined) <= {"memset"}, build.undefined
