@@ -296,3 +296,43 @@ def test_header_cross_compiles_for_every_microcontroller(fitted, tmp_path):
             # no arithmetic routine; libc's memset is what gcc makes of the zeroing loops of
             # _init and of a restart
             assert set(build.undefined) <= {"memset"}, build.undefined
+
+
+def test_fleet_coefficients_summarise_its_soaked_curve(fitted):
+    """A fleet's per-unit c0..c3 of a GRU: the cubic through its steady-state curve (the
+    drift after a long soak at each temperature), finite."""
+    from thermonet.workflows.fleet_units import physical_coefficients
+
+    coef = physical_coefficients(fitted.model)
+    assert sorted(coef) == sorted(f"{a}.c{k}" for a in AXES for k in range(4))
+    assert all(np.isfinite(v) for v in coef.values())
+
+
+@pytest.mark.slow
+def test_judged_like_every_family_in_a_comparison(tmp_path):
+    """A comparison with the GRU beside the cubic: the same cross-validated selection,
+    per-axis verdicts and cost columns; a GRU trained 5 epochs does not beat the cubic on
+    a device whose drift is a function of temperature alone, and is not chosen."""
+    import json
+
+    from thermonet.sim import simulate
+    from thermonet.training.config import CompareConfig, FamilyConfig
+    from thermonet.workflows.compare import run_compare
+
+    ds = simulate("patent-gyro", seed=0, runs=4)
+    cfg = CompareConfig(families=[
+        FamilyConfig(family="poly", name="cubic", inputs=["dT"], params={"degree": 3}),
+        FamilyConfig(family="gru", name="gru", inputs=["dT"], params={"hidden": 4})],
+        baseline="cubic")
+    cfg.train.max_epochs = 5
+    run_compare(cfg, tmp_path / "cmp", track=False, quiet=True, dataset=ds, plots=False)
+    res = json.loads((tmp_path / "cmp" / "results.json").read_text())
+    gru = res["families"]["gru"]
+    assert gru["status"] == "ok" and res["chosen"] == "cubic"
+    # 4 units, 1 input, 3 axes: gates 3H(F + H), 15 per unit, read-out A·H; float constants
+    # w_ih 12, b_ih 12, w_hh 48, b_hh 12, read-out 12 + 3
+    assert gru["cost"] == {"ops_per_sample": 3 * 4 * 5 + 15 * 4 + 3 * 4,
+                           "transcendentals": 12, "c_bytes": 4 * (12 + 12 + 48 + 12 + 12 + 3)}
+    assert res["selection"]["candidates"]["gru"]["status"] == "ok"
+    assert all("verdict" in m for m in gru["axes"].values())
+    assert gru["test_score"] > res["families"]["cubic"]["test_score"]

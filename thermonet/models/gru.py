@@ -1,7 +1,7 @@
 """A small gated recurrent unit (issue 26): thermal history learnt from the signals alone.
 
 One GRU layer of ``hidden`` units (default 8; 4–16 is the range meant for a
-microcontroller: 8 units, one input and one axis are 264 constants, 1,056 bytes and 352
+microcontroller: 8 units, one input and one axis are 273 constants, 1,092 bytes and 344
 operations per sample, 24 of them ``expf``/``expm1f`` calls; :meth:`Family.cost`) and a
 linear read-out, in standardised units (PyTorch's gate layout, ``r``, ``u``, ``n``):
 
