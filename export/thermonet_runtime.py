@@ -58,8 +58,8 @@ import numpy as np
 import onnxruntime as ort
 
 __all__ = ["Compensator", "Compensation", "RuntimeInputError", "SUPPORTED_FORMATS",
-           "SUPPORTED_OPSETS", "DYNAMIC_VERSION", "dynamic_signals", "parse_number", "time_batch",
-           "main"]
+           "SUPPORTED_OPSETS", "DYNAMIC_VERSION", "RECURRENT_VERSION", "dynamic_signals",
+           "recurrent_windows", "parse_number", "time_batch", "main"]
 
 #: Metadata format versions this runtime understands (``thermonet_format``).
 SUPPORTED_FORMATS = ("1", "2")  # 2: float64 raw, compensated and drift (large constants)
@@ -399,6 +399,96 @@ def _check_dynamic(block: Any, signals: list[str], path: Path) -> dict[str, Any]
     return block
 
 
+# ---- recurrent models (the GRU): the state carried between samples and between calls ----
+#: Version of the ``recurrent`` metadata block this runtime runs.
+RECURRENT_VERSION = 1
+
+
+def _check_recurrent(block: Any, path: Path) -> dict[str, Any] | None:
+    """The validated ``recurrent`` metadata block (None for a model without state)."""
+    if block is None:
+        return None
+    if not isinstance(block, dict) or block.get("version") != RECURRENT_VERSION:
+        raise RuntimeInputError(f"{path}: metadata 'recurrent' is not version "
+                                f"{RECURRENT_VERSION}; this runtime cannot carry its state")
+    hidden = block.get("hidden")
+    if isinstance(hidden, bool) or not isinstance(hidden, int) or not 1 <= hidden <= 4096:
+        raise RuntimeInputError(f"{path}: metadata 'recurrent': hidden {hidden!r} is not a size")
+    for key in ("step_s", "gap_s"):
+        v = block.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
+                math.isfinite(v) and v > 0):
+            raise RuntimeInputError(f"{path}: metadata 'recurrent': {key} {v!r} is not a "
+                                    "positive number of seconds")
+    return block
+
+
+def recurrent_windows(time_s: np.ndarray, finite: np.ndarray, step_s: float, gap_s: float
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The stream of a recurrent model (thermonet.models.sequence, mirrored and checked by
+    thermonet's tests): for the finite samples, their positions, whether each restarts the
+    state (first sample, or more than ``gap_s`` after the previous finite one) and its
+    window number (``floor((t - t_0)/step_s)`` from the restart time ``t_0``, counted over
+    the stream)."""
+    idx = np.flatnonzero(finite)
+    tf = time_s[idx]
+    restart = np.ones(tf.size, dtype=bool)
+    restart[1:] = np.diff(tf) > gap_s
+    seg = np.cumsum(restart) - 1
+    t0 = tf[restart][seg] if tf.size else tf
+    k = np.floor((tf - t0) / step_s).astype(np.int64)
+    new = restart.copy()
+    new[1:] |= k[1:] != k[:-1]
+    return idx, restart, np.cumsum(new) - 1
+
+
+class _RecurrentStream:
+    """The O(1) state of :meth:`Compensator.step` for a recurrent model (the C header's
+    state struct): committed state ``h``, the current window's running mean and the state
+    its last sample produced (``h_next``, committed when a later window opens)."""
+
+    __slots__ = ("started", "t_last", "t_prev", "t0", "k", "base", "acc", "count", "h",
+                 "h_next")
+
+    def __init__(self, hidden: int) -> None:
+        self.started = False
+        self.t_last = -math.inf
+        self.t_prev = self.t0 = 0.0
+        self.k = 0
+        self.base = self.acc = np.zeros(0)
+        self.count = 0
+        self.h = np.zeros(hidden, dtype=np.float32)
+        self.h_next = self.h.copy()
+
+    def update(self, t: float, s: np.ndarray, rec: Mapping[str, Any]
+               ) -> tuple[np.ndarray | None, bool]:
+        """The signals to evaluate (the window's running mean; None for a non-finite
+        sample, which changes nothing) and whether this sample restarted after a gap."""
+        if not math.isfinite(t):
+            raise RuntimeInputError(f"time_s is {t!r} (must be finite seconds)")
+        if t <= self.t_last:
+            how = "repeated" if t == self.t_last else "decreasing"
+            raise RuntimeInputError(f"time_s {how} ({self.t_last!r} then {t!r} s); "
+                                    "time must increase strictly")
+        self.t_last = t
+        if not bool(np.all(np.isfinite(s))):
+            return None, False
+        restart = not self.started or (t - self.t_prev) > float(rec["gap_s"])
+        gap = self.started and restart
+        k = 0 if restart else int(math.floor((t - self.t0) / float(rec["step_s"])))
+        if restart:
+            self.h = np.zeros_like(self.h)
+            self.t0 = t
+        elif k != self.k:
+            self.h = self.h_next
+        if restart or k != self.k:
+            self.k, self.base, self.acc, self.count = k, s.copy(), np.zeros_like(s), 0
+        self.acc = self.acc + (s - self.base)
+        self.count += 1
+        self.started, self.t_prev = True, t
+        return self.base + self.acc / self.count, gap
+
+
 # The runtime's own copy of thermonet.core.names (it imports neither torch nor thermonet):
 # metadata is read from a file, so every name is checked before it is used or printed.
 _AXIS = re.compile(r"(?=.{1,64}\Z)[a-z][a-z0-9]*_[a-z0-9]+(?:\.bias|\.scale)?")
@@ -553,8 +643,26 @@ class Compensator:
             x for x in self.signals if x not in self.dynamic_signals
             and not (self.dynamic and x == "temperature_c")]
         self._stream = _Stream(len(self.dynamic_signals))
+        block = _meta_json(meta, "recurrent", path) if "recurrent" in meta else None
+        #: A recurrent model's stream constants (hidden, step_s, gap_s), None for the others.
+        self.recurrent: dict[str, Any] | None = _check_recurrent(block, path)
+        if self.recurrent and self.dynamic:
+            raise RuntimeInputError(f"{path}: a recurrent model with dynamic inputs is not "
+                                    "supported")
+        state_io = [self.recurrent["state_input"]] if self.recurrent else []
+        if self.recurrent:
+            self.needs = ["time_s", *self.needs]
+            self._rstream = _RecurrentStream(int(self.recurrent["hidden"]))
 
         graph_inputs = self._session.get_inputs()
+        if self.recurrent:
+            state_in = graph_inputs[-1]
+            if state_in.name != state_io[0] or state_in.type != "tensor(float)" \
+                    or len(state_in.shape) != 2 or state_in.shape[1] != self.recurrent["hidden"]:
+                raise RuntimeInputError(f"{path}: graph input '{state_in.name}' "
+                                        f"{state_in.type} {state_in.shape} is not the state "
+                                        f"[N, {self.recurrent['hidden']}] float")
+            graph_inputs = graph_inputs[:-1]
         names = [i.name for i in graph_inputs]
         expected = self.signals + [RAW_INPUT]
         if names != expected:
@@ -578,8 +686,10 @@ class Compensator:
                 raise RuntimeInputError(f"{path}: graph input '{inp.name}' has shape {inp.shape}, "
                                         "expected [N]")
         outs = [o.name for o in self._session.get_outputs()]
-        if outs != list(GRAPH_OUTPUTS):
-            raise RuntimeInputError(f"{path}: graph outputs {outs}, expected {list(GRAPH_OUTPUTS)}")
+        want_outs = list(GRAPH_OUTPUTS) + ([self.recurrent["state_output"]] if self.recurrent
+                                           else [])
+        if outs != want_outs:
+            raise RuntimeInputError(f"{path}: graph outputs {outs}, expected {want_outs}")
         for name in self.signals:
             if name not in self.trained_range:
                 raise RuntimeInputError(
@@ -645,6 +755,13 @@ class Compensator:
         given = self._collect(temperature_c, proxy, rate, signals)
         raw_arr, single = self._raw(raw)
         gap = None
+        if self.recurrent:
+            if time_s is None:
+                raise RuntimeInputError("missing 'time_s': this model carries a state in time "
+                                        "(seconds, strictly increasing)")
+            t = self._as_float32("time_s", time_s, np.float64) if np.ndim(time_s) else \
+                np.full(1, _scalar("time_s", time_s))
+            return self._evaluate_recurrent(given, raw_arr, single, _check_time(t))
         if self.dynamic:
             if time_s is None:
                 raise RuntimeInputError(
@@ -689,6 +806,8 @@ class Compensator:
             temp = _scalar("temperature_c", given.get("temperature_c", np.nan))
         except RuntimeInputError as exc:
             raise RuntimeInputError(f"step(): {exc}") from None
+        if self.recurrent:
+            return self._step_recurrent(t, given, raw_arr)
         values, gap = self._stream.update(t, temp, self.dynamic or {"inputs": [], "gap_s": 1.0})
         given.update(values)
         return self._evaluate(given, raw_arr, True, np.array([gap]))
@@ -723,6 +842,8 @@ class Compensator:
             raise RuntimeInputError(f"step_block(): time_s has shape {t.shape}, temperature_c "
                                     f"{temp.shape}; expected ({raw_arr.shape[0]},) to match "
                                     "'raw'")
+        if self.recurrent:
+            return self._step_block_recurrent(t, given, raw_arr)
         # the block runs on a copy of the state, kept only once the whole block has succeeded
         trial = _Stream(len(self._stream.state))
         for key in _Stream.__slots__:
@@ -738,6 +859,95 @@ class Compensator:
     def reset(self) -> None:
         """Forget the stream's state: the next :meth:`step` starts afresh."""
         self._stream = _Stream(len(self.dynamic_signals))
+        if self.recurrent:
+            self._rstream = _RecurrentStream(int(self.recurrent["hidden"]))
+
+    # -- recurrent models: one graph call per window (batch) or per sample (step) ----------
+    def _signal_matrix(self, given: Mapping[str, Any], n: int) -> np.ndarray:
+        cols = []
+        for name in self.signals:
+            arr = np.asarray(self._as_float32(name, given[name], np.float64), dtype=np.float64)
+            arr = np.full(n, float(arr)) if arr.ndim == 0 else arr
+            if arr.shape != (n,):
+                raise RuntimeInputError(f"signal '{name}' has shape {arr.shape}; expected ({n},) "
+                                        "to match 'raw'")
+            cols.append(arr)
+        return np.stack(cols, axis=1)
+
+    def _run_step(self, signals: np.ndarray, raw: np.ndarray, state: np.ndarray
+                  ) -> list[np.ndarray]:
+        rec = self.recurrent or {}
+        feeds = {name: np.ascontiguousarray(signals[:, i], dtype=np.float32)
+                 for i, name in enumerate(self.signals)}
+        feeds[RAW_INPUT] = np.ascontiguousarray(raw)
+        feeds[rec["state_input"]] = np.ascontiguousarray(state, dtype=np.float32)
+        return list(self._session.run(None, feeds))
+
+    def _evaluate_recurrent(self, given: Mapping[str, Any], raw_arr: np.ndarray, single: bool,
+                            t: np.ndarray) -> Compensation:
+        """A whole sequence as one stream from a fresh state (``step`` carries it across
+        calls): each window's samples in one graph call from the state committed before it."""
+        rec = self.recurrent or {}
+        n = raw_arr.shape[0]
+        if t.shape != (n,):
+            raise RuntimeInputError(f"time_s has shape {t.shape}; expected ({n},) to match 'raw'")
+        sig = self._signal_matrix(given, n)
+        comp = np.full(raw_arr.shape, np.nan, dtype=self._raw_dtype)
+        drift = comp.copy()
+        flag = np.ones(n, dtype=bool)
+        idx, restart, window = recurrent_windows(t, np.all(np.isfinite(sig), axis=1),
+                                                 float(rec["step_s"]), float(rec["gap_s"]))
+        starts = np.flatnonzero(np.append(True, window[1:] != window[:-1]))
+        h = np.zeros(int(rec["hidden"]), dtype=np.float32)
+        for a, b in zip(starts, np.append(starts[1:], idx.size), strict=True):
+            rows = idx[a:b]
+            vals = sig[rows]
+            mean = vals[0] + np.cumsum(vals - vals[0], axis=0) / np.arange(1, b - a + 1)[:, None]
+            if restart[a]:
+                h = np.zeros_like(h)
+            c, d, f, h_out = self._run_step(mean, raw_arr[rows], np.tile(h, (b - a, 1)))
+            comp[rows], drift[rows] = c, d
+            flag[rows] = f.astype(bool)
+            flag[rows[0]] |= bool(restart[a]) and a > 0          # a gap restarted the state
+            h = h_out[-1]
+        if single:
+            return Compensation(comp[0], drift[0], bool(flag[0]))
+        return Compensation(comp, drift, flag)
+
+    def _step_block_recurrent(self, t: np.ndarray, given: Mapping[str, Any],
+                              raw_arr: np.ndarray) -> Compensation:
+        """A block of a recurrent model: its samples through :meth:`_step_recurrent` one by
+        one (the state lives in the graph's input and output, advanced once per window), on a
+        copy of the stream kept only once the whole block has succeeded."""
+        import copy
+
+        n = t.shape[0]
+        sig = self._signal_matrix(given, n)
+        saved = copy.deepcopy(self._rstream)
+        comp = np.empty((n, len(self.outputs)), dtype=self._raw_dtype)
+        drift = np.empty_like(comp)
+        flag = np.zeros(n, dtype=bool)
+        try:
+            for k in range(n):
+                one = {name: sig[k, j] for j, name in enumerate(self.signals)}
+                r = self._step_recurrent(float(t[k]), one, raw_arr[k:k + 1])
+                comp[k], drift[k], flag[k] = r.compensated, r.drift, r.out_of_range
+        except RuntimeInputError:
+            self._rstream = saved
+            raise
+        return Compensation(comp, drift, flag)
+
+    def _step_recurrent(self, t: float, given: Mapping[str, Any], raw_arr: np.ndarray
+                        ) -> Compensation:
+        rec = self.recurrent or {}
+        sig = self._signal_matrix(given, 1)[0]
+        mean, gap = self._rstream.update(t, sig, rec)
+        if mean is None:                    # a missing sample: NaN, flag, state unchanged
+            nan = np.full(len(self.outputs), np.nan, dtype=self._raw_dtype)
+            return Compensation(nan, nan.copy(), True)
+        c, d, f, h_out = self._run_step(mean[None, :], raw_arr, self._rstream.h[None, :])
+        self._rstream.h_next = h_out[0]
+        return Compensation(c[0], d[0], bool(f[0]) or gap)
 
     def _collect(self, temperature_c: Any, proxy: Any, rate: Any, signals: Mapping[str, Any]
                  ) -> dict[str, Any]:

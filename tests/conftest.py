@@ -84,3 +84,13 @@ def toy_dataset(*, n_runs: int = 4, drift_scale: float = 1.0, noise: float = 0.0
 @pytest.fixture
 def toy_parquet(tmp_path: Path) -> Path:
     return write_parquet(toy_dataset(), tmp_path / "toy.parquet")
+
+
+def pointwise_families() -> list[str]:
+    """Every registered family that is evaluated sample by sample: what the generic fit,
+    checkpoint, export and layout tests parametrise over.  A recurrent family (the GRU)
+    is trained on runs with time and exported with its state as inputs and outputs; those
+    paths are its own, and tests/test_gru.py checks them (fit, stream, ONNX, runtime, C)."""
+    from thermonet.models import MODELS
+
+    return [name for name, cls in MODELS.items() if not cls.recurrent]

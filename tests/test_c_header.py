@@ -9,6 +9,7 @@ import onnxruntime as ort
 import pytest
 import torch
 
+from conftest import pointwise_families
 from thermonet.core.errors import ExportError
 from thermonet.exporting import export_c_header, export_onnx, render_c_header
 from thermonet.exporting.c_header import PARITY_DRIVER
@@ -40,7 +41,7 @@ def _model(family: str):
                hyper={}, config=TrainConfig(max_epochs=20, seed=0)).model
 
 
-@pytest.mark.parametrize("family", list(MODELS))
+@pytest.mark.parametrize("family", pointwise_families())
 def test_header_matches_onnxruntime(family, tmp_path):
     model = _model(family)
     onnx_path = export_onnx(model, tmp_path / "m.onnx")

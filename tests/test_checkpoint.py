@@ -7,6 +7,7 @@ import onnxruntime as ort
 import pytest
 import torch
 
+from conftest import pointwise_families
 from thermonet.core.errors import ExportError, InputError
 from thermonet.features.inputs import FeatureSpec
 from thermonet.models import MODELS
@@ -50,7 +51,7 @@ def spec_dict(inputs):
     return out
 
 
-@pytest.mark.parametrize("name", list(MODELS))
+@pytest.mark.parametrize("name", pointwise_families())
 def test_checkpoint_round_trip_identical_predictions(name, tmp_path):
     res, sig = _trained(name)
     path = save_checkpoint(tmp_path / "sub" / "model.pt", res.model,
@@ -95,7 +96,7 @@ def test_loading_a_non_checkpoint_is_an_input_error(tmp_path):
         load_checkpoint(tmp_path / "missing.pt")
 
 
-@pytest.mark.parametrize("name", list(MODELS))
+@pytest.mark.parametrize("name", pointwise_families())
 def test_onnx_export_dynamic_batch_matches_torch(name, tmp_path):
     res, sig = _trained(name)
     model = res.model

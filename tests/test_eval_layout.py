@@ -14,6 +14,7 @@ import onnx
 import pytest
 import torch
 
+from conftest import pointwise_families
 from thermonet.core.errors import ConfigError, InputError
 from thermonet.exporting import export_onnx, render_c_header
 from thermonet.features.inputs import FeatureSpec
@@ -45,7 +46,7 @@ def _inputs(family: str) -> list[str]:
 def models():
     temp = np.linspace(-20.0, 60.0, 400)
     out = {}
-    for name in MODELS:
+    for name in pointwise_families():
         spec = FeatureSpec(inputs=_inputs(name), t_ref=T_REF)
         out[name] = fit(family=name, inputs=_inputs(name), outputs=AXES,
                         train=[(temp[:, None], _drift(temp))], val=None, spec=spec, hyper={},
@@ -64,7 +65,7 @@ def _training_path(model, temp: np.ndarray) -> np.ndarray:
         return (m.family(z) * m.y_std + m.y_mean + m.y_offset).numpy()
 
 
-@pytest.mark.parametrize("family", list(MODELS))
+@pytest.mark.parametrize("family", pointwise_families())
 def test_evaluation_path_is_the_trained_function(models, family):
     model = models[family]
     temp = np.linspace(-20.0, 60.0, 997)
@@ -79,7 +80,7 @@ def test_evaluation_path_is_the_trained_function(models, family):
     np.testing.assert_allclose(d64, want, rtol=0, atol=1e-9 * scale.max())
 
 
-@pytest.mark.parametrize("family", list(MODELS))
+@pytest.mark.parametrize("family", pointwise_families())
 def test_nan_inf_and_clamp_without_branches(models, family):
     model = models[family]
     lo, hi = float(model.sig_lo[0]), float(model.sig_hi[0])
@@ -105,7 +106,7 @@ def test_nan_inf_and_clamp_without_branches(models, family):
     np.testing.assert_array_equal(flag.numpy(), model.out_of_range(sig[:, None]).numpy())
 
 
-@pytest.mark.parametrize("family", list(MODELS))
+@pytest.mark.parametrize("family", pointwise_families())
 def test_mask_and_at_t_ref_folded_into_the_output_layer(models, family, tmp_path):
     """The per-axis target (at-t-ref) and the uncompensated mask are folded into each family's
     last product (DriftModel.output_scaling): the same drift as applying them afterwards,
@@ -148,7 +149,7 @@ def test_mask_and_at_t_ref_folded_into_the_output_layer(models, family, tmp_path
     assert c_parity_check(model, render_c_header(model)) is not None
 
 
-@pytest.mark.parametrize("family", list(MODELS))
+@pytest.mark.parametrize("family", pointwise_families())
 def test_graph_has_no_where_and_rbf_is_two_matrix_products(models, family, tmp_path):
     path = export_onnx(models[family], tmp_path / "m.onnx")   # parity-checked on export
     ops = [n.op_type for n in onnx.load(str(path)).graph.node]
@@ -158,7 +159,7 @@ def test_graph_has_no_where_and_rbf_is_two_matrix_products(models, family, tmp_p
         assert ops.count("Gemm") + ops.count("MatMul") == 2 and ops.count("Exp") == 1, ops
 
 
-@pytest.mark.parametrize("family", list(MODELS))
+@pytest.mark.parametrize("family", pointwise_families())
 def test_each_family_owns_its_c_emitter_and_restates_no_constant(models, family):
     cls = MODELS[family]
     assert cls.emit_c is not Family.emit_c, f"{family} has no C emitter of its own"

@@ -10,6 +10,7 @@ import onnxruntime as ort
 import pytest
 import torch
 
+from conftest import pointwise_families
 from thermonet.core.errors import ExportError
 from thermonet.exporting import export_onnx, log_onnx_to_mlflow, onnx_file_size, parity_check
 from thermonet.features.inputs import FeatureSpec
@@ -50,7 +51,7 @@ def exported(tmp_path_factory):
     """Every registered family, trained briefly and exported (parity checked on export)."""
     out = {}
     d = tmp_path_factory.mktemp("onnx")
-    for name in MODELS:
+    for name in pointwise_families():
         model = _fit(name, _inputs_for(name))
         path = export_onnx(
             model,
@@ -67,7 +68,7 @@ def exported(tmp_path_factory):
     return out
 
 
-@pytest.mark.parametrize("family", list(MODELS))
+@pytest.mark.parametrize("family", pointwise_families())
 def test_onnx_matches_torch_and_recovers_drift(exported, family):
     model, path = exported[family]
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
@@ -91,7 +92,7 @@ def test_onnx_matches_torch_and_recovers_drift(exported, family):
     assert (np.ptp(comp, axis=0) < 0.3 * np.ptp(raw, axis=0)).all()
 
 
-@pytest.mark.parametrize("family", list(MODELS))
+@pytest.mark.parametrize("family", pointwise_families())
 def test_clamp_flag_and_nan_inside_graph(exported, family):
     model, path = exported[family]
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import pointwise_families
 from thermonet.exporting import render_c_header
 from thermonet.exporting.c_header import c_parity_check
 from thermonet.exporting.c_stream import (
@@ -84,7 +85,7 @@ def _dynamic_model(family: str):
 @pytest.fixture(scope="module")
 def models():
     out = {}
-    for family in MODELS:
+    for family in pointwise_families():
         out[family, "plain"] = _static_model(family)
         out[family, "stream"] = _dynamic_model(family)
     return out
@@ -100,7 +101,7 @@ def test_toolchain_is_installed():
 
 
 @pytest.mark.parametrize("kind", ["plain", "stream"])
-@pytest.mark.parametrize("family", list(MODELS))
+@pytest.mark.parametrize("family", pointwise_families())
 def test_every_header_cross_compiles_float_only_where_the_fpu_is(models, family, kind,
                                                                  tmp_path):
     model = models[family, kind]
@@ -225,7 +226,7 @@ def test_fast_exp_and_expm1_within_their_documented_error(tmp_path):
 
 # ------------------------------------------------------------------ the float path on the host
 @pytest.mark.numerics
-@pytest.mark.parametrize("family", list(MODELS))
+@pytest.mark.parametrize("family", pointwise_families())
 def test_float_path_matches_torch(models, family):
     """-DTHERMONET_USE_FLOAT on the host: float raw/drift/compensated, the fast expf and
     expm1f, microsecond time; the export's own checks (grid, random points, flags; the
@@ -287,7 +288,7 @@ def _sweep(model, n: int = 60) -> np.ndarray:
     return pts.astype(np.float32)
 
 
-@pytest.mark.parametrize("family", list(MODELS))
+@pytest.mark.parametrize("family", pointwise_families())
 def test_emulated_cortex_m4f_matches_torch(models, family, tmp_path):
     """The code that runs on the part: built for the M4F (fused multiply-adds, the fast
     expf/expm1f), run under unicorn, compared with torch over a temperature sweep (and the

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import pointwise_families
 from thermonet.core.errors import ConfigError, FitError
 from thermonet.features.inputs import FeatureSpec
 from thermonet.models import MODELS, TINY, build_family, get_family
@@ -92,7 +93,7 @@ def test_rbf_fits_smooth_dT_dT2_function():
     assert res.history[-1]["train_loss"] <= res.history[0]["train_loss"]
 
 
-@pytest.mark.parametrize("name", list(MODELS))
+@pytest.mark.parametrize("name", pointwise_families())
 def test_training_returns_the_best_epoch_it_reports(name):
     rng = np.random.default_rng(3)
     y = 0.01 * np.sin(T / 15.0) + 0.004 * np.exp(-((T - 30) / 8) ** 2) + rng.normal(0, 1e-4, T.size)
@@ -109,7 +110,7 @@ def test_training_returns_the_best_epoch_it_reports(name):
     assert recomputed == pytest.approx(losses[res.best_epoch], rel=1e-3, abs=1e-9)
 
 
-@pytest.mark.parametrize("name", list(MODELS))
+@pytest.mark.parametrize("name", pointwise_families())
 @pytest.mark.parametrize("value", [0.0, 1e4, -1e4])
 def test_extreme_parameters_give_finite_output(name, value):
     n_in = MODELS[name].max_inputs or 2

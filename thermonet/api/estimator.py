@@ -409,7 +409,8 @@ average_s, threads
         out = []
         for rec in runs_of(data, "predict", allow_empty=True):
             same_units(rec, self.signal_units_, "predict", "the model was trained on it")
-            out.append(predict(model, signal_matrix(rec, self.spec_.signals, self.spec_.gap_s)))
+            out.append(predict(model, signal_matrix(rec, self.spec_.signals, self.spec_.gap_s),
+                               rec.time_s))
         return out[0] if len(out) == 1 else np.concatenate(out)
 
     def compensate(self, data: Data) -> Any:
@@ -469,7 +470,7 @@ average_s, threads
             same_units(rec, self.signal_units_, what, "the model was trained on it")
             part = self._part(rec, self.spec_, self.outputs_)
             target = np.asarray(part.target, dtype=np.float64)
-            err = target - predict(model, part.signals)
+            err = target - predict(model, part.signals, part.time_s)
             acc = sums.setdefault(rec.meta.get(BLOCK_RUN, rec.run_id),
                                   [np.zeros(target.shape[1]) for _ in range(5)])
             for k, v in enumerate((np.full(target.shape[1], target.shape[0]),

@@ -165,6 +165,10 @@ def autopilot_coefficients(model: DriftModel, *, output_units: str | Mapping[str
         a unit that does not match the axis kind.
     """
     family = family_name(model)
+    if model.family.recurrent:  # before the input check: its reason is the state, not dT
+        raise ExportError(f"PX4/ArduPilot parameter files hold a polynomial in temperature; this "
+                          f"model is '{family}', which carries a state in time — export it as "
+                          "ONNX or C (state, _init, _step)")
     if list(model.inputs) not in (["dT"], ["T"]):
         raise ExportError(f"PX4/ArduPilot parameter files need one input, dT or T; this model "
                           f"reads {list(model.inputs)}")

@@ -72,6 +72,7 @@ from ..core.fileio import atomic_write_text
 from ..core.names import c_comment, c_string, check_model_names
 from ..models import DriftModel
 from ..models.cgen import as_float32, c_array, c_float, c_target_prelude
+from .c_recurrent import c_step_parity_check, check_recurrent_stream, render_recurrent_stream_c
 from .c_stream import (
     REAL_FLAGS,
     check_stream,
@@ -139,6 +140,20 @@ def _output_lines(P: str, n_axes: int) -> list[str]:
     return [*lines, "#endif"]
 
 
+def _signature(p: str, recurrent: bool) -> list[str]:
+    """The model function's declaration: stateless ``<p>_compensate``, or a recurrent
+    model's step ``<p>_compensate_state`` with the state in and out (.c_recurrent)."""
+    if recurrent:
+        return [f"static inline int {p}_compensate_state(const float *signals, const float *h_in,",
+                "                                       float *h_out,",
+                "                                       const thermonet_real_t *raw,",
+                "                                       thermonet_real_t *compensated,",
+                "                                       thermonet_real_t *drift)"]
+    return [f"static inline int {p}_compensate(const float *signals, const thermonet_real_t *raw,",
+            "                                 thermonet_real_t *compensated,",
+            "                                 thermonet_real_t *drift)"]
+
+
 def render_c_header(model: DriftModel, *, prefix: str = "thermonet") -> str:
     """The header text for ``model`` (see :func:`export_c_header`)."""
     if not _IDENT.fullmatch(prefix):
@@ -153,6 +168,7 @@ def render_c_header(model: DriftModel, *, prefix: str = "thermonet") -> str:
     y_scale, y_shift = model.output_scaling()
     fam_c = model.family.emit_c(p, y_scale, y_shift)
     fam_consts, fam_body = fam_c.constants, fam_c.body
+    recurrent = model.family.recurrent
     guard = f"{P}_MODEL_H"
     t_ref = getattr(model.spec, "t_ref", None)
     names = lambda xs: "{" + ", ".join(c_string(x) for x in xs) + "}"  # noqa: E731
@@ -197,9 +213,7 @@ def render_c_header(model: DriftModel, *, prefix: str = "thermonet") -> str:
         *_drift_constant_lines(P, model.constant().detach().cpu().double().numpy()),
         *fam_consts,
         "",
-        f"static inline int {p}_compensate(const float *signals, const thermonet_real_t *raw,",
-        "                                 thermonet_real_t *compensated,",
-        "                                 thermonet_real_t *drift)",
+        *_signature(p, recurrent),
         "{",
         f"    float s[{P}_N_SIGNALS];",
         f"    float z[{P}_N_FEATURES];",
@@ -224,8 +238,8 @@ def render_c_header(model: DriftModel, *, prefix: str = "thermonet") -> str:
         "    (void)i; (void)f; (void)a;",
         "    return flag | nonfinite;",
         "}",
-        *render_stream_c(model, p),
-        *render_stream_block_c(model, p),
+        *(render_recurrent_stream_c(model, p) if recurrent else render_stream_c(model, p)),
+        *render_stream_block_c(model, p),      # calls <p>_step: carries either state
         "",
         f"#endif /* {guard} */",
         "",
@@ -375,6 +389,10 @@ def export_c_header(model: DriftModel, path: str | Path, *, prefix: str = "therm
         # both arithmetic paths: the host's double and the float path a single-precision
         # microcontroller compiles (-DTHERMONET_USE_FLOAT: float outputs, fast exp)
         for real in ("auto", "float"):
+            if model.family.recurrent:  # the state in and out, and the stream in time
+                c_step_parity_check(model, text, prefix=prefix, real=real)
+                check_recurrent_stream(model, text, prefix=prefix, real=real)
+                continue
             c_parity_check(model, text, prefix=prefix, real=real)
             check_stream(model, text, prefix=prefix, real=real)  # step(): dynamic inputs in C
     return atomic_write_text(path, text)

@@ -65,7 +65,7 @@ int mcu_eval(const float *s, const thermonet_real_t *raw, thermonet_real_t *comp
 int mcu_eval(const float *s, const thermonet_real_t *raw, thermonet_real_t *comp,
              thermonet_real_t *drift)
 {
-    return PFX_compensate(s, raw, comp, drift);
+    return PFX_EVAL;
 }
 PFX_state mcu_state;
 thermonet_time_t mcu_time;
@@ -163,13 +163,15 @@ def _run(cmd: list[str], what: str) -> str:
 
 def cross_compile(header_text: str, target: str, out_dir: str | Path, *,
                   prefix: str = "thermonet", has_proxies: bool = False,
-                  opt: str = "-O2", extra: tuple[str, ...] = ()) -> CrossBuild:
+                  opt: str = "-O2", extra: tuple[str, ...] = (),
+                  recurrent: bool = False) -> CrossBuild:
     """Build ``header_text`` with its compensate and step for ``target`` (:data:`TARGETS`)
     under :data:`STRICT_FLAGS` into ``out_dir``.
 
     ``has_proxies``: ``<prefix>_step`` takes a proxies argument
     (:func:`.c_stream.stream_signature_has_proxies`).  ``extra``: more flags (e.g.
-    ``-DTHERMONET_USE_DOUBLE`` to build the double path on a float target).
+    ``-DTHERMONET_USE_DOUBLE`` to build the double path on a float target).  ``recurrent``:
+    the header is a recurrent model's (``<prefix>_compensate_state``, :mod:`.c_recurrent`).
 
     Raises
     ------
@@ -180,8 +182,16 @@ def cross_compile(header_text: str, target: str, out_dir: str | Path, *,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "model.h").write_text(header_text)
-    (out / "mcu.c").write_text(_WRAPPER.replace("PROXY_ARG", "mcu_prox," if has_proxies else "")
+    # a recurrent model's one step: from a state held here (.c_recurrent)
+    evaluate = ("PFX_compensate_state(s, mcu_h, mcu_h_out, raw, comp, drift)" if recurrent
+                else "PFX_compensate(s, raw, comp, drift)")
+    wrapper = _WRAPPER.replace("PFX_EVAL", evaluate)
+    if recurrent:
+        wrapper = wrapper.replace("int mcu_eval(const float *s", "float mcu_h[PFX_GRU_HIDDEN], "
+                                  "mcu_h_out[PFX_GRU_HIDDEN];\nint mcu_eval(const float *s", 1)
+    (out / "mcu.c").write_text(wrapper.replace("PROXY_ARG", "mcu_prox," if has_proxies else "")
                                .replace("PFX_N_", f"{prefix.upper()}_N_")
+                               .replace("PFX_GRU_", f"{prefix.upper()}_GRU_")
                                .replace("PFX", prefix))
     flags = (*TARGETS[target], *STRICT_FLAGS, opt, "-ffunction-sections", "-fdata-sections",
              *extra)

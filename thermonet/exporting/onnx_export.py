@@ -187,7 +187,7 @@ def _strip_debug(proto: Any) -> None:
     proto.doc_string = ""
 
 
-def _export_proto(graph: CompensatorGraph, exporter: str) -> tuple[Any, str]:
+def _export_proto(graph: Any, exporter: str) -> tuple[Any, str]:
     import onnx
 
     n_ex = 4
@@ -195,6 +195,10 @@ def _export_proto(graph: CompensatorGraph, exporter: str) -> tuple[Any, str]:
         (torch.zeros(n_ex, len(graph.outputs), dtype=torch.float64),)
     names = list(graph.signals) + ["raw"]
     out_names = ["compensated", "drift", "out_of_range"]
+    if hasattr(graph, "extra_inputs"):  # a recurrent model's state (.recurrent)
+        example = example + graph.example_extra(n_ex)
+        names += graph.extra_inputs
+        out_names += graph.extra_outputs
     errors = []
     order = ["dynamo", "torchscript"] if exporter == "auto" else [exporter]
     for kind in order:
@@ -281,6 +285,11 @@ def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: st
         "data_hash": _json(meta.pop("data_hash", "")),
         DIGEST_KEY: _UNSEALED,  # filled in by _seal_bytes once the file is written
     }
+    if model.family.recurrent:
+        from .recurrent import recurrent_metadata
+
+        # the runtime carries the state between calls with these constants
+        props["recurrent"] = _json(recurrent_metadata(model))
     dynamic = spec.dynamic if spec is not None else None
     if dynamic is not None:
         # the runtime computes these signals from time_s with exactly these constants
@@ -357,7 +366,13 @@ def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, A
     was_training = model.training
     model.eval()
     try:
-        graph = CompensatorGraph(model).eval()
+        recurrent = model.family.recurrent
+        if recurrent:
+            from .recurrent import RecurrentGraph, recurrent_parity_check
+
+            graph: nn.Module = RecurrentGraph(model).eval()
+        else:
+            graph = CompensatorGraph(model).eval()
         proto, used = _export_proto(graph, exporter)
         for key, value in _metadata_props(model, metadata or {}, used).items():
             entry = proto.metadata_props.add()
@@ -369,7 +384,8 @@ def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, A
             _seal_bytes(Path(tmp))
             onnx.checker.check_model(str(tmp))
             if check:
-                stats = parity_check(model, tmp, seed=seed)
+                stats = (recurrent_parity_check(model, tmp, seed=seed) if recurrent
+                         else parity_check(model, tmp, seed=seed))
                 _log.info("ONNX parity: %d points, max |diff| %.3g (rel %.3g)",
                           int(stats["n_points"]), stats["max_abs_diff"], stats["max_rel_diff"])
     finally:

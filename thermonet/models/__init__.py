@@ -1,7 +1,7 @@
 """The model families, by name: the fourth layer, above :mod:`thermonet.features`.
 
 ``MODELS`` maps the lowercase name a config uses to the :class:`Family` subclass — the
-built-in ones (``linear``, ``poly``, ``lorentz``, ``ts-fuzzy``, ``rbf``, ``mlp``) and every
+built-in ones (``linear``, ``poly``, ``lorentz``, ``ts-fuzzy``, ``rbf``, ``mlp``, ``gru``) and every
 family an installed package registers under the entry-point group ``thermonet.families``
 (:mod:`thermonet.models.registry`); tests parametrise over it, so registering a family is
 what makes it tested (fit, predict, save/load, ONNX parity).  The names here load on first
@@ -19,6 +19,7 @@ from .registry import ENTRY_POINT_GROUP, build_family, family_names, get_family
 if TYPE_CHECKING:
     from .base import TINY, DriftModel, Family
     from .fuzzy import TSFuzzy
+    from .gru import GRU
     from .linear import Linear
     from .lorentz import Lorentz
     from .mlp import MLP
@@ -29,12 +30,12 @@ if TYPE_CHECKING:
 
 __all__ = ["MODELS", "get_family", "build_family", "family_names", "ENTRY_POINT_GROUP",
            "Family", "DriftModel", "TINY", "Linear", "Poly", "Lorentz", "TSFuzzy", "RBF",
-           "MLP"]
+           "MLP", "GRU"]
 
 _LAZY = {
     "Family": "base", "DriftModel": "base", "TINY": "base",
     "Linear": "linear", "Poly": "poly", "Lorentz": "lorentz", "TSFuzzy": "fuzzy", "RBF": "rbf",
-    "MLP": "mlp",
+    "MLP": "mlp", "GRU": "gru",
 }
 
 

@@ -195,6 +195,10 @@ class Family(nn.Module):
     max_inputs: ClassVar[int | None] = None
     #: Inputs a config gets when it names none (study 003's RBF: ``[dT, dT2]``).
     default_inputs: ClassVar[list[str]] = ["dT"]
+    #: Whether the family carries a state from sample to sample (the GRU): it is then
+    #: evaluated on a stream with time (:mod:`thermonet.models.sequence`), trained on
+    #: sequences, and exported with its state as explicit inputs and outputs.
+    recurrent: ClassVar[bool] = False
 
     def __init__(self, *, n_inputs: int, n_outputs: int) -> None:
         super().__init__()
@@ -551,6 +555,14 @@ class DriftModel(nn.Module):
         :math:`\\bigvee_i s'_i \\ne s_i`.  This is what the ONNX graph and the
         C header evaluate.
         """
+        z, flag = self.standardise(signals)
+        scale, shift = self.output_scaling()
+        return self.family.drift(z, scale, shift), flag
+
+    def standardise(self, signals: Sequence[torch.Tensor]
+                    ) -> tuple[list[torch.Tensor], torch.Tensor]:
+        """Standardised feature columns (N,) and the out-of-range flag (N,) from one (N,)
+        column per signal: the clamp, the features and the NaN term of :meth:`evaluate`."""
         # float32 as trained and exported; a float64 copy (model.double()) computes in
         # float64 — the export's parity check uses one as its reference
         cols = [s.to(self.sig_lo.dtype) for s in signals]
@@ -567,8 +579,17 @@ class DriftModel(nn.Module):
         # one (N,) addition; every family carries a NaN in z[0] to every output axis
         # (cheaper than adding an (N, 1) column to the (N, A) drift, a broadcast)
         z[0] = z[0] + nonfinite
+        return z, flag
+
+    def evaluate_state(self, signals: Sequence[torch.Tensor], state: torch.Tensor
+                       ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """A recurrent family's step: relative drift (A, N), flag (N,) and next state
+        (H, N) from signal columns (N,) and states (H, N) (:meth:`evaluate` with the
+        family's :meth:`drift_step` in place of its stateless drift)."""
+        z, flag = self.standardise(signals)
         scale, shift = self.output_scaling()
-        return self.family.drift(z, scale, shift), flag
+        drift, nxt = self.family.drift_step(z, state, scale, shift)  # type: ignore[operator]
+        return drift, flag, nxt
 
     def forward(self, signals: torch.Tensor) -> torch.Tensor:
         """Drift (N, A) from signals (N, S); NaN where a signal is not finite.

@@ -43,6 +43,7 @@ BUILTIN: dict[str, str] = {
     "ts-fuzzy": "thermonet.models.fuzzy:TSFuzzy",
     "rbf": "thermonet.models.rbf:RBF",
     "mlp": "thermonet.models.mlp:MLP",
+    "gru": "thermonet.models.gru:GRU",
 }
 
 #: The entry-point group a package registers its own families in (name -> Family subclass).

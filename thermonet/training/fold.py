@@ -141,7 +141,7 @@ def score_part(model: Any, part: Part) -> tuple[np.ndarray, dict[str, dict[str, 
     from ..scoring.metrics import axis_metrics
     from .train import predict
 
-    pred = predict(model, part.signals)
+    pred = predict(model, part.signals, part.time_s)
     out: dict[str, dict[str, float]] = {}
     for j, axis in enumerate(part.outputs):
         if part.per_soak:

@@ -279,6 +279,40 @@ def _fit(*, family: str, inputs: list[str], outputs: list[str],
     runs = [(r[0], r[1] - offset, *r[2:]) for r in runs]
     if val_run is not None:
         val_run = (val_run[0], val_run[1] - offset, *val_run[2:])
+    if fam.recurrent:
+        from .recurrent import fit_recurrent
+
+        # the trained range first: fit_recurrent reads it from the model
+        model.set_scaling(x_mean=np.zeros(len(inputs)), x_std=np.ones(len(inputs)),
+                          y_mean=np.zeros(len(outputs)), y_std=np.ones(len(outputs)),
+                          sig_lo=sig_lo, sig_hi=sig_hi)
+        if dynamic_signals(inputs):
+            raise ConfigError(f"model '{family}' learns the thermal history itself: drop the "
+                              f"dynamic inputs {[d.name for d in dynamic_signals(inputs)]}")
+
+        history, best_epoch, best_val, s_tr = fit_recurrent(
+            model, runs, val_run, config, family, on_epoch, _resolve_device(config.device))
+    else:
+        history, best_epoch, best_val, s_tr = _fit_pointwise(
+            model, runs, val_run, config, family, on_epoch, sig_lo=sig_lo, sig_hi=sig_hi)
+    model.to("cpu").eval()
+    model.set_target(modes=modes, offset=offset, rest=rest)
+    with torch.no_grad():
+        pred = model(torch.as_tensor(s_tr, dtype=torch.float32))
+    if not torch.isfinite(pred).all():
+        raise FitError(f"model '{family}': the fitted model gives non-finite drift on the "
+                       "training data; refusing it")
+    return FitResult(model=model, history=history, best_epoch=best_epoch, best_val_loss=best_val,
+                     fit_seconds=time.perf_counter() - t0, n_params=model.n_params)
+
+
+
+def _fit_pointwise(model: DriftModel, runs: list, val_run: tuple | None, config: TrainConfig,
+                   family: str, on_epoch: Callable | None, *, sig_lo: np.ndarray,
+                   sig_hi: np.ndarray) -> tuple[list[dict], int, float | None, np.ndarray]:
+    """Scaling, start and full-batch training of a family evaluated sample by sample;
+    returns the history, best epoch, best validation loss and the training signals."""
+    fam = model.family
     reduced = _reduce(runs, config)
     s_tr = np.vstack([s for s, _ in reduced])
     y_tr = np.vstack([y for _, y in reduced])
@@ -294,7 +328,8 @@ def _fit(*, family: str, inputs: list[str], outputs: list[str],
 
     reason = fam.check_fittable(torch.as_tensor(z_tr))
     if reason:
-        raise FitError(f"model '{family}' with inputs {list(inputs)} cannot be fitted: {reason}")
+        raise FitError(f"model '{family}' with inputs {list(model.inputs)} cannot be fitted: "
+                       f"{reason}")
 
     torch.manual_seed(config.seed)
     fam.initialize(torch.as_tensor(z_tr), torch.as_tensor(yz_tr), seed=config.seed,
@@ -318,16 +353,8 @@ def _fit(*, family: str, inputs: list[str], outputs: list[str],
     history, best_epoch, best_val = _fit_loop(fam, dev(z_tr), dev(yz_tr), val_t, config, family,
                                               on_epoch)
 
-    model.to("cpu").eval()
-    model.set_target(modes=modes, offset=offset, rest=rest)
-    with torch.no_grad():
-        pred = model(torch.as_tensor(s_tr, dtype=torch.float32))
-    if not torch.isfinite(pred).all():
-        raise FitError(f"model '{family}': the fitted model gives non-finite drift on the "
-                       "training data; refusing it")
-    return FitResult(model=model, history=history, best_epoch=best_epoch, best_val_loss=best_val,
-                     fit_seconds=time.perf_counter() - t0, n_params=model.n_params)
-
+    model.to("cpu")
+    return history, best_epoch, best_val, s_tr
 
 def _mse(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     return torch.mean((fam(z) - y) ** 2)
@@ -394,16 +421,28 @@ def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
     return history, best_epoch, best_val
 
 
-def predict(model: DriftModel, signals: np.ndarray) -> np.ndarray:
+def predict(model: DriftModel, signals: np.ndarray, time_s: np.ndarray | None = None
+            ) -> np.ndarray:
     """Drift (n, A), float64, from signals (n, S) in ``model.signals`` order.
 
     Evaluated on CPU under ``torch.no_grad()``, through the same clamp as on
     board (use ``model.out_of_range`` to flag samples outside the trained range).
+    A recurrent family (the GRU) needs the samples' time ``time_s`` (n,): the signals
+    are then one stream, its state carried as on board (:mod:`thermonet.models.sequence`).
     """
     s = np.asarray(signals, dtype=np.float64)
     if s.ndim != 2 or s.shape[1] != len(model.signals):
         raise InputError(f"signals have shape {s.shape}, expected (n, {len(model.signals)}) "
                          f"for {model.signals}")
+    if model.family.recurrent:
+        from ..models.sequence import stream_relative
+
+        if time_s is None:
+            raise InputError(f"model '{model.family_name}' carries a state in time: predict "
+                             "needs time_s (one stream in time order)")
+        model.eval()
+        rel, _ = stream_relative(model, np.asarray(time_s, dtype=np.float64), s)
+        return rel + model.constant().detach().cpu().double().numpy()
     was_training = model.training
     model.eval()
     try:

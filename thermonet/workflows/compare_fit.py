@@ -108,7 +108,7 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
             res.fit_seconds = (0.0 if math.isnan(res.fit_seconds) else res.fit_seconds) \
                 + fitted.fit_seconds
             held = fp.val or fp.train[-1]
-            vals.append(block_sums(held, predict(fitted.model, held.signals)))
+            vals.append(block_sums(held, predict(fitted.model, held.signals, held.time_s)))
             history = list(fitted.history)
             if p.folds is not None and split.pool and cfg.selection.refit:
                 fitted = _refit(p, fam, tcfg, split, parts, on_epoch)
@@ -225,7 +225,7 @@ def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
         for j, q in enumerate(whole):
             rows = np.flatnonzero(plan.fold_of[j] == f)
             x = q.signals[rows]
-            preds.append(predict(fitted.model, x) if rows.size
+            preds.append(predict(fitted.model, x, q.time_s[rows]) if rows.size
                          else np.zeros((0, len(p.outputs))))
             inside.append(in_domain(x, lo, hi, widen[j]) & np.isfinite(preds[-1]).all(axis=1))
         oof.pred.append(preds)

@@ -164,7 +164,13 @@ def physical_coefficients(model: Any, t0_c: float = COEF_T0_C) -> dict[str, floa
         return {}
     degree = int(model.family.coefficient_degree(list(model.inputs)))  # the family's own say
     grid = np.linspace(lo, hi, 201)
-    drift = predict(model, grid[:, None])
+    if model.family.recurrent:  # its curve after a long soak at each temperature
+        import torch
+
+        with torch.no_grad():
+            drift = model.drift64(torch.as_tensor(grid[:, None], dtype=torch.float32)).numpy()
+    else:
+        drift = predict(model, grid[:, None])
     out: dict[str, float] = {}
     for j, axis in enumerate(model.outputs):
         c = np.polynomial.polynomial.polyfit(grid - t0_c, drift[:, j].astype(np.float64), degree)
@@ -175,7 +181,7 @@ def physical_coefficients(model: Any, t0_c: float = COEF_T0_C) -> dict[str, floa
 def _residual_std(model: Any, part: Any) -> np.ndarray:
     from ..training.train import predict
 
-    return np.std(part.target - predict(model, part.signals), axis=0)
+    return np.std(part.target - predict(model, part.signals, part.time_s), axis=0)
 
 
 def _test_part(cfg: CompareConfig, ds: Dataset, model: Any) -> Any:
