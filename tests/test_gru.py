@@ -209,7 +209,8 @@ def test_onnx_runtime_and_c_carry_the_state_like_torch(fitted, exported):
     # blocks that cut inside windows, at the gap and at the NaN
     comp.reset()
     cuts = [0, 1, 8, 57, t.size // 2, t.size - 3, t.size]
-    blocks = [comp.step_block(t[a:b], temp[a:b], raw[a:b]) for a, b in zip(cuts, cuts[1:])]
+    blocks = [comp.step_block(t[a:b], temp[a:b], raw[a:b]) for a, b in zip(cuts[:-1], cuts[1:],
+                                                                          strict=True)]
     np.testing.assert_array_equal(np.vstack([b.drift for b in blocks]), step_drift)
     np.testing.assert_array_equal(np.concatenate([b.out_of_range for b in blocks]),
                                   np.array([s.out_of_range for s in steps]))
