@@ -30,6 +30,7 @@ import torch
 from ..core.errors import FitError, InputError
 from ..core.trainconfig import TrainConfig
 from ..models.sequence import stream_windows
+from .scaling import column_scale
 
 __all__ = ["sequences", "padded", "fit_loop", "initial_readout", "fit_recurrent", "CLIP_NORM"]
 
@@ -160,7 +161,6 @@ def fit_recurrent(model: Any, runs: Sequence[tuple[np.ndarray, ...]],
     """Scaling, start and training of a recurrent family on ``runs`` (offset removed);
     returns the history, best epoch, best validation loss and the training windows'
     signals (for the final finiteness check)."""
-    from .train import _std
 
     fam = model.family
     seqs = sequences(runs, fam.step_s, fam.gap_s)
@@ -168,8 +168,8 @@ def fit_recurrent(model: Any, runs: Sequence[tuple[np.ndarray, ...]],
     y_tr = np.vstack([y for _, y in seqs])
     with torch.no_grad():
         x_tr = model.features(torch.as_tensor(s_tr)).numpy()
-    x_mean, x_std = x_tr.mean(axis=0), _std(x_tr)
-    y_mean, y_std = y_tr.mean(axis=0), _std(y_tr)
+    x_mean, x_std = x_tr.mean(axis=0), column_scale(x_tr)
+    y_mean, y_std = y_tr.mean(axis=0), column_scale(y_tr)
     sig_lo, sig_hi = model.sig_lo.numpy(), model.sig_hi.numpy()
     model.set_scaling(x_mean=x_mean, x_std=x_std, y_mean=y_mean, y_std=y_std,
                       sig_lo=sig_lo, sig_hi=sig_hi)

@@ -39,6 +39,7 @@ from ..features.dynamics import dynamic_signals, saturation_margin
 from ..features.inputs import FeatureSpec
 from ..models import DriftModel, build_family
 from ..models.base import Family
+from .scaling import column_scale
 
 __all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "average_windows",
            "rest_signals"]
@@ -163,12 +164,6 @@ def _resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(name)
-
-
-def _std(a: np.ndarray) -> np.ndarray:
-    mean, std = a.mean(axis=0), a.std(axis=0)
-    # A constant column (rate on soaks, an axis with no drift) keeps unit scale.
-    return np.where(std > 1e-12 * np.maximum(1.0, np.abs(mean)), std, 1.0)
 
 
 def fit(*, family: str, inputs: list[str], outputs: list[str],
@@ -319,8 +314,8 @@ def _fit_pointwise(model: DriftModel, runs: list, val_run: tuple | None, config:
 
     with torch.no_grad():
         x_tr = model.features(torch.as_tensor(s_tr)).numpy()
-    x_mean, x_std = x_tr.mean(axis=0), _std(x_tr)
-    y_mean, y_std = y_tr.mean(axis=0), _std(y_tr)
+    x_mean, x_std = x_tr.mean(axis=0), column_scale(x_tr)
+    y_mean, y_std = y_tr.mean(axis=0), column_scale(y_tr)
     model.set_scaling(x_mean=x_mean, x_std=x_std, y_mean=y_mean, y_std=y_std,
                       sig_lo=sig_lo, sig_hi=sig_hi)
     z_tr = (x_tr - x_mean) / x_std
