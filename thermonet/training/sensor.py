@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -51,7 +52,8 @@ from ..models.sensor import SensorModel, check_invertible, element_names
 from .train import _fit_loop, _std, average_windows, rest_signals, thread_limits
 
 __all__ = ["SensorRun", "SensorFit", "STEADY_C", "sensor_run", "check_excitation",
-           "steady_estimates", "fit_sensor", "do_no_harm"]
+           "steady_estimates", "fit_sensor", "do_no_harm", "save_sensor", "load_sensor",
+           "SENSOR_FORMAT"]
 
 #: A stretch of samples whose temperature stays within this of its first sample is one
 #: steady level (a soak) for the closed-form start, °C.
@@ -372,3 +374,63 @@ def do_no_harm(model: SensorModel, val: SensorRun) -> dict[str, bool]:
                 dm.set_compensate(mask)
                 kept[name] = True
     return kept
+
+
+#: ``format`` of a sensor-model checkpoint (``models/<label>.pt`` of a ``model: sensor`` run).
+SENSOR_FORMAT = "thermonet-sensor-1"
+
+
+def save_sensor(path: str | Path, fitted: SensorFit, *, family: str, hyper: dict | None,
+                extra: dict | None = None) -> Path:
+    """Write a sensor model (weights only: ``torch.load(weights_only=True)`` reads it back)."""
+    from ..core.fileio import atomic_path
+
+    model = fitted.model
+    for name, t in list(model.named_parameters()) + list(model.named_buffers()):
+        if t.is_floating_point() and not bool(torch.isfinite(t).all()):
+            raise FitError(f"{path}: parameter '{name}' is not finite; a NaN model is never "
+                           "written")
+    spec = model.bias.spec
+    payload = {"format": SENSOR_FORMAT, "family": family, "hyper": dict(hyper or {}),
+               "inputs": list(spec.inputs), "spec": spec.to_dict(),
+               "triads": model.triads, "kept": dict(fitted.kept),
+               "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+               "extra": dict(extra or {})}
+    out = Path(path)
+    with atomic_path(out) as tmp:
+        torch.save(payload, tmp)
+    return out
+
+
+def load_sensor(path: str | Path) -> tuple[SensorModel, dict]:
+    """A sensor model written by :func:`save_sensor`, and its payload (without weights)."""
+    p = Path(path)
+    try:
+        payload = torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as err:  # a truncated or foreign file: one line
+        raise InputError(f"{p}: not a thermonet sensor model ({type(err).__name__})") from None
+    if not isinstance(payload, dict) or payload.get("format") != SENSOR_FORMAT:
+        raise InputError(f"{p}: not a thermonet sensor model (format "
+                         f"{payload.get('format') if isinstance(payload, dict) else None!r})")
+    from ..core.names import AXIS, FAMILY, check_name, check_names
+
+    check_name(payload.get("family"), FAMILY, f"{p}: key 'family'")
+    triads = [list(t) for t in payload["triads"]]
+    outputs = [o for t in triads for o in t]
+    check_names(outputs, AXIS, f"{p}: key 'triads'")
+    spec = FeatureSpec.from_dict({**payload["spec"], "inputs": payload["inputs"]},
+                                 source=f"{p}: spec")
+    names_e = [e for t in triads for e in element_names(t)]
+    hyper = dict(payload["hyper"])
+    fam = payload["family"]
+    model = SensorModel(
+        bias=DriftModel(family=build_family(fam, n_inputs=len(spec.inputs),
+                                            n_outputs=len(outputs), hyper=hyper),
+                        spec=spec, outputs=outputs),
+        elements=DriftModel(family=build_family(fam, n_inputs=len(spec.inputs),
+                                                n_outputs=len(names_e), hyper=hyper),
+                            spec=spec, outputs=names_e),
+        triads=triads)
+    model.load_state_dict(payload["state_dict"])
+    model.eval()
+    return model, {k: v for k, v in payload.items() if k != "state_dict"}
