@@ -265,6 +265,23 @@ def test_onnx_runtime_batch_and_stream_match_torch(fitted, data, tmp_path):
         assert np.all(np.abs(np.ravel(s["compensated"]) - want[i]) <= 64 * EPS32 * scale)
 
 
+@pytest.mark.numerics
+def test_c_header_compiles_and_matches_torch_and_a_broken_one_is_caught(fitted):
+    """gcc -std=c99 -Wall -Wextra -Werror builds the header; its compensated outputs match
+    torch within the ONNX check's tolerance (so C = torch = onnxruntime); a header with one
+    cofactor's sign flipped fails the same check."""
+    from thermonet.exporting.sensor_c import render_sensor_c, sensor_c_parity
+
+    model = fitted["full"].model
+    text = render_sensor_c(model, prefix="imu")
+    stats = sensor_c_parity(model, text, prefix="imu")
+    assert stats["max_error_over_tolerance"] <= 1.0
+    broken = text.replace("const thermonet_real_t c01 = -(", "const thermonet_real_t c01 = (", 1)
+    assert broken != text
+    with pytest.raises(ExportError, match="sensor C header parity failed"):
+        sensor_c_parity(model, broken, prefix="imu")
+
+
 def test_checkpoint_round_trip_and_autopilot_refusal(fitted, tmp_path):
     from thermonet.exporting import export_source
     from thermonet.exporting.sensor_export import bias_only_path
@@ -319,6 +336,11 @@ def test_compare_with_model_sensor_end_to_end(tmp_path):
     assert all(linear["axes"][a]["residual_rms_comp"] > cubic["axes"][a]["residual_rms_comp"]
                for a in cubic["axes"])
     assert res["onnx"]["status"] == "ok" and (out / "model.onnx").is_file()
+    run = subprocess.run([sys.executable, "-m", "thermonet.cli", "export", str(out),
+                          "--format", "c", "--out", str(tmp_path / "imu.h")],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "thermonet_compensate(const float *signals" in (tmp_path / "imu.h").read_text()
     page = (out / "report.html").read_text()
     assert "SF ppm/°C raw" in page and "met: True" in page
     bias_ckpt = out / cubic["bias_only_checkpoint"]

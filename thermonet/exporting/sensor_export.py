@@ -18,7 +18,8 @@ loader sees it, and :func:`export_sensor_source` writes it:
     on the same data (``models/<label>.bias-only.pt``, a plain bias checkpoint) and the
     command that exports it.
 ``c``
-    Not available for a sensor model in this version (refused with one line; export ONNX).
+    The C99 header of :mod:`thermonet.exporting.sensor_c` (two bias headers and the 3 × 3
+    solve), compiled and checked against torch before it is written.
 """
 
 from __future__ import annotations
@@ -168,10 +169,14 @@ def export_sensor_source(ckpt: Path, *, fmt: str, out: str | Path) -> Path:
             f"{ckpt}: a sensor model (bias, scale factor and misalignment per triad) cannot be "
             f"written as {fmt}: those parameters hold a bias polynomial per axis only; export "
             f"the bias-only model fitted beside it: thermonet export {alt} --format {fmt}")
-    if fmt != "onnx":
-        raise ExportError(f"{ckpt}: format '{fmt}' is not available for a sensor model in this "
-                          "version; export it as onnx (the torch-free runtime runs it)")
+    if fmt not in ("onnx", "c"):
+        raise ExportError(f"{ckpt}: format '{fmt}' is not available for a sensor model; "
+                          "export it as onnx or c")
     model, payload = load_sensor(ckpt)
+    if fmt == "c":
+        from .sensor_c import export_sensor_c
+
+        return export_sensor_c(model, out)
     extra = payload.get("extra", {})
     export_sensor_onnx(model, out, metadata={
         "device_id": extra.get("device_id", ""), "output_units": extra.get("units", {}),
