@@ -192,8 +192,9 @@ def _config(config: Any) -> Any:
 def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | None = None,
             track: bool = False, *, tracking_uri: str | None = None, overwrite: bool = False,
             plots: bool = True, workers: int | None = None,
-            quiet: bool = True) -> ComparisonResult:
-    """Compare model families as ``thermonet compare`` does; return the typed results.
+            quiet: bool = True) -> ComparisonResult | SensorComparisonResult:
+    """Compare model families as ``thermonet compare`` does; return the typed results
+    (a :class:`SensorComparisonResult` for ``model: sensor``).
 
     Parameters
     ----------
