@@ -15,8 +15,9 @@ Adam, early stopping on the validation run, epoch 0 = the closed-form start):
   (a soak: within :data:`STEADY_C` of its first sample); in each stretch whose references
   span every direction, :math:`r = M x + b` is solved by least squares (study 000's per-soak
   K0, K1, generalised to a triad); every family then starts from those per-stretch
-  estimates through its own :meth:`~thermonet.models.base.Family.initialize` (so the same
-  family code fits a scale-factor curve as a bias curve);
+  estimates (at :data:`INIT_SAMPLES` samples of each stretch) through its own
+  :meth:`~thermonet.models.base.Family.initialize` (so the same family code fits a
+  scale-factor curve as a bias curve);
 * **loss** — the forward sensor equation in standardised units,
   :math:`L = \\text{mean}_{n,a}((b_a + \\sum_c E_{ac} x_c - (r_a - x_a))/s_a)^2`: linear in
   every element, so it is as well conditioned as a bias fit (the inverse is only applied
@@ -58,6 +59,9 @@ __all__ = ["SensorRun", "SensorFit", "STEADY_C", "sensor_run", "check_excitation
 #: A stretch of samples whose temperature stays within this of its first sample is one
 #: steady level (a soak) for the closed-form start, °C.
 STEADY_C = 1.0
+#: Samples per steady stretch the families' closed-form start sees (each with its stretch's
+#: least-squares estimates): 12, the fewest a stretch has, so every stretch weighs the same.
+INIT_SAMPLES = 12
 #: Relative singular value below which a reference direction counts as unexcited.
 RANK_RTOL = 1e-3
 
@@ -118,13 +122,16 @@ def _stretches(temp: np.ndarray) -> list[slice]:
     return out
 
 
-def steady_estimates(runs: Sequence[SensorRun], triads: Sequence[Sequence[int]]
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def steady_estimates(runs: Sequence[SensorRun], triads: Sequence[Sequence[int]], *,
+                     samples: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per steady stretch excited in every direction: mean signals (G, S), mean temperature
     (G,), bias (G, O) and E = M − I (G, sum k²), by least squares :math:`r = M x + b`.
 
     A stretch is kept when every triad's references span all its directions there and it
-    has at least 3 (k + 1) samples."""
+    has at least 3 (k + 1) samples.  ``samples`` > 0: instead of the stretch's mean, that
+    many evenly spaced samples of it (its signals as recorded, the stretch's estimates
+    repeated): the closed-form start of a family that needs more rows than there are
+    soaks (the RBF's inner cross-validation) or whose inputs vary within a soak."""
     sig, temps, bias, elems = [], [], [], []
     for run in runs:
         for sl in _stretches(run.temperature):
@@ -142,10 +149,17 @@ def steady_estimates(runs: Sequence[SensorRun], triads: Sequence[Sequence[int]]
                 b_row.extend(coef[k].tolist())
                 e_row.extend((m - np.eye(k)).ravel().tolist())
             else:
-                sig.append(run.signals[sl].mean(axis=0))
-                temps.append(float(run.temperature[sl].mean()))
-                bias.append(b_row)
-                elems.append(e_row)
+                if samples > 0:
+                    at = np.linspace(sl.start, sl.stop - 1, samples).round().astype(int)
+                    sig.extend(run.signals[at])
+                    temps.extend(run.temperature[at].tolist())
+                    bias.extend([b_row] * at.size)
+                    elems.extend([e_row] * at.size)
+                else:
+                    sig.append(run.signals[sl].mean(axis=0))
+                    temps.append(float(run.temperature[sl].mean()))
+                    bias.append(b_row)
+                    elems.append(e_row)
     if not sig:
         return (np.zeros((0, runs[0].signals.shape[1])), np.zeros(0), np.zeros((0, 0)),
                 np.zeros((0, 0)))
@@ -270,7 +284,7 @@ def _fit_sensor(*, family: str, spec: FeatureSpec, outputs: list[str],
     x_mean, x_std = x_tr.mean(axis=0), _std(x_tr)
 
     # the closed-form start: per steady stretch (full-resolution samples), then the family
-    g_sig, _, g_b, g_e = steady_estimates(train, idx)
+    g_sig, _, g_b, g_e = steady_estimates(train, idx, samples=INIT_SAMPLES)
     if not elements:  # bias-only: every window is an estimate of b (E = 0)
         g_sig, g_b, g_e = s_tr, y_tr, np.zeros((s_tr.shape[0], len(names_e)))
     with torch.no_grad():
@@ -331,7 +345,8 @@ def _fit_sensor(*, family: str, spec: FeatureSpec, outputs: list[str],
     edges = np.vstack([s_tr, sig_lo, sig_hi])
     cond = check_invertible(model, edges, what=f"model '{label}'")
     return SensorFit(model=model, history=history, best_epoch=best_epoch,
-                     n_estimates=int(g_sig.shape[0]) if elements else 0, condition=cond,
+                     n_estimates=int(g_sig.shape[0]) // INIT_SAMPLES if elements else 0,
+                     condition=cond,
                      kept=kept)
 
 
