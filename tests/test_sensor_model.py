@@ -395,3 +395,12 @@ def test_an_input_that_does_not_vary_over_the_soaks_is_refused_with_the_family_r
         fit_sensor(family="poly", spec=spec, outputs=outputs, triads=triads_of(outputs),
                    train=runs[:2], val=runs[2], hyper={"degree": 3, "cross": True},
                    config=TrainConfig())
+
+
+def test_an_edited_sensor_checkpoint_is_refused(fitted, tmp_path):
+    ckpt = save_sensor(tmp_path / "m.pt", fitted["full"], family="poly", hyper={"degree": 3})
+    payload = torch.load(ckpt, weights_only=True)
+    payload["state_dict"]["elements.y_offset"][0] += 1e-3     # a scale factor edited
+    torch.save(payload, ckpt)
+    with pytest.raises(InputError, match="does not match the checkpoint's SHA-256 digest"):
+        load_sensor(ckpt)

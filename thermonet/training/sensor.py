@@ -411,6 +411,12 @@ def save_sensor(path: str | Path, fitted: SensorFit, *, family: str, hyper: dict
                "triads": model.triads, "kept": dict(fitted.kept),
                "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
                "extra": dict(extra or {})}
+    from .checkpoint import DIGEST_KEY, checkpoint_digest
+
+    try:
+        payload[DIGEST_KEY] = checkpoint_digest(payload)  # the bias checkpoints' own digest
+    except ValueError as err:
+        raise FitError(f"{path}: {err}") from None
     out = Path(path)
     with atomic_path(out) as tmp:
         torch.save(payload, tmp)
@@ -418,7 +424,10 @@ def save_sensor(path: str | Path, fitted: SensorFit, *, family: str, hyper: dict
 
 
 def load_sensor(path: str | Path) -> tuple[SensorModel, dict]:
-    """A sensor model written by :func:`save_sensor`, and its payload (without weights)."""
+    """A sensor model written by :func:`save_sensor`, and its payload (without weights).
+
+    The file's SHA-256 digest (over its content, as for bias checkpoints) must match, and
+    its names pass :mod:`thermonet.core.names` before anything is built from them."""
     p = Path(path)
     try:
         payload = torch.load(p, map_location="cpu", weights_only=True)
@@ -428,7 +437,9 @@ def load_sensor(path: str | Path) -> tuple[SensorModel, dict]:
         raise InputError(f"{p}: not a thermonet sensor model (format "
                          f"{payload.get('format') if isinstance(payload, dict) else None!r})")
     from ..core.names import AXIS, FAMILY, check_name, check_names
+    from .checkpoint import _check_digest
 
+    _check_digest(p, payload)  # edited or damaged since it was written: refused
     check_name(payload.get("family"), FAMILY, f"{p}: key 'family'")
     triads = [list(t) for t in payload["triads"]]
     outputs = [o for t in triads for o in t]
@@ -446,6 +457,11 @@ def load_sensor(path: str | Path) -> tuple[SensorModel, dict]:
                                                 n_outputs=len(names_e), hyper=hyper),
                             spec=spec, outputs=names_e),
         triads=triads)
-    model.load_state_dict(payload["state_dict"])
+    try:
+        model.load_state_dict(payload["state_dict"])
+    except (RuntimeError, KeyError, TypeError) as err:
+        raise InputError(f"{p}: parameters do not match the stored family '{fam}' "
+                         f"({str(err).splitlines()[0] if str(err) else type(err).__name__})"
+                         ) from None
     model.eval()
     return model, {k: v for k, v in payload.items() if k != "state_dict"}
