@@ -329,6 +329,9 @@ def test_compare_with_model_sensor_end_to_end(tmp_path):
         assert m["sf_ppm_per_c_raw"] > 100.0 and m["sf_ppm_per_c_comp"] <= 15.0
         # bias-only leaves the scale factor as it is
         assert m["sf_ppm_per_c_bias_only"] == pytest.approx(m["sf_ppm_per_c_raw"], rel=0.05)
+    assert cubic["triads"]["acc"]["sf_ppm_per_c_comp_max"] <= 15.0
+    assert cubic["triads"]["gyro"]["residual_ratio_vs_bias_max"] <= 0.2
+    assert not any("MLflow" in w for w in res["warnings"])   # tracking disabled here
     for pair, m in cubic["misalignment"].items():
         assert 1.0 < abs(m["misalignment_mrad_raw"]) < 4.0, pair
         assert m["misalignment_spread_mrad_comp"] < 0.1 * m["misalignment_spread_mrad_raw"]

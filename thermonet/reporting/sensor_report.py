@@ -45,6 +45,8 @@ def render_sensor_report(res: dict[str, Any]) -> str:
              f"min {_n(done.get('min_bias_only_over_sensor'), '.3g')}; scale-factor tempco "
              f"after compensation at most 15 ppm/°C: max "
              f"{_n(done.get('sf_ppm_per_c_comp_max'), '.3g')}; met: {_e(done.get('met'))}</p>"]
+    for w in res.get("warnings") or []:
+        parts.append(f"<p><b>warning:</b> {_e(w)}</p>")
     onnx = res.get("onnx") or {}
     parts.append(f"<p>ONNX: {_e(onnx.get('status'))} {_e(onnx.get('path', onnx.get('reason', '')))}"
                  "</p>")

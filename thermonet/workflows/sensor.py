@@ -93,7 +93,10 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None
         "model": "sensor", "thermonet_version": __version__, "device": ds.device_id,
         "data_hash": data_hash(ds), "config": to_dict(cfg), "units": units,
         "triads": triads, "split": {"strategy": sp.label, "describe": sp.describe},
-        "families": {}, "chosen": None}
+        "families": {}, "chosen": None, "warnings": []}
+    if cfg.tracking.enabled:
+        doc["warnings"].append("model 'sensor' is not logged to MLflow yet (tracking.enabled is "
+                               "ignored); results.json and the checkpoints hold everything")
     test = sp.test
     best: tuple[float, str] | None = None
     (out / "models").mkdir(parents=True, exist_ok=True)
@@ -149,7 +152,21 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None
         # the bias-only model as a plain bias checkpoint: what an autopilot can take
         save_checkpoint(bias_only_path(ckpt), bias.model.bias, config=to_dict(cfg),
                         extra={**info, "label": f"{fam.label}.bias-only"})
-        entry.update(status="ok", fit_seconds=fit_s, n_params=full.model.n_params,
+        per_triad = {}
+        for t in triads:
+            kind = t[0].split("_", 1)[0]
+            sf = [axes[a]["sf_ppm_per_c_comp"] for a in t if "sf_ppm_per_c_comp" in axes[a]]
+            sf_raw = [axes[a]["sf_ppm_per_c_raw"] for a in t if "sf_ppm_per_c_raw" in axes[a]]
+            mis = [m for k, m in elements.items() if k.startswith(f"{kind}_")]
+            per_triad[kind] = {
+                "sf_ppm_per_c_raw_max": max(sf_raw) if sf_raw else None,
+                "sf_ppm_per_c_comp_max": max(sf) if sf else None,
+                "misalignment_spread_mrad_raw_max": max(
+                    (m["misalignment_spread_mrad_raw"] for m in mis), default=None),
+                "misalignment_spread_mrad_comp_max": max(
+                    (m["misalignment_spread_mrad_comp"] for m in mis), default=None),
+                "residual_ratio_vs_bias_max": max(axes[a]["ratio_vs_bias"] for a in t)}
+        entry.update(status="ok", fit_seconds=fit_s, triads=per_triad, n_params=full.model.n_params,
                      best_epoch=full.best_epoch, n_estimates=full.n_estimates,
                      condition_max=full.condition, val_score=val_score,
                      val_score_bias_only=val_bias, elements_kept=full.kept, axes=axes,
