@@ -346,6 +346,7 @@ def test_compare_with_model_sensor_end_to_end(tmp_path):
     assert "thermonet_compensate(const float *signals" in (tmp_path / "imu.h").read_text()
     page = (out / "report.html").read_text()
     assert "SF ppm/°C raw" in page and "met: True" in page
+    assert (out / "sensor_soaks.png").is_file() and "data:image/png;base64," in page
     bias_ckpt = out / cubic["bias_only_checkpoint"]
     run = subprocess.run([sys.executable, "-m", "thermonet.cli", "export", str(bias_ckpt),
                           "--format", "px4-params", "--device-id", "1", "--out",

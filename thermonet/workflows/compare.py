@@ -74,7 +74,8 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
     if cfg.model == "sensor":  # the full sensor model (issue 22): its own fit and judgement
         from .sensor import run_sensor
 
-        return run_sensor(cfg, out_dir, overwrite=overwrite, quiet=quiet, dataset=dataset)
+        return run_sensor(cfg, out_dir, overwrite=overwrite, quiet=quiet, dataset=dataset,
+                          plots=plots)
     # torch's and the native pools (BLAS, OpenMP) capped at train.threads for the whole
     # comparison, data preparation and evaluation included: the cap is process-wide, so
     # fits side by side must not lift it when one of them ends

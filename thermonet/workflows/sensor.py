@@ -17,8 +17,8 @@ For every configured family, on one split (train / validation / test runs,
    (:mod:`thermonet.exporting.sensor_export`, parity-checked against torch).
 
 Decisions: one split only (leave-one-run-out is refused: the verdicts would pool folds of
-different models); no MLflow tracking and no plots in this slice (results.json and
-report.html carry the numbers); a family that cannot be fitted is reported and the others go
+different models); no MLflow tracking in this slice (results.json and report.html carry the
+numbers; one figure, the chosen family's per-soak scale factors and misalignments); a family that cannot be fitted is reported and the others go
 on, as in a bias comparison.
 """
 
@@ -49,23 +49,24 @@ def _score(comp_err: np.ndarray, raw_err: np.ndarray) -> float:
 
 
 def run_sensor(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = False,
-               quiet: bool = False, dataset: Dataset | None = None) -> dict[str, Any]:
+               quiet: bool = False, dataset: Dataset | None = None, plots: bool = True
+               ) -> dict[str, Any]:
     """Fit and judge every family as a sensor model; write ``out_dir``; return results.json."""
     from ..core.outdir import staged_output
     from ..training.train import thread_limits
 
     with thread_limits(cfg.train.threads), staged_output(out_dir, overwrite=overwrite) as stage:
-        results = _run(cfg, stage.path, quiet=quiet, dataset=dataset)
+        results = _run(cfg, stage.path, quiet=quiet, dataset=dataset, plots=plots)
         stage.finish(results, lambda doc: doc)
     return results
 
 
-def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None
-         ) -> dict[str, Any]:
+def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
+         plots: bool) -> dict[str, Any]:
     from ..core.schema import to_dict
     from ..exporting.sensor_export import bias_only_path
     from ..models.sensor import triads_of
-    from ..reporting.sensor_report import write_sensor_report
+    from ..reporting.sensor_report import plot_sensor_soaks, write_sensor_report
     from ..scoring.sensor import residual_verdicts, soak_matrices, triad_metrics
     from ..training.checkpoint import save_checkpoint
     from ..training.config import check_families
@@ -99,6 +100,7 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None
                                "ignored); results.json and the checkpoints hold everything")
     test = sp.test
     best: tuple[float, str] | None = None
+    soak_data: dict[str, list] = {}
     (out / "models").mkdir(parents=True, exist_ok=True)
     for fam in cfg.families:
         entry: dict[str, Any] = {"family": fam.family, "inputs": list(fam.inputs),
@@ -128,10 +130,13 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None
         elements: dict[str, Any] = {}
         temp = np.asarray(test.temperature_c if test.temperature_c is not None
                           else te.temperature)
+        soak_data[fam.label] = []
         for t in triads:
             idx = [outputs.index(o) for o in t]
             temps, _, m_raw = soak_matrices(te.time_s, temp, te.raw[:, idx], te.ref[:, idx])
             _, _, m_comp = soak_matrices(te.time_s, temp, comp[:, idx], te.ref[:, idx])
+            if temps.size:
+                soak_data[fam.label].append((t, temps, m_raw, m_comp))
             _, _, m_bias = soak_matrices(te.time_s, temp, comp_b[:, idx], te.ref[:, idx])
             for key, m in triad_metrics(t, temps, m_raw, m_comp).items():
                 if key in axes:
@@ -187,7 +192,10 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None
     doc["done_when"] = _done_when(chosen)
     doc["onnx"] = _export_chosen(out, chosen)
     atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
-    write_sensor_report(out / "report.html", doc)
+    figs = []
+    if plots and soak_data.get(best[1]):
+        figs.append(plot_sensor_soaks(out / "sensor_soaks.png", best[1], soak_data[best[1]]))
+    write_sensor_report(out / "report.html", doc, figs)
     return doc
 
 
