@@ -331,7 +331,6 @@ def test_compare_with_model_sensor_end_to_end(tmp_path):
         assert m["sf_ppm_per_c_bias_only"] == pytest.approx(m["sf_ppm_per_c_raw"], rel=0.05)
     assert cubic["triads"]["acc"]["sf_ppm_per_c_comp_max"] <= 15.0
     assert cubic["triads"]["gyro"]["residual_ratio_vs_bias_max"] <= 0.2
-    assert not any("MLflow" in w for w in res["warnings"])   # tracking disabled here
     for pair, m in cubic["misalignment"].items():
         assert 1.0 < abs(m["misalignment_mrad_raw"]) < 4.0, pair
         assert m["misalignment_spread_mrad_comp"] < 0.1 * m["misalignment_spread_mrad_raw"]
@@ -408,3 +407,24 @@ def test_an_edited_sensor_checkpoint_is_refused(fitted, tmp_path):
     torch.save(payload, ckpt)
     with pytest.raises(InputError, match="does not match the checkpoint's SHA-256 digest"):
         load_sensor(ckpt)
+
+
+def test_sensor_comparison_is_tracked_in_mlflow(data, tmp_path):
+    import mlflow
+
+    from thermonet.training.config import config_from_mapping
+    from thermonet.workflows.compare import run_compare
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    cfg = config_from_mapping({"model": "sensor", "tracking": {"experiment": "sensor-test"},
+                               "families": [{"family": "poly", "name": "cubic",
+                                             "params": {"degree": 3}}]})
+    res = run_compare(cfg, tmp_path / "out", track=True, tracking_uri=uri, quiet=True,
+                      dataset=data, plots=False)
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    child = client.get_run(res["families"]["cubic"]["mlflow_run_id"])
+    assert child.data.tags["mlflow.parentRunId"] == res["mlflow_run_id"]
+    assert child.data.metrics["test/acc_x/residual_rms_comp"] == pytest.approx(
+        res["families"]["cubic"]["axes"]["acc_x"]["residual_rms_comp"], rel=1e-12)
+    assert [a.path for a in client.list_artifacts(child.info.run_id, "model")] == \
+        ["model/cubic.pt"]

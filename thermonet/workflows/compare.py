@@ -75,7 +75,7 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
         from .sensor import run_sensor
 
         return run_sensor(cfg, out_dir, overwrite=overwrite, quiet=quiet, dataset=dataset,
-                          plots=plots)
+                          plots=plots, track=track, tracking_uri=tracking_uri)
     # torch's and the native pools (BLAS, OpenMP) capped at train.threads for the whole
     # comparison, data preparation and evaluation included: the cap is process-wide, so
     # fits side by side must not lift it when one of them ends

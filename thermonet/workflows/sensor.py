@@ -17,8 +17,9 @@ For every configured family, on one split (train / validation / test runs,
    (:mod:`thermonet.exporting.sensor_export`, parity-checked against torch).
 
 Decisions: one split only (leave-one-run-out is refused: the verdicts would pool folds of
-different models); no MLflow tracking in this slice (results.json and report.html carry the
-numbers; one figure, the chosen family's per-soak scale factors and misalignments); a family that cannot be fitted is reported and the others go
+different models); MLflow tracking as for bias models (a parent run, a nested run per family
+with its history, test metrics and checkpoint); one figure, the chosen family's per-soak
+scale factors and misalignments; a family that cannot be fitted is reported and the others go
 on, as in a bias comparison.
 """
 
@@ -49,20 +50,21 @@ def _score(comp_err: np.ndarray, raw_err: np.ndarray) -> float:
 
 
 def run_sensor(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = False,
-               quiet: bool = False, dataset: Dataset | None = None, plots: bool = True
-               ) -> dict[str, Any]:
+               quiet: bool = False, dataset: Dataset | None = None, plots: bool = True,
+               track: bool | None = None, tracking_uri: str | None = None) -> dict[str, Any]:
     """Fit and judge every family as a sensor model; write ``out_dir``; return results.json."""
     from ..core.outdir import staged_output
     from ..training.train import thread_limits
 
     with thread_limits(cfg.train.threads), staged_output(out_dir, overwrite=overwrite) as stage:
-        results = _run(cfg, stage.path, quiet=quiet, dataset=dataset, plots=plots)
+        results = _run(cfg, stage.path, quiet=quiet, dataset=dataset, plots=plots,
+                       track=track, tracking_uri=tracking_uri)
         stage.finish(results, lambda doc: doc)
     return results
 
 
 def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
-         plots: bool) -> dict[str, Any]:
+         plots: bool, track: bool | None, tracking_uri: str | None) -> dict[str, Any]:
     from ..core.schema import to_dict
     from ..exporting.sensor_export import bias_only_path
     from ..models.sensor import triads_of
@@ -95,12 +97,11 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
         "data_hash": data_hash(ds), "config": to_dict(cfg), "units": units,
         "triads": triads, "split": {"strategy": sp.label, "describe": sp.describe},
         "families": {}, "chosen": None, "warnings": []}
-    if cfg.tracking.enabled:
-        doc["warnings"].append("model 'sensor' is not logged to MLflow yet (tracking.enabled is "
-                               "ignored); results.json and the checkpoints hold everything")
+
     test = sp.test
     best: tuple[float, str] | None = None
     soak_data: dict[str, list] = {}
+    histories: dict[str, list] = {}
     (out / "models").mkdir(parents=True, exist_ok=True)
     for fam in cfg.families:
         entry: dict[str, Any] = {"family": fam.family, "inputs": list(fam.inputs),
@@ -171,6 +172,7 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
                 "misalignment_spread_mrad_comp_max": max(
                     (m["misalignment_spread_mrad_comp"] for m in mis), default=None),
                 "residual_ratio_vs_bias_max": max(axes[a]["ratio_vs_bias"] for a in t)}
+        histories[fam.label] = full.history
         entry.update(status="ok", fit_seconds=fit_s, triads=per_triad, n_params=full.model.n_params,
                      best_epoch=full.best_epoch, n_estimates=full.n_estimates,
                      condition_max=full.condition, val_score=val_score,
@@ -191,12 +193,43 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
     chosen = doc["families"][best[1]]
     doc["done_when"] = _done_when(chosen)
     doc["onnx"] = _export_chosen(out, chosen)
+    doc["mlflow_run_id"] = _track(cfg, doc, histories, ds.device_id, track=track,
+                                  tracking_uri=tracking_uri)
     atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
     figs = []
     if plots and soak_data.get(best[1]):
         figs.append(plot_sensor_soaks(out / "sensor_soaks.png", best[1], soak_data[best[1]]))
     write_sensor_report(out / "report.html", doc, figs)
     return doc
+
+
+def _track(cfg: CompareConfig, doc: dict[str, Any], histories: dict[str, list], device: str,
+           *, track: bool | None, tracking_uri: str | None) -> str | None:
+    """Log the comparison to MLflow as a bias comparison is: a parent run, one nested run per
+    fitted family (its loss history, per-axis test metrics, its checkpoint); returns the
+    parent's run id (None when tracking is off)."""
+    from ..tracking import Tracker
+
+    tracker = Tracker(enabled=cfg.tracking.enabled if track is None else track,
+                      uri=tracking_uri or cfg.tracking.uri, experiment=cfg.tracking.experiment)
+    tags = {"device": device, "model": "sensor", "data_hash": doc["data_hash"]}
+    with tracker.run(f"compare-sensor-{device}", params={"model": "sensor", "families": [
+            f"{k}:{v['family']}" for k, v in doc["families"].items()]}, tags=tags) as parent:
+        for label, f in doc["families"].items():
+            if f.get("status") != "ok":
+                continue
+            with tracker.run(label, params={"family": f["family"], "inputs": f["inputs"],
+                                            "params": f["params"]},
+                             tags={**tags, "family": f["family"]}, nested=True) as run_id:
+                f["mlflow_run_id"] = run_id
+                tracker.log_history(histories.get(label, []))
+                tracker.log_metrics({f"test/{a}/{k}": v for a, m in f["axes"].items()
+                                     for k, v in m.items() if isinstance(v, float)})
+                if f.get("val_score") is not None:
+                    tracker.log_metrics({"val/score": f["val_score"]})
+                tracker.log_artifact(f["checkpoint"], "model")
+        tracker.set_tags({"chosen": doc.get("chosen") or "none"})
+    return parent
 
 
 def _done_when(entry: dict[str, Any]) -> dict[str, Any]:
