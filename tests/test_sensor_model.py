@@ -428,3 +428,16 @@ def test_sensor_comparison_is_tracked_in_mlflow(data, tmp_path):
         res["families"]["cubic"]["axes"]["acc_x"]["residual_rms_comp"], rel=1e-12)
     assert [a.path for a in client.list_artifacts(child.info.run_id, "model")] == \
         ["model/cubic.pt"]
+
+
+def test_compare_refuses_data_without_references_and_writes_nothing(tmp_path):
+    from thermonet.training.config import config_from_mapping
+    from thermonet.workflows.compare import run_compare
+
+    cfg = config_from_mapping({"model": "sensor", "tracking": {"enabled": False},
+                               "families": [{"family": "poly", "params": {"degree": 3}}]})
+    ds = simulate("consumer-imu", runs=2, seed=0)   # a level unit: no ref_ columns
+    with pytest.raises(InputError, match=r"column 'ref_gyro_x': model 'sensor' needs the "
+                                         r"known excitation"):
+        run_compare(cfg, tmp_path / "out", quiet=True, dataset=ds, plots=False)
+    assert not (tmp_path / "out").exists()

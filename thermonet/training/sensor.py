@@ -52,7 +52,8 @@ from ..models import DriftModel, build_family
 from ..models.sensor import SensorModel, check_invertible, element_names
 from .train import _fit_loop, _std, average_windows, rest_signals, thread_limits
 
-__all__ = ["SensorRun", "SensorFit", "STEADY_C", "sensor_run", "check_excitation",
+__all__ = ["SensorRun", "SensorFit", "STEADY_C", "sensor_run", "sensor_run_refs",
+           "check_excitation",
            "steady_estimates", "fit_sensor", "do_no_harm", "save_sensor", "load_sensor",
            "SENSOR_FORMAT"]
 
@@ -88,14 +89,19 @@ class SensorRun:
         return SensorRun(s[:, :-1], y[:, :o], y[:, o:], t, s[:, -1], self.run_id)
 
 
-def sensor_run(rec: Recording, spec: FeatureSpec, outputs: Sequence[str]) -> SensorRun:
-    """A recording's arrays for the sensor model; refuses a missing reference channel."""
+def sensor_run_refs(rec: Recording, outputs: Sequence[str]) -> None:
+    """Refuse a recording without a reference channel for every output."""
     source = rec.meta.get("source", "") or f"run '{rec.run_id}'"
     missing = [o for o in outputs if f"ref_{o}" not in rec.references]
     if missing:
         raise InputError.at(source, "model 'sensor' needs the known excitation of every "
                             f"output (turntable rate, gravity per position); no reference "
                             f"channel for {missing} ({_GUIDE})", column=f"ref_{missing[0]}")
+
+
+def sensor_run(rec: Recording, spec: FeatureSpec, outputs: Sequence[str]) -> SensorRun:
+    """A recording's arrays for the sensor model; refuses a missing reference channel."""
+    sensor_run_refs(rec, outputs)
     raw = np.stack([rec.outputs[o] for o in outputs], axis=1).astype(np.float64)
     ref = np.stack([rec.references[f"ref_{o}"] for o in outputs], axis=1).astype(np.float64)
     sig = signal_matrix(rec, spec.signals, spec.gap_s)

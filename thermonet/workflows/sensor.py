@@ -73,7 +73,7 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
     from ..training.checkpoint import save_checkpoint
     from ..training.config import check_families
     from ..training.fold import fold_spec
-    from ..training.sensor import fit_sensor, save_sensor, sensor_run
+    from ..training.sensor import fit_sensor, save_sensor, sensor_run, sensor_run_refs
     from ..training.splits import make_splits
 
     src = getattr(cfg, "_source", "config")
@@ -88,6 +88,8 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
         raise ConfigError(f"{src}: key 'split.strategy': model 'sensor' takes one train / "
                           f"validation / test split, got {len(splits)} folds")
     sp = splits[0]
+    for rec in [*sp.train, *([sp.val] if sp.val is not None else []), sp.test]:
+        sensor_run_refs(rec, outputs)  # a missing reference is the data's fault: refused now
     units = {o: ds.runs[0].units.get(o, "") for o in outputs}
     say = (lambda s: None) if quiet else print
     say(f"thermonet compare (model: sensor): {ds.device_id} ({len(ds)} runs, triads "
@@ -187,8 +189,10 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
             f"{sum(full.kept.values())}/{len(full.kept)} elements kept, residual vs bias-only "
             f"at most {worst:.3g}")
     if best is None:
-        raise ThermonetError("no family could be fitted as a sensor model: " + "; ".join(
-            f"{k}: {v.get('reason')}" for k, v in doc["families"].items()))
+        reasons = {str(v.get("reason")) for v in doc["families"].values()}
+        raise ThermonetError("no family could be fitted as a sensor model: " + (
+            reasons.pop() if len(reasons) == 1 else "; ".join(
+                f"{k}: {v.get('reason')}" for k, v in doc["families"].items())))
     doc["chosen"] = best[1]
     chosen = doc["families"][best[1]]
     doc["done_when"] = _done_when(chosen)
