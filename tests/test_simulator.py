@@ -184,7 +184,8 @@ def test_self_heating_raises_die_temperature():
 
 
 def test_unknown_preset_and_setting_are_named():
-    with pytest.raises(ValueError, match="valid: accel, accel-ramp, consumer-imu, hrg, mems-gyro, patent-gyro"):
+    with pytest.raises(ValueError, match="valid: accel, accel-ramp, consumer-imu, hrg, imu-multiposition, mems-gyro,"
+                       " patent-gyro"):
         simulate("gyro9000")
     with pytest.raises(ConfigError, match="unknown simulation setting 'hysterisis'"):
         simulate("accel", hysterisis=False)

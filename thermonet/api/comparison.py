@@ -26,7 +26,8 @@ if TYPE_CHECKING:
 
     from .estimator import DriftEstimator
 
-__all__ = ["compare", "ComparisonResult", "FamilySummary", "AxisSummary"]
+__all__ = ["compare", "ComparisonResult", "SensorComparisonResult", "FamilySummary",
+           "AxisSummary"]
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,40 @@ class FamilySummary:
     @property
     def ok(self) -> bool:
         return self.status == "ok"
+
+
+class SensorComparisonResult:
+    """What :func:`compare` returns for ``model: sensor`` (:mod:`thermonet.workflows.sensor`).
+
+    ``results`` is the ``results.json`` document; ``model(name)`` the fitted
+    :class:`~thermonet.models.sensor.SensorModel` (``compensate(signals, raw)``);
+    :meth:`residuals` one row per family and axis.
+    """
+
+    def __init__(self, results: dict[str, Any], models: dict[str, Any], out: Path | None
+                 ) -> None:
+        self.results, self.out, self._models = results, out, models
+        self.chosen: str | None = results.get("chosen")
+        self.units: dict[str, str] = dict(results.get("units") or {})
+
+    def __repr__(self) -> str:
+        return f"SensorComparisonResult(chosen={self.chosen!r}, families={list(self._models)})"
+
+    def model(self, name: str) -> Any:
+        if name not in self._models:
+            raise ThermonetError(f"model: no fitted family named {name!r} (fitted: "
+                                 f"{', '.join(self._models) or 'none'})")
+        return self._models[name]
+
+    def residuals(self) -> pd.DataFrame:
+        """Held-out residual RMS (raw, bias-only, sensor), ratios, verdicts, SF tempco."""
+        import pandas as pd
+
+        rows = [{"family": name, "axis": a, **{k: v for k, v in m.items()
+                                                  if not isinstance(v, list)}}
+                for name, f in self.results["families"].items() if f.get("status") == "ok"
+                for a, m in f["axes"].items()]
+        return pd.DataFrame(rows).set_index(["family", "axis"])
 
 
 class ComparisonResult:
@@ -157,8 +192,9 @@ def _config(config: Any) -> Any:
 def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | None = None,
             track: bool = False, *, tracking_uri: str | None = None, overwrite: bool = False,
             plots: bool = True, workers: int | None = None,
-            quiet: bool = True) -> ComparisonResult:
-    """Compare model families as ``thermonet compare`` does; return the typed results.
+            quiet: bool = True) -> ComparisonResult | SensorComparisonResult:
+    """Compare model families as ``thermonet compare`` does; return the typed results
+    (a :class:`SensorComparisonResult` for ``model: sensor``).
 
     Parameters
     ----------
@@ -195,6 +231,12 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
         results = run_compare(cfg, target, overwrite=overwrite, track=track,
                               tracking_uri=tracking_uri, quiet=quiet, dataset=dataset,
                               plots=plots and out is not None, workers=workers)
+        if results.get("model") == "sensor":
+            from ..training.sensor import load_sensor
+
+            models = {name: load_sensor(target / "models" / f"{name}.pt")[0]
+                      for name, f in results["families"].items() if f.get("status") == "ok"}
+            return SensorComparisonResult(results, models, None if out is None else target)
         estimators = {}
         for name, f in (results.get("families") or {}).items():
             ckpt = f.get("checkpoint")

@@ -138,6 +138,10 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
     with tempfile.TemporaryDirectory() as tmp:
         ckpt = resolve_checkpoint(source, family=family, tracking_uri=tracking_uri,
                                   workdir=Path(tmp))
+        from .sensor_export import export_sensor_source, is_sensor_checkpoint
+
+        if is_sensor_checkpoint(ckpt):  # model: sensor (issue 22): its own writer
+            return export_sensor_source(ckpt, fmt=fmt, out=out)
         model, meta = load_checkpoint(ckpt)
         named = str(ckpt) if Path(source).exists() else f"MLflow run '{source}' ({ckpt.name})"
     return export_format.write(model, out, ExportRequest(

@@ -32,6 +32,13 @@ reproduced within 10 %, checked in ``tests/test_presets.py``):
 
 Realistic presets (what real chamber data does; no study to reproduce):
 
+``imu-multiposition`` (issue 22, :mod:`thermonet.sim.multiposition`)
+    A 6-axis IMU (``gyro_x/y/z`` °/s, ``acc_x/y/z`` g) at 0.2 Hz; soaks −40…85 °C in
+    12.5 °C steps, at each soak the six static faces (±1 g per axis) and turntable
+    poses (±100 °/s about each axis); bias, scale factor (≈140 ppm/°C) and
+    misalignment (1.5–3 mrad, 20–40 µrad/°C) polynomial in temperature; reference
+    vectors in ``ref_*``; 4 runs, climbing and descending alternately.
+
 ``consumer-imu``
     A consumer 6-axis IMU (``gyro_x/y/z`` °/s, ``acc_x/y/z`` m/s²) at 1 Hz in a
     climate chamber: 50 → −20 → 75 → 35 °C at 1 °C/min, 30 min holds.  No
@@ -69,6 +76,7 @@ from .device import (
 )
 from .fleet import simulate_fleet, unit_seed
 from .fourpos import four_position_estimates
+from .multiposition import IMU_MULTIPOSITION  # registers preset 'imu-multiposition'
 from .presets import (
     PRESETS,
     RunTruth,
@@ -87,5 +95,5 @@ __all__ = [
     "AxisConfig", "ThermalConfig", "ThermometerConfig", "ProxyConfig", "SelfHeatingConfig",
     "HysteresisConfig", "RateTermConfig", "NoiseConfig", "UnitSpreadConfig",
     "Polynomial", "Lorentz", "Sinusoid", "LawSum",
-    "four_position_estimates",
+    "four_position_estimates", "IMU_MULTIPOSITION",
 ]

@@ -212,6 +212,9 @@ class AxisConfig:
     rate_term: RateTermConfig = RateTermConfig()
     noise: NoiseConfig = NoiseConfig()
     reference_level: float = 0.0  # output unit, static input (e.g. 0 °/s)
+    # misalignment: (other axis, law in µrad) pairs; the output gains law(T)·1e-6 × that
+    # axis's reference (a cross-axis sensitivity, the off-diagonal of the sensor's M(T))
+    cross_axis_urad: tuple[tuple[str, AnyLaw], ...] = ()
 
 
 # ---------------------------------------------------------------- processes

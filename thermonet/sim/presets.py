@@ -57,13 +57,17 @@ class TableConfig:
 
     ``static``: each axis at its ``reference_level``; ``four_position``: the
     levels in ``positions`` for ``dwell_s`` each at the end of every soak marked
-    ``four_position`` (gravity projection, study 000); ``constant_rate``: one
+    ``four_position`` (gravity projection, study 000); ``multi_position``: the
+    same with ``poses``, one reference value per axis (in ``axes`` order) for each
+    pose: the six faces of a 6-axis IMU and turntable rates (``imu-multiposition``);
+    ``constant_rate``: one
     random rate per run and axis, magnitude uniform in [rate_min, rate_max],
     random sign (turntable, study 003).
     """
 
-    program: str = "static"  # 'static' | 'four_position' | 'constant_rate'
+    program: str = "static"  # 'static' | 'four_position' | 'multi_position' | 'constant_rate'
     positions: tuple[float, ...] = (1.0, 0.0, -1.0, 0.0)  # output unit (g)
+    poses: tuple[tuple[float, ...], ...] = ()  # multi_position: per pose, one value per axis
     dwell_s: float = 900.0  # s per position
     rate_min: float = 10.0  # output unit (°/s)
     rate_max: float = 100.0  # output unit (°/s)
@@ -80,6 +84,7 @@ class Switches:
     proxy_quantisation: bool = True
     self_heating: bool = True
     scale_factor: bool = True
+    misalignment: bool = True
     hysteresis: bool = True
     rate_term: bool = True
     white_noise: bool = True
@@ -123,13 +128,20 @@ class RunTruth:
     thermometer_c: np.ndarray
 
 
-def _reference(cfg: SimConfig, profile: ChamberProfile, t: np.ndarray, axis: AxisConfig,
+def _reference(cfg: SimConfig, profile: ChamberProfile, t: np.ndarray, k_axis: int,
                rate: float) -> np.ndarray:
+    axis = cfg.axes[k_axis]
     ref = np.full(t.shape, float(axis.reference_level))
     if cfg.table.program == "constant_rate":
         ref[:] = rate
-    elif cfg.table.program == "four_position":
-        seq = np.asarray(cfg.table.positions, dtype=np.float64)
+    elif cfg.table.program in ("four_position", "multi_position"):
+        if cfg.table.program == "four_position":
+            seq = np.asarray(cfg.table.positions, dtype=np.float64)
+        else:
+            if not cfg.table.poses or any(len(p) != len(cfg.axes) for p in cfg.table.poses):
+                raise ConfigError(f"table.poses: need at least one pose of {len(cfg.axes)} "
+                                  "values (one per axis) for program 'multi_position'")
+            seq = np.asarray([p[k_axis] for p in cfg.table.poses], dtype=np.float64)
         for _t0, t1, _, seg in profile.bounds():
             if isinstance(seg, Soak) and seg.four_position:
                 start = t1 - seq.size * cfg.table.dwell_s
@@ -138,7 +150,7 @@ def _reference(cfg: SimConfig, profile: ChamberProfile, t: np.ndarray, axis: Axi
                 ref[m] = seq[k]
     elif cfg.table.program != "static":
         raise ConfigError(f"table.program '{cfg.table.program}' is unknown "
-                          "(valid: static, four_position, constant_rate)")
+                          "(valid: static, four_position, multi_position, constant_rate)")
     return ref
 
 
@@ -198,8 +210,10 @@ def simulate_run(cfg: SimConfig, run_index: int, seed: int = 0) -> tuple[Recordi
     rate_c_per_h = np.gradient(die, dt) * 3600.0
     t_law = die - t_shift
     outputs, references, drift = {}, {}, {}
-    for k, ax in enumerate(cfg.axes):
-        ref = _reference(cfg, profile, t, ax, float(rates[k]))
+    refs = {ax.name: _reference(cfg, profile, t, k, float(rates[k]))
+            for k, ax in enumerate(cfg.axes)}
+    for ax in cfg.axes:
+        ref = refs[ax.name]
         raw_bias = ax.bias(t_law)
         anchor_c = 25.0 if ax.bias_reference_c is None else ax.bias_reference_c
         anchor = float(ax.bias(np.array([anchor_c]))[0])
@@ -207,6 +221,12 @@ def simulate_run(cfg: SimConfig, run_index: int, seed: int = 0) -> tuple[Recordi
         d = keep + bias_gain * (raw_bias - anchor) + bias_offset
         if ax.scale_factor_ppm is not None and sw.scale_factor:
             d = d + scale_gain * ax.scale_factor_ppm(t_law) * 1e-6 * ref
+        for other, law in ax.cross_axis_urad:
+            if other not in refs:
+                raise ConfigError(f"axis '{ax.name}': cross_axis_urad names no axis '{other}' "
+                                  f"(axes: {', '.join(refs)})")
+            if sw.misalignment:
+                d = d + law(t_law) * 1e-6 * refs[other]
         if sw.hysteresis and ax.hysteresis.amplitude:
             d = d + ax.hysteresis.amplitude * play_operator(die, ax.hysteresis.width_c)
         if sw.rate_term and ax.rate_term.coefficient_per_c_per_h:

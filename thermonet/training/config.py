@@ -234,6 +234,11 @@ class CompareConfig:
     # bias K0 and scale factor K1 of each axis from a static multi-position test (study 000);
     # outputs `<axis>.bias` and `<axis>.scale` are then modelled together.
     target: Literal["drift", "four-position"] | dict[str, str] = "drift"
+    # "bias" (default): every family models each axis's drift, compensated = raw − drift.
+    # "sensor": the full sensor model per triad, compensated = M(s)⁻¹ (raw − b(s)), bias b and
+    # M = I + E (scale factors, misalignment) each a function of the inputs from the family;
+    # needs reference channels with known excitation (thermonet.training.sensor, configs/README.md)
+    model: Literal["bias", "sensor"] = "bias"
     baseline: str | None = "cubic"       # the family label the report compares against (PX4/ArduPilot's)
     description: str = ""
     # pass/fail limits per output axis or "*" (thermonet.scoring.fleetstats.LimitSpec), judged per
@@ -318,6 +323,10 @@ def config_from_mapping(data: Any, *, source: str = "config") -> CompareConfig:
     check_families(cfg, source=p, build=False)  # torch-free; compare builds them
     _check_data(cfg.data, p)
     _check_target(cfg.target, p)
+    if cfg.model == "sensor" and cfg.target != "drift":
+        raise ConfigError(f"{p}: key 'target': model 'sensor' fits bias, scale factor and "
+                          f"misalignment against the reference channels itself; leave 'target' "
+                          f"at 'drift' (got {cfg.target!r})")
     if data.get("baseline") is not None and cfg.baseline not in labels:  # the default may lapse
         raise ConfigError(f"{p}: key 'baseline': no family named {cfg.baseline!r} (families: "
                           f"{', '.join(labels)})")

@@ -73,6 +73,11 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
     from ..core.outdir import staged_output
     from ..training.train import thread_limits
 
+    if cfg.model == "sensor":  # the full sensor model (issue 22): its own fit and judgement
+        from .sensor import run_sensor
+
+        return run_sensor(cfg, out_dir, overwrite=overwrite, quiet=quiet, dataset=dataset,
+                          plots=plots, track=track, tracking_uri=tracking_uri)
     # torch's and the native pools (BLAS, OpenMP) capped at train.threads for the whole
     # comparison, data preparation and evaluation included: the cap is process-wide, so
     # fits side by side must not lift it when one of them ends
@@ -296,6 +301,10 @@ def format_table(results: dict[str, Any]) -> str:
     data with their 95 % bootstrap interval and verdict (+ better, ! worse,
     = indistinguishable); ``comp`` says whether the axis is compensated.
     """
+    if results.get("model") == "sensor":
+        from .sensor import format_sensor_table
+
+        return format_sensor_table(results)
     fams = results["families"]
     axes = list(results["units"])
     cols = [c for c in _METRIC_COLS

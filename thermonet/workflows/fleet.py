@@ -136,6 +136,11 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
     Returns the fleet results (the dict written to ``out_dir/results.json``).
     """
     from ..core.fileio import _umask, atomic_write_text
+
+    if cfg.model == "sensor":
+        raise ConfigError(f"{getattr(cfg, '_source', 'config')}: key 'model': 'thermonet fleet' "
+                          "fits bias models only; fit a unit's sensor model with 'thermonet "
+                          "compare' (model: sensor)")
     from ..core.names import inside, path_components
     from ..core.outdir import check_target, install
 

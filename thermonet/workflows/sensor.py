@@ -1,0 +1,285 @@
+"""``thermonet compare`` with ``model: sensor``: the full sensor model per family, judged.
+
+For every configured family, on one split (train / validation / test runs,
+:mod:`thermonet.training.splits`; never by random sample):
+
+1. the full sensor model (:func:`thermonet.training.sensor.fit_sensor`: bias, scale factor
+   and misalignment, every element a function of the family's inputs) and, on the same data
+   and code path, the bias-only model (E = 0) it is judged against;
+2. on the held-out test run, per axis: the residual RMS of raw, bias-only and sensor model
+   (output units) and the paired block-bootstrap verdicts of the sensor model against raw
+   and against the bias-only model; per triad, the per-soak scale-factor tempco before and
+   after (study 000's ppm/°C) and each misalignment with its spread over temperature (mrad)
+   (:mod:`thermonet.scoring.sensor`);
+3. the family that ships (``chosen``) has the lowest validation residual (each axis scaled
+   by its raw error's standard deviation); its checkpoint is ``models/<label>.pt``
+   (:func:`thermonet.training.sensor.save_sensor`) and its ONNX graph ``model.onnx``
+   (:mod:`thermonet.exporting.sensor_export`, parity-checked against torch).
+
+Decisions: one split only (leave-one-run-out is refused: the verdicts would pool folds of
+different models); MLflow tracking as for bias models (a parent run, a nested run per family
+with its history, test metrics and checkpoint); one figure, the chosen family's per-soak
+scale factors and misalignments; a family that cannot be fitted is reported and the others go
+on, as in a bias comparison.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import __version__
+from ..core.errors import ConfigError, ThermonetError
+from ..core.fileio import atomic_write_text
+from ..core.recording import Dataset
+from ..training.config import CompareConfig, outputs_of, train_config_of
+from ..training.parts import data_hash, load_data
+
+__all__ = ["run_sensor", "format_sensor_table"]
+
+
+def _score(comp_err: np.ndarray, raw_err: np.ndarray) -> float:
+    """Mean over axes of the squared residual, each axis scaled by its raw error's std."""
+    scale = np.std(raw_err, axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    return float(np.mean((comp_err / scale) ** 2))
+
+
+def run_sensor(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = False,
+               quiet: bool = False, dataset: Dataset | None = None, plots: bool = True,
+               track: bool | None = None, tracking_uri: str | None = None) -> dict[str, Any]:
+    """Fit and judge every family as a sensor model; write ``out_dir``; return results.json."""
+    from ..core.outdir import staged_output
+    from ..training.train import thread_limits
+
+    with thread_limits(cfg.train.threads), staged_output(out_dir, overwrite=overwrite) as stage:
+        results = _run(cfg, stage.path, quiet=quiet, dataset=dataset, plots=plots,
+                       track=track, tracking_uri=tracking_uri)
+        stage.finish(results, lambda doc: doc)
+    return results
+
+
+def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
+         plots: bool, track: bool | None, tracking_uri: str | None) -> dict[str, Any]:
+    from ..core.schema import to_dict
+    from ..exporting.sensor_export import bias_only_path
+    from ..models.sensor import triads_of
+    from ..reporting.sensor_report import plot_sensor_soaks, write_sensor_report
+    from ..scoring.sensor import residual_verdicts, soak_matrices, triad_metrics
+    from ..training.checkpoint import save_checkpoint
+    from ..training.config import check_families
+    from ..training.fold import fold_spec
+    from ..training.sensor import fit_sensor, save_sensor, sensor_run, sensor_run_refs
+    from ..training.splits import make_splits
+
+    src = getattr(cfg, "_source", "config")
+    check_families(cfg, source=src)
+    ds = dataset if dataset is not None else load_data(cfg.data, source=src)
+    ds.validate()
+    outputs = outputs_of(cfg, ds)
+    triads = triads_of(outputs, source=src)
+    outputs = [o for t in triads for o in t]
+    splits = make_splits(ds, cfg.split, source=src)
+    if len(splits) != 1:
+        raise ConfigError(f"{src}: key 'split.strategy': model 'sensor' takes one train / "
+                          f"validation / test split, got {len(splits)} folds")
+    sp = splits[0]
+    for rec in [*sp.train, *([sp.val] if sp.val is not None else []), sp.test]:
+        sensor_run_refs(rec, outputs)  # a missing reference is the data's fault: refused now
+    units = {o: ds.runs[0].units.get(o, "") for o in outputs}
+    say = (lambda s: None) if quiet else print
+    say(f"thermonet compare (model: sensor): {ds.device_id} ({len(ds)} runs, triads "
+        f"{[t for t in triads]}), split {sp.label}")
+    doc: dict[str, Any] = {
+        "model": "sensor", "thermonet_version": __version__, "device": ds.device_id,
+        "data_hash": data_hash(ds), "config": to_dict(cfg), "units": units,
+        "triads": triads, "split": {"strategy": sp.label, "describe": sp.describe},
+        "families": {}, "chosen": None, "warnings": []}
+
+    test = sp.test
+    best: tuple[float, str] | None = None
+    soak_data: dict[str, list] = {}
+    histories: dict[str, list] = {}
+    (out / "models").mkdir(parents=True, exist_ok=True)
+    for fam in cfg.families:
+        entry: dict[str, Any] = {"family": fam.family, "inputs": list(fam.inputs),
+                                 "params": dict(fam.params)}
+        doc["families"][fam.label] = entry
+        try:
+            t0 = time.perf_counter()
+            spec = fold_spec(fam.inputs, sp.train, t_ref=cfg.features.t_ref,
+                             window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s)
+            tr = [sensor_run(r, spec, outputs) for r in sp.train]
+            va = sensor_run(sp.val, spec, outputs) if sp.val is not None else None
+            te = sensor_run(test, spec, outputs)
+            tcfg = train_config_of(cfg, fam)
+            full = fit_sensor(family=fam.family, spec=spec, outputs=outputs, triads=triads,
+                              train=tr, val=va, hyper=fam.params, config=tcfg)
+            bias = fit_sensor(family=fam.family, spec=spec, outputs=outputs, triads=triads,
+                              train=tr, val=va, hyper=fam.params, config=tcfg, elements=False)
+            fit_s = time.perf_counter() - t0
+        except ThermonetError as err:
+            entry.update(status="failed", reason=str(err))
+            say(f"  {fam.label:<14} not fitted: {err}")
+            continue
+        raw_err = te.raw - te.ref
+        comp = full.model.compensate(te.signals, te.raw)
+        comp_b = bias.model.compensate(te.signals, te.raw)
+        axes = residual_verdicts(outputs, te.time_s, raw_err, comp - te.ref, comp_b - te.ref)
+        elements: dict[str, Any] = {}
+        temp = np.asarray(test.temperature_c if test.temperature_c is not None
+                          else te.temperature)
+        soak_data[fam.label] = []
+        for t in triads:
+            idx = [outputs.index(o) for o in t]
+            temps, _, m_raw = soak_matrices(te.time_s, temp, te.raw[:, idx], te.ref[:, idx])
+            _, _, m_comp = soak_matrices(te.time_s, temp, comp[:, idx], te.ref[:, idx])
+            if temps.size:
+                soak_data[fam.label].append((t, temps, m_raw, m_comp))
+            _, _, m_bias = soak_matrices(te.time_s, temp, comp_b[:, idx], te.ref[:, idx])
+            for key, m in triad_metrics(t, temps, m_raw, m_comp).items():
+                if key in axes:
+                    axes[key].update(m)
+                    axes[key]["sf_ppm_per_c_bias_only"] = triad_metrics(
+                        t, temps, m_raw, m_bias)[key]["sf_ppm_per_c_comp"]
+                else:
+                    elements[key] = m
+        val_score = val_bias = None
+        if va is not None:
+            v_raw = va.raw - va.ref
+            val_score = _score(full.model.compensate(va.signals, va.raw) - va.ref, v_raw)
+            val_bias = _score(bias.model.compensate(va.signals, va.raw) - va.ref, v_raw)
+        ckpt = out / "models" / f"{fam.label}.pt"
+        info = {"label": fam.label, "device_id": ds.device_id, "units": units}
+        save_sensor(ckpt, full, family=fam.family, hyper=fam.params,
+                    extra={**info, "val_score": val_score})
+        # the bias-only model as a plain bias checkpoint: what an autopilot can take
+        save_checkpoint(bias_only_path(ckpt), bias.model.bias, config=to_dict(cfg),
+                        extra={**info, "label": f"{fam.label}.bias-only"})
+        per_triad = {}
+        for t in triads:
+            kind = t[0].split("_", 1)[0]
+            sf = [axes[a]["sf_ppm_per_c_comp"] for a in t if "sf_ppm_per_c_comp" in axes[a]]
+            sf_raw = [axes[a]["sf_ppm_per_c_raw"] for a in t if "sf_ppm_per_c_raw" in axes[a]]
+            mis = [m for k, m in elements.items() if k.startswith(f"{kind}_")]
+            per_triad[kind] = {
+                "sf_ppm_per_c_raw_max": max(sf_raw) if sf_raw else None,
+                "sf_ppm_per_c_comp_max": max(sf) if sf else None,
+                "misalignment_spread_mrad_raw_max": max(
+                    (m["misalignment_spread_mrad_raw"] for m in mis), default=None),
+                "misalignment_spread_mrad_comp_max": max(
+                    (m["misalignment_spread_mrad_comp"] for m in mis), default=None),
+                "residual_ratio_vs_bias_max": max(axes[a]["ratio_vs_bias"] for a in t)}
+        histories[fam.label] = full.history
+        entry.update(status="ok", fit_seconds=fit_s, triads=per_triad, n_params=full.model.n_params,
+                     best_epoch=full.best_epoch, n_estimates=full.n_estimates,
+                     condition_max=full.condition, val_score=val_score,
+                     val_score_bias_only=val_bias, elements_kept=full.kept, axes=axes,
+                     misalignment=elements, checkpoint=str(ckpt),
+                     bias_only_checkpoint=f"models/{bias_only_path(ckpt).name}")
+        score = val_score if val_score is not None else _score(comp - te.ref, raw_err)
+        if best is None or score < best[0]:
+            best = (score, fam.label)
+        worst = max(a["ratio_vs_bias"] for a in axes.values())
+        say(f"  {fam.label:<14} fitted in {fit_s:.2f} s, {full.model.n_params} params, "
+            f"{sum(full.kept.values())}/{len(full.kept)} elements kept, residual vs bias-only "
+            f"at most {worst:.3g}")
+    if best is None:
+        reasons = {str(v.get("reason")) for v in doc["families"].values()}
+        raise ThermonetError("no family could be fitted as a sensor model: " + (
+            reasons.pop() if len(reasons) == 1 else "; ".join(
+                f"{k}: {v.get('reason')}" for k, v in doc["families"].items())))
+    doc["chosen"] = best[1]
+    chosen = doc["families"][best[1]]
+    doc["done_when"] = _done_when(chosen)
+    doc["onnx"] = _export_chosen(out, chosen)
+    doc["mlflow_run_id"] = _track(cfg, doc, histories, ds.device_id, track=track,
+                                  tracking_uri=tracking_uri)
+    atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
+    figs = []
+    if plots and soak_data.get(best[1]):
+        figs.append(plot_sensor_soaks(out / "sensor_soaks.png", best[1], soak_data[best[1]]))
+    write_sensor_report(out / "report.html", doc, figs)
+    return doc
+
+
+def _track(cfg: CompareConfig, doc: dict[str, Any], histories: dict[str, list], device: str,
+           *, track: bool | None, tracking_uri: str | None) -> str | None:
+    """Log the comparison to MLflow as a bias comparison is: a parent run, one nested run per
+    fitted family (its loss history, per-axis test metrics, its checkpoint); returns the
+    parent's run id (None when tracking is off)."""
+    from ..tracking import Tracker
+
+    tracker = Tracker(enabled=cfg.tracking.enabled if track is None else track,
+                      uri=tracking_uri or cfg.tracking.uri, experiment=cfg.tracking.experiment)
+    tags = {"device": device, "model": "sensor", "data_hash": doc["data_hash"]}
+    with tracker.run(f"compare-sensor-{device}", params={"model": "sensor", "families": [
+            f"{k}:{v['family']}" for k, v in doc["families"].items()]}, tags=tags) as parent:
+        for label, f in doc["families"].items():
+            if f.get("status") != "ok":
+                continue
+            with tracker.run(label, params={"family": f["family"], "inputs": f["inputs"],
+                                            "params": f["params"]},
+                             tags={**tags, "family": f["family"]}, nested=True) as run_id:
+                f["mlflow_run_id"] = run_id
+                tracker.log_history(histories.get(label, []))
+                tracker.log_metrics({f"test/{a}/{k}": v for a, m in f["axes"].items()
+                                     for k, v in m.items() if isinstance(v, float)})
+                if f.get("val_score") is not None:
+                    tracker.log_metrics({"val/score": f["val_score"]})
+                tracker.log_artifact(f["checkpoint"], "model")
+        tracker.set_tags({"chosen": doc.get("chosen") or "none"})
+    return parent
+
+
+def _done_when(entry: dict[str, Any]) -> dict[str, Any]:
+    """Issue 22's targets on the chosen family: bias-only residual / sensor residual per axis
+    (≥ 5 wanted) and the compensated scale-factor tempco (≤ 15 ppm/°C wanted)."""
+    axes = entry["axes"]
+    ratio = {a: m["residual_rms_bias_only"] / m["residual_rms_comp"] for a, m in axes.items()}
+    sf = {a: m["sf_ppm_per_c_comp"] for a, m in axes.items() if "sf_ppm_per_c_comp" in m}
+    return {"bias_only_over_sensor": ratio, "min_bias_only_over_sensor": min(ratio.values()),
+            "sf_ppm_per_c_comp_max": max(sf.values()) if sf else None,
+            "met": bool(min(ratio.values()) >= 5.0 and sf and max(sf.values()) <= 15.0)}
+
+
+def _export_chosen(out: Path, entry: dict[str, Any]) -> dict[str, Any]:
+    from ..exporting.sensor_export import export_sensor_onnx
+    from ..training.sensor import load_sensor
+
+    model, payload = load_sensor(entry["checkpoint"])
+    extra = payload.get("extra", {})
+    try:
+        return {**export_sensor_onnx(model, out / "model.onnx", metadata={
+            "device_id": extra.get("device_id", ""), "output_units": extra.get("units", {}),
+            "validation_metrics": {"val_score": extra.get("val_score")}}),
+            "path": "model.onnx"}
+    except ThermonetError as err:
+        return {"status": "failed", "reason": str(err)}
+
+
+def format_sensor_table(results: dict[str, Any]) -> str:
+    """The sensor comparison as a text table: family × axis residuals and verdicts."""
+    head = (f"{'family':<14} {'axis':<8} {'raw':>10} {'bias-only':>10} {'sensor':>10} "
+            f"{'vs raw':>8} {'vs bias':>8} {'SF ppm/C raw':>13} {'comp':>8}")
+    lines = [head, "-" * len(head)]
+    mark = {"better": "+", "worse": "!", "indistinguishable": "="}
+    for name, f in results["families"].items():
+        if f.get("status") != "ok":
+            lines.append(f"{name:<14} not fitted: {f.get('reason')}")
+            continue
+        for a, m in f["axes"].items():
+            sf_r = m.get("sf_ppm_per_c_raw", float("nan"))
+            sf_c = m.get("sf_ppm_per_c_comp", float("nan"))
+            lines.append(
+                f"{name:<14} {a:<8} {m['residual_rms_raw']:>10.4g} "
+                f"{m['residual_rms_bias_only']:>10.4g} {m['residual_rms_comp']:>10.4g} "
+                f"{m['ratio_vs_raw']:>7.3g}{mark[m['verdict_vs_raw']]} "
+                f"{m['ratio_vs_bias']:>7.3g}{mark[m['verdict_vs_bias']]} "
+                f"{sf_r:>13.4g} {sf_c:>8.4g}")
+    lines.append(f"chosen: {results['chosen']}")
+    return "\n".join(lines)
