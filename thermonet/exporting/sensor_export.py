@@ -137,7 +137,7 @@ def export_sensor_onnx(model: SensorModel, path: str | Path, *,
     # the TorchScript exporter: the dynamo one writes an invalid graph for two DriftModels
     # reading the same inputs (onnxruntime: "Node input 'inputs_0_min_1' is not a graph
     # input"), measured with this repository's torch; parity below checks the result either way
-    proto, exporter = _export_proto(graph, "torchscript")  # type: ignore[arg-type]
+    proto, exporter = _export_proto(graph, "torchscript")
     # the bias model's metadata (signals, outputs, units, T_ref, trained range, digest), so
     # the torch-free runtime reads this file as it reads a bias model's, plus what makes it a
     # sensor model; "family" names the family of every element

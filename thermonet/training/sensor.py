@@ -50,7 +50,8 @@ from ..core.trainconfig import TrainConfig
 from ..features.inputs import FeatureSpec, signal_matrix
 from ..models import DriftModel, build_family
 from ..models.sensor import SensorModel, check_invertible, element_names
-from .train import _fit_loop, _std, average_windows, rest_signals, thread_limits
+from .scaling import column_scale
+from .train import _fit_loop, average_windows, rest_signals, thread_limits
 
 __all__ = ["SensorRun", "SensorFit", "STEADY_C", "sensor_run", "sensor_run_refs",
            "check_excitation",
@@ -287,7 +288,7 @@ def _fit_sensor(*, family: str, spec: FeatureSpec, outputs: list[str],
     sig_lo, sig_hi = s_tr.min(axis=0), s_tr.max(axis=0)
     with torch.no_grad():
         x_tr = bias.features(torch.as_tensor(s_tr)).numpy()
-    x_mean, x_std = x_tr.mean(axis=0), _std(x_tr)
+    x_mean, x_std = x_tr.mean(axis=0), column_scale(x_tr)
 
     # the closed-form start: per steady stretch (full-resolution samples), then the family
     g_sig, _, g_b, g_e = steady_estimates(train, idx, samples=INIT_SAMPLES)
@@ -295,8 +296,8 @@ def _fit_sensor(*, family: str, spec: FeatureSpec, outputs: list[str],
         g_sig, g_b, g_e = s_tr, y_tr, np.zeros((s_tr.shape[0], len(names_e)))
     with torch.no_grad():
         xg = (bias.features(torch.as_tensor(g_sig)).numpy() - x_mean) / x_std
-    b_mean, b_std = g_b.mean(axis=0), _std(g_b)
-    e_mean, e_std = g_e.mean(axis=0), _std(g_e)
+    b_mean, b_std = g_b.mean(axis=0), column_scale(g_b)
+    e_mean, e_std = g_e.mean(axis=0), column_scale(g_e)
     if elements:
         reason = fam_b.check_fittable(torch.as_tensor(xg))
         if reason:
@@ -309,7 +310,7 @@ def _fit_sensor(*, family: str, spec: FeatureSpec, outputs: list[str],
     fam_e.initialize(torch.as_tensor(xg), torch.as_tensor((g_e - e_mean) / e_std),
                      seed=config.seed, x_mean=x_mean, x_std=x_std)
 
-    y_mean, y_std = y_tr.mean(axis=0), _std(y_tr)
+    y_mean, y_std = y_tr.mean(axis=0), column_scale(y_tr)
     core = _Core(fam_b, fam_e if elements else None, len(spec.inputs), idx,
                  {"b_mean": b_mean, "b_std": b_std, "e_mean": e_mean, "e_std": e_std,
                   "y_mean": y_mean, "y_std": y_std})
@@ -376,7 +377,7 @@ def do_no_harm(model: SensorModel, val: SensorRun) -> dict[str, bool]:
     The residual is the mean square of (compensated − reference) per axis, each axis scaled
     by its raw error's standard deviation so that gyro and accelerometer weigh alike.
     """
-    scale = _std(val.raw - val.ref)
+    scale = column_scale(val.raw - val.ref)
     kept: dict[str, bool] = {}
     for dm in (model.bias, model.elements):
         mask = np.asarray(dm.compensated_axes, dtype=bool)
