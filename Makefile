@@ -65,7 +65,9 @@ qemu:
 # RBF tail's oracle and the parity modules that fit its time (qemu's TCG is about 20x slower
 # than native here); `make test-cpus-all` runs the whole numerics subset (tests/README.md).
 CPUS_FILES ?= tests/test_cpu_choices.py tests/test_rbf_tail.py tests/test_c_header.py \
-              tests/test_checkpoint.py tests/test_dynamics.py
+              tests/test_checkpoint.py tests/test_dynamics.py tests/test_tuning.py \
+              tests/test_gru.py tests/test_streaming.py tests/test_sensor_model.py \
+              tests/test_autopilot_parity.py tests/test_verify.py
 
 test-cpus-all:
 	$(MAKE) test-cpus CPUS_FILES=tests
