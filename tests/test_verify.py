@@ -126,6 +126,10 @@ def test_calibrate_two_logs_then_verify_the_third(runs: dict[str, list[Path]], t
     assert judged == expect
     HTMLParser().feed((out / "report.html").read_text())
     assert (out / "report.txt").read_text() == text[:text.index("report: ")]
+    # each instance's line says its unit (the autopilots' SI units)
+    for name, unit in (("gyro0", "[rad/s]"), ("acc0", "[m/s²]")):
+        line, = (x for x in text.splitlines() if x.startswith(name))
+        assert "binned drift p-p " + unit in line, line
     if ext == ".ulg":
         # the done-when: through PX4's own formula the later log's binned drift falls >= 3x
         cuts = _px4_later_log_cuts(_px4_params(params), Path(third))

@@ -73,6 +73,8 @@ RANGE_SLACK_C = 0.5
 #: Exit status of ``thermonet verify`` when an axis fails its limits (as ``fleet``).
 EXIT_FAILED = 3
 _PX4_LETTER = {"gyro": "G", "acc": "A", "baro": "B"}
+#: The SI units the autopilots' logs and formulas use, per sensor kind (what verify prints).
+KIND_UNITS = {"gyro": "rad/s", "acc": "m/s²", "baro": "Pa"}
 _AP_ID = {"gyro": "INS_GYR{}_ID", "acc": "INS_ACC{}_ID"}
 _AP_IDS_LINE = re.compile(r"^#\s*device ids:\s*INS_TCAL(\d)\s+gyro\s+(\d+)\s+acc\s+(\d+)")
 
@@ -322,7 +324,8 @@ def format_verify_report(doc: dict[str, Any]) -> str:
     lines = [f"thermonet verify: {doc['params_file']} on {doc['log']} ({doc['autopilot']})",
              f"limits: an axis passes when the binned drift is cut at least "
              f"{lim['min_cut']:g}x, or is left below "
-             + ", ".join(f"{v:g} ({k})" for k, v in lim["floor"].items()), ""]
+             + ", ".join(f"{v:g} {KIND_UNITS.get(k, '')} ({k})" for k, v in lim["floor"].items()),
+             ""]
     for name, d in doc["instances"].items():
         head = f"{name:<6} id {d['device_id']:<9}"
         if d["status"] != "judged":
@@ -331,7 +334,8 @@ def format_verify_report(doc: dict[str, Any]) -> str:
         axes = ", ".join(f"{b:.3g}->{a:.3g} ({c:.1f}x {'PASS' if ok else 'FAIL'})"
                          for b, a, c, ok in zip(d["pp_raw"], d["pp_corrected"], d["cut"],
                                                 d["passed"], strict=True))
-        lines.append(f"{head} slot {d['slot']}: binned drift p-p {axes}")
+        unit = KIND_UNITS.get(d["kind"], "")
+        lines.append(f"{head} slot {d['slot']}: binned drift p-p [{unit}] {axes}")
         lines += [f"       warning: {w}" for w in d["warnings"]]
     lines += ["", "PASS" if doc["passed"] else "FAIL: see the axes marked FAIL"]
     return "\n".join(lines) + "\n"
@@ -355,7 +359,8 @@ def render_verify_html(doc: dict[str, Any]) -> str:
             colour = VERDICT_COLOURS["better" if ok else "worse"]
             warn = "; ".join(d["warnings"]) if j == 0 else ""
             rows.append(f"<tr><td>{html.escape(name)}[{j}]</td><td>{d['device_id']}</td>"
-                        f"<td>{b:.3g} → {a:.3g}</td><td style=\"background:{colour}\">"
+                        f"<td>{b:.3g} → {a:.3g} {html.escape(KIND_UNITS.get(d['kind'], ''))}"
+                        f"</td><td style=\"background:{colour}\">"
                         f"{c:.1f}× {'PASS' if ok else 'FAIL'}</td>"
                         f"<td>{html.escape(warn)}</td></tr>")
     verdict = "PASS" if doc["passed"] else "FAIL"
