@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import ExportError
-from .c_stream import REAL_FLAGS, _proxies, float_path_slack, run_stream_c
+from .c_stream import REAL_FLAGS, _proxies, float_path_slack, judge_step_parity, run_stream_c
 from .parity import check_drift_parity, check_points, trained_range
 from .recurrent import _tolerance, hidden_size, step_reference
 
@@ -317,23 +317,8 @@ def check_recurrent_stream(model: DriftModel, header_text: str, *, prefix: str =
     raw = np.zeros((n, len(model.outputs)))
     got = run_stream_c(model, header_text, t, temp, raw, prox, prefix=prefix,
                        cflags=("-O2", *REAL_FLAGS[real]))
-    if not np.array_equal(got["compensated"], raw - got["drift"], equal_nan=True):
-        raise ExportError("C header step() parity check failed: 'compensated' is not raw - drift")
-    drift = got["drift"] - const
-    nan_want = np.isnan(want)
-    if not np.array_equal(np.isnan(drift), nan_want):
-        raise ExportError("C header step() parity check failed: NaN drift where torch has none "
-                          "(or the reverse) on the test sequence")
-    tol = rtol * np.nanmax(np.abs(want), axis=0)
-    if real == "float":
-        tol = tol + float_path_slack(const, want)
-    err = np.where(nan_want, 0.0, np.abs(drift - want))
-    k, a = (int(i) for i in np.unravel_index(int(np.argmax(err - tol)), err.shape))
-    if err[k, a] > tol[a]:
-        raise ExportError(f"C header step() parity check failed at sample {k} (t = {t[k]:.3f} s),"
-                          f" axis '{model.outputs[a]}': C {drift[k, a]:.9g} vs torch "
-                          f"{want[k, a]:.9g} (tolerance {tol[a]:.3g})")
+    worst = judge_step_parity(model, got, raw, want, const, t, temp, real=real, rtol=rtol)
     if not got["flag"][n // 2] or not got["flag"][n // 3]:
         raise ExportError("C header step() parity check failed: flag not set after the gap or "
                           "at the missing temperature")
-    return {"n_samples": float(n), "max_abs_diff": float(err.max())}
+    return {"n_samples": float(n), "max_abs_diff": worst}

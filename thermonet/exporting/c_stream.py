@@ -59,7 +59,8 @@ if TYPE_CHECKING:
     from ..models import DriftModel
 
 __all__ = ["render_stream_c", "render_stream_block_c", "STREAM_DRIVER", "run_stream_c", "check_stream",
-           "stream_signature_has_proxies", "REAL_FLAGS", "float_path_slack"]
+           "stream_signature_has_proxies", "REAL_FLAGS", "float_path_slack",
+           "judge_step_parity"]
 
 _KIND_CODE = {"rate": 0, "lag": 1, "play": 2}
 
@@ -500,6 +501,22 @@ def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermone
         const = model.constant().detach().cpu().double().numpy()
     got = run_stream_c(model, header_text, t, temp, raw, prox, prefix=prefix,
                        cflags=("-O2", *REAL_FLAGS[real]))
+    worst = judge_step_parity(model, got, raw, want, const, t, temp, real=real, rtol=rtol)
+    if not got["flag"][gap].all() or not got["flag"][np.isnan(temp)].all():
+        raise ExportError("C header step() parity check failed: flag not set after the gap or "
+                          "at the missing temperature")
+    return {"n_samples": float(n), "max_abs_diff": worst}
+
+
+def judge_step_parity(model: DriftModel, got: dict[str, np.ndarray], raw: np.ndarray,
+                      want: np.ndarray, const: np.ndarray, t: np.ndarray, temp: np.ndarray, *,
+                      real: str, rtol: float) -> float:
+    """The C ``step()``'s output (``got``, from :func:`run_stream_c`) against torch's relative
+    drift ``want`` plus the model's constant ``const``: ``compensated`` must be exactly
+    ``raw − drift``, NaN where torch has NaN, and the drift within ``rtol`` of each axis's
+    largest drift (plus the float path's slack).  Raises :class:`ExportError` naming the first
+    sample outside; returns the largest absolute difference.  Shared by every streaming
+    header (dynamic inputs, the recurrent state)."""
     if not np.array_equal(got["compensated"], raw - got["drift"], equal_nan=True):
         raise ExportError("C header step() parity check failed: 'compensated' is not raw - drift")
     drift = got["drift"] - const
@@ -516,7 +533,4 @@ def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermone
         raise ExportError(f"C header step() parity check failed at sample {k} (t = {t[k]:.3f} s, "
                           f"T = {temp[k]:.4g} degC), axis '{model.outputs[a]}': C "
                           f"{drift[k, a]:.9g} vs torch {want[k, a]:.9g} (tolerance {tol[a]:.3g})")
-    if not got["flag"][gap].all() or not got["flag"][np.isnan(temp)].all():
-        raise ExportError("C header step() parity check failed: flag not set after the gap or "
-                          "at the missing temperature")
-    return {"n_samples": float(n), "max_abs_diff": float(err.max())}
+    return float(err.max())

@@ -19,7 +19,6 @@ Everything random comes from the seed (the family's start); the chunk order is f
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -30,7 +29,7 @@ import torch
 from ..core.errors import FitError, InputError
 from ..core.trainconfig import TrainConfig
 from ..models.sequence import stream_windows
-from .scaling import column_scale
+from .scaling import EarlyStopping, column_scale
 
 __all__ = ["sequences", "padded", "fit_loop", "initial_readout", "fit_recurrent", "CLIP_NORM"]
 
@@ -109,9 +108,7 @@ def fit_loop(fam: Any, train: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
     # halve the step when the monitored loss has not improved for LR_PATIENCE epochs
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=LR_PATIENCE)
     history: list[dict] = []
-    best, best_epoch, wait = math.inf, 0, 0
-    best_val: float | None = None
-    best_state = copy.deepcopy(fam.state_dict())
+    stop = EarlyStopping(fam, patience=config.patience, min_delta=config.min_delta)
     t_max = zb.shape[1]
     for epoch in range(config.max_epochs + 1):
         if epoch > 0:
@@ -138,19 +135,11 @@ def fit_loop(fam: Any, train: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
         history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
         if on_epoch is not None:
             on_epoch(epoch, train_loss, val_loss)
-        monitored = train_loss if val_loss is None else val_loss
         if epoch > 0:
-            sched.step(monitored)
-        if monitored < best - config.min_delta:
-            best, best_epoch, wait = monitored, epoch, 0
-            best_state = copy.deepcopy(fam.state_dict())
-            best_val = val_loss
-        else:
-            wait += 1
-            if wait >= config.patience:
-                break
-    fam.load_state_dict(best_state)
-    fam.eval()
+            sched.step(train_loss if val_loss is None else val_loss)
+        if stop.update(fam, epoch, train_loss, val_loss):
+            break
+    best_epoch, best_val = stop.restore(fam)
     return history, best_epoch, best_val
 
 

@@ -1,12 +1,16 @@
-"""The standardisation every family trains in: per-column mean and scale of the training
-arrays (shared by the point-wise loop, :mod:`thermonet.training.train`, and the recurrent one,
-:mod:`thermonet.training.recurrent`)."""
+"""What the training loops share — the point-wise one (:mod:`thermonet.training.train`), the
+recurrent one (:mod:`thermonet.training.recurrent`) and the sensor model's: the per-column
+scale every family trains in, and early stopping."""
 
 from __future__ import annotations
 
-import numpy as np
+import copy
+import math
 
-__all__ = ["column_scale"]
+import numpy as np
+import torch
+
+__all__ = ["column_scale", "EarlyStopping"]
 
 
 def column_scale(a: np.ndarray) -> np.ndarray:
@@ -14,3 +18,35 @@ def column_scale(a: np.ndarray) -> np.ndarray:
     axis with no drift) keeps unit scale."""
     mean, std = a.mean(axis=0), a.std(axis=0)
     return np.where(std > 1e-12 * np.maximum(1.0, np.abs(mean)), std, 1.0)
+
+
+class EarlyStopping:
+    """The training loops' bookkeeping (point-wise, :mod:`thermonet.training.train`, and
+    recurrent, :mod:`thermonet.training.recurrent`): keep the parameters of the epoch with the
+    lowest monitored loss (the validation loss, or the training loss without a validation
+    part), and stop after ``patience`` epochs without an improvement of at least
+    ``min_delta``."""
+
+    def __init__(self, module: torch.nn.Module, *, patience: int, min_delta: float) -> None:
+        self.patience, self.min_delta = patience, min_delta
+        self.best, self.best_epoch, self.wait = math.inf, 0, 0
+        self.best_val: float | None = None
+        self.best_state = copy.deepcopy(module.state_dict())
+
+    def update(self, module: torch.nn.Module, epoch: int, train_loss: float,
+               val_loss: float | None) -> bool:
+        """Record one epoch; True when training should stop."""
+        monitored = train_loss if val_loss is None else val_loss
+        if monitored < self.best - self.min_delta:
+            self.best, self.best_epoch, self.wait = monitored, epoch, 0
+            self.best_state = copy.deepcopy(module.state_dict())
+            self.best_val = val_loss
+            return False
+        self.wait += 1
+        return self.wait >= self.patience
+
+    def restore(self, module: torch.nn.Module) -> tuple[int, float | None]:
+        """Put the best epoch's parameters back; returns that epoch and its validation loss."""
+        module.load_state_dict(self.best_state)
+        module.eval()
+        return self.best_epoch, self.best_val

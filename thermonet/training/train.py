@@ -20,7 +20,6 @@ what training added to the closed-form start.
 from __future__ import annotations
 
 import contextlib
-import copy
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -39,7 +38,7 @@ from ..features.dynamics import dynamic_signals, saturation_margin
 from ..features.inputs import FeatureSpec
 from ..models import DriftModel, build_family
 from ..models.base import Family
-from .scaling import column_scale
+from .scaling import EarlyStopping, column_scale
 
 __all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "average_windows",
            "rest_signals"]
@@ -386,10 +385,7 @@ def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
     else:
         opt = torch.optim.Adam(params, lr=config.lr)
     history: list[dict] = []
-    best = math.inf
-    best_state = copy.deepcopy(fam.state_dict())
-    best_epoch, wait = 0, 0
-    best_val: float | None = None
+    stop = EarlyStopping(fam, patience=config.patience, min_delta=config.min_delta)
     fam.train()
     for epoch in range(config.max_epochs + 1):
         if epoch > 0:
@@ -402,17 +398,9 @@ def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
         history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
         if on_epoch is not None:
             on_epoch(epoch, train_loss, val_loss)
-        monitored = train_loss if val_loss is None else val_loss
-        if monitored < best - config.min_delta:
-            best, best_epoch, wait = monitored, epoch, 0
-            best_state = copy.deepcopy(fam.state_dict())
-            best_val = val_loss
-        else:
-            wait += 1
-            if wait >= config.patience:
-                break
-    fam.load_state_dict(best_state)
-    fam.eval()
+        if stop.update(fam, epoch, train_loss, val_loss):
+            break
+    best_epoch, best_val = stop.restore(fam)
     return history, best_epoch, best_val
 
 
