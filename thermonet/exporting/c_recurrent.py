@@ -42,7 +42,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import ExportError
-from .c_stream import REAL_FLAGS, _proxies, float_path_slack, judge_step_parity, run_stream_c
+from .c_stream import (
+    REAL_FLAGS,
+    _proxies,
+    float_path_slack,
+    judge_step_parity,
+    run_stream_c,
+    step_time_guard_c,
+)
 from .parity import check_drift_parity, check_points, trained_range
 from .recurrent import _tolerance, hidden_size, step_reference
 
@@ -113,20 +120,7 @@ def render_recurrent_stream_c(model: DriftModel, p: str) -> list[str]:
         f"    float s[{P}_N_SIGNALS], m[{P}_N_SIGNALS], spare[{P}_GRU_HIDDEN];",
         "    int a, j, restart, gap, finite = 1;",
         "    int32_t k = 0;",
-        "#if THERMONET_TIME_US",
-        "    if (st->seen && !(time_s > st->t_last)) {",
-        "#else",
-        "    if (!(time_s - time_s == 0.0) || (st->seen && !(time_s > st->t_last))) {",
-        "#endif",
-        f"        for (a = 0; a < {P}_N_AXES; ++a) {{",
-        "            drift[a] = NAN;",
-        "            compensated[a] = NAN;",
-        "        }",
-        "        *flag = 1;",
-        "        return -1;",
-        "    }",
-        "    st->t_last = time_s;",
-        "    st->seen = 1;",
+        *step_time_guard_c(P),
     ]
     if "temperature_c" in signals:
         lines.append(f"    s[{signals.index('temperature_c')}] = temperature_c;")

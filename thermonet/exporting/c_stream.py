@@ -60,7 +60,7 @@ if TYPE_CHECKING:
 
 __all__ = ["render_stream_c", "render_stream_block_c", "STREAM_DRIVER", "run_stream_c", "check_stream",
            "stream_signature_has_proxies", "REAL_FLAGS", "float_path_slack",
-           "judge_step_parity"]
+           "judge_step_parity", "step_time_guard_c"]
 
 _KIND_CODE = {"rate": 0, "lag": 1, "play": 2}
 
@@ -157,20 +157,7 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
         "{",
         f"    float s[{P}_N_SIGNALS];",
         "    int a, gap = 0;",
-        "#if THERMONET_TIME_US",
-        "    if (st->seen && !(time_s > st->t_last)) {",
-        "#else",
-        "    if (!(time_s - time_s == 0.0) || (st->seen && !(time_s > st->t_last))) {",
-        "#endif",
-        f"        for (a = 0; a < {P}_N_AXES; ++a) {{",
-        "            drift[a] = NAN;",
-        "            compensated[a] = NAN;",
-        "        }",
-        "        *flag = 1;",
-        "        return -1;",
-        "    }",
-        "    st->t_last = time_s;",
-        "    st->seen = 1;",
+        *step_time_guard_c(P),
     ]
     if "temperature_c" in signals:
         lines.append(f"    s[{signals.index('temperature_c')}] = temperature_c;")
@@ -235,6 +222,27 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
         "}",
     ]
     return lines
+
+
+def step_time_guard_c(P: str) -> list[str]:
+    """The lines every ``<p>_step`` opens with: a time that is not finite or not after the
+    previous sample is refused (NaN out, flag set, state unchanged, -1), else recorded."""
+    return [
+        "#if THERMONET_TIME_US",
+        "    if (st->seen && !(time_s > st->t_last)) {",
+        "#else",
+        "    if (!(time_s - time_s == 0.0) || (st->seen && !(time_s > st->t_last))) {",
+        "#endif",
+        f"        for (a = 0; a < {P}_N_AXES; ++a) {{",
+        "            drift[a] = NAN;",
+        "            compensated[a] = NAN;",
+        "        }",
+        "        *flag = 1;",
+        "        return -1;",
+        "    }",
+        "    st->t_last = time_s;",
+        "    st->seen = 1;",
+    ]
 
 
 def render_stream_block_c(model: DriftModel, p: str) -> list[str]:
