@@ -34,6 +34,7 @@ import torch
 from ..core.errors import ExportError
 from ..core.fileio import atomic_write_text
 from ..models.sensor import SensorModel, check_invertible
+from .sensor_probe import PARITY_EPS32, probe
 
 __all__ = ["render_sensor_c", "sensor_c_parity", "export_sensor_c"]
 
@@ -148,13 +149,12 @@ def render_sensor_c(model: SensorModel, *, prefix: str = "thermonet") -> str:
 def sensor_c_parity(model: SensorModel, text: str, *, prefix: str = "thermonet"
                     ) -> dict[str, float]:
     """Compile ``text`` (double path) and compare with torch on the ONNX check's points."""
-    from .sensor_export import PARITY_EPS32, _probe
 
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
         raise ExportError("no C compiler found: the sensor C header cannot be checked, so it "
                           "is not written")
-    sig, raw = _probe(model)
+    sig, raw = probe(model)
     with torch.no_grad():
         want, flag_t = model.columns(torch.as_tensor(sig, dtype=torch.float32).unbind(1),
                                      torch.as_tensor(raw))
@@ -195,9 +195,8 @@ def sensor_c_parity(model: SensorModel, text: str, *, prefix: str = "thermonet"
 def export_sensor_c(model: SensorModel, path: str | Path, *, prefix: str = "thermonet"
                     ) -> Path:
     """Write the header to ``path`` after the invertibility check and parity with torch."""
-    from .sensor_export import _probe
 
-    check_invertible(model, _probe(model)[0], what="sensor model")
+    check_invertible(model, probe(model)[0], what="sensor model")
     text = render_sensor_c(model, prefix=prefix)
     sensor_c_parity(model, text, prefix=prefix)
     return atomic_write_text(path, text)

@@ -34,15 +34,10 @@ from torch import nn
 
 from ..core.errors import ExportError
 from ..models.sensor import SensorModel, check_invertible
+from .sensor_probe import PARITY_EPS32, probe
 
 __all__ = ["SensorGraph", "is_sensor_checkpoint", "export_sensor_onnx", "sensor_parity",
            "export_sensor_source", "bias_only_path"]
-
-#: Parity tolerance in units of float32's epsilon, times the output's magnitude (the raw
-#: value plus the bias): the graph computes b and E in float32 as torch does, the inverse in
-#: float64; what differs is the order of float32 operations in the two runtimes.
-PARITY_EPS32 = 256.0
-
 
 class SensorGraph(nn.Module):
     """``forward(*signals, raw) -> (compensated, drift, out_of_range)`` (see module doc)."""
@@ -76,27 +71,12 @@ def bias_only_path(sensor_ckpt: str | Path) -> Path:
     return p.with_name(f"{p.stem}.bias-only.pt")
 
 
-def _probe(model: SensorModel, n: int = 257, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Signals across the trained range (edges included, a little outside) and raw outputs."""
-    lo = model.bias.sig_lo.detach().double().numpy()
-    hi = model.bias.sig_hi.detach().double().numpy()
-    rng = np.random.default_rng(seed)
-    span = np.where(hi > lo, hi - lo, 1.0)
-    sig = lo + rng.uniform(-0.05, 1.05, (n, lo.size)) * span
-    sig[0], sig[1] = lo, hi
-    with torch.no_grad():
-        b = model.bias.drift64(torch.as_tensor(sig, dtype=torch.float32)).numpy()
-    scale = np.maximum(np.abs(b).max(axis=0), 1.0)
-    raw = b + rng.uniform(-100.0, 100.0, b.shape) * scale
-    return sig, raw
-
-
 def sensor_parity(model: SensorModel, path: str | Path) -> dict[str, float]:
-    """Run the ONNX file in onnxruntime against torch on :func:`_probe` samples; raise
+    """Run the ONNX file in onnxruntime against torch on :func:`~.sensor_probe.probe` samples; raise
     :class:`ExportError` beyond :data:`PARITY_EPS32` × ε32 × (|raw| + |b|)."""
     import onnxruntime as ort
 
-    sig, raw = _probe(model)
+    sig, raw = probe(model)
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     feeds: dict[str, Any] = {n: sig[:, i].astype(np.float32) for i, n in enumerate(model.signals)}
     feeds["raw"] = raw
@@ -131,7 +111,7 @@ def export_sensor_onnx(model: SensorModel, path: str | Path, *,
     for name, p in list(model.named_parameters()) + list(model.named_buffers()):
         if p.is_floating_point() and bool(torch.isnan(p).any()):
             raise ExportError(f"sensor model parameter '{name}' holds NaN; refusing to export")
-    sig, _ = _probe(model)
+    sig, _ = probe(model)
     check_invertible(model, sig, what="sensor model")
     graph = SensorGraph(model).eval()
     # the TorchScript exporter: the dynamo one writes an invalid graph for two DriftModels
