@@ -322,6 +322,18 @@ def dynamic_signals(time_s: Any, temperature_c: Any, dynamic: Mapping[str, Any],
     return out, gap
 
 
+def _next_time(t_last: float, t: float) -> float:
+    """``t`` when it may follow ``t_last`` in a stream (finite, strictly later), else the one
+    refusal every stream gives (dynamic inputs and the recurrent state alike)."""
+    if not math.isfinite(t):
+        raise RuntimeInputError(f"time_s is {t!r} (must be finite seconds)")
+    if t <= t_last:
+        how = "repeated" if t == t_last else "decreasing"
+        raise RuntimeInputError(f"time_s {how} ({t_last!r} then {t!r} s); "
+                                "time must increase strictly")
+    return t
+
+
 class _Stream:
     """The O(1) state of :meth:`Compensator.step` (what the C header's state struct holds)."""
 
@@ -336,13 +348,7 @@ class _Stream:
 
     def update(self, t: float, temp: float, dynamic: Mapping[str, Any]
                ) -> tuple[dict[str, float], bool]:
-        if not math.isfinite(t):
-            raise RuntimeInputError(f"time_s is {t!r} (must be finite seconds)")
-        if t <= self.t_last:
-            how = "repeated" if t == self.t_last else "decreasing"
-            raise RuntimeInputError(f"time_s {how} ({self.t_last!r} then {t!r} s); "
-                                    "time must increase strictly")
-        self.t_last = t
+        self.t_last = _next_time(self.t_last, t)
         items = dynamic["inputs"]
         if not math.isfinite(temp):
             return {d["signal"]: math.nan for d in items}, False
@@ -464,13 +470,7 @@ class _RecurrentStream:
                ) -> tuple[np.ndarray | None, bool]:
         """The signals to evaluate (the window's running mean; None for a non-finite
         sample, which changes nothing) and whether this sample restarted after a gap."""
-        if not math.isfinite(t):
-            raise RuntimeInputError(f"time_s is {t!r} (must be finite seconds)")
-        if t <= self.t_last:
-            how = "repeated" if t == self.t_last else "decreasing"
-            raise RuntimeInputError(f"time_s {how} ({self.t_last!r} then {t!r} s); "
-                                    "time must increase strictly")
-        self.t_last = t
+        self.t_last = _next_time(self.t_last, t)
         if not bool(np.all(np.isfinite(s))):
             return None, False
         restart = not self.started or (t - self.t_prev) > float(rec["gap_s"])

@@ -48,6 +48,7 @@ from .c_stream import (
     float_path_slack,
     judge_step_parity,
     run_stream_c,
+    step_signature_c,
     step_time_guard_c,
 )
 from .parity import check_drift_parity, check_points, trained_range
@@ -108,14 +109,7 @@ def render_recurrent_stream_c(model: DriftModel, p: str) -> list[str]:
         "    st->started = 0;",
         "}",
         "",
-        "/* time_s: double seconds, or uint64_t microseconds where THERMONET_TIME_US",
-        " * (the float path); THERMONET_TIME_FROM_US(us) converts a microsecond clock. */",
-        f"static inline int {p}_step({p}_state *st, thermonet_time_t time_s,",
-        "                              float temperature_c,",
-        *(["                              const float *proxies,"] if proxies else []),
-        "                              const thermonet_real_t *raw,",
-        "                              thermonet_real_t *compensated, thermonet_real_t *drift,",
-        "                              int *flag)",
+        *step_signature_c(p, proxies),
         "{",
         f"    float s[{P}_N_SIGNALS], m[{P}_N_SIGNALS], spare[{P}_GRU_HIDDEN];",
         "    int a, j, restart, gap, finite = 1;",

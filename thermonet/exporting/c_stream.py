@@ -46,6 +46,7 @@ from __future__ import annotations
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -60,7 +61,7 @@ if TYPE_CHECKING:
 
 __all__ = ["render_stream_c", "render_stream_block_c", "STREAM_DRIVER", "run_stream_c", "check_stream",
            "stream_signature_has_proxies", "REAL_FLAGS", "float_path_slack",
-           "judge_step_parity", "step_time_guard_c"]
+           "judge_step_parity", "step_time_guard_c", "step_signature_c"]
 
 _KIND_CODE = {"rate": 0, "lag": 1, "play": 2}
 
@@ -146,14 +147,7 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
         "    st->started = 0;",
         "}",
         "",
-        "/* time_s: double seconds, or uint64_t microseconds where THERMONET_TIME_US",
-        " * (the float path); THERMONET_TIME_FROM_US(us) converts a microsecond clock. */",
-        f"static inline int {p}_step({p}_state *st, thermonet_time_t time_s,",
-        "                              float temperature_c,",
-        *(["                              const float *proxies,"] if proxies else []),
-        "                              const thermonet_real_t *raw,",
-        "                              thermonet_real_t *compensated, thermonet_real_t *drift,",
-        "                              int *flag)",
+        *step_signature_c(p, proxies),
         "{",
         f"    float s[{P}_N_SIGNALS];",
         "    int a, gap = 0;",
@@ -222,6 +216,21 @@ def render_stream_c(model: DriftModel, p: str) -> list[str]:
         "}",
     ]
     return lines
+
+
+def step_signature_c(p: str, proxies: Sequence[str] | bool) -> list[str]:
+    """The comment and signature of ``<p>_step``, the same for every streaming header (dynamic
+    inputs, the recurrent state): the firmware calls one function whatever the model."""
+    return [
+        "/* time_s: double seconds, or uint64_t microseconds where THERMONET_TIME_US",
+        " * (the float path); THERMONET_TIME_FROM_US(us) converts a microsecond clock. */",
+        f"static inline int {p}_step({p}_state *st, thermonet_time_t time_s,",
+        "                              float temperature_c,",
+        *(["                              const float *proxies,"] if proxies else []),
+        "                              const thermonet_real_t *raw,",
+        "                              thermonet_real_t *compensated, thermonet_real_t *drift,",
+        "                              int *flag)",
+    ]
 
 
 def step_time_guard_c(P: str) -> list[str]:
