@@ -25,6 +25,7 @@ from .errors import InputError
 
 __all__ = [
     "Recording",
+    "WindowStats",
     "Dataset",
     "OUTPUT_NAME",
     "KNOWN_UNITS",
@@ -96,6 +97,52 @@ def _as_1d(name: str, values: object, n: int | None, source: str) -> np.ndarray:
 
 
 @dataclass
+class WindowStats:
+    """What a recording reduced to window means keeps of the samples it averaged
+    (:mod:`thermonet.features.windows`: a recording larger than memory, streamed once).
+
+    Row ``k`` of the reduced :class:`Recording` is the mean of the ``n[k]`` samples of
+    one window.  ``signals`` holds the window means of the dynamic inputs, computed on
+    the samples at their own rate (never from the means); ``gap_s`` the gap limit they
+    were computed with.  ``ss[axis]`` is the sum of squared deviations from the window
+    mean of the axis' observed drift (output − reference) inside each window, and
+    ``ss_output[axis]`` that of the output alone where a reference exists: with them a
+    held-out score over the samples is recovered from the rows
+    (:func:`thermonet.training.fold.score_part`).  ``source_samples`` and
+    ``source_rate_hz`` describe the samples the rows stand for.
+    """
+
+    window_s: float
+    n: np.ndarray
+    signals: dict[str, np.ndarray]
+    gap_s: float
+    ss: dict[str, np.ndarray]
+    ss_output: dict[str, np.ndarray] = field(default_factory=dict)
+    source_samples: int = 0
+    source_rate_hz: float = float("nan")
+
+    def select(self, mask: np.ndarray) -> WindowStats:
+        """The rows where ``mask`` is true (or the indices it lists)."""
+        n = self.n[mask]
+        return WindowStats(self.window_s, n, {k: v[mask] for k, v in self.signals.items()},
+                           self.gap_s, {k: v[mask] for k, v in self.ss.items()},
+                           {k: v[mask] for k, v in self.ss_output.items()},
+                           int(n.sum()), self.source_rate_hz)
+
+    @staticmethod
+    def concat(parts: list[WindowStats]) -> WindowStats:
+        """Rows of several reduced recordings one after the other (stacked held-out blocks)."""
+        first = parts[0]
+
+        def cat(group: str) -> dict[str, np.ndarray]:
+            return {k: np.concatenate([getattr(p, group)[k] for p in parts])
+                    for k in getattr(first, group)}
+        n = np.concatenate([p.n for p in parts])
+        return WindowStats(first.window_s, n, cat("signals"), first.gap_s, cat("ss"),
+                           cat("ss_output"), int(n.sum()), first.source_rate_hz)
+
+
+@dataclass
 class Recording:
     """One thermal-test run of one device.
 
@@ -124,6 +171,9 @@ class Recording:
         Nominal sample rate (None: derive from ``time_s``).
     meta : mapping str -> str
         Anything else worth keeping (preset, seed, source file).
+    windows : WindowStats or None
+        Set where each row is the mean of a window of samples (a recording larger
+        than memory, reduced while it was streamed: :mod:`thermonet.features.windows`).
     """
 
     time_s: np.ndarray
@@ -138,6 +188,7 @@ class Recording:
     run_id: str = "run0"
     sample_rate_hz: float | None = None
     meta: dict[str, str] = field(default_factory=dict)
+    windows: WindowStats | None = None
 
     # ------------------------------------------------------------------ checks
     def validate(self, source: str = "", *, min_span_c: float = MIN_TEMPERATURE_SPAN_C,
@@ -252,7 +303,8 @@ class Recording:
             proxies=sub(self.proxies), drift=sub(self.drift), units=dict(self.units),
             device_id=self.device_id, sensor_kind=self.sensor_kind,
             run_id=run_id or self.run_id, sample_rate_hz=self.sample_rate_hz,
-            meta=dict(self.meta))
+            meta=dict(self.meta),
+            windows=None if self.windows is None else self.windows.select(mask))
 
 
 @dataclass

@@ -300,7 +300,7 @@ def _from_thermonet_table(path: Path, table: pa.Table, blob: bytes
 
         time_s = take("time_s")
         check_time(path, "time_s", time_s, rows, None)
-        groups = {g: {k: take(k) for k in e[g]} for g in GROUPS}
+        groups: dict[str, Any] = {g: {k: take(k) for k in e[g]} for g in GROUPS}
         runs.append(Recording(
             time_s=time_s, temperature_c=take("temperature_c") if e["temperature"] else None,
             **groups, units=dict(e["units"]), device_id=e["device_id"],

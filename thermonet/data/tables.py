@@ -14,6 +14,7 @@ import logging
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -253,7 +254,7 @@ def apply_mapping(frame: Frame, mapping: ColumnMapping) -> tuple[list[Recording]
     for device_id, run_id, sel in groups:
         t = time_s[sel]
         check_time(path, _label(t_label), t, rows[sel], None if lines is None else lines[sel])
-        chans: dict[str, dict[str, np.ndarray]] = {g: {} for g in GROUPS}
+        chans: dict[str, Any] = {g: {} for g in GROUPS}
         temperature = None
         units = {"time_s": "s"}
         for ch in mapping.channels:

@@ -217,7 +217,11 @@ def dynamic_signals(inputs: Sequence[str]) -> list[DynamicInput]:
 
 
 def default_gap_s(runs: Sequence[Any]) -> float:
-    """``gap_s`` "auto": :data:`GAP_FACTOR` × the median sample interval of the first run."""
+    """``gap_s`` "auto": :data:`GAP_FACTOR` × the median sample interval of the first run
+    (of a run reduced to window means: the gap its dynamic inputs were computed with)."""
+    windows = getattr(runs[0], "windows", None)
+    if windows is not None:
+        return float(windows.gap_s)
     t = np.asarray(runs[0].time_s, dtype=np.float64)
     if t.size < 2:
         raise InputError(f"run '{runs[0].run_id}': one sample; cannot derive a sample interval "

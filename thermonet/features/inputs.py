@@ -38,6 +38,7 @@ tensor inside the exported graph.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import cast
@@ -255,7 +256,10 @@ def _start_mean(rec: Recording, values: np.ndarray, window_min: float) -> float:
     # still has a reference.
     mask = (t - t[0]) <= window_min * 60.0
     mask[0] = True
-    return float(np.mean(np.asarray(values, dtype=np.float64)[mask]))
+    v = np.asarray(values, dtype=np.float64)[mask]
+    if rec.windows is not None:  # rows are window means: each weighs its samples
+        return float(np.average(v, weights=rec.windows.n[mask]))
+    return float(np.mean(v))
 
 
 def reference_values(recordings: object, spec_inputs: Sequence[str], t_ref: str | float = "start",
@@ -355,7 +359,19 @@ def signal_matrix(recording: Recording, signals: Sequence[str], gap_s: float | N
     source = recording.meta.get("source", "") or f"run '{recording.run_id}'"
     dyn = {s: d for s in signals if (d := dynamic_signal(s)) is not None}
     computed: dict[str, np.ndarray] = {}
-    if dyn:
+    if dyn and recording.windows is not None:
+        # window means of the signals computed on the samples while the file was streamed
+        # (thermonet.features.windows): never recomputed from the means
+        win = recording.windows
+        if gap_s is not None and not math.isclose(gap_s, win.gap_s, rel_tol=1e-9):
+            raise ConfigError(f"{source}: the dynamic inputs were computed with gap_s "
+                              f"{win.gap_s:g} s while the file was streamed, not {gap_s:g} s")
+        for s, d in dyn.items():
+            if d.signal not in win.signals:
+                raise InputError.at(source, "this signal was not computed while the file was "
+                                    "streamed", column=s)
+            computed[d.signal] = win.signals[d.signal]
+    elif dyn:
         if recording.temperature_c is None:
             raise InputError.at(source, f"signals {sorted(dyn)} need a thermometer in °C",
                                 column=TEMPERATURE)

@@ -30,6 +30,7 @@ import math
 import numpy as np
 
 __all__ = [
+    "window_axis_metrics",
     "rms",
     "msd",
     "drift_error_rms",
@@ -503,3 +504,74 @@ def axis_metrics(*, bin_by: np.ndarray, time_s: np.ndarray, raw: np.ndarray,
     if true_drift is not None:
         out["drift_error_rms"] = drift_error_rms(arrays["predicted_drift"], arrays["true_drift"])
     return {key: float(value) for key, value in out.items()}
+
+
+def window_axis_metrics(*, bin_by: np.ndarray, raw: np.ndarray, predicted_drift: np.ndarray,
+                        weight: np.ndarray, within_ss: np.ndarray,
+                        true_drift: np.ndarray | None = None, rate_hz: float,
+                        bin_width: float = 1.0) -> dict[str, float]:
+    """:func:`axis_metrics` of a held-out run reduced to window means
+    (:mod:`thermonet.features.windows`), over the samples the rows stand for.
+
+    Row :math:`k` is the mean :math:`\\bar e_k` of :math:`w_k` samples whose squared
+    deviations about it sum to :math:`S_k` (``within_ss``); the residual's spread
+    inside a row is taken as the raw error's (the model's drift moves inside a window
+    only as the temperature does).  With :math:`W = \\sum_k w_k`:
+
+    * ``rms_*`` = :math:`\\sqrt{(\\sum_k w_k (\\bar e_k - \\mu)^2 + S_k) / W}`,
+      :math:`\\mu = \\sum_k w_k \\bar e_k / W` — exactly :func:`rms` of the samples
+      for the raw error;
+    * ``msd_*`` = :math:`(\\sum_k w_k \\bar e_k^2 + S_k) / W`;
+    * ``pp_*``: the peak-to-peak of the per-bin means, each row weighing its samples
+      (the rows binned by their mean temperature);
+    * ``noise_floor``: the pooled spread inside the windows,
+      :math:`\\sqrt{\\sum_k S_k / \\sum_k (w_k - 1)}` — for white noise the same
+      :math:`\\sigma_w` that :func:`noise_floor` estimates from first differences;
+    * ``bias_instability_*``: :func:`bias_instability` of the row means at the rows'
+      rate (averaging times from one window up);
+    * ``drift_error_rms``: weighted over the rows.
+    """
+    e_raw = _series("raw", raw)
+    pred = _series("predicted_drift", predicted_drift)
+    w = _series("weight", weight)
+    s = _series("within_ss", within_ss)
+    b = _series("bin_by", bin_by)
+    _same_length(raw=e_raw, predicted_drift=pred, weight=w, within_ss=s, bin_by=b)
+    for name, arr in (("raw", e_raw), ("predicted_drift", pred), ("weight", w),
+                      ("within_ss", s), ("bin_by", b)):
+        _finite(name, arr)
+    e_comp = e_raw - pred
+    total = float(w.sum())
+    within = float(s.sum())
+
+    def spread(e: np.ndarray) -> float:
+        if total <= 0:
+            return float("nan")
+        mu = float((w * e).sum()) / total
+        return math.sqrt(max(float((w * (e - mu) ** 2).sum()) + within, 0.0) / total)
+
+    def mean_square(e: np.ndarray) -> float:
+        return (float((w * e * e).sum()) + within) / total if total > 0 else float("nan")
+
+    def pp(e: np.ndarray) -> float:
+        if not e.size:
+            return float("nan")
+        idx = np.floor(b / bin_width).astype(np.int64)
+        _, inv = np.unique(idx, return_inverse=True)
+        means = np.bincount(inv, weights=w * e) / np.bincount(inv, weights=w)
+        return float(np.ptp(means))
+
+    dof = float(np.clip(w - 1.0, 0.0, None).sum())
+    rate = _positive_rate(rate_hz)
+    out = {"rms_raw": spread(e_raw), "rms_comp": spread(e_comp),
+           "msd_raw": mean_square(e_raw), "msd_comp": mean_square(e_comp),
+           "pp_raw": pp(e_raw), "pp_comp": pp(e_comp),
+           "noise_floor": math.sqrt(within / dof) if dof > 0 else float("nan"),
+           "bias_instability_raw": bias_instability(e_raw, rate),
+           "bias_instability_comp": bias_instability(e_comp, rate)}
+    if true_drift is not None:
+        true = _series("true_drift", true_drift)
+        _same_length(raw=e_raw, true_drift=true)
+        out["drift_error_rms"] = math.sqrt(float((w * (pred - true) ** 2).sum()) / total) \
+            if total > 0 else float("nan")
+    return out

@@ -165,7 +165,9 @@ class BlockStats:
         return self.sum_comp / max(self.n.sum(), 1)
 
 
-def block_stats(raw: np.ndarray, pred: np.ndarray, labels: np.ndarray) -> BlockStats:
+def block_stats(raw: np.ndarray, pred: np.ndarray, labels: np.ndarray, *,
+                weight: np.ndarray | None = None, within_ss: np.ndarray | None = None
+                ) -> BlockStats:
     """Block sums of one fold's held-out set.
 
     Parameters
@@ -176,19 +178,39 @@ def block_stats(raw: np.ndarray, pred: np.ndarray, labels: np.ndarray) -> BlockS
         The model's drift; the residual is ``raw - pred``.
     labels : ndarray of int, shape (n,)
         :func:`block_labels` of the set.
+    weight, within_ss : ndarray, shapes (n,) and (n, A), optional
+        Where each row is the mean of ``weight`` samples (a reduced recording,
+        :mod:`thermonet.features.windows`) with ``within_ss`` the sum of squares of the
+        target about that mean inside the row: the sums are those of the samples,
+
+        .. math:: SS_b = \\sum_{k \\in b} w_k (\\bar e_k - \\mu)^2 + S_k, \\qquad
+                  \\mu = \\frac{\\sum_k w_k \\bar e_k}{\\sum_k w_k},
+
+        the residual's spread inside a row taken as the target's (the model's drift
+        moves inside a window only as much as the temperature does).
     """
     raw = np.asarray(raw, dtype=np.float64)
     comp = raw - np.asarray(pred, dtype=np.float64)
     nb = int(labels.max()) + 1 if labels.size else 0
+    w = np.ones(raw.shape[0]) if weight is None else np.asarray(weight, dtype=np.float64)
+    extra = np.zeros((nb, raw.shape[1]))
+    if within_ss is not None:
+        np.add.at(extra, labels, np.asarray(within_ss, dtype=np.float64))
 
     def ss(e: np.ndarray) -> np.ndarray:
-        c = e - e.mean(axis=0)
+        mean = e.mean(axis=0) if weight is None else \
+            (w[:, None] * e).sum(0) / max(float(w.sum()), 1e-300)
+        c = e - mean
         out = np.zeros((nb, e.shape[1]))
-        np.add.at(out, labels, c * c)
-        return out
+        np.add.at(out, labels, c * c if weight is None else w[:, None] * c * c)
+        return out + extra
 
-    return BlockStats(n=np.bincount(labels, minlength=nb).astype(np.float64),
-                      ss_raw=ss(raw), ss_comp=ss(comp), sum_raw=raw.sum(0), sum_comp=comp.sum(0))
+    def total(e: np.ndarray) -> np.ndarray:
+        return e.sum(0) if weight is None else (w[:, None] * e).sum(0)
+
+    return BlockStats(n=np.bincount(labels, weights=w, minlength=nb).astype(np.float64),
+                      ss_raw=ss(raw), ss_comp=ss(comp), sum_raw=total(raw),
+                      sum_comp=total(comp))
 
 
 def pool(stats: Sequence[BlockStats]) -> BlockStats:

@@ -39,6 +39,11 @@ class DataConfig:
     paths: list[str] = field(default_factory=list)  # recording files (one run per file)
     mapping: str | None = None           # YAML column mapping for non-native files
     outputs: list[str] = field(default_factory=list)  # axes to model (empty: all outputs)
+    # recordings larger than memory (thermonet.features.windows): thermonet Parquet files of
+    # more samples than this are streamed and reduced to window means (0: always)
+    in_memory_samples: int = 1_000_000
+    chunk_rows: int = 65_536             # rows read at a time while streaming
+    max_rows: int = 500_000              # most reduced rows (wider windows beyond)
 
 
 #: Most contiguous time blocks per run (``split.n_blocks``): beyond it a block is a few samples.
@@ -416,6 +421,11 @@ def _check_data(data: DataConfig, source: str) -> None:
                           "(the upper bound keeps a request within memory)")
     if data.seed < 0:
         raise ConfigError(f"{source}: key 'data.seed': {data.seed} is negative")
+    for key, low in (("in_memory_samples", 0), ("chunk_rows", 1), ("max_rows", 1000)):
+        value = getattr(data, key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ConfigError(f"{source}: key 'data.{key}': {value!r} is not a whole number "
+                              f">= {low}")
 
 
 def _check_target(target: str | dict[str, str], source: str) -> None:

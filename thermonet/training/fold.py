@@ -138,7 +138,7 @@ def per_soak_metrics(k: np.ndarray, pred: np.ndarray, temps: np.ndarray, scale: 
 
 def score_part(model: Any, part: Part) -> tuple[np.ndarray, dict[str, dict[str, float]]]:
     """The model's predicted drift on a held-out part and the per-axis metrics."""
-    from ..scoring.metrics import axis_metrics
+    from ..scoring.metrics import axis_metrics, window_axis_metrics
     from .train import predict
 
     pred = predict(model, part.signals, part.time_s)
@@ -147,6 +147,12 @@ def score_part(model: Any, part: Part) -> tuple[np.ndarray, dict[str, dict[str, 
         if part.per_soak:
             m = per_soak_metrics(part.target[:, j], pred[:, j], part.bin_by,
                                  scale=axis.endswith(".scale"))
+        elif part.weight is not None and part.within_ss is not None:  # rows: window means
+            m = window_axis_metrics(
+                bin_by=part.bin_by, raw=part.target[:, j], predicted_drift=pred[:, j],
+                weight=part.weight, within_ss=part.within_ss[:, j],
+                true_drift=None if part.true_drift is None else part.true_drift[:, j],
+                rate_hz=part.rate_hz, bin_width=part.bin_width)
         else:
             raw = part.target[:, j]
             m = axis_metrics(
@@ -166,5 +172,6 @@ def block_sums(part: Part, pred: np.ndarray) -> Any:
     raw = part.target.copy()
     for j in range(len(part.outputs)):
         if part.offset_free(j):  # a scale factor's nominal value, gravity (at-t-ref): no error
-            raw[:, j] -= np.mean(raw[:, j])
-    return block_stats(raw, pred - (part.target - raw), block_labels(part.time_s))
+            raw[:, j] -= np.average(raw[:, j], weights=part.weight)
+    return block_stats(raw, pred - (part.target - raw), block_labels(part.time_s),
+                       weight=part.weight, within_ss=part.within_ss)

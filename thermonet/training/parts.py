@@ -22,7 +22,7 @@ from .config import DataConfig
 from .splits import Split, make_splits
 
 __all__ = ["Split", "Part", "load_data", "make_splits", "build_part", "data_hash",
-           "heating_only", "fit_arrays", "FOURPOS_SUFFIXES", "HEATING_MIN_RATE_C_PER_MIN",
+           "heating_only", "fit_arrays", "rows_average_s", "FOURPOS_SUFFIXES", "HEATING_MIN_RATE_C_PER_MIN",
            "targets_for"]
 
 #: Samples with dT/dt above this count as heating (or soaking) for ``train_on: heating``.
@@ -85,6 +85,11 @@ class Part:
     drift (or per-soak K0/K1); ``raw_error`` (n, A) what an uncompensated
     sensor would be wrong by; ``bin_by`` the variable for 1-unit bins
     (°C, or the proxy); ``true_drift`` (n, A) where simulated.
+
+    A part of a recording reduced to window means (:mod:`thermonet.features.windows`)
+    has ``weight`` (n,), the samples of each row, ``within_ss`` (n, A), each row's
+    sum of squared deviations of the target about its mean, and ``window_s``, the
+    windows' length; a part of samples has None, None and 0.
     """
 
     signals: np.ndarray
@@ -97,6 +102,9 @@ class Part:
     outputs: list[str]
     per_soak: bool = False               # one sample per soak (four-position target)
     targets: Target | None = None        # per-axis target modes (None: every axis 'channel')
+    weight: np.ndarray | None = None     # samples per row (a reduced recording's windows)
+    within_ss: np.ndarray | None = None  # per row and axis: Σ (target − row mean)² inside it
+    window_s: float = 0.0                # the rows' window length (0: rows are samples)
     # fit_arrays' window means, per window length: computed once, shared by every family
     _averaged: dict[float, tuple[np.ndarray, ...]] = field(default_factory=dict, repr=False,
                                                             compare=False)
@@ -147,8 +155,15 @@ def build_part(rec: Recording, *, signals: list[str], outputs: list[str],
         # one bin per 1/50 of the proxy's span: about the resolution of 1 °C bins
         # over a 50 °C test when the proxy's scale to °C is unknown
         width = max(float(np.ptp(bin_by)) / 50.0, 1e-12)
+    weight = within = None
+    window_s = 0.0
+    if rec.windows is not None:
+        win = rec.windows
+        weight, window_s = win.n.astype(np.float64), win.window_s
+        within = np.column_stack([win.ss[a] if target.mode(a) == CHANNEL
+                                  else win.ss_output.get(a, win.ss[a]) for a in outputs])
     return Part(sig, y, rec.time_s, bin_by, width, rec.effective_rate_hz, true, outputs,
-                targets=target)
+                targets=target, weight=weight, within_ss=within, window_s=window_s)
 
 
 def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> Part:
@@ -187,7 +202,16 @@ def heating_only(part: Part, rec: Recording, gap_s: float | None = None) -> Part
                           "samples")
     return Part(part.signals[keep], part.target[keep], part.time_s[keep], part.bin_by[keep],
                 part.bin_width, part.rate_hz, None if part.true_drift is None
-                else part.true_drift[keep], part.outputs, targets=part.targets)
+                else part.true_drift[keep], part.outputs, targets=part.targets,
+                weight=None if part.weight is None else part.weight[keep],
+                within_ss=None if part.within_ss is None else part.within_ss[keep],
+                window_s=part.window_s)
+
+
+def rows_average_s(part: Part, average_s: float) -> float:
+    """The averaging window a fit applies to ``part``'s rows: 0 where they are window means
+    at least ``average_s`` long already (a reduced recording), else ``average_s``."""
+    return 0.0 if part.window_s > 0 and average_s <= part.window_s * (1 + 1e-9) else average_s
 
 
 def fit_arrays(part: Part, average_s: float = 0.0) -> tuple[np.ndarray, ...]:
@@ -203,6 +227,7 @@ def fit_arrays(part: Part, average_s: float = 0.0) -> tuple[np.ndarray, ...]:
     """
     if part.per_soak:
         return part.signals, part.target
+    average_s = rows_average_s(part, average_s)
     if average_s > 0:
         with _AVERAGE_LOCK:      # families fitted side by side share one computation
             if average_s not in part._averaged:

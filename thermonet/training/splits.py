@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..core.recording import Dataset, Recording
+from ..core.recording import Dataset, Recording, WindowStats
 
 if TYPE_CHECKING:
     from .config import SplitConfig
@@ -257,10 +257,14 @@ def stack_blocks(parts: list[Recording], run_id: str) -> Recording:
     if first.temperature_c is not None:
         temps = np.concatenate([p.temperature_c for p in parts
                                 if p.temperature_c is not None])
+    windows = None
+    if all(p.windows is not None for p in parts):
+        windows = WindowStats.concat([p.windows for p in parts if p.windows is not None])
     return Recording(time_s=np.concatenate(times), temperature_c=temps,
                      outputs=cat("outputs"), references=references,
                      proxies=cat("proxies"), drift=drift, units=dict(first.units),
                      device_id=first.device_id, sensor_kind=first.sensor_kind,
                      run_id=run_id, sample_rate_hz=first.sample_rate_hz,
                      meta={**first.meta, "segment_starts": ",".join(
-                         str(int(x)) for x in np.cumsum([0] + [p.n_samples for p in parts[:-1]]))})
+                         str(int(x)) for x in np.cumsum([0] + [p.n_samples for p in parts[:-1]]))},
+                     windows=windows)

@@ -131,6 +131,18 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
         result.warn(w)
     progress.line(f"thermonet compare: {ds.device_id} ({len(ds)} runs, outputs "
                   f"{', '.join(outputs)}), split {result.split['strategy']}")
+    reduced = [r.windows for r in ds if r.windows is not None]
+    if reduced:
+        result.data["streamed"] = {
+            "samples": sum(w.source_samples for w in reduced),
+            "rows": sum(int(w.n.size) for w in reduced), "window_s": reduced[0].window_s,
+            "chunk_rows": cfg.data.chunk_rows,
+            "method": "read in chunks and reduced to window means with per-window counts and "
+                      "sums of squares (thermonet.features.windows); dynamic inputs computed "
+                      "on the samples"}
+        progress.line(f"streamed {result.data['streamed']['samples']} samples in chunks of "
+                      f"{cfg.data.chunk_rows} rows into {result.data['streamed']['rows']} "
+                      f"{reduced[0].window_s:g} s window means")
     fitted: dict[str, Fitted] = {}
     parts = PartCache(cfg, outputs, p.targets)
     n_workers = family_workers(cfg, workers)

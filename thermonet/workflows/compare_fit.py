@@ -199,12 +199,17 @@ def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
     (:mod:`thermonet.scoring.selection`): one fit per fold on the purged training rows of the
     whole runs, predictions on the fold's validation rows, and which of them lie inside the
     fold's trained domain.  Returns the :class:`CandidateOOF` and the pool's whole parts."""
+    from dataclasses import replace
+
     from ..scoring.selection import CandidateOOF, in_domain, noise_widths
+    from ..training.parts import rows_average_s
     from ..training.train import fit, predict
 
     plan = p.folds
     oof = CandidateOOF(fam.label, 0)
     whole, keep = _pool(p, fam, p.splits[-1], spec, parts)
+    # a reduced recording's rows are the fit's windows already
+    tcfg = replace(tcfg, average_s=rows_average_s(whole[0], tcfg.average_s))
     widen = [noise_widths(q.signals) for q in whole]
     for f in range(plan.k):
         train = [(q.signals[m & h], q.target[m & h], q.time_s[m & h])

@@ -31,7 +31,7 @@ from ..training.parts import (
     targets_for,
 )
 
-__all__ = ["PartCache", "Plan", "plan", "data_summary"]
+__all__ = ["PartCache", "Plan", "plan", "data_summary", "load_compare_data"]
 
 
 class PartCache:
@@ -153,7 +153,7 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
     source = getattr(cfg, "_source", "config")
     check_families(cfg, source=source)
     _check_baseline(cfg, source)
-    ds = dataset if dataset is not None else load_data(cfg.data, source=source)
+    ds = dataset if dataset is not None else load_compare_data(cfg, source)
     signals: set[str] = set()
     for i, fam in enumerate(cfg.families):
         for sig in signals_for(fam.inputs):
@@ -185,6 +185,44 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
     return Plan(cfg, ds, outputs, targets, splits, units, source, warns, folds, note)
 
 
+def load_compare_data(cfg: CompareConfig, source: str = "config") -> Dataset:
+    """The comparison's data: :func:`~thermonet.training.parts.load_data`, or — for thermonet
+    Parquet files of more than ``data.in_memory_samples`` samples — the files streamed in
+    ``data.chunk_rows`` chunks and reduced to window means
+    (:func:`thermonet.features.windows.reduce_parquet`): one row per ``train.average_s``
+    (the shortest any family averages over), at most ``data.max_rows`` rows, the dynamic
+    inputs every family reads computed on the samples."""
+    from ..features.windows import reduce_parquet, source_samples
+    from ..training.config import train_config_of
+
+    d = cfg.data
+    n = source_samples(d.paths) if d.paths and d.mapping is None else None
+    if n is None or n <= d.in_memory_samples:
+        return load_data(d, source=source)
+    if cfg.model == "sensor" or cfg.target == "four-position":
+        what = "model 'sensor'" if cfg.model == "sensor" else "the four-position target"
+        raise ConfigError(f"{source}: key 'data.in_memory_samples': the data holds {n} samples "
+                          f"(over {d.in_memory_samples}), and {what} is fitted on the samples "
+                          "only, not on a recording streamed as window means; raise "
+                          "'data.in_memory_samples' if it fits in memory")
+    avg = [train_config_of(cfg, fam).average_s for fam in cfg.families]
+    window = min((a for a in avg if a > 0), default=1.0)
+    inputs = sorted({i for fam in cfg.families for i in fam.inputs}
+                    | ({"rate"} if any(f.train_on == "heating" for f in cfg.families) else set()))
+    runs = []
+    per_file = max(d.max_rows // len(d.paths), 1000)
+    for path in d.paths:
+        runs += reduce_parquet(path, window_s=window, inputs=inputs, gap_s=cfg.features.gap_s,
+                               chunk_rows=d.chunk_rows, max_rows=per_file).runs
+    ds = Dataset(runs, meta={"source": ", ".join(d.paths)})
+    if d.outputs:
+        missing = [o for o in d.outputs if o not in ds.axes]
+        if missing:
+            raise ConfigError(f"{source}: key 'data.outputs': no output '{missing[0]}' in the "
+                              f"data (outputs: {', '.join(ds.axes)})")
+    return ds.validate(source)
+
+
 def _fold_plan(cfg: CompareConfig, splits: list[Split]) -> tuple[Any, str]:
     """The cross-validation folds of the last split's pool (thermonet.scoring.selection), or why not."""
     from ..features.dynamics import dynamic_signals
@@ -210,11 +248,18 @@ def _fold_plan(cfg: CompareConfig, splits: list[Split]) -> tuple[Any, str]:
 
 
 def data_summary(ds: Dataset) -> list[dict[str, Any]]:
+    """Per run: samples, duration, rate and temperature range (of a reduced run: the samples
+    it was streamed from, the rows and their window; its temperatures are window means)."""
     rows = []
     for r in ds:
         t = r.temperature_c
-        rows.append({"run_id": r.run_id, "samples": int(r.n_samples),
-                     "duration_s": float(r.duration_s), "rate_hz": float(r.effective_rate_hz),
-                     "temperature_min_c": None if t is None else float(np.nanmin(t)),
-                     "temperature_max_c": None if t is None else float(np.nanmax(t))})
+        row = {"run_id": r.run_id, "samples": int(r.n_samples),
+               "duration_s": float(r.duration_s), "rate_hz": float(r.effective_rate_hz),
+               "temperature_min_c": None if t is None else float(np.nanmin(t)),
+               "temperature_max_c": None if t is None else float(np.nanmax(t))}
+        if r.windows is not None:
+            row.update(samples=int(r.windows.source_samples),
+                       rate_hz=float(r.windows.source_rate_hz), rows=int(r.n_samples),
+                       window_s=float(r.windows.window_s))
+        rows.append(row)
     return rows

@@ -1,0 +1,218 @@
+"""Recordings larger than memory (issue 23): a thermonet Parquet file streamed in chunks and
+reduced to window means (:mod:`thermonet.features.windows`) gives the rows the whole array
+gives, and a comparison on those rows agrees with the comparison on the samples.
+
+Independent expectations: the whole file read into memory and averaged by
+:func:`thermonet.training.train.average_windows` (what every fit does); sums of squares
+computed per window straight from the samples; :func:`thermonet.scoring.metrics.axis_metrics`
+on the samples; the in-memory ``thermonet compare`` of the same file.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from thermonet.cli import main
+from thermonet.core.errors import ConfigError, InputError
+from thermonet.core.recording import GAP_FACTOR, Dataset, Recording
+from thermonet.data.io import read_dataset, write_parquet
+from thermonet.features.inputs import signal_matrix
+from thermonet.features.windows import reduce_parquet
+from thermonet.scoring.metrics import axis_metrics, window_axis_metrics
+from thermonet.training.checkpoint import load_checkpoint
+from thermonet.training.config import config_from_mapping
+from thermonet.training.train import average_windows
+from thermonet.workflows.compare_plan import load_compare_data
+from tolerances import assert_f64_close
+
+pytestmark = pytest.mark.numerics
+
+INPUTS = ["dT", "rate", "lag_300", "play_0.5"]
+SIGNALS = ["temperature_c", "rate_c_per_min", "lag_300_c", "play_0.5_c"]
+
+
+def _run(run_id: str, rate_hz: float, seconds: float, seed: int, gap: tuple[float, float] | None
+         ) -> Recording:
+    """A warming and cooling run with a reference on gyro_x and, optionally, a gap."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, seconds, 1.0 / rate_hz) + 1000.0 * seed
+    if gap is not None:
+        t = t[(t < t[0] + gap[0]) | (t >= t[0] + gap[1])]
+    n = t.size
+    x = (t - t[0]) / seconds
+    temp = 20.0 + 30.0 * np.sin(np.pi * x) + rng.normal(0, 0.02, n)
+    ref = 2.0 * np.sin(t / 37.0)
+    return Recording(time_s=t, temperature_c=temp,
+                     outputs={"gyro_x": ref + 0.01 * (temp - 20) + rng.normal(0, 0.003, n),
+                              "gyro_y": 1e-4 * (temp - 20) ** 2 + rng.normal(0, 0.002, n)},
+                     references={"ref_gyro_x": ref},
+                     units={"gyro_x": "deg/s", "gyro_y": "deg/s", "ref_gyro_x": "deg/s",
+                            "temperature_c": "degC"},
+                     run_id=run_id)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    ds = Dataset(runs=[_run("a", 20.0, 1800.0, 1, (600.0, 660.0)),
+                       _run("b", 10.0, 1500.0, 2, None)])
+    return write_parquet(ds, tmp_path_factory.mktemp("ooc") / "rec.parquet")
+
+
+@pytest.mark.parametrize("chunk_rows", [997, 65536])
+def test_streamed_windows_equal_the_whole_array_averaged(recording, chunk_rows):
+    """Every row (time, temperature, dynamic inputs, drift), the counts and the sums of
+    squares inside each window: as the whole file in memory gives them, whatever the chunk
+    (997 rows cut windows, dynamic-input scans and the gap at every chunk edge)."""
+    reduced = reduce_parquet(recording, window_s=2.0, inputs=INPUTS, chunk_rows=chunk_rows)
+    whole = read_dataset(recording)
+    gap = GAP_FACTOR * float(np.median(np.diff(whole[0].time_s)))  # "auto": the first run
+    for rec, red in zip(whole, reduced, strict=True):
+        assert red.windows is not None and red.windows.gap_s == pytest.approx(gap, rel=1e-12)
+        sig = signal_matrix(rec, SIGNALS, gap)
+        y = np.column_stack([rec.drift_observed(a) for a in rec.outputs])
+        want_sig, want_y, want_t = average_windows(sig, y, rec.time_s, 2.0)
+        got_sig = signal_matrix(red, SIGNALS, gap)
+        got_y = np.column_stack([red.drift_observed(a) for a in red.outputs])
+        assert got_sig.shape == want_sig.shape
+        scale = np.abs(want_sig).max(axis=0)
+        # rate and lag: float64 rounding of the signal (the blocked scans, test_dynamics)
+        assert_f64_close(got_sig, want_sig, rtol=0, atol=float(scale.max()) * 1e-12)
+        assert_f64_close(got_y, want_y, rtol=0, atol=float(np.abs(want_y).max()) * 1e-12)
+        assert_f64_close(red.time_s, want_t, rtol=1e-15)
+        n = red.windows.n
+        assert int(n.sum()) == rec.n_samples == red.windows.source_samples
+        # the samples of each window, cut by the counts: sums of squares about their mean
+        for j, axis in enumerate(rec.outputs):
+            pieces = np.split(y[:, j], np.cumsum(n)[:-1].astype(int))
+            ss = np.array([((p - p.mean()) ** 2).sum() for p in pieces])
+            assert_f64_close(red.windows.ss[axis], ss, rtol=1e-9,
+                             atol=float(ss.max()) * 1e-12)
+            assert_f64_close([p.mean() for p in pieces], got_y[:, j], rtol=0,
+                             atol=float(np.abs(got_y).max()) * 1e-12)
+        # an output with a reference keeps the output's own spread too (at-t-ref targets)
+        out = np.split(rec.outputs["gyro_x"], np.cumsum(n)[:-1].astype(int))
+        assert_f64_close(red.windows.ss_output["gyro_x"],
+                         [((p - p.mean()) ** 2).sum() for p in out], rtol=1e-9)
+
+
+def test_window_metrics_are_the_samples_metrics(recording):
+    """rms and msd of the raw error over the samples, from the rows alone, to rounding; the
+    residual's within the bound that the drift's move inside a window sets; the noise floor
+    as the first differences estimate it for white noise."""
+    rec = read_dataset(recording)[1]
+    window = 1.0
+    red = reduce_parquet(recording, window_s=window)[1]
+    assert red.windows is not None
+    slope = 0.01                          # deg/s per °C: the simulated drift of gyro_x
+    raw = rec.drift_observed("gyro_x")
+    want = axis_metrics(bin_by=rec.temperature_c, time_s=rec.time_s, raw=raw,
+                        reference=np.zeros_like(raw),
+                        predicted_drift=slope * (rec.temperature_c - 20.0), rate_hz=10.0)
+    got = window_axis_metrics(bin_by=red.temperature_c, raw=red.drift_observed("gyro_x"),
+                              predicted_drift=slope * (red.temperature_c - 20.0),
+                              weight=red.windows.n, within_ss=red.windows.ss["gyro_x"],
+                              rate_hz=1.0 / window)
+    assert got["rms_raw"] == pytest.approx(want["rms_raw"], rel=1e-10)
+    assert got["msd_raw"] == pytest.approx(want["msd_raw"], rel=1e-10)
+    # The rows take the residual's spread inside a window for the raw error's: too large by
+    # the drift's own spread there, a ramp of slope × dT/dt × window (std: range / √12) plus
+    # the thermometer's noise through the slope, against the white noise σ (0.003).
+    ramp = slope * (30.0 * np.pi / 1500.0) * window / 12 ** 0.5   # run b: 30 sin(πt/1500 s)
+    excess = (ramp ** 2 + (slope * 0.02) ** 2) / 0.003 ** 2
+    assert excess < 0.02                     # the bound is a small correction here
+    assert want["rms_comp"] <= got["rms_comp"] <= want["rms_comp"] * (1 + excess)
+    assert got["noise_floor"] == pytest.approx(want["noise_floor"], rel=0.05)
+    assert got["pp_raw"] == pytest.approx(want["pp_raw"], rel=0.05)
+
+
+def _config(path: Path, limit: int, tmp: Path) -> Path:
+    cfg = {"data": {"paths": [str(path)], "in_memory_samples": limit, "chunk_rows": 4093},
+           "features": {"t_ref": 25.0},
+           "families": [{"name": "cubic", "family": "poly", "inputs": ["dT"],
+                         "params": {"degree": 3}},
+                        {"name": "linear", "family": "linear", "inputs": ["dT"]},
+                        {"name": "poly2-rate", "family": "poly", "inputs": ["dT", "rate"],
+                         "params": {"degree": 2}}],
+           "baseline": "cubic", "tracking": {"enabled": False}}
+    out = tmp / f"cfg_{limit}.yaml"
+    out.write_text(yaml.safe_dump(cfg))
+    return out
+
+
+@pytest.fixture(scope="module")
+def two_comparisons(tmp_path_factory):
+    """One simulated chamber test (patent-gyro, 4 runs at 2 Hz) compared in memory and
+    streamed in 4,093-row chunks."""
+    from thermonet.sim import simulate
+
+    tmp = tmp_path_factory.mktemp("ooc_cmp")
+    data = write_parquet(simulate("patent-gyro", runs=4, seed=3, sample_rate_hz=2.0),
+                         tmp / "pg.parquet")
+    docs = {}
+    for mode, limit in (("memory", 10**9), ("streamed", 0)):
+        rc = main(["compare", str(_config(data, limit, tmp)), "--out", str(tmp / mode), "-q",
+                   "--no-track"])
+        assert rc == 0
+        docs[mode] = json.loads((tmp / mode / "results.json").read_text())
+    return tmp, docs
+
+
+def test_streamed_comparison_agrees_with_the_in_memory_one(two_comparisons):
+    tmp, docs = two_comparisons
+    mem, st = docs["memory"], docs["streamed"]
+    assert "streamed" not in mem["data"]
+    assert st["data"]["streamed"]["samples"] == sum(r["samples"] for r in mem["data"]["runs"])
+    assert st["data"]["streamed"]["window_s"] == 1.0
+    assert st["chosen"] == mem["chosen"]
+    for fam, m in mem["families"].items():
+        s = st["families"][fam]
+        assert s["status"] == m["status"] == "ok"
+        for axis, ma in m["axes"].items():
+            sa = s["axes"][axis]
+            # the raw error's score is the samples' own: recovered exactly from the rows
+            assert sa["score_raw"] == pytest.approx(ma["score_raw"], rel=1e-9)
+            assert sa["rms_raw"] == pytest.approx(ma["rms_raw"], rel=1e-9)
+            # the residual's: the drift's move inside one window is neglected
+            assert sa["score_ratio"] == pytest.approx(ma["score_ratio"], rel=1e-3)
+            assert sa["verdict"] == ma["verdict"]
+    # the shipped least-squares models are fitted on the same 1 s windows: same coefficients
+    for fam in ("cubic", "linear"):
+        a, _ = load_checkpoint(tmp / "memory" / "models" / f"{fam}.pt")
+        b, _ = load_checkpoint(tmp / "streamed" / "models" / f"{fam}.pt")
+        want = {k: v.double().numpy() for k, v in a.state_dict().items()}
+        got = {k: v.double().numpy() for k, v in b.state_dict().items()}
+        assert list(got) == list(want)
+        # float64 least squares on the same rows summed in another order (Chan's merge at
+        # chunk edges): equal to rounding, relative to the model's largest coefficient
+        scale = max(float(np.abs(v).max()) for v in want.values() if v.size)
+        for k in want:
+            assert_f64_close(got[k], want[k], rtol=1e-9, atol=scale * 1e-12,
+                             err_msg=f"{fam}.{k}")
+
+
+def test_what_cannot_be_streamed_is_refused_in_one_line(tmp_path, recording):
+    units = [_run("a", 5.0, 600.0, 1, None), _run("a", 5.0, 600.0, 2, None)]
+    units[1].device_id = "unit2"
+    fleet = Dataset(runs=units)
+    fpath = write_parquet(fleet, tmp_path / "fleet.parquet")
+    cfg = config_from_mapping({"data": {"paths": [str(fpath)], "in_memory_samples": 0}})
+    with pytest.raises(InputError, match=r"fleet\.parquet.*several units"):
+        load_compare_data(cfg)
+    cfg = config_from_mapping({"data": {"paths": [str(recording)], "in_memory_samples": 0},
+                               "target": "four-position"})
+    with pytest.raises(ConfigError, match=r"in_memory_samples.*four-position"):
+        load_compare_data(cfg)
+    with pytest.raises(ConfigError, match=r"data\.chunk_rows"):
+        config_from_mapping({"data": {"chunk_rows": 0}})
+    # a CSV is read whole (convert it to stream it): the limit does not apply
+    csv = tmp_path / "rec.csv"
+    rec = _run("a", 5.0, 600.0, 1, None)
+    np.savetxt(csv, np.column_stack([rec.time_s, rec.temperature_c, rec.outputs["gyro_x"]]),
+               delimiter=",", header="time_s,temperature_c,gyro_x", comments="")
+    cfg = config_from_mapping({"data": {"paths": [str(csv)], "in_memory_samples": 0}})
+    assert load_compare_data(cfg)[0].windows is None
