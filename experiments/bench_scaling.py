@@ -13,10 +13,12 @@ figure is the child's own); medians of repeats with min–max:
     comparison.  Bytes per extra sample: the slope of peak RSS between the smallest and the
     largest size.
 ``compare``
-    ``thermonet compare`` of the default config (the default families, tracking off) at 1
-    and 2 M samples: the in-memory comparison as it is today.  10 and 20 M are not run on
-    this shared 2-core machine (≈ 6 and ≈ 11 GB; the 10.6 M figure measured before is in
-    experiments/README.md).
+    ``thermonet compare`` of the default config (the default families, tracking off) on the
+    file streamed in 65,536-row chunks and reduced to 1 s window means
+    (:mod:`thermonet.features.windows`, ``data.in_memory_samples: 0``) at 1, 2, 10 and 20 M
+    samples, and — for contrast — the comparison holding every sample at 1 M (over
+    ``data.in_memory_samples``' default, 1 M, only the streamed one runs).  Bytes per extra
+    sample: the slope of peak RSS between 1 and 20 M, streamed.
 ``runtime``
     The torch-free runtime on 1 M samples of a model with dynamic inputs (a poly on
     ``dT, rate, lag_300, play_0.5``, 3 axes): one ``compensate`` call on the whole array
@@ -53,7 +55,9 @@ ROOT = Path(__file__).resolve().parents[1]
 #: target samples; 5 patent-gyro runs of 21,200 s at the rate that gives them
 SIZES = [1_000_000, 2_000_000, 10_000_000, 20_000_000]
 RUNS, RUN_S = 5, 21_200.0
-COMPARE_SIZES = SIZES[:2]
+COMPARE_SIZES = SIZES
+#: the in-memory comparison, for contrast: at 1 M only (≈ 760 B a sample: 1.5 GB)
+IN_MEMORY_SIZES = SIZES[:1]
 WHOLE_INFO_SIZES = SIZES[:2]
 REPEATS = int(os.environ.get("BENCH_SCALING_REPEATS", "3"))
 
@@ -99,10 +103,12 @@ def simulate_file(samples: int, path: Path) -> int:
     return int(out.strip().splitlines()[-1])
 
 
-def compare_once(data: Path, work: Path) -> dict:
+def compare_once(data: Path, work: Path, streamed: bool) -> dict:
     cfg = work / "config.yaml"
+    limit = 0 if streamed else 10 ** 12
     cfg.write_text((ROOT / "configs" / "default.yaml").read_text().replace(
-        "data:\n  preset: patent-gyro\n  seed: 0\n", f"data:\n  paths: [{data}]\n"))
+        "data:\n  preset: patent-gyro\n  seed: 0\n",
+        f"data:\n  paths: [{data}]\n  in_memory_samples: {limit}\n"))
     res = _child(COMPARE_CHILD, str(cfg), str(work / "out"), cwd=work)
     if res["rc"] != 0:
         raise RuntimeError(f"compare failed on {data}")
@@ -139,18 +145,22 @@ def bench_files(parts: set[str], tmp: Path) -> tuple[list[str], dict]:
                 info_rows.append([f"{n / 1e6:.2f} M", mode, fmt_spread(wall),
                                   fmt_spread(mem, digits=4)])
         if "compare" in parts and target in COMPARE_SIZES:
-            res = []
-            for k in range(2):
-                work = tmp / f"w_{target}_{k}"
-                work.mkdir()
-                res.append(compare_once(f, work))
-            wall, cpu = spread([r["wall_s"] for r in res]), spread([r["cpu_s"] for r in res])
-            mem = spread([r["maxrss_mb"] for r in res])
-            data["compare"][str(n)] = {"samples": n, "wall_s": wall, "cpu_s": cpu,
-                                       "maxrss_mb": mem}
-            cmp_pts.append((n, mem["median"]))
-            cmp_rows.append([f"{n / 1e6:.2f} M", fmt_spread(wall), fmt_spread(cpu),
-                             fmt_spread(mem, digits=4)])
+            for mode in ("streamed", "in memory"):
+                if mode == "in memory" and target not in IN_MEMORY_SIZES:
+                    continue
+                res = []
+                for k in range(2):
+                    work = tmp / f"w_{target}_{mode[:2]}_{k}"
+                    work.mkdir()
+                    res.append(compare_once(f, work, mode == "streamed"))
+                wall, cpu = spread([r["wall_s"] for r in res]), spread([r["cpu_s"] for r in res])
+                mem = spread([r["maxrss_mb"] for r in res])
+                data["compare"][f"{mode}_{n}"] = {"samples": n, "mode": mode, "wall_s": wall,
+                                                  "cpu_s": cpu, "maxrss_mb": mem}
+                if mode == "streamed":
+                    cmp_pts.append((n, mem["median"]))
+                cmp_rows.append([f"{n / 1e6:.2f} M", mode, fmt_spread(wall), fmt_spread(cpu),
+                                 fmt_spread(mem, digits=4)])
         f.unlink()
     if info_rows:
         slopes = {m: _slope(p) for m, p in info_pts.items() if len(p) > 1}
@@ -161,9 +171,9 @@ def bench_files(parts: set[str], tmp: Path) -> tuple[list[str], dict]:
     if cmp_rows:
         slope = _slope(cmp_pts) if len(cmp_pts) > 1 else float("nan")
         data["compare"]["bytes_per_extra_sample"] = slope
-        md.append("### `thermonet compare` (default config, in memory)\n\n" + table(
-            ["samples", "wall s", "CPU s", "peak RSS MB"], cmp_rows)
-            + f"\n\nBytes per extra sample (peak RSS slope): {slope:.0f} B")
+        md.append("### `thermonet compare` (default config)\n\n" + table(
+            ["samples", "data", "wall s", "CPU s", "peak RSS MB"], cmp_rows)
+            + f"\n\nBytes per extra sample (peak RSS slope, streamed): {slope:.1f} B")
     return md, data
 
 

@@ -286,7 +286,7 @@ def _threads(_: int) -> int:
 class DyingSource(UnitSource):
     """A unit whose worker process dies while loading it."""
 
-    def load(self) -> Dataset:
+    def load(self, cfg: object = None) -> Dataset:
         os._exit(9)
 
 
@@ -307,6 +307,33 @@ def test_fleet_reports_a_killed_unit_and_finishes(tmp_path):
 def _numbers(res: dict) -> dict:
     return {d: (u["coefficients"], u["families"]["cubic"]["axes"], u["leave_units_out"])
             for d, u in res["units"].items()}
+
+
+def test_a_unit_file_over_the_limit_is_streamed_by_its_worker(tmp_path):
+    """Per-unit Parquet files over ``data.in_memory_samples``: each worker streams its own
+    file into window means (thermonet.features.windows) — here one sample per 1 s window
+    (the toy logs every 6 s), so the fleet's numbers are the in-memory ones to rounding."""
+    from thermonet.workflows.fleet_units import sources_from_files
+
+    paths = [str(write_parquet(unit, tmp_path / f"{dev}.parquet"))
+             for dev, unit in split_units(toy_fleet(GAINS[:2])).items()]
+    cfg = toy_config()
+    cfg.families = cfg.families[:1]
+    opts = FleetOptions(executor="serial", folds=2)
+    want = _numbers(run_fleet(cfg, tmp_path / "m", sources_from_files(paths), quiet=True,
+                              options=opts))
+    cfg.data.in_memory_samples = 0
+    got = _numbers(run_fleet(cfg, tmp_path / "s", sources_from_files(paths), quiet=True,
+                             options=opts))
+    assert list(got) == list(want)
+    for dev in want:
+        assert got[dev][0] == pytest.approx(want[dev][0], rel=1e-9, abs=1e-12)
+        for axis, m in want[dev][1].items():
+            for key in ("score_ratio", "score_raw", "rms_comp", "noise_floor"):
+                assert got[dev][1][axis][key] == pytest.approx(m[key], rel=1e-9), key
+    units = [json.loads(p.read_text()) for p in (tmp_path / "s").rglob("results.json")]
+    streamed = [u["data"].get("streamed") for u in units if "data" in u]   # each unit's
+    assert len(streamed) == 2 and all(s["window_s"] == 1.0 for s in streamed)
 
 
 def test_serial_process_and_ray_give_identical_results(tmp_path):

@@ -526,7 +526,8 @@ def window_axis_metrics(*, bin_by: np.ndarray, raw: np.ndarray, predicted_drift:
       (the rows binned by their mean temperature);
     * ``noise_floor``: the pooled spread inside the windows,
       :math:`\\sqrt{\\sum_k S_k / \\sum_k (w_k - 1)}` — for white noise the same
-      :math:`\\sigma_w` that :func:`noise_floor` estimates from first differences;
+      :math:`\\sigma_w` that :func:`noise_floor` estimates from first differences (which
+      it is where every window holds one sample);
     * ``bias_instability_*``: :func:`bias_instability` of the row means at the rows'
       rate (averaging times from one window up);
     * ``drift_error_rms``: weighted over the rows.
@@ -566,7 +567,8 @@ def window_axis_metrics(*, bin_by: np.ndarray, raw: np.ndarray, predicted_drift:
     out = {"rms_raw": spread(e_raw), "rms_comp": spread(e_comp),
            "msd_raw": mean_square(e_raw), "msd_comp": mean_square(e_comp),
            "pp_raw": pp(e_raw), "pp_comp": pp(e_comp),
-           "noise_floor": math.sqrt(within / dof) if dof > 0 else float("nan"),
+           # rows of one sample each (a log slower than the windows): the samples' own
+           "noise_floor": math.sqrt(within / dof) if dof > 0 else noise_floor(e_raw),
            "bias_instability_raw": bias_instability(e_raw, rate),
            "bias_instability_comp": bias_instability(e_comp, rate)}
     if true_drift is not None:

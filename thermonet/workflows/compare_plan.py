@@ -31,7 +31,7 @@ from ..training.parts import (
     targets_for,
 )
 
-__all__ = ["PartCache", "Plan", "plan", "data_summary", "load_compare_data"]
+__all__ = ["PartCache", "Plan", "plan", "data_summary", "load_compare_data", "streamed_data"]
 
 
 class PartCache:
@@ -187,22 +187,37 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
 
 def load_compare_data(cfg: CompareConfig, source: str = "config") -> Dataset:
     """The comparison's data: :func:`~thermonet.training.parts.load_data`, or — for thermonet
-    Parquet files of more than ``data.in_memory_samples`` samples — the files streamed in
-    ``data.chunk_rows`` chunks and reduced to window means
-    (:func:`thermonet.features.windows.reduce_parquet`): one row per ``train.average_s``
-    (the shortest any family averages over), at most ``data.max_rows`` rows, the dynamic
-    inputs every family reads computed on the samples."""
-    from ..features.windows import reduce_parquet, source_samples
-    from ..training.config import train_config_of
+    Parquet files of more than ``data.in_memory_samples`` samples — :func:`streamed_data`."""
+    from ..features.windows import source_samples
 
     d = cfg.data
     n = source_samples(d.paths) if d.paths and d.mapping is None else None
     if n is None or n <= d.in_memory_samples:
         return load_data(d, source=source)
+    ds = streamed_data(cfg, d.paths, source, samples=n)
+    if d.outputs:
+        missing = [o for o in d.outputs if o not in ds.axes]
+        if missing:
+            raise ConfigError(f"{source}: key 'data.outputs': no output '{missing[0]}' in the "
+                              f"data (outputs: {', '.join(ds.axes)})")
+    return ds
+
+
+def streamed_data(cfg: CompareConfig, paths: list[str], source: str = "config", *,
+                  samples: int | None = None) -> Dataset:
+    """thermonet Parquet files streamed in ``data.chunk_rows`` chunks and reduced to window
+    means (:func:`thermonet.features.windows.reduce_parquet`): one row per
+    ``train.average_s`` (the shortest any family averages over), at most ``data.max_rows``
+    rows over the files, the dynamic inputs every family reads computed on the samples."""
+    from ..features.windows import reduce_parquet
+    from ..training.config import train_config_of
+
+    d = cfg.data
     if cfg.model == "sensor" or cfg.target == "four-position":
         what = "model 'sensor'" if cfg.model == "sensor" else "the four-position target"
-        raise ConfigError(f"{source}: key 'data.in_memory_samples': the data holds {n} samples "
-                          f"(over {d.in_memory_samples}), and {what} is fitted on the samples "
+        raise ConfigError(f"{source}: key 'data.in_memory_samples': the data holds "
+                          f"{samples if samples is not None else 'more'} samples (over "
+                          f"{d.in_memory_samples}), and {what} is fitted on the samples "
                           "only, not on a recording streamed as window means; raise "
                           "'data.in_memory_samples' if it fits in memory")
     avg = [train_config_of(cfg, fam).average_s for fam in cfg.families]
@@ -210,17 +225,11 @@ def load_compare_data(cfg: CompareConfig, source: str = "config") -> Dataset:
     inputs = sorted({i for fam in cfg.families for i in fam.inputs}
                     | ({"rate"} if any(f.train_on == "heating" for f in cfg.families) else set()))
     runs = []
-    per_file = max(d.max_rows // len(d.paths), 1000)
-    for path in d.paths:
+    per_file = max(d.max_rows // len(paths), 1000)
+    for path in paths:
         runs += reduce_parquet(path, window_s=window, inputs=inputs, gap_s=cfg.features.gap_s,
                                chunk_rows=d.chunk_rows, max_rows=per_file).runs
-    ds = Dataset(runs, meta={"source": ", ".join(d.paths)})
-    if d.outputs:
-        missing = [o for o in d.outputs if o not in ds.axes]
-        if missing:
-            raise ConfigError(f"{source}: key 'data.outputs': no output '{missing[0]}' in the "
-                              f"data (outputs: {', '.join(ds.axes)})")
-    return ds.validate(source)
+    return Dataset(runs, meta={"source": ", ".join(paths)}).validate(source)
 
 
 def _fold_plan(cfg: CompareConfig, splits: list[Split]) -> tuple[Any, str]:

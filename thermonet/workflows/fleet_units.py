@@ -40,15 +40,23 @@ class UnitSource:
     path: str | None = None             # the unit's own thermonet Parquet file: the worker
     #                                     reads it (only the path crosses the network)
 
-    def load(self) -> Dataset:
+    def load(self, cfg: CompareConfig | None = None) -> Dataset:
+        """The unit's runs; a file of more than ``cfg.data.in_memory_samples`` samples is
+        streamed and reduced to window means in the worker, as ``compare`` does
+        (:func:`thermonet.workflows.compare_plan.streamed_data`)."""
         if self.error is not None:
             raise InputError(self.error)
         if self.dataset is not None:
             return self.dataset
         if self.path is not None:
             from ..data.io import read_dataset
+            from ..features.windows import source_samples
+            from .compare_plan import streamed_data
 
-            ds = read_dataset(self.path)
+            n = source_samples([self.path])
+            ds = streamed_data(cfg, [self.path], self.path, samples=n) \
+                if cfg is not None and n is not None and n > cfg.data.in_memory_samples \
+                else read_dataset(self.path)
             if ds.device_id != self.device_id or ds.is_fleet:
                 raise InputError(f"{self.path}: holds unit(s) {ds.unit_ids}, expected "
                                  f"'{self.device_id}' alone (the file changed since the "
@@ -208,7 +216,7 @@ def unit_task(item: UnitItem) -> dict[str, Any]:
     from ..training.checkpoint import load_checkpoint
     from .compare import run_compare
 
-    ds = item.source.load()
+    ds = item.source.load(item.cfg)
     if ds.is_fleet:
         raise InputError(f"unit '{item.source.device_id}': its data holds several devices")
     tmp = Path(tempfile.mkdtemp(prefix="thermonet-unit-"))
@@ -260,7 +268,7 @@ def fold_task(item: FoldItem) -> dict[str, Any]:
     outputs: list[str] = []
     target: Any = cfg.target
     for src in item.sources:
-        ds = src.load()
+        ds = src.load(cfg)
         split = make_splits(ds, cfg.split, source=f"unit '{src.device_id}'")[-1]
         outputs = outputs_of(cfg, ds)   # the same outputs and train section as a unit's
         target = targets_for(ds, cfg.target, outputs, source=f"unit '{src.device_id}'")
@@ -277,7 +285,7 @@ def fold_task(item: FoldItem) -> dict[str, Any]:
                       config=train_config_of(cfg, fam), val=v, windows=False)
     evaluations = {}
     for src, own in item.held_out:  # one unit's data at a time
-        test = _test_part(cfg, src.load(), own)
+        test = _test_part(cfg, src.load(cfg), own)
         s_own, s_fleet = _residual_std(own, test), _residual_std(fitted.model, test)
         s_raw = np.std(test.target, axis=0)
         evaluations[src.device_id] = {
