@@ -31,6 +31,10 @@ from ..training.parts import (
     targets_for,
 )
 
+#: A streamed run reduced to fewer window-mean rows than this is warned about: the folds and
+#: the bootstrap blocks are made of rows.
+MIN_STREAMED_ROWS = 1000
+
 __all__ = ["PartCache", "Plan", "plan", "data_summary", "load_compare_data", "streamed_data"]
 
 
@@ -181,6 +185,14 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
     warns += input_set_warnings(
         {fam.label: list(fam.inputs) for fam in cfg.families},
         {r.run_id: float(r.time_s[-1] - r.time_s[0]) for r in ds if r.time_s.size > 1})
+    few = [(r, r.windows) for r in ds
+           if r.windows is not None and r.n_samples < MIN_STREAMED_ROWS]
+    if few:
+        r, win = few[0]
+        warns.append(f"run '{r.run_id}' was streamed into only {r.n_samples} rows of "
+                     f"{win.window_s:g} s window means ({win.source_samples} "
+                     "samples): cross-validation and verdicts count rows, so a short "
+                     "recording is better held whole (raise 'data.in_memory_samples')")
     folds, note = _fold_plan(cfg, splits)
     return Plan(cfg, ds, outputs, targets, splits, units, source, warns, folds, note)
 
