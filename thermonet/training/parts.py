@@ -62,13 +62,16 @@ def load_data(cfg: DataConfig, *, source: str = "config", allow_fleet: bool = Fa
 
 
 def data_hash(ds: Dataset) -> str:
-    """SHA-256 (first 16 hex digits) over every run's samples, in run order."""
+    """SHA-256 (first 16 hex digits) over every run's samples, in run order (of a run streamed
+    into window means: over its rows and their sample counts)."""
     h = hashlib.sha256()
     for r in ds:
         h.update(r.run_id.encode())
         chans = [r.time_s] + ([r.temperature_c] if r.temperature_c is not None else [])
         for group in (r.outputs, r.references, r.proxies):
             chans += [group[k] for k in sorted(group)]
+        if r.windows is not None:
+            chans.append(r.windows.n)
         for c in chans:
             h.update(np.ascontiguousarray(c, dtype=np.float64).tobytes())
     return h.hexdigest()[:16]
