@@ -216,3 +216,30 @@ def test_what_cannot_be_streamed_is_refused_in_one_line(tmp_path, recording):
                delimiter=",", header="time_s,temperature_c,gyro_x", comments="")
     cfg = config_from_mapping({"data": {"paths": [str(csv)], "in_memory_samples": 0}})
     assert load_compare_data(cfg)[0].windows is None
+
+
+def test_the_api_fits_and_scores_a_streamed_recording_as_its_samples(recording):
+    """``thermonet.read(path, window_s=...)``: an estimator fitted on the streamed runs has
+    the coefficients of one fitted on the samples (both average 1 s windows), and scores a
+    run as the samples score: the raw error's variance exact, the residual's within the
+    drift's move inside a window."""
+    import thermonet
+
+    whole = thermonet.read(recording)
+    rows = thermonet.read(recording, window_s=1.0, inputs=["dT", "rate"], chunk_rows=1111)
+    assert rows[0].windows is not None and whole[0].windows is None
+    params = dict(degree=2, t_ref=25.0)
+    a = thermonet.DriftEstimator("poly", ["dT", "rate"], **params).fit(whole[0])
+    b = thermonet.DriftEstimator("poly", ["dT", "rate"], **params).fit(rows[0])
+    want = {k: v.double().numpy() for k, v in a.model_.state_dict().items()}
+    got = {k: v.double().numpy() for k, v in b.model_.state_dict().items()}
+    scale = max(float(np.abs(v).max()) for v in want.values() if v.size)
+    for k in want:
+        assert_f64_close(got[k], want[k], rtol=1e-9, atol=scale * 1e-12, err_msg=k)
+    # 1 − score: the residual's variance over the raw error's, over the samples of run b.
+    # From the rows the raw variance is exact and the residual's too large by at most the
+    # drift's spread inside a 1 s window (slope 0.01 × 0.063 °C/s / √12) and the
+    # thermometer's noise through it (0.01 × 0.02), against σ = 0.003: under 1 %.
+    bound = ((0.01 * 0.063 / 12 ** 0.5) ** 2 + (0.01 * 0.02) ** 2) / 0.003 ** 2
+    want_ratio, got_ratio = 1.0 - a.score(whole[1]), 1.0 - b.score(rows[1])
+    assert want_ratio <= got_ratio * (1 + 1e-9) and got_ratio <= want_ratio * (1 + 2 * bound)

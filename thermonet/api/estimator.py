@@ -473,9 +473,17 @@ average_s, threads
             err = target - predict(model, part.signals, part.time_s)
             acc = sums.setdefault(rec.meta.get(BLOCK_RUN, rec.run_id),
                                   [np.zeros(target.shape[1]) for _ in range(5)])
-            for k, v in enumerate((np.full(target.shape[1], target.shape[0]),
-                                   target.sum(0), (target ** 2).sum(0), err.sum(0),
-                                   (err ** 2).sum(0))):
+            # rows that are window means (thermonet.read(..., window_s=...)): each weighs its
+            # samples, and the spread inside it (the target's; the model's drift moves there
+            # only as the temperature does) is added back: sums over the samples
+            if part.weight is None or part.within_ss is None:
+                terms = (np.full(target.shape[1], target.shape[0]), target.sum(0),
+                         (target ** 2).sum(0), err.sum(0), (err ** 2).sum(0))
+            else:
+                w, inside = part.weight, part.within_ss.sum(0)
+                terms = (np.full(target.shape[1], w.sum()), w @ target,
+                         w @ target ** 2 + inside, w @ err, w @ err ** 2 + inside)
+            for k, v in enumerate(terms):
                 acc[k] += v
         raw = sum(a[2] - a[1] ** 2 / a[0] for a in sums.values())
         comp = sum(a[4] - a[3] ** 2 / a[0] for a in sums.values())
