@@ -100,6 +100,20 @@ def test_streamed_windows_equal_the_whole_array_averaged(recording, chunk_rows):
                          [((p - p.mean()) ** 2).sum() for p in out], rtol=1e-9)
 
 
+def test_max_rows_widens_the_windows(recording):
+    """Over ``max_rows`` the windows widen to fit (the rows of a long recording stay bounded);
+    the counts still add up to every sample."""
+    whole = read_dataset(recording)
+    span = sum(float(r.time_s[-1] - r.time_s[0]) for r in whole)
+    reduced = reduce_parquet(recording, window_s=1.0, max_rows=1000)
+    rows = sum(r.n_samples for r in reduced)
+    assert reduced[0].windows is not None
+    assert reduced[0].windows.window_s == pytest.approx(span / 1000, rel=1e-12)
+    assert rows <= 1000 + 2 * len(whole)        # + a partial window at each run end and gap
+    assert [int(r.windows.n.sum()) for r in reduced if r.windows is not None] == \
+        [r.n_samples for r in whole]
+
+
 def test_window_metrics_are_the_samples_metrics(recording):
     """rms and msd of the raw error over the samples, from the rows alone, to rounding; the
     residual's within the bound that the drift's move inside a window sets; the noise floor
@@ -216,6 +230,10 @@ def test_what_cannot_be_streamed_is_refused_in_one_line(tmp_path, recording):
                delimiter=",", header="time_s,temperature_c,gyro_x", comments="")
     cfg = config_from_mapping({"data": {"paths": [str(csv)], "in_memory_samples": 0}})
     assert load_compare_data(cfg)[0].windows is None
+    from thermonet.workflows.compare_plan import plan
+
+    cfg.families = cfg.families[:1]
+    assert any("thermonet convert" in w for w in plan(cfg).warnings)
 
 
 def test_the_api_fits_and_scores_a_streamed_recording_as_its_samples(recording):

@@ -185,6 +185,12 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
     warns += input_set_warnings(
         {fam.label: list(fam.inputs) for fam in cfg.families},
         {r.run_id: float(r.time_s[-1] - r.time_s[0]) for r in ds if r.time_s.size > 1})
+    held = sum(r.n_samples for r in ds if r.windows is None)
+    if dataset is None and cfg.data.paths and held > cfg.data.in_memory_samples:
+        warns.append(f"{held} samples were read whole (over data.in_memory_samples, "
+                     f"{cfg.data.in_memory_samples}): only thermonet Parquet files are "
+                     "streamed; convert the recordings once with 'thermonet convert' to "
+                     "compare them in bounded memory")
     few = [(r, r.windows) for r in ds
            if r.windows is not None and r.n_samples < MIN_STREAMED_ROWS]
     if few:
