@@ -62,7 +62,9 @@ def source_samples(paths: Sequence[str | Path]) -> int | None:
     """Samples in thermonet Parquet files, from their footers; None where one is not one."""
     total = 0
     for p in paths:
-        layout = open_parquet(p) if Path(p).suffix.lower() in (".parquet", ".pq") else None
+        path = Path(p)
+        layout = open_parquet(path) if path.suffix.lower() in (".parquet", ".pq") \
+            and path.is_file() else None
         if layout is None:
             return None
         total += layout.num_rows

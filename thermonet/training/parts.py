@@ -22,8 +22,8 @@ from .config import DataConfig
 from .splits import Split, make_splits
 
 __all__ = ["Split", "Part", "load_data", "make_splits", "build_part", "data_hash",
-           "heating_only", "fit_arrays", "rows_average_s", "FOURPOS_SUFFIXES", "HEATING_MIN_RATE_C_PER_MIN",
-           "targets_for"]
+           "heating_only", "fit_arrays", "rows_average_s", "FOURPOS_SUFFIXES",
+           "HEATING_MIN_RATE_C_PER_MIN", "targets_for", "refuse_fleet"]
 
 #: Samples with dT/dt above this count as heating (or soaking) for ``train_on: heating``.
 HEATING_MIN_RATE_C_PER_MIN = -0.05
@@ -53,12 +53,18 @@ def load_data(cfg: DataConfig, *, source: str = "config", allow_fleet: bool = Fa
         if missing:
             raise ConfigError(f"{source}: key 'data.outputs': no output '{missing[0]}' in the data "
                               f"(outputs: {', '.join(ds.axes)})")
-    if ds.is_fleet and not allow_fleet:
+    if not allow_fleet:
+        refuse_fleet(ds, source)
+    return ds
+
+
+def refuse_fleet(ds: Dataset, source: str) -> None:
+    """One line where ``ds`` holds several units: ``thermonet fleet`` calibrates them."""
+    if ds.is_fleet:
         ids = ds.unit_ids
         raise ConfigError(f"{source}: the data holds {len(ids)} units ({', '.join(ids[:3])}"
                           f"{', …' if len(ids) > 3 else ''}); calibrate them with "
                           "'thermonet fleet'")
-    return ds
 
 
 def data_hash(ds: Dataset) -> str:

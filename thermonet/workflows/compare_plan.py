@@ -28,6 +28,7 @@ from ..training.parts import (
     build_part,
     load_data,
     make_splits,
+    refuse_fleet,
     targets_for,
 )
 
@@ -213,6 +214,7 @@ def load_compare_data(cfg: CompareConfig, source: str = "config") -> Dataset:
     if n is None or n <= d.in_memory_samples:
         return load_data(d, source=source)
     ds = streamed_data(cfg, d.paths, source, samples=n)
+    refuse_fleet(ds, source)
     if d.outputs:
         missing = [o for o in d.outputs if o not in ds.axes]
         if missing:
