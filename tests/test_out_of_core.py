@@ -183,6 +183,8 @@ def test_streamed_comparison_agrees_with_the_in_memory_one(two_comparisons):
     assert st["data"]["streamed"]["samples"] == sum(r["samples"] for r in mem["data"]["runs"])
     assert st["data"]["streamed"]["window_s"] == 1.0
     assert st["chosen"] == mem["chosen"]
+    assert "streamed: " in (tmp / "streamed" / "report.html").read_text(encoding="utf-8")
+    assert st["data"]["runs"][0]["rows"] < st["data"]["runs"][0]["samples"]
     for fam, m in mem["families"].items():
         s = st["families"][fam]
         assert s["status"] == m["status"] == "ok"

@@ -85,7 +85,7 @@ class _Run:
         self.seg_t0 = 0.0
         self.seg_base = 0
         self.last_key = -1
-        # the open window: key, count, means (mean columns, then ss columns), ss
+        # the open window: key, count, the mean columns' means, the target columns' means, their ss
         self.open: tuple[int, float, np.ndarray, np.ndarray, np.ndarray] | None = None
         self.rows: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
 

@@ -205,9 +205,16 @@ def _data_table(res: dict[str, Any]) -> str:
     ext = ", ".join(f"{_e(k)}: {v:.0%}" for k, v in outside.items() if v is not None) or "–"
     split = res.get("split", {})
     folds = "<br>".join(_e(_fold(f)) for f in split.get("folds", []))
+    st = res.get("data", {}).get("streamed")
+    streamed = "" if not isinstance(st, dict) else (
+        f"streamed: {_num(st.get('samples'), 'd')} samples read in chunks of "
+        f"{_num(st.get('chunk_rows'), 'd')} rows and reduced to "
+        f"{_num(st.get('rows'), 'd')} window means of {_num(st.get('window_s'))} s (the fit's "
+        "own windows; scores over the samples from each window's count and sum of squares; "
+        "temperatures above are window means)<br>")
     return ("<table><tr><th>run</th><th>samples</th><th>duration</th><th>rate</th>"
             "<th>temperature</th></tr>" + "".join(rows) + "</table>"
-            f"<p class='small'>split: {_e(split.get('strategy'))}<br>{folds}<br>"
+            f"<p class='small'>{streamed}split: {_e(split.get('strategy'))}<br>{folds}<br>"
             f"test samples outside the trained range: {ext}</p>")
 
 

@@ -11,9 +11,12 @@
       "units": {axis: unit},
       "targets": {axis: "channel" | "zero" | "at-t-ref" | "four-position"},  # thermonet.features.target
       "data": {"runs": [{"run_id", "samples", "duration_s", "rate_hz",
-                         "temperature_min_c", "temperature_max_c"}],
+                         "temperature_min_c", "temperature_max_c",
+                         "rows", "window_s"}],     # rows, window_s: streamed runs only
                "outside_trained_range": {signal: fraction of test samples},
-               "trained_range": {signal: [lo, hi]}},
+               "trained_range": {signal: [lo, hi]},
+               "streamed": {"samples", "rows", "window_s", "chunk_rows", "method"}},
+               # "streamed": only where the files were streamed (thermonet.features.windows)
       "bootstrap": {"method": str, "resamples": int, "level": 0.95, "seed": int,
                     "blocks": {"val": int, "test": int}},
       "chosen": name | null,          # by validation score (per-axis masked), ties → fewest params
