@@ -263,3 +263,26 @@ def test_the_api_fits_and_scores_a_streamed_recording_as_its_samples(recording):
     bound = ((0.01 * 0.063 / 12 ** 0.5) ** 2 + (0.01 * 0.02) ** 2) / 0.003 ** 2
     want_ratio, got_ratio = 1.0 - a.score(whole[1]), 1.0 - b.score(rows[1])
     assert want_ratio <= got_ratio * (1 + 1e-9) and got_ratio <= want_ratio * (1 + 2 * bound)
+
+
+def test_a_bad_value_deep_in_a_streamed_file_is_one_line_and_nothing_written(tmp_path, capsys):
+    """A NaN in the third chunk of a streamed file: ``compare`` names the file, the column and
+    the data row in one line, exits 1 and writes no output directory."""
+    import pyarrow.parquet as pq
+
+    rec = _run("a", 10.0, 1200.0, 1, None)
+    path = write_parquet(Dataset(runs=[rec]), tmp_path / "bad.parquet")
+    table = pq.read_table(path)
+    col = table.column("gyro_y").to_numpy().copy()
+    col[9000] = np.nan
+    table = table.set_column(table.schema.get_field_index("gyro_y"), "gyro_y", [col])
+    pq.write_table(table, path)       # schema metadata (the run list) kept
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump({"data": {"paths": [str(path)], "in_memory_samples": 0,
+                                            "chunk_rows": 4000},
+                                   "tracking": {"enabled": False}}))
+    rc = main(["compare", str(cfg), "--out", str(tmp_path / "out"), "-q", "--no-track"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1
+    assert "bad.parquet" in err[0] and "gyro_y" in err[0] and "9001" in err[0], err[0]
+    assert not (tmp_path / "out").exists()
