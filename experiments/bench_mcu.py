@@ -60,6 +60,9 @@ FAMILIES = {
     "lorentz": ("lorentz", ["dT"], {}),
     "ts-fuzzy (6 sets)": ("ts-fuzzy", ["dT"], {"n_sets": 6}),
     "rbf, 16 centres [dT, dT2]": ("rbf", ["dT", "dT2"], {"n_centres": 16}),
+    # the default family set's RBF: the cubic in ΔT as its unpenalised tail
+    "rbf, 16 centres [dT, dT2], cubic tail": ("rbf", ["dT", "dT2"],
+                                              {"n_centres": 16, "tail": 3}),
     "cubic + rate, cross terms": ("poly", ["dT", "rate"], {"degree": 3, "cross": True}),
     "rbf, 16 centres [dT, dT2, rate]": ("rbf", ["dT", "dT2", "rate"], {"n_centres": 16}),
 }
