@@ -460,6 +460,7 @@ average_s, threads
 
     def _ratios(self, data: Data, what: str) -> np.ndarray:
         """Per axis, the error's variance after / before (each source run about its mean)."""
+        from ..training.fold import residual_spread
         from ..training.train import predict
 
         model = self._check_fitted(what)
@@ -474,15 +475,17 @@ average_s, threads
             acc = sums.setdefault(rec.meta.get(BLOCK_RUN, rec.run_id),
                                   [np.zeros(target.shape[1]) for _ in range(5)])
             # rows that are window means (thermonet.read(..., window_s=...)): each weighs its
-            # samples, and the spread inside it (the target's; the model's drift moves there
-            # only as the temperature does) is added back: sums over the samples
-            if part.weight is None or part.within_ss is None:
+            # samples, and the spread inside it is added back (the target's, and the
+            # residual's from the model's slope: training.fold.residual_spread)
+            spread = residual_spread(model, part)
+            if part.weight is None or part.within_ss is None or spread is None:
                 terms = (np.full(target.shape[1], target.shape[0]), target.sum(0),
                          (target ** 2).sum(0), err.sum(0), (err ** 2).sum(0))
             else:
-                w, inside = part.weight, part.within_ss.sum(0)
+                w = part.weight
                 terms = (np.full(target.shape[1], w.sum()), w @ target,
-                         w @ target ** 2 + inside, w @ err, w @ err ** 2 + inside)
+                         w @ target ** 2 + part.within_ss.sum(0), w @ err,
+                         w @ err ** 2 + spread.sum(0))
             for k, v in enumerate(terms):
                 acc[k] += v
         raw = sum(a[2] - a[1] ** 2 / a[0] for a in sums.values())

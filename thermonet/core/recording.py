@@ -110,6 +110,12 @@ class WindowStats:
     held-out score over the samples is recovered from the rows
     (:func:`thermonet.training.fold.score_part`).  ``source_samples`` and
     ``source_rate_hz`` describe the samples the rows stand for.
+
+    ``signal_names`` are the columns a model may read (temperature, proxies, the dynamic
+    inputs); ``sxx`` (rows, S, S) their co-moments inside each window and ``sxd[axis]``
+    (rows, S) theirs with the axis' target (``sxd_output``: with the output alone): with
+    the model's slope they give the residual's spread inside a window to first order
+    (:func:`thermonet.training.fold.residual_spread`).
     """
 
     window_s: float
@@ -120,26 +126,34 @@ class WindowStats:
     ss_output: dict[str, np.ndarray] = field(default_factory=dict)
     source_samples: int = 0
     source_rate_hz: float = float("nan")
+    signal_names: list[str] = field(default_factory=list)
+    sxx: np.ndarray | None = None
+    sxd: dict[str, np.ndarray] = field(default_factory=dict)
+    sxd_output: dict[str, np.ndarray] = field(default_factory=dict)
+
+    _PER_AXIS = ("signals", "ss", "ss_output", "sxd", "sxd_output")
 
     def select(self, mask: np.ndarray) -> WindowStats:
         """The rows where ``mask`` is true (or the indices it lists)."""
         n = self.n[mask]
-        return WindowStats(self.window_s, n, {k: v[mask] for k, v in self.signals.items()},
-                           self.gap_s, {k: v[mask] for k, v in self.ss.items()},
-                           {k: v[mask] for k, v in self.ss_output.items()},
-                           int(n.sum()), self.source_rate_hz)
+        groups = {g: {k: v[mask] for k, v in getattr(self, g).items()} for g in self._PER_AXIS}
+        return WindowStats(self.window_s, n, gap_s=self.gap_s, source_samples=int(n.sum()),
+                           source_rate_hz=self.source_rate_hz,
+                           signal_names=list(self.signal_names),
+                           sxx=None if self.sxx is None else self.sxx[mask], **groups)
 
     @staticmethod
     def concat(parts: list[WindowStats]) -> WindowStats:
         """Rows of several reduced recordings one after the other (stacked held-out blocks)."""
         first = parts[0]
-
-        def cat(group: str) -> dict[str, np.ndarray]:
-            return {k: np.concatenate([getattr(p, group)[k] for p in parts])
-                    for k in getattr(first, group)}
+        groups = {g: {k: np.concatenate([getattr(p, g)[k] for p in parts])
+                      for k in getattr(first, g)} for g in WindowStats._PER_AXIS}
         n = np.concatenate([p.n for p in parts])
-        return WindowStats(first.window_s, n, cat("signals"), first.gap_s, cat("ss"),
-                           cat("ss_output"), int(n.sum()), first.source_rate_hz)
+        sxx = None if any(p.sxx is None for p in parts) else \
+            np.concatenate([p.sxx for p in parts if p.sxx is not None])
+        return WindowStats(first.window_s, n, gap_s=first.gap_s, source_samples=int(n.sum()),
+                           source_rate_hz=first.source_rate_hz,
+                           signal_names=list(first.signal_names), sxx=sxx, **groups)
 
 
 @dataclass

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -71,13 +72,49 @@ def source_samples(paths: Sequence[str | Path]) -> int | None:
     return total
 
 
+@dataclass
+class _Windows:
+    """Sums of a run of consecutive windows: counts (G,), the mean columns' means (G, M),
+    the target columns' means (G, A) and sums of squares (G, A), and the co-moments of the
+    signal columns with each other (G, S, S) and with the targets (G, S, A), all about each
+    window's own means."""
+
+    n: np.ndarray
+    mean: np.ndarray
+    dmean: np.ndarray
+    ss: np.ndarray
+    sxx: np.ndarray
+    sxd: np.ndarray
+
+    def take(self, rows: slice) -> _Windows:
+        return _Windows(self.n[rows], self.mean[rows], self.dmean[rows], self.ss[rows],
+                        self.sxx[rows], self.sxd[rows])
+
+    def merge_first(self, a: _Windows, sig: list[int]) -> None:
+        """Window 0 of ``self`` continues ``a``'s one window: Chan's pairwise update of the
+        count, the means and every (co-)moment."""
+        na, nb = float(a.n[0]), float(self.n[0])
+        n = na + nb
+        dx = self.mean[0, sig] - a.mean[0, sig]
+        dd = self.dmean[0] - a.dmean[0]
+        w = na * nb / n
+        self.ss[0] = a.ss[0] + self.ss[0] + dd * dd * w
+        self.sxx[0] = a.sxx[0] + self.sxx[0] + np.outer(dx, dx) * w
+        self.sxd[0] = a.sxd[0] + self.sxd[0] + np.outer(dx, dd) * w
+        self.mean[0] = a.mean[0] + (self.mean[0] - a.mean[0]) * (nb / n)
+        self.dmean[0] = a.dmean[0] + dd * (nb / n)
+        self.n[0] = n
+
+
 class _Run:
     """One run's reduction: the dynamic-input stream, the open window, the finished rows."""
 
-    def __init__(self, entry: dict[str, Any], means: list[str], dyn: list[str],
-                 ss_cols: list[tuple[str, str, str | None]], window_s: float, med_dt: float,
-                 gap_s: float | None) -> None:
+    def __init__(self, entry: dict[str, Any], means: list[str], signals: list[str],
+                 dyn: list[str], ss_cols: list[tuple[str, str, str | None]], window_s: float,
+                 med_dt: float, gap_s: float | None) -> None:
         self.entry, self.means, self.ss_cols = entry, means, ss_cols
+        self.signals = signals                  # the model-input columns (co-moments)
+        self.sig = [means.index(c) for c in signals]
         self.window_s, self.cut = window_s, GAP_FACTOR * med_dt
         self.stream = dynamics.DynamicStream(dyn, gap_s) if dyn and gap_s else None
         self.dyn = [d.signal for d in dynamics.dynamic_signals(dyn)]
@@ -85,9 +122,8 @@ class _Run:
         self.seg_t0 = 0.0
         self.seg_base = 0
         self.last_key = -1
-        # the open window: key, count, the mean columns' means, the target columns' means, their ss
-        self.open: tuple[int, float, np.ndarray, np.ndarray, np.ndarray] | None = None
-        self.rows: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.open: tuple[int, _Windows] | None = None   # the window a chunk left open
+        self.rows: list[_Windows] = []
 
     def _keys(self, t: np.ndarray) -> np.ndarray:
         """Window index of every sample (as :func:`~thermonet.training.train.average_windows`)."""
@@ -118,51 +154,55 @@ class _Run:
         d = np.column_stack([cols[o] - (cols[r] if r else 0.0) for _, o, r in self.ss_cols]) \
             if self.ss_cols else np.zeros((t.size, 0))
         starts = np.concatenate([[0], np.flatnonzero(np.diff(key)) + 1])
-        counts = np.diff(np.append(starts, t.size)).astype(np.float64)
-        mean = np.add.reduceat(m, starts, axis=0) / counts[:, None]
-        dmean = np.add.reduceat(d, starts, axis=0) / counts[:, None] if d.shape[1] else \
-            np.zeros((starts.size, 0))
-        which = np.repeat(np.arange(starts.size), counts.astype(np.int64))
-        ss = np.add.reduceat((d - dmean[which]) ** 2, starts, axis=0) if d.shape[1] else \
-            np.zeros((starts.size, 0))
+        counts = np.diff(np.append(starts, t.size))
+        which = np.repeat(np.arange(starts.size), counts)
+        n = counts.astype(np.float64)
+
+        def sums(x: np.ndarray) -> np.ndarray:
+            return np.add.reduceat(x, starts, axis=0) if x.shape[1] else \
+                np.zeros((starts.size, 0))
+
+        mean = sums(m) / n[:, None]
+        dmean = sums(d) / n[:, None]
+        dc = d - dmean[which]
+        xc = m[:, self.sig] - mean[which][:, self.sig]
+        ns, na = len(self.sig), d.shape[1]
+        sxx = np.zeros((starts.size, ns, ns))
+        sxd = np.zeros((starts.size, ns, na))
+        for i in range(ns):     # one signal at a time: chunk-sized temporaries only
+            sxx[:, i, :] = sums(xc[:, i:i + 1] * xc)
+            sxd[:, i, :] = sums(xc[:, i:i + 1] * dc)
+        got = _Windows(n, mean, dmean, sums(dc * dc), sxx, sxd)
         keys = key[starts]
         if self.open is not None and self.open[0] == keys[0]:
-            # the window the last chunk left open goes on: Chan's pairwise update
-            _, na, ma, da, sa = self.open
-            nb = counts[0]
-            n = na + nb
-            mean[0] = ma + (mean[0] - ma) * (nb / n)
-            delta = dmean[0] - da
-            ss[0] = sa + ss[0] + delta * delta * (na * nb / n)
-            dmean[0] = da + delta * (nb / n)
-            counts[0] = n
+            got.merge_first(self.open[1], self.sig)
         elif self.open is not None:
-            self._close()
-        self.rows.append((counts[:-1], mean[:-1], ss[:-1], keys[:-1]))
-        self.open = (int(keys[-1]), float(counts[-1]), mean[-1], dmean[-1], ss[-1])
-
-    def _close(self) -> None:
-        assert self.open is not None
-        k, n, mean, _, ss = self.open
-        self.rows.append((np.array([n]), mean[None, :], ss[None, :], np.array([k])))
-        self.open = None
+            self.rows.append(self.open[1])
+        self.rows.append(got.take(slice(0, -1)))
+        self.open = (int(keys[-1]), got.take(slice(-1, None)))
 
     def recording(self, gap_s: float, source_rate_hz: float, source: Path) -> Recording:
         if self.open is not None:
-            self._close()
+            self.rows.append(self.open[1])
+            self.open = None
         if not self.rows:
             raise InputError.at(source, f"run '{self.entry['run_id']}' has no rows")
-        n = np.concatenate([r[0] for r in self.rows])
-        mean = np.concatenate([r[1] for r in self.rows])
-        ss = np.concatenate([r[2] for r in self.rows])
+
+        def cat(field: str) -> np.ndarray:
+            return np.concatenate([getattr(r, field) for r in self.rows])
+
+        n, mean, ss, sxd = cat("n"), cat("mean"), cat("ss"), cat("sxd")
         col = {c: mean[:, i] for i, c in enumerate(self.means)}
         e = self.entry
         groups = {g: {k: col[k] for k in e[g]} for g in _GROUPS}
-        drift_ss = {a: ss[:, i] for i, (kind, a, _) in enumerate(self.ss_cols) if kind == "drift"}
-        out_ss = {a: ss[:, i] for i, (kind, a, _) in enumerate(self.ss_cols)
-                  if kind == "output"}
-        stats = WindowStats(self.window_s, n, {s: col[s] for s in self.dyn}, gap_s, drift_ss,
-                            out_ss, int(n.sum()), source_rate_hz)
+
+        def per_axis(kind: str, x: np.ndarray) -> dict[str, np.ndarray]:
+            return {a: x[..., i] for i, (k, a, _) in enumerate(self.ss_cols) if k == kind}
+
+        stats = WindowStats(self.window_s, n, {s: col[s] for s in self.dyn}, gap_s,
+                            per_axis("drift", ss), per_axis("output", ss), int(n.sum()),
+                            source_rate_hz, list(self.signals), cat("sxx"),
+                            per_axis("drift", sxd), per_axis("output", sxd))
         return Recording(time_s=col["time_s"],
                          temperature_c=col["temperature_c"] if e["temperature"] else None,
                          **groups, units=dict(e["units"]), device_id=e["device_id"],
@@ -250,6 +290,9 @@ def reduce_parquet(path: str | Path, *, window_s: float, inputs: Sequence[str] =
     for i, e in enumerate(layout.runs):
         means = ["time_s"] + (["temperature_c"] if e["temperature"] else [])
         means += [k for g in _GROUPS for k in e[g]] + signals
+        # the columns a model may read: their co-moments with the targets inside a window
+        inputs_of_run = (["temperature_c"] if e["temperature"] else []) + list(e["proxies"]) \
+            + signals
         refs = set(e["references"])
         ss_cols: list[tuple[str, str, str | None]] = []
         for o in e["outputs"]:
@@ -258,7 +301,7 @@ def reduce_parquet(path: str | Path, *, window_s: float, inputs: Sequence[str] =
             if r:
                 ss_cols.append(("output", o, None))
         columns.update(c for c in means if c not in signals)
-        reducers.append(_Run(e, means, dyn, ss_cols, window_s, med[i], gap))
+        reducers.append(_Run(e, means, inputs_of_run, dyn, ss_cols, window_s, med[i], gap))
     for i, _, piece in iter_run_chunks(layout, sorted(columns), chunk_rows=chunk_rows):
         reducers[i].push(piece)
     rate = [1.0 / m if m > 0 else math.nan for m in med]

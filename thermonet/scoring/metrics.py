@@ -508,15 +508,16 @@ def axis_metrics(*, bin_by: np.ndarray, time_s: np.ndarray, raw: np.ndarray,
 
 def window_axis_metrics(*, bin_by: np.ndarray, raw: np.ndarray, predicted_drift: np.ndarray,
                         weight: np.ndarray, within_ss: np.ndarray,
+                        within_ss_comp: np.ndarray | None = None,
                         true_drift: np.ndarray | None = None, rate_hz: float,
                         bin_width: float = 1.0) -> dict[str, float]:
     """:func:`axis_metrics` of a held-out run reduced to window means
     (:mod:`thermonet.features.windows`), over the samples the rows stand for.
 
     Row :math:`k` is the mean :math:`\\bar e_k` of :math:`w_k` samples whose squared
-    deviations about it sum to :math:`S_k` (``within_ss``); the residual's spread
-    inside a row is taken as the raw error's (the model's drift moves inside a window
-    only as the temperature does).  With :math:`W = \\sum_k w_k`:
+    deviations about it sum to :math:`S_k` (``within_ss``); the residual's, inside a
+    row, are ``within_ss_comp`` (:func:`thermonet.training.fold.residual_spread`; default
+    the raw error's).  With :math:`W = \\sum_k w_k`:
 
     * ``rms_*`` = :math:`\\sqrt{(\\sum_k w_k (\\bar e_k - \\mu)^2 + S_k) / W}`,
       :math:`\\mu = \\sum_k w_k \\bar e_k / W` — exactly :func:`rms` of the samples
@@ -544,15 +545,19 @@ def window_axis_metrics(*, bin_by: np.ndarray, raw: np.ndarray, predicted_drift:
     e_comp = e_raw - pred
     total = float(w.sum())
     within = float(s.sum())
+    s_comp = s if within_ss_comp is None else _series("within_ss_comp", within_ss_comp)
+    _same_length(raw=e_raw, within_ss_comp=s_comp)
+    _finite("within_ss_comp", s_comp)
+    within_comp = float(s_comp.sum())
 
-    def spread(e: np.ndarray) -> float:
+    def spread(e: np.ndarray, inside: float) -> float:
         if total <= 0:
             return float("nan")
         mu = float((w * e).sum()) / total
-        return math.sqrt(max(float((w * (e - mu) ** 2).sum()) + within, 0.0) / total)
+        return math.sqrt(max(float((w * (e - mu) ** 2).sum()) + inside, 0.0) / total)
 
-    def mean_square(e: np.ndarray) -> float:
-        return (float((w * e * e).sum()) + within) / total if total > 0 else float("nan")
+    def mean_square(e: np.ndarray, inside: float) -> float:
+        return (float((w * e * e).sum()) + inside) / total if total > 0 else float("nan")
 
     def pp(e: np.ndarray) -> float:
         if not e.size:
@@ -564,8 +569,8 @@ def window_axis_metrics(*, bin_by: np.ndarray, raw: np.ndarray, predicted_drift:
 
     dof = float(np.clip(w - 1.0, 0.0, None).sum())
     rate = _positive_rate(rate_hz)
-    out = {"rms_raw": spread(e_raw), "rms_comp": spread(e_comp),
-           "msd_raw": mean_square(e_raw), "msd_comp": mean_square(e_comp),
+    out = {"rms_raw": spread(e_raw, within), "rms_comp": spread(e_comp, within_comp),
+           "msd_raw": mean_square(e_raw, within), "msd_comp": mean_square(e_comp, within_comp),
            "pp_raw": pp(e_raw), "pp_comp": pp(e_comp),
            # rows of one sample each (a log slower than the windows): the samples' own
            "noise_floor": math.sqrt(within / dof) if dof > 0 else noise_floor(e_raw),

@@ -166,8 +166,8 @@ class BlockStats:
 
 
 def block_stats(raw: np.ndarray, pred: np.ndarray, labels: np.ndarray, *,
-                weight: np.ndarray | None = None, within_ss: np.ndarray | None = None
-                ) -> BlockStats:
+                weight: np.ndarray | None = None, within_ss: np.ndarray | None = None,
+                within_ss_comp: np.ndarray | None = None) -> BlockStats:
     """Block sums of one fold's held-out set.
 
     Parameters
@@ -186,18 +186,22 @@ def block_stats(raw: np.ndarray, pred: np.ndarray, labels: np.ndarray, *,
         .. math:: SS_b = \\sum_{k \\in b} w_k (\\bar e_k - \\mu)^2 + S_k, \\qquad
                   \\mu = \\frac{\\sum_k w_k \\bar e_k}{\\sum_k w_k},
 
-        the residual's spread inside a row taken as the target's (the model's drift
-        moves inside a window only as much as the temperature does).
+        with :math:`S_k` the residual's own spread inside the row for the residual
+        (``within_ss_comp``, :func:`thermonet.training.fold.residual_spread`; default:
+        the target's).
     """
     raw = np.asarray(raw, dtype=np.float64)
     comp = raw - np.asarray(pred, dtype=np.float64)
     nb = int(labels.max()) + 1 if labels.size else 0
     w = np.ones(raw.shape[0]) if weight is None else np.asarray(weight, dtype=np.float64)
-    extra = np.zeros((nb, raw.shape[1]))
-    if within_ss is not None:
-        np.add.at(extra, labels, np.asarray(within_ss, dtype=np.float64))
 
-    def ss(e: np.ndarray) -> np.ndarray:
+    def inside(s: np.ndarray | None) -> np.ndarray:
+        out = np.zeros((nb, raw.shape[1]))
+        if s is not None:
+            np.add.at(out, labels, np.asarray(s, dtype=np.float64))
+        return out
+
+    def ss(e: np.ndarray, extra: np.ndarray) -> np.ndarray:
         mean = e.mean(axis=0) if weight is None else \
             (w[:, None] * e).sum(0) / max(float(w.sum()), 1e-300)
         c = e - mean
@@ -209,7 +213,9 @@ def block_stats(raw: np.ndarray, pred: np.ndarray, labels: np.ndarray, *,
         return e.sum(0) if weight is None else (w[:, None] * e).sum(0)
 
     return BlockStats(n=np.bincount(labels, weights=w, minlength=nb).astype(np.float64),
-                      ss_raw=ss(raw), ss_comp=ss(comp), sum_raw=total(raw),
+                      ss_raw=ss(raw, inside(within_ss)),
+                      ss_comp=ss(comp, inside(within_ss if within_ss_comp is None
+                                              else within_ss_comp)), sum_raw=total(raw),
                       sum_comp=total(comp))
 
 

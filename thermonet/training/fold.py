@@ -29,7 +29,7 @@ from ..features.target import Target
 from .parts import Part, build_part, fit_arrays, heating_only
 
 __all__ = ["FoldParts", "PartBuilder", "fold_spec", "fold_parts", "fit_fold", "score_part",
-           "block_sums", "per_soak_metrics"]
+           "block_sums", "per_soak_metrics", "residual_spread"]
 
 #: ``(recording, signals, gap_s) -> Part``: how a fold gets a run's part (compare shares
 #: one cache between its families).
@@ -136,21 +136,58 @@ def per_soak_metrics(k: np.ndarray, pred: np.ndarray, temps: np.ndarray, scale: 
     return m
 
 
+def residual_spread(model: Any, part: Part) -> np.ndarray | None:
+    """Per row and axis of a part of window means, the residual's sum of squares about its
+    mean inside the row, to first order in the signals' spread there (None for a part of
+    samples; the target's own where the co-moments are not known):
+
+    .. math:: S_{rr} = S_{yy} - 2\\, J^\\top S_{xy} + J^\\top S_{xx} J,
+
+    :math:`J` the model's slope in each signal at the row's means, by central differences
+    one pooled within-window standard deviation of that signal to each side.  The drift
+    that moves inside a window with the temperature (a fast ramp, a low-noise sensor) is
+    thus taken out of the residual as the model takes it out of the samples.
+    """
+    from .train import predict
+
+    if part.within_ss is None or part.weight is None:
+        return None
+    if part.within_sxx is None or part.within_sxy is None:
+        return part.within_ss
+    n_sig = part.signals.shape[1]
+    dof = max(float(np.clip(part.weight - 1.0, 0.0, None).sum()), 1.0)
+    slope = np.zeros((part.signals.shape[0], n_sig, part.within_ss.shape[1]))
+    for s in range(n_sig):
+        h = float(np.sqrt(max(float(part.within_sxx[:, s, s].sum()) / dof, 0.0)))
+        if not h > 0:
+            continue
+        up, down = part.signals.copy(), part.signals.copy()
+        up[:, s] += h
+        down[:, s] -= h
+        slope[:, s, :] = (predict(model, up, part.time_s)
+                          - predict(model, down, part.time_s)) / (2.0 * h)
+    cross = np.einsum("nsa,nsa->na", slope, part.within_sxy)
+    quad = np.einsum("nsa,nst,nta->na", slope, part.within_sxx, slope)
+    return np.maximum(part.within_ss - 2.0 * cross + quad, 0.0)
+
+
 def score_part(model: Any, part: Part) -> tuple[np.ndarray, dict[str, dict[str, float]]]:
     """The model's predicted drift on a held-out part and the per-axis metrics."""
     from ..scoring.metrics import axis_metrics, window_axis_metrics
     from .train import predict
 
     pred = predict(model, part.signals, part.time_s)
+    spread = residual_spread(model, part)
     out: dict[str, dict[str, float]] = {}
     for j, axis in enumerate(part.outputs):
         if part.per_soak:
             m = per_soak_metrics(part.target[:, j], pred[:, j], part.bin_by,
                                  scale=axis.endswith(".scale"))
-        elif part.weight is not None and part.within_ss is not None:  # rows: window means
-            m = window_axis_metrics(
+        elif part.weight is not None and part.within_ss is not None and spread is not None:
+            m = window_axis_metrics(   # rows: window means
                 bin_by=part.bin_by, raw=part.target[:, j], predicted_drift=pred[:, j],
                 weight=part.weight, within_ss=part.within_ss[:, j],
+                within_ss_comp=spread[:, j],
                 true_drift=None if part.true_drift is None else part.true_drift[:, j],
                 rate_hz=part.rate_hz, bin_width=part.bin_width)
         else:
@@ -164,14 +201,17 @@ def score_part(model: Any, part: Part) -> tuple[np.ndarray, dict[str, dict[str, 
     return pred, out
 
 
-def block_sums(part: Part, pred: np.ndarray) -> Any:
+def block_sums(part: Part, pred: np.ndarray, model: Any = None) -> Any:
     """Block sums of one held-out part (:class:`~thermonet.scoring.verdicts.BlockStats`):
-    raw error = the target, residual = target − drift."""
+    raw error = the target, residual = target − drift (of a part of window means: the
+    residual's spread inside each row from ``model``'s slope, :func:`residual_spread`; the
+    target's own without a model)."""
     from ..scoring.verdicts import block_labels, block_stats
 
     raw = part.target.copy()
     for j in range(len(part.outputs)):
         if part.offset_free(j):  # a scale factor's nominal value, gravity (at-t-ref): no error
             raw[:, j] -= np.average(raw[:, j], weights=part.weight)
+    spread = residual_spread(model, part) if model is not None else part.within_ss
     return block_stats(raw, pred - (part.target - raw), block_labels(part.time_s),
-                       weight=part.weight, within_ss=part.within_ss)
+                       weight=part.weight, within_ss=part.within_ss, within_ss_comp=spread)

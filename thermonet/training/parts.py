@@ -97,8 +97,10 @@ class Part:
 
     A part of a recording reduced to window means (:mod:`thermonet.features.windows`)
     has ``weight`` (n,), the samples of each row, ``within_ss`` (n, A), each row's
-    sum of squared deviations of the target about its mean, and ``window_s``, the
-    windows' length; a part of samples has None, None and 0.
+    sum of squared deviations of the target about its mean, ``within_sxx`` (n, S, S) and
+    ``within_sxy`` (n, S, A), the co-moments inside each row of the signals with each
+    other and with the target, and ``window_s``, the windows' length; a part of samples
+    has None for each and 0.
     """
 
     signals: np.ndarray
@@ -113,6 +115,8 @@ class Part:
     targets: Target | None = None        # per-axis target modes (None: every axis 'channel')
     weight: np.ndarray | None = None     # samples per row (a reduced recording's windows)
     within_ss: np.ndarray | None = None  # per row and axis: Σ (target − row mean)² inside it
+    within_sxx: np.ndarray | None = None  # per row: signals' co-moments inside it (n, S, S)
+    within_sxy: np.ndarray | None = None  # per row: signals × target co-moments (n, S, A)
     window_s: float = 0.0                # the rows' window length (0: rows are samples)
     # fit_arrays' window means, per window length: computed once, shared by every family
     _averaged: dict[float, tuple[np.ndarray, ...]] = field(default_factory=dict, repr=False,
@@ -164,15 +168,22 @@ def build_part(rec: Recording, *, signals: list[str], outputs: list[str],
         # one bin per 1/50 of the proxy's span: about the resolution of 1 °C bins
         # over a 50 °C test when the proxy's scale to °C is unknown
         width = max(float(np.ptp(bin_by)) / 50.0, 1e-12)
-    weight = within = None
+    weight = within = sxx = sxy = None
     window_s = 0.0
     if rec.windows is not None:
         win = rec.windows
         weight, window_s = win.n.astype(np.float64), win.window_s
-        within = np.column_stack([win.ss[a] if target.mode(a) == CHANNEL
-                                  else win.ss_output.get(a, win.ss[a]) for a in outputs])
+        channel = [target.mode(a) == CHANNEL for a in outputs]
+        within = np.column_stack([win.ss[a] if c else win.ss_output.get(a, win.ss[a])
+                                  for a, c in zip(outputs, channel, strict=True)])
+        if win.sxx is not None and all(s in win.signal_names for s in signals):
+            idx = [win.signal_names.index(s) for s in signals]
+            sxx = win.sxx[:, idx][:, :, idx]
+            sxy = np.stack([(win.sxd[a] if c else win.sxd_output.get(a, win.sxd[a]))[:, idx]
+                            for a, c in zip(outputs, channel, strict=True)], axis=2)
     return Part(sig, y, rec.time_s, bin_by, width, rec.effective_rate_hz, true, outputs,
-                targets=target, weight=weight, within_ss=within, window_s=window_s)
+                targets=target, weight=weight, within_ss=within, within_sxx=sxx,
+                within_sxy=sxy, window_s=window_s)
 
 
 def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> Part:
@@ -214,6 +225,8 @@ def heating_only(part: Part, rec: Recording, gap_s: float | None = None) -> Part
                 else part.true_drift[keep], part.outputs, targets=part.targets,
                 weight=None if part.weight is None else part.weight[keep],
                 within_ss=None if part.within_ss is None else part.within_ss[keep],
+                within_sxx=None if part.within_sxx is None else part.within_sxx[keep],
+                within_sxy=None if part.within_sxy is None else part.within_sxy[keep],
                 window_s=part.window_s)
 
 

@@ -108,7 +108,8 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
             res.fit_seconds = (0.0 if math.isnan(res.fit_seconds) else res.fit_seconds) \
                 + fitted.fit_seconds
             held = fp.val or fp.train[-1]
-            vals.append(block_sums(held, predict(fitted.model, held.signals, held.time_s)))
+            vals.append(block_sums(held, predict(fitted.model, held.signals, held.time_s),
+                                   fitted.model))
             history = list(fitted.history)
             if p.folds is not None and split.pool and cfg.selection.refit:
                 fitted = _refit(p, fam, tcfg, split, parts, on_epoch)
@@ -120,7 +121,7 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
             test_part = fp.test
             assert test_part is not None
             pred, axes = score_part(fitted.model, test_part)
-            tests.append(block_sums(test_part, pred))
+            tests.append(block_sums(test_part, pred, fitted.model))
             fold_axes.append(axes)
             model = fitted.model
             lo = np.asarray(as_numpy(model.sig_lo))
