@@ -18,9 +18,12 @@ samples:
   carried across chunk edges (:class:`thermonet.features.dynamics.DynamicStream`) —
   never from the means;
 * the count of samples and, per axis, the sum of squared deviations from the window
-  mean (:class:`thermonet.core.recording.WindowStats`), merged across chunk edges with
-  Chan's pairwise update, so a held-out score over the samples is recovered from the
-  rows.
+  mean, with the co-moments of the model-input columns (temperature, proxies, dynamic
+  inputs) with each other and with each axis' target
+  (:class:`thermonet.core.recording.WindowStats`), merged across chunk edges with Chan's
+  pairwise update, so a held-out score over the samples is recovered from the rows: the
+  raw error's exactly, the residual's to first order in the signals' spread inside a
+  window (:func:`thermonet.training.fold.residual_spread`).
 
 Memory is then the chunk (``chunk_rows`` × the columns, float64) plus the rows: one per
 ``window_s`` of recording, whatever the sample rate.  ``max_rows`` caps the rows: a
