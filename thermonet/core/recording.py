@@ -131,12 +131,13 @@ class WindowStats:
     sxd: dict[str, np.ndarray] = field(default_factory=dict)
     sxd_output: dict[str, np.ndarray] = field(default_factory=dict)
 
-    _PER_AXIS = ("signals", "ss", "ss_output", "sxd", "sxd_output")
+    #: the per-row column dicts (dynamic signals, per-axis sums) that select and concat carry
+    _COLUMNS = ("signals", "ss", "ss_output", "sxd", "sxd_output")
 
     def select(self, mask: np.ndarray) -> WindowStats:
         """The rows where ``mask`` is true (or the indices it lists)."""
         n = self.n[mask]
-        groups = {g: {k: v[mask] for k, v in getattr(self, g).items()} for g in self._PER_AXIS}
+        groups = {g: {k: v[mask] for k, v in getattr(self, g).items()} for g in self._COLUMNS}
         return WindowStats(self.window_s, n, gap_s=self.gap_s, source_samples=int(n.sum()),
                            source_rate_hz=self.source_rate_hz,
                            signal_names=list(self.signal_names),
@@ -147,7 +148,7 @@ class WindowStats:
         """Rows of several reduced recordings one after the other (stacked held-out blocks)."""
         first = parts[0]
         groups = {g: {k: np.concatenate([getattr(p, g)[k] for p in parts])
-                      for k in getattr(first, g)} for g in WindowStats._PER_AXIS}
+                      for k in getattr(first, g)} for g in WindowStats._COLUMNS}
         n = np.concatenate([p.n for p in parts])
         sxx = None if any(p.sxx is None for p in parts) else \
             np.concatenate([p.sxx for p in parts if p.sxx is not None])

@@ -171,13 +171,16 @@ def residual_spread(model: Any, part: Part) -> np.ndarray | None:
     return np.maximum(part.within_ss - 2.0 * cross + quad, 0.0)
 
 
-def score_part(model: Any, part: Part) -> tuple[np.ndarray, dict[str, dict[str, float]]]:
-    """The model's predicted drift on a held-out part and the per-axis metrics."""
+def score_part(model: Any, part: Part, spread: np.ndarray | None = None
+               ) -> tuple[np.ndarray, dict[str, dict[str, float]]]:
+    """The model's predicted drift on a held-out part and the per-axis metrics (``spread``:
+    :func:`residual_spread` of the part, where the caller has it already)."""
     from ..scoring.metrics import axis_metrics, window_axis_metrics
     from .train import predict
 
     pred = predict(model, part.signals, part.time_s)
-    spread = residual_spread(model, part)
+    if spread is None:
+        spread = residual_spread(model, part)
     out: dict[str, dict[str, float]] = {}
     for j, axis in enumerate(part.outputs):
         if part.per_soak:
@@ -201,17 +204,18 @@ def score_part(model: Any, part: Part) -> tuple[np.ndarray, dict[str, dict[str, 
     return pred, out
 
 
-def block_sums(part: Part, pred: np.ndarray, model: Any = None) -> Any:
+def block_sums(part: Part, pred: np.ndarray, spread: np.ndarray | None = None) -> Any:
     """Block sums of one held-out part (:class:`~thermonet.scoring.verdicts.BlockStats`):
     raw error = the target, residual = target − drift (of a part of window means: the
-    residual's spread inside each row from ``model``'s slope, :func:`residual_spread`; the
-    target's own without a model)."""
+    residual's spread inside each row is ``spread``, the model's :func:`residual_spread`;
+    the target's own without it)."""
     from ..scoring.verdicts import block_labels, block_stats
 
     raw = part.target.copy()
     for j in range(len(part.outputs)):
         if part.offset_free(j):  # a scale factor's nominal value, gravity (at-t-ref): no error
             raw[:, j] -= np.average(raw[:, j], weights=part.weight)
-    spread = residual_spread(model, part) if model is not None else part.within_ss
+    if spread is None:
+        spread = part.within_ss
     return block_stats(raw, pred - (part.target - raw), block_labels(part.time_s),
                        weight=part.weight, within_ss=part.within_ss, within_ss_comp=spread)

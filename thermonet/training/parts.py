@@ -23,7 +23,7 @@ from .splits import Split, make_splits
 
 __all__ = ["Split", "Part", "load_data", "make_splits", "build_part", "data_hash",
            "heating_only", "fit_arrays", "rows_average_s", "FOURPOS_SUFFIXES",
-           "HEATING_MIN_RATE_C_PER_MIN", "targets_for", "refuse_fleet"]
+           "HEATING_MIN_RATE_C_PER_MIN", "targets_for", "check_loaded"]
 
 #: Samples with dT/dt above this count as heating (or soaking) for ``train_on: heating``.
 HEATING_MIN_RATE_C_PER_MIN = -0.05
@@ -48,23 +48,24 @@ def load_data(cfg: DataConfig, *, source: str = "config", allow_fleet: bool = Fa
         if not cfg.preset:
             raise ConfigError(f"{source}: key 'data': give 'paths' or a simulator 'preset'")
         ds = simulate(cfg.preset, runs=cfg.runs, seed=cfg.seed)
+    return check_loaded(ds, cfg, source, allow_fleet=allow_fleet)
+
+
+def check_loaded(ds: Dataset, cfg: DataConfig, source: str, *, allow_fleet: bool = False
+                 ) -> Dataset:
+    """The data as read, against the config: every output ``data.outputs`` names, and one
+    unit unless ``allow_fleet`` (``thermonet fleet`` calibrates several); returns ``ds``."""
     if cfg.outputs:
         missing = [o for o in cfg.outputs if o not in ds.axes]
         if missing:
             raise ConfigError(f"{source}: key 'data.outputs': no output '{missing[0]}' in the data "
                               f"(outputs: {', '.join(ds.axes)})")
-    if not allow_fleet:
-        refuse_fleet(ds, source)
-    return ds
-
-
-def refuse_fleet(ds: Dataset, source: str) -> None:
-    """One line where ``ds`` holds several units: ``thermonet fleet`` calibrates them."""
-    if ds.is_fleet:
+    if not allow_fleet and ds.is_fleet:
         ids = ds.unit_ids
         raise ConfigError(f"{source}: the data holds {len(ids)} units ({', '.join(ids[:3])}"
                           f"{', …' if len(ids) > 3 else ''}); calibrate them with "
                           "'thermonet fleet'")
+    return ds
 
 
 def data_hash(ds: Dataset) -> str:

@@ -67,7 +67,14 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
     from ..data.diagnostics import outside_distance, outside_fraction
     from ..models.base import as_numpy
     from ..scoring.verdicts import pool
-    from ..training.fold import block_sums, fit_fold, fold_parts, fold_spec, score_part
+    from ..training.fold import (
+        block_sums,
+        fit_fold,
+        fold_parts,
+        fold_spec,
+        residual_spread,
+        score_part,
+    )
     from ..training.train import predict
 
     cfg = p.cfg
@@ -109,7 +116,7 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
                 + fitted.fit_seconds
             held = fp.val or fp.train[-1]
             vals.append(block_sums(held, predict(fitted.model, held.signals, held.time_s),
-                                   fitted.model))
+                                   residual_spread(fitted.model, held)))
             history = list(fitted.history)
             if p.folds is not None and split.pool and cfg.selection.refit:
                 fitted = _refit(p, fam, tcfg, split, parts, on_epoch)
@@ -120,8 +127,9 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
                             for h in fitted.history]
             test_part = fp.test
             assert test_part is not None
-            pred, axes = score_part(fitted.model, test_part)
-            tests.append(block_sums(test_part, pred, fitted.model))
+            spread = residual_spread(fitted.model, test_part)   # once, for both
+            pred, axes = score_part(fitted.model, test_part, spread)
+            tests.append(block_sums(test_part, pred, spread))
             fold_axes.append(axes)
             model = fitted.model
             lo = np.asarray(as_numpy(model.sig_lo))

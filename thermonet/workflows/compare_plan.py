@@ -26,9 +26,9 @@ from ..training.parts import (
     Part,
     Split,
     build_part,
+    check_loaded,
     load_data,
     make_splits,
-    refuse_fleet,
     targets_for,
 )
 
@@ -213,14 +213,7 @@ def load_compare_data(cfg: CompareConfig, source: str = "config") -> Dataset:
     n = source_samples(d.paths) if d.paths and d.mapping is None else None
     if n is None or n <= d.in_memory_samples:
         return load_data(d, source=source)
-    ds = streamed_data(cfg, d.paths, source, samples=n)
-    refuse_fleet(ds, source)
-    if d.outputs:
-        missing = [o for o in d.outputs if o not in ds.axes]
-        if missing:
-            raise ConfigError(f"{source}: key 'data.outputs': no output '{missing[0]}' in the "
-                              f"data (outputs: {', '.join(ds.axes)})")
-    return ds
+    return check_loaded(streamed_data(cfg, d.paths, source, samples=n), d, source)
 
 
 def streamed_data(cfg: CompareConfig, paths: list[str], source: str = "config", *,
@@ -233,13 +226,14 @@ def streamed_data(cfg: CompareConfig, paths: list[str], source: str = "config", 
     from ..training.config import train_config_of
 
     d = cfg.data
-    if cfg.model == "sensor" or cfg.target == "four-position":
-        what = "model 'sensor'" if cfg.model == "sensor" else "the four-position target"
+    # (model 'sensor' never comes here: compare fits it on its own path, reading the
+    # samples, and fleet refuses it)
+    if cfg.target == "four-position":
         raise ConfigError(f"{source}: key 'data.in_memory_samples': the data holds "
                           f"{samples if samples is not None else 'more'} samples (over "
-                          f"{d.in_memory_samples}), and {what} is fitted on the samples "
-                          "only, not on a recording streamed as window means; raise "
-                          "'data.in_memory_samples' if it fits in memory")
+                          f"{d.in_memory_samples}), and the four-position target is fitted on "
+                          "the samples only, not on a recording streamed as window means; "
+                          "raise 'data.in_memory_samples' if it fits in memory")
     avg = [train_config_of(cfg, fam).average_s for fam in cfg.families]
     window = min((a for a in avg if a > 0), default=1.0)
     inputs = sorted({i for fam in cfg.families for i in fam.inputs}
