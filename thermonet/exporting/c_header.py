@@ -72,6 +72,7 @@ from ..core.fileio import atomic_write_text
 from ..core.names import c_comment, c_string, check_model_names
 from ..models import DriftModel
 from ..models.cgen import as_float32, c_array, c_float, c_target_prelude
+from .c_driver import PARITY_DRIVER, c_compiler, run_c_driver
 from .c_recurrent import c_step_parity_check, check_recurrent_stream, render_recurrent_stream_c
 from .c_stream import (
     REAL_FLAGS,
@@ -83,7 +84,7 @@ from .c_stream import (
 from .onnx_export import check_model_finite, family_name
 from .parity import check_drift_parity, check_points, float32_tolerance, trained_range
 
-__all__ = ["export_c_header", "render_c_header"]
+__all__ = ["export_c_header", "render_c_header", "PARITY_DRIVER"]
 
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
@@ -247,43 +248,6 @@ def render_c_header(model: DriftModel, *, prefix: str = "thermonet") -> str:
     return "\n".join(lines)
 
 
-#: A driver that evaluates the header on points read from a file (parity check, tests).
-PARITY_DRIVER = r"""
-#include <stdio.h>
-#include "model.h"
-/* in: int n, then per point S signal floats and A raw doubles;
-   out: A comp doubles, A drift doubles, int flag (raw and the outputs converted to and from
-   thermonet_real_t: float where the header chose float) */
-int main(int argc, char **argv)
-{
-    FILE *in, *out;
-    int n, k, flag;
-    float s[PFX_N_SIGNALS];
-    double raw_in[PFX_N_AXES], comp_out[PFX_N_AXES], drift_out[PFX_N_AXES];
-    thermonet_real_t raw[PFX_N_AXES], comp[PFX_N_AXES], drift[PFX_N_AXES];
-    int a;
-    if (argc != 3) return 2;
-    in = fopen(argv[1], "rb");
-    out = fopen(argv[2], "wb");
-    if (!in || !out || fread(&n, sizeof n, 1, in) != 1) return 3;
-    for (k = 0; k < n; ++k) {
-        if (fread(s, sizeof(float), PFX_N_SIGNALS, in) != PFX_N_SIGNALS) return 4;
-        if (fread(raw_in, sizeof(double), PFX_N_AXES, in) != PFX_N_AXES) return 4;
-        for (a = 0; a < PFX_N_AXES; ++a) raw[a] = (thermonet_real_t)raw_in[a];
-        flag = pfx_compensate(s, raw, comp, drift);
-        for (a = 0; a < PFX_N_AXES; ++a) {
-            comp_out[a] = (double)comp[a];
-            drift_out[a] = (double)drift[a];
-        }
-        fwrite(comp_out, sizeof(double), PFX_N_AXES, out);
-        fwrite(drift_out, sizeof(double), PFX_N_AXES, out);
-        fwrite(&flag, sizeof flag, 1, out);
-    }
-    fclose(in);
-    fclose(out);
-    return 0;
-}
-"""
 
 
 def c_parity_check(model: DriftModel, header_text: str, *, prefix: str = "thermonet",
@@ -303,11 +267,8 @@ def c_parity_check(model: DriftModel, header_text: str, *, prefix: str = "thermo
         The header does not compile, or a drift or flag differs from torch.
     """
     import logging
-    import shutil
-    import subprocess
-    import tempfile
 
-    cc = shutil.which("cc") or shutil.which("gcc")
+    cc = c_compiler()
     if cc is None:
         logging.getLogger(__name__).warning("no C compiler found: the C header is not checked")
         return None
@@ -320,29 +281,12 @@ def c_parity_check(model: DriftModel, header_text: str, *, prefix: str = "thermo
     tol = float32_tolerance(model, points, d_torch)
     if real == "float":
         tol = tol + float_path_slack(const, d_torch)
-    driver = PARITY_DRIVER.replace("PFX", prefix.upper()).replace("pfx", prefix)
-    with tempfile.TemporaryDirectory() as tmp_dir:
-        tmp = Path(tmp_dir)
-        (tmp / "model.h").write_text(header_text)
-        (tmp / "driver.c").write_text(driver)
-        built = subprocess.run([cc, "-std=c99", "-O2", *REAL_FLAGS[real], "-o",
-                                str(tmp / "driver"),
-                                str(tmp / "driver.c"), "-lm"], capture_output=True, text=True)
-        if built.returncode != 0:
-            first = (built.stderr.strip().splitlines() or ["?"])[0]
-            raise ExportError(f"the C header does not compile: {first}")
-        rows = np.zeros(n, dtype=[("s", np.float32, len(model.signals)),
-                                  ("raw", np.float64, n_axes)])
-        rows["s"], rows["raw"] = points, const
-        blob = np.int32(n).tobytes() + rows.tobytes()
-        (tmp / "in.bin").write_bytes(blob)
-        run = subprocess.run([str(tmp / "driver"), str(tmp / "in.bin"), str(tmp / "out.bin")],
-                             capture_output=True, text=True)
-        if run.returncode != 0:
-            raise ExportError(f"the C parity driver failed (exit {run.returncode})")
-        rec = np.dtype([("comp", np.float64, n_axes), ("drift", np.float64, n_axes),
-                        ("flag", np.int32)])
-        c_out = np.fromfile(tmp / "out.bin", dtype=rec)
+    rows = np.zeros(n, dtype=[("s", np.float32, len(model.signals)),
+                              ("raw", np.float64, n_axes)])
+    rows["s"], rows["raw"] = points, const
+    c_out = run_c_driver(cc, header_text, PARITY_DRIVER, rows,
+                         [("comp", np.float64, n_axes), ("drift", np.float64, n_axes),
+                          ("flag", np.int32)], prefix=prefix, cflags=("-O2", *REAL_FLAGS[real]))
     err = check_drift_parity(model, points, c_out["drift"] - const, d_torch, tol,
                              what="C header", who="C")
     # raw = the constant: compensated is minus the relative drift, computed in double (on

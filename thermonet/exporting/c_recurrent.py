@@ -33,15 +33,12 @@ sequence with a gap and a missing temperature.
 
 from __future__ import annotations
 
-import shutil
-import subprocess
-import tempfile
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.errors import ExportError
+from .c_driver import c_compiler, run_c_driver
 from .c_stream import (
     REAL_FLAGS,
     _proxies,
@@ -216,7 +213,7 @@ def c_step_parity_check(model: DriftModel, header_text: str, *, prefix: str = "t
     """``_compensate_state`` against torch's step at the parity points and seeded random
     states (the tolerance of :func:`.recurrent.recurrent_parity_check`, plus
     :func:`~.c_stream.float_path_slack` on the float path); None without a C compiler."""
-    cc = shutil.which("cc") or shutil.which("gcc")
+    cc = c_compiler()
     if cc is None:
         return None
     points = check_points(list(trained_range(model).values()), seed)
@@ -228,28 +225,14 @@ def c_step_parity_check(model: DriftModel, header_text: str, *, prefix: str = "t
     const = model.constant().detach().cpu().double().numpy()
     if real == "float":
         tol = tol + float_path_slack(const, d_torch)
-    driver = STEP_DRIVER.replace("PFX", prefix.upper()).replace("pfx", prefix)
-    with tempfile.TemporaryDirectory() as tmp_dir:
-        tmp = Path(tmp_dir)
-        (tmp / "model.h").write_text(header_text)
-        (tmp / "driver.c").write_text(driver)
-        built = subprocess.run([cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2",
-                                *REAL_FLAGS[real], "-o", str(tmp / "driver"),
-                                str(tmp / "driver.c"), "-lm"], capture_output=True, text=True)
-        if built.returncode != 0:
-            first = (built.stderr.strip().splitlines() or ["?"])[0]
-            raise ExportError(f"the C header does not compile: {first}")
-        rows = np.zeros(n, dtype=[("s", np.float32, len(model.signals)),
-                                  ("h", np.float32, hidden), ("raw", np.float64, n_axes)])
-        rows["s"], rows["h"], rows["raw"] = points, states, const
-        (tmp / "in.bin").write_bytes(np.int32(n).tobytes() + rows.tobytes())
-        run = subprocess.run([str(tmp / "driver"), str(tmp / "in.bin"), str(tmp / "out.bin")],
-                             capture_output=True, text=True)
-        if run.returncode != 0:
-            raise ExportError(f"the C step parity driver failed (exit {run.returncode})")
-        rec = np.dtype([("comp", np.float64, n_axes), ("drift", np.float64, n_axes),
-                        ("h", np.float32, hidden), ("flag", np.int32)])
-        out = np.fromfile(tmp / "out.bin", dtype=rec)
+    rows = np.zeros(n, dtype=[("s", np.float32, len(model.signals)),
+                              ("h", np.float32, hidden), ("raw", np.float64, n_axes)])
+    rows["s"], rows["h"], rows["raw"] = points, states, const
+    out = run_c_driver(cc, header_text, STEP_DRIVER, rows,
+                       [("comp", np.float64, n_axes), ("drift", np.float64, n_axes),
+                        ("h", np.float32, hidden), ("flag", np.int32)], prefix=prefix,
+                       cflags=("-Wall", "-Wextra", "-Werror", "-O2", *REAL_FLAGS[real]),
+                       driver_name="the C step parity driver")
     err = check_drift_parity(model, points, out["drift"] - const, d_torch, tol,
                              what="C header (recurrent step)", who="C")
     h_err = float(np.abs(out["h"].astype(np.float64) - h_torch).max())
@@ -277,7 +260,7 @@ def check_recurrent_stream(model: DriftModel, header_text: str, *, prefix: str =
     """
     from ..models.sequence import stream_relative
 
-    if not (shutil.which("cc") or shutil.which("gcc")):
+    if c_compiler() is None:
         return None
     fam: Any = model.family
     step_s, gap_s = float(fam.step_s), float(fam.gap_s)

@@ -43,11 +43,7 @@ refuses it, and the block goes on; the return value is the number of refused sam
 
 from __future__ import annotations
 
-import shutil
-import subprocess
-import tempfile
 from collections.abc import Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -55,6 +51,7 @@ import numpy as np
 from ..core.errors import ExportError
 from ..features import dynamics
 from ..models.cgen import c_expm1
+from .c_driver import c_compiler, run_c_driver
 
 if TYPE_CHECKING:
     from ..models import DriftModel
@@ -419,7 +416,7 @@ def run_stream_c(model: DriftModel, header_text: str, time_s: np.ndarray,
     ExportError
         No C compiler, or the header or driver does not compile or run.
     """
-    cc = shutil.which("cc") or shutil.which("gcc")
+    cc = c_compiler()
     if cc is None:
         raise ExportError("no C compiler found")
     n, n_axes = len(time_s), len(model.outputs)
@@ -429,34 +426,19 @@ def run_stream_c(model: DriftModel, header_text: str, time_s: np.ndarray,
     source = STREAM_DRIVER if block is None else STREAM_BLOCK_DRIVER
     proxy_arg = ("prox + (long)k * PFX_N_PROXIES," if block is not None else "prox,") \
         if n_prox else ""
-    driver = (source.replace("PROXY_ARG", proxy_arg)
-              .replace("PFX", prefix.upper()).replace("pfx", prefix))
     rec_in = np.dtype([("t", np.float64), ("T", np.float32), ("p", np.float32, (n_prox,)),
                        ("raw", np.float64, (n_axes,))])
     rows = np.zeros(n, dtype=rec_in)
     rows["t"], rows["T"], rows["raw"] = time_s, temperature_c, raw
     if n_prox:
         rows["p"] = np.asarray(proxies, dtype=np.float32).reshape(n, n_prox)
-    with tempfile.TemporaryDirectory() as tmp_dir:
-        tmp = Path(tmp_dir)
-        (tmp / "model.h").write_text(header_text)
-        (tmp / "driver.c").write_text(driver)
-        built = subprocess.run([cc, "-std=c99", "-Wall", "-Wextra", "-Werror", *cflags, "-o",
-                                str(tmp / "driver"), str(tmp / "driver.c"), "-lm"],
-                               capture_output=True, text=True)
-        if built.returncode != 0:
-            first = (built.stderr.strip().splitlines() or ["?"])[0]
-            raise ExportError(f"the C header's step() does not compile: {first}")
-        # packed records (no padding), read field by field by the driver
-        (tmp / "in.bin").write_bytes(np.int32(n).tobytes() + rows.tobytes())
-        run = subprocess.run([str(tmp / "driver"), str(tmp / "in.bin"), str(tmp / "out.bin"),
-                              *([str(int(block))] if block is not None else [])],
-                             capture_output=True, text=True)
-        if run.returncode != 0:
-            raise ExportError(f"the C stream driver failed (exit {run.returncode})")
-        rec_out = np.dtype([("comp", np.float64, (n_axes,)), ("drift", np.float64, (n_axes,)),
-                            ("flag", np.int32), ("ret", np.int32)])
-        out = np.fromfile(tmp / "out.bin", dtype=rec_out)
+    # packed records (no padding), read field by field by the driver
+    out = run_c_driver(cc, header_text, source.replace("PROXY_ARG", proxy_arg), rows,
+                       [("comp", np.float64, (n_axes,)), ("drift", np.float64, (n_axes,)),
+                        ("flag", np.int32), ("ret", np.int32)], prefix=prefix,
+                       cflags=("-Wall", "-Wextra", "-Werror", *cflags),
+                       args=[str(int(block))] if block is not None else [],
+                       header="the C header's step()", driver_name="the C stream driver")
     return {"compensated": out["comp"], "drift": out["drift"], "flag": out["flag"].astype(bool),
             "ret": out["ret"]}
 
@@ -485,8 +467,7 @@ def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermone
     """
     import torch
 
-    if not dynamics.dynamic_signals(model.inputs) or not (shutil.which("cc")
-                                                          or shutil.which("gcc")):
+    if not dynamics.dynamic_signals(model.inputs) or c_compiler() is None:
         return None
     rng = np.random.default_rng(seed)
     gap_s = float(model.spec.gap_s or dynamics.DEFAULT_GAP_S)

@@ -23,9 +23,6 @@ Written only after the host's compiler built it and its output matched torch
 from __future__ import annotations
 
 import copy
-import shutil
-import subprocess
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -34,38 +31,10 @@ import torch
 from ..core.errors import ExportError
 from ..core.fileio import atomic_write_text
 from ..models.sensor import SensorModel, check_invertible
+from .c_driver import PARITY_DRIVER, c_compiler, run_c_driver
 from .sensor_probe import PARITY_EPS32, probe
 
 __all__ = ["render_sensor_c", "sensor_c_parity", "export_sensor_c"]
-
-_DRIVER = r"""
-#include <stdio.h>
-#include "model.h"
-int main(int argc, char **argv)
-{
-    FILE *in, *out;
-    int n, k, a, flag;
-    float s[PFX_N_SIGNALS];
-    double raw_in[PFX_N_AXES], comp_out[PFX_N_AXES];
-    thermonet_real_t raw[PFX_N_AXES], comp[PFX_N_AXES], drift[PFX_N_AXES];
-    if (argc != 3) return 2;
-    in = fopen(argv[1], "rb");
-    out = fopen(argv[2], "wb");
-    if (!in || !out || fread(&n, sizeof n, 1, in) != 1) return 3;
-    for (k = 0; k < n; ++k) {
-        if (fread(s, sizeof(float), PFX_N_SIGNALS, in) != PFX_N_SIGNALS) return 4;
-        if (fread(raw_in, sizeof(double), PFX_N_AXES, in) != PFX_N_AXES) return 4;
-        for (a = 0; a < PFX_N_AXES; ++a) raw[a] = (thermonet_real_t)raw_in[a];
-        flag = pfx_compensate(s, raw, comp, drift);
-        for (a = 0; a < PFX_N_AXES; ++a) comp_out[a] = (double)comp[a];
-        fwrite(comp_out, sizeof(double), PFX_N_AXES, out);
-        fwrite(&flag, sizeof flag, 1, out);
-    }
-    fclose(in);
-    fclose(out);
-    return 0;
-}
-"""
 
 
 def _c_names(model: SensorModel) -> SensorModel:
@@ -150,7 +119,7 @@ def sensor_c_parity(model: SensorModel, text: str, *, prefix: str = "thermonet"
                     ) -> dict[str, float]:
     """Compile ``text`` (double path) and compare with torch on the ONNX check's points."""
 
-    cc = shutil.which("cc") or shutil.which("gcc")
+    cc = c_compiler()
     if cc is None:
         raise ExportError("no C compiler found: the sensor C header cannot be checked, so it "
                           "is not written")
@@ -159,27 +128,15 @@ def sensor_c_parity(model: SensorModel, text: str, *, prefix: str = "thermonet"
         want, flag_t = model.columns(torch.as_tensor(sig, dtype=torch.float32).unbind(1),
                                      torch.as_tensor(raw))
         b = model.bias.drift64(torch.as_tensor(sig, dtype=torch.float32)).numpy()
-    driver = _DRIVER.replace("PFX", prefix.upper()).replace("pfx", prefix)
-    with tempfile.TemporaryDirectory() as tmp_dir:
-        tmp = Path(tmp_dir)
-        (tmp / "model.h").write_text(text)
-        (tmp / "driver.c").write_text(driver)
-        built = subprocess.run([cc, "-std=c99", "-O2", "-Wall", "-Wextra", "-Werror",
-                                "-DTHERMONET_USE_DOUBLE", "-o", str(tmp / "driver"),
-                                str(tmp / "driver.c"), "-lm"], capture_output=True, text=True)
-        if built.returncode != 0:
-            first = (built.stderr.strip().splitlines() or ["?"])[0]
-            raise ExportError(f"the sensor C header does not compile: {first}")
-        rows = np.zeros(sig.shape[0], dtype=[("s", np.float32, sig.shape[1]),
-                                             ("raw", np.float64, raw.shape[1])])
-        rows["s"], rows["raw"] = sig, raw
-        (tmp / "in.bin").write_bytes(np.int32(sig.shape[0]).tobytes() + rows.tobytes())
-        run = subprocess.run([str(tmp / "driver"), str(tmp / "in.bin"), str(tmp / "out.bin")],
-                             capture_output=True, text=True)
-        if run.returncode != 0:
-            raise ExportError(f"the sensor C parity driver failed (exit {run.returncode})")
-        out = np.fromfile(tmp / "out.bin", dtype=[("comp", np.float64, raw.shape[1]),
-                                                  ("flag", np.int32)])
+    rows = np.zeros(sig.shape[0], dtype=[("s", np.float32, sig.shape[1]),
+                                         ("raw", np.float64, raw.shape[1])])
+    rows["s"], rows["raw"] = sig, raw
+    # the batch driver of every header: the sensor's _compensate has the same signature
+    out = run_c_driver(cc, text, PARITY_DRIVER, rows,
+                       [("comp", np.float64, raw.shape[1]), ("drift", np.float64, raw.shape[1]),
+                        ("flag", np.int32)], prefix=prefix,
+                       cflags=("-O2", "-Wall", "-Wextra", "-Werror", "-DTHERMONET_USE_DOUBLE"),
+                       header="the sensor C header", driver_name="the sensor C parity driver")
     tol = PARITY_EPS32 * float(np.finfo(np.float32).eps) * (np.abs(raw) + np.abs(b))
     err = np.abs(out["comp"] - want.numpy())
     if not np.all(err <= tol):
