@@ -29,7 +29,7 @@ import torch
 from ..core.errors import FitError, InputError
 from ..core.trainconfig import TrainConfig
 from ..models.sequence import stream_windows
-from .scaling import EarlyStopping, column_scale
+from .scaling import EarlyStopping, training_scaling
 
 __all__ = ["sequences", "padded", "fit_loop", "initial_readout", "fit_recurrent", "CLIP_NORM"]
 
@@ -155,13 +155,9 @@ def fit_recurrent(model: Any, runs: Sequence[tuple[np.ndarray, ...]],
     seqs = sequences(runs, fam.step_s, fam.gap_s)
     s_tr = np.vstack([s for s, _ in seqs])
     y_tr = np.vstack([y for _, y in seqs])
-    with torch.no_grad():
-        x_tr = model.features(torch.as_tensor(s_tr)).numpy()
-    x_mean, x_std = x_tr.mean(axis=0), column_scale(x_tr)
-    y_mean, y_std = y_tr.mean(axis=0), column_scale(y_tr)
     sig_lo, sig_hi = model.sig_lo.numpy(), model.sig_hi.numpy()
-    model.set_scaling(x_mean=x_mean, x_std=x_std, y_mean=y_mean, y_std=y_std,
-                      sig_lo=sig_lo, sig_hi=sig_hi)
+    x_tr, x_mean, x_std, y_mean, y_std = training_scaling(model, s_tr, y_tr, sig_lo=sig_lo,
+                                                          sig_hi=sig_hi)
     reason = fam.check_fittable(torch.as_tensor((x_tr - x_mean) / x_std))
     if reason:
         raise FitError(f"model '{family}' with inputs {list(model.inputs)} cannot be fitted: "

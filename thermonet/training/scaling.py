@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import copy
 import math
+from typing import Any
 
 import numpy as np
 import torch
 
-__all__ = ["column_scale", "EarlyStopping"]
+__all__ = ["column_scale", "training_scaling", "EarlyStopping"]
 
 
 def column_scale(a: np.ndarray) -> np.ndarray:
@@ -18,6 +19,21 @@ def column_scale(a: np.ndarray) -> np.ndarray:
     axis with no drift) keeps unit scale."""
     mean, std = a.mean(axis=0), a.std(axis=0)
     return np.where(std > 1e-12 * np.maximum(1.0, np.abs(mean)), std, 1.0)
+
+
+def training_scaling(model: Any, signals: np.ndarray, targets: np.ndarray, *,
+                     sig_lo: np.ndarray, sig_hi: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The scaling every loop trains in, from its training rows, set on ``model`` (with the
+    trained signal range): returns the rows' features and their mean and scale, and the
+    targets' mean and scale."""
+    with torch.no_grad():
+        x = model.features(torch.as_tensor(signals)).numpy()
+    x_mean, x_std = x.mean(axis=0), column_scale(x)
+    y_mean, y_std = targets.mean(axis=0), column_scale(targets)
+    model.set_scaling(x_mean=x_mean, x_std=x_std, y_mean=y_mean, y_std=y_std,
+                      sig_lo=sig_lo, sig_hi=sig_hi)
+    return x, x_mean, x_std, y_mean, y_std
 
 
 class EarlyStopping:

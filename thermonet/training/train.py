@@ -38,7 +38,7 @@ from ..features.dynamics import dynamic_signals, saturation_margin
 from ..features.inputs import FeatureSpec
 from ..models import DriftModel, build_family
 from ..models.base import Family
-from .scaling import EarlyStopping, column_scale
+from .scaling import EarlyStopping, training_scaling
 
 __all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "average_windows",
            "rest_signals"]
@@ -311,12 +311,8 @@ def _fit_pointwise(model: DriftModel, runs: list, val_run: tuple | None, config:
     s_tr = np.vstack([s for s, _ in reduced])
     y_tr = np.vstack([y for _, y in reduced])
 
-    with torch.no_grad():
-        x_tr = model.features(torch.as_tensor(s_tr)).numpy()
-    x_mean, x_std = x_tr.mean(axis=0), column_scale(x_tr)
-    y_mean, y_std = y_tr.mean(axis=0), column_scale(y_tr)
-    model.set_scaling(x_mean=x_mean, x_std=x_std, y_mean=y_mean, y_std=y_std,
-                      sig_lo=sig_lo, sig_hi=sig_hi)
+    x_tr, x_mean, x_std, y_mean, y_std = training_scaling(model, s_tr, y_tr, sig_lo=sig_lo,
+                                                          sig_hi=sig_hi)
     z_tr = (x_tr - x_mean) / x_std
     yz_tr = (y_tr - y_mean) / y_std
 
