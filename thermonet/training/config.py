@@ -100,7 +100,10 @@ class SelectionConfig:
     ``refit``: with cross-validation, every family is refitted on the split's whole pool
     (training and validation data) by the procedure the folds judged, and that model is
     the one the test verdicts judge and the exports ship; False keeps the fit on the
-    training part with early stopping on the validation part.
+    training part with early stopping on the validation part.  ``per_axis``: each output
+    axis gets its own candidate by the same rule (:func:`thermonet.scoring.selection.
+    choose_per_axis`), shipped as one model; False chooses one family for every axis (the
+    whole-recording choice); ``None`` (default) is per axis with two or more families.
     """
 
     folds: int = 5
@@ -108,8 +111,12 @@ class SelectionConfig:
     purge_s: float | None = None
     window_s: float | None = None
     refit: bool = True
+    per_axis: bool | None = None
 
     def __post_init__(self) -> None:
+        if self.per_axis is not None and not isinstance(self.per_axis, bool):
+            raise ConfigError(f"key 'selection.per_axis': must be true, false or null (per axis "
+                              f"when there are two or more families), got {self.per_axis!r}")
         for key, lo, hi in (("folds", 0, 50), ("blocks_per_fold", 1, 100)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
@@ -326,6 +333,9 @@ def config_from_mapping(data: Any, *, source: str = "config") -> CompareConfig:
     if not cfg.families:
         raise ConfigError(f"{p}: key 'families': empty list (need at least one family)")
     check_families(cfg, source=p, build=False)  # torch-free; compare builds them
+    if cfg.selection.per_axis and len(cfg.families) < 2:
+        raise ConfigError(f"{p}: key 'selection.per_axis': a per-axis choice needs two or more "
+                          f"families to choose from (families: {', '.join(labels)})")
     _check_data(cfg.data, p)
     _check_target(cfg.target, p)
     if cfg.model == "sensor" and cfg.target != "drift":
