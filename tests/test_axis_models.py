@@ -23,6 +23,8 @@ from conftest import load_runtime
 from thermonet.core.errors import ConfigError, ExportError, InputError
 from thermonet.core.trainconfig import TrainConfig
 from thermonet.exporting import export_onnx
+from thermonet.exporting.c_stream import float_path_slack
+from thermonet.exporting.parity import float32_tolerance
 from thermonet.features import dynamics
 from thermonet.features.inputs import FeatureSpec
 from thermonet.models.composite import AxisModels
@@ -108,6 +110,15 @@ def _grid(model, n: int = 3000, seed: int = 1) -> np.ndarray:
     lo = model.sig_lo.double().numpy()
     hi = model.sig_hi.double().numpy()
     return np.random.default_rng(seed).uniform(lo, hi, (n, lo.size))
+
+
+def _tolerance(model, pts: np.ndarray) -> np.ndarray:
+    """Per axis, the export's own parity tolerance (a second float32 implementation against
+    torch: 1e-5 of the axis's largest drift, or 4× torch's own float32 rounding against a
+    float64 evaluation where the model is more sensitive; tests/test_c_header.py)."""
+    with torch.no_grad():
+        d = model.relative(torch.from_numpy(pts.astype(np.float32))).double().numpy()
+    return float32_tolerance(model, pts.astype(np.float32), d)
 
 
 # -- the composite itself -----------------------------------------------------------------
@@ -238,11 +249,13 @@ def test_onnxruntime_matches_torch_per_axis(composite, onnx_path):
                                      "raw": raw})
     with torch.no_grad():
         want = composite.drift64(torch.from_numpy(pts)).numpy()
+    tol = _tolerance(composite, pts)
     for a, k in enumerate(OWNER):
         if k is None:   # the raw axis: every part's coefficients are 0 there
             assert np.array_equal(drift[:, a], np.zeros(len(pts)))
         else:
-            assert_f32_close(drift[:, a], want[:, a], "family", err_msg=AXES[a])
+            err = np.abs(drift[:, a] - want[:, a])
+            assert (err <= tol[a]).all(), (AXES[a], err.max(), tol[a])
     assert not flag.any()
 
 
@@ -287,3 +300,74 @@ def test_runtime_refuses_an_axis_table_that_does_not_fit(onnx_path, tmp_path):
     seal_onnx(out)
     with pytest.raises(rt.RuntimeInputError, match="'axis_models' is not a mapping"):
         rt.Compensator(out)
+
+
+# -- the C header -------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def header(composite, tmp_path_factory):
+    from thermonet.exporting import export_c_header
+
+    # export_c_header runs c_parity_check and check_stream on both arithmetic paths
+    return export_c_header(composite, tmp_path_factory.mktemp("axis_c") / "model.h").read_text()
+
+
+def _c_batch(header: str, pts: np.ndarray, raw: np.ndarray, real: str) -> dict:
+    from thermonet.exporting.c_driver import PARITY_DRIVER, c_compiler, run_c_driver
+    from thermonet.exporting.c_stream import REAL_FLAGS
+
+    rows = np.zeros(len(pts), dtype=[("s", np.float32, pts.shape[1]),
+                                     ("raw", np.float64, raw.shape[1])])
+    rows["s"], rows["raw"] = pts, raw
+    cc = c_compiler()
+    assert cc is not None
+    return run_c_driver(cc, header, PARITY_DRIVER, rows,
+                        [("comp", np.float64, raw.shape[1]), ("drift", np.float64, raw.shape[1]),
+                         ("flag", np.int32)],
+                        cflags=("-O2", "-Wall", "-Wextra", "-Wshadow", "-Werror",
+                                *REAL_FLAGS[real]))
+
+
+@pytest.mark.parametrize("real", ["double", "float"])
+def test_c_batch_matches_torch_per_axis(composite, header, real):
+    assert header.count("static inline int thermonet_compensate(") == 1
+    assert "thermonet_part2_compensate" in header and header.count("} thermonet_state;") == 1
+    pts = _grid(composite).astype(np.float32)
+    pts = np.concatenate([pts, [[np.nan, 0.0], [20.0, np.nan], [99.0, 0.0]]]).astype(np.float32)
+    raw = np.random.default_rng(2).normal(0.0, 0.01, (len(pts), len(AXES)))
+    out = _c_batch(header, pts, raw, real)
+    with torch.no_grad():
+        want = composite.drift64(torch.from_numpy(pts)).numpy()
+        flag = composite.out_of_range(torch.from_numpy(pts)).numpy()
+    fin = np.isfinite(pts).all(axis=1)
+    tol = _tolerance(composite, pts[fin])
+    if real == "float":   # its drift output is a float: rounded at the constant's magnitude
+        tol = tol + float_path_slack(composite.constant().numpy(), want[fin])
+    for a, k in enumerate(OWNER):
+        if k is None:   # raw axis: drift exactly 0 and compensated the raw value
+            assert np.array_equal(out["drift"][fin, a], np.zeros(int(fin.sum())))
+            want_raw = raw[fin, a].astype(np.float32) if real == "float" else raw[fin, a]
+            assert np.array_equal(out["comp"][fin, a], want_raw)
+        else:
+            err = np.abs(out["drift"][fin, a] - want[fin, a])
+            assert (err <= tol[a]).all(), (AXES[a], err.max(), tol[a])
+    assert np.isnan(out["drift"][-3:-1]).all() and np.isnan(out["comp"][-3:-1]).all()
+    assert np.array_equal(out["flag"].astype(bool), flag)   # booleans
+
+
+@pytest.mark.parametrize("real", ["double", "float"])
+def test_c_step_and_step_block_match_torch_per_axis(composite, header, real):
+    from thermonet.exporting.c_stream import REAL_FLAGS, run_stream_c
+
+    t, temp, raw = _stream()
+    flags = ("-O2", *REAL_FLAGS[real])
+    one = run_stream_c(composite, header, t, temp, raw, cflags=flags)
+    blk = run_stream_c(composite, header, t, temp, raw, cflags=flags, block=7)
+    # step_block calls step on each sample in order: the same operations, bitwise
+    np.testing.assert_array_equal(blk["drift"], one["drift"])
+    assert np.array_equal(blk["flag"], one["flag"]) and (one["ret"] == 0).all()
+    with torch.no_grad():
+        want = composite.drift64(torch.from_numpy(_signals(composite, t, temp))).numpy()
+    for a in range(len(AXES)):
+        assert_f32_close(one["drift"][:, a], want[:, a], "dynamic", err_msg=AXES[a])
+    assert one["flag"][len(t) // 2] and one["flag"][len(t) // 3]
+    assert np.isnan(one["drift"][len(t) // 3]).all()
