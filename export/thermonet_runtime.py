@@ -494,6 +494,7 @@ class _RecurrentStream:
 _AXIS = re.compile(r"(?=.{1,64}\Z)[a-z][a-z0-9]*_[a-z0-9]+(?:\.bias|\.scale)?")
 _SIGNAL = re.compile(r"[A-Za-z][A-Za-z0-9_.]{0,63}")
 _FAMILY = re.compile(r"[a-z?][a-z0-9_-]{0,31}")
+_LABEL = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 _UNIT = re.compile(r"[A-Za-z0-9°µμΩ%/^._-]{0,32}")
 
 
@@ -522,6 +523,20 @@ def _meta_units(meta: Mapping[str, str], key: str, pattern: re.Pattern[str],
         raise RuntimeInputError(f"{path}: metadata '{key}' is not a mapping name -> unit")
     return {_meta_name(k, pattern, key, path): _meta_name(v, _UNIT, key, path)
             for k, v in units.items()}
+
+
+def _meta_axis_models(meta: Mapping[str, str], outputs: list[str], path: Path
+                      ) -> dict[str, str | None] | None:
+    """A per-axis model's ``axis_models`` {axis: candidate label, or null: left raw}; None for
+    a single-family file."""
+    if "axis_models" not in meta:
+        return None
+    table = _meta_json(meta, "axis_models", path)
+    if not isinstance(table, dict) or sorted(table) != sorted(outputs):
+        raise RuntimeInputError(f"{path}: metadata 'axis_models' is not a mapping of the "
+                                f"outputs {outputs} to candidate labels")
+    return {a: None if table[a] is None else _meta_name(table[a], _LABEL, "axis_models", path)
+            for a in outputs}
 
 
 def _meta_ranges(meta: Mapping[str, str], path: Path) -> dict[str, list[float]]:
@@ -629,6 +644,15 @@ class Compensator:
         self.output_units: dict[str, str] = _meta_units(meta, "output_units", _AXIS, path)
         if not self.signals or not self.outputs:
             raise RuntimeInputError(f"{path}: metadata lists no signals or no outputs")
+        #: A per-axis model (family ``per-axis``: one graph summing several candidates, each
+        #: computing the axes it owns): {axis: the candidate's label, or None for an axis
+        #: left raw}.  None for a single-family model.
+        self.axis_models: dict[str, str | None] | None = _meta_axis_models(
+            meta, self.outputs, path)
+        if (self.family == "per-axis") != (self.axis_models is not None):
+            raise RuntimeInputError(f"{path}: family {self.family!r} with"
+                                    f"{'' if self.axis_models is not None else 'out'} an "
+                                    "'axis_models' table")
         block = _meta_json(meta, "dynamic_inputs", path) if "dynamic_inputs" in meta else None
         self.dynamic: dict[str, Any] | None = _check_dynamic(block, self.signals, path)
         #: Graph inputs this runtime computes from time_s and temperature_c.

@@ -77,8 +77,18 @@ from torch import nn
 from .. import __version__
 from ..core.errors import ExportError
 from ..core.fileio import atomic_path
-from ..core.names import AXIS, SIGNAL, TEXT_ID, check_model_names, check_name, check_units
+from ..core.names import (
+    AXIS,
+    LABEL,
+    SIGNAL,
+    TEXT_ID,
+    check_model_names,
+    check_name,
+    check_names,
+    check_units,
+)
 from ..models import DriftModel
+from ..models.composite import AxisModels
 from .parity import parity_check, trained_range
 
 __all__ = [
@@ -187,6 +197,40 @@ def _strip_debug(proto: Any) -> None:
     proto.doc_string = ""
 
 
+def _dynamo_proto(graph: Any, example: tuple, names: list[str], out_names: list[str]) -> Any:
+    """The dynamo exporter's graph, optimised by onnxscript; unoptimised when the optimised
+    one is not a valid graph.
+
+    onnxscript's rewriter fuses each ``Min(Max(x, lo), hi)`` into a ``Clip`` whose bounds it
+    names after ``x``; where one signal is clamped twice (a per-axis model: each part clamps
+    to its own trained range) the second pair of bounds is lost and the graph references
+    values nothing defines.  The unoptimised graph computes the same operations.
+    """
+    import onnx
+
+    batch = torch.export.Dim("N")
+    proto = None
+    for optimize in (True, False):
+        program = torch.onnx.export(
+            graph, example, None, input_names=names, output_names=out_names,
+            opset_version=OPSET, dynamo=True, external_data=False, optimize=optimize,
+            # forward(*inputs): the varargs tuple is one argument
+            dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False)
+        if program is None:
+            raise ExportError("torch.onnx.export (dynamo) returned no program")
+        proto = program.model_proto
+        try:
+            onnx.checker.check_model(proto)
+        except onnx.checker.ValidationError as err:
+            if not optimize:
+                raise
+            _log.info("optimised ONNX graph is invalid (%s); exporting it unoptimised",
+                      str(err).splitlines()[0])
+            continue
+        break
+    return proto
+
+
 def _export_proto(graph: Any, exporter: str) -> tuple[Any, str]:
     import onnx
 
@@ -208,15 +252,7 @@ def _export_proto(graph: Any, exporter: str) -> tuple[Any, str]:
                 # ops, the legacy path's deprecation); the result is checked by parity.
                 warnings.simplefilter("ignore")
                 if kind == "dynamo":
-                    batch = torch.export.Dim("N")
-                    program = torch.onnx.export(
-                        graph, example, None, input_names=names, output_names=out_names,
-                        opset_version=OPSET, dynamo=True, external_data=False, optimize=True,
-                        # forward(*inputs): the varargs tuple is one argument
-                        dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False)
-                    if program is None:
-                        raise ExportError("torch.onnx.export (dynamo) returned no program")
-                    proto = program.model_proto
+                    proto = _dynamo_proto(graph, example, names, out_names)
                 else:
                     with tempfile.TemporaryDirectory() as tmp:
                         f = Path(tmp) / "m.onnx"
@@ -246,6 +282,8 @@ def _check_metadata(model: DriftModel, meta: Mapping[str, Any]) -> None:
     hash) are stored as they are, which is safe because they were checked here.
     """
     check_model_names(model, error=ExportError)
+    if isinstance(model, AxisModels):
+        check_names(model.labels, LABEL, "per-axis labels", error=ExportError)
     for key in ("device_id", "training_run_id", "data_hash"):
         if meta.get(key) not in (None, ""):
             check_name(meta[key], TEXT_ID, f"ONNX metadata '{key}'", error=ExportError)
@@ -285,6 +323,8 @@ def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: st
         "data_hash": _json(meta.pop("data_hash", "")),
         DIGEST_KEY: _UNSEALED,  # filled in by _seal_bytes once the file is written
     }
+    if isinstance(model, AxisModels):
+        props.update(axis_models_metadata(model))
     if model.family.recurrent:
         from .recurrent import recurrent_metadata
 
@@ -302,6 +342,20 @@ def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: st
             raise ExportError(f"metadata key '{key}' is reserved (written by thermonet itself)")
         props[str(key)] = _json(value)
     return props
+
+
+def axis_models_metadata(model: AxisModels) -> dict[str, str]:
+    """What a per-axis model's file says of its parts.
+
+    ``axis_models`` {axis: label of the candidate that computes it, or null: left raw};
+    ``axis_model_parts`` [{label, family, inputs, signals}] in part order (the graph sums the
+    parts' drifts; a part's drift is exactly 0 on the axes it does not own).
+    """
+    parts = [{"label": lab, "family": p.family_name, "inputs": list(p.inputs),
+              "signals": list(p.signals)} for lab, p in zip(model.labels, model.parts,
+                                                           strict=True)]
+    return {"axis_models": json.dumps(model.axis_table()),
+            "axis_model_parts": json.dumps(parts)}
 
 
 def target_metadata(model: DriftModel) -> dict[str, str]:

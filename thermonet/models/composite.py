@@ -34,9 +34,33 @@ import torch
 from torch import nn
 
 from ..core.errors import ConfigError
+from ..features.inputs import FeatureSpec
 from .base import DriftModel
 
-__all__ = ["AxisModels", "composable", "axis_owner_table"]
+__all__ = ["AxisModels", "composable", "axis_owner_table", "PER_AXIS", "ShippedModel"]
+
+#: The family name a per-axis composite carries (checkpoints, ONNX metadata, C comments).
+PER_AXIS = "per-axis"
+
+
+class _PerAxisFamily:
+    """What ``model.family`` answers for an :class:`AxisModels`: the attributes the exporters
+    ask of any model (its name, not recurrent, no single polynomial form); a composite has no
+    single family to emit C for or to refit."""
+
+    name = PER_AXIS
+    recurrent = False
+
+    def hyper(self) -> dict[str, Any]:
+        return {}
+
+    def polynomial_form(self) -> None:
+        return None
+
+    def emit_c(self, *args: Any, **kwargs: Any) -> Any:
+        from ..core.errors import ExportError
+        raise ExportError("a per-axis model has no single family body: each part is emitted "
+                          "on its own (thermonet.exporting.c_header)")
 
 
 def composable(parts: Sequence[DriftModel]) -> str | None:
@@ -56,12 +80,18 @@ def composable(parts: Sequence[DriftModel]) -> str | None:
     if len(gaps) > 1:
         return f"the dynamic inputs' gap rule differs between parts: {sorted(gaps)} s"
     dyn: dict[str, Any] = {}
+    ranges: dict[str, tuple[float, float]] = {}
     for p in parts:
         ref = dict(zip(p.signals, p.sig_ref.detach().double().tolist(), strict=True))
         for s, v in ref.items():
             if s in refs and not np.isclose(refs[s], v, rtol=1e-6, atol=1e-9):
                 return f"signal {s} has rest value {v} in {p.family_name}, {refs[s]} elsewhere"
             refs.setdefault(s, v)
+        for s, lo, hi in zip(p.signals, p.sig_lo.tolist(), p.sig_hi.tolist(), strict=True):
+            a, b = ranges.get(s, (-np.inf, np.inf))
+            ranges[s] = (max(a, lo), min(b, hi))
+            if not ranges[s][0] <= ranges[s][1]:
+                return f"the parts' trained ranges of signal {s} do not overlap"
         for d in (p.spec.dynamic or {}).get("inputs", []):
             if d["signal"] in dyn and dyn[d["signal"]] != d:
                 return f"dynamic signal {d['signal']} defined twice differently"
@@ -141,6 +171,51 @@ class AxisModels(nn.Module):
             out += [i for i in p.inputs if i not in out]
         return out
 
+    @property
+    def family(self) -> _PerAxisFamily:
+        """Not a :class:`~thermonet.models.base.Family`: the name and the flags exporters ask
+        of every model (``recurrent`` False, no polynomial form)."""
+        return _PerAxisFamily()
+
+    @property
+    def spec(self) -> FeatureSpec:
+        """The union of the parts' features as one :class:`FeatureSpec`: every part's inputs
+        (first-appearance order), the first temperature reference, the proxies' references and
+        the common gap rule.  For the metadata (``t_ref``, ``proxy_ref``, the dynamic-input
+        block) and the streaming header; each part evaluates its own spec."""
+        t_ref = next((p.spec.t_ref for p in self.parts if p.spec.t_ref is not None), None)
+        proxy_ref: dict[str, float] = {}
+        for p in self.parts:
+            for k, v in p.spec.proxy_ref.items():
+                proxy_ref.setdefault(k, float(v))
+        gap = next((p.spec.gap_s for p in self.parts if p.spec.dynamic), None)
+        return FeatureSpec(inputs=self.inputs, t_ref=t_ref, proxy_ref=proxy_ref, gap_s=gap)
+
+    def _per_signal(self, name: str, pick: Any) -> torch.Tensor:
+        """One value per composite signal from the parts' buffer ``name`` (``pick`` reduces
+        the parts' values of a shared signal)."""
+        out = []
+        for s in self.signals:
+            vals = [getattr(p, name)[p.signals.index(s)] for p in self.parts if s in p.signals]
+            out.append(pick(torch.stack(vals)))
+        return torch.stack(out)
+
+    @property
+    def sig_lo(self) -> torch.Tensor:
+        """Per signal, the highest of the parts' trained lows: with :attr:`sig_hi` the range
+        where no part flags (the composite's flag is the OR of the parts')."""
+        return self._per_signal("sig_lo", lambda v: v.max())
+
+    @property
+    def sig_hi(self) -> torch.Tensor:
+        """Per signal, the lowest of the parts' trained highs (see :attr:`sig_lo`)."""
+        return self._per_signal("sig_hi", lambda v: v.min())
+
+    @property
+    def sig_ref(self) -> torch.Tensor:
+        """Per signal, its rest value (the parts agree: :func:`composable`)."""
+        return self._per_signal("sig_ref", lambda v: v[0])
+
     def axis_table(self) -> dict[str, str | None]:
         """Per output axis, the label of its part (None: left raw)."""
         return axis_owner_table(self.outputs, self.owner, self.labels)
@@ -185,6 +260,10 @@ class AxisModels(nn.Module):
     def forward(self, signals: torch.Tensor) -> torch.Tensor:
         r = self.relative(signals)
         return r + self.constant().to(r.dtype)
+
+
+#: Any model thermonet fits and ships: one family, or a per-axis composite of several.
+ShippedModel = DriftModel | AxisModels
 
 
 def axis_owner_table(outputs: Sequence[str], owner: Sequence[int | None],
