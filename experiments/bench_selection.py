@@ -193,10 +193,8 @@ def _halves(ds: Any, reverse: bool) -> Any:
 def real_splits() -> list[tuple[str, CompareConfig, Any]]:
     """Every honest split of the real recordings: time blocks at three block counts (the test
     is blocks inside the runs), and train-then-verify in both directions (the cubesat's ramp
-    cut at its middle; the BMI270's cold soak then the hot one, and back)."""
+    cut at its middle, each half verified by the other)."""
     import copy
-
-    from thermonet.core.recording import Dataset
 
     out = []
     for name in ("pan-tvac", "bmi270"):
@@ -205,16 +203,17 @@ def real_splits() -> list[tuple[str, CompareConfig, Any]]:
             c = copy.deepcopy(cfg)
             c.split.strategy, c.split.n_blocks = "time-blocks", n
             out.append((f"{name} time-blocks {n}", c, ds))
+        if name == "bmi270":
+            # two isothermal soaks (13 °C, 47.6 °C): a model trained on one spans 0.3 °C and
+            # compare refuses it (no thermal model from one temperature); the honest splits of
+            # these soaks are the time blocks inside both
+            continue
         for reverse in (False, True):
             c = copy.deepcopy(cfg)
             c.split.strategy = "train-then-verify"
-            if name == "pan-tvac":
-                d, what = _halves(ds, reverse), ("second half → first" if reverse
-                                                 else "first half → second")
-            else:
-                runs = list(ds)
-                d = Dataset(runs[::-1] if reverse else runs)
-                what = "hot → cold" if reverse else "cold → hot"
+            c.split.n_blocks = 5     # bursts of 5 s every 300 s: a half holds about 12
+            d = _halves(ds, reverse)
+            what = "second half → first" if reverse else "first half → second"
             out.append((f"{name} {what}", c, d))
     return out
 
@@ -241,8 +240,8 @@ def main_real() -> None:
         per_axis = (res["selection"].get("per_axis") or {}).get("chosen", {})
         rows.append({"split": name, "chosen": res["chosen"], "axes": axes, **r,
                      "per_axis": per_axis, "seconds": time.perf_counter() - t0})
-        print(f"{name}: {res['chosen']} vs cubic "
-              + " ".join(f"{x:.3f}" for x in r["vs_cubic"]), flush=True)
+        print(f"{name}: {res['chosen']} {per_axis} vs cubic "
+              + " ".join(f"{x:.4f}" for x in r["vs_cubic"]), flush=True)
     vc = np.concatenate([r["vs_cubic"] for r in rows])
     head = ["split", "axis", "shipped", "shipped / cubic", "shipped / raw", "regret"]
     body = [[r["split"], a, r["per_axis"].get(a) or "raw" if r["per_axis"] else r["chosen"],

@@ -145,6 +145,26 @@ def _selection_table(res: dict[str, Any]) -> str:
             "<th>left raw</th></tr>" + "".join(rows) + "</table>")
 
 
+def _per_axis_table(res: dict[str, Any]) -> str:
+    """Each axis its own model: per axis the candidate chosen and the rule's sentence."""
+    sel = res.get("selection") or {}
+    pa = sel.get("per_axis") or {}
+    if not pa.get("chosen"):
+        return ""
+    whole = sel.get("whole_recording") or {}
+    rows = "".join(f"<tr><td>{_e(a)}</td><td><b>{_e(k or 'raw')}</b></td>"
+                   f"<td>{_e((pa.get('rule') or {}).get(a, ''))}</td></tr>"
+                   for a, k in pa["chosen"].items())
+    note = (f" One family for every axis would have been {_e(whole.get('chosen') or 'none')}"
+            f" ({_e(whole.get('reason', ''))})." if whole else "")
+    extra = f" {_e(pa['note'])}." if pa.get("note") else ""
+    return ("<h3>Each axis its own model</h3><p class='small'>The same one-SE rule on each "
+            "axis's paired out-of-fold scores; the baseline is the floor on every axis it "
+            "compensates; an axis is compensated only where the residual's binned "
+            f"peak-to-peak does not grow out of fold.{note}{extra}</p>"
+            "<table><tr><th>axis</th><th>model</th><th>rule</th></tr>" + rows + "</table>")
+
+
 def tuned_text(tuned: dict[str, Any]) -> str:
     """A family's tuned hyper-parameters in one line: ``degree=2 (of degree=1 0.061,
     degree=2 0.0034, …)``; "" when it chose none."""
@@ -270,6 +290,7 @@ def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
     parts += [
         "<h2>How the model was chosen (cross-validation on the training data)</h2>",
         _selection_table(results),
+        _per_axis_table(results),
         _tuning_list(results),
         "<h2>Verdicts on the held-out test data</h2>",
         "<p class='small'>Score: the spread of the error about its mean on held-out data "

@@ -71,6 +71,16 @@ are paired:
   was 1.6 % worse than the cubic there on the held-out data);
 * **do no harm**: when no candidate beats raw on any axis, none is chosen.
 
+Each axis its own model
+-----------------------
+:func:`choose_per_axis` runs the same rule axis by axis on the same paired draws: per axis the
+best masked ratio must beat raw; the fewest parameters among the candidates within one SE of
+the best on that axis win; the baseline is the floor on that axis (a candidate better than the
+cubic by less than one SE loses to it: fewer parameters; a simpler one worse than the cubic
+there is not taken).  With the pool's temperatures, :func:`pp_guard` leaves raw every axis
+whose out-of-fold residual has a larger binned peak-to-peak than the raw output's (summed over
+the folds): the figure a user reads off the compensated signal must not get worse.
+
 Where cross-validation cannot run (``selection.folds: 0``, the four-position target's one
 sample per soak, too little data for K folds) the split's single validation part decides, as
 before, and the result says so.
