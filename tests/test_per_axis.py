@@ -100,3 +100,65 @@ def test_per_axis_with_one_family_is_one_line_naming_the_key():
                              "selection": {"per_axis": True}})
     with pytest.raises(ConfigError, match=r"key 'selection.per_axis': 'yes' is not bool"):
         config_from_mapping({"selection": {"per_axis": "yes"}})
+
+
+# ----------------------------------------------------------------- a device whose axes disagree
+def _two_law_device(seed: int = 0):
+    """One 12-hour chamber cycle (25 ± 30 °C, period 2 h, 1 Hz): gyro_x drifts with the
+    temperature alone (a cubic in ΔT), acc_x also with its rate of change (a thermal gradient:
+    2e-3 m/s² per °C/min) — a cubic cannot see the rate, a model with the rate input can."""
+    from thermonet.core.recording import Dataset, Recording
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 12 * 3600.0, 1.0)
+    temp = 25.0 + 30.0 * np.sin(2 * np.pi * t / 7200.0)
+    rate_cpm = 60.0 * np.gradient(temp, t)
+    d = temp - 25.0
+    gyro = 0.02 + 1e-3 * d - 2e-5 * d ** 2 + 3e-7 * d ** 3
+    acc = 1e-3 * d + 2e-3 * rate_cpm
+    rec = Recording(time_s=t, temperature_c=temp,
+                    outputs={"gyro_x": gyro + rng.normal(0, 2e-4, t.size),
+                             "acc_x": 9.81 + acc + rng.normal(0, 2e-4, t.size)},
+                    units={"gyro_x": "deg/s", "acc_x": "m/s^2", "temperature_c": "degC"},
+                    device_id="two-law", run_id="cycle", sample_rate_hz=1.0)
+    return Dataset([rec])
+
+
+def _config(per_axis: bool | None):
+    return config_from_mapping({
+        "split": {"strategy": "time-blocks"},
+        "target": {"gyro_x": "zero", "acc_x": "at-t-ref"},
+        "families": [{"name": "cubic", "family": "poly", "inputs": ["dT"],
+                      "params": {"degree": 3}},
+                     {"name": "rate", "family": "poly", "inputs": ["dT", "rate"],
+                      "params": {"degree": 3, "cross": True}}],
+        "baseline": "cubic", "selection": {"per_axis": per_axis},
+        "tracking": {"enabled": False}})
+
+
+@pytest.mark.slow
+def test_a_device_whose_axes_need_different_families_gets_both(tmp_path):
+    from thermonet.workflows.compare import run_compare
+
+    ds = _two_law_device()
+    res = run_compare(_config(None), tmp_path / "out", dataset=ds, track=False, quiet=True,
+                      plots=False)
+    per_axis = res["selection"]["per_axis"]
+    # gyro_x: the rate adds nothing, the cubic has fewer parameters; acc_x: the rate term
+    assert per_axis["chosen"] == {"gyro_x": "cubic", "acc_x": "rate"}, per_axis["rule"]
+    assert res["chosen"] == "per-axis"
+    shipped = res["families"]["per-axis"]
+    assert shipped["params"]["axes"] == {"gyro_x": "cubic", "acc_x": "rate"}
+    # the shipped model's held-out record is its owners' on each axis
+    for axis, owner in per_axis["chosen"].items():
+        assert shipped["axes"][axis]["score_ratio"] == res["families"][owner]["axes"][axis][
+            "score_ratio"]
+    assert shipped["axes"]["acc_x"]["score_ratio"] < 0.5 * res["families"]["cubic"]["axes"][
+        "acc_x"]["score_ratio"]
+    assert (tmp_path / "out" / "models" / "per-axis.pt").is_file()
+    assert shipped["checkpoint_sha256"]
+    assert res["selection"]["whole_recording"]["chosen"] == "rate"
+    # the one-family choice on request
+    one = run_compare(_config(False), tmp_path / "one", dataset=ds, track=False, quiet=True,
+                      plots=False)
+    assert one["chosen"] == "rate" and "per-axis" not in one["families"]
