@@ -95,7 +95,10 @@ def _device(name: str, cfg: CompareConfig, ds: Any) -> dict[str, Any]:
     best = _best(new)
     out = {"device": name, "chosen_new": new["chosen"], "chosen_old": old["chosen"],
            "seconds": time.perf_counter() - t0}
+    whole = (new["selection"].get("whole_recording") or {}).get("chosen", new["chosen"])
+    out["chosen_whole"] = whole
     for rule, res, fam, masked in (("new", new, new["chosen"], True),
+                                   ("whole", new, whole, True),
                                    ("old", old, old["chosen"], True),
                                    ("cubic", new, "cubic", False)):
         r = _errors(res, fam, masked) / np.maximum(best, 1e-300)
@@ -270,14 +273,15 @@ def main() -> None:
     md = (f"{len(sim)} simulated devices (realistic presets, different seeds) and "
           f"{len(rows) - len(sim)} real recordings; regret = test error of the chosen model "
           "over the best candidate's in hindsight, mean over axes.\n\n"
-          + table(head, [summary(k, sim) for k in ("new", "old", "cubic")])
+          + table(head, [summary(k, sim) for k in ("new", "whole", "old", "cubic")])
           + "\n\nThe refit (`selection.refit`, default) against the fit on the training part "
           "alone: the chosen model's test error, refit / no refit, mean over axes — "
           + _refit_summary(rows)
           + "\n\nPer device:\n\n"
-          + table(["device", "new rule chose", "regret", "old rule chose", "regret",
-                   "always cubic", "refit / no refit"],
+          + table(["device", "per axis chose", "regret", "one family", "regret",
+                   "old rule chose", "regret", "always cubic", "refit / no refit"],
                   [[r["device"], r["chosen_new"] or "none", r["regret_new"],
+                    r["chosen_whole"] or "none", r["regret_whole"],
                     r["chosen_old"] or "none", r["regret_old"], r["regret_cubic"],
                     r.get("refit_ratio", float("nan"))]
                    for r in rows]))

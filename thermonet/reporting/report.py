@@ -62,10 +62,15 @@ def _cell(v: dict[str, Any] | None, compensate: bool | None = None) -> str:
         return "<td class='none'>–</td>"
     verdict = v.get("verdict", "indistinguishable")
     lo, hi = v.get("interval") or [None, None]
-    note = "" if compensate in (None, True) else "<br><i>left uncompensated</i>"
+    if compensate is False:
+        # what the model file holds: drift exactly 0 on this axis, so the shipped output is
+        # the raw output (ratio 1); the fit's own figure is what masking it avoided
+        return (f"<td style='background:{VERDICT_COLOURS.get('indistinguishable', '#ffffff')}'>"
+                f"<b>raw</b> (drift 0)<br>1<br><i>left uncompensated; the fit was "
+                f"{_e(verdict)} {_num(v['ratio'])}</i></td>")
     colour = VERDICT_COLOURS.get(verdict, "#ffffff")
     return (f"<td style='background:{colour}'><b>{_e(verdict)}</b><br>{_num(v['ratio'])} "
-            f"[{_num(lo)}, {_num(hi)}]{note}</td>")
+            f"[{_num(lo)}, {_num(hi)}]</td>")
 
 
 def _verdict_table(res: dict[str, Any]) -> str:

@@ -377,10 +377,15 @@ def format_table(results: dict[str, Any]) -> str:
                 f"{'':<14} {a:<14} {'':>6} {'':>6} {'':>6} "
             vs_raw = {"ratio": m.get("score_ratio"), "interval": m.get("interval", [None, None]),
                       "verdict": m.get("verdict", "indistinguishable")}
+            raw_cell = None
+            if not m.get("compensate") and m.get("score_ratio") is not None:
+                # the model file's drift is 0 here: the shipped output is raw (ratio 1)
+                raw_cell = f"{'raw (fit ' + ratio_text(m['score_ratio']) + ')':>22}"
             metrics = " ".join(f"{(m.get(c) if m.get(c) is not None else math.nan):12.4g}"
                                for c in cols)
             lines.append(pre + f"{'yes' if m.get('compensate') else 'no':>4} "
-                         f"{_ratio_cell(vs_raw)} {_ratio_cell(m.get('vs_baseline'))} " + metrics)
+                         f"{raw_cell or _ratio_cell(vs_raw)} {_ratio_cell(m.get('vs_baseline'))} "
+                         + metrics)
     lines.append("")
     sel = results.get("selection") or {}
     if sel.get("candidates"):

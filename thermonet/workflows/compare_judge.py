@@ -146,7 +146,9 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
                 result.warn(f"{k}: not a candidate: {f.oof.failed}")
         if p.cfg.selection.per_axis is not False and len(cv) >= 2:
             shipped = per_axis_choice(sel, cv, p, temps)
-            if shipped is not None:
+            # the same family on every axis as the whole-recording rule: its sentence and tie
+            # stand (the per-axis table is in the record either way)
+            if shipped is not None and shipped[0] != chosen:
                 result.selection["whole_recording"] = {"chosen": chosen, "reason": why,
                                                        "tie": tied}
                 chosen, tied, why = shipped
