@@ -229,8 +229,8 @@ def test_read_window_s_is_seconds_and_bool_is_no_number(window_s) -> None:
 
 @pytest.mark.parametrize("inputs, said", [
     (["dX"], "unknown model input 'dX'"), ("bogus", "unknown model input 'bogus'"),
-    (["dT", "dT"], "names an input twice"), ([3], "expected input names"),
-    (["dT", None], "expected input names"), (5, "expected an input name"),
+    (["dT", "dT"], "names an input twice"), ([3], "expected names (strings)"),
+    (["dT", None], "expected names (strings)"), (5, "expected an input name"),
     ({"dT": 1}, "expected an input name"), (["d", "T"], "unknown model input 'd'"),
 ])
 def test_read_inputs_are_known_input_names(inputs, said) -> None:

@@ -163,7 +163,7 @@ def input_names(value: Any, what: str, *, empty: bool = False) -> list[str]:
         names = list(value)
         bad = [v for v in names if not isinstance(v, str)]
         if bad:
-            raise ArgumentTypeError(f"{what}: expected input names (strings), got "
+            raise ArgumentTypeError(f"{what}: expected names (strings), got "
                                     f"{_got(bad[0])} in {names!r}")
     else:
         raise ArgumentTypeError(f"{what}: expected an input name or a list of them, got "
