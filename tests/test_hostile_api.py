@@ -434,3 +434,23 @@ def test_numpy_numbers_are_numbers() -> None:
     assert thermonet.TimeBlockSplit(np.int64(3)).get_n_splits() == 3
     _refused(lambda: thermonet.TimeBlockSplit(np.bool_(True)), "TimeBlockSplit(n_splits)")
     _refused(lambda: thermonet.read(MISSING, window_s=np.bool_(True)), "read(window_s)")
+
+
+@pytest.mark.parametrize("where", NOT_A_PATH + [""])
+def test_save_load_and_export_paths(fitted: thermonet.DriftEstimator, where, tmp_path,
+                                    monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    _refused(lambda: fitted.save(where), "save(path)")
+    _refused(lambda: thermonet.DriftEstimator.load(where), "load(path)")
+    _refused(lambda: fitted.export(where), "export(path)")
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("kwargs, argument", [
+    ({"format": None}, "export(format)"), ({"format": 3}, "export(format)"),
+    ({"device_id": -1}, "export(device_id)"), ({"device_id": True}, "export(device_id)"),
+    ({"device_id": "7"}, "export(device_id)"), ({"instance": 1.5}, "export(instance)"),
+])
+def test_export_arguments(fitted: thermonet.DriftEstimator, kwargs, argument, tmp_path) -> None:
+    _refused(lambda: fitted.export(tmp_path / "m.onnx", **kwargs), argument)
+    assert not (tmp_path / "m.onnx").exists()

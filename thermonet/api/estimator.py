@@ -557,16 +557,18 @@ average_s, threads
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the fitted model as a thermonet checkpoint (atomic; loads with
         ``weights_only=True``; ``thermonet export`` reads it)."""
+        from .checks import path as a_path
         from .persistence import save
 
-        return save(self, path)
+        return save(self, a_path(path, "save(path)"))  # type: ignore[arg-type]
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DriftEstimator:
         """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
+        from .checks import path as a_path
         from .persistence import load
 
-        return load(cls, path)
+        return load(cls, a_path(path, "load(path)"))  # type: ignore[arg-type]
 
     def export(self, path: str | os.PathLike[str], format: str = "onnx", *,
                device_id: int | None = None, instance: int | None = None) -> Path:
@@ -575,6 +577,12 @@ average_s, threads
         ``device_id``/``instance`` apply to the autopilot formats (see
         ``thermonet export --help``).
         """
+        from .checks import path as a_path
+        from .checks import text, whole
         from .persistence import export
 
+        a_path(path, "export(path)")
+        text(format, "export(format)", rule="a format name such as 'onnx'")
+        whole(device_id, "export(device_id)", 0, none=True)
+        whole(instance, "export(instance)", 0, none=True)
         return export(self, path, format, device_id=device_id, instance=instance)
