@@ -363,6 +363,7 @@ def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = 
     """
     from ..core.names import LABEL
     from ..features.inputs import signals_for
+    from ..models.hyper import HyperError
     from ..models.registry import build_family, check_hyper
 
     for i, fam in enumerate(cfg.families):
@@ -379,15 +380,32 @@ def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = 
             signals_for(fam.inputs)
         except ConfigError as err:
             raise ConfigError(f"{source}: key '{key}.inputs': {err}") from None
+        if not isinstance(fam.family, str):
+            raise ConfigError(f"{source}: key '{key}.family': expected a family name such "
+                              f"as 'poly', got {fam.family!r}")
         try:
-            check_hyper(fam.family, fam.params, n_inputs=len(fam.inputs))
+            check_hyper(fam.family, fam.params, n_inputs=len(fam.inputs), values=False)
         except ConfigError as err:
             raise ConfigError(f"{source}: key '{key}': {err}") from None
         try:
-            check_hyper(fam.family, {k: None for k in fam.tune}, n_inputs=len(fam.inputs))
+            check_hyper(fam.family, {k: None for k in fam.tune}, n_inputs=len(fam.inputs),
+                        values=False)
         except ConfigError as err:
             raise ConfigError(f"{source}: key '{key}.tune': {err}") from None
         points = tune_points(fam, source, key)
+        # every value, each grid point's with the fixed ones: a built-in's without torch
+        # (thermonet.models.hyper), a plug-in's by building it — before any data is read
+        for point in points:
+            try:
+                check_hyper(fam.family, {**fam.params, **point}, n_inputs=len(fam.inputs))
+            except HyperError as err:
+                sub = f"tune.{err.key}" if err.key in point else f"params.{err.key}"
+                raise ConfigError(f"{source}: key '{key}.{sub}': {err}") from None
+            except ConfigError as err:
+                sub = "tune" if point else "params"
+                raise ConfigError(f"{source}: key '{key}.{sub}': {err}") from None
+            except TypeError as err:  # a hyper-parameter of the wrong type
+                raise ConfigError(f"{source}: key '{key}.params': {err}") from None
         if not build:
             continue
         for point in points:

@@ -37,7 +37,7 @@ from ..core.trainconfig import TrainConfig  # re-exported: the ``train`` section
 from ..features.dynamics import dynamic_signals, saturation_margin
 from ..features.inputs import FeatureSpec
 from ..models import DriftModel, build_family
-from ..models.base import Family
+from ..models.base import Family, check_output_shape
 from .scaling import EarlyStopping, training_scaling
 
 __all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "average_windows",
@@ -324,6 +324,7 @@ def _fit_pointwise(model: DriftModel, runs: list, val_run: tuple | None, config:
     torch.manual_seed(config.seed)
     fam.initialize(torch.as_tensor(z_tr), torch.as_tensor(yz_tr), seed=config.seed,
                    x_mean=x_mean, x_std=x_std)
+    check_output_shape(fam, torch.as_tensor(z_tr, dtype=torch.float32), family)
 
     z_v = y_vz = None
     if val_run is not None:
