@@ -319,14 +319,14 @@ def render_axis_models_c(model: AxisModels, *, prefix: str = "thermonet") -> str
     for k, cols in enumerate(model.columns):
         body += [f"    s{k}[{j}] = signals[{c}];" for j, c in enumerate(cols)]
         body.append(f"    flag |= {p}_part{k}_compensate(s{k}, raw, c{k}, d{k});")
-    for a, k in enumerate(model.owner):
+    for a, owner in enumerate(model.owner):
         name = c_comment(outputs[a])
-        if k is None:
+        if owner is None:
             body += [f"    drift[{a}] = 0;   /* {name}: left raw */",
                      f"    compensated[{a}] = raw[{a}];"]
         else:
-            body += [f"    drift[{a}] = d{k}[{a}];   /* {name}: part {k} */",
-                     f"    compensated[{a}] = c{k}[{a}];"]
+            body += [f"    drift[{a}] = d{owner}[{a}];   /* {name}: part {owner} */",
+                     f"    compensated[{a}] = c{owner}[{a}];"]
     body += [
         "    if (nonfinite) {   /* any part's signal: NaN on every axis, as the sum */",
         f"        for (i = 0; i < {P}_N_AXES; ++i) {{",
@@ -336,8 +336,8 @@ def render_axis_models_c(model: AxisModels, *, prefix: str = "thermonet") -> str
         "    }",
         "    return flag | nonfinite;",
         "}",
-        *render_stream_c(model, p),  # type: ignore[arg-type]
-        *render_stream_block_c(model, p),  # type: ignore[arg-type]
+        *render_stream_c(model, p),
+        *render_stream_block_c(model, p),
         "",
         f"#endif /* {guard} */",
         "",
@@ -345,7 +345,7 @@ def render_axis_models_c(model: AxisModels, *, prefix: str = "thermonet") -> str
     return "\n".join(body)
 
 
-def c_parity_check(model: DriftModel, header_text: str, *, prefix: str = "thermonet",
+def c_parity_check(model: ShippedModel, header_text: str, *, prefix: str = "thermonet",
                    seed: int = 0, real: str = "auto") -> dict[str, float] | None:
     """Compile the header with the system C compiler and compare it with torch.
 
@@ -394,14 +394,15 @@ def c_parity_check(model: DriftModel, header_text: str, *, prefix: str = "thermo
     return {"n_points": float(n), "max_abs_diff": float(err.max())}
 
 
-def export_c_header(model: DriftModel, path: str | Path, *, prefix: str = "thermonet",
+def export_c_header(model: ShippedModel, path: str | Path, *, prefix: str = "thermonet",
                     check: bool = True) -> Path:
     """Write the model as a C99 header (atomic: temp file + ``os.replace``).
 
     Parameters
     ----------
-    model : DriftModel
-        Any family with a C emitter (:meth:`Family.emit_c`).
+    model : DriftModel or AxisModels
+        Any family with a C emitter (:meth:`Family.emit_c`), or a per-axis model whose
+        parts all have one (:func:`render_axis_models_c`).
     path : str or Path
         Destination ``.h``.
     prefix : str
@@ -428,7 +429,7 @@ def export_c_header(model: DriftModel, path: str | Path, *, prefix: str = "therm
         # both arithmetic paths: the host's double and the float path a single-precision
         # microcontroller compiles (-DTHERMONET_USE_FLOAT: float outputs, fast exp)
         for real in ("auto", "float"):
-            if model.family.recurrent:  # the state in and out, and the stream in time
+            if isinstance(model, DriftModel) and model.family.recurrent:  # state, stream
                 c_step_parity_check(model, text, prefix=prefix, real=real)
                 check_recurrent_stream(model, text, prefix=prefix, real=real)
                 continue

@@ -88,7 +88,7 @@ from ..core.names import (
     check_units,
 )
 from ..models import DriftModel
-from ..models.composite import AxisModels
+from ..models.composite import AxisModels, ShippedModel
 from .parity import parity_check, trained_range
 
 __all__ = [
@@ -132,7 +132,7 @@ OPSET = 18
 SIGNAL_UNITS = {"temperature_c": "degC", "rate_c_per_min": "degC/min"}
 
 
-def family_name(model: DriftModel) -> str:
+def family_name(model: ShippedModel) -> str:
     """The registered family name of a DriftModel (``model.family`` is the family module)."""
     name = getattr(model, "family_name", None)
     if name is None:
@@ -140,7 +140,7 @@ def family_name(model: DriftModel) -> str:
     return str(name)
 
 
-def check_model_finite(model: DriftModel) -> None:
+def check_model_finite(model: ShippedModel) -> None:
     """Refuse a model with a NaN/inf parameter or buffer (:class:`ExportError` naming it)."""
     for name, tensor in list(model.named_parameters()) + list(model.named_buffers()):
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
@@ -165,7 +165,7 @@ class CompensatorGraph(nn.Module):
     ``(compensated, drift, out_of_range)``.
     """
 
-    def __init__(self, model: DriftModel) -> None:
+    def __init__(self, model: ShippedModel) -> None:
         super().__init__()
         self.model = model
         self.signals = list(model.signals)
@@ -275,7 +275,7 @@ def _json(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=float)
 
 
-def _check_metadata(model: DriftModel, meta: Mapping[str, Any]) -> None:
+def _check_metadata(model: ShippedModel, meta: Mapping[str, Any]) -> None:
     """Names and provenance strings by :mod:`thermonet.core.names` before they enter the file.
 
     Structured values are JSON-encoded; plain strings (device id, run id, data
@@ -292,7 +292,7 @@ def _check_metadata(model: DriftModel, meta: Mapping[str, Any]) -> None:
             check_units(meta[key], names, f"ONNX metadata '{key}'", error=ExportError)
 
 
-def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: str
+def _metadata_props(model: ShippedModel, metadata: Mapping[str, Any], exporter: str
                     ) -> dict[str, str]:
     meta = dict(metadata)
     _check_metadata(model, meta)
@@ -325,7 +325,7 @@ def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: st
     }
     if isinstance(model, AxisModels):
         props.update(axis_models_metadata(model))
-    if model.family.recurrent:
+    if isinstance(model, DriftModel) and model.family.recurrent:
         from .recurrent import recurrent_metadata
 
         # the runtime carries the state between calls with these constants
@@ -358,7 +358,7 @@ def axis_models_metadata(model: AxisModels) -> dict[str, str]:
             "axis_model_parts": json.dumps(parts)}
 
 
-def target_metadata(model: DriftModel) -> dict[str, str]:
+def target_metadata(model: ShippedModel) -> dict[str, str]:
     """What each axis's drift is relative to, as metadata strings (ONNX, C comments).
 
     ``targets`` {axis: channel | zero | at-t-ref | four-position}, ``compensate``
@@ -377,14 +377,17 @@ def target_metadata(model: DriftModel) -> dict[str, str]:
     }
 
 
-def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
+def export_onnx(model: ShippedModel, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
                 check: bool = True, exporter: str = "auto", seed: int = 0) -> Path:
     """Export a drift model to ``path`` as a self-describing ONNX file.
 
     Parameters
     ----------
-    model : DriftModel
-        A trained model (any registered family).
+    model : DriftModel or AxisModels
+        A trained model (any registered family), or a per-axis model: one graph over the
+        union of its parts' signals, summing their drifts (each part's is exactly 0 on the
+        axes it does not own), with ``axis_models`` in the metadata
+        (:func:`axis_models_metadata`).
     path : str or Path
         Destination ``.onnx``; written atomically (temp file + ``os.replace``),
         so a failed export or parity check never leaves a half-written file.
@@ -420,8 +423,8 @@ def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, A
     was_training = model.training
     model.eval()
     try:
-        recurrent = model.family.recurrent
-        if recurrent:
+        recurrent = isinstance(model, DriftModel) and model.family.recurrent
+        if isinstance(model, DriftModel) and recurrent:
             from .recurrent import RecurrentGraph, recurrent_parity_check
 
             graph: nn.Module = RecurrentGraph(model).eval()
@@ -438,7 +441,8 @@ def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, A
             _seal_bytes(Path(tmp))
             onnx.checker.check_model(str(tmp))
             if check:
-                stats = (recurrent_parity_check(model, tmp, seed=seed) if recurrent
+                stats = (recurrent_parity_check(model, tmp, seed=seed)
+                         if isinstance(model, DriftModel) and recurrent
                          else parity_check(model, tmp, seed=seed))
                 _log.info("ONNX parity: %d points, max |diff| %.3g (rel %.3g)",
                           int(stats["n_points"]), stats["max_abs_diff"], stats["max_rel_diff"])

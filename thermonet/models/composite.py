@@ -116,6 +116,9 @@ class AxisModels(nn.Module):
     an axis its own out-of-fold rule left raw was never given to it).
     """
 
+    #: The parts (an ``nn.ModuleList`` at run time, typed as what it holds).
+    parts: list[DriftModel]
+
     def __init__(self, parts: Sequence[DriftModel], owner: Sequence[int | None],
                  labels: Sequence[str] | None = None) -> None:
         super().__init__()
@@ -133,7 +136,7 @@ class AxisModels(nn.Module):
         unused = [k for k in range(len(parts)) if k not in owner]
         if unused:
             raise ConfigError(f"part {unused[0]} ({parts[unused[0]].family_name}) owns no axis")
-        self.parts = nn.ModuleList(parts)
+        self.parts = nn.ModuleList(parts)  # type: ignore[assignment]
         self.owner = owner
         self.labels = list(labels) if labels is not None else [p.family_name for p in parts]
         if len(self.labels) != len(parts):
@@ -158,7 +161,7 @@ class AxisModels(nn.Module):
 
     @property
     def target_modes(self) -> list[str]:
-        return self.parts[0].target_modes  # type: ignore[no-any-return]
+        return self.parts[0].target_modes
 
     @property
     def n_params(self) -> int:
