@@ -32,7 +32,6 @@ import numpy as np
 from ..core.errors import ExportError
 
 if TYPE_CHECKING:
-    from ..models import DriftModel
     from ..models.composite import ShippedModel
 
 __all__ = ["MAX_STD", "check_output_range"]
