@@ -460,3 +460,16 @@ def test_estimator_loads_a_per_axis_checkpoint(composite, tmp_path):
     single = DriftEstimator.load(save_checkpoint(tmp_path / "p.pt", composite.parts[0],
                                                  config={}))
     assert single.axis_models_ is None
+
+
+def test_header_cross_compiles_for_cortex_m(composite, header, tmp_path):
+    """Firmware-grade like every header (tests/test_mcu.py): compensate and step built for
+    each Cortex-M target under -Werror, float-only where the FPU is single precision."""
+    from thermonet.exporting.mcu import FLOAT_TARGETS, TARGETS, cross_compile
+
+    for target in TARGETS:
+        build = cross_compile(header, target, tmp_path / target)
+        assert build.code_bytes > 0
+        assert build.soft_double == [], (target, build.soft_double)
+        if target in FLOAT_TARGETS:
+            assert build.libm == [], (target, build.libm)
