@@ -198,19 +198,19 @@ def _strip_debug(proto: Any) -> None:
 
 
 def _dynamo_proto(graph: Any, example: tuple, names: list[str], out_names: list[str]) -> Any:
-    """The dynamo exporter's graph, optimised by onnxscript; unoptimised when the optimised
-    one is not a valid graph.
+    """The dynamo exporter's graph, optimised by onnxscript — or, when that graph is not
+    valid, the unoptimised export with its constants folded and its common subexpressions
+    merged (:func:`_fold_only`), or as exported.
 
-    onnxscript's rewriter fuses each ``Min(Max(x, lo), hi)`` into a ``Clip`` whose bounds it
-    names after ``x``; where one signal is clamped twice (a per-axis model: each part clamps
-    to its own trained range) the second pair of bounds is lost and the graph references
-    values nothing defines.  The unoptimised graph computes the same operations.
+    onnxscript's rewriter fuses each ``Max``/``Min`` pair into a ``Clip`` whose bounds it
+    names after the clamped value; where one signal is clamped twice (a per-axis model: each
+    part clamps to its own trained range) the second pair of bounds is lost and the graph
+    references values nothing defines.  Every variant computes the same operations (the
+    export's parity check runs on the result).
     """
     import onnx
 
-    batch = torch.export.Dim("N")
-    proto = None
-    for optimize in (True, False):
+    def export(optimize: bool) -> Any:
         program = torch.onnx.export(
             graph, example, None, input_names=names, output_names=out_names,
             opset_version=OPSET, dynamo=True, external_data=False, optimize=optimize,
@@ -218,17 +218,44 @@ def _dynamo_proto(graph: Any, example: tuple, names: list[str], out_names: list[
             dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False)
         if program is None:
             raise ExportError("torch.onnx.export (dynamo) returned no program")
-        proto = program.model_proto
-        try:
-            onnx.checker.check_model(proto)
-        except onnx.checker.ValidationError as err:
-            if not optimize:
-                raise
-            _log.info("optimised ONNX graph is invalid (%s); exporting it unoptimised",
-                      str(err).splitlines()[0])
-            continue
-        break
+        return program.model_proto
+
+    batch = torch.export.Dim("N")
+    proto = export(True)
+    try:
+        onnx.checker.check_model(proto)
+        return proto
+    except onnx.checker.ValidationError as err:
+        _log.info("optimised ONNX graph is invalid (%s); folding the unoptimised one instead",
+                  str(err).splitlines()[0])
+    proto = export(False)
+    try:
+        folded = _fold_only(proto)
+        onnx.checker.check_model(folded)
+        return folded
+    except Exception as err:  # noqa: BLE001 - any optimiser failure: keep the plain graph
+        _log.info("folding the unoptimised ONNX graph failed (%s); keeping it as exported",
+                  str(err).splitlines()[0] if str(err) else type(err).__name__)
     return proto
+
+
+def _fold_only(proto: Any) -> Any:
+    """``proto`` with functions inlined, constants folded, constants lifted to (deduplicated)
+    initializers and common subexpressions merged: onnxscript's optimiser without its
+    pattern rewrites."""
+    import onnx_ir as ir
+    from onnx_ir.passes import common as cp
+    from onnxscript import optimizer
+
+    model = ir.serde.deserialize_model(proto)
+    cp.InlinePass()(model)
+    optimizer.fold_constants(model)
+    ir.passes.Sequential(
+        cp.RemoveUnusedNodesPass(),
+        cp.LiftConstantsToInitializersPass(lift_all_constants=True, size_limit=0),
+        cp.DeduplicateInitializersPass(), cp.CommonSubexpressionEliminationPass(),
+        cp.RemoveUnusedNodesPass(), cp.NameFixPass())(model)
+    return ir.serde.serialize_model(model)
 
 
 def _export_proto(graph: Any, exporter: str) -> tuple[Any, str]:
