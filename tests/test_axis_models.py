@@ -456,6 +456,9 @@ def test_estimator_loads_a_per_axis_checkpoint(composite, tmp_path):
     with torch.no_grad():
         want = composite.drift64(torch.from_numpy(_signals(composite, t - t[0], temp))).numpy()
     np.testing.assert_array_equal(got, want)   # the same model on the same signals, batch
+    rec = Recording(time_s=rec.time_s, temperature_c=temp, run_id="r0",
+                    outputs={a: want[:, j] + 0.01 * np.sin(temp) for j, a in enumerate(AXES)})
+    assert np.isfinite(est.score(rec))   # scored on the model's own signal order
     table = est.parameters_
     assert set(table["axis"]) <= {*AXES[:3], ""} and table["name"].str.startswith(
         tuple(f"{lab}." for lab in LABELS)).all()
@@ -477,3 +480,35 @@ def test_header_cross_compiles_for_cortex_m(composite, header, tmp_path):
         assert build.soft_double == [], (target, build.soft_double)
         if target in FLOAT_TARGETS:
             assert build.libm == [], (target, build.libm)
+
+
+def test_parts_whose_union_puts_temperature_second(parts, tmp_path):
+    """The first part reads only the rate: the union's signals are [rate, temperature], not
+    the order a single spec would give; every path reads them by the model's own order."""
+    from thermonet.api import DriftEstimator
+    from thermonet.core.recording import Recording
+    from thermonet.exporting import render_c_header
+    from thermonet.exporting.c_stream import run_stream_c
+
+    rate_only = _fit("poly", ["rate"], {"degree": 1})
+    model = AxisModels([rate_only, copy.deepcopy(parts[0])], [None, 1, 0, None],
+                       ["rate1", "poly3"]).eval()
+    assert model.signals == ["rate_c_per_min", "temperature_c"]
+    assert model.spec.signals == ["temperature_c", "rate_c_per_min"]
+    t, temp, raw = _stream(n=600)
+    with torch.no_grad():
+        want = model.drift64(torch.from_numpy(_signals(model, t, temp))).numpy()
+    comp = rt.Compensator(export_onnx(model, tmp_path / "m.onnx"))
+    got = comp.compensate(temperature_c=temp, raw=raw, time_s=t).drift
+    ok = np.isfinite(temp)
+    assert (np.abs(got[ok] - want[ok]).max(axis=0) <= _tolerance(model, _signals(
+        model, t, temp)[ok])).all()
+    c = run_stream_c(model, render_c_header(model), t, temp, raw)
+    assert_f32_close(c["drift"], want, "dynamic")
+    est = DriftEstimator.load(save_checkpoint(tmp_path / "m.pt", model, config={}))
+    rec = Recording(time_s=t - t[0], temperature_c=np.where(ok, temp, 20.0), run_id="r",
+                    outputs={a: np.zeros(t.size) for a in AXES})
+    with torch.no_grad():
+        ref = model.drift64(torch.from_numpy(_signals(model, rec.time_s,
+                                                      rec.temperature_c))).numpy()
+    np.testing.assert_array_equal(est.predict(rec), ref)   # same model, signals, batch

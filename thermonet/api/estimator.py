@@ -389,7 +389,10 @@ average_s, threads
     def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
         from ..training.parts import build_part
 
-        return build_part(rec, signals=spec.signals, outputs=outputs, target=self.targets_,
+        # a fitted model's own signal order (a per-axis model's: the union of its parts')
+        model = self.__dict__.get("model_")
+        signals = list(model.signals) if model is not None else spec.signals
+        return build_part(rec, signals=signals, outputs=outputs, target=self.targets_,
                           gap_s=spec.gap_s)
 
     @property
