@@ -21,7 +21,17 @@ and each part reads its own columns.  The out-of-range flag is the OR of the par
 What can be composed (:func:`composable`): parts with the same outputs, the same target modes
 and the same references; point-wise families (a recurrent family's state cannot be shared),
 and signals of the same name meaning the same thing (dynamic inputs share a name only when
-their constants agree; the gap rule ``gap_s`` must agree).
+their constants agree; the gap rule ``gap_s`` must agree), and trained ranges that overlap.
+
+The composite goes wherever a :class:`DriftModel` goes (``export/README.md``, "A model per
+axis"): one checkpoint (:mod:`thermonet.training.checkpoint`: the parts, the owner table
+and the labels under one seal), one ONNX graph summing the parts (metadata ``axis_models``),
+one C header (each part a body of its own, one ``compensate``/``step`` writing each axis from
+its owner), the autopilot files only where every owned axis is a cubic on temperature.  For
+the exporters it answers what a DriftModel does: :attr:`AxisModels.spec` (the union's
+features and references), :attr:`~AxisModels.sig_lo`/:attr:`~AxisModels.sig_hi` (the range
+where no part flags), :attr:`~AxisModels.sig_ref`, and ``family`` (name ``per-axis``, not
+recurrent, no polynomial form).
 """
 
 from __future__ import annotations
