@@ -268,13 +268,17 @@ def test_runtime_batch_step_and_step_block(composite, onnx_path):
                                                                          "temperature_c"]
     t, temp, raw = _stream()
     whole = comp.compensate(temperature_c=temp, raw=raw, time_s=t)
+    sig = _signals(composite, t, temp)
     with torch.no_grad():
-        want = composite.drift64(torch.from_numpy(_signals(composite, t, temp))).numpy()
-    for a in range(len(AXES)):   # per axis, against torch on the float64 dynamic inputs
-        assert_f32_close(whole.drift[:, a], want[:, a], "dynamic", err_msg=AXES[a])
+        want = composite.drift64(torch.from_numpy(sig)).numpy()
+    ok = np.isfinite(temp)
+    assert np.array_equal(np.isnan(whole.drift), np.isnan(want))
+    # per axis, against torch on the same float32 signals: the export's parity tolerance
+    tol = _tolerance(composite, sig[ok])
+    err = np.abs(whole.drift[ok] - want[ok]).max(axis=0)
+    assert (err <= tol).all(), (err, tol)
     assert np.isnan(whole.drift[len(t) // 3]).all()
     assert whole.out_of_range[len(t) // 2] and whole.out_of_range[len(t) // 3]
-    ok = np.isfinite(temp)
     assert np.array_equal(whole.drift[ok, 3], np.zeros(int(ok.sum())))   # the raw axis
     # step sample by sample, then step_block, carry the same state
     comp.reset()
@@ -371,3 +375,140 @@ def test_c_step_and_step_block_match_torch_per_axis(composite, header, real):
         assert_f32_close(one["drift"][:, a], want[:, a], "dynamic", err_msg=AXES[a])
     assert one["flag"][len(t) // 2] and one["flag"][len(t) // 3]
     assert np.isnan(one["drift"][len(t) // 3]).all()
+
+
+# -- thermonet export from a compare directory, the autopilot files, the estimator --------
+def _compare_dir(composite, root, *, sha: str | None = None):
+    """What compare writes for a per-axis choice: models/per-axis.pt and results.json."""
+    from thermonet.core.outdir import sha256_file
+
+    (root / "models").mkdir(parents=True)
+    ckpt = save_checkpoint(root / "models" / "per-axis.pt", composite, config={},
+                           extra={"units": {"gyro_x": "deg/s", "gyro_y": "deg/s",
+                                            "gyro_z": "deg/s", "acc_x": "m/s^2"}})
+    results = {"chosen": "per-axis", "families": {},
+               "per_axis": {"checkpoint": "models/per-axis.pt",
+                            "checkpoint_sha256": sha or sha256_file(ckpt),
+                            "axes": composite.axis_table(), "candidates": LABELS}}
+    (root / "results.json").write_text(json.dumps(results))
+    return root
+
+
+def test_export_from_a_compare_directory_that_chose_per_axis(composite, tmp_path):
+    from thermonet.exporting import export_source
+
+    src = _compare_dir(composite, tmp_path / "cmp")
+    path = export_source(str(src), fmt="onnx", out=tmp_path / "out.onnx")
+    comp = rt.Compensator(path)
+    assert comp.axis_models == composite.axis_table()
+    header = export_source(str(src), fmt="c", out=tmp_path / "out.h").read_text()
+    assert "per-axis" in header and "thermonet_part1_compensate" in header
+    # the autopilot files hold a cubic on temperature: the RBF and the rate term are not one
+    with pytest.raises(ExportError, match=r"firmware-form cubic .* 'gyro_y' with 'rbf' .*"
+                                          r"--family"):
+        export_source(str(src), fmt="px4-params", out=tmp_path / "out.params", device_id=1)
+
+
+def test_a_replaced_per_axis_checkpoint_or_a_missing_block_is_refused(composite, tmp_path):
+    from thermonet.exporting import export_source
+
+    src = _compare_dir(composite, tmp_path / "cmp", sha="0" * 64)
+    with pytest.raises(ExportError, match="does not match the SHA-256"):
+        export_source(str(src), fmt="onnx", out=tmp_path / "out.onnx")
+    results = json.loads((src / "results.json").read_text())
+    del results["per_axis"]
+    (src / "results.json").write_text(json.dumps(results))
+    with pytest.raises(InputError, match="no 'per_axis' mapping"):
+        export_source(str(src), fmt="onnx", out=tmp_path / "out.onnx")
+    assert not (tmp_path / "out.onnx").exists()
+
+
+def test_autopilot_files_when_every_owned_axis_is_a_cubic(parts, tmp_path):
+    from thermonet.exporting.autopilot import autopilot_coefficients, export_px4_params
+
+    units = {"gyro_x": "deg/s", "gyro_y": "deg/s", "gyro_z": "deg/s", "acc_x": "m/s^2"}
+    quad = _fit("poly", ["dT"], {"degree": 2})
+    cubics = AxisModels([copy.deepcopy(parts[0]), quad], [0, 1, None, None], ["poly3", "poly2"])
+    co = autopilot_coefficients(cubics, output_units=units)
+    own = [autopilot_coefficients(p, output_units=units, t_ref=co.t_ref) for p in cubics.parts]
+    # each axis's cubic is its owner's, copied (the same computation: exact)
+    assert np.array_equal(co.coef["gyro"][0], own[0].coef["gyro"][0])
+    assert np.array_equal(co.coef["gyro"][1], own[1].coef["gyro"][1])
+    assert np.array_equal(co.coef["gyro"][2], np.zeros(4))   # left raw: zero
+    assert np.array_equal(co.coef["acc"][0], np.zeros(4))
+    text = export_px4_params(cubics, tmp_path / "tc.params", output_units=units,
+                             device_id=7).read_text()
+    assert "TC_G0_X1_0" in text and "TC_G0_X1_1" in text
+
+
+def test_estimator_loads_a_per_axis_checkpoint(composite, tmp_path):
+    from thermonet.api import DriftEstimator
+    from thermonet.core.recording import Recording
+
+    path = save_checkpoint(tmp_path / "per-axis.pt", composite, config={})
+    est = DriftEstimator.load(path)
+    assert est.axis_models_ == composite.axis_table()
+    t, temp, _ = _stream(n=500)
+    temp[np.isnan(temp)] = 20.0
+    rec = Recording(time_s=t - t[0], temperature_c=temp,
+                    outputs={a: np.zeros(t.size) for a in AXES}, run_id="r0")
+    got = est.predict(rec)
+    with torch.no_grad():
+        want = composite.drift64(torch.from_numpy(_signals(composite, t - t[0], temp))).numpy()
+    np.testing.assert_array_equal(got, want)   # the same model on the same signals, batch
+    rec = Recording(time_s=rec.time_s, temperature_c=temp, run_id="r0",
+                    outputs={a: want[:, j] + 0.01 * np.sin(temp) for j, a in enumerate(AXES)})
+    assert np.isfinite(est.score(rec))   # scored on the model's own signal order
+    table = est.parameters_
+    assert set(table["axis"]) <= {*AXES[:3], ""} and table["name"].str.startswith(
+        tuple(f"{lab}." for lab in LABELS)).all()
+    with pytest.raises(ConfigError, match="chosen by compare"):
+        DriftEstimator("per-axis").fit(rec)
+    single = DriftEstimator.load(save_checkpoint(tmp_path / "p.pt", composite.parts[0],
+                                                 config={}))
+    assert single.axis_models_ is None
+
+
+def test_header_cross_compiles_for_cortex_m(composite, header, tmp_path):
+    """Firmware-grade like every header (tests/test_mcu.py): compensate and step built for
+    each Cortex-M target under -Werror, float-only where the FPU is single precision."""
+    from thermonet.exporting.mcu import FLOAT_TARGETS, TARGETS, cross_compile
+
+    for target in TARGETS:
+        build = cross_compile(header, target, tmp_path / target)
+        assert build.code_bytes > 0
+        assert build.soft_double == [], (target, build.soft_double)
+        if target in FLOAT_TARGETS:
+            assert build.libm == [], (target, build.libm)
+
+
+def test_parts_whose_union_puts_temperature_second(parts, tmp_path):
+    """The first part reads only the rate: the union's signals are [rate, temperature], not
+    the order a single spec would give; every path reads them by the model's own order."""
+    from thermonet.api import DriftEstimator
+    from thermonet.core.recording import Recording
+    from thermonet.exporting import render_c_header
+    from thermonet.exporting.c_stream import run_stream_c
+
+    rate_only = _fit("poly", ["rate"], {"degree": 1})
+    model = AxisModels([rate_only, copy.deepcopy(parts[0])], [None, 1, 0, None],
+                       ["rate1", "poly3"]).eval()
+    assert model.signals == ["rate_c_per_min", "temperature_c"]
+    assert model.spec.signals == ["temperature_c", "rate_c_per_min"]
+    t, temp, raw = _stream(n=600)
+    with torch.no_grad():
+        want = model.drift64(torch.from_numpy(_signals(model, t, temp))).numpy()
+    comp = rt.Compensator(export_onnx(model, tmp_path / "m.onnx"))
+    got = comp.compensate(temperature_c=temp, raw=raw, time_s=t).drift
+    ok = np.isfinite(temp)
+    assert (np.abs(got[ok] - want[ok]).max(axis=0) <= _tolerance(model, _signals(
+        model, t, temp)[ok])).all()
+    c = run_stream_c(model, render_c_header(model), t, temp, raw)
+    assert_f32_close(c["drift"], want, "dynamic")
+    est = DriftEstimator.load(save_checkpoint(tmp_path / "m.pt", model, config={}))
+    rec = Recording(time_s=t - t[0], temperature_c=np.where(ok, temp, 20.0), run_id="r",
+                    outputs={a: np.zeros(t.size) for a in AXES})
+    with torch.no_grad():
+        ref = model.drift64(torch.from_numpy(_signals(model, rec.time_s,
+                                                      rec.temperature_c))).numpy()
+    np.testing.assert_array_equal(est.predict(rec), ref)   # same model, signals, batch

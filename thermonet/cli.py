@@ -391,8 +391,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.set_defaults(func=_cmd_train)
 
     e = sub.add_parser("export", help=f"export a fitted model ({', '.join(FORMATS)})",
-                       description="Export a model from a compare directory (its chosen family "
-                                   "by default), a checkpoint, or an MLflow run id.",
+                       description="Export a model from a compare directory (its chosen family, "
+                                   "or its per-axis model, by default), a checkpoint, or an "
+                                   "MLflow run id.",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="formats:\n" + "\n".join(f"  {f.name:<18} {f.description}"
                                                         for f in FORMATS.values()))

@@ -32,7 +32,7 @@ if TYPE_CHECKING:
 
     from ..features.inputs import FeatureSpec
     from ..features.target import Target
-    from ..models import DriftModel
+    from ..models.composite import ShippedModel
 
 __all__ = ["DriftEstimator", "NotFittedError"]
 
@@ -104,8 +104,10 @@ average_s, threads
 
     Attributes
     ----------
-    model_ : DriftModel
-        The fitted torch module (eval mode, CPU).
+    model_ : DriftModel or AxisModels
+        The fitted torch module (eval mode, CPU); an
+        :class:`~thermonet.models.composite.AxisModels` when loaded from a per-axis
+        checkpoint (:attr:`axis_models_` says which candidate computes each axis).
     spec_ : FeatureSpec
         Inputs and the references resolved from the training runs.
     n_features_in_ : int
@@ -348,6 +350,10 @@ average_s, threads
         from ..training.splits import stack_blocks
         from .parameters import parameter_table
 
+        if self.family == "per-axis":
+            raise ConfigError("family 'per-axis': a model per axis is chosen by compare "
+                              "(thermonet.api.compare) among fitted candidates, not fitted by "
+                              "a DriftEstimator; load its checkpoint with DriftEstimator.load")
         config, inputs = self._check_params()
         flag(track, "fit(track)")
         text(tracking_uri, "fit(tracking_uri)", none=True, rule="an MLflow tracking URI")
@@ -381,7 +387,7 @@ average_s, threads
                            train_on=self.train_on, gap_s=self.gap_s)
         result = fit_fold(parts, family=self.family, outputs=outputs, hyper=self.hyper,
                           config=config, target_modes=targets.modes)
-        self.model_: DriftModel = result.model
+        self.model_: ShippedModel = result.model
         self.spec_: FeatureSpec = spec
         self.targets_: Target = targets
         self.n_features_in_: int = len(spec.inputs)
@@ -421,10 +427,23 @@ average_s, threads
     def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
         from ..training.parts import build_part
 
-        return build_part(rec, signals=spec.signals, outputs=outputs, target=self.targets_,
+        # a fitted model's own signal order (a per-axis model's: the union of its parts')
+        model = self.__dict__.get("model_")
+        signals = list(model.signals) if model is not None else spec.signals
+        return build_part(rec, signals=signals, outputs=outputs, target=self.targets_,
                           gap_s=spec.gap_s)
 
-    def _check_fitted(self, what: str) -> DriftModel:
+    @property
+    def axis_models_(self) -> dict[str, str | None] | None:
+        """For a per-axis model (a ``compare`` that chose a candidate per axis, loaded with
+        :meth:`load`): ``{axis: the label of the candidate that computes it, or None where
+        the axis is left raw}``; None for a single-family model."""
+        from ..models.composite import AxisModels
+
+        model = self._check_fitted("axis_models_")
+        return model.axis_table() if isinstance(model, AxisModels) else None
+
+    def _check_fitted(self, what: str) -> ShippedModel:
         model = self.__dict__.get("model_")
         if model is None:
             raise NotFittedError(f"this DriftEstimator({self.family!r}) is not fitted yet; "
@@ -447,7 +466,8 @@ average_s, threads
         out = []
         for rec in runs_of(data, "predict", allow_empty=True):
             same_units(rec, self.signal_units_, "predict", "the model was trained on it")
-            out.append(predict(model, signal_matrix(rec, self.spec_.signals, self.spec_.gap_s),
+            # the model's own signal order (a per-axis model's union of its parts' signals)
+            out.append(predict(model, signal_matrix(rec, list(model.signals), self.spec_.gap_s),
                                rec.time_s))
         return out[0] if len(out) == 1 else np.concatenate(out)
 

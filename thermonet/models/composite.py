@@ -21,7 +21,17 @@ and each part reads its own columns.  The out-of-range flag is the OR of the par
 What can be composed (:func:`composable`): parts with the same outputs, the same target modes
 and the same references; point-wise families (a recurrent family's state cannot be shared),
 and signals of the same name meaning the same thing (dynamic inputs share a name only when
-their constants agree; the gap rule ``gap_s`` must agree).
+their constants agree; the gap rule ``gap_s`` must agree), and trained ranges that overlap.
+
+The composite goes wherever a :class:`DriftModel` goes (``export/README.md``, "A model per
+axis"): one checkpoint (:mod:`thermonet.training.checkpoint`: the parts, the owner table
+and the labels under one seal), one ONNX graph summing the parts (metadata ``axis_models``),
+one C header (each part a body of its own, one ``compensate``/``step`` writing each axis from
+its owner), the autopilot files only where every owned axis is a cubic on temperature.  For
+the exporters it answers what a DriftModel does: :attr:`AxisModels.spec` (the union's
+features and references), :attr:`~AxisModels.sig_lo`/:attr:`~AxisModels.sig_hi` (the range
+where no part flags), :attr:`~AxisModels.sig_ref`, and ``family`` (name ``per-axis``, not
+recurrent, no polynomial form).
 """
 
 from __future__ import annotations
@@ -116,6 +126,9 @@ class AxisModels(nn.Module):
     an axis its own out-of-fold rule left raw was never given to it).
     """
 
+    #: The parts (an ``nn.ModuleList`` at run time, typed as what it holds).
+    parts: list[DriftModel]
+
     def __init__(self, parts: Sequence[DriftModel], owner: Sequence[int | None],
                  labels: Sequence[str] | None = None) -> None:
         super().__init__()
@@ -133,7 +146,7 @@ class AxisModels(nn.Module):
         unused = [k for k in range(len(parts)) if k not in owner]
         if unused:
             raise ConfigError(f"part {unused[0]} ({parts[unused[0]].family_name}) owns no axis")
-        self.parts = nn.ModuleList(parts)
+        self.parts = nn.ModuleList(parts)  # type: ignore[assignment]
         self.owner = owner
         self.labels = list(labels) if labels is not None else [p.family_name for p in parts]
         if len(self.labels) != len(parts):
@@ -158,7 +171,7 @@ class AxisModels(nn.Module):
 
     @property
     def target_modes(self) -> list[str]:
-        return self.parts[0].target_modes  # type: ignore[no-any-return]
+        return self.parts[0].target_modes
 
     @property
     def n_params(self) -> int:

@@ -38,6 +38,7 @@ from ..features.dynamics import dynamic_signals, saturation_margin
 from ..features.inputs import FeatureSpec
 from ..models import DriftModel, build_family
 from ..models.base import Family, check_output_shape
+from ..models.composite import ShippedModel
 from .scaling import EarlyStopping, training_scaling
 
 __all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "average_windows",
@@ -401,7 +402,7 @@ def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
     return history, best_epoch, best_val
 
 
-def predict(model: DriftModel, signals: np.ndarray, time_s: np.ndarray | None = None
+def predict(model: ShippedModel, signals: np.ndarray, time_s: np.ndarray | None = None
             ) -> np.ndarray:
     """Drift (n, A), float64, from signals (n, S) in ``model.signals`` order.
 
@@ -414,7 +415,7 @@ def predict(model: DriftModel, signals: np.ndarray, time_s: np.ndarray | None = 
     if s.ndim != 2 or s.shape[1] != len(model.signals):
         raise InputError(f"signals have shape {s.shape}, expected (n, {len(model.signals)}) "
                          f"for {model.signals}")
-    if model.family.recurrent:
+    if isinstance(model, DriftModel) and model.family.recurrent:
         from ..models.sequence import stream_relative
 
         if time_s is None:
