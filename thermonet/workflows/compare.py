@@ -217,6 +217,13 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
         extrapolation(fitted, result)
         doc = result.to_json()
         doc["provenance"] = provenance
+        shipped = doc["families"].get(PER_AXIS) if result.chosen == PER_AXIS else None
+        if shipped and shipped.get("checkpoint"):
+            # what `thermonet export DIR` reads (thermonet.exporting.source): the composite's
+            # file, its owners per axis and its candidates (the SHA-256 added when staged)
+            doc["per_axis"] = {"checkpoint": shipped["checkpoint"],
+                               "axes": dict(shipped["params"]["axes"]),
+                               "candidates": list(result.selection["per_axis"]["candidates"])}
         plot_paths = _plots(out, fitted, doc, ds) if plots else []
         from ..reporting.report import write_report
 
