@@ -80,7 +80,7 @@ def _single(res: dict[str, Any]) -> dict[str, Any]:
     alt = res["selection"]["single_split"]
     fams = {}
     for k, f in res["families"].items():
-        if f.get("status") != "ok":
+        if f.get("status") != "ok" or k not in alt["compensate"]:   # per-axis: not a candidate
             fams[k] = f
             continue
         fams[k] = {**f, "axes": {a: {**m, "compensate": alt["compensate"][k][a]}
