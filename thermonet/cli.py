@@ -80,8 +80,8 @@ def _simulate_board(args: argparse.Namespace) -> int:
     out = Path(args.out)
     autopilot = "px4" if out.suffix.lower() == ".ulg" else "ardupilot"
     # --runs N: N logs of the same board (same ids and drift laws, new warm-ups and noise),
-    # FILE_run1.ulg .. FILE_runN.ulg; without it one log, FILE itself
-    paths = [out] if args.runs is None else [
+    # FILE_run1.ulg .. FILE_runN.ulg; one log (no --runs, or --runs 1): FILE itself
+    paths = [out] if args.runs is None or args.runs == 1 else [
         out.with_name(f"{out.stem}_run{k}{out.suffix}") for k in range(1, args.runs + 1)]
     for run, target in enumerate(paths):
         log = simulate_board(args.preset, autopilot=autopilot, seed=args.seed, run=run)
@@ -169,9 +169,11 @@ def _cmd_info(args: argparse.Namespace) -> int:
 def _cmd_convert(args: argparse.Namespace) -> int:
     """Recordings (CSV, mapped files, Parquet) to one thermonet Parquet file: the one-time
     conversion after which a long recording is read in row-group chunks."""
+    from .core.fileio import refuse_overwriting_inputs
     from .data.io import read_datasets, write_parquet
 
     out = Path(args.out)
+    refuse_overwriting_inputs(out, [*args.files, *([args.mapping] if args.mapping else [])])
     if out.exists() and not args.overwrite:
         raise ThermonetError(f"{out}: already exists (give --overwrite to replace it)")
     ds = read_datasets(args.files, mapping=args.mapping)
@@ -322,7 +324,8 @@ def build_parser() -> argparse.ArgumentParser:
                                   "fc-board-cycle (the last two: --out FILE.ulg or FILE.bin)")
     s.add_argument("--runs", type=int, default=None,
                    help="number of runs (default: the preset's); fc-board: N logs of the same "
-                        "board, FILE_run1 .. FILE_runN")
+                        "board, written as FILE itself when N is 1 and as FILE_run1 .. "
+                        "FILE_runN (beside FILE, its suffix kept) when N > 1")
     s.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
     s.add_argument("--out", required=True, help="output .parquet file (.ulg / .bin for fc-board)")
     s.add_argument("--units", type=int, default=None,
