@@ -3,7 +3,7 @@
 Exit codes: 0 success, 1 bad input (file, column, config key or value — one
 line on stderr naming it), 2 usage error (argparse), 3 (``fleet``) some
 unit failed its limits or could not be calibrated, (``verify``) an axis failed
-its limits, 130 interrupted by SIGINT (Ctrl-C), 143 terminated by SIGTERM.  An interrupted command prints
+its limits (``verify``'s 1 also covers a log it cannot judge), 130 interrupted by SIGINT (Ctrl-C), 143 terminated by SIGTERM.  An interrupted command prints
 one line, not a traceback; its open MLflow runs are ended as KILLED and a
 comparison's ``--out`` is left as it was (see :mod:`thermonet.core.outdir`).
 """
@@ -440,8 +440,11 @@ def build_parser() -> argparse.ArgumentParser:
                                    "autopilot's own tool's) to a log of the same board through "
                                    "the autopilot's own formula (T clamped to TMIN/TMAX, TREF, "
                                    "the polynomial, the sensor matched by device id); report the "
-                                   "binned drift before/after per instance and axis, PASS/FAIL. "
-                                   "Exit 3 when an axis fails.")
+                                   "binned drift before/after per instance and axis, PASS/FAIL "
+                                   "(an instance too short or narrow to judge: 'not judged'). "
+                                   "Exit 0 PASS, 3 FAIL (an axis fails, NaN/inf included), "
+                                   "1 refused (a damaged parameter file, named by line and "
+                                   "parameter; nothing of the log can be judged; bad input).")
     v.add_argument("params", help="px4.params (QGC format) or ardupilot.parm")
     v.add_argument("log", help="a new log of the same board (.ulg / .bin)")
     v.add_argument("--out", required=True, help="output directory (created whole at the end)")

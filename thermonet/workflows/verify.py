@@ -23,20 +23,45 @@ The firmware's formula (:mod:`thermonet.data.firmware`):
 
 Judged per instance and axis on the log: the binned drift (peak-to-peak of the
 1 °C-binned means of the output; accel and baro less their median) before and
-after the correction.  An axis PASSes when the correction cuts it at least
-:attr:`Limits.min_cut` times, or when what is left is below the kind's floor
-(:attr:`Limits.floor`: a drift that small no longer matters and its cut is noise).
-Defaults: cut 3×; floors 5e-4 rad/s (0.03 °/s), 5e-3 m/s² (0.5 mg), 1 Pa (≈8 cm) —
-about the bias stability of a good MEMS IMU and a baro's noise; set them for your
-sensors (``--gyro-floor`` …).  The binned drift of pure noise is not zero (the spread
-of ~50 bin means), so a floor far below the sensor's noise makes quiet axes FAIL.
+after the correction (:func:`judge_axes`).  An axis PASSes when every corrected
+sample is finite (a NaN, an inf, or a value beyond a float32 — what the firmware
+would output as inf — anywhere in the axis is a FAIL) and the correction cuts
+the drift at least :attr:`Limits.min_cut` times, or what is left is below the
+kind's floor (:attr:`Limits.floor`: a drift that small no longer matters and its
+cut is noise).  Defaults: cut 3×; floors 5e-4 rad/s (0.03 °/s), 5e-3 m/s² (0.5 mg),
+1 Pa (≈8 cm) — about the bias stability of a good MEMS IMU and a baro's noise; set
+them for your sensors (``--gyro-floor`` …).  The binned drift of pure noise is not
+zero (the spread of ~50 bin means), so a floor far below the sensor's noise makes
+quiet axes FAIL.
 
-Refused in one line: a file from another board (no device id of the log in the
-file: both lists named), a file of the other autopilot, a file with no thermal
-calibration.  A log that leaves the calibrated range [TMIN, TMAX] by more than
-:data:`RANGE_SLACK_C` gets a warning per instance (the firmware holds the
-correction constant outside it).  A sensor of the log that the file does not
-cover is listed, not judged.
+An instance the file applies to but the log cannot judge is ``not judged``, with
+why, never PASS: the same minimums as ``calibrate``'s
+(:func:`thermonet.workflows.firmware_fit.check_instance`: at least
+:data:`~thermonet.workflows.firmware_fit.MIN_SAMPLES` = 200 samples and a
+:data:`~thermonet.workflows.firmware_fit.MIN_SPAN_C` = 10 °C temperature span, a
+thermometer, not every sample zero, not too damaged).  A sensor of the log that
+the file does not cover is ``not covered`` (listed, not judged).
+
+The file is checked whole before anything is applied, and refused in one line
+naming the file, the line and the parameter: a value that is not a number; a
+name set twice (the autopilot would load the last; verify does not guess); a
+NaN or inf in any thermal-calibration parameter (``TC_*``; ``INS_TCAL*``,
+``INS_GYR/ACC<n>_ID``/``_CALTEMP``); and for every slot the firmware applies (a
+PX4 slot with a non-zero ``TC_*_ID``, an ArduPilot IMU with ``INS_TCAL<n>_ENABLE``
+= 1): a missing parameter, a coefficient beyond a float32, TMIN not below TMAX,
+TMIN/TMAX outside :data:`PLAUSIBLE_C`, (PX4) TREF outside [TMIN, TMAX] by more
+than :data:`RANGE_SLACK_C`, a device id that is not a 32-bit integer or that
+two slots share.  Also refused in one line: a file from another board (no device
+id of the log in the file: both lists named), a file of the other autopilot, a
+file with no thermal calibration, an output directory that is or holds an input,
+and a log of which nothing can be judged (each instance's reason listed).  A log
+that leaves the calibrated range [TMIN, TMAX] by more than :data:`RANGE_SLACK_C`
+gets a warning per instance (the firmware holds the correction constant there).
+
+Exit status: 0 PASS (every judged axis of every judged instance passes, and at
+least one instance was judged); 3 FAIL (:data:`EXIT_FAILED`: some judged axis
+fails; the report marks it); 1 refused (bad input: the one line on stderr says
+why; nothing is written).
 """
 
 from __future__ import annotations
