@@ -423,8 +423,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "results.json, report.html and report.txt to --out.")
     k.add_argument("log", nargs="+",
                    help="flight-controller log(s) recorded while the board warmed; several "
-                        "logs of one board: fitted on all but the last, checked on the last, "
-                        "the files refitted on all")
+                        "logs of one board: fitted on all but the last, checked on the last "
+                        "with verify's test (one log: on a quarter of it in time blocks), the "
+                        "files refitted on all; the same log twice is refused")
     k.add_argument("--out", required=True, help="output directory (created whole at the end)")
     k.add_argument("--overwrite", action="store_true",
                    help="replace a previous calibration in --out (its own files only; removed "

@@ -438,8 +438,8 @@ def axis_grade(cut: float, after: float, passed: bool, kind: str, limits: Limits
                         f"{unit} floor: a new log may FAIL it")
 
 
-def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None
-             ) -> dict[str, dict[str, Any]]:
+def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
+             refuse_unjudged: bool = True) -> dict[str, dict[str, Any]]:
     """Apply ``pf`` to every instance of ``log`` through the firmware's formula.
 
     Per instance: ``status`` (``judged`` | ``not covered`` | ``not judged``), ``reason``,
@@ -448,7 +448,8 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None
     instance too short or too narrow to judge (calibrate's own minimums,
     :func:`thermonet.workflows.firmware_fit.check_instance`) is ``not judged``.  Refuses
     (ThermonetError) a file of the other autopilot, one whose device ids are none of the
-    log's, and a log of which no instance can be judged.
+    log's, and (unless ``refuse_unjudged`` is false: each instance then says why) a log of
+    which no instance can be judged.
     """
     limits = limits or Limits()
     if pf.autopilot != log.autopilot:
@@ -498,7 +499,7 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None
                 "there")
         d.update(status="judged", reason=None, slot=slot, range=[t_min, t_max], **judged)
         out[inst.name] = d
-    if not any(d["status"] == "judged" for d in out.values()):
+    if refuse_unjudged and not any(d["status"] == "judged" for d in out.values()):
         reasons = "; ".join(f"{n}: {d['status']}, {d['reason']}" for n, d in out.items())
         raise ThermonetError(f"{pf.path}: nothing of {log.path.name} can be judged "
                              f"({reasons or 'no gyro, accelerometer or barometer'})")
