@@ -408,3 +408,21 @@ def test_exit_codes_and_their_documentation(board: dict[str, dict[str, Path]],
     sub = build_parser()._subparsers._group_actions[0].choices["verify"]
     help_text = " ".join(sub.description.split())
     assert "Exit 0 PASS, 3 FAIL" in help_text and "1 refused (a damaged parameter file" in help_text
+
+
+@pytest.mark.parametrize("line,reader", [("1\t1\tTC_G0_X0_0\tabc\t9", "read_px4_params"),
+                                         ("INS_TCAL1_GYR1_X,abc", "read_ardupilot_params")])
+def test_the_exporters_readers_name_file_line_and_parameter(tmp_path: Path, line: str,
+                                                            reader: str) -> None:
+    """``thermonet.exporting.read_px4_params`` / ``read_ardupilot_params`` (the export tests'
+    readers): a value that is not a number names the file, the line and the parameter, not
+    ``could not convert string to float``."""
+    import thermonet.exporting as exporting
+    from thermonet.core.errors import ExportError
+
+    path = tmp_path / "f.params"
+    path.write_text("# header\n\n" + line + "\n")
+    name = line.replace(",", "\t").split("\t")[-3 if "\t1\t" in line else 0]
+    with pytest.raises(ExportError) as err:
+        getattr(exporting, reader)(path)
+    assert str(err.value) == f"{path}: line 3: parameter {name}: value 'abc' is not a number"
