@@ -86,6 +86,7 @@ from ..data.firmware import (
     px4_offsets_3d,
 )
 from ..data.logs import FlightLog, SensorInstance, read_log
+from ..data.logs.base import TEMPERATURE_RANGE_C
 from ..scoring.metrics import binned_peak_to_peak
 from .firmware_fit import check_instance, target
 
@@ -110,8 +111,9 @@ _NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
 _AP_CAL_PARAM = re.compile(r"INS_(GYR|ACC)\d?_(ID|CALTEMP)")
 #: Largest magnitude of the firmware's ``float`` parameters (float32).
 FLOAT32_MAX = float(np.finfo(np.float32).max)
-#: TMIN / TMAX outside this range (°C) are no sensor's operating temperatures.
-PLAUSIBLE_C = (-100.0, 150.0)
+#: TMIN / TMAX outside this range (°C) are no sensor's: the range a log's thermometer
+#: reading must be in to be trusted (:data:`thermonet.data.logs.base.TEMPERATURE_RANGE_C`).
+PLAUSIBLE_C = TEMPERATURE_RANGE_C
 
 
 @dataclass
