@@ -487,8 +487,10 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
         held_logs, what = logs, f"the last log, {logs[-1].path.name}"
     else:
         held_logs = list(held_out_blocks(log))
-        what = (f"time blocks {', '.join(str(b + 1) for b in range(HELD_OUT_BLOCKS) if b % HELD_OUT_EVERY == HELD_OUT_EVERY // 2)}"
-                f" of {HELD_OUT_BLOCKS} of {logs[0].path.name}")
+        blocks = [b + 1 for b in range(HELD_OUT_BLOCKS)
+                  if b % HELD_OUT_EVERY == HELD_OUT_EVERY // 2]
+        what = (f"time blocks {', '.join(map(str, blocks))} of {HELD_OUT_BLOCKS} of "
+                f"{logs[0].path.name}")
     for name, h in _held_out(held_logs, results, stage, what).items():
         r = next(x for x in results if x.name == name)
         r.summary["held_out"] = h
