@@ -46,7 +46,9 @@ import argparse
 import csv
 import json
 import math
+import os
 import re
+import signal
 import stat
 import sys
 import time
@@ -1148,8 +1150,43 @@ def _read_csv(
     return header, body, cols
 
 
+class _Stopped(BaseException):
+    """SIGINT or SIGTERM arrived (raised by the handler :func:`main` installs)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _stop(signum: int, frame: object) -> None:
+    raise _Stopped(signum)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return a.resolve() == b.resolve()
+
+
+def _refuse_inputs(out: Path, tmp: Path, inputs: Sequence[Path]) -> None:
+    """An output (or its temporary file) that is an input is refused before anything is written."""
+    for inp in inputs:
+        if not os.path.lexists(inp):
+            continue
+        for path, what in ((out, "the output"), (tmp, f"the output's temporary file {tmp}")):
+            if _same_file(path, inp):
+                raise RuntimeInputError(f"{out}: {what} is the input {inp}; refusing to "
+                                        "overwrite an input (nothing written)")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Compensate a CSV file; returns the exit status (0 ok, 1 bad input)."""
+    """Compensate a CSV file; returns the exit status (0 ok, 1 bad input, 128 + the signal
+    number when stopped by SIGINT or SIGTERM).
+
+    The output is written to ``OUT.tmp`` and renamed to ``OUT`` when complete; stopped
+    (SIGINT, SIGTERM) or failing on the way, the ``.tmp`` is removed and ``OUT`` is left as
+    it was."""
     parser = argparse.ArgumentParser(
         prog="thermonet_runtime",
         description="Apply a thermonet drift model (.onnx) to a CSV of raw sensor outputs.")
@@ -1160,7 +1197,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, help="output CSV")
     parser.add_argument("--threads", type=int, default=1, help="onnxruntime threads (default 1)")
     args = parser.parse_args(argv)
+    tmp = args.out.with_name(args.out.name + ".tmp")
+    written = False                 # True once this run has created tmp (removed unless renamed)
+    previous: dict[int, Any] = {}
     try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, _stop)
+    except ValueError:              # not the main thread (an embedding program): signals as they are
+        pass
+    try:
+        _refuse_inputs(args.out, tmp, [args.model, args.input])
         comp = Compensator(args.model, threads=args.threads)
         header, body, cols = _read_csv(args.input, comp.needs + comp.outputs)
         raw = np.stack([cols[a] for a in comp.outputs], axis=1) if body else \
@@ -1181,7 +1227,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if clash:
             raise RuntimeInputError(f"{args.input}: already has output column(s) {clash}; "
                                     "compensate the raw file, not an output")
-        tmp = args.out.with_name(args.out.name + ".tmp")
+        written = True
         with tmp.open("w", newline="") as fh:
             writer = csv.writer(fh)
             writer.writerow(header + extra)
@@ -1191,12 +1237,22 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 + [repr(float(v)) for v in res.drift[i]]
                                 + [str(int(res.out_of_range[i]))])
         tmp.replace(args.out)
+        written = False
+    except _Stopped as exc:
+        print(f"thermonet_runtime: stopped by {signal.Signals(exc.signum).name}; {args.out} not "
+              "written", file=sys.stderr)
+        return 128 + exc.signum
     except RuntimeInputError as exc:
         print(f"thermonet_runtime: {exc}", file=sys.stderr)
         return 1
     except OSError as exc:
         print(f"thermonet_runtime: {exc.filename}: {exc.strerror}", file=sys.stderr)
         return 1
+    finally:
+        if written:
+            tmp.unlink(missing_ok=True)
+        for sig, handler in previous.items():
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
     n_flag = int(np.count_nonzero(res.out_of_range))
     print(f"{len(body)} rows compensated with {comp.family} model; {n_flag} out of range "
           f"-> {args.out}")

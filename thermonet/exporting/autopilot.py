@@ -390,7 +390,7 @@ def read_px4_params(path: str | Path) -> dict[str, float]:
         if len(parts) != 5:
             raise ExportError(f"{path}: line {no}: expected 5 fields "
                               f"(Vehicle-Id Component-Id Name Value Type), got {len(parts)}")
-        out[parts[2]] = float(parts[3])
+        out[parts[2]] = _number(path, no, parts[2], parts[3])
     return out
 
 
@@ -403,5 +403,14 @@ def read_ardupilot_params(path: str | Path) -> dict[str, float]:
         parts = line.replace(",", " ").split()
         if len(parts) != 2:
             raise ExportError(f"{path}: line {no}: expected NAME,VALUE, got {line!r}")
-        out[parts[0]] = float(parts[1])
+        out[parts[0]] = _number(path, no, parts[0], parts[1])
     return out
+
+
+def _number(path: str | Path, no: int, name: str, value: str) -> float:
+    """``value`` as a float; otherwise an error naming the file, the line and the parameter."""
+    try:
+        return float(value)
+    except ValueError:
+        raise ExportError(f"{path}: line {no}: parameter {name}: value {value[:40]!r} is not a "
+                          "number") from None

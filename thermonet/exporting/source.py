@@ -180,6 +180,7 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
     (PX4's ``TC_*_ID``) and ``instance`` (PX4 slot 0–3, default 0; ArduPilot
     IMU 1–3, default 1) apply to the autopilot formats.
     """
+    from ..core.fileio import refuse_overwriting_inputs
     from ..training.checkpoint import load_checkpoint
     from . import ExportRequest, get_format
 
@@ -187,6 +188,8 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
     with tempfile.TemporaryDirectory() as tmp:
         ckpt = resolve_checkpoint(source, family=family, tracking_uri=tracking_uri,
                                   workdir=Path(tmp))
+        # never written over what it reads: the checkpoint, the compare directory's results
+        refuse_overwriting_inputs(out, [ckpt, source, Path(source) / "results.json"])
         from .sensor_export import export_sensor_source, is_sensor_checkpoint
 
         if is_sensor_checkpoint(ckpt):  # model: sensor (issue 22): its own writer
