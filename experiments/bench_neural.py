@@ -4,7 +4,7 @@
   for every family) per data set: the `patent-gyro` device through heat/cool cycles with a
   2 °C-wide hysteresis (``bench_anchor.cycling_device``; 4 runs: train 2, validate 1,
   test 1), the `consumer-imu` preset (its own hysteresis, 4 runs), and the real BMI270
-  recording (two isothermal soaks, ../shared/data/real, interleaved time blocks: its
+  recording (two isothermal soaks, tests/data/real, interleaved time blocks: its
   config's split).  Families: the cubic in ΔT, the dynamic-input polynomial (cubic in
   [ΔT, rate, play_1] with cross terms), the 16-centre RBF on [ΔT, ΔT²] and on
   [ΔT, ΔT², rate], the MLP ([8, 8] tanh) on ΔT and on [ΔT, rate, play_1], and the GRU
@@ -45,7 +45,6 @@ from thermonet.training.config import CompareConfig, FamilyConfig, load_config  
 from thermonet.training.train import TrainConfig, fit  # noqa: E402
 from thermonet.workflows.compare import run_compare  # noqa: E402
 
-REAL = ROOT.parent / "shared" / "data" / "real"
 N_CALLGRIND = 1000
 DYN = ["dT", "rate", "play_1"]
 
@@ -73,7 +72,7 @@ def datasets() -> list[tuple[str, CompareConfig, Any]]:
         items.append(("consumer-imu", CompareConfig(families=families(), baseline="cubic"),
                       simulate("consumer-imu", seed=0)))
     cfg = load_config(ROOT / "configs" / "bmi270.yaml")
-    cfg.data.paths = [str(REAL / Path(p).parent.name / Path(p).name) for p in cfg.data.paths]
+    cfg.data.paths = [str(ROOT / p) for p in cfg.data.paths]   # repository-relative
     cfg.data.mapping = str(ROOT / str(cfg.data.mapping))
     cfg.families = families({"step_s": 1.0, "warmup": 10, "gap_s": 5.0})
     cfg.baseline = "cubic"

@@ -37,7 +37,6 @@ from thermonet.training.config import CompareConfig, load_config  # noqa: E402
 from thermonet.workflows.compare import run_compare  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-REAL = ROOT / "tests" / "data" / "real"
 N = int(os.environ.get("BENCH_SELECTION_DEVICES", "8"))
 
 #: (preset, config, runs, sample rate Hz, devices): rates cut from the presets' so that forty
@@ -137,8 +136,7 @@ def _devices() -> list[tuple[str, CompareConfig, Any]]:
     for cfg_name in ("bmi270", "pan-tvac"):
         def mk_real(name: str = cfg_name) -> CompareConfig:
             cfg = load_config(ROOT / "configs" / f"{name}.yaml")
-            cfg.data.paths = [str(REAL / Path(p).parent.name / Path(p).name)
-                              for p in cfg.data.paths]
+            cfg.data.paths = [str(ROOT / p) for p in cfg.data.paths]   # repository-relative
             if cfg.data.mapping:
                 cfg.data.mapping = str(ROOT / cfg.data.mapping)
             if name == "bmi270":
@@ -169,7 +167,7 @@ def _real_config(name: str) -> tuple[CompareConfig, Any]:
     from thermonet.training.parts import load_data
 
     cfg = load_config(ROOT / "configs" / f"{name}.yaml")
-    cfg.data.paths = [str(REAL / Path(p).parent.name / Path(p).name) for p in cfg.data.paths]
+    cfg.data.paths = [str(ROOT / p) for p in cfg.data.paths]   # repository-relative
     if cfg.data.mapping:
         cfg.data.mapping = str(ROOT / cfg.data.mapping)
     if name == "bmi270":

@@ -228,3 +228,84 @@ def test_no_tracking_store_is_committed():
     assert not store, f"tracking-store files committed: {store}"
     assert set(ignored) == {"mlflow.db", "mlflow.db.lock", "mlflow.db-journal",
                             "mlruns/0/meta.yaml"}
+
+
+# ------------------------------------------------------------------ the front page's first steps
+def _first_steps() -> list[str]:
+    """The shell commands of README.md's "First steps" block, as written."""
+    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("First steps after"))
+    fence = next(i for i in range(start, len(lines)) if lines[i].startswith("```sh"))
+    end = next(i for i in range(fence + 1, len(lines)) if lines[i].startswith("```"))
+    return [line.split("  #")[0].strip() for line in lines[fence + 1:end] if line.strip()]
+
+
+@pytest.mark.slow
+def test_readme_first_steps_run_as_written(tmp_path):
+    """In a directory laid out as a fresh clone after ``make demo`` (the repository's configs and
+    runtime, ``runs/demo`` from the Makefile's own demo command), every first-steps command runs
+    as written, and the runtime's output is the checkpoint's prediction: ``<axis>_drift`` equals
+    ``DriftEstimator.load(...).predict`` on the simulated CSV, ``<axis>_comp`` is raw − drift,
+    and the compensated unit is closer to the simulator's true rate than the raw one."""
+    import json
+    import os
+    import shlex
+    import sys
+
+    import numpy as np
+    import pandas as pd
+
+    from thermonet import DriftEstimator, read
+    from tolerances import assert_f32_close
+
+    for name in ("configs", "export"):
+        (tmp_path / name).symlink_to(ROOT / name)
+    venv = tmp_path / ".venv" / "bin"
+    venv.mkdir(parents=True)
+    # the test's interpreter stands in for the clone's .venv
+    for tool, run in (("python", ""), ("thermonet", " -m thermonet.cli")):
+        (venv / tool).write_text(f'#!/bin/sh\nexec "{sys.executable}"{run} "$@"\n')
+        (venv / tool).chmod(0o755)
+    env = {**os.environ, "PYTHONPATH": str(ROOT),
+           "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path / 'mlflow.db'}"}
+    make = (ROOT / "Makefile").read_text(encoding="utf-8")
+    demo = re.search(r"^demo:.*\n\t(.+)$", make, re.M).group(1).replace("$(VENV)", ".venv")
+    steps = _first_steps()
+    assert any("runs/input.csv" in s and "simulate" in s for s in steps)
+    for cmd in [demo, *steps]:
+        out = subprocess.run(shlex.split(cmd), cwd=tmp_path, env=env, capture_output=True,
+                             text=True, timeout=600)
+        assert out.returncode == 0, f"{cmd}\n{out.stdout[-2000:]}\n{out.stderr[-2000:]}"
+    got = pd.read_csv(tmp_path / "compensated.csv")
+    inp = pd.read_csv(tmp_path / "runs" / "input.csv")
+    assert len(got) == len(inp)
+    chosen = json.loads((tmp_path / "runs" / "demo" / "results.json").read_text())["chosen"]
+    est = DriftEstimator.load(tmp_path / "runs" / "demo" / "models" / f"{chosen}.pt")
+    want = np.asarray(est.predict(read(tmp_path / "runs" / "input.csv")))
+    axes = ["gyro_x", "gyro_y", "gyro_z"]
+    drift = got[[f"{a}_drift" for a in axes]].to_numpy()
+    ok = got["out_of_range"].to_numpy() == 0
+    assert ok.mean() > 0.99
+    assert_f32_close(drift[ok], want[ok], "dynamic")
+    for a in axes:
+        comp, raw, ref = got[f"{a}_comp"], inp[a], inp[f"ref_{a}"]
+        # the runtime subtracts its float32 drift from the raw value: float32 rounding at the
+        # raw value's scale
+        assert_f32_close(comp.to_numpy(), (raw - got[f"{a}_drift"]).to_numpy(), "affine",
+                         scale=raw.abs().max())
+        assert (comp - ref).std() < 0.1 * (raw - ref).std()
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in (ROOT / "configs").glob("*.yaml")))
+def test_config_data_paths_exist_in_a_clone(name):
+    """Every recording and mapping a shipped config names is in the repository, relative to its
+    root as configs/README.md says (the real recordings ship in ``tests/data/real/``); a file
+    under ``runs/`` is one the config's comment has ``thermonet simulate`` write first."""
+    from thermonet.training.config import load_config
+
+    data = load_config(ROOT / "configs" / name).data
+    for p in [*data.paths, *([data.mapping] if data.mapping else [])]:
+        if Path(p).parts[0] == "runs":
+            assert "thermonet simulate" in (ROOT / "configs" / name).read_text()
+            continue
+        assert not Path(p).is_absolute() and (ROOT / p).is_file(), f"{name}: {p}"

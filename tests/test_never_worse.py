@@ -26,7 +26,6 @@ from thermonet.workflows.compare import run_compare
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[1]
-REAL = Path(__file__).resolve().parent / "data" / "real"
 
 #: (case id, preset, config or None for the default set, runs, rate Hz, seed): rates cut from
 #: the presets' 1 Hz so that the comparisons run in about a minute each on two cores.
@@ -38,7 +37,7 @@ SIMULATED = [("consumer-imu#0", "consumer-imu", "configs/consumer-imu.yaml", 2, 
 
 def _real(name: str) -> tuple[CompareConfig, Any]:
     cfg = load_config(ROOT / "configs" / f"{name}.yaml")
-    cfg.data.paths = [str(REAL / Path(p).parent.name / Path(p).name) for p in cfg.data.paths]
+    cfg.data.paths = [str(ROOT / p) for p in cfg.data.paths]   # repository-relative
     if cfg.data.mapping:
         cfg.data.mapping = str(ROOT / cfg.data.mapping)
     if name == "bmi270":   # the default family set on the two soaks

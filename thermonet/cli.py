@@ -26,7 +26,7 @@ __all__ = ["main", "build_parser"]
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from .data.io import write_parquet
+    from .data.io import write_csv, write_parquet
     from .data.logs import is_log
     from .sim import simulate, simulate_fleet
     from .sim.fcboard import BOARD_PRESETS, MAX_BOARD_RUNS
@@ -58,7 +58,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     else:
         ds = simulate_fleet(args.preset, units=args.units, runs=args.runs, seed=args.seed,
                             outliers=args.outliers)
-    path = write_parquet(ds, args.out)
+    path = (write_csv if Path(args.out).suffix.lower() == ".csv" else write_parquet)(ds, args.out)
     n = sum(r.n_samples for r in ds)
     fleet = f"{len(ds.unit_ids)} units ({args.outliers} outliers), " if args.units else ""
     print(f"wrote {path}: preset {args.preset}, {fleet}{len(ds)} runs, {n} samples, "
@@ -319,7 +319,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("simulate", help="simulate a thermal-chamber test (a study preset)",
                        description="Simulate a thermal-chamber test from a study preset "
-                                   "and write it as a thermonet Parquet file.")
+                                   "and write it as a thermonet Parquet file (or, with --out "
+                                   "FILE.csv, as CSV: the runtime's input).")
     s.add_argument("preset", help="accel | hrg | mems-gyro | patent-gyro | fc-board | "
                                   "fc-board-cycle (the last two: --out FILE.ulg or FILE.bin)")
     s.add_argument("--runs", type=int, default=None,
@@ -327,7 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "board, written as FILE itself when N is 1 and as FILE_run1 .. "
                         "FILE_runN (beside FILE, its suffix kept) when N > 1")
     s.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
-    s.add_argument("--out", required=True, help="output .parquet file (.ulg / .bin for fc-board)")
+    s.add_argument("--out", required=True,
+                   help="output .parquet file, or .csv (conventional column names, one row a "
+                        "sample: what export/thermonet_runtime.py reads); .ulg / .bin for fc-board")
     s.add_argument("--units", type=int, default=None,
                    help="simulate a fleet of N units (device ids <preset>-u000 …), each with "
                         "the preset's unit-to-unit spread")

@@ -60,7 +60,7 @@ from .tables import (
     read_text,
 )
 
-__all__ = ["FORMAT_VERSION", "METADATA_KEY", "write_parquet", "read_dataset", "read_datasets"]
+__all__ = ["FORMAT_VERSION", "METADATA_KEY", "write_parquet", "write_csv", "read_dataset", "read_datasets"]
 
 
 #: Version of the Parquet layout written by :func:`write_parquet`.
@@ -98,6 +98,37 @@ def write_parquet(dataset: Dataset, path: str | Path) -> Path:
         run.validate()
     with atomic_path(path, make_parents=False) as tmp:
         pq.write_table(_to_table(dataset), tmp)
+    return path
+
+
+def write_csv(dataset: Dataset, path: str | Path) -> Path:
+    """Write ``dataset`` to ``path`` as comma-separated text with thermonet's conventional
+    column names (``run``, ``time_s``, ``temperature_c``, the outputs …; an absent value is an
+    empty cell), atomically; return the path.  It reads back without a mapping, and it is the
+    input ``export/thermonet_runtime.py`` takes (one run per file for a model with dynamic
+    inputs: the runtime reads the rows as one sequence)."""
+    import pyarrow.csv as pacsv
+
+    path = Path(path)
+    if path.suffix.lower() != ".csv":
+        raise InputError.at(path, "a CSV recording file ends in .csv")
+    if path.is_dir():
+        raise InputError.at(path, "is a directory; give a .csv file name")
+    if not path.parent.is_dir():
+        raise InputError.at(path, f"output directory '{path.parent}' does not exist")
+    for run in dataset:
+        run.validate()
+    table = _to_table(dataset).replace_schema_metadata(None)
+    with atomic_path(path, make_parents=False) as tmp:
+        # plain cells (channel names are letters, digits and '_'); a run id is quoted only
+        # where it needs it (a comma, a quote)
+        try:
+            body = pacsv.WriteOptions(include_header=False, quoting_style="none")
+            with open(tmp, "wb") as fh:
+                fh.write((",".join(table.column_names) + "\n").encode())
+                pacsv.write_csv(table, fh, body)
+        except pa.ArrowInvalid:
+            pacsv.write_csv(table, tmp)
     return path
 
 
