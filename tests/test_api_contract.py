@@ -17,6 +17,7 @@ import thermonet
 from conftest import toy_dataset
 from thermonet.core.errors import ConfigError, ThermonetError
 from thermonet.core.recording import Dataset, Recording
+from tolerances import assert_f64_close
 
 C_TRUE = np.array([0.1, 0.02, -3e-4, 4e-6])     # deg/s / °C^k about 25 °C
 
@@ -171,7 +172,7 @@ def test_polynomial_coefficients_equal_least_squares_in_physical_units():
     rec = cubic_run(8)
     est = thermonet.DriftEstimator("poly", "dT", t_ref=25.0, degree=3, max_epochs=0).fit(rec)
     table = est.parameters_
-    assert list(table.columns) == ["axis", "name", "value", "stderr", "unit"]
+    assert list(table.columns) == ["axis", "name", "value", "stderr", "unit", "note"]
     assert list(table["name"]) == ["c0", "c1", "c2", "c3"]
     assert list(table["unit"]) == ["deg/s", "deg/s/°C", "deg/s/°C^2", "deg/s/°C^3"]
     # oracle: scikit-learn's least squares on (T − 25)^k
@@ -318,11 +319,39 @@ def test_rbf_and_lorentz_tables_reproduce_the_models_curve():
 
 
 def test_parameters_survive_save_and_load(tmp_path):
-    est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(cubic_run(10))
-    back = thermonet.DriftEstimator.load(est.save(tmp_path / "m.pt"))
-    np.testing.assert_allclose(back.parameters_["value"], est.parameters_["value"], rtol=1e-12)
-    assert back.parameters_["stderr"].isna().all()           # no training data in a checkpoint
-    assert back.get_params()["degree"] == 3
+    """The standard errors and covariance a fit computed travel in its sealed checkpoint: the
+    loaded estimator states the fresh fit's, bit for bit (values copied, not recomputed), and
+    how they were computed (``stderr``); a checkpoint without them says why they are NaN."""
+    from thermonet.api.parameters import NO_SE
+    from thermonet.core.errors import InputError
+    from thermonet.training.checkpoint import load_checkpoint, save_checkpoint
+
+    for method in ("ols", "block-bootstrap"):
+        est = thermonet.DriftEstimator("poly", "dT", degree=3, stderr=method,
+                                       seed=1).fit(cubic_run(10))
+        back = thermonet.DriftEstimator.load(est.save(tmp_path / f"{method}.pt"))
+        np.testing.assert_allclose(back.parameters_["value"], est.parameters_["value"],
+                                   rtol=1e-12)
+        # copied through the checkpoint: exactly the fit's
+        np.testing.assert_array_equal(back.parameters_["stderr"], est.parameters_["stderr"])
+        assert est.parameters_["stderr"].gt(0).all() and (back.parameters_["note"] == "").all()
+        np.testing.assert_array_equal(back.covariance_["gyro_x"], est.covariance_["gyro_x"])
+        assert back.get_params()["degree"] == 3 and back.get_params()["stderr"] == method
+    # a checkpoint written without them (as before they were stored): NaN, with the reason
+    model, meta = load_checkpoint(tmp_path / "ols.pt")
+    bare = thermonet.DriftEstimator.load(save_checkpoint(tmp_path / "bare.pt", model,
+                                                         config={}))
+    assert bare.parameters_["stderr"].isna().all() and bare.covariance_ == {}
+    assert set(bare.parameters_["note"]) == {NO_SE["unstored"]}
+    # stored rows that are not the model's are refused, naming the key
+    extra = dict(meta["extra"])
+    extra["parameters"] = {**extra["parameters"], "rows": extra["parameters"]["rows"][:2]}
+    save_checkpoint(tmp_path / "bad.pt", model, config={}, extra=extra)
+    with pytest.raises(InputError, match="extra.parameters"):
+        thermonet.DriftEstimator.load(tmp_path / "bad.pt")
+    # a nonlinear fit's parameters say why they have no standard error
+    lor = thermonet.DriftEstimator("lorentz", "T", max_epochs=20).fit(cubic_run(10))
+    assert set(lor.parameters_["note"]) == {NO_SE["nonlinear"]}
 
 
 # --------------------------------------------- scikit-learn's model selection
@@ -487,6 +516,24 @@ def test_api_fit_is_compares_model_gravity_included(tmp_path):
     theirs = read_px4_params(cli.export(tmp_path / "cli.params", format="px4-params",
                                         device_id=1234))
     assert ours == theirs and abs(ours["TC_A0_X0_2"]) < 1e-6
+    # the standard errors compare states are the fresh fit's (the same least squares on the
+    # same rows, sealed in its checkpoint), on every axis it compensates; the accelerometers'
+    # c0 is fixed (0 by definition), the axis left raw has none, with the reason
+    from thermonet.api.parameters import FIXED, NO_SE
+
+    mine, theirs_t = est.parameters_, cli.parameters_
+    keep = np.repeat(mask, 4)
+    assert_f64_close(theirs_t["stderr"][keep], mine["stderr"][keep])
+    assert list(theirs_t["note"][keep]) == list(mine["note"][keep])
+    assert theirs_t["stderr"][~keep].isna().all()
+    assert set(theirs_t["note"][~keep]) == {NO_SE["raw"]}
+    fixed = mine.set_index(["axis", "name"]).loc[[(a, "c0") for a in ("acc_x", "acc_y",
+                                                                       "acc_z")], "note"]
+    assert set(fixed) == {FIXED}
+    for axis, compensated in zip(est.outputs_, mask, strict=True):
+        assert (axis in cli.covariance_) == compensated
+        if compensated:
+            assert_f64_close(cli.covariance_[axis], est.covariance_[axis])
 
 
 # ------------------------------------------------------ provenance and tracking
@@ -615,3 +662,54 @@ def test_every_family_fits_through_the_api_as_compare_fits_it(bmi270_every_famil
     assert torch_equal(est.model_.sig_lo, cli.model_.sig_lo)
     np.testing.assert_array_equal(est.predict(split.test)[:, mask],
                                   cli.predict(split.test)[:, mask])
+
+
+# ------------------------------------------------------------- score(multioutput=...)
+def _two_axis_run(seed: int, sign_y: float) -> Recording:
+    """gyro_x: the cubic law; gyro_y: the same law times ``sign_y`` (a test run with −1 has
+    gyro_y's drift reversed: a model trained with +1 doubles its error there)."""
+    rec = cubic_run(seed)
+    drift = rec.drift["drift_gyro_x"]
+    noise = np.random.default_rng(seed + 100).normal(0.0, 0.01, drift.size)
+    return Recording(time_s=rec.time_s, temperature_c=rec.temperature_c,
+                     outputs={"gyro_x": rec.outputs["gyro_x"], "gyro_y": sign_y * drift + noise},
+                     units={"gyro_x": "deg/s", "gyro_y": "deg/s", "temperature_c": "degC"},
+                     run_id=rec.run_id, sample_rate_hz=1.0)
+
+
+def test_score_multioutput_as_scikit_learn_aggregates():
+    """One axis worse than raw: the uniform mean hides part of it, ``raw_values`` shows it;
+    every rule equals the numbers computed by hand from the predictions (each run about its
+    own mean, as the docstring says), and scikit-learn's ``r2_score`` agrees on one run."""
+    from sklearn.metrics import r2_score
+
+    est = thermonet.DriftEstimator("poly", "dT", degree=3, max_epochs=0).fit(
+        [_two_axis_run(1, 1.0), _two_axis_run(2, 1.0)])
+    test = [_two_axis_run(3, 1.0), _two_axis_run(4, -1.0)]     # gyro_y reversed in one run
+    comp, raw = np.zeros(2), np.zeros(2)
+    for rec in test:                                           # by hand
+        y = np.column_stack([rec.outputs["gyro_x"], rec.outputs["gyro_y"]])
+        e = y - est.predict(rec)
+        comp += ((e - e.mean(0)) ** 2).sum(0)
+        raw += ((y - y.mean(0)) ** 2).sum(0)
+    per_axis = est.score(test, multioutput="raw_values")
+    assert per_axis.shape == (2,)
+    assert_f64_close(per_axis, 1.0 - comp / raw, rtol=1e-9)
+    assert per_axis[0] > 0.9 and per_axis[1] < 0.0             # gyro_y made worse than raw
+    assert est.score(test) == pytest.approx(np.mean(1.0 - comp / raw), rel=1e-9)
+    assert est.score(test, multioutput="uniform_average") == est.score(test)
+    assert est.score(test, multioutput="variance_weighted") == pytest.approx(
+        1.0 - comp.sum() / raw.sum(), rel=1e-9)
+    assert est.score(test, multioutput=[3.0, 1.0]) == pytest.approx(
+        1.0 - np.average(comp / raw, weights=[3.0, 1.0]), rel=1e-9)
+    # on one run the per-axis scores are scikit-learn's R² of the prediction with the
+    # error's mean added back (the score is offset-free: a constant is no error)
+    one = test[0]
+    y = np.column_stack([one.outputs["gyro_x"], one.outputs["gyro_y"]])
+    pred = est.predict(one)
+    for rule in ("raw_values", "uniform_average", "variance_weighted"):
+        assert_f64_close(est.score(one, multioutput=rule),
+                         r2_score(y, pred + (y - pred).mean(0), multioutput=rule), rtol=1e-9)
+    for bad in ("mean", [1.0], [1.0, -1.0], [0.0, 0.0]):
+        msg = _one_line(lambda b=bad: est.score(test, multioutput=b), ConfigError)
+        assert "score(multioutput)" in msg

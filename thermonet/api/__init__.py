@@ -9,7 +9,7 @@ A drift model in the scikit-learn / lmfit mould::
     est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(ds[0], val=ds[1])
     drift = est.predict(ds[2])                 # (N, axes), in the outputs' units
     print(est.score(ds[2]))                    # 1 − error variance after / before, axis mean
-    print(est.parameters_)                     # axis, name, value, stderr, unit
+    print(est.parameters_)                     # axis, name, value, stderr, unit, note
     est.save("cubic.pt")
     est.export("cubic.onnx", format="onnx")
 
@@ -34,11 +34,13 @@ The estimator (:mod:`thermonet.api.estimator`)
     saves and exports carry the data digest, the validation score and the run id.
 
 Parameters with uncertainties (:mod:`thermonet.api.parameters`)
-    ``est.parameters_`` is a pandas table ``axis, name, value, stderr, unit``: a polynomial's
+    ``est.parameters_`` is a pandas table ``axis, name, value, stderr, unit, note``: a polynomial's
     ``c0 … cN`` in output unit / °C^k about :math:`T_{ref}` with least-squares standard
     errors (``est.covariance_`` holds the matrices; the residuals of a time series are
     correlated, so read them as a lower bound — the module says how much), Lorentz and RBF
-    parameters in physical units, other families' stored parameters (stderr NaN).
+    parameters in physical units, other families' stored parameters (not physical; stderr
+    NaN, ``note`` says why).  Standard errors and covariance are sealed into the checkpoint:
+    ``DriftEstimator.load`` and ``compare``'s estimators state the fit's.
     ``est.report()`` is the fit report as text.
 
 Hyper-parameter searches (:mod:`thermonet.api.splits`)

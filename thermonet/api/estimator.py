@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from collections.abc import Sequence
 from dataclasses import replace
@@ -37,6 +38,8 @@ if TYPE_CHECKING:
 __all__ = ["DriftEstimator", "NotFittedError"]
 
 _TARGETS = ("drift", "four-position")
+#: ``score(multioutput=...)``'s named rules, as scikit-learn's ``r2_score`` names them.
+MULTIOUTPUT = ("uniform_average", "raw_values", "variance_weighted")
 
 #: The constructor's own keywords (the family's hyper-parameters come on top, as ``**hyper``).
 _OWN = ("family", "inputs", "t_ref", "target", "outputs", "train_on", "gap_s",
@@ -117,7 +120,8 @@ average_s, threads
         Unit per output (from the training data); scoring data in another unit is refused.
     parameters_ : pandas.DataFrame
         The fitted parameters in physical units with standard errors: columns ``axis,
-        name, value, stderr, unit`` (:mod:`thermonet.api.parameters`).
+        name, value, stderr, unit, note`` (:mod:`thermonet.api.parameters`; ``note`` says
+        why a stderr is NaN, or ``fixed``); saved with the model and loaded back.
     covariance_ : dict of str to ndarray
         Per axis, the covariance of the polynomial coefficients ``c0 … cN`` (families
         that are a polynomial in one input; empty otherwise).
@@ -491,9 +495,10 @@ average_s, threads
             return done[0]
         return Dataset(done) if isinstance(data, Dataset) else done
 
-    def score(self, data: Data, y: None = None) -> float:
-        """Fraction of the error's variance removed, mean over axes (higher is better):
-        ``compare``'s offset-free score.
+    def score(self, data: Data, y: None = None, *,
+              multioutput: str | Sequence[float] = "uniform_average") -> Any:
+        """Fraction of the error's variance removed (higher is better): ``compare``'s
+        offset-free score, per axis and aggregated as scikit-learn's ``r2_score`` aggregates.
 
         .. math:: s = 1 - \\frac{1}{A}\\sum_a \\frac{\\sum_g \\sum_{i \\in g}
                   (e_{a,i} - \\bar e_{a,g})^2}{\\sum_g \\sum_{i \\in g}
@@ -509,15 +514,49 @@ average_s, threads
         raw output, negative worse.  ``y`` is scikit-learn's slot and must be None (the
         drift is in the recordings).  Data in another unit than the training data is
         refused, naming both units.
+
+        ``multioutput`` says how the axes' scores :math:`s_a = 1 - r_a` combine:
+        ``"uniform_average"`` (the default, the formula above: every axis weighs the same —
+        one axis made worse than raw, :math:`s_a < 0`, can hide behind good ones, so look at
+        the axes too), ``"raw_values"`` (an array, one score per axis in :attr:`outputs_`
+        order), ``"variance_weighted"`` (each axis weighted by its raw error variance: the
+        sum of the error variances over the sum of the raw ones) or an array of one
+        non-negative weight per axis (a weighted mean).
         """
         self._check_fitted("score")
         if y is not None:
             raise ThermonetError(f"score(y): expected None (the drift is taken from the "
                                  f"recordings), got {type(y).__name__}")
-        return 1.0 - float(np.mean(self._ratios(data, "score")))
+        weights: np.ndarray | None = None
+        if isinstance(multioutput, str):
+            if multioutput not in MULTIOUTPUT:
+                raise ConfigError(f"score(multioutput): {multioutput!r} is not one of "
+                                  f"{', '.join(MULTIOUTPUT)} or an array of weights per axis")
+        else:
+            weights = np.asarray(multioutput, dtype=np.float64).reshape(-1) \
+                if not isinstance(multioutput, (bool, bytes)) else np.empty(0)
+            if weights.size != len(self.outputs_) or not np.all(np.isfinite(weights)) \
+                    or np.any(weights < 0) or weights.sum() <= 0:
+                raise ConfigError(f"score(multioutput): expected {len(self.outputs_)} finite "
+                                  "non-negative weights (one per axis, not all zero)")
+        comp, raw = self._variances(data, "score")
+        ratios = np.array([c / r if r > 0 else float("inf")
+                           for c, r in zip(comp, raw, strict=True)])
+        if weights is not None:
+            return 1.0 - float(np.average(ratios, weights=weights))
+        if multioutput == "raw_values":
+            return 1.0 - ratios
+        if multioutput == "variance_weighted":
+            return 1.0 - float(np.sum(comp) / np.sum(raw)) if np.sum(raw) > 0 else -math.inf
+        return 1.0 - float(np.mean(ratios))
 
     def _ratios(self, data: Data, what: str) -> np.ndarray:
         """Per axis, the error's variance after / before (each source run about its mean)."""
+        comp, raw = self._variances(data, what)
+        return np.array([c / r if r > 0 else float("inf") for c, r in zip(comp, raw, strict=True)])
+
+    def _variances(self, data: Data, what: str) -> tuple[np.ndarray, np.ndarray]:
+        """Per axis, the error's sum of squares after and before (each run about its mean)."""
         from ..training.fold import residual_spread
         from ..training.train import predict
 
@@ -548,7 +587,7 @@ average_s, threads
                 acc[k] += v
         raw = sum(a[2] - a[1] ** 2 / a[0] for a in sums.values())
         comp = sum(a[4] - a[3] ** 2 / a[0] for a in sums.values())
-        return np.array([c / r if r > 0 else float("inf") for c, r in zip(comp, raw, strict=True)])
+        return np.asarray(comp, dtype=np.float64), np.asarray(raw, dtype=np.float64)
 
     # ------------------------------------------------------------ parameters
     def report(self) -> str:

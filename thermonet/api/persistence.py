@@ -32,6 +32,10 @@ def extra(est: DriftEstimator) -> dict[str, Any]:
     extra: dict[str, Any] = {"units": est.units_, "signal_units": est.signal_units_,
                              "device_id": est.device_id_, "history": est.history_,
                              "mlflow_run_id": est.__dict__.get("mlflow_run_id_", "")}
+    if "parameters_" in est.__dict__:   # the standard errors the fit computed, sealed with it
+        from ..training.parameters import sealed_parameters
+
+        extra["parameters"] = sealed_parameters(est.parameters_, est.covariance_, est.stderr)
     if est.__dict__.get("val_score_") is not None:   # the validation metrics, as compare's
         extra.update(val_score=est.val_score_, val_ratios=dict(est.val_ratios_ or {}))
     source = getattr(est, "data_source_", None)  # an estimator made by load() has none
@@ -88,10 +92,14 @@ def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstima
     modes = model.target_modes
     est.targets_ = Target(list(meta["outputs"]), modes,
                           kind=FOUR_POSITION if FOUR_POSITION in modes else "drift")
-    from .parameters import parameter_table
+    from ..training.parameters import parameter_table, with_sealed
 
-    est.parameters_, est.covariance_ = parameter_table(model, est.units_,
-                                                       est.signal_units_)
+    table, cov = parameter_table(model, est.units_, est.signal_units_)
+    # the standard errors the fit computed on its training data (stored with the model)
+    est.parameters_, est.covariance_, method = with_sealed(table, cov, extra.get("parameters"),
+                                                           str(path))
+    if method is not None:     # how they were computed, as get_params reports it
+        est.stderr = method
     est.best_epoch_ = int(meta["epoch"]) if meta.get("epoch") is not None else 0
     est.best_val_ = meta.get("best_val")
     est.n_params_ = int(model.n_params)

@@ -185,7 +185,8 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                                                "compensate": dict(zip(outputs, mask, strict=True)),
                                                "test_metrics": r.to_json()["axes"],
                                                "mlflow_run_id": run_id or "",
-                                               "provenance": provenance})
+                                               "provenance": provenance,
+                                               **_sealed(f.parameters)})
                         r.checkpoint = str(ckpt)
                         tracker.log_artifact(ckpt, "model")
                     except ThermonetError as err:  # a NaN model is never saved
@@ -241,6 +242,28 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
     return doc
 
 
+def _sealed(parameters: Any) -> dict[str, Any]:
+    """``extra.parameters`` of a checkpoint: the fit's standard errors and covariance
+    (least squares), so that the loaded model states them (none where not computed)."""
+    from ..training.parameters import sealed_parameters
+
+    if parameters is None:
+        return {}
+    table, cov = parameters
+    return {"parameters": sealed_parameters(table, cov, "ols")}
+
+
+def _per_axis_parameters(model: Any, fitted: dict[str, Fitted], labels: list[str],
+                         units: dict[str, str]) -> Any:
+    """The per-axis model's table: each axis's rows from the fit of the part that owns it."""
+    from ..training.parameters import parameter_table
+
+    tables = [fitted[k].parameters for k in labels]
+    if any(t is None for t in tables):
+        return None
+    return parameter_table(model, units, {}, parts=tables)
+
+
 def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResult,
                    cfg: CompareConfig, resolved: dict[str, Any], provenance: dict[str, Any],
                    units: dict[str, str], tracker: Any) -> None:
@@ -270,7 +293,8 @@ def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResul
             extra={"label": PER_AXIS, "device_id": result.device, "data_hash": result.data_hash,
                    "units": units, "axes": dict(owners),
                    "compensate": {a: owners[a] is not None for a in outputs},
-                   "test_metrics": r.to_json()["axes"], "provenance": provenance})
+                   "test_metrics": r.to_json()["axes"], "provenance": provenance,
+                   **_sealed(_per_axis_parameters(model, fitted, labels, units))})
         r.checkpoint = str(ckpt)
         tracker.log_artifact(ckpt, "model")
     except ThermonetError as err:   # a NaN model is never saved

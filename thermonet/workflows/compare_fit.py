@@ -119,8 +119,9 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
             vals.append(block_sums(held, predict(fitted.model, held.signals, held.time_s),
                                    residual_spread(fitted.model, held)))
             history = list(fitted.history)
+            train_parts = fp.train
             if p.folds is not None and split.pool and cfg.selection.refit:
-                fitted = _refit(p, fam, tcfg, split, parts, on_epoch)
+                fitted, train_parts = _refit(p, fam, tcfg, split, parts, on_epoch)
                 res.fit_seconds += fitted.fit_seconds
                 # the learning curve of the first fit (train and validation loss), then the
                 # refit's training loss (MLflow: refit/loss)
@@ -142,6 +143,7 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
                 out.ranges[sig] = (float(lo[k]), float(hi[k]))
                 out.excursion[sig] = max(out.excursion.get(sig, 0.0), float(beyond[k]))
             out.model, out.history = model, history
+            out.train_parts = list(train_parts)
             out.best_val = fitted.best_val_loss
             out.test_parts.append(test_part)
             out.test_preds.append(pred)
@@ -152,6 +154,7 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
     # of the model compare keeps (the last split's), once — not again for every split
     res.tuned = {**tuned, **out.model.family.tuned()}
     res.cost = out.model.family.cost()
+    out.parameters = _parameters(p, out.model, out.train_parts, tcfg.average_s)
     if p.folds is not None:
         _cross_validate(out, p, fam, tcfg, spec, parts, on_epoch, tuned_oof)
     out.val, out.test = pool(vals), pool(tests)
@@ -182,8 +185,23 @@ def _pool(p: Plan, fam: FamilyConfig, split: Any, spec: Any, parts: PartCache
     return whole, keep
 
 
+def _parameters(p: Plan, model: Any, train_parts: list[Any], average_s: float) -> Any:
+    """The kept model's parameter table and covariance (``est.parameters_``,
+    ``est.covariance_``) with least-squares standard errors on the rows it was fitted on —
+    what ``DriftEstimator(...).fit`` of the same runs states; sealed into the checkpoint."""
+    from ..training.parameters import parameter_table
+    from ..training.parts import fit_arrays
+
+    arrays = [fit_arrays(q, average_s) for q in train_parts]
+    signal_units = {s: p.ds[0].units.get(s, "") for s in p.ds[0].proxies}
+    return parameter_table(model, p.units, signal_units,
+                           train=(np.concatenate([a[0] for a in arrays]),
+                                  np.concatenate([a[1] for a in arrays]),
+                                  [a[0].shape[0] for a in arrays]), method="ols")
+
+
 def _refit(p: Plan, fam: FamilyConfig, tcfg: Any, split: Any, parts: PartCache,
-           on_epoch: Any) -> Any:
+           on_epoch: Any) -> tuple[Any, list[Any]]:
     """The family refitted on the split's training and validation data together (never a test
     row), without a validation part — as each cross-validation fold fits it (a gradient-trained
     family stops on its training loss): the model the test verdicts judge and the exports
@@ -200,7 +218,7 @@ def _refit(p: Plan, fam: FamilyConfig, tcfg: Any, split: Any, parts: PartCache,
     fp = fold_parts(spec, runs, outputs=p.outputs, target=p.targets, train_on=fam.train_on,
                     gap_s=cfg.features.gap_s, part=parts)
     return fit_fold(fp, family=fam.family, outputs=p.outputs, hyper=fam.params, config=tcfg,
-                    target_modes=p.targets.modes, on_epoch=on_epoch)
+                    target_modes=p.targets.modes, on_epoch=on_epoch), list(fp.train)
 
 
 def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,

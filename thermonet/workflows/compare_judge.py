@@ -49,6 +49,8 @@ class Fitted:
     pool_targets: list[np.ndarray] = field(default_factory=list)
     pool_times: list[np.ndarray] = field(default_factory=list)
     pool_temps: list[np.ndarray] = field(default_factory=list)   # temperature of every row
+    train_parts: list[Part] = field(default_factory=list)  # what the kept model was fitted on
+    parameters: Any = None   # (table, covariance) of the kept model (thermonet.api.parameters)
 
 
 _DRAWS: dict[int, np.ndarray] = {}

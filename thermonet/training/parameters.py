@@ -1,0 +1,445 @@
+"""A fitted model's parameters in physical units, with standard errors (``est.parameters_``).
+
+One row per axis and named parameter: columns ``axis, name, value, stderr, unit, note``.
+``note`` is empty where ``stderr`` was computed, :data:`FIXED` for a coefficient fixed by
+construction (stderr 0), and otherwise says why ``stderr`` is NaN (:data:`NO_SE`).
+
+The standard errors are computed once, on the rows the model was fitted on, and sealed into
+its checkpoint with the covariance (``extra.parameters``, :func:`sealed_parameters`): a model
+loaded with ``DriftEstimator.load`` — or one ``compare`` returns, which computes them for every
+family it fits, as ``DriftEstimator.fit`` of the same runs does — states what the fit stated.
+
+Polynomials in one input (``poly``, ``linear`` and any family whose
+:meth:`~thermonet.models.Family.polynomial_form` says it is one)
+    ``c0 … cN``, the coefficients of
+
+    .. math:: d_a(x) = \\sum_{k=0}^{N} c_{a,k}\\,(x - x_{ref})^k
+
+    in output unit / input unit^k, with :math:`x_{ref}` = :math:`T_{ref}` for ``T`` and
+    ``dT`` (unit °C), the proxy's reference for ``d_<proxy>``, 0 for a dynamic input.
+    The values are the model's own (its float32 parameters, every scaling and the
+    float64 offset included), read off the model evaluated in float64 at ``N + 1``
+    Chebyshev points of the trained range: exact for a polynomial, to rounding.
+
+    **Standard errors** are those of ordinary least squares on the data the model was
+    fitted on (after ``train.average_s`` averaging):
+
+    .. math:: \\operatorname{Cov}(c_a) = s_a^2\\,(D^T D)^{-1},\\qquad
+              s_a^2 = \\frac{\\sum_i r_{a,i}^2}{n - (N + 1)}
+
+    with :math:`D` the design :math:`[(x_i - x_{ref})^k]` and :math:`r` the model's
+    residuals on those samples; ``est.covariance_[axis]`` is the matrix.  It assumes
+    independent residuals of equal variance.  **The residuals of a time series are not
+    independent**: slow noise (bias instability, random walk) and a model that does not
+    quite fit leave residuals correlated over minutes, and the least-squares standard
+    errors are then too small — by about :math:`\\sqrt{\\tau_c / \\Delta t}` for a
+    correlation time :math:`\\tau_c` and sampling interval :math:`\\Delta t`.  Read them as
+    a lower bound unless the residuals are white (check
+    ``np.corrcoef(r[:-1], r[1:])``), or judge the model on held-out runs
+    (``thermonet.compare``), which does not rest on this assumption.
+
+    On an ``at-t-ref`` axis (an accelerometer: the change from :math:`T_{ref}` is the drift,
+    gravity is not) the model is zero at :math:`x_{ref}` by construction: ``c0`` is 0 with
+    stderr 0, and the residuals are taken about their mean (the unknown constant).
+
+    ``DriftEstimator(..., stderr="block-bootstrap")`` does not assume white residuals: a
+    moving-block residual bootstrap (Künsch 1989, :func:`block_bootstrap_cov`) keeps the
+    design, resamples the residuals in contiguous blocks inside each run — each block
+    :func:`block_length` samples long, twice the residuals' integrated autocorrelation time
+    (at least :math:`n^{1/3}`) — adds them to the fitted curve and refits, :data:`N_BOOTSTRAP`
+    times (seeded by the training seed); the covariance is that of the refitted
+    coefficients.  With white residuals it agrees with least squares; with correlated ones
+    it is larger, as it should be (``tests/test_api_contract.py`` measures both against the
+    spread over seeds).  It still needs many blocks: a run a few correlation times long
+    cannot say how uncertain its curve is.
+
+    The training loop may polish the closed-form fit; the covariance is that of the
+    least-squares solution about the coefficients reported.
+
+Lorentz (``lorentz``)
+    ``y0`` (output unit), ``amplitude`` :math:`A` (output unit × input unit: the area of
+    Origin's curve :math:`y_0 + \\frac{2A}{\\pi}\\frac{w}{4(x - x_c)^2 + w^2}`), ``centre``
+    :math:`x_c` (°C for ``T`` and ``dT``: the absolute temperature; input units otherwise)
+    and ``width`` :math:`w` (FWHM, input units).
+RBF (``rbf``)
+    ``bias`` and ``w<k>`` (output unit), and ``centre<k>`` (input units: °C for ``T``,
+    °C about :math:`T_{ref}` for ``dT``) and ``sigma<k>`` (input units) of each
+    Gaussian, with one input; in standardised units (unit ``standardised``) with several.
+Other families
+    Their torch parameters as they are stored: **not physical quantities** (unit
+    ``standardised``, axis empty, note :data:`NO_SE` ``["standardised"]``: the family works on
+    standardised features and targets, :mod:`thermonet.models.base`); the model's curve, not
+    its weights, is what such a family reports.
+
+Every family but the polynomials reports ``stderr`` NaN: no covariance is computed for
+a nonlinear fit (a profile or a bootstrap would be needed, and is not made here).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+__all__ = ["parameter_table", "polynomial_coefficients", "block_bootstrap_cov", "block_length",
+           "sealed_parameters", "with_sealed", "COLUMNS", "FIXED", "NO_SE", "STDERR_METHODS",
+           "N_BOOTSTRAP"]
+
+#: The columns of ``est.parameters_``.
+COLUMNS = ["axis", "name", "value", "stderr", "unit", "note"]
+
+#: ``note`` of a coefficient fixed by construction (``c0`` of an ``at-t-ref`` axis: stderr 0).
+FIXED = "fixed"
+#: ``note`` where no standard error can be computed, by reason (stderr NaN).
+NO_SE = {
+    "nonlinear": "no standard error: nonlinear fit (no covariance computed)",
+    "standardised": "not a physical parameter: the family's internal weight on standardised "
+                    "features and targets (no standard error)",
+    "raw": "no standard error: axis left raw (the model does not compensate it)",
+    "samples": "no standard error: no more samples than coefficients",
+    "unstored": "no standard error: this checkpoint holds none (written before they were "
+                "stored with the model)",
+}
+
+
+def _input_of(model: Any, signal_units: dict[str, str]) -> tuple[str, float, str]:
+    """The one signal of a one-input model, its expansion point and its unit."""
+    from ..features.inputs import TEMPERATURE, dynamic_signal, parse_feature
+
+    signal, _, _ = parse_feature(model.inputs[0])
+    spec = model.spec
+    if signal == TEMPERATURE:
+        return signal, float(spec.t_ref) if spec.t_ref is not None else 0.0, "°C"
+    dyn = dynamic_signal(signal)
+    if dyn is not None:
+        return signal, 0.0, "°C/min" if dyn.kind == "rate" else "°C"
+    return signal, float(spec.proxy_ref.get(signal, 0.0)), signal_units.get(signal, "") or "1"
+
+
+def _drift64(model: Any, signals: np.ndarray) -> np.ndarray:
+    """The model's drift in float64 (its float32 parameters evaluated in float64)."""
+    import torch
+
+    m = copy.deepcopy(model).double().eval()
+    with torch.no_grad():
+        return np.asarray(m.drift64(torch.as_tensor(np.asarray(signals, dtype=np.float64)))
+                          .numpy(), dtype=np.float64)
+
+
+def _power_unit(out: str, unit: str, k: int) -> str:
+    if k == 0:
+        return out
+    return f"{out}/{unit}" if k == 1 else f"{out}/{unit}^{k}"
+
+
+def polynomial_coefficients(model: Any, signal_units: dict[str, str] | None = None
+                            ) -> tuple[np.ndarray, float, str] | None:
+    """``(coefficients (A, N + 1), x_ref, input unit)`` of a model that is a polynomial in
+    one input, ascending in :math:`x - x_{ref}`; None for any other model."""
+    form = model.family.polynomial_form()
+    if form is None or len(model.signals) != 1:
+        return None
+    degree = int(np.asarray(form).shape[1]) - 1
+    signal, ref, unit = _input_of(model, signal_units or {})
+    lo, hi = float(model.sig_lo[0]), float(model.sig_hi[0])
+    if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
+        return None
+    # Chebyshev points of the trained range (clamped outside it: the polynomial lives inside)
+    n = degree + 1
+    nodes = 0.5 * (lo + hi) + 0.5 * (hi - lo) * np.cos(np.pi * (np.arange(n) + 0.5) / n)
+    drift = _drift64(model, nodes[:, None])                      # (n, A)
+    h = max(abs(lo - ref), abs(hi - ref), 1e-12)                  # scale: a well-posed solve
+    v = np.vander((nodes - ref) / h, n, increasing=True)
+    coef = np.linalg.solve(v, drift) / (h ** np.arange(n))[:, None]  # (n, A)
+    return coef.T, ref, unit
+
+
+STDERR_METHODS = ("ols", "block-bootstrap")
+#: Resamples of the block bootstrap (its stderr carries a relative error of about 1/sqrt(2 B)).
+N_BOOTSTRAP = 400
+
+
+def block_length(resid: np.ndarray) -> int:
+    """Samples per bootstrap block: twice the residuals' integrated autocorrelation time
+    (``1 + 2 Σ ρ_k``, summed while ρ_k > 0, the largest over axes), at least ``n^(1/3)``,
+    at most a quarter of the samples."""
+    r = np.asarray(resid, dtype=np.float64)
+    r = r.reshape(r.shape[0], -1)
+    n = r.shape[0]
+    tau = 1.0
+    for j in range(r.shape[1]):
+        x = r[:, j] - r[:, j].mean()
+        f = np.fft.rfft(x, 2 * n)
+        acf = np.fft.irfft(f * np.conj(f))[:n]
+        if acf[0] <= 0:
+            continue
+        rho = acf[1:] / acf[0]
+        stop = int(np.argmax(rho <= 0)) if np.any(rho <= 0) else rho.size
+        tau = max(tau, 1.0 + 2.0 * float(np.sum(rho[:stop])))
+    return int(min(max(math.ceil(2.0 * tau), math.ceil(n ** (1.0 / 3.0)), 1), max(n // 4, 1)))
+
+
+def block_bootstrap_cov(design: np.ndarray, fitted: np.ndarray, resid: np.ndarray,
+                        runs: list[int], *, n_boot: int = N_BOOTSTRAP, seed: int = 0,
+                        block: int | None = None) -> list[np.ndarray]:
+    """Per axis, the covariance of least-squares coefficients under a moving-block residual
+    bootstrap (Künsch 1989): residuals resampled in contiguous blocks of ``block`` samples
+    (:func:`block_length`) taken inside one run each, added to the fitted values, refitted.
+
+    ``design`` (n, p), ``fitted`` and ``resid`` (n, A); ``runs``: samples per run, in order.
+    """
+    rng = np.random.default_rng(seed)
+    n, a = resid.shape
+    length = block or block_length(resid)
+    ends = np.cumsum(runs)
+    starts_of_run = ends - np.asarray(runs)
+    valid = np.concatenate([np.arange(s, e - length + 1) for s, e in
+                            zip(starts_of_run, ends, strict=True) if e - s >= length]
+                           or [np.arange(0, max(n - length + 1, 1))])
+    n_blocks = math.ceil(n / length)
+    pinv = np.linalg.pinv(design)                                   # (p, n)
+    draws = np.empty((n_boot, design.shape[1], a))
+    offsets = np.arange(length)
+    for b in range(n_boot):
+        idx = (rng.choice(valid, n_blocks)[:, None] + offsets).ravel()[:n]
+        draws[b] = pinv @ (fitted + resid[idx])
+    return [np.cov(draws[:, :, j], rowvar=False) for j in range(a)]
+
+
+def _polynomial_rows(model: Any, units: dict[str, str], signal_units: dict[str, str],
+                     train: tuple[np.ndarray, ...] | None, method: str = "ols",
+                     seed: int = 0) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]] | None:
+    got = polynomial_coefficients(model, signal_units)
+    if got is None:
+        return None
+    coef, ref, unit = got
+    n = coef.shape[1]
+    cov: dict[str, np.ndarray] = {}
+    stderr = np.full(coef.shape, np.nan)
+    notes = np.full(coef.shape, NO_SE["unstored"], dtype=object)
+    fixed = np.array([m == "at-t-ref" for m in model.target_modes])
+    if train is not None:
+        notes[:] = NO_SE["samples"]
+        signals, target = (np.asarray(a, dtype=np.float64) for a in train[:2])
+        runs = list(train[2]) if len(train) > 2 else [signals.shape[0]]
+        ok = np.all(np.isfinite(signals), axis=1) & np.all(np.isfinite(target), axis=1)
+        if not ok.all():  # a run's share of the samples dropped
+            bounds = np.cumsum([0] + runs)
+            runs = [int(ok[s:e].sum()) for s, e in zip(bounds[:-1], bounds[1:], strict=True)]
+        signals, target = signals[ok], target[ok]
+        if signals.shape[0] > n:
+            u = signals[:, 0] - ref
+            h = max(float(np.max(np.abs(u))), 1e-12)
+            d = np.vander(u / h, n, increasing=True)
+            unscale = np.outer(h ** np.arange(n), h ** np.arange(n))
+            fitted = _drift64(model, signals)
+            resid = target - fitted
+            # an at-t-ref axis's target holds an unknown constant (gravity) the model does
+            # not predict: its residuals are taken about their mean, and its c0 is 0 by
+            # definition (the change from x_ref), with no uncertainty
+            resid[:, fixed] -= resid[:, fixed].mean(axis=0)
+            fitted[:, fixed] += (target - fitted)[:, fixed].mean(axis=0)
+            if method == "block-bootstrap":
+                covs = block_bootstrap_cov(d, fitted, resid, runs, seed=seed)
+            else:
+                inv = np.linalg.pinv(d.T @ d)
+                inv = 0.5 * (inv + inv.T)
+                s2 = np.sum(resid ** 2, axis=0) / (signals.shape[0] - n)
+                covs = [s2[j] * inv for j in range(resid.shape[1])]
+            for j, axis in enumerate(model.outputs):
+                cov[axis] = covs[j] / unscale
+                if fixed[j]:
+                    cov[axis][0, :] = cov[axis][:, 0] = 0.0
+                stderr[j] = np.sqrt(np.clip(np.diag(cov[axis]), 0.0, None))
+                notes[j] = ""
+    notes[fixed, 0] = FIXED           # c0 of an at-t-ref axis: 0 by definition, stderr 0
+    stderr[fixed, 0] = 0.0
+    for j, keep in enumerate(getattr(model, "compensated_axes", [True] * len(model.outputs))):
+        if not keep:                  # masked: the model's curve there is 0, not a fit
+            stderr[j], notes[j] = np.nan, NO_SE["raw"]
+            cov.pop(model.outputs[j], None)
+    rows = [{"axis": axis, "name": f"c{k}", "value": float(coef[j, k]),
+             "stderr": float(stderr[j, k]), "unit": _power_unit(units.get(axis, ""), unit, k),
+             "note": str(notes[j, k])}
+            for j, axis in enumerate(model.outputs) for k in range(n)]
+    return rows, cov
+
+
+def _lorentz_rows(model: Any, units: dict[str, str], signal_units: dict[str, str]
+                  ) -> list[dict[str, Any]]:
+    import torch
+
+    fam = model.family
+    _, ref, unit = _input_of(model, signal_units)
+    relative = model.inputs[0] != "T" and unit == "°C"          # dT: centre about T_ref
+    with torch.no_grad():
+        scale, shift = (t.double() for t in model.output_scaling())
+        y0, k, xc, hh = (np.asarray(t.double().numpy()) for t in fam.output_form(scale, shift))
+    const = np.asarray(model.constant().double().numpy())
+    xm, xs = float(model.x_mean[0]), float(model.x_std[0])
+    width = 2.0 * np.sqrt(hh) * xs                                # FWHM in input units
+    amplitude = k * xs * xs * 2.0 * np.pi / np.maximum(width, 1e-300)
+    centre = xc * xs + xm + (ref if relative else 0.0)
+    rows = []
+    for j, axis in enumerate(model.outputs):
+        out = units.get(axis, "")
+        for name, value, u in (("y0", y0[j] + const[j], out),
+                               ("amplitude", amplitude[j], f"{out}*{unit}"),
+                               ("centre", centre[j], unit), ("width", width[j], unit)):
+            rows.append({"axis": axis, "name": name, "value": float(value),
+                         "stderr": math.nan, "unit": u, "note": NO_SE["nonlinear"]})
+    return rows
+
+
+def _rbf_rows(model: Any, units: dict[str, str], signal_units: dict[str, str]
+              ) -> list[dict[str, Any]] | None:
+    import torch
+
+    fam = model.family
+    if fam.n_inputs != 1 or getattr(fam, "tail", 0):
+        return None
+    _, _, unit = _input_of(model, signal_units)
+    xm, xs = float(model.x_mean[0]), float(model.x_std[0])
+    with torch.no_grad():
+        scale, shift = (np.asarray(t.double().numpy()) for t in model.output_scaling())
+        centres = np.asarray(fam.centres.double().numpy())[:, 0] * xs + xm
+        sigma = np.exp(np.asarray(fam.log_sigma.double().numpy())) * xs
+        w = np.asarray(fam.weight.double().numpy()) * scale[:, None]
+        b = np.asarray(fam.bias.double().numpy()) * scale + shift
+    const = np.asarray(model.constant().double().numpy())
+    rows = []
+    for j, axis in enumerate(model.outputs):
+        out = units.get(axis, "")
+        note = NO_SE["nonlinear"]
+        rows.append({"axis": axis, "name": "bias", "value": float(b[j] + const[j]),
+                     "stderr": math.nan, "unit": out, "note": note})
+        for c in range(centres.size):
+            rows += [{"axis": axis, "name": f"centre{c}", "value": float(centres[c]),
+                      "stderr": math.nan, "unit": unit, "note": note},
+                     {"axis": axis, "name": f"sigma{c}", "value": float(sigma[c]),
+                      "stderr": math.nan, "unit": unit, "note": note},
+                     {"axis": axis, "name": f"w{c}", "value": float(w[j, c]),
+                      "stderr": math.nan, "unit": out, "note": note}]
+    return rows
+
+
+def _raw_rows(model: Any) -> list[dict[str, Any]]:
+    """The family's torch parameters as stored (standardised units), one row per entry."""
+    rows = []
+    for pname, p in model.family.named_parameters():
+        values = np.asarray(p.detach().double().numpy())
+        for idx in np.ndindex(values.shape):
+            index = ",".join(str(i) for i in idx)
+            rows.append({"axis": "", "name": f"{pname}[{index}]" if index else pname,
+                         "value": float(values[idx]), "stderr": math.nan,
+                         "unit": "standardised", "note": NO_SE["standardised"]})
+    return rows
+
+
+def parameter_table(model: Any, units: dict[str, str], signal_units: dict[str, str],
+                    train: tuple[Any, ...] | None = None, *, method: str = "ols",
+                    seed: int = 0, parts: Sequence[tuple[pd.DataFrame, dict[str, np.ndarray]]]
+                    | None = None) -> tuple[pd.DataFrame, dict[str, np.ndarray]]:
+    """The parameter table of a fitted model (module docstring) and, for a polynomial,
+    its per-axis covariance.
+
+    ``train`` = (signals, targets[, samples per run]) the model was fitted on (None: no
+    standard errors, note :data:`NO_SE` ``["unstored"]``); ``method``: ``"ols"`` or
+    ``"block-bootstrap"`` (seeded by ``seed``).  A per-axis model
+    (:class:`~thermonet.models.composite.AxisModels`) takes ``parts``: each part's own table
+    and covariance as its fit computed them (else its parts' tables without data).
+    """
+    import pandas as pd
+
+    from ..models.composite import AxisModels
+
+    cov: dict[str, np.ndarray] = {}
+    if isinstance(model, AxisModels):
+        # each part's own table, on the axes it owns (and its shared rows), names prefixed
+        # with the part's label
+        frames = []
+        for k, part in enumerate(model.parts):
+            table, part_cov = parts[k] if parts is not None else parameter_table(
+                part, units, signal_units, None, method=method, seed=seed)
+            mine = [a for a, o in zip(model.outputs, model.owner, strict=True) if o == k]
+            table = table[table["axis"].isin([*mine, ""])].copy()
+            table["name"] = f"{model.labels[k]}." + table["name"].astype(str)
+            frames.append(table)
+            cov.update({a: c for a, c in part_cov.items() if a in mine})
+        return pd.concat(frames, ignore_index=True)[COLUMNS], cov
+    poly = _polynomial_rows(model, units, signal_units, train, method, seed)
+    if poly is not None:
+        rows, cov = poly
+    elif model.family.name == "lorentz":
+        rows = _lorentz_rows(model, units, signal_units)
+    else:
+        rows = (_rbf_rows(model, units, signal_units) if model.family.name == "rbf" else None) \
+            or _raw_rows(model)
+    return pd.DataFrame(rows, columns=COLUMNS), cov
+
+
+def sealed_parameters(table: pd.DataFrame, cov: dict[str, np.ndarray], method: str
+                      ) -> dict[str, Any]:
+    """The standard errors of a fitted model's table as its checkpoint stores them (``extra
+    .parameters``): per row its axis, name, stderr and note, the per-axis covariance
+    matrices and the method — computed once on the training data, so that a loaded model
+    (``DriftEstimator.load``, ``compare``'s estimators) states what the fit stated."""
+    rows = [{"axis": str(r.axis), "name": str(r.name), "stderr": float(r.stderr),
+             "note": str(r.note)} for r in table.itertuples(index=False)]
+    return {"method": method, "rows": rows,
+            "covariance": {a: np.asarray(c, dtype=np.float64).tolist() for a, c in cov.items()}}
+
+
+def with_sealed(table: pd.DataFrame, cov: dict[str, np.ndarray], stored: Any, where: str
+                ) -> tuple[pd.DataFrame, dict[str, np.ndarray], str | None]:
+    """``table`` (recomputed from the loaded model: its values) with the standard errors,
+    notes and covariance of the checkpoint's ``extra.parameters`` (:func:`sealed_parameters`);
+    unchanged where the checkpoint holds none.  Returns ``(table, cov, method)``.
+
+    Raises
+    ------
+    InputError
+        ``extra.parameters`` is not what :func:`sealed_parameters` writes, or names other
+        rows than the model's.
+    """
+    from ..core.errors import InputError
+
+    if stored is None:
+        return table, cov, None
+
+    def bad(why: str) -> InputError:
+        return InputError(f"{where}: key 'extra.parameters': {why}")
+
+    if not isinstance(stored, dict) or not isinstance(stored.get("rows"), list) \
+            or not isinstance(stored.get("covariance"), dict) \
+            or stored.get("method") not in STDERR_METHODS:
+        raise bad("expected {method, rows, covariance} as thermonet writes it")
+    rows = stored["rows"]
+    keys = list(zip(table["axis"].astype(str), table["name"].astype(str), strict=True))
+    if len(rows) != len(keys) or not all(
+            isinstance(r, dict) and (r.get("axis"), r.get("name")) == k
+            and isinstance(r.get("stderr"), float) and isinstance(r.get("note"), str)
+            for r, k in zip(rows, keys, strict=False)):
+        raise bad("its rows are not the model's parameters (axis, name, stderr, note)")
+    out = table.copy()
+    # an axis the model leaves raw (compare's mask, applied after the fit) keeps its note
+    raw = (table["note"] == NO_SE["raw"]).to_numpy()
+    out["stderr"] = np.where(raw, table["stderr"], [r["stderr"] for r in rows])
+    out["note"] = np.where(raw, table["note"], [r["note"] for r in rows])
+    masked = set(table.loc[raw, "axis"])
+    covs: dict[str, np.ndarray] = {}
+    for axis, c in stored["covariance"].items():
+        if axis in masked:
+            continue
+        m = np.asarray(c, dtype=np.float64) if isinstance(c, list) else np.empty(0)
+        n = int((out["axis"] == axis).sum())
+        if m.shape != (n, n) or n == 0:
+            raise bad(f"covariance of axis {axis!r} is not {n} × {n}")
+        covs[axis] = m
+    return out, covs, str(stored["method"])
