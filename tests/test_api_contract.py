@@ -352,6 +352,10 @@ def test_parameters_survive_save_and_load(tmp_path):
     # a nonlinear fit's parameters say why they have no standard error
     lor = thermonet.DriftEstimator("lorentz", "T", max_epochs=20).fit(cubic_run(10))
     assert set(lor.parameters_["note"]) == {NO_SE["nonlinear"]}
+    # a network's weights say plainly that they are no physical quantity
+    mlp = thermonet.DriftEstimator("mlp", "dT", max_epochs=2).fit(cubic_run(10))
+    assert set(mlp.parameters_["note"]) == {NO_SE["standardised"]}
+    assert "not a physical parameter" in NO_SE["standardised"]
 
 
 # --------------------------------------------- scikit-learn's model selection
@@ -713,3 +717,33 @@ def test_score_multioutput_as_scikit_learn_aggregates():
     for bad in ("mean", [1.0], [1.0, -1.0], [0.0, 0.0]):
         msg = _one_line(lambda b=bad: est.score(test, multioutput=b), ConfigError)
         assert "score(multioutput)" in msg
+
+
+def test_implausible_lorentz_constants_are_warned():
+    """A near-straight drift over 30 °C: the Lorentz fits the flank of a peak far outside the
+    data (xc_margin 4 lets the centre go there) — the curve is fine, the constants are not
+    physical, and the fit says so (a warning and the rows' note), judged from the table's own
+    width against the recording's span; the issue's numbers trip both rules."""
+    import warnings
+
+    from thermonet.training.parameters import implausible_lorentz
+
+    t = np.arange(600.0)
+    temp = 10.0 + 30.0 * t / t[-1]
+    y = 0.002 * (temp - 10) - 1e-6 * (temp - 10) ** 2 \
+        + np.random.default_rng(0).normal(0, 1e-4, t.size)
+    rec = Recording(time_s=t, temperature_c=temp, outputs={"gyro_x": y}, run_id="r",
+                    units={"gyro_x": "deg/s", "temperature_c": "degC"}, sample_rate_hz=1.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        est = thermonet.DriftEstimator("lorentz", "T", max_epochs=300, xc_margin=4.0).fit(rec)
+    p = est.parameters_.set_index("name")
+    span = np.ptp(temp)
+    assert p.loc["width", "value"] > 10 * span                  # measured 492 °C over 30 °C
+    assert any("implausible" in str(w.message) for w in caught)
+    assert p["note"].str.startswith("implausible as physical constants: width").all()
+    # a peak inside the data (test_linear_and_lorentz_parameters_in_physical_units): no note
+    assert implausible_lorentz(2.0, 8.0, 40.0, 0.08, "°C", "deg/s") == ""
+    # the reported cycle: amplitude −14,627 °/s·°C, width 1,831 °C over 35 °C, drift 0.2 °/s
+    why = implausible_lorentz(-14627.0, 1831.0, 35.0, 0.2, "°C", "deg/s")
+    assert "width 1831 °C is 52× the trained span" in why and "amplitude -1.463e+04" in why

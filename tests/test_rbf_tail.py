@@ -144,3 +144,51 @@ def test_a_comparison_records_what_the_tail_network_chose_and_costs(tmp_path):
         if ridge == "inf":   # the tail alone: the cubic's test score to float32 rounding
             assert rbf["axes"][axis]["score_comp"] == pytest.approx(
                 cubic["axes"][axis]["score_comp"], rel=DEPTH["family"] * EPS32)
+
+
+def _three_cubics(n: int = 1200) -> object:
+    """Three axes, each a cubic law in T − 25 °C (no Gaussian structure) + white noise."""
+    from thermonet.core.recording import Recording
+
+    coef = np.array([[0.1, 0.02, -3e-4, 4e-6], [-0.05, 0.01, 2e-4, -3e-6],
+                     [0.02, -0.015, 1e-4, 5e-6]])
+    rng = np.random.default_rng(0)
+    t = np.arange(n, dtype=float)
+    temp = -10.0 + 60.0 * t / t[-1]
+    outs = {f"gyro_{a}": np.polynomial.polynomial.polyval(temp - 25.0, coef[j])
+            + rng.normal(0.0, 0.01, n) for j, a in enumerate("xyz")}
+    return Recording(time_s=t, temperature_c=temp, outputs=outs, run_id="r",
+                     units={**{k: "deg/s" for k in outs}, "temperature_c": "degC"},
+                     sample_rate_hz=1.0)
+
+
+def test_a_tail_alone_reports_what_it_computes(tmp_path):
+    """Ridge ∞ on every axis: the network *is* its cubic tail, and says so — the cubic's
+    parameter and operation counts (no exp), the cubic's coefficients with their standard
+    errors in physical units, a C header without the Gaussian part that still evaluates the
+    model; loaded back, it states the same and the width it tuned."""
+    from thermonet import DriftEstimator
+    from thermonet.exporting.c_header import c_parity_check, render_c_header
+
+    rec = _three_cubics()
+    rbf = DriftEstimator("rbf", ["dT", "dT2"], n_centres=16, tail=3, t_ref=25.0).fit(rec)
+    cubic = DriftEstimator("poly", ["dT"], degree=3, t_ref=25.0, max_epochs=0).fit(rec)
+    assert rbf.tuned_["ridge"] == ["inf"] * 3 and rbf.model_.family.gaussian_off()
+    # 3 axes × (3 tail weights + bias) = the cubic's 3 × 4; ops: 2 powers + 3 × 3 terms
+    assert rbf.n_params_ == cubic.n_params_ == 12
+    assert rbf.model_.family.cost() == cubic.model_.family.cost() == {
+        "ops_per_sample": 11, "transcendentals": 0, "c_bytes": 48}
+    assert rbf.model_.n_structural == 2 * 16 + 16 + 3 * 16 + 3 + 3 * 3   # as built: 108
+    # the same least squares (the tail alone is the cubic's solve): the same table
+    got, want = rbf.parameters_, cubic.parameters_
+    assert list(got["name"]) == list(want["name"]) and list(got["unit"]) == list(want["unit"])
+    assert np.all(np.abs(got["value"] - want["value"]) < 1e-3 * want["stderr"])
+    np.testing.assert_allclose(got["stderr"], want["stderr"], rtol=1e-6)
+    text = render_c_header(rbf.model_)
+    assert "exp" not in text.split("_rbf_w")[1] and "RBF_CENTRES" not in text
+    assert c_parity_check(rbf.model_, text) is not None            # compiled and compared
+    back = DriftEstimator.load(rbf.save(tmp_path / "rbf.pt"))
+    assert back.n_params_ == 12 and back.tuned_ == rbf.tuned_
+    assert back.get_params()["width_scale"] == rbf.tuned_["width_scale"] != 1.0
+    assert back.get_params()["ridge"] == "cv"       # per-axis ∞: not one finite value
+    np.testing.assert_array_equal(back.parameters_["stderr"], got["stderr"])

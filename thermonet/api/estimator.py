@@ -137,6 +137,12 @@ average_s, threads
     mlflow_run_id_ : str
         The MLflow run of a tracked fit ("" untracked).
     n_params_ : int
+        Parameters the model computes with (an RBF whose ridge is ∞ on every axis is its
+        polynomial tail: the cubic's count).
+    tuned_ : dict
+        What the family chose itself on the training data (the RBF's ``width_scale`` and
+        per-axis ``ridge``); a loaded estimator's ``get_params`` states these values where
+        they are one value (the checkpoint keeps them).
     fit_seconds_ : float
     """
 
@@ -408,6 +414,7 @@ average_s, threads
         self.best_epoch_: int = int(result.best_epoch)
         self.best_val_: float | None = result.best_val_loss
         self.n_params_: int = int(result.n_params)
+        self.tuned_: dict[str, Any] = dict(result.model.family.tuned())
         self.fit_seconds_: float = float(result.fit_seconds)
         self.val_ratios_: dict[str, float] | None = None
         self.val_score_: float | None = None

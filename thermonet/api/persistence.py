@@ -4,6 +4,7 @@ and as an MLflow run (see :mod:`thermonet.api`)."""
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import asdict
 from pathlib import Path
@@ -14,7 +15,7 @@ from ..core.trainconfig import TrainConfig
 if TYPE_CHECKING:
     from .estimator import DriftEstimator
 
-__all__ = ["checkpoint_config", "extra", "save", "load", "export", "track"]
+__all__ = ["checkpoint_config", "extra", "fitted_hyper", "save", "load", "export", "track"]
 
 
 def checkpoint_config(est: DriftEstimator) -> dict[str, Any]:
@@ -32,6 +33,8 @@ def extra(est: DriftEstimator) -> dict[str, Any]:
     extra: dict[str, Any] = {"units": est.units_, "signal_units": est.signal_units_,
                              "device_id": est.device_id_, "history": est.history_,
                              "mlflow_run_id": est.__dict__.get("mlflow_run_id_", "")}
+    if est.__dict__.get("tuned_"):   # what the family chose itself (RBF: width, ridges)
+        extra["tuned"] = dict(est.tuned_)
     if "parameters_" in est.__dict__:   # the standard errors the fit computed, sealed with it
         from ..training.parameters import sealed_parameters
 
@@ -42,6 +45,23 @@ def extra(est: DriftEstimator) -> dict[str, Any]:
     if source is not None:  # provenance: what it was fitted on (as compare records it)
         extra.update(data_hash=source["data_hash"], provenance={"data": source})
     return extra
+
+def fitted_hyper(hyper: dict[str, Any], tuned: dict[str, Any]) -> dict[str, Any]:
+    """The family's hyper-parameters as the model was fitted with them: each value the family
+    tuned itself (``tuned``: the RBF's ``width_scale``; its ``ridge`` where every axis chose the
+    same finite one) replaces the configured one, so that ``get_params`` of a loaded estimator
+    states what ``results.json`` says was chosen (``tuned_`` keeps the per-axis choices)."""
+    out = dict(hyper)
+    for key, value in tuned.items():
+        if key not in out:
+            continue
+        if isinstance(value, list) and value and all(v == value[0] for v in value):
+            value = value[0]
+        if isinstance(value, (int, float)) and not isinstance(value, bool) \
+                and math.isfinite(value):
+            out[key] = value
+    return out
+
 
 def save(est: DriftEstimator, path: str | os.PathLike[str]) -> Path:
     """Write the fitted model as a thermonet checkpoint (atomic; loads with
@@ -64,13 +84,16 @@ def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstima
     extra = meta.get("extra") or {}
     train = from_dict(TrainConfig, config.get("train") or {}, source=str(path),
                       prefix="config.train")
+    stored = extra.get("tuned")
+    tuned: dict[str, Any] = dict(stored) if isinstance(stored, dict) else {}
     est = cls(meta["family"], list(meta["inputs"]),
               t_ref=features.get("t_ref", "start"), target=config.get("target", "drift"),
               train=train, outputs=list(meta["outputs"]),
               train_on=fam.get("train_on", "all"),
               gap_s=features.get("gap_s", "auto"),
               t_ref_window_min=float(features.get("t_ref_window_min", 10.0)),
-              **dict(meta["hyper"]))
+              **fitted_hyper(dict(meta["hyper"]), tuned))
+    est.tuned_ = dict(tuned)
     est.model_ = model
     est.spec_ = model.spec
     est.outputs_ = list(meta["outputs"])

@@ -275,6 +275,11 @@ class Family(nn.Module):
         """
         return None
 
+    def n_effective(self) -> int:
+        """Parameters the fitted family computes with (its trainable ones; a family whose fit
+        can switch a part off — the RBF's ridge ∞ — counts what is left)."""
+        return int(sum(p.numel() for p in self.parameters() if p.requires_grad))
+
     def op_count(self) -> tuple[int, int] | None:
         """``(ops, transcendentals)`` of one sample of :meth:`emit_c`'s body, counted from
         this family's own shapes (see :meth:`cost`); None where the family does not count."""
@@ -500,7 +505,15 @@ class DriftModel(nn.Module):
 
     @property
     def n_params(self) -> int:
-        """Number of trained parameters."""
+        """Number of parameters the model computes with (:meth:`Family.n_effective`): what
+        every report states."""
+        return int(self.family.n_effective())
+
+    @property
+    def n_structural(self) -> int:
+        """Number of trainable parameters the family was built with, whatever the fit
+        switched off: what ``compare``'s choice among tied families prefers fewer of (its
+        rule unchanged by a fit that zeroes a part)."""
         return int(sum(p.numel() for p in self.parameters() if p.requires_grad))
 
     def set_scaling(self, *, x_mean: np.ndarray, x_std: np.ndarray, y_mean: np.ndarray,

@@ -139,6 +139,31 @@ class RBF(Family):
         """False in tail mode: the closed-form penalised fit is final (module docstring)."""
         return not self.tail
 
+    def gaussian_off(self) -> bool:
+        """True where ``ridge`` chose ∞ on every axis: every Gaussian weight is exactly 0 and
+        the model *is* its polynomial tail (a cubic in ``z_1`` with ``tail: 3``) — what the C
+        header then computes, what :meth:`op_count` counts and what :meth:`n_effective` and
+        :meth:`polynomial_form` report (read from the weights: a loaded model knows it too)."""
+        return bool(self.tail) and not bool(torch.any(self.weight.detach() != 0))
+
+    def n_effective(self) -> int:
+        """Parameters the model computes with: an axis whose Gaussian weights are all 0 (its
+        ridge ∞) uses none of them, and with no such weight left the centres and widths go
+        too — the tail and the bias remain (``tail: 3`` with ridge ∞ on every axis: the
+        cubic's 4 per axis)."""
+        live = int(torch.any(self.weight.detach() != 0, dim=1).sum())
+        n = int(self.bias.numel()) + (int(self.tail_weight.numel()) if self.tail else 0)
+        if live:
+            n += live * self.n_centres + int(self.centres.numel() + self.log_sigma.numel())
+        return n
+
+    def polynomial_form(self) -> np.ndarray | None:
+        """With every Gaussian weight 0 (:meth:`gaussian_off`): ``[b_a, t_{a,1} … t_{a,d}]``
+        ascending in ``z_1`` — the model is that polynomial."""
+        if not self.gaussian_off():
+            return None
+        return np.column_stack([as_numpy(self.bias), as_numpy(self.tail_weight)])
+
     def tuned(self) -> dict[str, Any]:
         """What ``ridge: cv`` chose: the width multiplier and each axis's relative ridge
         (``inf``: the tail alone); empty without a tail."""
@@ -182,6 +207,16 @@ class RBF(Family):
 
     def emit_c(self, prefix: str, y_std: torch.Tensor, y_mean: torch.Tensor) -> CBody:
         p, P = prefix, prefix.upper()
+        if self.gaussian_off():   # ridge ∞ on every axis: the tail alone, no exp
+            with torch.no_grad():
+                w, c = output_layer(self.tail_weight, self.bias, y_std, y_mean)
+            tail = "".join(f"        float zt{k} = {'z[0]' if k == 1 else f'zt{k - 1} * z[0]'};\n"
+                           for k in range(1, self.tail + 1))
+            affine = c_affine("y", f"{p}_rbf_w", f"{p}_rbf_c", int(w.shape[0]),
+                              [(k, f"zt{k + 1}") for k in range(self.tail)], " " * 8)
+            return CBody([c_array(f"{p}_rbf_w", as_float32(w)),
+                          c_array(f"{p}_rbf_c", as_float32(c))],
+                         f"    {{\n{tail}{affine}\n    }}")
         with torch.no_grad():
             m, b = self.exponent()
             w, c = output_layer(self.weight, self.bias, y_std, y_mean)
@@ -217,6 +252,8 @@ class RBF(Family):
         16 centres on 2 inputs, 3 axes, no tail: 2 + 48 + 16 + 48 = 114, 16 of them
         ``exp``."""
         f, j, d = self.n_inputs, self.n_centres, self.tail
+        if self.gaussian_off():     # the tail alone (emit_c): its powers and the output
+            return max(d - 1, 0) + self.n_outputs * d, 0
         return f + j * (f + 1) + j + max(d - 1, 0) + self.n_outputs * (j + d), j
 
     def check_fittable(self, x: torch.Tensor) -> str | None:

@@ -79,6 +79,7 @@ from __future__ import annotations
 
 import copy
 import math
+import warnings
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -286,15 +287,51 @@ def _lorentz_rows(model: Any, units: dict[str, str], signal_units: dict[str, str
     width = 2.0 * np.sqrt(hh) * xs                                # FWHM in input units
     amplitude = k * xs * xs * 2.0 * np.pi / np.maximum(width, 1e-300)
     centre = xc * xs + xm + (ref if relative else 0.0)
+    lo, hi = float(model.sig_lo[0]), float(model.sig_hi[0])
+    span = hi - lo if math.isfinite(hi - lo) and hi > lo else math.nan
+    drift_pp = np.ptp(_drift64(model, np.linspace(lo, hi, 65)[:, None]), axis=0) \
+        if math.isfinite(span) else np.full(len(model.outputs), np.nan)
     rows = []
     for j, axis in enumerate(model.outputs):
         out = units.get(axis, "")
+        note = NO_SE["nonlinear"]
+        why = implausible_lorentz(float(amplitude[j]), float(width[j]), span,
+                                  float(drift_pp[j]), unit, out)
+        if why:
+            note = f"{why}; {note}"
+            warnings.warn(f"lorentz on {axis}: {why}", UserWarning, stacklevel=2)
         for name, value, u in (("y0", y0[j] + const[j], out),
                                ("amplitude", amplitude[j], f"{out}*{unit}"),
                                ("centre", centre[j], unit), ("width", width[j], unit)):
             rows.append({"axis": axis, "name": name, "value": float(value),
-                         "stderr": math.nan, "unit": u, "note": NO_SE["nonlinear"]})
+                         "stderr": math.nan, "unit": u, "note": note})
     return rows
+
+
+#: A Lorentz width more than this many times the trained span is implausible as a peak.
+LORENTZ_MAX_WIDTH_SPANS = 10.0
+#: An amplitude over the span more than this many times the drift's range is implausible.
+LORENTZ_MAX_AMPLITUDE_DRIFTS = 1000.0
+
+
+def implausible_lorentz(amplitude: float, width: float, span: float, drift_pp: float,
+                        unit: str, out: str) -> str:
+    """Why a fitted Lorentz's constants are not a physical peak ("" if they may be): a width
+    far beyond the data (:data:`LORENTZ_MAX_WIDTH_SPANS` × the trained span) or an amplitude
+    (output × input unit) that, spread over the span, is :data:`LORENTZ_MAX_AMPLITUDE_DRIFTS`
+    times the drift's peak-to-peak there — the flank of a peak far outside the data, whose
+    curve inside the range is fine but whose constants mean nothing."""
+    if not (math.isfinite(span) and span > 0):
+        return ""
+    why = []
+    if width > LORENTZ_MAX_WIDTH_SPANS * span:
+        why.append(f"width {width:.4g} {unit} is {width / span:.0f}× the trained span "
+                   f"{span:.4g} {unit}")
+    if math.isfinite(drift_pp) and drift_pp > 0 and \
+            abs(amplitude) / span > LORENTZ_MAX_AMPLITUDE_DRIFTS * drift_pp:
+        why.append(f"amplitude {amplitude:.4g} {out}*{unit} is {abs(amplitude) / span / drift_pp:.0f}× "
+                   f"the drift's range ({drift_pp:.3g} {out}) over the span")
+    return ("implausible as physical constants: " + " and ".join(why)) if why else ""
 
 
 def _rbf_rows(model: Any, units: dict[str, str], signal_units: dict[str, str]

@@ -186,6 +186,8 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                                                "test_metrics": r.to_json()["axes"],
                                                "mlflow_run_id": run_id or "",
                                                "provenance": provenance,
+                                               "tuned": {k: v for k, v in r.tuned.items()
+                                                         if k != "tuning"},
                                                **_sealed(f.parameters)})
                         r.checkpoint = str(ckpt)
                         tracker.log_artifact(ckpt, "model")

@@ -148,6 +148,7 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
             out.test_parts.append(test_part)
             out.test_preds.append(pred)
             res.n_params, res.best_epoch = int(fitted.n_params), int(fitted.best_epoch)
+            out.n_select = int(fitted.model.n_structural)
     except FitError as err:  # this data cannot carry the family: reported, the comparison goes on
         res.status, res.reason, out.model = "failed", str(err), None
         return out
@@ -250,7 +251,7 @@ def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
         except FitError as err:   # e.g. a fold's span too short for the family: said, left out
             oof.failed = f"cross-validation fold {f}: {err}"
             break
-        oof.n_params = int(fitted.n_params)
+        oof.n_params = int(fitted.model.n_structural)
         sig = np.vstack([x[0] for x in train])
         with np.errstate(invalid="ignore"):
             lo, hi = np.nanmin(sig, axis=0), np.nanmax(sig, axis=0)
@@ -275,7 +276,7 @@ def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: An
     whole = [parts(rec, spec.signals, spec.gap_s) for rec, _ in p.splits[-1].pool]
     if oof is None:
         oof, whole = _oof(p, fam, tcfg, spec, parts, on_epoch)
-    oof.label, oof.n_params = fam.label, out.result.n_params
+    oof.label, oof.n_params = fam.label, out.n_select
     out.oof = oof
     out.pool_targets = [q.target for q in whole]
     out.pool_times = [q.time_s for q in whole]

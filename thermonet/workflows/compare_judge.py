@@ -50,6 +50,7 @@ class Fitted:
     pool_times: list[np.ndarray] = field(default_factory=list)
     pool_temps: list[np.ndarray] = field(default_factory=list)   # temperature of every row
     train_parts: list[Part] = field(default_factory=list)  # what the kept model was fitted on
+    n_select: int = 0   # the kept model's structural parameter count: what ties prefer fewer of
     parameters: Any = None   # (table, covariance) of the kept model (thermonet.api.parameters)
 
 
@@ -134,7 +135,7 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
         result.selection = sel.record
         # what the single validation part would have chosen: how close the call was
         alt = choose({k: (f.single[0], f.single[1]) for k, f in ok.items()},
-                     {k: f.result.n_params for k, f in ok.items()})
+                     {k: f.n_select for k, f in ok.items()})
         result.selection["single_split"] = {
             "chosen": alt[0], "reason": alt[2],
             "compensate": {k: dict(zip(p.outputs, f.single[2], strict=True))
@@ -157,7 +158,7 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
     else:
         scores = {k: (f.result.val_score, f.val_draws) for k, f in ok.items()
                   if f.val_draws is not None}
-        chosen, tied, why = choose(scores, {k: f.result.n_params for k, f in ok.items()})
+        chosen, tied, why = choose(scores, {k: f.n_select for k, f in ok.items()})
         result.selection = {"method": "single validation part", "note": p.fold_note}
     result.chosen, result.chosen_reason, result.tie = chosen, why, tied
     if tied:
