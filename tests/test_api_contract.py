@@ -571,7 +571,17 @@ def test_exports_carry_the_data_digest_validation_metrics_and_the_tracked_run(tm
     assert run.data.metrics["val/score"] == pytest.approx(ratio, rel=1e-9)
     assert run.data.tags["data_hash"] == est.data_source_["data_hash"]
     artifacts = mlflow.tracking.MlflowClient().list_artifacts(est.mlflow_run_id_, "model")
-    assert [a.path for a in artifacts] == ["model/poly.pt"]
+    # the checkpoint beside the MLflow model's files (MLmodel, model.onnx …)
+    assert {"model/poly.pt", "model/MLmodel", "model/model.onnx"} <= {a.path for a in artifacts}
+    # and the MLflow model users load from the run: the estimator's drift, to float32
+    from tolerances import assert_f32_close
+
+    logged = mlflow.pyfunc.load_model(f"runs:/{est.mlflow_run_id_}/model")
+    rec = ds[2]
+    got = logged.predict({"temperature_c": rec.temperature_c.astype(np.float32),
+                          "raw": rec.outputs["gyro_x"][:, None].astype(np.float64)})
+    assert_f32_close(got["drift"], est.predict(rec), "family")
+    assert logged.metadata.signature is not None
     # untracked: no run, and nothing written
     plain = thermonet.DriftEstimator("poly", "dT", degree=3).fit(ds.runs[:2])
     assert plain.mlflow_run_id_ == "" and plain.val_score_ is None

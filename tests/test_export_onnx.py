@@ -219,7 +219,7 @@ def test_log_to_mlflow_sqlite(exported, tmp_path):
     assert files == ["onnx/linear.onnx"]
     mlflow.set_tracking_uri(uri)
     try:
-        loaded = mlflow.onnx.load_model(f"runs:/{run.info.run_id}/onnx_model")
+        loaded = mlflow.onnx.load_model(f"runs:/{run.info.run_id}/model")
     finally:
         mlflow.set_tracking_uri(None)
     assert {p.key: p.value for p in loaded.metadata_props}["family"] == "linear"

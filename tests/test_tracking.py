@@ -1,5 +1,7 @@
 """MLflow tracking against a real embedded SQLite store in a temporary directory."""
 
+from pathlib import Path
+
 import mlflow
 
 from thermonet.tracking import Tracker, flatten_params
@@ -47,3 +49,58 @@ def test_disabled_tracker_records_nothing(tmp_path, monkeypatch):
         tr.log_history([{"epoch": 0, "train_loss": 1.0, "val_loss": 1.0}])
     assert rid is None
     assert not (tmp_path / "mlflow.db").exists()
+
+
+def test_compare_logs_the_chosen_model_as_mlflow_expects(tmp_path):
+    """A tracked comparison logs the chosen model as its run's MLflow model ``model`` (ONNX,
+    with a signature and an input example) and registers it under ``tracking.register`` with
+    the alias ``chosen``: ``mlflow.pyfunc.load_model("runs:/<id>/model")`` and
+    ``models:/NAME@chosen`` load it from a real local store, and on a held-out run both give
+    the drift the torch-free runtime computes from the same graph."""
+    import numpy as np
+
+    import thermonet
+    from conftest import load_runtime
+    from tolerances import assert_f32_close
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    ds = thermonet.simulate("patent-gyro", runs=4, seed=0)
+    res = thermonet.compare({
+        "families": [{"name": "line", "family": "linear", "inputs": ["dT"]},
+                     {"name": "cubic", "family": "poly", "inputs": ["dT"],
+                      "params": {"degree": 3}}],
+        "tracking": {"uri": uri, "experiment": "t", "register": "imu-drift"}},
+        data=ds, track=True)
+    run_id = res.results["mlflow_run_id"]
+    assert run_id and res.chosen in ("line", "cubic", "per-axis")
+    mlflow.set_tracking_uri(uri)
+    try:
+        by_run = mlflow.pyfunc.load_model(f"runs:/{run_id}/model")
+        by_alias = mlflow.pyfunc.load_model("models:/imu-drift@chosen")
+        local = mlflow.artifacts.download_artifacts(f"runs:/{run_id}/model",
+                                                    dst_path=str(tmp_path / "dl"))
+        version = mlflow.MlflowClient().get_model_version_by_alias("imu-drift", "chosen")
+    finally:
+        mlflow.set_tracking_uri(None)
+    assert str(version.version) == "1" and "chosen" in version.aliases
+    signature = by_run.metadata.signature
+    assert signature is not None
+    assert {"temperature_c", "raw"} <= set(signature.inputs.input_names())
+    assert {"compensated", "drift", "out_of_range"} <= set(signature.outputs.input_names())
+    onnx_file = next(Path(local).glob("*.onnx"))
+    comp = load_runtime().Compensator(str(onnx_file))
+    test = ds[3]                                   # never trained on
+    raw = np.column_stack([test.outputs[a] for a in comp.outputs])
+    want = comp.compensate(temperature_c=test.temperature_c, raw=raw)
+    feeds = {"temperature_c": test.temperature_c.astype(np.float32), "raw": raw}
+    for model in (by_run, by_alias):
+        got = model.predict(feeds)
+        assert_f32_close(got["drift"], want.drift, "family")
+        assert_f32_close(got["compensated"], want.compensated, "family", scale=want.drift)
+        np.testing.assert_array_equal(got["out_of_range"], want.out_of_range)   # flags
+    # the graph logged is the chosen checkpoint's: its metadata names the chosen family
+    import onnx
+
+    meta = {p.key: p.value for p in onnx.load(str(onnx_file)).metadata_props}
+    family = res.results["families"][res.chosen]["family"]
+    assert meta["family"] == family

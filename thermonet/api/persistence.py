@@ -166,4 +166,11 @@ def track(est: DriftEstimator, uri: str | None, experiment: str) -> None:
                             for a, r in (est.val_ratios_ or {}).items()})
         tracker.log_metrics(metrics)
         with tempfile.TemporaryDirectory() as tmp:
-            tracker.log_artifact(est.save(Path(tmp) / f"{est.family}.pt"), "model")
+            ckpt = est.save(Path(tmp) / f"{est.family}.pt")
+            tracker.log_artifact(ckpt, "model")
+            # the MLflow model users load: runs:/<id>/model (ONNX, signature, input example)
+            from ..exporting.onnx_export import log_onnx_model
+            from ..exporting.source import onnx_of_checkpoint
+
+            log_onnx_model(onnx_of_checkpoint(ckpt, Path(tmp) / f"{est.family}.onnx"),
+                           run_id or "", tracker.uri)

@@ -204,6 +204,24 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
 # ----------------------------------------------------- the built-in exporters
 def write_onnx(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``onnx``: the graph with the checkpoint's metadata, logged to its training run."""
+    path = _onnx_with_metadata(model, out, request)
+    run_id = request.extra.get("mlflow_run_id")
+    if run_id:
+        _log_to_run(path, run_id, request.tracking_uri, request.meta)
+    return path
+
+
+def onnx_of_checkpoint(ckpt: str | os.PathLike[str], out: str | os.PathLike[str]) -> Path:
+    """The ONNX graph ``thermonet export CKPT --format onnx`` writes (metadata included),
+    without logging it anywhere: what ``compare`` logs as its run's model."""
+    from ..training.checkpoint import load_checkpoint
+    from . import ExportRequest
+
+    model, meta = load_checkpoint(ckpt)
+    return _onnx_with_metadata(model, Path(out), ExportRequest(meta=meta, source=str(ckpt)))
+
+
+def _onnx_with_metadata(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     from .onnx_export import export_onnx
 
     extra, meta = request.extra, request.meta
@@ -221,9 +239,6 @@ def write_onnx(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
         "checkpoint_sha256": str(meta.get("sha256") or ""),
         "data_source": source if isinstance(source, dict) else {},
     })
-    run_id = extra.get("mlflow_run_id")
-    if run_id:
-        _log_to_run(path, run_id, request.tracking_uri, meta)
     return path
 
 

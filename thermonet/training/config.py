@@ -195,6 +195,7 @@ class TrackingConfig:
     enabled: bool = True
     uri: str | None = None               # None: sqlite:///mlflow.db in the working directory
     experiment: str = "thermonet"
+    register: str | None = None          # register the chosen model under this name
 
 
 def _default_families() -> list[FamilyConfig]:

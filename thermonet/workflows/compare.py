@@ -234,6 +234,8 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
         atomic_write_text(out / "config.resolved.yaml", resolved_yaml(resolved, provenance))
         write_report(out / "report.html", doc, plot_paths)
         tracker.set_tags({"chosen": result.chosen or "none"})
+        if tracker.enabled and parent_id:
+            _log_chosen_model(doc, cfg, tracker.uri, parent_id, result)
         tracker.log_artifact(out / "results.json")
         tracker.log_artifact(out / "config.resolved.yaml")
         tracker.log_artifact(out / "report.html")
@@ -242,6 +244,28 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
     for w in result.warnings:
         progress.line(f"warning: {w}")
     return doc
+
+
+def _log_chosen_model(doc: dict[str, Any], cfg: CompareConfig, uri: str, run_id: str,
+                      result: ComparisonResult) -> None:
+    """The chosen model as the comparison run's MLflow model ``model`` (ONNX, signature,
+    input example: ``runs:/<run id>/model``), registered under ``tracking.register`` with
+    the alias ``chosen``; a failure is a warning (the files are written), never fatal."""
+    import tempfile
+
+    from ..exporting.onnx_export import log_onnx_model
+    from ..exporting.source import onnx_of_checkpoint
+
+    ckpt = (doc["families"].get(result.chosen or "") or {}).get("checkpoint")
+    if not ckpt:
+        return
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            path = onnx_of_checkpoint(ckpt, Path(tmp) / f"{result.chosen}.onnx")
+            log_onnx_model(path, run_id, uri, register=cfg.tracking.register)
+    except Exception as err:  # noqa: BLE001 - tracking is best effort; the files are written
+        result.warn(f"the chosen model could not be logged to MLflow: "
+                    f"{str(err).splitlines()[0] if str(err) else type(err).__name__}")
 
 
 def _sealed(parameters: Any) -> dict[str, Any]:
