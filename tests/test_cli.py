@@ -128,7 +128,10 @@ def test_simulate_then_info_then_compare_then_export(thermonet, tmp_path):
     assert logged == {"onnx/m.onnx"}
     models = client.search_logged_models(
         experiment_ids=[client.get_run(run_id).info.experiment_id])
-    assert [(m.name, m.source_run_id) for m in models] == [("onnx_model", run_id)]
+    # the MLflow model 'model' of the family's run (runs:/<id>/model), and compare's own run's
+    # (the chosen model, logged by the tracked comparison)
+    assert sorted((m.name, m.source_run_id) for m in models) == sorted(
+        [("model", run_id), ("model", res["mlflow_run_id"])])
     # an MLflow run id is a source too: the checkpoint artifact is fetched from the store
     r = thermonet("export", run_id, "--format", "c", "--out", tmp_path / "m.h",
                   "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}", cwd=tmp_path)

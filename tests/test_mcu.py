@@ -441,3 +441,44 @@ def test_two_headers_in_one_translation_unit(models, tmp_path):
                         "-Wshadow", "-Wdouble-promotion", "-Wconversion", "-Werror", "-O2",
                         "-c", str(src), "-o", str(tmp_path / f"{target}.o")], check=True,
                        cwd=tmp_path)
+
+
+@pytest.fixture(scope="module")
+def gru_model():
+    """A small GRU (the recurrent family: its own header, tests/test_gru.py)."""
+    t = np.arange(0.0, 1800.0, 2.0)
+    temp = 5.0 + 40.0 * np.abs(((t / 900.0) % 2.0) - 1.0)
+    y = np.stack([1e-3 * (temp - 25.0), -2e-3 * (temp - 25.0)], 1)
+    spec = FeatureSpec(inputs=["dT"], t_ref=25.0)
+    return fit(family="gru", inputs=["dT"], outputs=AXES, train=[(temp[:, None], y, t)],
+               val=None, spec=spec, hyper={"hidden": 4},
+               config=TrainConfig(max_epochs=2, seed=0)).model
+
+
+def test_every_header_builds_strict_everywhere_and_links_bare(models, gru_model, tmp_path):
+    """Every family's header (plain and streaming, and the GRU's), float and double paths,
+    under -Wall -Wextra -Wpedantic -Wshadow -Wconversion -Wsign-conversion
+    -Wdouble-promotion -Werror: on the host (x86-64, LP64: ``long`` and ``uint64_t`` are
+    64 bits there, not on the Cortex-M) and for every Cortex-M target; each target's object
+    links with -nostdlib, libm and libgcc only.  Where the header calls libm's expf/expm1f
+    (M7's float path, every double path) newlib's libm needs one symbol of its libc: errno
+    (``__errno``), set on overflow — nothing else."""
+    from thermonet.exporting.mcu import STRICT_FLAGS, host_compile, link_bare
+
+    assert {"-Wall", "-Wextra", "-Wshadow", "-Wconversion", "-Wsign-conversion",
+            "-Wdouble-promotion", "-Werror"} <= set(STRICT_FLAGS)
+    built = 0
+    for (family, kind), model in [*models.items(), (("gru", "plain"), gru_model)]:
+        text = render_c_header(model)
+        how = {"has_proxies": stream_signature_has_proxies(model),
+               "recurrent": family == "gru"}
+        for real in ("-DTHERMONET_USE_FLOAT", "-DTHERMONET_USE_DOUBLE"):
+            where = tmp_path / family / kind / real.rsplit("_", 1)[1]
+            host_compile(text, where / "host", extra=(real,), **how)
+            for target in TARGETS:
+                build = cross_compile(text, target, where / target, extra=(real,), **how)
+                left = link_bare(build, where / target / "bare.elf")
+                assert set(left) <= {"__errno"}, (family, kind, real, target, left)
+                assert build.libm or not left, (family, kind, real, target, left)
+                built += 1
+    assert built == (len(models) + 1) * 2 * len(TARGETS)

@@ -70,9 +70,12 @@ def render_recurrent_stream_c(model: DriftModel, p: str) -> list[str]:
         f"#define {P}_N_DYNAMIC 0",
         f"#define {P}_N_PROXIES {len(proxies)}",
         f"#define {P}_GRU_STEP_S {step_s!r} /* s: the state advances once per window */",
-        f"#define {P}_GRU_STEP_US {int(round(step_s * 1e6))}ull",
+        # UINT64_C: the constant has uint64_t's own type (unsigned long on LP64, unsigned
+        # long long on the Cortex-M): no sign or rank conversion against the time (-Wconversion
+        # -Wsign-conversion), where an 'ull' suffix is a different type on LP64
+        f"#define {P}_GRU_STEP_US UINT64_C({int(round(step_s * 1e6))})",
         f"#define {P}_GRU_GAP_S {gap_s!r} /* s: a longer step restarts the state, flag set */",
-        f"#define {P}_GRU_GAP_US {int(round(gap_s * 1e6))}ull",
+        f"#define {P}_GRU_GAP_US UINT64_C({int(round(gap_s * 1e6))})",
     ]
     if proxies:
         lines.append(f"static const int {p}_proxy_signal[{P}_N_PROXIES] = "

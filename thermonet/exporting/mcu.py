@@ -5,7 +5,9 @@
 (double-precision FPU) — under the strict flags :data:`STRICT_FLAGS` (``-Werror``), with
 both ``<prefix>_compensate`` and ``<prefix>_step`` instantiated; it returns the object's
 undefined symbols (a soft-double routine such as ``__aeabi_dadd`` is a call the FPU cannot
-do: :func:`soft_double_symbols`) and its code and constant bytes.
+do: :func:`soft_double_symbols`) and its code and constant bytes.  :func:`host_compile`
+builds the same under the same flags on the host (x86-64, LP64), and :func:`link_bare` links a
+target's object with ``-nostdlib`` and libm (and libgcc) only.
 
 :class:`Emulator` links that object into a bare image (no start-up code, libgcc and newlib
 for whatever the build calls) and runs it under the ``unicorn`` CPU emulator as a
@@ -36,7 +38,7 @@ import numpy as np
 from ..core.errors import ExportError
 
 __all__ = ["TARGETS", "STRICT_FLAGS", "CrossBuild", "Emulator", "cross_compile",
-           "soft_double_symbols", "toolchain", "FLOAT_TARGETS"]
+           "host_compile", "link_bare", "soft_double_symbols", "toolchain", "FLOAT_TARGETS"]
 
 #: The Cortex-M cores the header is built for: compiler flags per target.
 TARGETS: dict[str, tuple[str, ...]] = {
@@ -48,7 +50,7 @@ TARGETS: dict[str, tuple[str, ...]] = {
 FLOAT_TARGETS = ("cortex-m0plus", "cortex-m4f")
 #: Every header builds without a warning under these.
 STRICT_FLAGS = ("-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wshadow", "-Wdouble-promotion",
-                "-Wconversion", "-Werror")
+                "-Wconversion", "-Wsign-conversion", "-Werror")
 #: Run-time routines of double arithmetic in software (Arm EABI and libgcc names).
 _SOFT_DOUBLE = re.compile(r"^(__aeabi_(d[a-z0-9]+|[a-z0-9]+2d|[a-z0-9]+2dz?)|"
                           r"__(add|sub|mul|div|neg|extendsf|truncdfsf|fix|fixuns|float|"
@@ -180,19 +182,7 @@ def cross_compile(header_text: str, target: str, out_dir: str | Path, *,
     """
     tools = toolchain()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "model.h").write_text(header_text)
-    # a recurrent model's one step: from a state held here (.c_recurrent)
-    evaluate = ("PFX_compensate_state(s, mcu_h, mcu_h_out, raw, comp, drift)" if recurrent
-                else "PFX_compensate(s, raw, comp, drift)")
-    wrapper = _WRAPPER.replace("PFX_EVAL", evaluate)
-    if recurrent:
-        wrapper = wrapper.replace("int mcu_eval(const float *s", "float mcu_h[PFX_GRU_HIDDEN], "
-                                  "mcu_h_out[PFX_GRU_HIDDEN];\nint mcu_eval(const float *s", 1)
-    (out / "mcu.c").write_text(wrapper.replace("PROXY_ARG", "mcu_prox," if has_proxies else "")
-                               .replace("PFX_N_", f"{prefix.upper()}_N_")
-                               .replace("PFX_GRU_", f"{prefix.upper()}_GRU_")
-                               .replace("PFX", prefix))
+    _write_wrapper(header_text, out, prefix, has_proxies, recurrent)
     flags = (*TARGETS[target], *STRICT_FLAGS, opt, "-ffunction-sections", "-fdata-sections",
              *extra)
     obj = out / "mcu.o"
@@ -209,6 +199,60 @@ def cross_compile(header_text: str, target: str, out_dir: str | Path, *,
             elif parts[0].startswith(".rodata"):
                 const += int(parts[1])
     return CrossBuild(target, obj, undefined, code, const, tuple(flags))
+
+
+def host_compile(header_text: str, out_dir: str | Path, *, prefix: str = "thermonet",
+                 has_proxies: bool = False, recurrent: bool = False,
+                 extra: tuple[str, ...] = ()) -> Path:
+    """Build the same wrapper as :func:`cross_compile` (compensate and step instantiated) with
+    the host's ``gcc`` (x86-64: LP64, where ``long`` is 64 bits) under :data:`STRICT_FLAGS`;
+    returns the object file.  ``extra``: ``-DTHERMONET_USE_FLOAT`` / ``_DOUBLE`` for a path.
+
+    Raises
+    ------
+    ExportError
+        The build fails (a warning is an error).
+    """
+    out = Path(out_dir)
+    _write_wrapper(header_text, out, prefix, has_proxies, recurrent)
+    obj = out / "host.o"
+    _run(["gcc", *STRICT_FLAGS, "-O2", *extra, "-c", str(out / "mcu.c"), "-o", str(obj)],
+         "gcc (host)")
+    return obj
+
+
+def link_bare(build: CrossBuild, out: str | Path) -> list[str]:
+    """Link ``build``'s object alone for its target with ``-nostdlib`` and only libm and the
+    compiler's run-time library (libgcc: the soft-float routines of an FPU-less core) —
+    no libc, no start-up code (entry: the wrapper's ``mcu_eval``, unused sections dropped).
+    Returns the symbols left undefined ([] where it links)."""
+    tools = toolchain()
+    done = subprocess.run([tools["gcc"], *TARGETS[build.target], "-nostdlib",
+                           "-Wl,--gc-sections", "-Wl,-e,mcu_eval", str(build.obj), "-lm",
+                           "-lgcc", "-o", str(Path(out))], capture_output=True, text=True)
+    if done.returncode == 0:
+        return []
+    found = re.findall(r"undefined reference to `([^']+)'", done.stderr)
+    if not found:
+        raise ExportError(f"link of {build.obj} failed: {done.stderr.strip()}")
+    return sorted(set(found))
+
+
+def _write_wrapper(header_text: str, out: Path, prefix: str, has_proxies: bool,
+                   recurrent: bool) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "model.h").write_text(header_text)
+    # a recurrent model's one step: from a state held here (.c_recurrent)
+    evaluate = ("PFX_compensate_state(s, mcu_h, mcu_h_out, raw, comp, drift)" if recurrent
+                else "PFX_compensate(s, raw, comp, drift)")
+    wrapper = _WRAPPER.replace("PFX_EVAL", evaluate)
+    if recurrent:
+        wrapper = wrapper.replace("int mcu_eval(const float *s", "float mcu_h[PFX_GRU_HIDDEN], "
+                                  "mcu_h_out[PFX_GRU_HIDDEN];\nint mcu_eval(const float *s", 1)
+    (out / "mcu.c").write_text(wrapper.replace("PROXY_ARG", "mcu_prox," if has_proxies else "")
+                               .replace("PFX_N_", f"{prefix.upper()}_N_")
+                               .replace("PFX_GRU_", f"{prefix.upper()}_GRU_")
+                               .replace("PFX", prefix))
 
 
 @dataclass
