@@ -232,3 +232,21 @@ def test_a_few_samples_keep_the_whole_chosen_curve_in_frame():
     assert hi - lo < 1.3 * np.ptp(rbf)
     assert [lab for lab in fig.axes[0].get_legend_handles_labels()[1] if OFF_SCALE in lab] == [
         "predicted drift: poly3-rate (off scale)"]
+
+
+def test_window_labels_in_natural_units():
+    """A 1-hour log at 50 Hz drawn in minutes: its time windows are 3600 s / LIMIT_BINS long
+    and the title says so in seconds ("18 s means" for 200 bins), never "0.3 min means"."""
+    from thermonet.reporting.plot_style import duration_text
+
+    t = np.arange(0.0, 3600.0, 0.02)
+    err = 0.01 * np.sin(t / 600.0)
+    fig = residual_vs_time_figure(time_s=t, raw_error=err, compensated={"cubic": 0.1 * err},
+                                  axis="gyro_x", units="deg/s", chosen="cubic")
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "time from start (min)"
+    window_s = (t[-1] - t[0]) / LIMIT_BINS                 # equal bins over the span
+    assert f"{window_s:.3g} s means" in ax.get_title() and "min means" not in ax.get_title()
+    plt.close(fig)
+    assert [duration_text(s) for s in (5.574, 90.0, 750.0, 12600.0)] == [
+        "5.57 s", "90 s", "12.5 min", "3.5 h"]

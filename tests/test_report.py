@@ -116,3 +116,55 @@ def test_render_report_without_plots_and_with_a_failed_family():
     html = render_report(res)
     assert "not fitted: 3 distinct temperatures" in html
     assert "a &lt;warning&gt;" in html and "<img" not in html
+
+
+#: Measures the page as laid out: the document's scroll and client widths, and the right edge
+#: of the widest element against the body's (appended to a copy of the report only: the
+#: report itself carries no script).
+_MEASURE = ("<script>var b = document.body.getBoundingClientRect().right, m = 0;"
+            "document.querySelectorAll('body *').forEach(function (e) {"
+            "m = Math.max(m, e.getBoundingClientRect().right); });"
+            "document.body.setAttribute('data-measure', [document.documentElement.scrollWidth,"
+            "document.documentElement.clientWidth, Math.ceil(m), Math.ceil(b)].join(' '));"
+            "</script></body>")
+
+
+@pytest.fixture(scope="module")
+def six_axis_report(tmp_path_factory):
+    """A six-axis IMU (3 gyros, 3 accelerometers) with a baseline: the widest verdict table."""
+    from thermonet.sim import simulate
+
+    tmp = tmp_path_factory.mktemp("six")
+    ds = simulate("consumer-imu", runs=3, seed=0, sample_rate_hz=0.2)
+    cfg = CompareConfig(families=[
+        FamilyConfig(family="poly", name="cubic", inputs=["dT"], params={"degree": 3}),
+        FamilyConfig(family="linear", name="line", inputs=["dT"])], baseline="cubic")
+    res = run_compare(cfg, tmp / "out", dataset=ds, track=False, quiet=True)
+    return res, tmp / "out" / "report.html"
+
+
+@pytest.mark.parametrize("width", [1280, 1600])
+def test_six_axis_report_reads_without_scrolling_sideways(six_axis_report, width, tmp_path):
+    """Laid out by chromium at 1,280 and 1,600 px: nothing is wider than the window and no
+    element sticks out of the page's body (the verdict table is stacked per sensor: one for
+    the gyros, one for the accelerometers, each with every family)."""
+    res, path = six_axis_report
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    assert chromium is not None, "chromium is needed (the Makefile's test set-up installs it)"
+    text = path.read_text(encoding="utf-8")
+    assert text.count("<th>family</th><th>params</th><th>validation score</th>") == 2
+    probe = tmp_path / "probe.html"
+    probe.write_text(text.replace("</body>", _MEASURE), encoding="utf-8")
+    proc = subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu",
+                           "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
+                           f"--window-size={width},2000", "--dump-dom", probe.as_uri()],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    import re
+
+    found = re.search(r'data-measure="(\d+) (\d+) (\d+) (\d+)"', proc.stdout)
+    assert found, proc.stdout[-500:]
+    scroll, client, widest, body = (int(v) for v in found.groups())
+    # the window less its vertical scroll bar (the page is long), and no horizontal one
+    assert width - 20 <= client <= width and scroll <= client
+    assert widest <= body                                 # nothing drawn past the body

@@ -243,6 +243,17 @@ def time_unit(span_s: float) -> tuple[str, float]:
     return _TIME_UNITS[-1][1], _TIME_UNITS[-1][2]  # pragma: no cover - inf covers every span
 
 
+def duration_text(seconds: float) -> str:
+    """A duration in the unit a reader thinks in: ``5.57 s`` (under 2 min), ``12.5 min``
+    (under 2 h), ``3.5 h`` — a window of 5.6 s is never "0.0929 min"."""
+    s = float(seconds)
+    if not math.isfinite(s) or s < 120.0:
+        return f"{s:.3g} s"
+    if s < 7200.0:
+        return f"{s / 60.0:.3g} min"
+    return f"{s / 3600.0:.3g} h"
+
+
 def _bin_text(width: float, x_label: str) -> str:
     unit = x_label[x_label.rfind("(") + 1: -1] if x_label.endswith(")") else ""
     return f"{width:.3g} {unit}".strip() + " binned means"

@@ -83,6 +83,7 @@ from .plot_style import (  # noqa: F401  re-exported: the plots' public constant
     _scale_sources,
     _stride,
     _style,
+    duration_text,
     family_colours,
     time_unit,
     y_limits,
@@ -259,7 +260,8 @@ def residual_vs_time_figure(*, time_s: np.ndarray, raw_error: np.ndarray,
     limits = y_limits([_dense(raw_means, raw_counts)]
                       + [dense[n] for n in _scale_sources(list(residuals), chosen, baseline)])
     width = (float(bx[1] - bx[0]) if bx.size > 1 else 0.0)
-    what = f"{width:.3g} {unit} means" if width > 0 else "mean"
+    # the window in natural units (5.57 s, not 0.0929 min), whatever unit the axis is in
+    what = f"{duration_text(width * seconds)} means" if width > 0 else "mean"
     if bx.size:
         ax.plot(bx, raw_means, color=_RAW_BINNED_COLOR, linewidth=1.4, zorder=6,
                 label=f"raw output error, {what}")

@@ -36,8 +36,9 @@ VERDICT_COLOURS = {"better": "#c8e6c9", "worse": "#ffcdd2", "indistinguishable":
 _CSS = """
 body { font-family: system-ui, sans-serif; margin: 24px; color: #222; max-width: 1180px; }
 h1 { font-size: 22px; margin-bottom: 4px; } h2 { font-size: 17px; margin-top: 28px; }
-table { border-collapse: collapse; margin: 8px 0; font-size: 13px; }
-th, td { border: 1px solid #bbb; padding: 4px 7px; text-align: left; vertical-align: top; }
+table { border-collapse: collapse; margin: 8px 0; font-size: 13px; max-width: 100%; }
+th, td { border: 1px solid #bbb; padding: 4px 7px; text-align: left; vertical-align: top;
+         overflow-wrap: anywhere; }
 th { background: #f0f0f0; }
 .chosen { font-size: 16px; padding: 10px; background: #e8f0fe; border-left: 5px solid #1f77b4; }
 .warn { background: #fff3c4; border-left: 5px solid #e6ab02; padding: 6px 10px; margin: 4px 0; }
@@ -73,8 +74,29 @@ def _cell(v: dict[str, Any] | None, compensate: bool | None = None) -> str:
             f"[{_num(lo)}, {_num(hi)}]</td>")
 
 
+#: Axes one verdict table holds side by side: more (a six-axis IMU) are stacked as one table
+#: per sensor (gyro, acc …), so that the page reads at 1,280 px without scrolling sideways.
+MAX_TABLE_AXES = 3
+
+
+def _sensor_groups(axes: list[str]) -> list[list[str]]:
+    """The axes in groups of one sensor each (``gyro_x`` → ``gyro``; ``acc_x.bias`` → ``acc``),
+    in order, each at most :data:`MAX_TABLE_AXES` wide; all together where they fit."""
+    if len(axes) <= MAX_TABLE_AXES:
+        return [axes]
+    groups: dict[str, list[str]] = {}
+    for a in axes:
+        groups.setdefault(a.split(".")[0].split("_")[0], []).append(a)
+    return [g[i:i + MAX_TABLE_AXES] for g in groups.values()
+            for i in range(0, len(g), MAX_TABLE_AXES)]
+
+
 def _verdict_table(res: dict[str, Any]) -> str:
-    axes = list(res.get("units", {}))
+    groups = _sensor_groups(list(res.get("units", {})))
+    return "".join(_verdict_table_of(res, axes) for axes in groups)
+
+
+def _verdict_table_of(res: dict[str, Any], axes: list[str]) -> str:
     base = res.get("baseline")
     head = "".join(f"<th>{_e(a)}<br>vs raw</th>" for a in axes)
     if base:
