@@ -250,3 +250,36 @@ def test_window_labels_in_natural_units():
     plt.close(fig)
     assert [duration_text(s) for s in (5.574, 90.0, 750.0, 12600.0)] == [
         "5.57 s", "90 s", "12.5 min", "3.5 h"]
+
+
+def test_a_model_on_dynamic_inputs_is_drawn_as_means_at_each_temperature():
+    """Temperature cycled up and down: a model on the rate predicts another drift heating than
+    cooling at one temperature.  Drawn sample by sample its curve zigzags into a filled
+    wedge; it is drawn as its means in equal temperature bins (numpy's, by hand), while a
+    model of temperature alone keeps its exact curve."""
+    from thermonet.reporting.plots import depends_on_more_than, drift_vs_temperature_figure
+
+    t = np.arange(0.0, 20000.0, 5.0)
+    temp = 20.0 + 15.0 * np.sin(2 * np.pi * t / 5000.0)
+    rate = np.gradient(temp, t) * 60.0                           # °C/min
+    static = 1e-3 * (temp - 20.0) ** 2
+    dynamic = static + 0.05 * rate
+    assert depends_on_more_than(temp, dynamic) and not depends_on_more_than(temp, static)
+    fig = drift_vs_temperature_figure(
+        temperature_c=temp, observed_drift=dynamic, axis="gyro_x", units="deg/s",
+        curves={"cubic": (temp, static), "poly3-rate": (temp, dynamic)}, chosen="poly3-rate",
+        baseline="cubic")
+    lines = {ln.get_label().split(": ", 1)[-1]: ln for ln in fig.axes[0].get_lines()}
+    dyn = next(ln for k, ln in lines.items() if k.startswith("poly3-rate"))
+    assert "(means at each temperature)" in dyn.get_label()
+    x, y = dyn.get_xdata(), dyn.get_ydata()
+    assert np.all(np.diff(x) > 0)                                  # one value per temperature
+    edges = np.linspace(temp.min(), temp.max(), LIMIT_BINS + 1)
+    k = np.clip(np.searchsorted(edges, temp, side="right") - 1, 0, LIMIT_BINS - 1)
+    centred = dynamic - dynamic.mean()
+    want = np.array([centred[k == b].mean() for b in range(LIMIT_BINS) if np.any(k == b)])
+    np.testing.assert_allclose(y[np.isfinite(y)], want, rtol=1e-9, atol=1e-12)
+    cub = next(ln for k, ln in lines.items() if k.startswith("cubic"))
+    assert "means at each" not in cub.get_label()
+    assert np.all(np.diff(cub.get_xdata()) >= 0) and len(cub.get_xdata()) > LIMIT_BINS
+    plt.close(fig)

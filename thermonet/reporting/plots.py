@@ -99,6 +99,7 @@ __all__ = [
     "plot_accuracy_cost",
     "accuracy_cost_figure",
     "drift_vs_temperature_figure",
+    "depends_on_more_than",
     "residual_vs_time_figure",
     "residual_vs_temperature_figure",
     "y_limits",
@@ -155,13 +156,23 @@ def drift_vs_temperature_figure(*, temperature_c: np.ndarray, observed_drift: np
                 label=f"raw output error, {_bin_text(bin_width, x_label)}", zorder=6)
     off = False
     for i, (name, (grid, pred)) in enumerate(checked.items()):
-        order = np.argsort(grid, kind="stable")
-        sel = order[_stride(order.size, MAX_LINE_POINTS)]
         style = _style(name, colours, chosen, baseline, i)
         style["label"] = f"predicted drift: {style['label']}"
+        dynamic = depends_on_more_than(grid, pred)
+        if dynamic:
+            style["label"] += " (means at each temperature)"
         if _off_scale(fine[name], limits):
             style["label"] += f" {OFF_SCALE}"
             off = True
+        if dynamic:
+            # a model on dynamic inputs (rate, lag …): several drifts at one temperature —
+            # drawn sample by sample, heating and cooling zigzag into a filled wedge; its
+            # means in fine temperature bins are the curve a reader can follow
+            cx, means, _ = _even_bins(grid, pred, smooth=True)
+            ax.plot(cx, means, **style)
+            continue
+        order = np.argsort(grid, kind="stable")
+        sel = order[_stride(order.size, MAX_LINE_POINTS)]
         ax.plot(grid[sel], pred[sel], **style)
     ax.set_title(f"{axis}: raw output error and predicted drift vs temperature (about their means)")
     ax.set_xlabel(x_label)
@@ -170,6 +181,30 @@ def drift_vs_temperature_figure(*, temperature_c: np.ndarray, observed_drift: np
     ax.grid(True, alpha=0.3)
     _legend(ax)
     return fig
+
+
+#: A curve whose values in one fine temperature bin spread over more than this fraction of
+#: its whole range depends on more than the temperature (:func:`depends_on_more_than`).
+NOT_A_FUNCTION_SPREAD = 0.05
+
+
+def depends_on_more_than(grid: np.ndarray, pred: np.ndarray) -> bool:
+    """Whether ``pred`` is not a function of ``grid`` (a model on dynamic inputs evaluated on
+    the samples): in :data:`LIMIT_BINS` equal bins of ``grid`` some bin's values spread over
+    more than :data:`NOT_A_FUNCTION_SPREAD` of the curve's whole range."""
+    ok = np.isfinite(grid) & np.isfinite(pred)
+    g, p = grid[ok], pred[ok]
+    span = float(np.ptp(p)) if p.size else 0.0
+    if p.size < 3 or span <= 0.0 or float(np.ptp(g)) <= 0.0:
+        return False
+    edges = np.linspace(float(g.min()), float(g.max()), LIMIT_BINS + 1)
+    idx = np.clip(np.searchsorted(edges, g, side="right") - 1, 0, LIMIT_BINS - 1)
+    hi = np.full(LIMIT_BINS, -np.inf)
+    lo = np.full(LIMIT_BINS, np.inf)
+    np.maximum.at(hi, idx, p)
+    np.minimum.at(lo, idx, p)
+    used = np.isfinite(hi)
+    return bool(np.max(hi[used] - lo[used]) > NOT_A_FUNCTION_SPREAD * span)
 
 
 def plot_drift_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
