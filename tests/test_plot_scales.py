@@ -283,3 +283,25 @@ def test_a_model_on_dynamic_inputs_is_drawn_as_means_at_each_temperature():
     assert "means at each" not in cub.get_label()
     assert np.all(np.diff(cub.get_xdata()) >= 0) and len(cub.get_xdata()) > LIMIT_BINS
     plt.close(fig)
+
+
+def test_the_y_scale_note_never_covers_the_legend_or_the_x_label(ramp):
+    """With a curve off scale the figure explains its y-scale in a note: drawn in the figure's
+    bottom margin, its box (as the renderer lays it out) overlaps neither the legend, nor the
+    plotting area, nor the x label, and lies inside the figure."""
+    from thermonet.reporting.plot_style import Y_SCALE_NOTE
+
+    fig = residual_vs_time_figure(time_s=ramp["time_s"], raw_error=ramp["target"],
+                                  compensated=ramp["residuals"], axis="acc_z", units="mg",
+                                  **STYLE)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    ax = fig.axes[0]
+    notes = [t for t in fig.texts if t.get_gid() == Y_SCALE_NOTE]
+    assert len(notes) == 1 and "leave the frame" in notes[0].get_text()
+    note = notes[0].get_window_extent(renderer)
+    for other in (ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer),
+                  ax.xaxis.label.get_window_extent(renderer)):
+        assert not note.overlaps(other), (note, other)
+    assert fig.bbox.contains(note.x0, note.y0) and fig.bbox.contains(note.x1, note.y1)
+    plt.close(fig)

@@ -217,6 +217,10 @@ def _scale_sources(names: Sequence[str], chosen: str | None, baseline: str | Non
     return [n for n in names if n in (chosen, baseline)]
 
 
+#: ``gid`` of the figure text that explains the y-scale when a curve leaves the frame.
+Y_SCALE_NOTE = "y-scale-note"
+
+
 def _apply_limits(ax: Axes, limits: tuple[float, float] | None, any_off_scale: bool) -> None:
     """Set the y-limits from the binned means (the noise and any off-scale curve are clipped)."""
     if limits is None:
@@ -224,10 +228,11 @@ def _apply_limits(ax: Axes, limits: tuple[float, float] | None, any_off_scale: b
     ax.set_ylim(*limits)
     ax.yaxis.set_major_locator(MaxNLocator(nbins="auto", steps=[1, 2, 2.5, 5, 10]))
     if any_off_scale:
-        ax.text(0.01, 0.01, f"y-scale: binned means of raw, the baseline and the chosen family; "
-                f"curves marked {OFF_SCALE} leave the frame",
-                transform=ax.transAxes, fontsize=7, color="0.3", ha="left", va="bottom",
-                zorder=10, bbox={"facecolor": "white", "alpha": 0.7, "edgecolor": "none"})
+        # below the axes, in the figure's bottom-left corner (under the tick labels, left of
+        # the centred x label): never over the legend or the curves, wherever "best" puts it
+        ax.figure.text(0.01, 0.008, f"y-scale: binned means of raw, the baseline and the "
+                       f"chosen family; curves marked {OFF_SCALE} leave the frame",
+                       fontsize=7, color="0.3", ha="left", va="bottom", gid=Y_SCALE_NOTE)
 
 
 def time_unit(span_s: float) -> tuple[str, float]:
