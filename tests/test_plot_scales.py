@@ -305,3 +305,34 @@ def test_the_y_scale_note_never_covers_the_legend_or_the_x_label(ramp):
         assert not note.overlaps(other), (note, other)
     assert fig.bbox.contains(note.x0, note.y0) and fig.bbox.contains(note.x1, note.y1)
     plt.close(fig)
+
+
+def test_high_rate_samples_are_drawn_as_a_binned_band(ramp):
+    """The ramp's samples (more than the plots draw one by one) are a light band — mean ± sd
+    in LIMIT_BINS equal bins, as numpy computes them bin by bin — not a cloud of dots that
+    paints a solid block; in both the temperature and the time figure."""
+    from thermonet.reporting.plots import MAX_SCATTER_POINTS, band_of, drift_vs_temperature_figure
+
+    temp, target = ramp["temperature_c"], ramp["target"]
+    assert temp.size > MAX_SCATTER_POINTS
+    centred = target - target.mean()
+    cx, lo, hi = band_of(temp, centred)
+    edges = np.linspace(temp.min(), temp.max(), LIMIT_BINS + 1)
+    k = np.clip(np.searchsorted(edges, temp, side="right") - 1, 0, LIMIT_BINS - 1)
+    for b in (0, LIMIT_BINS // 2, LIMIT_BINS - 1):
+        v = centred[k == b]
+        np.testing.assert_allclose([lo[b], hi[b]], [v.mean() - v.std(), v.mean() + v.std()],
+                                   rtol=1e-9, atol=1e-9)
+    figs = [drift_vs_temperature_figure(temperature_c=temp, observed_drift=target,
+                                        curves=ramp["curves"], axis="acc_z", units="mg",
+                                        **STYLE),
+            residual_vs_time_figure(time_s=ramp["time_s"], raw_error=target,
+                                    compensated=ramp["residuals"], axis="acc_z", units="mg",
+                                    **STYLE)]
+    for fig in figs:
+        ax = fig.axes[0]
+        bands = [c for c in ax.collections if "mean ± sd" in str(c.get_label())]
+        assert len(bands) == 1
+        assert not [c for c in ax.collections if c.get_label().startswith("raw output error (")
+                    and "mean ± sd" not in c.get_label()]          # no scatter of samples
+        plt.close(fig)

@@ -100,6 +100,8 @@ __all__ = [
     "accuracy_cost_figure",
     "drift_vs_temperature_figure",
     "depends_on_more_than",
+    "band_of",
+    "sample_band",
     "residual_vs_time_figure",
     "residual_vs_temperature_figure",
     "y_limits",
@@ -139,9 +141,12 @@ def drift_vs_temperature_figure(*, temperature_c: np.ndarray, observed_drift: np
     colours = colours or family_colours(list(curves))
     fig, ax = _new_figure()
     dc = _centred(d)
-    keep = _stride(t.size, MAX_SCATTER_POINTS)
-    ax.scatter(t[keep], dc[keep], s=3, color=_RAW_COLOR, alpha=0.25, linewidths=0,
-               label=f"raw output error ({t.size} samples)", rasterized=True, zorder=1)
+    if t.size > MAX_SCATTER_POINTS:   # a high-rate log: thinned dots would paint a block
+        sample_band(ax, t, dc, label=f"raw output error ({t.size} samples): mean ± sd in "
+                                     f"{LIMIT_BINS} bins")
+    else:
+        ax.scatter(t, dc, s=3, color=_RAW_COLOR, alpha=0.25, linewidths=0,
+                   label=f"raw output error ({t.size} samples)", rasterized=True, zorder=1)
     # The y-scale: the raw error's binned means as drawn, and the chosen family's and the
     # baseline's curves averaged in fine bins of temperature (a curve of a model with noisy
     # dynamic inputs is noisy sample by sample too).
@@ -259,6 +264,36 @@ def plot_drift_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
         x_label=x_label), path)
 
 
+def band_of(x: np.ndarray, y: np.ndarray, n_bins: int = LIMIT_BINS
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(centres, mean − sd, mean + sd)`` of ``y`` in ``n_bins`` equal bins spanning ``x``'s
+    finite range (NaN where a bin is empty: a gap stays a gap)."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    if not ok.any():
+        empty = np.empty(0)
+        return empty, empty, empty
+    lo, hi = float(x[ok].min()), float(x[ok].max())
+    edges = np.linspace(lo, hi, n_bins + 1) if hi > lo else np.array([lo, lo + 1.0])
+    nb = edges.size - 1
+    k = np.clip(np.searchsorted(edges, x[ok], side="right") - 1, 0, nb - 1)
+    n = np.bincount(k, minlength=nb).astype(np.float64)
+    s = np.bincount(k, weights=y[ok], minlength=nb)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = s / n
+        var = np.bincount(k, weights=(y[ok] - mean[k]) ** 2, minlength=nb) / n
+    sd = np.sqrt(var)
+    return 0.5 * (edges[:-1] + edges[1:]), mean - sd, mean + sd
+
+
+def sample_band(ax: Axes, x: np.ndarray, y: np.ndarray, *, label: str) -> None:
+    """Many samples as a light band — mean ± sd in :data:`LIMIT_BINS` equal bins of ``x``
+    (:func:`band_of`) — under the binned means: at hundreds of hertz the samples themselves
+    would paint a solid block."""
+    cx, lo, hi = band_of(x, y)
+    ax.fill_between(cx, lo, hi, color=_RAW_COLOR, alpha=0.25, linewidth=0, zorder=1,
+                    label=label)
+
+
 def _faint_line(ax: Axes, t: np.ndarray, x: np.ndarray, y: np.ndarray, **kw: Any) -> None:
     """Every sample of ``y`` as a faint min/max band (broken at gaps in the log) under the
     binned means."""
@@ -284,7 +319,10 @@ def residual_vs_time_figure(*, time_s: np.ndarray, raw_error: np.ndarray,
     x = (t - start) / seconds
     fig, ax = _new_figure()
     rawc = _centred(raw)
-    if t.size:  # the samples: a faint band (a residual's band would only cover it again)
+    if t.size > MAX_LINE_POINTS:   # the samples, binned: mean ± sd in each time bin
+        sample_band(ax, x, rawc, label=f"raw output error ({t.size} samples): mean ± sd in "
+                                       f"{LIMIT_BINS} bins")
+    elif t.size:  # the samples: a faint band (a residual's band would only cover it again)
         _faint_line(ax, t, x, rawc, color=_RAW_COLOR, alpha=0.3, zorder=1,
                     label="raw output error, samples")
     styles = {name: _style(name, colours, chosen, baseline, i)
