@@ -284,7 +284,10 @@ def _cmd_export(args: argparse.Namespace) -> int:
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .workflows.calibrate import calibrate, format_report
 
-    doc = calibrate(args.log, args.out, overwrite=args.overwrite, compare=not args.no_compare)
+    from .workflows.magnetometer import parse_thermometers
+
+    doc = calibrate(args.log, args.out, overwrite=args.overwrite, compare=not args.no_compare,
+                    mag_thermometers=parse_thermometers(args.mag_thermometer or []))
     if not args.quiet:
         print(format_report(doc), end="")
         print(f"results: {Path(args.out) / 'results.json'}")
@@ -434,6 +437,10 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--no-compare", action="store_true",
                    help="fit the firmware form only (no side-by-side comparison with "
                         "thermonet's families: faster, no instances/ folder)")
+    k.add_argument("--mag-thermometer", action="append", metavar="MAG=SENSOR",
+                   help="the thermometer lent to a magnetometer without one, e.g. mag1=baro0 "
+                        "(repeatable; default: baro0, else gyro0, else acc0); its lag is "
+                        "fitted")
     k.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
     k.set_defaults(func=_cmd_calibrate)
 
