@@ -283,7 +283,6 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .workflows.calibrate import calibrate, format_report
-
     from .workflows.magnetometer import parse_thermometers
 
     doc = calibrate(args.log, args.out, overwrite=args.overwrite, compare=not args.no_compare,
@@ -300,7 +299,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     limits = Limits()                       # the documented defaults, where not given
     if args.min_cut is not None:
         limits.min_cut = args.min_cut
-    for kind in ("gyro", "acc", "baro"):
+    for kind in ("gyro", "acc", "baro", "mag"):
         value = getattr(args, f"{kind}_floor")
         if value is not None:
             limits.floor[kind] = value
@@ -466,6 +465,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="... or left below this, m/s^2 (default 5e-3)")
     v.add_argument("--baro-floor", type=float, default=None,
                    help="... or left below this, Pa (default 1)")
+    v.add_argument("--mag-floor", type=float, default=None,
+                   help="... or left below this, µT (default 0.5; PX4 TC_M*)")
     v.add_argument("--overwrite", action="store_true",
                    help="replace a previous verification in --out")
     v.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")

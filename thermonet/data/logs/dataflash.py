@@ -18,7 +18,7 @@ format's multiplier, 1e-3 gauss), converted to µT (× 0.1).  The logged field i
 after the compass calibration (``Compass::correct_field``: ``(raw + offsets) ·
 scale``, the soft-iron matrix of ``COMPASS_DIA*`` / ``COMPASS_ODI*``, then ``+ motor
 offsets``); thermonet undoes it with the offsets the message carries (``OfsX..Z``,
-``MOX..Z``) and the ``COMPASS_SCALE*`` / ``DIA*`` / ``ODI*`` parameters, so the
+``MOX..Z``, ``MOfsX..Z`` in older logs) and the ``COMPASS_SCALE*`` / ``DIA*`` / ``ODI*`` parameters, so the
 instance is the field as the driver gave it (already rotated to the board frame by
 ``COMPASS_ORIENT``, which is not undone).  ``MAG`` has no temperature: an ArduPilot
 magnetometer is always calibrated against a lent thermometer, and only as ONNX / C —
@@ -254,8 +254,9 @@ def read_dataflash(path: str | Path) -> FlightLog:
             idx = int(d["I"]) if "I" in d else _MAG_NAMES[mtype]
             rows.setdefault(("mag", idx), []).append(
                 [d["TimeUS"] * 1e-6] + [d.get(k, 0.0) for k in (
-                    "MagX", "MagY", "MagZ", "OfsX", "OfsY", "OfsZ", "MOX", "MOY", "MOZ")]
-                + [np.nan])
+                    "MagX", "MagY", "MagZ", "OfsX", "OfsY", "OfsZ")]
+                + [d.get(k, d.get(f"MOfs{k[-1]}", 0.0)) for k in ("MOX", "MOY", "MOZ")]
+                + [np.nan])         # motor offsets: MOX..Z (MOfsX..Z in older logs)
         else:
             idx = int(d["I"]) if "I" in d else _BARO_NAMES[mtype]
             rows.setdefault(("baro", idx), []).append(
