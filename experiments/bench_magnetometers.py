@@ -19,7 +19,6 @@ binned by the sensor's thermometer (mag1: the lent one) in 1 °C bins.
 
 from __future__ import annotations
 
-import json
 import sys
 import tempfile
 from pathlib import Path

@@ -259,8 +259,9 @@ def test_verify_a_magnetometer_without_its_own_thermometer_is_not_judged(tmp_pat
     board = simulate_board("fc-board", seed=7, rate_hz=RATE_HZ)
     path = write_log(board, tmp_path / "b.ulg")
     calibrate(path, tmp_path / "c", compare=False)
-    text = (tmp_path / "c" / "px4.params").read_text().replace(
-        f"TC_M1_ID\t0\t", f"TC_M1_ID\t{MAG_IDS[1]}\t").replace("TC_M1_TMAX\t0\t", "TC_M1_TMAX\t50\t")
+    text = (tmp_path / "c" / "px4.params").read_text()
+    text = text.replace("TC_M1_ID\t0\t", f"TC_M1_ID\t{MAG_IDS[1]}\t")
+    text = text.replace("TC_M1_TMAX\t0\t", "TC_M1_TMAX\t50\t")
     (tmp_path / "m1.params").write_text(text)
     res = evaluate(read_param_file(tmp_path / "m1.params"), read_log(path))
     assert res["mag1"]["status"] == "not judged"

@@ -331,7 +331,8 @@ def _lend_and_lag(logs: list[FlightLog], choice: Mapping[str, str] | None
     info: dict[str, dict[str, Any]] = {}
     for name, chosen in how.items():
         parts = [next(i for i in lg.instances if i.name == name) for lg in logs]
-        tau, scores = 0.0, {}
+        tau = 0.0
+        scores: dict[float, float] = {}
         if all(check_instance(p, lg.autopilot) is None for p, lg in zip(parts, logs,
                                                                        strict=True)):
             tau, scores = choose_lag(parts)
