@@ -184,13 +184,15 @@ def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
         notes = [f"{lg.path.name}: {n}" for lg, p in zip(logs, parts, strict=True)
                  for n in p.notes]
         untrusted = "; ".join(p.untrusted for p in parts if p.untrusted) or None
+        unlagged = None if any(p.unlagged_c is None for p in parts) else np.concatenate(
+            [np.asarray(p.unlagged_c) for p in parts])
         instances.append(SensorInstance(inst.kind, inst.instance, inst.device_id,
                                         np.concatenate(times), temps,
                                         np.concatenate([p.values for p in parts]),
                                         notes=notes, truth=truth,
                                         damaged=sum(p.damaged for p in parts),
                                         untrusted=untrusted, thermometer=inst.thermometer,
-                                        lag_s=inst.lag_s))
+                                        lag_s=inst.lag_s, unlagged_c=unlagged))
     return FlightLog(path=first.path, autopilot=first.autopilot, instances=instances,
                      params=dict(logs[-1].params),
                      notes=[f"{lg.path.name}: {n}" for lg in logs for n in lg.notes],
@@ -207,15 +209,32 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
 
     fw = ("px4-poly5" if inst.kind == "baro" else "px4-cubic") \
         if autopilot == "px4" or inst.kind == "mag" else "ardupilot-cubic"
-    cfg = CompareConfig(
-        split=SplitConfig(strategy="time-blocks", n_blocks=20),
-        families=[
-            FamilyConfig(family="poly", name=fw, inputs=["dT"],
-                         params={"degree": 5 if fw == "px4-poly5" else 3}),
-            FamilyConfig(family="linear", name="linear", inputs=["dT"]),
-            FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
+    families = [
+        FamilyConfig(family="poly", name=fw, inputs=["dT"],
+                     params={"degree": 5 if fw == "px4-poly5" else 3}),
+        FamilyConfig(family="linear", name="linear", inputs=["dT"]),
+        FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
+                     params={"n_centres": 8}),
+    ]
+    if inst.unlagged_c is not None and inst.lag_s > 0:
+        # a lent thermometer through the fitted lag: the models take the thermometer as read
+        # and compute the lag themselves (the lag_<tau> dynamic input, in the runtime and C
+        # too); the baseline is PX4's cubic at the lagged temperature, T - lag = EMA_tau(T)
+        lag = f"lag_{inst.lag_s:g}"
+        fw = "px4-cubic-lag"
+        families = [
+            FamilyConfig(family="poly", name=fw, inputs=["dT", lag],
+                         params={"degree": 3, "cross": True}),
+            FamilyConfig(family="poly", name="px4-cubic-no-lag", inputs=["dT"],
+                         params={"degree": 3}),
+            FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2", lag],
                          params={"n_centres": 8}),
-        ],
+        ]
+        inst = SensorInstance(inst.kind, inst.instance, inst.device_id, inst.time_s,
+                              inst.unlagged_c, inst.values, notes=list(inst.notes),
+                              truth=inst.truth, thermometer=inst.thermometer)
+    cfg = CompareConfig(
+        split=SplitConfig(strategy="time-blocks", n_blocks=20), families=families,
         tracking=TrackingConfig(enabled=False), baseline=fw)
     ds = inst.to_dataset(source).validate(source)
     # built inside calibrate's own staging directory (a fresh one on every run)
@@ -412,7 +431,8 @@ def held_out_blocks(log: FlightLog) -> tuple[FlightLog, FlightLog]:
                 np.asarray(inst.values)[keep], notes=list(inst.notes),
                 truth=None if inst.truth is None else np.asarray(inst.truth)[keep],
                 damaged=inst.damaged, untrusted=inst.untrusted, thermometer=inst.thermometer,
-                lag_s=inst.lag_s))
+                lag_s=inst.lag_s,
+                unlagged_c=None if inst.unlagged_c is None else inst.unlagged_c[keep]))
     return (FlightLog(log.path, log.autopilot, train, dict(log.params)),
             FlightLog(log.path, log.autopilot, test, dict(log.params)))
 

@@ -179,7 +179,8 @@ def with_lag(inst: SensorInstance, tau_s: float) -> SensorInstance:
     return SensorInstance(inst.kind, inst.instance, inst.device_id, inst.time_s, temp,
                           inst.values, notes=list(inst.notes), truth=inst.truth,
                           damaged=inst.damaged, untrusted=inst.untrusted,
-                          thermometer=inst.thermometer, lag_s=float(tau_s))
+                          thermometer=inst.thermometer, lag_s=float(tau_s),
+                          unlagged_c=np.asarray(inst.temperature_c, dtype=np.float64))
 
 
 def fit_correction(fit: FirmwareFit, temperature_c: np.ndarray) -> np.ndarray:

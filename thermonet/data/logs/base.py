@@ -194,6 +194,9 @@ class SensorInstance:
     lag_s : float
         With a lent thermometer: the time constant (s) of the first-order lag through
         which ``temperature_c`` now follows it (0: none; set by a calibration).
+    unlagged_c : array (n,) or None
+        With a lag: the lent thermometer as read, before the lag (what a model with a
+        ``lag_<tau>`` dynamic input takes as its temperature).
     """
 
     kind: str
@@ -208,6 +211,7 @@ class SensorInstance:
     untrusted: str | None = None
     thermometer: str | None = None
     lag_s: float = 0.0
+    unlagged_c: np.ndarray | None = None
 
     def mark_damage(self, n_read: int, dropped: list[str]) -> None:
         """Record ``n_read − n_samples`` damaged samples (``dropped``: why, with counts);
