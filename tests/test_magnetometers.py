@@ -267,3 +267,36 @@ def test_verify_a_magnetometer_without_its_own_thermometer_is_not_judged(tmp_pat
     assert res["mag1"]["status"] == "not judged"
     assert "no temperature of its own" in res["mag1"]["reason"]
     assert res["mag0"]["status"] == "judged" and all(res["mag0"]["passed"])
+
+
+@pytest.mark.numerics
+def test_a_thermonet_model_of_a_magnetometer_exports_as_tc_m_in_gauss(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The comparison's cubic (``at-t-ref``: the Earth's field stays, zero at TREF) exported with
+    ``thermonet export --format px4-params``: TC_M* in gauss, X0 = 0, cutting the simulated
+    drift through PX4's formula; ArduPilot refused in one line.  A lent thermometer's models
+    take the lag as a dynamic input and export as ONNX."""
+    board = simulate_board("fc-board", seed=3, rate_hz=RATE_HZ)
+    board.instances = [i for i in board.instances if i.name in ("mag0", "mag1", "baro0")]
+    calibrate(write_log(board, tmp_path / "b.ulg"), tmp_path / "cal")
+    src = str(tmp_path / "cal" / "instances" / "mag0")
+    assert main(["export", src, "--format", "px4-params", "--family", "px4-cubic",
+                 "--device-id", str(MAG_IDS[0]), "--out", str(tmp_path / "m.params")]) == 0
+    p = _px4_file(tmp_path / "m.params")
+    # X0: the model's value at TREF, zero to float64 rounding of the expansion (µT -> gauss)
+    assert all(abs(p[f"TC_M0_X0_{i}"]) < 1e-6 for i in range(3))
+    m0 = next(i for i in board.instances if i.name == "mag0")
+    temp = np.asarray(m0.temperature_c)
+    assert np.all(_removed(temp, m0.truth, _tc_m(p, MAG_IDS[0], temp)) >= 0.8)
+    capsys.readouterr()
+    assert main(["export", src, "--format", "ardupilot-params", "--family", "px4-cubic",
+                 "--out", str(tmp_path / "m.parm")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "ArduPilot has no magnetometer temperature-calibration parameters" in err
+    cmp = json.loads((tmp_path / "cal" / "instances" / "mag1" / "results.json").read_text())
+    tau = json.loads((tmp_path / "cal" / "results.json").read_text())[
+        "instances"]["mag1"]["thermometer"]["lag_s"]
+    assert cmp["families"]["px4-cubic-lag"]["inputs"] == ["dT", f"lag_{tau:g}"]
+    assert main(["export", str(tmp_path / "cal" / "instances" / "mag1"), "--format", "onnx",
+                 "--family", "px4-cubic-lag", "--out", str(tmp_path / "m1.onnx")]) == 0

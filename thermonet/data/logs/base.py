@@ -243,15 +243,17 @@ class SensorInstance:
         """One run of this sensor as a thermonet :class:`Dataset` (not validated).
 
         Gyro drift is the output itself (the board is still: the true rate is
-        zero, the autopilots fit the whole offset).  Accelerometer, baro and
-        magnetometer outputs carry gravity, the weather and the Earth's field:
-        their reference is the median of the log, as PX4's
-        ``process_sensor_caldata.py`` subtracts it, so that only the change with
-        temperature is drift.
+        zero, the autopilots fit the whole offset).  Accelerometer and baro
+        outputs carry gravity and the weather: their reference is the median
+        of the log, as PX4's ``process_sensor_caldata.py`` subtracts it, so that
+        only the change with temperature is drift.  A magnetometer carries the
+        Earth's field: it has no reference channel, so its target is thermonet's
+        ``at-t-ref`` (:mod:`thermonet.features.target`) — the change from its value at
+        T_ref, zero there, as PX4's ``TC_M*`` (``X0 = 0``) — and the field stays.
         """
         outputs = {c: self.values[:, j].astype(np.float64) for j, c in enumerate(self.channels)}
         refs: dict[str, np.ndarray] = {}
-        if self.kind in ("acc", "baro", "mag"):
+        if self.kind in ("acc", "baro"):
             refs = {f"ref_{c}": np.full(self.n_samples, float(np.median(v)))
                     for c, v in outputs.items()}
         drift = {} if self.truth is None else {
