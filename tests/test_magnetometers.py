@@ -3,7 +3,7 @@ a fitted lag, written, verified, and the bad inputs refused one line per instanc
 
 The firmware formula is re-implemented here from the source, independently of thermonet:
 PX4 ``TemperatureCompensation::calc_thermal_offsets_3D`` for ``TC_M<s>_*`` (PX4-Autopilot
-v1.14+, ``temp_comp_params_mag_<s>.yaml``): T clamped to [TMIN, TMAX], offset_i = Σ_k
+v1.15+, ``temp_comp_params_mag_<s>.yaml``): T clamped to [TMIN, TMAX], offset_i = Σ_k
 X<k>_i (T − TREF)^k in **gauss** (``sensor_mag``'s unit), subtracted; the slot is the one whose
 ``TC_M<s>_ID`` is the magnetometer's device id; ``TC_M_ENABLE`` = 1.  The lag is a first-order
 lag re-implemented here as a plain loop (zero-order hold of the input; thermonet's is exact

@@ -18,12 +18,14 @@ A slot applies to the sensor whose device id equals ``TC_*_ID``
 (``GYRO_COUNT_MAX`` …, ``MAG_COUNT_MAX``).
 
 Magnetometers (``TC_M*``: ``temp_comp_params_mag.yaml`` / ``temp_comp_params_mag_0.yaml``
-…, ``TemperatureCompensation::update_offsets_mag``; PX4-Autopilot v1.14 and later, read
-at main): the same cubic as the gyro's, on ``sensor_mag`` in **gauss** (the unit the
-driver publishes and the on-board calibrator ``temperature_calibration/mag.cpp`` fits),
-with the magnetometer's **own** ``sensor_mag.temperature`` — the module polls each
-sensor's report and applies nothing while its temperature is not finite, so a
-magnetometer without a thermometer cannot be compensated on board.  thermonet keeps
+…, ``TemperatureCompensation::update_offsets_mag``; PX4-Autopilot after v1.14 (v1.15+:
+the user guide's Thermal Calibration page, "Releases up to PX4 v1.14, do not support thermal
+calibration of the magnetometer"), read at main): the same cubic as the gyro's, on
+``sensor_mag`` in **gauss** (the unit the driver publishes and the on-board calibrator
+``temperature_calibration/mag.cpp`` fits), with the magnetometer's **own**
+``sensor_mag.temperature`` — ``TemperatureCompensationModule.cpp`` polls each sensor's own
+report and, as for the gyro, accel and baro, skips it while its temperature is not finite,
+so a magnetometer without a thermometer cannot be compensated on board.  thermonet keeps
 magnetometers in µT; :data:`PX4_PARAM_UNIT` converts.  The on-board calibrator writes
 ``X0 = 0`` ("normalise the correction to be zero at the reference temperature"): the
 correction is the change from the value at TREF, so the Earth's field stays in the

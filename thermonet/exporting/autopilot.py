@@ -294,7 +294,7 @@ def _g(v: float) -> str:
 def export_px4_params(model: ShippedModel, path: str | Path, *, output_units: str | Mapping[str, str],
                       device_id: int | None = None, instance: int = 0) -> Path:
     """Write PX4 ``TC_G<i>_*`` / ``TC_A<i>_*`` / ``TC_B<i>_*`` / ``TC_M<i>_*`` (magnetometer,
-    gauss; PX4 v1.14+) parameters as a QGC ``.params`` file.
+    gauss; PX4 v1.15+) parameters as a QGC ``.params`` file.
 
     Parameters
     ----------

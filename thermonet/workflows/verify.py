@@ -11,7 +11,7 @@ format is told from the first parameter line (five fields: PX4).  LOG is a ULog
 The firmware's formula (:mod:`thermonet.data.firmware`):
 
 * PX4 ``TemperatureCompensation.cpp`` (gyro ``TC_G*``, accel ``TC_A*``, baro ``TC_B*``,
-  magnetometer ``TC_M*`` — PX4 v1.14 and later, coefficients in gauss on ``sensor_mag``,
+  magnetometer ``TC_M*`` — PX4 after v1.14 (v1.15+), coefficients in gauss on ``sensor_mag``,
   applied only with the magnetometer's own temperature): ``TC_<k>_ENABLE`` must be 1 (a file without it,
   as ``process_sensor_caldata.py`` writes, is applied as enabled, with a warning); the slot whose
   ``TC_<k><s>_ID`` equals the instance's device id applies; T clamped to
