@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from . import __version__
+from .core import profile
 from .core.errors import Interrupted, ThermonetError
 
 __all__ = ["main", "build_parser"]
@@ -315,6 +316,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="thermonet",
         description="Train, judge and export temperature-drift models for inertial sensors.")
     p.add_argument("--version", action="version", version=f"thermonet {__version__}")
+    p.add_argument("--profile", action="store_true",
+                   help="print where the command's time went: start-up and each stage's wall "
+                        "and CPU seconds (on stderr, after the command)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("simulate", help="simulate a thermal-chamber test (a study preset)",
@@ -506,6 +510,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             previous[sig] = signal.signal(sig, _raise_interrupted)
     except ValueError:  # not the main thread (an embedding application): leave signals alone
         pass
+    if args.profile:
+        profile.enable()
+        startup = profile.startup_seconds()
     try:
         return int(args.func(args))
     except (KeyboardInterrupt, Interrupted) as err:
@@ -522,6 +529,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         for sig, handler in previous.items():  # None: not set from Python; default is closest
             signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+        if args.profile:
+            print(f"thermonet {args.command}: where the time went\n"
+                  + profile.report(startup), file=sys.stderr)
+            profile.enable(False)
+            profile.reset()
 
 
 if __name__ == "__main__":
