@@ -56,11 +56,13 @@ from .tables import (
     apply_mapping,
     check_finite,
     check_time,
+    float_values,
     native_mapping,
     read_text,
 )
 
-__all__ = ["FORMAT_VERSION", "METADATA_KEY", "write_parquet", "read_dataset", "read_datasets"]
+__all__ = ["FORMAT_VERSION", "METADATA_KEY", "WRITE_OPTIONS", "READ_OPTIONS", "write_parquet",
+           "read_dataset", "read_datasets", "parse_blob", "check_run_ids", "file_format"]
 
 
 #: Version of the Parquet layout written by :func:`write_parquet`.
@@ -97,8 +99,34 @@ def write_parquet(dataset: Dataset, path: str | Path) -> Path:
     for run in dataset:
         run.validate()
     with atomic_path(path, make_parents=False) as tmp:
-        pq.write_table(_to_table(dataset), tmp)
+        pq.write_table(_to_table(dataset), tmp, **WRITE_OPTIONS)
     return path
+
+
+#: How thermonet writes Parquet: every data page with a CRC-32 checksum, which the readers
+#: verify (:data:`READ_OPTIONS`), so a damaged byte is refused, not read as another number.
+WRITE_OPTIONS: dict[str, Any] = {"write_page_checksum": True}
+#: How thermonet reads Parquet: page checksums verified where the writer stored them.
+READ_OPTIONS: dict[str, Any] = {"page_checksum_verification": True}
+
+
+def parse_blob(path: Path, blob: bytes) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The ``thermonet`` metadata blob, checked field by field, and its format version
+    against this reader's: the one check of a thermonet file's metadata, for the whole-file
+    reader and the streamed one alike."""
+    try:
+        info = json.loads(blob)
+    except (ValueError, UnicodeDecodeError) as err:
+        raise InputError.at(path, f"corrupt '{METADATA_KEY}' metadata (not JSON: {err})") from None
+    entries = _check_blob(path, info)
+    version = info["version"]
+    if version > FORMAT_VERSION:
+        raise InputError.at(path, f"format version {version} is newer than this thermonet "
+                            f"reads ({FORMAT_VERSION}); upgrade thermonet")
+    if version < 1:
+        raise InputError.at(path, f"corrupt '{METADATA_KEY}' metadata: field 'version': "
+                            f"{version} is not a format version (1 … {FORMAT_VERSION})")
+    return info, entries
 
 
 def _to_table(dataset: Dataset) -> pa.Table:
@@ -195,23 +223,28 @@ def read_datasets(paths: Sequence[str | Path] | str | Path,
             skipped = (skipped or 0) + n_skipped
     if skipped is not None:
         meta["skipped_rows"] = str(skipped)
-    seen: dict[tuple[str, str], str] = {}
-    several = len({r.device_id for r in runs}) > 1
-    for r in runs:
-        key = (r.device_id, r.run_id)
-        if key in seen:
-            unit = f" of unit '{r.device_id}'" if several else ""
-            raise InputError.at(r.meta.get("source", ""), f"run id '{r.run_id}'{unit} already "
-                                f"used by {seen[key]} (a unit's run ids must be unique; set "
-                                "'run_id' per file, rename the files, or give each unit its "
-                                "own device id)")
-        seen[key] = r.meta.get("source", "")
+    check_run_ids([(r.device_id, r.run_id, r.meta.get("source", "")) for r in runs])
     source = str(paths[0]) if len(paths) == 1 else ""
     if not validate:
         if not runs:
             raise InputError.at(source, "no runs")
         return Dataset(runs=runs, meta=meta)
     return Dataset(runs=runs, meta=meta).validate(source)
+
+
+def check_run_ids(ids: Sequence[tuple[str, str, str]]) -> None:
+    """(device id, run id, source file) of every run read: a unit's run ids are unique."""
+    seen: dict[tuple[str, str], str] = {}
+    several = len({d for d, _, _ in ids}) > 1
+    for device_id, run_id, source in ids:
+        key = (device_id, run_id)
+        if key in seen:
+            unit = f" of unit '{device_id}'" if several else ""
+            raise InputError.at(source, f"run id '{run_id}'{unit} already "
+                                f"used by {seen[key]} (a unit's run ids must be unique; set "
+                                "'run_id' per file, rename the files, or give each unit its "
+                                "own device id)")
+        seen[key] = source
 
 
 def _read_one(path: Path, mapping: ColumnMapping | None
@@ -228,14 +261,7 @@ def _read_one(path: Path, mapping: ColumnMapping | None
     why = not_a_file(path)
     if why:
         raise InputError.at(path, why)
-    fmt = mapping.format if mapping is not None else "auto"
-    ext = path.suffix.lower()
-    if fmt == "auto":
-        fmt = "parquet" if ext in _PARQUET else "tsv" if ext == ".tsv" else \
-            "csv" if ext in _TEXT or mapping is not None else ""
-    if not fmt:
-        raise InputError.at(path, f"unknown file type '{ext}' (thermonet reads .parquet, "
-                            ".csv, .tsv, .txt; for other files give a mapping with 'format')")
+    fmt = file_format(path, mapping)
     if fmt == "parquet":
         table = _read_parquet_table(path)
         blob = (table.schema.metadata or {}).get(METADATA_KEY.encode())
@@ -252,9 +278,22 @@ def _read_one(path: Path, mapping: ColumnMapping | None
     return runs, {}, (n_skipped if mapping.malformed_rows == "skip" else None)
 
 
+def file_format(path: Path, mapping: ColumnMapping | None) -> str:
+    """``parquet``, ``csv`` or ``tsv``: the mapping's ``format``, else by the extension."""
+    fmt = mapping.format if mapping is not None else "auto"
+    ext = path.suffix.lower()
+    if fmt == "auto":
+        fmt = "parquet" if ext in _PARQUET else "tsv" if ext == ".tsv" else \
+            "csv" if ext in _TEXT or mapping is not None else ""
+    if not fmt:
+        raise InputError.at(path, f"unknown file type '{ext}' (thermonet reads .parquet, "
+                            ".csv, .tsv, .txt; for other files give a mapping with 'format')")
+    return fmt
+
+
 def _read_parquet_table(path: Path) -> pa.Table:
     try:
-        table = pq.read_table(path)
+        table = pq.read_table(path, **READ_OPTIONS)
     except (pa.ArrowException, OSError) as err:
         raise InputError.at(path, f"not a readable Parquet file ({err})") from err
     dup = [n for n, c in Counter(table.column_names).items() if c > 1]
@@ -265,15 +304,7 @@ def _read_parquet_table(path: Path) -> pa.Table:
 
 def _from_thermonet_table(path: Path, table: pa.Table, blob: bytes
                           ) -> tuple[list[Recording], dict[str, str]]:
-    try:
-        info = json.loads(blob)
-    except (ValueError, UnicodeDecodeError) as err:
-        raise InputError.at(path, f"corrupt '{METADATA_KEY}' metadata (not JSON: {err})") from None
-    entries = _check_blob(path, info)
-    version = info["version"]
-    if version > FORMAT_VERSION:
-        raise InputError.at(path, f"format version {version} is newer than this thermonet "
-                            f"reads ({FORMAT_VERSION}); upgrade thermonet")
+    info, entries = parse_blob(path, blob)
     for col in ("run", "time_s"):
         if col not in table.column_names:
             raise InputError.at(path, "missing column", column=col)
@@ -293,10 +324,8 @@ def _from_thermonet_table(path: Path, table: pa.Table, blob: bytes
             if name not in table.column_names:
                 raise InputError.at(path, f"missing column (run '{e['run_id']}' lists it)",
                                     column=name)
-            if pa.types.is_boolean(table.schema.field(name).type):
-                raise InputError.at(path, "a boolean column, not a measurement", column=name)
-            values = table.column(name).to_numpy(zero_copy_only=False)[idx]
-            return check_finite(path, name, np.asarray(values, dtype=np.float64), rows, None)
+            values = float_values(path, name, table.column(name).take(idx), rows)
+            return check_finite(path, name, values, rows, None)
 
         time_s = take("time_s")
         check_time(path, "time_s", time_s, rows, None)
