@@ -133,23 +133,16 @@ def read(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     """Recordings from CSV/TSV/Parquet files (one run per file unless a ``run`` column),
     through a YAML column mapping when the columns are not thermonet's own.
 
-    With ``window_s``, each file (thermonet Parquet: ``thermonet convert`` makes one) is
+    With ``window_s``, each file (any of them, through the mapping) is
     streamed ``chunk_rows`` rows at a time and each run reduced to ``window_s`` window means
     (:mod:`thermonet.features.windows`, what ``compare`` does with a recording larger than
     memory); ``inputs`` names the dynamic inputs to compute on the samples (those the
     estimator will read, e.g. ``["dT", "rate"]``) and ``gap_s`` their gap limit.  An
     estimator fits, predicts and scores such runs as runs of samples (the scores over the
     samples the rows stand for)."""
-    from ..data.io import read_datasets
+    from ..training.loader import read_recordings
 
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
-    if window_s is not None:
-        from ..features.windows import reduce_parquet
-
-        runs = [r for p in paths for r in reduce_parquet(
-            Path(p), window_s=window_s, inputs=list(inputs), gap_s=gap_s,
-            chunk_rows=chunk_rows).runs]
-        return Dataset(runs).validate()
-    return read_datasets([Path(p) for p in paths], mapping=None if mapping is None
-                         else Path(mapping))
+    return read_recordings(list(paths), None if mapping is None else Path(mapping),
+                           window_s=window_s, inputs=inputs, gap_s=gap_s, chunk_rows=chunk_rows)

@@ -51,6 +51,7 @@ import pyarrow.parquet as pq
 
 from ..core.errors import InputError
 from ..core.fileio import not_a_file
+from ..core.recording import MIN_SAMPLES as MIN_SAMPLES_
 from .io import METADATA_KEY, READ_OPTIONS, file_format, parse_blob
 from .mapping import ColumnMapping
 from .tables import (
@@ -70,7 +71,8 @@ from .tables import (
 )
 
 __all__ = ["DEFAULT_CHUNK_ROWS", "MEDIAN_SAMPLES", "Layout", "ParquetLayout", "RunTimes",
-           "open_parquet", "open_source", "iter_run_chunks", "run_times"]
+           "open_parquet", "open_source", "iter_run_chunks", "run_times", "count_samples",
+           "validate_layouts", "write_streamed"]
 
 #: Rows per chunk when a caller gives none (512 KiB per float64 column).
 DEFAULT_CHUNK_ROWS = 1 << 16
@@ -433,6 +435,41 @@ def iter_run_chunks(layout: Layout, columns: Sequence[str], *,
             yield index[key], rows, {c: piece[c] for c in cols}
 
 
+def count_samples(paths: Sequence[str | Path], mapping: ColumnMapping | None = None
+                  ) -> int | None:
+    """How many samples the files hold, read cheaply: a Parquet file's row count from its
+    footer, a text file's lines less its banner and header (blank or malformed lines
+    counted: an upper bound).  None where one is not a tabular file (a flight log, a file
+    that does not exist: the whole-file reader names what is wrong with it)."""
+    total = 0
+    for p in paths:
+        path = Path(p)
+        from .logs import is_log
+
+        if is_log(str(path).partition("#")[0]) or not_a_file(path):
+            return None
+        try:
+            fmt = file_format(path, mapping)
+        except InputError:
+            return None
+        if fmt == "parquet":
+            try:
+                total += pq.ParquetFile(path).metadata.num_rows
+            except (pa.ArrowException, OSError):
+                return None
+            continue
+        lines, last = 0, b"\n"
+        with path.open("rb") as f:
+            while block := f.read(1 << 20):
+                lines += block.count(b"\n")
+                last = block[-1:]
+        lines += last != b"\n"
+        skip = mapping.skip_lines if mapping is not None else 0
+        header = 1 if mapping is None or mapping.header else 0
+        total += max(lines - skip - header, 0)
+    return total
+
+
 def run_times(layout: Layout, chunk_rows: int = DEFAULT_CHUNK_ROWS) -> list[RunTimes]:
     """Per run of ``layout``: its :class:`RunTimes` (one pass over time and temperature of a
     thermonet file; known already from the layout pass of any other)."""
@@ -446,3 +483,133 @@ def run_times(layout: Layout, chunk_rows: int = DEFAULT_CHUNK_ROWS) -> list[RunT
     layout.times = [t.times(bool(e["temperature"])) for t, e in zip(tallies, layout.runs,
                                                                       strict=True)]
     return layout.times
+
+
+def validate_layouts(layouts: Sequence[Layout],
+                     temperature: Sequence[tuple[float, float] | None]) -> None:
+    """``Dataset.validate`` on a skeleton of every run of ``layouts`` — its channels, units
+    and metadata with ``MIN_SAMPLES`` placeholder samples whose temperature spans the run's
+    own extremes (``temperature``, per run) — so files the whole-file reader refuses (runs
+    that differ in channels or units, too little temperature span) are refused with the
+    same line without holding their samples."""
+    from ..core.recording import MIN_SAMPLES, Dataset, Recording
+
+    k = MIN_SAMPLES
+    skeleton = []
+    entries = [(lay, e) for lay in layouts for e in lay.runs]
+    for (lay, e), temp in zip(entries, temperature, strict=True):
+        zeros = np.zeros(k)
+        skeleton.append(Recording(
+            time_s=np.arange(k, dtype=np.float64),
+            temperature_c=None if temp is None or not e["temperature"]
+            else np.linspace(temp[0], temp[1], k),
+            outputs={n: zeros for n in e["outputs"]},
+            references={n: zeros for n in e["references"]},
+            drift={n: zeros for n in e["drift"]}, proxies={n: zeros for n in e["proxies"]},
+            units=dict(e["units"]), device_id=e["device_id"], sensor_kind=e["sensor_kind"],
+            run_id=e["run_id"], sample_rate_hz=e["sample_rate_hz"],
+            meta={"source": str(lay.path), **dict(e["meta"])}))
+    meta: dict[str, str] = {}
+    for lay in layouts:
+        for key, v in lay.meta.items():
+            meta.setdefault(key, v)
+    source = str(layouts[0].path) if len(layouts) == 1 else ""
+    Dataset(runs=skeleton, meta=meta).validate(source)
+
+
+def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
+                   chunk_rows: int = DEFAULT_CHUNK_ROWS) -> tuple[int, int]:
+    """Recording files to one thermonet Parquet file (``thermonet convert``), read
+    ``chunk_rows`` rows at a time and written in row groups of about as many rows: memory
+    is one chunk, whatever the files' size.  The runs are checked first as the whole-file
+    reader checks them (:func:`validate_layouts`); a bad value anywhere leaves nothing at
+    ``out`` (written to a temporary file and moved over it at the end).  Rows keep their
+    file order (a run's rows need not be contiguous).  Returns (runs, samples)."""
+    import json
+
+    from ..core.fileio import atomic_path
+    from .io import FORMAT_VERSION, WRITE_OPTIONS, _str_dict, check_run_ids
+
+    out = Path(out)
+    if out.suffix.lower() not in (".parquet", ".pq"):
+        raise InputError.at(out, "a thermonet recording file ends in .parquet (or .pq)")
+    if out.is_dir():
+        raise InputError.at(out, "is a directory; give a .parquet file name")
+    if not out.parent.is_dir():
+        raise InputError.at(out, f"output directory '{out.parent}' does not exist")
+    check_run_ids([(e["device_id"], e["run_id"], str(lay.path)) for lay in layouts
+                   for e in lay.runs])
+    times = [rt for lay in layouts for rt in run_times(lay, chunk_rows)]
+    pairs = [(str(lay.path), e) for lay in layouts for e in lay.runs]
+    for (src, e), rt in zip(pairs, times, strict=True):
+        if rt.n < MIN_SAMPLES_:
+            raise InputError.at(f"{src}, run '{e['run_id']}'", f"too few samples: {rt.n} "
+                                f"(need at least {MIN_SAMPLES_})")
+    validate_layouts(layouts, [rt.temperature for rt in times])
+    entries = [e for lay in layouts for e in lay.runs]
+    fleet = len({e["device_id"] for e in entries}) > 1
+    has_temp = any(e["temperature"] for e in entries)
+    names: list[str] = []
+    for group in GROUPS:
+        for e in entries:
+            names += [k for k in e[group] if k not in names]
+    channels = (["temperature_c"] if has_temp else []) + names
+    fields = [pa.field("run", pa.string())] + ([pa.field("device", pa.string())] if fleet
+                                               else [])
+    fields += [pa.field(c, pa.float64()) for c in ["time_s", *channels]]
+    meta: dict[str, str] = {}
+    skipped = [int(lay.meta["skipped_rows"]) for lay in layouts if "skipped_rows" in lay.meta]
+    for lay in layouts:
+        for key, v in lay.meta.items():
+            meta.setdefault(key, v)
+    if skipped:
+        meta["skipped_rows"] = str(sum(skipped))
+    blob: dict[str, Any] = {"format": "thermonet", "version": FORMAT_VERSION,
+                            "meta": _str_dict(meta, "dataset meta"), "runs": []}
+    for e, rt in zip(entries, times, strict=True):
+        blob["runs"].append({
+            "run_id": e["run_id"], "device_id": e["device_id"], "sensor_kind": e["sensor_kind"],
+            "sample_rate_hz": e["sample_rate_hz"],
+            "meta": _str_dict(e["meta"], f"run '{e['run_id']}' meta"),
+            "units": _str_dict(e["units"], f"run '{e['run_id']}' units"),
+            "temperature": e["temperature"], **{g: list(e[g]) for g in GROUPS},
+            "n_samples": rt.n})
+    schema = pa.schema(fields, metadata={METADATA_KEY: json.dumps(
+        blob, allow_nan=False, ensure_ascii=False)})
+    n_total = 0
+    with atomic_path(out, make_parents=False) as tmp:
+        writer = pq.ParquetWriter(tmp, schema, **WRITE_OPTIONS)
+        try:
+            buffer: list[pa.Table] = []
+            held = 0
+            base = 0
+            for lay in layouts:
+                cols = [c for c in channels if c in lay.columns]
+                for i, _rows, piece in iter_run_chunks(lay, cols, chunk_rows=chunk_rows):
+                    e = entries[base + i]
+                    n = piece["time_s"].size
+                    mine = set(["temperature_c"] if e["temperature"] else []) | {
+                        k for g in GROUPS for k in e[g]}
+                    arrays = [pa.array(np.full(n, e["run_id"], dtype=object), pa.string())]
+                    if fleet:
+                        arrays.append(pa.array(np.full(n, e["device_id"], dtype=object),
+                                               pa.string()))
+                    arrays.append(pa.array(piece["time_s"], pa.float64()))
+                    arrays += [pa.array(piece[c], pa.float64()) if c in mine and c in piece
+                               else pa.nulls(n, pa.float64()) for c in channels]
+                    buffer.append(pa.Table.from_arrays(arrays, schema=schema))
+                    held += n
+                    n_total += n
+                    if held >= chunk_rows:
+                        writer.write_table(pa.concat_tables(buffer), row_group_size=held)
+                        buffer, held = [], 0
+                base += len(lay.runs)
+            if buffer:
+                writer.write_table(pa.concat_tables(buffer), row_group_size=held)
+        finally:
+            writer.close()
+        for (src, e), rt in zip(pairs, times, strict=True):
+            if e.get("n_samples") is not None and int(e["n_samples"]) != rt.n:
+                raise InputError.at(src, f"run '{e['run_id']}': {rt.n} rows, its "
+                                    f"metadata says {e['n_samples']}")
+    return len(entries), n_total
