@@ -156,11 +156,13 @@ def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None,
     base = 0   # index of this frame's first record among all records after the header
     any_rows = False
     while True:
-        frame = _frame(path, lines, records, base, first_data, names, n_fields, sep,
-                       malformed, numeric)
-        if frame is not None:
-            any_rows = any_rows or frame.rows.size > 0
-            yield frame
+        step = max(len(records) if chunk_rows is None else int(chunk_rows), 1)
+        for a in range(0, max(len(records), 1), step):   # the first block may hold more
+            frame = _frame(path, lines[a:a + step], records[a:a + step], base + a,
+                           first_data, names, n_fields, sep, malformed, numeric)
+            if frame is not None:
+                any_rows = any_rows or frame.rows.size > 0
+                yield frame
         base += len(records)
         lines = []
         for block, _ in blocks:
