@@ -179,7 +179,9 @@ def _frames(layout: Layout, chunk_rows: int) -> Iterator[Frame]:
     path = layout.path
     if layout.fmt != "parquet":
         yield from iter_text_frames(path, layout.mapping, "\t" if layout.fmt == "tsv" else None,
-                                    chunk_rows=chunk_rows)
+                                    chunk_rows=chunk_rows,
+                                    float_columns=lambda names, n: _float_columns(
+                                        layout.mapping, names, n))
         return
     pf = _parquet_file(path)
     names = list(pf.schema_arrow.names)
@@ -191,6 +193,23 @@ def _frames(layout: Layout, chunk_rows: int) -> Iterator[Frame]:
         yield Frame(path=path, data=batch.to_pandas(),
                     rows=np.arange(row0, row0 + batch.num_rows), lines=None)
         row0 += batch.num_rows
+
+
+def _float_columns(mapping: ColumnMapping | None, names: list[str] | None, n_fields: int
+                   ) -> set[str | int]:
+    """The columns of a text table that the mapping reads as numbers (without a mapping:
+    every column of the header but ``run`` and ``device``)."""
+    if mapping is None:
+        return set() if names is None else {n for n in names if n not in ("run", "device")}
+    cols = ([mapping.time.column] if mapping.time is not None else []) + \
+        [ch.column for ch in mapping.channels]
+    out: set[str | int] = set()
+    for c in cols:
+        if isinstance(c, int):
+            out.add(names[c] if names is not None and c < len(names) else c)
+        else:
+            out.add(c)
+    return out
 
 
 def _batches(pf: pq.ParquetFile, path: Path, chunk_rows: int, columns: list[str] | None

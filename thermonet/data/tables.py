@@ -13,7 +13,7 @@ import io
 import itertools
 import logging
 from collections import Counter
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -84,14 +84,20 @@ def _text_lines(path: Path, chunk_rows: int | None) -> Iterator[tuple[list[str],
 
 
 def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None, *,
-                     chunk_rows: int | None) -> Iterator[Frame]:
+                     chunk_rows: int | None,
+                     float_columns: Callable[[list[str] | None, int], set[str | int]] | None
+                     = None) -> Iterator[Frame]:
     """The data rows of a text table, ``chunk_rows`` physical lines at a time (None: the
     whole file as one frame): the banner skipped, the separator sniffed from the first 50
     non-blank lines, the header read, each row's field count checked.  Row and file-line
     numbers run on across frames, so a message names the same row whatever the chunk.
 
     Without a header and without the mapping's ``n_fields``, a well-formed row has the most
-    common field count of the first frame (of the whole file when not chunked)."""
+    common field count of the first frame (of the whole file when not chunked).
+
+    ``float_columns`` (chunked only): given the header (None without) and the field count,
+    the columns that hold numbers; a block whose lines are plain is then parsed by
+    :func:`_fast_frame` (pyarrow), any other by the whole-file reader's parsing."""
     skip = mapping.skip_lines if mapping else 0
     header = mapping.header if mapping else True
     malformed = mapping.malformed_rows if mapping else "error"
@@ -153,26 +159,85 @@ def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None,
             raise InputError.at(path, "no data rows")
         n_fields = Counter(counts).most_common(1)[0][0]
     numeric = names if names and all(n and _is_float(n) for n in names) else []
+    fast = None if float_columns is None or chunk_rows is None else \
+        float_columns(names, n_fields)
     base = 0   # index of this frame's first record among all records after the header
     any_rows = False
+    first: list[list[str]] | None = records
     while True:
-        step = max(len(records) if chunk_rows is None else int(chunk_rows), 1)
-        for a in range(0, max(len(records), 1), step):   # the first block may hold more
-            frame = _frame(path, lines[a:a + step], records[a:a + step], base + a,
-                           first_data, names, n_fields, sep, malformed, numeric)
+        step = max(len(lines) if chunk_rows is None else int(chunk_rows), 1)
+        for a in range(0, max(len(lines), 1), step):   # the first block may hold more
+            part = lines[a:a + step]
+            recs = None if first is None else first[a:a + step]
+            frame = None if fast is None else _fast_frame(
+                path, part, base, first_data, names, n_fields, sep, fast, numeric)
+            if frame is None:
+                recs = recs if recs is not None else list(csv.reader(part, delimiter=sep))
+                frame = _frame(path, part, recs, base, first_data, names, n_fields, sep,
+                               malformed, numeric)
+            base += len(part) if recs is None else len(recs)
             if frame is not None:
                 any_rows = any_rows or frame.rows.size > 0
                 yield frame
-        base += len(records)
+        first = None
         lines = []
         for block, _ in blocks:
             lines = block
             break
         if not lines:
             break
-        records = list(csv.reader(lines, delimiter=sep))
     if not any_rows:
         raise InputError.at(path, "no data rows")
+
+
+def _fast_frame(path: Path, lines: list[str], base: int, first_data: int,
+                names: list[str] | None, n_fields: int, sep: str, floats: set[str | int],
+                numeric: list[str]) -> Frame | None:
+    """A block of plain numeric lines parsed by pyarrow's CSV reader: the ``floats``
+    columns as float64, the others as text.  None where the block is not that plain (a
+    blank line, a quote, a wrong field count, a cell that is not a finite number): the
+    block then goes through the whole-file reader's parsing (:func:`_frame`), which names
+    the fault.  Values equal that parsing's: both round each decimal string correctly."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    if not lines or "" in lines:
+        return None
+    text = "\n".join(lines)
+    if '"' in text:
+        return None
+    labels: list[str | int] = list(names) if names is not None else list(range(n_fields))
+    keys = [str(x) for x in labels]
+    if len(set(keys)) != len(keys):
+        return None
+    try:
+        table = pacsv.read_csv(
+            io.BytesIO(text.encode("utf-8")),
+            read_options=pacsv.ReadOptions(column_names=keys, use_threads=False,
+                                           block_size=max(1 << 20, len(text) + 1)),
+            parse_options=pacsv.ParseOptions(delimiter=sep, quote_char=False,
+                                             ignore_empty_lines=False),
+            convert_options=pacsv.ConvertOptions(
+                column_types={k: pa.float64() if x in floats else pa.string()
+                              for k, x in zip(keys, labels, strict=True)},
+                strings_can_be_null=False, quoted_strings_can_be_null=False))
+    except (pa.ArrowException, ValueError):
+        return None
+    if table.num_rows != len(lines):
+        return None
+    data = {}
+    for k, x in zip(keys, labels, strict=True):
+        col = table.column(k)
+        if x in floats:
+            v = col.to_numpy(zero_copy_only=False) if col.null_count == 0 else None
+            if v is None or not np.isfinite(v).all():
+                return None
+            data[x] = v
+        else:
+            data[x] = col.to_pandas()
+    rows = np.arange(base + 1, base + 1 + len(lines))
+    return Frame(path=path, data=pd.DataFrame(data), rows=rows, lines=rows - 1 + first_data,
+                 numeric_header=numeric)
 
 
 def _frame(path: Path, lines: list[str], records: list[list[str]], base: int, first_data: int,
