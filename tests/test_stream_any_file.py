@@ -276,6 +276,9 @@ def test_a_row_that_fails_to_parse_deep_in_a_long_csv(tmp_path, capsys):
     assert "non-numeric cell '12..5'" in want and "file line 4324" in want
     assert _compare(tmp_path, path, 1000, capsys, mfile)[0] == f"thermonet: error: {want}"
     assert _convert(tmp_path, path, 1000, capsys, mfile) == f"thermonet: error: {want}"
+    capsys.readouterr()
+    assert main(["info", str(path), "--mapping", str(mfile), "--chunk-rows", "1000"]) == 1
+    assert capsys.readouterr().err.strip() == f"thermonet: error: {want}"
 
 
 def test_a_column_whose_cells_turn_to_text_in_a_later_row_group(tmp_path, capsys):
