@@ -94,7 +94,7 @@ def _simulate_board(args: argparse.Namespace) -> int:
 
 def _cmd_fleet(args: argparse.Namespace) -> int:
     from .training.config import load_config
-    from .training.parts import load_data
+    from .training.loader import load_fleet_data
     from .workflows.fleet import (
         EXIT_LIMITS_FAILED,
         FleetOptions,
@@ -123,8 +123,7 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
         # driver reads the data and sends each unit's runs to its worker
         by_file = sources_from_files(cfg.data.paths) if cfg.data.paths and not (
             cfg.data.mapping or cfg.data.outputs) else None
-        sources = by_file or sources_from_dataset(load_data(cfg.data, source=str(args.config),
-                                                            allow_fleet=True))
+        sources = by_file or sources_from_dataset(load_fleet_data(cfg, source=str(args.config)))
         for s in sources:
             if s.error is not None:  # that unit fails alone; the fleet goes on
                 print(f"thermonet: warning: {s.error}", file=sys.stderr)

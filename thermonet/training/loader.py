@@ -20,7 +20,7 @@ from ..core.errors import ConfigError
 from ..core.recording import Dataset
 from .config import CompareConfig
 
-__all__ = ["stream_samples", "load_compare_data", "streamed_data",
+__all__ = ["stream_samples", "load_compare_data", "load_fleet_data", "streamed_data",
            "load_unit_file", "read_recordings"]
 
 
@@ -53,6 +53,15 @@ def load_compare_data(cfg: CompareConfig, source: str = "config") -> Dataset:
     if n is None:
         return load_data(d, source=source)
     return check_loaded(streamed_data(cfg, d.paths, source, samples=n), d, source)
+
+
+def load_fleet_data(cfg: CompareConfig, source: str = "config") -> Dataset:
+    """A fleet's recordings when they are not one file per unit: read whole by the driver,
+    which splits them into units (each unit's own file streams in its worker instead:
+    :func:`load_unit_file`)."""
+    from .parts import load_data
+
+    return load_data(cfg.data, source=source, allow_fleet=True)
 
 
 def load_unit_file(cfg: CompareConfig | None, path: str) -> Dataset:
