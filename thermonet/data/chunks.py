@@ -312,7 +312,7 @@ def _discover(layout: Layout, chunk_rows: int) -> None:
     numeric_header: list[str] = []
     skipped_total = 0
     skipped_lines: list[int] = []                       # the file's first 20
-    run_skipped: dict[tuple[str, str], list[int]] = {}  # with a run column: per run
+    run_skipped: dict[tuple[str, str], list[int]] = {}  # with a run column: count, lines
     n_rows = 0
     for frame, m, pieces in _mapped_frames(layout, chunk_rows):
         mapping = layout.mapping
@@ -328,8 +328,10 @@ def _discover(layout: Layout, chunk_rows: int) -> None:
                     .str.strip().to_numpy() if mapping.device_column is not None
                     else np.full(len(frame.data), mapping.device_id, dtype=object))
             for i in np.flatnonzero(m.bad_any):
-                run_skipped.setdefault((str(devs[i]), str(m.run_all[i])), []).append(
-                    int(at[i]))
+                tally_skip = run_skipped.setdefault((str(devs[i]), str(m.run_all[i])), [0])
+                tally_skip[0] += 1
+                if len(tally_skip) <= 20:   # the count, then the first 20 lines
+                    tally_skip.append(int(at[i]))
         for key, _rows, piece in pieces:
             n_rows += piece["time_s"].size
             tallies.setdefault(key, _Tally()).add(piece["time_s"], piece.get("temperature_c"))
@@ -346,9 +348,9 @@ def _discover(layout: Layout, chunk_rows: int) -> None:
     kind = sensor_kind_of(mapping)
     runs, times = [], []
     for (dev, run), tally in tallies.items():
-        mine = run_skipped.get((dev, run), [])
+        mine = run_skipped.get((dev, run), [0])
         skips = (skipped_total, skipped_lines) if mapping.run_column is None else \
-            (len(mine), mine)
+            (mine[0], mine[1:])
         runs.append({"run_id": run, "device_id": dev, "sensor_kind": kind,
                      "sample_rate_hz": mapping.sample_rate_hz,
                      "meta": run_meta(mapping, layout.path, numeric_header, skips),
