@@ -397,3 +397,21 @@ def test_damaged_bytes_are_refused_not_read_as_other_numbers(tmp_path, capsys, f
     out.write_bytes(bytes(data))
     with pytest.raises(InputError, match=r"c\.parquet"):
         read_dataset(out)
+
+
+def test_plausibility_warnings_of_a_streamed_file_are_the_samples(tmp_path):
+    """One absurd sample (a wrong scale, a corrupt cell) and temperatures in Kelvin: the
+    warnings of the file streamed into 5 s window means are those of the samples read
+    whole, not of the means (which average the spike below the limit)."""
+    from thermonet.data.diagnostics import input_warnings
+
+    runs = _runs()
+    for r in runs:
+        r.temperature_c = r.temperature_c + 273.15
+    runs[1].outputs["gyro_y"][1234] = 4e12
+    path = _write_csv(tmp_path / "odd.csv", runs)
+    want = input_warnings(read_dataset(path))
+    assert any("reaches 4e+12" in w for w in want) and any("Kelvin" in w for w in want)
+    reduced = reduce_parquet(path, window_s=5.0, chunk_rows=1000)
+    assert float(np.abs(reduced[1].outputs["gyro_y"]).max()) < 1e12   # the means hide it
+    assert input_warnings(reduced) == want

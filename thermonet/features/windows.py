@@ -127,6 +127,7 @@ class _Run:
         self.last_key = -1
         self.open: tuple[int, _Windows] | None = None   # the window a chunk left open
         self.rows: list[_Windows] = []
+        self.extremes: dict[str, tuple[float, float]] = {}
 
     def _keys(self, t: np.ndarray) -> np.ndarray:
         """Window index of every sample (as :func:`~thermonet.training.train.average_windows`)."""
@@ -147,6 +148,10 @@ class _Run:
 
     def push(self, piece: dict[str, np.ndarray]) -> None:
         t = piece["time_s"]
+        for c, v in piece.items():   # the samples' extremes (plausibility warnings)
+            lo, hi = float(v.min()), float(v.max())
+            old = self.extremes.get(c)
+            self.extremes[c] = (lo, hi) if old is None else (min(old[0], lo), max(old[1], hi))
         cols = dict(piece)
         if self.stream is not None:
             signals, _ = self.stream.push(t, piece["temperature_c"])
@@ -205,7 +210,8 @@ class _Run:
         stats = WindowStats(self.window_s, n, {s: col[s] for s in self.dyn}, gap_s,
                             per_axis("drift", ss), per_axis("output", ss), int(n.sum()),
                             source_rate_hz, list(self.signals), cat("sxx"),
-                            per_axis("drift", sxd), per_axis("output", sxd))
+                            per_axis("drift", sxd), per_axis("output", sxd),
+                            extremes=dict(self.extremes))
         return Recording(time_s=col["time_s"],
                          temperature_c=col["temperature_c"] if e["temperature"] else None,
                          **groups, units=dict(e["units"]), device_id=e["device_id"],
