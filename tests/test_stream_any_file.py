@@ -301,6 +301,15 @@ def test_a_column_whose_cells_turn_to_text_in_a_later_row_group(tmp_path, capsys
     err = _compare(tmp_path, path, 1024, capsys)[0]
     assert "text.parquet" in err and "column 'gyro_y'" in err and "row 4568" in err, err
     assert "non-numeric cell 'n/a'" in err
+    # a CSV whose gy column turns to text at a chunk edge (a reader that infers the
+    # column's type from its first block would fail there with no row)
+    bad = {k: f"{float(runs[1].time_s[k - N - 1]) * 1000!r};20;0.1;n/a;1000;cool"
+           for k in range(4001, 2 * N + 1)}
+    text = _write_mapped_csv(tmp_path / "turns.csv", runs, bad)
+    mfile = tmp_path / "m.yaml"
+    mfile.write_text(yaml.safe_dump(MAPPING))
+    err = _compare(tmp_path, text, 1000, capsys, mfile)[0]
+    assert "turns.csv, column 'gy', row 4001: non-numeric cell 'n/a' (file line 4004)" in err
     # a thermonet file with a text column
     good = write_parquet(Dataset(runs=runs), tmp_path / "tn.parquet")
     t = pq.read_table(good)
