@@ -190,6 +190,7 @@ def test_a_streamed_plain_file_reduces_as_its_converted_copy(files, kind, tmp_pa
                                     format="parquet")).items()}))
         args += ["--mapping", str(mfile)]
     assert main(args) == 0
+    assert b"thermonet.digest" in pq.read_metadata(out).metadata   # checked by the reads
     whole, conv = read_dataset(path, mapping), read_dataset(out)
     for a, b in zip(whole, conv, strict=True):
         assert (a.run_id, a.units) == (b.run_id, b.units)
@@ -424,3 +425,31 @@ def test_plausibility_warnings_of_a_streamed_file_are_the_samples(tmp_path):
     reduced = reduce_parquet(path, window_s=5.0, chunk_rows=1000)
     assert float(np.abs(reduced[1].outputs["gyro_y"]).max()) < 1e12   # the means hide it
     assert input_warnings(reduced) == want
+
+
+def test_a_data_digest_refuses_values_that_are_not_those_written(tmp_path, files):
+    """thermonet stores the SHA-256 of each float column in the file's key-value metadata:
+    a file whose values changed under the same metadata (one valid-looking value; what a
+    damaged page header or a tool that kept thermonet's footer could give) is refused by
+    both readers, naming the column; the same values rewritten without the digest (another
+    tool's rewrite drops it) read as they are."""
+    src = files["thermonet"][0]
+    meta = pq.read_metadata(src).metadata
+    assert b"thermonet.digest" in meta
+    table = pq.read_table(src)
+    col = table.column("gyro_x").to_numpy().copy()
+    col[4444] += 1e-3
+    edited = table.set_column(table.schema.get_field_index("gyro_x"), "gyro_x", pa.array(col))
+    bad = tmp_path / "edited.parquet"
+    with pq.ParquetWriter(bad, edited.schema) as w:
+        w.write_table(edited)
+        w.add_key_value_metadata({"thermonet.digest": meta[b"thermonet.digest"].decode()})
+    with pytest.raises(InputError) as whole:
+        read_dataset(bad)
+    assert "edited.parquet, column 'gyro_x': data digest mismatch" in str(whole.value)
+    with pytest.raises(InputError) as streamed:
+        reduce_parquet(bad, window_s=1.0, chunk_rows=1000)
+    assert str(streamed.value) == str(whole.value)
+    plain = tmp_path / "rewritten.parquet"
+    pq.write_table(edited, plain)
+    assert read_dataset(plain)[1].outputs["gyro_x"][4444 - N] == col[4444]

@@ -52,7 +52,7 @@ import pyarrow.parquet as pq
 from ..core.errors import InputError
 from ..core.fileio import not_a_file
 from ..core.recording import MIN_SAMPLES as MIN_SAMPLES_
-from .io import METADATA_KEY, READ_OPTIONS, file_format, parse_blob
+from .io import METADATA_KEY, READ_OPTIONS, Digest, file_format, parse_blob, stored_digest
 from .mapping import ColumnMapping
 from .tables import (
     GROUPS,
@@ -115,6 +115,7 @@ class Layout:
     mapping: ColumnMapping | None = None
     fmt: str = "parquet"
     times: list[RunTimes] | None = None
+    digest: dict[str, str] | None = None     # a thermonet file's per-column SHA-256
 
     @property
     def is_fleet(self) -> bool:
@@ -141,7 +142,8 @@ def open_parquet(path: str | Path) -> Layout | None:
     md = pf.metadata
     return Layout(path=path, runs=runs, meta=dict(info.get("meta", {})), columns=names,
                   num_rows=md.num_rows,
-                  row_groups=[md.row_group(i).num_rows for i in range(md.num_row_groups)])
+                  row_groups=[md.row_group(i).num_rows for i in range(md.num_row_groups)],
+                  digest=stored_digest(path, md.metadata))
 
 
 def _parquet_file(path: Path) -> pq.ParquetFile:
@@ -401,9 +403,13 @@ def _thermonet_pieces(layout: Layout, cols: list[str], chunk_rows: int
             raise InputError.at(path, "a boolean column, not a measurement", column=name)
     keys = ["run"] + (["device"] if layout.is_fleet else [])
     row0 = 1
+    digest = Digest() if layout.digest else None
     for batch in _batches(pf, path, chunk_rows, keys + cols):
         rows_all = np.arange(row0, row0 + batch.num_rows)
         values = {c: float_values(path, c, batch.column(c), rows_all) for c in cols}
+        if digest is not None:
+            for c, v in values.items():
+                digest.add(c, v)
         for a, b, key in _segments(batch, layout.is_fleet):
             rows = rows_all[a:b]
             if key not in index:
@@ -416,6 +422,8 @@ def _thermonet_pieces(layout: Layout, cols: list[str], chunk_rows: int
             seen.check(i, "time_s", t, rows, None)
             yield i, rows, piece
         row0 += batch.num_rows
+    if digest is not None:   # every row read: the values are those thermonet wrote
+        digest.check(path, layout.digest)
 
 
 # ------------------------------------------------------------------ any file
@@ -549,7 +557,7 @@ def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
     import json
 
     from ..core.fileio import atomic_path
-    from .io import FORMAT_VERSION, WRITE_OPTIONS, _str_dict, check_run_ids
+    from .io import DIGEST_KEY, FORMAT_VERSION, WRITE_OPTIONS, _str_dict, check_run_ids
 
     out = Path(out)
     if out.suffix.lower() not in (".parquet", ".pq"):
@@ -600,6 +608,14 @@ def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
     n_total = 0
     with atomic_path(out, make_parents=False) as tmp:
         writer = pq.ParquetWriter(tmp, schema, **WRITE_OPTIONS)
+        digest = Digest()
+
+        def write(tables: list[pa.Table], rows: int) -> None:
+            table = pa.concat_tables(tables)
+            for c in ["time_s", *channels]:
+                digest.add(c, table.column(c))
+            writer.write_table(table, row_group_size=rows)
+
         try:
             buffer: list[pa.Table] = []
             held = 0
@@ -622,11 +638,12 @@ def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
                     held += n
                     n_total += n
                     if held >= chunk_rows:
-                        writer.write_table(pa.concat_tables(buffer), row_group_size=held)
+                        write(buffer, held)
                         buffer, held = [], 0
                 base += len(lay.runs)
             if buffer:
-                writer.write_table(pa.concat_tables(buffer), row_group_size=held)
+                write(buffer, held)
+            writer.add_key_value_metadata({DIGEST_KEY: digest.text()})
         finally:
             writer.close()
         for (src, e), rt in zip(pairs, times, strict=True):

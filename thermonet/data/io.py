@@ -36,6 +36,7 @@ Parquet table); the message also gives the physical file line for text files.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections import Counter
 from collections.abc import Sequence
@@ -61,7 +62,8 @@ from .tables import (
     read_text,
 )
 
-__all__ = ["FORMAT_VERSION", "METADATA_KEY", "WRITE_OPTIONS", "READ_OPTIONS", "write_parquet",
+__all__ = ["FORMAT_VERSION", "METADATA_KEY", "DIGEST_KEY", "Digest", "stored_digest",
+           "WRITE_OPTIONS", "READ_OPTIONS", "write_parquet",
            "read_dataset", "read_datasets", "parse_blob", "check_run_ids", "file_format"]
 
 
@@ -98,9 +100,66 @@ def write_parquet(dataset: Dataset, path: str | Path) -> Path:
         raise InputError.at(path, f"output directory '{path.parent}' does not exist")
     for run in dataset:
         run.validate()
+    table = _to_table(dataset)
+    digest = Digest()
+    for name in table.column_names:
+        if pa.types.is_floating(table.schema.field(name).type):
+            digest.add(name, table.column(name))
     with atomic_path(path, make_parents=False) as tmp:
-        pq.write_table(_to_table(dataset), tmp, **WRITE_OPTIONS)
+        with pq.ParquetWriter(tmp, table.schema, **WRITE_OPTIONS) as writer:
+            writer.write_table(table)
+            writer.add_key_value_metadata({DIGEST_KEY: digest.text()})
     return path
+
+
+#: Parquet key-value metadata key of the data digest: the SHA-256 of each float column's
+#: values (little-endian float64, nulls as NaN) in file order, added when the file is closed.
+#: A file rewritten by another tool loses it (it is not part of the schema) and is then
+#: read unchecked; a damaged one is refused.
+DIGEST_KEY = "thermonet.digest"
+
+
+class Digest:
+    """SHA-256 of float columns, fed in file order a piece at a time."""
+
+    def __init__(self) -> None:
+        self.sha: dict[str, Any] = {}
+
+    def add(self, name: str, values: Any) -> None:
+        if not isinstance(values, np.ndarray):
+            values = values.to_numpy(zero_copy_only=False)
+        v = np.ascontiguousarray(values, dtype="<f8")
+        if name not in self.sha:
+            self.sha[name] = hashlib.sha256()
+        self.sha[name].update(v.tobytes())
+
+    def text(self) -> str:
+        return json.dumps({"sha256": {k: h.hexdigest() for k, h in self.sha.items()}})
+
+    def check(self, path: Path, stored: dict[str, str] | None) -> None:
+        """Every column fed here that the file's digest lists has the digest written."""
+        if not stored:
+            return
+        for name, h in self.sha.items():
+            if name in stored and h.hexdigest() != stored[name]:
+                raise InputError.at(path, "data digest mismatch: the values read are not "
+                                    "those thermonet wrote (the file is damaged)", column=name)
+
+
+def stored_digest(path: Path, metadata: Any) -> dict[str, str] | None:
+    """The per-column digests a Parquet file's key-value ``metadata`` holds, or None."""
+    raw = (metadata or {}).get(DIGEST_KEY.encode())
+    if raw is None:
+        return None
+    try:
+        info = json.loads(raw)
+        sha = info["sha256"]
+        if not isinstance(sha, dict) or not all(
+                isinstance(k, str) and isinstance(v, str) for k, v in sha.items()):
+            raise ValueError("not a mapping of column names to hex digests")
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError) as err:
+        raise InputError.at(path, f"corrupt '{DIGEST_KEY}' metadata ({err})") from None
+    return sha
 
 
 #: How thermonet writes Parquet: every data page with a CRC-32 checksum, which the readers
@@ -267,6 +326,16 @@ def _read_one(path: Path, mapping: ColumnMapping | None
         blob = (table.schema.metadata or {}).get(METADATA_KEY.encode())
         if blob is not None and mapping is None:
             runs, meta = _from_thermonet_table(path, table, blob)
+            try:
+                stored = stored_digest(path, pq.read_metadata(path).metadata)
+            except (pa.ArrowException, OSError) as err:
+                raise InputError.at(path, f"not a readable Parquet file ({err})") from err
+            if stored:
+                digest = Digest()
+                for name in table.column_names:
+                    if name in stored:
+                        digest.add(name, table.column(name))
+                digest.check(path, stored)
             return runs, meta, None
         frame = Frame(path=path, data=table.to_pandas(),
                        rows=np.arange(1, table.num_rows + 1), lines=None)
