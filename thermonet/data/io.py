@@ -18,7 +18,10 @@ metadata key ``thermonet`` holds one JSON blob::
                "proxies", "n_samples"}, ...]}
 
 Values are float64 and JSON floats round-trip exactly, so a write/read round
-trip is lossless.
+trip is lossless.  Every data page carries a CRC-32 (:data:`WRITE_OPTIONS`), verified on
+every read (:data:`READ_OPTIONS`), and the key-value metadata ``thermonet.digest`` the
+SHA-256 of each float column (:class:`Digest`), checked by both readers (whole and
+streamed, :mod:`thermonet.data.chunks`) once the values passed their own checks.
 
 Reading
 -------
