@@ -3,8 +3,9 @@
 Thermal drift moves with temperature, over minutes; a chamber test logs the sensor at
 100–1,000 Hz for days.  Every family of a comparison is fitted on window means already
 (``train.average_s``, 1 s by default, :func:`thermonet.training.train.average_windows`),
-and model selection scores the low-frequency residual.  So a thermonet Parquet file
-too long to hold (``data.in_memory_samples``) is read chunk by chunk
+and model selection scores the low-frequency residual.  So a recording file too long to
+hold (``data.in_memory_samples``; any tabular format, through its column mapping) is read
+chunk by chunk
 (:func:`thermonet.data.chunks.iter_run_chunks`, a fixed number of rows at a time) and
 reduced, per run, to one row per window, keeping what the comparison needs of the
 samples:

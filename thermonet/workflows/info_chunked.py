@@ -1,9 +1,10 @@
 """``thermonet info`` on recordings larger than memory: the summary in one chunked pass.
 
 :func:`summarize_parquet` returns what :func:`thermonet.workflows.info.summarize` returns
-for the same file, without holding it: the runs, channels and units come from the
-file's footer (:func:`thermonet.data.chunks.open_parquet`), and one pass over its row
-groups (:func:`~thermonet.data.chunks.iter_run_chunks`, at most ``chunk_rows`` rows at a
+for the same files, without holding them: the runs, channels and units come from a
+thermonet file's footer, or from a first pass over any other file
+(:func:`thermonet.data.chunks.open_source`), and one pass over the rows
+(:func:`~thermonet.data.chunks.iter_run_chunks`, at most ``chunk_rows`` rows at a
 time) accumulates per run and channel:
 
 * count, first and last time (duration), temperature and proxy minimum and maximum, the
