@@ -46,7 +46,9 @@ import argparse
 import csv
 import json
 import math
+import os
 import re
+import signal
 import stat
 import sys
 import time
@@ -494,6 +496,7 @@ class _RecurrentStream:
 _AXIS = re.compile(r"(?=.{1,64}\Z)[a-z][a-z0-9]*_[a-z0-9]+(?:\.bias|\.scale)?")
 _SIGNAL = re.compile(r"[A-Za-z][A-Za-z0-9_.]{0,63}")
 _FAMILY = re.compile(r"[a-z?][a-z0-9_-]{0,31}")
+_LABEL = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 _UNIT = re.compile(r"[A-Za-z0-9°µμΩ%/^._-]{0,32}")
 
 
@@ -522,6 +525,20 @@ def _meta_units(meta: Mapping[str, str], key: str, pattern: re.Pattern[str],
         raise RuntimeInputError(f"{path}: metadata '{key}' is not a mapping name -> unit")
     return {_meta_name(k, pattern, key, path): _meta_name(v, _UNIT, key, path)
             for k, v in units.items()}
+
+
+def _meta_axis_models(meta: Mapping[str, str], outputs: list[str], path: Path
+                      ) -> dict[str, str | None] | None:
+    """A per-axis model's ``axis_models`` {axis: candidate label, or null: left raw}; None for
+    a single-family file."""
+    if "axis_models" not in meta:
+        return None
+    table = _meta_json(meta, "axis_models", path)
+    if not isinstance(table, dict) or sorted(table) != sorted(outputs):
+        raise RuntimeInputError(f"{path}: metadata 'axis_models' is not a mapping of the "
+                                f"outputs {outputs} to candidate labels")
+    return {a: None if table[a] is None else _meta_name(table[a], _LABEL, "axis_models", path)
+            for a in outputs}
 
 
 def _meta_ranges(meta: Mapping[str, str], path: Path) -> dict[str, list[float]]:
@@ -629,6 +646,15 @@ class Compensator:
         self.output_units: dict[str, str] = _meta_units(meta, "output_units", _AXIS, path)
         if not self.signals or not self.outputs:
             raise RuntimeInputError(f"{path}: metadata lists no signals or no outputs")
+        #: A per-axis model (family ``per-axis``: one graph summing several candidates, each
+        #: computing the axes it owns): {axis: the candidate's label, or None for an axis
+        #: left raw}.  None for a single-family model.
+        self.axis_models: dict[str, str | None] | None = _meta_axis_models(
+            meta, self.outputs, path)
+        if (self.family == "per-axis") != (self.axis_models is not None):
+            raise RuntimeInputError(f"{path}: family {self.family!r} with"
+                                    f"{'' if self.axis_models is not None else 'out'} an "
+                                    "'axis_models' table")
         block = _meta_json(meta, "dynamic_inputs", path) if "dynamic_inputs" in meta else None
         self.dynamic: dict[str, Any] | None = _check_dynamic(block, self.signals, path)
         #: Graph inputs this runtime computes from time_s and temperature_c.
@@ -1124,8 +1150,43 @@ def _read_csv(
     return header, body, cols
 
 
+class _Stopped(BaseException):
+    """SIGINT or SIGTERM arrived (raised by the handler :func:`main` installs)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _stop(signum: int, frame: object) -> None:
+    raise _Stopped(signum)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return a.resolve() == b.resolve()
+
+
+def _refuse_inputs(out: Path, tmp: Path, inputs: Sequence[Path]) -> None:
+    """An output (or its temporary file) that is an input is refused before anything is written."""
+    for inp in inputs:
+        if not os.path.lexists(inp):
+            continue
+        for path, what in ((out, "the output"), (tmp, f"the output's temporary file {tmp}")):
+            if _same_file(path, inp):
+                raise RuntimeInputError(f"{out}: {what} is the input {inp}; refusing to "
+                                        "overwrite an input (nothing written)")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Compensate a CSV file; returns the exit status (0 ok, 1 bad input)."""
+    """Compensate a CSV file; returns the exit status (0 ok, 1 bad input, 128 + the signal
+    number when stopped by SIGINT or SIGTERM).
+
+    The output is written to ``OUT.tmp`` and renamed to ``OUT`` when complete; stopped
+    (SIGINT, SIGTERM) or failing on the way, the ``.tmp`` is removed and ``OUT`` is left as
+    it was."""
     parser = argparse.ArgumentParser(
         prog="thermonet_runtime",
         description="Apply a thermonet drift model (.onnx) to a CSV of raw sensor outputs.")
@@ -1136,7 +1197,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, help="output CSV")
     parser.add_argument("--threads", type=int, default=1, help="onnxruntime threads (default 1)")
     args = parser.parse_args(argv)
+    tmp = args.out.with_name(args.out.name + ".tmp")
+    written = False                 # True once this run has created tmp (removed unless renamed)
+    previous: dict[int, Any] = {}
     try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, _stop)
+    except ValueError:              # not the main thread (an embedding program): signals as they are
+        pass
+    try:
+        _refuse_inputs(args.out, tmp, [args.model, args.input])
         comp = Compensator(args.model, threads=args.threads)
         header, body, cols = _read_csv(args.input, comp.needs + comp.outputs)
         raw = np.stack([cols[a] for a in comp.outputs], axis=1) if body else \
@@ -1157,7 +1227,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if clash:
             raise RuntimeInputError(f"{args.input}: already has output column(s) {clash}; "
                                     "compensate the raw file, not an output")
-        tmp = args.out.with_name(args.out.name + ".tmp")
+        written = True
         with tmp.open("w", newline="") as fh:
             writer = csv.writer(fh)
             writer.writerow(header + extra)
@@ -1167,12 +1237,22 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 + [repr(float(v)) for v in res.drift[i]]
                                 + [str(int(res.out_of_range[i]))])
         tmp.replace(args.out)
+        written = False
+    except _Stopped as exc:
+        print(f"thermonet_runtime: stopped by {signal.Signals(exc.signum).name}; {args.out} not "
+              "written", file=sys.stderr)
+        return 128 + exc.signum
     except RuntimeInputError as exc:
         print(f"thermonet_runtime: {exc}", file=sys.stderr)
         return 1
     except OSError as exc:
         print(f"thermonet_runtime: {exc.filename}: {exc.strerror}", file=sys.stderr)
         return 1
+    finally:
+        if written:
+            tmp.unlink(missing_ok=True)
+        for sig, handler in previous.items():
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
     n_flag = int(np.count_nonzero(res.out_of_range))
     print(f"{len(body)} rows compensated with {comp.family} model; {n_flag} out of range "
           f"-> {args.out}")

@@ -119,3 +119,302 @@ def test_an_unknown_name_lists_the_installed_family(plugin_path, tmp_path):
     line = r.stderr.strip()
     assert "\n" not in line and "unknown model family 'my-quadratc'" in line
     assert line.endswith(f"valid: {', '.join(BUILTIN)}, my-quadratic)")   # built-ins, then it
+
+
+# ------------------------------------------------------------------ hostile plug-ins
+# Each is a real installed distribution: a module and a ``<name>.dist-info`` folder (METADATA
+# and entry_points.txt) in a directory put on sys.path, found through importlib.metadata as
+# pip's would be.  The process's registry is reset around each test.
+
+_GOOD_FAMILY = '''
+import torch
+from thermonet.models import Family
+
+
+class Fam(Family):
+    name, max_inputs = "{name}", 1
+
+    def __init__(self, *, n_inputs, n_outputs, scale=1.0):
+        super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
+        {init}
+        self.w = torch.nn.Parameter(torch.zeros(n_outputs))
+
+    def forward(self, z):
+        {forward}
+
+    def initialize(self, x, y, *, seed=0, x_mean=None, x_std=None):
+        pass
+{extra}
+'''
+
+
+def _family_source(name: str, *, init: str = "pass",
+                   forward: str = "return z[:, :1] * self.w", extra: str = "") -> str:
+    return _GOOD_FAMILY.format(name=name, init=init, forward=forward, extra=extra)
+
+
+@pytest.fixture
+def install(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``install(name, source, attr="Fam")``: a distribution whose entry point
+    ``name = <module>:<attr>`` in the group thermonet.families loads ``source``."""
+    from thermonet.models import registry
+
+    site = tmp_path / "site"
+    site.mkdir()
+    modules: list[str] = []
+
+    def reset() -> None:
+        registry._plugins.cache_clear()
+        registry._MODELS = None
+
+    monkeypatch.setattr(registry, "_MODELS", None)
+    registry._plugins.cache_clear()
+
+    def _install(name: str, source: str, attr: str = "Fam") -> str:
+        module = f"tn_plugin_{len(modules)}_{tmp_path.name.replace('-', '_')}"
+        modules.append(module)
+        (site / f"{module}.py").write_text(textwrap.dedent(source))
+        info = site / f"{module}-0.1.dist-info"
+        info.mkdir()
+        (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {module}\nVersion: 0.1\n")
+        (info / "entry_points.txt").write_text(
+            f"[thermonet.families]\n{name} = {module}:{attr}\n")
+        monkeypatch.syspath_prepend(str(site))
+        registry._plugins.cache_clear()
+        return f"{name} = {module}:{attr}"
+
+    yield _install
+    for m in modules:
+        sys.modules.pop(m, None)
+    reset()
+
+
+#: What a plug-in's module may do when it is imported, and what the error then says.
+IMPORT_FAILURES = {
+    "runtime-error": ('raise RuntimeError("the licence server is down")\n',
+                      "RuntimeError: the licence server is down"),
+    "syntax-error": ("def broken(:\n    pass\n", "SyntaxError"),
+    "sys-exit-7": ("import sys\nsys.exit(7)\n", "sys.exit(7)"),
+    "bare-system-exit": ("raise SystemExit\n", "sys.exit(None)"),
+    "missing-dependency": ("import thermonet_no_such_module_x\n", "ModuleNotFoundError"),
+    "key-error": ("{}['x']\n", "KeyError"),
+    "zero-division": ("1 / 0\n", "ZeroDivisionError"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(IMPORT_FAILURES))
+def test_a_plugin_failing_at_import_is_one_line_naming_it(install, case, tmp_path):
+    from thermonet.core.errors import ConfigError
+    from thermonet.models.registry import get_family
+    from thermonet.training.config import load_config
+
+    body, said = IMPORT_FAILURES[case]
+    entry = install("broken-fam", body)
+    for call in (lambda: get_family("broken-fam"),
+                 lambda: load_config(_config(tmp_path, "broken-fam"))):
+        with pytest.raises(ConfigError) as err:
+            call()
+        msg = str(err.value)
+        assert "\n" not in msg, msg
+        assert "model family 'broken-fam'" in msg and f"'{entry}'" in msg and said in msg, msg
+
+
+def _config(tmp_path: Path, family: str, params: str = "{}") -> Path:
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"families: [{{family: {family}, inputs: [dT], params: {params}}}]\n")
+    return cfg
+
+
+@pytest.mark.parametrize("case", ["runtime-error", "syntax-error", "sys-exit-7"])
+def test_the_command_line_says_a_broken_plugin_in_one_line_and_exits_1(install, case, tmp_path,
+                                                                       capsys):
+    from thermonet.cli import main
+
+    entry = install("broken-fam", IMPORT_FAILURES[case][0])
+    code = main(["compare", str(_config(tmp_path, "broken-fam")), "--out",
+                 str(tmp_path / "out"), "--no-track"])
+    err = capsys.readouterr().err.strip()
+    assert code == 1
+    assert "\n" not in err and err.startswith("thermonet: error: ") and entry in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_plugin_calling_sys_exit_does_not_end_the_process(install, tmp_path):
+    """As a separate process too: exit status 1 and one line, not a silent 7."""
+    install("exit-fam", "import sys\nsys.exit(7)\n")
+    site = tmp_path / "site"                     # where the fixture installed it
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), str(ROOT)])}
+    r = subprocess.run([sys.executable, "-m", "thermonet.cli", "compare",
+                        str(_config(tmp_path, "exit-fam")), "--out", str(tmp_path / "out"),
+                        "--no-track"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    line = r.stderr.strip()
+    assert "\n" not in line and "sys.exit(7)" in line and "'exit-fam = " in line, line
+
+
+def test_ctrl_c_while_a_plugin_imports_goes_through(install):
+    from thermonet.models.registry import get_family
+
+    install("slow-fam", "raise KeyboardInterrupt\n")
+    with pytest.raises(KeyboardInterrupt):
+        get_family("slow-fam")
+
+
+#: Entry points that load but are no family, or families whose constructor fails.
+BUILD_FAILURES = {
+    "not-a-class": ("Fam = 3\n", "Fam", "is not a subclass of thermonet.models.Family"),
+    "not-a-family": ("class Fam:\n    pass\n", "Fam", "is not a subclass"),
+    "no-such-attribute": (_family_source("x"), "Missing", "AttributeError"),
+    "constructor-raises": (_family_source("x", init='raise RuntimeError("no GPU here")'), "Fam",
+                           "RuntimeError: no GPU here"),
+    "constructor-exits": (_family_source("x", init="import sys; sys.exit(3)"), "Fam",
+                          "sys.exit(3)"),
+    "constructor-type-error": (_family_source("x", init="len(5)"), "Fam", "TypeError"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BUILD_FAILURES))
+def test_a_plugin_that_is_no_family_or_cannot_be_built_is_refused_before_data(install, case,
+                                                                              tmp_path):
+    """The config is refused when it is loaded (its families are built to check their
+    values), and the API refuses before it looks at the data (None here)."""
+    import thermonet
+    from thermonet.core.errors import ConfigError
+    from thermonet.training.config import load_config
+
+    source, attr, said = BUILD_FAILURES[case]
+    entry = install("odd-fam", source, attr)
+    with pytest.raises(ConfigError) as err:
+        load_config(_config(tmp_path, "odd-fam"))
+    msg = str(err.value)
+    assert "\n" not in msg and "key 'families[0]" in msg and f"'{entry}'" in msg and said in msg
+    with pytest.raises(ConfigError) as err:
+        thermonet.DriftEstimator("odd-fam", "dT").fit(None)       # data never looked at
+    assert "odd-fam" in str(err.value) and said in str(err.value)
+
+
+def test_a_broken_plugin_is_said_and_the_others_still_work(install):
+    from thermonet.models.registry import models
+
+    install("broken-fam", 'raise RuntimeError("boom")\n')
+    install("fine-fam", _family_source("fine-fam", forward="return z * self.w"))
+    with pytest.warns(UserWarning, match="broken-fam.*RuntimeError: boom"):
+        registry = models()
+    assert "broken-fam" not in registry and "fine-fam" in registry and "poly" in registry
+
+
+@pytest.mark.parametrize("value, said", [
+    (-1.0, "scale must be > 0"), (0.0, "scale must be > 0"), ("big", "scale must be > 0"),
+])
+def test_a_plugins_own_value_checks_run_before_data(install, tmp_path, value, said):
+    """A plug-in checks its values in its constructor: the config is built to ask it."""
+    from thermonet.core.errors import ConfigError
+    from thermonet.training.config import load_config
+
+    init = ('if isinstance(scale, bool) or not isinstance(scale, (int, float)) or scale <= 0:\n'
+            '            raise ValueError(f"scale must be > 0, got {scale!r}")')
+    install("scaled", _family_source("scaled", init=init, forward="return z * self.w"))
+    with pytest.raises(ConfigError) as err:
+        load_config(_config(tmp_path, "scaled", f"{{scale: {value!r}}}"))
+    msg = str(err.value)
+    assert "key 'families[0].params'" in msg and "'scaled = " in msg and said in msg, msg
+    load_config(_config(tmp_path, "scaled", "{scale: 2.0}"))     # a good value passes
+
+
+# -------------------------------------------------------------- output shapes
+def _three_axes():
+    from dataclasses import replace
+
+    from conftest import toy_dataset
+    from thermonet.core.recording import Dataset
+
+    ds = toy_dataset(n_runs=2, noise=0.0005)
+    return Dataset([replace(r, outputs={**r.outputs, "gyro_y": 0.5 * r.outputs["gyro_x"],
+                                        "gyro_z": -r.outputs["gyro_x"]},
+                            units={**r.units, "gyro_y": "deg/s", "gyro_z": "deg/s"})
+                    for r in ds])
+
+
+#: forward bodies (z: (N, 1) standardised input, self.w: (A,)) and the shape they give
+BAD_FORWARDS = {
+    "one-column-for-three-axes": "return z[:, :1] * self.w[0]",
+    "one-row": "return (z * self.w).mean(0, keepdim=True)",
+    "an-extra-row": "return torch.cat([z * self.w, z[:1] * self.w])",
+    "transposed": "return (z * self.w).T",
+    "flat": "return (z * self.w).sum(1)",
+    "not-a-tensor": "return (z * self.w).detach().numpy()",
+    "raises": 'raise RuntimeError("forward broke")',
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_FORWARDS))
+def test_a_family_with_the_wrong_output_shape_is_refused_naming_it(install, case):
+    import thermonet
+    from thermonet.core.errors import FitError
+
+    install("shape-fam", _family_source("shape-fam", forward=BAD_FORWARDS[case]))
+    ds = _three_axes()
+    with pytest.raises(FitError) as err:
+        thermonet.DriftEstimator("shape-fam", "dT", max_epochs=3).fit(ds[0])
+    msg = str(err.value)
+    assert "\n" not in msg and "model 'shape-fam'" in msg and "forward()" in msg, msg
+    if case not in ("raises", "not-a-tensor"):
+        assert "for 7 rows and 3 output axes, expected a tensor of shape (7, 3)" in msg, msg
+
+
+def test_a_wrong_drift_layout_is_refused_too(install):
+    """drift() is the evaluation path (ONNX, C): (A, N), axis-major."""
+    import thermonet
+    from thermonet.core.errors import FitError
+
+    extra = ("\n    def drift(self, z, y_std, y_mean):\n"
+             "        return self(torch.stack(list(z), dim=1)) * y_std + y_mean\n")
+    install("layout-fam", _family_source("layout-fam", forward="return z * self.w",
+                                         extra=extra))
+    with pytest.raises(FitError, match=r"model 'layout-fam': its drift\(\) gave \(7, 3\) for 7 "
+                                       r"rows and 3 output axes, expected .* \(3, 7\)"):
+        thermonet.DriftEstimator("layout-fam", "dT", max_epochs=3).fit(_three_axes()[0])
+
+
+def test_a_well_shaped_plugin_fits_and_a_misshaped_one_fails_alone_in_compare(install):
+    """In a comparison the misshaped family is reported failed, naming the shape; the
+    others are fitted and judged."""
+    import thermonet
+
+    install("good-fam", _family_source("good-fam", forward="return z * self.w"))
+    install("bad-fam", _family_source("bad-fam", forward=BAD_FORWARDS[
+        "one-column-for-three-axes"]))
+    res = thermonet.compare({
+        "families": [{"name": "cubic", "family": "poly", "inputs": ["dT"],
+                      "params": {"degree": 3}},
+                     {"name": "good", "family": "good-fam", "inputs": ["dT"]},
+                     {"name": "bad", "family": "bad-fam", "inputs": ["dT"]}],
+        "train": {"max_epochs": 3}, "selection": {"folds": 0}}, data=_three_axes(),
+        plots=False)
+    assert res.families["cubic"].ok and res.families["good"].ok
+    bad = res.families["bad"]
+    assert bad.status == "failed" and "model 'bad-fam'" in bad.reason
+    assert "expected a tensor of shape" in bad.reason and "3 output axes" in bad.reason
+
+
+@pytest.mark.parametrize("family, hyper", [
+    ("linear", {}), ("poly", {"degree": 2}), ("poly", {"degree": 2, "cross": True}),
+    ("lorentz", {}), ("ts-fuzzy", {"n_sets": 3}), ("rbf", {"n_centres": 4}),
+    ("rbf", {"n_centres": 4, "tail": 3}), ("mlp", {"hidden": [4]}), ("gru", {"hidden": 2}),
+])
+def test_every_built_in_family_passes_the_shape_probe(family, hyper):
+    """The probe runs on every family; the built-ins give (N, A) and (A, N)."""
+    import torch
+
+    from thermonet.models import build_family
+    from thermonet.models.base import check_output_shape
+
+    fam = build_family(family, n_inputs=1, n_outputs=3, hyper=hyper)
+    z = torch.linspace(-1.5, 1.5, 50, dtype=torch.float32)[:, None]
+    y = torch.cat([z, z ** 2, -z], dim=1)
+    if fam.recurrent:
+        fam.start(0)
+    else:
+        fam.initialize(z.double(), y.double(), seed=0, x_mean=np.zeros(1), x_std=np.ones(1))
+    check_output_shape(fam, z, family)

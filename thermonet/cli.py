@@ -3,7 +3,7 @@
 Exit codes: 0 success, 1 bad input (file, column, config key or value — one
 line on stderr naming it), 2 usage error (argparse), 3 (``fleet``) some
 unit failed its limits or could not be calibrated, (``verify``) an axis failed
-its limits, 130 interrupted by SIGINT (Ctrl-C), 143 terminated by SIGTERM.  An interrupted command prints
+its limits (``verify``'s 1 also covers a log it cannot judge), 130 interrupted by SIGINT (Ctrl-C), 143 terminated by SIGTERM.  An interrupted command prints
 one line, not a traceback; its open MLflow runs are ended as KILLED and a
 comparison's ``--out`` is left as it was (see :mod:`thermonet.core.outdir`).
 """
@@ -80,8 +80,8 @@ def _simulate_board(args: argparse.Namespace) -> int:
     out = Path(args.out)
     autopilot = "px4" if out.suffix.lower() == ".ulg" else "ardupilot"
     # --runs N: N logs of the same board (same ids and drift laws, new warm-ups and noise),
-    # FILE_run1.ulg .. FILE_runN.ulg; without it one log, FILE itself
-    paths = [out] if args.runs is None else [
+    # FILE_run1.ulg .. FILE_runN.ulg; one log (no --runs, or --runs 1): FILE itself
+    paths = [out] if args.runs is None or args.runs == 1 else [
         out.with_name(f"{out.stem}_run{k}{out.suffix}") for k in range(1, args.runs + 1)]
     for run, target in enumerate(paths):
         log = simulate_board(args.preset, autopilot=autopilot, seed=args.seed, run=run)
@@ -168,12 +168,14 @@ def _cmd_info(args: argparse.Namespace) -> int:
 def _cmd_convert(args: argparse.Namespace) -> int:
     """Recordings (CSV, mapped files, Parquet) to one thermonet Parquet file, read and
     written a chunk at a time (flight logs: read whole)."""
+    from .core.fileio import refuse_overwriting_inputs
     from .data.chunks import DEFAULT_CHUNK_ROWS, open_source, write_streamed
     from .data.io import read_datasets, write_parquet
     from .data.logs import is_log
     from .data.mapping import load_mapping
 
     out = Path(args.out)
+    refuse_overwriting_inputs(out, [*args.files, *([args.mapping] if args.mapping else [])])
     if out.exists() and not args.overwrite:
         raise ThermonetError(f"{out}: already exists (give --overwrite to replace it)")
     if args.chunk_rows is not None and args.chunk_rows < 1:
@@ -332,7 +334,8 @@ def build_parser() -> argparse.ArgumentParser:
                                   "fc-board-cycle (the last two: --out FILE.ulg or FILE.bin)")
     s.add_argument("--runs", type=int, default=None,
                    help="number of runs (default: the preset's); fc-board: N logs of the same "
-                        "board, FILE_run1 .. FILE_runN")
+                        "board, written as FILE itself when N is 1 and as FILE_run1 .. "
+                        "FILE_runN (beside FILE, its suffix kept) when N > 1")
     s.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
     s.add_argument("--out", required=True, help="output .parquet file (.ulg / .bin for fc-board)")
     s.add_argument("--units", type=int, default=None,
@@ -404,8 +407,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.set_defaults(func=_cmd_train)
 
     e = sub.add_parser("export", help=f"export a fitted model ({', '.join(FORMATS)})",
-                       description="Export a model from a compare directory (its chosen family "
-                                   "by default), a checkpoint, or an MLflow run id.",
+                       description="Export a model from a compare directory (its chosen family, "
+                                   "or its per-axis model, by default), a checkpoint, or an "
+                                   "MLflow run id.",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="formats:\n" + "\n".join(f"  {f.name:<18} {f.description}"
                                                         for f in FORMATS.values()))
@@ -433,8 +437,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "results.json, report.html and report.txt to --out.")
     k.add_argument("log", nargs="+",
                    help="flight-controller log(s) recorded while the board warmed; several "
-                        "logs of one board: fitted on all but the last, checked on the last, "
-                        "the files refitted on all")
+                        "logs of one board: fitted on all but the last, checked on the last "
+                        "with verify's test (one log: on a quarter of it in time blocks), the "
+                        "files refitted on all; the same log twice is refused")
     k.add_argument("--out", required=True, help="output directory (created whole at the end)")
     k.add_argument("--overwrite", action="store_true",
                    help="replace a previous calibration in --out (its own files only; removed "
@@ -450,8 +455,11 @@ def build_parser() -> argparse.ArgumentParser:
                                    "autopilot's own tool's) to a log of the same board through "
                                    "the autopilot's own formula (T clamped to TMIN/TMAX, TREF, "
                                    "the polynomial, the sensor matched by device id); report the "
-                                   "binned drift before/after per instance and axis, PASS/FAIL. "
-                                   "Exit 3 when an axis fails.")
+                                   "binned drift before/after per instance and axis, PASS/FAIL "
+                                   "(an instance too short or narrow to judge: 'not judged'). "
+                                   "Exit 0 PASS, 3 FAIL (an axis fails, NaN/inf included), "
+                                   "1 refused (a damaged parameter file, named by line and "
+                                   "parameter; nothing of the log can be judged; bad input).")
     v.add_argument("params", help="px4.params (QGC format) or ardupilot.parm")
     v.add_argument("log", help="a new log of the same board (.ulg / .bin)")
     v.add_argument("--out", required=True, help="output directory (created whole at the end)")

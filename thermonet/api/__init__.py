@@ -65,6 +65,24 @@ Comparisons (:mod:`thermonet.api.comparison`)
     ``.families[name].axes[axis]``, ``.warnings``, ``.scores()``, ``.table()``,
     ``.estimator(name)``); files are written only where ``out`` is given.
 
+Arguments checked at the door (:mod:`thermonet.api.checks`)
+    Every public function and class checks its arguments before it opens a file, reads or
+    reduces data or builds a model, and refuses a bad one in one line naming it — a
+    ``ConfigError`` (a ``ValueError``) that is also a ``TypeError`` when the type is wrong:
+    ``read(paths, mapping, window_s=, inputs=, gap_s=, chunk_rows=)``, ``simulate(preset,
+    runs, seed)``, ``compare(config, data, out, track, tracking_uri=, overwrite=, plots=,
+    workers=, quiet=)``, ``DriftEstimator.fit`` (every constructor argument, the family's
+    hyper-parameter names *and values*, and ``track``/``tracking_uri``/``experiment``),
+    ``time_blocks(n_blocks, purge_s)`` and ``TimeBlockSplit(n_splits)`` (when made).  The
+    rules: ``bool`` is not a number (``window_s=True`` is refused, not 1 s); ``track``,
+    ``overwrite``, ``plots`` and ``quiet`` are ``True`` or ``False`` — ``track="no"`` is
+    refused, never read as true, and the MLflow store is ``tracking_uri``; ``workers`` is a
+    whole number >= 1, ``0`` for one per CPU, or None for the config's; a path is a ``str``
+    or ``os.PathLike``; ``inputs`` is a list of known input names or one name alone
+    (``"dT"`` is ``["dT"]``, never ``["d", "T"]``).  The estimator's constructor only stores
+    (scikit-learn's rule: ``set_params`` and ``clone`` never raise on a value); its
+    :meth:`~DriftEstimator.fit` checks first.
+
 A saved estimator is an ordinary thermonet checkpoint (``thermonet export`` reads it).
 """
 

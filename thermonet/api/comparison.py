@@ -179,6 +179,8 @@ def _family(name: str, f: dict[str, Any]) -> FamilySummary:
 def _config(config: Any) -> Any:
     from ..training.config import CompareConfig, config_from_mapping, load_config
 
+    if isinstance(config, str) and not config.strip():
+        raise ConfigError("compare(config): an empty path (None is the built-in default)")
     if config is None or isinstance(config, (str, os.PathLike)):
         return load_config(None if config is None else Path(config))
     if isinstance(config, CompareConfig):
@@ -207,17 +209,39 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
         Directory for ``results.json``, the report, plots and checkpoints; None writes
         nothing that outlives the call.
     track : bool
-        Log to MLflow (``tracking_uri``, else the config's) as the command line does.
-    overwrite, plots, workers, quiet
-        As ``thermonet compare``'s ``--overwrite``, ``--no-plots``, ``--workers`` and
-        ``--quiet`` (quiet by default here; ``plots`` only where ``out`` is given).
+        ``True`` or ``False`` only (``"no"`` is refused, not read as true): log to MLflow
+        as the command line does, in ``tracking_uri``, else the config's
+        ``tracking.uri``, else ``sqlite:///mlflow.db`` in the working directory.
+    tracking_uri : str, optional
+        The MLflow store; giving it does not turn tracking on (``track`` does).
+    overwrite, plots, quiet : bool
+        As ``thermonet compare``'s ``--overwrite``, ``--no-plots`` and ``--quiet`` (quiet
+        by default here; ``plots`` only where ``out`` is given).
+    workers : int, optional
+        Families fitted side by side, as ``--workers``: a whole number >= 1, ``0`` for one
+        per CPU, None for the config's ``workers``.
+
+    Every argument is checked before the config's data are read or anything is fitted
+    (:mod:`thermonet.api.checks`; an error names the argument), and so are the config's
+    families, inputs and hyper-parameter names and values.
     """
     from ..core.recording import Dataset
+    from ..training.config import check_families
     from ..workflows.compare import run_compare
+    from .checks import flag, text, whole
+    from .checks import path as a_path
     from .data import runs_of
     from .estimator import DriftEstimator
 
+    a_path(out, "compare(out)", none=True)
+    flag(track, "compare(track)")
+    text(tracking_uri, "compare(tracking_uri)", none=True, rule="an MLflow tracking URI")
+    flag(overwrite, "compare(overwrite)")
+    flag(plots, "compare(plots)")
+    flag(quiet, "compare(quiet)")
+    whole(workers, "compare(workers)", 0, none=True, note=" (0: one per CPU)")
     cfg = _config(config)
+    check_families(cfg, source=getattr(cfg, "_source", "compare(config)"), build=False)
     dataset = None
     if data is not None:
         dataset = Dataset(runs_of(data, "compare(data)")).validate("compare(data)")
@@ -228,9 +252,10 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
     else:
         target = Path(out)
     try:
-        results = run_compare(cfg, target, overwrite=overwrite, track=track,
-                              tracking_uri=tracking_uri, quiet=quiet, dataset=dataset,
-                              plots=plots and out is not None, workers=workers)
+        results = run_compare(cfg, target, overwrite=bool(overwrite), track=bool(track),
+                              tracking_uri=tracking_uri, quiet=bool(quiet), dataset=dataset,
+                              plots=bool(plots) and out is not None,
+                              workers=None if workers is None else int(workers))
         if results.get("model") == "sensor":
             from ..training.sensor import load_sensor
 

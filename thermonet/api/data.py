@@ -119,16 +119,24 @@ def same_run(a: Recording, b: Recording) -> bool:
 def simulate(preset: str, runs: int | None = None, seed: int = 0) -> Dataset:
     """A simulated chamber test from a study preset (``patent-gyro``, ``consumer-imu``...).
 
-    Same preset, runs and seed give identical data.
+    Same preset, runs and seed give identical data.  ``preset`` is a preset's name,
+    ``runs`` a whole number from 1 (None: the preset's own number), ``seed`` a whole number
+    >= 0; anything else is refused before anything is simulated
+    (:mod:`thermonet.api.checks`).
     """
     from ..sim import simulate as _simulate
+    from ..sim.presets import MAX_RUNS
+    from .checks import text, whole
 
-    return _simulate(preset, runs=runs, seed=seed)
+    text(preset, "simulate(preset)", rule="a preset name such as 'patent-gyro'")
+    whole(runs, "simulate(runs)", 1, MAX_RUNS, none=True)
+    whole(seed, "simulate(seed)", 0)
+    return _simulate(preset, runs=None if runs is None else int(runs), seed=int(seed))
 
 
 def read(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
          mapping: str | os.PathLike[str] | None = None, *, window_s: float | None = None,
-         inputs: Sequence[str] = (), gap_s: str | float = "auto",
+         inputs: Sequence[str] | str = (), gap_s: str | float = "auto",
          chunk_rows: int = 65_536) -> Dataset:
     """Recordings from CSV/TSV/Parquet files (one run per file unless a ``run`` column),
     through a YAML column mapping when the columns are not thermonet's own.
@@ -139,10 +147,28 @@ def read(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     memory); ``inputs`` names the dynamic inputs to compute on the samples (those the
     estimator will read, e.g. ``["dT", "rate"]``) and ``gap_s`` their gap limit.  An
     estimator fits, predicts and scores such runs as runs of samples (the scores over the
-    samples the rows stand for)."""
-    from ..training.loader import read_recordings
+    samples the rows stand for).
 
-    if isinstance(paths, (str, os.PathLike)):
-        paths = [paths]
-    return read_recordings(list(paths), None if mapping is None else Path(mapping),
-                           window_s=window_s, inputs=inputs, gap_s=gap_s, chunk_rows=chunk_rows)
+    Every argument is checked before a file is opened (:mod:`thermonet.api.checks`):
+    ``paths`` a path or a non-empty list of paths; ``mapping`` a path or None;
+    ``window_s`` None or a number of seconds > 0 (``True`` is no number); ``inputs`` known
+    input names, one alone as a string, and only with ``window_s``; ``gap_s`` ``"auto"`` or
+    seconds; ``chunk_rows`` a whole number >= 1.
+    """
+    from ..training.loader import read_recordings
+    from .checks import gap, input_names, path, seconds, whole
+    from .checks import paths as path_list
+
+    files = path_list(paths, "read(paths)")
+    path(mapping, "read(mapping)", none=True)
+    seconds(window_s, "read(window_s)", none=True)
+    names = input_names(inputs, "read(inputs)", empty=True)
+    gap(gap_s, "read(gap_s)")
+    whole(chunk_rows, "read(chunk_rows)", 1)
+    if window_s is None and names:
+        raise ConfigError("read(inputs): the dynamic inputs are computed while streaming; "
+                          "give window_s too, or leave inputs out (an estimator computes "
+                          "its inputs from the samples)")
+    return read_recordings(list(files), None if mapping is None else Path(mapping),
+                           window_s=None if window_s is None else float(window_s),
+                           inputs=names, gap_s=gap_s, chunk_rows=int(chunk_rows))

@@ -14,6 +14,7 @@ import numpy as np
 from ..core.errors import ConfigError, ThermonetError
 from ..core.recording import Dataset, Recording
 from ..core.trainconfig import TrainConfig
+from .checks import ArgumentTypeError, flag, gap, input_names, seconds, text
 from .data import (
     BLOCK_RUN,
     Data,
@@ -31,7 +32,7 @@ if TYPE_CHECKING:
 
     from ..features.inputs import FeatureSpec
     from ..features.target import Target
-    from ..models import DriftModel
+    from ..models.composite import ShippedModel
 
 __all__ = ["DriftEstimator", "NotFittedError"]
 
@@ -103,8 +104,10 @@ average_s, threads
 
     Attributes
     ----------
-    model_ : DriftModel
-        The fitted torch module (eval mode, CPU).
+    model_ : DriftModel or AxisModels
+        The fitted torch module (eval mode, CPU); an
+        :class:`~thermonet.models.composite.AxisModels` when loaded from a per-axis
+        checkpoint (:attr:`axis_models_` says which candidate computes each axis).
     spec_ : FeatureSpec
         Inputs and the references resolved from the training runs.
     n_features_in_ : int
@@ -239,12 +242,55 @@ average_s, threads
         return replace(config, **overrides) if overrides else config
 
     def _resolved_inputs(self) -> list[str]:
-        names = names_of(self.inputs, "inputs")
-        if names is not None:
-            return names
+        if self.inputs is not None:
+            return input_names(self.inputs, "inputs")
         from ..models import get_family
 
         return list(get_family(self.family).default_inputs)
+
+    def _check_params(self) -> tuple[TrainConfig, list[str]]:
+        """Every constructor argument checked (what :meth:`fit` does first, before it reads
+        any data or builds anything): one error naming the argument and what it takes.
+        Returns the training settings and the inputs."""
+        from ..data.diagnostics import TEMPERATURE_PLAUSIBLE_C
+        from ..features.target import MODES
+        from ..models.registry import check_hyper, family_signature
+        from .parameters import STDERR_METHODS
+
+        if not isinstance(self.family, str):
+            raise ArgumentTypeError(f"family: expected a family name such as 'poly', got "
+                                    f"{self.family!r} ({type(self.family).__name__})")
+        family_signature(self.family)          # an unknown family, naming the valid ones
+        if isinstance(self.target, dict):
+            for key, mode in self.target.items():
+                if not isinstance(key, str) or not key or mode not in MODES:
+                    raise ConfigError(f"target: {{{key!r}: {mode!r}}} is not an output kind "
+                                      f"or name mapped to one of {', '.join(MODES)}")
+        elif not (isinstance(self.target, str) and self.target in _TARGETS):
+            raise ConfigError(f"target: {self.target!r} is not one of {', '.join(_TARGETS)} "
+                              "or a mapping {output kind or name: channel | zero | at-t-ref}")
+        if self.t_ref != "start":
+            lo, hi = TEMPERATURE_PLAUSIBLE_C
+            seconds(self.t_ref, "t_ref", lo=lo, hi=hi, lo_open=False, unit="°C (or 'start')")
+        seconds(self.t_ref_window_min, "t_ref_window_min", hi=1440.0, unit="minutes")
+        gap(self.gap_s, "gap_s")
+        if self.outputs is not None:
+            names_of(self.outputs, "outputs")
+        if not isinstance(self.train_on, str) or self.train_on not in ("all", "heating"):
+            raise ConfigError(f"train_on: {self.train_on!r} is not 'all' or 'heating'")
+        if not isinstance(self.stderr, str) or self.stderr not in STDERR_METHODS:
+            raise ConfigError(f"stderr: {self.stderr!r} is not one of "
+                              f"{', '.join(STDERR_METHODS)}")
+        if "rate_window_s" in self.hyper:
+            raise ConfigError("rate_window_s was removed: 'rate' is a causal filtered derivative "
+                              "with a 60 s time constant (thermonet.features.dynamics); use the "
+                              "input 'rate_<tau>' (e.g. rate_30) for another time constant")
+        config = self._train_config()
+        inputs = self._resolved_inputs()
+        # the family's hyper-parameters: names and values (a built-in's without torch, a
+        # plug-in's by building it), before any data is read
+        check_hyper(self.family, self.hyper, n_inputs=len(inputs))
+        return config, inputs
 
     def _outputs_for(self, runs: list[Recording]) -> list[str]:
         from ..training.parts import FOURPOS_SUFFIXES
@@ -277,6 +323,14 @@ average_s, threads
         ``fit_seconds``, the checkpoint as artifact ``model/``; :attr:`mlflow_run_id_` is the
         run (store: ``tracking_uri``, else ``sqlite:///mlflow.db`` in the working directory).
 
+        Every argument is checked first, before any data is read or any model built
+        (:mod:`thermonet.api.checks`): the constructor's (the family and its
+        hyper-parameters' names and values, the inputs — one name alone is a list of one —,
+        ``t_ref``, ``target``, ``gap_s``, the training settings...) and ``track`` (``True``
+        or ``False`` only: ``"no"`` is refused, never read as true), ``tracking_uri`` (None
+        or a URI) and ``experiment`` (a name).  The constructor itself only stores, as
+        scikit-learn asks, so ``set_params`` and ``clone`` never raise on a value.
+
         Returns
         -------
         DriftEstimator
@@ -294,28 +348,18 @@ average_s, threads
         from ..training.fold import fit_fold, fold_parts, fold_spec
         from ..training.parts import fit_arrays, targets_for
         from ..training.splits import stack_blocks
-        from .parameters import STDERR_METHODS, parameter_table
+        from .parameters import parameter_table
 
-        if not isinstance(self.family, str):
-            raise ConfigError(f"family: expected a family name such as 'poly', got "
-                              f"{self.family!r}")
-        if not (isinstance(self.target, dict) or (isinstance(self.target, str)
-                                                  and self.target in _TARGETS)):
-            raise ConfigError(f"target: {self.target!r} is not one of {', '.join(_TARGETS)} "
-                              "or a mapping {output kind or name: channel | zero | at-t-ref}")
-        if self.train_on not in ("all", "heating"):
-            raise ConfigError(f"train_on: {self.train_on!r} is not 'all' or 'heating'")
-        if self.stderr not in STDERR_METHODS:
-            raise ConfigError(f"stderr: {self.stderr!r} is not one of "
-                              f"{', '.join(STDERR_METHODS)}")
-        if "rate_window_s" in self.hyper:
-            raise ConfigError("rate_window_s was removed: 'rate' is a causal filtered derivative "
-                              "with a 60 s time constant (thermonet.features.dynamics); use the "
-                              "input 'rate_<tau>' (e.g. rate_30) for another time constant")
-        config = self._train_config()
+        if self.family == "per-axis":
+            raise ConfigError("family 'per-axis': a model per axis is chosen by compare "
+                              "(thermonet.api.compare) among fitted candidates, not fitted by "
+                              "a DriftEstimator; load its checkpoint with DriftEstimator.load")
+        config, inputs = self._check_params()
+        flag(track, "fit(track)")
+        text(tracking_uri, "fit(tracking_uri)", none=True, rule="an MLflow tracking URI")
+        text(experiment, "fit(experiment)", rule="an MLflow experiment name")
         runs = runs_of(train, "fit(train)")
         val_runs = None if val is None else runs_of(val, "fit(val)")
-        inputs = self._resolved_inputs()
         outputs = self._outputs_for(runs)
         for r in runs:
             needs_outputs(r, outputs, "fit(train)")
@@ -343,7 +387,7 @@ average_s, threads
                            train_on=self.train_on, gap_s=self.gap_s)
         result = fit_fold(parts, family=self.family, outputs=outputs, hyper=self.hyper,
                           config=config, target_modes=targets.modes)
-        self.model_: DriftModel = result.model
+        self.model_: ShippedModel = result.model
         self.spec_: FeatureSpec = spec
         self.targets_: Target = targets
         self.n_features_in_: int = len(spec.inputs)
@@ -383,10 +427,23 @@ average_s, threads
     def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
         from ..training.parts import build_part
 
-        return build_part(rec, signals=spec.signals, outputs=outputs, target=self.targets_,
+        # a fitted model's own signal order (a per-axis model's: the union of its parts')
+        model = self.__dict__.get("model_")
+        signals = list(model.signals) if model is not None else spec.signals
+        return build_part(rec, signals=signals, outputs=outputs, target=self.targets_,
                           gap_s=spec.gap_s)
 
-    def _check_fitted(self, what: str) -> DriftModel:
+    @property
+    def axis_models_(self) -> dict[str, str | None] | None:
+        """For a per-axis model (a ``compare`` that chose a candidate per axis, loaded with
+        :meth:`load`): ``{axis: the label of the candidate that computes it, or None where
+        the axis is left raw}``; None for a single-family model."""
+        from ..models.composite import AxisModels
+
+        model = self._check_fitted("axis_models_")
+        return model.axis_table() if isinstance(model, AxisModels) else None
+
+    def _check_fitted(self, what: str) -> ShippedModel:
         model = self.__dict__.get("model_")
         if model is None:
             raise NotFittedError(f"this DriftEstimator({self.family!r}) is not fitted yet; "
@@ -409,7 +466,8 @@ average_s, threads
         out = []
         for rec in runs_of(data, "predict", allow_empty=True):
             same_units(rec, self.signal_units_, "predict", "the model was trained on it")
-            out.append(predict(model, signal_matrix(rec, self.spec_.signals, self.spec_.gap_s),
+            # the model's own signal order (a per-axis model's union of its parts' signals)
+            out.append(predict(model, signal_matrix(rec, list(model.signals), self.spec_.gap_s),
                                rec.time_s))
         return out[0] if len(out) == 1 else np.concatenate(out)
 
@@ -519,16 +577,18 @@ average_s, threads
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the fitted model as a thermonet checkpoint (atomic; loads with
         ``weights_only=True``; ``thermonet export`` reads it)."""
+        from .checks import path as a_path
         from .persistence import save
 
-        return save(self, path)
+        return save(self, a_path(path, "save(path)"))  # type: ignore[arg-type]
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DriftEstimator:
         """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
+        from .checks import path as a_path
         from .persistence import load
 
-        return load(cls, path)
+        return load(cls, a_path(path, "load(path)"))  # type: ignore[arg-type]
 
     def export(self, path: str | os.PathLike[str], format: str = "onnx", *,
                device_id: int | None = None, instance: int | None = None) -> Path:
@@ -537,6 +597,12 @@ average_s, threads
         ``device_id``/``instance`` apply to the autopilot formats (see
         ``thermonet export --help``).
         """
+        from .checks import path as a_path
+        from .checks import text, whole
         from .persistence import export
 
+        a_path(path, "export(path)")
+        text(format, "export(format)", rule="a format name such as 'onnx'")
+        whole(device_id, "export(device_id)", 0, none=True)
+        whole(instance, "export(instance)", 0, none=True)
         return export(self, path, format, device_id=device_id, instance=instance)

@@ -319,7 +319,22 @@ def parameter_table(model: Any, units: dict[str, str], signal_units: dict[str, s
     """
     import pandas as pd
 
+    from ..models.composite import AxisModels
+
     cov: dict[str, np.ndarray] = {}
+    if isinstance(model, AxisModels):
+        # each part's own table, on the axes it owns (and its shared rows), names prefixed
+        # with the part's label
+        frames = []
+        for k, part in enumerate(model.parts):
+            table, part_cov = parameter_table(part, units, signal_units, None, method=method,
+                                              seed=seed)
+            mine = [a for a, o in zip(model.outputs, model.owner, strict=True) if o == k]
+            table = table[table["axis"].isin([*mine, ""])].copy()
+            table["name"] = f"{model.labels[k]}." + table["name"].astype(str)
+            frames.append(table)
+            cov.update({a: c for a, c in part_cov.items() if a in mine})
+        return pd.concat(frames, ignore_index=True)[COLUMNS], cov
     poly = _polynomial_rows(model, units, signal_units, train, method, seed)
     if poly is not None:
         rows, cov = poly

@@ -48,13 +48,11 @@ def time_blocks(data: Any, n_blocks: int = 40, *, purge_s: float = 0.0) -> list[
     Each block is a :class:`Recording` named ``<run>[b<k>]`` whose ``meta`` names its run
     (``block_of_run``) and index (``block_index``), which :class:`TimeBlockSplit` reads.
     """
+    from .checks import seconds, whole
     from .data import runs_of
 
-    if isinstance(n_blocks, bool) or not isinstance(n_blocks, int) or n_blocks < 2:
-        raise ConfigError(f"time_blocks(n_blocks): expected an integer >= 2, got {n_blocks!r}")
-    if isinstance(purge_s, bool) or not isinstance(purge_s, (int, float)) \
-            or not np.isfinite(purge_s) or purge_s < 0:
-        raise ConfigError(f"time_blocks(purge_s): expected seconds >= 0, got {purge_s!r}")
+    n_blocks = int(whole(n_blocks, "time_blocks(n_blocks)", 2, 100_000))  # type: ignore[arg-type]
+    purge_s = float(seconds(purge_s, "time_blocks(purge_s)", lo_open=False))  # type: ignore[arg-type]
     out = []
     for rec in runs_of(data, "time_blocks(data)"):
         t = np.asarray(rec.time_s, dtype=np.float64)
@@ -89,11 +87,13 @@ class TimeBlockSplit:
     Parameters
     ----------
     n_splits : int
-        Folds (≥ 2).
+        Folds: a whole number ≥ 2 (``True`` is no number), checked when the splitter is
+        made.
     """
 
     def __init__(self, n_splits: int = 5) -> None:
         self.n_splits = n_splits
+        self._check()          # a splitter checks at once (scikit-learn's KFold does too)
 
     def __repr__(self) -> str:
         return f"TimeBlockSplit(n_splits={self.n_splits!r})"
@@ -104,9 +104,9 @@ class TimeBlockSplit:
         return int(self.n_splits)
 
     def _check(self) -> None:
-        k = self.n_splits
-        if isinstance(k, bool) or not isinstance(k, int) or k < 2:
-            raise ConfigError(f"TimeBlockSplit(n_splits): expected an integer >= 2, got {k!r}")
+        from .checks import whole
+
+        whole(self.n_splits, "TimeBlockSplit(n_splits)", 2, 100_000)
 
     def folds(self, X: Sequence[Recording]) -> np.ndarray:
         """The fold of each row of ``X``."""
@@ -120,8 +120,8 @@ class TimeBlockSplit:
             run = r.meta.get(BLOCK_RUN, r.run_id)
             j = run_no.setdefault(run, len(run_no))
             index = r.meta.get(BLOCK_INDEX)
-            fold[i] = ((int(index) if index is not None else 0) + j) % self.n_splits
-        missing = sorted(set(range(self.n_splits)) - set(fold.tolist()))
+            fold[i] = ((int(index) if index is not None else 0) + j) % int(self.n_splits)
+        missing = sorted(set(range(int(self.n_splits))) - set(fold.tolist()))
         if missing:
             raise ConfigError(f"TimeBlockSplit: {len(rows)} rows (runs or blocks) leave fold "
                               f"{missing[0]} of {self.n_splits} empty; cut the runs with "
@@ -133,5 +133,5 @@ class TimeBlockSplit:
         """``(train rows, validation rows)`` per fold, as index arrays into ``X``."""
         fold = self.folds(X)
         idx = np.arange(fold.size)
-        for f in range(self.n_splits):
+        for f in range(int(self.n_splits)):
             yield idx[fold != f], idx[fold == f]

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "atomic_write_text", "not_a_file"]
+__all__ = ["atomic_path", "atomic_write_text", "not_a_file", "same_file",
+           "refuse_overwriting_inputs"]
 
 
 def _umask() -> int:
@@ -79,3 +80,35 @@ def not_a_file(path: str | os.PathLike, what: str = "file") -> str | None:
     if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
         return f"is a device, not a {what}"
     return f"is not a regular file, not a {what}"
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """True when ``a`` and ``b`` are the same file (``os.path.samefile``: hard links and
+    symbolic links too); for a path that does not exist, when both resolve to one path."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return Path(a).resolve() == Path(b).resolve()
+
+
+def refuse_overwriting_inputs(out: str | os.PathLike, inputs: Iterable[str | os.PathLike], *,
+                              owned: Iterable[str] = ()) -> None:
+    """Refuse, in one line naming both, an output that would overwrite one of ``inputs``:
+    ``out`` is an input, or (an output directory) one of its entries ``owned`` — those
+    thermonet replaces — is or holds an input.  Called before anything is written."""
+    from .errors import InputError
+
+    target = Path(out)
+    for given in inputs:
+        inp = Path(given)
+        if not os.path.lexists(inp):
+            continue
+        if same_file(target, inp):
+            raise InputError(f"{target}: the output is the input {inp}; refusing to overwrite "
+                             "an input (nothing written)")
+        for entry in owned:
+            place = target / entry
+            if os.path.lexists(place) and (same_file(place, inp) or inp.resolve().is_relative_to(
+                    place.resolve())):
+                raise InputError(f"{target}: writing the output would replace {place}, which "
+                                 f"is or holds the input {inp} (nothing written)")

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 from ..core.errors import InputError
 
 if TYPE_CHECKING:
-    from ..models import DriftModel
+    from ..models.composite import ShippedModel
 
 __all__ = [
     "ExportFormat", "ExportRequest", "Exporter", "FORMATS", "register_format", "get_format",
@@ -79,7 +79,7 @@ class ExportRequest:
 
 
 #: ``exporter(model, out, request) -> written path``.
-Exporter = Callable[["DriftModel", Path, ExportRequest], Path]
+Exporter = Callable[["ShippedModel", Path, ExportRequest], Path]
 
 
 @dataclass(frozen=True)
@@ -102,14 +102,17 @@ class ExportFormat:
         fn: Exporter = getattr(importlib.import_module(module), attr)
         return fn
 
-    def write(self, model: DriftModel, out: str | Path, request: ExportRequest | None = None
+    def write(self, model: ShippedModel, out: str | Path, request: ExportRequest | None = None
               ) -> Path:
         """Export ``model`` to ``out``; return the written path.
 
         Every format passes here: the model's output is first checked on its trained
         range (finite, within the training targets' mean ± K std —
         :func:`thermonet.exporting.domain.check_output_range`), so no format writes a
-        model whose drift is absurd; nothing is written when it is refused.
+        model whose drift is absurd; nothing is written when it is refused.  ``model`` is a
+        :class:`~thermonet.models.base.DriftModel` or a per-axis
+        :class:`~thermonet.models.composite.AxisModels` (every built-in format takes both;
+        the autopilot files only where each owned axis is a cubic on temperature).
         """
         from .domain import check_output_range
 

@@ -71,6 +71,7 @@ from ..core.errors import ExportError
 from ..core.fileio import atomic_write_text
 from ..core.recording import output_kind
 from ..models import DriftModel
+from ..models.composite import AxisModels, ShippedModel
 from .onnx_export import family_name
 
 __all__ = [
@@ -138,7 +139,51 @@ def _unit_of(axis: str, units: str | Mapping[str, str]) -> str:
     return unit
 
 
-def autopilot_coefficients(model: DriftModel, *, output_units: str | Mapping[str, str],
+def _firmware_form(part: DriftModel) -> bool:
+    """Whether a part is what the parameter files hold: a polynomial of degree <= 3 on dT or T."""
+    form = None if part.family.recurrent else part.family.polynomial_form()
+    return form is not None and form.shape[1] <= 4 and list(part.inputs) in (["dT"], ["T"])
+
+
+def _axis_models_coefficients(model: AxisModels, *, output_units: str | Mapping[str, str],
+                              t_ref: float | None) -> AutopilotCoefficients:
+    """A per-axis model as parameter files: only when every part that owns an axis is a
+    polynomial of degree <= 3 on dT or T (each axis then takes its owner's cubic; an axis
+    left raw is zero), else refused in one line."""
+    for a, k in enumerate(model.owner):
+        if k is not None and not _firmware_form(model.parts[k]):
+            part = model.parts[k]
+            raise ExportError(
+                f"PX4/ArduPilot parameter files need the firmware-form cubic (a polynomial of "
+                f"degree <= 3 in dT or T) on every axis; this per-axis model computes "
+                f"'{model.outputs[a]}' with '{model.labels[k]}' ({part.family_name} on "
+                f"{list(part.inputs)}) — export the cubic/baseline family with --family NAME")
+    if t_ref is None:
+        t_ref = model.spec.t_ref
+    done = [autopilot_coefficients(p, output_units=output_units, t_ref=t_ref)
+            for p in model.parts]
+    first = done[0]
+    for k, co in enumerate(done[1:], start=1):
+        if (co.t_ref, co.t_min, co.t_max) != (first.t_ref, first.t_min, first.t_max):
+            raise ExportError(
+                f"PX4/ArduPilot parameter files hold one temperature range; this per-axis "
+                f"model's parts '{model.labels[0]}' and '{model.labels[k]}' were trained on "
+                f"[{first.t_min:g}, {first.t_max:g}] and [{co.t_min:g}, {co.t_max:g}] degC — "
+                "export one family with --family NAME")
+    out = AutopilotCoefficients(t_ref=first.t_ref, t_min=first.t_min, t_max=first.t_max,
+                                coef={kind: c.copy() for kind, c in first.coef.items()},
+                                present={kind: list(v) for kind, v in first.present.items()})
+    for a, k in enumerate(model.owner):   # a masked axis is zero in every part's file
+        if k is None:
+            continue
+        axis = model.outputs[a]
+        kind, letter = output_kind(axis), axis.split("_", 1)[1]
+        row = 0 if kind == "baro" else _AXES.index(letter)
+        out.coef[kind][row] = done[k].coef[kind][row]
+    return out
+
+
+def autopilot_coefficients(model: ShippedModel, *, output_units: str | Mapping[str, str],
                            t_ref: float | None = None) -> AutopilotCoefficients:
     """Expand a polynomial model (degree ≤ 3, one input ``dT`` or ``T``) into SI cubic coefficients.
 
@@ -164,6 +209,8 @@ def autopilot_coefficients(model: DriftModel, *, output_units: str | Mapping[str
         that is not gyro/acc x/y/z;
         a unit that does not match the axis kind.
     """
+    if isinstance(model, AxisModels):
+        return _axis_models_coefficients(model, output_units=output_units, t_ref=t_ref)
     family = family_name(model)
     if model.family.recurrent:  # before the input check: its reason is the state, not dT
         raise ExportError(f"PX4/ArduPilot parameter files hold a polynomial in temperature; this "
@@ -240,7 +287,7 @@ def _g(v: float) -> str:
     return f"{float(v):.9g}"
 
 
-def export_px4_params(model: DriftModel, path: str | Path, *, output_units: str | Mapping[str, str],
+def export_px4_params(model: ShippedModel, path: str | Path, *, output_units: str | Mapping[str, str],
                       device_id: int | None = None, instance: int = 0) -> Path:
     """Write PX4 ``TC_G<i>_*`` / ``TC_A<i>_*`` parameters as a QGC ``.params`` file.
 
@@ -291,7 +338,7 @@ def export_px4_params(model: DriftModel, path: str | Path, *, output_units: str 
     return atomic_write_text(Path(path), "\n".join(lines) + "\n")
 
 
-def export_ardupilot_params(model: DriftModel, path: str | Path, *,
+def export_ardupilot_params(model: ShippedModel, path: str | Path, *,
                             output_units: str | Mapping[str, str], imu: int = 1,
                             sep: str = ",") -> Path:
     """Write ArduPilot ``INS_TCAL<n>_*`` parameters (``NAME,VALUE`` lines).
@@ -343,7 +390,7 @@ def read_px4_params(path: str | Path) -> dict[str, float]:
         if len(parts) != 5:
             raise ExportError(f"{path}: line {no}: expected 5 fields "
                               f"(Vehicle-Id Component-Id Name Value Type), got {len(parts)}")
-        out[parts[2]] = float(parts[3])
+        out[parts[2]] = _number(path, no, parts[2], parts[3])
     return out
 
 
@@ -356,5 +403,14 @@ def read_ardupilot_params(path: str | Path) -> dict[str, float]:
         parts = line.replace(",", " ").split()
         if len(parts) != 2:
             raise ExportError(f"{path}: line {no}: expected NAME,VALUE, got {line!r}")
-        out[parts[0]] = float(parts[1])
+        out[parts[0]] = _number(path, no, parts[0], parts[1])
     return out
+
+
+def _number(path: str | Path, no: int, name: str, value: str) -> float:
+    """``value`` as a float; otherwise an error naming the file, the line and the parameter."""
+    try:
+        return float(value)
+    except ValueError:
+        raise ExportError(f"{path}: line {no}: parameter {name}: value {value[:40]!r} is not a "
+                          "number") from None

@@ -54,7 +54,7 @@ from ..models.cgen import c_expm1
 from .c_driver import c_compiler, run_c_driver
 
 if TYPE_CHECKING:
-    from ..models import DriftModel
+    from ..models.composite import ShippedModel
 
 __all__ = ["render_stream_c", "render_stream_block_c", "STREAM_DRIVER", "run_stream_c", "check_stream",
            "stream_signature_has_proxies", "REAL_FLAGS", "float_path_slack",
@@ -81,17 +81,17 @@ def _float(v: float) -> str:
     return f"{float(np.float32(v)):.9e}f"
 
 
-def _proxies(model: DriftModel) -> list[str]:
+def _proxies(model: ShippedModel) -> list[str]:
     dyn = {d.signal for d in dynamics.dynamic_signals(model.inputs)}
     return [s for s in model.signals if s != "temperature_c" and s not in dyn]
 
 
-def stream_signature_has_proxies(model: DriftModel) -> bool:
+def stream_signature_has_proxies(model: ShippedModel) -> bool:
     """Whether ``<prefix>_step`` takes a ``proxies`` argument (the model reads proxies)."""
     return bool(_proxies(model))
 
 
-def render_stream_c(model: DriftModel, p: str) -> list[str]:
+def render_stream_c(model: ShippedModel, p: str) -> list[str]:
     """Lines of the state struct, ``<p>_init`` and ``<p>_step`` for ``model``."""
     P = p.upper()
     signals = list(model.signals)
@@ -251,7 +251,7 @@ def step_time_guard_c(P: str) -> list[str]:
     ]
 
 
-def render_stream_block_c(model: DriftModel, p: str) -> list[str]:
+def render_stream_block_c(model: ShippedModel, p: str) -> list[str]:
     """Lines of ``<p>_step_block``: ``n`` samples through ``<p>_step`` (module docstring).
 
     Generic over the state: it only calls ``step``, so whatever ``<p>_state`` holds is
@@ -400,7 +400,7 @@ int main(int argc, char **argv)
 """
 
 
-def run_stream_c(model: DriftModel, header_text: str, time_s: np.ndarray,
+def run_stream_c(model: ShippedModel, header_text: str, time_s: np.ndarray,
                  temperature_c: np.ndarray, raw: np.ndarray, proxies: np.ndarray | None = None,
                  *, prefix: str = "thermonet", cflags: tuple[str, ...] = ("-O2",),
                  block: int | None = None) -> dict[str, np.ndarray]:
@@ -443,7 +443,7 @@ def run_stream_c(model: DriftModel, header_text: str, time_s: np.ndarray,
             "ret": out["ret"]}
 
 
-def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermonet",
+def check_stream(model: ShippedModel, header_text: str, *, prefix: str = "thermonet",
                  seed: int = 0, rtol: float = 1e-4, real: str = "auto"
                  ) -> dict[str, float] | None:
     """Run ``<prefix>_step`` over a synthetic sequence and compare it with torch.
@@ -506,7 +506,7 @@ def check_stream(model: DriftModel, header_text: str, *, prefix: str = "thermone
     return {"n_samples": float(n), "max_abs_diff": worst}
 
 
-def judge_step_parity(model: DriftModel, got: dict[str, np.ndarray], raw: np.ndarray,
+def judge_step_parity(model: ShippedModel, got: dict[str, np.ndarray], raw: np.ndarray,
                       want: np.ndarray, const: np.ndarray, t: np.ndarray, temp: np.ndarray, *,
                       real: str, rtol: float) -> float:
     """The C ``step()``'s output (``got``, from :func:`run_stream_c`) against torch's relative

@@ -32,7 +32,7 @@ import numpy as np
 from ..core.errors import ExportError
 
 if TYPE_CHECKING:
-    from ..models import DriftModel
+    from ..models.composite import ShippedModel
 
 __all__ = ["MAX_STD", "check_output_range"]
 
@@ -41,13 +41,13 @@ __all__ = ["MAX_STD", "check_output_range"]
 MAX_STD = 1000.0
 
 
-def check_output_range(model: DriftModel, *, source: str,
+def check_output_range(model: ShippedModel, *, source: str,
                        units: Mapping[str, str] | None = None) -> None:
     """Refuse ``model`` unless its drift is finite and plausibly bounded on its trained range.
 
     Parameters
     ----------
-    model : DriftModel
+    model : DriftModel or AxisModels
     source : str
         What the model came from (the checkpoint file), named in the error.
     units : mapping axis -> unit, optional
@@ -60,8 +60,14 @@ def check_output_range(model: DriftModel, *, source: str,
     """
     import torch
 
+    from ..models.composite import AxisModels
     from .parity import check_points, trained_range
 
+    if isinstance(model, AxisModels):
+        for k, part in enumerate(model.parts):
+            check_output_range(part, units=units,
+                               source=f"{source} (part {k}, '{model.labels[k]}')")
+        return
     ranges = trained_range(model)
     for sig, (lo, hi) in ranges.items():
         if not (math.isfinite(lo) and math.isfinite(hi)):

@@ -77,8 +77,18 @@ from torch import nn
 from .. import __version__
 from ..core.errors import ExportError
 from ..core.fileio import atomic_path
-from ..core.names import AXIS, SIGNAL, TEXT_ID, check_model_names, check_name, check_units
+from ..core.names import (
+    AXIS,
+    LABEL,
+    SIGNAL,
+    TEXT_ID,
+    check_model_names,
+    check_name,
+    check_names,
+    check_units,
+)
 from ..models import DriftModel
+from ..models.composite import AxisModels, ShippedModel
 from .parity import parity_check, trained_range
 
 __all__ = [
@@ -122,7 +132,7 @@ OPSET = 18
 SIGNAL_UNITS = {"temperature_c": "degC", "rate_c_per_min": "degC/min"}
 
 
-def family_name(model: DriftModel) -> str:
+def family_name(model: ShippedModel) -> str:
     """The registered family name of a DriftModel (``model.family`` is the family module)."""
     name = getattr(model, "family_name", None)
     if name is None:
@@ -130,7 +140,7 @@ def family_name(model: DriftModel) -> str:
     return str(name)
 
 
-def check_model_finite(model: DriftModel) -> None:
+def check_model_finite(model: ShippedModel) -> None:
     """Refuse a model with a NaN/inf parameter or buffer (:class:`ExportError` naming it)."""
     for name, tensor in list(model.named_parameters()) + list(model.named_buffers()):
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
@@ -155,7 +165,7 @@ class CompensatorGraph(nn.Module):
     ``(compensated, drift, out_of_range)``.
     """
 
-    def __init__(self, model: DriftModel) -> None:
+    def __init__(self, model: ShippedModel) -> None:
         super().__init__()
         self.model = model
         self.signals = list(model.signals)
@@ -187,6 +197,67 @@ def _strip_debug(proto: Any) -> None:
     proto.doc_string = ""
 
 
+def _dynamo_proto(graph: Any, example: tuple, names: list[str], out_names: list[str]) -> Any:
+    """The dynamo exporter's graph, optimised by onnxscript — or, when that graph is not
+    valid, the unoptimised export with its constants folded and its common subexpressions
+    merged (:func:`_fold_only`), or as exported.
+
+    onnxscript's rewriter fuses each ``Max``/``Min`` pair into a ``Clip`` whose bounds it
+    names after the clamped value; where one signal is clamped twice (a per-axis model: each
+    part clamps to its own trained range) the second pair of bounds is lost and the graph
+    references values nothing defines.  Every variant computes the same operations (the
+    export's parity check runs on the result).
+    """
+    import onnx
+
+    def export(optimize: bool) -> Any:
+        program = torch.onnx.export(
+            graph, example, None, input_names=names, output_names=out_names,
+            opset_version=OPSET, dynamo=True, external_data=False, optimize=optimize,
+            # forward(*inputs): the varargs tuple is one argument
+            dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False)
+        if program is None:
+            raise ExportError("torch.onnx.export (dynamo) returned no program")
+        return program.model_proto
+
+    batch = torch.export.Dim("N")
+    proto = export(True)
+    try:
+        onnx.checker.check_model(proto)
+        return proto
+    except onnx.checker.ValidationError as err:
+        _log.info("optimised ONNX graph is invalid (%s); folding the unoptimised one instead",
+                  str(err).splitlines()[0])
+    proto = export(False)
+    try:
+        folded = _fold_only(proto)
+        onnx.checker.check_model(folded)
+        return folded
+    except Exception as err:  # noqa: BLE001 - any optimiser failure: keep the plain graph
+        _log.info("folding the unoptimised ONNX graph failed (%s); keeping it as exported",
+                  str(err).splitlines()[0] if str(err) else type(err).__name__)
+    return proto
+
+
+def _fold_only(proto: Any) -> Any:
+    """``proto`` with functions inlined, constants folded, constants lifted to (deduplicated)
+    initializers and common subexpressions merged: onnxscript's optimiser without its
+    pattern rewrites."""
+    import onnx_ir as ir
+    from onnx_ir.passes import common as cp
+    from onnxscript import optimizer
+
+    model = ir.serde.deserialize_model(proto)
+    cp.InlinePass()(model)
+    optimizer.fold_constants(model)
+    ir.passes.Sequential(
+        cp.RemoveUnusedNodesPass(),
+        cp.LiftConstantsToInitializersPass(lift_all_constants=True, size_limit=0),
+        cp.DeduplicateInitializersPass(), cp.CommonSubexpressionEliminationPass(),
+        cp.RemoveUnusedNodesPass(), cp.NameFixPass())(model)
+    return ir.serde.serialize_model(model)
+
+
 def _export_proto(graph: Any, exporter: str) -> tuple[Any, str]:
     import onnx
 
@@ -208,15 +279,7 @@ def _export_proto(graph: Any, exporter: str) -> tuple[Any, str]:
                 # ops, the legacy path's deprecation); the result is checked by parity.
                 warnings.simplefilter("ignore")
                 if kind == "dynamo":
-                    batch = torch.export.Dim("N")
-                    program = torch.onnx.export(
-                        graph, example, None, input_names=names, output_names=out_names,
-                        opset_version=OPSET, dynamo=True, external_data=False, optimize=True,
-                        # forward(*inputs): the varargs tuple is one argument
-                        dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False)
-                    if program is None:
-                        raise ExportError("torch.onnx.export (dynamo) returned no program")
-                    proto = program.model_proto
+                    proto = _dynamo_proto(graph, example, names, out_names)
                 else:
                     with tempfile.TemporaryDirectory() as tmp:
                         f = Path(tmp) / "m.onnx"
@@ -239,13 +302,15 @@ def _json(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=float)
 
 
-def _check_metadata(model: DriftModel, meta: Mapping[str, Any]) -> None:
+def _check_metadata(model: ShippedModel, meta: Mapping[str, Any]) -> None:
     """Names and provenance strings by :mod:`thermonet.core.names` before they enter the file.
 
     Structured values are JSON-encoded; plain strings (device id, run id, data
     hash) are stored as they are, which is safe because they were checked here.
     """
     check_model_names(model, error=ExportError)
+    if isinstance(model, AxisModels):
+        check_names(model.labels, LABEL, "per-axis labels", error=ExportError)
     for key in ("device_id", "training_run_id", "data_hash"):
         if meta.get(key) not in (None, ""):
             check_name(meta[key], TEXT_ID, f"ONNX metadata '{key}'", error=ExportError)
@@ -254,7 +319,7 @@ def _check_metadata(model: DriftModel, meta: Mapping[str, Any]) -> None:
             check_units(meta[key], names, f"ONNX metadata '{key}'", error=ExportError)
 
 
-def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: str
+def _metadata_props(model: ShippedModel, metadata: Mapping[str, Any], exporter: str
                     ) -> dict[str, str]:
     meta = dict(metadata)
     _check_metadata(model, meta)
@@ -285,7 +350,9 @@ def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: st
         "data_hash": _json(meta.pop("data_hash", "")),
         DIGEST_KEY: _UNSEALED,  # filled in by _seal_bytes once the file is written
     }
-    if model.family.recurrent:
+    if isinstance(model, AxisModels):
+        props.update(axis_models_metadata(model))
+    if isinstance(model, DriftModel) and model.family.recurrent:
         from .recurrent import recurrent_metadata
 
         # the runtime carries the state between calls with these constants
@@ -304,7 +371,21 @@ def _metadata_props(model: DriftModel, metadata: Mapping[str, Any], exporter: st
     return props
 
 
-def target_metadata(model: DriftModel) -> dict[str, str]:
+def axis_models_metadata(model: AxisModels) -> dict[str, str]:
+    """What a per-axis model's file says of its parts.
+
+    ``axis_models`` {axis: label of the candidate that computes it, or null: left raw};
+    ``axis_model_parts`` [{label, family, inputs, signals}] in part order (the graph sums the
+    parts' drifts; a part's drift is exactly 0 on the axes it does not own).
+    """
+    parts = [{"label": lab, "family": p.family_name, "inputs": list(p.inputs),
+              "signals": list(p.signals)} for lab, p in zip(model.labels, model.parts,
+                                                           strict=True)]
+    return {"axis_models": json.dumps(model.axis_table()),
+            "axis_model_parts": json.dumps(parts)}
+
+
+def target_metadata(model: ShippedModel) -> dict[str, str]:
     """What each axis's drift is relative to, as metadata strings (ONNX, C comments).
 
     ``targets`` {axis: channel | zero | at-t-ref | four-position}, ``compensate``
@@ -323,14 +404,17 @@ def target_metadata(model: DriftModel) -> dict[str, str]:
     }
 
 
-def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
+def export_onnx(model: ShippedModel, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
                 check: bool = True, exporter: str = "auto", seed: int = 0) -> Path:
     """Export a drift model to ``path`` as a self-describing ONNX file.
 
     Parameters
     ----------
-    model : DriftModel
-        A trained model (any registered family).
+    model : DriftModel or AxisModels
+        A trained model (any registered family), or a per-axis model: one graph over the
+        union of its parts' signals, summing their drifts (each part's is exactly 0 on the
+        axes it does not own), with ``axis_models`` in the metadata
+        (:func:`axis_models_metadata`).
     path : str or Path
         Destination ``.onnx``; written atomically (temp file + ``os.replace``),
         so a failed export or parity check never leaves a half-written file.
@@ -366,8 +450,8 @@ def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, A
     was_training = model.training
     model.eval()
     try:
-        recurrent = model.family.recurrent
-        if recurrent:
+        recurrent = isinstance(model, DriftModel) and model.family.recurrent
+        if isinstance(model, DriftModel) and recurrent:
             from .recurrent import RecurrentGraph, recurrent_parity_check
 
             graph: nn.Module = RecurrentGraph(model).eval()
@@ -384,7 +468,8 @@ def export_onnx(model: DriftModel, path: str | Path, *, metadata: Mapping[str, A
             _seal_bytes(Path(tmp))
             onnx.checker.check_model(str(tmp))
             if check:
-                stats = (recurrent_parity_check(model, tmp, seed=seed) if recurrent
+                stats = (recurrent_parity_check(model, tmp, seed=seed)
+                         if isinstance(model, DriftModel) and recurrent
                          else parity_check(model, tmp, seed=seed))
                 _log.info("ONNX parity: %d points, max |diff| %.3g (rel %.3g)",
                           int(stats["n_points"]), stats["max_abs_diff"], stats["max_rel_diff"])

@@ -3,7 +3,11 @@
 SOURCE is one of
 
 * a ``compare`` output directory — its chosen family, or ``--family NAME``;
-  a comparison that chose none ("do no harm") refuses unless a family is named;
+  a comparison that chose none ("do no harm") refuses unless a family is named; one that
+  chose a model per axis (``"chosen": "per-axis"``) gives its composite checkpoint
+  ``models/per-axis.pt`` (:class:`~thermonet.models.composite.AxisModels`), recorded in
+  ``results.json`` as ``"per_axis": {"checkpoint": "models/per-axis.pt",
+  "checkpoint_sha256": "<hex>", "axes": {axis: label or null}, "candidates": [labels]}``;
 * a checkpoint file (``models/<family>.pt``);
 * an MLflow run id of a family's nested run (its ``model/<family>.pt``
   artifact is downloaded from the tracking store).
@@ -28,8 +32,12 @@ from typing import TYPE_CHECKING
 from ..core.errors import ExportError, InputError
 
 if TYPE_CHECKING:
-    from ..models import DriftModel
+    from ..models.composite import ShippedModel
     from . import ExportRequest
+
+#: ``results.json``'s ``chosen`` (and ``--family``) for the per-axis composite (the value of
+#: :data:`thermonet.models.composite.PER_AXIS`, repeated so this module loads without torch).
+PER_AXIS = "per-axis"
 
 __all__ = ["resolve_checkpoint", "export_source", "write_onnx", "write_c", "write_px4_params",
            "write_ardupilot_params"]
@@ -38,7 +46,8 @@ _RUN_ID = re.compile(r"[0-9a-f]{32}")
 
 
 def _from_compare_dir(path: Path, family: str | None) -> Path:
-    """The checkpoint of a family of a compare directory, verified against ``results.json``.
+    """The checkpoint of a family of a compare directory, verified against ``results.json``
+    (or the per-axis composite's, :func:`_per_axis_checkpoint`).
 
     The checkpoint is always ``<dir>/models/<family>.pt`` (the path recorded
     in ``results.json`` is informational: a file does not choose what else is
@@ -57,6 +66,9 @@ def _from_compare_dir(path: Path, family: str | None) -> Path:
         raise InputError(f"{results_file}: not valid JSON ({err.msg}, line {err.lineno})") from None
     except UnicodeDecodeError as err:
         raise InputError(f"{results_file}: not UTF-8 text (byte {err.start})") from None
+    if isinstance(results, dict) and family in (None, PER_AXIS) and (
+            family or results.get("chosen")) == PER_AXIS:
+        return _per_axis_checkpoint(path, results_file, results)
     fams = results.get("families") if isinstance(results, dict) else None
     if not isinstance(fams, dict) or not all(isinstance(v, dict) for v in fams.values()):
         raise InputError(f"{results_file}: key 'families': not a mapping of family results")
@@ -79,6 +91,43 @@ def _from_compare_dir(path: Path, family: str | None) -> Path:
     if not isinstance(recorded, str) or not recorded:
         raise ExportError(f"{results_file}: family '{name}' records no checkpoint_sha256, so "
                           f"{p} cannot be verified (written by an older thermonet? re-run compare)")
+    if sha256_file(p) != recorded:
+        raise ExportError(f"{p}: content does not match the SHA-256 in {results_file} (replaced "
+                          "or modified after the comparison); refusing to export it")
+    return p
+
+
+def _per_axis_checkpoint(path: Path, results_file: Path, results: dict) -> Path:
+    """The per-axis composite of a compare directory (``models/per-axis.pt``), verified
+    against the ``per_axis`` block of ``results.json`` (module docstring) as a family's
+    checkpoint is: the path is fixed, the SHA-256 must match the recorded one."""
+    from ..core.names import AXIS, LABEL, check_name
+    from ..core.outdir import sha256_file
+
+    block = results.get("per_axis")
+    if not isinstance(block, dict):
+        raise InputError(f"{results_file}: 'chosen' is '{PER_AXIS}' but there is no 'per_axis' "
+                         "mapping (checkpoint, checkpoint_sha256, axes, candidates)")
+    axes, candidates = block.get("axes"), block.get("candidates")
+    if not isinstance(candidates, list) or not isinstance(axes, dict):
+        raise InputError(f"{results_file}: key 'per_axis': expected 'axes' {{axis: label or "
+                         "null}} and 'candidates' [labels]")
+    for c in candidates:
+        check_name(c, LABEL, f"{results_file}: key 'per_axis.candidates'")
+    for axis, label in axes.items():
+        check_name(axis, AXIS, f"{results_file}: key 'per_axis.axes'")
+        if label is not None and label not in candidates:
+            raise InputError(f"{results_file}: key 'per_axis.axes': axis '{axis}' names "
+                             f"'{str(label)[:64]}', not a candidate ({', '.join(candidates)})")
+    if not block.get("checkpoint"):
+        raise ExportError(f"{results_file}: the per-axis model has no checkpoint")
+    p = path / "models" / f"{PER_AXIS}.pt"
+    if not p.is_file():
+        raise InputError(f"{p}: checkpoint listed in {results_file} is missing")
+    recorded = block.get("checkpoint_sha256")
+    if not isinstance(recorded, str) or not recorded:
+        raise ExportError(f"{results_file}: the per-axis model records no checkpoint_sha256, so "
+                          f"{p} cannot be verified (re-run compare)")
     if sha256_file(p) != recorded:
         raise ExportError(f"{p}: content does not match the SHA-256 in {results_file} (replaced "
                           "or modified after the comparison); refusing to export it")
@@ -131,6 +180,7 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
     (PX4's ``TC_*_ID``) and ``instance`` (PX4 slot 0–3, default 0; ArduPilot
     IMU 1–3, default 1) apply to the autopilot formats.
     """
+    from ..core.fileio import refuse_overwriting_inputs
     from ..training.checkpoint import load_checkpoint
     from . import ExportRequest, get_format
 
@@ -138,6 +188,8 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
     with tempfile.TemporaryDirectory() as tmp:
         ckpt = resolve_checkpoint(source, family=family, tracking_uri=tracking_uri,
                                   workdir=Path(tmp))
+        # never written over what it reads: the checkpoint, the compare directory's results
+        refuse_overwriting_inputs(out, [ckpt, source, Path(source) / "results.json"])
         from .sensor_export import export_sensor_source, is_sensor_checkpoint
 
         if is_sensor_checkpoint(ckpt):  # model: sensor (issue 22): its own writer
@@ -150,7 +202,7 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
 
 
 # ----------------------------------------------------- the built-in exporters
-def write_onnx(model: DriftModel, out: Path, request: ExportRequest) -> Path:
+def write_onnx(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``onnx``: the graph with the checkpoint's metadata, logged to its training run."""
     from .onnx_export import export_onnx
 
@@ -175,14 +227,14 @@ def write_onnx(model: DriftModel, out: Path, request: ExportRequest) -> Path:
     return path
 
 
-def write_c(model: DriftModel, out: Path, request: ExportRequest) -> Path:
+def write_c(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``c``: the C99 header."""
     from .c_header import export_c_header
 
     return export_c_header(model, out)
 
 
-def write_px4_params(model: DriftModel, out: Path, request: ExportRequest) -> Path:
+def write_px4_params(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``px4-params``: PX4's TC_* parameter file (slot ``request.instance``, default 0)."""
     from .autopilot import export_px4_params
 
@@ -191,7 +243,7 @@ def write_px4_params(model: DriftModel, out: Path, request: ExportRequest) -> Pa
                              instance=0 if request.instance is None else request.instance)
 
 
-def write_ardupilot_params(model: DriftModel, out: Path, request: ExportRequest) -> Path:
+def write_ardupilot_params(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``ardupilot-params``: ArduPilot's INS_TCAL* file (IMU ``request.instance``, default 1)."""
     from .autopilot import export_ardupilot_params
 

@@ -70,7 +70,7 @@ from .cgen import CBody
 from .lstsq import NormalEquations, least_squares
 
 __all__ = ["TINY", "LOG_CLIP", "Family", "DriftModel", "distinct_levels", "as_numpy",
-           "least_squares", "NormalEquations", "output_layer"]
+           "least_squares", "NormalEquations", "output_layer", "check_output_shape"]
 
 #: Guard for every denominator (lmfit's ``max(tiny, sigma)``); float32-safe:
 #: its square (1e-12) is still a normal float32.
@@ -114,6 +114,46 @@ def output_layer(weight: torch.Tensor, bias: torch.Tensor, y_std: torch.Tensor,
     de-standardisation :math:`y = \\hat y_z s_y + \\bar y` folded in, one row per axis
     (the axis-major layout of :meth:`Family.drift`: ``addmm(b[:, None], w, rows)``)."""
     return weight * y_std[:, None], bias * y_std + y_mean
+
+
+#: Rows of the probe :func:`check_output_shape` runs (a few: a wrong row count shows).
+PROBE_ROWS = 7
+
+
+def _shape_said(out: object) -> str:
+    return str(tuple(out.shape)) if isinstance(out, torch.Tensor) else type(out).__name__
+
+
+def check_output_shape(fam: Family, z: torch.Tensor, label: str) -> None:
+    """Refuse a family whose output has the wrong shape, before it is fitted further.
+
+    Run on up to :data:`PROBE_ROWS` rows of the standardised features ``z`` (N, F) after
+    :meth:`Family.initialize`: :meth:`Family.forward` must give an (N, A) tensor and, for a
+    family evaluated sample by sample, :meth:`Family.drift` an (A, N) one, A the family's
+    ``n_outputs`` — an (N, 1) drift for three axes would otherwise be broadcast over them,
+    fitted and scored.  Every family is probed, built-in or plug-in; a wrong shape, or a
+    probe that raises, is a :class:`~thermonet.core.errors.FitError` naming ``label``.
+    """
+    from ..core.errors import FitError
+
+    zp = torch.as_tensor(z)[:PROBE_ROWS]
+    n, a = int(zp.shape[0]), fam.n_outputs
+    checks: list[tuple[str, Any, tuple[int, int]]] = [("forward", lambda: fam(zp), (n, a))]
+    if not fam.recurrent:
+        ones = torch.ones(a, dtype=zp.dtype)
+        checks.append(("drift", lambda: fam.drift(list(zp.unbind(1)), ones, 0.0 * ones),
+                       (a, n)))
+    for what, call, want in checks:
+        try:
+            with torch.no_grad():
+                out = call()
+        except Exception as err:
+            raise FitError(f"model '{label}': its {what}() failed on {n} rows of "
+                           f"{fam.n_inputs} input(s) ({type(err).__name__}: {err})") from None
+        if not isinstance(out, torch.Tensor) or tuple(out.shape) != want:
+            raise FitError(f"model '{label}': its {what}() gave {_shape_said(out)} for {n} rows "
+                           f"and {a} output axes, expected a tensor of shape {want}; refusing "
+                           "it before fitting (a family must give one column per axis)")
 
 
 class Family(nn.Module):

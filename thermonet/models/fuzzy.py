@@ -33,6 +33,7 @@ from torch import nn
 from ..core.errors import ConfigError
 from .base import TINY, Family, as_numpy, distinct_levels, least_squares
 from .cgen import CBody, as_float32, c_array, c_float
+from .hyper import check_values
 
 __all__ = ["TSFuzzy"]
 
@@ -51,22 +52,9 @@ class TSFuzzy(Family):
     def __init__(self, *, n_inputs: int, n_outputs: int, n_sets: int = 6,
                  universe: list[float] | None = None) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        if isinstance(n_sets, bool) or not isinstance(n_sets, int) or not 2 <= n_sets <= 64:
-            raise ConfigError(f"ts-fuzzy: n_sets must be an integer in 2..64, got {n_sets!r}")
-        if universe is not None:
-            try:
-                lo, hi = (float(v) for v in universe)
-            except (TypeError, ValueError):
-                raise ConfigError(
-                    f"ts-fuzzy: universe must be [lo, hi], got {universe!r}"
-                ) from None
-            if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
-                raise ConfigError(
-                    f"ts-fuzzy: universe must be finite with lo < hi, got {universe!r}"
-                )
-            universe = [lo, hi]
-        self.n_sets = int(n_sets)
-        self.universe = universe
+        v = check_values(self.name, {"n_sets": n_sets, "universe": universe})
+        self.n_sets = v["n_sets"]
+        self.universe = v["universe"]
         self.slope = nn.Parameter(torch.zeros(n_outputs, n_sets))      # a_i
         self.intercept = nn.Parameter(torch.zeros(n_outputs, n_sets))  # b_i
         self.register_buffer("peaks", torch.linspace(-1.0, 1.0, n_sets))

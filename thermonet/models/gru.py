@@ -69,9 +69,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..core.errors import ConfigError
 from .base import Family, as_numpy, distinct_levels, least_squares, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array, c_exp, c_expm1
+from .hyper import check_values
 
 __all__ = ["GRU", "SETTLE_STEPS", "CELL_OPS"]
 
@@ -84,15 +84,6 @@ SETTLE_STEPS = 200
 #: (an add, then the sigmoid: expf, 1 + e, the division), n (r·gh + gi, then tanh as the
 #: MLP's: −2|x|, expm1, e + 2, the division), h' = n + u (h − n) (two)
 CELL_OPS = (4 + 4 + 1 + 4 + 2, 3)
-
-
-def _checked(name: str, value: Any, lo: float, hi: float, integer: bool) -> Any:
-    bad = isinstance(value, bool) or not isinstance(value, (int, float)) or (
-        integer and not isinstance(value, int))
-    if bad or not (lo <= value <= hi) or not math.isfinite(value):
-        kind = "an integer" if integer else "a number"
-        raise ConfigError(f"gru: {name} must be {kind} in [{lo:g}, {hi:g}], got {value!r}")
-    return int(value) if integer else float(value)
 
 
 class GRU(Family):
@@ -108,13 +99,12 @@ class GRU(Family):
                  gap_s: float = 60.0, chunk: int = 64, warmup: int = 30, lr: float = 3e-3,
                  weight_decay: float = 1e-6) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        self.hidden = _checked("hidden", hidden, 1, 64, True)
-        self.step_s = _checked("step_s", step_s, 1e-3, 86400.0, False)
-        self.gap_s = _checked("gap_s", gap_s, 1e-3, 1e7, False)
-        self.chunk = _checked("chunk", chunk, 2, 100_000, True)
-        self.warmup = _checked("warmup", warmup, 0, 100_000, True)
-        self.lr = _checked("lr", lr, 1e-6, 1.0, False)
-        self.weight_decay = _checked("weight_decay", weight_decay, 0.0, 1e3, False)
+        v = check_values(self.name, {"hidden": hidden, "step_s": step_s, "gap_s": gap_s,
+                                     "chunk": chunk, "warmup": warmup, "lr": lr,
+                                     "weight_decay": weight_decay})
+        self.hidden, self.step_s, self.gap_s = v["hidden"], v["step_s"], v["gap_s"]
+        self.chunk, self.warmup, self.lr = v["chunk"], v["warmup"], v["lr"]
+        self.weight_decay = v["weight_decay"]
         self.rnn = nn.GRU(self.n_inputs, self.hidden, batch_first=True)
         self.weight = nn.Parameter(torch.zeros(n_outputs, self.hidden))
         self.bias = nn.Parameter(torch.zeros(n_outputs))

@@ -26,9 +26,9 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ..core.errors import ConfigError
 from .base import TINY, Family, as_numpy, distinct_levels
 from .cgen import CBody, as_float32, c_array
+from .hyper import check_values
 
 __all__ = ["Lorentz", "lorentzian"]
 
@@ -75,11 +75,7 @@ class Lorentz(Family):
 
     def __init__(self, *, n_inputs: int, n_outputs: int, xc_margin: float = 1.0) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        if not isinstance(xc_margin, (int, float)) or isinstance(xc_margin, bool) \
-                or not 0.0 <= xc_margin <= 100.0:
-            raise ConfigError(f"lorentz: xc_margin must be a number in [0, 100] "
-                              f"(fraction of the data span), got {xc_margin!r}")
-        self.xc_margin = float(xc_margin)
+        self.xc_margin = check_values(self.name, {"xc_margin": xc_margin})["xc_margin"]
         self.y0 = nn.Parameter(torch.zeros(n_outputs))
         self.amplitude = nn.Parameter(torch.zeros(n_outputs))
         self.center_raw = nn.Parameter(torch.zeros(n_outputs))

@@ -52,9 +52,9 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ..core.errors import ConfigError
 from .base import Family, as_numpy, distinct_levels, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array, c_exp, c_expm1
+from .hyper import MLP_MAX_LAYERS, MLP_MAX_WIDTH, check_values
 
 __all__ = ["MLP", "ACTIVATIONS", "ACTIVATION_OPS"]
 
@@ -65,7 +65,7 @@ ACTIVATIONS = {"tanh": 5.0 / 3.0, "relu": math.sqrt(2.0), "silu": math.sqrt(2.0)
 #: e + 2, the division (the sign is a bit copy); relu: one max; silu: expf, 1 + e, the division
 ACTIVATION_OPS = {"tanh": (4, 1), "relu": (1, 0), "silu": (3, 1)}
 #: Bounds on the architecture: a network for a microcontroller, not a research model
-MAX_LAYERS, MAX_WIDTH = 4, 256
+MAX_LAYERS, MAX_WIDTH = MLP_MAX_LAYERS, MLP_MAX_WIDTH
 
 
 class MLP(Family):
@@ -78,25 +78,11 @@ class MLP(Family):
     def __init__(self, *, n_inputs: int, n_outputs: int, hidden: Sequence[int] = (8, 8),
                  activation: str = "tanh", weight_decay: float = 1e-6) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        if (
-            isinstance(hidden, (str, bytes))
-            or not isinstance(hidden, Sequence)
-            or not 1 <= len(hidden) <= MAX_LAYERS
-            or any(isinstance(h, bool) or not isinstance(h, int) or not 1 <= h <= MAX_WIDTH
-                   for h in hidden)
-        ):
-            raise ConfigError(f"mlp: hidden must be a list of 1 … {MAX_LAYERS} layer sizes, each "
-                              f"an integer in 1..{MAX_WIDTH}, got {hidden!r}")
-        if not isinstance(activation, str) or activation not in ACTIVATIONS:
-            raise ConfigError(f"mlp: activation must be one of {', '.join(ACTIVATIONS)}, "
-                              f"got {activation!r}")
-        if (isinstance(weight_decay, bool) or not isinstance(weight_decay, (int, float))
-                or not 0.0 <= weight_decay < math.inf):
-            raise ConfigError(f"mlp: weight_decay must be a finite number >= 0, "
-                              f"got {weight_decay!r}")
-        self.hidden = [int(h) for h in hidden]
-        self.activation = activation
-        self.weight_decay = float(weight_decay)
+        v = check_values(self.name, {"hidden": hidden, "activation": activation,
+                                     "weight_decay": weight_decay})
+        self.hidden = v["hidden"]
+        self.activation = v["activation"]
+        self.weight_decay = v["weight_decay"]
         sizes = [self.n_inputs, *self.hidden]
         self.weights = nn.ParameterList(
             [nn.Parameter(torch.zeros(n, m)) for m, n in zip(sizes[:-1], sizes[1:], strict=True)])

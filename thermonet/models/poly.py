@@ -21,9 +21,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..core.errors import ConfigError
 from .base import Family, as_numpy, distinct_levels, least_squares, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array
+from .hyper import check_values
 
 __all__ = ["Poly", "monomials"]
 
@@ -50,10 +50,9 @@ class Poly(Family):
     def __init__(self, *, n_inputs: int, n_outputs: int, degree: int = 3,
                  cross: bool = False) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        if isinstance(degree, bool) or not isinstance(degree, int) or not 1 <= degree <= 12:
-            raise ConfigError(f"poly: degree must be an integer in 1..12, got {degree!r}")
-        self.degree = int(degree)
-        self.cross = bool(cross)
+        v = check_values(self.name, {"degree": degree, "cross": cross})
+        self.degree = v["degree"]
+        self.cross = v["cross"]
         self.terms = monomials(n_inputs, self.degree, self.cross)
         self.weight = nn.Parameter(torch.zeros(n_outputs, len(self.terms)))
         self.bias = nn.Parameter(torch.zeros(n_outputs))

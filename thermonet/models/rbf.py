@@ -61,13 +61,13 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..core.errors import ConfigError
 from .base import LOG_CLIP, TINY, Family, as_numpy, distinct_levels, least_squares, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array, c_exp
+from .hyper import RBF_INITS, check_values
 
 __all__ = ["RBF", "RIDGE_GRID"]
 
-_INITS = ("kmeans", "random")
+_INITS = RBF_INITS
 #: relative ridge strengths tried by ``ridge: cv`` (× tr(ΦᵀΦ)/J); ∞ is the tail alone
 RIDGE_GRID = (1e-6, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0, math.inf)
 #: width multipliers tried by ``ridge: cv`` (× width_scale × median nearest-centre distance)
@@ -88,30 +88,13 @@ class RBF(Family):
                  init: str = "kmeans", width_scale: float = 1.0, tail: int = 0,
                  ridge: float | str = "cv") -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        if (
-            isinstance(n_centres, bool)
-            or not isinstance(n_centres, int)
-            or not 1 <= n_centres <= 4096
-        ):
-            raise ConfigError(f"rbf: n_centres must be an integer in 1..4096, got {n_centres!r}")
-        if init not in _INITS:
-            raise ConfigError(f"rbf: init must be one of {', '.join(_INITS)}, got {init!r}")
-        if isinstance(width_scale, bool) or not isinstance(width_scale, (int, float)) \
-                or not width_scale > 0:
-            raise ConfigError(f"rbf: width_scale must be a number > 0, got {width_scale!r}")
-        if isinstance(tail, bool) or not isinstance(tail, int) or not 0 <= tail <= 3:
-            raise ConfigError(f"rbf: tail must be an integer in 0..3 (the degree of the "
-                              f"polynomial in the first input; 0: none), got {tail!r}")
-        if tail and init != "kmeans":
-            raise ConfigError("rbf: a polynomial tail needs init 'kmeans' (a closed-form fit)")
-        if ridge != "cv" and (isinstance(ridge, bool) or not isinstance(ridge, (int, float))
-                              or not 0 <= ridge < math.inf):
-            raise ConfigError(f"rbf: ridge must be 'cv' or a finite number >= 0, got {ridge!r}")
-        self.n_centres = int(n_centres)
-        self.init = init
-        self.width_scale = float(width_scale)
-        self.tail = int(tail)
-        self.ridge = ridge if ridge == "cv" else float(ridge)
+        v = check_values(self.name, {"n_centres": n_centres, "init": init,
+                                     "width_scale": width_scale, "tail": tail, "ridge": ridge})
+        self.n_centres = n_centres = v["n_centres"]
+        self.init = v["init"]
+        self.width_scale = v["width_scale"]
+        self.tail = v["tail"]
+        self.ridge = v["ridge"]
         self.centres = nn.Parameter(torch.zeros(n_centres, n_inputs))
         self.log_sigma = nn.Parameter(torch.zeros(n_centres))
         self.weight = nn.Parameter(torch.zeros(n_outputs, n_centres))

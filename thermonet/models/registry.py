@@ -13,6 +13,13 @@ built.  :func:`models` is the registry as one dict of classes (``thermonet.model
 once it exists, a family set into it (``MODELS["mine"] = Mine``) is registered too.  :func:`family_signature` reads a family's hyper-parameter names and input limit from
 its source without importing it where it can (the built-ins: a config is checked before
 torch loads) and imports the class otherwise.  A plug-in cannot take a built-in's name.
+
+A plug-in fails like a bad config: whatever its module or constructor raises while it is
+imported or built — any exception, a ``SyntaxError``, even ``sys.exit()`` — is one
+:class:`ConfigError` line naming the family and its entry point (the command line exits 1,
+the API raises it).  ``KeyboardInterrupt`` (Ctrl-C) is let through.  :func:`check_hyper`
+checks hyper-parameter values too: a built-in's against :mod:`thermonet.models.hyper`
+without torch, a plug-in's by building it.
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import TYPE_CHECKING, Any
 
 from ..core.errors import ConfigError
+from .hyper import SPECS, check_values
 
 if TYPE_CHECKING:
     from .base import Family
@@ -75,6 +83,35 @@ def family_names() -> list[str]:
     return [*BUILTIN, *_plugins()]
 
 
+def _plugin_said(name: str) -> str:
+    """``model family 'x' (plug-in entry point 'x = pkg.mod:Cls' of distribution d 0.1)``."""
+    ep = _plugins().get(name)
+    if ep is None:
+        return f"model family {name!r}"
+    dist = getattr(ep, "dist", None)
+    of = f" of distribution {dist.name} {dist.version}" if dist is not None else ""
+    return f"model family {name!r} (plug-in entry point '{ep.name} = {ep.value}'{of})"
+
+
+def _guarded(name: str, doing: str, call: Any) -> Any:
+    """``call()``; anything a plug-in raises there — an exception, ``SystemExit`` — is one
+    ConfigError naming the family and its entry point (``KeyboardInterrupt`` goes through)."""
+    try:
+        return call()
+    except ConfigError as err:
+        if name in BUILTIN:
+            raise
+        raise ConfigError(f"{_plugin_said(name)}: {err}") from None
+    except SystemExit as err:
+        raise ConfigError(f"{_plugin_said(name)}: called sys.exit({err.code!r}) while "
+                          f"{doing}; refusing it") from None
+    except Exception as err:
+        if name in BUILTIN and doing != "importing":
+            raise
+        raise ConfigError(f"{_plugin_said(name)}: failed while {doing} "
+                          f"({type(err).__name__}: {err})") from None
+
+
 def _target(name: str) -> str:
     if isinstance(name, str) and _MODELS is None:
         if name in BUILTIN:
@@ -104,15 +141,16 @@ def get_family(name: str) -> type[Family]:
                               f"(valid: {', '.join(family_names())})") from None
     target = _target(name)
     module, _, attr = target.partition(":")
-    try:
+
+    def load() -> Any:
         obj: Any = importlib.import_module(module)
         for part in attr.split("."):
             obj = getattr(obj, part)
-    except (ImportError, AttributeError) as err:
-        raise ConfigError(f"model family {name!r}: entry point {target!r} does not load "
-                          f"({type(err).__name__}: {err})") from None
+        return obj
+
+    obj = _guarded(name, "importing", load)
     if not (inspect.isclass(obj) and issubclass(obj, Family)):
-        raise ConfigError(f"model family {name!r}: entry point {target!r} is not a subclass "
+        raise ConfigError(f"{_plugin_said(name)}: {target!r} is not a subclass "
                           "of thermonet.models.Family")
     return obj
 
@@ -198,9 +236,13 @@ def family_signature(name: str) -> FamilySignature:
     return _signature_of_class(get_family(name))
 
 
-def check_hyper(name: str, hyper: dict | None, n_inputs: int) -> None:
-    """Refuse an unknown family, an unknown hyper-parameter or too many inputs (the checks
-    :func:`build_family` makes by name), torch-free for the built-in families."""
+def check_hyper(name: str, hyper: dict | None, n_inputs: int, *, values: bool = True
+                ) -> None:
+    """Refuse an unknown family, an unknown hyper-parameter, too many inputs and (with
+    ``values``) a hyper-parameter value the family does not take: torch-free for the
+    built-in families (:mod:`thermonet.models.hyper`: a
+    :class:`~thermonet.models.hyper.HyperError` whose ``key`` names it); a plug-in is built
+    with one output to ask its constructor."""
     sig = family_signature(name)
     for key in dict(hyper or {}):
         if key not in sig.hyper:
@@ -209,6 +251,12 @@ def check_hyper(name: str, hyper: dict | None, n_inputs: int) -> None:
     if sig.max_inputs is not None and n_inputs > sig.max_inputs:
         raise ConfigError(f"model '{name}' takes at most {sig.max_inputs} input(s), "
                           f"got {n_inputs}")
+    if not values:
+        return
+    if _MODELS is None and name in SPECS:
+        check_values(name, dict(hyper or {}))
+    else:
+        build_family(name, n_inputs=max(int(n_inputs), 1), n_outputs=1, hyper=hyper)
 
 
 def build_family(name: str, *, n_inputs: int, n_outputs: int,
@@ -222,4 +270,5 @@ def build_family(name: str, *, n_inputs: int, n_outputs: int,
         if key not in valid:
             raise ConfigError(f"model '{name}': unknown hyper-parameter '{key}' "
                               f"(valid: {', '.join(valid) or 'none'})")
-    return cls(n_inputs=n_inputs, n_outputs=n_outputs, **hyper)
+    return _guarded(name, "building", lambda: cls(n_inputs=n_inputs, n_outputs=n_outputs,
+                                                  **hyper))

@@ -62,10 +62,15 @@ def _cell(v: dict[str, Any] | None, compensate: bool | None = None) -> str:
         return "<td class='none'>–</td>"
     verdict = v.get("verdict", "indistinguishable")
     lo, hi = v.get("interval") or [None, None]
-    note = "" if compensate in (None, True) else "<br><i>left uncompensated</i>"
+    if compensate is False:
+        # what the model file holds: drift exactly 0 on this axis, so the shipped output is
+        # the raw output (ratio 1); the fit's own figure is what masking it avoided
+        return (f"<td style='background:{VERDICT_COLOURS.get('indistinguishable', '#ffffff')}'>"
+                f"<b>raw</b> (drift 0)<br>1<br><i>left uncompensated; the fit was "
+                f"{_e(verdict)} {_num(v['ratio'])}</i></td>")
     colour = VERDICT_COLOURS.get(verdict, "#ffffff")
     return (f"<td style='background:{colour}'><b>{_e(verdict)}</b><br>{_num(v['ratio'])} "
-            f"[{_num(lo)}, {_num(hi)}]{note}</td>")
+            f"[{_num(lo)}, {_num(hi)}]</td>")
 
 
 def _verdict_table(res: dict[str, Any]) -> str:
@@ -143,6 +148,26 @@ def _selection_table(res: dict[str, Any]) -> str:
             "<th>per fold</th><th>paired difference to the best ± SE</th>"
             "<th>most left out of a fold (outside its trained domain)</th>"
             "<th>left raw</th></tr>" + "".join(rows) + "</table>")
+
+
+def _per_axis_table(res: dict[str, Any]) -> str:
+    """Each axis its own model: per axis the candidate chosen and the rule's sentence."""
+    sel = res.get("selection") or {}
+    pa = sel.get("per_axis") or {}
+    if not pa.get("chosen"):
+        return ""
+    whole = sel.get("whole_recording") or {}
+    rows = "".join(f"<tr><td>{_e(a)}</td><td><b>{_e(k or 'raw')}</b></td>"
+                   f"<td>{_e((pa.get('rule') or {}).get(a, ''))}</td></tr>"
+                   for a, k in pa["chosen"].items())
+    note = (f" One family for every axis would have been {_e(whole.get('chosen') or 'none')}"
+            f" ({_e(whole.get('reason', ''))})." if whole else "")
+    extra = f" {_e(pa['note'])}." if pa.get("note") else ""
+    return ("<h3>Each axis its own model</h3><p class='small'>The same one-SE rule on each "
+            "axis's paired out-of-fold scores; the baseline is the floor on every axis it "
+            "compensates; an axis is compensated only where the residual's binned "
+            f"peak-to-peak does not grow out of fold.{note}{extra}</p>"
+            "<table><tr><th>axis</th><th>model</th><th>rule</th></tr>" + rows + "</table>")
 
 
 def tuned_text(tuned: dict[str, Any]) -> str:
@@ -270,6 +295,7 @@ def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
     parts += [
         "<h2>How the model was chosen (cross-validation on the training data)</h2>",
         _selection_table(results),
+        _per_axis_table(results),
         _tuning_list(results),
         "<h2>Verdicts on the held-out test data</h2>",
         "<p class='small'>Score: the spread of the error about its mean on held-out data "

@@ -135,8 +135,10 @@ def judge_unit(unit: dict[str, Any], limits: dict[str, LimitSpec]) -> dict[str, 
         if m is None:
             checks.append({"limit": "calibrated", "value": None, "ok": False})
         else:
-            pp = m["pp_comp"] if fam else m["pp_raw"]
-            std = m["rms_comp"] if fam else m["rms_raw"]
+            # what the unit ships: an axis its model leaves uncompensated stays raw
+            shipped = bool(fam) and m.get("compensate", True)
+            pp = m["pp_comp"] if shipped else m["pp_raw"]
+            std = m["rms_comp"] if shipped else m["rms_raw"]
             ratio = pp / m["pp_raw"] if m["pp_raw"] > 0 else float("inf")
             for name, value, bound in (("max_pp", pp, lim.max_pp), ("max_std", std, lim.max_std),
                                        ("max_ratio_to_raw", ratio, lim.max_ratio_to_raw)):

@@ -71,6 +71,16 @@ are paired:
   was 1.6 % worse than the cubic there on the held-out data);
 * **do no harm**: when no candidate beats raw on any axis, none is chosen.
 
+Each axis its own model
+-----------------------
+:func:`choose_per_axis` runs the same rule axis by axis on the same paired draws: per axis the
+best masked ratio must beat raw; the fewest parameters among the candidates within one SE of
+the best on that axis win; the baseline is the floor on that axis (a candidate better than the
+cubic by less than one SE loses to it: fewer parameters; a simpler one worse than the cubic
+there is not taken).  With the pool's temperatures, :func:`pp_guard` leaves raw every axis
+whose out-of-fold residual has a larger binned peak-to-peak than the raw output's (summed over
+the folds): the figure a user reads off the compensated signal must not get worse.
+
 Where cross-validation cannot run (``selection.folds: 0``, the four-position target's one
 sample per soak, too little data for K folds) the split's single validation part decides, as
 before, and the result says so.
@@ -88,7 +98,8 @@ import numpy as np
 from .verdicts import LEVEL, above, below, draws, same
 
 __all__ = ["FoldPlan", "CandidateOOF", "plan_folds", "purge_rule", "window_rule",
-           "in_domain", "noise_widths", "window_labels", "select", "Selection"]
+           "in_domain", "noise_widths", "window_labels", "select", "Selection",
+           "choose_per_axis", "pp_guard"]
 
 #: Samples a fold needs in training and in validation.
 MIN_FOLD_SAMPLES = 20
@@ -265,6 +276,9 @@ class Selection:
     reason: str
     compensate: dict[str, list[bool]]
     record: dict[str, Any]
+    #: per output axis, the candidate chosen for it alone (None: left raw), and the sentence
+    per_axis: dict[str, str | None] = field(default_factory=dict)
+    per_axis_reason: dict[str, str] = field(default_factory=dict)
 
 
 def _window_ss(e: np.ndarray, wl: np.ndarray, units: np.ndarray, n_units: int
@@ -297,14 +311,95 @@ def _below_baseline(k: str, baseline: str | None, axis_scores: Mapping[str, np.n
             if worse else "")
 
 
+def _binned_pp(temperature: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """Per axis, the binned peak-to-peak of ``e`` (n, A) over 1 °C temperature bins (0 where
+    nothing is finite)."""
+    from .metrics import binned_peak_to_peak
+
+    out = np.zeros(e.shape[1])
+    ok = np.isfinite(temperature)
+    if ok.sum() < 2:
+        return out
+    for a in range(e.shape[1]):
+        v = binned_peak_to_peak(temperature[ok], e[ok, a])
+        out[a] = v if math.isfinite(v) else 0.0
+    return out
+
+
+def pp_guard(pp_candidate: np.ndarray, pp_raw: np.ndarray) -> list[bool]:
+    """Per axis: False where the candidate's out-of-fold residual has a larger binned
+    peak-to-peak (summed over the folds) than the raw output's — what a user reads off the
+    compensated signal; such an axis is left raw whatever its score."""
+    return [not above(float(c), float(r)) for c, r in zip(pp_candidate, pp_raw, strict=True)]
+
+
+def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[str, np.ndarray],
+                    n_params: Mapping[str, int], outputs: Sequence[str], baseline: str | None,
+                    k_folds: int) -> tuple[dict[str, str | None], dict[str, str]]:
+    """Each axis its own candidate: the rule of :func:`select`, axis by axis.
+
+    Per axis ``a``: every candidate's masked out-of-fold score ratio on that axis (1 where its
+    own rule leaves the axis raw) and its paired bootstrap draws.  Raw stays unless the best
+    beats it; among the candidates within one standard error of the best (the paired
+    difference's), the fewest parameters win, then the lower score, then the candidate listed
+    first — except that no candidate simpler than the baseline (the cubic) is taken when it is
+    worse than the baseline on that axis.  So a candidate better than the cubic by less than
+    one SE loses to the cubic there, and the cubic is the floor of every axis where it
+    compensates.  Returns ``{axis: label or None}`` and ``{axis: the rule's sentence}``.
+    """
+    order = {k: i for i, k in enumerate(axis_scores)}
+    chosen: dict[str, str | None] = {}
+    reason: dict[str, str] = {}
+    for a, axis in enumerate(outputs):
+        sc = {k: float(v[a]) for k, v in axis_scores.items() if math.isfinite(float(v[a]))}
+        if not sc:
+            chosen[axis], reason[axis] = None, "no candidate has a finite out-of-fold score"
+            continue
+        low = min(sc.values())
+        best = min((k for k, v in sc.items() if same(v, low)),
+                   key=lambda k: (n_params[k], order[k]))
+        if not below(sc[best], 1.0):
+            chosen[axis] = None
+            reason[axis] = (f"raw: no candidate beats the raw output out of fold (best {best}: "
+                            f"{sc[best]:.4g} of raw)")
+            continue
+        base = sc.get(baseline or "")
+        eligible = []
+        for k, v in sc.items():
+            se = float(np.nanstd(axis_boots[k][:, a] - axis_boots[best][:, a]))
+            if k != best and base is not None and k != baseline and above(v, base):
+                continue
+            if below(v, 1.0) and (v - sc[best] <= se or same(v, sc[best])):
+                eligible.append(k)
+        fewest = min(n_params[k] for k in eligible)
+        pick = min((k for k in eligible if n_params[k] == fewest),
+                   key=lambda k: (sc[k], order[k]))
+        chosen[axis] = pick
+        if pick == best:
+            others = [k for k in eligible if k != pick]
+            reason[axis] = (f"{pick}: the best out of fold ({sc[pick]:.4g} of raw, {k_folds} "
+                            "folds)" + (f"; within one SE: {', '.join(others)} (more "
+                                        "parameters)" if others else ""))
+        else:
+            reason[axis] = (f"{pick}: within one SE of the best, {best} ({sc[pick]:.4g} vs "
+                            f"{sc[best]:.4g} of raw, {k_folds} folds), with fewer parameters "
+                            f"({n_params[pick]} vs {n_params[best]})")
+    return chosen, reason
+
+
 def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.ndarray],
            cands: Mapping[str, CandidateOOF], outputs: Sequence[str],
-           baseline: str | None = None) -> Selection:
+           baseline: str | None = None,
+           temperatures: Sequence[np.ndarray] | None = None) -> Selection:
     """Choose among ``cands`` on their out-of-fold predictions (module docstring).
 
     ``baseline``: the candidate no simplification may fall below on any axis (the cubic).
 
-    ``targets`` and ``times``: per pool run, the target (n, A) and time of every row.
+    ``targets`` and ``times``: per pool run, the target (n, A) and time of every row;
+    ``temperatures``: per pool run, the temperature of every row — with them, an axis is
+    compensated only where the candidate also does not raise the binned peak-to-peak out of
+    fold (:func:`pp_guard`).  The whole-recording choice is :attr:`Selection.chosen`; the
+    choice of each axis alone (:func:`choose_per_axis`) is :attr:`Selection.per_axis`.
     """
     ok = {k: c for k, c in cands.items() if c.failed is None}
     A = len(outputs)
@@ -322,6 +417,8 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
     own_raw: dict[str, list[np.ndarray]] = {k: [] for k in ok}
     left_out: dict[str, list[float]] = {k: [] for k in ok}
     common_left: list[float] = []
+    pp_raw = np.zeros(A)
+    pp_cand: dict[str, np.ndarray] = {k: np.zeros(A) for k in ok}
     fold_units: list[int] = []
     n_units_total = 0
     for f in range(plan.k):
@@ -341,7 +438,7 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
         n_units_total += ublocks.size
         fold_units.append(ublocks.size)
         # one offset-free fold mean: stack this fold's runs (offset per fold, as verdicts do)
-        e_raw, wl_all, un_all = [], [], []
+        e_raw, wl_all, un_all, t_all = [], [], [], []
         e_c: dict[str, list[np.ndarray]] = {k: [] for k in ok}
         inside_c: dict[str, list[np.ndarray]] = {k: [] for k in ok}
         wl_base = 0
@@ -350,6 +447,8 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
             wl = window_labels(times[j][rows], plan.window_s) + wl_base
             wl_base = int(wl.max()) + 1
             e_raw.append(y)
+            if temperatures is not None:
+                t_all.append(np.asarray(temperatures[j], dtype=np.float64)[rows])
             wl_all.append(wl)
             un_all.append(np.array([remap[int(b)] for b in blk]))
             for k, c in ok.items():
@@ -369,10 +468,15 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
         s_raw, n = _window_ss(y[common], wl[common], un[common], n_units_total)
         ss["<raw>"].append(s_raw)
         ns.append(n)
+        tf = np.concatenate(t_all)[common] if t_all else None
+        if tf is not None:
+            pp_raw += _binned_pp(tf, y[common])
         for k in ok:
             e = np.concatenate(e_c[k])
             s, _ = _window_ss(e[common], wl[common], un[common], n_units_total)
             ss[k].append(s)
+            if tf is not None:
+                pp_cand[k] += _binned_pp(tf, e[common])
             # the candidate's own domain, for its per-axis compensate decision
             m = inside[k]
             if m.sum() >= 2:
@@ -398,6 +502,7 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
         boots: dict[str, np.ndarray] = {}
         compensate: dict[str, list[bool]] = {}
         axis_scores: dict[str, np.ndarray] = {}
+        axis_boots: dict[str, np.ndarray] = {}
         q = 100.0 * (1.0 - LEVEL) / 2.0
         for k in ok:
             own_c, own_r = total(own_ss[k]), total(own_raw[k])
@@ -407,7 +512,8 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
             se_own = np.nanstd(boot_own, axis=0)
             # raw is the simplest candidate of every axis: it stays unless the candidate's
             # paired improvement 1 − ratio exceeds one standard error (the one-SE rule)
-            mask = [bool(below(float(ratio_own[a]) + float(se_own[a]), 1.0))
+            pp_ok = pp_guard(pp_cand[k], pp_raw) if temperatures is not None else [True] * A
+            mask = [bool(below(float(ratio_own[a]) + float(se_own[a]), 1.0)) and pp_ok[a]
                     for a in range(A)]
             compensate[k] = mask
             c_ss = total(ss[k])
@@ -416,7 +522,8 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
             keep = np.array(mask)
             axis_scores[k] = np.where(keep, ratio, 1.0)
             scores[k] = float(np.mean(axis_scores[k]))
-            boots[k] = np.where(keep[None, :], boot, 1.0).mean(axis=1)
+            axis_boots[k] = np.where(keep[None, :], boot, 1.0)
+            boots[k] = axis_boots[k].mean(axis=1)
             fold_scores = []
             lo_u = 0
             for nu in fold_units:
@@ -431,14 +538,25 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
                 "axes": {a: {"ratio": float(ratio[i]), "own_ratio": float(ratio_own[i]),
                              "own_interval": [float(iv[0, i]), float(iv[1, i])],
                              "own_se": float(se_own[i]),
+                             **({"pp_ratio": float(pp_cand[k][i] / pp_raw[i])
+                                 if pp_raw[i] > 0 else None,
+                                 "pp_guard": bool(pp_ok[i])} if temperatures is not None
+                                else {}),
                              "compensate": bool(mask[i])} for i, a in enumerate(outputs)},
                 "left_out_fraction": left_out[k]}
     record["common_left_out_fraction"] = common_left
     order = {k: i for i, k in enumerate(ok)}
+    per_axis, per_axis_reason = choose_per_axis(
+        axis_scores, axis_boots, {k: c.n_params for k, c in ok.items()}, outputs, baseline,
+        plan.k)
+    record["per_axis"] = {"chosen": per_axis, "rule": per_axis_reason}
+
+    def outcome(chosen: str | None, tied: list[str], reason: str) -> Selection:
+        return Selection(chosen, tied, reason, compensate, record, per_axis, per_axis_reason)
+
     finite = {k: v for k, v in scores.items() if math.isfinite(v)}
     if not finite:
-        return Selection(None, [], "no candidate has a finite out-of-fold score", compensate,
-                         record)
+        return outcome(None, [], "no candidate has a finite out-of-fold score")
     low = min(finite.values())
     best = min((k for k, v in finite.items() if same(v, low)),
                key=lambda k: (ok[k].n_params, order[k]))
@@ -446,7 +564,7 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
         reason = ("do no harm: no candidate beats the raw output on any axis out of fold "
                   f"(best {best}: score ratio {finite[best]:.4g})")
         record["rule"] = reason
-        return Selection(None, [], reason, compensate, record)
+        return outcome(None, [], reason)
     eligible = []
     for k, v in finite.items():
         d = boots[k] - boots[best]
@@ -480,4 +598,4 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
                   f"({ok[chosen].n_params} vs {ok[best].n_params})")
     record["rule"] = reason
     record["chosen"] = chosen
-    return Selection(chosen, tied, reason, compensate, record)
+    return outcome(chosen, tied, reason)

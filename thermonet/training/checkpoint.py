@@ -5,6 +5,17 @@ A checkpoint is a ``torch.save`` of a plain dict::
     {state_dict, family, hyper, inputs, signals, outputs,
      spec: {t_ref, proxy_ref}, config, epoch, best_val, extra, format}
 
+A per-axis model (:class:`~thermonet.models.composite.AxisModels`, family ``per-axis``)
+is one checkpoint too: the same keys (``state_dict`` holds every part's tensors under
+``parts.<k>.``; ``inputs``/``signals`` are the union, ``spec`` the union's references), plus
+``parts`` (per part: ``family``, ``hyper``, ``inputs``, ``signals``, ``outputs``, ``spec``, as
+a single-family checkpoint stores them), ``owner`` (per output axis, the index of the part
+that compensates it, or None: left raw) and ``labels`` (the parts' candidate labels).  The
+digest covers all of it: an edited owner table is refused like an edited weight.  On load
+the owner table is checked (one entry per axis, indices of existing parts, every part owning
+an axis), the parts must be composable (:func:`~thermonet.models.composite.composable`), and
+each part's stored ``compensate`` mask must be the owner table's.
+
 Only tensors, numbers, strings, None, lists and dicts are stored, so
 ``torch.load(path, weights_only=True)`` can read it without executing code.
 Writes are atomic (temporary file in the same folder, then ``os.replace``):
@@ -54,6 +65,7 @@ from ..core.names import (
 )
 from ..features.inputs import FeatureSpec
 from ..models import DriftModel, build_family
+from ..models.composite import PER_AXIS, AxisModels, ShippedModel
 
 __all__ = ["save_checkpoint", "load_checkpoint", "seal_checkpoint", "checkpoint_digest",
            "CHECKPOINT_FORMAT", "DIGEST_KEY"]
@@ -144,7 +156,7 @@ def _plain(value: Any, where: str) -> Any:
                       "strings, lists and dicts can be stored")
 
 
-def save_checkpoint(path: str | os.PathLike, model: DriftModel, *, config: dict,
+def save_checkpoint(path: str | os.PathLike, model: ShippedModel, *, config: dict,
                     extra: dict | None = None, epoch: int | None = None,
                     best_val: float | None = None) -> Path:
     """Write ``model`` with its config to ``path`` atomically; return the path.
@@ -152,7 +164,9 @@ def save_checkpoint(path: str | os.PathLike, model: DriftModel, *, config: dict,
     Parameters
     ----------
     path : path-like
-    model : DriftModel
+    model : DriftModel or AxisModels
+        A per-axis composite is stored with its parts, owner table and labels (module
+        docstring).
     config : dict
         The resolved run configuration (plain data).
     extra : dict, optional
@@ -187,11 +201,23 @@ def save_checkpoint(path: str | os.PathLike, model: DriftModel, *, config: dict,
         "best_val": None if best_val is None or not math.isfinite(best_val) else float(best_val),
         "extra": _plain(dict(extra or {}), "extra"),
     }
+    if isinstance(model, AxisModels):
+        payload["parts"] = [_part_entry(p) for p in model.parts]
+        payload["owner"] = list(model.owner)
+        payload["labels"] = list(model.labels)
     payload[DIGEST_KEY] = checkpoint_digest(payload)
     path = Path(path)
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
     return path
+
+
+def _part_entry(part: Any) -> dict:
+    """What a per-axis checkpoint stores of one part beside its tensors (a single-family
+    checkpoint's descriptive keys)."""
+    return {"family": part.family_name, "hyper": _plain(part.family.hyper(), "hyper"),
+            "inputs": list(part.inputs), "signals": list(part.signals),
+            "outputs": list(part.outputs), "spec": part.spec.to_dict()}
 
 
 def seal_checkpoint(path: str | os.PathLike) -> Path:
@@ -250,14 +276,15 @@ def _check_digest(path: Path, payload: dict) -> None:
                             "(edited or damaged after it was written); refusing to load it")
 
 
-def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
+def load_checkpoint(path: str | os.PathLike) -> tuple[ShippedModel, dict]:
     """Rebuild the model saved by :func:`save_checkpoint` (``weights_only=True``).
 
     Returns
     -------
-    (DriftModel, dict)
-        The model in eval mode on CPU, and the checkpoint's metadata (every
-        key but ``state_dict``; ``sha256`` is the verified digest).
+    (DriftModel or AxisModels, dict)
+        The model in eval mode on CPU (an :class:`~thermonet.models.composite.AxisModels`
+        for a ``per-axis`` checkpoint), and the checkpoint's metadata (every key but
+        ``state_dict``; ``sha256`` is the verified digest).
 
     Raises
     ------
@@ -273,38 +300,90 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModel, dict]:
                             f"reads format {CHECKPOINT_FORMAT}")
     _check_digest(path, payload)
     _check_payload(path, payload)
-    try:
-        spec = FeatureSpec.from_dict({**payload["spec"], "inputs": payload["inputs"]},
-                                     source="spec")
-    except ConfigError as err:
-        raise InputError.at(path, str(err)) from None
-    try:
-        family = build_family(payload["family"], n_inputs=len(payload["inputs"]),
-                              n_outputs=len(payload["outputs"]), hyper=payload["hyper"])
-        model = DriftModel(family=family, spec=spec, outputs=payload["outputs"])
-    except (ThermonetError, TypeError, ValueError) as err:  # the names passed, the combination not
-        raise InputError.at(path, f"key 'family'/'hyper'/'inputs': {err}") from None
-    if list(model.signals) != list(payload["signals"]):
-        raise InputError.at(path, f"key 'signals': {payload['signals']} do not match the inputs "
-                            f"{payload['inputs']} (expected {list(model.signals)})")
+    model: ShippedModel
+    if payload["family"] == PER_AXIS:
+        model = _build_axis_models(path, payload)
+    else:
+        model = _build_part(path, payload, "")
     try:
         model.load_state_dict(payload["state_dict"], strict=True)
     except RuntimeError as err:
         raise InputError.at(path, "parameters do not match the stored family "
                             f"'{payload['family']}' ({str(err).splitlines()[0]})") from err
-    lo, hi = model.sig_lo.detach(), model.sig_hi.detach()
-    bad = torch.isnan(lo) | torch.isnan(hi) | (lo > hi)
-    if bool(bad.any()):
-        j = int(torch.nonzero(bad)[0, 0])
-        raise InputError.at(path, f"trained range of signal '{model.signals[j]}' is "
-                            f"[{float(lo[j]):g}, {float(hi[j]):g}] (low must be <= high)")
-    _check_target_buffers(path, model)
+    for part in model.parts if isinstance(model, AxisModels) else [model]:
+        lo, hi = part.sig_lo.detach(), part.sig_hi.detach()
+        bad = torch.isnan(lo) | torch.isnan(hi) | (lo > hi)
+        if bool(bad.any()):
+            j = int(torch.nonzero(bad)[0, 0])
+            raise InputError.at(path, f"trained range of signal '{part.signals[j]}' is "
+                                f"[{float(lo[j]):g}, {float(hi[j]):g}] (low must be <= high)")
+        _check_target_buffers(path, part)
+    if isinstance(model, AxisModels):
+        _check_axis_models(path, model)
     model.eval()
     meta = {k: v for k, v in payload.items() if k != "state_dict"}  # the digest included
     return model, meta
 
 
-def _check_payload(path: Path, p: dict) -> None:
+def _build_part(path: Path, p: dict, where: str) -> DriftModel:
+    """A fresh DriftModel of the stored family, inputs and spec (``where``: the key prefix
+    named in errors, ``parts[k].`` for a per-axis part)."""
+    try:
+        spec = FeatureSpec.from_dict({**p["spec"], "inputs": p["inputs"]}, source="spec")
+    except ConfigError as err:
+        raise InputError.at(path, f"{where}{err}" if where else str(err)) from None
+    try:
+        family = build_family(p["family"], n_inputs=len(p["inputs"]),
+                              n_outputs=len(p["outputs"]), hyper=p["hyper"])
+        model = DriftModel(family=family, spec=spec, outputs=p["outputs"])
+    except (ThermonetError, TypeError, ValueError) as err:  # the names passed, the combination not
+        raise InputError.at(path, f"key '{where}family'/'{where}hyper'/'{where}inputs': "
+                            f"{err}") from None
+    if list(model.signals) != list(p["signals"]):
+        raise InputError.at(path, f"key '{where}signals': {p['signals']} do not match the inputs "
+                            f"{p['inputs']} (expected {list(model.signals)})")
+    return model
+
+
+def _build_axis_models(path: Path, payload: dict) -> AxisModels:
+    """The parts, owner table and labels of a ``per-axis`` checkpoint (checked by
+    :func:`_check_per_axis_payload`), as a fresh composite (tensors loaded after)."""
+    parts = [_build_part(path, entry, f"parts[{k}].")
+             for k, entry in enumerate(payload["parts"])]
+    if recurrent := [p.family_name for p in parts if p.family.recurrent]:
+        raise InputError.at(path, f"key 'parts': part {recurrent[0]} is recurrent; a per-axis "
+                            "model holds point-wise families only")
+    try:
+        model = AxisModels(parts, payload["owner"], payload["labels"])
+    except ConfigError as err:
+        raise InputError.at(path, f"key 'owner'/'parts': {err}") from None
+    for key in ("inputs", "signals"):
+        if list(getattr(model, key)) != list(payload[key]):
+            raise InputError.at(path, f"key '{key}': {payload[key]} is not the union of the "
+                                f"parts' ({list(getattr(model, key))})")
+    if list(model.outputs) != list(payload["outputs"]):
+        raise InputError.at(path, f"key 'outputs': {payload['outputs']} are not the parts' "
+                            f"{list(model.outputs)}")
+    return model
+
+
+def _check_axis_models(path: Path, model: AxisModels) -> None:
+    """A loaded composite whose tensors say what its owner table says: each part's
+    ``compensate`` mask is its own axes, and the parts (their loaded references and ranges)
+    are still composable."""
+    from ..models.composite import composable
+
+    for k, part in enumerate(model.parts):
+        want = [o == k for o in model.owner]
+        if part.compensated_axes != want:
+            raise InputError.at(path, f"part {k} ({model.labels[k]}) compensates "
+                                f"{part.compensated_axes}, but the owner table gives it {want}")
+    why = composable(list(model.parts))
+    if why:
+        raise InputError.at(path, f"the per-axis parts cannot be one model: {why}")
+
+
+def _check_payload(path: Path, p: dict, prefix: str = "") -> None:
     """Every name and value of a loaded payload against :mod:`thermonet.core.names`.
 
     A checkpoint is data from a file, not code: its strings reach generated C
@@ -312,7 +391,7 @@ def _check_payload(path: Path, p: dict) -> None:
     under before anything is built from it.
     """
     def at(key: str) -> str:
-        return f"{path}: key '{key}'"
+        return f"{path}: key '{prefix}{key}'"
 
     check_name(p["family"], FAMILY, at("family"))
     check_names(p["inputs"], FEATURE, at("inputs"))
@@ -342,6 +421,8 @@ def _check_payload(path: Path, p: dict) -> None:
         raise InputError(f"{at('epoch')}: {p['epoch']!r} is not an integer")
     if p["best_val"] is not None:
         check_finite(p["best_val"], at("best_val"))
+    if p["family"] == PER_AXIS:
+        _check_per_axis_payload(path, p)
     extra = p["extra"]
     if not isinstance(extra, dict):
         raise InputError(f"{at('extra')}: expected a mapping")
@@ -365,6 +446,42 @@ def _check_payload(path: Path, p: dict) -> None:
         for k, v in values.items():
             check_name(k, SIGNAL, at(f"extra.test_metrics.{axis}"))
             _metric(v, at(f"extra.test_metrics.{axis}.{k}"))
+
+
+#: Most parts a per-axis checkpoint may hold (one per distinct candidate).
+MAX_PARTS = 64
+
+
+def _check_per_axis_payload(path: Path, p: dict) -> None:
+    """The per-axis keys of a payload: the parts' descriptions (each checked as a
+    single-family checkpoint's keys), the owner table and the labels."""
+    def at(key: str) -> str:
+        return f"{path}: key '{key}'"
+
+    parts, owner, labels = p.get("parts"), p.get("owner"), p.get("labels")
+    if not isinstance(parts, list) or not 1 <= len(parts) <= MAX_PARTS:
+        raise InputError(f"{at('parts')}: expected a list of 1..{MAX_PARTS} part descriptions")
+    for k, entry in enumerate(parts):
+        where = f"parts[{k}]"
+        if not isinstance(entry, dict) or set(entry) != {"family", "hyper", "inputs",
+                                                         "signals", "outputs", "spec"}:
+            raise InputError(f"{at(where)}: expected a mapping with family, hyper, inputs, "
+                             "signals, outputs and spec")
+        if entry["family"] == PER_AXIS:
+            raise InputError(f"{at(where + '.family')}: a part cannot itself be per-axis")
+        _check_payload(path, {**entry, "config": {}, "state_dict": {}, "epoch": None,
+                              "best_val": None, "extra": {}}, prefix=f"{where}.")
+    if not isinstance(labels, list) or len(labels) != len(parts):
+        raise InputError(f"{at('labels')}: expected one label per part ({len(parts)})")
+    check_names(labels, LABEL, at("labels"))
+    if not isinstance(owner, list) or len(owner) != len(p["outputs"]):
+        raise InputError(f"{at('owner')}: expected one entry per output axis "
+                         f"({len(p['outputs'])})")
+    for a, o in enumerate(owner):
+        if o is not None and (isinstance(o, bool) or not isinstance(o, int)
+                              or not 0 <= o < len(parts)):
+            raise InputError(f"{at('owner')}: axis {a} names part {o!r} (parts 0.."
+                             f"{len(parts) - 1}, or null for an axis left raw)")
 
 
 def _check_target_buffers(path: Path, model: DriftModel) -> None:

@@ -101,7 +101,10 @@ class SelectionConfig:
     ``refit``: with cross-validation, every family is refitted on the split's whole pool
     (training and validation data) by the procedure the folds judged, and that model is
     the one the test verdicts judge and the exports ship; False keeps the fit on the
-    training part with early stopping on the validation part.
+    training part with early stopping on the validation part.  ``per_axis``: each output
+    axis gets its own candidate by the same rule (:func:`thermonet.scoring.selection.
+    choose_per_axis`), shipped as one model; False chooses one family for every axis (the
+    whole-recording choice); ``None`` (default) is per axis with two or more families.
     """
 
     folds: int = 5
@@ -109,8 +112,12 @@ class SelectionConfig:
     purge_s: float | None = None
     window_s: float | None = None
     refit: bool = True
+    per_axis: bool | None = None
 
     def __post_init__(self) -> None:
+        if self.per_axis is not None and not isinstance(self.per_axis, bool):
+            raise ConfigError(f"key 'selection.per_axis': must be true, false or null (per axis "
+                              f"when there are two or more families), got {self.per_axis!r}")
         for key, lo, hi in (("folds", 0, 50), ("blocks_per_fold", 1, 100)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
@@ -327,6 +334,9 @@ def config_from_mapping(data: Any, *, source: str = "config") -> CompareConfig:
     if not cfg.families:
         raise ConfigError(f"{p}: key 'families': empty list (need at least one family)")
     check_families(cfg, source=p, build=False)  # torch-free; compare builds them
+    if cfg.selection.per_axis and len(cfg.families) < 2:
+        raise ConfigError(f"{p}: key 'selection.per_axis': a per-axis choice needs two or more "
+                          f"families to choose from (families: {', '.join(labels)})")
     _check_data(cfg.data, p)
     _check_target(cfg.target, p)
     if cfg.model == "sensor" and cfg.target != "drift":
@@ -354,6 +364,7 @@ def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = 
     """
     from ..core.names import LABEL
     from ..features.inputs import signals_for
+    from ..models.hyper import HyperError
     from ..models.registry import build_family, check_hyper
 
     for i, fam in enumerate(cfg.families):
@@ -370,15 +381,32 @@ def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = 
             signals_for(fam.inputs)
         except ConfigError as err:
             raise ConfigError(f"{source}: key '{key}.inputs': {err}") from None
+        if not isinstance(fam.family, str):
+            raise ConfigError(f"{source}: key '{key}.family': expected a family name such "
+                              f"as 'poly', got {fam.family!r}")
         try:
-            check_hyper(fam.family, fam.params, n_inputs=len(fam.inputs))
+            check_hyper(fam.family, fam.params, n_inputs=len(fam.inputs), values=False)
         except ConfigError as err:
             raise ConfigError(f"{source}: key '{key}': {err}") from None
         try:
-            check_hyper(fam.family, {k: None for k in fam.tune}, n_inputs=len(fam.inputs))
+            check_hyper(fam.family, {k: None for k in fam.tune}, n_inputs=len(fam.inputs),
+                        values=False)
         except ConfigError as err:
             raise ConfigError(f"{source}: key '{key}.tune': {err}") from None
         points = tune_points(fam, source, key)
+        # every value, each grid point's with the fixed ones: a built-in's without torch
+        # (thermonet.models.hyper), a plug-in's by building it — before any data is read
+        for point in points:
+            try:
+                check_hyper(fam.family, {**fam.params, **point}, n_inputs=len(fam.inputs))
+            except HyperError as err:
+                sub = f"tune.{err.key}" if err.key in point else f"params.{err.key}"
+                raise ConfigError(f"{source}: key '{key}.{sub}': {err}") from None
+            except ConfigError as err:
+                sub = "tune" if point else "params"
+                raise ConfigError(f"{source}: key '{key}.{sub}': {err}") from None
+            except TypeError as err:  # a hyper-parameter of the wrong type
+                raise ConfigError(f"{source}: key '{key}.params': {err}") from None
         if not build:
             continue
         for point in points:

@@ -28,6 +28,7 @@ import torch
 
 from ..core.errors import FitError, InputError
 from ..core.trainconfig import TrainConfig
+from ..models.base import check_output_shape
 from ..models.sequence import stream_windows
 from .scaling import EarlyStopping, training_scaling
 
@@ -183,6 +184,8 @@ def fit_recurrent(model: Any, runs: Sequence[tuple[np.ndarray, ...]],
             val_t = None  # nothing after the warm-up: stop on the training loss
     torch.manual_seed(config.seed)
     fam.start(config.seed)
+    check_output_shape(fam, torch.as_tensor((x_tr - x_mean) / x_std, dtype=torch.float32),
+                       family)
     model.to(device)
     initial_readout(fam, *train_t)
     history, best_epoch, best_val = fit_loop(fam, train_t, val_t, config, family, on_epoch)

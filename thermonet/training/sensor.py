@@ -49,6 +49,7 @@ from ..core.recording import Recording, output_kind
 from ..core.trainconfig import TrainConfig
 from ..features.inputs import FeatureSpec, signal_matrix
 from ..models import DriftModel, build_family
+from ..models.base import check_output_shape
 from ..models.sensor import SensorModel, check_invertible, element_names
 from .scaling import column_scale
 from .train import _fit_loop, average_windows, rest_signals, thread_limits
@@ -309,6 +310,8 @@ def _fit_sensor(*, family: str, spec: FeatureSpec, outputs: list[str],
                      seed=config.seed, x_mean=x_mean, x_std=x_std)
     fam_e.initialize(torch.as_tensor(xg), torch.as_tensor((g_e - e_mean) / e_std),
                      seed=config.seed, x_mean=x_mean, x_std=x_std)
+    for fam in (fam_b, fam_e):     # one column per bias / element, N rows
+        check_output_shape(fam, torch.as_tensor(xg, dtype=torch.float32), family)
 
     y_mean, y_std = y_tr.mean(axis=0), column_scale(y_tr)
     core = _Core(fam_b, fam_e if elements else None, len(spec.inputs), idx,

@@ -37,7 +37,8 @@ from ..core.trainconfig import TrainConfig  # re-exported: the ``train`` section
 from ..features.dynamics import dynamic_signals, saturation_margin
 from ..features.inputs import FeatureSpec
 from ..models import DriftModel, build_family
-from ..models.base import Family
+from ..models.base import Family, check_output_shape
+from ..models.composite import ShippedModel
 from .scaling import EarlyStopping, training_scaling
 
 __all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "average_windows",
@@ -324,6 +325,7 @@ def _fit_pointwise(model: DriftModel, runs: list, val_run: tuple | None, config:
     torch.manual_seed(config.seed)
     fam.initialize(torch.as_tensor(z_tr), torch.as_tensor(yz_tr), seed=config.seed,
                    x_mean=x_mean, x_std=x_std)
+    check_output_shape(fam, torch.as_tensor(z_tr, dtype=torch.float32), family)
 
     z_v = y_vz = None
     if val_run is not None:
@@ -400,7 +402,7 @@ def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
     return history, best_epoch, best_val
 
 
-def predict(model: DriftModel, signals: np.ndarray, time_s: np.ndarray | None = None
+def predict(model: ShippedModel, signals: np.ndarray, time_s: np.ndarray | None = None
             ) -> np.ndarray:
     """Drift (n, A), float64, from signals (n, S) in ``model.signals`` order.
 
@@ -413,7 +415,7 @@ def predict(model: DriftModel, signals: np.ndarray, time_s: np.ndarray | None = 
     if s.ndim != 2 or s.shape[1] != len(model.signals):
         raise InputError(f"signals have shape {s.shape}, expected (n, {len(model.signals)}) "
                          f"for {model.signals}")
-    if model.family.recurrent:
+    if isinstance(model, DriftModel) and model.family.recurrent:
         from ..models.sequence import stream_relative
 
         if time_s is None:

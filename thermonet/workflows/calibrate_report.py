@@ -8,6 +8,22 @@ from typing import Any
 
 __all__ = ["format_report", "render_calibration_report"]
 
+_AXES = {"gyro": ("x", "y", "z"), "acc": ("x", "y", "z"), "baro": ("p",)}
+
+
+def _g3(x: float | None) -> str:
+    return "nan" if x is None or x != x else f"{x:.3g}"
+
+
+def _cut(x: float | None) -> str:
+    return "nan" if x is None or x != x else "inf" if x in (float("inf"), float("-inf")) \
+        else f"{x:.1f}"
+
+
+def _held_out_data(h: dict[str, Any]) -> str:
+    """What the held-out check was judged on (older results name only the log)."""
+    return str(h.get("data") or Path(h["log"]).name)
+
 
 def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | None = None
                               ) -> str:
@@ -35,8 +51,10 @@ def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | 
             what = f"fitted, slot {d['slot']}; binned drift cut {cuts}"
             h = d.get("held_out") or {}
             if h.get("status") == "judged":
-                what += (f"; held out on {Path(h['log']).name}: "
-                         + ", ".join(f"{c:.1f}×" for c in h["cut"]))
+                grades = h.get("grades") or [""] * len(h["cut"])
+                what += (f"; held out ({_held_out_data(h)}), verify's test: "
+                         + ", ".join(f"{_cut(c)}× {g}" for c, g in zip(h["cut"], grades,
+                                                                       strict=True)))
             if d.get("resolution"):
                 what += f"; {d['resolution']['line']}"
             colour = VERDICT_COLOURS["better"]
@@ -102,15 +120,30 @@ def format_report(doc: dict[str, Any]) -> str:
                 lines.append(f"       {d['verdict']}")
         h = d.get("held_out")
         if h and h.get("status") == "judged":
-            lines.append(f"       held out ({Path(h['log']).name}, fitted on the earlier logs): "
-                         "binned drift p-p " + ", ".join(
-                             f"{b:.3g}->{a:.3g} ({c:.1f}x)" for b, a, c in zip(
-                                 h["pp_raw"], h["pp_corrected"], h["cut"], strict=True)))
+            grades = h.get("grades") or [""] * len(h["cut"])
+            lines.append(f"       held out ({_held_out_data(h)}, fitted on the rest; verify's "
+                         "test): binned drift p-p " + ", ".join(
+                             f"{_g3(b)}->{_g3(a)} ({_cut(c)}x {g})" for b, a, c, g in zip(
+                                 h["pp_raw"], h["pp_corrected"], h["cut"], grades,
+                                 strict=True)))
+            for axis, g, why in zip(_AXES.get(d["kind"], ()), grades,
+                                    h.get("grade_reasons") or [], strict=False):
+                if g != "fine":
+                    lines.append(f"       held out: {name} {axis} {g.upper()}: {why}")
             lines += [f"       held-out warning: {w}" for w in h.get("warnings") or []]
         elif h:
             lines.append(f"       held out: not judged ({h.get('reason')})")
         for note in d.get("notes", []):
             lines.append(f"       note: {note}")
+    graded = [g for d in doc["instances"].values() if d["status"] == "fitted"
+              for g in (d.get("held_out") or {}).get("grades") or []]
+    if graded:
+        weak = {g: graded.count(g) for g in ("marginal", "fails") if g in graded}
+        lines += ["", f"held-out check (verify's test, limits and floors): {graded.count('fine')} "
+                  f"of {len(graded)} fitted axes pass with margin" + (
+                      "; " + ", ".join(f"{n} {g}" for g, n in weak.items())
+                      + " — `thermonet verify` on a new log may FAIL them (see 'held out' "
+                      "above)" if weak else "")]
     lines += ["", "Load the parameter file only for a board whose sensors are the device ids "
               "above; reboot after loading; re-run the ordinary gyro/accel calibration."]
     return "\n".join(lines) + "\n"

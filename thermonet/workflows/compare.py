@@ -43,7 +43,7 @@ from ..training.parts import (
     data_hash,
 )
 from .compare_fit import FitQueue, Progress, family_workers
-from .compare_judge import Fitted, choose_and_judge, extrapolation
+from .compare_judge import PER_AXIS, Fitted, choose_and_judge, extrapolation
 from .compare_plan import PartCache, data_summary, plan
 from .provenance import data_source, family_config, resolved_config, resolved_yaml
 
@@ -209,12 +209,21 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
             "resamples": RESAMPLES, "level": LEVEL, "seed": SEED, "min_blocks": MIN_BLOCKS,
             "blocks": {"val": n_val, "test": n_test}}
         choose_and_judge(fitted, result, p)
+        if result.chosen == PER_AXIS:
+            _save_per_axis(out, fitted, result, cfg, resolved, provenance, units, tracker)
         # the out-of-fold scores the choice rests on, in the comparison's own run
         tracker.log_metrics({f"cv/{k}/score": c["score"] for k, c in
                              result.selection.get("candidates", {}).items() if "score" in c})
         extrapolation(fitted, result)
         doc = result.to_json()
         doc["provenance"] = provenance
+        shipped = doc["families"].get(PER_AXIS) if result.chosen == PER_AXIS else None
+        if shipped and shipped.get("checkpoint"):
+            # what `thermonet export DIR` reads (thermonet.exporting.source): the composite's
+            # file, its owners per axis and its candidates (the SHA-256 added when staged)
+            doc["per_axis"] = {"checkpoint": shipped["checkpoint"],
+                               "axes": dict(shipped["params"]["axes"]),
+                               "candidates": list(result.selection["per_axis"]["candidates"])}
         plot_paths = _plots(out, fitted, doc, ds) if plots else []
         from ..reporting.report import write_report
 
@@ -230,6 +239,43 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
     for w in result.warnings:
         progress.line(f"warning: {w}")
     return doc
+
+
+def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResult,
+                   cfg: CompareConfig, resolved: dict[str, Any], provenance: dict[str, Any],
+                   units: dict[str, str], tracker: Any) -> None:
+    """``models/per-axis.pt``: the candidates the axes chose, one model
+    (:class:`thermonet.models.composite.AxisModels`), sealed like every checkpoint."""
+    import copy
+
+    from ..models.composite import AxisModels
+    from ..training.checkpoint import save_checkpoint
+
+    owners: dict[str, str | None] = result.selection["per_axis"]["chosen"]
+    labels: list[str] = result.selection["per_axis"]["candidates"]
+    outputs = list(owners)
+    model = AxisModels([copy.deepcopy(fitted[k].model) for k in labels],
+                       [None if (o := owners[a]) is None else labels.index(o) for a in outputs],
+                       labels)
+    r = result.families[PER_AXIS]
+    ckpt = out / "models" / f"{PER_AXIS}.pt"
+    fams = {f.label: f for f in cfg.families}
+    try:
+        save_checkpoint(ckpt, model, config={
+            "parts": {k: family_config(cfg, replace(fams[k], params={
+                **fams[k].params, **{n: v for n, v in result.families[k].tuned.items()
+                                     if n in fams[k].tune}}), resolved["tracking"])
+                      for k in labels}},
+            epoch=0, best_val=None,
+            extra={"label": PER_AXIS, "device_id": result.device, "data_hash": result.data_hash,
+                   "units": units, "axes": dict(owners),
+                   "compensate": {a: owners[a] is not None for a in outputs},
+                   "test_metrics": r.to_json()["axes"], "provenance": provenance})
+        r.checkpoint = str(ckpt)
+        tracker.log_artifact(ckpt, "model")
+    except ThermonetError as err:   # a NaN model is never saved
+        r.status, r.reason = "failed", str(err)
+        result.warn(f"the per-axis model could not be written: {err}")
 
 
 def _plots(out: Path, fitted: dict[str, Fitted], results: dict[str, Any],
@@ -338,10 +384,15 @@ def format_table(results: dict[str, Any]) -> str:
                 f"{'':<14} {a:<14} {'':>6} {'':>6} {'':>6} "
             vs_raw = {"ratio": m.get("score_ratio"), "interval": m.get("interval", [None, None]),
                       "verdict": m.get("verdict", "indistinguishable")}
+            raw_cell = None
+            if not m.get("compensate") and m.get("score_ratio") is not None:
+                # the model file's drift is 0 here: the shipped output is raw (ratio 1)
+                raw_cell = f"{'raw (fit ' + ratio_text(m['score_ratio']) + ')':>22}"
             metrics = " ".join(f"{(m.get(c) if m.get(c) is not None else math.nan):12.4g}"
                                for c in cols)
             lines.append(pre + f"{'yes' if m.get('compensate') else 'no':>4} "
-                         f"{_ratio_cell(vs_raw)} {_ratio_cell(m.get('vs_baseline'))} " + metrics)
+                         f"{raw_cell or _ratio_cell(vs_raw)} {_ratio_cell(m.get('vs_baseline'))} "
+                         + metrics)
     lines.append("")
     sel = results.get("selection") or {}
     if sel.get("candidates"):
@@ -357,7 +408,19 @@ def format_table(results: dict[str, Any]) -> str:
             lines.append(f"  {name:<14} {c['score']:.4g} [{lo:.4g}, {hi:.4g}]  folds {folds}")
     elif sel.get("note"):
         lines.append(f"selection: {sel['note']}")
-    lines.append(f"chosen: {results.get('chosen') or 'none'} — {results.get('chosen_reason', '')}")
+    per_axis = sel.get("per_axis") or {}
+    if per_axis.get("chosen") and results.get("chosen") is not None and \
+            "whole_recording" in sel:
+        lines.append("per axis (each axis its own model; the one-SE rule on that axis's paired "
+                     "out-of-fold scores, the baseline as the floor):")
+        for a, k in per_axis["chosen"].items():
+            lines.append(f"  {a:<14} {k or 'raw':<14} {per_axis['rule'].get(a, '')}")
+        whole = sel["whole_recording"]
+        lines.append(f"chosen: {results.get('chosen')} (one family for every axis would have "
+                     f"been {whole.get('chosen') or 'none'}: {whole.get('reason', '')})")
+    else:
+        lines.append(f"chosen: {results.get('chosen') or 'none'} — "
+                     f"{results.get('chosen_reason', '')}")
     if results.get("uncompensated_axes"):
         lines.append(f"left uncompensated: {', '.join(results['uncompensated_axes'])}")
     lines.append("scores: spread of the error about its mean on held-out data, family / raw "

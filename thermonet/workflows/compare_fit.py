@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import FitError
+from ..features.inputs import TEMPERATURE
 from ..reporting.results import FamilyResult
 from ..training.config import (
     CompareConfig,
@@ -260,8 +261,12 @@ def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: An
     out.oof = oof
     out.pool_targets = [q.target for q in whole]
     out.pool_times = [q.time_s for q in whole]
+    if TEMPERATURE in spec.signals:
+        col = spec.signals.index(TEMPERATURE)
+        out.pool_temps = [q.signals[:, col] for q in whole]
     if oof.failed is None:
-        own = select(p.folds, out.pool_targets, out.pool_times, {fam.label: oof}, p.outputs)
+        own = select(p.folds, out.pool_targets, out.pool_times, {fam.label: oof}, p.outputs,
+                     temperatures=out.pool_temps or None)
         out.cv_mask = own.compensate.get(fam.label)
 
 

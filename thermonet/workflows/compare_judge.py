@@ -20,7 +20,11 @@ from ..training.parts import (
 )
 from .compare_plan import Plan
 
-__all__ = ["Fitted", "judge_against_raw", "choose_and_judge", "extrapolation"]
+__all__ = ["Fitted", "judge_against_raw", "choose_and_judge", "extrapolation", "PER_AXIS",
+           "per_axis_choice", "per_axis_result"]
+
+#: The label of the model that gives each axis its own candidate (``models/per-axis.pt``).
+PER_AXIS = "per-axis"
 
 
 # ------------------------------------------------------------------------------------- fit
@@ -44,6 +48,7 @@ class Fitted:
     single: Any = None                   # (score, draws, mask) by the single validation part
     pool_targets: list[np.ndarray] = field(default_factory=list)
     pool_times: list[np.ndarray] = field(default_factory=list)
+    pool_temps: list[np.ndarray] = field(default_factory=list)   # temperature of every row
 
 
 _DRAWS: dict[int, np.ndarray] = {}
@@ -119,8 +124,10 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
         from ..scoring.selection import select
 
         first = next(iter(cv.values()))
+        temps = next((f.pool_temps for f in cv.values() if f.pool_temps), None)
         sel = select(p.folds, first.pool_targets, first.pool_times,
-                     {k: f.oof for k, f in cv.items()}, p.outputs, baseline=p.cfg.baseline)
+                     {k: f.oof for k, f in cv.items()}, p.outputs, baseline=p.cfg.baseline,
+                     temperatures=temps)
         chosen, tied, why = sel.chosen, sel.tied, sel.reason
         result.selection = sel.record
         # what the single validation part would have chosen: how close the call was
@@ -137,6 +144,14 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
         for k, f in cv.items():
             if f.oof.failed is not None:
                 result.warn(f"{k}: not a candidate: {f.oof.failed}")
+        if p.cfg.selection.per_axis is not False and len(cv) >= 2:
+            shipped = per_axis_choice(sel, cv, p, temps)
+            # the same family on every axis as the whole-recording rule: its sentence and tie
+            # stand (the per-axis table is in the record either way)
+            if shipped is not None and shipped[0] != chosen:
+                result.selection["whole_recording"] = {"chosen": chosen, "reason": why,
+                                                       "tie": tied}
+                chosen, tied, why = shipped
     else:
         scores = {k: (f.result.val_score, f.val_draws) for k, f in ok.items()
                   if f.val_draws is not None}
@@ -156,6 +171,8 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
                 b = base.result.axes[axis].metrics.get("pp_comp", math.nan)
                 ax.metrics["pp_ratio_vs_baseline"] = (
                     ax.metrics.get("pp_comp", math.nan) / b if b > 0 else math.nan)
+    if chosen == PER_AXIS:
+        result.families[PER_AXIS] = per_axis_result(result, p)
     if chosen is None:
         return
     fam = result.families[chosen]
@@ -171,10 +188,100 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
                         f"test data (score ratio {ax.test.ratio:.3g}, 95 % interval "
                         f"{ax.test.low:.3g} … {ax.test.high:.3g}); the drift may depend on "
                         "more than temperature (thermal history, hysteresis)")
+        elif ax.test.verdict == "indistinguishable":
+            result.warn(f"{axis}: compensated by {chosen}, but on the held-out test data it is "
+                        f"the same as raw (score ratio {ax.test.ratio:.3g}, 95 % interval "
+                        f"{ax.test.low:.3g} … {ax.test.high:.3g}): the out-of-fold gain did not "
+                        "show on the test part")
     if not fam.compensate_in_model and result.uncompensated_axes:
         result.warn(f"the model file of {chosen} does not carry the per-axis mask yet; export "
                     f"it with care: {', '.join(result.uncompensated_axes)} should stay "
                     "uncompensated")
+
+
+def per_axis_choice(sel: Any, cv: dict[str, Fitted], p: Plan,
+                    temps: Any) -> tuple[str | None, list[str], str] | None:
+    """The per-axis choice as ``(chosen, tied, sentence)``: a family's label where every
+    compensated axis chose it, :data:`PER_AXIS` where the axes chose several, None where the
+    per-axis models cannot be shipped as one (the whole-recording choice then stands).
+
+    Candidates whose models cannot be combined with others (a recurrent family's state) are
+    left out of the per-axis choice when they would share the artifact with another
+    candidate, and the choice is made again without them (said in the record)."""
+    from ..models.composite import composable
+    from ..scoring.selection import select
+
+    owners = sel.per_axis
+    labels = sorted({v for v in owners.values() if v is not None}, key=list(cv).index)
+    if len(labels) > 1:
+        why = composable([cv[k].model for k in labels])
+        if why:
+            solo = {k: f for k, f in cv.items() if composable([f.model]) is None}
+            again = select(p.folds, next(iter(cv.values())).pool_targets,
+                           next(iter(cv.values())).pool_times, {k: f.oof for k, f in solo.items()},
+                           p.outputs, baseline=p.cfg.baseline, temperatures=temps)
+            owners = again.per_axis
+            labels = sorted({v for v in owners.values() if v is not None}, key=list(cv).index)
+            sel.record["per_axis"] = {**again.record["per_axis"],
+                                      "note": f"chosen again without what cannot be combined "
+                                              f"({why})"}
+            if len(labels) > 1 and composable([cv[k].model for k in labels]):
+                return None
+    sel.record["per_axis"]["candidates"] = labels
+    if not labels:
+        return None, [], ("do no harm: no candidate beats the raw output out of fold on any "
+                          "axis (per-axis choice)")
+    rules = sel.record["per_axis"]["rule"]
+    sentence = "; ".join(f"{a}: {rules[a]}" for a in p.outputs)
+    if len(labels) == 1:
+        k = labels[0]
+        mask = [owners[a] == k for a in p.outputs]
+        if mask == list(cv[k].result.axes[a].compensate for a in p.outputs):
+            return k, [], f"every compensated axis chose {k} (per-axis rule: {sentence})"
+    return PER_AXIS, [], f"each axis its own model (per-axis rule: {sentence})"
+
+
+def per_axis_result(result: ComparisonResult, p: Plan) -> FamilyResult:
+    """The shipped per-axis model as one family of results.json: per axis the owning
+    candidate's held-out record (its drift is that candidate's exactly), and on an axis left
+    raw the raw output's own (score ratio 1: the shipped drift is exactly 0 there)."""
+    import copy
+
+    owners: dict[str, str | None] = result.selection["per_axis"]["chosen"]
+    labels: list[str] = result.selection["per_axis"]["candidates"]
+    fams = {k: result.families[k] for k in labels}
+    axes: dict[str, AxisResult] = {}
+    for a in p.outputs:
+        k = owners[a]
+        if k is not None:
+            axes[a] = copy.deepcopy(fams[k].axes[a])
+            axes[a].compensate = True
+            continue
+        src = copy.deepcopy(next(iter(fams.values())).axes[a])
+        one = Verdict(1.0, 1.0, 1.0, "indistinguishable")
+        src.test, src.compensate, src.vs_baseline = one, False, None
+        src.score_comp, src.offset_comp = src.score_raw, src.offset_raw
+        src.metrics = {m: (src.metrics.get(m[:-5] + "_raw", v) if m.endswith("_comp") else v)
+                       for m, v in src.metrics.items() if m != "drift_error_rms"}
+        axes[a] = src
+    first = next(iter(fams.values()))
+    inputs: list[str] = []
+    for f in fams.values():
+        inputs += [i for i in f.inputs if i not in inputs]
+    test = [axes[a].test.ratio if axes[a].compensate else 1.0 for a in p.outputs]
+    return FamilyResult(
+        label=PER_AXIS, family=PER_AXIS, inputs=inputs,
+        params={"axes": dict(owners)}, train_on=first.train_on,
+        fit_seconds=float(sum(f.fit_seconds for f in fams.values())),
+        n_params=int(sum(f.n_params for f in fams.values())),
+        val_score=float(np.mean([
+            result.selection["candidates"][owners[a]]["axes"][a]["ratio"]
+            if owners[a] is not None else 1.0 for a in p.outputs])),
+        test_score=float(np.mean(test)), compensate_in_model=True,
+        outside_trained_range={s: max(f.outside_trained_range.get(s, 0.0)
+                                      for f in fams.values())
+                               for f0 in fams.values() for s in f0.outside_trained_range},
+        axes=axes, tuned={k: dict(f.tuned) for k, f in fams.items()})
 
 
 def extrapolation(fitted: dict[str, Fitted], result: ComparisonResult) -> None:

@@ -23,20 +23,45 @@ The firmware's formula (:mod:`thermonet.data.firmware`):
 
 Judged per instance and axis on the log: the binned drift (peak-to-peak of the
 1 °C-binned means of the output; accel and baro less their median) before and
-after the correction.  An axis PASSes when the correction cuts it at least
-:attr:`Limits.min_cut` times, or when what is left is below the kind's floor
-(:attr:`Limits.floor`: a drift that small no longer matters and its cut is noise).
-Defaults: cut 3×; floors 5e-4 rad/s (0.03 °/s), 5e-3 m/s² (0.5 mg), 1 Pa (≈8 cm) —
-about the bias stability of a good MEMS IMU and a baro's noise; set them for your
-sensors (``--gyro-floor`` …).  The binned drift of pure noise is not zero (the spread
-of ~50 bin means), so a floor far below the sensor's noise makes quiet axes FAIL.
+after the correction (:func:`judge_axes`).  An axis PASSes when every corrected
+sample is finite (a NaN, an inf, or a value beyond a float32 — what the firmware
+would output as inf — anywhere in the axis is a FAIL) and the correction cuts
+the drift at least :attr:`Limits.min_cut` times, or what is left is below the
+kind's floor (:attr:`Limits.floor`: a drift that small no longer matters and its
+cut is noise).  Defaults: cut 3×; floors 5e-4 rad/s (0.03 °/s), 5e-3 m/s² (0.5 mg),
+1 Pa (≈8 cm) — about the bias stability of a good MEMS IMU and a baro's noise; set
+them for your sensors (``--gyro-floor`` …).  The binned drift of pure noise is not
+zero (the spread of ~50 bin means), so a floor far below the sensor's noise makes
+quiet axes FAIL.
 
-Refused in one line: a file from another board (no device id of the log in the
-file: both lists named), a file of the other autopilot, a file with no thermal
-calibration.  A log that leaves the calibrated range [TMIN, TMAX] by more than
-:data:`RANGE_SLACK_C` gets a warning per instance (the firmware holds the
-correction constant outside it).  A sensor of the log that the file does not
-cover is listed, not judged.
+An instance the file applies to but the log cannot judge is ``not judged``, with
+why, never PASS: the same minimums as ``calibrate``'s
+(:func:`thermonet.workflows.firmware_fit.check_instance`: at least
+:data:`~thermonet.workflows.firmware_fit.MIN_SAMPLES` = 200 samples and a
+:data:`~thermonet.workflows.firmware_fit.MIN_SPAN_C` = 10 °C temperature span, a
+thermometer, not every sample zero, not too damaged).  A sensor of the log that
+the file does not cover is ``not covered`` (listed, not judged).
+
+The file is checked whole before anything is applied, and refused in one line
+naming the file, the line and the parameter: a value that is not a number; a
+name set twice (the autopilot would load the last; verify does not guess); a
+NaN or inf in any thermal-calibration parameter (``TC_*``; ``INS_TCAL*``,
+``INS_GYR/ACC<n>_ID``/``_CALTEMP``); and for every slot the firmware applies (a
+PX4 slot with a non-zero ``TC_*_ID``, an ArduPilot IMU with ``INS_TCAL<n>_ENABLE``
+= 1): a missing parameter, a coefficient beyond a float32, TMIN not below TMAX,
+TMIN/TMAX outside :data:`PLAUSIBLE_C`, (PX4) TREF outside [TMIN, TMAX] by more
+than :data:`RANGE_SLACK_C`, a device id that is not a 32-bit integer or that
+two slots share.  Also refused in one line: a file from another board (no device
+id of the log in the file: both lists named), a file of the other autopilot, a
+file with no thermal calibration, an output directory that is or holds an input,
+and a log of which nothing can be judged (each instance's reason listed).  A log
+that leaves the calibrated range [TMIN, TMAX] by more than :data:`RANGE_SLACK_C`
+gets a warning per instance (the firmware holds the correction constant there).
+
+Exit status: 0 PASS (every judged axis of every judged instance passes, and at
+least one instance was judged); 3 FAIL (:data:`EXIT_FAILED`: some judged axis
+fails; the report marks it); 1 refused (bad input: the one line on stderr says
+why; nothing is written).
 """
 
 from __future__ import annotations
@@ -61,9 +86,9 @@ from ..data.firmware import (
     px4_offsets_3d,
 )
 from ..data.logs import FlightLog, SensorInstance, read_log
-from ..exporting.autopilot import read_ardupilot_params, read_px4_params
+from ..data.logs.base import TEMPERATURE_RANGE_C
 from ..scoring.metrics import binned_peak_to_peak
-from .firmware_fit import target
+from .firmware_fit import check_instance, target
 
 __all__ = ["Limits", "ParamFile", "read_param_file", "evaluate", "verify",
            "format_verify_report", "RANGE_SLACK_C", "EXIT_FAILED"]
@@ -72,11 +97,23 @@ __all__ = ["Limits", "ParamFile", "read_param_file", "evaluate", "verify",
 RANGE_SLACK_C = 0.5
 #: Exit status of ``thermonet verify`` when an axis fails its limits (as ``fleet``).
 EXIT_FAILED = 3
+#: An axis passes "with margin" (``calibrate``: fine, not marginal) when its cut is at least
+#: MARGIN times ``min_cut`` or its residual at most the floor divided by MARGIN.
+MARGIN = 1.5
 _PX4_LETTER = {"gyro": "G", "acc": "A", "baro": "B"}
 #: The SI units the autopilots' logs and formulas use, per sensor kind (what verify prints).
 KIND_UNITS = {"gyro": "rad/s", "acc": "m/s²", "baro": "Pa"}
 _AP_ID = {"gyro": "INS_GYR{}_ID", "acc": "INS_ACC{}_ID"}
 _AP_IDS_LINE = re.compile(r"^#\s*device ids:\s*INS_TCAL(\d)\s+gyro\s+(\d+)\s+acc\s+(\d+)")
+#: A parameter value: a decimal number as QGroundControl and Mission Planner write them.
+_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
+#: ArduPilot parameters the correction reads besides INS_TCAL<n>_*: the ids and CALTEMPs.
+_AP_CAL_PARAM = re.compile(r"INS_(GYR|ACC)\d?_(ID|CALTEMP)")
+#: Largest magnitude of the firmware's ``float`` parameters (float32).
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+#: TMIN / TMAX outside this range (°C) are no sensor's: the range a log's thermometer
+#: reading must be in to be trusted (:data:`thermonet.data.logs.base.TEMPERATURE_RANGE_C`).
+PLAUSIBLE_C = TEMPERATURE_RANGE_C
 
 
 @dataclass
@@ -107,6 +144,13 @@ class ParamFile:
     #: file that names no device ids.
     by_id: dict[tuple[str, int], int]
     enabled: dict[str, bool]            # PX4: per kind; ArduPilot: "imu<n>"
+    #: name -> line number in the file
+    line_of: dict[str, int] = field(default_factory=dict)
+
+    def where(self, name: str) -> str:
+        """``FILE: line N`` of parameter ``name`` (the file alone when it has no line)."""
+        no = self.line_of.get(name)
+        return f"{self.path}: line {no}" if no else str(self.path)
 
     @property
     def ids(self) -> list[int]:
@@ -120,9 +164,61 @@ def _first_param_line(text: str) -> str | None:
     return None
 
 
+def _parse(p: Path, text: str, autopilot: str) -> tuple[dict[str, float], dict[str, int]]:
+    """``{name: value}`` and ``{name: line number}``; a line that is not a parameter, a value
+    that is not a number and a name set twice are refused naming the file, line and name."""
+    params: dict[str, float] = {}
+    line_of: dict[str, int] = {}
+    for no, line in enumerate(text.splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        if autopilot == "px4":
+            parts = line.split()
+            if len(parts) != 5:
+                raise InputError(f"{p}: line {no}: expected 5 fields (Vehicle-Id Component-Id "
+                                 f"Name Value Type), got {len(parts)}")
+            name, value = parts[2], parts[3]
+        else:
+            parts = line.replace(",", " ").split()
+            if len(parts) != 2:
+                raise InputError(f"{p}: line {no}: expected NAME,VALUE, got {line.strip()!r}"[:300])
+            name, value = parts
+        if name in line_of:
+            raise InputError(f"{p}: line {no}: parameter {name} is set again (first on line "
+                             f"{line_of[name]}); the autopilot would load the last value, "
+                             "verify refuses to guess which one the vehicle has")
+        if _NUMBER.fullmatch(value):
+            v = float(value)
+        elif value.lower().lstrip("+-") in ("nan", "inf", "infinity"):
+            v = float(value)                  # refused below where the firmware reads it
+        else:
+            raise InputError(f"{p}: line {no}: parameter {name}: value {value[:40]!r} is not "
+                             "a number")
+        params[name] = v
+        line_of[name] = no
+    return params, line_of
+
+
+def _is_calibration(name: str, autopilot: str) -> bool:
+    """A parameter the thermal correction reads (its value must be a finite number)."""
+    if autopilot == "px4":
+        return name.startswith("TC_")
+    return name.startswith("INS_TCAL") or bool(_AP_CAL_PARAM.fullmatch(name))
+
+
+def _device_id(pf: ParamFile, name: str) -> int:
+    """``TC_*_ID`` as the firmware compares it: an int32 parameter read as the uint32 device
+    id (a negative value is a device id with its top bit set)."""
+    v = pf.params[name]
+    if v != int(v) or not -2 ** 31 <= v < 2 ** 32:
+        raise InputError(f"{pf.where(name)}: parameter {name} = {v:g} is not a device id "
+                         "(a 32-bit integer)")
+    return int(v) & 0xFFFFFFFF
+
+
 def read_param_file(path: str | Path) -> ParamFile:
-    """Read a PX4 or ArduPilot parameter file (format told from its first parameter line)."""
-    from ..core.errors import ExportError
+    """Read a PX4 or ArduPilot parameter file (format told from its first parameter line),
+    every thermal-calibration parameter checked (:func:`check_params`)."""
     from ..core.fileio import not_a_file
 
     p = Path(path)
@@ -137,41 +233,106 @@ def read_param_file(path: str | Path) -> ParamFile:
     if first is None:
         raise InputError(f"{p}: no parameter lines")
     autopilot = "px4" if len(first.split()) == 5 else "ardupilot"
-    try:
-        params = read_px4_params(p) if autopilot == "px4" else read_ardupilot_params(p)
-    except (ExportError, ValueError) as err:
-        raise InputError(str(err).splitlines()[0]) from err
-    by_id: dict[tuple[str, int], int] = {}
-    enabled: dict[str, bool] = {}
+    params, line_of = _parse(p, text, autopilot)
+    pf = ParamFile(p, autopilot, params, {}, {}, line_of)
+    for name, v in params.items():
+        if _is_calibration(name, autopilot) and not math.isfinite(v):
+            raise InputError(f"{pf.where(name)}: parameter {name} is {v}: not a finite number "
+                             "(the firmware would turn every corrected sample into NaN or inf)")
     if autopilot == "px4":
         if not any(k.startswith("TC_") for k in params):
             raise InputError(f"{p}: no PX4 thermal calibration (TC_*) parameters")
         for kind, t in _PX4_LETTER.items():
             # process_sensor_caldata.py writes no TC_<k>_ENABLE (its procedure sets them to 1
             # on the board first): absent means enabled, said per instance
-            enabled[kind] = params.get(f"TC_{t}_ENABLE", 1.0) == 1.0
+            pf.enabled[kind] = params.get(f"TC_{t}_ENABLE", 1.0) == 1.0
             for s in range(PX4_SLOTS):
-                dev = int(params.get(f"TC_{t}{s}_ID", 0))
-                if dev:
-                    by_id[(kind, dev)] = s
+                if f"TC_{t}{s}_ID" not in params:
+                    continue
+                dev = _device_id(pf, f"TC_{t}{s}_ID")
+                if not dev:
+                    continue                       # ID 0: the firmware applies the slot to none
+                if (kind, dev) in pf.by_id:
+                    other = f"TC_{t}{pf.by_id[(kind, dev)]}_ID"
+                    raise InputError(f"{pf.where(f'TC_{t}{s}_ID')}: parameter TC_{t}{s}_ID names "
+                                     f"device {dev}, as {other} (line {line_of[other]}) does: "
+                                     "which slot applies is ambiguous")
+                pf.by_id[(kind, dev)] = s
+                _check_slot(pf, f"TC_{t}{s}_", _px4_coefficients(t, s), reference=True)
     else:
         imus = [n for n in (1, 2, 3) if f"INS_TCAL{n}_ENABLE" in params]
         if not imus:
             raise InputError(f"{p}: no ArduPilot thermal calibration (INS_TCAL<n>_*) parameters")
+        owner: dict[tuple[str, int], tuple[int, str]] = {}
+
+        def claim(kind: str, dev: int, imu: int, what: str) -> None:
+            if (kind, dev) in owner and owner[(kind, dev)][0] != imu:
+                raise InputError(f"{p}: {what} names {kind} device {dev} for IMU {imu}, "
+                                 f"{owner[(kind, dev)][1]} for IMU {owner[(kind, dev)][0]}: "
+                                 "which IMU applies is ambiguous")
+            owner[(kind, dev)] = (imu, what)
+
         for n in imus:
-            enabled[f"imu{n}"] = params[f"INS_TCAL{n}_ENABLE"] == 1.0
+            pf.enabled[f"imu{n}"] = params[f"INS_TCAL{n}_ENABLE"] == 1.0
             for kind, fmt in _AP_ID.items():
-                dev = int(params.get(fmt.format("" if n == 1 else n), 0))
+                name = fmt.format("" if n == 1 else n)
+                if name not in params:
+                    continue
+                dev = _device_id(pf, name)
                 if dev:
-                    by_id[(kind, dev)] = n - 1
-        for line in text.splitlines():
+                    claim(kind, dev, n, f"{name} (line {line_of[name]})")
+                    pf.by_id[(kind, dev)] = n - 1
+            if pf.enabled[f"imu{n}"]:
+                pre = f"INS_TCAL{n}_"
+                _check_slot(pf, pre, [f"{pre}{s}{k}_{a}" for s in ("GYR", "ACC")
+                                      for k in (1, 2, 3) for a in "XYZ"], reference=False)
+        for no, line in enumerate(text.splitlines(), start=1):
             m = _AP_IDS_LINE.match(line.strip())
             if m:
                 n = int(m.group(1))
                 for kind, dev in (("gyro", int(m.group(2))), ("acc", int(m.group(3)))):
                     if dev:
-                        by_id[(kind, dev)] = n - 1
-    return ParamFile(p, autopilot, params, by_id, enabled)
+                        claim(kind, dev, n, f"line {no} (# device ids)")
+                        pf.by_id[(kind, dev)] = n - 1
+    return pf
+
+
+def _px4_coefficients(t: str, s: int) -> list[str]:
+    pre = f"TC_{t}{s}_"
+    if t == "B":
+        return [f"{pre}X{k}" for k in range(6)]
+    return [f"{pre}X{k}_{i}" for k in range(4) for i in range(3)]
+
+
+def _check_slot(pf: ParamFile, pre: str, coefficients: list[str], *, reference: bool) -> None:
+    """A slot the firmware applies: every parameter present, finite (checked before), a
+    coefficient a float32 can hold, TMIN < TMAX inside :data:`PLAUSIBLE_C`, and (PX4) TREF
+    within [TMIN, TMAX] give or take :data:`RANGE_SLACK_C`."""
+    need = [pre + "TMIN", pre + "TMAX", *([pre + "TREF"] if reference else []), *coefficients]
+    for name in need:
+        if name not in pf.params:
+            raise InputError(f"{pf.path}: parameter {name} is missing (the slot {pre}* applies to "
+                             "a sensor, and the board would keep whatever value it has)")
+    for name in coefficients:
+        if abs(pf.params[name]) > FLOAT32_MAX:
+            raise InputError(f"{pf.where(name)}: parameter {name} = {pf.params[name]:g} does not "
+                             "fit the firmware's float32 (it would load as inf)")
+    lo, hi = pf.params[pre + "TMIN"], pf.params[pre + "TMAX"]
+    for name, v in ((pre + "TMIN", lo), (pre + "TMAX", hi)):
+        if not PLAUSIBLE_C[0] <= v <= PLAUSIBLE_C[1]:
+            raise InputError(f"{pf.where(name)}: parameter {name} = {v:g} °C is not a "
+                             f"temperature a sensor works at ({PLAUSIBLE_C[0]:g}..."
+                             f"{PLAUSIBLE_C[1]:g} °C)")
+    if not lo < hi:
+        raise InputError(f"{pf.where(pre + 'TMIN')}: parameter {pre}TMIN = {lo:g} is not below "
+                         f"{pre}TMAX = {hi:g} (line {pf.line_of[pre + 'TMAX']}): the calibrated "
+                         "range is empty or reversed")
+    if reference:
+        ref = pf.params[pre + "TREF"]
+        if not lo - RANGE_SLACK_C <= ref <= hi + RANGE_SLACK_C:
+            raise InputError(f"{pf.where(pre + 'TREF')}: parameter {pre}TREF = {ref:g} is "
+                             f"outside {pre}TMIN..TMAX = {lo:g}..{hi:g} °C (the polynomial's "
+                             "reference lies inside the range it was fitted on)")
 
 
 def _need(pf: ParamFile, *names: str) -> None:
@@ -228,22 +389,76 @@ def _correction(pf: ParamFile, inst: SensorInstance, slot: int, log: FlightLog
     return corr, pf.params[pre + "TMIN"], pf.params[pre + "TMAX"]
 
 
-def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None
-             ) -> dict[str, dict[str, Any]]:
+def judge_axes(temperature_c: np.ndarray, y: np.ndarray, correction: np.ndarray, kind: str,
+               limits: Limits) -> dict[str, list[Any]]:
+    """verify's test of one instance, per axis (``calibrate``'s held-out check is this too).
+
+    ``y`` (n, axes) the output as the script fits it (gyro as logged; accel and baro less
+    their centre), ``correction`` (n, axes) what the firmware subtracts.  Per axis:
+    ``pp_raw`` / ``pp_corrected`` (binned drift p-p before / after), ``cut`` (their ratio;
+    inf when nothing is left, NaN when the corrected axis is not finite), ``nonfinite``
+    (samples of the corrected axis that are NaN, inf or beyond a float32 — what the
+    firmware would output as NaN/inf) and ``passed``: no such sample, and
+    ``cut >= limits.min_cut`` or ``pp_corrected <= limits.floor[kind]``.
+    """
+    temp = np.asarray(temperature_c, dtype=np.float64)
+    out: dict[str, list[Any]] = {"pp_raw": [], "pp_corrected": [], "cut": [], "nonfinite": [],
+                                 "passed": []}
+    floor = limits.floor[kind]
+    with np.errstate(over="ignore", invalid="ignore"):
+        for j in range(y.shape[1]):
+            corrected = y[:, j] - correction[:, j]
+            bad = int(np.count_nonzero(~np.isfinite(corrected)
+                                       | (np.abs(corrected) > FLOAT32_MAX)))
+            before = binned_peak_to_peak(temp, y[:, j])
+            after = math.nan if bad else binned_peak_to_peak(temp, corrected)
+            cut = math.nan if not math.isfinite(after) else (
+                before / after if after > 0 else math.inf)
+            ok = bad == 0 and math.isfinite(after) and (cut >= limits.min_cut or after <= floor)
+            for key, v in (("pp_raw", before), ("pp_corrected", after), ("cut", cut),
+                           ("nonfinite", bad), ("passed", bool(ok))):
+                out[key].append(v)
+    return out
+
+
+def axis_grade(cut: float, after: float, passed: bool, kind: str, limits: Limits
+               ) -> tuple[str, str]:
+    """How safely an axis passes verify's test: ``fine`` (by :data:`MARGIN`: a cut at least
+    ``MARGIN × min_cut``, or a residual at most ``floor / MARGIN``), ``marginal`` (passes,
+    but within that margin: a new log's noise can tip it) or ``fails``; with why."""
+    floor = limits.floor[kind]
+    unit = KIND_UNITS.get(kind, "")
+    if not passed:
+        if not math.isfinite(after):
+            return "fails", "the corrected axis is not finite"
+        return "fails", (f"cut {cut:.1f}x < {limits.min_cut:g}x and {after:.3g} {unit} left "
+                         f"> the {floor:g} {unit} floor")
+    if cut >= MARGIN * limits.min_cut or after <= floor / MARGIN:
+        return "fine", ""
+    return "marginal", (f"cut {cut:.1f}x is within {MARGIN:g}x of verify's {limits.min_cut:g}x "
+                        f"and {after:.3g} {unit} left is within {MARGIN:g}x of the {floor:g} "
+                        f"{unit} floor: a new log may FAIL it")
+
+
+def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
+             refuse_unjudged: bool = True) -> dict[str, dict[str, Any]]:
     """Apply ``pf`` to every instance of ``log`` through the firmware's formula.
 
-    Per instance: ``status`` (``judged`` | ``not covered``), ``reason``, ``slot``,
-    ``pp_raw`` / ``pp_corrected`` / ``cut`` per axis, ``pass`` per axis, ``range``
-    (TMIN, TMAX), ``log_range`` and ``warnings``.  Refuses (ThermonetError) a file of
-    the other autopilot and one whose device ids are none of the log's.
+    Per instance: ``status`` (``judged`` | ``not covered`` | ``not judged``), ``reason``,
+    ``slot``, per axis ``pp_raw`` / ``pp_corrected`` / ``cut`` / ``nonfinite`` / ``passed``
+    (:func:`judge_axes`), ``range`` (TMIN, TMAX), ``log_range`` and ``warnings``.  An
+    instance too short or too narrow to judge (calibrate's own minimums,
+    :func:`thermonet.workflows.firmware_fit.check_instance`) is ``not judged``.  Refuses
+    (ThermonetError) a file of the other autopilot, one whose device ids are none of the
+    log's, and (unless ``refuse_unjudged`` is false: each instance then says why) a log of
+    which no instance can be judged.
     """
     limits = limits or Limits()
     if pf.autopilot != log.autopilot:
         name = {"px4": "PX4", "ardupilot": "ArduPilot"}
         raise ThermonetError(f"{pf.path} is a {name[pf.autopilot]} parameter file; {log.path} "
                              f"is a {name[log.autopilot]} log (verify needs the same autopilot)")
-    insts = [i for i in log.instances if i.kind in _PX4_LETTER and i.temperature_c is not None
-             and i.n_samples]
+    insts = [i for i in log.instances if i.kind in _PX4_LETTER]
     log_ids = sorted({i.device_id for i in insts})
     if pf.by_id and not any((i.kind, i.device_id) in pf.by_id for i in insts):
         raise ThermonetError(f"{pf.path} belongs to another board: its device ids "
@@ -252,13 +467,18 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None
     out: dict[str, dict[str, Any]] = {}
     for inst in insts:
         slot, why = _slot(pf, inst)
-        temp = np.asarray(inst.temperature_c, dtype=np.float64)
         d: dict[str, Any] = {"kind": inst.kind, "device_id": inst.device_id,
-                             "n_samples": inst.n_samples,
-                             "log_range": [float(temp.min()), float(temp.max())],
-                             "warnings": []}
+                             "n_samples": inst.n_samples, "warnings": []}
+        if inst.temperature_c is not None and inst.n_samples:
+            temp = np.asarray(inst.temperature_c, dtype=np.float64)
+            d["log_range"] = [float(temp.min()), float(temp.max())]
         if slot is None:
             d.update(status="not covered", reason=why)
+            out[inst.name] = d
+            continue
+        why = check_instance(inst, log.autopilot)   # the same minimums as calibrate's
+        if why is not None:
+            d.update(status="not judged", reason=why, slot=slot)
             out[inst.name] = d
             continue
         if pf.autopilot == "px4" and f"TC_{_PX4_LETTER[inst.kind]}_ENABLE" not in pf.params:
@@ -270,11 +490,7 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None
                                  f"INS_TCAL{slot + 1} applied to the log's IMU {slot + 1}")
         corr, t_min, t_max = _correction(pf, inst, slot, log)
         y = target(inst, log.autopilot)
-        before = [binned_peak_to_peak(temp, y[:, j]) for j in range(y.shape[1])]
-        after = [binned_peak_to_peak(temp, y[:, j] - corr[:, j]) for j in range(y.shape[1])]
-        cut = [b / a if a > 0 else math.inf for b, a in zip(before, after, strict=True)]
-        floor = limits.floor[inst.kind]
-        ok = [bool(c >= limits.min_cut or a <= floor) for c, a in zip(cut, after, strict=True)]
+        judged = judge_axes(temp, y, corr, inst.kind, limits)
         below = t_min - float(temp.min())
         above = float(temp.max()) - t_max
         if below > RANGE_SLACK_C or above > RANGE_SLACK_C:
@@ -283,12 +499,12 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None
                 f"{t_min:.1f}..{t_max:.1f} °C (by {max(below, 0):.1f} °C below, "
                 f"{max(above, 0):.1f} °C above): the firmware holds the correction constant "
                 "there")
-        d.update(status="judged", reason=None, slot=slot, range=[t_min, t_max],
-                 pp_raw=before, pp_corrected=after, cut=cut, passed=ok)
+        d.update(status="judged", reason=None, slot=slot, range=[t_min, t_max], **judged)
         out[inst.name] = d
-    if not any(d["status"] == "judged" for d in out.values()):
-        reasons = "; ".join(f"{n}: {d['reason']}" for n, d in out.items())
-        raise ThermonetError(f"{pf.path}: applies to no sensor of {log.path.name} ({reasons})")
+    if refuse_unjudged and not any(d["status"] == "judged" for d in out.values()):
+        reasons = "; ".join(f"{n}: {d['status']}, {d['reason']}" for n, d in out.items())
+        raise ThermonetError(f"{pf.path}: nothing of {log.path.name} can be judged "
+                             f"({reasons or 'no gyro, accelerometer or barometer'})")
     return out
 
 
@@ -296,12 +512,14 @@ def verify(params_path: str | Path, log_path: str | Path, out_dir: str | Path, *
            limits: Limits | None = None, overwrite: bool = False) -> dict[str, Any]:
     """Check ``params_path`` on ``log_path``; write ``out_dir`` (results.json, report.txt,
     report.html) whole or not at all; return the results (``passed``: every judged axis)."""
-    from ..core.outdir import check_target, sha256_file, staged_output
+    from ..core.fileio import refuse_overwriting_inputs
+    from ..core.outdir import KINDS, check_target, sha256_file, staged_output
 
     limits = (limits or Limits()).check()
     pf = read_param_file(params_path)
     log = read_log(log_path)
     out = Path(out_dir)
+    refuse_overwriting_inputs(out, [pf.path, log.path], owned=KINDS["verification"])
     check_target(out, overwrite, "verification")
     insts = evaluate(pf, log, limits)
     judged = [d for d in insts.values() if d["status"] == "judged"]
@@ -311,11 +529,42 @@ def verify(params_path: str | Path, log_path: str | Path, out_dir: str | Path, *
            "limits": asdict(limits), "instances": insts,
            "passed": all(all(d["passed"]) for d in judged)}
     with staged_output(out, overwrite=overwrite, kind="verification") as stage:
-        atomic_write_text(stage.path / "results.json", json.dumps(doc, indent=2))
+        atomic_write_text(stage.path / "results.json",
+                          json.dumps(_json_safe(doc), indent=2, allow_nan=False))
         atomic_write_text(stage.path / "report.txt", format_verify_report(doc))
         atomic_write_text(stage.path / "report.html", render_verify_html(doc))
         stage.done()
     return doc
+
+
+def _json_safe(obj: Any) -> Any:
+    """``obj`` with every non-finite float as None (JSON has no NaN or Infinity)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
+
+
+def _g3(x: float | None) -> str:
+    return "nan" if x is None else f"{x:.3g}"
+
+
+def _cut(x: float | None) -> str:
+    return "nan" if x is None or math.isnan(x) else "inf" if math.isinf(x) else f"{x:.1f}"
+
+
+def _axis_text(d: dict[str, Any], j: int) -> str:
+    """``before->after (cut PASS|FAIL)`` of axis ``j``, with the non-finite samples named."""
+    ok = d["passed"][j]
+    text = (f"{_g3(d['pp_raw'][j])}->{_g3(d['pp_corrected'][j])} "
+            f"({_cut(d['cut'][j])}x {'PASS' if ok else 'FAIL'}")
+    bad = (d.get("nonfinite") or [0] * len(d["passed"]))[j]
+    if bad:
+        text += f": {bad} corrected samples NaN/inf"
+    return text + ")"
 
 
 def format_verify_report(doc: dict[str, Any]) -> str:
@@ -329,11 +578,9 @@ def format_verify_report(doc: dict[str, Any]) -> str:
     for name, d in doc["instances"].items():
         head = f"{name:<6} id {d['device_id']:<9}"
         if d["status"] != "judged":
-            lines.append(f"{head} not covered: {d['reason']}")
+            lines.append(f"{head} {d['status']}: {d['reason']}")
             continue
-        axes = ", ".join(f"{b:.3g}->{a:.3g} ({c:.1f}x {'PASS' if ok else 'FAIL'})"
-                         for b, a, c, ok in zip(d["pp_raw"], d["pp_corrected"], d["cut"],
-                                                d["passed"], strict=True))
+        axes = ", ".join(_axis_text(d, j) for j in range(len(d["passed"])))
         unit = KIND_UNITS.get(d["kind"], "")
         lines.append(f"{head} slot {d['slot']}: binned drift p-p [{unit}] {axes}")
         lines += [f"       warning: {w}" for w in d["warnings"]]
@@ -351,17 +598,17 @@ def render_verify_html(doc: dict[str, Any]) -> str:
     for name, d in doc["instances"].items():
         if d["status"] != "judged":
             rows.append(f"<tr><td>{html.escape(name)}</td><td>{d['device_id']}</td>"
-                        f"<td colspan=\"3\">not covered: {html.escape(str(d['reason']))}</td>"
-                        "</tr>")
+                        f"<td colspan=\"3\">{html.escape(d['status'])}: "
+                        f"{html.escape(str(d['reason']))}</td></tr>")
             continue
         for j, (b, a, c, ok) in enumerate(zip(d["pp_raw"], d["pp_corrected"], d["cut"],
                                               d["passed"], strict=True)):
             colour = VERDICT_COLOURS["better" if ok else "worse"]
             warn = "; ".join(d["warnings"]) if j == 0 else ""
             rows.append(f"<tr><td>{html.escape(name)}[{j}]</td><td>{d['device_id']}</td>"
-                        f"<td>{b:.3g} → {a:.3g} {html.escape(KIND_UNITS.get(d['kind'], ''))}"
+                        f"<td>{_g3(b)} → {_g3(a)} {html.escape(KIND_UNITS.get(d['kind'], ''))}"
                         f"</td><td style=\"background:{colour}\">"
-                        f"{c:.1f}× {'PASS' if ok else 'FAIL'}</td>"
+                        f"{_cut(c)}× {'PASS' if ok else 'FAIL'}</td>"
                         f"<td>{html.escape(warn)}</td></tr>")
     verdict = "PASS" if doc["passed"] else "FAIL"
     return ("<!DOCTYPE html><html><head><meta charset=\"utf-8\">"
