@@ -72,6 +72,7 @@ import numpy as np
 from .. import __version__
 from ..core.errors import InputError, ThermonetError
 from ..core.fileio import atomic_write_text
+from ..core.profile import stage as profile_stage
 from ..data.firmware import (
     ARDUPILOT_TEMP_REFERENCE,
     PX4_LETTER,
@@ -213,8 +214,11 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
         FamilyConfig(family="poly", name=fw, inputs=["dT"],
                      params={"degree": 5 if fw == "px4-poly5" else 3}),
         FamilyConfig(family="linear", name="linear", inputs=["dT"]),
+        # the RBF with the cubic tail: a closed-form fit (its ridge chosen on the training
+        # rows), at worst the cubic — not the gradient-trained network, which cost ~90 % of
+        # a calibration's CPU time for a verdict it seldom changed
         FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
-                     params={"n_centres": 8}),
+                     params={"n_centres": 8, "tail": 3}),
     ]
     if inst.unlagged_c is not None and inst.lag_s > 0:
         # a lent thermometer through the fitted lag: the models take the thermometer as read
@@ -228,7 +232,7 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
             FamilyConfig(family="poly", name="px4-cubic-no-lag", inputs=["dT"],
                          params={"degree": 3}),
             FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2", lag],
-                         params={"n_centres": 8}),
+                         params={"n_centres": 8, "tail": 3}),
         ]
         inst = SensorInstance(inst.kind, inst.instance, inst.device_id, inst.time_s,
                               inst.unlagged_c, inst.values, notes=list(inst.notes),
@@ -237,8 +241,10 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
         split=SplitConfig(strategy="time-blocks", n_blocks=20), families=families,
         tracking=TrackingConfig(enabled=False), baseline=fw)
     ds = inst.to_dataset(source).validate(source)
-    # built inside calibrate's own staging directory (a fresh one on every run)
-    res = run_compare(cfg, out, overwrite=True, track=False, quiet=True, dataset=ds)
+    # built inside calibrate's own staging directory (a fresh one on every run); no figures
+    # per instance (the calibration's report has its own tables): the comparison is a verdict
+    res = run_compare(cfg, out, overwrite=True, track=False, quiet=True, dataset=ds,
+                      plots=False)
     if final is not None:
         relocate_json(out / "results.json", out, final)
     fams = res["families"]
@@ -320,7 +326,8 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
         raise InputError("calibrate needs at least one log")
     out = Path(out_dir)
     refuse_overwriting_inputs(out, paths, owned=KINDS["calibration"])
-    logs = [read_log(p) for p in paths]
+    with profile_stage("read the log(s)"):
+        logs = [read_log(p) for p in paths]
     seen: dict[str, Path] = {}
     for lg in logs:               # the same bytes twice: counted twice, "held out" on itself
         digest = sha256_file(lg.path)
@@ -330,7 +337,8 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
                              "counted twice, and checked on its own training data")
         seen[digest] = lg.path
     merge_logs(logs)                              # same board? (refused before anything else)
-    logs, mags = _lend_and_lag(logs, mag_thermometers)   # a bad --mag-thermometer: refused
+    with profile_stage("magnetometers: lend thermometers, fit the lag"):
+        logs, mags = _lend_and_lag(logs, mag_thermometers)   # a bad --mag-thermometer: refused
     check_target(out, overwrite, "calibration")   # before anything is fitted
     with staged_output(out, overwrite=overwrite, kind="calibration") as stage:
         doc = _calibrate_into(logs, stage.path, out, compare=compare, mags=mags)
@@ -581,16 +589,18 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
         if why is None and log.autopilot == "ardupilot" and inst.kind == "baro":
             why = r.reason = "ArduPilot has no barometer temperature calibration parameters"
         if why is None:
-            r.fit = fit_firmware(inst, log.autopilot)
+            with profile_stage(f"{inst.name}: fit the firmware form"):
+                r.fit = fit_firmware(inst, log.autopilot)
             r.status = "fitted"
             res = resolution_effect(inst, r.fit)
             if res is not None:
                 r.summary["resolution"] = res
             if compare:
                 try:
-                    cmp = _compare(inst, log.autopilot,
-                                   inside(stage, "instances", dirs[inst.name]), source,
-                                   final=out / "instances" / dirs[inst.name])
+                    with profile_stage(f"{inst.name}: compare thermonet's families"):
+                        cmp = _compare(inst, log.autopilot,
+                                       inside(stage, "instances", dirs[inst.name]), source,
+                                       final=out / "instances" / dirs[inst.name])
                 except ThermonetError as err:   # this instance cannot be judged: reported, skipped
                     r.status, r.reason, r.fit = "skipped", f"comparison failed: {err}", None
                     results.append(r)
@@ -618,7 +628,9 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
                   if b % HELD_OUT_EVERY == HELD_OUT_EVERY // 2]
         what = (f"time blocks {', '.join(map(str, blocks))} of {HELD_OUT_BLOCKS} of "
                 f"{logs[0].path.name}")
-    for name, h in _held_out(held_logs, results, stage, what).items():
+    with profile_stage("held-out check (verify's test)"):
+        held = _held_out(held_logs, results, stage, what)
+    for name, h in held.items():
         r = next(x for x in results if x.name == name)
         r.summary["held_out"] = h
         if r.status in ("fitted", "model only") and h.get("status") == "judged" and not all(
