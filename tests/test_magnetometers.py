@@ -249,6 +249,12 @@ def test_bad_magnetometer_input_one_line_per_instance_rest_calibrated(
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(none) in err and "mag1=baro0" in err
     assert not (tmp_path / "c4").exists()
+    for spec, expect in (("mag7=gyro1", "no magnetometer mag7"), ("baro0", "expected MAG=")):
+        assert main(["calibrate", str(none), "--out", str(tmp_path / "c5"),
+                     "--mag-thermometer", spec]) == 1
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and expect in err, err
+        assert not (tmp_path / "c5").exists()
 
 
 def test_verify_a_magnetometer_without_its_own_thermometer_is_not_judged(tmp_path: Path) -> None:
