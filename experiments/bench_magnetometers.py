@@ -1,6 +1,7 @@
 """Magnetometers: PX4 ``TC_M*`` from ``thermonet calibrate``, judged on the board's next warm-up.
 
-For simulated boards (``fc-board``, seeds 0–9, PX4): calibrate the first warm-up (run 0), then
+For simulated boards (``fc-board``, or the preset given: ``fc-board-cycle``; seeds 0–9, PX4):
+calibrate the first warm-up (run 0), then
 apply what was written to the next warm-up (run 1, another start / plateau / time constant):
 
 * **mag0** (own thermometer): the written ``px4.params`` through PX4's formula
@@ -37,6 +38,8 @@ from thermonet.workflows.magnetometer import with_lag  # noqa: E402
 
 SEEDS = range(10)
 RATE_HZ = 0.25
+#: ``python experiments/bench_magnetometers.py fc-board-cycle``: warmed, then cooled
+PRESET = sys.argv[1] if len(sys.argv) > 1 and sys.argv[1].startswith("fc-board") else "fc-board"
 
 
 def binned_pp(temp: np.ndarray, y: np.ndarray) -> float:
@@ -78,8 +81,8 @@ def cubic(fw: dict, temp: np.ndarray) -> np.ndarray:
 
 
 def one_board(seed: int, tmp: Path) -> dict:
-    first = write_log(simulate_board("fc-board", seed=seed, rate_hz=RATE_HZ), tmp / f"s{seed}.ulg")
-    nxt = simulate_board("fc-board", seed=seed, rate_hz=RATE_HZ, run=1)
+    first = write_log(simulate_board(PRESET, seed=seed, rate_hz=RATE_HZ), tmp / f"s{seed}.ulg")
+    nxt = simulate_board(PRESET, seed=seed, rate_hz=RATE_HZ, run=1)
     doc = calibrate(first, tmp / f"cal{seed}", compare=False)
     params = {}
     for line in (tmp / f"cal{seed}" / "px4.params").read_text().splitlines():
@@ -123,7 +126,8 @@ def main() -> None:
     md += "\n\n" + ("goal met" if ok else "GOAL NOT MET") + (
         " (mag0 ≥ 80 % and mag1 ≥ 70 % on every axis; mag1 with its lag above no lag, "
         "mean over axes, every seed)")
-    save("bench_magnetometers", {"rows": rows, "goal_met": ok}, md)
+    name = "bench_magnetometers" + ("" if PRESET == "fc-board" else "_cycle")
+    save(name, {"preset": PRESET, "rows": rows, "goal_met": ok}, f"{PRESET}\n\n{md}")
 
 
 if __name__ == "__main__":
