@@ -306,3 +306,30 @@ def test_a_thermonet_model_of_a_magnetometer_exports_as_tc_m_in_gauss(
     assert cmp["families"]["px4-cubic-lag"]["inputs"] == ["dT", f"lag_{tau:g}"]
     assert main(["export", str(tmp_path / "cal" / "instances" / "mag1"), "--format", "onnx",
                  "--family", "px4-cubic-lag", "--out", str(tmp_path / "m1.onnx")]) == 0
+
+
+@pytest.mark.numerics
+def test_heated_then_cooled_the_lag_is_what_makes_a_lent_thermometer_work(
+        tmp_path: Path) -> None:
+    """``fc-board-cycle``: the die is colder than the barometer while heating and warmer while
+    cooling.  The fitted lag is the simulated one, and on the next cycle the lagged cubic
+    removes ≥ 85 % per axis where the un-lagged one leaves far more (means ≥ 5 points
+    apart; bench_magnetometers.py measures 10-22 points on ten seeds)."""
+    for seed in range(3):
+        first = write_log(simulate_board("fc-board-cycle", seed=seed, rate_hz=RATE_HZ),
+                          tmp_path / f"c{seed}.ulg")
+        nxt = simulate_board("fc-board-cycle", seed=seed, rate_hz=RATE_HZ, run=1)
+        doc = calibrate(first, tmp_path / f"cal{seed}", compare=False)
+        d1 = doc["instances"]["mag1"]
+        assert d1["thermometer"]["lag_s"] == MAG_LAG_S[1]       # a grid value: exact
+        by = {i.name: i for i in nxt.instances}
+        baro_t = np.interp(by["mag1"].time_s, by["baro0"].time_s, by["baro0"].temperature_c)
+        lagged = _removed(baro_t, by["mag1"].truth, _cubic(
+            d1["firmware"], _lag(by["mag1"].time_s, baro_t, MAG_LAG_S[1])))
+        src = {i.name: i for i in read_log(first).instances}
+        nolag = fit_firmware(with_lag(lend_thermometer(src["mag1"], src["baro0"]), 0.0), "px4")
+        unlagged = _removed(baro_t, by["mag1"].truth, _cubic(
+            {"t_min": nolag.t_min, "t_max": nolag.t_max, "t_ref": nolag.t_ref,
+             "coef": nolag.coef.tolist()}, baro_t))
+        assert np.all(lagged >= 0.85), (seed, lagged)
+        assert lagged.mean() - unlagged.mean() >= 0.05, (seed, lagged, unlagged)
