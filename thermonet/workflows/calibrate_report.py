@@ -23,9 +23,10 @@ def _mag_lines(d: dict[str, Any]) -> list[str]:
         none = scores.get("0")
         score = (f" (held-out time blocks: {best:.3g} µT² mean squared residual, "
                  f"{none:.3g} with no lag)" if best is not None and none is not None else "")
-        out.append(f"thermometer: {th['name']}'s, lent ("
-                   f"{'as named' if th['chosen'] == 'named' else 'the default'}), through a "
-                   f"fitted lag of {th['lag_s']:g} s{score}")
+        how = f"thermometer: {th['name']}'s, lent (" + (
+            "as named" if th["chosen"] == "named" else "the default") + ")"
+        out.append(f"{how}, through a fitted lag of {th['lag_s']:g} s{score}" if scores
+                   else f"{how}; no lag fitted (the magnetometer cannot be calibrated)")
     elif th.get("chosen") == "own":
         out.append("thermometer: its own")
     if d.get("heading"):
