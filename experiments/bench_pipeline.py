@@ -3,7 +3,7 @@
 Jobs (each a fresh process, as a user runs it; ``RUNS`` counted runs after one warm-up, the
 commands of one job timed in turn A, B, C, A, B, C … so the machine's load hits them alike):
 
-* ``thermonet calibrate`` on a simulated 45-minute ``fc-board`` PX4 log (7 instances × 2,700
+* ``thermonet calibrate`` on a simulated 45-minute ``fc-board`` PX4 log (9 instances × 2,700
   samples), with its per-instance comparison and with ``--no-compare``, against PX4's
   ``process_sensor_caldata.py`` fit (``px4_caldata_anchor.py``) on the same log;
 * ``thermonet compare`` with the default family set on the two real BMI270 soaks
@@ -97,7 +97,7 @@ def main() -> None:
     default_families = tmp / "bmi270-default.yaml"
     default_families.write_text(yaml.safe_dump(cfg))
     jobs: dict[str, dict[str, list[str]]] = {
-        "calibrate (fc-board log, 7 instances × 2,700 samples)": {
+        "calibrate (fc-board log, 9 instances × 2,700 samples)": {
             "thermonet calibrate": [*THERMONET, "calibrate", str(log), "--out",
                                     str(tmp / "cal"), "--overwrite", "-q"],
             "thermonet calibrate --no-compare": [*THERMONET, "calibrate", str(log), "--out",
