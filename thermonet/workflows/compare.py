@@ -42,6 +42,7 @@ from ..training.config import (
 from ..training.parts import (
     data_hash,
 )
+from .compare_band import family_band, per_axis_band
 from .compare_fit import FitQueue, Progress, family_workers
 from .compare_judge import PER_AXIS, Fitted, choose_and_judge, extrapolation
 from .compare_plan import PartCache, data_summary, plan
@@ -169,6 +170,8 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                     tracker.log_metrics({"val/score": r.val_score,
                                          "fit_seconds": r.fit_seconds})
                     ckpt = out / "models" / f"{fam.label}.pt"
+                    band = family_band(p, f, mask)
+                    r.band = band
                     try:
                         # the checkpoint's family config holds the tuned values as params
                         chosen_point = {k: r.tuned[k] for k in fam.tune if k in r.tuned}
@@ -185,7 +188,9 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                                                "compensate": dict(zip(outputs, mask, strict=True)),
                                                "test_metrics": r.to_json()["axes"],
                                                "mlflow_run_id": run_id or "",
-                                               "provenance": provenance})
+                                               "provenance": provenance,
+                                               **({"band": band} if band.get("status") == "ok"
+                                                  else {})})
                         r.checkpoint = str(ckpt)
                         tracker.log_artifact(ckpt, "model")
                     except ThermonetError as err:  # a NaN model is never saved
@@ -210,13 +215,17 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
             "blocks": {"val": n_val, "test": n_test}}
         choose_and_judge(fitted, result, p)
         if result.chosen == PER_AXIS:
-            _save_per_axis(out, fitted, result, cfg, resolved, provenance, units, tracker)
+            _save_per_axis(out, fitted, result, p, resolved, provenance, units, tracker)
         # the out-of-fold scores the choice rests on, in the comparison's own run
         tracker.log_metrics({f"cv/{k}/score": c["score"] for k, c in
                              result.selection.get("candidates", {}).items() if "score" in c})
         extrapolation(fitted, result)
         doc = result.to_json()
         doc["provenance"] = provenance
+        shipped_band = (doc["families"].get(result.chosen) or {}).get("band") \
+            if result.chosen else None
+        if shipped_band is not None:
+            doc["band"] = {"model": result.chosen, **shipped_band}
         shipped = doc["families"].get(PER_AXIS) if result.chosen == PER_AXIS else None
         if shipped and shipped.get("checkpoint"):
             # what `thermonet export DIR` reads (thermonet.exporting.source): the composite's
@@ -242,7 +251,7 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
 
 
 def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResult,
-                   cfg: CompareConfig, resolved: dict[str, Any], provenance: dict[str, Any],
+                   p: Any, resolved: dict[str, Any], provenance: dict[str, Any],
                    units: dict[str, str], tracker: Any) -> None:
     """``models/per-axis.pt``: the candidates the axes chose, one model
     (:class:`thermonet.models.composite.AxisModels`), sealed like every checkpoint."""
@@ -251,6 +260,7 @@ def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResul
     from ..models.composite import AxisModels
     from ..training.checkpoint import save_checkpoint
 
+    cfg = p.cfg
     owners: dict[str, str | None] = result.selection["per_axis"]["chosen"]
     labels: list[str] = result.selection["per_axis"]["candidates"]
     outputs = list(owners)
@@ -259,6 +269,7 @@ def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResul
                        labels)
     r = result.families[PER_AXIS]
     ckpt = out / "models" / f"{PER_AXIS}.pt"
+    r.band = per_axis_band(p, fitted, owners, model)
     fams = {f.label: f for f in cfg.families}
     try:
         save_checkpoint(ckpt, model, config={
@@ -270,7 +281,8 @@ def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResul
             extra={"label": PER_AXIS, "device_id": result.device, "data_hash": result.data_hash,
                    "units": units, "axes": dict(owners),
                    "compensate": {a: owners[a] is not None for a in outputs},
-                   "test_metrics": r.to_json()["axes"], "provenance": provenance})
+                   "test_metrics": r.to_json()["axes"], "provenance": provenance,
+                   **({"band": r.band} if r.band.get("status") == "ok" else {})})
         r.checkpoint = str(ckpt)
         tracker.log_artifact(ckpt, "model")
     except ThermonetError as err:   # a NaN model is never saved
