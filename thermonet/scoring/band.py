@@ -51,7 +51,8 @@ import numpy as np
 from ..core.errors import ConfigError
 
 __all__ = ["Band", "AxisBand", "min_windows", "conformal_quantile", "band_from_oof",
-           "evaluate_tables", "DEFAULT_LEVEL", "DEFAULT_BINS", "display_units"]
+           "evaluate_tables", "DEFAULT_LEVEL", "DEFAULT_BINS", "display_units", "band_problem",
+           "check_level"]
 
 DEFAULT_LEVEL = 0.9
 DEFAULT_BINS = 4
@@ -190,9 +191,45 @@ class Band:
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> Band:
+        """The band a checkpoint or metadata holds; ValueError naming what is wrong."""
+        why = band_problem(d)
+        if why:
+            raise ValueError(why)
         return cls(float(d["level"]), str(d["signal"]), float(d["window_s"]),
                    {a: AxisBand.from_json(b) for a, b in d["axes"].items()},
                    dict(d.get("units", {})))
+
+
+def _finite(x: Any) -> bool:
+    return not isinstance(x, bool) and isinstance(x, int | float) and math.isfinite(x)
+
+
+def band_problem(d: Any) -> str | None:
+    """What is wrong with a band document (None when it is a band :meth:`Band.evaluate`
+    can evaluate): level in (0, 1), per axis increasing finite edges, one finite half-width
+    ≥ 0 per bin, finite growth rates ≥ 0."""
+    if not isinstance(d, Mapping):
+        return "band: expected a mapping"
+    if not _finite(d.get("level")) or not 0 < d["level"] < 1:
+        return f"band.level: expected a number in (0, 1), got {d.get('level')!r}"
+    if not isinstance(d.get("signal"), str) or not _finite(d.get("window_s")):
+        return "band: expected a signal name and window_s"
+    axes = d.get("axes")
+    if not isinstance(axes, Mapping) or not axes:
+        return "band.axes: expected a mapping axis -> tables"
+    for a, b in axes.items():
+        if not isinstance(b, Mapping):
+            return f"band.axes.{a}: expected a mapping"
+        e, h = b.get("edges"), b.get("half_width")
+        if not isinstance(e, list) or not isinstance(h, list) or len(e) < 2 or \
+                len(h) != len(e) - 1 or not all(_finite(x) for x in e + h):
+            return f"band.axes.{a}: expected finite edges (K + 1) and half_width (K)"
+        if any(x2 <= x1 for x1, x2 in zip(e[:-1], e[1:], strict=True)) or min(h) < 0:
+            return f"band.axes.{a}: edges must increase and half-widths be >= 0"
+        for g in ("growth_below", "growth_above"):
+            if not _finite(b.get(g)) or b[g] < 0:
+                return f"band.axes.{a}.{g}: expected a finite number >= 0"
+    return None
 
 
 # ----------------------------------------------------------------------------- estimation

@@ -38,28 +38,27 @@ def _band(p: Plan, fitted: Sequence[Fitted | None], compensate: Sequence[bool],
 
     if p.folds is None:
         return _no_band(p, f"no out-of-fold residuals ({p.fold_note or 'selection.folds is 0'})")
-    if TEMPERATURE not in list(model.signals):
-        return _no_band(p, "the model reads no temperature (the band is a function of "
-                           "temperature only)")
+    # temperature where the model reads it, else its first signal (a proxy: raw counts)
+    sig = TEMPERATURE if TEMPERATURE in list(model.signals) else list(model.signals)[0]
     src = next((f for f in fitted if f is not None), None)
-    if src is None or not src.pool_temps:
-        return _no_band(p, "no out-of-fold predictions")
+    if src is None or any(sig not in f.pool_signals for f in fitted if f is not None):
+        return _no_band(p, f"a candidate has no out-of-fold values of {sig}")
     bad = [f.result.label for f in fitted if f is not None and
            (f.oof is None or f.oof.failed is not None)]
     if bad:
         return _no_band(p, f"{bad[0]} has no out-of-fold predictions")
-    col = list(model.signals).index(TEMPERATURE)
+    col = list(model.signals).index(sig)
     lo = float(np.asarray(model.sig_lo.detach())[col])
     hi = float(np.asarray(model.sig_hi.detach())[col])
     level = _level(p)
     assert level is not None
     try:
         band = band_from_oof(plan=p.folds, targets=src.pool_targets, times=src.pool_times,
-                             temps=src.pool_temps,
+                             temps=src.pool_signals[sig],
                              oofs=[None if f is None else f.oof for f in fitted],
                              compensate=compensate, ranges=[(lo, hi)] * len(p.outputs),
                              outputs=p.outputs, level=level, bins=p.cfg.band.bins,
-                             signal=TEMPERATURE, units=p.units)
+                             signal=sig, units=p.units)
     except ConfigError as err:
         if p.cfg.band.level is not None:
             raise

@@ -49,6 +49,8 @@ class Fitted:
     pool_targets: list[np.ndarray] = field(default_factory=list)
     pool_times: list[np.ndarray] = field(default_factory=list)
     pool_temps: list[np.ndarray] = field(default_factory=list)   # temperature of every row
+    #: every signal the family reads, per pool run (the band's signal: thermonet.scoring.band)
+    pool_signals: dict[str, list[np.ndarray]] = field(default_factory=dict)
 
 
 _DRAWS: dict[int, np.ndarray] = {}
