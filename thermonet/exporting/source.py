@@ -204,12 +204,16 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
 # ----------------------------------------------------- the built-in exporters
 def write_onnx(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``onnx``: the graph with the checkpoint's metadata, logged to its training run."""
+    from ..scoring.band import shipped_band
     from .onnx_export import export_onnx
 
     extra, meta = request.extra, request.meta
     prov = extra.get("provenance")
     source = prov.get("data") if isinstance(prov, dict) else None
+    band = shipped_band(extra)
     path = export_onnx(model, out, metadata={
+        # the residual-drift band's tables, evaluated by the runtime (Compensator.band)
+        **({"band": band} if band is not None else {}),
         "device_id": extra.get("device_id", ""),
         "training_run_id": extra.get("mlflow_run_id", ""),
         "validation_metrics": {"val_score": extra.get("val_score"),
@@ -229,9 +233,10 @@ def write_onnx(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
 
 def write_c(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``c``: the C99 header."""
+    from ..scoring.band import shipped_band
     from .c_header import export_c_header
 
-    return export_c_header(model, out)
+    return export_c_header(model, out, band=shipped_band(request.extra))
 
 
 def write_px4_params(model: ShippedModel, out: Path, request: ExportRequest) -> Path:

@@ -52,7 +52,7 @@ from ..core.errors import ConfigError
 
 __all__ = ["Band", "AxisBand", "min_windows", "conformal_quantile", "band_from_oof",
            "evaluate_tables", "DEFAULT_LEVEL", "DEFAULT_BINS", "display_units", "band_problem",
-           "check_level"]
+           "check_level", "shipped_band"]
 
 DEFAULT_LEVEL = 0.9
 DEFAULT_BINS = 4
@@ -198,6 +198,19 @@ class Band:
         return cls(float(d["level"]), str(d["signal"]), float(d["window_s"]),
                    {a: AxisBand.from_json(b) for a, b in d["axes"].items()},
                    dict(d.get("units", {})))
+
+
+def shipped_band(extra: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The tables an exported file carries (ONNX metadata ``band``, the C header) from a
+    checkpoint's ``extra``: level, signal, window and per axis the edges, half-widths and
+    growth rates; None when the checkpoint has no band."""
+    d = extra.get("band")
+    if not isinstance(d, Mapping) or d.get("status", "ok") != "ok" or band_problem(d):
+        return None
+    return {"level": d["level"], "signal": d["signal"], "window_s": d["window_s"],
+            "axes": {a: {k: b[k] for k in ("edges", "half_width", "growth_below",
+                                            "growth_above")}
+                     for a, b in d["axes"].items()}}
 
 
 def _finite(x: Any) -> bool:
