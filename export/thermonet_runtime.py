@@ -570,7 +570,7 @@ def _meta_band(meta: Mapping[str, str], signals: list[str], outputs: list[str], 
             t.get("half_width") if isinstance(t, dict) else None
         if not isinstance(e, list) or not isinstance(h, list) or len(e) < 2 or \
                 len(h) != len(e) - 1 or not all(_finite_number(x) for x in e + h) or \
-                any(x2 <= x1 for x1, x2 in zip(e[:-1], e[1:])) or min(h) < 0 or \
+                any(x2 <= x1 for x1, x2 in zip(e[:-1], e[1:], strict=True)) or min(h) < 0 or \
                 not all(_finite_number(t.get(g)) and t[g] >= 0
                         for g in ("growth_below", "growth_above")):
             raise bad

@@ -241,18 +241,22 @@ def write_c(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
 
 def write_px4_params(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``px4-params``: PX4's TC_* parameter file (slot ``request.instance``, default 0)."""
+    from ..scoring.band import shipped_band
     from .autopilot import export_px4_params
 
     return export_px4_params(model, out, output_units=request.output_units,
+                             band=shipped_band(request.extra),
                              device_id=request.device_id,
                              instance=0 if request.instance is None else request.instance)
 
 
 def write_ardupilot_params(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``ardupilot-params``: ArduPilot's INS_TCAL* file (IMU ``request.instance``, default 1)."""
+    from ..scoring.band import shipped_band
     from .autopilot import export_ardupilot_params
 
     return export_ardupilot_params(model, out, output_units=request.output_units,
+                                   band=shipped_band(request.extra),
                                    imu=1 if request.instance is None else request.instance)
 
 

@@ -147,6 +147,9 @@ class Band:
     window_s: float
     axes: dict[str, AxisBand]
     units: dict[str, str] = field(default_factory=dict)
+    #: the 95th percentile of |d signal / dt| over the training runs' windows (signal unit
+    #: per second): how fast the bias moves is the band's rate times this (EKF settings)
+    signal_rate: float | None = None
 
     def evaluate(self, x: np.ndarray) -> np.ndarray:
         """Half-width (N, A) at signal values ``x`` (N,), in the outputs' units."""
@@ -185,6 +188,9 @@ class Band:
                               "growth_above": b.grow_hi * du[1]}
         if self.units:
             doc["units"] = dict(self.units)
+        if self.signal_rate is not None:
+            doc["signal_rate_p95"] = self.signal_rate
+            doc["filter"] = self.filter_numbers()
         if figures:
             doc["display"] = figures
         return doc
@@ -195,9 +201,10 @@ class Band:
         why = band_problem(d)
         if why:
             raise ValueError(why)
+        rate = d.get("signal_rate_p95")
         return cls(float(d["level"]), str(d["signal"]), float(d["window_s"]),
                    {a: AxisBand.from_json(b) for a, b in d["axes"].items()},
-                   dict(d.get("units", {})))
+                   dict(d.get("units", {})), float(rate) if _finite(rate) else None)
 
 
 def shipped_band(extra: Mapping[str, Any]) -> dict[str, Any] | None:
@@ -208,6 +215,8 @@ def shipped_band(extra: Mapping[str, Any]) -> dict[str, Any] | None:
     if not isinstance(d, Mapping) or d.get("status", "ok") != "ok" or band_problem(d):
         return None
     return {"level": d["level"], "signal": d["signal"], "window_s": d["window_s"],
+            **({"signal_rate_p95": d["signal_rate_p95"]} if _finite(d.get("signal_rate_p95"))
+               else {}),
             "axes": {a: {k: b[k] for k in ("edges", "half_width", "growth_below",
                                             "growth_above")}
                      for a, b in d["axes"].items()}}
@@ -347,7 +356,27 @@ def band_from_oof(*, plan: Any, targets: Sequence[np.ndarray], times: Sequence[n
                 rule = (f"quantile of the excess rate of {r_out.size} windows of folds that "
                         "extrapolate")
         axes[axis] = AxisBand(edges, half, n, float(grow[0]), float(grow[1]), rule)
-    return Band(level, signal, win, axes, dict(units or {}))
+    return Band(level, signal, win, axes, dict(units or {}), _signal_rate(times, temps, win))
+
+
+def _signal_rate(times: Sequence[np.ndarray], temps: Sequence[np.ndarray], window_s: float
+                 ) -> float | None:
+    """95th percentile of |Δ signal / Δt| between consecutive windows of every run."""
+    from .selection import window_labels
+
+    rates = []
+    for t, x in zip(times, temps, strict=True):
+        t = np.asarray(t, dtype=np.float64)
+        x = np.asarray(x, dtype=np.float64)
+        ok = np.isfinite(t) & np.isfinite(x)
+        if ok.sum() < 2:
+            continue
+        m, _ = _window_means(np.column_stack([t[ok], x[ok]]), window_labels(t[ok], window_s))
+        dt = np.diff(m[:, 0])
+        good = dt > 0
+        rates.append(np.abs(np.diff(m[:, 1])[good] / dt[good]))
+    r = np.concatenate(rates) if rates else np.zeros(0)
+    return float(np.percentile(r, 95)) if r.size else None
 
 
 def _scores(plan: Any, targets: Sequence[np.ndarray], times: Sequence[np.ndarray],
