@@ -563,7 +563,7 @@ def _meta_band(meta: Mapping[str, str], signals: list[str], outputs: list[str], 
                             "finite half-widths and growth rates >= 0)")
     if not isinstance(b, dict) or not _finite_number(b.get("level")) or \
             not 0 < b["level"] < 1 or b.get("signal") not in signals or \
-            not isinstance(b.get("axes"), dict) or list(b["axes"]) != outputs:
+            not isinstance(b.get("axes"), dict) or sorted(b["axes"]) != sorted(outputs):
         raise bad
     for t in b["axes"].values():
         e, h = t.get("edges") if isinstance(t, dict) else None, \
@@ -1123,7 +1123,7 @@ class Compensator:
                                     "from a compare checkpoint made with cross-validation)")
         x = np.asarray(self._as_float32(b["signal"], signal, np.float64), dtype=np.float64)
         cols = [band_tables(x, t["edges"], t["half_width"], t["growth_below"],
-                            t["growth_above"]) for t in b["axes"].values()]
+                            t["growth_above"]) for t in (b["axes"][a] for a in self.outputs)]
         return np.stack(cols, axis=-1)
 
     def _with_band(self, res: Compensation, given: Mapping[str, Any]) -> Compensation:

@@ -488,7 +488,7 @@ average_s, threads
             out.append(predict(model, sig, rec.time_s))
             if return_band:
                 col = list(model.signals).index(band.signal)
-                widths.append(band.evaluate(sig[:, col]))
+                widths.append(band.evaluate(sig[:, col], self.outputs_))
         drift = out[0] if len(out) == 1 else np.concatenate(out)
         if return_band:
             return drift, (widths[0] if len(widths) == 1 else np.concatenate(widths))

@@ -53,9 +53,10 @@ def render_band_c(band: Mapping[str, Any], prefix: str, outputs: Sequence[str],
     from ..scoring.band import Band
 
     b = Band.from_json(band)
-    if list(b.axes) != list(outputs) or b.signal not in signals:
+    if sorted(b.axes) != sorted(outputs) or b.signal not in signals:
         raise ExportError(f"the band's axes {list(b.axes)} / signal {b.signal!r} do not match "
                           f"the model's outputs {list(outputs)} / signals {list(signals)}")
+    b.axes = {a: b.axes[a] for a in outputs}      # the header's axis order
     p, P = prefix, prefix.upper()
     kmax = max(len(t.half) for t in b.axes.values())
     edges = [t.edges + [t.edges[-1]] * (kmax + 1 - len(t.edges)) for t in b.axes.values()]
@@ -120,6 +121,14 @@ def insert_band(text: str, band: Mapping[str, Any], prefix: str, outputs: Sequen
     return head + lines + "\n\n" + end + tail
 
 
+def _header_axes(text: str, prefix: str) -> list[str] | None:
+    """The axis names the header lists (``<PREFIX>_AXIS_NAMES``)."""
+    import re
+
+    m = re.search(rf"#define {prefix.upper()}_AXIS_NAMES \{{(.*)\}}", text)
+    return None if m is None else re.findall(r'"((?:[^"\\]|\\.)*)"', m.group(1))
+
+
 def check_band_c(band: Mapping[str, Any], text: str, prefix: str, *, seed: int = 0
                  ) -> float | None:
     """Compile ``text`` and compare ``<prefix>_band`` with Python's evaluation on points
@@ -132,6 +141,8 @@ def check_band_c(band: Mapping[str, Any], text: str, prefix: str, *, seed: int =
     if cc is None:
         return None
     b = Band.from_json(band)
+    order = _header_axes(text, prefix) or list(b.axes)
+    b.axes = {a: b.axes[a] for a in order}
     pts = []
     for t in b.axes.values():
         span = t.edges[-1] - t.edges[0]

@@ -151,11 +151,12 @@ class Band:
     #: per second): how fast the bias moves is the band's rate times this (EKF settings)
     signal_rate: float | None = None
 
-    def evaluate(self, x: np.ndarray) -> np.ndarray:
-        """Half-width (N, A) at signal values ``x`` (N,), in the outputs' units."""
+    def evaluate(self, x: np.ndarray, outputs: Sequence[str] | None = None) -> np.ndarray:
+        """Half-width (N, A) at signal values ``x`` (N,), in the outputs' units; columns in
+        the order of ``outputs`` (default: the band's own)."""
         x = np.asarray(x, dtype=np.float64).reshape(-1)
         cols = [evaluate_tables(x, b.edges, b.half, b.grow_lo, b.grow_hi)
-                for b in self.axes.values()]
+                for b in (self.axes[a] for a in (outputs or list(self.axes)))]
         return np.stack(cols, axis=1) if cols else np.zeros((x.size, 0))
 
     def filter_numbers(self) -> dict[str, dict[str, float]]:
