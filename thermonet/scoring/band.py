@@ -56,6 +56,9 @@ __all__ = ["Band", "AxisBand", "min_windows", "conformal_quantile", "band_from_o
 
 DEFAULT_LEVEL = 0.9
 DEFAULT_BINS = 4
+#: A window counts as extrapolating (for the growth rate) this fraction of the trained span
+#: past its fold's edge or more: nearer, thermometer noise would make a rate of nothing.
+MIN_PAST = 0.02
 
 #: A unit's value in rad/s (gyro) or m/s² (acc), for the °/h and mg figures.
 _SI = {"rad/s": ("gyro", 1.0), "deg/s": ("gyro", math.pi / 180.0),
@@ -285,20 +288,27 @@ def _bins(t: np.ndarray, lo: float, hi: float, bins: int, need: int) -> list[flo
     return [float(e) for e in edges]
 
 
-def _edge_slope(t: np.ndarray, y: np.ndarray, fold: np.ndarray) -> float:
-    """|slope| + its standard error of ``y`` on ``t``, each fold about its own means."""
-    tc, yc = t.copy(), y.copy()
+def _edge_slope(t: np.ndarray, y: np.ndarray, fold: np.ndarray, edge: float) -> float:
+    """|slope at ``edge``| + its standard error of ``y`` on ``t``: a quadratic in
+    ``t − edge`` (a line with fewer than 6 windows), each fold about its own means."""
+    u = t - edge
+    cols = [u, u ** 2] if t.size >= 6 else [u]
+    X = np.column_stack(cols)
+    yc = y.copy()
     for f in np.unique(fold):
         m = fold == f
-        tc[m] -= tc[m].mean()
+        X[m] -= X[m].mean(axis=0)
         yc[m] -= yc[m].mean()
-    sxx = float(tc @ tc)
-    if t.size < 3 or sxx <= 0:
+    if t.size < X.shape[1] + 2:
         return 0.0
-    b = float(tc @ yc) / sxx
-    resid = yc - b * tc
-    se = math.sqrt(float(resid @ resid) / max(t.size - 2, 1) / sxx)
-    return abs(b) + se
+    xtx = X.T @ X
+    if not np.isfinite(xtx).all() or np.linalg.cond(xtx) > 1e12:
+        return 0.0
+    beta = np.linalg.solve(xtx, X.T @ yc)
+    resid = yc - X @ beta
+    s2 = float(resid @ resid) / max(t.size - X.shape[1], 1)
+    se = math.sqrt(max(float(np.linalg.inv(xtx)[0, 0]) * s2, 0.0))
+    return abs(float(beta[0])) + se
 
 
 def band_from_oof(*, plan: Any, targets: Sequence[np.ndarray], times: Sequence[np.ndarray],
@@ -344,18 +354,24 @@ def band_from_oof(*, plan: Any, targets: Sequence[np.ndarray], times: Sequence[n
         # growth past each edge: the raw drift's slope in the edge bin (clamped prediction)
         y_raw = y_in[:, a]
         grow = []
-        for j in (0, len(edges) - 2):
+        for j, edge in ((0, edges[0]), (len(edges) - 2, edges[-1])):
             m = k == j
-            grow.append(_edge_slope(t_in[m], y_raw[m], f_in[m]) if m.sum() >= 3 else 0.0)
-        rule = "raw drift slope + SE in the edge bin (the model holds its edge value)"
-        if r_out is not None and r_out.size >= need:
-            at_edge = evaluate_tables(edge_out, edges, half, 0.0, 0.0)
-            rate = np.maximum(np.abs(r_out) - at_edge, 0.0) / np.maximum(d_out, 1e-9)
-            fitted = conformal_quantile(rate, level)
+            grow.append(_edge_slope(t_in[m], y_raw[m], f_in[m], edge) if m.sum() >= 3
+                        else 0.0)
+        rule = ("raw drift slope at the edge + SE (quadratic over the edge bin; the model "
+                "holds its edge value)")
+        far = d_out >= MIN_PAST * (hi - lo)
+        if r_out is not None and far.any():
+            # windows of folds that extrapolate: their excess over the band at the fold's
+            # edge per unit of distance; the conformal quantile with enough of them, their
+            # largest otherwise (the finite-sample quantile at level n / (n + 1))
+            at_edge = evaluate_tables(edge_out[far], edges, half, 0.0, 0.0)
+            rate = np.maximum(np.abs(r_out[far]) - at_edge, 0.0) / d_out[far]
+            fitted = conformal_quantile(rate, level) if rate.size >= need else float(rate.max())
             if math.isfinite(fitted) and fitted > max(grow):
                 grow = [max(g, fitted) for g in grow]
-                rule = (f"quantile of the excess rate of {r_out.size} windows of folds that "
-                        "extrapolate")
+                rule = (f"excess rate of {rate.size} windows of folds that extrapolate "
+                        f"({'quantile' if rate.size >= need else 'largest'})")
         axes[axis] = AxisBand(edges, half, n, float(grow[0]), float(grow[1]), rule)
     return Band(level, signal, win, axes, dict(units or {}), _signal_rate(times, temps, win))
 
