@@ -330,7 +330,9 @@ def _plots(out: Path, fitted: dict[str, Fitted], results: dict[str, Any],
             paths.append(plot_residual_vs_temperature(
                 pdir / f"residual_vs_temperature_{safe}.png", temperature_c=part.bin_by,
                 raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit,
-                bin_width=part.bin_width, x_label=x_label, **style))
+                bin_width=part.bin_width, x_label=x_label, band=_band_curve(results, axis,
+                                                                           part.bin_by),
+                **style))
             paths.append(plot_allan(pdir / f"allan_{safe}.png", rate_hz=part.rate_hz,
                                     raw_error=part.target[:, j], compensated=resid,
                                     axis=axis, units=unit, **style))
@@ -340,6 +342,24 @@ def _plots(out: Path, fitted: dict[str, Fitted], results: dict[str, Any],
     if any(c is not None for c, _ in points.values()):
         paths.append(plot_accuracy_cost(pdir / "accuracy_vs_cost.png", points, **style))
     return paths
+
+
+def _band_curve(results: dict[str, Any], axis: str, x: Any) -> Any:
+    """(grid, half-width) of the shipped model's band on ``axis`` over ``x``'s range, or None
+    (no band, or a band over another signal than the plot's x)."""
+    import numpy as np
+
+    from ..features.inputs import TEMPERATURE
+    from ..scoring.band import evaluate_tables
+
+    band = results.get("band") or {}
+    t = (band.get("axes") or {}).get(axis)
+    xs = np.asarray(x, dtype=np.float64)
+    if t is None or band.get("signal") != TEMPERATURE or not np.isfinite(xs).any():
+        return None
+    grid = np.linspace(float(np.nanmin(xs)), float(np.nanmax(xs)), 400)
+    return grid, evaluate_tables(grid, t["edges"], t["half_width"], t["growth_below"],
+                                 t["growth_above"])
 
 
 _METRIC_COLS = ("pp_raw", "pp_comp", "drift_error_rms", "ppm_per_c_raw", "ppm_per_c_comp")
