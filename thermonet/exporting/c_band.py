@@ -64,7 +64,6 @@ def render_band_c(band: Mapping[str, Any], prefix: str, outputs: Sequence[str],
     nums = b.filter_numbers()
     rows = lambda m: "{" + ", ".join(_floats(r) for r in m) + "}"  # noqa: E731
     return [
-        "",
         f"/* Residual-drift band (thermonet.scoring.band): a {b.window_s:g} s window mean of the",
         f" * corrected output's residual lies within +-{p}_band() of the run's mean residual for",
         f" * {b.level:.0%} of windows on runs like the training runs (drift only: not noise, shocks,",
