@@ -182,6 +182,70 @@ def _pool(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "past_windows": npast, "past_coverage": cpast / npast if npast else float("nan")}
 
 
+_BAND_ENTRY = """
+float mcu_band_x, mcu_band_out[THERMONET_N_AXES];
+void mcu_band(void);
+void mcu_band(void)
+{
+    thermonet_band(mcu_band_x, mcu_band_out);
+}
+"""
+
+
+def main_mcu() -> None:
+    """The band's cost on the emulated Cortex-M4F (float path, -O2, strict warnings): Thumb
+    instructions of one ``thermonet_band`` call against one ``thermonet_step`` of the same
+    header (a consumer-imu device's shipped model, 6 axes), over a temperature sweep from
+    10 °C below to 10 °C above the trained range; and the emulated band against Python."""
+    import struct
+
+    from thermonet.exporting.c_stream import stream_signature_has_proxies
+    from thermonet.exporting.mcu import Emulator, cross_compile
+    from thermonet.scoring.band import shipped_band
+
+    ds = simulate("consumer-imu", runs=2, seed=0, sample_rate_hz=0.2)
+    with tempfile.TemporaryDirectory() as tmp:
+        est, what = _shipped(_config("configs/consumer-imu.yaml"), ds, Path(tmp))
+        assert est is not None, what
+        header = est.export(Path(tmp) / "m.h", "c").read_text()
+        assert shipped_band({"band": {"status": "ok", **est.band_.to_json()}}) is not None
+        end = "#endif /* THERMONET_MODEL_H */"
+        head, _, tail = header.rpartition(end)
+        text = head + _BAND_ENTRY + "\n" + end + tail
+        build = cross_compile(text, "cortex-m4f", Path(tmp) / "m4",
+                              has_proxies=stream_signature_has_proxies(est.model_))
+        model = est.model_
+        emu = Emulator(build, len(model.signals), len(model.outputs))
+        b = next(iter(est.band_.axes.values()))
+        temps = np.linspace(b.edges[0] - 10.0, b.edges[-1] + 10.0, 41)
+        raw = np.zeros(len(model.outputs))
+        steps, bands, worst = [], [], 0.0
+        for i, temp in enumerate(temps):
+            steps.append(emu.step(int(i * 1_000_000), float(temp), raw, None,
+                                  count=True).instructions)
+            emu.uc.mem_write(emu.sym["mcu_band_x"], struct.pack("<f", float(temp)))
+            emu._call("mcu_band", count=True)
+            bands.append(sum(emu._attribute().values()))
+            got = np.array(struct.unpack(f"<{len(model.outputs)}f", bytes(emu.uc.mem_read(
+                emu.sym["mcu_band_out"], 4 * len(model.outputs)))))
+            want = est.band_.evaluate(np.array([np.float32(temp)], dtype=np.float64),
+                                      est.outputs_)[0]
+            worst = max(worst, float(np.max(np.abs(got - want) / np.maximum(want, 1e-30))))
+    ratio = float(np.median(bands)) / float(np.median(steps))
+    data = {"model": what, "axes": len(model.outputs), "step_median": float(np.median(steps)),
+            "band_median": float(np.median(bands)), "band_max": int(max(bands)),
+            "band_over_step": ratio, "worst_relative_error": worst,
+            "code_bytes": build.code_bytes, "const_bytes": build.const_bytes}
+    md = ("Residual-drift band on the emulated Cortex-M4F (float path, -O2; consumer-imu "
+          f"device, {what}, {len(model.outputs)} axes, 41 temperatures across and 10 °C past "
+          "the trained range)\n\n" + table(
+              ["step instructions (median)", "band instructions (median / max)",
+               "band / step", "band vs Python (worst relative)"],
+              [[data["step_median"], f"{data['band_median']:.0f} / {data['band_max']}",
+                ratio, worst]]))
+    save("bench_uncertainty_mcu", data, md)
+
+
 def main() -> None:
     t0 = time.perf_counter()
     results: dict[str, Any] = {"level": 0.9, "seeds": SEEDS, "presets": {}, "edge": {}}
@@ -216,4 +280,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main_mcu() if sys.argv[1:] == ["mcu"] else main()

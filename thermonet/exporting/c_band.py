@@ -91,22 +91,40 @@ def render_band_c(band: Mapping[str, Any], prefix: str, outputs: Sequence[str],
         f"static inline void {p}_band(float x, float out[{P}_N_AXES])",
         "{",
         "    int a, k;",
-        f"    for (a = 0; a < {P}_N_AXES; ++a) {{",
-        f"        const int nb = {p}_band_bins[a];",
-        f"        const float *e = {p}_band_edges[a];",
-        "        if (!(x - x == 0.0f)) { out[a] = x - x; continue; }   /* NaN in, NaN out */",
-        "        if (x < e[0]) {",
-        f"            out[a] = {p}_band_half[a][0] + {p}_band_grow_below[a] * (e[0] - x);",
-        "        } else if (x > e[nb]) {",
-        f"            out[a] = {p}_band_half[a][nb - 1] + {p}_band_grow_above[a] * (x - e[nb]);",
-        "        } else {",
-        "            k = 0;",
-        "            while (k < nb - 1 && x >= e[k + 1]) ++k;",
-        f"            out[a] = {p}_band_half[a][k];",
-        "        }",
+        "    float d;",
+        "    (void)a; (void)k; (void)d;",
+        "    if (!(x - x == 0.0f)) {   /* NaN or inf in, NaN out */",
+        f"        for (a = 0; a < {P}_N_AXES; ++a) out[a] = x - x;",
+        "        return;",
         "    }",
+        *_group_lines(b, p),
         "}",
     ]
+
+
+def _group_lines(b: Any, p: str) -> list[str]:
+    """The evaluation, one bin search per group of axes that share their edges (a family's
+    axes do: the same windows), the edges as literals; then per axis one table load."""
+    groups: dict[tuple[float, ...], list[int]] = {}
+    for a, t in enumerate(b.axes.values()):
+        groups.setdefault(tuple(float(np.float32(e)) for e in t.edges), []).append(a)
+    lines: list[str] = []
+    for edges, axes in groups.items():
+        e0, en, inner = c_float(edges[0]), c_float(edges[-1]), edges[1:-1]
+        nb = len(edges) - 1
+        lines += [f"    /* axes {', '.join(str(a) for a in axes)}: {nb} bin(s) */",
+                  f"    if (x < {e0}) {{", f"        d = {e0} - x;"]
+        lines += [f"        out[{a}] = {p}_band_half[{a}][0] + {p}_band_grow_below[{a}] * d;"
+                  for a in axes]
+        lines += [f"    }} else if (x > {en}) {{", f"        d = x - {en};"]
+        lines += [f"        out[{a}] = {p}_band_half[{a}][{nb - 1}] + "
+                  f"{p}_band_grow_above[{a}] * d;" for a in axes]
+        lines += ["    } else {",
+                  "        k = " + (" + ".join(f"(x >= {c_float(e)})" for e in inner)
+                                   if inner else "0") + ";"]
+        lines += [f"        out[{a}] = {p}_band_half[{a}][k];" for a in axes]
+        lines += ["    }"]
+    return lines
 
 
 def insert_band(text: str, band: Mapping[str, Any], prefix: str, outputs: Sequence[str],
