@@ -487,6 +487,7 @@ average_s, threads
             sig = signal_matrix(rec, list(model.signals), self.spec_.gap_s)
             out.append(predict(model, sig, rec.time_s))
             if return_band:
+                assert band is not None
                 col = list(model.signals).index(band.signal)
                 widths.append(band.evaluate(sig[:, col], self.outputs_))
         drift = out[0] if len(out) == 1 else np.concatenate(out)

@@ -296,7 +296,7 @@ def _g(v: float) -> str:
 #: ``EKF2_ABIAS_INIT`` m/s²: initial bias uncertainty); ArduPilot 4.5 EKF3
 #: (``EK3_GBIAS_P_NSE`` rad/s/s, ``EK3_ABIAS_P_NSE`` m/s³: rate gyro / accelerometer bias
 #: stability; no initial-uncertainty parameter).
-EKF_PARAMS = {"px4": {"gyro": ("EKF2_GYR_B_NOISE", "EKF2_GBIAS_INIT"),
+EKF_PARAMS: dict[str, dict[str, tuple[str, str | None]]] = {"px4": {"gyro": ("EKF2_GYR_B_NOISE", "EKF2_GBIAS_INIT"),
                       "acc": ("EKF2_ACC_B_NOISE", "EKF2_ABIAS_INIT")},
               "ardupilot": {"gyro": ("EK3_GBIAS_P_NSE", None),
                             "acc": ("EK3_ABIAS_P_NSE", None)}}
@@ -338,10 +338,10 @@ def ekf_recommendation(band: Mapping[str, Any] | None, output_units: str | Mappi
              "training)."]
     for kind, (noise, bound) in best.items():
         pn, init = EKF_PARAMS[autopilot][kind]
-        si = "rad/s" if kind == "gyro" else "m/s^2"
-        lines.append(f"#   {pn} >= {_g(noise)} ({si}/s)")
+        si_unit = "rad/s" if kind == "gyro" else "m/s^2"
+        lines.append(f"#   {pn} >= {_g(noise)} ({si_unit}/s)")
         if init:
-            lines.append(f"#   {init} >= {_g(bound)} ({si})")
+            lines.append(f"#   {init} >= {_g(bound)} ({si_unit})")
         else:
             lines.append(f"#   residual {kind} bias bound {_g(bound)} {si}")
     return lines

@@ -125,7 +125,8 @@ class AxisBand:
                    float(d["growth_above"]), str(d.get("growth_rule", "")))
 
 
-def evaluate_tables(x: np.ndarray, edges: Sequence[float], half: Sequence[float],
+def evaluate_tables(x: np.ndarray, edges: Sequence[float] | np.ndarray,
+                    half: Sequence[float] | np.ndarray,
                     grow_lo: float, grow_hi: float) -> np.ndarray:
     """The band at ``x`` (N,): piecewise constant over ``edges``, growing linearly past them;
     NaN where ``x`` is NaN.  (The runtime and the C header evaluate the same rule.)"""
@@ -208,7 +209,7 @@ class Band:
         rate = d.get("signal_rate_p95")
         return cls(float(d["level"]), str(d["signal"]), float(d["window_s"]),
                    {a: AxisBand.from_json(b) for a, b in d["axes"].items()},
-                   dict(d.get("units", {})), float(rate) if _finite(rate) else None)
+                   dict(d.get("units", {})), float(rate) if _finite(rate) else None)  # type: ignore[arg-type]
 
 
 def shipped_band(extra: Mapping[str, Any]) -> dict[str, Any] | None:
