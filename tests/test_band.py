@@ -323,3 +323,27 @@ def test_predict_band_refused_without_one():
     est = DriftEstimator("poly", ["dT"], degree=1).fit(ds)
     with pytest.raises(ThermonetError, match="carries no band"):
         est.predict(ds, return_band=True)
+
+
+def test_calibrate_writes_the_ekf_recommendation_beside_the_parameter_file(tmp_path):
+    """A simulated PX4 board (gyro and accelerometer): ``ekf-recommendation.txt`` beside
+    ``px4.params`` holds per instance the bias noise = the firmware form's band rate × the
+    training's temperature rate (rad/s and m/s² already: SI factor 1), never a parameter
+    line the loader would read."""
+    from thermonet.data.logs.writers import write_log
+    from thermonet.exporting import read_px4_params
+    from thermonet.sim.fcboard import simulate_board
+    from thermonet.workflows.calibrate import EKF_FILE, calibrate
+
+    board = simulate_board("fc-board", autopilot="px4", seed=3, rate_hz=0.5)
+    board.instances = [i for i in board.instances if i.name in ("gyro0", "acc0")]
+    doc = calibrate(write_log(board, tmp_path / "b.ulg"), tmp_path / "cal")
+    text = (tmp_path / "cal" / EKF_FILE).read_text()
+    assert all(line.startswith("#") for line in text.splitlines())
+    assert not any(k.startswith("EKF2") for k in read_px4_params(tmp_path / "cal" / "px4.params"))
+    for name, param in (("gyro0", "EKF2_GYR_B_NOISE"), ("acc0", "EKF2_ACC_B_NOISE")):
+        band = Band.from_json(doc["instances"][name]["compare"]["band"])
+        want = max(v["rate"] for v in band.filter_numbers().values()) * band.signal_rate
+        block = text[text.index(f"# {name} "):]
+        line = next(x for x in block.splitlines() if param in x)
+        assert_f64_close(float(line.split(">=")[1].split()[0]), want, rtol=1e-8)  # 9 digits
