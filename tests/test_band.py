@@ -347,3 +347,37 @@ def test_calibrate_writes_the_ekf_recommendation_beside_the_parameter_file(tmp_p
         block = text[text.index(f"# {name} "):]
         line = next(x for x in block.splitlines() if param in x)
         assert_f64_close(float(line.split(">=")[1].split()[0]), want, rtol=1e-8)  # 9 digits
+
+
+def test_a_damaged_band_is_refused_by_the_checkpoint_and_the_runtime(compared, tmp_path):
+    """A band edited after the fact (level 2) is named in one line: by ``load_checkpoint``
+    (the checkpoint re-sealed, so only the band is wrong) and by the runtime (the ONNX file
+    re-sealed likewise)."""
+    import onnx
+
+    from thermonet.core.errors import InputError
+    from thermonet.exporting.onnx_export import seal_onnx
+    from thermonet.training.checkpoint import load_checkpoint, save_checkpoint
+
+    res, _, _ = compared
+    model, meta = load_checkpoint(res["families"][res["chosen"]]["checkpoint"])
+    extra = dict(meta["extra"])
+    extra["band"] = {**extra["band"], "level": 2.0}
+    path = save_checkpoint(tmp_path / "bad.pt", model, config=meta["config"], extra=extra)
+    with pytest.raises(InputError, match=r"extra\.band.*band\.level"):
+        load_checkpoint(path)
+    from thermonet.api.estimator import DriftEstimator
+
+    est = DriftEstimator.load(res["families"][res["chosen"]]["checkpoint"])
+    onnx_path = est.export(tmp_path / "m.onnx", "onnx")
+    proto = onnx.load(str(onnx_path))
+    for p in proto.metadata_props:
+        if p.key == "band":
+            doc = json.loads(p.value)
+            doc["level"] = 2.0
+            p.value = json.dumps(doc)
+    onnx.save_model(proto, str(onnx_path))
+    seal_onnx(onnx_path)
+    rt = load_runtime()
+    with pytest.raises(rt.RuntimeInputError, match="metadata 'band' is not a band"):
+        rt.Compensator(onnx_path)
