@@ -216,6 +216,7 @@ def compared(tmp_path_factory):
     return res, ds, out
 
 
+@pytest.mark.slow   # a whole comparison
 def test_results_and_checkpoint_carry_the_shipped_models_band(compared):
     from thermonet.api.estimator import DriftEstimator
 
@@ -236,6 +237,7 @@ def test_results_and_checkpoint_carry_the_shipped_models_band(compared):
     np.testing.assert_array_equal(again.band_.evaluate(x), est.band_.evaluate(x))
 
 
+@pytest.mark.slow   # a whole comparison
 def test_per_axis_band_is_each_owners_own(compared):
     """Each axis of the per-axis model carries the band its owner's family has on that axis
     (same out-of-fold residuals, same mask) — or the raw drift's band on an axis left raw."""
@@ -252,6 +254,7 @@ def test_per_axis_band_is_each_owners_own(compared):
             shipped["edges"] != own["edges"]   # the composite's narrower trained range
 
 
+@pytest.mark.slow   # a whole comparison
 def test_band_parity_onnx_runtime_step_and_c(compared, tmp_path):
     from thermonet.api.estimator import DriftEstimator
     from thermonet.exporting.c_band import BAND_DRIVER
@@ -293,6 +296,7 @@ def test_band_parity_onnx_runtime_step_and_c(compared, tmp_path):
     assert_f32_close(c_out[:-1][away], py[:-1][away], "affine")
 
 
+@pytest.mark.slow   # a whole comparison
 def test_ekf_recommendation_from_the_band(compared):
     from thermonet.exporting.autopilot import ekf_recommendation
     from thermonet.scoring.band import shipped_band
@@ -325,6 +329,7 @@ def test_predict_band_refused_without_one():
         est.predict(ds, return_band=True)
 
 
+@pytest.mark.slow   # a whole comparison
 def test_calibrate_writes_the_ekf_recommendation_beside_the_parameter_file(tmp_path):
     """A simulated PX4 board (gyro and accelerometer): ``ekf-recommendation.txt`` beside
     ``px4.params`` holds per instance the bias noise = the firmware form's band rate × the
@@ -349,6 +354,7 @@ def test_calibrate_writes_the_ekf_recommendation_beside_the_parameter_file(tmp_p
         assert_f64_close(float(line.split(">=")[1].split()[0]), want, rtol=1e-8)  # 9 digits
 
 
+@pytest.mark.slow   # a whole comparison
 def test_a_damaged_band_is_refused_by_the_checkpoint_and_the_runtime(compared, tmp_path):
     """A band edited after the fact (level 2) is named in one line: by ``load_checkpoint``
     (the checkpoint re-sealed, so only the band is wrong) and by the runtime (the ONNX file
