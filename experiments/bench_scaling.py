@@ -26,8 +26,17 @@ figure is the child's own); medians of repeats with min–max:
     carried), and ``step`` one sample at a time (on 5,000 samples); throughput in samples/s,
     interleaved repeats, and the paired ratio streaming / batch.
 
-``python experiments/bench_scaling.py [info] [compare] [runtime]`` (default: all three);
-``BENCH_SCALING_REPEATS`` (default 3; compare uses 2).
+``plain``
+    Files that are not thermonet's own stream too: ``thermonet compare`` (the default config,
+    ``data.in_memory_samples: 0``) on the same recording written as a plain Parquet file (no
+    ``thermonet`` metadata: conventional column names and a ``run`` column) and as a CSV
+    file, at ``BENCH_PLAIN_SIZES`` samples (default 2, 10 and 20 M; one run each);
+    ``thermonet convert`` of the 10 M-sample plain Parquet and CSV files (peak RSS of a
+    fresh process, ``VmHWM``); and the agreement of the comparison on the 2 M-sample CSV
+    streamed directly with the comparison on the same CSV converted first.
+
+``python experiments/bench_scaling.py [info] [compare] [runtime] [plain]`` (default: the
+first three); ``BENCH_SCALING_REPEATS`` (default 3; compare uses 2).
 """
 
 from __future__ import annotations
@@ -177,6 +186,111 @@ def bench_files(parts: set[str], tmp: Path) -> tuple[list[str], dict]:
     return md, data
 
 
+PLAIN_SIZES = [int(x) for x in os.environ.get(
+    "BENCH_PLAIN_SIZES", "2000000,10000000,20000000").split(",")]
+CONVERT_SAMPLES = int(os.environ.get("BENCH_CONVERT_SAMPLES", "10000000"))
+
+#: the thermonet file argv[1] rewritten, streamed, as plain Parquet (argv[2]) and CSV (argv[3])
+PLAIN_CHILD = """
+import sys
+import pyarrow.csv as pacsv, pyarrow.parquet as pq
+pf = pq.ParquetFile(sys.argv[1])
+schema = pf.schema_arrow.remove_metadata()
+w = pq.ParquetWriter(sys.argv[2], schema)
+c = pacsv.CSVWriter(sys.argv[3], schema, write_options=pacsv.WriteOptions(quoting_style="none"))
+for b in pf.iter_batches(batch_size=65536):
+    b = b.replace_schema_metadata(None)
+    w.write_batch(b)
+    c.write_batch(b)
+w.close()
+c.close()
+print("{}")
+"""
+
+#: one ``thermonet convert`` in a fresh process: wall and VmHWM
+CONVERT_CHILD = """
+import json, sys, time
+from thermonet.cli import main
+t0 = time.perf_counter()
+rc = main(["convert", sys.argv[1], "--out", sys.argv[2], "--overwrite"])
+wall = time.perf_counter() - t0
+hwm = next(int(x.split()[1]) for x in open("/proc/self/status") if x.startswith("VmHWM"))
+print(json.dumps({"rc": rc, "wall_s": wall, "maxrss_mb": hwm / 1024.0}))
+"""
+
+
+def bench_plain(tmp: Path) -> tuple[list[str], dict]:
+    rows, conv_rows, data = [], [], {"compare": {}, "convert": {}}
+    pts: dict[str, list[tuple[int, float]]] = {"plain Parquet": [], "CSV": []}
+    agreement: dict = {}
+    for target in sorted(set(PLAIN_SIZES) | {CONVERT_SAMPLES}):
+        src = tmp / f"pg_{target}.parquet"
+        n = simulate_file(target, src)
+        plain, csv = tmp / f"plain_{target}.parquet", tmp / f"plain_{target}.csv"
+        _child(PLAIN_CHILD, str(src), str(plain), str(csv))
+        src.unlink()
+        sizes = {"plain Parquet": plain.stat().st_size, "CSV": csv.stat().st_size}
+        for kind, f in (("plain Parquet", plain), ("CSV", csv)):
+            if target in PLAIN_SIZES:
+                work = tmp / f"w_{target}_{kind[:3]}"
+                work.mkdir()
+                r = compare_once(f, work, True)
+                data["compare"][f"{kind}_{n}"] = {"samples": n, **r,
+                                                  "file_mb": sizes[kind] / 2 ** 20}
+                pts[kind].append((n, r["maxrss_mb"]))
+                rows.append([f"{n / 1e6:.2f} M", kind, f"{sizes[kind] / 2 ** 20:.0f}",
+                             f"{r['wall_s']:.1f}", f"{r['cpu_s']:.1f}",
+                             f"{r['maxrss_mb']:.0f}"])
+                if target == min(PLAIN_SIZES) and kind == "CSV":
+                    agreement = _agreement(f, work, tmp)
+            if target == CONVERT_SAMPLES:
+                r = _child(CONVERT_CHILD, str(f), str(tmp / "converted.parquet"))
+                data["convert"][f"{kind}_{n}"] = {"samples": n, **r}
+                conv_rows.append([f"{n / 1e6:.2f} M", kind, f"{r['wall_s']:.1f}",
+                                  f"{r['maxrss_mb']:.0f}"])
+                (tmp / "converted.parquet").unlink()
+        plain.unlink()
+        csv.unlink()
+    slopes = {k: _slope(p) for k, p in pts.items() if len(p) > 1}
+    data["compare"]["bytes_per_extra_sample"] = slopes
+    data["agreement"] = agreement
+    md = ["### `thermonet compare` streaming files that are not thermonet's own\n\n" + table(
+        ["samples", "file", "file MB", "wall s", "CPU s", "peak RSS MB"], rows)
+        + "\n\nBytes per extra sample (peak RSS slope): "
+        + ", ".join(f"{k} {v:.1f} B" for k, v in slopes.items())]
+    if conv_rows:
+        md.append("### `thermonet convert` (streamed)\n\n" + table(
+            ["samples", "input", "wall s", "peak RSS MB"], conv_rows))
+    if agreement:
+        md.append("Streamed CSV against the same CSV converted first (2 M samples): "
+                  f"chosen {agreement['chosen']}; largest relative difference of a score "
+                  f"ratio {agreement['max_rel_score_ratio']:.2e}, of a raw score "
+                  f"{agreement['max_rel_score_raw']:.2e}")
+    return md, data
+
+
+def _agreement(csv: Path, work: Path, tmp: Path) -> dict:
+    conv = tmp / "agree.parquet"
+    _child(CONVERT_CHILD, str(csv), str(conv))
+    w2 = tmp / "w_agree"
+    w2.mkdir()
+    compare_once(conv, w2, True)
+    a = json.loads((work / "out" / "results.json").read_text())
+    b = json.loads((w2 / "out" / "results.json").read_text())
+    conv.unlink()
+    rel: dict[str, float] = {"score_ratio": 0.0, "score_raw": 0.0}
+    for fam, fa in a["families"].items():
+        for axis, xa in (fa.get("axes") or {}).items():
+            xb = b["families"][fam]["axes"][axis]
+            for k in rel:
+                if xa.get(k) is not None and xb.get(k) is not None:
+                    d = abs(xa[k] - xb[k]) / max(abs(xb[k]), 1e-300)
+                    rel[k] = max(rel[k], d)
+    return {"chosen": "the same" if a["chosen"] == b["chosen"] else
+            f"differs: {a['chosen']} / {b['chosen']}",
+            "max_rel_score_ratio": rel["score_ratio"], "max_rel_score_raw": rel["score_raw"]}
+
+
 def bench_runtime(tmp: Path) -> tuple[list[str], dict]:
     sys.path.insert(0, str(ROOT))
     sys.path.insert(0, str(ROOT / "export"))
@@ -240,6 +354,13 @@ def bench_runtime(tmp: Path) -> tuple[list[str], dict]:
 
 def main() -> None:
     parts = set(sys.argv[1:]) or {"info", "compare", "runtime"}
+    if parts == {"plain"}:
+        with tempfile.TemporaryDirectory() as tmp_dir:
+            t0 = time.perf_counter()
+            md, data = bench_plain(Path(tmp_dir))
+            data["bench_wall_s"] = time.perf_counter() - t0
+        save("scaling_plain", data, "\n\n".join(md))
+        return
     md, data = [], {}
     with tempfile.TemporaryDirectory() as tmp_dir:
         tmp = Path(tmp_dir)

@@ -17,7 +17,8 @@ HERE = Path(__file__).resolve().parent
 #: Every benchmark whose figures experiments/README.md (and the README's headline table) quotes, the quick and most-quoted first.
 ALL = ["bench_export", "bench_averaging", "bench_default", "bench_threads", "bench_scaling",
        "bench_studies", "bench_anchor", "bench_rbf_speed", "bench_dynamic", "bench_imports",
-       "bench_fleet", "bench_fleet_files", "bench_mcu", "bench_selection", "bench_neural", "bench_uncertainty"]
+       "bench_fleet", "bench_fleet_files", "bench_mcu", "bench_selection", "bench_neural",
+       "bench_magnetometers", "bench_uncertainty"]
 
 if __name__ == "__main__":
     env = dict(os.environ)

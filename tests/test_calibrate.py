@@ -50,7 +50,7 @@ def _ap_file(path: Path) -> dict[str, float]:
 
 def _px4_correction(p: dict[str, float], kind: str, device_id: int, temp: np.ndarray
                     ) -> np.ndarray:
-    t = {"gyro": "G", "acc": "A", "baro": "B"}[kind]
+    t = {"gyro": "G", "acc": "A", "baro": "B", "mag": "M"}[kind]
     assert p[f"TC_{t}_ENABLE"] == 1
     slot = next(s for s in range(4) if int(p[f"TC_{t}{s}_ID"]) == device_id)
     pre = f"TC_{t}{slot}_"
@@ -59,8 +59,9 @@ def _px4_correction(p: dict[str, float], kind: str, device_id: int, temp: np.nda
                           temp - p[pre + "TREF"]))
     if kind == "baro":
         return sum(p[f"{pre}X{k}"] * x ** k for k in range(6))[:, None]
-    return np.column_stack([sum(p[f"{pre}X{k}_{i}"] * x ** k for k in range(4))
-                            for i in range(3)])
+    gauss = 100.0 if kind == "mag" else 1.0       # TC_M* act on sensor_mag in gauss; truth µT
+    return gauss * np.column_stack([sum(p[f"{pre}X{k}_{i}"] * x ** k for k in range(4))
+                                    for i in range(3)])
 
 
 def _ap_correction(p: dict[str, float], kind: str, imu: int, temp: np.ndarray, t_cal: float
@@ -118,7 +119,10 @@ def test_autopilot_formula_on_the_written_file_cuts_true_drift(tmp_path: Path, a
             tmp_path / "cal" / "ardupilot.parm").read_text()
     fitted = [n for n, d in insts.items() if d["status"] == "fitted"]
     assert sorted(fitted) == sorted(["gyro0", "gyro1", "gyro2", "acc0", "acc1", "acc2"]
-                                    + (["baro0"] if autopilot == "px4" else []))
+                                    + (["baro0", "mag0"] if autopilot == "px4" else []))
+    # a magnetometer on a lent thermometer (and any on ArduPilot) is fitted, not a slot
+    model_only = sorted(n for n, d in insts.items() if d["status"] == "model only")
+    assert model_only == (["mag1"] if autopilot == "px4" else ["mag0", "mag1"])
     for name in fitted:
         inst = truth[name]
         temp = inst.temperature_c
@@ -199,7 +203,7 @@ def test_simulate_board_cli_writes_both_log_formats(tmp_path: Path,
         path = tmp_path / name
         assert main(["simulate", "fc-board", "--seed", "3", "--out", str(path)]) == 0
         log = read_log(path)
-        assert log.autopilot == autopilot and len(log.instances) == 7
+        assert log.autopilot == autopilot and len(log.instances) == 9   # 7 + 2 magnetometers
         same = read_log(path)               # the same file read twice: values copied, exact
         assert np.array_equal(log.instances[0].values, same.instances[0].values)
     capsys.readouterr()

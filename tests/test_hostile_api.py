@@ -250,10 +250,10 @@ def test_read_inputs_alone_are_one_name_not_letters(tmp_path: Path) -> None:
     np.testing.assert_array_equal(one[0].time_s, listed[0].time_s)
 
 
-def test_read_inputs_or_mapping_that_would_be_ignored_are_refused() -> None:
+def test_read_inputs_that_would_be_ignored_are_refused() -> None:
+    # (a mapping with window_s is no longer refused: any file streams through its mapping,
+    # tests/test_stream_any_file.py)
     _refused(lambda: thermonet.read(MISSING, inputs=["dT"]), "read(inputs)", "window_s")
-    _refused(lambda: thermonet.read(MISSING, "m.yaml", window_s=10.0), "read(mapping)",
-             "thermonet convert")
 
 
 @pytest.mark.parametrize("gap_s", [True, "manual", "", -1.0, 0.0, float("nan"), 1e9, [1.0]])

@@ -46,7 +46,7 @@ def test_real_px4_ulog_every_instance_with_its_device_id_and_pascals() -> None:
 def test_real_ardupilot_bin_rotated_back_to_the_sensor_frame() -> None:
     log = read_log(BIN)
     by = {i.name: i for i in log.instances}
-    assert sorted(by) == ["acc0", "acc1", "baro0", "gyro0", "gyro1"]
+    assert sorted(by) == ["acc0", "acc1", "baro0", "gyro0", "gyro1", "mag0", "mag1", "mag2"]
     assert log.params["AHRS_ORIENTATION"] == 8                       # ROLL_180
     assert by["gyro0"].device_id == int(log.params["INS_GYR_ID"])
     # independent: the first IMU message read with pymavlink, ROLL_180 inverse = (x, -y, -z)
@@ -58,6 +58,27 @@ def test_real_ardupilot_bin_rotated_back_to_the_sensor_frame() -> None:
     assert by["acc0"].values[0, 2] > 9.0          # gravity on +z in the sensor frame
     assert by["gyro0"].temperature_c[0] == pytest.approx(m.T)
     assert any("AHRS_ORIENTATION 8" in n for n in by["gyro0"].notes)
+
+
+def test_real_ardupilot_bin_magnetometers_in_microtesla_calibration_undone() -> None:
+    """``MAG`` is milligauss after ``Compass::correct_field`` ((raw + ofs) through the
+    COMPASS_DIA/ODI matrix, + motor offsets); the reader gives the driver's field in µT."""
+    log = read_log(BIN)
+    by = {i.name: i for i in log.instances}
+    assert by["mag0"].device_id == int(log.params["COMPASS_DEV_ID"]) == 466441
+    assert by["mag1"].device_id == int(log.params["COMPASS_DEV_ID2"])
+    f = DFReader.DFReader_binary(str(BIN))
+    m = f.recv_match(type="MAG")                      # the first compass (MAG, MAG2, MAG3)
+    p = log.params
+    mat = np.array([[p["COMPASS_DIA_X"], p["COMPASS_ODI_X"], p["COMPASS_ODI_Y"]],
+                    [p["COMPASS_ODI_X"], p["COMPASS_DIA_Y"], p["COMPASS_ODI_Z"]],
+                    [p["COMPASS_ODI_Y"], p["COMPASS_ODI_Z"], p["COMPASS_DIA_Z"]]])
+    field = np.array([m.MagX, m.MagY, m.MagZ], dtype=float)
+    raw = np.linalg.solve(mat, field) - np.array([m.OfsX, m.OfsY, m.OfsZ], dtype=float)
+    assert np.allclose(by["mag0"].values[0], 0.1 * raw, atol=1e-9)      # mG -> µT
+    assert by["mag0"].temperature_c is None                            # MAG has no temperature
+    assert 20.0 < np.linalg.norm(by["mag1"].values[0]) < 70.0          # the Earth's field, µT
+    assert any("soft-iron" in n for n in by["mag0"].notes)
 
 
 @pytest.mark.parametrize("path", [ULG, BIN])
@@ -89,7 +110,8 @@ def test_simulated_ulog_read_back_by_pyulog(tmp_path: Path, preset: str) -> None
     topics = {(d.name, d.multi_id): d.data for d in ulog.data_list}
     assert sorted(topics) == sorted([("sensor_gyro", k) for k in range(3)]
                                     + [("sensor_accel", k) for k in range(3)]
-                                    + [("sensor_baro", 0)])
+                                    + [("sensor_baro", 0)]
+                                    + [("sensor_mag", 0), ("sensor_mag", 1)])
     g1 = next(i for i in board.instances if i.name == "gyro1")
     d = topics[("sensor_gyro", 1)]
     assert np.all(d["device_id"] == g1.device_id)
@@ -147,7 +169,7 @@ def test_ardupilot_applied_calibration_is_undone(tmp_path: Path) -> None:
     board.params = p
     back = read_log(write_dataflash(board, tmp_path / "tcal.bin"))
     for inst in back.instances:
-        if inst.kind == "baro":
+        if inst.kind in ("baro", "mag"):
             continue
         assert np.allclose(inst.values, raw[inst.name], atol=2e-5), inst.name
         assert any("INS_TCAL1_ENABLE=1" in n for n in inst.notes) == (inst.instance == 0)

@@ -31,6 +31,22 @@ def _cycle(n: int = 7200, rate_hz: float = 1.0, seed: int = 0) -> Recording:
                      units={"gyro_x": "deg/s"}, run_id="cycle", sample_rate_hz=rate_hz)
 
 
+def test_the_deal_is_scikit_learns_predefined_split():
+    """plan_folds deals without importing scikit-learn; its folds are PredefinedSplit's over
+    the same test_fold (the oracle: scikit-learn's own splitter), masked runs included."""
+    from sklearn.model_selection import PredefinedSplit
+
+    rec = _cycle(3000)
+    mask = np.ones(rec.n_samples, dtype=bool)
+    mask[2500:] = False                       # the test part: never validated (-1)
+    plan = plan_folds([(rec, mask)], folds=5, blocks_per_fold=8, tau_s=0.0)
+    assert plan is not None
+    ps = PredefinedSplit(plan.fold_of[0])
+    assert ps.get_n_splits() == plan.k == 5
+    for f, (_, val_idx) in enumerate(ps.split()):
+        np.testing.assert_array_equal(np.flatnonzero(plan.fold_of[0] == f), val_idx)
+
+
 def _brute_force_distance(t: np.ndarray, val: np.ndarray) -> np.ndarray:
     tv = t[val]
     return np.abs(t[:, None] - tv[None, :]).min(axis=1)

@@ -60,8 +60,10 @@ def _px4_streams(ulg: Path) -> list[tuple[str, int, np.ndarray, np.ndarray]]:
     from pyulog import ULog
 
     out = []
-    for d in ULog(str(ulg), ["sensor_gyro", "sensor_accel", "sensor_baro"]).data_list:
-        t = {"sensor_gyro": "G", "sensor_accel": "A", "sensor_baro": "B"}[d.name]
+    for d in ULog(str(ulg), ["sensor_gyro", "sensor_accel", "sensor_baro",
+                             "sensor_mag"]).data_list:
+        t = {"sensor_gyro": "G", "sensor_accel": "A", "sensor_baro": "B",
+             "sensor_mag": "M"}[d.name]      # sensor_mag and TC_M* both in gauss
         cols = ["pressure"] if t == "B" else ["x", "y", "z"]
         y = np.column_stack([d.data[c].astype(np.float64) for c in cols])
         if t != "G":
@@ -207,7 +209,7 @@ DAMAGES: list[Damage] = [
      "is not a device id"),
     ("px4-same-id-twice", "px4", lambda s: _set(s, "TC_G1_ID", _ids(s)["TC_G0_ID"]), 1,
      "TC_G1_ID", "which slot applies is ambiguous"),
-    ("px4-zero-ids", "px4", lambda s: re.sub(r"(TC_[GAB]\d_ID\t)\d+", r"\g<1>0", s), 1, None,
+    ("px4-zero-ids", "px4", lambda s: re.sub(r"(TC_[GABM]\d_ID\t)\d+", r"\g<1>0", s), 1, None,
      "nothing of later.ulg can be judged"),
     ("px4-huge-coefficient", "px4", lambda s: _set(s, "TC_G0_X3_0", "3e38"), 3, None, ""),
     ("ap-nan-coefficient", "ardupilot", lambda s: _set(s, "INS_TCAL1_GYR1_X", "nan"), 1,
@@ -305,7 +307,7 @@ def test_pass_means_finite_and_improved_through_the_firmware(board: dict[str, di
     fw = (px4_firmware if ap == "px4" else ardupilot_firmware)(_load(board[ap]["params"]),
                                                                 board[ap]["log"])
     judged = [d for d in doc["instances"].values() if d["status"] == "judged"]
-    assert len(judged) == (7 if ap == "px4" else 6) == len(fw)
+    assert len(judged) == (8 if ap == "px4" else 6) == len(fw)   # PX4: mag0's TC_M too
     if ap == "px4":
         streams = {(t, dev): (temp, y) for t, dev, temp, y in _px4_streams(board[ap]["log"])}
         for key, corrected in fw.items():
@@ -367,7 +369,7 @@ def test_a_log_too_short_or_too_narrow_is_not_judged_per_instance(
     assert re.search(r"^gyro1 .* not judged: too few samples", text, re.M)
     assert "PASS" not in next(ln for ln in text.splitlines() if ln.startswith("acc0"))
     judged = [n for n, d in doc["instances"].items() if d["status"] == "judged"]
-    assert sorted(judged) == ["acc1", "acc2", "baro0", "gyro0", "gyro2"]
+    assert sorted(judged) == ["acc1", "acc2", "baro0", "gyro0", "gyro2", "mag0"]
 
 
 def test_the_real_six_sample_log_is_refused_not_passed(board: dict[str, dict[str, Path]],

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from . import __version__
+from .core import profile
 from .core.errors import Interrupted, ThermonetError
 
 __all__ = ["main", "build_parser"]
@@ -94,7 +95,7 @@ def _simulate_board(args: argparse.Namespace) -> int:
 
 def _cmd_fleet(args: argparse.Namespace) -> int:
     from .training.config import load_config
-    from .training.parts import load_data
+    from .training.loader import load_fleet_data
     from .workflows.fleet import (
         EXIT_LIMITS_FAILED,
         FleetOptions,
@@ -123,8 +124,7 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
         # driver reads the data and sends each unit's runs to its worker
         by_file = sources_from_files(cfg.data.paths) if cfg.data.paths and not (
             cfg.data.mapping or cfg.data.outputs) else None
-        sources = by_file or sources_from_dataset(load_data(cfg.data, source=str(args.config),
-                                                            allow_fleet=True))
+        sources = by_file or sources_from_dataset(load_fleet_data(cfg, source=str(args.config)))
         for s in sources:
             if s.error is not None:  # that unit fails alone; the fleet goes on
                 print(f"thermonet: warning: {s.error}", file=sys.stderr)
@@ -138,9 +138,8 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from .data.io import read_datasets
     from .data.logs import is_log
-    from .workflows.info import format_summary, summarize
+    from .workflows.info import format_summary
 
     if any(is_log(f) for f in args.files):
         from .data.logs.info import format_log_summary, summarize_log
@@ -153,33 +152,45 @@ def _cmd_info(args: argparse.Namespace) -> int:
         return 0
     if args.chunk_rows is not None and args.chunk_rows < 1:
         raise ThermonetError(f"--chunk-rows must be >= 1, got {args.chunk_rows}")
-    from .workflows.info_chunked import DEFAULT_CHUNK_ROWS, open_parquet, summarize_parquet
+    from .data.chunks import DEFAULT_CHUNK_ROWS, open_source
+    from .data.mapping import load_mapping
+    from .workflows.info_chunked import summarize_parquet
 
-    path = Path(args.files[0])
-    layout = open_parquet(path) if len(args.files) == 1 and not args.mapping and \
-        path.suffix.lower() in (".parquet", ".pq") and path.is_file() else None
-    if layout is not None:  # thermonet's own Parquet: one chunked pass, memory bounded
-        summary = summarize_parquet(layout, chunk_rows=args.chunk_rows or DEFAULT_CHUNK_ROWS)
-    else:
-        summary = summarize(read_datasets(args.files, mapping=args.mapping))
+    # every tabular file: one chunked pass (two for a file without thermonet's metadata),
+    # memory bounded by the chunk
+    chunk = args.chunk_rows or DEFAULT_CHUNK_ROWS
+    mapping = load_mapping(args.mapping) if args.mapping else None
+    summary = summarize_parquet([open_source(f, mapping, chunk_rows=chunk) for f in args.files],
+                                chunk_rows=chunk)
     print(json.dumps(summary, indent=2, default=str) if args.json else format_summary(summary))
     return 0
 
 
 def _cmd_convert(args: argparse.Namespace) -> int:
-    """Recordings (CSV, mapped files, Parquet) to one thermonet Parquet file: the one-time
-    conversion after which a long recording is read in row-group chunks."""
+    """Recordings (CSV, mapped files, Parquet) to one thermonet Parquet file, read and
+    written a chunk at a time (flight logs: read whole)."""
     from .core.fileio import refuse_overwriting_inputs
+    from .data.chunks import DEFAULT_CHUNK_ROWS, open_source, write_streamed
     from .data.io import read_datasets, write_parquet
+    from .data.logs import is_log
+    from .data.mapping import load_mapping
 
     out = Path(args.out)
     refuse_overwriting_inputs(out, [*args.files, *([args.mapping] if args.mapping else [])])
     if out.exists() and not args.overwrite:
         raise ThermonetError(f"{out}: already exists (give --overwrite to replace it)")
-    ds = read_datasets(args.files, mapping=args.mapping)
-    write_parquet(ds, out)
-    n = sum(r.n_samples for r in ds)
-    print(f"{len(ds)} run(s), {n} samples -> {out}")
+    if args.chunk_rows is not None and args.chunk_rows < 1:
+        raise ThermonetError(f"--chunk-rows must be >= 1, got {args.chunk_rows}")
+    if any(is_log(f) for f in args.files):
+        ds = read_datasets(args.files, mapping=args.mapping)
+        write_parquet(ds, out)
+        n_runs, n = len(ds), sum(r.n_samples for r in ds)
+    else:
+        chunk = args.chunk_rows or DEFAULT_CHUNK_ROWS
+        mapping = load_mapping(args.mapping) if args.mapping else None
+        layouts = [open_source(f, mapping, chunk_rows=chunk) for f in args.files]
+        n_runs, n = write_streamed(layouts, out, chunk_rows=chunk)
+    print(f"{n_runs} run(s), {n} samples -> {out}")
     return 0
 
 
@@ -283,8 +294,10 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .workflows.calibrate import calibrate, format_report
+    from .workflows.magnetometer import parse_thermometers
 
-    doc = calibrate(args.log, args.out, overwrite=args.overwrite, compare=not args.no_compare)
+    doc = calibrate(args.log, args.out, overwrite=args.overwrite, compare=not args.no_compare,
+                    mag_thermometers=parse_thermometers(args.mag_thermometer or []))
     if not args.quiet:
         print(format_report(doc), end="")
         print(f"results: {Path(args.out) / 'results.json'}")
@@ -297,7 +310,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     limits = Limits()                       # the documented defaults, where not given
     if args.min_cut is not None:
         limits.min_cut = args.min_cut
-    for kind in ("gyro", "acc", "baro"):
+    for kind in ("gyro", "acc", "baro", "mag"):
         value = getattr(args, f"{kind}_floor")
         if value is not None:
             limits.floor[kind] = value
@@ -315,6 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="thermonet",
         description="Train, judge and export temperature-drift models for inertial sensors.")
     p.add_argument("--version", action="version", version=f"thermonet {__version__}")
+    p.add_argument("--profile", action="store_true",
+                   help="print where the command's time went: start-up and each stage's wall "
+                        "and CPU seconds (on stderr, after the command)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("simulate", help="simulate a thermal-chamber test (a study preset)",
@@ -343,19 +359,22 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--mapping", default=None, help="YAML column mapping (configs/data/*.yaml)")
     i.add_argument("--json", action="store_true", help="print the summary as JSON")
     i.add_argument("--chunk-rows", type=int, default=None, metavar="N",
-                   help="rows read at a time from one thermonet Parquet file (default 65536; "
-                        "memory stays bounded by it, whatever the file's length)")
+                   help="rows read at a time (default 65536; memory stays bounded by it, "
+                        "whatever the files' length)")
     i.set_defaults(func=_cmd_info)
 
     v = sub.add_parser("convert", help="recordings to one thermonet Parquet file",
                        description="Read recording files (CSV, a mapping's format, Parquet) "
-                                   "once and write them as one thermonet Parquet file, which "
-                                   "info and fleets then read in row-group chunks.")
+                                   "a chunk at a time and write them as one thermonet Parquet "
+                                   "file (row groups of about --chunk-rows rows): memory stays "
+                                   "bounded by one chunk, whatever the files' size.")
     v.add_argument("files", nargs="+", help="recording files (one run per file unless the file "
                                             "has a 'run' column)")
     v.add_argument("--mapping", default=None, help="YAML column mapping (configs/data/*.yaml)")
     v.add_argument("--out", required=True, help="output .parquet file")
     v.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    v.add_argument("--chunk-rows", type=int, default=None, metavar="N",
+                   help="rows read (and written per row group) at a time (default 65536)")
     v.set_defaults(func=_cmd_convert)
 
     def family_workers_arg(q: argparse.ArgumentParser) -> None:
@@ -434,6 +453,10 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--no-compare", action="store_true",
                    help="fit the firmware form only (no side-by-side comparison with "
                         "thermonet's families: faster, no instances/ folder)")
+    k.add_argument("--mag-thermometer", action="append", metavar="MAG=SENSOR",
+                   help="the thermometer lent to a magnetometer without one, e.g. mag1=baro0 "
+                        "(repeatable; default: baro0, else gyro0, else acc0); its lag is "
+                        "fitted")
     k.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
     k.set_defaults(func=_cmd_calibrate)
 
@@ -459,6 +482,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="... or left below this, m/s^2 (default 5e-3)")
     v.add_argument("--baro-floor", type=float, default=None,
                    help="... or left below this, Pa (default 1)")
+    v.add_argument("--mag-floor", type=float, default=None,
+                   help="... or left below this, µT (default 0.5; PX4 TC_M*)")
     v.add_argument("--overwrite", action="store_true",
                    help="replace a previous verification in --out")
     v.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
@@ -506,6 +531,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             previous[sig] = signal.signal(sig, _raise_interrupted)
     except ValueError:  # not the main thread (an embedding application): leave signals alone
         pass
+    if args.profile:
+        profile.enable()
+        startup = profile.startup_seconds()
     try:
         return int(args.func(args))
     except (KeyboardInterrupt, Interrupted) as err:
@@ -522,6 +550,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         for sig, handler in previous.items():  # None: not set from Python; default is closest
             signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+        if args.profile:
+            print(f"thermonet {args.command}: where the time went\n"
+                  + profile.report(startup), file=sys.stderr)
+            profile.enable(False)
+            profile.reset()
 
 
 if __name__ == "__main__":

@@ -141,7 +141,7 @@ def read(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     """Recordings from CSV/TSV/Parquet files (one run per file unless a ``run`` column),
     through a YAML column mapping when the columns are not thermonet's own.
 
-    With ``window_s``, each file (thermonet Parquet: ``thermonet convert`` makes one) is
+    With ``window_s``, each file (any of them, through the mapping) is
     streamed ``chunk_rows`` rows at a time and each run reduced to ``window_s`` window means
     (:mod:`thermonet.features.windows`, what ``compare`` does with a recording larger than
     memory); ``inputs`` names the dynamic inputs to compute on the samples (those the
@@ -150,13 +150,12 @@ def read(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     samples the rows stand for).
 
     Every argument is checked before a file is opened (:mod:`thermonet.api.checks`):
-    ``paths`` a path or a non-empty list of paths; ``mapping`` a path or None (not with
-    ``window_s``: the streamed files are thermonet's own); ``window_s`` None or a number of
-    seconds > 0 (``True`` is no number); ``inputs`` known input names, one alone as a
-    string, and only with ``window_s``; ``gap_s`` ``"auto"`` or seconds; ``chunk_rows`` a
-    whole number >= 1.
+    ``paths`` a path or a non-empty list of paths; ``mapping`` a path or None;
+    ``window_s`` None or a number of seconds > 0 (``True`` is no number); ``inputs`` known
+    input names, one alone as a string, and only with ``window_s``; ``gap_s`` ``"auto"`` or
+    seconds; ``chunk_rows`` a whole number >= 1.
     """
-    from ..data.io import read_datasets
+    from ..training.loader import read_recordings
     from .checks import gap, input_names, path, seconds, whole
     from .checks import paths as path_list
 
@@ -170,16 +169,6 @@ def read(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
         raise ConfigError("read(inputs): the dynamic inputs are computed while streaming; "
                           "give window_s too, or leave inputs out (an estimator computes "
                           "its inputs from the samples)")
-    if window_s is not None and mapping is not None:
-        raise ConfigError("read(mapping): window_s streams thermonet Parquet files, which "
-                          "need no mapping (convert the recordings once with 'thermonet "
-                          "convert')")
-    if window_s is not None:
-        from ..features.windows import reduce_parquet
-
-        runs = [r for p in files for r in reduce_parquet(
-            Path(p), window_s=float(window_s), inputs=names, gap_s=gap_s,
-            chunk_rows=int(chunk_rows)).runs]
-        return Dataset(runs).validate()
-    return read_datasets([Path(p) for p in files], mapping=None if mapping is None
-                         else Path(mapping))
+    return read_recordings(list(files), None if mapping is None else Path(mapping),
+                           window_s=None if window_s is None else float(window_s),
+                           inputs=names, gap_s=gap_s, chunk_rows=int(chunk_rows))

@@ -18,6 +18,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -111,6 +112,9 @@ class WindowStats:
     (:func:`thermonet.training.fold.score_part`).  ``source_samples`` and
     ``source_rate_hz`` describe the samples the rows stand for.
 
+    ``extremes`` holds each channel's (min, max) over the samples (the plausibility
+    warnings, :func:`thermonet.data.diagnostics.input_warnings`).
+
     ``signal_names`` are the columns a model may read (temperature, proxies, the dynamic
     inputs); ``sxx`` (rows, S, S) their co-moments inside each window and ``sxd[axis]``
     (rows, S) theirs with the axis' target (``sxd_output``: with the output alone): with
@@ -130,6 +134,9 @@ class WindowStats:
     sxx: np.ndarray | None = None
     sxd: dict[str, np.ndarray] = field(default_factory=dict)
     sxd_output: dict[str, np.ndarray] = field(default_factory=dict)
+    #: (min, max) over the samples of time and of every channel: the whole-file reader's
+    #: plausibility warnings from the samples, not the means (empty once rows are selected)
+    extremes: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     #: the per-row column dicts (dynamic signals, per-axis sums) that select and concat carry
     _COLUMNS = ("signals", "ss", "ss_output", "sxd", "sxd_output")
@@ -147,8 +154,8 @@ class WindowStats:
     def concat(parts: list[WindowStats]) -> WindowStats:
         """Rows of several reduced recordings one after the other (stacked held-out blocks)."""
         first = parts[0]
-        groups = {g: {k: np.concatenate([getattr(p, g)[k] for p in parts])
-                      for k in getattr(first, g)} for g in WindowStats._COLUMNS}
+        groups: dict[str, Any] = {g: {k: np.concatenate([getattr(p, g)[k] for p in parts])
+                                      for k in getattr(first, g)} for g in WindowStats._COLUMNS}
         n = np.concatenate([p.n for p in parts])
         sxx = None if any(p.sxx is None for p in parts) else \
             np.concatenate([p.sxx for p in parts if p.sxx is not None])

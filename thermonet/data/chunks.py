@@ -1,36 +1,44 @@
-"""Recordings larger than memory: a thermonet Parquet file read chunk by chunk.
+"""Recordings larger than memory: any tabular recording read chunk by chunk.
 
 A recording of tens of millions of samples is read a bounded number of rows at a time
 (:data:`DEFAULT_CHUNK_ROWS`, or the ``chunk_rows`` a caller gives), never as a whole
-table: :func:`open_parquet` reads only the footer (schema, the ``thermonet`` metadata
-blob, row-group sizes) and :func:`iter_run_chunks` streams the row groups with
-``pyarrow.parquet.ParquetFile.iter_batches``, cutting every batch where the run changes,
-so each piece belongs to one run and arrives in file order.  Every value is checked as
-the whole-file reader (:mod:`thermonet.data.io`) checks it — finite, and time
-strictly increasing within a run, across chunk edges too — and a bad one is named by
-column and 1-based data row, as there.
+table.  :func:`open_source` describes a file (:class:`Layout`: its runs, their channels,
+units and sample counts) and :func:`iter_run_chunks` streams it, cutting every chunk where
+the run changes, so each piece belongs to one run and arrives in file order:
+
+* **thermonet Parquet** (the ``thermonet`` metadata blob): the layout is the file's footer
+  (:func:`open_parquet`, no data read); the row groups are streamed with
+  ``pyarrow.parquet.ParquetFile.iter_batches``.
+* **any other Parquet file, CSV, TSV or text table**, with or without a column mapping
+  (:mod:`thermonet.data.mapping`): the layout takes one pass (the runs are the run column's
+  values, the sample counts and the skipped rows are counted); Parquet is read in record
+  batches, text ``chunk_rows`` lines at a time (:func:`thermonet.data.tables.iter_text_frames`),
+  and each chunk goes through the whole-file reader's own mapping step
+  (:func:`thermonet.data.tables.map_frame`: the same parsing, units, scale and offset, and
+  the same one-line error naming file, column, row and file line).
+
+Every value is checked as the whole-file reader (:mod:`thermonet.data.io`) checks it —
+numeric, finite, and time strictly increasing within a run, across chunk edges too — and a
+bad one is named by column and 1-based data row, as there.  Parquet is read with its page
+checksums verified (thermonet writes them: :data:`thermonet.data.io.WRITE_OPTIONS`): a
+damaged page is refused in one line, not read as other numbers.
 
 Decisions:
 
 * **Budget.**  A chunk is at most ``chunk_rows`` rows of the columns asked for (float64):
   the default 65,536 rows is 512 KiB per column — independent of the file's length.
   pyarrow reads the file through a 1 MiB buffer without pre-buffering (its default
-  pre-buffering reads every column chunk ahead: 640 MB on a 20 M-sample file).  Measured
-  on ``thermonet info`` of a 20 M-sample file (experiments/README.md): 65,536 rows, 2.1 s
-  and 236 MB peak RSS (150 MB of it the interpreter and libraries); 1,048,576 rows, 2.8 s
-  and 526 MB — a larger chunk buys nothing once the per-chunk Python overhead is small.
-* **Which files.**  Thermonet's own Parquet format (the metadata blob names every run
-  and channel without reading data).  A CSV (or any mapped file) is converted once with
-  ``thermonet convert`` (:func:`thermonet.data.io.read_datasets` then
-  :func:`~thermonet.data.io.write_parquet`: that one read holds the file in memory) and
-  streamed from then on; a foreign Parquet file without the blob is read whole
-  (:func:`open_parquet` returns None).
+  pre-buffering reads every column chunk ahead: 640 MB on a 20 M-sample file).  A text
+  chunk also holds its lines and cells as strings while it is parsed (≈ 100 B a cell).
+* **Text without a header or ``n_fields``.**  A well-formed row has the most common field
+  count of the first chunk (the whole-file reader: of the whole file).
 * **Runs.**  Rows of one run need not be contiguous (a run's rows are taken in file
   order wherever they are), but a run's time must increase across all its rows.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,18 +50,60 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from ..core.errors import InputError
-from .io import METADATA_KEY, _check_blob
-from .tables import check_finite
+from ..core.fileio import not_a_file
+from ..core.recording import MIN_SAMPLES as MIN_SAMPLES_
+from .io import METADATA_KEY, READ_OPTIONS, Digest, file_format, parse_blob, stored_digest
+from .mapping import ColumnMapping
+from .tables import (
+    GROUPS,
+    Frame,
+    Mapped,
+    MapState,
+    check_finite,
+    check_time,
+    float_values,
+    iter_text_frames,
+    map_frame,
+    native_mapping,
+    run_meta,
+    run_units,
+    sensor_kind_of,
+)
 
-__all__ = ["DEFAULT_CHUNK_ROWS", "ParquetLayout", "open_parquet", "iter_run_chunks"]
+__all__ = ["DEFAULT_CHUNK_ROWS", "MEDIAN_SAMPLES", "Layout", "ParquetLayout", "RunTimes",
+           "open_parquet", "open_source", "iter_run_chunks", "run_times", "count_samples",
+           "validate_layouts", "write_streamed"]
 
 #: Rows per chunk when a caller gives none (512 KiB per float64 column).
 DEFAULT_CHUNK_ROWS = 1 << 16
+#: A run's median sample step (its gap rule) is taken over this many first samples.
+MEDIAN_SAMPLES = 4096
+_READ = {"pre_buffer": False, "buffer_size": 1 << 20, **READ_OPTIONS}
+log = logging.getLogger("thermonet.data.tables")   # the whole-file reader's logger
+_ROLES = {"output": "outputs", "reference": "references", "drift": "drift", "proxy": "proxies"}
 
 
 @dataclass
-class ParquetLayout:
-    """What a thermonet Parquet file holds, from its footer alone."""
+class RunTimes:
+    """A run's first and last time, its samples, its first :data:`MEDIAN_SAMPLES` time
+    steps' median and its temperature's extremes (None without a thermometer)."""
+
+    first: float
+    last: float
+    n: int
+    median_step: float
+    temperature: tuple[float, float] | None
+
+
+@dataclass
+class Layout:
+    """What a recording file holds: its runs (entries as in the ``thermonet`` metadata blob:
+    ``run_id``, ``device_id``, ``sensor_kind``, ``sample_rate_hz``, ``meta``, ``units``,
+    ``temperature``, the channel groups, ``n_samples``), its columns and its size.
+
+    ``kind`` is ``thermonet`` (the footer gave it all), ``parquet`` or ``text`` (a pass
+    over the file, through ``mapping``).  ``times`` (per run) is known after that pass, or
+    after :func:`run_times`."""
 
     path: Path
     runs: list[dict[str, Any]]
@@ -61,39 +111,267 @@ class ParquetLayout:
     columns: list[str]
     num_rows: int
     row_groups: list[int] = field(default_factory=list)
+    kind: str = "thermonet"
+    mapping: ColumnMapping | None = None
+    fmt: str = "parquet"
+    times: list[RunTimes] | None = None
+    digest: dict[str, str] | None = None     # a thermonet file's per-column SHA-256
 
     @property
     def is_fleet(self) -> bool:
-        return "device" in self.columns
+        if self.kind == "thermonet":
+            return "device" in self.columns
+        return len({e["device_id"] for e in self.runs}) > 1
 
 
-def open_parquet(path: str | Path) -> ParquetLayout | None:
+ParquetLayout = Layout   # the name of a thermonet Parquet file's layout before any file streamed
+
+
+def open_parquet(path: str | Path) -> Layout | None:
     """The layout of a thermonet Parquet file (footer only), or None without the blob."""
-    import json
-
     path = Path(path)
-    try:
-        pf = pq.ParquetFile(path)
-    except (pa.ArrowException, OSError) as err:
-        raise InputError.at(path, f"not a readable Parquet file ({err})") from err
+    pf = _parquet_file(path)
     blob = (pf.schema_arrow.metadata or {}).get(METADATA_KEY.encode())
     if blob is None:
         return None
-    try:
-        info = json.loads(blob)
-    except (ValueError, UnicodeDecodeError) as err:
-        raise InputError.at(path, f"corrupt '{METADATA_KEY}' metadata (not JSON: {err})") from None
-    runs = _check_blob(path, info)
+    info, runs = parse_blob(path, blob)
     names = list(pf.schema_arrow.names)
     for col in ("run", "time_s"):
         if col not in names:
             raise InputError.at(path, "missing column", column=col)
     md = pf.metadata
-    return ParquetLayout(path=path, runs=runs, meta=dict(info.get("meta", {})), columns=names,
-                         num_rows=md.num_rows,
-                         row_groups=[md.row_group(i).num_rows for i in range(md.num_row_groups)])
+    return Layout(path=path, runs=runs, meta=dict(info.get("meta", {})), columns=names,
+                  num_rows=md.num_rows,
+                  row_groups=[md.row_group(i).num_rows for i in range(md.num_row_groups)],
+                  digest=stored_digest(path, md.metadata))
 
 
+def _parquet_file(path: Path) -> pq.ParquetFile:
+    why = not_a_file(path)
+    if why:
+        raise InputError.at(path, why)
+    try:
+        return pq.ParquetFile(path, **_READ)
+    except (pa.ArrowException, OSError) as err:
+        raise InputError.at(path, f"not a readable Parquet file ({err})") from err
+
+
+def open_source(path: str | Path, mapping: ColumnMapping | None = None, *,
+                chunk_rows: int = DEFAULT_CHUNK_ROWS) -> Layout:
+    """The layout of any tabular recording: a thermonet Parquet file's from its footer
+    (without a mapping), any other's from one streamed pass (``chunk_rows`` rows at a time),
+    which checks every value on the way (module docstring)."""
+    path = Path(path)
+    why = not_a_file(path)
+    if why:
+        raise InputError.at(path, why)
+    fmt = file_format(path, mapping)
+    if fmt == "parquet" and mapping is None:
+        layout = open_parquet(path)
+        if layout is not None:
+            return layout
+    layout = Layout(path=path, runs=[], meta={}, columns=[], num_rows=0,
+                    kind="parquet" if fmt == "parquet" else "text", mapping=mapping, fmt=fmt)
+    _discover(layout, int(chunk_rows))
+    return layout
+
+
+# ------------------------------------------------------------------ mapped files
+def _frames(layout: Layout, chunk_rows: int) -> Iterator[Frame]:
+    path = layout.path
+    if layout.fmt != "parquet":
+        yield from iter_text_frames(path, layout.mapping, "\t" if layout.fmt == "tsv" else None,
+                                    chunk_rows=chunk_rows,
+                                    float_columns=lambda names, n: _float_columns(
+                                        layout.mapping, names, n))
+        return
+    pf = _parquet_file(path)
+    names = list(pf.schema_arrow.names)
+    dup = [n for n in names if names.count(n) > 1]
+    if dup:
+        raise InputError.at(path, "duplicate column", column=dup[0])
+    row0 = 1
+    for batch in _batches(pf, path, chunk_rows, None):
+        yield Frame(path=path, data=batch.to_pandas(),
+                    rows=np.arange(row0, row0 + batch.num_rows), lines=None)
+        row0 += batch.num_rows
+
+
+def _float_columns(mapping: ColumnMapping | None, names: list[str] | None, n_fields: int
+                   ) -> set[str | int]:
+    """The columns of a text table that the mapping reads as numbers (without a mapping:
+    every column of the header but ``run`` and ``device``)."""
+    if mapping is None:
+        return set() if names is None else {n for n in names if n not in ("run", "device")}
+    cols = ([mapping.time.column] if mapping.time is not None else []) + \
+        [ch.column for ch in mapping.channels]
+    out: set[str | int] = set()
+    for c in cols:
+        if isinstance(c, int):
+            out.add(names[c] if names is not None and c < len(names) else c)
+        else:
+            out.add(c)
+    return out
+
+
+def _batches(pf: pq.ParquetFile, path: Path, chunk_rows: int, columns: list[str] | None
+             ) -> Iterator[pa.RecordBatch]:
+    """Record batches; a page that fails its checksum or cannot be decoded is one line."""
+    it = pf.iter_batches(batch_size=int(chunk_rows), columns=columns)
+    row0 = 1
+    while True:
+        try:
+            batch = next(it)
+        except StopIteration:
+            return
+        except (pa.ArrowException, OSError) as err:
+            raise InputError.at(path, f"damaged Parquet data after data row {row0 - 1} "
+                                f"({err}); the file is corrupt or truncated") from None
+        row0 += batch.num_rows
+        yield batch
+
+
+class _Continuity:
+    """Each run's last time, data row and file line: time checked across chunk edges."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.last: dict[Any, tuple[float, int, int | None]] = {}
+
+    def check(self, key: Any, name: str, t: np.ndarray, rows: np.ndarray,
+              lines: np.ndarray | None) -> None:
+        prev = self.last.get(key)
+        if prev is not None and t.size and t[0] <= prev[0]:
+            check_time(self.path, name, np.array([prev[0], t[0]]),
+                       np.array([prev[1], rows[0]]),
+                       None if lines is None or prev[2] is None
+                       else np.array([prev[2], lines[0]]))
+        if t.size:
+            self.last[key] = (float(t[-1]), int(rows[-1]),
+                              None if lines is None else int(lines[-1]))
+
+
+def _mapped_frames(layout: Layout, chunk_rows: int
+                   ) -> Iterator[tuple[Frame, Mapped | None,
+                                       list[tuple[tuple[str, str], np.ndarray,
+                                                  dict[str, np.ndarray]]]]]:
+    """Per chunk of a mapped file: the frame, its mapped rows (None: every row of it was
+    skipped) and its pieces ((device, run), data rows, {"time_s" and each channel: values}),
+    in file order, every value checked (time across chunk edges too)."""
+    state = MapState()
+    seen = _Continuity(layout.path)
+    for frame in _frames(layout, chunk_rows):
+        if layout.mapping is None:
+            layout.mapping = native_mapping(layout.path, list(frame.data.columns),
+                                            frame.numeric_header)
+        if len(frame.data) == 0:
+            yield frame, None, []
+            continue
+        m = map_frame(frame, layout.mapping, state)
+        pieces = []
+        for dev, run, sel in m.groups:
+            rows = m.rows[sel]
+            lines = None if m.lines is None else m.lines[sel]
+            t = m.time_s[sel]
+            seen.check((dev, run), m.t_label, t, rows, lines)
+            pieces.append(((dev, run), rows,
+                           {"time_s": t, **{k: v[sel] for k, v in m.channels.items()}}))
+        yield frame, m, pieces
+
+
+class _Tally:
+    """One run's counts, times and temperature extremes while the layout is discovered."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.first = self.last = 0.0
+        self.head: list[np.ndarray] = []
+        self.have = 0
+        self.lo, self.hi = np.inf, -np.inf
+
+    def add(self, t: np.ndarray, temp: np.ndarray | None) -> None:
+        if self.n == 0:
+            self.first = float(t[0])
+        self.last = float(t[-1])
+        self.n += t.size
+        if self.have < MEDIAN_SAMPLES:
+            self.head.append(t[:MEDIAN_SAMPLES - self.have])
+            self.have += self.head[-1].size
+        if temp is not None:
+            self.lo, self.hi = min(self.lo, float(temp.min())), max(self.hi, float(temp.max()))
+
+    def times(self, has_temp: bool) -> RunTimes:
+        t = np.concatenate(self.head) if self.head else np.zeros(0)
+        med = float(np.median(np.diff(t))) if t.size > 1 else float("nan")
+        return RunTimes(self.first, self.last, self.n, med,
+                        (self.lo, self.hi) if has_temp else None)
+
+
+def _discover(layout: Layout, chunk_rows: int) -> None:
+    """One pass over a mapped file: its runs, their samples and skipped rows (counted as
+    the whole-file reader counts them), every value checked."""
+    tallies: dict[tuple[str, str], _Tally] = {}
+    numeric_header: list[str] = []
+    skipped_total = 0
+    skipped_lines: list[int] = []                       # the file's first 20
+    run_skipped: dict[tuple[str, str], list[int]] = {}  # with a run column: count, lines
+    n_rows = 0
+    for frame, m, pieces in _mapped_frames(layout, chunk_rows):
+        mapping = layout.mapping
+        assert mapping is not None
+        numeric_header = frame.numeric_header
+        skipped_total += len(frame.skipped_lines) if m is None else m.n_skipped
+        if len(skipped_lines) < 20:
+            skipped_lines += sorted(int(x) for x in frame.skipped_lines)[:20]
+        if m is not None and mapping.run_column is not None and m.bad_any.any():
+            # a row with a bad mapped cell belongs to the run its run cell names
+            at = np.asarray(frame.lines if frame.lines is not None else frame.rows)
+            devs = (frame.data[_column_label(frame, mapping.device_column)].astype(str)
+                    .str.strip().to_numpy() if mapping.device_column is not None
+                    else np.full(len(frame.data), mapping.device_id, dtype=object))
+            for i in np.flatnonzero(m.bad_any):
+                tally_skip = run_skipped.setdefault((str(devs[i]), str(m.run_all[i])), [0])
+                tally_skip[0] += 1
+                if len(tally_skip) <= 20:   # the count, then the first 20 lines
+                    tally_skip.append(int(at[i]))
+        for key, _rows, piece in pieces:
+            n_rows += piece["time_s"].size
+            tallies.setdefault(key, _Tally()).add(piece["time_s"], piece.get("temperature_c"))
+    mapping = layout.mapping
+    if mapping is None or not tallies:
+        raise InputError.at(layout.path, "no data rows")
+    roles: dict[str, list[str]] = {g: [] for g in GROUPS}
+    temperature = False
+    for ch in mapping.channels:
+        if ch.role == "temperature":
+            temperature = True
+        else:
+            roles[_ROLES[ch.role]].append(ch.name)
+    kind = sensor_kind_of(mapping)
+    runs, times = [], []
+    for (dev, run), tally in tallies.items():
+        mine = run_skipped.get((dev, run), [0])
+        skips = (skipped_total, skipped_lines) if mapping.run_column is None else \
+            (mine[0], mine[1:])
+        runs.append({"run_id": run, "device_id": dev, "sensor_kind": kind,
+                     "sample_rate_hz": mapping.sample_rate_hz,
+                     "meta": run_meta(mapping, layout.path, numeric_header, skips),
+                     "units": run_units(mapping), "temperature": temperature,
+                     **{g: list(v) for g, v in roles.items()}, "n_samples": tally.n})
+        times.append(tally.times(temperature))
+    if mapping.malformed_rows == "skip":
+        log.warning("%s: skipped %d malformed row(s)", layout.path, skipped_total)
+        layout.meta["skipped_rows"] = str(skipped_total)
+    layout.runs, layout.times, layout.num_rows = runs, times, n_rows
+    layout.columns = ["time_s", *[ch.name for ch in mapping.channels]]
+
+
+def _column_label(frame: Frame, column: str | int | None) -> Any:
+    labels = list(frame.data.columns)
+    return labels[column] if isinstance(column, int) else column
+
+
+# ------------------------------------------------------------------ thermonet files
 def _segments(batch: pa.RecordBatch, fleet: bool) -> list[tuple[int, int, tuple[str, str | None]]]:
     """(start, stop, (run, device)) of the batch's stretches of one run (vectorised)."""
     keys = [batch.column("run")] + ([batch.column("device")] if fleet else [])
@@ -113,20 +391,58 @@ def _segments(batch: pa.RecordBatch, fleet: bool) -> list[tuple[int, int, tuple[
     return out
 
 
-def iter_run_chunks(layout: ParquetLayout, columns: Sequence[str], *,
+def _thermonet_pieces(layout: Layout, cols: list[str], chunk_rows: int
+                      ) -> Iterator[tuple[int, np.ndarray, dict[str, np.ndarray]]]:
+    path = layout.path
+    index = {(e["run_id"], e["device_id"] if layout.is_fleet else None): i
+             for i, e in enumerate(layout.runs)}
+    seen = _Continuity(path)
+    pf = _parquet_file(path)
+    for name in cols:
+        if pa.types.is_boolean(pf.schema_arrow.field(name).type):
+            raise InputError.at(path, "a boolean column, not a measurement", column=name)
+    keys = ["run"] + (["device"] if layout.is_fleet else [])
+    row0 = 1
+    digest = Digest() if layout.digest else None
+    for batch in _batches(pf, path, chunk_rows, keys + cols):
+        rows_all = np.arange(row0, row0 + batch.num_rows)
+        values = {c: float_values(path, c, batch.column(c), rows_all) for c in cols}
+        if digest is not None:
+            for c, v in values.items():
+                digest.add(c, v)
+        for a, b, key in _segments(batch, layout.is_fleet):
+            rows = rows_all[a:b]
+            if key not in index:
+                raise InputError.at(path, f"run {key[0]!r} is not listed in the "
+                                    f"'{METADATA_KEY}' metadata", column="run", row=int(rows[0]))
+            i = index[key]
+            piece = {c: check_finite(path, c, v[a:b], rows, None) for c, v in values.items()}
+            t = piece["time_s"]
+            check_time(path, "time_s", t, rows, None)
+            seen.check(i, "time_s", t, rows, None)
+            yield i, rows, piece
+        row0 += batch.num_rows
+    if digest is not None:   # every row read: the values are those thermonet wrote
+        digest.check(path, layout.digest)
+
+
+# ------------------------------------------------------------------ any file
+def iter_run_chunks(layout: Layout, columns: Sequence[str], *,
                     chunk_rows: int = DEFAULT_CHUNK_ROWS
                     ) -> Iterator[tuple[int, np.ndarray, dict[str, np.ndarray]]]:
     """Yield ``(run index, data rows, {column: float64 values})`` pieces in file order.
 
     ``run index`` is the position of the piece's run in ``layout.runs``; ``data rows``
-    the 1-based rows of the piece (for messages); ``columns`` always include ``time_s``
-    (checked strictly increasing within each run, across pieces too).
+    the 1-based rows of the piece (for messages); ``columns`` (thermonet channel names)
+    always include ``time_s`` (checked strictly increasing within each run, across pieces
+    too).
 
     Raises
     ------
     InputError
-        A row of no listed run, a missing or boolean column, a non-finite value or a
-        time that does not increase (named by column and row).
+        A row of no listed run, a missing, boolean or non-numeric column, a non-finite
+        value or a time that does not increase (named by file, column and row), a damaged
+        Parquet page.
     """
     if int(chunk_rows) < 1:
         raise InputError(f"chunk_rows must be >= 1, got {chunk_rows}")
@@ -135,40 +451,203 @@ def iter_run_chunks(layout: ParquetLayout, columns: Sequence[str], *,
     for name in cols:
         if name not in layout.columns:
             raise InputError.at(path, "missing column", column=name)
-    index = {(e["run_id"], e["device_id"] if layout.is_fleet else None): i
-             for i, e in enumerate(layout.runs)}
-    last_t: dict[int, float] = {}
-    # pre_buffer=False and a 1 MiB read buffer: pyarrow's default pre-buffering reads every
-    # column chunk of the file ahead (640 MB on a 20 M-sample file), which is what the
-    # budget is for
-    pf = pq.ParquetFile(path, pre_buffer=False, buffer_size=1 << 20)
-    for name in cols:
-        if pa.types.is_boolean(pf.schema_arrow.field(name).type):
-            raise InputError.at(path, "a boolean column, not a measurement", column=name)
-    keys = ["run"] + (["device"] if layout.is_fleet else [])
-    row0 = 1
-    for batch in pf.iter_batches(batch_size=int(chunk_rows), columns=keys + cols):
-        values = {c: np.asarray(batch.column(c).to_numpy(zero_copy_only=False),
-                                dtype=np.float64) for c in cols}
-        for a, b, key in _segments(batch, layout.is_fleet):
-            rows = np.arange(row0 + a, row0 + b)
+    if layout.kind == "thermonet":
+        yield from _thermonet_pieces(layout, cols, int(chunk_rows))
+        return
+    index = {(e["device_id"], e["run_id"]): i for i, e in enumerate(layout.runs)}
+    for _, _, pieces in _mapped_frames(layout, int(chunk_rows)):
+        for key, rows, piece in pieces:
             if key not in index:
-                raise InputError.at(path, f"run {key[0]!r} is not listed in the "
-                                    f"'{METADATA_KEY}' metadata", column="run", row=int(rows[0]))
-            i = index[key]
-            piece = {c: check_finite(path, c, v[a:b], rows, None) for c, v in values.items()}
-            t = piece["time_s"]
-            prev = last_t.get(i)
-            tt = t if prev is None else np.concatenate([[prev], t])
-            dt = np.diff(tt)
-            bad = np.flatnonzero(dt <= 0)
-            if bad.size:
-                k = int(bad[0]) + 1
-                kind = "duplicate" if dt[k - 1] == 0 else "decreasing"
-                row = int(rows[k - (0 if prev is None else 1)])
-                raise InputError.at(path, f"{kind} timestamp {float(tt[k])!r} s after "
-                                    f"{float(tt[k - 1])!r} s (time must increase strictly)",
-                                    column="time_s", row=row)
-            last_t[i] = float(t[-1])
-            yield i, rows, piece
-        row0 += batch.num_rows
+                raise InputError.at(path, f"run '{key[1]}' of unit '{key[0]}' appeared since "
+                                    "the file was first read (the file changed while it was "
+                                    "read?)", row=int(rows[0]))
+            yield index[key], rows, {c: piece[c] for c in cols}
+
+
+def count_samples(paths: Sequence[str | Path], mapping: ColumnMapping | None = None
+                  ) -> int | None:
+    """How many samples the files hold, read cheaply: a Parquet file's row count from its
+    footer, a text file's lines less its banner and header (blank or malformed lines
+    counted: an upper bound).  None where one is not a tabular file (a flight log, a file
+    that does not exist: the whole-file reader names what is wrong with it)."""
+    total = 0
+    for p in paths:
+        path = Path(p)
+        from .logs import is_log
+
+        if is_log(str(path).partition("#")[0]) or not_a_file(path):
+            return None
+        try:
+            fmt = file_format(path, mapping)
+        except InputError:
+            return None
+        if fmt == "parquet":
+            try:
+                total += pq.ParquetFile(path).metadata.num_rows
+            except (pa.ArrowException, OSError):
+                return None
+            continue
+        lines, last = 0, b"\n"
+        with path.open("rb") as f:
+            while block := f.read(1 << 20):
+                lines += block.count(b"\n")
+                last = block[-1:]
+        lines += last != b"\n"
+        skip = mapping.skip_lines if mapping is not None else 0
+        header = 1 if mapping is None or mapping.header else 0
+        total += max(lines - skip - header, 0)
+    return total
+
+
+def run_times(layout: Layout, chunk_rows: int = DEFAULT_CHUNK_ROWS) -> list[RunTimes]:
+    """Per run of ``layout``: its :class:`RunTimes` (one pass over time and temperature of a
+    thermonet file; known already from the layout pass of any other)."""
+    if layout.times is not None:
+        return layout.times
+    tallies = [_Tally() for _ in layout.runs]
+    temp = ["temperature_c"] if "temperature_c" in layout.columns else []
+    for i, _, piece in iter_run_chunks(layout, temp, chunk_rows=chunk_rows):
+        has = layout.runs[i]["temperature"]
+        tallies[i].add(piece["time_s"], piece["temperature_c"] if has else None)
+    layout.times = [t.times(bool(e["temperature"])) for t, e in zip(tallies, layout.runs,
+                                                                      strict=True)]
+    return layout.times
+
+
+def validate_layouts(layouts: Sequence[Layout],
+                     temperature: Sequence[tuple[float, float] | None]) -> None:
+    """``Dataset.validate`` on a skeleton of every run of ``layouts`` — its channels, units
+    and metadata with ``MIN_SAMPLES`` placeholder samples whose temperature spans the run's
+    own extremes (``temperature``, per run) — so files the whole-file reader refuses (runs
+    that differ in channels or units, too little temperature span) are refused with the
+    same line without holding their samples."""
+    from ..core.recording import MIN_SAMPLES, Dataset, Recording
+
+    k = MIN_SAMPLES
+    skeleton = []
+    entries = [(lay, e) for lay in layouts for e in lay.runs]
+    for (lay, e), temp in zip(entries, temperature, strict=True):
+        zeros = np.zeros(k)
+        skeleton.append(Recording(
+            time_s=np.arange(k, dtype=np.float64),
+            temperature_c=None if temp is None or not e["temperature"]
+            else np.linspace(temp[0], temp[1], k),
+            outputs={n: zeros for n in e["outputs"]},
+            references={n: zeros for n in e["references"]},
+            drift={n: zeros for n in e["drift"]}, proxies={n: zeros for n in e["proxies"]},
+            units=dict(e["units"]), device_id=e["device_id"], sensor_kind=e["sensor_kind"],
+            run_id=e["run_id"], sample_rate_hz=e["sample_rate_hz"],
+            meta={"source": str(lay.path), **dict(e["meta"])}))
+    meta: dict[str, str] = {}
+    for lay in layouts:
+        for key, v in lay.meta.items():
+            meta.setdefault(key, v)
+    source = str(layouts[0].path) if len(layouts) == 1 else ""
+    Dataset(runs=skeleton, meta=meta).validate(source)
+
+
+def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
+                   chunk_rows: int = DEFAULT_CHUNK_ROWS) -> tuple[int, int]:
+    """Recording files to one thermonet Parquet file (``thermonet convert``), read
+    ``chunk_rows`` rows at a time and written in row groups of about as many rows: memory
+    is one chunk, whatever the files' size.  The runs are checked first as the whole-file
+    reader checks them (:func:`validate_layouts`); a bad value anywhere leaves nothing at
+    ``out`` (written to a temporary file and moved over it at the end).  Rows keep their
+    file order (a run's rows need not be contiguous).  Returns (runs, samples)."""
+    import json
+
+    from ..core.fileio import atomic_path
+    from .io import DIGEST_KEY, FORMAT_VERSION, WRITE_OPTIONS, _str_dict, check_run_ids
+
+    out = Path(out)
+    if out.suffix.lower() not in (".parquet", ".pq"):
+        raise InputError.at(out, "a thermonet recording file ends in .parquet (or .pq)")
+    if out.is_dir():
+        raise InputError.at(out, "is a directory; give a .parquet file name")
+    if not out.parent.is_dir():
+        raise InputError.at(out, f"output directory '{out.parent}' does not exist")
+    check_run_ids([(e["device_id"], e["run_id"], str(lay.path)) for lay in layouts
+                   for e in lay.runs])
+    times = [rt for lay in layouts for rt in run_times(lay, chunk_rows)]
+    pairs = [(str(lay.path), e) for lay in layouts for e in lay.runs]
+    for (src, e), rt in zip(pairs, times, strict=True):
+        if rt.n < MIN_SAMPLES_:
+            raise InputError.at(f"{src}, run '{e['run_id']}'", f"too few samples: {rt.n} "
+                                f"(need at least {MIN_SAMPLES_})")
+    validate_layouts(layouts, [rt.temperature for rt in times])
+    entries = [e for lay in layouts for e in lay.runs]
+    fleet = len({e["device_id"] for e in entries}) > 1
+    has_temp = any(e["temperature"] for e in entries)
+    names: list[str] = []
+    for group in GROUPS:
+        for e in entries:
+            names += [k for k in e[group] if k not in names]
+    channels = (["temperature_c"] if has_temp else []) + names
+    fields = [pa.field("run", pa.string())] + ([pa.field("device", pa.string())] if fleet
+                                               else [])
+    fields += [pa.field(c, pa.float64()) for c in ["time_s", *channels]]
+    meta: dict[str, str] = {}
+    skipped = [int(lay.meta["skipped_rows"]) for lay in layouts if "skipped_rows" in lay.meta]
+    for lay in layouts:
+        for key, v in lay.meta.items():
+            meta.setdefault(key, v)
+    if skipped:
+        meta["skipped_rows"] = str(sum(skipped))
+    blob: dict[str, Any] = {"format": "thermonet", "version": FORMAT_VERSION,
+                            "meta": _str_dict(meta, "dataset meta"), "runs": []}
+    for e, rt in zip(entries, times, strict=True):
+        blob["runs"].append({
+            "run_id": e["run_id"], "device_id": e["device_id"], "sensor_kind": e["sensor_kind"],
+            "sample_rate_hz": e["sample_rate_hz"],
+            "meta": _str_dict(e["meta"], f"run '{e['run_id']}' meta"),
+            "units": _str_dict(e["units"], f"run '{e['run_id']}' units"),
+            "temperature": e["temperature"], **{g: list(e[g]) for g in GROUPS},
+            "n_samples": rt.n})
+    schema = pa.schema(fields, metadata={METADATA_KEY: json.dumps(
+        blob, allow_nan=False, ensure_ascii=False)})
+    n_total = 0
+    with atomic_path(out, make_parents=False) as tmp:
+        writer = pq.ParquetWriter(tmp, schema, **WRITE_OPTIONS)
+        digest = Digest()
+
+        def write(tables: list[pa.Table], rows: int) -> None:
+            table = pa.concat_tables(tables)
+            for c in ["time_s", *channels]:
+                digest.add(c, table.column(c))
+            writer.write_table(table, row_group_size=rows)
+
+        try:
+            buffer: list[pa.Table] = []
+            held = 0
+            base = 0
+            for lay in layouts:
+                cols = [c for c in channels if c in lay.columns]
+                for i, _rows, piece in iter_run_chunks(lay, cols, chunk_rows=chunk_rows):
+                    e = entries[base + i]
+                    n = piece["time_s"].size
+                    mine = set(["temperature_c"] if e["temperature"] else []) | {
+                        k for g in GROUPS for k in e[g]}
+                    arrays = [pa.array(np.full(n, e["run_id"], dtype=object), pa.string())]
+                    if fleet:
+                        arrays.append(pa.array(np.full(n, e["device_id"], dtype=object),
+                                               pa.string()))
+                    arrays.append(pa.array(piece["time_s"], pa.float64()))
+                    arrays += [pa.array(piece[c], pa.float64()) if c in mine and c in piece
+                               else pa.nulls(n, pa.float64()) for c in channels]
+                    buffer.append(pa.Table.from_arrays(arrays, schema=schema))
+                    held += n
+                    n_total += n
+                    if held >= chunk_rows:
+                        write(buffer, held)
+                        buffer, held = [], 0
+                base += len(lay.runs)
+            if buffer:
+                write(buffer, held)
+            writer.add_key_value_metadata({DIGEST_KEY: digest.text()})
+        finally:
+            writer.close()
+        for (src, e), rt in zip(pairs, times, strict=True):
+            if e.get("n_samples") is not None and int(e["n_samples"]) != rt.n:
+                raise InputError.at(src, f"run '{e['run_id']}': {rt.n} rows, its "
+                                    f"metadata says {e['n_samples']}")
+    return len(entries), n_total

@@ -122,6 +122,18 @@ def input_warnings(ds: Dataset, *, signals: Iterable[str] = (),
         name = f"run '{r.run_id}'"
         temp = r.temperature_c
         span = None
+        ext = r.windows.extremes if r.windows is not None else {}
+        if ext:   # a run streamed into window means: its samples' extremes, not the means'
+            if temp is not None:
+                lo, hi = ext["temperature_c"]
+                span = (lo, hi, hi - lo)
+            peaks = {ch: max(abs(ext[ch][0]), abs(ext[ch][1]))
+                     for ch in {**r.outputs, **r.references, **r.proxies}}
+            t0, t1 = ext["time_s"]
+            out += run_warnings(name, r.meta, r.units, span, peaks, t1 - t0,
+                                r.windows.source_rate_hz if r.windows is not None
+                                else r.effective_rate_hz)
+            continue
         if temp is not None and temp.size:
             span = (float(np.nanmin(temp)), float(np.nanmax(temp)), float(np.ptp(temp)))
         peaks = {ch: float(np.nanmax(np.abs(v))) if v.size else 0.0

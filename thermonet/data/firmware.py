@@ -8,13 +8,28 @@ PX4 (``src/modules/temperature_compensation/TemperatureCompensation.cpp``,
 ``calc_thermal_offsets_3D`` / ``calc_thermal_offsets_1D``)::
 
     T clamped to [TMIN, TMAX];  dT = T - TREF
-    gyro / accel:  offset_i = X0_i + X1_i dT + X2_i dT^2 + X3_i dT^3   (rad/s, m/s^2)
-    baro:          offset   = X0 + X1 dT + ... + X5 dT^5                (Pa)
+    gyro / accel / mag:  offset_i = X0_i + X1_i dT + X2_i dT^2 + X3_i dT^3
+                         (rad/s, m/s^2, gauss)
+    baro:                offset   = X0 + X1 dT + ... + X5 dT^5          (Pa)
     corrected = raw - offset
 
 A slot applies to the sensor whose device id equals ``TC_*_ID``
-(``set_sensor_id``); ``TC_G/A/B_ENABLE`` switch each kind on.  Four slots per kind
-(``GYRO_COUNT_MAX`` …).  File: QGroundControl ``Vehicle-Id Component-Id Name
+(``set_sensor_id``); ``TC_G/A/B/M_ENABLE`` switch each kind on.  Four slots per kind
+(``GYRO_COUNT_MAX`` …, ``MAG_COUNT_MAX``).
+
+Magnetometers (``TC_M*``: ``temp_comp_params_mag.yaml`` / ``temp_comp_params_mag_0.yaml``
+…, ``TemperatureCompensation::update_offsets_mag``; PX4-Autopilot after v1.14 (v1.15+:
+the user guide's Thermal Calibration page, "Releases up to PX4 v1.14, do not support thermal
+calibration of the magnetometer"), read at main): the same cubic as the gyro's, on
+``sensor_mag`` in **gauss** (the unit the driver publishes and the on-board calibrator
+``temperature_calibration/mag.cpp`` fits), with the magnetometer's **own**
+``sensor_mag.temperature`` — ``TemperatureCompensationModule.cpp`` polls each sensor's own
+report and, as for the gyro, accel and baro, skips it while its temperature is not finite,
+so a magnetometer without a thermometer cannot be compensated on board.  thermonet keeps
+magnetometers in µT; :data:`PX4_PARAM_UNIT` converts.  The on-board calibrator writes
+``X0 = 0`` ("normalise the correction to be zero at the reference temperature"): the
+correction is the change from the value at TREF, so the Earth's field stays in the
+signal; thermonet fits it so too.  File: QGroundControl ``Vehicle-Id Component-Id Name
 Value Type`` lines (type 6 INT32, 9 REAL32), as ``Tools/process_sensor_caldata.py``
 writes it.
 
@@ -37,7 +52,7 @@ import numpy as np
 
 from ..core.errors import ExportError
 
-__all__ = ["FirmwareFit", "PX4_SLOTS", "ARDUPILOT_TEMP_REFERENCE", "ARDUPILOT_SCALE",
+__all__ = ["FirmwareFit", "PX4_SLOTS", "PX4_PARAM_UNIT", "PX4_LETTER", "ARDUPILOT_TEMP_REFERENCE", "ARDUPILOT_SCALE",
            "px4_offsets_3d", "px4_offsets_1d", "ardupilot_correction",
            "px4_calibration_text", "ardupilot_calibration_text"]
 
@@ -46,7 +61,11 @@ PX4_SLOTS = 4
 #: ArduPilot's fixed reference temperature (°C) and coefficient scale.
 ARDUPILOT_TEMP_REFERENCE = 35.0
 ARDUPILOT_SCALE = 1.0e6
-_PX4_TYPE = {"gyro": "G", "acc": "A", "baro": "B"}
+_PX4_TYPE = {"gyro": "G", "acc": "A", "baro": "B", "mag": "M"}
+#: PX4's parameter letter per sensor kind (``TC_<letter>*``).
+PX4_LETTER = _PX4_TYPE
+#: thermonet units per PX4 parameter unit, per kind (``TC_M*`` are gauss, thermonet µT).
+PX4_PARAM_UNIT = {"gyro": 1.0, "acc": 1.0, "baro": 1.0, "mag": 100.0}
 _AP_TYPE = {"gyro": "GYR", "acc": "ACC"}
 _AXES = ("x", "y", "z")
 
@@ -57,12 +76,17 @@ class FirmwareFit:
 
     Attributes
     ----------
-    kind : ``gyro`` | ``acc`` | ``baro``
+    kind : ``gyro`` | ``acc`` | ``baro`` | ``mag``
     device_id : int
     t_ref, t_min, t_max : float
         °C; PX4: TREF, TMIN, TMAX; ArduPilot: 35 °C, TMIN, TMAX.
     coef : array (axes, order + 1)
-        Column k multiplies :math:`(T - T_{ref})^k`; rad/s, m/s², Pa.
+        Column k multiplies :math:`(T - T_{ref})^k`; rad/s, m/s², Pa, µT.
+    thermometer : str or None
+        None: the sensor's own thermometer; else the instance whose thermometer was lent
+        (a magnetometer without one), seen through a first-order lag of ``lag_s``.
+    lag_s : float
+        The lag's time constant, s (0: none): T is ``EMA_lag(T_thermometer)``.
     """
 
     kind: str
@@ -71,6 +95,8 @@ class FirmwareFit:
     t_min: float
     t_max: float
     coef: np.ndarray
+    thermometer: str | None = None
+    lag_s: float = 0.0
 
 
 def _g(v: float) -> str:
@@ -84,14 +110,15 @@ def _px4_dt(params: Mapping[str, float], pre: str, temperature_c: np.ndarray) ->
 
 def px4_offsets_3d(params: Mapping[str, float], kind: str, temperature_c: np.ndarray,
                    slot: int = 0) -> np.ndarray:
-    """``calc_thermal_offsets_3D`` (gyro/accel) on parameters read back: (N, 3) SI."""
+    """``calc_thermal_offsets_3D`` (gyro/accel/mag) on parameters read back: (N, 3) in
+    thermonet's units (a magnetometer's gauss coefficients give µT)."""
     pre = f"TC_{_PX4_TYPE[kind]}{slot}_"
     dt = _px4_dt(params, pre, temperature_c)
     out = np.zeros((dt.size, 3))
     for i in range(3):
         for k in range(4):
             out[:, i] += params[f"{pre}X{k}_{i}"] * dt ** k
-    return out
+    return out * PX4_PARAM_UNIT[kind]
 
 
 def px4_offsets_1d(params: Mapping[str, float], temperature_c: np.ndarray,
@@ -121,16 +148,25 @@ def ardupilot_correction(params: Mapping[str, float], kind: str, temperature_c: 
 
 
 def px4_calibration_text(fits: Mapping[str, list[FirmwareFit]], *, header: list[str]) -> str:
-    """A QGC ``.params`` file with every ``TC_G*``, ``TC_A*``, ``TC_B*`` slot.
+    """A QGC ``.params`` file with every ``TC_G*``, ``TC_A*``, ``TC_B*`` slot, and every
+    ``TC_M*`` slot when ``fits`` has a ``mag`` entry (the log has magnetometers; an empty
+    list writes ``TC_M_ENABLE`` 0 and cleared slots).
 
     ``fits[kind]`` lists the fitted instances in slot order; the remaining
     slots (up to 4) are written with ID 0 and zero coefficients, so that a
     calibration left over from an earlier board can never be applied.
     ``TC_<k>_ENABLE`` is 1 where at least one instance of the kind was fitted.
+    Magnetometer coefficients (µT) are written in gauss, as the firmware applies them
+    to ``sensor_mag``.
     """
     rows: list[tuple[str, str, int]] = []
-    for kind, t in (("acc", "A"), ("baro", "B"), ("gyro", "G")):
+    kinds = [("acc", "A"), ("baro", "B"), ("gyro", "G")] + ([("mag", "M")] if "mag" in fits
+                                                            else [])
+    for kind, t in kinds:
         kind_fits = list(fits.get(kind, []))
+        if any(f.thermometer for f in kind_fits):
+            raise ExportError(f"a {kind} fitted on a lent thermometer cannot be a PX4 slot "
+                              "(the firmware reads the sensor's own temperature)")
         if len(kind_fits) > PX4_SLOTS:
             raise ExportError(f"PX4 has {PX4_SLOTS} {kind} calibration slots; {len(kind_fits)} "
                               "instances were fitted")
@@ -149,7 +185,7 @@ def px4_calibration_text(fits: Mapping[str, list[FirmwareFit]], *, header: list[
             else:
                 for k in range(4):
                     for i in range(3):
-                        v = fit.coef[i, k] if fit is not None else 0.0
+                        v = fit.coef[i, k] / PX4_PARAM_UNIT[kind] if fit is not None else 0.0
                         rows.append((f"{pre}X{k}_{i}", _g(v), 9))
     for _, value, ptype in rows:
         if ptype == 9 and not math.isfinite(float(value)):

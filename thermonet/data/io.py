@@ -18,7 +18,10 @@ metadata key ``thermonet`` holds one JSON blob::
                "proxies", "n_samples"}, ...]}
 
 Values are float64 and JSON floats round-trip exactly, so a write/read round
-trip is lossless.
+trip is lossless.  Every data page carries a CRC-32 (:data:`WRITE_OPTIONS`), verified on
+every read (:data:`READ_OPTIONS`), and the key-value metadata ``thermonet.digest`` the
+SHA-256 of each float column (:class:`Digest`), checked by both readers (whole and
+streamed, :mod:`thermonet.data.chunks`) once the values passed their own checks.
 
 Reading
 -------
@@ -36,6 +39,7 @@ Parquet table); the message also gives the physical file line for text files.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections import Counter
 from collections.abc import Sequence
@@ -56,11 +60,14 @@ from .tables import (
     apply_mapping,
     check_finite,
     check_time,
+    float_values,
     native_mapping,
     read_text,
 )
 
-__all__ = ["FORMAT_VERSION", "METADATA_KEY", "write_parquet", "read_dataset", "read_datasets"]
+__all__ = ["FORMAT_VERSION", "METADATA_KEY", "DIGEST_KEY", "Digest", "stored_digest",
+           "WRITE_OPTIONS", "READ_OPTIONS", "write_parquet",
+           "read_dataset", "read_datasets", "parse_blob", "check_run_ids", "file_format"]
 
 
 #: Version of the Parquet layout written by :func:`write_parquet`.
@@ -96,9 +103,92 @@ def write_parquet(dataset: Dataset, path: str | Path) -> Path:
         raise InputError.at(path, f"output directory '{path.parent}' does not exist")
     for run in dataset:
         run.validate()
+    table = _to_table(dataset)
+    digest = Digest()
+    for name in table.column_names:
+        if pa.types.is_floating(table.schema.field(name).type):
+            digest.add(name, table.column(name))
     with atomic_path(path, make_parents=False) as tmp:
-        pq.write_table(_to_table(dataset), tmp)
+        with pq.ParquetWriter(tmp, table.schema, **WRITE_OPTIONS) as writer:
+            writer.write_table(table)
+            writer.add_key_value_metadata({DIGEST_KEY: digest.text()})
     return path
+
+
+#: Parquet key-value metadata key of the data digest: the SHA-256 of each float column's
+#: values (little-endian float64, nulls as NaN) in file order, added when the file is closed.
+#: A file rewritten by another tool loses it (it is not part of the schema) and is then
+#: read unchecked; a damaged one is refused.
+DIGEST_KEY = "thermonet.digest"
+
+
+class Digest:
+    """SHA-256 of float columns, fed in file order a piece at a time."""
+
+    def __init__(self) -> None:
+        self.sha: dict[str, Any] = {}
+
+    def add(self, name: str, values: Any) -> None:
+        if not isinstance(values, np.ndarray):
+            values = values.to_numpy(zero_copy_only=False)
+        v = np.ascontiguousarray(values, dtype="<f8")
+        if name not in self.sha:
+            self.sha[name] = hashlib.sha256()
+        self.sha[name].update(v.tobytes())
+
+    def text(self) -> str:
+        return json.dumps({"sha256": {k: h.hexdigest() for k, h in self.sha.items()}})
+
+    def check(self, path: Path, stored: dict[str, str] | None) -> None:
+        """Every column fed here that the file's digest lists has the digest written."""
+        if not stored:
+            return
+        for name, h in self.sha.items():
+            if name in stored and h.hexdigest() != stored[name]:
+                raise InputError.at(path, "data digest mismatch: the values read are not "
+                                    "those thermonet wrote (the file is damaged)", column=name)
+
+
+def stored_digest(path: Path, metadata: Any) -> dict[str, str] | None:
+    """The per-column digests a Parquet file's key-value ``metadata`` holds, or None."""
+    raw = (metadata or {}).get(DIGEST_KEY.encode())
+    if raw is None:
+        return None
+    try:
+        info = json.loads(raw)
+        sha = info["sha256"]
+        if not isinstance(sha, dict) or not all(
+                isinstance(k, str) and isinstance(v, str) for k, v in sha.items()):
+            raise ValueError("not a mapping of column names to hex digests")
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError) as err:
+        raise InputError.at(path, f"corrupt '{DIGEST_KEY}' metadata ({err})") from None
+    return sha
+
+
+#: How thermonet writes Parquet: every data page with a CRC-32 checksum, which the readers
+#: verify (:data:`READ_OPTIONS`), so a damaged byte is refused, not read as another number.
+WRITE_OPTIONS: dict[str, Any] = {"write_page_checksum": True}
+#: How thermonet reads Parquet: page checksums verified where the writer stored them.
+READ_OPTIONS: dict[str, Any] = {"page_checksum_verification": True}
+
+
+def parse_blob(path: Path, blob: bytes) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The ``thermonet`` metadata blob, checked field by field, and its format version
+    against this reader's: the one check of a thermonet file's metadata, for the whole-file
+    reader and the streamed one alike."""
+    try:
+        info = json.loads(blob)
+    except (ValueError, UnicodeDecodeError) as err:
+        raise InputError.at(path, f"corrupt '{METADATA_KEY}' metadata (not JSON: {err})") from None
+    entries = _check_blob(path, info)
+    version = info["version"]
+    if version > FORMAT_VERSION:
+        raise InputError.at(path, f"format version {version} is newer than this thermonet "
+                            f"reads ({FORMAT_VERSION}); upgrade thermonet")
+    if version < 1:
+        raise InputError.at(path, f"corrupt '{METADATA_KEY}' metadata: field 'version': "
+                            f"{version} is not a format version (1 … {FORMAT_VERSION})")
+    return info, entries
 
 
 def _to_table(dataset: Dataset) -> pa.Table:
@@ -195,23 +285,28 @@ def read_datasets(paths: Sequence[str | Path] | str | Path,
             skipped = (skipped or 0) + n_skipped
     if skipped is not None:
         meta["skipped_rows"] = str(skipped)
-    seen: dict[tuple[str, str], str] = {}
-    several = len({r.device_id for r in runs}) > 1
-    for r in runs:
-        key = (r.device_id, r.run_id)
-        if key in seen:
-            unit = f" of unit '{r.device_id}'" if several else ""
-            raise InputError.at(r.meta.get("source", ""), f"run id '{r.run_id}'{unit} already "
-                                f"used by {seen[key]} (a unit's run ids must be unique; set "
-                                "'run_id' per file, rename the files, or give each unit its "
-                                "own device id)")
-        seen[key] = r.meta.get("source", "")
+    check_run_ids([(r.device_id, r.run_id, r.meta.get("source", "")) for r in runs])
     source = str(paths[0]) if len(paths) == 1 else ""
     if not validate:
         if not runs:
             raise InputError.at(source, "no runs")
         return Dataset(runs=runs, meta=meta)
     return Dataset(runs=runs, meta=meta).validate(source)
+
+
+def check_run_ids(ids: Sequence[tuple[str, str, str]]) -> None:
+    """(device id, run id, source file) of every run read: a unit's run ids are unique."""
+    seen: dict[tuple[str, str], str] = {}
+    several = len({d for d, _, _ in ids}) > 1
+    for device_id, run_id, source in ids:
+        key = (device_id, run_id)
+        if key in seen:
+            unit = f" of unit '{device_id}'" if several else ""
+            raise InputError.at(source, f"run id '{run_id}'{unit} already "
+                                f"used by {seen[key]} (a unit's run ids must be unique; set "
+                                "'run_id' per file, rename the files, or give each unit its "
+                                "own device id)")
+        seen[key] = source
 
 
 def _read_one(path: Path, mapping: ColumnMapping | None
@@ -228,19 +323,22 @@ def _read_one(path: Path, mapping: ColumnMapping | None
     why = not_a_file(path)
     if why:
         raise InputError.at(path, why)
-    fmt = mapping.format if mapping is not None else "auto"
-    ext = path.suffix.lower()
-    if fmt == "auto":
-        fmt = "parquet" if ext in _PARQUET else "tsv" if ext == ".tsv" else \
-            "csv" if ext in _TEXT or mapping is not None else ""
-    if not fmt:
-        raise InputError.at(path, f"unknown file type '{ext}' (thermonet reads .parquet, "
-                            ".csv, .tsv, .txt; for other files give a mapping with 'format')")
+    fmt = file_format(path, mapping)
     if fmt == "parquet":
         table = _read_parquet_table(path)
         blob = (table.schema.metadata or {}).get(METADATA_KEY.encode())
         if blob is not None and mapping is None:
             runs, meta = _from_thermonet_table(path, table, blob)
+            try:
+                stored = stored_digest(path, pq.read_metadata(path).metadata)
+            except (pa.ArrowException, OSError) as err:
+                raise InputError.at(path, f"not a readable Parquet file ({err})") from err
+            if stored:
+                digest = Digest()
+                for name in table.column_names:
+                    if name in stored:
+                        digest.add(name, table.column(name))
+                digest.check(path, stored)
             return runs, meta, None
         frame = Frame(path=path, data=table.to_pandas(),
                        rows=np.arange(1, table.num_rows + 1), lines=None)
@@ -252,9 +350,22 @@ def _read_one(path: Path, mapping: ColumnMapping | None
     return runs, {}, (n_skipped if mapping.malformed_rows == "skip" else None)
 
 
+def file_format(path: Path, mapping: ColumnMapping | None) -> str:
+    """``parquet``, ``csv`` or ``tsv``: the mapping's ``format``, else by the extension."""
+    fmt = mapping.format if mapping is not None else "auto"
+    ext = path.suffix.lower()
+    if fmt == "auto":
+        fmt = "parquet" if ext in _PARQUET else "tsv" if ext == ".tsv" else \
+            "csv" if ext in _TEXT or mapping is not None else ""
+    if not fmt:
+        raise InputError.at(path, f"unknown file type '{ext}' (thermonet reads .parquet, "
+                            ".csv, .tsv, .txt; for other files give a mapping with 'format')")
+    return fmt
+
+
 def _read_parquet_table(path: Path) -> pa.Table:
     try:
-        table = pq.read_table(path)
+        table = pq.read_table(path, **READ_OPTIONS)
     except (pa.ArrowException, OSError) as err:
         raise InputError.at(path, f"not a readable Parquet file ({err})") from err
     dup = [n for n, c in Counter(table.column_names).items() if c > 1]
@@ -265,15 +376,7 @@ def _read_parquet_table(path: Path) -> pa.Table:
 
 def _from_thermonet_table(path: Path, table: pa.Table, blob: bytes
                           ) -> tuple[list[Recording], dict[str, str]]:
-    try:
-        info = json.loads(blob)
-    except (ValueError, UnicodeDecodeError) as err:
-        raise InputError.at(path, f"corrupt '{METADATA_KEY}' metadata (not JSON: {err})") from None
-    entries = _check_blob(path, info)
-    version = info["version"]
-    if version > FORMAT_VERSION:
-        raise InputError.at(path, f"format version {version} is newer than this thermonet "
-                            f"reads ({FORMAT_VERSION}); upgrade thermonet")
+    info, entries = parse_blob(path, blob)
     for col in ("run", "time_s"):
         if col not in table.column_names:
             raise InputError.at(path, "missing column", column=col)
@@ -293,10 +396,8 @@ def _from_thermonet_table(path: Path, table: pa.Table, blob: bytes
             if name not in table.column_names:
                 raise InputError.at(path, f"missing column (run '{e['run_id']}' lists it)",
                                     column=name)
-            if pa.types.is_boolean(table.schema.field(name).type):
-                raise InputError.at(path, "a boolean column, not a measurement", column=name)
-            values = table.column(name).to_numpy(zero_copy_only=False)[idx]
-            return check_finite(path, name, np.asarray(values, dtype=np.float64), rows, None)
+            values = float_values(path, name, table.column(name).take(idx), rows)
+            return check_finite(path, name, values, rows, None)
 
         time_s = take("time_s")
         check_time(path, "time_s", time_s, rows, None)

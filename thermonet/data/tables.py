@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import logging
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -23,8 +25,9 @@ from ..core.errors import InputError
 from ..core.recording import OUTPUT_NAME, Recording
 from .mapping import ChannelSpec, ColumnMapping, TimeSpec, default_unit
 
-__all__ = ["Frame", "GROUPS", "read_text", "native_mapping", "apply_mapping", "check_finite",
-           "check_time"]
+__all__ = ["Frame", "GROUPS", "read_text", "iter_text_frames", "native_mapping", "apply_mapping",
+           "map_frame", "Mapped", "MapState", "run_meta", "run_units", "sensor_kind_of",
+           "check_finite", "check_time", "float_values"]
 
 log = logging.getLogger(__name__)
 #: The channel groups of a recording besides time and temperature.
@@ -47,27 +50,97 @@ class Frame:
 
 
 def read_text(path: Path, mapping: ColumnMapping | None, sep: str | None) -> Frame:
-    try:
-        # utf-8-sig drops the byte-order mark spreadsheet exports put before the header.
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as err:
-        raise InputError.at(path, f"not UTF-8 text (byte {err.start})") from err
+    """The whole text file as one :class:`Frame` (:func:`iter_text_frames` with no chunking)."""
+    frames = list(iter_text_frames(path, mapping, sep, chunk_rows=None))
+    frame = frames[0]
+    frame.skipped_lines = [ln for f in frames for ln in f.skipped_lines]
+    return frame
+
+
+def _text_lines(path: Path, chunk_rows: int | None) -> Iterator[tuple[list[str], int]]:
+    """Blocks of at most ``chunk_rows`` physical lines (None: all) and the file offset of
+    each block's first byte; a byte that is not UTF-8 is named by its file offset."""
+    if chunk_rows is None:
+        try:
+            # utf-8-sig drops the byte-order mark spreadsheet exports put before the header.
+            text = path.read_text(encoding="utf-8-sig")
+        except UnicodeDecodeError as err:
+            raise InputError.at(path, f"not UTF-8 text (byte {err.start})") from err
+        yield text.splitlines(), 0
+        return
+    offset = 0
+    with path.open("rb") as f:
+        while True:
+            block = list(itertools.islice(f, chunk_rows))
+            if not block:
+                return
+            raw = b"".join(block)
+            try:
+                text = raw.decode("utf-8-sig" if offset == 0 else "utf-8")
+            except UnicodeDecodeError as err:
+                raise InputError.at(path, f"not UTF-8 text (byte {offset + err.start})") from err
+            yield text.splitlines(), offset
+            offset += len(raw)
+
+
+def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None, *,
+                     chunk_rows: int | None,
+                     float_columns: Callable[[list[str] | None, int], set[str | int]] | None
+                     = None) -> Iterator[Frame]:
+    """The data rows of a text table, ``chunk_rows`` physical lines at a time (None: the
+    whole file as one frame): the banner skipped, the separator sniffed from the first 50
+    non-blank lines, the header read, each row's field count checked.  Row and file-line
+    numbers run on across frames, so a message names the same row whatever the chunk.
+
+    Without a header and without the mapping's ``n_fields``, a well-formed row has the most
+    common field count of the first frame (of the whole file when not chunked).
+
+    ``float_columns`` (chunked only): given the header (None without) and the field count,
+    the columns that hold numbers; a block whose lines are plain is then parsed by
+    :func:`_fast_frame` (pyarrow), any other by the whole-file reader's parsing."""
     skip = mapping.skip_lines if mapping else 0
     header = mapping.header if mapping else True
     malformed = mapping.malformed_rows if mapping else "error"
-    lines = text.splitlines()[skip:]
     if mapping is not None and mapping.separator is not None:
         sep = mapping.separator
+    blocks = _text_lines(path, chunk_rows)
+    lines: list[str] = []
+    pending: list[str] = []
+    exhausted = False
+
+    def more() -> bool:
+        nonlocal exhausted
+        if exhausted:
+            return False
+        for block, _ in blocks:
+            pending.extend(block)
+            return True
+        exhausted = True
+        return False
+
+    # the banner, then the first block's lines
+    while len(pending) < skip and more():
+        pass
+    del pending[:skip]
+    while not pending and more():
+        pass
+    lines = pending
     if sep is None:
+        while len([ln for ln in lines if ln.strip()]) < 50 and more():
+            pass
         sep = _sniff(path, [ln for ln in lines if ln.strip()][:50])
     records = list(csv.reader(lines, delimiter=sep))
     names: list[str] | None = None
     first_data = skip + 1  # physical line of data row 1, before the header shift
     if header:
-        while records and not records[0]:  # blank lines before the header
-            records.pop(0)
-            lines.pop(0)
-            first_data += 1
+        while True:
+            while records and not records[0]:  # blank lines before the header
+                records.pop(0)
+                lines.pop(0)
+                first_data += 1
+            if records or not more():
+                break
+            records = list(csv.reader(lines, delimiter=sep))
         if not records:
             raise InputError.at(path, "no header line (file is empty after the banner)")
         names = [c.strip() for c in records.pop(0)]
@@ -76,15 +149,102 @@ def read_text(path: Path, mapping: ColumnMapping | None, sep: str | None) -> Fra
         dup = [n for n, c in Counter(names).items() if c > 1]
         if dup:
             raise InputError.at(path, "duplicate column in the header", column=dup[0])
-    counts = [len(r) for r in records if r]
     if names is not None:
         n_fields = len(names)
     elif mapping is not None and mapping.n_fields is not None:
         n_fields = mapping.n_fields
-    elif counts:
-        n_fields = Counter(counts).most_common(1)[0][0]
     else:
+        counts = [len(r) for r in records if r]
+        if not counts:
+            raise InputError.at(path, "no data rows")
+        n_fields = Counter(counts).most_common(1)[0][0]
+    numeric = names if names and all(n and _is_float(n) for n in names) else []
+    fast = None if float_columns is None or chunk_rows is None else \
+        float_columns(names, n_fields)
+    base = 0   # index of this frame's first record among all records after the header
+    any_rows = False
+    first: list[list[str]] | None = records
+    while True:
+        step = max(len(lines) if chunk_rows is None else int(chunk_rows), 1)
+        for a in range(0, max(len(lines), 1), step):   # the first block may hold more
+            part = lines[a:a + step]
+            recs = None if first is None else first[a:a + step]
+            frame = None if fast is None else _fast_frame(
+                path, part, base, first_data, names, n_fields, sep, fast, numeric)
+            if frame is None:
+                recs = recs if recs is not None else list(csv.reader(part, delimiter=sep))
+                frame = _frame(path, part, recs, base, first_data, names, n_fields, sep,
+                               malformed, numeric)
+            base += len(part) if recs is None else len(recs)
+            if frame is not None:
+                any_rows = any_rows or frame.rows.size > 0
+                yield frame
+        first = None
+        lines = []
+        for block, _ in blocks:
+            lines = block
+            break
+        if not lines:
+            break
+    if not any_rows:
         raise InputError.at(path, "no data rows")
+
+
+def _fast_frame(path: Path, lines: list[str], base: int, first_data: int,
+                names: list[str] | None, n_fields: int, sep: str, floats: set[str | int],
+                numeric: list[str]) -> Frame | None:
+    """A block of plain numeric lines parsed by pyarrow's CSV reader: the ``floats``
+    columns as float64, the others as text.  None where the block is not that plain (a
+    blank line, a quote, a wrong field count, a cell that is not a finite number): the
+    block then goes through the whole-file reader's parsing (:func:`_frame`), which names
+    the fault.  Values equal that parsing's: both round each decimal string correctly."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    if not lines or "" in lines:
+        return None
+    text = "\n".join(lines)
+    if '"' in text:
+        return None
+    labels: list[str | int] = list(names) if names is not None else list(range(n_fields))
+    keys = [str(x) for x in labels]
+    if len(set(keys)) != len(keys):
+        return None
+    try:
+        table = pacsv.read_csv(
+            io.BytesIO(text.encode("utf-8")),
+            read_options=pacsv.ReadOptions(column_names=keys, use_threads=False,
+                                           block_size=max(1 << 20, len(text) + 1)),
+            parse_options=pacsv.ParseOptions(delimiter=sep, quote_char=False,
+                                             ignore_empty_lines=False),
+            convert_options=pacsv.ConvertOptions(
+                column_types={k: pa.float64() if x in floats else pa.string()
+                              for k, x in zip(keys, labels, strict=True)},
+                strings_can_be_null=False, quoted_strings_can_be_null=False))
+    except (pa.ArrowException, ValueError):
+        return None
+    if table.num_rows != len(lines):
+        return None
+    data = {}
+    for k, x in zip(keys, labels, strict=True):
+        col = table.column(k)
+        if x in floats:
+            v = col.to_numpy(zero_copy_only=False) if col.null_count == 0 else None
+            if v is None or not np.isfinite(v).all():
+                return None
+            data[x] = v
+        else:
+            data[x] = col.to_pandas()
+    rows = np.arange(base + 1, base + 1 + len(lines))
+    return Frame(path=path, data=pd.DataFrame(data), rows=rows, lines=rows - 1 + first_data,
+                 numeric_header=numeric)
+
+
+def _frame(path: Path, lines: list[str], records: list[list[str]], base: int, first_data: int,
+           names: list[str] | None, n_fields: int, sep: str, malformed: str,
+           numeric: list[str]) -> Frame | None:
+    """One frame of text records (``base``: the index of the first among all data records),
+    or None when every record of it is blank or skipped."""
     keep: list[int] = []
     skipped_lines: list[int] = []
     for i, rec in enumerate(records):
@@ -93,21 +253,26 @@ def read_text(path: Path, mapping: ColumnMapping | None, sep: str | None) -> Fra
         if len(rec) != n_fields:
             if malformed == "error":
                 raise InputError.at(path, f"expected {n_fields} fields, found {len(rec)} "
-                                    f"(file line {first_data + i}; set malformed_rows: skip "
-                                    "in a mapping to drop such rows)", row=i + 1)
-            skipped_lines.append(first_data + i)
+                                    f"(file line {first_data + base + i}; set malformed_rows: "
+                                    "skip in a mapping to drop such rows)", row=base + i + 1)
+            skipped_lines.append(first_data + base + i)
             continue
         keep.append(i)
     if not keep:
-        raise InputError.at(path, "no data rows")
+        if skipped_lines:   # the rows dropped here still count
+            return Frame(path=path, data=pd.DataFrame(
+                {c: pd.Series([], dtype=str) for c in (
+                    names if names is not None else list(range(n_fields)))}),
+                rows=np.zeros(0, dtype=np.int64), lines=np.zeros(0, dtype=np.int64),
+                skipped_lines=skipped_lines, numeric_header=numeric)
+        return None
     # The csv pre-scan only sorts rows by field count; pandas does the parsing.
     data = pd.read_csv(io.StringIO("\n".join(lines[i] for i in keep)), sep=sep, header=None,
                        names=names if names is not None else list(range(n_fields)),
                        dtype=str, keep_default_na=False, skip_blank_lines=False)
-    rows = np.asarray(keep) + 1
-    numeric = names if names and all(n and _is_float(n) for n in names) else []
+    rows = np.asarray(keep) + base + 1
     return Frame(path=path, data=data, rows=rows, lines=rows - 1 + first_data,
-                  skipped_lines=skipped_lines, numeric_header=numeric)
+                 skipped_lines=skipped_lines, numeric_header=numeric)
 
 
 def _sniff(path: Path, sample: list[str]) -> str:
@@ -163,8 +328,60 @@ def _resolve(frame: Frame, col: str | int, key: str) -> str | int:
     return col
 
 
-def apply_mapping(frame: Frame, mapping: ColumnMapping) -> tuple[list[Recording], int]:
+@dataclass
+class Mapped:
+    """One frame's rows as thermonet channels: the kept rows' time (s) and scaled channel
+    values, their data rows and file lines, and the (device, run) groups they fall in."""
+
+    frame: Frame
+    groups: list[tuple[str, str, np.ndarray]]     # (device id, run id, mask over kept rows)
+    time_s: np.ndarray
+    channels: dict[str, np.ndarray]
+    rows: np.ndarray
+    lines: np.ndarray | None
+    t_label: str
+    bad_any: np.ndarray                           # over the frame's rows: a bad mapped cell
+    run_all: np.ndarray                           # over the frame's rows: each row's run id
+    n_skipped: int
+    sensor_kind: str
+
+    def run_skips(self, mapping: ColumnMapping, device_id: str, run_id: str
+                  ) -> tuple[int, list[int]]:
+        """The skipped rows counted for one run, and their file lines (or data rows)."""
+        frame = self.frame
+        if mapping.run_column is None:
+            return self.n_skipped, sorted(frame.skipped_lines)
+        # rows with a bad mapped cell belong to the run their run cell names; a row with a
+        # wrong field count has no readable run cell and counts for the file only
+        mine = self.bad_any & (self.run_all == run_id)
+        if mapping.device_column is not None and mine.any():
+            dev_all = frame.data[_resolve(frame, mapping.device_column, "")]
+            mine &= dev_all.astype(str).str.strip().to_numpy() == device_id
+        at = frame.lines if frame.lines is not None else frame.rows
+        return int(mine.sum()), sorted(np.asarray(at)[mine].tolist())
+
+
+class MapState:
+    """What mapping one frame carries to the next: the first stamp of a date/time column
+    (times are seconds since the file's first sample)."""
+
+    def __init__(self) -> None:
+        self.t0_ns: float | None = None
+
+
+def sensor_kind_of(mapping: ColumnMapping) -> str:
+    kinds = {m.group(1) for c in mapping.channels if c.role == "output"
+             for m in [OUTPUT_NAME.match(c.name)] if m is not None}
+    return mapping.sensor_kind or (kinds.pop() if len(kinds) == 1 else "mixed")
+
+
+def map_frame(frame: Frame, mapping: ColumnMapping, state: MapState | None = None, *,
+              check: bool = True) -> Mapped:
+    """Parse one frame's mapped cells (file, column and row named for a bad one), apply the
+    time unit and each channel's scale and offset, group the rows by (device, run) and
+    check each group's time within the frame (``check``)."""
     path = frame.path
+    state = state if state is not None else MapState()
     numeric_keys: list[tuple[str, str | int]] = []
     if mapping.time is not None:
         numeric_keys.append(("time.column", _resolve(frame, mapping.time.column, "time.column")))
@@ -189,7 +406,9 @@ def apply_mapping(frame: Frame, mapping: ColumnMapping) -> tuple[list[Recording]
             stamps = cells.astype("datetime64[ns]") if pd.api.types.is_datetime64_any_dtype(
                 cells) else cells.astype("timedelta64[ns]")
             ns = stamps.to_numpy().astype("int64").astype(np.float64)
-            v = (ns - ns[0]) * 1e-9 / mapping.time.seconds_per_unit
+            if state.t0_ns is None and ns.size:
+                state.t0_ns = float(ns[0])
+            v = (ns - (state.t0_ns or 0.0)) * 1e-9 / mapping.time.seconds_per_unit
             v[np.asarray(stamps.isna())] = np.nan
             values[label] = v
             bad = ~np.isfinite(v)
@@ -225,8 +444,6 @@ def apply_mapping(frame: Frame, mapping: ColumnMapping) -> tuple[list[Recording]
     keep = ~bad_any
     rows = frame.rows[keep]
     lines = None if frame.lines is None else frame.lines[keep]
-    if mapping.malformed_rows == "skip":
-        log.warning("%s: skipped %d malformed row(s)", path, n_skipped)
     if mapping.time is not None:
         t_label = _resolve(frame, mapping.time.column, "time.column")
         time_s = values[t_label][keep] * mapping.time.seconds_per_unit
@@ -245,54 +462,69 @@ def apply_mapping(frame: Frame, mapping: ColumnMapping) -> tuple[list[Recording]
                              keep)[keep]
     else:
         dev_ids = np.full(n_keep, mapping.device_id, dtype=object)
-    pairs = pd.unique(pd.Series(list(zip(dev_ids, run_ids, strict=True)), dtype=object))
-    groups = [(str(dev), str(rid), (dev_ids == dev) & (run_ids == rid)) for dev, rid in pairs]
-    kinds = {m.group(1) for c in mapping.channels if c.role == "output"
-             for m in [OUTPUT_NAME.match(c.name)] if m is not None}
-    sensor_kind = mapping.sensor_kind or (kinds.pop() if len(kinds) == 1 else "mixed")
+    if mapping.run_column is None and mapping.device_column is None:
+        groups = [(str(mapping.device_id), str(run_all[0]) if len(run_all) else "",
+                   np.ones(n_keep, dtype=bool))] if n_keep else []
+    else:
+        pairs = pd.unique(pd.Series(list(zip(dev_ids, run_ids, strict=True)), dtype=object))
+        groups = [(str(dev), str(rid), (dev_ids == dev) & (run_ids == rid))
+                  for dev, rid in pairs]
+    if check:
+        for _, _, sel in groups:
+            check_time(path, _label(t_label), time_s[sel], rows[sel],
+                       None if lines is None else lines[sel])
+    channels = {ch.name: values[_resolve(frame, ch.column, "")][keep] * ch.scale + ch.offset
+                for ch in mapping.channels}
+    return Mapped(frame, groups, time_s, channels, rows, lines, _label(t_label), bad_any,
+                  run_all, n_skipped, sensor_kind_of(mapping))
+
+
+def run_meta(mapping: ColumnMapping, path: Path, numeric_header: Sequence[str],
+             skips: tuple[int, list[int]] | None) -> dict[str, str]:
+    """A mapped run's metadata: the mapping's, its source, the numeric header, and (with
+    ``malformed_rows: skip``) its skipped rows and the first 20 of their lines."""
+    meta = dict(mapping.meta)
+    meta["source"] = str(path)
+    if mapping.source != "<conventional names>":
+        meta["mapping"] = mapping.source
+    if numeric_header:  # diagnostics.input_warnings suggests 'header: false'
+        meta["numeric_header"] = ",".join(list(numeric_header)[:8])
+    if mapping.malformed_rows == "skip" and skips is not None:
+        meta["skipped_rows"] = str(skips[0])
+        # The first few only: enough to find them in an editor, short in a log.
+        meta["skipped_lines"] = ",".join(str(int(x)) for x in skips[1][:20])
+    return meta
+
+
+def run_units(mapping: ColumnMapping) -> dict[str, str]:
+    return {"time_s": "s", **{ch.name: ch.unit for ch in mapping.channels}}
+
+
+def apply_mapping(frame: Frame, mapping: ColumnMapping) -> tuple[list[Recording], int]:
+    """The whole file's frame as recordings, one per (device, run)."""
+    m = map_frame(frame, mapping)
+    path = frame.path
+    if mapping.malformed_rows == "skip":
+        log.warning("%s: skipped %d malformed row(s)", path, m.n_skipped)
+    roles = {"output": "outputs", "reference": "references", "drift": "drift",
+             "proxy": "proxies"}
     runs = []
-    for device_id, run_id, sel in groups:
-        t = time_s[sel]
-        check_time(path, _label(t_label), t, rows[sel], None if lines is None else lines[sel])
+    for device_id, run_id, sel in m.groups:
         chans: dict[str, Any] = {g: {} for g in GROUPS}
         temperature = None
-        units = {"time_s": "s"}
         for ch in mapping.channels:
-            raw = values[_resolve(frame, ch.column, "")][keep][sel]
-            v = raw * ch.scale + ch.offset
-            units[ch.name] = ch.unit
-            role = ch.role
-            if role == "temperature":
+            v = m.channels[ch.name][sel]
+            if ch.role == "temperature":
                 temperature = v
             else:
-                group = {"output": "outputs", "reference": "references", "drift": "drift",
-                         "proxy": "proxies"}[role]
-                chans[group][ch.name] = v
-        meta = dict(mapping.meta)
-        meta["source"] = str(path)
-        if mapping.source != "<conventional names>":
-            meta["mapping"] = mapping.source
-        if frame.numeric_header:  # diagnostics.input_warnings suggests 'header: false'
-            meta["numeric_header"] = ",".join(frame.numeric_header[:8])
-        if mapping.malformed_rows == "skip":
-            if mapping.run_column is None:
-                run_skipped, run_lines = n_skipped, sorted(frame.skipped_lines)
-            else:
-                # rows with a bad mapped cell belong to the run their run cell names; a row
-                # with a wrong field count has no readable run cell and counts for the file only
-                mine = bad_any & (run_all == run_id)
-                if mapping.device_column is not None:
-                    dev_all = frame.data[_resolve(frame, mapping.device_column, "")]
-                    mine &= dev_all.astype(str).str.strip().to_numpy() == device_id
-                at = frame.lines if frame.lines is not None else frame.rows
-                run_skipped, run_lines = int(mine.sum()), sorted(np.asarray(at)[mine])
-            meta["skipped_rows"] = str(run_skipped)
-            # The first few only: enough to find them in an editor, short in a log.
-            meta["skipped_lines"] = ",".join(str(int(x)) for x in run_lines[:20])
-        runs.append(Recording(time_s=t, temperature_c=temperature, **chans, units=units,
-                              device_id=device_id, sensor_kind=sensor_kind,
-                              run_id=run_id, sample_rate_hz=mapping.sample_rate_hz, meta=meta))
-    return runs, n_skipped
+                chans[roles[ch.role]][ch.name] = v
+        meta = run_meta(mapping, path, frame.numeric_header,
+                        m.run_skips(mapping, device_id, run_id))
+        runs.append(Recording(time_s=m.time_s[sel], temperature_c=temperature, **chans,
+                              units=run_units(mapping), device_id=device_id,
+                              sensor_kind=m.sensor_kind, run_id=run_id,
+                              sample_rate_hz=mapping.sample_rate_hz, meta=meta))
+    return runs, m.n_skipped
 
 
 def _id_column(frame: Frame, column: str | int, key: str, what: str,
@@ -348,3 +580,36 @@ def check_time(path: Path, name: str, t: np.ndarray, rows: np.ndarray,
                             f"{float(t[i - 1])!r} s "
                             f"(time must increase strictly{where})", column=name,
                             row=int(rows[i]))
+
+
+def float_values(path: Path, name: str, column: Any, rows: np.ndarray,
+                 lines: np.ndarray | None = None) -> np.ndarray:
+    """A column of a thermonet table (a pyarrow array or chunked array) as float64: a
+    column of text, dates or anything else that is not numbers is named by file, column and
+    the first row that is not a number, as the mapped reader names it."""
+    import pyarrow as pa
+
+    typ = column.type
+    if pa.types.is_boolean(typ):
+        raise InputError.at(path, "a boolean column, not a measurement", column=name)
+    if pa.types.is_floating(typ) or pa.types.is_integer(typ) or pa.types.is_decimal(typ):
+        return np.asarray(column.to_numpy(zero_copy_only=False), dtype=np.float64)
+    if pa.types.is_null(typ):
+        cells = pd.Series([""] * len(column), dtype=object)
+    elif pa.types.is_string(typ) or pa.types.is_large_string(typ) or \
+            pa.types.is_dictionary(typ):
+        cells = pd.Series(column.to_pylist(), dtype=object)
+    else:
+        raise InputError.at(path, f"a column of {typ}, not numbers", column=name)
+    strip = cells.astype(str).str.strip()
+    v = np.asarray(pd.to_numeric(strip.where(cells.notna(), ""), errors="coerce"),
+                   dtype=np.float64)
+    bad = np.flatnonzero(~np.isfinite(v))
+    if bad.size:
+        i = int(bad[0])
+        cell = "" if cells.iloc[i] is None else str(cells.iloc[i]).strip()
+        what = ("empty cell" if cell == "" else f"non-finite value {cell!r}"
+                if _is_float(cell) else f"non-numeric cell {cell!r}")
+        where = "" if lines is None else f" (file line {int(lines[i])})"
+        raise InputError.at(path, what + where, column=name, row=int(rows[i]))
+    return v

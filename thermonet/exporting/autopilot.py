@@ -88,21 +88,25 @@ __all__ = [
     "read_ardupilot_params",
 ]
 
-#: Multiply a value in this unit by the factor to get rad/s (gyro), m/s² (accel) or Pa (baro).
+#: Multiply a value in this unit by the factor to get rad/s (gyro), m/s² (accel), Pa (baro) or
+#: gauss (magnetometer: PX4's ``TC_M*`` act on ``sensor_mag`` in gauss).
 SI_FACTOR = {
     "rad/s": 1.0, "deg/s": math.pi / 180.0, "deg/h": math.pi / 180.0 / 3600.0,
     "m/s^2": 1.0, "g": 9.80665, "mg": 9.80665e-3, "Pa": 1.0, "hPa": 100.0,
+    "gauss": 1.0, "mgauss": 1e-3, "uT": 0.01, "nT": 1e-5,
 }
-_SI_UNIT = {"gyro": "rad/s", "acc": "m/s^2", "baro": "Pa"}
+_SI_UNIT = {"gyro": "rad/s", "acc": "m/s^2", "baro": "Pa", "mag": "gauss"}
 _UNIT_KIND = {"rad/s": "gyro", "deg/s": "gyro", "deg/h": "gyro",
-              "m/s^2": "acc", "g": "acc", "mg": "acc", "Pa": "baro", "hPa": "baro"}
-#: PX4 evaluates a cubic for gyro/accel (``calc_thermal_offsets_3D``), order 5 for baro (``_1D``).
-_PX4_ORDER = {"gyro": 3, "acc": 3, "baro": 5}
+              "m/s^2": "acc", "g": "acc", "mg": "acc", "Pa": "baro", "hPa": "baro",
+              "gauss": "mag", "mgauss": "mag", "uT": "mag", "nT": "mag"}
+#: PX4 evaluates a cubic for gyro/accel/mag (``calc_thermal_offsets_3D``), order 5 for baro
+#: (``_1D``).
+_PX4_ORDER = {"gyro": 3, "acc": 3, "baro": 5, "mag": 3}
 #: ArduPilot's fixed reference temperature (°C) and coefficient scale.
 ARDUPILOT_TEMP_REFERENCE = 35.0
 ARDUPILOT_SCALE = 1.0e6
 _AXES = ("x", "y", "z")
-_PX4_TYPE = {"gyro": "G", "acc": "A", "baro": "B"}
+_PX4_TYPE = {"gyro": "G", "acc": "A", "baro": "B", "mag": "M"}
 _AP_TYPE = {"gyro": "GYR", "acc": "ACC"}
 
 
@@ -259,8 +263,8 @@ def autopilot_coefficients(model: ShippedModel, *, output_units: str | Mapping[s
         kind = output_kind(axis)
         letter = axis.split("_", 1)[1]
         if kind not in _SI_UNIT or (letter not in _AXES and kind != "baro"):
-            raise ExportError(f"output '{axis}' is not a gyro or accelerometer x/y/z axis or a "
-                              "barometer; autopilots compensate only those")
+            raise ExportError(f"output '{axis}' is not a gyro, accelerometer or magnetometer "
+                              "x/y/z axis or a barometer; autopilots compensate only those")
         unit = _unit_of(axis, output_units)
         if _UNIT_KIND[unit] != kind:
             raise ExportError(f"output '{axis}' has unit '{unit}', which is not a {kind} unit")
@@ -343,14 +347,15 @@ def ekf_recommendation(band: Mapping[str, Any] | None, output_units: str | Mappi
         if init:
             lines.append(f"#   {init} >= {_g(bound)} ({si_unit})")
         else:
-            lines.append(f"#   residual {kind} bias bound {_g(bound)} {si}")
+            lines.append(f"#   residual {kind} bias bound {_g(bound)} {si_unit}")
     return lines
 
 
 def export_px4_params(model: ShippedModel, path: str | Path, *, output_units: str | Mapping[str, str],
                       device_id: int | None = None, instance: int = 0,
                       band: Mapping[str, Any] | None = None) -> Path:
-    """Write PX4 ``TC_G<i>_*`` / ``TC_A<i>_*`` parameters as a QGC ``.params`` file.
+    """Write PX4 ``TC_G<i>_*`` / ``TC_A<i>_*`` / ``TC_B<i>_*`` / ``TC_M<i>_*`` (magnetometer,
+    gauss; PX4 v1.15+) parameters as a QGC ``.params`` file.
 
     Parameters
     ----------
@@ -420,6 +425,10 @@ def export_ardupilot_params(model: ShippedModel, path: str | Path, *,
         raise ExportError("ArduPilot has no barometer temperature-calibration parameters "
                           "(INS_TCAL covers gyros and accelerometers); export PX4 params, "
                           "ONNX or C")
+    if "mag" in co.coef:
+        raise ExportError("ArduPilot has no magnetometer temperature-calibration parameters "
+                          "(INS_TCAL covers gyros and accelerometers); export PX4 params "
+                          "(TC_M*), ONNX or C")
     if co.t_min < -70.0 or co.t_max > 80.0:
         raise ExportError(f"trained range [{co.t_min:g}, {co.t_max:g}] degC is outside "
                           "ArduPilot's INS_TCAL TMIN/TMAX range -70..80 degC")

@@ -3,8 +3,9 @@
 Thermal drift moves with temperature, over minutes; a chamber test logs the sensor at
 100–1,000 Hz for days.  Every family of a comparison is fitted on window means already
 (``train.average_s``, 1 s by default, :func:`thermonet.training.train.average_windows`),
-and model selection scores the low-frequency residual.  So a thermonet Parquet file
-too long to hold (``data.in_memory_samples``) is read chunk by chunk
+and model selection scores the low-frequency residual.  So a recording file too long to
+hold (``data.in_memory_samples``; any tabular format, through its column mapping) is read
+chunk by chunk
 (:func:`thermonet.data.chunks.iter_run_chunks`, a fixed number of rows at a time) and
 reduced, per run, to one row per window, keeping what the comparison needs of the
 samples:
@@ -52,27 +53,27 @@ import numpy as np
 
 from ..core.errors import ConfigError, InputError
 from ..core.recording import GAP_FACTOR, Dataset, Recording, WindowStats
-from ..data.chunks import DEFAULT_CHUNK_ROWS, ParquetLayout, iter_run_chunks, open_parquet
+from ..data.chunks import (
+    DEFAULT_CHUNK_ROWS,
+    MEDIAN_SAMPLES,
+    Layout,
+    count_samples,
+    iter_run_chunks,
+    open_source,
+    run_times,
+)
+from ..data.mapping import ColumnMapping
 from . import dynamics
 
 __all__ = ["MEDIAN_SAMPLES", "reduce_parquet", "source_samples"]
 
-#: A run's median sample step (its gap rule) is taken over this many first samples.
-MEDIAN_SAMPLES = 4096
 _GROUPS = ("outputs", "references", "proxies", "drift")
 
 
-def source_samples(paths: Sequence[str | Path]) -> int | None:
-    """Samples in thermonet Parquet files, from their footers; None where one is not one."""
-    total = 0
-    for p in paths:
-        path = Path(p)
-        layout = open_parquet(path) if path.suffix.lower() in (".parquet", ".pq") \
-            and path.is_file() else None
-        if layout is None:
-            return None
-        total += layout.num_rows
-    return total
+def source_samples(paths: Sequence[str | Path], mapping: ColumnMapping | None = None
+                   ) -> int | None:
+    """Samples in the recording files (:func:`thermonet.data.chunks.count_samples`)."""
+    return count_samples(paths, mapping)
 
 
 @dataclass
@@ -127,6 +128,7 @@ class _Run:
         self.last_key = -1
         self.open: tuple[int, _Windows] | None = None   # the window a chunk left open
         self.rows: list[_Windows] = []
+        self.extremes: dict[str, tuple[float, float]] = {}
 
     def _keys(self, t: np.ndarray) -> np.ndarray:
         """Window index of every sample (as :func:`~thermonet.training.train.average_windows`)."""
@@ -147,6 +149,10 @@ class _Run:
 
     def push(self, piece: dict[str, np.ndarray]) -> None:
         t = piece["time_s"]
+        for c, v in piece.items():   # the samples' extremes (plausibility warnings)
+            lo, hi = float(v.min()), float(v.max())
+            old = self.extremes.get(c)
+            self.extremes[c] = (lo, hi) if old is None else (min(old[0], lo), max(old[1], hi))
         cols = dict(piece)
         if self.stream is not None:
             signals, _ = self.stream.push(t, piece["temperature_c"])
@@ -205,7 +211,8 @@ class _Run:
         stats = WindowStats(self.window_s, n, {s: col[s] for s in self.dyn}, gap_s,
                             per_axis("drift", ss), per_axis("output", ss), int(n.sum()),
                             source_rate_hz, list(self.signals), cat("sxx"),
-                            per_axis("drift", sxd), per_axis("output", sxd))
+                            per_axis("drift", sxd), per_axis("output", sxd),
+                            extremes=dict(self.extremes))
         return Recording(time_s=col["time_s"],
                          temperature_c=col["temperature_c"] if e["temperature"] else None,
                          **groups, units=dict(e["units"]), device_id=e["device_id"],
@@ -217,38 +224,17 @@ class _Run:
                          windows=stats)
 
 
-def _time_pass(layout: ParquetLayout, chunk_rows: int
-               ) -> tuple[list[float], list[float]]:
-    """Per run: the median step of its first :data:`MEDIAN_SAMPLES` samples and its span."""
-    head: dict[int, list[np.ndarray]] = {}
-    have: dict[int, int] = {}
-    first: dict[int, float] = {}
-    last: dict[int, float] = {}
-    for i, _, piece in iter_run_chunks(layout, ["time_s"], chunk_rows=chunk_rows):
-        t = piece["time_s"]
-        first.setdefault(i, float(t[0]))
-        last[i] = float(t[-1])
-        if have.get(i, 0) < MEDIAN_SAMPLES:
-            head.setdefault(i, []).append(t[:MEDIAN_SAMPLES - have.get(i, 0)])
-            have[i] = have.get(i, 0) + head[i][-1].size
-    med, span = [], []
-    for i, e in enumerate(layout.runs):
-        t = np.concatenate(head.get(i, [np.zeros(0)]))
-        if t.size < 2:
-            raise InputError.at(layout.path, f"run '{e['run_id']}' has fewer than 2 samples")
-        med.append(float(np.median(np.diff(t))))
-        span.append(last[i] - first[i])
-    return med, span
-
-
-def reduce_parquet(path: str | Path, *, window_s: float, inputs: Sequence[str] = (),
+def reduce_parquet(path: str | Path | Layout, *, window_s: float, inputs: Sequence[str] = (),
                    gap_s: str | float | None = "auto", chunk_rows: int = DEFAULT_CHUNK_ROWS,
-                   max_rows: int | None = None) -> Dataset:
-    """The runs of a thermonet Parquet file as window means (module docstring), streamed.
+                   max_rows: int | None = None, mapping: ColumnMapping | None = None
+                   ) -> Dataset:
+    """The runs of a recording file as window means (module docstring), streamed.
 
     Parameters
     ----------
-    path : a thermonet Parquet file (``thermonet convert`` makes one from a CSV)
+    path : any tabular recording (thermonet or plain Parquet, CSV, TSV), or its layout
+        (:func:`thermonet.data.chunks.open_source`)
+    mapping : its column mapping (None: thermonet's conventional column names)
     window_s : window length, s (the fit's ``train.average_s``); > 0
     inputs : the feature names the families read: their dynamic inputs are computed
     gap_s : the dynamic inputs' gap limit, s, or ``"auto"``
@@ -261,18 +247,20 @@ def reduce_parquet(path: str | Path, *, window_s: float, inputs: Sequence[str] =
         One reduced :class:`~thermonet.core.recording.Recording` per run, validated;
         each carries its :class:`~thermonet.core.recording.WindowStats`.
     """
-    path = Path(path)
     if not (math.isfinite(window_s) and window_s > 0):
         raise ConfigError(f"window_s must be a positive number of seconds, got {window_s!r}")
-    layout = open_parquet(path)
-    if layout is None:
-        raise InputError.at(path, "not a thermonet Parquet file (no 'thermonet' metadata): "
-                            "only thermonet's own format is streamed; convert it once with "
-                            "'thermonet convert'")
+    layout = path if isinstance(path, Layout) else \
+        open_source(path, mapping, chunk_rows=chunk_rows)
+    path = layout.path
     if layout.is_fleet:
         raise InputError.at(path, "holds several units: a fleet is calibrated with "
                             "'thermonet fleet', one unit at a time")
-    med, span = _time_pass(layout, chunk_rows)
+    times = run_times(layout, chunk_rows)
+    for e, rt in zip(layout.runs, times, strict=True):
+        if rt.n < 2:
+            raise InputError.at(path, f"run '{e['run_id']}' has fewer than 2 samples")
+    med = [rt.median_step for rt in times]
+    span = [rt.last - rt.first for rt in times]
     if max_rows is not None and max_rows > 0:
         window_s = max(window_s, sum(span) / max_rows)
     dyn = [d.name for d in dynamics.dynamic_signals(inputs)]
@@ -309,4 +297,5 @@ def reduce_parquet(path: str | Path, *, window_s: float, inputs: Sequence[str] =
         reducers[i].push(piece)
     rate = [1.0 / m if m > 0 else math.nan for m in med]
     runs = [r.recording(gap or 0.0, rate[i], path) for i, r in enumerate(reducers)]
-    return Dataset(runs, meta={"source": str(path), **layout.meta}).validate(str(path))
+    meta = {"source": str(path), **layout.meta}
+    return Dataset(runs, meta=meta).validate(str(path))

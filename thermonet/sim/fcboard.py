@@ -18,7 +18,19 @@ Presets (``simulate_board(name, autopilot=..., seed=...)``):
       (1 °C steps, as some sensors do; PX4 issue #13551): a calibration fits it on
       the per-degree means and says what the resolution costs;
     * baro 0 — pressure 101,325 Pa (constant weather) plus a drift of ≈40 Pa
-      over the range (a smooth, order-5-friendly curve), 1 Pa noise.
+      over the range (a smooth, order-5-friendly curve), 1 Pa noise;
+    * mag 0 — a magnetometer with its own thermometer (0.01 °C), the board level and
+      still, so the Earth's field (:data:`EARTH_FIELD_UT`: 24 µT north, 46 µT down,
+      ≈52 µT, heading 30°) stays in its output; its die follows the board with a
+      first-order lag of :data:`MAG_LAG_S` [0] s, and its offset drifts with the die
+      temperature by ≈3–11 µT per axis over the warm-up (a cubic in T), 0.3 µT noise;
+    * mag 1 — a magnetometer without a thermometer (PX4 logs NaN, as for most
+      magnetometers), lagging the board by :data:`MAG_LAG_S` [1] = 300 s: calibrated
+      against a lent thermometer (the barometer's, by default) and a fitted lag.
+
+    The magnetometers draw from their own random streams (``[seed, 40]`` for their
+    laws, ``[seed, run, 40]`` for their noise), so every other sensor's samples are
+    the same as a board without them.
 
 ``fc-board-cycle``
     The same board warmed for 45 minutes, then cooled by a fan for 45 minutes
@@ -39,6 +51,7 @@ so tests can judge a calibration against the truth.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +59,8 @@ import numpy as np
 from ..core.errors import InputError
 from ..data.logs.base import FlightLog, SensorInstance
 
-__all__ = ["BOARD_PRESETS", "MAX_BOARD_RUNS", "simulate_board", "board_params"]
+__all__ = ["BOARD_PRESETS", "MAX_BOARD_RUNS", "simulate_board", "board_params",
+           "EARTH_FIELD_UT", "MAG_LAG_S", "MAG_IDS", "first_order_lag"]
 
 BOARD_PRESETS = ("fc-board", "fc-board-cycle")
 #: Most logs ``simulate fc-board --runs N`` writes (one file per warm-up).
@@ -57,6 +71,14 @@ _WARM_S = 45 * 60.0
 # device ids: PX4-style ids for (gyro, accel) of each IMU, and the baro
 _PX4_IDS = [(2424842, 2424842), (3670050, 3670058), (2621474, 2621482)]
 _BARO_ID = 3997706
+#: Device ids of the simulated magnetometers (mag 0 with a thermometer, mag 1 without).
+MAG_IDS = (396825, 466441)
+#: The Earth's field where the board sits: north, east, down (µT), and the board's heading.
+EARTH_FIELD_UT = (24.0, 0.0, 46.0)
+_HEADING_DEG = 30.0
+#: Time constant (s) of each magnetometer die's lag behind the board temperature.
+MAG_LAG_S = (120.0, 300.0)
+_MAG_NOISE_UT = 0.3
 
 
 def _warm_up(run: int, seed: int) -> tuple[float, float, float]:
@@ -95,6 +117,44 @@ def _law(coefs: np.ndarray, k: int, dT: np.ndarray, scale: float) -> np.ndarray:
     return out
 
 
+def first_order_lag(t: np.ndarray, x: np.ndarray, tau_s: float) -> np.ndarray:
+    """``x`` through a first-order lag of time constant ``tau_s`` (exact for ``x`` linear
+    between samples; starts settled at ``x[0]``)."""
+    out = np.empty_like(x)
+    out[0] = x[0]
+    for k in range(1, x.size):
+        h = (t[k] - t[k - 1]) / tau_s
+        a = math.exp(-h)
+        g = (1.0 - a) / h
+        # E_k = a E_{k-1} + (1 - g) x_k + (g - a) x_{k-1}  (ramp-exact)
+        out[k] = a * out[k - 1] + (1.0 - g) * x[k] + (g - a) * x[k - 1]
+    return out
+
+
+def _magnetometers(t: np.ndarray, board: np.ndarray, seed: int, run: int
+                   ) -> list[SensorInstance]:
+    """Mag 0 (own thermometer) and mag 1 (none), from their own random streams."""
+    laws = np.random.default_rng([seed, 40]).uniform(-1.0, 1.0, (2, 3, 4))
+    rng = np.random.default_rng([seed, run, 40])
+    north, east, down = EARTH_FIELD_UT
+    psi = math.radians(_HEADING_DEG)
+    earth = np.array([north * math.cos(psi) + east * math.sin(psi),
+                      -north * math.sin(psi) + east * math.cos(psi), down])
+    out = []
+    for m in range(2):
+        die = first_order_lag(t, board + (0.5, 1.5)[m], MAG_LAG_S[m])
+        x = (die - 25.0) / 20.0
+        drift = np.zeros((t.size, 3))
+        for j in range(3):
+            c = laws[m, j]
+            lead = (6.0 if j == m else 2.0) * (0.6 + 0.4 * abs(c[0])) * np.sign(c[0] or 1.0)
+            drift[:, j] = lead * x + 1.0 * c[1] * x ** 2 + 0.6 * c[2] * x ** 3
+        values = earth + drift + rng.normal(0.0, _MAG_NOISE_UT, (t.size, 3))
+        temp = np.round(die + rng.normal(0.0, 0.02, t.size), 2) if m == 0 else None
+        out.append(SensorInstance("mag", m, MAG_IDS[m], t.copy(), temp, values, truth=drift))
+    return out
+
+
 def board_params(autopilot: str) -> dict[str, float]:
     """The parameters the autopilot would log for this procedure (calibration off)."""
     if autopilot == "px4":
@@ -105,6 +165,9 @@ def board_params(autopilot: str) -> dict[str, float]:
             p[f"CAL_GYRO{i}_ID"] = float(g)
             p[f"CAL_ACC{i}_ID"] = float(a)
         p["CAL_BARO0_ID"] = float(_BARO_ID)
+        p["TC_M_ENABLE"] = 0.0
+        for m, dev in enumerate(MAG_IDS):
+            p[f"CAL_MAG{m}_ID"] = float(dev)
         return p
     p = {"AHRS_ORIENTATION": 0.0, "INS_TCAL_OPTIONS": 0.0}
     for i, (g, a) in enumerate(_PX4_IDS):
@@ -115,6 +178,8 @@ def board_params(autopilot: str) -> dict[str, float]:
         p[f"INS_GYR{i + 1}_CALTEMP"] = 25.0
         p[f"INS_ACC{i + 1}_CALTEMP"] = 25.0
     p["BARO1_DEVID"] = float(_BARO_ID)
+    for m, dev in enumerate(MAG_IDS):
+        p[f"COMPASS_DEV_ID{'' if m == 0 else m + 1}"] = float(dev)
     return p
 
 
@@ -170,6 +235,7 @@ def simulate_board(preset: str = "fc-board", *, autopilot: str = "px4", seed: in
     baro = 101325.0 + baro_drift + rng.normal(0.0, 1.0, (t.size, 1))
     instances.append(SensorInstance("baro", 0, _BARO_ID, t.copy(), np.round(baro_t, 2), baro,
                                     truth=baro_drift))
+    instances += _magnetometers(t, board, seed, run)
     return FlightLog(path=Path(path), autopilot=autopilot, instances=instances,
                      params=board_params(autopilot),
                      notes=[f"simulated {preset}, seed {seed}, run {run}"])

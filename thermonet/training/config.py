@@ -39,8 +39,9 @@ class DataConfig:
     paths: list[str] = field(default_factory=list)  # recording files (one run per file)
     mapping: str | None = None           # YAML column mapping for non-native files
     outputs: list[str] = field(default_factory=list)  # axes to model (empty: all outputs)
-    # recordings larger than memory (thermonet.features.windows): thermonet Parquet files of
-    # more samples than this are streamed and reduced to window means (0: always)
+    # recordings larger than memory (thermonet.features.windows): recording files (any tabular
+    # format, through the mapping) of more samples than this are streamed and reduced to
+    # window means (0: always); the decision: thermonet.training.loader
     in_memory_samples: int = 1_000_000
     chunk_rows: int = 65_536             # rows read at a time while streaming
     max_rows: int = 500_000              # most reduced rows (wider windows beyond)

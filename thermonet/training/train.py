@@ -28,10 +28,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-# torch.optim imports torch._dynamo on the first step; importing it here keeps that one-time
-# second out of the first family's fit_seconds
-import torch._dynamo  # noqa: F401
-
+# torch.optim imports torch._dynamo on an optimiser's first step (seconds of start-up): it is
+# paid by the first fit that takes a gradient step (the polynomials' L-BFGS refinement
+# included), inside that fit's fit_seconds, and never by a command that fits nothing
+# (export, verify, info, a config error)
 from ..core.errors import ConfigError, FitError, InputError
 from ..core.trainconfig import TrainConfig  # re-exported: the ``train`` section
 from ..features.dynamics import dynamic_signals, saturation_margin

@@ -9,7 +9,15 @@ For every sensor instance of PX4 ULogs or ArduPilot DataFlash logs of one board:
    thermometer reporting whole degrees (or coarser) is calibrated: fitted on the
    means per reported temperature, as PX4's script bins, with its resolution and
    what it costs stated in the verdict, the report and the parameter file's header.
-   Magnetometers are listed only: neither autopilot has a thermal model for them.
+   Magnetometers (:mod:`thermonet.workflows.magnetometer`): one without a thermometer
+   is lent one (named with ``mag_thermometers``, else the barometer's, else an IMU's),
+   seen through a first-order lag chosen by held-out time blocks; one that moved during
+   the soak (its field turns over :data:`~thermonet.workflows.firmware_fit.MAX_MOVE_DEG`
+   within a minute) is left out with one line.  PX4 ``TC_M*`` slots are written for
+   magnetometers with their own thermometer; one on a lent thermometer, and every
+   ArduPilot magnetometer (ArduPilot has no magnetometer temperature calibration), is
+   ``model only``: fitted and judged the same way, its cubic in results.json, its
+   models exportable as ONNX / C from ``instances/<name>``, not in the parameter file.
 2. **The firmware's own form, fitted as the autopilots' scripts fit it**
    (:mod:`thermonet.workflows.firmware_fit`: PX4 ``process_sensor_caldata.py``'s
    2,000 temperature bins; ArduPilot ``tempcal_IMU.py``'s 2-s moving average), on all
@@ -54,7 +62,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -64,8 +72,10 @@ import numpy as np
 from .. import __version__
 from ..core.errors import InputError, ThermonetError
 from ..core.fileio import atomic_write_text
+from ..core.profile import stage as profile_stage
 from ..data.firmware import (
     ARDUPILOT_TEMP_REFERENCE,
+    PX4_LETTER,
     PX4_SLOTS,
     FirmwareFit,
     ardupilot_calibration_text,
@@ -84,8 +94,24 @@ from .firmware_fit import (
     check_instance,
     fit_firmware,
     resolution_effect,
+    target,
 )
-from .verify import KIND_UNITS, Limits, ParamFile, axis_grade, evaluate, read_param_file
+from .magnetometer import (
+    choose_lag,
+    fit_correction,
+    heading_error_deg,
+    lend_thermometers,
+    with_lag,
+)
+from .verify import (
+    KIND_UNITS,
+    Limits,
+    ParamFile,
+    axis_grade,
+    evaluate,
+    judge_axes,
+    read_param_file,
+)
 
 __all__ = ["calibrate", "fit_firmware", "check_instance", "apply_firmware", "merge_logs",
            "format_report", "render_calibration_report", "MIN_SPAN_C", "MIN_SAMPLES",
@@ -104,7 +130,7 @@ class InstanceResult:
     name: str
     kind: str
     device_id: int
-    status: str                        # "fitted" | "skipped"
+    status: str                        # "fitted" | "model only" | "skipped"
     reason: str | None = None
     fit: FirmwareFit | None = None
     summary: dict[str, Any] = field(default_factory=dict)
@@ -159,12 +185,15 @@ def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
         notes = [f"{lg.path.name}: {n}" for lg, p in zip(logs, parts, strict=True)
                  for n in p.notes]
         untrusted = "; ".join(p.untrusted for p in parts if p.untrusted) or None
+        unlagged = None if any(p.unlagged_c is None for p in parts) else np.concatenate(
+            [np.asarray(p.unlagged_c) for p in parts])
         instances.append(SensorInstance(inst.kind, inst.instance, inst.device_id,
                                         np.concatenate(times), temps,
                                         np.concatenate([p.values for p in parts]),
                                         notes=notes, truth=truth,
                                         damaged=sum(p.damaged for p in parts),
-                                        untrusted=untrusted))
+                                        untrusted=untrusted, thermometer=inst.thermometer,
+                                        lag_s=inst.lag_s, unlagged_c=unlagged))
     return FlightLog(path=first.path, autopilot=first.autopilot, instances=instances,
                      params=dict(logs[-1].params),
                      notes=[f"{lg.path.name}: {n}" for lg in logs for n in lg.notes],
@@ -179,21 +208,43 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
     from ..training.config import CompareConfig, FamilyConfig, SplitConfig, TrackingConfig
     from .compare import run_compare
 
-    fw = ("px4-poly5" if inst.kind == "baro" else "px4-cubic") if autopilot == "px4" \
-        else "ardupilot-cubic"
+    fw = ("px4-poly5" if inst.kind == "baro" else "px4-cubic") \
+        if autopilot == "px4" or inst.kind == "mag" else "ardupilot-cubic"
+    families = [
+        FamilyConfig(family="poly", name=fw, inputs=["dT"],
+                     params={"degree": 5 if fw == "px4-poly5" else 3}),
+        FamilyConfig(family="linear", name="linear", inputs=["dT"]),
+        # the RBF with the cubic tail: a closed-form fit (its ridge chosen on the training
+        # rows), at worst the cubic — not the gradient-trained network, which cost ~90 % of
+        # a calibration's CPU time for a verdict it seldom changed
+        FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
+                     params={"n_centres": 8, "tail": 3}),
+    ]
+    if inst.unlagged_c is not None and inst.lag_s > 0:
+        # a lent thermometer through the fitted lag: the models take the thermometer as read
+        # and compute the lag themselves (the lag_<tau> dynamic input, in the runtime and C
+        # too); the baseline is PX4's cubic at the lagged temperature, T - lag = EMA_tau(T)
+        lag = f"lag_{inst.lag_s:g}"
+        fw = "px4-cubic-lag"
+        families = [
+            FamilyConfig(family="poly", name=fw, inputs=["dT", lag],
+                         params={"degree": 3, "cross": True}),
+            FamilyConfig(family="poly", name="px4-cubic-no-lag", inputs=["dT"],
+                         params={"degree": 3}),
+            FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2", lag],
+                         params={"n_centres": 8, "tail": 3}),
+        ]
+        inst = SensorInstance(inst.kind, inst.instance, inst.device_id, inst.time_s,
+                              inst.unlagged_c, inst.values, notes=list(inst.notes),
+                              truth=inst.truth, thermometer=inst.thermometer)
     cfg = CompareConfig(
-        split=SplitConfig(strategy="time-blocks", n_blocks=20),
-        families=[
-            FamilyConfig(family="poly", name=fw, inputs=["dT"],
-                         params={"degree": 5 if fw == "px4-poly5" else 3}),
-            FamilyConfig(family="linear", name="linear", inputs=["dT"]),
-            FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
-                         params={"n_centres": 8}),
-        ],
+        split=SplitConfig(strategy="time-blocks", n_blocks=20), families=families,
         tracking=TrackingConfig(enabled=False), baseline=fw)
     ds = inst.to_dataset(source).validate(source)
-    # built inside calibrate's own staging directory (a fresh one on every run)
-    res = run_compare(cfg, out, overwrite=True, track=False, quiet=True, dataset=ds)
+    # built inside calibrate's own staging directory (a fresh one on every run); no figures
+    # per instance (the calibration's report has its own tables): the comparison is a verdict
+    res = run_compare(cfg, out, overwrite=True, track=False, quiet=True, dataset=ds,
+                      plots=False)
     if final is not None:
         relocate_json(out / "results.json", out, final)
     fams = res["families"]
@@ -248,11 +299,14 @@ def _verdict(summary: dict[str, Any]) -> tuple[bool, str]:
 
 
 def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, *,
-              compare: bool = True, overwrite: bool = False) -> dict[str, Any]:
+              compare: bool = True, overwrite: bool = False,
+              mag_thermometers: Mapping[str, str] | None = None) -> dict[str, Any]:
     """Calibrate every instance of one board's log(s); write ``out_dir``; return results.
 
     ``log_path``: one log, or several logs of the same board (train on all but the
     last, verify on the last, export the refit on all: see the module).
+    ``mag_thermometers``: ``{"mag1": "baro0"}``, the thermometer lent to a magnetometer
+    without one (default: :data:`~thermonet.workflows.magnetometer.DEFAULT_THERMOMETERS`).
 
     ``out_dir`` appears whole or not at all (:mod:`thermonet.core.outdir`,
     ``kind="calibration"``): it is built in a hidden staging directory beside it
@@ -277,7 +331,8 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
         raise InputError("calibrate needs at least one log")
     out = Path(out_dir)
     refuse_overwriting_inputs(out, paths, owned=KINDS["calibration"])
-    logs = [read_log(p) for p in paths]
+    with profile_stage("read the log(s)"):
+        logs = [read_log(p) for p in paths]
     seen: dict[str, Path] = {}
     for lg in logs:               # the same bytes twice: counted twice, "held out" on itself
         digest = sha256_file(lg.path)
@@ -287,9 +342,11 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
                              "counted twice, and checked on its own training data")
         seen[digest] = lg.path
     merge_logs(logs)                              # same board? (refused before anything else)
+    with profile_stage("magnetometers: lend thermometers, fit the lag"):
+        logs, mags = _lend_and_lag(logs, mag_thermometers)   # a bad --mag-thermometer: refused
     check_target(out, overwrite, "calibration")   # before anything is fitted
     with staged_output(out, overwrite=overwrite, kind="calibration") as stage:
-        doc = _calibrate_into(logs, stage.path, out, compare=compare)
+        doc = _calibrate_into(logs, stage.path, out, compare=compare, mags=mags)
         stage.done()
     return doc
 
@@ -319,12 +376,55 @@ def _ekf_text(autopilot: str, fitted: list[InstanceResult], params_name: str) ->
                       *lines]) + "\n"
 
 
+def _lend_and_lag(logs: list[FlightLog], choice: Mapping[str, str] | None
+                  ) -> tuple[list[FlightLog], dict[str, dict[str, Any]]]:
+    """Every log with a thermometer lent to each magnetometer without one, and that
+    thermometer lagged by the time constant chosen on all the logs (held-out time blocks,
+    :func:`~thermonet.workflows.magnetometer.choose_lag`); per such magnetometer, what was
+    chosen and each lag's score."""
+    lent = [lend_thermometers(lg, choice) for lg in logs]
+    logs = [lg for lg, _ in lent]
+    how = lent[0][1]
+    info: dict[str, dict[str, Any]] = {}
+    for name, chosen in how.items():
+        parts = [next(i for i in lg.instances if i.name == name) for lg in logs]
+        tau = 0.0
+        scores: dict[float, float] = {}
+        if all(check_instance(p, lg.autopilot) is None for p, lg in zip(parts, logs,
+                                                                       strict=True)):
+            tau, scores = choose_lag(parts)
+        info[name] = {"name": parts[0].thermometer, "chosen": chosen, "lag_s": tau,
+                      "lag_scores": {f"{k:g}": v for k, v in scores.items()}}
+        logs = [FlightLog(lg.path, lg.autopilot, [with_lag(i, tau) if i.name == name else i
+                                                  for i in lg.instances], lg.params,
+                          lg.notes, lg.damage, lg.unread_fraction) for lg in logs]
+    return logs, info
+
+
+def _exportable(r: InstanceResult, autopilot: str, inst: SensorInstance) -> str | None:
+    """Why a fitted magnetometer cannot go into the parameter file (None: it can)."""
+    if r.kind != "mag":
+        return None
+    if autopilot == "ardupilot":
+        return ("ArduPilot has no magnetometer temperature-calibration parameters: the cubic "
+                "is in results.json; export the comparison's model as ONNX or C (thermonet "
+                f"export, from instances/{r.name}, written unless --no-compare)")
+    if inst.thermometer:
+        return (f"fitted on {inst.thermometer}'s thermometer (lent), which PX4's TC_M cannot "
+                "use — the firmware applies TC_M* with the magnetometer's own temperature: "
+                f"export the comparison's model as ONNX or C (instances/{r.name}, written "
+                "unless --no-compare)")
+    return None
+
+
 def _params_text(log: FlightLog, fitted: list[InstanceResult], header: list[str]
                  ) -> tuple[str, str]:
     """The parameter file of ``fitted`` (text, file name)."""
     by_inst = {i.name: i for i in log.instances}
     if log.autopilot == "px4":
         fits: dict[str, list[FirmwareFit]] = {}
+        if any(i.kind == "mag" for i in log.instances):
+            fits["mag"] = []      # TC_M*: written (and the unused slots cleared) on a mag board
         for r in sorted(fitted, key=lambda r: (r.kind, by_inst[r.name].instance)):
             assert r.fit is not None
             fits.setdefault(r.kind, []).append(r.fit)
@@ -368,7 +468,9 @@ def held_out_blocks(log: FlightLog) -> tuple[FlightLog, FlightLog]:
                 None if inst.temperature_c is None else np.asarray(inst.temperature_c)[keep],
                 np.asarray(inst.values)[keep], notes=list(inst.notes),
                 truth=None if inst.truth is None else np.asarray(inst.truth)[keep],
-                damaged=inst.damaged, untrusted=inst.untrusted))
+                damaged=inst.damaged, untrusted=inst.untrusted, thermometer=inst.thermometer,
+                lag_s=inst.lag_s,
+                unlagged_c=None if inst.unlagged_c is None else inst.unlagged_c[keep]))
     return (FlightLog(log.path, log.autopilot, train, dict(log.params)),
             FlightLog(log.path, log.autopilot, test, dict(log.params)))
 
@@ -382,7 +484,7 @@ def _beyond_range(pf: ParamFile, r: InstanceResult, slot: int, before: list[floa
     continuation, must still pass verify's test; ``reasons`` say why not."""
     assert r.fit is not None
     if pf.autopilot == "px4":
-        pre = f"TC_{'GAB'['gyro acc baro'.split().index(r.kind)]}{slot}_"
+        pre = f"TC_{PX4_LETTER[r.kind]}{slot}_"
     else:
         pre = f"INS_TCAL{slot + 1}_"
     lo, hi = pf.params[pre + "TMIN"], pf.params[pre + "TMAX"]
@@ -423,6 +525,7 @@ def _held_out(logs: list[FlightLog], results: list[InstanceResult], stage: Path,
     by_name = {i.name: i for i in train.instances}
     fitted: list[InstanceResult] = []
     out: dict[str, dict[str, Any]] = {}
+    held = {i.name: i for i in logs[-1].instances}
     for r in results:
         inst = by_name.get(r.name)
         why = None if inst is None else check_instance(inst, train.autopilot)
@@ -430,8 +533,12 @@ def _held_out(logs: list[FlightLog], results: list[InstanceResult], stage: Path,
             out[r.name] = {"status": "not judged", "data": what,
                            "reason": why or "not fitted on all the data either"}
             continue
-        fitted.append(InstanceResult(r.name, r.kind, r.device_id, "fitted",
-                                     fit=fit_firmware(inst, train.autopilot)))
+        fit = fit_firmware(inst, train.autopilot)
+        if r.status == "model only":     # not in a parameter file: the same test, directly
+            out[r.name] = _judge_model_only(fit, held.get(r.name), train.autopilot, what,
+                                            logs[-1], limits)
+            continue
+        fitted.append(InstanceResult(r.name, r.kind, r.device_id, "fitted", fit=fit))
     if not fitted:
         return out
     text, name = _params_text(train, fitted, header=["held-out check"])
@@ -462,15 +569,36 @@ def _held_out(logs: list[FlightLog], results: list[InstanceResult], stage: Path,
     return out
 
 
-def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: bool
-                    ) -> dict[str, Any]:
+def _judge_model_only(fit: FirmwareFit, inst: SensorInstance | None, autopilot: str, what: str,
+                      log: FlightLog, limits: Limits) -> dict[str, Any]:
+    """verify's test (:func:`~thermonet.workflows.verify.judge_axes`) of a fit that is in no
+    parameter file, applied through PX4's cubic (:func:`fit_correction`) to ``inst``."""
+    h: dict[str, Any] = {"log": str(log.path), "data": what, "warnings": []}
+    why = None if inst is None else check_instance(inst, autopilot)
+    if inst is None or why is not None:
+        h.update(status="not judged", reason=why or "not in the held-out data")
+        return h
+    temp = np.asarray(inst.temperature_c, dtype=np.float64)
+    d = judge_axes(temp, target(inst, autopilot), fit_correction(fit, temp), inst.kind, limits)
+    h.update(status="judged", reason=None, **{k: d[k] for k in (
+        "pp_raw", "pp_corrected", "cut", "passed")})
+    graded = [axis_grade(c, a, ok, inst.kind, limits) for c, a, ok in zip(
+        d["cut"], d["pp_corrected"], d["passed"], strict=True)]
+    h["grades"] = [g for g, _ in graded]
+    h["grade_reasons"] = [w for _, w in graded]
+    return h
+
+
+def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: bool,
+                    mags: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
     """The calibration, written into ``stage``; recorded paths name ``out``."""
     from ..core.names import inside, path_components
 
     log = merge_logs(logs)
     source = ", ".join(str(lg.path) for lg in logs)
     dirs = path_components(i.name for i in log.instances)
-    ok_kinds = [i.kind for i in log.instances if check_instance(i, log.autopilot) is None]
+    ok_kinds = [i.kind for i in log.instances if check_instance(i, log.autopilot) is None
+                and not i.thermometer]
     per_kind = {k: ok_kinds.count(k) for k in _FIT_KINDS}
     if log.autopilot == "px4" and max(per_kind.values()) > PX4_SLOTS:
         raise ThermonetError(f"{log.path}: PX4 has {PX4_SLOTS} calibration slots per sensor "
@@ -484,19 +612,25 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
         if inst.temperature_c is not None and inst.n_samples:
             r.summary["temperature_c"] = [float(inst.temperature_c.min()),
                                           float(inst.temperature_c.max())]
+        if inst.kind == "mag":
+            r.summary["thermometer"] = (mags or {}).get(inst.name) or {
+                "name": None, "chosen": "own" if inst.temperature_c is not None else None,
+                "lag_s": 0.0}
         if why is None and log.autopilot == "ardupilot" and inst.kind == "baro":
             why = r.reason = "ArduPilot has no barometer temperature calibration parameters"
         if why is None:
-            r.fit = fit_firmware(inst, log.autopilot)
+            with profile_stage(f"{inst.name}: fit the firmware form"):
+                r.fit = fit_firmware(inst, log.autopilot)
             r.status = "fitted"
             res = resolution_effect(inst, r.fit)
             if res is not None:
                 r.summary["resolution"] = res
             if compare:
                 try:
-                    cmp = _compare(inst, log.autopilot,
-                                   inside(stage, "instances", dirs[inst.name]), source,
-                                   final=out / "instances" / dirs[inst.name])
+                    with profile_stage(f"{inst.name}: compare thermonet's families"):
+                        cmp = _compare(inst, log.autopilot,
+                                       inside(stage, "instances", dirs[inst.name]), source,
+                                       final=out / "instances" / dirs[inst.name])
                 except ThermonetError as err:   # this instance cannot be judged: reported, skipped
                     r.status, r.reason, r.fit = "skipped", f"comparison failed: {err}", None
                     results.append(r)
@@ -510,6 +644,9 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
                     r.fit = None
             elif res is not None:
                 r.summary["verdict"] = res["line"]
+            why_not = _exportable(r, log.autopilot, inst)
+            if r.status == "fitted" and why_not:
+                r.status, r.reason = "model only", why_not
         results.append(r)
     # the held-out check: verify's own test on data the fit never saw — the last log, or
     # (one log) a quarter of it in time blocks
@@ -521,10 +658,12 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
                   if b % HELD_OUT_EVERY == HELD_OUT_EVERY // 2]
         what = (f"time blocks {', '.join(map(str, blocks))} of {HELD_OUT_BLOCKS} of "
                 f"{logs[0].path.name}")
-    for name, h in _held_out(held_logs, results, stage, what).items():
+    with profile_stage("held-out check (verify's test)"):
+        held = _held_out(held_logs, results, stage, what)
+    for name, h in held.items():
         r = next(x for x in results if x.name == name)
         r.summary["held_out"] = h
-        if r.status == "fitted" and h.get("status") == "judged" and not all(
+        if r.status in ("fitted", "model only") and h.get("status") == "judged" and not all(
                 math.isfinite(a) and below(a, b)
                 for a, b in zip(h["pp_corrected"], h["pp_raw"], strict=True)):
             r.status, r.fit = "skipped", None
@@ -549,10 +688,21 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
     if ekf:
         atomic_write_text(stage / EKF_FILE, ekf)
     checked = evaluate(read_param_file(param_path), log)
+    by_inst = {i.name: i for i in log.instances}
     for r in fitted:
         c = checked[r.name]
         r.summary["slot"] = c["slot"]
         r.summary["firmware_check"] = {k: c[k] for k in ("pp_raw", "pp_corrected", "cut")}
+    for r in results:              # magnetometers: PX4's cubic, and what it does to a heading
+        inst = by_inst[r.name]
+        if r.kind != "mag" or r.fit is None or r.status not in ("fitted", "model only"):
+            continue
+        temp = np.asarray(inst.temperature_c, dtype=np.float64)
+        corr = fit_correction(r.fit, temp)
+        if r.status == "model only":
+            d = judge_axes(temp, target(inst, log.autopilot), corr, "mag", Limits())
+            r.summary["firmware_check"] = {k: d[k] for k in ("pp_raw", "pp_corrected", "cut")}
+        r.summary["heading"] = heading_error_deg(temp, inst.values, corr, r.fit.t_ref)
     doc = _results_doc(logs, results, out / param_path.name)
     atomic_write_text(stage / "results.json", json.dumps(doc, indent=2, default=_json_default))
     atomic_write_text(stage / "report.txt", format_report(doc))
@@ -577,6 +727,9 @@ def _results_doc(logs: list[FlightLog], results: list[InstanceResult], param_pat
         if r.fit is not None:
             d["firmware"] = {"t_ref": r.fit.t_ref, "t_min": r.fit.t_min, "t_max": r.fit.t_max,
                              "coef": r.fit.coef.tolist()}
+            if r.kind == "mag":
+                d["firmware"].update(unit="uT", thermometer=r.fit.thermometer,
+                                     lag_s=r.fit.lag_s)
         inst_doc[r.name] = d
     from ..core.outdir import sha256_file
 

@@ -8,7 +8,30 @@ from typing import Any
 
 __all__ = ["format_report", "render_calibration_report"]
 
-_AXES = {"gyro": ("x", "y", "z"), "acc": ("x", "y", "z"), "baro": ("p",)}
+_AXES = {"gyro": ("x", "y", "z"), "acc": ("x", "y", "z"), "baro": ("p",),
+         "mag": ("x", "y", "z")}
+
+
+def _mag_lines(d: dict[str, Any]) -> list[str]:
+    """A magnetometer's thermometer (own, or lent: which, named or the default, the fitted
+    lag and its held-out score against none) and its heading error before / after."""
+    out = []
+    th = d.get("thermometer") or {}
+    if th.get("name"):
+        scores = th.get("lag_scores") or {}
+        best = scores.get(f"{th['lag_s']:g}")
+        none = scores.get("0")
+        score = (f" (held-out time blocks: {best:.3g} µT² mean squared residual, "
+                 f"{none:.3g} with no lag)" if best is not None and none is not None else "")
+        how = f"thermometer: {th['name']}'s, lent (" + (
+            "as named" if th["chosen"] == "named" else "the default") + ")"
+        out.append(f"{how}, through a fitted lag of {th['lag_s']:g} s{score}" if scores
+                   else f"{how}; no lag fitted (the magnetometer cannot be calibrated)")
+    elif th.get("chosen") == "own":
+        out.append("thermometer: its own")
+    if d.get("heading"):
+        out.append(d["heading"]["line"])
+    return out
 
 
 def _g3(x: float | None) -> str:
@@ -46,9 +69,10 @@ def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | 
     for name, d in doc["instances"].items():
         span = d.get("temperature_c")
         where = f"{span[0]:.1f} … {span[1]:.1f} °C" if span else "no temperature"
-        if d["status"] == "fitted":
+        if d["status"] in ("fitted", "model only"):
             cuts = ", ".join(f"{c:.1f}×" for c in d["firmware_check"]["cut"])
-            what = f"fitted, slot {d['slot']}; binned drift cut {cuts}"
+            what = (f"fitted, slot {d['slot']}" if d["status"] == "fitted" else
+                    f"model only ({d['reason']})") + f"; binned drift cut {cuts}"
             h = d.get("held_out") or {}
             if h.get("status") == "judged":
                 grades = h.get("grades") or [""] * len(h["cut"])
@@ -57,6 +81,7 @@ def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | 
                                                                        strict=True)))
             if d.get("resolution"):
                 what += f"; {d['resolution']['line']}"
+            what += "".join(f"; {x}" for x in _mag_lines(d))
             colour = VERDICT_COLOURS["better"]
         else:
             what = f"left out: {d['reason']}"
@@ -108,7 +133,14 @@ def format_report(doc: dict[str, Any]) -> str:
         span = d.get("temperature_c")
         where = f"{span[0]:.1f}..{span[1]:.1f} °C" if span else "no temperature"
         head = f"{name:<6} id {d['device_id']:<9} {d['n_samples']:>7} samples, {where}"
-        if d["status"] != "fitted":
+        if d["status"] == "model only":
+            cuts = ", ".join(f"{c:.1f}x" for c in d["firmware_check"]["cut"])
+            lines.append(f"{head}: MODEL ONLY, not in the parameter file — {d['reason']}; "
+                         f"on the log{'s' if len(logs) > 1 else ''} PX4's cubic cuts the "
+                         f"binned drift p-p {cuts}")
+            if d.get("verdict"):
+                lines.append(f"       {d['verdict']}")
+        elif d["status"] != "fitted":
             lines.append(f"{head}: LEFT OUT — {d['reason']}")
         else:
             chk = d["firmware_check"]
@@ -118,6 +150,7 @@ def format_report(doc: dict[str, Any]) -> str:
                          f"correction cuts the binned drift p-p {cuts}")
             if d.get("verdict"):
                 lines.append(f"       {d['verdict']}")
+        lines += [f"       {x}" for x in _mag_lines(d)]
         h = d.get("held_out")
         if h and h.get("status") == "judged":
             grades = h.get("grades") or [""] * len(h["cut"])
@@ -135,7 +168,7 @@ def format_report(doc: dict[str, Any]) -> str:
             lines.append(f"       held out: not judged ({h.get('reason')})")
         for note in d.get("notes", []):
             lines.append(f"       note: {note}")
-    graded = [g for d in doc["instances"].values() if d["status"] == "fitted"
+    graded = [g for d in doc["instances"].values() if d["status"] in ("fitted", "model only")
               for g in (d.get("held_out") or {}).get("grades") or []]
     if graded:
         weak = {g: graded.count(g) for g in ("marginal", "fails") if g in graded}

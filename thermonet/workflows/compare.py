@@ -33,6 +33,7 @@ from typing import Any
 from .. import __version__
 from ..core.errors import ConfigError, ThermonetError
 from ..core.fileio import atomic_write_text
+from ..core.profile import stage
 from ..core.recording import Dataset
 from ..reporting.report import tuned_text
 from ..reporting.results import ComparisonResult
@@ -103,7 +104,8 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"{out}: --out must be a directory, and this is a file")
-    p = plan(cfg, dataset)
+    with stage("plan: load the data, targets, splits and folds"):
+        p = plan(cfg, dataset)
     ds, outputs, units = p.ds, p.outputs, p.units
     out.mkdir(parents=True, exist_ok=True)
     dhash = data_hash(ds)
@@ -213,9 +215,11 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                       "(paired across families), percentile interval",
             "resamples": RESAMPLES, "level": LEVEL, "seed": SEED, "min_blocks": MIN_BLOCKS,
             "blocks": {"val": n_val, "test": n_test}}
-        choose_and_judge(fitted, result, p)
+        with stage("choose and judge"):
+            choose_and_judge(fitted, result, p)
         if result.chosen == PER_AXIS:
-            _save_per_axis(out, fitted, result, p, resolved, provenance, units, tracker)
+            with stage("write the per-axis model"):
+                _save_per_axis(out, fitted, result, p, resolved, provenance, units, tracker)
         # the out-of-fold scores the choice rests on, in the comparison's own run
         tracker.log_metrics({f"cv/{k}/score": c["score"] for k, c in
                              result.selection.get("candidates", {}).items() if "score" in c})
@@ -233,12 +237,14 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
             doc["per_axis"] = {"checkpoint": shipped["checkpoint"],
                                "axes": dict(shipped["params"]["axes"]),
                                "candidates": list(result.selection["per_axis"]["candidates"])}
-        plot_paths = _plots(out, fitted, doc, ds) if plots else []
+        with stage("plots"):
+            plot_paths = _plots(out, fitted, doc, ds) if plots else []
         from ..reporting.report import write_report
 
-        atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
-        atomic_write_text(out / "config.resolved.yaml", resolved_yaml(resolved, provenance))
-        write_report(out / "report.html", doc, plot_paths)
+        with stage("write results.json and the report"):
+            atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
+            atomic_write_text(out / "config.resolved.yaml", resolved_yaml(resolved, provenance))
+            write_report(out / "report.html", doc, plot_paths)
         tracker.set_tags({"chosen": result.chosen or "none"})
         tracker.log_artifact(out / "results.json")
         tracker.log_artifact(out / "config.resolved.yaml")

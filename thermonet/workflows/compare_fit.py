@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import FitError
+from ..core.profile import stage
 from ..features.inputs import TEMPERATURE
 from ..reporting.results import FamilyResult
 from ..training.config import (
@@ -99,7 +100,8 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
             spec = fold_spec(fam.inputs, p.splits[-1].train, t_ref=cfg.features.t_ref,
                              window_min=cfg.features.t_ref_window_min,
                              gap_s=cfg.features.gap_s, reference_for_targets=True)
-            fam, tuned, tuned_oof = _tune(p, fam, tcfg, spec, parts, on_epoch)
+            with stage(f"{fam.label}: tuning (folds x grid points)"):
+                fam, tuned, tuned_oof = _tune(p, fam, tcfg, spec, parts, on_epoch)
         elif fam.tune:
             tuned = {"tuning": {"rule": "not tuned: no cross-validation folds "
                                 f"({p.fold_note or 'selection.folds is 0'}); the configured "
@@ -111,8 +113,9 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
             fp = fold_parts(spec, split.train, outputs=p.outputs, target=p.targets,
                             val=split.val, test=split.test, train_on=fam.train_on,
                             gap_s=cfg.features.gap_s, part=parts)
-            fitted = fit_fold(fp, family=fam.family, outputs=p.outputs, hyper=fam.params,
-                              config=tcfg, target_modes=p.targets.modes, on_epoch=on_epoch)
+            with stage(f"{fam.label}: fit on the training part"):
+                fitted = fit_fold(fp, family=fam.family, outputs=p.outputs, hyper=fam.params,
+                                  config=tcfg, target_modes=p.targets.modes, on_epoch=on_epoch)
             res.fit_seconds = (0.0 if math.isnan(res.fit_seconds) else res.fit_seconds) \
                 + fitted.fit_seconds
             held = fp.val or fp.train[-1]
@@ -120,7 +123,8 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
                                    residual_spread(fitted.model, held)))
             history = list(fitted.history)
             if p.folds is not None and split.pool and cfg.selection.refit:
-                fitted = _refit(p, fam, tcfg, split, parts, on_epoch)
+                with stage(f"{fam.label}: refit on training + validation"):
+                    fitted = _refit(p, fam, tcfg, split, parts, on_epoch)
                 res.fit_seconds += fitted.fit_seconds
                 # the learning curve of the first fit (train and validation loss), then the
                 # refit's training loss (MLflow: refit/loss)
@@ -153,7 +157,8 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
     res.tuned = {**tuned, **out.model.family.tuned()}
     res.cost = out.model.family.cost()
     if p.folds is not None:
-        _cross_validate(out, p, fam, tcfg, spec, parts, on_epoch, tuned_oof)
+        with stage(f"{fam.label}: cross-validation (one fit per fold)"):
+            _cross_validate(out, p, fam, tcfg, spec, parts, on_epoch, tuned_oof)
     out.val, out.test = pool(vals), pool(tests)
     res.outside_trained_range = {s: sum(f * n for f, n in v) / max(sum(n for _, n in v), 1)
                                  for s, v in outside.items()}

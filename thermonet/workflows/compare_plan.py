@@ -22,12 +22,11 @@ from ..training.config import (
     CompareConfig,
     outputs_of,
 )
+from ..training.loader import load_compare_data, streamed_data
 from ..training.parts import (
     Part,
     Split,
     build_part,
-    check_loaded,
-    load_data,
     make_splits,
     targets_for,
 )
@@ -189,9 +188,8 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
     held = sum(r.n_samples for r in ds if r.windows is None)
     if dataset is None and cfg.data.paths and held > cfg.data.in_memory_samples:
         warns.append(f"{held} samples were read whole (over data.in_memory_samples, "
-                     f"{cfg.data.in_memory_samples}): only thermonet Parquet files are "
-                     "streamed; convert the recordings once with 'thermonet convert' to "
-                     "compare them in bounded memory")
+                     f"{cfg.data.in_memory_samples}): flight-controller logs are not "
+                     "streamed, only tabular files (Parquet, CSV, TSV) are")
     few = [(r, r.windows) for r in ds
            if r.windows is not None and r.n_samples < MIN_STREAMED_ROWS]
     if few:
@@ -202,48 +200,6 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
                      "recording is better held whole (raise 'data.in_memory_samples')")
     folds, note = _fold_plan(cfg, splits)
     return Plan(cfg, ds, outputs, targets, splits, units, source, warns, folds, note)
-
-
-def load_compare_data(cfg: CompareConfig, source: str = "config") -> Dataset:
-    """The comparison's data: :func:`~thermonet.training.parts.load_data`, or — for thermonet
-    Parquet files of more than ``data.in_memory_samples`` samples — :func:`streamed_data`."""
-    from ..features.windows import source_samples
-
-    d = cfg.data
-    n = source_samples(d.paths) if d.paths and d.mapping is None else None
-    if n is None or n <= d.in_memory_samples:
-        return load_data(d, source=source)
-    return check_loaded(streamed_data(cfg, d.paths, source, samples=n), d, source)
-
-
-def streamed_data(cfg: CompareConfig, paths: list[str], source: str = "config", *,
-                  samples: int | None = None) -> Dataset:
-    """thermonet Parquet files streamed in ``data.chunk_rows`` chunks and reduced to window
-    means (:func:`thermonet.features.windows.reduce_parquet`): one row per
-    ``train.average_s`` (the shortest any family averages over), at most ``data.max_rows``
-    rows over the files, the dynamic inputs every family reads computed on the samples."""
-    from ..features.windows import reduce_parquet
-    from ..training.config import train_config_of
-
-    d = cfg.data
-    # (model 'sensor' never comes here: compare fits it on its own path, reading the
-    # samples, and fleet refuses it)
-    if cfg.target == "four-position":
-        raise ConfigError(f"{source}: key 'data.in_memory_samples': the data holds "
-                          f"{samples if samples is not None else 'more'} samples (over "
-                          f"{d.in_memory_samples}), and the four-position target is fitted on "
-                          "the samples only, not on a recording streamed as window means; "
-                          "raise 'data.in_memory_samples' if it fits in memory")
-    avg = [train_config_of(cfg, fam).average_s for fam in cfg.families]
-    window = min((a for a in avg if a > 0), default=1.0)
-    inputs = sorted({i for fam in cfg.families for i in fam.inputs}
-                    | ({"rate"} if any(f.train_on == "heating" for f in cfg.families) else set()))
-    runs = []
-    per_file = max(d.max_rows // len(paths), 1000)
-    for path in paths:
-        runs += reduce_parquet(path, window_s=window, inputs=inputs, gap_s=cfg.features.gap_s,
-                               chunk_rows=d.chunk_rows, max_rows=per_file).runs
-    return Dataset(runs, meta={"source": ", ".join(paths)}).validate(source)
 
 
 def _fold_plan(cfg: CompareConfig, splits: list[Split]) -> tuple[Any, str]:

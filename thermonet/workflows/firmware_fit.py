@@ -52,7 +52,7 @@ from ..data.logs import SensorInstance, temperature_step
 __all__ = ["check_instance", "fit_firmware", "target", "bin_means", "moving_average",
            "running_median", "PX4_MEDIAN_SAMPLES",
            "resolution_effect", "poly_order", "MIN_SPAN_C", "MIN_SAMPLES", "COARSE_STEP_C",
-           "PX4_BINS", "FIT_KINDS"]
+           "PX4_BINS", "FIT_KINDS", "MAX_MOVE_DEG", "MOVE_WINDOW_S", "motion"]
 
 #: Least temperature span (°C) an instance needs to be calibrated (PX4's ``SYS_CAL_TDEL``
 #: defaults to 24 °C; 10 °C is the least a cubic can be trusted on).
@@ -68,7 +68,12 @@ PX4_BINS = 2000
 PX4_MEDIAN_SAMPLES = 31
 #: ArduPilot's moving-average width, s (``data.Filter(2)``).
 ARDUPILOT_FILTER_S = 2
-FIT_KINDS = ("gyro", "acc", "baro")
+FIT_KINDS = ("gyro", "acc", "baro", "mag")
+#: A magnetometer whose field direction turns more than this (degrees) within
+#: :data:`MOVE_WINDOW_S` moved during the soak: thermal drift turns it by a fraction of a
+#: degree a minute (10 µT over a 30-minute warm-up on a 50 µT field).
+MAX_MOVE_DEG = 5.0
+MOVE_WINDOW_S = 60.0
 
 
 def poly_order(kind: str, autopilot: str) -> int:
@@ -76,11 +81,41 @@ def poly_order(kind: str, autopilot: str) -> int:
     return 5 if (autopilot == "px4" and kind == "baro") else 3
 
 
+def motion(inst: SensorInstance) -> str | None:
+    """Why a magnetometer's log is not a still soak (one phrase), or None: the direction of
+    its field (31-sample running median) turns more than :data:`MAX_MOVE_DEG` within
+    :data:`MOVE_WINDOW_S` somewhere in the log."""
+    t = np.asarray(inst.time_s, dtype=np.float64)
+    if t.size < 3:
+        return None
+    v = running_median(inst.values)
+    u = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
+    j = np.minimum(np.searchsorted(t, t + MOVE_WINDOW_S), t.size - 1)
+    ang = np.degrees(np.arccos(np.clip(np.sum(u * u[j], axis=1), -1.0, 1.0)))
+    k = int(np.argmax(ang))
+    if ang[k] <= MAX_MOVE_DEG:
+        return None
+    return (f"the field direction turns {ang[k]:.0f}° between t = {t[k]:.0f} s and "
+            f"{t[j[k]]:.0f} s (more than {MAX_MOVE_DEG:g}° within {MOVE_WINDOW_S:g} s): the "
+            "magnetometer moved during the soak — keep the board still while it warms")
+
+
+def _thermometer(inst: SensorInstance) -> str:
+    """Whose thermometer ``inst`` reads, in words (empty for its own)."""
+    if not inst.thermometer:
+        return ""
+    return (f" ({inst.thermometer}'s thermometer, lent"
+            + (f", through a {inst.lag_s:g} s lag" if inst.lag_s else "") + ")")
+
+
 def check_instance(inst: SensorInstance, autopilot: str = "px4") -> str | None:
     """Why ``inst`` cannot be calibrated (one phrase), or None when it can."""
     if inst.kind not in FIT_KINDS:
         return f"{inst.kind}: neither autopilot compensates it for temperature (listed only)"
     if inst.temperature_c is None:
+        if inst.kind == "mag":
+            return ("no thermometer: the magnetometer has none, and no barometer or IMU "
+                    "thermometer in the log can be lent to it")
         return "no temperature: the sensor has no thermometer in the log"
     if inst.untrusted:   # too many of its samples damaged (thermonet.data.logs.base.screen_samples)
         return inst.untrusted
@@ -90,8 +125,12 @@ def check_instance(inst: SensorInstance, autopilot: str = "px4") -> str | None:
         return "every sample is exactly zero (a simulator or a dead sensor)"
     span = float(np.ptp(inst.temperature_c))
     if span < MIN_SPAN_C:
-        return (f"temperature spans only {span:.2f} °C (need at least {MIN_SPAN_C:g} °C: "
-                "cold-soak the board, then log while it warms)")
+        return (f"temperature{_thermometer(inst)} spans only {span:.2f} °C (need at least "
+                f"{MIN_SPAN_C:g} °C: cold-soak the board, then log while it warms)")
+    if inst.kind == "mag":
+        moved = motion(inst)
+        if moved:
+            return moved
     levels = int(np.unique(np.round(np.asarray(inst.temperature_c, dtype=np.float64), 6)).size)
     need = poly_order(inst.kind, autopilot) + 3
     if levels < need:
@@ -102,12 +141,14 @@ def check_instance(inst: SensorInstance, autopilot: str = "px4") -> str | None:
 
 
 def target(inst: SensorInstance, autopilot: str) -> np.ndarray:
-    """What the script fits: gyro as logged; accel and baro minus the log's median (PX4) or
-    mean (ArduPilot) — the constant is gravity or the weather, not drift."""
+    """What the script fits: gyro as logged; accel, baro and magnetometer minus the log's
+    median (PX4; a magnetometer always) or mean (ArduPilot) — the constant is gravity, the
+    weather or the Earth's field, not drift."""
     v = inst.values.astype(np.float64)
     if inst.kind == "gyro":
         return v
-    centre = np.median(v, axis=0) if autopilot == "px4" else np.mean(v, axis=0)
+    centre = np.median(v, axis=0) if autopilot == "px4" or inst.kind == "mag" \
+        else np.mean(v, axis=0)
     return v - centre
 
 
@@ -155,7 +196,14 @@ def moving_average(time_s: np.ndarray, columns: np.ndarray, width_s: float
 
 
 def fit_firmware(inst: SensorInstance, autopilot: str) -> FirmwareFit:
-    """The autopilot's own polynomial fitted on ``inst`` as its script does (SI units)."""
+    """The autopilot's own polynomial fitted on ``inst`` as its script does (SI units).
+
+    A magnetometer is fitted in PX4's form whatever the autopilot (ArduPilot has none):
+    as the accelerometer (less the filtered median, 2,000 bins, a cubic in T − TREF), then
+    ``X0 = 0`` as PX4's on-board ``temperature_calibration/mag.cpp`` writes it — the
+    correction is the change from the value at TREF, the Earth's field stays."""
+    if inst.kind == "mag":
+        autopilot = "px4"
     temp = np.asarray(inst.temperature_c, dtype=np.float64)
     order = poly_order(inst.kind, autopilot)
     y = target(inst, autopilot)
@@ -182,12 +230,13 @@ def fit_firmware(inst: SensorInstance, autopilot: str) -> FirmwareFit:
     coef = np.zeros((y.shape[1], order + 1))
     for j in range(y.shape[1]):
         coef[j] = np.polyfit(x, yy[:, j], order)[::-1]      # the scripts' own np.polyfit
-    if autopilot == "ardupilot":
-        coef[:, 0] = 0.0           # no constant term on board
+    if autopilot == "ardupilot" or inst.kind == "mag":
+        coef[:, 0] = 0.0           # no constant term on board; a magnetometer: zero at TREF
     if not np.all(np.isfinite(coef)):
         raise ThermonetError(f"{inst.name}: the firmware fit is not finite")
     return FirmwareFit(kind=inst.kind, device_id=inst.device_id, t_ref=float(t_ref),
-                       t_min=t_min, t_max=t_max, coef=coef)
+                       t_min=t_min, t_max=t_max, coef=coef, thermometer=inst.thermometer,
+                       lag_s=inst.lag_s)
 
 
 def resolution_effect(inst: SensorInstance, fit: FirmwareFit) -> dict[str, Any] | None:

@@ -43,20 +43,15 @@ class UnitSource:
     def load(self, cfg: CompareConfig | None = None) -> Dataset:
         """The unit's runs; a file of more than ``cfg.data.in_memory_samples`` samples is
         streamed and reduced to window means in the worker, as ``compare`` does
-        (:func:`thermonet.workflows.compare_plan.streamed_data`)."""
+        (:func:`thermonet.training.loader.load_unit_file`)."""
         if self.error is not None:
             raise InputError(self.error)
         if self.dataset is not None:
             return self.dataset
         if self.path is not None:
-            from ..data.io import read_dataset
-            from ..features.windows import source_samples
-            from .compare_plan import streamed_data
+            from ..training.loader import load_unit_file
 
-            n = source_samples([self.path])
-            ds = streamed_data(cfg, [self.path], self.path, samples=n) \
-                if cfg is not None and n is not None and n > cfg.data.in_memory_samples \
-                else read_dataset(self.path)
+            ds = load_unit_file(cfg, self.path)
             if ds.device_id != self.device_id or ds.is_fleet:
                 raise InputError(f"{self.path}: holds unit(s) {ds.unit_ids}, expected "
                                  f"'{self.device_id}' alone (the file changed since the "

@@ -1,9 +1,10 @@
 """``thermonet info`` on recordings larger than memory: the summary in one chunked pass.
 
 :func:`summarize_parquet` returns what :func:`thermonet.workflows.info.summarize` returns
-for the same file, without holding it: the runs, channels and units come from the
-file's footer (:func:`thermonet.data.chunks.open_parquet`), and one pass over its row
-groups (:func:`~thermonet.data.chunks.iter_run_chunks`, at most ``chunk_rows`` rows at a
+for the same files, without holding them: the runs, channels and units come from a
+thermonet file's footer, or from a first pass over any other file
+(:func:`thermonet.data.chunks.open_source`), and one pass over the rows
+(:func:`~thermonet.data.chunks.iter_run_chunks`, at most ``chunk_rows`` rows at a
 time) accumulates per run and channel:
 
 * count, first and last time (duration), temperature and proxy minimum and maximum, the
@@ -34,18 +35,27 @@ same line.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.recording import MIN_SAMPLES, Dataset, Recording
-from ..data.chunks import DEFAULT_CHUNK_ROWS, ParquetLayout, iter_run_chunks, open_parquet
+from ..core.recording import MIN_SAMPLES
+from ..data.chunks import (
+    DEFAULT_CHUNK_ROWS,
+    Layout,
+    iter_run_chunks,
+    open_parquet,
+    open_source,
+    validate_layouts,
+)
 from ..data.diagnostics import run_warnings
-from ..data.mapping import channel_role
+from ..data.io import check_run_ids
+from ..data.mapping import ColumnMapping, channel_role
 
-__all__ = ["summarize_parquet", "open_parquet", "DEFAULT_CHUNK_ROWS"]
+__all__ = ["summarize_parquet", "open_parquet", "open_source", "DEFAULT_CHUNK_ROWS"]
 
 
 class _Moments:
@@ -118,21 +128,31 @@ class _Run:
 
 
 @np.errstate(over="ignore", invalid="ignore")  # absurd values: warned about, not a traceback
-def summarize_parquet(path: str | Path | ParquetLayout, *, bin_c: float = 1.0,
-                      chunk_rows: int = DEFAULT_CHUNK_ROWS) -> dict[str, Any]:
-    """:func:`thermonet.workflows.info.summarize` of a thermonet Parquet file, read in chunks.
+def summarize_parquet(path: str | Path | Layout | Sequence[Layout], *, bin_c: float = 1.0,
+                      chunk_rows: int = DEFAULT_CHUNK_ROWS,
+                      mapping: ColumnMapping | None = None) -> dict[str, Any]:
+    """:func:`thermonet.workflows.info.summarize` of recording files, read in chunks: a
+    path (through ``mapping``), a layout (:func:`thermonet.data.chunks.open_source`) or
+    the layouts of several files.
 
     Raises
     ------
     InputError
-        Not a thermonet Parquet file (no metadata blob: read it whole), or a bad value
-        (named by column and row).
+        A bad value (named by file, column and row), as the whole-file reader names it.
     """
-    layout = path if isinstance(path, ParquetLayout) else open_parquet(path)
-    if layout is None:
-        raise InputError.at(path, "not a thermonet Parquet file (no 'thermonet' metadata); "
-                            "it is read whole")
-    entries = layout.runs
+    if isinstance(path, Layout):
+        layouts = [path]
+    elif isinstance(path, (str, Path)):
+        layouts = [open_source(path, mapping, chunk_rows=chunk_rows)]
+    else:
+        layouts = list(path)
+    return _summarize(layouts, bin_c=bin_c, chunk_rows=chunk_rows)
+
+
+def _summarize(layouts: list[Layout], *, bin_c: float, chunk_rows: int) -> dict[str, Any]:
+    entries = [e for lay in layouts for e in lay.runs]
+    check_run_ids([(e["device_id"], e["run_id"], str(lay.path)) for lay in layouts
+                   for e in lay.runs])
     has_temp = any(e["temperature"] for e in entries)
     names: list[str] = []
     units: dict[str, str] = {}
@@ -147,7 +167,11 @@ def summarize_parquet(path: str | Path | ParquetLayout, *, bin_c: float = 1.0,
     runs = [_Run(e, int(chunk_rows)) for e in entries]
     first_out = list(entries[0]["outputs"])
     bins: dict[str, dict[int, list[float]]] = {o: {} for o in first_out}
-    for i, _rows, piece in iter_run_chunks(layout, read, chunk_rows=chunk_rows):
+    pieces = ((base + i, piece) for lay, base in zip(
+        layouts, np.cumsum([0] + [len(x.runs) for x in layouts]).tolist(), strict=False)
+        for i, _rows, piece in iter_run_chunks(
+            lay, [n for n in read if n in lay.columns], chunk_rows=chunk_rows))
+    for i, piece in pieces:
         e = entries[i]
         mine = {k: v for k, v in piece.items()
                 if k == "time_s" or (k == "temperature_c" and e["temperature"])
@@ -165,16 +189,18 @@ def summarize_parquet(path: str | Path | ParquetLayout, *, bin_c: float = 1.0,
                     cell = acc.setdefault(k, [0.0, 0])
                     cell[0] += s
                     cell[1] += c
-    for r in runs:
+    sources = [str(lay.path) for lay in layouts for _ in lay.runs]
+    for r, src in zip(runs, sources, strict=True):
         e = r.entry
         where = f"run '{e['run_id']}'"
         if r.n < MIN_SAMPLES:
-            raise InputError.at(layout.path, f"{where}: too few samples: {r.n} (need at least "
+            raise InputError.at(src, f"{where}: too few samples: {r.n} (need at least "
                                 f"{MIN_SAMPLES})")
         if e.get("n_samples") is not None and int(e["n_samples"]) != r.n:
-            raise InputError.at(layout.path, f"{where}: {r.n} rows, its metadata says "
+            raise InputError.at(src, f"{where}: {r.n} rows, its metadata says "
                                 f"{e['n_samples']}")
-    _validate_skeleton(layout, runs)
+    validate_layouts(layouts, [(r.lo["temperature_c"], r.hi["temperature_c"])
+                               if r.entry["temperature"] else None for r in runs])
     channels = [{"name": n, "role": "time" if n == "time_s" else
                  ("proxy" if any(n in e["proxies"] for e in entries) else channel_role(n)),
                  "unit": units[n]} for n in names]
@@ -211,7 +237,8 @@ def summarize_parquet(path: str | Path | ParquetLayout, *, bin_c: float = 1.0,
     t_rows = [r for r in run_rows if r["temperature_min_c"] is not None]
     t_range = [min(r["temperature_min_c"] for r in t_rows),
                max(r["temperature_max_c"] for r in t_rows)] if t_rows else None
-    skipped = layout.meta.get("skipped_rows")
+    skip_counts = [lay.meta["skipped_rows"] for lay in layouts if "skipped_rows" in lay.meta]
+    skipped = str(sum(int(c) for c in skip_counts)) if skip_counts else None
     rates = sorted({float(f"{r['sample_rate_hz']:.4g}") for r in run_rows})
     at = f"{rates[0]:g} Hz" if len(rates) == 1 else f"each run's rate ({rates[0]:g} … " \
         f"{rates[-1]:g} Hz)"
@@ -221,25 +248,6 @@ def summarize_parquet(path: str | Path | ParquetLayout, *, bin_c: float = 1.0,
             "skipped_rows": None if skipped is None else int(skipped),
             "noise_floor_basis": f"1 sigma per sample at {at}",
             "warnings": warnings}
-
-
-def _validate_skeleton(layout: ParquetLayout, runs: list[_Run]) -> None:
-    """``Dataset.validate`` on each run's channels, units and temperature extremes."""
-    k = MIN_SAMPLES
-    skeleton = []
-    for r in runs:
-        e = r.entry
-        zeros = np.zeros(k)
-        temp = np.linspace(r.lo["temperature_c"], r.hi["temperature_c"], k) \
-            if e["temperature"] else None
-        skeleton.append(Recording(
-            time_s=np.arange(k, dtype=np.float64), temperature_c=temp,
-            outputs={n: zeros for n in e["outputs"]},
-            references={n: zeros for n in e["references"]},
-            drift={n: zeros for n in e["drift"]}, proxies={n: zeros for n in e["proxies"]},
-            units=dict(e["units"]), device_id=e["device_id"], sensor_kind=e["sensor_kind"],
-            run_id=e["run_id"], sample_rate_hz=e["sample_rate_hz"], meta=dict(e["meta"])))
-    Dataset(runs=skeleton, meta=dict(layout.meta)).validate(str(layout.path))
 
 
 def _num(x: float) -> float | None:

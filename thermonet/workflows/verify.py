@@ -10,7 +10,9 @@ format is told from the first parameter line (five fields: PX4).  LOG is a ULog
 
 The firmware's formula (:mod:`thermonet.data.firmware`):
 
-* PX4 ``TemperatureCompensation.cpp``: ``TC_<k>_ENABLE`` must be 1 (a file without it,
+* PX4 ``TemperatureCompensation.cpp`` (gyro ``TC_G*``, accel ``TC_A*``, baro ``TC_B*``,
+  magnetometer ``TC_M*`` — PX4 after v1.14 (v1.15+), coefficients in gauss on ``sensor_mag``,
+  applied only with the magnetometer's own temperature): ``TC_<k>_ENABLE`` must be 1 (a file without it,
   as ``process_sensor_caldata.py`` writes, is applied as enabled, with a warning); the slot whose
   ``TC_<k><s>_ID`` equals the instance's device id applies; T clamped to
   [TMIN, TMAX]; offset = Σ X_k (T − TREF)^k subtracted.
@@ -29,8 +31,9 @@ would output as inf — anywhere in the axis is a FAIL) and the correction cuts
 the drift at least :attr:`Limits.min_cut` times, or what is left is below the
 kind's floor (:attr:`Limits.floor`: a drift that small no longer matters and its
 cut is noise).  Defaults: cut 3×; floors 5e-4 rad/s (0.03 °/s), 5e-3 m/s² (0.5 mg),
-1 Pa (≈8 cm) — about the bias stability of a good MEMS IMU and a baro's noise; set
-them for your sensors (``--gyro-floor`` …).  The binned drift of pure noise is not
+1 Pa (≈8 cm), 0.5 µT (a magnetometer: about 1° of heading on a 25 µT horizontal
+field) — about the bias stability of a good MEMS IMU, a baro's and a magnetometer's
+noise; set them for your sensors (``--gyro-floor`` …).  The binned drift of pure noise is not
 zero (the spread of ~50 bin means), so a floor far below the sensor's noise makes
 quiet axes FAIL.
 
@@ -80,6 +83,7 @@ from ..core.errors import InputError, ThermonetError
 from ..core.fileio import atomic_write_text
 from ..data.firmware import (
     ARDUPILOT_TEMP_REFERENCE,
+    PX4_LETTER,
     PX4_SLOTS,
     ardupilot_correction,
     px4_offsets_1d,
@@ -100,9 +104,10 @@ EXIT_FAILED = 3
 #: An axis passes "with margin" (``calibrate``: fine, not marginal) when its cut is at least
 #: MARGIN times ``min_cut`` or its residual at most the floor divided by MARGIN.
 MARGIN = 1.5
-_PX4_LETTER = {"gyro": "G", "acc": "A", "baro": "B"}
-#: The SI units the autopilots' logs and formulas use, per sensor kind (what verify prints).
-KIND_UNITS = {"gyro": "rad/s", "acc": "m/s²", "baro": "Pa"}
+_PX4_LETTER = PX4_LETTER
+#: The units the autopilots' formulas use, per sensor kind (what verify prints; a
+#: magnetometer in µT, its TC_M* coefficients in gauss).
+KIND_UNITS = {"gyro": "rad/s", "acc": "m/s²", "baro": "Pa", "mag": "µT"}
 _AP_ID = {"gyro": "INS_GYR{}_ID", "acc": "INS_ACC{}_ID"}
 _AP_IDS_LINE = re.compile(r"^#\s*device ids:\s*INS_TCAL(\d)\s+gyro\s+(\d+)\s+acc\s+(\d+)")
 #: A parameter value: a decimal number as QGroundControl and Mission Planner write them.
@@ -122,7 +127,7 @@ class Limits:
 
     min_cut: float = 3.0
     floor: dict[str, float] = field(default_factory=lambda: {
-        "gyro": 5e-4, "acc": 5e-3, "baro": 1.0})
+        "gyro": 5e-4, "acc": 5e-3, "baro": 1.0, "mag": 0.5})
 
     def check(self) -> Limits:
         if not (math.isfinite(self.min_cut) and self.min_cut > 1.0):
@@ -352,6 +357,8 @@ def _slot(pf: ParamFile, inst: SensorInstance) -> tuple[int | None, str | None]:
         return slot, None
     if inst.kind == "baro":
         return None, "ArduPilot has no barometer temperature calibration"
+    if inst.kind == "mag":
+        return None, "ArduPilot has no magnetometer temperature calibration"
     if pf.by_id:
         imu = pf.by_id.get((inst.kind, inst.device_id))
         if imu is None:
@@ -477,6 +484,9 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
             out[inst.name] = d
             continue
         why = check_instance(inst, log.autopilot)   # the same minimums as calibrate's
+        if inst.kind == "mag" and inst.temperature_c is None:
+            why = ("no temperature of its own: PX4 applies TC_M* with the magnetometer's own "
+                   "temperature, and applies nothing to this one")
         if why is not None:
             d.update(status="not judged", reason=why, slot=slot)
             out[inst.name] = d
@@ -504,7 +514,7 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
     if refuse_unjudged and not any(d["status"] == "judged" for d in out.values()):
         reasons = "; ".join(f"{n}: {d['status']}, {d['reason']}" for n, d in out.items())
         raise ThermonetError(f"{pf.path}: nothing of {log.path.name} can be judged "
-                             f"({reasons or 'no gyro, accelerometer or barometer'})")
+                             f"({reasons or 'no gyro, accelerometer, barometer or magnetometer'})")
     return out
 
 

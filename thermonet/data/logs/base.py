@@ -4,8 +4,10 @@ One :class:`SensorInstance` per physical sensor (a gyro, an accelerometer, a
 barometer, a magnetometer), identified by the autopilot's device id, with its
 own thermometer.  Units are SI as both autopilots log and compensate them:
 gyro rad/s (kept in rad/s: the parameters PX4 and ArduPilot load are in rad/s),
-accelerometer m/s², barometer Pa, magnetometer gauss (PX4) — magnetometers are
-listed but not calibrated (neither autopilot has a thermal model for them).
+accelerometer m/s², barometer Pa, magnetometer µT (PX4 logs ``sensor_mag`` in gauss,
+ArduPilot ``MAG`` in milligauss: both converted on reading, 1 gauss = 100 µT).  A
+magnetometer without a thermometer of its own is read with ``temperature_c`` None; a
+calibration may lend it another sensor's thermometer (:func:`lend_thermometer`).
 """
 
 from __future__ import annotations
@@ -21,18 +23,20 @@ from ...core.recording import Dataset, Recording
 __all__ = ["SensorInstance", "FlightLog", "AXES", "UNITS", "temperature_step", "screen_samples",
            "drop_phantoms", "MAX_DAMAGED_FRACTION", "MAX_UNREAD_FRACTION", "FULL_SCALE",
            "TEMPERATURE_RANGE_C", "TEMPERATURE_SPIKE_C", "MAX_INSTANCE", "time_gaps",
-           "byte_ranges_note"]
+           "byte_ranges_note", "UT_PER_GAUSS", "lend_thermometer"]
 
 #: Output channels per sensor kind.
 AXES = {"gyro": ("x", "y", "z"), "acc": ("x", "y", "z"), "mag": ("x", "y", "z"), "baro": ("p",)}
 #: thermonet unit per sensor kind (SI, as the autopilots log and compensate them).
-UNITS = {"gyro": "rad/s", "acc": "m/s^2", "baro": "Pa", "mag": "1"}
+UNITS = {"gyro": "rad/s", "acc": "m/s^2", "baro": "Pa", "mag": "uT"}
+#: µT per gauss (PX4 ``sensor_mag`` and its ``TC_M*`` coefficients are in gauss).
+UT_PER_GAUSS = 100.0
 
 # ---- damaged logs: what a sample must satisfy to be trusted (see screen_samples)
 #: Largest magnitude a sensor can report, per kind (gyro 100 rad/s ≈ 5,700 °/s, over any MEMS
-#: gyro's 4,000 °/s full scale; accelerometer 1,000 m/s² ≈ 100 g; magnetometer 100 gauss);
+#: gyro's 4,000 °/s full scale; accelerometer 1,000 m/s² ≈ 100 g; magnetometer 100 gauss = 10,000 µT);
 #: a barometer reads 1 kPa..200 kPa.  A flipped exponent byte lands far outside.
-FULL_SCALE = {"gyro": (-100.0, 100.0), "acc": (-1000.0, 1000.0), "mag": (-100.0, 100.0),
+FULL_SCALE = {"gyro": (-100.0, 100.0), "acc": (-1000.0, 1000.0), "mag": (-1e4, 1e4),
               "baro": (1e3, 2e5)}
 #: A sensor thermometer reads inside this range (°C); outside, the sample is damaged.
 TEMPERATURE_RANGE_C = (-80.0, 200.0)
@@ -183,6 +187,16 @@ class SensorInstance:
     untrusted : str or None
         Why the instance as a whole cannot be trusted (more than
         :data:`MAX_DAMAGED_FRACTION` of its samples damaged), else None.
+    thermometer : str or None
+        None: ``temperature_c`` is the sensor's own thermometer; else the name of the
+        instance whose thermometer was lent to it (``baro0``, ``gyro0``:
+        :func:`lend_thermometer`), interpolated to this sensor's sample times.
+    lag_s : float
+        With a lent thermometer: the time constant (s) of the first-order lag through
+        which ``temperature_c`` now follows it (0: none; set by a calibration).
+    unlagged_c : array (n,) or None
+        With a lag: the lent thermometer as read, before the lag (what a model with a
+        ``lag_<tau>`` dynamic input takes as its temperature).
     """
 
     kind: str
@@ -195,6 +209,9 @@ class SensorInstance:
     truth: np.ndarray | None = None
     damaged: int = 0
     untrusted: str | None = None
+    thermometer: str | None = None
+    lag_s: float = 0.0
+    unlagged_c: np.ndarray | None = None
 
     def mark_damage(self, n_read: int, dropped: list[str]) -> None:
         """Record ``n_read − n_samples`` damaged samples (``dropped``: why, with counts);
@@ -229,7 +246,10 @@ class SensorInstance:
         zero, the autopilots fit the whole offset).  Accelerometer and baro
         outputs carry gravity and the weather: their reference is the median
         of the log, as PX4's ``process_sensor_caldata.py`` subtracts it, so that
-        only the change with temperature is drift.
+        only the change with temperature is drift.  A magnetometer carries the
+        Earth's field: it has no reference channel, so its target is thermonet's
+        ``at-t-ref`` (:mod:`thermonet.features.target`) — the change from its value at
+        T_ref, zero there, as PX4's ``TC_M*`` (``X0 = 0``) — and the field stays.
         """
         outputs = {c: self.values[:, j].astype(np.float64) for j, c in enumerate(self.channels)}
         refs: dict[str, np.ndarray] = {}
@@ -238,11 +258,13 @@ class SensorInstance:
                     for c, v in outputs.items()}
         drift = {} if self.truth is None else {
             f"drift_{c}": self.truth[:, j] - float(np.median(self.truth[:, j]))
-            if self.kind in ("acc", "baro") else self.truth[:, j]
+            if self.kind in ("acc", "baro", "mag") else self.truth[:, j]
             for j, c in enumerate(self.channels)}
         units = {"time_s": "s", "temperature_c": "degC",
                  **{c: UNITS[self.kind] for c in self.channels}}
         meta = {"source": source, "instance": self.name, "log_notes": "; ".join(self.notes)}
+        if self.thermometer:
+            meta["thermometer"] = self.thermometer
         rec = Recording(time_s=self.time_s.astype(np.float64), temperature_c=self.temperature_c,
                         outputs=outputs, references=refs, drift=drift, units=units,
                         device_id=str(self.device_id), sensor_kind=self.kind,
@@ -362,3 +384,20 @@ def drop_phantoms(instances: list[SensorInstance], autopilot: str) -> tuple[
         notes.append(f"{inst.name} dropped: {why}, a damaged instance field")
     return keep, notes
 
+
+
+def lend_thermometer(inst: SensorInstance, donor: SensorInstance) -> SensorInstance:
+    """``inst`` (a sensor without a thermometer) with ``donor``'s thermometer: the donor's
+    temperature linearly interpolated to ``inst``'s sample times (held at its first and
+    last value outside the donor's time span); ``thermometer`` names the donor."""
+    if donor.temperature_c is None or not donor.n_samples:
+        raise InputError(f"{donor.name} has no thermometer to lend to {inst.name}")
+    temp = np.interp(np.asarray(inst.time_s, dtype=np.float64),
+                     np.asarray(donor.time_s, dtype=np.float64),
+                     np.asarray(donor.temperature_c, dtype=np.float64))
+    return SensorInstance(inst.kind, inst.instance, inst.device_id, inst.time_s, temp,
+                          inst.values, notes=list(inst.notes) + [
+                              f"no thermometer of its own: {donor.name}'s lent (interpolated "
+                              "to its sample times)"],
+                          truth=inst.truth, damaged=inst.damaged, untrusted=inst.untrusted,
+                          thermometer=donor.name)

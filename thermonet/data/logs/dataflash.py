@@ -9,7 +9,20 @@ ArduPilot logs while it learns a calibration on board, ``SType`` 0 accel, 1 gyro
 is used for an IMU that has no ``IMU`` messages, as ``tempcal_IMU.py --tclr``
 does; it is logged before any temperature correction, so nothing is undone.
 Units as logged: gyro rad/s, accel m/s², pressure Pa.  Device ids from
-``INS_GYR_ID`` / ``INS_GYR2_ID`` / ``INS_GYR3_ID`` (``INS_ACC*_ID``, ``BARO*_DEVID``).
+``INS_GYR_ID`` / ``INS_GYR2_ID`` / ``INS_GYR3_ID`` (``INS_ACC*_ID``, ``BARO*_DEVID``,
+``COMPASS_DEV_ID`` / ``COMPASS_DEV_ID2`` / ``COMPASS_DEV_ID3``).
+
+Magnetometers (``libraries/AP_Compass/AP_Compass.cpp``, ``Compass::Log_Write``):
+``MAG`` (``I`` field) or ``MAG``/``MAG2``/``MAG3``, ``MagX..Z`` in milligauss (the
+format's multiplier, 1e-3 gauss), converted to µT (× 0.1).  The logged field is
+after the compass calibration (``Compass::correct_field``: ``(raw + offsets) ·
+scale``, the soft-iron matrix of ``COMPASS_DIA*`` / ``COMPASS_ODI*``, then ``+ motor
+offsets``); thermonet undoes it with the offsets the message carries (``OfsX..Z``,
+``MOX..Z``, ``MOfsX..Z`` in older logs) and the ``COMPASS_SCALE*`` / ``DIA*`` / ``ODI*`` parameters, so the
+instance is the field as the driver gave it (already rotated to the board frame by
+``COMPASS_ORIENT``, which is not undone).  ``MAG`` has no temperature: an ArduPilot
+magnetometer is always calibrated against a lent thermometer, and only as ONNX / C —
+ArduPilot has no magnetometer temperature-calibration parameters.
 
 Calibration already applied, undone as ArduPilot's own
 ``Tools/scripts/tempcal_IMU.py`` does (``IMUfit``): the logged ``IMU`` values
@@ -49,6 +62,9 @@ __all__ = ["read_dataflash", "ardupilot_tcal_correction", "orientation_matrix"]
 
 _IMU_NAMES = {"IMU": 0, "IMU2": 1, "IMU3": 2}
 _BARO_NAMES = {"BARO": 0, "BAR2": 1, "BAR3": 2}
+_MAG_NAMES = {"MAG": 0, "MAG2": 1, "MAG3": 2}
+#: µT per logged unit of ``MAG.MagX`` (milligauss).
+_UT_PER_MGAUSS = 0.1
 _TEMP_REF = 35.0
 
 
@@ -87,8 +103,35 @@ def ardupilot_tcal_correction(params: dict[str, float], imu: int, kind: str,
 
 def _id(params: dict[str, float], kind: str, idx: int) -> int:
     n = "" if idx == 0 else str(idx + 1)
-    name = {"gyro": f"INS_GYR{n}_ID", "acc": f"INS_ACC{n}_ID", "baro": f"BARO{idx + 1}_DEVID"}
+    name = {"gyro": f"INS_GYR{n}_ID", "acc": f"INS_ACC{n}_ID", "baro": f"BARO{idx + 1}_DEVID",
+            "mag": f"COMPASS_DEV_ID{n}"}
     return int(params.get(name[kind], 0))
+
+
+def _mag_raw(params: dict[str, float], idx: int, field: np.ndarray, ofs: np.ndarray,
+             motor: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """The driver's field from the logged one: ``Compass::correct_field`` undone (see the
+    module), (n, 3) in the logged unit; with a note of what was undone."""
+    n = "" if idx == 0 else str(idx + 1)
+    dia = np.array([params.get(f"COMPASS_DIA{n}_{a}", 1.0) for a in "XYZ"])
+    odi = np.array([params.get(f"COMPASS_ODI{n}_{a}", 0.0) for a in "XYZ"])
+    scale = params.get(f"COMPASS_SCALE{n}", 1.0) or 1.0
+    v = field - motor
+    undone = []
+    if np.any(motor != 0):
+        undone.append("motor offsets (MOX..Z)")
+    if np.all(dia != 0) and (np.any(dia != 1.0) or np.any(odi != 0.0)):
+        mat = np.array([[dia[0], odi[0], odi[1]], [odi[0], dia[1], odi[2]],
+                        [odi[1], odi[2], dia[2]]])
+        v = v @ np.linalg.inv(mat).T
+        undone.append(f"soft-iron matrix (COMPASS_DIA{n}/ODI{n})")
+    if scale != 1.0 and 0.0 < scale:
+        v = v / scale
+        undone.append(f"COMPASS_SCALE{n}")
+    if np.any(ofs != 0):
+        undone.append("offsets (OfsX..Z)")
+    v = v - ofs
+    return v, ([f"compass calibration undone: {', '.join(undone)}"] if undone else [])
 
 
 def _ranges(offsets: list[int]) -> list[tuple[int, int]]:
@@ -174,7 +217,7 @@ def read_dataflash(path: str | Path) -> FlightLog:
     chatter = io.StringIO()
     rows: dict[tuple[str, int], list[list[float]]] = {}
     params: dict[str, float] = {}
-    types = ["PARM", "TCLR"] + list(_IMU_NAMES) + list(_BARO_NAMES)
+    types = ["PARM", "TCLR"] + list(_IMU_NAMES) + list(_BARO_NAMES) + list(_MAG_NAMES)
     tclr: dict[tuple[str, int], list[list[float]]] = {}
     skipped_msgs = 0
     messages = _messages(reader, types, sequential, chatter)
@@ -207,6 +250,13 @@ def read_dataflash(path: str | Path) -> FlightLog:
             rows.setdefault(("imu", idx), []).append(
                 [d["TimeUS"] * 1e-6, d["GyrX"], d["GyrY"], d["GyrZ"], d["AccX"], d["AccY"],
                  d["AccZ"], d.get("T", np.nan)])
+        elif mtype in _MAG_NAMES:
+            idx = int(d["I"]) if "I" in d else _MAG_NAMES[mtype]
+            rows.setdefault(("mag", idx), []).append(
+                [d["TimeUS"] * 1e-6] + [d.get(k, 0.0) for k in (
+                    "MagX", "MagY", "MagZ", "OfsX", "OfsY", "OfsZ")]
+                + [d.get(k, d.get(f"MOfs{k[-1]}", 0.0)) for k in ("MOX", "MOY", "MOZ")]
+                + [np.nan])         # motor offsets: MOX..Z (MOfsX..Z in older logs)
         else:
             idx = int(d["I"]) if "I" in d else _BARO_NAMES[mtype]
             rows.setdefault(("baro", idx), []).append(
@@ -232,6 +282,17 @@ def read_dataflash(path: str | Path) -> FlightLog:
         a = np.asarray(data, dtype=np.float64)
         n_read = a.shape[0]
         has_temp = bool(np.any(np.isfinite(a[:, -1])))  # NaN throughout: no thermometer
+        if group == "mag":
+            raw, mag_notes = _mag_raw(params, idx, a[:, 1:4], a[:, 4:7], a[:, 7:10])
+            raw = raw * _UT_PER_MGAUSS
+            keep, dropped = screen_samples("mag", a[:, 0], raw, None)
+            order = np.argsort(a[keep, 0], kind="stable")
+            inst = SensorInstance("mag", idx, _id(params, "mag", idx), a[keep, 0][order], None,
+                                  raw[keep][order], notes=[
+                                      "field logged in milligauss, converted to µT"] + mag_notes)
+            inst.mark_damage(n_read, dropped)
+            instances.append(inst)
+            continue
         kind0 = "baro" if group == "baro" else "gyro"
         keep, dropped = screen_samples(kind0, a[:, 0], a[:, 1:-1] if group == "baro"
                                        else a[:, 1:4], a[:, -1] if has_temp else None)

@@ -15,12 +15,17 @@ itself: a median below 2,000 can only be hPa (sea-level air is ≈101,325 Pa,
 ≈1,013 hPa; no flight controller works at 2 kPa) and is converted to Pa, with a
 note.
 
+``sensor_mag`` x/y/z are gauss (``msg/SensorMag.msg``: "magnetic field in the FRD
+board frame X-axis in Gauss"), converted to µT (× 100); its ``temperature`` is NaN
+for a magnetometer without a thermometer (then read as none).
+
 Calibration already applied.  PX4's ``sensor_gyro`` / ``sensor_accel`` /
-``sensor_baro`` are the drivers' output; the thermal offsets (``TC_*``,
+``sensor_baro`` / ``sensor_mag`` are the drivers' output; the thermal offsets (``TC_*``,
 ``src/modules/temperature_compensation/TemperatureCompensation.cpp``) and the
 ordinary offsets (``CAL_*``, ``src/lib/sensor_calibration``) are applied
 downstream (``vehicle_angular_velocity``, ``vehicle_acceleration``,
-``vehicle_air_data``).  So there is nothing to undo; when the log says
+``vehicle_air_data``, ``vehicle_magnetometer``; the magnetometer's ``CAL_MAG*``
+offsets and soft-iron matrix and ``TC_M*`` likewise).  So there is nothing to undo; when the log says
 ``TC_*_ENABLE = 1`` the instance carries a note saying so.
 """
 
@@ -36,6 +41,7 @@ import numpy as np
 
 from ...core.errors import InputError
 from .base import (
+    UT_PER_GAUSS,
     FlightLog,
     SensorInstance,
     byte_ranges_note,
@@ -53,7 +59,8 @@ TOPICS = {"sensor_gyro": ("gyro", ("x", "y", "z")), "sensor_accel": ("acc", ("x"
 ULOG_MAGIC = b"ULog\x01\x12\x35"
 #: A barometer median below this (in the logged unit) is hPa, not Pa.
 HPA_MAX = 2000.0
-_TC = {"gyro": "TC_G_ENABLE", "acc": "TC_A_ENABLE", "baro": "TC_B_ENABLE"}
+_TC = {"gyro": "TC_G_ENABLE", "acc": "TC_A_ENABLE", "baro": "TC_B_ENABLE",
+       "mag": "TC_M_ENABLE"}
 
 
 class _Watched:
@@ -191,6 +198,9 @@ def read_ulog(path: str | Path) -> FlightLog:
         if kind == "baro" and finite.size and np.median(finite[:, 0]) < HPA_MAX:
             values = values * 100.0
             notes.append("pressure logged in hPa (an older PX4), converted to Pa")
+        if kind == "mag":
+            values = values * UT_PER_GAUSS
+            notes.append("field logged in gauss, converted to µT")
         if kind in _TC and params.get(_TC[kind], 0.0) == 1.0:
             notes.append(f"{_TC[kind]}=1 in the log; {d.name} is logged before thermal "
                          "compensation, so nothing was undone")

@@ -9,15 +9,19 @@ ULog (PX4 ``docs``: "ULog File Format"): the 16-byte header (``ULog`` magic
 message ``B``, format messages ``F`` (``sensor_gyro:uint64_t timestamp;...``),
 an info message ``I`` (``sys_name``), parameters ``P`` (``int32_t`` / ``float``),
 subscriptions ``A`` (multi id, msg id, topic) and data ``D``.  Fields as in
-PX4's ``msg/SensorGyro.msg`` / ``SensorAccel.msg`` / ``SensorBaro.msg``
-(``timestamp``, ``timestamp_sample``, ``device_id``, values, ``temperature``);
-pressure in Pa, as current PX4.
+PX4's ``msg/SensorGyro.msg`` / ``SensorAccel.msg`` / ``SensorBaro.msg`` /
+``SensorMag.msg`` (``timestamp``, ``timestamp_sample``, ``device_id``, values,
+``temperature``; the magnetometer's ``error_count`` and ``is_external`` too); pressure
+in Pa, the field in gauss (NaN temperature for a magnetometer without a thermometer),
+as current PX4.  The ``sensor_mag`` format is written only into a log with magnetometers.
 
 DataFlash (``libraries/AP_Logger/LogStructure.h``): every message starts
 ``A3 95 <type>``; type 128 is ``FMT`` (``BBnNZ``: type, length, name, format,
 columns), then the ``PARM`` (``QNf``), ``IMU`` (``QBfffffff``: TimeUS, I, GyrX,
 GyrY, GyrZ, AccX, AccY, AccZ, T — the multi-instance form with an ``I`` field)
-and ``BARO`` (``QBff``: TimeUS, I, Press, Temp) formats, packed little-endian.
+and ``BARO`` (``QBff``: TimeUS, I, Press, Temp) formats, packed little-endian; a log
+with magnetometers also ``MAG`` (``QBhhhhhhhhhBI``: TimeUS, I, MagX..Z, OfsX..Z, MOX..Z
+in milligauss, Health, S — ``AP_Compass``'s own layout; offsets written as zero).
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ import numpy as np
 
 from ...core.errors import InputError
 from ...core.fileio import atomic_path
-from .base import FlightLog, SensorInstance
+from .base import UT_PER_GAUSS, FlightLog, SensorInstance
 
 __all__ = ["write_ulog", "write_dataflash", "write_log"]
 
@@ -56,6 +60,10 @@ def _ulog_bytes(log: FlightLog) -> bytes:
         "baro": ("sensor_baro", "uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;"
                  "float pressure;float temperature;", "<QQIff"),
     }
+    if any(i.kind == "mag" for i in log.instances):
+        formats["mag"] = ("sensor_mag", "uint64_t timestamp;uint64_t timestamp_sample;"
+                          "uint32_t device_id;float x;float y;float z;float temperature;"
+                          "uint32_t error_count;bool is_external;", "<QQIffffI?")
     for topic, fields, _ in formats.values():
         out += _umsg(b"F", f"{topic}:{fields}".encode())
     key = b"char[6] sys_name"
@@ -76,9 +84,11 @@ def _ulog_bytes(log: FlightLog) -> bytes:
         temp = inst.temperature_c if inst.temperature_c is not None else np.full(
             inst.n_samples, np.nan)
         us = np.round(inst.time_s * 1e6).astype(np.int64)
+        values = inst.values / UT_PER_GAUSS if inst.kind == "mag" else inst.values
+        extra: tuple[int | bool, ...] = (0, False) if inst.kind == "mag" else ()
         for i in range(inst.n_samples):
             body = struct.pack(fmt, int(us[i]), int(us[i]), inst.device_id,
-                               *[float(v) for v in inst.values[i]], float(temp[i]))
+                               *[float(v) for v in values[i]], float(temp[i]), *extra)
             records.append((int(us[i]), _umsg(b"D", struct.pack("<H", msg_id) + body)))
     records.sort(key=lambda r: r[0])
     for _, rec in records:
@@ -96,7 +106,11 @@ def _dataflash_bytes(log: FlightLog) -> bytes:
             65: ("IMU", "QBfffffff", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,T"),
             66: ("BARO", "QBff", "TimeUS,I,Press,Temp")}
     sizes = {"FMT": struct.calcsize("<BB4s16s64s"), "PARM": struct.calcsize("<Q16sf"),
-             "IMU": struct.calcsize("<QB7f"), "BARO": struct.calcsize("<QBff")}
+             "IMU": struct.calcsize("<QB7f"), "BARO": struct.calcsize("<QBff"),
+             "MAG": struct.calcsize("<QB9hBI")}
+    if any(i.kind == "mag" for i in log.instances):
+        defs[67] = ("MAG", "QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,"
+                    "Health,S")
     out = bytearray()
     for mtype, (name, fmt, cols) in sorted(defs.items(), key=lambda d: d[0] != 128):
         out += _df(128, struct.pack("<BB4s16s64s", mtype, sizes[name] + 3, name.encode(),
@@ -126,6 +140,15 @@ def _dataflash_bytes(log: FlightLog) -> bytes:
         for i in range(inst.n_samples):
             records.append((int(us[i]), 10 + inst.instance, _df(66, struct.pack(
                 "<QBff", int(us[i]), inst.instance, float(inst.values[i, 0]), float(temp[i])))))
+    for inst in log.instances:
+        if inst.kind != "mag":
+            continue
+        mgauss = np.round(inst.values * 10.0).astype(np.int64)   # µT -> milligauss
+        us = np.round(inst.time_s * 1e6).astype(np.int64)
+        for i in range(inst.n_samples):
+            records.append((int(us[i]), 20 + inst.instance, _df(67, struct.pack(
+                "<QB9hBI", int(us[i]), inst.instance, *[int(v) for v in mgauss[i]],
+                0, 0, 0, 0, 0, 0, 1, 0))))
     records.sort(key=lambda r: (r[0], r[1]))
     for _, _, rec in records:
         out += rec
