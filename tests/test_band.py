@@ -159,6 +159,14 @@ def test_a_level_outside_0_1_is_refused_naming_the_key(level):
         config_from_mapping({"band": {"level": level}})
 
 
+@pytest.mark.parametrize("bins", [0, 51, True, 2.5])
+def test_bins_outside_1_50_are_refused_naming_the_key(bins):
+    from thermonet.training.config import config_from_mapping
+
+    with pytest.raises(ConfigError, match=r"band\.bins"):
+        config_from_mapping({"band": {"bins": bins}})
+
+
 def test_a_band_without_folds_is_refused_naming_both_keys():
     from thermonet.training.config import config_from_mapping
 
