@@ -142,14 +142,20 @@ class Compensation:
         The model's drift estimate, same shape and units.
     out_of_range : numpy.ndarray or bool
         (N,) bool for a batch, a plain bool for one sample.
+    band : numpy.ndarray or None
+        The residual-drift band's half-width at each sample's band signal (metadata
+        ``band``: :meth:`Compensator.band`), same shape and units as ``drift``; None for a
+        file without a band.  Not one of the graph's outputs (:meth:`as_dict` leaves it out).
     """
 
-    __slots__ = ("compensated", "drift", "out_of_range")
+    __slots__ = ("compensated", "drift", "out_of_range", "band")
 
-    def __init__(self, compensated: np.ndarray, drift: np.ndarray, out_of_range: Any) -> None:
+    def __init__(self, compensated: np.ndarray, drift: np.ndarray, out_of_range: Any,
+                 band: np.ndarray | None = None) -> None:
         self.compensated = compensated
         self.drift = drift
         self.out_of_range = out_of_range
+        self.band = band
 
     def __getitem__(self, key: str) -> Any:
         if key not in GRAPH_OUTPUTS:
@@ -541,6 +547,49 @@ def _meta_axis_models(meta: Mapping[str, str], outputs: list[str], path: Path
             for a in outputs}
 
 
+def _finite_number(x: Any) -> bool:
+    return not isinstance(x, bool) and isinstance(x, int | float) and math.isfinite(x)
+
+
+def _meta_band(meta: Mapping[str, str], signals: list[str], outputs: list[str], path: Path
+               ) -> dict[str, Any] | None:
+    """The validated ``band`` block (None when the file has none): the level, the signal it
+    is a function of, per output axis the bin edges, half-widths and growth rates."""
+    if "band" not in meta:
+        return None
+    b = _meta_json(meta, "band", path)
+    bad = RuntimeInputError(f"{path}: metadata 'band' is not a band (level in (0, 1), a "
+                            "signal of the model, per output axis increasing finite edges, "
+                            "finite half-widths and growth rates >= 0)")
+    if not isinstance(b, dict) or not _finite_number(b.get("level")) or \
+            not 0 < b["level"] < 1 or b.get("signal") not in signals or \
+            not isinstance(b.get("axes"), dict) or sorted(b["axes"]) != sorted(outputs):
+        raise bad
+    for t in b["axes"].values():
+        e, h = t.get("edges") if isinstance(t, dict) else None, \
+            t.get("half_width") if isinstance(t, dict) else None
+        if not isinstance(e, list) or not isinstance(h, list) or len(e) < 2 or \
+                len(h) != len(e) - 1 or not all(_finite_number(x) for x in e + h) or \
+                any(x2 <= x1 for x1, x2 in zip(e[:-1], e[1:], strict=True)) or min(h) < 0 or \
+                not all(_finite_number(t.get(g)) and t[g] >= 0
+                        for g in ("growth_below", "growth_above")):
+            raise bad
+    return b
+
+
+def band_tables(x: Any, edges: Sequence[float], half: Sequence[float], grow_lo: float,
+                grow_hi: float) -> np.ndarray:
+    """The band at ``x``: piecewise constant over ``edges``, growing linearly past them,
+    NaN at NaN (thermonet.scoring.band.evaluate_tables, the same rule)."""
+    x = np.asarray(x, dtype=np.float64)
+    e = np.asarray(edges, dtype=np.float64)
+    h = np.asarray(half, dtype=np.float64)
+    k = np.clip(np.searchsorted(e[1:-1], x, side="right"), 0, h.size - 1)
+    out = np.where(x < e[0], h[0] + grow_lo * (e[0] - x),
+                   np.where(x > e[-1], h[-1] + grow_hi * (x - e[-1]), h[k]))
+    return np.where(np.isnan(x), np.nan, out)
+
+
 def _meta_ranges(meta: Mapping[str, str], path: Path) -> dict[str, list[float]]:
     ranges = _meta_json(meta, "trained_range", path)
     if not isinstance(ranges, dict):
@@ -655,6 +704,9 @@ class Compensator:
             raise RuntimeInputError(f"{path}: family {self.family!r} with"
                                     f"{'' if self.axis_models is not None else 'out'} an "
                                     "'axis_models' table")
+        #: The residual-drift band (metadata ``band``), or None: :meth:`band`.
+        self.band_tables: dict[str, Any] | None = _meta_band(meta, self.signals, self.outputs,
+                                                              path)
         block = _meta_json(meta, "dynamic_inputs", path) if "dynamic_inputs" in meta else None
         self.dynamic: dict[str, Any] | None = _check_dynamic(block, self.signals, path)
         #: Graph inputs this runtime computes from time_s and temperature_c.
@@ -1047,14 +1099,41 @@ class Compensator:
             # onnxruntime's broadcasting of empty tensors is not uniform across ops; an
             # empty batch has a well-defined answer without running the graph.
             empty = np.zeros((0, n_axes), dtype=self._raw_dtype)
-            return Compensation(empty, empty.copy(), np.zeros(0, dtype=bool))
+            return Compensation(empty, empty.copy(), np.zeros(0, dtype=bool),
+                                None if self.band_tables is None else np.zeros((0, n_axes)))
         comp, drift, flag = self._session.run(list(GRAPH_OUTPUTS), feeds)
         flag = flag.astype(bool)
         if gap is not None:
             flag = flag | gap
         if single:
-            return Compensation(comp[0], drift[0], bool(flag[0]))
-        return Compensation(comp, drift, flag)
+            res = Compensation(comp[0], drift[0], bool(flag[0]))
+            return self._with_band(res, {k: np.asarray(v).reshape(-1)[0] for k, v in
+                                         feeds.items() if k != RAW_INPUT})
+        return self._with_band(Compensation(comp, drift, flag), feeds)
+
+    def band(self, signal: Any) -> np.ndarray:
+        """Half-width of the residual-drift band (A,) for one value or (N, A) for an array of
+        the band's signal (``band_tables['signal']``, temperature where the model reads it):
+        a window mean of the corrected output's residual lies within ± it of the run's mean
+        residual for ``band_tables['level']`` of the windows on runs like the training
+        runs; wider past the trained range; NaN at NaN.  Refused for a file without one."""
+        b = self.band_tables
+        if b is None:
+            raise RuntimeInputError(f"{self.path}: this model file carries no band (export it "
+                                    "from a compare checkpoint made with cross-validation)")
+        x = np.asarray(self._as_float32(b["signal"], signal, np.float64), dtype=np.float64)
+        cols = [band_tables(x, t["edges"], t["half_width"], t["growth_below"],
+                            t["growth_above"]) for t in (b["axes"][a] for a in self.outputs)]
+        return np.stack(cols, axis=-1)
+
+    def _with_band(self, res: Compensation, given: Mapping[str, Any]) -> Compensation:
+        if self.band_tables is not None and self.band_tables["signal"] in given:
+            x = np.asarray(self._as_float32(self.band_tables["signal"],
+                                            given[self.band_tables["signal"]]), np.float64)
+            if x.ndim == 0 and np.ndim(res.drift) == 2:
+                x = np.full(res.drift.shape[0], float(x))
+            res.band = self.band(x)
+        return res
 
     def __repr__(self) -> str:
         return (f"Compensator({str(self.path)!r}, family={self.family!r}, signals={self.signals}, "

@@ -136,6 +136,10 @@ average_s, threads
         RMS ratio compensated / raw (< 1 better); ``val_ratios_`` per axis.
     mlflow_run_id_ : str
         The MLflow run of a tracked fit ("" untracked).
+    band_ : thermonet.scoring.band.Band or None
+        The residual-drift band per axis (``predict(..., return_band=True)``): from
+        ``compare``'s out-of-fold residuals, so only a model loaded from a ``compare``
+        checkpoint has one; None after :meth:`fit`.
     n_params_ : int
         Parameters the model computes with (an RBF whose ridge is ∞ on every axis is its
         polynomial tail: the cubic's count).
@@ -423,6 +427,7 @@ average_s, threads
             self.val_ratios_ = {a: float(r) for a, r in zip(outputs, ratios, strict=True)}
             self.val_score_ = float(np.mean(ratios))
         self.mlflow_run_id_: str = ""
+        self.band_: Any = None      # only compare's out-of-fold residuals give a band
         arrays = [fit_arrays(q, config.average_s) for q in parts.train]
         self.parameters_: pd.DataFrame
         self.covariance_: dict[str, np.ndarray]
@@ -462,8 +467,15 @@ average_s, threads
         return model
 
     # --------------------------------------------------------------- prediction
-    def predict(self, data: Data) -> np.ndarray:
+    def predict(self, data: Data, *, return_band: bool = False) -> Any:
         """Predicted drift (N, axes), float64, in the outputs' units.
+
+        ``return_band=True`` returns ``(drift, band)``: ``band`` (N, axes) the half-width of
+        the residual-drift band at each row's temperature (:attr:`band_`,
+        :mod:`thermonet.scoring.band`: a window mean of ``raw − drift`` lies within ± it of
+        the run's mean residual for ``band_.level`` of windows; wider past the trained range;
+        NaN where the temperature is).  Only a model from ``compare`` with cross-validation
+        folds carries a band; asking another refuses, saying so.
 
         ``data``: a Recording, a list of them or a Dataset; for several runs the rows are
         the runs' samples one run after the other (each run's dynamic inputs computed on
@@ -474,13 +486,25 @@ average_s, threads
         from ..features.inputs import signal_matrix
         from ..training.train import predict
 
-        out = []
+        band = self.__dict__.get("band_")
+        if return_band and band is None:
+            raise ThermonetError("predict(return_band=True): this model carries no band (the "
+                                 "band comes from compare's out-of-fold residuals: load a "
+                                 "checkpoint compare wrote with selection.folds >= 2)")
+        out, widths = [], []
         for rec in runs_of(data, "predict", allow_empty=True):
             same_units(rec, self.signal_units_, "predict", "the model was trained on it")
             # the model's own signal order (a per-axis model's union of its parts' signals)
-            out.append(predict(model, signal_matrix(rec, list(model.signals), self.spec_.gap_s),
-                               rec.time_s))
-        return out[0] if len(out) == 1 else np.concatenate(out)
+            sig = signal_matrix(rec, list(model.signals), self.spec_.gap_s)
+            out.append(predict(model, sig, rec.time_s))
+            if return_band:
+                assert band is not None
+                col = list(model.signals).index(band.signal)
+                widths.append(band.evaluate(sig[:, col], self.outputs_))
+        drift = out[0] if len(out) == 1 else np.concatenate(out)
+        if return_band:
+            return drift, (widths[0] if len(widths) == 1 else np.concatenate(widths))
+        return drift
 
     def compensate(self, data: Data) -> Any:
         """``data`` with the predicted drift subtracted from each modelled output: a

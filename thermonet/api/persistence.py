@@ -41,6 +41,8 @@ def extra(est: DriftEstimator) -> dict[str, Any]:
         extra["parameters"] = sealed_parameters(est.parameters_, est.covariance_, est.stderr)
     if est.__dict__.get("val_score_") is not None:   # the validation metrics, as compare's
         extra.update(val_score=est.val_score_, val_ratios=dict(est.val_ratios_ or {}))
+    if est.__dict__.get("band_") is not None:   # compare's band, kept through save
+        extra["band"] = {"status": "ok", **est.band_.to_json()}
     source = getattr(est, "data_source_", None)  # an estimator made by load() has none
     if source is not None:  # provenance: what it was fitted on (as compare records it)
         extra.update(data_hash=source["data_hash"], provenance={"data": source})
@@ -105,6 +107,9 @@ def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstima
     est.val_score_ = extra.get("val_score")
     est.val_ratios_ = extra.get("val_ratios")
     est.mlflow_run_id_ = str(extra.get("mlflow_run_id") or "")
+    from ..scoring.band import Band
+
+    est.band_ = Band.from_json(extra["band"]) if isinstance(extra.get("band"), dict) else None
     prov = extra.get("provenance")
     source = prov.get("data") if isinstance(prov, dict) else None
     if isinstance(source, dict):  # kept, so that saving it again keeps the record

@@ -63,6 +63,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.polynomial import polynomial as P
@@ -82,6 +83,7 @@ __all__ = [
     "autopilot_coefficients",
     "export_px4_params",
     "export_ardupilot_params",
+    "ekf_recommendation",
     "read_px4_params",
     "read_ardupilot_params",
 ]
@@ -291,8 +293,67 @@ def _g(v: float) -> str:
     return f"{float(v):.9g}"
 
 
+#: The navigation filter's bias settings a band suggests, per autopilot and sensor kind:
+#: (bias process noise: the bias's rate of change, SI/s; initial bias uncertainty, SI).
+#: PX4 v1.14 EKF2 (``EKF2_GYR_B_NOISE`` rad/s², ``EKF2_ACC_B_NOISE`` m/s³: process noise for
+#: the IMU bias prediction, ``bias_sig = dt * value`` per step; ``EKF2_GBIAS_INIT`` rad/s,
+#: ``EKF2_ABIAS_INIT`` m/s²: initial bias uncertainty); ArduPilot 4.5 EKF3
+#: (``EK3_GBIAS_P_NSE`` rad/s/s, ``EK3_ABIAS_P_NSE`` m/s³: rate gyro / accelerometer bias
+#: stability; no initial-uncertainty parameter).
+EKF_PARAMS: dict[str, dict[str, tuple[str, str | None]]] = {"px4": {"gyro": ("EKF2_GYR_B_NOISE", "EKF2_GBIAS_INIT"),
+                      "acc": ("EKF2_ACC_B_NOISE", "EKF2_ABIAS_INIT")},
+              "ardupilot": {"gyro": ("EK3_GBIAS_P_NSE", None),
+                            "acc": ("EK3_ABIAS_P_NSE", None)}}
+_EKF_FIRMWARE = {"px4": "PX4 v1.14 EKF2", "ardupilot": "ArduPilot 4.5 EKF3"}
+
+
+def ekf_recommendation(band: Mapping[str, Any] | None, output_units: str | Mapping[str, str],
+                       autopilot: str) -> list[str]:
+    """Comment lines recommending the EKF's bias noise settings from the residual-drift
+    band (:mod:`thermonet.scoring.band`), per sensor kind the largest over its axes:
+    process noise = the band's rate (unit per °C) × the training runs' 95th-percentile
+    temperature rate (°C/s), in SI units per second; initial uncertainty = the band's bias
+    bound.  Never loaded: ``#`` lines the autopilots' loaders skip."""
+    from ..scoring.band import Band
+
+    if not band:
+        return []
+    b = Band.from_json(band)
+    nums = b.filter_numbers()
+    rate = b.signal_rate
+    best: dict[str, tuple[float, float]] = {}
+    for axis, v in nums.items():
+        unit = _unit_of(axis, output_units)
+        kind = _UNIT_KIND.get(unit)
+        if kind not in ("gyro", "acc"):
+            continue
+        si = SI_FACTOR[unit]
+        noise = v["rate"] * si * rate if rate is not None else math.nan
+        old = best.get(kind, (0.0, 0.0))
+        best[kind] = (max(old[0], noise), max(old[1], v["bound"] * si))
+    if not best:
+        return []
+    lines = ["#", f"# Recommendation only (not loaded; {_EKF_FIRMWARE[autopilot]} parameter "
+                  "names): the residual drift left after this",
+             f"# compensation, {b.level:.0%} band of {b.window_s:g} s window means out of fold "
+             "(drift like the training runs', not shocks or aging).",
+             f"# Bias rate = band slope x temperature rate "
+             f"{'n/a' if rate is None else f'{rate * 60:.3g} degC/min'} (95th percentile in "
+             "training)."]
+    for kind, (noise, bound) in best.items():
+        pn, init = EKF_PARAMS[autopilot][kind]
+        si_unit = "rad/s" if kind == "gyro" else "m/s^2"
+        lines.append(f"#   {pn} >= {_g(noise)} ({si_unit}/s)")
+        if init:
+            lines.append(f"#   {init} >= {_g(bound)} ({si_unit})")
+        else:
+            lines.append(f"#   residual {kind} bias bound {_g(bound)} {si_unit}")
+    return lines
+
+
 def export_px4_params(model: ShippedModel, path: str | Path, *, output_units: str | Mapping[str, str],
-                      device_id: int | None = None, instance: int = 0) -> Path:
+                      device_id: int | None = None, instance: int = 0,
+                      band: Mapping[str, Any] | None = None) -> Path:
     """Write PX4 ``TC_G<i>_*`` / ``TC_A<i>_*`` / ``TC_B<i>_*`` / ``TC_M<i>_*`` (magnetometer,
     gauss; PX4 v1.15+) parameters as a QGC ``.params`` file.
 
@@ -340,12 +401,13 @@ def export_px4_params(model: ShippedModel, path: str | Path, *, output_units: st
             for i in range(3):
                 rows.append((f"{pre}X{k}_{i}", _g(coef[i, k]), 9))
     lines += [f"1\t1\t{name}\t{value}\t{ptype}" for name, value, ptype in rows]
+    lines += ekf_recommendation(band, output_units, "px4")
     return atomic_write_text(Path(path), "\n".join(lines) + "\n")
 
 
 def export_ardupilot_params(model: ShippedModel, path: str | Path, *,
                             output_units: str | Mapping[str, str], imu: int = 1,
-                            sep: str = ",") -> Path:
+                            sep: str = ",", band: Mapping[str, Any] | None = None) -> Path:
     """Write ArduPilot ``INS_TCAL<n>_*`` parameters (``NAME,VALUE`` lines).
 
     The constant term of the drift is not written (ArduPilot's polynomial has
@@ -385,7 +447,8 @@ def export_ardupilot_params(model: ShippedModel, path: str | Path, *,
               f"# drift constant at {ARDUPILOT_TEMP_REFERENCE:g} degC is left to the offset "
               "calibration at INS_*_CALTEMP"]
     return atomic_write_text(
-        Path(path), "\n".join(header + [f"{n}{sep}{v}" for n, v in rows]) + "\n"
+        Path(path), "\n".join(header + [f"{n}{sep}{v}" for n, v in rows]
+                              + ekf_recommendation(band, output_units, "ardupilot")) + "\n"
     )
 
 

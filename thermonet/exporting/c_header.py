@@ -61,7 +61,9 @@ largest drift): only summation order and ``expf`` rounding differ.
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -399,7 +401,7 @@ def c_parity_check(model: ShippedModel, header_text: str, *, prefix: str = "ther
 
 
 def export_c_header(model: ShippedModel, path: str | Path, *, prefix: str = "thermonet",
-                    check: bool = True) -> Path:
+                    check: bool = True, band: Mapping[str, Any] | None = None) -> Path:
     """Write the model as a C99 header (atomic: temp file + ``os.replace``).
 
     Parameters
@@ -427,8 +429,17 @@ def export_c_header(model: ShippedModel, path: str | Path, *, prefix: str = "the
     ExportError
         Unknown family, NaN/inf parameters, a prefix that is not a C identifier, or a
         failed parity check (nothing is written then).
+
+    ``band``: the residual-drift band's tables (:func:`thermonet.scoring.band.shipped_band`):
+    written as constants with ``<prefix>_band()`` (:mod:`.c_band`), checked against Python.
     """
     text = render_c_header(model, prefix=prefix)
+    if band is not None:
+        from .c_band import check_band_c, insert_band
+
+        text = insert_band(text, band, prefix, list(model.outputs), list(model.signals))
+        if check:
+            check_band_c(band, text, prefix)
     if check:
         # both arithmetic paths: the host's double and the float path a single-precision
         # microcontroller compiles (-DTHERMONET_USE_FLOAT: float outputs, fast exp)

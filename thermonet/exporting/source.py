@@ -222,12 +222,16 @@ def onnx_of_checkpoint(ckpt: str | os.PathLike[str], out: str | os.PathLike[str]
 
 
 def _onnx_with_metadata(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
+    from ..scoring.band import shipped_band
     from .onnx_export import export_onnx
 
     extra, meta = request.extra, request.meta
     prov = extra.get("provenance")
     source = prov.get("data") if isinstance(prov, dict) else None
+    band = shipped_band(extra)
     path = export_onnx(model, out, metadata={
+        # the residual-drift band's tables, evaluated by the runtime (Compensator.band)
+        **({"band": band} if band is not None else {}),
         "device_id": extra.get("device_id", ""),
         "training_run_id": extra.get("mlflow_run_id", ""),
         "validation_metrics": {"val_score": extra.get("val_score"),
@@ -244,25 +248,30 @@ def _onnx_with_metadata(model: ShippedModel, out: Path, request: ExportRequest) 
 
 def write_c(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``c``: the C99 header."""
+    from ..scoring.band import shipped_band
     from .c_header import export_c_header
 
-    return export_c_header(model, out)
+    return export_c_header(model, out, band=shipped_band(request.extra))
 
 
 def write_px4_params(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``px4-params``: PX4's TC_* parameter file (slot ``request.instance``, default 0)."""
+    from ..scoring.band import shipped_band
     from .autopilot import export_px4_params
 
     return export_px4_params(model, out, output_units=request.output_units,
+                             band=shipped_band(request.extra),
                              device_id=request.device_id,
                              instance=0 if request.instance is None else request.instance)
 
 
 def write_ardupilot_params(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``ardupilot-params``: ArduPilot's INS_TCAL* file (IMU ``request.instance``, default 1)."""
+    from ..scoring.band import shipped_band
     from .autopilot import export_ardupilot_params
 
     return export_ardupilot_params(model, out, output_units=request.output_units,
+                                   band=shipped_band(request.extra),
                                    imu=1 if request.instance is None else request.instance)
 
 

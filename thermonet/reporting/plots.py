@@ -449,7 +449,8 @@ def plot_residual_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
                                  baseline: str | None = None,
                                  colours: Mapping[str, str] | None = None,
                                  bin_width: float = 1.0,
-                                 x_label: str = "temperature (°C)") -> Path:
+                                 x_label: str = "temperature (°C)",
+                                 band: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
     """Binned means of the error against temperature, raw and after each family.
 
     A light scatter of the raw error and of the chosen family's residual sits
@@ -470,16 +471,27 @@ def plot_residual_vs_temperature(path: str | Path, *, temperature_c: np.ndarray,
         Family name → residual after compensation, ``units``.
     axis, units, chosen, baseline, colours, bin_width, x_label
         As in :func:`plot_drift_vs_temperature`.
+    band : (ndarray, ndarray), optional
+        (grid, half-width) of the shipped model's residual-drift band
+        (:mod:`thermonet.scoring.band`), shaded ± about zero (the residuals are drawn
+        offset-free, as the band is).
 
     Returns
     -------
     Path
         The file written.
     """
-    return _save(residual_vs_temperature_figure(
+    fig = residual_vs_temperature_figure(
         temperature_c=temperature_c, raw_error=raw_error, compensated=compensated, axis=axis,
         units=units, chosen=chosen, baseline=baseline, colours=colours, bin_width=bin_width,
-        x_label=x_label), path)
+        x_label=x_label)
+    if band is not None and fig.axes:
+        ax = fig.axes[0]
+        grid, half = (np.asarray(v, dtype=np.float64) for v in band)
+        ax.fill_between(grid, -half, half, color="0.5", alpha=0.15, linewidth=0,
+                        label="residual-drift band (shipped model)", zorder=0)
+        ax.legend(loc="best", fontsize="small")
+    return _save(fig, path)
 
 
 def plot_allan(path: str | Path, *, rate_hz: float, raw_error: np.ndarray,

@@ -192,6 +192,36 @@ def _per_axis_table(res: dict[str, Any]) -> str:
             "<table><tr><th>axis</th><th>model</th><th>rule</th></tr>" + rows + "</table>")
 
 
+def _band_table(res: dict[str, Any]) -> str:
+    """The shipped model's residual-drift band per axis (thermonet.scoring.band)."""
+    band = res.get("band") or {}
+    if band.get("status") != "ok":
+        note = ((res.get("families") or {}).get(res.get("chosen") or "", {}).get("band")
+                or {}).get("reason")
+        return f"<p class='none'>no band{': ' + _e(note) if note else ''}</p>"
+    units = res.get("units") or {}
+    disp = band.get("display") or {}
+    filt = band.get("filter") or {}
+    rows = []
+    for a, t in band["axes"].items():
+        bins = ", ".join(f"[{_num(lo)}, {_num(hi)}]: {_num(h)}" for lo, hi, h in
+                         zip(t["edges"][:-1], t["edges"][1:], t["half_width"], strict=True))
+        d = disp.get(a)
+        shown = (", ".join(_num(h) for h in d["half_width"]) + f" {_e(d['unit'])}") if d else "-"
+        f = filt.get(a) or {}
+        rows.append(f"<tr><td>{_e(a)}</td><td>{_e(units.get(a, ''))}</td><td>{_e(bins)}</td>"
+                    f"<td>{shown}</td><td>{_num(t['growth_below'])} / "
+                    f"{_num(t['growth_above'])}</td><td>{_num(f.get('bound'))}</td>"
+                    f"<td>{_num(f.get('rate'))}</td></tr>")
+    return (f"<p class='small'>{_e(band.get('meaning', ''))}. From the out-of-fold residuals "
+            f"of the folds that chose {_e(band.get('model', ''))}; a function of "
+            f"{_e(band.get('signal', ''))}, per bin the conformal quantile, growing linearly "
+            "past the trained range (configs/README.md, 'The residual-drift band').</p>"
+            "<table><tr><th>axis</th><th>unit</th><th>bin: half-width</th><th>half-width "
+            "(°/h or mg)</th><th>growth below / above (per signal unit)</th><th>bias bound"
+            "</th><th>bias rate</th></tr>" + "".join(rows) + "</table>")
+
+
 def tuned_text(tuned: dict[str, Any]) -> str:
     """A family's tuned hyper-parameters in one line: ``degree=2 (of degree=1 0.061,
     degree=2 0.0034, …)``; "" when it chose none."""
@@ -329,6 +359,8 @@ def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
         "where cross-validation could not run).</p>",
         _verdict_table(results),
         "<h2>Scores and offsets (test data)</h2>", _scores_table(results),
+        "<h2>How wrong the corrected output stays: the residual-drift band</h2>",
+        _band_table(results),
         "<h2>Data</h2>", _data_table(results),
     ]
     if plots:

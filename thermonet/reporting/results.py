@@ -162,6 +162,7 @@ class FamilyResult:
     folds: list[dict[str, dict[str, float]]] | None = None
     tuned: dict[str, Any] = field(default_factory=dict)   # what the family chose itself
     cost: dict[str, int | None] | None = None             # Family.cost(): per sample on board
+    band: dict[str, Any] | None = None   # the residual-drift band (thermonet.scoring.band)
 
     @property
     def ok(self) -> bool:
@@ -183,6 +184,8 @@ class FamilyResult:
                  axes={a: r.to_json() for a, r in self.axes.items()})
         if self.folds is not None:
             d["folds"] = self.folds
+        if self.band is not None:
+            d["band"] = self.band
         return d
 
 

@@ -436,6 +436,12 @@ def _check_payload(path: Path, p: dict, prefix: str = "") -> None:
         check_units(extra["signal_units"], SIGNAL, at("extra.signal_units"))
     if extra.get("val_score") is not None:
         _number(extra["val_score"], at("extra.val_score"))
+    if "band" in extra:
+        from ..scoring.band import band_problem
+
+        why = band_problem(extra["band"])
+        if why:
+            raise InputError(f"{at('extra.band')}: {why}")
     metrics = extra.get("test_metrics", {})
     if not isinstance(metrics, dict):
         raise InputError(f"{at('extra.test_metrics')}: expected a mapping axis -> metrics")

@@ -135,6 +135,31 @@ class SelectionConfig:
 
 
 @dataclass
+class BandConfig:
+    """The residual-drift band per axis (:mod:`thermonet.scoring.band`), from the shipped
+    model's out-of-fold residuals.
+
+    ``level``: nominal coverage strictly between 0 and 1; ``None`` (default) is 0.9 where the
+    selection has cross-validation folds and no band otherwise — a level given asks for the
+    band and is refused without folds.  ``bins``: temperature bins over the trained range
+    before merging (each bin needs enough windows for its conformal quantile).
+    """
+
+    level: float | None = None
+    bins: int = 4
+
+    def __post_init__(self) -> None:
+        if self.level is not None:
+            from ..scoring.band import check_level
+
+            check_level(self.level)
+        if isinstance(self.bins, bool) or not isinstance(self.bins, int) or \
+                not 1 <= self.bins <= 50:
+            raise ConfigError(f"key 'band.bins': must be an integer from 1 to 50, got "
+                              f"{self.bins!r}")
+
+
+@dataclass
 class FeatureConfig:
     """The one feature layer shared by every family."""
 
@@ -238,6 +263,7 @@ class CompareConfig:
     data: DataConfig = field(default_factory=DataConfig)
     split: SplitConfig = field(default_factory=SplitConfig)
     selection: SelectionConfig = field(default_factory=SelectionConfig)
+    band: BandConfig = field(default_factory=BandConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
     families: list[FamilyConfig] = field(default_factory=_default_families)
     train: TrainConfig = field(default_factory=TrainConfig)
@@ -338,6 +364,10 @@ def config_from_mapping(data: Any, *, source: str = "config") -> CompareConfig:
     if cfg.selection.per_axis and len(cfg.families) < 2:
         raise ConfigError(f"{p}: key 'selection.per_axis': a per-axis choice needs two or more "
                           f"families to choose from (families: {', '.join(labels)})")
+    if cfg.band.level is not None and cfg.selection.folds == 0:
+        raise ConfigError(f"{p}: key 'band.level': the band is estimated from out-of-fold "
+                          "residuals, and selection.folds is 0 (none); set selection.folds "
+                          ">= 2 or remove band.level")
     _check_data(cfg.data, p)
     _check_target(cfg.target, p)
     if cfg.model == "sensor" and cfg.target != "drift":

@@ -251,6 +251,11 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
     summary: dict[str, Any] = {"dir": str(final or out), "chosen": res.get("chosen"),
                                "chosen_reason": res.get("chosen_reason"), "firmware_family": fw,
                                "families": {}}
+    # the firmware form's residual-drift band (thermonet.scoring.band): the EKF
+    # recommendation written beside the parameter file
+    band = (fams.get(fw) or {}).get("band") or {}
+    if band.get("status") == "ok":
+        summary["band"] = {"units": dict(res.get("units") or {}), **band}
     for label, fr in fams.items():
         if fr.get("status") != "ok":
             summary["families"][label] = {"status": fr.get("status"), "reason": fr.get("reason")}
@@ -344,6 +349,31 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
         doc = _calibrate_into(logs, stage.path, out, compare=compare, mags=mags)
         stage.done()
     return doc
+
+
+#: The EKF noise recommendation written beside the parameter file (never loaded by it).
+EKF_FILE = "ekf-recommendation.txt"
+
+
+def _ekf_text(autopilot: str, fitted: list[InstanceResult], params_name: str) -> str:
+    """Per fitted gyro and accelerometer, the EKF bias-noise settings its firmware form's
+    residual-drift band suggests (:func:`thermonet.exporting.autopilot.ekf_recommendation`);
+    "" where no instance has a band."""
+    from ..exporting.autopilot import ekf_recommendation
+    from ..scoring.band import shipped_band
+
+    lines: list[str] = []
+    for r in fitted:
+        band = (r.summary.get("compare") or {}).get("band")
+        doc = shipped_band({"band": band}) if isinstance(band, dict) else None
+        rec = ekf_recommendation(doc, band.get("units", {}), autopilot) if doc and band else []
+        if rec:
+            lines += [f"# {r.name} (id {r.device_id})", *rec[1:]]
+    if not lines:
+        return ""
+    return "\n".join([f"# thermonet {__version__}: EKF settings the residual drift after "
+                      f"{params_name} suggests (not a parameter file: copy by hand)",
+                      *lines]) + "\n"
 
 
 def _lend_and_lag(logs: list[FlightLog], choice: Mapping[str, str] | None
@@ -654,6 +684,9 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
     text, fname = _params_text(log, fitted, header)
     param_path = stage / fname
     atomic_write_text(param_path, text)
+    ekf = _ekf_text(log.autopilot, fitted, fname)
+    if ekf:
+        atomic_write_text(stage / EKF_FILE, ekf)
     checked = evaluate(read_param_file(param_path), log)
     by_inst = {i.name: i for i in log.instances}
     for r in fitted:

@@ -43,6 +43,7 @@ from ..training.config import (
 from ..training.parts import (
     data_hash,
 )
+from .compare_band import family_band, per_axis_band
 from .compare_fit import FitQueue, Progress, family_workers
 from .compare_judge import PER_AXIS, Fitted, choose_and_judge, extrapolation
 from .compare_plan import PartCache, data_summary, plan
@@ -171,6 +172,8 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                     tracker.log_metrics({"val/score": r.val_score,
                                          "fit_seconds": r.fit_seconds})
                     ckpt = out / "models" / f"{fam.label}.pt"
+                    band = family_band(p, f, mask)
+                    r.band = band
                     try:
                         # the checkpoint's family config holds the tuned values as params
                         chosen_point = {k: r.tuned[k] for k in fam.tune if k in r.tuned}
@@ -190,7 +193,9 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                                                "provenance": provenance,
                                                "tuned": {k: v for k, v in r.tuned.items()
                                                          if k != "tuning"},
-                                               **_sealed(f.parameters)})
+                                               **_sealed(f.parameters),
+                                               **({"band": band} if band.get("status") == "ok"
+                                                  else {})})
                         r.checkpoint = str(ckpt)
                         tracker.log_artifact(ckpt, "model")
                     except ThermonetError as err:  # a NaN model is never saved
@@ -217,13 +222,17 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
             choose_and_judge(fitted, result, p)
         if result.chosen == PER_AXIS:
             with stage("write the per-axis model"):
-                _save_per_axis(out, fitted, result, cfg, resolved, provenance, units, tracker)
+                _save_per_axis(out, fitted, result, p, resolved, provenance, units, tracker)
         # the out-of-fold scores the choice rests on, in the comparison's own run
         tracker.log_metrics({f"cv/{k}/score": c["score"] for k, c in
                              result.selection.get("candidates", {}).items() if "score" in c})
         extrapolation(fitted, result)
         doc = result.to_json()
         doc["provenance"] = provenance
+        shipped_band = (doc["families"].get(result.chosen) or {}).get("band") \
+            if result.chosen else None
+        if shipped_band is not None:
+            doc["band"] = {"model": result.chosen, **shipped_band}
         shipped = doc["families"].get(PER_AXIS) if result.chosen == PER_AXIS else None
         if shipped and shipped.get("checkpoint"):
             # what `thermonet export DIR` reads (thermonet.exporting.source): the composite's
@@ -297,7 +306,7 @@ def _per_axis_parameters(model: Any, fitted: dict[str, Fitted], labels: list[str
 
 
 def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResult,
-                   cfg: CompareConfig, resolved: dict[str, Any], provenance: dict[str, Any],
+                   p: Any, resolved: dict[str, Any], provenance: dict[str, Any],
                    units: dict[str, str], tracker: Any) -> None:
     """``models/per-axis.pt``: the candidates the axes chose, one model
     (:class:`thermonet.models.composite.AxisModels`), sealed like every checkpoint."""
@@ -306,6 +315,7 @@ def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResul
     from ..models.composite import AxisModels
     from ..training.checkpoint import save_checkpoint
 
+    cfg = p.cfg
     owners: dict[str, str | None] = result.selection["per_axis"]["chosen"]
     labels: list[str] = result.selection["per_axis"]["candidates"]
     outputs = list(owners)
@@ -314,6 +324,7 @@ def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResul
                        labels)
     r = result.families[PER_AXIS]
     ckpt = out / "models" / f"{PER_AXIS}.pt"
+    r.band = per_axis_band(p, fitted, owners, model)
     fams = {f.label: f for f in cfg.families}
     try:
         save_checkpoint(ckpt, model, config={
@@ -326,7 +337,8 @@ def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResul
                    "units": units, "axes": dict(owners),
                    "compensate": {a: owners[a] is not None for a in outputs},
                    "test_metrics": r.to_json()["axes"], "provenance": provenance,
-                   **_sealed(_per_axis_parameters(model, fitted, labels, units))})
+                   **_sealed(_per_axis_parameters(model, fitted, labels, units)),
+                   **({"band": r.band} if r.band.get("status") == "ok" else {})})
         r.checkpoint = str(ckpt)
         tracker.log_artifact(ckpt, "model")
     except ThermonetError as err:   # a NaN model is never saved
@@ -374,7 +386,9 @@ def _plots(out: Path, fitted: dict[str, Fitted], results: dict[str, Any],
             paths.append(plot_residual_vs_temperature(
                 pdir / f"residual_vs_temperature_{safe}.png", temperature_c=part.bin_by,
                 raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit,
-                bin_width=part.bin_width, x_label=x_label, **style))
+                bin_width=part.bin_width, x_label=x_label, band=_band_curve(results, axis,
+                                                                           part.bin_by),
+                **style))
             paths.append(plot_allan(pdir / f"allan_{safe}.png", rate_hz=part.rate_hz,
                                     raw_error=part.target[:, j], compensated=resid,
                                     axis=axis, units=unit, **style))
@@ -384,6 +398,24 @@ def _plots(out: Path, fitted: dict[str, Fitted], results: dict[str, Any],
     if any(c is not None for c, _ in points.values()):
         paths.append(plot_accuracy_cost(pdir / "accuracy_vs_cost.png", points, **style))
     return paths
+
+
+def _band_curve(results: dict[str, Any], axis: str, x: Any) -> Any:
+    """(grid, half-width) of the shipped model's band on ``axis`` over ``x``'s range, or None
+    (no band, or a band over another signal than the plot's x)."""
+    import numpy as np
+
+    from ..features.inputs import TEMPERATURE
+    from ..scoring.band import evaluate_tables
+
+    band = results.get("band") or {}
+    t = (band.get("axes") or {}).get(axis)
+    xs = np.asarray(x, dtype=np.float64)
+    if t is None or band.get("signal") != TEMPERATURE or not np.isfinite(xs).any():
+        return None
+    grid = np.linspace(float(np.nanmin(xs)), float(np.nanmax(xs)), 400)
+    return grid, evaluate_tables(grid, t["edges"], t["half_width"], t["growth_below"],
+                                 t["growth_above"])
 
 
 _METRIC_COLS = ("pp_raw", "pp_comp", "drift_error_rms", "ppm_per_c_raw", "ppm_per_c_comp")

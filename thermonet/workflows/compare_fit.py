@@ -285,6 +285,7 @@ def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: An
     out.oof = oof
     out.pool_targets = [q.target for q in whole]
     out.pool_times = [q.time_s for q in whole]
+    out.pool_signals = {s: [q.signals[:, i] for q in whole] for i, s in enumerate(spec.signals)}
     if TEMPERATURE in spec.signals:
         col = spec.signals.index(TEMPERATURE)
         out.pool_temps = [q.signals[:, col] for q in whole]

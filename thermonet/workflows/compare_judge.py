@@ -52,6 +52,8 @@ class Fitted:
     train_parts: list[Part] = field(default_factory=list)  # what the kept model was fitted on
     n_select: int = 0   # the kept model's structural parameter count: what ties prefer fewer of
     parameters: Any = None   # (table, covariance) of the kept model (thermonet.api.parameters)
+    #: every signal the family reads, per pool run (the band's signal: thermonet.scoring.band)
+    pool_signals: dict[str, list[np.ndarray]] = field(default_factory=dict)
 
 
 _DRAWS: dict[int, np.ndarray] = {}

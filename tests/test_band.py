@@ -1,0 +1,397 @@
+"""The residual-drift band (:mod:`thermonet.scoring.band`): its finite-sample rule, its
+coverage on simulated data with a known drift law, the refusals, and the same band through
+results.json, the checkpoint, DriftEstimator, ONNX + the runtime (batch and step), the C
+header and the autopilot files' EKF recommendation."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from conftest import load_runtime
+from thermonet.core.errors import ConfigError, ThermonetError
+from thermonet.scoring.band import (
+    Band,
+    band_from_oof,
+    band_problem,
+    conformal_quantile,
+    evaluate_tables,
+    min_windows,
+)
+from thermonet.scoring.selection import CandidateOOF, plan_folds
+from tolerances import assert_f32_close, assert_f64_close
+
+pytestmark = pytest.mark.numerics
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+# ------------------------------------------------------------------- the finite-sample rule
+def test_min_windows_is_the_smallest_n_with_a_finite_quantile():
+    # ⌈(n + 1)·level⌉ ≤ n: n ≥ level / (1 − level)
+    assert min_windows(0.9) == 9
+    assert min_windows(0.95) == 19
+    assert min_windows(0.5) == 1
+    assert min_windows(0.8) == 4
+
+
+def test_conformal_quantile_is_the_rank_ceil_n_plus_1_level():
+    s = np.arange(1.0, 10.0)[::-1]          # 9 scores 9..1
+    assert conformal_quantile(s, 0.9) == 9.0          # ⌈10·0.9⌉ = 9th smallest
+    assert conformal_quantile(np.arange(1.0, 20.0), 0.9) == 18.0  # ⌈20·0.9⌉ = 18
+    assert math.isinf(conformal_quantile(np.arange(1.0, 9.0), 0.9))  # 8 < 9 windows
+
+
+def test_evaluate_tables_piecewise_and_linear_past_the_edges():
+    e, h = [0.0, 10.0, 20.0], [1.0, 2.0]
+    x = np.array([-5.0, 0.0, 9.99, 10.0, 20.0, 25.0, np.nan])
+    got = evaluate_tables(x, e, h, 0.1, 0.3)
+    want = np.array([1.0 + 0.5, 1.0, 1.0, 2.0, 2.0, 2.0 + 1.5, np.nan])
+    assert_f64_close(got[:-1], want[:-1])
+    assert np.isnan(got[-1])
+
+
+# ------------------------------------------------- coverage on a known law (no compare run)
+LAW = 2e-5          # drift y = LAW·(T − 30)³, output units
+T_LO, T_HI = 0.0, 60.0
+
+
+def _sigma(t: np.ndarray) -> np.ndarray:
+    """Per-sample noise of the residual: grows from 0.01 to 0.03 over the range."""
+    return 0.01 * (1.0 + 2.0 * (t - T_LO) / (T_HI - T_LO))
+
+
+def _run(seed: int, span_s: float = 24000.0) -> SimpleNamespace:
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, span_s, 1.0)
+    temp = T_LO + (T_HI - T_LO) * t / t[-1]
+    y = LAW * (temp - 30.0) ** 3 + rng.normal(0.0, _sigma(temp))
+    return SimpleNamespace(time_s=t, effective_rate_hz=1.0, temp=temp, y=y[:, None])
+
+
+def _pool_band(run: SimpleNamespace, level: float = 0.9) -> Band:
+    """The band of the exact law (a perfect model) from a one-run pool's 5 × 8 blocks."""
+    plan = plan_folds([(run, np.ones(run.time_s.size, bool))], folds=5, blocks_per_fold=8,
+                      tau_s=0.0, window_s=60.0)
+    assert plan is not None
+    oof = CandidateOOF("law", 1)
+    truth = LAW * (run.temp - 30.0) ** 3
+    for f in range(plan.k):
+        rows = np.flatnonzero(plan.fold_of[0] == f)
+        oof.pred.append([truth[rows][:, None]])
+        oof.inside.append([np.ones(rows.size, bool)])
+    return band_from_oof(plan=plan, targets=[run.y], times=[run.time_s], temps=[run.temp],
+                         oofs=[oof], compensate=[True], ranges=[(T_LO, T_HI)],
+                         outputs=["gyro_x"], level=level, bins=4, units={"gyro_x": "deg/s"})
+
+
+@pytest.fixture(scope="module")
+def known() -> tuple[SimpleNamespace, Band]:
+    run = _run(0)
+    return run, _pool_band(run)
+
+
+def test_band_matches_the_known_noise_quantile(known):
+    """Per bin the half-width is the 90 % quantile of |window mean| of N(0, σ(T)²)/60:
+    1.645 σ(T_mid)/√60 (the bin's σ varies by ±17 % across it, the quantile of ~80 windows
+    scatters by ~15 %: 30 % is the statistical tolerance)."""
+    _, band = known
+    b = band.axes["gyro_x"]
+    assert len(b.half) == 4 and b.n == [100, 100, 100, 100]
+    mids = (np.asarray(b.edges[:-1]) + np.asarray(b.edges[1:])) / 2
+    want = 1.6449 * _sigma(mids) / math.sqrt(60.0)
+    np.testing.assert_allclose(b.half, want, rtol=0.30)
+
+
+def test_band_covers_ninety_percent_of_a_fresh_run(known):
+    """A fresh run of the same law: the fraction of its window means (about the run's mean)
+    inside the band is 0.9 within the binomial scatter of 400 windows (±3 SE = ±0.045)."""
+    _, band = known
+    fresh = _run(1)
+    n = fresh.time_s.size // 60 * 60
+    resid = (fresh.y[:n, 0] - LAW * (fresh.temp[:n] - 30.0) ** 3).reshape(-1, 60).mean(1)
+    tw = fresh.temp[:n].reshape(-1, 60).mean(1)
+    covered = np.abs(resid - resid.mean()) <= band.evaluate(tw)[:, 0]
+    assert 0.855 <= covered.mean() <= 0.945
+
+
+def test_growth_past_the_edge_is_the_raw_slope_at_the_edge(known):
+    """A model holds its edge value past the trained range: the error grows at the drift's
+    own slope there — the derivative at the edge of a quadratic least-squares fit of
+    LAW·(T − 30)³ over the edge bin, plus its standard error (the noise: within 10 %) — or
+    faster where the folds that extrapolate say so (then the rule says which)."""
+    _, band = known
+    b = band.axes["gyro_x"]
+    for lo, hi, edge, got in ((b.edges[0], b.edges[1], b.edges[0], b.grow_lo),
+                              (b.edges[-2], b.edges[-1], b.edges[-1], b.grow_hi)):
+        t = np.linspace(lo, hi, 1001)
+        slope = np.polyfit(t - edge, LAW * (t - 30.0) ** 3, 2)[1]
+        assert abs(slope) <= got
+        if "extrapolate" not in b.grow_rule:
+            assert got <= 1.10 * abs(slope)
+
+
+def test_band_document_round_trip_and_figures(known):
+    _, band = known
+    doc = json.loads(json.dumps(band.to_json()))
+    assert band_problem(doc) is None
+    back = Band.from_json(doc)
+    x = np.linspace(-10.0, 70.0, 33)
+    np.testing.assert_array_equal(back.evaluate(x), band.evaluate(x))  # values copied
+    # the display figures: deg/s → deg/h is × 3600
+    assert_f64_close(doc["display"]["gyro_x"]["half_width"],
+                     np.asarray(band.axes["gyro_x"].half) * 3600.0)
+    # the temperature rate: 60 °C over 24000 s, window means 60 s apart
+    assert_f64_close(band.signal_rate, 60.0 / 23999.0, rtol=1e-6)
+
+
+# ---------------------------------------------------------------------------- refusals
+@pytest.mark.parametrize("level", [0, 1, 1.5, -0.1, True, "0.9", float("nan")])
+def test_a_level_outside_0_1_is_refused_naming_the_key(level):
+    from thermonet.training.config import config_from_mapping
+
+    with pytest.raises(ConfigError, match=r"band\.level"):
+        config_from_mapping({"band": {"level": level}})
+
+
+@pytest.mark.parametrize("bins", [0, 51, True, 2.5])
+def test_bins_outside_1_50_are_refused_naming_the_key(bins):
+    from thermonet.training.config import config_from_mapping
+
+    with pytest.raises(ConfigError, match=r"band\.bins"):
+        config_from_mapping({"band": {"bins": bins}})
+
+
+def test_a_band_without_folds_is_refused_naming_both_keys():
+    from thermonet.training.config import config_from_mapping
+
+    with pytest.raises(ConfigError, match=r"band\.level.*selection\.folds is 0"):
+        config_from_mapping({"band": {"level": 0.9}, "selection": {"folds": 0}})
+    # without band.level the default is quiet: no folds, no band
+    config_from_mapping({"selection": {"folds": 0}})
+
+
+def test_too_few_windows_says_how_many_are_needed():
+    run = _run(0, span_s=2400.0)        # 40 windows of 60 s, ~8 per fold
+    with pytest.raises(ConfigError, match=r"band\.level.*0\.95 needs at least 19"):
+        _tiny_band(run, 0.95)
+
+
+def _tiny_band(run: SimpleNamespace, level: float) -> Band:
+    plan = plan_folds([(run, np.ones(run.time_s.size, bool))], folds=5, blocks_per_fold=8,
+                      tau_s=0.0, window_s=60.0)
+    assert plan is not None
+    oof = CandidateOOF("law", 1)
+    for f in range(plan.k):
+        rows = np.flatnonzero(plan.fold_of[0] == f)
+        oof.pred.append([np.zeros((rows.size, 1))])
+        # only fold 0's rows count as inside the trained domain: 8 blocks, fewer than 19
+        oof.inside.append([np.full(rows.size, f == 0)])
+    return band_from_oof(plan=plan, targets=[run.y], times=[run.time_s], temps=[run.temp],
+                         oofs=[oof], compensate=[True], ranges=[(T_LO, T_HI)],
+                         outputs=["gyro_x"], level=level)
+
+
+def test_a_damaged_band_document_is_named():
+    good = {"level": 0.9, "signal": "temperature_c", "window_s": 60.0,
+            "axes": {"gyro_x": {"edges": [0.0, 1.0], "half_width": [0.1],
+                                "growth_below": 0.0, "growth_above": 0.0}}}
+    assert band_problem(good) is None
+    assert "edges must increase" in band_problem(
+        {**good, "axes": {"gyro_x": {**good["axes"]["gyro_x"], "edges": [1.0, 0.0]}}})
+    assert "growth_above" in band_problem(
+        {**good, "axes": {"gyro_x": {**good["axes"]["gyro_x"], "growth_above": -1.0}}})
+    assert "band.level" in band_problem({**good, "level": 2.0})
+
+
+# ------------------------------------------------- through compare, checkpoint and exports
+@pytest.fixture(scope="module")
+def compared(tmp_path_factory):
+    """consumer-imu (two runs at 0.2 Hz): a per-axis model with dynamic inputs."""
+    from thermonet.sim import simulate
+    from thermonet.training.config import load_config
+    from thermonet.workflows.compare import run_compare
+
+    ds = simulate("consumer-imu", runs=2, seed=0, sample_rate_hz=0.2)
+    out = tmp_path_factory.mktemp("band") / "out"
+    res = run_compare(load_config(ROOT / "configs" / "consumer-imu.yaml"), out, dataset=ds,
+                      track=False, quiet=True, plots=False)
+    return res, ds, out
+
+
+@pytest.mark.slow   # a whole comparison
+def test_results_and_checkpoint_carry_the_shipped_models_band(compared):
+    from thermonet.api.estimator import DriftEstimator
+
+    res, ds, out = compared
+    chosen = res["chosen"]
+    assert res["band"]["model"] == chosen and res["band"]["status"] == "ok"
+    assert list(res["band"]["axes"]) == list(res["units"])
+    est = DriftEstimator.load(res["families"][chosen]["checkpoint"])
+    assert est.band_ is not None
+    on_disk = json.loads((out / "results.json").read_text())
+    assert on_disk["band"]["axes"] == est.band_.to_json()["axes"]   # copied, not computed
+    drift, band = est.predict(ds[0], return_band=True)
+    np.testing.assert_array_equal(drift, est.predict(ds[0]))       # the same computation
+    assert band.shape == drift.shape and np.isfinite(band).all() and (band > 0).all()
+    # re-saved and loaded: the band stays
+    again = DriftEstimator.load(est.save(out.parent / "again.pt"))
+    x = np.linspace(-30.0, 90.0, 25)
+    np.testing.assert_array_equal(again.band_.evaluate(x), est.band_.evaluate(x))
+
+
+@pytest.mark.slow   # a whole comparison
+def test_per_axis_band_is_each_owners_own(compared):
+    """Each axis of the per-axis model carries the band its owner's family has on that axis
+    (same out-of-fold residuals, same mask) — or the raw drift's band on an axis left raw."""
+    res, _, _ = compared
+    if res["chosen"] != "per-axis":
+        pytest.skip("this device shipped one family")
+    owners = res["per_axis"]["axes"]
+    for axis, owner in owners.items():
+        if owner is None:
+            continue
+        own = res["families"][owner]["band"]["axes"][axis]
+        shipped = res["band"]["axes"][axis]
+        assert shipped["half_width"] == own["half_width"] or \
+            shipped["edges"] != own["edges"]   # the composite's narrower trained range
+
+
+@pytest.mark.slow   # a whole comparison
+def test_band_parity_onnx_runtime_step_and_c(compared, tmp_path):
+    from thermonet.api.estimator import DriftEstimator
+    from thermonet.exporting.c_band import BAND_DRIVER
+    from thermonet.exporting.c_driver import c_compiler, run_c_driver
+
+    res, ds, _ = compared
+    est = DriftEstimator.load(res["families"][res["chosen"]]["checkpoint"])
+    rt = load_runtime()
+    comp = rt.Compensator(est.export(tmp_path / "m.onnx", "onnx"))
+    rec = ds[0]
+    temp = np.asarray(rec.temperature_c, dtype=np.float64)
+    raw = np.column_stack([np.asarray(rec.outputs[a], dtype=np.float64) for a in comp.outputs])
+    got = comp.compensate(temperature_c=temp, raw=raw, time_s=np.asarray(rec.time_s)).band
+    # the runtime reads temperature as float32, as the graph does: the same tables there
+    want = est.band_.evaluate(temp.astype(np.float32).astype(np.float64))
+    assert_f64_close(got, want)
+    comp.reset()
+    one = comp.step(float(rec.time_s[0]), float(temp[0]), raw[0]).band
+    assert_f64_close(one, want[0])
+    x = np.array([-40.0, 0.0, 25.0, 150.0])
+    assert_f64_close(comp.band(x), est.band_.evaluate(x))
+    # the C header: its own tables (float32) and <prefix>_band
+    header = est.export(tmp_path / "m.h", "c").read_text()
+    assert "thermonet_band_bias_bound" in header and "THERMONET_BAND_LEVEL" in header
+    cc = c_compiler()
+    if cc is None:
+        pytest.skip("no C compiler")
+    pts = np.concatenate([np.linspace(-40.0, 120.0, 97), [np.nan]]).astype(np.float32)
+    rows = np.zeros(pts.size, dtype=[("x", np.float32)])
+    rows["x"] = pts
+    c_out = run_c_driver(cc, header, BAND_DRIVER, rows,
+                         [("b", np.float32, len(comp.outputs))])["b"].astype(np.float64)
+    py = est.band_.evaluate(pts.astype(np.float64))
+    assert np.isnan(c_out[-1]).all()
+    # float32 tables and arithmetic, one multiply-add: the affine depth; away from the bin
+    # edges (an edge rounded to float32 may move a point one bin)
+    edges = np.concatenate([b.edges for b in est.band_.axes.values()])
+    away = np.min(np.abs(pts[:-1, None] - edges[None, :]), axis=1) > 1e-3
+    assert_f32_close(c_out[:-1][away], py[:-1][away], "affine")
+
+
+@pytest.mark.slow   # a whole comparison
+def test_ekf_recommendation_from_the_band(compared):
+    from thermonet.exporting.autopilot import ekf_recommendation
+    from thermonet.scoring.band import shipped_band
+
+    res, _, _ = compared
+    doc = shipped_band({"band": res["band"]})
+    lines = ekf_recommendation(doc, res["units"], "px4")
+    text = "\n".join(lines)
+    assert all(line.startswith("#") for line in lines)
+    assert "EKF2_GYR_B_NOISE" in text and "EKF2_ACC_B_NOISE" in text and "v1.14" in text
+    # the gyro value: max over gyro axes of rate (unit/°C) × SI factor × °C/s
+    band = Band.from_json(doc)
+    nums = band.filter_numbers()
+    si = {"deg/s": math.pi / 180.0, "rad/s": 1.0}
+    want = max(nums[a]["rate"] * si[res["units"][a]] * band.signal_rate
+               for a in nums if a.startswith("gyro"))
+    line = next(x for x in lines if "EKF2_GYR_B_NOISE" in x)
+    assert_f64_close(float(line.split(">=")[1].split()[0]), want, rtol=1e-8)  # 9 digits
+    ap = "\n".join(ekf_recommendation(doc, res["units"], "ardupilot"))
+    assert "EK3_GBIAS_P_NSE" in ap and "EK3_ABIAS_P_NSE" in ap
+
+
+def test_predict_band_refused_without_one():
+    from conftest import toy_dataset
+    from thermonet.api.estimator import DriftEstimator
+
+    ds = toy_dataset(n_runs=2)
+    est = DriftEstimator("poly", ["dT"], degree=1).fit(ds)
+    with pytest.raises(ThermonetError, match="carries no band"):
+        est.predict(ds, return_band=True)
+
+
+@pytest.mark.slow   # a whole comparison
+def test_calibrate_writes_the_ekf_recommendation_beside_the_parameter_file(tmp_path):
+    """A simulated PX4 board (gyro and accelerometer): ``ekf-recommendation.txt`` beside
+    ``px4.params`` holds per instance the bias noise = the firmware form's band rate × the
+    training's temperature rate (rad/s and m/s² already: SI factor 1), never a parameter
+    line the loader would read."""
+    from thermonet.data.logs.writers import write_log
+    from thermonet.exporting import read_px4_params
+    from thermonet.sim.fcboard import simulate_board
+    from thermonet.workflows.calibrate import EKF_FILE, calibrate
+
+    board = simulate_board("fc-board", autopilot="px4", seed=3, rate_hz=0.5)
+    board.instances = [i for i in board.instances if i.name in ("gyro0", "acc0")]
+    doc = calibrate(write_log(board, tmp_path / "b.ulg"), tmp_path / "cal")
+    text = (tmp_path / "cal" / EKF_FILE).read_text()
+    assert all(line.startswith("#") for line in text.splitlines())
+    assert not any(k.startswith("EKF2") for k in read_px4_params(tmp_path / "cal" / "px4.params"))
+    for name, param in (("gyro0", "EKF2_GYR_B_NOISE"), ("acc0", "EKF2_ACC_B_NOISE")):
+        band = Band.from_json(doc["instances"][name]["compare"]["band"])
+        want = max(v["rate"] for v in band.filter_numbers().values()) * band.signal_rate
+        block = text[text.index(f"# {name} "):]
+        line = next(x for x in block.splitlines() if param in x)
+        assert_f64_close(float(line.split(">=")[1].split()[0]), want, rtol=1e-8)  # 9 digits
+
+
+@pytest.mark.slow   # a whole comparison
+def test_a_damaged_band_is_refused_by_the_checkpoint_and_the_runtime(compared, tmp_path):
+    """A band edited after the fact (level 2) is named in one line: by ``load_checkpoint``
+    (the checkpoint re-sealed, so only the band is wrong) and by the runtime (the ONNX file
+    re-sealed likewise)."""
+    import onnx
+
+    from thermonet.core.errors import InputError
+    from thermonet.exporting.onnx_export import seal_onnx
+    from thermonet.training.checkpoint import load_checkpoint, save_checkpoint
+
+    res, _, _ = compared
+    model, meta = load_checkpoint(res["families"][res["chosen"]]["checkpoint"])
+    extra = dict(meta["extra"])
+    extra["band"] = {**extra["band"], "level": 2.0}
+    path = save_checkpoint(tmp_path / "bad.pt", model, config=meta["config"], extra=extra)
+    with pytest.raises(InputError, match=r"extra\.band.*band\.level"):
+        load_checkpoint(path)
+    from thermonet.api.estimator import DriftEstimator
+
+    est = DriftEstimator.load(res["families"][res["chosen"]]["checkpoint"])
+    onnx_path = est.export(tmp_path / "m.onnx", "onnx")
+    proto = onnx.load(str(onnx_path))
+    for p in proto.metadata_props:
+        if p.key == "band":
+            doc = json.loads(p.value)
+            doc["level"] = 2.0
+            p.value = json.dumps(doc)
+    onnx.save_model(proto, str(onnx_path))
+    seal_onnx(onnx_path)
+    rt = load_runtime()
+    with pytest.raises(rt.RuntimeInputError, match="metadata 'band' is not a band"):
+        rt.Compensator(onnx_path)

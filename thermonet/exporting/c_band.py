@@ -1,0 +1,192 @@
+"""The residual-drift band in the C header (:mod:`thermonet.scoring.band`): its tables as
+constants, ``<prefix>_band(x, out)`` evaluating them as :meth:`~thermonet.scoring.band.Band.
+evaluate` does (float: a bound needs no double), and the numbers a navigation filter can use —
+per axis the residual bias bound and its rate of change with the band's signal
+(``<prefix>_band_bias_bound``, ``<prefix>_band_bias_rate``; configs/README.md, "The
+residual-drift band").  :func:`check_band_c` compiles it and compares it with Python."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ExportError
+from ..core.names import c_comment
+from ..models.cgen import c_float
+from .c_driver import c_compiler, run_c_driver
+
+__all__ = ["render_band_c", "insert_band", "check_band_c", "BAND_DRIVER"]
+
+BAND_DRIVER = r"""
+#include <stdio.h>
+#include "model.h"
+/* in: int n, then n floats x; out: per x PFX_N_AXES floats, the band */
+int main(int argc, char **argv) {
+    FILE *in, *out;
+    int n, i;
+    if (argc < 3) return 2;
+    in = fopen(argv[1], "rb");
+    out = fopen(argv[2], "wb");
+    if (!in || !out || fread(&n, sizeof n, 1, in) != 1) return 3;
+    for (i = 0; i < n; ++i) {
+        float x, b[PFX_N_AXES];
+        if (fread(&x, sizeof x, 1, in) != 1) return 4;
+        pfx_band(x, b);
+        fwrite(b, sizeof(float), PFX_N_AXES, out);
+    }
+    fclose(in);
+    fclose(out);
+    return 0;
+}
+"""
+
+
+def _floats(xs: Sequence[float]) -> str:
+    return "{" + ", ".join(c_float(float(x)) for x in xs) + "}"
+
+
+def render_band_c(band: Mapping[str, Any], prefix: str, outputs: Sequence[str],
+                  signals: Sequence[str]) -> list[str]:
+    """The header lines of ``band`` (:func:`thermonet.scoring.band.shipped_band`)."""
+    from ..scoring.band import Band
+
+    b = Band.from_json(band)
+    if sorted(b.axes) != sorted(outputs) or b.signal not in signals:
+        raise ExportError(f"the band's axes {list(b.axes)} / signal {b.signal!r} do not match "
+                          f"the model's outputs {list(outputs)} / signals {list(signals)}")
+    b.axes = {a: b.axes[a] for a in outputs}      # the header's axis order
+    p, P = prefix, prefix.upper()
+    kmax = max(len(t.half) for t in b.axes.values())
+    edges = [t.edges + [t.edges[-1]] * (kmax + 1 - len(t.edges)) for t in b.axes.values()]
+    half = [t.half + [t.half[-1]] * (kmax - len(t.half)) for t in b.axes.values()]
+    nums = b.filter_numbers()
+    rows = lambda m: "{" + ", ".join(_floats(r) for r in m) + "}"  # noqa: E731
+    return [
+        f"/* Residual-drift band (thermonet.scoring.band): a {b.window_s:g} s window mean of the",
+        f" * corrected output's residual lies within +-{p}_band() of the run's mean residual for",
+        f" * {b.level:.0%} of windows on runs like the training runs (drift only: not noise, shocks,",
+        " * aging or a run's constant offset); piecewise constant over bins of the signal",
+        f" * {c_comment(b.signal)}, growing linearly past the trained range. Output units. */",
+        f"#define {P}_BAND_LEVEL {c_float(b.level)}",
+        f"#define {P}_BAND_SIGNAL_INDEX {list(signals).index(b.signal)}",
+        f"#define {P}_BAND_MAX_BINS {kmax}",
+        f"static const int {p}_band_bins[{P}_N_AXES] = "
+        + "{" + ", ".join(str(len(t.half)) for t in b.axes.values()) + "};",
+        f"static const float {p}_band_edges[{P}_N_AXES][{P}_BAND_MAX_BINS + 1] = {rows(edges)};",
+        f"static const float {p}_band_half[{P}_N_AXES][{P}_BAND_MAX_BINS] = {rows(half)};",
+        f"static const float {p}_band_grow_below[{P}_N_AXES] = "
+        f"{_floats([t.grow_lo for t in b.axes.values()])};",
+        f"static const float {p}_band_grow_above[{P}_N_AXES] = "
+        f"{_floats([t.grow_hi for t in b.axes.values()])};",
+        "/* For a navigation filter: per axis the residual bias bound (largest in-range half-width,",
+        " * output unit) and its rate of change with the signal (output unit per signal unit):",
+        " * see configs/README.md for the EKF noise settings they suggest. */",
+        f"static const float {p}_band_bias_bound[{P}_N_AXES] = "
+        f"{_floats([v['bound'] for v in nums.values()])};",
+        f"static const float {p}_band_bias_rate[{P}_N_AXES] = "
+        f"{_floats([v['rate'] for v in nums.values()])};",
+        "",
+        f"static inline void {p}_band(float x, float out[{P}_N_AXES])",
+        "{",
+        "    int a, k;",
+        "    float d;",
+        "    (void)a; (void)k; (void)d;",
+        "    if (!(x - x == 0.0f)) {   /* NaN or inf in, NaN out */",
+        f"        for (a = 0; a < {P}_N_AXES; ++a) out[a] = x - x;",
+        "        return;",
+        "    }",
+        *_group_lines(b, p),
+        "}",
+    ]
+
+
+def _group_lines(b: Any, p: str) -> list[str]:
+    """The evaluation, one bin search per group of axes that share their edges (a family's
+    axes do: the same windows), the edges as literals; then per axis one table load."""
+    groups: dict[tuple[float, ...], list[int]] = {}
+    for a, t in enumerate(b.axes.values()):
+        groups.setdefault(tuple(float(np.float32(e)) for e in t.edges), []).append(a)
+    lines: list[str] = []
+    for edges, axes in groups.items():
+        e0, en, inner = c_float(edges[0]), c_float(edges[-1]), edges[1:-1]
+        nb = len(edges) - 1
+        lines += [f"    /* axes {', '.join(str(a) for a in axes)}: {nb} bin(s) */",
+                  f"    if (x < {e0}) {{", f"        d = {e0} - x;"]
+        lines += [f"        out[{a}] = {p}_band_half[{a}][0] + {p}_band_grow_below[{a}] * d;"
+                  for a in axes]
+        lines += [f"    }} else if (x > {en}) {{", f"        d = x - {en};"]
+        lines += [f"        out[{a}] = {p}_band_half[{a}][{nb - 1}] + "
+                  f"{p}_band_grow_above[{a}] * d;" for a in axes]
+        lines += ["    } else {",
+                  "        k = " + (" + ".join(f"(x >= {c_float(e)})" for e in inner)
+                                   if inner else "0") + ";"]
+        lines += [f"        out[{a}] = {p}_band_half[{a}][k];" for a in axes]
+        lines += ["    }"]
+    return lines
+
+
+def insert_band(text: str, band: Mapping[str, Any], prefix: str, outputs: Sequence[str],
+                signals: Sequence[str]) -> str:
+    """``text`` (a header) with the band's lines before its closing include guard."""
+    end = f"#endif /* {prefix.upper()}_MODEL_H */"
+    if end not in text:
+        raise ExportError("the header has no include guard to close the band before")
+    lines = "\n".join(render_band_c(band, prefix, outputs, signals))
+    head, _, tail = text.rpartition(end)
+    return head + lines + "\n\n" + end + tail
+
+
+def _header_axes(text: str, prefix: str) -> list[str] | None:
+    """The axis names the header lists (``<PREFIX>_AXIS_NAMES``)."""
+    import re
+
+    m = re.search(rf"#define {prefix.upper()}_AXIS_NAMES \{{(.*)\}}", text)
+    return None if m is None else re.findall(r'"((?:[^"\\]|\\.)*)"', m.group(1))
+
+
+def check_band_c(band: Mapping[str, Any], text: str, prefix: str, *, seed: int = 0
+                 ) -> float | None:
+    """Compile ``text`` and compare ``<prefix>_band`` with Python's evaluation on points
+    inside, at the edges of and past every axis's bins (and NaN); returns the largest relative
+    difference (None without a C compiler).  Tolerance: float32 rounding of the tables and
+    the arithmetic (1e-5 relative)."""
+    from ..scoring.band import Band
+
+    cc = c_compiler()
+    if cc is None:
+        return None
+    b = Band.from_json(band)
+    order = _header_axes(text, prefix) or list(b.axes)
+    b.axes = {a: b.axes[a] for a in order}
+    pts = []
+    for t in b.axes.values():
+        span = t.edges[-1] - t.edges[0]
+        pts += list(t.edges) + list(np.linspace(t.edges[0] - 0.5 * span,
+                                                t.edges[-1] + 0.5 * span, 41))
+    rng = np.random.default_rng(seed)
+    lo = min(t.edges[0] for t in b.axes.values())
+    hi = max(t.edges[-1] for t in b.axes.values())
+    pts += list(rng.uniform(lo - 10, hi + 10, 64)) + [float("nan")]
+    x = np.asarray(pts, dtype=np.float32)
+    rows = np.zeros(x.size, dtype=[("x", np.float32)])
+    rows["x"] = x
+    out = run_c_driver(cc, text, BAND_DRIVER, rows, [("b", np.float32, len(b.axes))],
+                       prefix=prefix, cflags=("-O2",), header="the C header's band",
+                       driver_name="the C band driver")["b"].astype(np.float64)
+    # Python's rule on the header's float32 tables (an edge rounded to float decides a bin)
+    from ..scoring.band import evaluate_tables
+
+    f32 = lambda v: np.asarray(v, dtype=np.float32).astype(np.float64)  # noqa: E731
+    want = np.stack([evaluate_tables(x.astype(np.float64), f32(t.edges), f32(t.half),
+                                     float(f32(t.grow_lo)), float(f32(t.grow_hi)))
+                     for t in b.axes.values()], axis=1)
+    nan = np.isnan(want)
+    if not np.array_equal(nan, np.isnan(out)):
+        raise ExportError("C band: NaN where Python has a value (or the reverse)")
+    rel = np.abs(out[~nan] - want[~nan]) / np.maximum(np.abs(want[~nan]), 1e-30)
+    worst = float(rel.max()) if rel.size else 0.0
+    if worst > 1e-5:
+        raise ExportError(f"C band differs from Python by {worst:.3g} (relative)")
+    return worst
