@@ -1,4 +1,4 @@
-"""A fleet of long recordings on a local Ray (issue 23): what each worker reads and what
+"""A fleet of long recordings on a local Ray: what each worker reads and what
 crosses the network, driver-read units against one file per unit.
 
 ``U`` patent-gyro units (5 runs of 5.9 h each, 3 axes) at ``RATE`` Hz, written once as one

@@ -1,6 +1,6 @@
 """Start-up cost of the command line: what ``thermonet info`` and a config error take.
 
-Targets (issue 12): ``thermonet info`` on a small file < 1 s; a config error < 1 s.  Each
+Targets: ``thermonet info`` on a small file < 1 s; a config error < 1 s.  Each
 command is a fresh process (start-up and imports included), run ``RUNS`` times after one
 warm-up, alternating with the same command on a baseline tree (``--baseline DIR``, e.g. a
 checkout of the commit before the light-import work) so the ratio is taken pair by pair.

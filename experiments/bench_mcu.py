@@ -22,7 +22,7 @@ strict warnings) and run under the ``unicorn`` emulator (``thermonet.exporting.m
   torch's own float32 rounding where the model is more sensitive) plus the float path's
   rounding of drift = c + r (``float_path_slack``); the forced-double build is checked too.
 
-Goals (issue 27): cubic ≤ 150 instructions per evaluation for 6 axes, 16-centre RBF ≤ 1,000,
+Goals: cubic ≤ 150 instructions per evaluation for 6 axes, 16-centre RBF ≤ 1,000,
 no soft-double instruction on the M4F.
 """
 

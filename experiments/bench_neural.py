@@ -1,4 +1,4 @@
-"""Neural families beside the others: held-out error against cost on board (issue 26).
+"""Neural families beside the others: held-out error against cost on board.
 
 * **Accuracy** — one comparison (``run_compare``: the same splits, verdicts and selection
   for every family) per data set: the `patent-gyro` device through heat/cool cycles with a

@@ -1,4 +1,4 @@
-"""Recordings larger than memory (issue 23): peak memory and wall time against the number of
+"""Recordings larger than memory: peak memory and wall time against the number of
 samples, and the streaming runtime against batch.
 
 Three parts; the file parts in fresh child processes, each reporting its own peak resident

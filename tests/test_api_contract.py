@@ -1,4 +1,4 @@
-"""The researcher's API (issue 28): scikit-learn's contract checked with scikit-learn's own
+"""The researcher's API: scikit-learn's contract checked with scikit-learn's own
 tools, parameters with standard errors against independent least squares and their coverage
 over seeds, the guards, and ``thermonet.compare`` against the command line's workflow."""
 

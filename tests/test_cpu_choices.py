@@ -1,4 +1,4 @@
-"""The model that ships does not depend on the CPU (issue 20).
+"""The model that ships does not depend on the CPU.
 
 The default comparison and the realistic presets (``consumer-imu``, the noise-dominated
 ``accel-ramp``), on data small enough to run under ``qemu-x86_64 -cpu Nehalem``

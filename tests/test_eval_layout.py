@@ -1,4 +1,4 @@
-"""The evaluation layout (issue 13): for every registered family, the fast path that the ONNX
+"""The evaluation layout: for every registered family, the fast path that the ONNX
 graph and the C header run is the training-path function, propagates NaN/±inf, clamps and
 flags; the graph holds no Where/IsNaN; every family owns its C emitter with constants from
 Python.  Averaging instead of thinning, threads per fit, the O(N) Allan deviation and the

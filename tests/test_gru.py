@@ -1,4 +1,4 @@
-"""The GRU family (issue 26): thermal history from the temperature alone, the state carried in
+"""The GRU family: thermal history from the temperature alone, the state carried in
 time through torch, onnxruntime and C.
 
 The GRU learns a drift that depends on the die's lag behind the thermometer (a first-order
@@ -205,7 +205,7 @@ def test_onnx_runtime_and_c_carry_the_state_like_torch(fitted, exported):
         assert np.all(err <= rtol * scale), (who, err, scale)
         assert np.array_equal(np.asarray(fl, dtype=bool), flag), who
     np.testing.assert_array_equal(batch.compensated, raw - batch.drift)
-    # blocks (issue 23's step_block) carry the state as step does: the same numbers, for
+    # blocks (step_block) carry the state as step does: the same numbers, for
     # blocks that cut inside windows, at the gap and at the NaN
     comp.reset()
     cuts = [0, 1, 8, 57, t.size // 2, t.size - 3, t.size]

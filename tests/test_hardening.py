@@ -1,4 +1,4 @@
-"""Hostile input (issue 9): every crafted input gets its one documented behaviour.
+"""Hostile input: every crafted input gets its one documented behaviour.
 
 The corpus (:data:`CASES`) is a table ``input → exit code → message pattern →
 paths that must not exist afterwards``, run through the in-process CLI entry

@@ -1,4 +1,4 @@
-"""Hostile inputs, round three (issue 25), part A: the torch-free runtime's number parser.
+"""Hostile inputs, round three, part A: the torch-free runtime's number parser.
 
 ``export/thermonet_runtime.py`` reads a CSV cell as a CSV reader (pandas) reads a numeric
 field — a decimal number with an optional exponent, inf/infinity, and pandas' missing-value

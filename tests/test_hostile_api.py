@@ -1,4 +1,4 @@
-"""Hostile inputs, round three (issue 25), part A: the Python API (``DriftEstimator``).
+"""Hostile inputs, round three, part A: the Python API (``DriftEstimator``).
 
 A recording without a channel the model needs, a run with no samples, an empty list,
 ``None`` or a file name where recordings are meant: each is one ``ValueError`` (thermonet's

@@ -1,4 +1,4 @@
-"""Edited standalone checkpoints and absurd models (issue 25, class 5).
+"""Edited standalone checkpoints and absurd models (class 5).
 
 A checkpoint carries a SHA-256 digest over its tensors, config and metadata, verified by
 ``load_checkpoint`` (so by ``thermonet export`` and ``DriftEstimator.load``): any edit — a

@@ -1,4 +1,4 @@
-"""Damaged autopilot logs (issue 25, class 3): flipped bytes, a cut-out slice, a truncated
+"""Damaged autopilot logs (class 3): flipped bytes, a cut-out slice, a truncated
 file, random data behind a log header.  Built from the real fixture logs in tests/data/real
 (and from simulated boards written by thermonet's own writers, read back by pyulog and
 pymavlink), at fixed seeded offsets.  Each is read with what was damaged and where said,

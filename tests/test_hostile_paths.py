@@ -1,4 +1,4 @@
-"""Hostile inputs, round three (issue 25), part A: paths and output directories.
+"""Hostile inputs, round three, part A: paths and output directories.
 
 * Names read from data (device ids, instance names, channel names) never become paths as
   they are: ``thermonet.core.names.path_component`` makes each one a single safe file name, and

@@ -1,4 +1,4 @@
-"""Absurd sizes and impossible settings (issue 25, classes 4 and 8): refused before anything
+"""Absurd sizes and impossible settings (classes 4 and 8): refused before anything
 is allocated or written, in one line naming the option or key and its value."""
 
 from __future__ import annotations

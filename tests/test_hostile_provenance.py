@@ -1,4 +1,4 @@
-"""Provenance that is true (issue 25, class 10).
+"""Provenance that is true (class 10).
 
 What a comparison writes about how its models were made — ``config.resolved.yaml``,
 ``results.json`` (``config`` and ``provenance``), each checkpoint, ``report.html``, a fleet's

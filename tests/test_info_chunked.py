@@ -1,4 +1,4 @@
-"""``thermonet info`` on a thermonet Parquet file read in chunks (issue 23) equals the summary
+"""``thermonet info`` on a thermonet Parquet file read in chunks equals the summary
 of the whole file read into memory, and names a bad value by column and row as the whole-file
 reader does."""
 

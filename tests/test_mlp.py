@@ -1,4 +1,4 @@
-"""The MLP family (issue 26) and every family's cost per sample.
+"""The MLP family and every family's cost per sample.
 
 The MLP recovers a smooth law that a cubic cannot follow (out of sample), is bit-identical
 from one seed without touching the global random state, starts from the closed-form ridge

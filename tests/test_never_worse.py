@@ -1,4 +1,4 @@
-"""The model thermonet ships is never worse than the cubic on any held-out axis (issue 19).
+"""The model thermonet ships is never worse than the cubic on any held-out axis.
 
 PX4's and ArduPilot's thermal calibration ships a cubic in ΔT; thermonet's reason to exist is
 to choose better, so its choice must never be *worse* than that cubic on the test part — on

@@ -1,4 +1,4 @@
-"""Recordings larger than memory (issue 23): a thermonet Parquet file streamed in chunks and
+"""Recordings larger than memory: a thermonet Parquet file streamed in chunks and
 reduced to window means (:mod:`thermonet.features.windows`) gives the rows the whole array
 gives, and a comparison on those rows agrees with the comparison on the samples.
 

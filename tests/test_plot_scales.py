@@ -1,4 +1,4 @@
-"""Plot scales (issue 19, point 5): readable whatever the rate and length of the recording.
+"""Plot scales: readable whatever the rate and length of the recording.
 
 A 500 Hz, 200 s fast ramp whose white noise is ten times the drift, with one candidate that
 diverges: the y-scale of every time and temperature plot comes from binned means of raw, the

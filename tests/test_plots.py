@@ -139,7 +139,7 @@ def test_mismatched_lengths_name_the_series(tmp_path):
 
 
 def test_accuracy_against_cost_marks_the_front_and_the_chosen(tmp_path):
-    """Issue 26: held-out error against operations per sample, log x; the front joins the
+    """Held-out error against operations per sample, log x; the front joins the
     families nothing beats on both (here linear, cubic, rbf — not mlp: rbf is cheaper and
     better); a family without a known cost is left out; the chosen one is ringed."""
     from thermonet.reporting.plots import accuracy_cost_figure, plot_accuracy_cost

@@ -1,4 +1,4 @@
-"""The RBF's polynomial tail (issue 19 point 4): the patent's network that is at worst the cubic.
+"""The RBF's polynomial tail: the patent's network that is at worst the cubic.
 
 Independent oracles:
 

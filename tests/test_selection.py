@@ -1,4 +1,4 @@
-"""Model selection by purged, blocked cross-validation (thermonet.scoring.selection, issue 19)."""
+"""Model selection by purged, blocked cross-validation (thermonet.scoring.selection)."""
 
 from __future__ import annotations
 
@@ -80,7 +80,7 @@ def test_one_run_is_dealt_round_robin_in_short_blocks_with_a_purge():
 
 
 def test_round_robin_folds_validate_inside_the_trained_temperatures_where_slabs_do_not():
-    """Issue 19's finding: K contiguous slabs of one cycle validate far outside the trained
+    """The finding behind blocked folds: K contiguous slabs of one cycle validate far outside the trained
     range; tens of short blocks dealt round-robin do not."""
     rec = _cycle(7200)
     mask = np.ones(rec.n_samples, dtype=bool)

@@ -1,4 +1,4 @@
-"""The full sensor model (``model: sensor``, issue 22): preset, fit, metrics, refusals, export.
+"""The full sensor model (``model: sensor``): preset, fit, metrics, refusals, export.
 
 Expectations are independent of the code under test: the preset's own laws
 (:mod:`thermonet.sim.multiposition`, evaluated directly), numpy's ``linalg.solve`` as the
@@ -131,7 +131,7 @@ def test_known_laws_recovered_within_the_per_soak_scatter(fitted):
 @pytest.mark.numerics
 def test_bias_only_is_measurably_worse_and_the_done_when_targets_hold(fitted):
     """Held-out run: the sensor model's residual ≥ 5× below the bias-only model's on every
-    axis; the compensated scale-factor tempco ≤ 15 ppm/°C (issue 22's targets)."""
+    axis; the compensated scale-factor tempco ≤ 15 ppm/°C (targets)."""
     test = fitted["runs"][3]
     full, bias = fitted["full"].model, fitted["bias"].model
     comp = full.compensate(test.signals, test.raw) - test.ref
@@ -307,7 +307,7 @@ def test_checkpoint_round_trip_and_autopilot_refusal(fitted, tmp_path):
 @pytest.mark.slow
 def test_compare_with_model_sensor_end_to_end(tmp_path):
     """``thermonet compare`` on the preset: results.json carries the metrics and verdicts,
-    the chosen family meets issue 22's targets, its ONNX and bias-only exports work."""
+    the chosen family meets the sensor model's targets, its ONNX and bias-only exports work."""
     import subprocess
     import sys
 

@@ -1,4 +1,4 @@
-"""Stable choices (issue 19 point 6): the same data and config give the same choice and the
+"""Stable choices: the same data and config give the same choice and the
 same coefficients on every run; across training seeds (k-means starts, gradient-trained
 families' initial values) the choice is the same on at least 4 of 5 seeds on every realistic
 preset."""

@@ -1,4 +1,4 @@
-"""Streams in chunks (issue 23): a long recording processed block by block, the state carried
+"""Streams in chunks: a long recording processed block by block, the state carried
 across block edges, gives the whole-array result.
 
 * training's dynamic inputs (:class:`thermonet.features.dynamics.DynamicStream`) against

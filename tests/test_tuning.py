@@ -1,5 +1,5 @@
 """Hyper-parameters chosen by cross-validation on the training pool (``families[].tune``,
-issue 19: "every family tuned by inner cross-validation").
+"every family tuned by inner cross-validation").
 
 Known answers: a drift that is a quadratic in ΔT is tuned to degree 2 out of 1..5 (degree 1
 cannot follow it; 3..5 add parameters the one-standard-error rule does not pay for), and the

@@ -1,4 +1,4 @@
-"""The suite's tolerance policy: how every test compares computed floats (issue 20).
+"""The suite's tolerance policy: how every test compares computed floats.
 
 The suite passes on any x86-64 CPU — Intel with AVX-512, AMD with AVX2 and FMA, an old CPU
 without AVX — and under ``qemu-x86_64 -cpu EPYC-Rome`` / ``-cpu Nehalem`` (``make

@@ -10,7 +10,7 @@ whose methods do nothing; ``--tracking-uri`` points at a team server.
 Open the runs with ``mlflow ui --backend-store-uri sqlite:///mlflow.db`` (it
 binds to 127.0.0.1 unless given ``--host``).
 
-Robustness (issue 9):
+Robustness:
 
 * Interrupted runs: a run interrupted by SIGINT/SIGTERM (the CLI turns both
   into :class:`~thermonet.core.errors.Interrupted` / ``KeyboardInterrupt``) is

@@ -192,7 +192,7 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
         refuse_overwriting_inputs(out, [ckpt, source, Path(source) / "results.json"])
         from .sensor_export import export_sensor_source, is_sensor_checkpoint
 
-        if is_sensor_checkpoint(ckpt):  # model: sensor (issue 22): its own writer
+        if is_sensor_checkpoint(ckpt):  # model: sensor: its own writer
             return export_sensor_source(ckpt, fmt=fmt, out=out)
         model, meta = load_checkpoint(ckpt)
         named = str(ckpt) if Path(source).exists() else f"MLflow run '{source}' ({ckpt.name})"

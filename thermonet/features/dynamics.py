@@ -541,7 +541,7 @@ SETTLE_TIME_CONSTANTS = 3.0
 
 def input_set_warnings(inputs_by_family: dict[str, list[str]],
                        run_durations_s: dict[str, float]) -> list[str]:
-    """Inputs that cannot carry what they are meant to (issue 19's cross-validation warnings).
+    """Inputs that cannot carry what they are meant to (cross-validation warnings).
 
     * **The same signal twice.** ``rate_<τ>`` is ``60 · lag_<τ> / τ`` exactly (both are the
       lag error e of one EMA, :data:`module docstring <thermonet.features.dynamics>`), so a

@@ -1,4 +1,4 @@
-"""A small gated recurrent unit (issue 26): thermal history learnt from the signals alone.
+"""A small gated recurrent unit: thermal history learnt from the signals alone.
 
 One GRU layer of ``hidden`` units (default 8; 4–16 is the range meant for a
 microcontroller: 8 units, one input and one axis are 273 constants, 1,092 bytes and 344

@@ -18,7 +18,7 @@ class NormalEquations:
     :math:`G = \\sum_k D_k^T D_k` and :math:`B = \\sum_k D_k^T Y_k` over row chunks
     :math:`D_k, Y_k` of the design and the targets: a least-squares fit over more rows
     than memory holds keeps only the (P, P) and (P, A) sums (recordings larger than
-    memory, issue 23; :meth:`merge` adds the sums of another worker's rows).  Forming
+    memory; :meth:`merge` adds the sums of another worker's rows).  Forming
     G squares the design's condition number; the families' designs are standardised
     features and their products (condition ≲ 1e6 on the default families, so G keeps
     ≥ 4 significant digits of every coefficient — float64, never float32).  The result

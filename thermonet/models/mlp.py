@@ -1,4 +1,4 @@
-"""Multilayer perceptron (issue 26): a small dense network on any inputs, sized for a
+"""Multilayer perceptron: a small dense network on any inputs, sized for a
 microcontroller.
 
 .. math::

@@ -548,7 +548,7 @@ def plot_allan(path: str | Path, *, rate_hz: float, raw_error: np.ndarray,
 def accuracy_cost_figure(points: Mapping[str, tuple[float | None, float | None]], *,
                          chosen: str | None = None, baseline: str | None = None,
                          colours: Mapping[str, str] | None = None) -> Figure:
-    """Held-out error against cost on board, one point per family (issue 26's front).
+    """Held-out error against cost on board, one point per family (front).
 
     ``points``: family → (operations per sample, test score ratio to raw — the masked mean
     over axes, < 1 better).  The x axis is logarithmic (a cubic costs a few operations, an

@@ -1,6 +1,6 @@
 """``DIR/report.html`` of a ``model: sensor`` comparison: self-contained, one figure.
 
-Sections: the chosen family and issue 22's targets (bias-only / sensor residual ≥ 5 on every
+Sections: the chosen family and the sensor model's targets (bias-only / sensor residual ≥ 5 on every
 axis, compensated scale-factor tempco ≤ 15 ppm/°C); per family a table per axis (residual
 RMS raw, bias-only, sensor model; ratios and verdicts against raw and the bias-only model;
 scale-factor tempco raw / bias-only / compensated) and a table of the misalignments (mean
@@ -86,7 +86,7 @@ def render_sensor_report(res: dict[str, Any], plots: Sequence[str | Path] = ()) 
     parts = [f"<h1>thermonet: sensor model, {_e(res.get('device'))}</h1>",
              f"<p>chosen family: <b>{_e(res.get('chosen'))}</b>; split "
              f"{_e(res.get('split', {}).get('strategy'))}; triads {_e(res.get('triads'))}</p>",
-             f"<p>targets (issue 22): bias-only / sensor residual at least 5 on every axis: "
+             f"<p>targets: bias-only / sensor residual at least 5 on every axis: "
              f"min {_n(done.get('min_bias_only_over_sensor'), '.3g')}; scale-factor tempco "
              f"after compensation at most 15 ppm/°C: max "
              f"{_n(done.get('sf_ppm_per_c_comp_max'), '.3g')}; met: {_e(done.get('met'))}</p>"]

@@ -32,7 +32,7 @@ reproduced within 10 %, checked in ``tests/test_presets.py``):
 
 Realistic presets (what real chamber data does; no study to reproduce):
 
-``imu-multiposition`` (issue 22, :mod:`thermonet.sim.multiposition`)
+``imu-multiposition`` (the full sensor model, :mod:`thermonet.sim.multiposition`)
     A 6-axis IMU (``gyro_x/y/z`` °/s, ``acc_x/y/z`` g) at 0.2 Hz; soaks −40…85 °C in
     12.5 °C steps, at each soak the six static faces (±1 g per axis) and turntable
     poses (±100 °/s about each axis); bias, scale factor (≈140 ppm/°C) and

@@ -1,4 +1,4 @@
-"""Preset ``imu-multiposition``: a 6-axis IMU's full thermal calibration test (issue 22).
+"""Preset ``imu-multiposition``: a 6-axis IMU's full thermal calibration test.
 
 A navigation-grade chamber test as IMU makers run it at the factory: soaks from −40 to
 85 °C in 12.5 °C steps (11 levels, 40 °C/h ramps), 1.5 h each; in the last hour of every

@@ -97,7 +97,7 @@ class SelectionConfig:
     ``folds``: K of the purged, blocked cross-validation over the training data (one run:
     ``folds × blocks_per_fold`` short contiguous blocks dealt round-robin; several runs:
     leave one run out); 0 chooses on the split's single validation part instead (the rule
-    before issue 19).  ``purge_s`` and ``window_s``: ``None`` takes the documented rules.
+    before cross-validated selection).  ``purge_s`` and ``window_s``: ``None`` takes the documented rules.
     ``refit``: with cross-validation, every family is refitted on the split's whole pool
     (training and validation data) by the procedure the folds judged, and that model is
     the one the test verdicts judge and the exports ship; False keeps the fit on the

@@ -75,7 +75,7 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
     from ..core.outdir import staged_output
     from ..training.train import thread_limits
 
-    if cfg.model == "sensor":  # the full sensor model (issue 22): its own fit and judgement
+    if cfg.model == "sensor":  # the full sensor model: its own fit and judgement
         from .sensor import run_sensor
 
         return run_sensor(cfg, out_dir, overwrite=overwrite, quiet=quiet, dataset=dataset,

@@ -237,7 +237,7 @@ def _track(cfg: CompareConfig, doc: dict[str, Any], histories: dict[str, list], 
 
 
 def _done_when(entry: dict[str, Any]) -> dict[str, Any]:
-    """Issue 22's targets on the chosen family: bias-only residual / sensor residual per axis
+    """The sensor model's targets on the chosen family: bias-only residual / sensor residual per axis
     (≥ 5 wanted) and the compensated scale-factor tempco (≤ 15 ppm/°C wanted)."""
     axes = entry["axes"]
     ratio = {a: m["residual_rms_bias_only"] / m["residual_rms_comp"] for a, m in axes.items()}
