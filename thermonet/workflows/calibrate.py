@@ -379,9 +379,12 @@ def _ekf_text(autopilot: str, fitted: list[InstanceResult], params_name: str) ->
 def _lend_and_lag(logs: list[FlightLog], choice: Mapping[str, str] | None
                   ) -> tuple[list[FlightLog], dict[str, dict[str, Any]]]:
     """Every log with a thermometer lent to each magnetometer without one, and that
-    thermometer lagged by the time constant chosen on all the logs (held-out time blocks,
-    :func:`~thermonet.workflows.magnetometer.choose_lag`); per such magnetometer, what was
-    chosen and each lag's score."""
+    thermometer lagged by the time constant chosen by held-out time blocks
+    (:func:`~thermonet.workflows.magnetometer.choose_lag`) on the logs the held-out check
+    does not judge: all but the last of several logs (the last is the held-out one); with one
+    log, on the whole log (its held-out blocks included: one constant, chosen before the
+    held-out check; said in the record).  Per such magnetometer, what was chosen and each
+    lag's score."""
     lent = [lend_thermometers(lg, choice) for lg in logs]
     logs = [lg for lg, _ in lent]
     how = lent[0][1]
@@ -392,9 +395,13 @@ def _lend_and_lag(logs: list[FlightLog], choice: Mapping[str, str] | None
         scores: dict[float, float] = {}
         if all(check_instance(p, lg.autopilot) is None for p, lg in zip(parts, logs,
                                                                        strict=True)):
-            tau, scores = choose_lag(parts)
+            # never on the held-out log: the lag is part of what the check judges
+            tau, scores = choose_lag(parts[:-1] if len(parts) > 1 else parts)
         info[name] = {"name": parts[0].thermometer, "chosen": chosen, "lag_s": tau,
-                      "lag_scores": {f"{k:g}": v for k, v in scores.items()}}
+                      "lag_scores": {f"{k:g}": v for k, v in scores.items()},
+                      "lag_chosen_on": ("every log but the last (the held-out one)"
+                                        if len(parts) > 1 else
+                                        "the whole log, its held-out blocks included")}
         logs = [FlightLog(lg.path, lg.autopilot, [with_lag(i, tau) if i.name == name else i
                                                   for i in lg.instances], lg.params,
                           lg.notes, lg.damage, lg.unread_fraction) for lg in logs]
