@@ -215,25 +215,25 @@ def _dynamo_proto(graph: Any, example: tuple, names: list[str], out_names: list[
     """
     import onnx
 
-    def export(optimize: bool) -> Any:
-        program = torch.onnx.export(
-            graph, example, None, input_names=names, output_names=out_names,
-            opset_version=OPSET, dynamo=True, external_data=False, optimize=optimize,
-            # forward(*inputs): the varargs tuple is one argument
-            dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False)
-        if program is None:
-            raise ExportError("torch.onnx.export (dynamo) returned no program")
-        return program.model_proto
-
     batch = torch.export.Dim("N")
-    proto = export(True)
+    # traced once (the trace is most of an export's seconds): the unoptimised graph is kept,
+    # then optimised in place as torch's own optimize=True would
+    program = torch.onnx.export(
+        graph, example, None, input_names=names, output_names=out_names,
+        opset_version=OPSET, dynamo=True, external_data=False, optimize=False,
+        # forward(*inputs): the varargs tuple is one argument
+        dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False)
+    if program is None:
+        raise ExportError("torch.onnx.export (dynamo) returned no program")
+    proto = program.model_proto
     try:
-        onnx.checker.check_model(proto)
-        return proto
-    except onnx.checker.ValidationError as err:
+        program.optimize()
+        optimised = program.model_proto
+        onnx.checker.check_model(optimised)
+        return optimised
+    except Exception as err:  # noqa: BLE001 - an invalid optimised graph: fold the plain one
         _log.info("optimised ONNX graph is invalid (%s); folding the unoptimised one instead",
-                  str(err).splitlines()[0])
-    proto = export(False)
+                  str(err).splitlines()[0] if str(err) else type(err).__name__)
     try:
         folded = _fold_only(proto)
         onnx.checker.check_model(folded)
