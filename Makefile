@@ -1,7 +1,7 @@
 # Two commands do all the set-up on a fresh machine:
 #   make demo   -> creates .venv, installs torch (CPU) + thermonet, runs the main job
 #   make test   -> same set-up plus Debian's chromium, then ruff, mypy, the import layers
-#                  (lint-imports) and the test suite
+#                  (lint-imports) and the test suite (the 25 slowest tests listed at the end)
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -38,7 +38,7 @@ test: $(STAMP) chromium arm-toolchain
 	$(VENV)/bin/ruff check thermonet tests experiments export
 	$(VENV)/bin/mypy thermonet
 	$(VENV)/bin/lint-imports
-	$(PY) -m pytest -q -n 2 tests
+	$(PY) -m pytest -q -n 2 --durations=25 tests
 
 # The numerics subset (pytest -m "numerics and not slow": parity, export, runtime, dynamics,
 # decisions; the few end-to-end runs marked slow stay native) as on
