@@ -444,6 +444,30 @@ def endless(tmp_path) -> Path:
         "min_delta: 0.0, optimizer: adam, lr: 1.0e-9"))
 
 
+def test_a_signal_whose_exception_was_lost_still_stops_the_run(endless, tmp_path):
+    """Python swallows an exception raised by a signal handler inside a garbage-collection
+    callback ("Exception ignored in ..."): the handler also records the signal, and the
+    training loop polls the record each epoch.  Here the record is made from another thread
+    (no exception raised at all), as if the handler's raise had been lost."""
+    import threading
+
+    from thermonet.core.errors import Interrupted, clear_interrupt, request_interrupt
+    from thermonet.training.config import load_config
+    from thermonet.workflows.compare import run_compare
+
+    cfg = load_config(endless)
+    timer = threading.Timer(3.0, request_interrupt, args=(int(signal.SIGTERM),))
+    timer.start()
+    try:
+        with pytest.raises(Interrupted) as err:
+            run_compare(cfg, tmp_path / "out", track=False, quiet=True, plots=False)
+    finally:
+        timer.cancel()
+        clear_interrupt()
+    assert err.value.signum == signal.SIGTERM
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("signum,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_interrupt_one_line_runs_killed_out_untouched(endless, tmp_path, signum, code):
     db = tmp_path / "mlflow.db"

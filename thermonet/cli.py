@@ -21,7 +21,7 @@ from typing import Any
 
 from . import __version__
 from .core import profile
-from .core.errors import Interrupted, ThermonetError
+from .core.errors import Interrupted, ThermonetError, clear_interrupt, request_interrupt
 
 __all__ = ["main", "build_parser"]
 
@@ -518,6 +518,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _raise_interrupted(signum: int, frame: object) -> None:
+    # recorded too: where the raise lands inside a garbage-collection callback Python prints
+    # "Exception ignored" and goes on; the training loops poll the record each epoch
+    request_interrupt(signum)
     raise Interrupted(signum)
 
 
@@ -537,6 +540,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.profile:
         profile.enable()
         startup = profile.startup_seconds()
+    clear_interrupt()
     try:
         return int(args.func(args))
     except (KeyboardInterrupt, Interrupted) as err:
@@ -551,6 +555,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"thermonet: error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
         return 1
     finally:
+        clear_interrupt()
         for sig, handler in previous.items():  # None: not set from Python; default is closest
             signal.signal(sig, signal.SIG_DFL if handler is None else handler)
         if args.profile:

@@ -58,3 +58,27 @@ class Interrupted(BaseException):
 
         super().__init__(signal.Signals(signum).name)
         self.signum = signum
+
+
+#: Signals received and not yet acted on (:func:`request_interrupt`): a signal handler's
+#: exception can be swallowed when it lands inside a garbage-collection callback ("Exception
+#: ignored in ..."), so long loops also poll this flag (:func:`check_interrupted`).
+_PENDING_SIGNALS: list[int] = []
+
+
+def request_interrupt(signum: int) -> None:
+    """Record that SIGINT/SIGTERM arrived (the CLI's handler calls this, then raises)."""
+    _PENDING_SIGNALS.append(int(signum))
+
+
+def clear_interrupt() -> None:
+    """Forget recorded signals (at the start and end of a command)."""
+    _PENDING_SIGNALS.clear()
+
+
+def check_interrupted() -> None:
+    """Raise :class:`Interrupted` when a signal arrived and its exception was lost on the
+    way (called once per training epoch)."""
+    if _PENDING_SIGNALS:
+        raise Interrupted(_PENDING_SIGNALS[0])
+

@@ -144,13 +144,18 @@ class RBF(Family):
         the model *is* its polynomial tail (a cubic in ``z_1`` with ``tail: 3``) — what the C
         header then computes, what :meth:`op_count` counts and what :meth:`n_effective` and
         :meth:`polynomial_form` report (read from the weights: a loaded model knows it too)."""
-        return bool(self.tail) and not bool(torch.any(self.weight.detach() != 0))
+        # a fresh (unfitted) network has every weight 0: it is the structure, not a tail
+        fitted = bool(torch.any(self.tail_weight.detach() != 0)) or bool(
+            torch.any(self.bias.detach() != 0)) if self.tail else False
+        return fitted and not bool(torch.any(self.weight.detach() != 0))
 
     def n_effective(self) -> int:
         """Parameters the model computes with: an axis whose Gaussian weights are all 0 (its
         ridge ∞) uses none of them, and with no such weight left the centres and widths go
         too — the tail and the bias remain (``tail: 3`` with ridge ∞ on every axis: the
         cubic's 4 per axis)."""
+        if not self.gaussian_off() and not bool(torch.any(self.weight.detach() != 0)):
+            return sum(int(p.numel()) for p in self.parameters() if p.requires_grad)
         live = int(torch.any(self.weight.detach() != 0, dim=1).sum())
         n = int(self.bias.numel()) + (int(self.tail_weight.numel()) if self.tail else 0)
         if live:
