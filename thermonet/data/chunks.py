@@ -557,15 +557,17 @@ def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
     import json
 
     from ..core.fileio import atomic_path
-    from .io import DIGEST_KEY, FORMAT_VERSION, WRITE_OPTIONS, _str_dict, check_run_ids
+    from .io import (
+        DIGEST_KEY,
+        FORMAT_VERSION,
+        PARQUET_SUFFIXES,
+        WRITE_OPTIONS,
+        _str_dict,
+        check_output_file,
+        check_run_ids,
+    )
 
-    out = Path(out)
-    if out.suffix.lower() not in (".parquet", ".pq"):
-        raise InputError.at(out, "a thermonet recording file ends in .parquet (or .pq)")
-    if out.is_dir():
-        raise InputError.at(out, "is a directory; give a .parquet file name")
-    if not out.parent.is_dir():
-        raise InputError.at(out, f"output directory '{out.parent}' does not exist")
+    out = check_output_file(out, PARQUET_SUFFIXES)
     check_run_ids([(e["device_id"], e["run_id"], str(lay.path)) for lay in layouts
                    for e in lay.runs])
     times = [rt for lay in layouts for rt in run_times(lay, chunk_rows)]

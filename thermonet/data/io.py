@@ -87,6 +87,26 @@ _TEXT = (".csv", ".tsv", ".txt")
 
 
 # ----------------------------------------------------------------- writing
+#: What a thermonet recording file's name ends in.
+PARQUET_SUFFIXES = (".parquet", ".pq")
+
+
+def check_output_file(path: str | Path, suffixes: tuple[str, ...]) -> Path:
+    """A recording file about to be written: its suffix one of ``suffixes``, not a directory,
+    its directory existing (one line naming the path otherwise)."""
+    path = Path(path)
+    kind = "a thermonet recording file" if suffixes == PARQUET_SUFFIXES else \
+        f"a {suffixes[0][1:].upper()} recording file"
+    ends = " (or ".join(suffixes) + ")" * (len(suffixes) - 1)
+    if path.suffix.lower() not in suffixes:
+        raise InputError.at(path, f"{kind} ends in {ends}")
+    if path.is_dir():
+        raise InputError.at(path, f"is a directory; give a {suffixes[0]} file name")
+    if not path.parent.is_dir():
+        raise InputError.at(path, f"output directory '{path.parent}' does not exist")
+    return path
+
+
 def write_parquet(dataset: Dataset, path: str | Path) -> Path:
     """Write ``dataset`` to ``path`` atomically; return the path.
 
@@ -94,13 +114,7 @@ def write_parquet(dataset: Dataset, path: str | Path) -> Path:
     over ``path`` with :func:`os.replace`, so a failed write leaves nothing new
     at ``path`` (and an existing file there untouched).
     """
-    path = Path(path)
-    if path.suffix.lower() not in (".parquet", ".pq"):
-        raise InputError.at(path, "a thermonet recording file ends in .parquet (or .pq)")
-    if path.is_dir():
-        raise InputError.at(path, "is a directory; give a .parquet file name")
-    if not path.parent.is_dir():
-        raise InputError.at(path, f"output directory '{path.parent}' does not exist")
+    path = check_output_file(path, PARQUET_SUFFIXES)
     for run in dataset:
         run.validate()
     table = _to_table(dataset)
@@ -123,13 +137,7 @@ def write_csv(dataset: Dataset, path: str | Path) -> Path:
     inputs: the runtime reads the rows as one sequence)."""
     import pyarrow.csv as pacsv
 
-    path = Path(path)
-    if path.suffix.lower() != ".csv":
-        raise InputError.at(path, "a CSV recording file ends in .csv")
-    if path.is_dir():
-        raise InputError.at(path, "is a directory; give a .csv file name")
-    if not path.parent.is_dir():
-        raise InputError.at(path, f"output directory '{path.parent}' does not exist")
+    path = check_output_file(path, (".csv",))
     for run in dataset:
         run.validate()
     table = _to_table(dataset).replace_schema_metadata(None)

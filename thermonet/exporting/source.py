@@ -27,7 +27,7 @@ import os
 import re
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..core.errors import ExportError, InputError
 
@@ -55,7 +55,6 @@ def _from_compare_dir(path: Path, family: str | None) -> Path:
     comparison was written.
     """
     from ..core.names import LABEL, check_name
-    from ..core.outdir import sha256_file
 
     results_file = path / "results.json"
     if not results_file.is_file():
@@ -84,13 +83,21 @@ def _from_compare_dir(path: Path, family: str | None) -> Path:
     if not fams[name].get("checkpoint"):
         raise ExportError(f"{results_file}: family '{name}' has no checkpoint "
                           f"({str(fams[name].get('reason') or 'not fitted')[:200]})")
-    p = path / "models" / f"{name}.pt"
+    return _verified(path / "models" / f"{name}.pt", fams[name].get("checkpoint_sha256"),
+                     results_file, f"family '{name}'", "written by an older thermonet? re-run "
+                     "compare")
+
+
+def _verified(p: Path, recorded: Any, results_file: Path, what: str, hint: str) -> Path:
+    """``p`` when it exists and its SHA-256 is the one ``results_file`` recorded for ``what``
+    (a family, the per-axis model): a file does not choose what else is read."""
+    from ..core.outdir import sha256_file
+
     if not p.is_file():
         raise InputError(f"{p}: checkpoint listed in {results_file} is missing")
-    recorded = fams[name].get("checkpoint_sha256")
     if not isinstance(recorded, str) or not recorded:
-        raise ExportError(f"{results_file}: family '{name}' records no checkpoint_sha256, so "
-                          f"{p} cannot be verified (written by an older thermonet? re-run compare)")
+        raise ExportError(f"{results_file}: {what} records no checkpoint_sha256, so {p} cannot "
+                          f"be verified ({hint})")
     if sha256_file(p) != recorded:
         raise ExportError(f"{p}: content does not match the SHA-256 in {results_file} (replaced "
                           "or modified after the comparison); refusing to export it")
@@ -102,7 +109,6 @@ def _per_axis_checkpoint(path: Path, results_file: Path, results: dict) -> Path:
     against the ``per_axis`` block of ``results.json`` (module docstring) as a family's
     checkpoint is: the path is fixed, the SHA-256 must match the recorded one."""
     from ..core.names import AXIS, LABEL, check_name
-    from ..core.outdir import sha256_file
 
     block = results.get("per_axis")
     if not isinstance(block, dict):
@@ -121,17 +127,8 @@ def _per_axis_checkpoint(path: Path, results_file: Path, results: dict) -> Path:
                              f"'{str(label)[:64]}', not a candidate ({', '.join(candidates)})")
     if not block.get("checkpoint"):
         raise ExportError(f"{results_file}: the per-axis model has no checkpoint")
-    p = path / "models" / f"{PER_AXIS}.pt"
-    if not p.is_file():
-        raise InputError(f"{p}: checkpoint listed in {results_file} is missing")
-    recorded = block.get("checkpoint_sha256")
-    if not isinstance(recorded, str) or not recorded:
-        raise ExportError(f"{results_file}: the per-axis model records no checkpoint_sha256, so "
-                          f"{p} cannot be verified (re-run compare)")
-    if sha256_file(p) != recorded:
-        raise ExportError(f"{p}: content does not match the SHA-256 in {results_file} (replaced "
-                          "or modified after the comparison); refusing to export it")
-    return p
+    return _verified(path / "models" / f"{PER_AXIS}.pt", block.get("checkpoint_sha256"),
+                     results_file, "the per-axis model", "re-run compare")
 
 
 def _from_run_id(run_id: str, tracking_uri: str | None, workdir: Path) -> Path:

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..core.errors import FitError, InputError
+from ..core.errors import FitError, InputError, check_interrupted
 from ..core.trainconfig import TrainConfig
 from ..models.base import check_output_shape
 from ..models.sequence import stream_windows
@@ -134,6 +134,7 @@ def fit_loop(fam: Any, train: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
             raise FitError(f"model '{family}': NaN loss at epoch {epoch} (lr {fam.lr:g}; try a "
                            "lower lr)")
         history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
+        check_interrupted()     # a signal whose exception was lost (core.errors)
         if on_epoch is not None:
             on_epoch(epoch, train_loss, val_loss)
         if epoch > 0:

@@ -32,7 +32,7 @@ import torch
 # paid by the first fit that takes a gradient step (the polynomials' L-BFGS refinement
 # included), inside that fit's fit_seconds, and never by a command that fits nothing
 # (export, verify, info, a config error)
-from ..core.errors import ConfigError, FitError, InputError
+from ..core.errors import ConfigError, FitError, InputError, check_interrupted
 from ..core.trainconfig import TrainConfig  # re-exported: the ``train`` section
 from ..features.dynamics import dynamic_signals, saturation_margin
 from ..features.inputs import FeatureSpec
@@ -394,6 +394,7 @@ def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
             raise FitError(f"model '{family}': NaN loss at epoch {epoch} "
                            f"(optimizer {config.optimizer}, lr {config.lr:g}; try a lower lr)")
         history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
+        check_interrupted()     # a signal whose exception was lost (core.errors)
         if on_epoch is not None:
             on_epoch(epoch, train_loss, val_loss)
         if stop.update(fam, epoch, train_loss, val_loss):

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import FitError, check_interrupted
+from ..core.errors import FitError
 from ..core.profile import stage
 from ..features.inputs import TEMPERATURE
 from ..reporting.results import FamilyResult
@@ -88,7 +88,6 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
     outside: dict[str, list[tuple[float, int]]] = {}
 
     def on_epoch(epoch: int, train_loss: float, val_loss: float | None) -> None:
-        check_interrupted()     # a signal whose exception was lost (core.errors)
         if cancel is not None and cancel.is_set():
             raise _Cancelled(fam.label)
         progress.epoch(fam.label, epoch, train_loss, val_loss)
