@@ -509,6 +509,10 @@ def format_table(results: dict[str, Any]) -> str:
     else:
         lines.append(f"chosen: {results.get('chosen') or 'none'} — "
                      f"{results.get('chosen_reason', '')}")
+        owners = {k for k in (per_axis.get("chosen") or {}).values() if k}
+        if results.get("chosen") is not None and owners == {results.get("chosen")}:
+            lines.append(f"per axis: every compensated axis chose {results['chosen']} on its "
+                         "own too (the same rule, axis by axis)")
     if results.get("uncompensated_axes"):
         lines.append(f"left uncompensated: {', '.join(results['uncompensated_axes'])}")
     lines.append("scores: spread of the error about its mean on held-out data, family / raw "
