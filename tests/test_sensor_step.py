@@ -277,3 +277,60 @@ def test_export_checks_step_on_both_paths_and_catches_a_broken_one(fitted, tmp_p
         assert bad != text
         with pytest.raises(ExportError, match="step\\(\\) parity failed"):
             sensor_stream_parity(model, bad, prefix="imu", real="double")
+
+
+# -- on a microcontroller (tests/test_mcu.py's builds and emulator) -----------------------------
+def test_header_builds_strict_for_every_cortex_m_and_links_bare(fitted, tmp_path):
+    """compensate and step instantiated, -Wpedantic -Wshadow -Wconversion -Wdouble-promotion
+    -Werror, float and double paths, on the host and each target: float-only (no soft-double
+    routine, no libm) where the FPU is single precision; each object links with -nostdlib,
+    libm and libgcc only (errno where libm's expm1f is called)."""
+    from thermonet.exporting.mcu import (
+        FLOAT_TARGETS,
+        TARGETS,
+        cross_compile,
+        host_compile,
+        link_bare,
+    )
+
+    _, model, _ = fitted
+    text = render_sensor_c(model)
+    for target in TARGETS:
+        build = cross_compile(text, target, tmp_path / "auto" / target)
+        assert build.soft_double == [], (target, build.soft_double)
+        if target in FLOAT_TARGETS:
+            assert build.libm == [], (target, build.libm)
+        if target == "cortex-m4f":
+            assert build.undefined == [], build.undefined
+    for real in ("-DTHERMONET_USE_FLOAT", "-DTHERMONET_USE_DOUBLE"):
+        host_compile(text, tmp_path / real / "host", extra=(real,))
+        for target in TARGETS:
+            build = cross_compile(text, target, tmp_path / real / target, extra=(real,))
+            assert set(link_bare(build, tmp_path / real / target / "bare.elf")) <= {"__errno"}
+
+
+def test_emulated_cortex_m4f_step_matches_torch(fitted, data, tmp_path):
+    """The M4F build (float path: fused multiply-adds, the header's expm1f, microsecond time)
+    run under unicorn, step by step over the first 240 samples of the stream and across its
+    gap, against torch; a repeated time is refused with NaN."""
+    from thermonet.exporting.mcu import Emulator, cross_compile
+
+    _, model, _ = fitted
+    build = cross_compile(render_sensor_c(model), "cortex-m4f", tmp_path / "m4f")
+    emu = Emulator(build, len(model.signals), len(model.outputs))
+    t, temp, raw = _stream(model, data)
+    half = t.size // 2
+    idx = np.r_[0:120, half - 60:half + 60]            # the start, and 60 samples each side
+    t, temp, raw = t[idx], temp[idx], raw[idx]          # of the gap (a gap of its own at 120)
+    want = _torch(model, t, temp, raw)
+    raw32 = raw.astype(np.float32).astype(np.float64)   # what the part holds
+    us = np.round(t * 1e6).astype(np.uint64)
+    runs = [emu.step(int(us[k]), float(temp[k]), raw32[k]) for k in range(t.size)]
+    assert [r.ret for r in runs] == [0] * t.size
+    got = np.array([r.compensated for r in runs])
+    tol = f32_atol(want["terms"], "dynamic") + f32_atol(raw, "affine")
+    _assert_close(got, want["compensated"], tol, "emulated M4F vs torch")
+    flags = np.array([r.flag for r in runs], dtype=bool)
+    assert flags[want["gap"]].all()
+    bad = emu.step(int(us[-1]), float(temp[-1]), raw32[-1])
+    assert bad.ret == -1 and np.isnan(bad.compensated).all() and bad.flag
