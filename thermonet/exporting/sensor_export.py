@@ -18,8 +18,10 @@ loader sees it, and :func:`export_sensor_source` writes it:
     on the same data (``models/<label>.bias-only.pt``, a plain bias checkpoint) and the
     command that exports it.
 ``c``
-    The C99 header of :mod:`thermonet.exporting.sensor_c` (two bias headers and the 3 × 3
-    solve), compiled and checked against torch before it is written.
+    The C99 header of :mod:`thermonet.exporting.sensor_c` (two bias bodies, the 3 × 3 solve,
+    and every header's ``init``/``step``/``step_block``: the dynamic inputs computed once for
+    b and E), compiled and checked against torch before it is written, batch and ``step()``,
+    on the double and the float path.
 """
 
 from __future__ import annotations
