@@ -309,6 +309,35 @@ def test_header_builds_strict_for_every_cortex_m_and_links_bare(fitted, tmp_path
             assert set(link_bare(build, tmp_path / real / target / "bare.elf")) <= {"__errno"}
 
 
+def test_two_sensor_headers_and_a_bias_header_in_one_translation_unit(fitted, tmp_path):
+    """One header per IMU, different prefixes, a sensor model's beside a bias model's (its
+    own bias body, exported alone), included together and their steps called: every name is
+    under its prefix, the shared types are defined once; strict, on the host."""
+    import subprocess
+
+    from thermonet.exporting import render_c_header
+    from thermonet.exporting.mcu import STRICT_FLAGS
+
+    _, model, _ = fitted
+    (tmp_path / "imu0.h").write_text(render_sensor_c(model, prefix="imu0"))
+    (tmp_path / "imu1.h").write_text(render_sensor_c(model, prefix="imu1"))
+    (tmp_path / "imu2.h").write_text(render_c_header(model.bias, prefix="imu2"))
+    src = tmp_path / "all.c"
+    calls = " | ".join(f"imu{k}_step(&s{k}, t, temp, raw, c, d, &f)" for k in range(3))
+    src.write_text('#include "imu0.h"\n#include "imu1.h"\n#include "imu2.h"\n'
+                   "imu0_state s0;\nimu1_state s1;\nimu2_state s2;\n"
+                   "int all(thermonet_time_t t, float temp, const thermonet_real_t *raw,\n"
+                   "        thermonet_real_t *c, thermonet_real_t *d);\n"
+                   "int all(thermonet_time_t t, float temp, const thermonet_real_t *raw,\n"
+                   "        thermonet_real_t *c, thermonet_real_t *d)\n"
+                   f"{{\n    int f;\n    return {calls} | f;\n}}\n")
+    for real in ("-DTHERMONET_USE_FLOAT", "-DTHERMONET_USE_DOUBLE"):
+        done = subprocess.run(["gcc", *STRICT_FLAGS, "-O2", real, "-c", str(src), "-o",
+                               str(tmp_path / "all.o")], capture_output=True, text=True,
+                              cwd=tmp_path)
+        assert done.returncode == 0, done.stderr
+
+
 def test_emulated_cortex_m4f_step_matches_torch(fitted, data, tmp_path):
     """The M4F build (float path: fused multiply-adds, the header's expm1f, microsecond time)
     run under unicorn, step by step over the first 240 samples of the stream and across its
