@@ -437,6 +437,11 @@ def _check_recurrent(block: Any, path: Path) -> dict[str, Any] | None:
     return block
 
 
+#: The stream of a model without dynamic inputs: no state, so no gap restarts it or is flagged
+#: (as the C header's step and the batch call: a pause in a static model's stream is harmless).
+_STATIC: dict[str, Any] = {"inputs": [], "gap_s": math.inf}
+
+
 def recurrent_windows(time_s: np.ndarray, finite: np.ndarray, step_s: float, gap_s: float
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The stream of a recurrent model (thermonet.models.sequence, mirrored and checked by
@@ -886,7 +891,7 @@ class Compensator:
             raise RuntimeInputError(f"step(): {exc}") from None
         if self.recurrent:
             return self._step_recurrent(t, given, raw_arr)
-        values, gap = self._stream.update(t, temp, self.dynamic or {"inputs": [], "gap_s": 1.0})
+        values, gap = self._stream.update(t, temp, self.dynamic or _STATIC)
         given.update(values)
         return self._evaluate(given, raw_arr, True, np.array([gap]))
 
@@ -927,7 +932,7 @@ class Compensator:
         for key in _Stream.__slots__:
             setattr(trial, key, getattr(self._stream, key))
         trial.state = list(self._stream.state)
-        values, gap = dynamic_signals(t, temp, self.dynamic or {"inputs": [], "gap_s": 1.0},
+        values, gap = dynamic_signals(t, temp, self.dynamic or _STATIC,
                                       trial)
         given.update(values)
         res = self._evaluate(given, raw_arr, False, gap)

@@ -71,6 +71,22 @@ def test_batch_and_single_sample(model_path):
     assert one["drift"] is one.drift
 
 
+def test_static_model_stream_has_no_gap(model_path):
+    """A model without dynamic inputs keeps no state: a pause in its stream (any Δt) is not
+    flagged, as in its batch call and its C header's step."""
+    comp = rt.Compensator(model_path)
+    t = np.array([0.0, 0.5, 1.0, 3.0, 8.0, 3600.0])
+    temp = np.linspace(10.0, 40.0, t.size)
+    raw = _true_drift(temp) + 0.5
+    steps = [comp.step(t[k], temp[k], raw[k]) for k in range(t.size)]
+    assert not any(s.out_of_range for s in steps)
+    comp.reset()
+    block = comp.step_block(t, temp, raw)
+    assert not block.out_of_range.any()
+    np.testing.assert_allclose(block.compensated, 0.5, atol=2e-6)
+    np.testing.assert_array_equal(block.compensated, comp.compensate(temp, raw).compensated)
+
+
 def test_out_of_range_nan_inf_and_empty(model_path):
     comp = rt.Compensator(model_path)
     temp = np.array([-30.0, 75.0, np.nan, np.inf, 10.0])
