@@ -23,8 +23,9 @@ The runs' content is what the in-line tracking of earlier versions logged: the s
 params, metrics, tags (``mlflow.source.name`` is the command's, not the child's) and
 artifacts.  Robustness: the child runs in its own session (Ctrl-C reaches the command,
 not it); the command ends it on any failure (:meth:`TrackingSession.abort`: ``KILLED``
-when interrupted, ``FAILED`` otherwise), and a child whose command died (its requests'
-pipe closed) ends its runs ``KILLED``.  An MLflow failure in the child fails the
+when interrupted, ``FAILED`` otherwise); a child whose command was killed outright (its
+requests' pipe closed) exits and leaves the runs ``RUNNING``, tagged with the command's
+pid, for :func:`thermonet.tracking.tidy_orphaned_runs`, as before.  An MLflow failure in the child fails the
 comparison as an in-line one did, as one line (:class:`TrackingFailed`, exit 1), and the
 staged output is then removed: nothing half-written.
 """
@@ -309,10 +310,14 @@ def _raise_interrupted(signum: int, frame: object) -> None:
 
 def _serve(requests: IO[str], replies: IO[str]) -> int:
     """The child's loop: one JSON request a line, one JSON reply for ``open`` and ``finish``.
-    Any failure is replied (its first line) and ends the runs ``FAILED``; SIGTERM or a closed
-    request pipe (the command died) ends them ``KILLED``."""
-    child, status = _Child(), "KILLED"
+    Any failure is replied (its first line) and ends the runs ``FAILED``; SIGTERM (the
+    command was interrupted) ends them ``KILLED``; a closed request pipe (the command was
+    killed without unwinding) leaves them ``RUNNING``, as the command's own runs were left,
+    for :func:`thermonet.tracking.tidy_orphaned_runs` (they carry the command's pid)."""
+    child: _Child | None = None
+    status: str | None = None   # the requests' pipe closed: the command died unwound
     try:
+        child = _Child()
         for line in requests:
             req = json.loads(line)
             try:
@@ -340,21 +345,27 @@ def _serve(requests: IO[str], replies: IO[str]) -> int:
     except Interrupted:
         status = "KILLED"
     finally:
-        try:
-            child.end(status)
-        except Exception:  # noqa: BLE001, S110 - the command is failing already
-            pass
+        if child is not None and status is not None:
+            try:
+                child.end(status)
+            except Exception:  # noqa: BLE001, S110 - the command is failing already
+                pass
     return 0
 
 
-def main() -> int:
+def main() -> None:
     """Entry point of the child: replies on a private copy of stdout; stdout itself (what
     MLflow may print) goes to stderr, shown as the in-line tracking's was."""
     signal.signal(signal.SIGTERM, _raise_interrupted)
     replies = os.fdopen(os.dup(1), "w")
     os.dup2(2, 1)
-    return _serve(sys.stdin, replies)
+    code = _serve(sys.stdin, replies)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    # no exit handlers: MLflow's would end a run left RUNNING (its command was killed) as
+    # FINISHED; every other run has been ended explicitly
+    os._exit(code)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()
