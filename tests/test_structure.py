@@ -13,7 +13,6 @@ MAX_LINES = 80
 
 _C_TEXT = "emits generated C text: one template read top to bottom"
 _PARALLEL = "owned by a parallel change (issue 39), to split next"
-_NEXT = "not split yet (issue 39 item 5 ran out of time): to split next"
 
 #: "path:qualified name" -> why it may be longer
 ALLOWED: dict[str, str] = {
@@ -27,16 +26,6 @@ ALLOWED: dict[str, str] = {
     "thermonet/workflows/compare_fit.py:fit_family": _PARALLEL,
     "thermonet/workflows/fleet.py:run_fleet": _PARALLEL,
     "thermonet/workflows/sensor.py:_run": _PARALLEL,
-    "thermonet/data/chunks.py:write_streamed": _NEXT,
-    "thermonet/data/logs/dataflash.py:read_dataflash": _NEXT,
-    "thermonet/data/logs/ulog.py:read_ulog": _NEXT,
-    "thermonet/data/tables.py:iter_text_frames": _NEXT,
-    "thermonet/data/tables.py:map_frame": _NEXT,
-    "thermonet/exporting/autopilot.py:autopilot_coefficients": _NEXT,
-    "thermonet/sim/presets.py:simulate_run": _NEXT,
-    "thermonet/workflows/calibrate.py:_calibrate_into": _NEXT,
-    "thermonet/workflows/info.py:summarize": _NEXT,
-    "thermonet/workflows/info_chunked.py:_summarize": _NEXT,
 }
 
 
