@@ -304,6 +304,20 @@ def log_chosen_model(doc: Mapping[str, Any], uri: str, run_id: str,
     return None
 
 
+def _prewarm() -> None:
+    """Import what exporting and logging the chosen model needs (torch, onnx, onnxruntime,
+    MLflow's ONNX flavour: ~2 s) while the command is still fitting, not after it wrote its
+    results; a module that cannot be imported is left to fail where it is used."""
+    import importlib
+
+    for name in ("torch", "onnx", "onnxruntime", "mlflow.onnx", "mlflow.models",
+                 "thermonet.exporting.onnx_export", "thermonet.exporting.source"):
+        try:
+            importlib.import_module(name)
+        except Exception:  # noqa: BLE001, S112 - reported where it is used, if it is
+            continue
+
+
 def _raise_interrupted(signum: int, frame: object) -> None:
     raise Interrupted(signum)
 
@@ -315,14 +329,19 @@ def _serve(requests: IO[str], replies: IO[str]) -> int:
     killed without unwinding) leaves them ``RUNNING``, as the command's own runs were left,
     for :func:`thermonet.tracking.tidy_orphaned_runs` (they carry the command's pid)."""
     child: _Child | None = None
-    status: str | None = None   # the requests' pipe closed: the command died unwound
+    reply: dict[str, Any] | None
+    status: str | None = None   # the requests' pipe closed: the command died without unwinding
     try:
         child = _Child()
         for line in requests:
             req = json.loads(line)
             try:
                 if req["op"] == "open":
-                    reply: dict[str, Any] | None = child.open(req)
+                    reply = child.open(req)
+                    replies.write(json.dumps({"ok": True, **reply}) + "\n")
+                    replies.flush()
+                    _prewarm()   # while the command fits: what logging the model imports
+                    reply = None
                 elif req["op"] == "log":
                     child.log(req)
                     reply = None
