@@ -1,6 +1,6 @@
 """``thermonet compare``: every configured family fitted, judged on held-out data, reported.
 
-Three steps (:mod:`thermonet.workflows.compare_plan`, :mod:`thermonet.workflows.compare_fit`,
+The steps (:mod:`thermonet.workflows.compare_plan`, :mod:`thermonet.workflows.compare_fit`,
 :mod:`thermonet.workflows.compare_judge`; provenance: :mod:`thermonet.workflows.provenance`):
 
 * **plan** — check the config against the data before anything is fitted or
@@ -11,10 +11,14 @@ Three steps (:mod:`thermonet.workflows.compare_plan`, :mod:`thermonet.workflows.
   sum the offset-free score per contiguous held-out block
   (:mod:`thermonet.scoring.verdicts`), set the per-axis mask from the validation
   verdict, save the checkpoint;
-* **report** — choose (per-axis masked validation score, ties → fewest
+* **judge** — choose (per-axis masked validation score, ties → fewest
   parameters, do no harm), verdicts against raw and the baseline from a
-  paired block bootstrap, warnings, ``results.json`` (schema in
-  :mod:`thermonet.reporting.results`), plots, ``report.html`` (:mod:`thermonet.reporting.report`).
+  paired block bootstrap, warnings;
+* **write** — ``results.json`` (schema in :mod:`thermonet.reporting.results`),
+  plots, ``report.html`` (:mod:`thermonet.reporting.report`);
+* **track** — at the edge: MLflow is called by a child process only
+  (:mod:`thermonet.workflows.compare_track`), which logs from what was written
+  while the plots are drawn; no tracker call is woven through the steps above.
 
 :func:`run_compare` returns the ``results.json`` document as a dict.  With
 leave-one-run-out the per-axis metrics are means over folds, ``folds`` under
