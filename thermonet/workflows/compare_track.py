@@ -318,8 +318,23 @@ def _prewarm() -> None:
             continue
 
 
+#: SIGTERMs the child received (its handler's exception can be swallowed where it lands in a
+#: garbage-collection callback, as the command's can: :func:`thermonet.core.errors.check_interrupted`)
+_SIGNALS: list[int] = []
+
+
 def _raise_interrupted(signum: int, frame: object) -> None:
+    _SIGNALS.append(signum)
     raise Interrupted(signum)
+
+
+def _quiet_unraisable(hook: Any) -> Any:
+    """``sys.unraisablehook`` that stays silent on a swallowed :class:`Interrupted` (recorded
+    in :data:`_SIGNALS` already: the runs still end ``KILLED``) and hands on the rest."""
+    def unraisable(info: Any) -> None:
+        if not isinstance(info.exc_value, Interrupted):
+            hook(info)
+    return unraisable
 
 
 def _serve(requests: IO[str], replies: IO[str]) -> int:
@@ -364,6 +379,8 @@ def _serve(requests: IO[str], replies: IO[str]) -> int:
     except Interrupted:
         status = "KILLED"
     finally:
+        if _SIGNALS and status != "FAILED":   # a SIGTERM whose exception was swallowed
+            status = "KILLED"
         if child is not None and status is not None:
             try:
                 child.end(status)
@@ -376,6 +393,7 @@ def main() -> None:
     """Entry point of the child: replies on a private copy of stdout; stdout itself (what
     MLflow may print) goes to stderr, shown as the in-line tracking's was."""
     signal.signal(signal.SIGTERM, _raise_interrupted)
+    sys.unraisablehook = _quiet_unraisable(sys.unraisablehook)
     replies = os.fdopen(os.dup(1), "w")
     os.dup2(2, 1)
     code = _serve(sys.stdin, replies)
