@@ -104,3 +104,23 @@ def test_compare_logs_the_chosen_model_as_mlflow_expects(tmp_path):
     meta = {p.key: p.value for p in onnx.load(str(onnx_file)).metadata_props}
     family = res.results["families"][res.chosen]["family"]
     assert meta["family"] == family
+
+
+def test_an_mlflow_failure_fails_the_comparison_in_one_line_nothing_written(tmp_path):
+    """The tracking step runs in a child process at the comparison's edge: a store MLflow
+    refuses (the retired file store under a path that cannot exist) fails the comparison
+    with one line naming the URI, and the output directory is never created."""
+    import pytest
+
+    import thermonet
+    from thermonet.core.errors import ThermonetError
+
+    ds = thermonet.simulate("patent-gyro", runs=3, seed=0)
+    uri = "file:///proc/no-such-dir/mlruns"
+    with pytest.raises(ThermonetError) as err:
+        thermonet.compare({"families": [{"name": "line", "family": "linear",
+                                         "inputs": ["dT"]}]},
+                          data=ds, out=tmp_path / "out", track=True, tracking_uri=uri)
+    assert str(err.value).startswith(f"MLflow tracking ({uri}): ")
+    assert "\n" not in str(err.value)
+    assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out*"))

@@ -22,6 +22,14 @@ from typing import Any
 from . import __version__
 from .core import profile
 from .core.errors import Interrupted, ThermonetError, clear_interrupt, request_interrupt
+from .core.fileio import refuse_overwriting_inputs
+from .core.names import path_components
+from .exporting import FORMATS, export_source  # the registry only: no torch, no onnx
+
+# Imports of thermonet's own modules stay inside the command that needs them where they
+# would load numpy, pandas, pyarrow, yaml or heavier (torch, MLflow, matplotlib,
+# scikit-learn) at start: `thermonet --help` and a refused option then answer in ~0.05 s
+# (`python -X importtime -m thermonet.cli --help`: data.io alone costs ~0.7 s).
 
 __all__ = ["main", "build_parser"]
 
@@ -169,7 +177,6 @@ def _cmd_info(args: argparse.Namespace) -> int:
 def _cmd_convert(args: argparse.Namespace) -> int:
     """Recordings (CSV, mapped files, Parquet) to one thermonet Parquet file, read and
     written a chunk at a time (flight logs: read whole)."""
-    from .core.fileio import refuse_overwriting_inputs
     from .data.chunks import DEFAULT_CHUNK_ROWS, open_source, write_streamed
     from .data.io import read_datasets, write_parquet
     from .data.logs import is_log
@@ -235,8 +242,6 @@ _EXTENSIONS = {"onnx": ".onnx", "c": ".h", "px4-params": ".params",
 def _export_all_units(args: argparse.Namespace) -> int:
     """One file per unit of a fleet directory, ``OUT/<device_id><ext>``; each verified as a
     single export is.  Units that cannot be exported are listed; exit 1 if any."""
-    from .core.names import path_components
-    from .exporting import export_source
 
     src = Path(args.source)
     try:
@@ -281,8 +286,6 @@ def _export_all_units(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from .exporting import export_source
-
     if args.all_units:
         return _export_all_units(args)
     path = export_source(args.source, fmt=args.format, out=args.out, family=args.family,
@@ -322,8 +325,8 @@ def _cmd_verify(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .exporting import FORMATS  # the registry only: no torch, no onnx
-
+    """The ``thermonet`` parser: global options, then one sub-parser per command, added in
+    the order ``--help`` lists them (each by its ``_add_<command>``)."""
     p = argparse.ArgumentParser(
         prog="thermonet",
         description="Train, judge and export temperature-drift models for inertial sensors.")
@@ -332,7 +335,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print where the command's time went: start-up and each stage's wall "
                         "and CPU seconds (on stderr, after the command)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add in (_add_simulate, _add_info, _add_convert, _add_compare, _add_export,
+                _add_calibrate, _add_verify, _add_fleet):
+        add(sub)
+    return p
 
+
+def _add_simulate(sub: Any) -> None:
+    """``thermonet simulate``: a study preset written as a recording."""
     s = sub.add_parser("simulate", help="simulate a thermal-chamber test (a study preset)",
                        description="Simulate a thermal-chamber test from a study preset "
                                    "and write it as a thermonet Parquet file (or, with --out "
@@ -354,6 +364,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --units: the last K units follow a drift law 10σ off the fleet's")
     s.set_defaults(func=_cmd_simulate)
 
+
+def _add_info(sub: Any) -> None:
+    """``thermonet info``: what recordings hold."""
     i = sub.add_parser("info", help="summarise recordings",
                        description="Channels, units, runs, duration, rate, temperature span, "
                                    "noise floor and binned peak-to-peak per channel.")
@@ -366,6 +379,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "whatever the files' length)")
     i.set_defaults(func=_cmd_info)
 
+
+def _add_convert(sub: Any) -> None:
+    """``thermonet convert``: recordings to one thermonet Parquet file."""
     v = sub.add_parser("convert", help="recordings to one thermonet Parquet file",
                        description="Read recording files (CSV, a mapping's format, Parquet) "
                                    "a chunk at a time and write them as one thermonet Parquet "
@@ -380,41 +396,51 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rows read (and written per row group) at a time (default 65536)")
     v.set_defaults(func=_cmd_convert)
 
-    def family_workers_arg(q: argparse.ArgumentParser) -> None:
-        q.add_argument("--workers", type=int, default=None, metavar="N",
-                       help="families fitted side by side (default: the config's 'workers', "
-                            "0 = one per CPU)")
 
-    def tracking_args(q: argparse.ArgumentParser) -> None:
-        q.add_argument("--out", required=True, help="output directory (created whole when the "
-                                                    "comparison finishes)")
-        q.add_argument("--overwrite", action="store_true",
-                       help="replace a previous comparison in --out (removed only once the new "
-                            "one is complete)")
-        q.add_argument("--no-track", action="store_true", help="do not record the run in MLflow")
-        q.add_argument("--tracking-uri", default=None,
-                       help="MLflow tracking URI (default sqlite:///mlflow.db in the working dir)")
-        q.add_argument("-q", "--quiet", action="store_true", help="no progress, no table")
-        q.add_argument("--no-plots", action="store_true",
-                       help="write no PNG plots (report.html then has no figures)")
+def _family_workers_arg(q: argparse.ArgumentParser) -> None:
+    """``--workers``: families fitted side by side (``compare``, ``train``)."""
+    q.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="families fitted side by side (default: the config's 'workers', "
+                        "0 = one per CPU)")
 
+
+def _tracking_args(q: argparse.ArgumentParser) -> None:
+    """The options of every command that writes a tracked comparison directory."""
+    q.add_argument("--out", required=True, help="output directory (created whole when the "
+                                                "comparison finishes)")
+    q.add_argument("--overwrite", action="store_true",
+                   help="replace a previous comparison in --out (removed only once the new "
+                        "one is complete)")
+    q.add_argument("--no-track", action="store_true", help="do not record the run in MLflow")
+    q.add_argument("--tracking-uri", default=None,
+                   help="MLflow tracking URI (default sqlite:///mlflow.db in the working dir)")
+    q.add_argument("-q", "--quiet", action="store_true", help="no progress, no table")
+    q.add_argument("--no-plots", action="store_true",
+                   help="write no PNG plots (report.html then has no figures)")
+
+
+def _add_compare(sub: Any) -> None:
+    """``thermonet compare`` and ``thermonet train`` (one family of a config)."""
     c = sub.add_parser("compare", help="fit every family, judge on held-out runs",
                        description="Fit every model family of CONFIG, judge them on held-out "
                                    "data, write results.json, plots and checkpoints to --out.")
     c.add_argument("config", nargs="?", default=None,
                    help="comparison YAML (default: built-in, the patent-gyro simulator)")
-    tracking_args(c)
-    family_workers_arg(c)
+    _tracking_args(c)
+    _family_workers_arg(c)
     c.set_defaults(func=_cmd_compare)
 
     t = sub.add_parser("train", help="fit one family of a config",
                        description="Fit and judge one family of CONFIG (by its name).")
     t.add_argument("config", help="comparison YAML")
     t.add_argument("--family", required=True, help="the family's name in the config")
-    tracking_args(t)
-    family_workers_arg(t)
+    _tracking_args(t)
+    _family_workers_arg(t)
     t.set_defaults(func=_cmd_train)
 
+
+def _add_export(sub: Any) -> None:
+    """``thermonet export``: a fitted model in one of :data:`FORMATS`."""
     e = sub.add_parser("export", help=f"export a fitted model ({', '.join(FORMATS)})",
                        description="Export a model from a compare directory (its chosen family, "
                                    "or its per-axis model, by default), a checkpoint, or an "
@@ -438,6 +464,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="px4-params: calibration slot 0..3 (default 0); "
                         "ardupilot-params: IMU 1..3 (default 1)")
     e.set_defaults(func=_cmd_export)
+
+
+def _add_calibrate(sub: Any) -> None:
+    """``thermonet calibrate``: PX4 / ArduPilot thermal calibration from a log."""
     k = sub.add_parser("calibrate", help="PX4 / ArduPilot thermal calibration from a log",
                        description="Fit every sensor instance of a PX4 ULog (.ulg) or "
                                    "ArduPilot DataFlash log (.bin) in the autopilot's own form "
@@ -463,6 +493,9 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
     k.set_defaults(func=_cmd_calibrate)
 
+
+def _add_verify(sub: Any) -> None:
+    """``thermonet verify``: a calibration checked on a new log."""
     v = sub.add_parser("verify", help="check a PX4 / ArduPilot thermal calibration on a new log",
                        description="Apply a px4.params or ardupilot.parm (thermonet's or the "
                                    "autopilot's own tool's) to a log of the same board through "
@@ -492,6 +525,9 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
     v.set_defaults(func=_cmd_verify)
 
+
+def _add_fleet(sub: Any) -> None:
+    """``thermonet fleet``: many units in one job, with pass/fail limits."""
     f = sub.add_parser("fleet", help="calibrate many units in one job, with pass/fail limits",
                        description="Run the comparison of CONFIG on every unit (device id) of "
                                    "the data, summarise the fleet (coefficient spread, robust "
@@ -499,7 +535,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "Exit 0: every unit passed; 3: some unit failed its limits "
                                    "or could not be calibrated; 1: bad input.")
     f.add_argument("config", help="comparison YAML (its data holds several units, or --units)")
-    tracking_args(f)
+    _tracking_args(f)
     f.add_argument("--units", type=int, default=None,
                    help="simulate N units of the config's preset instead of reading data")
     f.add_argument("--outliers", type=int, default=0, help="with --units: K outlier units")
@@ -514,7 +550,6 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--folds", type=int, default=5,
                    help="leave-units-out groups (0: skip)")
     f.set_defaults(func=_cmd_fleet)
-    return p
 
 
 def _raise_interrupted(signum: int, frame: object) -> None:

@@ -231,14 +231,12 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
     from .checks import flag, text, whole
     from .checks import path as a_path
     from .data import runs_of
-    from .estimator import DriftEstimator
 
     a_path(out, "compare(out)", none=True)
     flag(track, "compare(track)")
     text(tracking_uri, "compare(tracking_uri)", none=True, rule="an MLflow tracking URI")
-    flag(overwrite, "compare(overwrite)")
-    flag(plots, "compare(plots)")
-    flag(quiet, "compare(quiet)")
+    for value, name in ((overwrite, "overwrite"), (plots, "plots"), (quiet, "quiet")):
+        flag(value, f"compare({name})")
     whole(workers, "compare(workers)", 0, none=True, note=" (0: one per CPU)")
     cfg = _config(config)
     check_families(cfg, source=getattr(cfg, "_source", "compare(config)"), build=False)
@@ -262,15 +260,24 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
             models = {name: load_sensor(target / "models" / f"{name}.pt")[0]
                       for name, f in results["families"].items() if f.get("status") == "ok"}
             return SensorComparisonResult(results, models, None if out is None else target)
-        estimators = {}
-        for name, f in (results.get("families") or {}).items():
-            ckpt = f.get("checkpoint")
-            if f.get("status") == "ok" and ckpt:
-                path = Path(ckpt)
-                if not path.is_absolute() or not path.exists():
-                    path = target / "models" / f"{name}.pt"
-                estimators[name] = DriftEstimator.load(path)
+        estimators = _estimators(results, target)
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
     return ComparisonResult(results, estimators, None if out is None else target)
+
+
+def _estimators(results: dict[str, Any], target: Path) -> dict[str, Any]:
+    """A :class:`DriftEstimator` per fitted family, loaded from its checkpoint in ``target``
+    (before a temporary ``target`` is removed)."""
+    from .estimator import DriftEstimator
+
+    estimators = {}
+    for name, f in (results.get("families") or {}).items():
+        ckpt = f.get("checkpoint")
+        if f.get("status") == "ok" and ckpt:
+            path = Path(ckpt)
+            if not path.is_absolute() or not path.exists():
+                path = target / "models" / f"{name}.pt"
+            estimators[name] = DriftEstimator.load(path)
+    return estimators

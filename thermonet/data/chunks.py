@@ -546,45 +546,14 @@ def validate_layouts(layouts: Sequence[Layout],
     Dataset(runs=skeleton, meta=meta).validate(source)
 
 
-def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
-                   chunk_rows: int = DEFAULT_CHUNK_ROWS) -> tuple[int, int]:
-    """Recording files to one thermonet Parquet file (``thermonet convert``), read
-    ``chunk_rows`` rows at a time and written in row groups of about as many rows: memory
-    is one chunk, whatever the files' size.  The runs are checked first as the whole-file
-    reader checks them (:func:`validate_layouts`); a bad value anywhere leaves nothing at
-    ``out`` (written to a temporary file and moved over it at the end).  Rows keep their
-    file order (a run's rows need not be contiguous).  Returns (runs, samples)."""
+def _streamed_schema(layouts: Sequence[Layout], entries: list[dict[str, Any]],
+                     times: list[Any], channels: list[str], fleet: bool) -> Any:
+    """The Parquet schema of a streamed file: run (and device) ids, time and channels, with
+    the thermonet metadata (dataset meta, one entry per run with its sample count)."""
     import json
 
-    from ..core.fileio import atomic_path
-    from .io import (
-        DIGEST_KEY,
-        FORMAT_VERSION,
-        PARQUET_SUFFIXES,
-        WRITE_OPTIONS,
-        _str_dict,
-        check_output_file,
-        check_run_ids,
-    )
+    from .io import FORMAT_VERSION, _str_dict
 
-    out = check_output_file(out, PARQUET_SUFFIXES)
-    check_run_ids([(e["device_id"], e["run_id"], str(lay.path)) for lay in layouts
-                   for e in lay.runs])
-    times = [rt for lay in layouts for rt in run_times(lay, chunk_rows)]
-    pairs = [(str(lay.path), e) for lay in layouts for e in lay.runs]
-    for (src, e), rt in zip(pairs, times, strict=True):
-        if rt.n < MIN_SAMPLES_:
-            raise InputError.at(f"{src}, run '{e['run_id']}'", f"too few samples: {rt.n} "
-                                f"(need at least {MIN_SAMPLES_})")
-    validate_layouts(layouts, [rt.temperature for rt in times])
-    entries = [e for lay in layouts for e in lay.runs]
-    fleet = len({e["device_id"] for e in entries}) > 1
-    has_temp = any(e["temperature"] for e in entries)
-    names: list[str] = []
-    for group in GROUPS:
-        for e in entries:
-            names += [k for k in e[group] if k not in names]
-    channels = (["temperature_c"] if has_temp else []) + names
     fields = [pa.field("run", pa.string())] + ([pa.field("device", pa.string())] if fleet
                                                else [])
     fields += [pa.field(c, pa.float64()) for c in ["time_s", *channels]]
@@ -607,6 +576,62 @@ def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
             "n_samples": rt.n})
     schema = pa.schema(fields, metadata={METADATA_KEY: json.dumps(
         blob, allow_nan=False, ensure_ascii=False)})
+    return schema
+
+
+def _piece_table(e: dict[str, Any], piece: dict[str, np.ndarray], channels: list[str],
+                 schema: Any, *, fleet: bool) -> Any:
+    """One chunk of one run as a table of ``schema``: its ids, its time, and null in the
+    channels the run does not have."""
+    n = piece["time_s"].size
+    mine = set(["temperature_c"] if e["temperature"] else []) | {
+        k for g in GROUPS for k in e[g]}
+    arrays = [pa.array(np.full(n, e["run_id"], dtype=object), pa.string())]
+    if fleet:
+        arrays.append(pa.array(np.full(n, e["device_id"], dtype=object), pa.string()))
+    arrays.append(pa.array(piece["time_s"], pa.float64()))
+    arrays += [pa.array(piece[c], pa.float64()) if c in mine and c in piece
+               else pa.nulls(n, pa.float64()) for c in channels]
+    return pa.Table.from_arrays(arrays, schema=schema)
+
+
+def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
+                   chunk_rows: int = DEFAULT_CHUNK_ROWS) -> tuple[int, int]:
+    """Recording files to one thermonet Parquet file (``thermonet convert``), read
+    ``chunk_rows`` rows at a time and written in row groups of about as many rows: memory
+    is one chunk, whatever the files' size.  The runs are checked first as the whole-file
+    reader checks them (:func:`validate_layouts`); a bad value anywhere leaves nothing at
+    ``out`` (written to a temporary file and moved over it at the end).  Rows keep their
+    file order (a run's rows need not be contiguous).  Returns (runs, samples)."""
+
+    from ..core.fileio import atomic_path
+    from .io import (
+        DIGEST_KEY,
+        PARQUET_SUFFIXES,
+        WRITE_OPTIONS,
+        check_output_file,
+        check_run_ids,
+    )
+
+    out = check_output_file(out, PARQUET_SUFFIXES)
+    check_run_ids([(e["device_id"], e["run_id"], str(lay.path)) for lay in layouts
+                   for e in lay.runs])
+    times = [rt for lay in layouts for rt in run_times(lay, chunk_rows)]
+    pairs = [(str(lay.path), e) for lay in layouts for e in lay.runs]
+    for (src, e), rt in zip(pairs, times, strict=True):
+        if rt.n < MIN_SAMPLES_:
+            raise InputError.at(f"{src}, run '{e['run_id']}'", f"too few samples: {rt.n} "
+                                f"(need at least {MIN_SAMPLES_})")
+    validate_layouts(layouts, [rt.temperature for rt in times])
+    entries = [e for lay in layouts for e in lay.runs]
+    fleet = len({e["device_id"] for e in entries}) > 1
+    has_temp = any(e["temperature"] for e in entries)
+    names: list[str] = []
+    for group in GROUPS:
+        for e in entries:
+            names += [k for k in e[group] if k not in names]
+    channels = (["temperature_c"] if has_temp else []) + names
+    schema = _streamed_schema(layouts, entries, times, channels, fleet)
     n_total = 0
     with atomic_path(out, make_parents=False) as tmp:
         writer = pq.ParquetWriter(tmp, schema, **WRITE_OPTIONS)
@@ -625,18 +650,9 @@ def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
             for lay in layouts:
                 cols = [c for c in channels if c in lay.columns]
                 for i, _rows, piece in iter_run_chunks(lay, cols, chunk_rows=chunk_rows):
-                    e = entries[base + i]
                     n = piece["time_s"].size
-                    mine = set(["temperature_c"] if e["temperature"] else []) | {
-                        k for g in GROUPS for k in e[g]}
-                    arrays = [pa.array(np.full(n, e["run_id"], dtype=object), pa.string())]
-                    if fleet:
-                        arrays.append(pa.array(np.full(n, e["device_id"], dtype=object),
-                                               pa.string()))
-                    arrays.append(pa.array(piece["time_s"], pa.float64()))
-                    arrays += [pa.array(piece[c], pa.float64()) if c in mine and c in piece
-                               else pa.nulls(n, pa.float64()) for c in channels]
-                    buffer.append(pa.Table.from_arrays(arrays, schema=schema))
+                    buffer.append(_piece_table(entries[base + i], piece, channels, schema,
+                                               fleet=fleet))
                     held += n
                     n_total += n
                     if held >= chunk_rows:

@@ -83,6 +83,63 @@ def _text_lines(path: Path, chunk_rows: int | None) -> Iterator[tuple[list[str],
             offset += len(raw)
 
 
+class _Pending:
+    """The lines read so far from a text table's blocks (``more`` reads the next block)."""
+
+    def __init__(self, blocks: Iterator[tuple[list[str], int]]) -> None:
+        self.blocks = blocks
+        self.lines: list[str] = []
+        self.exhausted = False
+
+    def more(self) -> bool:
+        """Append the next block's lines; False once the blocks are exhausted."""
+        if self.exhausted:
+            return False
+        for block, _ in self.blocks:
+            self.lines.extend(block)
+            return True
+        self.exhausted = True
+        return False
+
+
+def _read_header(path: Path, src: _Pending, records: list[list[str]], sep: str,
+                 first_data: int) -> tuple[list[str], list[list[str]], int]:
+    """The header's column names (blank lines before it skipped, duplicates refused); the
+    records after it; the physical line of the first data row."""
+    lines = src.lines
+    while True:
+        while records and not records[0]:  # blank lines before the header
+            records.pop(0)
+            lines.pop(0)
+            first_data += 1
+        if records or not src.more():
+            break
+        records = list(csv.reader(lines, delimiter=sep))
+    if not records:
+        raise InputError.at(path, "no header line (file is empty after the banner)")
+    names = [c.strip() for c in records.pop(0)]
+    lines.pop(0)
+    first_data += 1
+    dup = [n for n, c in Counter(names).items() if c > 1]
+    if dup:
+        raise InputError.at(path, "duplicate column in the header", column=dup[0])
+    return names, records, first_data
+
+
+def _field_count(path: Path, names: list[str] | None, mapping: ColumnMapping | None,
+                 records: list[list[str]]) -> int:
+    """Fields per well-formed row: the header's, else the mapping's ``n_fields``, else the
+    most common count of the first records."""
+    if names is not None:
+        return len(names)
+    if mapping is not None and mapping.n_fields is not None:
+        return mapping.n_fields
+    counts = [len(r) for r in records if r]
+    if not counts:
+        raise InputError.at(path, "no data rows")
+    return Counter(counts).most_common(1)[0][0]
+
+
 def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None, *,
                      chunk_rows: int | None,
                      float_columns: Callable[[list[str] | None, int], set[str | int]] | None
@@ -103,61 +160,25 @@ def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None,
     malformed = mapping.malformed_rows if mapping else "error"
     if mapping is not None and mapping.separator is not None:
         sep = mapping.separator
-    blocks = _text_lines(path, chunk_rows)
-    lines: list[str] = []
-    pending: list[str] = []
-    exhausted = False
-
-    def more() -> bool:
-        nonlocal exhausted
-        if exhausted:
-            return False
-        for block, _ in blocks:
-            pending.extend(block)
-            return True
-        exhausted = True
-        return False
-
+    src = _Pending(_text_lines(path, chunk_rows))
+    blocks = src.blocks
     # the banner, then the first block's lines
-    while len(pending) < skip and more():
+    while len(src.lines) < skip and src.more():
         pass
-    del pending[:skip]
-    while not pending and more():
+    del src.lines[:skip]
+    while not src.lines and src.more():
         pass
-    lines = pending
+    lines = src.lines   # grows as src.more() reads on
     if sep is None:
-        while len([ln for ln in lines if ln.strip()]) < 50 and more():
+        while len([ln for ln in lines if ln.strip()]) < 50 and src.more():
             pass
         sep = _sniff(path, [ln for ln in lines if ln.strip()][:50])
     records = list(csv.reader(lines, delimiter=sep))
     names: list[str] | None = None
     first_data = skip + 1  # physical line of data row 1, before the header shift
     if header:
-        while True:
-            while records and not records[0]:  # blank lines before the header
-                records.pop(0)
-                lines.pop(0)
-                first_data += 1
-            if records or not more():
-                break
-            records = list(csv.reader(lines, delimiter=sep))
-        if not records:
-            raise InputError.at(path, "no header line (file is empty after the banner)")
-        names = [c.strip() for c in records.pop(0)]
-        lines.pop(0)
-        first_data += 1
-        dup = [n for n, c in Counter(names).items() if c > 1]
-        if dup:
-            raise InputError.at(path, "duplicate column in the header", column=dup[0])
-    if names is not None:
-        n_fields = len(names)
-    elif mapping is not None and mapping.n_fields is not None:
-        n_fields = mapping.n_fields
-    else:
-        counts = [len(r) for r in records if r]
-        if not counts:
-            raise InputError.at(path, "no data rows")
-        n_fields = Counter(counts).most_common(1)[0][0]
+        names, records, first_data = _read_header(path, src, records, sep, first_data)
+    n_fields = _field_count(path, names, mapping, records)
     numeric = names if names and all(n and _is_float(n) for n in names) else []
     fast = None if float_columns is None or chunk_rows is None else \
         float_columns(names, n_fields)
@@ -375,13 +396,13 @@ def sensor_kind_of(mapping: ColumnMapping) -> str:
     return mapping.sensor_kind or (kinds.pop() if len(kinds) == 1 else "mixed")
 
 
-def map_frame(frame: Frame, mapping: ColumnMapping, state: MapState | None = None, *,
-              check: bool = True) -> Mapped:
-    """Parse one frame's mapped cells (file, column and row named for a bad one), apply the
-    time unit and each channel's scale and offset, group the rows by (device, run) and
-    check each group's time within the frame (``check``)."""
+def _parse_cells(frame: Frame, mapping: ColumnMapping, state: MapState
+                 ) -> tuple[dict[str | int, np.ndarray], np.ndarray,
+                            tuple[int, str | int] | None]:
+    """The mapped columns as float64 (the time column's date/time stamps as seconds since
+    the recording's first); the rows with a cell that is not a finite number; the first such
+    cell (row index, column), for the message."""
     path = frame.path
-    state = state if state is not None else MapState()
     numeric_keys: list[tuple[str, str | int]] = []
     if mapping.time is not None:
         numeric_keys.append(("time.column", _resolve(frame, mapping.time.column, "time.column")))
@@ -403,31 +424,43 @@ def map_frame(frame: Frame, mapping: ColumnMapping, state: MapState | None = Non
             if label != numeric_keys[0][1] or mapping.time is None:
                 raise InputError.at(path, "a date/time column can only be the time column",
                                     column=str(label))
-            stamps = cells.astype("datetime64[ns]") if pd.api.types.is_datetime64_any_dtype(
-                cells) else cells.astype("timedelta64[ns]")
-            ns = stamps.to_numpy().astype("int64").astype(np.float64)
-            if state.t0_ns is None and ns.size:
-                state.t0_ns = float(ns[0])
-            v = (ns - (state.t0_ns or 0.0)) * 1e-9 / mapping.time.seconds_per_unit
-            v[np.asarray(stamps.isna())] = np.nan
-            values[label] = v
-            bad = ~np.isfinite(v)
-            if bad.any():
-                bad_any |= bad
-                i = int(np.argmax(bad))
-                if first_bad is None or i < first_bad[0]:
-                    first_bad = (i, label)
-            continue
-        v = pd.to_numeric(cells.str.strip() if cells.dtype != np.float64 and
-                          hasattr(cells, "str") else cells, errors="coerce")
-        v = np.asarray(v, dtype=np.float64)
-        bad = ~np.isfinite(v)
+            v = _stamp_units(cells, mapping, state)
+        else:
+            v = pd.to_numeric(cells.str.strip() if cells.dtype != np.float64 and
+                              hasattr(cells, "str") else cells, errors="coerce")
+            v = np.asarray(v, dtype=np.float64)
         values[label] = v
+        bad = ~np.isfinite(v)
         if bad.any():
             bad_any |= bad
             i = int(np.argmax(bad))
             if first_bad is None or i < first_bad[0]:
                 first_bad = (i, label)
+    return values, bad_any, first_bad
+
+
+def _stamp_units(cells: Any, mapping: ColumnMapping, state: MapState) -> np.ndarray:
+    """A date/time (or time-delta) column as the time column's units since the recording's
+    first stamp (kept in ``state`` across frames); NaN where a stamp is missing."""
+    assert mapping.time is not None
+    stamps = cells.astype("datetime64[ns]") if pd.api.types.is_datetime64_any_dtype(
+        cells) else cells.astype("timedelta64[ns]")
+    ns = stamps.to_numpy().astype("int64").astype(np.float64)
+    if state.t0_ns is None and ns.size:
+        state.t0_ns = float(ns[0])
+    v = (ns - (state.t0_ns or 0.0)) * 1e-9 / mapping.time.seconds_per_unit
+    v[np.asarray(stamps.isna())] = np.nan
+    return v
+
+
+def map_frame(frame: Frame, mapping: ColumnMapping, state: MapState | None = None, *,
+              check: bool = True) -> Mapped:
+    """Parse one frame's mapped cells (file, column and row named for a bad one), apply the
+    time unit and each channel's scale and offset, group the rows by (device, run) and
+    check each group's time within the frame (``check``)."""
+    path = frame.path
+    values, bad_any, first_bad = _parse_cells(frame, mapping,
+                                              state if state is not None else MapState())
     n_skipped = len(frame.skipped_lines)
     if first_bad is not None:
         if mapping.malformed_rows == "error":

@@ -189,6 +189,33 @@ def _axis_models_coefficients(model: AxisModels, *, output_units: str | Mapping[
     return out
 
 
+def _polynomial_form(model: Any) -> np.ndarray:
+    """The model's polynomial in its one normalised input (rows: axes, ascending), refused
+    (:class:`ExportError`) where the autopilots cannot evaluate it: a recurrent family,
+    another input than ``dT`` or ``T``, no polynomial form, a degree above 3 (5 for a
+    barometer-only model)."""
+    family = family_name(model)
+    if model.family.recurrent:  # before the input check: its reason is the state, not dT
+        raise ExportError(f"PX4/ArduPilot parameter files hold a polynomial in temperature; this "
+                          f"model is '{family}', which carries a state in time — export it as "
+                          "ONNX or C (state, _init, _step)")
+    if list(model.inputs) not in (["dT"], ["T"]):
+        raise ExportError(f"PX4/ArduPilot parameter files need one input, dT or T; this model "
+                          f"reads {list(model.inputs)}")
+    form = model.family.polynomial_form()  # the family says whether it is a polynomial
+    if form is None:
+        raise ExportError(f"PX4/ArduPilot parameter files need a polynomial in dT or T; this "
+                          f"model is '{family}', which has no polynomial form "
+                          "— export it as ONNX or C")
+    degree = form.shape[1] - 1
+    baro_only = {output_kind(a) for a in model.outputs} == {"baro"}
+    if degree > (5 if baro_only else 3):
+        what = "an order-5 polynomial (baro)" if baro_only else "a cubic"
+        raise ExportError(f"PX4/ArduPilot evaluate {what}; this {family} model has degree "
+                          f"{degree}")
+    return form
+
+
 def autopilot_coefficients(model: ShippedModel, *, output_units: str | Mapping[str, str],
                            t_ref: float | None = None) -> AutopilotCoefficients:
     """Expand a polynomial model (degree ≤ 3, one input ``dT`` or ``T``) into SI cubic coefficients.
@@ -217,25 +244,7 @@ def autopilot_coefficients(model: ShippedModel, *, output_units: str | Mapping[s
     """
     if isinstance(model, AxisModels):
         return _axis_models_coefficients(model, output_units=output_units, t_ref=t_ref)
-    family = family_name(model)
-    if model.family.recurrent:  # before the input check: its reason is the state, not dT
-        raise ExportError(f"PX4/ArduPilot parameter files hold a polynomial in temperature; this "
-                          f"model is '{family}', which carries a state in time — export it as "
-                          "ONNX or C (state, _init, _step)")
-    if list(model.inputs) not in (["dT"], ["T"]):
-        raise ExportError(f"PX4/ArduPilot parameter files need one input, dT or T; this model "
-                          f"reads {list(model.inputs)}")
-    form = model.family.polynomial_form()  # the family says whether it is a polynomial
-    if form is None:
-        raise ExportError(f"PX4/ArduPilot parameter files need a polynomial in dT or T; this "
-                          f"model is '{family}', which has no polynomial form "
-                          "— export it as ONNX or C")
-    degree = form.shape[1] - 1
-    baro_only = {output_kind(a) for a in model.outputs} == {"baro"}
-    if degree > (5 if baro_only else 3):
-        what = "an order-5 polynomial (baro)" if baro_only else "a cubic"
-        raise ExportError(f"PX4/ArduPilot evaluate {what}; this {family} model has degree "
-                          f"{degree}")
+    form = _polynomial_form(model)
     lo = float(model.sig_lo[0])
     hi = float(model.sig_hi[0])
     if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):

@@ -473,19 +473,7 @@ def axis_metrics(*, bin_by: np.ndarray, time_s: np.ndarray, raw: np.ndarray,
     _same_length(**arrays)
     for name, arr in arrays.items():
         _finite(name, arr)
-    t = arrays["time_s"]
-    dt = np.diff(t)
-    if dt.size and (dt < 0).any():
-        i = int(np.flatnonzero(dt < 0)[0]) + 1
-        raise ValueError(f"'time_s' decreases at index {i} ({t[i - 1]!r} -> {t[i]!r} s)")
-    if rate_hz is None:
-        positive = dt[dt > 0]
-        if positive.size == 0:
-            raise ValueError("cannot infer rate_hz: 'time_s' has no positive step; pass rate_hz")
-        # The median ignores burst gaps, which would drag a mean interval up.
-        rate_hz = 1.0 / float(np.median(positive))
-    rate = _positive_rate(rate_hz)
-
+    rate = _rate_of(arrays["time_s"], rate_hz)
     e_raw = arrays["raw"] - arrays["reference"]
     e_comp = e_raw - arrays["predicted_drift"]
     zero = np.zeros_like(e_raw)
@@ -504,6 +492,21 @@ def axis_metrics(*, bin_by: np.ndarray, time_s: np.ndarray, raw: np.ndarray,
     if true_drift is not None:
         out["drift_error_rms"] = drift_error_rms(arrays["predicted_drift"], arrays["true_drift"])
     return {key: float(value) for key, value in out.items()}
+
+
+def _rate_of(t: np.ndarray, rate_hz: float | None) -> float:
+    """``rate_hz`` checked, or ``1 / median(Δt)`` of the non-decreasing times ``t``."""
+    dt = np.diff(t)
+    if dt.size and (dt < 0).any():
+        i = int(np.flatnonzero(dt < 0)[0]) + 1
+        raise ValueError(f"'time_s' decreases at index {i} ({t[i - 1]!r} -> {t[i]!r} s)")
+    if rate_hz is None:
+        positive = dt[dt > 0]
+        if positive.size == 0:
+            raise ValueError("cannot infer rate_hz: 'time_s' has no positive step; pass rate_hz")
+        # The median ignores burst gaps, which would drag a mean interval up.
+        rate_hz = 1.0 / float(np.median(positive))
+    return _positive_rate(rate_hz)
 
 
 def window_axis_metrics(*, bin_by: np.ndarray, raw: np.ndarray, predicted_drift: np.ndarray,

@@ -401,9 +401,12 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
     compensated only where the candidate also does not raise the binned peak-to-peak out of
     fold (:func:`pp_guard`).  The whole-recording choice is :attr:`Selection.chosen`; the
     choice of each axis alone (:func:`choose_per_axis`) is :attr:`Selection.per_axis`.
+
+    Steps: pool the folds' validation windows (:func:`_pool`), score every candidate and
+    set its per-axis mask (:func:`_score`), choose each axis alone
+    (:func:`choose_per_axis`), then the whole recording's one-SE choice (:func:`_one_se`).
     """
     ok = {k: c for k, c in cands.items() if c.failed is None}
-    A = len(outputs)
     record: dict[str, Any] = {"method": "purged blocked cross-validation", **plan.describe(),
                               "candidates": {}}
     for k, c in cands.items():
@@ -411,153 +414,201 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
             record["candidates"][k] = {"status": "failed", "reason": c.failed}
     if not ok:
         return Selection(None, [], "no candidate could be fitted on every fold", {}, record)
-    # the common windows: per fold and run, rows inside every candidate's domain
-    ss: dict[str, list[np.ndarray]] = {k: [] for k in ["<raw>", *ok]}
-    ns: list[np.ndarray] = []
-    own_ss: dict[str, list[np.ndarray]] = {k: [] for k in ok}
-    own_raw: dict[str, list[np.ndarray]] = {k: [] for k in ok}
-    left_out: dict[str, list[float]] = {k: [] for k in ok}
-    common_left: list[float] = []
-    pp_raw = np.zeros(A)
-    pp_cand: dict[str, np.ndarray] = {k: np.zeros(A) for k in ok}
-    fold_units: list[int] = []
-    n_units_total = 0
-    for f in range(plan.k):
-        unit_base = n_units_total
-        fold_max_unit = 0
-        parts = []
-        for j, fo in enumerate(plan.fold_of):
-            rows = np.flatnonzero(fo == f)
-            if rows.size == 0:
-                continue
-            blk = plan.block_of[j][rows]
-            parts.append((j, rows, blk))
-            fold_max_unit = max(fold_max_unit, int(blk.max()) + 1)
-        # units of this fold: its validation blocks, renumbered from unit_base
-        ublocks = np.unique(np.concatenate([b for _, _, b in parts])) if parts else np.array([])
-        remap = {int(b): unit_base + i for i, b in enumerate(ublocks)}
-        n_units_total += ublocks.size
-        fold_units.append(ublocks.size)
-        # one offset-free fold mean: stack this fold's runs (offset per fold, as verdicts do)
-        e_raw, wl_all, un_all, t_all = [], [], [], []
-        e_c: dict[str, list[np.ndarray]] = {k: [] for k in ok}
-        inside_c: dict[str, list[np.ndarray]] = {k: [] for k in ok}
-        wl_base = 0
-        for j, rows, blk in parts:
-            y = targets[j][rows]
-            wl = window_labels(times[j][rows], plan.window_s) + wl_base
-            wl_base = int(wl.max()) + 1
-            e_raw.append(y)
-            if temperatures is not None:
-                t_all.append(np.asarray(temperatures[j], dtype=np.float64)[rows])
-            wl_all.append(wl)
-            un_all.append(np.array([remap[int(b)] for b in blk]))
-            for k, c in ok.items():
-                e_c[k].append(y - c.pred[f][j])
-                inside_c[k].append(c.inside[f][j])
-        y = np.concatenate(e_raw)
-        wl = np.concatenate(wl_all)
-        un = np.concatenate(un_all)
-        inside = {k: np.concatenate(v) for k, v in inside_c.items()}
-        common = np.logical_and.reduce(list(inside.values()))
-        common_left.append(float(1.0 - common.mean()) if common.size else 1.0)
-        for k in ok:
-            left_out[k].append(float(1.0 - inside[k].mean()) if inside[k].size else 1.0)
-        if common.sum() < 2:
-            continue
-        # every score is offset-free: window means about the fold's mean (_window_ss)
-        s_raw, n = _window_ss(y[common], wl[common], un[common], n_units_total)
-        ss["<raw>"].append(s_raw)
-        ns.append(n)
-        tf = np.concatenate(t_all)[common] if t_all else None
-        if tf is not None:
-            pp_raw += _binned_pp(tf, y[common])
-        for k in ok:
-            e = np.concatenate(e_c[k])
-            s, _ = _window_ss(e[common], wl[common], un[common], n_units_total)
-            ss[k].append(s)
-            if tf is not None:
-                pp_cand[k] += _binned_pp(tf, e[common])
-            # the candidate's own domain, for its per-axis compensate decision
-            m = inside[k]
-            if m.sum() >= 2:
-                so, _ = _window_ss(e[m], wl[m], un[m], n_units_total)
-                sr, _ = _window_ss(y[m], wl[m], un[m], n_units_total)
-                own_ss[k].append(so)
-                own_raw[k].append(sr)
-    if not ns:
+    pooled = _pool(plan, targets, times, ok, len(outputs), temperatures)
+    if not pooled.ns:
         return Selection(None, [], "no validation window inside every candidate's trained "
                          "domain", {}, record)
+    sc = _score(pooled, ok, outputs, temperatures is not None, record)
+    record["common_left_out_fraction"] = pooled.common_left
+    per_axis, per_axis_reason = choose_per_axis(
+        sc.axis_scores, sc.axis_boots, {k: c.n_params for k, c in ok.items()}, outputs,
+        baseline, plan.k)
+    record["per_axis"] = {"chosen": per_axis, "rule": per_axis_reason}
+    chosen, tied, reason = _one_se(plan, ok, sc, outputs, baseline, record)
+    return Selection(chosen, tied, reason, sc.compensate, record, per_axis, per_axis_reason)
 
-    def total(lst: list[np.ndarray]) -> np.ndarray:
-        out = np.zeros((n_units_total, A))
+
+@dataclass
+class _Pooled:
+    """The folds' validation rows pooled per bootstrap unit (a validation block, numbered
+    across folds): per-unit offset-free sums of squares of the window means on the windows
+    common to every candidate (``ss``: ``"<raw>"`` and each candidate) and on each
+    candidate's own domain (``own_ss``, ``own_raw``), binned peak-to-peak sums, and the
+    fractions of rows left out of the domains."""
+
+    ss: dict[str, list[np.ndarray]]
+    own_ss: dict[str, list[np.ndarray]]
+    own_raw: dict[str, list[np.ndarray]]
+    left_out: dict[str, list[float]]
+    pp_raw: np.ndarray
+    pp_cand: dict[str, np.ndarray]
+    ns: list[np.ndarray] = field(default_factory=list)
+    common_left: list[float] = field(default_factory=list)
+    fold_units: list[int] = field(default_factory=list)
+    n_units: int = 0
+
+    def total(self, lst: list[np.ndarray]) -> np.ndarray:
+        """The per-fold arrays (each as long as the units known at its fold) summed over
+        every unit."""
+        out = np.zeros((self.n_units, self.pp_raw.size))
         for x in lst:
             out[: x.shape[0]] += x
         return out
 
-    raw_ss = total(ss["<raw>"])
-    counts = draws(n_units_total)              # (R, B) paired: one set of draws for all
+
+def _pool(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.ndarray],
+          ok: Mapping[str, CandidateOOF], n_axes: int,
+          temperatures: Sequence[np.ndarray] | None) -> _Pooled:
+    """Every fold's validation rows pooled (:class:`_Pooled`), fold by fold."""
+    pooled = _Pooled(ss={k: [] for k in ["<raw>", *ok]}, own_ss={k: [] for k in ok},
+                     own_raw={k: [] for k in ok}, left_out={k: [] for k in ok},
+                     pp_raw=np.zeros(n_axes), pp_cand={k: np.zeros(n_axes) for k in ok})
+    for f in range(plan.k):
+        parts = []
+        for j, fo in enumerate(plan.fold_of):
+            rows = np.flatnonzero(fo == f)
+            if rows.size:
+                parts.append((j, rows, plan.block_of[j][rows]))
+        # units of this fold: its validation blocks, renumbered from the units so far
+        ublocks = np.unique(np.concatenate([b for _, _, b in parts])) if parts else np.array([])
+        remap = {int(b): pooled.n_units + i for i, b in enumerate(ublocks)}
+        pooled.n_units += ublocks.size
+        pooled.fold_units.append(ublocks.size)
+        _pool_fold(pooled, plan, f, parts, remap, targets, times, ok, temperatures)
+    return pooled
+
+
+def _pool_fold(pooled: _Pooled, plan: FoldPlan, f: int,
+               parts: list[tuple[int, np.ndarray, np.ndarray]], remap: dict[int, int],
+               targets: Sequence[np.ndarray], times: Sequence[np.ndarray],
+               ok: Mapping[str, CandidateOOF],
+               temperatures: Sequence[np.ndarray] | None) -> None:
+    """Fold ``f``'s rows added to ``pooled``: one offset-free fold mean (this fold's runs
+    stacked; an offset per fold, as the verdicts have)."""
+    e_raw, wl_all, un_all, t_all = [], [], [], []
+    e_c: dict[str, list[np.ndarray]] = {k: [] for k in ok}
+    inside_c: dict[str, list[np.ndarray]] = {k: [] for k in ok}
+    wl_base = 0
+    for j, rows, blk in parts:
+        y = targets[j][rows]
+        wl = window_labels(times[j][rows], plan.window_s) + wl_base
+        wl_base = int(wl.max()) + 1
+        e_raw.append(y)
+        if temperatures is not None:
+            t_all.append(np.asarray(temperatures[j], dtype=np.float64)[rows])
+        wl_all.append(wl)
+        un_all.append(np.array([remap[int(b)] for b in blk]))
+        for k, c in ok.items():
+            e_c[k].append(y - c.pred[f][j])
+            inside_c[k].append(c.inside[f][j])
+    y = np.concatenate(e_raw)
+    wl = np.concatenate(wl_all)
+    un = np.concatenate(un_all)
+    inside = {k: np.concatenate(v) for k, v in inside_c.items()}
+    common = np.logical_and.reduce(list(inside.values()))
+    pooled.common_left.append(float(1.0 - common.mean()) if common.size else 1.0)
+    for k in ok:
+        pooled.left_out[k].append(float(1.0 - inside[k].mean()) if inside[k].size else 1.0)
+    if common.sum() < 2:
+        return
+    n_units = pooled.n_units
+    # every score is offset-free: window means about the fold's mean (_window_ss)
+    s_raw, n = _window_ss(y[common], wl[common], un[common], n_units)
+    pooled.ss["<raw>"].append(s_raw)
+    pooled.ns.append(n)
+    tf = np.concatenate(t_all)[common] if t_all else None
+    if tf is not None:
+        pooled.pp_raw += _binned_pp(tf, y[common])
+    for k in ok:
+        e = np.concatenate(e_c[k])
+        s, _ = _window_ss(e[common], wl[common], un[common], n_units)
+        pooled.ss[k].append(s)
+        if tf is not None:
+            pooled.pp_cand[k] += _binned_pp(tf, e[common])
+        # the candidate's own domain, for its per-axis compensate decision
+        m = inside[k]
+        if m.sum() >= 2:
+            so, _ = _window_ss(e[m], wl[m], un[m], n_units)
+            sr, _ = _window_ss(y[m], wl[m], un[m], n_units)
+            pooled.own_ss[k].append(so)
+            pooled.own_raw[k].append(sr)
+
+
+@dataclass
+class _Scores:
+    """Per candidate: the whole-recording score (mean over axes, uncompensated axes at 1)
+    and its paired bootstrap draws, the per-axis mask, and the per-axis scores and draws."""
+
+    scores: dict[str, float] = field(default_factory=dict)
+    boots: dict[str, np.ndarray] = field(default_factory=dict)
+    compensate: dict[str, list[bool]] = field(default_factory=dict)
+    axis_scores: dict[str, np.ndarray] = field(default_factory=dict)
+    axis_boots: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def _score(pooled: _Pooled, ok: Mapping[str, CandidateOOF], outputs: Sequence[str],
+           guard: bool, record: dict[str, Any]) -> _Scores:
+    """Every candidate scored on the common windows against raw, its axes masked by the
+    one-SE rule on its own domain (and the peak-to-peak guard where ``guard``); each
+    candidate's entry of ``record``."""
+    A = len(outputs)
+    raw_ss = pooled.total(pooled.ss["<raw>"])
+    counts = draws(pooled.n_units)             # (R, B) paired: one set of draws for all
+    sc = _Scores()
     with np.errstate(divide="ignore", invalid="ignore"):
         raw_boot = counts @ raw_ss
-        scores: dict[str, float] = {}
-        boots: dict[str, np.ndarray] = {}
-        compensate: dict[str, list[bool]] = {}
-        axis_scores: dict[str, np.ndarray] = {}
-        axis_boots: dict[str, np.ndarray] = {}
         q = 100.0 * (1.0 - LEVEL) / 2.0
         for k in ok:
-            own_c, own_r = total(own_ss[k]), total(own_raw[k])
+            own_c, own_r = pooled.total(pooled.own_ss[k]), pooled.total(pooled.own_raw[k])
             ratio_own = np.sqrt(own_c.sum(0) / own_r.sum(0))
             boot_own = np.sqrt((counts @ own_c) / (counts @ own_r))
             iv = np.nanpercentile(boot_own, [q, 100 - q], axis=0)
             se_own = np.nanstd(boot_own, axis=0)
             # raw is the simplest candidate of every axis: it stays unless the candidate's
             # paired improvement 1 − ratio exceeds one standard error (the one-SE rule)
-            pp_ok = pp_guard(pp_cand[k], pp_raw) if temperatures is not None else [True] * A
+            pp_ok = pp_guard(pooled.pp_cand[k], pooled.pp_raw) if guard else [True] * A
             mask = [bool(below(float(ratio_own[a]) + float(se_own[a]), 1.0)) and pp_ok[a]
                     for a in range(A)]
-            compensate[k] = mask
-            c_ss = total(ss[k])
+            sc.compensate[k] = mask
+            c_ss = pooled.total(pooled.ss[k])
             ratio = np.sqrt(c_ss.sum(0) / raw_ss.sum(0))
             boot = np.sqrt((counts @ c_ss) / raw_boot)
             keep = np.array(mask)
-            axis_scores[k] = np.where(keep, ratio, 1.0)
-            scores[k] = float(np.mean(axis_scores[k]))
-            axis_boots[k] = np.where(keep[None, :], boot, 1.0)
-            boots[k] = axis_boots[k].mean(axis=1)
+            sc.axis_scores[k] = np.where(keep, ratio, 1.0)
+            sc.scores[k] = float(np.mean(sc.axis_scores[k]))
+            sc.axis_boots[k] = np.where(keep[None, :], boot, 1.0)
+            sc.boots[k] = sc.axis_boots[k].mean(axis=1)
             fold_scores = []
             lo_u = 0
-            for nu in fold_units:
+            for nu in pooled.fold_units:
                 sl = slice(lo_u, lo_u + nu)
                 lo_u += nu
                 r = np.sqrt(c_ss[sl].sum(0) / raw_ss[sl].sum(0))
                 fold_scores.append(float(np.mean(np.where(keep, r, 1.0))))
             record["candidates"][k] = {
-                "status": "ok", "n_params": ok[k].n_params, "score": scores[k],
-                "interval": [float(x) for x in np.nanpercentile(boots[k], [q, 100 - q])],
+                "status": "ok", "n_params": ok[k].n_params, "score": sc.scores[k],
+                "interval": [float(x) for x in np.nanpercentile(sc.boots[k], [q, 100 - q])],
                 "fold_scores": fold_scores,
                 "axes": {a: {"ratio": float(ratio[i]), "own_ratio": float(ratio_own[i]),
                              "own_interval": [float(iv[0, i]), float(iv[1, i])],
                              "own_se": float(se_own[i]),
-                             **({"pp_ratio": float(pp_cand[k][i] / pp_raw[i])
-                                 if pp_raw[i] > 0 else None,
-                                 "pp_guard": bool(pp_ok[i])} if temperatures is not None
-                                else {}),
+                             **({"pp_ratio": float(pooled.pp_cand[k][i] / pooled.pp_raw[i])
+                                 if pooled.pp_raw[i] > 0 else None,
+                                 "pp_guard": bool(pp_ok[i])} if guard else {}),
                              "compensate": bool(mask[i])} for i, a in enumerate(outputs)},
-                "left_out_fraction": left_out[k]}
-    record["common_left_out_fraction"] = common_left
+                "left_out_fraction": pooled.left_out[k]}
+    return sc
+
+
+def _one_se(plan: FoldPlan, ok: Mapping[str, CandidateOOF], sc: _Scores,
+            outputs: Sequence[str], baseline: str | None,
+            record: dict[str, Any]) -> tuple[str | None, list[str], str]:
+    """The whole recording's choice: (chosen or None, tied, reason) — do no harm, then the
+    fewest parameters within one SE of the best (no candidate below the baseline's floor)."""
     order = {k: i for i, k in enumerate(ok)}
-    per_axis, per_axis_reason = choose_per_axis(
-        axis_scores, axis_boots, {k: c.n_params for k, c in ok.items()}, outputs, baseline,
-        plan.k)
-    record["per_axis"] = {"chosen": per_axis, "rule": per_axis_reason}
-
-    def outcome(chosen: str | None, tied: list[str], reason: str) -> Selection:
-        return Selection(chosen, tied, reason, compensate, record, per_axis, per_axis_reason)
-
-    finite = {k: v for k, v in scores.items() if math.isfinite(v)}
+    finite = {k: v for k, v in sc.scores.items() if math.isfinite(v)}
     if not finite:
-        return outcome(None, [], "no candidate has a finite out-of-fold score")
+        return None, [], "no candidate has a finite out-of-fold score"
     low = min(finite.values())
     best = min((k for k, v in finite.items() if same(v, low)),
                key=lambda k: (ok[k].n_params, order[k]))
@@ -565,14 +616,14 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
         reason = ("do no harm: no candidate beats the raw output on any axis out of fold "
                   f"(best {best}: score ratio {finite[best]:.4g})")
         record["rule"] = reason
-        return outcome(None, [], reason)
+        return None, [], reason
     eligible = []
     for k, v in finite.items():
-        d = boots[k] - boots[best]
+        d = sc.boots[k] - sc.boots[best]
         se = float(np.nanstd(d)) if k != best else 0.0
         record["candidates"][k]["diff_to_best"] = v - finite[best]
         record["candidates"][k]["se_of_diff"] = se
-        floor = "" if k == best else _below_baseline(k, baseline, axis_scores, outputs)
+        floor = "" if k == best else _below_baseline(k, baseline, sc.axis_scores, outputs)
         if floor:
             record["candidates"][k]["not_eligible"] = floor
         elif below(v, 1.0) and (v - finite[best] <= se or same(v, finite[best])):
@@ -599,4 +650,4 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
                   f"({ok[chosen].n_params} vs {ok[best].n_params})")
     record["rule"] = reason
     record["chosen"] = chosen
-    return outcome(chosen, tied, reason)
+    return chosen, tied, reason

@@ -187,16 +187,7 @@ def simulate_run(cfg: SimConfig, run_index: int, seed: int = 0) -> tuple[Recordi
     rates = rng.uniform(cfg.table.rate_min, cfg.table.rate_max, len(cfg.axes)) \
         * rng.choice([-1.0, 1.0], len(cfg.axes))
 
-    chamber = profile.temperature(t)
-    lag = sw.thermal_lag
-    die = first_order_lag(chamber, cfg.thermal.die_lag_s if lag else 0.0, dt)
-    if sw.self_heating and cfg.self_heating.rise_c:
-        die = die + cfg.self_heating.rise_c * (1.0 - np.exp(-t / cfg.self_heating.tau_s))
-    case = first_order_lag(chamber, cfg.thermal.case_lag_s if lag else 0.0, dt)
-    reading = first_order_lag(case, th.lag_s if sw.thermometer_lag else 0.0, dt) + th_offset
-    reading = reading + rng.standard_normal(n) * th.noise_c * sw.thermometer_noise
-    if sw.thermometer_quantisation:
-        reading = quantise(reading, th.resolution_c)
+    chamber, die, case, reading = _temperatures(cfg, profile.temperature(t), t, th_offset, rng)
 
     proxies: dict[str, np.ndarray] = {}
     units: dict[str, str] = {"time_s": "s", "temperature_c": "degC"}
@@ -214,23 +205,8 @@ def simulate_run(cfg: SimConfig, run_index: int, seed: int = 0) -> tuple[Recordi
             for k, ax in enumerate(cfg.axes)}
     for ax in cfg.axes:
         ref = refs[ax.name]
-        raw_bias = ax.bias(t_law)
-        anchor_c = 25.0 if ax.bias_reference_c is None else ax.bias_reference_c
-        anchor = float(ax.bias(np.array([anchor_c]))[0])
-        keep = 0.0 if ax.bias_reference_c is not None else anchor
-        d = keep + bias_gain * (raw_bias - anchor) + bias_offset
-        if ax.scale_factor_ppm is not None and sw.scale_factor:
-            d = d + scale_gain * ax.scale_factor_ppm(t_law) * 1e-6 * ref
-        for other, law in ax.cross_axis_urad:
-            if other not in refs:
-                raise ConfigError(f"axis '{ax.name}': cross_axis_urad names no axis '{other}' "
-                                  f"(axes: {', '.join(refs)})")
-            if sw.misalignment:
-                d = d + law(t_law) * 1e-6 * refs[other]
-        if sw.hysteresis and ax.hysteresis.amplitude:
-            d = d + ax.hysteresis.amplitude * play_operator(die, ax.hysteresis.width_c)
-        if sw.rate_term and ax.rate_term.coefficient_per_c_per_h:
-            d = d + ax.rate_term.coefficient_per_c_per_h * rate_c_per_h
+        d = _axis_drift(ax, sw, t_law, die, rate_c_per_h, refs,
+                        gains=(bias_gain, bias_offset, scale_gain))
         noise = sensor_noise(ax.noise, n, fs, rng, white=sw.white_noise,
                              flicker=sw.flicker_noise, random_walk=sw.random_walk_noise)
         outputs[ax.name] = ref + d + noise
@@ -251,6 +227,52 @@ def simulate_run(cfg: SimConfig, run_index: int, seed: int = 0) -> tuple[Recordi
                     sensor_kind=cfg.sensor_kind, run_id=f"run{run_index}",
                     sample_rate_hz=fs, meta=meta)
     return rec, RunTruth(chamber_c=chamber, die_c=die, case_c=case, thermometer_c=reading)
+
+
+def _temperatures(cfg: SimConfig, chamber: np.ndarray, t: np.ndarray, th_offset: float,
+                  rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """(chamber, die, case, thermometer reading) of one run: the lags, the self-heating,
+    and the thermometer's lag, offset, noise (one draw, whatever the switches) and step."""
+    sw, th = cfg.switches, cfg.thermometer
+    dt = 1.0 / float(cfg.sample_rate_hz)   # as simulate_run's (checked positive there)
+    lag = sw.thermal_lag
+    die = first_order_lag(chamber, cfg.thermal.die_lag_s if lag else 0.0, dt)
+    if sw.self_heating and cfg.self_heating.rise_c:
+        die = die + cfg.self_heating.rise_c * (1.0 - np.exp(-t / cfg.self_heating.tau_s))
+    case = first_order_lag(chamber, cfg.thermal.case_lag_s if lag else 0.0, dt)
+    reading = first_order_lag(case, th.lag_s if sw.thermometer_lag else 0.0, dt) + th_offset
+    reading = reading + rng.standard_normal(t.size) * th.noise_c * sw.thermometer_noise
+    if sw.thermometer_quantisation:
+        reading = quantise(reading, th.resolution_c)
+    return chamber, die, case, reading
+
+
+def _axis_drift(ax: Any, sw: Switches, t_law: np.ndarray, die: np.ndarray,
+                rate_c_per_h: np.ndarray, refs: dict[str, np.ndarray], *,
+                gains: tuple[float, float, float]) -> np.ndarray:
+    """One axis's drift: the bias law (anchored, with the unit's gain and the run's offset),
+    the scale factor on its reference, the cross-axis terms, hysteresis and the rate term
+    (each where its switch is on).  ``gains``: (bias gain, bias offset, scale gain)."""
+    bias_gain, bias_offset, scale_gain = gains
+    ref = refs[ax.name]
+    raw_bias = ax.bias(t_law)
+    anchor_c = 25.0 if ax.bias_reference_c is None else ax.bias_reference_c
+    anchor = float(ax.bias(np.array([anchor_c]))[0])
+    keep = 0.0 if ax.bias_reference_c is not None else anchor
+    d = keep + bias_gain * (raw_bias - anchor) + bias_offset
+    if ax.scale_factor_ppm is not None and sw.scale_factor:
+        d = d + scale_gain * ax.scale_factor_ppm(t_law) * 1e-6 * ref
+    for other, law in ax.cross_axis_urad:
+        if other not in refs:
+            raise ConfigError(f"axis '{ax.name}': cross_axis_urad names no axis '{other}' "
+                              f"(axes: {', '.join(refs)})")
+        if sw.misalignment:
+            d = d + law(t_law) * 1e-6 * refs[other]
+    if sw.hysteresis and ax.hysteresis.amplitude:
+        d = d + ax.hysteresis.amplitude * play_operator(die, ax.hysteresis.width_c)
+    if sw.rate_term and ax.rate_term.coefficient_per_c_per_h:
+        d = d + ax.rate_term.coefficient_per_c_per_h * rate_c_per_h
+    return d
 
 
 def _apply_overrides(cfg: SimConfig, overrides: dict[str, Any]) -> SimConfig:

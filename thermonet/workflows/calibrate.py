@@ -599,7 +599,7 @@ def _judge_model_only(fit: FirmwareFit, inst: SensorInstance | None, autopilot: 
 def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: bool,
                     mags: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
     """The calibration, written into ``stage``; recorded paths name ``out``."""
-    from ..core.names import inside, path_components
+    from ..core.names import path_components
 
     log = merge_logs(logs)
     source = ", ".join(str(lg.path) for lg in logs)
@@ -610,72 +610,9 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
     if log.autopilot == "px4" and max(per_kind.values()) > PX4_SLOTS:
         raise ThermonetError(f"{log.path}: PX4 has {PX4_SLOTS} calibration slots per sensor "
                              f"kind; the log has {per_kind} calibratable instances")
-    results: list[InstanceResult] = []
-    for inst in log.instances:
-        why = check_instance(inst, log.autopilot)
-        r = InstanceResult(inst.name, inst.kind, inst.device_id, "skipped", why)
-        r.summary = {"n_samples": inst.n_samples, "notes": list(inst.notes),
-                     "temperature_step_c": temperature_step(inst.temperature_c)}
-        if inst.temperature_c is not None and inst.n_samples:
-            r.summary["temperature_c"] = [float(inst.temperature_c.min()),
-                                          float(inst.temperature_c.max())]
-        if inst.kind == "mag":
-            r.summary["thermometer"] = (mags or {}).get(inst.name) or {
-                "name": None, "chosen": "own" if inst.temperature_c is not None else None,
-                "lag_s": 0.0}
-        if why is None and log.autopilot == "ardupilot" and inst.kind == "baro":
-            why = r.reason = "ArduPilot has no barometer temperature calibration parameters"
-        if why is None:
-            with profile_stage(f"{inst.name}: fit the firmware form"):
-                r.fit = fit_firmware(inst, log.autopilot)
-            r.status = "fitted"
-            res = resolution_effect(inst, r.fit)
-            if res is not None:
-                r.summary["resolution"] = res
-            if compare:
-                try:
-                    with profile_stage(f"{inst.name}: compare thermonet's families"):
-                        cmp = _compare(inst, log.autopilot,
-                                       inside(stage, "instances", dirs[inst.name]), source,
-                                       final=out / "instances" / dirs[inst.name])
-                except ThermonetError as err:   # this instance cannot be judged: reported, skipped
-                    r.status, r.reason, r.fit = "skipped", f"comparison failed: {err}", None
-                    results.append(r)
-                    continue
-                ok, line = _verdict(cmp)
-                r.summary["compare"] = cmp
-                r.summary["verdict"] = line + (f"; {res['line']}" if res else "")
-                if not ok:
-                    r.status, r.reason = "skipped", ("the firmware form does not reduce the "
-                                                     "drift on held-out data: " + line)
-                    r.fit = None
-            elif res is not None:
-                r.summary["verdict"] = res["line"]
-            why_not = _exportable(r, log.autopilot, inst)
-            if r.status == "fitted" and why_not:
-                r.status, r.reason = "model only", why_not
-        results.append(r)
-    # the held-out check: verify's own test on data the fit never saw — the last log, or
-    # (one log) a quarter of it in time blocks
-    if len(logs) > 1:
-        held_logs, what = logs, f"the last log, {logs[-1].path.name}"
-    else:
-        held_logs = list(held_out_blocks(log))
-        blocks = [b + 1 for b in range(HELD_OUT_BLOCKS)
-                  if b % HELD_OUT_EVERY == HELD_OUT_EVERY // 2]
-        what = (f"time blocks {', '.join(map(str, blocks))} of {HELD_OUT_BLOCKS} of "
-                f"{logs[0].path.name}")
-    with profile_stage("held-out check (verify's test)"):
-        held = _held_out(held_logs, results, stage, what)
-    for name, h in held.items():
-        r = next(x for x in results if x.name == name)
-        r.summary["held_out"] = h
-        if r.status in ("fitted", "model only") and h.get("status") == "judged" and not all(
-                math.isfinite(a) and below(a, b)
-                for a, b in zip(h["pp_corrected"], h["pp_raw"], strict=True)):
-            r.status, r.fit = "skipped", None
-            r.reason = (f"fitted on the rest, the firmware form does not cut the drift of "
-                        f"the held-out data ({what})")
+    results = [_fit_instance(inst, log, stage, out, compare=compare, mags=mags,
+                             source=source, where=dirs[inst.name]) for inst in log.instances]
+    _check_held_out(logs, log, results, stage)
     fitted = [r for r in results if r.status == "fitted"]
     if not fitted:
         reasons = "; ".join(f"{r.name}: {r.reason}" for r in results)
@@ -695,12 +632,100 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
     if ekf:
         atomic_write_text(stage / EKF_FILE, ekf)
     checked = evaluate(read_param_file(param_path), log)
-    by_inst = {i.name: i for i in log.instances}
     for r in fitted:
         c = checked[r.name]
         r.summary["slot"] = c["slot"]
         r.summary["firmware_check"] = {k: c[k] for k in ("pp_raw", "pp_corrected", "cut")}
-    for r in results:              # magnetometers: PX4's cubic, and what it does to a heading
+    _check_magnetometers(results, log)
+    doc = _results_doc(logs, results, out / param_path.name)
+    atomic_write_text(stage / "results.json", json.dumps(doc, indent=2, default=_json_default))
+    atomic_write_text(stage / "report.txt", format_report(doc))
+    atomic_write_text(stage / "report.html", render_calibration_report(doc, out, staged=stage))
+    return doc
+
+
+def _fit_instance(inst: Any, log: FlightLog, stage: Path, out: Path, *, compare: bool,
+                  mags: dict[str, dict[str, Any]] | None, source: str,
+                  where: str) -> InstanceResult:
+    """One sensor instance: checked, its firmware form fitted, compared side by side with
+    thermonet's families (``compare``; in ``instances/<where>``), marked exportable or not."""
+    from ..core.names import inside
+
+    why = check_instance(inst, log.autopilot)
+    r = InstanceResult(inst.name, inst.kind, inst.device_id, "skipped", why)
+    r.summary = {"n_samples": inst.n_samples, "notes": list(inst.notes),
+                 "temperature_step_c": temperature_step(inst.temperature_c)}
+    if inst.temperature_c is not None and inst.n_samples:
+        r.summary["temperature_c"] = [float(inst.temperature_c.min()),
+                                      float(inst.temperature_c.max())]
+    if inst.kind == "mag":
+        r.summary["thermometer"] = (mags or {}).get(inst.name) or {
+            "name": None, "chosen": "own" if inst.temperature_c is not None else None,
+            "lag_s": 0.0}
+    if why is None and log.autopilot == "ardupilot" and inst.kind == "baro":
+        why = r.reason = "ArduPilot has no barometer temperature calibration parameters"
+    if why is None:
+        with profile_stage(f"{inst.name}: fit the firmware form"):
+            r.fit = fit_firmware(inst, log.autopilot)
+        r.status = "fitted"
+        res = resolution_effect(inst, r.fit)
+        if res is not None:
+            r.summary["resolution"] = res
+        if compare:
+            try:
+                with profile_stage(f"{inst.name}: compare thermonet's families"):
+                    cmp = _compare(inst, log.autopilot,
+                                   inside(stage, "instances", where), source,
+                                   final=out / "instances" / where)
+            except ThermonetError as err:   # this instance cannot be judged: reported, skipped
+                r.status, r.reason, r.fit = "skipped", f"comparison failed: {err}", None
+                return r
+            ok, line = _verdict(cmp)
+            r.summary["compare"] = cmp
+            r.summary["verdict"] = line + (f"; {res['line']}" if res else "")
+            if not ok:
+                r.status, r.reason = "skipped", ("the firmware form does not reduce the "
+                                                 "drift on held-out data: " + line)
+                r.fit = None
+        elif res is not None:
+            r.summary["verdict"] = res["line"]
+        why_not = _exportable(r, log.autopilot, inst)
+        if r.status == "fitted" and why_not:
+            r.status, r.reason = "model only", why_not
+    return r
+
+
+def _check_held_out(logs: list[FlightLog], log: FlightLog, results: list[InstanceResult],
+                    stage: Path) -> None:
+    """Verify's own test on data the fit never saw — the last log, or (one log) a quarter of
+    it in time blocks: a fitted instance whose firmware form does not cut that drift is
+    skipped."""
+    if len(logs) > 1:
+        held_logs, what = logs, f"the last log, {logs[-1].path.name}"
+    else:
+        held_logs = list(held_out_blocks(log))
+        blocks = [b + 1 for b in range(HELD_OUT_BLOCKS)
+                  if b % HELD_OUT_EVERY == HELD_OUT_EVERY // 2]
+        what = (f"time blocks {', '.join(map(str, blocks))} of {HELD_OUT_BLOCKS} of "
+                f"{logs[0].path.name}")
+    with profile_stage("held-out check (verify's test)"):
+        held = _held_out(held_logs, results, stage, what)
+    for name, h in held.items():
+        r = next(x for x in results if x.name == name)
+        r.summary["held_out"] = h
+        if r.status in ("fitted", "model only") and h.get("status") == "judged" and not all(
+                math.isfinite(a) and below(a, b)
+                for a, b in zip(h["pp_corrected"], h["pp_raw"], strict=True)):
+            r.status, r.fit = "skipped", None
+            r.reason = (f"fitted on the rest, the firmware form does not cut the drift of "
+                        f"the held-out data ({what})")
+
+
+def _check_magnetometers(results: list[InstanceResult], log: FlightLog) -> None:
+    """Magnetometers: PX4's cubic checked on the log (a model-only one judged here), and
+    what it does to a heading."""
+    by_inst = {i.name: i for i in log.instances}
+    for r in results:
         inst = by_inst[r.name]
         if r.kind != "mag" or r.fit is None or r.status not in ("fitted", "model only"):
             continue
@@ -710,11 +735,6 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
             d = judge_axes(temp, target(inst, log.autopilot), corr, "mag", Limits())
             r.summary["firmware_check"] = {k: d[k] for k in ("pp_raw", "pp_corrected", "cut")}
         r.summary["heading"] = heading_error_deg(temp, inst.values, corr, r.fit.t_ref)
-    doc = _results_doc(logs, results, out / param_path.name)
-    atomic_write_text(stage / "results.json", json.dumps(doc, indent=2, default=_json_default))
-    atomic_write_text(stage / "report.txt", format_report(doc))
-    atomic_write_text(stage / "report.html", render_calibration_report(doc, out, staged=stage))
-    return doc
 
 
 def _json_default(obj: Any) -> Any:

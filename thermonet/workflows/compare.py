@@ -1,6 +1,6 @@
 """``thermonet compare``: every configured family fitted, judged on held-out data, reported.
 
-Three steps (:mod:`thermonet.workflows.compare_plan`, :mod:`thermonet.workflows.compare_fit`,
+The steps (:mod:`thermonet.workflows.compare_plan`, :mod:`thermonet.workflows.compare_fit`,
 :mod:`thermonet.workflows.compare_judge`; provenance: :mod:`thermonet.workflows.provenance`):
 
 * **plan** — check the config against the data before anything is fitted or
@@ -11,10 +11,14 @@ Three steps (:mod:`thermonet.workflows.compare_plan`, :mod:`thermonet.workflows.
   sum the offset-free score per contiguous held-out block
   (:mod:`thermonet.scoring.verdicts`), set the per-axis mask from the validation
   verdict, save the checkpoint;
-* **report** — choose (per-axis masked validation score, ties → fewest
+* **judge** — choose (per-axis masked validation score, ties → fewest
   parameters, do no harm), verdicts against raw and the baseline from a
-  paired block bootstrap, warnings, ``results.json`` (schema in
-  :mod:`thermonet.reporting.results`), plots, ``report.html`` (:mod:`thermonet.reporting.report`).
+  paired block bootstrap, warnings;
+* **write** — ``results.json`` (schema in :mod:`thermonet.reporting.results`),
+  plots, ``report.html`` (:mod:`thermonet.reporting.report`);
+* **track** — at the edge: MLflow is called by a child process only
+  (:mod:`thermonet.workflows.compare_track`), which logs from what was written
+  while the plots are drawn; no tracker call is woven through the steps above.
 
 :func:`run_compare` returns the ``results.json`` document as a dict.  With
 leave-one-run-out the per-axis metrics are means over folds, ``folds`` under
@@ -26,12 +30,12 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from ..core.errors import ConfigError, ThermonetError
+from ..core.errors import ConfigError, Interrupted, ThermonetError
 from ..core.fileio import atomic_write_text
 from ..core.profile import stage
 from ..core.recording import Dataset
@@ -46,7 +50,8 @@ from ..training.parts import (
 from .compare_band import family_band, per_axis_band
 from .compare_fit import FitQueue, Progress, family_workers
 from .compare_judge import PER_AXIS, Fitted, choose_and_judge, extrapolation
-from .compare_plan import PartCache, data_summary, plan
+from .compare_plan import PartCache, Plan, data_summary, plan
+from .compare_track import TrackingSession, family_record
 from .provenance import data_source, family_config, resolved_config, resolved_yaml
 
 __all__ = ["run_compare", "format_table"]
@@ -91,196 +96,238 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
     return results
 
 
+@dataclass
+class _Run:
+    """What the steps of one comparison share: its plan, where it writes, what it records."""
+
+    cfg: CompareConfig
+    p: Plan
+    out: Path
+    result: ComparisonResult
+    resolved: dict[str, Any]
+    provenance: dict[str, Any]
+    tags: dict[str, str]
+    progress: Progress
+    tracking: TrackingSession
+
+
 def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None = None,
                     tracking_uri: str | None = None, quiet: bool = False,
                     progress: Progress | None = None, dataset: Dataset | None = None,
                     plots: bool = True, workers: int | None = None) -> dict[str, Any]:
-    """The comparison itself, written into ``out_dir`` (a staging directory)."""
-    from ..scoring.verdicts import LEVEL, MIN_BLOCKS, RESAMPLES, SEED, apply_compensate_mask
+    """The comparison itself, written into ``out_dir`` (a staging directory): plan, fit,
+    judge, write, then the MLflow record from what was written (the tracking child,
+    :mod:`thermonet.workflows.compare_track`, works while the plots are drawn)."""
     from ..tracking import Tracker
-    from ..training.checkpoint import save_checkpoint
 
-    progress = progress or Progress(quiet)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"{out}: --out must be a directory, and this is a file")
-    with stage("plan: load the data, targets, splits and folds"):
-        p = plan(cfg, dataset)
-    ds, outputs, units = p.ds, p.outputs, p.units
-    out.mkdir(parents=True, exist_ok=True)
-    dhash = data_hash(ds)
     tracker = Tracker(enabled=cfg.tracking.enabled if track is None else track,
                       uri=tracking_uri or cfg.tracking.uri, experiment=cfg.tracking.experiment)
+    tracking = TrackingSession(enabled=tracker.enabled, uri=tracker.uri,
+                               experiment=tracker.experiment,
+                               register=cfg.tracking.register).start()
+    try:
+        run = _plan_step(cfg, out, tracking, progress or Progress(quiet), dataset=dataset,
+                         options={"track": track, "tracking_uri": tracking_uri,
+                                  "workers": workers, "plots": plots})
+        fitted, records = _fit_step(run, workers)
+        doc = _judge_step(run, fitted)
+        _write_step(run, fitted, doc, records, plots=plots)
+    except BaseException as err:
+        tracking.abort(interrupted=isinstance(err, (KeyboardInterrupt, Interrupted)))
+        raise
+    for w in run.result.warnings:
+        run.progress.line(f"warning: {w}")
+    return doc
+
+
+def _plan_step(cfg: CompareConfig, out: Path, tracking: TrackingSession, progress: Progress,
+               *, dataset: Dataset | None, options: dict[str, Any]) -> _Run:
+    """Plan (data, targets, splits; :func:`plan`), the result's frame, the provenance, and
+    the MLflow runs asked for (their ids are needed by the checkpoints)."""
+    with stage("plan: load the data, targets, splits and folds"):
+        p = plan(cfg, dataset)
+    ds = p.ds
+    out.mkdir(parents=True, exist_ok=True)
+    dhash = data_hash(ds)
     preset = ds.runs[0].meta.get("preset", "") if dataset is not None or not cfg.data.paths \
         else ""
     tags = {"device": ds.device_id, "preset": preset, "data_hash": dhash,
             "target": p.targets.kind}
     resolved = resolved_config(cfg, ds, given=dataset is not None, workers=family_workers(
-        cfg, workers), tracking_enabled=tracker.enabled, tracking_uri=tracker.uri)
+        cfg, options["workers"]), tracking_enabled=tracking.enabled, tracking_uri=tracking.uri)
     provenance = {"thermonet_version": __version__,
                   "data": data_source(cfg, ds, given=dataset is not None),
-                  "tracking": resolved["tracking"],
-                  "options": {"track": track, "tracking_uri": tracking_uri, "workers": workers,
-                              "plots": plots}}
+                  "tracking": resolved["tracking"], "options": options}
     splits = p.splits
     result = ComparisonResult(
         config=resolved, device=ds.device_id, data_hash=dhash, target=p.targets.kind,
         split={"strategy": splits[0].label if len(splits) == 1 else "leave-one-run-out",
                "folds": [s.describe for s in splits]},
-        units=units, targets=p.targets.as_dict(), baseline=cfg.baseline,
+        units=p.units, targets=p.targets.as_dict(), baseline=cfg.baseline,
         data={"runs": data_summary(ds)},
         thermonet_version=__version__)
     for w in p.warnings:
         result.warn(w)
     progress.line(f"thermonet compare: {ds.device_id} ({len(ds)} runs, outputs "
-                  f"{', '.join(outputs)}), split {result.split['strategy']}")
+                  f"{', '.join(p.outputs)}), split {result.split['strategy']}")
+    _note_streamed(cfg, ds, result, progress)
+    tracking.open(f"compare-{ds.device_id}", resolved, tags, [
+        (fam.label, {"family": fam.family, "inputs": fam.inputs, "params": fam.params},
+         {**tags, "family": fam.family}) for fam in cfg.families])
+    return _Run(cfg, p, out, result, resolved, provenance, tags, progress, tracking)
+
+
+def _note_streamed(cfg: CompareConfig, ds: Dataset, result: ComparisonResult,
+                   progress: Progress) -> None:
+    """``data.streamed`` of the results: how recordings read in chunks were reduced."""
     reduced = [r.windows for r in ds if r.windows is not None]
-    if reduced:
-        result.data["streamed"] = {
-            "samples": sum(w.source_samples for w in reduced),
-            "rows": sum(int(w.n.size) for w in reduced), "window_s": reduced[0].window_s,
-            "chunk_rows": cfg.data.chunk_rows,
-            "method": "read in chunks and reduced to window means with per-window counts and "
-                      "sums of squares (thermonet.features.windows); dynamic inputs computed "
-                      "on the samples"}
-        progress.line(f"streamed {result.data['streamed']['samples']} samples in chunks of "
-                      f"{cfg.data.chunk_rows} rows into {result.data['streamed']['rows']} "
-                      f"{reduced[0].window_s:g} s window means")
+    if not reduced:
+        return
+    result.data["streamed"] = {
+        "samples": sum(w.source_samples for w in reduced),
+        "rows": sum(int(w.n.size) for w in reduced), "window_s": reduced[0].window_s,
+        "chunk_rows": cfg.data.chunk_rows,
+        "method": "read in chunks and reduced to window means with per-window counts and "
+                  "sums of squares (thermonet.features.windows); dynamic inputs computed "
+                  "on the samples"}
+    progress.line(f"streamed {result.data['streamed']['samples']} samples in chunks of "
+                  f"{cfg.data.chunk_rows} rows into {result.data['streamed']['rows']} "
+                  f"{reduced[0].window_s:g} s window means")
+
+
+def _fit_step(run: _Run, workers: int | None) -> tuple[dict[str, Fitted], dict[str, Any]]:
+    """Every family fitted (side by side where configured), its checkpoint saved; returns
+    the fits and, per family, what its MLflow run logs (:func:`family_record`)."""
+    cfg, p = run.cfg, run.p
     fitted: dict[str, Fitted] = {}
-    parts = PartCache(cfg, outputs, p.targets)
+    records: dict[str, Any] = {}
+    parts = PartCache(cfg, p.outputs, p.targets)
     n_workers = family_workers(cfg, workers)
     if n_workers > 1:
-        progress.line(f"fitting {len(cfg.families)} families, {n_workers} side by side")
-    with tracker.run(f"compare-{ds.device_id}", params=resolved, tags=tags) as parent_id, \
-            FitQueue(p, progress, parts, n_workers) as queue:
-        result.mlflow_run_id = parent_id
+        run.progress.line(f"fitting {len(cfg.families)} families, {n_workers} side by side")
+    with FitQueue(p, run.progress, parts, n_workers) as queue:
         for fam in cfg.families:
-            with tracker.run(fam.label, params={"family": fam.family, "inputs": fam.inputs,
-                                                "params": fam.params},
-                             tags={**tags, "family": fam.family}, nested=True) as run_id:
-                f = queue.result(fam)
-                r = f.result
-                r.mlflow_run_id = run_id
-                if r.ok:
-                    mask = [r.axes[a].compensate for a in outputs]
-                    r.compensate_in_model = apply_compensate_mask(f.model, mask)
-                    tracker.log_history(list(f.history or []))
-                    tracker.log_metrics({f"test/{a}/{k}": v for a, m in r.axes.items()
-                                         for k, v in {**m.metrics, "score_ratio": m.test.ratio,
-                                                      "score_raw": m.score_raw,
-                                                      "score_comp": m.score_comp}.items()})
-                    tracker.log_metrics({"val/score": r.val_score,
-                                         "fit_seconds": r.fit_seconds})
-                    ckpt = out / "models" / f"{fam.label}.pt"
-                    band = family_band(p, f, mask)
-                    r.band = band
-                    try:
-                        # the checkpoint's family config holds the tuned values as params
-                        chosen_point = {k: r.tuned[k] for k in fam.tune if k in r.tuned}
-                        save_checkpoint(ckpt, f.model, config=family_config(
-                                            cfg, replace(fam, params={**fam.params,
-                                                                      **chosen_point}),
-                                            resolved["tracking"]),
-                                        epoch=r.best_epoch, best_val=f.best_val,
-                                        extra={"label": fam.label, "device_id": ds.device_id,
-                                               "data_hash": dhash, "units": units,
-                                               "signal_units": {s: ds[0].units.get(s, "")
-                                                                for s in ds[0].proxies},
-                                               "val_score": r.val_score,
-                                               "compensate": dict(zip(outputs, mask, strict=True)),
-                                               "test_metrics": r.to_json()["axes"],
-                                               "mlflow_run_id": run_id or "",
-                                               "provenance": provenance,
-                                               "tuned": {k: v for k, v in r.tuned.items()
-                                                         if k != "tuning"},
-                                               **_sealed(f.parameters),
-                                               **({"band": band} if band.get("status") == "ok"
-                                                  else {})})
-                        r.checkpoint = str(ckpt)
-                        tracker.log_artifact(ckpt, "model")
-                    except ThermonetError as err:  # a NaN model is never saved
-                        r.status, r.reason = "failed", str(err)
-                    kept = sum(mask)
-                    tuned = tuned_text({k: v for k, v in r.tuned.items() if k != "tuning"})
-                    progress.line(f"  {fam.label:<14} fitted in {r.fit_seconds:.2f} s, "
-                                  f"{r.n_params} params, val score {r.val_score:.3g} "
-                                  f"({kept}/{len(mask)} axes compensated)"
-                                  + (f", tuned {tuned}" if tuned else ""))
-                else:
-                    tracker.set_tags({"status": "failed"})
-                    progress.line(f"  {fam.label:<14} not fitted: {r.reason}")
-                result.families[fam.label] = r
-                fitted[fam.label] = f
-        n_val = next((f.val.n.size for f in fitted.values() if f.val is not None), 0)
-        n_test = next((f.test.n.size for f in fitted.values() if f.test is not None), 0)
-        result.bootstrap = {
-            "method": "non-overlapping block bootstrap over contiguous held-out blocks "
-                      "(paired across families), percentile interval",
-            "resamples": RESAMPLES, "level": LEVEL, "seed": SEED, "min_blocks": MIN_BLOCKS,
-            "blocks": {"val": n_val, "test": n_test}}
-        with stage("choose and judge"):
-            choose_and_judge(fitted, result, p)
-        if result.chosen == PER_AXIS:
-            with stage("write the per-axis model"):
-                _save_per_axis(out, fitted, result, p, resolved, provenance, units, tracker)
-        # the out-of-fold scores the choice rests on, in the comparison's own run
-        tracker.log_metrics({f"cv/{k}/score": c["score"] for k, c in
-                             result.selection.get("candidates", {}).items() if "score" in c})
-        extrapolation(fitted, result)
-        doc = result.to_json()
-        doc["provenance"] = provenance
-        shipped_band = (doc["families"].get(result.chosen) or {}).get("band") \
-            if result.chosen else None
-        if shipped_band is not None:
-            doc["band"] = {"model": result.chosen, **shipped_band}
-        shipped = doc["families"].get(PER_AXIS) if result.chosen == PER_AXIS else None
-        if shipped and shipped.get("checkpoint"):
-            # what `thermonet export DIR` reads (thermonet.exporting.source): the composite's
-            # file, its owners per axis and its candidates (the SHA-256 added when staged)
-            doc["per_axis"] = {"checkpoint": shipped["checkpoint"],
-                               "axes": dict(shipped["params"]["axes"]),
-                               "candidates": list(result.selection["per_axis"]["candidates"])}
-        with stage("plots"):
-            plot_paths = _plots(out, fitted, doc, ds) if plots else []
-        from ..reporting.report import write_report
+            f = queue.result(fam)
+            run_id = run.tracking.ids()[1].get(fam.label)
+            f.result.mlflow_run_id = run_id
+            records[fam.label] = _fitted_family(run, fam, f, run_id)
+            run.result.families[fam.label] = f.result
+            fitted[fam.label] = f
+    return fitted, records
 
-        with stage("write results.json and the report"):
-            atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
-            atomic_write_text(out / "config.resolved.yaml", resolved_yaml(resolved, provenance))
-            write_report(out / "report.html", doc, plot_paths)
-        tracker.set_tags({"chosen": result.chosen or "none"})
-        if tracker.enabled and parent_id:
-            _log_chosen_model(doc, cfg, tracker.uri, parent_id, result)
-        tracker.log_artifact(out / "results.json")
-        tracker.log_artifact(out / "config.resolved.yaml")
-        tracker.log_artifact(out / "report.html")
-        for path in plot_paths:
-            tracker.log_artifact(path, "plots")
-    for w in result.warnings:
-        progress.line(f"warning: {w}")
+
+def _fitted_family(run: _Run, fam: Any, f: Fitted, run_id: str | None) -> dict[str, Any]:
+    """One family's fit: the per-axis mask set in the model, the band, the checkpoint, one
+    progress line; returns its MLflow record."""
+    from ..scoring.verdicts import apply_compensate_mask
+
+    r, outputs = f.result, run.p.outputs
+    if not r.ok:
+        run.progress.line(f"  {fam.label:<14} not fitted: {r.reason}")
+        return family_record(False, None, {}, None)
+    mask = [r.axes[a].compensate for a in outputs]
+    r.compensate_in_model = apply_compensate_mask(f.model, mask)
+    metrics = {f"test/{a}/{k}": v for a, m in r.axes.items()
+               for k, v in {**m.metrics, "score_ratio": m.test.ratio,
+                            "score_raw": m.score_raw, "score_comp": m.score_comp}.items()}
+    metrics.update({"val/score": r.val_score, "fit_seconds": r.fit_seconds})
+    r.band = family_band(run.p, f, mask)
+    try:
+        _save_family(run, fam, f, mask, run_id)
+    except ThermonetError as err:  # a NaN model is never saved
+        r.status, r.reason = "failed", str(err)
+    tuned = tuned_text({k: v for k, v in r.tuned.items() if k != "tuning"})
+    run.progress.line(f"  {fam.label:<14} fitted in {r.fit_seconds:.2f} s, "
+                      f"{r.n_params} params, val score {r.val_score:.3g} "
+                      f"({sum(mask)}/{len(mask)} axes compensated)"
+                      + (f", tuned {tuned}" if tuned else ""))
+    return family_record(True, f.history, metrics, r.checkpoint)
+
+
+def _save_family(run: _Run, fam: Any, f: Fitted, mask: list[bool], run_id: str | None) -> None:
+    """``models/<label>.pt``, sealed; its family config holds the tuned values as params."""
+    from ..training.checkpoint import save_checkpoint
+
+    r, ds, outputs, band = f.result, run.p.ds, run.p.outputs, f.result.band or {}
+    ckpt = run.out / "models" / f"{fam.label}.pt"
+    chosen_point = {k: r.tuned[k] for k in fam.tune if k in r.tuned}
+    save_checkpoint(ckpt, f.model, config=family_config(
+                        run.cfg, replace(fam, params={**fam.params, **chosen_point}),
+                        run.resolved["tracking"]),
+                    epoch=r.best_epoch, best_val=f.best_val,
+                    extra={"label": fam.label, "device_id": ds.device_id,
+                           "data_hash": run.result.data_hash, "units": run.p.units,
+                           "signal_units": {s: ds[0].units.get(s, "") for s in ds[0].proxies},
+                           "val_score": r.val_score,
+                           "compensate": dict(zip(outputs, mask, strict=True)),
+                           "test_metrics": r.to_json()["axes"],
+                           "mlflow_run_id": run_id or "",
+                           "provenance": run.provenance,
+                           "tuned": {k: v for k, v in r.tuned.items() if k != "tuning"},
+                           **_sealed(f.parameters),
+                           **({"band": band} if band.get("status") == "ok" else {})})
+    r.checkpoint = str(ckpt)
+
+
+def _judge_step(run: _Run, fitted: dict[str, Fitted]) -> dict[str, Any]:
+    """Choose and judge (:func:`choose_and_judge`), the per-axis model where chosen, the
+    extrapolation warnings; returns the ``results.json`` document."""
+    from ..scoring.verdicts import LEVEL, MIN_BLOCKS, RESAMPLES, SEED
+
+    result = run.result
+    result.mlflow_run_id = run.tracking.ids()[0]
+    n_val = next((f.val.n.size for f in fitted.values() if f.val is not None), 0)
+    n_test = next((f.test.n.size for f in fitted.values() if f.test is not None), 0)
+    result.bootstrap = {
+        "method": "non-overlapping block bootstrap over contiguous held-out blocks "
+                  "(paired across families), percentile interval",
+        "resamples": RESAMPLES, "level": LEVEL, "seed": SEED, "min_blocks": MIN_BLOCKS,
+        "blocks": {"val": n_val, "test": n_test}}
+    with stage("choose and judge"):
+        choose_and_judge(fitted, result, run.p)
+    if result.chosen == PER_AXIS:
+        with stage("write the per-axis model"):
+            _save_per_axis(run.out, fitted, result, run.p, run.resolved, run.provenance,
+                           run.p.units)
+    extrapolation(fitted, result)
+    doc = result.to_json()
+    doc["provenance"] = run.provenance
+    shipped_band = (doc["families"].get(result.chosen) or {}).get("band") \
+        if result.chosen else None
+    if shipped_band is not None:
+        doc["band"] = {"model": result.chosen, **shipped_band}
+    shipped = doc["families"].get(PER_AXIS) if result.chosen == PER_AXIS else None
+    if shipped and shipped.get("checkpoint"):
+        # what `thermonet export DIR` reads (thermonet.exporting.source): the composite's
+        # file, its owners per axis and its candidates (the SHA-256 added when staged)
+        doc["per_axis"] = {"checkpoint": shipped["checkpoint"],
+                           "axes": dict(shipped["params"]["axes"]),
+                           "candidates": list(result.selection["per_axis"]["candidates"])}
     return doc
 
 
-def _log_chosen_model(doc: dict[str, Any], cfg: CompareConfig, uri: str, run_id: str,
-                      result: ComparisonResult) -> None:
-    """The chosen model as the comparison run's MLflow model ``model`` (ONNX, signature,
-    input example: ``runs:/<run id>/model``), registered under ``tracking.register`` with
-    the alias ``chosen``; a failure is a warning (the files are written), never fatal."""
-    import tempfile
+def _write_step(run: _Run, fitted: dict[str, Fitted], doc: dict[str, Any],
+                records: dict[str, Any], *, plots: bool) -> None:
+    """``results.json`` and ``config.resolved.yaml``, handed to the tracking child, then the
+    plots and ``report.html`` while it logs; its warnings join the results' (printed)."""
+    from ..reporting.report import write_report
 
-    from ..exporting.onnx_export import log_onnx_model
-    from ..exporting.source import onnx_of_checkpoint
-
-    ckpt = (doc["families"].get(result.chosen or "") or {}).get("checkpoint")
-    if not ckpt:
-        return
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            path = onnx_of_checkpoint(ckpt, Path(tmp) / f"{result.chosen}.onnx")
-            log_onnx_model(path, run_id, uri, register=cfg.tracking.register)
-    except Exception as err:  # noqa: BLE001 - tracking is best effort; the files are written
-        result.warn(f"the chosen model could not be logged to MLflow: "
-                    f"{str(err).splitlines()[0] if str(err) else type(err).__name__}")
+    out = run.out
+    with stage("write results.json"):
+        atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
+        atomic_write_text(out / "config.resolved.yaml",
+                          resolved_yaml(run.resolved, run.provenance))
+    run.tracking.log(out, doc, records)
+    with stage("plots"):
+        plot_paths = _plots(out, fitted, doc, run.p.ds) if plots else []
+    with stage("write the report"):
+        write_report(out / "report.html", doc, plot_paths)
+    with stage("MLflow: the tracking step's remainder"):
+        for w in run.tracking.finish(out / "report.html", plot_paths):
+            run.result.warn(w)
 
 
 def _sealed(parameters: Any) -> dict[str, Any]:
@@ -307,7 +354,7 @@ def _per_axis_parameters(model: Any, fitted: dict[str, Fitted], labels: list[str
 
 def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResult,
                    p: Any, resolved: dict[str, Any], provenance: dict[str, Any],
-                   units: dict[str, str], tracker: Any) -> None:
+                   units: dict[str, str]) -> None:
     """``models/per-axis.pt``: the candidates the axes chose, one model
     (:class:`thermonet.models.composite.AxisModels`), sealed like every checkpoint."""
     import copy
@@ -340,7 +387,6 @@ def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResul
                    **_sealed(_per_axis_parameters(model, fitted, labels, units)),
                    **({"band": r.band} if r.band.get("status") == "ok" else {})})
         r.checkpoint = str(ckpt)
-        tracker.log_artifact(ckpt, "model")
     except ThermonetError as err:   # a NaN model is never saved
         r.status, r.reason = "failed", str(err)
         result.warn(f"the per-axis model could not be written: {err}")

@@ -165,6 +165,17 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
     result.chosen, result.chosen_reason, result.tie = chosen, why, tied
     if tied:
         result.warn(why)
+    _judge_against_baseline(ok, p)
+    if chosen == PER_AXIS:
+        result.families[PER_AXIS] = per_axis_result(result, p)
+    if chosen is None:
+        return
+    _warn_about_chosen(result, chosen)
+
+
+def _judge_against_baseline(ok: dict[str, Fitted], p: Plan) -> None:
+    """Each family's verdict against the baseline on the test data, per axis, and its
+    binned peak-to-peak as a ratio of the baseline's."""
     base = ok.get(p.cfg.baseline or "")
     if base is not None and base.test is not None:
         for f in ok.values():
@@ -176,10 +187,10 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
                 b = base.result.axes[axis].metrics.get("pp_comp", math.nan)
                 ax.metrics["pp_ratio_vs_baseline"] = (
                     ax.metrics.get("pp_comp", math.nan) / b if b > 0 else math.nan)
-    if chosen == PER_AXIS:
-        result.families[PER_AXIS] = per_axis_result(result, p)
-    if chosen is None:
-        return
+
+
+def _warn_about_chosen(result: ComparisonResult, chosen: str) -> None:
+    """The chosen model's axes left uncompensated, worse than raw, or no better on test."""
     fam = result.families[chosen]
     for axis, ax in fam.axes.items():
         if not ax.compensate:

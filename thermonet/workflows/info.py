@@ -67,17 +67,7 @@ def summarize(dataset: Dataset, *, bin_c: float = 1.0) -> dict[str, Any]:
     """
     runs = list(dataset)
     first = runs[0]
-    names: list[str] = []
-    units: dict[str, str] = {}
-    for r in runs:
-        for n in ["time_s"] + (["temperature_c"] if r.temperature_c is not None else []) \
-                + list(r.outputs) + list(r.references) + list(r.drift) + list(r.proxies):
-            if n not in names:
-                names.append(n)
-                units[n] = r.units.get(n, "s" if n == "time_s" else "?")
-    channels = [{"name": n, "role": "time" if n == "time_s" else
-                 ("proxy" if any(n in r.proxies for r in runs) else channel_role(n)),
-                 "unit": units[n]} for n in names]
+    channels, units = _channels(runs)
     run_rows = []
     for r in runs:
         t = r.temperature_c
@@ -90,18 +80,7 @@ def summarize(dataset: Dataset, *, bin_c: float = 1.0) -> dict[str, Any]:
             "skipped_rows": int(r.meta["skipped_rows"]) if "skipped_rows" in r.meta else None,
         })
     with_t = [r for r in runs if r.temperature_c is not None]
-    outputs = []
-    for name in first.outputs:
-        floors = [noise_floor(r.drift_observed(name)) for r in runs]
-        floors = [f for f in floors if math.isfinite(f)]
-        pp = None
-        if with_t:
-            pp = _num(binned_peak_to_peak(np.concatenate([r.temperature_c for r in with_t]),
-                                          np.concatenate([r.drift_observed(name) for r in with_t]),
-                                          bin_c))
-        outputs.append({"name": name, "unit": units.get(name, "?"),
-                        "noise_floor": _num(float(np.mean(floors))) if floors else None,
-                        "drift_peak_to_peak": pp})
+    outputs = _output_rows(runs, units, bin_c)
     t_range = None
     if with_t:
         temps = [r.temperature_c for r in with_t if r.temperature_c is not None]
@@ -118,6 +97,42 @@ def summarize(dataset: Dataset, *, bin_c: float = 1.0) -> dict[str, Any]:
             "skipped_rows": None if skipped is None else int(skipped),
             "noise_floor_basis": f"1 sigma per sample at {at}",
             "warnings": input_warnings(dataset)}
+
+
+def _channels(runs: list[Any]) -> tuple[list[dict[str, str]], dict[str, str]]:
+    """Every channel of the runs, in first-seen order, with its role and unit; the units."""
+    names: list[str] = []
+    units: dict[str, str] = {}
+    for r in runs:
+        for n in ["time_s"] + (["temperature_c"] if r.temperature_c is not None else []) \
+                + list(r.outputs) + list(r.references) + list(r.drift) + list(r.proxies):
+            if n not in names:
+                names.append(n)
+                units[n] = r.units.get(n, "s" if n == "time_s" else "?")
+    channels = [{"name": n, "role": "time" if n == "time_s" else
+                 ("proxy" if any(n in r.proxies for r in runs) else channel_role(n)),
+                 "unit": units[n]} for n in names]
+    return channels, units
+
+
+@np.errstate(over="ignore", invalid="ignore")  # as summarize: absurd values are warned about
+def _output_rows(runs: list[Any], units: dict[str, str], bin_c: float) -> list[dict[str, Any]]:
+    """Per output of the first run: its noise floor (mean over runs) and the binned drift
+    peak-to-peak over the runs with a °C thermometer (None without one)."""
+    with_t = [r for r in runs if r.temperature_c is not None]
+    outputs = []
+    for name in runs[0].outputs:
+        floors = [noise_floor(r.drift_observed(name)) for r in runs]
+        floors = [f for f in floors if math.isfinite(f)]
+        pp = None
+        if with_t:
+            pp = _num(binned_peak_to_peak(np.concatenate([r.temperature_c for r in with_t]),
+                                          np.concatenate([r.drift_observed(name) for r in with_t]),
+                                          bin_c))
+        outputs.append({"name": name, "unit": units.get(name, "?"),
+                        "noise_floor": _num(float(np.mean(floors))) if floors else None,
+                        "drift_peak_to_peak": pp})
+    return outputs
 
 
 def _fmt(x: float | None, spec: str = ".4g") -> str:

@@ -178,27 +178,8 @@ def _summarize(layouts: list[Layout], *, bin_c: float, chunk_rows: int) -> dict[
                 or any(k in e[g] for g in ("outputs", "references", "proxies"))}
         runs[i].add(mine)
         if e["temperature"]:
-            idx = np.floor(piece["temperature_c"] / bin_c).astype(np.int64)
-            keys, inv = np.unique(idx, return_inverse=True)
-            counts = np.bincount(inv)
-            for o in first_out:
-                y = piece[o] - piece[f"ref_{o}"] if f"ref_{o}" in e["references"] else piece[o]
-                sums = np.bincount(inv, weights=y)
-                acc = bins[o]
-                for k, s, c in zip(keys.tolist(), sums.tolist(), counts.tolist(), strict=True):
-                    cell = acc.setdefault(k, [0.0, 0])
-                    cell[0] += s
-                    cell[1] += c
-    sources = [str(lay.path) for lay in layouts for _ in lay.runs]
-    for r, src in zip(runs, sources, strict=True):
-        e = r.entry
-        where = f"run '{e['run_id']}'"
-        if r.n < MIN_SAMPLES:
-            raise InputError.at(src, f"{where}: too few samples: {r.n} (need at least "
-                                f"{MIN_SAMPLES})")
-        if e.get("n_samples") is not None and int(e["n_samples"]) != r.n:
-            raise InputError.at(src, f"{where}: {r.n} rows, its metadata says "
-                                f"{e['n_samples']}")
+            _bin_drift(bins, piece, e, bin_c)
+    _check_counts(runs, layouts)
     validate_layouts(layouts, [(r.lo["temperature_c"], r.hi["temperature_c"])
                                if r.entry["temperature"] else None for r in runs])
     channels = [{"name": n, "role": "time" if n == "time_s" else
@@ -222,18 +203,7 @@ def _summarize(layouts: list[Layout], *, bin_c: float, chunk_rows: int) -> dict[
         peaks = {k: r.peak[k] for g in ("outputs", "references", "proxies") for k in e[g]}
         warnings += run_warnings(f"run '{e['run_id']}'", e["meta"], e["units"], span, peaks,
                                  r.t1 - r.t0, r.rate_hz())
-    outputs = []
-    for o in first_out:
-        floors = [r.noise[o].std() / math.sqrt(2.0) for r in runs
-                  if o in r.noise and r.noise[o].n >= 2]
-        floors = [f for f in floors if math.isfinite(f)]
-        pp = None
-        if has_temp and bins[o]:
-            means = [s / c for s, c in bins[o].values()]
-            pp = _num(max(means) - min(means))
-        outputs.append({"name": o, "unit": units.get(o, "?"),
-                        "noise_floor": _num(float(np.mean(floors))) if floors else None,
-                        "drift_peak_to_peak": pp})
+    outputs = _output_rows(runs, bins, units, has_temp)
     t_rows = [r for r in run_rows if r["temperature_min_c"] is not None]
     t_range = [min(r["temperature_min_c"] for r in t_rows),
                max(r["temperature_max_c"] for r in t_rows)] if t_rows else None
@@ -248,6 +218,54 @@ def _summarize(layouts: list[Layout], *, bin_c: float, chunk_rows: int) -> dict[
             "skipped_rows": None if skipped is None else int(skipped),
             "noise_floor_basis": f"1 sigma per sample at {at}",
             "warnings": warnings}
+
+
+def _bin_drift(bins: dict[str, dict[int, list[float]]], piece: dict[str, np.ndarray],
+               e: dict[str, Any], bin_c: float) -> None:
+    """A chunk's observed drift (output − reference) added to the per-°C-bin sums and counts
+    of every output in ``bins``."""
+    idx = np.floor(piece["temperature_c"] / bin_c).astype(np.int64)
+    keys, inv = np.unique(idx, return_inverse=True)
+    counts = np.bincount(inv)
+    for o, acc in bins.items():
+        y = piece[o] - piece[f"ref_{o}"] if f"ref_{o}" in e["references"] else piece[o]
+        sums = np.bincount(inv, weights=y)
+        for k, s, c in zip(keys.tolist(), sums.tolist(), counts.tolist(), strict=True):
+            cell = acc.setdefault(k, [0.0, 0])
+            cell[0] += s
+            cell[1] += c
+
+
+def _check_counts(runs: list[_Run], layouts: list[Layout]) -> None:
+    """Every run has enough samples, and as many as its metadata says (named by file)."""
+    sources = [str(lay.path) for lay in layouts for _ in lay.runs]
+    for r, src in zip(runs, sources, strict=True):
+        e = r.entry
+        where = f"run '{e['run_id']}'"
+        if r.n < MIN_SAMPLES:
+            raise InputError.at(src, f"{where}: too few samples: {r.n} (need at least "
+                                f"{MIN_SAMPLES})")
+        if e.get("n_samples") is not None and int(e["n_samples"]) != r.n:
+            raise InputError.at(src, f"{where}: {r.n} rows, its metadata says "
+                                f"{e['n_samples']}")
+
+
+def _output_rows(runs: list[_Run], bins: dict[str, dict[int, list[float]]],
+                 units: dict[str, str], has_temp: bool) -> list[dict[str, Any]]:
+    """Per output: its noise floor (mean over runs) and binned drift peak-to-peak."""
+    outputs = []
+    for o, acc in bins.items():
+        floors = [r.noise[o].std() / math.sqrt(2.0) for r in runs
+                  if o in r.noise and r.noise[o].n >= 2]
+        floors = [f for f in floors if math.isfinite(f)]
+        pp = None
+        if has_temp and acc:
+            means = [s / c for s, c in acc.values()]
+            pp = _num(max(means) - min(means))
+        outputs.append({"name": o, "unit": units.get(o, "?"),
+                        "noise_floor": _num(float(np.mean(floors))) if floors else None,
+                        "drift_peak_to_peak": pp})
+    return outputs
 
 
 def _num(x: float) -> float | None:

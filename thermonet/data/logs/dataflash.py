@@ -43,6 +43,7 @@ from __future__ import annotations
 import contextlib
 import io
 import re
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -212,14 +213,39 @@ def read_dataflash(path: str | Path) -> FlightLog:
     # pymavlink's index stops at the first message of an unknown type (a damaged type byte),
     # silently dropping the rest of the log: read every message in order instead
     stop = re.search(r"unknown msg type \S+ \(\d+\) at (\d+)", index_chatter)
-    sequential = stop is not None
-    damage: list[str] = []
     chatter = io.StringIO()
-    rows: dict[tuple[str, int], list[list[float]]] = {}
-    params: dict[str, float] = {}
+    got = _read_messages(path, reader, stop is not None, chatter)
+    damage, unread = _damage(index_chatter, chatter.getvalue(), stop, got.skipped, size)
+    instances = _instances(got.rows, got.params)
+    have_imu = {idx for (group, idx) in got.rows if group == "imu"}
+    instances += _tclr_instances(got.tclr, got.params, have_imu)
+    instances, phantoms = drop_phantoms(instances, "ardupilot")
+    damage += phantoms
+    names = sorted(got.params)
+    if names and not any(re.match(r"^(INS_|AHRS_)", n) for n in names):
+        raise InputError.at(path, "no INS_* parameters: " + (
+            f"damaged ({'; '.join(damage)})" if damage else "not an ArduPilot log"))
+    return FlightLog(path=path, autopilot="ardupilot", instances=instances, params=got.params,
+                     notes=time_gaps(instances), damage=damage, unread_fraction=unread).check()
+
+
+@dataclass
+class _Messages:
+    """What a DataFlash log's messages hold: sensor rows per (group, instance), TCLR rows per
+    (kind, instance), the parameters, and how many messages did not parse."""
+
+    rows: dict[tuple[str, int], list[list[float]]] = field(default_factory=dict)
+    tclr: dict[tuple[str, int], list[list[float]]] = field(default_factory=dict)
+    params: dict[str, float] = field(default_factory=dict)
+    skipped: int = 0
+
+
+def _read_messages(path: Path, reader: Any, sequential: bool, chatter: io.StringIO
+                   ) -> _Messages:
+    """Every PARM, TCLR, IMU, BARO and MAG message, in log order (a corrupt message that
+    stops the reader is an :class:`InputError` naming its byte)."""
+    got = _Messages()
     types = ["PARM", "TCLR"] + list(_IMU_NAMES) + list(_BARO_NAMES) + list(_MAG_NAMES)
-    tclr: dict[tuple[str, int], list[list[float]]] = {}
-    skipped_msgs = 0
     messages = _messages(reader, types, sequential, chatter)
     while True:
         try:
@@ -229,54 +255,68 @@ def read_dataflash(path: str | Path) -> FlightLog:
                                 f"{getattr(reader, 'offset', 0):,} ({type(err).__name__}: "
                                 f"{str(err).splitlines()[0] if str(err) else ''})") from None
         if m is None:
-            break
+            return got
         mtype = m.get_type()
         try:
             if mtype == "PARM":
-                params[str(m.Name)] = float(m.Value)
+                got.params[str(m.Name)] = float(m.Value)
                 continue
             d = m.to_dict()
             _ = [float(d[k]) for k in ("TimeUS", "I") if k in d]
         except (AttributeError, KeyError, TypeError, ValueError, UnicodeDecodeError):
-            skipped_msgs += 1    # a message whose fields do not parse: damaged, skipped
+            got.skipped += 1    # a message whose fields do not parse: damaged, skipped
             continue
-        if mtype == "TCLR":
-            kind = "acc" if int(d["SType"]) == 0 else "gyro"
-            tclr.setdefault((kind, int(d["I"])), []).append(
-                [d["TimeUS"] * 1e-6, d["X"], d["Y"], d["Z"], d["Temp"]])
-            continue
-        if mtype in _IMU_NAMES:
-            idx = int(d["I"]) if "I" in d else _IMU_NAMES[mtype]
-            rows.setdefault(("imu", idx), []).append(
-                [d["TimeUS"] * 1e-6, d["GyrX"], d["GyrY"], d["GyrZ"], d["AccX"], d["AccY"],
-                 d["AccZ"], d.get("T", np.nan)])
-        elif mtype in _MAG_NAMES:
-            idx = int(d["I"]) if "I" in d else _MAG_NAMES[mtype]
-            rows.setdefault(("mag", idx), []).append(
-                [d["TimeUS"] * 1e-6] + [d.get(k, 0.0) for k in (
-                    "MagX", "MagY", "MagZ", "OfsX", "OfsY", "OfsZ")]
-                + [d.get(k, d.get(f"MOfs{k[-1]}", 0.0)) for k in ("MOX", "MOY", "MOZ")]
-                + [np.nan])         # motor offsets: MOX..Z (MOfsX..Z in older logs)
-        else:
-            idx = int(d["I"]) if "I" in d else _BARO_NAMES[mtype]
-            rows.setdefault(("baro", idx), []).append(
-                [d["TimeUS"] * 1e-6, d["Press"], d.get("Temp", np.nan)])
-    text = index_chatter + chatter.getvalue()
-    if sequential:   # the sequential pass reports every damaged stretch itself
+        _add_row(got, mtype, d)
+
+
+def _add_row(got: _Messages, mtype: str, d: dict[str, Any]) -> None:
+    """One parsed TCLR, IMU, MAG or BARO message's row (time in s first)."""
+    if mtype == "TCLR":
+        kind = "acc" if int(d["SType"]) == 0 else "gyro"
+        got.tclr.setdefault((kind, int(d["I"])), []).append(
+            [d["TimeUS"] * 1e-6, d["X"], d["Y"], d["Z"], d["Temp"]])
+    elif mtype in _IMU_NAMES:
+        idx = int(d["I"]) if "I" in d else _IMU_NAMES[mtype]
+        got.rows.setdefault(("imu", idx), []).append(
+            [d["TimeUS"] * 1e-6, d["GyrX"], d["GyrY"], d["GyrZ"], d["AccX"], d["AccY"],
+             d["AccZ"], d.get("T", np.nan)])
+    elif mtype in _MAG_NAMES:
+        idx = int(d["I"]) if "I" in d else _MAG_NAMES[mtype]
+        got.rows.setdefault(("mag", idx), []).append(
+            [d["TimeUS"] * 1e-6] + [d.get(k, 0.0) for k in (
+                "MagX", "MagY", "MagZ", "OfsX", "OfsY", "OfsZ")]
+            + [d.get(k, d.get(f"MOfs{k[-1]}", 0.0)) for k in ("MOX", "MOY", "MOZ")]
+            + [np.nan])         # motor offsets: MOX..Z (MOfsX..Z in older logs)
+    else:
+        idx = int(d["I"]) if "I" in d else _BARO_NAMES[mtype]
+        got.rows.setdefault(("baro", idx), []).append(
+            [d["TimeUS"] * 1e-6, d["Press"], d.get("Temp", np.nan)])
+
+
+def _damage(index_chatter: str, read_chatter: str, stop: re.Match[str] | None, skipped: int,
+            size: int) -> tuple[list[str], float]:
+    """The damage notes from pymavlink's chatter, and the fraction of the file unread."""
+    damage: list[str] = []
+    if stop is not None:   # the sequential pass reports every damaged stretch itself
         bad = _merge([(int(o), int(o) + int(n)) for n, o in re.findall(
-            r"Skipped (\d+) bad bytes in log at offset (\d+)", chatter.getvalue())])
-        assert stop is not None
+            r"Skipped (\d+) bad bytes in log at offset (\d+)", read_chatter)])
         damage.append(f"a message of unknown type at byte {int(stop.group(1)):,} (pymavlink's "
                       "index stops there; the rest was read message by message)")
     else:
-        bad = _ranges([int(o) for o in re.findall(r"bad header .* at (\d+)", text)])
+        bad = _ranges([int(o) for o in re.findall(r"bad header .* at (\d+)",
+                                                  index_chatter + read_chatter)])
     if bad:
         damage.append(byte_ranges_note(bad, size))
-    if skipped_msgs:
-        damage.append(f"{skipped_msgs} messages whose fields do not parse skipped")
-    unread = sum(b - a for a, b in bad) / max(size, 1)
+    if skipped:
+        damage.append(f"{skipped} messages whose fields do not parse skipped")
+    return damage, sum(b - a for a, b in bad) / max(size, 1)
+
+
+def _instances(rows: dict[tuple[str, int], list[list[float]]],
+               params: dict[str, float]) -> list[SensorInstance]:
+    """The sensor instances of the IMU, BARO and MAG rows, damaged samples dropped and
+    counted, sorted in time."""
     orient = int(params.get("AHRS_ORIENTATION", 0))
-    rot = orientation_matrix(orient) if orient else None
     instances: list[SensorInstance] = []
     for (group, idx), data in sorted(rows.items()):
         a = np.asarray(data, dtype=np.float64)
@@ -310,43 +350,53 @@ def read_dataflash(path: str | Path) -> FlightLog:
             inst.mark_damage(n_read, dropped)
             instances.append(inst)
             continue
-        for kind, cols in (("gyro", slice(1, 4)), ("acc", slice(4, 7))):
-            v = a[:, cols].copy()
-            notes: list[str] = []
-            if rot is not None:
-                v = v @ rot.T
-                notes.append(f"rotated back to the sensor frame (AHRS_ORIENTATION {orient})")
-            if kind == "acc":
-                n = "" if idx == 0 else str(idx + 1)
-                scale = np.array([params.get(f"INS_ACC{n}SCAL_{ax}", 1.0) for ax in "XYZ"])
-                if np.all(scale > 0) and np.any(scale != 1.0):
-                    v = v / scale
-                    notes.append("accelerometer scale calibration (INS_ACC*SCAL) undone")
-            if temperature is not None:
-                corr = ardupilot_tcal_correction(params, idx + 1, kind, temperature)
-                if corr is not None:
-                    v = v + corr
-                    notes.append(f"INS_TCAL{idx + 1}_ENABLE=1: the temperature correction the "
-                                 "log applied was added back")
-            inst = SensorInstance(kind, idx, _id(params, kind, idx), t, temperature, v,
-                                  notes=notes)
+        for inst in _imu_instances(params, idx, a, temperature, orient):
             inst.mark_damage(n_read, dropped)
             instances.append(inst)
-    have_imu = {idx for (group, idx) in rows if group == "imu"}
+    return instances
+
+
+def _imu_instances(params: dict[str, float], idx: int, a: np.ndarray,
+                   temperature: np.ndarray | None, orient: int) -> list[SensorInstance]:
+    """An IMU's gyro and accelerometer, in the sensor frame, with the log's accelerometer
+    scale and temperature corrections undone."""
+    rot = orientation_matrix(orient) if orient else None
+    t = a[:, 0]
+    out = []
+    for kind, cols in (("gyro", slice(1, 4)), ("acc", slice(4, 7))):
+        v = a[:, cols].copy()
+        notes: list[str] = []
+        if rot is not None:
+            v = v @ rot.T
+            notes.append(f"rotated back to the sensor frame (AHRS_ORIENTATION {orient})")
+        if kind == "acc":
+            n = "" if idx == 0 else str(idx + 1)
+            scale = np.array([params.get(f"INS_ACC{n}SCAL_{ax}", 1.0) for ax in "XYZ"])
+            if np.all(scale > 0) and np.any(scale != 1.0):
+                v = v / scale
+                notes.append("accelerometer scale calibration (INS_ACC*SCAL) undone")
+        if temperature is not None:
+            corr = ardupilot_tcal_correction(params, idx + 1, kind, temperature)
+            if corr is not None:
+                v = v + corr
+                notes.append(f"INS_TCAL{idx + 1}_ENABLE=1: the temperature correction the "
+                             "log applied was added back")
+        out.append(SensorInstance(kind, idx, _id(params, kind, idx), t, temperature, v,
+                                  notes=notes))
+    return out
+
+
+def _tclr_instances(tclr: dict[tuple[str, int], list[list[float]]], params: dict[str, float],
+                    have_imu: set[int]) -> list[SensorInstance]:
+    """Instances from TCLR messages, for IMUs that logged no IMU messages."""
+    out = []
     for (kind, idx), data in sorted(tclr.items()):
         if idx in have_imu:
             continue
         a = np.asarray(data, dtype=np.float64)
         a = a[np.all(np.isfinite(a), axis=1)]
         a = a[np.argsort(a[:, 0], kind="stable")]
-        instances.append(SensorInstance(kind, idx, _id(params, kind, idx), a[:, 0], a[:, -1],
-                                        a[:, 1:4], notes=["from TCLR (sensor frame, before "
-                                                          "temperature correction)"]))
-    instances, phantoms = drop_phantoms(instances, "ardupilot")
-    damage += phantoms
-    names = sorted(params)
-    if names and not any(re.match(r"^(INS_|AHRS_)", n) for n in names):
-        raise InputError.at(path, "no INS_* parameters: " + (
-            f"damaged ({'; '.join(damage)})" if damage else "not an ArduPilot log"))
-    return FlightLog(path=path, autopilot="ardupilot", instances=instances, params=params,
-                     notes=time_gaps(instances), damage=damage, unread_fraction=unread).check()
+        out.append(SensorInstance(kind, idx, _id(params, kind, idx), a[:, 0], a[:, -1],
+                                  a[:, 1:4], notes=["from TCLR (sensor frame, before "
+                                                    "temperature correction)"]))
+    return out

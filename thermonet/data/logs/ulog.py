@@ -136,6 +136,48 @@ def _pyulog_damage(chatter: str, ulog: Any, skipped: list[tuple[int, int]], size
     return notes
 
 
+def _instance(d: Any, kind: str, fields: tuple[str, ...],
+              params: dict[str, float]) -> SensorInstance:
+    """One logged instance of a sensor topic: SI units (hPa and gauss converted), damaged
+    samples dropped and counted, its most frequent device id, sorted in time."""
+    data = d.data
+    t = np.asarray(data["timestamp"], dtype=np.float64) * 1e-6
+    values = np.column_stack([np.asarray(data[f], dtype=np.float64) for f in fields])
+    temp = data.get("temperature")
+    temperature = None
+    if temp is not None:
+        temperature = np.asarray(temp, dtype=np.float64)
+        if not np.any(np.isfinite(temperature)):
+            temperature = None
+    dev = data.get("device_id")
+    dev = None if dev is None or not len(dev) else np.asarray(dev)
+    notes: list[str] = []
+    finite = values[np.all(np.isfinite(values), axis=1)]
+    if kind == "baro" and finite.size and np.median(finite[:, 0]) < HPA_MAX:
+        values = values * 100.0
+        notes.append("pressure logged in hPa (an older PX4), converted to Pa")
+    if kind == "mag":
+        values = values * UT_PER_GAUSS
+        notes.append("field logged in gauss, converted to µT")
+    if kind in _TC and params.get(_TC[kind], 0.0) == 1.0:
+        notes.append(f"{_TC[kind]}=1 in the log; {d.name} is logged before thermal "
+                     "compensation, so nothing was undone")
+    # damaged samples (a flipped byte: a time out of order, a value or a temperature
+    # that no sensor reports, another sensor's device id) are dropped and counted
+    keep, dropped = screen_samples(kind, t, values, temperature, dev)
+    device_id = 0
+    if dev is not None:
+        ids, counts = np.unique(dev[keep] if keep.any() else dev, return_counts=True)
+        device_id = int(ids[np.argmax(counts)])
+    order = np.argsort(t[keep], kind="stable")
+    inst = SensorInstance(
+        kind=kind, instance=int(d.multi_id), device_id=device_id,
+        time_s=t[keep][order], values=values[keep][order],
+        temperature_c=None if temperature is None else temperature[keep][order], notes=notes)
+    inst.mark_damage(t.shape[0], dropped)
+    return inst
+
+
 def read_ulog(path: str | Path) -> FlightLog:
     """Read a PX4 ULog into its sensor instances and parameters.
 
@@ -183,41 +225,7 @@ def read_ulog(path: str | Path) -> FlightLog:
         if missing:
             raise InputError.at(path, f"topic {d.name} instance {d.multi_id} has no field "
                                 f"'{missing[0]}'")
-        t = np.asarray(data["timestamp"], dtype=np.float64) * 1e-6
-        values = np.column_stack([np.asarray(data[f], dtype=np.float64) for f in fields])
-        temp = data.get("temperature")
-        temperature = None
-        if temp is not None:
-            temperature = np.asarray(temp, dtype=np.float64)
-            if not np.any(np.isfinite(temperature)):
-                temperature = None
-        dev = data.get("device_id")
-        dev = None if dev is None or not len(dev) else np.asarray(dev)
-        notes: list[str] = []
-        finite = values[np.all(np.isfinite(values), axis=1)]
-        if kind == "baro" and finite.size and np.median(finite[:, 0]) < HPA_MAX:
-            values = values * 100.0
-            notes.append("pressure logged in hPa (an older PX4), converted to Pa")
-        if kind == "mag":
-            values = values * UT_PER_GAUSS
-            notes.append("field logged in gauss, converted to µT")
-        if kind in _TC and params.get(_TC[kind], 0.0) == 1.0:
-            notes.append(f"{_TC[kind]}=1 in the log; {d.name} is logged before thermal "
-                         "compensation, so nothing was undone")
-        # damaged samples (a flipped byte: a time out of order, a value or a temperature
-        # that no sensor reports, another sensor's device id) are dropped and counted
-        keep, dropped = screen_samples(kind, t, values, temperature, dev)
-        device_id = 0
-        if dev is not None:
-            ids, counts = np.unique(dev[keep] if keep.any() else dev, return_counts=True)
-            device_id = int(ids[np.argmax(counts)])
-        order = np.argsort(t[keep], kind="stable")
-        inst = SensorInstance(
-            kind=kind, instance=int(d.multi_id), device_id=device_id,
-            time_s=t[keep][order], values=values[keep][order],
-            temperature_c=None if temperature is None else temperature[keep][order], notes=notes)
-        inst.mark_damage(t.shape[0], dropped)
-        instances.append(inst)
+        instances.append(_instance(d, kind, fields, params))
     instances, phantoms = drop_phantoms(instances, "px4")
     return FlightLog(path=path, autopilot="px4", instances=instances, params=params,
                      notes=time_gaps(instances), damage=damage + phantoms,

@@ -1,0 +1,132 @@
+"""The command line's parser, option by option: every documented option of every command
+parses to the value the commands read (and its default when not given), and each command
+has exactly the options listed here — a sub-parser split into functions or tables must
+keep them all, with their names, types, choices and defaults."""
+
+import argparse
+
+import pytest
+
+from thermonet.cli import build_parser
+
+#: per command: (arguments that set every option, the namespace they must give)
+FULL = {
+    "simulate": (["patent-gyro", "--runs", "3", "--seed", "7", "--out", "x.csv",
+                  "--units", "4", "--outliers", "1"],
+                 {"preset": "patent-gyro", "runs": 3, "seed": 7, "out": "x.csv", "units": 4,
+                  "outliers": 1}),
+    "info": (["a.csv", "b.csv", "--mapping", "m.yaml", "--json", "--chunk-rows", "10"],
+             {"files": ["a.csv", "b.csv"], "mapping": "m.yaml", "json": True,
+              "chunk_rows": 10}),
+    "convert": (["a.csv", "--mapping", "m.yaml", "--out", "o.parquet", "--overwrite",
+                 "--chunk-rows", "5"],
+                {"files": ["a.csv"], "mapping": "m.yaml", "out": "o.parquet",
+                 "overwrite": True, "chunk_rows": 5}),
+    "compare": (["c.yaml", "--out", "o", "--overwrite", "--no-track", "--tracking-uri", "u",
+                 "-q", "--no-plots", "--workers", "2"],
+                {"config": "c.yaml", "out": "o", "overwrite": True, "no_track": True,
+                 "tracking_uri": "u", "quiet": True, "no_plots": True, "workers": 2}),
+    "train": (["c.yaml", "--family", "lin", "--out", "o", "--overwrite", "--no-track",
+               "--tracking-uri", "u", "--quiet", "--no-plots", "--workers", "0"],
+              {"config": "c.yaml", "family": "lin", "out": "o", "overwrite": True,
+               "no_track": True, "tracking_uri": "u", "quiet": True, "no_plots": True,
+               "workers": 0}),
+    "export": (["dir", "--format", "c", "--out", "m.h", "--all-units", "--family", "lin",
+                "--tracking-uri", "u", "--device-id", "12", "--instance", "2"],
+               {"source": "dir", "format": "c", "out": "m.h", "all_units": True,
+                "family": "lin", "tracking_uri": "u", "device_id": 12, "instance": 2}),
+    "calibrate": (["a.ulg", "b.ulg", "--out", "o", "--overwrite", "--no-compare",
+                   "--mag-thermometer", "mag1=baro0", "--mag-thermometer", "mag0=gyro0",
+                   "-q"],
+                  {"log": ["a.ulg", "b.ulg"], "out": "o", "overwrite": True,
+                   "no_compare": True, "mag_thermometer": ["mag1=baro0", "mag0=gyro0"],
+                   "quiet": True}),
+    "verify": (["p.params", "l.ulg", "--out", "o", "--min-cut", "2.5", "--gyro-floor", "1e-3",
+                "--acc-floor", "0.01", "--baro-floor", "2", "--mag-floor", "0.25",
+                "--overwrite", "-q"],
+               {"params": "p.params", "log": "l.ulg", "out": "o", "min_cut": 2.5,
+                "gyro_floor": 1e-3, "acc_floor": 0.01, "baro_floor": 2.0, "mag_floor": 0.25,
+                "overwrite": True, "quiet": True}),
+    "fleet": (["c.yaml", "--out", "o", "--overwrite", "--no-track", "--tracking-uri", "u",
+               "-q", "--no-plots", "--units", "8", "--outliers", "2", "--executor", "serial",
+               "--workers", "3", "--ray-address", "r:1", "--family", "lin", "--folds", "0"],
+              {"config": "c.yaml", "out": "o", "overwrite": True, "no_track": True,
+               "tracking_uri": "u", "quiet": True, "no_plots": True, "units": 8,
+               "outliers": 2, "executor": "serial", "workers": 3, "ray_address": "r:1",
+               "family": "lin", "folds": 0}),
+}
+
+#: per command: (the fewest arguments it takes, the defaults of every other option)
+MINIMAL = {
+    "simulate": (["accel", "--out", "x.parquet"],
+                 {"runs": None, "seed": 0, "units": None, "outliers": 0}),
+    "info": (["a.csv"], {"mapping": None, "json": False, "chunk_rows": None}),
+    "convert": (["a.csv", "--out", "o.parquet"],
+                {"mapping": None, "overwrite": False, "chunk_rows": None}),
+    "compare": (["--out", "o"],
+                {"config": None, "overwrite": False, "no_track": False, "tracking_uri": None,
+                 "quiet": False, "no_plots": False, "workers": None}),
+    "train": (["c.yaml", "--family", "lin", "--out", "o"],
+              {"overwrite": False, "no_track": False, "tracking_uri": None, "quiet": False,
+               "no_plots": False, "workers": None}),
+    "export": (["dir", "--format", "onnx", "--out", "m.onnx"],
+               {"all_units": False, "family": None, "tracking_uri": None, "device_id": None,
+                "instance": None}),
+    "calibrate": (["a.bin", "--out", "o"],
+                  {"overwrite": False, "no_compare": False, "mag_thermometer": None,
+                   "quiet": False}),
+    "verify": (["p.parm", "l.bin", "--out", "o"],
+               {"min_cut": None, "gyro_floor": None, "acc_floor": None, "baro_floor": None,
+                "mag_floor": None, "overwrite": False, "quiet": False}),
+    "fleet": (["c.yaml", "--out", "o"],
+              {"overwrite": False, "no_track": False, "tracking_uri": None, "quiet": False,
+               "no_plots": False, "units": None, "outliers": 0, "executor": "process",
+               "workers": None, "ray_address": None, "family": None, "folds": 5}),
+}
+
+
+def _subparsers() -> dict[str, argparse.ArgumentParser]:
+    parser = build_parser()
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return dict(action.choices)
+
+
+def test_the_commands_in_the_order_help_lists_them():
+    assert list(_subparsers()) == ["simulate", "info", "convert", "compare", "train",
+                                   "export", "calibrate", "verify", "fleet"]
+
+
+@pytest.mark.parametrize("command", list(FULL))
+def test_every_option_parses_to_what_the_command_reads(command):
+    argv, want = FULL[command]
+    args = build_parser().parse_args(["--profile", command, *argv])
+    got = {k: v for k, v in vars(args).items() if k not in ("command", "func", "profile")}
+    assert got == want
+    assert args.command == command and args.profile is True
+    assert args.func.__name__ == f"_cmd_{command}"
+    # every option of the command appears in the full command line above
+    dests = {a.dest for a in _subparsers()[command]._actions if a.dest != "help"}
+    assert dests == set(want)
+
+
+@pytest.mark.parametrize("command", list(MINIMAL))
+def test_defaults_of_the_options_not_given(command):
+    argv, defaults = MINIMAL[command]
+    args = vars(build_parser().parse_args([command, *argv]))
+    assert {k: args[k] for k in defaults} == defaults
+    assert args["profile"] is False
+
+
+@pytest.mark.parametrize("argv", [
+    ["export", "d", "--format", "pdf", "--out", "x"],       # not a format
+    ["fleet", "c.yaml", "--out", "o", "--executor", "dask"],  # not an executor
+    ["simulate", "accel", "--out", "x", "--runs", "two"],     # not an integer
+    ["verify", "p", "l", "--out", "o", "--min-cut", "x"],     # not a number
+    ["train", "c.yaml", "--out", "o"],                         # --family is required
+    ["compare"],                                               # --out is required
+])
+def test_bad_options_are_usage_errors(argv, capsys):
+    with pytest.raises(SystemExit) as err:
+        build_parser().parse_args(argv)
+    assert err.value.code == 2
+    assert "thermonet" in capsys.readouterr().err
