@@ -669,7 +669,7 @@ average_s, threads
 
         if self.model == "sensor":
             self._check_fitted("save")
-            return sensor_mode.save(self, a_path(path, "save(path)"))
+            return sensor_mode.save(self, a_path(path, "save(path)"))  # type: ignore[arg-type]
         return save(self, a_path(path, "save(path)"))  # type: ignore[arg-type]
 
     @classmethod
@@ -678,7 +678,7 @@ average_s, threads
         from .checks import path as a_path
         from .persistence import load
 
-        if sensor_mode.is_sensor_checkpoint(a_path(path, "load(path)")):
+        if sensor_mode.is_sensor_checkpoint(a_path(path, "load(path)")):  # type: ignore[arg-type]
             return sensor_mode.load(cls, path)
         return load(cls, a_path(path, "load(path)"))  # type: ignore[arg-type]
 

@@ -46,7 +46,7 @@ __all__ = ["MODELS", "check_model", "fit", "predict", "compensate", "variances",
 MODELS = ("bias", "sensor")
 
 
-def check_model(est: DriftEstimator) -> None:
+def check_model(est: Any) -> None:
     """``model`` is one of :data:`MODELS`; a sensor model takes ``target="drift"`` and
     ``train_on="all"`` only (one line naming the argument)."""
     if not isinstance(est.model, str) or est.model not in MODELS:
@@ -60,7 +60,7 @@ def check_model(est: DriftEstimator) -> None:
                               "factor needs every position at every soak: 'all')")
 
 
-def fit(est: DriftEstimator, train: Data, val: Data | None, *, config: Any,
+def fit(est: Any, train: Data, val: Data | None, *, config: Any,
         inputs: list[str], track: bool = False) -> None:
     """Fit ``est`` as a sensor model (arguments already checked by the estimator)."""
     if track:
@@ -109,7 +109,7 @@ def fit(est: DriftEstimator, train: Data, val: Data | None, *, config: Any,
         est.val_score_ = float(np.mean((err / np.where(scale > 0, scale, 1.0)) ** 2))
 
 
-def _fitted(est: DriftEstimator, model: Any, outputs: list[str], first: Recording | None,
+def _fitted(est: Any, model: Any, outputs: list[str], first: Recording | None,
             units: dict[str, str] | None = None, signal_units: dict[str, str] | None = None
             ) -> None:
     est.model_ = model
@@ -127,7 +127,7 @@ def _fitted(est: DriftEstimator, model: Any, outputs: list[str], first: Recordin
     est.mlflow_run_id_ = ""
 
 
-def _arrays(est: DriftEstimator, rec: Recording, what: str, *, refs: bool) -> Any:
+def _arrays(est: Any, rec: Recording, what: str, *, refs: bool) -> Any:
     """A run's signals, raw outputs and (``refs``) references for the fitted model."""
     from ..training.sensor import SensorRun, sensor_run
 
@@ -143,7 +143,7 @@ def _arrays(est: DriftEstimator, rec: Recording, what: str, *, refs: bool) -> An
     return SensorRun(sig, raw, raw, np.asarray(rec.time_s, dtype=np.float64), sig[:, 0])
 
 
-def predict(est: DriftEstimator, data: Data) -> np.ndarray:
+def predict(est: Any, data: Data) -> np.ndarray:
     """The sensor's error ``raw − compensated`` (N, axes), float64, run after run."""
     out = []
     for rec in runs_of(data, "predict", allow_empty=True):
@@ -152,7 +152,7 @@ def predict(est: DriftEstimator, data: Data) -> np.ndarray:
     return out[0] if len(out) == 1 else np.concatenate(out)
 
 
-def compensate(est: DriftEstimator, data: Data) -> Any:
+def compensate(est: Any, data: Data) -> Any:
     """``data`` with each modelled output replaced by :math:`M(s)^{-1}(r - b(s))`."""
     from dataclasses import replace
 
@@ -169,7 +169,7 @@ def compensate(est: DriftEstimator, data: Data) -> Any:
     return Dataset(done) if isinstance(data, Dataset) else done
 
 
-def variances(est: DriftEstimator, data: Data, what: str) -> tuple[np.ndarray, np.ndarray]:
+def variances(est: Any, data: Data, what: str) -> tuple[np.ndarray, np.ndarray]:
     """Per axis, the sums of squares of ``compensated − ref`` and ``raw − ref``, each
     source run about its own mean (the bias score's offset-free sums)."""
     from .data import BLOCK_RUN
@@ -189,7 +189,7 @@ def variances(est: DriftEstimator, data: Data, what: str) -> tuple[np.ndarray, n
     return np.asarray(comp, dtype=np.float64), np.asarray(raw, dtype=np.float64)
 
 
-def save(est: DriftEstimator, path: str | os.PathLike[str]) -> Path:
+def save(est: Any, path: str | os.PathLike[str]) -> Path:
     """The fitted sensor model as a sensor checkpoint (``compare``'s format)."""
     from ..training.sensor import SensorFit, save_sensor
 
@@ -206,7 +206,7 @@ def save(est: DriftEstimator, path: str | os.PathLike[str]) -> Path:
                            "gap_s": est.gap_s}}
     if source is not None:
         extra.update(data_hash=source["data_hash"], provenance={"data": source})
-    return save_sensor(path, fitted, family=est.family, hyper=dict(est.hyper), extra=extra)
+    return save_sensor(Path(path), fitted, family=est.family, hyper=dict(est.hyper), extra=extra)
 
 
 def is_sensor_checkpoint(path: str | os.PathLike[str]) -> bool:
@@ -227,15 +227,16 @@ def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstima
     ``compare`` wrote)."""
     from ..training.sensor import load_sensor
 
-    model, payload = load_sensor(path)
+    model, payload = load_sensor(Path(path))
     extra = payload.get("extra") or {}
     feats = extra.get("estimator") or {}
     spec = model.bias.spec
-    est = cls(payload["family"], list(payload["inputs"]), model="sensor",
+    new = cls(payload["family"], list(payload["inputs"]), model="sensor",
               outputs=list(model.outputs), t_ref=feats.get("t_ref", "start"),
               gap_s=feats.get("gap_s", "auto"),
               t_ref_window_min=float(feats.get("t_ref_window_min", 10.0)),
               **dict(payload.get("hyper") or {}))
+    est: Any = new
     units = {str(k): str(v) for k, v in (extra.get("units") or {}).items()}
     _fitted(est, model, list(model.outputs), None, units,
             {str(k): str(v) for k, v in (extra.get("signal_units") or {}).items()})
@@ -244,4 +245,4 @@ def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstima
     est.history_ = list(extra.get("history") or [])
     est.elements_kept_ = dict(payload.get("kept") or {})
     est.val_score_ = extra.get("val_score")
-    return est
+    return new
