@@ -10,7 +10,9 @@ uncertainty of an element, and numpy's variances for the score.
 
 from __future__ import annotations
 
+import html
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -92,6 +94,9 @@ def test_cross_validation_chooses_the_true_degree(degrees):
     assert c["quintic"]["n_params"] > c["cubic"]["n_params"]
     # the single validation part agreed, and said so
     assert sel["single_split"]["chosen"] == "cubic"
+    page = (Path(res["families"]["cubic"]["checkpoint"]).parents[1] / "report.html").read_text()
+    assert f"choice: {html.escape(res['chosen_reason'])}</p>" in page
+    assert "out-of-fold score (leave-one-run-out, 3 folds)" in page
 
 
 @pytest.mark.numerics
