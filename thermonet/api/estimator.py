@@ -15,6 +15,7 @@ import numpy as np
 from ..core.errors import ConfigError, ThermonetError
 from ..core.recording import Dataset, Recording
 from ..core.trainconfig import TrainConfig
+from . import sensor_mode
 from .checks import ArgumentTypeError, flag, gap, input_names, seconds, text
 from .data import (
     BLOCK_RUN,
@@ -43,7 +44,7 @@ MULTIOUTPUT = ("uniform_average", "raw_values", "variance_weighted")
 
 #: The constructor's own keywords (the family's hyper-parameters come on top, as ``**hyper``).
 _OWN = ("family", "inputs", "t_ref", "target", "outputs", "train_on", "gap_s",
-        "t_ref_window_min", "stderr", "train")
+        "t_ref_window_min", "stderr", "train", "model")
 #: The training settings, each a keyword of its own (None: from ``train``, else TrainConfig's).
 _TRAIN_KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig))
 
@@ -100,6 +101,10 @@ average_s, threads
         The fields of :class:`~thermonet.TrainConfig`, each a keyword of its own (None:
         from ``train``, else TrainConfig's default), so that a hyper-parameter search can
         set them: ``DriftEstimator("mlp", seed=3, max_epochs=200)``.
+    model : "bias" or "sensor"
+        ``"sensor"``: the full sensor model — bias, scale factor and misalignment per triad,
+        every element a function of the inputs — as ``compare`` fits it with ``model:
+        sensor`` (:mod:`thermonet.api.sensor_mode`: what predict, score and save mean then).
     **hyper
         The family's hyper-parameters (``degree=3``, ``n_centres=16``...).  They are
         parameters like the others: ``get_params()`` lists them, ``set_params(degree=2)``
@@ -160,7 +165,7 @@ average_s, threads
                  min_delta: float | None = None, seed: int | None = None,
                  device: str | None = None, max_train_samples: int | None = None,
                  average_s: float | None = None, threads: int | None = None,
-                 **hyper: Any) -> None:
+                 model: str = "bias", **hyper: Any) -> None:
         self.family = family
         self.inputs = inputs
         self.t_ref = t_ref
@@ -181,6 +186,7 @@ average_s, threads
         self.max_train_samples = max_train_samples
         self.average_s = average_s
         self.threads = threads
+        self.model = model           # "bias" or "sensor" (thermonet.api.sensor_mode)
         self.hyper = hyper
 
     # ------------------------------------------------------ scikit-learn's contract
@@ -228,7 +234,7 @@ average_s, threads
     def __repr__(self) -> str:
         defaults = {"inputs": None, "t_ref": "start", "target": "drift", "outputs": None,
                     "train_on": "all", "gap_s": "auto", "t_ref_window_min": 10.0, "train": None,
-                    "stderr": "ols"}
+                    "stderr": "ols", "model": "bias"}
         shown = [repr(self.family)]
         shown += [f"{k}={getattr(self, k)!r}" for k in _OWN[1:]
                   if getattr(self, k) != defaults.get(k)]
@@ -299,6 +305,7 @@ average_s, threads
             raise ConfigError("rate_window_s was removed: 'rate' is a causal filtered derivative "
                               "with a 60 s time constant (thermonet.features.dynamics); use the "
                               "input 'rate_<tau>' (e.g. rate_30) for another time constant")
+        sensor_mode.check_model(self)
         config = self._train_config()
         inputs = self._resolved_inputs()
         # the family's hyper-parameters: names and values (a built-in's without torch, a
@@ -372,6 +379,10 @@ average_s, threads
         flag(track, "fit(track)")
         text(tracking_uri, "fit(tracking_uri)", none=True, rule="an MLflow tracking URI")
         text(experiment, "fit(experiment)", rule="an MLflow experiment name")
+        if self.model == "sensor":
+            sensor_mode.fit(self, train, val, config=config, inputs=inputs,
+                            track=track or tracking_uri is not None)
+            return self
         runs = runs_of(train, "fit(train)")
         val_runs = None if val is None else runs_of(val, "fit(val)")
         outputs = self._outputs_for(runs)
@@ -491,6 +502,8 @@ average_s, threads
             raise ThermonetError("predict(return_band=True): this model carries no band (the "
                                  "band comes from compare's out-of-fold residuals: load a "
                                  "checkpoint compare wrote with selection.folds >= 2)")
+        if self.model == "sensor":
+            return sensor_mode.predict(self, data)
         out, widths = [], []
         for rec in runs_of(data, "predict", allow_empty=True):
             same_units(rec, self.signal_units_, "predict", "the model was trained on it")
@@ -510,6 +523,8 @@ average_s, threads
         """``data`` with the predicted drift subtracted from each modelled output: a
         Recording for a Recording, a Dataset for a Dataset, a list for a list."""
         self._check_fitted("compensate")
+        if self.model == "sensor":
+            return sensor_mode.compensate(self, data)
         if self.targets_.kind == "four-position":
             raise ThermonetError("compensate: a four-position model predicts per-soak bias and "
                                  "scale factor, not a drift to subtract sample by sample")
@@ -592,6 +607,8 @@ average_s, threads
         from ..training.train import predict
 
         model = self._check_fitted(what)
+        if self.model == "sensor":
+            return sensor_mode.variances(self, data, what)
         sums: dict[str, list[np.ndarray]] = {}     # per source run: n, Σy, Σy², Σe, Σe²
         for rec in runs_of(data, what):
             needs_outputs(rec, self.outputs_, what)
@@ -650,6 +667,9 @@ average_s, threads
         from .checks import path as a_path
         from .persistence import save
 
+        if self.model == "sensor":
+            self._check_fitted("save")
+            return sensor_mode.save(self, a_path(path, "save(path)"))  # type: ignore[arg-type]
         return save(self, a_path(path, "save(path)"))  # type: ignore[arg-type]
 
     @classmethod
@@ -658,6 +678,8 @@ average_s, threads
         from .checks import path as a_path
         from .persistence import load
 
+        if sensor_mode.is_sensor_checkpoint(a_path(path, "load(path)")):  # type: ignore[arg-type]
+            return sensor_mode.load(cls, path)
         return load(cls, a_path(path, "load(path)"))  # type: ignore[arg-type]
 
     def export(self, path: str | os.PathLike[str], format: str = "onnx", *,

@@ -1,6 +1,7 @@
 """``DIR/report.html`` of a ``model: sensor`` comparison: self-contained, one figure.
 
-Sections: the chosen family and the sensor model's targets (bias-only / sensor residual ≥ 5 on every
+Sections: the chosen family, how it was chosen (the rule's sentence; with cross-validation
+each family's out-of-fold score, its interval and per-fold scores), the sensor model's targets (bias-only / sensor residual ≥ 5 on every
 axis, compensated scale-factor tempco ≤ 15 ppm/°C); per family a table per axis (residual
 RMS raw, bias-only, sensor model; ratios and verdicts against raw and the bias-only model;
 scale-factor tempco raw / bias-only / compensated) and a table of the misalignments (mean
@@ -82,7 +83,7 @@ def _v(ratio: float, verdict: str, ci: list[float]) -> str:
 
 def render_sensor_report(res: dict[str, Any], plots: Sequence[str | Path] = ()) -> str:
     units = res.get("units", {})
-    done = res.get("done_when", {})
+    done = res.get("done_when") or {}
     parts = [f"<h1>thermonet: sensor model, {_e(res.get('device'))}</h1>",
              f"<p>chosen family: <b>{_e(res.get('chosen'))}</b>; split "
              f"{_e(res.get('split', {}).get('strategy'))}; triads {_e(res.get('triads'))}</p>",
@@ -90,6 +91,7 @@ def render_sensor_report(res: dict[str, Any], plots: Sequence[str | Path] = ()) 
              f"min {_n(done.get('min_bias_only_over_sensor'), '.3g')}; scale-factor tempco "
              f"after compensation at most 15 ppm/°C: max "
              f"{_n(done.get('sf_ppm_per_c_comp_max'), '.3g')}; met: {_e(done.get('met'))}</p>"]
+    parts += _choice(res)
     for w in res.get("warnings") or []:
         parts.append(f"<p><b>warning:</b> {_e(w)}</p>")
     onnx = res.get("onnx") or {}
@@ -129,6 +131,28 @@ def render_sensor_report(res: dict[str, Any], plots: Sequence[str | Path] = ()) 
                      "</div>")
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>thermonet sensor model"
             f"</title><style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
+
+
+def _choice(res: dict[str, Any]) -> list[str]:
+    """How the family was chosen: the rule's sentence and, with cross-validation, each
+    candidate's out-of-fold score (of raw) with its interval and per-fold scores."""
+    sel = res.get("selection") or {}
+    out = [f"<p>choice: {_e(res.get('chosen_reason') or sel.get('note') or '')}</p>"]
+    cands = sel.get("candidates") or {}
+    if cands:
+        out.append(f"<table><tr><th>family</th><th>out-of-fold score ({_e(sel.get('kind'))}, "
+                   f"{_e(sel.get('folds'))} folds)</th><th>interval</th><th>per fold</th></tr>")
+        for name, c in cands.items():
+            if c.get("status") != "ok":
+                out.append(f"<tr><td>{_e(name)}</td><td colspan=3>not a candidate: "
+                           f"{_e(c.get('reason'))}</td></tr>")
+                continue
+            out.append(f"<tr><td>{_e(name)}</td><td>{_n(c['score'], '.4g')}</td>"
+                       f"<td>[{_n(c['interval'][0], '.4g')}, {_n(c['interval'][1], '.4g')}]"
+                       f"</td><td>{_e(' '.join(format(x, '.3g') for x in c['fold_scores']))}"
+                       "</td></tr>")
+        out.append("</table>")
+    return out
 
 
 def write_sensor_report(path: str | Path, res: dict[str, Any],

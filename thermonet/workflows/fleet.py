@@ -53,6 +53,16 @@ fails its limits; the fleet finishes.
                "leave_units_out": {...}, "verdicts": {"PASS": n, "FAIL": n, ...},
                "all_passed": bool, "seconds": float}}
 
+**Sensor models** (``model: sensor``, :mod:`thermonet.workflows.sensor`): each unit is a
+sensor comparison (cross-validated as one device's); the fleet family's physical
+coefficients are those of its bias curve per axis (``gyro_x.c0`` …) and of each element of
+``E`` (``gyro.m_xx.c0`` …: scale factor on the diagonal, misalignment off it) over the
+trained temperature range, both flagged as outliers at five temperatures of the common
+range; held-out ``rms_comp``/``pp_comp`` per axis are those of ``compensated − ref``, and
+``limits`` judge them as a bias model's.  Leave units out fits one sensor model on the
+other units' training runs pooled (no validation part: every element kept) and compares
+the held-out unit's ``compensated − ref`` spread with it and with its own.
+
 Exit code of ``thermonet fleet``: 0 every unit passed (or no limits were set and
 every unit was calibrated), :data:`EXIT_LIMITS_FAILED` (3) some unit failed its
 limits or could not be calibrated, 1 bad input, 2 usage error.
@@ -72,6 +82,7 @@ from typing import Any, cast
 
 from ..core.errors import ConfigError, InputError
 from ..core.executors import TaskFailure, run_tasks
+from ..core.fileio import _umask, atomic_write_text
 from ..scoring.fleetstats import (
     judge_unit,
     parse_limits,
@@ -120,6 +131,19 @@ def _fleet_family(cfg: CompareConfig, name: str | None, source: str) -> str:
     return cfg.baseline if cfg.baseline in labels else labels[0]
 
 
+@dataclass
+class _Plan:
+    """What :func:`run_fleet` decided before any unit is fitted (step 1)."""
+
+    out: Path
+    family: str
+    limits: dict[str, Any]
+    ids: list[str]
+    dirs: dict[str, str]            # device id -> its directory's name under units/
+    k: int                          # leave-units-out groups
+    opts: FleetOptions
+
+
 def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource], *,
               options: FleetOptions | None = None, track: bool | None = None,
               tracking_uri: str | None = None, quiet: bool = False, overwrite: bool = False,
@@ -131,21 +155,65 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
     only with ``overwrite`` (the user's own files beside it are kept).  Each unit's
     directory is ``units/<component>``, the device id made a safe file name
     (:func:`thermonet.core.names.path_component`; recorded as the unit's ``dir``).
-    ``plots=False`` writes no PNG files, per unit or for the fleet.
+    ``plots=False`` writes no PNG files, per unit or for the fleet.  With ``model: sensor``
+    every unit is a sensor comparison (:mod:`thermonet.workflows.sensor`) and the fleet's
+    statistics are those of its sensor models (the module docstring).
+
+    Five steps: plan (:func:`_plan`), fit (the unit tasks), judge (:func:`_judge`: leave
+    units out, limits, the summary), write (:func:`_write`) and track (:func:`_track`).
 
     Returns the fleet results (the dict written to ``out_dir/results.json``).
     """
-    from ..core.fileio import _umask, atomic_write_text
-
-    if cfg.model == "sensor":
-        raise ConfigError(f"{getattr(cfg, '_source', 'config')}: key 'model': 'thermonet fleet' "
-                          "fits bias models only; fit a unit's sensor model with 'thermonet "
-                          "compare' (model: sensor)")
-    from ..core.names import inside, path_components
-    from ..core.outdir import check_target, install
+    from ..core.outdir import install
 
     t_start = time.perf_counter()
-    opts = options or FleetOptions()
+    p = _plan(cfg, out_dir, sources, options or FleetOptions(), overwrite)    # 1. plan
+
+    def say(msg: str) -> None:
+        if not quiet:
+            print(msg, flush=True)
+
+    say(f"thermonet fleet: {len(sources)} units{' (model: sensor)' if cfg.model == 'sensor' else ''}"
+        f", executor {p.opts.executor}, fleet family {p.family}, leave-units-out in {p.k} "
+        "groups")
+
+    def progress(i: int, res: Any) -> None:
+        status = f"failed: {res.reason}" if isinstance(res, TaskFailure) else \
+            f"chosen {res['results'].get('chosen') or 'none'}"
+        say(f"  {p.ids[i]:<20} {status}")
+
+    items = [UnitItem(cfg=cfg, source=s, family=p.family, plots=plots) for s in sources]
+    payloads = _tasks(p.opts, unit_task, items, progress)                    # 2. fit
+    stage = Path(tempfile.mkdtemp(prefix=f".{p.out.name}.", suffix=".partial",
+                                  dir=p.out.absolute().parent))
+    try:
+        os.chmod(stage, 0o777 & ~_umask())
+        units, own = _collect(p, payloads, stage)
+        summary = _judge(cfg, p, sources, units, own, stage, say)             # 3. judge
+        summary["seconds"] = time.perf_counter() - t_start
+        results = _write(cfg, p, units, summary, stage, track=track,          # 4. write
+                         tracking_uri=tracking_uri, plots=plots)
+        _track(cfg, results, track, tracking_uri, stage)                      # 5. track
+        install(stage, p.out, overwrite, "fleet")
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    say(format_fleet_table(results))
+    return results
+
+
+def _tasks(opts: FleetOptions, fn: Any, todo: list[Any], on_done: Any = None) -> list[Any]:
+    """``fn`` over ``todo`` on the configured executor."""
+    return run_tasks(fn, todo, executor=cast(Any, opts.executor), workers=opts.workers,
+                     ray_address=opts.ray_address, on_done=on_done)
+
+
+def _plan(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource],
+          opts: FleetOptions, overwrite: bool) -> _Plan:
+    """Everything checked before any unit is fitted: families, limits, the fleet family,
+    unique device ids, the options and the output directory."""
+    from ..core.names import path_components
+    from ..core.outdir import check_target
+
     source = getattr(cfg, "_source", "config")
     check_families(cfg, source=source)
     limits = parse_limits(getattr(cfg, "limits", None), source=source)
@@ -163,104 +231,95 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
     check_target(out, overwrite, "fleet")  # before any unit is fitted
     dirs = path_components(ids)            # a device id never becomes a path as it is
     out.absolute().parent.mkdir(parents=True, exist_ok=True)
-
-    def say(msg: str) -> None:
-        if not quiet:
-            print(msg, flush=True)
-
     k = min(opts.folds, len(sources)) if len(sources) >= 2 else 0
-    say(f"thermonet fleet: {len(sources)} units, executor {opts.executor}, fleet family "
-        f"{family}, leave-units-out in {k} groups")
+    return _Plan(out, family, limits, ids, dirs, k, opts)
 
-    def run(fn: Any, todo: list[Any], on_done: Any = None) -> list[Any]:
-        return run_tasks(fn, todo, executor=cast(Any, opts.executor), workers=opts.workers,
-                         ray_address=opts.ray_address, on_done=on_done)
 
-    items = [UnitItem(cfg=cfg, source=s, family=family, plots=plots) for s in sources]
+def _collect(p: _Plan, payloads: list[Any], stage: Path
+             ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Each unit's files into ``stage/units/<dir>`` and its results (paths relocated to
+    ``out``); returns the units' results and their own models (for leave-units-out)."""
+    from ..core.names import inside
 
-    def progress(i: int, res: Any) -> None:
-        status = f"failed: {res.reason}" if isinstance(res, TaskFailure) else \
-            f"chosen {res['results'].get('chosen') or 'none'}"
-        say(f"  {ids[i]:<20} {status}")
+    units: dict[str, Any] = {}
+    own: dict[str, Any] = {}
+    for dev, res in zip(p.ids, payloads, strict=True):
+        if isinstance(res, TaskFailure):
+            units[dev] = {"device": dev, "status": "failed", "reason": res.reason}
+            continue
+        udir = inside(stage, "units", p.dirs[dev])
+        for rel, data in res["files"].items():
+            f = udir / rel
+            if not f.resolve().is_relative_to(udir.resolve()):
+                raise InputError(f"unit '{dev}': its worker returned a file outside its "
+                                 f"directory ({rel!r})")
+            f.parent.mkdir(parents=True, exist_ok=True)
+            f.write_bytes(data)
+        r = _relocate(res["results"], res["root"], str(p.out / "units" / p.dirs[dev]))
+        r.update(status="ok", temperature_span_c=res["temperature_span_c"],
+                 coefficients=res["coefficients"], leave_units_out=None,
+                 n_runs=res["n_runs"], temperature_range_c=res["temperature_range_c"])
+        r["device"] = dev
+        r["dir"] = f"units/{p.dirs[dev]}"
+        units[dev] = r
+        own[dev] = res["own_model"]
+    return units, own
 
-    payloads = run(unit_task, items, progress)
 
-    stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial",
-                                  dir=out.absolute().parent))
-    try:
-        os.chmod(stage, 0o777 & ~_umask())
-        units: dict[str, Any] = {}
-        own: dict[str, Any] = {}
-        for dev, res in zip(ids, payloads, strict=True):
-            if isinstance(res, TaskFailure):
-                units[dev] = {"device": dev, "status": "failed", "reason": res.reason}
+def _judge(cfg: CompareConfig, p: _Plan, sources: list[UnitSource], units: dict[str, Any],
+           own: dict[str, Any], stage: Path, say: Any) -> dict[str, Any]:
+    """Leave units out (after the units: flagged outliers and failed units stay out of every
+    fleet model — a production line would not build its fleet model on them), each unit's
+    limits (its results.json rewritten with them) and the fleet summary."""
+    from ..core.names import inside
+
+    flagged = set(fleet_summary(units, p.family, {}, p.limits)["outliers"])
+    fold_info: dict[str, Any] = {}
+    if p.k:
+        excluded = flagged | {d for d, u in units.items() if u["status"] != "ok"}
+        folds = fold_items(cfg, p.family, sources, p.k, p.opts.fleet_units_max, own, excluded)
+        say(f"  leave-units-out: {len(folds)} fleet fits (outliers left out: "
+            f"{', '.join(sorted(flagged)) or 'none'})")
+        for item, fres in zip(folds, _tasks(p.opts, fold_task, folds), strict=True):
+            if isinstance(fres, TaskFailure):
+                fold_info[str(item.fold)] = {"status": "failed", "reason": fres.reason}
                 continue
-            udir = inside(stage, "units", dirs[dev])
-            for rel, data in res["files"].items():
-                p = udir / rel
-                if not p.resolve().is_relative_to(udir.resolve()):
-                    raise InputError(f"unit '{dev}': its worker returned a file outside its "
-                                     f"directory ({rel!r})")
-                p.parent.mkdir(parents=True, exist_ok=True)
-                p.write_bytes(data)
-            r = _relocate(res["results"], res["root"], str(out / "units" / dirs[dev]))
-            r.update(status="ok", temperature_span_c=res["temperature_span_c"],
-                     coefficients=res["coefficients"], leave_units_out=None,
-                     n_runs=res["n_runs"], temperature_range_c=res["temperature_range_c"])
-            r["device"] = dev
-            r["dir"] = f"units/{dirs[dev]}"
-            units[dev] = r
-            own[dev] = res["own_model"]
-        # leave units out, after the units: flagged outliers and failed units stay out of
-        # every fleet model (a production line would not build its fleet model on them)
-        flagged = set(fleet_summary(units, family, {}, limits)["outliers"])
-        fold_info: dict[str, Any] = {}
-        if k:
-            excluded = flagged | {d for d, u in units.items() if u["status"] != "ok"}
-            folds = fold_items(cfg, family, sources, k, opts.fleet_units_max, own, excluded)
-            say(f"  leave-units-out: {len(folds)} fleet fits (outliers left out: "
-                f"{', '.join(sorted(flagged)) or 'none'})")
-            for item, fres in zip(folds, run(fold_task, folds), strict=True):
-                if isinstance(fres, TaskFailure):
-                    fold_info[str(item.fold)] = {"status": "failed", "reason": fres.reason}
-                    continue
-                fold_info[str(item.fold)] = {"status": "ok", "fitted_on": fres["units"]}
-                for dev, ev in fres["evaluations"].items():
-                    units[dev]["leave_units_out"] = ev
-        for dev, u in units.items():
-            u["limits"] = judge_unit(u, limits)
-            if u["status"] == "ok":
-                atomic_write_text(inside(stage, "units", dirs[dev]) / "results.json",
-                                  json.dumps(clean(u), indent=2))
-        summary = fleet_summary(units, family, fold_info, limits)
-        summary["seconds"] = time.perf_counter() - t_start
-        from ..tracking import default_tracking_uri
-        from .provenance import data_source, resolved_config
+            fold_info[str(item.fold)] = {"status": "ok", "fitted_on": fres["units"]}
+            for dev, ev in fres["evaluations"].items():
+                units[dev]["leave_units_out"] = ev
+    for dev, u in units.items():
+        u["limits"] = judge_unit(u, p.limits)
+        if u["status"] == "ok":
+            atomic_write_text(inside(stage, "units", p.dirs[dev]) / "results.json",
+                              json.dumps(clean(u), indent=2))
+    return fleet_summary(units, p.family, fold_info, p.limits)
 
-        tracking = cfg.tracking.enabled if track is None else track
-        results = {"schema": 1, "kind": "fleet", "fleet_family": family,
-                   "config": resolved_config(  # as used: tracking, no preset for files
-                       cfg, None, given=False, tracking_enabled=tracking, workers=1,
-                       tracking_uri=tracking_uri or cfg.tracking.uri or default_tracking_uri()),
-                   "provenance": {"data": data_source(cfg, None, given=False),
-                                  "options": {"track": track, "tracking_uri": tracking_uri,
-                                              "plots": plots}},
-                   "options": dataclasses.asdict(opts), "units": units, "fleet": summary}
-        plot = plot_coefficient_spread(stage / "plots" / "coefficient_spread.png", results) \
-            if plots else None
-        summary["spread_plot"] = None if plot is None else "plots/coefficient_spread.png"
-        results = clean(results)
-        atomic_write_text(stage / "results.json", json.dumps(results, indent=2))
-        from ..scoring.fleetstats import fleet_html_fragment
 
-        atomic_write_text(stage / "fleet.html", "<!doctype html><meta charset=utf-8>"
-                          "<title>thermonet fleet</title>\n"
-                          + fleet_html_fragment(results, summary["spread_plot"]))
-        _track(cfg, results, track, tracking_uri, stage)
-        install(stage, out, overwrite, "fleet")
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
-    say(format_fleet_table(results))
+def _write(cfg: CompareConfig, p: _Plan, units: dict[str, Any], summary: dict[str, Any],
+           stage: Path, *, track: bool | None, tracking_uri: str | None, plots: bool
+           ) -> dict[str, Any]:
+    """The fleet's results.json, its coefficient-spread figure and fleet.html in ``stage``."""
+    from ..scoring.fleetstats import fleet_html_fragment
+    from ..tracking import default_tracking_uri
+    from .provenance import data_source, resolved_config
+
+    tracking = cfg.tracking.enabled if track is None else track
+    results = {"schema": 1, "kind": "fleet", "fleet_family": p.family,
+               "config": resolved_config(  # as used: tracking, no preset for files
+                   cfg, None, given=False, tracking_enabled=tracking, workers=1,
+                   tracking_uri=tracking_uri or cfg.tracking.uri or default_tracking_uri()),
+               "provenance": {"data": data_source(cfg, None, given=False),
+                              "options": {"track": track, "tracking_uri": tracking_uri,
+                                          "plots": plots}},
+               "options": dataclasses.asdict(p.opts), "units": units, "fleet": summary}
+    plot = plot_coefficient_spread(stage / "plots" / "coefficient_spread.png", results) \
+        if plots else None
+    summary["spread_plot"] = None if plot is None else "plots/coefficient_spread.png"
+    results = clean(results)
+    atomic_write_text(stage / "results.json", json.dumps(results, indent=2))
+    atomic_write_text(stage / "fleet.html", "<!doctype html><meta charset=utf-8>"
+                      "<title>thermonet fleet</title>\n"
+                      + fleet_html_fragment(results, summary["spread_plot"]))
     return results
 
 
@@ -287,8 +346,10 @@ def _track(cfg: CompareConfig, results: dict[str, Any], track: bool | None,
             with tracker.run(dev, tags=tags, nested=True) as rid:
                 u["mlflow_run_id"] = rid
                 if u.get("status") == "ok" and chosen:
+                    # a sensor model's axes carry verdicts and intervals too: numbers only
                     tracker.log_metrics({f"test/{a}/{k}": v for a, m in
                                          u["families"][chosen]["axes"].items()
-                                         for k, v in m.items()})
+                                         for k, v in m.items()
+                                         if u.get("model") != "sensor" or isinstance(v, float)})
         (stage / "results.json").write_text(json.dumps(results, indent=2))
         tracker.log_artifact(stage / "results.json")

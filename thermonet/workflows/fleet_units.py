@@ -181,6 +181,12 @@ def physical_coefficients(model: Any, t0_c: float = COEF_T0_C) -> dict[str, floa
     return out
 
 
+def _load_sensor(path: str) -> Any:
+    from ..training.sensor import load_sensor
+
+    return load_sensor(path)[0]
+
+
 def _residual_std(model: Any, part: Any) -> np.ndarray:
     from ..training.train import predict
 
@@ -231,10 +237,16 @@ def unit_task(item: UnitItem) -> dict[str, Any]:
                                    "own_model": None}
         fam = results["families"].get(item.family)
         if fam and fam.get("status") == "ok" and fam.get("checkpoint"):
-            own, _ = load_checkpoint(fam["checkpoint"])
+            sensor = results.get("model") == "sensor"
+            own = _load_sensor(fam["checkpoint"]) if sensor else \
+                load_checkpoint(fam["checkpoint"])[0]
             payload["own_model"] = own  # for leave-units-out, evaluated by the fold tasks
-            payload["coefficients"] = physical_coefficients(own)
-            lo, hi = float(_buffer(own, "sig_lo")[0]), float(_buffer(own, "sig_hi")[0])
+            # a sensor model's curves: its bias b(T) per axis and each element of E(T)
+            curves = [own.bias, own.elements] if sensor else [own]
+            payload["coefficients"] = {k: v for m in curves
+                                       for k, v in physical_coefficients(m).items()}
+            lo, hi = float(_buffer(curves[0], "sig_lo")[0]), float(_buffer(curves[0],
+                                                                           "sig_hi")[0])
             if list(own.signals) == ["temperature_c"] and np.isfinite([lo, hi]).all():
                 payload["temperature_range_c"] = [lo, hi]
         return payload
@@ -259,6 +271,8 @@ def fold_task(item: FoldItem) -> dict[str, Any]:
     from ..training.parts import make_splits, targets_for
 
     cfg, fam = item.cfg, _family(item.cfg, item.family)
+    if cfg.model == "sensor":
+        return _sensor_fold_task(item, fam)
     train, val = [], []
     outputs: list[str] = []
     target: Any = cfg.target
@@ -290,6 +304,53 @@ def fold_task(item: FoldItem) -> dict[str, Any]:
                     "std_fleet": float(s_fleet[j]),
                     "ratio": float(s_fleet[j] / s_own[j]) if s_own[j] > 0 else None}
                 for j, a in enumerate(own.outputs)}}
+    return {"units": [s.device_id for s in item.sources], "fold": item.fold,
+            "evaluations": evaluations}
+
+
+def _sensor_fold_task(item: FoldItem, fam: FamilyConfig) -> dict[str, Any]:
+    """:func:`fold_task` for ``model: sensor``: one sensor model of the fleet family fitted
+    on the other units' training runs pooled (without a validation part: the units' own
+    validation runs are separate recordings, so every element is kept and the loop stops on
+    its training loss), and on each held-out unit's test run the standard deviation of
+    ``compensated − ref`` with it and with the unit's own sensor model (``std_raw``: of
+    ``raw − ref``)."""
+    from ..models.sensor import triads_of
+    from ..training.config import outputs_of, train_config_of
+    from ..training.fold import fold_spec
+    from ..training.parts import make_splits
+    from ..training.sensor import fit_sensor, sensor_run
+
+    cfg = item.cfg
+    train = []
+    outputs: list[str] = []
+    for src in item.sources:
+        ds = src.load(cfg)
+        train += make_splits(ds, cfg.split, source=f"unit '{src.device_id}'")[-1].train
+        outputs = [o for t in triads_of(outputs_of(cfg, ds)) for o in t]
+    triads = triads_of(outputs)
+    spec = fold_spec(fam.inputs, train, t_ref=cfg.features.t_ref,
+                     window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s)
+    fleet = fit_sensor(family=fam.family, spec=spec, outputs=outputs, triads=triads,
+                       train=[sensor_run(r, spec, outputs) for r in train], val=None,
+                       hyper=fam.params, config=train_config_of(cfg, fam)).model
+    evaluations = {}
+    for src, own in item.held_out:  # one unit's data at a time
+        ds = src.load(cfg)
+        test = make_splits(ds, cfg.split, source=f"unit '{src.device_id}'")[-1].test
+        std = {}
+        for name, model in (("own", own), ("fleet", fleet)):
+            r = sensor_run(test, model.bias.spec, outputs)
+            std[name] = np.std(model.compensate(r.signals, r.raw) - r.ref, axis=0)
+        s_raw = np.std(r.raw - r.ref, axis=0)
+        evaluations[src.device_id] = {
+            "fold": item.fold, "family": item.family,
+            "fitted_on": [s.device_id for s in item.sources], "axes": {
+                a: {"std_raw": float(s_raw[j]), "std_own": float(std["own"][j]),
+                    "std_fleet": float(std["fleet"][j]),
+                    "ratio": float(std["fleet"][j] / std["own"][j])
+                    if std["own"][j] > 0 else None}
+                for j, a in enumerate(outputs)}}
     return {"units": [s.device_id for s in item.sources], "fold": item.fold,
             "evaluations": evaluations}
 

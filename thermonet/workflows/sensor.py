@@ -1,20 +1,37 @@
 """``thermonet compare`` with ``model: sensor``: the full sensor model per family, judged.
 
-For every configured family, on one split (train / validation / test runs,
-:mod:`thermonet.training.splits`; never by random sample):
+The run is five named steps (:func:`_run`): **plan** (:func:`_plan`: the data, its triads,
+one train / validation / test split — never by random sample — and the bias comparison's
+cross-validation folds of the split's pool), **fit** (:func:`_fit_family`, per configured
+family), **judge** (:func:`_judge_test` per family on the held-out run, then
+:func:`~thermonet.workflows.sensor_fit.choose_sensor` across families), **write**
+(:func:`_write`: checkpoints, ONNX, results.json, report) and **track** (:func:`_track`).
 
-1. the full sensor model (:func:`thermonet.training.sensor.fit_sensor`: bias, scale factor
-   and misalignment, every element a function of the family's inputs) and, on the same data
-   and code path, the bias-only model (E = 0) it is judged against;
-2. on the held-out test run, per axis: the residual RMS of raw, bias-only and sensor model
+Per family:
+
+1. its ``tune`` grid, when it has one, chosen on the folds
+   (:func:`~thermonet.workflows.sensor_fit.sensor_tune`);
+2. the full sensor model (:func:`thermonet.training.sensor.fit_sensor`: bias, scale factor
+   and misalignment, every element a function of the family's inputs) on the split's
+   training runs, early stopping and do no harm on its validation run, and, on the same
+   data and code path, the bias-only model (E = 0) it is judged against;
+3. its out-of-fold predictions on the pool's folds
+   (:func:`~thermonet.workflows.sensor_fit.sensor_oof`: one fit per fold);
+4. on the held-out test run, per axis: the residual RMS of raw, bias-only and sensor model
    (output units) and the paired block-bootstrap verdicts of the sensor model against raw
    and against the bias-only model; per triad, the per-soak scale-factor tempco before and
    after (study 000's ppm/°C) and each misalignment with its spread over temperature (mrad)
-   (:mod:`thermonet.scoring.sensor`);
-3. the family that ships (``chosen``) has the lowest validation residual (each axis scaled
-   by its raw error's standard deviation); its checkpoint is ``models/<label>.pt``
-   (:func:`thermonet.training.sensor.save_sensor`) and its ONNX graph ``model.onnx``
-   (:mod:`thermonet.exporting.sensor_export`, parity-checked against torch).
+   (:mod:`thermonet.scoring.sensor`); and the fleet's per-axis statistics of a bias model
+   (``rms_raw``/``rms_comp``: the residuals' standard deviations, ``pp_raw``/``pp_comp``:
+   the peak-to-peak of their 1 °C-binned means), which ``thermonet fleet`` summarises and
+   judges against ``limits``.
+
+The family that ships (``chosen``) is the out-of-fold choice
+(:mod:`thermonet.scoring.selection`: the one-SE rule, fewest parameters, do no harm;
+``selection`` in results.json as in a bias comparison); without folds, the lowest validation
+residual.  Its checkpoint is ``models/<label>.pt``
+(:func:`thermonet.training.sensor.save_sensor`) and its ONNX graph ``model.onnx``
+(:mod:`thermonet.exporting.sensor_export`, parity-checked against torch).
 
 Decisions: one split only (leave-one-run-out is refused: the verdicts would pool folds of
 different models); MLflow tracking as for bias models (a parent run, a nested run per family
@@ -27,6 +44,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +54,7 @@ from .. import __version__
 from ..core.errors import ConfigError, ThermonetError
 from ..core.fileio import atomic_write_text
 from ..core.recording import Dataset
-from ..training.config import CompareConfig, outputs_of, train_config_of
+from ..training.config import CompareConfig, FamilyConfig, outputs_of, train_config_of
 from ..training.parts import data_hash, load_data
 
 __all__ = ["run_sensor", "format_sensor_table"]
@@ -63,25 +81,84 @@ def run_sensor(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fal
     return results
 
 
+@dataclass
+class _Plan:
+    """Everything decided before fitting (step 1)."""
+
+    cfg: CompareConfig
+    ds: Dataset
+    outputs: list[str]
+    triads: list[list[str]]
+    split: Any                       # thermonet.training.splits.Split
+    units: dict[str, str]
+    doc: dict[str, Any]              # results.json, filled step by step
+    folds: Any = None                # thermonet.scoring.selection.FoldPlan of the pool
+    fold_note: str = ""
+
+
+@dataclass
+class _Fitted:
+    """One family's fit (step 2): what the choice, the figure and the tracking need."""
+
+    history: list[dict] = field(default_factory=list)
+    soaks: list[Any] = field(default_factory=list)
+    oof: Any = None
+    pool: Any = None
+
+
 def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
          plots: bool, track: bool | None, tracking_uri: str | None) -> dict[str, Any]:
+    from .sensor_fit import choose_sensor
+
+    say = (lambda s: None) if quiet else print
+    p = _plan(cfg, dataset)                                                   # 1. plan
+    say(f"thermonet compare (model: sensor): {p.ds.device_id} ({len(p.ds)} runs, triads "
+        f"{p.triads}), split {p.split.label}, "
+        + (f"{p.folds.k} cross-validation folds ({p.folds.kind})" if p.folds is not None
+           else p.fold_note))
+    (out / "models").mkdir(parents=True, exist_ok=True)
+    fits: dict[str, _Fitted] = {}
+    for fam in cfg.families:                                                  # 2. fit
+        fitted = _fit_family(p, fam, out, say)
+        if fitted is not None:
+            fits[fam.label] = fitted
+    if not fits:
+        reasons = {str(v.get("reason")) for v in p.doc["families"].values()}
+        raise ThermonetError("no family could be fitted as a sensor model: " + (
+            reasons.pop() if len(reasons) == 1 else "; ".join(
+                f"{k}: {v.get('reason')}" for k, v in p.doc["families"].items())))
+    pool = next((f.pool for f in fits.values() if f.pool is not None), None)
+    choose_sensor(cfg, p.doc, p.folds, p.fold_note,                          # 3. judge
+                  {k: f.oof for k, f in fits.items() if f.oof is not None}, pool, p.outputs)
+    say(f"  chosen: {p.doc['chosen'] or 'none'} ({p.doc['chosen_reason']})")
+    doc = p.doc
+    chosen = doc["families"].get(doc["chosen"]) if doc["chosen"] else None
+    doc["done_when"] = _done_when(chosen) if chosen else None
+    doc["onnx"] = _export_chosen(out, chosen) if chosen else {
+        "status": "not written", "reason": doc["chosen_reason"]}
+    _write(out, doc, fits, plots=plots)                                       # 4. write
+    doc["mlflow_run_id"] = _track(cfg, doc, {k: f.history for k, f in fits.items()},  # 5.
+                                  p.ds.device_id, track=track, tracking_uri=tracking_uri)
+    atomic_write_text(out / "results.json", json.dumps(doc, indent=2))  # with the run ids
+    return doc
+
+
+def _plan(cfg: CompareConfig, dataset: Dataset | None) -> _Plan:
+    """Config and data checked (families, references, triads), the one split and the folds
+    of its pool; results.json's head."""
     from ..core.schema import to_dict
-    from ..exporting.sensor_export import bias_only_path
     from ..models.sensor import triads_of
-    from ..reporting.sensor_report import plot_sensor_soaks, write_sensor_report
-    from ..scoring.sensor import residual_verdicts, soak_matrices, triad_metrics
-    from ..training.checkpoint import save_checkpoint
     from ..training.config import check_families
-    from ..training.fold import fold_spec
-    from ..training.sensor import fit_sensor, save_sensor, sensor_run, sensor_run_refs
+    from ..training.sensor import sensor_run_refs
     from ..training.splits import make_splits
+    from .compare_plan import _check_baseline, _fold_plan
 
     src = getattr(cfg, "_source", "config")
     check_families(cfg, source=src)
+    _check_baseline(cfg, src)
     ds = dataset if dataset is not None else load_data(cfg.data, source=src)
     ds.validate()
-    outputs = outputs_of(cfg, ds)
-    triads = triads_of(outputs, source=src)
+    triads = triads_of(outputs_of(cfg, ds), source=src)
     outputs = [o for t in triads for o in t]
     splits = make_splits(ds, cfg.split, source=src)
     if len(splits) != 1:
@@ -90,121 +167,162 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
     sp = splits[0]
     for rec in [*sp.train, *([sp.val] if sp.val is not None else []), sp.test]:
         sensor_run_refs(rec, outputs)  # a missing reference is the data's fault: refused now
+    folds, note = _fold_plan(cfg, splits)
     units = {o: ds.runs[0].units.get(o, "") for o in outputs}
-    say = (lambda s: None) if quiet else print
-    say(f"thermonet compare (model: sensor): {ds.device_id} ({len(ds)} runs, triads "
-        f"{[t for t in triads]}), split {sp.label}")
     doc: dict[str, Any] = {
         "model": "sensor", "thermonet_version": __version__, "device": ds.device_id,
         "data_hash": data_hash(ds), "config": to_dict(cfg), "units": units,
         "triads": triads, "split": {"strategy": sp.label, "describe": sp.describe},
-        "families": {}, "chosen": None, "warnings": []}
+        "baseline": cfg.baseline, "families": {}, "chosen": None, "chosen_reason": "",
+        "tie": [], "selection": {}, "warnings": []}
+    return _Plan(cfg, ds, outputs, triads, sp, units, doc, folds, note)
 
-    test = sp.test
-    best: tuple[float, str] | None = None
-    soak_data: dict[str, list] = {}
-    histories: dict[str, list] = {}
-    (out / "models").mkdir(parents=True, exist_ok=True)
-    for fam in cfg.families:
-        entry: dict[str, Any] = {"family": fam.family, "inputs": list(fam.inputs),
-                                 "params": dict(fam.params)}
-        doc["families"][fam.label] = entry
-        try:
-            t0 = time.perf_counter()
-            spec = fold_spec(fam.inputs, sp.train, t_ref=cfg.features.t_ref,
-                             window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s)
-            tr = [sensor_run(r, spec, outputs) for r in sp.train]
-            va = sensor_run(sp.val, spec, outputs) if sp.val is not None else None
-            te = sensor_run(test, spec, outputs)
-            tcfg = train_config_of(cfg, fam)
-            full = fit_sensor(family=fam.family, spec=spec, outputs=outputs, triads=triads,
-                              train=tr, val=va, hyper=fam.params, config=tcfg)
-            bias = fit_sensor(family=fam.family, spec=spec, outputs=outputs, triads=triads,
-                              train=tr, val=va, hyper=fam.params, config=tcfg, elements=False)
-            fit_s = time.perf_counter() - t0
-        except ThermonetError as err:
-            entry.update(status="failed", reason=str(err))
-            say(f"  {fam.label:<14} not fitted: {err}")
-            continue
-        raw_err = te.raw - te.ref
-        comp = full.model.compensate(te.signals, te.raw)
-        comp_b = bias.model.compensate(te.signals, te.raw)
-        axes = residual_verdicts(outputs, te.time_s, raw_err, comp - te.ref, comp_b - te.ref)
-        elements: dict[str, Any] = {}
-        temp = np.asarray(test.temperature_c if test.temperature_c is not None
-                          else te.temperature)
-        soak_data[fam.label] = []
-        for t in triads:
-            idx = [outputs.index(o) for o in t]
-            temps, _, m_raw = soak_matrices(te.time_s, temp, te.raw[:, idx], te.ref[:, idx])
-            _, _, m_comp = soak_matrices(te.time_s, temp, comp[:, idx], te.ref[:, idx])
-            if temps.size:
-                soak_data[fam.label].append((t, temps, m_raw, m_comp))
-            _, _, m_bias = soak_matrices(te.time_s, temp, comp_b[:, idx], te.ref[:, idx])
-            for key, m in triad_metrics(t, temps, m_raw, m_comp).items():
-                if key in axes:
-                    axes[key].update(m)
-                    axes[key]["sf_ppm_per_c_bias_only"] = triad_metrics(
-                        t, temps, m_raw, m_bias)[key]["sf_ppm_per_c_comp"]
-                else:
-                    elements[key] = m
-        val_score = val_bias = None
-        if va is not None:
-            v_raw = va.raw - va.ref
-            val_score = _score(full.model.compensate(va.signals, va.raw) - va.ref, v_raw)
-            val_bias = _score(bias.model.compensate(va.signals, va.raw) - va.ref, v_raw)
-        ckpt = out / "models" / f"{fam.label}.pt"
-        info = {"label": fam.label, "device_id": ds.device_id, "units": units}
-        save_sensor(ckpt, full, family=fam.family, hyper=fam.params,
-                    extra={**info, "val_score": val_score})
-        # the bias-only model as a plain bias checkpoint: what an autopilot can take
-        save_checkpoint(bias_only_path(ckpt), bias.model.bias, config=to_dict(cfg),
-                        extra={**info, "label": f"{fam.label}.bias-only"})
-        per_triad = {}
-        for t in triads:
-            kind = t[0].split("_", 1)[0]
-            sf = [axes[a]["sf_ppm_per_c_comp"] for a in t if "sf_ppm_per_c_comp" in axes[a]]
-            sf_raw = [axes[a]["sf_ppm_per_c_raw"] for a in t if "sf_ppm_per_c_raw" in axes[a]]
-            mis = [m for k, m in elements.items() if k.startswith(f"{kind}_")]
-            per_triad[kind] = {
-                "sf_ppm_per_c_raw_max": max(sf_raw) if sf_raw else None,
-                "sf_ppm_per_c_comp_max": max(sf) if sf else None,
-                "misalignment_spread_mrad_raw_max": max(
-                    (m["misalignment_spread_mrad_raw"] for m in mis), default=None),
-                "misalignment_spread_mrad_comp_max": max(
-                    (m["misalignment_spread_mrad_comp"] for m in mis), default=None),
-                "residual_ratio_vs_bias_max": max(axes[a]["ratio_vs_bias"] for a in t)}
-        histories[fam.label] = full.history
-        entry.update(status="ok", fit_seconds=fit_s, triads=per_triad, n_params=full.model.n_params,
-                     best_epoch=full.best_epoch, n_estimates=full.n_estimates,
-                     condition_max=full.condition, val_score=val_score,
-                     val_score_bias_only=val_bias, elements_kept=full.kept, axes=axes,
-                     misalignment=elements, checkpoint=str(ckpt),
-                     bias_only_checkpoint=f"models/{bias_only_path(ckpt).name}")
-        score = val_score if val_score is not None else _score(comp - te.ref, raw_err)
-        if best is None or score < best[0]:
-            best = (score, fam.label)
-        worst = max(a["ratio_vs_bias"] for a in axes.values())
-        say(f"  {fam.label:<14} fitted in {fit_s:.2f} s, {full.model.n_params} params, "
-            f"{sum(full.kept.values())}/{len(full.kept)} elements kept, residual vs bias-only "
-            f"at most {worst:.3g}")
-    if best is None:
-        reasons = {str(v.get("reason")) for v in doc["families"].values()}
-        raise ThermonetError("no family could be fitted as a sensor model: " + (
-            reasons.pop() if len(reasons) == 1 else "; ".join(
-                f"{k}: {v.get('reason')}" for k, v in doc["families"].items())))
-    doc["chosen"] = best[1]
-    chosen = doc["families"][best[1]]
-    doc["done_when"] = _done_when(chosen)
-    doc["onnx"] = _export_chosen(out, chosen)
-    doc["mlflow_run_id"] = _track(cfg, doc, histories, ds.device_id, track=track,
-                                  tracking_uri=tracking_uri)
+
+def _fit_family(p: _Plan, fam: FamilyConfig, out: Path, say: Any) -> _Fitted | None:
+    """Step 2 for one family: tuned on the folds (a ``tune`` grid), fitted as a sensor and
+    as a bias-only model, cross-validated, judged on the test run, written; its entry in
+    results.json.  A family the data cannot carry is reported (None) and the others go on."""
+    from ..training.fold import fold_spec
+    from ..training.sensor import fit_sensor, sensor_run
+    from .sensor_fit import sensor_oof, sensor_pool, sensor_tune
+
+    cfg, sp = p.cfg, p.split
+    entry: dict[str, Any] = {"family": fam.family, "inputs": list(fam.inputs),
+                             "params": dict(fam.params)}
+    p.doc["families"][fam.label] = entry
+    kw: dict[str, Any] = {"outputs": p.outputs, "triads": p.triads}
+    try:
+        t0 = time.perf_counter()
+        spec = fold_spec(fam.inputs, sp.train, t_ref=cfg.features.t_ref,
+                         window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s)
+        tcfg = train_config_of(cfg, fam)
+        kw.update(spec=spec)
+        fitted = _Fitted(pool=sensor_pool(sp.pool, spec, p.outputs)
+                         if p.folds is not None else None)
+        if fam.tune:
+            fam, entry["tuned"], fitted.oof = sensor_tune(p.folds, fitted.pool, fam=fam,
+                                                          tcfg=tcfg, **kw)
+        tr = [sensor_run(r, spec, p.outputs) for r in sp.train]
+        va = sensor_run(sp.val, spec, p.outputs) if sp.val is not None else None
+        te = sensor_run(sp.test, spec, p.outputs)
+        fit_kw = dict(family=fam.family, train=tr, val=va, hyper=fam.params, config=tcfg, **kw)
+        full = fit_sensor(**fit_kw)
+        bias = fit_sensor(**fit_kw, elements=False)
+        if p.folds is not None and fitted.oof is None:
+            fitted.oof = sensor_oof(p.folds, fitted.pool, fam=fam, tcfg=tcfg, **kw)
+        fit_s = time.perf_counter() - t0
+    except ThermonetError as err:
+        entry.update(status="failed", reason=str(err))
+        say(f"  {fam.label:<14} not fitted: {err}")
+        return None
+    fitted.history = full.history
+    fitted.soaks = _judge_test(p, entry, full, bias, te, va)
+    _save(p, fam, entry, full, bias, out)
+    entry.update(status="ok", fit_seconds=fit_s, n_params=full.model.n_params,
+                 best_epoch=full.best_epoch, n_estimates=full.n_estimates,
+                 condition_max=full.condition, elements_kept=full.kept)
+    if fitted.oof is not None and fitted.oof.failed is not None:
+        entry["cross_validation"] = fitted.oof.failed
+    worst = max(a["ratio_vs_bias"] for a in entry["axes"].values())
+    say(f"  {fam.label:<14} fitted in {fit_s:.2f} s, {full.model.n_params} params, "
+        f"{sum(full.kept.values())}/{len(full.kept)} elements kept, residual vs bias-only "
+        f"at most {worst:.3g}")
+    return fitted
+
+
+def _judge_test(p: _Plan, entry: dict[str, Any], full: Any, bias: Any, te: Any,
+                va: Any) -> list[Any]:
+    """The family's held-out metrics into ``entry`` (axes, misalignment, triads, validation
+    scores); returns the per-soak matrices of its figure."""
+    from ..scoring.metrics import binned_peak_to_peak
+    from ..scoring.sensor import residual_verdicts, soak_matrices, triad_metrics
+
+    test, outputs = p.split.test, p.outputs
+    raw_err = te.raw - te.ref
+    comp = full.model.compensate(te.signals, te.raw)
+    comp_b = bias.model.compensate(te.signals, te.raw)
+    axes = residual_verdicts(outputs, te.time_s, raw_err, comp - te.ref, comp_b - te.ref)
+    temp = np.asarray(test.temperature_c if test.temperature_c is not None
+                      else te.temperature)
+    for j, a in enumerate(outputs):   # the fleet's statistics of a bias model's axis
+        axes[a].update(rms_raw=axes[a]["residual_rms_raw"], rms_comp=axes[a]["residual_rms_comp"],
+                       pp_raw=binned_peak_to_peak(temp, raw_err[:, j]),
+                       pp_comp=binned_peak_to_peak(temp, comp[:, j] - te.ref[:, j]))
+    elements: dict[str, Any] = {}
+    soaks = []
+    for t in p.triads:
+        idx = [outputs.index(o) for o in t]
+        temps, _, m_raw = soak_matrices(te.time_s, temp, te.raw[:, idx], te.ref[:, idx])
+        _, _, m_comp = soak_matrices(te.time_s, temp, comp[:, idx], te.ref[:, idx])
+        if temps.size:
+            soaks.append((t, temps, m_raw, m_comp))
+        _, _, m_bias = soak_matrices(te.time_s, temp, comp_b[:, idx], te.ref[:, idx])
+        for key, m in triad_metrics(t, temps, m_raw, m_comp).items():
+            if key in axes:
+                axes[key].update(m)
+                axes[key]["sf_ppm_per_c_bias_only"] = triad_metrics(
+                    t, temps, m_raw, m_bias)[key]["sf_ppm_per_c_comp"]
+            else:
+                elements[key] = m
+    val_score = val_bias = None
+    if va is not None:
+        v_raw = va.raw - va.ref
+        val_score = _score(full.model.compensate(va.signals, va.raw) - va.ref, v_raw)
+        val_bias = _score(bias.model.compensate(va.signals, va.raw) - va.ref, v_raw)
+    entry.update(triads=_per_triad(p.triads, axes, elements), val_score=val_score,
+                 val_score_bias_only=val_bias, axes=axes, misalignment=elements,
+                 test_score=_score(comp - te.ref, raw_err))
+    return soaks
+
+
+def _per_triad(triads: list[list[str]], axes: dict[str, Any], elements: dict[str, Any]
+               ) -> dict[str, Any]:
+    """Per kind, the worst of its axes' and misalignments' metrics."""
+    per_triad = {}
+    for t in triads:
+        kind = t[0].split("_", 1)[0]
+        sf = [axes[a]["sf_ppm_per_c_comp"] for a in t if "sf_ppm_per_c_comp" in axes[a]]
+        sf_raw = [axes[a]["sf_ppm_per_c_raw"] for a in t if "sf_ppm_per_c_raw" in axes[a]]
+        mis = [m for k, m in elements.items() if k.startswith(f"{kind}_")]
+        per_triad[kind] = {
+            "sf_ppm_per_c_raw_max": max(sf_raw) if sf_raw else None,
+            "sf_ppm_per_c_comp_max": max(sf) if sf else None,
+            "misalignment_spread_mrad_raw_max": max(
+                (m["misalignment_spread_mrad_raw"] for m in mis), default=None),
+            "misalignment_spread_mrad_comp_max": max(
+                (m["misalignment_spread_mrad_comp"] for m in mis), default=None),
+            "residual_ratio_vs_bias_max": max(axes[a]["ratio_vs_bias"] for a in t)}
+    return per_triad
+
+
+def _save(p: _Plan, fam: FamilyConfig, entry: dict[str, Any], full: Any, bias: Any,
+          out: Path) -> None:
+    """The family's sensor checkpoint and its bias-only model as a plain bias checkpoint
+    (what an autopilot can take)."""
+    from ..core.schema import to_dict
+    from ..exporting.sensor_export import bias_only_path
+    from ..training.checkpoint import save_checkpoint
+    from ..training.sensor import save_sensor
+
+    ckpt = out / "models" / f"{fam.label}.pt"
+    info = {"label": fam.label, "device_id": p.ds.device_id, "units": p.units}
+    save_sensor(ckpt, full, family=fam.family, hyper=fam.params,
+                extra={**info, "val_score": entry["val_score"]})
+    save_checkpoint(bias_only_path(ckpt), bias.model.bias, config=to_dict(p.cfg),
+                    extra={**info, "label": f"{fam.label}.bias-only"})
+    entry.update(checkpoint=str(ckpt), bias_only_checkpoint=f"models/{bias_only_path(ckpt).name}")
+
+
+def _write(out: Path, doc: dict[str, Any], fits: dict[str, _Fitted], *, plots: bool) -> None:
+    """results.json, the chosen family's figure and report.html."""
+    from ..reporting.sensor_report import plot_sensor_soaks, write_sensor_report
+
     atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
     figs = []
-    if plots and soak_data.get(best[1]):
-        figs.append(plot_sensor_soaks(out / "sensor_soaks.png", best[1], soak_data[best[1]]))
+    chosen = doc["chosen"]
+    if plots and chosen and fits[chosen].soaks:
+        figs.append(plot_sensor_soaks(out / "sensor_soaks.png", chosen, fits[chosen].soaks))
     write_sensor_report(out / "report.html", doc, figs)
-    return doc
 
 
 def _track(cfg: CompareConfig, doc: dict[str, Any], histories: dict[str, list], device: str,
