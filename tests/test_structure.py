@@ -24,8 +24,6 @@ ALLOWED: dict[str, str] = {
     "thermonet/api/estimator.py:DriftEstimator.fit": _PARALLEL,
     "thermonet/training/sensor.py:_fit_sensor": _PARALLEL,
     "thermonet/workflows/compare_fit.py:fit_family": _PARALLEL,
-    "thermonet/workflows/fleet.py:run_fleet": _PARALLEL,
-    "thermonet/workflows/sensor.py:_run": _PARALLEL,
 }
 
 
