@@ -13,11 +13,13 @@ import numpy as np
 from ..core.errors import ConfigError, ThermonetError
 from ..core.recording import Dataset, Recording
 
-__all__ = ["Data", "BLOCK_RUN", "runs_of", "data_source", "has_samples", "names_of",
+__all__ = ["Data", "BLOCK_RUN", "BLOCK_INDEX", "runs_of", "data_source", "has_samples", "names_of",
            "needs_outputs", "same_units", "same_run", "simulate", "read"]
 
 #: ``meta`` key naming the run a time block was cut from (:func:`thermonet.api.time_blocks`).
 BLOCK_RUN = "block_of_run"
+#: ``meta`` key of a time block's index in its run (:data:`BLOCK_RUN` names the run).
+BLOCK_INDEX = "block_index"
 
 #: What ``fit``, ``predict``, ``score`` and ``compensate`` take: one run, a list of runs or a
 #: Dataset (each run's dynamic inputs computed on that run alone).
