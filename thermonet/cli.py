@@ -19,9 +19,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from . import __version__
 from .core import profile
 from .core.errors import Interrupted, ThermonetError, clear_interrupt, request_interrupt
+from .core.version import __version__
 
 __all__ = ["main", "build_parser"]
 

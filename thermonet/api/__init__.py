@@ -20,8 +20,8 @@ The estimator (:mod:`thermonet.api.estimator`)
     all listed by ``get_params()``, set by ``set_params()``, copied by
     :func:`sklearn.base.clone`.  :meth:`~DriftEstimator.fit` checks them (an error names the
     argument and value), resolves the feature references from the training runs, builds each
-    run's signals and targets and fits through the one fold pipeline
-    (:mod:`thermonet.training.fold`, what ``compare`` runs), with the targets resolved as
+    run's signals and targets and fits through the one split pipeline
+    (:mod:`thermonet.training.pipeline`, what ``compare`` runs), with the targets resolved as
     ``compare`` resolves them (:mod:`thermonet.features.target`: a reference channel, else
     zero for a gyro, else the change from :math:`T_{ref}` — gravity is no drift).  Learned
     state ends in ``_``.

@@ -30,11 +30,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
 from ..core.errors import ConfigError, ThermonetError
 from ..core.fileio import atomic_write_text
 from ..core.profile import stage
 from ..core.recording import Dataset
+from ..core.version import __version__
 from ..reporting.report import tuned_text
 from ..reporting.results import ComparisonResult
 from ..training.config import (

@@ -2,7 +2,7 @@
 (:class:`UnitSource`: a file, a split dataset, a simulation), the per-unit task (its own
 comparison, :func:`thermonet.workflows.compare.run_compare`, and the physical coefficients of
 its model) and the per-fold task of leave-units-out (one pooled fleet model fitted through the
-one fold pipeline, :mod:`thermonet.training.fold`, and judged on each held-out unit next to
+one split pipeline, :mod:`thermonet.training.pipeline`, and judged on each held-out unit next to
 the unit's own model).  Tasks are plain picklable items, run by :mod:`thermonet.core.executors`.
 """
 
@@ -255,8 +255,8 @@ def fold_task(item: FoldItem) -> dict[str, Any]:
     """Fit one fleet model of the fleet family on other units' calibration runs, and
     evaluate it on each held-out unit's test run next to the unit's own model."""
     from ..training.config import outputs_of, train_config_of
-    from ..training.fold import fit_fold, fold_parts, fold_spec
     from ..training.parts import make_splits, targets_for
+    from ..training.pipeline import fit_split, split_parts, split_spec
 
     cfg, fam = item.cfg, _family(item.cfg, item.family)
     train, val = [], []
@@ -270,13 +270,13 @@ def fold_task(item: FoldItem) -> dict[str, Any]:
         train += split.train
         if split.val is not None:
             val.append(split.val)
-    spec = fold_spec(fam.inputs, train, t_ref=cfg.features.t_ref,
+    spec = split_spec(fam.inputs, train, t_ref=cfg.features.t_ref,
                      window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s)
-    parts = fold_parts(spec, train, outputs=outputs, target=target)
-    vparts = fold_parts(spec, val, outputs=outputs, target=target).train
+    parts = split_parts(spec, train, outputs=outputs, target=target)
+    vparts = split_parts(spec, val, outputs=outputs, target=target).train
     v = (np.concatenate([p.signals for p in vparts]), np.concatenate([p.target for p in vparts])) \
         if vparts else None
-    fitted = fit_fold(parts, family=fam.family, outputs=outputs, hyper=fam.params,
+    fitted = fit_split(parts, family=fam.family, outputs=outputs, hyper=fam.params,
                       config=train_config_of(cfg, fam), val=v, windows=False)
     evaluations = {}
     for src, own in item.held_out:  # one unit's data at a time

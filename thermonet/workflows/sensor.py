@@ -32,10 +32,10 @@ from typing import Any
 
 import numpy as np
 
-from .. import __version__
 from ..core.errors import ConfigError, ThermonetError
 from ..core.fileio import atomic_write_text
 from ..core.recording import Dataset
+from ..core.version import __version__
 from ..training.config import CompareConfig, outputs_of, train_config_of
 from ..training.parts import data_hash, load_data
 
@@ -72,7 +72,7 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
     from ..scoring.sensor import residual_verdicts, soak_matrices, triad_metrics
     from ..training.checkpoint import save_checkpoint
     from ..training.config import check_families
-    from ..training.fold import fold_spec
+    from ..training.pipeline import split_spec
     from ..training.sensor import fit_sensor, save_sensor, sensor_run, sensor_run_refs
     from ..training.splits import make_splits
 
@@ -111,7 +111,7 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
         doc["families"][fam.label] = entry
         try:
             t0 = time.perf_counter()
-            spec = fold_spec(fam.inputs, sp.train, t_ref=cfg.features.t_ref,
+            spec = split_spec(fam.inputs, sp.train, t_ref=cfg.features.t_ref,
                              window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s)
             tr = [sensor_run(r, spec, outputs) for r in sp.train]
             va = sensor_run(sp.val, spec, outputs) if sp.val is not None else None

@@ -78,9 +78,9 @@ from typing import Any
 
 import numpy as np
 
-from .. import __version__
 from ..core.errors import InputError, ThermonetError
 from ..core.fileio import atomic_write_text
+from ..core.version import __version__
 from ..data.firmware import (
     ARDUPILOT_TEMP_REFERENCE,
     PX4_LETTER,
