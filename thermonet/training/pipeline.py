@@ -4,7 +4,9 @@ One split (:class:`thermonet.training.splits.Split`: training runs, a validation
 none, a held-out run) is a family fitted on the training runs (stopping early on the
 validation run where there is one) and judged on the held-out run.  "Fold" in thermonet means
 only a cross-validation fold (:mod:`thermonet.scoring.folds`); a comparison's folds each run
-this pipeline on their own training and validation data:
+this pipeline on their own training and validation data.  It imports the fit
+(:mod:`thermonet.training.train`, torch) at the top: this module is on the torch side of the
+boundary (pyproject.toml's import-linter contract), and its callers load it where they fit:
 
 1. :func:`split_spec` — the feature references (:math:`T_{ref}`, proxy references) and the
    dynamic inputs' gap limit, from the training runs only;
@@ -29,7 +31,10 @@ from ..core.recording import Recording
 from ..core.trainconfig import TrainConfig
 from ..features.inputs import FeatureSpec, reference_values, resolve_gap_s, signals_for
 from ..features.target import Target
+from ..scoring.metrics import axis_metrics, rms, scale_factor_tempco_ppm_per_c, window_axis_metrics
+from ..scoring.verdicts import block_labels, block_stats
 from .parts import Part, build_part, fit_arrays, heating_only
+from .train import fit, predict
 
 __all__ = ["SplitParts", "PartBuilder", "split_spec", "split_parts", "fit_split", "score_part",
            "block_sums", "per_soak_metrics", "residual_spread"]
@@ -99,8 +104,6 @@ def fit_split(parts: SplitParts, *, family: str, outputs: list[str], hyper: dict
     (once per part and window length); False gives the arrays without time, so the fit
     thins them to its sample budget instead (the fleet's pooled model).
     """
-    from .train import fit
-
     spec = parts.spec
     if windows:
         avg = config.average_s
@@ -126,8 +129,6 @@ def per_soak_metrics(k: np.ndarray, pred: np.ndarray, temps: np.ndarray, scale: 
     is K1 − K̂1(T) (+ mean(K1) for the ppm/°C coefficient, which needs the
     nominal scale factor in its denominator).
     """
-    from ..scoring.metrics import rms, scale_factor_tempco_ppm_per_c
-
     nominal = float(np.mean(k)) if scale else 0.0
     raw, comp = k - nominal, k - pred
     m = {"rms_raw": rms(raw), "rms_comp": rms(comp), "pp_raw": float(np.ptp(raw)),
@@ -151,8 +152,6 @@ def residual_spread(model: Any, part: Part) -> np.ndarray | None:
     that moves inside a window with the temperature (a fast ramp, a low-noise sensor) is
     thus taken out of the residual as the model takes it out of the samples.
     """
-    from .train import predict
-
     if part.within_ss is None or part.weight is None:
         return None
     if part.within_sxx is None or part.within_sxy is None:
@@ -178,9 +177,6 @@ def score_part(model: Any, part: Part, spread: np.ndarray | None = None
                ) -> tuple[np.ndarray, dict[str, dict[str, float]]]:
     """The model's predicted drift on a held-out part and the per-axis metrics (``spread``:
     :func:`residual_spread` of the part, where the caller has it already)."""
-    from ..scoring.metrics import axis_metrics, window_axis_metrics
-    from .train import predict
-
     pred = predict(model, part.signals, part.time_s)
     if spread is None:
         spread = residual_spread(model, part)
@@ -212,8 +208,6 @@ def block_sums(part: Part, pred: np.ndarray, spread: np.ndarray | None = None) -
     raw error = the target, residual = target − drift (of a part of window means: the
     residual's spread inside each row is ``spread``, the model's :func:`residual_spread`;
     the target's own without it)."""
-    from ..scoring.verdicts import block_labels, block_stats
-
     raw = part.target.copy()
     for j in range(len(part.outputs)):
         if part.offset_free(j):  # a scale factor's nominal value, gravity (at-t-ref): no error
