@@ -50,9 +50,25 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from ..core.errors import InputError
-from ..core.fileio import not_a_file
+from ..core.fileio import atomic_path, not_a_file
+from ..core.recording import MIN_SAMPLES, Dataset, Recording
 from ..core.recording import MIN_SAMPLES as MIN_SAMPLES_
-from .io import METADATA_KEY, READ_OPTIONS, Digest, file_format, parse_blob, stored_digest
+from .io import (
+    DIGEST_KEY,
+    FORMAT_VERSION,
+    METADATA_KEY,
+    PARQUET_SUFFIXES,
+    READ_OPTIONS,
+    WRITE_OPTIONS,
+    Digest,
+    _str_dict,
+    check_output_file,
+    check_run_ids,
+    file_format,
+    parse_blob,
+    stored_digest,
+)
+from .logs import is_log
 from .mapping import ColumnMapping
 from .tables import (
     GROUPS,
@@ -473,7 +489,6 @@ def count_samples(paths: Sequence[str | Path], mapping: ColumnMapping | None = N
     total = 0
     for p in paths:
         path = Path(p)
-        from .logs import is_log
 
         if is_log(str(path).partition("#")[0]) or not_a_file(path):
             return None
@@ -521,8 +536,6 @@ def validate_layouts(layouts: Sequence[Layout],
     own extremes (``temperature``, per run) — so files the whole-file reader refuses (runs
     that differ in channels or units, too little temperature span) are refused with the
     same line without holding their samples."""
-    from ..core.recording import MIN_SAMPLES, Dataset, Recording
-
     k = MIN_SAMPLES
     skeleton = []
     entries = [(lay, e) for lay in layouts for e in lay.runs]
@@ -555,17 +568,6 @@ def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
     ``out`` (written to a temporary file and moved over it at the end).  Rows keep their
     file order (a run's rows need not be contiguous).  Returns (runs, samples)."""
     import json
-
-    from ..core.fileio import atomic_path
-    from .io import (
-        DIGEST_KEY,
-        FORMAT_VERSION,
-        PARQUET_SUFFIXES,
-        WRITE_OPTIONS,
-        _str_dict,
-        check_output_file,
-        check_run_ids,
-    )
 
     out = check_output_file(out, PARQUET_SUFFIXES)
     check_run_ids([(e["device_id"], e["run_id"], str(lay.path)) for lay in layouts
