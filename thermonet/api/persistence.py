@@ -73,18 +73,14 @@ def save(est: DriftEstimator, path: str | os.PathLike[str]) -> Path:
     """Write the fitted model as a thermonet checkpoint (atomic; loads with
     ``weights_only=True``; ``thermonet export`` reads it)."""
     model = est._check_fitted("save")
-    from ..training.checkpoint import (
-        save_checkpoint,  # torch boundary (pyproject.toml): loads torch
-    )
+    from ..training.checkpoint import save_checkpoint  # torch boundary
 
     return save_checkpoint(path, model, config=checkpoint_config(est), extra=extra(est),
                            epoch=est.best_epoch_, best_val=est.best_val_)
 
 def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstimator:
     """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
-    from ..training.checkpoint import (
-        load_checkpoint,  # torch boundary (pyproject.toml): loads torch
-    )
+    from ..training.checkpoint import load_checkpoint  # torch boundary
     from ..training.config import from_dict  # lazy: importing it loads yaml
 
     model, meta = load_checkpoint(path)
@@ -176,9 +172,7 @@ def track(est: DriftEstimator, uri: str | None, experiment: str) -> None:
             ckpt = est.save(Path(tmp) / f"{est.family}.pt")
             tracker.log_artifact(ckpt, "model")
             # the MLflow model users load: runs:/<id>/model (ONNX, signature, input example)
-            from ..exporting.onnx_export import (
-                log_onnx_model,  # torch boundary (pyproject.toml): loads torch
-            )
+            from ..exporting.onnx_export import log_onnx_model  # torch boundary
 
             log_onnx_model(onnx_of_checkpoint(ckpt, Path(tmp) / f"{est.family}.onnx"),
                            run_id or "", tracker.uri)

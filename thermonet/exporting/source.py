@@ -172,9 +172,7 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
     (PX4's ``TC_*_ID``) and ``instance`` (PX4 slot 0–3, default 0; ArduPilot
     IMU 1–3, default 1) apply to the autopilot formats.
     """
-    from ..training.checkpoint import (
-        load_checkpoint,  # torch boundary (pyproject.toml): loads torch
-    )
+    from ..training.checkpoint import load_checkpoint  # torch boundary
 
     export_format = get_format(fmt)
     with tempfile.TemporaryDirectory() as tmp:
@@ -209,9 +207,7 @@ def write_onnx(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
 def onnx_of_checkpoint(ckpt: str | os.PathLike[str], out: str | os.PathLike[str]) -> Path:
     """The ONNX graph ``thermonet export CKPT --format onnx`` writes (metadata included),
     without logging it anywhere: what ``compare`` logs as its run's model."""
-    from ..training.checkpoint import (
-        load_checkpoint,  # torch boundary (pyproject.toml): loads torch
-    )
+    from ..training.checkpoint import load_checkpoint  # torch boundary
 
     model, meta = load_checkpoint(ckpt)
     return _onnx_with_metadata(model, Path(out), ExportRequest(meta=meta, source=str(ckpt)))

@@ -363,9 +363,7 @@ def _ekf_text(autopilot: str, fitted: list[InstanceResult], params_name: str) ->
     """Per fitted gyro and accelerometer, the EKF bias-noise settings its firmware form's
     residual-drift band suggests (:func:`thermonet.exporting.autopilot.ekf_recommendation`);
     "" where no instance has a band."""
-    from ..exporting.autopilot import (
-        ekf_recommendation,  # torch boundary (pyproject.toml): loads torch
-    )
+    from ..exporting.autopilot import ekf_recommendation  # torch boundary
 
     lines: list[str] = []
     for r in fitted:
