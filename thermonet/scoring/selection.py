@@ -16,8 +16,9 @@ any cut: a board does not restart at a fold boundary.
   train-then-verify, leave-one-run-out): leave one run out (K = the number of runs).
 * **One run**, or a time-block split (the test is blocks inside the runs): every run cut by
   time into ``folds × blocks_per_fold`` short contiguous blocks (5 × 8 = 40 by default: tens
-  of blocks, not K slabs) dealt round-robin to the K folds (scikit-learn's
-  :class:`~sklearn.model_selection.PredefinedSplit` over the block's fold), so every fold's
+  of blocks, not K slabs) dealt round-robin to the K folds by the one deal of
+  :mod:`thermonet.scoring.folds` (scikit-learn's :class:`~sklearn.model_selection.PredefinedSplit`
+  over the block's fold; the API's ``TimeBlockSplit`` deals the same way), so every fold's
   validation blocks sample the whole temperature history.  Two isothermal soaks (the BMI270
   recording) validated by leaving one soak out would ask the model for a temperature it never
   saw, which the time-block test never does.
