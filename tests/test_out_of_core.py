@@ -272,7 +272,7 @@ def test_the_api_fits_and_scores_a_streamed_recording_as_its_samples(recording):
         assert_f64_close(got[k], want[k], rtol=1e-9, atol=scale * 1e-12, err_msg=k)
     # 1 − score: the residual's variance over the raw error's, over the samples of run b.
     # From the rows the raw variance is exact and the residual's exact to first order in
-    # the signals' spread inside a window (training.fold.residual_spread). Without that
+    # the signals' spread inside a window (training.pipeline.residual_spread). Without that
     # term it would be too large by the drift's own spread inside a 1 s window (slope
     # 0.01 × 0.063 °C/s / √12) and the thermometer's noise through it (0.01 × 0.02),
     # against σ = 0.003: ≈ 0.8 %; what is left is the model's curvature, far below.

@@ -24,7 +24,7 @@ from thermonet.models.sensor import check_invertible, solve_columns, triads_of
 from thermonet.scoring.metrics import scale_factor_tempco_ppm_per_c
 from thermonet.scoring.sensor import soak_matrices
 from thermonet.sim import PRESETS, simulate
-from thermonet.training.fold import fold_spec
+from thermonet.training.pipeline import split_spec
 from thermonet.training.sensor import (
     do_no_harm,
     fit_sensor,
@@ -59,7 +59,7 @@ def fitted(data):
     outs = sorted(data.runs[0].outputs)
     triads = triads_of(outs)
     outputs = [o for t in triads for o in t]
-    spec = fold_spec(["dT"], data.runs[:2])
+    spec = split_spec(["dT"], data.runs[:2])
     runs = [sensor_run(r, spec, outputs) for r in data.runs]
     kw = dict(family="poly", spec=spec, outputs=outputs, triads=triads, train=runs[:2],
               val=runs[2], hyper={"degree": 3}, config=TrainConfig())
@@ -218,7 +218,7 @@ def _static(data: Dataset) -> Dataset:
 def test_static_single_position_data_say_scale_factor_not_observable(data):
     ds = _static(data)
     outputs = [o for t in triads_of(sorted(ds.runs[0].outputs)) for o in t]
-    spec = fold_spec(["dT"], ds.runs[:1])
+    spec = split_spec(["dT"], ds.runs[:1])
     runs = [sensor_run(r, spec, outputs) for r in ds.runs]
     with pytest.raises(InputError, match=r"scale factor and misalignment of '(acc|gyro)' are not "
                                          r"observable: .* span 0 of 3 direction"):
@@ -374,7 +374,7 @@ def test_python_api_compare_returns_the_sensor_models(data):
 def test_every_element_from_other_families(fitted, data, family, inputs, hyper):
     """The same mechanism with the default set's other families: each beats its own
     bias-only model ≥ 5× on every axis of the held-out run."""
-    spec = fold_spec(inputs, data.runs[:2])
+    spec = split_spec(inputs, data.runs[:2])
     runs = [sensor_run(r, spec, fitted["outputs"]) for r in data.runs]
     kw = dict(family=family, spec=spec, outputs=fitted["outputs"], triads=fitted["triads"],
               train=runs[:2], val=runs[2], hyper=hyper, config=TrainConfig())
@@ -387,7 +387,7 @@ def test_every_element_from_other_families(fitted, data, family, inputs, hyper):
 
 def test_an_input_that_does_not_vary_over_the_soaks_is_refused_with_the_family_reason(data):
     outputs = [o for t in triads_of(sorted(data.runs[0].outputs)) for o in t]
-    spec = fold_spec(["dT", "rate", "play_1"], data.runs[:2])
+    spec = split_spec(["dT", "rate", "play_1"], data.runs[:2])
     runs = [sensor_run(r, spec, outputs) for r in data.runs[:3]]
     with pytest.raises(FitError, match=r"cannot be fitted as a sensor model on 264 "
                                        r"steady-temperature estimates: input 3 takes 3 distinct"):
@@ -445,7 +445,7 @@ def test_study_000_single_axis_as_a_one_by_one_sensor_model():
     Lorentz sensor model brings the held-out scale-factor tempco from ≈150 ppm/°C to study
     000's order (11.8 ppm/°C with Lorentz), within the issue's 15 ppm/°C."""
     ds = simulate("accel", seed=0)
-    spec = fold_spec(["dT"], ds.runs[:1])
+    spec = split_spec(["dT"], ds.runs[:1])
     runs = [sensor_run(r, spec, ["acc_x"]) for r in ds.runs]
     fit = fit_sensor(family="lorentz", spec=spec, outputs=["acc_x"], triads=[["acc_x"]],
                      train=runs[:1], val=runs[1], hyper={}, config=TrainConfig())

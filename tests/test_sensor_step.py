@@ -34,7 +34,7 @@ from thermonet.exporting.sensor_export import export_sensor_onnx
 from thermonet.features import dynamics
 from thermonet.models.sensor import triads_of
 from thermonet.sim import simulate
-from thermonet.training.fold import fold_spec
+from thermonet.training.pipeline import split_spec
 from thermonet.training.sensor import fit_sensor, sensor_run
 from tolerances import assert_f32_close, f32_atol
 
@@ -60,7 +60,7 @@ def fitted(request, data, tmp_path_factory):
     validation run), exported through the checked ONNX export."""
     inputs, hyper = MODELS[request.param]
     outputs = [o for t in triads_of(sorted(data.runs[0].outputs)) for o in t]
-    spec = fold_spec(inputs, data.runs[:2])
+    spec = split_spec(inputs, data.runs[:2])
     runs = [sensor_run(r, spec, outputs) for r in data.runs]
     fit = fit_sensor(family="poly", spec=spec, outputs=outputs, triads=triads_of(outputs),
                      train=runs[:2], val=runs[2], hyper=hyper,

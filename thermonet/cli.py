@@ -19,11 +19,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from . import __version__
 from .core import profile
 from .core.errors import Interrupted, ThermonetError, clear_interrupt, request_interrupt
 from .core.fileio import refuse_overwriting_inputs
 from .core.names import path_components
+from .core.version import __version__
 from .exporting import FORMATS, export_source  # the registry only: no torch, no onnx
 
 # Imports of thermonet's own modules stay inside the command that needs them where they

@@ -20,8 +20,8 @@ The estimator (:mod:`thermonet.api.estimator`)
     all listed by ``get_params()``, set by ``set_params()``, copied by
     :func:`sklearn.base.clone`.  :meth:`~DriftEstimator.fit` checks them (an error names the
     argument and value), resolves the feature references from the training runs, builds each
-    run's signals and targets and fits through the one fold pipeline
-    (:mod:`thermonet.training.fold`, what ``compare`` runs), with the targets resolved as
+    run's signals and targets and fits through the one split pipeline
+    (:mod:`thermonet.training.pipeline`, what ``compare`` runs), with the targets resolved as
     ``compare`` resolves them (:mod:`thermonet.features.target`: a reference channel, else
     zero for a gyro, else the change from :math:`T_{ref}` — gravity is no drift).  Learned
     state ends in ``_``.
@@ -46,8 +46,9 @@ Parameters with uncertainties (:mod:`thermonet.api.parameters`)
 Hyper-parameter searches (:mod:`thermonet.api.splits`)
     scikit-learn's ``GridSearchCV`` and ``cross_val_score`` work on a DriftEstimator whose
     ``X`` is a list of recordings — whole runs, or contiguous time blocks cut by
-    :func:`time_blocks` — split by :class:`TimeBlockSplit` (blocks dealt round-robin to the
-    folds, as ``compare``'s model selection deals them; never random samples)::
+    :func:`time_blocks` — split by :class:`TimeBlockSplit` (:mod:`thermonet.api.cv`, a scikit-learn
+    ``BaseCrossValidator``: blocks dealt round-robin to the folds by the deal ``compare``'s
+    model selection uses, :func:`thermonet.scoring.folds.deal`; never random samples)::
 
         from sklearn.model_selection import GridSearchCV
         blocks = thermonet.time_blocks(ds, n_blocks=40, purge_s=60)
@@ -90,10 +91,24 @@ A saved estimator is an ordinary thermonet checkpoint (``thermonet export`` read
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 from .comparison import AxisSummary, ComparisonResult, FamilySummary, compare
 from .data import read, simulate
 from .estimator import DriftEstimator, NotFittedError
-from .splits import TimeBlockSplit, time_blocks
+from .splits import time_blocks
+
+if TYPE_CHECKING:
+    from .cv import TimeBlockSplit
 
 __all__ = ["DriftEstimator", "NotFittedError", "simulate", "read", "compare",
            "ComparisonResult", "FamilySummary", "AxisSummary", "time_blocks", "TimeBlockSplit"]
+
+
+def __getattr__(name: str) -> Any:
+    """:class:`TimeBlockSplit` on first access (a scikit-learn ``BaseCrossValidator``:
+    :mod:`thermonet.api.cv`), so ``import thermonet.api`` does not import scikit-learn."""
+    if name == "TimeBlockSplit":
+        from .cv import TimeBlockSplit  # lazy: scikit-learn costs about a second to import
+        return TimeBlockSplit
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -32,6 +32,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from ..core.errors import ConfigError
+from ..features.inputs import signals_for
 
 __all__ = ["ArgumentTypeError", "flag", "whole", "seconds", "path", "paths", "text",
            "input_names", "gap"]
@@ -155,8 +156,6 @@ def text(value: Any, what: str, *, none: bool = False, rule: str = "a non-empty 
 def input_names(value: Any, what: str, *, empty: bool = False) -> list[str]:
     """Model inputs: one name or a list of names, each a known input (``T``, ``dT``, ``rate``,
     ``d_<proxy>``…); ``empty`` allows none."""
-    from ..features.inputs import signals_for
-
     if isinstance(value, str):
         names = [value]
     elif isinstance(value, Iterable) and not isinstance(value, (bytes, dict)):

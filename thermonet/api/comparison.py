@@ -20,6 +20,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.errors import ConfigError, ThermonetError
+from ..core.recording import Dataset
+from .checks import flag, text, whole
+from .checks import path as a_path
+from .data import runs_of
+from .estimator import DriftEstimator
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -156,7 +161,7 @@ class ComparisonResult:
 
     def table(self) -> str:
         """The comparison as the command line prints it."""
-        from ..workflows.compare import format_table
+        from ..workflows.compare import format_table  # lazy: importing it loads yaml
 
         return format_table(self.results)
 
@@ -177,7 +182,11 @@ def _family(name: str, f: dict[str, Any]) -> FamilySummary:
 
 
 def _config(config: Any) -> Any:
-    from ..training.config import CompareConfig, config_from_mapping, load_config
+    from ..training.config import (  # lazy: importing it loads yaml
+        CompareConfig,
+        config_from_mapping,
+        load_config,
+    )
 
     if isinstance(config, str) and not config.strip():
         raise ConfigError("compare(config): an empty path (None is the built-in default)")
@@ -225,12 +234,8 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
     (:mod:`thermonet.api.checks`; an error names the argument), and so are the config's
     families, inputs and hyper-parameter names and values.
     """
-    from ..core.recording import Dataset
-    from ..training.config import check_families
-    from ..workflows.compare import run_compare
-    from .checks import flag, text, whole
-    from .checks import path as a_path
-    from .data import runs_of
+    from ..training.config import check_families  # lazy: importing it loads yaml
+    from ..workflows.compare import run_compare  # lazy: importing it loads yaml
 
     a_path(out, "compare(out)", none=True)
     flag(track, "compare(track)")
@@ -255,7 +260,7 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
                               plots=bool(plots) and out is not None,
                               workers=None if workers is None else int(workers))
         if results.get("model") == "sensor":
-            from ..training.sensor import load_sensor
+            from ..training.sensor import load_sensor  # torch boundary
 
             models = {name: load_sensor(target / "models" / f"{name}.pt")[0]
                       for name, f in results["families"].items() if f.get("status") == "ok"}

@@ -12,12 +12,18 @@ import numpy as np
 
 from ..core.errors import ConfigError, ThermonetError
 from ..core.recording import Dataset, Recording
+from ..sim import simulate as _simulate
+from ..sim.presets import MAX_RUNS
+from .checks import gap, input_names, path, seconds, text, whole
+from .checks import paths as path_list
 
-__all__ = ["Data", "BLOCK_RUN", "runs_of", "data_source", "has_samples", "names_of",
+__all__ = ["Data", "BLOCK_RUN", "BLOCK_INDEX", "runs_of", "data_source", "has_samples", "names_of",
            "needs_outputs", "same_units", "same_run", "simulate", "read"]
 
 #: ``meta`` key naming the run a time block was cut from (:func:`thermonet.api.time_blocks`).
 BLOCK_RUN = "block_of_run"
+#: ``meta`` key of a time block's index in its run (:data:`BLOCK_RUN` names the run).
+BLOCK_INDEX = "block_index"
 
 #: What ``fit``, ``predict``, ``score`` and ``compensate`` take: one run, a list of runs or a
 #: Dataset (each run's dynamic inputs computed on that run alone).
@@ -51,7 +57,7 @@ def runs_of(data: Any, what: str, *, allow_empty: bool = False) -> list[Recordin
 def data_source(runs: list[Recording], val: list[Recording] | None) -> dict[str, Any]:
     """What a fit was given (a checkpoint's ``extra.provenance.data``): the runs, where they
     came from (the files read, or the simulator) and the digest of their samples."""
-    from ..training.parts import data_hash
+    from ..training.parts import data_hash  # lazy: importing it loads yaml
 
     every = runs + list(val or [])
     return {"kind": "dataset", "device": runs[0].device_id,
@@ -124,10 +130,6 @@ def simulate(preset: str, runs: int | None = None, seed: int = 0) -> Dataset:
     >= 0; anything else is refused before anything is simulated
     (:mod:`thermonet.api.checks`).
     """
-    from ..sim import simulate as _simulate
-    from ..sim.presets import MAX_RUNS
-    from .checks import text, whole
-
     text(preset, "simulate(preset)", rule="a preset name such as 'patent-gyro'")
     whole(runs, "simulate(runs)", 1, MAX_RUNS, none=True)
     whole(seed, "simulate(seed)", 0)
@@ -155,9 +157,7 @@ def read(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     input names, one alone as a string, and only with ``window_s``; ``gap_s`` ``"auto"`` or
     seconds; ``chunk_rows`` a whole number >= 1.
     """
-    from ..training.loader import read_recordings
-    from .checks import gap, input_names, path, seconds, whole
-    from .checks import paths as path_list
+    from ..training.loader import read_recordings  # lazy: importing it loads yaml
 
     files = path_list(paths, "read(paths)")
     path(mapping, "read(mapping)", none=True)

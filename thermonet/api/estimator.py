@@ -366,8 +366,8 @@ average_s, threads
         FitError
             The data cannot carry the family (reason given).
         """
-        from ..training.fold import fit_fold, fold_parts, fold_spec
         from ..training.parts import fit_arrays, targets_for
+        from ..training.pipeline import fit_split, split_parts, split_spec
         from ..training.splits import stack_blocks
         from .parameters import parameter_table
 
@@ -403,14 +403,14 @@ average_s, threads
         for v in val_runs or []:
             same_units(v, runs[0].units, "fit(val)",
                         f"the training run '{runs[0].run_id}' has it")
-        spec = fold_spec(inputs, runs, t_ref=self.t_ref, window_min=self.t_ref_window_min,
+        spec = split_spec(inputs, runs, t_ref=self.t_ref, window_min=self.t_ref_window_min,
                          gap_s=self.gap_s, reference_for_targets=True)
         val_rec = None
         if val_runs is not None:
             val_rec = stack_blocks(val_runs, "val") if len(val_runs) > 1 else val_runs[0]
-        parts = fold_parts(spec, runs, outputs=outputs, target=targets, val=val_rec,
+        parts = split_parts(spec, runs, outputs=outputs, target=targets, val=val_rec,
                            train_on=self.train_on, gap_s=self.gap_s)
-        result = fit_fold(parts, family=self.family, outputs=outputs, hyper=self.hyper,
+        result = fit_split(parts, family=self.family, outputs=outputs, hyper=self.hyper,
                           config=config, target_modes=targets.modes)
         self.model_: ShippedModel = result.model
         self.spec_: FeatureSpec = spec
@@ -603,7 +603,7 @@ average_s, threads
 
     def _variances(self, data: Data, what: str) -> tuple[np.ndarray, np.ndarray]:
         """Per axis, the error's sum of squares after and before (each run about its mean)."""
-        from ..training.fold import residual_spread
+        from ..training.pipeline import residual_spread
         from ..training.train import predict
 
         model = self._check_fitted(what)
@@ -621,7 +621,7 @@ average_s, threads
                                   [np.zeros(target.shape[1]) for _ in range(5)])
             # rows that are window means (thermonet.read(..., window_s=...)): each weighs its
             # samples, and the spread inside it is added back (the target's, and the
-            # residual's from the model's slope: training.fold.residual_spread)
+            # residual's from the model's slope: training.pipeline.residual_spread)
             spread = residual_spread(model, part)
             if part.weight is None or part.within_ss is None or spread is None:
                 terms = (np.full(target.shape[1], target.shape[0]), target.sum(0),

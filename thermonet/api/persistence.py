@@ -11,6 +11,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.trainconfig import TrainConfig
+from ..exporting import ExportRequest, get_format
+from ..exporting.source import onnx_of_checkpoint
+from ..features.target import FOUR_POSITION, Target
+from ..scoring.band import Band
+from ..tracking import Tracker
+from ..training.parameters import parameter_table, sealed_parameters, with_sealed
 
 if TYPE_CHECKING:
     from .estimator import DriftEstimator
@@ -36,8 +42,6 @@ def extra(est: DriftEstimator) -> dict[str, Any]:
     if est.__dict__.get("tuned_"):   # what the family chose itself (RBF: width, ridges)
         extra["tuned"] = dict(est.tuned_)
     if "parameters_" in est.__dict__:   # the standard errors the fit computed, sealed with it
-        from ..training.parameters import sealed_parameters
-
         extra["parameters"] = sealed_parameters(est.parameters_, est.covariance_, est.stderr)
     if est.__dict__.get("val_score_") is not None:   # the validation metrics, as compare's
         extra.update(val_score=est.val_score_, val_ratios=dict(est.val_ratios_ or {}))
@@ -69,15 +73,15 @@ def save(est: DriftEstimator, path: str | os.PathLike[str]) -> Path:
     """Write the fitted model as a thermonet checkpoint (atomic; loads with
     ``weights_only=True``; ``thermonet export`` reads it)."""
     model = est._check_fitted("save")
-    from ..training.checkpoint import save_checkpoint
+    from ..training.checkpoint import save_checkpoint  # torch boundary
 
     return save_checkpoint(path, model, config=checkpoint_config(est), extra=extra(est),
                            epoch=est.best_epoch_, best_val=est.best_val_)
 
 def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstimator:
     """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
-    from ..training.checkpoint import load_checkpoint
-    from ..training.config import from_dict
+    from ..training.checkpoint import load_checkpoint  # torch boundary
+    from ..training.config import from_dict  # lazy: importing it loads yaml
 
     model, meta = load_checkpoint(path)
     config = meta.get("config") or {}
@@ -107,7 +111,6 @@ def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstima
     est.val_score_ = extra.get("val_score")
     est.val_ratios_ = extra.get("val_ratios")
     est.mlflow_run_id_ = str(extra.get("mlflow_run_id") or "")
-    from ..scoring.band import Band
 
     est.band_ = Band.from_json(extra["band"]) if isinstance(extra.get("band"), dict) else None
     prov = extra.get("provenance")
@@ -115,12 +118,10 @@ def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstima
     if isinstance(source, dict):  # kept, so that saving it again keeps the record
         est.data_source_ = {**source, "data_hash": str(extra.get("data_hash") or "")}
     est.n_features_in_ = len(model.spec.inputs)
-    from ..features.target import FOUR_POSITION, Target
 
     modes = model.target_modes
     est.targets_ = Target(list(meta["outputs"]), modes,
                           kind=FOUR_POSITION if FOUR_POSITION in modes else "drift")
-    from ..training.parameters import parameter_table, with_sealed
 
     table, cov = parameter_table(model, est.units_, est.signal_units_)
     # the standard errors the fit computed on its training data (stored with the model)
@@ -142,7 +143,6 @@ def export(est: DriftEstimator, path: str | os.PathLike[str], format: str = "onn
     ``thermonet export --help``).
     """
     model = est._check_fitted("export")
-    from ..exporting import ExportRequest, get_format
 
     meta = {"config": checkpoint_config(est), "extra": extra(est)}
     return get_format(format).write(model, Path(path), ExportRequest(
@@ -153,8 +153,6 @@ def track(est: DriftEstimator, uri: str | None, experiment: str) -> None:
     """Log this fit to MLflow (one run: parameters, history, metrics, the checkpoint)."""
     import json
     import tempfile
-
-    from ..tracking import Tracker
 
     tracker = Tracker(enabled=True, uri=uri, experiment=experiment)
     params = json.loads(json.dumps({k: v for k, v in est.get_params().items()
@@ -174,8 +172,7 @@ def track(est: DriftEstimator, uri: str | None, experiment: str) -> None:
             ckpt = est.save(Path(tmp) / f"{est.family}.pt")
             tracker.log_artifact(ckpt, "model")
             # the MLflow model users load: runs:/<id>/model (ONNX, signature, input example)
-            from ..exporting.onnx_export import log_onnx_model
-            from ..exporting.source import onnx_of_checkpoint
+            from ..exporting.onnx_export import log_onnx_model  # torch boundary
 
             log_onnx_model(onnx_of_checkpoint(ckpt, Path(tmp) / f"{est.family}.onnx"),
                            run_id or "", tracker.uri)

@@ -67,7 +67,7 @@ def fit(est: Any, train: Data, val: Data | None, *, config: Any,
         raise ConfigError("fit(track): a sensor-mode fit is not tracked; 'thermonet compare' "
                           "with model: sensor logs its families to MLflow")
     from ..models.sensor import triads_of
-    from ..training.fold import fold_spec
+    from ..training.pipeline import split_spec
     from ..training.sensor import fit_sensor, sensor_run
     from ..training.splits import stack_blocks
 
@@ -85,7 +85,7 @@ def fit(est: Any, train: Data, val: Data | None, *, config: Any,
             raise ThermonetError(f"fit(val): run '{v.run_id}' is also a training run "
                                  "(validate on a run the model is not fitted on)")
     Dataset(runs).validate("fit(train)")
-    spec = fold_spec(inputs, runs, t_ref=est.t_ref, window_min=est.t_ref_window_min,
+    spec = split_spec(inputs, runs, t_ref=est.t_ref, window_min=est.t_ref_window_min,
                      gap_s=est.gap_s)
     va = None
     if val_runs:

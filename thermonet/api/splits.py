@@ -25,20 +25,19 @@ Example::
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.recording import Recording
-from .data import BLOCK_RUN
+from .checks import seconds, whole
+from .data import BLOCK_INDEX, BLOCK_RUN, runs_of
+
+if TYPE_CHECKING:
+    from .cv import TimeBlockSplit
 
 __all__ = ["time_blocks", "TimeBlockSplit"]
-
-#: ``meta`` key of a block's index in its run (:data:`BLOCK_RUN` names the run).
-BLOCK_INDEX = "block_index"
-
 
 def time_blocks(data: Any, n_blocks: int = 40, *, purge_s: float = 0.0) -> list[Recording]:
     """Every run of ``data`` cut by time into ``n_blocks`` contiguous blocks of equal
@@ -48,9 +47,6 @@ def time_blocks(data: Any, n_blocks: int = 40, *, purge_s: float = 0.0) -> list[
     Each block is a :class:`Recording` named ``<run>[b<k>]`` whose ``meta`` names its run
     (``block_of_run``) and index (``block_index``), which :class:`TimeBlockSplit` reads.
     """
-    from .checks import seconds, whole
-    from .data import runs_of
-
     n_blocks = int(whole(n_blocks, "time_blocks(n_blocks)", 2, 100_000))  # type: ignore[arg-type]
     purge_s = float(seconds(purge_s, "time_blocks(purge_s)", lo_open=False))  # type: ignore[arg-type]
     out = []
@@ -76,62 +72,11 @@ def time_blocks(data: Any, n_blocks: int = 40, *, purge_s: float = 0.0) -> list[
     return out
 
 
-class TimeBlockSplit:
-    """scikit-learn cross-validation splitter over recordings: time blocks or whole runs.
-
-    Rows of ``X`` cut by :func:`time_blocks` go to fold ``(block index + run number) mod
-    n_splits`` (``compare``'s deal); rows that are whole runs go to fold ``run number mod
-    n_splits`` (with ``n_splits`` ≥ the number of runs: leave one run out).  Never random:
-    the same ``X`` gives the same folds.  ``groups`` is ignored (the blocks are the groups).
-
-    Parameters
-    ----------
-    n_splits : int
-        Folds: a whole number ≥ 2 (``True`` is no number), checked when the splitter is
-        made.
-    """
-
-    def __init__(self, n_splits: int = 5) -> None:
-        self.n_splits = n_splits
-        self._check()          # a splitter checks at once (scikit-learn's KFold does too)
-
-    def __repr__(self) -> str:
-        return f"TimeBlockSplit(n_splits={self.n_splits!r})"
-
-    def get_n_splits(self, X: Any = None, y: Any = None, groups: Any = None) -> int:
-        """The number of folds (:meth:`split` yields this many)."""
-        self._check()
-        return int(self.n_splits)
-
-    def _check(self) -> None:
-        from .checks import whole
-
-        whole(self.n_splits, "TimeBlockSplit(n_splits)", 2, 100_000)
-
-    def folds(self, X: Sequence[Recording]) -> np.ndarray:
-        """The fold of each row of ``X``."""
-        from .data import runs_of
-
-        self._check()
-        rows = runs_of(X, "TimeBlockSplit.split(X)")
-        run_no: dict[str, int] = {}
-        fold = np.empty(len(rows), dtype=int)
-        for i, r in enumerate(rows):
-            run = r.meta.get(BLOCK_RUN, r.run_id)
-            j = run_no.setdefault(run, len(run_no))
-            index = r.meta.get(BLOCK_INDEX)
-            fold[i] = ((int(index) if index is not None else 0) + j) % int(self.n_splits)
-        missing = sorted(set(range(int(self.n_splits))) - set(fold.tolist()))
-        if missing:
-            raise ConfigError(f"TimeBlockSplit: {len(rows)} rows (runs or blocks) leave fold "
-                              f"{missing[0]} of {self.n_splits} empty; cut the runs with "
-                              "thermonet.time_blocks or use fewer splits")
-        return fold
-
-    def split(self, X: Sequence[Recording], y: Any = None, groups: Any = None
-              ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        """``(train rows, validation rows)`` per fold, as index arrays into ``X``."""
-        fold = self.folds(X)
-        idx = np.arange(fold.size)
-        for f in range(int(self.n_splits)):
-            yield idx[fold != f], idx[fold == f]
+def __getattr__(name: str) -> Any:
+    """:class:`TimeBlockSplit` on first access: it is a scikit-learn ``BaseCrossValidator``
+    (:mod:`thermonet.api.cv`), and importing scikit-learn costs about a second, which
+    ``import thermonet.api`` and :func:`time_blocks` do not pay."""
+    if name == "TimeBlockSplit":
+        from .cv import TimeBlockSplit  # lazy: scikit-learn only when the splitter is used
+        return TimeBlockSplit
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -8,6 +8,8 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from .errors import InputError
+
 __all__ = ["atomic_path", "atomic_write_text", "not_a_file", "same_file",
            "refuse_overwriting_inputs"]
 
@@ -96,8 +98,6 @@ def refuse_overwriting_inputs(out: str | os.PathLike, inputs: Iterable[str | os.
     """Refuse, in one line naming both, an output that would overwrite one of ``inputs``:
     ``out`` is an input, or (an output directory) one of its entries ``owned`` — those
     thermonet replaces — is or holds an input.  Called before anything is written."""
-    from .errors import InputError
-
     target = Path(out)
     for given in inputs:
         inp = Path(given)

@@ -109,7 +109,7 @@ class WindowStats:
     mean of the axis' observed drift (output − reference) inside each window, and
     ``ss_output[axis]`` that of the output alone where a reference exists: with them a
     held-out score over the samples is recovered from the rows
-    (:func:`thermonet.training.fold.score_part`).  ``source_samples`` and
+    (:func:`thermonet.training.pipeline.score_part`).  ``source_samples`` and
     ``source_rate_hz`` describe the samples the rows stand for.
 
     ``extremes`` holds each channel's (min, max) over the samples (the plausibility
@@ -119,7 +119,7 @@ class WindowStats:
     inputs); ``sxx`` (rows, S, S) their co-moments inside each window and ``sxd[axis]``
     (rows, S) theirs with the axis' target (``sxd_output``: with the output alone): with
     the model's slope they give the residual's spread inside a window to first order
-    (:func:`thermonet.training.fold.residual_spread`).
+    (:func:`thermonet.training.pipeline.residual_spread`).
     """
 
     window_s: float

@@ -50,9 +50,25 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from ..core.errors import InputError
-from ..core.fileio import not_a_file
+from ..core.fileio import atomic_path, not_a_file
+from ..core.recording import MIN_SAMPLES, Dataset, Recording
 from ..core.recording import MIN_SAMPLES as MIN_SAMPLES_
-from .io import METADATA_KEY, READ_OPTIONS, Digest, file_format, parse_blob, stored_digest
+from .io import (
+    DIGEST_KEY,
+    FORMAT_VERSION,
+    METADATA_KEY,
+    PARQUET_SUFFIXES,
+    READ_OPTIONS,
+    WRITE_OPTIONS,
+    Digest,
+    _str_dict,
+    check_output_file,
+    check_run_ids,
+    file_format,
+    parse_blob,
+    stored_digest,
+)
+from .logs import is_log
 from .mapping import ColumnMapping
 from .tables import (
     GROUPS,
@@ -473,7 +489,6 @@ def count_samples(paths: Sequence[str | Path], mapping: ColumnMapping | None = N
     total = 0
     for p in paths:
         path = Path(p)
-        from .logs import is_log
 
         if is_log(str(path).partition("#")[0]) or not_a_file(path):
             return None
@@ -521,8 +536,6 @@ def validate_layouts(layouts: Sequence[Layout],
     own extremes (``temperature``, per run) — so files the whole-file reader refuses (runs
     that differ in channels or units, too little temperature span) are refused with the
     same line without holding their samples."""
-    from ..core.recording import MIN_SAMPLES, Dataset, Recording
-
     k = MIN_SAMPLES
     skeleton = []
     entries = [(lay, e) for lay in layouts for e in lay.runs]
@@ -551,8 +564,6 @@ def _streamed_schema(layouts: Sequence[Layout], entries: list[dict[str, Any]],
     """The Parquet schema of a streamed file: run (and device) ids, time and channels, with
     the thermonet metadata (dataset meta, one entry per run with its sample count)."""
     import json
-
-    from .io import FORMAT_VERSION, _str_dict
 
     fields = [pa.field("run", pa.string())] + ([pa.field("device", pa.string())] if fleet
                                                else [])
@@ -603,16 +614,6 @@ def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
     reader checks them (:func:`validate_layouts`); a bad value anywhere leaves nothing at
     ``out`` (written to a temporary file and moved over it at the end).  Rows keep their
     file order (a run's rows need not be contiguous).  Returns (runs, samples)."""
-
-    from ..core.fileio import atomic_path
-    from .io import (
-        DIGEST_KEY,
-        PARQUET_SUFFIXES,
-        WRITE_OPTIONS,
-        check_output_file,
-        check_run_ids,
-    )
-
     out = check_output_file(out, PARQUET_SUFFIXES)
     check_run_ids([(e["device_id"], e["run_id"], str(lay.path)) for lay in layouts
                    for e in lay.runs])

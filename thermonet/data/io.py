@@ -53,6 +53,7 @@ import pyarrow.parquet as pq
 from ..core.errors import InputError
 from ..core.fileio import atomic_path, not_a_file
 from ..core.recording import Dataset, Recording
+from .logs import is_log, read_log_instance
 from .mapping import ColumnMapping, load_mapping
 from .tables import (
     GROUPS,
@@ -350,11 +351,7 @@ def check_run_ids(ids: Sequence[tuple[str, str, str]]) -> None:
 
 def _read_one(path: Path, mapping: ColumnMapping | None
               ) -> tuple[list[Recording], dict[str, str], int | None]:
-    from .logs import is_log
-
     if is_log(str(path).partition("#")[0]):
-        from .logs import read_log_instance
-
         if mapping is not None:
             raise InputError.at(path, "a flight-controller log is read with no mapping")
         ds = read_log_instance(path)
@@ -459,7 +456,14 @@ def _check_blob(path: Path, info: Any) -> list[dict[str, Any]]:
     A Parquet file is input: each value is checked before use and a bad one
     is named (``runs[0].units``), never a traceback.
     """
-    from ..core.names import AXIS, SIGNAL, TEXT_ID, UNIT, check_finite, check_name
+    from ..core.names import (  # local: names.check_finite is not tables.check_finite (top)
+        AXIS,
+        SIGNAL,
+        TEXT_ID,
+        UNIT,
+        check_finite,
+        check_name,
+    )
 
     def bad(key: str, why: str) -> InputError:
         return InputError.at(path, f"corrupt '{METADATA_KEY}' metadata: field '{key}': {why}")

@@ -61,6 +61,7 @@ from ..core.fileio import not_a_file
 from ..core.names import TEXT_ID
 from ..core.recording import KNOWN_UNITS, OUTPUT_NAME
 from ..core.yamlio import YamlRefusal, load_yaml
+from .diagnostics import RATE_HZ_POSSIBLE
 
 __all__ = [
     "MappingError",
@@ -284,8 +285,6 @@ class _Parser:
         kw["malformed_rows"] = mal
         kw["time"] = self.time(raw.get("time"), header)
         if raw.get("sample_rate_hz") is not None:
-            from .diagnostics import RATE_HZ_POSSIBLE
-
             rate = self.number("sample_rate_hz", raw["sample_rate_hz"])
             if rate <= 0:
                 raise self.fail("sample_rate_hz", f"must be > 0, got {rate:g}")

@@ -115,7 +115,7 @@ class ExportFormat:
         :class:`~thermonet.models.composite.AxisModels` (every built-in format takes both;
         the autopilot files only where each owned axis is a cubic on temperature).
         """
-        from .domain import check_output_range
+        from .domain import check_output_range  # lazy: importing it loads numpy
 
         request = request or ExportRequest()
         check_output_range(model, units=request.output_units,

@@ -73,6 +73,7 @@ from ..core.fileio import atomic_write_text
 from ..core.recording import output_kind
 from ..models import DriftModel
 from ..models.composite import AxisModels, ShippedModel
+from ..scoring.band import Band
 from .onnx_export import family_name
 
 __all__ = [
@@ -323,8 +324,6 @@ def ekf_recommendation(band: Mapping[str, Any] | None, output_units: str | Mappi
     process noise = the band's rate (unit per °C) × the training runs' 95th-percentile
     temperature rate (°C/s), in SI units per second; initial uncertainty = the band's bias
     bound.  Never loaded: ``#`` lines the autopilots' loaders skip."""
-    from ..scoring.band import Band
-
     if not band:
         return []
     b = Band.from_json(band)

@@ -15,6 +15,7 @@ import numpy as np
 from ..core.errors import ExportError
 from ..core.names import c_comment
 from ..models.cgen import c_float
+from ..scoring.band import Band, evaluate_tables
 from .c_driver import c_compiler, run_c_driver
 
 __all__ = ["render_band_c", "insert_band", "check_band_c", "BAND_DRIVER"]
@@ -50,8 +51,6 @@ def _floats(xs: Sequence[float]) -> str:
 def render_band_c(band: Mapping[str, Any], prefix: str, outputs: Sequence[str],
                   signals: Sequence[str]) -> list[str]:
     """The header lines of ``band`` (:func:`thermonet.scoring.band.shipped_band`)."""
-    from ..scoring.band import Band
-
     b = Band.from_json(band)
     if sorted(b.axes) != sorted(outputs) or b.signal not in signals:
         raise ExportError(f"the band's axes {list(b.axes)} / signal {b.signal!r} do not match "
@@ -152,8 +151,6 @@ def check_band_c(band: Mapping[str, Any], text: str, prefix: str, *, seed: int =
     inside, at the edges of and past every axis's bins (and NaN); returns the largest relative
     difference (None without a C compiler).  Tolerance: float32 rounding of the tables and
     the arithmetic (1e-5 relative)."""
-    from ..scoring.band import Band
-
     cc = c_compiler()
     if cc is None:
         return None
@@ -176,7 +173,6 @@ def check_band_c(band: Mapping[str, Any], text: str, prefix: str, *, seed: int =
                        prefix=prefix, cflags=("-O2",), header="the C header's band",
                        driver_name="the C band driver")["b"].astype(np.float64)
     # Python's rule on the header's float32 tables (an edge rounded to float decides a bin)
-    from ..scoring.band import evaluate_tables
 
     f32 = lambda v: np.asarray(v, dtype=np.float32).astype(np.float64)  # noqa: E731
     want = np.stack([evaluate_tables(x.astype(np.float64), f32(t.edges), f32(t.half),

@@ -68,10 +68,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from .. import __version__
 from ..core.errors import ExportError
 from ..core.fileio import atomic_write_text
 from ..core.names import LABEL, c_comment, c_string, check_model_names, check_names
+from ..core.version import __version__
 from ..models import DriftModel
 from ..models.cgen import as_float32, c_array, c_float, c_target_prelude
 from ..models.composite import AxisModels, ShippedModel

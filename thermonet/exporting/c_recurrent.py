@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import ExportError
+from ..models.sequence import stream_relative
 from .c_driver import c_compiler, run_c_driver
 from .c_stream import (
     REAL_FLAGS,
@@ -261,8 +262,6 @@ def check_recurrent_stream(model: DriftModel, header_text: str, *, prefix: str =
     sample, ``compensated = raw − drift``, the flag set after the gap.  None without a C
     compiler.
     """
-    from ..models.sequence import stream_relative
-
     if c_compiler() is None:
         return None
     fam: Any = model.family

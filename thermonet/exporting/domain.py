@@ -60,8 +60,8 @@ def check_output_range(model: ShippedModel, *, source: str,
     """
     import torch
 
-    from ..models.composite import AxisModels
-    from .parity import check_points, trained_range
+    from ..models.composite import AxisModels  # torch boundary (pyproject.toml): loads torch
+    from .parity import check_points, trained_range  # torch boundary (pyproject.toml): loads torch
 
     if isinstance(model, AxisModels):
         for k, part in enumerate(model.parts):

@@ -75,7 +75,6 @@ import numpy as np
 import torch
 from torch import nn
 
-from .. import __version__
 from ..core.errors import ExportError
 from ..core.fileio import atomic_path
 from ..core.names import (
@@ -88,6 +87,7 @@ from ..core.names import (
     check_names,
     check_units,
 )
+from ..core.version import __version__
 from ..models import DriftModel
 from ..models.composite import AxisModels, ShippedModel
 from .parity import parity_check, trained_range

@@ -30,6 +30,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.errors import ExportError, InputError
+from ..core.fileio import not_a_file, refuse_overwriting_inputs
+from ..core.names import AXIS, LABEL, check_name
+from ..core.outdir import sha256_file
+from ..tracking import default_tracking_uri
+from . import ExportRequest, get_format
 
 if TYPE_CHECKING:
     from ..models.composite import ShippedModel
@@ -54,8 +59,6 @@ def _from_compare_dir(path: Path, family: str | None) -> Path:
     read), and its SHA-256 must equal ``checkpoint_sha256`` recorded when the
     comparison was written.
     """
-    from ..core.names import LABEL, check_name
-
     results_file = path / "results.json"
     if not results_file.is_file():
         raise InputError(f"{path}: not a compare output directory (no results.json)")
@@ -91,8 +94,6 @@ def _from_compare_dir(path: Path, family: str | None) -> Path:
 def _verified(p: Path, recorded: Any, results_file: Path, what: str, hint: str) -> Path:
     """``p`` when it exists and its SHA-256 is the one ``results_file`` recorded for ``what``
     (a family, the per-axis model): a file does not choose what else is read."""
-    from ..core.outdir import sha256_file
-
     if not p.is_file():
         raise InputError(f"{p}: checkpoint listed in {results_file} is missing")
     if not isinstance(recorded, str) or not recorded:
@@ -108,8 +109,6 @@ def _per_axis_checkpoint(path: Path, results_file: Path, results: dict) -> Path:
     """The per-axis composite of a compare directory (``models/per-axis.pt``), verified
     against the ``per_axis`` block of ``results.json`` (module docstring) as a family's
     checkpoint is: the path is fixed, the SHA-256 must match the recorded one."""
-    from ..core.names import AXIS, LABEL, check_name
-
     block = results.get("per_axis")
     if not isinstance(block, dict):
         raise InputError(f"{results_file}: 'chosen' is '{PER_AXIS}' but there is no 'per_axis' "
@@ -133,8 +132,6 @@ def _per_axis_checkpoint(path: Path, results_file: Path, results: dict) -> Path:
 
 def _from_run_id(run_id: str, tracking_uri: str | None, workdir: Path) -> Path:
     import mlflow
-
-    from ..tracking import default_tracking_uri
 
     uri = tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
     client = mlflow.MlflowClient(tracking_uri=uri)
@@ -160,8 +157,6 @@ def resolve_checkpoint(source: str, *, family: str | None = None,
     if p.is_file():
         return p
     if p.exists():  # a FIFO, a device: say what it is (and never open a FIFO)
-        from ..core.fileio import not_a_file
-
         raise InputError(f"{source}: {not_a_file(p, 'checkpoint file')}")
     if _RUN_ID.fullmatch(source):
         return _from_run_id(source, tracking_uri, workdir or Path(tempfile.mkdtemp()))
@@ -177,9 +172,7 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
     (PX4's ``TC_*_ID``) and ``instance`` (PX4 slot 0–3, default 0; ArduPilot
     IMU 1–3, default 1) apply to the autopilot formats.
     """
-    from ..core.fileio import refuse_overwriting_inputs
-    from ..training.checkpoint import load_checkpoint
-    from . import ExportRequest, get_format
+    from ..training.checkpoint import load_checkpoint  # torch boundary
 
     export_format = get_format(fmt)
     with tempfile.TemporaryDirectory() as tmp:
@@ -187,7 +180,10 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
                                   workdir=Path(tmp))
         # never written over what it reads: the checkpoint, the compare directory's results
         refuse_overwriting_inputs(out, [ckpt, source, Path(source) / "results.json"])
-        from .sensor_export import export_sensor_source, is_sensor_checkpoint
+        from .sensor_export import (  # torch boundary (pyproject.toml): loads torch
+            export_sensor_source,
+            is_sensor_checkpoint,
+        )
 
         if is_sensor_checkpoint(ckpt):  # model: sensor: its own writer
             return export_sensor_source(ckpt, fmt=fmt, out=out)
@@ -211,16 +207,15 @@ def write_onnx(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
 def onnx_of_checkpoint(ckpt: str | os.PathLike[str], out: str | os.PathLike[str]) -> Path:
     """The ONNX graph ``thermonet export CKPT --format onnx`` writes (metadata included),
     without logging it anywhere: what ``compare`` logs as its run's model."""
-    from ..training.checkpoint import load_checkpoint
-    from . import ExportRequest
+    from ..training.checkpoint import load_checkpoint  # torch boundary
 
     model, meta = load_checkpoint(ckpt)
     return _onnx_with_metadata(model, Path(out), ExportRequest(meta=meta, source=str(ckpt)))
 
 
 def _onnx_with_metadata(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
-    from ..scoring.band import shipped_band
-    from .onnx_export import export_onnx
+    from ..scoring.band import shipped_band  # lazy: importing it loads numpy
+    from .onnx_export import export_onnx  # torch boundary (pyproject.toml): loads torch
 
     extra, meta = request.extra, request.meta
     prov = extra.get("provenance")
@@ -245,16 +240,16 @@ def _onnx_with_metadata(model: ShippedModel, out: Path, request: ExportRequest) 
 
 def write_c(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``c``: the C99 header."""
-    from ..scoring.band import shipped_band
-    from .c_header import export_c_header
+    from ..scoring.band import shipped_band  # lazy: importing it loads numpy
+    from .c_header import export_c_header  # torch boundary (pyproject.toml): loads torch
 
     return export_c_header(model, out, band=shipped_band(request.extra))
 
 
 def write_px4_params(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``px4-params``: PX4's TC_* parameter file (slot ``request.instance``, default 0)."""
-    from ..scoring.band import shipped_band
-    from .autopilot import export_px4_params
+    from ..scoring.band import shipped_band  # lazy: importing it loads numpy
+    from .autopilot import export_px4_params  # torch boundary (pyproject.toml): loads torch
 
     return export_px4_params(model, out, output_units=request.output_units,
                              band=shipped_band(request.extra),
@@ -264,8 +259,8 @@ def write_px4_params(model: ShippedModel, out: Path, request: ExportRequest) -> 
 
 def write_ardupilot_params(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``ardupilot-params``: ArduPilot's INS_TCAL* file (IMU ``request.instance``, default 1)."""
-    from ..scoring.band import shipped_band
-    from .autopilot import export_ardupilot_params
+    from ..scoring.band import shipped_band  # lazy: importing it loads numpy
+    from .autopilot import export_ardupilot_params  # torch boundary (pyproject.toml): loads torch
 
     return export_ardupilot_params(model, out, output_units=request.output_units,
                                    band=shipped_band(request.extra),
@@ -281,8 +276,7 @@ def _log_to_run(path: Path, run_id: str, tracking_uri: str | None, meta: dict) -
     """
     import logging
 
-    from ..tracking import default_tracking_uri
-    from .onnx_export import log_onnx_to_mlflow
+    from .onnx_export import log_onnx_to_mlflow  # torch boundary (pyproject.toml): loads torch
 
     # Only where the user says: the flag, MLFLOW_TRACKING_URI, or the working directory's store.
     # Never a URI stored in the checkpoint: a file must not choose where thermonet connects.

@@ -24,7 +24,7 @@ samples:
   (:class:`thermonet.core.recording.WindowStats`), merged across chunk edges with Chan's
   pairwise update, so a held-out score over the samples is recovered from the rows: the
   raw error's exactly, the residual's to first order in the signals' spread inside a
-  window (:func:`thermonet.training.fold.residual_spread`).
+  window (:func:`thermonet.training.pipeline.residual_spread`).
 
 Memory is then the chunk (``chunk_rows`` × the columns, float64) plus the rows: one per
 ``window_s`` of recording, whatever the sample rate.  ``max_rows`` caps the rows: a

@@ -14,7 +14,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from .registry import ENTRY_POINT_GROUP, build_family, family_names, get_family
+from .registry import ENTRY_POINT_GROUP, build_family, family_names, get_family, models
 
 if TYPE_CHECKING:
     from .base import TINY, DriftModel, Family
@@ -41,8 +41,6 @@ _LAZY = {
 
 def __getattr__(name: str) -> Any:
     if name == "MODELS":  # every registered family, built-in and plug-in, imported now
-        from .registry import models
-
         return models()
     if name in _LAZY:
         return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)

@@ -63,10 +63,11 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, ExportError, FitError
 from ..features.inputs import FeatureSpec
 from ..features.module import Features
-from .cgen import CBody
+from ..features.target import MODE_CODES
+from .cgen import CBody, c_constant_bytes
 from .lstsq import NormalEquations, least_squares
 
 __all__ = ["TINY", "LOG_CLIP", "Family", "DriftModel", "distinct_levels", "as_numpy",
@@ -134,8 +135,6 @@ def check_output_shape(fam: Family, z: torch.Tensor, label: str) -> None:
     fitted and scored.  Every family is probed, built-in or plug-in; a wrong shape, or a
     probe that raises, is a :class:`~thermonet.core.errors.FitError` naming ``label``.
     """
-    from ..core.errors import FitError
-
     zp = torch.as_tensor(z)[:PROBE_ROWS]
     n, a = int(zp.shape[0]), fam.n_outputs
     checks: list[tuple[str, Any, tuple[int, int]]] = [("forward", lambda: fam(zp), (n, a))]
@@ -251,7 +250,6 @@ class Family(nn.Module):
 
         A family without one cannot be exported as a C header.
         """
-        from ..core.errors import ExportError
         raise ExportError(f"model family '{self.name}' has no C emitter")
 
     def trainable(self) -> bool:
@@ -306,9 +304,6 @@ class Family(nn.Module):
         add the drift constant, ``raw − drift``).  None where the family does not count
         (a plug-in without :meth:`op_count`) or has no C emitter.
         """
-        from ..core.errors import ExportError
-        from .cgen import c_constant_bytes
-
         counted = self.op_count()
         ones = torch.ones(self.n_outputs)
         try:  # the shapes, not the values, decide the size: any scaling will do
@@ -411,8 +406,6 @@ class DriftModel(nn.Module):
     @property
     def target_modes(self) -> list[str]:
         """Target mode per output axis (``channel``, ``zero``, ``at-t-ref``, ``four-position``)."""
-        from ..features.target import MODE_CODES
-
         names = {v: k for k, v in MODE_CODES.items()}
         return [names.get(int(c), "channel") for c in self.target_code.tolist()]
 
@@ -444,8 +437,6 @@ class DriftModel(nn.Module):
         """
         import copy
 
-        from ..features.target import MODE_CODES
-
         modes = list(modes)
         if len(modes) != len(self.outputs):
             raise ConfigError(f"{len(modes)} target modes for {len(self.outputs)} outputs")
@@ -466,8 +457,6 @@ class DriftModel(nn.Module):
             self.target_code.copy_(torch.as_tensor([MODE_CODES[m] for m in modes]))
 
     def _at_t_ref(self, dtype: torch.dtype) -> torch.Tensor:
-        from ..features.target import MODE_CODES
-
         return (self.target_code == MODE_CODES["at-t-ref"]).to(dtype)
 
     def constant(self) -> torch.Tensor:

@@ -43,7 +43,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, ExportError
 from ..features.inputs import FeatureSpec
 from .base import DriftModel
 
@@ -68,7 +68,6 @@ class _PerAxisFamily:
         return None
 
     def emit_c(self, *args: Any, **kwargs: Any) -> Any:
-        from ..core.errors import ExportError
         raise ExportError("a per-axis model has no single family body: each part is emitted "
                           "on its own (thermonet.exporting.c_header)")
 

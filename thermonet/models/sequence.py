@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from ..core.errors import InputError
+from ..features.dynamics import check_time
 
 if TYPE_CHECKING:
     from .base import DriftModel
@@ -104,8 +105,6 @@ def stream_relative(model: DriftModel, time_s: np.ndarray, signals: np.ndarray
     InputError
         Time not finite and strictly increasing, or signals of the wrong shape.
     """
-    from ..features.dynamics import check_time
-
     fam: Any = model.family  # a recurrent family (hidden, step_s, gap_s, scan)
     t = check_time(time_s, "time_s")
     s = np.asarray(signals, dtype=np.float64)

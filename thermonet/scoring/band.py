@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
+from .selection import window_labels
 
 __all__ = ["Band", "AxisBand", "min_windows", "conformal_quantile", "band_from_oof",
            "evaluate_tables", "DEFAULT_LEVEL", "DEFAULT_BINS", "display_units", "band_problem",
@@ -380,8 +381,6 @@ def band_from_oof(*, plan: Any, targets: Sequence[np.ndarray], times: Sequence[n
 def _signal_rate(times: Sequence[np.ndarray], temps: Sequence[np.ndarray], window_s: float
                  ) -> float | None:
     """95th percentile of |Δ signal / Δt| between consecutive windows of every run."""
-    from .selection import window_labels
-
     rates = []
     for t, x in zip(times, temps, strict=True):
         t = np.asarray(t, dtype=np.float64)
@@ -402,8 +401,6 @@ def _scores(plan: Any, targets: Sequence[np.ndarray], times: Sequence[np.ndarray
     """Per window of every fold: the residual's and the raw target's offset-free window means
     (in the fold's trained domain), their temperature and fold; and the windows past the
     fold's trained temperature range (score, temperature, distance, the fold's edge)."""
-    from .selection import window_labels
-
     A = targets[0].shape[1]
     s_in, t_in, y_in, f_in = [], [], [], []
     s_out, t_out, d_out, e_out = [], [], [], []

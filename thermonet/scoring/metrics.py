@@ -519,7 +519,7 @@ def window_axis_metrics(*, bin_by: np.ndarray, raw: np.ndarray, predicted_drift:
 
     Row :math:`k` is the mean :math:`\\bar e_k` of :math:`w_k` samples whose squared
     deviations about it sum to :math:`S_k` (``within_ss``); the residual's, inside a
-    row, are ``within_ss_comp`` (:func:`thermonet.training.fold.residual_spread`; default
+    row, are ``within_ss_comp`` (:func:`thermonet.training.pipeline.residual_spread`; default
     the raw error's).  With :math:`W = \\sum_k w_k`:
 
     * ``rms_*`` = :math:`\\sqrt{(\\sum_k w_k (\\bar e_k - \\mu)^2 + S_k) / W}`,

@@ -16,8 +16,9 @@ any cut: a board does not restart at a fold boundary.
   train-then-verify, leave-one-run-out): leave one run out (K = the number of runs).
 * **One run**, or a time-block split (the test is blocks inside the runs): every run cut by
   time into ``folds × blocks_per_fold`` short contiguous blocks (5 × 8 = 40 by default: tens
-  of blocks, not K slabs) dealt round-robin to the K folds (scikit-learn's
-  :class:`~sklearn.model_selection.PredefinedSplit` over the block's fold), so every fold's
+  of blocks, not K slabs) dealt round-robin to the K folds by the one deal of
+  :mod:`thermonet.scoring.folds` (scikit-learn's :class:`~sklearn.model_selection.PredefinedSplit`
+  over the block's fold; the API's ``TimeBlockSplit`` deals the same way), so every fold's
   validation blocks sample the whole temperature history.  Two isothermal soaks (the BMI270
   recording) validated by leaving one soak out would ask the model for a temperature it never
   saw, which the time-block test never does.
@@ -95,6 +96,7 @@ from typing import Any
 
 import numpy as np
 
+from .folds import deal, purged
 from .verdicts import LEVEL, above, below, draws, same
 
 __all__ = ["FoldPlan", "CandidateOOF", "plan_folds", "purge_rule", "window_rule",
@@ -139,18 +141,6 @@ class FoldPlan:
                                    for ms in self.train_masks]}
 
 
-def _purged(t: np.ndarray, val: np.ndarray, purge_s: float) -> np.ndarray:
-    """Samples within ``purge_s`` of a validation sample (the validation samples included)."""
-    if not val.any():
-        return np.zeros(t.size, dtype=bool)
-    tv = t[val]
-    i = np.clip(np.searchsorted(tv, t), 1, tv.size - 1) if tv.size > 1 else np.zeros(t.size, int)
-    d = np.abs(t - tv[i])
-    if tv.size > 1:
-        d = np.minimum(d, np.abs(t - tv[i - 1]))
-    return (d <= purge_s) | val
-
-
 def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per_fold: int,
                tau_s: float, purge_s: float | None = None, window_s: float | None = None,
                by_run: bool = True) -> FoldPlan | None:
@@ -169,7 +159,7 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
     if len(pool) >= 2 and by_run:
         kind, k, block_s = "leave-one-run-out", len(pool), None
         for j, (_, m) in enumerate(pool):
-            fold_of.append(np.where(m, j, -1))
+            fold_of.append(np.where(m, deal(0, j, k), -1))     # each run one block: its own fold
         win = window_s if window_s is not None else window_rule(rate, None)
         for j, t in enumerate(times):
             # bootstrap units inside a held-out run: windows grouped into ~8 blocks per run
@@ -189,12 +179,10 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
             tm = t[m]
             bs = spans[j] / n_blocks
             block = np.clip(((t - tm[0]) / bs).astype(int), 0, n_blocks - 1)
-            # the deal is scikit-learn's PredefinedSplit over each block's fold (round-robin,
-            # shifted by the run so that every fold sees every run's start and end): fold f
-            # validates where test_fold == f, -1 is never validated (PredefinedSplit's own
-            # convention, checked against it in tests/test_selection.py); computed here
-            # without importing scikit-learn, which cost a comparison seconds of start-up
-            test_fold = np.where(m, (block + j) % folds, -1)
+            # the one deal (thermonet.scoring.folds, the API's TimeBlockSplit's too): the
+            # test_fold of scikit-learn's PredefinedSplit, checked against it in
+            # tests/test_selection.py; -1 (not in the pool) is never validated
+            test_fold = np.where(m, deal(block, j, folds), -1)
             if np.unique(test_fold[test_fold >= 0]).size != folds:
                 return None
             fold_of.append(test_fold)
@@ -206,7 +194,7 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
         ms = []
         for (_, m), fo, t in zip(pool, fold_of, times, strict=True):
             val = fo == f
-            ms.append(m & ~val & ~_purged(t, val, purge) if kind == "blocks" else m & ~val)
+            ms.append(m & ~val & ~purged(t, val, purge) if kind == "blocks" else m & ~val)
         n_train = sum(int(x.sum()) for x in ms)
         n_val = sum(int((fo == f).sum()) for fo in fold_of)
         if n_train < MIN_FOLD_SAMPLES or n_val < MIN_FOLD_SAMPLES:

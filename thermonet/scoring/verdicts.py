@@ -187,7 +187,7 @@ def block_stats(raw: np.ndarray, pred: np.ndarray, labels: np.ndarray, *,
                   \\mu = \\frac{\\sum_k w_k \\bar e_k}{\\sum_k w_k},
 
         with :math:`S_k` the residual's own spread inside the row for the residual
-        (``within_ss_comp``, :func:`thermonet.training.fold.residual_spread`; default:
+        (``within_ss_comp``, :func:`thermonet.training.pipeline.residual_spread`; default:
         the target's).
     """
     raw = np.asarray(raw, dtype=np.float64)

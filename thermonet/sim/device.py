@@ -23,6 +23,8 @@ from typing import Protocol
 
 import numpy as np
 
+from ..features.dynamics import play_state
+
 __all__ = [
     "Law", "Polynomial", "Lorentz", "Sinusoid", "LawSum",
     "ThermalConfig", "ThermometerConfig", "ProxyConfig", "SelfHeatingConfig",
@@ -254,8 +256,6 @@ def play_operator(x: np.ndarray, width: float) -> np.ndarray:
     half-width ``width/2`` — the same definition as the ``play_<w>`` model input
     (``play_<width/2>`` sees exactly this shape, in °C).
     """
-    from ..features.dynamics import play_state
-
     x = np.asarray(x, dtype=np.float64)
     if width <= 0 or x.size == 0:
         return np.zeros_like(x)

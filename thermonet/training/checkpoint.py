@@ -64,8 +64,10 @@ from ..core.names import (
     check_units,
 )
 from ..features.inputs import FeatureSpec
+from ..features.target import MODE_CODES
 from ..models import DriftModel, build_family
-from ..models.composite import PER_AXIS, AxisModels, ShippedModel
+from ..models.composite import PER_AXIS, AxisModels, ShippedModel, composable
+from ..scoring.band import band_problem
 
 __all__ = ["save_checkpoint", "load_checkpoint", "seal_checkpoint", "checkpoint_digest",
            "CHECKPOINT_FORMAT", "DIGEST_KEY"]
@@ -371,8 +373,6 @@ def _check_axis_models(path: Path, model: AxisModels) -> None:
     """A loaded composite whose tensors say what its owner table says: each part's
     ``compensate`` mask is its own axes, and the parts (their loaded references and ranges)
     are still composable."""
-    from ..models.composite import composable
-
     for k, part in enumerate(model.parts):
         want = [o == k for o in model.owner]
         if part.compensated_axes != want:
@@ -437,8 +437,6 @@ def _check_payload(path: Path, p: dict, prefix: str = "") -> None:
     if extra.get("val_score") is not None:
         _number(extra["val_score"], at("extra.val_score"))
     if "band" in extra:
-        from ..scoring.band import band_problem
-
         why = band_problem(extra["band"])
         if why:
             raise InputError(f"{at('extra.band')}: {why}")
@@ -492,8 +490,6 @@ def _check_per_axis_payload(path: Path, p: dict) -> None:
 
 def _check_target_buffers(path: Path, model: DriftModel) -> None:
     """Target buffers read from the file: known mode codes, a 0/1 mask, finite constants."""
-    from ..features.target import MODE_CODES
-
     codes = model.target_code.tolist()
     bad = [c for c in codes if c not in MODE_CODES.values()]
     if bad:

@@ -18,7 +18,9 @@ from typing import Any
 
 from ..core.errors import ConfigError
 from ..core.recording import Dataset
-from .config import CompareConfig
+from ..data.mapping import load_mapping
+from .config import CompareConfig, train_config_of
+from .parts import check_loaded, load_data
 
 __all__ = ["stream_samples", "load_compare_data", "load_fleet_data", "streamed_data",
            "load_unit_file", "read_recordings"]
@@ -27,7 +29,6 @@ __all__ = ["stream_samples", "load_compare_data", "load_fleet_data", "streamed_d
 def _mapping(mapping: Any) -> Any:
     if mapping is None or not isinstance(mapping, (str, os.PathLike)):
         return mapping
-    from ..data.mapping import load_mapping
 
     return load_mapping(Path(mapping))
 
@@ -35,7 +36,7 @@ def _mapping(mapping: Any) -> Any:
 def stream_samples(paths: Sequence[str | Path], mapping: Any, limit: int) -> int | None:
     """The samples of ``paths`` when they are to be streamed (more than ``limit``), else
     None (read them whole: small files, or not tabular files)."""
-    from ..data.chunks import count_samples
+    from ..data.chunks import count_samples  # lazy: importing it loads pandas, pyarrow
 
     if not paths:
         return None
@@ -46,8 +47,6 @@ def stream_samples(paths: Sequence[str | Path], mapping: Any, limit: int) -> int
 def load_compare_data(cfg: CompareConfig, source: str = "config") -> Dataset:
     """A comparison's data: read whole, or — more than ``data.in_memory_samples`` samples
     in tabular files — :func:`streamed_data`."""
-    from .parts import check_loaded, load_data
-
     d = cfg.data
     n = stream_samples(d.paths, d.mapping, d.in_memory_samples)
     if n is None:
@@ -59,15 +58,13 @@ def load_fleet_data(cfg: CompareConfig, source: str = "config") -> Dataset:
     """A fleet's recordings when they are not one file per unit: read whole by the driver,
     which splits them into units (each unit's own file streams in its worker instead:
     :func:`load_unit_file`)."""
-    from .parts import load_data
-
     return load_data(cfg.data, source=source, allow_fleet=True)
 
 
 def load_unit_file(cfg: CompareConfig | None, path: str) -> Dataset:
     """One fleet unit's own file: streamed as ``compare`` streams it when it holds more
     than ``data.in_memory_samples`` samples, else read whole."""
-    from ..data.io import read_dataset
+    from ..data.io import read_dataset  # lazy: importing it loads pandas, pyarrow
 
     n = stream_samples([path], None, cfg.data.in_memory_samples) if cfg is not None else None
     if cfg is None or n is None:
@@ -82,9 +79,8 @@ def streamed_data(cfg: CompareConfig, paths: Sequence[str], source: str = "confi
     (the shortest any family averages over), at most ``data.max_rows`` rows over the
     files, the dynamic inputs every family reads computed on the samples.  ``mapping``:
     the config's ``data.mapping`` unless given."""
-    from ..data.io import check_run_ids
-    from ..features.windows import reduce_parquet
-    from .config import train_config_of
+    from ..data.io import check_run_ids  # lazy: importing it loads pandas, pyarrow
+    from ..features.windows import reduce_parquet  # lazy: importing it loads pandas, pyarrow
 
     d = cfg.data
     # (model 'sensor' never comes here: compare fits it on its own path, reading the
@@ -115,12 +111,12 @@ def read_recordings(paths: Sequence[str | os.PathLike[str]], mapping: Any = None
                     gap_s: str | float = "auto", chunk_rows: int = 65_536) -> Dataset:
     """The API's read: whole (``window_s`` None), or each file streamed ``chunk_rows`` rows
     at a time and each run reduced to ``window_s`` window means."""
-    from ..data.io import check_run_ids, read_datasets
+    from ..data.io import check_run_ids, read_datasets  # lazy: importing it loads pandas, pyarrow
 
     mapping = _mapping(mapping)
     if window_s is None:
         return read_datasets([Path(p) for p in paths], mapping=mapping)
-    from ..features.windows import reduce_parquet
+    from ..features.windows import reduce_parquet  # lazy: importing it loads pandas, pyarrow
 
     runs = [r for p in paths for r in reduce_parquet(
         Path(p), window_s=window_s, inputs=list(inputs), gap_s=gap_s,

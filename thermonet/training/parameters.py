@@ -85,6 +85,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..core.errors import InputError
+from ..features.inputs import TEMPERATURE, dynamic_signal, parse_feature
+
 if TYPE_CHECKING:
     import pandas as pd
 
@@ -111,8 +114,6 @@ NO_SE = {
 
 def _input_of(model: Any, signal_units: dict[str, str]) -> tuple[str, float, str]:
     """The one signal of a one-input model, its expansion point and its unit."""
-    from ..features.inputs import TEMPERATURE, dynamic_signal, parse_feature
-
     signal, _, _ = parse_feature(model.inputs[0])
     spec = model.spec
     if signal == TEMPERATURE:
@@ -394,7 +395,7 @@ def parameter_table(model: Any, units: dict[str, str], signal_units: dict[str, s
     """
     import pandas as pd
 
-    from ..models.composite import AxisModels
+    from ..models.composite import AxisModels  # torch boundary (pyproject.toml): loads torch
 
     cov: dict[str, np.ndarray] = {}
     if isinstance(model, AxisModels):
@@ -445,8 +446,6 @@ def with_sealed(table: pd.DataFrame, cov: dict[str, np.ndarray], stored: Any, wh
         ``extra.parameters`` is not what :func:`sealed_parameters` writes, or names other
         rows than the model's.
     """
-    from ..core.errors import InputError
-
     if stored is None:
         return table, cov, None
 

@@ -17,7 +17,10 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.recording import Dataset, Recording
+from ..features.inputs import RATE, signal_matrix
 from ..features.target import CHANNEL, FOUR_POSITION, FOURPOS_SUFFIXES, Target, resolve_targets
+from ..sim import simulate
+from ..sim.fourpos import four_position_estimates
 from .config import DataConfig
 from .splits import Split, make_splits
 
@@ -38,13 +41,11 @@ def load_data(cfg: DataConfig, *, source: str = "config", allow_fleet: bool = Fa
     (``thermonet fleet`` calibrates them one by one).
     """
     if cfg.paths:
-        from ..data.io import read_datasets
+        from ..data.io import read_datasets  # lazy: file readers load pyarrow (~0.2 s)
 
         # a fleet is validated unit by unit (thermonet.workflows.fleet_units.sources_from_dataset)
         ds = read_datasets(cfg.paths, mapping=cfg.mapping, validate=not allow_fleet)
     else:
-        from ..sim import simulate
-
         if not cfg.preset:
             raise ConfigError(f"{source}: key 'data': give 'paths' or a simulator 'preset'")
         ds = simulate(cfg.preset, runs=cfg.runs, seed=cfg.seed)
@@ -149,8 +150,6 @@ def build_part(rec: Recording, *, signals: list[str], outputs: list[str],
     was recorded; ``"four-position"``).  ``gap_s`` is the dynamic inputs' gap
     limit (:func:`thermonet.features.inputs.signal_matrix`).
     """
-    from ..features.inputs import signal_matrix
-
     if isinstance(target, str):
         target = Target.uniform(outputs, FOUR_POSITION if target == FOUR_POSITION else CHANNEL)
     if target.kind == FOUR_POSITION:
@@ -188,8 +187,6 @@ def build_part(rec: Recording, *, signals: list[str], outputs: list[str],
 
 
 def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> Part:
-    from ..sim.fourpos import four_position_estimates
-
     if signals != ["temperature_c"]:
         raise ConfigError("config: key 'target': four-position models take temperature inputs "
                           f"only (T, dT, dT2), got signals {signals}")
@@ -211,8 +208,6 @@ def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> 
 
 def heating_only(part: Part, rec: Recording, gap_s: float | None = None) -> Part:
     """The samples of ``part`` where ``rec``'s temperature is not falling (PX4/ArduPilot way)."""
-    from ..features.inputs import RATE, signal_matrix
-
     if part.per_soak:
         raise ConfigError("config: key 'train_on': 'heating' applies to per-sample targets, "
                           "not to the four-position target")
@@ -254,7 +249,7 @@ def fit_arrays(part: Part, average_s: float = 0.0) -> tuple[np.ndarray, ...]:
     if average_s > 0:
         with _AVERAGE_LOCK:      # families fitted side by side share one computation
             if average_s not in part._averaged:
-                from .train import average_windows
+                from .train import average_windows  # torch boundary: train imports torch
 
                 part._averaged[average_s] = average_windows(part.signals, part.target,
                                                             part.time_s, average_s)

@@ -45,12 +45,15 @@ import torch
 from torch import nn
 
 from ..core.errors import FitError, InputError
+from ..core.fileio import atomic_path
+from ..core.names import AXIS, FAMILY, check_name, check_names
 from ..core.recording import Recording, output_kind
 from ..core.trainconfig import TrainConfig
 from ..features.inputs import FeatureSpec, signal_matrix
 from ..models import DriftModel, build_family
 from ..models.base import check_output_shape
 from ..models.sensor import SensorModel, check_invertible, element_names
+from .checkpoint import DIGEST_KEY, _check_digest, checkpoint_digest
 from .scaling import column_scale
 from .train import _fit_loop, average_windows, rest_signals, thread_limits
 
@@ -408,8 +411,6 @@ SENSOR_FORMAT = "thermonet-sensor-1"
 def save_sensor(path: str | Path, fitted: SensorFit, *, family: str, hyper: dict | None,
                 extra: dict | None = None) -> Path:
     """Write a sensor model (weights only: ``torch.load(weights_only=True)`` reads it back)."""
-    from ..core.fileio import atomic_path
-
     model = fitted.model
     for name, t in list(model.named_parameters()) + list(model.named_buffers()):
         if t.is_floating_point() and not bool(torch.isfinite(t).all()):
@@ -421,7 +422,6 @@ def save_sensor(path: str | Path, fitted: SensorFit, *, family: str, hyper: dict
                "triads": model.triads, "kept": dict(fitted.kept),
                "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
                "extra": dict(extra or {})}
-    from .checkpoint import DIGEST_KEY, checkpoint_digest
 
     try:
         payload[DIGEST_KEY] = checkpoint_digest(payload)  # the bias checkpoints' own digest
@@ -446,8 +446,6 @@ def load_sensor(path: str | Path) -> tuple[SensorModel, dict]:
     if not isinstance(payload, dict) or payload.get("format") != SENSOR_FORMAT:
         raise InputError(f"{p}: not a thermonet sensor model (format "
                          f"{payload.get('format') if isinstance(payload, dict) else None!r})")
-    from ..core.names import AXIS, FAMILY, check_name, check_names
-    from .checkpoint import _check_digest
 
     _check_digest(p, payload)  # edited or damaged since it was written: refused
     check_name(payload.get("family"), FAMILY, f"{p}: key 'family'")

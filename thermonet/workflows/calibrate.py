@@ -69,10 +69,12 @@ from typing import Any
 
 import numpy as np
 
-from .. import __version__
 from ..core.errors import InputError, ThermonetError
-from ..core.fileio import atomic_write_text
+from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
+from ..core.names import inside, path_components
+from ..core.outdir import KINDS, check_target, relocate_json, sha256_file, staged_output
 from ..core.profile import stage as profile_stage
+from ..core.version import __version__
 from ..data.firmware import (
     ARDUPILOT_TEMP_REFERENCE,
     PX4_LETTER,
@@ -85,6 +87,7 @@ from ..data.firmware import (
     px4_offsets_3d,
 )
 from ..data.logs import FlightLog, SensorInstance, read_log, temperature_step
+from ..scoring.band import shipped_band
 from ..scoring.verdicts import below
 from .calibrate_report import format_report, render_calibration_report
 from .firmware_fit import (
@@ -204,9 +207,13 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
              final: Path | None = None) -> dict[str, Any]:
     """Compare the families on ``inst`` into ``out`` (inside the staging directory); paths
     recorded in its results name ``final``, where ``out`` will be once the output is moved."""
-    from ..core.outdir import relocate_json
-    from ..training.config import CompareConfig, FamilyConfig, SplitConfig, TrackingConfig
-    from .compare import run_compare
+    from ..training.config import (  # lazy: importing it loads yaml
+        CompareConfig,
+        FamilyConfig,
+        SplitConfig,
+        TrackingConfig,
+    )
+    from .compare import run_compare  # lazy: importing it loads yaml
 
     fw = ("px4-poly5" if inst.kind == "baro" else "px4-cubic") \
         if autopilot == "px4" or inst.kind == "mag" else "ardupilot-cubic"
@@ -323,9 +330,6 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
     ThermonetError
         No instance can be calibrated (each reason listed), or ``out_dir`` is refused.
     """
-    from ..core.fileio import refuse_overwriting_inputs
-    from ..core.outdir import KINDS, check_target, sha256_file, staged_output
-
     paths = [log_path] if isinstance(log_path, (str, Path)) else list(log_path)
     if not paths:
         raise InputError("calibrate needs at least one log")
@@ -359,8 +363,7 @@ def _ekf_text(autopilot: str, fitted: list[InstanceResult], params_name: str) ->
     """Per fitted gyro and accelerometer, the EKF bias-noise settings its firmware form's
     residual-drift band suggests (:func:`thermonet.exporting.autopilot.ekf_recommendation`);
     "" where no instance has a band."""
-    from ..exporting.autopilot import ekf_recommendation
-    from ..scoring.band import shipped_band
+    from ..exporting.autopilot import ekf_recommendation  # torch boundary
 
     lines: list[str] = []
     for r in fitted:
@@ -599,8 +602,6 @@ def _judge_model_only(fit: FirmwareFit, inst: SensorInstance | None, autopilot: 
 def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: bool,
                     mags: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
     """The calibration, written into ``stage``; recorded paths name ``out``."""
-    from ..core.names import path_components
-
     log = merge_logs(logs)
     source = ", ".join(str(lg.path) for lg in logs)
     dirs = path_components(i.name for i in log.instances)
@@ -649,7 +650,6 @@ def _fit_instance(inst: Any, log: FlightLog, stage: Path, out: Path, *, compare:
                   where: str) -> InstanceResult:
     """One sensor instance: checked, its firmware form fitted, compared side by side with
     thermonet's families (``compare``; in ``instances/<where>``), marked exportable or not."""
-    from ..core.names import inside
 
     why = check_instance(inst, log.autopilot)
     r = InstanceResult(inst.name, inst.kind, inst.device_id, "skipped", why)
@@ -758,7 +758,6 @@ def _results_doc(logs: list[FlightLog], results: list[InstanceResult], param_pat
                 d["firmware"].update(unit="uT", thermometer=r.fit.thermometer,
                                      lag_s=r.fit.lag_s)
         inst_doc[r.name] = d
-    from ..core.outdir import sha256_file
 
     log = logs[0]
     return {"schema": 1, "thermonet_version": __version__, "log": str(log.path),

@@ -6,6 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from ..reporting.report import _CSS, VERDICT_COLOURS
+
 __all__ = ["format_report", "render_calibration_report"]
 
 _AXES = {"gyro": ("x", "y", "z"), "acc": ("x", "y", "z"), "baro": ("p",),
@@ -61,8 +63,6 @@ def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | 
     ``staged``: where ``out``'s files are while it is being built (links are checked there).
     """
     import html
-
-    from ..reporting.report import _CSS, VERDICT_COLOURS
 
     names = ", ".join(Path(p).name for p in (doc.get("logs") or [doc["log"]]))
     rows = []

@@ -34,11 +34,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
 from ..core.errors import ConfigError, Interrupted, ThermonetError
 from ..core.fileio import atomic_write_text
 from ..core.profile import stage
 from ..core.recording import Dataset
+from ..core.version import __version__
 from ..reporting.report import tuned_text
 from ..reporting.results import ComparisonResult
 from ..training.config import (

@@ -10,6 +10,7 @@ from typing import Any
 
 from ..core.errors import ConfigError
 from ..features.inputs import TEMPERATURE
+from ..scoring.band import DEFAULT_LEVEL, band_from_oof
 from .compare_judge import Fitted
 from .compare_plan import Plan
 
@@ -17,8 +18,6 @@ __all__ = ["family_band", "per_axis_band"]
 
 
 def _level(p: Plan) -> float | None:
-    from ..scoring.band import DEFAULT_LEVEL
-
     return p.cfg.band.level if p.cfg.band.level is not None else DEFAULT_LEVEL
 
 
@@ -33,8 +32,6 @@ def _band(p: Plan, fitted: Sequence[Fitted | None], compensate: Sequence[bool],
     """The band of ``model`` whose axis ``a`` is shipped from ``fitted[a]``'s out-of-fold
     predictions (None: raw)."""
     import numpy as np
-
-    from ..scoring.band import band_from_oof
 
     if p.folds is None:
         return _no_band(p, f"no out-of-fold residuals ({p.fold_note or 'selection.folds is 0'})")

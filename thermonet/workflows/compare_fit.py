@@ -1,5 +1,5 @@
-"""``thermonet compare``, step 2 — fitting: per family and fold, the one fold pipeline
-(:mod:`thermonet.training.fold`: parts → fit → score), the held-out block sums, the
+"""``thermonet compare``, step 2 — fitting: per family and fold, the one split pipeline
+(:mod:`thermonet.training.pipeline`: parts → fit → score), the held-out block sums, the
 cross-validated out-of-fold predictions of model selection, and the families fitted side by side
 (:class:`FitQueue`, :func:`family_workers`).
 """
@@ -69,13 +69,13 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
     from ..data.diagnostics import outside_distance, outside_fraction
     from ..models.base import as_numpy
     from ..scoring.verdicts import pool
-    from ..training.fold import (
+    from ..training.pipeline import (
         block_sums,
-        fit_fold,
-        fold_parts,
-        fold_spec,
+        fit_split,
         residual_spread,
         score_part,
+        split_parts,
+        split_spec,
     )
     from ..training.train import predict
 
@@ -97,7 +97,7 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
     try:
         tcfg = train_config_of(cfg, fam)
         if fam.tune and p.folds is not None:
-            spec = fold_spec(fam.inputs, p.splits[-1].train, t_ref=cfg.features.t_ref,
+            spec = split_spec(fam.inputs, p.splits[-1].train, t_ref=cfg.features.t_ref,
                              window_min=cfg.features.t_ref_window_min,
                              gap_s=cfg.features.gap_s, reference_for_targets=True)
             with stage(f"{fam.label}: tuning (folds x grid points)"):
@@ -107,14 +107,14 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
                                 f"({p.fold_note or 'selection.folds is 0'}); the configured "
                                 "values are used"}}
         for split in p.splits:
-            spec = fold_spec(fam.inputs, split.train, t_ref=cfg.features.t_ref,
+            spec = split_spec(fam.inputs, split.train, t_ref=cfg.features.t_ref,
                              window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s,
                              reference_for_targets=True)
-            fp = fold_parts(spec, split.train, outputs=p.outputs, target=p.targets,
+            fp = split_parts(spec, split.train, outputs=p.outputs, target=p.targets,
                             val=split.val, test=split.test, train_on=fam.train_on,
                             gap_s=cfg.features.gap_s, part=parts)
             with stage(f"{fam.label}: fit on the training part"):
-                fitted = fit_fold(fp, family=fam.family, outputs=p.outputs, hyper=fam.params,
+                fitted = fit_split(fp, family=fam.family, outputs=p.outputs, hyper=fam.params,
                                   config=tcfg, target_modes=p.targets.modes, on_epoch=on_epoch)
             res.fit_seconds = (0.0 if math.isnan(res.fit_seconds) else res.fit_seconds) \
                 + fitted.fit_seconds
@@ -214,16 +214,16 @@ def _refit(p: Plan, fam: FamilyConfig, tcfg: Any, split: Any, parts: PartCache,
     ship.  It is what ``DriftEstimator(...).fit(split.train + [split.val])`` fits (the API's
     equality tests): the feature references come from those runs, each run's part is built
     as for the first fit."""
-    from ..training.fold import fit_fold, fold_parts, fold_spec
+    from ..training.pipeline import fit_split, split_parts, split_spec
 
     cfg = p.cfg
     runs = [*split.train, split.val] if split.val is not None else list(split.train)
-    spec = fold_spec(fam.inputs, runs, t_ref=cfg.features.t_ref,
+    spec = split_spec(fam.inputs, runs, t_ref=cfg.features.t_ref,
                      window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s,
                      reference_for_targets=True)
-    fp = fold_parts(spec, runs, outputs=p.outputs, target=p.targets, train_on=fam.train_on,
+    fp = split_parts(spec, runs, outputs=p.outputs, target=p.targets, train_on=fam.train_on,
                     gap_s=cfg.features.gap_s, part=parts)
-    return fit_fold(fp, family=fam.family, outputs=p.outputs, hyper=fam.params, config=tcfg,
+    return fit_split(fp, family=fam.family, outputs=p.outputs, hyper=fam.params, config=tcfg,
                     target_modes=p.targets.modes, on_epoch=on_epoch), list(fp.train)
 
 

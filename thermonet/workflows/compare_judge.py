@@ -12,9 +12,11 @@ from typing import Any
 
 import numpy as np
 
+from ..data.diagnostics import extrapolation_warnings
 from ..features.target import CHANNEL, FOUR_POSITION, ZERO, Target
 from ..reporting.results import AxisResult, ComparisonResult, FamilyResult, Verdict
-from ..scoring.verdicts import BlockStats
+from ..scoring.selection import select
+from ..scoring.verdicts import BlockStats, choose, draws, masked_scores, ratio_interval, verdict_of
 from ..training.parts import (
     Part,
 )
@@ -60,16 +62,12 @@ _DRAWS: dict[int, np.ndarray] = {}
 
 
 def _draws(n_blocks: int) -> np.ndarray:
-    from ..scoring.verdicts import draws
-
     if n_blocks not in _DRAWS:
         _DRAWS[n_blocks] = draws(n_blocks)
     return _DRAWS[n_blocks]
 
 
 def _verdicts(num: np.ndarray, den: np.ndarray) -> tuple[list[Verdict], np.ndarray, np.ndarray]:
-    from ..scoring.verdicts import ratio_interval, verdict_of
-
     ratio, boot, iv = ratio_interval(num, den, _draws(num.shape[0]))
     return ([Verdict(float(ratio[j]), float(iv[0, j]), float(iv[1, j]),
                      verdict_of(float(iv[0, j]), float(iv[1, j]))) for j in range(ratio.size)],
@@ -93,8 +91,6 @@ def _offset_meaningful(targets: Target, axis: str) -> bool:
 
 def judge_against_raw(f: Fitted, metrics: dict[str, dict[str, float]], p: Plan) -> None:
     """Validation and test verdicts against raw, the per-axis mask, the masked scores."""
-    from ..scoring.verdicts import masked_scores
-
     assert f.val is not None and f.test is not None
     res = f.result
     val, val_ratio, val_boot = _verdicts(f.val.ss_comp, f.val.ss_raw)
@@ -121,13 +117,9 @@ def judge_against_raw(f: Fitted, metrics: dict[str, dict[str, float]], p: Plan) 
 # ---------------------------------------------------------------------------------- report
 def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Plan) -> None:
     """Choice with ties, verdicts against the baseline, warnings about the chosen model."""
-    from ..scoring.verdicts import choose
-
     ok = {k: f for k, f in fitted.items() if f.result.ok and f.val_draws is not None}
     cv = {k: f for k, f in ok.items() if f.oof is not None}
     if p.folds is not None and cv:
-        from ..scoring.selection import select
-
         first = next(iter(cv.values()))
         temps = next((f.pool_temps for f in cv.values() if f.pool_temps), None)
         sel = select(p.folds, first.pool_targets, first.pool_times,
@@ -224,8 +216,7 @@ def per_axis_choice(sel: Any, cv: dict[str, Fitted], p: Plan,
     Candidates whose models cannot be combined with others (a recurrent family's state) are
     left out of the per-axis choice when they would share the artifact with another
     candidate, and the choice is made again without them (said in the record)."""
-    from ..models.composite import composable
-    from ..scoring.selection import select
+    from ..models.composite import composable  # torch boundary (pyproject.toml): loads torch
 
     owners = sel.per_axis
     labels = sorted({v for v in owners.values() if v is not None}, key=list(cv).index)
@@ -301,8 +292,6 @@ def per_axis_result(result: ComparisonResult, p: Plan) -> FamilyResult:
 
 
 def extrapolation(fitted: dict[str, Fitted], result: ComparisonResult) -> None:
-    from ..data.diagnostics import extrapolation_warnings
-
     fractions: dict[str, float] = {}
     ranges: dict[str, tuple[float, float]] = {}
     excursions: dict[str, float] = {}

@@ -15,11 +15,16 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError
-from ..core.recording import Dataset
+from ..core.errors import ConfigError, InputError
+from ..core.recording import MIN_TEMPERATURE_SPAN_C, Dataset
+from ..data.diagnostics import input_warnings
+from ..features.dynamics import RATE_TAU_S, dynamic_signals, input_set_warnings
+from ..features.inputs import dynamic_signal, signals_for
 from ..features.target import Target
+from ..scoring.selection import plan_folds
 from ..training.config import (
     CompareConfig,
+    check_families,
     outputs_of,
 )
 from ..training.loader import load_compare_data, streamed_data
@@ -131,9 +136,6 @@ def _check_training_spans(splits: list[Split], source: str) -> None:
     """Each split's *training* data must span what the whole dataset must (the API checks its
     training runs the same way): a wide dataset whose training part is one soak cannot carry
     a thermal model, whatever the test part spans."""
-    from ..core.errors import InputError
-    from ..core.recording import MIN_TEMPERATURE_SPAN_C
-
     for split in splits:
         temps = [r.temperature_c for r in split.train if r.temperature_c is not None]
         if not temps or len(temps) != len(split.train) or any(r.proxies for r in split.train):
@@ -150,10 +152,6 @@ def _check_training_spans(splits: list[Split], source: str) -> None:
 
 def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
     """Check ``cfg`` against the data, make the splits, collect input warnings (no fitting)."""
-    from ..data.diagnostics import input_warnings
-    from ..features.inputs import dynamic_signal, signals_for
-    from ..training.config import check_families
-
     source = getattr(cfg, "_source", "config")
     check_families(cfg, source=source)
     _check_baseline(cfg, source)
@@ -179,7 +177,6 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
     for o in outputs:
         if o.endswith(".scale"):
             units[o] = "1"
-    from ..features.dynamics import RATE_TAU_S, input_set_warnings
 
     warns = input_warnings(ds, signals=signals, rate_window_s=RATE_TAU_S)
     warns += input_set_warnings(
@@ -204,9 +201,6 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
 
 def _fold_plan(cfg: CompareConfig, splits: list[Split]) -> tuple[Any, str]:
     """The cross-validation folds of the last split's pool (thermonet.scoring.selection), or why not."""
-    from ..features.dynamics import dynamic_signals
-    from ..scoring.selection import plan_folds
-
     sel = cfg.selection
     if sel.folds == 0:
         return None, "selection.folds is 0: chosen on the split's validation part"

@@ -2,7 +2,7 @@
 (:class:`UnitSource`: a file, a split dataset, a simulation), the per-unit task (its own
 comparison, :func:`thermonet.workflows.compare.run_compare`, and the physical coefficients of
 its model) and the per-fold task of leave-units-out (one pooled fleet model fitted through the
-one fold pipeline, :mod:`thermonet.training.fold`, and judged on each held-out unit next to
+one split pipeline, :mod:`thermonet.training.pipeline`, and judged on each held-out unit next to
 the unit's own model).  Tasks are plain picklable items, run by :mod:`thermonet.core.executors`.
 """
 
@@ -267,8 +267,8 @@ def fold_task(item: FoldItem) -> dict[str, Any]:
     """Fit one fleet model of the fleet family on other units' calibration runs, and
     evaluate it on each held-out unit's test run next to the unit's own model."""
     from ..training.config import outputs_of, train_config_of
-    from ..training.fold import fit_fold, fold_parts, fold_spec
     from ..training.parts import make_splits, targets_for
+    from ..training.pipeline import fit_split, split_parts, split_spec
 
     cfg, fam = item.cfg, _family(item.cfg, item.family)
     if cfg.model == "sensor":
@@ -284,13 +284,13 @@ def fold_task(item: FoldItem) -> dict[str, Any]:
         train += split.train
         if split.val is not None:
             val.append(split.val)
-    spec = fold_spec(fam.inputs, train, t_ref=cfg.features.t_ref,
+    spec = split_spec(fam.inputs, train, t_ref=cfg.features.t_ref,
                      window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s)
-    parts = fold_parts(spec, train, outputs=outputs, target=target)
-    vparts = fold_parts(spec, val, outputs=outputs, target=target).train
+    parts = split_parts(spec, train, outputs=outputs, target=target)
+    vparts = split_parts(spec, val, outputs=outputs, target=target).train
     v = (np.concatenate([p.signals for p in vparts]), np.concatenate([p.target for p in vparts])) \
         if vparts else None
-    fitted = fit_fold(parts, family=fam.family, outputs=outputs, hyper=fam.params,
+    fitted = fit_split(parts, family=fam.family, outputs=outputs, hyper=fam.params,
                       config=train_config_of(cfg, fam), val=v, windows=False)
     evaluations = {}
     for src, own in item.held_out:  # one unit's data at a time
@@ -317,8 +317,8 @@ def _sensor_fold_task(item: FoldItem, fam: FamilyConfig) -> dict[str, Any]:
     ``raw − ref``)."""
     from ..models.sensor import triads_of
     from ..training.config import outputs_of, train_config_of
-    from ..training.fold import fold_spec
     from ..training.parts import make_splits
+    from ..training.pipeline import split_spec
     from ..training.sensor import fit_sensor, sensor_run
 
     cfg = item.cfg
@@ -329,7 +329,7 @@ def _sensor_fold_task(item: FoldItem, fam: FamilyConfig) -> dict[str, Any]:
         train += make_splits(ds, cfg.split, source=f"unit '{src.device_id}'")[-1].train
         outputs = [o for t in triads_of(outputs_of(cfg, ds)) for o in t]
     triads = triads_of(outputs)
-    spec = fold_spec(fam.inputs, train, t_ref=cfg.features.t_ref,
+    spec = split_spec(fam.inputs, train, t_ref=cfg.features.t_ref,
                      window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s)
     fleet = fit_sensor(family=fam.family, spec=spec, outputs=outputs, triads=triads,
                        train=[sensor_run(r, spec, outputs) for r in train], val=None,

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..core.recording import Dataset
+from ..data.diagnostics import input_warnings
 from ..data.mapping import channel_role
 from ..scoring.metrics import binned_peak_to_peak, noise_floor
 
@@ -86,7 +87,6 @@ def summarize(dataset: Dataset, *, bin_c: float = 1.0) -> dict[str, Any]:
         temps = [r.temperature_c for r in with_t if r.temperature_c is not None]
         t_range = [min(float(t.min()) for t in temps), max(float(t.max()) for t in temps)]
     skipped = dataset.meta.get("skipped_rows")
-    from ..data.diagnostics import input_warnings
 
     rates = sorted({float(f"{r.effective_rate_hz:.4g}") for r in runs})
     at = f"{rates[0]:g} Hz" if len(rates) == 1 else f"each run's rate ({rates[0]:g} … " \

@@ -42,6 +42,7 @@ from ..core.errors import InputError
 from ..data.firmware import FirmwareFit
 from ..data.logs import FlightLog, SensorInstance
 from ..data.logs.base import lend_thermometer
+from ..features.dynamics import lag_error
 from .firmware_fit import bin_means, running_median
 
 __all__ = ["DEFAULT_THERMOMETERS", "LAG_GRID_S", "CV_BLOCKS", "CV_FOLDS",
@@ -123,8 +124,6 @@ def lagged(time_s: np.ndarray, temperature_c: np.ndarray, tau_s: float) -> np.nd
     settled: :math:`\\mathrm{EMA}_\\tau(T) = T - \\mathrm{lag}_\\tau` of
     :func:`thermonet.features.dynamics.lag_error` (the recurrence the runtime and the C
     header compute)."""
-    from ..features.dynamics import lag_error
-
     temp = np.asarray(temperature_c, dtype=np.float64)
     if tau_s <= 0 or temp.size == 0:
         return temp.copy()

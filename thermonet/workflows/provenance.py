@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from ..core.outdir import sha256_file
 from ..core.recording import Dataset
 from ..training.config import (
     CompareConfig,
@@ -34,8 +35,6 @@ def data_source(cfg: CompareConfig, ds: Dataset | None, *, given: bool) -> dict[
     """Where the data of a comparison actually came from, for ``results.json``'s
     ``provenance`` and each checkpoint: the files with their SHA-256 (and the mapping's),
     or the simulator's preset, run count and seed, or a dataset the caller passed in."""
-    from ..core.outdir import sha256_file
-
     def file(path: str | Path) -> dict[str, Any]:
         p = Path(path)
         return {"path": str(path), "sha256": sha256_file(p) if p.is_file() else None}

@@ -50,10 +50,10 @@ from typing import Any
 
 import numpy as np
 
-from .. import __version__
 from ..core.errors import ConfigError, ThermonetError
 from ..core.fileio import atomic_write_text
 from ..core.recording import Dataset
+from ..core.version import __version__
 from ..training.config import CompareConfig, FamilyConfig, outputs_of, train_config_of
 from ..training.parts import data_hash, load_data
 
@@ -182,7 +182,7 @@ def _fit_family(p: _Plan, fam: FamilyConfig, out: Path, say: Any) -> _Fitted | N
     """Step 2 for one family: tuned on the folds (a ``tune`` grid), fitted as a sensor and
     as a bias-only model, cross-validated, judged on the test run, written; its entry in
     results.json.  A family the data cannot carry is reported (None) and the others go on."""
-    from ..training.fold import fold_spec
+    from ..training.pipeline import split_spec
     from ..training.sensor import fit_sensor, sensor_run
     from .sensor_fit import sensor_oof, sensor_pool, sensor_tune
 
@@ -193,7 +193,7 @@ def _fit_family(p: _Plan, fam: FamilyConfig, out: Path, say: Any) -> _Fitted | N
     kw: dict[str, Any] = {"outputs": p.outputs, "triads": p.triads}
     try:
         t0 = time.perf_counter()
-        spec = fold_spec(fam.inputs, sp.train, t_ref=cfg.features.t_ref,
+        spec = split_spec(fam.inputs, sp.train, t_ref=cfg.features.t_ref,
                          window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s)
         tcfg = train_config_of(cfg, fam)
         kw.update(spec=spec)

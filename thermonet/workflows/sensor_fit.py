@@ -31,13 +31,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.errors import ThermonetError
 from ..training.config import CompareConfig, FamilyConfig, tune_points
-from ..training.sensor import SensorRun
+
+if TYPE_CHECKING:
+    from ..training.sensor import SensorRun
 
 __all__ = ["SensorPool", "sensor_pool", "subset", "sensor_oof", "sensor_tune",
            "choose_sensor"]
@@ -64,6 +66,8 @@ def sensor_pool(pool: Sequence[tuple[Any, np.ndarray]], spec: Any, outputs: Sequ
 
 def subset(run: SensorRun, rows: np.ndarray) -> SensorRun:
     """The rows ``rows`` (a mask or indices) of ``run``."""
+    from ..training.sensor import SensorRun  # the torch boundary (the sensor model's fit)
+
     return SensorRun(run.signals[rows], run.raw[rows], run.ref[rows], run.time_s[rows],
                      run.temperature[rows], run.run_id)
 

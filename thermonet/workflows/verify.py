@@ -78,9 +78,10 @@ from typing import Any
 
 import numpy as np
 
-from .. import __version__
 from ..core.errors import InputError, ThermonetError
-from ..core.fileio import atomic_write_text
+from ..core.fileio import atomic_write_text, not_a_file, refuse_overwriting_inputs
+from ..core.outdir import KINDS, check_target, sha256_file, staged_output
+from ..core.version import __version__
 from ..data.firmware import (
     ARDUPILOT_TEMP_REFERENCE,
     PX4_LETTER,
@@ -91,6 +92,7 @@ from ..data.firmware import (
 )
 from ..data.logs import FlightLog, SensorInstance, read_log
 from ..data.logs.base import TEMPERATURE_RANGE_C
+from ..reporting.report import _CSS, VERDICT_COLOURS
 from ..scoring.metrics import binned_peak_to_peak
 from .firmware_fit import check_instance, target
 
@@ -224,8 +226,6 @@ def _device_id(pf: ParamFile, name: str) -> int:
 def read_param_file(path: str | Path) -> ParamFile:
     """Read a PX4 or ArduPilot parameter file (format told from its first parameter line),
     every thermal-calibration parameter checked (:func:`check_params`)."""
-    from ..core.fileio import not_a_file
-
     p = Path(path)
     why = not_a_file(p)
     if why:
@@ -522,9 +522,6 @@ def verify(params_path: str | Path, log_path: str | Path, out_dir: str | Path, *
            limits: Limits | None = None, overwrite: bool = False) -> dict[str, Any]:
     """Check ``params_path`` on ``log_path``; write ``out_dir`` (results.json, report.txt,
     report.html) whole or not at all; return the results (``passed``: every judged axis)."""
-    from ..core.fileio import refuse_overwriting_inputs
-    from ..core.outdir import KINDS, check_target, sha256_file, staged_output
-
     limits = (limits or Limits()).check()
     pf = read_param_file(params_path)
     log = read_log(log_path)
@@ -601,8 +598,6 @@ def format_verify_report(doc: dict[str, Any]) -> str:
 def render_verify_html(doc: dict[str, Any]) -> str:
     """``DIR/report.html``: the verification table (every string HTML-escaped)."""
     import html
-
-    from ..reporting.report import _CSS, VERDICT_COLOURS
 
     rows = []
     for name, d in doc["instances"].items():

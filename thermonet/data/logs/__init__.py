@@ -9,8 +9,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from ...core.errors import InputError
+from ...core.fileio import not_a_file
 from ...core.recording import Dataset
 from .base import AXES, UNITS, FlightLog, SensorInstance, temperature_step
+from .dataflash import read_dataflash
+from .ulog import read_ulog
 
 __all__ = ["read_log", "read_log_instance", "is_log", "LOG_SUFFIXES", "FlightLog",
            "SensorInstance", "AXES", "UNITS", "temperature_step"]
@@ -26,19 +29,13 @@ def is_log(path: str | Path) -> bool:
 
 def read_log(path: str | Path) -> FlightLog:
     """Read a PX4 ULog or an ArduPilot DataFlash log (by suffix)."""
-    from ...core.fileio import not_a_file
-
     kind = LOG_SUFFIXES.get(Path(path).suffix.lower())
     why = not_a_file(path, "flight-controller log")  # a directory, FIFO or device by name
     if why:
         raise InputError.at(path, why)
     if kind == "ulog":
-        from .ulog import read_ulog
-
         return read_ulog(path)
     if kind == "dataflash":
-        from .dataflash import read_dataflash
-
         return read_dataflash(path)
     raise InputError.at(path, "not a flight-controller log (expected .ulg or .bin)")
 

@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from ...core.errors import InputError
+from ..firmware import ardupilot_correction
 from .base import (
     FlightLog,
     SensorInstance,
@@ -89,8 +90,6 @@ def ardupilot_tcal_correction(params: dict[str, float], imu: int, kind: str,
     ``imu`` is 1-based (``INS_TCAL1``); ``kind`` ``gyro`` or ``acc``; T_cal is
     ``INS_GYR<n>_CALTEMP`` / ``INS_ACC<n>_CALTEMP`` (the offset calibration's temperature).
     """
-    from ..firmware import ardupilot_correction
-
     pre = f"INS_TCAL{imu}_"
     if params.get(pre + "ENABLE", 0.0) != 1.0:
         return None

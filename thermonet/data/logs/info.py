@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from . import read_log, temperature_step
+from .base import UNITS
 
 __all__ = ["summarize_log", "format_log_summary"]
 
@@ -25,8 +26,6 @@ def summarize_log(path: str | Path) -> dict[str, Any]:
         parameters the log carries: ``TC_*``, ``SYS_CAL_*``, ``INS_TCAL*``,
         ``AHRS_ORIENTATION``).
     """
-    from .base import UNITS
-
     log = read_log(path)
     rows = []
     for inst in log.instances:

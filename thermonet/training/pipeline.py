@@ -1,13 +1,18 @@
-"""The one fold pipeline: parts → fit → score, run by compare, fleet and the Python API.
+"""The one split pipeline: parts → fit → score, run by compare, fleet and the Python API.
 
-One fold is a family fitted on training runs (stopping early on a validation run where
-there is one) and judged on a held-out run:
+One split (:class:`thermonet.training.splits.Split`: training runs, a validation run or
+none, a held-out run) is a family fitted on the training runs (stopping early on the
+validation run where there is one) and judged on the held-out run.  "Fold" in thermonet means
+only a cross-validation fold (:mod:`thermonet.scoring.folds`); a comparison's folds each run
+this pipeline on their own training and validation data.  It imports the fit
+(:mod:`thermonet.training.train`, torch) at the top: this module is on the torch side of the
+boundary (pyproject.toml's import-linter contract), and its callers load it where they fit:
 
-1. :func:`fold_spec` — the feature references (:math:`T_{ref}`, proxy references) and the
+1. :func:`split_spec` — the feature references (:math:`T_{ref}`, proxy references) and the
    dynamic inputs' gap limit, from the training runs only;
-2. :func:`fold_parts` — each run's signal and target matrices (:mod:`thermonet.training.parts`),
+2. :func:`split_parts` — each run's signal and target matrices (:mod:`thermonet.training.parts`),
    the training runs cut to their heating samples for ``train_on: heating``;
-3. :func:`fit_fold` — the family fitted (:func:`thermonet.training.train.fit`) on the
+3. :func:`fit_split` — the family fitted (:func:`thermonet.training.train.fit`) on the
    training parts, each averaged into ``train.average_s`` windows once (a part's windows
    are cached on it and shared by the families of a comparison);
 4. :func:`score_part` and :func:`block_sums` — a held-out part's per-axis metrics and its
@@ -26,20 +31,23 @@ from ..core.recording import Recording
 from ..core.trainconfig import TrainConfig
 from ..features.inputs import FeatureSpec, reference_values, resolve_gap_s, signals_for
 from ..features.target import Target
+from ..scoring.metrics import axis_metrics, rms, scale_factor_tempco_ppm_per_c, window_axis_metrics
+from ..scoring.verdicts import block_labels, block_stats
 from .parts import Part, build_part, fit_arrays, heating_only
+from .train import fit, predict
 
-__all__ = ["FoldParts", "PartBuilder", "fold_spec", "fold_parts", "fit_fold", "score_part",
+__all__ = ["SplitParts", "PartBuilder", "split_spec", "split_parts", "fit_split", "score_part",
            "block_sums", "per_soak_metrics", "residual_spread"]
 
-#: ``(recording, signals, gap_s) -> Part``: how a fold gets a run's part (compare shares
+#: ``(recording, signals, gap_s) -> Part``: how a split gets a run's part (compare shares
 #: one cache between its families).
 PartBuilder = Callable[[Recording, list[str], "float | None"], Part]
 
 
-def fold_spec(inputs: Sequence[str], train: Sequence[Recording], *, t_ref: str | float = "start",
+def split_spec(inputs: Sequence[str], train: Sequence[Recording], *, t_ref: str | float = "start",
               window_min: float = 10.0, gap_s: str | float | None = "auto",
               reference_for_targets: bool = False) -> FeatureSpec:
-    """The feature spec of a fold: references and gap limit from its training runs.
+    """The feature spec of a split: references and gap limit from its training runs.
 
     ``reference_for_targets``: compute :math:`T_{ref}` also for a model on the absolute
     temperature alone (``T``) — a comparison's at-t-ref targets are normalised there.
@@ -53,8 +61,8 @@ def fold_spec(inputs: Sequence[str], train: Sequence[Recording], *, t_ref: str |
 
 
 @dataclass
-class FoldParts:
-    """The parts of one fold: training parts, the validation part (or None) and the test
+class SplitParts:
+    """The parts of one split: training parts, the validation part (or None) and the test
     part (or None)."""
 
     spec: FeatureSpec
@@ -63,11 +71,11 @@ class FoldParts:
     test: Part | None = None
 
 
-def fold_parts(spec: FeatureSpec, train: Sequence[Recording], *, outputs: list[str],
+def split_parts(spec: FeatureSpec, train: Sequence[Recording], *, outputs: list[str],
                target: Target | str, val: Recording | None = None,
                test: Recording | None = None, train_on: str = "all",
                gap_s: str | float | None = "auto", part: PartBuilder | None = None
-               ) -> FoldParts:
+               ) -> SplitParts:
     """Each run's part for ``spec``; with ``train_on == "heating"`` the training parts keep
     the samples where the temperature is not falling (its rate's gap limit from
     ``gap_s``, the configured setting, as the dynamic inputs')."""
@@ -80,24 +88,22 @@ def fold_parts(spec: FeatureSpec, train: Sequence[Recording], *, outputs: list[s
     if train_on == "heating":
         heat_gap = resolve_gap_s(gap_s, train, ["rate"])
         train_parts = [heating_only(q, r, heat_gap) for q, r in zip(train_parts, train, strict=True)]
-    return FoldParts(spec=spec, train=train_parts,
+    return SplitParts(spec=spec, train=train_parts,
                      val=part(val, spec.signals, gap) if val is not None else None,
                      test=part(test, spec.signals, gap) if test is not None else None)
 
 
-def fit_fold(parts: FoldParts, *, family: str, outputs: list[str], hyper: dict | None,
+def fit_split(parts: SplitParts, *, family: str, outputs: list[str], hyper: dict | None,
              config: TrainConfig, target_modes: Sequence[str] | None = None,
              on_epoch: Callable[[int, float, float | None], None] | None = None,
              val: tuple[np.ndarray, ...] | None = None, windows: bool = True) -> Any:
-    """Fit ``family`` on a fold's training parts, stopping early on its validation part
+    """Fit ``family`` on a split's training parts, stopping early on its validation part
     (or on ``val``, arrays given whole); returns the :class:`~thermonet.training.train.FitResult`.
 
     ``windows``: each part goes with its time, averaged into ``config.average_s`` windows
     (once per part and window length); False gives the arrays without time, so the fit
     thins them to its sample budget instead (the fleet's pooled model).
     """
-    from .train import fit
-
     spec = parts.spec
     if windows:
         avg = config.average_s
@@ -123,8 +129,6 @@ def per_soak_metrics(k: np.ndarray, pred: np.ndarray, temps: np.ndarray, scale: 
     is K1 − K̂1(T) (+ mean(K1) for the ppm/°C coefficient, which needs the
     nominal scale factor in its denominator).
     """
-    from ..scoring.metrics import rms, scale_factor_tempco_ppm_per_c
-
     nominal = float(np.mean(k)) if scale else 0.0
     raw, comp = k - nominal, k - pred
     m = {"rms_raw": rms(raw), "rms_comp": rms(comp), "pp_raw": float(np.ptp(raw)),
@@ -148,8 +152,6 @@ def residual_spread(model: Any, part: Part) -> np.ndarray | None:
     that moves inside a window with the temperature (a fast ramp, a low-noise sensor) is
     thus taken out of the residual as the model takes it out of the samples.
     """
-    from .train import predict
-
     if part.within_ss is None or part.weight is None:
         return None
     if part.within_sxx is None or part.within_sxy is None:
@@ -175,9 +177,6 @@ def score_part(model: Any, part: Part, spread: np.ndarray | None = None
                ) -> tuple[np.ndarray, dict[str, dict[str, float]]]:
     """The model's predicted drift on a held-out part and the per-axis metrics (``spread``:
     :func:`residual_spread` of the part, where the caller has it already)."""
-    from ..scoring.metrics import axis_metrics, window_axis_metrics
-    from .train import predict
-
     pred = predict(model, part.signals, part.time_s)
     if spread is None:
         spread = residual_spread(model, part)
@@ -209,8 +208,6 @@ def block_sums(part: Part, pred: np.ndarray, spread: np.ndarray | None = None) -
     raw error = the target, residual = target − drift (of a part of window means: the
     residual's spread inside each row is ``spread``, the model's :func:`residual_spread`;
     the target's own without it)."""
-    from ..scoring.verdicts import block_labels, block_stats
-
     raw = part.target.copy()
     for j in range(len(part.outputs)):
         if part.offset_free(j):  # a scale factor's nominal value, gravity (at-t-ref): no error
