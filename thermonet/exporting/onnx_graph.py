@@ -37,12 +37,12 @@ import numpy as np
 import torch
 
 from ..models import DriftModel
+from ..models.base import output_layer
 from ..models.composite import AxisModels, ShippedModel
 from ..models.linear import Linear
 from ..models.lorentz import Lorentz
 from ..models.poly import Poly
 from ..models.rbf import RBF
-from ..models.base import output_layer
 
 __all__ = ["DIRECT", "direct_supported", "direct_proto"]
 
