@@ -445,7 +445,7 @@ def export_c_header(model: ShippedModel, path: str | Path, *, prefix: str = "the
     # both arithmetic paths: the host's double and the float path a single-precision
     # microcontroller compiles (-DTHERMONET_USE_FLOAT: float outputs, fast exp)
     for real in ("auto", "float"):
-        if recurrent:  # state, stream
+        if isinstance(model, DriftModel) and recurrent:  # state, stream
             checks += [partial(c_step_parity_check, model, text, prefix=prefix, real=real),
                        partial(check_recurrent_stream, model, text, prefix=prefix, real=real)]
         else:  # batch, and step(): dynamic inputs in C
