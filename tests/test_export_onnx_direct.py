@@ -210,3 +210,30 @@ def test_a_wrong_direct_graph_is_never_written(models, tmp_path, monkeypatch):
     with pytest.raises(ExportError, match="parity check failed"):
         export_onnx(models["linear"], target)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_exporting_loads_only_what_it_uses(models, tmp_path):
+    """``thermonet export`` of a per-axis model of closed-form families, to ONNX and to C, in a
+    fresh process: torch (the checkpoint), onnx and onnxruntime (the parity check) load;
+    torch's exporter (torch.onnx, torch._dynamo, onnxscript), MLflow (no run to log to),
+    scikit-learn and scipy.stats do not."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from thermonet.training.checkpoint import save_checkpoint
+
+    ckpt = save_checkpoint(tmp_path / "per-axis.pt", models["per-axis"], config={})
+    code = ("import sys\nfrom thermonet.cli import main\n"
+            f"assert main(['export', {str(ckpt)!r}, '--format', 'onnx', '--out', "
+            f"{str(tmp_path / 'm.onnx')!r}]) == 0\n"
+            f"assert main(['export', {str(ckpt)!r}, '--format', 'c', '--out', "
+            f"{str(tmp_path / 'm.h')!r}]) == 0\n"
+            "print(sorted(m for m in ('torch', 'onnx', 'onnxruntime', 'torch.onnx', "
+            "'torch._dynamo', 'onnxscript', 'mlflow', 'sklearn', 'scipy.stats') "
+            "if m in sys.modules))")
+    root = Path(__file__).resolve().parent.parent
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root)
+    assert out.returncode == 0, out.stderr[-500:]
+    assert out.stdout.strip().splitlines()[-1] == str(["onnx", "onnxruntime", "torch"])
+    assert _meta(tmp_path / "m.onnx")["exporter"] == "direct"
