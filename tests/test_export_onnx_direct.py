@@ -74,6 +74,7 @@ SINGLE = {
     "rbf-tail": ("rbf", ["dT", "dT2"], {"n_centres": 8, "tail": 3}),
     "rbf": ("rbf", ["dT"], {"n_centres": 6}),
     "lorentz": ("lorentz", ["dT"], {}),
+    "ts-fuzzy": ("ts-fuzzy", ["dT"], {"n_sets": 4}),
 }
 
 
@@ -87,6 +88,8 @@ def models():
                                  ["lorentz", "poly3-hyst", "linear"]).eval()
     out["per-axis-raw"] = AxisModels([copy.deepcopy(out[k]) for k in ("rbf-tail", "poly3-rate")],
                                      [1, None, 0], ["rbf-tail", "poly3-rate"]).eval()
+    out["per-axis-fuzzy"] = AxisModels([copy.deepcopy(out[k]) for k in ("ts-fuzzy", "cubic")],
+                                       [0, 1, 0], ["ts-fuzzy", "cubic"]).eval()
     # a large float64 constant and an axis relative to the reference temperature
     big = copy.deepcopy(out["cubic"])
     big.set_target(modes=["channel", "at-t-ref", "zero"], offset=np.array([1e6, 0.0, 4517.0]),
@@ -120,7 +123,7 @@ def _meta(path) -> dict[str, str]:
     return {p.key: p.value for p in onnx.load(str(path)).metadata_props}
 
 
-CASES = [*SINGLE, "per-axis", "per-axis-raw", "cubic-offset-at-t-ref"]
+CASES = [*SINGLE, "per-axis", "per-axis-raw", "per-axis-fuzzy", "cubic-offset-at-t-ref"]
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -179,18 +182,18 @@ def test_dynamic_batch_and_empty_batch(models, tmp_path):
 
 
 def test_families_without_a_direct_graph_use_torch(tmp_path):
-    fuzzy = _fit("ts-fuzzy", ["dT"], {"n_sets": 3})
-    assert "ts-fuzzy" in (direct_supported(fuzzy) or "")
-    path = export_onnx(fuzzy, tmp_path / "f.onnx")
+    mlp = _fit("mlp", ["dT"])
+    assert "mlp" in (direct_supported(mlp) or "")
+    path = export_onnx(mlp, tmp_path / "f.onnx")
     assert _meta(path)["exporter"] == "dynamo"
     target = tmp_path / "d.onnx"
-    with pytest.raises(ExportError, match="no direct ONNX graph.*ts-fuzzy"):
-        export_onnx(fuzzy, target, exporter="direct")
+    with pytest.raises(ExportError, match="no direct ONNX graph.*mlp"):
+        export_onnx(mlp, target, exporter="direct")
     assert not target.exists()
     # a per-axis model with such a part goes through torch as a whole
     lin = _fit("linear", ["dT"])
-    mixed = AxisModels([lin, copy.deepcopy(fuzzy)], [0, 1, None], ["linear", "ts-fuzzy"])
-    assert "ts-fuzzy" in (direct_supported(mixed) or "")
+    mixed = AxisModels([lin, copy.deepcopy(mlp)], [0, 1, None], ["linear", "mlp"])
+    assert "mlp" in (direct_supported(mixed) or "")
     # a float64 copy computes in float64: torch's exporter writes what it computes
     assert "float32" in (direct_supported(copy.deepcopy(lin).double()) or "")
 

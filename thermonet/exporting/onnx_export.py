@@ -25,7 +25,7 @@ drift and the compensated output are then NaN, so a broken thermometer can
 never yield a plausible-looking correction).
 
 Exporter.  The families that ship most (linear, poly — dynamic inputs included —, rbf,
-lorentz, and per-axis models of them) are written node by node from their parameters
+lorentz, ts-fuzzy, and per-axis models of them) are written node by node from their parameters
 (:mod:`thermonet.exporting.onnx_graph`, ``exporter`` ``direct``: no trace, the same
 operations torch's exporter writes; a fraction of a second instead of three).  Every other
 family goes through torch: its 2.13 default ``torch.export``-based exporter (``dynamo=True``,
@@ -452,8 +452,8 @@ def export_onnx(model: ShippedModel, path: str | Path, *, metadata: Mapping[str,
         Run :func:`parity_check` before the file is moved into place.
     exporter : {"auto", "direct", "dynamo", "torchscript"}
         ``auto``: the graph built directly from the parameters where every family has one
-        (:mod:`thermonet.exporting.onnx_graph`: linear, poly, rbf, lorentz and per-axis
-        models of them), else the dynamo exporter, then the TorchScript one.  ``direct``
+        (:mod:`thermonet.exporting.onnx_graph`: linear, poly, rbf, lorentz, ts-fuzzy and
+        per-axis models of them), else the dynamo exporter, then the TorchScript one.  ``direct``
         refuses a model without a direct graph.  ``metadata_props['exporter']`` says which
         wrote the file; every one passes the same parity check.
     seed : int

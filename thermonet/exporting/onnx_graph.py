@@ -3,7 +3,7 @@
 torch's exporter traces the model (``torch.export``, decompositions, onnxscript's optimiser):
 about three seconds of a four-second ``thermonet export --format onnx``, for graphs of a dozen
 nodes.  The families that ship most — ``linear``, ``poly`` (on ΔT or with dynamic inputs:
-``poly3-rate``, ``poly3-hyst``), ``rbf`` (with or without its polynomial tail), ``lorentz`` —
+``poly3-rate``, ``poly3-hyst``), ``rbf`` (with or without its polynomial tail), ``lorentz``, ``ts-fuzzy`` —
 and the per-axis composite of them (:class:`~thermonet.models.composite.AxisModels`) are
 written here directly from the model's parameters, with the operations of the graph torch's
 exporter writes for the same model, in the same order:
@@ -14,13 +14,14 @@ exporter writes for the same model, in the same order:
   ``Mul`` the float32 ``1/std``), the NaN term added to the first;
 * the family's :meth:`~thermonet.models.base.Family.drift`, axis-major (A, N): one ``Gemm``
   (linear, poly — the terms by repeated ``Mul``; rbf — after ``MatMul`` and ``Exp`` of the
-  expanded exponent), or the Lorentz curve's ``Sub``, ``Mul``, ``Add``, ``Div``;
+  expanded exponent), the Lorentz curve's ``Sub``, ``Mul``, ``Add``, ``Div``, or the fuzzy
+  model's triangular memberships (``Clip``, ``Abs``, ``Relu``) and normalised ``MatMul``;
 * :class:`~thermonet.exporting.onnx_export.CompensatorGraph`: ``Cast`` to float64, ``Add`` the
   float64 constant, ``Transpose`` to (N, A), ``raw − drift``.
 
 Every constant is computed by torch from the parameters exactly as the model computes it
 (:func:`~thermonet.models.base.output_layer`, :meth:`DriftModel.output_scaling`,
-:meth:`RBF.exponent`, :meth:`Lorentz.output_form`), so the file holds the numbers torch's
+:meth:`RBF.exponent`, :meth:`Lorentz.output_form`, :meth:`TSFuzzy.rules`), so the file holds the numbers torch's
 exporter would have folded.  A family not listed here, a subclass (it may override
 ``drift``), or a model not in float32 has no direct graph (:func:`direct_supported` says
 why); ``export_onnx`` then uses torch's exporter.  Every file, direct or traced, passes the
@@ -37,8 +38,9 @@ import numpy as np
 import torch
 
 from ..models import DriftModel
-from ..models.base import output_layer
+from ..models.base import TINY, output_layer
 from ..models.composite import AxisModels, ShippedModel
+from ..models.fuzzy import TSFuzzy
 from ..models.linear import Linear
 from ..models.lorentz import Lorentz
 from ..models.poly import Poly
@@ -156,9 +158,26 @@ def _lorentz(g: _Graph, fam: Lorentz, z: list[str], scale: torch.Tensor, shift: 
                 g.op("Div", g.const(_column(k), "lor_k"), den))
 
 
+def _fuzzy(g: _Graph, fam: TSFuzzy, z: list[str], scale: torch.Tensor, shift: torch.Tensor
+           ) -> str:
+    # TSFuzzy.drift: x = clip(z_1), λ = relu(1 − |x/s − p/s|) (n_sets, N), u = [λ, λx],
+    # rules · u / (max(Σλ, tiny) + (z_1 − z_1))
+    x = g.op("Clip", z[0], g.const(fam.bounds[0], "fz_lo"), g.const(fam.bounds[1], "fz_hi"))
+    inv = 1.0 / torch.clamp(fam.spacing, min=TINY)
+    dist = g.op("Abs", g.op("Sub", g.op("Mul", x, g.const(inv[0], "fz_inv")),
+                            g.const((fam.peaks * inv)[:, None], "fz_peaks")))
+    lam = g.op("Relu", g.op("Sub", g.const(np.array(1.0), "one"), dist))
+    u = g.op("Concat", lam, g.op("Mul", lam, x), axis=0)
+    total = g.op("Add", g.op("Clip", g.op("ReduceSum", lam, g.const(np.array([0]), "axis0",
+                                                                   np.int64), keepdims=0),
+                             g.const(np.array(TINY), "tiny")),
+                 g.op("Sub", z[0], z[0]))
+    return g.op("Div", g.op("MatMul", g.const(fam.rules(scale, shift), "fz_rules"), u), total)
+
+
 #: The families with a direct graph, by exact type (a subclass may override ``drift``).
 _FAMILIES: dict[type, Callable[..., str]] = {Linear: _linear, Poly: _poly, RBF: _rbf,
-                                             Lorentz: _lorentz}
+                                             Lorentz: _lorentz, TSFuzzy: _fuzzy}
 
 
 def _part_unsupported(model: DriftModel) -> str | None:
@@ -175,7 +194,7 @@ def _part_unsupported(model: DriftModel) -> str | None:
 
 def direct_supported(model: ShippedModel) -> str | None:
     """Why ``model`` has no direct graph (None when it has one: every part's family is
-    ``linear``, ``poly``, ``rbf`` or ``lorentz``, in float32)."""
+    ``linear``, ``poly``, ``rbf``, ``lorentz`` or ``ts-fuzzy``, in float32)."""
     parts = list(model.parts) if isinstance(model, AxisModels) else [model]
     for p in parts:
         if not isinstance(p, DriftModel):
