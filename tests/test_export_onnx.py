@@ -208,6 +208,7 @@ def test_torchscript_exporter_gives_same_numbers(exported, tmp_path):
 def test_log_to_mlflow_sqlite(exported, tmp_path):
     import mlflow
     import mlflow.onnx
+    import mlflow.pyfunc
 
     _, path = exported["linear"]
     uri = f"sqlite:///{tmp_path}/mlflow.db"
@@ -223,6 +224,18 @@ def test_log_to_mlflow_sqlite(exported, tmp_path):
     finally:
         mlflow.set_tracking_uri(None)
     assert {p.key: p.value for p in loaded.metadata_props}["family"] == "linear"
+    # the requirements are the ones given (never inferred by loading the model in a
+    # subprocess): MLflow's own pin, then onnx, onnxruntime and numpy at their installed versions
+    from importlib.metadata import version
+
+    mlflow.set_tracking_uri(uri)
+    try:
+        req = mlflow.pyfunc.get_model_dependencies(f"runs:/{run.info.run_id}/model")
+    finally:
+        mlflow.set_tracking_uri(None)
+    lines = [ln for ln in open(req).read().splitlines() if ln.strip()]
+    assert lines[1:] == [f"{n}=={version(n)}" for n in ("onnx", "onnxruntime", "numpy")]
+    assert lines[0].startswith("mlflow")
 
 
 def test_parity_check_catches_a_graph_without_the_clamp(tmp_path):

@@ -61,7 +61,8 @@ largest drift): only summation order and ``expf`` rounding differ.
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -434,20 +435,41 @@ def export_c_header(model: ShippedModel, path: str | Path, *, prefix: str = "the
     written as constants with ``<prefix>_band()`` (:mod:`.c_band`), checked against Python.
     """
     text = render_c_header(model, prefix=prefix)
+    checks: list[Callable[[], object]] = []
     if band is not None:
         from .c_band import check_band_c, insert_band
 
         text = insert_band(text, band, prefix, list(model.outputs), list(model.signals))
-        if check:
-            check_band_c(band, text, prefix)
+        checks.append(partial(check_band_c, band, text, prefix))
+    recurrent = isinstance(model, DriftModel) and model.family.recurrent
+    # both arithmetic paths: the host's double and the float path a single-precision
+    # microcontroller compiles (-DTHERMONET_USE_FLOAT: float outputs, fast exp)
+    for real in ("auto", "float"):
+        if isinstance(model, DriftModel) and recurrent:  # state, stream
+            checks += [partial(c_step_parity_check, model, text, prefix=prefix, real=real),
+                       partial(check_recurrent_stream, model, text, prefix=prefix, real=real)]
+        else:  # batch, and step(): dynamic inputs in C
+            checks += [partial(c_parity_check, model, text, prefix=prefix, real=real),
+                       partial(check_stream, model, text, prefix=prefix, real=real)]
     if check:
-        # both arithmetic paths: the host's double and the float path a single-precision
-        # microcontroller compiles (-DTHERMONET_USE_FLOAT: float outputs, fast exp)
-        for real in ("auto", "float"):
-            if isinstance(model, DriftModel) and model.family.recurrent:  # state, stream
-                c_step_parity_check(model, text, prefix=prefix, real=real)
-                check_recurrent_stream(model, text, prefix=prefix, real=real)
-                continue
-            c_parity_check(model, text, prefix=prefix, real=real)
-            check_stream(model, text, prefix=prefix, real=real)  # step(): dynamic inputs in C
+        _run_checks(checks, parallel=not recurrent)
     return atomic_write_text(path, text)
+
+
+def _run_checks(checks: list[Callable[[], object]], *, parallel: bool) -> None:
+    """Run every check; raise the first failure in list order.
+
+    Each check spends most of its time waiting for the C compiler and its driver (separate
+    processes), so the checks of a point-wise model run side by side in threads (their torch
+    evaluations only read the model); a recurrent model's run one after the other.
+    """
+    if not parallel or len(checks) < 2:
+        for run in checks:
+            run()
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=min(len(checks), 4)) as pool:
+        futures = [pool.submit(run) for run in checks]
+        for f in futures:  # the first failure in list order, as a serial run would report
+            f.result()
