@@ -94,7 +94,7 @@ def _with_keywords(family: Any, hyper: dict[str, Any]) -> Any:
         return _FamilyKeywords(family, dict(hyper))
 
 
-class DriftEstimator(BaseEstimator):  # type: ignore[misc]
+class DriftEstimator(BaseEstimator):
     """One model family fitted to drift vs temperature (or a proxy), scikit-learn style.
 
     Every argument is a keyword the estimator stores as given (``get_params``,
@@ -257,7 +257,7 @@ average_s, threads
                         f"{', '.join(valid) if isinstance(fam, FamilySpec) else 'none'})")
             params = {**{k: v for k, v in params.items() if k not in nested},
                       "family": fam, **{f"family__{k}": v for k, v in nested.items()}}
-        return super().set_params(**params)  # type: ignore[no-any-return]
+        return super().set_params(**params)
 
     def __sklearn_tags__(self) -> Any:
         """scikit-learn's tags: a regressor whose ``X`` is recordings and that needs no ``y``."""
@@ -306,8 +306,8 @@ average_s, threads
             return fam
         name, params = (fam.name, fam.params) if isinstance(fam, _FamilyKeywords) else (fam, {})
         if not isinstance(name, str):
-            raise ArgumentTypeError(f"family: expected a family spec such as Poly(degree=3) or "
-                                    f"a name such as 'poly', got {name!r} "
+            raise ArgumentTypeError(f"family: expected a family name such as 'poly' or a spec "
+                                    f"such as Poly(degree=3), got {name!r} "
                                     f"({type(name).__name__})")
         if "rate_window_s" in params:
             raise ConfigError("rate_window_s was removed: 'rate' is a causal filtered derivative "
@@ -357,12 +357,10 @@ average_s, threads
         return config, inputs, spec
 
     def _outputs_for(self, runs: list[Recording]) -> list[str]:
-        from ..training.parts import FOURPOS_SUFFIXES
+        from ..features.target import modelled_outputs
 
-        axes = names_of(self.outputs, "outputs") or list(runs[0].axes)
-        if self.target == "four-position":
-            return [f"{a}{s}" for a in axes for s in FOURPOS_SUFFIXES]
-        return axes
+        return modelled_outputs(names_of(self.outputs, "outputs") or list(runs[0].axes),
+                                self.target)
 
     def fit(self, train: Data, val: Data | None = None, *, track: bool = False,
             tracking_uri: str | None = None, experiment: str = "thermonet") -> DriftEstimator:
@@ -409,6 +407,7 @@ average_s, threads
         FitError
             The data cannot carry the family (reason given).
         """
+        from ..features.target import output_units
         from ..training.fold import fit_fold, fold_parts, fold_spec
         from ..training.parts import fit_arrays, targets_for
         from ..training.splits import stack_blocks
@@ -456,9 +455,7 @@ average_s, threads
         self.targets_: Target = targets
         self.n_features_in_: int = len(spec.inputs)
         self.outputs_: list[str] = outputs
-        self.units_: dict[str, str] = {o: ("1" if o.endswith(".scale")
-                                           else runs[0].units.get(o.split(".")[0], ""))
-                                       for o in outputs}
+        self.units_: dict[str, str] = output_units(outputs, runs[0].units)
         self.signal_units_: dict[str, str] = {p: runs[0].units.get(p, "")
                                               for p in runs[0].proxies}
         self.device_id_: str = runs[0].device_id

@@ -167,9 +167,11 @@ def track(est: DriftEstimator, uri: str | None, experiment: str) -> None:
     from ..tracking import Tracker
 
     tracker = Tracker(enabled=True, uri=uri, experiment=experiment)
-    params = json.loads(json.dumps({k: v for k, v in est.get_params().items()
+    # the family by name and its hyper-parameters by their own names, as compare logs them
+    name, hyper = _family_of(est)
+    own = {k: v for k, v in est.get_params(deep=False).items() if k != "family"}
+    params = json.loads(json.dumps({k: v for k, v in {"family": name, **own, **hyper}.items()
                                     if v is not None}, default=repr))
-    name = _family_of(est)[0]
     tags = {"device": est.device_id_, "data_hash": est.data_source_["data_hash"],
             "family": name, "source": "thermonet.api"}
     with tracker.run(f"fit-{name}", params=params, tags=tags) as run_id:

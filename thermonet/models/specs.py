@@ -94,7 +94,7 @@ class FamilySpec:
         return dict(self.get_params())
 
     def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and self.get_params() == other.get_params()  # type: ignore[attr-defined]
+        return type(other) is type(self) and self.get_params() == other.get_params()
 
     __hash__ = None  # type: ignore[assignment]  # mutable, as a scikit-learn estimator
 
@@ -127,7 +127,7 @@ class FamilySpec:
         obj: Any = importlib.import_module(module)
         for part in attr.split("."):
             obj = getattr(obj, part)
-        return obj  # type: ignore[no-any-return]
+        return obj
 
     def build(self, *, n_inputs: int, n_outputs: int) -> Family:
         """The torch module for ``n_inputs`` inputs and ``n_outputs`` outputs (imports torch

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.recording import Dataset
-from ..features.target import Target
+from ..features.target import Target, output_units
 from ..training.config import (
     CompareConfig,
     outputs_of,
@@ -175,10 +175,7 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
     targets = targets_for(ds, cfg.target, outputs, source=source)
     splits = make_splits(ds, cfg.split, source=source)
     _check_training_spans(splits, source)
-    units = {o: ds[0].units.get(o.split(".")[0], "") for o in outputs}
-    for o in outputs:
-        if o.endswith(".scale"):
-            units[o] = "1"
+    units = output_units(outputs, ds[0].units)
     from ..features.dynamics import RATE_TAU_S, input_set_warnings
 
     warns = input_warnings(ds, signals=signals, rate_window_s=RATE_TAU_S)
