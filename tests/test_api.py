@@ -19,8 +19,8 @@ from thermonet.api import NotFittedError
 from thermonet.core.errors import ConfigError
 from thermonet.exporting import FORMATS, ExportFormat, register_format
 from thermonet.models import MODELS
-from thermonet.models.specs import Poly
 from thermonet.models.base import Family, as_numpy, least_squares
+from thermonet.models.specs import Poly
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sklearn.base import BaseEstimator
+from sklearn.exceptions import NotFittedError as SklearnNotFittedError
 
 from ..core.errors import ConfigError, ThermonetError
 from ..core.recording import Dataset, Recording
@@ -50,8 +51,9 @@ _OWN = ("family", "inputs", "t_ref", "target", "outputs", "train_on", "gap_s",
 _TRAIN_KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig))
 
 
-class NotFittedError(ThermonetError, AttributeError):
-    """``predict``/``compensate``/``score``/``save``/``export`` before ``fit``."""
+class NotFittedError(ThermonetError, SklearnNotFittedError):
+    """``predict``/``compensate``/``score``/``save``/``export`` before ``fit`` (scikit-learn's
+    ``NotFittedError`` too, so an ``AttributeError`` and a ``ValueError``)."""
 
 
 class _FamilyKeywords:
@@ -236,25 +238,28 @@ average_s, threads
         """scikit-learn's ``set_params``; returns ``self``.  A family given by name becomes its
         spec with the defaults where a nested ``family__<name>`` is set; a bare hyper-parameter
         name (``degree``, what a grid ``{"degree": [...]}`` sets) is read as
-        ``family__degree``.  A name that is neither is one error naming the valid ones."""
+        ``family__degree``.  A name that is neither, for a family spec, is one error naming the
+        valid ones; a family that is no spec (an unknown name, a value of the wrong type) keeps
+        the names as given, as the constructor does, and :meth:`fit` refuses it."""
         from ..models.registry import spec_of
 
         own = _OWN + _TRAIN_KEYS
         fam = params.get("family", self.family)
         nested = {k: v for k, v in params.items() if k.partition("__")[0] not in own}
         if nested or any(k.startswith("family__") for k in params):
-            if isinstance(fam, str):
+            if not isinstance(fam, FamilySpec | _FamilyKeywords):
                 try:
                     fam = spec_of(fam)
-                except ConfigError as err:
-                    raise ConfigError(f"set_params: {err}") from None
-            valid = fam.get_params() if isinstance(fam, FamilySpec | _FamilyKeywords) else {}
-            for key in nested:
-                if key not in valid or isinstance(fam, _FamilyKeywords):
-                    raise ConfigError(
-                        f"set_params: {key!r} is not a parameter of DriftEstimator({fam!r}) "
-                        f"(its own: {', '.join(own)}; the family's, as family__<name>: "
-                        f"{', '.join(valid) if isinstance(fam, FamilySpec) else 'none'})")
+                except ConfigError:
+                    fam = _FamilyKeywords(fam, {})
+            if isinstance(fam, FamilySpec):
+                valid = fam.get_params()
+                for key in nested:
+                    if key not in valid:
+                        raise ConfigError(
+                            f"set_params: {key!r} is not a parameter of DriftEstimator({fam!r}) "
+                            f"(its own: {', '.join(own)}; the family's, as family__<name>: "
+                            f"{', '.join(valid) or 'none'})")
             params = {**{k: v for k, v in params.items() if k not in nested},
                       "family": fam, **{f"family__{k}": v for k, v in nested.items()}}
         return super().set_params(**params)
