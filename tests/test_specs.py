@@ -248,3 +248,37 @@ def test_fit_keeps_scikit_learns_rules_on_recordings():
     # the toy drift is quadratic: degree 2 wins, and the refitted spec says so
     assert search.best_params_ == {"family__degree": 2}
     assert search.best_estimator_.family == Poly(degree=2)
+
+
+# ------------------------------------------------------------- one registry shape
+def test_every_registry_is_a_dict_and_one_register_function(monkeypatch):
+    """Families, split strategies, export formats and dynamic inputs: a dict by name and one
+    register function that refuses a name taken twice; what is registered is found by name."""
+    from thermonet.exporting import FORMATS, ExportFormat, register_format
+    from thermonet.features import dynamics
+    from thermonet.training.splits import SPLITS, register_split
+
+    with pytest.raises(ValueError, match="already registered"):
+        registry.register_family(Poly)
+    with pytest.raises(ValueError, match="already registered"):
+        register_split("runs")(lambda runs, cfg, source: [])
+    with pytest.raises(ValueError):
+        register_format(ExportFormat("onnx", "again", "x:y"))
+    with pytest.raises(ValueError, match="already registered"):
+        dynamics.register_input(dynamics.Lag)
+    assert {"poly", "gru"} <= set(registry.FAMILIES) and "runs" in SPLITS and "onnx" in FORMATS
+    assert set(dynamics.INPUTS) == {"rate", "lag", "play"}
+    # a new kind of dynamic input: registered, its names parse (with the constant required)
+    monkeypatch.setattr(dynamics, "INPUTS", dict(dynamics.INPUTS))
+
+    class Slow(dynamics.Lag):
+        kind = "slow"
+
+    dynamics.register_input(Slow)
+    got = dynamics.parse_dynamic("slow_600")
+    assert isinstance(got, Slow) and got.name == "slow_600"
+    assert dynamics.parse_dynamic("slow") is None and dynamics.parse_dynamic("slowly") is None
+    rate = dynamics.parse_dynamic("rate")
+    assert isinstance(rate, dynamics.Rate) and rate.constants()["name"] == "rate"
+    with pytest.raises(ConfigError, match="positive"):
+        dynamics.parse_dynamic("lag_0")
