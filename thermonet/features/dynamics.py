@@ -217,9 +217,9 @@ def parse_dynamic(name: str) -> DynamicInput | None:
         return None
     cls, default = entry
     if not sep:
-        return cls(name, default) if default is not None else None
+        return cls(name, **{cls.param_key: default}) if default is not None else None
     m = _CONSTANT.match(text)
-    return cls(name, _positive(name, m.group(1))) if m else None
+    return cls(name, **{cls.param_key: _positive(name, m.group(1))}) if m else None
 
 
 def is_dynamic(name: str) -> bool:
