@@ -23,7 +23,8 @@ The estimator (:mod:`thermonet.api.estimator`)
     and feature settings and every field of :class:`~thermonet.TrainConfig` as a keyword of
     its own (``seed=3``, ``max_epochs=50``) — all listed by ``get_params()`` (the family's
     hyper-parameters nested: ``family__degree``), set by ``set_params()``, copied by
-    :func:`sklearn.base.clone`; the estimator is a scikit-learn ``BaseEstimator``.  :meth:`~DriftEstimator.fit` checks them (an error names the
+    :func:`sklearn.base.clone` (scikit-learn's ``BaseEstimator`` protocol, without importing
+    scikit-learn: :mod:`thermonet.core.params`).  :meth:`~DriftEstimator.fit` checks them (an error names the
     argument and value), resolves the feature references from the training runs, builds each
     run's signals and targets and fits through the one fold pipeline
     (:mod:`thermonet.training.fold`, what ``compare`` runs), with the targets resolved as

@@ -11,10 +11,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sklearn.base import BaseEstimator
-from sklearn.exceptions import NotFittedError as SklearnNotFittedError
 
 from ..core.errors import ConfigError, ThermonetError
+from ..core.params import Params
 from ..core.recording import Dataset, Recording
 from ..core.trainconfig import TrainConfig
 from ..models.specs import FamilySpec
@@ -51,9 +50,8 @@ _OWN = ("family", "inputs", "t_ref", "target", "outputs", "train_on", "gap_s",
 _TRAIN_KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig))
 
 
-class NotFittedError(ThermonetError, SklearnNotFittedError):
-    """``predict``/``compensate``/``score``/``save``/``export`` before ``fit`` (scikit-learn's
-    ``NotFittedError`` too, so an ``AttributeError`` and a ``ValueError``)."""
+class NotFittedError(ThermonetError, AttributeError):
+    """``predict``/``compensate``/``score``/``save``/``export`` before ``fit``."""
 
 
 class _FamilyKeywords:
@@ -96,13 +94,14 @@ def _with_keywords(family: Any, hyper: dict[str, Any]) -> Any:
         return _FamilyKeywords(family, dict(hyper))
 
 
-class DriftEstimator(BaseEstimator):
+class DriftEstimator(Params):
     """One model family fitted to drift vs temperature (or a proxy), scikit-learn style.
 
     Every argument is a keyword the estimator stores as given (``get_params``,
-    ``set_params`` and :func:`sklearn.base.clone` see all of them, scikit-learn's own
-    :class:`~sklearn.base.BaseEstimator` protocol: the family spec's hyper-parameters are
-    the nested ``family__<name>``); :meth:`fit` checks them and names the argument at fault.
+    ``set_params`` and :func:`sklearn.base.clone` see all of them: scikit-learn's
+    ``BaseEstimator`` protocol, :class:`thermonet.core.params.Params`, without importing
+    scikit-learn; the family spec's hyper-parameters are the nested ``family__<name>``);
+    :meth:`fit` checks them and names the argument at fault.
 
     Parameters
     ----------
@@ -200,7 +199,7 @@ average_s, threads
     fit_seconds_ : float
     """
 
-    def __init__(self, family: str, inputs: Sequence[str] | str | None = None, *,
+    def __init__(self, family: FamilySpec | str, inputs: Sequence[str] | str | None = None, *,
                  t_ref: str | float = "start", target: str = "drift",
                  outputs: Sequence[str] | str | None = None, train_on: str = "all",
                  gap_s: float | str = "auto", t_ref_window_min: float = 10.0,

@@ -100,8 +100,8 @@ def _plugins() -> dict[str, EntryPoint]:
 
 def family_names() -> list[str]:
     """Every registered family's name: the built-ins, then the installed plug-ins."""
-    if _MODELS is not None:
-        return list(_MODELS)
+    if _MODELS is not None:   # the dict of classes, and any family registered after it was made
+        return [*_MODELS, *(k for k in FAMILIES if k not in _MODELS)]
     return [*FAMILIES, *_plugins()]
 
 
@@ -139,10 +139,10 @@ def _unknown(name: Any) -> ConfigError:
 
 
 def _target(name: str) -> str:
-    if isinstance(name, str) and _MODELS is None:
+    if isinstance(name, str):
         if name in FAMILIES:
             return FAMILIES[name].target
-        ep = _plugins().get(name)
+        ep = _plugins().get(name) if _MODELS is None else None
         if ep is not None:
             return str(ep.value)
     raise _unknown(name)
@@ -157,11 +157,8 @@ def get_family(name: str) -> type[Family]:
         (a ``ValueError``) naming the valid families; or naming a plug-in whose entry point
         does not load or is not a :class:`~thermonet.models.Family` subclass.
     """
-    if _MODELS is not None:
-        try:
-            return _MODELS[name]
-        except (KeyError, TypeError):
-            raise _unknown(name) from None
+    if _MODELS is not None and isinstance(name, str) and name in _MODELS:
+        return _MODELS[name]
     target = _target(name)          # an unknown name is refused before torch loads
     from .base import Family
 
@@ -211,8 +208,8 @@ _GENERIC: dict[tuple[str, type], type[FamilySpec]] = {}
 def spec_class(name: str) -> type[FamilySpec]:
     """The spec class of family ``name``: a built-in's without importing anything; a
     plug-in's made from its imported class's constructor (a failure is one line naming it)."""
-    if _MODELS is not None:
-        cls = get_family(name)
+    if _MODELS is not None and isinstance(name, str) and name in _MODELS:
+        cls = _MODELS[name]
         own = FAMILIES.get(name)
         if own is not None and own.target == f"{cls.__module__}:{cls.__qualname__}":
             return own
