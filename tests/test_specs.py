@@ -205,6 +205,19 @@ def test_register_family_is_the_one_way_in(monkeypatch):
     assert registry.make_spec("cubic-only", {"degree": 2}) == Cubic(degree=2)
     with pytest.raises(ValueError, match="'poly' is already registered"):
         registry.register_family(Poly)
+    # a torch family class registers as it is: a generic spec made from its constructor
+    from thermonet.models.poly import Poly as TorchPoly
+
+    class Square(TorchPoly):         # keeps poly's own name for poly's value checks
+        def __init__(self, *, n_inputs, n_outputs, cross=False):
+            super().__init__(n_inputs=n_inputs, n_outputs=n_outputs, degree=2, cross=cross)
+
+    registry.register_family(Square, name="square")
+    spec = registry.make_spec("square", {"cross": True})
+    assert type(spec).param_names() == ("cross",) and spec.key == "square"
+    fam = spec.build(n_inputs=2, n_outputs=1)
+    assert type(fam) is Square and fam.hyper()["degree"] == 2 and fam.hyper()["cross"] is True
+    assert registry.get_family("square") is Square
 
 
 # -------------------------------------------- one rule for the config and the API

@@ -162,7 +162,8 @@ def get_family(name: str) -> type[Family]:
     target = _target(name)          # an unknown name is refused before torch loads
     from .base import Family
 
-    obj = _guarded(name, "importing", _loader(target))
+    load = FAMILIES[name].family_class if name in FAMILIES else _loader(target)
+    obj = _guarded(name, "importing", load)
     if not (inspect.isclass(obj) and issubclass(obj, Family)):
         raise ConfigError(f"{_plugin_said(name)}: {target!r} is not a subclass "
                           "of thermonet.models.Family")

@@ -121,9 +121,15 @@ class FamilySpec:
                 self.build(n_inputs=max(int(n_inputs or 1), 1), n_outputs=1)
         return hyper
 
-    def family_class(self) -> type[Family]:
+    #: The torch family class itself, where the spec was made from it (:func:`spec_for_class`).
+    family_cls: ClassVar[type | None] = None
+
+    @classmethod
+    def family_class(cls) -> type[Family]:
         """The torch family class (imports it, and torch)."""
-        module, _, attr = self.target.partition(":")
+        if cls.family_cls is not None:
+            return cls.family_cls
+        module, _, attr = cls.target.partition(":")
         obj: Any = importlib.import_module(module)
         for part in attr.split("."):
             obj = getattr(obj, part)
@@ -270,6 +276,6 @@ def spec_for_class(key: str, cls: type, target: str = "") -> type[FamilySpec]:
     return type(getattr(cls, "__name__", "Family"), (FamilySpec,), {
         "__init__": __init__, "key": key, "target": target or f"{cls.__module__}:{cls.__qualname__}",
         "max_inputs": getattr(cls, "max_inputs", None),
-        "default_inputs": tuple(default_inputs),
+        "default_inputs": tuple(default_inputs), "family_cls": cls,
         "__doc__": f"The spec of family {key!r} ({cls.__module__}.{cls.__qualname__}).",
         "__module__": __name__})
