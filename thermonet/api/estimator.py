@@ -152,7 +152,10 @@ average_s, threads
         hyper-parameters are nested parameters: ``get_params()`` lists ``family__degree``,
         ``set_params(family__degree=2)`` sets it (a family given by name becomes its spec
         first), ``est.family.degree`` reads it.  ``set_params(degree=2)`` (and a
-        ``GridSearchCV`` grid ``{"degree": [...]}``) is read as ``family__degree``.
+        ``GridSearchCV`` grid ``{"degree": [...]}``) is read as ``family__degree``.  A
+        keyword the estimator has itself stays its own: ``DriftEstimator("gru", lr=1e-3)``
+        sets the training loop's ``lr``; the GRU's own step is ``GRU(lr=1e-3)``
+        (``family__lr``), as ``gap_s`` is the estimator's and ``GRU(gap_s=...)`` the GRU's.
 
     Attributes
     ----------
