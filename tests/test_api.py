@@ -20,6 +20,7 @@ from thermonet.core.errors import ConfigError
 from thermonet.exporting import FORMATS, ExportFormat, register_format
 from thermonet.models import MODELS
 from thermonet.models.base import Family, as_numpy, least_squares
+from thermonet.models.specs import Poly
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -74,7 +75,7 @@ def test_save_load_round_trip_carries_the_family_config_and_best_epoch(tmp_path)
     back = thermonet.DriftEstimator.load(path)
     # saved and loaded: the same weights through the same computation, bit for bit
     np.testing.assert_array_equal(back.predict(ds[2]), est.predict(ds[2]))
-    assert (back.family, back.inputs, back.hyper) == ("poly", ["dT"], {"degree": 3, "cross": False})
+    assert (back.family, back.inputs) == (Poly(degree=3, cross=False), ["dT"])
     assert back.best_epoch_ == est.best_epoch_ and back.best_val_ == pytest.approx(est.best_val_)
     assert back.train_config_.max_epochs == 7 and back.units_ == {"gyro_x": "deg/s"}
     payload = torch.load(path, weights_only=True)

@@ -46,19 +46,36 @@ def _one_line(call, exc=ValueError) -> str:
 
 # ------------------------------------------------------- scikit-learn's contract
 def test_params_are_constructor_keywords_and_clone_round_trips():
+    from thermonet.models.specs import Poly
+
     est = thermonet.DriftEstimator("poly", "dT", degree=2, seed=3, max_epochs=5)
     params = est.get_params()
-    assert params["family"] == "poly" and params["inputs"] == "dT"
-    assert params["degree"] == 2 and params["seed"] == 3 and params["max_epochs"] == 5
-    assert params["lr"] is None and est.degree == 2          # a hyper-parameter reads as one
+    # the family's keywords fold into its spec; its hyper-parameters are nested parameters
+    assert params["family"] == Poly(degree=2) and params["inputs"] == "dT"
+    assert params["family__degree"] == 2 and params["family__cross"] is False
+    assert params["seed"] == 3 and params["max_epochs"] == 5
+    assert params["lr"] is None and est.family.degree == 2
+    assert "degree" not in params and not hasattr(est, "hyper")
     twin = clone(est)                                          # scikit-learn's own clone
     assert twin is not est and twin.get_params() == params
-    assert est.set_params(degree=4, max_epochs=7) is est
-    assert (est.degree, est.max_epochs) == (4, 7) and twin.degree == 2
+    assert twin.family is not est.family                       # the spec is cloned too
+    assert est.set_params(family__degree=4, max_epochs=7) is est
+    assert (est.family.degree, est.max_epochs) == (4, 7) and twin.family.degree == 2
+    assert est.set_params(degree=5).family.degree == 5          # a bare name: family__degree
     # set_params(**get_params()) is the identity, as scikit-learn requires
-    assert clone(twin).set_params(**twin.get_params()).get_params() == params
+    same = twin.get_params()
+    assert clone(twin).set_params(**same).get_params() == same
+    assert same["family__degree"] == 2 and same["max_epochs"] == 5
     msg = _one_line(lambda: est.set_params(degre=3))
     assert "'degre'" in msg and "degree, cross" in msg
+    msg = _one_line(lambda: est.set_params(family__degre=3))
+    assert "'degre'" in msg and "degree, cross" in msg
+    # a family given by name is stored as given, and becomes its spec when a nested value is set
+    named = thermonet.DriftEstimator("poly", "dT")
+    assert named.family == "poly" and named.get_params(deep=True)["family"] == "poly"
+    assert named.set_params(family__degree=2).family == Poly(degree=2)
+    assert thermonet.DriftEstimator(Poly(degree=2), "dT", seed=3, max_epochs=5).get_params() \
+        == same
     # a fitted estimator clones unfitted, with the same parameters
     fitted = thermonet.DriftEstimator("poly", "dT", degree=2).fit(cubic_run(0))
     again = clone(fitted)
@@ -336,7 +353,7 @@ def test_parameters_survive_save_and_load(tmp_path):
         np.testing.assert_array_equal(back.parameters_["stderr"], est.parameters_["stderr"])
         assert est.parameters_["stderr"].gt(0).all() and (back.parameters_["note"] == "").all()
         np.testing.assert_array_equal(back.covariance_["gyro_x"], est.covariance_["gyro_x"])
-        assert back.get_params()["degree"] == 3 and back.get_params()["stderr"] == method
+        assert back.get_params()["family__degree"] == 3 and back.get_params()["stderr"] == method
     # a checkpoint written without them (as before they were stored): NaN, with the reason
     model, meta = load_checkpoint(tmp_path / "ols.pt")
     bare = thermonet.DriftEstimator.load(save_checkpoint(tmp_path / "bare.pt", model,
@@ -404,7 +421,7 @@ def test_cross_val_score_and_grid_search_over_time_blocks():
     means = search.cv_results_["mean_test_score"]
     # the toy drift is quadratic: a line leaves its curvature, degree 2 and 3 do not
     assert means[0] < means[1] - 1e-3 and search.best_params_["degree"] in (2, 3)
-    assert search.best_estimator_.degree == search.best_params_["degree"]
+    assert search.best_estimator_.family.degree == search.best_params_["degree"]
     assert search.best_estimator_.score(ds[0]) > 0.99
 
 

@@ -73,7 +73,7 @@ def test_compare_recovers_quadratic_drift_and_writes_everything(tmp_path):
     # and loads as an estimator
     from thermonet import DriftEstimator
     est = DriftEstimator.load(out / "models" / "cubic.pt")
-    assert est.best_epoch_ == meta["epoch"] and est.hyper["degree"] == 3
+    assert est.best_epoch_ == meta["epoch"] and est.family.degree == 3
     np.testing.assert_allclose(est.predict(toy_dataset()[3]), predict(model, toy_dataset()[3]
                                                                       .temperature_c[:, None]))
 

@@ -1,5 +1,6 @@
-"""The package's layers: a config loads without torch, and the family registry reads a
-built-in family's hyper-parameters from its source exactly as the class declares them."""
+"""The package's layers: a config loads without torch, and a built-in family's torch-free spec
+(thermonet.models.specs) declares exactly the hyper-parameters, defaults and input limits of
+the family class it builds."""
 
 from __future__ import annotations
 
@@ -43,14 +44,16 @@ def test_a_wrong_hyper_parameter_is_refused_without_torch(tmp_path):
 
 
 @pytest.mark.parametrize("name", list(BUILTIN))
-def test_signature_from_source_matches_the_class(name):
-    from thermonet.models.registry import _signature_from_source, get_family
+def test_the_spec_matches_the_class(name):
+    from thermonet.models.registry import family_signature, get_family
 
-    sig = _signature_from_source(BUILTIN[name])
+    spec = BUILTIN[name]
     cls = get_family(name)
     params = inspect.signature(cls.__init__).parameters
-    hyper = tuple(k for k, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY
-                  and k not in ("n_inputs", "n_outputs"))
-    assert sig is not None
-    assert sig.hyper == hyper
-    assert sig.max_inputs == cls.max_inputs
+    hyper = {k: p.default for k, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY
+             and k not in ("n_inputs", "n_outputs")}
+    assert spec.key == name and spec.target == f"{cls.__module__}:{cls.__qualname__}"
+    assert spec.param_names() == tuple(hyper) == family_signature(name).hyper
+    assert spec.defaults() == hyper
+    assert spec.max_inputs == cls.max_inputs == family_signature(name).max_inputs
+    assert list(spec.default_inputs) == list(cls.default_inputs)

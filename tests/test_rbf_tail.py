@@ -189,6 +189,6 @@ def test_a_tail_alone_reports_what_it_computes(tmp_path):
     assert c_parity_check(rbf.model_, text) is not None            # compiled and compared
     back = DriftEstimator.load(rbf.save(tmp_path / "rbf.pt"))
     assert back.n_params_ == 12 and back.tuned_ == rbf.tuned_
-    assert back.get_params()["width_scale"] == rbf.tuned_["width_scale"] != 1.0
-    assert back.get_params()["ridge"] == "cv"       # per-axis ∞: not one finite value
+    assert back.get_params()["family__width_scale"] == rbf.tuned_["width_scale"] != 1.0
+    assert back.get_params()["family__ridge"] == "cv"  # per-axis ∞: not one finite value
     np.testing.assert_array_equal(back.parameters_["stderr"], got["stderr"])

@@ -5,8 +5,10 @@ A drift model in the scikit-learn / lmfit mould::
 
     import thermonet
 
+    from thermonet.api import Poly             # the family specs (thermonet.models.specs)
+
     ds = thermonet.simulate("patent-gyro", runs=3, seed=0)
-    est = thermonet.DriftEstimator("poly", "dT", degree=3).fit(ds[0], val=ds[1])
+    est = thermonet.DriftEstimator(Poly(degree=3), "dT").fit(ds[0], val=ds[1])
     drift = est.predict(ds[2])                 # (N, axes), in the outputs' units
     print(est.score(ds[2]))                    # 1 − error variance after / before, axis mean
     print(est.parameters_)                     # axis, name, value, stderr, unit, note
@@ -14,11 +16,15 @@ A drift model in the scikit-learn / lmfit mould::
     est.export("cubic.onnx", format="onnx")
 
 The estimator (:mod:`thermonet.api.estimator`)
-    The constructor only stores its arguments: the family, the inputs, the target and
-    feature settings, every field of :class:`~thermonet.TrainConfig` as a keyword of its own
-    (``seed=3``, ``max_epochs=50``) and the family's hyper-parameters (``degree=3``) —
-    all listed by ``get_params()``, set by ``set_params()``, copied by
-    :func:`sklearn.base.clone`.  :meth:`~DriftEstimator.fit` checks them (an error names the
+    The constructor only stores its arguments: the family — a spec such as
+    ``Poly(degree=3)`` (:mod:`thermonet.models.specs`, one torch-free class per family with
+    its hyper-parameters as keywords) or a name (``"poly"``: its spec with the defaults;
+    ``DriftEstimator("poly", degree=3)`` is shorthand for the spec) —, the inputs, the target
+    and feature settings and every field of :class:`~thermonet.TrainConfig` as a keyword of
+    its own (``seed=3``, ``max_epochs=50``) — all listed by ``get_params()`` (the family's
+    hyper-parameters nested: ``family__degree``), set by ``set_params()``, copied by
+    :func:`sklearn.base.clone` (scikit-learn's ``BaseEstimator`` protocol, without importing
+    scikit-learn: :mod:`thermonet.core.params`).  :meth:`~DriftEstimator.fit` checks them (an error names the
     argument and value), resolves the feature references from the training runs, builds each
     run's signals and targets and fits through the one split pipeline
     (:mod:`thermonet.training.pipeline`, what ``compare`` runs), with the targets resolved as
@@ -53,7 +59,7 @@ Hyper-parameter searches (:mod:`thermonet.api.splits`)
         from sklearn.model_selection import GridSearchCV
         blocks = thermonet.time_blocks(ds, n_blocks=40, purge_s=60)
         search = GridSearchCV(thermonet.DriftEstimator("poly", "dT"),
-                              {"degree": [1, 2, 3, 4]},
+                              {"family__degree": [1, 2, 3, 4]},
                               cv=thermonet.TimeBlockSplit(n_splits=5)).fit(blocks)
         search.best_params_
 
@@ -93,6 +99,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from ..models.specs import GRU, MLP, RBF, FamilySpec, Fuzzy, Linear, Lorentz, Poly
 from .comparison import AxisSummary, ComparisonResult, FamilySummary, compare
 from .data import read, simulate
 from .estimator import DriftEstimator, NotFittedError
@@ -102,7 +109,8 @@ if TYPE_CHECKING:
     from .cv import TimeBlockSplit
 
 __all__ = ["DriftEstimator", "NotFittedError", "simulate", "read", "compare",
-           "ComparisonResult", "FamilySummary", "AxisSummary", "time_blocks", "TimeBlockSplit"]
+           "ComparisonResult", "FamilySummary", "AxisSummary", "time_blocks", "TimeBlockSplit",
+           "FamilySpec", "Linear", "Poly", "Lorentz", "Fuzzy", "RBF", "MLP", "GRU"]
 
 
 def __getattr__(name: str) -> Any:

@@ -13,8 +13,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import ConfigError, ThermonetError
+from ..core.params import Params
 from ..core.recording import Dataset, Recording
 from ..core.trainconfig import TrainConfig
+from ..models.specs import FamilySpec
 from . import sensor_mode
 from .checks import ArgumentTypeError, flag, gap, input_names, seconds, text
 from .data import (
@@ -42,7 +44,7 @@ _TARGETS = ("drift", "four-position")
 #: ``score(multioutput=...)``'s named rules, as scikit-learn's ``r2_score`` names them.
 MULTIOUTPUT = ("uniform_average", "raw_values", "variance_weighted")
 
-#: The constructor's own keywords (the family's hyper-parameters come on top, as ``**hyper``).
+#: The constructor's own keywords (a family's hyper-parameters are the spec's: ``family__<name>``).
 _OWN = ("family", "inputs", "t_ref", "target", "outputs", "train_on", "gap_s",
         "t_ref_window_min", "stderr", "train", "model")
 #: The training settings, each a keyword of its own (None: from ``train``, else TrainConfig's).
@@ -53,17 +55,61 @@ class NotFittedError(ThermonetError, AttributeError):
     """``predict``/``compensate``/``score``/``save``/``export`` before ``fit``."""
 
 
-class DriftEstimator:
+class _FamilyKeywords:
+    """A family given as a name and hyper-parameter keywords that do not make a spec
+    (``DriftEstimator("poly", degre=3)``, an unknown family): kept as given, so that the
+    constructor never raises; :meth:`DriftEstimator.fit` refuses it, naming what is wrong."""
+
+    def __init__(self, name: Any, params: dict[str, Any]) -> None:
+        self.name = name
+        self.params = params
+
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        return {"name": self.name, "params": self.params}
+
+    def set_params(self, **params: Any) -> _FamilyKeywords:
+        self.params = {**self.params, **params}
+        return self
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _FamilyKeywords) and \
+            (self.name, self.params) == (other.name, other.params)
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return ", ".join([repr(self.name), *(f"{k}={v!r}" for k, v in self.params.items())])
+
+
+def _with_keywords(family: Any, hyper: dict[str, Any]) -> Any:
+    """``family`` (a name or a spec) with hyper-parameter keywords folded in: a new spec
+    (``"poly", degree=3`` is ``Poly(degree=3)``), or, where they do not make one, both kept
+    as given for :meth:`DriftEstimator.fit` to refuse."""
+    from ..models.registry import spec_of
+
+    try:
+        base = spec_of(family)
+        spec = type(base)(**base.get_params())
+        return spec.set_params(**hyper)
+    except (ConfigError, TypeError):
+        return _FamilyKeywords(family, dict(hyper))
+
+
+class DriftEstimator(Params):
     """One model family fitted to drift vs temperature (or a proxy), scikit-learn style.
 
     Every argument is a keyword the estimator stores as given (``get_params``,
-    ``set_params`` and :func:`sklearn.base.clone` see all of them); :meth:`fit` checks
-    them and names the argument at fault.
+    ``set_params`` and :func:`sklearn.base.clone` see all of them: scikit-learn's
+    ``BaseEstimator`` protocol, :class:`thermonet.core.params.Params`, without importing
+    scikit-learn; the family spec's hyper-parameters are the nested ``family__<name>``);
+    :meth:`fit` checks them and names the argument at fault.
 
     Parameters
     ----------
-    family : str
-        A name in :data:`thermonet.models.MODELS` (``linear``, ``poly``, ...).
+    family : FamilySpec or str
+        The family and its hyper-parameters as a spec (:mod:`thermonet.models.specs`:
+        ``Poly(degree=3)``, ``RBF(n_centres=8)``, ``Linear()``...), or a registered name
+        (``"poly"``: its spec with the defaults).
     inputs : list of str or str, optional
         Features (``T``, ``dT``, ``dT2``, ``rate``, ``d_<proxy>``...); one name may be
         given alone.  Default: the family's own (``default_inputs``).
@@ -106,9 +152,15 @@ average_s, threads
         every element a function of the inputs — as ``compare`` fits it with ``model:
         sensor`` (:mod:`thermonet.api.sensor_mode`: what predict, score and save mean then).
     **hyper
-        The family's hyper-parameters (``degree=3``, ``n_centres=16``...).  They are
-        parameters like the others: ``get_params()`` lists them, ``set_params(degree=2)``
-        sets them (checked against the family's own), ``est.degree`` reads them.
+        Shorthand for the spec's keywords: ``DriftEstimator("poly", degree=3)`` is
+        ``DriftEstimator(Poly(degree=3))`` (its ``family`` parameter is that spec).  The
+        hyper-parameters are nested parameters: ``get_params()`` lists ``family__degree``,
+        ``set_params(family__degree=2)`` sets it (a family given by name becomes its spec
+        first), ``est.family.degree`` reads it.  ``set_params(degree=2)`` (and a
+        ``GridSearchCV`` grid ``{"degree": [...]}``) is read as ``family__degree``.  A
+        keyword the estimator has itself stays its own: ``DriftEstimator("gru", lr=1e-3)``
+        sets the training loop's ``lr``; the GRU's own step is ``GRU(lr=1e-3)``
+        (``family__lr``), as ``gap_s`` is the estimator's and ``GRU(gap_s=...)`` the GRU's.
 
     Attributes
     ----------
@@ -155,7 +207,7 @@ average_s, threads
     fit_seconds_ : float
     """
 
-    def __init__(self, family: str, inputs: Sequence[str] | str | None = None, *,
+    def __init__(self, family: FamilySpec | str, inputs: Sequence[str] | str | None = None, *,
                  t_ref: str | float = "start", target: str = "drift",
                  outputs: Sequence[str] | str | None = None, train_on: str = "all",
                  gap_s: float | str = "auto", t_ref_window_min: float = 10.0,
@@ -166,7 +218,8 @@ average_s, threads
                  device: str | None = None, max_train_samples: int | None = None,
                  average_s: float | None = None, threads: int | None = None,
                  model: str = "bias", **hyper: Any) -> None:
-        self.family = family
+        # keywords of the family fold into its spec; without them ``family`` is kept as given
+        self.family = _with_keywords(family, hyper) if hyper else family
         self.inputs = inputs
         self.t_ref = t_ref
         self.target = target
@@ -187,41 +240,37 @@ average_s, threads
         self.average_s = average_s
         self.threads = threads
         self.model = model           # "bias" or "sensor" (thermonet.api.sensor_mode)
-        self.hyper = hyper
 
     # ------------------------------------------------------ scikit-learn's contract
-    def get_params(self, deep: bool = True) -> dict[str, Any]:
-        """Every constructor argument by name, the family's hyper-parameters included."""
-        params = {k: getattr(self, k) for k in _OWN + _TRAIN_KEYS}
-        params.update(self.hyper)
-        return params
-
     def set_params(self, **params: Any) -> DriftEstimator:
-        """Set constructor arguments by name (a hyper-parameter must be the family's own);
-        returns ``self``.  A name that is neither is one error naming the valid ones."""
-        if "family" in params:
-            self.family = params["family"]
-        for key, value in params.items():
-            if key in _OWN or key in _TRAIN_KEYS:
-                setattr(self, key, value)
-                continue
-            from ..models.registry import family_signature
+        """scikit-learn's ``set_params``; returns ``self``.  A family given by name becomes its
+        spec with the defaults where a nested ``family__<name>`` is set; a bare hyper-parameter
+        name (``degree``, what a grid ``{"degree": [...]}`` sets) is read as
+        ``family__degree``.  A name that is neither, for a family spec, is one error naming the
+        valid ones; a family that is no spec (an unknown name, a value of the wrong type) keeps
+        the names as given, as the constructor does, and :meth:`fit` refuses it."""
+        from ..models.registry import spec_of
 
-            valid = family_signature(self.family).hyper
-            if key not in valid:
-                raise ConfigError(f"set_params: {key!r} is not a parameter of "
-                                  f"DriftEstimator({self.family!r}) (its own: "
-                                  f"{', '.join(_OWN + _TRAIN_KEYS)}; the family's: "
-                                  f"{', '.join(valid) or 'none'})")
-            self.hyper[key] = value
-        return self
-
-    def __getattr__(self, name: str) -> Any:
-        # a family hyper-parameter reads like any other parameter (est.degree)
-        hyper = self.__dict__.get("hyper") or {}
-        if name in hyper:
-            return hyper[name]
-        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        own = _OWN + _TRAIN_KEYS
+        fam = params.get("family", self.family)
+        nested = {k: v for k, v in params.items() if k.partition("__")[0] not in own}
+        if nested or any(k.startswith("family__") for k in params):
+            if not isinstance(fam, FamilySpec | _FamilyKeywords):
+                try:
+                    fam = spec_of(fam)
+                except ConfigError:
+                    fam = _FamilyKeywords(fam, {})
+            if isinstance(fam, FamilySpec):
+                valid = fam.get_params()
+                for key in nested:
+                    if key not in valid:
+                        raise ConfigError(
+                            f"set_params: {key!r} is not a parameter of DriftEstimator({fam!r}) "
+                            f"(its own: {', '.join(own)}; the family's, as family__<name>: "
+                            f"{', '.join(valid) or 'none'})")
+            params = {**{k: v for k, v in params.items() if k not in nested},
+                      "family": fam, **{f"family__{k}": v for k, v in nested.items()}}
+        return super().set_params(**params)
 
     def __sklearn_tags__(self) -> Any:
         """scikit-learn's tags: a regressor whose ``X`` is recordings and that needs no ``y``."""
@@ -239,7 +288,6 @@ average_s, threads
         shown += [f"{k}={getattr(self, k)!r}" for k in _OWN[1:]
                   if getattr(self, k) != defaults.get(k)]
         shown += [f"{k}={getattr(self, k)!r}" for k in _TRAIN_KEYS if getattr(self, k) is not None]
-        shown += [f"{k}={v!r}" for k, v in self.hyper.items()]
         return f"DriftEstimator({', '.join(shown)})"
 
     # ------------------------------------------------------------------ fitting
@@ -261,26 +309,39 @@ average_s, threads
         overrides = {k: getattr(self, k) for k in _TRAIN_KEYS if getattr(self, k) is not None}
         return replace(config, **overrides) if overrides else config
 
-    def _resolved_inputs(self) -> list[str]:
+    def _family_spec(self) -> FamilySpec:
+        """``family`` as a spec (a name: its spec with the defaults); an unknown family or
+        hyper-parameter name, or a family of the wrong type, is one error naming it."""
+        from ..models.registry import make_spec
+
+        fam = self.family
+        if isinstance(fam, FamilySpec):
+            return fam
+        name, params = (fam.name, fam.params) if isinstance(fam, _FamilyKeywords) else (fam, {})
+        if not isinstance(name, str):
+            raise ArgumentTypeError(f"family: expected a family name such as 'poly' or a spec "
+                                    f"such as Poly(degree=3), got {name!r} "
+                                    f"({type(name).__name__})")
+        if "rate_window_s" in params:
+            raise ConfigError("rate_window_s was removed: 'rate' is a causal filtered derivative "
+                              "with a 60 s time constant (thermonet.features.dynamics); use the "
+                              "input 'rate_<tau>' (e.g. rate_30) for another time constant")
+        return make_spec(name, params)
+
+    def _resolved_inputs(self, spec: FamilySpec) -> list[str]:
         if self.inputs is not None:
             return input_names(self.inputs, "inputs")
-        from ..models import get_family
+        return list(spec.default_inputs)
 
-        return list(get_family(self.family).default_inputs)
-
-    def _check_params(self) -> tuple[TrainConfig, list[str]]:
+    def _check_params(self) -> tuple[TrainConfig, list[str], FamilySpec]:
         """Every constructor argument checked (what :meth:`fit` does first, before it reads
         any data or builds anything): one error naming the argument and what it takes.
-        Returns the training settings and the inputs."""
+        Returns the training settings, the inputs and the family's spec."""
         from ..data.diagnostics import TEMPERATURE_PLAUSIBLE_C
         from ..features.target import MODES
-        from ..models.registry import check_hyper, family_signature
         from .parameters import STDERR_METHODS
 
-        if not isinstance(self.family, str):
-            raise ArgumentTypeError(f"family: expected a family name such as 'poly', got "
-                                    f"{self.family!r} ({type(self.family).__name__})")
-        family_signature(self.family)          # an unknown family, naming the valid ones
+        spec = self._family_spec()      # an unknown family or hyper-parameter, naming them
         if isinstance(self.target, dict):
             for key, mode in self.target.items():
                 if not isinstance(key, str) or not key or mode not in MODES:
@@ -301,25 +362,19 @@ average_s, threads
         if not isinstance(self.stderr, str) or self.stderr not in STDERR_METHODS:
             raise ConfigError(f"stderr: {self.stderr!r} is not one of "
                               f"{', '.join(STDERR_METHODS)}")
-        if "rate_window_s" in self.hyper:
-            raise ConfigError("rate_window_s was removed: 'rate' is a causal filtered derivative "
-                              "with a 60 s time constant (thermonet.features.dynamics); use the "
-                              "input 'rate_<tau>' (e.g. rate_30) for another time constant")
         sensor_mode.check_model(self)
         config = self._train_config()
-        inputs = self._resolved_inputs()
-        # the family's hyper-parameters: names and values (a built-in's without torch, a
-        # plug-in's by building it), before any data is read
-        check_hyper(self.family, self.hyper, n_inputs=len(inputs))
-        return config, inputs
+        inputs = self._resolved_inputs(spec)
+        # the family's input count and hyper-parameter values, the config's own rule (a
+        # built-in's without torch, a plug-in's by building it), before any data is read
+        spec.check(len(inputs))
+        return config, inputs, spec
 
     def _outputs_for(self, runs: list[Recording]) -> list[str]:
-        from ..training.parts import FOURPOS_SUFFIXES
+        from ..features.target import modelled_outputs
 
-        axes = names_of(self.outputs, "outputs") or list(runs[0].axes)
-        if self.target == "four-position":
-            return [f"{a}{s}" for a in axes for s in FOURPOS_SUFFIXES]
-        return axes
+        return modelled_outputs(names_of(self.outputs, "outputs") or list(runs[0].axes),
+                                self.target)
 
     def fit(self, train: Data, val: Data | None = None, *, track: bool = False,
             tracking_uri: str | None = None, experiment: str = "thermonet") -> DriftEstimator:
@@ -366,6 +421,7 @@ average_s, threads
         FitError
             The data cannot carry the family (reason given).
         """
+        from ..features.target import output_units
         from ..training.parts import fit_arrays, targets_for
         from ..training.pipeline import fit_split, split_parts, split_spec
         from ..training.splits import stack_blocks
@@ -375,7 +431,7 @@ average_s, threads
             raise ConfigError("family 'per-axis': a model per axis is chosen by compare "
                               "(thermonet.api.compare) among fitted candidates, not fitted by "
                               "a DriftEstimator; load its checkpoint with DriftEstimator.load")
-        config, inputs = self._check_params()
+        config, inputs, family = self._check_params()
         flag(track, "fit(track)")
         text(tracking_uri, "fit(tracking_uri)", none=True, rule="an MLflow tracking URI")
         text(experiment, "fit(experiment)", rule="an MLflow experiment name")
@@ -410,16 +466,14 @@ average_s, threads
             val_rec = stack_blocks(val_runs, "val") if len(val_runs) > 1 else val_runs[0]
         parts = split_parts(spec, runs, outputs=outputs, target=targets, val=val_rec,
                            train_on=self.train_on, gap_s=self.gap_s)
-        result = fit_split(parts, family=self.family, outputs=outputs, hyper=self.hyper,
+        result = fit_split(parts, family=family.key, outputs=outputs, hyper=family.hyper(),
                           config=config, target_modes=targets.modes)
         self.model_: ShippedModel = result.model
         self.spec_: FeatureSpec = spec
         self.targets_: Target = targets
         self.n_features_in_: int = len(spec.inputs)
         self.outputs_: list[str] = outputs
-        self.units_: dict[str, str] = {o: ("1" if o.endswith(".scale")
-                                           else runs[0].units.get(o.split(".")[0], ""))
-                                       for o in outputs}
+        self.units_: dict[str, str] = output_units(outputs, runs[0].units)
         self.signal_units_: dict[str, str] = {p: runs[0].units.get(p, "")
                                               for p in runs[0].proxies}
         self.device_id_: str = runs[0].device_id

@@ -24,11 +24,21 @@ if TYPE_CHECKING:
 __all__ = ["checkpoint_config", "extra", "fitted_hyper", "save", "load", "export", "track"]
 
 
+def _family_of(est: DriftEstimator) -> tuple[str, dict[str, Any]]:
+    """The family's registry name and hyper-parameters (a name alone, such as a loaded
+    per-axis model's ``per-axis``, has none of its own)."""
+    if isinstance(est.family, str):
+        return est.family, {}
+    spec = est._family_spec()
+    return spec.key, spec.hyper()
+
+
 def checkpoint_config(est: DriftEstimator) -> dict[str, Any]:
     """The family's resolved configuration, as a checkpoint stores it."""
+    name, params = _family_of(est)
     return {
-        "family": {"family": est.family, "inputs": list(est.spec_.inputs),
-                   "params": dict(est.hyper), "train_on": est.train_on},
+        "family": {"family": name, "inputs": list(est.spec_.inputs),
+                   "params": params, "train_on": est.train_on},
         "train": asdict(est.train_config_),
         "features": {"t_ref": est.t_ref, "t_ref_window_min": est.t_ref_window_min,
                      "gap_s": est.gap_s},
@@ -155,11 +165,14 @@ def track(est: DriftEstimator, uri: str | None, experiment: str) -> None:
     import tempfile
 
     tracker = Tracker(enabled=True, uri=uri, experiment=experiment)
-    params = json.loads(json.dumps({k: v for k, v in est.get_params().items()
+    # the family by name and its hyper-parameters by their own names, as compare logs them
+    name, hyper = _family_of(est)
+    own = {k: v for k, v in est.get_params(deep=False).items() if k != "family"}
+    params = json.loads(json.dumps({k: v for k, v in {"family": name, **own, **hyper}.items()
                                     if v is not None}, default=repr))
     tags = {"device": est.device_id_, "data_hash": est.data_source_["data_hash"],
-            "family": est.family, "source": "thermonet.api"}
-    with tracker.run(f"fit-{est.family}", params=params, tags=tags) as run_id:
+            "family": name, "source": "thermonet.api"}
+    with tracker.run(f"fit-{name}", params=params, tags=tags) as run_id:
         est.mlflow_run_id_ = run_id or ""
         tracker.log_history(list(est.history_))
         metrics = {"fit_seconds": est.fit_seconds_, "n_params": float(est.n_params_)}
@@ -169,10 +182,10 @@ def track(est: DriftEstimator, uri: str | None, experiment: str) -> None:
                             for a, r in (est.val_ratios_ or {}).items()})
         tracker.log_metrics(metrics)
         with tempfile.TemporaryDirectory() as tmp:
-            ckpt = est.save(Path(tmp) / f"{est.family}.pt")
+            ckpt = est.save(Path(tmp) / f"{name}.pt")
             tracker.log_artifact(ckpt, "model")
             # the MLflow model users load: runs:/<id>/model (ONNX, signature, input example)
             from ..exporting.onnx_export import log_onnx_model  # torch boundary
 
-            log_onnx_model(onnx_of_checkpoint(ckpt, Path(tmp) / f"{est.family}.onnx"),
+            log_onnx_model(onnx_of_checkpoint(ckpt, Path(tmp) / f"{name}.onnx"),
                            run_id or "", tracker.uri)

@@ -91,9 +91,10 @@ def fit(est: Any, train: Data, val: Data | None, *, config: Any,
     if val_runs:
         rec = stack_blocks(val_runs, "val") if len(val_runs) > 1 else val_runs[0]
         va = sensor_run(rec, spec, outputs)
-    fitted = fit_sensor(family=est.family, spec=spec, outputs=outputs, triads=triads,
+    family = est._family_spec()
+    fitted = fit_sensor(family=family.key, spec=spec, outputs=outputs, triads=triads,
                         train=[sensor_run(r, spec, outputs) for r in runs], val=va,
-                        hyper=dict(est.hyper), config=config)
+                        hyper=family.hyper(), config=config)
     _fitted(est, fitted.model, outputs, runs[0])
     est.sensor_fit_ = fitted
     est.train_config_ = config
@@ -206,7 +207,8 @@ def save(est: Any, path: str | os.PathLike[str]) -> Path:
                            "gap_s": est.gap_s}}
     if source is not None:
         extra.update(data_hash=source["data_hash"], provenance={"data": source})
-    return save_sensor(Path(path), fitted, family=est.family, hyper=dict(est.hyper), extra=extra)
+    family = est._family_spec()
+    return save_sensor(Path(path), fitted, family=family.key, hyper=family.hyper(), extra=extra)
 
 
 def is_sensor_checkpoint(path: str | os.PathLike[str]) -> bool:

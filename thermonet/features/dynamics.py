@@ -58,7 +58,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -71,7 +71,7 @@ from ..core.errors import ConfigError, InputError
 from ..core.recording import GAP_FACTOR
 
 __all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInput", "Rate",
-           "Lag", "Play", "REGISTRY", "compute", "DynamicStream", "parse_dynamic", "is_dynamic", "check_time",
+           "Lag", "Play", "INPUTS", "register_input", "compute", "DynamicStream", "parse_dynamic", "is_dynamic", "check_time",
            "dynamic_signals", "default_gap_s", "constants", "from_constants", "lag_error",
            "play_state", "reference_signals", "saturation_margin", "input_set_warnings",
            "SETTLE_TIME_CONSTANTS"]
@@ -183,23 +183,43 @@ def _positive(name: str, text: str) -> float:
     return v
 
 
-#: Name pattern → constructor.  ``rate`` alone has τ = :data:`RATE_TAU_S`.
-REGISTRY: list[tuple[re.Pattern[str], Callable[[str, re.Match[str]], DynamicInput]]] = [
-    (re.compile(r"^rate$"), lambda n, m: Rate(n, RATE_TAU_S)),
-    (re.compile(rf"^rate_{_NUM}$"), lambda n, m: Rate(n, _positive(n, m.group(1)))),
-    (re.compile(rf"^lag_{_NUM}$"), lambda n, m: Lag(n, _positive(n, m.group(1)))),
-    (re.compile(rf"^play_{_NUM}$"), lambda n, m: Play(n, _positive(n, m.group(1)))),
-]
-_KINDS: dict[str, type[DynamicInput]] = {"rate": Rate, "lag": Lag, "play": Play}
+#: The dynamic inputs by kind (the feature name ``<kind>_<constant>``): the class and the
+#: constant the kind alone takes (None: the constant must be written; ``rate`` alone has
+#: τ = :data:`RATE_TAU_S`).  The same shape as the other registries (families, split
+#: strategies, export formats): a dict and one register function.
+INPUTS: dict[str, tuple[type[DynamicInput], float | None]] = {}
+
+_CONSTANT = re.compile(rf"^{_NUM}$")
+
+
+def register_input(cls: type[DynamicInput], *, default: float | None = None
+                   ) -> type[DynamicInput]:
+    """Add a dynamic input kind (``cls.kind``) to :data:`INPUTS`; ``default`` is the constant
+    of the kind's name alone (None: none).  A kind registered twice is a ``ValueError``."""
+    if not cls.kind or "_" in cls.kind:
+        raise ValueError(f"dynamic input kind {cls.kind!r}: a name without '_'")
+    if cls.kind in INPUTS:
+        raise ValueError(f"dynamic input kind {cls.kind!r} is already registered")
+    INPUTS[cls.kind] = (cls, default)
+    return cls
+
+
+register_input(Rate, default=RATE_TAU_S)
+register_input(Lag)
+register_input(Play)
 
 
 def parse_dynamic(name: str) -> DynamicInput | None:
     """The dynamic input a feature name denotes, or None for a static feature."""
-    for pattern, make in REGISTRY:
-        m = pattern.match(name)
-        if m:
-            return make(name, m)
-    return None
+    kind, sep, text = name.partition("_")
+    entry = INPUTS.get(kind)
+    if entry is None:
+        return None
+    cls, default = entry
+    if not sep:
+        return cls(name, **{cls.param_key: default}) if default is not None else None
+    m = _CONSTANT.match(text)
+    return cls(name, **{cls.param_key: _positive(name, m.group(1))}) if m else None
 
 
 def is_dynamic(name: str) -> bool:

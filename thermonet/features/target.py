@@ -48,7 +48,7 @@ from typing import Any
 from ..core.errors import ConfigError
 
 __all__ = ["CHANNEL", "ZERO", "AT_T_REF", "FOUR_POSITION", "MODES", "MODE_CODES", "Target",
-           "resolve_targets", "FOURPOS_SUFFIXES"]
+           "resolve_targets", "FOURPOS_SUFFIXES", "modelled_outputs", "output_units"]
 
 CHANNEL, ZERO, AT_T_REF, FOUR_POSITION = "channel", "zero", "at-t-ref", "four-position"
 #: Modes a config may name per output (``four-position`` is a whole-comparison target).
@@ -57,6 +57,23 @@ MODES = (CHANNEL, ZERO, AT_T_REF)
 MODE_CODES = {CHANNEL: 0, ZERO: 1, AT_T_REF: 2, FOUR_POSITION: 3}
 #: Output-name suffixes of the four-position target: per axis its bias K0 and scale factor K1.
 FOURPOS_SUFFIXES = (".bias", ".scale")
+
+
+def modelled_outputs(axes: Sequence[str], target: Any) -> list[str]:
+    """The outputs a model of ``axes`` fits: for the four-position target each axis's bias and
+    scale factor (``<axis>.bias``, ``<axis>.scale``), else the axes themselves — the one rule
+    for a comparison (:func:`thermonet.training.config.outputs_of`) and the API."""
+    if target == FOUR_POSITION:
+        return [f"{a}{s}" for a in axes for s in FOURPOS_SUFFIXES]
+    return list(axes)
+
+
+def output_units(outputs: Sequence[str], units: Mapping[str, str]) -> dict[str, str]:
+    """Unit per modelled output from the data's ``units`` per channel: the axis's own
+    (``gyro_x.bias`` is ``gyro_x``'s), ``"1"`` for a scale factor (``<axis>.scale``), ``""``
+    where the data says none — one rule for a comparison and the API."""
+    return {o: "1" if o.endswith(FOURPOS_SUFFIXES[1]) else units.get(o.split(".")[0], "")
+            for o in outputs}
 
 
 def _kind(output: str) -> str:

@@ -1,6 +1,9 @@
 """The model families, by name: the fourth layer, above :mod:`thermonet.features`.
 
-``MODELS`` maps the lowercase name a config uses to the :class:`Family` subclass — the
+``FAMILIES`` maps the lowercase name a config uses to the family's torch-free spec class
+(:mod:`thermonet.models.specs`: ``Poly(degree=3)``, what ``DriftEstimator(family=...)`` and a
+config's ``{family: poly, params: {...}}`` both become); :func:`register_family` adds one.
+``MODELS`` maps the same names to the torch :class:`Family` subclass — the
 built-in ones (``linear``, ``poly``, ``lorentz``, ``ts-fuzzy``, ``rbf``, ``mlp``, ``gru``) and every
 family an installed package registers under the entry-point group ``thermonet.families``
 (:mod:`thermonet.models.registry`); tests parametrise over it, so registering a family is
@@ -14,7 +17,17 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from .registry import ENTRY_POINT_GROUP, build_family, family_names, get_family, models
+from .registry import (
+    ENTRY_POINT_GROUP,
+    FAMILIES,
+    build_family,
+    family_names,
+    get_family,
+    make_spec,
+    models,
+    register_family,
+)
+from .specs import FamilySpec
 
 if TYPE_CHECKING:
     from .base import TINY, DriftModel, Family
@@ -28,7 +41,8 @@ if TYPE_CHECKING:
 
     MODELS: dict[str, type[Family]]
 
-__all__ = ["MODELS", "get_family", "build_family", "family_names", "ENTRY_POINT_GROUP",
+__all__ = ["MODELS", "FAMILIES", "register_family", "make_spec", "FamilySpec", "get_family",
+           "build_family", "family_names", "ENTRY_POINT_GROUP",
            "Family", "DriftModel", "TINY", "Linear", "Poly", "Lorentz", "TSFuzzy", "RBF",
            "MLP", "GRU"]
 

@@ -1,33 +1,39 @@
-"""The family registry: the built-in families by name, plug-ins by entry point (torch-free).
+"""The family registry: one dict of family specs by name, one register function, plug-ins by
+entry point (torch-free).
 
-A family is a subclass of :class:`thermonet.models.Family` registered under the lowercase
-name a config uses.  The built-in ones are listed in :data:`BUILTIN` as ``"module:Class"``;
-a researcher's own family, in their own installed package, joins through the entry-point
-group :data:`ENTRY_POINT_GROUP` (``thermonet.families``)::
+:data:`FAMILIES` maps the lowercase name a config uses to the family's spec class
+(:mod:`thermonet.models.specs`: torch-free, explicit keyword hyper-parameters, input limits,
+builds the torch module); :func:`register_family` adds one (a spec class, or a
+:class:`thermonet.models.Family` subclass, which gets a generic spec made from its
+constructor).  The built-ins are registered here; a researcher's own family, in their own
+installed package, joins through the entry-point group :data:`ENTRY_POINT_GROUP`
+(``thermonet.families``)::
 
     [project.entry-points."thermonet.families"]
     my-family = "my_package.family:MyFamily"
 
-Names are listed without importing anything; a family's class is imported when it is
-built.  :func:`models` is the registry as one dict of classes (``thermonet.models.MODELS``):
-once it exists, a family set into it (``MODELS["mine"] = Mine``) is registered too.  :func:`family_signature` reads a family's hyper-parameter names and input limit from
-its source without importing it where it can (the built-ins: a config is checked before
-torch loads) and imports the class otherwise.  A plug-in cannot take a built-in's name.
+The same shape as the other registries: export formats (``thermonet.exporting.FORMATS``,
+``register_format``), split strategies (``thermonet.training.splits.SPLITS``,
+``register_split``) and dynamic inputs (``thermonet.features.dynamics.INPUTS``,
+``register_input``).
+
+Names are listed without importing anything; a family's torch class is imported when it is
+built.  :func:`models` is the registry as one dict of torch classes
+(``thermonet.models.MODELS``): once it exists, a family set into it (``MODELS["mine"] =
+Mine``) is registered too.  :func:`make_spec` turns a name and a dict of hyper-parameters (a
+config's ``family`` and ``params``) into the family's spec, refusing an unknown name; the
+spec's :meth:`~thermonet.models.specs.FamilySpec.check` checks input count and values — one
+rule for the config and the API.  A plug-in cannot take a built-in's name.
 
 A plug-in fails like a bad config: whatever its module or constructor raises while it is
 imported or built — any exception, a ``SyntaxError``, even ``sys.exit()`` — is one
 :class:`ConfigError` line naming the family and its entry point (the command line exits 1,
-the API raises it).  ``KeyboardInterrupt`` (Ctrl-C) is let through.  :func:`check_hyper`
-checks hyper-parameter values too: a built-in's against :mod:`thermonet.models.hyper`
-without torch, a plug-in's by building it.
+the API raises it).  ``KeyboardInterrupt`` (Ctrl-C) is let through.
 """
 
 from __future__ import annotations
 
-import ast
 import functools
-import importlib
-import importlib.util
 import inspect
 import warnings
 from dataclasses import dataclass
@@ -35,31 +41,47 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import TYPE_CHECKING, Any
 
 from ..core.errors import ConfigError
-from .hyper import SPECS, check_values
+from .specs import BUILTIN_SPECS, FamilySpec, spec_for_class
 
 if TYPE_CHECKING:
     from .base import Family
 
-__all__ = ["BUILTIN", "ENTRY_POINT_GROUP", "FamilySignature", "family_names", "get_family",
-           "build_family", "family_signature", "check_hyper", "models"]
+__all__ = ["FAMILIES", "BUILTIN", "ENTRY_POINT_GROUP", "FamilySignature", "register_family",
+           "family_names", "get_family", "spec_class", "make_spec", "spec_of", "build_family",
+           "family_signature", "check_hyper", "models"]
 
-#: The built-in families: name -> ``"module:Class"``.
-BUILTIN: dict[str, str] = {
-    "linear": "thermonet.models.linear:Linear",
-    "poly": "thermonet.models.poly:Poly",
-    "lorentz": "thermonet.models.lorentz:Lorentz",
-    "ts-fuzzy": "thermonet.models.fuzzy:TSFuzzy",
-    "rbf": "thermonet.models.rbf:RBF",
-    "mlp": "thermonet.models.mlp:MLP",
-    "gru": "thermonet.models.gru:GRU",
-}
+#: Every registered family's spec class by name (the built-ins, then what
+#: :func:`register_family` adds; installed plug-ins are found by entry point on use).
+FAMILIES: dict[str, type[FamilySpec]] = {}
+
+
+def register_family(spec: type, name: str | None = None) -> type:
+    """Add a family to :data:`FAMILIES` under ``name`` (default: the spec's ``key``, or the
+    family class's ``name``): a :class:`~thermonet.models.specs.FamilySpec` subclass, or a
+    :class:`~thermonet.models.Family` subclass (a generic spec is made from its constructor).
+    A name registered twice is a ``ValueError``.  Returns ``spec`` (usable as a decorator)."""
+    if isinstance(spec, type) and issubclass(spec, FamilySpec):
+        cls = spec
+        key = name or spec.key
+    else:
+        key = name or str(getattr(spec, "name", ""))
+        cls = spec_for_class(key, spec)
+    if not key:
+        raise ValueError("register_family: the family needs a name")
+    if key in FAMILIES:
+        raise ValueError(f"model family {key!r} is already registered")
+    FAMILIES[key] = cls
+    return spec
+
+
+for _spec in BUILTIN_SPECS:
+    register_family(_spec)
+
+#: The built-in families (name -> spec class), in the order the registry lists them.
+BUILTIN: dict[str, type[FamilySpec]] = dict(FAMILIES)
 
 #: The entry-point group a package registers its own families in (name -> Family subclass).
 ENTRY_POINT_GROUP = "thermonet.families"
-
-#: Keyword arguments of every family's constructor that are not hyper-parameters.
-_SHAPE = ("n_inputs", "n_outputs")
-
 
 #: The registry as classes, made on first use of :func:`models` (it imports every family).
 _MODELS: dict[str, type[Family]] | None = None
@@ -71,16 +93,16 @@ def _plugins() -> dict[str, EntryPoint]:
     read once per process."""
     out: dict[str, EntryPoint] = {}
     for ep in entry_points(group=ENTRY_POINT_GROUP):
-        if ep.name not in BUILTIN and ep.name not in out:
+        if ep.name not in FAMILIES and ep.name not in out:
             out[ep.name] = ep
     return out
 
 
 def family_names() -> list[str]:
     """Every registered family's name: the built-ins, then the installed plug-ins."""
-    if _MODELS is not None:
-        return list(_MODELS)
-    return [*BUILTIN, *_plugins()]
+    if _MODELS is not None:   # the dict of classes, and any family registered after it was made
+        return [*_MODELS, *(k for k in FAMILIES if k not in _MODELS)]
+    return [*FAMILIES, *_plugins()]
 
 
 def _plugin_said(name: str) -> str:
@@ -112,18 +134,22 @@ def _guarded(name: str, doing: str, call: Any) -> Any:
                           f"({type(err).__name__}: {err})") from None
 
 
+def _unknown(name: Any) -> ConfigError:
+    return ConfigError(f"unknown model family {name!r} (valid: {', '.join(family_names())})")
+
+
 def _target(name: str) -> str:
-    if isinstance(name, str) and _MODELS is None:
-        if name in BUILTIN:
-            return BUILTIN[name]
-        ep = _plugins().get(name)
+    if isinstance(name, str):
+        if name in FAMILIES:
+            return FAMILIES[name].target
+        ep = _plugins().get(name) if _MODELS is None else None
         if ep is not None:
             return str(ep.value)
-    raise ConfigError(f"unknown model family {name!r} (valid: {', '.join(family_names())})")
+    raise _unknown(name)
 
 
 def get_family(name: str) -> type[Family]:
-    """The family class registered as ``name`` (imported now).
+    """The torch family class registered as ``name`` (imported now).
 
     Raises
     ------
@@ -131,15 +157,23 @@ def get_family(name: str) -> type[Family]:
         (a ``ValueError``) naming the valid families; or naming a plug-in whose entry point
         does not load or is not a :class:`~thermonet.models.Family` subclass.
     """
+    if _MODELS is not None and isinstance(name, str) and name in _MODELS:
+        return _MODELS[name]
+    target = _target(name)          # an unknown name is refused before torch loads
     from .base import Family
 
-    if _MODELS is not None:
-        try:
-            return _MODELS[name]
-        except (KeyError, TypeError):
-            raise ConfigError(f"unknown model family {name!r} "
-                              f"(valid: {', '.join(family_names())})") from None
-    target = _target(name)
+    load = FAMILIES[name].family_class if name in FAMILIES else _loader(target)
+    obj = _guarded(name, "importing", load)
+    if not (inspect.isclass(obj) and issubclass(obj, Family)):
+        raise ConfigError(f"{_plugin_said(name)}: {target!r} is not a subclass "
+                          "of thermonet.models.Family")
+    return obj
+
+
+def _loader(target: str) -> Any:
+    """A callable importing ``"module:Class"`` (the attribute path may be dotted)."""
+    import importlib
+
     module, _, attr = target.partition(":")
 
     def load() -> Any:
@@ -148,16 +182,12 @@ def get_family(name: str) -> type[Family]:
             obj = getattr(obj, part)
         return obj
 
-    obj = _guarded(name, "importing", load)
-    if not (inspect.isclass(obj) and issubclass(obj, Family)):
-        raise ConfigError(f"{_plugin_said(name)}: {target!r} is not a subclass "
-                          "of thermonet.models.Family")
-    return obj
+    return load
 
 
 def models() -> dict[str, type[Family]]:
-    """Every registered family by name, each class imported: the one registry dict
-    (``thermonet.models.MODELS``), made on first use."""
+    """Every registered family by name, each class imported: the one registry dict of torch
+    classes (``thermonet.models.MODELS``), made on first use."""
     global _MODELS
     if _MODELS is None:
         out: dict[str, type[Family]] = {}
@@ -172,6 +202,51 @@ def models() -> dict[str, type[Family]]:
     return _MODELS
 
 
+#: Generic specs made for family classes (a plug-in's, one set into ``MODELS``), per class.
+_GENERIC: dict[tuple[str, type], type[FamilySpec]] = {}
+
+
+def spec_class(name: str) -> type[FamilySpec]:
+    """The spec class of family ``name``: a built-in's without importing anything; a
+    plug-in's made from its imported class's constructor (a failure is one line naming it)."""
+    if _MODELS is not None and isinstance(name, str) and name in _MODELS:
+        cls = _MODELS[name]
+        own = FAMILIES.get(name)
+        if own is not None and own.target == f"{cls.__module__}:{cls.__qualname__}":
+            return own
+    elif name in FAMILIES:
+        return FAMILIES[name]
+    else:
+        cls = get_family(name)
+    key = (name, cls)
+    if key not in _GENERIC:
+        _GENERIC[key] = _guarded(name, "reading its constructor",
+                                 lambda: spec_for_class(name, cls))
+    return _GENERIC[key]
+
+
+def make_spec(name: str, params: dict[str, Any] | None = None) -> FamilySpec:
+    """Family ``name``'s spec with ``params`` (a config's ``family`` and ``params``): an unknown
+    family or hyper-parameter name is one :class:`ConfigError` naming the valid ones; values
+    are stored unchecked (:meth:`~thermonet.models.specs.FamilySpec.check` checks them)."""
+    if not isinstance(name, str):
+        raise _unknown(name)
+    cls = spec_class(name)
+    valid = cls.param_names()
+    for key in dict(params or {}):
+        if key not in valid:
+            raise ConfigError(f"model '{name}': unknown hyper-parameter '{key}' "
+                              f"(valid: {', '.join(valid) or 'none'})")
+    return cls(**dict(params or {}))
+
+
+def spec_of(family: str | FamilySpec) -> FamilySpec:
+    """A family as a spec: a spec as it is, a name as its spec with the defaults."""
+    if isinstance(family, FamilySpec):
+        return family
+    return make_spec(family)
+
+
 @dataclass(frozen=True)
 class FamilySignature:
     """What a config may give a family: its hyper-parameters' names and its input limit."""
@@ -180,83 +255,21 @@ class FamilySignature:
     max_inputs: int | None
 
 
-def _signature_of_class(cls: type) -> FamilySignature:
-    params = inspect.signature(cls.__init__).parameters  # type: ignore[misc]
-    hyper = tuple(k for k, p in params.items()
-                  if p.kind is inspect.Parameter.KEYWORD_ONLY and k not in _SHAPE)
-    return FamilySignature(hyper=hyper, max_inputs=getattr(cls, "max_inputs", None))
-
-
-def _signature_from_source(target: str) -> FamilySignature | None:
-    """The signature read from the class's own source, or None where that is not certain
-    (no ``__init__`` or no literal ``max_inputs`` in the class body, ``**kwargs``)."""
-    module, _, attr = target.partition(":")
-    try:
-        spec = importlib.util.find_spec(module)
-    except (ImportError, ValueError):
-        return None
-    if spec is None or not spec.origin or not spec.origin.endswith(".py"):
-        return None
-    with open(spec.origin, encoding="utf-8") as fh:
-        tree = ast.parse(fh.read(), spec.origin)
-    cls = next((n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == attr), None)
-    if cls is None:
-        return None
-    init = next((n for n in cls.body if isinstance(n, ast.FunctionDef)
-                 and n.name == "__init__"), None)
-    max_inputs: Any = ...
-    for node in cls.body:
-        target_names: list[str] = []
-        value = None
-        if isinstance(node, ast.Assign):
-            target_names = [t.id for t in node.targets if isinstance(t, ast.Name)]
-            value = node.value
-        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
-            target_names, value = [node.target.id], node.value
-        if "max_inputs" in target_names and isinstance(value, ast.Constant):
-            max_inputs = value.value
-    if init is None or init.args.kwarg is not None or max_inputs is ...:
-        return None
-    if not (max_inputs is None or isinstance(max_inputs, int)):
-        return None
-    hyper = tuple(a.arg for a in init.args.kwonlyargs if a.arg not in _SHAPE)
-    return FamilySignature(hyper=hyper, max_inputs=max_inputs)
-
-
 def family_signature(name: str) -> FamilySignature:
-    """Hyper-parameter names and input limit of family ``name`` — for a built-in, without
-    importing it (torch); raises :class:`ConfigError` for an unknown name."""
-    if _MODELS is not None:
-        return _signature_of_class(get_family(name))
-    target = _target(name)
-    if name in BUILTIN:
-        sig = _signature_from_source(target)
-        if sig is not None:
-            return sig
-    return _signature_of_class(get_family(name))
+    """Hyper-parameter names and input limit of family ``name`` (its spec's) — for a built-in,
+    without importing it (torch); raises :class:`ConfigError` for an unknown name."""
+    cls = spec_class(name)
+    return FamilySignature(hyper=cls.param_names(), max_inputs=cls.max_inputs)
 
 
 def check_hyper(name: str, hyper: dict | None, n_inputs: int, *, values: bool = True
                 ) -> None:
     """Refuse an unknown family, an unknown hyper-parameter, too many inputs and (with
-    ``values``) a hyper-parameter value the family does not take: torch-free for the
-    built-in families (:mod:`thermonet.models.hyper`: a
-    :class:`~thermonet.models.hyper.HyperError` whose ``key`` names it); a plug-in is built
-    with one output to ask its constructor."""
-    sig = family_signature(name)
-    for key in dict(hyper or {}):
-        if key not in sig.hyper:
-            raise ConfigError(f"model '{name}': unknown hyper-parameter '{key}' "
-                              f"(valid: {', '.join(sig.hyper) or 'none'})")
-    if sig.max_inputs is not None and n_inputs > sig.max_inputs:
-        raise ConfigError(f"model '{name}' takes at most {sig.max_inputs} input(s), "
-                          f"got {n_inputs}")
-    if not values:
-        return
-    if _MODELS is None and name in SPECS:
-        check_values(name, dict(hyper or {}))
-    else:
-        build_family(name, n_inputs=max(int(n_inputs), 1), n_outputs=1, hyper=hyper)
+    ``values``) a hyper-parameter value the family does not take: :func:`make_spec` then
+    :meth:`~thermonet.models.specs.FamilySpec.check` (torch-free for the built-in families,
+    a :class:`~thermonet.models.hyper.HyperError` whose ``key`` names the value; a plug-in is
+    built with one output to ask its constructor)."""
+    make_spec(name, hyper).check(n_inputs, values=values)
 
 
 def build_family(name: str, *, n_inputs: int, n_outputs: int,
@@ -265,7 +278,7 @@ def build_family(name: str, *, n_inputs: int, n_outputs: int,
     :class:`ConfigError` naming it and the valid ones."""
     cls = get_family(name)
     hyper = dict(hyper or {})
-    valid = _signature_of_class(cls).hyper
+    valid = spec_class(name).param_names()
     for key in hyper:
         if key not in valid:
             raise ConfigError(f"model '{name}': unknown hyper-parameter '{key}' "

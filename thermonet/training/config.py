@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import yaml
 
@@ -21,6 +21,9 @@ from ..core.fileio import not_a_file
 from ..core.schema import from_dict, to_dict
 from ..core.trainconfig import TrainConfig  # the ``train`` section is TrainConfig itself
 from ..core.yamlio import YamlRefusal, load_yaml
+
+if TYPE_CHECKING:
+    from ..models.specs import FamilySpec
 
 __all__ = [
     "DataConfig", "SplitConfig", "SelectionConfig", "FeatureConfig", "FamilyConfig", "TrainConfig",
@@ -213,6 +216,16 @@ class FamilyConfig:
     def label(self) -> str:
         return self.name or self.family
 
+    def spec(self, point: dict[str, Any] | None = None) -> FamilySpec:
+        """This entry as its family's spec (:mod:`thermonet.models.specs`) with ``params``
+        (and a ``tune`` grid point over them): ``{family: poly, params: {degree: 3}}`` is
+        ``Poly(degree=3)``, what ``DriftEstimator(family=...)`` takes — one rule for both.
+        Names are checked (an unknown family or hyper-parameter is a ConfigError), values by
+        the spec's :meth:`~thermonet.models.specs.FamilySpec.check`."""
+        from ..models.registry import make_spec
+
+        return make_spec(self.family, {**self.params, **(point or {})})
+
 
 @dataclass
 class TrackingConfig:
@@ -300,12 +313,9 @@ class CompareConfig:
 def outputs_of(cfg: CompareConfig, ds: Any) -> list[str]:
     """The outputs a comparison fits: the config's ``data.outputs`` or the data's axes (each
     axis's bias and scale for the four-position target)."""
-    from ..features.target import FOURPOS_SUFFIXES
+    from ..features.target import modelled_outputs
 
-    axes = cfg.data.outputs or ds.axes
-    if cfg.target == "four-position":
-        return [f"{a}{s}" for a in axes for s in FOURPOS_SUFFIXES]
-    return list(axes)
+    return modelled_outputs(cfg.data.outputs or ds.axes, cfg.target)
 
 
 def train_config_of(cfg: CompareConfig, fam: FamilyConfig) -> TrainConfig:
@@ -396,7 +406,7 @@ def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = 
     from ..core.names import LABEL
     from ..features.inputs import signals_for
     from ..models.hyper import HyperError
-    from ..models.registry import build_family, check_hyper
+    from ..models.registry import make_spec
 
     for i, fam in enumerate(cfg.families):
         key = f"families[{i}]"
@@ -415,13 +425,14 @@ def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = 
         if not isinstance(fam.family, str):
             raise ConfigError(f"{source}: key '{key}.family': expected a family name such "
                               f"as 'poly', got {fam.family!r}")
+        # the family's spec (thermonet.models.specs), as DriftEstimator(family=...) takes it:
+        # names, then the input count, then values — the API's rule
         try:
-            check_hyper(fam.family, fam.params, n_inputs=len(fam.inputs), values=False)
+            fam.spec().check(len(fam.inputs), values=False)
         except ConfigError as err:
             raise ConfigError(f"{source}: key '{key}': {err}") from None
         try:
-            check_hyper(fam.family, {k: None for k in fam.tune}, n_inputs=len(fam.inputs),
-                        values=False)
+            make_spec(fam.family, {k: None for k in fam.tune})
         except ConfigError as err:
             raise ConfigError(f"{source}: key '{key}.tune': {err}") from None
         points = tune_points(fam, source, key)
@@ -429,7 +440,7 @@ def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = 
         # (thermonet.models.hyper), a plug-in's by building it — before any data is read
         for point in points:
             try:
-                check_hyper(fam.family, {**fam.params, **point}, n_inputs=len(fam.inputs))
+                fam.spec(point).check(len(fam.inputs))
             except HyperError as err:
                 sub = f"tune.{err.key}" if err.key in point else f"params.{err.key}"
                 raise ConfigError(f"{source}: key '{key}.{sub}': {err}") from None
@@ -443,8 +454,7 @@ def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = 
         for point in points:
             sub = f"{key}.tune" if fam.tune else f"{key}.params"
             try:
-                build_family(fam.family, n_inputs=len(fam.inputs), n_outputs=1,
-                             hyper={**fam.params, **point})
+                fam.spec(point).build(n_inputs=len(fam.inputs), n_outputs=1)
             except ConfigError as err:
                 raise ConfigError(f"{source}: key '{sub}': {err}") from None
             except TypeError as err:  # a hyper-parameter of the wrong type

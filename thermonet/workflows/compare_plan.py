@@ -20,7 +20,7 @@ from ..core.recording import MIN_TEMPERATURE_SPAN_C, Dataset
 from ..data.diagnostics import input_warnings
 from ..features.dynamics import RATE_TAU_S, dynamic_signals, input_set_warnings
 from ..features.inputs import dynamic_signal, signals_for
-from ..features.target import Target
+from ..features.target import Target, output_units
 from ..scoring.selection import plan_folds
 from ..training.config import (
     CompareConfig,
@@ -173,10 +173,7 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
     targets = targets_for(ds, cfg.target, outputs, source=source)
     splits = make_splits(ds, cfg.split, source=source)
     _check_training_spans(splits, source)
-    units = {o: ds[0].units.get(o.split(".")[0], "") for o in outputs}
-    for o in outputs:
-        if o.endswith(".scale"):
-            units[o] = "1"
+    units = output_units(outputs, ds[0].units)
 
     warns = input_warnings(ds, signals=signals, rate_window_s=RATE_TAU_S)
     warns += input_set_warnings(
