@@ -198,7 +198,7 @@ def test_estimator_predicts_as_the_workflows_fitted_model(data, estimator, tmp_p
     # save / load, and compare's own checkpoint loaded as an estimator
     for path in (estimator.save(tmp_path / "est.pt"), res["families"]["cubic"]["checkpoint"]):
         again = DriftEstimator.load(path)
-        assert again.model == "sensor" and again.get_params()["degree"] == 3
+        assert again.model == "sensor" and again.get_params()["family__degree"] == 3
         np.testing.assert_allclose(again.predict(test), estimator.predict(test), rtol=0,
                                    atol=1e-12)
 
