@@ -135,16 +135,25 @@ def _from_run_id(run_id: str, tracking_uri: str | None, workdir: Path) -> Path:
 
     uri = tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
     client = mlflow.MlflowClient(tracking_uri=uri)
+    # MLflow resolves a run's logged model ('model') through the global tracking URI, whatever
+    # the client's: the global one points at this store meanwhile, then is restored (MLflow
+    # keeps it in MLFLOW_TRACKING_URI too, so a store used earlier in this process would
+    # otherwise answer "Logged model ... not found")
+    previous = mlflow.get_tracking_uri()
+    mlflow.set_tracking_uri(uri)
     try:
-        arts = [a.path for a in client.list_artifacts(run_id, "model")]
-    except Exception as err:  # noqa: BLE001 - MLflow raises its own exception types
-        raise InputError(f"MLflow run '{run_id}' at {uri}: {err}".splitlines()[0]) from None
-    pts = [a for a in arts if a.endswith(".pt")]
-    if not pts:
-        raise InputError(f"MLflow run '{run_id}' at {uri}: no model/*.pt checkpoint artifact "
-                         "(give the run id of a family's nested run)")
-    local = mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=pts[0],
-                                                dst_path=str(workdir), tracking_uri=uri)
+        try:
+            arts = [a.path for a in client.list_artifacts(run_id, "model")]
+        except Exception as err:  # noqa: BLE001 - MLflow raises its own exception types
+            raise InputError(f"MLflow run '{run_id}' at {uri}: {err}".splitlines()[0]) from None
+        pts = [a for a in arts if a.endswith(".pt")]
+        if not pts:
+            raise InputError(f"MLflow run '{run_id}' at {uri}: no model/*.pt checkpoint "
+                             "artifact (give the run id of a family's nested run)")
+        local = mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=pts[0],
+                                                    dst_path=str(workdir), tracking_uri=uri)
+    finally:
+        mlflow.set_tracking_uri(previous)
     return Path(local)
 
 
