@@ -24,13 +24,13 @@ import numpy as np
 import pytest
 import scipy.linalg
 import torch
-from tolerances import EPS64, assert_f64_close
 
 from thermonet.features.inputs import FeatureSpec
 from thermonet.models.lstsq import BlockNormalEquations, least_squares
 from thermonet.models.poly import Poly
 from thermonet.models.rbf import RIDGE_GRID, _design, _inner_folds, _penalised, _ridge_path
 from thermonet.training.train import TrainConfig, fit
+from tolerances import EPS64, assert_f64_close
 
 pytestmark = pytest.mark.numerics
 
