@@ -84,7 +84,8 @@ def test_compare_recovers_quadratic_drift_and_writes_everything(tmp_path):
     assert child.data.tags["mlflow.parentRunId"] == parent.info.run_id
     assert child.data.tags["family"] == "poly"
     assert child.data.metrics["test/gyro_x/rms_comp"] == pytest.approx(cubic["rms_comp"])
-    assert len(client.get_metric_history(child.info.run_id, "val/loss")) >= 2
+    # the cubic's least squares is final (no gradient refinement): epoch 0 is its whole curve
+    assert len(client.get_metric_history(child.info.run_id, "val/loss")) == 1
     arts = {a.path for a in client.list_artifacts(parent.info.run_id)}
     assert {"results.json", "config.resolved.yaml", "plots"} <= arts
     assert "cubic" in format_table(res) and "chosen: cubic" in format_table(res)

@@ -40,7 +40,7 @@ def test_nan_target_is_a_fit_error_naming_the_row():
 
 def test_diverging_optimizer_reports_nan_loss_epoch():
     with pytest.raises(FitError, match="NaN loss at epoch 1"):
-        _fit(family="poly", hyper={"degree": 3}, max_epochs=5, lr=1e20, optimizer="adam")
+        _fit(family="ts-fuzzy", hyper={"n_sets": 3}, max_epochs=5, lr=1e20, optimizer="adam")
 
 
 def test_early_stopping_on_validation_stops_and_keeps_best_state():
@@ -57,11 +57,39 @@ def test_early_stopping_on_validation_stops_and_keeps_best_state():
 
 
 def test_plateau_without_validation_stops_early():
-    # linear data: least squares is exact at epoch 0; no step improves by min_delta
-    res = _fit(family="linear", hyper={}, y=(1e-3 * T)[:, None], max_epochs=1000, patience=15)
+    # linear data: the fuzzy model's least-squares consequents are exact at epoch 0; no step
+    # improves by min_delta
+    res = _fit(family="ts-fuzzy", hyper={"n_sets": 3}, y=(1e-3 * T)[:, None], max_epochs=1000,
+               patience=15)
     assert res.best_epoch == 0
     assert len(res.history) == 16
     assert res.best_val_loss is None
+
+
+@pytest.mark.parametrize("family,hyper", [("linear", {}), ("poly", {"degree": 3})])
+def test_closed_form_families_are_final_least_squares(family, hyper):
+    """Linear and poly are fitted in closed form and not refined (``trainable`` False): one
+    epoch in the history whatever ``max_epochs`` says, and the coefficients are the least
+    squares of the standardised design (numpy.linalg.lstsq, the independent oracle)."""
+    from thermonet.models.base import as_numpy
+
+    sig, y = T[:, None], Y
+    spec = FeatureSpec(inputs=["dT"], t_ref=25.0)
+    res = fit(family=family, inputs=["dT"], outputs=["gyro_x"], train=[(sig, y)],
+              val=(sig, y), spec=spec, hyper=hyper, config=TrainConfig(max_epochs=50))
+    assert len(res.history) == 1 and res.best_epoch == 0
+    m = res.model
+    with torch.no_grad():
+        x = m.features(torch.as_tensor(sig)).numpy()
+    z = (x - as_numpy(m.x_mean).astype(np.float64)) / as_numpy(m.x_std).astype(np.float64)
+    fam = m.family
+    with torch.no_grad():
+        d = fam.design(torch.as_tensor(z)).numpy() if family == "poly" else z
+    yz = (y - y.mean(axis=0) - as_numpy(m.y_mean)) / as_numpy(m.y_std)
+    want = np.linalg.lstsq(np.hstack([d, np.ones((d.shape[0], 1))]), yz, rcond=None)[0]
+    got = np.concatenate([as_numpy(fam.weight)[0], as_numpy(fam.bias)])
+    # float32 parameters and scaling buffers: relative to the largest coefficient
+    np.testing.assert_allclose(got, want[:, 0], rtol=0, atol=1e-4 * np.abs(want).max())
 
 
 def test_on_epoch_callback_sees_every_epoch():

@@ -3,8 +3,8 @@
 .. math:: \\hat y = W z + b
 
 on standardised features :math:`z`; per axis, study 000's
-:math:`B(T) = k\\,T + b`.  Fitted in closed form (least squares); training only
-polishes it.
+:math:`B(T) = k\\,T + b`.  Fitted in closed form (least squares), and that fit is final:
+the training loop records epoch 0 only (:meth:`Linear.trainable`).
 """
 
 from __future__ import annotations
@@ -76,6 +76,14 @@ class Linear(Family):
         with torch.no_grad():
             self.weight.copy_(torch.as_tensor(coef[:-1].T))
             self.bias.copy_(torch.as_tensor(coef[-1]))
+
+    def trainable(self) -> bool:
+        """False: the least-squares start is the exact minimum of the training loss, so the
+        gradient refinement has nothing to add (it never kept an epoch past 0 on the default,
+        BMI270 and ``calibrate`` comparisons: the loop restored epoch 0's parameters, bit for
+        bit) — it only cost up to ``patience`` L-BFGS epochs per fit, and the first one
+        imported ``torch._dynamo`` (about a second)."""
+        return False
 
     def hyper(self) -> dict[str, Any]:
         return {}

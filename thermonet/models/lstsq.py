@@ -1,6 +1,9 @@
 """Least squares for every closed-form fit: the normal equations accumulated in float64 chunk by
-chunk (:class:`NormalEquations`, recordings larger than memory) and :func:`least_squares`, one
-chunk of them with a tiny ridge.  Re-exported by :mod:`thermonet.models.base`."""
+chunk (:class:`NormalEquations`, recordings larger than memory), :func:`least_squares`, one
+chunk of them with a tiny ridge, and :class:`BlockNormalEquations`, the normal equations of
+every block of rows kept apart, so that every cross-validation fold (its training rows: the
+blocks it keeps) and every ridge is solved in one batched call instead of one fit per fold and
+grid point.  The first two are re-exported by :mod:`thermonet.models.base`."""
 
 from __future__ import annotations
 
@@ -9,7 +12,7 @@ import numpy as np
 #: Floor of the ridge's scale (the mean diagonal of the Gram matrix), for an all-zero design.
 RIDGE_FLOOR = 1e-6
 
-__all__ = ["NormalEquations", "least_squares"]
+__all__ = ["NormalEquations", "BlockNormalEquations", "least_squares"]
 
 
 class NormalEquations:
@@ -54,6 +57,80 @@ class NormalEquations:
         g = self.gram
         lam = ridge * max(float(np.trace(g)) / max(g.shape[0], 1), RIDGE_FLOOR)
         return np.linalg.solve(g + lam * np.eye(g.shape[0]), self.rhs)
+
+
+def _relative_ridge(gram: np.ndarray, ridge: float) -> np.ndarray:
+    """:meth:`NormalEquations.solve`'s ridge for each of a stack of Gram matrices (..., P, P):
+    ``ridge`` × the mean diagonal, floored at :data:`RIDGE_FLOOR`."""
+    p = max(gram.shape[-1], 1)
+    return ridge * np.maximum(np.trace(gram, axis1=-2, axis2=-1) / p, RIDGE_FLOOR)
+
+
+class BlockNormalEquations:
+    """The normal equations of ``design @ c ≈ y`` per block of rows: :math:`G_b = D_b^T D_b`,
+    :math:`B_b = D_b^T Y_b` for blocks :math:`b = 0 \\dots n_b - 1` (the time blocks of a
+    cross-validation), formed once.
+
+    A fold trains on the blocks it keeps: its system is :math:`\\sum_{b \\in \\text{kept}}
+    G_b` — one (F, n_b) × (n_b, P·P) product for every fold at once, summed over the kept
+    blocks rather than subtracted from the total (no cancellation when a fold drops most of
+    the rows, its validation blocks and their purged neighbours).  :meth:`solve` then solves
+    every fold in one batched ``numpy.linalg.solve`` with :meth:`NormalEquations.solve`'s
+    tiny relative ridge, and :meth:`ridge_path` every fold × ridge from one symmetric
+    eigendecomposition per fold.  The fold's coefficients equal a fit on the fold's rows
+    alone (:func:`least_squares`) to float64 rounding times the Gram matrix's condition
+    number (``tests/test_batched.py``); the same caveat on conditioning as
+    :class:`NormalEquations`.
+    """
+
+    def __init__(self, design: np.ndarray, y: np.ndarray, block: np.ndarray,
+                 n_blocks: int | None = None) -> None:
+        d = np.asarray(design, dtype=np.float64)
+        yy = np.asarray(y, dtype=np.float64).reshape(d.shape[0], -1)
+        b = np.asarray(block, dtype=np.int64).reshape(-1)
+        if d.ndim != 2 or b.shape[0] != d.shape[0]:
+            raise ValueError(f"design {d.shape}, targets {yy.shape} and block ids {b.shape} "
+                             "must have one row per sample")
+        n_b = int(b.max()) + 1 if n_blocks is None else int(n_blocks)
+        if b.size and (b.min() < 0 or b.max() >= n_b):
+            raise ValueError(f"block ids must lie in [0, {n_b})")
+        order = np.argsort(b, kind="stable")
+        edges = np.searchsorted(b[order], np.arange(n_b + 1))
+        self.gram = np.zeros((n_b, d.shape[1], d.shape[1]))
+        self.rhs = np.zeros((n_b, d.shape[1], yy.shape[1]))
+        self.n_rows = np.diff(edges)
+        for k in range(n_b):
+            rows = order[edges[k]:edges[k + 1]]
+            self.gram[k] = d[rows].T @ d[rows]
+            self.rhs[k] = d[rows].T @ yy[rows]
+
+    def systems(self, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gram matrices (F, P, P) and right-hand sides (F, P, A) of the folds whose kept
+        blocks are the true entries of ``keep`` (F, n_blocks)."""
+        k = np.asarray(keep, dtype=np.float64)
+        if k.ndim != 2 or k.shape[1] != self.gram.shape[0]:
+            raise ValueError(f"keep has shape {k.shape}; expected (folds, {self.gram.shape[0]})")
+        return (np.einsum("fb,bpq->fpq", k, self.gram),
+                np.einsum("fb,bpa->fpa", k, self.rhs))
+
+    def solve(self, keep: np.ndarray, ridge: float = 1e-10) -> np.ndarray:
+        """Coefficients (F, P, A) of every fold, each with :meth:`NormalEquations.solve`'s
+        relative ridge, in one batched solve."""
+        g, r = self.systems(keep)
+        lam = _relative_ridge(g, ridge)
+        return np.linalg.solve(g + lam[:, None, None] * np.eye(g.shape[1]), r)
+
+    def ridge_path(self, keep: np.ndarray, ridges: np.ndarray) -> np.ndarray:
+        """Ridge coefficients (F, R, P, A) of every fold and every relative ridge of
+        ``ridges`` (× the fold's mean Gram diagonal, as :meth:`solve`), from one
+        eigendecomposition :math:`G = V \\operatorname{diag}(e) V^T` per fold:
+        :math:`c_\\lambda = V \\operatorname{diag}(1/(e + \\lambda)) V^T B`."""
+        g, r = self.systems(keep)
+        e, v = np.linalg.eigh(g)                                     # (F, P), (F, P, P)
+        lam = _relative_ridge(g, 1.0)[:, None] * np.asarray(ridges, dtype=np.float64)[None]
+        vb = np.einsum("fpq,fpa->fqa", v, r)                         # Vᵀ B
+        scaled = vb[:, None] / (e[:, None, :, None] + lam[:, :, None, None])
+        return np.einsum("fpq,frqa->frpa", v, scaled)
 
 
 def least_squares(design: np.ndarray, y: np.ndarray, ridge: float = 1e-10) -> np.ndarray:

@@ -138,6 +138,10 @@ class Poly(Family):
             self.weight.copy_(torch.as_tensor(coef[:-1].T))
             self.bias.copy_(torch.as_tensor(coef[-1]))
 
+    def trainable(self) -> bool:
+        """False: the least-squares fit is final, as :meth:`.Linear.trainable` says."""
+        return False
+
     def hyper(self) -> dict[str, Any]:
         return {"degree": self.degree, "cross": self.cross}
 

@@ -21,17 +21,19 @@ from __future__ import annotations
 
 import contextlib
 import math
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import torch
 
-# torch.optim imports torch._dynamo on an optimiser's first step (seconds of start-up): it is
-# paid by the first fit that takes a gradient step (the polynomials' L-BFGS refinement
-# included), inside that fit's fit_seconds, and never by a command that fits nothing
-# (export, verify, info, a config error)
+# building a torch.optim optimiser imports torch._dynamo (about a second of start-up): it is
+# paid by the first fit that takes a gradient step, inside that fit's fit_seconds, and never
+# by a command that fits only closed-form families (linear, poly, the RBF with a tail: no
+# optimiser is built for them) or nothing (export, verify, info, a config error)
 from ..core.errors import ConfigError, FitError, InputError, check_interrupted
 from ..core.trainconfig import TrainConfig  # re-exported: the ``train`` section
 from ..features.dynamics import dynamic_signals, saturation_margin
@@ -231,15 +233,33 @@ def thread_limits(threads: int) -> Iterator[None]:
     if not threads:
         yield
         return
-    from threadpoolctl import threadpool_limits
-
     before = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
-        with threadpool_limits(limits=threads):
+        with _pool_controller().limit(limits=threads):
             yield
     finally:
         torch.set_num_threads(before)
+
+
+_CONTROLLER: list = []          # [(len(sys.modules) when made, ThreadpoolController)]
+_CONTROLLER_LOCK = threading.Lock()
+
+
+def _pool_controller() -> Any:
+    """The native thread pools loaded in this process (threadpoolctl's controller), made
+    once and made again only after a module import (a new native library, scikit-learn's
+    OpenMP, comes with one): ``threadpool_limits`` scans every loaded shared library on each
+    call — about 4 ms, paid by every fit of a comparison (hundreds in ``calibrate``)."""
+    import sys
+
+    from threadpoolctl import ThreadpoolController
+
+    with _CONTROLLER_LOCK:
+        n = len(sys.modules)
+        if not _CONTROLLER or _CONTROLLER[0][0] != n:
+            _CONTROLLER[:] = [(n, ThreadpoolController())]
+        return _CONTROLLER[0][1]
 
 
 def _fit(*, family: str, inputs: list[str], outputs: list[str],
@@ -375,18 +395,20 @@ def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
               on_epoch: Callable | None) -> tuple[list[dict], int, float | None]:
     params = [p for p in fam.parameters() if p.requires_grad]
     if not fam.trainable():
-        # a closed-form fit that is final (the RBF's penalised tail): epoch 0 only
+        # a closed-form fit that is final (linear, poly, the RBF's penalised tail): epoch 0
         config = replace(config, max_epochs=0)
-    if config.optimizer == "lbfgs":
-        opt: torch.optim.Optimizer = torch.optim.LBFGS(params, lr=config.lr, max_iter=20,
-                                                       line_search_fn="strong_wolfe")
+    opt: torch.optim.Optimizer | None = None
+    if config.max_epochs == 0:
+        pass    # no step: no optimizer (building one imports torch._dynamo, about a second)
+    elif config.optimizer == "lbfgs":
+        opt = torch.optim.LBFGS(params, lr=config.lr, max_iter=20, line_search_fn="strong_wolfe")
     else:
         opt = torch.optim.Adam(params, lr=config.lr)
     history: list[dict] = []
     stop = EarlyStopping(fam, patience=config.patience, min_delta=config.min_delta)
     fam.train()
     for epoch in range(config.max_epochs + 1):
-        if epoch > 0:
+        if epoch > 0 and opt is not None:
             _train_step(fam, opt, zt, yt)
         train_loss = _valid_step(fam, zt, yt)
         val_loss = None if val is None else _valid_step(fam, *val)

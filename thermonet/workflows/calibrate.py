@@ -363,12 +363,16 @@ def _ekf_text(autopilot: str, fitted: list[InstanceResult], params_name: str) ->
     """Per fitted gyro and accelerometer, the EKF bias-noise settings its firmware form's
     residual-drift band suggests (:func:`thermonet.exporting.autopilot.ekf_recommendation`);
     "" where no instance has a band."""
-    from ..exporting.autopilot import ekf_recommendation  # torch boundary
-
     lines: list[str] = []
     for r in fitted:
         band = (r.summary.get("compare") or {}).get("band")
-        doc = shipped_band({"band": band}) if isinstance(band, dict) else None
+        if not isinstance(band, dict):
+            continue
+        # only with a band: the exporter imports torch (about a second), which a
+        # calibration without its comparison (--no-compare) never needs
+        from ..exporting.autopilot import ekf_recommendation  # torch boundary
+
+        doc = shipped_band({"band": band})
         rec = ekf_recommendation(doc, band.get("units", {}), autopilot) if doc and band else []
         if rec:
             lines += [f"# {r.name} (id {r.device_id})", *rec[1:]]
