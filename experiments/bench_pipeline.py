@@ -15,7 +15,12 @@ Per command: wall seconds, CPU seconds (user + system of the child) and peak res
 median (min–max); per job the ratios to the anchor, pair by pair.  Then one ``--profile`` run
 of each thermonet command: where its time goes, stage by stage.
 
-Usage: ``python experiments/bench_pipeline.py [--runs 3]``
+``--before DIR`` (a checkout of an earlier commit, e.g. ``git worktree add --detach DIR REV``)
+times that code's thermonet commands in the same run, interleaved with this checkout's, each
+on its own output directory: the column "after / before" is the median of the pair-by-pair
+ratios.
+
+Usage: ``python experiments/bench_pipeline.py [--runs 3] [--before DIR]``
 """
 
 from __future__ import annotations
@@ -69,18 +74,50 @@ def _job(cmds: dict[str, list[str]], runs: int) -> dict[str, dict[str, list[floa
 
 def _profile(cmd: list[str]) -> str:
     """One run of a thermonet command with ``--profile``: its stage table."""
-    n = len(THERMONET)
-    proc = subprocess.run([*cmd[:n], "--profile", *cmd[n:]], capture_output=True, text=True,
-                          cwd=ROOT)
+    n = cmd.index("thermonet.cli") + 1
+    proc = subprocess.run(["/usr/bin/env", *cmd[:n], "--profile", *cmd[n:]],
+                          capture_output=True, text=True, cwd=ROOT)
     lines = proc.stderr.splitlines()
     start = next((i for i, x in enumerate(lines) if "where the time went" in x), None)
     return "\n".join(lines[start:]) if start is not None else proc.stderr[-2000:]
 
 
+BEFORE = " (before)"
+
+
+def profiles_cmds(tmp: Path, log: Path, default_families: Path) -> dict[str, list[str]]:
+    """The commands profiled stage by stage (one ``--profile`` run each)."""
+    return {
+        "calibrate": [*THERMONET, "calibrate", str(log), "--out", str(tmp / "cal"),
+                      "--overwrite", "-q"],
+        "compare": [*THERMONET, "compare", str(default_families), "--out", str(tmp / "cmp"),
+                    "--overwrite", "-q", "--no-track"],
+        "export onnx": [*THERMONET, "export", str(tmp / "cmp"), "--format", "onnx", "--out",
+                        str(tmp / "model.onnx")],
+    }
+
+
+def _with_before(cmds: dict[str, list[str]], before: Path | None) -> dict[str, list[str]]:
+    """Each thermonet command twinned with the earlier checkout's (its outputs beside)."""
+    if before is None:
+        return cmds
+    out = dict(cmds)
+    n = len(THERMONET)
+    for k, cmd in cmds.items():
+        if cmd[:n] == THERMONET:
+            twin = [a + "-before" if a.startswith(tempfile.gettempdir()) and
+                    not a.endswith((".ulg", ".yaml")) else a for a in cmd[n:]]
+            out[k + BEFORE] = ["env", f"PYTHONPATH={before}", *THERMONET, *twin]
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--runs", type=int, default=3)
-    runs = ap.parse_args().runs
+    ap.add_argument("--before", type=Path, default=None,
+                    help="a checkout of an earlier commit, timed in the same run")
+    args = ap.parse_args()
+    runs, before = args.runs, args.before
     tmp = Path(tempfile.mkdtemp(prefix="bench-pipeline-"))
     log = tmp / "board.ulg"
     subprocess.run([*THERMONET, "simulate", "fc-board", "--out", str(log), "--seed", "0"],
@@ -109,8 +146,14 @@ def main() -> None:
             "thermonet compare": [*THERMONET, "compare", str(default_families), "--out",
                                   str(tmp / "cmp"), "--overwrite", "-q", "--no-track"]},
     }
+    jobs = {job: _with_before(cmds, before) for job, cmds in jobs.items()}
     results: dict[str, Any] = {}
     rows = []
+
+    def vs_before(res: dict[str, Any], k: str) -> str:
+        twin = res.get(k + BEFORE)
+        return fmt_spread(ratio_spread(res[k]["wall_s"], twin["wall_s"])) if twin else "—"
+
     for job, cmds in jobs.items():
         res = _job(cmds, runs)
         results[job] = res
@@ -122,31 +165,28 @@ def main() -> None:
             cpu_ratio = (fmt_spread(ratio_spread(r["cpu_s"], res[anchor]["cpu_s"]))
                          if anchor and k != anchor else "—")
             rows.append([job, k, fmt_spread(spread(r["wall_s"])), fmt_spread(spread(r["cpu_s"])),
-                         f"{max(r['maxrss_mb']):.0f}", ratio, cpu_ratio])
+                         f"{max(r['maxrss_mb']):.0f}", ratio, cpu_ratio, vs_before(res, k)])
         print(job, "done", flush=True)
     # exports of the comparison's choice (a per-axis model where the axes chose several)
     exp = {f"thermonet export --format {f}": [*THERMONET, "export", str(tmp / "cmp"),
                                               "--format", f, "--out",
                                               str(tmp / f"model.{'onnx' if f == 'onnx' else 'h'}")]
            for f in ("onnx", "c")}
+    exp = _with_before(exp, before)
     res = _job(exp, runs)
     results["export"] = res
     for k in exp:
         rows.append(["export (the comparison's choice)", k,
                      fmt_spread(spread(res[k]["wall_s"])), fmt_spread(spread(res[k]["cpu_s"])),
-                     f"{max(res[k]['maxrss_mb']):.0f}", "—", "—"])
-    profiles = {
-        "calibrate": _profile([*THERMONET, "calibrate", str(log), "--out", str(tmp / "cal"),
-                               "--overwrite", "-q"]),
-        "compare": _profile([*THERMONET, "compare", str(default_families), "--out",
-                             str(tmp / "cmp"), "--overwrite", "-q", "--no-track"]),
-        "export onnx": _profile([*THERMONET, "export", str(tmp / "cmp"), "--format", "onnx",
-                                 "--out", str(tmp / "model.onnx")]),
-    }
+                     f"{max(res[k]['maxrss_mb']):.0f}", "—", "—", vs_before(res, k)])
+    profiles = {k: _profile(cmd) for k, cmd in profiles_cmds(tmp, log, default_families).items()}
+    if before is not None:
+        for k, cmd in list(profiles_cmds(tmp, log, default_families).items()):
+            profiles[k + BEFORE] = _profile(_with_before({k: cmd}, before)[k + BEFORE])
     md = (f"{runs} counted runs after one warm-up, each a fresh process, the commands of a job "
           "in turn; median (min–max). Ratios to the anchor pair by pair (wall and CPU).\n\n"
           + table(["job", "command", "wall s", "CPU s", "peak MB (largest run)",
-                   "wall / anchor", "CPU / anchor"], rows)
+                   "wall / anchor", "CPU / anchor", "after / before"], rows)
           + "\n\nWhere the time goes (one `--profile` run of each):\n\n"
           + "\n\n".join(f"`{k}`:\n\n```\n{v}\n```" for k, v in profiles.items()))
     save("bench_pipeline", {"runs": runs, "results": results, "profiles": profiles}, md)

@@ -493,7 +493,7 @@ def test_readme_api_section_runs_and_shows_what_it_prints(tmp_path, monkeypatch,
     assert set(res.scores()["family"]) == {"line", "quadratic", "cubic"}
     # the simulated drift is quadratic: a line does not find it, degree 2 and up do
     means = search.cv_results_["mean_test_score"]
-    assert means[0] < min(means[1:]) and search.best_params_["degree"] >= 2
+    assert means[0] < min(means[1:]) and search.best_params_["family__degree"] >= 2
     shown = re.search(r"```text\n(.*?)```", section, re.S).group(1).strip().splitlines()
     printed = [line.strip() for line in out.splitlines()]
     for line in shown:

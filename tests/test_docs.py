@@ -309,3 +309,31 @@ def test_config_data_paths_exist_in_a_clone(name):
             assert "thermonet simulate" in (ROOT / "configs" / name).read_text()
             continue
         assert not Path(p).is_absolute() and (ROOT / p).is_file(), f"{name}: {p}"
+
+
+def _module_rows() -> dict[str, list[str]]:
+    """tests/README.md's module table: module → the test names in its two columns."""
+    text = (ROOT / "tests" / "README.md").read_text()
+    section = text.split("## Which tests exercise each module", 1)[1].split("\n## ", 1)[0]
+    rows = {}
+    for line in section.splitlines():
+        if line.startswith("| `"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            names = [n.strip() for c in cells[1:] for n in c.split(",")]
+            rows[cells[0].strip("`")] = [n for n in names if n and not n.startswith("(")]
+    return rows
+
+
+def test_every_module_has_its_tests_named():
+    """Each module of thermonet/ has one row in tests/README.md's map, each row a module that
+    exists, and each test it names a test file that exists."""
+    rows = _module_rows()
+    modules = {"thermonet (package)"} | {
+        ".".join(p.relative_to(ROOT / "thermonet").with_suffix("").parts).removesuffix(
+            ".__init__") for p in (ROOT / "thermonet").rglob("*.py")
+        if p.name != "__init__.py" or p.parent != ROOT / "thermonet"}
+    assert sorted(modules - set(rows)) == [], "modules without a row in tests/README.md"
+    assert sorted(set(rows) - modules) == [], "rows naming no module"
+    named = {n.split(" ")[0] for names in rows.values() for n in names}
+    missing = sorted(n for n in named if not (ROOT / "tests" / f"test_{n}.py").is_file())
+    assert missing == [], "rows naming no test file"

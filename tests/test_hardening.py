@@ -439,9 +439,11 @@ def _statuses(db: Path) -> list[str]:
 
 @pytest.fixture
 def endless(tmp_path) -> Path:
+    # a family trained by gradient steps (a linear model's least squares is final: no epochs)
     return _cfg(tmp_path, _tiny(tmp_path).replace(
         "max_epochs: 5, patience: 2", "max_epochs: 1000000, patience: 1000000, "
-        "min_delta: 0.0, optimizer: adam, lr: 1.0e-9"))
+        "min_delta: 0.0, optimizer: adam, lr: 1.0e-9").replace(
+        "{name: lin, family: linear, inputs: [dT]}", "{name: fz, family: ts-fuzzy, inputs: [dT]}"))
 
 
 def test_a_signal_whose_exception_was_lost_still_stops_the_run(endless, tmp_path):

@@ -12,7 +12,6 @@ ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 80
 
 _C_TEXT = "emits generated C text: one template read top to bottom"
-_PARALLEL = "owned by a parallel change (issue 39), to split next"
 
 #: "path:qualified name" -> why it may be longer
 ALLOWED: dict[str, str] = {
@@ -21,9 +20,6 @@ ALLOWED: dict[str, str] = {
     "thermonet/models/cgen.py:c_target_prelude": _C_TEXT,
     "thermonet/exporting/c_header.py:_render_single": _C_TEXT,
     "thermonet/exporting/c_header.py:render_axis_models_c": _C_TEXT,
-    "thermonet/api/estimator.py:DriftEstimator.fit": _PARALLEL,
-    "thermonet/training/sensor.py:_fit_sensor": _PARALLEL,
-    "thermonet/workflows/compare_fit.py:fit_family": _PARALLEL,
 }
 
 

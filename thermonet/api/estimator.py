@@ -421,11 +421,8 @@ average_s, threads
         FitError
             The data cannot carry the family (reason given).
         """
-        from ..features.target import output_units
-        from ..training.parts import fit_arrays, targets_for
-        from ..training.pipeline import fit_split, split_parts, split_spec
+        from ..training.pipeline import fit_split, split_parts, split_spec  # torch boundary
         from ..training.splits import stack_blocks
-        from .parameters import parameter_table
 
         if self.family == "per-axis":
             raise ConfigError("family 'per-axis': a model per axis is chosen by compare "
@@ -439,6 +436,30 @@ average_s, threads
             sensor_mode.fit(self, train, val, config=config, inputs=inputs,
                             track=track or tracking_uri is not None)
             return self
+        runs, val_runs, outputs, targets = self._training_data(train, val)
+        spec = split_spec(inputs, runs, t_ref=self.t_ref, window_min=self.t_ref_window_min,
+                          gap_s=self.gap_s, reference_for_targets=True)
+        val_rec = None
+        if val_runs is not None:
+            val_rec = stack_blocks(val_runs, "val") if len(val_runs) > 1 else val_runs[0]
+        parts = split_parts(spec, runs, outputs=outputs, target=targets, val=val_rec,
+                            train_on=self.train_on, gap_s=self.gap_s)
+        result = fit_split(parts, family=family.key, outputs=outputs, hyper=family.hyper(),
+                           config=config, target_modes=targets.modes)
+        self._learned(result, spec, targets, outputs, runs, val_runs, config)
+        self._parameter_table(parts, config)
+        if track or tracking_uri:
+            track_fit(self, tracking_uri, experiment)
+        return self
+
+    def _training_data(self, train: Data, val: Data | None
+                       ) -> tuple[list[Recording], list[Recording] | None, list[str], Target]:
+        """The training and validation runs, checked (outputs present, no validation run
+        that trains, one unit per output), the outputs and their targets resolved as compare
+        resolves them (:mod:`thermonet.features.target`: a reference channel, else zero for a
+        gyro, else the change from T_ref — an accelerometer's gravity is no drift)."""
+        from ..training.parts import targets_for
+
         runs = runs_of(train, "fit(train)")
         val_runs = None if val is None else runs_of(val, "fit(val)")
         outputs = self._outputs_for(runs)
@@ -451,23 +472,19 @@ average_s, threads
                     raise ThermonetError(f"fit(val): run '{v.run_id}' is also a training run "
                                          "(validate on a run the model is not fitted on)")
         Dataset(runs).validate("fit(train)")
-        # per axis what the drift is relative to, resolved as compare resolves it
-        # (thermonet.features.target: a reference channel, else zero for a gyro, else the
-        # change from T_ref — an accelerometer's gravity is no drift)
         targets = targets_for(Dataset(runs + list(val_runs or [])), self.target, outputs,
                               source="DriftEstimator(target)")
         for v in val_runs or []:
             same_units(v, runs[0].units, "fit(val)",
-                        f"the training run '{runs[0].run_id}' has it")
-        spec = split_spec(inputs, runs, t_ref=self.t_ref, window_min=self.t_ref_window_min,
-                         gap_s=self.gap_s, reference_for_targets=True)
-        val_rec = None
-        if val_runs is not None:
-            val_rec = stack_blocks(val_runs, "val") if len(val_runs) > 1 else val_runs[0]
-        parts = split_parts(spec, runs, outputs=outputs, target=targets, val=val_rec,
-                           train_on=self.train_on, gap_s=self.gap_s)
-        result = fit_split(parts, family=family.key, outputs=outputs, hyper=family.hyper(),
-                          config=config, target_modes=targets.modes)
+                       f"the training run '{runs[0].run_id}' has it")
+        return runs, val_runs, outputs, targets
+
+    def _learned(self, result: Any, spec: FeatureSpec, targets: Target, outputs: list[str],
+                 runs: list[Recording], val_runs: list[Recording] | None,
+                 config: TrainConfig) -> None:
+        """The learned state (names ending in ``_``) from one split's fit."""
+        from ..features.target import output_units
+
         self.model_: ShippedModel = result.model
         self.spec_: FeatureSpec = spec
         self.targets_: Target = targets
@@ -493,6 +510,13 @@ average_s, threads
             self.val_score_ = float(np.mean(ratios))
         self.mlflow_run_id_: str = ""
         self.band_: Any = None      # only compare's out-of-fold residuals give a band
+
+    def _parameter_table(self, parts: Any, config: TrainConfig) -> None:
+        """``parameters_`` and ``covariance_``: the coefficients with their standard errors
+        (``stderr``'s method) on the training part's arrays."""
+        from ..training.parts import fit_arrays
+        from .parameters import parameter_table
+
         arrays = [fit_arrays(q, config.average_s) for q in parts.train]
         self.parameters_: pd.DataFrame
         self.covariance_: dict[str, np.ndarray]
@@ -501,9 +525,6 @@ average_s, threads
             train=(np.concatenate([a[0] for a in arrays]), np.concatenate([a[1] for a in arrays]),
                    [a[0].shape[0] for a in arrays]),
             method=self.stderr, seed=config.seed)
-        if track or tracking_uri:
-            track_fit(self, tracking_uri, experiment)
-        return self
 
     def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
         from ..training.parts import build_part

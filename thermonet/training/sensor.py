@@ -39,6 +39,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -280,24 +281,73 @@ def _fit_sensor(*, family: str, spec: FeatureSpec, outputs: list[str],
     bias = DriftModel(family=fam_b, spec=spec, outputs=outputs)
     elem = DriftModel(family=fam_e, spec=spec, outputs=names_e)
 
-    # the training windows, as a bias fit takes them (average_s, then the sample budget)
+    s_tr, x_ref, y_tr = _training_windows(train, config)
+    sig_lo, sig_hi = s_tr.min(axis=0), s_tr.max(axis=0)
+    with torch.no_grad():
+        x_tr = bias.features(torch.as_tensor(s_tr)).numpy()
+    x_mean, x_std = x_tr.mean(axis=0), column_scale(x_tr)
+    scales, n_estimates = _closed_form_start(
+        family, spec, train, idx, bias, (fam_b, fam_e), len(names_e), s_tr, y_tr,
+        (x_mean, x_std), config, elements)
+    y_mean, y_std = y_tr.mean(axis=0), column_scale(y_tr)
+    scales.update(y_mean=y_mean, y_std=y_std)
+    core = _Core(fam_b, fam_e if elements else None, len(spec.inputs), idx, scales)
+
+    def zx(r_sig: np.ndarray, r_ref: np.ndarray) -> torch.Tensor:
+        with torch.no_grad():
+            x = bias.features(torch.as_tensor(np.clip(r_sig, sig_lo, sig_hi))).numpy()
+        return torch.as_tensor(np.c_[(x - x_mean) / x_std, r_ref], dtype=torch.float32)
+
+    zt = zx(s_tr, x_ref)
+    yt = torch.as_tensor((y_tr - y_mean) / y_std, dtype=torch.float32)
+    val_t = None
+    if val is not None:
+        v = val.averaged(config.average_s)
+        val_t = (zx(v.signals, v.ref),
+                 torch.as_tensor((v.raw - v.ref - y_mean) / y_std, dtype=torch.float32))
+    label = f"{family} (sensor)" if elements else f"{family} (bias-only)"
+    history, best_epoch, _ = _fit_loop(core, zt, yt, val_t, replace(config), label,  # type: ignore[arg-type]
+                                       None)
+    model = _assembled(bias, elem, triads, spec, scales, (x_mean, x_std, sig_lo, sig_hi),
+                       elements, label)
+    kept = {n: True for n in outputs + names_e}
+    if not elements:
+        kept.update({n: False for n in names_e})
+    elif val is not None:
+        kept = do_no_harm(model, val.averaged(config.average_s))
+    edges = np.vstack([s_tr, sig_lo, sig_hi])
+    cond = check_invertible(model, edges, what=f"model '{label}'")
+    return SensorFit(model=model, history=history, best_epoch=best_epoch,
+                     n_estimates=n_estimates // INIT_SAMPLES if elements else 0,
+                     condition=cond,
+                     kept=kept)
+
+
+def _training_windows(train: Sequence[SensorRun], config: TrainConfig
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The training windows as a bias fit takes them (``average_s``, then the sample budget):
+    signals, references and raw − reference, stacked."""
     runs = [r.averaged(config.average_s) for r in train]
     total = sum(r.time_s.size for r in runs)
     k = math.ceil(total / config.max_train_samples)
     if k > 1:
         runs = [_thin(r, k) for r in runs]
-    s_tr = np.vstack([r.signals for r in runs])
-    x_ref = np.vstack([r.ref for r in runs])
-    y_tr = np.vstack([r.raw - r.ref for r in runs])
-    sig_lo, sig_hi = s_tr.min(axis=0), s_tr.max(axis=0)
-    with torch.no_grad():
-        x_tr = bias.features(torch.as_tensor(s_tr)).numpy()
-    x_mean, x_std = x_tr.mean(axis=0), column_scale(x_tr)
+    return (np.vstack([r.signals for r in runs]), np.vstack([r.ref for r in runs]),
+            np.vstack([r.raw - r.ref for r in runs]))
 
-    # the closed-form start: per steady stretch (full-resolution samples), then the family
+
+def _closed_form_start(family: str, spec: FeatureSpec, train: Sequence[SensorRun],
+                       idx: list[list[int]], bias: DriftModel, fams: tuple[Any, Any],
+                       n_elements: int, s_tr: np.ndarray, y_tr: np.ndarray, x_scale: tuple[np.ndarray, np.ndarray],
+                       config: TrainConfig, elements: bool) -> tuple[dict[str, Any], int]:
+    """The closed-form start of the bias and element families: per steady stretch
+    (full-resolution samples) an estimate of b and E, then each family initialised on them.
+    Returns the bias and element scales and the number of estimate samples."""
+    fam_b, fam_e = fams
+    x_mean, x_std = x_scale
     g_sig, _, g_b, g_e = steady_estimates(train, idx, samples=INIT_SAMPLES)
     if not elements:  # bias-only: every window is an estimate of b (E = 0)
-        g_sig, g_b, g_e = s_tr, y_tr, np.zeros((s_tr.shape[0], len(names_e)))
+        g_sig, g_b, g_e = s_tr, y_tr, np.zeros((s_tr.shape[0], n_elements))
     with torch.no_grad():
         xg = (bias.features(torch.as_tensor(g_sig)).numpy() - x_mean) / x_std
     b_mean, b_std = g_b.mean(axis=0), column_scale(g_b)
@@ -315,52 +365,31 @@ def _fit_sensor(*, family: str, spec: FeatureSpec, outputs: list[str],
                      seed=config.seed, x_mean=x_mean, x_std=x_std)
     for fam in (fam_b, fam_e):     # one column per bias / element, N rows
         check_output_shape(fam, torch.as_tensor(xg, dtype=torch.float32), family)
+    return ({"b_mean": b_mean, "b_std": b_std, "e_mean": e_mean, "e_std": e_std},
+            int(g_sig.shape[0]))
 
-    y_mean, y_std = y_tr.mean(axis=0), column_scale(y_tr)
-    core = _Core(fam_b, fam_e if elements else None, len(spec.inputs), idx,
-                 {"b_mean": b_mean, "b_std": b_std, "e_mean": e_mean, "e_std": e_std,
-                  "y_mean": y_mean, "y_std": y_std})
 
-    def zx(r_sig: np.ndarray, r_ref: np.ndarray) -> torch.Tensor:
-        with torch.no_grad():
-            x = bias.features(torch.as_tensor(np.clip(r_sig, sig_lo, sig_hi))).numpy()
-        return torch.as_tensor(np.c_[(x - x_mean) / x_std, r_ref], dtype=torch.float32)
-
-    zt = zx(s_tr, x_ref)
-    yt = torch.as_tensor((y_tr - y_mean) / y_std, dtype=torch.float32)
-    val_t = None
-    if val is not None:
-        v = val.averaged(config.average_s)
-        val_t = (zx(v.signals, v.ref),
-                 torch.as_tensor((v.raw - v.ref - y_mean) / y_std, dtype=torch.float32))
-    label = f"{family} (sensor)" if elements else f"{family} (bias-only)"
-    history, best_epoch, _ = _fit_loop(core, zt, yt, val_t, replace(config), label,  # type: ignore[arg-type]
-                                       None)
-
+def _assembled(bias: DriftModel, elem: DriftModel, triads: Sequence[Sequence[str]],
+               spec: FeatureSpec, scales: dict[str, Any], x_box: tuple[np.ndarray, ...], elements: bool,
+               label: str) -> SensorModel:
+    """The fitted families as a :class:`SensorModel`: scaling, targets and domain set, the
+    elements masked in a bias-only fit; refused if any parameter is not finite."""
+    x_mean, x_std, sig_lo, sig_hi = x_box
     rest = rest_signals(spec, need_temperature=False)
-    for dm, mean, std in ((bias, b_mean, b_std), (elem, e_mean, e_std)):
+    for dm, mean, std in ((bias, scales["b_mean"], scales["b_std"]),
+                          (elem, scales["e_mean"], scales["e_std"])):
         dm.set_scaling(x_mean=x_mean, x_std=x_std, y_mean=mean, y_std=std, sig_lo=sig_lo,
                        sig_hi=sig_hi)
         dm.set_target(modes=["channel"] * len(dm.outputs),
                       offset=np.zeros(len(dm.outputs)), rest=rest)
         dm.eval()
     if not elements:
-        elem.set_compensate(np.zeros(len(names_e), dtype=bool))
+        elem.set_compensate(np.zeros(len(elem.outputs), dtype=bool))
     model = SensorModel(bias=bias, elements=elem, triads=triads).eval()
     for name, p in list(model.named_parameters()) + list(model.named_buffers()):
         if p.is_floating_point() and not bool(torch.isfinite(p).all()):
             raise FitError(f"model '{label}': parameter '{name}' is not finite; refusing it")
-    kept = {n: True for n in outputs + names_e}
-    if not elements:
-        kept.update({n: False for n in names_e})
-    elif val is not None:
-        kept = do_no_harm(model, val.averaged(config.average_s))
-    edges = np.vstack([s_tr, sig_lo, sig_hi])
-    cond = check_invertible(model, edges, what=f"model '{label}'")
-    return SensorFit(model=model, history=history, best_epoch=best_epoch,
-                     n_estimates=int(g_sig.shape[0]) // INIT_SAMPLES if elements else 0,
-                     condition=cond,
-                     kept=kept)
+    return model
 
 
 def _thin(run: SensorRun, k: int) -> SensorRun:

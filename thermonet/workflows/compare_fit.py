@@ -11,14 +11,17 @@ import os
 import sys
 import threading
 import time
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from ..core.errors import FitError
 from ..core.profile import stage
+from ..data.diagnostics import outside_distance, outside_fraction
 from ..features.inputs import TEMPERATURE
 from ..reporting.results import FamilyResult
+from ..scoring.verdicts import pool
 from ..training.config import (
     CompareConfig,
     FamilyConfig,
@@ -64,11 +67,85 @@ class _Cancelled(Exception):
     """Another family's fit failed or the run was interrupted: stop this one at its next epoch."""
 
 
+@dataclass
+class _SplitsSeen:
+    """What the fits on the splits leave for the family's result."""
+
+    vals: list[Any] = field(default_factory=list)      # held-out block sums per split
+    tests: list[Any] = field(default_factory=list)
+    fold_axes: list[dict[str, dict[str, float]]] = field(default_factory=list)
+    outside: dict[str, list[tuple[float, int]]] = field(default_factory=dict)
+    spec: Any = None                                    # the last split's feature spec
+
+
 def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
-                cancel: threading.Event | None = None) -> Fitted:
-    from ..data.diagnostics import outside_distance, outside_fraction
-    from ..models.base import as_numpy
-    from ..scoring.verdicts import pool
+               cancel: threading.Event | None = None) -> Fitted:
+    """One family: tuned on the training folds (where asked), fitted on each split (refit on
+    training + validation), cross-validated, judged against raw.  A family the data cannot
+    carry comes back ``failed`` with its reason; the comparison goes on."""
+    cfg = p.cfg
+    res = FamilyResult(label=fam.label, family=fam.family, inputs=list(fam.inputs),
+                       params=dict(fam.params), train_on=fam.train_on)
+    out = Fitted(res)
+    seen = _SplitsSeen()
+
+    def on_epoch(epoch: int, train_loss: float, val_loss: float | None) -> None:
+        if cancel is not None and cancel.is_set():
+            raise _Cancelled(fam.label)
+        progress.epoch(fam.label, epoch, train_loss, val_loss)
+
+    try:
+        tcfg = train_config_of(cfg, fam)
+        fam, tuned, tuned_oof = _tune_step(p, fam, tcfg, parts, on_epoch)
+        for split in p.splits:
+            _fit_on_split(p, fam, tcfg, split, parts, on_epoch, out, seen)
+    except FitError as err:  # this data cannot carry the family: reported, the comparison goes on
+        res.status, res.reason, out.model = "failed", str(err), None
+        return out
+    # of the model compare keeps (the last split's), once — not again for every split
+    res.tuned = {**tuned, **out.model.family.tuned()}
+    res.cost = out.model.family.cost()
+    out.parameters = _parameters(p, out.model, out.train_parts, tcfg.average_s)
+    if p.folds is not None:
+        with stage(f"{fam.label}: cross-validation (one fit per fold)"):
+            _cross_validate(out, p, fam, tcfg, seen.spec, parts, on_epoch, tuned_oof)
+    out.val, out.test = pool(seen.vals), pool(seen.tests)
+    res.outside_trained_range = {s: sum(f * n for f, n in v) / max(sum(n for _, n in v), 1)
+                                 for s, v in seen.outside.items()}
+    metrics = {a: {k: float(np.mean([f[a][k] for f in seen.fold_axes]))
+                   for k in seen.fold_axes[0][a]} for a in p.outputs}
+    if len(seen.fold_axes) > 1:
+        res.folds = seen.fold_axes
+    judge_against_raw(out, metrics, p)
+    return out
+
+
+def _tune_step(p: Plan, fam: FamilyConfig, tcfg: Any, parts: PartCache, on_epoch: Any
+               ) -> tuple[FamilyConfig, dict[str, Any], Any]:
+    """The family's hyper-parameters chosen on the training folds (``tune:``): the tuned
+    family, its record and the chosen point's out-of-fold predictions; the configured
+    values with a note where there are no folds; the family unchanged without ``tune:``."""
+    from ..training.pipeline import split_spec  # the torch boundary
+
+    if fam.tune and p.folds is not None:
+        cfg = p.cfg
+        spec = split_spec(fam.inputs, p.splits[-1].train, t_ref=cfg.features.t_ref,
+                          window_min=cfg.features.t_ref_window_min,
+                          gap_s=cfg.features.gap_s, reference_for_targets=True)
+        with stage(f"{fam.label}: tuning (folds x grid points)"):
+            return _tune(p, fam, tcfg, spec, parts, on_epoch)
+    if fam.tune:
+        return fam, {"tuning": {"rule": "not tuned: no cross-validation folds "
+                                f"({p.fold_note or 'selection.folds is 0'}); the configured "
+                                "values are used"}}, None
+    return fam, {}, None
+
+
+def _fit_on_split(p: Plan, fam: FamilyConfig, tcfg: Any, split: Any, parts: PartCache,
+                  on_epoch: Any, out: Fitted, seen: _SplitsSeen) -> None:
+    """One split: the fit on its training part (then the refit on training + validation),
+    scored on its validation and test parts; ``out`` keeps the last split's model."""
+    from ..models.base import as_numpy  # the torch boundary
     from ..training.pipeline import (
         block_sums,
         fit_split,
@@ -79,99 +156,54 @@ def fit_family(p: Plan, fam: FamilyConfig, progress: Progress, parts: PartCache,
     )
     from ..training.train import predict
 
-    cfg = p.cfg
-    res = FamilyResult(label=fam.label, family=fam.family, inputs=list(fam.inputs),
-                       params=dict(fam.params), train_on=fam.train_on)
-    out = Fitted(res)
-    fold_axes: list[dict[str, dict[str, float]]] = []
-    vals, tests = [], []
-    outside: dict[str, list[tuple[float, int]]] = {}
-
-    def on_epoch(epoch: int, train_loss: float, val_loss: float | None) -> None:
-        if cancel is not None and cancel.is_set():
-            raise _Cancelled(fam.label)
-        progress.epoch(fam.label, epoch, train_loss, val_loss)
-
-    tuned: dict[str, Any] = {}
-    tuned_oof = None
-    try:
-        tcfg = train_config_of(cfg, fam)
-        if fam.tune and p.folds is not None:
-            spec = split_spec(fam.inputs, p.splits[-1].train, t_ref=cfg.features.t_ref,
-                             window_min=cfg.features.t_ref_window_min,
-                             gap_s=cfg.features.gap_s, reference_for_targets=True)
-            with stage(f"{fam.label}: tuning (folds x grid points)"):
-                fam, tuned, tuned_oof = _tune(p, fam, tcfg, spec, parts, on_epoch)
-        elif fam.tune:
-            tuned = {"tuning": {"rule": "not tuned: no cross-validation folds "
-                                f"({p.fold_note or 'selection.folds is 0'}); the configured "
-                                "values are used"}}
-        for split in p.splits:
-            spec = split_spec(fam.inputs, split.train, t_ref=cfg.features.t_ref,
-                             window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s,
-                             reference_for_targets=True)
-            fp = split_parts(spec, split.train, outputs=p.outputs, target=p.targets,
-                            val=split.val, test=split.test, train_on=fam.train_on,
-                            gap_s=cfg.features.gap_s, part=parts)
-            with stage(f"{fam.label}: fit on the training part"):
-                fitted = fit_split(fp, family=fam.family, outputs=p.outputs, hyper=fam.params,
-                                  config=tcfg, target_modes=p.targets.modes, on_epoch=on_epoch)
-            res.fit_seconds = (0.0 if math.isnan(res.fit_seconds) else res.fit_seconds) \
-                + fitted.fit_seconds
-            held = fp.val or fp.train[-1]
-            vals.append(block_sums(held, predict(fitted.model, held.signals, held.time_s),
-                                   residual_spread(fitted.model, held)))
-            history = list(fitted.history)
-            train_parts = fp.train
-            if p.folds is not None and split.pool and cfg.selection.refit:
-                with stage(f"{fam.label}: refit on training + validation"):
-                    fitted, train_parts = _refit(p, fam, tcfg, split, parts, on_epoch)
-                res.fit_seconds += fitted.fit_seconds
-                # the learning curve of the first fit (train and validation loss), then the
-                # refit's training loss (MLflow: refit/loss)
-                history += [{"epoch": h["epoch"], "refit_loss": h["train_loss"]}
-                            for h in fitted.history]
-            test_part = fp.test
-            assert test_part is not None
-            spread = residual_spread(fitted.model, test_part)   # once, for both
-            pred, axes = score_part(fitted.model, test_part, spread)
-            tests.append(block_sums(test_part, pred, spread))
-            fold_axes.append(axes)
-            model = fitted.model
-            lo = np.asarray(as_numpy(model.sig_lo))
-            hi = np.asarray(as_numpy(model.sig_hi))
-            frac = outside_fraction(test_part.signals, lo, hi)
-            beyond = outside_distance(test_part.signals, lo, hi)
-            for k, sig in enumerate(model.signals):
-                outside.setdefault(sig, []).append((float(frac[k]), test_part.signals.shape[0]))
-                out.ranges[sig] = (float(lo[k]), float(hi[k]))
-                out.excursion[sig] = max(out.excursion.get(sig, 0.0), float(beyond[k]))
-            out.model, out.history = model, history
-            out.train_parts = list(train_parts)
-            out.best_val = fitted.best_val_loss
-            out.test_parts.append(test_part)
-            out.test_preds.append(pred)
-            res.n_params, res.best_epoch = int(fitted.n_params), int(fitted.best_epoch)
-            out.n_select = int(fitted.model.n_structural)
-    except FitError as err:  # this data cannot carry the family: reported, the comparison goes on
-        res.status, res.reason, out.model = "failed", str(err), None
-        return out
-    # of the model compare keeps (the last split's), once — not again for every split
-    res.tuned = {**tuned, **out.model.family.tuned()}
-    res.cost = out.model.family.cost()
-    out.parameters = _parameters(p, out.model, out.train_parts, tcfg.average_s)
-    if p.folds is not None:
-        with stage(f"{fam.label}: cross-validation (one fit per fold)"):
-            _cross_validate(out, p, fam, tcfg, spec, parts, on_epoch, tuned_oof)
-    out.val, out.test = pool(vals), pool(tests)
-    res.outside_trained_range = {s: sum(f * n for f, n in v) / max(sum(n for _, n in v), 1)
-                                 for s, v in outside.items()}
-    metrics = {a: {k: float(np.mean([f[a][k] for f in fold_axes])) for k in fold_axes[0][a]}
-               for a in p.outputs}
-    if len(fold_axes) > 1:
-        res.folds = fold_axes
-    judge_against_raw(out, metrics, p)
-    return out
+    cfg, res = p.cfg, out.result
+    spec = split_spec(fam.inputs, split.train, t_ref=cfg.features.t_ref,
+                      window_min=cfg.features.t_ref_window_min, gap_s=cfg.features.gap_s,
+                      reference_for_targets=True)
+    seen.spec = spec
+    fp = split_parts(spec, split.train, outputs=p.outputs, target=p.targets,
+                     val=split.val, test=split.test, train_on=fam.train_on,
+                     gap_s=cfg.features.gap_s, part=parts)
+    with stage(f"{fam.label}: fit on the training part"):
+        fitted = fit_split(fp, family=fam.family, outputs=p.outputs, hyper=fam.params,
+                           config=tcfg, target_modes=p.targets.modes, on_epoch=on_epoch)
+    res.fit_seconds = (0.0 if math.isnan(res.fit_seconds) else res.fit_seconds) \
+        + fitted.fit_seconds
+    held = fp.val or fp.train[-1]
+    seen.vals.append(block_sums(held, predict(fitted.model, held.signals, held.time_s),
+                                residual_spread(fitted.model, held)))
+    history = list(fitted.history)
+    train_parts = fp.train
+    if p.folds is not None and split.pool and cfg.selection.refit:
+        with stage(f"{fam.label}: refit on training + validation"):
+            fitted, train_parts = _refit(p, fam, tcfg, split, parts, on_epoch)
+        res.fit_seconds += fitted.fit_seconds
+        # the learning curve of the first fit (train and validation loss), then the
+        # refit's training loss (MLflow: refit/loss)
+        history += [{"epoch": h["epoch"], "refit_loss": h["train_loss"]}
+                    for h in fitted.history]
+    test_part = fp.test
+    assert test_part is not None
+    spread = residual_spread(fitted.model, test_part)   # once, for both
+    pred, axes = score_part(fitted.model, test_part, spread)
+    seen.tests.append(block_sums(test_part, pred, spread))
+    seen.fold_axes.append(axes)
+    model = fitted.model
+    lo = np.asarray(as_numpy(model.sig_lo))
+    hi = np.asarray(as_numpy(model.sig_hi))
+    frac = outside_fraction(test_part.signals, lo, hi)
+    beyond = outside_distance(test_part.signals, lo, hi)
+    for k, sig in enumerate(model.signals):
+        seen.outside.setdefault(sig, []).append((float(frac[k]), test_part.signals.shape[0]))
+        out.ranges[sig] = (float(lo[k]), float(hi[k]))
+        out.excursion[sig] = max(out.excursion.get(sig, 0.0), float(beyond[k]))
+    out.model, out.history = model, history
+    out.train_parts = list(train_parts)
+    out.best_val = fitted.best_val_loss
+    out.test_parts.append(test_part)
+    out.test_preds.append(pred)
+    res.n_params, res.best_epoch = int(fitted.n_params), int(fitted.best_epoch)
+    out.n_select = int(fitted.model.n_structural)
 
 
 def _pool(p: Plan, fam: FamilyConfig, split: Any, spec: Any, parts: PartCache
