@@ -107,7 +107,10 @@ def _with_before(cmds: dict[str, list[str]], before: Path | None) -> dict[str, l
         if cmd[:n] == THERMONET:
             twin = [a + "-before" if a.startswith(tempfile.gettempdir()) and
                     not a.endswith((".ulg", ".yaml")) else a for a in cmd[n:]]
-            out[k + BEFORE] = ["env", f"PYTHONPATH={before}", *THERMONET, *twin]
+            # run from that checkout: ``python -m`` puts the working directory first on the
+            # path, so from this one it would import this thermonet whatever PYTHONPATH says
+            out[k + BEFORE] = ["env", "-C", str(before), f"PYTHONPATH={before}", *THERMONET,
+                               *twin]
     return out
 
 
