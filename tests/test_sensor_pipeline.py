@@ -263,3 +263,28 @@ def test_fleet_of_three_sensor_units_with_an_outlier(tmp_path):
     spread = res["fleet"]["spread"]
     assert spread["cubic.gyro.m_xx.c1"]["n"] == 3
     assert res["fleet"]["verdicts"] == {"PASS": 3}
+
+
+@pytest.mark.numerics
+def test_estimator_exports_the_sensor_model_as_thermonet_export_does(data, estimator, tmp_path):
+    """DriftEstimator(model="sensor").export writes the sensor model's ONNX through the
+    writer `thermonet export` uses (parity-checked): the torch-free runtime compensates as the
+    estimator does; the autopilot formats and report() are one line each."""
+    from conftest import load_runtime
+    from thermonet.core.errors import ThermonetError
+
+    path = estimator.export(tmp_path / "s.onnx", "onnx")
+    comp = load_runtime().Compensator(str(path))
+    assert comp.metadata["model"] == "sensor" and list(comp.outputs) == estimator.outputs_
+    rec = data.runs[-1]
+    raw = np.stack([rec.outputs[o] for o in estimator.outputs_], 1)
+    got = comp.compensate(temperature_c=rec.temperature_c, raw=raw)["compensated"]
+    want = np.stack([estimator.compensate(rec).outputs[o] for o in estimator.outputs_], 1)
+    # b and E in float32 on both sides (depth ≈ 64 operations), at the output's scale
+    scale = np.abs(raw).max(axis=0)
+    assert np.all(np.abs(got - want) <= 64 * np.finfo(np.float32).eps * scale)
+    with pytest.raises(ConfigError, match="px4-params"):
+        estimator.export(tmp_path / "s.params", "px4-params")
+    assert not (tmp_path / "s.params").exists()
+    with pytest.raises(ThermonetError, match="report\\(\\): a sensor model"):
+        estimator.report()

@@ -717,6 +717,10 @@ average_s, threads
         """A fit report in lmfit's manner: the family, data and fit, then per axis each
         parameter's value ± standard error and unit (:attr:`parameters_`)."""
         self._check_fitted("report")
+        if self.model == "sensor":
+            raise ConfigError("report(): a sensor model has no per-parameter table; its "
+                              "coefficients are model_.bias and model_.elements, and 'thermonet "
+                              "compare' with model: sensor writes its report.html")
         table = self.parameters_
         lines = [f"[[Model]] {self!r}",
                  f"[[Fit]] inputs {', '.join(self.spec_.inputs)}; t_ref "
@@ -772,4 +776,7 @@ average_s, threads
         text(format, "export(format)", rule="a format name such as 'onnx'")
         whole(device_id, "export(device_id)", 0, none=True)
         whole(instance, "export(instance)", 0, none=True)
+        if self.model == "sensor":
+            self._check_fitted("export")
+            return sensor_mode.export(self, Path(path), format)
         return export(self, path, format, device_id=device_id, instance=instance)

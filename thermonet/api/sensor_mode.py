@@ -40,7 +40,7 @@ if TYPE_CHECKING:
     from .estimator import DriftEstimator
 
 __all__ = ["MODELS", "check_model", "fit", "predict", "compensate", "variances", "save", "load",
-           "is_sensor_checkpoint"]
+           "export", "is_sensor_checkpoint"]
 
 #: What ``DriftEstimator(model=...)`` takes.
 MODELS = ("bias", "sensor")
@@ -209,6 +209,25 @@ def save(est: Any, path: str | os.PathLike[str]) -> Path:
         extra.update(data_hash=source["data_hash"], provenance={"data": source})
     family = est._family_spec()
     return save_sensor(Path(path), fitted, family=family.key, hyper=family.hyper(), extra=extra)
+
+
+def export(est: Any, path: Path, fmt: str) -> Path:
+    """Export ``est`` as ``thermonet export`` exports compare's sensor checkpoint: through its
+    own writer (:func:`thermonet.exporting.sensor_export.export_sensor_source`: ONNX or the C
+    header, parity-checked before anything is written; the autopilot formats refused in one
+    line, as for a checkpoint)."""
+    import tempfile
+
+    from ..exporting.sensor_export import export_sensor_source  # torch boundary
+
+    if fmt in ("px4-params", "ardupilot-params"):
+        raise ConfigError(f"export(format): {fmt!r} holds a bias polynomial per axis only, not "
+                          "a sensor model's scale factor and misalignment; export 'onnx' or "
+                          "'c', or fit DriftEstimator(model='bias') for the autopilot file")
+
+    with tempfile.TemporaryDirectory() as tmp:
+        ckpt = save(est, Path(tmp) / "sensor.pt")
+        return export_sensor_source(ckpt, fmt=fmt, out=path)
 
 
 def is_sensor_checkpoint(path: str | os.PathLike[str]) -> bool:
