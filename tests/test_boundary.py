@@ -3,8 +3,11 @@ the imports; these check what a user sees)."""
 
 from __future__ import annotations
 
+import ast
+import io
 import subprocess
 import sys
+import tokenize
 import tomllib
 from pathlib import Path
 
@@ -31,3 +34,47 @@ def test_the_command_line_starts_without_torch_or_scikit_learn():
                          check=True, cwd=ROOT)
     assert "usage: thermonet" in out.stdout
     assert out.stderr.strip().splitlines()[-1] == "[]"
+
+
+def _unexplained_imports(source: str, module: str) -> list[str]:
+    """The own-module imports (``from ..x import y``, ``from thermonet.x import y``) inside a
+    function of ``source`` with no comment on any of their lines, as ``"module:line: from"``."""
+    tree = ast.parse(source)
+    commented = {tok.start[0] for tok in tokenize.generate_tokens(io.StringIO(source).readline)
+                 if tok.type == tokenize.COMMENT}
+    found = set()
+    for fn in ast.walk(tree):
+        if not isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
+            continue
+        for node in ast.walk(fn):
+            if isinstance(node, ast.ImportFrom) and (
+                    node.level > 0 or (node.module or "").startswith("thermonet")):
+                lines = range(node.lineno, (node.end_lineno or node.lineno) + 1)
+                if not commented.intersection(lines):
+                    found.add(f"{module}:{node.lineno}: {'.' * node.level}{node.module}")
+    return sorted(found)
+
+
+def test_the_scan_flags_an_uncommented_import_inside_a_function_and_nothing_else():
+    source = ("from .a import b\n"
+              "def f():\n"
+              "    from .c import d  # lazy: loads pandas\n"
+              "    from ..e import (  # torch boundary\n"
+              "        g,\n"
+              "    )\n"
+              "    import json\n"
+              "    from thermonet.h import i\n"
+              "    def inner():\n"
+              "        from .j import k\n"
+              "    return d, g, i, json, inner\n")
+    assert _unexplained_imports(source, "m") == ["m:10: .j", "m:8: thermonet.h"]
+
+
+def test_every_own_module_import_inside_a_function_says_why():
+    """ARCHITECTURE.md, "The torch boundary": own-module imports sit at the top of a file;
+    one left inside a function (the torch boundary, a lazy load of pyarrow/pandas/yaml/
+    matplotlib/MLflow, a cycle) carries its reason as a comment on its line."""
+    found = []
+    for path in sorted((ROOT / "thermonet").rglob("*.py")):
+        found += _unexplained_imports(path.read_text(), str(path.relative_to(ROOT)))
+    assert found == []

@@ -35,11 +35,11 @@ __all__ = ["main", "build_parser"]
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from .data.io import write_csv, write_parquet
-    from .data.logs import is_log
-    from .sim import simulate, simulate_fleet
-    from .sim.fcboard import BOARD_PRESETS, MAX_BOARD_RUNS
-    from .sim.presets import MAX_RUNS
+    from .data.io import write_csv, write_parquet  # lazy: loads pandas, pyarrow, yaml
+    from .data.logs import is_log  # lazy: off the --help path
+    from .sim import simulate, simulate_fleet  # lazy: off the --help path
+    from .sim.fcboard import BOARD_PRESETS, MAX_BOARD_RUNS  # lazy: off the --help path
+    from .sim.presets import MAX_RUNS  # lazy: off the --help path
 
     if args.runs is not None and not 1 <= args.runs <= MAX_RUNS:
         raise ThermonetError(f"--runs {args.runs}: not in 1..{MAX_RUNS} (the upper bound keeps "
@@ -76,9 +76,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _simulate_board(args: argparse.Namespace) -> int:
-    from .data.logs import is_log
-    from .data.logs.writers import write_log
-    from .sim.fcboard import BOARD_PRESETS, simulate_board
+    from .data.logs import is_log  # lazy: off the --help path
+    from .data.logs.writers import write_log  # lazy: off the --help path
+    from .sim.fcboard import BOARD_PRESETS, simulate_board  # lazy: off the --help path
 
     if args.preset not in BOARD_PRESETS:
         raise ThermonetError(f"{args.out}: only the flight-controller presets "
@@ -102,14 +102,14 @@ def _simulate_board(args: argparse.Namespace) -> int:
 
 
 def _cmd_fleet(args: argparse.Namespace) -> int:
-    from .training.config import load_config
-    from .training.loader import load_fleet_data
-    from .workflows.fleet import (
+    from .training.config import load_config  # lazy: loads yaml
+    from .training.loader import load_fleet_data  # lazy: loads yaml
+    from .workflows.fleet import (  # lazy: loads yaml
         EXIT_LIMITS_FAILED,
         FleetOptions,
         run_fleet,
     )
-    from .workflows.fleet_units import (
+    from .workflows.fleet_units import (  # lazy: loads yaml
         sources_from_dataset,
         sources_from_files,
         sources_from_simulation,
@@ -146,11 +146,11 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from .data.logs import is_log
-    from .workflows.info import format_summary
+    from .data.logs import is_log  # lazy: off the --help path
+    from .workflows.info import format_summary  # lazy: loads yaml
 
     if any(is_log(f) for f in args.files):
-        from .data.logs.info import format_log_summary, summarize_log
+        from .data.logs.info import format_log_summary, summarize_log  # lazy: off the --help path
 
         if len(args.files) != 1 or args.mapping:
             raise ThermonetError("info reads one flight-controller log at a time, with no "
@@ -160,9 +160,9 @@ def _cmd_info(args: argparse.Namespace) -> int:
         return 0
     if args.chunk_rows is not None and args.chunk_rows < 1:
         raise ThermonetError(f"--chunk-rows must be >= 1, got {args.chunk_rows}")
-    from .data.chunks import DEFAULT_CHUNK_ROWS, open_source
-    from .data.mapping import load_mapping
-    from .workflows.info_chunked import summarize_parquet
+    from .data.chunks import DEFAULT_CHUNK_ROWS, open_source  # lazy: loads pandas, pyarrow, yaml
+    from .data.mapping import load_mapping  # lazy: loads yaml
+    from .workflows.info_chunked import summarize_parquet  # lazy: loads pandas, pyarrow, yaml
 
     # every tabular file: one chunked pass (two for a file without thermonet's metadata),
     # memory bounded by the chunk
@@ -177,10 +177,14 @@ def _cmd_info(args: argparse.Namespace) -> int:
 def _cmd_convert(args: argparse.Namespace) -> int:
     """Recordings (CSV, mapped files, Parquet) to one thermonet Parquet file, read and
     written a chunk at a time (flight logs: read whole)."""
-    from .data.chunks import DEFAULT_CHUNK_ROWS, open_source, write_streamed
-    from .data.io import read_datasets, write_parquet
-    from .data.logs import is_log
-    from .data.mapping import load_mapping
+    from .data.chunks import (  # lazy: loads pandas, pyarrow, yaml
+        DEFAULT_CHUNK_ROWS,
+        open_source,
+        write_streamed,
+    )
+    from .data.io import read_datasets, write_parquet  # lazy: loads pandas, pyarrow, yaml
+    from .data.logs import is_log  # lazy: off the --help path
+    from .data.mapping import load_mapping  # lazy: loads yaml
 
     out = Path(args.out)
     refuse_overwriting_inputs(out, [*args.files, *([args.mapping] if args.mapping else [])])
@@ -202,12 +206,12 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
 
 def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
-    from .training.config import load_config
+    from .training.config import load_config  # lazy: loads yaml
 
     # the config is checked whole before the comparison machinery (torch) is imported:
     # a wrong key or value is refused in a fraction of a second
     cfg = load_config(args.config)
-    from .workflows.compare import format_table, run_compare
+    from .workflows.compare import format_table, run_compare  # lazy: loads yaml
 
     if only is not None:
         fams = [f for f in cfg.families if f.label == only]
@@ -296,8 +300,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from .workflows.calibrate import calibrate, format_report
-    from .workflows.magnetometer import parse_thermometers
+    from .workflows.calibrate import calibrate, format_report  # lazy: off the --help path
+    from .workflows.magnetometer import parse_thermometers  # lazy: off the --help path
 
     doc = calibrate(args.log, args.out, overwrite=args.overwrite, compare=not args.no_compare,
                     mag_thermometers=parse_thermometers(args.mag_thermometer or []))
@@ -308,7 +312,12 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
-    from .workflows.verify import EXIT_FAILED, Limits, format_verify_report, verify
+    from .workflows.verify import (  # lazy: off the --help path
+        EXIT_FAILED,
+        Limits,
+        format_verify_report,
+        verify,
+    )
 
     limits = Limits()                       # the documented defaults, where not given
     if args.min_cut is not None:

@@ -275,8 +275,6 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
 def _estimators(results: dict[str, Any], target: Path) -> dict[str, Any]:
     """A :class:`DriftEstimator` per fitted family, loaded from its checkpoint in ``target``
     (before a temporary ``target`` is removed)."""
-    from .estimator import DriftEstimator
-
     estimators = {}
     for name, f in (results.get("families") or {}).items():
         ckpt = f.get("checkpoint")

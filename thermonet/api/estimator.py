@@ -15,10 +15,17 @@ import numpy as np
 from ..core.errors import ConfigError, ThermonetError
 from ..core.params import Params
 from ..core.recording import Dataset, Recording
+from ..core.schema import from_dict
 from ..core.trainconfig import TrainConfig
+from ..data.diagnostics import TEMPERATURE_PLAUSIBLE_C
+from ..features.inputs import signal_matrix
+from ..features.target import MODES, modelled_outputs, output_units
+from ..models.registry import make_spec, spec_of
 from ..models.specs import FamilySpec
+from ..training.splits import stack_blocks
 from . import sensor_mode
-from .checks import ArgumentTypeError, flag, gap, input_names, seconds, text
+from .checks import ArgumentTypeError, flag, gap, input_names, seconds, text, whole
+from .checks import path as a_path
 from .data import (
     BLOCK_RUN,
     Data,
@@ -29,6 +36,8 @@ from .data import (
     same_run,
     same_units,
 )
+from .parameters import STDERR_METHODS, parameter_table
+from .persistence import export, load, save
 from .persistence import track as track_fit
 
 if TYPE_CHECKING:
@@ -85,8 +94,6 @@ def _with_keywords(family: Any, hyper: dict[str, Any]) -> Any:
     """``family`` (a name or a spec) with hyper-parameter keywords folded in: a new spec
     (``"poly", degree=3`` is ``Poly(degree=3)``), or, where they do not make one, both kept
     as given for :meth:`DriftEstimator.fit` to refuse."""
-    from ..models.registry import spec_of
-
     try:
         base = spec_of(family)
         spec = type(base)(**base.get_params())
@@ -249,8 +256,6 @@ average_s, threads
         ``family__degree``.  A name that is neither, for a family spec, is one error naming the
         valid ones; a family that is no spec (an unknown name, a value of the wrong type) keeps
         the names as given, as the constructor does, and :meth:`fit` refuses it."""
-        from ..models.registry import spec_of
-
         own = _OWN + _TRAIN_KEYS
         fam = params.get("family", self.family)
         nested = {k: v for k, v in params.items() if k.partition("__")[0] not in own}
@@ -293,8 +298,6 @@ average_s, threads
     # ------------------------------------------------------------------ fitting
     def _train_config(self) -> TrainConfig:
         """``train`` (a TrainConfig, a dict of its fields or None) with the keywords over it."""
-        from ..core.schema import from_dict
-
         base = self.train
         if base is None:
             config = TrainConfig()
@@ -312,8 +315,6 @@ average_s, threads
     def _family_spec(self) -> FamilySpec:
         """``family`` as a spec (a name: its spec with the defaults); an unknown family or
         hyper-parameter name, or a family of the wrong type, is one error naming it."""
-        from ..models.registry import make_spec
-
         fam = self.family
         if isinstance(fam, FamilySpec):
             return fam
@@ -337,10 +338,6 @@ average_s, threads
         """Every constructor argument checked (what :meth:`fit` does first, before it reads
         any data or builds anything): one error naming the argument and what it takes.
         Returns the training settings, the inputs and the family's spec."""
-        from ..data.diagnostics import TEMPERATURE_PLAUSIBLE_C
-        from ..features.target import MODES
-        from .parameters import STDERR_METHODS
-
         spec = self._family_spec()      # an unknown family or hyper-parameter, naming them
         if isinstance(self.target, dict):
             for key, mode in self.target.items():
@@ -371,8 +368,6 @@ average_s, threads
         return config, inputs, spec
 
     def _outputs_for(self, runs: list[Recording]) -> list[str]:
-        from ..features.target import modelled_outputs
-
         return modelled_outputs(names_of(self.outputs, "outputs") or list(runs[0].axes),
                                 self.target)
 
@@ -422,7 +417,6 @@ average_s, threads
             The data cannot carry the family (reason given).
         """
         from ..training.pipeline import fit_split, split_parts, split_spec  # torch boundary
-        from ..training.splits import stack_blocks
 
         if self.family == "per-axis":
             raise ConfigError("family 'per-axis': a model per axis is chosen by compare "
@@ -458,7 +452,7 @@ average_s, threads
         that trains, one unit per output), the outputs and their targets resolved as compare
         resolves them (:mod:`thermonet.features.target`: a reference channel, else zero for a
         gyro, else the change from T_ref — an accelerometer's gravity is no drift)."""
-        from ..training.parts import targets_for
+        from ..training.parts import targets_for  # lazy: loads yaml
 
         runs = runs_of(train, "fit(train)")
         val_runs = None if val is None else runs_of(val, "fit(val)")
@@ -483,8 +477,6 @@ average_s, threads
                  runs: list[Recording], val_runs: list[Recording] | None,
                  config: TrainConfig) -> None:
         """The learned state (names ending in ``_``) from one split's fit."""
-        from ..features.target import output_units
-
         self.model_: ShippedModel = result.model
         self.spec_: FeatureSpec = spec
         self.targets_: Target = targets
@@ -514,8 +506,7 @@ average_s, threads
     def _parameter_table(self, parts: Any, config: TrainConfig) -> None:
         """``parameters_`` and ``covariance_``: the coefficients with their standard errors
         (``stderr``'s method) on the training part's arrays."""
-        from ..training.parts import fit_arrays
-        from .parameters import parameter_table
+        from ..training.parts import fit_arrays  # lazy: loads yaml
 
         arrays = [fit_arrays(q, config.average_s) for q in parts.train]
         self.parameters_: pd.DataFrame
@@ -527,7 +518,7 @@ average_s, threads
             method=self.stderr, seed=config.seed)
 
     def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
-        from ..training.parts import build_part
+        from ..training.parts import build_part  # lazy: loads yaml
 
         # a fitted model's own signal order (a per-axis model's: the union of its parts')
         model = self.__dict__.get("model_")
@@ -540,7 +531,7 @@ average_s, threads
         """For a per-axis model (a ``compare`` that chose a candidate per axis, loaded with
         :meth:`load`): ``{axis: the label of the candidate that computes it, or None where
         the axis is left raw}``; None for a single-family model."""
-        from ..models.composite import AxisModels
+        from ..models.composite import AxisModels  # torch boundary
 
         model = self._check_fitted("axis_models_")
         return model.axis_table() if isinstance(model, AxisModels) else None
@@ -569,8 +560,7 @@ average_s, threads
         (``model_.out_of_range`` flags the samples outside it).
         """
         model = self._check_fitted("predict")
-        from ..features.inputs import signal_matrix
-        from ..training.train import predict
+        from ..training.train import predict  # torch boundary
 
         band = self.__dict__.get("band_")
         if return_band and band is None:
@@ -678,8 +668,8 @@ average_s, threads
 
     def _variances(self, data: Data, what: str) -> tuple[np.ndarray, np.ndarray]:
         """Per axis, the error's sum of squares after and before (each run about its mean)."""
-        from ..training.pipeline import residual_spread
-        from ..training.train import predict
+        from ..training.pipeline import residual_spread  # torch boundary
+        from ..training.train import predict  # torch boundary
 
         model = self._check_fitted(what)
         if self.model == "sensor":
@@ -743,9 +733,6 @@ average_s, threads
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the fitted model as a thermonet checkpoint (atomic; loads with
         ``weights_only=True``; ``thermonet export`` reads it)."""
-        from .checks import path as a_path
-        from .persistence import save
-
         if self.model == "sensor":
             self._check_fitted("save")
             return sensor_mode.save(self, a_path(path, "save(path)"))  # type: ignore[arg-type]
@@ -754,9 +741,6 @@ average_s, threads
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DriftEstimator:
         """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
-        from .checks import path as a_path
-        from .persistence import load
-
         if sensor_mode.is_sensor_checkpoint(a_path(path, "load(path)")):  # type: ignore[arg-type]
             return sensor_mode.load(cls, path)
         return load(cls, a_path(path, "load(path)"))  # type: ignore[arg-type]
@@ -768,10 +752,6 @@ average_s, threads
         ``device_id``/``instance`` apply to the autopilot formats (see
         ``thermonet export --help``).
         """
-        from .checks import path as a_path
-        from .checks import text, whole
-        from .persistence import export
-
         a_path(path, "export(path)")
         text(format, "export(format)", rule="a format name such as 'onnx'")
         whole(device_id, "export(device_id)", 0, none=True)

@@ -34,7 +34,18 @@ import numpy as np
 
 from ..core.errors import ConfigError, ThermonetError
 from ..core.recording import Dataset, Recording
-from .data import Data, data_source, names_of, needs_outputs, runs_of, same_run, same_units
+from ..features.inputs import signal_matrix
+from ..training.splits import stack_blocks
+from .data import (
+    BLOCK_RUN,
+    Data,
+    data_source,
+    names_of,
+    needs_outputs,
+    runs_of,
+    same_run,
+    same_units,
+)
 
 if TYPE_CHECKING:
     from .estimator import DriftEstimator
@@ -66,10 +77,9 @@ def fit(est: Any, train: Data, val: Data | None, *, config: Any,
     if track:
         raise ConfigError("fit(track): a sensor-mode fit is not tracked; 'thermonet compare' "
                           "with model: sensor logs its families to MLflow")
-    from ..models.sensor import triads_of
-    from ..training.pipeline import split_spec
-    from ..training.sensor import fit_sensor, sensor_run
-    from ..training.splits import stack_blocks
+    from ..models.sensor import triads_of  # torch boundary
+    from ..training.pipeline import split_spec  # torch boundary
+    from ..training.sensor import fit_sensor, sensor_run  # torch boundary
 
     runs = runs_of(train, "fit(train)")
     val_runs = None if val is None else runs_of(val, "fit(val)")
@@ -130,14 +140,13 @@ def _fitted(est: Any, model: Any, outputs: list[str], first: Recording | None,
 
 def _arrays(est: Any, rec: Recording, what: str, *, refs: bool) -> Any:
     """A run's signals, raw outputs and (``refs``) references for the fitted model."""
-    from ..training.sensor import SensorRun, sensor_run
+    from ..training.sensor import SensorRun, sensor_run  # torch boundary
 
     needs_outputs(rec, est.outputs_, what)
     same_units(rec, est.units_, what, "the model was trained in")
     same_units(rec, est.signal_units_, what, "the model was trained on it")
     if refs:
         return sensor_run(rec, est.spec_, est.outputs_)
-    from ..features.inputs import signal_matrix
 
     sig = signal_matrix(rec, est.spec_.signals, est.spec_.gap_s)
     raw = np.stack([rec.outputs[o] for o in est.outputs_], axis=1).astype(np.float64)
@@ -173,8 +182,6 @@ def compensate(est: Any, data: Data) -> Any:
 def variances(est: Any, data: Data, what: str) -> tuple[np.ndarray, np.ndarray]:
     """Per axis, the sums of squares of ``compensated − ref`` and ``raw − ref``, each
     source run about its own mean (the bias score's offset-free sums)."""
-    from .data import BLOCK_RUN
-
     sums: dict[str, list[np.ndarray]] = {}
     for rec in runs_of(data, what):
         r = _arrays(est, rec, what, refs=True)
@@ -192,7 +199,7 @@ def variances(est: Any, data: Data, what: str) -> tuple[np.ndarray, np.ndarray]:
 
 def save(est: Any, path: str | os.PathLike[str]) -> Path:
     """The fitted sensor model as a sensor checkpoint (``compare``'s format)."""
-    from ..training.sensor import SensorFit, save_sensor
+    from ..training.sensor import SensorFit, save_sensor  # torch boundary
 
     fitted = est.__dict__.get("sensor_fit_")
     if fitted is None:      # loaded: the model and what was kept
@@ -234,7 +241,7 @@ def is_sensor_checkpoint(path: str | os.PathLike[str]) -> bool:
     """Whether ``path`` holds a sensor checkpoint (its ``format``); False for anything else."""
     import torch
 
-    from ..training.sensor import SENSOR_FORMAT
+    from ..training.sensor import SENSOR_FORMAT  # torch boundary
 
     try:
         payload = torch.load(Path(path), map_location="cpu", weights_only=True)
@@ -246,7 +253,7 @@ def is_sensor_checkpoint(path: str | os.PathLike[str]) -> bool:
 def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstimator:
     """A sensor-mode estimator fitted as the sensor checkpoint at ``path`` (also one
     ``compare`` wrote)."""
-    from ..training.sensor import load_sensor
+    from ..training.sensor import load_sensor  # torch boundary
 
     model, payload = load_sensor(Path(path))
     extra = payload.get("extra") or {}

@@ -76,6 +76,7 @@ from ..core.version import __version__
 from ..models import DriftModel
 from ..models.cgen import as_float32, c_array, c_float, c_target_prelude
 from ..models.composite import AxisModels, ShippedModel
+from .c_band import check_band_c, insert_band
 from .c_driver import PARITY_DRIVER, c_compiler, run_c_driver
 from .c_recurrent import c_step_parity_check, check_recurrent_stream, render_recurrent_stream_c
 from .c_stream import (
@@ -437,8 +438,6 @@ def export_c_header(model: ShippedModel, path: str | Path, *, prefix: str = "the
     text = render_c_header(model, prefix=prefix)
     checks: list[Callable[[], object]] = []
     if band is not None:
-        from .c_band import check_band_c, insert_band
-
         text = insert_band(text, band, prefix, list(model.outputs), list(model.signals))
         checks.append(partial(check_band_c, band, text, prefix))
     recurrent = isinstance(model, DriftModel) and model.family.recurrent

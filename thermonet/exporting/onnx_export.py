@@ -94,7 +94,9 @@ from ..core.names import (
 from ..core.version import __version__
 from ..models import DriftModel
 from ..models.composite import AxisModels, ShippedModel
+from .onnx_graph import DIRECT, direct_proto, direct_supported
 from .parity import parity_check, trained_range
+from .recurrent import RecurrentGraph, recurrent_metadata, recurrent_parity_check
 
 __all__ = [
     "THERMONET_FORMAT",
@@ -311,8 +313,6 @@ def _direct_or_traced(model: ShippedModel, graph: nn.Module, exporter: str) -> t
     """The graph built directly (:mod:`.onnx_graph`) where ``exporter`` is ``direct``, or
     ``auto`` and the model's families have a direct graph; torch's exporters otherwise."""
     if exporter in ("auto", "direct"):
-        from .onnx_graph import DIRECT, direct_proto, direct_supported
-
         why = direct_supported(model)
         if why is None:
             return direct_proto(model, OPSET), DIRECT
@@ -378,8 +378,6 @@ def _metadata_props(model: ShippedModel, metadata: Mapping[str, Any], exporter: 
     if isinstance(model, AxisModels):
         props.update(axis_models_metadata(model))
     if isinstance(model, DriftModel) and model.family.recurrent:
-        from .recurrent import recurrent_metadata
-
         # the runtime carries the state between calls with these constants
         props["recurrent"] = _json(recurrent_metadata(model))
     dynamic = spec.dynamic if spec is not None else None
@@ -482,8 +480,6 @@ def export_onnx(model: ShippedModel, path: str | Path, *, metadata: Mapping[str,
     try:
         recurrent = isinstance(model, DriftModel) and model.family.recurrent
         if isinstance(model, DriftModel) and recurrent:
-            from .recurrent import RecurrentGraph, recurrent_parity_check
-
             graph: nn.Module = RecurrentGraph(model).eval()
         else:
             graph = CompensatorGraph(model).eval()

@@ -52,6 +52,7 @@ from ..core.fileio import atomic_write_text
 from ..features import dynamics
 from ..models.sensor import SensorModel, check_invertible
 from .c_driver import PARITY_DRIVER, c_compiler, run_c_driver
+from .c_header import _IDENT, _render_single
 from .c_stream import REAL_FLAGS, render_stream_block_c, render_stream_c, run_stream_c
 from .sensor_probe import PARITY_EPS32, STREAM_RTOL, probe
 
@@ -106,8 +107,6 @@ def _solve_lines(p: str, model: SensorModel) -> list[str]:
 
 def render_sensor_c(model: SensorModel, *, prefix: str = "thermonet") -> str:
     """The header's text (see the module docstring)."""
-    from .c_header import _IDENT, _render_single
-
     if not _IDENT.fullmatch(prefix):
         raise ExportError(f"C prefix {prefix!r} is not a C identifier")
     if model.bias.family.recurrent:

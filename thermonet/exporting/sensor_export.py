@@ -35,7 +35,11 @@ import torch
 from torch import nn
 
 from ..core.errors import ExportError
+from ..core.fileio import atomic_path
 from ..models.sensor import SensorModel, check_invertible
+from ..training.sensor import SENSOR_FORMAT, load_sensor
+from .onnx_export import _export_proto, _metadata_props, _seal_bytes
+from .sensor_c import export_sensor_c
 from .sensor_probe import PARITY_EPS32, probe
 
 __all__ = ["SensorGraph", "is_sensor_checkpoint", "export_sensor_onnx", "sensor_parity",
@@ -58,8 +62,6 @@ class SensorGraph(nn.Module):
 
 def is_sensor_checkpoint(path: str | Path) -> bool:
     """Whether ``path`` holds a sensor model (read with ``weights_only``; False if unreadable)."""
-    from ..training.sensor import SENSOR_FORMAT
-
     try:
         payload = torch.load(Path(path), map_location="cpu", weights_only=True)
     except Exception:  # not ours to diagnose: the bias-model loader says what is wrong
@@ -107,9 +109,6 @@ def export_sensor_onnx(model: SensorModel, path: str | Path, *,
     invertibility check on the trained range); returns what results.json records."""
     import onnx
 
-    from ..core.fileio import atomic_path
-    from .onnx_export import _export_proto, _metadata_props, _seal_bytes
-
     for name, p in list(model.named_parameters()) + list(model.named_buffers()):
         if p.is_floating_point() and bool(torch.isnan(p).any()):
             raise ExportError(f"sensor model parameter '{name}' holds NaN; refusing to export")
@@ -143,8 +142,6 @@ def export_sensor_onnx(model: SensorModel, path: str | Path, *,
 
 def export_sensor_source(ckpt: Path, *, fmt: str, out: str | Path) -> Path:
     """``thermonet export`` of a sensor checkpoint (see the module docstring)."""
-    from ..training.sensor import load_sensor
-
     if fmt in ("px4-params", "ardupilot-params"):
         alt = bias_only_path(ckpt)
         raise ExportError(
@@ -156,8 +153,6 @@ def export_sensor_source(ckpt: Path, *, fmt: str, out: str | Path) -> Path:
                           "export it as onnx or c")
     model, payload = load_sensor(ckpt)
     if fmt == "c":
-        from .sensor_c import export_sensor_c
-
         return export_sensor_c(model, out)
     extra = payload.get("extra", {})
     export_sensor_onnx(model, out, metadata={

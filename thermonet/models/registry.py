@@ -160,7 +160,7 @@ def get_family(name: str) -> type[Family]:
     if _MODELS is not None and isinstance(name, str) and name in _MODELS:
         return _MODELS[name]
     target = _target(name)          # an unknown name is refused before torch loads
-    from .base import Family
+    from .base import Family  # torch boundary
 
     load = FAMILIES[name].family_class if name in FAMILIES else _loader(target)
     obj = _guarded(name, "importing", load)

@@ -138,7 +138,7 @@ class FamilySpec:
     def build(self, *, n_inputs: int, n_outputs: int) -> Family:
         """The torch module for ``n_inputs`` inputs and ``n_outputs`` outputs (imports torch
         now).  A plug-in's failure is one line naming it (the registry's guard)."""
-        from .registry import build_family
+        from .registry import build_family  # cycle: registry imports specs at its top
 
         return build_family(self.key, n_inputs=n_inputs, n_outputs=n_outputs,
                             hyper=self.hyper())

@@ -96,7 +96,9 @@ from typing import Any
 
 import numpy as np
 
+from ..core.recording import contiguous_segments
 from .folds import deal, purged
+from .metrics import binned_peak_to_peak
 from .verdicts import LEVEL, above, below, draws, same
 
 __all__ = ["FoldPlan", "CandidateOOF", "plan_folds", "purge_rule", "window_rule",
@@ -226,8 +228,6 @@ def in_domain(signals: np.ndarray, lo: np.ndarray, hi: np.ndarray, widen: np.nda
 
 def window_labels(time_s: np.ndarray, window_s: float) -> np.ndarray:
     """Window index of every sample: ``window_s`` windows inside each contiguous stretch."""
-    from ..core.recording import contiguous_segments
-
     t = np.asarray(time_s, dtype=np.float64)
     out = np.empty(t.size, dtype=np.int64)
     nxt = 0
@@ -303,8 +303,6 @@ def _below_baseline(k: str, baseline: str | None, axis_scores: Mapping[str, np.n
 def _binned_pp(temperature: np.ndarray, e: np.ndarray) -> np.ndarray:
     """Per axis, the binned peak-to-peak of ``e`` (n, A) over 1 °C temperature bins (0 where
     nothing is finite)."""
-    from .metrics import binned_peak_to_peak
-
     out = np.zeros(e.shape[1])
     ok = np.isfinite(temperature)
     if ok.sum() < 2:

@@ -18,9 +18,18 @@ import yaml
 
 from ..core.errors import ConfigError
 from ..core.fileio import not_a_file
+from ..core.names import LABEL
 from ..core.schema import from_dict, to_dict
 from ..core.trainconfig import TrainConfig  # the ``train`` section is TrainConfig itself
 from ..core.yamlio import YamlRefusal, load_yaml
+from ..data.diagnostics import TEMPERATURE_PLAUSIBLE_C
+from ..features.inputs import signals_for
+from ..features.target import MODES, modelled_outputs
+from ..models.hyper import HyperError
+from ..models.registry import make_spec
+from ..scoring.band import check_level
+from ..scoring.fleetstats import parse_limits
+from ..sim.presets import MAX_RUNS
 
 if TYPE_CHECKING:
     from ..models.specs import FamilySpec
@@ -153,8 +162,6 @@ class BandConfig:
 
     def __post_init__(self) -> None:
         if self.level is not None:
-            from ..scoring.band import check_level
-
             check_level(self.level)
         if isinstance(self.bins, bool) or not isinstance(self.bins, int) or \
                 not 1 <= self.bins <= 50:
@@ -185,8 +192,6 @@ class FeatureConfig:
             raise ConfigError(f"key 'features.gap_s': {self.gap_s!r} is not a number of seconds "
                               "in 1e-06 … 1e+07 (a µs … 116 days) or 'auto'")
         if not isinstance(self.t_ref, str):
-            from ..data.diagnostics import TEMPERATURE_PLAUSIBLE_C
-
             lo, hi = TEMPERATURE_PLAUSIBLE_C
             if not lo <= self.t_ref <= hi:  # NaN fails too
                 raise ConfigError(f"key 'features.t_ref': {self.t_ref!r} °C is not a reference "
@@ -222,8 +227,6 @@ class FamilyConfig:
         ``Poly(degree=3)``, what ``DriftEstimator(family=...)`` takes — one rule for both.
         Names are checked (an unknown family or hyper-parameter is a ConfigError), values by
         the spec's :meth:`~thermonet.models.specs.FamilySpec.check`."""
-        from ..models.registry import make_spec
-
         return make_spec(self.family, {**self.params, **(point or {})})
 
 
@@ -313,8 +316,6 @@ class CompareConfig:
 def outputs_of(cfg: CompareConfig, ds: Any) -> list[str]:
     """The outputs a comparison fits: the config's ``data.outputs`` or the data's axes (each
     axis's bias and scale for the four-position target)."""
-    from ..features.target import modelled_outputs
-
     return modelled_outputs(cfg.data.outputs or ds.axes, cfg.target)
 
 
@@ -387,7 +388,6 @@ def config_from_mapping(data: Any, *, source: str = "config") -> CompareConfig:
     if data.get("baseline") is not None and cfg.baseline not in labels:  # the default may lapse
         raise ConfigError(f"{p}: key 'baseline': no family named {cfg.baseline!r} (families: "
                           f"{', '.join(labels)})")
-    from ..scoring.fleetstats import parse_limits
 
     parse_limits(cfg.limits, source=p)
     cfg._source = p  # not a field: names the file in later errors
@@ -403,11 +403,6 @@ def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = 
     ``fleet`` and the API do before reading data) also builds each family, which checks
     the hyper-parameters' values.
     """
-    from ..core.names import LABEL
-    from ..features.inputs import signals_for
-    from ..models.hyper import HyperError
-    from ..models.registry import make_spec
-
     for i, fam in enumerate(cfg.families):
         key = f"families[{i}]"
         if LABEL.fullmatch(fam.label) is None:  # the label names models/<label>.pt
@@ -484,8 +479,6 @@ def tune_points(fam: FamilyConfig, source: str = "config", key: str = "families"
 
 def _check_data(data: DataConfig, source: str) -> None:
     """Bounds of the ``data`` section that need no data: run count, seed."""
-    from ..sim.presets import MAX_RUNS
-
     if data.runs is not None and not 1 <= data.runs <= MAX_RUNS:
         raise ConfigError(f"{source}: key 'data.runs': {data.runs} is not in 1..{MAX_RUNS} "
                           "(the upper bound keeps a request within memory)")
@@ -500,8 +493,6 @@ def _check_data(data: DataConfig, source: str) -> None:
 
 def _check_target(target: str | dict[str, str], source: str) -> None:
     """The ``target`` section's modes (its keys name outputs: checked once the data are read)."""
-    from ..features.target import MODES
-
     if not isinstance(target, dict):
         return  # a Literal: already checked by from_dict
     for key, mode in target.items():

@@ -35,12 +35,15 @@ import torch
 # by a command that fits only closed-form families (linear, poly, the RBF with a tail: no
 # optimiser is built for them) or nothing (export, verify, info, a config error)
 from ..core.errors import ConfigError, FitError, InputError, check_interrupted
+from ..core.recording import contiguous_segments
 from ..core.trainconfig import TrainConfig  # re-exported: the ``train`` section
 from ..features.dynamics import dynamic_signals, saturation_margin
 from ..features.inputs import FeatureSpec
 from ..models import DriftModel, build_family
 from ..models.base import Family, check_output_shape
 from ..models.composite import ShippedModel
+from ..models.sequence import stream_relative
+from .recurrent import fit_recurrent
 from .scaling import EarlyStopping, training_scaling
 
 __all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "average_windows",
@@ -85,8 +88,6 @@ def average_windows(signals: np.ndarray, targets: np.ndarray, time_s: np.ndarray
     -------
     (signals, targets, time_s) averaged, each with one row per window.
     """
-    from ..core.recording import contiguous_segments
-
     t = np.asarray(time_s, dtype=np.float64)
     n = t.shape[0]
     if n == 0 or (window_s <= 0 and min_samples <= 1):
@@ -295,8 +296,6 @@ def _fit(*, family: str, inputs: list[str], outputs: list[str],
     if val_run is not None:
         val_run = (val_run[0], val_run[1] - offset, *val_run[2:])
     if fam.recurrent:
-        from .recurrent import fit_recurrent
-
         # the trained range first: fit_recurrent reads it from the model
         model.set_scaling(x_mean=np.zeros(len(inputs)), x_std=np.ones(len(inputs)),
                           y_mean=np.zeros(len(outputs)), y_std=np.ones(len(outputs)),
@@ -439,8 +438,6 @@ def predict(model: ShippedModel, signals: np.ndarray, time_s: np.ndarray | None 
         raise InputError(f"signals have shape {s.shape}, expected (n, {len(model.signals)}) "
                          f"for {model.signals}")
     if isinstance(model, DriftModel) and model.family.recurrent:
-        from ..models.sequence import stream_relative
-
         if time_s is None:
             raise InputError(f"model '{model.family_name}' carries a state in time: predict "
                              "needs time_s (one stream in time order)")

@@ -36,14 +36,21 @@ from typing import Any
 
 from ..core.errors import ConfigError, Interrupted, ThermonetError
 from ..core.fileio import atomic_write_text
+from ..core.names import path_component
+from ..core.outdir import staged_output
 from ..core.profile import stage
 from ..core.recording import Dataset
 from ..core.version import __version__
-from ..reporting.report import tuned_text
+from ..features.inputs import TEMPERATURE
+from ..reporting.report import tuned_text, write_report
 from ..reporting.results import ComparisonResult
+from ..scoring.band import evaluate_tables
+from ..scoring.verdicts import LEVEL, MIN_BLOCKS, RESAMPLES, SEED, apply_compensate_mask
+from ..tracking import Tracker
 from ..training.config import (
     CompareConfig,
 )
+from ..training.parameters import parameter_table, sealed_parameters
 from ..training.parts import (
     data_hash,
 )
@@ -53,6 +60,7 @@ from .compare_judge import PER_AXIS, Fitted, choose_and_judge, extrapolation
 from .compare_plan import PartCache, Plan, data_summary, plan
 from .compare_track import TrackingSession, family_record
 from .provenance import data_source, family_config, resolved_config, resolved_yaml
+from .sensor import format_sensor_table, run_sensor
 
 __all__ = ["run_compare", "format_table"]
 
@@ -77,12 +85,9 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
     ``out_dir`` that is not a complete comparison is refused; a previous
     comparison is replaced only with ``overwrite=True``.
     """
-    from ..core.outdir import staged_output
-    from ..training.train import thread_limits
+    from ..training.train import thread_limits  # torch boundary
 
     if cfg.model == "sensor":  # the full sensor model: its own fit and judgement
-        from .sensor import run_sensor
-
         return run_sensor(cfg, out_dir, overwrite=overwrite, quiet=quiet, dataset=dataset,
                           plots=plots, track=track, tracking_uri=tracking_uri)
     # torch's and the native pools (BLAS, OpenMP) capped at train.threads for the whole
@@ -118,8 +123,6 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
     """The comparison itself, written into ``out_dir`` (a staging directory): plan, fit,
     judge, write, then the MLflow record from what was written (the tracking child,
     :mod:`thermonet.workflows.compare_track`, works while the plots are drawn)."""
-    from ..tracking import Tracker
-
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"{out}: --out must be a directory, and this is a file")
@@ -222,8 +225,6 @@ def _fit_step(run: _Run, workers: int | None) -> tuple[dict[str, Fitted], dict[s
 def _fitted_family(run: _Run, fam: Any, f: Fitted, run_id: str | None) -> dict[str, Any]:
     """One family's fit: the per-axis mask set in the model, the band, the checkpoint, one
     progress line; returns its MLflow record."""
-    from ..scoring.verdicts import apply_compensate_mask
-
     r, outputs = f.result, run.p.outputs
     if not r.ok:
         run.progress.line(f"  {fam.label:<14} not fitted: {r.reason}")
@@ -249,7 +250,7 @@ def _fitted_family(run: _Run, fam: Any, f: Fitted, run_id: str | None) -> dict[s
 
 def _save_family(run: _Run, fam: Any, f: Fitted, mask: list[bool], run_id: str | None) -> None:
     """``models/<label>.pt``, sealed; its family config holds the tuned values as params."""
-    from ..training.checkpoint import save_checkpoint
+    from ..training.checkpoint import save_checkpoint  # torch boundary
 
     r, ds, outputs, band = f.result, run.p.ds, run.p.outputs, f.result.band or {}
     ckpt = run.out / "models" / f"{fam.label}.pt"
@@ -275,8 +276,6 @@ def _save_family(run: _Run, fam: Any, f: Fitted, mask: list[bool], run_id: str |
 def _judge_step(run: _Run, fitted: dict[str, Fitted]) -> dict[str, Any]:
     """Choose and judge (:func:`choose_and_judge`), the per-axis model where chosen, the
     extrapolation warnings; returns the ``results.json`` document."""
-    from ..scoring.verdicts import LEVEL, MIN_BLOCKS, RESAMPLES, SEED
-
     result = run.result
     result.mlflow_run_id = run.tracking.ids()[0]
     n_val = next((f.val.n.size for f in fitted.values() if f.val is not None), 0)
@@ -313,8 +312,6 @@ def _write_step(run: _Run, fitted: dict[str, Fitted], doc: dict[str, Any],
                 records: dict[str, Any], *, plots: bool) -> None:
     """``results.json`` and ``config.resolved.yaml``, handed to the tracking child, then the
     plots and ``report.html`` while it logs; its warnings join the results' (printed)."""
-    from ..reporting.report import write_report
-
     out = run.out
     with stage("write results.json"):
         atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
@@ -333,8 +330,6 @@ def _write_step(run: _Run, fitted: dict[str, Fitted], doc: dict[str, Any],
 def _sealed(parameters: Any) -> dict[str, Any]:
     """``extra.parameters`` of a checkpoint: the fit's standard errors and covariance
     (least squares), so that the loaded model states them (none where not computed)."""
-    from ..training.parameters import sealed_parameters
-
     if parameters is None:
         return {}
     table, cov = parameters
@@ -344,8 +339,6 @@ def _sealed(parameters: Any) -> dict[str, Any]:
 def _per_axis_parameters(model: Any, fitted: dict[str, Fitted], labels: list[str],
                          units: dict[str, str]) -> Any:
     """The per-axis model's table: each axis's rows from the fit of the part that owns it."""
-    from ..training.parameters import parameter_table
-
     tables = [fitted[k].parameters for k in labels]
     if any(t is None for t in tables):
         return None
@@ -359,8 +352,8 @@ def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResul
     (:class:`thermonet.models.composite.AxisModels`), sealed like every checkpoint."""
     import copy
 
-    from ..models.composite import AxisModels
-    from ..training.checkpoint import save_checkpoint
+    from ..models.composite import AxisModels  # torch boundary
+    from ..training.checkpoint import save_checkpoint  # torch boundary
 
     cfg = p.cfg
     owners: dict[str, str | None] = result.selection["per_axis"]["chosen"]
@@ -395,8 +388,7 @@ def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResul
 def _plots(out: Path, fitted: dict[str, Fitted], results: dict[str, Any],
            ds: Dataset) -> list[Path]:
     """PNG figures of the last fold's test data, every fitted family in its own colour."""
-    from ..core.names import path_component
-    from ..reporting.plots import (
+    from ..reporting.plots import (  # lazy: loads matplotlib
         family_colours,
         plot_accuracy_cost,
         plot_allan,
@@ -451,9 +443,6 @@ def _band_curve(results: dict[str, Any], axis: str, x: Any) -> Any:
     (no band, or a band over another signal than the plot's x)."""
     import numpy as np
 
-    from ..features.inputs import TEMPERATURE
-    from ..scoring.band import evaluate_tables
-
     band = results.get("band") or {}
     t = (band.get("axes") or {}).get(axis)
     xs = np.asarray(x, dtype=np.float64)
@@ -494,8 +483,6 @@ def format_table(results: dict[str, Any]) -> str:
     = indistinguishable); ``comp`` says whether the axis is compensated.
     """
     if results.get("model") == "sensor":
-        from .sensor import format_sensor_table
-
         return format_sensor_table(results)
     fams = results["families"]
     axes = list(results["units"])

@@ -19,8 +19,9 @@ import numpy as np
 from ..core.errors import FitError
 from ..core.profile import stage
 from ..data.diagnostics import outside_distance, outside_fraction
-from ..features.inputs import TEMPERATURE
+from ..features.inputs import RATE, TEMPERATURE, resolve_gap_s, signal_matrix
 from ..reporting.results import FamilyResult
+from ..scoring.selection import CandidateOOF, in_domain, noise_widths, select
 from ..scoring.verdicts import pool
 from ..training.config import (
     CompareConfig,
@@ -28,6 +29,8 @@ from ..training.config import (
     train_config_of,
     tune_points,
 )
+from ..training.parameters import parameter_table
+from ..training.parts import HEATING_MIN_RATE_C_PER_MIN, fit_arrays, rows_average_s
 from .compare_judge import Fitted, judge_against_raw
 from .compare_plan import PartCache, Plan
 
@@ -146,7 +149,7 @@ def _fit_on_split(p: Plan, fam: FamilyConfig, tcfg: Any, split: Any, parts: Part
     """One split: the fit on its training part (then the refit on training + validation),
     scored on its validation and test parts; ``out`` keeps the last split's model."""
     from ..models.base import as_numpy  # the torch boundary
-    from ..training.pipeline import (
+    from ..training.pipeline import (  # torch boundary
         block_sums,
         fit_split,
         residual_spread,
@@ -154,7 +157,7 @@ def _fit_on_split(p: Plan, fam: FamilyConfig, tcfg: Any, split: Any, parts: Part
         split_parts,
         split_spec,
     )
-    from ..training.train import predict
+    from ..training.train import predict  # torch boundary
 
     cfg, res = p.cfg, out.result
     spec = split_spec(fam.inputs, split.train, t_ref=cfg.features.t_ref,
@@ -211,9 +214,6 @@ def _pool(p: Plan, fam: FamilyConfig, split: Any, spec: Any, parts: PartCache
     """A split's pool (every run that is not the test run, whole: dynamic inputs computed
     before any cut) as parts, and per run the rows a fit may use: not test rows, and for
     ``train_on: heating`` only the heating ones."""
-    from ..features.inputs import RATE, resolve_gap_s, signal_matrix
-    from ..training.parts import HEATING_MIN_RATE_C_PER_MIN
-
     whole = [parts(rec, spec.signals, spec.gap_s) for rec, _ in split.pool]
     keep = [np.asarray(m, dtype=bool).copy() for _, m in split.pool]
     if fam.train_on == "heating":
@@ -227,9 +227,6 @@ def _parameters(p: Plan, model: Any, train_parts: list[Any], average_s: float) -
     """The kept model's parameter table and covariance (``est.parameters_``,
     ``est.covariance_``) with least-squares standard errors on the rows it was fitted on —
     what ``DriftEstimator(...).fit`` of the same runs states; sealed into the checkpoint."""
-    from ..training.parameters import parameter_table
-    from ..training.parts import fit_arrays
-
     arrays = [fit_arrays(q, average_s) for q in train_parts]
     signal_units = {s: p.ds[0].units.get(s, "") for s in p.ds[0].proxies}
     return parameter_table(model, p.units, signal_units,
@@ -246,7 +243,7 @@ def _refit(p: Plan, fam: FamilyConfig, tcfg: Any, split: Any, parts: PartCache,
     ship.  It is what ``DriftEstimator(...).fit(split.train + [split.val])`` fits (the API's
     equality tests): the feature references come from those runs, each run's part is built
     as for the first fit."""
-    from ..training.pipeline import fit_split, split_parts, split_spec
+    from ..training.pipeline import fit_split, split_parts, split_spec  # torch boundary
 
     cfg = p.cfg
     runs = [*split.train, split.val] if split.val is not None else list(split.train)
@@ -267,9 +264,7 @@ def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
     fold's trained domain.  Returns the :class:`CandidateOOF` and the pool's whole parts."""
     from dataclasses import replace
 
-    from ..scoring.selection import CandidateOOF, in_domain, noise_widths
-    from ..training.parts import rows_average_s
-    from ..training.train import fit, predict
+    from ..training.train import fit, predict  # torch boundary
 
     plan = p.folds
     oof = CandidateOOF(fam.label, 0)
@@ -308,8 +303,6 @@ def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: An
                     parts: PartCache, on_epoch: Any, oof: Any = None) -> None:
     """The family's out-of-fold predictions (:func:`_oof`; ``oof``: already made by the
     tuning) and the per-axis mask its own cross-validation gives."""
-    from ..scoring.selection import select
-
     whole = [parts(rec, spec.signals, spec.gap_s) for rec, _ in p.splits[-1].pool]
     if oof is None:
         oof, whole = _oof(p, fam, tcfg, spec, parts, on_epoch)
@@ -343,8 +336,6 @@ def _tune(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
     predictions (reused by the family's own cross-validation).  Where no point beats raw
     the configured values stay."""
     from dataclasses import replace
-
-    from ..scoring.selection import select
 
     points = tune_points(fam)
     oofs: dict[str, Any] = {}

@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from ..core.errors import Interrupted, ThermonetError
+from ..tracking import HOST_TAG, PID_TAG, Tracker, _retry, flatten_params
 
 __all__ = ["TrackingFailed", "TrackingSession", "family_record", "log_chosen_model"]
 
@@ -179,8 +180,6 @@ class _Child:
     """The tracking child: the runs it opened, and the requests that fill and end them."""
 
     def __init__(self) -> None:
-        from ..tracking import Tracker
-
         self.tracker_type = Tracker
         self.tracker: Any = None
         self.mlflow: Any = None
@@ -193,8 +192,6 @@ class _Child:
         """The parent run (fluent, active in this process) and the nested runs, created as
         MLflow's ``start_run`` creates them (same system tags), all left ``RUNNING``."""
         from mlflow.tracking.context import registry
-
-        from ..tracking import HOST_TAG, PID_TAG, _retry, flatten_params
 
         sys.argv = list(req["argv"])   # mlflow.source.name: the command's, not this child's
         self.tracker = self.tracker_type(enabled=True, uri=req["uri"],
@@ -241,7 +238,7 @@ class _Child:
             finally:
                 mlflow.end_run("FINISHED")
                 self.open_runs.remove(cid)
-        from .compare_judge import PER_AXIS
+        from .compare_judge import PER_AXIS  # lazy: loads yaml
 
         per_axis = (doc["families"].get(PER_AXIS) or {}).get("checkpoint") \
             if doc.get("chosen") == PER_AXIS else None
@@ -267,8 +264,6 @@ class _Child:
 
     def end(self, status: str) -> None:
         """End every run still open with ``status`` (the nested ones first)."""
-        from ..tracking import _retry
-
         if self.mlflow is None:
             return
         client = self.mlflow.MlflowClient()
@@ -287,8 +282,8 @@ def log_chosen_model(doc: Mapping[str, Any], uri: str, run_id: str,
     raises."""
     import tempfile
 
-    from ..exporting.onnx_export import log_onnx_model
-    from ..exporting.source import onnx_of_checkpoint
+    from ..exporting.onnx_export import log_onnx_model  # torch boundary
+    from ..exporting.source import onnx_of_checkpoint  # torch boundary
 
     chosen = doc.get("chosen") or ""
     ckpt = (doc["families"].get(chosen) or {}).get("checkpoint")

@@ -83,13 +83,18 @@ from typing import Any, cast
 from ..core.errors import ConfigError, InputError
 from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import _umask, atomic_write_text
+from ..core.names import inside, path_components
+from ..core.outdir import check_target, install
 from ..scoring.fleetstats import (
+    fleet_html_fragment,
     judge_unit,
     parse_limits,
 )
+from ..tracking import Tracker, default_tracking_uri
 from ..training.config import CompareConfig, check_families
 from .fleet_summary import clean, fleet_summary, format_fleet_table, plot_coefficient_spread
 from .fleet_units import UnitItem, UnitSource, fold_items, fold_task, unit_task
+from .provenance import data_source, resolved_config
 
 __all__ = ["FleetOptions", "run_fleet", "EXIT_LIMITS_FAILED"]
 
@@ -164,8 +169,6 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
 
     Returns the fleet results (the dict written to ``out_dir/results.json``).
     """
-    from ..core.outdir import install
-
     t_start = time.perf_counter()
     p = _plan(cfg, out_dir, sources, options or FleetOptions(), overwrite)    # 1. plan
 
@@ -211,9 +214,6 @@ def _plan(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource],
           opts: FleetOptions, overwrite: bool) -> _Plan:
     """Everything checked before any unit is fitted: families, limits, the fleet family,
     unique device ids, the options and the output directory."""
-    from ..core.names import path_components
-    from ..core.outdir import check_target
-
     source = getattr(cfg, "_source", "config")
     check_families(cfg, source=source)
     limits = parse_limits(getattr(cfg, "limits", None), source=source)
@@ -239,8 +239,6 @@ def _collect(p: _Plan, payloads: list[Any], stage: Path
              ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Each unit's files into ``stage/units/<dir>`` and its results (paths relocated to
     ``out``); returns the units' results and their own models (for leave-units-out)."""
-    from ..core.names import inside
-
     units: dict[str, Any] = {}
     own: dict[str, Any] = {}
     for dev, res in zip(p.ids, payloads, strict=True):
@@ -271,8 +269,6 @@ def _judge(cfg: CompareConfig, p: _Plan, sources: list[UnitSource], units: dict[
     """Leave units out (after the units: flagged outliers and failed units stay out of every
     fleet model — a production line would not build its fleet model on them), each unit's
     limits (its results.json rewritten with them) and the fleet summary."""
-    from ..core.names import inside
-
     flagged = set(fleet_summary(units, p.family, {}, p.limits)["outliers"])
     fold_info: dict[str, Any] = {}
     if p.k:
@@ -299,10 +295,6 @@ def _write(cfg: CompareConfig, p: _Plan, units: dict[str, Any], summary: dict[st
            stage: Path, *, track: bool | None, tracking_uri: str | None, plots: bool
            ) -> dict[str, Any]:
     """The fleet's results.json, its coefficient-spread figure and fleet.html in ``stage``."""
-    from ..scoring.fleetstats import fleet_html_fragment
-    from ..tracking import default_tracking_uri
-    from .provenance import data_source, resolved_config
-
     tracking = cfg.tracking.enabled if track is None else track
     results = {"schema": 1, "kind": "fleet", "fleet_family": p.family,
                "config": resolved_config(  # as used: tracking, no preset for files
@@ -326,8 +318,6 @@ def _write(cfg: CompareConfig, p: _Plan, units: dict[str, Any], summary: dict[st
 def _track(cfg: CompareConfig, results: dict[str, Any], track: bool | None,
            tracking_uri: str | None, stage: Path) -> None:
     """The driver's MLflow record: a parent run per fleet, a nested run per unit."""
-    from ..tracking import Tracker
-
     tracker = Tracker(enabled=cfg.tracking.enabled if track is None else track,
                       uri=tracking_uri or cfg.tracking.uri, experiment=cfg.tracking.experiment)
     if not tracker.enabled:

@@ -13,6 +13,7 @@ from ..scoring.fleetstats import (
     MIN_UNITS_FOR_OUTLIERS,
     ROBUST_Z_THRESHOLD,
     flag_outliers,
+    robust_z,
     spread,
 )
 from .fleet_units import COEF_T0_C
@@ -116,8 +117,6 @@ def format_fleet_table(results: dict[str, Any]) -> str:
 
 def plot_coefficient_spread(path: Path, results: dict[str, Any]) -> Path | None:
     """Strip plot: each coefficient's per-unit values as robust z, outliers in red."""
-    from ..scoring.fleetstats import robust_z
-
     quantities: dict[str, dict[str, float]] = {}
     for dev, u in results["units"].items():
         for name, v in (u.get("coefficients") or {}).items():

@@ -18,7 +18,11 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.recording import Dataset, split_units
-from ..training.config import CompareConfig, FamilyConfig
+from ..sim.fleet import simulate_fleet, unit_device_id
+from ..training.config import CompareConfig, FamilyConfig, outputs_of, train_config_of
+from ..training.loader import load_unit_file
+from ..training.parts import build_part, make_splits, targets_for
+from .compare import run_compare
 
 __all__ = ["UnitSource", "sources_from_dataset", "sources_from_files", "sources_from_simulation",
            "physical_coefficients", "COEF_T0_C", "UnitItem", "unit_task", "FoldItem",
@@ -49,15 +53,12 @@ class UnitSource:
         if self.dataset is not None:
             return self.dataset
         if self.path is not None:
-            from ..training.loader import load_unit_file
-
             ds = load_unit_file(cfg, self.path)
             if ds.device_id != self.device_id or ds.is_fleet:
                 raise InputError(f"{self.path}: holds unit(s) {ds.unit_ids}, expected "
                                  f"'{self.device_id}' alone (the file changed since the "
                                  "fleet started?)")
             return ds
-        from ..sim import simulate_fleet
 
         if self.sim is None:
             raise InputError(f"unit '{self.device_id}': no data")
@@ -98,7 +99,7 @@ def sources_from_files(paths: list[str]) -> list[UnitSource] | None:
     their metadata; one line names both files otherwise); a file whose data fails
     validation fails alone, in its worker.
     """
-    from ..data.chunks import open_parquet
+    from ..data.chunks import open_parquet  # lazy: loads pandas, pyarrow
 
     sources, first = [], None
     for p in paths:
@@ -129,8 +130,6 @@ def sources_from_simulation(preset: str, *, units: int, runs: int | None = None,
 
     ``overrides`` go to the simulator (``sample_rate_hz=0.1``, ``white_noise=False``).
     """
-    from ..sim.fleet import simulate_fleet, unit_device_id
-
     simulate_fleet(preset, units=units, runs=1, seed=seed, outliers=outliers,
                    unit_indices=[])  # checks the arguments here, before any worker starts
     return [UnitSource(unit_device_id(preset, k, units),
@@ -157,7 +156,7 @@ def physical_coefficients(model: Any, t0_c: float = COEF_T0_C) -> dict[str, floa
     (:meth:`thermonet.models.Family.coefficient_degree`: a polynomial's degree on ``T`` or
     ``dT`` alone, else 3 — then a summary of the curve, not its parameters).
     """
-    from ..training.train import predict
+    from ..training.train import predict  # torch boundary
 
     if list(model.signals) != ["temperature_c"]:
         return {}
@@ -182,20 +181,18 @@ def physical_coefficients(model: Any, t0_c: float = COEF_T0_C) -> dict[str, floa
 
 
 def _load_sensor(path: str) -> Any:
-    from ..training.sensor import load_sensor
+    from ..training.sensor import load_sensor  # torch boundary
 
     return load_sensor(path)[0]
 
 
 def _residual_std(model: Any, part: Any) -> np.ndarray:
-    from ..training.train import predict
+    from ..training.train import predict  # torch boundary
 
     return np.std(part.target - predict(model, part.signals, part.time_s), axis=0)
 
 
 def _test_part(cfg: CompareConfig, ds: Dataset, model: Any) -> Any:
-    from ..training.parts import build_part, make_splits, targets_for
-
     where = f"unit '{ds.device_id}'"
     split = make_splits(ds, cfg.split, source=where)[-1]
     outputs = list(model.outputs)
@@ -214,8 +211,7 @@ class UnitItem:
 
 def unit_task(item: UnitItem) -> dict[str, Any]:
     """One unit in a worker: compare in a private temp dir, return plain data."""
-    from ..training.checkpoint import load_checkpoint
-    from .compare import run_compare
+    from ..training.checkpoint import load_checkpoint  # torch boundary
 
     ds = item.source.load(item.cfg)
     if ds.is_fleet:
@@ -266,9 +262,7 @@ class FoldItem:
 def fold_task(item: FoldItem) -> dict[str, Any]:
     """Fit one fleet model of the fleet family on other units' calibration runs, and
     evaluate it on each held-out unit's test run next to the unit's own model."""
-    from ..training.config import outputs_of, train_config_of
-    from ..training.parts import make_splits, targets_for
-    from ..training.pipeline import fit_split, split_parts, split_spec
+    from ..training.pipeline import fit_split, split_parts, split_spec  # torch boundary
 
     cfg, fam = item.cfg, _family(item.cfg, item.family)
     if cfg.model == "sensor":
@@ -315,11 +309,9 @@ def _sensor_fold_task(item: FoldItem, fam: FamilyConfig) -> dict[str, Any]:
     its training loss), and on each held-out unit's test run the standard deviation of
     ``compensated − ref`` with it and with the unit's own sensor model (``std_raw``: of
     ``raw − ref``)."""
-    from ..models.sensor import triads_of
-    from ..training.config import outputs_of, train_config_of
-    from ..training.parts import make_splits
-    from ..training.pipeline import split_spec
-    from ..training.sensor import fit_sensor, sensor_run
+    from ..models.sensor import triads_of  # torch boundary
+    from ..training.pipeline import split_spec  # torch boundary
+    from ..training.sensor import fit_sensor, sensor_run  # torch boundary
 
     cfg = item.cfg
     train = []

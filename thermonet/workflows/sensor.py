@@ -52,10 +52,25 @@ import numpy as np
 
 from ..core.errors import ConfigError, ThermonetError
 from ..core.fileio import atomic_write_text
+from ..core.outdir import staged_output
 from ..core.recording import Dataset
+from ..core.schema import to_dict
 from ..core.version import __version__
-from ..training.config import CompareConfig, FamilyConfig, outputs_of, train_config_of
+from ..reporting.sensor_report import plot_sensor_soaks, write_sensor_report
+from ..scoring.metrics import binned_peak_to_peak
+from ..scoring.sensor import residual_verdicts, soak_matrices, triad_metrics
+from ..tracking import Tracker
+from ..training.config import (
+    CompareConfig,
+    FamilyConfig,
+    check_families,
+    outputs_of,
+    train_config_of,
+)
 from ..training.parts import data_hash, load_data
+from ..training.splits import make_splits
+from .compare_plan import _check_baseline, _fold_plan
+from .sensor_fit import choose_sensor, sensor_oof, sensor_pool, sensor_tune
 
 __all__ = ["run_sensor", "format_sensor_table"]
 
@@ -71,8 +86,7 @@ def run_sensor(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fal
                quiet: bool = False, dataset: Dataset | None = None, plots: bool = True,
                track: bool | None = None, tracking_uri: str | None = None) -> dict[str, Any]:
     """Fit and judge every family as a sensor model; write ``out_dir``; return results.json."""
-    from ..core.outdir import staged_output
-    from ..training.train import thread_limits
+    from ..training.train import thread_limits  # torch boundary
 
     with thread_limits(cfg.train.threads), staged_output(out_dir, overwrite=overwrite) as stage:
         results = _run(cfg, stage.path, quiet=quiet, dataset=dataset, plots=plots,
@@ -108,8 +122,6 @@ class _Fitted:
 
 def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
          plots: bool, track: bool | None, tracking_uri: str | None) -> dict[str, Any]:
-    from .sensor_fit import choose_sensor
-
     say = (lambda s: None) if quiet else print
     p = _plan(cfg, dataset)                                                   # 1. plan
     say(f"thermonet compare (model: sensor): {p.ds.device_id} ({len(p.ds)} runs, triads "
@@ -146,12 +158,8 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
 def _plan(cfg: CompareConfig, dataset: Dataset | None) -> _Plan:
     """Config and data checked (families, references, triads), the one split and the folds
     of its pool; results.json's head."""
-    from ..core.schema import to_dict
-    from ..models.sensor import triads_of
-    from ..training.config import check_families
-    from ..training.sensor import sensor_run_refs
-    from ..training.splits import make_splits
-    from .compare_plan import _check_baseline, _fold_plan
+    from ..models.sensor import triads_of  # torch boundary
+    from ..training.sensor import sensor_run_refs  # torch boundary
 
     src = getattr(cfg, "_source", "config")
     check_families(cfg, source=src)
@@ -182,9 +190,8 @@ def _fit_family(p: _Plan, fam: FamilyConfig, out: Path, say: Any) -> _Fitted | N
     """Step 2 for one family: tuned on the folds (a ``tune`` grid), fitted as a sensor and
     as a bias-only model, cross-validated, judged on the test run, written; its entry in
     results.json.  A family the data cannot carry is reported (None) and the others go on."""
-    from ..training.pipeline import split_spec
-    from ..training.sensor import fit_sensor, sensor_run
-    from .sensor_fit import sensor_oof, sensor_pool, sensor_tune
+    from ..training.pipeline import split_spec  # torch boundary
+    from ..training.sensor import fit_sensor, sensor_run  # torch boundary
 
     cfg, sp = p.cfg, p.split
     entry: dict[str, Any] = {"family": fam.family, "inputs": list(fam.inputs),
@@ -234,9 +241,6 @@ def _judge_test(p: _Plan, entry: dict[str, Any], full: Any, bias: Any, te: Any,
                 va: Any) -> list[Any]:
     """The family's held-out metrics into ``entry`` (axes, misalignment, triads, validation
     scores); returns the per-soak matrices of its figure."""
-    from ..scoring.metrics import binned_peak_to_peak
-    from ..scoring.sensor import residual_verdicts, soak_matrices, triad_metrics
-
     test, outputs = p.split.test, p.outputs
     raw_err = te.raw - te.ref
     comp = full.model.compensate(te.signals, te.raw)
@@ -299,10 +303,9 @@ def _save(p: _Plan, fam: FamilyConfig, entry: dict[str, Any], full: Any, bias: A
           out: Path) -> None:
     """The family's sensor checkpoint and its bias-only model as a plain bias checkpoint
     (what an autopilot can take)."""
-    from ..core.schema import to_dict
-    from ..exporting.sensor_export import bias_only_path
-    from ..training.checkpoint import save_checkpoint
-    from ..training.sensor import save_sensor
+    from ..exporting.sensor_export import bias_only_path  # torch boundary
+    from ..training.checkpoint import save_checkpoint  # torch boundary
+    from ..training.sensor import save_sensor  # torch boundary
 
     ckpt = out / "models" / f"{fam.label}.pt"
     info = {"label": fam.label, "device_id": p.ds.device_id, "units": p.units}
@@ -315,8 +318,6 @@ def _save(p: _Plan, fam: FamilyConfig, entry: dict[str, Any], full: Any, bias: A
 
 def _write(out: Path, doc: dict[str, Any], fits: dict[str, _Fitted], *, plots: bool) -> None:
     """results.json, the chosen family's figure and report.html."""
-    from ..reporting.sensor_report import plot_sensor_soaks, write_sensor_report
-
     atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
     figs = []
     chosen = doc["chosen"]
@@ -330,8 +331,6 @@ def _track(cfg: CompareConfig, doc: dict[str, Any], histories: dict[str, list], 
     """Log the comparison to MLflow as a bias comparison is: a parent run, one nested run per
     fitted family (its loss history, per-axis test metrics, its checkpoint); returns the
     parent's run id (None when tracking is off)."""
-    from ..tracking import Tracker
-
     tracker = Tracker(enabled=cfg.tracking.enabled if track is None else track,
                       uri=tracking_uri or cfg.tracking.uri, experiment=cfg.tracking.experiment)
     tags = {"device": device, "model": "sensor", "data_hash": doc["data_hash"]}
@@ -366,8 +365,8 @@ def _done_when(entry: dict[str, Any]) -> dict[str, Any]:
 
 
 def _export_chosen(out: Path, entry: dict[str, Any]) -> dict[str, Any]:
-    from ..exporting.sensor_export import export_sensor_onnx
-    from ..training.sensor import load_sensor
+    from ..exporting.sensor_export import export_sensor_onnx  # torch boundary
+    from ..training.sensor import load_sensor  # torch boundary
 
     model, payload = load_sensor(entry["checkpoint"])
     extra = payload.get("extra", {})

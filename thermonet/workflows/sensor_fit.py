@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import ThermonetError
+from ..scoring.selection import CandidateOOF, in_domain, noise_widths, select
 from ..training.config import CompareConfig, FamilyConfig, tune_points
 
 if TYPE_CHECKING:
@@ -58,7 +59,7 @@ class SensorPool:
 def sensor_pool(pool: Sequence[tuple[Any, np.ndarray]], spec: Any, outputs: Sequence[str]
                 ) -> SensorPool:
     """Each pool run whole (dynamic inputs computed before any cut) as a :class:`SensorRun`."""
-    from ..training.sensor import sensor_run
+    from ..training.sensor import sensor_run  # torch boundary
 
     runs = [sensor_run(rec, spec, outputs) for rec, _ in pool]
     return SensorPool(runs, [r.raw - r.ref for r in runs], [r.time_s for r in runs])
@@ -81,8 +82,7 @@ def sensor_oof(plan: Any, pool: SensorPool, *, fam: FamilyConfig, spec: Any,
                outputs: Sequence[str], triads: Sequence[Sequence[str]], tcfg: Any) -> Any:
     """One family's out-of-fold predicted errors ``raw − compensated`` on the pool's
     validation rows (a :class:`~thermonet.scoring.selection.CandidateOOF`)."""
-    from ..scoring.selection import CandidateOOF, in_domain, noise_widths
-    from ..training.sensor import fit_sensor
+    from ..training.sensor import fit_sensor  # torch boundary
 
     oof = CandidateOOF(fam.label, 0)
     widen = [noise_widths(r.signals) for r in pool.runs]
@@ -125,8 +125,6 @@ def sensor_tune(plan: Any, pool: SensorPool, *, fam: FamilyConfig, spec: Any,
     chooses between families; returns the family with the chosen values, the record
     (``{point..., "tuning": {"grid", "rule"}}``, as a bias family's ``tuned``) and the chosen
     point's out-of-fold predictions (None where the configured values stay)."""
-    from ..scoring.selection import select
-
     if plan is None:
         return fam, {"tuning": {"rule": "not tuned: no cross-validation folds; the "
                                 "configured values are used"}}, None
@@ -171,7 +169,6 @@ def choose_sensor(cfg: CompareConfig, doc: dict[str, Any], plan: Any, note: str,
                    selection={"method": "single validation part",
                               "note": note or "no family was cross-validated"})
         return
-    from ..scoring.selection import select
 
     sel = select(plan, pool.targets, pool.times, cv, list(outputs),
                  baseline=cfg.baseline if cfg.baseline in cv else None)
