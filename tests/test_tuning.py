@@ -106,3 +106,25 @@ def test_the_tuned_values_read_in_one_line():
     assert tuned_text(tuned) == ("n_centres=16, width_scale=0.5, ridge=[inf 0.0001 inf] "
                                  "(out-of-fold score: n_centres=8 0.00374, n_centres=16 0.00359)")
     assert tuned_text({}) == ""
+
+
+def test_tuning_choice_records_the_grid_and_the_rule_whatever_the_outcome():
+    """One rule turns select()'s outcome over a grid into the chosen point and its record
+    (compare's families and the sensor model alike): a chosen label maps back to its point;
+    with none chosen the configured values stay and the record says so under the same keys."""
+    from thermonet.scoring.selection import Selection, point_label, tuning_choice
+
+    points = [{"degree": 2}, {"degree": 3, "cross": False}]
+    assert [point_label(q) for q in points] == ["degree=2", "degree=3,cross=False"]
+    cands = {"degree=2": {"status": "ok", "score": 0.5},
+             "degree=3,cross=False": {"status": "failed", "reason": "too few windows"}}
+    chosen = Selection("degree=2", [], "lowest out-of-fold score", {}, {"candidates": cands})
+    point, record = tuning_choice(chosen, points)
+    assert point is points[0]
+    assert record == {"grid": {"degree=2": 0.5, "degree=3,cross=False": "too few windows"},
+                      "rule": "lowest out-of-fold score"}
+    none = Selection(None, [], "no candidate beats raw", {}, {"candidates": cands})
+    point, record = tuning_choice(none, points)
+    assert point is None
+    assert record["rule"] == "kept the configured values: no candidate beats raw"
+    assert record["grid"]["degree=2"] == 0.5

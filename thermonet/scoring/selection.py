@@ -103,7 +103,7 @@ from .verdicts import LEVEL, above, below, draws, same
 
 __all__ = ["FoldPlan", "CandidateOOF", "plan_folds", "purge_rule", "window_rule",
            "in_domain", "noise_widths", "window_labels", "select", "Selection",
-           "choose_per_axis", "pp_guard"]
+           "choose_per_axis", "pp_guard", "point_label", "tuning_choice"]
 
 #: Samples a fold needs in training and in validation.
 MIN_FOLD_SAMPLES = 20
@@ -268,6 +268,28 @@ class Selection:
     #: per output axis, the candidate chosen for it alone (None: left raw), and the sentence
     per_axis: dict[str, str | None] = field(default_factory=dict)
     per_axis_reason: dict[str, str] = field(default_factory=dict)
+
+
+def point_label(point: Mapping[str, Any]) -> str:
+    """A tuning grid point's candidate label for :func:`select` (``degree=3,tail=2``)."""
+    return ",".join(f"{k}={v}" for k, v in point.items())
+
+
+def tuning_choice(sel: Selection, points: Sequence[dict[str, Any]]
+                  ) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+    """What :func:`select` over a tuning grid (candidates labelled by :func:`point_label`)
+    chose: the grid point (None where no point beats raw: the configured values stay) and the
+    ``tuning`` record — each point's out-of-fold score or why it failed, and the rule's
+    sentence."""
+    cands = sel.record.get("candidates", {})
+    record: dict[str, Any] = {
+        "grid": {k: (c.get("score") if c.get("status") == "ok" else c.get("reason"))
+                 for k, c in cands.items()},
+        "rule": sel.reason}
+    if sel.chosen is None:
+        record["rule"] = f"kept the configured values: {sel.reason}"
+        return None, record
+    return points[[point_label(q) for q in points].index(sel.chosen)], record
 
 
 def _window_ss(e: np.ndarray, wl: np.ndarray, units: np.ndarray, n_units: int

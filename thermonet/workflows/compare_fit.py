@@ -21,7 +21,14 @@ from ..core.profile import stage
 from ..data.diagnostics import outside_distance, outside_fraction
 from ..features.inputs import RATE, TEMPERATURE, resolve_gap_s, signal_matrix
 from ..reporting.results import FamilyResult
-from ..scoring.selection import CandidateOOF, in_domain, noise_widths, select
+from ..scoring.selection import (
+    CandidateOOF,
+    in_domain,
+    noise_widths,
+    point_label,
+    select,
+    tuning_choice,
+)
 from ..scoring.verdicts import pool
 from ..training.config import (
     CompareConfig,
@@ -320,10 +327,6 @@ def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: An
         out.cv_mask = own.compensate.get(fam.label)
 
 
-def _point_label(point: dict[str, Any]) -> str:
-    return ",".join(f"{k}={v}" for k, v in point.items())
-
-
 def _tune(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
           on_epoch: Any) -> tuple[FamilyConfig, dict[str, Any], Any]:
     """Choose ``fam``'s hyper-parameters from its ``tune`` grid on the selection's folds
@@ -341,23 +344,17 @@ def _tune(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
     oofs: dict[str, Any] = {}
     whole: list[Any] = []
     for point in points:
-        label = _point_label(point)
+        label = point_label(point)
         oofs[label], whole = _oof(p, replace(fam, params={**fam.params, **point}), tcfg, spec,
                                   parts, on_epoch)
         oofs[label].label = label
     sel = select(p.folds, [q.target for q in whole], [q.time_s for q in whole], oofs,
                  p.outputs)
-    cands = sel.record.get("candidates", {})
-    record: dict[str, Any] = {
-        "grid": {k: (c.get("score") if c.get("status") == "ok" else c.get("reason"))
-                 for k, c in cands.items()},
-        "rule": sel.reason}
-    if sel.chosen is None:
-        record["rule"] = f"kept the configured values: {sel.reason}"
-        return fam, record, None
-    point = points[list(oofs).index(sel.chosen)]
-    return replace(fam, params={**fam.params, **point}), {**point, "tuning": record}, \
-        oofs[sel.chosen]
+    chosen, record = tuning_choice(sel, points)
+    if chosen is None:
+        return fam, {"tuning": record}, None
+    return replace(fam, params={**fam.params, **chosen}), {**chosen, "tuning": record}, \
+        oofs[point_label(chosen)]
 
 
 def family_workers(cfg: CompareConfig, workers: int | None = None) -> int:

@@ -36,7 +36,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import ThermonetError
-from ..scoring.selection import CandidateOOF, in_domain, noise_widths, select
+from ..scoring.selection import (
+    CandidateOOF,
+    in_domain,
+    noise_widths,
+    point_label,
+    select,
+    tuning_choice,
+)
 from ..training.config import CompareConfig, FamilyConfig, tune_points
 
 if TYPE_CHECKING:
@@ -114,10 +121,6 @@ def sensor_oof(plan: Any, pool: SensorPool, *, fam: FamilyConfig, spec: Any,
     return oof
 
 
-def _point_label(point: dict[str, Any]) -> str:
-    return ",".join(f"{k}={v}" for k, v in point.items())
-
-
 def sensor_tune(plan: Any, pool: SensorPool, *, fam: FamilyConfig, spec: Any,
                 outputs: Sequence[str], triads: Sequence[Sequence[str]], tcfg: Any
                 ) -> tuple[FamilyConfig, dict[str, Any], Any]:
@@ -131,22 +134,16 @@ def sensor_tune(plan: Any, pool: SensorPool, *, fam: FamilyConfig, spec: Any,
     points = tune_points(fam)
     oofs: dict[str, Any] = {}
     for point in points:
-        label = _point_label(point)
+        label = point_label(point)
         oofs[label] = sensor_oof(plan, pool, fam=replace(fam, params={**fam.params, **point}),
                                  spec=spec, outputs=outputs, triads=triads, tcfg=tcfg)
         oofs[label].label = label
     sel = select(plan, pool.targets, pool.times, oofs, list(outputs))
-    cands = sel.record.get("candidates", {})
-    record: dict[str, Any] = {
-        "grid": {k: (c.get("score") if c.get("status") == "ok" else c.get("reason"))
-                 for k, c in cands.items()},
-        "rule": sel.reason}
-    if sel.chosen is None:
-        record["rule"] = f"kept the configured values: {sel.reason}"
+    chosen, record = tuning_choice(sel, points)
+    if chosen is None:
         return fam, {"tuning": record}, None
-    point = points[list(oofs).index(sel.chosen)]
-    return replace(fam, params={**fam.params, **point}), {**point, "tuning": record}, \
-        oofs[sel.chosen]
+    return replace(fam, params={**fam.params, **chosen}), {**chosen, "tuning": record}, \
+        oofs[point_label(chosen)]
 
 
 def choose_sensor(cfg: CompareConfig, doc: dict[str, Any], plan: Any, note: str,
