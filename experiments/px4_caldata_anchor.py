@@ -8,7 +8,10 @@ extremes and TREF their mean; ``scipy.signal.medfilt(data, 31)``; accel less its
 ``resampleWithDeltaX`` (2,000 temperature bins, a Python loop as in the script);
 ``np.polyfit`` order 3 (baro 5, on ``100 * (pressure - median)``); the parameters printed as
 the script prints them.  The script's plots (matplotlib, written to a PDF) are left out: the
-anchor is its fit, which is what a user waits for.
+anchor is its fit, which is what a user waits for.  This module is also the oracle
+``tests/test_autopilot_parity.py`` and ``tests/test_verify.py`` check thermonet against (one
+re-implementation: ``fit(..., pad="edge")`` is the one change thermonet makes, its median
+filter's end padding).
 
 Usage: ``python experiments/px4_caldata_anchor.py LOG.ulg``
 """
@@ -23,6 +26,7 @@ from scipy.signal import medfilt
 
 
 def resample_with_delta_x(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``resampleWithDeltaX`` as the script writes it (a loop over samples)."""
     x_min, x_max = np.amin(x), np.amax(x)
     nb = 2000
     interval = (x_max - x_min) / nb
@@ -41,8 +45,16 @@ def resample_with_delta_x(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.
     return rx[keep] / rc[keep], ry[keep] / rc[keep]
 
 
-def fit(ulg: str) -> dict[str, float]:
-    ulog = ULog(ulg, ["sensor_gyro", "sensor_accel", "sensor_baro"])
+def medfilt_edge(v: np.ndarray) -> np.ndarray:
+    """``medfilt(v, 31)`` with the ends padded by the nearest value instead of zeros."""
+    return medfilt(np.pad(v, 15, mode="edge"), 31)[15:-15]
+
+
+def fit(ulg: str, pad: str = "zeros") -> dict[str, float]:
+    """The parameters ``process_sensor_caldata.py`` writes for every gyro/accel/baro;
+    ``pad="edge"``: the one change thermonet makes (its median filter's end padding)."""
+    median_filter = (lambda v: medfilt(v, 31)) if pad == "zeros" else medfilt_edge
+    ulog = ULog(str(ulg), ["sensor_gyro", "sensor_accel", "sensor_baro"])
     out: dict[str, float] = {}
     for d in ulog.data_list:
         t = {"sensor_gyro": "G", "sensor_accel": "A", "sensor_baro": "B"}[d.name]
@@ -54,13 +66,13 @@ def fit(ulg: str) -> dict[str, float]:
         out.update({pre + "TMIN": tmin, pre + "TMAX": tmax, pre + "TREF": tref})
         rel = temp - tref
         if t == "B":
-            p = medfilt(d.data["pressure"].astype(np.float64), 31)
-            xr, yr = resample_with_delta_x(rel, 100 * (p - np.median(p)))
+            p = median_filter(d.data["pressure"].astype(np.float64))
+            xr, yr = resample_with_delta_x(rel, 100 * (p - np.median(p)))  # "hPa to Pa"
             coef = np.polyfit(xr, yr, 5)
             out.update({f"{pre}X{k}": coef[5 - k] for k in range(6)})
             continue
         for i, ax in enumerate("xyz"):
-            v = medfilt(d.data[ax].astype(np.float64), 31)
+            v = median_filter(d.data[ax].astype(np.float64))
             if t == "A":
                 v = v - np.median(v)
             xr, yr = resample_with_delta_x(rel, v)

@@ -9,7 +9,8 @@ of thermonet's readers and fit:
   TREF their mean; ``median_filter`` (``scipy.signal.medfilt(data, 31)``) on the outputs;
   accel as ``x - np.median(x)``; ``resampleWithDeltaX`` (2,000 temperature bins, the mean
   temperature and output of each occupied bin, a Python loop here as there); ``np.polyfit``
-  order 3 (baro: 5, on ``100 * (pressure - median)``: the script takes hPa).
+  order 3 (baro: 5, on ``100 * (pressure - median)``: the script takes hPa).  It lives in
+  ``experiments/px4_caldata_anchor.py``, the anchor ``bench_pipeline.py`` times too.
 * ArduPilot ``Tools/scripts/tempcal_IMU.py`` at ArduPilot/ardupilot commit
   d420971136c6db2430273e91d117ad8c9044bcee: ``IMU`` messages (``I``, ``T``, ``GyrX`` …,
   ``TimeUS``), ``IMUData.FilterArray`` (a moving average of ``int(n / seconds) * 2``
@@ -27,12 +28,12 @@ to the precision both files print.  Where the peer is wrong (PX4's baro ×100, i
 
 from __future__ import annotations
 
+import importlib.util
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.signal import medfilt
 
 from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
@@ -43,62 +44,14 @@ pytestmark = pytest.mark.numerics
 # ------------------------------------------------------------------ PX4's script
 
 
-def _resample_with_delta_x(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``resampleWithDeltaX`` as the script writes it (a loop over samples)."""
-    x_min, x_max = np.amin(x), np.amax(x)
-    nb = 2000
-    interval = (x_max - x_min) / nb
-    ry, rx, rc = np.zeros(nb), np.zeros(nb), np.zeros(nb)
-    for idx in range(len(x)):
-        if x[idx] < x_min:
-            b = 0
-        elif x[idx] < x_max:
-            b = int((x[idx] - x_min) / interval)
-        else:
-            b = nb - 1
-        ry[b] += y[idx]
-        rx[b] += x[idx]
-        rc[b] += 1
-    keep = np.where(rc != 0)
-    return rx[keep] / rc[keep], ry[keep] / rc[keep]
-
-
-def _medfilt_edge(v: np.ndarray) -> np.ndarray:
-    """``medfilt(v, 31)`` with the ends padded by the nearest value instead of zeros."""
-    return medfilt(np.pad(v, 15, mode="edge"), 31)[15:-15]
-
-
-def _px4_script(ulg: Path, pad: str = "zeros") -> dict[str, float]:
-    """The parameters ``process_sensor_caldata.py`` writes for every gyro/accel/baro;
-    ``pad="edge"``: the one change thermonet makes (its median filter's end padding)."""
-    from pyulog import ULog
-
-    median_filter = (lambda v: medfilt(v, 31)) if pad == "zeros" else _medfilt_edge
-    ulog = ULog(str(ulg), ["sensor_gyro", "sensor_accel", "sensor_baro"])
-    out: dict[str, float] = {}
-    for d in ulog.data_list:
-        t = {"sensor_gyro": "G", "sensor_accel": "A", "sensor_baro": "B"}[d.name]
-        pre = f"TC_{t}{d.multi_id}_"
-        temp = d.data["temperature"].astype(np.float64)
-        out[pre + "ID"] = int(np.median(d.data["device_id"]))
-        tmin, tmax = np.amin(temp), np.amax(temp)
-        tref = 0.5 * (tmin + tmax)
-        out.update({pre + "TMIN": tmin, pre + "TMAX": tmax, pre + "TREF": tref})
-        rel = temp - tref
-        if t == "B":
-            p = median_filter(d.data["pressure"].astype(np.float64))
-            xr, yr = _resample_with_delta_x(rel, 100 * (p - np.median(p)))  # "hPa to Pa"
-            coef = np.polyfit(xr, yr, 5)
-            out.update({f"{pre}X{k}": coef[5 - k] for k in range(6)})
-            continue
-        for i, ax in enumerate("xyz"):
-            v = median_filter(d.data[ax].astype(np.float64))
-            if t == "A":
-                v = v - np.median(v)
-            xr, yr = _resample_with_delta_x(rel, v)
-            coef = np.polyfit(xr, yr, 3)
-            out.update({f"{pre}X{k}_{i}": coef[3 - k] for k in range(4)})
-    return out
+# the PX4 script's fit, one re-implementation shared with the benchmark's anchor (its module
+# docstring cites the commit): loaded from experiments/ by path, without thermonet
+_ANCHOR = Path(__file__).resolve().parents[1] / "experiments" / "px4_caldata_anchor.py"
+_spec = importlib.util.spec_from_file_location("px4_caldata_anchor", _ANCHOR)
+assert _spec is not None and _spec.loader is not None
+px4_caldata_anchor = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(px4_caldata_anchor)
+_px4_script = px4_caldata_anchor.fit
 
 
 def _px4_file(path: Path) -> dict[str, float]:
