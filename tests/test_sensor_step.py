@@ -27,6 +27,7 @@ from thermonet.exporting.c_stream import REAL_FLAGS, run_stream_c, step_signatur
 from thermonet.exporting.sensor_c import (
     export_sensor_c,
     render_sensor_c,
+    sample_terms,
     sensor_c_parity,
     sensor_stream_parity,
 )
@@ -97,13 +98,7 @@ def _torch(model, t, temp, raw):
         b = model.bias.drift64(s32).numpy()
         e = model.elements.drift64(s32).numpy()
     comp = comp.numpy()
-    terms = np.abs(b)
-    i = j = 0
-    for triad in model.triads:
-        k = len(triad)
-        m = np.abs(e[:, j:j + k * k].reshape(-1, k, k))
-        terms[:, i:i + k] += np.einsum("nrc,nc->nr", m, np.abs(comp[:, i:i + k]))
-        i, j = i + k, j + k * k
+    terms = sample_terms(model, b, e, comp)
     has_state = bool(dynamics.dynamic_signals(model.bias.inputs))
     return {"compensated": comp, "drift": raw - comp, "flag": flag.numpy(), "signals": s,
             "gap": gap if has_state else np.zeros(t.size, dtype=bool),

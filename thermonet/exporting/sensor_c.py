@@ -247,6 +247,14 @@ def term_scale(model: SensorModel, signals: np.ndarray, raw: np.ndarray) -> np.n
         b = model.bias.drift64(s32).numpy()
         e = model.elements.drift64(s32).numpy()
         x = model.columns(s32.unbind(1), torch.as_tensor(raw))[0].numpy()
+    terms = sample_terms(model, b, e, x)
+    return np.nanmax(np.where(np.isfinite(terms), terms, np.nan), axis=0)
+
+
+def sample_terms(model: SensorModel, b: np.ndarray, e: np.ndarray, x: np.ndarray
+                 ) -> np.ndarray:
+    """Per sample and axis a, |b_a| + Σ_c |E_ac| |x_c| (b (N, O), E (N, elements) row-major per
+    triad, x (N, O) the compensated output): what the drift sums, sample by sample."""
     terms = np.abs(b)
     i = j = 0
     for t in model.triads:
@@ -255,7 +263,7 @@ def term_scale(model: SensorModel, signals: np.ndarray, raw: np.ndarray) -> np.n
         terms[:, i:i + k] += np.einsum("nrc,nc->nr", m, np.abs(x[:, i:i + k]))
         i += k
         j += k * k
-    return np.nanmax(np.where(np.isfinite(terms), terms, np.nan), axis=0)
+    return terms
 
 
 def sensor_stream_parity(model: SensorModel, text: str, *, prefix: str = "thermonet",
