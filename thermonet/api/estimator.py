@@ -427,7 +427,7 @@ average_s, threads
         text(tracking_uri, "fit(tracking_uri)", none=True, rule="an MLflow tracking URI")
         text(experiment, "fit(experiment)", rule="an MLflow experiment name")
         if self.model == "sensor":
-            sensor_mode.fit(self, train, val, config=config, inputs=inputs,
+            sensor_mode.fit(self, train, val, config=config, inputs=inputs, family=family,
                             track=track or tracking_uri is not None)
             return self
         runs, val_runs, outputs, targets = self._training_data(train, val)

@@ -71,9 +71,10 @@ def check_model(est: Any) -> None:
                               "factor needs every position at every soak: 'all')")
 
 
-def fit(est: Any, train: Data, val: Data | None, *, config: Any,
-        inputs: list[str], track: bool = False) -> None:
-    """Fit ``est`` as a sensor model (arguments already checked by the estimator)."""
+def fit(est: Any, train: Data, val: Data | None, *, config: Any, inputs: list[str],
+        family: Any, track: bool = False) -> None:
+    """Fit ``est`` as a sensor model (arguments already checked by the estimator; ``family``
+    its spec)."""
     if track:
         raise ConfigError("fit(track): a sensor-mode fit is not tracked; 'thermonet compare' "
                           "with model: sensor logs its families to MLflow")
@@ -101,7 +102,6 @@ def fit(est: Any, train: Data, val: Data | None, *, config: Any,
     if val_runs:
         rec = stack_blocks(val_runs, "val") if len(val_runs) > 1 else val_runs[0]
         va = sensor_run(rec, spec, outputs)
-    family = est._family_spec()
     fitted = fit_sensor(family=family.key, spec=spec, outputs=outputs, triads=triads,
                         train=[sensor_run(r, spec, outputs) for r in runs], val=va,
                         hyper=family.hyper(), config=config)
