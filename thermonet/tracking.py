@@ -44,7 +44,8 @@ from typing import Any
 
 from .core.errors import Interrupted
 
-__all__ = ["Tracker", "default_tracking_uri", "flatten_params", "tidy_orphaned_runs"]
+__all__ = ["Tracker", "default_tracking_uri", "flatten_params", "tidy_orphaned_runs",
+           "global_tracking_uri"]
 
 #: Tags identifying the process that owns a run (for :func:`tidy_orphaned_runs`).
 HOST_TAG, PID_TAG = "thermonet.host", "thermonet.pid"
@@ -268,3 +269,18 @@ class Tracker:
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
         if self.enabled:
             _retry(self._client().log_artifact, str(path), artifact_path=artifact_path)
+
+
+@contextmanager
+def global_tracking_uri(uri: str) -> Iterator[None]:
+    """MLflow's global tracking URI set to ``uri`` meanwhile, then restored.  MLflow's fluent
+    API, and its resolution of a run's logged model, go through the global URI (which MLflow
+    also keeps in ``MLFLOW_TRACKING_URI``) whatever store a client was given."""
+    import mlflow
+
+    previous = mlflow.get_tracking_uri()
+    mlflow.set_tracking_uri(uri)
+    try:
+        yield
+    finally:
+        mlflow.set_tracking_uri(previous)

@@ -94,6 +94,7 @@ from ..core.names import (
 from ..core.version import __version__
 from ..models import DriftModel
 from ..models.composite import AxisModels, ShippedModel
+from ..tracking import global_tracking_uri
 from .onnx_graph import DIRECT, direct_proto, direct_supported
 from .parity import parity_check, trained_range
 from .recurrent import RecurrentGraph, recurrent_metadata, recurrent_parity_check
@@ -610,9 +611,7 @@ def log_onnx_model(path: str | Path, run_id: str, tracking_uri: str, *,
     outputs = dict(zip([o.name for o in session.get_outputs()],
                        session.run(None, example), strict=True))
     signature = infer_signature(example, outputs)
-    previous = mlflow.get_tracking_uri()
-    mlflow.set_tracking_uri(tracking_uri)
-    try:
+    with global_tracking_uri(tracking_uri):
         active = mlflow.active_run()
         own = active is None or active.info.run_id != run_id
         if own:
@@ -632,8 +631,6 @@ def log_onnx_model(path: str | Path, run_id: str, tracking_uri: str, *,
                 mlflow.MlflowClient(tracking_uri=tracking_uri).set_registered_model_alias(
                     register, CHOSEN_ALIAS, str(version))
         return info
-    finally:
-        mlflow.set_tracking_uri(previous)
 
 
 def log_onnx_to_mlflow(path: str | Path, run_id: str, tracking_uri: str, *,

@@ -33,7 +33,7 @@ from ..core.errors import ExportError, InputError
 from ..core.fileio import not_a_file, refuse_overwriting_inputs
 from ..core.names import AXIS, LABEL, check_name
 from ..core.outdir import sha256_file
-from ..tracking import default_tracking_uri
+from ..tracking import default_tracking_uri, global_tracking_uri
 from . import ExportRequest, get_format
 
 if TYPE_CHECKING:
@@ -135,13 +135,9 @@ def _from_run_id(run_id: str, tracking_uri: str | None, workdir: Path) -> Path:
 
     uri = tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
     client = mlflow.MlflowClient(tracking_uri=uri)
-    # MLflow resolves a run's logged model ('model') through the global tracking URI, whatever
-    # the client's: the global one points at this store meanwhile, then is restored (MLflow
-    # keeps it in MLFLOW_TRACKING_URI too, so a store used earlier in this process would
-    # otherwise answer "Logged model ... not found")
-    previous = mlflow.get_tracking_uri()
-    mlflow.set_tracking_uri(uri)
-    try:
+    # MLflow resolves a run's logged model ('model') through the global tracking URI: a store
+    # used earlier in this process would otherwise answer "Logged model ... not found"
+    with global_tracking_uri(uri):
         try:
             arts = [a.path for a in client.list_artifacts(run_id, "model")]
         except Exception as err:  # noqa: BLE001 - MLflow raises its own exception types
@@ -152,8 +148,6 @@ def _from_run_id(run_id: str, tracking_uri: str | None, workdir: Path) -> Path:
                              "artifact (give the run id of a family's nested run)")
         local = mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=pts[0],
                                                     dst_path=str(workdir), tracking_uri=uri)
-    finally:
-        mlflow.set_tracking_uri(previous)
     return Path(local)
 
 
