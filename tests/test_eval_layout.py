@@ -107,6 +107,30 @@ def test_nan_inf_and_clamp_without_branches(models, family):
 
 
 @pytest.mark.parametrize("family", pointwise_families())
+def test_set_target_evaluates_at_rest_in_float64_and_leaves_the_rest_untouched(models, family):
+    """set_target's value at rest is the float64 model's without a mode or a mask — what a
+    float64 deep copy computes, to the bit — and every other parameter and buffer keeps its
+    tensor object, dtype and values (its float64 evaluation swaps copies in and back)."""
+    model = copy.deepcopy(models[family])
+    model.set_compensate([True, False, True])
+    before = {k: (v, v.dtype, v.clone()) for k, v in model.state_dict(keep_vars=True).items()}
+    oracle = copy.deepcopy(model).double()
+    oracle.target_code.zero_()
+    oracle.compensate.fill_(1.0)
+    with torch.no_grad():
+        want = oracle.relative(torch.tensor([[T_REF + 3.0]], dtype=torch.float64))[0]
+    model.set_target(modes=["at-t-ref", "channel", "zero"], offset=np.array([1.0, 2.0, 3.0]),
+                     rest=np.array([T_REF + 3.0]))
+    assert torch.equal(model.y_ref, want.to(model.y_ref.dtype))
+    assert model.target_code.tolist() == [2, 0, 1]       # MODE_CODES
+    after = model.state_dict(keep_vars=True)
+    for k, (obj, dtype, values) in before.items():
+        assert after[k] is obj and after[k].dtype == dtype, k
+        if k.split(".")[-1] not in ("y_offset", "y_ref", "sig_ref", "target_code"):
+            assert torch.equal(after[k], values), k
+
+
+@pytest.mark.parametrize("family", pointwise_families())
 def test_mask_and_at_t_ref_folded_into_the_output_layer(models, family, tmp_path):
     """The per-axis target (at-t-ref) and the uncompensated mask are folded into each family's
     last product (DriftModel.output_scaling): the same drift as applying them afterwards,
@@ -257,9 +281,32 @@ def test_allan_long_series_matches_white_noise_theory_and_short_matches_allantoo
     short = y[:20_000]
     t_ref, a_ref, _, _ = allantools.oadev(short, rate=100.0, data_type="freq", taus="octave")
     t_got, a_got = metrics.allan(short, 100.0)
-    # below ALLAN_EXACT_MAX metrics.allan is allantools itself: the same computation, exact
+    # below ALLAN_EXACT_MAX metrics.allan does allantools' operations in its order: exact
     np.testing.assert_array_equal(t_got, t_ref)
     np.testing.assert_array_equal(a_got, a_ref)
+    # the grid bias_instability_detail asks for (arrays, duplicates and out-of-range τ
+    # dropped as allantools drops them), and allantools' other named grids
+    grid = np.array([0.01, 0.013, 0.5, 0.5, 2.0, 33.3, 99.99, 1e5])
+    for taus in (grid, "decade"):
+        t_ref, a_ref, _, _ = allantools.oadev(short[:997], rate=100.0, data_type="freq",
+                                              taus=taus)
+        t_got, a_got = metrics.allan(short[:997], 100.0, taus=taus)
+        np.testing.assert_array_equal(t_got, t_ref)
+        np.testing.assert_array_equal(a_got, a_ref)
+
+
+def test_an_allan_deviation_does_not_import_allantools():
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np\n"
+            "from thermonet.scoring import metrics\n"
+            "metrics.bias_instability(np.random.default_rng(0).normal(size=5000), 10.0)\n"
+            "metrics.allan(np.ones(100) + np.arange(100) * 1e-3, 10.0)\n"
+            "print('allantools' in sys.modules, 'scipy.stats' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == ["False", "False"]
 
 
 def test_flicker_noise_on_a_fast_length_is_deterministic_and_has_the_asked_floor():

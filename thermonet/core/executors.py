@@ -41,7 +41,8 @@ from typing import Any, Literal
 
 from .errors import ThermonetError
 
-__all__ = ["EXECUTORS", "ExecutorError", "TaskFailure", "run_tasks", "pin_one_thread"]
+__all__ = ["EXECUTORS", "ExecutorError", "TaskFailure", "run_tasks", "pin_one_thread",
+           "WarmPool", "usable_cores"]
 
 #: Names accepted by ``--executor``.
 EXECUTORS = ("process", "serial", "ray")
@@ -277,3 +278,114 @@ def run_tasks(fn: Callable[[Any], Any], items: Sequence[Any], *,
     if executor == "ray":
         return _ray(fn, items, n, ray_address, on_done)
     return _pool(fn, items, n, on_done)
+
+
+def usable_cores() -> int:
+    """The CPUs this process may run on (its affinity on Linux, else ``os.cpu_count()``)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:            # not on Linux
+        return os.cpu_count() or 1
+
+
+def _main_importable() -> bool:
+    """Whether a worker can import the caller's main module, as multiprocessing has every
+    worker do: not a program read from standard input (``python - < script``)."""
+    import sys
+
+    main = sys.modules.get("__main__")
+    if getattr(main, "__spec__", None) is not None:
+        return True
+    path = getattr(main, "__file__", None)
+    return path is None or os.path.exists(path)
+
+
+def _ready() -> None:
+    """A warm-up task: the worker exists, its preloaded modules imported."""
+
+
+class WarmPool:
+    """Worker processes forked from a server that imported ``preload`` once, started in the
+    background so that the imports overlap the caller's own work.
+
+    For a job that must pay torch's import (about a second) before work that splits into
+    independent items — ``calibrate``'s per-instance comparisons: the driver reads and
+    checks the logs while the server imports; the items then run ``workers`` at a time.
+    The ``forkserver`` start method forks each worker from the server, never from the
+    driver (a fork of a process that has started torch's thread pools is unsafe; the
+    server has imported torch but run nothing), and each worker is pinned to one thread
+    (:func:`pin_one_thread`), the arithmetic of the serial path.  Where ``forkserver``
+    does not exist (Windows) the pool is not started and :meth:`map` runs in this process.
+
+    Use as a context manager; :meth:`map` returns ``fn(item)`` per item in order and
+    re-raises a task's exception in the driver.
+    """
+
+    def __init__(self, workers: int, preload: Sequence[str]) -> None:
+        import multiprocessing
+        import threading
+
+        self.workers = max(1, int(workers))
+        self.pool: ProcessPoolExecutor | None = None
+        if self.workers < 2 or "forkserver" not in multiprocessing.get_all_start_methods() \
+                or not _main_importable():
+            return
+        ctx = multiprocessing.get_context("forkserver")
+        # read when the server starts (once per process): a server an earlier pool started
+        # keeps its own list, which only makes the first task of a worker slower
+        ctx.set_forkserver_preload(list(preload))
+        self.pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx,
+                                        initializer=pin_one_thread)
+        # submit() starts a worker and waits for the server's fork: in a thread, so the
+        # driver goes on while the server imports
+        self._warm = threading.Thread(target=self._start, name="thermonet-warm-pool",
+                                      daemon=True)
+        self._warm.start()
+
+    def _start(self) -> None:
+        assert self.pool is not None
+        try:
+            for f in [self.pool.submit(_ready) for _ in range(self.workers)]:
+                f.result()
+        except Exception:   # a pool that cannot start fails again, with its reason, in map()
+            pass
+
+    def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
+        """``fn(item)`` for every item, ``workers`` at a time (in this process without a
+        pool); results in the order of ``items``."""
+        if self.pool is None:
+            return [fn(it) for it in items]
+        self._warm.join()
+        futures = [self.pool.submit(fn, it) for it in items]
+        try:
+            return [f.result() for f in futures]
+        except BaseException:
+            # an error or an interrupt (SIGINT/SIGTERM reach only this process): the workers
+            # stop now, before the caller tidies what they write into
+            self._terminate()
+            raise
+
+    def _terminate(self) -> None:
+        """Stop every worker at once (running tasks included) and give the pool up."""
+        pool, self.pool = self.pool, None
+        if pool is None:
+            return
+        # no public way to stop running tasks before Python 3.14's terminate_workers()
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        for proc in procs:
+            proc.terminate()
+        for proc in procs:
+            proc.join(timeout=10)
+        pool.shutdown(wait=False, cancel_futures=True)
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self._warm.join()
+            self.pool.shutdown(wait=True, cancel_futures=True)
+            self.pool = None
+
+    def __enter__(self) -> WarmPool:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

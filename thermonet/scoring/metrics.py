@@ -285,6 +285,25 @@ ALLAN_EXACT_MAX = 1 << 17
 ALLAN_OVERLAP = 8
 
 
+def _averaging_factors(n_phase: int, rate: float, taus: str | np.ndarray) -> np.ndarray:
+    """Averaging factors m (τ = m/f_s) of a tau grid, as :func:`allantools.tau_generator`
+    makes them for ``n_phase`` phase points: rounded, ``0 < m < n_phase``, unique, sorted.
+    ``"octave"`` (1, 2, 4, … up to the phase length) and arrays are made here; allantools'
+    other named grids (``"decade"``, ``"all"``, ``"log10"``) are asked of it."""
+    if isinstance(taus, str):
+        if taus != "octave":
+            import allantools  # 0.3-0.8 s of imports (scipy.stats): only for its other grids
+
+            _, m, _ = allantools.tau_generator(np.zeros(n_phase), rate, taus)
+            return np.asarray(m, dtype=np.float64)
+        top = int(np.floor(np.log2(n_phase)))
+        grid = (1.0 / rate) * np.logspace(0, top, top + 1, base=2.0)
+    else:
+        grid = np.asarray(taus, dtype=np.float64).reshape(-1)
+    m = np.round(grid * rate)
+    return np.unique(m[(m < n_phase) & (m > 0)])
+
+
 def allan(y: np.ndarray, rate_hz: float, taus: str | np.ndarray = "octave"
           ) -> tuple[np.ndarray, np.ndarray]:
     """Overlapping Allan deviation of a rate-type (frequency-type) series.
@@ -293,8 +312,12 @@ def allan(y: np.ndarray, rate_hz: float, taus: str | np.ndarray = "octave"
               \\left(x_{j+2m} - 2x_{j+m} + x_j\\right)^2,
               \\quad \\tau = m \\tau_0,\\ x = \\tau_0 \\textstyle\\sum y
 
-    Up to :data:`ALLAN_EXACT_MAX` samples this is :func:`allantools.oadev`
-    with ``data_type="freq"`` (J: every start, fully overlapping).  On longer
+    Up to :data:`ALLAN_EXACT_MAX` samples this is :func:`allantools.oadev` with
+    ``data_type="freq"`` (J: every start, fully overlapping), computed here with
+    allantools' own operations in its order — phase = τ0 · cumsum(y − mean) with a leading
+    0, ``Σ v²`` by ``np.sum`` — so the two agree exactly (its oracle in
+    ``tests/test_eval_layout.py``): importing allantools costs 0.3-0.8 s (it loads
+    ``scipy.stats``), more than every Allan deviation of a comparison.  On longer
     series the starts at τ = m τ0 are every ``max(1, m // ALLAN_OVERLAP)``-th
     (stride 1 for m < 8): each τ then costs O(N·8/m), so a log-spaced grid
     costs O(N) in total instead of O(N log N) passes over a series too long
@@ -310,7 +333,7 @@ def allan(y: np.ndarray, rate_hz: float, taus: str | np.ndarray = "octave"
         Sensor output or error, e.g. °/s; must be finite.
     rate_hz : float
         Sample rate, Hz.
-    taus : {"octave", "decade", "all"} or ndarray
+    taus : {"octave", "decade", "all", "log10"} or ndarray
         Averaging times (s) or allantools' name for a grid.
 
     Returns
@@ -327,24 +350,18 @@ def allan(y: np.ndarray, rate_hz: float, taus: str | np.ndarray = "octave"
     if y.size < 3:
         # allantools raises an IndexError / UserWarning here; an empty curve is the honest answer.
         return np.empty(0), np.empty(0)
-    import allantools  # 1.3 s of imports: loaded only when an Allan deviation is computed
-
-    if y.size <= ALLAN_EXACT_MAX:
-        taus_s, adev, _, _ = allantools.oadev(y, rate=rate, data_type="freq", taus=taus)
-        return np.asarray(taus_s, dtype=np.float64), np.asarray(adev, dtype=np.float64)
-    phase = allantools.frequency2phase(y, rate)
-    phase, ms, taus_used = allantools.tau_generator(phase, rate, taus)
+    phase = np.insert(np.cumsum(y - np.mean(y)) * (1.0 / rate), 0, 0.0)
+    exact = y.size <= ALLAN_EXACT_MAX
     keep_t, keep_d = [], []
-    for tau, m in zip(np.asarray(taus_used, dtype=np.float64), np.asarray(ms, dtype=np.int64),
-                      strict=True):
-        m = int(m)
-        stride = max(1, m // ALLAN_OVERLAP)
+    for m_f in _averaging_factors(phase.size, rate, taus):
+        m = int(m_f)
+        stride = 1 if exact else max(1, m // ALLAN_OVERLAP)
         n = (phase.size - 2 * m + stride - 1) // stride
-        if n < 2:
+        if n < 2:          # allantools drops an estimate from a single difference too
             continue
-        v = phase[2 * m::stride][:n] - 2.0 * phase[m::stride][:n] + phase[:n * stride:stride]
-        keep_t.append(tau)
-        keep_d.append(math.sqrt(float(np.dot(v, v)) / (2.0 * n)) / m * rate)
+        v = phase[2 * m::stride][:n] - 2 * phase[m::stride][:n] + phase[:n * stride:stride]
+        keep_t.append(m_f / rate)
+        keep_d.append(np.sqrt(np.sum(v * v) / (2.0 * n)) / m * rate)
     return np.asarray(keep_t, dtype=np.float64), np.asarray(keep_d, dtype=np.float64)
 
 

@@ -44,7 +44,7 @@ from ..models.base import Family, check_output_shape
 from ..models.composite import ShippedModel
 from ..models.sequence import stream_relative
 from .recurrent import fit_recurrent
-from .scaling import EarlyStopping, training_scaling
+from .scaling import EarlyStopping, seed_torch, training_scaling
 
 __all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "average_windows",
            "rest_signals"]
@@ -341,7 +341,8 @@ def _fit_pointwise(model: DriftModel, runs: list, val_run: tuple | None, config:
         raise FitError(f"model '{family}' with inputs {list(model.inputs)} cannot be fitted: "
                        f"{reason}")
 
-    torch.manual_seed(config.seed)
+    device = _resolve_device(config.device)
+    seed_torch(config.seed, device)
     fam.initialize(torch.as_tensor(z_tr), torch.as_tensor(yz_tr), seed=config.seed,
                    x_mean=x_mean, x_std=x_std)
     check_output_shape(fam, torch.as_tensor(z_tr, dtype=torch.float32), family)
@@ -354,7 +355,6 @@ def _fit_pointwise(model: DriftModel, runs: list, val_run: tuple | None, config:
             x_v = model.features(torch.as_tensor(np.clip(s_v, sig_lo, sig_hi))).numpy()
         z_v, y_vz = (x_v - x_mean) / x_std, (y_v - y_mean) / y_std
 
-    device = _resolve_device(config.device)
     model.to(device)
 
     def dev(a: np.ndarray) -> torch.Tensor:
