@@ -78,3 +78,35 @@ def test_every_own_module_import_inside_a_function_says_why():
     for path in sorted((ROOT / "thermonet").rglob("*.py")):
         found += _unexplained_imports(path.read_text(), str(path.relative_to(ROOT)))
     assert found == []
+
+
+_LBFGS_FIT = """
+import sys
+import numpy as np
+{first}
+from thermonet.features.inputs import FeatureSpec
+from thermonet.training.train import TrainConfig, fit, predict
+t = np.linspace(-20.0, 60.0, 300)
+y = (0.02 / (1.0 + ((t - 30.0) / 12.0) ** 2))[:, None]
+res = fit(family="lorentz", inputs=["dT"], outputs=["gyro_x"], train=[(t[:, None], y)],
+          val=None, spec=FeatureSpec(inputs=["dT"], t_ref=25.0), hyper={{}},
+          config=TrainConfig(max_epochs=8, patience=50))
+assert len(res.history) == 9                 # eight L-BFGS steps were taken
+print("torch._dynamo" in sys.modules)
+print(predict(res.model, t[:, None])[:, 0].tolist())
+"""
+
+
+def test_an_lbfgs_fit_runs_without_importing_torch_dynamo_and_gives_the_same_model():
+    """torch.optim's wrappers import torch._dynamo (~0.9 s) only to call the function they
+    wrap (training.train.optimizer_without_dynamo): an L-BFGS fit no longer imports it, and
+    gives bit for bit the model it gives when torch._dynamo was imported first (torch's own
+    wrappers then run)."""
+    out = {}
+    for first in ("", "import torch._dynamo"):
+        proc = subprocess.run([sys.executable, "-c", _LBFGS_FIT.format(first=first)],
+                              capture_output=True, text=True, check=True)
+        loaded, preds = proc.stdout.splitlines()
+        out[first] = (loaded, preds)
+    assert out[""][0] == "False" and out["import torch._dynamo"][0] == "True"
+    assert out[""][1] == out["import torch._dynamo"][1]

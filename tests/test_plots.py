@@ -160,3 +160,25 @@ def test_accuracy_against_cost_marks_the_front_and_the_chosen(tmp_path):
     assert ringed == ["rbf (chosen)"]
     path = plot_accuracy_cost(tmp_path / "front.png", points, chosen="rbf", baseline="cubic")
     assert mpimg.imread(path).shape[:2] == (600, 1000)
+
+
+def test_a_title_placed_at_its_default_draws_the_same_pixels(tmp_path):
+    """plot_style._title names y=1.0 (skipping matplotlib's search for decorations above the
+    axes, a fifth of a figure's drawing); the figure is pixel for pixel the one the default
+    placement draws."""
+    from thermonet.reporting.plot_style import _new_figure, _save, _title
+
+    images = []
+    for named in (False, True):
+        fig, ax = _new_figure()
+        ax.plot(np.linspace(0.0, 1.0, 50), np.sin(np.linspace(0.0, 6.0, 50)), label="a")
+        ax.legend()
+        ax.set_xlabel("x")
+        text = "gyro_x: a title long enough to matter (about its mean)"
+        if named:
+            _title(ax, text)
+        else:
+            ax.set_title(text)
+        images.append(mpimg.imread(_save(fig, tmp_path / f"t{named}.png")))
+    assert images[0].shape == images[1].shape
+    np.testing.assert_array_equal(images[0], images[1])

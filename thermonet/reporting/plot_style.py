@@ -279,6 +279,14 @@ def _residuals(compensated: Mapping[str, np.ndarray], n: int, against: str
     return out
 
 
+def _title(ax: Axes, text: str) -> None:
+    """The axes' title at its default place, stated: ``y=1.0`` is where matplotlib puts it
+    over axes with nothing above them, and naming it skips the search for decorations above
+    (a tight bounding box of the x axis per draw, a fifth of a figure's drawing time); the
+    pixels are the same."""
+    ax.set_title(text, y=1.0)
+
+
 def _new_figure() -> tuple[Figure, Axes]:
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI)
     FigureCanvasAgg(fig)

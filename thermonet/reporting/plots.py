@@ -83,6 +83,7 @@ from .plot_style import (  # noqa: F401  re-exported: the plots' public constant
     _scale_sources,
     _stride,
     _style,
+    _title,
     duration_text,
     family_colours,
     time_unit,
@@ -179,7 +180,7 @@ def drift_vs_temperature_figure(*, temperature_c: np.ndarray, observed_drift: np
         order = np.argsort(grid, kind="stable")
         sel = order[_stride(order.size, MAX_LINE_POINTS)]
         ax.plot(grid[sel], pred[sel], **style)
-    ax.set_title(f"{axis}: raw output error and predicted drift vs temperature (about their means)")
+    _title(ax, f"{axis}: raw output error and predicted drift vs temperature (about their means)")
     ax.set_xlabel(x_label)
     ax.set_ylabel(f"raw output error / drift, mean removed ({units})")
     _apply_limits(ax, limits, off)
@@ -345,7 +346,7 @@ def residual_vs_time_figure(*, time_s: np.ndarray, raw_error: np.ndarray,
             kw["label"] += f" {OFF_SCALE}"
             off = True
         ax.plot(cx, means, **kw)
-    ax.set_title(f"{axis}: error vs time before and after compensation, {what} "
+    _title(ax, f"{axis}: error vs time before and after compensation, {what} "
                  "(about its mean)")
     ax.set_xlabel(f"time from start ({unit})")
     ax.xaxis.set_major_locator(MaxNLocator(nbins="auto", steps=_TIME_STEPS[unit]))
@@ -433,7 +434,7 @@ def residual_vs_temperature_figure(*, temperature_c: np.ndarray, raw_error: np.n
         if t.size:
             bx, by = _binned(t, y, bin_width)
             ax.plot(bx, by, **style)
-    ax.set_title(f"{axis}: error vs temperature after compensation, "
+    _title(ax, f"{axis}: error vs temperature after compensation, "
                  f"{_bin_text(bin_width, x_label)} (about their means)")
     ax.set_xlabel(x_label)
     ax.set_ylabel(f"error after compensation, mean removed ({units})")
@@ -537,7 +538,7 @@ def plot_allan(path: str | Path, *, rate_hz: float, raw_error: np.ndarray,
         if positive.any():
             ax.loglog(taus[positive], adev[positive], marker="o", markersize=3,
                       **kw)
-    ax.set_title(f"{axis}: overlapping Allan deviation")
+    _title(ax, f"{axis}: overlapping Allan deviation")
     ax.set_xlabel("averaging time τ (s)")
     ax.set_ylabel(f"Allan deviation ({units})")
     ax.grid(True, which="both", alpha=0.3)
@@ -574,7 +575,7 @@ def accuracy_cost_figure(points: Mapping[str, tuple[float | None, float | None]]
     if pts:
         ax.set_xscale("log")
     ax.axhline(1.0, color=_RAW_COLOR, linewidth=1.0, label="raw (no compensation)")
-    ax.set_title("held-out error against cost on board")
+    _title(ax, "held-out error against cost on board")
     ax.set_xlabel("operations per sample (multiply-adds and transcendental calls)")
     ax.set_ylabel("test score / raw (< 1 better)")
     ax.grid(True, which="both", alpha=0.3)

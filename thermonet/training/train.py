@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -367,6 +368,32 @@ def _fit_pointwise(model: DriftModel, runs: list, val_run: tuple | None, config:
     model.to("cpu")
     return history, best_epoch, best_val, s_tr
 
+def optimizer_without_dynamo() -> None:
+    """Let torch's optimizers run without importing ``torch._dynamo`` (about 0.9 s).
+
+    ``torch.optim.Optimizer``'s methods (``add_param_group``, ``zero_grad``, ``state_dict``
+    …) are wrapped by ``torch._disable_dynamo``, whose wrapper imports ``torch._dynamo`` on
+    its first call only to build ``torch._dynamo.disable(fn)`` — a function that, outside
+    ``torch.compile`` (which thermonet never uses), calls ``fn``.  The wrapper first looks
+    for that function on ``fn.__dynamo_disable``; storing ``fn`` itself there makes it call
+    ``fn`` at once, the same call.  L-BFGS then runs without the import (its ``step`` is
+    plain ``torch.no_grad``); Adam's ``step`` imports ``torch._dynamo`` anyway (for a
+    graph break), so families trained with Adam still pay it.  Only wrappers recognised
+    as torch 2.x's (``torch/_compile.py``'s ``inner``) are touched, and nothing once
+    ``torch._dynamo`` is imported: another torch only makes the first optimizer slower.
+    """
+    if "torch._dynamo" in sys.modules:
+        return
+    for attr in vars(torch.optim.Optimizer).values():
+        code = getattr(attr, "__code__", None)
+        fn = getattr(attr, "__wrapped__", None)
+        if code is None or fn is None or code.co_name != "inner" \
+                or not code.co_filename.replace("\\", "/").endswith("torch/_compile.py"):
+            continue
+        if getattr(fn, "__dynamo_disable", None) is None:
+            fn.__dynamo_disable = fn
+
+
 def _mse(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     return torch.mean((fam(z) - y) ** 2)
 
@@ -398,8 +425,9 @@ def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
         config = replace(config, max_epochs=0)
     opt: torch.optim.Optimizer | None = None
     if config.max_epochs == 0:
-        pass    # no step: no optimizer (building one imports torch._dynamo, about a second)
+        pass    # no step: no optimizer
     elif config.optimizer == "lbfgs":
+        optimizer_without_dynamo()
         opt = torch.optim.LBFGS(params, lr=config.lr, max_iter=20, line_search_fn="strong_wolfe")
     else:
         opt = torch.optim.Adam(params, lr=config.lr)
