@@ -1,7 +1,9 @@
 # Two commands do all the set-up on a fresh machine:
 #   make demo   -> creates .venv, installs torch (CPU) + thermonet, runs the main job
 #   make test   -> same set-up plus Debian's chromium, then ruff, mypy, the import layers
-#                  (lint-imports) and the test suite (the 25 slowest tests listed at the end)
+#                  (lint-imports) and the test suite but its `slow` tests (the 25 slowest
+#                  listed at the end); `make test-slow` runs the `slow` ones (CI runs both;
+#                  tests/README.md says which tests are slow and what fast twin each has)
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -9,7 +11,7 @@ PIP    := $(PY) -m pip
 TORCH  := torch==2.13.0
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test test-cpus test-cpus-all qemu bench clean chromium arm-toolchain
+.PHONY: venv demo test test-slow test-cpus test-cpus-all qemu bench clean chromium arm-toolchain
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -38,7 +40,12 @@ test: $(STAMP) chromium arm-toolchain
 	$(VENV)/bin/ruff check thermonet tests experiments export
 	$(VENV)/bin/mypy thermonet
 	$(VENV)/bin/lint-imports
-	$(PY) -m pytest -q -n 2 --durations=25 tests
+	$(PY) -m pytest -q -n 2 --durations=25 -m "not slow" tests
+
+# the longer end-to-end checks (a real local Ray, the README's first steps as written, every
+# simulated board calibrated then verified, ...); each has a smaller twin in `make test`
+test-slow: $(STAMP) chromium arm-toolchain
+	$(PY) -m pytest -q -n 2 --durations=25 -m slow tests
 
 # The numerics subset (pytest -m "numerics and not slow": parity, export, runtime, dynamics,
 # decisions; the few end-to-end runs marked slow stay native) as on

@@ -240,17 +240,23 @@ def _first_steps() -> list[str]:
     return [line.split("  #")[0].strip() for line in lines[fence + 1:end] if line.strip()]
 
 
-@pytest.mark.slow
-def test_readme_first_steps_run_as_written(tmp_path):
-    """In a directory laid out as a fresh clone after ``make demo`` (the repository's configs and
-    runtime, ``runs/demo`` from the Makefile's own demo command), every first-steps command runs
-    as written, and the runtime's output is the checkpoint's prediction: ``<axis>_drift`` equals
+def _demo_command() -> str:
+    """The Makefile's own ``make demo`` command, with the clone's ``.venv``."""
+    make = (ROOT / "Makefile").read_text(encoding="utf-8")
+    return re.search(r"^demo:.*\n\t(.+)$", make, re.M).group(1).replace("$(VENV)", ".venv")
+
+
+def _clone_layout(tmp_path: Path) -> None:
+    """``tmp_path`` laid out as a fresh clone: the repository's configs and runtime."""
+    for name in ("configs", "export"):
+        (tmp_path / name).symlink_to(ROOT / name)
+
+
+def _check_first_steps_output(tmp_path: Path) -> None:
+    """The runtime's output is the checkpoint's prediction: ``<axis>_drift`` equals
     ``DriftEstimator.load(...).predict`` on the simulated CSV, ``<axis>_comp`` is raw − drift,
     and the compensated unit is closer to the simulator's true rate than the raw one."""
     import json
-    import os
-    import shlex
-    import sys
 
     import numpy as np
     import pandas as pd
@@ -258,24 +264,6 @@ def test_readme_first_steps_run_as_written(tmp_path):
     from thermonet import DriftEstimator, read
     from tolerances import assert_f32_close
 
-    for name in ("configs", "export"):
-        (tmp_path / name).symlink_to(ROOT / name)
-    venv = tmp_path / ".venv" / "bin"
-    venv.mkdir(parents=True)
-    # the test's interpreter stands in for the clone's .venv
-    for tool, run in (("python", ""), ("thermonet", " -m thermonet.cli")):
-        (venv / tool).write_text(f'#!/bin/sh\nexec "{sys.executable}"{run} "$@"\n')
-        (venv / tool).chmod(0o755)
-    env = {**os.environ, "PYTHONPATH": str(ROOT),
-           "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path / 'mlflow.db'}"}
-    make = (ROOT / "Makefile").read_text(encoding="utf-8")
-    demo = re.search(r"^demo:.*\n\t(.+)$", make, re.M).group(1).replace("$(VENV)", ".venv")
-    steps = _first_steps()
-    assert any("runs/input.csv" in s and "simulate" in s for s in steps)
-    for cmd in [demo, *steps]:
-        out = subprocess.run(shlex.split(cmd), cwd=tmp_path, env=env, capture_output=True,
-                             text=True, timeout=600)
-        assert out.returncode == 0, f"{cmd}\n{out.stdout[-2000:]}\n{out.stderr[-2000:]}"
     got = pd.read_csv(tmp_path / "compensated.csv")
     inp = pd.read_csv(tmp_path / "runs" / "input.csv")
     assert len(got) == len(inp)
@@ -294,6 +282,75 @@ def test_readme_first_steps_run_as_written(tmp_path):
         assert_f32_close(comp.to_numpy(), (raw - got[f"{a}_drift"]).to_numpy(), "affine",
                          scale=raw.abs().max())
         assert (comp - ref).std() < 0.1 * (raw - ref).std()
+
+
+@pytest.mark.slow
+def test_readme_first_steps_run_as_written(tmp_path):
+    """In a directory laid out as a fresh clone after ``make demo`` (the repository's configs and
+    runtime, ``runs/demo`` from the Makefile's own demo command), every first-steps command runs
+    as written, each in a fresh process, and the runtime's output is the checkpoint's
+    prediction (``_check_first_steps_output``).  `make test-slow`; its fast twin is below."""
+    import os
+    import shlex
+    import sys
+
+    _clone_layout(tmp_path)
+    venv = tmp_path / ".venv" / "bin"
+    venv.mkdir(parents=True)
+    # the test's interpreter stands in for the clone's .venv
+    for tool, run in (("python", ""), ("thermonet", " -m thermonet.cli")):
+        (venv / tool).write_text(f'#!/bin/sh\nexec "{sys.executable}"{run} "$@"\n')
+        (venv / tool).chmod(0o755)
+    env = {**os.environ, "PYTHONPATH": str(ROOT),
+           "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path / 'mlflow.db'}"}
+    steps = _first_steps()
+    assert any("runs/input.csv" in s and "simulate" in s for s in steps)
+    for cmd in [_demo_command(), *steps]:
+        out = subprocess.run(shlex.split(cmd), cwd=tmp_path, env=env, capture_output=True,
+                             text=True, timeout=600)
+        assert out.returncode == 0, f"{cmd}\n{out.stdout[-2000:]}\n{out.stderr[-2000:]}"
+    _check_first_steps_output(tmp_path)
+
+
+#: The fast twin's ``runs/demo``: the default config with two of its families (the cubic
+#: baseline and the dynamic-input ``poly3-rate`` the full default set chooses), not all seven.
+SMALL_DEMO = """
+families:
+  - {name: cubic, family: poly, inputs: [dT], params: {degree: 3}}
+  - {name: poly3-rate, family: poly, inputs: [dT, rate], params: {degree: 3, cross: true}}
+"""
+
+
+def test_readme_first_steps_run_in_process(tmp_path, monkeypatch):
+    """The fast twin of the test above: the same first-steps commands, each command line as
+    written, run in this process (``.venv/bin/thermonet ARGS`` as ``thermonet.cli.main(ARGS)``,
+    ``.venv/bin/python export/thermonet_runtime.py ARGS`` as the runtime's ``main(ARGS)``),
+    after a smaller ``make demo`` (two families of the default config); the same checks of
+    the runtime's output."""
+    import shlex
+
+    from conftest import load_runtime
+    from thermonet.cli import main
+
+    _clone_layout(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    demo = _demo_command()
+    assert "configs/default.yaml" in demo
+    (tmp_path / "demo.yaml").write_text(
+        (ROOT / "configs" / "default.yaml").read_text(encoding="utf-8") + SMALL_DEMO)
+    runtime = load_runtime()
+    steps = _first_steps()
+    assert any("runs/input.csv" in s and "simulate" in s for s in steps)
+    for cmd in [demo.replace("configs/default.yaml", "demo.yaml"), *steps]:
+        argv = shlex.split(cmd)
+        if argv[0] == ".venv/bin/thermonet":
+            rc = main(argv[1:])
+        else:
+            assert argv[:2] == [".venv/bin/python", "export/thermonet_runtime.py"], cmd
+            rc = runtime.main(argv[2:])
+        assert rc == 0, cmd
+    _check_first_steps_output(tmp_path)
 
 
 @pytest.mark.parametrize("name", sorted(p.name for p in (ROOT / "configs").glob("*.yaml")))

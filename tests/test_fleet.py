@@ -336,16 +336,32 @@ def test_a_unit_file_over_the_limit_is_streamed_by_its_worker(tmp_path):
     assert len(streamed) == 2 and all(s["window_s"] == 1.0 for s in streamed)
 
 
-def test_serial_process_and_ray_give_identical_results(tmp_path):
-    sources = sources_from_dataset(toy_fleet(GAINS[:3]))
+def _same_on_every_executor(tmp_path: Path, executors: tuple[str, ...], n_units: int) -> None:
+    """The fleet's numbers (coefficients, held-out scores, leave-units-out) are identical
+    whichever executor ran the units: the same data, the same computation."""
+    sources = sources_from_dataset(toy_fleet(GAINS[:n_units]))
     cfg = toy_config()
     cfg.families = cfg.families[:1]
     got = {}
-    for ex in ("serial", "process", "ray"):
+    for ex in executors:
         got[ex] = _numbers(run_fleet(cfg, tmp_path / ex, sources, quiet=True,
                                      options=FleetOptions(executor=ex, workers=2, folds=2)))
-    assert got["serial"] == got["process"] == got["ray"]
+    assert list(got["serial"]) == [f"toy-u{i:03d}" for i in range(n_units)]
+    for ex in executors[1:]:
+        assert got[ex] == got["serial"], ex
     assert got["serial"]["toy-u000"][2]["axes"]["gyro_x"]["ratio"] > 0
+
+
+def test_serial_and_process_give_identical_results(tmp_path):
+    """The fast twin of the Ray test below: two units (leave-units-out needs two), serial
+    against the process pool."""
+    _same_on_every_executor(tmp_path, ("serial", "process"), n_units=2)
+
+
+@pytest.mark.slow
+def test_serial_process_and_ray_give_identical_results(tmp_path):
+    """A real local Ray (its start-up is most of this test's time; `make test-slow`)."""
+    _same_on_every_executor(tmp_path, ("serial", "process", "ray"), n_units=3)
 
 
 def test_unreachable_ray_is_one_clear_line():
@@ -378,16 +394,17 @@ def test_a_unit_with_too_few_runs_for_the_split_fails_alone(tmp_path):
     assert res["fleet"]["n_failed"] == 1 and not res["fleet"]["all_passed"]
 
 
-def test_one_file_per_unit_workers_read_their_own_file(tmp_path):
+def _workers_read_their_own_file(tmp_path: Path, executors: tuple[str, ...],
+                                 n_units: int) -> None:
     """A fleet given as one thermonet Parquet file per unit: the sources carry only the path
     (what goes to a worker: a few hundred bytes, not the unit's samples), each worker reads
-    its own file, and the results are those of the same units read by the driver — on the
-    serial executor and on a local Ray."""
+    its own file, and the results are those of the same units read by the driver — on each of
+    ``executors``."""
     import pickle
 
     from thermonet.workflows.fleet_units import UnitItem, sources_from_files
 
-    fleet = toy_fleet(GAINS[:3])
+    fleet = toy_fleet(GAINS[:n_units])
     paths = []
     for dev, unit in split_units(fleet).items():
         paths.append(str(write_parquet(unit, tmp_path / f"{dev}.parquet")))
@@ -402,7 +419,8 @@ def test_one_file_per_unit_workers_read_their_own_file(tmp_path):
     assert by_path < 10_000 < 3 * 1200 * 8 * 3 < by_data   # 3 runs × 1,200 samples × 3 columns
     want = _numbers(run_fleet(cfg, tmp_path / "d", sources_from_dataset(fleet), quiet=True,
                               options=FleetOptions(executor="serial", folds=2)))
-    for ex in ("serial", "ray"):
+    assert list(want) == [f"toy-u{i:03d}" for i in range(n_units)]
+    for ex in executors:
         got = _numbers(run_fleet(cfg, tmp_path / ex, sources, quiet=True,
                                  options=FleetOptions(executor=ex, workers=2, folds=2)))
         assert got == want, ex   # the same data, the same computation: identical
@@ -414,3 +432,16 @@ def test_one_file_per_unit_workers_read_their_own_file(tmp_path):
     with pytest.raises(InputError, match=r"odd\.parquet: unit 'toy-odd' has .*rad/s.*"
                                          r"toy-u000\.parquet has"):
         sources_from_files([paths[0], str(tmp_path / "odd.parquet")])
+
+
+def test_one_file_per_unit_workers_read_their_own_file(tmp_path):
+    """The fast twin of the Ray test below: two units, each read by its own worker process
+    (the process pool), against the driver's read."""
+    _workers_read_their_own_file(tmp_path, ("process",), n_units=2)
+
+
+@pytest.mark.slow
+def test_one_file_per_unit_ray_workers_read_their_own_file(tmp_path):
+    """The same on a real local Ray (its start-up is most of this test's time;
+    `make test-slow`)."""
+    _workers_read_their_own_file(tmp_path, ("serial", "ray"), n_units=3)

@@ -504,15 +504,30 @@ def test_sigkill_leaves_running_runs_that_a_later_tracker_tidies(endless, tmp_pa
     assert tidy_orphaned_runs(f"sqlite:///{db}") == []
 
 
-def test_two_comparisons_at_once_on_a_new_store(tmp_path):
+def _comparisons_at_once(tmp_path: Path, rounds: tuple[str, ...]) -> None:
+    """Two command-line comparisons started together on one MLflow store, once per round
+    (the first on a store neither has created yet): each exits 0 and every run FINISHED."""
     cfg = _cfg(tmp_path, _tiny(tmp_path))
     db = tmp_path / "mlflow.db"
-    for round_ in ("new store", "existing store"):
+    for round_ in rounds:
         procs = [_start(cfg, tmp_path / f"out-{round_[0]}{i}", db) for i in range(2)]
         for p in procs:
             _, stderr = p.communicate(timeout=300)
             assert p.returncode == 0, f"{round_}: {stderr}"
-    assert _statuses(db) == ["FINISHED"] * 8  # 4 comparisons × (parent + one family)
+    # 2 comparisons a round × (parent + one family)
+    assert _statuses(db) == ["FINISHED"] * (4 * len(rounds))
+
+
+def test_two_comparisons_at_once_on_a_new_store(tmp_path):
+    """The fast twin of the test below: the new store's round alone (the race on creating
+    and migrating the store)."""
+    _comparisons_at_once(tmp_path, ("new store",))
+
+
+@pytest.mark.slow
+def test_two_comparisons_at_once_on_a_new_then_an_existing_store(tmp_path):
+    """Both rounds, four processes (`make test-slow`)."""
+    _comparisons_at_once(tmp_path, ("new store", "existing store"))
 
 
 def test_c_escaping_round_trips_through_a_compiler(tmp_path):
