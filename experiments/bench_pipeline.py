@@ -9,7 +9,8 @@ commands of one job timed in turn A, B, C, A, B, C … so the machine's load hit
 * ``thermonet compare`` with the default family set on the two real BMI270 soaks
   (9,788 rows, ``tests/data/real/bmi270_two_soaks``);
 * ``thermonet export`` of that comparison's chosen model to ONNX and to C (parity checks
-  included, as a user runs them).
+  included, as a user runs them);
+* ``thermonet compare`` of the cubic and the GRU on the ``consumer-imu`` preset (one run).
 
 Per command: wall seconds, CPU seconds (user + system of the child) and peak resident memory,
 median (min–max); per job the ratios to the anchor, pair by pair.  Then one ``--profile`` run
@@ -170,6 +171,23 @@ def main() -> None:
             rows.append([job, k, fmt_spread(spread(r["wall_s"])), fmt_spread(spread(r["cpu_s"])),
                          f"{max(r['maxrss_mb']):.0f}", ratio, cpu_ratio, vs_before(res, k)])
         print(job, "done", flush=True)
+    # the GRU, the slowest family, beside the cubic on the consumer-imu preset (one run: its
+    # fits take tens of seconds; no warm-up, no before twin)
+    gru_cfg = tmp / "gru.yaml"
+    gru_cfg.write_text(yaml.safe_dump({
+        "data": {"preset": "consumer-imu", "seed": 0},
+        "target": {"gyro": "zero", "acc": "at-t-ref"}, "features": {"t_ref": 25.0},
+        "baseline": "cubic",
+        "families": [{"family": "poly", "name": "cubic", "inputs": ["dT"],
+                      "params": {"degree": 3}},
+                     {"family": "gru", "name": "gru", "inputs": ["dT"]}]}))
+    gru_cmd = [*THERMONET, "compare", str(gru_cfg), "--out", str(tmp / "gru"), "--overwrite",
+               "-q", "--no-track"]
+    r = _run(gru_cmd)
+    results["gru"] = {k: [v] for k, v in r.items()}
+    rows.append(["compare, cubic + gru (consumer-imu preset)", "thermonet compare (1 run)",
+                 f"{r['wall_s']:.3g}", f"{r['cpu_s']:.3g}", f"{r['maxrss_mb']:.0f}", "—", "—",
+                 "—"])
     # exports of the comparison's choice (a per-axis model where the axes chose several)
     exp = {f"thermonet export --format {f}": [*THERMONET, "export", str(tmp / "cmp"),
                                               "--format", f, "--out",

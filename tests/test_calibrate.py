@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 
 from thermonet.cli import main
-from thermonet.core.errors import InputError
 from thermonet.data.logs import read_log
 from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
@@ -239,47 +238,3 @@ def test_only_what_cannot_be_fitted_is_refused_with_the_reason() -> None:
                              fit_firmware(next(i for i in board.instances
                                                if i.name == "gyro1"), "px4")) is None
 
-
-def _pid(_: object) -> int:
-    import os
-
-    return os.getpid()
-
-
-def test_warm_pool_runs_items_in_worker_processes_in_order() -> None:
-    import os
-
-    from thermonet.core.executors import WarmPool
-
-    with WarmPool(2, ("json",)) as pool:
-        assert pool.pool is not None
-        assert pool.map(abs, [-3, 1, -2, 0]) == [3, 1, 2, 0]
-        pids = set(pool.map(_pid, range(6)))
-    assert os.getpid() not in pids and 1 <= len(pids) <= 2
-    with WarmPool(1, ("json",)) as serial:            # one worker: this process, no pool
-        assert serial.pool is None and serial.map(_pid, [0]) == [os.getpid()]
-
-
-def test_instances_compared_side_by_side_give_the_serial_results(tmp_path: Path) -> None:
-    """calibrate's comparisons in worker processes (workers=2) write what one process writes
-    (workers=1): the same results.json, instance by instance, and the same parameter file."""
-    board = simulate_board("fc-board", autopilot="px4", seed=3, rate_hz=0.1)
-    board.instances = [i for i in board.instances if i.name in ("gyro0", "acc0", "baro0")]
-    path = write_log(board, tmp_path / "board.ulg")
-    docs = {w: calibrate(path, tmp_path / f"cal{w}", workers=w) for w in (1, 2)}
-
-    def plain(w: int) -> str:
-        return json.dumps(docs[w]["instances"], sort_keys=True).replace(f"cal{w}", "cal")
-
-    assert plain(1) == plain(2)
-    assert all("compare" in r for r in docs[1]["instances"].values())
-    assert (tmp_path / "cal1" / "px4.params").read_text() == \
-        (tmp_path / "cal2" / "px4.params").read_text()
-    for name in ("gyro0", "acc0", "baro0"):
-        a = json.loads((tmp_path / "cal1" / "instances" / name / "results.json").read_text())
-        b = json.loads((tmp_path / "cal2" / "instances" / name / "results.json").read_text())
-        assert a["families"].keys() == b["families"].keys()
-        for fam in a["families"]:
-            assert a["families"][fam].get("val_score") == b["families"][fam].get("val_score")
-    with pytest.raises(InputError, match="workers must be"):
-        calibrate(path, tmp_path / "cal-bad", workers=-1)

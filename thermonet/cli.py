@@ -305,8 +305,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .workflows.magnetometer import parse_thermometers  # lazy: off the --help path
 
     doc = calibrate(args.log, args.out, overwrite=args.overwrite, compare=not args.no_compare,
-                    mag_thermometers=parse_thermometers(args.mag_thermometer or []),
-                    workers=args.workers)
+                    mag_thermometers=parse_thermometers(args.mag_thermometer or []))
     if not args.quiet:
         print(format_report(doc), end="")
         print(f"results: {Path(args.out) / 'results.json'}")
@@ -501,9 +500,6 @@ def _add_calibrate(sub: Any) -> None:
                    help="the thermometer lent to a magnetometer without one, e.g. mag1=baro0 "
                         "(repeatable; default: baro0, else gyro0, else acc0); its lag is "
                         "fitted")
-    k.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="instances compared side by side in worker processes (default: one "
-                        "per CPU; 1: in this process); the results do not depend on it")
     k.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
     k.set_defaults(func=_cmd_calibrate)
 

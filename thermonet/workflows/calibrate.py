@@ -63,7 +63,6 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping, Sequence
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -71,7 +70,6 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import InputError, ThermonetError
-from ..core.executors import WarmPool, usable_cores
 from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
 from ..core.names import inside, path_components
 from ..core.outdir import KINDS, check_target, relocate_json, sha256_file, staged_output
@@ -309,20 +307,13 @@ def _verdict(summary: dict[str, Any]) -> tuple[bool, str]:
 
 def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, *,
               compare: bool = True, overwrite: bool = False,
-              mag_thermometers: Mapping[str, str] | None = None,
-              workers: int | None = None) -> dict[str, Any]:
+              mag_thermometers: Mapping[str, str] | None = None) -> dict[str, Any]:
     """Calibrate every instance of one board's log(s); write ``out_dir``; return results.
 
     ``log_path``: one log, or several logs of the same board (train on all but the
     last, verify on the last, export the refit on all: see the module).
     ``mag_thermometers``: ``{"mag1": "baro0"}``, the thermometer lent to a magnetometer
     without one (default: :data:`~thermonet.workflows.magnetometer.DEFAULT_THERMOMETERS`).
-
-    ``workers``: instances compared side by side (None or 0: one per usable CPU; 1: in
-    this process).  The workers are forked from one process that imports torch and the
-    fitting machinery while this one reads and checks the logs (:class:`~thermonet.core.
-    executors.WarmPool`); each comparison is the same computation as in this process (one
-    thread, its own seeds), so the results do not depend on ``workers``.
 
     ``out_dir`` appears whole or not at all (:mod:`thermonet.core.outdir`,
     ``kind="calibration"``): it is built in a hidden staging directory beside it
@@ -342,20 +333,8 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
     paths = [log_path] if isinstance(log_path, (str, Path)) else list(log_path)
     if not paths:
         raise InputError("calibrate needs at least one log")
-    if workers is not None and (not isinstance(workers, int) or workers < 0):
-        raise InputError(f"calibrate: workers must be a whole number >= 0, got {workers!r}")
     out = Path(out_dir)
     refuse_overwriting_inputs(out, paths, owned=KINDS["calibration"])
-    n = usable_cores() if not workers else workers
-    with WarmPool(n if compare else 1, COMPARE_PRELOAD) as pool:
-        return _calibrate_logs(paths, out, compare=compare, overwrite=overwrite,
-                               mag_thermometers=mag_thermometers, pool=pool)
-
-
-def _calibrate_logs(paths: list[str | Path], out: Path, *, compare: bool, overwrite: bool,
-                    mag_thermometers: Mapping[str, str] | None, pool: WarmPool
-                    ) -> dict[str, Any]:
-    """:func:`calibrate` once its pool is starting: read, check, fit, write."""
     with profile_stage("read the log(s)"):
         logs = [read_log(p) for p in paths]
     seen: dict[str, Path] = {}
@@ -371,8 +350,7 @@ def _calibrate_logs(paths: list[str | Path], out: Path, *, compare: bool, overwr
         logs, mags = _lend_and_lag(logs, mag_thermometers)   # a bad --mag-thermometer: refused
     check_target(out, overwrite, "calibration")   # before anything is fitted
     with staged_output(out, overwrite=overwrite, kind="calibration") as stage:
-        doc = _calibrate_into(logs, stage.path, out, compare=compare, mags=mags,
-                              pool=pool if pool.pool is not None else None)
+        doc = _calibrate_into(logs, stage.path, out, compare=compare, mags=mags)
         stage.done()
     return doc
 
@@ -625,26 +603,9 @@ def _judge_model_only(fit: FirmwareFit, inst: SensorInstance | None, autopilot: 
     return h
 
 
-def _run_comparisons(pool: WarmPool | None, todo: list[tuple[Any, ...]]
-                     ) -> list[dict[str, Any] | str]:
-    """Every instance's comparison, side by side in the pool's workers, else here.  A pool
-    whose workers cannot start or die (a calling script that starts work at import, without
-    ``if __name__ == "__main__":`` — a worker imports the caller's main module, as every
-    Python process pool does; killed, out of memory) is given up: the comparisons then run
-    here, one after the other, with the same results."""
-    if pool is not None:
-        try:
-            return pool.map(_compare_task, todo)
-        except BrokenProcessPool:
-            pass
-    return [_compare_task(job) for job in todo]
-
-
 def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: bool,
-                    mags: dict[str, dict[str, Any]] | None = None,
-                    pool: WarmPool | None = None) -> dict[str, Any]:
-    """The calibration, written into ``stage``; recorded paths name ``out``; the
-    comparisons in ``pool`` (None: in this process)."""
+                    mags: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
+    """The calibration, written into ``stage``; recorded paths name ``out``."""
     log = merge_logs(logs)
     source = ", ".join(str(lg.path) for lg in logs)
     dirs = path_components(i.name for i in log.instances)
@@ -659,12 +620,7 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
              out / "instances" / dirs[inst.name])
             for inst, r in zip(log.instances, results, strict=True)
             if compare and r.status == "fitted"]
-    compared: dict[str, dict[str, Any] | str] = {}
-    if todo:
-        with profile_stage(f"compare thermonet's families ({len(todo)} instances, "
-                           f"{pool.workers if pool else 1} at a time)"):
-            for (inst, *_), cmp in zip(todo, _run_comparisons(pool, todo), strict=True):
-                compared[inst.name] = cmp
+    compared = {job[0].name: _compare_task(job) for job in todo}
     results = [_judge_instance(r, inst, log.autopilot, compared.get(inst.name))
                for inst, r in zip(log.instances, results, strict=True)]
     _check_held_out(logs, log, results, stage)
@@ -727,8 +683,8 @@ def _fit_instance(inst: Any, log: FlightLog, *, mags: dict[str, dict[str, Any]] 
 
 
 def _compare_task(job: tuple[Any, ...]) -> dict[str, Any] | str:
-    """One instance's comparison (:func:`_compare`), in a worker process or here: its
-    summary, or the one line of a :class:`ThermonetError` that stopped it."""
+    """One instance's comparison (:func:`_compare`): its summary, or the one line of a
+    :class:`ThermonetError` that stopped it."""
     inst, autopilot, where, source, final = job
     try:
         with profile_stage(f"{inst.name}: compare thermonet's families"):
@@ -761,16 +717,6 @@ def _judge_instance(r: InstanceResult, inst: SensorInstance, autopilot: str,
     if r.status == "fitted" and why_not:
         r.status, r.reason = "model only", why_not
     return r
-
-
-#: Modules a comparison worker imports before its first task (:class:`WarmPool`): torch and
-#: the fitting machinery, scikit-learn's k-means (the RBF's centres), pandas (the parameter
-#: tables) — about 2 s, paid once, while the driver reads and checks the logs.
-COMPARE_PRELOAD = ("thermonet.workflows.calibrate", "thermonet.workflows.compare",
-                   "thermonet.training.train", "thermonet.training.parameters",
-                   "thermonet.training.checkpoint", "thermonet.training.pipeline",
-                   "thermonet.models.linear", "thermonet.models.poly", "thermonet.models.rbf",
-                   "thermonet.exporting.autopilot", "sklearn.cluster", "pandas")
 
 
 def _check_held_out(logs: list[FlightLog], log: FlightLog, results: list[InstanceResult],
