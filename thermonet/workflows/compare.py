@@ -42,6 +42,8 @@ from ..core.profile import stage
 from ..core.recording import Dataset
 from ..core.version import __version__
 from ..features.inputs import TEMPERATURE
+from ..reporting.colours import family_colours
+from ..reporting.plot_workers import PlotJob, PlotWorkers, usable_cores
 from ..reporting.report import tuned_text, write_report
 from ..reporting.results import ComparisonResult
 from ..scoring.band import evaluate_tables
@@ -131,13 +133,17 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
     tracking = TrackingSession(enabled=tracker.enabled, uri=tracker.uri,
                                experiment=tracker.experiment,
                                register=cfg.tracking.register).start()
+    # the figures' drawers start now: they import matplotlib while the data load and the
+    # families fit (a core the fits leave idle), then draw side by side
+    drawers = PlotWorkers(min(2, usable_cores()) if plots else 0)
     try:
-        run = _plan_step(cfg, out, tracking, progress or Progress(quiet), dataset=dataset,
-                         options={"track": track, "tracking_uri": tracking_uri,
-                                  "workers": workers, "plots": plots})
-        fitted, records = _fit_step(run, workers)
-        doc = _judge_step(run, fitted)
-        _write_step(run, fitted, doc, records, plots=plots)
+        with drawers:
+            run = _plan_step(cfg, out, tracking, progress or Progress(quiet), dataset=dataset,
+                             options={"track": track, "tracking_uri": tracking_uri,
+                                      "workers": workers, "plots": plots})
+            fitted, records = _fit_step(run, workers)
+            doc = _judge_step(run, fitted)
+            _write_step(run, fitted, doc, records, drawers=drawers if plots else None)
     except BaseException as err:
         tracking.abort(interrupted=isinstance(err, (KeyboardInterrupt, Interrupted)))
         raise
@@ -309,7 +315,7 @@ def _judge_step(run: _Run, fitted: dict[str, Fitted]) -> dict[str, Any]:
 
 
 def _write_step(run: _Run, fitted: dict[str, Fitted], doc: dict[str, Any],
-                records: dict[str, Any], *, plots: bool) -> None:
+                records: dict[str, Any], *, drawers: PlotWorkers | None) -> None:
     """``results.json`` and ``config.resolved.yaml``, handed to the tracking child, then the
     plots and ``report.html`` while it logs; its warnings join the results' (printed)."""
     out = run.out
@@ -319,7 +325,7 @@ def _write_step(run: _Run, fitted: dict[str, Fitted], doc: dict[str, Any],
                           resolved_yaml(run.resolved, run.provenance))
     run.tracking.log(out, doc, records)
     with stage("plots"):
-        plot_paths = _plots(out, fitted, doc, run.p.ds) if plots else []
+        plot_paths = drawers.draw(_plots(out, fitted, doc, run.p.ds)) if drawers else []
     with stage("write the report"):
         write_report(out / "report.html", doc, plot_paths)
     with stage("MLflow: the tracking step's remainder"):
@@ -386,21 +392,13 @@ def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResul
 
 
 def _plots(out: Path, fitted: dict[str, Fitted], results: dict[str, Any],
-           ds: Dataset) -> list[Path]:
-    """PNG figures of the last fold's test data, every fitted family in its own colour."""
-    from ..reporting.plots import (  # lazy: loads matplotlib
-        family_colours,
-        plot_accuracy_cost,
-        plot_allan,
-        plot_drift_vs_temperature,
-        plot_residual_vs_temperature,
-        plot_residual_vs_time,
-    )
-
+           ds: Dataset) -> list[PlotJob]:
+    """The PNG figures of the last fold's test data, every fitted family in its own colour:
+    per figure the function of :mod:`thermonet.reporting.plots` and its arguments."""
     ok = {k: f for k, f in fitted.items() if f.model is not None and f.test_parts}
     if not ok:
         return []
-    paths: list[Path] = []
+    paths: list[PlotJob] = []
     part = next(iter(ok.values())).test_parts[-1]
     colours = family_colours(list(fitted))
     style: dict[str, Any] = {"chosen": results.get("chosen"), "baseline": results.get("baseline"),
@@ -412,29 +410,32 @@ def _plots(out: Path, fitted: dict[str, Fitted], results: dict[str, Any],
         unit = results["units"].get(axis, "")
         curves = {label: (part.bin_by, f.test_preds[-1][:, j]) for label, f in ok.items()}
         safe = path_component(axis.replace(".", "_"))  # a name from data, made a file name
-        paths.append(plot_drift_vs_temperature(
-            pdir / f"drift_vs_temperature_{safe}.png", temperature_c=part.bin_by,
+        paths.append(("plot_drift_vs_temperature", dict(
+            path=pdir / f"drift_vs_temperature_{safe}.png", temperature_c=part.bin_by,
             observed_drift=part.target[:, j], curves=curves, axis=axis, units=unit,
-            bin_width=part.bin_width, x_label=x_label, **style))
+            bin_width=part.bin_width, x_label=x_label, **style)))
         if results["target"] == "drift":
             resid = {label: part.target[:, j] - f.test_preds[-1][:, j] for label, f in ok.items()}
-            paths.append(plot_residual_vs_time(
-                pdir / f"residual_vs_time_{safe}.png", time_s=part.time_s,
-                raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit, **style))
-            paths.append(plot_residual_vs_temperature(
-                pdir / f"residual_vs_temperature_{safe}.png", temperature_c=part.bin_by,
+            paths.append(("plot_residual_vs_time", dict(
+                path=pdir / f"residual_vs_time_{safe}.png", time_s=part.time_s,
+                raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit,
+                **style)))
+            paths.append(("plot_residual_vs_temperature", dict(
+                path=pdir / f"residual_vs_temperature_{safe}.png", temperature_c=part.bin_by,
                 raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit,
                 bin_width=part.bin_width, x_label=x_label, band=_band_curve(results, axis,
                                                                            part.bin_by),
-                **style))
-            paths.append(plot_allan(pdir / f"allan_{safe}.png", rate_hz=part.rate_hz,
-                                    raw_error=part.target[:, j], compensated=resid,
-                                    axis=axis, units=unit, **style))
+                **style)))
+            paths.append(("plot_allan", dict(
+                path=pdir / f"allan_{safe}.png", rate_hz=part.rate_hz,
+                raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit,
+                **style)))
     fams = results["families"]
     points = {k: ((fams[k].get("cost") or {}).get("ops_per_sample"), fams[k].get("test_score"))
               for k in ok if fams.get(k, {}).get("status") == "ok"}
     if any(c is not None for c, _ in points.values()):
-        paths.append(plot_accuracy_cost(pdir / "accuracy_vs_cost.png", points, **style))
+        paths.append(("plot_accuracy_cost", dict(path=pdir / "accuracy_vs_cost.png",
+                                                 points=points, **style)))
     return paths
 
 

@@ -1,0 +1,65 @@
+"""Figures drawn by child processes (thermonet.reporting.plot_workers): the same files as drawn
+in the command, every error raised as the command would raise it, no child left behind."""
+
+from __future__ import annotations
+
+import matplotlib.image as mpimg
+import numpy as np
+import pytest
+
+from thermonet.reporting.colours import family_colours
+from thermonet.reporting.plot_workers import PlotWorkers, draw_here
+
+
+def _jobs(out, n_series: int = 3):
+    rng = np.random.default_rng(4)
+    t = np.linspace(-10.0, 60.0, 3000)
+    raw = 0.01 * np.sin(t / 9.0) + rng.normal(0.0, 0.002, t.size)
+    comp = {"cubic": raw - 0.01 * np.sin(t / 9.0), "linear": raw - 0.0002 * t}
+    colours = family_colours(list(comp))
+    jobs = []
+    for k in range(n_series):
+        jobs.append(("plot_residual_vs_temperature", dict(
+            path=out / f"res_{k}.png", temperature_c=t, raw_error=raw + k * 1e-3,
+            compensated=comp, axis=f"gyro_{k}", units="°/s", bin_width=1.0,
+            x_label="temperature (°C)", chosen="cubic", baseline="cubic", colours=colours)))
+        jobs.append(("plot_allan", dict(
+            path=out / f"allan_{k}.png", rate_hz=10.0, raw_error=raw, compensated=comp,
+            axis=f"gyro_{k}", units="°/s", chosen="cubic", colours=colours)))
+    return jobs
+
+
+def test_children_draw_the_figures_the_command_draws(tmp_path):
+    here = draw_here(_jobs(tmp_path / "here"))
+    with PlotWorkers(2) as drawers:
+        assert len(drawers._procs) == 2
+        there = drawers.draw(_jobs(tmp_path / "there"))
+        assert drawers._procs == []                    # ended once they have drawn
+    assert [p.name for p in there] == [p.name for p in here]      # the order of the jobs
+    for a, b in zip(here, there, strict=True):
+        assert b.parent == tmp_path / "there"
+        np.testing.assert_array_equal(mpimg.imread(a), mpimg.imread(b))
+
+
+def test_a_figure_that_fails_in_a_child_is_drawn_here_and_raises_as_here(tmp_path):
+    jobs = _jobs(tmp_path)
+    bad = dict(jobs[2][1], compensated={"cubic": np.zeros(5)})     # lengths do not match
+    jobs[2] = ("plot_residual_vs_temperature", bad)
+    with PlotWorkers(2) as drawers, pytest.raises(ValueError, match=r"'compensated\['cubic'\]' has 5"):
+        drawers.draw(jobs)
+    procs = drawers._procs
+    assert procs == []
+
+
+def test_leaving_on_an_error_kills_the_children_at_once():
+    drawers = PlotWorkers(2)
+    procs = list(drawers._procs)
+    with pytest.raises(RuntimeError), drawers:
+        raise RuntimeError("the comparison failed before its figures")
+    assert all(p.poll() is not None for p in procs)
+
+
+def test_one_worker_or_fewer_draws_in_this_process(tmp_path):
+    drawers = PlotWorkers(1)
+    assert drawers._procs == []
+    assert [p.name for p in drawers.draw(_jobs(tmp_path, 1))] == ["res_0.png", "allan_0.png"]
