@@ -244,9 +244,12 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
         inst = SensorInstance(inst.kind, inst.instance, inst.device_id, inst.time_s,
                               inst.unlagged_c, inst.values, notes=list(inst.notes),
                               truth=inst.truth, thermometer=inst.thermometer)
+    # workers=1: the three closed-form families one after the other — side by side in
+    # threads they hold Python's lock in turn, and were slower (3.6 against 3.45 s a
+    # calibration of the 9-instance bench log, idle)
     cfg = CompareConfig(
         split=SplitConfig(strategy="time-blocks", n_blocks=20), families=families,
-        tracking=TrackingConfig(enabled=False), baseline=fw)
+        tracking=TrackingConfig(enabled=False), baseline=fw, workers=1)
     ds = inst.to_dataset(source).validate(source)
     # built inside calibrate's own staging directory (a fresh one on every run); no figures
     # per instance (the calibration's report has its own tables): the comparison is a verdict
