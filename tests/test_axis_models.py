@@ -512,3 +512,35 @@ def test_parts_whose_union_puts_temperature_second(parts, tmp_path):
         ref = model.drift64(torch.from_numpy(_signals(model, rec.time_s,
                                                       rec.temperature_c))).numpy()
     np.testing.assert_array_equal(est.predict(rec), ref)   # same model, signals, batch
+
+
+def test_parameter_rows_are_the_parameter_table_without_pandas(parts, composite):
+    """compare seals parameter_rows (no pandas); the API shows parameter_table: the same
+    rows, values and standard errors, for single families (with data: standard errors) and
+    for the per-axis composite built from its parts' own rows."""
+    from thermonet.training.parameters import COLUMNS, parameter_rows, parameter_table
+
+    units = {a: "°/s" for a in AXES}
+    _, temp, _, y = _device()
+    train = (temp[:, None], y)
+    for model, data in ((parts[0], train), (parts[1], None), (composite, None)):
+        rows, cov = parameter_rows(model, units, {}, data)
+        table, cov_t = parameter_table(model, units, {}, data)
+        assert list(table.columns) == COLUMNS and len(rows) == len(table) > 0
+        for r, t in zip(rows, table.to_dict("records"), strict=True):
+            assert list(r) == COLUMNS
+            for c in COLUMNS:
+                assert r[c] == t[c] or (r[c] != r[c] and t[c] != t[c]), (c, r, t)   # NaN
+        assert cov.keys() == cov_t.keys()
+        for a in cov:
+            np.testing.assert_array_equal(cov[a], cov_t[a])
+    rows0, cov0 = parameter_rows(parts[0], units, {}, train)
+    assert any(r["stderr"] > 0 for r in rows0)                     # standard errors computed
+    table, _ = parameter_table(composite, units, {}, parts=[
+        (parameter_table(p, units, {}, train if k == 0 else None)[0], cov0 if k == 0 else {})
+        for k, p in enumerate(parts)])
+    rows, _ = parameter_rows(composite, units, {}, parts=[
+        (parameter_rows(p, units, {}, train if k == 0 else None)[0], cov0 if k == 0 else {})
+        for k, p in enumerate(parts)])
+    assert [r["name"] for r in rows] == list(table["name"])
+    assert [r["name"] for r in rows if r["name"].startswith(LABELS[0] + ".")]

@@ -91,7 +91,7 @@ from ..features.inputs import TEMPERATURE, dynamic_signal, parse_feature
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["parameter_table", "polynomial_coefficients", "block_bootstrap_cov", "block_length",
+__all__ = ["parameter_table", "parameter_rows", "polynomial_coefficients", "block_bootstrap_cov", "block_length",
            "sealed_parameters", "with_sealed", "COLUMNS", "FIXED", "NO_SE", "STDERR_METHODS",
            "N_BOOTSTRAP"]
 
@@ -380,6 +380,55 @@ def _raw_rows(model: Any) -> list[dict[str, Any]]:
     return rows
 
 
+#: A parameter table without pandas: one dict per row, keys :data:`COLUMNS`.
+Rows = list[dict[str, Any]]
+
+
+def parameter_rows(model: Any, units: dict[str, str], signal_units: dict[str, str],
+                   train: tuple[Any, ...] | None = None, *, method: str = "ols",
+                   seed: int = 0, parts: Sequence[tuple[Rows, dict[str, np.ndarray]]]
+                   | None = None) -> tuple[Rows, dict[str, np.ndarray]]:
+    """:func:`parameter_table`'s rows and covariance, without pandas (what ``compare``
+    and ``calibrate`` seal into their checkpoints: importing pandas costs ~0.3 s).
+
+    A per-axis model (:class:`~thermonet.models.composite.AxisModels`) takes ``parts``:
+    each part's own rows and covariance as its fit computed them (else its parts' rows
+    without data)."""
+    from ..models.composite import AxisModels  # torch boundary (pyproject.toml): loads torch
+
+    cov: dict[str, np.ndarray] = {}
+    if isinstance(model, AxisModels):
+        # each part's own table, on the axes it owns (and its shared rows), names prefixed
+        # with the part's label
+        rows: Rows = []
+        for k, part in enumerate(model.parts):
+            table, part_cov = parts[k] if parts is not None else parameter_rows(
+                part, units, signal_units, None, method=method, seed=seed)
+            mine = [a for a, o in zip(model.outputs, model.owner, strict=True) if o == k]
+            keep = {*mine, ""}
+            rows += [{**r, "name": f"{model.labels[k]}.{r['name']}"} for r in table
+                     if r["axis"] in keep]
+            cov.update({a: c for a, c in part_cov.items() if a in mine})
+        return [{c: r[c] for c in COLUMNS} for r in rows], cov
+    poly = _polynomial_rows(model, units, signal_units, train, method, seed)
+    if poly is not None:
+        rows, cov = poly
+    elif model.family.name == "lorentz":
+        rows = _lorentz_rows(model, units, signal_units)
+    else:
+        rows = (_rbf_rows(model, units, signal_units) if model.family.name == "rbf" else None) \
+            or _raw_rows(model)
+    return [{c: r[c] for c in COLUMNS} for r in rows], cov
+
+
+def _as_rows(table: Any) -> Rows:
+    """A parameter table's rows: a DataFrame's records, or the rows themselves."""
+    if isinstance(table, list):
+        return table
+    return [dict(zip(table.columns, r, strict=True))
+            for r in table.itertuples(index=False, name=None)]
+
+
 def parameter_table(model: Any, units: dict[str, str], signal_units: dict[str, str],
                     train: tuple[Any, ...] | None = None, *, method: str = "ols",
                     seed: int = 0, parts: Sequence[tuple[pd.DataFrame, dict[str, np.ndarray]]]
@@ -395,41 +444,20 @@ def parameter_table(model: Any, units: dict[str, str], signal_units: dict[str, s
     """
     import pandas as pd
 
-    from ..models.composite import AxisModels  # torch boundary (pyproject.toml): loads torch
-
-    cov: dict[str, np.ndarray] = {}
-    if isinstance(model, AxisModels):
-        # each part's own table, on the axes it owns (and its shared rows), names prefixed
-        # with the part's label
-        frames = []
-        for k, part in enumerate(model.parts):
-            table, part_cov = parts[k] if parts is not None else parameter_table(
-                part, units, signal_units, None, method=method, seed=seed)
-            mine = [a for a, o in zip(model.outputs, model.owner, strict=True) if o == k]
-            table = table[table["axis"].isin([*mine, ""])].copy()
-            table["name"] = f"{model.labels[k]}." + table["name"].astype(str)
-            frames.append(table)
-            cov.update({a: c for a, c in part_cov.items() if a in mine})
-        return pd.concat(frames, ignore_index=True)[COLUMNS], cov
-    poly = _polynomial_rows(model, units, signal_units, train, method, seed)
-    if poly is not None:
-        rows, cov = poly
-    elif model.family.name == "lorentz":
-        rows = _lorentz_rows(model, units, signal_units)
-    else:
-        rows = (_rbf_rows(model, units, signal_units) if model.family.name == "rbf" else None) \
-            or _raw_rows(model)
+    rows, cov = parameter_rows(model, units, signal_units, train, method=method, seed=seed,
+                               parts=None if parts is None else
+                               [(_as_rows(t), c) for t, c in parts])
     return pd.DataFrame(rows, columns=COLUMNS), cov
 
 
-def sealed_parameters(table: pd.DataFrame, cov: dict[str, np.ndarray], method: str
+def sealed_parameters(table: pd.DataFrame | Rows, cov: dict[str, np.ndarray], method: str
                       ) -> dict[str, Any]:
     """The standard errors of a fitted model's table as its checkpoint stores them (``extra
     .parameters``): per row its axis, name, stderr and note, the per-axis covariance
     matrices and the method — computed once on the training data, so that a loaded model
     (``DriftEstimator.load``, ``compare``'s estimators) states what the fit stated."""
-    rows = [{"axis": str(r.axis), "name": str(r.name), "stderr": float(r.stderr),
-             "note": str(r.note)} for r in table.itertuples(index=False)]
+    rows = [{"axis": str(r["axis"]), "name": str(r["name"]), "stderr": float(r["stderr"]),
+             "note": str(r["note"])} for r in _as_rows(table)]
     return {"method": method, "rows": rows,
             "covariance": {a: np.asarray(c, dtype=np.float64).tolist() for a, c in cov.items()}}
 

@@ -52,7 +52,7 @@ from ..tracking import Tracker
 from ..training.config import (
     CompareConfig,
 )
-from ..training.parameters import parameter_table, sealed_parameters
+from ..training.parameters import parameter_rows, sealed_parameters
 from ..training.parts import (
     data_hash,
 )
@@ -348,7 +348,7 @@ def _per_axis_parameters(model: Any, fitted: dict[str, Fitted], labels: list[str
     tables = [fitted[k].parameters for k in labels]
     if any(t is None for t in tables):
         return None
-    return parameter_table(model, units, {}, parts=tables)
+    return parameter_rows(model, units, {}, parts=tables)
 
 
 def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResult,

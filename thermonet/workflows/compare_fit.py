@@ -36,7 +36,7 @@ from ..training.config import (
     train_config_of,
     tune_points,
 )
-from ..training.parameters import parameter_table
+from ..training.parameters import parameter_rows
 from ..training.parts import HEATING_MIN_RATE_C_PER_MIN, fit_arrays, rows_average_s
 from .compare_judge import Fitted, judge_against_raw
 from .compare_plan import PartCache, Plan
@@ -236,10 +236,10 @@ def _parameters(p: Plan, model: Any, train_parts: list[Any], average_s: float) -
     what ``DriftEstimator(...).fit`` of the same runs states; sealed into the checkpoint."""
     arrays = [fit_arrays(q, average_s) for q in train_parts]
     signal_units = {s: p.ds[0].units.get(s, "") for s in p.ds[0].proxies}
-    return parameter_table(model, p.units, signal_units,
-                           train=(np.concatenate([a[0] for a in arrays]),
-                                  np.concatenate([a[1] for a in arrays]),
-                                  [a[0].shape[0] for a in arrays]), method="ols")
+    return parameter_rows(model, p.units, signal_units,
+                          train=(np.concatenate([a[0] for a in arrays]),
+                                 np.concatenate([a[1] for a in arrays]),
+                                 [a[0].shape[0] for a in arrays]), method="ols")
 
 
 def _refit(p: Plan, fam: FamilyConfig, tcfg: Any, split: Any, parts: PartCache,
