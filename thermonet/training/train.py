@@ -362,14 +362,21 @@ def _fit_pointwise(model: DriftModel, runs: list, val_run: tuple | None, config:
         return torch.as_tensor(a, dtype=torch.float32, device=device)
 
     val_t = None if z_v is None or y_vz is None else (dev(z_v), dev(y_vz))
-    history, best_epoch, best_val = _fit_loop(fam, dev(z_tr), dev(yz_tr), val_t, config, family,
-                                              on_epoch)
+    with optimizer_without_dynamo():
+        history, best_epoch, best_val = _fit_loop(fam, dev(z_tr), dev(yz_tr), val_t, config,
+                                                  family, on_epoch)
 
     model.to("cpu")
     return history, best_epoch, best_val, s_tr
 
-def optimizer_without_dynamo() -> None:
-    """Let torch's optimizers run without importing ``torch._dynamo`` (about 0.9 s).
+_NO_DYNAMO_LOCK = threading.Lock()
+_NO_DYNAMO_USERS = 0
+_NO_DYNAMO_SET: list[Any] = []
+
+
+@contextlib.contextmanager
+def optimizer_without_dynamo() -> Iterator[None]:
+    """Inside, torch's optimizers run without importing ``torch._dynamo`` (about 0.9 s).
 
     ``torch.optim.Optimizer``'s methods (``add_param_group``, ``zero_grad``, ``state_dict``
     …) are wrapped by ``torch._disable_dynamo``, whose wrapper imports ``torch._dynamo`` on
@@ -379,19 +386,34 @@ def optimizer_without_dynamo() -> None:
     ``fn`` at once, the same call.  L-BFGS then runs without the import (its ``step`` is
     plain ``torch.no_grad``); Adam's ``step`` imports ``torch._dynamo`` anyway (for a
     graph break), so families trained with Adam still pay it.  Only wrappers recognised
-    as torch 2.x's (``torch/_compile.py``'s ``inner``) are touched, and nothing once
-    ``torch._dynamo`` is imported: another torch only makes the first optimizer slower.
+    as torch 2.x's (``torch/_compile.py``'s ``inner``) are touched, nothing once
+    ``torch._dynamo`` is imported (another torch only makes the first optimizer slower),
+    and what was stored is removed when the last fit inside leaves (fits in threads share
+    it): the process's own ``torch.compile`` afterwards sees torch's wrappers as shipped.
     """
-    if "torch._dynamo" in sys.modules:
-        return
-    for attr in vars(torch.optim.Optimizer).values():
-        code = getattr(attr, "__code__", None)
-        fn = getattr(attr, "__wrapped__", None)
-        if code is None or fn is None or code.co_name != "inner" \
-                or not code.co_filename.replace("\\", "/").endswith("torch/_compile.py"):
-            continue
-        if getattr(fn, "__dynamo_disable", None) is None:
-            fn.__dynamo_disable = fn
+    global _NO_DYNAMO_USERS
+    with _NO_DYNAMO_LOCK:
+        if _NO_DYNAMO_USERS == 0 and "torch._dynamo" not in sys.modules:
+            for attr in vars(torch.optim.Optimizer).values():
+                code = getattr(attr, "__code__", None)
+                fn = getattr(attr, "__wrapped__", None)
+                if code is None or fn is None or code.co_name != "inner" or not \
+                        code.co_filename.replace("\\", "/").endswith("torch/_compile.py"):
+                    continue
+                if getattr(fn, "__dynamo_disable", None) is None:
+                    setattr(fn, "__dynamo_disable", fn)  # noqa: B010 - the name torch reads
+                    _NO_DYNAMO_SET.append(fn)
+        _NO_DYNAMO_USERS += 1
+    try:
+        yield
+    finally:
+        with _NO_DYNAMO_LOCK:
+            _NO_DYNAMO_USERS -= 1
+            if _NO_DYNAMO_USERS == 0:
+                for fn in _NO_DYNAMO_SET:
+                    if getattr(fn, "__dynamo_disable", None) is fn:
+                        delattr(fn, "__dynamo_disable")
+                _NO_DYNAMO_SET.clear()
 
 
 def _mse(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -427,7 +449,6 @@ def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
     if config.max_epochs == 0:
         pass    # no step: no optimizer
     elif config.optimizer == "lbfgs":
-        optimizer_without_dynamo()
         opt = torch.optim.LBFGS(params, lr=config.lr, max_iter=20, line_search_fn="strong_wolfe")
     else:
         opt = torch.optim.Adam(params, lr=config.lr)

@@ -78,7 +78,8 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
     simulation this way); the config's ``data`` section is then ignored.
     ``plots=False`` writes no PNG files (the report then has no figures).
     ``workers`` overrides the config's ``workers`` (families fitted side by side,
-    :func:`family_workers`).
+    :func:`family_workers`); ``workers=1`` also draws the figures in this process (else
+    two child processes draw them, :mod:`thermonet.reporting.plot_workers`).
     Returns the ``results.json`` document (:meth:`ComparisonResult.to_json`).
 
     The output appears whole or not at all (:mod:`thermonet.core.outdir`): it is
@@ -134,8 +135,10 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
                                experiment=tracker.experiment,
                                register=cfg.tracking.register).start()
     # the figures' drawers start now: they import matplotlib while the data load and the
-    # families fit (a core the fits leave idle), then draw side by side
-    drawers = PlotWorkers(min(2, usable_cores()) if plots else 0)
+    # families fit (a core the fits leave idle), then draw side by side — unless the
+    # comparison is to stay in one process (workers=1: a fleet's units, run side by side)
+    one_process = (cfg.workers if workers is None else workers) == 1
+    drawers = PlotWorkers(min(2, usable_cores()) if plots and not one_process else 0)
     try:
         with drawers:
             run = _plan_step(cfg, out, tracking, progress or Progress(quiet), dataset=dataset,
