@@ -619,11 +619,11 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
         raise ThermonetError(f"{log.path}: PX4 has {PX4_SLOTS} calibration slots per sensor "
                              f"kind; the log has {per_kind} calibratable instances")
     results = [_fit_instance(inst, log, mags=mags) for inst in log.instances]
-    todo = [(inst, log.autopilot, inside(stage, "instances", dirs[inst.name]), source,
-             out / "instances" / dirs[inst.name])
-            for inst, r in zip(log.instances, results, strict=True)
-            if compare and r.status == "fitted"]
-    compared = {job[0].name: _compare_task(job) for job in todo}
+    compared = {inst.name: _compare_or_why(inst, log.autopilot,
+                                           inside(stage, "instances", dirs[inst.name]), source,
+                                           final=out / "instances" / dirs[inst.name])
+                for inst, r in zip(log.instances, results, strict=True)
+                if compare and r.status == "fitted"}
     results = [_judge_instance(r, inst, log.autopilot, compared.get(inst.name))
                for inst, r in zip(log.instances, results, strict=True)]
     _check_held_out(logs, log, results, stage)
@@ -685,10 +685,10 @@ def _fit_instance(inst: Any, log: FlightLog, *, mags: dict[str, dict[str, Any]] 
     return r
 
 
-def _compare_task(job: tuple[Any, ...]) -> dict[str, Any] | str:
+def _compare_or_why(inst: SensorInstance, autopilot: str, where: Path, source: str, *,
+                    final: Path) -> dict[str, Any] | str:
     """One instance's comparison (:func:`_compare`): its summary, or the one line of a
     :class:`ThermonetError` that stopped it."""
-    inst, autopilot, where, source, final = job
     try:
         with profile_stage(f"{inst.name}: compare thermonet's families"):
             return _compare(inst, autopilot, where, source, final=final)
