@@ -91,7 +91,8 @@ from ..features.inputs import TEMPERATURE, dynamic_signal, parse_feature
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["parameter_table", "parameter_rows", "polynomial_coefficients", "block_bootstrap_cov", "block_length",
+__all__ = ["parameter_table", "parameter_rows", "polynomial_coefficients", "block_bootstrap_cov",
+           "block_length",
            "sealed_parameters", "with_sealed", "COLUMNS", "FIXED", "NO_SE", "STDERR_METHODS",
            "N_BOOTSTRAP"]
 
