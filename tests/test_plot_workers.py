@@ -32,9 +32,11 @@ def _jobs(out, n_series: int = 3):
 def test_children_draw_the_figures_the_command_draws(tmp_path):
     here = draw_here(_jobs(tmp_path / "here"))
     with PlotWorkers(2) as drawers:
-        assert len(drawers._procs) == 2
+        procs = [h._proc for h in drawers._helpers]
+        assert len(procs) == 2
         there = drawers.draw(_jobs(tmp_path / "there"))
-        assert drawers._procs == []                    # ended once they have drawn
+        assert drawers._helpers == []                  # ended once they have drawn
+    assert all(p is not None and p.poll() is not None for p in procs)
     assert [p.name for p in there] == [p.name for p in here]      # the order of the jobs
     for a, b in zip(here, there, strict=True):
         assert b.parent == tmp_path / "there"
@@ -47,19 +49,42 @@ def test_a_figure_that_fails_in_a_child_is_drawn_here_and_raises_as_here(tmp_pat
     jobs[2] = ("plot_residual_vs_temperature", bad)
     with PlotWorkers(2) as drawers, pytest.raises(ValueError, match=r"'compensated\['cubic'\]' has 5"):
         drawers.draw(jobs)
-    procs = drawers._procs
-    assert procs == []
+    assert drawers._helpers == []
 
 
 def test_leaving_on_an_error_kills_the_children_at_once():
     drawers = PlotWorkers(2)
-    procs = list(drawers._procs)
+    procs = [h._proc for h in drawers._helpers]
     with pytest.raises(RuntimeError), drawers:
         raise RuntimeError("the comparison failed before its figures")
-    assert all(p.poll() is not None for p in procs)
+    assert all(p is not None and p.poll() is not None for p in procs)
 
 
 def test_one_worker_or_fewer_draws_in_this_process(tmp_path):
     drawers = PlotWorkers(1)
-    assert drawers._procs == []
+    assert drawers._helpers == []
     assert [p.name for p in drawers.draw(_jobs(tmp_path, 1))] == ["res_0.png", "allan_0.png"]
+
+
+def test_a_helper_imports_first_then_runs_calls_and_reports_errors_in_one_line():
+    import select as sel
+
+    from thermonet.core.helpers import Helper, HelperGone
+
+    with Helper(["json"]) as h:
+        stream = h.stream()
+        assert stream is not None
+        while not h.ready():                       # event-driven: wait for its "ready"
+            sel.select([stream], [], [], 5.0)
+        h.submit("json", "dumps", obj={"b": [1, 2.5]}, sort_keys=True)
+        assert not h.ready()                       # busy until its result is taken
+        assert h.result() == (True, '{"b": [1, 2.5]}')
+        h.submit("json", "loads", s="{not json")
+        ok, line = h.result()
+        assert not ok and line.startswith("JSONDecodeError: ") and "\n" not in line
+        proc = h._proc
+        h.submit("os", "_exit", status=3)          # the child dies in the call
+        with pytest.raises(HelperGone):
+            h.result()
+        assert proc is not None and proc.poll() is not None and h.stream() is None
+        assert not h.ready()

@@ -36,6 +36,7 @@ from typing import Any
 
 from ..core.errors import ConfigError, Interrupted, ThermonetError
 from ..core.fileio import atomic_write_text
+from ..core.helpers import usable_cores
 from ..core.names import path_component
 from ..core.outdir import staged_output
 from ..core.profile import stage
@@ -43,7 +44,7 @@ from ..core.recording import Dataset
 from ..core.version import __version__
 from ..features.inputs import TEMPERATURE
 from ..reporting.colours import family_colours
-from ..reporting.plot_workers import PlotJob, PlotWorkers, usable_cores
+from ..reporting.plot_workers import PlotJob, PlotWorkers
 from ..reporting.report import tuned_text, write_report
 from ..reporting.results import ComparisonResult
 from ..scoring.band import evaluate_tables

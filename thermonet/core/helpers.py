@@ -1,0 +1,220 @@
+"""Helper processes that import what a job needs while the job starts, then run its calls.
+
+A command's main thread holds Python's lock, so on a machine with two cores or more one core
+sits idle while it imports torch and fits.  A :class:`Helper` is a child process
+(``python -m thermonet.core.helpers MODULE ...``) started at the beginning of a job: it
+imports the named modules at once, on that idle core, says it is ready, then runs calls
+(``module``, ``function``, keyword arguments) one at a time and sends each result back.
+``compare`` has two draw its figures (:mod:`thermonet.reporting.plot_workers`).  (Tried
+and measured: ``calibrate`` handing a helper instances to compare beside it saved 0.1-0.2 s
+of 3.5 on 2 cores — the helper's own imports take as long as the command's — so it does
+not.)
+
+The child is a plain subprocess (no ``multiprocessing``: nothing imports the caller's main
+module, so a script without ``if __name__ == "__main__":`` is safe); calls and results go
+down private pipes as pickles between this process and the child it started — nothing is
+read from a file.  The child runs in its own session (Ctrl-C reaches the command, which then
+kills it: :meth:`Helper.kill`, before the command removes what it was writing) and exits
+when its pipe closes, so a command killed outright leaves none behind.  A call that raises
+comes back as one line; a child that dies reports :class:`HelperGone`: the caller then does
+that work itself, where a genuine error is raised as it would have been.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import pickle
+import select
+import struct
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import IO, Any
+
+__all__ = ["Helper", "HelperGone", "usable_cores"]
+
+_HEADER = struct.Struct("<Q")
+_READY = "ready"
+
+
+class HelperGone(Exception):
+    """The helper process exited or broke its pipe; its work is to be done elsewhere."""
+
+
+def usable_cores() -> int:
+    """The CPUs this process may run on (its affinity on Linux, else ``os.cpu_count()``)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:            # not on Linux
+        return os.cpu_count() or 1
+
+
+def _send(stream: IO[bytes], obj: Any) -> None:
+    data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+    stream.write(_HEADER.pack(len(data)) + data)
+    stream.flush()
+
+
+def _read_exact(stream: IO[bytes], n: int) -> bytes:
+    """``n`` bytes (a pipe read unbuffered may return fewer at a time); EOFError at its end."""
+    parts, got = [], 0
+    while got < n:
+        chunk = stream.read(n - got)
+        if not chunk:
+            raise EOFError("helper pipe closed")
+        parts.append(chunk)
+        got += len(chunk)
+    return b"".join(parts)
+
+
+def _receive(stream: IO[bytes]) -> Any:
+    size = _HEADER.unpack(_read_exact(stream, _HEADER.size))[0]
+    return pickle.loads(_read_exact(stream, size))  # noqa: S301 - a private pipe, our child
+
+
+class Helper:
+    """One child process that imports ``preload`` now and runs calls later.
+
+    :meth:`ready` says (without waiting) whether it has finished its imports and is free;
+    :meth:`submit` sends it a call; :meth:`done` says (without waiting) whether the result is
+    back; :meth:`result` waits for it.  Use as a context manager: leaving kills the child."""
+
+    def __init__(self, preload: Sequence[str]) -> None:
+        root = str(Path(__file__).resolve().parents[2])   # this thermonet, not another
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+            [root, *filter(None, [os.environ.get("PYTHONPATH")])])}
+        self._proc: subprocess.Popen[bytes] | None = subprocess.Popen(
+            [sys.executable, "-m", "thermonet.core.helpers", *preload], env=env,
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True,
+            bufsize=0)    # unbuffered: select() on the pipe then sees every reply
+        self._started = False       # the child has said it is ready
+        self._busy = False
+
+    # --------------------------------------------------------------- the command's side
+    def _readable(self, timeout: float | None) -> bool:
+        if self._proc is None or self._proc.stdout is None:
+            raise HelperGone("the helper has been ended")
+        return bool(select.select([self._proc.stdout], [], [], timeout)[0])
+
+    def _get(self) -> Any:
+        assert self._proc is not None and self._proc.stdout is not None
+        try:
+            return _receive(self._proc.stdout)
+        except (OSError, EOFError, pickle.PickleError) as err:
+            self.kill()
+            raise HelperGone(str(err)) from None
+
+    def stream(self) -> IO[bytes] | None:
+        """The pipe its replies come on (for ``select``), None once it has been ended."""
+        return None if self._proc is None else self._proc.stdout
+
+    def ready(self) -> bool:
+        """True when the child has imported its modules and runs nothing (never waits)."""
+        if self._proc is None or self._busy:
+            return False
+        if not self._started:
+            try:
+                if not self._readable(0.0):
+                    return False
+                if self._get() != _READY:
+                    self.kill()
+                    return False
+            except HelperGone:
+                return False
+            self._started = True
+        return True
+
+    def submit(self, module: str, function: str, **kwargs: Any) -> None:
+        """Send ``module.function(**kwargs)`` to the child (it must be :meth:`ready`)."""
+        if not self.ready():
+            raise HelperGone("the helper is not ready")
+        assert self._proc is not None and self._proc.stdin is not None
+        try:
+            _send(self._proc.stdin, (module, function, kwargs))
+        except (OSError, ValueError) as err:
+            self.kill()
+            raise HelperGone(str(err)) from None
+        self._busy = True
+
+    def done(self) -> bool:
+        """True when the submitted call's result is back (never waits)."""
+        return self._busy and self._readable(0.0)
+
+    def result(self) -> tuple[bool, Any]:
+        """``(True, value)`` of the submitted call, or ``(False, one line)`` if it raised;
+        waits for it.  :class:`HelperGone` if the child died meanwhile."""
+        if not self._busy:
+            raise HelperGone("nothing was submitted")
+        reply = self._get()
+        self._busy = False
+        return reply
+
+    def close(self) -> None:
+        """End the child after its current call: it exits when its pipe closes."""
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return
+        for stream in (proc.stdin,):
+            try:
+                if stream is not None:
+                    stream.close()
+            except OSError:
+                pass
+        proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()
+
+    def kill(self) -> None:
+        """End the child now, whatever it is doing."""
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return
+        proc.kill()
+        proc.wait()
+        for stream in (proc.stdin, proc.stdout):
+            try:
+                if stream is not None:
+                    stream.close()
+            except OSError:
+                pass
+
+    def __enter__(self) -> Helper:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.kill()
+
+
+# ------------------------------------------------------------------------ the child's side
+def _serve(preload: Sequence[str], requests: IO[bytes], replies: IO[bytes]) -> int:
+    for name in preload:
+        importlib.import_module(name)
+    _send(replies, _READY)
+    while True:
+        try:
+            module, function, kwargs = _receive(requests)
+        except EOFError:
+            return 0
+        try:
+            value = getattr(importlib.import_module(module), function)(**kwargs)
+            reply: tuple[bool, Any] = (True, value)
+        except Exception as err:  # noqa: BLE001 - the command redoes the work and raises it
+            text = str(err).strip().splitlines()
+            reply = (False, f"{type(err).__name__}: {text[0] if text else ''}")
+        _send(replies, reply)
+
+
+def main() -> None:
+    """Entry point of a helper: calls on stdin, results on a private copy of stdout
+    (anything printed goes to stderr)."""
+    replies = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)
+    code = _serve(sys.argv[1:], sys.stdin.buffer, replies)
+    replies.flush()
+    os._exit(code)
+
+
+if __name__ == "__main__":
+    main()
