@@ -17,7 +17,8 @@ read from a file.  The child runs in its own session (Ctrl-C reaches the command
 kills it: :meth:`Helper.kill`, before the command removes what it was writing) and exits
 when its pipe closes, so a command killed outright leaves none behind.  A call that raises
 comes back as one line; a child that dies reports :class:`HelperGone`: the caller then does
-that work itself, where a genuine error is raised as it would have been.
+that work itself, where a genuine error is raised as it would have been.  POSIX only: the
+command waits on the helpers' pipes with ``select``.
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ genuine plotting error is raised as before.
 
 from __future__ import annotations
 
+import os
 import select
 from collections.abc import Sequence
 from pathlib import Path
@@ -46,7 +47,9 @@ class PlotWorkers:
     caller removes the directory they write into)."""
 
     def __init__(self, n: int) -> None:
-        self._helpers = [Helper([_PLOTS]) for _ in range(n)] if n >= 2 else []
+        # helpers wait on their pipes with select(), which takes pipes on POSIX only
+        self._helpers = [Helper([_PLOTS]) for _ in range(n)] \
+            if n >= 2 and os.name == "posix" else []
 
     def draw(self, jobs: Sequence[PlotJob]) -> list[Path]:
         """Every figure, handed out to the helpers as they come free (in this process
