@@ -152,21 +152,6 @@ class Helper:
         self._busy = False
         return reply
 
-    def close(self) -> None:
-        """End the child after its current call: it exits when its pipe closes."""
-        proc, self._proc = self._proc, None
-        if proc is None:
-            return
-        for stream in (proc.stdin,):
-            try:
-                if stream is not None:
-                    stream.close()
-            except OSError:
-                pass
-        proc.wait()
-        if proc.stdout is not None:
-            proc.stdout.close()
-
     def kill(self) -> None:
         """End the child now, whatever it is doing."""
         proc, self._proc = self._proc, None

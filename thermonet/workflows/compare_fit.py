@@ -7,7 +7,6 @@ cross-validated out-of-fold predictions of model selection, and the families fit
 from __future__ import annotations
 
 import math
-import os
 import sys
 import threading
 import time
@@ -17,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import FitError
+from ..core.helpers import usable_cores
 from ..core.profile import stage
 from ..data.diagnostics import outside_distance, outside_fraction
 from ..features.inputs import RATE, TEMPERATURE, resolve_gap_s, signal_matrix
@@ -367,11 +367,7 @@ def family_workers(cfg: CompareConfig, workers: int | None = None) -> int:
     if any("threads" in fam.train for fam in cfg.families):
         return 1
     if n == 0:
-        try:
-            cores = len(os.sched_getaffinity(0))
-        except AttributeError:            # not on Linux
-            cores = os.cpu_count() or 1
-        n = cores
+        n = usable_cores()
     return max(1, min(n, len(cfg.families)))
 
 
