@@ -29,11 +29,12 @@ import pytest
 from thermonet.cli import main
 from thermonet.core.errors import InputError, ThermonetError
 from thermonet.core.names import inside, path_component, path_components
+from thermonet.core.outdir import KINDS
 from thermonet.core.recording import OUTPUT_NAME, Dataset, Recording
 from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
 from thermonet.training.config import CompareConfig, FamilyConfig
-from thermonet.workflows.calibrate import calibrate
+from thermonet.workflows.calibrate import EKF_FILE, calibrate
 from thermonet.workflows.fleet import FleetOptions, run_fleet
 from thermonet.workflows.fleet_units import sources_from_dataset
 
@@ -366,6 +367,21 @@ def test_calibrate_overwrite_leaves_no_stale_parameter_file(board_logs: dict[str
     assert doc["params_file"] == str(out / "px4.params")
     assert json.loads((out / "results.json").read_text())["autopilot"] == "px4"
     assert not list(tmp_path.glob(".cal.*"))
+
+
+def test_calibrate_overwrite_replaces_every_file_it_wrote(board_logs: dict[str, Path],
+                                                         tmp_path: Path) -> None:
+    """Everything a calibration writes at its top level is its own (``KINDS``): replaced
+    whole with ``--overwrite``, the previous one removed, not kept in a hidden ``.old``
+    directory; the EKF recommendation of a compared calibration never stays beside a later
+    one that has none (it would name settings for another parameter file)."""
+    out = tmp_path / "cal"
+    calibrate(board_logs["px4"], out)                  # compared: with its EKF file
+    assert (out / EKF_FILE).is_file()
+    assert {p.name for p in out.iterdir()} <= KINDS["calibration"]
+    calibrate(board_logs["px4"], out, compare=False, overwrite=True)
+    assert not (out / EKF_FILE).exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal"]   # no .cal.*.old left
 
 
 def test_calibrate_refuses_a_foreign_folder_and_a_file(board_logs: dict[str, Path],

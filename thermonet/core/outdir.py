@@ -97,7 +97,7 @@ KINDS: dict[str, frozenset[str]] = {
                              "models"}),
     "fleet": frozenset({"results.json", "fleet.html", "plots", "units"}),
     "calibration": frozenset({"results.json", "report.html", "report.txt", "px4.params",
-                              "ardupilot.parm", "instances"}),
+                              "ardupilot.parm", "ekf-recommendation.txt", "instances"}),
     "verification": frozenset({"results.json", "report.html", "report.txt"}),
 }
 
