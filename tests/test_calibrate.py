@@ -238,3 +238,22 @@ def test_only_what_cannot_be_fitted_is_refused_with_the_reason() -> None:
                              fit_firmware(next(i for i in board.instances
                                                if i.name == "gyro1"), "px4")) is None
 
+
+
+@pytest.mark.parametrize("n", [1, 7, 31, 200, 2_701])
+def test_the_running_median_is_scipys_median_filter_value_for_value(n, monkeypatch):
+    """PX4's 31-sample median filter (``firmware_fit.running_median``, numpy's sliding
+    windows) against its independent oracle ``scipy.ndimage.median_filter(mode="nearest")``
+    (SciPy 1.x, ``scipy/ndimage/_filters.py``): an odd window's median is one of its samples,
+    so equal value for value — ties, short logs and the chunk boundaries included."""
+    from scipy.ndimage import median_filter
+
+    from thermonet.workflows import firmware_fit
+
+    monkeypatch.setattr(firmware_fit, "_MEDIAN_CHUNK", 64)     # several chunks, uneven last
+    rng = np.random.default_rng(n)
+    y = np.column_stack([rng.standard_normal(n), np.round(rng.standard_normal(n), 1),
+                         np.linspace(0.0, 1.0, n) ** 3])
+    got = firmware_fit.running_median(y)
+    want = np.column_stack([median_filter(y[:, j], size=31, mode="nearest") for j in range(3)])
+    assert np.array_equal(got, want)

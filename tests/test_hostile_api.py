@@ -367,7 +367,7 @@ def test_fit_checks_every_constructor_argument_before_the_data(kwargs, argument)
 @pytest.mark.parametrize("family, hyper, key", [
     ("rbf", {"width_scale": float("inf")}, "width_scale"),
     ("rbf", {"n_centres": 0}, "n_centres"), ("rbf", {"ridge": -1}, "ridge"),
-    ("rbf", {"tail": 3, "init": "random"}, "tail needs init 'kmeans'"),
+    ("rbf", {"tail": 3, "init": "random"}, "tail needs init 'kmeans' or 'quantiles'"),
     ("mlp", {"hidden": "8"}, "hidden"), ("mlp", {"hidden": [0]}, "hidden"),
     ("mlp", {"activation": "sigmoid"}, "activation"),
     ("mlp", {"weight_decay": float("nan")}, "weight_decay"),

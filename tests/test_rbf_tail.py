@@ -8,11 +8,17 @@ Independent oracles:
   Pᵀw = 0`` — exactly the linear system ``RBFInterpolator(kernel="gaussian", degree=d,
   smoothing=λ)`` solves.  Its Gaussian is ``exp(−(εr)²)``, so ``ε = 1 / (σ√2)``.
 * ``numpy.polynomial.Polynomial.fit``: the limit λ → ∞ is the least-squares polynomial.
+
+Both centre placements that allow the tail are checked (``kmeans``, ``quantiles``), and the
+quantile centres on their own: where the data are, never two on one dwell temperature, on
+the data's curve, without scikit-learn.
 """
 
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -21,7 +27,7 @@ from numpy.polynomial import Polynomial
 from scipy.interpolate import RBFInterpolator
 
 from thermonet.core.errors import ConfigError
-from thermonet.models.rbf import RBF, RIDGE_GRID
+from thermonet.models.rbf import RBF, RIDGE_GRID, quantile_centres
 from tolerances import DEPTH, EPS32, assert_f32_close
 
 pytestmark = pytest.mark.numerics
@@ -58,18 +64,20 @@ def test_samples_at_the_centres_give_scipys_smoothing_rbf(tail, lam):
     assert_f32_close(_predict(fam, xt), oracle(xt), "family")
 
 
-def test_infinite_ridge_is_the_least_squares_cubic():
+@pytest.mark.parametrize("init", ["kmeans", "quantiles"])
+def test_infinite_ridge_is_the_least_squares_cubic(init):
     rng = np.random.default_rng(0)
     x = rng.uniform(-1.5, 1.5, 400)[:, None]
     y = (0.2 * x - 0.1 * x ** 3 + 0.3 * np.sin(3 * x)) + 0.01 * rng.standard_normal(x.shape)
-    fam = _fit(x, y, n_centres=16, tail=3, ridge=1e12)
+    fam = _fit(x, y, n_centres=16, tail=3, ridge=1e12, init=init)
     xt = np.linspace(-1.5, 1.5, 31)[:, None]
     cubic = Polynomial.fit(x[:, 0], y[:, 0], 3)(xt[:, 0])
     # the Gaussian part's weights are penalised to ~1e-12 of the data: float32 rounding only
     assert_f32_close(_predict(fam, xt)[:, 0], cubic, "family")
 
 
-def test_cv_keeps_the_cubic_when_the_law_is_cubic_and_bends_when_it_is_not():
+@pytest.mark.parametrize("init", ["kmeans", "quantiles"])
+def test_cv_keeps_the_cubic_when_the_law_is_cubic_and_bends_when_it_is_not(init):
     """``ridge: cv``: white noise about a cubic → the tail alone (λ = ∞, the one-SE rule
     prefers the smoother model); a resonance the cubic cannot follow (study 000's Lorentz
     curve) → a finite λ, and on held-out samples the network beats the cubic clearly."""
@@ -81,7 +89,7 @@ def test_cv_keeps_the_cubic_when_the_law_is_cubic_and_bends_when_it_is_not():
     y = np.hstack([cubic_law + noise, cubic_law + bump + noise])
     # every other 50-sample block held out (contiguous, like time)
     held = (np.arange(x.shape[0]) // 50) % 2 == 1
-    fam = _fit(x[~held], y[~held], n_centres=16, tail=3, ridge="cv")
+    fam = _fit(x[~held], y[~held], n_centres=16, tail=3, ridge="cv", init=init)
     tuned = fam.tuned()
     assert tuned["ridge"][0] == "inf"
     assert tuned["ridge"][1] != "inf" and tuned["ridge"][1] in RIDGE_GRID
@@ -97,10 +105,58 @@ def test_cv_keeps_the_cubic_when_the_law_is_cubic_and_bends_when_it_is_not():
     assert rms(pred)[1] < 0.5 * rms(cubic)[1]               # measured 0.26 of the cubic's error
 
 
+def test_quantile_centres_follow_the_data_one_per_dwell_temperature():
+    """A warm-up that dwells at 20 °C for 60 % of the log, then ramps evenly to 60 °C: the
+    ramp's centres sit at its quantiles (evenly spaced there), the dwell holds one centre,
+    none closer than half an even grid step, all inside the data; the ΔT² input is
+    interpolated on the curve (within the chord error of its sample spacing)."""
+    t = np.concatenate([np.full(600, 20.0), np.linspace(20.0, 60.0, 401)[1:]])
+    x = np.column_stack([t - 25.0, (t - 25.0) ** 2])
+    c = quantile_centres(x, 8)
+    gap = 40.0 / (2 * 7)
+    assert np.all(np.diff(c[:, 0]) >= gap - 1e-9)
+    assert c[0, 0] == pytest.approx(-5.0) and np.sum(np.abs(c[:, 0] + 5.0) < gap) == 1
+    assert -5.0 <= c[:, 0].min() and c[:, 0].max() <= 35.0
+    # ramp samples 0.1 °C apart: chord error of x² at most (0.1)² / 4
+    np.testing.assert_allclose(c[:, 1], c[:, 0] ** 2, rtol=0, atol=0.1 ** 2 / 4 + 1e-9)
+    # evenly spread data: the centres are its quantiles (k + 1/2) / n
+    u = np.linspace(0.0, 1.0, 10_001)[:, None]
+    np.testing.assert_allclose(quantile_centres(u, 5)[:, 0], [0.1, 0.3, 0.5, 0.7, 0.9],
+                               rtol=0, atol=1e-12)
+
+
+def test_quantile_centres_depend_on_the_data_alone_and_need_no_scikit_learn():
+    """The same centres whatever the seed, and fitting imports no scikit-learn (its import
+    was most of a calibration's comparison: thermonet.workflows.calibrate)."""
+    rng = np.random.default_rng(3)
+    x = np.sort(rng.uniform(-2.0, 2.0, 300))[:, None]
+    y = np.column_stack([np.sin(2.0 * x[:, 0])])
+    a = RBF(n_inputs=1, n_outputs=1, n_centres=8, tail=3, init="quantiles")
+    b = RBF(n_inputs=1, n_outputs=1, n_centres=8, tail=3, init="quantiles")
+    a.initialize(torch.as_tensor(x), torch.as_tensor(y), seed=0)
+    b.initialize(torch.as_tensor(x), torch.as_tensor(y), seed=7)
+    assert torch.equal(a.centres, b.centres) and torch.equal(a.weight, b.weight)
+    code = ("import sys, numpy as np, torch\n"
+            "from thermonet.models.rbf import RBF\n"
+            "x = np.linspace(-2, 2, 300)[:, None]\n"
+            "f = RBF(n_inputs=1, n_outputs=1, n_centres=8, tail=3, init='quantiles')\n"
+            "f.initialize(torch.as_tensor(x), torch.as_tensor(np.sin(x)))\n"
+            "print('sklearn' in sys.modules, f.tuned()['width_scale'] > 0)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.split() == ["False", "True"]
+
+
+def test_quantile_centres_refuse_a_first_input_that_never_changes():
+    x = np.column_stack([np.zeros(200), np.linspace(-1.0, 1.0, 200)])
+    fam = RBF(n_inputs=2, n_outputs=1, n_centres=4, init="quantiles")
+    assert "init 'quantiles'" in fam.check_fittable(torch.as_tensor(x))
+
+
 @pytest.mark.parametrize("hyper, pattern", [
     ({"tail": 4}, "tail must be an integer in 0..3"),
     ({"tail": True}, "tail must be an integer"),
-    ({"tail": 3, "init": "random"}, "needs init 'kmeans'"),
+    ({"tail": 3, "init": "random"}, "needs init 'kmeans' or 'quantiles'"),
     ({"tail": 3, "ridge": -1.0}, "ridge must be 'cv' or a finite number >= 0"),
     ({"tail": 3, "ridge": math.inf}, "ridge must be 'cv' or a finite number >= 0"),
     ({"tail": 3, "ridge": "auto"}, "ridge must be 'cv'"),

@@ -245,7 +245,7 @@ def test_a_config_entry_is_the_same_spec():
 
 @pytest.mark.parametrize("family, params, said", [
     ("poly", {"degree": 40}, "poly: degree must be an integer in 1..12, got 40"),
-    ("rbf", {"tail": 3, "init": "random"}, "rbf: a polynomial tail needs init 'kmeans'"),
+    ("rbf", {"tail": 3, "init": "random"}, "rbf: a polynomial tail needs init 'kmeans' or 'quantiles'"),
     ("mlp", {"activation": "sigmoid"}, "mlp: activation must be one of tanh, relu, silu"),
     ("gru", {"hidden": 0}, "gru: hidden must be an integer in [1, 64], got 0"),
     ("ts-fuzzy", {"n_set": 4}, "model 'ts-fuzzy': unknown hyper-parameter 'n_set' (valid: "

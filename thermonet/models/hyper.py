@@ -28,7 +28,7 @@ MLP_ACTIVATIONS = ("tanh", "relu", "silu")
 #: Bounds on the MLP's architecture: a network for a microcontroller, not a research model.
 MLP_MAX_LAYERS, MLP_MAX_WIDTH = 4, 256
 #: How the RBF places its centres.
-RBF_INITS = ("kmeans", "random")
+RBF_INITS = ("kmeans", "quantiles", "random")
 
 
 class HyperError(ConfigError):
@@ -144,8 +144,9 @@ SPECS: dict[str, dict[str, tuple[str, Callable[[Any], Any]]]] = {
 
 
 def _rbf_joint(values: dict[str, Any]) -> None:
-    if values.get("tail", 0) and values.get("init", "kmeans") != "kmeans":
-        raise ConfigError("rbf: a polynomial tail needs init 'kmeans' (a closed-form fit)")
+    if values.get("tail", 0) and values.get("init", "kmeans") == "random":
+        raise ConfigError("rbf: a polynomial tail needs init 'kmeans' or 'quantiles' (a "
+                          "closed-form fit)")
 
 
 #: Rules between hyper-parameters of one family (each given the values it was given).

@@ -13,8 +13,18 @@ the axes, the weights form an (A, J) matrix.  Study 003 uses inputs
 
 ``init="kmeans"`` (default): k-means centres (scikit-learn, seeded), each width
 the distance to the nearest other centre × ``width_scale``, weights and bias
-by least squares.  ``init="random"``: centres drawn uniformly in the data's
-bounding box (seeded), unit widths, zero weights — plain gradient descent from
+by least squares.  ``init="quantiles"``: the same, but the centres are placed, not
+clustered: at the quantiles of the first input, kept at least half an even grid step apart,
+each other input interpolated along the samples sorted by the first
+(:func:`quantile_centres`).  On inputs that all follow one variable — ``[dT, dT2]`` — the
+centres lie on the data's own curve, where the data are, as k-means puts them; deterministic
+(no seed) and without scikit-learn, whose import (about 0.7 s with the SciPy and pandas
+modules it loads) was most of a small fit's cost.  ``thermonet calibrate``'s comparison uses
+it (``experiments/bench_rbf_centres.py``: the same held-out scores as k-means on its boards,
+a lagged lent thermometer beside ΔT included).  Where the inputs vary independently of the
+first, k-means is the choice: it spreads the centres in all of them.
+``init="random"``: centres drawn uniformly in the
+data's bounding box (seeded), unit widths, zero weights — plain gradient descent from
 scratch, for comparison.
 
 The polynomial tail (``tail: 3``; the default family set's ``rbf``)
@@ -65,7 +75,7 @@ from .base import LOG_CLIP, TINY, Family, as_numpy, distinct_levels, least_squar
 from .cgen import CBody, as_float32, c_affine, c_array, c_exp
 from .hyper import RBF_INITS, check_values
 
-__all__ = ["RBF", "RIDGE_GRID"]
+__all__ = ["RBF", "RIDGE_GRID", "quantile_centres"]
 
 _INITS = RBF_INITS
 #: relative ridge strengths tried by ``ridge: cv`` (× tr(ΦᵀΦ)/J); ∞ is the tail alone
@@ -270,6 +280,9 @@ class RBF(Family):
         if rows < self.n_centres:
             return (f"the inputs take {rows} distinct value(s), fewer than the "
                     f"{self.n_centres} centres (lower n_centres)")
+        if self.init == "quantiles" and self.n_centres > 1 and distinct_levels(xn[:, 0]) < 2:
+            return ("input 1 takes 1 distinct value; init 'quantiles' spreads the centres over "
+                    "its range (use init 'kmeans')")
         if self.tail and distinct_levels(xn[:, 0]) < self.tail + 1:
             return (f"input 1 takes {distinct_levels(xn[:, 0])} distinct value(s); a degree-"
                     f"{self.tail} tail needs at least {self.tail + 1}")
@@ -292,11 +305,14 @@ class RBF(Family):
                 self.weight.zero_()
                 self.bias.zero_()
             return
-        step = max(1, xn.shape[0] // 5000)  # even decimation bounds k-means cost
-        from sklearn.cluster import KMeans  # heavy: loaded when an RBF is initialised
+        if self.init == "quantiles":
+            centres = quantile_centres(xn, self.n_centres)
+        else:
+            step = max(1, xn.shape[0] // 5000)  # even decimation bounds k-means cost
+            from sklearn.cluster import KMeans  # heavy: loaded when an RBF is initialised
 
-        km = KMeans(n_clusters=self.n_centres, random_state=seed, n_init=4).fit(xn[::step])
-        centres = km.cluster_centers_
+            km = KMeans(n_clusters=self.n_centres, random_state=seed, n_init=4).fit(xn[::step])
+            centres = km.cluster_centers_
         dist = np.sqrt(((centres[:, None, :] - centres[None, :, :]) ** 2).sum(-1))
         np.fill_diagonal(dist, np.inf)
         nearest = dist.min(axis=1) if self.n_centres > 1 else np.full(1, float(np.ptp(xn)))
@@ -363,6 +379,36 @@ class RBF(Family):
         if self.tail:  # only then: a checkpoint from before the tail rebuilds unchanged
             out.update(tail=self.tail, ridge=self.ridge)
         return out
+
+
+def quantile_centres(x: np.ndarray, n: int) -> np.ndarray:
+    """``init="quantiles"``'s ``n`` centres of the (N, F) inputs ``x``.
+
+    The first input's values at the ``n`` quantiles (k + ½)/n — where the data are, as
+    k-means puts them on one variable — kept at least half an even grid step (its span /
+    (2 (n − 1))) apart, so that a temperature the recording dwelt at (a soak, a coarse
+    thermometer's one reading) holds one centre, not several on top of each other: a
+    forward sweep pushes each centre up to that spacing from the one below, a backward
+    sweep pulls it back under the maximum.  Each other input is linearly interpolated along
+    the samples sorted by the first (a stable sort: the result depends on the data alone).
+    Distinct centres whenever the first input varies."""
+    x = np.asarray(x, dtype=np.float64)
+    order = np.argsort(x[:, 0], kind="stable")
+    first = x[order, 0]
+    lo, hi = float(first[0]), float(first[-1])
+    at = np.quantile(first, (np.arange(n) + 0.5) / n)
+    if n > 1:
+        gap = (hi - lo) / (2 * (n - 1))
+        for k in range(1, n):
+            at[k] = max(at[k], at[k - 1] + gap)
+        at[-1] = min(at[-1], hi)
+        for k in range(n - 2, -1, -1):
+            at[k] = min(at[k], at[k + 1] - gap)
+    out = np.empty((n, x.shape[1]))
+    out[:, 0] = at
+    for j in range(1, x.shape[1]):
+        out[:, j] = np.interp(at, first, x[order, j])
+    return out
 
 
 def _gaussian(x: np.ndarray, centres: np.ndarray, sigma: float) -> np.ndarray:

@@ -197,7 +197,7 @@ class Fuzzy(FamilySpec):
 
 
 class RBF(FamilySpec):
-    """``rbf``: ``n_centres`` Gaussians (``init`` kmeans or random, widths × ``width_scale``)
+    """``rbf``: ``n_centres`` Gaussians (``init`` kmeans, quantiles or random, widths × ``width_scale``)
     with a polynomial ``tail`` (0..3) in the first input and a ``ridge`` (``"cv"``: chosen
     by inner cross-validation)."""
 

@@ -26,7 +26,8 @@ For every sensor instance of PX4 ULogs or ArduPilot DataFlash logs of one board:
    m/s², **Pa** (the script's ×100 assumed hPa, PX4 issue #20051).
 3. **Side by side with thermonet's families**, by calling
    :func:`thermonet.workflows.compare.run_compare` on the instance (the firmware form as
-   the baseline family, a line, an RBF on [ΔT, ΔT²]); judged on held-out
+   the baseline family, a line, an RBF on [ΔT, ΔT²] with the cubic tail, its centres at
+   ΔT's quantiles); judged on held-out
    contiguous time blocks (``split: time-blocks``), never random samples.
    When the firmware form does not beat the raw output on the held-out blocks,
    the instance is left out of the parameter file (loading it would do harm).
@@ -223,9 +224,11 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
         FamilyConfig(family="linear", name="linear", inputs=["dT"]),
         # the RBF with the cubic tail: a closed-form fit (its ridge chosen on the training
         # rows), at worst the cubic — not the gradient-trained network, which cost ~90 % of
-        # a calibration's CPU time for a verdict it seldom changed
+        # a calibration's CPU time for a verdict it seldom changed; its centres at the
+        # quantiles of ΔT, not by k-means: the same held-out scores on the boards
+        # (experiments/bench_rbf_centres.py) without scikit-learn's 0.7 s import
         FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
-                     params={"n_centres": 8, "tail": 3}),
+                     params={"n_centres": 8, "tail": 3, "init": "quantiles"}),
     ]
     if inst.unlagged_c is not None and inst.lag_s > 0:
         # a lent thermometer through the fitted lag: the models take the thermometer as read
@@ -238,8 +241,10 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
                          params={"degree": 3, "cross": True}),
             FamilyConfig(family="poly", name="px4-cubic-no-lag", inputs=["dT"],
                          params={"degree": 3}),
+            # the lag interpolated along ΔT at the centres: the same held-out scores as
+            # k-means on the simulated boards' lagged magnetometers (bench_rbf_centres.py)
             FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2", lag],
-                         params={"n_centres": 8, "tail": 3}),
+                         params={"n_centres": 8, "tail": 3, "init": "quantiles"}),
         ]
         inst = SensorInstance(inst.kind, inst.instance, inst.device_id, inst.time_s,
                               inst.unlagged_c, inst.values, notes=list(inst.notes),
