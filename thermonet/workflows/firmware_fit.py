@@ -182,14 +182,17 @@ def running_median(y: np.ndarray, size: int = PX4_MEDIAN_SAMPLES) -> np.ndarray:
     value (``tests/test_firmware_fit.py`` checks it against SciPy), computed with numpy's
     sliding windows instead — importing ``scipy.ndimage`` cost a calibration 0.12 s, a
     median of 31 samples per row microseconds."""
+    if size < 1 or size % 2 == 0:
+        raise ValueError(f"running_median: size {size} (an odd number of samples)")
     y = np.asarray(y, dtype=np.float64)
     y = y.reshape(y.shape[0], -1) if y.ndim != 2 else y
     half = size // 2
     padded = np.pad(y, ((half, half), (0, 0)), mode="edge")
     windows = np.lib.stride_tricks.sliding_window_view(padded, size, axis=0)  # (n, cols, size)
     out = np.empty_like(y)
-    for a in range(0, y.shape[0], _MEDIAN_CHUNK):
-        out[a:a + _MEDIAN_CHUNK] = np.median(windows[a:a + _MEDIAN_CHUNK], axis=-1)
+    for a in range(0, y.shape[0], _MEDIAN_CHUNK):   # an odd window's median: its middle value
+        out[a:a + _MEDIAN_CHUNK] = np.partition(windows[a:a + _MEDIAN_CHUNK], half,
+                                                axis=-1)[..., half]
     return out
 
 
