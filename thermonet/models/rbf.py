@@ -19,9 +19,10 @@ each other input interpolated along the samples sorted by the first
 (:func:`quantile_centres`).  On inputs that all follow one variable — ``[dT, dT2]`` — the
 centres lie on the data's own curve, where the data are, as k-means puts them; deterministic
 (no seed) and without scikit-learn, whose import (about 0.7 s with the SciPy and pandas
-modules it loads) was most of a small fit's cost.  ``thermonet calibrate``'s comparison uses
-it (``experiments/bench_rbf_centres.py``: the same held-out scores as k-means on its boards,
-a lagged lent thermometer beside ΔT included).  Where the inputs vary independently of the
+modules it loads) was most of a small fit's cost.  The default family set's RBF and
+``thermonet calibrate``'s comparison use it (``experiments/bench_rbf_centres.py``: the same
+held-out scores as k-means on calibrate's boards, a lagged lent thermometer beside ΔT
+included, and as good or better on the presets).  Where the inputs vary independently of the
 first, k-means is the choice: it spreads the centres in all of them.
 ``init="random"``: centres drawn uniformly in the
 data's bounding box (seeded), unit widths, zero weights — plain gradient descent from

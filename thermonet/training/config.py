@@ -247,7 +247,9 @@ def _default_families() -> list[FamilyConfig]:
     * the studies' families: ``linear``, ``lorentz`` (000), ``ts-fuzzy`` (002), ``rbf`` on
       [ΔT, ΔT²] (003) with the cubic in ΔT as its unpenalised tail and the Gaussian part's
       ridge and width chosen by inner cross-validation (:mod:`thermonet.models.rbf`): at
-      worst it is the cubic;
+      worst it is the cubic; its centres at ΔT's quantiles (``init: quantiles``: as good as
+      k-means' or better on held-out data, ``experiments/bench_rbf_centres.py``, the same on
+      every run and without scikit-learn's import);
     * models with dynamic inputs (:mod:`thermonet.features.dynamics`): ``poly3-rate`` (all monomials
       of total degree ≤ 3 in ΔT and dT/dt: the cubic plus rate, rate², rate³ and the cross
       terms) and ``poly3-hyst`` (the same on [ΔT, dT/dt, play_1]: a hysteresis memory of
@@ -264,7 +266,8 @@ def _default_families() -> list[FamilyConfig]:
         FamilyConfig(family="ts-fuzzy", name="ts-fuzzy", inputs=["dT"], params={"n_sets": 6},
                      tune={"n_sets": [3, 4, 6, 8]}),
         FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
-                     params={"n_centres": 16, "tail": 3}, tune={"n_centres": [8, 16]}),
+                     params={"n_centres": 16, "tail": 3, "init": "quantiles"},
+                     tune={"n_centres": [8, 16]}),
         FamilyConfig(family="poly", name="poly3-rate", inputs=["dT", "rate"],
                      params={"degree": 3, "cross": True}, tune={"degree": [1, 2, 3]}),
         FamilyConfig(family="poly", name="poly3-hyst", inputs=["dT", "rate", "play_1"],
