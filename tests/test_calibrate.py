@@ -280,3 +280,76 @@ def test_a_calibration_with_its_comparison_loads_no_scikit_learn_scipy_or_pandas
     assert out.stdout.strip().splitlines()[-1] == "0 []"
     doc = json.loads((tmp_path / "cal" / "results.json").read_text())
     assert doc["instances"]["gyro0"]["compare"]["families"]["rbf"]["status"] == "ok"
+
+
+def _board_tasks(tmp_path: Path, names: tuple[str, ...], where: str) -> list[dict]:
+    """calibrate's comparison tasks for some instances of a simulated PX4 board."""
+    board = simulate_board("fc-board", autopilot="px4", seed=5, rate_hz=0.2)
+    log = tmp_path / "b.ulg"
+    if not log.exists():
+        write_log(board, log)
+    insts = [i for i in read_log(log).instances if i.name in names]
+    return [{"inst": i, "autopilot": "px4", "where": tmp_path / where / i.name,
+             "source": "b.ulg", "final": tmp_path / "final" / i.name} for i in insts]
+
+
+def test_instances_compared_in_a_helper_process_are_the_commands_comparisons(
+        tmp_path: Path) -> None:
+    """calibrate's helper (``workers``; core.helpers) takes instances from the back of the
+    list while the command takes them from the front: each comparison is the one the
+    command alone makes, number for number, and ``--profile`` names what the helper did.
+    The helper is waited for here, so that it surely takes part (in a command it imports
+    while the logs are read, and helps from when it is ready)."""
+    import select
+
+    from thermonet.core import profile
+    from thermonet.core.helpers import Helper
+    from thermonet.workflows.calibrate import _HELPER_IMPORTS, _compare_all
+
+    names = ("gyro0", "acc0", "gyro1", "acc1", "baro0", "mag0")
+    alone = _compare_all(_board_tasks(tmp_path, names, "alone"))
+    with Helper(_HELPER_IMPORTS) as helper:
+        while not helper.ready():
+            stream = helper.stream()
+            assert stream is not None, "the helper did not start"
+            select.select([stream], [], [], 1.0)
+        profile.reset()
+        profile.enable()
+        try:
+            side = _compare_all(_board_tasks(tmp_path, names, "side"), [helper])
+            helped = [n for n in profile.timings() if n.endswith("(helper)")]
+        finally:
+            profile.enable(False)
+            profile.reset()
+        assert helper.stream() is None            # ended once the comparisons are done
+    assert helped                                  # it compared at least one instance
+    assert list(side) == list(alone)
+    for name in alone:
+        a, s = alone[name], side[name]
+        assert isinstance(a, dict) and isinstance(s, dict)
+        assert s["dir"] == a["dir"] and s["families"] == a["families"]
+        assert (s["chosen"], s.get("band")) == (a["chosen"], a.get("band"))
+
+
+def test_a_helper_that_fails_leaves_its_work_to_the_command(tmp_path: Path, capfd) -> None:
+    """A helper whose imports fail (here: a module that does not exist) never becomes
+    ready and says nothing: the command compares every instance itself, and the result is
+    the same."""
+    from thermonet.core.helpers import Helper
+    from thermonet.workflows.calibrate import _compare_all
+
+    with Helper(["thermonet.no_such_module"]) as broken:
+        got = _compare_all(_board_tasks(tmp_path, ("gyro0", "acc0"), "a"), [broken])
+    want = _compare_all(_board_tasks(tmp_path, ("gyro0", "acc0"), "b"))
+    assert sorted(got) == ["acc0", "gyro0"]
+    assert got == want
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_workers_must_be_a_whole_number(tmp_path: Path, capsys) -> None:
+    board = simulate_board("fc-board", autopilot="px4", seed=6, rate_hz=0.2)
+    log = write_log(board, tmp_path / "b.ulg")
+    assert main(["calibrate", str(log), "--out", str(tmp_path / "c"), "--workers", "-1"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "workers -1" in err[0]
+    assert not (tmp_path / "c").exists()

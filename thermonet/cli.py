@@ -305,7 +305,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .workflows.magnetometer import parse_thermometers  # lazy: off the --help path
 
     doc = calibrate(args.log, args.out, overwrite=args.overwrite, compare=not args.no_compare,
-                    mag_thermometers=parse_thermometers(args.mag_thermometer or []))
+                    mag_thermometers=parse_thermometers(args.mag_thermometer or []),
+                    workers=args.workers)
     if not args.quiet:
         print(format_report(doc), end="")
         print(f"results: {Path(args.out) / 'results.json'}")
@@ -496,6 +497,9 @@ def _add_calibrate(sub: Any) -> None:
     k.add_argument("--no-compare", action="store_true",
                    help="fit the firmware form only (no side-by-side comparison with "
                         "thermonet's families: faster, no instances/ folder)")
+    k.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="processes comparing instances side by side (default: one per CPU, "
+                        "at most 4; 1: this one alone)")
     k.add_argument("--mag-thermometer", action="append", metavar="MAG=SENSOR",
                    help="the thermometer lent to a magnetometer without one, e.g. mag1=baro0 "
                         "(repeatable; default: baro0, else gyro0, else acc0); its lag is "

@@ -5,10 +5,12 @@ sits idle while it imports torch and fits.  A :class:`Helper` is a child process
 (``python -m thermonet.core.helpers MODULE ...``) started at the beginning of a job: it
 imports the named modules at once, on that idle core, says it is ready, then runs calls
 (``module``, ``function``, keyword arguments) one at a time and sends each result back.
-``compare`` has two draw its figures (:mod:`thermonet.reporting.plot_workers`).  (Tried
-and measured: ``calibrate`` handing a helper instances to compare beside it saved 0.1-0.2 s
-of 3.5 on 2 cores — the helper's own imports take as long as the command's — so it does
-not.)
+``compare`` has two draw its figures (:mod:`thermonet.reporting.plot_workers`);
+``calibrate`` has one per further CPU compare instances beside it
+(:func:`thermonet.workflows.calibrate._compare_all`: 2.45 → 2.0 s on the 2-core benchmark
+board, once the comparison no longer imported scikit-learn and SciPy — before, the helper's
+imports took as long as the command's and it saved 0.1-0.2 s of 3.5).  A helper whose imports
+fail exits without a word: the command does its work.
 
 The child is a plain subprocess (no ``multiprocessing``: nothing imports the caller's main
 module, so a script without ``if __name__ == "__main__":`` is safe); calls and results go
@@ -175,8 +177,11 @@ class Helper:
 
 # ------------------------------------------------------------------------ the child's side
 def _serve(preload: Sequence[str], requests: IO[bytes], replies: IO[bytes]) -> int:
-    for name in preload:
-        importlib.import_module(name)
+    try:
+        for name in preload:
+            importlib.import_module(name)
+    except Exception:  # noqa: BLE001 - the command sees the pipe close and does the work
+        return 1       # itself, where a genuine error is raised once (no traceback here)
     _send(replies, _READY)
     while True:
         try:

@@ -30,7 +30,9 @@ For every sensor instance of PX4 ULogs or ArduPilot DataFlash logs of one board:
    ΔT's quantiles); judged on held-out
    contiguous time blocks (``split: time-blocks``), never random samples.
    When the firmware form does not beat the raw output on the held-out blocks,
-   the instance is left out of the parameter file (loading it would do harm).
+   the instance is left out of the parameter file (loading it would do harm).  With
+   several CPUs, helper processes (``workers``) import while the logs are read and then
+   compare instances beside the command (:func:`_compare_all`); the result is the same.
 4. **The held-out check is verify's test** (:func:`_held_out`): the firmware form is
    fitted without the held-out data, written as a parameter file, read back and applied
    to the held-out data by :func:`thermonet.workflows.verify.evaluate` — the same
@@ -61,8 +63,12 @@ peak-to-peak of 1 °C-binned means before and after, per axis.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
+import select
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,6 +78,7 @@ import numpy as np
 
 from ..core.errors import InputError, ThermonetError
 from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
+from ..core.helpers import Helper, usable_cores
 from ..core.names import inside, path_components
 from ..core.outdir import KINDS, check_target, relocate_json, sha256_file, staged_output
 from ..core.profile import stage as profile_stage
@@ -315,13 +322,17 @@ def _verdict(summary: dict[str, Any]) -> tuple[bool, str]:
 
 def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, *,
               compare: bool = True, overwrite: bool = False,
-              mag_thermometers: Mapping[str, str] | None = None) -> dict[str, Any]:
+              mag_thermometers: Mapping[str, str] | None = None,
+              workers: int | None = None) -> dict[str, Any]:
     """Calibrate every instance of one board's log(s); write ``out_dir``; return results.
 
     ``log_path``: one log, or several logs of the same board (train on all but the
     last, verify on the last, export the refit on all: see the module).
     ``mag_thermometers``: ``{"mag1": "baro0"}``, the thermometer lent to a magnetometer
     without one (default: :data:`~thermonet.workflows.magnetometer.DEFAULT_THERMOMETERS`).
+    ``workers``: processes comparing instances side by side — this one and ``workers − 1``
+    helpers (:func:`_compare_all`); None or 0: one per CPU this process may use, at most
+    :data:`MAX_WORKERS`; 1: this process alone.  The calibration does not depend on it.
 
     ``out_dir`` appears whole or not at all (:mod:`thermonet.core.outdir`,
     ``kind="calibration"``): it is built in a hidden staging directory beside it
@@ -343,6 +354,39 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
         raise InputError("calibrate needs at least one log")
     out = Path(out_dir)
     refuse_overwriting_inputs(out, paths, owned=KINDS["calibration"])
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
+                                or workers < 0):
+        raise InputError(f"workers {workers!r}: a whole number >= 0 (0: one per CPU)")
+    with contextlib.ExitStack() as helpers:
+        started = [helpers.enter_context(Helper(_HELPER_IMPORTS))
+                   for _ in range(_helper_count(compare, workers))]
+        return _calibrate(paths, out, compare=compare, overwrite=overwrite,
+                          mag_thermometers=mag_thermometers, helpers=started)
+
+
+#: Most processes comparing instances side by side by default (each imports torch: ~0.7 s of
+#: CPU and ~250 MB).
+MAX_WORKERS = 4
+#: What a helper imports while the command reads the logs: everything an instance's
+#: comparison needs.
+_HELPER_IMPORTS = ("thermonet.workflows.calibrate", "thermonet.workflows.compare",
+                   "thermonet.training.train")
+
+
+def _helper_count(compare: bool, workers: int | None) -> int:
+    """How many helper processes (:mod:`thermonet.core.helpers`) to start: none without the
+    comparison or off POSIX (the command waits on their pipes with ``select``)."""
+    if not compare or os.name != "posix":
+        return 0
+    n = min(usable_cores(), MAX_WORKERS) if not workers else workers
+    return max(0, n - 1)
+
+
+def _calibrate(paths: list[str | Path], out: Path, *, compare: bool, overwrite: bool,
+               mag_thermometers: Mapping[str, str] | None, helpers: list[Helper]
+               ) -> dict[str, Any]:
+    """:func:`calibrate` once its helpers (if any) are started: they import while the logs
+    are read."""
     with profile_stage("read the log(s)"):
         logs = [read_log(p) for p in paths]
     seen: dict[str, Path] = {}
@@ -358,7 +402,8 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
         logs, mags = _lend_and_lag(logs, mag_thermometers)   # a bad --mag-thermometer: refused
     check_target(out, overwrite, "calibration")   # before anything is fitted
     with staged_output(out, overwrite=overwrite, kind="calibration") as stage:
-        doc = _calibrate_into(logs, stage.path, out, compare=compare, mags=mags)
+        doc = _calibrate_into(logs, stage.path, out, compare=compare, mags=mags,
+                              helpers=helpers)
         stage.done()
     return doc
 
@@ -612,7 +657,8 @@ def _judge_model_only(fit: FirmwareFit, inst: SensorInstance | None, autopilot: 
 
 
 def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: bool,
-                    mags: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
+                    mags: dict[str, dict[str, Any]] | None = None,
+                    helpers: Sequence[Helper] = ()) -> dict[str, Any]:
     """The calibration, written into ``stage``; recorded paths name ``out``."""
     log = merge_logs(logs)
     source = ", ".join(str(lg.path) for lg in logs)
@@ -624,11 +670,12 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
         raise ThermonetError(f"{log.path}: PX4 has {PX4_SLOTS} calibration slots per sensor "
                              f"kind; the log has {per_kind} calibratable instances")
     results = [_fit_instance(inst, log, mags=mags) for inst in log.instances]
-    compared = {inst.name: _compare_or_why(inst, log.autopilot,
-                                           inside(stage, "instances", dirs[inst.name]), source,
-                                           final=out / "instances" / dirs[inst.name])
-                for inst, r in zip(log.instances, results, strict=True)
-                if compare and r.status == "fitted"}
+    compared = _compare_all([
+        {"inst": inst, "autopilot": log.autopilot,
+         "where": inside(stage, "instances", dirs[inst.name]), "source": source,
+         "final": out / "instances" / dirs[inst.name]}
+        for inst, r in zip(log.instances, results, strict=True)
+        if compare and r.status == "fitted"], helpers)
     results = [_judge_instance(r, inst, log.autopilot, compared.get(inst.name))
                for inst, r in zip(log.instances, results, strict=True)]
     _check_held_out(logs, log, results, stage)
@@ -690,8 +737,76 @@ def _fit_instance(inst: Any, log: FlightLog, *, mags: dict[str, dict[str, Any]] 
     return r
 
 
-def _compare_or_why(inst: SensorInstance, autopilot: str, where: Path, source: str, *,
-                    final: Path) -> dict[str, Any] | str:
+def _compare_all(tasks: list[dict[str, Any]], helpers: Sequence[Helper] = ()
+                 ) -> dict[str, dict[str, Any] | str]:
+    """Every task's :func:`compare_or_why`, by instance name.
+
+    The command takes the tasks from the front of the list; per helper, a thread hands it
+    tasks from the back, one at a time, from the moment its imports are done (the thread
+    waits on the helper's pipe, so it costs the command nothing meanwhile).  The same
+    comparison either way (the same code on the same data: a test compares the two); a task
+    a helper did not finish — it raised, died, or was not ready before the command had done
+    the rest — is done here, where a genuine error is raised as it would have been.  Each
+    helper's task is a ``--profile`` stage ``<instance>: compare … (helper)``: its wall time
+    as the command waited for it."""
+    out: dict[int, dict[str, Any] | str] = {}
+    lock = threading.Lock()
+    edge = [0, len(tasks)]                      # [next from the front, one past the back]
+
+    def feed(h: Helper) -> None:
+        try:
+            while not h.ready():                # its imports: wait, unless the work is done
+                with lock:
+                    if edge[0] >= edge[1]:
+                        return
+                stream = h.stream()
+                if stream is None:
+                    return
+                select.select([stream], [], [], 0.05)
+            while True:
+                with lock:
+                    if edge[0] >= edge[1]:
+                        return
+                    edge[1] -= 1
+                    k = edge[1]
+                with profile_stage(f"{tasks[k]['inst'].name}: compare thermonet's families "
+                                   "(helper)"):
+                    h.submit(__name__, "compare_or_why", **tasks[k])
+                    ok, value = h.result()
+                if ok:
+                    out[k] = value
+        except Exception:  # noqa: BLE001 - whatever went wrong, the command does the task
+            return
+
+    feeders = [threading.Thread(target=feed, args=(h,), daemon=True)
+               for h in (helpers if len(tasks) > 1 else ())]
+    for f in feeders:
+        f.start()
+    try:
+        while True:
+            with lock:
+                if edge[0] >= edge[1]:
+                    break
+                k = edge[0]
+                edge[0] += 1
+            out[k] = compare_or_why(**tasks[k])
+        for f in feeders:
+            f.join()
+        for k, task in enumerate(tasks):         # what the helpers did not finish
+            if k not in out:
+                out[k] = compare_or_why(**task)
+    finally:
+        # done (or interrupted): ended now, before the staging directory they write into is
+        # removed or moved
+        for h in helpers:
+            h.kill()
+        for f in feeders:
+            f.join()
+    return {task["inst"].name: out[k] for k, task in enumerate(tasks)}
+
+
+def compare_or_why(inst: SensorInstance, autopilot: str, where: Path, source: str, *,
+                   final: Path) -> dict[str, Any] | str:
     """One instance's comparison (:func:`_compare`): its summary, or the one line of a
     :class:`ThermonetError` that stopped it."""
     try:
