@@ -353,3 +353,21 @@ def test_workers_must_be_a_whole_number(tmp_path: Path, capsys) -> None:
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "workers -1" in err[0]
     assert not (tmp_path / "c").exists()
+
+
+def test_how_many_helpers_calibrate_starts() -> None:
+    """``workers``: N processes = N − 1 helpers; none without the comparison; by default
+    none where torch is loaded already (as in this test process: the comparisons start at
+    once, a helper would be ready only after a second of imports), else one per further
+    CPU, at most MAX_WORKERS in all."""
+    import os
+    import sys
+
+    from thermonet.workflows.calibrate import MAX_WORKERS, _helper_count
+
+    assert "torch" in sys.modules
+    assert _helper_count(True, None) == _helper_count(True, 0) == 0
+    assert _helper_count(True, 1) == 0
+    assert _helper_count(False, 3) == 0
+    assert _helper_count(True, 3) == (2 if os.name == "posix" else 0)
+    assert MAX_WORKERS == 4

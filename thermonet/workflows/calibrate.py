@@ -68,6 +68,7 @@ import json
 import math
 import os
 import select
+import sys
 import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -332,7 +333,8 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
     without one (default: :data:`~thermonet.workflows.magnetometer.DEFAULT_THERMOMETERS`).
     ``workers``: processes comparing instances side by side — this one and ``workers − 1``
     helpers (:func:`_compare_all`); None or 0: one per CPU this process may use, at most
-    :data:`MAX_WORKERS`; 1: this process alone.  The calibration does not depend on it.
+    :data:`MAX_WORKERS`, where this process has not loaded torch yet (else this one alone:
+    :func:`_helper_count`); 1: this process alone.  The calibration does not depend on it.
 
     ``out_dir`` appears whole or not at all (:mod:`thermonet.core.outdir`,
     ``kind="calibration"``): it is built in a hidden staging directory beside it
@@ -375,11 +377,18 @@ _HELPER_IMPORTS = ("thermonet.workflows.calibrate", "thermonet.workflows.compare
 
 def _helper_count(compare: bool, workers: int | None) -> int:
     """How many helper processes (:mod:`thermonet.core.helpers`) to start: none without the
-    comparison or off POSIX (the command waits on their pipes with ``select``)."""
+    comparison or off POSIX (the command waits on their pipes with ``select``).  By default
+    (``workers`` None or 0) also none where this process has torch loaded already — a
+    program calibrating again, a test — whose comparisons start at once: a helper would be
+    ready only after about a second of imports, to compare perhaps one instance of the
+    board; ``workers`` > 1 asks for them anyway."""
     if not compare or os.name != "posix":
         return 0
-    n = min(usable_cores(), MAX_WORKERS) if not workers else workers
-    return max(0, n - 1)
+    if not workers:
+        if "torch" in sys.modules:
+            return 0
+        return max(0, min(usable_cores(), MAX_WORKERS) - 1)
+    return workers - 1
 
 
 def _calibrate(paths: list[str | Path], out: Path, *, compare: bool, overwrite: bool,
