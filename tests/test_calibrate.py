@@ -363,6 +363,8 @@ def test_how_many_helpers_calibrate_starts() -> None:
     import os
     import sys
 
+    import torch  # noqa: F401 - loaded, as in a program that has fitted before
+
     from thermonet.workflows.calibrate import MAX_WORKERS, _helper_count
 
     assert "torch" in sys.modules
