@@ -372,4 +372,4 @@ def test_how_many_helpers_calibrate_starts() -> None:
     assert _helper_count(True, 1) == 0
     assert _helper_count(False, 3) == 0
     assert _helper_count(True, 3) == (2 if os.name == "posix" else 0)
-    assert MAX_WORKERS == 4
+    assert MAX_WORKERS == 3

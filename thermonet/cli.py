@@ -499,7 +499,7 @@ def _add_calibrate(sub: Any) -> None:
                         "thermonet's families: faster, no instances/ folder)")
     k.add_argument("--workers", type=int, default=None, metavar="N",
                    help="processes comparing instances side by side (default: one per CPU, "
-                        "at most 4; 1: this one alone)")
+                        "at most 3; 1: this one alone)")
     k.add_argument("--mag-thermometer", action="append", metavar="MAG=SENSOR",
                    help="the thermometer lent to a magnetometer without one, e.g. mag1=baro0 "
                         "(repeatable; default: baro0, else gyro0, else acc0); its lag is "

@@ -366,9 +366,10 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
                           mag_thermometers=mag_thermometers, helpers=started)
 
 
-#: Most processes comparing instances side by side by default (each imports torch: ~0.7 s of
-#: CPU and ~250 MB).
-MAX_WORKERS = 4
+#: Most processes comparing instances side by side by default: each holds torch (~250 MB;
+#: three, ~760 MB in all, stay within the memory a comparison took before they existed) and
+#: pays its import (~0.8 s of CPU), which a board's few instances repay only a few times over.
+MAX_WORKERS = 3
 #: What a helper imports while the command reads the logs: everything an instance's
 #: comparison needs.
 _HELPER_IMPORTS = ("thermonet.workflows.calibrate", "thermonet.workflows.compare",
