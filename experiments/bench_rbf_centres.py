@@ -17,8 +17,9 @@ data's curve instead.  This benchmark fits both, side by side in one comparison,
   splits), seeds 0-2, with calibrate's RBF and with the default family set's (16 centres, 8
   or 16 chosen by tuning).
 
-Per dataset: the held-out test score of each (error variance after correction over before,
-all axes; lower is better; the comparison's own test part, never fitted) and their ratio
+Per dataset: the held-out test score of each (the RMS of the drift left after correction over
+the drift before, averaged over the axes; lower is better; the comparison's own test
+part, never fitted) and their ratio
 quantiles / k-means, with the cubic beside them: quantiles is kept for calibrate only if its ratios
 stay near 1 and it never loses to the cubic where k-means does not.
 """
@@ -168,8 +169,8 @@ def main() -> None:
                          f"{np.nanmedian(km_cubic):.3f} ({np.nanmax(km_cubic):.3f})",
                          f"{np.nanmedian(vs_cubic):.3f} ({np.nanmax(vs_cubic):.3f})",
                          int(np.sum(np.isnan(ratio)))])
-    md = ("Held-out test score (error variance after correction over before, lower is "
-          "better) of the RBF with the cubic tail, k-means vs quantile centres: calibrate's "
+    md = ("Held-out test score (RMS of the drift left after correction over the drift "
+          "before, averaged over the axes; lower is better) of the RBF with the cubic tail, k-means vs quantile centres: calibrate's "
           "(8 centres) and the default family set's (16, or 8 by tuning). Machine: "
           f"{machine()}.\n\n" + table(
               ["data", "fits", "quantiles / k-means: median (min–max)",

@@ -171,15 +171,15 @@ def bin_means(x: np.ndarray, y: np.ndarray, n_bins: int = PX4_BINS
     return mx, my
 
 
-#: Rows of :func:`running_median`'s windows taken at once (bounds its memory: 31 × 8 bytes
-#: each).
+#: Rows of :func:`running_median`'s windows taken at once: its working copy is at most this
+#: many rows × 31 samples × 8 bytes per column (16 MB).
 _MEDIAN_CHUNK = 65_536
 
 
 def running_median(y: np.ndarray, size: int = PX4_MEDIAN_SAMPLES) -> np.ndarray:
     """Each column's ``size``-sample running median (``size`` odd), ends padded with the
     nearest value: ``scipy.ndimage.median_filter(column, size, mode="nearest")`` value for
-    value (``tests/test_firmware_fit.py`` checks it against SciPy), computed with numpy's
+    value (``tests/test_calibrate.py`` checks it against SciPy), computed with numpy's
     sliding windows instead — importing ``scipy.ndimage`` cost a calibration 0.12 s, a
     median of 31 samples per row microseconds."""
     if size < 1 or size % 2 == 0:
