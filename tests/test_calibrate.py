@@ -373,3 +373,24 @@ def test_how_many_helpers_calibrate_starts() -> None:
     assert _helper_count(False, 3) == 0
     assert _helper_count(True, 3) == (2 if os.name == "posix" else 0)
     assert MAX_WORKERS == 3
+
+
+def test_a_helper_that_cannot_be_started_leaves_the_command_to_do_it_all(
+        tmp_path: Path, monkeypatch) -> None:
+    """No process to be had (a limit, a sandbox: ``Popen`` raises OSError): the
+    calibration runs in the command alone, the same as with ``workers=1``."""
+    from thermonet.workflows import calibrate as cal
+
+    def refuse(*_: object, **__: object) -> None:
+        raise OSError(11, "Resource temporarily unavailable")
+
+    board = simulate_board("fc-board", autopilot="px4", seed=6, rate_hz=0.2)
+    board.instances = [i for i in board.instances if i.name in ("gyro0", "acc0")]
+    log = write_log(board, tmp_path / "b.ulg")
+    alone = calibrate(log, tmp_path / "alone", workers=1)
+    monkeypatch.setattr(cal, "Helper", refuse)
+    refused = calibrate(log, tmp_path / "refused", workers=2)
+    for name in ("gyro0", "acc0"):
+        a, r = alone["instances"][name], refused["instances"][name]
+        assert r["status"] == a["status"] and r["firmware"] == a["firmware"]
+        assert r["compare"]["families"] == a["compare"]["families"]

@@ -360,8 +360,12 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
                                 or workers < 0):
         raise InputError(f"workers {workers!r}: a whole number >= 0 (0: one per CPU)")
     with contextlib.ExitStack() as helpers:
-        started = [helpers.enter_context(Helper(_HELPER_IMPORTS))
-                   for _ in range(_helper_count(compare, workers))]
+        started: list[Helper] = []
+        for _ in range(_helper_count(compare, workers)):
+            try:
+                started.append(helpers.enter_context(Helper(_HELPER_IMPORTS)))
+            except OSError:    # no process to be had (a limit, a sandbox): this one does all
+                break
         return _calibrate(paths, out, compare=compare, overwrite=overwrite,
                           mag_thermometers=mag_thermometers, helpers=started)
 
