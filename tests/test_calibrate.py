@@ -295,7 +295,8 @@ def _board_tasks(tmp_path: Path, names: tuple[str, ...], where: str) -> list[dic
 
 def test_instances_compared_in_a_helper_process_are_the_commands_comparisons(
         tmp_path: Path) -> None:
-    """calibrate's helper (``workers``; core.helpers) takes instances from the back of the
+    """calibrate's helper (``workers``; core.helpers, workflows.calibrate_compare) takes
+    instances from the back of the
     list while the command takes them from the front: each comparison is the one the
     command alone makes, number for number, and ``--profile`` names what the helper did.
     The helper is waited for here, so that it surely takes part (in a command it imports
@@ -304,11 +305,11 @@ def test_instances_compared_in_a_helper_process_are_the_commands_comparisons(
 
     from thermonet.core import profile
     from thermonet.core.helpers import Helper
-    from thermonet.workflows.calibrate import _HELPER_IMPORTS, _compare_all
+    from thermonet.workflows.calibrate_compare import HELPER_IMPORTS, compare_all
 
     names = ("gyro0", "acc0", "gyro1", "acc1", "baro0", "mag0")
-    alone = _compare_all(_board_tasks(tmp_path, names, "alone"))
-    with Helper(_HELPER_IMPORTS) as helper:
+    alone = compare_all(_board_tasks(tmp_path, names, "alone"))
+    with Helper(HELPER_IMPORTS) as helper:
         while not helper.ready():
             stream = helper.stream()
             assert stream is not None, "the helper did not start"
@@ -316,7 +317,7 @@ def test_instances_compared_in_a_helper_process_are_the_commands_comparisons(
         profile.reset()
         profile.enable()
         try:
-            side = _compare_all(_board_tasks(tmp_path, names, "side"), [helper])
+            side = compare_all(_board_tasks(tmp_path, names, "side"), [helper])
             helped = [n for n in profile.timings() if n.endswith("(helper)")]
         finally:
             profile.enable(False)
@@ -336,11 +337,11 @@ def test_a_helper_that_fails_leaves_its_work_to_the_command(tmp_path: Path, capf
     ready and says nothing: the command compares every instance itself, and the result is
     the same."""
     from thermonet.core.helpers import Helper
-    from thermonet.workflows.calibrate import _compare_all
+    from thermonet.workflows.calibrate_compare import compare_all
 
     with Helper(["thermonet.no_such_module"]) as broken:
-        got = _compare_all(_board_tasks(tmp_path, ("gyro0", "acc0"), "a"), [broken])
-    want = _compare_all(_board_tasks(tmp_path, ("gyro0", "acc0"), "b"))
+        got = compare_all(_board_tasks(tmp_path, ("gyro0", "acc0"), "a"), [broken])
+    want = compare_all(_board_tasks(tmp_path, ("gyro0", "acc0"), "b"))
     assert sorted(got) == ["acc0", "gyro0"]
     assert got == want
     assert "Traceback" not in capfd.readouterr().err
@@ -365,13 +366,13 @@ def test_how_many_helpers_calibrate_starts() -> None:
 
     import torch  # noqa: F401 - loaded, as in a program that has fitted before
 
-    from thermonet.workflows.calibrate import MAX_WORKERS, _helper_count
+    from thermonet.workflows.calibrate_compare import MAX_WORKERS, helper_count
 
     assert "torch" in sys.modules
-    assert _helper_count(True, None) == _helper_count(True, 0) == 0
-    assert _helper_count(True, 1) == 0
-    assert _helper_count(False, 3) == 0
-    assert _helper_count(True, 3) == (2 if os.name == "posix" else 0)
+    assert helper_count(True, None) == helper_count(True, 0) == 0
+    assert helper_count(True, 1) == 0
+    assert helper_count(False, 3) == 0
+    assert helper_count(True, 3) == (2 if os.name == "posix" else 0)
     assert MAX_WORKERS == 3
 
 

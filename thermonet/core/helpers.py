@@ -7,7 +7,7 @@ imports the named modules at once, on that idle core, says it is ready, then run
 (``module``, ``function``, keyword arguments) one at a time and sends each result back.
 ``compare`` has two draw its figures (:mod:`thermonet.reporting.plot_workers`);
 ``calibrate`` has one per further CPU compare instances beside it
-(:func:`thermonet.workflows.calibrate._compare_all`: 2.45 → 2.0 s on the 2-core benchmark
+(:func:`thermonet.workflows.calibrate_compare.compare_all`: 2.45 → 2.0 s on the 2-core benchmark
 board, once the comparison no longer imported scikit-learn and SciPy — before, the helper's
 imports took as long as the command's and it saved 0.1-0.2 s of 3.5).  A helper whose imports
 fail exits without a word: the command does its work.

@@ -24,7 +24,8 @@ For every sensor instance of PX4 ULogs or ArduPilot DataFlash logs of one board:
    the data (heating and cooling).  Firmware (``TemperatureCompensation.cpp``;
    ``AP_InertialSensor_tempcal.cpp``): see :mod:`thermonet.data.firmware`; rad/s,
    m/s², **Pa** (the script's ×100 assumed hPa, PX4 issue #20051).
-3. **Side by side with thermonet's families**, by calling
+3. **Side by side with thermonet's families**
+   (:mod:`thermonet.workflows.calibrate_compare`), by calling
    :func:`thermonet.workflows.compare.run_compare` on the instance (the firmware form as
    the baseline family, a line, an RBF on [ΔT, ΔT²] with the cubic tail, its centres at
    ΔT's quantiles); judged on held-out
@@ -32,7 +33,8 @@ For every sensor instance of PX4 ULogs or ArduPilot DataFlash logs of one board:
    When the firmware form does not beat the raw output on the held-out blocks,
    the instance is left out of the parameter file (loading it would do harm).  With
    several CPUs, helper processes (``workers``) import while the logs are read and then
-   compare instances beside the command (:func:`_compare_all`); the result is the same.
+   compare instances beside the command
+   (:func:`~thermonet.workflows.calibrate_compare.compare_all`); the result is the same.
 4. **The held-out check is verify's test** (:func:`_held_out`): the firmware form is
    fitted without the held-out data, written as a parameter file, read back and applied
    to the held-out data by :func:`thermonet.workflows.verify.evaluate` — the same
@@ -66,10 +68,6 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import os
-import select
-import sys
-import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -79,9 +77,9 @@ import numpy as np
 
 from ..core.errors import InputError, ThermonetError
 from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
-from ..core.helpers import Helper, usable_cores
+from ..core.helpers import Helper
 from ..core.names import inside, path_components
-from ..core.outdir import KINDS, check_target, relocate_json, sha256_file, staged_output
+from ..core.outdir import KINDS, check_target, sha256_file, staged_output
 from ..core.profile import stage as profile_stage
 from ..core.version import __version__
 from ..data.firmware import (
@@ -98,6 +96,7 @@ from ..data.firmware import (
 from ..data.logs import FlightLog, SensorInstance, read_log, temperature_step
 from ..scoring.band import shipped_band
 from ..scoring.verdicts import below
+from .calibrate_compare import HELPER_IMPORTS, compare_all, helper_count, verdict
 from .calibrate_report import format_report, render_calibration_report
 from .firmware_fit import (
     FIT_KINDS,
@@ -129,9 +128,6 @@ __all__ = ["calibrate", "fit_firmware", "check_instance", "apply_firmware", "mer
            "format_report", "render_calibration_report", "MIN_SPAN_C", "MIN_SAMPLES",
            "InstanceResult"]
 
-#: A thermonet family is reported as better only when its validation score ratio is below
-#: this fraction of the firmware form's (smaller differences are within the noise of a split).
-BETTER_BY = 0.8
 _FIT_KINDS = FIT_KINDS
 
 
@@ -212,115 +208,6 @@ def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
                      damage=[f"{lg.path.name}: {d}" for lg in logs for d in lg.damage])
 
 
-def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
-             final: Path | None = None) -> dict[str, Any]:
-    """Compare the families on ``inst`` into ``out`` (inside the staging directory); paths
-    recorded in its results name ``final``, where ``out`` will be once the output is moved."""
-    from ..training.config import (  # lazy: importing it loads yaml
-        CompareConfig,
-        FamilyConfig,
-        SplitConfig,
-        TrackingConfig,
-    )
-    from .compare import run_compare  # lazy: importing it loads yaml
-
-    fw = ("px4-poly5" if inst.kind == "baro" else "px4-cubic") \
-        if autopilot == "px4" or inst.kind == "mag" else "ardupilot-cubic"
-    families = [
-        FamilyConfig(family="poly", name=fw, inputs=["dT"],
-                     params={"degree": 5 if fw == "px4-poly5" else 3}),
-        FamilyConfig(family="linear", name="linear", inputs=["dT"]),
-        # the RBF with the cubic tail: a closed-form fit (its ridge chosen on the training
-        # rows), at worst the cubic — not the gradient-trained network, which cost ~90 % of
-        # a calibration's CPU time for a verdict it seldom changed; its centres at the
-        # quantiles of ΔT, not by k-means: the same held-out scores on the boards
-        # (experiments/bench_rbf_centres.py) without scikit-learn's 0.7 s import
-        FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
-                     params={"n_centres": 8, "tail": 3, "init": "quantiles"}),
-    ]
-    if inst.unlagged_c is not None and inst.lag_s > 0:
-        # a lent thermometer through the fitted lag: the models take the thermometer as read
-        # and compute the lag themselves (the lag_<tau> dynamic input, in the runtime and C
-        # too); the baseline is PX4's cubic at the lagged temperature, T - lag = EMA_tau(T)
-        lag = f"lag_{inst.lag_s:g}"
-        fw = "px4-cubic-lag"
-        families = [
-            FamilyConfig(family="poly", name=fw, inputs=["dT", lag],
-                         params={"degree": 3, "cross": True}),
-            FamilyConfig(family="poly", name="px4-cubic-no-lag", inputs=["dT"],
-                         params={"degree": 3}),
-            # the lag interpolated along ΔT at the centres: the same held-out scores as
-            # k-means on the simulated boards' lagged magnetometers (bench_rbf_centres.py)
-            FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2", lag],
-                         params={"n_centres": 8, "tail": 3, "init": "quantiles"}),
-        ]
-        inst = SensorInstance(inst.kind, inst.instance, inst.device_id, inst.time_s,
-                              inst.unlagged_c, inst.values, notes=list(inst.notes),
-                              truth=inst.truth, thermometer=inst.thermometer)
-    # workers=1: the three closed-form families one after the other — side by side in
-    # threads they hold Python's lock in turn, and were slower (3.6 against 3.45 s a
-    # calibration of the 9-instance bench log, idle)
-    cfg = CompareConfig(
-        split=SplitConfig(strategy="time-blocks", n_blocks=20), families=families,
-        tracking=TrackingConfig(enabled=False), baseline=fw, workers=1)
-    ds = inst.to_dataset(source).validate(source)
-    # built inside calibrate's own staging directory (a fresh one on every run); no figures
-    # per instance (the calibration's report has its own tables): the comparison is a verdict
-    res = run_compare(cfg, out, overwrite=True, track=False, quiet=True, dataset=ds,
-                      plots=False)
-    if final is not None:
-        relocate_json(out / "results.json", out, final)
-    fams = res["families"]
-    summary: dict[str, Any] = {"dir": str(final or out), "chosen": res.get("chosen"),
-                               "chosen_reason": res.get("chosen_reason"), "firmware_family": fw,
-                               "families": {}}
-    # the firmware form's residual-drift band (thermonet.scoring.band): the EKF
-    # recommendation written beside the parameter file
-    band = (fams.get(fw) or {}).get("band") or {}
-    if band.get("status") == "ok":
-        summary["band"] = {"units": dict(res.get("units") or {}), **band}
-    for label, fr in fams.items():
-        if fr.get("status") != "ok":
-            summary["families"][label] = {"status": fr.get("status"), "reason": fr.get("reason")}
-            continue
-        axes = fr["axes"]
-        summary["families"][label] = {
-            "status": "ok", "val_score": fr["val_score"],
-            "held_out_pp_raw": {a: m["pp_raw"] for a, m in axes.items()},
-            "held_out_pp_comp": {a: m["pp_comp"] for a, m in axes.items()}}
-    return summary
-
-
-def _verdict(summary: dict[str, Any]) -> tuple[bool, str]:
-    """Whether the firmware form helps on held-out data, and a one-line verdict."""
-    fw = summary["firmware_family"]
-    f = summary["families"].get(fw, {})
-    if f.get("status") != "ok":
-        return False, f"the firmware form could not be fitted ({f.get('reason')})"
-    raw = np.array(list(f["held_out_pp_raw"].values()))
-    comp = np.array(list(f["held_out_pp_comp"].values()))
-    cut = raw / np.maximum(comp, 1e-300)
-    # the comparison's own split, to rank the families: what verify will demand is the
-    # held-out check's grade (fine / marginal / fails), not this
-    line = (f"{fw} on the comparison's held-out blocks (ranking the families; the held-out "
-            f"check below is verify's test): binned drift p-p cut "
-            f"{', '.join(f'{c:.1f}x' for c in cut)}"
-            f" (val score ratio {f['val_score']:.3g})")
-    chosen = summary.get("chosen")
-    if chosen and chosen != fw:
-        other = summary["families"][chosen]
-        if other["val_score"] < BETTER_BY * f["val_score"]:
-            line += (f"; thermonet's {chosen} does better on validation "
-                     f"({other['val_score']:.3g}), which the parameter file cannot carry — "
-                     f"export it as ONNX or C from {summary['dir']}")
-        else:
-            line += (f"; thermonet's best ({chosen}, {other['val_score']:.3g}) is within "
-                     f"{100 * (1 - BETTER_BY):.0f} % of it: the firmware form is enough")
-    # "helps" beyond the decision margin (thermonet.scoring.verdicts.DECISION_RTOL), never by rounding
-    helps = below(f["val_score"], 1.0) and all(below(c, r) for c, r in zip(comp, raw, strict=True))
-    return helps, line
-
-
 def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, *,
               compare: bool = True, overwrite: bool = False,
               mag_thermometers: Mapping[str, str] | None = None,
@@ -332,9 +219,12 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
     ``mag_thermometers``: ``{"mag1": "baro0"}``, the thermometer lent to a magnetometer
     without one (default: :data:`~thermonet.workflows.magnetometer.DEFAULT_THERMOMETERS`).
     ``workers``: processes comparing instances side by side — this one and ``workers − 1``
-    helpers (:func:`_compare_all`); None or 0: one per CPU this process may use, at most
-    :data:`MAX_WORKERS`, where this process has not loaded torch yet (else this one alone:
-    :func:`_helper_count`); 1: this process alone.  The calibration does not depend on it.
+    helpers (:func:`~thermonet.workflows.calibrate_compare.compare_all`); None or 0: one per
+    CPU this process may use, at most
+    :data:`~thermonet.workflows.calibrate_compare.MAX_WORKERS`, where this process has not
+    loaded torch yet (else this one alone:
+    :func:`~thermonet.workflows.calibrate_compare.helper_count`); 1: this process alone.  The
+    calibration does not depend on it.
 
     ``out_dir`` appears whole or not at all (:mod:`thermonet.core.outdir`,
     ``kind="calibration"``): it is built in a hidden staging directory beside it
@@ -361,39 +251,13 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
         raise InputError(f"workers {workers!r}: a whole number >= 0 (0: one per CPU)")
     with contextlib.ExitStack() as helpers:
         started: list[Helper] = []
-        for _ in range(_helper_count(compare, workers)):
+        for _ in range(helper_count(compare, workers)):
             try:
-                started.append(helpers.enter_context(Helper(_HELPER_IMPORTS)))
+                started.append(helpers.enter_context(Helper(HELPER_IMPORTS)))
             except OSError:    # no process to be had (a limit, a sandbox): this one does all
                 break
         return _calibrate(paths, out, compare=compare, overwrite=overwrite,
                           mag_thermometers=mag_thermometers, helpers=started)
-
-
-#: Most processes comparing instances side by side by default: each holds torch (~250 MB;
-#: three, ~760 MB in all, stay within the memory a comparison took before they existed) and
-#: pays its import (~0.8 s of CPU), which a board's few instances repay only a few times over.
-MAX_WORKERS = 3
-#: What a helper imports while the command reads the logs: everything an instance's
-#: comparison needs.
-_HELPER_IMPORTS = ("thermonet.workflows.calibrate", "thermonet.workflows.compare",
-                   "thermonet.training.train")
-
-
-def _helper_count(compare: bool, workers: int | None) -> int:
-    """How many helper processes (:mod:`thermonet.core.helpers`) to start: none without the
-    comparison or off POSIX (the command waits on their pipes with ``select``).  By default
-    (``workers`` None or 0) also none where this process has torch loaded already — a
-    program calibrating again, a test — whose comparisons start at once: a helper would be
-    ready only after about a second of imports, to compare perhaps one instance of the
-    board; ``workers`` > 1 asks for them anyway."""
-    if not compare or os.name != "posix":
-        return 0
-    if not workers:
-        if "torch" in sys.modules:
-            return 0
-        return max(0, min(usable_cores(), MAX_WORKERS) - 1)
-    return workers - 1
 
 
 def _calibrate(paths: list[str | Path], out: Path, *, compare: bool, overwrite: bool,
@@ -684,7 +548,7 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
         raise ThermonetError(f"{log.path}: PX4 has {PX4_SLOTS} calibration slots per sensor "
                              f"kind; the log has {per_kind} calibratable instances")
     results = [_fit_instance(inst, log, mags=mags) for inst in log.instances]
-    compared = _compare_all([
+    compared = compare_all([
         {"inst": inst, "autopilot": log.autopilot,
          "where": inside(stage, "instances", dirs[inst.name]), "source": source,
          "final": out / "instances" / dirs[inst.name]}
@@ -751,85 +615,6 @@ def _fit_instance(inst: Any, log: FlightLog, *, mags: dict[str, dict[str, Any]] 
     return r
 
 
-def _compare_all(tasks: list[dict[str, Any]], helpers: Sequence[Helper] = ()
-                 ) -> dict[str, dict[str, Any] | str]:
-    """Every task's :func:`compare_or_why`, by instance name.
-
-    The command takes the tasks from the front of the list; per helper, a thread hands it
-    tasks from the back, one at a time, from the moment its imports are done (the thread
-    waits on the helper's pipe, so it costs the command nothing meanwhile).  The same
-    comparison either way (the same code on the same data: a test compares the two); a task
-    a helper did not finish — it raised, died, or was not ready before the command had done
-    the rest — is done here, where a genuine error is raised as it would have been.  Each
-    helper's task is a ``--profile`` stage ``<instance>: compare … (helper)``: its wall time
-    as the command waited for it."""
-    out: dict[int, dict[str, Any] | str] = {}
-    lock = threading.Lock()
-    edge = [0, len(tasks)]                      # [next from the front, one past the back]
-
-    def feed(h: Helper) -> None:
-        try:
-            while not h.ready():                # its imports: wait, unless the work is done
-                with lock:
-                    if edge[0] >= edge[1]:
-                        return
-                stream = h.stream()
-                if stream is None:
-                    return
-                select.select([stream], [], [], 0.05)
-            while True:
-                with lock:
-                    if edge[0] >= edge[1]:
-                        return
-                    edge[1] -= 1
-                    k = edge[1]
-                with profile_stage(f"{tasks[k]['inst'].name}: compare thermonet's families "
-                                   "(helper)"):
-                    h.submit(__name__, "compare_or_why", **tasks[k])
-                    ok, value = h.result()
-                if ok:
-                    out[k] = value
-        except Exception:  # noqa: BLE001 - whatever went wrong, the command does the task
-            return
-
-    feeders = [threading.Thread(target=feed, args=(h,), daemon=True)
-               for h in (helpers if len(tasks) > 1 else ())]
-    for f in feeders:
-        f.start()
-    try:
-        while True:
-            with lock:
-                if edge[0] >= edge[1]:
-                    break
-                k = edge[0]
-                edge[0] += 1
-            out[k] = compare_or_why(**tasks[k])
-        for f in feeders:
-            f.join()
-        for k, task in enumerate(tasks):         # what the helpers did not finish
-            if k not in out:
-                out[k] = compare_or_why(**task)
-    finally:
-        # done (or interrupted): ended now, before the staging directory they write into is
-        # removed or moved
-        for h in helpers:
-            h.kill()
-        for f in feeders:
-            f.join()
-    return {task["inst"].name: out[k] for k, task in enumerate(tasks)}
-
-
-def compare_or_why(inst: SensorInstance, autopilot: str, where: Path, source: str, *,
-                   final: Path) -> dict[str, Any] | str:
-    """One instance's comparison (:func:`_compare`): its summary, or the one line of a
-    :class:`ThermonetError` that stopped it."""
-    try:
-        with profile_stage(f"{inst.name}: compare thermonet's families"):
-            return _compare(inst, autopilot, where, source, final=final)
-    except ThermonetError as err:   # this instance cannot be judged: reported, skipped
-        return str(err)
-
-
 def _judge_instance(r: InstanceResult, inst: SensorInstance, autopilot: str,
                     cmp: dict[str, Any] | str | None) -> InstanceResult:
     """The verdict of the comparison ``cmp`` (None: not compared) on a fitted instance, and
@@ -841,7 +626,7 @@ def _judge_instance(r: InstanceResult, inst: SensorInstance, autopilot: str,
         r.status, r.reason, r.fit = "skipped", f"comparison failed: {cmp}", None
         return r
     if cmp is not None:
-        ok, line = _verdict(cmp)
+        ok, line = verdict(cmp)
         r.summary["compare"] = cmp
         r.summary["verdict"] = line + (f"; {res['line']}" if res else "")
         if not ok:
