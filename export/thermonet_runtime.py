@@ -1305,8 +1305,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                 raise RuntimeInputError(f"{args.input}: column 'time_s', row {k + 2}: "
                                         f"{reason}") from None
         res = comp.compensate(raw=raw, **given)
+        # the residual-drift band where the file carries one (metadata 'band'): per axis, the
+        # half-width at the row's band signal — how far the compensated value may still be off
+        band = res.band
         extra = [f"{a}_comp" for a in comp.outputs] + [f"{a}_drift" for a in comp.outputs] + \
-            ["out_of_range"]
+            ["out_of_range"] + ([] if band is None else [f"{a}_band" for a in comp.outputs])
         clash = sorted(set(extra) & set(header))
         if clash:
             raise RuntimeInputError(f"{args.input}: already has output column(s) {clash}; "
@@ -1319,7 +1322,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 row = list(row) + [""] * (len(header) - len(row))
                 writer.writerow(row + [repr(float(v)) for v in res.compensated[i]]
                                 + [repr(float(v)) for v in res.drift[i]]
-                                + [str(int(res.out_of_range[i]))])
+                                + [str(int(res.out_of_range[i]))]
+                                + ([] if band is None else [repr(float(v)) for v in band[i]]))
         tmp.replace(args.out)
         written = False
     except _Stopped as exc:

@@ -395,3 +395,45 @@ def test_a_damaged_band_is_refused_by_the_checkpoint_and_the_runtime(compared, t
     rt = load_runtime()
     with pytest.raises(rt.RuntimeInputError, match="metadata 'band' is not a band"):
         rt.Compensator(onnx_path)
+
+
+def test_the_runtime_command_writes_the_band_beside_each_row(compared, tmp_path):
+    """``thermonet_runtime.py model.onnx in.csv --out out.csv`` on a file with a band: one
+    ``<axis>_band`` column per axis, each row's value the band at its float32 temperature
+    (``Compensator.band``, itself checked against ``DriftEstimator``'s band above), written
+    exactly (``repr``); a file without a band writes no such column."""
+    import csv
+
+    from thermonet.api.estimator import DriftEstimator
+
+    res, ds, _ = compared
+    est = DriftEstimator.load(res["families"][res["chosen"]]["checkpoint"])
+    rt = load_runtime()
+    model = est.export(tmp_path / "m.onnx", "onnx")
+    comp = rt.Compensator(model)
+    rec = ds[0]
+    n = 200
+    cols = {"time_s": np.asarray(rec.time_s)[:n],
+            "temperature_c": np.asarray(rec.temperature_c, dtype=np.float64)[:n],
+            **{a: np.asarray(rec.outputs[a], dtype=np.float64)[:n] for a in comp.outputs}}
+    names = [c for c in cols if c in comp.needs or c in comp.outputs]
+    with (tmp_path / "in.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(names)
+        for i in range(n):
+            w.writerow([repr(float(cols[c][i])) for c in names])
+    assert rt.main([str(model), str(tmp_path / "in.csv"), "--out", str(tmp_path / "o.csv")]) == 0
+    with (tmp_path / "o.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    got = np.array([[float(r[f"{a}_band"]) for a in comp.outputs] for r in rows])
+    want = comp.band(cols["temperature_c"].astype(np.float32).astype(np.float64))
+    np.testing.assert_array_equal(got, want)          # the same evaluation, written exactly
+    assert np.all(got > 0)
+    # without a band: the same command, no band columns
+    plain = DriftEstimator.load(res["families"]["cubic"]["checkpoint"])
+    plain.band_ = None
+    model2 = plain.export(tmp_path / "plain.onnx", "onnx")
+    assert rt.main([str(model2), str(tmp_path / "in.csv"), "--out", str(tmp_path / "p.csv")]) == 0
+    header = (tmp_path / "p.csv").read_text().splitlines()[0].split(",")
+    assert not [h for h in header if h.endswith("_band")]
+    assert f"{comp.outputs[0]}_drift" in header
