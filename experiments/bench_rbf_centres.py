@@ -69,7 +69,14 @@ def families(dt: str, dt2: str, baseline: dict[str, Any],
                          params={**rbf, "init": "quantiles"}, tune=dict(tune or {}))]
 
 
-def scores(res: dict[str, Any]) -> dict[str, float]:
+def scores(cfg: CompareConfig, fams: list[FamilyConfig], tmp: Path,
+           dataset: Any = None) -> dict[str, float]:
+    """``cfg`` run with ``fams`` (the cubic its baseline; no tracking, no figures, one
+    process): each family's held-out test score (NaN where it could not be fitted)."""
+    cfg.families, cfg.baseline, cfg.workers = fams, "cubic", 1
+    cfg.tracking = TrackingConfig(enabled=False)
+    res = run_compare(cfg, tmp / "cmp", overwrite=True, track=False, quiet=True,
+                      dataset=dataset, plots=False)
     return {k: float(f["test_score"]) if f.get("status") == "ok" else float("nan")
             for k, f in res["families"].items()}
 
@@ -97,17 +104,13 @@ def board_rows(tmp: Path) -> list[dict[str, Any]]:
                                           inst.time_s, inst.unlagged_c, inst.values)
                 elif inst.thermometer:
                     continue
-                cfg = CompareConfig(split=SplitConfig(strategy="time-blocks", n_blocks=20),
-                                    families=fams,
-                                    tracking=TrackingConfig(enabled=False), baseline="cubic",
-                                    workers=1)
-                res = run_compare(cfg, tmp / "cmp", overwrite=True, track=False, quiet=True,
-                                  dataset=inst.to_dataset(str(path)).validate(str(path)),
-                                  plots=False)
+                cfg = CompareConfig(split=SplitConfig(strategy="time-blocks", n_blocks=20))
+                got = scores(cfg, fams, tmp,
+                             dataset=inst.to_dataset(str(path)).validate(str(path)))
                 lagged = " lent thermometer, lagged" if inst.kind == "mag" and len(
                     fams[0].inputs) > 1 else ""
                 rows.append({"data": f"fc-board {autopilot} seed {seed} {inst.name}",
-                             "group": f"fc-board ({autopilot}){lagged}", **scores(res)})
+                             "group": f"fc-board ({autopilot}){lagged}", **got})
     return rows
 
 
@@ -116,21 +119,13 @@ def config_rows(tmp: Path) -> list[dict[str, Any]]:
     # the real cubesat gyro: 76 training rows, too few for the tail's inner ridge choice, so
     # its own configuration's RBF (6 centres, no tail: least squares, then gradient
     # refinement), on several contiguous-block splits
-    cases: list[tuple[str, str, str, str, dict[str, Any] | None, int | None]] = [
-        ("configs/pan-tvac.yaml", "d_temp_raw", "d_temp_raw2",
-         f"real: pan-tvac gyro, {n} time blocks", {"n_centres": 6}, n) for n in (10, 15, 20)]
-    for path, dt, dt2, name, rbf, blocks in cases:
-        cfg = load_config(ROOT / path)
-        base = {"family": "poly", "name": "cubic", "inputs": [dt], "params": {"degree": 3}}
-        cfg.families = families(dt, dt2, base, rbf)
-        cfg.baseline = "cubic"
-        cfg.tracking = TrackingConfig(enabled=False)
-        cfg.workers = 1
-        if blocks is not None:
-            cfg.split.n_blocks = blocks
-        res = run_compare(cfg, tmp / "cmp", overwrite=True, track=False, quiet=True,
-                          plots=False)
-        rows.append({"data": name, "group": name.split(",")[0], **scores(res)})
+    base = {"family": "poly", "name": "cubic", "inputs": ["d_temp_raw"], "params": {"degree": 3}}
+    for n in (10, 15, 20):
+        cfg = load_config(ROOT / "configs/pan-tvac.yaml")
+        cfg.split.n_blocks = n
+        got = scores(cfg, families("d_temp_raw", "d_temp_raw2", base, {"n_centres": 6}), tmp)
+        rows.append({"data": f"real: pan-tvac gyro, {n} time blocks",
+                     "group": "real: pan-tvac gyro", **got})
     # the presets, three simulations each: calibrate's RBF (8 centres) and the default
     # set's (16, or 8 by tuning)
     for p in ("mems-gyro", "patent-gyro", "consumer-imu", "hrg"):
@@ -139,16 +134,11 @@ def config_rows(tmp: Path) -> list[dict[str, Any]]:
                                        ("default set", DEFAULT_SET)):
                 cfg = load_config(ROOT / f"configs/{p}.yaml")
                 cfg.data.seed = seed
-                base = {"family": "poly", "name": "cubic", "inputs": ["dT"],
-                        "params": {"degree": 3}}
-                cfg.families = families("dT", "dT2", base, rbf, tune=tune)
-                cfg.baseline = "cubic"
-                cfg.tracking = TrackingConfig(enabled=False)
-                cfg.workers = 1
-                res = run_compare(cfg, tmp / "cmp", overwrite=True, track=False, quiet=True,
-                                  plots=False)
+                cubic = {"family": "poly", "name": "cubic", "inputs": ["dT"],
+                         "params": {"degree": 3}}
+                got = scores(cfg, families("dT", "dT2", cubic, rbf, tune=tune), tmp)
                 rows.append({"data": f"preset {p} seed {seed} ({label})",
-                             "group": f"preset {p} ({label})", **scores(res)})
+                             "group": f"preset {p} ({label})", **got})
     return rows
 
 

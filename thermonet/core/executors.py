@@ -277,4 +277,3 @@ def run_tasks(fn: Callable[[Any], Any], items: Sequence[Any], *,
     if executor == "ray":
         return _ray(fn, items, n, ray_address, on_done)
     return _pool(fn, items, n, on_done)
-

@@ -92,9 +92,8 @@ if TYPE_CHECKING:
     import pandas as pd
 
 __all__ = ["parameter_table", "parameter_rows", "polynomial_coefficients", "block_bootstrap_cov",
-           "block_length",
-           "sealed_parameters", "with_sealed", "COLUMNS", "FIXED", "NO_SE", "STDERR_METHODS",
-           "N_BOOTSTRAP"]
+           "block_length", "sealed_parameters", "with_sealed", "COLUMNS", "FIXED", "NO_SE",
+           "STDERR_METHODS", "N_BOOTSTRAP"]
 
 #: The columns of ``est.parameters_``.
 COLUMNS = ["axis", "name", "value", "stderr", "unit", "note"]

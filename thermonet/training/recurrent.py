@@ -30,7 +30,7 @@ from ..core.errors import FitError, InputError, check_interrupted
 from ..core.trainconfig import TrainConfig
 from ..models.base import check_output_shape
 from ..models.sequence import stream_windows
-from .scaling import EarlyStopping, training_scaling
+from .scaling import EarlyStopping, seed_torch, training_scaling
 
 __all__ = ["sequences", "padded", "fit_loop", "initial_readout", "fit_recurrent", "CLIP_NORM"]
 
@@ -183,7 +183,7 @@ def fit_recurrent(model: Any, runs: Sequence[tuple[np.ndarray, ...]],
         val_t = tensors(sequences([val_run], fam.step_s, fam.gap_s, "validation run"), clip=True)
         if not bool(val_t[2].any()):
             val_t = None  # nothing after the warm-up: stop on the training loss
-    torch.manual_seed(config.seed)
+    seed_torch(config.seed, device)
     fam.start(config.seed)
     check_output_shape(fam, torch.as_tensor((x_tr - x_mean) / x_std, dtype=torch.float32),
                        family)

@@ -55,7 +55,7 @@ from ..models import DriftModel, build_family
 from ..models.base import check_output_shape
 from ..models.sensor import SensorModel, check_invertible, element_names
 from .checkpoint import DIGEST_KEY, _check_digest, checkpoint_digest
-from .scaling import column_scale
+from .scaling import column_scale, seed_torch
 from .train import _fit_loop, average_windows, rest_signals, thread_limits
 
 __all__ = ["SensorRun", "SensorFit", "STEADY_C", "sensor_run", "sensor_run_refs",
@@ -358,7 +358,7 @@ def _closed_form_start(family: str, spec: FeatureSpec, train: Sequence[SensorRun
             raise FitError(f"model '{family}' with inputs {spec.inputs} cannot be fitted as a "
                            f"sensor model on {xg.shape[0]} steady-temperature estimates: "
                            f"{reason}")
-    torch.manual_seed(config.seed)
+    seed_torch(config.seed, torch.device("cpu"))   # its fits run on the CPU
     fam_b.initialize(torch.as_tensor(xg), torch.as_tensor((g_b - b_mean) / b_std),
                      seed=config.seed, x_mean=x_mean, x_std=x_std)
     fam_e.initialize(torch.as_tensor(xg), torch.as_tensor((g_e - e_mean) / e_std),

@@ -369,6 +369,7 @@ def _fit_pointwise(model: DriftModel, runs: list, val_run: tuple | None, config:
     model.to("cpu")
     return history, best_epoch, best_val, s_tr
 
+
 _NO_DYNAMO_LOCK = threading.Lock()
 _NO_DYNAMO_USERS = 0
 _NO_DYNAMO_SET: list[Any] = []
