@@ -28,7 +28,14 @@ import torch
 from thermonet.features.inputs import FeatureSpec
 from thermonet.models.lstsq import BlockNormalEquations, least_squares
 from thermonet.models.poly import Poly
-from thermonet.models.rbf import RIDGE_GRID, _design, _inner_folds, _penalised, _ridge_path
+from thermonet.models.rbf import (
+    RIDGE_GRID,
+    _design,
+    _inner_folds,
+    _penalised,
+    _ridge_path,
+    _ridge_paths,
+)
 from thermonet.training.train import TrainConfig, fit
 from tolerances import EPS64, assert_f64_close
 
@@ -222,3 +229,43 @@ def test_rbf_tail_fit_through_the_loop_keeps_its_choices() -> None:
     grid = {lam if math.isfinite(lam) else "inf" for lam in RIDGE_GRID}
     assert all(r in grid for r in tuned["ridge"])
     assert len(res.history) == 1     # closed form and final
+
+
+def test_rbf_widths_stacked_are_each_widths_own_path() -> None:
+    """The inner cross-validation solves every width of a fold in one stacked call
+    (_ridge_paths, with the widths' L⁻¹ given once): each width's coefficients and scores
+    are those of its own path (_ridge_path, itself checked against the per-ridge fit and
+    scipy above) — the same factorisations, stacked, so equal to a few float64 ulps."""
+    cases = [_rbf_case(w) for w in (0.2, 0.5, 1.1)]
+    poly, y = cases[0][1], cases[0][2]
+    phis = np.stack([c[0][0] for c in cases])
+    chols = np.stack([c[0][1] for c in cases])
+    for tr, va in _inner_folds(N):
+        coef, score = _ridge_paths(phis, chols, poly, y, RIDGE_GRID, tr,
+                                   l_inv=np.linalg.inv(chols))
+        err = score(va)
+        assert coef.shape[:2] == (3, len(RIDGE_GRID)) and err.shape == (3, len(RIDGE_GRID), 2)
+        for k, (dz, _, _) in enumerate(cases):
+            c1, s1 = _ridge_path(*dz, poly, y, RIDGE_GRID, tr)
+            full = np.hstack([dz[0], poly])
+            for i in range(len(RIDGE_GRID)):
+                assert_f64_close(full @ coef[k, i], full @ c1[i], rtol=0,
+                                 atol=1e3 * EPS64 * np.linalg.cond(full) * np.abs(y).max())
+            assert_f64_close(err[k], s1(va), rtol=1e-9)
+
+
+@pytest.mark.parametrize("n", [80, 81, 119, 200, 2001, 4567])
+def test_inner_folds_are_the_dealt_blocks_less_their_neighbours(n: int) -> None:
+    """_inner_folds by block arithmetic equals its definition with set operations: 40
+    contiguous blocks dealt round-robin into 5 folds; a fold trains on every block that is
+    neither one of its validation blocks nor next to one."""
+    from thermonet.models.rbf import INNER_BLOCKS, INNER_FOLDS
+
+    block = np.minimum(np.arange(n) * INNER_BLOCKS // n, INNER_BLOCKS - 1)
+    folds = _inner_folds(n)
+    assert len(folds) == INNER_FOLDS
+    for f, (tr, va) in enumerate(folds):
+        val_blocks = np.arange(f, INNER_BLOCKS, INNER_FOLDS)
+        near = np.union1d(val_blocks - 1, val_blocks + 1)
+        assert np.array_equal(va, np.flatnonzero(np.isin(block, val_blocks)))
+        assert np.array_equal(tr, np.flatnonzero(~np.isin(block, np.union1d(val_blocks, near))))

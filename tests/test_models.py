@@ -11,6 +11,7 @@ from conftest import pointwise_families
 from thermonet.core.errors import ConfigError, FitError
 from thermonet.features.inputs import FeatureSpec
 from thermonet.models import MODELS, TINY, build_family, get_family
+from thermonet.models.base import distinct_levels
 from thermonet.training.train import TrainConfig, fit, predict
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
@@ -149,3 +150,32 @@ def test_default_inputs_are_valid_features(name):
     assert cls.max_inputs is None or len(spec.inputs) <= cls.max_inputs
     assert spec.signals == ["temperature_c"]
     assert MODELS["rbf"].default_inputs == ["dT", "dT2"]   # study 003's improved model
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_distinct_levels_with_a_cap_counts_up_to_it(seed):
+    """``cap`` stops the count there (what the "at least k levels" checks ask) and never
+    changes it below: min(levels, cap), against the full greedy count; a ramp, soaks with
+    noise, a constant series."""
+    rng = np.random.default_rng(seed)
+    series = [np.linspace(-20, 60, 500) + rng.normal(0, 0.01, 500),
+              np.repeat(rng.uniform(-20, 60, seed + 1), 80) + rng.normal(0, 1e-3, 80 * (seed + 1)),
+              np.full(50, 25.0)]
+    for v in series:
+        full = distinct_levels(v)
+        assert 1 <= full <= 201
+        for cap in (1, 2, 4, 7, 300):
+            assert distinct_levels(v, cap=cap) == min(full, cap)
+
+
+def test_rbf_counts_distinct_rows_as_numpy_unique_does():
+    """The RBF's fittability check counts the grid cells its inputs occupy by one sort of
+    the rows: the count np.unique(axis=0) gives, on rows with repeats and ties in one
+    column."""
+    from thermonet.models.rbf import _distinct_rows
+
+    rng = np.random.default_rng(3)
+    for shape in ((0, 2), (1, 1), (500, 1), (500, 2), (2000, 3)):
+        a = np.floor(rng.uniform(0, 12, shape))
+        want = np.unique(a, axis=0).shape[0] if a.size else 0
+        assert _distinct_rows(a) == want

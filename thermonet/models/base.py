@@ -88,13 +88,17 @@ def as_numpy(a: object) -> np.ndarray:
     return np.asarray(a, dtype=np.float64)
 
 
-def distinct_levels(values: np.ndarray, resolution: float = 0.005) -> int:
+def distinct_levels(values: np.ndarray, resolution: float = 0.005, *,
+                    cap: int | None = None) -> int:
     """Number of distinct levels of a 1-D series.
 
     Sorted values are grouped greedily: a group holds every value within
     ``resolution`` × the series' span of its smallest member.  Sensor noise
     around one soak temperature thus counts as one level, while a ramp counts
     as up to ``1/resolution + 1`` levels.  A constant series has one level.
+
+    ``cap``: counting stops there (``min(levels, cap)``) — what a family's "at least k
+    levels" check needs, without walking a ramp's up to 201 groups on every fit.
     """
     v = np.sort(np.asarray(values, dtype=np.float64).ravel())
     v = v[np.isfinite(v)]
@@ -104,7 +108,8 @@ def distinct_levels(values: np.ndarray, resolution: float = 0.005) -> int:
     if tol <= TINY * max(1.0, float(np.max(np.abs(v)))) * resolution:
         return 1
     levels, i = 0, 0
-    while i < v.size:  # at most 1/resolution + 1 iterations
+    top = v.size if cap is None else cap
+    while i < v.size and levels < top:  # at most 1/resolution + 1 iterations
         levels += 1
         i = int(np.searchsorted(v, v[i] + tol, side="right"))
     return levels

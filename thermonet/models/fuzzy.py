@@ -134,7 +134,7 @@ class TSFuzzy(Family):
         return 10 + 5 * self.n_outputs, 0
 
     def check_fittable(self, x: torch.Tensor) -> str | None:
-        levels = distinct_levels(as_numpy(x)[:, 0])
+        levels = distinct_levels(as_numpy(x)[:, 0], cap=2)
         if levels < 2:
             return "the input takes a single value; the fuzzy rules need at least 2"
         return None

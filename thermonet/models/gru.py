@@ -215,7 +215,7 @@ class GRU(Family):
         xn = as_numpy(x)
         if xn.shape[0] < self.hidden + 1:
             return f"{xn.shape[0]} windows for the {self.hidden + 1} read-out coefficients per axis"
-        if max(distinct_levels(xn[:, j]) for j in range(xn.shape[1])) < 2:
+        if max(distinct_levels(xn[:, j], cap=2) for j in range(xn.shape[1])) < 2:
             return "every input takes a single value: nothing to fit"
         return None
 

@@ -64,7 +64,7 @@ class Linear(Family):
         if xn.shape[0] < self.n_inputs + 1:
             return f"{xn.shape[0]} samples for {self.n_inputs + 1} coefficients per axis"
         for j in range(xn.shape[1]):
-            if distinct_levels(xn[:, j]) < 2:
+            if distinct_levels(xn[:, j], cap=2) < 2:
                 return f"input {j + 1} takes a single value: no slope to fit"
         return None
 

@@ -129,7 +129,7 @@ class Lorentz(Family):
 
     def check_fittable(self, x: torch.Tensor) -> str | None:
         xn = as_numpy(x)
-        levels = distinct_levels(xn[:, 0])
+        levels = distinct_levels(xn[:, 0], cap=4)
         if levels < 4:
             return (f"the input takes {levels} distinct value(s); the Lorentz curve has 4 "
                     "parameters and needs at least 4")

@@ -178,7 +178,7 @@ class MLP(Family):
         if xn.shape[0] < n_coef:
             return (f"{xn.shape[0]} samples for the {n_coef} output-layer coefficients per axis "
                     "(fewer units in the last hidden layer)")
-        if max(distinct_levels(xn[:, j]) for j in range(xn.shape[1])) < 2:
+        if max(distinct_levels(xn[:, j], cap=2) for j in range(xn.shape[1])) < 2:
             return "every input takes a single value: nothing to fit"
         return None
 

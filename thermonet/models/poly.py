@@ -123,7 +123,7 @@ class Poly(Family):
         if xn.shape[0] < n_coef:
             return f"{xn.shape[0]} samples for {n_coef} coefficients per axis"
         for j in range(xn.shape[1]):
-            levels = distinct_levels(xn[:, j])
+            levels = distinct_levels(xn[:, j], cap=self.degree + 1)
             if levels < self.degree + 1:
                 return (f"input {j + 1} takes {levels} distinct value(s); a degree-"
                         f"{self.degree} polynomial needs at least {self.degree + 1}")

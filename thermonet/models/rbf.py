@@ -277,15 +277,16 @@ class RBF(Family):
         if xn.shape[0] < self.n_centres:
             return f"{xn.shape[0]} samples for {self.n_centres} centres"
         span = np.maximum(np.ptp(xn, axis=0), TINY)
-        rows = np.unique(np.floor((xn - xn.min(axis=0)) / (0.005 * span)), axis=0).shape[0]
+        rows = _distinct_rows(np.floor((xn - xn.min(axis=0)) / (0.005 * span)))
         if rows < self.n_centres:
             return (f"the inputs take {rows} distinct value(s), fewer than the "
                     f"{self.n_centres} centres (lower n_centres)")
-        if self.init == "quantiles" and self.n_centres > 1 and distinct_levels(xn[:, 0]) < 2:
+        levels = distinct_levels(xn[:, 0], cap=max(2, self.tail + 1))
+        if self.init == "quantiles" and self.n_centres > 1 and levels < 2:
             return ("input 1 takes 1 distinct value; init 'quantiles' spreads the centres over "
                     "its range (use init 'kmeans')")
-        if self.tail and distinct_levels(xn[:, 0]) < self.tail + 1:
-            return (f"input 1 takes {distinct_levels(xn[:, 0])} distinct value(s); a degree-"
+        if self.tail and levels < self.tail + 1:
+            return (f"input 1 takes {levels} distinct value(s); a degree-"
                     f"{self.tail} tail needs at least {self.tail + 1}")
         if self.tail and self.ridge == "cv" and xn.shape[0] < 2 * INNER_BLOCKS:
             return (f"{xn.shape[0]} samples: ridge 'cv' needs at least {2 * INNER_BLOCKS} "
@@ -344,10 +345,13 @@ class RBF(Family):
         designs = [_design(xn, centres, s) for s in widths]   # Φ and chol(K), once a width
         if self.ridge == "cv":
             folds = _inner_folds(xn.shape[0])
+            phis = np.stack([d[0] for d in designs])
+            chols = np.stack([d[1] for d in designs])
+            l_inv = np.linalg.inv(chols)
             # (width, ridge, fold, axis) validation mean squared errors: every ridge of a
-            # width and fold from one SVD (_ridge_path)
-            err = np.array([np.stack([_ridge_path(*dz, poly, yn, ridges, tr)[1](va)
-                                      for tr, va in folds], axis=1) for dz in designs])
+            # width and fold from one SVD, the widths of a fold stacked (_ridge_paths)
+            err = np.stack([_ridge_paths(phis, chols, poly, yn, ridges, tr, l_inv=l_inv)[1](va)
+                            for tr, va in folds], axis=2)
             mean = err.mean(axis=2)                       # (width, ridge, axis)
             se = err.std(axis=2, ddof=1) / math.sqrt(len(folds))
             best = mean.min(axis=1)                       # (width, axis)
@@ -412,6 +416,16 @@ def quantile_centres(x: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def _distinct_rows(a: np.ndarray) -> int:
+    """How many distinct rows the (N, F) array of whole numbers ``a`` holds: what
+    ``np.unique(a, axis=0).shape[0]`` counts, by one lexicographic sort of the rows (a
+    tenth of its time: no structured view)."""
+    if a.shape[0] == 0:
+        return 0
+    k = a[np.lexsort(a.T[::-1])]
+    return 1 + int(np.count_nonzero(np.any(k[1:] != k[:-1], axis=1)))
+
+
 def _gaussian(x: np.ndarray, centres: np.ndarray, sigma: float) -> np.ndarray:
     d2 = ((x[:, None, :] - centres[None, :, :]) ** 2).sum(axis=-1)
     return np.exp(-d2 / (2.0 * sigma * sigma))
@@ -464,34 +478,52 @@ def _ridge_path(phi_all: np.ndarray, chol: np.ndarray, poly: np.ndarray, y: np.n
     :math:`w = L^{-\\top} v`, :math:`t = R^{-1} Q^\\top (y - \\Phi w)` (λ = ∞: w = 0, the
     tail's least squares).  The same minimum as the augmented least squares of
     :func:`_penalised` (its oracle in ``tests/test_batched.py``), without a factorisation
-    per ridge."""
+    per ridge.  One width of :func:`_ridge_paths`."""
+    coef, score = _ridge_paths(phi_all[None], chol[None], poly, y, lams, rows)
+    return coef[0], lambda val: score(val)[0]
+
+
+def _ridge_paths(phi_all: np.ndarray, chol: np.ndarray, poly: np.ndarray, y: np.ndarray,
+                 lams: Sequence[float], rows: np.ndarray | None, *,
+                 l_inv: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]:
+    """:func:`_ridge_path` of every width at once: Φ (W, N, J) and L (W, J, J) of each width
+    (``l_inv``: their inverses, when the caller has them for every fold), the same tail and
+    training rows; coefficients (W, R, J + d + 1, A) and a scorer (validation rows →
+    (W, R, A)).  The tail's QR once for the rows, the widths' SVDs in one stacked call:
+    each width's numbers are those of its own path (the same factorisations, stacked)."""
     r = slice(None) if rows is None else rows
-    phi, p, yy = phi_all[r], poly[r], y[r]
-    n_c, n_a = chol.shape[0], y.shape[1]
+    phi, p, yy = phi_all[:, r], poly[r], y[r]                  # (W, n, J), (n, d + 1), (n, A)
+    n_c, n_a = chol.shape[-1], y.shape[1]
     # Φ L⁻ᵀ as one matrix product (L⁻¹ is J × J, cond(L) = √cond(K) ≤ ~3e4): numpy only —
     # scipy's triangular solve cost several ms a call here, more than the whole path
-    l_inv = np.linalg.inv(chol)
-    psi = phi @ l_inv.T
+    if l_inv is None:
+        l_inv = np.linalg.inv(chol)
+    l_inv_t = np.swapaxes(l_inv, -1, -2)
+    psi = phi @ l_inv_t                                        # (W, n, J)
     q, rp = np.linalg.qr(p)
     psi_t = psi - q @ (q.T @ psi)
     y_t = yy - q @ (q.T @ yy)
-    u, sv, vt = np.linalg.svd(psi_t, full_matrices=False)
-    uy = u.T @ y_t                                           # (J, A)
-    scale = max(float((phi * phi).sum()) / n_c, TINY)
-    shrink = np.array([np.zeros_like(sv) if math.isinf(lam) else sv / (sv * sv + lam * scale)
-                       for lam in lams])                     # (R, J)
-    v = np.matmul(vt.T[None], shrink[:, :, None] * uy[None])   # (R, J, A)
-    w = np.matmul(l_inv.T[None], v)                           # (R, J, A): L⁻ᵀ v
-    rhs = (q.T @ yy)[None] - np.einsum("pj,rja->rpa", q.T @ phi, w)    # (R, d + 1, A)
-    t = np.linalg.solve(rp[None], rhs)                        # (R, d + 1, A): R⁻¹ ·
-    coef = np.concatenate([w, t], axis=1)                    # (R, J + d + 1, A)
-
-    flat = coef.transpose(1, 0, 2).reshape(coef.shape[1], -1)      # (J + d + 1, R·A)
+    u, sv, vt = np.linalg.svd(psi_t, full_matrices=False)      # (W, n, J), (W, J), (W, J, J)
+    uy = np.swapaxes(u, -1, -2) @ y_t                          # (W, J, A)
+    scale = np.maximum((phi * phi).sum(axis=(1, 2)) / n_c, TINY)          # (W,)
+    lam = np.asarray(lams, dtype=np.float64)
+    shrink = np.where(np.isinf(lam)[None, :, None], 0.0,
+                      sv[:, None, :] / (sv[:, None, :] ** 2
+                                        + lam[None, :, None] * scale[:, None, None]))
+    v = np.swapaxes(vt, -1, -2)[:, None] @ (shrink[..., None] * uy[:, None])   # (W, R, J, A)
+    w = l_inv_t[:, None] @ v                                   # (W, R, J, A): L⁻ᵀ v
+    rhs = (q.T @ yy) - np.einsum("wpj,wrja->wrpa", q.T @ phi, w)           # (W, R, d + 1, A)
+    t = np.linalg.solve(rp, rhs)                               # (W, R, d + 1, A): R⁻¹ ·
+    coef = np.concatenate([w, t], axis=2)                      # (W, R, J + d + 1, A)
+    n_w, n_p = coef.shape[0], coef.shape[2]
+    flat = coef.transpose(0, 2, 1, 3).reshape(n_w, n_p, -1)    # (W, J + d + 1, R·A)
 
     def score(val: np.ndarray) -> np.ndarray:
-        pred = np.hstack([phi_all[val], poly[val]]) @ flat           # (n, R·A)
-        res = pred.reshape(len(val), len(lams), n_a) - y[val][:, None, :]
-        return (res * res).mean(axis=0)
+        tail = np.broadcast_to(poly[val], (n_w, len(val), poly.shape[1]))
+        pred = np.concatenate([phi_all[:, val], tail], axis=2) @ flat      # (W, n, R·A)
+        res = pred.reshape(n_w, len(val), len(lams), n_a) - y[val][None, :, None, :]
+        return (res * res).mean(axis=1)
 
     return coef, score
 
@@ -503,9 +535,10 @@ def _inner_folds(n: int) -> list[tuple[np.ndarray, np.ndarray]]:
     block = np.minimum(np.arange(n) * INNER_BLOCKS // n, INNER_BLOCKS - 1)
     folds = []
     for f in range(INNER_FOLDS):
-        val_blocks = np.arange(f, INNER_BLOCKS, INNER_FOLDS)
-        near = np.union1d(val_blocks - 1, val_blocks + 1)
-        va = np.flatnonzero(np.isin(block, val_blocks))
-        tr = np.flatnonzero(~np.isin(block, np.union1d(val_blocks, near)))
-        folds.append((tr, va))
+        val = block % INNER_FOLDS == f                  # blocks f, f + F, f + 2F, …
+        # a validation block's neighbours: the block below one (b + 1 is a validation
+        # block) and the block above one (b − 1 is)
+        near = (((block + 1) % INNER_FOLDS == f) & (block + 1 < INNER_BLOCKS)) \
+            | (((block - 1) % INNER_FOLDS == f) & (block >= 1))
+        folds.append((np.flatnonzero(~(val | near)), np.flatnonzero(val)))
     return folds
