@@ -58,17 +58,8 @@ class Fitted:
     pool_signals: dict[str, list[np.ndarray]] = field(default_factory=dict)
 
 
-_DRAWS: dict[int, np.ndarray] = {}
-
-
-def _draws(n_blocks: int) -> np.ndarray:
-    if n_blocks not in _DRAWS:
-        _DRAWS[n_blocks] = draws(n_blocks)
-    return _DRAWS[n_blocks]
-
-
 def _verdicts(num: np.ndarray, den: np.ndarray) -> tuple[list[Verdict], np.ndarray, np.ndarray]:
-    ratio, boot, iv = ratio_interval(num, den, _draws(num.shape[0]))
+    ratio, boot, iv = ratio_interval(num, den, draws(num.shape[0]))
     return ([Verdict(float(ratio[j]), float(iv[0, j]), float(iv[1, j]),
                      verdict_of(float(iv[0, j]), float(iv[1, j]))) for j in range(ratio.size)],
             ratio, boot)
