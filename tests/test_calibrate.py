@@ -395,3 +395,45 @@ def test_a_helper_that_cannot_be_started_leaves_the_command_to_do_it_all(
         a, r = alone["instances"][name], refused["instances"][name]
         assert r["status"] == a["status"] and r["firmware"] == a["firmware"]
         assert r["compare"]["families"] == a["compare"]["families"]
+
+
+def test_a_helper_reads_the_logs_while_the_command_imports(tmp_path: Path) -> None:
+    """With a helper (``workers=2``) the first helper reads the log before its own imports
+    (``--profile`` names the stage) while the command imports the comparison; the
+    calibration is the one the command makes alone, number for number."""
+    from thermonet.core import profile
+
+    board = simulate_board("fc-board", autopilot="px4", seed=6, rate_hz=0.2)
+    board.instances = [i for i in board.instances if i.name in ("gyro0", "acc0")]
+    log = write_log(board, tmp_path / "b.ulg")
+    alone = calibrate(log, tmp_path / "alone", workers=1)
+    profile.reset()
+    profile.enable()
+    try:
+        helped = calibrate(log, tmp_path / "helped", workers=2)
+        stages = list(profile.timings())
+    finally:
+        profile.enable(False)
+        profile.reset()
+    assert "read the log(s) (in the helper)" in stages and "read the log(s)" not in stages
+    for name in ("gyro0", "acc0"):
+        a, h = alone["instances"][name], helped["instances"][name]
+        assert h["status"] == a["status"] and h["firmware"] == a["firmware"]
+        assert h["compare"]["families"] == a["compare"]["families"]
+
+
+def test_a_log_the_helper_cannot_read_is_refused_by_the_command(tmp_path: Path,
+                                                                  capsys) -> None:
+    """A damaged log with a helper to read it: the helper's failure is not the message —
+    the command reads the log itself and refuses it in its own one line naming the file;
+    nothing is written."""
+    board = simulate_board("fc-board", autopilot="px4", seed=6, rate_hz=0.2)
+    log = write_log(board, tmp_path / "b.ulg")
+    data = log.read_bytes()
+    log.write_bytes(data[: len(data) // 3])
+    alone = main(["calibrate", str(log), "--out", str(tmp_path / "a"), "--workers", "1"])
+    want = capsys.readouterr().err.strip().splitlines()
+    assert alone == 1 and len(want) == 1 and str(log) in want[0]
+    assert main(["calibrate", str(log), "--out", str(tmp_path / "c"), "--workers", "2"]) == 1
+    assert capsys.readouterr().err.strip().splitlines() == want
+    assert not (tmp_path / "c").exists()

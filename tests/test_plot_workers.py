@@ -88,3 +88,40 @@ def test_a_helper_imports_first_then_runs_calls_and_reports_errors_in_one_line()
             h.result()
         assert proc is not None and proc.poll() is not None and h.stream() is None
         assert not h.ready()
+
+
+def test_a_helpers_first_call_is_answered_before_its_imports():
+    """``first=``: the call is run as the child starts, before its imports — its reply (one
+    larger than a pipe holds, sent while the child imports) comes first, then the child says
+    it is ready and serves calls as any helper; a first call that raises comes back as one
+    line and the child still becomes ready."""
+    import select as sel
+
+    from thermonet.core.helpers import Helper
+
+    with Helper(["json"], first=("thermonet.core.names", "path_component",
+                                 {"name": "a/b"})) as h:
+        assert not h.ready()                       # the first call is in flight
+        ok, value = h.result()
+        assert ok and value == _path_component("a/b")
+        while not h.ready():
+            sel.select([h.stream()], [], [], 5.0)
+        h.submit("json", "dumps", obj=[1])
+        assert h.result() == (True, "[1]")
+    big = "x" * (1 << 20)                           # 1 MB: many times a pipe's buffer
+    with Helper(["json"], first=("builtins", "str", {"object": big})) as h:
+        assert h.result() == (True, big)
+        h.stream()
+        while not h.ready():
+            sel.select([h.stream()], [], [], 5.0)
+    with Helper(["json"], first=("json", "loads", {"s": "{"})) as h:
+        ok, line = h.result()
+        assert not ok and line.startswith("JSONDecodeError: ")
+        while not h.ready():
+            sel.select([h.stream()], [], [], 5.0)
+
+
+def _path_component(name: str) -> str:
+    from thermonet.core.names import path_component
+
+    return path_component(name)

@@ -6,7 +6,8 @@ sits idle while it imports torch and fits.  A :class:`Helper` is a child process
 imports the named modules at once, on that idle core, says it is ready, then runs calls
 (``module``, ``function``, keyword arguments) one at a time and sends each result back.
 ``compare`` has two draw its figures (:mod:`thermonet.reporting.plot_workers`);
-``calibrate`` has one per further CPU compare instances beside it
+``calibrate`` has one per further CPU compare instances beside it, the first of them reading
+the logs before its imports while the command imports torch (a *first call*, ``first=``)
 (:func:`thermonet.workflows.calibrate_compare.compare_all`: 2.45 → 2.0 s on the 2-core benchmark
 board, once the comparison no longer imported scikit-learn and SciPy — before, the helper's
 imports took as long as the command's and it saved 0.1-0.2 s of 3.5).  A helper whose imports
@@ -32,6 +33,7 @@ import select
 import struct
 import subprocess
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import IO, Any
@@ -40,6 +42,7 @@ __all__ = ["Helper", "HelperGone", "usable_cores"]
 
 _HEADER = struct.Struct("<Q")
 _READY = "ready"
+_FIRST = "--first"          # the child's argument: answer one call before the imports
 
 
 class HelperGone(Exception):
@@ -82,18 +85,33 @@ class Helper:
 
     :meth:`ready` says (without waiting) whether it has finished its imports and is free;
     :meth:`submit` sends it a call; :meth:`done` says (without waiting) whether the result is
-    back; :meth:`result` waits for it.  Use as a context manager: leaving kills the child."""
+    back; :meth:`result` waits for it.  Use as a context manager: leaving kills the child.
 
-    def __init__(self, preload: Sequence[str]) -> None:
+    ``first``: a call ``(module, function, kwargs)`` the child runs as soon as it starts,
+    *before* its imports (it is submitted now: :meth:`result` returns it) — work the
+    command needs early from a light module, done while the command imports what it
+    needs itself."""
+
+    def __init__(self, preload: Sequence[str],
+                 first: tuple[str, str, dict[str, Any]] | None = None) -> None:
         root = str(Path(__file__).resolve().parents[2])   # this thermonet, not another
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(
             [root, *filter(None, [os.environ.get("PYTHONPATH")])])}
         self._proc: subprocess.Popen[bytes] | None = subprocess.Popen(
-            [sys.executable, "-m", "thermonet.core.helpers", *preload], env=env,
+            [sys.executable, "-m", "thermonet.core.helpers",
+             *([_FIRST] if first is not None else []), *preload], env=env,
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True,
             bufsize=0)    # unbuffered: select() on the pipe then sees every reply
         self._started = False       # the child has said it is ready
         self._busy = False
+        if first is not None:
+            assert self._proc.stdin is not None
+            try:
+                _send(self._proc.stdin, first)
+            except (OSError, ValueError):
+                self.kill()
+                raise HelperGone("the helper could not be given its first call") from None
+            self._busy = True
 
     # --------------------------------------------------------------- the command's side
     def _readable(self, timeout: float | None) -> bool:
@@ -176,25 +194,42 @@ class Helper:
 
 
 # ------------------------------------------------------------------------ the child's side
-def _serve(preload: Sequence[str], requests: IO[bytes], replies: IO[bytes]) -> int:
+def _call(requests: IO[bytes]) -> tuple[bool, Any] | None:
+    """Run the next call: its reply, or None once the pipe has closed."""
+    try:
+        module, function, kwargs = _receive(requests)
+    except EOFError:
+        return None
+    try:
+        return True, getattr(importlib.import_module(module), function)(**kwargs)
+    except Exception as err:  # noqa: BLE001 - the command redoes the work and raises it
+        text = str(err).strip().splitlines()
+        return False, f"{type(err).__name__}: {text[0] if text else ''}"
+
+
+def _serve(preload: Sequence[str], requests: IO[bytes], replies: IO[bytes], *,
+           first: bool = False) -> int:
+    sending = None
+    if first:
+        reply = _call(requests)
+        if reply is None:
+            return 0
+        # sent beside the imports: a reply larger than the pipe holds waits there until the
+        # command reads it, which it does once its own imports are done
+        sending = threading.Thread(target=_send, args=(replies, reply), daemon=True)
+        sending.start()
     try:
         for name in preload:
             importlib.import_module(name)
     except Exception:  # noqa: BLE001 - the command sees the pipe close and does the work
         return 1       # itself, where a genuine error is raised once (no traceback here)
+    finally:
+        if sending is not None:
+            sending.join()
     _send(replies, _READY)
-    while True:
-        try:
-            module, function, kwargs = _receive(requests)
-        except EOFError:
-            return 0
-        try:
-            value = getattr(importlib.import_module(module), function)(**kwargs)
-            reply: tuple[bool, Any] = (True, value)
-        except Exception as err:  # noqa: BLE001 - the command redoes the work and raises it
-            text = str(err).strip().splitlines()
-            reply = (False, f"{type(err).__name__}: {text[0] if text else ''}")
+    while (reply := _call(requests)) is not None:
         _send(replies, reply)
+    return 0
 
 
 def main() -> None:
@@ -202,7 +237,9 @@ def main() -> None:
     (anything printed goes to stderr)."""
     replies = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)
-    code = _serve(sys.argv[1:], sys.stdin.buffer, replies)
+    args = sys.argv[1:]
+    first = bool(args) and args[0] == _FIRST
+    code = _serve(args[1:] if first else args, sys.stdin.buffer, replies, first=first)
     replies.flush()
     os._exit(code)
 

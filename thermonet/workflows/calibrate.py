@@ -32,9 +32,9 @@ For every sensor instance of PX4 ULogs or ArduPilot DataFlash logs of one board:
    contiguous time blocks (``split: time-blocks``), never random samples.
    When the firmware form does not beat the raw output on the held-out blocks,
    the instance is left out of the parameter file (loading it would do harm).  With
-   several CPUs, helper processes (``workers``) import while the logs are read and then
-   compare instances beside the command
-   (:func:`~thermonet.workflows.calibrate_compare.compare_all`); the result is the same.
+   several CPUs, helper processes (``workers``) compare instances beside the command
+   (:func:`~thermonet.workflows.calibrate_compare.compare_all`); the first reads the logs
+   while the command imports torch, then imports it too; the result is the same.
 4. **The held-out check is verify's test** (:func:`_held_out`): the firmware form is
    fitted without the held-out data, written as a parameter file, read back and applied
    to the held-out data by :func:`thermonet.workflows.verify.evaluate` — the same
@@ -77,7 +77,7 @@ import numpy as np
 
 from ..core.errors import InputError, ThermonetError
 from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
-from ..core.helpers import Helper
+from ..core.helpers import Helper, HelperGone
 from ..core.names import inside, path_components
 from ..core.outdir import KINDS, check_target, sha256_file, staged_output
 from ..core.profile import stage as profile_stage
@@ -96,7 +96,13 @@ from ..data.firmware import (
 from ..data.logs import FlightLog, SensorInstance, read_log, temperature_step
 from ..scoring.band import shipped_band
 from ..scoring.verdicts import below
-from .calibrate_compare import HELPER_IMPORTS, compare_all, helper_count, verdict
+from .calibrate_compare import (
+    HELPER_IMPORTS,
+    compare_all,
+    helper_count,
+    import_comparison,
+    verdict,
+)
 from .calibrate_report import format_report, render_calibration_report
 from .firmware_fit import (
     FIT_KINDS,
@@ -251,22 +257,47 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
         raise InputError(f"workers {workers!r}: a whole number >= 0 (0: one per CPU)")
     with contextlib.ExitStack() as helpers:
         started: list[Helper] = []
-        for _ in range(helper_count(compare, workers)):
+        for k in range(helper_count(compare, workers)):
+            # the first reads the logs before its imports (a light module), while this
+            # process imports torch and the comparison: the logs off the way to the first
+            # comparison
+            first = ("thermonet.data.logs", "read_logs", {"paths": paths}) if k == 0 else None
             try:
-                started.append(helpers.enter_context(Helper(HELPER_IMPORTS)))
-            except OSError:    # no process to be had (a limit, a sandbox): this one does all
+                started.append(helpers.enter_context(Helper(HELPER_IMPORTS, first=first)))
+            except (OSError, HelperGone):  # no process to be had (a limit, a sandbox)
                 break
         return _calibrate(paths, out, compare=compare, overwrite=overwrite,
                           mag_thermometers=mag_thermometers, helpers=started)
 
 
+def _logs_read_by(helper: Helper, paths: list[str | Path]) -> list[FlightLog] | None:
+    """The logs the helper read (its first call), or None: it could not (the command then
+    reads them itself, where a bad log is refused in its own words) or sent something that
+    is not one log per path."""
+    try:
+        ok, logs = helper.result()
+    except HelperGone:
+        return None
+    if not ok or not isinstance(logs, list) or len(logs) != len(paths) \
+            or not all(isinstance(lg, FlightLog) for lg in logs):
+        return None
+    return logs
+
+
 def _calibrate(paths: list[str | Path], out: Path, *, compare: bool, overwrite: bool,
                mag_thermometers: Mapping[str, str] | None, helpers: list[Helper]
                ) -> dict[str, Any]:
-    """:func:`calibrate` once its helpers (if any) are started: they import while the logs
-    are read."""
-    with profile_stage("read the log(s)"):
-        logs = [read_log(p) for p in paths]
+    """:func:`calibrate` once its helpers (if any) are started: the first reads the logs
+    while this process imports the comparison, then they import it too."""
+    logs = None
+    if helpers:
+        with profile_stage("import torch and the comparison (a helper reads the log(s))"):
+            import_comparison()
+        with profile_stage("read the log(s) (in the helper)"):
+            logs = _logs_read_by(helpers[0], paths)
+    if logs is None:
+        with profile_stage("read the log(s)"):
+            logs = [read_log(p) for p in paths]
     seen: dict[str, Path] = {}
     for lg in logs:               # the same bytes twice: counted twice, "held out" on itself
         digest = sha256_file(lg.path)

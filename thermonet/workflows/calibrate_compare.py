@@ -31,7 +31,7 @@ from ..data.logs import SensorInstance
 from ..scoring.verdicts import below
 
 __all__ = ["BETTER_BY", "HELPER_IMPORTS", "MAX_WORKERS", "compare_all", "compare_or_why",
-           "helper_count", "verdict"]
+           "helper_count", "import_comparison", "verdict"]
 
 #: A thermonet family is reported as better only when its validation score ratio is below
 #: this fraction of the firmware form's (smaller differences are within the noise of a split).
@@ -46,6 +46,14 @@ MAX_WORKERS = 3
 #: comparison needs.
 HELPER_IMPORTS = ("thermonet.workflows.calibrate_compare", "thermonet.workflows.compare",
                   "thermonet.training.train")
+
+
+def import_comparison() -> None:
+    """Import now what an instance's comparison needs (:data:`HELPER_IMPORTS`: torch and the
+    fit among them) — the command does while its first helper reads the logs, so that the
+    logs are read off the way to the first comparison."""
+    from ..training import train  # noqa: F401 - the torch boundary: the fit, imported ahead
+    from . import compare  # noqa: F401 - lazy: importing it loads yaml
 
 
 def helper_count(compare: bool, workers: int | None) -> int:

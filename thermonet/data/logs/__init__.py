@@ -15,7 +15,7 @@ from .base import AXES, UNITS, FlightLog, SensorInstance, temperature_step
 from .dataflash import read_dataflash
 from .ulog import read_ulog
 
-__all__ = ["read_log", "read_log_instance", "is_log", "LOG_SUFFIXES", "FlightLog",
+__all__ = ["read_log", "read_logs", "read_log_instance", "is_log", "LOG_SUFFIXES", "FlightLog",
            "SensorInstance", "AXES", "UNITS", "temperature_step"]
 
 #: File suffixes read as flight-controller logs (case-insensitive).
@@ -38,6 +38,11 @@ def read_log(path: str | Path) -> FlightLog:
     if kind == "dataflash":
         return read_dataflash(path)
     raise InputError.at(path, "not a flight-controller log (expected .ulg or .bin)")
+
+
+def read_logs(paths: list[str | Path]) -> list[FlightLog]:
+    """:func:`read_log` of each path, in order."""
+    return [read_log(p) for p in paths]
 
 
 def read_log_instance(path: str | Path) -> Dataset:
