@@ -51,6 +51,42 @@ def test_the_console_entry_point_runs_as_a_process(tmp_path):
     assert "bad.csv" in r.stderr and "gyro_x" in r.stderr
 
 
+_RUN_WITH = """
+import atexit, sys, tempfile, threading, time
+from pathlib import Path
+
+kept = tempfile.TemporaryDirectory()                    # removed by its weakref.finalize
+Path(sys.argv[1]).write_text(kept.name)
+atexit.register(lambda: print("exit handler ran", flush=False))
+print("before the command", end=" ")                    # left in stdout's buffer
+if sys.argv[2] == "thread":                             # still running when main returns
+    threading.Thread(target=lambda: (time.sleep(0.5), print("thread done"))).start()
+sys.argv = ["thermonet", *sys.argv[3:]]
+from thermonet.cli import run
+run()
+"""
+
+
+@pytest.mark.parametrize("other_thread", [False, True])
+def test_the_process_ends_with_its_exit_handlers_run_and_its_output_flushed(
+        tmp_path, other_thread):
+    """``cli.run`` ends the process without freeing its modules, but as the interpreter
+    would in all else: the command's exit code, exit handlers run (a temporary directory's
+    finalizer among them), buffered output written; with another thread still running,
+    the interpreter's own exit, which waits for it."""
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,temperature_c,gyro_x\n0,20,0.1\n1,21,abc\n")
+    where = tmp_path / "tmpdir.txt"
+    r = subprocess.run([sys.executable, "-c", _RUN_WITH, str(where),
+                        "thread" if other_thread else "-", "info", str(bad)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 1 and "bad.csv" in r.stderr
+    assert r.stdout.startswith("before the command")
+    assert "exit handler ran" in r.stdout
+    assert ("thread done" in r.stdout) == other_thread
+    assert where.read_text() and not Path(where.read_text()).exists()
+
+
 @pytest.mark.parametrize("args", [["--help"], ["simulate", "--help"], ["info", "--help"],
                                   ["compare", "--help"], ["train", "--help"],
                                   ["export", "--help"]])
