@@ -101,9 +101,46 @@ print(left)
 """
 
 
+_ADAM_FITS = """
+import sys
+import numpy as np
+{first}
+from thermonet.features.inputs import FeatureSpec
+from thermonet.training.train import TrainConfig, fit, predict
+t = np.linspace(-20.0, 60.0, 400)
+y = (0.02 / (1.0 + ((t - 30.0) / 12.0) ** 2))[:, None]
+time_s = np.arange(400.0) * 10.0
+spec = FeatureSpec(inputs=["dT"], t_ref=25.0)
+adam = fit(family="lorentz", inputs=["dT"], outputs=["gyro_x"], train=[(t[:, None], y)],
+           val=None, spec=spec, hyper={{}},
+           config=TrainConfig(max_epochs=6, patience=50, optimizer="adam", lr=1e-2))
+gru = fit(family="gru", inputs=["dT"], outputs=["gyro_x"], train=[(t[:, None], y, time_s)],
+          val=None, spec=spec, hyper={{}}, config=TrainConfig(max_epochs=3, patience=50))
+assert len(adam.history) == 7 and len(gru.history) == 4      # steps were taken
+print("torch._dynamo" in sys.modules)
+print(predict(adam.model, t[:, None])[:, 0].tolist())
+print(predict(gru.model, t[:, None], time_s)[:, 0].tolist())
+"""
+
+
+def test_adam_and_gru_fits_run_without_importing_torch_dynamo_and_give_the_same_models():
+    """Adam's ``step`` imports torch._dynamo on every call for a graph break
+    (training.optim.optimizer_step steps over it, under torch.no_grad as torch's wrapper
+    would): a point-wise family trained with Adam and the GRU fit without the import, and
+    their models are bit for bit those of torch's own calls (torch._dynamo imported first,
+    its wrappers then run as shipped)."""
+    out = {}
+    for first in ("", "import torch._dynamo"):
+        proc = subprocess.run([sys.executable, "-c", _ADAM_FITS.format(first=first)],
+                              capture_output=True, text=True, check=True)
+        out[first] = proc.stdout.splitlines()
+    assert out[""][0] == "False" and out["import torch._dynamo"][0] == "True"
+    assert out[""][1:] == out["import torch._dynamo"][1:]
+
+
 def test_an_lbfgs_fit_runs_without_importing_torch_dynamo_and_gives_the_same_model():
     """torch.optim's wrappers import torch._dynamo (~0.9 s) only to call the function they
-    wrap (training.train.optimizer_without_dynamo): an L-BFGS fit no longer imports it, gives
+    wrap (training.optim.optimizer_without_dynamo): an L-BFGS fit no longer imports it, gives
     bit for bit the model it gives when torch._dynamo was imported first (torch's own
     wrappers then run), and leaves torch's wrappers as shipped once it is done."""
     out = {}

@@ -30,6 +30,7 @@ from ..core.errors import FitError, InputError, check_interrupted
 from ..core.trainconfig import TrainConfig
 from ..models.base import check_output_shape
 from ..models.sequence import stream_windows
+from .optim import optimizer_step, optimizer_without_dynamo
 from .scaling import EarlyStopping, seed_torch, training_scaling
 
 __all__ = ["sequences", "padded", "fit_loop", "initial_readout", "fit_recurrent", "CLIP_NORM"]
@@ -124,7 +125,7 @@ def fit_loop(fam: Any, train: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
                     loss = loss + penalty
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(params, CLIP_NORM)
-                opt.step()
+                optimizer_step(opt)
                 h = h.detach()
             fam.eval()
         with torch.no_grad():
@@ -189,6 +190,8 @@ def fit_recurrent(model: Any, runs: Sequence[tuple[np.ndarray, ...]],
                        family)
     model.to(device)
     initial_readout(fam, *train_t)
-    history, best_epoch, best_val = fit_loop(fam, train_t, val_t, config, family, on_epoch)
+    with optimizer_without_dynamo():      # Adam's constructor and zero_grad
+        history, best_epoch, best_val = fit_loop(fam, train_t, val_t, config, family,
+                                                 on_epoch)
     model.to("cpu")
     return history, best_epoch, best_val, s_tr

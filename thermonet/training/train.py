@@ -31,10 +31,8 @@ from typing import Any
 import numpy as np
 import torch
 
-# building a torch.optim optimiser imports torch._dynamo (about a second of start-up): it is
-# paid by the first fit that takes a gradient step, inside that fit's fit_seconds, and never
-# by a command that fits only closed-form families (linear, poly, the RBF with a tail: no
-# optimiser is built for them) or nothing (export, verify, info, a config error)
+# torch.optim's optimisers would import torch._dynamo (about a second of start-up): every fit
+# builds and steps them through .optim, which never does
 from ..core.errors import ConfigError, FitError, InputError, check_interrupted
 from ..core.recording import contiguous_segments
 from ..core.trainconfig import TrainConfig  # re-exported: the ``train`` section
@@ -44,6 +42,7 @@ from ..models import DriftModel, build_family
 from ..models.base import Family, check_output_shape
 from ..models.composite import ShippedModel
 from ..models.sequence import stream_relative
+from .optim import optimizer_step, optimizer_without_dynamo
 from .recurrent import fit_recurrent
 from .scaling import EarlyStopping, seed_torch, training_scaling
 
@@ -253,8 +252,6 @@ def _pool_controller() -> Any:
     once and made again only after a module import (a new native library, scikit-learn's
     OpenMP, comes with one): ``threadpool_limits`` scans every loaded shared library on each
     call — about 4 ms, paid by every fit of a comparison (hundreds in ``calibrate``)."""
-    import sys
-
     from threadpoolctl import ThreadpoolController
 
     with _CONTROLLER_LOCK:
@@ -370,53 +367,6 @@ def _fit_pointwise(model: DriftModel, runs: list, val_run: tuple | None, config:
     return history, best_epoch, best_val, s_tr
 
 
-_NO_DYNAMO_LOCK = threading.Lock()
-_NO_DYNAMO_USERS = 0
-_NO_DYNAMO_SET: list[Any] = []
-
-
-@contextlib.contextmanager
-def optimizer_without_dynamo() -> Iterator[None]:
-    """Inside, torch's optimizers run without importing ``torch._dynamo`` (about 0.9 s).
-
-    ``torch.optim.Optimizer``'s methods (``add_param_group``, ``zero_grad``, ``state_dict``
-    …) are wrapped by ``torch._disable_dynamo``, whose wrapper imports ``torch._dynamo`` on
-    its first call only to build ``torch._dynamo.disable(fn)`` — a function that, outside
-    ``torch.compile`` (which thermonet never uses), calls ``fn``.  The wrapper first looks
-    for that function on ``fn.__dynamo_disable``; storing ``fn`` itself there makes it call
-    ``fn`` at once, the same call.  L-BFGS then runs without the import (its ``step`` is
-    plain ``torch.no_grad``); Adam's ``step`` imports ``torch._dynamo`` anyway (for a
-    graph break), so families trained with Adam still pay it.  Only wrappers recognised
-    as torch 2.x's (``torch/_compile.py``'s ``inner``) are touched, nothing once
-    ``torch._dynamo`` is imported (another torch only makes the first optimizer slower),
-    and what was stored is removed when the last fit inside leaves (fits in threads share
-    it): the process's own ``torch.compile`` afterwards sees torch's wrappers as shipped.
-    """
-    global _NO_DYNAMO_USERS
-    with _NO_DYNAMO_LOCK:
-        if _NO_DYNAMO_USERS == 0 and "torch._dynamo" not in sys.modules:
-            for attr in vars(torch.optim.Optimizer).values():
-                code = getattr(attr, "__code__", None)
-                fn = getattr(attr, "__wrapped__", None)
-                if code is None or fn is None or code.co_name != "inner" or not \
-                        code.co_filename.replace("\\", "/").endswith("torch/_compile.py"):
-                    continue
-                if getattr(fn, "__dynamo_disable", None) is None:
-                    setattr(fn, "__dynamo_disable", fn)  # noqa: B010 - the name torch reads
-                    _NO_DYNAMO_SET.append(fn)
-        _NO_DYNAMO_USERS += 1
-    try:
-        yield
-    finally:
-        with _NO_DYNAMO_LOCK:
-            _NO_DYNAMO_USERS -= 1
-            if _NO_DYNAMO_USERS == 0:
-                for fn in _NO_DYNAMO_SET:
-                    if getattr(fn, "__dynamo_disable", None) is fn:
-                        delattr(fn, "__dynamo_disable")
-                _NO_DYNAMO_SET.clear()
-
-
 def _mse(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     return torch.mean((fam(z) - y) ** 2)
 
@@ -431,7 +381,7 @@ def _train_step(fam: Family, opt: torch.optim.Optimizer, z: torch.Tensor,
             loss = loss + penalty
         loss.backward()
         return loss
-    opt.step(closure)  # type: ignore[arg-type]  # the stub says float; LBFGS takes the tensor
+    optimizer_step(opt, closure)
 
 
 def _valid_step(fam: torch.nn.Module, z: torch.Tensor, y: torch.Tensor) -> float:
