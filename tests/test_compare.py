@@ -216,6 +216,52 @@ def test_families_side_by_side_give_the_serial_results(tmp_path):
     assert _numbers(override) == _numbers(serial)
 
 
+def test_data_read_by_a_figure_drawer_gives_the_same_comparison(tmp_path):
+    """With figures drawn by helpers, the first reads the config's data as it starts while
+    the command imports torch (``--profile`` names the stage): the comparison is the one
+    the command makes reading the data itself (``workers=1``: no helpers), its data
+    recorded the same (digest, runs, provenance)."""
+    from thermonet.core import profile
+
+    path = write_parquet(toy_dataset(), tmp_path / "toy.parquet")
+    fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
+            FamilyConfig(family="linear", name="linear")]
+    here = run_compare(config(path, fams, workers=1), tmp_path / "here", track=False,
+                       quiet=True)
+    profile.reset()
+    profile.enable()
+    try:
+        helped = run_compare(config(path, fams, workers=2), tmp_path / "helped", track=False,
+                             quiet=True)
+        stages = list(profile.timings())
+    finally:
+        profile.enable(False)
+        profile.reset()
+    assert "read the data (in a helper)" in stages
+    assert _numbers(helped) == _numbers(here)
+    assert helped["data_hash"] == here["data_hash"] and helped["data"] == here["data"]
+    assert helped["config"]["data"] == here["config"]["data"]
+
+
+def test_data_a_drawer_cannot_read_is_refused_by_the_command(tmp_path, capsys):
+    """A bad data file with helpers to read it: the command reads it itself and refuses it
+    in its own one line naming the file and the column, exit 1, nothing written."""
+    from thermonet.cli import main
+
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,temperature_c,gyro_x\n0,20,0.1\n1,21,abc\n")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"data: {{paths: ['{bad}']}}\nfamilies: [{{family: linear}}]\n")
+    codes, errs = [], []
+    for workers in ("1", "2"):
+        codes.append(main(["compare", str(cfg), "--out", str(tmp_path / f"o{workers}"),
+                           "--no-track", "-q", "--workers", workers]))
+        errs.append(capsys.readouterr().err.strip().splitlines())
+    assert codes == [1, 1] and errs[0] == errs[1] and len(errs[0]) == 1
+    assert "bad.csv" in errs[0][0] and "gyro_x" in errs[0][0]
+    assert not (tmp_path / "o2").exists()
+
+
 def test_family_workers_rule_and_validation():
     from thermonet.core.errors import ConfigError
     from thermonet.training.config import from_dict

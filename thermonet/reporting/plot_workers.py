@@ -10,6 +10,10 @@ figures one at a time as they are handed out, each named by the function of
 as drawn in the command (the same function on the same arguments, Agg).  A figure a helper
 fails to deliver (an error, a helper that died) is drawn in the command itself, where a
 genuine plotting error is raised as before.
+
+The first helper can also be given a *first call* (``first=``), run as it starts, before it
+imports matplotlib: ``compare`` has it read the data while the command imports torch
+(:meth:`PlotWorkers.first_result`).
 """
 
 from __future__ import annotations
@@ -46,10 +50,27 @@ class PlotWorkers:
     manager; leaving it on an error or an interrupt kills the helpers at once (before the
     caller removes the directory they write into)."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self, n: int, first: tuple[str, str, dict[str, Any]] | None = None) -> None:
         # helpers wait on their pipes with select(), which takes pipes on POSIX only
-        self._helpers = [Helper([_PLOTS]) for _ in range(n)] \
+        self._helpers = [Helper([_PLOTS], first=first if k == 0 else None) for k in range(n)] \
             if n >= 2 and os.name == "posix" else []
+        self._first = self._helpers[0] if self._helpers and first is not None else None
+
+    @property
+    def has_first(self) -> bool:
+        """Whether a helper was given the first call (its result not yet taken)."""
+        return self._first is not None
+
+    def first_result(self) -> tuple[bool, Any] | None:
+        """The first call's ``(True, value)`` or ``(False, one line)``, waited for; None
+        without one, or where the helper died (the caller does the work itself)."""
+        h, self._first = self._first, None
+        if h is None:
+            return None
+        try:
+            return h.result()
+        except HelperGone:
+            return None
 
     def draw(self, jobs: Sequence[PlotJob]) -> list[Path]:
         """Every figure, handed out to the helpers as they come free (in this process

@@ -60,7 +60,7 @@ from ..training.parts import (
 from .compare_band import family_band, per_axis_band
 from .compare_fit import FitQueue, Progress, family_workers
 from .compare_judge import PER_AXIS, Fitted, choose_and_judge, extrapolation
-from .compare_plan import PartCache, Plan, data_summary, plan
+from .compare_plan import PartCache, Plan, check_plan, data_summary, plan
 from .compare_track import TrackingSession, family_record
 from .provenance import data_source, family_config, resolved_config, resolved_yaml
 from .sensor import format_sensor_table, run_sensor
@@ -89,19 +89,33 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
     ``out_dir`` that is not a complete comparison is refused; a previous
     comparison is replaced only with ``overwrite=True``.
     """
-    from ..training.train import thread_limits  # torch boundary
-
     if cfg.model == "sensor":  # the full sensor model: its own fit and judgement
         return run_sensor(cfg, out_dir, overwrite=overwrite, quiet=quiet, dataset=dataset,
                           plots=plots, track=track, tracking_uri=tracking_uri)
-    # torch's and the native pools (BLAS, OpenMP) capped at train.threads for the whole
-    # comparison, data preparation and evaluation included: the cap is process-wide, so
-    # fits side by side must not lift it when one of them ends
-    with thread_limits(cfg.train.threads), staged_output(out_dir, overwrite=overwrite) as stage:
-        results = _run_compare_in(cfg, stage.path, track=track, tracking_uri=tracking_uri,
-                                  quiet=quiet, progress=progress, dataset=dataset,
-                                  plots=plots, workers=workers)
-        stage.finish(results, lambda doc: doc)
+    check_plan(cfg, build=False)  # a config error said before any process starts (torch-free)
+    # the figures' drawers start first: they import matplotlib while this process imports
+    # torch and the families fit (a core the fits leave idle), then draw side by side —
+    # unless the comparison is to stay in one process (workers=1: a fleet's units, run side
+    # by side); the first reads the config's own data as it starts, before its imports,
+    # while this process imports torch: the reading off the way to the fits
+    one_process = (cfg.workers if workers is None else workers) == 1
+    first = None if dataset is not None else (
+        "thermonet.training.loader", "load_compare_data",
+        {"cfg": cfg, "source": getattr(cfg, "_source", "config")})
+    with PlotWorkers(min(2, usable_cores()) if plots and not one_process else 0,
+                     first=first) as drawers:
+        from ..training.train import thread_limits  # torch boundary
+
+        # torch's and the native pools (BLAS, OpenMP) capped at train.threads for the whole
+        # comparison, data preparation and evaluation included: the cap is process-wide, so
+        # fits side by side must not lift it when one of them ends
+        with thread_limits(cfg.train.threads), \
+                staged_output(out_dir, overwrite=overwrite) as stage:
+            results = _run_compare_in(cfg, stage.path, track=track,
+                                      tracking_uri=tracking_uri, quiet=quiet,
+                                      progress=progress, dataset=dataset, plots=plots,
+                                      workers=workers, drawers=drawers)
+            stage.finish(results, lambda doc: doc)
     return results
 
 
@@ -123,10 +137,12 @@ class _Run:
 def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None = None,
                     tracking_uri: str | None = None, quiet: bool = False,
                     progress: Progress | None = None, dataset: Dataset | None = None,
-                    plots: bool = True, workers: int | None = None) -> dict[str, Any]:
+                    plots: bool = True, workers: int | None = None,
+                    drawers: PlotWorkers) -> dict[str, Any]:
     """The comparison itself, written into ``out_dir`` (a staging directory): plan, fit,
     judge, write, then the MLflow record from what was written (the tracking child,
-    :mod:`thermonet.workflows.compare_track`, works while the plots are drawn)."""
+    :mod:`thermonet.workflows.compare_track`, works while the plots are drawn); the
+    figures drawn by ``drawers``, whose first may have read the data."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"{out}: --out must be a directory, and this is a file")
@@ -135,16 +151,11 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
     tracking = TrackingSession(enabled=tracker.enabled, uri=tracker.uri,
                                experiment=tracker.experiment,
                                register=cfg.tracking.register).start()
-    # the figures' drawers start now: they import matplotlib while the data load and the
-    # families fit (a core the fits leave idle), then draw side by side — unless the
-    # comparison is to stay in one process (workers=1: a fleet's units, run side by side)
-    one_process = (cfg.workers if workers is None else workers) == 1
-    drawers = PlotWorkers(min(2, usable_cores()) if plots and not one_process else 0)
     try:
         with drawers:
             run = _plan_step(cfg, out, tracking, progress or Progress(quiet), dataset=dataset,
                              options={"track": track, "tracking_uri": tracking_uri,
-                                      "workers": workers, "plots": plots})
+                                      "workers": workers, "plots": plots}, reader=drawers)
             fitted, records = _fit_step(run, workers)
             doc = _judge_step(run, fitted)
             _write_step(run, fitted, doc, records, drawers=drawers if plots else None)
@@ -157,11 +168,17 @@ def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | No
 
 
 def _plan_step(cfg: CompareConfig, out: Path, tracking: TrackingSession, progress: Progress,
-               *, dataset: Dataset | None, options: dict[str, Any]) -> _Run:
+               *, dataset: Dataset | None, options: dict[str, Any],
+               reader: PlotWorkers | None = None) -> _Run:
     """Plan (data, targets, splits; :func:`plan`), the result's frame, the provenance, and
-    the MLflow runs asked for (their ids are needed by the checkpoints)."""
+    the MLflow runs asked for (their ids are needed by the checkpoints); the data as the
+    helper read it where ``reader`` was given that first call (read here if it could not)."""
+    loaded = None
+    if reader is not None and reader.has_first:
+        with stage("read the data (in a helper)"):
+            loaded = _data_read_by(reader)
     with stage("plan: load the data, targets, splits and folds"):
-        p = plan(cfg, dataset)
+        p = plan(cfg, dataset, loaded=loaded)
     ds = p.ds
     out.mkdir(parents=True, exist_ok=True)
     dhash = data_hash(ds)
@@ -191,6 +208,15 @@ def _plan_step(cfg: CompareConfig, out: Path, tracking: TrackingSession, progres
         (fam.label, {"family": fam.family, "inputs": fam.inputs, "params": fam.params},
          {**tags, "family": fam.family}) for fam in cfg.families])
     return _Run(cfg, p, out, result, resolved, provenance, tags, progress, tracking)
+
+
+def _data_read_by(reader: PlotWorkers) -> Dataset | None:
+    """The data the helper read, or None: it could not (this process then reads it, where a
+    bad file is refused in its own words) or sent something that is not a dataset."""
+    got = reader.first_result()
+    if got is None or not got[0] or not isinstance(got[1], Dataset):
+        return None
+    return got[1]
 
 
 def _note_streamed(cfg: CompareConfig, ds: Dataset, result: ComparisonResult,

@@ -40,7 +40,8 @@ from ..training.parts import (
 #: the bootstrap blocks are made of rows.
 MIN_STREAMED_ROWS = 1000
 
-__all__ = ["PartCache", "Plan", "plan", "data_summary", "load_compare_data", "streamed_data"]
+__all__ = ["PartCache", "Plan", "check_plan", "plan", "data_summary", "load_compare_data",
+           "streamed_data"]
 
 
 class PartCache:
@@ -150,12 +151,28 @@ def _check_training_spans(splits: list[Split], source: str) -> None:
                                 column="temperature_c")
 
 
-def plan(cfg: CompareConfig, dataset: Dataset | None = None) -> Plan:
-    """Check ``cfg`` against the data, make the splits, collect input warnings (no fitting)."""
+def check_plan(cfg: CompareConfig, *, build: bool = True) -> None:
+    """What :func:`plan` checks of ``cfg`` before it reads any data (its families and
+    baseline): a config error said before anything slow starts.  ``build=False`` leaves
+    out building the families (the check that imports torch: a plug-in's values), which
+    :func:`plan` does."""
     source = getattr(cfg, "_source", "config")
-    check_families(cfg, source=source)
+    check_families(cfg, source=source, build=build)
     _check_baseline(cfg, source)
-    ds = dataset if dataset is not None else load_compare_data(cfg, source)
+
+
+def plan(cfg: CompareConfig, dataset: Dataset | None = None, *,
+         loaded: Dataset | None = None) -> Plan:
+    """Check ``cfg`` against the data, make the splits, collect input warnings (no fitting).
+
+    ``dataset``: the caller's data (the API, a fleet unit, a calibrate instance), recorded
+    as given; ``loaded``: the config's own data as :func:`load_compare_data` read it
+    elsewhere (a helper process, while this one imported torch), treated as read here;
+    neither: read here."""
+    source = getattr(cfg, "_source", "config")
+    check_plan(cfg)
+    ds = dataset if dataset is not None else \
+        loaded if loaded is not None else load_compare_data(cfg, source)
     signals: set[str] = set()
     for i, fam in enumerate(cfg.families):
         for sig in signals_for(fam.inputs):
