@@ -125,3 +125,16 @@ def _path_component(name: str) -> str:
     from thermonet.core.names import path_component
 
     return path_component(name)
+
+
+def test_a_first_call_pickle_cannot_carry_is_left_to_the_caller():
+    """A first call with an argument pickle refuses (a lambda) is refused before any process
+    starts (ValueError); the drawers then start without it and the caller does that work."""
+    from thermonet.core.helpers import Helper
+
+    call = ("builtins", "len", {"obj": lambda: 0})
+    with pytest.raises(ValueError, match="cannot be sent"):
+        Helper(["json"], first=call)
+    with PlotWorkers(2, first=call) as drawers:
+        assert not drawers.has_first and drawers.first_result() is None
+        assert len(drawers._helpers) == 2

@@ -57,9 +57,13 @@ def usable_cores() -> int:
         return os.cpu_count() or 1
 
 
-def _send(stream: IO[bytes], obj: Any) -> None:
+def _frame(obj: Any) -> bytes:
     data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
-    stream.write(_HEADER.pack(len(data)) + data)
+    return _HEADER.pack(len(data)) + data
+
+
+def _send(stream: IO[bytes], obj: Any) -> None:
+    stream.write(_frame(obj))
     stream.flush()
 
 
@@ -90,10 +94,17 @@ class Helper:
     ``first``: a call ``(module, function, kwargs)`` the child runs as soon as it starts,
     *before* its imports (it is submitted now: :meth:`result` returns it) — work the
     command needs early from a light module, done while the command imports what it
-    needs itself."""
+    needs itself.  A first call that cannot be pickled raises ``ValueError`` before any
+    process starts."""
 
     def __init__(self, preload: Sequence[str],
                  first: tuple[str, str, dict[str, Any]] | None = None) -> None:
+        message = None
+        if first is not None:
+            try:
+                message = _frame(first)
+            except Exception as err:  # noqa: BLE001 - whatever pickle refuses to carry
+                raise ValueError(f"the first call cannot be sent to a helper: {err}") from None
         root = str(Path(__file__).resolve().parents[2])   # this thermonet, not another
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(
             [root, *filter(None, [os.environ.get("PYTHONPATH")])])}
@@ -104,10 +115,11 @@ class Helper:
             bufsize=0)    # unbuffered: select() on the pipe then sees every reply
         self._started = False       # the child has said it is ready
         self._busy = False
-        if first is not None:
+        if message is not None:
             assert self._proc.stdin is not None
             try:
-                _send(self._proc.stdin, first)
+                self._proc.stdin.write(message)
+                self._proc.stdin.flush()
             except (OSError, ValueError):
                 self.kill()
                 raise HelperGone("the helper could not be given its first call") from None

@@ -51,10 +51,17 @@ class PlotWorkers:
     caller removes the directory they write into)."""
 
     def __init__(self, n: int, first: tuple[str, str, dict[str, Any]] | None = None) -> None:
+        self._helpers: list[Helper] = []
+        self._first: Helper | None = None
         # helpers wait on their pipes with select(), which takes pipes on POSIX only
-        self._helpers = [Helper([_PLOTS], first=first if k == 0 else None) for k in range(n)] \
-            if n >= 2 and os.name == "posix" else []
-        self._first = self._helpers[0] if self._helpers and first is not None else None
+        if n < 2 or os.name != "posix":
+            return
+        try:
+            self._helpers.append(Helper([_PLOTS], first=first))
+            self._first = self._helpers[0] if first is not None else None
+        except ValueError:        # a first call pickle cannot carry: the caller does it
+            self._helpers.append(Helper([_PLOTS]))
+        self._helpers += [Helper([_PLOTS]) for _ in range(n - 1)]
 
     @property
     def has_first(self) -> bool:

@@ -264,7 +264,7 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
             first = ("thermonet.data.logs", "read_logs", {"paths": paths}) if k == 0 else None
             try:
                 started.append(helpers.enter_context(Helper(HELPER_IMPORTS, first=first)))
-            except (OSError, HelperGone):  # no process to be had (a limit, a sandbox)
+            except (OSError, ValueError, HelperGone):  # no process to be had (a limit, a sandbox)
                 break
         return _calibrate(paths, out, compare=compare, overwrite=overwrite,
                           mag_thermometers=mag_thermometers, helpers=started)
