@@ -7,8 +7,9 @@ cubic tail, its centres at ΔT's quantiles), judged on held-out contiguous time 
 :func:`verdict` says whether the firmware form helps and what thermonet's best adds.
 :func:`compare_all` shares the instances between the command and its helpers
 (:mod:`thermonet.core.helpers`, :func:`helper_count` of them): each helper imports this module
-and the comparison while the command reads the logs, then compares instances from the back of
-the list while the command takes them from the front.
+and the comparison (the first reads the logs before, while the command imports them:
+:func:`import_comparison`), then compares instances from the back of the list while the
+command takes them from the front.
 """
 
 from __future__ import annotations
@@ -42,8 +43,8 @@ BETTER_BY = 0.8
 #: three, ~760 MB in all, stay within the memory a comparison took before they existed) and
 #: pays its import (~0.8 s of CPU), which a board's few instances repay only a few times over.
 MAX_WORKERS = 3
-#: What a helper imports while the command reads the logs: everything an instance's
-#: comparison needs.
+#: What a helper imports (the first after reading the logs, while the command imports the
+#: same: :func:`import_comparison`): everything an instance's comparison needs.
 HELPER_IMPORTS = ("thermonet.workflows.calibrate_compare", "thermonet.workflows.compare",
                   "thermonet.training.train")
 
