@@ -138,3 +138,19 @@ def test_a_first_call_pickle_cannot_carry_is_left_to_the_caller():
     with PlotWorkers(2, first=call) as drawers:
         assert not drawers.has_first and drawers.first_result() is None
         assert len(drawers._helpers) == 2
+
+
+def test_a_first_result_pickle_cannot_carry_comes_back_as_one_line():
+    """The first call's result cannot be pickled (a lock): the child says so in one
+    line instead of sending it, and still becomes ready and serves calls."""
+    import select as sel
+
+    from thermonet.core.helpers import Helper
+
+    with Helper(["json"], first=("threading", "Lock", {})) as h:
+        ok, line = h.result()
+        assert not ok and "cannot be sent" in line and "\n" not in line
+        while not h.ready():
+            sel.select([h.stream()], [], [], 5.0)
+        h.submit("json", "dumps", obj=[2])
+        assert h.result() == (True, "[2]")

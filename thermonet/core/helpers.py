@@ -67,6 +67,15 @@ def _send(stream: IO[bytes], obj: Any) -> None:
     stream.flush()
 
 
+def _write(stream: IO[bytes], message: bytes) -> None:
+    """Write a framed message; a pipe the command has closed ends it quietly."""
+    try:
+        stream.write(message)
+        stream.flush()
+    except (OSError, ValueError):
+        pass
+
+
 def _read_exact(stream: IO[bytes], n: int) -> bytes:
     """``n`` bytes (a pipe read unbuffered may return fewer at a time); EOFError at its end."""
     parts, got = [], 0
@@ -181,6 +190,9 @@ class Helper:
         if not self._busy:
             raise HelperGone("nothing was submitted")
         reply = self._get()
+        if not (isinstance(reply, tuple) and len(reply) == 2):     # not a call's reply
+            self.kill()
+            raise HelperGone("the helper sent something that is not a reply")
         self._busy = False
         return reply
 
@@ -226,9 +238,13 @@ def _serve(preload: Sequence[str], requests: IO[bytes], replies: IO[bytes], *,
         reply = _call(requests)
         if reply is None:
             return 0
-        # sent beside the imports: a reply larger than the pipe holds waits there until the
+        try:
+            message = _frame(reply)
+        except Exception as err:  # noqa: BLE001 - a result pickle cannot carry: said, not sent
+            message = _frame((False, f"{type(err).__name__}: the result cannot be sent"))
+        # written beside the imports: a reply larger than the pipe holds waits there until the
         # command reads it, which it does once its own imports are done
-        sending = threading.Thread(target=_send, args=(replies, reply), daemon=True)
+        sending = threading.Thread(target=_write, args=(replies, message), daemon=True)
         sending.start()
     try:
         for name in preload:
