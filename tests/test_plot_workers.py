@@ -154,3 +154,19 @@ def test_a_first_result_pickle_cannot_carry_comes_back_as_one_line():
             sel.select([h.stream()], [], [], 5.0)
         h.submit("json", "dumps", obj=[2])
         assert h.result() == (True, "[2]")
+
+
+def test_what_a_call_logs_is_said_by_the_command_when_it_takes_the_result(caplog, capfd):
+    """A call that logs a warning in the helper (a file's skipped rows, a damaged log): the
+    child does not print it; the command logs it — same logger, level and message — when
+    it takes the result, as if the call had run there."""
+    import logging
+
+    from thermonet.core.helpers import Helper
+
+    with caplog.at_level(logging.WARNING), \
+            Helper(["json"], first=("logging", "warning", {"msg": "said in the helper"})) as h:
+        assert h.result() == (True, None)
+    said = [(r.name, r.levelno, r.getMessage()) for r in caplog.records]
+    assert said == [("root", logging.WARNING, "said in the helper")]
+    assert "said in the helper" not in capfd.readouterr().err

@@ -27,6 +27,7 @@ command waits on the helpers' pipes with ``select``.
 from __future__ import annotations
 
 import importlib
+import logging
 import os
 import pickle
 import select
@@ -190,11 +191,16 @@ class Helper:
         if not self._busy:
             raise HelperGone("nothing was submitted")
         reply = self._get()
-        if not (isinstance(reply, tuple) and len(reply) == 2):     # not a call's reply
+        if not (isinstance(reply, tuple) and len(reply) == 3
+                and isinstance(reply[2], list)):                   # not a call's reply
             self.kill()
             raise HelperGone("the helper sent something that is not a reply")
         self._busy = False
-        return reply
+        ok, value, logged = reply
+        if ok:    # what the call logged, said here as if the call had run here
+            for name, level, message in logged:
+                logging.getLogger(str(name)).log(int(level), "%s", message)
+        return ok, value
 
     def kill(self) -> None:
         """End the child now, whatever it is doing."""
@@ -218,17 +224,38 @@ class Helper:
 
 
 # ------------------------------------------------------------------------ the child's side
-def _call(requests: IO[bytes]) -> tuple[bool, Any] | None:
-    """Run the next call: its reply, or None once the pipe has closed."""
+class _Collect(logging.Handler):
+    """Keeps what a call logs — ``(logger name, level, message)`` — for its reply."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.records: list[tuple[str, int, str]] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append((record.name, record.levelno, record.getMessage()))
+
+
+def _call(requests: IO[bytes]) -> tuple[bool, Any, list[tuple[str, int, str]]] | None:
+    """Run the next call: its reply — ``(ok, value or one line, what it logged)`` — or None
+    once the pipe has closed.  What the call logs (warnings: a file's skipped rows, a
+    damaged log) is not printed here but sent with the reply and said by the command when
+    it takes the result, as if the call had run there (and not at all if the command
+    does the work again itself)."""
     try:
         module, function, kwargs = _receive(requests)
     except EOFError:
         return None
+    collect = _Collect()
+    root = logging.getLogger()
+    root.addHandler(collect)
     try:
-        return True, getattr(importlib.import_module(module), function)(**kwargs)
+        return True, getattr(importlib.import_module(module), function)(**kwargs), \
+            collect.records
     except Exception as err:  # noqa: BLE001 - the command redoes the work and raises it
         text = str(err).strip().splitlines()
-        return False, f"{type(err).__name__}: {text[0] if text else ''}"
+        return False, f"{type(err).__name__}: {text[0] if text else ''}", []
+    finally:
+        root.removeHandler(collect)
 
 
 def _serve(preload: Sequence[str], requests: IO[bytes], replies: IO[bytes], *,
@@ -241,7 +268,7 @@ def _serve(preload: Sequence[str], requests: IO[bytes], replies: IO[bytes], *,
         try:
             message = _frame(reply)
         except Exception as err:  # noqa: BLE001 - a result pickle cannot carry: said, not sent
-            message = _frame((False, f"{type(err).__name__}: the result cannot be sent"))
+            message = _frame((False, f"{type(err).__name__}: the result cannot be sent", []))
         # written beside the imports: a reply larger than the pipe holds waits there until the
         # command reads it, which it does once its own imports are done
         sending = threading.Thread(target=_write, args=(replies, message), daemon=True)
