@@ -18,7 +18,8 @@ module, so a script without ``if __name__ == "__main__":`` is safe); calls and r
 down private pipes as pickles between this process and the child it started — nothing is
 read from a file.  The child runs in its own session (Ctrl-C reaches the command, which then
 kills it: :meth:`Helper.kill`, before the command removes what it was writing) and exits
-when its pipe closes, so a command killed outright leaves none behind.  A call that raises
+when its pipe closes, so a command killed outright leaves none behind.  What a call logs
+comes back with its result and is said by the command as it takes it.  A call that raises
 comes back as one line; a child that dies reports :class:`HelperGone`: the caller then does
 that work itself, where a genuine error is raised as it would have been.  POSIX only: the
 command waits on the helpers' pipes with ``select``.
