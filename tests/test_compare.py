@@ -309,3 +309,23 @@ def test_a_fit_that_raises_stops_the_others_and_is_reported(tmp_path, monkeypatc
                     plots=False)
     assert not (tmp_path / "out").exists()
     assert len(epochs) < 2000          # the RBF stopped early instead of running its course
+
+
+def test_drawers_that_cannot_be_started_leave_the_command_to_do_it_all(tmp_path, monkeypatch):
+    """No process to be had for the figure drawers (``Popen`` raises OSError): the command
+    reads the data and draws the figures itself; the comparison is the same."""
+    from thermonet.reporting import plot_workers
+
+    def refuse(*_: object, **__: object) -> None:
+        raise OSError(11, "Resource temporarily unavailable")
+
+    path = write_parquet(toy_dataset(), tmp_path / "toy.parquet")
+    fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3})]
+    here = run_compare(config(path, fams, workers=1), tmp_path / "here", track=False,
+                       quiet=True)
+    monkeypatch.setattr(plot_workers, "Helper", refuse)
+    refused = run_compare(config(path, fams, workers=2), tmp_path / "refused", track=False,
+                          quiet=True)
+    assert _numbers(refused) == _numbers(here)
+    assert sorted(p.name for p in (tmp_path / "refused" / "plots").glob("*.png")) == \
+        sorted(p.name for p in (tmp_path / "here" / "plots").glob("*.png")) != []

@@ -274,6 +274,7 @@ def _serve(preload: Sequence[str], requests: IO[bytes], replies: IO[bytes], *,
         # command reads it, which it does once its own imports are done
         sending = threading.Thread(target=_write, args=(replies, message), daemon=True)
         sending.start()
+        del reply, message      # held by the writer alone: freed once it is written
     try:
         for name in preload:
             importlib.import_module(name)
@@ -282,6 +283,7 @@ def _serve(preload: Sequence[str], requests: IO[bytes], replies: IO[bytes], *,
     finally:
         if sending is not None:
             sending.join()
+            sending = None
     _send(replies, _READY)
     while (reply := _call(requests)) is not None:
         _send(replies, reply)

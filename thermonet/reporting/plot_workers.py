@@ -57,11 +57,14 @@ class PlotWorkers:
         if n < 2 or os.name != "posix":
             return
         try:
-            self._helpers.append(Helper([_PLOTS], first=first))
-            self._first = self._helpers[0] if first is not None else None
-        except ValueError:        # a first call pickle cannot carry: the caller does it
-            self._helpers.append(Helper([_PLOTS]))
-        self._helpers += [Helper([_PLOTS]) for _ in range(n - 1)]
+            try:
+                self._helpers.append(Helper([_PLOTS], first=first))
+                self._first = self._helpers[0] if first is not None else None
+            except (ValueError, HelperGone):   # a first call it cannot take: the caller does it
+                self._helpers.append(Helper([_PLOTS]))
+            self._helpers += [Helper([_PLOTS]) for _ in range(n - 1)]
+        except OSError:          # no process to be had (a limit, a sandbox): those started
+            pass                 # draw, this process the rest (and reads, without the first)
 
     @property
     def has_first(self) -> bool:
