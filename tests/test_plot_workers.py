@@ -137,7 +137,19 @@ def test_a_first_call_pickle_cannot_carry_is_left_to_the_caller():
         Helper(["json"], first=call)
     with PlotWorkers(2, first=call) as drawers:
         assert not drawers.has_first and drawers.first_result() is None
+        assert len(drawers._helpers) == 1          # the other waits for start_rest
+        drawers.start_rest()
         assert len(drawers._helpers) == 2
+
+
+def test_with_a_first_call_the_other_drawers_start_later(tmp_path):
+    """With a first call only the first drawer starts at once; the others start at
+    ``start_rest`` (compare: once torch is imported) or, at the latest, when the figures
+    are drawn — the same figures either way."""
+    with PlotWorkers(2, first=("json", "dumps", {"obj": 1})) as drawers:
+        assert len(drawers._helpers) == 1 and drawers.first_result() == (True, "1")
+        got = drawers.draw(_jobs(tmp_path, 2))
+    assert [p.name for p in got] == [p.name for p in draw_here(_jobs(tmp_path / "here", 2))]
 
 
 def test_a_first_result_pickle_cannot_carry_comes_back_as_one_line():

@@ -51,8 +51,13 @@ class PlotWorkers:
     caller removes the directory they write into)."""
 
     def __init__(self, n: int, first: tuple[str, str, dict[str, Any]] | None = None) -> None:
+        """``first``: a call for the first helper to run as it starts (:meth:`first_result`);
+        the others then start at :meth:`start_rest` — once the caller's own imports are done
+        (compare: torch; three processes importing at once on two cores slowed its import by
+        a fifth, 3.24 → 2.99 s a comparison) — or, at the latest, at :meth:`draw`."""
         self._helpers: list[Helper] = []
         self._first: Helper | None = None
+        self._rest = 0
         # helpers wait on their pipes with select(), which takes pipes on POSIX only
         if n < 2 or os.name != "posix":
             return
@@ -62,9 +67,20 @@ class PlotWorkers:
                 self._first = self._helpers[0] if first is not None else None
             except (ValueError, HelperGone):   # a first call it cannot take: the caller does it
                 self._helpers.append(Helper([_PLOTS]))
-            self._helpers += [Helper([_PLOTS]) for _ in range(n - 1)]
-        except OSError:          # no process to be had (a limit, a sandbox): those started
-            pass                 # draw, this process the rest (and reads, without the first)
+        except OSError:          # no process to be had (a limit, a sandbox): this process
+            return               # draws (and reads, without the first)
+        self._rest = n - 1
+        if first is None:
+            self.start_rest()
+
+    def start_rest(self) -> None:
+        """Start the helpers not started yet (none where they are all running)."""
+        n, self._rest = self._rest, 0
+        try:
+            for _ in range(n):
+                self._helpers.append(Helper([_PLOTS]))
+        except OSError:          # no process to be had: those started draw, this one the rest
+            pass
 
     @property
     def has_first(self) -> bool:
@@ -85,6 +101,7 @@ class PlotWorkers:
     def draw(self, jobs: Sequence[PlotJob]) -> list[Path]:
         """Every figure, handed out to the helpers as they come free (in this process
         without them); the files' paths in the order of ``jobs``."""
+        self.start_rest()
         helpers, self._helpers = self._helpers, []
         out: list[Path | None] = [None] * len(jobs)
         try:
@@ -127,6 +144,7 @@ class PlotWorkers:
                     select.select(streams, [], [], 0.2)
 
     def close(self) -> None:
+        self._rest = 0
         helpers, self._helpers = self._helpers, []
         for h in helpers:
             h.kill()

@@ -93,11 +93,11 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
         return run_sensor(cfg, out_dir, overwrite=overwrite, quiet=quiet, dataset=dataset,
                           plots=plots, track=track, tracking_uri=tracking_uri)
     check_plan(cfg, build=False)  # a config error said before any process starts (torch-free)
-    # the figures' drawers start first: they import matplotlib while this process imports
-    # torch and the families fit (a core the fits leave idle), then draw side by side —
-    # unless the comparison is to stay in one process (workers=1: a fleet's units, run side
-    # by side); the first reads the config's own data as it starts, before its imports,
-    # while this process imports torch: the reading off the way to the fits
+    # the figures' drawers import matplotlib while the families fit (a core the fits leave
+    # idle), then draw side by side — unless the comparison is to stay in one process
+    # (workers=1: a fleet's units, run side by side); the first starts now and reads the
+    # config's own data, before its imports, while this process imports torch: the reading
+    # off the way to the fits; the other starts once torch is imported
     one_process = (cfg.workers if workers is None else workers) == 1
     first = None if dataset is not None else (
         "thermonet.training.loader", "load_compare_data",
@@ -106,6 +106,7 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
                      first=first) as drawers:
         from ..training.train import thread_limits  # torch boundary
 
+        drawers.start_rest()          # the other drawers: importing beside torch slowed it
         # torch's and the native pools (BLAS, OpenMP) capped at train.threads for the whole
         # comparison, data preparation and evaluation included: the cap is process-wide, so
         # fits side by side must not lift it when one of them ends
