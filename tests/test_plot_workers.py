@@ -147,7 +147,7 @@ def test_with_a_first_call_the_other_drawers_start_later(tmp_path):
     ``start_rest`` (compare: once torch is imported) or, at the latest, when the figures
     are drawn — the same figures either way."""
     with PlotWorkers(2, first=("json", "dumps", {"obj": 1})) as drawers:
-        assert len(drawers._helpers) == 1 and drawers.first_result() == (True, "1")
+        assert len(drawers._helpers) == 1 and drawers.first_result() == "1"
         got = drawers.draw(_jobs(tmp_path, 2))
     assert [p.name for p in got] == [p.name for p in draw_here(_jobs(tmp_path / "here", 2))]
 

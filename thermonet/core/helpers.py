@@ -36,11 +36,11 @@ import struct
 import subprocess
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["Helper", "HelperGone", "usable_cores"]
+__all__ = ["Helper", "HelperGone", "usable_cores", "value_or_none"]
 
 _HEADER = struct.Struct("<Q")
 _READY = "ready"
@@ -224,6 +224,21 @@ class Helper:
         self.kill()
 
 
+def value_or_none(helper: Helper | None, valid: Callable[[Any], bool] = lambda _: True
+                  ) -> Any:
+    """The value of ``helper``'s submitted call, waited for, where it came back and passes
+    ``valid``; None where there is no helper, it died, the call raised, or the value is not
+    what was asked for — the caller then does that work itself, where a genuine error is
+    raised in its own words."""
+    if helper is None:
+        return None
+    try:
+        ok, value = helper.result()
+    except HelperGone:
+        return None
+    return value if ok and valid(value) else None
+
+
 # ------------------------------------------------------------------------ the child's side
 class _Collect(logging.Handler):
     """Keeps what a call logs — ``(logger name, level, message)`` — for its reply."""
@@ -283,7 +298,6 @@ def _serve(preload: Sequence[str], requests: IO[bytes], replies: IO[bytes], *,
     finally:
         if sending is not None:
             sending.join()
-            sending = None
     _send(replies, _READY)
     while (reply := _call(requests)) is not None:
         _send(replies, reply)

@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import os
 import select
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from ..core.helpers import Helper, HelperGone
+from ..core.helpers import Helper, HelperGone, value_or_none
 
 __all__ = ["PlotWorkers", "PlotJob", "draw_here"]
 
@@ -87,16 +87,12 @@ class PlotWorkers:
         """Whether a helper was given the first call (its result not yet taken)."""
         return self._first is not None
 
-    def first_result(self) -> tuple[bool, Any] | None:
-        """The first call's ``(True, value)`` or ``(False, one line)``, waited for; None
-        without one, or where the helper died (the caller does the work itself)."""
+    def first_result(self, valid: Callable[[Any], bool] = lambda _: True) -> Any:
+        """The first call's value, waited for (:func:`~thermonet.core.helpers.value_or_none`):
+        None without one, or where it did not come back as ``valid`` asks (the caller then
+        does the work itself)."""
         h, self._first = self._first, None
-        if h is None:
-            return None
-        try:
-            return h.result()
-        except HelperGone:
-            return None
+        return value_or_none(h, valid)
 
     def draw(self, jobs: Sequence[PlotJob]) -> list[Path]:
         """Every figure, handed out to the helpers as they come free (in this process

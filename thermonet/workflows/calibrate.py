@@ -77,7 +77,7 @@ import numpy as np
 
 from ..core.errors import InputError, ThermonetError
 from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
-from ..core.helpers import Helper, HelperGone
+from ..core.helpers import Helper, HelperGone, value_or_none
 from ..core.names import inside, path_components
 from ..core.outdir import KINDS, check_target, sha256_file, staged_output
 from ..core.profile import stage as profile_stage
@@ -270,20 +270,6 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
                           mag_thermometers=mag_thermometers, helpers=started)
 
 
-def _logs_read_by(helper: Helper, paths: list[str | Path]) -> list[FlightLog] | None:
-    """The logs the helper read (its first call), or None: it could not (the command then
-    reads them itself, where a bad log is refused in its own words) or sent something that
-    is not one log per path."""
-    try:
-        ok, logs = helper.result()
-    except HelperGone:
-        return None
-    if not ok or not isinstance(logs, list) or len(logs) != len(paths) \
-            or not all(isinstance(lg, FlightLog) for lg in logs):
-        return None
-    return logs
-
-
 def _calibrate(paths: list[str | Path], out: Path, *, compare: bool, overwrite: bool,
                mag_thermometers: Mapping[str, str] | None, helpers: list[Helper]
                ) -> dict[str, Any]:
@@ -294,7 +280,9 @@ def _calibrate(paths: list[str | Path], out: Path, *, compare: bool, overwrite: 
         with profile_stage("import torch and the comparison (a helper reads the log(s))"):
             import_comparison()
         with profile_stage("read the log(s) (in the helper)"):
-            logs = _logs_read_by(helpers[0], paths)
+            # one log per path, or None: read here, where a bad log is refused in its own words
+            logs = value_or_none(helpers[0], lambda v: isinstance(v, list) and len(v) == len(
+                paths) and all(isinstance(lg, FlightLog) for lg in v))
     if logs is None:
         with profile_stage("read the log(s)"):
             logs = [read_log(p) for p in paths]

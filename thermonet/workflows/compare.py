@@ -177,7 +177,8 @@ def _plan_step(cfg: CompareConfig, out: Path, tracking: TrackingSession, progres
     loaded = None
     if reader is not None and reader.has_first:
         with stage("read the data (in a helper)"):
-            loaded = _data_read_by(reader)
+            # None where it could not: read here, where a bad file is refused in its own words
+            loaded = reader.first_result(lambda ds: isinstance(ds, Dataset))
     with stage("plan: load the data, targets, splits and folds"):
         p = plan(cfg, dataset, loaded=loaded)
     ds = p.ds
@@ -209,15 +210,6 @@ def _plan_step(cfg: CompareConfig, out: Path, tracking: TrackingSession, progres
         (fam.label, {"family": fam.family, "inputs": fam.inputs, "params": fam.params},
          {**tags, "family": fam.family}) for fam in cfg.families])
     return _Run(cfg, p, out, result, resolved, provenance, tags, progress, tracking)
-
-
-def _data_read_by(reader: PlotWorkers) -> Dataset | None:
-    """The data the helper read, or None: it could not (this process then reads it, where a
-    bad file is refused in its own words) or sent something that is not a dataset."""
-    got = reader.first_result()
-    if got is None or not got[0] or not isinstance(got[1], Dataset):
-        return None
-    return got[1]
 
 
 def _note_streamed(cfg: CompareConfig, ds: Dataset, result: ComparisonResult,
