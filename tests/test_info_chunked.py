@@ -155,3 +155,35 @@ def test_convert_a_csv_once_then_read_it_in_chunks(tmp_path, capsys):
                      [o["noise_floor"] for o in want["outputs"]])
     assert main(["convert", str(csv), "--out", str(out)]) == 1
     assert "already exists (give --overwrite" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("group, name", [("outputs", "gyro_z"), ("references", "ref_gyro_y"),
+                                         ("proxies", "volts"), ("drift", "drift_gyro_x"),
+                                         ("temperature", "temperature_c")])
+def test_metadata_naming_a_column_the_file_lacks_is_one_line(recording, tmp_path, capsys,
+                                                             group, name):
+    """A thermonet file whose metadata lists a channel it does not hold (an edited blob, a
+    column dropped by another tool): every reader — the chunked ``info``, ``convert``, the
+    whole-file read — names the file, the run and the column in one line, never a KeyError."""
+    table = pq.read_table(recording)
+    blob = json.loads(table.schema.metadata[b"thermonet"])
+    if group == "temperature":
+        table = table.drop_columns(["temperature_c"])
+    else:
+        blob["runs"][1][group] = [*blob["runs"][1][group], name]
+    bad = tmp_path / "bad.parquet"
+    pq.write_table(table.replace_schema_metadata({b"thermonet": json.dumps(blob)}), bad)
+    run = "a" if group == "temperature" else "b"
+    line = f"{bad}, column '{name}': missing column (run '{run}' lists it)"
+    with pytest.raises(InputError) as whole:
+        read_dataset(bad)
+    assert str(whole.value) == line
+    with pytest.raises(InputError) as chunked:
+        summarize_parquet(bad, chunk_rows=1000)
+    assert str(chunked.value) == line
+    assert main(["info", str(bad)]) == 1
+    assert capsys.readouterr().err == f"thermonet: error: {line}\n"
+    out = tmp_path / "out.parquet"
+    assert main(["convert", str(bad), "--out", str(out)]) == 1
+    assert capsys.readouterr().err == f"thermonet: error: {line}\n"
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["bad.parquet"]

@@ -155,6 +155,12 @@ def open_parquet(path: str | Path) -> Layout | None:
     for col in ("run", "time_s"):
         if col not in names:
             raise InputError.at(path, "missing column", column=col)
+    for e in runs:   # every channel a run's metadata lists is a column (as the whole read asks)
+        for col in (["temperature_c"] if e["temperature"] else []) + [
+                c for g in ("outputs", "references", "drift", "proxies") for c in e[g]]:
+            if col not in names:
+                raise InputError.at(path, f"missing column (run '{e['run_id']}' lists it)",
+                                    column=col)
     md = pf.metadata
     return Layout(path=path, runs=runs, meta=dict(info.get("meta", {})), columns=names,
                   num_rows=md.num_rows,
