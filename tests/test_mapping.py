@@ -143,3 +143,99 @@ def test_mapping_errors_name_file_and_key(tmp_path, text, pattern):
 def test_missing_mapping_file(tmp_path):
     with pytest.raises(MappingError, match=r"absent\.yaml: mapping file not found"):
         load_mapping(tmp_path / "absent.yaml")
+
+
+NOTE_MAPPING = """\
+    time: {column: t, unit: s}
+    channels:
+      temperature_c: {column: temp, unit: degC}
+      gyro_x: {column: gx, unit: deg/s}
+    device_id: bench
+    run_id: soak
+"""
+
+
+def _noted_csv(tmp_path, n=2000, bad_row=None):
+    """A CSV whose 'note' column (not mapped) holds quoted cells with line breaks — legal
+    CSV — on rows 1, 37, 38, 999 and 1000 (the last two at the 1000-line chunk edge), one
+    with a doubled quote; row ``bad_row``'s gyro cell is 'oops'.  Returns the path and the
+    physical file line of each data row."""
+    notes = {1: '"first\nsecond"', 37: '"a ""quoted""\n\nword"', 38: '"x\ny\nz"',
+             999: '"edge\nof the chunk"', 1000: '"and\nover it"'}
+    lines, line_of, at = ["t,temp,gx,note"], {}, 2
+    for i in range(1, n + 1):
+        gx = "oops" if i == bad_row else f"{0.01 * i:.6f}"
+        cell = notes.get(i, "plain")
+        lines.append(f"{0.1 * i:.1f},{20 + 0.01 * i:.4f},{gx},{cell}")
+        line_of[i] = at
+        at += 1 + cell.count("\n")
+    path = tmp_path / "noted.csv"
+    path.write_text("\n".join(lines) + "\n")
+    return path, line_of
+
+
+def test_a_quoted_line_break_in_an_unmapped_column_is_read_as_csv(tmp_path, capsys):
+    """Quoted cells that span lines (in a column the mapping leaves out) are one row each:
+    the whole read, the chunked info (a cell across the chunk edge) and convert give every
+    one of the 2,000 rows with its own values (was an IndexError in map_frame)."""
+    from thermonet.cli import main
+    from thermonet.workflows.info_chunked import summarize_parquet
+
+    path, _ = _noted_csv(tmp_path)
+    mp = load_mapping(_yaml(tmp_path, NOTE_MAPPING))
+    r = read_dataset(path, mp)["soak"]
+    i = np.arange(1, 2001)
+    assert r.n_samples == 2000
+    np.testing.assert_array_equal(r.time_s, np.array([float(f"{0.1 * k:.1f}") for k in i]))
+    np.testing.assert_array_equal(r.outputs["gyro_x"],
+                                  np.array([float(f"{0.01 * k:.6f}") for k in i]))
+    for chunk in (7, 999, 1000, 65536):
+        got = summarize_parquet(path, chunk_rows=chunk, mapping=mp)
+        assert got["runs"][0]["samples"] == 2000
+        assert got["temperature_range_c"] == [20.01, 40.0]
+    out = tmp_path / "noted.parquet"
+    assert main(["convert", str(path), "--mapping", str(tmp_path / "map.yaml"),
+                 "--out", str(out), "--chunk-rows", "999"]) == 0
+    back = read_dataset(out)["soak"]
+    np.testing.assert_array_equal(back.outputs["gyro_x"], r.outputs["gyro_x"])
+    np.testing.assert_array_equal(back.temperature_c, r.temperature_c)
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize("chunk", [None, 999, 1000])
+def test_a_bad_cell_after_multi_line_cells_names_its_own_file_line(tmp_path, chunk):
+    """After quoted cells that span lines, a message still names the row and its physical
+    file line (here 7 lines further down than the row number suggests)."""
+    from thermonet.workflows.info_chunked import summarize_parquet
+
+    path, line_of = _noted_csv(tmp_path, bad_row=1500)
+    mp = load_mapping(_yaml(tmp_path, NOTE_MAPPING))
+    want = f"{path}, column 'gx', row 1500: non-numeric cell 'oops' (file line {line_of[1500]})"
+    assert line_of[1500] == 1508
+    with pytest.raises(InputError) as err:
+        if chunk is None:
+            read_dataset(path, mp)
+        else:
+            summarize_parquet(path, chunk_rows=chunk, mapping=mp)
+    assert str(err.value) == want
+
+
+def test_a_quoted_cell_left_open_to_the_end_is_one_line(tmp_path):
+    from thermonet.workflows.info_chunked import summarize_parquet
+
+    """A quote that never closes would swallow the rest of the file into one cell: refused
+    in one line naming the file line it opens on (not a traceback, not rows lost)."""
+    path, _ = _noted_csv(tmp_path, n=30)
+    text = path.read_text().splitlines()
+    text[10] = text[10].replace("plain", '"never closed')  # row 9, on file line 11
+    path.write_text("\n".join(text) + "\n")
+    mp = load_mapping(_yaml(tmp_path, NOTE_MAPPING))
+    want = (f"{path}: file line 11: a quoted cell opens on this line and never closes (a '\"' "
+            "is missing; it would swallow the 21 lines after it)")
+    for chunk in (None, 5, 11, 100):
+        with pytest.raises(InputError) as err:
+            if chunk is None:
+                read_dataset(path, mp)
+            else:
+                summarize_parquet(path, chunk_rows=chunk, mapping=mp)
+        assert str(err.value) == want

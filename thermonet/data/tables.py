@@ -83,6 +83,85 @@ def _text_lines(path: Path, chunk_rows: int | None) -> Iterator[tuple[list[str],
             offset += len(raw)
 
 
+#: Appended to a block of lines when grouping them into records: csv takes it into the last
+#: record only when that record's quoted cell is still open at the block's end.
+_SENTINEL = "\x01"
+
+
+class _Records:
+    """Physical lines grouped into the text of whole CSV records: a quoted cell may hold a line
+    break (legal CSV), so one record may span several physical lines.  csv's own parser (the
+    separator's dialect) decides where each record ends; a record still open at a block's end
+    is carried into the next block.  Downstream every element is one record, so the records
+    parsed from the lines and the lines themselves stay aligned (row ``i`` is line ``i``).
+
+    ``joins`` maps the record index after each multi-line record to the physical lines
+    absorbed so far, for :meth:`extra_at` (file line numbers in messages)."""
+
+    def __init__(self, path: Path, sep: str, first_line: int) -> None:
+        self.path, self.sep, self.first_line = path, sep, first_line
+        self.tail: list[str] = []
+        self.count = 0
+        self.extra = 0
+        self.joins: list[tuple[int, int]] = []
+
+    def feed(self, block: list[str]) -> list[str]:
+        lines = self.tail + block
+        self.tail = []
+        if not any('"' in ln for ln in lines):   # no quote: one line, one record
+            self.count += len(lines)
+            return lines
+        reader = csv.reader(itertools.chain(lines, [_SENTINEL]), delimiter=self.sep)
+        out: list[str] = []
+        start = 0
+        for _ in reader:
+            end = reader.line_num
+            if end > len(lines):   # the sentinel itself, or a record still open at the end
+                self.tail = lines[start:]
+                break
+            if end - start == 1:
+                out.append(lines[start])
+            else:
+                out.append("\n".join(lines[start:end]))
+                self.extra += end - start - 1
+                self.joins.append((self.count + len(out), self.extra))
+            start = end
+        self.count += len(out)
+        return out
+
+    def blocks(self, blocks: Iterator[tuple[list[str], int]]
+               ) -> Iterator[tuple[list[str], int]]:
+        """``blocks`` as blocks of whole records (none empty).
+
+        Raises
+        ------
+        InputError
+            A quoted cell still open at the end of the file (its closing quote missing: it
+            would swallow every line after it), named by the file line it opens on."""
+        for block, offset in blocks:
+            out = self.feed(block)
+            if out:
+                yield out, offset
+        self.check_closed()
+
+    def check_closed(self) -> None:
+        """Refuse a quoted cell left open at the end of the file (module docstring)."""
+        if self.tail:
+            line = self.first_line + self.count + self.extra
+            raise InputError.at(self.path, f"file line {line}: a quoted cell opens on this "
+                                "line and never closes (a '\"' is missing; it would swallow "
+                                f"the {len(self.tail) - 1} lines after it)")
+
+    def extra_at(self, index: np.ndarray) -> np.ndarray:
+        """Physical lines absorbed before each record ``index`` (0-based, counted from the
+        first line after the banner)."""
+        if not self.joins:
+            return np.zeros(np.shape(index), dtype=np.int64)
+        starts = np.array([j[0] for j in self.joins])
+        cum = np.array([0] + [j[1] for j in self.joins])
+        return cum[np.searchsorted(starts, index, side="right")]
+
+
 class _Pending:
     """The lines read so far from a text table's blocks (``more`` reads the next block)."""
 
@@ -173,11 +252,23 @@ def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None,
         while len([ln for ln in lines if ln.strip()]) < 50 and src.more():
             pass
         sep = _sniff(path, [ln for ln in lines if ln.strip()][:50])
+    # from here on one element of ``lines`` is one record (a quoted cell may span lines)
+    joined = _Records(path, sep, skip + 1)
+    src.lines[:] = joined.feed(src.lines)
+    if src.exhausted:
+        joined.check_closed()
+    src.blocks = blocks = joined.blocks(blocks)
     records = list(csv.reader(lines, delimiter=sep))
     names: list[str] | None = None
     first_data = skip + 1  # physical line of data row 1, before the header shift
     if header:
         names, records, first_data = _read_header(path, src, records, sep, first_data)
+    lead = first_data - skip - 1   # records before data row 1 (blank lines, the header)
+
+    def line_of(i: np.ndarray) -> np.ndarray:
+        """The physical file line of 0-based data records ``i``."""
+        i = np.asarray(i, dtype=np.int64)
+        return first_data + i + joined.extra_at(lead + i)
     n_fields = _field_count(path, names, mapping, records)
     numeric = names if names and all(n and _is_float(n) for n in names) else []
     fast = None if float_columns is None or chunk_rows is None else \
@@ -191,10 +282,10 @@ def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None,
             part = lines[a:a + step]
             recs = None if first is None else first[a:a + step]
             frame = None if fast is None else _fast_frame(
-                path, part, base, first_data, names, n_fields, sep, fast, numeric)
+                path, part, base, line_of, names, n_fields, sep, fast, numeric)
             if frame is None:
                 recs = recs if recs is not None else list(csv.reader(part, delimiter=sep))
-                frame = _frame(path, part, recs, base, first_data, names, n_fields, sep,
+                frame = _frame(path, part, recs, base, line_of, names, n_fields, sep,
                                malformed, numeric)
             base += len(part) if recs is None else len(recs)
             if frame is not None:
@@ -211,7 +302,8 @@ def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None,
         raise InputError.at(path, "no data rows")
 
 
-def _fast_frame(path: Path, lines: list[str], base: int, first_data: int,
+def _fast_frame(path: Path, lines: list[str], base: int,
+                line_of: Callable[[np.ndarray], np.ndarray],
                 names: list[str] | None, n_fields: int, sep: str, floats: set[str | int],
                 numeric: list[str]) -> Frame | None:
     """A block of plain numeric lines parsed by pyarrow's CSV reader: the ``floats``
@@ -257,12 +349,13 @@ def _fast_frame(path: Path, lines: list[str], base: int, first_data: int,
         else:
             data[x] = col.to_pandas()
     rows = np.arange(base + 1, base + 1 + len(lines))
-    return Frame(path=path, data=pd.DataFrame(data), rows=rows, lines=rows - 1 + first_data,
+    return Frame(path=path, data=pd.DataFrame(data), rows=rows, lines=line_of(rows - 1),
                  numeric_header=numeric)
 
 
-def _frame(path: Path, lines: list[str], records: list[list[str]], base: int, first_data: int,
-           names: list[str] | None, n_fields: int, sep: str, malformed: str,
+def _frame(path: Path, lines: list[str], records: list[list[str]], base: int,
+           line_of: Callable[[np.ndarray], np.ndarray], names: list[str] | None,
+           n_fields: int, sep: str, malformed: str,
            numeric: list[str]) -> Frame | None:
     """One frame of text records (``base``: the index of the first among all data records),
     or None when every record of it is blank or skipped."""
@@ -274,9 +367,10 @@ def _frame(path: Path, lines: list[str], records: list[list[str]], base: int, fi
         if len(rec) != n_fields:
             if malformed == "error":
                 raise InputError.at(path, f"expected {n_fields} fields, found {len(rec)} "
-                                    f"(file line {first_data + base + i}; set malformed_rows: "
+                                    f"(file line {int(line_of(np.asarray(base + i)))}; set "
+                                    "malformed_rows: "
                                     "skip in a mapping to drop such rows)", row=base + i + 1)
-            skipped_lines.append(first_data + base + i)
+            skipped_lines.append(int(line_of(np.asarray(base + i))))
             continue
         keep.append(i)
     if not keep:
@@ -292,7 +386,7 @@ def _frame(path: Path, lines: list[str], records: list[list[str]], base: int, fi
                        names=names if names is not None else list(range(n_fields)),
                        dtype=str, keep_default_na=False, skip_blank_lines=False)
     rows = np.asarray(keep) + base + 1
-    return Frame(path=path, data=data, rows=rows, lines=rows - 1 + first_data,
+    return Frame(path=path, data=data, rows=rows, lines=line_of(rows - 1),
                  skipped_lines=skipped_lines, numeric_header=numeric)
 
 
