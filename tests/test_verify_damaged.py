@@ -428,3 +428,64 @@ def test_the_exporters_readers_name_file_line_and_parameter(tmp_path: Path, line
     with pytest.raises(ExportError) as err:
         getattr(exporting, reader)(path)
     assert str(err.value) == f"{path}: line 3: parameter {name}: value 'abc' is not a number"
+
+
+# An offset at TREF (PX4's X0) beyond what a thermal calibration can hold, per kind: the
+# parameter, its value, the instance, the axis and the bound in the report's line.
+OFFSETS = [("TC_M0_X0_0", "5", "mag0", 0, "5 gauss (500 µT)", "beyond the 65 µT"),
+           ("TC_G0_X0_1", "0.5", "gyro0", 1, "0.5 rad/s", "beyond the 0.35 rad/s"),
+           ("TC_A1_X0_2", "-3", "acc1", 2, "-3 m/s²", "beyond the 2 m/s²"),
+           ("TC_B0_X0", "2500", "baro0", 0, "2500 Pa", "beyond the 1000 Pa")]
+
+
+@pytest.mark.parametrize("param, value, inst, axis, given, bound", OFFSETS,
+                         ids=[o[0] for o in OFFSETS])
+def test_an_offset_at_tref_no_calibration_can_hold_fails(
+        board: dict[str, dict[str, Path]], tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        param: str, value: str, inst: str, axis: int, given: str, bound: str) -> None:
+    """A constant the binned drift cannot see (5 gauss on a magnetometer: 500 µT off every
+    sample) FAILs the axis, exit 3, with one line naming the parameter and why; the oracle
+    shows the firmware shifting every corrected sample by exactly that constant."""
+    good = board["px4"]["params"]
+    bad = tmp_path / good.name
+    bad.write_text(_set(good.read_text(), param, value))
+    out = tmp_path / "v"
+    assert main(["verify", str(bad), str(board["px4"]["log"]), "--out", str(out)]) == 3
+    report = capsys.readouterr().out
+    fails = [ln.strip() for ln in report.splitlines() if ln.strip().startswith("FAIL: TC_")]
+    assert fails == [f"FAIL: {param} = {given}: the firmware would subtract it from every "
+                     f"sample at TREF; {bound} an offset at TREF can be"
+                     + fails[0].split("can be", 1)[1]], report
+    doc = json.loads((out / "results.json").read_text())
+    d = doc["instances"][inst]
+    assert doc["passed"] is False and d["status"] == "judged"
+    assert d["passed"][axis] is False and d["offset_failures"] == [fails[0][len("FAIL: "):]]
+    assert all(ok for j, ok in enumerate(d["passed"]) if j != axis)   # the drift itself: cut
+    assert all(all(o["passed"]) for n, o in doc["instances"].items()
+               if n != inst and o["status"] == "judged")
+    # the firmware: the same binned drift, every sample moved by the constant
+    dev = d["device_id"]
+    kind = param[3]
+    fw_good = px4_firmware(_load(good), board["px4"]["log"])[(kind, dev)][:, axis]
+    fw_bad = px4_firmware(_load(bad), board["px4"]["log"])[(kind, dev)][:, axis]
+    shift = float(value) - _load(good)[param]      # in the file's unit (gauss for TC_M)
+    np.testing.assert_allclose(fw_good.astype(np.float64) - fw_bad, shift, rtol=0,
+                               atol=1e-5 * abs(shift))
+
+
+def test_an_offset_within_the_bound_passes_and_the_bound_is_reported(
+        board: dict[str, dict[str, Path]], tmp_path: Path) -> None:
+    """0.64 gauss at TREF is within the 65 µT bound (PASS); 0.66 beyond it (FAIL); the
+    bounds are in results.json's limits."""
+    good = board["px4"]["params"]
+    rcs = []
+    for value in ("0.64", "-0.66"):
+        bad = tmp_path / value / good.name
+        bad.parent.mkdir()
+        bad.write_text(_set(good.read_text(), "TC_M0_X0_2", value))
+        rcs.append(main(["verify", str(bad), str(board["px4"]["log"]), "--out",
+                         str(tmp_path / value / "v"), "-q"]))
+    assert rcs == [0, 3]
+    doc = json.loads((tmp_path / "0.64" / "v" / "results.json").read_text())
+    assert doc["limits"]["max_offset"] == {"gyro": 0.35, "acc": 2.0, "baro": 1000.0,
+                                           "mag": 65.0}

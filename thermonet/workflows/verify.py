@@ -37,6 +37,18 @@ noise; set them for your sensors (``--gyro-floor`` …).  The binned drift of pu
 zero (the spread of ~50 bin means), so a floor far below the sensor's noise makes
 quiet axes FAIL.
 
+The binned drift cannot see a constant, so verify also judges what the file adds at the
+reference temperature (PX4's ``X0``: the firmware subtracts it from every sample while the
+sensor sits at TREF; :func:`offset_failures`): an axis whose ``|X0|`` is beyond
+:data:`MAX_OFFSET_AT_REF` FAILs, with a line naming the parameter and why — 0.35 rad/s
+(20 °/s: the largest zero-rate offset MEMS gyro datasheets allow; the scripts fit the gyro
+at rest, so X0 is its bias at TREF), 2 m/s² (0.2 g: the scripts fit the accelerometer less
+its median, so X0 is a drift), 1000 Pa (≈ 80 m: the pressure less its median) and 65 µT
+(0.65 gauss, the strongest geomagnetic field: PX4's on-board calibrator writes X0 = 0).  A
+slot that applies to an instance the log cannot judge is checked too (the value is the
+file's, whatever the log).  ArduPilot's correction is zero at its calibration temperature
+by construction.
+
 An instance the file applies to but the log cannot judge is ``not judged``, with
 why, never PASS: the same minimums as ``calibrate``'s
 (:func:`thermonet.workflows.firmware_fit.check_instance`: at least
@@ -85,6 +97,7 @@ from ..core.version import __version__
 from ..data.firmware import (
     ARDUPILOT_TEMP_REFERENCE,
     PX4_LETTER,
+    PX4_PARAM_UNIT,
     PX4_SLOTS,
     ardupilot_correction,
     px4_offsets_1d,
@@ -123,13 +136,32 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 PLAUSIBLE_C = TEMPERATURE_RANGE_C
 
 
+#: Largest offset at the reference temperature (PX4's ``X0``: what the firmware subtracts
+#: from every sample while the sensor sits at TREF, a constant the binned drift cannot see)
+#: a thermal calibration may hold, per kind, in :data:`KIND_UNITS`, and why (module
+#: docstring).  An axis whose offset is beyond it FAILs, whatever its cut.
+MAX_OFFSET_AT_REF = {"gyro": 0.35, "acc": 2.0, "baro": 1000.0, "mag": 65.0}
+_OFFSET_WHY = {
+    "gyro": "20 °/s, the largest zero-rate offset MEMS gyro datasheets allow (MPU-6000: "
+            "±20 °/s); the scripts fit the gyro at rest, so X0 is its bias at TREF",
+    "acc": "0.2 g: the scripts fit the accelerometer less its median (gravity), so X0 is the "
+           "drift at TREF, which no MEMS accelerometer's zero-g drift reaches",
+    "baro": "≈ 80 m of altitude: the scripts fit the pressure less its median, so X0 is the "
+            "drift at TREF, far below this for any barometer",
+    "mag": "0.65 gauss, the strongest geomagnetic field: PX4's on-board calibrator writes "
+           "X0 = 0 and the scripts fit the field less its median",
+}
+
+
 @dataclass
 class Limits:
-    """PASS/FAIL of one axis: ``cut ≥ min_cut`` or ``after ≤ floor[kind]`` (SI units)."""
+    """PASS/FAIL of one axis: ``cut ≥ min_cut`` or ``after ≤ floor[kind]`` (SI units), and
+    (PX4) the offset at TREF within ``max_offset[kind]`` (:data:`MAX_OFFSET_AT_REF`)."""
 
     min_cut: float = 3.0
     floor: dict[str, float] = field(default_factory=lambda: {
         "gyro": 5e-4, "acc": 5e-3, "baro": 1.0, "mag": 0.5})
+    max_offset: dict[str, float] = field(default_factory=lambda: dict(MAX_OFFSET_AT_REF))
 
     def check(self) -> Limits:
         if not (math.isfinite(self.min_cut) and self.min_cut > 1.0):
@@ -137,6 +169,9 @@ class Limits:
         for kind, v in self.floor.items():
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"the {kind} floor {v}: must be a non-negative number")
+        for kind, v in self.max_offset.items():
+            if not (math.isfinite(v) and v > 0):
+                raise InputError(f"the {kind} largest offset {v}: must be a positive number")
         return self
 
 
@@ -396,6 +431,28 @@ def _correction(pf: ParamFile, inst: SensorInstance, slot: int, log: FlightLog
     return corr, pf.params[pre + "TMIN"], pf.params[pre + "TMAX"]
 
 
+def offset_failures(pf: ParamFile, kind: str, slot: int, limits: Limits
+                    ) -> dict[int, str]:
+    """Per axis whose offset at TREF (PX4's ``X0``) is beyond ``limits.max_offset[kind]``:
+    which parameter, its value and why it cannot be a thermal calibration.  ArduPilot's
+    correction is zero at its calibration temperature by construction: nothing to judge."""
+    if pf.autopilot != "px4":
+        return {}
+    pre = f"TC_{_PX4_LETTER[kind]}{slot}_"
+    names = [f"{pre}X0"] if kind == "baro" else [f"{pre}X0_{i}" for i in range(3)]
+    bound, unit = limits.max_offset[kind], KIND_UNITS[kind]
+    out = {}
+    for j, name in enumerate(names):
+        raw = pf.params[name]
+        v = raw * PX4_PARAM_UNIT[kind]
+        if abs(v) > bound:
+            given = f"{raw:g} gauss ({v:g} {unit})" if kind == "mag" else f"{raw:g} {unit}"
+            out[j] = (f"{name} = {given}: the firmware would subtract it from every sample at "
+                      f"TREF; beyond the {bound:g} {unit} an offset at TREF can be "
+                      f"({_OFFSET_WHY[kind]})")
+    return out
+
+
 def judge_axes(temperature_c: np.ndarray, y: np.ndarray, correction: np.ndarray, kind: str,
                limits: Limits) -> dict[str, list[Any]]:
     """verify's test of one instance, per axis (``calibrate``'s held-out check is this too).
@@ -483,6 +540,8 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
             d.update(status="not covered", reason=why)
             out[inst.name] = d
             continue
+        bad_offsets = offset_failures(pf, inst.kind, slot, limits)  # whatever the log
+        d["offset_failures"] = list(bad_offsets.values())
         why = check_instance(inst, log.autopilot)   # the same minimums as calibrate's
         if inst.kind == "mag" and inst.temperature_c is None:
             why = ("no temperature of its own: PX4 applies TC_M* with the magnetometer's own "
@@ -501,6 +560,8 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
         corr, t_min, t_max = _correction(pf, inst, slot, log)
         y = target(inst, log.autopilot)
         judged = judge_axes(temp, y, corr, inst.kind, limits)
+        for j in bad_offsets:     # a constant the binned drift cannot see: FAILs the axis
+            judged["passed"][j] = False
         below = t_min - float(temp.min())
         above = float(temp.max()) - t_max
         if below > RANGE_SLACK_C or above > RANGE_SLACK_C:
@@ -534,7 +595,8 @@ def verify(params_path: str | Path, log_path: str | Path, out_dir: str | Path, *
            "params_file": str(pf.path), "log": str(log.path),
            "log_sha256": sha256_file(log.path), "autopilot": log.autopilot,
            "limits": asdict(limits), "instances": insts,
-           "passed": all(all(d["passed"]) for d in judged)}
+           "passed": all(all(d["passed"]) for d in judged)
+           and not any(d.get("offset_failures") for d in insts.values())}
     with staged_output(out, overwrite=overwrite, kind="verification") as stage:
         atomic_write_text(stage.path / "results.json",
                           json.dumps(_json_safe(doc), indent=2, allow_nan=False))
@@ -586,10 +648,12 @@ def format_verify_report(doc: dict[str, Any]) -> str:
         head = f"{name:<6} id {d['device_id']:<9}"
         if d["status"] != "judged":
             lines.append(f"{head} {d['status']}: {d['reason']}")
+            lines += [f"       FAIL: {w}" for w in d.get("offset_failures") or []]
             continue
         axes = ", ".join(_axis_text(d, j) for j in range(len(d["passed"])))
         unit = KIND_UNITS.get(d["kind"], "")
         lines.append(f"{head} slot {d['slot']}: binned drift p-p [{unit}] {axes}")
+        lines += [f"       FAIL: {w}" for w in d.get("offset_failures") or []]
         lines += [f"       warning: {w}" for w in d["warnings"]]
     lines += ["", "PASS" if doc["passed"] else "FAIL: see the axes marked FAIL"]
     return "\n".join(lines) + "\n"
@@ -604,12 +668,15 @@ def render_verify_html(doc: dict[str, Any]) -> str:
         if d["status"] != "judged":
             rows.append(f"<tr><td>{html.escape(name)}</td><td>{d['device_id']}</td>"
                         f"<td colspan=\"3\">{html.escape(d['status'])}: "
-                        f"{html.escape(str(d['reason']))}</td></tr>")
+                        f"{html.escape(str(d['reason']))}"
+                        + "".join(f"<br>FAIL: {html.escape(w)}"
+                                  for w in d.get("offset_failures") or []) + "</td></tr>")
             continue
         for j, (b, a, c, ok) in enumerate(zip(d["pp_raw"], d["pp_corrected"], d["cut"],
                                               d["passed"], strict=True)):
             colour = VERDICT_COLOURS["better" if ok else "worse"]
-            warn = "; ".join(d["warnings"]) if j == 0 else ""
+            warn = "; ".join([*(d.get("offset_failures") or []), *d["warnings"]]) \
+                if j == 0 else ""
             rows.append(f"<tr><td>{html.escape(name)}[{j}]</td><td>{d['device_id']}</td>"
                         f"<td>{_g3(b)} → {_g3(a)} {html.escape(KIND_UNITS.get(d['kind'], ''))}"
                         f"</td><td style=\"background:{colour}\">"
