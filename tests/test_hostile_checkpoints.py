@@ -11,6 +11,7 @@ training targets' mean ± 1000 std), so a model that is absurd although its file
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -326,3 +327,54 @@ def test_the_runtime_refuses_an_edited_onnx_file(fitted, tmp_path, capsys, runti
     # re-sealed by its owner it runs again (and a re-sealed 3e38 is the owner's business)
     seal_onnx(bad)
     runtime.Compensator(bad)
+
+
+class _Payload:
+    """A pickle that would run code on load (``os.mkdir`` a marker) if loaded unsafely."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (os.mkdir, (str(self.marker),))
+
+
+@pytest.mark.parametrize("how", ["torch.save", "pickle"])
+def test_a_hostile_pickle_is_named_never_loaded_unsafely(tmp_path, capsys, how):
+    """A pickle that names code to run, given as a checkpoint (export, DriftEstimator.load,
+    seal) or a sensor model: one line saying it is no thermonet checkpoint and why (an
+    unsafe pickle naming os.mkdir), never torch's advice to re-run torch.load with
+    weights_only=False, and the code never runs."""
+    import pickle
+
+    from thermonet.training.sensor import load_sensor
+
+    marker = tmp_path / "ran"
+    bad = tmp_path / "model.pt"
+    if how == "torch.save":
+        torch.save({"state_dict": {}, "x": _Payload(marker)}, bad)
+    else:
+        bad.write_bytes(pickle.dumps({"x": _Payload(marker)}, protocol=4))
+    want = (f"{bad}: not a thermonet checkpoint: it is a pickle that names Python code to run "
+            f"or a class to rebuild ({os.mkdir.__module__}.mkdir), which a checkpoint never holds (an "
+            "unsafe pickle); refused unread, nothing in it was run")
+    for load in (load_checkpoint, seal_checkpoint, thermonet.DriftEstimator.load):
+        with pytest.raises(InputError) as err:
+            load(bad)
+        assert str(err.value) == want
+    with pytest.raises(InputError) as err:
+        load_sensor(bad)
+    assert str(err.value) == want.replace("checkpoint", "sensor model")
+    assert main(["export", str(bad), "--format", "onnx", "--out", str(tmp_path / "m.onnx")]) == 1
+    err_text = capsys.readouterr().err
+    assert f"thermonet: error: {want}\n" in err_text and "weights_only" not in err_text
+    assert not marker.exists() and not (tmp_path / "m.onnx").exists()
+
+
+def test_a_damaged_pickle_is_not_readable_without_torchs_advice(tmp_path):
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"\x80\x04not a pickle")
+    with pytest.raises(InputError) as err:
+        load_checkpoint(junk)
+    assert str(err.value).startswith(f"{junk}: not a readable checkpoint (")
+    assert "weights_only" not in str(err.value) and "\n" not in str(err.value)

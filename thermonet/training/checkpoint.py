@@ -41,6 +41,8 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import pickle
+import re
 from pathlib import Path
 from typing import Any
 
@@ -245,16 +247,66 @@ def seal_checkpoint(path: str | os.PathLike) -> Path:
     return path
 
 
+#: torch's weights-only refusals of a global ("Unsupported global: GLOBAL x", "unsupported
+#: GLOBAL x whose module is blocked"): the callable or class a pickle names.
+_UNSAFE_GLOBAL = re.compile(r"\bGLOBAL ([\w.]+)", re.IGNORECASE)
+
+
+def load_torch_file(path: Path, what: str = "checkpoint") -> Any:
+    """``torch.load(path, weights_only=True)`` of a file a user gave, its refusals in one line
+    of thermonet's own: a pickle naming code or a class to rebuild (a hostile or foreign
+    pickle, which the safe loader never runs) is said to be no thermonet ``what`` and why —
+    never with torch's advice to load it again unsafely (``weights_only=False``)."""
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as err:
+        text = str(err)
+        glob = _UNSAFE_GLOBAL.search(text)
+        name = glob.group(1) if glob else _pickle_global(path)
+        if name:
+            raise InputError.at(path, f"not a thermonet {what}: it is a pickle that names "
+                                f"Python code to run or a class to rebuild ({name}), "
+                                f"which a {what} never holds (an unsafe pickle); refused "
+                                "unread, nothing in it was run") from None
+        detail = text.split("WeightsUnpickler error:", 1)[-1].strip().splitlines()
+        detail = [d for d in detail if d.strip() and "weights_only" not in d]
+        raise InputError.at(path, f"not a readable {what} (not a pickle of tensors and plain "
+                            f"data{': ' + detail[0].strip() if detail else ''})") from None
+    except Exception as err:  # torch raises several unrelated types for a bad file
+        first = str(err).splitlines()[0] if str(err) else ""
+        first = "" if "weights_only" in first else first
+        raise InputError.at(path, f"not a readable {what} ({type(err).__name__}"
+                            f"{': ' + first if first else ''})") from None
+
+
+def _pickle_global(path: Path) -> str | None:
+    """The first callable or class a plain pickle file names (``GLOBAL`` / ``STACK_GLOBAL``),
+    read by :mod:`pickletools` without running anything; None where there is none or the
+    file is no plain pickle (torch's safe loader stops at an opcode it does not read before
+    it reaches the global, so this names it)."""
+    import pickletools
+
+    try:
+        strings: list[str] = []
+        with path.open("rb") as f:
+            for op, arg, _ in pickletools.genops(f):
+                if op.name == "GLOBAL":
+                    return str(arg).replace(" ", ".")
+                if op.name == "STACK_GLOBAL" and len(strings) >= 2:
+                    return f"{strings[-2]}.{strings[-1]}"
+                if isinstance(arg, str):
+                    strings.append(arg)
+    except Exception:   # not a pickle, or damaged: named by the caller as unreadable
+        return None
+    return None
+
+
 def _read_payload(path: Path) -> dict:
     """The dict a checkpoint file holds (``weights_only``), with every key of :data:`_KEYS`."""
     why = not_a_file(path, "checkpoint file")
     if why:
         raise InputError.at(path, why)
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises several unrelated types for a bad file
-        raise InputError.at(path, f"not a readable checkpoint ({type(err).__name__}: "
-                            f"{str(err).splitlines()[0] if str(err) else ''})") from err
+    payload = load_torch_file(path)
     if not isinstance(payload, dict) or any(k not in payload for k in _KEYS):
         missing = [k for k in _KEYS if not isinstance(payload, dict) or k not in payload]
         raise InputError.at(path, f"not a thermonet checkpoint (missing {', '.join(missing)})")

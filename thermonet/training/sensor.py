@@ -54,7 +54,7 @@ from ..features.inputs import FeatureSpec, signal_matrix
 from ..models import DriftModel, build_family
 from ..models.base import check_output_shape
 from ..models.sensor import SensorModel, check_invertible, element_names
-from .checkpoint import DIGEST_KEY, _check_digest, checkpoint_digest
+from .checkpoint import DIGEST_KEY, _check_digest, checkpoint_digest, load_torch_file
 from .scaling import column_scale, seed_torch
 from .train import _fit_loop, average_windows, rest_signals, thread_limits
 
@@ -468,10 +468,7 @@ def load_sensor(path: str | Path) -> tuple[SensorModel, dict]:
     The file's SHA-256 digest (over its content, as for bias checkpoints) must match, and
     its names pass :mod:`thermonet.core.names` before anything is built from them."""
     p = Path(path)
-    try:
-        payload = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as err:  # a truncated or foreign file: one line
-        raise InputError(f"{p}: not a thermonet sensor model ({type(err).__name__})") from None
+    payload = load_torch_file(p, "sensor model")   # a hostile pickle: one line, never run
     if not isinstance(payload, dict) or payload.get("format") != SENSOR_FORMAT:
         raise InputError(f"{p}: not a thermonet sensor model (format "
                          f"{payload.get('format') if isinstance(payload, dict) else None!r})")
