@@ -131,3 +131,36 @@ def test_bad_options_are_usage_errors(argv, capsys):
         build_parser().parse_args(argv)
     assert err.value.code == 2
     assert "thermonet" in capsys.readouterr().err
+
+
+def test_simulate_help_lists_every_preset_of_the_registry(capsys, monkeypatch):
+    """``simulate --help`` names every preset registered (thermonet.sim.presets.PRESETS,
+    filled as thermonet.sim loads) and the flight-controller boards, not a list typed once."""
+    from thermonet.sim import PRESETS
+    from thermonet.sim.fcboard import BOARD_PRESETS
+
+    monkeypatch.setenv("COLUMNS", "1000")   # one line: argparse may wrap at a name's hyphen
+    with pytest.raises(SystemExit) as done:
+        build_parser().parse_args(["simulate", "--help"])
+    assert done.value.code == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.strip()
+                .startswith("preset "))
+    names = line.split(None, 1)[1].split(" (")[0].split(" | ")
+    assert names == [*PRESETS, *BOARD_PRESETS]
+    assert {"consumer-imu", "accel-ramp", "stress-imu", "imu-multiposition"} <= set(names)
+
+
+def test_python_dash_m_thermonet_runs_the_command_line(tmp_path):
+    """``python -m thermonet`` is the ``thermonet`` command: its version, and a refusal with
+    the command's own exit status and line."""
+    import subprocess
+    import sys
+
+    from thermonet.core.version import __version__
+
+    run = subprocess.run([sys.executable, "-m", "thermonet", "--version"],
+                         capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert (run.returncode, run.stdout) == (0, f"thermonet {__version__}\n")
+    run = subprocess.run([sys.executable, "-m", "thermonet", "info", "nowhere.csv"],
+                         capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert run.returncode == 1 and run.stderr.startswith("thermonet: error: nowhere.csv")

@@ -354,14 +354,35 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _preset_names() -> list[str]:
+    """Every simulator preset: the registry's (``thermonet.sim.presets.PRESETS``, filled as
+    :mod:`thermonet.sim` is imported), then the flight-controller boards."""
+    from .sim import PRESETS  # lazy: numpy and the simulator, only for simulate's help
+    from .sim.fcboard import BOARD_PRESETS  # lazy: as above
+
+    return [*PRESETS, *(b for b in BOARD_PRESETS if b not in PRESETS)]
+
+
+class _PresetsHelp(argparse.HelpFormatter):
+    """``simulate --help``: ``{presets}`` in a help text becomes the registry's presets,
+    looked up only when that help is shown (``thermonet --help`` and every command's start
+    import no simulator)."""
+
+    def _expand_help(self, action: argparse.Action) -> str:
+        text = super()._expand_help(action)
+        return text.replace("{presets}", " | ".join(_preset_names())) \
+            if "{presets}" in text else text
+
+
 def _add_simulate(sub: Any) -> None:
     """``thermonet simulate``: a study preset written as a recording."""
     s = sub.add_parser("simulate", help="simulate a thermal-chamber test (a study preset)",
+                       formatter_class=_PresetsHelp,
                        description="Simulate a thermal-chamber test from a study preset "
                                    "and write it as a thermonet Parquet file (or, with --out "
                                    "FILE.csv, as CSV: the runtime's input).")
-    s.add_argument("preset", help="accel | hrg | mems-gyro | patent-gyro | fc-board | "
-                                  "fc-board-cycle (the last two: --out FILE.ulg or FILE.bin)")
+    s.add_argument("preset", help="{presets} (fc-board and fc-board-cycle: --out FILE.ulg "
+                                  "or FILE.bin)")
     s.add_argument("--runs", type=int, default=None,
                    help="number of runs (default: the preset's); fc-board: N logs of the same "
                         "board, written as FILE itself when N is 1 and as FILE_run1 .. "
@@ -617,7 +638,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def run() -> None:
-    """The ``thermonet`` command (console script, ``python -m thermonet.cli``): :func:`main`,
+    """The ``thermonet`` command (console script, ``python -m thermonet``): :func:`main`,
     then the process exits without the interpreter's last clean-up of its modules.
 
     Everything alive at the end is frozen (:func:`gc.freeze`): the interpreter's final
