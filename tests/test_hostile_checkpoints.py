@@ -367,7 +367,8 @@ def test_a_hostile_pickle_is_named_never_loaded_unsafely(tmp_path, capsys, how):
     assert str(err.value) == want.replace("checkpoint", "sensor model")
     assert main(["export", str(bad), "--format", "onnx", "--out", str(tmp_path / "m.onnx")]) == 1
     err_text = capsys.readouterr().err
-    assert f"thermonet: error: {want}\n" in err_text and "weights_only" not in err_text
+    assert err_text.endswith(f"thermonet: error: {want}\n")
+    assert "weights_only=False" not in err_text and "set to `False`" not in err_text
     assert not marker.exists() and not (tmp_path / "m.onnx").exists()
 
 
@@ -378,3 +379,20 @@ def test_a_damaged_pickle_is_not_readable_without_torchs_advice(tmp_path):
         load_checkpoint(junk)
     assert str(err.value).startswith(f"{junk}: not a readable checkpoint (")
     assert "weights_only" not in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_library_warning_reaches_the_console_as_one_line_of_thermonets(tmp_path, capsys):
+    """torch warns (a UserWarning with its file and source line, as Python prints it) while
+    reading a plain pickle given to export: the console shows it as one line in
+    thermonet's voice, then the refusal — two lines, no file:line, no 'UserWarning:'."""
+    import pickle
+
+    bad = tmp_path / "model.pt"
+    bad.write_bytes(pickle.dumps({"x": _Payload(tmp_path / "ran")}, protocol=4))
+    assert main(["export", str(bad), "--format", "c", "--out", str(tmp_path / "m.h")]) == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2, lines
+    assert lines[0].startswith("thermonet: warning: Detected pickle protocol 4 in the "
+                               "checkpoint, which was not the default pickle protocol")
+    assert lines[1].startswith(f"thermonet: error: {bad}: not a thermonet checkpoint")
+    assert "UserWarning" not in lines[0] and ".py:" not in lines[0]

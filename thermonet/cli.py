@@ -6,6 +6,10 @@ unit failed its limits or could not be calibrated, (``verify``) an axis failed
 its limits (``verify``'s 1 also covers a log it cannot judge), 130 interrupted by SIGINT (Ctrl-C), 143 terminated by SIGTERM.  An interrupted command prints
 one line, not a traceback; its open MLflow runs are ended as KILLED and a
 comparison's ``--out`` is left as it was (see :mod:`thermonet.core.outdir`).
+
+A Python warning raised while a command runs (thermonet's own, or a library's) reaches the
+console as one line, ``thermonet: warning: <its first line>``, never Python's file:line and
+source line; ``-q`` silences them (:func:`main`, for every command).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import os
 import signal
 import sys
 import threading
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -596,6 +601,18 @@ def _raise_interrupted(signum: int, frame: object) -> None:
     raise Interrupted(signum)
 
 
+def _show_warning(message: Warning | str, category: type[Warning], filename: str,
+                  lineno: int, file: Any = None, line: str | None = None) -> None:
+    """A Python warning (thermonet's own or a library's) as one line in thermonet's voice:
+    its first line of text, without the file, line and source line Python prints."""
+    text = next((ln.strip() for ln in str(message).splitlines() if ln.strip()),
+                category.__name__)
+    try:
+        print(f"thermonet: warning: {text}", file=sys.stderr if file is None else file)
+    except (OSError, ValueError):   # a closed stream: nothing left to say
+        pass
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -613,6 +630,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         profile.enable()
         startup = profile.startup_seconds()
     clear_interrupt()
+    caught = warnings.catch_warnings()   # the policy below holds for this command only
+    caught.__enter__()
+    if getattr(args, "quiet", False):
+        warnings.simplefilter("ignore")  # -q: no warnings either
+    else:
+        warnings.showwarning = _show_warning
     try:
         return int(args.func(args))
     except (KeyboardInterrupt, Interrupted) as err:
@@ -627,6 +650,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"thermonet: error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
         return 1
     finally:
+        caught.__exit__(None, None, None)
         clear_interrupt()
         for sig, handler in previous.items():  # None: not set from Python; default is closest
             signal.signal(sig, signal.SIG_DFL if handler is None else handler)
