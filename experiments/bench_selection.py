@@ -15,7 +15,9 @@ and the *regret* is that error over the best any candidate achieved on the axis 
 and always-cubic with every axis compensated (what PX4 and ArduPilot ship).
 
 ``--real``: only the honest splits of the real recordings (:func:`real_splits`); ``--simulated``:
-only the simulated devices; neither (``make bench``): both.
+only the simulated devices; ``--stress``: the new-excursion stress bench (:func:`stress_splits`:
+``stress-imu``, every split whose test is a new excursion, the new rule against the rule before
+on the same data); neither (``make bench``): the real splits and the simulated devices.
 
 Goal: median regret ≤ 1.05 and ≤ 1.10 on 90 % of devices for the new rule
 (a device's regret: the mean over its axes).  ``BENCH_SELECTION_DEVICES`` sets the number of
@@ -258,7 +260,109 @@ def main_real() -> None:
     save("bench_selection_real", {"splits": rows}, md)
 
 
+# ------------------------------------------------- new excursions: the stress bench
+def _legs_as_runs(rec: Any, keep: str) -> Any:
+    """One run's heating legs (``keep="heating"``) or cooling legs as a run of their own."""
+    from thermonet.scoring.folds import excursions
+
+    legs = excursions(np.asarray(rec.temperature_c))
+    want = 1 if keep == "heating" else -1
+    mask = np.zeros(rec.n_samples, dtype=bool)
+    for leg in legs:
+        if leg.direction == want:
+            mask[leg.start:leg.stop] = True
+    return rec.select(mask, f"{rec.run_id}-{keep}")
+
+
+def stress_splits(seed: int, rate_hz: float = 0.1) -> list[tuple[str, Any]]:
+    """Every new-excursion split of one simulated ``stress-imu`` unit (runs: fast, slow, fast
+    cycles): another cycle at another rate (both ways), two cycles then a third, heating-only
+    calibration then its own cooling, and time blocks inside one cycle and inside two."""
+    from thermonet.core.recording import Dataset
+
+    ds = simulate("stress-imu", runs=3, seed=seed, sample_rate_hz=rate_hz)
+    fast, slow, fast2 = list(ds)
+    return [("fast cycle -> slow cycle", Dataset([fast, slow])),
+            ("slow cycle -> fast cycle", Dataset([slow, fast])),
+            ("fast + slow -> fast", Dataset([fast, slow, fast2])),
+            ("heating only -> cooling", Dataset([_legs_as_runs(fast, "heating"),
+                                                 _legs_as_runs(fast, "cooling")])),
+            ("time blocks, one cycle", Dataset([fast])),
+            ("time blocks, two cycles", Dataset([fast, slow]))]
+
+
+def _stress_config(name: str, ds: Any, new: bool) -> CompareConfig:
+    cfg = CompareConfig()
+    runs = list(ds)
+    cfg.split.strategy = ("time-blocks" if name.startswith("time blocks") else
+                          {2: "train-then-verify"}.get(len(runs), "runs"))
+    if len(runs) == 3:
+        cfg.split.train = [runs[0].run_id, runs[1].run_id]
+        cfg.split.test = runs[2].run_id
+    if not new:      # the rule before: interleaved blocks, the one-SE rule alone
+        cfg.selection.hold_out, cfg.selection.gate = "blocks", False
+    return cfg
+
+
+def main_stress() -> None:
+    """Per split and axis: shipped / cubic by the new rule (excursions held out, the gate)
+    and by the rule before (interleaved blocks, one-SE), on the same data, worst axis first;
+    the share of the hindsight gain over the cubic kept where a candidate beat it."""
+    rows = []
+    seeds = int(os.environ.get("BENCH_STRESS_SEEDS", "2"))
+    for seed in range(seeds):
+        for name, ds in stress_splits(seed):
+            for rule in ("new", "before"):
+                t0 = time.perf_counter()
+                res = _run(_stress_config(name, ds, rule == "new"), ds)
+                r = _axis_ratios(res)
+                best = _best(res)
+                cubic = _errors(res, "cubic", masked=False)
+                shipped = _errors(res, res["chosen"])
+                gain = np.where(best < cubic * (1 - 1e-9),
+                                (cubic - shipped) / np.maximum(cubic - best, 1e-300), np.nan)
+                per_axis = (res["selection"].get("per_axis") or {}).get("chosen", {})
+                rows.append({"split": f"{name} #{seed}", "rule": rule, "axes": list(res["units"]),
+                             "chosen": res["chosen"], "per_axis": per_axis,
+                             "kind": res["selection"].get("kind"), **r,
+                             "gain_kept": gain.tolist(),
+                             "seconds": time.perf_counter() - t0})
+                print(f"{name} #{seed} [{rule}]: {res['chosen']} worst "
+                      f"{max(r['vs_cubic']):.3f} "
+                      + " ".join(f"{x:.3f}" for x in r["vs_cubic"]), flush=True)
+
+    def summary(rule: str) -> list[Any]:
+        rs = [r for r in rows if r["rule"] == rule]
+        vc = np.concatenate([r["vs_cubic"] for r in rs])
+        g = np.concatenate([r["gain_kept"] for r in rs])
+        g = g[np.isfinite(g)]
+        return [rule, len(rs), int(vc.size), int((vc > 1 + 1e-9).sum()), float(vc.max()),
+                float(np.median(vc)), int((vc <= 0.8).sum()),
+                float(np.median(g)) if g.size else float("nan")]
+
+    head = ["rule", "splits", "axes", "axes worse than cubic", "worst shipped / cubic",
+            "median", "axes ≤ 0.8× cubic", "median share of hindsight gain kept"]
+    body = []
+    for r in sorted(rows, key=lambda x: -max(x["vs_cubic"])):
+        i = int(np.argmax(r["vs_cubic"]))
+        body.append([r["split"], r["rule"], r["kind"], r["axes"][i],
+                     (r["per_axis"].get(r["axes"][i]) or "raw") if r["per_axis"]
+                     else r["chosen"] or "raw", r["vs_cubic"][i],
+                     " ".join(f"{x:.3f}" for x in r["vs_cubic"])])
+    md = ("`stress-imu` (sensing element 7 min behind its thermometer, fast and slow cycles), "
+          f"{seeds} units at 0.1 Hz, every new-excursion split; shipped / cubic per axis on the "
+          "held-out run (an axis shipped raw counts as raw).\n\n"
+          + table(head, [summary("new"), summary("before")])
+          + "\n\nEach split's worst axis, worst first:\n\n"
+          + table(["split", "rule", "folds", "worst axis", "shipped there", "shipped / cubic",
+                   "every axis"], body))
+    save("bench_selection_stress", {"splits": rows}, md)
+
+
 def main() -> None:
+    if "--stress" in sys.argv[1:]:
+        main_stress()
+        return
     if "--real" in sys.argv[1:]:
         main_real()
         return

@@ -97,9 +97,9 @@ from typing import Any
 import numpy as np
 
 from ..core.recording import contiguous_segments
-from .folds import deal, purged
+from .folds import TURN_FRACTION, Leg, deal, excursions, purged
 from .metrics import binned_peak_to_peak
-from .verdicts import LEVEL, above, below, draws, same
+from .verdicts import DECISION_RTOL, LEVEL, above, below, draws, same
 
 __all__ = ["FoldPlan", "CandidateOOF", "plan_folds", "purge_rule", "window_rule",
            "in_domain", "noise_widths", "window_labels", "select", "Selection",
@@ -123,41 +123,175 @@ def purge_rule(tau_s: float, window_s: float, block_s: float | None) -> float:
 
 @dataclass
 class FoldPlan:
-    """The folds of one split's pool: per pool run, each sample's fold (−1: not in the pool),
-    and per fold a training mask (purged) per pool run."""
+    """The folds of one split's pool: per pool run, each sample's fold (−1: not validated),
+    and per fold a training mask (purged) per pool run.
+
+    ``directions``: the directions of temperature change the pool holds (+1 heating, −1
+    cooling; :func:`thermonet.scoring.folds.excursions`); ``legs``: the excursions found, per
+    pool run, with the fold that holds each out (−1: always trained); ``note``: why the folds
+    are not the excursions where they could not be."""
 
     fold_of: list[np.ndarray]
     train_masks: list[list[np.ndarray]]
     k: int
-    kind: str                       # "leave-one-run-out" or "blocks"
+    kind: str                       # "leave-one-run-out", "excursions" or "blocks"
     block_s: float | None
     purge_s: float
     window_s: float
     block_of: list[np.ndarray] = field(default_factory=list)   # validation block ids
+    directions: list[int] = field(default_factory=list)
+    legs: list[dict[str, Any]] = field(default_factory=list)
+    note: str = ""
+    #: per fold, the directions of change its validation rows hold (excursion folds: their
+    #: legs'; other folds: every direction of the pool)
+    fold_directions: list[set[int]] = field(default_factory=list)
 
     def describe(self) -> dict[str, Any]:
         return {"kind": self.kind, "folds": self.k, "block_s": self.block_s,
                 "purge_s": self.purge_s, "window_s": self.window_s,
+                "directions": [{1: "heating", -1: "cooling"}[d] for d in self.directions],
+                "excursions": self.legs, **({"note": self.note} if self.note else {}),
                 "train_fraction": [float(np.mean([m.sum() for m in ms]) /
                                          max(np.mean([(f >= 0).sum() for f in self.fold_of]), 1))
                                    for ms in self.train_masks]}
 
 
+#: The values of ``selection.hold_out``: what a cross-validation fold holds out of one run.
+HOLD_OUT = ("auto", "excursions", "blocks")
+
+#: A held-out excursion is usable where at least this share of its samples lies inside the
+#: temperature range of the rest of the pool (a fold is not asked to extrapolate).
+EXCURSION_INSIDE = 0.5
+
+
+def _pool_legs(pool: Sequence[tuple[Any, np.ndarray]],
+               temperatures: Sequence[np.ndarray | None] | None) -> list[list[Leg]]:
+    """Per pool run, its excursions (one soak-leg where it has no temperature signal); a turn
+    is :data:`~thermonet.scoring.folds.TURN_FRACTION` of the whole pool's range (two soaks at
+    13 and 48 °C are two soaks, not their own wobbles)."""
+    known = [np.asarray(x, dtype=np.float64) for x in (temperatures or []) if x is not None]
+    allt = np.concatenate(known) if known else np.zeros(0)
+    allt = allt[np.isfinite(allt)]
+    turn = (TURN_FRACTION * float(np.subtract(*np.percentile(allt, [95.0, 5.0])))
+            if allt.size >= 3 else None)
+    out = []
+    for j, (_, m) in enumerate(pool):
+        temp = None if temperatures is None else temperatures[j]
+        out.append(excursions(np.asarray(temp, dtype=np.float64), turn=turn, min_turn=True)
+                   if temp is not None
+                   else [Leg(0, int(np.asarray(m).size), 0, math.nan, math.nan)])
+    return out
+
+
+def _directions(pool: Sequence[tuple[Any, np.ndarray]], legs: list[list[Leg]]) -> list[int]:
+    """The directions of temperature change with at least half a leg in the pool."""
+    found = set()
+    for (_, m), lj in zip(pool, legs, strict=True):
+        for leg in lj:
+            if leg.direction and np.asarray(m)[leg.start:leg.stop].mean() >= 0.5:
+                found.add(leg.direction)
+    return sorted(found, reverse=True)
+
+
+def _what_legs_hold(legs: list[list[Leg]]) -> str:
+    kinds = [leg.describe().split(" ")[0] for lj in legs for leg in lj]
+    counts = {k: kinds.count(k) for k in ("heating", "cooling", "soak") if k in kinds}
+    return ", ".join(f"{v} {k} {'leg' if k != 'soak' else 'run'}{'s' if v > 1 else ''}"
+                     for k, v in counts.items())
+
+
+def _excursion_folds(pool: Sequence[tuple[Any, np.ndarray]], legs: list[list[Leg]],
+                     temperatures: Sequence[np.ndarray | None] | None, folds: int
+                     ) -> tuple[list[np.ndarray], list[np.ndarray], int, list[dict[str, Any]]] | str:
+    """Leave excursions out: every usable leg — one that the rest of the pool spans (at least
+    :data:`EXCURSION_INSIDE` of it inside their temperatures) and whose direction the rest
+    also holds — is one unit, dealt round-robin (in time order) to ``min(folds, legs)``
+    folds; its validation windows are grouped into ~8 bootstrap units by time.  Returns
+    (fold_of, block_of, k, record) or the sentence saying why not."""
+    units = []       # (run, leg)
+    for j, ((_, m), lj) in enumerate(zip(pool, legs, strict=True)):
+        for leg in lj:
+            if np.asarray(m)[leg.start:leg.stop].sum() >= 2 * MIN_FOLD_SAMPLES:
+                units.append((j, leg))
+    usable = []
+    if temperatures is not None and len(units) >= 2:
+        for u, (j, leg) in enumerate(units):
+            temp_u = np.asarray(temperatures[j])[leg.start:leg.stop]
+            rest = [np.asarray(temperatures[i])[lg.start:lg.stop]
+                    for v, (i, lg) in enumerate(units) if v != u]
+            rest_all = np.concatenate(rest)
+            lo, hi = np.nanmin(rest_all), np.nanmax(rest_all)
+            with np.errstate(invalid="ignore"):
+                inside = float(np.mean((temp_u >= lo) & (temp_u <= hi)))
+            # the rest must hold the leg's direction: a fold trained on cooling alone asks
+            # every model with memory for a direction it never saw (and the static ones for
+            # the other branch of the loop), which the shipped model, trained on both, is not
+            same_way = leg.direction == 0 or any(
+                lg.direction == leg.direction for v, (_, lg) in enumerate(units) if v != u)
+            if inside >= EXCURSION_INSIDE and same_way:
+                usable.append((j, leg))
+    if len(usable) < 2:
+        held = _what_legs_hold(legs)
+        return (f"{held}: {len(usable)} excursion(s) that the rest of the data spans in "
+                "temperature and direction (two are needed to hold one out)")
+    k = min(folds, len(usable))
+    fold_of = [np.full(np.asarray(m).size, -1, dtype=np.int64) for _, m in pool]
+    block_of = [np.zeros(np.asarray(m).size, dtype=np.int64) for _, m in pool]
+    record: list[dict[str, Any]] = []
+    for u, (j, leg) in enumerate(usable):
+        m = np.asarray(pool[j][1])
+        sl = slice(leg.start, leg.stop)
+        fold_of[j][sl] = np.where(m[sl], u % k, -1)
+        size = leg.stop - leg.start
+        block_of[j][sl] = 8 * u + np.minimum((np.arange(size) * 8) // max(size, 1), 7)
+    usable_set = {(j, leg.start) for j, leg in usable}
+    for j, lj in enumerate(legs):
+        for leg in lj:
+            f = (next(u for u, (i, lg) in enumerate(usable) if (i, lg.start) == (j, leg.start))
+                 % k if (j, leg.start) in usable_set else -1)
+            record.append({"run": j, "excursion": leg.describe(), "fold": f,
+                           "direction": leg.direction})
+    return fold_of, block_of, k, record
+
+
 def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per_fold: int,
                tau_s: float, purge_s: float | None = None, window_s: float | None = None,
-               by_run: bool = True) -> FoldPlan | None:
+               by_run: bool = True, hold_out: str = "auto",
+               temperatures: Sequence[np.ndarray | None] | None = None) -> FoldPlan | None:
     """Folds of ``pool`` ((recording, row mask) pairs), or None where K folds cannot be made.
 
     ``by_run``: with several runs, leave one run out (the test is a run the model never
-    saw); False deals blocks inside every run (the test is blocks inside the runs: a
-    time-block split), as with one run.
+    saw).  Otherwise (one run, or a time-block split) ``hold_out`` says what a fold holds
+    out: ``excursions`` — whole thermal excursions found in ``temperatures`` (per pool run,
+    the temperature signal of every row; :func:`thermonet.scoring.folds.excursions`), the
+    next warm-up or cool-down a user's test will be, purged by the longest memory of any
+    candidate's inputs (``max(3 τ, window_s)``, uncapped); ``blocks`` — short contiguous
+    blocks dealt round-robin (interpolation between training data); ``auto`` — excursions
+    where two or more can be held out, else blocks (said in :attr:`FoldPlan.note`).
+    ``hold_out="excursions"`` where none can be held out raises ``ValueError`` with what the
+    data hold.
     """
+    if hold_out not in HOLD_OUT:
+        raise ValueError(f"hold_out must be one of {', '.join(HOLD_OUT)}, got {hold_out!r}")
     if folds < 2 or not pool:
         return None
     times = [np.asarray(r.time_s, dtype=np.float64) for r, _ in pool]
     rate = float(np.median([r.effective_rate_hz for r, _ in pool]))
+    legs = _pool_legs(pool, temperatures)
+    directions = _directions(pool, legs)
     fold_of: list[np.ndarray] = []
     block_of: list[np.ndarray] = []
+    note = ""
+    record: list[dict[str, Any]] = []
+    exc = None
+    if not (len(pool) >= 2 and by_run) and hold_out != "blocks":
+        got = _excursion_folds(pool, legs, temperatures, folds)
+        if isinstance(got, str):
+            if hold_out == "excursions":
+                raise ValueError(got)
+            note = f"blocks, not excursions: {got}"
+        else:
+            exc = got
     if len(pool) >= 2 and by_run:
         kind, k, block_s = "leave-one-run-out", len(pool), None
         for j, (_, m) in enumerate(pool):
@@ -167,6 +301,10 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
             # bootstrap units inside a held-out run: windows grouped into ~8 blocks per run
             span = max(float(t[-1] - t[0]), 1e-9)
             block_of.append(np.minimum(((t - t[0]) / span * 8).astype(int), 7) + 8 * j)
+    elif exc is not None:
+        kind, block_s = "excursions", None
+        fold_of, block_of, k, record = exc
+        win = window_s if window_s is not None else window_rule(rate, None)
     else:
         kind, k = "blocks", folds
         n_blocks = folds * blocks_per_fold
@@ -196,13 +334,22 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
         ms = []
         for (_, m), fo, t in zip(pool, fold_of, times, strict=True):
             val = fo == f
-            ms.append(m & ~val & ~purged(t, val, purge) if kind == "blocks" else m & ~val)
+            ms.append(m & ~val & ~purged(t, val, purge) if kind != "leave-one-run-out"
+                      else m & ~val)
         n_train = sum(int(x.sum()) for x in ms)
         n_val = sum(int((fo == f).sum()) for fo in fold_of)
         if n_train < MIN_FOLD_SAMPLES or n_val < MIN_FOLD_SAMPLES:
             return None
         train_masks.append(ms)
-    return FoldPlan(fold_of, train_masks, k, kind, block_s, purge, win, block_of)
+    if kind == "excursions":
+        fold_dirs: list[set[int]] = [set() for _ in range(k)]
+        for leg in record:
+            if leg["fold"] >= 0 and leg["direction"]:
+                fold_dirs[leg["fold"]].add(leg["direction"])
+    else:
+        fold_dirs = [set(directions) for _ in range(k)]
+    return FoldPlan(fold_of, train_masks, k, kind, block_s, purge, win, block_of,
+                    directions, record, note, fold_dirs)
 
 
 def noise_widths(signals: np.ndarray) -> np.ndarray:
@@ -253,6 +400,9 @@ class CandidateOOF:
     pred: list[list[np.ndarray]] = field(default_factory=list)
     inside: list[list[np.ndarray]] = field(default_factory=list)
     failed: str | None = None
+    #: its inputs carry the direction of temperature change (rate, lag, hysteresis): it cannot
+    #: be judged for a direction the training data do not hold
+    directional: bool = False
 
 
 @dataclass
@@ -342,9 +492,55 @@ def pp_guard(pp_candidate: np.ndarray, pp_raw: np.ndarray) -> list[bool]:
     return [not above(float(c), float(r)) for c, r in zip(pp_candidate, pp_raw, strict=True)]
 
 
+def _finite_or_none(x: float) -> float | None:
+    """A figure for results.json: None where it is not finite (a fold without a window)."""
+    return float(x) if math.isfinite(float(x)) else None
+
+
+#: Folds a candidate must have been judged on (and beaten its reference on, each) to replace
+#: it: "better in every one of two folds" happens by chance one time in four.
+MIN_GATE_FOLDS = 3
+
+#: The gate, as results.json and the report state it.
+GATE_RULE = ("the baseline stays until beaten everywhere: a candidate replaces it on an axis "
+             "only if its out-of-fold ratio is at most the baseline's in every fold (ties within "
+             f"{DECISION_RTOL:g} count as not worse), on at least {MIN_GATE_FOLDS} folds, and "
+             "lower overall; a model reading the direction of change must also have been judged "
+             "on held-out excursions of both directions; where the folds are interleaved blocks "
+             "(no excursion could be held out) the baseline is not replaced; where the baseline "
+             "is worse than raw out of fold, raw is the reference")
+
+
+def one_direction(directions: Sequence[int]) -> str:
+    """Why a direction-carrying candidate cannot be judged ("" where the pool holds heating
+    and cooling)."""
+    if len(set(directions)) >= 2:
+        return ""
+    if not directions:
+        return ("the training data hold no heating or cooling excursion (soaks only): a model "
+                "reading the rate, a lag or a hysteresis memory cannot be judged on one")
+    held = {1: "heating", -1: "cooling"}[directions[0]]
+    other = {1: "cooling", -1: "heating"}[directions[0]]
+    return (f"the training data hold only {held}: a model reading the rate, a lag or a "
+            f"hysteresis memory cannot be judged on {other}, so it does not ship over a static "
+            "model")
+
+
+def beats_in_every_fold(cand: np.ndarray, ref: np.ndarray) -> bool:
+    """``cand`` (per-fold ratios) is nowhere above ``ref`` (ties within the decision margin
+    are not worse) on the folds where both are finite, and there is at least one."""
+    both = np.isfinite(cand) & np.isfinite(ref)
+    if not both.any():
+        return False
+    return not any(above(float(c), float(r)) for c, r in zip(cand[both], ref[both], strict=True))
+
+
 def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[str, np.ndarray],
                     n_params: Mapping[str, int], outputs: Sequence[str], baseline: str | None,
-                    k_folds: int) -> tuple[dict[str, str | None], dict[str, str]]:
+                    k_folds: int, *, gate: Gate | None = None,
+                    base_own: np.ndarray | None = None,
+                    directional: set[str] | frozenset[str] = frozenset(), one_way: str = ""
+                    ) -> tuple[dict[str, str | None], dict[str, str]]:
     """Each axis its own candidate: the rule of :func:`select`, axis by axis.
 
     Per axis ``a``: every candidate's masked out-of-fold score ratio on that axis (1 where its
@@ -355,14 +551,33 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
     worse than the baseline on that axis.  So a candidate better than the cubic by less than
     one SE loses to the cubic there, and the cubic is the floor of every axis where it
     compensates.  Returns ``{axis: label or None}`` and ``{axis: the rule's sentence}``.
+
+    With ``gate`` (:class:`Gate`: per candidate, its per-fold masked ratios) the gate
+    (:data:`GATE_RULE`) comes first: the reference of the axis is the baseline where it
+    compensates it, else raw; a candidate stays in the choice only if it was judged on every
+    fold its reference was and is not worse than the reference in any
+    (:meth:`Gate.passes`).  Candidates in ``directional`` are
+    left out (``one_way`` says why: the training data hold one direction of change only).
     """
     order = {k: i for i, k in enumerate(axis_scores)}
     chosen: dict[str, str | None] = {}
     reason: dict[str, str] = {}
     for a, axis in enumerate(outputs):
         sc = {k: float(v[a]) for k, v in axis_scores.items() if math.isfinite(float(v[a]))}
+        gated: list[str] = []
+        if gate is not None and sc:
+            sc, gated = _gate_axis(sc, a, gate, baseline, directional,
+                                   None if base_own is None else float(base_own[a]))
+        note = _gate_note(gated, directional, one_way)
         if not sc:
             chosen[axis], reason[axis] = None, "no candidate has a finite out-of-fold score"
+            base_a = axis_scores.get(baseline or "")
+            if base_a is not None and not below(float(base_a[a]), 1.0):
+                reason[axis] = (f"raw: the baseline {baseline} does not beat raw out of fold "
+                                f"({float(base_a[a]):.4g} of raw) and no "
+                                "candidate beats raw in every fold") + note
+            elif gated:
+                reason[axis] = "raw: no candidate beats raw in every fold" + note
             continue
         low = min(sc.values())
         best = min((k for k, v in sc.items() if same(v, low)),
@@ -370,7 +585,7 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
         if not below(sc[best], 1.0):
             chosen[axis] = None
             reason[axis] = (f"raw: no candidate beats the raw output out of fold (best {best}: "
-                            f"{sc[best]:.4g} of raw)")
+                            f"{sc[best]:.4g} of raw)") + note
             continue
         base = sc.get(baseline or "")
         eligible = []
@@ -393,16 +608,61 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
             reason[axis] = (f"{pick}: within one SE of the best, {best} ({sc[pick]:.4g} vs "
                             f"{sc[best]:.4g} of raw, {k_folds} folds), with fewer parameters "
                             f"({n_params[pick]} vs {n_params[best]})")
+        reason[axis] += note
     return chosen, reason
+
+
+def _gate_axis(sc: dict[str, float], a: int, gate: Gate, baseline: str | None,
+               directional: set[str] | frozenset[str], base_ratio: float | None = None
+               ) -> tuple[dict[str, float], list[str]]:
+    """The candidates of axis ``a`` that pass the gate (the reference among them where it
+    compensates), and those it held back.  ``base_ratio``: the baseline's unmasked
+    out-of-fold ratio on the axis — it is the reference wherever it is below 1 (raw stays
+    the floor only where the cubic is worse than raw out of fold, not where it merely fails
+    to beat raw by one standard error)."""
+    base = baseline or ""
+    if base_ratio is not None and base in sc and below(base_ratio, 1.0):
+        sc = {**sc, base: min(sc[base], base_ratio)}
+    base_on = base in sc and below(sc[base], 1.0)
+    ref_score = sc[base] if base_on else 1.0
+    kept: dict[str, float] = {}
+    gated: list[str] = []
+    for k, v in sc.items():
+        if base_on and k == baseline:
+            kept[k] = v
+        elif k in directional:
+            gated.append(k)
+        elif k in gate.own and below(v, ref_score) and gate.passes(k, a, base_on):
+            kept[k] = v
+        elif k != baseline:
+            gated.append(k)
+    return kept, gated
+
+
+def _gate_note(gated: list[str], directional: set[str] | frozenset[str], one_way: str) -> str:
+    """What the gate held back on an axis, for the rule's sentence."""
+    if not gated:
+        return ""
+    held = [k for k in gated if k not in directional]
+    parts = []
+    if held:
+        parts.append(f"not better in every fold: {', '.join(held)}")
+    dirs = [k for k in gated if k in directional]
+    if dirs:
+        parts.append(f"{', '.join(dirs)} not judged ({one_way})")
+    return " [gate: " + "; ".join(parts) + "]"
 
 
 def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.ndarray],
            cands: Mapping[str, CandidateOOF], outputs: Sequence[str],
            baseline: str | None = None,
-           temperatures: Sequence[np.ndarray] | None = None) -> Selection:
+           temperatures: Sequence[np.ndarray] | None = None, gate: bool = True) -> Selection:
     """Choose among ``cands`` on their out-of-fold predictions (module docstring).
 
-    ``baseline``: the candidate no simplification may fall below on any axis (the cubic).
+    ``baseline``: the candidate no simplification may fall below on any axis (the cubic);
+    ``gate``: it stays until beaten in every fold (:data:`GATE_RULE`, :class:`Gate`), and a
+    direction-carrying candidate is held back where the pool holds one direction only
+    (:func:`one_direction`).
 
     ``targets`` and ``times``: per pool run, the target (n, A) and time of every row;
     ``temperatures``: per pool run, the temperature of every row — with them, an axis is
@@ -422,17 +682,39 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
             record["candidates"][k] = {"status": "failed", "reason": c.failed}
     if not ok:
         return Selection(None, [], "no candidate could be fitted on every fold", {}, record)
-    pooled = _pool(plan, targets, times, ok, len(outputs), temperatures)
+    pooled = _pool(plan, targets, times, ok, len(outputs), temperatures,
+                   baseline if baseline in ok else None)
     if not pooled.ns:
         return Selection(None, [], "no validation window inside every candidate's trained "
                          "domain", {}, record)
-    sc = _score(pooled, ok, outputs, temperatures is not None, record)
+    sc = _score(pooled, ok, outputs, temperatures is not None, record,
+                baseline if baseline in ok else None, plan.fold_directions)
     record["common_left_out_fraction"] = pooled.common_left
+    if not gate:
+        sc.gate = None
+    one_way = one_direction(plan.directions) if baseline is not None and gate else ""
+    directional = {k for k, c in ok.items() if c.directional} if one_way else set()
+    if gate and baseline in ok and plan.kind == "blocks":
+        # interleaved blocks judge interpolation between training data, never the next
+        # excursion: on a heating-only ramp, static candidates that beat the cubic in five of
+        # five such folds were 5–10 % worse than it on the cooling after (bench_selection.py
+        # --stress); so no excursion to hold out, no challenger
+        one_way = (f"{one_way}; " if one_way else "") + (
+            "no excursion could be held out (the folds are interleaved blocks, which judge "
+            "interpolation, not the next warm-up): the baseline stays")
+        directional = {k for k in ok if k != baseline}
+    if sc.gate is not None:
+        sc.gate.directional = {k for k, c in ok.items() if c.directional}
+    if one_way and directional:
+        record["held_back"] = {"candidates": sorted(directional), "why": one_way}
     per_axis, per_axis_reason = choose_per_axis(
         sc.axis_scores, sc.axis_boots, {k: c.n_params for k, c in ok.items()}, outputs,
-        baseline, plan.k)
-    record["per_axis"] = {"chosen": per_axis, "rule": per_axis_reason}
-    chosen, tied, reason = _one_se(plan, ok, sc, outputs, baseline, record)
+        baseline, plan.k, gate=sc.gate, directional=directional, one_way=one_way,
+        base_own=sc.own_ratio.get(baseline or ""))
+    record["per_axis"] = {"chosen": per_axis, "rule": per_axis_reason,
+                          "gate": GATE_RULE if gate else None}
+    chosen, tied, reason = _one_se(plan, ok, sc, outputs, baseline, record, directional,
+                                   one_way)
     return Selection(chosen, tied, reason, sc.compensate, record, per_axis, per_axis_reason)
 
 
@@ -452,6 +734,14 @@ class _Pooled:
     pp_cand: dict[str, np.ndarray]
     ns: list[np.ndarray] = field(default_factory=list)
     common_left: list[float] = field(default_factory=list)
+    #: per candidate and fold, the gate's sums of squares (over the fold's units, per axis):
+    #: (candidate, raw) on the candidate's own domain, and (candidate, baseline, raw) on the
+    #: windows inside both its and the baseline's domain; None where it has fewer than two
+    #: rows there (the candidate was not judged on that fold)
+    gate_own: dict[str, list[tuple[np.ndarray, np.ndarray] | None]] = field(default_factory=dict)
+    gate_pair: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray] | None]] = field(
+        default_factory=dict)
+    base_judged: list[bool] = field(default_factory=list)
     fold_units: list[int] = field(default_factory=list)
     n_units: int = 0
 
@@ -466,11 +756,12 @@ class _Pooled:
 
 def _pool(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.ndarray],
           ok: Mapping[str, CandidateOOF], n_axes: int,
-          temperatures: Sequence[np.ndarray] | None) -> _Pooled:
+          temperatures: Sequence[np.ndarray] | None, baseline: str | None = None) -> _Pooled:
     """Every fold's validation rows pooled (:class:`_Pooled`), fold by fold."""
     pooled = _Pooled(ss={k: [] for k in ["<raw>", *ok]}, own_ss={k: [] for k in ok},
                      own_raw={k: [] for k in ok}, left_out={k: [] for k in ok},
-                     pp_raw=np.zeros(n_axes), pp_cand={k: np.zeros(n_axes) for k in ok})
+                     pp_raw=np.zeros(n_axes), pp_cand={k: np.zeros(n_axes) for k in ok},
+                     gate_own={k: [] for k in ok}, gate_pair={k: [] for k in ok})
     for f in range(plan.k):
         parts = []
         for j, fo in enumerate(plan.fold_of):
@@ -482,7 +773,7 @@ def _pool(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.ndar
         remap = {int(b): pooled.n_units + i for i, b in enumerate(ublocks)}
         pooled.n_units += ublocks.size
         pooled.fold_units.append(ublocks.size)
-        _pool_fold(pooled, plan, f, parts, remap, targets, times, ok, temperatures)
+        _pool_fold(pooled, plan, f, parts, remap, targets, times, ok, temperatures, baseline)
     return pooled
 
 
@@ -490,7 +781,7 @@ def _pool_fold(pooled: _Pooled, plan: FoldPlan, f: int,
                parts: list[tuple[int, np.ndarray, np.ndarray]], remap: dict[int, int],
                targets: Sequence[np.ndarray], times: Sequence[np.ndarray],
                ok: Mapping[str, CandidateOOF],
-               temperatures: Sequence[np.ndarray] | None) -> None:
+               temperatures: Sequence[np.ndarray] | None, baseline: str | None = None) -> None:
     """Fold ``f``'s rows added to ``pooled``: one offset-free fold mean (this fold's runs
     stacked; an offset per fold, as the verdicts have)."""
     e_raw, wl_all, un_all, t_all = [], [], [], []
@@ -515,6 +806,8 @@ def _pool_fold(pooled: _Pooled, plan: FoldPlan, f: int,
     inside = {k: np.concatenate(v) for k, v in inside_c.items()}
     common = np.logical_and.reduce(list(inside.values()))
     pooled.common_left.append(float(1.0 - common.mean()) if common.size else 1.0)
+    _gate_sums(pooled, y, wl, un, {k: np.concatenate(v) for k, v in e_c.items()}, inside,
+               baseline)
     for k in ok:
         pooled.left_out[k].append(float(1.0 - inside[k].mean()) if inside[k].size else 1.0)
     if common.sum() < 2:
@@ -543,6 +836,96 @@ def _pool_fold(pooled: _Pooled, plan: FoldPlan, f: int,
 
 
 @dataclass
+class Gate:
+    """What the gate (:data:`GATE_RULE`) reads, per candidate and fold: ``own`` (K, A), its
+    masked ratio to raw on its own domain; ``pair`` (K, A, 2), its and the baseline's masked
+    ratios to raw on the windows inside both domains; NaN where it was not judged on the fold
+    (fewer than two rows there); ``base_judged`` (K,): the baseline was judged on the fold."""
+
+    own: dict[str, np.ndarray]
+    pair: dict[str, np.ndarray]
+    base_judged: np.ndarray
+    fold_directions: list[set[int]] = field(default_factory=list)
+    directional: set[str] = field(default_factory=set)
+
+    @staticmethod
+    def of(pooled: _Pooled, masks: Mapping[str, list[bool]], baseline: str | None,
+           fold_directions: Sequence[set[int]] = ()) -> Gate:
+        """The baseline's column is unmasked: on an axis where it is the reference it ships
+        (it is the reference only where it is not worse than raw out of fold)."""
+        A = pooled.pp_raw.size
+        K = len(pooled.base_judged)
+        own: dict[str, np.ndarray] = {}
+        pair: dict[str, np.ndarray] = {}
+        bmask = np.ones(A, dtype=bool)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for k, mask in masks.items():
+                keep = np.array(mask)
+                o = np.full((K, A), np.nan)
+                pr = np.full((K, A, 2), np.nan)
+                for f in range(K):
+                    g = pooled.gate_own[k][f]
+                    if g is not None:
+                        o[f] = np.where(keep, np.sqrt(g[0] / g[1]), 1.0)
+                    h = pooled.gate_pair[k][f]
+                    if h is not None:
+                        pr[f, :, 0] = np.where(keep, np.sqrt(h[0] / h[2]), 1.0)
+                        pr[f, :, 1] = np.where(bmask, np.sqrt(h[1] / h[2]), 1.0)
+                own[k], pair[k] = o, pr
+        return Gate(own, pair, np.array(pooled.base_judged, dtype=bool), list(fold_directions))
+
+    def passes(self, k: str, a: int | None, against_baseline: bool) -> bool:
+        """``k`` judged on at least :data:`MIN_GATE_FOLDS` folds and nowhere worse than its
+        reference on the folds where both were judged; a candidate reading the direction of
+        change also judged on a held-out excursion of every direction its reference was
+        judged on (a model reading the rate is not judged on heating where no fold trained it
+        on heating; ``a``: one axis; None: the mean over axes)."""
+        if against_baseline:
+            p = self.pair[k] if a is None else self.pair[k][:, a:a + 1]
+            c, b = p[:, :, 0].mean(axis=1), p[:, :, 1].mean(axis=1)
+            ref_judged = self.base_judged
+        else:
+            c = self.own[k].mean(axis=1) if a is None else self.own[k][:, a]
+            b = np.ones_like(c)
+            ref_judged = np.ones(c.size, dtype=bool)
+        judged = np.isfinite(c) & np.isfinite(b)
+        if int(judged.sum()) < MIN_GATE_FOLDS:
+            return False
+        if k in self.directional and self.fold_directions:
+            need = set().union(*(d for d, r in zip(self.fold_directions, ref_judged,
+                                                   strict=True) if r))
+            have = set().union(*(d for d, j in zip(self.fold_directions, judged, strict=True)
+                                 if j))
+            if not need <= have:
+                return False
+        return beats_in_every_fold(c, b)
+
+
+def _gate_sums(pooled: _Pooled, y: np.ndarray, wl: np.ndarray, un: np.ndarray,
+               e: Mapping[str, np.ndarray], inside: Mapping[str, np.ndarray],
+               baseline: str | None) -> None:
+    """One fold's sums of squares for the gate (:attr:`_Pooled.gate_own`, ``gate_pair``):
+    each candidate judged where it can be — on its own domain against raw, and on the
+    windows inside both its and the baseline's domain against the baseline."""
+    n_units = pooled.n_units
+
+    def total(x: np.ndarray, m: np.ndarray) -> np.ndarray:
+        return _window_ss(x[m], wl[m], un[m], n_units)[0].sum(0)
+
+    ib = inside[baseline] if baseline is not None else None
+    pooled.base_judged.append(bool(ib is not None and ib.sum() >= 2))
+    for k, m in inside.items():
+        pooled.gate_own[k].append((total(e[k], m), total(y, m)) if m.sum() >= 2 else None)
+        if ib is None:
+            pooled.gate_pair[k].append(None)
+            continue
+        both = m & ib
+        pooled.gate_pair[k].append(
+            (total(e[k], both), total(e[baseline], both), total(y, both))   # type: ignore[index]
+            if both.sum() >= 2 else None)
+
+
+@dataclass
 class _Scores:
     """Per candidate: the whole-recording score (mean over axes, uncompensated axes at 1)
     and its paired bootstrap draws, the per-axis mask, and the per-axis scores and draws."""
@@ -552,10 +935,18 @@ class _Scores:
     compensate: dict[str, list[bool]] = field(default_factory=dict)
     axis_scores: dict[str, np.ndarray] = field(default_factory=dict)
     axis_boots: dict[str, np.ndarray] = field(default_factory=dict)
+    #: per candidate, (folds, axes) masked ratio to raw on each fold's common windows (NaN:
+    #: the fold had no common window), and its mean over axes
+    fold_axis: dict[str, np.ndarray] = field(default_factory=dict)
+    fold_scores: dict[str, np.ndarray] = field(default_factory=dict)
+    gate: Gate | None = None
+    #: per candidate, its unmasked out-of-fold ratio to raw per axis on its own domain
+    own_ratio: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def _score(pooled: _Pooled, ok: Mapping[str, CandidateOOF], outputs: Sequence[str],
-           guard: bool, record: dict[str, Any]) -> _Scores:
+           guard: bool, record: dict[str, Any], baseline: str | None = None,
+           fold_directions: Sequence[set[int]] = ()) -> _Scores:
     """Every candidate scored on the common windows against raw, its axes masked by the
     one-SE rule on its own domain (and the peak-to-peak guard where ``guard``); each
     candidate's entry of ``record``."""
@@ -583,16 +974,20 @@ def _score(pooled: _Pooled, ok: Mapping[str, CandidateOOF], outputs: Sequence[st
             boot = np.sqrt((counts @ c_ss) / raw_boot)
             keep = np.array(mask)
             sc.axis_scores[k] = np.where(keep, ratio, 1.0)
+            sc.own_ratio[k] = ratio_own
             sc.scores[k] = float(np.mean(sc.axis_scores[k]))
             sc.axis_boots[k] = np.where(keep[None, :], boot, 1.0)
             sc.boots[k] = sc.axis_boots[k].mean(axis=1)
-            fold_scores = []
+            fold_axis = []
             lo_u = 0
             for nu in pooled.fold_units:
                 sl = slice(lo_u, lo_u + nu)
                 lo_u += nu
                 r = np.sqrt(c_ss[sl].sum(0) / raw_ss[sl].sum(0))
-                fold_scores.append(float(np.mean(np.where(keep, r, 1.0))))
+                fold_axis.append(np.where(keep, r, np.where(np.isfinite(r), 1.0, np.nan)))
+            sc.fold_axis[k] = np.array(fold_axis).reshape(len(pooled.fold_units), A)
+            sc.fold_scores[k] = sc.fold_axis[k].mean(axis=1)
+            fold_scores = [_finite_or_none(x) for x in sc.fold_scores[k]]
             record["candidates"][k] = {
                 "status": "ok", "n_params": ok[k].n_params, "score": sc.scores[k],
                 "interval": [float(x) for x in np.nanpercentile(sc.boots[k], [q, 100 - q])],
@@ -600,25 +995,42 @@ def _score(pooled: _Pooled, ok: Mapping[str, CandidateOOF], outputs: Sequence[st
                 "axes": {a: {"ratio": float(ratio[i]), "own_ratio": float(ratio_own[i]),
                              "own_interval": [float(iv[0, i]), float(iv[1, i])],
                              "own_se": float(se_own[i]),
+                             "fold_ratios": [_finite_or_none(x)
+                                             for x in sc.fold_axis[k][:, i]],
                              **({"pp_ratio": float(pooled.pp_cand[k][i] / pooled.pp_raw[i])
                                  if pooled.pp_raw[i] > 0 else None,
                                  "pp_guard": bool(pp_ok[i])} if guard else {}),
                              "compensate": bool(mask[i])} for i, a in enumerate(outputs)},
                 "left_out_fraction": pooled.left_out[k]}
+    sc.gate = Gate.of(pooled, sc.compensate, baseline, fold_directions)
     return sc
 
 
 def _one_se(plan: FoldPlan, ok: Mapping[str, CandidateOOF], sc: _Scores,
             outputs: Sequence[str], baseline: str | None,
-            record: dict[str, Any]) -> tuple[str | None, list[str], str]:
+            record: dict[str, Any], directional: set[str] | frozenset[str] = frozenset(),
+            one_way: str = "") -> tuple[str | None, list[str], str]:
     """The whole recording's choice: (chosen or None, tied, reason) — do no harm, then the
-    fewest parameters within one SE of the best (no candidate below the baseline's floor)."""
+    fewest parameters within one SE of the best (no candidate below the baseline's floor).
+
+    With a baseline, the gate first (:data:`GATE_RULE` on the mean over axes): a candidate
+    not better than the baseline in every fold, or one reading a direction the data do not
+    hold (``directional``), is not eligible."""
     order = {k: i for i, k in enumerate(ok)}
     finite = {k: v for k, v in sc.scores.items() if math.isfinite(v)}
+    gated: dict[str, str] = {}
+    if baseline is not None and baseline in finite and sc.gate is not None:
+        for k in finite:
+            if k == baseline:
+                continue
+            if k in directional:
+                gated[k] = one_way
+            elif not sc.gate.passes(k, None, True):
+                gated[k] = f"gate: not better than the baseline {baseline} in every fold"
     if not finite:
         return None, [], "no candidate has a finite out-of-fold score"
-    low = min(finite.values())
-    best = min((k for k, v in finite.items() if same(v, low)),
+    low = min(v for k, v in finite.items() if k not in gated)
+    best = min((k for k, v in finite.items() if same(v, low) and k not in gated),
                key=lambda k: (ok[k].n_params, order[k]))
     if not below(finite[best], 1.0):
         reason = ("do no harm: no candidate beats the raw output on any axis out of fold "
@@ -631,7 +1043,8 @@ def _one_se(plan: FoldPlan, ok: Mapping[str, CandidateOOF], sc: _Scores,
         se = float(np.nanstd(d)) if k != best else 0.0
         record["candidates"][k]["diff_to_best"] = v - finite[best]
         record["candidates"][k]["se_of_diff"] = se
-        floor = "" if k == best else _below_baseline(k, baseline, sc.axis_scores, outputs)
+        floor = gated.get(k) or ("" if k == best else
+                                 _below_baseline(k, baseline, sc.axis_scores, outputs))
         if floor:
             record["candidates"][k]["not_eligible"] = floor
         elif below(v, 1.0) and (v - finite[best] <= se or same(v, finite[best])):

@@ -117,6 +117,16 @@ class SelectionConfig:
     axis gets its own candidate by the same rule (:func:`thermonet.scoring.selection.
     choose_per_axis`), shipped as one model; False chooses one family for every axis (the
     whole-recording choice); ``None`` (default) is per axis with two or more families.
+    ``hold_out``: what a fold holds out of one run (or of a time-block split's runs) —
+    ``excursions``: whole thermal excursions (a heating or cooling leg with its soak), the
+    next warm-up a user's test will be; ``blocks``: short blocks dealt round-robin
+    (interpolation); ``auto`` (default): excursions where two or more can be held out, else
+    blocks.  With several runs and a split by run, one run is left out whatever it says.
+    ``gate``: the baseline stays on an axis until a candidate beats it in every fold, and a
+    model reading the direction of change (rate, lag, hysteresis) is not shipped over a static
+    one where the training data hold one direction only
+    (:data:`thermonet.scoring.selection.GATE_RULE`); False: the one-SE rule alone (the rule
+    before, for comparison).
     """
 
     folds: int = 5
@@ -125,8 +135,15 @@ class SelectionConfig:
     window_s: float | None = None
     refit: bool = True
     per_axis: bool | None = None
+    hold_out: str = "auto"
+    gate: bool = True
 
     def __post_init__(self) -> None:
+        if not isinstance(self.gate, bool):
+            raise ConfigError(f"key 'selection.gate': must be true or false, got {self.gate!r}")
+        if self.hold_out not in ("auto", "excursions", "blocks"):
+            raise ConfigError(f"key 'selection.hold_out': must be auto, excursions or blocks, "
+                              f"got {self.hold_out!r}")
         if self.per_axis is not None and not isinstance(self.per_axis, bool):
             raise ConfigError(f"key 'selection.per_axis': must be true, false or null (per axis "
                               f"when there are two or more families), got {self.per_axis!r}")

@@ -499,6 +499,11 @@ def _ratio_cell(v: dict[str, Any] | None) -> str:
     return f"{ratio_text(v['ratio']):>6} [{ratio_text(lo):>5},{ratio_text(hi):>5}] {mark}"
 
 
+def _fold_text(x: float | None, fmt: str = ".3g") -> str:
+    """A score for the table; ``–`` where a fold had no window inside the trained domain."""
+    return "–" if x is None or not math.isfinite(x) else format(x, fmt)
+
+
 def format_table(results: dict[str, Any]) -> str:
     """The comparison as a text table: family × axis, scores, verdicts, the ratio to the baseline.
 
@@ -544,13 +549,20 @@ def format_table(results: dict[str, Any]) -> str:
         lines.append(f"selection: {sel.get('kind')}, {sel.get('folds')} folds, purge "
                      f"{sel.get('purge_s', 0):.0f} s, score windows {sel.get('window_s', 0):.0f} s "
                      "(out-of-fold low-frequency residual / raw, [95 % interval], per fold)")
+        if sel.get("note"):
+            lines.append(f"  folds: {sel['note']}")
         for name, c in sel["candidates"].items():
             if c.get("status") != "ok":
                 lines.append(f"  {name:<14} not a candidate: {c.get('reason')}")
                 continue
             lo, hi = c["interval"]
-            folds = " ".join(f"{x:.3g}" for x in c["fold_scores"])
-            lines.append(f"  {name:<14} {c['score']:.4g} [{lo:.4g}, {hi:.4g}]  folds {folds}")
+            folds = " ".join(_fold_text(x) for x in c["fold_scores"])
+            held = f"  ({c['not_eligible']})" if c.get("not_eligible") else ""
+            lines.append(f"  {name:<14} {_fold_text(c['score'], '.4g')} "
+                         f"[{_fold_text(lo, '.4g')}, {_fold_text(hi, '.4g')}]  folds {folds}{held}")
+        if sel.get("held_back"):
+            lines.append(f"  held back: {', '.join(sel['held_back']['candidates'])}: "
+                         f"{sel['held_back']['why']}")
     elif sel.get("note"):
         lines.append(f"selection: {sel['note']}")
     per_axis = sel.get("per_axis") or {}

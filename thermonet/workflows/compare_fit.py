@@ -19,6 +19,7 @@ from ..core.errors import FitError
 from ..core.helpers import usable_cores
 from ..core.profile import stage
 from ..data.diagnostics import outside_distance, outside_fraction
+from ..features.dynamics import dynamic_signals
 from ..features.inputs import RATE, TEMPERATURE, resolve_gap_s, signal_matrix
 from ..reporting.results import FamilyResult
 from ..scoring.selection import (
@@ -283,12 +284,20 @@ def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
         train = [(q.signals[m & h], q.target[m & h], q.time_s[m & h])
                  for q, m, h in zip(whole, plan.train_masks[f], keep, strict=True)
                  if (m & h).any()]
+        if not train:
+            oof.failed = f"cross-validation fold {f}: no training sample left after the purge"
+            break
         try:
             fitted = fit(family=fam.family, inputs=list(fam.inputs), outputs=p.outputs,
                          train=train, val=None, spec=spec, hyper=dict(fam.params),
                          config=tcfg, on_epoch=on_epoch, target=p.targets.modes)
         except FitError as err:   # e.g. a fold's span too short for the family: said, left out
             oof.failed = f"cross-validation fold {f}: {err}"
+            break
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError) as err:
+            # a numerical failure inside one fold (a solver given no usable sample after the
+            # family's own masking): this candidate is out of the choice, the comparison goes on
+            oof.failed = f"cross-validation fold {f}: the fit failed ({type(err).__name__}: {err})"
             break
         oof.n_params = int(fitted.model.n_structural)
         sig = np.vstack([x[0] for x in train])
@@ -314,6 +323,7 @@ def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: An
     if oof is None:
         oof, whole = _oof(p, fam, tcfg, spec, parts, on_epoch)
     oof.label, oof.n_params = fam.label, out.n_select
+    oof.directional = bool(dynamic_signals(fam.inputs))
     out.oof = oof
     out.pool_targets = [q.target for q in whole]
     out.pool_times = [q.time_s for q in whole]

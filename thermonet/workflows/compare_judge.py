@@ -115,7 +115,7 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
         temps = next((f.pool_temps for f in cv.values() if f.pool_temps), None)
         sel = select(p.folds, first.pool_targets, first.pool_times,
                      {k: f.oof for k, f in cv.items()}, p.outputs, baseline=p.cfg.baseline,
-                     temperatures=temps)
+                     temperatures=temps, gate=p.cfg.selection.gate)
         chosen, tied, why = sel.chosen, sel.tied, sel.reason
         result.selection = sel.record
         # what the single validation part would have chosen: how close the call was
@@ -217,7 +217,8 @@ def per_axis_choice(sel: Any, cv: dict[str, Fitted], p: Plan,
             solo = {k: f for k, f in cv.items() if composable([f.model]) is None}
             again = select(p.folds, next(iter(cv.values())).pool_targets,
                            next(iter(cv.values())).pool_times, {k: f.oof for k, f in solo.items()},
-                           p.outputs, baseline=p.cfg.baseline, temperatures=temps)
+                           p.outputs, baseline=p.cfg.baseline, temperatures=temps,
+                           gate=p.cfg.selection.gate)
             owners = again.per_axis
             labels = sorted({v for v in owners.values() if v is not None}, key=list(cv).index)
             sel.record["per_axis"] = {**again.record["per_axis"],

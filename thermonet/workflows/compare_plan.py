@@ -209,11 +209,23 @@ def plan(cfg: CompareConfig, dataset: Dataset | None = None, *,
                      f"{win.window_s:g} s window means ({win.source_samples} "
                      "samples): cross-validation and verdicts count rows, so a short "
                      "recording is better held whole (raise 'data.in_memory_samples')")
-    folds, note = _fold_plan(cfg, splits)
+    folds, note = _fold_plan(cfg, splits, source)
     return Plan(cfg, ds, outputs, targets, splits, units, source, warns, folds, note)
 
 
-def _fold_plan(cfg: CompareConfig, splits: list[Split]) -> tuple[Any, str]:
+def _thermal_signal(cfg: CompareConfig, rec: Any) -> np.ndarray | None:
+    """The temperature trace whose excursions the folds hold out: the thermometer in °C, or
+    else the first proxy a family reads (the cubesat's raw counts), or None."""
+    if rec.temperature_c is not None:
+        return np.asarray(rec.temperature_c, dtype=np.float64)
+    for sig in signals_for([i for fam in cfg.families for i in fam.inputs]):
+        if sig in rec.proxies:
+            return np.asarray(rec.proxies[sig], dtype=np.float64)
+    return None
+
+
+def _fold_plan(cfg: CompareConfig, splits: list[Split], source: str = "config"
+               ) -> tuple[Any, str]:
     """The cross-validation folds of the last split's pool (thermonet.scoring.selection), or why not."""
     sel = cfg.selection
     if sel.folds == 0:
@@ -225,9 +237,15 @@ def _fold_plan(cfg: CompareConfig, splits: list[Split]) -> tuple[Any, str]:
                if d.kind in ("rate", "lag")), default=0.0)
     # the folds look like the test: whole runs left out where the test is a run of its own,
     # blocks inside the runs where the test is blocks inside them (a time-block split)
-    plan = plan_folds(splits[-1].pool, folds=sel.folds, blocks_per_fold=sel.blocks_per_fold,
-                      tau_s=tau, purge_s=sel.purge_s, window_s=sel.window_s,
-                      by_run=splits[-1].label != "time-blocks")
+    try:
+        plan = plan_folds(splits[-1].pool, folds=sel.folds,
+                          blocks_per_fold=sel.blocks_per_fold, tau_s=tau, purge_s=sel.purge_s,
+                          window_s=sel.window_s, by_run=splits[-1].label != "time-blocks",
+                          hold_out=sel.hold_out,
+                          temperatures=[_thermal_signal(cfg, r) for r, _ in splits[-1].pool])
+    except ValueError as err:     # hold_out: excursions, and the data hold none to hold out
+        raise ConfigError(f"{source}: key 'selection.hold_out': excursions, but the training "
+                          f"data hold {err}") from None
     if plan is None:
         return None, (f"too little training data for {sel.folds} cross-validation folds: "
                       "chosen on the split's validation part")

@@ -1,0 +1,257 @@
+"""Validation that looks like the next excursion (thermonet.scoring.folds.excursions,
+plan_folds' ``hold_out``) and the gate that keeps the baseline until it is beaten in every fold
+(thermonet.scoring.selection: GATE_RULE, one_direction)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from thermonet.core.recording import Recording
+from thermonet.scoring.folds import excursions
+from thermonet.scoring.selection import (
+    CandidateOOF,
+    beats_in_every_fold,
+    one_direction,
+    plan_folds,
+    select,
+)
+
+pytestmark = pytest.mark.numerics
+
+
+def _trace(knots_t: list[float], knots_c: list[float], n: int = 7200, noise: float = 0.05,
+           seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(n, dtype=np.float64)
+    temp = np.interp(t, np.array(knots_t) * (n - 1), knots_c)
+    return t, temp + np.random.default_rng(seed).normal(0.0, noise, n)
+
+
+def _rec(t: np.ndarray, temp: np.ndarray, run_id: str = "r") -> Recording:
+    return Recording(time_s=t, temperature_c=temp, outputs={"gyro_x": np.zeros(t.size)},
+                     units={"gyro_x": "deg/s"}, run_id=run_id, sample_rate_hz=1.0)
+
+
+# --------------------------------------------------------------------------- excursions
+def test_a_climate_cycle_is_three_legs_cut_at_its_turns_with_the_soaks():
+    """20 → 60 (soak) → −10 (soak) → 30 °C: heating, cooling, heating; each soak belongs to
+    the leg that ends in it; the legs tile the run."""
+    knots_t = [0.0, 0.25, 0.35, 0.65, 0.75, 1.0]
+    t, temp = _trace(knots_t, [20.0, 60.0, 60.0, -10.0, -10.0, 30.0])
+    legs = excursions(temp)
+    assert [leg.direction for leg in legs] == [1, -1, 1]
+    assert legs[0].start == 0 and legs[-1].stop == t.size
+    assert all(a.stop == b.start for a, b in zip(legs, legs[1:], strict=False))
+    n = t.size - 1
+    # a leg ends inside the soak at its turn (the soak is the leg's), not before it
+    assert 0.25 * n <= legs[0].stop <= 0.37 * n
+    assert 0.65 * n <= legs[1].stop <= 0.77 * n
+    assert legs[0].from_value == pytest.approx(20.0, abs=0.5)
+    assert legs[1].to_value == pytest.approx(-10.0, abs=3.0)     # within turn / 4
+
+
+def test_raw_counts_give_the_same_legs_and_noise_is_no_turn():
+    """Any affine image of the thermometer (raw counts, falling with temperature) is cut at
+    the same samples; a soak with noise is one leg of direction 0; a lone ramp one leg."""
+    t, temp = _trace([0.0, 0.4, 1.0], [20.0, 60.0, 0.0])
+    legs_c = excursions(temp)
+    legs_raw = excursions(65000.0 - 120.0 * temp)
+    assert [(a.start, a.stop) for a in legs_c] == [(b.start, b.stop) for b in legs_raw]
+    assert [a.direction for a in legs_c] == [-b.direction for b in legs_raw] == [1, -1]
+    soak = 25.0 + np.random.default_rng(3).normal(0.0, 0.2, 5000)
+    (one,) = excursions(soak)
+    assert one.direction == 0 and (one.start, one.stop) == (0, 5000)
+    (ramp,) = excursions(np.linspace(-20.0, 50.0, 3000))
+    assert ramp.direction == 1 and (ramp.start, ramp.stop) == (0, 3000)
+
+
+# ---------------------------------------------------------------------------- the folds
+def _two_cycles() -> Recording:
+    """Two cycles 20 → 60 → −10 → 20 °C in one run: two heating and two cooling legs."""
+    kt = [0.0, 0.125, 0.375, 0.5, 0.625, 0.875, 1.0]
+    t, temp = _trace(kt, [20.0, 60.0, -10.0, 20.0, 60.0, -10.0, 20.0], n=14400)
+    return _rec(t, temp)
+
+
+def test_excursion_folds_hold_out_whole_legs_purged_by_the_longest_memory():
+    rec = _two_cycles()
+    mask = np.ones(rec.n_samples, dtype=bool)
+    plan = plan_folds([(rec, mask)], folds=5, blocks_per_fold=8, tau_s=400.0,
+                      temperatures=[rec.temperature_c])
+    assert plan is not None and plan.kind == "excursions"
+    legs = excursions(rec.temperature_c)
+    # the legs the rest of the run spans in temperature and direction, each its own fold
+    assert [d["fold"] for d in plan.legs] == list(range(plan.k))
+    assert plan.k == len(legs) and sorted(plan.directions) == [-1, 1]
+    for f, leg in enumerate(legs):
+        val = plan.fold_of[0] == f
+        assert val[leg.start:leg.stop].all() and val.sum() == leg.stop - leg.start
+        assert plan.fold_directions[f] == {leg.direction}
+    # purge: three time constants (1,200 s), not capped by half a block
+    assert plan.purge_s == pytest.approx(1200.0)
+    t = rec.time_s
+    for f in range(plan.k):
+        val = plan.fold_of[0] == f
+        tv = t[val]
+        dist = np.min(np.abs(t[:, None] - tv[None, :: 25]), axis=1)
+        trained = plan.train_masks[f][0]
+        assert not trained[dist <= 1199.0].any()
+        assert trained[dist > 1250.0].all()
+
+
+def test_a_leg_whose_direction_the_rest_lacks_is_never_held_out():
+    """One cycle (cooling, heating, cooling): its one heating leg is not held out (the rest
+    holds no heating), so the two cooling legs are the folds and the heating leg always
+    trains; a single ramp has nothing to hold out: blocks under ``auto``, one line naming
+    what the data hold under ``excursions``."""
+    t, temp = _trace([0.0, 0.3, 0.7, 1.0], [40.0, -10.0, 60.0, 30.0])
+    rec = _rec(t, temp)
+    mask = np.ones(t.size, dtype=bool)
+    plan = plan_folds([(rec, mask)], folds=5, blocks_per_fold=8, tau_s=0.0,
+                      temperatures=[temp])
+    assert plan is not None and plan.kind == "excursions" and plan.k == 2
+    kinds = [(d["excursion"].split()[0], d["fold"]) for d in plan.legs]
+    assert kinds == [("cooling", 0), ("heating", -1), ("cooling", 1)]
+    t1, ramp = _trace([0.0, 1.0], [10.0, 50.0], n=3000)
+    one = _rec(t1, ramp)
+    m1 = np.ones(t1.size, dtype=bool)
+    auto = plan_folds([(one, m1)], folds=5, blocks_per_fold=8, tau_s=0.0, temperatures=[ramp])
+    assert auto is not None and auto.kind == "blocks"
+    assert auto.note.startswith("blocks, not excursions: 1 heating leg: 0 excursion(s)")
+    with pytest.raises(ValueError, match="1 heating leg: 0 excursion"):
+        plan_folds([(one, m1)], folds=5, blocks_per_fold=8, tau_s=0.0, temperatures=[ramp],
+                   hold_out="excursions")
+
+
+def test_a_config_asking_for_excursions_the_data_lack_is_one_line_and_nothing_written(
+        tmp_path):
+    from thermonet.core.errors import ConfigError
+    from thermonet.sim import simulate
+    from thermonet.training.config import CompareConfig, FamilyConfig
+    from thermonet.workflows.compare import run_compare
+
+    ds = simulate("accel-ramp", runs=1, seed=0, sample_rate_hz=0.2)   # one heating ramp
+    cfg = CompareConfig(families=[FamilyConfig(family="poly", name="cubic",
+                                               params={"degree": 3})])
+    cfg.selection.hold_out = "excursions"
+    out = tmp_path / "out"
+    with pytest.raises(ConfigError) as err:
+        run_compare(cfg, out, dataset=ds, track=False, quiet=True, plots=False)
+    msg = str(err.value)
+    assert "key 'selection.hold_out'" in msg and "1 heating leg: 0 excursion" in msg
+    assert "\n" not in msg and not out.exists()
+    with pytest.raises(ConfigError, match="selection.hold_out"):
+        CompareConfig().selection.__class__(hold_out="weekly")
+
+
+# ------------------------------------------------------------------------------ the gate
+def _gate_case(errors: dict[str, list[float]], directional: frozenset[str] = frozenset(),
+               n_params: dict[str, int] | None = None, knots=None):
+    """Excursion folds of ``_two_cycles``; the target is a slow drift plus white noise, and
+    each candidate leaves, on fold f's validation rows, errors[label][f] of the drift's spread
+    as a slow error of its own (seeded per candidate)."""
+    rec = _two_cycles()
+    mask = np.ones(rec.n_samples, dtype=bool)
+    plan = plan_folds([(rec, mask)], folds=5, blocks_per_fold=8, tau_s=0.0,
+                      temperatures=[rec.temperature_c])
+    assert plan is not None and plan.kind == "excursions"
+    rng = np.random.default_rng(7)
+    temp = rec.temperature_c
+    drift = 0.01 * temp + 2e-4 * temp ** 2
+    y = (drift + rng.normal(0.0, 0.002, temp.size))[:, None]
+    cands = {}
+    for i, (label, errs) in enumerate(errors.items()):
+        c = CandidateOOF(label, (n_params or {}).get(label, 4), directional=label in directional)
+        g = np.random.default_rng(100 + i)
+        for f in range(plan.k):
+            rows = np.flatnonzero(plan.fold_of[0] == f)
+            slow = np.convolve(g.normal(size=rows.size + 300), np.ones(300), "valid")[:rows.size]
+            slow = slow / slow.std() * errs[f] * drift[rows].std()
+            c.pred.append([(drift[rows] + slow)[:, None]])
+            c.inside.append([np.ones(rows.size, dtype=bool)])
+        cands[label] = c
+    return plan, y, rec.time_s, cands
+
+
+def test_the_baseline_stays_unless_a_candidate_beats_it_in_every_fold():
+    """``dyn`` is far better than the cubic on average but worse on one held-out excursion:
+    the one-SE rule alone (gate off) ships it, the gate keeps the cubic; ``good`` is better in
+    every fold and replaces the cubic."""
+    k = 5
+    cubic = [0.10] * k
+    dyn = [0.02, 0.02, 0.02, 0.12, 0.02]
+    plan, y, t, cands = _gate_case({"cubic": cubic, "dyn": dyn})
+    assert plan.k == k
+    off = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic", gate=False)
+    assert off.per_axis == {"gyro_x": "dyn"} and off.chosen == "dyn"
+    on = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic")
+    assert on.per_axis == {"gyro_x": "cubic"} and on.chosen == "cubic"
+    assert "not better in every fold: dyn" in on.per_axis_reason["gyro_x"]
+    assert on.record["candidates"]["dyn"]["not_eligible"].startswith("gate:")
+    folds = on.record["candidates"]["dyn"]["axes"]["gyro_x"]["fold_ratios"]
+    assert len(folds) == k and folds[3] > on.record["candidates"]["cubic"]["axes"]["gyro_x"][
+        "fold_ratios"][3]
+    plan, y, t, cands = _gate_case({"cubic": cubic, "good": [0.05, 0.04, 0.06, 0.05, 0.05]})
+    on = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic")
+    assert on.per_axis == {"gyro_x": "good"} and on.chosen == "good"
+
+
+def test_one_direction_of_change_holds_back_what_reads_the_direction():
+    """A pool that only heats: a candidate reading the rate cannot be judged on cooling — it
+    is not shipped over the cubic however well it scores, and the record says why."""
+    assert one_direction([1, -1]) == ""
+    assert "only heating" in one_direction([1]) and "on cooling" in one_direction([1])
+    assert "soaks only" in one_direction([])
+    t, temp = _trace([0.0, 0.1, 0.9, 1.0], [0.0, 0.0, 60.0, 60.0], n=6000)
+    rec = _rec(t, temp)
+    mask = np.ones(t.size, dtype=bool)
+    plan = plan_folds([(rec, mask)], folds=5, blocks_per_fold=8, tau_s=0.0,
+                      temperatures=[temp])
+    assert plan is not None and plan.kind == "blocks" and plan.directions == [1]
+    drift = 0.01 * temp + 2e-4 * temp ** 2
+    y = (drift + np.random.default_rng(1).normal(0.0, 0.002, t.size))[:, None]
+    cands = {}
+    for label, err, dyn in (("cubic", 0.1, False), ("rate", 0.01, True)):
+        c = CandidateOOF(label, 4, directional=dyn)
+        g = np.random.default_rng(5 if dyn else 6)
+        for f in range(plan.k):
+            rows = np.flatnonzero(plan.fold_of[0] == f)
+            c.pred.append([(drift[rows] + err * drift.std() * g.normal(size=rows.size))[:, None]])
+            c.inside.append([np.ones(rows.size, dtype=bool)])
+        cands[label] = c
+    sel = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic")
+    assert sel.per_axis == {"gyro_x": "cubic"} and sel.chosen == "cubic"
+    assert sel.record["held_back"]["candidates"] == ["rate"]
+    assert "only heating" in sel.record["held_back"]["why"]
+    assert "rate not judged" in sel.per_axis_reason["gyro_x"]
+
+
+def test_raw_is_the_floor_where_the_cubic_is_worse_than_raw_out_of_fold():
+    """The cubic worse than raw out of fold: the reference is raw, and a candidate better than
+    raw on three folds but not the fourth leaves the axis raw."""
+    plan, y, t, cands = _gate_case({"cubic": [1.3] * 5, "flaky": [0.3, 0.3, 0.3, 1.4, 0.3]})
+    sel = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic")
+    assert sel.per_axis == {"gyro_x": None}
+    assert sel.per_axis_reason["gyro_x"].startswith("raw: the baseline cubic does not beat raw")
+
+
+def test_every_fold_means_ties_are_not_worse_and_unjudged_folds_do_not_count():
+    nan = np.nan
+    assert beats_in_every_fold(np.array([0.5, 0.7]), np.array([0.6, 0.7]))
+    assert not beats_in_every_fold(np.array([0.5, 0.71]), np.array([0.6, 0.7]))
+    assert beats_in_every_fold(np.array([0.5, nan]), np.array([0.6, 0.7]))
+    assert not beats_in_every_fold(np.array([nan, nan]), np.array([0.6, 0.7]))
+
+
+def test_the_table_prints_a_fold_without_a_window():
+    """A fold with no validation window inside every candidate's domain has no score
+    (results.json: null); the console table says so instead of failing (was a TypeError)."""
+    from thermonet.workflows.compare import format_table
+
+    res = {"families": {}, "units": {"gyro_x": "deg/s"}, "baseline": "cubic", "chosen": None,
+           "selection": {"kind": "excursions", "folds": 3, "purge_s": 180.0, "window_s": 60.0,
+                         "candidates": {"cubic": {"status": "ok", "score": 0.4,
+                                                  "interval": [0.3, 0.5],
+                                                  "fold_scores": [0.39, None, 0.41]}}}}
+    text = format_table(res)
+    assert "folds 0.39 – 0.41" in text
