@@ -106,11 +106,14 @@ def test_a_tune_grid_is_chosen_on_the_folds_not_ignored(degrees):
     grid = tuned["tuned"]["tuning"]["grid"]
     assert set(grid) == {"degree=1", "degree=3", "degree=5"}
     # each grid point's out-of-fold score is the family's own at that degree (same folds,
-    # same fits): the grid is the comparison's candidates again
+    # same procedure): the grid is the comparison's candidates again.  The two are separate
+    # float32 fits run beside other families' threads, so they agree to float32's precision
+    # amplified by the iterative fit, not bit for bit (on an Intel Xeon: 1.2e-6 relative)
     cands = degrees["selection"]["candidates"]
-    assert grid["degree=1"] == pytest.approx(cands["linear"]["score"], rel=1e-9)
-    assert grid["degree=3"] == pytest.approx(cands["cubic"]["score"], rel=1e-9)
-    assert grid["degree=5"] == pytest.approx(cands["quintic"]["score"], rel=1e-9)
+    rel = 100 * float(np.finfo(np.float32).eps)
+    assert grid["degree=1"] == pytest.approx(cands["linear"]["score"], rel=rel)
+    assert grid["degree=3"] == pytest.approx(cands["cubic"]["score"], rel=rel)
+    assert grid["degree=5"] == pytest.approx(cands["quintic"]["score"], rel=rel)
     # the tuned family ships the cubic: same checkpoint parameters as the cubic's
     a, _ = load_sensor(tuned["checkpoint"])
     b, _ = load_sensor(degrees["families"]["cubic"]["checkpoint"])

@@ -219,6 +219,30 @@ def _field_count(path: Path, names: list[str] | None, mapping: ColumnMapping | N
     return Counter(counts).most_common(1)[0][0]
 
 
+def _first_records(path: Path, sep: str | None, skip: int, chunk_rows: int | None
+                   ) -> tuple[_Pending, str, _Records]:
+    """The banner skipped, the separator sniffed from the first 50 non-blank lines (where not
+    given), and the first block's lines grouped into records (a quoted cell may span lines):
+    the source (its ``lines`` the first records, its ``blocks`` the rest, record-joined), the
+    separator and the record joiner."""
+    src = _Pending(_text_lines(path, chunk_rows))
+    while len(src.lines) < skip and src.more():
+        pass
+    del src.lines[:skip]
+    while not src.lines and src.more():
+        pass
+    if sep is None:
+        while len([ln for ln in src.lines if ln.strip()]) < 50 and src.more():
+            pass
+        sep = _sniff(path, [ln for ln in src.lines if ln.strip()][:50])
+    joined = _Records(path, sep, skip + 1)
+    src.lines[:] = joined.feed(src.lines)
+    if src.exhausted:
+        joined.check_closed()
+    src.blocks = joined.blocks(src.blocks)
+    return src, sep, joined
+
+
 def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None, *,
                      chunk_rows: int | None,
                      float_columns: Callable[[list[str] | None, int], set[str | int]] | None
@@ -239,25 +263,8 @@ def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None,
     malformed = mapping.malformed_rows if mapping else "error"
     if mapping is not None and mapping.separator is not None:
         sep = mapping.separator
-    src = _Pending(_text_lines(path, chunk_rows))
-    blocks = src.blocks
-    # the banner, then the first block's lines
-    while len(src.lines) < skip and src.more():
-        pass
-    del src.lines[:skip]
-    while not src.lines and src.more():
-        pass
-    lines = src.lines   # grows as src.more() reads on
-    if sep is None:
-        while len([ln for ln in lines if ln.strip()]) < 50 and src.more():
-            pass
-        sep = _sniff(path, [ln for ln in lines if ln.strip()][:50])
-    # from here on one element of ``lines`` is one record (a quoted cell may span lines)
-    joined = _Records(path, sep, skip + 1)
-    src.lines[:] = joined.feed(src.lines)
-    if src.exhausted:
-        joined.check_closed()
-    src.blocks = blocks = joined.blocks(blocks)
+    src, sep, joined = _first_records(path, sep, skip, chunk_rows)
+    lines, blocks = src.lines, src.blocks
     records = list(csv.reader(lines, delimiter=sep))
     names: list[str] | None = None
     first_data = skip + 1  # physical line of data row 1, before the header shift

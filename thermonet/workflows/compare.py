@@ -504,6 +504,30 @@ def _fold_text(x: float | None, fmt: str = ".3g") -> str:
     return "–" if x is None or not math.isfinite(x) else format(x, fmt)
 
 
+def _selection_lines(sel: dict[str, Any]) -> list[str]:
+    """The console's cross-validation block: each candidate's out-of-fold score, its folds and
+    why the gate held it back."""
+    lines: list[str] = []
+    lines.append(f"selection: {sel.get('kind')}, {sel.get('folds')} folds, purge "
+                 f"{sel.get('purge_s', 0):.0f} s, score windows {sel.get('window_s', 0):.0f} s "
+                 "(out-of-fold low-frequency residual / raw, [95 % interval], per fold)")
+    if sel.get("note"):
+        lines.append(f"  folds: {sel['note']}")
+    for name, c in sel["candidates"].items():
+        if c.get("status") != "ok":
+            lines.append(f"  {name:<14} not a candidate: {c.get('reason')}")
+            continue
+        lo, hi = c["interval"]
+        folds = " ".join(_fold_text(x) for x in c["fold_scores"])
+        held = f"  ({c['not_eligible']})" if c.get("not_eligible") else ""
+        lines.append(f"  {name:<14} {_fold_text(c['score'], '.4g')} "
+                     f"[{_fold_text(lo, '.4g')}, {_fold_text(hi, '.4g')}]  folds {folds}{held}")
+    if sel.get("held_back"):
+        lines.append(f"  held back: {', '.join(sel['held_back']['candidates'])}: "
+                     f"{sel['held_back']['why']}")
+    return lines
+
+
 def format_table(results: dict[str, Any]) -> str:
     """The comparison as a text table: family × axis, scores, verdicts, the ratio to the baseline.
 
@@ -546,23 +570,7 @@ def format_table(results: dict[str, Any]) -> str:
     lines.append("")
     sel = results.get("selection") or {}
     if sel.get("candidates"):
-        lines.append(f"selection: {sel.get('kind')}, {sel.get('folds')} folds, purge "
-                     f"{sel.get('purge_s', 0):.0f} s, score windows {sel.get('window_s', 0):.0f} s "
-                     "(out-of-fold low-frequency residual / raw, [95 % interval], per fold)")
-        if sel.get("note"):
-            lines.append(f"  folds: {sel['note']}")
-        for name, c in sel["candidates"].items():
-            if c.get("status") != "ok":
-                lines.append(f"  {name:<14} not a candidate: {c.get('reason')}")
-                continue
-            lo, hi = c["interval"]
-            folds = " ".join(_fold_text(x) for x in c["fold_scores"])
-            held = f"  ({c['not_eligible']})" if c.get("not_eligible") else ""
-            lines.append(f"  {name:<14} {_fold_text(c['score'], '.4g')} "
-                         f"[{_fold_text(lo, '.4g')}, {_fold_text(hi, '.4g')}]  folds {folds}{held}")
-        if sel.get("held_back"):
-            lines.append(f"  held back: {', '.join(sel['held_back']['candidates'])}: "
-                         f"{sel['held_back']['why']}")
+        lines += _selection_lines(sel)
     elif sel.get("note"):
         lines.append(f"selection: {sel['note']}")
     per_axis = sel.get("per_axis") or {}

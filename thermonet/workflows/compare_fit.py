@@ -294,7 +294,7 @@ def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
         except FitError as err:   # e.g. a fold's span too short for the family: said, left out
             oof.failed = f"cross-validation fold {f}: {err}"
             break
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError) as err:
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as err:
             # a numerical failure inside one fold (a solver given no usable sample after the
             # family's own masking): this candidate is out of the choice, the comparison goes on
             oof.failed = f"cross-validation fold {f}: the fit failed ({type(err).__name__}: {err})"

@@ -145,6 +145,13 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
                   if f.val_draws is not None}
         chosen, tied, why = choose(scores, {k: f.n_select for k, f in ok.items()})
         result.selection = {"method": "single validation part", "note": p.fold_note}
+        base = p.cfg.baseline
+        if p.cfg.selection.gate and base in ok and chosen not in (None, base):
+            # no folds: nothing can be shown to beat the baseline everywhere (the gate)
+            result.selection["gate"] = (f"the single validation part would have chosen "
+                                        f"{chosen}; without cross-validation folds nothing "
+                                        f"can beat the baseline everywhere: {base} stays")
+            chosen, tied, why = base, [], f"{base}: {result.selection['gate']}"
     result.chosen, result.chosen_reason, result.tie = chosen, why, tied
     if tied:
         result.warn(why)
