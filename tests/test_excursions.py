@@ -294,3 +294,24 @@ def test_without_folds_the_single_validation_part_cannot_replace_the_baseline(tm
     chosen, why, sel = picks[True]
     assert chosen == "cubic" and "would have chosen quadratic" in sel["gate"]
     assert why.startswith("cubic: ")
+
+
+def test_the_folds_domain_is_joint_a_rate_never_trained_at_that_temperature_is_outside():
+    """Training saw fast cooling only when cold and slow cooling only when hot: a row that is
+    hot and cooling fast has each signal inside its own range, yet it is outside the joint
+    domain; the same row's neighbours in temperature with a trained rate are inside."""
+    from thermonet.scoring.selection import in_domain, joint_domain
+
+    t = np.r_[np.linspace(-10.0, 10.0, 200), np.linspace(40.0, 60.0, 200)]
+    rate = np.r_[np.full(200, -2.0), np.full(200, -0.2)]
+    train = np.c_[t, rate]
+    rows = np.array([[55.0, -2.0],     # hot, cooling fast: never trained together
+                     [55.0, -0.2],     # hot, cooling slowly: trained
+                     [0.0, -2.0],      # cold, cooling fast: trained
+                     [0.0, 1.0]])      # heating: outside the rate's own range
+    widen = np.zeros(2)
+    lo, hi = train.min(axis=0), train.max(axis=0)
+    assert in_domain(rows, lo, hi, widen).tolist() == [True, True, True, False]
+    assert joint_domain(train, rows, 0, [1], widen).tolist() == [False, True, True, False]
+    # without a joint column it is the per-signal check
+    assert joint_domain(train, rows, 0, [], widen).tolist() == [True, True, True, False]

@@ -120,7 +120,7 @@ from .metrics import binned_peak_to_peak
 from .verdicts import DECISION_RTOL, LEVEL, above, below, draws, same
 
 __all__ = ["FoldPlan", "CandidateOOF", "plan_folds", "purge_rule", "window_rule",
-           "in_domain", "noise_widths", "window_labels", "select", "Selection",
+           "in_domain", "joint_domain", "noise_widths", "window_labels", "select", "Selection",
            "choose_per_axis", "pp_guard", "point_label", "tuning_choice"]
 
 #: Samples a fold needs in training and in validation.
@@ -408,6 +408,51 @@ def in_domain(signals: np.ndarray, lo: np.ndarray, hi: np.ndarray, widen: np.nda
     with np.errstate(invalid="ignore"):
         ok = (s >= lo - widen) & (s <= hi + widen)
     return ok.all(axis=1)
+
+
+#: Temperature bins of the joint domain (:func:`joint_domain`).
+JOINT_BINS = 10
+
+
+def joint_domain(train: np.ndarray, x: np.ndarray, t_col: int, joint: Sequence[int],
+                 widen: np.ndarray, bins: int = JOINT_BINS) -> np.ndarray:
+    """Rows of ``x`` inside the trained domain *jointly with temperature*: every signal in its
+    trained range (:func:`in_domain`), and each ``joint`` column (a dynamic input: rate, lag,
+    hysteresis state) inside what training saw at that temperature — the range of that column
+    over the training rows in the row's temperature bin and its two neighbours (``bins`` equal
+    bins over the trained temperature range), widened by the column's noise.  A cooling rate
+    never trained at that temperature is outside although the rate and the temperature each
+    lie in their own ranges (an empty neighbourhood: outside).  NaN rows: outside."""
+    tr = np.asarray(train, dtype=np.float64)
+    xs = np.asarray(x, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        lo, hi = np.nanmin(tr, axis=0), np.nanmax(tr, axis=0)
+    ok = in_domain(xs, lo, hi, widen)
+    if not joint or xs.shape[0] == 0 or not np.isfinite(lo[t_col]):
+        return ok
+    t_lo, t_hi = float(lo[t_col]), float(hi[t_col])
+    span = max(t_hi - t_lo, 1e-12)
+
+    def bin_of(t: np.ndarray) -> np.ndarray:
+        with np.errstate(invalid="ignore"):
+            b = np.floor((t - t_lo) / span * bins)
+        return np.clip(np.nan_to_num(b, nan=-1), -1, bins - 1).astype(np.int64)
+
+    bt = bin_of(tr[:, t_col])
+    bx = bin_of(xs[:, t_col])
+    for c in joint:
+        blo = np.full(bins, np.inf)
+        bhi = np.full(bins, -np.inf)
+        good = (bt >= 0) & np.isfinite(tr[:, c])
+        np.minimum.at(blo, bt[good], tr[good, c])
+        np.maximum.at(bhi, bt[good], tr[good, c])
+        # the row's bin and its two neighbours
+        nlo = np.minimum(blo, np.minimum(np.r_[np.inf, blo[:-1]], np.r_[blo[1:], np.inf]))
+        nhi = np.maximum(bhi, np.maximum(np.r_[-np.inf, bhi[:-1]], np.r_[bhi[1:], -np.inf]))
+        b = np.clip(bx, 0, bins - 1)
+        with np.errstate(invalid="ignore"):
+            ok &= (xs[:, c] >= nlo[b] - widen[c]) & (xs[:, c] <= nhi[b] + widen[c])
+    return ok
 
 
 def window_labels(time_s: np.ndarray, window_s: float) -> np.ndarray:

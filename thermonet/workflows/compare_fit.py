@@ -20,11 +20,12 @@ from ..core.helpers import usable_cores
 from ..core.profile import stage
 from ..data.diagnostics import outside_distance, outside_fraction
 from ..features.dynamics import dynamic_signals
-from ..features.inputs import RATE, TEMPERATURE, resolve_gap_s, signal_matrix
+from ..features.inputs import RATE, TEMPERATURE, dynamic_signal, resolve_gap_s, signal_matrix
 from ..reporting.results import FamilyResult
 from ..scoring.selection import (
     CandidateOOF,
     in_domain,
+    joint_domain,
     noise_widths,
     point_label,
     select,
@@ -280,6 +281,9 @@ def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
     # a reduced recording's rows are the fit's windows already
     tcfg = replace(tcfg, average_s=rows_average_s(whole[0], tcfg.average_s))
     widen = [noise_widths(q.signals) for q in whole]
+    t_col = spec.signals.index(TEMPERATURE) if TEMPERATURE in spec.signals else None
+    joint = [i for i, name in enumerate(spec.signals)
+             if name == RATE or dynamic_signal(name) is not None]
     for f in range(plan.k):
         train = [(q.signals[m & h], q.target[m & h], q.time_s[m & h])
                  for q, m, h in zip(whole, plan.train_masks[f], keep, strict=True)
@@ -301,18 +305,25 @@ def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
             break
         oof.n_params = int(fitted.model.n_structural)
         sig = np.vstack([x[0] for x in train])
-        with np.errstate(invalid="ignore"):
-            lo, hi = np.nanmin(sig, axis=0), np.nanmax(sig, axis=0)
         preds, inside = [], []
         for j, q in enumerate(whole):
             rows = np.flatnonzero(plan.fold_of[j] == f)
             x = q.signals[rows]
             preds.append(predict(fitted.model, x, q.time_s[rows]) if rows.size
                          else np.zeros((0, len(p.outputs))))
-            inside.append(in_domain(x, lo, hi, widen[j]) & np.isfinite(preds[-1]).all(axis=1))
+            # inside the fold's trained domain, the dynamic inputs jointly with temperature
+            inside.append(joint_domain(sig, x, t_col, joint, widen[j]) if t_col is not None
+                          else in_domain(x, *_ranges(sig), widen[j]))
+            inside[-1] &= np.isfinite(preds[-1]).all(axis=1)
         oof.pred.append(preds)
         oof.inside.append(inside)
     return oof, whole
+
+
+def _ranges(sig: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per column, the finite minimum and maximum."""
+    with np.errstate(invalid="ignore"):
+        return np.nanmin(sig, axis=0), np.nanmax(sig, axis=0)
 
 
 def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any,
