@@ -124,3 +124,89 @@ def test_an_mlflow_failure_fails_the_comparison_in_one_line_nothing_written(tmp_
     assert str(err.value).startswith(f"MLflow tracking ({uri}): ")
     assert "\n" not in str(err.value)
     assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out*"))
+
+
+# ------------------------------------------------ tracking.register: MLflow's name rules at load
+#: names MLflow refuses (mlflow.utils.validation._validate_model_name and the file store's:
+#: blank, '/', ':', a path separator, '%', a name resolving to another as a path, over 256
+#: characters), and names it would register as they are but that break every line that shows
+#: them (control characters): each with what the one line says
+BAD_REGISTER_NAMES = [
+    ("imu\ndrift", "control character '\\n'"), ("imu\tdrift", "control character '\\t'"),
+    ("imu\x7f", "control character '\\x7f'"), ("imu\u2028x", "control character"),
+    ("../../evil", "holds '/'"), ("", "is empty"), ("   ", "is empty"),
+    ("a:b", "holds ':'"), ("a\\b", "holds '\\\\'"), ("100%", "holds '%'"),
+    ("..", "would resolve to another name"), ("..evil", "would resolve to another name"),
+    (".", "would resolve to another name"), ("m" * 257, "has 257 characters"),
+]
+
+
+def test_a_register_name_mlflow_would_refuse_or_mangle_is_refused_at_load(tmp_path):
+    """``tracking.register`` is checked with the config, by MLflow's own rules plus no control
+    character: one line naming the key and the reason, before any data is read (was: a name
+    with a newline registered as such, '../../evil' and '' warned about after the fit)."""
+    import pytest
+
+    from thermonet.core.errors import ConfigError
+    from thermonet.training.config import config_from_mapping, load_config
+
+    for name, why in BAD_REGISTER_NAMES:
+        with pytest.raises(ConfigError) as err:
+            config_from_mapping({"tracking": {"register": name}}, source="c.yaml")
+        msg = str(err.value)
+        assert msg.startswith("c.yaml: key 'tracking.register': "), msg
+        assert why in msg and "\n" not in msg, (name, msg)
+    # names MLflow takes stay accepted
+    for name in ("imu-drift", "IMU drift v2", "bmi270.gyro_x", "m" * 256, "Ωmega"):
+        assert config_from_mapping({"tracking": {"register": name}}).tracking.register == name
+    # the YAML file as written by a user: the newline inside a quoted string
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text('tracking:\n  register: "imu\\ndrift"\n')
+    with pytest.raises(ConfigError, match=r"c\.yaml: key 'tracking\.register': 'imu\\ndrift' "
+                                          r"holds the control character"):
+        load_config(cfg)
+
+
+def test_register_with_tracking_off_is_refused_in_the_config_or_said_ignored(tmp_path, capsys,
+                                                                             monkeypatch):
+    """``register`` needs tracking: beside ``enabled: false`` in the same config it is a
+    contradiction, refused at load; ``model: sensor`` registers nothing, refused too; with
+    tracking off for one run (``--no-track``) the comparison runs and says in one warning
+    line, also in results.json, that nothing is registered (was: ignored without a word)."""
+    import json
+
+    import pytest
+
+    from thermonet.cli import main
+    from thermonet.core.errors import ConfigError
+    from thermonet.training.config import config_from_mapping
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigError, match=r"^c\.yaml: key 'tracking\.register': 'imu' needs "
+                                          r"tracking, and tracking\.enabled is false"):
+        config_from_mapping({"tracking": {"register": "imu", "enabled": False}}, source="c.yaml")
+    with pytest.raises(ConfigError, match=r"key 'tracking\.register': model 'sensor' logs its "
+                                          r"runs but registers no model"):
+        config_from_mapping({"model": "sensor", "tracking": {"register": "imu"}})
+    # the CLI refuses a bad name in one line, exit 1, before any directory is made
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text("tracking: {register: '../../evil'}\n")
+    capsys.readouterr()
+    assert main(["compare", str(cfg), "--out", str(tmp_path / "o1"), "-q"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "key 'tracking.register': '../../evil' holds '/'" in err[0]
+    assert not (tmp_path / "o1").exists() and not (tmp_path / "mlflow.db").exists()
+    # --no-track: the comparison runs and says register is ignored
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("data: {preset: patent-gyro, runs: 3}\n"
+                   "tracking: {register: imu-drift}\n"
+                   "families:\n  - {name: line, family: linear, inputs: [dT]}\n")
+    assert main(["compare", str(cfg), "--out", str(tmp_path / "o2"), "--no-track",
+                 "--no-plots"]) == 0
+    out = capsys.readouterr()
+    said = [ln for ln in (out.out + out.err).splitlines() if "tracking.register" in ln]
+    assert said == ["warning: tracking.register 'imu-drift' is ignored: tracking is off for "
+                    "this comparison (--no-track), so no model is registered"]
+    doc = json.loads((tmp_path / "o2" / "results.json").read_text())
+    assert any("'imu-drift' is ignored" in w for w in doc["warnings"])
+    assert not (tmp_path / "mlflow.db").exists()

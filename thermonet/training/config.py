@@ -10,6 +10,8 @@ config (defaults filled in) is saved with every run.
 from __future__ import annotations
 
 import math
+import posixpath
+import unicodedata
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -38,6 +40,7 @@ __all__ = [
     "DataConfig", "SplitConfig", "SelectionConfig", "FeatureConfig", "FamilyConfig", "TrainConfig",
     "TrackingConfig", "CompareConfig", "load_config", "from_dict", "to_dict",
     "outputs_of", "train_config_of", "config_from_mapping", "tune_points",
+    "register_name_problem",
 ]
 
 
@@ -247,14 +250,71 @@ class FamilyConfig:
         return make_spec(self.family, {**self.params, **(point or {})})
 
 
+#: The longest registered-model name: MLflow's SQL stores hold it in a ``String(256)`` column
+#: (``mlflow.store.model_registry.dbmodels.models.SqlRegisteredModel.name``).
+MAX_REGISTER_NAME = 256
+
+
+def register_name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be a registered-model name (None: it can).
+
+    MLflow's own rules are the reference (``mlflow.utils.validation._validate_model_name``
+    and the file store's ``_validate_model_name``, MLflow 3.x): not empty or blank, no ``/``
+    or ``:``, no path separator (``\\``) or ``%``, nothing that resolves as a path to
+    another name (``posixpath.normpath(name) != name``, ``.``, a name starting with ``..``),
+    at most 256 characters (the SQL stores' column).  thermonet adds one of its own: no
+    control character (a newline, a tab, DEL, C1, a Unicode line separator), which MLflow
+    registers as it is, to break every listing and log line that shows the name.
+    """
+    if not name.strip():
+        return "is empty (give the name to register the chosen model under, or leave it out)"
+    bad = next((c for c in name if unicodedata.category(c) in ("Cc", "Zl", "Zp")), None)
+    if bad is not None:
+        return (f"holds the control character {bad!r} (a model name is one line of printable "
+                "text)")
+    bad = next((c for c in name if c in "/:\\%"), None)
+    if bad is not None:
+        return (f"holds {bad!r}; MLflow's model names cannot hold '/', ':', '\\' or '%' "
+                "(they name paths and URIs: models:/NAME@alias)")
+    norm = posixpath.normpath(name)
+    if norm != name or norm == "." or norm.startswith(".."):
+        return ("would resolve to another name as a path (MLflow refuses '.', '..' and names "
+                "starting with '..')")
+    if len(name) > MAX_REGISTER_NAME:
+        return f"has {len(name)} characters (MLflow's stores hold at most {MAX_REGISTER_NAME})"
+    return None
+
+
 @dataclass
 class TrackingConfig:
-    """MLflow tracking (embedded SQLite store in the working directory by default)."""
+    """MLflow tracking (embedded SQLite store in the working directory by default).
+
+    ``register`` names the registered model the chosen model is added to (a bias
+    comparison's; MLflow's name rules, :func:`register_name_problem`), checked when the
+    config is loaded.  It needs tracking: with ``enabled: false`` in the same config it is
+    refused at load; with tracking turned off for one run (``--no-track``,
+    ``thermonet.compare(track=False)``) it is ignored, and the comparison says so in one
+    warning line (and in results.json's ``warnings``).
+    """
 
     enabled: bool = True
     uri: str | None = None               # None: sqlite:///mlflow.db in the working directory
     experiment: str = "thermonet"
     register: str | None = None          # register the chosen model under this name
+
+    def __post_init__(self) -> None:
+        if self.register is None:
+            return
+        if not isinstance(self.register, str):
+            raise ConfigError(f"key 'tracking.register': expected a model name, got "
+                              f"{self.register!r}")
+        why = register_name_problem(self.register)
+        if why is not None:
+            raise ConfigError(f"key 'tracking.register': {self.register[:60]!r} {why}")
+        if self.enabled is False:
+            raise ConfigError(f"key 'tracking.register': {self.register!r} needs tracking, and "
+                              "tracking.enabled is false (nothing would be registered); remove "
+                              "one of them")
 
 
 def _default_families() -> list[FamilyConfig]:
@@ -405,6 +465,10 @@ def config_from_mapping(data: Any, *, source: str = "config") -> CompareConfig:
         raise ConfigError(f"{p}: key 'target': model 'sensor' fits bias, scale factor and "
                           f"misalignment against the reference channels itself; leave 'target' "
                           f"at 'drift' (got {cfg.target!r})")
+    if cfg.model == "sensor" and cfg.tracking.register is not None:
+        raise ConfigError(f"{p}: key 'tracking.register': model 'sensor' logs its runs but "
+                          f"registers no model (a bias comparison registers its chosen one); "
+                          f"remove tracking.register")
     if data.get("baseline") is not None and cfg.baseline not in labels:  # the default may lapse
         raise ConfigError(f"{p}: key 'baseline': no family named {cfg.baseline!r} (families: "
                           f"{', '.join(labels)})")

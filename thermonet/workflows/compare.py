@@ -203,6 +203,9 @@ def _plan_step(cfg: CompareConfig, out: Path, tracking: TrackingSession, progres
         thermonet_version=__version__)
     for w in p.warnings:
         result.warn(w)
+    if cfg.tracking.register is not None and not tracking.enabled:  # off for this run only
+        result.warn(f"tracking.register {cfg.tracking.register!r} is ignored: tracking is off "
+                    f"for this comparison (--no-track), so no model is registered")
     progress.line(f"thermonet compare: {ds.device_id} ({len(ds)} runs, outputs "
                   f"{', '.join(p.outputs)}), split {result.split['strategy']}")
     _note_streamed(cfg, ds, result, progress)
