@@ -210,3 +210,73 @@ def test_register_with_tracking_off_is_refused_in_the_config_or_said_ignored(tmp
     doc = json.loads((tmp_path / "o2" / "results.json").read_text())
     assert any("'imu-drift' is ignored" in w for w in doc["warnings"])
     assert not (tmp_path / "mlflow.db").exists()
+
+
+# ------------------------------------------------ a tracking URI naming what no store can be
+def test_a_tracking_uri_that_is_a_file_says_so_in_one_line(tmp_path, capsys, monkeypatch):
+    """A bare path or file: URI naming a file, a sqlite:/// path that is a directory or a
+    file that is no SQLite database: one line naming the URI and what the path is, before
+    any data is read or any directory made (was MLflow's "the filesystem tracking backend
+    ... is in maintenance mode", a paragraph, after the data was read)."""
+    import sqlite3
+
+    import pytest
+
+    from thermonet.cli import main
+    from thermonet.core.errors import ThermonetError
+    from thermonet.tracking import Tracker, store_problem
+
+    monkeypatch.chdir(tmp_path)
+    text = tmp_path / "store.txt"
+    text.write_text("not a store\n")
+    db = tmp_path / "real.db"
+    sqlite3.connect(db).execute("create table t (x)").connection.close()
+    assert store_problem(str(text)) == (f"{text} is a file, not a tracking store (a SQLite "
+                                        "store is sqlite:///PATH, a server http://HOST:PORT)")
+    assert store_problem(text.as_uri()) == store_problem(str(text))
+    assert store_problem(str(db)) == (f"{db} is a file, not a tracking store (a SQLite "
+                                      f"database: give sqlite:///{db})")
+    assert store_problem(f"sqlite:///{tmp_path}") == (
+        f"{tmp_path} is a directory, not a SQLite database (give sqlite:///DIR/mlflow.db)")
+    assert store_problem(f"sqlite:///{text}") == (
+        f"{text} is a file but not a SQLite database (its first bytes say otherwise)")
+    # what can be a store is left to MLflow: a real or new SQLite file, an empty one,
+    # a directory (the file store, which MLflow itself refuses in its words), a server
+    (tmp_path / "empty.db").touch()
+    for ok in (f"sqlite:///{db}", f"sqlite:///{tmp_path / 'new.db'}", "sqlite:///empty.db",
+               str(tmp_path), "http://127.0.0.1:5000", "databricks"):
+        assert store_problem(ok) is None, ok
+    with pytest.raises(ThermonetError, match=r"^MLflow tracking \(store\.txt\): "
+                                             r"store\.txt is a file, not a tracking store"):
+        Tracker(uri="store.txt")
+    assert Tracker(enabled=False, uri="store.txt").uri == "store.txt"   # off: never looked at
+    # the command line: one line, exit 1, nothing made
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("data: {preset: patent-gyro, runs: 3}\n"
+                   "families:\n  - {name: line, family: linear, inputs: [dT]}\n")
+    for uri in ("store.txt", text.as_uri(), f"sqlite:///{text}"):
+        capsys.readouterr()
+        assert main(["compare", str(cfg), "--out", "o", "--tracking-uri", uri]) == 1
+        out = capsys.readouterr()
+        assert out.out == "" and len(out.err.strip().splitlines()) == 1, out
+        assert out.err.startswith(f"thermonet: error: MLflow tracking ({uri}): {text.name}"
+                                  if uri == "store.txt" else
+                                  f"thermonet: error: MLflow tracking ({uri}): {text}"), out.err
+        assert "maintenance" not in out.err
+        assert not (tmp_path / "o").exists() and not list(tmp_path.glob(".o*"))
+    # fleet (before any unit is fitted) and export from a run id say the same
+    capsys.readouterr()
+    assert main(["fleet", str(cfg), "--units", "2", "--out", "f", "--tracking-uri",
+                 "store.txt"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["thermonet: error: MLflow tracking (store.txt): store.txt is a file, not a "
+                   "tracking store (a SQLite store is sqlite:///PATH, a server "
+                   "http://HOST:PORT)"]
+    assert not (tmp_path / "f").exists()
+    assert main(["export", "0" * 32, "--format", "c", "--out", "m.h", "--tracking-uri",
+                 "store.txt"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith("at store.txt: store.txt is a file, not a "
+                                             "tracking store (a SQLite store is "
+                                             "sqlite:///PATH, a server http://HOST:PORT)")
+    assert not (tmp_path / "m.h").exists()

@@ -42,10 +42,10 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from .core.errors import Interrupted
+from .core.errors import Interrupted, ThermonetError
 
 __all__ = ["Tracker", "default_tracking_uri", "flatten_params", "tidy_orphaned_runs",
-           "global_tracking_uri"]
+           "global_tracking_uri", "store_problem", "check_store"]
 
 #: Tags identifying the process that owns a run (for :func:`tidy_orphaned_runs`).
 HOST_TAG, PID_TAG = "thermonet.host", "thermonet.pid"
@@ -64,6 +64,71 @@ def default_tracking_uri(workdir: str | Path | None = None) -> str:
     """``sqlite:///<workdir>/mlflow.db`` (absolute, so a later ``cd`` does not move it)."""
     root = Path(workdir or os.getcwd()).resolve()
     return f"sqlite:///{root / 'mlflow.db'}"
+
+
+#: The first 16 bytes of every SQLite 3 database (https://www.sqlite.org/fileformat.html).
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def _local_store(uri: str) -> tuple[str, Path] | None:
+    """``("sqlite", path)`` for a ``sqlite:///`` URI, ``("file", path)`` for a ``file:`` URI
+    or a bare path (MLflow's file store), None for anything else (a server, in-memory)."""
+    from urllib.parse import unquote, urlparse
+
+    if uri.startswith("sqlite:///"):
+        rest = uri[len("sqlite:///"):].split("?", 1)[0]
+        return ("sqlite", Path(rest)) if rest and rest != ":memory:" else None
+    parsed = urlparse(uri)
+    if parsed.scheme == "file":
+        return "file", Path(unquote(parsed.path))
+    if parsed.scheme == "" or (len(parsed.scheme) == 1 and os.name == "nt"):  # C:\...
+        return "file", Path(uri)
+    return None
+
+
+def _is_sqlite(path: Path) -> bool:
+    try:
+        with path.open("rb") as f:
+            return f.read(len(_SQLITE_MAGIC)) == _SQLITE_MAGIC
+    except OSError:
+        return False
+
+
+def store_problem(uri: str) -> str | None:
+    """Why the local tracking store ``uri`` names cannot be one (None: it may be; MLflow has
+    the last word).  Without importing MLflow: a bare path or ``file:`` URI naming a file
+    (MLflow would call it a file store "in maintenance mode"), a ``sqlite:///`` path that is
+    a directory, a FIFO or a device, or a file that is not a SQLite database."""
+    import stat
+
+    local = _local_store(uri)
+    if local is None:
+        return None
+    kind, path = local
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return None   # not there yet (a new store), or MLflow's own words
+    if kind == "file":
+        if stat.S_ISDIR(mode):
+            return None
+        hint = f" (a SQLite database: give sqlite:///{path})" if _is_sqlite(path) else \
+            " (a SQLite store is sqlite:///PATH, a server http://HOST:PORT)"
+        return f"{path} is a file, not a tracking store{hint}"
+    if stat.S_ISDIR(mode):
+        return f"{path} is a directory, not a SQLite database (give sqlite:///DIR/mlflow.db)"
+    if not stat.S_ISREG(mode):
+        return f"{path} is not a regular file, not a SQLite database"
+    if path.stat().st_size and not _is_sqlite(path):
+        return f"{path} is a file but not a SQLite database (its first bytes say otherwise)"
+    return None
+
+
+def check_store(uri: str) -> None:
+    """Refuse, in one line naming the URI, a tracking store :func:`store_problem` refuses."""
+    why = store_problem(uri)
+    if why is not None:
+        raise ThermonetError(f"MLflow tracking ({uri}): {why}")
 
 
 def _retry(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
@@ -173,6 +238,8 @@ class Tracker:
         self.uri = uri or default_tracking_uri()
         self.experiment = experiment
         self._mlflow: Any = None
+        if enabled:   # a store that cannot be one, refused before any work
+            check_store(self.uri)
 
     # ------------------------------------------------------------- set-up
     def _client(self) -> Any:

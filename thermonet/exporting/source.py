@@ -33,7 +33,7 @@ from ..core.errors import ExportError, InputError
 from ..core.fileio import not_a_file, refuse_overwriting_inputs
 from ..core.names import AXIS, LABEL, check_name
 from ..core.outdir import sha256_file
-from ..tracking import default_tracking_uri, global_tracking_uri
+from ..tracking import check_store, default_tracking_uri, global_tracking_uri, store_problem
 from . import ExportRequest, get_format
 
 if TYPE_CHECKING:
@@ -134,6 +134,9 @@ def _from_run_id(run_id: str, tracking_uri: str | None, workdir: Path) -> Path:
     import mlflow
 
     uri = tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
+    why = store_problem(uri)
+    if why is not None:
+        raise InputError(f"MLflow run '{run_id}' at {uri}: {why}")
     client = mlflow.MlflowClient(tracking_uri=uri)
     # MLflow resolves a run's logged model ('model') through the global tracking URI: a store
     # used earlier in this process would otherwise answer "Logged model ... not found"
@@ -285,6 +288,7 @@ def _log_to_run(path: Path, run_id: str, tracking_uri: str | None, meta: dict) -
     # Never a URI stored in the checkpoint: a file must not choose where thermonet connects.
     uri = tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
     try:
+        check_store(uri)
         log_onnx_to_mlflow(path, run_id, uri)
     except Exception as err:  # noqa: BLE001 - the file is written; tracking is best effort here
         logging.getLogger(__name__).warning(

@@ -49,7 +49,7 @@ from ..reporting.report import tuned_text, write_report
 from ..reporting.results import ComparisonResult
 from ..scoring.band import evaluate_tables
 from ..scoring.verdicts import LEVEL, MIN_BLOCKS, RESAMPLES, SEED, apply_compensate_mask
-from ..tracking import Tracker
+from ..tracking import Tracker, check_store, default_tracking_uri
 from ..training.config import (
     CompareConfig,
 )
@@ -89,6 +89,8 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
     ``out_dir`` that is not a complete comparison is refused; a previous
     comparison is replaced only with ``overwrite=True``.
     """
+    if cfg.tracking.enabled if track is None else track:   # a store that cannot be one,
+        check_store(tracking_uri or cfg.tracking.uri or default_tracking_uri())  # at once
     if cfg.model == "sensor":  # the full sensor model: its own fit and judgement
         return run_sensor(cfg, out_dir, overwrite=overwrite, quiet=quiet, dataset=dataset,
                           plots=plots, track=track, tracking_uri=tracking_uri)

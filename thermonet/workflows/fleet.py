@@ -90,7 +90,7 @@ from ..scoring.fleetstats import (
     judge_unit,
     parse_limits,
 )
-from ..tracking import Tracker, default_tracking_uri
+from ..tracking import Tracker, check_store, default_tracking_uri
 from ..training.config import CompareConfig, check_families
 from .fleet_summary import clean, fleet_summary, format_fleet_table, plot_coefficient_spread
 from .fleet_units import UnitItem, UnitSource, fold_items, fold_task, unit_task
@@ -170,6 +170,8 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
     Returns the fleet results (the dict written to ``out_dir/results.json``).
     """
     t_start = time.perf_counter()
+    if cfg.tracking.enabled if track is None else track:   # refused before any unit is fitted
+        check_store(tracking_uri or cfg.tracking.uri or default_tracking_uri())
     p = _plan(cfg, out_dir, sources, options or FleetOptions(), overwrite)    # 1. plan
 
     def say(msg: str) -> None:
