@@ -333,3 +333,41 @@ def test_heated_then_cooled_the_lag_is_what_makes_a_lent_thermometer_work(
              "coef": nolag.coef.tolist()}, baro_t))
         assert np.all(lagged >= 0.85), (seed, lagged)
         assert lagged.mean() - unlagged.mean() >= 0.05, (seed, lagged, unlagged)
+
+
+def test_two_logs_of_one_board_each_checked_for_motion_on_its_own(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``calibrate a.ulg b.ulg``: the motion check looks within each log, never across the
+    join, where the first log ends hot and the second starts cold (the drift, not a turn of
+    the board: was "the field direction turns 10° ... moved" and both magnetometers left
+    out).  A board that really turns inside the second log is still caught, naming the log."""
+    assert main(["simulate", "fc-board", "--runs", "2", "--seed", "0", "--out",
+                 str(tmp_path / "b.ulg")]) == 0
+    logs = [str(tmp_path / "b_run1.ulg"), str(tmp_path / "b_run2.ulg")]
+    assert main(["calibrate", *logs, "--out", str(tmp_path / "c"), "--no-compare"]) == 0
+    out = capsys.readouterr().out
+    assert "moved" not in out and "turns" not in out
+    doc = json.loads((tmp_path / "c" / "results.json").read_text())
+    mags = {k: v for k, v in doc["instances"].items() if k.startswith("mag")}
+    assert mags["mag0"]["status"] == "fitted", mags["mag0"]
+    assert mags["mag1"]["status"] == "model only", mags["mag1"]   # a lent thermometer
+    params = _px4_file(tmp_path / "c" / "px4.params")
+    assert int(params["TC_M0_ID"]) == MAG_IDS[0]
+    # the held-out log through PX4's own formula: the drift cut on every axis
+    held = {i.name: i for i in simulate_board("fc-board", seed=0, run=1).instances}["mag0"]
+    temp = np.asarray(held.temperature_c, dtype=np.float64)   # the second log, its truth
+    assert np.all(_removed(temp, held.truth, _tc_m(params, MAG_IDS[0], temp)) >= 0.8)
+    # a turn of 90° about z half-way through the second log: left out, the log named
+    second = simulate_board("fc-board", seed=0, rate_hz=RATE_HZ, run=1)
+    m0 = next(i for i in second.instances if i.name == "mag0")
+    half = m0.n_samples // 2
+    m0.values[half:] = m0.values[half:] @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0],
+                                                    [0.0, 0.0, 1.0]]).T
+    first = write_log(simulate_board("fc-board", seed=0, rate_hz=RATE_HZ, run=0),
+                      tmp_path / "r1.ulg")
+    moved = write_log(second, tmp_path / "r2.ulg")
+    assert main(["calibrate", str(first), str(moved), "--out", str(tmp_path / "d"),
+                 "--no-compare"]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("mag0 ")]
+    assert len(lines) == 1 and "LEFT OUT — log 2: the field direction turns 40° between " \
+        "t = 1324 s and 1384 s (more than 5° within 60 s): the magnetometer moved" in lines[0]

@@ -81,6 +81,7 @@ from ..core.helpers import Helper, HelperGone, value_or_none
 from ..core.names import inside, path_components
 from ..core.outdir import KINDS, check_target, sha256_file, staged_output
 from ..core.profile import stage as profile_stage
+from ..core.recording import GAP_FACTOR
 from ..core.version import __version__
 from ..data.firmware import (
     ARDUPILOT_TEMP_REFERENCE,
@@ -167,9 +168,19 @@ def _board_ids(log: FlightLog) -> list[tuple[str, int]]:
     return sorted((i.name, i.device_id) for i in log.instances if i.kind in _FIT_KINDS)
 
 
+def _join_gap(t: np.ndarray) -> float:
+    """Seconds between one log's last sample and the next log's first, joined: a gap (over
+    :data:`~thermonet.core.recording.GAP_FACTOR` median steps) at which the dynamic inputs
+    (a lag, a rate) restart, as after any pause, instead of running through the jump from
+    one log's end to the next one's start; at least 1 s."""
+    step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    return max(1.0, 2.0 * GAP_FACTOR * step)
+
+
 def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
     """Several logs of one board as one: the instances joined in the order given (time
-    restarted 1 s after the previous log's end).  Refuses logs of another autopilot or
+    restarted after a gap, :func:`_join_gap`, past the previous log's end; each log's first
+    sample recorded in ``starts``).  Refuses logs of another autopilot or
     board (different instances or device ids), naming both logs' ids."""
     first = logs[0]
     for log in logs[1:]:
@@ -191,7 +202,7 @@ def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
         for part in parts:
             t = np.asarray(part.time_s, dtype=np.float64)
             times.append(t - (t[0] if t.size else 0.0) + t0)
-            t0 = (times[-1][-1] + 1.0) if t.size else t0
+            t0 = (times[-1][-1] + _join_gap(t)) if t.size else t0
         temps = None if any(p.temperature_c is None for p in parts) else np.concatenate(
             [np.asarray(p.temperature_c) for p in parts])
         truth = None if any(p.truth is None for p in parts) else np.concatenate(
@@ -201,13 +212,15 @@ def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
         untrusted = "; ".join(p.untrusted for p in parts if p.untrusted) or None
         unlagged = None if any(p.unlagged_c is None for p in parts) else np.concatenate(
             [np.asarray(p.unlagged_c) for p in parts])
+        sizes = np.cumsum([p.n_samples for p in parts])[:-1]
         instances.append(SensorInstance(inst.kind, inst.instance, inst.device_id,
                                         np.concatenate(times), temps,
                                         np.concatenate([p.values for p in parts]),
                                         notes=notes, truth=truth,
                                         damaged=sum(p.damaged for p in parts),
                                         untrusted=untrusted, thermometer=inst.thermometer,
-                                        lag_s=inst.lag_s, unlagged_c=unlagged))
+                                        lag_s=inst.lag_s, unlagged_c=unlagged,
+                                        starts=tuple(int(k) for k in sizes)))
     return FlightLog(path=first.path, autopilot=first.autopilot, instances=instances,
                      params=dict(logs[-1].params),
                      notes=[f"{lg.path.name}: {n}" for lg in logs for n in lg.notes],

@@ -196,7 +196,8 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
         ]
         inst = SensorInstance(inst.kind, inst.instance, inst.device_id, inst.time_s,
                               inst.unlagged_c, inst.values, notes=list(inst.notes),
-                              truth=inst.truth, thermometer=inst.thermometer)
+                              truth=inst.truth, thermometer=inst.thermometer,
+                              starts=inst.starts)
     # workers=1: the three closed-form families one after the other — side by side in
     # threads they hold Python's lock in turn, and were slower (3.6 against 3.45 s a
     # calibration of the 9-instance bench log, idle)

@@ -84,11 +84,24 @@ def poly_order(kind: str, autopilot: str) -> int:
 def motion(inst: SensorInstance) -> str | None:
     """Why a magnetometer's log is not a still soak (one phrase), or None: the direction of
     its field (31-sample running median) turns more than :data:`MAX_MOVE_DEG` within
-    :data:`MOVE_WINDOW_S` somewhere in the log."""
-    t = np.asarray(inst.time_s, dtype=np.float64)
+    :data:`MOVE_WINDOW_S` somewhere in the log.  Several logs joined
+    (:attr:`~thermonet.data.logs.base.SensorInstance.starts`) are looked at one by one: a
+    board set down again between two logs points another way, and that is no motion during
+    a soak."""
+    several = len(inst.segments()) > 1
+    for n, seg in enumerate(inst.segments(), start=1):
+        t = np.asarray(inst.time_s[seg], dtype=np.float64)
+        why = _turn(t - t[0] if several else t, inst.values[seg])   # t: within that log
+        if why:
+            return f"log {n}: {why}" if several else why
+    return None
+
+
+def _turn(t: np.ndarray, values: np.ndarray) -> str | None:
+    """:func:`motion` within one log."""
     if t.size < 3:
         return None
-    v = running_median(inst.values)
+    v = running_median(values)
     u = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
     j = np.minimum(np.searchsorted(t, t + MOVE_WINDOW_S), t.size - 1)
     ang = np.degrees(np.arccos(np.clip(np.sum(u * u[j], axis=1), -1.0, 1.0)))

@@ -197,6 +197,11 @@ class SensorInstance:
     unlagged_c : array (n,) or None
         With a lag: the lent thermometer as read, before the lag (what a model with a
         ``lag_<tau>`` dynamic input takes as its temperature).
+    starts : tuple of int
+        Several logs joined into one instance (``thermonet.workflows.calibrate.merge_logs``):
+        the sample index where each log after the first begins; a check that follows the
+        signal in time (a magnetometer's motion) looks within each log, never across a
+        join.  Empty: one log.
     """
 
     kind: str
@@ -212,6 +217,12 @@ class SensorInstance:
     thermometer: str | None = None
     lag_s: float = 0.0
     unlagged_c: np.ndarray | None = None
+    starts: tuple[int, ...] = ()
+
+    def segments(self) -> list[slice]:
+        """The samples of each log this instance joins (one slice for one log)."""
+        edges = [0, *self.starts, self.n_samples]
+        return [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
 
     def mark_damage(self, n_read: int, dropped: list[str]) -> None:
         """Record ``n_read − n_samples`` damaged samples (``dropped``: why, with counts);
