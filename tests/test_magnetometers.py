@@ -371,3 +371,43 @@ def test_two_logs_of_one_board_each_checked_for_motion_on_its_own(
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("mag0 ")]
     assert len(lines) == 1 and "LEFT OUT — log 2: the field direction turns 40° between " \
         "t = 1324 s and 1384 s (more than 5° within 60 s): the magnetometer moved" in lines[0]
+
+
+def test_a_thermometer_in_kelvin_is_named_kelvin_not_damage(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A sensor whose thermometer the log holds in kelvin (a driver's unit bug) keeps its
+    samples and is left out in one line saying kelvin, with the span in K and °C: the
+    autopilot's compensation reads that same kelvin, so parameters fitted in °C would not
+    match it (was: every sample dropped as "a temperature outside -80..200 °C", then the
+    instance dropped as "0 samples ... a damaged instance field").  The rest is calibrated;
+    PX4's ULog and ArduPilot's DataFlash alike."""
+    board = simulate_board("fc-board", seed=6, rate_hz=RATE_HZ)
+    m0 = next(i for i in board.instances if i.name == "mag0")
+    assert m0.temperature_c is not None
+    lo, hi = (float(x) for x in np.percentile(m0.temperature_c, [1.0, 99.0]))
+    m0.temperature_c = m0.temperature_c + 273.15
+    log = write_log(board, tmp_path / "k.ulg")
+    inst = {i.name: i for i in read_log(log).instances}["mag0"]
+    assert inst.n_samples == m0.n_samples and inst.damaged == 0
+    assert main(["calibrate", str(log), "--out", str(tmp_path / "c"), "--no-compare"]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("mag0 ")]
+    assert len(lines) == 1, lines
+    assert (f"{m0.n_samples} samples" in lines[0] and "LEFT OUT — its thermometer reads "
+            f"{lo + 273.15:.1f}..{hi + 273.15:.1f}: kelvin ({lo:.1f}..{hi:.1f} °C)"
+            in lines[0]), lines[0]
+    doc = json.loads((tmp_path / "c" / "results.json").read_text())
+    assert doc["instances"]["gyro0"]["status"] == "fitted"
+    assert "damaged instance field" not in json.dumps(doc)
+    # ArduPilot: an IMU's thermometer in kelvin, its gyro and accelerometer left out
+    ap = simulate_board("fc-board", autopilot="ardupilot", seed=6, rate_hz=RATE_HZ)
+    for i in ap.instances:
+        if i.name in ("gyro1", "acc1"):
+            assert i.temperature_c is not None
+            i.temperature_c = i.temperature_c + 273.15
+    bin_log = write_log(ap, tmp_path / "k.bin")
+    assert main(["calibrate", str(bin_log), "--out", str(tmp_path / "d"), "--no-compare"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    for name in ("gyro1", "acc1"):
+        line = next(ln for ln in out if ln.startswith(f"{name} "))
+        assert "LEFT OUT — its thermometer reads" in line and ": kelvin (" in line, line
+    assert next(ln for ln in out if ln.startswith("gyro0 ")).count("fitted") >= 1

@@ -13,7 +13,10 @@ For every sensor instance of PX4 ULogs or ArduPilot DataFlash logs of one board:
    is lent one (named with ``mag_thermometers``, else the barometer's, else an IMU's),
    seen through a first-order lag chosen by held-out time blocks; one that moved during
    the soak (its field turns over :data:`~thermonet.workflows.firmware_fit.MAX_MOVE_DEG`
-   within a minute) is left out with one line.  PX4 ``TC_M*`` slots are written for
+   within a minute, within each log) is left out with one line.  A sensor whose
+   thermometer the log holds in kelvin is left out in one line saying so
+   (:func:`thermonet.data.logs.base.flag_kelvin`: not converted, the autopilot reads the
+   same kelvin).  PX4 ``TC_M*`` slots are written for
    magnetometers with their own thermometer; one on a lent thermometer, and every
    ArduPilot magnetometer (ArduPilot has no magnetometer temperature calibration), is
    ``model only``: fitted and judged the same way, its cubic in results.json, its

@@ -89,7 +89,8 @@ def screen_samples(kind: str, time_s: np.ndarray, values: np.ndarray,
     three sample intervals from the median of its neighbours: a flipped time
     byte); a value lies outside :data:`FULL_SCALE`; its temperature lies
     outside :data:`TEMPERATURE_RANGE_C` or jumps :data:`TEMPERATURE_SPIKE_C`
-    from its neighbours; or (PX4) its ``device_id`` is not the instance's.
+    from its neighbours (a thermometer in kelvin, :func:`kelvin_span`, judged in °C: a
+    unit is no damage, :func:`flag_kelvin` says it); or (PX4) its ``device_id`` is not the instance's.
 
     Returns
     -------
@@ -122,6 +123,8 @@ def screen_samples(kind: str, time_s: np.ndarray, values: np.ndarray,
     bad |= scale
     if temperature_c is not None:
         temp = np.asarray(temperature_c, dtype=np.float64)
+        if kelvin_span(temp) is not None:   # a unit, not damage: judged in °C (flag_kelvin)
+            temp = temp - KELVIN_OFFSET
         tlo, thi = TEMPERATURE_RANGE_C
         out = ~bad & ((temp < tlo) | (temp > thi))
         reasons.append((f"a temperature outside {tlo:g}..{thi:g} °C", out))
@@ -142,6 +145,46 @@ def screen_samples(kind: str, time_s: np.ndarray, values: np.ndarray,
     notes = [f"{int(mask.sum())} sample{'s' if mask.sum() != 1 else ''} with {why}"
              f"{_span(t[mask])}" for why, mask in reasons if mask.any()]
     return ~bad, notes
+
+
+#: Kelvin is told from °C by the log's median: above :data:`TEMPERATURE_RANGE_C`'s top no
+#: board soaks, and the whole span (1st..99th percentile) less 273.15 lies inside it.
+KELVIN_OFFSET = 273.15
+
+
+def kelvin_span(temperature: np.ndarray | None) -> tuple[float, float] | None:
+    """(low, high) of a thermometer that reads in kelvin (1st and 99th percentiles of its
+    finite samples), or None when it reads °C (or nothing): the plausibility rule of
+    thermonet's other unit checks (:func:`thermonet.data.diagnostics.temperature_hint`) —
+    a median no sensor test reaches in °C, whose whole span less 273.15 does."""
+    if temperature is None:
+        return None
+    t = np.asarray(temperature, dtype=np.float64)
+    t = t[np.isfinite(t)]
+    if t.size == 0:
+        return None
+    tlo, thi = TEMPERATURE_RANGE_C
+    lo, hi = (float(x) for x in np.percentile(t, [1.0, 99.0]))
+    if float(np.median(t)) <= thi or lo - KELVIN_OFFSET < tlo or hi - KELVIN_OFFSET > thi:
+        return None
+    return lo, hi
+
+
+def flag_kelvin(inst: SensorInstance) -> None:
+    """An instance whose thermometer reads in kelvin is not calibrated: the autopilot's
+    thermal compensation reads that same value, so parameters fitted in °C would not match
+    what the vehicle applies them to.  Its samples are kept (never dropped as a temperature
+    no sensor reports); ``untrusted`` says why, in one phrase naming kelvin."""
+    span = kelvin_span(inst.temperature_c)
+    if span is None:
+        return
+    lo, hi = span
+    inst.untrusted = (f"its thermometer reads {lo:.1f}..{hi:.1f}: kelvin "
+                      f"({lo - KELVIN_OFFSET:.1f}..{hi - KELVIN_OFFSET:.1f} °C), where the "
+                      "autopilot reports °C; its thermal compensation would read the same "
+                      "kelvin, so no calibration in °C can match it — fix the driver's "
+                      "temperature unit")
+    inst.notes.append(f"temperature logged in kelvin ({lo:.1f}..{hi:.1f} K): not calibrated")
 
 
 def temperature_step(temperature_c: np.ndarray | None) -> float | None:

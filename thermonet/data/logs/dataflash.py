@@ -56,6 +56,7 @@ from .base import (
     SensorInstance,
     byte_ranges_note,
     drop_phantoms,
+    flag_kelvin,
     screen_samples,
     time_gaps,
 )
@@ -347,10 +348,12 @@ def _instances(rows: dict[tuple[str, int], list[list[float]]],
             inst = SensorInstance("baro", idx, _id(params, "baro", idx), t, temperature,
                                   a[:, 1:2], notes=[])
             inst.mark_damage(n_read, dropped)
+            flag_kelvin(inst)
             instances.append(inst)
             continue
         for inst in _imu_instances(params, idx, a, temperature, orient):
             inst.mark_damage(n_read, dropped)
+            flag_kelvin(inst)
             instances.append(inst)
     return instances
 

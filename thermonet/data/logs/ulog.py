@@ -46,6 +46,7 @@ from .base import (
     SensorInstance,
     byte_ranges_note,
     drop_phantoms,
+    flag_kelvin,
     screen_samples,
     time_gaps,
 )
@@ -175,6 +176,7 @@ def _instance(d: Any, kind: str, fields: tuple[str, ...],
         time_s=t[keep][order], values=values[keep][order],
         temperature_c=None if temperature is None else temperature[keep][order], notes=notes)
     inst.mark_damage(t.shape[0], dropped)
+    flag_kelvin(inst)
     return inst
 
 
