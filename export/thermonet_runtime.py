@@ -70,6 +70,11 @@ SUPPORTED_OPSETS = (17, 18, 19, 20, 21)
 #: Name of the raw-output graph input and the three graph outputs.
 RAW_INPUT = "raw"
 GRAPH_OUTPUTS = ("compensated", "drift", "out_of_range")
+#: A band half-width (or a growth rate across the trained span) over this many times the
+#: model's largest drift on its trained range is refused: the band comes from the model's
+#: residuals (the export's own check bounds a drift at its targets' mean +- 1000 std).
+BAND_MAX_FACTOR = 1000.0
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 #: Keyword aliases accepted by :meth:`Compensator.compensate`.
 _ALIASES = {"rate": "rate_c_per_min"}
 #: Version of the ``dynamic_inputs`` metadata block this runtime computes.
@@ -653,8 +658,45 @@ class Compensator:
         self.metadata: dict[str, str] = dict(self._session.get_modelmeta().custom_metadata_map)
         self._check_metadata()
         self._check_digest()
+        self._check_band_scale()
 
     # -- checks -------------------------------------------------------------------------------
+    def _check_band_scale(self) -> None:
+        """Band values no residual can make are refused (:data:`BAND_MAX_FACTOR`): a
+        half-width, or a growth rate across the signal's trained span, beyond a float32 or
+        beyond that factor times the model's own largest drift over its trained range (the
+        graph run on every signal's range, raw zero) — the band is estimated from the
+        model's residuals, never this much wider than its drift."""
+        b = self.band_tables
+        if b is None:
+            return
+        n = 257
+        feeds: dict[str, np.ndarray] = {
+            s: np.linspace(*self.trained_range[s], n).astype(np.float32) for s in self.signals}
+        feeds[RAW_INPUT] = np.zeros((n, len(self.outputs)), dtype=self._raw_dtype)
+        if self.recurrent:
+            feeds[self.recurrent["state_input"]] = np.zeros(
+                (n, int(self.recurrent["hidden"])), dtype=np.float32)
+        drift = np.asarray(self._session.run(["drift"], feeds)[0], dtype=np.float64)
+        lo, hi = self.trained_range[b["signal"]]
+        for j, axis in enumerate(self.outputs):
+            d = drift[:, j][np.isfinite(drift[:, j])]
+            scale = float(max(np.max(np.abs(d)), np.ptp(d))) if d.size else 0.0
+            t = b["axes"][axis]
+            for what, value in [("half-width", max(t["half_width"]))] + [
+                    (f"{g} x the trained span", t[g] * (hi - lo))
+                    for g in ("growth_below", "growth_above")]:
+                if value > FLOAT32_MAX:
+                    why = "beyond a float32"
+                elif scale > 0 and value > BAND_MAX_FACTOR * scale:
+                    why = (f"{value / scale:.3g} times the model's largest drift over its "
+                           f"trained range ({scale:.4g})")
+                else:
+                    continue
+                raise RuntimeInputError(f"{self.path}: metadata 'band' of '{axis}': {what} "
+                                        f"{value:.4g} is {why}; no residual of this model "
+                                        "makes such a band (edited after export?)")
+
     def _check_digest(self) -> None:
         """The file's own SHA-256 (``thermonet_sha256``: the digest of its bytes with those 64
         hex digits as zeros): a file edited after export (a weight by hand) is refused, and
@@ -1264,6 +1306,17 @@ def _refuse_inputs(out: Path, tmp: Path, inputs: Sequence[Path]) -> None:
                                         "overwrite an input (nothing written)")
 
 
+def _check_out(out: Path) -> None:
+    """An ``--out`` that cannot be created is refused, naming it, before the model is run:
+    a directory, or a path whose directory does not exist or is not one."""
+    if out.is_dir():
+        raise RuntimeInputError(f"{out}: --out is a directory; give a file name")
+    parent = out.parent
+    if not parent.is_dir():
+        what = "does not exist" if not os.path.lexists(parent) else "is not a directory"
+        raise RuntimeInputError(f"{out}: cannot be created: its directory {parent} {what}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Compensate a CSV file; returns the exit status (0 ok, 1 bad input, 128 + the signal
     number when stopped by SIGINT or SIGTERM).
@@ -1291,6 +1344,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         pass
     try:
         _refuse_inputs(args.out, tmp, [args.model, args.input])
+        _check_out(args.out)
         comp = Compensator(args.model, threads=args.threads)
         header, body, cols = _read_csv(args.input, comp.needs + comp.outputs)
         raw = np.stack([cols[a] for a in comp.outputs], axis=1) if body else \
@@ -1333,8 +1387,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RuntimeInputError as exc:
         print(f"thermonet_runtime: {exc}", file=sys.stderr)
         return 1
-    except OSError as exc:
-        print(f"thermonet_runtime: {exc.filename}: {exc.strerror}", file=sys.stderr)
+    except OSError as exc:   # the output's temporary file is ours: name the user's --out
+        name = args.out if exc.filename in (str(tmp), tmp) else exc.filename
+        print(f"thermonet_runtime: {name}: {exc.strerror}", file=sys.stderr)
         return 1
     finally:
         if written:

@@ -168,3 +168,80 @@ def test_step_and_compensate_refuse_strings_where_numbers_are_meant(model_path: 
     b = comp.step(2, 35.0, np.array(raw))
     np.testing.assert_allclose(a.drift, b.drift, rtol=1e-7)
     np.testing.assert_allclose(b.drift, [0.02, 0.005], atol=1e-6)
+
+
+# ------------------------------------------------------- the output path, named as given
+def test_an_out_that_cannot_be_created_is_named_never_its_tmp(model_path: Path,
+                                                              tmp_path: Path) -> None:
+    """``--out`` in a directory that does not exist, under a file, or a directory itself: one
+    line naming the user's path (was the runtime's own ``OUT.tmp``), exit 1, nothing
+    written, before the model runs."""
+    src = tmp_path / "in.csv"
+    src.write_text("temperature_c,gyro_x,gyro_y\n20,0,0\n21,0,0\n")
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "adir").mkdir()
+    for out, why in ((tmp_path / "no" / "such" / "o.csv",
+                      f"cannot be created: its directory {tmp_path / 'no' / 'such'} does not "
+                      "exist"),
+                     (tmp_path / "afile" / "o.csv",
+                      f"cannot be created: its directory {tmp_path / 'afile'} is not a "
+                      "directory"),
+                     (tmp_path / "adir", "--out is a directory; give a file name")):
+        proc = _cli(model_path, src, out)
+        assert proc.returncode == 1
+        assert proc.stderr.strip().splitlines() == [f"thermonet_runtime: {out}: {why}"]
+        assert ".tmp" not in proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", "afile", "in.csv"]
+    assert not list((tmp_path / "adir").iterdir())
+
+
+# ------------------------------------------------------- a band no residual makes
+def _with_band(model_path: Path, tmp_path: Path, half: float, growth: float = 0.0) -> Path:
+    """The fixture's model exported again with a band (half-width ``half`` on gyro_y)."""
+    import json
+
+    import onnx
+
+    from thermonet.exporting.onnx_export import seal_onnx
+
+    band = {"level": 0.9, "signal": "temperature_c", "window_s": 60.0, "axes": {
+        a: {"edges": [-20.0, 20.0, 60.0], "half_width": [0.002, half if a == "gyro_y" else
+                                                             0.003],
+            "growth_below": 0.0, "growth_above": growth if a == "gyro_y" else 0.0}
+        for a in AXES}}
+    proto = onnx.load(str(model_path))
+    entry = proto.metadata_props.add()
+    entry.key, entry.value = "band", json.dumps(band)
+    path = tmp_path / f"band-{half:g}-{growth:g}.onnx"
+    onnx.save_model(proto, str(path))
+    seal_onnx(path)
+    return path
+
+
+def test_a_band_no_residual_makes_is_refused_in_one_line(model_path: Path,
+                                                         tmp_path: Path) -> None:
+    """A re-sealed ONNX whose band half-width is 1e308 (beyond a float32), or a million
+    times the model's largest drift over its trained range (here ~0.02 deg/s), or whose
+    growth across the trained span is: refused when loaded, naming the file, the axis and
+    the value (was: accepted, the band column 1e308).  A plausible band loads."""
+    ok = rt.Compensator(_with_band(model_path, tmp_path, 0.004))
+    assert ok.band_tables is not None and ok.band(25.0).tolist() == [0.003, 0.004]
+    temps = np.linspace(-20.0, 60.0, 257)                 # the trained range
+    drift = ok.compensate(temperature_c=temps, raw=np.zeros((temps.size, 2))).drift[:, 1]
+    scale = max(float(np.max(np.abs(drift))), float(np.ptp(drift)))   # gyro_y's, ~0.02
+    assert 0.01 < scale < 0.05
+    for half, growth, what in (
+            (1e308, 0.0, "half-width 1e+308 is beyond a float32"),
+            (1e4, 0.0, "half-width 1e+04 is"), (0.004, 1e3, "growth_above x the trained "
+                                                           "span 8e+04 is")):
+        path = _with_band(model_path, tmp_path, half, growth)
+        with pytest.raises(rt.RuntimeInputError) as err:
+            rt.Compensator(path)
+        msg = str(err.value)
+        assert msg.startswith(f"{path}: metadata 'band' of 'gyro_y': {what}"), msg
+        assert "\n" not in msg and "no residual of this model makes such a band" in msg
+        if "float32" not in what:
+            ratio = float(msg.split(" is ")[1].split(" times")[0])
+            value = half if growth == 0 else growth * 80.0
+            assert ratio == pytest.approx(value / scale, rel=1e-2)
+            assert f"trained range ({scale:.4g})" in msg
