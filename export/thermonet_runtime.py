@@ -672,7 +672,8 @@ class Compensator:
             return
         n = 257
         feeds: dict[str, np.ndarray] = {
-            s: np.linspace(*self.trained_range[s], n).astype(np.float32) for s in self.signals}
+            s: np.linspace(self.trained_range[s][0], self.trained_range[s][1], n).astype(
+                np.float32) for s in self.signals}
         feeds[RAW_INPUT] = np.zeros((n, len(self.outputs)), dtype=self._raw_dtype)
         if self.recurrent:
             feeds[self.recurrent["state_input"]] = np.zeros(
