@@ -16,7 +16,8 @@ window's mean temperature (windows inside the trained range).
   range: coverage of the windows up to 5 °C past the trained edge (target ≥ 80 %).
 
 ``BENCH_UNCERTAINTY_SEEDS`` sets the seeds per preset (default 10), ``BENCH_UNCERTAINTY_EDGE``
-how many of them also run the edge experiment (default all).
+how many of them also run the edge experiment (default all).  ``stress``: the band on new
+excursions, every split of ``bench_selection.py --stress`` (``BENCH_STRESS_SEEDS`` units).
 """
 
 from __future__ import annotations
@@ -279,5 +280,26 @@ def main() -> None:
     save("bench_uncertainty", results, md)
 
 
+def main_stress() -> None:
+    """The band on new excursions: every split of the new-excursion stress bench
+    (``bench_selection.stress_splits``: another cycle at another rate, heating-only then
+    cooling, one cycle and two; default rule), the shipped model's nominal 90 % band checked
+    on the held-out run as above."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_selection import _stress_config, stress_splits
+
+    seeds = int(os.environ.get("BENCH_STRESS_SEEDS", "3"))
+    rows = [_device(f"{name} #{seed}", _stress_config(name, ds, True), ds)
+            for seed in range(seeds) for name, ds in stress_splits(seed)]
+    s = _pool(rows)
+    md = ("Nominal 90 % band on new excursions (`stress-imu`, "
+          f"{seeds} units, every split of `bench_selection.py --stress`)\n\n"
+          + table(["data", "devices", "windows", "coverage", "worst device", "width / oracle"],
+                  [["stress-imu", s["devices"], s["windows"], s["coverage"],
+                    s["coverage_device_min"], s["width_over_oracle_median"]]]))
+    save("bench_uncertainty_stress", {"summary": s, "devices": rows}, md)
+
+
 if __name__ == "__main__":
-    main_mcu() if sys.argv[1:] == ["mcu"] else main()
+    args = sys.argv[1:]
+    main_mcu() if args == ["mcu"] else main_stress() if args == ["stress"] else main()
