@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import ast
 import io
+import os
 import subprocess
 import sys
 import tokenize
 import tomllib
 from pathlib import Path
+
+import pytest
 
 import thermonet
 from thermonet.core.version import __version__
@@ -34,6 +37,53 @@ def test_the_command_line_starts_without_torch_or_scikit_learn():
                          check=True, cwd=ROOT)
     assert "usage: thermonet" in out.stdout
     assert out.stderr.strip().splitlines()[-1] == "[]"
+
+
+_REFUSED_EXPORT = ("import sys\n"
+                   "from thermonet.cli import main\n"
+                   "rc = main(sys.argv[1:])\n"
+                   "print('RC', rc, sorted(m for m in ('torch', 'mlflow') if m in sys.modules),"
+                   " file=sys.stderr)\n")
+
+
+@pytest.mark.parametrize("args, message", [
+    (["none", "--format", "onnx", "--out", "m.onnx"],
+     "none: no such compare directory, checkpoint file or MLflow run id"),
+    (["m.pt", "--format", "c", "--out", "."], ".: --out is a directory; give a file name"),
+    (["m.pt", "--format", "c", "--out", "m.pt/x.h"],
+     "m.pt/x.h: --out cannot be created: {tmp}/m.pt is not a directory"),
+    (["0123456789abcdef0123456789abcdef", "--format", "onnx", "--out", "."],
+     ".: --out is a directory; give a file name"),
+    (["cmp", "--family", "nope", "--format", "onnx", "--out", "m.onnx"],
+     "cmp/results.json: no family 'nope' (families: lin)"),
+    (["cmp", "--family", "a/b", "--format", "c", "--out", "m.h"], "--family: 'a/b' is not"),
+    (["m.pt", "--format", "px4-params", "--instance", "7", "--out", "x.params"],
+     "--instance: PX4 calibration instance must be 0..3, got 7"),
+    (["m.pt", "--format", "ardupilot-params", "--instance", "0", "--out", "x.parm"],
+     "--instance: ArduPilot IMU number must be 1..3, got 0"),
+    (["m.pt", "--format", "px4-params", "--device-id", "-4", "--out", "x.params"],
+     "--device-id must be the sensor's positive device id, got -4"),
+    (["0123456789abcdef0123456789abcdef", "--format", "c", "--tracking-uri", "m.pt",
+      "--out", "m.h"], "MLflow tracking (m.pt): m.pt is a file, not a tracking store"),
+    (["0123456789abcdef0123456789abcdef", "--format", "c", "--tracking-uri", "sqlite:///new.db",
+      "--out", "m.h"], "MLflow run '0123456789abcdef0123456789abcdef' at sqlite:///new.db: no "
+     "tracking store there (new.db does not exist)"),
+])
+def test_a_refused_export_imports_neither_torch_nor_mlflow(tmp_path, args, message):
+    """Every argument and the source's kind are checked before torch (the model) or MLflow (a
+    run id's checkpoint) is imported: the refusal is one line, in well under a second."""
+    (tmp_path / "m.pt").write_bytes(b"not looked at")
+    (tmp_path / "cmp").mkdir()
+    (tmp_path / "cmp" / "results.json").write_text(
+        '{"chosen": "lin", "families": {"lin": {"checkpoint": "models/lin.pt"}}}')
+    out = subprocess.run([sys.executable, "-c", _REFUSED_EXPORT, "export", *args],
+                         capture_output=True, text=True, cwd=tmp_path, check=True,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+    lines = out.stderr.strip().splitlines()
+    assert lines[-1] == "RC 1 []", out.stderr
+    assert len(lines) == 2, out.stderr                                  # one line said
+    assert lines[0].startswith(f"thermonet: error: {message.format(tmp=tmp_path)}"), lines[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cmp", "m.pt"]   # nothing written
 
 
 def _unexplained_imports(source: str, module: str) -> list[str]:

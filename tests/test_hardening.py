@@ -330,6 +330,23 @@ def test_export_never_logs_where_the_checkpoint_says(compared, tmp_path, caplog,
     assert [a.path for a in client.list_artifacts(run_id, "onnx")] == ["onnx/m.onnx"]
 
 
+def test_export_to_a_store_that_does_not_exist_warns_and_creates_none(compared, tmp_path,
+                                                                        caplog, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    payload = _checkpoint(compared)
+    payload["extra"]["mlflow_run_id"] = "0123456789abcdef0123456789abcdef"
+    torch.save(payload, tmp_path / "k.pt")
+    seal_checkpoint(tmp_path / "k.pt")
+    assert main(["export", str(tmp_path / "k.pt"), "--format", "onnx",
+                 "--out", str(tmp_path / "m.onnx")]) == 0
+    store = f"sqlite:///{tmp_path.resolve() / 'mlflow.db'}"
+    assert [r.getMessage() for r in caplog.records if r.levelname == "WARNING"] == [
+        f"wrote {tmp_path / 'm.onnx'}; not logged to MLflow run "
+        f"0123456789abcdef0123456789abcdef: no tracking store at {store} (give --tracking-uri)"]
+    assert not (tmp_path / "mlflow.db").exists()     # MLflow would have created an empty one
+
+
 def test_runtime_refuses_hostile_metadata_and_csv(compared, tmp_path, capsys):
     import onnx
 

@@ -276,7 +276,7 @@ def test_a_tracking_uri_that_is_a_file_says_so_in_one_line(tmp_path, capsys, mon
     assert main(["export", "0" * 32, "--format", "c", "--out", "m.h", "--tracking-uri",
                  "store.txt"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].endswith("at store.txt: store.txt is a file, not a "
-                                             "tracking store (a SQLite store is "
-                                             "sqlite:///PATH, a server http://HOST:PORT)")
+    assert err == ["thermonet: error: MLflow tracking (store.txt): store.txt is a file, not a "
+                   "tracking store (a SQLite store is sqlite:///PATH, a server "
+                   "http://HOST:PORT)"]
     assert not (tmp_path / "m.h").exists()

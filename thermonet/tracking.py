@@ -124,6 +124,16 @@ def store_problem(uri: str) -> str | None:
     return None
 
 
+def missing_store(uri: str) -> Path | None:
+    """The path of the local store ``uri`` names when nothing is there yet, else None (a
+    server, or a path that exists).  No run can be in it, and MLflow would create an empty
+    store there only to say so: what reads a run asks this first, without importing MLflow."""
+    local = _local_store(uri)
+    if local is None or os.path.lexists(local[1]):
+        return None
+    return local[1]
+
+
 def check_store(uri: str) -> None:
     """Refuse, in one line naming the URI, a tracking store :func:`store_problem` refuses."""
     why = store_problem(uri)

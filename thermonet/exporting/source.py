@@ -15,7 +15,10 @@ SOURCE is one of
 The ONNX file is also logged to the training run (as an artifact and as an
 MLflow ONNX model) when the checkpoint names one and the store is reachable —
 the store named by ``--tracking-uri``, ``MLFLOW_TRACKING_URI`` or the working
-directory's ``mlflow.db``, never a URI read from the checkpoint.  A compare
+directory's ``mlflow.db``, never a URI read from the checkpoint (a local store that does
+not exist is said in one warning line, never created).  Every argument is checked, and the
+source found, before torch or MLflow is imported (:func:`check_export_request`; MLflow only
+for a run id, or to log the file to a store that exists).  A compare
 directory's checkpoint is verified against the SHA-256 in its
 ``results.json`` before it is loaded.
 """
@@ -33,8 +36,14 @@ from ..core.errors import ExportError, InputError
 from ..core.fileio import not_a_file, refuse_overwriting_inputs
 from ..core.names import AXIS, LABEL, check_name
 from ..core.outdir import sha256_file
-from ..tracking import check_store, default_tracking_uri, global_tracking_uri, store_problem
-from . import ExportRequest, get_format
+from ..tracking import (
+    check_store,
+    default_tracking_uri,
+    global_tracking_uri,
+    missing_store,
+    store_problem,
+)
+from . import ExportFormat, ExportRequest, get_format
 
 if TYPE_CHECKING:
     from ..models.composite import ShippedModel
@@ -44,8 +53,8 @@ if TYPE_CHECKING:
 #: :data:`thermonet.models.composite.PER_AXIS`, repeated so this module loads without torch).
 PER_AXIS = "per-axis"
 
-__all__ = ["resolve_checkpoint", "export_source", "write_onnx", "write_c", "write_px4_params",
-           "write_ardupilot_params"]
+__all__ = ["resolve_checkpoint", "export_source", "check_export_request", "check_out_file",
+           "write_onnx", "write_c", "write_px4_params", "write_ardupilot_params"]
 
 _RUN_ID = re.compile(r"[0-9a-f]{32}")
 
@@ -131,12 +140,14 @@ def _per_axis_checkpoint(path: Path, results_file: Path, results: dict) -> Path:
 
 
 def _from_run_id(run_id: str, tracking_uri: str | None, workdir: Path) -> Path:
-    import mlflow
-
     uri = tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
     why = store_problem(uri)
+    if why is None and missing_store(uri) is not None:
+        why = f"no tracking store there ({missing_store(uri)} does not exist)"
     if why is not None:
         raise InputError(f"MLflow run '{run_id}' at {uri}: {why}")
+    import mlflow  # lazy: ~2 s, and only a run id needs it
+
     client = mlflow.MlflowClient(tracking_uri=uri)
     # MLflow resolves a run's logged model ('model') through the global tracking URI: a store
     # used earlier in this process would otherwise answer "Logged model ... not found"
@@ -169,6 +180,53 @@ def resolve_checkpoint(source: str, *, family: str | None = None,
     raise InputError(f"{source}: no such compare directory, checkpoint file or MLflow run id")
 
 
+#: The calibration slot ``--instance`` names, by format: PX4's slot, ArduPilot's IMU number.
+_INSTANCES = {"px4-params": (0, 3, "PX4 calibration instance"),
+              "ardupilot-params": (1, 3, "ArduPilot IMU number")}
+
+
+def check_out_file(out: str | Path) -> Path:
+    """An export's ``--out``, refused in one line naming it when no file can be written there:
+    a directory, or a path below something that is not a directory (missing directories are
+    created when the file is written)."""
+    path = Path(out)
+    if path.is_dir():
+        raise InputError(f"{path}: --out is a directory; give a file name")
+    if os.path.lexists(path) and not path.is_file():
+        raise InputError(f"{path}: --out {not_a_file(path, 'file')}")
+    for parent in path.absolute().parents:
+        if parent.is_dir():
+            break
+        if os.path.lexists(parent):
+            raise InputError(f"{path}: --out cannot be created: {parent} is not a directory")
+    return path
+
+
+def check_export_request(*, fmt: str, out: str | Path, family: str | None = None,
+                         tracking_uri: str | None = None, device_id: int | None = None,
+                         instance: int | None = None) -> ExportFormat:
+    """Every argument of an export checked, in one line naming it, before the source is read
+    and before torch or MLflow is imported; returns the format.
+
+    The format (a name in :data:`FORMATS`), ``--out`` (:func:`check_out_file`), ``--family``
+    (a family name), ``--tracking-uri`` (a store :func:`thermonet.tracking.check_store`
+    accepts), ``--device-id`` (positive) and ``--instance`` (PX4 0..3, ArduPilot 1..3).
+    """
+    export_format = get_format(fmt)
+    check_out_file(out)
+    if family is not None:
+        check_name(family, LABEL, "--family")
+    if tracking_uri is not None:
+        check_store(tracking_uri)   # the line compare and fleet say
+    if device_id is not None and (isinstance(device_id, bool) or int(device_id) <= 0):
+        raise InputError(f"--device-id must be the sensor's positive device id, got {device_id}")
+    if instance is not None and fmt in _INSTANCES:
+        lo, hi, what = _INSTANCES[fmt]
+        if isinstance(instance, bool) or not lo <= int(instance) <= hi:
+            raise InputError(f"--instance: {what} must be {lo}..{hi}, got {instance}")
+    return export_format
+
+
 def export_source(source: str, *, fmt: str, out: str | Path, family: str | None = None,
                   tracking_uri: str | None = None, device_id: int | None = None,
                   instance: int | None = None) -> Path:
@@ -178,14 +236,17 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
     (PX4's ``TC_*_ID``) and ``instance`` (PX4 slot 0–3, default 0; ArduPilot
     IMU 1–3, default 1) apply to the autopilot formats.
     """
-    from ..training.checkpoint import load_checkpoint  # torch boundary
-
-    export_format = get_format(fmt)
+    # every argument, then the source, before anything heavy is imported: torch only to load
+    # the model, MLflow only to fetch a run id's checkpoint (check_export_request)
+    export_format = check_export_request(fmt=fmt, out=out, family=family,
+                                         tracking_uri=tracking_uri, device_id=device_id,
+                                         instance=instance)
     with tempfile.TemporaryDirectory() as tmp:
         ckpt = resolve_checkpoint(source, family=family, tracking_uri=tracking_uri,
                                   workdir=Path(tmp))
         # never written over what it reads: the checkpoint, the compare directory's results
         refuse_overwriting_inputs(out, [ckpt, source, Path(source) / "results.json"])
+        from ..training.checkpoint import load_checkpoint  # torch boundary
         from .sensor_export import (  # torch boundary (pyproject.toml): loads torch
             export_sensor_source,
             is_sensor_checkpoint,
@@ -287,6 +348,11 @@ def _log_to_run(path: Path, run_id: str, tracking_uri: str | None, meta: dict) -
     # Only where the user says: the flag, MLFLOW_TRACKING_URI, or the working directory's store.
     # Never a URI stored in the checkpoint: a file must not choose where thermonet connects.
     uri = tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
+    if missing_store(uri) is not None:   # said without importing MLflow or creating a store
+        logging.getLogger(__name__).warning(
+            "wrote %s; not logged to MLflow run %s: no tracking store at %s (give "
+            "--tracking-uri)", path, run_id, uri)
+        return
     try:
         check_store(uri)
         log_onnx_to_mlflow(path, run_id, uri)
