@@ -225,6 +225,15 @@ def compared(tmp_path_factory):
 
 
 @pytest.mark.slow   # a whole comparison
+def test_the_band_says_what_the_folds_held_out(compared):
+    """One consumer-imu cycle trains (the other tests): its legs are held out, so the band was
+    measured on held-out excursions, and results.json says so beside every band."""
+    res, _, _ = compared
+    assert res["selection"]["kind"] == "excursions"
+    assert res["families"]["cubic"]["band"]["judged_on"] == "whole thermal excursions held out"
+
+
+@pytest.mark.slow   # a whole comparison
 def test_results_and_checkpoint_carry_the_shipped_models_band(compared):
     from thermonet.api.estimator import DriftEstimator
 

@@ -60,7 +60,12 @@ def _band(p: Plan, fitted: Sequence[Fitted | None], compensate: Sequence[bool],
         if p.cfg.band.level is not None:
             raise
         return {"status": "not estimated", "reason": str(err)}
-    return {"status": "ok", **band.to_json()}
+    # what the folds held out: a band from interleaved blocks measured interpolation only
+    judged = {"leave-one-run-out": "whole runs held out",
+              "excursions": "whole thermal excursions held out",
+              "blocks": "interleaved blocks: interpolation between training data, not a new "
+                        "excursion"}.get(p.folds.kind, p.folds.kind)
+    return {"status": "ok", **band.to_json(), "judged_on": judged}
 
 
 def family_band(p: Plan, f: Fitted, mask: Sequence[bool]) -> dict[str, Any]:
