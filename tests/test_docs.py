@@ -264,7 +264,7 @@ def _check_first_steps_output(tmp_path: Path) -> None:
     from thermonet import DriftEstimator, read
     from tolerances import assert_f32_close
 
-    got = pd.read_csv(tmp_path / "compensated.csv")
+    got = pd.read_csv(tmp_path / "runs" / "compensated.csv")
     inp = pd.read_csv(tmp_path / "runs" / "input.csv")
     assert len(got) == len(inp)
     chosen = json.loads((tmp_path / "runs" / "demo" / "results.json").read_text())["chosen"]
