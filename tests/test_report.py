@@ -118,6 +118,28 @@ def test_render_report_without_plots_and_with_a_failed_family():
     assert "a &lt;warning&gt;" in html and "<img" not in html
 
 
+@pytest.mark.parametrize("members, listed", [
+    ({"cubic": {}}, None),                      # no member was tuned: no line at all
+    ({"cubic": {}, "poly3-rate": {"degree": 2, "tuning": {"grid": {"degree=2": 0.41},
+                                                          "rule": "chose degree=2"}}},
+     "<li><b>per-axis</b>: poly3-rate: degree=2</li>"),
+])
+def test_the_per_axis_models_tuning_is_its_members_or_nothing(members, listed):
+    """The per-axis model's ``tuned`` is {member: its tuned values} (as results.json writes it):
+    the hyper-parameter list names each tuned member, and says nothing where none was tuned
+    (was '<b>per-axis</b>: ' with nothing after it)."""
+    axis = {"score_ratio": 0.5, "interval": [0.4, 0.6], "verdict": "better", "compensate": True}
+    res = {"device": "d", "units": {"gyro_x": "deg/s"}, "baseline": None, "chosen": "per-axis",
+           "chosen_reason": "each axis its own model", "families": {
+               "poly3-rate": {"status": "ok", "axes": {"gyro_x": axis},
+                              "tuned": members.get("poly3-rate", {})},
+               "per-axis": {"status": "ok", "axes": {"gyro_x": axis}, "tuned": members}}}
+    page = render_report(res)
+    assert "<b>per-axis</b>: </li>" not in page
+    items = [li for li in page.split("<li>")[1:] if li.startswith("<b>per-axis</b>")]
+    assert ["<li>" + li.split("</ul>")[0] for li in items] == ([listed] if listed else [])
+
+
 #: Measures the page as laid out: the document's scroll and client widths, and the right edge
 #: of the widest element against the body's (appended to a copy of the report only: the
 #: report itself carries no script).

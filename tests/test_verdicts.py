@@ -299,3 +299,53 @@ def test_a_ratio_that_is_not_1_never_prints_as_1(x, text):
     from thermonet.workflows.compare import ratio_text
 
     assert ratio_text(x) == text
+
+
+def _one_axis_results(name: str, ratio: float, interval: list[float], verdict: str) -> dict:
+    """results.json's shape for one family on one axis (the keys format_table and the report
+    read), with a selection block naming the same candidate."""
+    axis = {"score_ratio": ratio, "interval": interval, "verdict": verdict, "compensate": True,
+            "vs_baseline": None, "pp_raw": 0.02, "pp_comp": 0.001}
+    return {"device": "d", "units": {"gyro_x": "deg/s"}, "baseline": None, "chosen": name,
+            "chosen_reason": "the best out of fold",
+            "families": {name: {"status": "ok", "val_score": 0.4, "fit_seconds": 0.5,
+                                "n_params": 4, "axes": {"gyro_x": axis}},
+                         "cubic": {"status": "ok", "val_score": 0.5, "fit_seconds": 0.25,
+                                   "n_params": 4, "axes": {"gyro_x": dict(axis)}}},
+            "selection": {"kind": "excursions", "folds": 3, "purge_s": 60.0, "window_s": 60.0,
+                          "candidates": {name: {"status": "ok", "score": 0.4,
+                                                "interval": [0.3, 0.5],
+                                                "fold_scores": [0.4, 0.41, 0.39]},
+                                         "cubic": {"status": "failed", "reason": "x"}}}}
+
+
+@pytest.mark.parametrize("name", ["rbf", "poly3-rate-and-hysteresis", "m" * 64])
+def test_a_long_family_name_never_shifts_the_console_table(name):
+    """The name column is as wide as the longest family name: every row's cells start where
+    the header's do (a name over 14 characters used to push its row right)."""
+    from thermonet.workflows.compare import format_table
+
+    lines = format_table(_one_axis_results(name, 0.5, [0.4, 0.6], "better")).splitlines()
+    head, rows = lines[0], [ln for ln in lines[2:] if ln.split()[:1] in ([name], ["cubic"])][:2]
+    assert len(rows) == 2
+    for row in rows:
+        assert row.index(" gyro_x ") == head.index(" axis ")
+        # right-aligned cells end where their headers end
+        assert row.index("0.6] +") + len("0.6] +") == head.index("vs raw") + len("vs raw")
+        assert row.rindex("0.001") + len("0.001") == head.rindex("pp_comp") + len("pp_comp")
+    scores = [ln for ln in lines if ln.startswith("  ") and ("0.4 [0.3, 0.5]" in ln
+                                                             or "not a candidate" in ln)]
+    assert len(scores) == 2 and len({ln.index(ln.split()[1]) for ln in scores}) == 1
+
+
+def test_the_report_prints_a_ratio_as_the_console_does():
+    """A ratio that differs from 1 never reads 1 on the page either (was 'worse 1 [1, 1.01]'
+    where the console said 1.003 [1.001, 1.01])."""
+    from thermonet.reporting.report import render_report
+    from thermonet.workflows.compare import format_table
+
+    res = _one_axis_results("cubic2", 1.0031, [1.0012, 1.0104], "worse")
+    assert "1.003 [1.001, 1.01] !" in format_table(res)
+    page = render_report(res)
+    assert "<b>worse</b><br>1.003 [1.001, 1.01]</td>" in page
+    assert "<br>1 [" not in page

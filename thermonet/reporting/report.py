@@ -27,7 +27,7 @@ from typing import Any
 
 from ..core.fileio import atomic_write_text
 
-__all__ = ["render_report", "write_report", "VERDICT_COLOURS"]
+__all__ = ["render_report", "write_report", "VERDICT_COLOURS", "ratio_text"]
 
 #: Cell background per verdict.
 VERDICT_COLOURS = {"better": "#c8e6c9", "worse": "#ffcdd2", "indistinguishable": "#eeeeee",
@@ -58,6 +58,24 @@ def _num(x: Any, fmt: str = ".3g") -> str:
     return format(x, fmt) if isinstance(x, (int, float)) else _e(x)
 
 
+def ratio_text(x: float) -> str:
+    """A ratio to 3 significant digits, or as many more (up to 7) as it takes not to print a
+    ratio that differs from 1 as "1": an interval [0.985, 0.99995] must not read [0.985, 1]
+    beside a "better" verdict.  The console's table and this page print ratios alike."""
+    for digits in range(3, 8):
+        text = f"{x:.{digits}g}"
+        if not math.isfinite(x) or x == 1.0 or float(text) != 1.0:
+            return text
+    return text
+
+
+def _ratio(x: Any) -> str:
+    """A ratio cell's number (:func:`ratio_text`); ``–`` where there is none."""
+    if not isinstance(x, (int, float)) or not math.isfinite(x):
+        return "–"
+    return ratio_text(float(x))
+
+
 def _cell(v: dict[str, Any] | None, compensate: bool | None = None) -> str:
     if not v or v.get("ratio") is None:
         return "<td class='none'>–</td>"
@@ -68,10 +86,10 @@ def _cell(v: dict[str, Any] | None, compensate: bool | None = None) -> str:
         # the raw output (ratio 1); the fit's own figure is what masking it avoided
         return (f"<td style='background:{VERDICT_COLOURS.get('indistinguishable', '#ffffff')}'>"
                 f"<b>raw</b> (drift 0)<br>1<br><i>left uncompensated; the fit was "
-                f"{_e(verdict)} {_num(v['ratio'])}</i></td>")
+                f"{_e(verdict)} {_ratio(v['ratio'])}</i></td>")
     colour = VERDICT_COLOURS.get(verdict, "#ffffff")
-    return (f"<td style='background:{colour}'><b>{_e(verdict)}</b><br>{_num(v['ratio'])} "
-            f"[{_num(lo)}, {_num(hi)}]</td>")
+    return (f"<td style='background:{colour}'><b>{_e(verdict)}</b><br>{_ratio(v['ratio'])} "
+            f"[{_ratio(lo)}, {_ratio(hi)}]</td>")
 
 
 #: Axes one verdict table holds side by side: more (a six-axis IMU) are stacked as one table
@@ -243,10 +261,15 @@ def _tuning_list(res: dict[str, Any]) -> str:
     items = []
     for name, f in (res.get("families") or {}).items():
         tuned = f.get("tuned") or {}
-        if not tuned:
-            continue
         rule = (tuned.get("tuning") or {}).get("rule", "")
-        items.append(f"<li><b>{_e(name)}</b>: {_e(tuned_text(tuned))}"
+        # the per-axis model's entry is {member: its tuned values}: each member that was tuned
+        members = "; ".join(f"{k}: {t}" for k, v in tuned.items() if k != "tuning"
+                            and isinstance(v, dict)
+                            and (t := tuned_text({n: x for n, x in v.items() if n != "tuning"})))
+        text = "; ".join(t for t in (tuned_text(tuned), members) if t)
+        if not text and not rule:
+            continue       # nothing was tuned: no line saying nothing
+        items.append(f"<li><b>{_e(name)}</b>: {_e(text or 'not tuned')}"
                      + (f" — {_e(rule)}" if rule else "") + "</li>")
     if not items:
         return ""

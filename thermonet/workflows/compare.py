@@ -45,7 +45,7 @@ from ..core.version import __version__
 from ..features.inputs import TEMPERATURE
 from ..reporting.colours import family_colours
 from ..reporting.plot_workers import PlotJob, PlotWorkers
-from ..reporting.report import tuned_text, write_report
+from ..reporting.report import ratio_text, tuned_text, write_report
 from ..reporting.results import ComparisonResult
 from ..scoring.band import evaluate_tables
 from ..scoring.verdicts import LEVEL, MIN_BLOCKS, RESAMPLES, SEED, apply_compensate_mask
@@ -485,17 +485,6 @@ def _band_curve(results: dict[str, Any], axis: str, x: Any) -> Any:
 _METRIC_COLS = ("pp_raw", "pp_comp", "drift_error_rms", "ppm_per_c_raw", "ppm_per_c_comp")
 
 
-def ratio_text(x: float) -> str:
-    """A ratio to 3 significant digits, or as many more (up to 7) as it takes not to print a
-    ratio that differs from 1 as "1": an interval [0.985, 0.99995] must not read [0.985, 1]
-    beside a "better" verdict."""
-    for digits in range(3, 8):
-        text = f"{x:.{digits}g}"
-        if not math.isfinite(x) or x == 1.0 or float(text) != 1.0:
-            return text
-    return text
-
-
 def _ratio_cell(v: dict[str, Any] | None) -> str:
     if not v or v.get("ratio") is None:
         return f"{'-':>22}"
@@ -509,9 +498,16 @@ def _fold_text(x: float | None, fmt: str = ".3g") -> str:
     return "–" if x is None or not math.isfinite(x) else format(x, fmt)
 
 
-def _selection_lines(sel: dict[str, Any]) -> list[str]:
+def _name_width(names: Any) -> int:
+    """A name column's width: 14, or the longest name's (a long family name never shifts the
+    columns after it)."""
+    return max([14, *(len(str(n)) for n in names)])
+
+
+def _selection_lines(sel: dict[str, Any], width: int = 14) -> list[str]:
     """The console's cross-validation block: each candidate's out-of-fold score, its folds and
-    why the gate held it back."""
+    why the gate held it back (names ``width`` wide, or the longest candidate's)."""
+    width = max(width, _name_width(sel["candidates"]))
     lines: list[str] = []
     lines.append(f"selection: {sel.get('kind')}, {sel.get('folds')} folds, purge "
                  f"{sel.get('purge_s', 0):.0f} s, score windows {sel.get('window_s', 0):.0f} s "
@@ -520,12 +516,12 @@ def _selection_lines(sel: dict[str, Any]) -> list[str]:
         lines.append(f"  folds: {sel['note']}")
     for name, c in sel["candidates"].items():
         if c.get("status") != "ok":
-            lines.append(f"  {name:<14} not a candidate: {c.get('reason')}")
+            lines.append(f"  {name:<{width}} not a candidate: {c.get('reason')}")
             continue
         lo, hi = c["interval"]
         folds = " ".join(_fold_text(x) for x in c["fold_scores"])
         held = f"  ({c['not_eligible']})" if c.get("not_eligible") else ""
-        lines.append(f"  {name:<14} {_fold_text(c['score'], '.4g')} "
+        lines.append(f"  {name:<{width}} {_fold_text(c['score'], '.4g')} "
                      f"[{_fold_text(lo, '.4g')}, {_fold_text(hi, '.4g')}]  folds {folds}{held}")
     if sel.get("held_back"):
         lines.append(f"  held back: {', '.join(sel['held_back']['candidates'])}: "
@@ -547,20 +543,26 @@ def format_table(results: dict[str, Any]) -> str:
     cols = [c for c in _METRIC_COLS
             if any(c in f.get("axes", {}).get(a, {}) for f in fams.values() for a in axes)]
     base = results.get("baseline")
-    head = (f"{'family':<14} {'axis':<14} {'fit s':>6} {'params':>6} {'val':>6} {'comp':>4} "
+    sel = results.get("selection") or {}
+    per_axis = sel.get("per_axis") or {}
+    # the name columns as wide as the longest family (or candidate) and axis name
+    nw = _name_width([*fams, *(sel.get("candidates") or {}),
+                      *((per_axis.get("chosen") or {}).values())])
+    aw = _name_width(axes)
+    head = (f"{'family':<{nw}} {'axis':<{aw}} {'fit s':>6} {'params':>6} {'val':>6} {'comp':>4} "
             f"{'vs raw':>22} {'vs ' + (base or 'baseline'):>22} "
             + " ".join(f"{c:>12}" for c in cols))
     lines = [head, "-" * len(head)]
     for name, f in fams.items():
         if f["status"] != "ok":
-            lines.append(f"{name:<14} not fitted: {f['reason']}")
+            lines.append(f"{name:<{nw}} not fitted: {f['reason']}")
             continue
         val = f.get("val_score")
         for i, a in enumerate(axes):
             m = f["axes"][a]
-            pre = (f"{name:<14} {a:<14} {f['fit_seconds']:6.2f} {f['n_params']:6d} "
+            pre = (f"{name:<{nw}} {a:<{aw}} {f['fit_seconds']:6.2f} {f['n_params']:6d} "
                    f"{(val if val is not None else math.nan):6.3g} ") if i == 0 else \
-                f"{'':<14} {a:<14} {'':>6} {'':>6} {'':>6} "
+                f"{'':<{nw}} {a:<{aw}} {'':>6} {'':>6} {'':>6} "
             vs_raw = {"ratio": m.get("score_ratio"), "interval": m.get("interval", [None, None]),
                       "verdict": m.get("verdict", "indistinguishable")}
             raw_cell = None
@@ -573,18 +575,16 @@ def format_table(results: dict[str, Any]) -> str:
                          f"{raw_cell or _ratio_cell(vs_raw)} {_ratio_cell(m.get('vs_baseline'))} "
                          + metrics)
     lines.append("")
-    sel = results.get("selection") or {}
     if sel.get("candidates"):
-        lines += _selection_lines(sel)
+        lines += _selection_lines(sel, nw)
     elif sel.get("note"):
         lines.append(f"selection: {sel['note']}")
-    per_axis = sel.get("per_axis") or {}
     if per_axis.get("chosen") and results.get("chosen") is not None and \
             "whole_recording" in sel:
         lines.append("per axis (each axis its own model; the one-SE rule on that axis's paired "
                      "out-of-fold scores, the baseline as the floor):")
         for a, k in per_axis["chosen"].items():
-            lines.append(f"  {a:<14} {k or 'raw':<14} {per_axis['rule'].get(a, '')}")
+            lines.append(f"  {a:<{aw}} {k or 'raw':<{nw}} {per_axis['rule'].get(a, '')}")
         whole = sel["whole_recording"]
         lines.append(f"chosen: {results.get('chosen')} (one family for every axis would have "
                      f"been {whole.get('chosen') or 'none'}: {whole.get('reason', '')})")
