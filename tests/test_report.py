@@ -190,3 +190,78 @@ def test_six_axis_report_reads_without_scrolling_sideways(six_axis_report, width
     # the window less its vertical scroll bar (the page is long), and no horizontal one
     assert width - 20 <= client <= width and scroll <= client
     assert widest <= body                                 # nothing drawn past the body
+
+
+@pytest.fixture(scope="module")
+def calibration_report(tmp_path_factory):
+    """A real calibration of a simulated flight-controller board (PX4, nine instances; seed 0
+    leaves three axes marginal in the held-out check)."""
+    import json
+
+    from thermonet.cli import main
+
+    tmp = tmp_path_factory.mktemp("cal")
+    assert main(["simulate", "fc-board", "--runs", "1", "--seed", "0",
+                 "--out", str(tmp / "b.ulg")]) == 0
+    assert main(["calibrate", str(tmp / "b.ulg"), "--out", str(tmp / "cal"), "--no-compare",
+                 "-q"]) == 0
+    return json.loads((tmp / "cal" / "results.json").read_text()), tmp / "cal" / "report.html"
+
+
+def test_a_marginal_axis_has_its_own_colour(calibration_report):
+    """A fitted instance's result cell takes its worst held-out grade's colour: amber where an
+    axis is marginal (was green, like fine ones), green where every axis is fine."""
+    import re
+
+    from thermonet.reporting.colours import GRADE_COLOURS
+
+    doc, path = calibration_report
+    cells = dict(re.findall(r'<tr><td>(\w+)</td>.*?background:(#[0-9a-f]{6})',
+                            path.read_text(encoding="utf-8")))
+    grades = {n: d["held_out"]["grades"] for n, d in doc["instances"].items()
+              if (d.get("held_out") or {}).get("status") == "judged"}
+    marginal = sorted(n for n, g in grades.items() if "marginal" in g and "fails" not in g)
+    fine = sorted(n for n, g in grades.items() if set(g) == {"fine"})
+    assert marginal and fine                                   # this board has both
+    assert {cells[n] for n in marginal} == {GRADE_COLOURS["marginal"]}
+    assert {cells[n] for n in fine} == {GRADE_COLOURS["fine"]}
+    assert len(set(GRADE_COLOURS.values())) == 3
+
+
+#: The calibration page as chromium lays it out: the most line boxes any device-id cell takes,
+#: the text report's scroll and client widths, and the document's.
+_MEASURE_CAL = (
+    "<script>var most = 0;"
+    "document.querySelectorAll('table tr').forEach(function (r) {"
+    "var c = r.cells[2]; if (!c || c.tagName != 'TD') return;"
+    "var g = document.createRange(); g.selectNodeContents(c); var ys = {};"
+    "Array.prototype.forEach.call(g.getClientRects(), function (q) {"
+    "ys[Math.round(q.top)] = 1; });"
+    "most = Math.max(most, Object.keys(ys).length); });"
+    "var p = document.querySelector('pre');"
+    "document.body.setAttribute('data-measure', [most, p.scrollWidth, p.clientWidth,"
+    "document.documentElement.scrollWidth, document.documentElement.clientWidth].join(' '));"
+    "</script></body>")
+
+
+def test_the_calibration_report_reads_at_1400_px(calibration_report, tmp_path):
+    """Laid out by chromium at 1,400 px: every device id on one line (was one or two digits a
+    line), and the text report wrapped, never scrolled sideways (was 3,000 px wide)."""
+    import re
+
+    _, path = calibration_report
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    assert chromium is not None, "chromium is needed (the Makefile's test set-up installs it)"
+    probe = tmp_path / "probe.html"
+    probe.write_text(path.read_text(encoding="utf-8").replace("</body>", _MEASURE_CAL),
+                     encoding="utf-8")
+    proc = subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu",
+                           "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
+                           "--window-size=1400,2000", "--dump-dom", probe.as_uri()],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    found = re.search(r'data-measure="(\d+) (\d+) (\d+) (\d+) (\d+)"', proc.stdout)
+    assert found, proc.stdout[-500:]
+    id_lines, pre_scroll, pre_client, scroll, client = (int(v) for v in found.groups())
+    assert id_lines == 1
+    assert pre_scroll <= pre_client and scroll <= client

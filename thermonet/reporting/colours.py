@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["PALETTE", "family_colours"]
+__all__ = ["PALETTE", "GRADE_COLOURS", "family_colours"]
 
 #: Distinct, saturated qualitative colours: tab10 without its grey, Dark2 without its grey,
 #: then a dozen strong web colours; no greys, so no family looks like the raw output.
@@ -19,6 +19,11 @@ PALETTE = (
     "#6a3d9a", "#000080", "#808000", "#800000", "#008080", "#ff1493", "#00ff7f", "#ffd700",
     "#4b0082", "#7fff00", "#ff6347", "#00bfff",
 )
+
+#: A result cell's background by the held-out check's grade of its worst axis (verify's test):
+#: green where every axis passes with margin, amber where one is marginal (a new log may FAIL
+#: it), red where one fails; the green and red are the comparison report's better / worse.
+GRADE_COLOURS = {"fine": "#c8e6c9", "marginal": "#ffe0b2", "fails": "#ffcdd2"}
 
 # Two colours closer than this (largest RGB channel difference) count as the same.
 _MIN_COLOUR_DISTANCE = 0.06

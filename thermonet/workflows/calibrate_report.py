@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from ..reporting.colours import GRADE_COLOURS
 from ..reporting.report import _CSS, VERDICT_COLOURS
 
 __all__ = ["format_report", "render_calibration_report"]
@@ -50,6 +51,23 @@ def _held_out_data(h: dict[str, Any]) -> str:
     return str(h.get("data") or Path(h["log"]).name)
 
 
+#: The calibration page's own rules: ids, counts and spans on one line (the result column
+#: wraps instead), and the text report wrapped at the page's width, never scrolled sideways.
+_CALIBRATE_CSS = """
+table.instances td:nth-child(-n+5) { white-space: nowrap; overflow-wrap: normal; }
+pre { white-space: pre-wrap; overflow-wrap: anywhere; font-size: 12px; }
+"""
+
+
+def _grade_colour(grades: list[str]) -> str:
+    """A fitted instance's result colour: its worst held-out grade's (:data:`GRADE_COLOURS`);
+    the comparison's "better" green where it was not judged."""
+    for grade in ("fails", "marginal"):
+        if grade in grades:
+            return GRADE_COLOURS[grade]
+    return GRADE_COLOURS["fine"] if grades else VERDICT_COLOURS["better"]
+
+
 def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | None = None
                               ) -> str:
     """``DIR/report.html``: the calibration page a person opens first.
@@ -82,7 +100,7 @@ def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | 
             if d.get("resolution"):
                 what += f"; {d['resolution']['line']}"
             what += "".join(f"; {x}" for x in _mag_lines(d))
-            colour = VERDICT_COLOURS["better"]
+            colour = _grade_colour((h.get("grades") or []) if h.get("status") == "judged" else [])
         else:
             what = f"left out: {d['reason']}"
             colour = VERDICT_COLOURS["worse"]
@@ -99,14 +117,19 @@ def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | 
                     f"{html.escape(what)}</td><td>{link}</td></tr>")
     return ("<!DOCTYPE html><html><head><meta charset=\"utf-8\">"
             f"<title>thermonet calibrate: {html.escape(names)}</title>"
-            f"<style>{_CSS}</style></head><body>"
+            f"<style>{_CSS}{_CALIBRATE_CSS}</style></head><body>"
             f"<h1>Thermal calibration of {html.escape(names)} "
             f"({html.escape(doc['autopilot'])})</h1>"
             f"<p class=\"chosen\">Parameter file: {html.escape(Path(doc['params_file']).name)}"
             " — load it only on the board whose device ids are listed below.</p>"
-            "<h2>Sensor instances</h2><table><tr><th>instance</th><th>kind</th>"
+            "<h2>Sensor instances</h2><table class=\"instances\"><tr><th>instance</th><th>kind</th>"
             "<th>device id</th><th>samples</th><th>temperature</th><th>result</th>"
             "<th>details</th></tr>" + "".join(rows) + "</table>"
+            "<p class=\"small\">Result colours: every fitted axis passes the held-out check "
+            f"with margin <span style=\"background:{GRADE_COLOURS['fine']}\">(fine)</span>, "
+            f"one is marginal <span style=\"background:{GRADE_COLOURS['marginal']}\">"
+            "(a new log may FAIL it)</span>, one fails or the instance is left out "
+            f"<span style=\"background:{GRADE_COLOURS['fails']}\">(red)</span>.</p>"
             f"<h2>Report</h2><pre>{html.escape(format_report(doc))}</pre></body></html>\n")
 
 
