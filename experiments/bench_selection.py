@@ -17,7 +17,9 @@ and always-cubic with every axis compensated (what PX4 and ArduPilot ship).
 ``--real``: only the honest splits of the real recordings (:func:`real_splits`); ``--simulated``:
 only the simulated devices; ``--stress``: the new-excursion stress bench (:func:`stress_splits`:
 ``stress-imu``, every split whose test is a new excursion, the new rule against the rule before
-on the same data); neither (``make bench``): the real splits and the simulated devices.
+on the same data); ``--states``: the dynamic inputs' state on held-out blocks carried in
+against restarted (:func:`main_states`); neither (``make bench``): the real splits and the
+simulated devices.
 
 Goal: median regret ≤ 1.05 and ≤ 1.10 on 90 % of devices for the new rule
 (a device's regret: the mean over its axes).  ``BENCH_SELECTION_DEVICES`` sets the number of
@@ -359,7 +361,63 @@ def main_stress() -> None:
     save("bench_selection_stress", {"splits": rows}, md)
 
 
+def main_states() -> None:
+    """The dynamic inputs' state on a time-block split's held-out blocks: carried in from the
+    rows before each block (the rule: parts built on the whole run, then cut) against
+    restarted at every block's start (the carved blocks, the rule before).  Per dynamic
+    family and axis, the held-out score ratio (to raw) under each, on the time-block splits of
+    the stress bench (one cycle, two cycles) and of ``consumer-imu`` (one run)."""
+    import copy
+    from dataclasses import replace
+
+    from thermonet.core.recording import Dataset
+    from thermonet.training.splits import SPLITS, register_split
+
+    if "time-blocks-restarted" not in SPLITS:
+        @register_split("time-blocks-restarted")
+        def _restarted(runs: Any, cfg: Any, source: str) -> Any:
+            return [replace(sp, whole=[]) for sp in SPLITS["time-blocks"](runs, cfg, source)]
+
+    cases = []
+    for seed in range(int(os.environ.get("BENCH_STRESS_SEEDS", "3"))):
+        for name, ds in stress_splits(seed):
+            if name.startswith("time blocks"):
+                cases.append((f"stress-imu {name} #{seed}", ds))
+        ci = simulate("consumer-imu", runs=1, seed=seed, sample_rate_hz=0.2)
+        cases.append((f"consumer-imu one run #{seed}", Dataset(list(ci))))
+    rows = []
+    for name, ds in cases:
+        got = {}
+        for rule in ("time-blocks", "time-blocks-restarted"):
+            cfg = copy.deepcopy(_stress_config("time blocks", ds, True))
+            cfg.split.strategy = rule
+            res = _run(cfg, ds)
+            got[rule] = {k: [f["axes"][a]["score_comp"] / f["axes"][a]["score_raw"]
+                             for a in res["units"]]
+                         for k, f in res["families"].items()
+                         if f.get("status") == "ok" and k in ("poly3-rate", "poly3-hyst")}
+        for fam in got["time-blocks"]:
+            a, b = np.array(got["time-blocks"][fam]), np.array(got["time-blocks-restarted"][fam])
+            rows.append({"case": name, "family": fam, "carried": a.tolist(),
+                         "restarted": b.tolist()})
+            print(f"{name} {fam}: carried / restarted "
+                  + " ".join(f"{x:.3f}" for x in a / b), flush=True)
+    r = np.concatenate([np.array(x["carried"]) / np.array(x["restarted"]) for x in rows])
+    md = (f"Held-out score ratio of the dynamic families (poly3-rate, poly3-hyst) on {len(cases)} "
+          f"time-block comparisons, {r.size} family-axes: state carried in / restarted at each "
+          f"block: median {np.median(r):.3f}, 10th–90th percentile {np.quantile(r, 0.1):.3f}–"
+          f"{np.quantile(r, 0.9):.3f}, min {r.min():.3f}, max {r.max():.3f}.\n\n"
+          + table(["case", "family", "carried / restarted per axis"],
+                  [[x["case"], x["family"], " ".join(
+                      f"{c / d:.3f}" for c, d in zip(x["carried"], x["restarted"], strict=True))]
+                   for x in rows]))
+    save("bench_selection_states", {"rows": rows}, md)
+
+
 def main() -> None:
+    if "--states" in sys.argv[1:]:
+        main_states()
+        return
     if "--stress" in sys.argv[1:]:
         main_stress()
         return

@@ -66,3 +66,44 @@ def test_a_registered_strategy_is_usable_from_a_config():
             register_split("last-run-only-test")(_toy)
     finally:
         SPLITS.pop("last-run-only-test")
+
+
+def test_time_block_parts_carry_the_dynamic_state_into_every_block():
+    """A time-block split's parts are rows of the whole run (``Split.whole``): the rate and
+    the hysteresis state at the first row of a held-out block are the whole run's there, as
+    the board computes them, not restarted as on the carved block; the rows, times and
+    targets are the carved blocks' exactly."""
+    from thermonet.core.recording import Dataset, Recording
+    from thermonet.features.inputs import FeatureSpec
+    from thermonet.training.parts import build_part
+    from thermonet.training.pipeline import split_parts
+
+    t = np.arange(0.0, 7200.0, 1.0)
+    temp = 20.0 + 30.0 * np.sin(2 * np.pi * t / 3600.0)
+    rng = np.random.default_rng(0)
+    recs = [Recording(time_s=t, temperature_c=temp + rng.normal(0, 0.01, t.size),
+                      outputs={"gyro_x": 0.01 * temp + rng.normal(0, 1e-3, t.size)},
+                      units={"gyro_x": "deg/s"}, run_id=f"r{i}", sample_rate_hz=1.0)
+            for i in range(2)]
+    (split,) = make_splits(Dataset(recs), SplitConfig(strategy="time-blocks", n_blocks=20),
+                           source="test")
+    assert [r.run_id for r, _ in split.whole] == ["r0", "r1"]
+    spec = FeatureSpec(inputs=["dT", "rate", "play_1"], t_ref=20.0)
+    whole = split_parts(spec, split.train, outputs=["gyro_x"], target="drift", val=split.val,
+                        test=split.test, whole=split.whole)
+    carved = split_parts(spec, split.train, outputs=["gyro_x"], target="drift",
+                         val=split.val, test=split.test)
+    for a, b in [(whole.test, carved.test), (whole.val, carved.val),
+                 *zip(whole.train, carved.train, strict=True)]:
+        assert a is not None and b is not None
+        np.testing.assert_array_equal(a.time_s, b.time_s)
+        np.testing.assert_array_equal(a.target, b.target)
+        np.testing.assert_array_equal(a.signals[:, 0], b.signals[:, 0])   # temperature
+    # the state: the whole run's at every test row (run r1's rows follow r0's)
+    full = [build_part(r, signals=spec.signals, outputs=["gyro_x"], target="drift",
+                       gap_s=spec.gap_s) for r in recs]
+    role = [roles for _, roles in split.whole]
+    want = np.concatenate([q.signals[r == 4] for q, r in zip(full, role, strict=True)])
+    np.testing.assert_array_equal(whole.test.signals, want)
+    # the carved blocks restart it: at a block's first row the rate differs from the run's
+    assert not np.allclose(carved.test.signals[:, 1], want[:, 1], atol=1e-3)

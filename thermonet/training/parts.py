@@ -25,7 +25,7 @@ from .config import DataConfig
 from .splits import Split, make_splits
 
 __all__ = ["Split", "Part", "load_data", "make_splits", "build_part", "data_hash",
-           "heating_only", "fit_arrays", "rows_average_s", "FOURPOS_SUFFIXES",
+           "heating_only", "heating_keep", "rows_of", "join_parts", "fit_arrays", "rows_average_s", "FOURPOS_SUFFIXES",
            "HEATING_MIN_RATE_C_PER_MIN", "targets_for", "check_loaded"]
 
 #: Samples with dT/dt above this count as heating (or soaking) for ``train_on: heating``.
@@ -206,24 +206,67 @@ def _fourpos_part(rec: Recording, *, signals: list[str], outputs: list[str]) -> 
                 targets=Target.uniform(outputs, FOUR_POSITION))
 
 
-def heating_only(part: Part, rec: Recording, gap_s: float | None = None) -> Part:
-    """The samples of ``part`` where ``rec``'s temperature is not falling (PX4/ArduPilot way)."""
-    if part.per_soak:
-        raise ConfigError("config: key 'train_on': 'heating' applies to per-sample targets, "
-                          "not to the four-position target")
+def heating_keep(rec: Recording, gap_s: float | None = None) -> np.ndarray:
+    """The samples of ``rec`` where its temperature is not falling (PX4/ArduPilot way);
+    ConfigError where fewer than 10."""
     rate = signal_matrix(rec, [RATE], gap_s)[:, 0]
     keep = rate > HEATING_MIN_RATE_C_PER_MIN
     if keep.sum() < 10:
         raise ConfigError(f"train_on 'heating': run '{rec.run_id}' has {int(keep.sum())} heating "
                           "samples")
+    return keep
+
+
+def heating_only(part: Part, rec: Recording, gap_s: float | None = None) -> Part:
+    """The samples of ``part`` where ``rec``'s temperature is not falling (PX4/ArduPilot way)."""
+    if part.per_soak:
+        raise ConfigError("config: key 'train_on': 'heating' applies to per-sample targets, "
+                          "not to the four-position target")
+    return rows_of(part, heating_keep(rec, gap_s))
+
+
+def rows_of(part: Part, keep: np.ndarray) -> Part:
+    """The rows ``keep`` (a boolean mask) of ``part``, every per-row array cut alike.  Cut
+    from a part of a whole run, the rows keep the dynamic inputs' state carried in from the
+    rows before them, as on the board."""
+    keep = np.asarray(keep, dtype=bool)
+
+    def cut(x: np.ndarray | None) -> np.ndarray | None:
+        return None if x is None else x[keep]
+
     return Part(part.signals[keep], part.target[keep], part.time_s[keep], part.bin_by[keep],
-                part.bin_width, part.rate_hz, None if part.true_drift is None
-                else part.true_drift[keep], part.outputs, targets=part.targets,
-                weight=None if part.weight is None else part.weight[keep],
-                within_ss=None if part.within_ss is None else part.within_ss[keep],
-                within_sxx=None if part.within_sxx is None else part.within_sxx[keep],
-                within_sxy=None if part.within_sxy is None else part.within_sxy[keep],
-                window_s=part.window_s)
+                part.bin_width, part.rate_hz, cut(part.true_drift), part.outputs,
+                per_soak=part.per_soak, targets=part.targets, weight=cut(part.weight),
+                within_ss=cut(part.within_ss), within_sxx=cut(part.within_sxx),
+                within_sxy=cut(part.within_sxy), window_s=part.window_s)
+
+
+def join_parts(parts: list[Part]) -> Part:
+    """Parts of several runs judged as one, in order: time shifted so that it keeps
+    increasing, one sample interval after the part before (as
+    :func:`thermonet.training.splits.stack_blocks` stacks held-out blocks)."""
+    if len(parts) == 1:
+        return parts[0]
+    times, offset = [], 0.0
+    for q in parts:
+        t = np.asarray(q.time_s, dtype=np.float64)
+        t = t - (t[0] if t.size else 0.0) + offset
+        times.append(t)
+        step = 1.0 / q.rate_hz if q.rate_hz and np.isfinite(q.rate_hz) else 1.0
+        offset = (float(t[-1]) if t.size else offset) + step
+    first = parts[0]
+
+    def cat(name: str) -> np.ndarray | None:
+        xs = [getattr(q, name) for q in parts]
+        return None if any(x is None for x in xs) else np.concatenate(xs)
+
+    return Part(np.concatenate([q.signals for q in parts]),
+                np.concatenate([q.target for q in parts]), np.concatenate(times),
+                np.concatenate([q.bin_by for q in parts]), first.bin_width, first.rate_hz,
+                cat("true_drift"), first.outputs, per_soak=first.per_soak,
+                targets=first.targets, weight=cat("weight"), within_ss=cat("within_ss"),
+                within_sxx=cat("within_sxx"), within_sxy=cat("within_sxy"),
+                window_s=first.window_s)
 
 
 def rows_average_s(part: Part, average_s: float) -> float:

@@ -30,10 +30,10 @@ import numpy as np
 from ..core.recording import Recording
 from ..core.trainconfig import TrainConfig
 from ..features.inputs import FeatureSpec, reference_values, resolve_gap_s, signals_for
-from ..features.target import Target
+from ..features.target import FOUR_POSITION, Target
 from ..scoring.metrics import axis_metrics, rms, scale_factor_tempco_ppm_per_c, window_axis_metrics
 from ..scoring.verdicts import block_labels, block_stats
-from .parts import Part, build_part, fit_arrays, heating_only
+from .parts import Part, build_part, fit_arrays, heating_keep, heating_only, join_parts, rows_of
 from .train import fit, predict
 
 __all__ = ["SplitParts", "PartBuilder", "split_spec", "split_parts", "fit_split", "score_part",
@@ -74,16 +74,26 @@ class SplitParts:
 def split_parts(spec: FeatureSpec, train: Sequence[Recording], *, outputs: list[str],
                target: Target | str, val: Recording | None = None,
                test: Recording | None = None, train_on: str = "all",
-               gap_s: str | float | None = "auto", part: PartBuilder | None = None
-               ) -> SplitParts:
+               gap_s: str | float | None = "auto", part: PartBuilder | None = None,
+               whole: Sequence[tuple[Recording, np.ndarray]] = ()) -> SplitParts:
     """Each run's part for ``spec``; with ``train_on == "heating"`` the training parts keep
     the samples where the temperature is not falling (its rate's gap limit from
-    ``gap_s``, the configured setting, as the dynamic inputs')."""
+    ``gap_s``, the configured setting, as the dynamic inputs').
+
+    ``whole`` (a time-block split's :attr:`~thermonet.training.splits.Split.whole`): the
+    parts are built on each whole run and cut into its training (roles 0, 1, 3), validation
+    (2) and test (4) rows, so that a dynamic input's state at a block's first row is carried
+    in from the rows before it, as the board computes it (the carved ``train``, ``val`` and
+    ``test`` recordings would restart it at every block)."""
     if part is None:
         def part(rec: Recording, signals: list[str], gap: float | None) -> Part:
             return build_part(rec, signals=signals, outputs=outputs, target=target, gap_s=gap)
 
     gap = spec.gap_s
+    per_soak = target == FOUR_POSITION if isinstance(target, str) else \
+        target.kind == FOUR_POSITION
+    if whole and not per_soak:      # a four-position part has a row per soak, not per sample
+        return _whole_run_parts(spec, whole, part, train_on, gap_s)
     train_parts = [part(r, spec.signals, gap) for r in train]
     if train_on == "heating":
         heat_gap = resolve_gap_s(gap_s, train, ["rate"])
@@ -91,6 +101,24 @@ def split_parts(spec: FeatureSpec, train: Sequence[Recording], *, outputs: list[
     return SplitParts(spec=spec, train=train_parts,
                      val=part(val, spec.signals, gap) if val is not None else None,
                      test=part(test, spec.signals, gap) if test is not None else None)
+
+
+def _whole_run_parts(spec: FeatureSpec, whole: Sequence[tuple[Recording, np.ndarray]],
+                     part: PartBuilder, train_on: str, gap_s: str | float | None
+                     ) -> SplitParts:
+    """:func:`split_parts` of a time-block split: each whole run's part cut by role."""
+    runs = [r for r, _ in whole]
+    parts = [part(r, spec.signals, spec.gap_s) for r in runs]
+    heat_gap = resolve_gap_s(gap_s, runs, ["rate"]) if train_on == "heating" else None
+    train, val, test = [], [], []
+    for (rec, role), q in zip(whole, parts, strict=True):
+        keep = np.isin(role, (0, 1, 3))
+        if train_on == "heating":
+            keep &= heating_keep(rec, heat_gap)
+        train.append(rows_of(q, keep))
+        val.append(rows_of(q, role == 2))
+        test.append(rows_of(q, role == 4))
+    return SplitParts(spec=spec, train=train, val=join_parts(val), test=join_parts(test))
 
 
 def fit_split(parts: SplitParts, *, family: str, outputs: list[str], hyper: dict | None,

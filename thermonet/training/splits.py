@@ -56,6 +56,12 @@ class Split:
     #: the test run, *whole* (dynamic inputs are computed on the whole run before any cut),
     #: with a mask of its rows that are not test rows.
     pool: list[tuple[Recording, np.ndarray]] = field(default_factory=list)
+    #: Where the parts are rows of whole runs (a time-block split): per run, the run whole
+    #: and the role of each row (0, 1, 3 train, 2 validation, 4 test: :func:`block_roles`).
+    #: The parts are then built on each whole run and cut (:func:`thermonet.training.
+    #: pipeline.split_parts`): a dynamic input's state runs on through the blocks, as on the
+    #: board — never restarted at a block's start.
+    whole: list[tuple[Recording, np.ndarray]] = field(default_factory=list)
 
 
 #: A strategy: (runs, split config, source for error messages) -> splits.
@@ -215,12 +221,14 @@ def _time_blocks(runs: list[Recording], cfg: SplitConfig, source: str) -> list[S
     trains = [b[0] for b in blocks]
     vals = [b[1] for b in blocks]
     tests = [b[2] for b in blocks if b[2] is not None]
+    whole = [(r, block_roles(r, cfg.n_blocks)) for r in runs]
     if len(runs) == 1:
         return [Split(trains, vals[0], tests[0], "time-blocks",
                       {"train": trains[0].run_id, "val": vals[0].run_id,
-                       "test": tests[0].run_id}, pool=pool)]
+                       "test": tests[0].run_id}, pool=pool, whole=whole)]
     return [Split(trains, stack_blocks(vals, "val"), stack_blocks(tests, "test"), "time-blocks",
-                  {"train": _ids(trains), "val": _ids(vals), "test": _ids(tests)}, pool=pool)]
+                  {"train": _ids(trains), "val": _ids(vals), "test": _ids(tests)}, pool=pool,
+                  whole=whole)]
 
 
 def stack_blocks(parts: list[Recording], run_id: str) -> Recording:

@@ -175,7 +175,7 @@ def _fit_on_split(p: Plan, fam: FamilyConfig, tcfg: Any, split: Any, parts: Part
     seen.spec = spec
     fp = split_parts(spec, split.train, outputs=p.outputs, target=p.targets,
                      val=split.val, test=split.test, train_on=fam.train_on,
-                     gap_s=cfg.features.gap_s, part=parts)
+                     gap_s=cfg.features.gap_s, part=parts, whole=split.whole)
     with stage(f"{fam.label}: fit on the training part"):
         fitted = fit_split(fp, family=fam.family, outputs=p.outputs, hyper=fam.params,
                            config=tcfg, target_modes=p.targets.modes, on_epoch=on_epoch)
