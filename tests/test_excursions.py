@@ -315,3 +315,57 @@ def test_the_folds_domain_is_joint_a_rate_never_trained_at_that_temperature_is_o
     assert joint_domain(train, rows, 0, [1], widen).tolist() == [False, True, True, False]
     # without a joint column it is the per-signal check
     assert joint_domain(train, rows, 0, [], widen).tolist() == [True, True, True, False]
+
+
+def test_a_family_failing_inside_a_fold_is_reported_and_the_comparison_goes_on(
+        tmp_path, monkeypatch):
+    """A family whose solver raises ValueError inside the cross-validation folds (as the GRU's
+    least squares did on a fold left without a usable sample, ending a 10-minute comparison)
+    is reported failed there, with the fold and the error, and the others are chosen and
+    judged as if it were not there."""
+    import torch
+    from torch import nn
+
+    from conftest import toy_dataset
+    from thermonet.models import MODELS
+    from thermonet.models.base import Family, as_numpy, least_squares
+    from thermonet.training.config import CompareConfig, FamilyConfig, TrainConfig
+    from thermonet.workflows.compare import format_table, run_compare
+
+    fits: list[int] = []
+
+    class FoldFragile(Family):
+        """b + c z, fitted by least squares; from its third fit on (the split's fit and refit
+        come first, then one per fold) its solver raises as on a fold with no usable row."""
+
+        name = "fold-fragile"
+        max_inputs = 1
+
+        def __init__(self, *, n_inputs: int, n_outputs: int) -> None:
+            super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
+            self.coef = nn.Parameter(torch.zeros(n_outputs, 2))
+
+        def forward(self, z: torch.Tensor) -> torch.Tensor:
+            return self.coef[:, 0] + z * self.coef[:, 1]
+
+        def initialize(self, x, y, *, seed=0, x_mean=None, x_std=None) -> None:
+            fits.append(len(x))
+            if len(fits) >= 3:
+                raise ValueError("`x0` is infeasible: no usable row")
+            xn = as_numpy(x)[:, 0]
+            coef = least_squares(np.column_stack([np.ones_like(xn), xn]), as_numpy(y))
+            with torch.no_grad():
+                self.coef.copy_(torch.as_tensor(coef.T))
+
+    monkeypatch.setitem(MODELS, "fold-fragile", FoldFragile)
+    fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
+            FamilyConfig(family="fold-fragile", name="fragile", inputs=["dT"])]
+    cfg = CompareConfig(families=fams, baseline="cubic",
+                        train=TrainConfig(max_epochs=5, patience=2))
+    res = run_compare(cfg, tmp_path / "out", dataset=toy_dataset(n_runs=4), track=False,
+                      quiet=True, plots=False)
+    cand = res["selection"]["candidates"]["fragile"]
+    assert cand["status"] == "failed"
+    assert cand["reason"].startswith("cross-validation fold 0: the fit failed (ValueError:")
+    assert res["chosen"] == "cubic" and cand["reason"] in format_table(res)
+    assert any("fragile: not a candidate" in w for w in res["warnings"])
