@@ -315,6 +315,25 @@ def test_linear_and_lorentz_parameters_in_physical_units():
         assert p["stderr"].isna().all()
 
 
+def proxy_run(unit: str) -> Recording:
+    """cubic_run's ramp with a proxy ``temp_raw`` (10 per °C) in ``unit`` beside it."""
+    rec = cubic_run(12)
+    return replace(rec, proxies={"temp_raw": 10.0 * rec.temperature_c},
+                   units={**rec.units, "temp_raw": unit})
+
+
+@pytest.mark.parametrize(("unit", "expected"), [("1", ["deg/s", "deg/s", "deg/s"]),
+                                                ("counts", ["deg/s", "deg/s/counts",
+                                                            "deg/s/counts^2"])])
+def test_a_coefficient_per_proxy_unit_names_the_proxys_unit_or_none(unit, expected):
+    """A coefficient per unit of a proxy without a unit (``1``) is in the output's unit alone
+    (was 'deg/s/1'); a proxy with a unit (``counts``) is named."""
+    est = thermonet.DriftEstimator("poly", "d_temp_raw", degree=2, max_epochs=0).fit(
+        proxy_run(unit))
+    assert list(est.parameters_["unit"]) == expected
+    assert not any(u.endswith(("/1", "/1^2")) for u in est.parameters_["unit"])
+
+
 def test_rbf_and_lorentz_tables_reproduce_the_models_curve():
     """The physical parameters are the model: the curve rebuilt from the table alone (numpy,
     float64) is the model's prediction, so the units and references in the table are right."""

@@ -15,8 +15,9 @@ Polynomials in one input (``poly``, ``linear`` and any family whose
 
     .. math:: d_a(x) = \\sum_{k=0}^{N} c_{a,k}\\,(x - x_{ref})^k
 
-    in output unit / input unit^k, with :math:`x_{ref}` = :math:`T_{ref}` for ``T`` and
-    ``dT`` (unit °C), the proxy's reference for ``d_<proxy>``, 0 for a dynamic input.
+    in output unit / input unit^k (the output unit alone for a proxy without a unit, ``1``),
+    with :math:`x_{ref}` = :math:`T_{ref}` for ``T`` and ``dT`` (unit °C), the proxy's
+    reference for ``d_<proxy>``, 0 for a dynamic input.
     The values are the model's own (its float32 parameters, every scaling and the
     float64 offset included), read off the model evaluated in float64 at ``N + 1``
     Chebyshev points of the trained range: exact for a polynomial, to rounding.
@@ -134,8 +135,14 @@ def _drift64(model: Any, signals: np.ndarray) -> np.ndarray:
                           .numpy(), dtype=np.float64)
 
 
+#: Input units that are no unit: a coefficient per such input is in the output's unit.
+DIMENSIONLESS = ("", "1")
+
+
 def _power_unit(out: str, unit: str, k: int) -> str:
-    if k == 0:
+    """Unit of the k-th coefficient: output unit / input unit^k — the output's unit alone
+    where the input has none (a proxy of unit ``1``: ``rad/s``, not ``rad/s/1``)."""
+    if k == 0 or unit in DIMENSIONLESS:
         return out
     return f"{out}/{unit}" if k == 1 else f"{out}/{unit}^{k}"
 
@@ -302,7 +309,8 @@ def _lorentz_rows(model: Any, units: dict[str, str], signal_units: dict[str, str
             note = f"{why}; {note}"
             warnings.warn(f"lorentz on {axis}: {why}", UserWarning, stacklevel=2)
         for name, value, u in (("y0", y0[j] + const[j], out),
-                               ("amplitude", amplitude[j], f"{out}*{unit}"),
+                               ("amplitude", amplitude[j],
+                                out if unit in DIMENSIONLESS else f"{out}*{unit}"),
                                ("centre", centre[j], unit), ("width", width[j], unit)):
             rows.append({"axis": axis, "name": name, "value": float(value),
                          "stderr": math.nan, "unit": u, "note": note})
