@@ -409,6 +409,32 @@ def test_export_from_a_compare_directory_that_chose_per_axis(composite, tmp_path
         export_source(str(src), fmt="px4-params", out=tmp_path / "out.params", device_id=1)
 
 
+def test_the_autopilot_refusal_of_a_proxy_input_names_the_input_not_the_family(parts, tmp_path):
+    """A linear fit on a proxy (``d_temp_raw``) is a polynomial of degree 1: what PX4 and
+    ArduPilot cannot read is its input, so the refusal names the input and says they read the
+    temperature (dT or T), alone and as a part of a per-axis model (was: 'linear on [...]'
+    beside 'the firmware-form cubic', or the input list without why)."""
+    from thermonet.exporting.autopilot import autopilot_coefficients
+
+    _, temp, _, y = _device()
+    spec = FeatureSpec(inputs=["d_temp_raw"], t_ref=20.0, gap_s=GAP_S,
+                       proxy_ref={"temp_raw": 200.0})
+    lin = fit(family="linear", inputs=["d_temp_raw"], outputs=AXES,
+              train=[((10.0 * temp)[:, None], y)], val=None, spec=spec, hyper={},
+              config=TrainConfig(max_epochs=0, seed=0)).model
+    per_axis = AxisModels([copy.deepcopy(parts[0]), lin], [0, 1, 0, None],
+                          ["cubic", "lin-raw"]).eval()
+    for model in (lin, per_axis):
+        with pytest.raises(ExportError) as info:
+            autopilot_coefficients(model, output_units="deg/s")
+        msg = str(info.value)
+        assert "reads ['d_temp_raw'] — 'd_temp_raw' is the proxy 'temp_raw', not the " \
+               "temperature, and PX4/ArduPilot read only the sensor's temperature" in msg, msg
+        assert "need one input, dT or T" in msg, msg
+        assert "linear" not in msg and "\n" not in msg, msg
+    assert "'gyro_y' with 'lin-raw'" in msg
+
+
 def test_a_replaced_per_axis_checkpoint_or_a_missing_block_is_refused(composite, tmp_path):
     from thermonet.exporting import export_source
 

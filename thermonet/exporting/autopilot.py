@@ -146,6 +146,20 @@ def _unit_of(axis: str, units: str | Mapping[str, str]) -> str:
     return unit
 
 
+def _not_temperature(inputs: list[str]) -> str | None:
+    """Why a model's inputs are not what the autopilots read (their temperature sensor, as
+    ``dT`` or ``T``): ``"reads [...] — why"``, naming a proxy input as one; None where the
+    inputs are ``dT`` or ``T`` alone."""
+    if inputs in (["dT"], ["T"]):
+        return None
+    proxies = [i for i in inputs if i.startswith("d_") and len(i) > 2]
+    said = "; ".join(f"'{i}' is the proxy '{i[2:].removesuffix('2') if i.endswith('2') else i[2:]}'"
+                     ", not the temperature" for i in proxies)
+    return (f"reads {inputs}" + (f" — {said}, and" if said else " —")
+            + " PX4/ArduPilot read only the sensor's temperature: export it as ONNX or C, "
+            "or fit a family on dT")
+
+
 def _firmware_form(part: DriftModel) -> bool:
     """Whether a part is what the parameter files hold: a polynomial of degree <= 3 on dT or T."""
     form = None if part.family.recurrent else part.family.polynomial_form()
@@ -160,6 +174,13 @@ def _axis_models_coefficients(model: AxisModels, *, output_units: str | Mapping[
     for a, k in enumerate(model.owner):
         if k is not None and not _firmware_form(model.parts[k]):
             part = model.parts[k]
+            why = None if part.family.recurrent else _not_temperature(list(part.inputs))
+            if why is not None:   # the input is the reason, not the family
+                raise ExportError(
+                    f"PX4/ArduPilot parameter files need one input, dT or T, on every axis; "
+                    f"this per-axis model computes '{model.outputs[a]}' with "
+                    f"'{model.labels[k]}', which {why} (or the cubic/baseline family with "
+                    "--family NAME)")
             raise ExportError(
                 f"PX4/ArduPilot parameter files need the firmware-form cubic (a polynomial of "
                 f"degree <= 3 in dT or T) on every axis; this per-axis model computes "
@@ -200,9 +221,10 @@ def _polynomial_form(model: Any) -> np.ndarray:
         raise ExportError(f"PX4/ArduPilot parameter files hold a polynomial in temperature; this "
                           f"model is '{family}', which carries a state in time — export it as "
                           "ONNX or C (state, _init, _step)")
-    if list(model.inputs) not in (["dT"], ["T"]):
-        raise ExportError(f"PX4/ArduPilot parameter files need one input, dT or T; this model "
-                          f"reads {list(model.inputs)}")
+    why = _not_temperature(list(model.inputs))
+    if why is not None:   # the input, not the family, is what the autopilots cannot read
+        raise ExportError(f"PX4/ArduPilot parameter files need one input, dT or T; this "
+                          f"model {why}")
     form = model.family.polynomial_form()  # the family says whether it is a polynomial
     if form is None:
         raise ExportError(f"PX4/ArduPilot parameter files need a polynomial in dT or T; this "
