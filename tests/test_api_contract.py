@@ -288,6 +288,33 @@ def test_the_block_bootstrap_states_the_uncertainty_of_correlated_residuals():
     assert "stderr: 'hac'" in msg
 
 
+@pytest.mark.parametrize("method", ["ols", "block-bootstrap"])
+def test_the_note_names_the_stderr_method_and_coefficients_within_2_se_of_zero(method):
+    """``parameters_`` says which method made each standard error (``note``), and notes a
+    coefficient within 2 SE of zero: a drift with no cubic term fitted by a cubic has c3 within
+    them, the large c1 not; a loaded estimator (and one sealed before the note named the
+    method: notes '') says the same."""
+    from thermonet.api.parameters import NEAR_ZERO
+    from thermonet.training.parameters import with_sealed
+
+    rec = cubic_run(3, sigma=0.05)
+    flat = replace(rec, outputs={"gyro_x": rec.outputs["gyro_x"]
+                                 - C_TRUE[3] * (rec.temperature_c - 25.0) ** 3})
+    est = thermonet.DriftEstimator("poly", "dT", degree=3, t_ref=25.0, stderr=method,
+                                   max_epochs=0).fit(flat)
+    p = est.parameters_.set_index("name")
+    near = (p["value"].abs() < 2 * p["stderr"])
+    assert near["c3"] and not near["c1"]
+    for name, row in p.iterrows():
+        assert row["note"] == (f"{method}; {NEAR_ZERO}" if near[name] else method), name
+    # an older checkpoint's sealed notes ('' where computed) name the method on load
+    old = {"method": method, "covariance": {},
+           "rows": [{"axis": "gyro_x", "name": n, "stderr": float(e), "note": ""}
+                    for n, e in zip(p.index, p["stderr"], strict=True)]}
+    table, _, got = with_sealed(est.parameters_.assign(note=""), {}, old, "old.pt")
+    assert got == method and list(table["note"]) == list(est.parameters_["note"])
+
+
 def test_linear_and_lorentz_parameters_in_physical_units():
     rec = cubic_run(9)
     lin = thermonet.DriftEstimator("linear", "T", t_ref=25.0, max_epochs=0).fit(rec)
@@ -370,7 +397,9 @@ def test_parameters_survive_save_and_load(tmp_path):
                                    rtol=1e-12)
         # copied through the checkpoint: exactly the fit's
         np.testing.assert_array_equal(back.parameters_["stderr"], est.parameters_["stderr"])
-        assert est.parameters_["stderr"].gt(0).all() and (back.parameters_["note"] == "").all()
+        assert est.parameters_["stderr"].gt(0).all()
+        assert list(back.parameters_["note"]) == list(est.parameters_["note"])
+        assert set(back.parameters_["note"].str.split(";").str[0]) == {method}
         np.testing.assert_array_equal(back.covariance_["gyro_x"], est.covariance_["gyro_x"])
         assert back.get_params()["family__degree"] == 3 and back.get_params()["stderr"] == method
     # a checkpoint written without them (as before they were stored): NaN, with the reason

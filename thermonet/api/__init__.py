@@ -45,7 +45,8 @@ Parameters with uncertainties (:mod:`thermonet.api.parameters`)
     errors (``est.covariance_`` holds the matrices; the residuals of a time series are
     correlated, so read them as a lower bound — the module says how much), Lorentz and RBF
     parameters in physical units, other families' stored parameters (not physical; stderr
-    NaN, ``note`` says why).  Standard errors and covariance are sealed into the checkpoint:
+    NaN, ``note`` says why; where computed, ``note`` names the method, ``ols`` or
+    ``block-bootstrap``, and ``within 2 SE of zero``).  Standard errors and covariance are sealed into the checkpoint:
     ``DriftEstimator.load`` and ``compare``'s estimators state the fit's.
     ``est.report()`` is the fit report as text.
 

@@ -184,8 +184,10 @@ average_s, threads
         Unit per output (from the training data); scoring data in another unit is refused.
     parameters_ : pandas.DataFrame
         The fitted parameters in physical units with standard errors: columns ``axis,
-        name, value, stderr, unit, note`` (:mod:`thermonet.api.parameters`; ``note`` says
-        why a stderr is NaN, or ``fixed``); saved with the model and loaded back.
+        name, value, stderr, unit, note`` (:mod:`thermonet.api.parameters`; ``note`` names
+        the method of a computed stderr, ``ols`` or ``block-bootstrap``, with ``; within 2 SE
+        of zero`` where ``|value| < 2 stderr``, else says why a stderr is NaN, or ``fixed``);
+        saved with the model and loaded back.
     covariance_ : dict of str to ndarray
         Per axis, the covariance of the polynomial coefficients ``c0 … cN`` (families
         that are a polynomial in one input; empty otherwise).

@@ -6,6 +6,7 @@ from ..training.parameters import (
     COLUMNS,
     FIXED,
     N_BOOTSTRAP,
+    NEAR_ZERO,
     NO_SE,
     STDERR_METHODS,
     block_bootstrap_cov,
@@ -18,4 +19,4 @@ from ..training.parameters import (
 
 __all__ = ["parameter_table", "polynomial_coefficients", "block_bootstrap_cov", "block_length",
            "sealed_parameters", "with_sealed", "COLUMNS", "FIXED", "NO_SE", "STDERR_METHODS",
-           "N_BOOTSTRAP"]
+           "N_BOOTSTRAP", "NEAR_ZERO"]

@@ -1,8 +1,11 @@
 """A fitted model's parameters in physical units, with standard errors (``est.parameters_``).
 
 One row per axis and named parameter: columns ``axis, name, value, stderr, unit, note``.
-``note`` is empty where ``stderr`` was computed, :data:`FIXED` for a coefficient fixed by
-construction (stderr 0), and otherwise says why ``stderr`` is NaN (:data:`NO_SE`).
+``note`` names the method that computed ``stderr`` where it was computed (``ols`` or
+``block-bootstrap``, :data:`STDERR_METHODS`), followed by ``; within 2 SE of zero``
+(:data:`NEAR_ZERO`) for a coefficient with ``|value| < 2 stderr`` — one the data cannot
+tell from none; it is :data:`FIXED` for a coefficient fixed by construction (stderr 0), and
+otherwise says why ``stderr`` is NaN (:data:`NO_SE`).
 
 The standard errors are computed once, on the rows the model was fitted on, and sealed into
 its checkpoint with the covariance (``extra.parameters``, :func:`sealed_parameters`): a model
@@ -94,13 +97,15 @@ if TYPE_CHECKING:
 
 __all__ = ["parameter_table", "parameter_rows", "polynomial_coefficients", "block_bootstrap_cov",
            "block_length", "sealed_parameters", "with_sealed", "COLUMNS", "FIXED", "NO_SE",
-           "STDERR_METHODS", "N_BOOTSTRAP"]
+           "STDERR_METHODS", "N_BOOTSTRAP", "NEAR_ZERO"]
 
 #: The columns of ``est.parameters_``.
 COLUMNS = ["axis", "name", "value", "stderr", "unit", "note"]
 
 #: ``note`` of a coefficient fixed by construction (``c0`` of an ``at-t-ref`` axis: stderr 0).
 FIXED = "fixed"
+#: Added to ``note`` (after the method) where a coefficient lies within 2 standard errors of 0.
+NEAR_ZERO = "within 2 SE of zero"
 #: ``note`` where no standard error can be computed, by reason (stderr NaN).
 NO_SE = {
     "nonlinear": "no standard error: nonlinear fit (no covariance computed)",
@@ -392,6 +397,14 @@ def _raw_rows(model: Any) -> list[dict[str, Any]]:
 Rows = list[dict[str, Any]]
 
 
+def _computed_note(value: float, stderr: float, note: str, method: str) -> str:
+    """A row's ``note``: where its standard error was computed (note empty, stderr finite
+    and positive), the method, and :data:`NEAR_ZERO` where ``|value| < 2 stderr``."""
+    if note or not (math.isfinite(stderr) and stderr > 0):
+        return note
+    return f"{method}; {NEAR_ZERO}" if abs(value) < 2.0 * stderr else method
+
+
 def parameter_rows(model: Any, units: dict[str, str], signal_units: dict[str, str],
                    train: tuple[Any, ...] | None = None, *, method: str = "ols",
                    seed: int = 0, parts: Sequence[tuple[Rows, dict[str, np.ndarray]]]
@@ -426,7 +439,9 @@ def parameter_rows(model: Any, units: dict[str, str], signal_units: dict[str, st
     else:
         rows = (_rbf_rows(model, units, signal_units) if model.family.name == "rbf" else None) \
             or _raw_rows(model)
-    return [{c: r[c] for c in COLUMNS} for r in rows], cov
+    return [{**{c: r[c] for c in COLUMNS},
+             "note": _computed_note(r["value"], r["stderr"], r["note"], method)}
+            for r in rows], cov
 
 
 def _as_rows(table: Any) -> Rows:
@@ -503,7 +518,10 @@ def with_sealed(table: pd.DataFrame, cov: dict[str, np.ndarray], stored: Any, wh
     # an axis the model leaves raw (compare's mask, applied after the fit) keeps its note
     raw = (table["note"] == NO_SE["raw"]).to_numpy()
     out["stderr"] = np.where(raw, table["stderr"], [r["stderr"] for r in rows])
-    out["note"] = np.where(raw, table["note"], [r["note"] for r in rows])
+    # a checkpoint sealed before the note named the method: named now (its stored method)
+    out["note"] = np.where(raw, table["note"], [
+        _computed_note(v, r["stderr"], r["note"], str(stored["method"]))
+        for v, r in zip(table["value"], rows, strict=True)])
     masked = set(table.loc[raw, "axis"])
     covs: dict[str, np.ndarray] = {}
     for axis, c in stored["covariance"].items():
