@@ -184,13 +184,18 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 def _cmd_convert(args: argparse.Namespace) -> int:
     """Recordings (CSV, mapped files, Parquet) to one thermonet Parquet file, read and
-    written a chunk at a time (flight logs: read whole)."""
+    written a chunk at a time (flight logs: read whole), or to a CSV with thermonet's column
+    names (``--out x.csv``: the input ``export/thermonet_runtime.py`` reads; read whole)."""
     from .data.chunks import (  # lazy: loads pandas, pyarrow, yaml
         DEFAULT_CHUNK_ROWS,
         open_source,
         write_streamed,
     )
-    from .data.io import read_datasets, write_parquet  # lazy: loads pandas, pyarrow, yaml
+    from .data.io import (  # lazy: loads pandas, pyarrow, yaml
+        read_datasets,
+        write_csv,
+        write_parquet,
+    )
     from .data.logs import is_log  # lazy: off the --help path
     from .data.mapping import load_mapping  # lazy: loads yaml
 
@@ -200,9 +205,11 @@ def _cmd_convert(args: argparse.Namespace) -> int:
         raise ThermonetError(f"{out}: already exists (give --overwrite to replace it)")
     if args.chunk_rows is not None and args.chunk_rows < 1:
         raise ThermonetError(f"--chunk-rows must be >= 1, got {args.chunk_rows}")
-    if any(is_log(f) for f in args.files):
+    if out.suffix.lower() == ".csv" or any(is_log(f) for f in args.files):
+        # a .csv: the runtime's input (export/thermonet_runtime.py reads a CSV whole, so
+        # this one is read whole too); a flight log: read whole
         ds = read_datasets(args.files, mapping=args.mapping)
-        write_parquet(ds, out)
+        (write_csv if out.suffix.lower() == ".csv" else write_parquet)(ds, out)
         n_runs, n = len(ds), sum(r.n_samples for r in ds)
     else:
         chunk = args.chunk_rows or DEFAULT_CHUNK_ROWS
@@ -425,11 +432,14 @@ def _add_convert(sub: Any) -> None:
                        description="Read recording files (CSV, a mapping's format, Parquet) "
                                    "a chunk at a time and write them as one thermonet Parquet "
                                    "file (row groups of about --chunk-rows rows): memory stays "
-                                   "bounded by one chunk, whatever the files' size.")
+                                   "bounded by one chunk, whatever the files' size; or, "
+                                   "with --out NAME.csv, as one CSV with thermonet's column "
+                                   "names, the input of export/thermonet_runtime.py (read "
+                                   "whole).")
     v.add_argument("files", nargs="+", help="recording files (one run per file unless the file "
                                             "has a 'run' column)")
     v.add_argument("--mapping", default=None, help="YAML column mapping (configs/data/*.yaml)")
-    v.add_argument("--out", required=True, help="output .parquet file")
+    v.add_argument("--out", required=True, help="output .parquet file, or .csv (the runtime's input)")
     v.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     v.add_argument("--chunk-rows", type=int, default=None, metavar="N",
                    help="rows read (and written per row group) at a time (default 65536)")
