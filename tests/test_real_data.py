@@ -72,3 +72,25 @@ def test_bmi270_cold_alone_has_no_thermal_span():
     with pytest.raises(InputError, match=r"BMI_270_cold_test_\.csv, column 'temperature_c': "
                        r"temperature spans only 0\.314 °C over all runs"):
         read_dataset(BMI[0], MAPS / "bmi270.yaml")
+
+
+def test_bmi270_configs_comment_says_what_its_comparison_does(tmp_path, monkeypatch):
+    """configs/bmi270.yaml's header says what ``thermonet compare`` on it prints and
+    decides: both families fitted, the cubic held back (soaks: no excursion to hold out,
+    interleaved blocks) and the baseline line chosen (it promised 'which families cannot be
+    fitted', which the comparison never says: both fit)."""
+    import thermonet
+
+    config = REPO / "configs" / "bmi270.yaml"
+    head = "".join(line[1:] for line in config.read_text().splitlines(keepends=True)
+                   if line.startswith("#"))
+    monkeypatch.chdir(REPO)                                     # its data paths are relative
+    res = thermonet.compare(config, out=tmp_path / "b", plots=False)
+    data = res.results
+    assert {f: r["status"] for f, r in data["families"].items()} == {"linear": "ok",
+                                                                      "cubic": "ok"}
+    assert data["selection"]["held_back"]["candidates"] == ["cubic"]
+    assert data["chosen"] == data["baseline"] == "linear"
+    assert "cannot be fitted" not in head
+    assert "'held back: cubic'" in " ".join(head.split()) and "interleaved time blocks" in \
+        " ".join(head.split())
