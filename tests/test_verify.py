@@ -107,8 +107,10 @@ def test_calibrate_two_logs_then_verify_the_third(runs: dict[str, list[Path]], t
     assert "the parameter file is the refit on all 2 logs" in report
     doc = json.loads((cal / "results.json").read_text())
     assert doc["logs"] == [first, second] and doc["held_out_log"] == second
+    # mag0 too on PX4 (TC_M*): its motion is checked within each log, never across the join
+    # where one log ends hot and the next starts cold (issue 52); ArduPilot has no compass TCAL
     expect = {"gyro0", "gyro1", "gyro2", "acc0", "acc1", "acc2"} | (
-        {"baro0"} if ext == ".ulg" else set())
+        {"baro0", "mag0"} if ext == ".ulg" else set())
     # every instance gets parameters, the whole-degree IMU included (with its resolution)
     assert {n for n, d in doc["instances"].items() if d["status"] == "fitted"} == expect
     assert doc["instances"]["gyro2"]["resolution"]["step_c"] == 1.0
@@ -133,7 +135,8 @@ def test_calibrate_two_logs_then_verify_the_third(runs: dict[str, list[Path]], t
     if ext == ".ulg":
         # the done-when: through PX4's own formula the later log's binned drift falls >= 3x
         cuts = _px4_later_log_cuts(_px4_params(params), Path(third))
-        assert set(cuts) == expect
+        # (the magnetometer's TC_M* through PX4's formula: tests/test_magnetometers.py)
+        assert set(cuts) == expect - {"mag0"}
         for name, c in cuts.items():
             assert min(c) >= 3.0, (name, c)
             # thermonet's verify reports the same numbers
