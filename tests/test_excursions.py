@@ -369,3 +369,50 @@ def test_a_family_failing_inside_a_fold_is_reported_and_the_comparison_goes_on(
     assert cand["reason"].startswith("cross-validation fold 0: the fit failed (ValueError:")
     assert res["chosen"] == "cubic" and cand["reason"] in format_table(res)
     assert any("fragile: not a candidate" in w for w in res["warnings"])
+
+
+def _shipped_over_cubic(res: dict) -> np.ndarray:
+    """Per axis, the shipped model's held-out score over the cubic's (raw where shipped raw)."""
+    axes = list(res["units"])
+    cubic = res["families"]["cubic"]["axes"]
+    fam = res["families"].get(res["chosen"]) if res["chosen"] else None
+    shipped = [fam["axes"][a]["score_comp"] if fam and fam["axes"][a]["compensate"]
+               else cubic[a]["score_raw"] for a in axes]
+    return np.array(shipped) / np.array([cubic[a]["score_comp"] for a in axes])
+
+
+@pytest.mark.slow   # two whole comparisons with the default families
+def test_heating_only_then_cooling_the_rule_before_ships_a_loser_the_gate_keeps_the_cubic(
+        tmp_path):
+    """stress-imu (its sensing element 7 min behind the thermometer): calibrated on the heating
+    legs of one cycle, verified on its cooling legs.  Interleaved blocks and the one-SE rule
+    (the rule before) ship a rate or hysteresis model that is worse than the cubic on the
+    cooling by half again or more; the gate (the pool heats only: no direction-carrying model,
+    and no challenger on blocks) ships the cubic, equal to it on every axis."""
+    from thermonet.core.recording import Dataset
+    from thermonet.sim import simulate
+    from thermonet.training.config import CompareConfig
+    from thermonet.workflows.compare import run_compare
+
+    (run,) = list(simulate("stress-imu", runs=1, seed=0, sample_rate_hz=0.1))
+    legs = excursions(np.asarray(run.temperature_c))
+    heat = np.zeros(run.n_samples, dtype=bool)
+    for leg in legs:
+        if leg.direction == 1:
+            heat[leg.start:leg.stop] = True
+    ds = Dataset([run.select(heat, "heating"), run.select(~heat, "cooling")])
+    got = {}
+    for rule in ("before", "gate"):
+        cfg = CompareConfig()
+        cfg.split.strategy = "train-then-verify"
+        if rule == "before":
+            cfg.selection.hold_out, cfg.selection.gate = "blocks", False
+        got[rule] = run_compare(cfg, tmp_path / rule, dataset=ds, track=False, quiet=True,
+                                plots=False)
+    before, gate = got["before"], got["gate"]
+    owners = set((before["selection"].get("per_axis") or {}).get("chosen", {}).values())
+    assert owners & {"poly3-rate", "poly3-hyst"}
+    assert _shipped_over_cubic(before).max() > 1.5
+    assert gate["selection"]["directions"] == ["heating"]
+    assert "only heating" in gate["selection"]["held_back"]["why"]
+    np.testing.assert_allclose(_shipped_over_cubic(gate), 1.0, rtol=1e-12)
