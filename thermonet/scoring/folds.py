@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["deal", "purged", "Leg", "excursions", "TURN_FRACTION"]
+__all__ = ["deal", "purged", "Leg", "excursions", "TURN_FRACTION", "DIRECTION_NAMES"]
 
 
 def deal(block: np.ndarray | int, run: np.ndarray | int, k: int) -> np.ndarray:
@@ -47,6 +47,10 @@ def purged(t: np.ndarray, val: np.ndarray, purge_s: float) -> np.ndarray:
     return (d <= purge_s) | val
 
 
+#: What a leg's direction is called (results.json, the console).
+DIRECTION_NAMES = {1: "heating", -1: "cooling", 0: "soak"}
+
+
 @dataclass(frozen=True)
 class Leg:
     """One thermal excursion of a run: a heating or cooling leg and the soak that ends it.
@@ -62,8 +66,7 @@ class Leg:
     to_value: float
 
     def describe(self) -> str:
-        kind = {1: "heating", -1: "cooling", 0: "soak"}[self.direction]
-        return f"{kind} {self.from_value:.4g} -> {self.to_value:.4g}"
+        return f"{DIRECTION_NAMES[self.direction]} {self.from_value:.4g} -> {self.to_value:.4g}"
 
 
 #: A turn must reverse the temperature by this fraction of the run's range (5th–95th

@@ -115,12 +115,12 @@ from typing import Any
 import numpy as np
 
 from ..core.recording import contiguous_segments
-from .folds import TURN_FRACTION, Leg, deal, excursions, purged
+from .folds import DIRECTION_NAMES, TURN_FRACTION, Leg, deal, excursions, purged
 from .metrics import binned_peak_to_peak
 from .verdicts import DECISION_RTOL, LEVEL, above, below, draws, same
 
 __all__ = ["FoldPlan", "CandidateOOF", "plan_folds", "purge_rule", "window_rule",
-           "in_domain", "joint_domain", "noise_widths", "window_labels", "select", "Selection",
+           "in_domain", "joint_domain", "Envelope", "noise_widths", "window_labels", "select", "Selection",
            "choose_per_axis", "pp_guard", "point_label", "tuning_choice"]
 
 #: Samples a fold needs in training and in validation.
@@ -167,7 +167,7 @@ class FoldPlan:
     def describe(self) -> dict[str, Any]:
         return {"kind": self.kind, "folds": self.k, "block_s": self.block_s,
                 "purge_s": self.purge_s, "window_s": self.window_s,
-                "directions": [{1: "heating", -1: "cooling"}[d] for d in self.directions],
+                "directions": [DIRECTION_NAMES[d] for d in self.directions],
                 "excursions": self.legs, **({"note": self.note} if self.note else {}),
                 "train_fraction": [float(np.mean([m.sum() for m in ms]) /
                                          max(np.mean([(f >= 0).sum() for f in self.fold_of]), 1))
@@ -212,7 +212,7 @@ def _directions(pool: Sequence[tuple[Any, np.ndarray]], legs: list[list[Leg]]) -
 
 
 def _what_legs_hold(legs: list[list[Leg]]) -> str:
-    kinds = [leg.describe().split(" ")[0] for lj in legs for leg in lj]
+    kinds = [DIRECTION_NAMES[leg.direction] for lj in legs for leg in lj]
     counts = {k: kinds.count(k) for k in ("heating", "cooling", "soak") if k in kinds}
     return ", ".join(f"{v} {k} {'leg' if k != 'soak' else 'run'}{'s' if v > 1 else ''}"
                      for k, v in counts.items())
@@ -233,19 +233,20 @@ def _excursion_folds(pool: Sequence[tuple[Any, np.ndarray]], legs: list[list[Leg
                 units.append((j, leg))
     usable = []
     if temperatures is not None and len(units) >= 2:
+        spans = [np.asarray(temperatures[j])[leg.start:leg.stop] for j, leg in units]
+        with np.errstate(invalid="ignore"):
+            lows = np.array([np.nanmin(x) for x in spans])
+            highs = np.array([np.nanmax(x) for x in spans])
+        dirs = np.array([leg.direction for _, leg in units])
         for u, (j, leg) in enumerate(units):
-            temp_u = np.asarray(temperatures[j])[leg.start:leg.stop]
-            rest = [np.asarray(temperatures[i])[lg.start:lg.stop]
-                    for v, (i, lg) in enumerate(units) if v != u]
-            rest_all = np.concatenate(rest)
-            lo, hi = np.nanmin(rest_all), np.nanmax(rest_all)
+            others = np.arange(len(units)) != u
+            lo, hi = np.nanmin(lows[others]), np.nanmax(highs[others])
             with np.errstate(invalid="ignore"):
-                inside = float(np.mean((temp_u >= lo) & (temp_u <= hi)))
+                inside = float(np.mean((spans[u] >= lo) & (spans[u] <= hi)))
             # the rest must hold the leg's direction: a fold trained on cooling alone asks
             # every model with memory for a direction it never saw (and the static ones for
             # the other branch of the loop), which the shipped model, trained on both, is not
-            same_way = leg.direction == 0 or any(
-                lg.direction == leg.direction for v, (_, lg) in enumerate(units) if v != u)
+            same_way = leg.direction == 0 or bool((dirs[others] == leg.direction).any())
             if inside >= EXCURSION_INSIDE and same_way:
                 usable.append((j, leg))
     if len(usable) < 2:
@@ -262,11 +263,10 @@ def _excursion_folds(pool: Sequence[tuple[Any, np.ndarray]], legs: list[list[Leg
         fold_of[j][sl] = np.where(m[sl], u % k, -1)
         size = leg.stop - leg.start
         block_of[j][sl] = 8 * u + np.minimum((np.arange(size) * 8) // max(size, 1), 7)
-    usable_set = {(j, leg.start) for j, leg in usable}
+    fold_of_leg = {(j, leg.start): u % k for u, (j, leg) in enumerate(usable)}
     for j, lj in enumerate(legs):
         for leg in lj:
-            f = (next(u for u, (i, lg) in enumerate(usable) if (i, lg.start) == (j, leg.start))
-                 % k if (j, leg.start) in usable_set else -1)
+            f = fold_of_leg.get((j, leg.start), -1)
             record.append({"run": j, "excursion": leg.describe(), "fold": f,
                            "direction": leg.direction})
     return fold_of, block_of, k, record
@@ -414,45 +414,80 @@ def in_domain(signals: np.ndarray, lo: np.ndarray, hi: np.ndarray, widen: np.nda
 JOINT_BINS = 10
 
 
-def joint_domain(train: np.ndarray, x: np.ndarray, t_col: int, joint: Sequence[int],
-                 widen: np.ndarray, bins: int = JOINT_BINS) -> np.ndarray:
-    """Rows of ``x`` inside the trained domain *jointly with temperature*: every signal in its
-    trained range (:func:`in_domain`), and each ``joint`` column (a dynamic input: rate, lag,
-    hysteresis state) inside what training saw at that temperature — the range of that column
-    over the training rows in the row's temperature bin and its two neighbours (``bins`` equal
-    bins over the trained temperature range), widened by the column's noise.  A cooling rate
-    never trained at that temperature is outside although the rate and the temperature each
-    lie in their own ranges (an empty neighbourhood: outside).  NaN rows: outside."""
-    tr = np.asarray(train, dtype=np.float64)
-    xs = np.asarray(x, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
-        lo, hi = np.nanmin(tr, axis=0), np.nanmax(tr, axis=0)
-    ok = in_domain(xs, lo, hi, widen)
-    if not joint or xs.shape[0] == 0 or not np.isfinite(lo[t_col]):
-        return ok
-    t_lo, t_hi = float(lo[t_col]), float(hi[t_col])
-    span = max(t_hi - t_lo, 1e-12)
+@dataclass
+class Envelope:
+    """A fold's trained domain: every signal's range and, for each ``joint`` column (a dynamic
+    input: rate, lag, hysteresis state), its range near each temperature — over the training
+    rows in a temperature bin and its two neighbours (``bins`` equal bins over the trained
+    temperature range; an empty neighbourhood holds nothing).  Built once per fold
+    (:meth:`of`), asked of every validation row (:meth:`contains`)."""
 
-    def bin_of(t: np.ndarray) -> np.ndarray:
+    lo: np.ndarray
+    hi: np.ndarray
+    t_col: int | None = None
+    joint: tuple[int, ...] = ()
+    near_lo: np.ndarray | None = None     # (bins, len(joint)): per bin and joint column
+    near_hi: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, train: np.ndarray, t_col: int | None, joint: Sequence[int] = (),
+           bins: int = JOINT_BINS) -> Envelope:
+        tr = np.asarray(train, dtype=np.float64)
         with np.errstate(invalid="ignore"):
-            b = np.floor((t - t_lo) / span * bins)
+            lo, hi = np.nanmin(tr, axis=0), np.nanmax(tr, axis=0)
+        if t_col is None or not joint or not np.isfinite(lo[t_col]):
+            return cls(lo, hi)
+        env = cls(lo, hi, t_col, tuple(joint))
+        b = env._bin(tr[:, t_col], bins)
+        near_lo = np.full((bins, len(joint)), np.inf)
+        near_hi = np.full((bins, len(joint)), -np.inf)
+        for i, c in enumerate(joint):
+            blo = np.full(bins, np.inf)
+            bhi = np.full(bins, -np.inf)
+            good = (b >= 0) & np.isfinite(tr[:, c])
+            np.minimum.at(blo, b[good], tr[good, c])
+            np.maximum.at(bhi, b[good], tr[good, c])
+            # the row's bin and its two neighbours
+            near_lo[:, i] = np.minimum(blo, np.minimum(np.r_[np.inf, blo[:-1]],
+                                                       np.r_[blo[1:], np.inf]))
+            near_hi[:, i] = np.maximum(bhi, np.maximum(np.r_[-np.inf, bhi[:-1]],
+                                                       np.r_[bhi[1:], -np.inf]))
+        env.near_lo, env.near_hi = near_lo, near_hi
+        return env
+
+    def _bin(self, t: np.ndarray, bins: int) -> np.ndarray:
+        """Temperature bin of each row (−1: NaN)."""
+        assert self.t_col is not None
+        t_lo = float(self.lo[self.t_col])
+        span = max(float(self.hi[self.t_col]) - t_lo, 1e-12)
+        with np.errstate(invalid="ignore"):
+            b = np.floor((np.asarray(t) - t_lo) / span * bins)
         return np.clip(np.nan_to_num(b, nan=-1), -1, bins - 1).astype(np.int64)
 
-    bt = bin_of(tr[:, t_col])
-    bx = bin_of(xs[:, t_col])
-    for c in joint:
-        blo = np.full(bins, np.inf)
-        bhi = np.full(bins, -np.inf)
-        good = (bt >= 0) & np.isfinite(tr[:, c])
-        np.minimum.at(blo, bt[good], tr[good, c])
-        np.maximum.at(bhi, bt[good], tr[good, c])
-        # the row's bin and its two neighbours
-        nlo = np.minimum(blo, np.minimum(np.r_[np.inf, blo[:-1]], np.r_[blo[1:], np.inf]))
-        nhi = np.maximum(bhi, np.maximum(np.r_[-np.inf, bhi[:-1]], np.r_[bhi[1:], -np.inf]))
-        b = np.clip(bx, 0, bins - 1)
+    def contains(self, x: np.ndarray, widen: np.ndarray) -> np.ndarray:
+        """Rows of ``x`` inside, each signal widened by its noise (``widen``); NaN rows:
+        outside."""
+        xs = np.asarray(x, dtype=np.float64)
+        ok = in_domain(xs, self.lo, self.hi, widen)
+        if self.near_lo is None or self.near_hi is None or self.t_col is None or \
+                xs.shape[0] == 0:
+            return ok
+        b = np.clip(self._bin(xs[:, self.t_col], self.near_lo.shape[0]), 0, None)
         with np.errstate(invalid="ignore"):
-            ok &= (xs[:, c] >= nlo[b] - widen[c]) & (xs[:, c] <= nhi[b] + widen[c])
-    return ok
+            for i, c in enumerate(self.joint):
+                ok &= (xs[:, c] >= self.near_lo[b, i] - widen[c]) & \
+                      (xs[:, c] <= self.near_hi[b, i] + widen[c])
+        return ok
+
+
+def joint_domain(train: np.ndarray, x: np.ndarray, t_col: int | None, joint: Sequence[int],
+                 widen: np.ndarray, bins: int = JOINT_BINS) -> np.ndarray:
+    """Rows of ``x`` inside the trained domain *jointly with temperature*
+    (:class:`Envelope`): every signal in its trained range (:func:`in_domain`), and each
+    ``joint`` column inside what training saw near that temperature.  A cooling rate never
+    trained at that temperature is outside although the rate and the temperature each lie in
+    their own ranges.  NaN rows: outside."""
+    return Envelope.of(train, t_col, joint, bins).contains(x, widen)
 
 
 def window_labels(time_s: np.ndarray, window_s: float) -> np.ndarray:
@@ -579,10 +614,6 @@ def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(float(x)) else None
 
 
-#: The gate's per-fold test, by name (``Gate.rule``).
-RULES = {"worst-fold": lambda c, b: worst_fold_not_worse(c, b),
-         "every-fold": lambda c, b: beats_in_every_fold(c, b)}
-
 #: Folds a candidate must have been judged on (and beaten its reference on, each) to replace
 #: it: "better in every one of two folds" happens by chance one time in four.
 MIN_GATE_FOLDS = 3
@@ -606,8 +637,7 @@ def one_direction(directions: Sequence[int]) -> str:
     if not directions:
         return ("the training data hold no heating or cooling excursion (soaks only): a model "
                 "reading the rate, a lag or a hysteresis memory cannot be judged on one")
-    held = {1: "heating", -1: "cooling"}[directions[0]]
-    other = {1: "cooling", -1: "heating"}[directions[0]]
+    held, other = DIRECTION_NAMES[directions[0]], DIRECTION_NAMES[-directions[0]]
     return (f"the training data hold only {held}: a model reading the rate, a lag or a "
             f"hysteresis memory cannot be judged on {other}, so it does not ship over a static "
             "model")
@@ -944,7 +974,6 @@ class Gate:
     base_judged: np.ndarray
     fold_directions: list[set[int]] = field(default_factory=list)
     directional: set[str] = field(default_factory=set)
-    rule: str = "worst-fold"
 
     @staticmethod
     def of(pooled: _Pooled, masks: Mapping[str, list[bool]], baseline: str | None,
@@ -996,7 +1025,7 @@ class Gate:
                                  if j))
             if not need <= have:
                 return False
-        return RULES[self.rule](c, b)
+        return worst_fold_not_worse(c, b)
 
 
 def _gate_sums(pooled: _Pooled, y: np.ndarray, wl: np.ndarray, un: np.ndarray,

@@ -22,7 +22,7 @@ from ..features.target import CHANNEL, FOUR_POSITION, FOURPOS_SUFFIXES, Target, 
 from ..sim import simulate
 from ..sim.fourpos import four_position_estimates
 from .config import DataConfig
-from .splits import Split, make_splits
+from .splits import Split, make_splits, stacked_times
 
 __all__ = ["Split", "Part", "load_data", "make_splits", "build_part", "data_hash",
            "heating_only", "heating_keep", "rows_of", "join_parts", "fit_arrays", "rows_average_s", "FOURPOS_SUFFIXES",
@@ -247,13 +247,9 @@ def join_parts(parts: list[Part]) -> Part:
     :func:`thermonet.training.splits.stack_blocks` stacks held-out blocks)."""
     if len(parts) == 1:
         return parts[0]
-    times, offset = [], 0.0
-    for q in parts:
-        t = np.asarray(q.time_s, dtype=np.float64)
-        t = t - (t[0] if t.size else 0.0) + offset
-        times.append(t)
-        step = 1.0 / q.rate_hz if q.rate_hz and np.isfinite(q.rate_hz) else 1.0
-        offset = (float(t[-1]) if t.size else offset) + step
+    times = stacked_times([q.time_s for q in parts],
+                          [1.0 / q.rate_hz if q.rate_hz and np.isfinite(q.rate_hz) else 1.0
+                           for q in parts])
     first = parts[0]
 
     def cat(name: str) -> np.ndarray | None:

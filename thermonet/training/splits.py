@@ -27,7 +27,7 @@ temperatures it never trained on.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -40,7 +40,7 @@ if TYPE_CHECKING:
     from .config import SplitConfig
 
 __all__ = ["Split", "SplitStrategy", "SPLITS", "register_split", "make_splits",
-           "time_blocks", "block_roles", "stack_blocks"]
+           "time_blocks", "block_roles", "stack_blocks", "stacked_times"]
 
 
 @dataclass
@@ -231,6 +231,18 @@ def _time_blocks(runs: list[Recording], cfg: SplitConfig, source: str) -> list[S
                   whole=whole)]
 
 
+def stacked_times(times: Sequence[np.ndarray], steps: Sequence[float]) -> list[np.ndarray]:
+    """Times of held-out pieces judged as one: each shifted to start one of its sample
+    intervals (``steps``) after the piece before it ends, the first at 0."""
+    out, offset = [], 0.0
+    for t, step in zip(times, steps, strict=True):
+        t = np.asarray(t, dtype=np.float64)
+        t = t - (t[0] if t.size else 0.0) + offset
+        out.append(t)
+        offset = (float(t[-1]) if t.size else offset) + step
+    return out
+
+
 def stack_blocks(parts: list[Recording], run_id: str) -> Recording:
     """Several held-out blocks judged as one: samples concatenated in run order.
 
@@ -244,11 +256,7 @@ def stack_blocks(parts: list[Recording], run_id: str) -> Recording:
     if len(parts) == 1:
         return parts[0]
     first = parts[0]
-    times, offset = [], 0.0
-    for p in parts:
-        t = p.time_s - p.time_s[0] + offset
-        times.append(t)
-        offset = float(t[-1]) + 1.0 / p.effective_rate_hz
+    times = stacked_times([p.time_s for p in parts], [1.0 / p.effective_rate_hz for p in parts])
 
     def cat(group: str) -> dict[str, np.ndarray]:
         keys = getattr(first, group).keys()

@@ -24,8 +24,7 @@ from ..features.inputs import RATE, TEMPERATURE, dynamic_signal, resolve_gap_s, 
 from ..reporting.results import FamilyResult
 from ..scoring.selection import (
     CandidateOOF,
-    in_domain,
-    joint_domain,
+    Envelope,
     noise_widths,
     point_label,
     select,
@@ -304,26 +303,18 @@ def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
             oof.failed = f"cross-validation fold {f}: the fit failed ({type(err).__name__}: {err})"
             break
         oof.n_params = int(fitted.model.n_structural)
-        sig = np.vstack([x[0] for x in train])
+        # the fold's trained domain, the dynamic inputs jointly with temperature
+        env = Envelope.of(np.vstack([x[0] for x in train]), t_col, joint)
         preds, inside = [], []
         for j, q in enumerate(whole):
             rows = np.flatnonzero(plan.fold_of[j] == f)
             x = q.signals[rows]
             preds.append(predict(fitted.model, x, q.time_s[rows]) if rows.size
                          else np.zeros((0, len(p.outputs))))
-            # inside the fold's trained domain, the dynamic inputs jointly with temperature
-            inside.append(joint_domain(sig, x, t_col, joint, widen[j]) if t_col is not None
-                          else in_domain(x, *_ranges(sig), widen[j]))
-            inside[-1] &= np.isfinite(preds[-1]).all(axis=1)
+            inside.append(env.contains(x, widen[j]) & np.isfinite(preds[-1]).all(axis=1))
         oof.pred.append(preds)
         oof.inside.append(inside)
     return oof, whole
-
-
-def _ranges(sig: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per column, the finite minimum and maximum."""
-    with np.errstate(invalid="ignore"):
-        return np.nanmin(sig, axis=0), np.nanmax(sig, axis=0)
 
 
 def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any,
