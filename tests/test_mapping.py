@@ -206,23 +206,27 @@ def test_a_quoted_line_break_in_an_unmapped_column_is_read_as_csv(tmp_path, caps
 def test_a_bad_cell_after_multi_line_cells_names_its_own_file_line(tmp_path, chunk):
     """After quoted cells that span lines, a message still names the row and its physical
     file line (here 7 lines further down than the row number suggests)."""
-    from thermonet.workflows.info_chunked import summarize_parquet
-
     path, line_of = _noted_csv(tmp_path, bad_row=1500)
     mp = load_mapping(_yaml(tmp_path, NOTE_MAPPING))
     want = f"{path}, column 'gx', row 1500: non-numeric cell 'oops' (file line {line_of[1500]})"
     assert line_of[1500] == 1508
+    assert _refusal(path, mp, chunk) == want
+
+
+def _refusal(path, mp, chunk):
+    """The one line a mapped text file is refused with, read whole (``chunk`` None) or in
+    chunks of ``chunk`` rows (as ``info`` reads it)."""
+    from thermonet.workflows.info_chunked import summarize_parquet
+
     with pytest.raises(InputError) as err:
         if chunk is None:
             read_dataset(path, mp)
         else:
             summarize_parquet(path, chunk_rows=chunk, mapping=mp)
-    assert str(err.value) == want
+    return str(err.value)
 
 
 def test_a_quoted_cell_left_open_to_the_end_is_one_line(tmp_path):
-    from thermonet.workflows.info_chunked import summarize_parquet
-
     """A quote that never closes would swallow the rest of the file into one cell: refused
     in one line naming the file line it opens on (not a traceback, not rows lost)."""
     path, _ = _noted_csv(tmp_path, n=30)
@@ -233,9 +237,4 @@ def test_a_quoted_cell_left_open_to_the_end_is_one_line(tmp_path):
     want = (f"{path}: file line 11: a quoted cell opens on this line and never closes (a '\"' "
             "is missing; it would swallow the 21 lines after it)")
     for chunk in (None, 5, 11, 100):
-        with pytest.raises(InputError) as err:
-            if chunk is None:
-                read_dataset(path, mp)
-            else:
-                summarize_parquet(path, chunk_rows=chunk, mapping=mp)
-        assert str(err.value) == want
+        assert _refusal(path, mp, chunk) == want

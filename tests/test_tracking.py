@@ -266,17 +266,11 @@ def test_a_tracking_uri_that_is_a_file_says_so_in_one_line(tmp_path, capsys, mon
         assert not (tmp_path / "o").exists() and not list(tmp_path.glob(".o*"))
     # fleet (before any unit is fitted) and export from a run id say the same
     capsys.readouterr()
-    assert main(["fleet", str(cfg), "--units", "2", "--out", "f", "--tracking-uri",
-                 "store.txt"]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["thermonet: error: MLflow tracking (store.txt): store.txt is a file, not a "
-                   "tracking store (a SQLite store is sqlite:///PATH, a server "
-                   "http://HOST:PORT)"]
-    assert not (tmp_path / "f").exists()
-    assert main(["export", "0" * 32, "--format", "c", "--out", "m.h", "--tracking-uri",
-                 "store.txt"]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["thermonet: error: MLflow tracking (store.txt): store.txt is a file, not a "
-                   "tracking store (a SQLite store is sqlite:///PATH, a server "
-                   "http://HOST:PORT)"]
-    assert not (tmp_path / "m.h").exists()
+    for args, out in ((["fleet", str(cfg), "--units", "2", "--out", "f"], "f"),
+                      (["export", "0" * 32, "--format", "c", "--out", "m.h"], "m.h")):
+        assert main([*args, "--tracking-uri", "store.txt"]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == ["thermonet: error: MLflow tracking (store.txt): store.txt is a file, "
+                       "not a tracking store (a SQLite store is sqlite:///PATH, a server "
+                       "http://HOST:PORT)"]
+        assert not (tmp_path / out).exists()
