@@ -3,6 +3,7 @@ autopilots' own tools (pyulog, pymavlink), undoing an applied calibration, bad l
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -148,6 +149,38 @@ def test_simulated_dataflash_read_back_by_pymavlink(tmp_path: Path) -> None:
     assert np.allclose(a[:, 1], -9.80665, atol=0.5)
     assert np.allclose(a[:, 2], np.round(a[:, 2]))                    # the whole-degree IMU
     assert len(baro) == g2.n_samples
+
+
+def test_board_id_from_the_real_logs_and_every_simulated_board_its_own(tmp_path: Path) -> None:
+    """The board's own id (two boards of one model share the sensors' device ids): PX4's
+    ``sys_uuid`` info field, ArduPilot's system-id MSG line, read independently with pyulog /
+    pymavlink; the simulator draws one per seed (the same for every run) and writes it where
+    the firmware does, so it survives the round trip."""
+    assert read_log(ULG).board_id == ULog(str(ULG), []).msg_info_dict["sys_uuid"] \
+        == "000600000000383638393239510d0035002d"
+    f = DFReader.DFReader_binary(str(BIN))
+    lines = []
+    while (m := f.recv_match(type="MSG")) is not None:
+        lines.append(m.Message)
+    assert read_log(BIN).board_id == "PX4v4 00360029 30365103 31323731" == lines[2]
+    for ap, ext in (("px4", ".ulg"), ("ardupilot", ".bin")):
+        logs = {(seed, run): simulate_board("fc-board", autopilot=ap, seed=seed, rate_hz=0.02,
+                                            run=run) for seed, run in ((0, 0), (0, 1), (1, 0))}
+        back = {k: read_log(write_log(b, tmp_path / f"s{k[0]}r{k[1]}{ext}"))
+                for k, b in logs.items()}
+        for k, b in logs.items():
+            assert b.board_id and back[k].board_id == b.board_id
+        assert back[0, 1].board_id == back[0, 0].board_id               # one board, two runs
+        assert back[1, 0].board_id != back[0, 0].board_id               # two boards ...
+        assert [i.device_id for i in back[1, 0].instances] == [         # ... of one model
+            i.device_id for i in back[0, 0].instances]
+    # where the firmware writes it, as the autopilots' own tools read it
+    px4 = simulate_board("fc-board", autopilot="px4", seed=1, rate_hz=0.02)
+    assert ULog(str(tmp_path / "s1r0.ulg"), []).msg_info_dict["sys_uuid"] == px4.board_id
+    assert len(px4.board_id or "") == 36                     # 18 bytes in hex, as PX4's
+    msg = DFReader.DFReader_binary(str(tmp_path / "s1r0.bin")).recv_match(type="MSG")
+    assert msg.Message == logs[1, 0].board_id
+    assert re.fullmatch(r"\S+( [0-9A-F]{8}){3}", msg.Message)   # ChibiOS's get_system_id
 
 
 def test_ardupilot_applied_calibration_is_undone(tmp_path: Path) -> None:

@@ -191,6 +191,30 @@ def test_logs_of_two_boards_and_foreign_files_refused_in_one_line(
         assert not (tmp_path / "v").exists()
 
 
+@pytest.mark.parametrize("ext", [".ulg", ".bin"])
+def test_logs_of_two_boards_of_one_model_refused_by_their_board_ids(
+        runs: dict[str, list[Path]], tmp_path: Path, ext: str,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Two boards of one model log the same sensors' device ids: the board's own id (PX4's
+    sys_uuid, ArduPilot's system-id line) tells them apart; calibrate refuses them in one
+    line naming both logs and both ids, before anything is written."""
+    ap = "px4" if ext == ".ulg" else "ardupilot"
+    other = simulate_board("fc-board", autopilot=ap, seed=4, run=1)   # another board, one model
+    other_path = write_log(other, tmp_path / f"other{ext}")
+    first = runs[ext][0]
+    mine, theirs = read_log(first), read_log(other_path)
+    assert [(i.name, i.device_id) for i in mine.instances] == [
+        (i.name, i.device_id) for i in theirs.instances]
+    assert mine.board_id and theirs.board_id and mine.board_id != theirs.board_id
+    assert main(["calibrate", str(first), str(other_path), "--out", str(tmp_path / "c"),
+                 "--no-compare"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "not the same board" in err, err
+    assert str(first) in err and str(other_path) in err
+    assert mine.board_id in err and theirs.board_id in err
+    assert not (tmp_path / "c").exists()
+
+
 def test_log_outside_the_calibrated_range_warns_per_instance(runs: dict[str, list[Path]],
                                                              tmp_path: Path) -> None:
     from thermonet.workflows.calibrate import calibrate

@@ -44,6 +44,11 @@ draw per run) and its own noise from ``(seed, run)``.  A later run can therefore
 start below or end above the range of an earlier one (a verification then warns
 that the firmware clamps there).
 
+Every board has its own id (``FlightLog.board_id``, :func:`board_id`), drawn from ``seed``
+alone and written where the firmware writes it: a 12-byte MCU unique id, as PX4's
+``sys_uuid`` info field or ArduPilot's system-id ``MSG`` line.  Two seeds are two boards of
+one model: the same sensor device ids, two board ids.
+
 Units as the autopilots log them: rad/s, m/s² (gravity on −z, board level),
 Pa.  The simulated drift (``SensorInstance.truth``) travels with the instances
 so tests can judge a calibration against the truth.
@@ -60,7 +65,7 @@ from ..core.errors import InputError
 from ..data.logs.base import FlightLog, SensorInstance
 
 __all__ = ["BOARD_PRESETS", "MAX_BOARD_RUNS", "simulate_board", "board_params",
-           "EARTH_FIELD_UT", "MAG_LAG_S", "MAG_IDS", "first_order_lag"]
+           "EARTH_FIELD_UT", "MAG_LAG_S", "MAG_IDS", "first_order_lag", "board_id"]
 
 BOARD_PRESETS = ("fc-board", "fc-board-cycle")
 #: Most logs ``simulate fc-board --runs N`` writes (one file per warm-up).
@@ -155,6 +160,22 @@ def _magnetometers(t: np.ndarray, board: np.ndarray, seed: int, run: int
     return out
 
 
+#: The simulated board's short name in ArduPilot's system-id line.
+BOARD_NAME = "SimFCBoard"
+
+
+def board_id(seed: int, autopilot: str) -> str:
+    """The board's own id as the autopilot logs it: a 12-byte MCU unique id drawn from
+    ``[seed, 52]`` (the same for every run of the board), as PX4's ``sys_uuid`` (hex, after
+    the STM32 GUID's ``000600000000`` prefix) or ArduPilot's ``Util::get_system_id`` line
+    (the board's name and three words, each word's bytes high to low)."""
+    uid = np.random.default_rng([seed, 52]).integers(0, 256, 12).astype(np.uint8).tobytes()
+    if autopilot == "px4":
+        return "000600000000" + uid.hex()
+    words = " ".join(uid[4 * k:4 * k + 4][::-1].hex().upper() for k in range(3))
+    return f"{BOARD_NAME} {words}"
+
+
 def board_params(autopilot: str) -> dict[str, float]:
     """The parameters the autopilot would log for this procedure (calibration off)."""
     if autopilot == "px4":
@@ -238,4 +259,5 @@ def simulate_board(preset: str = "fc-board", *, autopilot: str = "px4", seed: in
     instances += _magnetometers(t, board, seed, run)
     return FlightLog(path=Path(path), autopilot=autopilot, instances=instances,
                      params=board_params(autopilot),
-                     notes=[f"simulated {preset}, seed {seed}, run {run}"])
+                     notes=[f"simulated {preset}, seed {seed}, run {run}"],
+                     board_id=board_id(seed, autopilot))

@@ -49,8 +49,9 @@ For every sensor instance of PX4 ULogs or ArduPilot DataFlash logs of one board:
    correction at its edge: :func:`_beyond_range`), ``marginal`` (passes, not by that
    margin; the reason is reported) or ``fails``.  An instance whose held-out drift is
    not cut at all is left out.  Several logs (the same board: every log must have the
-   same device ids, else refused naming both logs' ids; the same bytes twice — equal
-   SHA-256 — refused in one line): the held-out data are the last log, and the exported
+   same device ids and, where the logs hold one, the same board id — PX4's ``sys_uuid``,
+   ArduPilot's system-id line — else refused naming both logs' ids; the same bytes twice
+   — equal SHA-256 — refused in one line): the held-out data are the last log, and the exported
    files are then refitted on all the logs (the report says so); the logs are joined in
    the order given (time restarted after each), so the comparison's time blocks stay
    contiguous within a log.  One log: a quarter of it in time blocks
@@ -184,7 +185,8 @@ def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
     """Several logs of one board as one: the instances joined in the order given (time
     restarted after a gap, :func:`_join_gap`, past the previous log's end; each log's first
     sample recorded in ``starts``).  Refuses logs of another autopilot or
-    board (different instances or device ids), naming both logs' ids."""
+    board (different instances or device ids; or, where both logs hold the board's own id,
+    ``FlightLog.board_id``, different ones), naming both logs' ids."""
     first = logs[0]
     for log in logs[1:]:
         if log.autopilot != first.autopilot:
@@ -195,6 +197,11 @@ def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
                 return ", ".join(f"{n} {d}" for n, d in _board_ids(lg))
             raise InputError(f"{log.path}: not the same board as {first.path} (device ids "
                              f"{ids(log)} vs {ids(first)})")
+        if log.board_id and first.board_id and log.board_id != first.board_id:
+            raise InputError(f"{log.path}: not the same board as {first.path} (board id "
+                             f"{log.board_id!r} vs {first.board_id!r}: two boards of one model, "
+                             "with the same sensors' device ids); calibrate each board's logs "
+                             "on their own")
     if len(logs) == 1:
         return first
     instances = []
@@ -227,7 +234,8 @@ def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
     return FlightLog(path=first.path, autopilot=first.autopilot, instances=instances,
                      params=dict(logs[-1].params),
                      notes=[f"{lg.path.name}: {n}" for lg in logs for n in lg.notes],
-                     damage=[f"{lg.path.name}: {d}" for lg in logs for d in lg.damage])
+                     damage=[f"{lg.path.name}: {d}" for lg in logs for d in lg.damage],
+                     board_id=next((lg.board_id for lg in logs if lg.board_id), None))
 
 
 def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, *,
@@ -377,7 +385,7 @@ def _lend_and_lag(logs: list[FlightLog], choice: Mapping[str, str] | None
                                         "the whole log, its held-out blocks included")}
         logs = [FlightLog(lg.path, lg.autopilot, [with_lag(i, tau) if i.name == name else i
                                                   for i in lg.instances], lg.params,
-                          lg.notes, lg.damage, lg.unread_fraction) for lg in logs]
+                          lg.notes, lg.damage, lg.unread_fraction, lg.board_id) for lg in logs]
     return logs, info
 
 
@@ -451,8 +459,8 @@ def held_out_blocks(log: FlightLog) -> tuple[FlightLog, FlightLog]:
                 damaged=inst.damaged, untrusted=inst.untrusted, thermometer=inst.thermometer,
                 lag_s=inst.lag_s,
                 unlagged_c=None if inst.unlagged_c is None else inst.unlagged_c[keep]))
-    return (FlightLog(log.path, log.autopilot, train, dict(log.params)),
-            FlightLog(log.path, log.autopilot, test, dict(log.params)))
+    return (FlightLog(log.path, log.autopilot, train, dict(log.params), board_id=log.board_id),
+            FlightLog(log.path, log.autopilot, test, dict(log.params), board_id=log.board_id))
 
 
 def _beyond_range(pf: ParamFile, r: InstanceResult, slot: int, before: list[float],
@@ -746,7 +754,7 @@ def _results_doc(logs: list[FlightLog], results: list[InstanceResult], param_pat
             "logs": [str(lg.path) for lg in logs],
             "logs_sha256": [sha256_file(lg.path) for lg in logs],
             "held_out_log": str(logs[-1].path) if len(logs) > 1 else None,
-            "autopilot": log.autopilot, "params_file": str(param_path),
+            "autopilot": log.autopilot, "board_id": log.board_id, "params_file": str(param_path),
             "log_notes": [n for lg in logs for n in lg.notes],
             "log_damage": [d for lg in logs for d in lg.damage],
             "instances": inst_doc}

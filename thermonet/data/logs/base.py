@@ -339,6 +339,12 @@ class FlightLog:
     damage: list[str] = field(default_factory=list)
     #: Fraction of the file's bytes that could not be read as messages (0 for a sound log).
     unread_fraction: float = 0.0
+    #: The board's own id where the log holds one (None: it does not), told apart from the
+    #: sensors' device ids, which two boards of one model share: PX4's ``sys_uuid`` info
+    #: field (the MCU's unique id, hex); ArduPilot's system-id ``MSG`` line
+    #: (``Util::get_system_id``: the board's short name and its MCU's unique id in three
+    #: eight-digit hex words, ``CubeOrange 00340036 3137510B 33393538``).
+    board_id: str | None = None
 
     def check(self) -> FlightLog:
         """Refuse a log with no usable sensor data: one line naming the file and what is missing.

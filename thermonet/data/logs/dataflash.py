@@ -10,7 +10,9 @@ is used for an IMU that has no ``IMU`` messages, as ``tempcal_IMU.py --tclr``
 does; it is logged before any temperature correction, so nothing is undone.
 Units as logged: gyro rad/s, accel m/s², pressure Pa.  Device ids from
 ``INS_GYR_ID`` / ``INS_GYR2_ID`` / ``INS_GYR3_ID`` (``INS_ACC*_ID``, ``BARO*_DEVID``,
-``COMPASS_DEV_ID`` / ``COMPASS_DEV_ID2`` / ``COMPASS_DEV_ID3``).
+``COMPASS_DEV_ID`` / ``COMPASS_DEV_ID2`` / ``COMPASS_DEV_ID3``).  The board's own id
+(``FlightLog.board_id``, which two boards of one model do not share) from the system-id
+``MSG`` line every log starts with (:data:`SYSTEM_ID`).
 
 Magnetometers (``libraries/AP_Compass/AP_Compass.cpp``, ``Compass::Log_Write``):
 ``MAG`` (``I`` field) or ``MAG``/``MAG2``/``MAG3``, ``MagX..Z`` in milligauss (the
@@ -61,7 +63,8 @@ from .base import (
     time_gaps,
 )
 
-__all__ = ["read_dataflash", "ardupilot_tcal_correction", "orientation_matrix"]
+__all__ = ["read_dataflash", "ardupilot_tcal_correction", "orientation_matrix", "system_id",
+           "SYSTEM_ID"]
 
 _IMU_NAMES = {"IMU": 0, "IMU2": 1, "IMU3": 2}
 _BARO_NAMES = {"BARO": 0, "BAR2": 1, "BAR3": 2}
@@ -226,7 +229,21 @@ def read_dataflash(path: str | Path) -> FlightLog:
         raise InputError.at(path, "no INS_* parameters: " + (
             f"damaged ({'; '.join(damage)})" if damage else "not an ArduPilot log"))
     return FlightLog(path=path, autopilot="ardupilot", instances=instances, params=got.params,
-                     notes=time_gaps(instances), damage=damage, unread_fraction=unread).check()
+                     notes=time_gaps(instances), damage=damage, unread_fraction=unread,
+                     board_id=got.board_id).check()
+
+
+#: ArduPilot's system-id line (``Util::get_system_id``, logged as a ``MSG`` at the start of
+#: every log by ``LoggerMessageWriter_WriteSysInfo``): the board's short name, then its MCU's
+#: 12-byte unique id in three eight-digit hex words.
+SYSTEM_ID = re.compile(r"^\s*(\S+) ([0-9A-Fa-f]{8}) ([0-9A-Fa-f]{8}) ([0-9A-Fa-f]{8})\s*$")
+
+
+def system_id(message: str) -> str | None:
+    """The board's own id (name and unique id, as logged) where ``message`` is ArduPilot's
+    system-id line, else None."""
+    m = SYSTEM_ID.match(message.replace("\x00", ""))
+    return " ".join(m.groups()) if m else None
 
 
 @dataclass
@@ -238,14 +255,16 @@ class _Messages:
     tclr: dict[tuple[str, int], list[list[float]]] = field(default_factory=dict)
     params: dict[str, float] = field(default_factory=dict)
     skipped: int = 0
+    board_id: str | None = None
 
 
 def _read_messages(path: Path, reader: Any, sequential: bool, chatter: io.StringIO
                    ) -> _Messages:
-    """Every PARM, TCLR, IMU, BARO and MAG message, in log order (a corrupt message that
-    stops the reader is an :class:`InputError` naming its byte)."""
+    """Every PARM, TCLR, IMU, BARO and MAG message, in log order, and the first system-id
+    MSG line (a corrupt message that stops the reader is an :class:`InputError` naming its
+    byte)."""
     got = _Messages()
-    types = ["PARM", "TCLR"] + list(_IMU_NAMES) + list(_BARO_NAMES) + list(_MAG_NAMES)
+    types = ["PARM", "TCLR", "MSG"] + list(_IMU_NAMES) + list(_BARO_NAMES) + list(_MAG_NAMES)
     messages = _messages(reader, types, sequential, chatter)
     while True:
         try:
@@ -260,6 +279,9 @@ def _read_messages(path: Path, reader: Any, sequential: bool, chatter: io.String
         try:
             if mtype == "PARM":
                 got.params[str(m.Name)] = float(m.Value)
+                continue
+            if mtype == "MSG":
+                got.board_id = got.board_id or system_id(str(m.Message))
                 continue
             d = m.to_dict()
             _ = [float(d[k]) for k in ("TimeUS", "I") if k in d]

@@ -19,7 +19,8 @@ def summarize_log(path: str | Path) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``log``, ``autopilot``, ``instances`` (list of dicts: ``name``, ``kind``,
+        ``log``, ``autopilot``, ``board_id`` (the board's own id, None where the log
+        holds none), ``instances`` (list of dicts: ``name``, ``kind``,
         ``device_id``, ``samples``, ``duration_s``, ``rate_hz``, ``temperature_min_c``
         / ``temperature_max_c`` / ``temperature_step_c`` (None without a
         thermometer), ``unit``, ``notes``), ``params`` (the thermal-calibration
@@ -43,7 +44,8 @@ def summarize_log(path: str | Path) -> dict[str, Any]:
             "damaged_samples": inst.damaged, "untrusted": inst.untrusted})
     keep = ("TC_", "SYS_CAL_", "INS_TCAL", "AHRS_ORIENTATION")
     params = {k: v for k, v in sorted(log.params.items()) if k.startswith(keep)}
-    return {"log": str(log.path), "autopilot": log.autopilot, "instances": rows,
+    return {"log": str(log.path), "autopilot": log.autopilot, "board_id": log.board_id,
+            "instances": rows,
             "params": params, "log_notes": list(log.notes), "damage": list(log.damage)}
 
 
@@ -60,7 +62,8 @@ def format_log_summary(s: dict[str, Any]) -> str:
         rows.append([r["name"], str(r["device_id"]), str(r["samples"]), rate, span, step,
                      r["unit"]])
     widths = [max(len(h), *(len(x[i]) for x in rows)) for i, h in enumerate(head)]
-    out = [f"{s['log']}: {s['autopilot']} log, {len(rows)} sensor instances", ""]
+    board = f", board {s['board_id']}" if s.get("board_id") else ""
+    out = [f"{s['log']}: {s['autopilot']} log{board}, {len(rows)} sensor instances", ""]
     out += ["  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)).rstrip()
             for line in [head, ["-" * w for w in widths]] + rows]
     notes = list(s.get("log_notes", [])) + [f"{r['name']}: {n}" for r in s["instances"]

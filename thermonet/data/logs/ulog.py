@@ -4,7 +4,8 @@ Every ``sensor_gyro``, ``sensor_accel``, ``sensor_baro`` and ``sensor_mag``
 multi-instance becomes a :class:`~thermonet.data.logs.base.SensorInstance` with its
 ``device_id`` (the median over the log, as PX4's ``Tools/process_sensor_caldata.py``
 takes it) and its own ``temperature`` field.  Parameters come from the log's
-initial parameters (``ULog.initial_parameters``).
+initial parameters (``ULog.initial_parameters``); the board's own id from the info field
+``sys_uuid`` (``FlightLog.board_id``).
 
 Units.  ``sensor_gyro`` x/y/z are rad/s and ``sensor_accel`` m/s² (kept).
 ``sensor_baro.pressure`` is Pa in current PX4 (``msg/SensorBaro.msg``: "static
@@ -231,4 +232,13 @@ def read_ulog(path: str | Path) -> FlightLog:
     instances, phantoms = drop_phantoms(instances, "px4")
     return FlightLog(path=path, autopilot="px4", instances=instances, params=params,
                      notes=time_gaps(instances), damage=damage + phantoms,
-                     unread_fraction=unread).check()
+                     unread_fraction=unread, board_id=_board_id(ulog)).check()
+
+
+def _board_id(ulog: Any) -> str | None:
+    """The board's own id: the logger's ``sys_uuid`` info field (the MCU's unique id, as
+    ``board_get_px4_guid_formated`` writes it), or None where the log has none."""
+    value = getattr(ulog, "msg_info_dict", {}).get("sys_uuid")
+    text = value.decode("ascii", "replace") if isinstance(value, bytes) else str(value or "")
+    text = "".join(c for c in text if c.isprintable()).strip()[:80]  # damage: no control bytes
+    return text or None

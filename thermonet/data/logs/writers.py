@@ -7,9 +7,9 @@ tools (pyulog, pymavlink) — as real logs.
 ULog (PX4 ``docs``: "ULog File Format"): the 16-byte header (``ULog`` magic
 ``55 4c 6f 67 01 12 35``, version 1, start timestamp µs), a flag-bits
 message ``B``, format messages ``F`` (``sensor_gyro:uint64_t timestamp;...``),
-an info message ``I`` (``sys_name``), parameters ``P`` (``int32_t`` / ``float``),
-subscriptions ``A`` (multi id, msg id, topic) and data ``D``.  Fields as in
-PX4's ``msg/SensorGyro.msg`` / ``SensorAccel.msg`` / ``SensorBaro.msg`` /
+info messages ``I`` (``sys_name``; ``sys_uuid``, the board's own id), parameters
+``P`` (``int32_t`` / ``float``), subscriptions ``A`` (multi id, msg id, topic) and data
+``D``.  Fields as in PX4's ``msg/SensorGyro.msg`` / ``SensorAccel.msg`` / ``SensorBaro.msg`` /
 ``SensorMag.msg`` (``timestamp``, ``timestamp_sample``, ``device_id``, values,
 ``temperature``; the magnetometer's ``error_count`` and ``is_external`` too); pressure
 in Pa, the field in gauss (NaN temperature for a magnetometer without a thermometer),
@@ -21,7 +21,8 @@ columns), then the ``PARM`` (``QNf``), ``IMU`` (``QBfffffff``: TimeUS, I, GyrX,
 GyrY, GyrZ, AccX, AccY, AccZ, T — the multi-instance form with an ``I`` field)
 and ``BARO`` (``QBff``: TimeUS, I, Press, Temp) formats, packed little-endian; a log
 with magnetometers also ``MAG`` (``QBhhhhhhhhhBI``: TimeUS, I, MagX..Z, OfsX..Z, MOX..Z
-in milligauss, Health, S — ``AP_Compass``'s own layout; offsets written as zero).
+in milligauss, Health, S — ``AP_Compass``'s own layout; offsets written as zero); a log
+with a board id also ``MSG`` (``QZ``: TimeUS, Message), its system-id line.
 """
 
 from __future__ import annotations
@@ -68,6 +69,10 @@ def _ulog_bytes(log: FlightLog) -> bytes:
         out += _umsg(b"F", f"{topic}:{fields}".encode())
     key = b"char[6] sys_name"
     out += _umsg(b"I", bytes([len(key)]) + key + b"PX4sim")
+    if log.board_id:     # where PX4's logger writes the board's own id
+        uuid = log.board_id.encode()
+        key = f"char[{len(uuid)}] sys_uuid".encode()
+        out += _umsg(b"I", bytes([len(key)]) + key + uuid)
     for name, value in sorted(log.params.items()):
         if _is_int_param(name):
             k = f"int32_t {name}".encode()
@@ -107,16 +112,20 @@ def _dataflash_bytes(log: FlightLog) -> bytes:
             66: ("BARO", "QBff", "TimeUS,I,Press,Temp")}
     sizes = {"FMT": struct.calcsize("<BB4s16s64s"), "PARM": struct.calcsize("<Q16sf"),
              "IMU": struct.calcsize("<QB7f"), "BARO": struct.calcsize("<QBff"),
-             "MAG": struct.calcsize("<QB9hBI")}
+             "MAG": struct.calcsize("<QB9hBI"), "MSG": struct.calcsize("<Q64s")}
     if any(i.kind == "mag" for i in log.instances):
         defs[67] = ("MAG", "QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,"
                     "Health,S")
+    if log.board_id:
+        defs[91] = ("MSG", "QZ", "TimeUS,Message")
     out = bytearray()
     for mtype, (name, fmt, cols) in sorted(defs.items(), key=lambda d: d[0] != 128):
         out += _df(128, struct.pack("<BB4s16s64s", mtype, sizes[name] + 3, name.encode(),
                                     fmt.encode(), cols.encode()))
     for name, value in sorted(log.params.items()):
         out += _df(64, struct.pack("<Q16sf", 0, name.encode()[:16], float(value)))
+    if log.board_id:     # the system-id line ArduPilot writes at the start of every log
+        out += _df(91, struct.pack("<Q64s", 0, log.board_id.encode()[:64]))
     records: list[tuple[int, int, bytes]] = []
     imus: dict[int, dict[str, SensorInstance]] = {}
     for inst in log.instances:
