@@ -1,0 +1,236 @@
+"""Write a flight: its sensors *and* its estimator's biases, as PX4 ULog or ArduPilot DataFlash.
+
+The simulator of flights (:mod:`thermonet.sim.flights`) writes through here so that
+``thermonet learn`` reads simulated flights with the same readers — and the autopilots' own
+tools, pyulog and pymavlink — as real ones.  (:mod:`thermonet.data.logs.writers` writes the
+sensor topics of a chamber log; this module adds the estimator's topics, so it writes every
+topic itself: a ULog's formats must all precede its data.)
+
+ULog: ``sensor_gyro`` / ``sensor_accel`` as :mod:`~thermonet.data.logs.writers` writes them,
+and ``estimator_sensor_bias`` per estimator instance in PX4's current form
+(``msg/EstimatorSensorBias.msg``: ``gyro_device_id``, ``float[3] gyro_bias``,
+``gyro_bias_limit``, ``float[3] gyro_bias_variance``, ``bool gyro_bias_valid``,
+``gyro_bias_stable``, the same for the accelerometer) or — ``old_firmware`` — the older form
+of the real fixture (device ids and biases only, with ``mag_*`` as it had).
+
+DataFlash: ``PARM``, ``IMU`` (``QBfffffff``) and, per EKF3 core ``C``, ``XKF1``
+(``QBccCfffffffccce``: TimeUS, C, Roll, Pitch, Yaw, VN, VE, VD, dPD, PN, PE, PD, GX, GY, GZ,
+OH; the gyro bias in centi-degrees per second as int16, as ``NavEKF3_core::Log_Write_XKF1``)
+and ``XKF2`` (``QBccccchhhhhhhhh``: TimeUS, C, AX, AY, AZ, VWN, VWE, MN, ME, MD, MX, MY, MZ,
+IDX, IDY, IS; the accelerometer bias in centi-m/s² as int16).  Fields the simulator does not
+model are written as zero.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ...core.errors import InputError
+from ...core.fileio import atomic_path
+from .base import FlightLog, SensorInstance
+
+__all__ = ["EstimatorBias", "write_flight"]
+
+_ULOG_MAGIC = b"ULog\x01\x12\x35"
+_CTYPES = {"uint64_t": "Q", "uint32_t": "I", "int32_t": "i", "float": "f", "bool": "?",
+           "uint8_t": "B", "int16_t": "h", "uint16_t": "H"}
+_INT_PARAMS = ("_ID", "_ENABLE", "SDLOG_", "_DEVID", "ORIENTATION", "_OPTIONS", "_ROT",
+               "_MASK", "_PRIME", "_EN")
+
+
+@dataclass
+class EstimatorBias:
+    """What one estimator instance (PX4 EKF2 instance, ArduPilot EKF3 core) logged: its
+    biases in the body frame (rad/s, m/s²), with variances and validity (None: not logged)."""
+
+    estimator: int
+    gyro_device_id: int
+    accel_device_id: int
+    time_s: np.ndarray
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    gyro_variance: np.ndarray | None = None
+    accel_variance: np.ndarray | None = None
+    gyro_valid: np.ndarray | None = None
+    accel_valid: np.ndarray | None = None
+
+
+def _umsg(mtype: bytes, payload: bytes) -> bytes:
+    return struct.pack("<HB", len(payload), mtype[0]) + payload
+
+
+def _struct(fields: str) -> str:
+    """The struct format of a ULog field list (``uint64_t timestamp;float[3] x;``)."""
+    out = "<"
+    for decl in filter(None, fields.split(";")):
+        ctype, _ = decl.split(" ")
+        m = re.fullmatch(r"(\w+)(?:\[(\d+)\])?", ctype)
+        assert m is not None
+        out += (m.group(2) or "") + _CTYPES[m.group(1)]
+    return out
+
+
+def _bias_fields(old: bool) -> str:
+    if old:
+        return "".join(f"uint32_t {k}_device_id;float[3] {k}_bias;"
+                       for k in ("gyro", "accel", "mag"))
+    return "uint64_t timestamp_sample;" + "".join(
+        f"uint32_t {k}_device_id;float[3] {k}_bias;float {k}_bias_limit;"
+        f"float[3] {k}_bias_variance;bool {k}_bias_valid;bool {k}_bias_stable;"
+        for k in ("gyro", "accel", "mag"))
+
+
+def _bias_rows(b: EstimatorBias, old: bool) -> list[tuple[int, tuple[float | int | bool, ...]]]:
+    """(µs, field values after the timestamp) per sample of one estimator's biases."""
+    n = b.time_s.size
+    us = np.round(b.time_s * 1e6).astype(np.int64)
+    gv = b.gyro_variance if b.gyro_variance is not None else np.full((n, 3), 1e-8)
+    av = b.accel_variance if b.accel_variance is not None else np.full((n, 3), 1e-4)
+    gok = b.gyro_valid if b.gyro_valid is not None else np.ones(n, dtype=bool)
+    aok = b.accel_valid if b.accel_valid is not None else np.ones(n, dtype=bool)
+    rows = []
+    for i in range(n):
+        g, a = [float(v) for v in b.gyro_bias[i]], [float(v) for v in b.accel_bias[i]]
+        if old:
+            vals: tuple[float | int | bool, ...] = (b.gyro_device_id, *g, b.accel_device_id,
+                                                    *a, 0, 0.0, 0.0, 0.0)
+        else:
+            vals = (int(us[i]), b.gyro_device_id, *g, 0.4, *[float(v) for v in gv[i]],
+                    bool(gok[i]), bool(gok[i]), b.accel_device_id, *a, 0.4,
+                    *[float(v) for v in av[i]], bool(aok[i]), bool(aok[i]),
+                    0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, False)
+        rows.append((int(us[i]), vals))
+    return rows
+
+
+def _sensor_rows(inst: SensorInstance) -> list[tuple[int, tuple[float | int | bool, ...]]]:
+    us = np.round(inst.time_s * 1e6).astype(np.int64)
+    temp = np.asarray(inst.temperature_c if inst.temperature_c is not None
+                      else np.full(inst.n_samples, np.nan), dtype=np.float64)
+    return [(int(us[i]), (int(us[i]), int(us[i]), inst.device_id, *[float(v) for v in inst.values[i]],
+                          float(temp[i]))) for i in range(inst.n_samples)]
+
+
+def _param_bytes(params: dict[str, float]) -> bytes:
+    out = bytearray()
+    for name, value in sorted(params.items()):
+        if any(tag in name for tag in _INT_PARAMS) and float(value).is_integer():
+            k = f"int32_t {name}".encode()
+            out += _umsg(b"P", bytes([len(k)]) + k + struct.pack("<i", int(value)))
+        else:
+            k = f"float {name}".encode()
+            out += _umsg(b"P", bytes([len(k)]) + k + struct.pack("<f", float(value)))
+    return bytes(out)
+
+
+def _ulog_bytes(log: FlightLog, biases: list[EstimatorBias], old: bool) -> bytes:
+    out = bytearray(_ULOG_MAGIC + bytes([1]) + struct.pack("<Q", 0))
+    out += _umsg(b"B", bytes(16) + struct.pack("<QQQ", 0, 0, 0))
+    sensor = ("uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float x;"
+              "float y;float z;float temperature;")
+    formats = {"sensor_gyro": sensor, "sensor_accel": sensor,
+               "estimator_sensor_bias": "uint64_t timestamp;" + _bias_fields(old)}
+    for topic, fields in formats.items():
+        out += _umsg(b"F", f"{topic}:{fields}".encode())
+    key = b"char[6] sys_name"
+    out += _umsg(b"I", bytes([len(key)]) + key + b"PX4sim")
+    out += _param_bytes(log.params)
+    streams: list[tuple[str, int, list[tuple[int, tuple[float | int | bool, ...]]]]] = []
+    for inst in log.instances:
+        if inst.kind in ("gyro", "acc"):
+            streams.append(("sensor_gyro" if inst.kind == "gyro" else "sensor_accel",
+                            inst.instance, _sensor_rows(inst)))
+    streams += [("estimator_sensor_bias", b.estimator, _bias_rows(b, old)) for b in biases]
+    records: list[tuple[int, int, bytes]] = []
+    for msg_id, (topic, multi, rows) in enumerate(streams):
+        out += _umsg(b"A", struct.pack("<BH", multi, msg_id) + topic.encode())
+        fmt = _struct(formats[topic])
+        for us, vals in rows:
+            body = struct.pack(fmt, us, *vals) if topic == "estimator_sensor_bias" else \
+                struct.pack(fmt, *vals)
+            records.append((us, msg_id, _umsg(b"D", struct.pack("<H", msg_id) + body)))
+    records.sort(key=lambda r: (r[0], r[1]))
+    out += b"".join(r[2] for r in records)
+    return bytes(out)
+
+
+def _df(mtype: int, payload: bytes) -> bytes:
+    return b"\xa3\x95" + bytes([mtype]) + payload
+
+
+_DF_FORMATS = {
+    64: ("PARM", "QNf", "TimeUS,Name,Value", "<Q16sf"),
+    65: ("IMU", "QBfffffff", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,T", "<QB7f"),
+    66: ("XKF1", "QBccCfffffffccce",
+         "TimeUS,C,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ,OH", "<QBhhH7fhhhi"),
+    67: ("XKF2", "QBccccchhhhhhhhh",
+         "TimeUS,C,AX,AY,AZ,VWN,VWE,MN,ME,MD,MX,MY,MZ,IDX,IDY,IS", "<QB5h9h"),
+}
+
+
+def _centi(v: float) -> int:
+    """A value as ArduPilot's int16 ``c`` field holds it (× 100, saturated)."""
+    return int(max(-32768, min(32767, round(100.0 * v))))
+
+
+def _dataflash_bytes(log: FlightLog, biases: list[EstimatorBias]) -> bytes:
+    out = bytearray()
+    fmts = {128: ("FMT", "BBnNZ", "Type,Length,Name,Format,Columns", "<BB4s16s64s"),
+            **_DF_FORMATS}
+    for mtype, (name, fmt, cols, pack) in sorted(fmts.items(), key=lambda d: d[0] != 128):
+        out += _df(128, struct.pack("<BB4s16s64s", mtype, struct.calcsize(pack) + 3,
+                                    name.encode(), fmt.encode(), cols.encode()))
+    for name, value in sorted(log.params.items()):
+        out += _df(64, struct.pack("<Q16sf", 0, name.encode()[:16], float(value)))
+    records: list[tuple[int, int, bytes]] = []
+    pairs: dict[int, dict[str, SensorInstance]] = {}
+    for inst in log.instances:
+        if inst.kind in ("gyro", "acc"):
+            pairs.setdefault(inst.instance, {})[inst.kind] = inst
+    for k, pair in sorted(pairs.items()):
+        if set(pair) != {"gyro", "acc"}:
+            raise InputError(f"IMU {k} needs both a gyro and an accelerometer for a DataFlash IMU")
+        g, a = pair["gyro"], pair["acc"]
+        temp = g.temperature_c if g.temperature_c is not None else np.zeros(g.n_samples)
+        us = np.round(g.time_s * 1e6).astype(np.int64)
+        for i in range(g.n_samples):
+            records.append((int(us[i]), k, _df(65, struct.pack(
+                "<QB7f", int(us[i]), k, *[float(v) for v in g.values[i]],
+                *[float(v) for v in a.values[i]], float(temp[i])))))
+    deg = 180.0 / math.pi
+    for b in biases:
+        us = np.round(b.time_s * 1e6).astype(np.int64)
+        for i in range(b.time_s.size):
+            gx, gy, gz = (_centi(float(v) * deg) for v in b.gyro_bias[i])
+            ax, ay, az = (_centi(float(v)) for v in b.accel_bias[i])
+            records.append((int(us[i]), 10 + b.estimator, _df(66, struct.pack(
+                "<QBhhH7fhhhi", int(us[i]), b.estimator, 0, 0, 0, *([0.0] * 7), gx, gy, gz, 0))))
+            records.append((int(us[i]), 20 + b.estimator, _df(67, struct.pack(
+                "<QB5h9h", int(us[i]), b.estimator, ax, ay, az, 0, 0, *([0] * 9)))))
+    records.sort(key=lambda r: (r[0], r[1]))
+    out += b"".join(r[2] for r in records)
+    return bytes(out)
+
+
+def write_flight(log: FlightLog, biases: list[EstimatorBias], path: str | Path, *,
+                 old_firmware: bool = False) -> Path:
+    """Write ``log``'s gyros and accelerometers and ``biases`` to ``path`` (atomically):
+    ``.ulg`` PX4 (``old_firmware``: the older ``estimator_sensor_bias`` without variance and
+    validity), ``.bin`` ArduPilot."""
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext == ".ulg":
+        data = _ulog_bytes(log, biases, old_firmware)
+    elif ext == ".bin":
+        data = _dataflash_bytes(log, biases)
+    else:
+        raise InputError.at(path, "a flight log is written as .ulg (PX4) or .bin (ArduPilot)")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return path
