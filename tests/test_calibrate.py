@@ -151,7 +151,7 @@ def test_calibrate_cli_side_by_side_and_left_out_lines(tmp_path: Path,
     acc1.temperature_c = None                                               # no thermometer
     path = write_log(board, tmp_path / "board.ulg")
     out = tmp_path / "cal"
-    assert main(["calibrate", str(path), "--out", str(out)]) == 0
+    assert main(["calibrate", str(path), "--out", str(out), "--detail"]) == 0
     report = capsys.readouterr().out
     lines = {ln.split()[0]: ln for ln in report.splitlines() if ln[:1].isalpha() and
              ln.split()[0] in ("gyro0", "gyro1", "gyro2", "acc1", "acc2", "baro0")}
@@ -183,6 +183,68 @@ def test_calibrate_cli_side_by_side_and_left_out_lines(tmp_path: Path,
     assert p["TC_G0_ID"] == 2424842 and p["TC_G1_ID"] == 2621474 and p["TC_A0_ID"] == 2621482
     assert p["TC_G_ENABLE"] == 1 and p["TC_A_ENABLE"] == 1
     assert p["TC_B0_ID"] == 3997706
+
+
+def test_calibrate_console_one_line_per_instance_detail_behind_a_flag(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A drone owner's first read: one line per sensor instance (id, result, the comparison's
+    chosen model, the held-out cut of the parameter file's form, the chosen model against the
+    firmware form, PASS / MARGINAL / FAIL / LEFT OUT), each instance's detail only with
+    --detail (-v), which prints report.txt itself; -q and -v together are a usage error."""
+    board = simulate_board("fc-board", autopilot="px4", seed=6, rate_hz=0.5)
+    board.instances = [i for i in board.instances if i.name in ("gyro0", "gyro2", "baro0",
+                                                                "acc1")]
+    next(i for i in board.instances if i.name == "acc1").temperature_c = None   # left out
+    path = write_log(board, tmp_path / "board.ulg")
+    out = tmp_path / "cal"
+    assert main(["calibrate", str(path), "--out", str(out), "--workers", "1"]) == 0
+    text = capsys.readouterr().out
+    doc = json.loads((out / "results.json").read_text())
+    names = list(doc["instances"])
+    assert sorted(names) == ["acc1", "baro0", "gyro0", "gyro2"]
+    rows = [ln.split("  ") for ln in text.splitlines() if ln.startswith("  ")
+            and ln.split()[0] in names]
+    rows = [[c.strip() for c in r if c.strip()] for r in rows]
+    assert [r[0] for r in rows] == names                       # one line each, in order
+    assert not any(ln[:1].isalpha() and ln.split()[0] in names      # no detail block
+                   for ln in text.splitlines())
+    assert "held out (" not in text and "note:" not in text     # the detail is not printed
+    for name, (inst, dev, result, *rest) in zip(names, rows, strict=True):
+        d = doc["instances"][name]
+        assert (inst, int(dev)) == (name, d["device_id"])
+        if d["status"] != "fitted":
+            assert result == "left out" and rest[-1].startswith("LEFT OUT: no temperature")
+            continue
+        chosen, cut, versus, verdict = rest
+        cmp = d["compare"]
+        assert result == f"fitted, slot {d['slot']}" and chosen == cmp["chosen"]
+        fams = cmp["families"]
+        ratio = fams[cmp["chosen"]]["val_score"] / fams[cmp["firmware_family"]]["val_score"]
+        assert versus == "same" if cmp["chosen"] == cmp["firmware_family"] else \
+            float(versus.rstrip("x")) == pytest.approx(ratio, abs=0.006)
+        cuts = [float(c) for c in cut.replace("x", "").split("..")]
+        held = d["held_out"]["cut"]
+        assert cuts[0] == pytest.approx(min(held), abs=0.051)
+        assert cuts[-1] == pytest.approx(max(held), abs=0.051)
+        grades = d["held_out"]["grades"]
+        axes = ["p"] if name == "baro0" else ["x", "y", "z"]
+        weak = [a for a, g in zip(axes, grades, strict=True) if g != "fine"]
+        assert verdict == ("PASS" if not weak else
+                           f"{'FAIL' if 'fails' in grades else 'MARGINAL'} ({', '.join(weak)})")
+    assert f"detail per instance: {out / 'report.txt'} (or calibrate --detail)" in text
+    # --detail: report.txt as written (the same table, then each instance's detail)
+    again = tmp_path / "again"
+    assert main(["calibrate", str(path), "--out", str(again), "--workers", "1", "-v"]) == 0
+    text = capsys.readouterr().out
+    report = (again / "report.txt").read_text()
+    assert text == report + f"results: {again / 'results.json'}\n"
+    assert [ln for ln in report.splitlines() if ln.startswith("  gyro0 ")] == [
+        ln for ln in (out / "report.txt").read_text().splitlines() if ln.startswith("  gyro0 ")]
+    assert any(ln.startswith("gyro0 ") and "fitted, slot" in ln for ln in report.splitlines())
+    assert "held out (" in report
+    with pytest.raises(SystemExit) as exc:
+        main(["calibrate", str(path), "--out", str(tmp_path / "x"), "-q", "-v"])
+    assert exc.value.code == 2 and not (tmp_path / "x").exists()
 
 
 def test_calibrate_real_sample_log_refuses_every_instance(tmp_path: Path,

@@ -103,7 +103,8 @@ def test_calibrate_names_the_axis_verify_will_fail_and_why(tmp_path: Path,
     assert main(["simulate", "fc-board", "--seed", "1", "--runs", "2",
                  "--out", str(tmp_path / "b.ulg")]) == 0
     first, later = tmp_path / "b_run1.ulg", tmp_path / "b_run2.ulg"
-    assert main(["calibrate", str(first), "--out", str(tmp_path / "cal"), "--no-compare"]) == 0
+    assert main(["calibrate", str(first), "--out", str(tmp_path / "cal"), "--no-compare",
+                 "--detail"]) == 0
     report = capsys.readouterr().out
     line = next(ln for ln in report.splitlines() if "held out: acc0 z" in ln)
     assert "MARGINAL" in line

@@ -219,7 +219,7 @@ def test_bad_magnetometer_input_one_line_per_instance_rest_calibrated(
                                                     [0.0, 0.0, 1.0]]).T
     third = write_log(board, tmp_path / "moved.ulg")
     assert main(["calibrate", str(third), "--out", str(tmp_path / "c1"), "--no-compare",
-                 "--mag-thermometer", "mag1=gyro1"]) == 0
+                 "--mag-thermometer", "mag1=gyro1", "--detail"]) == 0
     out = capsys.readouterr().out
     lines = [ln for ln in out.splitlines() if ln.startswith("mag0 ")]
     assert len(lines) == 1 and "LEFT OUT" in lines[0] and "moved during the soak" in lines[0]
@@ -232,7 +232,8 @@ def test_bad_magnetometer_input_one_line_per_instance_rest_calibrated(
     baro = next(i for i in board.instances if i.name == "baro0")
     baro.temperature_c = 30.0 + 0.004 * np.arange(baro.n_samples) % 3.0
     narrow = write_log(board, tmp_path / "narrow.ulg")
-    assert main(["calibrate", str(narrow), "--out", str(tmp_path / "c2"), "--no-compare"]) == 0
+    assert main(["calibrate", str(narrow), "--out", str(tmp_path / "c2"), "--no-compare",
+                 "-v"]) == 0
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("mag1 ")]
     assert len(lines) == 1 and "LEFT OUT" in lines[0]
     assert "baro0's thermometer, lent" in lines[0] and "spans only" in lines[0]
@@ -240,7 +241,8 @@ def test_bad_magnetometer_input_one_line_per_instance_rest_calibrated(
     board = simulate_board("fc-board", seed=6, rate_hz=RATE_HZ)
     board.instances = [i for i in board.instances if i.name not in ("baro0", "gyro0", "acc0")]
     none = write_log(board, tmp_path / "none.ulg")
-    assert main(["calibrate", str(none), "--out", str(tmp_path / "c3"), "--no-compare"]) == 0
+    assert main(["calibrate", str(none), "--out", str(tmp_path / "c3"), "--no-compare",
+                 "-v"]) == 0
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("mag1 ")]
     assert len(lines) == 1 and "LEFT OUT — no thermometer" in lines[0]
     # a named thermometer the log does not have: one line naming file, instance and key
@@ -344,7 +346,8 @@ def test_two_logs_of_one_board_each_checked_for_motion_on_its_own(
     assert main(["simulate", "fc-board", "--runs", "2", "--seed", "0", "--out",
                  str(tmp_path / "b.ulg")]) == 0
     logs = [str(tmp_path / "b_run1.ulg"), str(tmp_path / "b_run2.ulg")]
-    assert main(["calibrate", *logs, "--out", str(tmp_path / "c"), "--no-compare"]) == 0
+    assert main(["calibrate", *logs, "--out", str(tmp_path / "c"), "--no-compare",
+                 "--detail"]) == 0
     out = capsys.readouterr().out
     assert "moved" not in out and "turns" not in out
     doc = json.loads((tmp_path / "c" / "results.json").read_text())
@@ -367,7 +370,7 @@ def test_two_logs_of_one_board_each_checked_for_motion_on_its_own(
                       tmp_path / "r1.ulg")
     moved = write_log(second, tmp_path / "r2.ulg")
     assert main(["calibrate", str(first), str(moved), "--out", str(tmp_path / "d"),
-                 "--no-compare"]) == 0
+                 "--no-compare", "--detail"]) == 0
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("mag0 ")]
     assert len(lines) == 1 and "LEFT OUT — log 2: the field direction turns 40° between " \
         "t = 1324 s and 1384 s (more than 5° within 60 s): the magnetometer moved" in lines[0]
@@ -389,7 +392,8 @@ def test_a_thermometer_in_kelvin_is_named_kelvin_not_damage(
     log = write_log(board, tmp_path / "k.ulg")
     inst = {i.name: i for i in read_log(log).instances}["mag0"]
     assert inst.n_samples == m0.n_samples and inst.damaged == 0
-    assert main(["calibrate", str(log), "--out", str(tmp_path / "c"), "--no-compare"]) == 0
+    assert main(["calibrate", str(log), "--out", str(tmp_path / "c"), "--no-compare",
+                 "--detail"]) == 0
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("mag0 ")]
     assert len(lines) == 1, lines
     assert (f"{m0.n_samples} samples" in lines[0] and "LEFT OUT — its thermometer reads "
@@ -405,7 +409,8 @@ def test_a_thermometer_in_kelvin_is_named_kelvin_not_damage(
             assert i.temperature_c is not None
             i.temperature_c = i.temperature_c + 273.15
     bin_log = write_log(ap, tmp_path / "k.bin")
-    assert main(["calibrate", str(bin_log), "--out", str(tmp_path / "d"), "--no-compare"]) == 0
+    assert main(["calibrate", str(bin_log), "--out", str(tmp_path / "d"), "--no-compare",
+                 "--detail"]) == 0
     out = capsys.readouterr().out.splitlines()
     for name in ("gyro1", "acc1"):
         line = next(ln for ln in out if ln.startswith(f"{name} "))

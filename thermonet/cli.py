@@ -315,14 +315,19 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from .workflows.calibrate import calibrate, format_report  # lazy: off the --help path
+    from .workflows.calibrate import (  # lazy: off the --help path
+        calibrate,
+        format_report,
+        format_summary,
+    )
     from .workflows.magnetometer import parse_thermometers  # lazy: off the --help path
 
     doc = calibrate(args.log, args.out, overwrite=args.overwrite, compare=not args.no_compare,
                     mag_thermometers=parse_thermometers(args.mag_thermometer or []),
                     workers=args.workers)
-    if not args.quiet:
-        print(format_report(doc), end="")
+    if not args.quiet:      # one line per instance; each one's detail with --detail
+        print(format_report(doc) if args.detail else format_summary(
+            doc, detail=f"{Path(args.out) / 'report.txt'} (or calibrate --detail)"), end="")
         print(f"results: {Path(args.out) / 'results.json'}")
     return 0
 
@@ -542,7 +547,11 @@ def _add_calibrate(sub: Any) -> None:
                    help="the thermometer lent to a magnetometer without one, e.g. mag1=baro0 "
                         "(repeatable; default: baro0, else gyro0, else acc0); its lag is "
                         "fitted")
-    k.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
+    say = k.add_mutually_exclusive_group()
+    say.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
+    say.add_argument("-v", "--detail", action="store_true",
+                     help="after the one line per instance, each instance's detail (its "
+                          "verdict, held-out check per axis, notes: report.txt)")
     k.set_defaults(func=_cmd_calibrate)
 
 

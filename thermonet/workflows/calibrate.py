@@ -108,7 +108,7 @@ from .calibrate_compare import (
     import_comparison,
     verdict,
 )
-from .calibrate_report import format_report, render_calibration_report
+from .calibrate_report import format_report, format_summary, render_calibration_report
 from .firmware_fit import (
     FIT_KINDS,
     MIN_SAMPLES,
@@ -136,7 +136,7 @@ from .verify import (
 )
 
 __all__ = ["calibrate", "fit_firmware", "check_instance", "apply_firmware", "merge_logs",
-           "format_report", "render_calibration_report", "MIN_SPAN_C", "MIN_SAMPLES",
+           "format_report", "format_summary", "render_calibration_report", "MIN_SPAN_C", "MIN_SAMPLES",
            "InstanceResult"]
 
 _FIT_KINDS = FIT_KINDS

@@ -1,5 +1,6 @@
-"""The pages of ``thermonet calibrate``: ``report.txt`` (:func:`format_report`) and
-``report.html`` (:func:`render_calibration_report`), both from the results document."""
+"""The pages of ``thermonet calibrate``: ``report.txt`` (:func:`format_report`: one line per
+instance, then each one's detail), the console's summary (:func:`format_summary`) and
+``report.html`` (:func:`render_calibration_report`), all from the results document."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from typing import Any
 from ..reporting.colours import GRADE_COLOURS
 from ..reporting.report import _CSS, VERDICT_COLOURS
 
-__all__ = ["format_report", "render_calibration_report"]
+__all__ = ["format_report", "format_summary", "summary_table", "render_calibration_report"]
 
 _AXES = {"gyro": ("x", "y", "z"), "acc": ("x", "y", "z"), "baro": ("p",),
          "mag": ("x", "y", "z")}
@@ -133,8 +134,8 @@ def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | 
             f"<h2>Report</h2><pre>{html.escape(format_report(doc))}</pre></body></html>\n")
 
 
-def format_report(doc: dict[str, Any]) -> str:
-    """One block per instance: fitted (with verdict and check) or left out (with the reason)."""
+def _header(doc: dict[str, Any]) -> list[str]:
+    """The logs calibrated (and their SHA-256), the parameter file, the held-out log."""
     logs = doc.get("logs") or [doc["log"]]
     lines = [f"thermonet calibrate: {', '.join(logs)} ({doc['autopilot']})",
              *([f"log sha256: {doc['log_sha256']}"] if doc.get("log_sha256")
@@ -147,7 +148,96 @@ def format_report(doc: dict[str, Any]) -> str:
                   f"{len(logs) - 1} and applied to {doc['held_out_log']} through the "
                   "autopilot's own formula; the parameter file is the refit on all "
                   f"{len(logs)} logs"]
-    lines.append("")
+    return lines
+
+
+def _short(reason: str | None, width: int = 72) -> str:
+    """A left-out reason's first clause, at most ``width`` characters (the detail has it
+    whole)."""
+    text = str(reason or "")
+    for sep in ("; ", " — ", " ("):
+        text = text.split(sep, 1)[0]
+    return text if len(text) <= width else text[:width - 1].rstrip() + "…"
+
+
+def _summary_row(name: str, d: dict[str, Any]) -> list[str]:
+    """One instance in the summary: result, the comparison's chosen model, the held-out cut
+    of the parameter file's form (verify's test, against raw), the chosen model's
+    out-of-fold score against the firmware form's, and the verdict."""
+    cmp = d.get("compare") or {}
+    fams = cmp.get("families") or {}
+    fw, chosen = cmp.get("firmware_family"), cmp.get("chosen")
+    try:
+        ratio = float(fams[chosen]["val_score"]) / float(fams[fw]["val_score"])
+        versus = "same" if chosen == fw else f"{ratio:.2f}x"
+    except (KeyError, TypeError, ValueError, ZeroDivisionError):
+        versus = "-"
+    if d["status"] not in ("fitted", "model only"):
+        return [name, "left out", "-", "-", "-", f"LEFT OUT: {_short(d.get('reason'))}"]
+    result = f"fitted, slot {d['slot']}" if d["status"] == "fitted" else "model only"
+    h = d.get("held_out") or {}
+    if h.get("status") != "judged":
+        return [name, result, chosen or "-", "-", versus,
+                f"not judged: {_short(h.get('reason') or 'no held-out data')}"]
+    cuts = [c for c in h["cut"] if c == c]
+    cut = "-" if not cuts else f"{_cut(min(cuts))}x" if min(cuts) == max(cuts) else (
+        f"{_cut(min(cuts))}x..{_cut(max(cuts))}x")
+    grades = list(h.get("grades") or [])
+    axes = _AXES.get(d["kind"], ())
+    for grade, word in (("fails", "FAIL"), ("marginal", "MARGINAL")):
+        weak = [a for a, g in zip(axes, grades, strict=False) if g == grade]
+        if weak:
+            return [name, result, chosen or "-", cut, versus, f"{word} ({', '.join(weak)})"]
+    return [name, result, chosen or "-", cut, versus, "PASS" if grades else "not graded"]
+
+
+def summary_table(doc: dict[str, Any]) -> list[str]:
+    """One line per sensor instance (indented two spaces under a heading): what a drone
+    owner reads first; :func:`format_report` gives each instance's detail."""
+    head = ["instance", "device id", "result", "chosen model", "held-out cut", "chosen vs firmware",
+            "verdict"]
+    rows = [[r[0], str(d["device_id"]), *r[1:]] for r, d in (
+        (_summary_row(name, d), d) for name, d in doc["instances"].items())]
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
+    return ["  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip()
+            for r in [head] + rows] + [
+        "  (held-out cut: raw / corrected binned drift, the parameter file's form on data it "
+        "was not fitted on — verify's test; chosen vs firmware: the comparison's best model's "
+        "out-of-fold score over the firmware form's, under 1 better, ONNX / C only)"]
+
+
+def _totals(doc: dict[str, Any]) -> list[str]:
+    """How many fitted axes pass the held-out check with margin, and the loading advice."""
+    lines: list[str] = []
+    graded = [g for d in doc["instances"].values() if d["status"] in ("fitted", "model only")
+              for g in (d.get("held_out") or {}).get("grades") or []]
+    if graded:
+        weak = {g: graded.count(g) for g in ("marginal", "fails") if g in graded}
+        lines += ["", f"held-out check (verify's test, limits and floors): {graded.count('fine')} "
+                  f"of {len(graded)} fitted axes pass with margin" + (
+                      "; " + ", ".join(f"{n} {g}" for g, n in weak.items())
+                      + " — `thermonet verify` on a new log may FAIL them (see 'held out' "
+                      "in the detail)" if weak else "")]
+    lines += ["", "Load the parameter file only for a board whose sensors are the device ids "
+              "above; reboot after loading; re-run the ordinary gyro/accel calibration."]
+    return lines
+
+
+def format_summary(doc: dict[str, Any], detail: str = "") -> str:
+    """The console's default: the header, one line per instance (:func:`summary_table`), the
+    held-out totals and the loading advice; ``detail`` names where each instance's detail
+    is (report.txt, ``--detail``)."""
+    lines = [*_header(doc), "", *summary_table(doc), *_totals(doc)]
+    if detail:
+        lines += [f"detail per instance: {detail}"]
+    return "\n".join(lines) + "\n"
+
+
+def format_report(doc: dict[str, Any]) -> str:
+    """The summary (:func:`summary_table`), then one block per instance: fitted (with verdict
+    and check) or left out (with the reason)."""
+    logs = doc.get("logs") or [doc["log"]]
+    lines = [*_header(doc), "", *summary_table(doc), ""]
     # what the log reader found damaged and where, and the log's own notes (gaps)
     lines += [f"log: {n}" for n in doc.get("log_damage", []) + doc.get("log_notes", [])]
     if doc.get("log_damage") or doc.get("log_notes"):
@@ -174,32 +264,28 @@ def format_report(doc: dict[str, Any]) -> str:
             if d.get("verdict"):
                 lines.append(f"       {d['verdict']}")
         lines += [f"       {x}" for x in _mag_lines(d)]
-        h = d.get("held_out")
-        if h and h.get("status") == "judged":
-            grades = h.get("grades") or [""] * len(h["cut"])
-            lines.append(f"       held out ({_held_out_data(h)}, fitted on the rest; verify's "
-                         "test): binned drift p-p " + ", ".join(
-                             f"{_g3(b)}->{_g3(a)} ({_cut(c)}x {g})" for b, a, c, g in zip(
-                                 h["pp_raw"], h["pp_corrected"], h["cut"], grades,
-                                 strict=True)))
-            for axis, g, why in zip(_AXES.get(d["kind"], ()), grades,
-                                    h.get("grade_reasons") or [], strict=False):
-                if g != "fine":
-                    lines.append(f"       held out: {name} {axis} {g.upper()}: {why}")
-            lines += [f"       held-out warning: {w}" for w in h.get("warnings") or []]
-        elif h:
-            lines.append(f"       held out: not judged ({h.get('reason')})")
+        lines += _held_out_lines(name, d)
         for note in d.get("notes", []):
             lines.append(f"       note: {note}")
-    graded = [g for d in doc["instances"].values() if d["status"] in ("fitted", "model only")
-              for g in (d.get("held_out") or {}).get("grades") or []]
-    if graded:
-        weak = {g: graded.count(g) for g in ("marginal", "fails") if g in graded}
-        lines += ["", f"held-out check (verify's test, limits and floors): {graded.count('fine')} "
-                  f"of {len(graded)} fitted axes pass with margin" + (
-                      "; " + ", ".join(f"{n} {g}" for g, n in weak.items())
-                      + " — `thermonet verify` on a new log may FAIL them (see 'held out' "
-                      "above)" if weak else "")]
-    lines += ["", "Load the parameter file only for a board whose sensors are the device ids "
-              "above; reboot after loading; re-run the ordinary gyro/accel calibration."]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + _totals(doc)) + "\n"
+
+
+def _held_out_lines(name: str, d: dict[str, Any]) -> list[str]:
+    """An instance's held-out check in the detail: the binned drift before -> after per axis
+    with its grade, and why an axis is not fine."""
+    lines: list[str] = []
+    h = d.get("held_out")
+    if h and h.get("status") == "judged":
+        grades = h.get("grades") or [""] * len(h["cut"])
+        lines.append(f"       held out ({_held_out_data(h)}, fitted on the rest; verify's "
+                     "test): binned drift p-p " + ", ".join(
+                         f"{_g3(b)}->{_g3(a)} ({_cut(c)}x {g})" for b, a, c, g in zip(
+                             h["pp_raw"], h["pp_corrected"], h["cut"], grades, strict=True)))
+        for axis, g, why in zip(_AXES.get(d["kind"], ()), grades,
+                                h.get("grade_reasons") or [], strict=False):
+            if g != "fine":
+                lines.append(f"       held out: {name} {axis} {g.upper()}: {why}")
+        lines += [f"       held-out warning: {w}" for w in h.get("warnings") or []]
+    elif h:
+        lines.append(f"       held out: not judged ({h.get('reason')})")
+    return lines
