@@ -37,6 +37,10 @@ Command line::
 
     python thermonet_runtime.py model.onnx input.csv --out output.csv
 
+A CSV with a ``run`` column (``thermonet convert --out x.csv`` of several runs) is read run
+by run: each run's rows are one sequence, the dynamic inputs' and a recurrent model's state
+restarting at its first row, as in training (never carried across runs).
+
 See ``README.md`` beside this file for units, the flag and threading.
 """
 
@@ -1318,6 +1322,63 @@ def _check_out(out: Path) -> None:
         raise RuntimeInputError(f"{out}: cannot be created: its directory {parent} {what}")
 
 
+#: The column naming each row's run (``thermonet convert --out x.csv`` writes it): the rows of
+#: a run are one sequence, and the dynamic inputs' (and a recurrent model's) state restarts at
+#: the first row of each run, as in training — never carried from one run's end into the next.
+RUN_COLUMN = "run"
+
+
+def _run_slices(path: Path, header: list[str], body: list[list[str]]) -> list[slice]:
+    """The rows of each run, in file order: consecutive rows with the same :data:`RUN_COLUMN`
+    cell (all rows, one run, in a file without that column).  A run whose rows are not
+    together is refused, naming the row where it comes back."""
+    if RUN_COLUMN not in header or not body:
+        return [slice(0, len(body))]
+    j = header.index(RUN_COLUMN)
+    ids = [row[j].strip() if j < len(row) else "" for row in body]
+    first: dict[str, int] = {}
+    out: list[slice] = []
+    start = 0
+    for i in range(1, len(ids) + 1):
+        if i < len(ids) and ids[i] == ids[start]:
+            continue
+        if ids[start] in first:
+            raise RuntimeInputError(
+                f"{path}: column '{RUN_COLUMN}', row {start + 2}: run {ids[start]!r} again (its "
+                f"rows began at row {first[ids[start]] + 2}); a run's rows must be together — "
+                "the state restarts at each run")
+        first[ids[start]] = start
+        out.append(slice(start, i))
+        start = i
+    return out
+
+
+def _compensate_runs(comp: Compensator, path: Path, runs: list[slice], raw: np.ndarray,
+                     given: Mapping[str, np.ndarray]) -> Compensation:
+    """:meth:`Compensator.compensate` on each run's rows (each a sequence of its own: the
+    state starts afresh at its first row), the results joined in file order; a time that is
+    not finite and increasing within a run is refused naming its column and row."""
+    parts = []
+    for rows in runs:
+        sub = {s: v[rows] for s, v in given.items()}
+        if "time_s" in sub:
+            try:
+                _check_time(sub["time_s"])
+            except RuntimeInputError as exc:  # name the column and the row as a spreadsheet does
+                k = rows.start + int(str(exc).split("sample ", 1)[1].split(":", 1)[0])
+                reason = str(exc).split(": ", 2)[-1]
+                raise RuntimeInputError(f"{path}: column 'time_s', row {k + 2}: "
+                                        f"{reason}") from None
+        parts.append(comp.compensate(raw=raw[rows], **sub))
+    if len(parts) == 1:
+        return parts[0]
+    bands = [p.band for p in parts if p.band is not None]
+    return Compensation(np.concatenate([p.compensated for p in parts]),
+                        np.concatenate([p.drift for p in parts]),
+                        np.concatenate([np.atleast_1d(p.out_of_range) for p in parts]),
+                        np.concatenate(bands) if len(bands) == len(parts) else None)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Compensate a CSV file; returns the exit status (0 ok, 1 bad input, 128 + the signal
     number when stopped by SIGINT or SIGTERM).
@@ -1331,7 +1392,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("model", type=Path, help="the exported .onnx file")
     parser.add_argument("input", type=Path, help="CSV with the model's signal columns (time_s "
                         "and temperature_c for a model with dynamic inputs) and one raw column "
-                        "per axis (named by the axis, e.g. gyro_x)")
+                        "per axis (named by the axis, e.g. gyro_x); a 'run' column (as thermonet "
+                        "convert writes) makes each run's rows a sequence of its own")
     parser.add_argument("--out", type=Path, required=True, help="output CSV")
     parser.add_argument("--threads", type=int, default=1, help="onnxruntime threads (default 1)")
     args = parser.parse_args(argv)
@@ -1351,15 +1413,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         raw = np.stack([cols[a] for a in comp.outputs], axis=1) if body else \
             np.zeros((0, len(comp.outputs)))
         given = {s: cols[s] for s in comp.needs}
-        if "time_s" in given:
-            try:
-                _check_time(given["time_s"])
-            except RuntimeInputError as exc:  # name the column and the row as a spreadsheet does
-                k = int(str(exc).split("sample ", 1)[1].split(":", 1)[0])
-                reason = str(exc).split(": ", 2)[-1]
-                raise RuntimeInputError(f"{args.input}: column 'time_s', row {k + 2}: "
-                                        f"{reason}") from None
-        res = comp.compensate(raw=raw, **given)
+        res = _compensate_runs(comp, args.input, _run_slices(args.input, header, body), raw,
+                               given)
         # the residual-drift band where the file carries one (metadata 'band'): per axis, the
         # half-width at the row's band signal — how far the compensated value may still be off
         band = res.band

@@ -259,3 +259,80 @@ def test_a_mapped_recording_converted_to_csv_is_the_runtimes_input(tmp_path, cap
                            for r in ds])
     got = np.array([[float(r[f"{a}_comp"]) for a in axes] for r in rows])
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+
+
+def _runtime_csv(model: Path, src: Path, out: Path, axes: list[str]) -> tuple[np.ndarray, ...]:
+    """The runtime's command on ``src``: (drift, compensated, out_of_range) per row."""
+    assert rt.main([str(model), str(src), "--out", str(out)]) == 0
+    with out.open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    return (np.array([[float(r[f"{a}_drift"]) for a in axes] for r in rows]),
+            np.array([[float(r[f"{a}_comp"]) for a in axes] for r in rows]),
+            np.array([r["out_of_range"] == "1" for r in rows]))
+
+
+def test_a_multi_run_csv_restarts_the_state_at_each_run(tmp_path, capsys):
+    """The CSV ``thermonet convert --out x.csv`` writes from several runs (a ``run`` column,
+    time restarting in each run) is read run by run: a model with dynamic inputs (a lag, a
+    rate, a play state) starts each run's state afresh, as in training, so run 2's output is
+    run 2's alone — never carried from run 1's hot end into run 2's cold start (was: the rows
+    read as one sequence, refused where time restarts).  The same with run 2's time going on
+    after run 1's.  A run whose rows are not together is refused in one line."""
+    import thermonet
+    from thermonet.core.recording import Dataset
+    from thermonet.data.io import write_csv
+    from thermonet.sim import simulate
+
+    ds = simulate("accel", runs=2, seed=0)
+    axes = list(ds.axes)
+    est = thermonet.DriftEstimator("linear", ["dT", "lag_600", "rate", "play_1"], outputs=axes,
+                                   max_epochs=0).fit(ds)
+    model = est.export(tmp_path / "m.onnx")
+    comp = rt.Compensator(model)
+    assert comp.dynamic_signals
+    both = write_csv(ds, tmp_path / "both.csv")
+    alone = write_csv(Dataset(runs=[ds[1]]), tmp_path / "alone.csv")
+    drift, comped, flag = _runtime_csv(model, both, tmp_path / "o_both.csv", axes)
+    drift2, comped2, flag2 = _runtime_csv(model, alone, tmp_path / "o_alone.csv", axes)
+    n1 = ds[0].n_samples
+    assert drift.shape == (n1 + ds[1].n_samples, len(axes))
+    # float32 graph arithmetic on the same inputs: equal within a few float32 ulps
+    tol = 4 * float(np.finfo(np.float32).eps) * float(np.max(np.abs(drift2)))
+    np.testing.assert_allclose(drift[n1:], drift2, rtol=0, atol=tol)
+    np.testing.assert_allclose(comped[n1:], comped2, rtol=0, atol=tol)
+    assert np.array_equal(flag[n1:], flag2)
+    # run 1 is run 1 alone too; the drift the model gives (DriftEstimator.compensate) per run
+    want = [np.column_stack([est.compensate(r).outputs[a] for a in axes]) for r in ds]
+    np.testing.assert_allclose(comped, np.concatenate(want), rtol=1e-5, atol=1e-5)
+    # run 2's time going on after run 1's: still a sequence of its own
+    t = np.concatenate([ds[0].time_s, ds[0].time_s[-1] + 5.0 + ds[1].time_s])
+    on = tmp_path / "on.csv"
+    with on.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["run", "time_s", "temperature_c", *axes])
+        for k, r in enumerate(ds):
+            rows = slice(0, n1) if k == 0 else slice(n1, None)
+            for ti, temp, *v in zip(t[rows], r.temperature_c, *(r.outputs[a] for a in axes),
+                                    strict=True):
+                w.writerow([r.run_id, repr(float(ti)), repr(float(temp)),
+                            *(repr(float(x)) for x in v)])
+    drift_on, _, _ = _runtime_csv(model, on, tmp_path / "o_on.csv", axes)
+    np.testing.assert_allclose(drift_on[n1:], drift2, rtol=0, atol=tol)
+    # what carrying the state across the boundary gives instead: far outside that tolerance
+    comp.reset()
+    comp.step_block(t[:n1], ds[0].temperature_c, np.column_stack(
+        [ds[0].outputs[a] for a in axes]))
+    carried = comp.step_block(t[n1:], ds[1].temperature_c, np.column_stack(
+        [ds[1].outputs[a] for a in axes])).drift
+    assert float(np.max(np.abs(carried - drift2))) > 100 * tol
+    # a run whose rows come back after another run's: refused, naming the row
+    lines = on.read_text().splitlines()
+    on.write_text("\n".join([lines[0], *lines[1:3], *lines[n1 + 1:n1 + 3], lines[3]]) + "\n")
+    out = tmp_path / "o_bad.csv"
+    capsys.readouterr()
+    assert rt.main([str(model), str(on), "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == (f"thermonet_runtime: {on}: column 'run', row 6: run 'run0' again (its rows "
+                   "began at row 2); a run's rows must be together — the state restarts at "
+                   "each run")
+    assert not out.exists()

@@ -134,8 +134,8 @@ def write_csv(dataset: Dataset, path: str | Path) -> Path:
     """Write ``dataset`` to ``path`` as comma-separated text with thermonet's conventional
     column names (``run``, ``time_s``, ``temperature_c``, the outputs …; an absent value is an
     empty cell), atomically; return the path.  It reads back without a mapping, and it is the
-    input ``export/thermonet_runtime.py`` takes (one run per file for a model with dynamic
-    inputs: the runtime reads the rows as one sequence)."""
+    input ``export/thermonet_runtime.py`` takes (each run's rows one sequence: the runtime
+    restarts a model's dynamic state at each run)."""
     import pyarrow.csv as pacsv
 
     path = check_output_file(path, (".csv",))
