@@ -281,6 +281,32 @@ def test_the_api_fits_and_scores_a_streamed_recording_as_its_samples(recording):
     assert got_ratio == pytest.approx(want_ratio, rel=without / 10)
 
 
+def test_a_streamed_run_without_the_dynamic_input_is_refused_naming_it(recording):
+    """``read(path, window_s=...)`` without ``inputs``, then an estimator reading ``rate``:
+    the rate is computed on the samples while a file is streamed, so the run cannot give it;
+    refused in one line naming the run, the input and the read that gives it (was 'gap_s must
+    be a positive number of seconds, got 0.0' — the gap of a run streamed without dynamic
+    inputs — where the user gave no gap_s; and with a gap_s, 'computed with gap_s 0 s')."""
+    import thermonet
+
+    rows = thermonet.read(recording, window_s=1.0)
+    assert rows[0].windows is not None and rows[0].windows.gap_s == 0.0
+    for extra in ({}, {"gap_s": 30.0}):
+        with pytest.raises(InputError) as err:
+            thermonet.DriftEstimator("poly", ["dT", "rate"], degree=2, t_ref=25.0,
+                                     **extra).fit(rows[0])
+        msg = str(err.value)
+        assert len(msg.splitlines()) == 1 and "gap_s" not in msg, msg
+        assert msg == (f"run '{rows[0].run_id}' of {recording}: reduced to 1-s window means "
+                       "without the dynamic input(s) ['rate'], which are computed on the "
+                       "samples while the file is streamed: read it with them named "
+                       "(read(..., window_s=1, inputs=['dT', 'rate']))")
+    # read as the message says: fitted
+    rows = thermonet.read(recording, window_s=1.0, inputs=["dT", "rate"])
+    est = thermonet.DriftEstimator("poly", ["dT", "rate"], degree=2, t_ref=25.0).fit(rows[0])
+    assert est.spec_.gap_s == pytest.approx(rows[0].windows.gap_s) and est.spec_.gap_s > 0
+
+
 def test_a_bad_value_deep_in_a_streamed_file_is_one_line_and_nothing_written(tmp_path, capsys):
     """A NaN in the third chunk of a streamed file: ``compare`` names the file, the column and
     the data row in one line, exits 1 and writes no output directory."""

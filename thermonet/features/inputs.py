@@ -231,6 +231,7 @@ def resolve_gap_s(gap_s: str | float | None, recordings: object, inputs: Sequenc
     :data:`thermonet.features.dynamics.GAP_FACTOR` × the first run's median sample interval."""
     if not dynamics.dynamic_signals(inputs):
         return None
+    _check_streamed(_first_run(recordings), inputs)
     if gap_s is None or gap_s == "auto":
         return dynamics.default_gap_s([_first_run(recordings)])
     if isinstance(gap_s, str):
@@ -238,6 +239,23 @@ def resolve_gap_s(gap_s: str | float | None, recordings: object, inputs: Sequenc
     if not (np.isfinite(float(gap_s)) and float(gap_s) > 0):
         raise ConfigError(f"gap_s must be a positive number of seconds, got {gap_s!r}")
     return float(gap_s)
+
+
+def _check_streamed(run: Recording, inputs: Sequence[str]) -> None:
+    """A run reduced to window means holds only the dynamic inputs computed on its samples
+    while it was streamed: one lacking an input is refused naming it and how to read it (was:
+    'gap_s must be a positive number of seconds, got 0.0', the gap of a run streamed
+    without dynamic inputs, where the user gave no gap_s)."""
+    win = run.windows
+    if win is None:
+        return
+    missing = [d.name for d in dynamics.dynamic_signals(inputs) if d.signal not in win.signals]
+    if missing:
+        where = run.meta.get("source", "") or "the data"
+        raise InputError(f"run '{run.run_id}' of {where}: reduced to {win.window_s:g}-s window "
+                         f"means without the dynamic input(s) {missing}, which are computed on "
+                         "the samples while the file is streamed: read it with them named "
+                         f"(read(..., window_s={win.window_s:g}, inputs={list(inputs)!r}))")
 
 
 def _first_run(recordings: object) -> Recording:
