@@ -12,9 +12,9 @@ from thermonet.cli import build_parser
 #: per command: (arguments that set every option, the namespace they must give)
 FULL = {
     "simulate": (["patent-gyro", "--runs", "3", "--seed", "7", "--out", "x.csv",
-                  "--units", "4", "--outliers", "1"],
+                  "--units", "4", "--outliers", "1", "--flights", "5", "--format", "bin"],
                  {"preset": "patent-gyro", "runs": 3, "seed": 7, "out": "x.csv", "units": 4,
-                  "outliers": 1}),
+                  "outliers": 1, "flights": 5, "format": "bin"}),
     "info": (["a.csv", "b.csv", "--mapping", "m.yaml", "--json", "--chunk-rows", "10"],
              {"files": ["a.csv", "b.csv"], "mapping": "m.yaml", "json": True,
               "chunk_rows": 10}),
@@ -55,12 +55,17 @@ FULL = {
                "tracking_uri": "u", "quiet": True, "no_plots": True, "units": 8,
                "outliers": 2, "executor": "serial", "workers": 3, "ray_address": "r:1",
                "family": "lin", "folds": 0}),
+    "learn": (["a.ulg", "d", "--out", "o", "--executor", "serial", "--workers", "2",
+               "--ray-address", "r:1", "--no-compare", "--no-export", "-q"],
+              {"logs": ["a.ulg", "d"], "out": "o", "executor": "serial", "workers": 2,
+               "ray_address": "r:1", "no_compare": True, "no_export": True, "quiet": True}),
 }
 
 #: per command: (the fewest arguments it takes, the defaults of every other option)
 MINIMAL = {
     "simulate": (["accel", "--out", "x.parquet"],
-                 {"runs": None, "seed": 0, "units": None, "outliers": 0}),
+                 {"runs": None, "seed": 0, "units": None, "outliers": 0, "flights": None,
+                  "format": None}),
     "info": (["a.csv"], {"mapping": None, "json": False, "chunk_rows": None}),
     "convert": (["a.csv", "--out", "o.parquet"],
                 {"mapping": None, "overwrite": False, "chunk_rows": None}),
@@ -83,6 +88,9 @@ MINIMAL = {
               {"overwrite": False, "no_track": False, "tracking_uri": None, "quiet": False,
                "no_plots": False, "units": None, "outliers": 0, "executor": "process",
                "workers": None, "ray_address": None, "family": None, "folds": 5}),
+    "learn": (["d", "--out", "o"],
+              {"executor": "process", "workers": None, "ray_address": None,
+               "no_compare": False, "no_export": False, "quiet": False}),
 }
 
 
@@ -94,7 +102,7 @@ def _subparsers() -> dict[str, argparse.ArgumentParser]:
 
 def test_the_commands_in_the_order_help_lists_them():
     assert list(_subparsers()) == ["simulate", "info", "convert", "compare", "train",
-                                   "export", "calibrate", "verify", "fleet"]
+                                   "export", "calibrate", "verify", "fleet", "learn"]
 
 
 @pytest.mark.parametrize("command", list(FULL))

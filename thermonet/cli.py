@@ -49,6 +49,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from .sim.fcboard import BOARD_PRESETS, MAX_BOARD_RUNS  # lazy: off the --help path
     from .sim.presets import MAX_RUNS  # lazy: off the --help path
 
+    if args.preset == "fc-board-flights" or args.flights is not None or args.format:
+        return _simulate_flights(args)       # flights of one vehicle: logs with its estimator
     if args.runs is not None and not 1 <= args.runs <= MAX_RUNS:
         raise ThermonetError(f"--runs {args.runs}: not in 1..{MAX_RUNS} (the upper bound keeps "
                              "a request within memory)")
@@ -106,6 +108,45 @@ def _simulate_board(args: argparse.Namespace) -> int:
         print(f"wrote {path}: preset {args.preset} ({autopilot}), run {run + 1} of "
               f"{len(paths)}, {len(log.instances)} sensor instances, "
               f"{log.instances[0].n_samples} samples each")
+    return 0
+
+
+def _simulate_flights(args: argparse.Namespace) -> int:
+    """``simulate fc-board-flights --flights N --out DIR [--format ulg|bin]``."""
+    from .data.logs.flight_writers import write_flight  # lazy: off the --help path
+    from .sim.flights import simulate_flights  # lazy: off the --help path
+
+    if args.preset != "fc-board-flights":
+        raise ThermonetError(f"--flights / --format: only preset 'fc-board-flights' writes "
+                             f"flights (got '{args.preset}')")
+    if args.flights is None:
+        raise ThermonetError("fc-board-flights: give --flights N (the number of logs)")
+    if args.seed < 0:
+        raise ThermonetError(f"--seed {args.seed}: must be a non-negative integer")
+    out = Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ThermonetError(f"{out}: --out must be a new or empty directory (one log a flight)")
+    ext = args.format or "ulg"
+    flights = simulate_flights(args.flights, seed=args.seed,
+                               autopilot="px4" if ext == "ulg" else "ardupilot")
+    for k, f in enumerate(flights):
+        write_flight(f.log, f.biases, out / f"flight{k + 1:04d}.{ext}")
+    print(f"wrote {out}: {len(flights)} flights of one vehicle (fc-board, seed {args.seed}) "
+          f"as .{ext}, ambient {min(f.ambient_c for f in flights):.0f}.."
+          f"{max(f.ambient_c for f in flights):.0f} °C")
+    return 0
+
+
+def _cmd_learn(args: argparse.Namespace) -> int:
+    from .workflows.learn import format_learn_report, learn  # lazy: off the --help path
+
+    say = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    doc = learn(args.logs, args.out, executor=args.executor, workers=args.workers,
+                ray_address=args.ray_address, compare=not args.no_compare,
+                export=not args.no_export, say=say)
+    if not args.quiet:
+        print(format_learn_report(doc), end="")
+        print(f"results: {Path(args.out) / 'results.json'}")
     return 0
 
 
@@ -366,7 +407,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "and CPU seconds (on stderr, after the command)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in (_add_simulate, _add_info, _add_convert, _add_compare, _add_export,
-                _add_calibrate, _add_verify, _add_fleet):
+                _add_calibrate, _add_verify, _add_fleet, _add_learn):
         add(sub)
     return p
 
@@ -405,6 +446,11 @@ def _add_simulate(sub: Any) -> None:
                         "board, written as FILE itself when N is 1 and as FILE_run1 .. "
                         "FILE_runN (beside FILE, its suffix kept) when N > 1")
     s.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
+    s.add_argument("--flights", type=int, default=None,
+                   help="fc-board-flights: N flight logs of one vehicle across the seasons, "
+                        "written into the directory --out (for `thermonet learn`)")
+    s.add_argument("--format", choices=["ulg", "bin"], default=None,
+                   help="fc-board-flights: ulg (PX4, the default) or bin (ArduPilot)")
     s.add_argument("--out", required=True,
                    help="output .parquet file, or .csv (conventional column names, one row a "
                         "sample: what export/thermonet_runtime.py reads); .ulg / .bin for fc-board")
@@ -585,6 +631,30 @@ def _add_verify(sub: Any) -> None:
                    help="replace a previous verification in --out")
     v.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
     v.set_defaults(func=_cmd_verify)
+
+
+def _add_learn(sub: Any) -> None:
+    """``thermonet learn``: the drift from a vehicle's ordinary flight logs."""
+    k = sub.add_parser("learn", help="learn each sensor's drift from a vehicle's flight logs",
+                       description="Learn every gyro's and accelerometer's temperature drift "
+                                   "from ordinary PX4 / ArduPilot flight logs of one vehicle "
+                                   "(the estimator's biases, the still gyro on the ground): "
+                                   "the parameter file, ONNX, C and a coverage map in --out. "
+                                   "Exit codes: 0 done (refused logs are listed), 1: no log "
+                                   "to learn from or bad input.")
+    k.add_argument("logs", nargs="+", help="flight logs (.ulg / .bin) and directories of them")
+    k.add_argument("--out", required=True,
+                   help="output directory (its cache/ keeps every log read: run again with "
+                        "more logs and only the new ones are read)")
+    k.add_argument("--executor", choices=["process", "serial", "ray"], default="process",
+                   help="where the logs are read (as fleet)")
+    k.add_argument("--workers", type=int, default=None, help="processes reading logs")
+    k.add_argument("--ray-address", default=None, help="Ray cluster (with --executor ray)")
+    k.add_argument("--no-compare", action="store_true",
+                   help="the firmware form only (no comparison of the families)")
+    k.add_argument("--no-export", action="store_true", help="no ONNX / C of the chosen models")
+    k.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
+    k.set_defaults(func=_cmd_learn)
 
 
 def _add_fleet(sub: Any) -> None:

@@ -138,7 +138,8 @@ class BiasSeries:
 @dataclass
 class BiasLog:
     """What one log reveals of its sensors' drift: the series, the sensors it holds (device
-    ids by instance name: the vehicle's identity) and the parameters."""
+    ids by instance name) and the board's own id where logged (together: the vehicle's
+    identity), and the parameters."""
 
     path: Path
     autopilot: str
@@ -147,6 +148,7 @@ class BiasLog:
     params: dict[str, float]
     duration_s: float
     notes: list[str] = field(default_factory=list)
+    board_id: str | None = None
 
 
 def read_bias_log(path: str | Path) -> BiasLog:
@@ -180,7 +182,7 @@ def read_bias_log(path: str | Path) -> BiasLog:
     t_all = np.concatenate([i.time_s for i in log.instances if i.n_samples] or [np.zeros(1)])
     return BiasLog(path=path, autopilot=log.autopilot, series=series, sensors=sensors,
                    params=dict(log.params), duration_s=float(np.ptp(t_all)),
-                   notes=notes + list(log.notes))
+                   notes=notes + list(log.notes), board_id=getattr(log, "board_id", None))
 
 
 def _check_clock(path: Path, raw: list[dict[str, Any]]) -> None:

@@ -1,0 +1,205 @@
+"""``thermonet learn`` (thermonet.workflows.learn, .learn_data) on simulated flights of one
+vehicle written as real ULog / DataFlash files: accuracy on a held-out flight against the
+simulator's truth and against a chamber calibration of the same board, the estimator's lag,
+divergences rejected, bad logs refused in one line while the good ones count, the cache that
+resumes a job and the growth of a directory.
+
+The truth is the simulator's (thermonet.sim.flights.true_drift, the fc-board law); the chamber
+calibration is calibrate's own firmware fit of ``simulate_board`` with the same seed."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thermonet.cli import main
+from thermonet.data.firmware import FirmwareFit
+from thermonet.data.logs.flight_writers import write_flight
+from thermonet.data.logs.writers import write_log
+from thermonet.sim.fcboard import simulate_board
+from thermonet.sim.flights import EKF_TAU_S, simulate_flights
+from thermonet.workflows.firmware_fit import fit_firmware
+from thermonet.workflows.learn import binned_pp, learn
+from thermonet.workflows.magnetometer import fit_correction
+from thermonet.workflows.verify import Limits
+
+#: instances the estimator runs on (IMU 2's gyro is learned from still windows only)
+EKF_INSTANCES = ("gyro0", "gyro1", "acc0", "acc1")
+
+
+def _write(flights, root: Path, ext: str) -> list[Path]:
+    root.mkdir(parents=True, exist_ok=True)
+    return [write_flight(f.log, f.biases, root / f"flight{k + 1:03d}{ext}")
+            for k, f in enumerate(flights)]
+
+
+def _fit(d: dict) -> FirmwareFit:
+    f = d["firmware"]
+    return FirmwareFit(d["kind"], d["device_id"], f["t_ref"], f["t_min"], f["t_max"],
+                       np.asarray(f["coef"]))
+
+
+def _judge(doc: dict, held, seed: int, autopilot: str) -> dict[str, list[tuple]]:
+    """Per EKF instance and axis: (raw, learned, chamber) binned drift p-p on the held-out
+    flight's true drift at its logged temperature."""
+    board = simulate_board(seed=seed, autopilot=autopilot, rate_hz=0.2)
+    out = {}
+    for inst in held.log.instances:
+        if inst.name not in EKF_INSTANCES:
+            continue
+        temp, truth = inst.temperature_c, held.truth[inst.name]
+        learned = truth - fit_correction(_fit(doc["instances"][inst.name]), temp)
+        chamber_inst = next(i for i in board.instances if i.name == inst.name)
+        chamber = truth - fit_correction(fit_firmware(chamber_inst, autopilot), temp)
+        out[inst.name] = list(zip(binned_pp(temp, truth), binned_pp(temp, learned),
+                                  binned_pp(temp, chamber), strict=True))
+    return out
+
+
+@pytest.mark.parametrize("autopilot,ext", [("px4", ".ulg"), ("ardupilot", ".bin")])
+def test_held_out_flight_against_truth_and_chamber(tmp_path, autopilot, ext):
+    """Learned from 19 flights, applied to the 20th: per axis the binned drift is at most 0.3×
+    raw, and at most 1.5× a chamber calibration of the same board or within verify's floor
+    (a drift that small no longer matters); the lag chosen is the estimator's."""
+    seed = 7
+    flights = simulate_flights(20, seed=seed, autopilot=autopilot)
+    paths = _write(flights[:-1], tmp_path / "logs", ext)
+    doc = learn(paths, tmp_path / "out", executor="serial", compare=False)
+    assert len(doc["logs"]) == 19 and not doc["refused"]
+    floor = Limits().floor
+    for name, axes in _judge(doc, flights[-1], seed, autopilot).items():
+        kind = name[:-1]
+        assert doc["instances"][name]["lag_s"] == EKF_TAU_S[kind], name
+        for raw, got, chamber in axes:
+            if raw <= floor[kind]:
+                continue
+            assert got <= 0.3 * raw, (name, raw, got)
+            assert got <= max(1.5 * chamber, floor[kind]), (name, got, chamber)
+    text = (tmp_path / "out" / ("px4.params" if autopilot == "px4" else "ardupilot.parm"))
+    assert text.is_file()
+
+
+def test_divergences_are_rejected(tmp_path):
+    """Estimators that wandered off in some flights: their windows are left out."""
+    flights = simulate_flights(12, seed=3)
+    paths = _write(flights, tmp_path / "logs", ".ulg")
+    doc = learn(paths, tmp_path / "out", executor="serial", compare=False)
+    rejected = sum(doc["instances"][n]["rejected_windows"] for n in EKF_INSTANCES)
+    assert rejected > 0
+    assert all(doc["instances"][n]["status"] == "fitted" for n in EKF_INSTANCES)
+
+
+def _bad_logs(root: Path) -> dict[str, Path]:
+    """One log of each kind learn must refuse, each named for what it lacks."""
+    root.mkdir(parents=True, exist_ok=True)
+    bad = {}
+    other = simulate_flights(1, seed=21)[0]
+    for inst in other.log.instances:
+        inst.device_id += 7
+    for b in other.biases:
+        b.gyro_device_id += 7
+        b.accel_device_id += 7
+    bad["other"] = write_flight(other.log, other.biases, root / "x_other_vehicle.ulg")
+    bad["no_bias"] = write_log(simulate_board(seed=1, rate_hz=0.05), root / "x_chamber.ulg")
+    never = simulate_flights(1, seed=22)[0]
+    for b in never.biases:
+        b.gyro_valid = np.zeros(b.time_s.size, dtype=bool)
+        b.accel_valid = np.zeros(b.time_s.size, dtype=bool)
+    bad["never"] = write_flight(never.log, never.biases, root / "x_never_converged.ulg")
+    jump = simulate_flights(1, seed=23)[0]
+    for b in jump.biases:
+        b.time_s = np.where(np.arange(b.time_s.size) >= 300, b.time_s + 900.0, b.time_s)
+    bad["jump"] = write_flight(jump.log, jump.biases, root / "x_clock_jump.ulg")
+    ap = simulate_flights(1, seed=24, autopilot="ardupilot")[0]
+    bad["ardupilot"] = write_flight(ap.log, ap.biases, root / "x_ardupilot.bin")
+    return bad
+
+
+def test_bad_logs_one_line_each_good_ones_counted(tmp_path, capsys):
+    """Another vehicle's ids, no bias topic, never converged, a clock jump, an ArduPilot log
+    among PX4 logs: one line each naming the log and what it lacks; the good logs are used."""
+    good = _write(simulate_flights(4, seed=5), tmp_path / "logs", ".ulg")
+    bad = _bad_logs(tmp_path / "logs")
+    rc = main(["learn", str(tmp_path / "logs"), "--out", str(tmp_path / "out"),
+               "--executor", "serial", "--no-compare"])
+    assert rc == 0
+    doc = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert len(doc["logs"]) == len(good)
+    why = {Path(r["log"]).name: r["reason"] for r in doc["refused"]}
+    assert set(why) == {p.name for p in bad.values()}
+    assert "another vehicle" in why["x_other_vehicle.ulg"]
+    assert "estimator_sensor_bias" in why["x_chamber.ulg"]
+    assert "never converged" in why["x_never_converged.ulg"]
+    assert "clock jumps" in why["x_clock_jump.ulg"]
+    assert "ardupilot log among px4" in why["x_ardupilot.bin"]
+    out = capsys.readouterr().out
+    for p in bad.values():
+        lines = [line for line in out.splitlines() if p.name in line]
+        assert len(lines) == 1, lines
+
+
+def test_no_usable_log_is_one_line_and_nothing_written(tmp_path, capsys):
+    """Only logs learn cannot use: exit 1, one line, no output directory."""
+    root = tmp_path / "logs"
+    write_log(simulate_board(seed=1, rate_hz=0.05), root / "chamber.ulg")
+    rc = main(["learn", str(root), "--out", str(tmp_path / "out"), "--executor", "serial"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len([e for e in err if "no log to learn from" in e]) == 1
+    assert "chamber.ulg" in err[-1] and not (tmp_path / "out").exists()
+
+
+def test_resume_from_the_cache_and_grow(tmp_path, capsys):
+    """Every log is cached as it is read (on the process pool): run again, nothing is read
+    again; add flights, only they are read, and the report says what changed."""
+    flights = simulate_flights(8, seed=9)
+    logs = tmp_path / "logs"
+    _write(flights[:5], logs, ".ulg")
+    out = tmp_path / "out"
+    assert main(["learn", str(logs), "--out", str(out), "--workers", "2", "--no-compare"]) == 0
+    assert len(list((out / "cache").glob("*.json"))) == 5
+    first = json.loads((out / "results.json").read_text())
+    capsys.readouterr()
+    for k, f in enumerate(flights[5:], start=6):
+        write_flight(f.log, f.biases, logs / f"flight{k:03d}.ulg")
+    assert main(["learn", str(logs), "--out", str(out), "--executor", "serial",
+                 "--no-compare"]) == 0
+    captured = capsys.readouterr()
+    assert "8 logs: 5 read before (cache), 3 to read" in captured.err
+    doc = json.loads((out / "results.json").read_text())
+    assert doc["changes"][0] == "flights: 5 -> 8"
+    assert any(c.startswith("gyro0: 5 -> 8 flights") for c in doc["changes"])
+    assert "changed: flights: 5 -> 8" in captured.out
+    assert first["instances"]["gyro0"]["firmware"] != doc["instances"]["gyro0"]["firmware"]
+
+
+def test_coverage_map_says_what_is_missing(tmp_path):
+    """From a few warm-season flights only: the map's bins count flights and minutes, and the
+    cold end is named as missing in plain words."""
+    flights = [f for f in simulate_flights(30, seed=4) if f.ambient_c > 18.0][:4]
+    paths = _write(flights, tmp_path / "logs", ".ulg")
+    doc = learn(paths, tmp_path / "out", executor="serial", compare=False)
+    d = doc["instances"]["gyro0"]
+    assert all(c["flights"] <= 4 and c["minutes"] >= 0 for c in d["coverage"])
+    lo = d["supported_c"][0]
+    assert lo > 15 and any(f"fly once below {lo} °C to cover the cold end" in w
+                           for w in d["missing"])
+    total = sum(c["minutes"] for c in d["coverage"])
+    assert math.isclose(total, d["minutes"], rel_tol=0.02)
+
+
+@pytest.mark.slow
+def test_comparison_onnx_and_c_on_whole_flights(tmp_path):
+    """With the comparison: one run per flight (the last tests), the per-axis choice, the
+    band, and the chosen model exported as ONNX and C beside it."""
+    flights = simulate_flights(8, seed=2)
+    paths = _write(flights, tmp_path / "logs", ".ulg")
+    doc = learn(paths, tmp_path / "out", executor="serial")
+    c = doc["instances"]["gyro0"]["compare"]
+    assert c["status"] == "ok" and c["test_flight"] == "flight8" and c["flights"] == 8
+    assert set(c["families"]) >= {"px4-cubic", "linear", "rbf"}
+    for rel in doc["instances"]["gyro0"]["export"].values():
+        assert (tmp_path / "out" / rel).is_file()

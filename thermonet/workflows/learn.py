@@ -1,0 +1,519 @@
+"""``thermonet learn LOG_OR_DIR... --out DIR``: each sensor's temperature drift from ordinary flights.
+
+No chamber: every log of one vehicle is read for the drift it reveals — the estimator's bias
+and the still-on-the-ground gyro (:mod:`thermonet.data.logs.bias`: what the log applied is
+undone, invalid and unconverged samples rejected) — reduced to window means on the process
+pool or Ray, cached per log (:mod:`thermonet.workflows.learn_data`: a stopped job resumes
+without reading a log twice, a grown directory reads only its new logs), aligned for the
+estimator's lag and cleaned of divergences.  Then, per sensor instance (gyro, accelerometer):
+
+1. **The comparison** the chamber path runs (:func:`thermonet.workflows.compare.run_compare`,
+   as ``calibrate`` does): the firmware's cubic as the baseline family, a line, the RBF with
+   the cubic tail; **one flight = one run**, so the split holds out whole flights
+   (``split: runs``: the last flight tests, the one before validates, the selection's folds
+   are whole flights), with the per-axis choice and the residual-drift band.  Needs
+   :data:`MIN_COMPARE_FLIGHTS` flights.
+2. **The firmware form** (:func:`thermonet.workflows.firmware_fit.fit_firmware`: PX4's
+   ``process_sensor_caldata.py`` cubic, ArduPilot's ``tempcal_IMU.py`` cubic) on every
+   flight's kept windows, at the aligned temperature; **checked on the last flight** fitted on
+   the others: the 1 °C-binned drift peak-to-peak before and after.  An instance whose
+   held-out drift it does not cut is left out of the parameter file (do no harm).
+3. **Files**: ``DIR/px4.params`` or ``DIR/ardupilot.parm`` (by the logs' autopilot, as
+   ``calibrate`` writes them), ``DIR/instances/<name>/`` (the comparison, with
+   ``model.onnx`` and ``model.h`` of its chosen model), ``DIR/results.json``,
+   ``DIR/report.txt``, and the **coverage map**: per 1 °C bin the flights and minutes that
+   support it, and the temperatures still missing in plain words.
+
+The target is the chamber path's: the gyro's drift as it is (its offset included), the
+accelerometer's less its median (gravity and the stored offsets are not drift).  After
+loading the file, redo the autopilot's ordinary gyro / accelerometer calibration, as after a
+chamber calibration.
+
+Bad input: a log that cannot be learned from (no bias topics, never converged, a clock that
+jumps, unreadable), or of another vehicle (other device ids or board id), or of the other
+autopilot than most logs, is one line naming it and what it lacks; the others are used and
+counted.  No usable log at all: an error listing why.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import InputError, ThermonetError
+from ..core.executors import TaskFailure, run_tasks
+from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
+from ..core.outdir import sha256_file
+from ..core.recording import Dataset, Recording
+from ..core.version import __version__
+from ..data.firmware import FirmwareFit, ardupilot_calibration_text, px4_calibration_text
+from ..data.logs import SensorInstance, is_log
+from .firmware_fit import fit_firmware
+from .learn_data import (
+    READER_VERSION,
+    InstanceWindows,
+    cache_path,
+    choose_lag,
+    coverage,
+    gather,
+    missing_words,
+    not_this_vehicle,
+    read_cache,
+    reduce_or_refuse,
+    reject_outliers,
+    vehicle_of,
+    write_cache,
+)
+from .magnetometer import fit_correction
+from .verify import Limits
+
+__all__ = ["learn", "format_learn_report", "MIN_COMPARE_FLIGHTS", "find_logs", "binned_pp"]
+
+#: Flights an instance needs for the comparison (train, validate, test by flight).
+MIN_COMPARE_FLIGHTS = 3
+#: Windows a flight needs to be a run of the comparison.
+MIN_RUN_WINDOWS = 10
+_UNITS = {"gyro": "rad/s", "acc": "m/s^2"}
+_OWNED = ("results.json", "report.txt", "px4.params", "ardupilot.parm", "instances", "cache")
+
+
+def find_logs(paths: Sequence[str | Path]) -> list[Path]:
+    """The logs named: files as given, directories searched (recursively) for ``.ulg`` /
+    ``.bin``, sorted by name — the order is the flights' (the last is held out)."""
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            out += sorted(q for q in p.rglob("*") if q.is_file() and is_log(q))
+        elif p.is_file():
+            out.append(p)
+        else:
+            raise InputError.at(p, "no such file or directory")
+    if not out:
+        raise InputError(f"{', '.join(map(str, paths))}: no .ulg or .bin log found")
+    return out
+
+
+def _check_out(out: Path, files: list[Path]) -> None:
+    """Refuse an ``out`` that is a log, or a non-empty directory that is not learn's."""
+    refuse_overwriting_inputs(out, files, owned=_OWNED)
+    if out.exists() and not out.is_dir():
+        raise InputError.at(out, "--out must be a directory")
+    if out.is_dir() and any(out.iterdir()):
+        doc = out / "results.json"
+        ours = (out / "cache").is_dir() or (doc.is_file() and '"learn"' in doc.read_text()[:400])
+        if not ours:
+            raise InputError.at(out, "not empty and not a previous `thermonet learn` directory: "
+                                "refusing to write into it")
+
+
+def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
+              ray_address: str | None, say: Callable[[str], None]
+              ) -> tuple[list[dict[str, Any]], list[tuple[str, str]]]:
+    """Every log reduced (the cache first, then the rest on the executor, each cached as it
+    arrives), in the order given; the refused ones with their one line."""
+    digests = [sha256_file(f) for f in files]
+    got: dict[int, dict[str, Any]] = {}
+    for k, d in enumerate(digests):
+        doc = read_cache(cache_path(out, d))
+        if doc is not None:
+            got[k] = doc
+    todo = [k for k in range(len(files)) if k not in got]
+    say(f"{len(files)} logs: {len(got)} read before (cache), {len(todo)} to read")
+    start, done = time.monotonic(), [0]
+
+    def arrived(i: int, value: Any) -> None:
+        k = todo[i]
+        doc = value if isinstance(value, dict) else {
+            "version": READER_VERSION, "path": str(files[k]),
+            "error": value.reason if isinstance(value, TaskFailure) else str(value)}
+        doc["path"] = str(files[k])
+        if isinstance(value, dict):     # a worker that failed is not an answer: not cached
+            write_cache(cache_path(out, digests[k]), doc)
+        got[k] = doc
+        done[0] += 1
+        rate = done[0] / max(time.monotonic() - start, 1e-9)
+        say(f"[{done[0]}/{len(todo)}] {files[k].name}: "
+            f"{'refused' if 'error' in doc else 'read'} ({rate:.1f} logs/s)")
+
+    if todo:
+        out.joinpath("cache").mkdir(parents=True, exist_ok=True)
+        run_tasks(reduce_or_refuse, [str(files[k]) for k in todo], executor=executor,  # type: ignore[arg-type]
+                  workers=workers, ray_address=ray_address, on_done=arrived)
+    good, bad = [], []
+    for k in range(len(files)):
+        doc = got[k]
+        if "error" in doc:
+            bad.append((str(files[k]), _strip(doc["error"], files[k])))
+        else:
+            good.append(doc)
+    return good, bad
+
+
+def _strip(line: str, path: Path) -> str:
+    """A refusal without the path it already names (the report names it once)."""
+    for p in (str(path), path.name):
+        if line.startswith(p + ": "):
+            return line[len(p) + 2:]
+    return line
+
+
+def _target(inst: InstanceWindows, drift: np.ndarray) -> np.ndarray:
+    """The chamber path's target: the gyro as it is, the accelerometer less its median."""
+    return drift if inst.kind == "gyro" else drift - np.median(inst.drift[inst.keep], axis=0)
+
+
+def binned_pp(temp: np.ndarray, y: np.ndarray) -> list[float]:
+    """Per axis, the peak-to-peak of the 1 °C-binned means of ``y`` (NaN with < 2 bins)."""
+    bins = np.floor(temp).astype(np.int64)
+    u = np.unique(bins)
+    if u.size < 2:
+        return [math.nan] * y.shape[1]
+    means = np.array([y[bins == b].mean(axis=0) for b in u])
+    return [float(v) for v in np.ptp(means, axis=0)]
+
+
+def _as_instance(inst: InstanceWindows, sel: np.ndarray) -> SensorInstance:
+    """Selected windows as one sensor instance (flights one after another in time)."""
+    order = np.lexsort((inst.time_s[sel], inst.flight[sel]))
+    t = np.arange(int(sel.sum()), dtype=np.float64)[order.argsort()] * 10.0
+    return SensorInstance(inst.kind, int(inst.name[-1]) if inst.name[-1].isdigit() else 0,
+                          inst.device_id, np.sort(t), inst.aligned[sel][order],
+                          inst.drift[sel][order], notes=list(inst.notes))
+
+
+def _firmware(inst: InstanceWindows, autopilot: str) -> dict[str, Any]:
+    """The firmware form on every kept window, and its check on the last flight."""
+    keep = np.asarray(inst.keep)
+    flights = np.unique(inst.flight[keep])
+    out: dict[str, Any] = {"fit": fit_firmware(_as_instance(inst, keep), autopilot)}
+    if flights.size < 2:
+        out["held_out"] = {"status": "not judged", "reason": "one flight: nothing to hold out"}
+        return out
+    last = keep & (inst.flight == flights[-1])
+    train = keep & ~last
+    fit = fit_firmware(_as_instance(inst, train), autopilot)
+    temp = inst.aligned[last]
+    y = _target(inst, inst.drift[last])
+    after = y - fit_correction(fit, temp)
+    before_pp, after_pp = binned_pp(temp, y), binned_pp(temp, after)
+    out["held_out"] = {"status": "judged", "flight": inst.flights[int(flights[-1])],
+                       "pp_raw": before_pp, "pp_corrected": after_pp,
+                       "cut": [b / a if a > 0 else math.inf for b, a in zip(
+                           before_pp, after_pp, strict=True)]}
+    return out
+
+
+def _dataset(inst: InstanceWindows) -> Dataset | None:
+    """One run per flight with enough windows (None: too few flights to compare)."""
+    keep = np.asarray(inst.keep)
+    axes = ("x", "y", "z")
+    runs = []
+    for f in np.unique(inst.flight[keep]):
+        sel = keep & (inst.flight == f)
+        if sel.sum() < MIN_RUN_WINDOWS:
+            continue
+        order = np.argsort(inst.time_s[sel], kind="stable")
+        y = inst.drift[sel][order]
+        outputs = {f"{inst.kind}_{a}": y[:, j] for j, a in enumerate(axes)}
+        refs = {} if inst.kind == "gyro" else {
+            f"ref_{inst.kind}_{a}": np.full(y.shape[0], float(np.median(inst.drift[keep, j])))
+            for j, a in enumerate(axes)}
+        units = {"time_s": "s", "temperature_c": "degC",
+                 **{c: _UNITS[inst.kind] for c in outputs}}
+        runs.append(Recording(time_s=inst.time_s[sel][order], temperature_c=inst.aligned[sel][
+            order], outputs=outputs, references=refs, units=units,
+            device_id=str(inst.device_id), sensor_kind=inst.kind, run_id=f"flight{int(f) + 1}",
+            meta={"source": inst.flights[int(f)], "instance": inst.name}))
+    return Dataset(runs=runs) if len(runs) >= MIN_COMPARE_FLIGHTS else None
+
+
+def _compare(inst: InstanceWindows, autopilot: str, where: Path) -> dict[str, Any]:
+    """The chamber path's comparison on the flights (see the module); its summary."""
+    from ..training.config import (  # lazy: importing it loads yaml
+        CompareConfig,
+        FamilyConfig,
+        SplitConfig,
+        TrackingConfig,
+    )
+    from .compare import run_compare  # lazy: importing it loads yaml and the fit
+
+    ds = _dataset(inst)
+    if ds is None:
+        return {"status": "not compared", "reason": f"fewer than {MIN_COMPARE_FLIGHTS} flights "
+                f"with {MIN_RUN_WINDOWS} windows each"}
+    fw = "px4-cubic" if autopilot == "px4" else "ardupilot-cubic"
+    cfg = CompareConfig(
+        split=SplitConfig(strategy="runs"), tracking=TrackingConfig(enabled=False),
+        baseline=fw, workers=1, families=[
+            FamilyConfig(family="poly", name=fw, inputs=["dT"], params={"degree": 3}),
+            FamilyConfig(family="linear", name="linear", inputs=["dT"]),
+            FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
+                         params={"n_centres": 8, "tail": 3, "init": "quantiles"})])
+    res = run_compare(cfg, where, overwrite=True, track=False, quiet=True,
+                      dataset=ds.validate(inst.name), plots=False)
+    fams = res["families"]
+    summary: dict[str, Any] = {"status": "ok", "chosen": res.get("chosen"),
+                               "chosen_reason": res.get("chosen_reason"), "baseline": fw,
+                               "flights": len(ds), "test_flight": ds.run_ids[-1],
+                               "families": {}}
+    band = (fams.get(fw) or {}).get("band") or {}
+    if band.get("status") == "ok":
+        summary["band"] = band
+    for label, fr in fams.items():
+        if fr.get("status") == "ok":
+            summary["families"][label] = {
+                "val_score": fr["val_score"],
+                "held_out_pp_raw": {a: m["pp_raw"] for a, m in fr["axes"].items()},
+                "held_out_pp_comp": {a: m["pp_comp"] for a, m in fr["axes"].items()}}
+    return summary
+
+
+def _export(where: Path) -> dict[str, str]:
+    """ONNX and C of the comparison's chosen model (what could not be exported, said); the
+    paths relative to the output directory."""
+    from ..exporting import export_source  # the registry; torch only inside, to load
+
+    out: dict[str, str] = {}
+    for fmt, name in (("onnx", "model.onnx"), ("c", "model.h")):
+        try:
+            export_source(str(where), fmt=fmt, out=where / name)
+            out[fmt] = f"instances/{where.name}/{name}"
+        except ThermonetError as err:
+            out[fmt] = f"not exported: {err}"
+    return out
+
+
+def _instance(inst: InstanceWindows, autopilot: str, stage: Path, do_compare: bool,
+              do_export: bool) -> dict[str, Any]:
+    """One instance learned: lag, rejection, coverage, firmware form, comparison, export."""
+    scores = choose_lag(inst)
+    dropped = reject_outliers(inst)
+    cov = coverage(inst)
+    span, words = missing_words(cov)
+    keep = np.asarray(inst.keep)
+    d: dict[str, Any] = {
+        "kind": inst.kind, "device_id": inst.device_id, "status": "skipped", "reason": None,
+        "flights": int(np.unique(inst.flight[keep]).size), "windows": int(keep.sum()),
+        "still_windows": int((inst.still & keep).sum()), "lag_s": inst.lag_s,
+        "lag_scores": scores, "rejected_windows": dropped,
+        "minutes": round(float(inst.weight[keep].sum()) / 60.0, 1),
+        "coverage": cov, "supported_c": list(span) if span else None, "missing": words}
+    if keep.sum() < MIN_RUN_WINDOWS or np.unique(np.round(inst.aligned[keep])).size < 4:
+        d["reason"] = "too few windows or temperatures to fit a cubic"
+        return d
+    fw = _firmware(inst, autopilot)
+    fit: FirmwareFit = fw["fit"]
+    d["firmware"] = {"t_ref": fit.t_ref, "t_min": fit.t_min, "t_max": fit.t_max,
+                     "coef": fit.coef.tolist()}
+    d["held_out"] = fw["held_out"]
+    d["status"] = "fitted"
+    h = fw["held_out"]
+    floor = Limits().floor[inst.kind]      # verify's: a drift this small no longer matters
+    if h["status"] == "judged" and not all(a < b or a <= floor for a, b in zip(
+            h["pp_corrected"], h["pp_raw"], strict=True)):
+        d["status"], d["reason"] = "skipped", (
+            "fitted on the other flights, the firmware form does not cut the drift of the "
+            f"last flight ({Path(h['flight']).name}): left out of the parameter file")
+    if do_compare:
+        where = stage / "instances" / inst.name
+        try:
+            d["compare"] = _compare(inst, autopilot, where)
+            if d["compare"].get("status") == "ok" and do_export:
+                d["export"] = _export(where)
+        except ThermonetError as err:
+            d["compare"] = {"status": "failed", "reason": str(err)}
+    return d
+
+
+def _params_text(autopilot: str, docs: dict[str, dict[str, Any]], header: list[str]
+                 ) -> tuple[str, str]:
+    """The parameter file of the fitted instances (text, file name), slots by instance."""
+    fits: dict[str, list[FirmwareFit]] = {}
+    imus: dict[int, dict[str, FirmwareFit]] = {}
+    for name in sorted(docs, key=lambda n: (docs[n]["kind"], n)):
+        d = docs[name]
+        if d["status"] != "fitted":
+            continue
+        f = d["firmware"]
+        fit = FirmwareFit(d["kind"], d["device_id"], f["t_ref"], f["t_min"], f["t_max"],
+                          np.asarray(f["coef"]))
+        fits.setdefault(d["kind"], []).append(fit)
+        if name[-1].isdigit():
+            imus.setdefault(int(name[-1]), {})[d["kind"]] = fit
+    if autopilot == "px4":
+        return px4_calibration_text(fits, header=header), "px4.params"
+    return ardupilot_calibration_text(imus, header=header), "ardupilot.parm"
+
+
+def _changes(old: dict[str, Any] | None, new: dict[str, Any]) -> list[str]:
+    """What changed since the directory's previous results, in words."""
+    if not old:
+        return []
+    out = [f"flights: {len(old.get('logs', []))} -> {len(new['logs'])}"]
+    for name, d in new["instances"].items():
+        o = (old.get("instances") or {}).get(name)
+        if not o:
+            out.append(f"{name}: new")
+            continue
+        was, now = o.get("supported_c"), d.get("supported_c")
+        line = f"{name}: {o.get('flights')} -> {d.get('flights')} flights"
+        if was != now:
+            line += f", supported {_span(was)} -> {_span(now)}"
+        if o.get("firmware") and d.get("firmware"):
+            grid = np.linspace(d["firmware"]["t_min"], d["firmware"]["t_max"], 50)
+            fo, fn = (FirmwareFit(d["kind"], 0, x["t_ref"], x["t_min"], x["t_max"],
+                                  np.asarray(x["coef"])) for x in (o["firmware"], d["firmware"]))
+            delta = np.abs(fit_correction(fn, grid) - fit_correction(fo, grid))
+            line += f", correction moved by up to {float(delta.max()):.3g} {_UNITS[d['kind']]}"
+        out.append(line)
+    return out
+
+
+def _span(s: list[int] | None) -> str:
+    return f"{s[0]}..{s[1]} °C" if s else "nothing"
+
+
+def learn(paths: Sequence[str | Path], out_dir: str | Path, *, executor: str = "process",
+          workers: int | None = None, ray_address: str | None = None, compare: bool = True,
+          export: bool = True, say: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Learn every sensor instance's drift from the logs; write ``out_dir``; return results.
+
+    ``paths``: logs and directories of logs (:func:`find_logs`), one vehicle.  ``executor``
+    / ``workers`` / ``ray_address``: where the logs are read (as ``fleet``:
+    :func:`thermonet.core.executors.run_tasks`).  ``compare`` / ``export``: run the
+    comparison per instance, and export its chosen model as ONNX and C.  ``say`` receives
+    the progress lines (None: silent).
+    """
+    say = say or (lambda _line: None)
+    files = find_logs(paths)
+    out = Path(out_dir)
+    _check_out(out, files)
+    fresh = not out.exists()
+    try:
+        logs, refused = _read_all(files, out, executor, workers, ray_address, say)
+    except BaseException:
+        if fresh:                       # interrupted before any result: leave no directory
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    if logs:
+        ap, sensors, board = vehicle_of(logs)
+        kept = []
+        for lg in logs:
+            why = not_this_vehicle(lg, ap, sensors, board)
+            if why:
+                refused.append((lg["path"], why))
+            else:
+                kept.append(lg)
+        logs = kept
+    if not logs:
+        if fresh:                       # nothing learned: no directory left behind
+            shutil.rmtree(out, ignore_errors=True)
+        raise ThermonetError("no log to learn from: " + "; ".join(
+            f"{Path(p).name}: {w}" for p, w in refused))
+    old = _previous(out)
+    stage = out / ".staging"
+    shutil.rmtree(stage, ignore_errors=True)
+    stage.mkdir(parents=True)
+    try:
+        doc = _learn_into(logs, refused, ap, stage, compare, export, say)
+        doc["changes"] = _changes(old, doc)
+        atomic_write_text(stage / "report.txt", format_learn_report(doc))
+        atomic_write_text(stage / "results.json", json.dumps(doc, indent=2, default=_json))
+        _install(stage, out)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    return doc
+
+
+def _previous(out: Path) -> dict[str, Any] | None:
+    try:
+        doc = json.loads((out / "results.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) and doc.get("kind") == "learn" else None
+
+
+def _install(stage: Path, out: Path) -> None:
+    """Move the staged outputs into ``out``, replacing the previous ones (results.json last,
+    so a directory with results.json is complete)."""
+    for name in ("instances", "px4.params", "ardupilot.parm", "report.txt", "results.json"):
+        target = out / name
+        if target.is_dir():
+            shutil.rmtree(target)
+        elif target.exists():
+            target.unlink()
+        if (stage / name).exists():
+            (stage / name).rename(target)
+
+
+def _learn_into(logs: list[dict[str, Any]], refused: list[tuple[str, str]], autopilot: str,
+                stage: Path, do_compare: bool, do_export: bool, say: Callable[[str], None]
+                ) -> dict[str, Any]:
+    """Every instance learned into ``stage``; the results document (without its changes)."""
+    instances = gather(logs)
+    docs: dict[str, dict[str, Any]] = {}
+    for inst in instances:
+        say(f"{inst.name}: learning from {np.unique(inst.flight).size} flights")
+        docs[inst.name] = _instance(inst, autopilot, stage, do_compare, do_export)
+    header = [f"thermonet {__version__}: drift learned from {len(logs)} flight logs "
+              "(estimator biases and still-gyro windows; no chamber)",
+              "redo the autopilot's gyro and accelerometer calibration after loading it"]
+    params = None
+    if any(d["status"] == "fitted" for d in docs.values()):
+        text, fname = _params_text(autopilot, docs, header)
+        atomic_write_text(stage / fname, text)
+        params = fname
+    return {"kind": "learn", "schema": 1, "thermonet_version": __version__,
+            "autopilot": autopilot, "logs": [lg["path"] for lg in logs],
+            "refused": [{"log": p, "reason": w} for p, w in refused],
+            "params_file": params, "instances": docs,
+            "log_notes": sorted({n for lg in logs for n in lg.get("notes", [])})}
+
+
+def _json(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    raise TypeError(type(obj).__name__)
+
+
+def format_learn_report(doc: dict[str, Any]) -> str:
+    """The console summary: what was used and refused, per instance its fit, held-out check,
+    coverage and what is missing, and what changed."""
+    lines = [f"thermonet learn: {len(doc['logs'])} logs used, {len(doc['refused'])} refused "
+             f"({doc['autopilot']})"]
+    lines += [f"  refused {r['log']}: {r['reason']}" for r in doc["refused"]]
+    for name, d in doc["instances"].items():
+        unit = _UNITS[d["kind"]]
+        lines.append(f"{name} (id {d['device_id']}): {d['status']}, {d['flights']} flights, "
+                     f"{d['minutes']:g} min, lag {d['lag_s']:g} s, "
+                     f"{d['rejected_windows']} windows rejected (diverged)")
+        h = d.get("held_out") or {}
+        if h.get("status") == "judged":
+            lines.append(f"  held-out flight {Path(h['flight']).name}: binned drift p-p "
+                         + ", ".join(f"{b:.3g} -> {a:.3g}" for b, a in zip(
+                             h["pp_raw"], h["pp_corrected"], strict=True)) + f" {unit}")
+        c = d.get("compare") or {}
+        if c.get("status") == "ok":
+            lines.append(f"  comparison on whole flights: chosen {c.get('chosen')} "
+                         f"(baseline {c['baseline']}, test {c['test_flight']})")
+        elif c:
+            lines.append(f"  comparison: {c.get('status')} ({c.get('reason')})")
+        if d.get("reason"):
+            lines.append(f"  {d['reason']}")
+        lines.append(f"  coverage: supported {_span(d.get('supported_c'))}")
+        lines += [f"  {w}" for w in d.get("missing", [])]
+    if doc.get("params_file"):
+        lines.append(f"parameter file: {doc['params_file']}")
+    lines += [f"changed: {c}" for c in doc.get("changes", [])]
+    return "\n".join(lines) + "\n"
