@@ -70,13 +70,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         raise ThermonetError(f"--seed {args.seed}: must be a non-negative integer")
     if args.preset in BOARD_PRESETS or is_log(args.out):
         return _simulate_board(args)
-    if args.units is None and args.outliers:
-        raise ThermonetError("--outliers needs --units (outliers are units of a fleet)")
+    for opt in ("outliers", "clusters", "test"):
+        if args.units is None and getattr(args, opt):
+            raise ThermonetError(f"--{opt} needs --units (it shapes the units of a fleet)")
     if args.units is None:
         ds = simulate(args.preset, runs=args.runs, seed=args.seed)
     else:
         ds = simulate_fleet(args.preset, units=args.units, runs=args.runs, seed=args.seed,
-                            outliers=args.outliers)
+                            outliers=args.outliers, clusters=args.clusters, test=args.test)
     path = (write_csv if Path(args.out).suffix.lower() == ".csv" else write_parquet)(ds, args.out)
     n = sum(r.n_samples for r in ds)
     fleet = f"{len(ds.unit_ids)} units ({args.outliers} outliers), " if args.units else ""
@@ -192,6 +193,93 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"\nresults: {Path(args.out) / 'results.json'}")
     return 0 if results["fleet"]["all_passed"] else EXIT_LIMITS_FAILED
+
+
+def _station_sources(args: argparse.Namespace, cfg: Any) -> list[Any]:
+    """Units for ``prior`` / ``station``: simulated (``--units``) or the config's data."""
+    from .training.loader import load_fleet_data  # lazy: loads yaml
+    from .workflows.fleet_units import sources_from_dataset, sources_from_simulation
+
+    if args.units is None:
+        for opt in ("outliers", "clusters", "test"):
+            if getattr(args, opt, None):
+                raise ThermonetError(f"--{opt} needs --units (it shapes simulated units)")
+        return sources_from_dataset(load_fleet_data(cfg, source=str(args.config)))
+    if cfg.data.paths:
+        raise ThermonetError(f"{args.config}: --units simulates units of the config's preset; "
+                             "this config reads files (data.paths)")
+    return sources_from_simulation(cfg.data.preset or "", units=args.units,
+                                   runs=cfg.data.runs if getattr(args, "test", None) is None
+                                   else None, seed=cfg.data.seed, outliers=args.outliers,
+                                   clusters=args.clusters, test=getattr(args, "test", None))
+
+
+def _cmd_prior(args: argparse.Namespace) -> int:
+    import json
+
+    from .core.fileio import atomic_write_text
+    from .core.recording import Dataset
+    from .training.config import load_config  # lazy: loads yaml
+    from .workflows.station import build_prior, prior_summary
+
+    cfg = load_config(args.config)
+    out = Path(args.out)
+    if out.is_dir():
+        raise ThermonetError(f"{out}: --out must be a file (prior.json), and this is a directory")
+    sources = _station_sources(args, cfg)
+    ds = Dataset(runs=[r for s in sources for r in s.load(cfg)])
+    fp = build_prior(cfg, ds, source=str(args.config))
+    data = fp.to_dict()
+    data["summary"] = prior_summary(fp)
+    atomic_write_text(out, json.dumps(data, indent=2))
+    if not args.quiet:
+        print(f"wrote {out}: prior of {fp.n_units} units ({len(fp.excluded)} left out), axes "
+              f"{', '.join(fp.axis_names)}, {fp.range_c[0]:g} to {fp.range_c[1]:g} °C")
+        for axis, s in data["summary"].items():
+            need = s["points_needed"][0]
+            pts = f"{need['points']} points ({', '.join(f'{t:g}' for t in need['temperatures_c'])}"\
+                f" °C)" if need["points"] else "more than 12 points"
+            print(f"  {axis}: {s['clusters']} cluster(s); {pts} for an expected error of 20 % "
+                  f"of the fleet's drift ({need['target']:.3g})")
+    return 0
+
+
+def _read_prior(path: str) -> Any:
+    import json
+
+    from .scoring.prior import FleetPrior
+
+    p = Path(path)
+    if not p.is_file():
+        raise ThermonetError(f"{p}: --prior: no such file (write one with `thermonet prior`)")
+    if p.stat().st_size > 16_000_000:
+        raise ThermonetError(f"{p}: --prior: {p.stat().st_size:,} bytes is not a prior file")
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, ValueError) as err:
+        raise ThermonetError(f"{p}: --prior: not JSON ({str(err).splitlines()[0]})") from None
+    return FleetPrior.from_dict(data, str(p))
+
+
+def _cmd_station(args: argparse.Namespace) -> int:
+    from .training.config import load_config  # lazy: loads yaml
+    from .workflows.station import (
+        EXIT_STATION_FAILED,
+        StationOptions,
+        format_station,
+        run_station,
+    )
+
+    cfg = load_config(args.config)
+    fp = _read_prior(args.prior)
+    sources = _station_sources(args, cfg)
+    res = run_station(cfg, fp, sources, Path(args.out), overwrite=args.overwrite,
+                      opts=StationOptions(args.executor, args.workers, args.ray_address),
+                      say=(lambda *_: None) if args.quiet else print)
+    if not args.quiet:
+        print(format_station(res))
+        print(f"\nresults: {Path(args.out) / 'results.json'}")
+    return 0 if res["summary"]["failed"] == 0 else EXIT_STATION_FAILED
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -407,7 +495,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "and CPU seconds (on stderr, after the command)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in (_add_simulate, _add_info, _add_convert, _add_compare, _add_export,
-                _add_calibrate, _add_verify, _add_fleet, _add_learn):
+                _add_calibrate, _add_verify, _add_fleet, _add_learn, _add_prior, _add_station):
         add(sub)
     return p
 
@@ -459,6 +547,12 @@ def _add_simulate(sub: Any) -> None:
                         "the preset's unit-to-unit spread")
     s.add_argument("--outliers", type=int, default=0,
                    help="with --units: the last K units follow a drift law 10σ off the fleet's")
+    s.add_argument("--clusters", type=int, default=0,
+                   help="with --units: a structured fleet of K clusters of drift shapes "
+                        "(polynomial presets; for `thermonet prior`)")
+    s.add_argument("--test", default=None,
+                   help="with --units: a short production test instead of the preset's "
+                        "programme: soaks:T1,T2,... (20-min soaks) or ramp:FROM,TO,MINUTES")
     s.set_defaults(func=_cmd_simulate)
 
 
@@ -631,6 +725,50 @@ def _add_verify(sub: Any) -> None:
                    help="replace a previous verification in --out")
     v.add_argument("-q", "--quiet", action="store_true", help="no report on stdout")
     v.set_defaults(func=_cmd_verify)
+
+
+def _sim_unit_args(q: argparse.ArgumentParser, test: bool) -> None:
+    q.add_argument("--units", type=int, default=None,
+                   help="simulate N units of the config's preset instead of reading data")
+    q.add_argument("--outliers", type=int, default=0, help="with --units: K outlier units")
+    q.add_argument("--clusters", type=int, default=0,
+                   help="with --units: a structured fleet of K clusters of drift shapes")
+    if test:
+        q.add_argument("--test", default=None, help="with --units: the short test simulated "
+                       "(soaks:T1,T2,... or ramp:FROM,TO,MINUTES)")
+
+
+def _add_prior(sub: Any) -> None:
+    """``thermonet prior``: a fleet prior from calibrated units."""
+    q = sub.add_parser("prior", help="a fleet prior from calibrated units (for the station)",
+                       description="Fit every unit of CONFIG's data (a fleet, device id per "
+                                   "run) and write the population of their drift curves "
+                                   "(configs/README.md#fleet-prior-and-station).")
+    q.add_argument("config", help="comparison YAML whose data hold the calibrated units")
+    q.add_argument("--out", required=True, help="the prior file to write (prior.json)")
+    _sim_unit_args(q, test=False)
+    q.add_argument("-q", "--quiet", action="store_true", help="no summary on stdout")
+    q.set_defaults(func=_cmd_prior)
+
+
+def _add_station(sub: Any) -> None:
+    """``thermonet station``: new units calibrated from a short test and a fleet prior."""
+    q = sub.add_parser("station", help="calibrate new units from a short test and a prior",
+                       description="Calibrate each unit of CONFIG's data from its short test "
+                                   "and the fleet prior; judge it on held-out temperatures and "
+                                   "against station.limits; write a file per unit. Exit 0: "
+                                   "every unit passed; 3: some unit failed; 1: bad input.")
+    q.add_argument("config", help="comparison YAML whose data hold the new units' tests")
+    q.add_argument("--prior", required=True, help="prior file from `thermonet prior`")
+    q.add_argument("--out", required=True, help="output directory")
+    _sim_unit_args(q, test=True)
+    q.add_argument("--executor", choices=["process", "serial", "ray"], default="process",
+                   help="process pool (default), this process, or a Ray cluster")
+    q.add_argument("--workers", type=int, default=None, help="worker processes (default: all)")
+    q.add_argument("--ray-address", default=None, help="Ray cluster address")
+    q.add_argument("--overwrite", action="store_true", help="replace a previous station output")
+    q.add_argument("-q", "--quiet", action="store_true", help="no table on stdout")
+    q.set_defaults(func=_cmd_station)
 
 
 def _add_learn(sub: Any) -> None:

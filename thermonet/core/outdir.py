@@ -99,6 +99,7 @@ KINDS: dict[str, frozenset[str]] = {
     "calibration": frozenset({"results.json", "report.html", "report.txt", "px4.params",
                               "ardupilot.parm", "ekf-recommendation.txt", "instances"}),
     "verification": frozenset({"results.json", "report.html", "report.txt"}),
+    "station": frozenset({"results.json", "units"}),
 }
 
 
@@ -107,8 +108,8 @@ def is_output(path: Path, kind: str) -> bool:
     if kind == "comparison":
         return is_comparison(path)
     data = _results(path)
-    if kind == "fleet":
-        return data.get("kind") == "fleet" and isinstance(data.get("units"), dict)
+    if kind in ("fleet", "station"):
+        return data.get("kind") == kind and isinstance(data.get("units"), dict)
     if (data.get("kind") == "verification") != (kind == "verification"):
         return False
     return "schema" in data and isinstance(data.get("instances"), dict) \

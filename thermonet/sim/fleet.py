@@ -13,6 +13,17 @@ fleet's: every axis's bias law and scale-factor law are multiplied by
 :data:`OUTLIER_SIGMAS` standard deviations off, as a faulty die or a bad
 mounting gives on a production line.  Their metadata say ``outlier: "1"``.
 
+**Structured fleets** (``clusters=K`` ≥ 1, for the fleet prior, :mod:`thermonet.scoring.prior`):
+every axis's polynomial bias law gets a cubic term and the fleet falls into K clusters —
+cluster *c* (unit *k* is in cluster ``k mod K``) multiplies each temperature coefficient
+c₁, c₂ by ``1 + CLUSTER_REL · z`` and sets c₃ = ``CUBIC_REL · c₂ · z`` (°C⁻¹) with z drawn
+from ``SeedSequence([seed, c, 7])`` — and every unit scatters each coefficient by a further
+``UNIT_COEF_REL · z`` (its own draw) on top of the preset's gain and temperature shift,
+which move the coefficients together (correlated).  Presets whose bias laws are not
+polynomials are refused.  A short production test (:func:`short_test`, ``--test``)
+replaces the preset's chamber programme: ``soaks:T1,T2,…`` (20-min soaks, the chamber
+jumping between them) or ``ramp:FROM,TO,MINUTES``.
+
 Device ids are ``<preset>-u000``, ``<preset>-u001`` … (three digits at least).
 """
 
@@ -24,6 +35,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.recording import Dataset
+from .chamber import ChamberProfile, Ramp, Soak
 from .device import AnyLaw, LawSum, Lorentz, Polynomial, Sinusoid
 from .presets import (
     MAX_RUNS,
@@ -35,7 +47,8 @@ from .presets import (
     simulate,
 )
 
-__all__ = ["simulate_fleet", "unit_seed", "unit_device_id", "outlier_config",
+__all__ = ["simulate_fleet", "unit_seed", "short_test", "structured_config", "CLUSTER_REL",
+           "UNIT_COEF_REL", "CUBIC_REL", "SOAK_MIN", "unit_device_id", "outlier_config",
            "OUTLIER_SIGMAS", "MIN_GAIN_SIGMA", "MAX_UNITS"]
 
 #: Most units one fleet may have (a production line's week; the fleet's tables and the
@@ -46,6 +59,16 @@ MAX_UNITS = 10_000
 OUTLIER_SIGMAS = 10.0
 #: The relative gain spread used for outliers when a preset has none (1 %).
 MIN_GAIN_SIGMA = 0.01
+
+#: Structured fleets: relative spread of a cluster's coefficients, of a unit's, and the
+#: cubic term per cluster (c₃ = CUBIC_REL · c₂ · z, °C⁻¹).
+CLUSTER_REL = 0.3
+UNIT_COEF_REL = 0.05
+CUBIC_REL = 0.01
+#: Minutes of each soak of a ``soaks:`` short test.
+SOAK_MIN = 20.0
+#: The clusters' draw (fixed: a sensor type's clusters do not change with the fleet seed).
+CLUSTER_SEED = 2018
 
 
 def unit_seed(seed: int, unit: int) -> int:
@@ -85,8 +108,57 @@ def outlier_config(cfg: SimConfig, sigmas: float = OUTLIER_SIGMAS) -> SimConfig:
     return dataclasses.replace(cfg, axes=axes)
 
 
+def _poly_axes(cfg: SimConfig, z: np.ndarray, rel: float, cubic: float) -> SimConfig:
+    """``cfg`` with axis *j*'s polynomial bias coefficients scaled by ``1 + rel·z[j, k]``."""
+    axes = []
+    for j, ax in enumerate(cfg.axes):
+        if not isinstance(ax.bias, Polynomial):
+            raise ConfigError(f"preset '{cfg.name}': axis {ax.name}'s bias law is not a "
+                              "polynomial; structured fleets (--clusters) need one")
+        c = list(ax.bias.coefficients) + [0.0] * max(0, 4 - len(ax.bias.coefficients))
+        c[1] *= 1.0 + rel * z[j, 0]
+        c[2] *= 1.0 + rel * z[j, 1]
+        c[3] = c[3] * (1.0 + rel * z[j, 2]) + cubic * c[2] * z[j, 2]
+        axes.append(dataclasses.replace(ax, bias=dataclasses.replace(ax.bias,
+                                                                     coefficients=tuple(c))))
+    return dataclasses.replace(cfg, axes=tuple(axes))
+
+
+def structured_config(cfg: SimConfig, seed: int, unit: int, clusters: int) -> SimConfig:
+    """Unit ``unit``'s drift laws in a fleet of ``clusters`` clusters (module docstring)."""
+    n = len(cfg.axes)
+    # the clusters are the sensor type's (its production lines), not the draw's: the same
+    # for every fleet seed, so units simulated with another seed are of the same population
+    zc = np.random.default_rng(np.random.SeedSequence([CLUSTER_SEED, unit % clusters, 7])
+                               ).standard_normal((n, 3))
+    zu = np.random.default_rng(np.random.SeedSequence([seed, unit, 11])).standard_normal((n, 3))
+    return _poly_axes(_poly_axes(cfg, zc, CLUSTER_REL, CUBIC_REL), zu, UNIT_COEF_REL, 0.0)
+
+
+def short_test(spec: str) -> ChamberProfile:
+    """A short production test: ``soaks:T1,T2,…`` (°C) or ``ramp:FROM,TO,MINUTES``."""
+    kind, _, rest = str(spec).partition(":")
+    try:
+        vals = [float(v) for v in rest.split(",")] if rest else []
+    except ValueError:
+        vals = []
+    if kind == "soaks" and 1 <= len(vals) <= 20 and all(-60 <= v <= 150 for v in vals):
+        return ChamberProfile(name=f"short test: soaks {rest} C", start_c=vals[0], segments=tuple(
+            Soak(temperature_c=v, duration_h=SOAK_MIN / 60.0) for v in vals))
+    if kind == "ramp" and len(vals) == 3 and vals[2] > 0 and vals[0] != vals[1] and \
+            all(-60 <= v <= 150 for v in vals[:2]) and vals[2] <= 24 * 60:
+        a, b, minutes = vals
+        return ChamberProfile(name=f"short test: ramp {a:g} -> {b:g} C in {minutes:g} min",
+                              start_c=a, segments=(
+                                  Soak(temperature_c=a, duration_h=2.0 / 60.0),
+                                  Ramp(to_c=b, rate_c_per_h=abs(b - a) / minutes * 60.0)))
+    raise ConfigError(f"--test {spec!r}: expected soaks:T1,T2,... (°C, -60..150) or "
+                      "ramp:FROM,TO,MINUTES")
+
+
 def simulate_fleet(preset: str | SimConfig, *, units: int, runs: int | None = None,
                    seed: int = 0, outliers: int = 0, unit_indices: list[int] | None = None,
+                   clusters: int = 0, test: str | None = None,
                    **overrides: object) -> Dataset:
     """Simulate ``units`` units of a preset, ``runs`` runs each, as one fleet :class:`Dataset`.
 
@@ -104,11 +176,18 @@ def simulate_fleet(preset: str | SimConfig, *, units: int, runs: int | None = No
     unit_indices : list of int, optional
         Simulate only these units of the fleet (a worker simulating its own unit);
         device ids and seeds are those of the whole fleet.
+    clusters : int
+        ≥ 1: a structured fleet of that many clusters (module docstring); 0: the preset's
+        unit spread alone.
+    test : str, optional
+        A short production test (:func:`short_test`) instead of the preset's programme.
     **overrides
         As :func:`~thermonet.sim.simulate`.
     """
     cfg = get_preset(preset) if isinstance(preset, str) else preset
-    for name, value in (("units", units), ("outliers", outliers)):
+    if test is not None:
+        cfg = dataclasses.replace(cfg, procedures=(short_test(test),), default_runs=1)
+    for name, value in (("units", units), ("outliers", outliers), ("clusters", clusters)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
             raise ConfigError(f"{name} must be an integer, got {value!r}")
     if units < 1:
@@ -116,6 +195,8 @@ def simulate_fleet(preset: str | SimConfig, *, units: int, runs: int | None = No
     if units > MAX_UNITS:
         raise ConfigError(f"units={units} is above the limit of {MAX_UNITS:,} units per fleet "
                           "(bounded so that a request cannot exhaust memory)")
+    if not 0 <= clusters <= units:
+        raise ConfigError(f"clusters must be between 0 and units ({units}), got {clusters}")
     if not 0 <= outliers <= units:
         raise ConfigError(f"outliers must be between 0 and units ({units}), got {outliers}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -134,16 +215,18 @@ def simulate_fleet(preset: str | SimConfig, *, units: int, runs: int | None = No
                           f"{held:,} samples, above the limit of {MAX_SAMPLES:,} per simulation "
                           "(bounded so that a request cannot exhaust memory; simulate fewer "
                           "units, or let `thermonet fleet --units` simulate one unit per worker)")
-    odd = outlier_config(cfg) if outliers else cfg
     recs = []
     for k in indices:
         is_outlier = k >= units - outliers
-        ds = simulate(odd if is_outlier else cfg, runs=runs, seed=unit_seed(seed, k), **overrides)
+        ucfg = structured_config(cfg, seed, k, clusters) if clusters else cfg
+        ucfg = outlier_config(ucfg) if is_outlier else ucfg
+        ds = simulate(ucfg, runs=runs, seed=unit_seed(seed, k), **overrides)
         dev = unit_device_id(cfg.name, k, units)
         for r in ds.runs:
             r.device_id = dev
             r.meta.update(unit_index=str(k), fleet_seed=str(seed),
                           outlier="1" if is_outlier else "0",
+                          cluster=str(k % clusters) if clusters else "",
                           source=f"simulated {cfg.name} {dev} {r.run_id}")
         recs += ds.runs
     return Dataset(runs=recs, meta={"preset": cfg.name, "seed": str(seed), "source": "simulator",

@@ -31,13 +31,14 @@ from ..models.hyper import HyperError
 from ..models.registry import make_spec
 from ..scoring.band import check_level
 from ..scoring.fleetstats import parse_limits
+from ..scoring.prior import StationLimit
 from ..sim.presets import MAX_RUNS
 
 if TYPE_CHECKING:
     from ..models.specs import FamilySpec
 
 __all__ = [
-    "DataConfig", "SplitConfig", "SelectionConfig", "FeatureConfig", "FamilyConfig", "TrainConfig",
+    "DataConfig", "SplitConfig", "SelectionConfig", "StationConfig", "FeatureConfig", "FamilyConfig", "TrainConfig",
     "TrackingConfig", "CompareConfig", "load_config", "from_dict", "to_dict",
     "outputs_of", "train_config_of", "config_from_mapping", "tune_points",
     "register_name_problem",
@@ -187,6 +188,31 @@ class BandConfig:
                 not 1 <= self.bins <= 50:
             raise ConfigError(f"key 'band.bins': must be an integer from 1 to 50, got "
                               f"{self.bins!r}")
+
+
+@dataclass
+class StationConfig:
+    """The fleet prior and the production station (:mod:`thermonet.workflows.station`).
+
+    ``degree``: the prior's polynomial degree in temperature (3: the autopilots' cubic);
+    ``limits``: axis or ``"*"`` → :class:`thermonet.scoring.prior.StationLimit` keys;
+    ``flag_unlike_fleet``: a unit unlike every cluster of the prior fails.
+    """
+
+    degree: int = 3
+    limits: dict[str, Any] = field(default_factory=dict)
+    flag_unlike_fleet: bool = True
+
+    def __post_init__(self) -> None:
+        if isinstance(self.degree, bool) or not isinstance(self.degree, int) or \
+                not 1 <= self.degree <= 5:
+            raise ConfigError(f"key 'station.degree': must be an integer from 1 to 5, got "
+                              f"{self.degree!r}")
+        if not isinstance(self.limits, dict):
+            raise ConfigError("key 'station.limits': expected a mapping axis -> limits, got "
+                              f"{self.limits!r}")
+        for axis, spec in self.limits.items():
+            from_dict(StationLimit, spec, source="config", prefix=f"station.limits.{axis}")
 
 
 @dataclass
@@ -360,6 +386,7 @@ class CompareConfig:
     split: SplitConfig = field(default_factory=SplitConfig)
     selection: SelectionConfig = field(default_factory=SelectionConfig)
     band: BandConfig = field(default_factory=BandConfig)
+    station: StationConfig = field(default_factory=StationConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
     families: list[FamilyConfig] = field(default_factory=_default_families)
     train: TrainConfig = field(default_factory=TrainConfig)

@@ -1,0 +1,212 @@
+"""The fleet prior's mathematics (thermonet.scoring.prior) against independent formulations.
+
+Known population parameters recovered from their draws; the conjugate posterior against the
+same problem solved as one stacked least-squares system (prior rows + data rows,
+``numpy.linalg.lstsq``); the flag's distance and the clusters' evidence against scipy's
+multivariate normal in the space of within-run contrasts; the design against the textbook
+I-optimal answer for a line; the prior file's checks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.linalg import null_space
+from scipy.stats import chi2, multivariate_normal
+
+from thermonet.core.errors import InputError
+from thermonet.scoring.prior import (
+    MIN_UNITS,
+    AxisPrior,
+    FleetPrior,
+    Points,
+    bin_points,
+    fit_population,
+    fit_unit,
+    next_temperatures,
+    points_needed,
+    posterior,
+    shape_design,
+)
+
+T_REF, SCALE = 25.0, 50.0
+
+
+def _points(temps: np.ndarray, values: np.ndarray, runs: np.ndarray,
+            sampling_var: float = 0.0) -> Points:
+    return Points(np.asarray(temps, float), np.asarray(values, float),
+                  np.full(len(temps), sampling_var), np.asarray(runs), np.full(len(temps), 100))
+
+
+def test_population_recovers_a_known_single_gaussian() -> None:
+    rng = np.random.default_rng(0)
+    mu = np.array([0.5, -0.2, 0.1])
+    A = np.array([[0.10, 0.0, 0.0], [0.05, 0.04, 0.0], [-0.02, 0.01, 0.03]])
+    cov = A @ A.T
+    n = 400
+    z = rng.multivariate_normal(mu, cov, size=n)
+    w, means, covs = fit_population(z, max_clusters=1)
+    assert w.tolist() == [1.0]
+    se = np.sqrt(np.diag(cov) / n)
+    assert np.all(np.abs(means[0] - mu) < 4 * se)
+    # a variance's relative standard error is sqrt(2/n) = 7 %: 4 of them, plus shrinkage
+    assert np.allclose(np.diag(covs[0]), np.diag(cov), rtol=0.35)
+    corr = covs[0][0, 1] / np.sqrt(covs[0][0, 0] * covs[0][1, 1])
+    true = cov[0, 1] / np.sqrt(cov[0, 0] * cov[1, 1])
+    assert abs(corr - true) < 0.2
+
+
+def test_population_finds_two_known_clusters() -> None:
+    rng = np.random.default_rng(1)
+    centres = np.array([[1.0, 0.0, 0.2], [-1.0, 0.5, -0.2]])
+    sd = 0.05
+    z = np.vstack([rng.normal(centres[0], sd, (180, 3)), rng.normal(centres[1], sd, (120, 3))])
+    w, means, covs = fit_population(z)
+    assert len(w) == 2
+    order = np.argsort(-w)
+    assert np.allclose(w[order], [0.6, 0.4], atol=0.05)
+    assert np.allclose(means[order], centres, atol=4 * sd / np.sqrt(100))
+    assert np.allclose(np.sqrt(np.diagonal(covs[order], axis1=1, axis2=2)), sd, rtol=0.3)
+
+
+def test_population_refuses_a_fleet_too_small() -> None:
+    with pytest.raises(InputError, match=f"at least {MIN_UNITS} calibrated units, got 4"):
+        fit_population(np.zeros((4, 3)))
+
+
+def _one_cluster(mu: np.ndarray, cov: np.ndarray, misfit: float) -> AxisPrior:
+    return AxisPrior("gyro_x", np.ones(1), mu[None], cov[None], misfit, 0.0)
+
+
+def test_posterior_equals_the_stacked_least_squares_solution() -> None:
+    rng = np.random.default_rng(2)
+    mu, cov = np.array([0.3, -0.1, 0.05]), np.diag([0.04, 0.02, 0.01])
+    temps = np.array([-10.0, 5.0, 25.0, 40.0, 60.0, 0.0, 30.0])
+    runs = np.array([0, 0, 0, 0, 1, 1, 1])
+    sv = 1e-4
+    y = rng.normal(size=7) * 0.01 + np.array([0, 0, 0, 0, 0.5, 0.5, 0.5])
+    ap = _one_cluster(mu, cov, 4e-4)
+    post = posterior(ap, _points(temps, y, runs, sv), t_ref=T_REF, scale=SCALE)
+    # oracle: unknowns (β, one constant per run); prior rows L⁻¹β = L⁻¹μ, data rows weighted
+    X = shape_design(temps, T_REF, SCALE, 3)
+    D = np.column_stack([X, runs == 0, runs == 1]).astype(float)
+    sw = 1.0 / np.sqrt(4e-4 + sv)
+    Li = np.linalg.inv(np.linalg.cholesky(cov))
+    P = np.hstack([Li, np.zeros((3, 2))])
+    sol, *_ = np.linalg.lstsq(np.vstack([P, sw * D]), np.r_[Li @ mu, sw * y], rcond=None)
+    assert np.allclose(post.shape, sol[:3], rtol=1e-9, atol=1e-12)
+    G = np.vstack([P, sw * D])
+    cov_oracle = np.linalg.inv(G.T @ G)[:3, :3]      # flat constants marginalised
+    assert np.allclose(post.cov, cov_oracle, rtol=1e-8, atol=1e-14)
+
+
+def test_distance_and_evidence_agree_with_scipy_in_the_contrast_space() -> None:
+    rng = np.random.default_rng(3)
+    mus = np.array([[0.3, -0.1, 0.05], [-0.2, 0.2, 0.0]])
+    covs = np.array([np.diag([0.04, 0.02, 0.01]), np.diag([0.01, 0.03, 0.02])])
+    ap = AxisPrior("acc_x", np.array([0.7, 0.3]), mus, covs, 2e-4, 0.0)
+    temps = np.array([-15.0, 0.0, 25.0, 50.0, 70.0, 10.0, 60.0])
+    runs = np.array([0, 0, 0, 0, 0, 1, 1])
+    y = rng.normal(size=7) * 0.05
+    post = posterior(ap, _points(temps, y, runs), t_ref=T_REF, scale=SCALE)
+    # the contrasts: y projected on the null space of the run indicators (constants gone)
+    R = np.column_stack([runs == 0, runs == 1]).astype(float)
+    Q = null_space(R.T)                                   # 7 × 5, orthonormal
+    X = shape_design(temps, T_REF, SCALE, 3)
+    logpdf = []
+    for k in range(2):
+        C = Q.T @ (X @ covs[k] @ X.T + 2e-4 * np.eye(7)) @ Q
+        r = Q.T @ (y - X @ mus[k])
+        d2 = float(r @ np.linalg.solve(C, r))
+        assert post.p_values[k] == pytest.approx(chi2.sf(d2, 5), rel=1e-7)
+        logpdf.append(multivariate_normal(Q.T @ X @ mus[k], C).logpdf(Q.T @ y))
+    lw = np.log(ap.weights) + np.array(logpdf)
+    assert np.allclose(post.weights, np.exp(lw - lw.max()) / np.exp(lw - lw.max()).sum(),
+                       rtol=1e-7)
+    assert post.dof == 5
+
+
+def _curve_error(grid: np.ndarray, b: np.ndarray, beta: np.ndarray) -> float:
+    e = grid @ (b - beta)
+    return float(np.sqrt(np.mean((e - e.mean()) ** 2)))
+
+
+def test_three_points_and_the_prior_beat_the_prior_alone_and_flag_a_stranger() -> None:
+    rng = np.random.default_rng(4)
+    mu, cov = np.array([0.5, 0.2, -0.1]), np.diag([0.02, 0.01, 0.004])
+    ap = _one_cluster(mu, cov, 1e-5)
+    grid = shape_design(np.linspace(-20, 70, 91), T_REF, SCALE, 3)
+    gains = []
+    for _ in range(20):
+        beta = rng.multivariate_normal(mu, cov)
+        temps = np.array([-15.0, 25.0, 65.0])
+        y = shape_design(temps, T_REF, SCALE, 3) @ beta + 0.7 + rng.normal(size=3) * 3e-3
+        pts = _points(temps, y, np.zeros(3, int))
+        post = posterior(ap, pts, t_ref=T_REF, scale=SCALE)
+
+        gains.append(_curve_error(grid, post.shape, beta) / _curve_error(grid, mu, beta))
+        with pytest.raises(InputError, match="cannot fit a degree-3 curve"):
+            fit_unit(pts, t_ref=T_REF, scale=SCALE, degree=3)   # alone they cannot
+    assert np.median(gains) < 0.5
+    stranger = shape_design(np.array([-15.0, 25.0, 65.0]), T_REF, SCALE, 3) @ (mu + 10 *
+                                                                            np.sqrt(np.diag(cov)))
+    post = posterior(ap, _points([-15.0, 25.0, 65.0], stranger, np.zeros(3, int)),
+                     t_ref=T_REF, scale=SCALE)
+    assert post.flagged and post.p_value is not None and post.p_value < 1e-6
+
+
+def test_bin_points_keeps_a_passes_direction_and_drops_fast_changes() -> None:
+    t = np.arange(0, 7200.0)                         # 2 h at 1 Hz
+    temp = np.where(t < 3600, 20 + t / 360.0, 30 - (t - 3600) / 360.0)   # 1/6 °C/min up, down
+    y = np.where(t < 3600, 1.0, 2.0)                 # a branch offset: the hysteresis
+    pts = bin_points(temp, y, time_s=t)
+    at25 = pts.value[np.abs(pts.temperature_c - 25) < 0.5]
+    assert sorted(at25.tolist()) == [1.0, 2.0]       # heating and cooling: two points
+    jump = np.where(t < 3600, 20.0, 60.0 - 40.0 * np.exp(-(t - 3600) / 60.0))
+    pts = bin_points(jump, np.zeros_like(t), time_s=t)
+    # the jump's first minutes (faster than 1.2 °C/min) are no points; the soaks are
+    assert pts.temperature_c.min() == pytest.approx(20.0)
+    assert pts.temperature_c.max() == pytest.approx(60.0, abs=0.5)
+    assert not np.any((pts.temperature_c > 25) & (pts.temperature_c < 55))
+
+
+def _prior_for_design(degree: int) -> FleetPrior:
+    ap = AxisPrior("gyro_x", np.ones(1), np.zeros((1, degree)), np.eye(degree)[None] * 0.01,
+                   1e-4, 0.0)
+    return FleetPrior([ap], degree, T_REF, SCALE, (-20.0, 70.0), {"gyro_x": "deg/s"},
+                      {"gyro_x": "zero"}, 20, [f"u{i}" for i in range(20)])
+
+
+def test_design_of_a_line_measures_the_ends_of_the_range() -> None:
+    # a slope and a free constant: the I-optimal pair is the two ends of the range
+    assert next_temperatures(_prior_for_design(1), "gyro_x", [], 2) == [-20.0, 70.0]
+
+
+def test_points_needed_decrease_and_meet_their_target() -> None:
+    fp = _prior_for_design(3)
+    n, temps, errs = points_needed(fp, "gyro_x", 0.02)
+    assert all(b <= a + 1e-12 for a, b in zip(errs, errs[1:], strict=False))
+    assert n is not None and errs[n - 2] <= 0.02 and (n == 2 or errs[n - 3] > 0.02)
+    assert all(-20.0 <= t <= 70.0 for t in temps)
+    assert points_needed(fp, "gyro_x", 1e-9)[0] is None
+
+
+def test_prior_file_round_trip_and_refusals() -> None:
+    fp = _prior_for_design(3)
+    data = fp.to_dict()
+    back = FleetPrior.from_dict(data, "p.json")
+    assert np.array_equal(back.axes[0].covs, fp.axes[0].covs) and back.range_c == fp.range_c
+    for key, value, words in (
+            ("kind", "fleet", "not a thermonet fleet prior"),
+            ("degree", 9, "key 'degree'"),
+            ("n_units", 3, "key 'n_units'"),
+            ("range_c", [70.0, -20.0], "key 'range_c'")):
+        with pytest.raises(InputError, match=words):
+            FleetPrior.from_dict({**data, key: value}, "p.json")
+    bad = {**data, "axes": {"gyro_x": {**data["axes"]["gyro_x"],
+                                       "covs": [[[1.0, 2.0, 0], [2.0, 1.0, 0], [0, 0, 1.0]]]}}}
+    with pytest.raises(InputError, match="p.json: key 'axes.gyro_x.covs': .*positive definite"):
+        FleetPrior.from_dict(bad, "p.json")
+    nan = {**data, "axes": {"gyro_x": {**data["axes"]["gyro_x"], "misfit_var": float("nan")}}}
+    with pytest.raises(InputError, match="misfit_var"):
+        FleetPrior.from_dict(nan, "p.json")

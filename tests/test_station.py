@@ -1,0 +1,116 @@
+"""`thermonet prior` and `thermonet station` end to end on simulated structured fleets.
+
+The prior leaves the planted outliers out of the population; the station flags new units
+10 σ off their fleet and passes the others; the firmware header compiled with gcc gives the
+posterior polynomial (float32 tolerance); bad input is one line, exit 1, nothing written.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thermonet.cli import main
+
+FLEET = """data: {preset: consumer-imu, seed: 0, runs: 1}
+target: {gyro: zero, acc: at-t-ref}
+features: {t_ref: 25.0}
+station:
+  limits:
+    gyro_x: {max_tempco: 0.01}
+"""
+
+
+@pytest.fixture(scope="module")
+def prior(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("prior")
+    (d / "fleet.yaml").write_text(FLEET)
+    assert main(["prior", str(d / "fleet.yaml"), "--units", "24", "--clusters", "2",
+                 "--outliers", "2", "--out", str(d / "prior.json"), "-q"]) == 0
+    return d / "prior.json"
+
+
+def test_prior_leaves_the_planted_outliers_out(prior: Path) -> None:
+    data = json.loads(prior.read_text())
+    assert {"consumer-imu-u022", "consumer-imu-u023"} <= set(data["excluded"])
+    assert data["n_units"] == 24 - len(data["excluded"]) and data["n_units"] >= 20
+    assert set(data["axes"]) == {"gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"}
+    assert data["range_c"] == [-20.0, 75.0]
+    # the simulated gyro_y tempco is −0.003 °/s/K (c₁ of the preset): the prior's mean curve
+    ax = data["axes"]["gyro_y"]
+    slope = float(np.dot(ax["weights"], np.asarray(ax["means"])[:, 0])) / data["scale_c"]
+    assert slope == pytest.approx(-0.003, rel=0.35)
+
+
+def test_station_flags_strangers_passes_the_rest_and_writes_a_header(
+        prior: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    Path("new.yaml").write_text(FLEET.replace("seed: 0", "seed: 7"))
+    rc = main(["station", "new.yaml", "--prior", str(prior), "--units", "6", "--outliers", "2",
+               "--clusters", "2", "--test", "soaks:-10,25,60", "--out", "st",
+               "--executor", "serial", "-q"])
+    res = json.loads(Path("st/results.json").read_text())
+    assert rc == 3                                   # the outliers fail
+    flagged = set(res["summary"]["flagged_unlike_fleet"])
+    # no normal unit flagged; the outliers (recall measured by bench_prior.py) among the flags
+    assert flagged and flagged <= {"consumer-imu-u004", "consumer-imu-u005"}
+    for dev in ("consumer-imu-u000", "consumer-imu-u001", "consumer-imu-u002"):
+        assert res["units"][dev]["verdict"] == "PASS"
+    unit = res["units"]["consumer-imu-u000"]["axes"]["gyro_y"]
+    assert unit["held_out_rms"] is not None and unit["held_out_rms"] < 0.03   # °/s
+    assert unit["coefficients"][1] == pytest.approx(-0.003, rel=0.35)
+    _header_matches(Path("st/units/consumer-imu-u000"), tmp_path)
+
+
+def _header_matches(udir: Path, tmp: Path) -> None:
+    cal = json.loads((udir / "calibration.json").read_text())
+    c = cal["axes"]["acc_z"]["coefficients"]
+    src = tmp / "main.c"
+    src.write_text(f'#include <stdio.h>\n#include "{udir.resolve()}/thermonet_cal.h"\n'
+                   "int main(void){for(int i=-20;i<=75;i+=5)"
+                   'printf("%.9g\\n",(double)thermonet_cal_acc_z((float)i));return 0;}\n')
+    exe = tmp / "cal"
+    subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-o", str(exe),
+                    str(src)], check=True)
+    got = np.array([float(v) for v in subprocess.run([str(exe)], capture_output=True,
+                                                     text=True, check=True).stdout.split()])
+    t = np.arange(-20, 76, 5, dtype=np.float64) - 25.0
+    want = np.polynomial.polynomial.polyval(t, c)
+    scale = np.max(np.abs(np.asarray(c)[:, None] * np.abs(t)[None] ** np.arange(len(c))[:, None]))
+    # float32 Horner: a few ulps of the largest term per step
+    assert np.allclose(got, want, rtol=0, atol=8 * len(c) * np.finfo(np.float32).eps * scale)
+
+
+def _one_line_refusal(capsys: pytest.CaptureFixture[str], argv: list[str], words: str) -> None:
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip()
+    assert words in err and len(err.splitlines()) == 1, err
+
+
+def test_refusals_are_one_line_and_write_nothing(
+        prior: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.chdir(tmp_path)
+    Path("new.yaml").write_text(FLEET)
+    Path("acc.yaml").write_text("data: {preset: accel-ramp}\ntarget: drift\n")
+    _one_line_refusal(capsys, ["prior", "new.yaml", "--units", "5", "--out", "p.json"],
+                      "a fleet prior needs at least 10 calibrated units")
+    assert not Path("p.json").exists()
+    _one_line_refusal(capsys, ["station", "acc.yaml", "--prior", str(prior), "--units", "2",
+                               "--out", "st", "--executor", "serial"],
+                      "the prior is of axes gyro_x")
+    _one_line_refusal(capsys, ["station", "new.yaml", "--prior", str(prior), "--units", "2",
+                               "--test", "soaks:-40,25", "--out", "st", "--executor", "serial"],
+                      "outside the fleet prior's range -20 to 75")
+    _one_line_refusal(capsys, ["station", "new.yaml", "--prior", "new.yaml", "--units", "2",
+                               "--out", "st"], "--prior: not JSON")
+    _one_line_refusal(capsys, ["station", "new.yaml", "--prior", str(prior), "--test",
+                               "soaks:0", "--out", "st"], "--test needs --units")
+    Path("bad.yaml").write_text(FLEET.replace("gyro_x: {max_tempco", "gyro_q: {max_tempco"))
+    _one_line_refusal(capsys, ["station", "bad.yaml", "--prior", str(prior), "--units", "2",
+                               "--out", "st"], "station.limits.gyro_q")
+    assert not Path("st").exists()

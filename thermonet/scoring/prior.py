@@ -1,0 +1,586 @@
+"""A fleet prior: the population of a sensor type's drift curves, and a new unit's posterior.
+
+**What is modelled.**  On each output axis a unit's drift is a polynomial of degree ``d`` in
+the normalised temperature :math:`u = (T - t_{ref}) / h` (``h``: the larger distance from
+:math:`t_{ref}` to an end of the fleet's range), plus one free constant per run (the turn-on
+offset, or the unknown level of an ``at-t-ref`` target).  The prior is on the *shape*
+:math:`\\beta = (a_1, \\dots, a_d)`; the constants get a flat prior — a turn-on offset is a
+power-up's, not the fleet's, and every test measures it.
+
+**The population** (empirical Bayes, Gaussian mixture).  Each calibrated unit's shape
+:math:`\\hat\\beta_u` is fitted by weighted least squares on its 1 °C-binned means (the same
+points a new unit gives, :func:`bin_points`).  Their distribution is a mixture of Gaussians
+:math:`\\sum_k \\pi_k\\,N(\\mu_k, \\Sigma_k)`, the number of clusters chosen by BIC among
+1 … :data:`MAX_CLUSTERS` (a cluster is tried only with :data:`UNITS_PER_CLUSTER` units for it;
+scikit-learn's ``GaussianMixture``, full covariances).  One cluster: the mean and the
+Ledoit–Wolf shrunk covariance (``sklearn.covariance.LedoitWolf``), which stays well
+conditioned on small fleets.  :math:`\\Sigma_k` includes each unit's estimation error (a full
+sweep's is small beside the unit-to-unit spread), so the prior errs wide, not narrow.
+Reginya et al. (CEUR Vol-2278, 2018) found 250 MPU-9250s in six clusters, not one profile.
+
+**A bin's error** :math:`\\sigma_i^2 = v + s_i^2 / n_i`: its sampling variance plus the
+misfit variance :math:`v` of the fleet's own fits (the median over units of what their bins
+scatter about their own curve beyond sampling: hysteresis, lag, a curve the polynomial
+does not follow).
+
+**The posterior** (conjugate; Bishop, *PRML* §3.3, per component).  With the constants
+profiled out (each run's points centred by their weighted mean, which is exact for a flat
+prior), :math:`A_k = \\Sigma_k^{-1} + X_c^T W X_c`, :math:`m_k = A_k^{-1}(\\Sigma_k^{-1}\\mu_k
++ X_c^T W y_c)`; the components are reweighted by their evidence.  The same quantity
+:math:`d_k^2 = y_c^T W y_c + \\mu_k^T\\Sigma_k^{-1}\\mu_k - m_k^T A_k m_k` is the unit's
+Mahalanobis distance from cluster *k* under its prior predictive, :math:`\\chi^2` with
+(points − runs) degrees of freedom: a unit unlike every cluster
+(:math:`\\max_k p_k <` :data:`FLAG_P`) is flagged even if its own fit is good.
+
+**Which temperatures next** (Bayesian I-optimal design, Chaloner & Verdinelli 1995): the
+point that most lowers the posterior variance of the offset-free curve averaged over the
+fleet's range; without data the first two are chosen as a pair (one point of one run only
+fixes its constant).  :func:`points_needed` says how many such points reach a target error.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import ConfigError, InputError
+
+__all__ = ["PRIOR_SCHEMA", "MIN_UNITS", "MAX_CLUSTERS", "UNITS_PER_CLUSTER", "FLAG_P",
+           "BIN_C", "MIN_BIN_SAMPLES", "Points", "bin_points", "AxisPrior", "FleetPrior",
+           "UnitFit", "fit_unit", "METHOD", "StationLimit", "check_compatible", "fit_population", "Posterior", "posterior",
+           "next_temperatures", "points_needed", "design_errors", "first_below", "expected_error", "shape_design"]
+
+PRIOR_SCHEMA = 1
+#: Fewer calibrated units than this: no prior (a covariance of a cubic's three shape
+#: coefficients from fewer units is mostly noise).
+MIN_UNITS = 10
+MAX_CLUSTERS = 6
+#: A k-cluster mixture is tried only with at least this many units per cluster.
+UNITS_PER_CLUSTER = 15
+#: A unit is flagged when its data are this unlikely under every cluster of the prior.
+FLAG_P = 0.01
+BIN_C = 1.0
+#: A 1 °C bin with fewer samples than this is not a point (a thermometer passing through).
+MIN_BIN_SAMPLES = 10
+MAX_DEGREE = 5
+#: Samples taken while the temperature changes faster than this are not points (°C/min;
+#: the calibration ramps the fleet prior is built from run at 1 °C/min or slower).
+MAX_RATE_C_PER_MIN = 1.2
+#: The temperature is smoothed over this window before its rate is taken (s).
+RATE_WINDOW_S = 60.0
+#: What a prior file says it is (written into it).
+METHOD = ("empirical Bayes: a Gaussian mixture over each axis's drift-curve shape in "
+          "u = (T - t_ref) / scale, clusters chosen by BIC (one cluster: Ledoit-Wolf), "
+          "runs' constants flat; conjugate posterior per cluster, reweighted by evidence")
+
+
+# ------------------------------------------------------------------ limits
+@dataclass
+class StationLimit:
+    """A station's pass/fail limits on one axis (None: not checked).
+
+    ``max_residual``: held-out RMS of a unit's points (output unit); ``max_tempco``: the
+    drift's slope at t_ref, |c₁| (output unit / °C); ``max_noise``: the standard deviation
+    of the samples about their bin's mean (output unit)."""
+
+    max_residual: float | None = None
+    max_tempco: float | None = None
+    max_noise: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("max_residual", "max_tempco", "max_noise"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                                  or not math.isfinite(v) or v < 0):
+                raise ConfigError(f"key '{name}': must be a finite number ≥ 0, got {v!r}")
+
+    def checks(self, residual: float | None, tempco: float, noise: float
+               ) -> list[dict[str, Any]]:
+        """One check per limit set: ``{limit, value, max, ok}`` (no held-out value: fails)."""
+        out = []
+        for name, value in (("max_residual", residual), ("max_tempco", abs(tempco)),
+                            ("max_noise", noise)):
+            lim = getattr(self, name)
+            if lim is not None:
+                out.append({"limit": name, "value": value, "max": lim,
+                            "ok": value is not None and value <= lim})
+        return out
+
+
+# ------------------------------------------------------------------ points
+@dataclass
+class Points:
+    """Binned means of one axis: temperature, value, sampling variance, run of each point."""
+
+    temperature_c: np.ndarray
+    value: np.ndarray
+    sampling_var: np.ndarray
+    run: np.ndarray
+    n_samples: np.ndarray
+
+    @property
+    def n_runs(self) -> int:
+        return int(np.unique(self.run).size)
+
+    def take(self, mask: np.ndarray) -> Points:
+        return Points(*(np.asarray(a)[mask] for a in (self.temperature_c, self.value,
+                                                      self.sampling_var, self.run,
+                                                      self.n_samples)))
+
+    @staticmethod
+    def join(parts: list[Points]) -> Points:
+        return Points(*(np.concatenate([getattr(p, f) for p in parts]) for f in
+                        ("temperature_c", "value", "sampling_var", "run", "n_samples")))
+
+
+def _rate_c_per_min(t: np.ndarray, time_s: np.ndarray) -> np.ndarray:
+    """|dT/dt| in °C/min, the temperature smoothed over :data:`RATE_WINDOW_S` first."""
+    from scipy.ndimage import uniform_filter1d
+
+    dt = float(np.median(np.diff(time_s))) if time_s.size > 1 else 1.0
+    size = max(1, int(round(RATE_WINDOW_S / max(dt, 1e-9))))
+    ts = uniform_filter1d(t, size=min(size, t.size), mode="nearest")
+    return np.abs(np.gradient(ts, time_s)) * 60.0 if t.size > 1 else np.zeros_like(t)
+
+
+def bin_points(temperature_c: np.ndarray, values: np.ndarray, *, time_s: np.ndarray | None = None,
+               run: int = 0, bin_c: float = BIN_C, min_samples: int = MIN_BIN_SAMPLES,
+               max_rate_c_per_min: float = MAX_RATE_C_PER_MIN) -> Points:
+    """Means of one run's visits to 1 °C bins (centred on whole degrees).
+
+    A point is one contiguous stay in a bin: a soak is one point, a ramp one point per
+    degree, and a cycle's heating and cooling passes through a bin two points (a mean over
+    both would hide the hysteresis that a one-direction test then meets).  NaNs are dropped, and with ``time_s`` the samples taken while the temperature changed
+    faster than ``max_rate_c_per_min`` (the thermometer lags the die: a point taken while
+    the chamber jumps is wrong by the lag times the rate); bins under ``min_samples`` too.
+    The sampling variance of a mean is the bin's sample variance over its count (white
+    noise; correlated noise is in the fleet's misfit variance)."""
+    t = np.asarray(temperature_c, dtype=np.float64)
+    y = np.asarray(values, dtype=np.float64)
+    ok = np.isfinite(t) & np.isfinite(y)
+    if time_s is not None and ok.sum() > 1:
+        ts = np.asarray(time_s, dtype=np.float64)
+        rate = np.full(t.shape, np.inf)
+        rate[ok] = _rate_c_per_min(t[ok], ts[ok])
+        ok &= rate <= max_rate_c_per_min
+    t, y = t[ok], y[ok]
+    if t.size == 0:
+        return Points(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, int), np.zeros(0, int))
+    idx = np.floor(t / bin_c + 0.5).astype(np.int64)   # bins centred on k·bin_c
+    pos = np.flatnonzero(ok)
+    # a new visit where the bin changes or a sample was left out between two kept ones
+    new = np.r_[True, (np.diff(idx) != 0) | (np.diff(pos) != 1)]
+    inv = np.cumsum(new) - 1
+    n = np.bincount(inv)
+    mt, my = np.bincount(inv, t) / n, np.bincount(inv, y) / n
+    var = np.bincount(inv, (y - my[inv]) ** 2) / np.maximum(n - 1, 1)
+    keep = n >= min_samples
+    return Points(mt[keep], my[keep], (var / n)[keep], np.full(int(keep.sum()), run),
+                  n[keep])
+
+
+def shape_design(temperature_c: np.ndarray, t_ref: float, scale: float,
+                 degree: int) -> np.ndarray:
+    """Columns u, u², … u^degree of u = (T − t_ref) / scale."""
+    u = (np.asarray(temperature_c, dtype=np.float64) - t_ref) / scale
+    return np.column_stack([u ** k for k in range(1, degree + 1)])
+
+
+def _centred(X: np.ndarray, y: np.ndarray, w: np.ndarray,
+             run: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """X and y minus each run's weighted mean (a run's constant profiled out)."""
+    Xc, yc = X.copy(), y.copy()
+    for r in np.unique(run):
+        m = run == r
+        sw = w[m].sum()
+        Xc[m] -= (w[m] @ X[m]) / sw
+        yc[m] -= (w[m] @ y[m]) / sw
+    return Xc, yc
+
+
+# ------------------------------------------------------------------ one unit
+@dataclass
+class UnitFit:
+    """A calibrated unit's shape on one axis (weighted least squares, runs' constants free)."""
+
+    shape: np.ndarray          # (d,)
+    cov: np.ndarray            # (d, d) estimation covariance
+    misfit_var: float          # scatter of its bins about its curve beyond sampling
+    n_points: int
+    span_c: tuple[float, float]
+
+
+def fit_unit(points: Points, *, t_ref: float, scale: float, degree: int) -> UnitFit:
+    """The unit's own curve on its points (no prior): the fleet's raw material."""
+    X = shape_design(points.temperature_c, t_ref, scale, degree)
+    w = np.ones(points.value.size)
+    Xc, yc = _centred(X, points.value, w, points.run)
+    dof = points.value.size - points.n_runs - degree
+    if dof < 1:
+        raise InputError(f"{points.value.size} points in {points.n_runs} runs cannot fit "
+                         f"a degree-{degree} curve")
+    beta, *_ = np.linalg.lstsq(Xc, yc, rcond=None)
+    resid = yc - Xc @ beta
+    s2 = float(resid @ resid / dof)
+    cov = s2 * np.linalg.pinv(Xc.T @ Xc)
+    misfit = max(s2 - float(np.mean(points.sampling_var)), 0.0)
+    return UnitFit(beta, cov, misfit, int(points.value.size),
+                   (float(points.temperature_c.min()), float(points.temperature_c.max())))
+
+
+# ------------------------------------------------------------------ population
+@dataclass
+class AxisPrior:
+    """One axis's population: a Gaussian mixture over the shape, and the misfit variance."""
+
+    axis: str
+    weights: np.ndarray        # (k,)
+    means: np.ndarray          # (k, d)
+    covs: np.ndarray           # (k, d, d)
+    misfit_var: float
+    sampling_var: float        # a typical bin's sampling variance in the fleet (for designs)
+
+    @property
+    def n_clusters(self) -> int:
+        return int(self.weights.size)
+
+    def moment_matched(self) -> tuple[np.ndarray, np.ndarray]:
+        """The mixture's mean and covariance (one Gaussian with its first two moments)."""
+        mu = self.weights @ self.means
+        d = self.means - mu
+        cov = np.einsum("k,kij->ij", self.weights, self.covs) + \
+            np.einsum("k,ki,kj->ij", self.weights, d, d)
+        return mu, cov
+
+
+def _bic_choice(z: np.ndarray, k_max: int) -> Any:
+    from sklearn.mixture import GaussianMixture
+
+    best, best_bic = None, math.inf
+    for k in range(1, k_max + 1):
+        gm = GaussianMixture(n_components=k, covariance_type="full", random_state=0,
+                             n_init=3, reg_covar=1e-6)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")   # convergence chatter on tiny clusters
+            gm.fit(z)
+        bic = float(gm.bic(z))
+        if bic < best_bic:
+            best, best_bic = gm, bic
+    return best
+
+
+def fit_population(shapes: np.ndarray, *, max_clusters: int | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mixture weights, means and covariances of the units' shapes (``(units, d)``)."""
+    from sklearn.covariance import LedoitWolf
+
+    z = np.asarray(shapes, dtype=np.float64)
+    n, d = z.shape
+    if n < MIN_UNITS:
+        raise InputError(f"a fleet prior needs at least {MIN_UNITS} calibrated units, got {n}")
+    loc = np.median(z, axis=0)
+    sc = np.std(z, axis=0)
+    sc = np.where(sc > 0, sc, 1.0)
+    zs = (z - loc) / sc                      # standardised: comparable columns for the GMM
+    k_max = max(1, min(MAX_CLUSTERS if max_clusters is None else max_clusters,
+                       n // UNITS_PER_CLUSTER))
+    gm = _bic_choice(zs, k_max) if k_max > 1 else None
+    if gm is None or gm.n_components == 1:
+        lw = LedoitWolf().fit(zs)
+        w, mu, cov = np.ones(1), lw.location_[None], lw.covariance_[None]
+    else:
+        w, mu, cov = gm.weights_, gm.means_, gm.covariances_
+    means = mu * sc + loc
+    covs = cov * np.outer(sc, sc)[None]
+    return np.asarray(w, dtype=np.float64), means, covs
+
+
+# ------------------------------------------------------------------ the prior
+@dataclass
+class FleetPrior:
+    """The prior of a sensor type: per axis a mixture over the drift curve's shape."""
+
+    axes: list[AxisPrior]
+    degree: int
+    t_ref: float
+    scale: float
+    range_c: tuple[float, float]
+    units: dict[str, str]                     # axis -> unit of measure
+    targets: dict[str, str]                   # axis -> target mode
+    n_units: int
+    unit_ids: list[str]
+    excluded: dict[str, str] = field(default_factory=dict)   # unit id -> why
+    source: str = ""
+    bin_c: float = BIN_C
+
+    def axis(self, name: str) -> AxisPrior:
+        return next(a for a in self.axes if a.axis == name)
+
+    @property
+    def axis_names(self) -> list[str]:
+        return [a.axis for a in self.axes]
+
+    def physical(self, shape: np.ndarray) -> list[float]:
+        """Coefficients c1 … cd of (T − t_ref)^k from a shape in normalised u."""
+        return [float(shape[k - 1]) / self.scale ** k for k in range(1, self.degree + 1)]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"schema": PRIOR_SCHEMA, "kind": "fleet-prior", "degree": self.degree,
+                "t_ref_c": self.t_ref, "scale_c": self.scale, "range_c": list(self.range_c),
+                "bin_c": self.bin_c, "units_of_measure": self.units, "targets": self.targets,
+                "n_units": self.n_units, "unit_ids": self.unit_ids, "excluded": self.excluded,
+                "source": self.source, "method": METHOD,
+                "axes": {a.axis: {"weights": a.weights.tolist(), "means": a.means.tolist(),
+                                  "covs": a.covs.tolist(), "misfit_var": a.misfit_var,
+                                  "sampling_var": a.sampling_var} for a in self.axes}}
+
+    @staticmethod
+    def from_dict(data: Any, source: str) -> FleetPrior:
+        """A prior read from a file, checked whole: every error names the file and key."""
+        return _prior_from_dict(data, source)
+
+
+def _need(cond: bool, source: str, key: str, what: str) -> None:
+    if not cond:
+        raise InputError(f"{source}: key '{key}': {what}")
+
+
+def _finite_array(v: Any, shape: tuple[int, ...], source: str, key: str) -> np.ndarray:
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{source}: key '{key}': not an array of numbers") from None
+    _need(a.shape == shape, source, key, f"expected shape {shape}, got {a.shape}")
+    _need(bool(np.isfinite(a).all()), source, key, "holds a value that is not finite")
+    return a
+
+
+def _axis_from_dict(name: str, v: Any, degree: int, source: str) -> AxisPrior:
+    key = f"axes.{name}"
+    _need(isinstance(v, dict), source, key, "expected a mapping")
+    w = np.asarray(v.get("weights", []), dtype=np.float64) if isinstance(
+        v.get("weights"), list) else np.zeros(0)
+    k = w.size
+    _need(1 <= k <= MAX_CLUSTERS, source, f"{key}.weights",
+          f"expected 1 to {MAX_CLUSTERS} cluster weights")
+    w = _finite_array(v["weights"], (k,), source, f"{key}.weights")
+    _need(bool((w > 0).all()) and abs(w.sum() - 1) < 1e-6, source, f"{key}.weights",
+          "weights must be positive and sum to 1")
+    means = _finite_array(v.get("means"), (k, degree), source, f"{key}.means")
+    covs = _finite_array(v.get("covs"), (k, degree, degree), source, f"{key}.covs")
+    for c in covs:
+        _need(bool(np.allclose(c, c.T, rtol=1e-9, atol=0)), source, f"{key}.covs",
+              "a covariance is not symmetric")
+        _need(bool(np.linalg.eigvalsh(c).min() > 0), source, f"{key}.covs",
+              "a covariance is not positive definite")
+    out = []
+    for sub in ("misfit_var", "sampling_var"):
+        x = v.get(sub)
+        _need(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+              and x >= 0, source, f"{key}.{sub}", f"expected a finite number ≥ 0, got {x!r}")
+        out.append(float(x))
+    return AxisPrior(name, w, means, covs, out[0], out[1])
+
+
+def _prior_from_dict(data: Any, source: str) -> FleetPrior:
+    _need(isinstance(data, dict), source, "(top)", "expected a JSON object")
+    _need(data.get("kind") == "fleet-prior", source, "kind",
+          "this is not a thermonet fleet prior (kind must be 'fleet-prior')")
+    _need(data.get("schema") == PRIOR_SCHEMA, source, "schema",
+          f"schema {data.get('schema')!r} is not {PRIOR_SCHEMA}")
+    deg = data.get("degree")
+    _need(isinstance(deg, int) and not isinstance(deg, bool) and 1 <= deg <= MAX_DEGREE,
+          source, "degree", f"expected 1 to {MAX_DEGREE}, got {deg!r}")
+    nums = {}
+    for key in ("t_ref_c", "scale_c", "bin_c"):
+        x = data.get(key)
+        _need(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x),
+              source, key, f"expected a finite number, got {x!r}")
+        nums[key] = float(x)
+    _need(nums["scale_c"] > 0 and nums["bin_c"] > 0, source, "scale_c",
+          "scale_c and bin_c must be positive")
+    rng = _finite_array(data.get("range_c"), (2,), source, "range_c")
+    _need(rng[1] > rng[0], source, "range_c", "the range's high end is not above its low end")
+    axes_raw = data.get("axes")
+    _need(isinstance(axes_raw, dict) and bool(axes_raw), source, "axes",
+          "expected a mapping axis -> population")
+    axes = [_axis_from_dict(str(n), v, deg, source) for n, v in axes_raw.items()]
+    maps = {}
+    for key in ("units_of_measure", "targets"):
+        m = data.get(key)
+        _need(isinstance(m, dict) and set(m) == set(axes_raw) and
+              all(isinstance(x, str) for x in m.values()), source, key,
+              "expected one string per axis of 'axes'")
+        maps[key] = dict(m)
+    ids = data.get("unit_ids")
+    _need(isinstance(ids, list) and all(isinstance(u, str) for u in ids), source, "unit_ids",
+          "expected a list of unit ids")
+    n = data.get("n_units")
+    _need(isinstance(n, int) and not isinstance(n, bool) and n >= MIN_UNITS, source, "n_units",
+          f"expected an integer ≥ {MIN_UNITS}, got {n!r}")
+    exc = data.get("excluded", {})
+    _need(isinstance(exc, dict), source, "excluded", "expected a mapping unit -> reason")
+    return FleetPrior(axes, deg, nums["t_ref_c"], nums["scale_c"], (float(rng[0]),
+                      float(rng[1])), maps["units_of_measure"], maps["targets"], n,
+                      list(ids), {str(k): str(v) for k, v in exc.items()},
+                      str(data.get("source", "")), nums["bin_c"])
+
+
+# ------------------------------------------------------------------ the posterior
+@dataclass
+class Posterior:
+    """A unit's posterior on one axis: a mixture over its shape, and how well it fits."""
+
+    weights: np.ndarray
+    means: np.ndarray
+    covs: np.ndarray
+    p_values: np.ndarray       # per cluster: P(χ² ≥ d²) under the prior predictive
+    dof: int
+
+    @property
+    def shape(self) -> np.ndarray:
+        return np.asarray(self.weights @ self.means)
+
+    @property
+    def cov(self) -> np.ndarray:
+        d = self.means - self.shape
+        return np.asarray(np.einsum("k,kij->ij", self.weights, self.covs) +
+                          np.einsum("k,ki,kj->ij", self.weights, d, d))
+
+    @property
+    def p_value(self) -> float | None:
+        """The best cluster's p-value (None: too few points to judge)."""
+        return float(self.p_values.max()) if self.dof >= 1 else None
+
+    @property
+    def flagged(self) -> bool:
+        p = self.p_value
+        return p is not None and p < FLAG_P
+
+
+def _weights_var(prior: AxisPrior, points: Points) -> np.ndarray:
+    return 1.0 / (prior.misfit_var + points.sampling_var + 1e-300)
+
+
+def posterior(prior: AxisPrior, points: Points, *, t_ref: float, scale: float) -> Posterior:
+    """The unit's posterior given its points (see the module docstring)."""
+    from scipy.stats import chi2
+
+    d = prior.means.shape[1]
+    X = shape_design(points.temperature_c, t_ref, scale, d)
+    w = _weights_var(prior, points)
+    Xc, yc = _centred(X, points.value, w, points.run)
+    J, b = Xc.T @ (w[:, None] * Xc), Xc.T @ (w * yc)
+    q0 = float(yc @ (w * yc))
+    logev, means, covs, d2 = [], [], [], []
+    for mu, S in zip(prior.means, prior.covs, strict=True):
+        Si = np.linalg.inv(S)
+        A = Si + J
+        Ai = np.linalg.inv(A)
+        m = Ai @ (Si @ mu + b)
+        q = q0 + float(mu @ Si @ mu) - float(m @ A @ m)
+        _, ld_s = np.linalg.slogdet(S)
+        _, ld_a = np.linalg.slogdet(A)
+        logev.append(-0.5 * (q + ld_s + ld_a))
+        means.append(m)
+        covs.append((Ai + Ai.T) / 2)
+        d2.append(max(q, 0.0))
+    lw = np.log(prior.weights) + np.asarray(logev)
+    wpost = np.exp(lw - lw.max())
+    dof = int(points.value.size - points.n_runs)
+    p = chi2.sf(np.asarray(d2), max(dof, 1)) if dof >= 1 else np.ones(len(d2))
+    return Posterior(wpost / wpost.sum(), np.asarray(means), np.asarray(covs),
+                     np.asarray(p, dtype=np.float64), dof)
+
+
+# ------------------------------------------------------------------ designs
+def _run_information(X: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Information of one run's points on the shape, its constant profiled out."""
+    sx = w @ X
+    return np.asarray((X.T * w) @ X - np.outer(sx, sx) / w.sum())
+
+
+def expected_error(prior: AxisPrior, information: np.ndarray, grid: np.ndarray) -> float:
+    """RMS over ``grid`` rows of the offset-free curve's posterior std (moment-matched prior)."""
+    _, S = prior.moment_matched()
+    post = np.linalg.inv(np.linalg.inv(S) + information)
+    G = grid - grid.mean(axis=0)
+    return float(np.sqrt(max(np.einsum("ij,jk,ik->", G, post, G) / len(G), 0.0)))
+
+
+def _design_setup(fp: FleetPrior, axis: str, step_c: float
+                  ) -> tuple[AxisPrior, np.ndarray, np.ndarray, float]:
+    ap = fp.axis(axis)
+    cand = np.arange(fp.range_c[0], fp.range_c[1] + 1e-9, step_c)
+    grid = shape_design(cand, fp.t_ref, fp.scale, fp.degree)
+    return ap, cand, grid, 1.0 / (ap.misfit_var + ap.sampling_var + 1e-300)
+
+
+def next_temperatures(fp: FleetPrior, axis: str, measured_c: list[float], n: int, *,
+                      step_c: float = 2.5) -> list[float]:
+    """The ``n`` temperatures to measure next on one run of ``axis`` (greedy I-optimal)."""
+    ap, cand, grid, w0 = _design_setup(fp, axis, step_c)
+    chosen = [float(t) for t in measured_c]
+    out: list[float] = []
+
+    def err(temps: list[float]) -> float:
+        if len(temps) < 2:
+            return expected_error(ap, np.zeros((fp.degree, fp.degree)), grid)
+        X = shape_design(np.asarray(temps), fp.t_ref, fp.scale, fp.degree)
+        return expected_error(ap, _run_information(X, np.full(len(temps), w0)), grid)
+
+    while len(out) < n:
+        if not chosen:   # one point of one run says nothing about the shape: choose a pair
+            pairs = [(a, b) for i, a in enumerate(cand) for b in cand[i + 1:]]
+            best = min(pairs, key=lambda ab: err([float(ab[0]), float(ab[1])]))
+            pick = [float(best[0]), float(best[1])][:n - len(out)]
+        else:
+            pick = [float(min(cand, key=lambda t: err(chosen + [float(t)])))]
+        chosen += pick
+        out += pick
+    return out
+
+
+def design_errors(fp: FleetPrior, axis: str, *, max_points: int = 12, step_c: float = 2.5
+                  ) -> tuple[list[float], list[float]]:
+    """The first ``max_points`` temperatures of one run in :func:`next_temperatures` order,
+    and the expected error after 2 … ``max_points`` of them."""
+    ap, _, grid, w0 = _design_setup(fp, axis, step_c)
+    temps = next_temperatures(fp, axis, [], max_points, step_c=step_c)
+    errs = []
+    for k in range(2, max_points + 1):
+        X = shape_design(np.asarray(temps[:k]), fp.t_ref, fp.scale, fp.degree)
+        errs.append(expected_error(ap, _run_information(X, np.full(k, w0)), grid))
+    return temps, errs
+
+
+def points_needed(fp: FleetPrior, axis: str, target: float, *, max_points: int = 12,
+                  step_c: float = 2.5) -> tuple[int | None, list[float], list[float]]:
+    """Points of one run (in :func:`next_temperatures` order) for an expected error ≤ target.
+
+    Returns ``(n or None, temperatures, expected error after 2 … max_points points)``."""
+    temps, errs = design_errors(fp, axis, max_points=max_points, step_c=step_c)
+    return first_below(errs, target), temps, errs
+
+
+def first_below(errs: list[float], target: float) -> int | None:
+    """The number of points (errs[0] is after 2) whose expected error is ≤ target."""
+    return next((k + 2 for k, e in enumerate(errs) if e <= target), None)
+
+
+def check_compatible(fp: FleetPrior, axes: list[str], targets: dict[str, str],
+                     where: str) -> None:
+    """Refuse a unit whose axes or targets are not the prior's (one line naming both)."""
+    missing = [a for a in fp.axis_names if a not in axes]
+    if missing:
+        raise ConfigError(f"{where}: the prior is of axes {', '.join(fp.axis_names)}; the data "
+                          f"lack {', '.join(missing)} (a prior of another sensor kind?)")
+    other = [a for a in fp.axis_names if targets.get(a) != fp.targets[a]]
+    if other:
+        a = other[0]
+        raise ConfigError(f"{where}: axis {a}: target '{targets.get(a)}' is not the prior's "
+                          f"'{fp.targets[a]}'")
