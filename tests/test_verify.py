@@ -213,6 +213,22 @@ def test_logs_of_two_boards_of_one_model_refused_by_their_board_ids(
     assert str(first) in err and str(other_path) in err
     assert mine.board_id in err and theirs.board_id in err
     assert not (tmp_path / "c").exists()
+    # the file says the board it was fitted on; verify refuses it on the other board's log,
+    # whose device ids are the same
+    assert main(["calibrate", str(first), "--out", str(tmp_path / "c"), "--no-compare",
+                 "-q"]) == 0
+    params = tmp_path / "c" / ("px4.params" if ap == "px4" else "ardupilot.parm")
+    assert f"# board id: {mine.board_id}\n" in params.read_text()
+    assert json.loads((tmp_path / "c" / "results.json").read_text())["board_id"] == mine.board_id
+    assert main(["verify", str(params), str(other_path), "--out", str(tmp_path / "v")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == (f"thermonet: error: {params} belongs to another board: fitted on board "
+                   f"{mine.board_id!r}, {other_path.name} is board {theirs.board_id!r} (two "
+                   "boards of one model share their sensors' device ids; a thermal "
+                   "calibration is one board's)"), err
+    assert not (tmp_path / "v").exists()
+    assert main(["verify", str(params), str(runs[ext][2]), "--out", str(tmp_path / "v"),
+                 "-q"]) == 0                                     # its own board's next log
 
 
 def test_log_outside_the_calibrated_range_warns_per_instance(runs: dict[str, list[Path]],

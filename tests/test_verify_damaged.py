@@ -378,9 +378,18 @@ def test_the_real_six_sample_log_is_refused_not_passed(board: dict[str, dict[str
                                                        ) -> None:
     """The real PX4 log calibrate refuses (6 samples, < 0.4 °C): its sensors have the
     simulated board's device ids, so the file applies to them — and verify refuses to judge
-    any, in one line, exit 1, instead of '0->0 (infx PASS)'."""
+    any, in one line, exit 1, instead of '0->0 (infx PASS)'.  (thermonet's file names the
+    board it was fitted on, which is not this log's: refused as another board; the same file
+    without that line, as the autopilot's own tools write it, reaches the instances.)"""
     out = tmp_path / "v"
     assert main(["verify", str(board["px4"]["params"]), str(REAL_ULG), "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "belongs to another board: fitted on board" in err
+    assert "is board '000600000000383638393239510d0035002d'" in err
+    plain = tmp_path / "px4.params"
+    plain.write_text("".join(ln for ln in board["px4"]["params"].read_text().splitlines(True)
+                             if not ln.startswith("# board id:")))
+    assert main(["verify", str(plain), str(REAL_ULG), "--out", str(out)]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "nothing of sample_log_small.ulg can be judged" in err
     assert "gyro0: not judged, too few samples: 6 (need at least 200)" in err

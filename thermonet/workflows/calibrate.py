@@ -610,6 +610,7 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
               + (f" of all {len(logs)} logs (held-out check: fitted on the first "
                  f"{len(logs) - 1}, applied to {logs[-1].path.name})" if len(logs) > 1 else "")
               + "; see report.txt"]
+    header += [f"board id: {log.board_id}"] if log.board_id else []   # verify matches by it
     header += [f"{r.name} (id {r.device_id}): {r.summary['resolution']['line']}"
                for r in fitted if "resolution" in r.summary]
     text, fname = _params_text(log, fitted, header)

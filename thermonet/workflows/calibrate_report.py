@@ -142,6 +142,7 @@ def _header(doc: dict[str, Any]) -> list[str]:
                and len(logs) == 1 else []),
              *[f"log sha256: {h} ({Path(p).name})" for p, h in zip(
                  logs, doc.get("logs_sha256") or [], strict=False) if len(logs) > 1],
+             *([f"board id: {doc['board_id']}"] if doc.get("board_id") else []),
              f"parameter file: {doc['params_file']}"]
     if doc.get("held_out_log"):
         lines += [f"{len(logs)} logs of one board: held-out check fitted on the first "

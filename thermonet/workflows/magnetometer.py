@@ -32,6 +32,7 @@ compass heading, ψ = atan2(−B_y, B_x): the largest change of the heading of t
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -113,10 +114,7 @@ def lend_thermometers(log: FlightLog, choice: Mapping[str, str] | None = None
                 continue
             how[inst.name] = "default"
         instances.append(lend_thermometer(inst, donor))
-    out = FlightLog(path=log.path, autopilot=log.autopilot, instances=instances,
-                    params=log.params, notes=log.notes, damage=log.damage,
-                    unread_fraction=log.unread_fraction)
-    return out, how
+    return dataclasses.replace(log, instances=instances), how   # the rest as read (board id …)
 
 
 def lagged(time_s: np.ndarray, temperature_c: np.ndarray, tau_s: float) -> np.ndarray:

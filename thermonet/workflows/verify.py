@@ -67,7 +67,9 @@ PX4 slot with a non-zero ``TC_*_ID``, an ArduPilot IMU with ``INS_TCAL<n>_ENABLE
 TMIN/TMAX outside :data:`PLAUSIBLE_C`, (PX4) TREF outside [TMIN, TMAX] by more
 than :data:`RANGE_SLACK_C`, a device id that is not a 32-bit integer or that
 two slots share.  Also refused in one line: a file from another board (no device
-id of the log in the file: both lists named), a file of the other autopilot, a
+id of the log in the file: both lists named; or thermonet's ``# board id:`` line naming
+another board than the log's own id, ``FlightLog.board_id``: two boards of one model share
+their sensors' device ids), a file of the other autopilot, a
 file with no thermal calibration, an output directory that is or holds an input,
 and a log of which nothing can be judged (each instance's reason listed).  A log
 that leaves the calibrated range [TMIN, TMAX] by more than :data:`RANGE_SLACK_C`
@@ -125,6 +127,8 @@ _PX4_LETTER = PX4_LETTER
 KIND_UNITS = {"gyro": "rad/s", "acc": "m/s²", "baro": "Pa", "mag": "µT"}
 _AP_ID = {"gyro": "INS_GYR{}_ID", "acc": "INS_ACC{}_ID"}
 _AP_IDS_LINE = re.compile(r"^#\s*device ids:\s*INS_TCAL(\d)\s+gyro\s+(\d+)\s+acc\s+(\d+)")
+#: thermonet's header line naming the board a file was fitted on (``FlightLog.board_id``).
+_BOARD_LINE = re.compile(r"^#\s*board id:\s*(\S.*?)\s*$")
 #: A parameter value: a decimal number as QGroundControl and Mission Planner write them.
 _NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
 #: ArduPilot parameters the correction reads besides INS_TCAL<n>_*: the ids and CALTEMPs.
@@ -188,6 +192,8 @@ class ParamFile:
     enabled: dict[str, bool]            # PX4: per kind; ArduPilot: "imu<n>"
     #: name -> line number in the file
     line_of: dict[str, int] = field(default_factory=dict)
+    #: The board the file was fitted on (thermonet's ``# board id:`` line), else None.
+    board_id: str | None = None
 
     def where(self, name: str) -> str:
         """``FILE: line N`` of parameter ``name`` (the file alone when it has no line)."""
@@ -274,7 +280,8 @@ def read_param_file(path: str | Path) -> ParamFile:
         raise InputError(f"{p}: no parameter lines")
     autopilot = "px4" if len(first.split()) == 5 else "ardupilot"
     params, line_of = _parse(p, text, autopilot)
-    pf = ParamFile(p, autopilot, params, {}, {}, line_of)
+    board = next((m.group(1) for m in map(_BOARD_LINE.match, text.splitlines()) if m), None)
+    pf = ParamFile(p, autopilot, params, {}, {}, line_of, board)
     for name, v in params.items():
         if _is_calibration(name, autopilot) and not math.isfinite(v):
             raise InputError(f"{pf.where(name)}: parameter {name} is {v}: not a finite number "
@@ -528,6 +535,11 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
         raise ThermonetError(f"{pf.path} belongs to another board: its device ids "
                              f"{', '.join(map(str, pf.ids))} are none of {log.path.name}'s "
                              f"({', '.join(map(str, log_ids))})")
+    if pf.board_id and log.board_id and pf.board_id != log.board_id:
+        raise ThermonetError(f"{pf.path} belongs to another board: fitted on board "
+                             f"{pf.board_id!r}, {log.path.name} is board {log.board_id!r} (two "
+                             "boards of one model share their sensors' device ids; a thermal "
+                             "calibration is one board's)")
     out: dict[str, dict[str, Any]] = {}
     for inst in insts:
         slot, why = _slot(pf, inst)
