@@ -12,6 +12,8 @@ exports refuse it in one line; bad hyper-parameters likewise."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -221,6 +223,45 @@ def test_onnx_runtime_and_c_carry_the_state_like_torch(fitted, exported):
     lay = stream_windows(t, np.isfinite(temp), model.family.step_s, model.family.gap_s)
     assert np.array_equal(idx, lay.index) and np.array_equal(restart, lay.restart)
     assert np.array_equal(window, lay.window)
+
+
+def test_the_runtimes_csv_of_two_runs_restarts_the_hidden_state_at_each(exported, tmp_path):
+    """The runtime's command on a CSV with a ``run`` column (what ``convert --out x.csv``
+    writes from several runs, time restarting in each): run 2's drift is run 2's alone, the
+    GRU's hidden state restarted at its first row, never carried from run 1's end (the state
+    carried across the boundary gives other numbers, far beyond float32 precision)."""
+    import csv
+
+    rt = load_runtime()
+    runs = [_run(5, 5400.0, hours=1.0), _run(6, 9000.0, hours=1.0)]
+
+    def write(path: Path, parts: list[int]) -> Path:
+        with path.open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["run", "time_s", "temperature_c", *AXES])
+            for k in parts:
+                temp, y, t = runs[k]
+                for i in range(t.size):
+                    w.writerow([f"r{k}", repr(float(t[i])), repr(float(temp[i, 0])),
+                                *(repr(float(v)) for v in y[i])])
+        return path
+
+    def drift(src: Path) -> np.ndarray:
+        out = src.with_suffix(".out.csv")
+        assert rt.main([str(exported[0]), str(src), "--out", str(out)]) == 0
+        with out.open(newline="") as fh:
+            return np.array([[float(r[f"{a}_drift"]) for a in AXES] for r in csv.DictReader(fh)])
+
+    both = drift(write(tmp_path / "both.csv", [0, 1]))
+    alone = drift(write(tmp_path / "alone.csv", [1]))
+    n1 = runs[0][2].size
+    tol = 4 * float(np.finfo(np.float32).eps) * float(np.max(np.abs(alone)))
+    np.testing.assert_allclose(both[n1:], alone, rtol=0, atol=tol)
+    comp = rt.Compensator(exported[0])
+    (temp0, y0, t0), (temp1, y1, t1) = runs
+    comp.step_block(t0, temp0[:, 0], y0)
+    carried = comp.step_block(t0[-1] + 2.0 + t1, temp1[:, 0], y1).drift
+    assert float(np.max(np.abs(carried - alone))) > 100 * tol
 
 
 def test_runtime_needs_time(exported):
