@@ -232,6 +232,8 @@ def test_calibrate_console_one_line_per_instance_detail_behind_a_flag(
         assert verdict == ("PASS" if not weak else
                            f"{'FAIL' if 'fails' in grades else 'MARGINAL'} ({', '.join(weak)})")
     assert f"detail per instance: {out / 'report.txt'} (or calibrate --detail)" in text
+    assert doc["board_id"] == board.board_id and f"board id: {board.board_id}\n" in text
+    assert f"Load the parameter file only on board {board.board_id}, whose sensors" in text
     # --detail: report.txt as written (the same table, then each instance's detail)
     again = tmp_path / "again"
     assert main(["calibrate", str(path), "--out", str(again), "--workers", "1", "-v"]) == 0

@@ -219,8 +219,10 @@ def _totals(doc: dict[str, Any]) -> list[str]:
                       "; " + ", ".join(f"{n} {g}" for g, n in weak.items())
                       + " — `thermonet verify` on a new log may FAIL them (see 'held out' "
                       "in the detail)" if weak else "")]
-    lines += ["", "Load the parameter file only for a board whose sensors are the device ids "
-              "above; reboot after loading; re-run the ordinary gyro/accel calibration."]
+    board = f"on board {doc['board_id']}, whose sensors are" if doc.get("board_id") else \
+        "for a board whose sensors are"
+    lines += ["", f"Load the parameter file only {board} the device ids above; reboot after "
+              "loading; re-run the ordinary gyro/accel calibration."]
     return lines
 
 
