@@ -145,3 +145,30 @@ def test_clock_jump_is_one_line(tmp_path):
     path = write_flight(sim.log, sim.biases, tmp_path / "jump.ulg")
     with pytest.raises(InputError, match=r"jump\.ulg.*clock jumps forward by 50\d"):
         read_bias_log(path)
+
+
+def test_real_ardupilot_fixture_ekf2_gyro_bias():
+    """The real 2017 ArduPilot log (EKF2: NKF1 core 0, NKF6 core 1) is read: GX..GZ in deg/s
+    (int16 centi-degrees per second), rotated back by AHRS_ORIENTATION 8 (roll 180°: y and z
+    change sign) and INS_GYROFFS / INS_GYR2OFFS added back; 1 s of log: none trusted."""
+    from pymavlink import DFReader
+
+    path = REAL.parents[1] / "ardupilot_bin_sample" / "test.BIN"
+    log = read_bias_log(path)
+    r = DFReader.DFReader_binary(str(path), zero_time_base=True)
+    rows: dict[str, list[list[float]]] = {"NKF1": [], "NKF6": []}
+    params: dict[str, float] = {}
+    while (m := r.recv_match(type=["NKF1", "NKF6", "PARM"])) is not None:
+        if m.get_type() == "PARM":
+            params[m.Name] = m.Value
+        else:
+            rows[m.get_type()].append([m.GX, m.GY, m.GZ])
+    ekf = {s.estimator: s for s in log.series if s.source == "ekf"}
+    assert set(ekf) == {0, 1} and all(s.kind == "gyro" for s in ekf.values())
+    for core, (msg, pre, dev) in enumerate((("NKF1", "INS_GYROFFS", "INS_GYR_ID"),
+                                            ("NKF6", "INS_GYR2OFFS", "INS_GYR2_ID"))):
+        b = np.radians(np.asarray(rows[msg]))
+        expect = np.column_stack([b[:, 0], -b[:, 1], -b[:, 2]]) + [
+            params[f"{pre}_{a}"] for a in "XYZ"]
+        np.testing.assert_allclose(ekf[core].drift, expect, atol=1e-7)
+        assert ekf[core].device_id == int(params[dev]) and not ekf[core].valid.any()

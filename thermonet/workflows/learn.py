@@ -4,8 +4,8 @@ No chamber: every log of one vehicle is read for the drift it reveals — the es
 and the still-on-the-ground gyro (:mod:`thermonet.data.logs.bias`: what the log applied is
 undone, invalid and unconverged samples rejected) — reduced to window means on the process
 pool or Ray, cached per log (:mod:`thermonet.workflows.learn_data`: a stopped job resumes
-without reading a log twice, a grown directory reads only its new logs), aligned for the
-estimator's lag and cleaned of divergences.  Then, per sensor instance (gyro, accelerometer):
+without reading a log twice, a grown directory reads only its new logs), with the estimator's
+lag undone and divergences left out.  Then, per sensor instance (gyro, accelerometer):
 
 1. **The comparison** the chamber path runs (:func:`thermonet.workflows.compare.run_compare`,
    as ``calibrate`` does): the firmware's cubic as the baseline family, a line, the RBF with
@@ -15,7 +15,7 @@ estimator's lag and cleaned of divergences.  Then, per sensor instance (gyro, ac
    :data:`MIN_COMPARE_FLIGHTS` flights.
 2. **The firmware form** (:func:`thermonet.workflows.firmware_fit.fit_firmware`: PX4's
    ``process_sensor_caldata.py`` cubic, ArduPilot's ``tempcal_IMU.py`` cubic) on every
-   flight's kept windows, at the aligned temperature; **checked on the last flight** fitted on
+   flight's kept windows, at the temperature as read; **checked on the last flight** fitted on
    the others: the 1 °C-binned drift peak-to-peak before and after.  An instance whose
    held-out drift it does not cut is left out of the parameter file (do no harm).
 3. **Files**: ``DIR/px4.params`` or ``DIR/ardupilot.parm`` (by the logs' autopilot, as
@@ -184,7 +184,7 @@ def _as_instance(inst: InstanceWindows, sel: np.ndarray) -> SensorInstance:
     order = np.lexsort((inst.time_s[sel], inst.flight[sel]))
     t = np.arange(int(sel.sum()), dtype=np.float64)[order.argsort()] * 10.0
     return SensorInstance(inst.kind, int(inst.name[-1]) if inst.name[-1].isdigit() else 0,
-                          inst.device_id, np.sort(t), inst.aligned[sel][order],
+                          inst.device_id, np.sort(t), inst.temp[sel][order],
                           inst.drift[sel][order], notes=list(inst.notes))
 
 
@@ -199,7 +199,7 @@ def _firmware(inst: InstanceWindows, autopilot: str) -> dict[str, Any]:
     last = keep & (inst.flight == flights[-1])
     train = keep & ~last
     fit = fit_firmware(_as_instance(inst, train), autopilot)
-    temp = inst.aligned[last]
+    temp = inst.temp[last]
     y = _target(inst, inst.drift[last])
     after = y - fit_correction(fit, temp)
     before_pp, after_pp = binned_pp(temp, y), binned_pp(temp, after)
@@ -227,7 +227,7 @@ def _dataset(inst: InstanceWindows) -> Dataset | None:
             for j, a in enumerate(axes)}
         units = {"time_s": "s", "temperature_c": "degC",
                  **{c: _UNITS[inst.kind] for c in outputs}}
-        runs.append(Recording(time_s=inst.time_s[sel][order], temperature_c=inst.aligned[sel][
+        runs.append(Recording(time_s=inst.time_s[sel][order], temperature_c=inst.temp[sel][
             order], outputs=outputs, references=refs, units=units,
             device_id=str(inst.device_id), sensor_kind=inst.kind, run_id=f"flight{int(f) + 1}",
             meta={"source": inst.flights[int(f)], "instance": inst.name}))
@@ -305,7 +305,7 @@ def _instance(inst: InstanceWindows, autopilot: str, stage: Path, do_compare: bo
         "lag_scores": scores, "rejected_windows": dropped,
         "minutes": round(float(inst.weight[keep].sum()) / 60.0, 1),
         "coverage": cov, "supported_c": list(span) if span else None, "missing": words}
-    if keep.sum() < MIN_RUN_WINDOWS or np.unique(np.round(inst.aligned[keep])).size < 4:
+    if keep.sum() < MIN_RUN_WINDOWS or np.unique(np.round(inst.temp[keep])).size < 4:
         d["reason"] = "too few windows or temperatures to fit a cubic"
         return d
     fw = _firmware(inst, autopilot)

@@ -12,16 +12,20 @@ Each reduced log is cached in ``DIR/cache/`` under its SHA-256 (:func:`cache_pat
 arrives, refusals included: a stopped job loses no log already read, and adding logs to a
 directory reads only the new ones.
 
-The estimator's lag (:func:`choose_lag`).  The estimator's bias follows the true bias through
-its own filter; for a drift smooth in temperature, a first-order lag of the drift is close to
-the drift of the lagged temperature.  So each instance's estimator windows are fitted against
-the temperature through the lag (from :data:`LAG_GRID_S`) whose weighted cubic fit over every
-flight leaves the smallest median residual; still-gyro windows keep the temperature as read
-(the raw gyro has no lag).  The model learned is then the drift at the temperature as read,
-what the firmware applies.  Samples before convergence are already dropped by the reader.
+The estimator's lag (:func:`choose_lag`).  The estimator's bias ``b`` follows the bias it
+must find ``d`` through its own filter; for a first-order one of time constant τ,
+``τ·db/dt + b = d``, so ``d = b + τ·db/dt`` — the drift at the temperature as read, what the
+firmware applies.  :func:`reduce_log` computes that for every τ of :data:`LAG_GRID_S`
+(``db/dt`` by a centred difference over ± :data:`SLOPE_S`, before the windows), and each
+instance keeps the τ whose weighted cubic over every flight leaves the smallest median
+residual.  Still-gyro windows need none (the raw gyro has no lag).  Undoing the lag on the
+bias rather than lagging the temperature is exact for any drift law, not only a line (the
+first version lagged the temperature: up to 0.5× raw was left on hot held-out flights,
+experiments/README.md).  Samples before convergence are already dropped by the reader.
 
 Divergence (:func:`reject_outliers`): a window more than :data:`OUTLIER_MADS` robust standard
-deviations (1.4826 × MAD) from that fit, on any axis, is left out — an estimator that wandered
+deviations (1.4826 × MAD) from the median of its 1 °C bin over every flight, on any axis, is
+left out — an estimator that wandered
 off (a maneuver, a bad magnetometer) without its variance saying so.
 """
 
@@ -47,11 +51,15 @@ __all__ = ["WINDOW_S", "LAG_GRID_S", "OUTLIER_MADS", "READER_VERSION", "reduce_l
 #: Window of the means a log is reduced to, s.
 WINDOW_S = 10.0
 #: Time constants (s) tried for the estimator's lag (0: none).
-LAG_GRID_S = (0.0, 15.0, 30.0, 60.0, 90.0, 120.0, 180.0, 240.0)
+LAG_GRID_S = (0.0, 15.0, 30.0, 45.0, 60.0, 90.0, 120.0, 150.0, 180.0, 240.0)
+#: Half-width (s) of the centred difference that estimates the bias's slope.
+SLOPE_S = 30.0
+#: The lag's score averages the residuals over this long within each flight (s).
+LAG_SCORE_S = 120.0
 #: A window this many robust standard deviations off the fit is left out.
 OUTLIER_MADS = 5.0
 #: Bumped when the reduction changes: older cache entries are read again.
-READER_VERSION = 1
+READER_VERSION = 2
 #: The temperatures a vehicle may meet (°C): the coverage map says what of it is missing.
 TARGET_RANGE_C = (-10.0, 60.0)
 #: A 1 °C bin is supported with at least this many flights and minutes.
@@ -59,49 +67,50 @@ MIN_BIN_FLIGHTS = 2
 MIN_BIN_MINUTES = 2.0
 
 
-def _lagged(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
-    """``x`` through a first-order lag of ``tau`` s, settled at ``x[0]`` (step-exact)."""
+def _delag(t: np.ndarray, b: np.ndarray, tau: float) -> np.ndarray:
+    """``b + τ·db/dt`` (n, 3): what a first-order lag of ``tau`` s was fed; the slope by a
+    centred difference over ± :data:`SLOPE_S` (one-sided at the ends)."""
     if tau <= 0:
-        return x.copy()
-    out = np.empty_like(x)
-    out[0] = x[0]
-    for k in range(1, x.size):
-        a = math.exp(-(t[k] - t[k - 1]) / tau)
-        out[k] = x[k] + (out[k - 1] - x[k]) * a
-    return out
+        return b.copy()
+    lo = np.clip(t - SLOPE_S, t[0], t[-1])
+    hi = np.clip(t + SLOPE_S, t[0], t[-1])
+    span = np.maximum(hi - lo, 1e-9)
+    slope = np.column_stack([(np.interp(hi, t, b[:, j]) - np.interp(lo, t, b[:, j])) / span
+                             for j in range(b.shape[1])])
+    return b + tau * slope
 
 
 def _windows(s: BiasSeries) -> dict[str, Any] | None:
-    """One series as window means (see the module), or None with no valid sample."""
+    """One series as window means (see the module), or None with no valid sample: per lag
+    of :data:`LAG_GRID_S` the de-lagged drift (the same for still windows)."""
     t = np.asarray(s.time_s, dtype=np.float64)
+    base = {"kind": s.kind, "device_id": s.device_id, "source": s.source,
+            "estimator": s.estimator, "notes": s.notes}
     if s.source == "still":
-        lags = {f"{tau:g}": s.temperature_c.tolist() for tau in LAG_GRID_S}
         keep = s.valid
-        return {"kind": s.kind, "device_id": s.device_id, "source": s.source,
-                "estimator": s.estimator, "t": t[keep].tolist(),
-                "drift": s.drift[keep].tolist(), "temp": s.temperature_c[keep].tolist(),
-                "lagged": {k: list(np.asarray(v)[keep]) for k, v in lags.items()},
-                "weight": np.full(int(keep.sum()), WINDOW_S).tolist(), "notes": s.notes}
+        d = s.drift[keep].tolist()
+        return {**base, "t": t[keep].tolist(), "temp": s.temperature_c[keep].tolist(),
+                "drifts": {f"{tau:g}": d for tau in LAG_GRID_S},
+                "weight": np.full(int(keep.sum()), WINDOW_S).tolist()}
     if not s.valid.any():
         return None
-    lagged = {f"{tau:g}": _lagged(t, s.temperature_c, tau) for tau in LAG_GRID_S}
+    applied = s.applied if s.applied is not None else np.zeros_like(s.drift)
+    # the lag is the estimator's: undone on its bias, before what was applied is added back
+    delagged = [_delag(t, s.drift - applied, tau) + applied for tau in LAG_GRID_S]
     idx = np.floor((t - t[0]) / WINDOW_S).astype(np.int64)
     rows: list[list[float]] = []
     for w in np.unique(idx[s.valid]):
         sel = (idx == w) & s.valid
         wts = np.ones((int(sel.sum()), 3)) if s.variance is None else \
             1.0 / np.maximum(s.variance[sel], 1e-30)
-        drift = (wts * s.drift[sel]).sum(axis=0) / wts.sum(axis=0)
-        rows.append([float(t[sel].mean()), float(s.temperature_c[sel].mean()), *drift,
-                     *(float(v[sel].mean()) for v in lagged.values()),
-                     float(np.ptp(t[sel]) + WINDOW_S / max(int(sel.sum()), 1))])
+        means = [((wts * d[sel]).sum(axis=0) / wts.sum(axis=0)).tolist() for d in delagged]
+        rows.append([float(t[sel].mean()), float(s.temperature_c[sel].mean()),
+                     float(np.ptp(t[sel]) + WINDOW_S / max(int(sel.sum()), 1)),
+                     *(v for m in means for v in m)])
     a = np.asarray(rows)
-    n = len(LAG_GRID_S)
-    return {"kind": s.kind, "device_id": s.device_id, "source": s.source,
-            "estimator": s.estimator, "t": a[:, 0].tolist(), "temp": a[:, 1].tolist(),
-            "drift": a[:, 2:5].tolist(),
-            "lagged": {f"{tau:g}": a[:, 5 + j].tolist() for j, tau in enumerate(LAG_GRID_S)},
-            "weight": a[:, 5 + n].tolist(), "notes": s.notes}
+    return {**base, "t": a[:, 0].tolist(), "temp": a[:, 1].tolist(), "weight": a[:, 2].tolist(),
+            "drifts": {f"{tau:g}": a[:, 3 + 3 * j:6 + 3 * j].tolist()
+                       for j, tau in enumerate(LAG_GRID_S)}}
 
 
 def reduce_log(path: str) -> dict[str, Any]:
@@ -150,8 +159,8 @@ def write_cache(path: Path, doc: dict[str, Any]) -> None:
 @dataclass
 class InstanceWindows:
     """One sensor instance's windows over every flight: per window its flight (index into
-    ``flights``), time, temperature as read and lagged, drift (n, 3), weight (s of data), and
-    whether it came from still-gyro windows."""
+    ``flights``), time, temperature as read, drift (n, 3) de-lagged by each lag tried, weight
+    (s of data), and whether it came from still-gyro windows."""
 
     kind: str
     device_id: int
@@ -160,8 +169,7 @@ class InstanceWindows:
     flight: np.ndarray
     time_s: np.ndarray
     temp: np.ndarray
-    lagged: dict[str, np.ndarray]
-    drift: np.ndarray
+    drifts: dict[str, np.ndarray]
     weight: np.ndarray
     still: np.ndarray
     notes: list[str] = field(default_factory=list)
@@ -169,9 +177,9 @@ class InstanceWindows:
     keep: np.ndarray | None = None
 
     @property
-    def aligned(self) -> np.ndarray:
-        """The temperature each window's drift belongs to: lagged for the estimator's."""
-        return np.where(self.still, self.temp, self.lagged[f"{self.lag_s:g}"])
+    def drift(self) -> np.ndarray:
+        """Each window's drift (n, 3), de-lagged by the chosen lag :attr:`lag_s`."""
+        return self.drifts[f"{self.lag_s:g}"]
 
 
 def _name_of(sensors: dict[str, int], kind: str, dev: int) -> str:
@@ -190,9 +198,9 @@ def gather(logs: list[dict[str, Any]]) -> list[InstanceWindows]:
                 acc.setdefault((s["kind"], int(s["device_id"])), []).append((k, s))
     out = []
     for (kind, dev), parts in sorted(acc.items()):
-        cols: dict[str, list[Any]] = {c: [] for c in ("flight", "t", "temp", "drift", "weight",
+        cols: dict[str, list[Any]] = {c: [] for c in ("flight", "t", "temp", "weight",
                                                       "still")}
-        lag: dict[str, list[float]] = {f"{tau:g}": [] for tau in LAG_GRID_S}
+        lag: dict[str, list[np.ndarray]] = {f"{tau:g}": [] for tau in LAG_GRID_S}
         for k, s in parts:
             t = np.asarray(s["t"])
             keep = np.ones(t.size, dtype=bool)
@@ -206,17 +214,16 @@ def gather(logs: list[dict[str, Any]]) -> list[InstanceWindows]:
             cols["flight"].append(np.full(int(keep.sum()), k))
             cols["t"].append(t[keep])
             cols["temp"].append(np.asarray(s["temp"])[keep])
-            cols["drift"].append(np.asarray(s["drift"]).reshape(-1, 3)[keep])
             cols["weight"].append(np.asarray(s["weight"])[keep])
             cols["still"].append(np.full(int(keep.sum()), s["source"] == "still"))
             for key in lag:
-                lag[key].extend(np.asarray(s["lagged"][key])[keep].tolist())
+                lag[key].append(np.asarray(s["drifts"][key]).reshape(-1, 3)[keep])
         names = [lg["path"] for lg in logs]
         out.append(InstanceWindows(
             kind, dev, _name_of(logs[parts[0][0]]["sensors"], kind, dev), names,
             np.concatenate(cols["flight"]), np.concatenate(cols["t"]),
-            np.concatenate(cols["temp"]), {k: np.asarray(v) for k, v in lag.items()},
-            np.concatenate(cols["drift"]), np.concatenate(cols["weight"]),
+            np.concatenate(cols["temp"]), {k: np.concatenate(v) for k, v in lag.items()},
+            np.concatenate(cols["weight"]),
             np.concatenate(cols["still"])))
     return out
 
@@ -232,17 +239,36 @@ def _cubic_residuals(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
     return res
 
 
+def _smooth(flight: np.ndarray, x: np.ndarray, n: int) -> np.ndarray:
+    """``x`` (rows in time order within each flight) as a moving mean of ``n`` rows, within
+    each flight (never across two)."""
+    out = np.empty_like(x)
+    for f in np.unique(flight):
+        sel = np.flatnonzero(flight == f)
+        k = min(n, sel.size)
+        kernel = np.ones(k) / k
+        for j in range(x.shape[1]):
+            pad = np.pad(x[sel, j], (k // 2, k - 1 - k // 2), mode="edge")
+            out[sel, j] = np.convolve(pad, kernel, mode="valid")
+    return out
+
+
 def choose_lag(inst: InstanceWindows) -> dict[str, float]:
-    """Set ``inst.lag_s`` to the :data:`LAG_GRID_S` lag whose cubic leaves the smallest median
-    residual (relative per axis) over every flight; each lag's score, by its name."""
+    """Set ``inst.lag_s`` to the :data:`LAG_GRID_S` lag whose cubic over every flight leaves
+    the smallest median residual (relative per axis), the residuals first averaged over
+    :data:`LAG_SCORE_S` within each flight: a wrong lag leaves an error that follows the
+    heating rate (minutes), the slope's noise (which a longer lag amplifies) averages out;
+    each lag's score, by its name."""
     scores: dict[str, float] = {}
-    scale = np.maximum(np.ptp(inst.drift, axis=0), 1e-12)
+    order = np.lexsort((inst.time_s, inst.flight))
     for tau in LAG_GRID_S:
         inst.lag_s = tau
         if inst.time_s.size < 8:
             scores[f"{tau:g}"] = math.inf
             continue
-        res = _cubic_residuals(inst.aligned, inst.drift, inst.weight)
+        scale = np.maximum(np.ptp(inst.drift, axis=0), 1e-12)
+        res = _cubic_residuals(inst.temp, inst.drift, inst.weight)[order]
+        res = _smooth(inst.flight[order], res, max(1, int(LAG_SCORE_S / WINDOW_S)))
         scores[f"{tau:g}"] = float(np.mean(np.median(np.abs(res), axis=0) / scale))
     if not inst.still.all():
         inst.lag_s = float(min(LAG_GRID_S, key=lambda tau: scores[f"{tau:g}"]))
@@ -253,29 +279,30 @@ def choose_lag(inst: InstanceWindows) -> dict[str, float]:
 
 def reject_outliers(inst: InstanceWindows) -> int:
     """Mark (``inst.keep``) the windows within :data:`OUTLIER_MADS` robust standard
-    deviations of the cubic (two passes); the number left out."""
-    keep = np.ones(inst.time_s.size, dtype=bool)
-    for _ in range(2):
-        if keep.sum() < 8:
-            break
-        full = np.zeros_like(inst.drift)
-        x = inst.aligned
-        # every window's residual from the cubic fitted on the kept ones
-        for j in range(3):
-            xc = x[keep].mean()
-            deg = 3 if np.unique(np.round(x[keep], 1)).size > 6 else 1
-            c = np.polyfit(x[keep] - xc, inst.drift[keep, j], deg, w=np.sqrt(inst.weight[keep]))
-            full[:, j] = inst.drift[:, j] - np.polyval(c, x - xc)
-        sigma = 1.4826 * np.median(np.abs(full[keep]), axis=0)
-        keep = np.all(np.abs(full) <= OUTLIER_MADS * np.maximum(sigma, 1e-12), axis=1)
+    deviations (per axis, over every window) of the median of their 1 °C bin over every
+    flight — no drift law assumed, so a curved end of the range is never mistaken for a
+    divergence; the number left out.  A bin of one flight cannot judge itself: kept."""
+    bins = np.floor(inst.temp).astype(np.int64)
+    res = np.zeros_like(inst.drift)
+    judged = np.zeros(bins.size, dtype=bool)
+    for b in np.unique(bins):
+        sel = bins == b
+        if np.unique(inst.flight[sel]).size < 2:
+            continue
+        res[sel] = inst.drift[sel] - np.median(inst.drift[sel], axis=0)
+        judged |= sel
+    keep = np.ones(bins.size, dtype=bool)
+    if judged.sum() >= 8:
+        sigma = 1.4826 * np.median(np.abs(res[judged]), axis=0)
+        keep = ~judged | np.all(np.abs(res) <= OUTLIER_MADS * np.maximum(sigma, 1e-12), axis=1)
     inst.keep = keep
     return int((~keep).sum())
 
 
 def coverage(inst: InstanceWindows) -> list[dict[str, Any]]:
-    """Per 1 °C bin of the aligned temperature (kept windows): flights and minutes."""
+    """Per 1 °C bin of the temperature (kept windows): flights and minutes."""
     keep = inst.keep if inst.keep is not None else np.ones(inst.time_s.size, dtype=bool)
-    x = inst.aligned[keep]
+    x = inst.temp[keep]
     if not x.size:
         return []
     bins = np.floor(x).astype(np.int64)

@@ -18,7 +18,10 @@ interpolated to the bias times.
 **ArduPilot** (``libraries/AP_NavEKF3/LogStructure.h``): ``XKF1`` per core ``C``, ``GX, GY,
 GZ`` (logged as int16 centi-degrees per second, format ``c``; pymavlink returns deg/s,
 converted to rad/s here) and ``XKF2`` ``AX, AY, AZ`` (int16 centi-m/s², pymavlink m/s²).
-Core ``k`` runs on the ``k``-th IMU set in ``EK3_IMU_MASK`` (default 3: IMUs 0 and 1).  The
+Core ``k`` runs on the ``k``-th IMU set in ``EK3_IMU_MASK`` (default 3: IMUs 0 and 1).
+Older logs of EKF2 (the real fixture ``tests/data/real/ardupilot_bin_sample``, 2017): the gyro
+bias of ``NKF1`` (core 0) and ``NKF6`` (core 1), same fields and units, cores on
+``EK2_IMU_MASK``; EKF2 logs only the accelerometer's z bias, which is not learned.  The
 temperature is that IMU's ``IMU.T``.  EKF3 logs no per-bias variance or validity flag in
 XKF1/XKF2: every sample counts equally, and convergence is by time (below).
 
@@ -100,6 +103,9 @@ MAX_VARIANCE_RATIO = 25.0
 #: A step of the log's clock longer than this (s), or backwards, is a clock jump.
 MAX_GAP_S = 60.0
 _RAD_PER_DEG = math.pi / 180.0
+#: EKF2's gyro-bias messages (older ArduPilot): ``NKF1`` core 0, ``NKF6`` core 1, the same
+#: ``GX, GY, GZ`` (int16 centi-degrees per second) as ``XKF1``, without a core field.
+_EKF2_GYRO = {"NKF1": 0, "NKF6": 1}
 #: PX4 ``rotation.h``: (roll, pitch, yaw) in degrees of ``SENS_BOARD_ROT`` 0..20.
 _PX4_ROTATIONS = [(0, 0, 0), (0, 0, 45), (0, 0, 90), (0, 0, 135), (0, 0, 180), (0, 0, 225),
                   (0, 0, 270), (0, 0, 315), (180, 0, 0), (180, 0, 45), (180, 0, 90),
@@ -128,6 +134,9 @@ class BiasSeries:
     valid: np.ndarray
     variance: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
+    #: (n, 3) the part of ``drift`` that is what the autopilot applied (offsets, TC(T)),
+    #: added back at once — the estimator's lag is in ``drift − applied`` only (None: none).
+    applied: np.ndarray | None = None
 
     @property
     def name(self) -> str:
@@ -256,10 +265,14 @@ def _ardupilot_bias_rows(path: Path, params: dict[str, float]
             reader = DFReader.DFReader_binary(str(path), zero_time_base=True)
             got: dict[tuple[str, int], list[list[float]]] = {}
             while True:
-                m = reader.recv_match(type=["XKF1", "XKF2"])
+                m = reader.recv_match(type=["XKF1", "XKF2", *_EKF2_GYRO])
                 if m is None:
                     break
-                if m.get_type() == "XKF1":
+                if m.get_type() in _EKF2_GYRO:          # EKF2 (older firmware): gyro only
+                    got.setdefault(("gyro2", _EKF2_GYRO[m.get_type()]), []).append(
+                        [m.TimeUS * 1e-6, m.GX * _RAD_PER_DEG, m.GY * _RAD_PER_DEG,
+                         m.GZ * _RAD_PER_DEG])
+                elif m.get_type() == "XKF1":
                     got.setdefault(("gyro", int(m.C)), []).append(
                         [m.TimeUS * 1e-6, m.GX * _RAD_PER_DEG, m.GY * _RAD_PER_DEG,
                          m.GZ * _RAD_PER_DEG])
@@ -268,10 +281,14 @@ def _ardupilot_bias_rows(path: Path, params: dict[str, float]
                         [m.TimeUS * 1e-6, m.AX, m.AY, m.AZ])
     except Exception as err:  # noqa: BLE001 — pymavlink raises anything on a corrupt file
         raise InputError.at(path, f"XKF1 / XKF2 cannot be read ({type(err).__name__})") from None
-    mask = int(params.get("EK3_IMU_MASK", 3))
-    imus = [k for k in range(3) if mask >> k & 1]
+    if any(k in ("gyro", "acc") for k, _ in got):   # EKF3 logged: EKF2's rows not used
+        got = {key: v for key, v in got.items() if key[0] != "gyro2"}
     rows: list[dict[str, Any]] = []
-    for (kind, core), data in sorted(got.items()):
+    for (kind0, core), data in sorted(got.items()):
+        ekf = "EK2" if kind0 == "gyro2" else "EK3"
+        kind = "gyro" if kind0 == "gyro2" else kind0
+        mask = int(params.get(f"{ekf}_IMU_MASK", 3))
+        imus = [k for k in range(3) if mask >> k & 1]
         if core >= len(imus):
             continue
         a = np.asarray(data, dtype=np.float64)
@@ -280,8 +297,11 @@ def _ardupilot_bias_rows(path: Path, params: dict[str, float]
         rows.append({"kind": kind, "estimator": core, "time_s": a[:, 0],
                      "device_id": np.full(a.shape[0], dev, dtype=np.int64), "bias": a[:, 1:4],
                      "variance": None, "valid": None, "limit": None, "imu": imus[core]})
-    notes = ["EKF3 logs no bias variance or validity: every sample weighs the same, trusted "
-             f"from {CONVERGE_S:g} s after each core's first sample"] if rows else []
+    notes = ["EKF3 / EKF2 log no bias variance or validity: every sample weighs the same, "
+             f"trusted from {CONVERGE_S:g} s after each core's first sample"] if rows else []
+    if any(key[0] == "gyro2" for key in got):
+        notes.append("EKF2 log (NKF1 / NKF6): its gyro biases read; EKF2 logs only the "
+                     "accelerometer's z bias (NKF2.AZbias), not learned")
     return rows, notes
 
 
@@ -387,7 +407,7 @@ def _ekf_series(log: FlightLog, r: dict[str, Any]) -> list[BiasSeries]:
         valid = _valid(t, r["bias"][sel], None if r["valid"] is None else r["valid"][sel],
                        var, None if r["limit"] is None else r["limit"][sel])
         out.append(BiasSeries(r["kind"], int(dev), "ekf", int(r["estimator"]), t, drift, temp,
-                              valid, var, notes))
+                              valid, var, notes, applied=offset))
     return out
 
 
