@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from oracles import ardupilot_offsets, px4_offsets
 from thermonet.core.errors import ExportError
 from thermonet.exporting import (
     autopilot_coefficients,
@@ -77,13 +78,9 @@ def test_px4_file_reproduces_drift_and_clamp(model, tmp_path):
     assert p["TC_G0_TREF"] == T_REF and p["TC_A0_TMIN"] == pytest.approx(-10.0, abs=1e-4)
     temp = np.concatenate([np.linspace(-10.0, 55.0, 131), [-30.0, 80.0]])
     want = _thermonet_si(model, temp)
-    for _kind, t, cols in (("gyro", "G", slice(0, 3)), ("acc", "A", slice(3, 6))):
-        pre = f"TC_{t}0_"
-        # PX4 TemperatureCompensation::calc_thermal_offsets_3D, written out again here
-        tc = np.clip(temp, p[pre + "TMIN"], p[pre + "TMAX"])
-        dt = tc - p[pre + "TREF"]
-        offs = np.stack([sum(np.float32(p[f"{pre}X{k}_{i}"]) * dt ** k for k in range(4))
-                         for i in range(3)], axis=1)
+    for t, cols in (("G", slice(0, 3)), ("A", slice(3, 6))):
+        # PX4's calc_thermal_offsets_3D in the firmware's float32 (tests/oracles.py)
+        offs = px4_offsets(p, f"TC_{t}0_", temp, dtype=np.float32)
         scale = np.abs(want[:, cols]).max(axis=0)
         np.testing.assert_allclose(offs, want[:, cols], rtol=0, atol=1e-5 * scale.max())
         # clamp: below TMIN / above TMAX the offset is the edge value, for both
@@ -99,14 +96,9 @@ def test_ardupilot_file_reproduces_drift_and_clamp(model, tmp_path):
     cal_temp = 30.0           # temperature of the ordinary offset calibration
     temp = np.concatenate([np.linspace(-10.0, 55.0, 131), [-40.0, 79.0]])
     want = _thermonet_si(model, temp) - _thermonet_si(model, np.array([cal_temp]))
-    for kind, cols in (("GYR", slice(0, 3)), ("ACC", slice(3, 6))):
-        # AP_InertialSensor_TCal::correct_sensor + polynomial_eval, written out again here
-        def poly(x, i, kind=kind):
-            c = [p[f"INS_TCAL1_{kind}{k}_{'XYZ'[i]}"] for k in (1, 2, 3)]
-            return (c[0] + (c[1] + c[2] * x) * x) * x * 1e-6
-        t = np.clip(temp, p["INS_TCAL1_TMIN"], p["INS_TCAL1_TMAX"])
-        tc = min(max(cal_temp, p["INS_TCAL1_TMIN"]), p["INS_TCAL1_TMAX"])
-        subtracted = np.stack([poly(t - 35.0, i) - poly(tc - 35.0, i) for i in range(3)], axis=1)
+    for kind, cols in (("gyro", slice(0, 3)), ("acc", slice(3, 6))):
+        # ArduPilot's TCal::correct_sensor + polynomial_eval (tests/oracles.py)
+        subtracted = ardupilot_offsets(p, 0, kind, temp, cal_temp)
         scale = np.abs(_thermonet_si(model, temp)[:, cols]).max()
         np.testing.assert_allclose(subtracted, want[:, cols], rtol=0, atol=1e-5 * scale)
         np.testing.assert_allclose(subtracted[-2], subtracted[0], rtol=1e-12)
@@ -160,7 +152,7 @@ def test_refusals(model, tmp_path):
 
 
 def test_px4_baro_order5_in_pascals(tmp_path):
-    """TC_B0_X0..X5 in Pa, evaluated as PX4's calc_thermal_offsets_1D (written out again here)."""
+    """TC_B0_X0..X5 in Pa, evaluated as PX4's calc_thermal_offsets_1D (tests/oracles.py)."""
     temp = np.linspace(5.0, 55.0, 400)
     x = temp - T_REF
     coef_hpa = np.array([0.1, 0.02, -1e-3, 2e-5, 3e-7, -1e-8])         # the model is in hPa
@@ -175,8 +167,7 @@ def test_px4_baro_order5_in_pascals(tmp_path):
     np.testing.assert_allclose([p[f"TC_B1_X{k}"] for k in range(6)], 100.0 * coef_hpa,
                                rtol=5e-3, atol=1e-9)
     t = np.concatenate([temp, [-20.0, 90.0]])
-    dt = np.clip(t, p["TC_B1_TMIN"], p["TC_B1_TMAX"]) - p["TC_B1_TREF"]
-    offs = sum(np.float32(p[f"TC_B1_X{k}"]) * dt ** k for k in range(6))
+    offs = px4_offsets(p, "TC_B1_", t, dtype=np.float32)
     np.testing.assert_allclose(offs[:400], 100.0 * drift[:, 0], atol=1e-3 * np.ptp(drift) * 100)
     assert offs[-2] == pytest.approx(offs[0]) and offs[-1] == pytest.approx(offs[399])
     with pytest.raises(ExportError, match="no barometer"):

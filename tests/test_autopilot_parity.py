@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from oracles import px4_offsets, read_params
 from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
 from thermonet.workflows.calibrate import calibrate
@@ -54,30 +55,18 @@ _spec.loader.exec_module(px4_caldata_anchor)
 _px4_script = px4_caldata_anchor.fit
 
 
-def _px4_file(path: Path) -> dict[str, float]:
-    rows = [ln.split("\t") for ln in path.read_text().splitlines()
-            if ln.strip() and not ln.startswith("#")]
-    return {r[2]: float(r[3]) for r in rows}
-
-
-def _px4_offset(p: dict[str, float], pre: str, temp: np.ndarray, names: list[str]
-                ) -> np.ndarray:
-    """``calc_thermal_offsets_*``: T clamped to [TMIN, TMAX], sum_k X_k (T - TREF)^k."""
-    x = np.minimum(np.maximum(temp, p[pre + "TMIN"]), p[pre + "TMAX"]) - p[pre + "TREF"]
-    return sum(p[pre + n] * x ** k for k, n in enumerate(names))
-
-
 @pytest.fixture(scope="module")
 def px4_board(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, dict]:
     tmp = tmp_path_factory.mktemp("px4parity")
     board = simulate_board("fc-board", autopilot="px4", seed=21, rate_hz=1.0)
     ulg = write_log(board, tmp / "board.ulg")
     calibrate(ulg, tmp / "cal", compare=False)
-    return ulg, _px4_file(tmp / "cal" / "px4.params"), _px4_script(ulg)
+    return ulg, read_params(tmp / "cal" / "px4.params"), _px4_script(ulg)
 
 
 def _curves(p: dict[str, float], pre: str, i: int, grid: np.ndarray) -> np.ndarray:
-    return _px4_offset(p, pre, grid, [f"X{k}_{i}" for k in range(4)])
+    """Axis ``i`` of PX4's ``calc_thermal_offsets_3D`` (tests/oracles.py) over ``grid``."""
+    return px4_offsets(p, pre, grid)[:, i]
 
 
 def test_px4_fit_is_process_sensor_caldata_up_to_its_filter_padding(px4_board) -> None:
@@ -129,10 +118,9 @@ def test_px4_script_baro_is_100x_off_where_thermonet_is_right(px4_board) -> None
     from pyulog import ULog
 
     ulg, ours, script = px4_board
-    names = [f"X{k}" for k in range(6)]
     grid = np.linspace(script["TC_B0_TMIN"], script["TC_B0_TMAX"], 200)
-    theirs = _px4_offset(script, "TC_B0_", grid, names)
-    mine = _px4_offset(ours, "TC_B0_", grid, names)
+    theirs = px4_offsets(script, "TC_B0_", grid)
+    mine = px4_offsets(ours, "TC_B0_", grid)
     # the same curve, 100x: the script's file holds the drift in units of 1/100 Pa
     assert np.max(np.abs(theirs / 100.0 - mine)) <= 0.05 * np.ptp(mine)
     d = ULog(str(ulg), ["sensor_baro"]).data_list[0].data
@@ -145,8 +133,8 @@ def test_px4_script_baro_is_100x_off_where_thermonet_is_right(px4_board) -> None
 
     before = binned_pp(y)
     assert before > 20.0                                           # tens of Pa of drift
-    assert binned_pp(y - _px4_offset(ours, "TC_B0_", temp, names)) <= before / 3
-    assert binned_pp(y - _px4_offset(script, "TC_B0_", temp, names)) >= 50 * before
+    assert binned_pp(y - px4_offsets(ours, "TC_B0_", temp)) <= before / 3
+    assert binned_pp(y - px4_offsets(script, "TC_B0_", temp)) >= 50 * before
 
 # ------------------------------------------------------------------ ArduPilot's script
 
@@ -223,11 +211,7 @@ def test_ardupilot_agrees_with_tempcal_imu_to_its_printed_precision(tmp_path: Pa
     board = simulate_board("fc-board", autopilot="ardupilot", seed=22, rate_hz=1.0)
     bin_path = write_log(board, tmp_path / "board.bin")
     calibrate(bin_path, tmp_path / "cal", compare=False)
-    ours = {}
-    for ln in (tmp_path / "cal" / "ardupilot.parm").read_text().splitlines():
-        if ln and not ln.startswith("#"):
-            name, value = ln.split(",")
-            ours[name] = float(value)
+    ours = read_params(tmp_path / "cal" / "ardupilot.parm")
     script = _tempcal_imu(bin_path)
     # the fine thermometers (IMU 1, 2); IMU 3's whole degrees are binned by thermonet instead
     checked = 0

@@ -1,8 +1,8 @@
 """``thermonet calibrate``: simulate a board → calibrate → apply the autopilot's own formula to the
 written parameter file → compare with the simulated truth, for PX4 and ArduPilot, every instance.
 
-The formulas below are re-implemented here from the firmware sources, independently of
-thermonet.exporting.autopilot:
+The formulas are re-implemented from the firmware sources in ``tests/oracles.py`` (file and
+commit cited there), independently of thermonet.exporting.autopilot:
 
 * PX4 ``TemperatureCompensation::calc_thermal_offsets_3D`` / ``_1D``: T clamped to
   [TMIN, TMAX], offset = sum_k X_k (T - TREF)^k, corrected = raw - offset (rad/s, m/s^2, Pa);
@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from oracles import PX4_LETTER, ardupilot_offsets, px4_offsets, px4_slot, read_params
 from thermonet.cli import main
 from thermonet.data.logs import read_log
 from thermonet.data.logs.writers import write_log
@@ -27,55 +28,23 @@ from thermonet.sim.fcboard import simulate_board
 from thermonet.workflows.calibrate import calibrate
 
 
-def _px4_file(path: Path) -> dict[str, float]:
-    out = {}
-    for line in path.read_text().splitlines():
-        if line.startswith("#") or not line.strip():
-            continue
-        vehicle, comp, name, value, ptype = line.split("\t")
-        assert (vehicle, comp) == ("1", "1") and ptype in ("6", "9")
-        out[name] = float(value)
-    return out
-
-
-def _ap_file(path: Path) -> dict[str, float]:
-    out = {}
-    for line in path.read_text().splitlines():
-        if line.startswith("#") or not line.strip():
-            continue
-        name, value = line.split(",")
-        out[name] = float(value)
-    return out
-
-
 def _px4_correction(p: dict[str, float], kind: str, device_id: int, temp: np.ndarray
                     ) -> np.ndarray:
-    t = {"gyro": "G", "acc": "A", "baro": "B", "mag": "M"}[kind]
+    """PX4's offsets (tests/oracles.py) on the slot of ``device_id``, in the truth's unit."""
+    t = PX4_LETTER[kind]
     assert p[f"TC_{t}_ENABLE"] == 1
-    slot = next(s for s in range(4) if int(p[f"TC_{t}{s}_ID"]) == device_id)
-    pre = f"TC_{t}{slot}_"
-    x = np.where(temp > p[pre + "TMAX"], p[pre + "TMAX"] - p[pre + "TREF"],
-                 np.where(temp < p[pre + "TMIN"], p[pre + "TMIN"] - p[pre + "TREF"],
-                          temp - p[pre + "TREF"]))
+    pre = px4_slot(p, t, device_id)
+    assert pre is not None, (kind, device_id)
+    offs = px4_offsets(p, pre, temp)
     if kind == "baro":
-        return sum(p[f"{pre}X{k}"] * x ** k for k in range(6))[:, None]
-    gauss = 100.0 if kind == "mag" else 1.0       # TC_M* act on sensor_mag in gauss; truth µT
-    return gauss * np.column_stack([sum(p[f"{pre}X{k}_{i}"] * x ** k for k in range(4))
-                                    for i in range(3)])
+        return offs[:, None]
+    return 100.0 * offs if kind == "mag" else offs   # TC_M* act on sensor_mag in gauss; truth µT
 
 
 def _ap_correction(p: dict[str, float], kind: str, imu: int, temp: np.ndarray, t_cal: float
                    ) -> np.ndarray:
-    pre = f"INS_TCAL{imu + 1}_"
-    assert p[pre + "ENABLE"] == 1
-    lo, hi = p[pre + "TMIN"], p[pre + "TMAX"]
-    x, xc = np.clip(temp, lo, hi) - 35.0, float(np.clip(t_cal, lo, hi)) - 35.0
-    s = "GYR" if kind == "gyro" else "ACC"
-    cols = []
-    for ax in "XYZ":
-        c1, c2, c3 = (p[f"{pre}{s}{k}_{ax}"] * 1e-6 for k in (1, 2, 3))
-        cols.append((c1 * x + c2 * x ** 2 + c3 * x ** 3) - (c1 * xc + c2 * xc ** 2 + c3 * xc ** 3))
-    return np.column_stack(cols)
+    assert p[f"INS_TCAL{imu + 1}_ENABLE"] == 1
+    return ardupilot_offsets(p, imu, kind, temp, t_cal)
 
 
 def _binned_pp(temp: np.ndarray, y: np.ndarray) -> float:
@@ -105,7 +74,7 @@ def test_autopilot_formula_on_the_written_file_cuts_true_drift(tmp_path: Path, a
     assert insts["baro0"]["status"] == ("fitted" if autopilot == "px4" else "skipped")
     truth = {i.name: i for i in board.instances}
     if autopilot == "px4":
-        p = _px4_file(tmp_path / "cal" / "px4.params")
+        p = read_params(tmp_path / "cal" / "px4.params")
         for t in "GAB":                      # every slot of every kind is in the file
             for s in range(4):
                 assert f"TC_{t}{s}_ID" in p and f"TC_{t}{s}_TREF" in p
@@ -113,7 +82,7 @@ def test_autopilot_formula_on_the_written_file_cuts_true_drift(tmp_path: Path, a
         assert "# gyro2 (id 2621474): thermometer reports 1 °C steps" in (
             tmp_path / "cal" / "px4.params").read_text()
     else:
-        p = _ap_file(tmp_path / "cal" / "ardupilot.parm")
+        p = read_params(tmp_path / "cal" / "ardupilot.parm")
         assert "INS_TCAL_OPTIONS" not in p and p["INS_TCAL3_ENABLE"] == 1   # IMU 3: whole °C
         assert "# device ids: INS_TCAL3 gyro 2621474 acc 2621482" in (
             tmp_path / "cal" / "ardupilot.parm").read_text()
@@ -179,7 +148,7 @@ def test_calibrate_cli_side_by_side_and_left_out_lines(tmp_path: Path,
         assert {"linear", "rbf", cmp["firmware_family"]} <= set(sub["families"])
         fw = cmp["families"][cmp["firmware_family"]]
         assert fw["val_score"] < 0.2
-    p = _px4_file(out / "px4.params")
+    p = read_params(out / "px4.params")
     assert p["TC_G0_ID"] == 2424842 and p["TC_G1_ID"] == 2621474 and p["TC_A0_ID"] == 2621482
     assert p["TC_G_ENABLE"] == 1 and p["TC_A_ENABLE"] == 1
     assert p["TC_B0_ID"] == 3997706

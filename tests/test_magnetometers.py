@@ -1,9 +1,9 @@
 """Magnetometers: read in µT, simulated, fitted in PX4's ``TC_M*`` form, lent a thermometer with
 a fitted lag, written, verified, and the bad inputs refused one line per instance.
 
-The firmware formula is re-implemented here from the source, independently of thermonet:
-PX4 ``TemperatureCompensation::calc_thermal_offsets_3D`` for ``TC_M<s>_*`` (PX4-Autopilot
-v1.15+, ``temp_comp_params_mag_<s>.yaml``): T clamped to [TMIN, TMAX], offset_i = Σ_k
+The firmware formula is re-implemented from the source in ``tests/oracles.py``, independently
+of thermonet: PX4 ``TemperatureCompensation::calc_thermal_offsets_3D`` for ``TC_M<s>_*``
+(PX4-Autopilot v1.15+, ``temp_comp_params_mag_<s>.yaml``): T clamped to [TMIN, TMAX], offset_i = Σ_k
 X<k>_i (T − TREF)^k in **gauss** (``sensor_mag``'s unit), subtracted; the slot is the one whose
 ``TC_M<s>_ID`` is the magnetometer's device id; ``TC_M_ENABLE`` = 1.  The lag is a first-order
 lag re-implemented here as a plain loop (zero-order hold of the input; thermonet's is exact
@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from oracles import px4_offsets, px4_slot, read_params
 from thermonet.cli import main
 from thermonet.data.logs import read_log
 from thermonet.data.logs.base import lend_thermometer
@@ -32,27 +33,13 @@ from thermonet.workflows.magnetometer import LAG_GRID_S, with_lag
 RATE_HZ = 0.25          # 675 samples per 45-minute warm-up: fast, and over calibrate's minimum
 
 
-def _px4_file(path: Path) -> dict[str, float]:
-    out = {}
-    for line in path.read_text().splitlines():
-        if line.startswith("#") or not line.strip():
-            continue
-        _, _, name, value, ptype = line.split("\t")
-        out[name] = float(value)
-    return out
-
-
 def _tc_m(p: dict[str, float], device_id: int, temp: np.ndarray) -> np.ndarray:
-    """PX4's calc_thermal_offsets_3D on the TC_M slot of ``device_id``: µT (gauss × 100)."""
+    """PX4's calc_thermal_offsets_3D (tests/oracles.py) on the TC_M slot of ``device_id``:
+    µT (gauss × 100)."""
     assert p["TC_M_ENABLE"] == 1
-    slot = next(s for s in range(4) if int(p[f"TC_M{s}_ID"]) == device_id)
-    pre = f"TC_M{slot}_"
-    x = np.where(temp > p[pre + "TMAX"], p[pre + "TMAX"] - p[pre + "TREF"],
-                 np.where(temp < p[pre + "TMIN"], p[pre + "TMIN"] - p[pre + "TREF"],
-                          temp - p[pre + "TREF"]))
-    gauss = np.column_stack([p[f"{pre}X0_{i}"] + p[f"{pre}X1_{i}"] * x + p[f"{pre}X2_{i}"] * x * x
-                             + p[f"{pre}X3_{i}"] * x ** 3 for i in range(3)])
-    return 100.0 * gauss
+    pre = px4_slot(p, "M", device_id)
+    assert pre is not None, device_id
+    return 100.0 * px4_offsets(p, pre, temp)
 
 
 def _lag(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
@@ -138,7 +125,7 @@ def test_tc_m_through_px4_formula_on_the_next_warm_up_five_boards(tmp_path: Path
         nxt_board = simulate_board("fc-board", seed=seed, rate_hz=RATE_HZ, run=1)
         nxt = write_log(nxt_board, tmp_path / f"s{seed}_next.ulg")
         doc = calibrate(first, tmp_path / f"c{seed}", compare=False)
-        p = _px4_file(tmp_path / f"c{seed}" / "px4.params")
+        p = read_params(tmp_path / f"c{seed}" / "px4.params")
         assert p["TC_M0_ID"] == MAG_IDS[0] and all(p[f"TC_M{s}_ID"] == 0 for s in (1, 2, 3))
         assert all(p[f"TC_M0_X0_{i}"] == 0.0 for i in range(3))   # zero at TREF: field kept
         assert p["TC_M0_TMIN"] <= p["TC_M0_TREF"] <= p["TC_M0_TMAX"]
@@ -290,7 +277,7 @@ def test_a_thermonet_model_of_a_magnetometer_exports_as_tc_m_in_gauss(
     src = str(tmp_path / "cal" / "instances" / "mag0")
     assert main(["export", src, "--format", "px4-params", "--family", "px4-cubic",
                  "--device-id", str(MAG_IDS[0]), "--out", str(tmp_path / "m.params")]) == 0
-    p = _px4_file(tmp_path / "m.params")
+    p = read_params(tmp_path / "m.params")
     # X0: the model's value at TREF, zero to float64 rounding of the expansion (µT -> gauss)
     assert all(abs(p[f"TC_M0_X0_{i}"]) < 1e-6 for i in range(3))
     m0 = next(i for i in board.instances if i.name == "mag0")
@@ -354,7 +341,7 @@ def test_two_logs_of_one_board_each_checked_for_motion_on_its_own(
     mags = {k: v for k, v in doc["instances"].items() if k.startswith("mag")}
     assert mags["mag0"]["status"] == "fitted", mags["mag0"]
     assert mags["mag1"]["status"] == "model only", mags["mag1"]   # a lent thermometer
-    params = _px4_file(tmp_path / "c" / "px4.params")
+    params = read_params(tmp_path / "c" / "px4.params")
     assert int(params["TC_M0_ID"]) == MAG_IDS[0]
     # the held-out log through PX4's own formula: the drift cut on every axis
     held = {i.name: i for i in simulate_board("fc-board", seed=0, run=1).instances}["mag0"]

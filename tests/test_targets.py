@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from conftest import load_runtime
+from oracles import px4_offsets
 from thermonet.core.errors import ConfigError
 from thermonet.exporting import (
     autopilot_coefficients,
@@ -36,14 +37,6 @@ pytestmark = pytest.mark.numerics
 G = 9.80665
 T_REF = 25.0
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _px4_offsets(params, t: str, temperature_c: np.ndarray) -> np.ndarray:
-    """PX4's TemperatureCompensation::calc_thermal_offsets_3D, written out here: (N, 3)."""
-    pre = f"TC_{t}0_"
-    dt = np.clip(temperature_c, params[pre + "TMIN"], params[pre + "TMAX"]) - params[pre + "TREF"]
-    return np.stack([sum(params[f"{pre}X{k}_{i}"] * dt ** k for k in range(4))
-                     for i in range(3)], axis=1)
 
 
 def _run_c(model, tmp_path: Path, sig: np.ndarray, raw: np.ndarray) -> np.ndarray:
@@ -132,7 +125,7 @@ def test_level_accelerometer_keeps_gravity_in_torch_onnx_c_and_px4(tmp_path):
     assert p["TC_A0_TREF"] == pytest.approx(T_REF)
     for i in range(3):
         assert abs(p[f"TC_A0_X0_{i}"]) < 1e-5
-    px4 = _px4_offsets(p, "A", temp)
+    px4 = px4_offsets(p, "TC_A0_", temp)     # PX4's formula (tests/oracles.py)
     np.testing.assert_allclose((raw - px4).mean(axis=0), level, atol=1e-3)
 
 

@@ -2,9 +2,9 @@
 ArduPilot, through the command line and real log files.
 
 The later log's drift is judged here with the firmware's formula re-implemented from the
-source (PX4 ``TemperatureCompensation::calc_thermal_offsets_3D/_1D``: T clamped to
-[TMIN, TMAX], offset = sum_k X_k (T - TREF)^k, the slot whose ``TC_*_ID`` is the sensor's
-device id; ArduPilot ``TCal::correct_sensor``: P(T - 35) - P(T_cal - 35), c_k * 1e-6),
+source in ``tests/oracles.py`` (PX4 ``TemperatureCompensation::calc_thermal_offsets_3D/_1D``:
+T clamped to [TMIN, TMAX], offset = sum_k X_k (T - TREF)^k, the slot whose ``TC_*_ID`` is the
+sensor's device id; ArduPilot ``TCal::correct_sensor``: P(T - 35) - P(T_cal - 35), c_k * 1e-6),
 independently of thermonet.data.firmware, on the log read back with pyulog / pymavlink.
 """
 
@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from oracles import px4_offsets, px4_slot, read_params
 from thermonet.cli import main
 from thermonet.data.logs import read_log
 from thermonet.data.logs.writers import write_log
@@ -29,12 +30,6 @@ def _binned_pp(temp: np.ndarray, y: np.ndarray) -> float:
     return float(np.ptp([y[bins == b].mean() for b in np.unique(bins)]))
 
 
-def _px4_params(path: Path) -> dict[str, float]:
-    rows = [ln.split("\t") for ln in path.read_text().splitlines()
-            if ln.strip() and not ln.startswith("#")]
-    return {r[2]: float(r[3]) for r in rows}
-
-
 def _px4_later_log_cuts(params: dict[str, float], ulg: Path) -> dict[str, list[float]]:
     """Per instance and axis: binned drift before / after PX4's formula, on the log as
     pyulog reads it."""
@@ -44,17 +39,14 @@ def _px4_later_log_cuts(params: dict[str, float], ulg: Path) -> dict[str, list[f
     for d in ULog(str(ulg), ["sensor_gyro", "sensor_accel", "sensor_baro"]).data_list:
         t = {"sensor_gyro": "G", "sensor_accel": "A", "sensor_baro": "B"}[d.name]
         dev = int(np.median(d.data["device_id"]))
-        slot = next(s for s in range(4) if int(params[f"TC_{t}{s}_ID"]) == dev)
-        pre = f"TC_{t}{slot}_"
+        pre = px4_slot(params, t, dev)
+        assert pre is not None, (t, dev)
         temp = d.data["temperature"].astype(np.float64)
-        x = np.minimum(np.maximum(temp, params[pre + "TMIN"]), params[pre + "TMAX"]) \
-            - params[pre + "TREF"]
+        off = px4_offsets(params, pre, temp)
         if t == "B":
-            ys = [d.data["pressure"].astype(np.float64)]
-            offs = [sum(params[f"{pre}X{k}"] * x ** k for k in range(6))]
+            ys, offs = [d.data["pressure"].astype(np.float64)], [off]
         else:
-            ys = [d.data[a].astype(np.float64) for a in "xyz"]
-            offs = [sum(params[f"{pre}X{k}_{i}"] * x ** k for k in range(4)) for i in range(3)]
+            ys, offs = [d.data[a].astype(np.float64) for a in "xyz"], list(off.T)
         name = {"G": "gyro", "A": "acc", "B": "baro"}[t] + str(d.multi_id)
         cuts[name] = [_binned_pp(temp, y) / _binned_pp(temp, y - o)
                       for y, o in zip(ys, offs, strict=True)]
@@ -134,7 +126,7 @@ def test_calibrate_two_logs_then_verify_the_third(runs: dict[str, list[Path]], t
         assert "binned drift p-p " + unit in line, line
     if ext == ".ulg":
         # the done-when: through PX4's own formula the later log's binned drift falls >= 3x
-        cuts = _px4_later_log_cuts(_px4_params(params), Path(third))
+        cuts = _px4_later_log_cuts(read_params(params), Path(third))
         # (the magnetometer's TC_M* through PX4's formula: tests/test_magnetometers.py)
         assert set(cuts) == expect - {"mag0"}
         for name, c in cuts.items():

@@ -1,7 +1,8 @@
 """``thermonet verify`` judges or refuses: every kind of damaged parameter file, paired with the
 firmware's formula re-implemented here.
 
-The oracle applies each file as the autopilot would, independently of thermonet's reader and of
+The oracle (``tests/oracles.py``, the firmware files and commits cited there) applies each file
+as the autopilot would, independently of thermonet's reader and of
 :mod:`thermonet.data.firmware`: the file parsed line by line with the *last* value of a name
 winning (as a parameter load does), PX4 ``calc_thermal_offsets_3D/_1D`` (T clamped to
 [TMIN, TMAX], offset = sum_k X_k (T - TREF)^k) and ArduPilot ``TCal::correct_sensor``
@@ -24,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from oracles import ardupilot_offsets, px4_offsets, px4_slot, read_params
 from thermonet.cli import main
 from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
@@ -40,14 +42,7 @@ F32 = np.float32
 
 def _load(path: Path) -> dict[str, float]:
     """The parameters as a vehicle loads the file: every line in order, the last value wins."""
-    out: dict[str, float] = {}
-    for line in path.read_text().splitlines():
-        if not line.strip() or line.startswith("#"):
-            continue
-        f = line.split("\t") if "\t" in line else line.replace(",", " ").split()
-        name, value = (f[2], f[3]) if len(f) == 5 else (f[0], f[1])
-        out[name] = float(value)
-    return out
+    return read_params(path, strict=False)
 
 
 def _binned_pp(temp: np.ndarray, y: np.ndarray) -> float:
@@ -79,21 +74,12 @@ def px4_firmware(params: dict[str, float], ulg: Path) -> dict[tuple[str, int], n
     for t, dev, temp, y in _px4_streams(ulg):
         if params.get(f"TC_{t}_ENABLE", 1) != 1:
             continue
-        slot = next((s for s in range(4) if params.get(f"TC_{t}{s}_ID") is not None
-                     and int(params[f"TC_{t}{s}_ID"]) & 0xFFFFFFFF == dev), None)
-        if slot is None:
+        pre = px4_slot(params, t, dev)
+        if pre is None:
             continue
-        pre = f"TC_{t}{slot}_"
+        offs = px4_offsets(params, pre, temp, dtype=F32)
         with np.errstate(all="ignore"):
-            x = np.minimum(np.maximum(temp.astype(F32), F32(params[pre + "TMIN"])),
-                           F32(params[pre + "TMAX"])) - F32(params[pre + "TREF"])
-            if t == "B":
-                offs = [sum(F32(params[f"{pre}X{k}"]) * x ** k for k in range(6))]
-            else:
-                offs = [sum(F32(params[f"{pre}X{k}_{i}"]) * x ** k for k in range(4))
-                        for i in range(3)]
-            out[(t, dev)] = np.column_stack([y[:, j].astype(F32) - o
-                                             for j, o in enumerate(offs)])
+            out[(t, dev)] = y.astype(F32) - (offs[:, None] if t == "B" else offs)
     return out
 
 
@@ -113,21 +99,13 @@ def ardupilot_firmware(params: dict[str, float], binlog: Path, t_cal: float = 25
         pre = f"INS_TCAL{imu + 1}_"
         if params.get(pre + "ENABLE") != 1:
             continue
-        lo, hi = F32(params[pre + "TMIN"]), F32(params[pre + "TMAX"])
-        with np.errstate(all="ignore"):
-            x = np.minimum(np.maximum(a[:, 0].astype(F32), lo), hi) - F32(35)
-            xc = np.minimum(np.maximum(F32(t_cal), lo), hi) - F32(35)
-            for kind, s, first in (("G", "GYR", 1), ("A", "ACC", 4)):
-                y = a[:, first:first + 3]
-                if kind == "A":
-                    y = y - y.mean(axis=0)
-                cols = []
-                for j, ax in enumerate("XYZ"):
-                    c = [F32(params[f"{pre}{s}{k}_{ax}"] * 1e-6) for k in (1, 2, 3)]
-                    p = c[0] * x + c[1] * x ** 2 + c[2] * x ** 3
-                    pc = c[0] * xc + c[1] * xc ** 2 + c[2] * xc ** 3
-                    cols.append(y[:, j].astype(F32) - (p - pc))
-                out[(kind, imu)] = np.column_stack(cols)
+        for kind, name, first in (("G", "gyro", 1), ("A", "acc", 4)):
+            y = a[:, first:first + 3]
+            if kind == "A":
+                y = y - y.mean(axis=0)
+            offs = ardupilot_offsets(params, imu, name, a[:, 0], t_cal, dtype=F32)
+            with np.errstate(all="ignore"):
+                out[(kind, imu)] = y.astype(F32) - offs
     return out
 
 
