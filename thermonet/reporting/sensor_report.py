@@ -83,14 +83,9 @@ def _v(ratio: float, verdict: str, ci: list[float]) -> str:
 
 def render_sensor_report(res: dict[str, Any], plots: Sequence[str | Path] = ()) -> str:
     units = res.get("units", {})
-    done = res.get("done_when") or {}
     parts = [f"<h1>thermonet: sensor model, {_e(res.get('device'))}</h1>",
              f"<p>chosen family: <b>{_e(res.get('chosen'))}</b>; split "
-             f"{_e(res.get('split', {}).get('strategy'))}; triads {_e(res.get('triads'))}</p>",
-             f"<p>targets: bias-only / sensor residual at least 5 on every axis: "
-             f"min {_n(done.get('min_bias_only_over_sensor'), '.3g')}; scale-factor tempco "
-             f"after compensation at most 15 ppm/°C: max "
-             f"{_n(done.get('sf_ppm_per_c_comp_max'), '.3g')}; met: {_e(done.get('met'))}</p>"]
+             f"{_e(res.get('split', {}).get('strategy'))}; triads {_e(res.get('triads'))}</p>"]
     parts += _choice(res)
     for w in res.get("warnings") or []:
         parts.append(f"<p><b>warning:</b> {_e(w)}</p>")

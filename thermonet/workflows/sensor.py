@@ -145,7 +145,6 @@ def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
     say(f"  chosen: {p.doc['chosen'] or 'none'} ({p.doc['chosen_reason']})")
     doc = p.doc
     chosen = doc["families"].get(doc["chosen"]) if doc["chosen"] else None
-    doc["done_when"] = _done_when(chosen) if chosen else None
     doc["onnx"] = _export_chosen(out, chosen) if chosen else {
         "status": "not written", "reason": doc["chosen_reason"]}
     _write(out, doc, fits, plots=plots)                                       # 4. write
@@ -351,17 +350,6 @@ def _track(cfg: CompareConfig, doc: dict[str, Any], histories: dict[str, list], 
                 tracker.log_artifact(f["checkpoint"], "model")
         tracker.set_tags({"chosen": doc.get("chosen") or "none"})
     return parent
-
-
-def _done_when(entry: dict[str, Any]) -> dict[str, Any]:
-    """The sensor model's targets on the chosen family: bias-only residual / sensor residual per axis
-    (≥ 5 wanted) and the compensated scale-factor tempco (≤ 15 ppm/°C wanted)."""
-    axes = entry["axes"]
-    ratio = {a: m["residual_rms_bias_only"] / m["residual_rms_comp"] for a, m in axes.items()}
-    sf = {a: m["sf_ppm_per_c_comp"] for a, m in axes.items() if "sf_ppm_per_c_comp" in m}
-    return {"bias_only_over_sensor": ratio, "min_bias_only_over_sensor": min(ratio.values()),
-            "sf_ppm_per_c_comp_max": max(sf.values()) if sf else None,
-            "met": bool(min(ratio.values()) >= 5.0 and sf and max(sf.values()) <= 15.0)}
 
 
 def _export_chosen(out: Path, entry: dict[str, Any]) -> dict[str, Any]:
