@@ -20,7 +20,7 @@ from ..core.trainconfig import TrainConfig
 from ..data.diagnostics import TEMPERATURE_PLAUSIBLE_C
 from ..features.inputs import signal_matrix
 from ..features.target import MODES, modelled_outputs, output_units
-from ..models.registry import make_spec, spec_of
+from ..models.registry import PER_AXIS, make_spec, spec_of
 from ..models.specs import FamilySpec
 from ..training.splits import stack_blocks
 from . import sensor_mode
@@ -420,7 +420,7 @@ average_s, threads
         """
         from ..training.pipeline import fit_split, split_parts, split_spec  # torch boundary
 
-        if self.family == "per-axis":
+        if self.family == PER_AXIS:
             raise ConfigError("family 'per-axis': a model per axis is chosen by compare "
                               "(thermonet.api.compare) among fitted candidates, not fitted by "
                               "a DriftEstimator; load its checkpoint with DriftEstimator.load")

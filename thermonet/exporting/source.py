@@ -36,6 +36,7 @@ from ..core.errors import ExportError, InputError
 from ..core.fileio import not_a_file, refuse_overwriting_inputs
 from ..core.names import AXIS, LABEL, check_name
 from ..core.outdir import sha256_file
+from ..models.registry import PER_AXIS
 from ..tracking import (
     check_store,
     default_tracking_uri,
@@ -48,10 +49,6 @@ from . import ExportFormat, ExportRequest, get_format
 if TYPE_CHECKING:
     from ..models.composite import ShippedModel
     from . import ExportRequest
-
-#: ``results.json``'s ``chosen`` (and ``--family``) for the per-axis composite (the value of
-#: :data:`thermonet.models.composite.PER_AXIS`, repeated so this module loads without torch).
-PER_AXIS = "per-axis"
 
 __all__ = ["resolve_checkpoint", "export_source", "check_export_request", "check_out_file",
            "write_onnx", "write_c", "write_px4_params", "write_ardupilot_params"]

@@ -46,11 +46,9 @@ from torch import nn
 from ..core.errors import ConfigError, ExportError
 from ..features.inputs import FeatureSpec
 from .base import DriftModel
+from .registry import PER_AXIS
 
 __all__ = ["AxisModels", "composable", "axis_owner_table", "PER_AXIS", "ShippedModel"]
-
-#: The family name a per-axis composite carries (checkpoints, ONNX metadata, C comments).
-PER_AXIS = "per-axis"
 
 
 class _PerAxisFamily:
@@ -162,7 +160,7 @@ class AxisModels(nn.Module):
     # -- what a DriftModel offers, for the whole --------------------------------------------
     @property
     def family_name(self) -> str:
-        return "per-axis"
+        return PER_AXIS
 
     @property
     def compensated_axes(self) -> list[bool]:

@@ -46,9 +46,15 @@ from .specs import BUILTIN_SPECS, FamilySpec, spec_for_class
 if TYPE_CHECKING:
     from .base import Family
 
-__all__ = ["FAMILIES", "BUILTIN", "ENTRY_POINT_GROUP", "FamilySignature", "register_family",
+__all__ = ["FAMILIES", "BUILTIN", "ENTRY_POINT_GROUP", "PER_AXIS", "FamilySignature", "register_family",
            "family_names", "get_family", "spec_class", "make_spec", "spec_of", "build_family",
            "family_signature", "check_hyper", "models"]
+
+#: The name of the per-axis composite (:class:`thermonet.models.composite.AxisModels`, each
+#: axis its own family): its family in checkpoints, ONNX metadata and C comments, its label
+#: and checkpoint name in a comparison (``models/per-axis.pt``), ``results.json``'s ``chosen``
+#: and ``thermonet export --family``.  Defined here, torch-free, for every layer above.
+PER_AXIS = "per-axis"
 
 #: Every registered family's spec class by name (the built-ins, then what
 #: :func:`register_family` adds; installed plug-ins are found by entry point on use).

@@ -43,6 +43,7 @@ from ..core.profile import stage
 from ..core.recording import Dataset
 from ..core.version import __version__
 from ..features.inputs import TEMPERATURE
+from ..models.registry import PER_AXIS
 from ..reporting.colours import family_colours
 from ..reporting.plot_workers import PlotJob, PlotWorkers
 from ..reporting.report import ratio_text, tuned_text, write_report
@@ -59,7 +60,7 @@ from ..training.parts import (
 )
 from .compare_band import family_band, per_axis_band
 from .compare_fit import FitQueue, Progress, family_workers
-from .compare_judge import PER_AXIS, Fitted, choose_and_judge, extrapolation
+from .compare_judge import Fitted, choose_and_judge, extrapolation
 from .compare_plan import PartCache, Plan, check_plan, data_summary, plan
 from .compare_track import TrackingSession, family_record
 from .provenance import data_source, family_config, resolved_config, resolved_yaml

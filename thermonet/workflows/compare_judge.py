@@ -14,6 +14,7 @@ import numpy as np
 
 from ..data.diagnostics import extrapolation_warnings
 from ..features.target import CHANNEL, FOUR_POSITION, ZERO, Target
+from ..models.registry import PER_AXIS
 from ..reporting.results import AxisResult, ComparisonResult, FamilyResult, Verdict
 from ..scoring.selection import select
 from ..scoring.verdicts import BlockStats, choose, draws, masked_scores, ratio_interval, verdict_of
@@ -22,11 +23,8 @@ from ..training.parts import (
 )
 from .compare_plan import Plan
 
-__all__ = ["Fitted", "judge_against_raw", "choose_and_judge", "extrapolation", "PER_AXIS",
+__all__ = ["Fitted", "judge_against_raw", "choose_and_judge", "extrapolation",
            "per_axis_choice", "per_axis_result"]
-
-#: The label of the model that gives each axis its own candidate (``models/per-axis.pt``).
-PER_AXIS = "per-axis"
 
 
 # ------------------------------------------------------------------------------------- fit

@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from ..core.errors import Interrupted, ThermonetError
+from ..models.registry import PER_AXIS
 from ..tracking import HOST_TAG, PID_TAG, Tracker, _retry, flatten_params
 
 __all__ = ["TrackingFailed", "TrackingSession", "family_record", "log_chosen_model"]
@@ -238,8 +239,6 @@ class _Child:
             finally:
                 mlflow.end_run("FINISHED")
                 self.open_runs.remove(cid)
-        from .compare_judge import PER_AXIS  # lazy: loads yaml
-
         per_axis = (doc["families"].get(PER_AXIS) or {}).get("checkpoint") \
             if doc.get("chosen") == PER_AXIS else None
         if per_axis:
