@@ -44,7 +44,7 @@ from ..core.errors import InputError
 from ..core.fileio import atomic_write_text
 from ..data.logs.bias import BIAS_KINDS, BiasSeries, read_bias_log
 
-__all__ = ["WINDOW_S", "LAG_GRID_S", "OUTLIER_MADS", "READER_VERSION", "reduce_log", "reduce_or_refuse",
+__all__ = ["WINDOW_S", "LAG_GRID_S", "OUTLIER_MADS", "READER_VERSION", "reduce_log", "reduce_or_refuse", "compact",
            "cache_path", "InstanceWindows", "gather", "choose_lag", "reject_outliers",
            "coverage", "missing_words", "TARGET_RANGE_C", "MIN_BIN_FLIGHTS", "MIN_BIN_MINUTES"]
 
@@ -138,6 +138,19 @@ def reduce_or_refuse(path: str) -> dict[str, Any]:
         return {"version": READER_VERSION, "path": str(path), "error": str(err)}
 
 
+def compact(doc: dict[str, Any]) -> dict[str, Any]:
+    """A reduced log as the job holds it while the rest are read: each series's columns as
+    numpy arrays (time, temperature and weights float64, the drifts float32 — a ULP of
+    float32 is ~1e-7 of the value, far below any drift), not lists of Python floats (about
+    eight times the memory).  :func:`gather` reads both."""
+    for s in doc.get("series", []):
+        for key in ("t", "temp", "weight"):
+            s[key] = np.asarray(s[key], dtype=np.float64)
+        s["drifts"] = {k: np.asarray(v, dtype=np.float32).reshape(-1, 3)
+                       for k, v in s["drifts"].items()}
+    return doc
+
+
 def cache_path(out: Path, digest: str) -> Path:
     """Where the reduction of the log with SHA-256 ``digest`` is cached in ``out``."""
     return out / "cache" / f"{digest[:32]}.json"
@@ -149,7 +162,8 @@ def read_cache(path: Path) -> dict[str, Any] | None:
         doc = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    return doc if isinstance(doc, dict) and doc.get("version") == READER_VERSION else None
+    return compact(doc) if isinstance(doc, dict) and doc.get("version") == READER_VERSION \
+        else None
 
 
 def write_cache(path: Path, doc: dict[str, Any]) -> None:
@@ -194,7 +208,7 @@ def gather(logs: list[dict[str, Any]]) -> list[InstanceWindows]:
     acc: dict[tuple[str, int], list[tuple[int, dict[str, Any]]]] = {}
     for k, lg in enumerate(logs):
         for s in lg["series"]:
-            if s["kind"] in BIAS_KINDS and s["t"]:
+            if s["kind"] in BIAS_KINDS and len(s["t"]):
                 acc.setdefault((s["kind"], int(s["device_id"])), []).append((k, s))
     out = []
     for (kind, dev), parts in sorted(acc.items()):
@@ -217,7 +231,8 @@ def gather(logs: list[dict[str, Any]]) -> list[InstanceWindows]:
             cols["weight"].append(np.asarray(s["weight"])[keep])
             cols["still"].append(np.full(int(keep.sum()), s["source"] == "still"))
             for key in lag:
-                lag[key].append(np.asarray(s["drifts"][key]).reshape(-1, 3)[keep])
+                lag[key].append(np.asarray(s["drifts"][key], dtype=np.float64).reshape(-1, 3)[
+                    keep])
         names = [lg["path"] for lg in logs]
         out.append(InstanceWindows(
             kind, dev, _name_of(logs[parts[0][0]]["sensors"], kind, dev), names,
