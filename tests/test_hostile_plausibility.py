@@ -12,7 +12,8 @@ from thermonet.core.errors import ConfigError
 from thermonet.sim import simulate_fleet
 from thermonet.sim.fleet import MAX_UNITS
 from thermonet.sim.presets import MAX_SAMPLES, get_preset, request_samples
-from thermonet.training.config import MAX_BLOCKS, load_config
+from thermonet.training.config import load_config
+from thermonet.training.splits import MAX_BLOCKS
 
 
 @pytest.mark.parametrize("argv,expect", [

@@ -33,6 +33,7 @@ from ..scoring.band import check_level
 from ..scoring.fleetstats import parse_limits
 from ..scoring.prior import StationLimit
 from ..sim.presets import MAX_RUNS
+from .splits import SplitConfig  # the split section: the strategies' own module
 
 if TYPE_CHECKING:
     from ..models.specs import FamilySpec
@@ -61,49 +62,6 @@ class DataConfig:
     in_memory_samples: int = 1_000_000
     chunk_rows: int = 65_536             # rows read at a time while streaming
     max_rows: int = 500_000              # most reduced rows (wider windows beyond)
-
-
-#: Most contiguous time blocks per run (``split.n_blocks``): beyond it a block is a few samples.
-MAX_BLOCKS = 1000
-
-
-@dataclass
-class SplitConfig:
-    """How runs are split; never by random sample (see :mod:`thermonet.training.splits`).
-
-    ``auto``: ≥ 3 runs → ``runs``; 2 runs → ``train-then-verify``; 1 run →
-    ``time-blocks``.  ``runs``: train on all but the last two runs, validate on
-    the second-to-last, test on the last — or on the run ids named in
-    ``train``, ``val``, ``test`` (without ``val``, interleaved blocks of the
-    training runs validate; runs may not be in two roles).  ``train-then-verify``: train on
-    the first run (validating on interleaved contiguous blocks of it), test on the
-    second.  ``time-blocks``: every run cut into ``n_blocks`` contiguous time
-    blocks, interleaved train / val / test (60 / 20 / 20 %).
-    ``leave-one-run-out``: each run is the test run once (≥ 3 runs), the
-    previous run validates; the report gives the mean over folds.
-    """
-
-    strategy: str = "auto"               # a name in thermonet.training.splits.SPLITS
-    train: list[str] = field(default_factory=list)
-    val: str | None = None
-    test: str | None = None
-    n_blocks: int = 20                   # contiguous time blocks per run (time-blocks)
-
-    def __post_init__(self) -> None:
-        from .splits import SPLITS  # the registry is the list of valid strategies
-
-        if self.strategy not in SPLITS:
-            raise ConfigError(f"key 'split.strategy': {self.strategy!r} is not one of "
-                              f"{', '.join(repr(k) for k in SPLITS)}")
-        if isinstance(self.n_blocks, bool) or not isinstance(self.n_blocks, int):
-            raise ConfigError(f"key 'split.n_blocks': {self.n_blocks!r} is not an integer")
-        if self.n_blocks < 5:
-            raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is below 5 (every group "
-                              "of five blocks gives one validation and one test block)")
-        if self.n_blocks > MAX_BLOCKS:
-            raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is above {MAX_BLOCKS} "
-                              "(blocks that short put correlated neighbouring samples in "
-                              "train and test: a split by sample in disguise)")
 
 
 @dataclass

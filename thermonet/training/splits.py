@@ -29,17 +29,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.recording import Dataset, Recording, WindowStats
 
-if TYPE_CHECKING:
-    from .config import SplitConfig
-
-__all__ = ["Split", "SplitStrategy", "SPLITS", "register_split", "make_splits",
+__all__ = ["Split", "SplitConfig", "MAX_BLOCKS", "SplitStrategy", "SPLITS", "register_split", "make_splits",
            "time_blocks", "block_roles", "stack_blocks", "stacked_times"]
 
 
@@ -79,6 +76,47 @@ def register_split(name: str) -> Callable[[SplitStrategy], SplitStrategy]:
         SPLITS[name] = fn
         return fn
     return deco
+
+
+#: Most contiguous time blocks per run (``split.n_blocks``): beyond it a block is a few samples.
+MAX_BLOCKS = 1000
+
+
+@dataclass
+class SplitConfig:
+    """How runs are split; never by random sample (see :mod:`thermonet.training.splits`).
+
+    ``auto``: ≥ 3 runs → ``runs``; 2 runs → ``train-then-verify``; 1 run →
+    ``time-blocks``.  ``runs``: train on all but the last two runs, validate on
+    the second-to-last, test on the last — or on the run ids named in
+    ``train``, ``val``, ``test`` (without ``val``, interleaved blocks of the
+    training runs validate; runs may not be in two roles).  ``train-then-verify``: train on
+    the first run (validating on interleaved contiguous blocks of it), test on the
+    second.  ``time-blocks``: every run cut into ``n_blocks`` contiguous time
+    blocks, interleaved train / val / test (60 / 20 / 20 %).
+    ``leave-one-run-out``: each run is the test run once (≥ 3 runs), the
+    previous run validates; the report gives the mean over folds.
+    """
+
+    strategy: str = "auto"               # a name in SPLITS
+    train: list[str] = field(default_factory=list)
+    val: str | None = None
+    test: str | None = None
+    n_blocks: int = 20                   # contiguous time blocks per run (time-blocks)
+
+    def __post_init__(self) -> None:
+        if self.strategy not in SPLITS:
+            raise ConfigError(f"key 'split.strategy': {self.strategy!r} is not one of "
+                              f"{', '.join(repr(k) for k in SPLITS)}")
+        if isinstance(self.n_blocks, bool) or not isinstance(self.n_blocks, int):
+            raise ConfigError(f"key 'split.n_blocks': {self.n_blocks!r} is not an integer")
+        if self.n_blocks < 5:
+            raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is below 5 (every group "
+                              "of five blocks gives one validation and one test block)")
+        if self.n_blocks > MAX_BLOCKS:
+            raise ConfigError(f"key 'split.n_blocks': {self.n_blocks} is above {MAX_BLOCKS} "
+                              "(blocks that short put correlated neighbouring samples in "
+                              "train and test: a split by sample in disguise)")
 
 
 def make_splits(ds: Dataset | list[Recording], cfg: SplitConfig, *, source: str = "config"
