@@ -41,7 +41,7 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import TYPE_CHECKING, Any
 
 from ..core.errors import ConfigError
-from .specs import BUILTIN_SPECS, FamilySpec, spec_for_class
+from .specs import BUILTIN_SPECS, FamilySpec, set_builder, spec_for_class
 
 if TYPE_CHECKING:
     from .base import Family
@@ -291,3 +291,6 @@ def build_family(name: str, *, n_inputs: int, n_outputs: int,
                               f"(valid: {', '.join(valid) or 'none'})")
     return _guarded(name, "building", lambda: cls(n_inputs=n_inputs, n_outputs=n_outputs,
                                                   **hyper))
+
+
+set_builder(build_family)   # a spec builds through the registry (specs never imports it)

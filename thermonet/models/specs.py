@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from ..core.errors import ConfigError
@@ -39,12 +39,25 @@ if TYPE_CHECKING:
     from .base import Family
 
 __all__ = ["FamilySpec", "Linear", "Poly", "Lorentz", "Fuzzy", "RBF", "MLP", "GRU", "BUILTIN_SPECS",
-           "spec_for_class", "SHAPE"]
+           "spec_for_class", "SHAPE", "set_builder"]
 
 #: Keyword arguments of every family's constructor that are not hyper-parameters.
 SHAPE = ("n_inputs", "n_outputs")
 
 _KEYWORDS = (inspect.Parameter.KEYWORD_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
+
+#: What builds a family by name (``name, n_inputs=, n_outputs=, hyper=`` -> the torch module):
+#: :func:`thermonet.models.registry.build_family`, which looks the name up among the
+#: registered families and plug-ins and names a failing plug-in.  The registry sets it when
+#: it loads (it imports this module; this module never imports it, so the two are no circle),
+#: and it always loads first: ``thermonet.models`` imports it before any of its modules.
+_builder: Callable[..., Family] | None = None
+
+
+def set_builder(builder: Callable[..., Family]) -> None:
+    """Make ``builder`` what :meth:`FamilySpec.build` calls (the registry's, once)."""
+    global _builder
+    _builder = builder
 
 
 class FamilySpec:
@@ -137,11 +150,11 @@ class FamilySpec:
 
     def build(self, *, n_inputs: int, n_outputs: int) -> Family:
         """The torch module for ``n_inputs`` inputs and ``n_outputs`` outputs (imports torch
-        now).  A plug-in's failure is one line naming it (the registry's guard)."""
-        from .registry import build_family  # cycle: registry imports specs at its top
-
-        return build_family(self.key, n_inputs=n_inputs, n_outputs=n_outputs,
-                            hyper=self.hyper())
+        now) through the registry's :func:`~thermonet.models.registry.build_family`
+        (:func:`set_builder`): a plug-in's failure is one line naming it (its guard)."""
+        if _builder is None:  # only where thermonet.models.registry was never imported
+            raise RuntimeError("thermonet.models.registry is not loaded: import thermonet.models")
+        return _builder(self.key, n_inputs=n_inputs, n_outputs=n_outputs, hyper=self.hyper())
 
 
 def _same(a: Any, b: Any) -> bool:
