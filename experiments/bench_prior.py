@@ -1,17 +1,23 @@
 """The fleet prior: a new unit from a short test against its full-sweep calibration.
 
 A structured fleet of the consumer IMU (``simulate_fleet(..., clusters=3)``: three clusters
-of drift shapes, correlated coefficients; 2 climate cycles a unit, 50 → −20 → 75 → 35 °C).
-Leave units out (5 groups, unit *i* in group *i* mod 5): the prior is built from the other
-groups' units; each held-out unit is calibrated
+of drift shapes, correlated coefficients).  Each unit has two runs: its **full sweep** (a
+staircase of 11 soaks of 20 min, −20 … 75 °C, 3.7 h: the production calibration the prior
+is built from) and a **climate cycle** 50 → −20 → 75 → 35 °C at 1 °C/min (5.4 h, hysteresis
+and lag included: how the unit is used), never fitted.  Leave units out (5 groups, unit *i*
+in group *i* mod 5): the prior is built from the other groups' full sweeps; each held-out
+unit is calibrated
 
-- **full**: its own cubic on its first climate cycle (no prior) — the reference;
-- **3 soaks + prior**: a short test of three 20-min soaks (−15, 25, 65 °C) and the prior;
-- **3 soaks alone**: the same points without the prior (its own cubic: what they say alone);
+- **full**: its own cubic on its full sweep (no prior) — the reference;
+- **3 soaks + prior**: a short test of three 20-min soaks and the prior, at −15, 25, 65 °C
+  and at −20, 25, 75 °C (the range's ends and t_ref);
+- **3 soaks at the prior's plan + prior**: the three temperatures ``soak_plan`` chooses from
+  the fold's prior (greedy I-optimal over every axis);
+- **3 soaks alone**: the first test's points without the prior (its own cubic);
 - **ramp + prior**: 10 minutes of ramp at 1 °C/min (20 → 30 °C) and the prior;
 
-and every calibration is judged on the unit's **second** climate cycle (never fitted): the
-RMS of its 1 °C-binned compensated error, offset-free.  Reported per axis: the median over
+and every calibration is judged on the unit's climate cycle: the RMS of its 1 °C-binned
+compensated error, offset-free.  Reported per axis: the median over
 units of (short / full) and its 90th percentile, worst axis first.
 
 Outliers: a second fleet of the same draw with its last units 10 σ off
@@ -19,9 +25,9 @@ Outliers: a second fleet of the same draw with its last units 10 σ off
 "unlike its fleet" flag (any axis) on new units' 3-soak tests: recall on the outliers, false
 flags on the normal ones.
 
-Station: ``run_station`` on ``--station-units`` simulated units (each worker simulates its
-own), process pool of 2: wall time, units/min, and the peak RSS of the driver and of the
-largest worker, for two sizes (memory bounded per unit: the same for both).
+Station: ``thermonet station --units N`` (each worker simulates its own unit's 3-soak test),
+process pool of 2, in a fresh process per size: wall time, units/min, and the peak RSS of the
+driver and of the largest worker, for two sizes (memory bounded per unit: the same for both).
 
 Usage: ``python experiments/bench_prior.py [--units 50,100] [--new-outliers 20]
 [--station-units 100,400]``.  Writes ``experiments/out/bench_prior.{md,json}``.
@@ -30,8 +36,8 @@ Usage: ``python experiments/bench_prior.py [--units 50,100] [--new-outliers 20]
 from __future__ import annotations
 
 import argparse
-import resource
-import shutil
+import json
+import subprocess
 import sys
 import tempfile
 import time
@@ -43,14 +49,21 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import git_rev, save, table  # noqa: E402
 from thermonet.core.recording import Dataset, split_units  # noqa: E402
-from thermonet.scoring.prior import fit_unit, posterior, shape_design  # noqa: E402
+from thermonet.scoring.prior import (  # noqa: E402
+    fit_unit,
+    posterior,
+    shape_design,
+    soak_plan,
+)
 from thermonet.sim import simulate_fleet  # noqa: E402
+from thermonet.sim.fleet import short_test  # noqa: E402
+from thermonet.sim.presets import get_preset  # noqa: E402
 from thermonet.training.config import config_from_mapping  # noqa: E402
-from thermonet.workflows.fleet_units import sources_from_simulation  # noqa: E402
-from thermonet.workflows.station import build_prior, run_station, unit_points  # noqa: E402
+from thermonet.workflows.station import build_prior, unit_points  # noqa: E402
 
 PRESET, SEED, CLUSTERS, FOLDS = "consumer-imu", 5, 3, 5
-SOAKS, RAMP = "soaks:-15,25,65", "ramp:20,30,10"
+SOAKS, SOAKS_ENDS, RAMP = "soaks:-15,25,65", "soaks:-20,25,75", "ramp:20,30,10"
+FULL = "soaks:-20,-10,0,10,20,30,40,50,60,70,75"
 CFG = config_from_mapping({"data": {"preset": PRESET},
                            "target": {"gyro": "zero", "acc": "at-t-ref"},
                            "features": {"t_ref": 25.0}}, source="bench")
@@ -82,18 +95,32 @@ def _own(fp: Any, pts: Any) -> np.ndarray | None:
         return None
 
 
+def _fleet(n_units: int, seed: int, **kw: Any) -> Dataset:
+    """Units with their full sweep (run0) and a climate cycle (run1)."""
+    cycle = get_preset(PRESET).procedures[0]
+    return simulate_fleet(PRESET, units=n_units, runs=2, seed=seed, clusters=CLUSTERS,
+                          procedures=(short_test(FULL), cycle), **kw)
+
+
+def _sweeps(ds: Dataset) -> Dataset:
+    return Dataset(runs=[r for r in ds if r.run_id == "run0"])
+
+
 def leave_units_out(n_units: int) -> dict[str, Any]:
-    fleet = simulate_fleet(PRESET, units=n_units, runs=2, seed=SEED, clusters=CLUSTERS)
-    units = split_units(fleet)
+    units = split_units(_fleet(n_units, SEED))
     ids = list(units)
     short = {k: split_units(simulate_fleet(PRESET, units=n_units, seed=SEED, clusters=CLUSTERS,
                                            test=k, unit_indices=list(range(n_units))))
-             for k in (SOAKS, RAMP)}
+             for k in (SOAKS, SOAKS_ENDS, RAMP)}
     ratios: dict[str, dict[str, list[float]]] = {}
     for g in range(FOLDS):
         held = [d for i, d in enumerate(ids) if i % FOLDS == g]
-        train = Dataset(runs=[r for d in ids if d not in held for r in units[d]])
+        train = _sweeps(Dataset(runs=[r for d in ids if d not in held for r in units[d]]))
         fp = build_prior(CFG, train, source="bench")
+        plan = "soaks:" + ",".join(f"{t:g}" for t in soak_plan(fp, 3))
+        short["plan"] = split_units(simulate_fleet(
+            PRESET, units=n_units, seed=SEED, clusters=CLUSTERS, test=plan,
+            unit_indices=[ids.index(d) for d in held]))
         for d in held:
             cal, test = units[d].runs
             cal_pts, _, _, _ = unit_points(CFG, Dataset(runs=[cal]), d)
@@ -102,6 +129,8 @@ def leave_units_out(n_units: int) -> dict[str, Any]:
                 e_full = _judge(fp, full, test, a, j)
                 row = ratios.setdefault(a, {})
                 for name, key, use_prior in (("3 soaks + prior", SOAKS, True),
+                                             ("3 soaks at the ends + prior", SOAKS_ENDS, True),
+                                             ("3 soaks at the plan + prior", "plan", True),
                                              ("3 soaks alone", SOAKS, False),
                                              ("ramp + prior", RAMP, True)):
                     pts, _, _, _ = unit_points(CFG, short[key][d], d)
@@ -116,9 +145,8 @@ def leave_units_out(n_units: int) -> dict[str, Any]:
 
 def outliers(n_units: int, n_new: int, n_out: int) -> dict[str, Any]:
     total = n_units + n_new
-    fleet = simulate_fleet(PRESET, units=total, runs=1, seed=SEED + 1, clusters=CLUSTERS,
-                           outliers=n_out, unit_indices=list(range(n_units)))
-    fp = build_prior(CFG, fleet, source="bench")
+    fleet = _fleet(total, SEED + 1, outliers=n_out, unit_indices=list(range(n_units)))
+    fp = build_prior(CFG, _sweeps(fleet), source="bench")
     new = split_units(simulate_fleet(PRESET, units=total, seed=SEED + 1, clusters=CLUSTERS,
                                      outliers=n_out, test=SOAKS,
                                      unit_indices=list(range(n_units, total))))
@@ -135,20 +163,31 @@ def outliers(n_units: int, n_new: int, n_out: int) -> dict[str, Any]:
             "prior_excluded": len(fp.excluded)}
 
 
-def station(n_units: int, fp: Any) -> dict[str, Any]:
-    src = sources_from_simulation(PRESET, units=n_units, seed=SEED + 2, clusters=CLUSTERS,
-                                  test=SOAKS)
-    out = Path(tempfile.mkdtemp(prefix="bench-station-")) / "s"
-    t0 = time.perf_counter()
-    try:
-        res = run_station(CFG, fp, src, out, say=lambda *_: None)
-    finally:
-        shutil.rmtree(out.parent, ignore_errors=True)
-    wall = time.perf_counter() - t0
-    return {"units": n_units, "wall_s": wall, "units_per_min": 60 * n_units / wall,
-            "driver_maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-            "worker_maxrss_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
-            "passed": res["summary"]["passed"]}
+_STATION = r"""
+import json, resource, sys, time
+from thermonet.cli import main
+t0 = time.perf_counter()
+rc = main(["station", sys.argv[1], "--prior", sys.argv[2], "--units", sys.argv[3], "--clusters",
+           sys.argv[4], "--test", sys.argv[5], "--out", sys.argv[6], "--workers", "2", "-q"])
+# the driver's own peak (VmHWM: ru_maxrss would keep the forking parent's from before exec)
+hwm = next(int(x.split()[1]) for x in open("/proc/self/status") if x.startswith("VmHWM"))
+kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+print(json.dumps({"rc": rc, "wall_s": time.perf_counter() - t0, "driver_maxrss_mb": hwm / 1024,
+                  "worker_maxrss_mb": kids.ru_maxrss / 1024}))
+"""
+
+
+def station(n_units: int, fp: Any, tmp: Path) -> dict[str, Any]:
+    """``thermonet station --units N`` in a fresh process (its peak memory its own)."""
+    (tmp / "prior.json").write_text(json.dumps(fp.to_dict()))
+    (tmp / "cfg.yaml").write_text(f"data: {{preset: {PRESET}, seed: {SEED + 2}}}\n"
+                                  "target: {gyro: zero, acc: at-t-ref}\nfeatures: {t_ref: 25.0}\n")
+    out = tmp / f"station{n_units}"
+    r = subprocess.run([sys.executable, "-c", _STATION, str(tmp / "cfg.yaml"),
+                        str(tmp / "prior.json"), str(n_units), str(CLUSTERS), SOAKS, str(out)],
+                       capture_output=True, text=True, check=True)
+    res = json.loads(r.stdout.strip().splitlines()[-1])
+    return {"units": n_units, **res, "units_per_min": 60 * n_units / res["wall_s"]}
 
 
 def main() -> None:
@@ -165,22 +204,27 @@ def main() -> None:
         res = leave_units_out(n)
         data["lou"][n] = res
         rows = sorted(([ax, r["3 soaks + prior"]["median"], r["3 soaks + prior"]["p90"],
+                        r["3 soaks at the ends + prior"]["median"],
+                        r["3 soaks at the ends + prior"]["p90"],
+                        r["3 soaks at the plan + prior"]["median"],
                         r["3 soaks alone"]["median"], r["ramp + prior"]["median"],
-                        r["ramp + prior"]["p90"]] for ax, r in res.items()),
-                      key=lambda row: -row[1])
+                        r["ramp + prior"]["p90"], r["full (error)"]["median"]]
+                       for ax, r in res.items()), key=lambda row: -row[1])
         md.append(f"### Leave units out, {n} units ({time.perf_counter() - t0:.0f} s)\n\n" +
-                  table(["axis", "3 soaks+prior / full (median)", "p90", "3 soaks alone / full",
-                         "10-min ramp+prior / full (median)", "p90"], rows))
+                  table(["axis", "3 soaks+prior / full (median)", "p90",
+                         "3 soaks at the ends+prior / full", "p90",
+                         "3 soaks at the prior's plan+prior / full", "3 soaks alone / full",
+                         "10-min ramp+prior / full", "p90", "full: error (median)"], rows))
     n0 = int(a.units.split(",")[0])
     data["outliers"] = outliers(n0, a.new_units, a.new_outliers)
     o = data["outliers"]
     md.append(f"### Outliers\n\nprior of {n0} units; {o['new_units']} new units of which "
               f"{o['outliers']} are 10 σ off: recall {o['recall']:.0%}, false flags "
               f"{o['false_flags']:.1%}")
-    fp = build_prior(CFG, simulate_fleet(PRESET, units=n0, runs=1, seed=SEED,
-                                         clusters=CLUSTERS), source="bench")
-    for n in (int(v) for v in a.station_units.split(",")):
-        data["station"].append(station(n, fp))
+    fp = build_prior(CFG, _sweeps(_fleet(n0, SEED)), source="bench")
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in (int(v) for v in a.station_units.split(",")):
+            data["station"].append(station(n, fp, Path(tmp)))
     md.append("### Station (process pool, 2 workers)\n\n" + table(
         ["units", "wall s", "units/min", "driver peak RSS MB", "largest worker peak RSS MB"],
         [[s["units"], s["wall_s"], s["units_per_min"], s["driver_maxrss_mb"],

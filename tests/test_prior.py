@@ -25,6 +25,7 @@ from thermonet.scoring.prior import (
     fit_unit,
     next_temperatures,
     points_needed,
+    soak_plan,
     posterior,
     shape_design,
 )
@@ -180,6 +181,23 @@ def _prior_for_design(degree: int) -> FleetPrior:
 def test_design_of_a_line_measures_the_ends_of_the_range() -> None:
     # a slope and a free constant: the I-optimal pair is the two ends of the range
     assert next_temperatures(_prior_for_design(1), "gyro_x", [], 2) == [-20.0, 70.0]
+
+
+def test_one_test_for_every_axis_leaves_out_an_axis_without_drift() -> None:
+    fp = _prior_for_design(3)
+    flat = AxisPrior("gyro_z", np.ones(1), np.zeros((1, 3)), np.eye(3)[None] * 1e-12, 1e-4, 0.0)
+    with_flat = FleetPrior([fp.axes[0], flat], 3, T_REF, SCALE, fp.range_c,
+                           {"gyro_x": "deg/s", "gyro_z": "deg/s"},
+                           {"gyro_x": "zero", "gyro_z": "zero"}, 20, fp.unit_ids)
+    # gyro_x's mean curve is flat too: its typical drift is zero, so nothing is left to plan
+    assert soak_plan(with_flat, 3) == [-20.0, 70.0]
+    drifting = AxisPrior("gyro_x", np.ones(1), np.array([[0.5, 0.2, -0.1]]),
+                         np.eye(3)[None] * 0.01, 1e-4, 0.0)
+    one = FleetPrior([drifting, flat], 3, T_REF, SCALE, fp.range_c, with_flat.units,
+                     with_flat.targets, 20, fp.unit_ids)
+    solo = FleetPrior([drifting], 3, T_REF, SCALE, fp.range_c, {"gyro_x": "deg/s"},
+                      {"gyro_x": "zero"}, 20, fp.unit_ids)
+    assert soak_plan(one, 3) == next_temperatures(solo, "gyro_x", [], 3)
 
 
 def test_points_needed_decrease_and_meet_their_target() -> None:

@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 
 from thermonet.cli import main
+from thermonet.data.io import write_parquet
+from thermonet.sim import simulate_fleet
 
 FLEET = """data: {preset: consumer-imu, seed: 0, runs: 1}
 target: {gyro: zero, acc: at-t-ref}
@@ -60,7 +62,9 @@ def test_station_flags_strangers_passes_the_rest_and_writes_a_header(
     assert flagged and flagged <= {"consumer-imu-u004", "consumer-imu-u005"}
     for dev in ("consumer-imu-u000", "consumer-imu-u001", "consumer-imu-u002"):
         assert res["units"][dev]["verdict"] == "PASS"
-    unit = res["units"]["consumer-imu-u000"]["axes"]["gyro_y"]
+    assert res["units"]["consumer-imu-u000"]["files"] == "units/consumer-imu-u000"
+    cal = json.loads(Path("st/units/consumer-imu-u000/calibration.json").read_text())
+    unit = cal["axes"]["gyro_y"]
     assert unit["held_out_rms"] is not None and unit["held_out_rms"] < 0.03   # °/s
     assert unit["coefficients"][1] == pytest.approx(-0.003, rel=0.35)
     _header_matches(Path("st/units/consumer-imu-u000"), tmp_path)
@@ -110,7 +114,36 @@ def test_refusals_are_one_line_and_write_nothing(
                                "--out", "st"], "--prior: not JSON")
     _one_line_refusal(capsys, ["station", "new.yaml", "--prior", str(prior), "--test",
                                "soaks:0", "--out", "st"], "--test needs --units")
+    Path("deg2.yaml").write_text(FLEET.replace("station:", "station:\n  degree: 2"))
+    _one_line_refusal(capsys, ["station", "deg2.yaml", "--prior", str(prior), "--units", "2",
+                               "--out", "st"], "is of degree 3")
+    ds = simulate_fleet("consumer-imu", units=1, seed=3, test="soaks:0,25,50")
+    for r in ds:     # the same unit's gyro in rad/s: another unit of measure than the prior's
+        for a in ("gyro_x", "gyro_y", "gyro_z"):
+            r.outputs[a] = np.deg2rad(r.outputs[a])
+            r.units[a] = "rad/s"
+    write_parquet(ds, "rad.parquet")
+    Path("rad.yaml").write_text(FLEET.replace("preset: consumer-imu, seed: 0, runs: 1",
+                                              "paths: [rad.parquet]"))
+    _one_line_refusal(capsys, ["station", "rad.yaml", "--prior", str(prior), "--out", "st",
+                               "--executor", "serial"], "axis gyro_x is in 'rad/s', the prior's")
     Path("bad.yaml").write_text(FLEET.replace("gyro_x: {max_tempco", "gyro_q: {max_tempco"))
     _one_line_refusal(capsys, ["station", "bad.yaml", "--prior", str(prior), "--units", "2",
                                "--out", "st"], "station.limits.gyro_q")
     assert not Path("st").exists()
+
+
+def test_points_needed_for_a_residual_limit(prior: Path) -> None:
+    from thermonet.scoring.prior import FleetPrior, StationLimit
+    from thermonet.workflows.station import prior_summary
+
+    fp = FleetPrior.from_dict(json.loads(prior.read_text()), str(prior))
+    misfit = fp.axis("gyro_y").misfit_var
+    for lim, expect_none in ((0.5 * np.sqrt(misfit), True), (100 * np.sqrt(misfit), False)):
+        row = prior_summary(fp, {"gyro_y": StationLimit(max_residual=float(lim))}
+                            )["gyro_y"]["points_needed"][-1]
+        assert row["limit"] == "max_residual"
+        # a limit under a point's own error is out of reach; a loose one needs the first pair
+        assert (row["points"] is None) == expect_none
+        if not expect_none:
+            assert row["points"] == 2 and len(row["temperatures_c"]) == 2

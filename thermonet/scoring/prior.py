@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,7 +53,7 @@ from ..core.errors import ConfigError, InputError
 __all__ = ["PRIOR_SCHEMA", "MIN_UNITS", "MAX_CLUSTERS", "UNITS_PER_CLUSTER", "FLAG_P",
            "BIN_C", "MIN_BIN_SAMPLES", "Points", "bin_points", "AxisPrior", "FleetPrior",
            "UnitFit", "fit_unit", "METHOD", "StationLimit", "check_compatible", "fit_population", "Posterior", "posterior",
-           "next_temperatures", "points_needed", "design_errors", "first_below", "expected_error", "shape_design"]
+           "next_temperatures", "soak_plan", "typical_drift", "points_needed", "design_errors", "first_below", "expected_error", "shape_design"]
 
 PRIOR_SCHEMA = 1
 #: Fewer calibrated units than this: no prior (a covariance of a cubic's three shape
@@ -61,8 +62,10 @@ MIN_UNITS = 10
 MAX_CLUSTERS = 6
 #: A k-cluster mixture is tried only with at least this many units per cluster.
 UNITS_PER_CLUSTER = 15
-#: A unit is flagged when its data are this unlikely under every cluster of the prior.
-FLAG_P = 0.01
+#: A unit is flagged when its data are this unlikely under every cluster of the prior
+#: (3.3 σ: a station judges thousands of units, and at 0.01 one good unit in a hundred would
+#: fail by chance alone, more where the population is estimated from a few dozen units).
+FLAG_P = 0.001
 BIN_C = 1.0
 #: A 1 °C bin with fewer samples than this is not a point (a thermometer passing through).
 MIN_BIN_SAMPLES = 10
@@ -515,34 +518,73 @@ def expected_error(prior: AxisPrior, information: np.ndarray, grid: np.ndarray) 
 def _design_setup(fp: FleetPrior, axis: str, step_c: float
                   ) -> tuple[AxisPrior, np.ndarray, np.ndarray, float]:
     ap = fp.axis(axis)
-    cand = np.arange(fp.range_c[0], fp.range_c[1] + 1e-9, step_c)
-    grid = shape_design(cand, fp.t_ref, fp.scale, fp.degree)
-    return ap, cand, grid, 1.0 / (ap.misfit_var + ap.sampling_var + 1e-300)
+    grid = shape_design(_candidates(fp, step_c), fp.t_ref, fp.scale, fp.degree)
+    return ap, _candidates(fp, step_c), grid, 1.0 / (ap.misfit_var + ap.sampling_var + 1e-300)
 
 
-def next_temperatures(fp: FleetPrior, axis: str, measured_c: list[float], n: int, *,
-                      step_c: float = 2.5) -> list[float]:
-    """The ``n`` temperatures to measure next on one run of ``axis`` (greedy I-optimal)."""
-    ap, cand, grid, w0 = _design_setup(fp, axis, step_c)
-    chosen = [float(t) for t in measured_c]
-    out: list[float] = []
+def _axis_error(fp: FleetPrior, axis: str, step_c: float) -> Callable[[list[float]], float]:
+    """Expected error of ``axis``'s offset-free curve after one run's points at ``temps``."""
+    ap, _, grid, w0 = _design_setup(fp, axis, step_c)
 
     def err(temps: list[float]) -> float:
         if len(temps) < 2:
             return expected_error(ap, np.zeros((fp.degree, fp.degree)), grid)
         X = shape_design(np.asarray(temps), fp.t_ref, fp.scale, fp.degree)
         return expected_error(ap, _run_information(X, np.full(len(temps), w0)), grid)
+    return err
 
+
+def _greedy(cost: Callable[[list[float]], float], cand: np.ndarray, measured_c: list[float],
+            n: int) -> list[float]:
+    """``n`` more temperatures, each lowering ``cost`` most (the first two as a pair when
+    nothing was measured: one point of one run only fixes its constant)."""
+    chosen = [float(t) for t in measured_c]
+    out: list[float] = []
     while len(out) < n:
-        if not chosen:   # one point of one run says nothing about the shape: choose a pair
+        if not chosen:
             pairs = [(a, b) for i, a in enumerate(cand) for b in cand[i + 1:]]
-            best = min(pairs, key=lambda ab: err([float(ab[0]), float(ab[1])]))
+            best = min(pairs, key=lambda ab: cost([float(ab[0]), float(ab[1])]))
             pick = [float(best[0]), float(best[1])][:n - len(out)]
         else:
-            pick = [float(min(cand, key=lambda t: err(chosen + [float(t)])))]
+            pick = [float(min(cand, key=lambda t: cost(chosen + [float(t)])))]
         chosen += pick
         out += pick
     return out
+
+
+def _candidates(fp: FleetPrior, step_c: float) -> np.ndarray:
+    return np.arange(fp.range_c[0], fp.range_c[1] + 1e-9, step_c)
+
+
+def next_temperatures(fp: FleetPrior, axis: str, measured_c: list[float], n: int, *,
+                      step_c: float = 2.5) -> list[float]:
+    """The ``n`` temperatures to measure next on one run of ``axis`` (greedy I-optimal)."""
+    return _greedy(_axis_error(fp, axis, step_c), _candidates(fp, step_c), measured_c, n)
+
+
+def typical_drift(fp: FleetPrior, axis: str) -> float:
+    """The fleet's mean curve's offset-free RMS over the range (the drift a test must learn)."""
+    mu, _ = fp.axis(axis).moment_matched()
+    curve = shape_design(np.linspace(*fp.range_c, 41), fp.t_ref, fp.scale, fp.degree) @ mu
+    return float(np.sqrt(np.mean((curve - curve.mean()) ** 2)))
+
+
+def soak_plan(fp: FleetPrior, n: int, *, measured_c: list[float] | None = None,
+                      step_c: float = 2.5) -> list[float]:
+    """One test for every axis: the ``n`` soak temperatures lowering most the sum over axes
+    of (expected error / the axis's typical drift)² — axes whose drift is below a point's own
+    error left out (nothing to learn there)."""
+    costs = []
+    for ap in fp.axes:
+        typ = typical_drift(fp, ap.axis)
+        if typ > math.sqrt(ap.misfit_var + ap.sampling_var):
+            costs.append((_axis_error(fp, ap.axis, step_c), typ))
+    if not costs:
+        return [fp.range_c[0], fp.range_c[1]][:n]
+
+    def cost(temps: list[float]) -> float:
+        return sum((err(temps) / typ) ** 2 for err, typ in costs)
+    return _greedy(cost, _candidates(fp, step_c), list(measured_c or []), n)
 
 
 def design_errors(fp: FleetPrior, axis: str, *, max_points: int = 12, step_c: float = 2.5
@@ -573,8 +615,9 @@ def first_below(errs: list[float], target: float) -> int | None:
 
 
 def check_compatible(fp: FleetPrior, axes: list[str], targets: dict[str, str],
-                     where: str) -> None:
-    """Refuse a unit whose axes or targets are not the prior's (one line naming both)."""
+                     where: str, units: dict[str, str] | None = None) -> None:
+    """Refuse a unit whose axes, targets or units of measure are not the prior's (one line
+    naming both)."""
     missing = [a for a in fp.axis_names if a not in axes]
     if missing:
         raise ConfigError(f"{where}: the prior is of axes {', '.join(fp.axis_names)}; the data "
@@ -584,3 +627,8 @@ def check_compatible(fp: FleetPrior, axes: list[str], targets: dict[str, str],
         a = other[0]
         raise ConfigError(f"{where}: axis {a}: target '{targets.get(a)}' is not the prior's "
                           f"'{fp.targets[a]}'")
+    other = [a for a in fp.axis_names if units is not None and units.get(a) != fp.units[a]]
+    if other:
+        a = other[0]
+        raise ConfigError(f"{where}: axis {a} is in '{units.get(a) if units else ''}', the "
+                          f"prior's in '{fp.units[a]}' (convert one of them first)")

@@ -22,7 +22,8 @@ units measured briefly (a few soaks, a short ramp) and, per unit and axis, gives
 - the **next temperatures** to measure for a unit that failed its residual limit;
 - ``DIR/units/<id>/calibration.json`` and ``thermonet_cal.h`` (the firmware's file: the
   polynomial per axis in (T − t_ref), evaluated by Horner in float) — written for every
-  unit, with its verdict in both.
+  unit, with its verdict in both, as the unit finishes (``results.json`` keeps each unit's
+  verdicts, held-out residuals and flags: the driver's memory does not grow with the detail).
 
 Units run on the process pool, in this process, or on Ray (``--executor``); with ``--units N``
 each worker simulates its own unit, so a worker holds one unit at a time.  The driver writes
@@ -55,6 +56,7 @@ from ..features.target import AT_T_REF, FOUR_POSITION, output_units
 from ..scoring.fleetstats import flag_outliers
 from ..scoring.prior import (
     BIN_C,
+    FLAG_P,
     MIN_UNITS,
     AxisPrior,
     FleetPrior,
@@ -69,12 +71,13 @@ from ..scoring.prior import (
     next_temperatures,
     posterior,
     shape_design,
+    typical_drift,
 )
 from ..training.config import CompareConfig, outputs_of
 from ..training.parts import build_part, targets_for
 from .fleet_units import UnitSource
 
-__all__ = ["build_prior", "run_station", "unit_points", "StationOptions", "HELD_OUT_GROUPS",
+__all__ = ["build_prior", "run_station", "prior_summary", "parse_station_limits", "format_station", "unit_points", "StationOptions", "HELD_OUT_GROUPS",
            "EXIT_STATION_FAILED", "BAND_Z"]
 
 #: Contiguous temperature groups a unit's points are dealt into for its held-out residual.
@@ -184,22 +187,30 @@ def build_prior(cfg: CompareConfig, ds: Dataset, *, source: str = "") -> FleetPr
                       excluded, source, BIN_C)
 
 
-def prior_summary(fp: FleetPrior) -> dict[str, Any]:
+def prior_summary(fp: FleetPrior, limits: dict[str, StationLimit] | None = None
+                  ) -> dict[str, Any]:
     """Per axis: clusters, and points of a short test for an expected error of a fraction
-    of the fleet's typical drift (the fleet's mean curve's offset-free RMS over the range)."""
+    of the fleet's typical drift (the fleet's mean curve's offset-free RMS over the range)
+    and, where ``station.limits`` sets ``max_residual``, for that limit (a point's own error,
+    the misfit variance, taken out of it first)."""
     out: dict[str, Any] = {}
-    grid = shape_design(np.linspace(*fp.range_c, 41), fp.t_ref, fp.scale, fp.degree)
+    limits = limits or {}
     for ap in fp.axes:
-        mu, _ = ap.moment_matched()
-        curve = grid @ mu
-        typical = float(np.sqrt(np.mean((curve - curve.mean()) ** 2)))
+        typical = typical_drift(fp, ap.axis)
         temps, errs = design_errors(fp, ap.axis)
-        rows = []
+        rows: list[dict[str, Any]] = []
         for frac in TARGET_FRACTIONS:
             n = first_below(errs, frac * typical)
             rows.append({"target": frac * typical, "fraction_of_drift": frac, "points": n,
                          "temperatures_c": temps[:n] if n else None})
+        lim = _limit_for(limits, ap.axis).max_residual
+        if lim is not None:
+            room = lim ** 2 - ap.misfit_var
+            n = first_below(errs, math.sqrt(room)) if room > 0 else None
+            rows.append({"target": lim, "limit": "max_residual", "points": n,
+                         "temperatures_c": temps[:n] if n else None})
         out[ap.axis] = {"clusters": ap.n_clusters, "typical_drift_rms": typical,
+                        "point_error": math.sqrt(ap.misfit_var + ap.sampling_var),
                         "points_needed": rows, "expected_error_after_2_to_12": errs}
     return out
 
@@ -262,7 +273,7 @@ def _axis_result(fp: FleetPrior, axis: str, p: Points, lim: StationLimit,
     noise = float(np.sqrt(np.median(p.sampling_var * p.n_samples)))
     checks = lim.checks(held, coeffs[1] if fp.degree >= 1 else 0.0, noise)
     if flag and post.flagged:
-        checks.append({"limit": "like_its_fleet", "value": post.p_value, "min": 0.01,
+        checks.append({"limit": "like_its_fleet", "value": post.p_value, "min": FLAG_P,
                        "ok": False})
     ok = all(c["ok"] for c in checks)
     return {"coefficients": coeffs, "posterior_std": [0.0] + fp.physical(
@@ -283,8 +294,8 @@ def station_task(item: StationItem) -> dict[str, Any]:
     ds = item.source.load(item.cfg)
     if ds.is_fleet:
         raise InputError(f"{where}: its data hold several devices")
-    pts, targets, _, span = unit_points(item.cfg, ds, where)
-    check_compatible(fp, list(pts), targets, where)
+    pts, targets, uom, span = unit_points(item.cfg, ds, where)
+    check_compatible(fp, list(pts), targets, where, uom)
     for a in fp.axis_names:
         _check_range(fp, pts[a], where, a)
     axes = {a: _axis_result(fp, a, pts[a], _limit_for(item.limits, a),
@@ -345,7 +356,7 @@ class StationOptions:
     ray_address: str | None = None
 
 
-def _parse_limits(cfg: CompareConfig) -> dict[str, StationLimit]:
+def parse_station_limits(cfg: CompareConfig) -> dict[str, StationLimit]:
     from ..core.schema import from_dict
 
     where = getattr(cfg, "_source", "config")
@@ -361,59 +372,25 @@ def run_station(cfg: CompareConfig, prior: FleetPrior, sources: list[UnitSource]
                 say: Any = print) -> dict[str, Any]:
     """Calibrate every unit of ``sources`` with ``prior``; write ``out`` (module docstring)."""
     opts = opts or StationOptions()
-    limits = _parse_limits(cfg)
+    limits = parse_station_limits(cfg)
     unknown = [a for a in limits if a != "*" and a not in prior.axis_names]
     if unknown:
         raise ConfigError(f"{getattr(cfg, '_source', 'config')}: key 'station.limits.{unknown[0]}'"
                           f": not an axis of the prior ({', '.join(prior.axis_names)})")
+    if cfg.station.degree != prior.degree:
+        raise ConfigError(f"{getattr(cfg, '_source', 'config')}: key 'station.degree': "
+                          f"{cfg.station.degree}, and the prior ({prior.source or 'its file'}) "
+                          f"is of degree {prior.degree}: build the prior with the station's "
+                          "degree")
     check_target(out, overwrite, "station")
-    t0 = time.perf_counter()
-    items = [StationItem(cfg, prior, s, limits) for s in sources]
-    done = [0]
-
-    def progress(i: int, r: Any) -> None:
-        done[0] += 1
-        if done[0] % max(1, len(items) // 10) == 0 or done[0] == len(items):
-            say(f"station: {done[0]}/{len(items)} units")
-
-    payloads = run_tasks(station_task, items, executor=opts.executor,  # type: ignore[arg-type]
-                         workers=opts.workers, ray_address=opts.ray_address, on_done=progress)
-    bad = [(s.device_id, p) for s, p in zip(sources, payloads, strict=True)
-           if isinstance(p, TaskFailure)]
-    if bad:
-        raise InputError("; ".join(f"unit '{d}': {p.reason}" if not p.reason.startswith("unit ")
-                                   else p.reason for d, p in bad[:5]) +
-                         (f" (and {len(bad) - 5} more)" if len(bad) > 5 else ""))
-    seconds = time.perf_counter() - t0
-    return _write(cfg, prior, payloads, out, overwrite, seconds)
-
-
-def _write(cfg: CompareConfig, prior: FleetPrior, payloads: list[dict[str, Any]], out: Path,
-           overwrite: bool, seconds: float) -> dict[str, Any]:
-    dirs = path_components([p["device_id"] for p in payloads])
     out.parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial",
                                   dir=out.absolute().parent))
     try:
         os.chmod(stage, 0o777 & ~_umask())
-        units = {}
-        for p in payloads:
-            udir = inside(stage, "units", dirs[p["device_id"]])
-            udir.mkdir(parents=True)
-            header = p.pop("header")
-            atomic_write_text(udir / "thermonet_cal.h", header)
-            atomic_write_text(udir / "calibration.json", json.dumps(p, indent=2))
-            units[p["device_id"]] = p
-        n_fail = sum(u["verdict"] != "PASS" for u in units.values())
-        results = {"schema": 1, "kind": "station", "prior": prior.source,
-                   "prior_units": prior.n_units, "units": units,
-                   "summary": {"n_units": len(units), "passed": len(units) - n_fail,
-                               "failed": n_fail,
-                               "flagged_unlike_fleet": sorted(
-                                   d for d, u in units.items()
-                                   if any(a["flagged_unlike_fleet"] for a in u["axes"].values())),
-                               "seconds": seconds,
-                               "units_per_minute": 60.0 * len(units) / max(seconds, 1e-9)}}
+        t0 = time.perf_counter()
+        units = _run_units(cfg, prior, sources, limits, stage, opts, say)
+        results = _summary(prior, units, time.perf_counter() - t0)
         atomic_write_text(stage / "results.json", json.dumps(results, indent=2))
         install(stage, out, overwrite, "station")
     finally:
@@ -421,13 +398,71 @@ def _write(cfg: CompareConfig, prior: FleetPrior, payloads: list[dict[str, Any]]
     return results
 
 
+def _run_units(cfg: CompareConfig, prior: FleetPrior, sources: list[UnitSource],
+               limits: dict[str, StationLimit], stage: Path, opts: StationOptions,
+               say: Any) -> dict[str, dict[str, Any]]:
+    """Every unit on the executor; each unit's files written into ``stage`` as it finishes
+    and only its summary kept (the driver's memory does not grow with the units' detail)."""
+    dirs = path_components([s.device_id for s in sources])
+    items = [StationItem(cfg, prior, s, limits) for s in sources]
+    done = [0]
+
+    def finished(i: int, r: Any) -> None:
+        done[0] += 1
+        if not isinstance(r, TaskFailure):
+            rel = ("units", dirs[r["device_id"]])
+            udir = inside(stage, *rel)
+            udir.mkdir(parents=True)
+            atomic_write_text(udir / "thermonet_cal.h", r.pop("header"))
+            atomic_write_text(udir / "calibration.json", json.dumps(r, indent=2))
+            summary = _unit_summary(r, "/".join(rel))
+            r.clear()
+            r.update(summary)
+        if done[0] % max(1, len(items) // 10) == 0 or done[0] == len(items):
+            say(f"station: {done[0]}/{len(items)} units")
+
+    payloads = run_tasks(station_task, items, executor=opts.executor,  # type: ignore[arg-type]
+                         workers=opts.workers, ray_address=opts.ray_address, on_done=finished)
+    bad = [(s.device_id, p) for s, p in zip(sources, payloads, strict=True)
+           if isinstance(p, TaskFailure)]
+    if bad:
+        raise InputError("; ".join(f"unit '{d}': {p.reason}" if not p.reason.startswith("unit ")
+                                   else p.reason for d, p in bad[:5]) +
+                         (f" (and {len(bad) - 5} more)" if len(bad) > 5 else ""))
+    return {p["device_id"]: p for p in payloads}
+
+
+def _unit_summary(r: dict[str, Any], rel: str) -> dict[str, Any]:
+    """What results.json keeps of a unit: verdicts, held-out residuals, flags, its files."""
+    return {"device_id": r["device_id"], "verdict": r["verdict"], "runs": r["runs"],
+            "temperature_span_c": r["temperature_span_c"], "files": rel,
+            "axes": {a: {"verdict": x["verdict"], "held_out_rms": x["held_out_rms"],
+                         "p_value": x["p_value"],
+                         "flagged_unlike_fleet": x["flagged_unlike_fleet"],
+                         "failed": [c["limit"] for c in x["checks"] if not c["ok"]]}
+                     for a, x in r["axes"].items()}}
+
+
+def _summary(prior: FleetPrior, units: dict[str, dict[str, Any]],
+             seconds: float) -> dict[str, Any]:
+    n_fail = sum(u["verdict"] != "PASS" for u in units.values())
+    return {"schema": 1, "kind": "station", "prior": prior.source,
+            "prior_units": prior.n_units, "units": units,
+            "summary": {"n_units": len(units), "passed": len(units) - n_fail,
+                        "failed": n_fail,
+                        "flagged_unlike_fleet": sorted(
+                            d for d, u in units.items()
+                            if any(a["flagged_unlike_fleet"] for a in u["axes"].values())),
+                        "seconds": seconds,
+                        "units_per_minute": 60.0 * len(units) / max(seconds, 1e-9)}}
+
+
 def format_station(results: dict[str, Any]) -> str:
     """One line per unit: verdict, worst held-out residual, flags; then the totals."""
     lines = []
     for dev, u in results["units"].items():
         worst = max(u["axes"].items(), key=lambda kv: kv[1]["held_out_rms"] or 0.0)
-        fails = [f"{a}: {c['limit']}" for a, r in u["axes"].items()
-                 for c in r["checks"] if not c["ok"]]
+        fails = [f"{a}: {lim}" for a, r in u["axes"].items() for lim in r["failed"]]
         lines.append(f"{dev}: {u['verdict']}  worst held-out residual {worst[0]} "
                      f"{worst[1]['held_out_rms'] or 0.0:.3g}" +
                      (f"  [{'; '.join(fails[:3])}]" if fails else ""))
