@@ -18,7 +18,7 @@ HERE = Path(__file__).resolve().parent
 ALL = ["bench_export", "bench_averaging", "bench_default", "bench_threads", "bench_scaling",
        "bench_studies", "bench_anchor", "bench_rbf_speed", "bench_dynamic", "bench_imports",
        "bench_fleet", "bench_fleet_files", "bench_mcu", "bench_selection", "bench_neural",
-       "bench_magnetometers", "bench_uncertainty", "bench_pipeline", "bench_rbf_centres"]
+       "bench_magnetometers", "bench_learn", "bench_uncertainty", "bench_pipeline", "bench_rbf_centres"]
 
 if __name__ == "__main__":
     env = dict(os.environ)
