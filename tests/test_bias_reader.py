@@ -172,3 +172,24 @@ def test_real_ardupilot_fixture_ekf2_gyro_bias():
             params[f"{pre}_{a}"] for a in "XYZ"]
         np.testing.assert_allclose(ekf[core].drift, expect, atol=1e-7)
         assert ekf[core].device_id == int(params[dev]) and not ekf[core].valid.any()
+
+
+def test_real_px4_current_form_variance_and_validity():
+    """A real PX4 log of the current estimator_sensor_bias (SITL, pyulog's test data): the
+    variance is read, and the samples kept are those the log marks valid whose variance has
+    settled (at most MAX_VARIANCE_RATIO × the median of the series' second half) —
+    recomputed here from pyulog's arrays."""
+    from thermonet.data.logs.bias import MAX_VARIANCE_RATIO
+
+    path = REAL.parents[1] / "px4_sitl_bias_variance" / "sample_px4_events.ulg"
+    log = read_bias_log(path)
+    d = ULog(str(path), ["estimator_sensor_bias"]).get_dataset("estimator_sensor_bias").data
+    for kind, pre in (("gyro", "gyro"), ("acc", "accel")):
+        s = next(x for x in log.series if x.source == "ekf" and x.kind == kind)
+        var = np.column_stack([d[f"{pre}_bias_variance[{j}]"] for j in range(3)]).max(axis=1)
+        settled = np.median(var[var.size // 2:])
+        expect = (d[f"{pre}_bias_valid"] == 1) & (var <= MAX_VARIANCE_RATIO * settled)
+        assert s.variance is not None and s.device_id == int(d[f"{pre}_device_id"][0])
+        np.testing.assert_array_equal(s.valid, expect)
+    gyro = next(x for x in log.series if x.source == "ekf" and x.kind == "gyro")
+    assert 0 < (~gyro.valid).sum() < 10          # the first samples, before it settled
