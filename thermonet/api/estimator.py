@@ -13,7 +13,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import ConfigError, ThermonetError
-from ..core.params import Params
 from ..core.recording import Dataset, Recording
 from ..core.schema import from_dict
 from ..core.trainconfig import TrainConfig
@@ -39,6 +38,7 @@ from .data import (
 from .parameters import STDERR_METHODS, parameter_table
 from .persistence import export, load, save
 from .persistence import track as track_fit
+from .state import EstimatorState
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -102,7 +102,7 @@ def _with_keywords(family: Any, hyper: dict[str, Any]) -> Any:
         return _FamilyKeywords(family, dict(hyper))
 
 
-class DriftEstimator(Params):
+class DriftEstimator(EstimatorState):
     """One model family fitted to drift vs temperature (or a proxy), scikit-learn style.
 
     Every argument is a keyword the estimator stores as given (``get_params``,

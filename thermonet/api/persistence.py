@@ -8,7 +8,7 @@ import math
 import os
 from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from ..core.trainconfig import TrainConfig
 from ..exporting import ExportRequest, get_format
@@ -17,14 +17,12 @@ from ..features.target import FOUR_POSITION, Target
 from ..scoring.band import Band
 from ..tracking import Tracker
 from ..training.parameters import parameter_table, sealed_parameters, with_sealed
-
-if TYPE_CHECKING:
-    from .estimator import DriftEstimator
+from .state import EstimatorState, State
 
 __all__ = ["checkpoint_config", "extra", "fitted_hyper", "save", "load", "export", "track"]
 
 
-def _family_of(est: DriftEstimator) -> tuple[str, dict[str, Any]]:
+def _family_of(est: EstimatorState) -> tuple[str, dict[str, Any]]:
     """The family's registry name and hyper-parameters (a name alone, such as a loaded
     per-axis model's ``per-axis``, has none of its own)."""
     if isinstance(est.family, str):
@@ -33,7 +31,7 @@ def _family_of(est: DriftEstimator) -> tuple[str, dict[str, Any]]:
     return spec.key, spec.hyper()
 
 
-def checkpoint_config(est: DriftEstimator) -> dict[str, Any]:
+def checkpoint_config(est: EstimatorState) -> dict[str, Any]:
     """The family's resolved configuration, as a checkpoint stores it."""
     name, params = _family_of(est)
     return {
@@ -45,7 +43,7 @@ def checkpoint_config(est: DriftEstimator) -> dict[str, Any]:
         "target": est.target,
     }
 
-def extra(est: DriftEstimator) -> dict[str, Any]:
+def extra(est: EstimatorState) -> dict[str, Any]:
     extra: dict[str, Any] = {"units": est.units_, "signal_units": est.signal_units_,
                              "device_id": est.device_id_, "history": est.history_,
                              "mlflow_run_id": est.__dict__.get("mlflow_run_id_", "")}
@@ -79,7 +77,7 @@ def fitted_hyper(hyper: dict[str, Any], tuned: dict[str, Any]) -> dict[str, Any]
     return out
 
 
-def save(est: DriftEstimator, path: str | os.PathLike[str]) -> Path:
+def save(est: EstimatorState, path: str | os.PathLike[str]) -> Path:
     """Write the fitted model as a thermonet checkpoint (atomic; loads with
     ``weights_only=True``; ``thermonet export`` reads it)."""
     model = est._check_fitted("save")
@@ -88,7 +86,7 @@ def save(est: DriftEstimator, path: str | os.PathLike[str]) -> Path:
     return save_checkpoint(path, model, config=checkpoint_config(est), extra=extra(est),
                            epoch=est.best_epoch_, best_val=est.best_val_)
 
-def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstimator:
+def load(cls: type[State], path: str | os.PathLike[str]) -> State:
     """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
     from ..training.checkpoint import load_checkpoint  # torch boundary
     from ..training.config import from_dict  # lazy: importing it loads yaml
@@ -145,7 +143,7 @@ def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstima
     est.fit_seconds_ = float("nan")
     return est
 
-def export(est: DriftEstimator, path: str | os.PathLike[str], format: str = "onnx", *,
+def export(est: EstimatorState, path: str | os.PathLike[str], format: str = "onnx", *,
            device_id: int | None = None, instance: int | None = None) -> Path:
     """Export through the format registry (:data:`thermonet.exporting.FORMATS`).
 
@@ -159,7 +157,7 @@ def export(est: DriftEstimator, path: str | os.PathLike[str], format: str = "onn
         meta=meta, device_id=device_id, instance=instance))
 
 
-def track(est: DriftEstimator, uri: str | None, experiment: str) -> None:
+def track(est: EstimatorState, uri: str | None, experiment: str) -> None:
     """Log this fit to MLflow (one run: parameters, history, metrics, the checkpoint)."""
     import json
     import tempfile

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -46,9 +46,7 @@ from .data import (
     same_run,
     same_units,
 )
-
-if TYPE_CHECKING:
-    from .estimator import DriftEstimator
+from .state import State
 
 __all__ = ["MODELS", "check_model", "fit", "predict", "compensate", "variances", "save", "load",
            "export", "is_sensor_checkpoint"]
@@ -250,7 +248,7 @@ def is_sensor_checkpoint(path: str | os.PathLike[str]) -> bool:
     return isinstance(payload, dict) and payload.get("format") == SENSOR_FORMAT
 
 
-def load(cls: type[DriftEstimator], path: str | os.PathLike[str]) -> DriftEstimator:
+def load(cls: type[State], path: str | os.PathLike[str]) -> State:
     """A sensor-mode estimator fitted as the sensor checkpoint at ``path`` (also one
     ``compare`` wrote)."""
     from ..training.sensor import load_sensor  # torch boundary
