@@ -203,6 +203,8 @@ def test_comparison_on_whole_flights(tmp_path):
     c = doc["instances"]["gyro1"]["compare"]
     assert c["status"] == "ok" and c["test_flight"] == "flight4" and c["flights"] == 4
     assert (tmp_path / "out" / "instances" / "gyro1" / "results.json").is_file()
+    # the firmware form's band, judged on whole flights, and how it grows where none flew
+    assert "whole flights held out" in (tmp_path / "out" / "report.txt").read_text()
 
 
 @pytest.mark.slow

@@ -491,6 +491,22 @@ def _json(obj: Any) -> Any:
     raise TypeError(type(obj).__name__)
 
 
+def _band_line(c: dict[str, Any]) -> list[str]:
+    """The firmware form's residual-drift band (judged on whole flights held out) in one
+    line: its half-widths over the flown range and how fast it grows outside it."""
+    b = c.get("band")
+    if not isinstance(b, dict) or not b.get("display") or not b.get("axes"):
+        return []
+    disp = b["display"]
+    unit = next(iter(disp.values()))["unit"]
+    widths = [float(w) for a in disp.values() for w in a["half_width"]]
+    edges = next(iter(b["axes"].values()))["edges"]
+    grow = max(max(float(a["growth_below"]), float(a["growth_above"])) for a in disp.values())
+    return [f"  band ({float(b['level']):.0%}, {c['baseline']}, whole flights held out): "
+            f"±{min(widths):.3g}..{max(widths):.3g} {unit} over {edges[0]:.0f}..{edges[-1]:.0f} "
+            f"°C, growing by up to {grow:.3g} {unit} per °C outside (not yet flown)"]
+
+
 def format_learn_report(doc: dict[str, Any]) -> str:
     """The console summary: what was used and refused, per instance its fit, held-out check,
     coverage and what is missing, and what changed."""
@@ -511,6 +527,7 @@ def format_learn_report(doc: dict[str, Any]) -> str:
         if c.get("status") == "ok":
             lines.append(f"  comparison on whole flights: chosen {c.get('chosen')} "
                          f"(baseline {c['baseline']}, test {c['test_flight']})")
+            lines += _band_line(c)
         elif c:
             lines.append(f"  comparison: {c.get('status')} ({c.get('reason')})")
         if d.get("reason"):
