@@ -86,6 +86,24 @@ def test_a_refused_export_imports_neither_torch_nor_mlflow(tmp_path, args, messa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cmp", "m.pt"]   # nothing written
 
 
+def test_no_circle_inside_a_package_type_only_imports_counted(tmp_path):
+    """pyproject.toml's contract *No circle between the modules of one package*, run with the
+    imports under ``if TYPE_CHECKING:`` counted too (the other contracts leave them out): a
+    module may not name, even for its annotations only, a sibling that imports it (issue 51:
+    api estimator / persistence / sensor_mode were one such circle)."""
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]
+    contract, = (c for c in config["contracts"] if c["type"] == "acyclic_siblings")
+    (tmp_path / "acyclic.toml").write_text(
+        '[tool.importlinter]\nroot_package = "thermonet"\n'
+        "exclude_type_checking_imports = false\n\n[[tool.importlinter.contracts]]\n"
+        f'name = "{contract["name"]}"\ntype = "acyclic_siblings"\n'
+        f"ancestors = {contract['ancestors']!r}\n".replace("'", '"'))
+    run = subprocess.run([str(Path(sys.executable).with_name("lint-imports")), "--config",
+                          str(tmp_path / "acyclic.toml"), "--no-cache"],
+                         capture_output=True, text=True, cwd=ROOT)
+    assert run.returncode == 0 and "1 kept, 0 broken" in run.stdout, run.stdout[-3000:]
+
+
 def _unexplained_imports(source: str, module: str) -> list[str]:
     """The own-module imports (``from ..x import y``, ``from thermonet.x import y``) inside a
     function of ``source`` with no comment on any of their lines, as ``"module:line: from"``."""
