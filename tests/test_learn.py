@@ -108,6 +108,8 @@ def _bad_logs(root: Path) -> dict[str, Path]:
         b.gyro_device_id += 7
         b.accel_device_id += 7
     bad["other"] = write_flight(other.log, other.biases, root / "x_other_vehicle.ulg")
+    twin = simulate_flights(1, seed=25)[0]        # the same model: same ids, its own board id
+    bad["board"] = write_flight(twin.log, twin.biases, root / "x_other_board.ulg")
     bad["no_bias"] = write_log(simulate_board(seed=1, rate_hz=0.05), root / "x_chamber.ulg")
     never = simulate_flights(1, seed=22)[0]
     for b in never.biases:
@@ -124,8 +126,9 @@ def _bad_logs(root: Path) -> dict[str, Path]:
 
 
 def test_bad_logs_one_line_each_good_ones_counted(tmp_path, capsys):
-    """Another vehicle's ids, no bias topic, never converged, a clock jump, an ArduPilot log
-    among PX4 logs: one line each naming the log and what it lacks; the good logs are used."""
+    """Another vehicle's ids, another board of the same model (its board id), no bias topic,
+    never converged, a clock jump, an ArduPilot log among PX4 logs: one line each naming the
+    log and what it lacks; the good logs are used."""
     good = _write(simulate_flights(4, seed=5), tmp_path / "logs", ".ulg")
     bad = _bad_logs(tmp_path / "logs")
     rc = main(["learn", str(tmp_path / "logs"), "--out", str(tmp_path / "out"),
@@ -136,6 +139,7 @@ def test_bad_logs_one_line_each_good_ones_counted(tmp_path, capsys):
     why = {Path(r["log"]).name: r["reason"] for r in doc["refused"]}
     assert set(why) == {p.name for p in bad.values()}
     assert "another vehicle" in why["x_other_vehicle.ulg"]
+    assert "another board of the same model" in why["x_other_board.ulg"]
     assert "estimator_sensor_bias" in why["x_chamber.ulg"]
     assert "never converged" in why["x_never_converged.ulg"]
     assert "clock jumps" in why["x_clock_jump.ulg"]

@@ -2,9 +2,9 @@
 
 ``simulate_flights(n, seed=...)`` gives ``n`` :class:`SimFlight` of the **same board** as
 ``simulate_board("fc-board", seed=seed)`` (:mod:`thermonet.sim.fcboard`: the same device ids
-and the same true drift laws of its three IMUs, drawn from ``seed`` alone), so a chamber
-calibration of that board and what ``thermonet learn`` makes of its flights can be judged
-against one truth.
+and the same true drift laws of its three IMUs, drawn from ``seed`` alone), and the same board id
+(:func:`~thermonet.sim.fcboard.board_id`), so a chamber calibration of that board and what
+``thermonet learn`` makes of its flights can be judged against one truth.
 
 Each flight (its own random stream ``[seed, 1000 + k]``):
 
@@ -47,7 +47,7 @@ import numpy as np
 from ..core.errors import InputError
 from ..data.logs.base import FlightLog, SensorInstance
 from ..data.logs.flight_writers import EstimatorBias
-from .fcboard import _PX4_IDS, _law, board_params
+from .fcboard import _PX4_IDS, _law, board_id, board_params
 
 __all__ = ["SimFlight", "simulate_flights", "true_drift", "EKF_TAU_S", "DIVERGE_FRACTION",
            "MAX_FLIGHTS", "VALID_VARIANCE_RATIO"]
@@ -231,7 +231,8 @@ def _flight(seed: int, k: int, n: int, autopilot: str, rate_hz: float) -> SimFli
                                     g[1], a[1], g[2], a[2]))
     log = FlightLog(path=Path(f"flight{k + 1:04d}"), autopilot=autopilot, instances=instances,
                     params=params, notes=[f"simulated flight {k + 1} of {n}, seed {seed}, "
-                                          f"ambient {ambient:.1f} °C"])
+                                          f"ambient {ambient:.1f} °C"],
+                    board_id=board_id(seed, autopilot))
     return SimFlight(log, biases, truth, ambient)
 
 

@@ -380,10 +380,11 @@ def not_this_vehicle(lg: dict[str, Any], ap: str, sensors: dict[str, int],
     if lg["autopilot"] != ap:
         return (f"a {lg['autopilot']} log among {ap} logs: one vehicle, one autopilot "
                 "(learn them in separate directories)")
-    if lg.get("board_id") and board and lg["board_id"] != board:
-        return f"another board (board id {lg['board_id']}, the vehicle's is {board})"
     if lg["sensors"] != sensors:
         mine = ", ".join(f"{k} {v}" for k, v in sorted(lg["sensors"].items()))
         theirs = ", ".join(f"{k} {v}" for k, v in sorted(sensors.items()))
         return f"another vehicle's sensors (device ids {mine}; the vehicle's: {theirs})"
+    if lg.get("board_id") and board and lg["board_id"] != board:
+        return (f"another board of the same model (the same sensors' device ids, board id "
+                f"{lg['board_id']}; the vehicle's is {board})")
     return None

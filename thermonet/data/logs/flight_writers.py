@@ -11,14 +11,15 @@ and ``estimator_sensor_bias`` per estimator instance in PX4's current form
 (``msg/EstimatorSensorBias.msg``: ``gyro_device_id``, ``float[3] gyro_bias``,
 ``gyro_bias_limit``, ``float[3] gyro_bias_variance``, ``bool gyro_bias_valid``,
 ``gyro_bias_stable``, the same for the accelerometer) or — ``old_firmware`` — the older form
-of the real fixture (device ids and biases only, with ``mag_*`` as it had).
+of the real fixture (device ids and biases only, with ``mag_*`` as it had); the board's own
+id (``FlightLog.board_id``) as the info field ``sys_uuid``.
 
 DataFlash: ``PARM``, ``IMU`` (``QBfffffff``) and, per EKF3 core ``C``, ``XKF1``
 (``QBccCfffffffccce``: TimeUS, C, Roll, Pitch, Yaw, VN, VE, VD, dPD, PN, PE, PD, GX, GY, GZ,
 OH; the gyro bias in centi-degrees per second as int16, as ``NavEKF3_core::Log_Write_XKF1``)
 and ``XKF2`` (``QBccccchhhhhhhhh``: TimeUS, C, AX, AY, AZ, VWN, VWE, MN, ME, MD, MX, MY, MZ,
-IDX, IDY, IS; the accelerometer bias in centi-m/s² as int16).  Fields the simulator does not
-model are written as zero.
+IDX, IDY, IS; the accelerometer bias in centi-m/s² as int16), and the board's id as the
+system-id ``MSG`` line.  Fields the simulator does not model are written as zero.
 """
 
 from __future__ import annotations
@@ -140,6 +141,10 @@ def _ulog_bytes(log: FlightLog, biases: list[EstimatorBias], old: bool) -> bytes
         out += _umsg(b"F", f"{topic}:{fields}".encode())
     key = b"char[6] sys_name"
     out += _umsg(b"I", bytes([len(key)]) + key + b"PX4sim")
+    if log.board_id:     # the board's own id, where PX4's logger writes it
+        uuid = log.board_id.encode()
+        key = f"char[{len(uuid)}] sys_uuid".encode()
+        out += _umsg(b"I", bytes([len(key)]) + key + uuid)
     out += _param_bytes(log.params)
     streams: list[tuple[str, int, list[tuple[int, tuple[float | int | bool, ...]]]]] = []
     for inst in log.instances:
@@ -171,6 +176,7 @@ _DF_FORMATS = {
          "TimeUS,C,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ,OH", "<QBhhH7fhhhi"),
     67: ("XKF2", "QBccccchhhhhhhhh",
          "TimeUS,C,AX,AY,AZ,VWN,VWE,MN,ME,MD,MX,MY,MZ,IDX,IDY,IS", "<QB5h9h"),
+    91: ("MSG", "QZ", "TimeUS,Message", "<Q64s"),
 }
 
 
@@ -188,6 +194,8 @@ def _dataflash_bytes(log: FlightLog, biases: list[EstimatorBias]) -> bytes:
                                     name.encode(), fmt.encode(), cols.encode()))
     for name, value in sorted(log.params.items()):
         out += _df(64, struct.pack("<Q16sf", 0, name.encode()[:16], float(value)))
+    if log.board_id:     # the system-id line ArduPilot writes at the start of every log
+        out += _df(91, struct.pack("<Q64s", 0, log.board_id.encode()[:64]))
     records: list[tuple[int, int, bytes]] = []
     pairs: dict[int, dict[str, SensorInstance]] = {}
     for inst in log.instances:
