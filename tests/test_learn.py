@@ -223,3 +223,22 @@ def test_comparison_onnx_and_c_on_whole_flights(tmp_path):
     assert set(c["families"]) >= {"px4-cubic", "linear", "rbf"}
     for rel in doc["instances"]["gyro0"]["export"].values():
         assert (tmp_path / "out" / rel).is_file()
+
+
+def test_a_stopped_job_loses_no_log_read(tmp_path):
+    """Stopped (Ctrl-C) after its third log: the three stay cached and the next run reads only
+    the rest."""
+    paths = _write(simulate_flights(5, seed=6), tmp_path / "logs", ".ulg")
+    out = tmp_path / "out"
+
+    def stop_at_third(line: str) -> None:
+        if line.startswith("[3/"):
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        learn(paths, out, executor="serial", compare=False, say=stop_at_third)
+    assert len(list((out / "cache").glob("*.json"))) == 3 and not (out / "results.json").exists()
+    lines: list[str] = []
+    doc = learn(paths, out, executor="serial", compare=False, say=lines.append)
+    assert lines[0] == "5 logs: 3 read before (cache), 2 to read" and len(doc["logs"]) == 5
+

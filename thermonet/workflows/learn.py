@@ -146,8 +146,13 @@ def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
 
     if todo:
         out.joinpath("cache").mkdir(parents=True, exist_ok=True)
-        run_tasks(reduce_or_refuse, [str(files[k]) for k in todo], executor=executor,  # type: ignore[arg-type]
-                  workers=workers, ray_address=ray_address, on_done=arrived)
+        if executor == "serial":        # here, each log cached the moment it is read
+            for i, k in enumerate(todo):
+                arrived(i, _reduce_here(files[k]))
+        else:
+            run_tasks(reduce_or_refuse, [str(files[k]) for k in todo],
+                      executor=executor,  # type: ignore[arg-type]
+                      workers=workers, ray_address=ray_address, on_done=arrived)
     good, bad = [], []
     for k in range(len(files)):
         doc = got[k]
@@ -156,6 +161,15 @@ def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
         else:
             good.append(doc)
     return good, bad
+
+
+def _reduce_here(path: Path) -> dict[str, Any] | TaskFailure:
+    """:func:`~thermonet.workflows.learn_data.reduce_or_refuse` in this process; an
+    unexpected error is the log's failure (not cached, read again next time), as a worker's."""
+    try:
+        return reduce_or_refuse(str(path))
+    except Exception as err:  # noqa: BLE001 - one log's bug must not sink the job
+        return TaskFailure(f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}")
 
 
 def _strip(line: str, path: Path) -> str:
@@ -403,7 +417,9 @@ def learn(paths: Sequence[str | Path], out_dir: str | Path, *, executor: str = "
     try:
         logs, refused = _read_all(files, out, executor, workers, ray_address, say)
     except BaseException:
-        if fresh:                       # interrupted before any result: leave no directory
+        # stopped: the logs read so far stay cached (the next run resumes from them); a new
+        # directory that holds none is not left behind
+        if fresh and not any((out / "cache").glob("*.json")):
             shutil.rmtree(out, ignore_errors=True)
         raise
     if logs:
