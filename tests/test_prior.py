@@ -25,9 +25,9 @@ from thermonet.scoring.prior import (
     fit_unit,
     next_temperatures,
     points_needed,
-    soak_plan,
     posterior,
     shape_design,
+    soak_plan,
 )
 
 T_REF, SCALE = 25.0, 50.0

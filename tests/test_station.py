@@ -147,3 +147,30 @@ def test_points_needed_for_a_residual_limit(prior: Path) -> None:
         assert (row["points"] is None) == expect_none
         if not expect_none:
             assert row["points"] == 2 and len(row["temperatures_c"]) == 2
+
+
+def _station_on(executors: tuple[str, ...], prior: Path, tmp: Path) -> None:
+    """The same units on each executor: the same verdicts and the same unit files."""
+    (tmp / "new.yaml").write_text(FLEET.replace("seed: 0", "seed: 11"))
+    seen = []
+    for ex in executors:
+        out = tmp / f"st-{ex}"
+        main(["station", str(tmp / "new.yaml"), "--prior", str(prior), "--units", "3",
+              "--clusters", "2", "--test", "soaks:-10,25,60", "--out", str(out),
+              "--executor", ex, "--workers", "2", "-q"])
+        res = json.loads((out / "results.json").read_text())
+        files = {p.relative_to(out).as_posix(): p.read_bytes()
+                 for p in sorted((out / "units").rglob("*")) if p.is_file()}
+        seen.append(({d: u["axes"] for d, u in res["units"].items()}, files))
+    for other in seen[1:]:
+        assert other == seen[0]          # the same arithmetic in every process: bit-identical
+
+
+def test_serial_and_process_pool_give_identical_units(prior: Path, tmp_path: Path) -> None:
+    _station_on(("serial", "process"), prior, tmp_path)
+
+
+@pytest.mark.slow
+def test_serial_and_ray_give_identical_units(prior: Path, tmp_path: Path) -> None:
+    """A real local Ray (its start-up is most of this test's time; `make test-slow`)."""
+    _station_on(("serial", "ray"), prior, tmp_path)

@@ -198,7 +198,10 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
 def _station_sources(args: argparse.Namespace, cfg: Any) -> list[Any]:
     """Units for ``prior`` / ``station``: simulated (``--units``) or the config's data."""
     from .training.loader import load_fleet_data  # lazy: loads yaml
-    from .workflows.fleet_units import sources_from_dataset, sources_from_simulation
+    from .workflows.fleet_units import (  # lazy: off the --help path
+        sources_from_dataset,
+        sources_from_simulation,
+    )
 
     if args.units is None:
         for opt in ("outliers", "clusters", "test"):
@@ -217,10 +220,10 @@ def _station_sources(args: argparse.Namespace, cfg: Any) -> list[Any]:
 def _cmd_prior(args: argparse.Namespace) -> int:
     import json
 
-    from .core.fileio import atomic_write_text
-    from .core.recording import Dataset
+    from .core.fileio import atomic_write_text  # lazy: off the --help path
+    from .core.recording import Dataset  # lazy: off the --help path
     from .training.config import load_config  # lazy: loads yaml
-    from .workflows.station import (
+    from .workflows.station import (  # lazy: off the --help path
         TARGET_FRACTIONS,
         build_prior,
         parse_station_limits,
@@ -262,7 +265,7 @@ def _cmd_prior(args: argparse.Namespace) -> int:
 def _read_prior(path: str) -> Any:
     import json
 
-    from .scoring.prior import FleetPrior
+    from .scoring.prior import FleetPrior  # lazy: off the --help path
 
     p = Path(path)
     if not p.is_file():
@@ -278,7 +281,7 @@ def _read_prior(path: str) -> Any:
 
 def _cmd_station(args: argparse.Namespace) -> int:
     from .training.config import load_config  # lazy: loads yaml
-    from .workflows.station import (
+    from .workflows.station import (  # lazy: off the --help path
         EXIT_STATION_FAILED,
         StationOptions,
         format_station,

@@ -52,6 +52,7 @@ from ..core.fileio import _umask, atomic_write_text
 from ..core.names import c_comment, inside, path_components
 from ..core.outdir import check_target, install
 from ..core.recording import Dataset, split_units
+from ..core.schema import from_dict
 from ..features.target import AT_T_REF, FOUR_POSITION, output_units
 from ..scoring.fleetstats import flag_outliers
 from ..scoring.prior import (
@@ -357,8 +358,6 @@ class StationOptions:
 
 
 def parse_station_limits(cfg: CompareConfig) -> dict[str, StationLimit]:
-    from ..core.schema import from_dict
-
     where = getattr(cfg, "_source", "config")
     out = {}
     for axis, spec in (cfg.station.limits or {}).items():
