@@ -223,6 +223,9 @@ def test_comparison_onnx_and_c_on_whole_flights(tmp_path):
     assert set(c["families"]) >= {"px4-cubic", "linear", "rbf"}
     for rel in doc["instances"]["gyro0"]["export"].values():
         assert (tmp_path / "out" / rel).is_file()
+    # the comparison's own record names where it is, not the staging directory it was built in
+    text = (tmp_path / "out" / "instances" / "gyro0" / "results.json").read_text()
+    assert ".staging" not in text and str(tmp_path / "out" / "instances" / "gyro0") in text
 
 
 def test_a_stopped_job_loses_no_log_read(tmp_path):

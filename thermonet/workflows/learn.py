@@ -51,7 +51,7 @@ import numpy as np
 from ..core.errors import InputError, ThermonetError
 from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
-from ..core.outdir import sha256_file
+from ..core.outdir import relocate_json, sha256_file
 from ..core.recording import Dataset, Recording
 from ..core.version import __version__
 from ..data.firmware import FirmwareFit, ardupilot_calibration_text, px4_calibration_text
@@ -343,8 +343,12 @@ def _instance(inst: InstanceWindows, autopilot: str, stage: Path, do_compare: bo
         where = stage / "instances" / inst.name
         try:
             d["compare"] = _compare(inst, autopilot, where)
-            if d["compare"].get("status") == "ok" and do_export:
-                d["export"] = _export(where)
+            if d["compare"].get("status") == "ok":
+                if do_export:
+                    d["export"] = _export(where)
+                # its results.json names where it will be once installed, not the staging
+                relocate_json(where / "results.json", where,
+                              stage.parent / "instances" / inst.name)
         except ThermonetError as err:
             d["compare"] = {"status": "failed", "reason": str(err)}
     return d
