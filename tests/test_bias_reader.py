@@ -193,3 +193,13 @@ def test_real_px4_current_form_variance_and_validity():
         np.testing.assert_array_equal(s.valid, expect)
     gyro = next(x for x in log.series if x.source == "ekf" and x.kind == "gyro")
     assert 0 < (~gyro.valid).sum() < 10          # the first samples, before it settled
+
+
+def test_ardupilot_without_ekf_messages_is_one_line(tmp_path):
+    """An ArduPilot chamber log (IMU, BARO and PARM only) is refused in one line."""
+    path = write_log(simulate_board(seed=1, autopilot="ardupilot", rate_hz=0.05),
+                     tmp_path / "chamber.bin")
+    with pytest.raises(InputError) as err:
+        read_bias_log(path)
+    assert "chamber.bin" in str(err.value) and "no XKF1 / XKF2 messages" in str(err.value)
+    assert "\n" not in str(err.value)

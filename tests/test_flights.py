@@ -89,3 +89,20 @@ def test_round_trip_ulog_and_dataflash(tmp_path):
         counts[m.get_type()] = counts.get(m.get_type(), 0) + 1
     n = fa.biases[0].time_s.size
     assert counts == {"XKF1": 2 * n, "XKF2": 2 * n, "IMU": 3 * n}
+
+
+def test_simulate_command_writes_the_flights(tmp_path, capsys):
+    """``thermonet simulate fc-board-flights``: N logs in the directory, as .bin on request,
+    each read back by the bias reader; an option it does not use is refused, nothing written."""
+    from thermonet.cli import main
+    from thermonet.data.logs.bias import read_bias_log
+
+    out = tmp_path / "flights"
+    assert main(["simulate", "fc-board-flights", "--flights", "2", "--seed", "3", "--out",
+                 str(out), "--format", "bin"]) == 0
+    logs = sorted(out.glob("*.bin"))
+    assert [p.name for p in logs] == ["flight0001.bin", "flight0002.bin"]
+    assert read_bias_log(logs[1]).autopilot == "ardupilot"
+    assert main(["simulate", "fc-board-flights", "--flights", "2", "--runs", "3", "--out",
+                 str(tmp_path / "other")]) == 1
+    assert "--runs 3" in capsys.readouterr().err and not (tmp_path / "other").exists()

@@ -122,6 +122,11 @@ def _simulate_flights(args: argparse.Namespace) -> int:
                              f"flights (got '{args.preset}')")
     if args.flights is None:
         raise ThermonetError("fc-board-flights: give --flights N (the number of logs)")
+    unused = [f"--{name} {value}" for name, value in (("runs", args.runs), ("units", args.units))
+              if value is not None]
+    if unused:      # refused, not ignored
+        raise ThermonetError(f"{unused[0]}: fc-board-flights writes --flights N logs of one "
+                             "vehicle; it takes only --flights, --seed, --format and --out")
     if args.seed < 0:
         raise ThermonetError(f"--seed {args.seed}: must be a non-negative integer")
     out = Path(args.out)
