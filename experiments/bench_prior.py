@@ -12,7 +12,8 @@ unit is calibrated
 - **3 soaks + prior**: a short test of three 20-min soaks and the prior, at −15, 25, 65 °C
   and at −20, 25, 75 °C (the range's ends and t_ref);
 - **3 soaks at the prior's plan + prior**: the three temperatures ``soak_plan`` chooses from
-  the fold's prior (greedy I-optimal over every axis);
+  the fold's prior (greedy, the expected error of every axis by simulation under the
+  mixture), soaked in rising order;
 - **3 soaks alone**: the first test's points without the prior (its own cubic);
 - **ramp + prior**: 10 minutes of ramp at 1 °C/min (20 → 30 °C) and the prior;
 
@@ -95,6 +96,9 @@ def _own(fp: Any, pts: Any) -> np.ndarray | None:
         return None
 
 
+PLANS: dict[int, list[str]] = {}   # the prior's 3-soak plan per fold, per fleet size
+
+
 def _fleet(n_units: int, seed: int, **kw: Any) -> Dataset:
     """Units with their full sweep (run0) and a climate cycle (run1)."""
     cycle = get_preset(PRESET).procedures[0]
@@ -118,6 +122,7 @@ def leave_units_out(n_units: int) -> dict[str, Any]:
         train = _sweeps(Dataset(runs=[r for d in ids if d not in held for r in units[d]]))
         fp = build_prior(CFG, train, source="bench")
         plan = "soaks:" + ",".join(f"{t:g}" for t in soak_plan(fp, 3))
+        PLANS.setdefault(n_units, []).append(plan)
         short["plan"] = split_units(simulate_fleet(
             PRESET, units=n_units, seed=SEED, clusters=CLUSTERS, test=plan,
             unit_indices=[ids.index(d) for d in held]))
@@ -207,13 +212,17 @@ def main() -> None:
                         r["3 soaks at the ends + prior"]["median"],
                         r["3 soaks at the ends + prior"]["p90"],
                         r["3 soaks at the plan + prior"]["median"],
+                        r["3 soaks at the plan + prior"]["p90"],
                         r["3 soaks alone"]["median"], r["ramp + prior"]["median"],
                         r["ramp + prior"]["p90"], r["full (error)"]["median"]]
                        for ax, r in res.items()), key=lambda row: -row[1])
-        md.append(f"### Leave units out, {n} units ({time.perf_counter() - t0:.0f} s)\n\n" +
+        data["plans"] = PLANS
+        md.append(f"### Leave units out, {n} units ({time.perf_counter() - t0:.0f} s)\n\n"
+                  f"the prior's plans: {'; '.join(PLANS.get(n, []))}\n\n" +
                   table(["axis", "3 soaks+prior / full (median)", "p90",
                          "3 soaks at the ends+prior / full", "p90",
-                         "3 soaks at the prior's plan+prior / full", "3 soaks alone / full",
+                         "3 soaks at the prior's plan+prior / full", "p90",
+                         "3 soaks alone / full",
                          "10-min ramp+prior / full", "p90", "full: error (median)"], rows))
     n0 = int(a.units.split(",")[0])
     data["outliers"] = outliers(n0, a.new_units, a.new_outliers)

@@ -12,9 +12,11 @@ from thermonet.cli import build_parser
 #: per command: (arguments that set every option, the namespace they must give)
 FULL = {
     "simulate": (["patent-gyro", "--runs", "3", "--seed", "7", "--out", "x.csv",
-                  "--units", "4", "--outliers", "1", "--flights", "5", "--format", "bin"],
+                  "--units", "4", "--outliers", "1", "--flights", "5", "--format", "bin",
+                  "--clusters", "2", "--test", "soaks:0,25,50"],
                  {"preset": "patent-gyro", "runs": 3, "seed": 7, "out": "x.csv", "units": 4,
-                  "outliers": 1, "flights": 5, "format": "bin"}),
+                  "outliers": 1, "flights": 5, "format": "bin", "clusters": 2,
+                  "test": "soaks:0,25,50"}),
     "info": (["a.csv", "b.csv", "--mapping", "m.yaml", "--json", "--chunk-rows", "10"],
              {"files": ["a.csv", "b.csv"], "mapping": "m.yaml", "json": True,
               "chunk_rows": 10}),
@@ -55,6 +57,16 @@ FULL = {
                "tracking_uri": "u", "quiet": True, "no_plots": True, "units": 8,
                "outliers": 2, "executor": "serial", "workers": 3, "ray_address": "r:1",
                "family": "lin", "folds": 0}),
+    "prior": (["c.yaml", "--out", "p.json", "--units", "30", "--outliers", "2", "--clusters",
+               "3", "-q"],
+              {"config": "c.yaml", "out": "p.json", "units": 30, "outliers": 2, "clusters": 3,
+               "quiet": True}),
+    "station": (["c.yaml", "--prior", "p.json", "--out", "o", "--units", "9", "--outliers",
+                 "1", "--clusters", "3", "--test", "ramp:20,30,10", "--executor", "ray",
+                 "--workers", "2", "--ray-address", "r:1", "--overwrite", "-q"],
+                {"config": "c.yaml", "prior": "p.json", "out": "o", "units": 9, "outliers": 1,
+                 "clusters": 3, "test": "ramp:20,30,10", "executor": "ray", "workers": 2,
+                 "ray_address": "r:1", "overwrite": True, "quiet": True}),
     "learn": (["a.ulg", "d", "--out", "o", "--executor", "serial", "--workers", "2",
                "--ray-address", "r:1", "--no-compare", "--no-export", "-q"],
               {"logs": ["a.ulg", "d"], "out": "o", "executor": "serial", "workers": 2,
@@ -65,7 +77,7 @@ FULL = {
 MINIMAL = {
     "simulate": (["accel", "--out", "x.parquet"],
                  {"runs": None, "seed": 0, "units": None, "outliers": 0, "flights": None,
-                  "format": None}),
+                  "format": None, "clusters": 0, "test": None}),
     "info": (["a.csv"], {"mapping": None, "json": False, "chunk_rows": None}),
     "convert": (["a.csv", "--out", "o.parquet"],
                 {"mapping": None, "overwrite": False, "chunk_rows": None}),
@@ -88,6 +100,12 @@ MINIMAL = {
               {"overwrite": False, "no_track": False, "tracking_uri": None, "quiet": False,
                "no_plots": False, "units": None, "outliers": 0, "executor": "process",
                "workers": None, "ray_address": None, "family": None, "folds": 5}),
+    "prior": (["c.yaml", "--out", "p.json"],
+              {"units": None, "outliers": 0, "clusters": 0, "quiet": False}),
+    "station": (["c.yaml", "--prior", "p.json", "--out", "o"],
+                {"units": None, "outliers": 0, "clusters": 0, "test": None,
+                 "executor": "process", "workers": None, "ray_address": None,
+                 "overwrite": False, "quiet": False}),
     "learn": (["d", "--out", "o"],
               {"executor": "process", "workers": None, "ray_address": None,
                "no_compare": False, "no_export": False, "quiet": False}),
@@ -102,7 +120,8 @@ def _subparsers() -> dict[str, argparse.ArgumentParser]:
 
 def test_the_commands_in_the_order_help_lists_them():
     assert list(_subparsers()) == ["simulate", "info", "convert", "compare", "train",
-                                   "export", "calibrate", "verify", "fleet", "learn"]
+                                   "export", "calibrate", "verify", "fleet", "learn",
+                                   "prior", "station"]
 
 
 @pytest.mark.parametrize("command", list(FULL))

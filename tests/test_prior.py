@@ -197,7 +197,7 @@ def test_one_test_for_every_axis_leaves_out_an_axis_without_drift() -> None:
                      with_flat.targets, 20, fp.unit_ids)
     solo = FleetPrior([drifting], 3, T_REF, SCALE, fp.range_c, {"gyro_x": "deg/s"},
                       {"gyro_x": "zero"}, 20, fp.unit_ids)
-    assert soak_plan(one, 3) == next_temperatures(solo, "gyro_x", [], 3)
+    assert soak_plan(one, 3) == sorted(next_temperatures(solo, "gyro_x", [], 3))
 
 
 def test_points_needed_decrease_and_meet_their_target() -> None:
@@ -228,3 +228,24 @@ def test_prior_file_round_trip_and_refusals() -> None:
     nan = {**data, "axes": {"gyro_x": {**data["axes"]["gyro_x"], "misfit_var": float("nan")}}}
     with pytest.raises(InputError, match="misfit_var"):
         FleetPrior.from_dict(nan, "p.json")
+
+
+def test_a_mixture_design_is_judged_on_telling_its_clusters_apart() -> None:
+    """Two clusters: a slope, or a cubic of the same values at u = −1, 0, 1 (u³ = u there).
+    Points at those three temperatures cannot tell them apart; points at u = −1, 0.5, 1 can,
+    so the simulated expected error of the first design is several times the second's."""
+    from thermonet.scoring.prior import _axis_error
+
+    covs = np.array([np.eye(3) * 1e-6] * 2)
+    ap = AxisPrior("gyro_x", np.array([0.5, 0.5]), np.array([[0.1, 0, 0], [0, 0, 0.1]]), covs,
+                   1e-6, 0.0)
+    fp = FleetPrior([ap], 3, T_REF, SCALE, (T_REF - SCALE, T_REF + SCALE), {"gyro_x": "deg/s"},
+                    {"gyro_x": "zero"}, 20, [f"u{i}" for i in range(20)])
+    err = _axis_error(fp, "gyro_x", 2.5)
+    blind = err([T_REF - SCALE, T_REF, T_REF + SCALE])
+    sharp = err([T_REF - SCALE, T_REF + SCALE / 2, T_REF + SCALE])
+    assert blind > 5 * sharp
+    # blind: half the draws get the wrong cluster's curve, an error of half their gap
+    grid = shape_design(np.arange(T_REF - SCALE, T_REF + SCALE + 1e-9, 2.5), T_REF, SCALE, 3)
+    gap = grid @ (ap.means[0] - ap.means[1])
+    assert blind == pytest.approx(0.5 * np.sqrt(np.mean((gap - gap.mean()) ** 2)), rel=0.25)

@@ -522,13 +522,61 @@ def _design_setup(fp: FleetPrior, axis: str, step_c: float
     return ap, _candidates(fp, step_c), grid, 1.0 / (ap.misfit_var + ap.sampling_var + 1e-300)
 
 
+#: Units drawn from a mixture prior to judge a design by simulation (fixed seed: the same
+#: plan every time).
+DESIGN_DRAWS = 400
+
+
+def _mixture_error(fp: FleetPrior, ap: AxisPrior, grid: np.ndarray, w0: float
+                   ) -> Callable[[list[float]], float]:
+    """Expected error of a design under a mixture prior, by simulation: units drawn from the
+    mixture, their points at the design's temperatures (the point error added), each one's
+    posterior shape (clusters reweighted by evidence, as :func:`posterior`) against its own
+    curve.  Unlike one Gaussian's, it depends on how well the points tell the clusters apart."""
+    rng = np.random.default_rng(0)
+    comp = rng.choice(ap.n_clusters, size=DESIGN_DRAWS, p=ap.weights)
+    z = rng.standard_normal((DESIGN_DRAWS, fp.degree))
+    beta = ap.means[comp] + np.einsum("nij,nj->ni", np.linalg.cholesky(ap.covs)[comp], z)
+    noise = rng.standard_normal((DESIGN_DRAWS, 64)) / math.sqrt(w0)
+    Gc = grid - grid.mean(axis=0)
+    sinv = np.linalg.inv(ap.covs)
+    consts = [float(mu @ si @ mu) + float(np.linalg.slogdet(S)[1])
+              for mu, si, S in zip(ap.means, sinv, ap.covs, strict=True)]
+
+    def err(temps: list[float]) -> float:
+        X = shape_design(np.asarray(temps), fp.t_ref, fp.scale, fp.degree)
+        Xc = X - X.mean(axis=0)
+        y = beta @ X.T + noise[:, :len(temps)]
+        yc = y - y.mean(axis=1, keepdims=True)
+        J, b = w0 * Xc.T @ Xc, w0 * yc @ Xc                       # (d, d), (draws, d)
+        logev, means = [], []
+        for mu, si, c in zip(ap.means, sinv, consts, strict=True):
+            A = si + J
+            m = np.linalg.solve(A, (si @ mu)[:, None] + b.T).T     # (draws, d)
+            q = w0 * np.sum(yc ** 2, axis=1) + c - np.einsum("ni,ij,nj->n", m, A, m)
+            logev.append(-0.5 * (q + np.linalg.slogdet(A)[1]))
+            means.append(m)
+        lw = np.log(ap.weights)[:, None] + np.asarray(logev)
+        wp = np.exp(lw - lw.max(axis=0))
+        wp /= wp.sum(axis=0)
+        shape = np.einsum("kn,kni->ni", wp, np.asarray(means))
+        e = (shape - beta) @ Gc.T
+        return float(np.sqrt(np.mean(e ** 2)))
+    return err
+
+
 def _axis_error(fp: FleetPrior, axis: str, step_c: float) -> Callable[[list[float]], float]:
-    """Expected error of ``axis``'s offset-free curve after one run's points at ``temps``."""
+    """Expected error of ``axis``'s offset-free curve after one run's points at ``temps``
+    (exact for one cluster, where it does not depend on the values measured; by simulation
+    for a mixture, :func:`_mixture_error`)."""
     ap, _, grid, w0 = _design_setup(fp, axis, step_c)
+    mixture = _mixture_error(fp, ap, grid, w0) if ap.n_clusters > 1 else None
 
     def err(temps: list[float]) -> float:
         if len(temps) < 2:
             return expected_error(ap, np.zeros((fp.degree, fp.degree)), grid)
+        if mixture is not None:
+            return mixture(temps)
         X = shape_design(np.asarray(temps), fp.t_ref, fp.scale, fp.degree)
         return expected_error(ap, _run_information(X, np.full(len(temps), w0)), grid)
     return err
@@ -573,7 +621,9 @@ def soak_plan(fp: FleetPrior, n: int, *, measured_c: list[float] | None = None,
                       step_c: float = 2.5) -> list[float]:
     """One test for every axis: the ``n`` soak temperatures lowering most the sum over axes
     of (expected error / the axis's typical drift)² — axes whose drift is below a point's own
-    error left out (nothing to learn there)."""
+    error left out (nothing to learn there) — in rising order: soak them in that order, so
+    that a hysteresis stays on one branch (the prior's points are each a constant apart per
+    run, not per branch; measured, a test that turned back did worse)."""
     costs = []
     for ap in fp.axes:
         typ = typical_drift(fp, ap.axis)
@@ -584,7 +634,7 @@ def soak_plan(fp: FleetPrior, n: int, *, measured_c: list[float] | None = None,
 
     def cost(temps: list[float]) -> float:
         return sum((err(temps) / typ) ** 2 for err, typ in costs)
-    return _greedy(cost, _candidates(fp, step_c), list(measured_c or []), n)
+    return sorted(_greedy(cost, _candidates(fp, step_c), list(measured_c or []), n))
 
 
 def design_errors(fp: FleetPrior, axis: str, *, max_points: int = 12, step_c: float = 2.5
