@@ -4,7 +4,8 @@ The simulator of flights (:mod:`thermonet.sim.flights`) writes through here so t
 ``thermonet learn`` reads simulated flights with the same readers — and the autopilots' own
 tools, pyulog and pymavlink — as real ones.  (:mod:`thermonet.data.logs.writers` writes the
 sensor topics of a chamber log; this module adds the estimator's topics, so it writes every
-topic itself: a ULog's formats must all precede its data.)
+ULog topic itself — a ULog's formats must all precede its data — and shares that module's
+ULog header and info messages, DataFlash head and ``IMU`` records.)
 
 ULog: ``sensor_gyro`` / ``sensor_accel`` as :mod:`~thermonet.data.logs.writers` writes them,
 and ``estimator_sensor_bias`` per estimator instance in PX4's current form
@@ -35,10 +36,21 @@ import numpy as np
 from ...core.errors import InputError
 from ...core.fileio import atomic_path
 from .base import FlightLog, SensorInstance
+from .writers import (
+    _DF_IMU,
+    _DF_MSG,
+    _DF_PARM,
+    DfFormat,
+    _df,
+    _df_head,
+    _df_imu_records,
+    _ulog_info,
+    _ulog_start,
+    _umsg,
+)
 
 __all__ = ["EstimatorBias", "write_flight"]
 
-_ULOG_MAGIC = b"ULog\x01\x12\x35"
 _CTYPES = {"uint64_t": "Q", "uint32_t": "I", "int32_t": "i", "float": "f", "bool": "?",
            "uint8_t": "B", "int16_t": "h", "uint16_t": "H"}
 _INT_PARAMS = ("_ID", "_ENABLE", "SDLOG_", "_DEVID", "ORIENTATION", "_OPTIONS", "_ROT",
@@ -60,10 +72,6 @@ class EstimatorBias:
     accel_variance: np.ndarray | None = None
     gyro_valid: np.ndarray | None = None
     accel_valid: np.ndarray | None = None
-
-
-def _umsg(mtype: bytes, payload: bytes) -> bytes:
-    return struct.pack("<HB", len(payload), mtype[0]) + payload
 
 
 def _struct(fields: str) -> str:
@@ -131,20 +139,14 @@ def _param_bytes(params: dict[str, float]) -> bytes:
 
 
 def _ulog_bytes(log: FlightLog, biases: list[EstimatorBias], old: bool) -> bytes:
-    out = bytearray(_ULOG_MAGIC + bytes([1]) + struct.pack("<Q", 0))
-    out += _umsg(b"B", bytes(16) + struct.pack("<QQQ", 0, 0, 0))
+    out = _ulog_start()
     sensor = ("uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float x;"
               "float y;float z;float temperature;")
     formats = {"sensor_gyro": sensor, "sensor_accel": sensor,
                "estimator_sensor_bias": "uint64_t timestamp;" + _bias_fields(old)}
     for topic, fields in formats.items():
         out += _umsg(b"F", f"{topic}:{fields}".encode())
-    key = b"char[6] sys_name"
-    out += _umsg(b"I", bytes([len(key)]) + key + b"PX4sim")
-    if log.board_id:     # the board's own id, where PX4's logger writes it
-        uuid = log.board_id.encode()
-        key = f"char[{len(uuid)}] sys_uuid".encode()
-        out += _umsg(b"I", bytes([len(key)]) + key + uuid)
+    out += _ulog_info(log)
     out += _param_bytes(log.params)
     streams: list[tuple[str, int, list[tuple[int, tuple[float | int | bool, ...]]]]] = []
     for inst in log.instances:
@@ -165,18 +167,14 @@ def _ulog_bytes(log: FlightLog, biases: list[EstimatorBias], old: bool) -> bytes
     return bytes(out)
 
 
-def _df(mtype: int, payload: bytes) -> bytes:
-    return b"\xa3\x95" + bytes([mtype]) + payload
-
-
-_DF_FORMATS = {
-    64: ("PARM", "QNf", "TimeUS,Name,Value", "<Q16sf"),
-    65: ("IMU", "QBfffffff", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,T", "<QB7f"),
+_DF_FORMATS: dict[int, DfFormat] = {
+    64: _DF_PARM,
+    65: _DF_IMU,
     66: ("XKF1", "QBccCfffffffccce",
          "TimeUS,C,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ,OH", "<QBhhH7fhhhi"),
     67: ("XKF2", "QBccccchhhhhhhhh",
          "TimeUS,C,AX,AY,AZ,VWN,VWE,MN,ME,MD,MX,MY,MZ,IDX,IDY,IS", "<QB5h9h"),
-    91: ("MSG", "QZ", "TimeUS,Message", "<Q64s"),
+    91: _DF_MSG,
 }
 
 
@@ -186,31 +184,8 @@ def _centi(v: float) -> int:
 
 
 def _dataflash_bytes(log: FlightLog, biases: list[EstimatorBias]) -> bytes:
-    out = bytearray()
-    fmts = {128: ("FMT", "BBnNZ", "Type,Length,Name,Format,Columns", "<BB4s16s64s"),
-            **_DF_FORMATS}
-    for mtype, (name, fmt, cols, pack) in sorted(fmts.items(), key=lambda d: d[0] != 128):
-        out += _df(128, struct.pack("<BB4s16s64s", mtype, struct.calcsize(pack) + 3,
-                                    name.encode(), fmt.encode(), cols.encode()))
-    for name, value in sorted(log.params.items()):
-        out += _df(64, struct.pack("<Q16sf", 0, name.encode()[:16], float(value)))
-    if log.board_id:     # the system-id line ArduPilot writes at the start of every log
-        out += _df(91, struct.pack("<Q64s", 0, log.board_id.encode()[:64]))
-    records: list[tuple[int, int, bytes]] = []
-    pairs: dict[int, dict[str, SensorInstance]] = {}
-    for inst in log.instances:
-        if inst.kind in ("gyro", "acc"):
-            pairs.setdefault(inst.instance, {})[inst.kind] = inst
-    for k, pair in sorted(pairs.items()):
-        if set(pair) != {"gyro", "acc"}:
-            raise InputError(f"IMU {k} needs both a gyro and an accelerometer for a DataFlash IMU")
-        g, a = pair["gyro"], pair["acc"]
-        temp = g.temperature_c if g.temperature_c is not None else np.zeros(g.n_samples)
-        us = np.round(g.time_s * 1e6).astype(np.int64)
-        for i in range(g.n_samples):
-            records.append((int(us[i]), k, _df(65, struct.pack(
-                "<QB7f", int(us[i]), k, *[float(v) for v in g.values[i]],
-                *[float(v) for v in a.values[i]], float(temp[i])))))
+    out = _df_head(_DF_FORMATS, log)
+    records = _df_imu_records(log)
     deg = 180.0 / math.pi
     for b in biases:
         us = np.round(b.time_s * 1e6).astype(np.int64)

@@ -50,9 +50,27 @@ def _umsg(mtype: bytes, payload: bytes) -> bytes:
     return struct.pack("<HB", len(payload), mtype[0]) + payload
 
 
-def _ulog_bytes(log: FlightLog) -> bytes:
+def _ulog_start() -> bytearray:
+    """The ULog header and its flag-bits message (what every log starts with)."""
     out = bytearray(_ULOG_MAGIC + bytes([1]) + struct.pack("<Q", 0))
     out += _umsg(b"B", bytes(16) + struct.pack("<QQQ", 0, 0, 0))
+    return out
+
+
+def _ulog_info(log: FlightLog) -> bytes:
+    """The info messages: ``sys_name``, and ``sys_uuid`` where PX4's logger writes the board's
+    own id."""
+    key = b"char[6] sys_name"
+    out = _umsg(b"I", bytes([len(key)]) + key + b"PX4sim")
+    if log.board_id:
+        uuid = log.board_id.encode()
+        key = f"char[{len(uuid)}] sys_uuid".encode()
+        out += _umsg(b"I", bytes([len(key)]) + key + uuid)
+    return out
+
+
+def _ulog_bytes(log: FlightLog) -> bytes:
+    out = _ulog_start()
     formats = {
         "gyro": ("sensor_gyro", "uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;"
                  "float x;float y;float z;float temperature;", "<QQIffff"),
@@ -67,12 +85,7 @@ def _ulog_bytes(log: FlightLog) -> bytes:
                           "uint32_t error_count;bool is_external;", "<QQIffffI?")
     for topic, fields, _ in formats.values():
         out += _umsg(b"F", f"{topic}:{fields}".encode())
-    key = b"char[6] sys_name"
-    out += _umsg(b"I", bytes([len(key)]) + key + b"PX4sim")
-    if log.board_id:     # where PX4's logger writes the board's own id
-        uuid = log.board_id.encode()
-        key = f"char[{len(uuid)}] sys_uuid".encode()
-        out += _umsg(b"I", bytes([len(key)]) + key + uuid)
+    out += _ulog_info(log)
     for name, value in sorted(log.params.items()):
         if _is_int_param(name):
             k = f"int32_t {name}".encode()
@@ -105,27 +118,31 @@ def _df(mtype: int, payload: bytes) -> bytes:
     return b"\xa3\x95" + bytes([mtype]) + payload
 
 
-def _dataflash_bytes(log: FlightLog) -> bytes:
-    defs = {128: ("FMT", "BBnNZ", "Type,Length,Name,Format,Columns"),
-            64: ("PARM", "QNf", "TimeUS,Name,Value"),
-            65: ("IMU", "QBfffffff", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,T"),
-            66: ("BARO", "QBff", "TimeUS,I,Press,Temp")}
-    sizes = {"FMT": struct.calcsize("<BB4s16s64s"), "PARM": struct.calcsize("<Q16sf"),
-             "IMU": struct.calcsize("<QB7f"), "BARO": struct.calcsize("<QBff"),
-             "MAG": struct.calcsize("<QB9hBI"), "MSG": struct.calcsize("<Q64s")}
-    if any(i.kind == "mag" for i in log.instances):
-        defs[67] = ("MAG", "QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,"
-                    "Health,S")
-    if log.board_id:
-        defs[91] = ("MSG", "QZ", "TimeUS,Message")
+#: A DataFlash format: (name, format letters, columns, the struct that packs its payload).
+DfFormat = tuple[str, str, str, str]
+_DF_FMT: DfFormat = ("FMT", "BBnNZ", "Type,Length,Name,Format,Columns", "<BB4s16s64s")
+_DF_PARM: DfFormat = ("PARM", "QNf", "TimeUS,Name,Value", "<Q16sf")
+_DF_IMU: DfFormat = ("IMU", "QBfffffff", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,T", "<QB7f")
+_DF_MSG: DfFormat = ("MSG", "QZ", "TimeUS,Message", "<Q64s")
+
+
+def _df_head(formats: dict[int, DfFormat], log: FlightLog) -> bytearray:
+    """``FMT`` (type 128) first, then every other format, the ``PARM`` lines and, with a board
+    id, the system-id ``MSG`` line ArduPilot writes at the start of every log."""
     out = bytearray()
-    for mtype, (name, fmt, cols) in sorted(defs.items(), key=lambda d: d[0] != 128):
-        out += _df(128, struct.pack("<BB4s16s64s", mtype, sizes[name] + 3, name.encode(),
-                                    fmt.encode(), cols.encode()))
+    for mtype, (name, fmt, cols, pack) in sorted({128: _DF_FMT, **formats}.items(),
+                                                 key=lambda d: d[0] != 128):
+        out += _df(128, struct.pack("<BB4s16s64s", mtype, struct.calcsize(pack) + 3,
+                                    name.encode(), fmt.encode(), cols.encode()))
     for name, value in sorted(log.params.items()):
         out += _df(64, struct.pack("<Q16sf", 0, name.encode()[:16], float(value)))
-    if log.board_id:     # the system-id line ArduPilot writes at the start of every log
+    if log.board_id:
         out += _df(91, struct.pack("<Q64s", 0, log.board_id.encode()[:64]))
+    return out
+
+
+def _df_imu_records(log: FlightLog) -> list[tuple[int, int, bytes]]:
+    """``IMU`` records (type 65) of every gyro/accelerometer pair: (µs, instance, bytes)."""
     records: list[tuple[int, int, bytes]] = []
     imus: dict[int, dict[str, SensorInstance]] = {}
     for inst in log.instances:
@@ -141,6 +158,19 @@ def _dataflash_bytes(log: FlightLog) -> bytes:
             records.append((int(us[i]), k, _df(65, struct.pack(
                 "<QB7f", int(us[i]), k, *[float(v) for v in g.values[i]],
                 *[float(v) for v in a.values[i]], float(temp[i])))))
+    return records
+
+
+def _dataflash_bytes(log: FlightLog) -> bytes:
+    defs: dict[int, DfFormat] = {64: _DF_PARM, 65: _DF_IMU,
+                                 66: ("BARO", "QBff", "TimeUS,I,Press,Temp", "<QBff")}
+    if any(i.kind == "mag" for i in log.instances):
+        defs[67] = ("MAG", "QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,"
+                    "Health,S", "<QB9hBI")
+    if log.board_id:
+        defs[91] = _DF_MSG
+    out = _df_head(defs, log)
+    records = _df_imu_records(log)
     for inst in log.instances:
         if inst.kind != "baro":
             continue
