@@ -229,8 +229,8 @@ def _cmd_prior(args: argparse.Namespace) -> int:
     from .core.recording import Dataset  # lazy: off the --help path
     from .training.config import load_config  # lazy: loads yaml
     from .workflows.station import (  # lazy: off the --help path
-        TARGET_FRACTIONS,
         build_prior,
+        format_prior,
         parse_station_limits,
         prior_summary,
     )
@@ -246,24 +246,7 @@ def _cmd_prior(args: argparse.Namespace) -> int:
     data["summary"] = prior_summary(fp, parse_station_limits(cfg))
     atomic_write_text(out, json.dumps(data, indent=2))
     if not args.quiet:
-        print(f"wrote {out}: prior of {fp.n_units} units ({len(fp.excluded)} left out), axes "
-              f"{', '.join(fp.axis_names)}, {fp.range_c[0]:g} to {fp.range_c[1]:g} °C")
-        for axis, s in data["summary"].items():
-            need = s["points_needed"][0]
-            if s["typical_drift_rms"] < s["point_error"]:
-                print(f"  {axis}: {s['clusters']} cluster(s); its drift ({s['typical_drift_rms']:.3g}"
-                      f" RMS over the range) is below a point's own error ({s['point_error']:.3g})"
-                      ": a test fixes its offset, there is no curve to learn")
-                continue
-            pts = f"{need['points']} points ({', '.join(f'{t:g}' for t in need['temperatures_c'])}"\
-                f" °C)" if need["points"] else "more than 12 points"
-            print(f"  {axis}: {s['clusters']} cluster(s); {pts} for an expected error of 20 % "
-                  f"of the fleet's drift ({need['target']:.3g})")
-            for row in s["points_needed"][len(TARGET_FRACTIONS):]:
-                print(f"    station.limits max_residual {row['target']:.3g}: " + (
-                    f"{row['points']} points ({', '.join(f'{t:g}' for t in row['temperatures_c'])}"
-                    " °C)" if row["points"] else "not reachable within 12 points (the fleet's "
-                    "misfit alone is about that large)"))
+        print(f"wrote {out}: " + format_prior(fp, data["summary"]))
     return 0
 
 

@@ -78,7 +78,7 @@ from ..training.config import CompareConfig, outputs_of
 from ..training.parts import build_part, targets_for
 from .fleet_units import UnitSource
 
-__all__ = ["build_prior", "run_station", "prior_summary", "parse_station_limits", "format_station", "unit_points", "StationOptions", "HELD_OUT_GROUPS",
+__all__ = ["build_prior", "run_station", "prior_summary", "parse_station_limits", "format_station", "format_prior", "unit_points", "StationOptions", "HELD_OUT_GROUPS",
            "EXIT_STATION_FAILED", "BAND_Z"]
 
 #: Contiguous temperature groups a unit's points are dealt into for its held-out residual.
@@ -216,6 +216,32 @@ def prior_summary(fp: FleetPrior, limits: dict[str, StationLimit] | None = None
     return out
 
 
+def _points_text(row: dict[str, Any]) -> str:
+    return f"{row['points']} points ({', '.join(f'{t:g}' for t in row['temperatures_c'])} °C)"
+
+
+def format_prior(fp: FleetPrior, summary: dict[str, Any]) -> str:
+    """What ``thermonet prior`` prints: the prior, then per axis its clusters and the points a
+    test needs (:func:`prior_summary`)."""
+    lines = [f"prior of {fp.n_units} units ({len(fp.excluded)} left out), axes "
+             f"{', '.join(fp.axis_names)}, {fp.range_c[0]:g} to {fp.range_c[1]:g} °C"]
+    for axis, s in summary.items():
+        head = f"  {axis}: {s['clusters']} cluster(s); "
+        if s["typical_drift_rms"] < s["point_error"]:
+            lines.append(head + f"its drift ({s['typical_drift_rms']:.3g} RMS over the range) is "
+                         f"below a point's own error ({s['point_error']:.3g}): a test fixes its "
+                         "offset, there is no curve to learn")
+            continue
+        need = s["points_needed"][0]
+        lines.append(head + (_points_text(need) if need["points"] else "more than 12 points") +
+                     f" for an expected error of 20 % of the fleet's drift ({need['target']:.3g})")
+        for row in s["points_needed"][len(TARGET_FRACTIONS):]:
+            lines.append(f"    station.limits max_residual {row['target']:.3g}: " + (
+                _points_text(row) if row["points"] else "not reachable within 12 points (the "
+                "fleet's misfit alone is about that large)"))
+    return "\n".join(lines)
+
+
 # ------------------------------------------------------------------ one new unit
 @dataclass
 class StationItem:
@@ -261,9 +287,8 @@ def _axis_result(fp: FleetPrior, axis: str, p: Points, lim: StationLimit,
                  flag: bool) -> dict[str, Any]:
     ap = fp.axis(axis)
     post = posterior(ap, p, t_ref=fp.t_ref, scale=fp.scale)
-    X = shape_design(p.temperature_c, fp.t_ref, fp.scale, fp.degree)
-    consts = [float(np.mean(p.value[p.run == r] - (X @ post.shape)[p.run == r]))
-              for r in np.unique(p.run)]
+    resid = p.value - shape_design(p.temperature_c, fp.t_ref, fp.scale, fp.degree) @ post.shape
+    consts = [float(np.mean(resid[p.run == r])) for r in np.unique(p.run)]
     c0 = 0.0 if fp.targets[axis] == AT_T_REF else float(np.mean(consts))
     coeffs = [c0] + fp.physical(post.shape)
     grid_t = np.arange(fp.range_c[0], fp.range_c[1] + 1e-9, 5.0)
