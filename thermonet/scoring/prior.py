@@ -516,10 +516,12 @@ def expected_error(prior: AxisPrior, information: np.ndarray, grid: np.ndarray) 
 
 
 def _design_setup(fp: FleetPrior, axis: str, step_c: float
-                  ) -> tuple[AxisPrior, np.ndarray, np.ndarray, float]:
+                  ) -> tuple[AxisPrior, np.ndarray, float]:
+    """The axis's prior, its design rows over the candidate temperatures (where the error is
+    averaged) and the weight of one point."""
     ap = fp.axis(axis)
     grid = shape_design(_candidates(fp, step_c), fp.t_ref, fp.scale, fp.degree)
-    return ap, _candidates(fp, step_c), grid, 1.0 / (ap.misfit_var + ap.sampling_var + 1e-300)
+    return ap, grid, 1.0 / (ap.misfit_var + ap.sampling_var + 1e-300)
 
 
 #: Units drawn from a mixture prior to judge a design by simulation (fixed seed: the same
@@ -569,7 +571,7 @@ def _axis_error(fp: FleetPrior, axis: str, step_c: float) -> Callable[[list[floa
     """Expected error of ``axis``'s offset-free curve after one run's points at ``temps``
     (exact for one cluster, where it does not depend on the values measured; by simulation
     for a mixture, :func:`_mixture_error`)."""
-    ap, _, grid, w0 = _design_setup(fp, axis, step_c)
+    ap, grid, w0 = _design_setup(fp, axis, step_c)
     mixture = _mixture_error(fp, ap, grid, w0) if ap.n_clusters > 1 else None
 
     def err(temps: list[float]) -> float:
@@ -641,7 +643,7 @@ def design_errors(fp: FleetPrior, axis: str, *, max_points: int = 12, step_c: fl
                   ) -> tuple[list[float], list[float]]:
     """The first ``max_points`` temperatures of one run in :func:`next_temperatures` order,
     and the expected error after 2 … ``max_points`` of them."""
-    ap, _, grid, w0 = _design_setup(fp, axis, step_c)
+    ap, grid, w0 = _design_setup(fp, axis, step_c)
     temps = next_temperatures(fp, axis, [], max_points, step_c=step_c)
     errs = []
     for k in range(2, max_points + 1):
