@@ -300,7 +300,7 @@ def test_the_folds_domain_is_joint_a_rate_never_trained_at_that_temperature_is_o
     """Training saw fast cooling only when cold and slow cooling only when hot: a row that is
     hot and cooling fast has each signal inside its own range, yet it is outside the joint
     domain; the same row's neighbours in temperature with a trained rate are inside."""
-    from thermonet.scoring.selection import in_domain, joint_domain
+    from thermonet.scoring.domain import in_domain, joint_domain
 
     t = np.r_[np.linspace(-10.0, 10.0, 200), np.linspace(40.0, 60.0, 200)]
     rate = np.r_[np.full(200, -2.0), np.full(200, -0.2)]
@@ -387,8 +387,10 @@ def test_heating_only_then_cooling_the_rule_before_ships_a_loser_the_gate_keeps_
     """stress-imu (its sensing element 7 min behind the thermometer): calibrated on the heating
     legs of one cycle, verified on its cooling legs.  Interleaved blocks and the one-SE rule
     (the rule before) ship a rate or hysteresis model that is worse than the cubic on the
-    cooling by half again or more; the gate (the pool heats only: no direction-carrying model,
-    and no challenger on blocks) ships the cubic, equal to it on every axis."""
+    cooling (by half again or more without the joint guard, 1.16x with it: the cooling rates
+    were never trained, the guard holds them at the trained ones); the gate (the pool heats
+    only: no direction-carrying model, and no challenger on blocks) ships the cubic, equal to
+    it on every axis."""
     from thermonet.core.recording import Dataset
     from thermonet.sim import simulate
     from thermonet.training.config import CompareConfig
@@ -412,7 +414,7 @@ def test_heating_only_then_cooling_the_rule_before_ships_a_loser_the_gate_keeps_
     before, gate = got["before"], got["gate"]
     owners = set((before["selection"].get("per_axis") or {}).get("chosen", {}).values())
     assert owners & {"poly3-rate", "poly3-hyst"}
-    assert _shipped_over_cubic(before).max() > 1.5
+    assert _shipped_over_cubic(before).max() > 1.1
     assert gate["selection"]["directions"] == ["heating"]
     assert "only heating" in gate["selection"]["held_back"]["why"]
     np.testing.assert_allclose(_shipped_over_cubic(gate), 1.0, rtol=1e-12)

@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 
 from thermonet.core.recording import Recording
+from thermonet.scoring.domain import in_domain, noise_widths
 from thermonet.scoring.selection import (
     CandidateOOF,
-    in_domain,
-    noise_widths,
     plan_folds,
     purge_rule,
     select,

@@ -160,6 +160,47 @@ def _signature(p: str, recurrent: bool) -> list[str]:
             "                                 thermonet_real_t *drift)"]
 
 
+def _guard_c(model: DriftModel, p: str) -> tuple[list[str], list[str]]:
+    """The joint guard's tables and code (:meth:`DriftModel._guard`, in float, after the
+    signals' clamp): each dynamic input held inside the bounds trained near the clamped
+    temperature, the flag raised where that moved it.  Nothing without a guard."""
+    if not model.guarded:
+        return [], []
+    assert model.t_col is not None
+    n_bins, n_joint = (int(v) for v in model.guard_lo.shape)
+    consts = [
+        f"/* joint guard: {n_bins} temperature bins; u = (T - t0) * k - 0.5 bins past the",
+        " * first bin's centre; bounds per bin (row-major, one column per dynamic input) */",
+        _array(f"{p}_guard_knots", _t(model.guard_knots)),
+        _array(f"{p}_guard_col", np.asarray(model.joint), "int"),
+        _array(f"{p}_guard_lo", _t(model.guard_lo).reshape(-1)),
+        _array(f"{p}_guard_hi", _t(model.guard_hi).reshape(-1)),
+    ]
+    body = [
+        "    {",
+        f"        float u = (s[{model.t_col}] - {p}_guard_knots[0]) * {p}_guard_knots[1] - 0.5f;",
+        "        float w;",
+        "        int g, k;",
+        "        if (!(u >= 0.0f)) u = 0.0f;   /* below the first centre, or NaN (drift NaN) */",
+        f"        g = u < {float(n_bins - 2)}f ? (int)u : {n_bins - 2};",
+        "        w = u - (float)g;",
+        "        if (w > 1.0f) w = 1.0f;",
+        f"        for (k = 0; k < {n_joint}; ++k) {{",
+        f"            const float *lo = {p}_guard_lo + g * {n_joint} + k;",
+        f"            const float *hi = {p}_guard_hi + g * {n_joint} + k;",
+        f"            float b_lo = lo[0] + w * (lo[{n_joint}] - lo[0]);",
+        f"            float b_hi = hi[0] + w * (hi[{n_joint}] - hi[0]);",
+        f"            float v = s[{p}_guard_col[k]];",
+        "            if (!(v >= b_lo && v <= b_hi)) flag = 1;",
+        "            if (v < b_lo) v = b_lo;",
+        "            if (v > b_hi) v = b_hi;",
+        f"            s[{p}_guard_col[k]] = v;",
+        "        }",
+        "    }",
+    ]
+    return consts, body
+
+
 def render_c_header(model: ShippedModel, *, prefix: str = "thermonet") -> str:
     """The header text for ``model`` (see :func:`export_c_header`); a per-axis model's is
     :func:`render_axis_models_c`."""
@@ -184,6 +225,7 @@ def _render_single(model: DriftModel, prefix: str, *, stream: bool) -> str:
     fam_c = model.family.emit_c(p, y_scale, y_shift)
     fam_consts, fam_body = fam_c.constants, fam_c.body
     recurrent = model.family.recurrent
+    guard_consts, guard_body = _guard_c(model, p)
     guard = f"{P}_MODEL_H"
     t_ref = getattr(model.spec, "t_ref", None)
     names = lambda xs: "{" + ", ".join(c_string(x) for x in xs) + "}"  # noqa: E731
@@ -226,6 +268,7 @@ def _render_single(model: DriftModel, prefix: str, *, stream: bool) -> str:
         _array(f"{p}_x_mean", _t(model.x_mean)),
         _array(f"{p}_x_inv_std", _t(1.0 / model.x_std)),
         *_drift_constant_lines(P, model.constant().detach().cpu().double().numpy()),
+        *guard_consts,
         *fam_consts,
         "",
         *_signature(p, recurrent),
@@ -243,6 +286,7 @@ def _render_single(model: DriftModel, prefix: str, *, stream: bool) -> str:
         f"        if (v > {p}_sig_hi[i]) v = {p}_sig_hi[i];",
         "        s[i] = v;",
         "    }",
+        *guard_body,
         f"    for (f = 0; f < {P}_N_FEATURES; ++f) {{",
         f"        float d = s[{p}_feat_index[f]] - {p}_feat_ref[f];",
         f"        float x = {p}_feat_square[f] ? d * d : d;",

@@ -186,7 +186,8 @@ def _part_unsupported(model: DriftModel) -> str | None:
     if type(model.family) not in _FAMILIES:
         return f"family '{model.family_name}' has no direct ONNX graph"
     tensors = list(model.parameters()) + [model.sig_lo, model.sig_hi, model.x_mean, model.x_std,
-                                          model.y_mean, model.y_std, model.features.ref]
+                                          model.y_mean, model.y_std, model.features.ref,
+                                          model.guard_knots, model.guard_lo, model.guard_hi]
     if any(t.dtype != torch.float32 for t in tensors):
         return "the model is not in float32"
     return None
@@ -205,6 +206,33 @@ def direct_supported(model: ShippedModel) -> str | None:
     return None
 
 
+def _guard(g: _Graph, model: DriftModel, clamped: list[str], flag: str, tag: str) -> str:
+    """The joint guard of :meth:`DriftModel._guard` on the clamped signal values (replaced in
+    ``clamped``); returns the flag raised where it moved a dynamic input."""
+    assert model.t_col is not None
+    knots = model.guard_knots
+    u = g.op("Sub", g.op("Mul", g.op("Sub", clamped[model.t_col], g.const(knots[0], f"{tag}g_t0")),
+                         g.const(knots[1], f"{tag}g_k")), g.const(np.array(0.5), "half"))
+    u = g.op("Where", g.op("Equal", u, u), u, g.const(np.array(0.0), "zero"))
+    i = g.op("Clip", g.op("Floor", u), g.const(np.array(0.0), "zero"),
+             g.const(np.array(float(model.guard_lo.shape[0] - 2)), f"{tag}g_last"))
+    w = g.op("Clip", g.op("Sub", u, i), g.const(np.array(0.0), "zero"),
+             g.const(np.array(1.0), "one"))
+    i0 = g.op("Cast", i, to=7)                    # TensorProto.INT64
+    i1 = g.op("Add", i0, g.const(np.array(1), "one_i", np.int64))
+    for k, c in enumerate(model.joint):
+        bounds = []
+        for side, table in (("lo", model.guard_lo), ("hi", model.guard_hi)):
+            t = g.const(table[:, k], f"{tag}g_{side}{k}")
+            b0 = g.op("Gather", t, i0, axis=0)
+            bounds.append(g.op("Add", b0, g.op("Mul", w, g.op("Sub", g.op("Gather", t, i1, axis=0),
+                                                             b0))))
+        held = g.op("Min", g.op("Max", clamped[c], bounds[0]), bounds[1])
+        flag = g.op("Or", flag, g.op("Not", g.op("Equal", held, clamped[c])))
+        clamped[c] = held
+    return flag
+
+
 def _part(g: _Graph, model: DriftModel, signals: list[str], tag: str) -> tuple[str, str]:
     """Relative drift (A, N) float32 and flag (N,) of one DriftModel (:meth:`evaluate`)."""
     with torch.no_grad():
@@ -216,6 +244,8 @@ def _part(g: _Graph, model: DriftModel, signals: list[str], tag: str) -> tuple[s
         for s, c in zip(signals[1:], clamped[1:], strict=True):
             flag = g.op("Or", flag, g.op("Not", g.op("Equal", c, s)))
             nonfinite = g.op("Add", nonfinite, g.op("Sub", s, s))
+        if model.guarded:
+            flag = _guard(g, model, clamped, flag, tag)
         inv_std = 1.0 / model.x_std
         z = []
         # Features.columns, then (x − mean) · (1/std) per feature (DriftModel.standardise)

@@ -133,10 +133,13 @@ def parity_check(model: ShippedModel, onnx_path: str | Path, *, seed: int = 0,
     comp_err = np.abs(comp.astype(np.float64) - ((raw - const) - d_torch))
     if not bool(np.all(comp_err <= tol + 4 * np.finfo(np.float64).eps * np.abs(raw) + 1e-30)):
         raise ExportError("ONNX parity check failed: 'compensated' is not raw - drift")
-    if bool(flag.any()):
-        k = int(np.argmax(flag))
+    with torch.no_grad():   # inside the range the flag is the guard's (dynamic inputs) alone
+        flag_torch = model.out_of_range(torch.from_numpy(points)).numpy()
+    if not np.array_equal(np.asarray(flag, dtype=bool), flag_torch):
+        k = int(np.argmax(np.asarray(flag, dtype=bool) != flag_torch))
         where = ", ".join(f"{s}={points[k, i]:.6g}" for i, s in enumerate(model.signals))
-        raise ExportError(f"ONNX out_of_range flag set inside the trained range at {where}")
+        raise ExportError(f"ONNX out_of_range flag differs from torch's at {where} "
+                          f"(onnxruntime {bool(flag[k])}, torch {bool(flag_torch[k])})")
     # One signal at a time just outside each side of the range (the clamp: drift must
     # equal torch's clamped value), then NaN, +inf and -inf (drift must be NaN); the
     # flag must be set on every one of these rows.

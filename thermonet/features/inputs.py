@@ -62,6 +62,7 @@ __all__ = [
     "parse_feature",
     "signals_for",
     "dynamic_signal",
+    "joint_columns",
     "resolve_gap_s",
     "contiguous_segments",
     "reference_values",
@@ -110,6 +111,16 @@ def signals_for(inputs: Iterable[str]) -> list[str]:
     dyn = {d.signal for d in dynamics.dynamic_signals(inputs)}
     fixed = [s for s in (TEMPERATURE, RATE) if s in needed]
     return fixed + sorted(dyn - {RATE}) + sorted(needed - dyn - {TEMPERATURE})
+
+
+def joint_columns(signals: Sequence[str]) -> tuple[int | None, list[int]]:
+    """The columns of ``signals`` the joint envelope relates: the temperature's (None without
+    one) and every dynamic input's (rate, lag, play), whose trained range depends on the
+    temperature (:class:`thermonet.scoring.selection.Envelope`, the model's guard)."""
+    names = list(signals)
+    t_col = names.index(TEMPERATURE) if TEMPERATURE in names else None
+    joint = [i for i, name in enumerate(names) if name == RATE or dynamic_signal(name) is not None]
+    return t_col, (joint if t_col is not None else [])
 
 
 def dynamic_signal(name: str) -> dynamics.DynamicInput | None:

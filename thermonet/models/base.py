@@ -57,7 +57,7 @@ gives exactly 0 and a NaN (NaN × 0) still gives NaN.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -65,7 +65,7 @@ import torch
 from torch import nn
 
 from ..core.errors import ConfigError, ExportError, FitError
-from ..features.inputs import FeatureSpec
+from ..features.inputs import FeatureSpec, joint_columns
 from ..features.module import Features
 from ..features.target import MODE_CODES
 from .cgen import CBody, c_constant_bytes
@@ -370,6 +370,9 @@ class DriftModel(nn.Module):
     sig_ref: torch.Tensor
     target_code: torch.Tensor
     compensate: torch.Tensor
+    guard_knots: torch.Tensor
+    guard_lo: torch.Tensor
+    guard_hi: torch.Tensor
     family: Family
 
     def __init__(self, *, family: Family, spec: FeatureSpec, outputs: list[str]) -> None:
@@ -399,15 +402,59 @@ class DriftModel(nn.Module):
         self.register_buffer("sig_ref", torch.zeros(s))
         self.register_buffer("target_code", torch.zeros(a, dtype=torch.int64))
         self.register_buffer("compensate", torch.ones(a))
+        # the joint guard (set_guard): none until a fit with dynamic inputs sets it
+        self.t_col, self.joint = joint_columns(self.signals)
+        self.register_buffer("guard_knots", torch.zeros(2))
+        self.register_buffer("guard_lo", torch.zeros(0, len(self.joint)))
+        self.register_buffer("guard_hi", torch.zeros(0, len(self.joint)))
 
-    #: Buffers added with targets; a checkpoint written before them loads with their defaults.
-    _TARGET_BUFFERS = ("y_offset", "y_ref", "sig_ref", "target_code", "compensate")
+    #: Buffers added with targets and the guard; a checkpoint written before them loads with
+    #: their defaults (no guard).
+    _TARGET_BUFFERS = ("y_offset", "y_ref", "sig_ref", "target_code", "compensate",
+                       "guard_knots", "guard_lo", "guard_hi")
 
     def _load_from_state_dict(self, state_dict: dict, prefix: str, *args: Any,
                               **kwargs: Any) -> None:
         for name in self._TARGET_BUFFERS:
             state_dict.setdefault(prefix + name, getattr(self, name).detach().clone())
+        for name in ("guard_lo", "guard_hi"):   # the tables' bin count is the checkpoint's
+            saved = state_dict[prefix + name]
+            if isinstance(saved, torch.Tensor) and saved.dim() == 2 and \
+                    saved.shape[1] == len(self.joint):
+                self._buffers[name] = torch.zeros_like(saved, dtype=self.guard_knots.dtype)
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    @property
+    def guarded(self) -> bool:
+        """True when the model holds its dynamic inputs inside the joint envelope it was
+        trained on (:meth:`set_guard`)."""
+        return self.guard_lo.shape[0] >= 2 and len(self.joint) > 0
+
+    def set_guard(self, tables: Mapping[str, np.ndarray] | None) -> None:
+        """Store the joint envelope of the dynamic inputs (``knots``, per-bin ``lo``/``hi``
+        (B, J) of :meth:`thermonet.scoring.selection.Envelope.tables`; None: no guard).
+
+        On evaluation each dynamic input is held inside the bounds trained near the
+        (clamped) temperature, interpolated linearly between the bins' centres, and the
+        out-of-range flag is raised where that moved it: a cooling rate never trained at
+        that temperature is evaluated at the nearest trained one, never extrapolated.  The
+        ONNX graph and the C header compute the same (parity-checked on export)."""
+        dtype = self.guard_knots.dtype
+        if tables is None:
+            lo = hi = torch.zeros(0, len(self.joint), dtype=dtype)
+            knots = torch.zeros(2, dtype=dtype)
+        else:
+            lo = torch.as_tensor(np.asarray(tables["lo"], dtype=np.float64), dtype=dtype)
+            hi = torch.as_tensor(np.asarray(tables["hi"], dtype=np.float64), dtype=dtype)
+            knots = torch.as_tensor(np.asarray(tables["knots"], dtype=np.float64), dtype=dtype)
+            if lo.dim() != 2 or lo.shape != hi.shape or lo.shape[1] != len(self.joint) or \
+                    lo.shape[0] < 2 or knots.shape != (2,) or \
+                    not (torch.isfinite(lo).all() and torch.isfinite(hi).all()
+                         and torch.isfinite(knots).all()) or bool((lo > hi).any()):
+                raise ConfigError(f"guard tables {tuple(lo.shape)} do not fit the dynamic "
+                                  f"inputs {[self.signals[j] for j in self.joint]}")
+        self._buffers["guard_knots"], self._buffers["guard_lo"] = knots, lo
+        self._buffers["guard_hi"] = hi
 
     @property
     def target_modes(self) -> list[str]:
@@ -518,10 +565,11 @@ class DriftModel(nn.Module):
             buf.copy_(torch.as_tensor(np.asarray(value, dtype=np.float64), dtype=buf.dtype))
 
     def out_of_range(self, signals: torch.Tensor | np.ndarray) -> torch.Tensor:
-        """Bool (N,): true where any signal lies outside the trained range or is NaN."""
-        s = torch.as_tensor(signals, dtype=torch.float32, device=self.sig_lo.device)
-        inside = (s >= self.sig_lo) & (s <= self.sig_hi)  # NaN compares false
-        return ~inside.all(dim=1)
+        """Bool (N,): the flag :meth:`evaluate` returns — true where a signal lies outside the
+        trained range or is not finite, or the guard held a dynamic input (:meth:`set_guard`)."""
+        s = torch.as_tensor(signals, dtype=self.sig_lo.dtype, device=self.sig_lo.device)
+        with torch.no_grad():
+            return self.standardise(s.unbind(1))[1]
 
     def evaluate(self, signals: Sequence[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """Relative drift, axis-major (A, N), and out-of-range flag (N,) from one (N,)
@@ -562,6 +610,8 @@ class DriftModel(nn.Module):
         for s, c in zip(cols[1:], clamped[1:], strict=True):
             flag = flag | (c != s)
             nonfinite = nonfinite + (s - s)
+        if self.guarded:
+            flag = self._guard(clamped, flag)
         inv_std = 1.0 / self.x_std
         z = [(x - self.x_mean[f]) * inv_std[f]
              for f, x in enumerate(self.features.columns(clamped))]
@@ -569,6 +619,33 @@ class DriftModel(nn.Module):
         # (cheaper than adding an (N, 1) column to the (N, A) drift, a broadcast)
         z[0] = z[0] + nonfinite
         return z, flag
+
+    def _guard(self, cols: list[torch.Tensor], flag: torch.Tensor) -> torch.Tensor:
+        """Hold each dynamic input of ``cols`` (clamped signals, changed in place) inside the
+        joint envelope at its temperature; returns ``flag`` raised where that moved one.
+
+        .. math:: u = (T' - t_0)\\,k - \\tfrac12,\\quad
+                  i = \\min(\\max(\\lfloor u \\rfloor, 0), B-2),\\quad
+                  w = \\min(\\max(u - i, 0), 1),\\quad
+                  b = b_i + w\\,(b_{i+1} - b_i)
+
+        (a NaN temperature takes ``u = 0``: its drift is NaN whatever the bin)."""
+        assert self.t_col is not None
+        t = cols[self.t_col]
+        u = (t - self.guard_knots[0]) * self.guard_knots[1] - 0.5
+        u = torch.where(u == u, u, torch.zeros_like(u))
+        i = torch.clamp(torch.floor(u), 0.0, float(self.guard_lo.shape[0] - 2))
+        w = torch.clamp(u - i, 0.0, 1.0)
+        i0 = i.long()
+        i1 = i0 + 1
+        for k, c in enumerate(self.joint):
+            lo_t, hi_t = self.guard_lo[:, k], self.guard_hi[:, k]
+            lo = lo_t[i0] + w * (lo_t[i1] - lo_t[i0])
+            hi = hi_t[i0] + w * (hi_t[i1] - hi_t[i0])
+            held = torch.minimum(torch.maximum(cols[c], lo), hi)
+            flag = flag | (held != cols[c])
+            cols[c] = held
+        return flag
 
     def evaluate_state(self, signals: Sequence[torch.Tensor], state: torch.Tensor
                        ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -120,7 +120,7 @@ from .metrics import binned_peak_to_peak
 from .verdicts import DECISION_RTOL, LEVEL, above, below, draws, same
 
 __all__ = ["FoldPlan", "CandidateOOF", "plan_folds", "purge_rule", "window_rule",
-           "in_domain", "joint_domain", "Envelope", "noise_widths", "window_labels", "select", "Selection",
+           "window_labels", "select", "Selection",
            "choose_per_axis", "pp_guard", "point_label", "tuning_choice"]
 
 #: Samples a fold needs in training and in validation.
@@ -387,107 +387,6 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
         fold_dirs = [set(directions) for _ in range(k)]
     return FoldPlan(fold_of, train_masks, k, kind, block_s, purge, win, block_of,
                     directions, record, note, fold_dirs)
-
-
-def noise_widths(signals: np.ndarray) -> np.ndarray:
-    """Per signal column, 3 σ of its sample-to-sample noise (first differences / √2)."""
-    x = np.asarray(signals, dtype=np.float64)
-    if x.shape[0] < 3:
-        return np.zeros(x.shape[1])
-    d = np.diff(x, axis=0)
-    # robust σ of the differences (MAD): a ramp's steady step is not noise
-    med = np.nanmedian(d, axis=0)
-    mad = np.nanmedian(np.abs(d - med), axis=0) * 1.4826
-    return np.nan_to_num(3.0 * mad / math.sqrt(2.0))
-
-
-def in_domain(signals: np.ndarray, lo: np.ndarray, hi: np.ndarray, widen: np.ndarray
-              ) -> np.ndarray:
-    """Rows whose every signal lies in [lo − widen, hi + widen] (NaN rows: outside)."""
-    s = np.asarray(signals, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
-        ok = (s >= lo - widen) & (s <= hi + widen)
-    return ok.all(axis=1)
-
-
-#: Temperature bins of the joint domain (:func:`joint_domain`).
-JOINT_BINS = 10
-
-
-@dataclass
-class Envelope:
-    """A fold's trained domain: every signal's range and, for each ``joint`` column (a dynamic
-    input: rate, lag, hysteresis state), its range near each temperature — over the training
-    rows in a temperature bin and its two neighbours (``bins`` equal bins over the trained
-    temperature range; an empty neighbourhood holds nothing).  Built once per fold
-    (:meth:`of`), asked of every validation row (:meth:`contains`)."""
-
-    lo: np.ndarray
-    hi: np.ndarray
-    t_col: int | None = None
-    joint: tuple[int, ...] = ()
-    near_lo: np.ndarray | None = None     # (bins, len(joint)): per bin and joint column
-    near_hi: np.ndarray | None = None
-
-    @classmethod
-    def of(cls, train: np.ndarray, t_col: int | None, joint: Sequence[int] = (),
-           bins: int = JOINT_BINS) -> Envelope:
-        tr = np.asarray(train, dtype=np.float64)
-        with np.errstate(invalid="ignore"):
-            lo, hi = np.nanmin(tr, axis=0), np.nanmax(tr, axis=0)
-        if t_col is None or not joint or not np.isfinite(lo[t_col]):
-            return cls(lo, hi)
-        env = cls(lo, hi, t_col, tuple(joint))
-        b = env._bin(tr[:, t_col], bins)
-        near_lo = np.full((bins, len(joint)), np.inf)
-        near_hi = np.full((bins, len(joint)), -np.inf)
-        for i, c in enumerate(joint):
-            blo = np.full(bins, np.inf)
-            bhi = np.full(bins, -np.inf)
-            good = (b >= 0) & np.isfinite(tr[:, c])
-            np.minimum.at(blo, b[good], tr[good, c])
-            np.maximum.at(bhi, b[good], tr[good, c])
-            # the row's bin and its two neighbours
-            near_lo[:, i] = np.minimum(blo, np.minimum(np.r_[np.inf, blo[:-1]],
-                                                       np.r_[blo[1:], np.inf]))
-            near_hi[:, i] = np.maximum(bhi, np.maximum(np.r_[-np.inf, bhi[:-1]],
-                                                       np.r_[bhi[1:], -np.inf]))
-        env.near_lo, env.near_hi = near_lo, near_hi
-        return env
-
-    def _bin(self, t: np.ndarray, bins: int) -> np.ndarray:
-        """Temperature bin of each row (−1: NaN)."""
-        assert self.t_col is not None
-        t_lo = float(self.lo[self.t_col])
-        span = max(float(self.hi[self.t_col]) - t_lo, 1e-12)
-        with np.errstate(invalid="ignore"):
-            b = np.floor((np.asarray(t) - t_lo) / span * bins)
-        return np.clip(np.nan_to_num(b, nan=-1), -1, bins - 1).astype(np.int64)
-
-    def contains(self, x: np.ndarray, widen: np.ndarray) -> np.ndarray:
-        """Rows of ``x`` inside, each signal widened by its noise (``widen``); NaN rows:
-        outside."""
-        xs = np.asarray(x, dtype=np.float64)
-        ok = in_domain(xs, self.lo, self.hi, widen)
-        if self.near_lo is None or self.near_hi is None or self.t_col is None or \
-                xs.shape[0] == 0:
-            return ok
-        b = np.clip(self._bin(xs[:, self.t_col], self.near_lo.shape[0]), 0, None)
-        with np.errstate(invalid="ignore"):
-            for i, c in enumerate(self.joint):
-                ok &= (xs[:, c] >= self.near_lo[b, i] - widen[c]) & \
-                      (xs[:, c] <= self.near_hi[b, i] + widen[c])
-        return ok
-
-
-def joint_domain(train: np.ndarray, x: np.ndarray, t_col: int | None, joint: Sequence[int],
-                 widen: np.ndarray, bins: int = JOINT_BINS) -> np.ndarray:
-    """Rows of ``x`` inside the trained domain *jointly with temperature*
-    (:class:`Envelope`): every signal in its trained range (:func:`in_domain`), and each
-    ``joint`` column inside what training saw near that temperature.  A cooling rate never
-    trained at that temperature is outside although the rate and the temperature each lie in
-    their own ranges.  NaN rows: outside."""
-    return Envelope.of(train, t_col, joint, bins).contains(x, widen)
 
 
 def window_labels(time_s: np.ndarray, window_s: float) -> np.ndarray:

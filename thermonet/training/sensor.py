@@ -54,6 +54,7 @@ from ..features.inputs import FeatureSpec, signal_matrix
 from ..models import DriftModel, build_family
 from ..models.base import check_output_shape
 from ..models.sensor import SensorModel, check_invertible, element_names
+from ..scoring.domain import guard_tables
 from .checkpoint import DIGEST_KEY, _check_digest, checkpoint_digest, load_torch_file
 from .scaling import column_scale, seed_torch
 from .train import _fit_loop, average_windows, rest_signals, thread_limits
@@ -309,7 +310,7 @@ def _fit_sensor(*, family: str, spec: FeatureSpec, outputs: list[str],
     history, best_epoch, _ = _fit_loop(core, zt, yt, val_t, replace(config), label,  # type: ignore[arg-type]
                                        None)
     model = _assembled(bias, elem, triads, spec, scales, (x_mean, x_std, sig_lo, sig_hi),
-                       elements, label)
+                       elements, label, guard_tables([s_tr], spec.signals))
     kept = {n: True for n in outputs + names_e}
     if not elements:
         kept.update({n: False for n in names_e})
@@ -371,15 +372,17 @@ def _closed_form_start(family: str, spec: FeatureSpec, train: Sequence[SensorRun
 
 def _assembled(bias: DriftModel, elem: DriftModel, triads: Sequence[Sequence[str]],
                spec: FeatureSpec, scales: dict[str, Any], x_box: tuple[np.ndarray, ...], elements: bool,
-               label: str) -> SensorModel:
-    """The fitted families as a :class:`SensorModel`: scaling, targets and domain set, the
-    elements masked in a bias-only fit; refused if any parameter is not finite."""
+               label: str, guard: dict[str, np.ndarray] | None) -> SensorModel:
+    """The fitted families as a :class:`SensorModel`: scaling, targets and domain set (the
+    dynamic inputs' joint ``guard`` too, :meth:`DriftModel.set_guard`), the elements masked
+    in a bias-only fit; refused if any parameter is not finite."""
     x_mean, x_std, sig_lo, sig_hi = x_box
     rest = rest_signals(spec, need_temperature=False)
     for dm, mean, std in ((bias, scales["b_mean"], scales["b_std"]),
                           (elem, scales["e_mean"], scales["e_std"])):
         dm.set_scaling(x_mean=x_mean, x_std=x_std, y_mean=mean, y_std=std, sig_lo=sig_lo,
                        sig_hi=sig_hi)
+        dm.set_guard(guard)
         dm.set_target(modes=["channel"] * len(dm.outputs),
                       offset=np.zeros(len(dm.outputs)), rest=rest)
         dm.eval()

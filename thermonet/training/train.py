@@ -42,6 +42,7 @@ from ..models import DriftModel, build_family
 from ..models.base import Family, check_output_shape
 from ..models.composite import ShippedModel
 from ..models.sequence import stream_relative
+from ..scoring.domain import guard_tables
 from .optim import optimizer_step, optimizer_without_dynamo
 from .recurrent import fit_recurrent
 from .scaling import EarlyStopping, seed_torch, training_scaling
@@ -308,6 +309,10 @@ def _fit(*, family: str, inputs: list[str], outputs: list[str],
         history, best_epoch, best_val, s_tr = _fit_pointwise(
             model, runs, val_run, config, family, on_epoch, sig_lo=sig_lo, sig_hi=sig_hi)
     model.to("cpu").eval()
+    # the dynamic inputs held inside what training saw near each temperature (the joint
+    # envelope the folds judge with): set before the target's normalisation at rest, which
+    # evaluates the model as the board will
+    model.set_guard(guard_tables([r[0] for r in runs], signal_names))
     model.set_target(modes=modes, offset=offset, rest=rest)
     with torch.no_grad():
         pred = model(torch.as_tensor(s_tr, dtype=torch.float32))

@@ -20,16 +20,16 @@ from ..core.helpers import usable_cores
 from ..core.profile import stage
 from ..data.diagnostics import outside_distance, outside_fraction
 from ..features.dynamics import dynamic_signals
-from ..features.inputs import RATE, TEMPERATURE, dynamic_signal, resolve_gap_s, signal_matrix
-from ..reporting.results import FamilyResult
-from ..scoring.selection import (
-    CandidateOOF,
-    Envelope,
-    noise_widths,
-    point_label,
-    select,
-    tuning_choice,
+from ..features.inputs import (
+    RATE,
+    TEMPERATURE,
+    joint_columns,
+    resolve_gap_s,
+    signal_matrix,
 )
+from ..reporting.results import FamilyResult
+from ..scoring.domain import Envelope, noise_widths
+from ..scoring.selection import CandidateOOF, point_label, select, tuning_choice
 from ..scoring.verdicts import pool
 from ..training.config import (
     CompareConfig,
@@ -280,9 +280,7 @@ def _oof(p: Plan, fam: FamilyConfig, tcfg: Any, spec: Any, parts: PartCache,
     # a reduced recording's rows are the fit's windows already
     tcfg = replace(tcfg, average_s=rows_average_s(whole[0], tcfg.average_s))
     widen = [noise_widths(q.signals) for q in whole]
-    t_col = spec.signals.index(TEMPERATURE) if TEMPERATURE in spec.signals else None
-    joint = [i for i, name in enumerate(spec.signals)
-             if name == RATE or dynamic_signal(name) is not None]
+    t_col, joint = joint_columns(spec.signals)
     for f in range(plan.k):
         train = [(q.signals[m & h], q.target[m & h], q.time_s[m & h])
                  for q, m, h in zip(whole, plan.train_masks[f], keep, strict=True)

@@ -36,14 +36,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import ThermonetError
-from ..scoring.selection import (
-    CandidateOOF,
-    in_domain,
-    noise_widths,
-    point_label,
-    select,
-    tuning_choice,
-)
+from ..scoring.domain import in_domain, noise_widths
+from ..scoring.selection import CandidateOOF, point_label, select, tuning_choice
 from ..training.config import CompareConfig, FamilyConfig, tune_points
 
 if TYPE_CHECKING:
