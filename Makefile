@@ -75,7 +75,7 @@ CPUS_FILES ?= tests/test_cpu_choices.py tests/test_rbf_tail.py tests/test_c_head
               tests/test_checkpoint.py tests/test_dynamics.py tests/test_tuning.py \
               tests/test_gru.py tests/test_streaming.py tests/test_sensor_model.py \
               tests/test_autopilot_parity.py tests/test_verify.py tests/test_out_of_core.py \
-              tests/test_excursions.py
+              tests/test_excursions.py tests/test_guard.py
 
 test-cpus-all:
 	$(MAKE) test-cpus CPUS_FILES=tests
