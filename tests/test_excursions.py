@@ -225,7 +225,7 @@ def test_one_direction_of_change_holds_back_what_reads_the_direction():
     drift = 0.01 * temp + 2e-4 * temp ** 2
     y = (drift + np.random.default_rng(1).normal(0.0, 0.002, t.size))[:, None]
     cands = {}
-    for label, err, dyn in (("cubic", 0.1, False), ("rate", 0.01, True)):
+    for label, err, dyn in (("cubic", 0.1, False), ("rate", 0.01, True), ("quad", 0.05, False)):
         c = CandidateOOF(label, 4, directional=dyn)
         g = np.random.default_rng(5 if dyn else 6)
         for f in range(plan.k):
@@ -235,9 +235,16 @@ def test_one_direction_of_change_holds_back_what_reads_the_direction():
         cands[label] = c
     sel = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic")
     assert sel.per_axis == {"gyro_x": "cubic"} and sel.chosen == "cubic"
-    assert sel.record["held_back"]["candidates"] == ["rate"]
-    assert "only heating" in sel.record["held_back"]["why"]
-    assert "rate not judged" in sel.per_axis_reason["gyro_x"]
+    held = sel.record["held_back"]
+    assert held["candidates"] == ["quad", "rate"]
+    # each candidate's own reason: the direction only for the one reading it; said once in
+    # results.json and the console, the axis's sentence only names who was held back
+    assert "only heating" in held["by_candidate"]["rate"]
+    assert "only heating" not in held["by_candidate"]["quad"]
+    assert "interleaved blocks" in held["by_candidate"]["quad"]
+    assert "rate: the training data hold only heating" in held["why"]
+    assert "held back: rate, quad" in sel.per_axis_reason["gyro_x"]
+    assert "only heating" not in sel.per_axis_reason["gyro_x"]
 
 
 def test_raw_is_the_floor_where_the_cubic_is_worse_than_raw_out_of_fold():

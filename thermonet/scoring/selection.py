@@ -566,7 +566,7 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
                     n_params: Mapping[str, int], outputs: Sequence[str], baseline: str | None,
                     k_folds: int, *, gate: Gate | None = None,
                     base_own: np.ndarray | None = None,
-                    directional: set[str] | frozenset[str] = frozenset(), one_way: str = ""
+                    directional: set[str] | frozenset[str] = frozenset()
                     ) -> tuple[dict[str, str | None], dict[str, str]]:
     """Each axis its own candidate: the rule of :func:`select`, axis by axis.
 
@@ -582,8 +582,9 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
     With ``gate`` (:class:`Gate`: per candidate, its per-fold masked ratios) the gate
     (:data:`GATE_RULE`) comes first: the reference of the axis is the baseline where it
     compensates it, else raw; a candidate stays in the choice only if it passes
-    :meth:`Gate.passes` against the reference.  Candidates in ``directional`` are
-    left out (``one_way`` says why: the training data hold one direction of change only).
+    :meth:`Gate.passes` against the reference.  Candidates in ``directional`` are held back
+    (:func:`select` records why once, ``held_back``: the training data hold one direction of
+    change only, or no excursion could be held out); an axis's sentence names them only.
     """
     order = {k: i for i, k in enumerate(axis_scores)}
     chosen: dict[str, str | None] = {}
@@ -594,7 +595,7 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
         if gate is not None and sc:
             sc, gated = _gate_axis(sc, a, gate, baseline, directional,
                                    None if base_own is None else float(base_own[a]))
-        note = _gate_note(gated, directional, one_way)
+        note = _gate_note(gated, directional)
         if not sc:
             chosen[axis], reason[axis] = None, "no candidate has a finite out-of-fold score"
             base_a = axis_scores.get(baseline or "")
@@ -665,8 +666,9 @@ def _gate_axis(sc: dict[str, float], a: int, gate: Gate, baseline: str | None,
     return kept, gated
 
 
-def _gate_note(gated: list[str], directional: set[str] | frozenset[str], one_way: str) -> str:
-    """What the gate held back on an axis, for the rule's sentence."""
+def _gate_note(gated: list[str], directional: set[str] | frozenset[str]) -> str:
+    """What the gate held back on an axis, for the rule's sentence (the reason for the held
+    back ones is said once, in the selection's ``held_back``)."""
     if not gated:
         return ""
     held = [k for k in gated if k not in directional]
@@ -675,8 +677,43 @@ def _gate_note(gated: list[str], directional: set[str] | frozenset[str], one_way
         parts.append(f"not better everywhere: {', '.join(held)}")
     dirs = [k for k in gated if k in directional]
     if dirs:
-        parts.append(f"{', '.join(dirs)} not judged ({one_way})")
+        parts.append(f"held back: {', '.join(dirs)}")
     return " [gate: " + "; ".join(parts) + "]"
+
+
+def _held_back(ok: Mapping[str, CandidateOOF], baseline: str | None, plan: FoldPlan,
+               gate: bool) -> dict[str, str]:
+    """Per candidate the gate holds back before any score is compared, why: one reading the
+    direction of change where the pool holds one direction only (:func:`one_direction`);
+    every challenger where the folds are interleaved blocks."""
+    if baseline is None or not gate:
+        return {}
+    one_way = one_direction(plan.directions)
+    held = {k: one_way for k, c in ok.items() if c.directional} if one_way else {}
+    if baseline in ok and plan.kind == "blocks":
+        # interleaved blocks judge interpolation between training data, never the next
+        # excursion: on a heating-only ramp, static candidates that beat the cubic in five of
+        # five such folds were 5–10 % worse than it on the cooling after (bench_selection.py
+        # --stress); so no excursion to hold out, no challenger
+        blocks = ("no excursion could be held out (the folds are interleaved blocks, which "
+                  "judge interpolation, not the next warm-up): the baseline stays")
+        for k in ok:
+            if k != baseline:
+                held[k] = f"{held[k]}; {blocks}" if k in held else blocks
+    return held
+
+
+def _held_back_record(held: Mapping[str, str]) -> dict[str, Any]:
+    """results.json's ``held_back``: the candidates, each reason once with the candidates it
+    holds (``why``, one sentence per reason) and each candidate's (``by_candidate``)."""
+    groups: dict[str, list[str]] = {}
+    for k, why in held.items():
+        groups.setdefault(why, []).append(k)
+    if len(groups) == 1:
+        why = next(iter(groups))
+    else:
+        why = " | ".join(f"{', '.join(sorted(ks))}: {w}" for w, ks in groups.items())
+    return {"candidates": sorted(held), "why": why, "by_candidate": dict(held)}
 
 
 def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.ndarray],
@@ -718,29 +755,18 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
     record["common_left_out_fraction"] = pooled.common_left
     if not gate:
         sc.gate = None
-    one_way = one_direction(plan.directions) if baseline is not None and gate else ""
-    directional = {k for k, c in ok.items() if c.directional} if one_way else set()
-    if gate and baseline in ok and plan.kind == "blocks":
-        # interleaved blocks judge interpolation between training data, never the next
-        # excursion: on a heating-only ramp, static candidates that beat the cubic in five of
-        # five such folds were 5–10 % worse than it on the cooling after (bench_selection.py
-        # --stress); so no excursion to hold out, no challenger
-        one_way = (f"{one_way}; " if one_way else "") + (
-            "no excursion could be held out (the folds are interleaved blocks, which judge "
-            "interpolation, not the next warm-up): the baseline stays")
-        directional = {k for k in ok if k != baseline}
+    held = _held_back(ok, baseline, plan, gate)
     if sc.gate is not None:
         sc.gate.directional = {k for k, c in ok.items() if c.directional}
-    if one_way and directional:
-        record["held_back"] = {"candidates": sorted(directional), "why": one_way}
+    if held:
+        record["held_back"] = _held_back_record(held)
     per_axis, per_axis_reason = choose_per_axis(
         sc.axis_scores, sc.axis_boots, {k: c.n_params for k, c in ok.items()}, outputs,
-        baseline, plan.k, gate=sc.gate, directional=directional, one_way=one_way,
+        baseline, plan.k, gate=sc.gate, directional=set(held),
         base_own=sc.own_ratio.get(baseline or ""))
     record["per_axis"] = {"chosen": per_axis, "rule": per_axis_reason,
                           "gate": GATE_RULE if gate else None}
-    chosen, tied, reason = _one_se(plan, ok, sc, outputs, baseline, record, directional,
-                                   one_way)
+    chosen, tied, reason = _one_se(plan, ok, sc, outputs, baseline, record, held)
     return Selection(chosen, tied, reason, sc.compensate, record, per_axis, per_axis_reason)
 
 
@@ -1034,14 +1060,14 @@ def _score(pooled: _Pooled, ok: Mapping[str, CandidateOOF], outputs: Sequence[st
 
 def _one_se(plan: FoldPlan, ok: Mapping[str, CandidateOOF], sc: _Scores,
             outputs: Sequence[str], baseline: str | None,
-            record: dict[str, Any], directional: set[str] | frozenset[str] = frozenset(),
-            one_way: str = "") -> tuple[str | None, list[str], str]:
+            record: dict[str, Any], held: Mapping[str, str] | None = None
+            ) -> tuple[str | None, list[str], str]:
     """The whole recording's choice: (chosen or None, tied, reason) — do no harm, then the
     fewest parameters within one SE of the best (no candidate below the baseline's floor).
 
     With a baseline, the gate first (:data:`GATE_RULE` on the mean over axes): a candidate
-    not better than the baseline everywhere, or one reading a direction the data do not
-    hold (``directional``), is not eligible."""
+    not better than the baseline everywhere, or one held back before any score (``held``:
+    candidate -> why, :func:`_held_back`), is not eligible."""
     order = {k: i for i, k in enumerate(ok)}
     finite = {k: v for k, v in sc.scores.items() if math.isfinite(v)}
     gated: dict[str, str] = {}
@@ -1049,8 +1075,8 @@ def _one_se(plan: FoldPlan, ok: Mapping[str, CandidateOOF], sc: _Scores,
         for k in finite:
             if k == baseline:
                 continue
-            if k in directional:
-                gated[k] = one_way
+            if held and k in held:
+                gated[k] = held[k]
             elif not sc.gate.passes(k, None, True):
                 gated[k] = (f"gate: not better than the baseline {baseline} everywhere (judged "
                             f"on < {MIN_GATE_FOLDS} folds, or its worst fold is worse)")

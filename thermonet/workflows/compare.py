@@ -509,6 +509,7 @@ def _selection_lines(sel: dict[str, Any], width: int = 14) -> list[str]:
     """The console's cross-validation block: each candidate's out-of-fold score, its folds and
     why the gate held it back (names ``width`` wide, or the longest candidate's)."""
     width = max(width, _name_width(sel["candidates"]))
+    held_by: dict[str, str] = dict((sel.get("held_back") or {}).get("by_candidate") or {})
     lines: list[str] = []
     lines.append(f"selection: {sel.get('kind')}, {sel.get('folds')} folds, purge "
                  f"{sel.get('purge_s', 0):.0f} s, score windows {sel.get('window_s', 0):.0f} s "
@@ -521,12 +522,18 @@ def _selection_lines(sel: dict[str, Any], width: int = 14) -> list[str]:
             continue
         lo, hi = c["interval"]
         folds = " ".join(_fold_text(x) for x in c["fold_scores"])
-        held = f"  ({c['not_eligible']})" if c.get("not_eligible") else ""
+        why = c.get("not_eligible")
+        held = ("  (held back, below)" if why and why == held_by.get(name)
+                else f"  ({why})" if why else "")
         lines.append(f"  {name:<{width}} {_fold_text(c['score'], '.4g')} "
                      f"[{_fold_text(lo, '.4g')}, {_fold_text(hi, '.4g')}]  folds {folds}{held}")
-    if sel.get("held_back"):
-        lines.append(f"  held back: {', '.join(sel['held_back']['candidates'])}: "
-                     f"{sel['held_back']['why']}")
+    groups: dict[str, list[str]] = {}
+    for name, why in held_by.items():
+        groups.setdefault(why, []).append(name)
+    if not groups and sel.get("held_back"):     # a results.json written before by_candidate
+        groups[sel["held_back"]["why"]] = list(sel["held_back"]["candidates"])
+    for why, names in groups.items():
+        lines.append(f"  held back: {', '.join(sorted(names))}: {why}")
     return lines
 
 
