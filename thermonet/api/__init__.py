@@ -103,7 +103,8 @@ from typing import TYPE_CHECKING, Any
 from ..models.specs import GRU, MLP, RBF, FamilySpec, Fuzzy, Linear, Lorentz, Poly
 from .comparison import AxisSummary, ComparisonResult, FamilySummary, compare
 from .data import read, simulate
-from .estimator import DriftEstimator, NotFittedError
+from .estimator import DriftEstimator
+from .fitted import NotFittedError
 from .splits import time_blocks
 
 if TYPE_CHECKING:

@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 from collections.abc import Sequence
 from dataclasses import replace
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -17,28 +15,19 @@ from ..core.recording import Dataset, Recording
 from ..core.schema import from_dict
 from ..core.trainconfig import TrainConfig
 from ..data.diagnostics import TEMPERATURE_PLAUSIBLE_C
-from ..features.inputs import signal_matrix
 from ..features.target import MODES, modelled_outputs, output_units
 from ..models.registry import PER_AXIS, make_spec, spec_of
 from ..models.specs import FamilySpec
 from ..training.splits import stack_blocks
 from . import sensor_mode
-from .checks import ArgumentTypeError, flag, gap, input_names, seconds, text, whole
+from .checks import ArgumentTypeError, flag, gap, input_names, seconds, text
 from .checks import path as a_path
-from .data import (
-    BLOCK_RUN,
-    Data,
-    data_source,
-    names_of,
-    needs_outputs,
-    runs_of,
-    same_run,
-    same_units,
-)
+from .data import Data, data_source, names_of, needs_outputs, runs_of, same_run, same_units
+from .family_keywords import FamilyKeywords, with_keywords
+from .fitted import FittedEstimator
 from .parameters import STDERR_METHODS, parameter_table
-from .persistence import export, load, save
+from .persistence import load
 from .persistence import track as track_fit
-from .state import EstimatorState
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -47,11 +36,9 @@ if TYPE_CHECKING:
     from ..features.target import Target
     from ..models.composite import ShippedModel
 
-__all__ = ["DriftEstimator", "NotFittedError"]
+__all__ = ["DriftEstimator"]
 
 _TARGETS = ("drift", "four-position")
-#: ``score(multioutput=...)``'s named rules, as scikit-learn's ``r2_score`` names them.
-MULTIOUTPUT = ("uniform_average", "raw_values", "variance_weighted")
 
 #: The constructor's own keywords (a family's hyper-parameters are the spec's: ``family__<name>``).
 _OWN = ("family", "inputs", "t_ref", "target", "outputs", "train_on", "gap_s",
@@ -60,49 +47,7 @@ _OWN = ("family", "inputs", "t_ref", "target", "outputs", "train_on", "gap_s",
 _TRAIN_KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig))
 
 
-class NotFittedError(ThermonetError, AttributeError):
-    """``predict``/``compensate``/``score``/``save``/``export`` before ``fit``."""
-
-
-class _FamilyKeywords:
-    """A family given as a name and hyper-parameter keywords that do not make a spec
-    (``DriftEstimator("poly", degre=3)``, an unknown family): kept as given, so that the
-    constructor never raises; :meth:`DriftEstimator.fit` refuses it, naming what is wrong."""
-
-    def __init__(self, name: Any, params: dict[str, Any]) -> None:
-        self.name = name
-        self.params = params
-
-    def get_params(self, deep: bool = True) -> dict[str, Any]:
-        return {"name": self.name, "params": self.params}
-
-    def set_params(self, **params: Any) -> _FamilyKeywords:
-        self.params = {**self.params, **params}
-        return self
-
-    def __eq__(self, other: object) -> bool:
-        return isinstance(other, _FamilyKeywords) and \
-            (self.name, self.params) == (other.name, other.params)
-
-    __hash__ = None  # type: ignore[assignment]
-
-    def __repr__(self) -> str:
-        return ", ".join([repr(self.name), *(f"{k}={v!r}" for k, v in self.params.items())])
-
-
-def _with_keywords(family: Any, hyper: dict[str, Any]) -> Any:
-    """``family`` (a name or a spec) with hyper-parameter keywords folded in: a new spec
-    (``"poly", degree=3`` is ``Poly(degree=3)``), or, where they do not make one, both kept
-    as given for :meth:`DriftEstimator.fit` to refuse."""
-    try:
-        base = spec_of(family)
-        spec = type(base)(**base.get_params())
-        return spec.set_params(**hyper)
-    except (ConfigError, TypeError):
-        return _FamilyKeywords(family, dict(hyper))
-
-
-class DriftEstimator(EstimatorState):
+class DriftEstimator(FittedEstimator):
     """One model family fitted to drift vs temperature (or a proxy), scikit-learn style.
 
     Every argument is a keyword the estimator stores as given (``get_params``,
@@ -228,7 +173,7 @@ average_s, threads
                  average_s: float | None = None, threads: int | None = None,
                  model: str = "bias", **hyper: Any) -> None:
         # keywords of the family fold into its spec; without them ``family`` is kept as given
-        self.family = _with_keywords(family, hyper) if hyper else family
+        self.family = with_keywords(family, hyper) if hyper else family
         self.inputs = inputs
         self.t_ref = t_ref
         self.target = target
@@ -262,11 +207,11 @@ average_s, threads
         fam = params.get("family", self.family)
         nested = {k: v for k, v in params.items() if k.partition("__")[0] not in own}
         if nested or any(k.startswith("family__") for k in params):
-            if not isinstance(fam, FamilySpec | _FamilyKeywords):
+            if not isinstance(fam, FamilySpec | FamilyKeywords):
                 try:
                     fam = spec_of(fam)
                 except ConfigError:
-                    fam = _FamilyKeywords(fam, {})
+                    fam = FamilyKeywords(fam, {})
             if isinstance(fam, FamilySpec):
                 valid = fam.get_params()
                 for key in nested:
@@ -320,7 +265,7 @@ average_s, threads
         fam = self.family
         if isinstance(fam, FamilySpec):
             return fam
-        name, params = (fam.name, fam.params) if isinstance(fam, _FamilyKeywords) else (fam, {})
+        name, params = (fam.name, fam.params) if isinstance(fam, FamilyKeywords) else (fam, {})
         if not isinstance(name, str):
             raise ArgumentTypeError(f"family: expected a family name such as 'poly' or a spec "
                                     f"such as Poly(degree=3), got {name!r} "
@@ -519,246 +464,10 @@ average_s, threads
                    [a[0].shape[0] for a in arrays]),
             method=self.stderr, seed=config.seed)
 
-    def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
-        from ..training.parts import build_part  # lazy: loads yaml
-
-        # a fitted model's own signal order (a per-axis model's: the union of its parts')
-        model = self.__dict__.get("model_")
-        signals = list(model.signals) if model is not None else spec.signals
-        return build_part(rec, signals=signals, outputs=outputs, target=self.targets_,
-                          gap_s=spec.gap_s)
-
-    @property
-    def axis_models_(self) -> dict[str, str | None] | None:
-        """For a per-axis model (a ``compare`` that chose a candidate per axis, loaded with
-        :meth:`load`): ``{axis: the label of the candidate that computes it, or None where
-        the axis is left raw}``; None for a single-family model."""
-        from ..models.composite import AxisModels  # torch boundary
-
-        model = self._check_fitted("axis_models_")
-        return model.axis_table() if isinstance(model, AxisModels) else None
-
-    def _check_fitted(self, what: str) -> ShippedModel:
-        model = self.__dict__.get("model_")
-        if model is None:
-            raise NotFittedError(f"this DriftEstimator({self.family!r}) is not fitted yet; "
-                                 f"call fit(...) before {what}()")
-        return model
-
-    # --------------------------------------------------------------- prediction
-    def predict(self, data: Data, *, return_band: bool = False) -> Any:
-        """Predicted drift (N, axes), float64, in the outputs' units.
-
-        ``return_band=True`` returns ``(drift, band)``: ``band`` (N, axes) the half-width of
-        the residual-drift band at each row's temperature (:attr:`band_`,
-        :mod:`thermonet.scoring.band`: a window mean of ``raw − drift`` lies within ± it of
-        the run's mean residual for ``band_.level`` of windows; wider past the trained range;
-        NaN where the temperature is).  Only a model from ``compare`` with cross-validation
-        folds carries a band; asking another refuses, saying so.
-
-        ``data``: a Recording, a list of them or a Dataset; for several runs the rows are
-        the runs' samples one run after the other (each run's dynamic inputs computed on
-        that run alone).  Evaluated as on board: signals clamped to the trained range
-        (``model_.out_of_range`` flags the samples outside it).
-        """
-        model = self._check_fitted("predict")
-        from ..training.train import predict  # torch boundary
-
-        band = self.__dict__.get("band_")
-        if return_band and band is None:
-            raise ThermonetError("predict(return_band=True): this model carries no band (the "
-                                 "band comes from compare's out-of-fold residuals: load a "
-                                 "checkpoint compare wrote with selection.folds >= 2)")
-        if self.model == "sensor":
-            return sensor_mode.predict(self, data)
-        out, widths = [], []
-        for rec in runs_of(data, "predict", allow_empty=True):
-            same_units(rec, self.signal_units_, "predict", "the model was trained on it")
-            # the model's own signal order (a per-axis model's union of its parts' signals)
-            sig = signal_matrix(rec, list(model.signals), self.spec_.gap_s)
-            out.append(predict(model, sig, rec.time_s))
-            if return_band:
-                assert band is not None
-                col = list(model.signals).index(band.signal)
-                widths.append(band.evaluate(sig[:, col], self.outputs_))
-        drift = out[0] if len(out) == 1 else np.concatenate(out)
-        if return_band:
-            return drift, (widths[0] if len(widths) == 1 else np.concatenate(widths))
-        return drift
-
-    def compensate(self, data: Data) -> Any:
-        """``data`` with the predicted drift subtracted from each modelled output: a
-        Recording for a Recording, a Dataset for a Dataset, a list for a list."""
-        self._check_fitted("compensate")
-        if self.model == "sensor":
-            return sensor_mode.compensate(self, data)
-        if self.targets_.kind == "four-position":
-            raise ThermonetError("compensate: a four-position model predicts per-soak bias and "
-                                 "scale factor, not a drift to subtract sample by sample")
-        done = []
-        for rec in runs_of(data, "compensate", allow_empty=True):
-            needs_outputs(rec, self.outputs_, "compensate")
-            same_units(rec, self.units_, "compensate", "the model was trained in")
-            drift = self.predict(rec)
-            outputs = dict(rec.outputs)
-            for j, axis in enumerate(self.outputs_):
-                outputs[axis] = rec.outputs[axis] - drift[:, j]
-            done.append(replace(rec, outputs=outputs, run_id=f"{rec.run_id}[compensated]"))
-        if isinstance(data, Recording):
-            return done[0]
-        return Dataset(done) if isinstance(data, Dataset) else done
-
-    def score(self, data: Data, y: None = None, *,
-              multioutput: str | Sequence[float] = "uniform_average") -> Any:
-        """Fraction of the error's variance removed (higher is better): ``compare``'s
-        offset-free score, per axis and aggregated as scikit-learn's ``r2_score`` aggregates.
-
-        .. math:: s = 1 - \\frac{1}{A}\\sum_a \\frac{\\sum_g \\sum_{i \\in g}
-                  (e_{a,i} - \\bar e_{a,g})^2}{\\sum_g \\sum_{i \\in g}
-                  (y_{a,i} - \\bar y_{a,g})^2},\\qquad e = y - \\hat y
-
-        with :math:`y_a` the target (output − reference; the output itself for a ``zero`` or
-        ``at-t-ref`` axis), summed over every sample of ``data`` (a Recording, a list of
-        them or a Dataset), each source run :math:`g` about its own mean (blocks cut by
-        :func:`~thermonet.api.time_blocks` count as their run): a constant — a bias, gravity,
-        a scale factor's nominal value — is no error, as in every thermonet score.
-        :math:`1 - s` is the square of ``compare``'s score ratio on the same data
-        (``results.json`` ``axes.<axis>.score_ratio``).  1 is perfect, 0 no better than the
-        raw output, negative worse.  ``y`` is scikit-learn's slot and must be None (the
-        drift is in the recordings).  Data in another unit than the training data is
-        refused, naming both units.
-
-        ``multioutput`` says how the axes' scores :math:`s_a = 1 - r_a` combine:
-        ``"uniform_average"`` (the default, the formula above: every axis weighs the same —
-        one axis made worse than raw, :math:`s_a < 0`, can hide behind good ones, so look at
-        the axes too), ``"raw_values"`` (an array, one score per axis in :attr:`outputs_`
-        order), ``"variance_weighted"`` (each axis weighted by its raw error variance: the
-        sum of the error variances over the sum of the raw ones) or an array of one
-        non-negative weight per axis (a weighted mean).
-        """
-        self._check_fitted("score")
-        if y is not None:
-            raise ThermonetError(f"score(y): expected None (the drift is taken from the "
-                                 f"recordings), got {type(y).__name__}")
-        weights: np.ndarray | None = None
-        if isinstance(multioutput, str):
-            if multioutput not in MULTIOUTPUT:
-                raise ConfigError(f"score(multioutput): {multioutput!r} is not one of "
-                                  f"{', '.join(MULTIOUTPUT)} or an array of weights per axis")
-        else:
-            weights = np.asarray(multioutput, dtype=np.float64).reshape(-1) \
-                if not isinstance(multioutput, (bool, bytes)) else np.empty(0)
-            if weights.size != len(self.outputs_) or not np.all(np.isfinite(weights)) \
-                    or np.any(weights < 0) or weights.sum() <= 0:
-                raise ConfigError(f"score(multioutput): expected {len(self.outputs_)} finite "
-                                  "non-negative weights (one per axis, not all zero)")
-        comp, raw = self._variances(data, "score")
-        ratios = np.array([c / r if r > 0 else float("inf")
-                           for c, r in zip(comp, raw, strict=True)])
-        if weights is not None:
-            return 1.0 - float(np.average(ratios, weights=weights))
-        if multioutput == "raw_values":
-            return 1.0 - ratios
-        if multioutput == "variance_weighted":
-            return 1.0 - float(np.sum(comp) / np.sum(raw)) if np.sum(raw) > 0 else -math.inf
-        return 1.0 - float(np.mean(ratios))
-
-    def _ratios(self, data: Data, what: str) -> np.ndarray:
-        """Per axis, the error's variance after / before (each source run about its mean)."""
-        comp, raw = self._variances(data, what)
-        return np.array([c / r if r > 0 else float("inf") for c, r in zip(comp, raw, strict=True)])
-
-    def _variances(self, data: Data, what: str) -> tuple[np.ndarray, np.ndarray]:
-        """Per axis, the error's sum of squares after and before (each run about its mean)."""
-        from ..training.pipeline import residual_spread  # torch boundary
-        from ..training.train import predict  # torch boundary
-
-        model = self._check_fitted(what)
-        if self.model == "sensor":
-            return sensor_mode.variances(self, data, what)
-        sums: dict[str, list[np.ndarray]] = {}     # per source run: n, Σy, Σy², Σe, Σe²
-        for rec in runs_of(data, what):
-            needs_outputs(rec, self.outputs_, what)
-            same_units(rec, self.units_, what, "the model was trained in")
-            same_units(rec, self.signal_units_, what, "the model was trained on it")
-            part = self._part(rec, self.spec_, self.outputs_)
-            target = np.asarray(part.target, dtype=np.float64)
-            err = target - predict(model, part.signals, part.time_s)
-            acc = sums.setdefault(rec.meta.get(BLOCK_RUN, rec.run_id),
-                                  [np.zeros(target.shape[1]) for _ in range(5)])
-            # rows that are window means (thermonet.read(..., window_s=...)): each weighs its
-            # samples, and the spread inside it is added back (the target's, and the
-            # residual's from the model's slope: training.pipeline.residual_spread)
-            spread = residual_spread(model, part)
-            if part.weight is None or part.within_ss is None or spread is None:
-                terms = (np.full(target.shape[1], target.shape[0]), target.sum(0),
-                         (target ** 2).sum(0), err.sum(0), (err ** 2).sum(0))
-            else:
-                w = part.weight
-                terms = (np.full(target.shape[1], w.sum()), w @ target,
-                         w @ target ** 2 + part.within_ss.sum(0), w @ err,
-                         w @ err ** 2 + spread.sum(0))
-            for k, v in enumerate(terms):
-                acc[k] += v
-        raw = sum(a[2] - a[1] ** 2 / a[0] for a in sums.values())
-        comp = sum(a[4] - a[3] ** 2 / a[0] for a in sums.values())
-        return np.asarray(comp, dtype=np.float64), np.asarray(raw, dtype=np.float64)
-
-    # ------------------------------------------------------------ parameters
-    def report(self) -> str:
-        """A fit report in lmfit's manner: the family, data and fit, then per axis each
-        parameter's value ± standard error and unit (:attr:`parameters_`)."""
-        self._check_fitted("report")
-        if self.model == "sensor":
-            raise ConfigError("report(): a sensor model has no per-parameter table; its "
-                              "coefficients are model_.bias and model_.elements, and 'thermonet "
-                              "compare' with model: sensor writes its report.html")
-        table = self.parameters_
-        lines = [f"[[Model]] {self!r}",
-                 f"[[Fit]] inputs {', '.join(self.spec_.inputs)}; t_ref "
-                 f"{self.spec_.t_ref if self.spec_.t_ref is not None else '-'} °C; "
-                 f"{self.n_params_} parameters; best epoch {self.best_epoch_}",
-                 "[[Parameters]] (stderr: " + ("least squares, white residuals assumed"
-                                              if self.stderr == "ols" else
-                                              "moving-block residual bootstrap")
-                 + " — see thermonet.api.parameters)"]
-        for axis, rows in table.groupby("axis", sort=False):
-            lines.append(f"  {axis}:")
-            for r in rows.itertuples():
-                err = "" if not np.isfinite(r.stderr) else f" +/- {r.stderr:.4g}"
-                rel = "" if not (np.isfinite(r.stderr) and r.value) else \
-                    f" ({abs(r.stderr / r.value):.2%})"
-                lines.append(f"    {r.name:<12} {r.value: .6g}{err}{rel} {r.unit}")
-        return "\n".join(lines)
-
-    # ----------------------------------------- save, load, export (thermonet.api.persistence)
-    def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write the fitted model as a thermonet checkpoint (atomic; loads with
-        ``weights_only=True``; ``thermonet export`` reads it)."""
-        if self.model == "sensor":
-            self._check_fitted("save")
-            return sensor_mode.save(self, a_path(path, "save(path)"))  # type: ignore[arg-type]
-        return save(self, a_path(path, "save(path)"))  # type: ignore[arg-type]
-
+    # ------------------------------------------------------ load (thermonet.api.persistence)
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DriftEstimator:
         """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
         if sensor_mode.is_sensor_checkpoint(a_path(path, "load(path)")):  # type: ignore[arg-type]
             return sensor_mode.load(cls, path)
         return load(cls, a_path(path, "load(path)"))  # type: ignore[arg-type]
-
-    def export(self, path: str | os.PathLike[str], format: str = "onnx", *,
-               device_id: int | None = None, instance: int | None = None) -> Path:
-        """Export through the format registry (:data:`thermonet.exporting.FORMATS`).
-
-        ``device_id``/``instance`` apply to the autopilot formats (see
-        ``thermonet export --help``).
-        """
-        a_path(path, "export(path)")
-        text(format, "export(format)", rule="a format name such as 'onnx'")
-        whole(device_id, "export(device_id)", 0, none=True)
-        whole(instance, "export(instance)", 0, none=True)
-        if self.model == "sensor":
-            self._check_fitted("export")
-            return sensor_mode.export(self, Path(path), format)
-        return export(self, path, format, device_id=device_id, instance=instance)

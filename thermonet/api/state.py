@@ -71,7 +71,7 @@ class EstimatorState(Params):
     fit_seconds_: float
 
     def _check_fitted(self, what: str) -> ShippedModel:
-        """The fitted model, or :class:`~thermonet.api.estimator.NotFittedError`."""
+        """The fitted model, or :class:`~thermonet.api.fitted.NotFittedError`."""
         raise NotImplementedError
 
     def _family_spec(self) -> FamilySpec:
