@@ -9,9 +9,13 @@
     drift left after the learned correction, over the raw drift's, and over what a chamber
     calibration of the same board leaves (``fit_firmware`` on ``simulate_board(seed)``, the
     fc-board warm-up 7 → 52 °C).  Axes whose raw drift is under verify's floor are left out.
-``python experiments/bench_learn.py scaling [--logs 25,50,100] [--workers 1,2] [--dir D]``
-    Reading K logs of 15–40 minutes on the process pool: wall time, logs per second, and the
-    driver's peak resident memory (the reduced logs, not the logs, are held).
+``python experiments/bench_learn.py scaling [--logs 25,50,100] [--workers 1,2] [--repeat 3]
+[--executor process] [--dir D]``
+    Reading K logs of 15–40 minutes (``learn --no-compare`` in a fresh process): wall time
+    (median and spread of interleaved repeats), logs per second, each worker count's wall over
+    the first's, and the driver's peak resident memory (VmHWM).
+``python experiments/bench_learn.py memory [--logs 50,200,1000] [--dir D]``
+    The same on 2 workers, once per count: the driver's peak memory against the logs read.
 ``python experiments/bench_learn.py coverage``
     From 10 flights: how many 1 °C bins are supported, and what the report says is missing.
 """
@@ -31,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from common import machine, save, table  # noqa: E402
 from thermonet.data.firmware import FirmwareFit  # noqa: E402
+from thermonet.data.logs.bias import read_bias_log  # noqa: E402
 from thermonet.data.logs.flight_writers import write_flight  # noqa: E402
 from thermonet.sim.fcboard import simulate_board  # noqa: E402
 from thermonet.sim.flights import simulate_flights  # noqa: E402
@@ -106,45 +111,86 @@ def accuracy(seeds: list[int], counts: list[int]) -> None:
     save("bench_learn_accuracy", {"machine": machine(), "runs": data}, md)
 
 
-#: ``python -c LEARN_CHILD OUT WORKERS LOG...``: ``learn`` in a fresh process; prints its wall
-#: seconds and its own peak resident memory (the driver's: the workers are its children).
+#: ``python -c LEARN_CHILD OUT EXECUTOR WORKERS LOG...``: ``learn`` (``--no-compare``) in a
+#: fresh process; prints its wall seconds and its own peak resident memory, VmHWM of
+#: /proc/self/status, before ``learn`` (imports done) and after.  Not ``ru_maxrss``: a child's
+#: starts from the forking parent's peak (Linux keeps it across exec), which here holds the
+#: simulator's flights.  The pool's workers are other processes: the driver's memory is this.
 LEARN_CHILD = """
-import json, resource, sys, time
+import json, sys, time
 from thermonet.workflows.learn import learn
+def hwm():
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024.0
+before = hwm()
 t0 = time.perf_counter()
-learn(sys.argv[3:], sys.argv[1], workers=int(sys.argv[2]), compare=False)
-print(json.dumps({"wall_s": time.perf_counter() - t0,
-                  "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}))
+learn(sys.argv[4:], sys.argv[1], executor=sys.argv[2], workers=int(sys.argv[3]),
+      compare=False)
+print(json.dumps({"wall_s": time.perf_counter() - t0, "hwm_before_mb": before,
+                  "hwm_mb": hwm()}))
 """
 
 
-def scaling(counts: list[int], workers: list[int], logs_dir: str | None) -> None:
-    import json
-    import subprocess
-
-    rows = []
-    with tempfile.TemporaryDirectory() as d:
-        root = Path(logs_dir) if logs_dir else Path(d) / "logs"
-        root.mkdir(exist_ok=True)
-        have = len(list(root.glob("*.ulg")))
-        for k in range(have, max(counts)):   # one flight at a time: the bench holds none
+def _logs(root: Path, n: int) -> list[str]:
+    """The first ``n`` flights of seed 1 in ``root`` (written one at a time, those missing:
+    the bench holds none)."""
+    root.mkdir(parents=True, exist_ok=True)
+    for k in range(n):
+        if not (root / f"f{k:04d}.ulg").exists():
             f = simulate_flights(k + 1, seed=1, first=k)[0]
             write_flight(f.log, f.biases, root / f"f{k:04d}.ulg")
-        paths = sorted(str(p) for p in root.glob("*.ulg"))[:max(counts)]
-        minutes = 27.0   # the mean length of seed 1's flights (measured on its first 100)
+    return [str(root / f"f{k:04d}.ulg") for k in range(n)]
+
+
+def _learn_child(paths: list[str], out: Path, executor: str, workers: int) -> dict[str, float]:
+    import json
+    import shutil
+    import subprocess
+
+    shutil.rmtree(out, ignore_errors=True)       # a fresh directory: every log is read
+    res = subprocess.run([sys.executable, "-c", LEARN_CHILD, str(out), executor, str(workers),
+                          *paths], capture_output=True, text=True, check=True)
+    shutil.rmtree(out, ignore_errors=True)
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def scaling(counts: list[int], workers: list[int], logs_dir: str | None, repeat: int,
+            executor: str, name: str = "bench_learn_scaling") -> None:
+    """Per count of logs, ``learn`` on each number of workers, interleaved (1, 2, 1, 2, ...)
+    ``repeat`` times: median wall time with its spread, the driver's peak memory, and the
+    ratio of each worker count's wall to the first's (the median of the per-repeat ratios)."""
+    rows, data = [], []
+    with tempfile.TemporaryDirectory() as d:
+        root = Path(logs_dir) if logs_dir else Path(d) / "logs"
+        paths = _logs(root, max(counts))
         for n in counts:
+            walls: dict[int, list[float]] = {w: [] for w in workers}
+            hwm: dict[int, list[float]] = {w: [] for w in workers}
+            start: dict[int, list[float]] = {w: [] for w in workers}
+            for _ in range(repeat):
+                for w in workers:
+                    got = _learn_child(paths[:n], Path(d) / f"out-{n}-{w}", executor, w)
+                    walls[w].append(got["wall_s"])
+                    hwm[w].append(got["hwm_mb"])
+                    start[w].append(got["hwm_before_mb"])
+                    data.append({"logs": n, "workers": w, "executor": executor, **got})
+                    print(data[-1], flush=True)
             for w in workers:
-                out = Path(d) / f"out-{n}-{w}"
-                res = subprocess.run([sys.executable, "-c", LEARN_CHILD, str(out), str(w),
-                                      *paths[:n]], capture_output=True, text=True, check=True)
-                got = json.loads(res.stdout.strip().splitlines()[-1])
-                rows.append([n, w, f"{got['wall_s']:.1f}", f"{n / got['wall_s']:.2f}",
-                             f"{got['maxrss_mb']:.0f}"])
-                print(rows[-1], flush=True)
-    md = table(["logs", "workers", "wall s", "logs / s", "driver peak RSS MB"], rows)
-    md += f"\n\n{max(counts)} flights, about {minutes:.0f} min each on average."
+                ratio = np.median([a / b for a, b in zip(walls[w], walls[workers[0]],
+                                                         strict=True)])
+                med = float(np.median(walls[w]))
+                rows.append([n, w, f"{med:.1f} ({min(walls[w]):.1f}–{max(walls[w]):.1f})",
+                             f"{n / med:.2f}", f"{ratio:.2f}",
+                             f"{max(hwm[w]):.0f}", f"{max(start[w]):.0f}"])
+        minutes = float(np.mean([read_bias_log(p).duration_s for p in paths[:20]])) / 60.0
+    md = table(["logs", "workers", "wall s: median (min–max)", "logs / s",
+                f"wall / {workers[0]} worker(s)'s", "driver peak MB (VmHWM)",
+                "of which at start (imports)"], rows)
+    md += (f"\n\n{executor} executor, {repeat} repeat(s) interleaved; flights of seed 1, "
+           f"about {minutes:.0f} min each on average (the first 20).")
     print(md)
-    save("bench_learn_scaling", {"machine": machine(), "rows": rows}, md)
+    save(name, {"machine": machine(), "runs": data}, md)
 
 
 def coverage() -> None:
@@ -169,17 +215,21 @@ def ints(text: str) -> list[int]:
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("what", nargs="?", default="accuracy",
-                   choices=["accuracy", "scaling", "coverage"])
+                   choices=["accuracy", "scaling", "memory", "coverage"])
     p.add_argument("--seeds", default="0,1,2,3")
     p.add_argument("--flights", default="20,40")
-    p.add_argument("--logs", default="25,50,100")
+    p.add_argument("--logs", default=None)
+    p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--executor", default="process", choices=["process", "ray", "serial"])
     p.add_argument("--workers", default="1,2")
     p.add_argument("--dir", default=None, help="scaling: reuse (and fill) this folder of logs")
     a = p.parse_args()
     if a.what == "accuracy":
         accuracy(ints(a.seeds), ints(a.flights))
     elif a.what == "scaling":
-        scaling(ints(a.logs), ints(a.workers), a.dir)
+        scaling(ints(a.logs or "25,50,100"), ints(a.workers), a.dir, a.repeat, a.executor)
+    elif a.what == "memory":
+        scaling(ints(a.logs or "50,200,1000"), [2], a.dir, 1, a.executor, "bench_learn_memory")
     else:
         coverage()
 

@@ -116,7 +116,7 @@ def _tracked(fn: Callable[[Any], Any], i: int, item: Any) -> Any:
 
 
 def _pool(fn: Callable[[Any], Any], items: Sequence[Any], workers: int,
-          on_done: Callable[[int, Any], None] | None) -> list[Any]:
+          on_done: Callable[[int, Any], None] | None, keep: bool = True) -> list[Any]:
     import multiprocessing
     from concurrent.futures import as_completed
 
@@ -125,7 +125,7 @@ def _pool(fn: Callable[[Any], Any], items: Sequence[Any], workers: int,
     done = [False] * len(items)
 
     def finish(i: int, value: Any) -> None:
-        out[i], done[i] = value, True
+        out[i], done[i] = (value if keep else None), True
         if on_done is not None:
             on_done(i, value)
 
@@ -144,7 +144,7 @@ def _pool(fn: Callable[[Any], Any], items: Sequence[Any], workers: int,
                         value = fut.result()
                     except BrokenProcessPool:
                         continue
-                    finish(futures[fut], value)
+                    finish(futures.pop(fut), value)   # the future held its result
         except BrokenProcessPool:
             pass
         left = [i for i in todo if not done[i]]
@@ -187,7 +187,7 @@ def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
 
 
 def _ray(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, address: str | None,
-         on_done: Callable[[int, Any], None] | None) -> list[Any]:
+         on_done: Callable[[int, Any], None] | None, keep: bool = True) -> list[Any]:
     try:
         import ray
     except ImportError as err:  # pragma: no cover - ray is a dependency
@@ -211,19 +211,20 @@ def _ray(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, address: 
         started = True
     try:
         task = ray.remote(num_cpus=1, max_retries=0)(_ray_call)
-        refs = [task.remote(fn, it) for it in items]
-        index = {ref: i for i, ref in enumerate(refs)}
+        index = {task.remote(fn, it): i for i, it in enumerate(items)}
         out: list[Any] = [None] * len(items)
-        pending = list(refs)
+        pending = list(index)
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)
-            i = index[ready[0]]
+            i = index.pop(ready[0])             # no reference left: Ray may free the result
             try:
-                out[i] = ray.get(ready[0])
+                value = ray.get(ready[0])
             except ray.exceptions.RayError as err:  # worker died, node lost, task error
-                out[i] = TaskFailure(f"Ray task failed: {_one_line(err)}")
+                value = TaskFailure(f"Ray task failed: {_one_line(err)}")
+            del ready
             if on_done is not None:
-                on_done(i, out[i])
+                on_done(i, value)
+            out[i] = value if keep else None
         return out
     finally:
         if started:
@@ -238,7 +239,8 @@ def _ray_call(fn: Callable[[Any], Any], item: Any) -> Any:
 def run_tasks(fn: Callable[[Any], Any], items: Sequence[Any], *,
               executor: Literal["process", "serial", "ray"] = "process",
               workers: int | None = None, ray_address: str | None = None,
-              on_done: Callable[[int, Any], None] | None = None) -> list[Any]:
+              on_done: Callable[[int, Any], None] | None = None,
+              keep: bool = True) -> list[Any]:
     """``[fn(item) for item in items]`` on the chosen executor, in the order of ``items``.
 
     Parameters
@@ -254,6 +256,10 @@ def run_tasks(fn: Callable[[Any], Any], items: Sequence[Any], *,
         Ray cluster address; None starts a local Ray.
     on_done : callable(index, result), optional
         Called in the driver as each item finishes (progress lines).
+    keep : bool
+        False: on the process pool and Ray each result is only handed to ``on_done`` and
+        not held (the list returned holds None), so a driver that folds the results as they
+        arrive holds none of them; serial runs return theirs all the same.
 
     Returns
     -------
@@ -275,5 +281,5 @@ def run_tasks(fn: Callable[[Any], Any], items: Sequence[Any], *,
                 on_done(i, r)
         return out
     if executor == "ray":
-        return _ray(fn, items, n, ray_address, on_done)
-    return _pool(fn, items, n, on_done)
+        return _ray(fn, items, n, ray_address, on_done, keep)
+    return _pool(fn, items, n, on_done, keep)

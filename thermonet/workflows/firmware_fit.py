@@ -224,8 +224,10 @@ def moving_average(time_s: np.ndarray, columns: np.ndarray, width_s: float
     return c[window - 1:] / window
 
 
-def fit_firmware(inst: SensorInstance, autopilot: str) -> FirmwareFit:
-    """The autopilot's own polynomial fitted on ``inst`` as its script does (SI units).
+def fit_firmware(inst: SensorInstance, autopilot: str,
+                 median_samples: int = PX4_MEDIAN_SAMPLES) -> FirmwareFit:
+    """The autopilot's own polynomial fitted on ``inst`` as its script does (SI units);
+    ``median_samples``: PX4's running median (``learn`` on merged windows: as long in time).
 
     A magnetometer is fitted in PX4's form whatever the autopilot (ArduPilot has none):
     as the accelerometer (less the filtered median, 2,000 bins, a cubic in T − TREF), then
@@ -242,7 +244,7 @@ def fit_firmware(inst: SensorInstance, autopilot: str) -> FirmwareFit:
         t_min, t_max = float(temp.min()), float(temp.max())
         t_ref = 0.5 * (t_min + t_max)
         # as the script: filtered first, then accel / baro less the filtered median
-        y = running_median(inst.values)
+        y = running_median(inst.values, median_samples)
         if inst.kind != "gyro":
             y = y - np.median(y, axis=0)
         x, yy = bin_means(temp - t_ref, y)

@@ -4,8 +4,9 @@ No chamber: every log of one vehicle is read for the drift it reveals — the es
 and the still-on-the-ground gyro (:mod:`thermonet.data.logs.bias`: what the log applied is
 undone, invalid and unconverged samples rejected) — reduced to window means on the process
 pool or Ray, cached per log (:mod:`thermonet.workflows.learn_data`: a stopped job resumes
-without reading a log twice, a grown directory reads only its new logs), with the estimator's
-lag undone and divergences left out.  Then, per sensor instance (gyro, accelerometer):
+without reading a log twice, a grown directory reads only its new logs) and folded at once
+into a bounded set of windows per instance (memory bounded by its cap, not by the logs),
+with the estimator's lag undone and divergences left out.  Then, per sensor instance (gyro, accelerometer):
 
 1. **The comparison** the chamber path runs (:func:`thermonet.workflows.compare.run_compare`,
    as ``calibrate`` does): the firmware's cubic as the baseline family, a line, the RBF with
@@ -42,7 +43,7 @@ import json
 import math
 import shutil
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -56,20 +57,21 @@ from ..core.recording import Dataset, Recording
 from ..core.version import __version__
 from ..data.firmware import FirmwareFit, ardupilot_calibration_text, px4_calibration_text
 from ..data.logs import SensorInstance, is_log
-from .firmware_fit import fit_firmware
+from .firmware_fit import PX4_MEDIAN_SAMPLES, fit_firmware
 from .learn_data import (
     READER_VERSION,
+    WINDOW_S,
     InstanceWindows,
+    WindowFold,
     cache_path,
     choose_lag,
-    compact,
     coverage,
-    gather,
     missing_words,
     not_this_vehicle,
     read_cache,
     reduce_or_refuse,
     reject_outliers,
+    vehicle_key,
     vehicle_of,
     write_cache,
 )
@@ -117,17 +119,30 @@ def _check_out(out: Path, files: list[Path]) -> None:
 
 def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
               ray_address: str | None, say: Callable[[str], None]
-              ) -> tuple[list[dict[str, Any]], list[tuple[str, str]]]:
+              ) -> tuple[list[dict[str, Any]], WindowFold]:
     """Every log reduced (the cache first, then the rest on the executor, each cached as it
-    arrives), in the order given; the refused ones with their one line."""
+    arrives) and folded at once into the windows the fit needs (:class:`WindowFold`: bounded,
+    whatever the number of logs); per log, in the order given, only its summary: path,
+    autopilot, device ids, board id and notes, or why it was refused."""
     digests = [sha256_file(f) for f in files]
-    got: dict[int, dict[str, Any]] = {}
+    fold = WindowFold()
+    logs: list[dict[str, Any] | None] = [None] * len(files)
+
+    def take(k: int, doc: dict[str, Any]) -> None:
+        doc["path"] = str(files[k])
+        if "error" in doc:
+            logs[k] = {"index": k, "path": doc["path"], "error": doc["error"]}
+            return
+        fold.add(k, doc)
+        logs[k] = {"index": k, **{key: doc.get(key) for key in (
+            "path", "autopilot", "sensors", "board_id", "notes")}}
+
     for k, d in enumerate(digests):
         doc = read_cache(cache_path(out, d))
         if doc is not None:
-            got[k] = doc
-    todo = [k for k in range(len(files)) if k not in got]
-    say(f"{len(files)} logs: {len(got)} read before (cache), {len(todo)} to read")
+            take(k, doc)
+    todo = [k for k in range(len(files)) if logs[k] is None]
+    say(f"{len(files)} logs: {len(files) - len(todo)} read before (cache), {len(todo)} to read")
     start, done = time.monotonic(), [0]
 
     def arrived(i: int, value: Any) -> None:
@@ -138,7 +153,7 @@ def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
         doc["path"] = str(files[k])
         if isinstance(value, dict):     # a worker that failed is not an answer: not cached
             write_cache(cache_path(out, digests[k]), doc)
-        got[k] = compact(doc)           # held as arrays while the rest are read
+        take(k, doc)                    # folded: the log's windows are not held as such
         done[0] += 1
         rate = done[0] / max(time.monotonic() - start, 1e-9)
         say(f"[{done[0]}/{len(todo)}] {files[k].name}: "
@@ -149,18 +164,11 @@ def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
         if executor == "serial":        # here, each log cached the moment it is read
             for i, k in enumerate(todo):
                 arrived(i, _reduce_here(files[k]))
-        else:
+        else:                           # each result handed to arrived, none held
             run_tasks(reduce_or_refuse, [str(files[k]) for k in todo],
                       executor=executor,  # type: ignore[arg-type]
-                      workers=workers, ray_address=ray_address, on_done=arrived)
-    good, bad = [], []
-    for k in range(len(files)):
-        doc = got[k]
-        if "error" in doc:
-            bad.append((str(files[k]), _strip(doc["error"], files[k])))
-        else:
-            good.append(doc)
-    return good, bad
+                      workers=workers, ray_address=ray_address, on_done=arrived, keep=False)
+    return [lg for lg in logs if lg is not None], fold
 
 
 def _reduce_here(path: Path) -> dict[str, Any] | TaskFailure:
@@ -196,25 +204,30 @@ def binned_pp(temp: np.ndarray, y: np.ndarray) -> list[float]:
 
 
 def _as_instance(inst: InstanceWindows, sel: np.ndarray) -> SensorInstance:
-    """Selected windows as one sensor instance (flights one after another in time)."""
+    """Selected windows as one sensor instance (flights one after another in time, a
+    window's length apart)."""
     order = np.lexsort((inst.time_s[sel], inst.flight[sel]))
-    t = np.arange(int(sel.sum()), dtype=np.float64)[order.argsort()] * 10.0
+    t = np.arange(int(sel.sum()), dtype=np.float64)[order.argsort()] * inst.window_s
     return SensorInstance(inst.kind, int(inst.name[-1]) if inst.name[-1].isdigit() else 0,
                           inst.device_id, np.sort(t), inst.temp[sel][order],
                           inst.drift[sel][order], notes=list(inst.notes))
 
 
 def _firmware(inst: InstanceWindows, autopilot: str) -> dict[str, Any]:
-    """The firmware form on every kept window, and its check on the last flight."""
+    """The firmware form on every kept window, and its check on the last flight.  PX4's
+    running median takes as many windows as span its 31 reader's windows (fewer once windows
+    are merged: else it would run across flights)."""
     keep = np.asarray(inst.keep)
     flights = np.unique(inst.flight[keep])
-    out: dict[str, Any] = {"fit": fit_firmware(_as_instance(inst, keep), autopilot)}
+    span = int(PX4_MEDIAN_SAMPLES * WINDOW_S / inst.window_s)
+    med = max(1, span - (1 - span % 2))             # the largest odd number within the span
+    out: dict[str, Any] = {"fit": fit_firmware(_as_instance(inst, keep), autopilot, med)}
     if flights.size < 2:
         out["held_out"] = {"status": "not judged", "reason": "one flight: nothing to hold out"}
         return out
     last = keep & (inst.flight == flights[-1])
     train = keep & ~last
-    fit = fit_firmware(_as_instance(inst, train), autopilot)
+    fit = fit_firmware(_as_instance(inst, train), autopilot, med)
     temp = inst.temp[last]
     y = _target(inst, inst.drift[last])
     after = y - fit_correction(fit, temp)
@@ -317,7 +330,8 @@ def _instance(inst: InstanceWindows, autopilot: str, stage: Path, do_compare: bo
     d: dict[str, Any] = {
         "kind": inst.kind, "device_id": inst.device_id, "status": "skipped", "reason": None,
         "flights": int(np.unique(inst.flight[keep]).size), "windows": int(keep.sum()),
-        "still_windows": int((inst.still & keep).sum()), "lag_s": inst.lag_s,
+        "still_windows": int((inst.still & keep).sum()), "window_s": inst.window_s,
+        "lag_s": inst.lag_s,
         "lag_scores": scores, "rejected_windows": dropped,
         "minutes": round(float(inst.weight[keep].sum()) / 60.0, 1),
         "coverage": cov, "supported_c": list(span) if span else None, "missing": words}
@@ -419,13 +433,16 @@ def learn(paths: Sequence[str | Path], out_dir: str | Path, *, executor: str = "
     _check_out(out, files)
     fresh = not out.exists()
     try:
-        logs, refused = _read_all(files, out, executor, workers, ray_address, say)
+        read, fold = _read_all(files, out, executor, workers, ray_address, say)
     except BaseException:
         # stopped: the logs read so far stay cached (the next run resumes from them); a new
         # directory that holds none is not left behind
         if fresh and not any((out / "cache").glob("*.json")):
             shutil.rmtree(out, ignore_errors=True)
         raise
+    refused = [(lg["path"], _strip(lg["error"], Path(lg["path"]))) for lg in read
+               if "error" in lg]
+    logs = [lg for lg in read if "error" not in lg]
     if logs:
         ap, sensors, board = vehicle_of(logs)
         kept = []
@@ -441,12 +458,14 @@ def learn(paths: Sequence[str | Path], out_dir: str | Path, *, executor: str = "
             shutil.rmtree(out, ignore_errors=True)
         raise ThermonetError("no log to learn from: " + "; ".join(
             f"{Path(p).name}: {w}" for p, w in refused))
+    instances = fold.instances({vehicle_key(lg) for lg in logs}, [lg["index"] for lg in logs],
+                               [lg["path"] for lg in logs], sensors)
     old = _previous(out)
     stage = out / ".staging"
     shutil.rmtree(stage, ignore_errors=True)
     stage.mkdir(parents=True)
     try:
-        doc = _learn_into(logs, refused, ap, stage, compare, export, say)
+        doc = _learn_into(logs, instances, refused, ap, stage, compare, export, say)
         doc["changes"] = _changes(old, doc)
         atomic_write_text(stage / "report.txt", format_learn_report(doc))
         atomic_write_text(stage / "results.json", json.dumps(doc, indent=2, default=_json))
@@ -477,11 +496,11 @@ def _install(stage: Path, out: Path) -> None:
             (stage / name).rename(target)
 
 
-def _learn_into(logs: list[dict[str, Any]], refused: list[tuple[str, str]], autopilot: str,
-                stage: Path, do_compare: bool, do_export: bool, say: Callable[[str], None]
-                ) -> dict[str, Any]:
-    """Every instance learned into ``stage``; the results document (without its changes)."""
-    instances = gather(logs)
+def _learn_into(logs: list[dict[str, Any]], instances: Iterable[InstanceWindows],
+                refused: list[tuple[str, str]], autopilot: str, stage: Path, do_compare: bool,
+                do_export: bool, say: Callable[[str], None]) -> dict[str, Any]:
+    """Every instance learned into ``stage`` (one at a time: each one's windows dropped once
+    learned); the results document (without its changes)."""
     docs: dict[str, dict[str, Any]] = {}
     for inst in instances:
         say(f"{inst.name}: learning from {np.unique(inst.flight).size} flights")

@@ -5,8 +5,12 @@ A log is read by :func:`reduce_log` (on the process pool or Ray, one log a task:
 executors as ``fleet``) into plain data: per bias series (:mod:`thermonet.data.logs.bias`)
 the means over :data:`WINDOW_S` windows of its valid samples — the drift weighted by the
 inverse of the reported variance (equal weights where none is logged), the temperature, and
-the temperature through first-order lags of every :data:`LAG_GRID_S` time constant.  So the
-memory a job needs is the windows (a 30-minute flight is ~180 per series), not the logs.
+the temperature through first-order lags of every :data:`LAG_GRID_S` time constant.  The
+driver folds each reduced log into :class:`WindowFold` as it arrives and keeps of it only its
+summary (path, autopilot, device ids, board id, notes): the windows an instance holds are
+capped at :data:`MAX_WINDOWS` (a 30-minute flight gives ~180 per series; past the cap every
+flight's windows are merged in pairs), so the memory a job needs is bounded by the cap, not
+by the logs (experiments/README.md: flat from 200 to 1,000 logs).
 
 Each reduced log is cached in ``DIR/cache/`` under its SHA-256 (:func:`cache_path`) as it
 arrives, refusals included: a stopped job loses no log already read, and adding logs to a
@@ -34,6 +38,7 @@ from __future__ import annotations
 import json
 import math
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,8 +49,9 @@ from ..core.errors import InputError
 from ..core.fileio import atomic_write_text
 from ..data.logs.bias import BIAS_KINDS, BiasSeries, read_bias_log
 
-__all__ = ["WINDOW_S", "LAG_GRID_S", "OUTLIER_MADS", "READER_VERSION", "reduce_log", "reduce_or_refuse", "compact",
-           "cache_path", "InstanceWindows", "gather", "choose_lag", "reject_outliers",
+__all__ = ["WINDOW_S", "LAG_GRID_S", "OUTLIER_MADS", "READER_VERSION", "reduce_log",
+           "reduce_or_refuse", "compact", "cache_path", "InstanceWindows", "gather",
+           "WindowFold", "MAX_WINDOWS", "vehicle_key", "choose_lag", "reject_outliers",
            "coverage", "missing_words", "TARGET_RANGE_C", "MIN_BIN_FLIGHTS", "MIN_BIN_MINUTES"]
 
 #: Window of the means a log is reduced to, s.
@@ -58,6 +64,9 @@ SLOPE_S = 30.0
 LAG_SCORE_S = 120.0
 #: A window this many robust standard deviations off the fit is left out.
 OUTLIER_MADS = 5.0
+#: Windows one instance holds at most (about 180 half-hour flights of 10-s windows): past it
+#: they are merged in pairs (:class:`WindowFold`), so memory does not grow with the logs.
+MAX_WINDOWS = 2 ** 15
 #: Bumped when the reduction changes: older cache entries are read again.
 READER_VERSION = 2
 #: The temperatures a vehicle may meet (°C): the coverage map says what of it is missing.
@@ -174,7 +183,8 @@ def write_cache(path: Path, doc: dict[str, Any]) -> None:
 class InstanceWindows:
     """One sensor instance's windows over every flight: per window its flight (index into
     ``flights``), time, temperature as read, drift (n, 3) de-lagged by each lag tried, weight
-    (s of data), and whether it came from still-gyro windows."""
+    (s of data), and whether it came from still-gyro windows; ``window_s``: their length (the
+    reader's :data:`WINDOW_S`, or a multiple once merged under :data:`MAX_WINDOWS`)."""
 
     kind: str
     device_id: int
@@ -189,6 +199,7 @@ class InstanceWindows:
     notes: list[str] = field(default_factory=list)
     lag_s: float = 0.0
     keep: np.ndarray | None = None
+    window_s: float = WINDOW_S
 
     @property
     def drift(self) -> np.ndarray:
@@ -201,46 +212,171 @@ def _name_of(sensors: dict[str, int], kind: str, dev: int) -> str:
                 f"{kind}-{dev}")
 
 
-def gather(logs: list[dict[str, Any]]) -> list[InstanceWindows]:
-    """Every instance's windows over the logs (in the order given: one flight a log); an
-    estimator window within :data:`WINDOW_S` of a still window of its flight is dropped (the
-    still window measures the same bias directly)."""
-    acc: dict[tuple[str, int], list[tuple[int, dict[str, Any]]]] = {}
-    for k, lg in enumerate(logs):
-        for s in lg["series"]:
-            if s["kind"] in BIAS_KINDS and len(s["t"]):
-                acc.setdefault((s["kind"], int(s["device_id"])), []).append((k, s))
-    out = []
-    for (kind, dev), parts in sorted(acc.items()):
-        cols: dict[str, list[Any]] = {c: [] for c in ("flight", "t", "temp", "weight",
-                                                      "still")}
-        lag: dict[str, list[np.ndarray]] = {f"{tau:g}": [] for tau in LAG_GRID_S}
-        for k, s in parts:
-            t = np.asarray(s["t"])
+def vehicle_key(lg: dict[str, Any]) -> tuple[str, str, str | None]:
+    """What :func:`not_this_vehicle` judges a log by: autopilot, device ids, board id."""
+    return (lg["autopilot"], json.dumps(sorted(lg["sensors"].items())), lg.get("board_id"))
+
+
+def _log_rows(doc: dict[str, Any]) -> dict[tuple[str, int], list[dict[str, np.ndarray]]]:
+    """A reduced log's windows per instance (kind, device id), one block of columns per
+    series; an estimator window within :data:`WINDOW_S` of a still window of the log is
+    dropped (the still window measures the same bias directly).  ``drift``: every lag's of
+    :data:`LAG_GRID_S` side by side (n, 3·lags), float32 as :func:`compact` holds them."""
+    parts: dict[tuple[str, int], list[dict[str, Any]]] = {}
+    for s in doc["series"]:
+        if s["kind"] in BIAS_KINDS and len(s["t"]):
+            parts.setdefault((s["kind"], int(s["device_id"])), []).append(s)
+    out = {}
+    for key, series in parts.items():
+        stills = [np.asarray(p["t"]) for p in series if p["source"] == "still"]
+        blocks = []
+        for s in series:
+            t = np.asarray(s["t"], dtype=np.float64)
             keep = np.ones(t.size, dtype=bool)
             if s["source"] == "ekf":
-                stills = [np.asarray(p["t"]) for kk, p in parts if kk == k and
-                          p["source"] == "still"]
                 for st in stills:
-                    near = np.abs(t[:, None] - st[None, :]).min(axis=1) < WINDOW_S if \
-                        st.size else np.zeros(t.size, dtype=bool)
-                    keep &= ~near
-            cols["flight"].append(np.full(int(keep.sum()), k))
-            cols["t"].append(t[keep])
-            cols["temp"].append(np.asarray(s["temp"])[keep])
-            cols["weight"].append(np.asarray(s["weight"])[keep])
-            cols["still"].append(np.full(int(keep.sum()), s["source"] == "still"))
-            for key in lag:
-                lag[key].append(np.asarray(s["drifts"][key], dtype=np.float64).reshape(-1, 3)[
-                    keep])
-        names = [lg["path"] for lg in logs]
-        out.append(InstanceWindows(
-            kind, dev, _name_of(logs[parts[0][0]]["sensors"], kind, dev), names,
-            np.concatenate(cols["flight"]), np.concatenate(cols["t"]),
-            np.concatenate(cols["temp"]), {k: np.concatenate(v) for k, v in lag.items()},
-            np.concatenate(cols["weight"]),
-            np.concatenate(cols["still"])))
+                    if st.size:
+                        keep &= ~(np.abs(t[:, None] - st[None, :]).min(axis=1) < WINDOW_S)
+            drift = np.concatenate([np.asarray(s["drifts"][f"{tau:g}"], dtype=np.float32
+                                               ).reshape(-1, 3) for tau in LAG_GRID_S], axis=1)
+            blocks.append({"t": t[keep], "temp": np.asarray(s["temp"], dtype=np.float64)[keep],
+                           "weight": np.asarray(s["weight"], dtype=np.float64)[keep],
+                           "still": np.full(int(keep.sum()), s["source"] == "still"),
+                           "drift": drift[keep]})
+        out[key] = blocks
     return out
+
+
+def _merge_pairs(c: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Each segment's windows merged in pairs (first with second, third with fourth, ...; an
+    odd last one alone): time, temperature and drift averaged weighted by the seconds each
+    holds, the seconds added; a segment (one series of one log) is never merged with another."""
+    seg = c["seg"]
+    if not seg.size:
+        return c
+    first = np.r_[True, seg[1:] != seg[:-1]]
+    idx = np.arange(seg.size)
+    pos = idx - np.maximum.accumulate(np.where(first, idx, 0))
+    starts = np.flatnonzero(first | (pos % 2 == 0))
+    w = c["weight"]
+    wsum = np.add.reduceat(w, starts)
+
+    def mean(x: np.ndarray) -> np.ndarray:
+        if x.ndim == 1:
+            return np.add.reduceat(x * w, starts) / wsum
+        return np.add.reduceat(x * w[:, None], starts, axis=0) / wsum[:, None]
+
+    return {"flight": c["flight"][starts], "seg": seg[starts], "t": mean(c["t"]),
+            "temp": mean(c["temp"]), "weight": wsum, "still": c["still"][starts],
+            "drift": mean(c["drift"].astype(np.float64)).astype(np.float32)}
+
+
+def _concat(chunks: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    return {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
+
+
+@dataclass
+class _Store:
+    """One instance's windows of one vehicle: column chunks (flight: the log's index among
+    those given; seg: one series of one log), each window ``2**level`` of the reader's."""
+
+    level: int = 0
+    n: int = 0
+    chunks: list[dict[str, np.ndarray]] = field(default_factory=list)
+
+    def rows(self) -> dict[str, np.ndarray]:
+        """The chunks as one (kept as one)."""
+        if len(self.chunks) > 1:
+            self.chunks = [_concat(self.chunks)]
+        return self.chunks[0]
+
+    def coarsen(self, cap: int, level: int = 0) -> None:
+        """Merge in pairs until at ``level`` at least and at most ``cap`` windows."""
+        while self.chunks and (self.level < level or self.n > cap):
+            self.chunks = [_merge_pairs(self.rows())]
+            self.n, self.level = self.chunks[0]["seg"].size, self.level + 1
+        self.level = max(self.level, level)
+
+
+class WindowFold:
+    """Every log's windows folded in as it arrives, in any order, per vehicle (which logs
+    are the vehicle's is known only once all are read: :func:`vehicle_key`) and instance,
+    at most :data:`MAX_WINDOWS` per instance: past it, every flight's windows are merged in
+    pairs (10-s windows become 20-s, then 40-s, ...; a log read later is merged as far on
+    arrival).  So what the job holds is bounded by the cap, not by the logs: per log only
+    its summary (:meth:`add`'s caller keeps it).  Below the cap the windows are the reader's,
+    unchanged; the pairs merged are the same whatever the order the logs arrive in (each
+    series's windows pair up by their place in it), so the result depends on the logs only."""
+
+    def __init__(self, cap: int | None = None) -> None:
+        self.cap = MAX_WINDOWS if cap is None else int(cap)
+        self._stores: dict[tuple[tuple[str, str, str | None], str, int], _Store] = {}
+        self._segments = 0
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the windows held (every instance, every vehicle)."""
+        return sum(a.nbytes for st in self._stores.values() for c in st.chunks
+                   for a in c.values())
+
+    def add(self, flight: int, doc: dict[str, Any]) -> None:
+        """Fold in the reduced log ``doc`` (:func:`reduce_log`) as log number ``flight``."""
+        key = vehicle_key(doc)
+        for (kind, dev), blocks in sorted(_log_rows(doc).items()):
+            store = self._stores.setdefault((key, kind, dev), _Store())
+            blocks = [b for b in blocks if b["t"].size]
+            if not blocks:
+                continue
+            for b in blocks:
+                b["flight"] = np.full(b["t"].size, flight, dtype=np.int64)
+                b["seg"] = np.full(b["t"].size, self._segments, dtype=np.int64)
+                self._segments += 1
+            rows = _concat(blocks)
+            for _ in range(store.level):
+                rows = _merge_pairs(rows)
+            store.chunks.append(rows)
+            store.n += rows["seg"].size
+            if len(store.chunks) > 64:              # few arrays, not one set per log
+                store.rows()
+            store.coarsen(self.cap)
+
+    def instances(self, vehicles: set[tuple[str, str, str | None]], flights: list[int],
+                  names: list[str], sensors: dict[str, int]) -> Iterator[InstanceWindows]:
+        """Each instance's windows over the logs of ``vehicles`` (``flights``: their numbers,
+        in order; ``names``: their paths), one instance at a time, each dropped once given:
+        the windows of each log in the order given, at the level all fit the cap."""
+        for kind, dev in sorted({(k, d) for v, k, d in self._stores if v in vehicles}):
+            parts = [self._stores.pop((v, kind, dev)) for v in sorted(vehicles, key=str)
+                     if (v, kind, dev) in self._stores]
+            level = max(p.level for p in parts)
+            for p in parts:
+                p.coarsen(self.cap, level)
+            merged = _Store(level, sum(p.n for p in parts), [c for p in parts for c in p.chunks])
+            merged.coarsen(self.cap)
+            rows = merged.rows() if merged.chunks else {
+                "flight": np.zeros(0, np.int64), "t": np.zeros(0), "temp": np.zeros(0),
+                "weight": np.zeros(0), "still": np.zeros(0, bool),
+                "drift": np.zeros((0, 3 * len(LAG_GRID_S)), np.float32)}
+            order = np.argsort(rows["flight"], kind="stable")
+            yield InstanceWindows(
+                kind, dev, _name_of(sensors, kind, dev), names,
+                np.searchsorted(np.asarray(flights), rows["flight"][order]),
+                rows["t"][order], rows["temp"][order],
+                {f"{tau:g}": np.ascontiguousarray(rows["drift"][order, 3 * j:3 * j + 3],
+                                                  dtype=np.float64)
+                 for j, tau in enumerate(LAG_GRID_S)},
+                rows["weight"][order], rows["still"][order],
+                window_s=WINDOW_S * 2 ** merged.level)
+
+
+def gather(logs: list[dict[str, Any]]) -> list[InstanceWindows]:
+    """Every instance's windows over the logs (reduced, of one vehicle), in the order given:
+    one flight a log (:class:`WindowFold` over them)."""
+    fold = WindowFold()
+    for k, lg in enumerate(logs):
+        fold.add(k, lg)
+    return list(fold.instances({vehicle_key(lg) for lg in logs}, list(range(len(logs))),
+                               [lg["path"] for lg in logs], logs[0]["sensors"] if logs else {}))
 
 
 def _cubic_residuals(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -283,7 +419,7 @@ def choose_lag(inst: InstanceWindows) -> dict[str, float]:
             continue
         scale = np.maximum(np.ptp(inst.drift, axis=0), 1e-12)
         res = _cubic_residuals(inst.temp, inst.drift, inst.weight)[order]
-        res = _smooth(inst.flight[order], res, max(1, int(LAG_SCORE_S / WINDOW_S)))
+        res = _smooth(inst.flight[order], res, max(1, int(LAG_SCORE_S / inst.window_s)))
         scores[f"{tau:g}"] = float(np.mean(np.median(np.abs(res), axis=0) / scale))
     if not inst.still.all():
         inst.lag_s = float(min(LAG_GRID_S, key=lambda tau: scores[f"{tau:g}"]))
