@@ -12,7 +12,7 @@ the run changes, so each piece belongs to one run and arrives in file order:
 * **any other Parquet file, CSV, TSV or text table**, with or without a column mapping
   (:mod:`thermonet.data.mapping`): the layout takes one pass (the runs are the run column's
   values, the sample counts and the skipped rows are counted); Parquet is read in record
-  batches, text ``chunk_rows`` lines at a time (:func:`thermonet.data.tables.iter_text_frames`),
+  batches, text ``chunk_rows`` lines at a time (:func:`thermonet.data.text.iter_text_frames`),
   and each chunk goes through the whole-file reader's own mapping step
   (:func:`thermonet.data.tables.map_frame`: the same parsing, units, scale and offset, and
   the same one-line error naming file, column, row and file line).
@@ -72,19 +72,16 @@ from .logs import is_log
 from .mapping import ColumnMapping
 from .tables import (
     GROUPS,
-    Frame,
     Mapped,
     MapState,
-    check_finite,
-    check_time,
-    float_values,
-    iter_text_frames,
     map_frame,
     native_mapping,
     run_meta,
     run_units,
     sensor_kind_of,
 )
+from .text import Frame, iter_text_frames
+from .values import check_finite, check_time, float_values
 
 __all__ = ["DEFAULT_CHUNK_ROWS", "MEDIAN_SAMPLES", "Layout", "ParquetLayout", "RunTimes",
            "open_parquet", "open_source", "iter_run_chunks", "run_times", "count_samples",

@@ -55,16 +55,9 @@ from ..core.fileio import atomic_path, not_a_file
 from ..core.recording import Dataset, Recording
 from .logs import is_log, read_log_instance
 from .mapping import ColumnMapping, load_mapping
-from .tables import (
-    GROUPS,
-    Frame,
-    apply_mapping,
-    check_finite,
-    check_time,
-    float_values,
-    native_mapping,
-    read_text,
-)
+from .tables import GROUPS, apply_mapping, native_mapping
+from .text import Frame, read_text
+from .values import check_finite, check_time, float_values
 
 __all__ = ["FORMAT_VERSION", "METADATA_KEY", "DIGEST_KEY", "Digest", "stored_digest",
            "WRITE_OPTIONS", "READ_OPTIONS", "write_parquet", "write_csv",
@@ -456,7 +449,7 @@ def _check_blob(path: Path, info: Any) -> list[dict[str, Any]]:
     A Parquet file is input: each value is checked before use and a bad one
     is named (``runs[0].units``), never a traceback.
     """
-    from ..core.names import (  # local: names.check_finite is not tables.check_finite (top)
+    from ..core.names import (  # local: names.check_finite is not values.check_finite (top)
         AXIS,
         SIGNAL,
         TEXT_ID,
