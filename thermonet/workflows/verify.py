@@ -64,8 +64,8 @@ NaN or inf in any thermal-calibration parameter (``TC_*``; ``INS_TCAL*``,
 ``INS_GYR/ACC<n>_ID``/``_CALTEMP``); and for every slot the firmware applies (a
 PX4 slot with a non-zero ``TC_*_ID``, an ArduPilot IMU with ``INS_TCAL<n>_ENABLE``
 = 1): a missing parameter, a coefficient beyond a float32, TMIN not below TMAX,
-TMIN/TMAX outside :data:`PLAUSIBLE_C`, (PX4) TREF outside [TMIN, TMAX] by more
-than :data:`RANGE_SLACK_C`, a device id that is not a 32-bit integer or that
+TMIN/TMAX outside :data:`~thermonet.workflows.verify_params.PLAUSIBLE_C`, (PX4) TREF outside
+[TMIN, TMAX] by more than :data:`RANGE_SLACK_C`, a device id that is not a 32-bit integer or that
 two slots share.  Also refused in one line: a file from another board (no device
 id of the log in the file: both lists named; or thermonet's ``# board id:`` line naming
 another board than the log's own id, ``FlightLog.board_id``: two boards of one model share
@@ -85,7 +85,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -93,51 +92,40 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import InputError, ThermonetError
-from ..core.fileio import atomic_write_text, not_a_file, refuse_overwriting_inputs
+from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
 from ..core.outdir import KINDS, check_target, sha256_file, staged_output
 from ..core.version import __version__
 from ..data.firmware import (
     ARDUPILOT_TEMP_REFERENCE,
     PX4_LETTER,
     PX4_PARAM_UNIT,
-    PX4_SLOTS,
     ardupilot_correction,
     px4_offsets_1d,
     px4_offsets_3d,
 )
 from ..data.logs import FlightLog, SensorInstance, read_log
-from ..data.logs.base import TEMPERATURE_RANGE_C
-from ..reporting.report import _CSS, VERDICT_COLOURS
 from ..scoring.metrics import binned_peak_to_peak
 from .firmware_fit import check_instance, target
+from .verify_params import (
+    FLOAT32_MAX,
+    KIND_UNITS,
+    RANGE_SLACK_C,
+    ParamFile,
+    read_param_file,
+)
+from .verify_report import format_verify_report, render_verify_html
 
+# ParamFile, read_param_file, KIND_UNITS and format_verify_report are verify's own
+# vocabulary (calibrate and the command line import them from here)
 __all__ = ["Limits", "ParamFile", "read_param_file", "evaluate", "verify",
-           "format_verify_report", "RANGE_SLACK_C", "EXIT_FAILED"]
+           "format_verify_report", "RANGE_SLACK_C", "EXIT_FAILED", "KIND_UNITS"]
 
-#: How far (°C) a log may leave [TMIN, TMAX] before a warning (the scripts round TMIN/TMAX).
-RANGE_SLACK_C = 0.5
 #: Exit status of ``thermonet verify`` when an axis fails its limits (as ``fleet``).
 EXIT_FAILED = 3
 #: An axis passes "with margin" (``calibrate``: fine, not marginal) when its cut is at least
 #: MARGIN times ``min_cut`` or its residual at most the floor divided by MARGIN.
 MARGIN = 1.5
 _PX4_LETTER = PX4_LETTER
-#: The units the autopilots' formulas use, per sensor kind (what verify prints; a
-#: magnetometer in µT, its TC_M* coefficients in gauss).
-KIND_UNITS = {"gyro": "rad/s", "acc": "m/s²", "baro": "Pa", "mag": "µT"}
-_AP_ID = {"gyro": "INS_GYR{}_ID", "acc": "INS_ACC{}_ID"}
-_AP_IDS_LINE = re.compile(r"^#\s*device ids:\s*INS_TCAL(\d)\s+gyro\s+(\d+)\s+acc\s+(\d+)")
-#: thermonet's header line naming the board a file was fitted on (``FlightLog.board_id``).
-_BOARD_LINE = re.compile(r"^#\s*board id:\s*(\S.*?)\s*$")
-#: A parameter value: a decimal number as QGroundControl and Mission Planner write them.
-_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
-#: ArduPilot parameters the correction reads besides INS_TCAL<n>_*: the ids and CALTEMPs.
-_AP_CAL_PARAM = re.compile(r"INS_(GYR|ACC)\d?_(ID|CALTEMP)")
-#: Largest magnitude of the firmware's ``float`` parameters (float32).
-FLOAT32_MAX = float(np.finfo(np.float32).max)
-#: TMIN / TMAX outside this range (°C) are no sensor's: the range a log's thermometer
-#: reading must be in to be trusted (:data:`thermonet.data.logs.base.TEMPERATURE_RANGE_C`).
-PLAUSIBLE_C = TEMPERATURE_RANGE_C
 
 
 #: Largest offset at the reference temperature (PX4's ``X0``: what the firmware subtracts
@@ -178,208 +166,6 @@ class Limits:
                 raise InputError(f"the {kind} largest offset {v}: must be a positive number")
         return self
 
-
-@dataclass
-class ParamFile:
-    """A parameter file read for verification."""
-
-    path: Path
-    autopilot: str
-    params: dict[str, float]
-    #: (kind, device id) -> PX4 slot 0..3 or ArduPilot IMU 0..2; empty for an ArduPilot
-    #: file that names no device ids.
-    by_id: dict[tuple[str, int], int]
-    enabled: dict[str, bool]            # PX4: per kind; ArduPilot: "imu<n>"
-    #: name -> line number in the file
-    line_of: dict[str, int] = field(default_factory=dict)
-    #: The board the file was fitted on (thermonet's ``# board id:`` line), else None.
-    board_id: str | None = None
-
-    def where(self, name: str) -> str:
-        """``FILE: line N`` of parameter ``name`` (the file alone when it has no line)."""
-        no = self.line_of.get(name)
-        return f"{self.path}: line {no}" if no else str(self.path)
-
-    @property
-    def ids(self) -> list[int]:
-        return sorted({i for _, i in self.by_id})
-
-
-def _first_param_line(text: str) -> str | None:
-    for line in text.splitlines():
-        if line.strip() and not line.lstrip().startswith("#"):
-            return line
-    return None
-
-
-def _parse(p: Path, text: str, autopilot: str) -> tuple[dict[str, float], dict[str, int]]:
-    """``{name: value}`` and ``{name: line number}``; a line that is not a parameter, a value
-    that is not a number and a name set twice are refused naming the file, line and name."""
-    params: dict[str, float] = {}
-    line_of: dict[str, int] = {}
-    for no, line in enumerate(text.splitlines(), start=1):
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        if autopilot == "px4":
-            parts = line.split()
-            if len(parts) != 5:
-                raise InputError(f"{p}: line {no}: expected 5 fields (Vehicle-Id Component-Id "
-                                 f"Name Value Type), got {len(parts)}")
-            name, value = parts[2], parts[3]
-        else:
-            parts = line.replace(",", " ").split()
-            if len(parts) != 2:
-                raise InputError(f"{p}: line {no}: expected NAME,VALUE, got {line.strip()!r}"[:300])
-            name, value = parts
-        if name in line_of:
-            raise InputError(f"{p}: line {no}: parameter {name} is set again (first on line "
-                             f"{line_of[name]}); the autopilot would load the last value, "
-                             "verify refuses to guess which one the vehicle has")
-        if _NUMBER.fullmatch(value):
-            v = float(value)
-        elif value.lower().lstrip("+-") in ("nan", "inf", "infinity"):
-            v = float(value)                  # refused below where the firmware reads it
-        else:
-            raise InputError(f"{p}: line {no}: parameter {name}: value {value[:40]!r} is not "
-                             "a number")
-        params[name] = v
-        line_of[name] = no
-    return params, line_of
-
-
-def _is_calibration(name: str, autopilot: str) -> bool:
-    """A parameter the thermal correction reads (its value must be a finite number)."""
-    if autopilot == "px4":
-        return name.startswith("TC_")
-    return name.startswith("INS_TCAL") or bool(_AP_CAL_PARAM.fullmatch(name))
-
-
-def _device_id(pf: ParamFile, name: str) -> int:
-    """``TC_*_ID`` as the firmware compares it: an int32 parameter read as the uint32 device
-    id (a negative value is a device id with its top bit set)."""
-    v = pf.params[name]
-    if v != int(v) or not -2 ** 31 <= v < 2 ** 32:
-        raise InputError(f"{pf.where(name)}: parameter {name} = {v:g} is not a device id "
-                         "(a 32-bit integer)")
-    return int(v) & 0xFFFFFFFF
-
-
-def read_param_file(path: str | Path) -> ParamFile:
-    """Read a PX4 or ArduPilot parameter file (format told from its first parameter line),
-    every thermal-calibration parameter checked (:func:`check_params`)."""
-    p = Path(path)
-    why = not_a_file(p)
-    if why:
-        raise InputError(f"{p}: {why}")
-    try:
-        text = p.read_text()
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"{p}: cannot be read as a parameter file ({err})") from err
-    first = _first_param_line(text)
-    if first is None:
-        raise InputError(f"{p}: no parameter lines")
-    autopilot = "px4" if len(first.split()) == 5 else "ardupilot"
-    params, line_of = _parse(p, text, autopilot)
-    board = next((m.group(1) for m in map(_BOARD_LINE.match, text.splitlines()) if m), None)
-    pf = ParamFile(p, autopilot, params, {}, {}, line_of, board)
-    for name, v in params.items():
-        if _is_calibration(name, autopilot) and not math.isfinite(v):
-            raise InputError(f"{pf.where(name)}: parameter {name} is {v}: not a finite number "
-                             "(the firmware would turn every corrected sample into NaN or inf)")
-    if autopilot == "px4":
-        if not any(k.startswith("TC_") for k in params):
-            raise InputError(f"{p}: no PX4 thermal calibration (TC_*) parameters")
-        for kind, t in _PX4_LETTER.items():
-            # process_sensor_caldata.py writes no TC_<k>_ENABLE (its procedure sets them to 1
-            # on the board first): absent means enabled, said per instance
-            pf.enabled[kind] = params.get(f"TC_{t}_ENABLE", 1.0) == 1.0
-            for s in range(PX4_SLOTS):
-                if f"TC_{t}{s}_ID" not in params:
-                    continue
-                dev = _device_id(pf, f"TC_{t}{s}_ID")
-                if not dev:
-                    continue                       # ID 0: the firmware applies the slot to none
-                if (kind, dev) in pf.by_id:
-                    other = f"TC_{t}{pf.by_id[(kind, dev)]}_ID"
-                    raise InputError(f"{pf.where(f'TC_{t}{s}_ID')}: parameter TC_{t}{s}_ID names "
-                                     f"device {dev}, as {other} (line {line_of[other]}) does: "
-                                     "which slot applies is ambiguous")
-                pf.by_id[(kind, dev)] = s
-                _check_slot(pf, f"TC_{t}{s}_", _px4_coefficients(t, s), reference=True)
-    else:
-        imus = [n for n in (1, 2, 3) if f"INS_TCAL{n}_ENABLE" in params]
-        if not imus:
-            raise InputError(f"{p}: no ArduPilot thermal calibration (INS_TCAL<n>_*) parameters")
-        owner: dict[tuple[str, int], tuple[int, str]] = {}
-
-        def claim(kind: str, dev: int, imu: int, what: str) -> None:
-            if (kind, dev) in owner and owner[(kind, dev)][0] != imu:
-                raise InputError(f"{p}: {what} names {kind} device {dev} for IMU {imu}, "
-                                 f"{owner[(kind, dev)][1]} for IMU {owner[(kind, dev)][0]}: "
-                                 "which IMU applies is ambiguous")
-            owner[(kind, dev)] = (imu, what)
-
-        for n in imus:
-            pf.enabled[f"imu{n}"] = params[f"INS_TCAL{n}_ENABLE"] == 1.0
-            for kind, fmt in _AP_ID.items():
-                name = fmt.format("" if n == 1 else n)
-                if name not in params:
-                    continue
-                dev = _device_id(pf, name)
-                if dev:
-                    claim(kind, dev, n, f"{name} (line {line_of[name]})")
-                    pf.by_id[(kind, dev)] = n - 1
-            if pf.enabled[f"imu{n}"]:
-                pre = f"INS_TCAL{n}_"
-                _check_slot(pf, pre, [f"{pre}{s}{k}_{a}" for s in ("GYR", "ACC")
-                                      for k in (1, 2, 3) for a in "XYZ"], reference=False)
-        for no, line in enumerate(text.splitlines(), start=1):
-            m = _AP_IDS_LINE.match(line.strip())
-            if m:
-                n = int(m.group(1))
-                for kind, dev in (("gyro", int(m.group(2))), ("acc", int(m.group(3)))):
-                    if dev:
-                        claim(kind, dev, n, f"line {no} (# device ids)")
-                        pf.by_id[(kind, dev)] = n - 1
-    return pf
-
-
-def _px4_coefficients(t: str, s: int) -> list[str]:
-    pre = f"TC_{t}{s}_"
-    if t == "B":
-        return [f"{pre}X{k}" for k in range(6)]
-    return [f"{pre}X{k}_{i}" for k in range(4) for i in range(3)]
-
-
-def _check_slot(pf: ParamFile, pre: str, coefficients: list[str], *, reference: bool) -> None:
-    """A slot the firmware applies: every parameter present, finite (checked before), a
-    coefficient a float32 can hold, TMIN < TMAX inside :data:`PLAUSIBLE_C`, and (PX4) TREF
-    within [TMIN, TMAX] give or take :data:`RANGE_SLACK_C`."""
-    need = [pre + "TMIN", pre + "TMAX", *([pre + "TREF"] if reference else []), *coefficients]
-    for name in need:
-        if name not in pf.params:
-            raise InputError(f"{pf.path}: parameter {name} is missing (the slot {pre}* applies to "
-                             "a sensor, and the board would keep whatever value it has)")
-    for name in coefficients:
-        if abs(pf.params[name]) > FLOAT32_MAX:
-            raise InputError(f"{pf.where(name)}: parameter {name} = {pf.params[name]:g} does not "
-                             "fit the firmware's float32 (it would load as inf)")
-    lo, hi = pf.params[pre + "TMIN"], pf.params[pre + "TMAX"]
-    for name, v in ((pre + "TMIN", lo), (pre + "TMAX", hi)):
-        if not PLAUSIBLE_C[0] <= v <= PLAUSIBLE_C[1]:
-            raise InputError(f"{pf.where(name)}: parameter {name} = {v:g} °C is not a "
-                             f"temperature a sensor works at ({PLAUSIBLE_C[0]:g}..."
-                             f"{PLAUSIBLE_C[1]:g} °C)")
-    if not lo < hi:
-        raise InputError(f"{pf.where(pre + 'TMIN')}: parameter {pre}TMIN = {lo:g} is not below "
-                         f"{pre}TMAX = {hi:g} (line {pf.line_of[pre + 'TMAX']}): the calibrated "
-                         "range is empty or reversed")
-    if reference:
-        ref = pf.params[pre + "TREF"]
-        if not lo - RANGE_SLACK_C <= ref <= hi + RANGE_SLACK_C:
-            raise InputError(f"{pf.where(pre + 'TREF')}: parameter {pre}TREF = {ref:g} is "
-                             f"outside {pre}TMIN..TMAX = {lo:g}..{hi:g} °C (the polynomial's "
-                             "reference lies inside the range it was fitted on)")
 
 
 def _need(pf: ParamFile, *names: str) -> None:
@@ -627,81 +413,3 @@ def _json_safe(obj: Any) -> Any:
     if isinstance(obj, (list, tuple)):
         return [_json_safe(v) for v in obj]
     return obj
-
-
-def _g3(x: float | None) -> str:
-    return "nan" if x is None else f"{x:.3g}"
-
-
-def _cut(x: float | None) -> str:
-    return "nan" if x is None or math.isnan(x) else "inf" if math.isinf(x) else f"{x:.1f}"
-
-
-def _axis_text(d: dict[str, Any], j: int) -> str:
-    """``before->after (cut PASS|FAIL)`` of axis ``j``, with the non-finite samples named."""
-    ok = d["passed"][j]
-    text = (f"{_g3(d['pp_raw'][j])}->{_g3(d['pp_corrected'][j])} "
-            f"({_cut(d['cut'][j])}x {'PASS' if ok else 'FAIL'}")
-    bad = (d.get("nonfinite") or [0] * len(d["passed"]))[j]
-    if bad:
-        text += f": {bad} corrected samples NaN/inf"
-    return text + ")"
-
-
-def format_verify_report(doc: dict[str, Any]) -> str:
-    """One block per instance: the binned drift before → after per axis, PASS/FAIL, warnings."""
-    lim = doc["limits"]
-    lines = [f"thermonet verify: {doc['params_file']} on {doc['log']} ({doc['autopilot']})",
-             f"limits: an axis passes when the binned drift is cut at least "
-             f"{lim['min_cut']:g}x, or is left below "
-             + ", ".join(f"{v:g} {KIND_UNITS.get(k, '')} ({k})" for k, v in lim["floor"].items()),
-             ""]
-    for name, d in doc["instances"].items():
-        head = f"{name:<6} id {d['device_id']:<9}"
-        if d["status"] != "judged":
-            lines.append(f"{head} {d['status']}: {d['reason']}")
-            lines += [f"       FAIL: {w}" for w in d.get("offset_failures") or []]
-            continue
-        axes = ", ".join(_axis_text(d, j) for j in range(len(d["passed"])))
-        unit = KIND_UNITS.get(d["kind"], "")
-        lines.append(f"{head} slot {d['slot']}: binned drift p-p [{unit}] {axes}")
-        lines += [f"       FAIL: {w}" for w in d.get("offset_failures") or []]
-        lines += [f"       warning: {w}" for w in d["warnings"]]
-    lines += ["", "PASS" if doc["passed"] else "FAIL: see the axes marked FAIL"]
-    return "\n".join(lines) + "\n"
-
-
-def render_verify_html(doc: dict[str, Any]) -> str:
-    """``DIR/report.html``: the verification table (every string HTML-escaped)."""
-    import html
-
-    rows = []
-    for name, d in doc["instances"].items():
-        if d["status"] != "judged":
-            rows.append(f"<tr><td>{html.escape(name)}</td><td>{d['device_id']}</td>"
-                        f"<td colspan=\"3\">{html.escape(d['status'])}: "
-                        f"{html.escape(str(d['reason']))}"
-                        + "".join(f"<br>FAIL: {html.escape(w)}"
-                                  for w in d.get("offset_failures") or []) + "</td></tr>")
-            continue
-        for j, (b, a, c, ok) in enumerate(zip(d["pp_raw"], d["pp_corrected"], d["cut"],
-                                              d["passed"], strict=True)):
-            colour = VERDICT_COLOURS["better" if ok else "worse"]
-            warn = "; ".join([*(d.get("offset_failures") or []), *d["warnings"]]) \
-                if j == 0 else ""
-            rows.append(f"<tr><td>{html.escape(name)}[{j}]</td><td>{d['device_id']}</td>"
-                        f"<td>{_g3(b)} → {_g3(a)} {html.escape(KIND_UNITS.get(d['kind'], ''))}"
-                        f"</td><td style=\"background:{colour}\">"
-                        f"{_cut(c)}× {'PASS' if ok else 'FAIL'}</td>"
-                        f"<td>{html.escape(warn)}</td></tr>")
-    verdict = "PASS" if doc["passed"] else "FAIL"
-    return ("<!DOCTYPE html><html><head><meta charset=\"utf-8\">"
-            f"<title>thermonet verify: {html.escape(Path(doc['log']).name)}</title>"
-            f"<style>{_CSS}</style></head><body>"
-            f"<h1>{html.escape(Path(doc['params_file']).name)} on "
-            f"{html.escape(Path(doc['log']).name)} ({html.escape(doc['autopilot'])}): "
-            f"{verdict}</h1><table><tr><th>instance[axis]</th><th>device id</th>"
-            "<th>binned drift p-p before → after</th><th>cut</th><th>warnings</th></tr>"
-            + "".join(rows) + "</table>"
-            f"<h2>Report</h2><pre>{html.escape(format_verify_report(doc))}</pre>"
-            "</body></html>\n")
