@@ -50,12 +50,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import git_rev, save, table  # noqa: E402
 from thermonet.core.recording import Dataset, split_units  # noqa: E402
-from thermonet.scoring.prior import (  # noqa: E402
-    fit_unit,
-    posterior,
-    shape_design,
-    soak_plan,
-)
+from thermonet.scoring.prior import fit_unit, posterior  # noqa: E402
+from thermonet.scoring.prior_design import soak_plan  # noqa: E402
+from thermonet.scoring.prior_points import shape_design  # noqa: E402
 from thermonet.sim import simulate_fleet  # noqa: E402
 from thermonet.sim.fleet import short_test  # noqa: E402
 from thermonet.sim.presets import get_preset  # noqa: E402

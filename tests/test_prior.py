@@ -19,16 +19,12 @@ from thermonet.scoring.prior import (
     MIN_UNITS,
     AxisPrior,
     FleetPrior,
-    Points,
-    bin_points,
     fit_population,
     fit_unit,
-    next_temperatures,
-    points_needed,
     posterior,
-    shape_design,
-    soak_plan,
 )
+from thermonet.scoring.prior_design import next_temperatures, points_needed, soak_plan
+from thermonet.scoring.prior_points import Points, bin_points, shape_design
 
 T_REF, SCALE = 25.0, 50.0
 
@@ -234,7 +230,7 @@ def test_a_mixture_design_is_judged_on_telling_its_clusters_apart() -> None:
     """Two clusters: a slope, or a cubic of the same values at u = −1, 0, 1 (u³ = u there).
     Points at those three temperatures cannot tell them apart; points at u = −1, 0.5, 1 can,
     so the simulated expected error of the first design is several times the second's."""
-    from thermonet.scoring.prior import _axis_error
+    from thermonet.scoring.prior_design import _axis_error
 
     covs = np.array([np.eye(3) * 1e-6] * 2)
     ap = AxisPrior("gyro_x", np.array([0.5, 0.5]), np.array([[0.1, 0, 0], [0, 0, 0.1]]), covs,

@@ -9,7 +9,7 @@ power-up's, not the fleet's, and every test measures it.
 
 **The population** (empirical Bayes, Gaussian mixture).  Each calibrated unit's shape
 :math:`\\hat\\beta_u` is fitted by weighted least squares on its 1 °C-binned means (the same
-points a new unit gives, :func:`bin_points`).  Their distribution is a mixture of Gaussians
+points a new unit gives, :func:`~thermonet.scoring.prior_points.bin_points`).  Their distribution is a mixture of Gaussians
 :math:`\\sum_k \\pi_k\\,N(\\mu_k, \\Sigma_k)`, the number of clusters chosen by BIC among
 1 … :data:`MAX_CLUSTERS` (a cluster is tried only with :data:`UNITS_PER_CLUSTER` units for it;
 scikit-learn's ``GaussianMixture``, full covariances).  One cluster: the mean and the
@@ -32,28 +32,29 @@ Mahalanobis distance from cluster *k* under its prior predictive, :math:`\\chi^2
 (points − runs) degrees of freedom: a unit unlike every cluster
 (:math:`\\max_k p_k <` :data:`FLAG_P`) is flagged even if its own fit is good.
 
-**Which temperatures next** (Bayesian I-optimal design, Chaloner & Verdinelli 1995): the
-point that most lowers the posterior variance of the offset-free curve averaged over the
-fleet's range; without data the first two are chosen as a pair (one point of one run only
-fixes its constant).  :func:`points_needed` says how many such points reach a target error.
+**Which temperatures next** (Bayesian I-optimal design, Chaloner & Verdinelli 1995;
+:mod:`thermonet.scoring.prior_design`): the point that most lowers the posterior variance of
+the offset-free curve averaged over the fleet's range; without data the first two are chosen
+as a pair (one point of one run only fixes its constant).
+:func:`~thermonet.scoring.prior_design.points_needed` says how many such points reach a target
+error.
 """
 
 from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from ..core.errors import ConfigError, InputError
+from .prior_points import BIN_C, Points, centred, shape_design
 
 __all__ = ["PRIOR_SCHEMA", "MIN_UNITS", "MAX_CLUSTERS", "UNITS_PER_CLUSTER", "FLAG_P",
-           "BIN_C", "MIN_BIN_SAMPLES", "Points", "bin_points", "AxisPrior", "FleetPrior",
-           "UnitFit", "fit_unit", "METHOD", "StationLimit", "check_compatible", "fit_population", "Posterior", "posterior",
-           "next_temperatures", "soak_plan", "typical_drift", "points_needed", "design_errors", "first_below", "expected_error", "shape_design"]
+           "AxisPrior", "FleetPrior", "UnitFit", "fit_unit", "METHOD", "StationLimit",
+           "check_compatible", "fit_population", "Posterior", "posterior"]
 
 PRIOR_SCHEMA = 1
 #: Fewer calibrated units than this: no prior (a covariance of a cubic's three shape
@@ -66,15 +67,7 @@ UNITS_PER_CLUSTER = 15
 #: (3.3 σ: a station judges thousands of units, and at 0.01 one good unit in a hundred would
 #: fail by chance alone, more where the population is estimated from a few dozen units).
 FLAG_P = 0.001
-BIN_C = 1.0
-#: A 1 °C bin with fewer samples than this is not a point (a thermometer passing through).
-MIN_BIN_SAMPLES = 10
 MAX_DEGREE = 5
-#: Samples taken while the temperature changes faster than this are not points (°C/min;
-#: the calibration ramps the fleet prior is built from run at 1 °C/min or slower).
-MAX_RATE_C_PER_MIN = 1.2
-#: The temperature is smoothed over this window before its rate is taken (s).
-RATE_WINDOW_S = 60.0
 #: What a prior file says it is (written into it).
 METHOD = ("empirical Bayes: a Gaussian mixture over each axis's drift-curve shape in "
           "u = (T - t_ref) / scale, clusters chosen by BIC (one cluster: Ledoit-Wolf), "
@@ -114,97 +107,6 @@ class StationLimit:
         return out
 
 
-# ------------------------------------------------------------------ points
-@dataclass
-class Points:
-    """Binned means of one axis: temperature, value, sampling variance, run of each point."""
-
-    temperature_c: np.ndarray
-    value: np.ndarray
-    sampling_var: np.ndarray
-    run: np.ndarray
-    n_samples: np.ndarray
-
-    @property
-    def n_runs(self) -> int:
-        return int(np.unique(self.run).size)
-
-    def take(self, mask: np.ndarray) -> Points:
-        return Points(*(np.asarray(a)[mask] for a in (self.temperature_c, self.value,
-                                                      self.sampling_var, self.run,
-                                                      self.n_samples)))
-
-    @staticmethod
-    def join(parts: list[Points]) -> Points:
-        return Points(*(np.concatenate([getattr(p, f) for p in parts]) for f in
-                        ("temperature_c", "value", "sampling_var", "run", "n_samples")))
-
-
-def _rate_c_per_min(t: np.ndarray, time_s: np.ndarray) -> np.ndarray:
-    """|dT/dt| in °C/min, the temperature smoothed over :data:`RATE_WINDOW_S` first."""
-    from scipy.ndimage import uniform_filter1d
-
-    dt = float(np.median(np.diff(time_s))) if time_s.size > 1 else 1.0
-    size = max(1, int(round(RATE_WINDOW_S / max(dt, 1e-9))))
-    ts = uniform_filter1d(t, size=min(size, t.size), mode="nearest")
-    return np.abs(np.gradient(ts, time_s)) * 60.0 if t.size > 1 else np.zeros_like(t)
-
-
-def bin_points(temperature_c: np.ndarray, values: np.ndarray, *, time_s: np.ndarray | None = None,
-               run: int = 0, bin_c: float = BIN_C, min_samples: int = MIN_BIN_SAMPLES,
-               max_rate_c_per_min: float = MAX_RATE_C_PER_MIN) -> Points:
-    """Means of one run's visits to 1 °C bins (centred on whole degrees).
-
-    A point is one contiguous stay in a bin: a soak is one point, a ramp one point per
-    degree, and a cycle's heating and cooling passes through a bin two points (a mean over
-    both would hide the hysteresis that a one-direction test then meets).  NaNs are dropped, and with ``time_s`` the samples taken while the temperature changed
-    faster than ``max_rate_c_per_min`` (the thermometer lags the die: a point taken while
-    the chamber jumps is wrong by the lag times the rate); bins under ``min_samples`` too.
-    The sampling variance of a mean is the bin's sample variance over its count (white
-    noise; correlated noise is in the fleet's misfit variance)."""
-    t = np.asarray(temperature_c, dtype=np.float64)
-    y = np.asarray(values, dtype=np.float64)
-    ok = np.isfinite(t) & np.isfinite(y)
-    if time_s is not None and ok.sum() > 1:
-        ts = np.asarray(time_s, dtype=np.float64)
-        rate = np.full(t.shape, np.inf)
-        rate[ok] = _rate_c_per_min(t[ok], ts[ok])
-        ok &= rate <= max_rate_c_per_min
-    t, y = t[ok], y[ok]
-    if t.size == 0:
-        return Points(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, int), np.zeros(0, int))
-    idx = np.floor(t / bin_c + 0.5).astype(np.int64)   # bins centred on k·bin_c
-    pos = np.flatnonzero(ok)
-    # a new visit where the bin changes or a sample was left out between two kept ones
-    new = np.r_[True, (np.diff(idx) != 0) | (np.diff(pos) != 1)]
-    inv = np.cumsum(new) - 1
-    n = np.bincount(inv)
-    mt, my = np.bincount(inv, t) / n, np.bincount(inv, y) / n
-    var = np.bincount(inv, (y - my[inv]) ** 2) / np.maximum(n - 1, 1)
-    keep = n >= min_samples
-    return Points(mt[keep], my[keep], (var / n)[keep], np.full(int(keep.sum()), run),
-                  n[keep])
-
-
-def shape_design(temperature_c: np.ndarray, t_ref: float, scale: float,
-                 degree: int) -> np.ndarray:
-    """Columns u, u², … u^degree of u = (T − t_ref) / scale."""
-    u = (np.asarray(temperature_c, dtype=np.float64) - t_ref) / scale
-    return np.column_stack([u ** k for k in range(1, degree + 1)])
-
-
-def _centred(X: np.ndarray, y: np.ndarray, w: np.ndarray,
-             run: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """X and y minus each run's weighted mean (a run's constant profiled out)."""
-    Xc, yc = X.copy(), y.copy()
-    for r in np.unique(run):
-        m = run == r
-        sw = w[m].sum()
-        Xc[m] -= (w[m] @ X[m]) / sw
-        yc[m] -= (w[m] @ y[m]) / sw
-    return Xc, yc
-
-
 # ------------------------------------------------------------------ one unit
 @dataclass
 class UnitFit:
@@ -221,7 +123,7 @@ def fit_unit(points: Points, *, t_ref: float, scale: float, degree: int) -> Unit
     """The unit's own curve on its points (no prior): the fleet's raw material."""
     X = shape_design(points.temperature_c, t_ref, scale, degree)
     w = np.ones(points.value.size)
-    Xc, yc = _centred(X, points.value, w, points.run)
+    Xc, yc = centred(X, points.value, w, points.run)
     dof = points.value.size - points.n_runs - degree
     if dof < 1:
         raise InputError(f"{points.value.size} points in {points.n_runs} runs cannot fit "
@@ -476,7 +378,7 @@ def posterior(prior: AxisPrior, points: Points, *, t_ref: float, scale: float) -
     d = prior.means.shape[1]
     X = shape_design(points.temperature_c, t_ref, scale, d)
     w = _weights_var(prior, points)
-    Xc, yc = _centred(X, points.value, w, points.run)
+    Xc, yc = centred(X, points.value, w, points.run)
     J, b = Xc.T @ (w[:, None] * Xc), Xc.T @ (w * yc)
     q0 = float(yc @ (w * yc))
     logev, means, covs, d2 = [], [], [], []
@@ -500,172 +402,7 @@ def posterior(prior: AxisPrior, points: Points, *, t_ref: float, scale: float) -
                      np.asarray(p, dtype=np.float64), dof)
 
 
-# ------------------------------------------------------------------ designs
-def _run_information(X: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Information of one run's points on the shape, its constant profiled out."""
-    sx = w @ X
-    return np.asarray((X.T * w) @ X - np.outer(sx, sx) / w.sum())
-
-
-def expected_error(prior: AxisPrior, information: np.ndarray, grid: np.ndarray) -> float:
-    """RMS over ``grid`` rows of the offset-free curve's posterior std (moment-matched prior)."""
-    _, S = prior.moment_matched()
-    post = np.linalg.inv(np.linalg.inv(S) + information)
-    G = grid - grid.mean(axis=0)
-    return float(np.sqrt(max(np.einsum("ij,jk,ik->", G, post, G) / len(G), 0.0)))
-
-
-def _design_setup(fp: FleetPrior, axis: str, step_c: float
-                  ) -> tuple[AxisPrior, np.ndarray, float]:
-    """The axis's prior, its design rows over the candidate temperatures (where the error is
-    averaged) and the weight of one point."""
-    ap = fp.axis(axis)
-    grid = shape_design(_candidates(fp, step_c), fp.t_ref, fp.scale, fp.degree)
-    return ap, grid, 1.0 / (ap.misfit_var + ap.sampling_var + 1e-300)
-
-
-#: Units drawn from a mixture prior to judge a design by simulation (fixed seed: the same
-#: plan every time).
-DESIGN_DRAWS = 400
-
-
-def _mixture_error(fp: FleetPrior, ap: AxisPrior, grid: np.ndarray, w0: float
-                   ) -> Callable[[list[float]], float]:
-    """Expected error of a design under a mixture prior, by simulation: units drawn from the
-    mixture, their points at the design's temperatures (the point error added), each one's
-    posterior shape (clusters reweighted by evidence, as :func:`posterior`) against its own
-    curve.  Unlike one Gaussian's, it depends on how well the points tell the clusters apart."""
-    rng = np.random.default_rng(0)
-    comp = rng.choice(ap.n_clusters, size=DESIGN_DRAWS, p=ap.weights)
-    z = rng.standard_normal((DESIGN_DRAWS, fp.degree))
-    beta = ap.means[comp] + np.einsum("nij,nj->ni", np.linalg.cholesky(ap.covs)[comp], z)
-    noise = rng.standard_normal((DESIGN_DRAWS, 64)) / math.sqrt(w0)
-    Gc = grid - grid.mean(axis=0)
-    sinv = np.linalg.inv(ap.covs)
-    consts = [float(mu @ si @ mu) + float(np.linalg.slogdet(S)[1])
-              for mu, si, S in zip(ap.means, sinv, ap.covs, strict=True)]
-
-    def err(temps: list[float]) -> float:
-        X = shape_design(np.asarray(temps), fp.t_ref, fp.scale, fp.degree)
-        Xc = X - X.mean(axis=0)
-        y = beta @ X.T + noise[:, :len(temps)]
-        yc = y - y.mean(axis=1, keepdims=True)
-        J, b = w0 * Xc.T @ Xc, w0 * yc @ Xc                       # (d, d), (draws, d)
-        logev, means = [], []
-        for mu, si, c in zip(ap.means, sinv, consts, strict=True):
-            A = si + J
-            m = np.linalg.solve(A, (si @ mu)[:, None] + b.T).T     # (draws, d)
-            q = w0 * np.sum(yc ** 2, axis=1) + c - np.einsum("ni,ij,nj->n", m, A, m)
-            logev.append(-0.5 * (q + np.linalg.slogdet(A)[1]))
-            means.append(m)
-        lw = np.log(ap.weights)[:, None] + np.asarray(logev)
-        wp = np.exp(lw - lw.max(axis=0))
-        wp /= wp.sum(axis=0)
-        shape = np.einsum("kn,kni->ni", wp, np.asarray(means))
-        e = (shape - beta) @ Gc.T
-        return float(np.sqrt(np.mean(e ** 2)))
-    return err
-
-
-def _axis_error(fp: FleetPrior, axis: str, step_c: float) -> Callable[[list[float]], float]:
-    """Expected error of ``axis``'s offset-free curve after one run's points at ``temps``
-    (exact for one cluster, where it does not depend on the values measured; by simulation
-    for a mixture, :func:`_mixture_error`)."""
-    ap, grid, w0 = _design_setup(fp, axis, step_c)
-    mixture = _mixture_error(fp, ap, grid, w0) if ap.n_clusters > 1 else None
-
-    def err(temps: list[float]) -> float:
-        if len(temps) < 2:
-            return expected_error(ap, np.zeros((fp.degree, fp.degree)), grid)
-        if mixture is not None:
-            return mixture(temps)
-        X = shape_design(np.asarray(temps), fp.t_ref, fp.scale, fp.degree)
-        return expected_error(ap, _run_information(X, np.full(len(temps), w0)), grid)
-    return err
-
-
-def _greedy(cost: Callable[[list[float]], float], cand: np.ndarray, measured_c: list[float],
-            n: int) -> list[float]:
-    """``n`` more temperatures, each lowering ``cost`` most (the first two as a pair when
-    nothing was measured: one point of one run only fixes its constant)."""
-    chosen = [float(t) for t in measured_c]
-    out: list[float] = []
-    while len(out) < n:
-        if not chosen:
-            pairs = [(a, b) for i, a in enumerate(cand) for b in cand[i + 1:]]
-            best = min(pairs, key=lambda ab: cost([float(ab[0]), float(ab[1])]))
-            pick = [float(best[0]), float(best[1])][:n - len(out)]
-        else:
-            pick = [float(min(cand, key=lambda t: cost(chosen + [float(t)])))]
-        chosen += pick
-        out += pick
-    return out
-
-
-def _candidates(fp: FleetPrior, step_c: float) -> np.ndarray:
-    return np.arange(fp.range_c[0], fp.range_c[1] + 1e-9, step_c)
-
-
-def next_temperatures(fp: FleetPrior, axis: str, measured_c: list[float], n: int, *,
-                      step_c: float = 2.5) -> list[float]:
-    """The ``n`` temperatures to measure next on one run of ``axis`` (greedy I-optimal)."""
-    return _greedy(_axis_error(fp, axis, step_c), _candidates(fp, step_c), measured_c, n)
-
-
-def typical_drift(fp: FleetPrior, axis: str) -> float:
-    """The fleet's mean curve's offset-free RMS over the range (the drift a test must learn)."""
-    mu, _ = fp.axis(axis).moment_matched()
-    curve = shape_design(np.linspace(*fp.range_c, 41), fp.t_ref, fp.scale, fp.degree) @ mu
-    return float(np.sqrt(np.mean((curve - curve.mean()) ** 2)))
-
-
-def soak_plan(fp: FleetPrior, n: int, *, measured_c: list[float] | None = None,
-                      step_c: float = 2.5) -> list[float]:
-    """One test for every axis: the ``n`` soak temperatures lowering most the sum over axes
-    of (expected error / the axis's typical drift)² — axes whose drift is below a point's own
-    error left out (nothing to learn there) — in rising order: soak them in that order, so
-    that a hysteresis stays on one branch (the prior's points are each a constant apart per
-    run, not per branch; measured, a test that turned back did worse)."""
-    costs = []
-    for ap in fp.axes:
-        typ = typical_drift(fp, ap.axis)
-        if typ > math.sqrt(ap.misfit_var + ap.sampling_var):
-            costs.append((_axis_error(fp, ap.axis, step_c), typ))
-    if not costs:
-        return [fp.range_c[0], fp.range_c[1]][:n]
-
-    def cost(temps: list[float]) -> float:
-        return sum((err(temps) / typ) ** 2 for err, typ in costs)
-    return sorted(_greedy(cost, _candidates(fp, step_c), list(measured_c or []), n))
-
-
-def design_errors(fp: FleetPrior, axis: str, *, max_points: int = 12, step_c: float = 2.5
-                  ) -> tuple[list[float], list[float]]:
-    """The first ``max_points`` temperatures of one run in :func:`next_temperatures` order,
-    and the expected error after 2 … ``max_points`` of them."""
-    ap, grid, w0 = _design_setup(fp, axis, step_c)
-    temps = next_temperatures(fp, axis, [], max_points, step_c=step_c)
-    errs = []
-    for k in range(2, max_points + 1):
-        X = shape_design(np.asarray(temps[:k]), fp.t_ref, fp.scale, fp.degree)
-        errs.append(expected_error(ap, _run_information(X, np.full(k, w0)), grid))
-    return temps, errs
-
-
-def points_needed(fp: FleetPrior, axis: str, target: float, *, max_points: int = 12,
-                  step_c: float = 2.5) -> tuple[int | None, list[float], list[float]]:
-    """Points of one run (in :func:`next_temperatures` order) for an expected error ≤ target.
-
-    Returns ``(n or None, temperatures, expected error after 2 … max_points points)``."""
-    temps, errs = design_errors(fp, axis, max_points=max_points, step_c=step_c)
-    return first_below(errs, target), temps, errs
-
-
-def first_below(errs: list[float], target: float) -> int | None:
-    """The number of points (errs[0] is after 2) whose expected error is ≤ target."""
-    return next((k + 2 for k, e in enumerate(errs) if e <= target), None)
-
-
+# ------------------------------------------------------------------ a unit against the prior
 def check_compatible(fp: FleetPrior, axes: list[str], targets: dict[str, str],
                      where: str, units: dict[str, str] | None = None) -> None:
     """Refuse a unit whose axes, targets or units of measure are not the prior's (one line

@@ -56,24 +56,18 @@ from ..core.schema import from_dict
 from ..features.target import AT_T_REF, FOUR_POSITION, output_units
 from ..scoring.fleetstats import flag_outliers
 from ..scoring.prior import (
-    BIN_C,
     FLAG_P,
     MIN_UNITS,
     AxisPrior,
     FleetPrior,
-    Points,
     StationLimit,
-    bin_points,
     check_compatible,
-    design_errors,
-    first_below,
     fit_population,
     fit_unit,
-    next_temperatures,
     posterior,
-    shape_design,
-    typical_drift,
 )
+from ..scoring.prior_design import design_errors, first_below, next_temperatures, typical_drift
+from ..scoring.prior_points import BIN_C, Points, bin_points, shape_design
 from ..training.config import CompareConfig, outputs_of
 from ..training.parts import build_part, targets_for
 from .fleet_units import UnitSource

@@ -1,0 +1,186 @@
+"""Which temperatures a new unit should be tested at next, under the fleet prior
+(:mod:`thermonet.scoring.prior`): Bayesian I-optimal design (Chaloner & Verdinelli 1995) — the
+point that most lowers the posterior variance of the offset-free curve averaged over the
+fleet's range (:func:`next_temperatures`, one plan for every axis: :func:`soak_plan`); without
+data the first two are chosen as a pair (one point of one run only fixes its constant).  A
+mixture prior's designs are judged on units drawn from it (:data:`DESIGN_DRAWS`, fixed seed).
+:func:`points_needed` says how many such points reach a target error.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from .prior import AxisPrior, FleetPrior
+from .prior_points import shape_design
+
+__all__ = ["DESIGN_DRAWS", "expected_error", "next_temperatures", "typical_drift", "soak_plan",
+           "design_errors", "points_needed", "first_below"]
+
+
+def _run_information(X: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Information of one run's points on the shape, its constant profiled out."""
+    sx = w @ X
+    return np.asarray((X.T * w) @ X - np.outer(sx, sx) / w.sum())
+
+
+def expected_error(prior: AxisPrior, information: np.ndarray, grid: np.ndarray) -> float:
+    """RMS over ``grid`` rows of the offset-free curve's posterior std (moment-matched prior)."""
+    _, S = prior.moment_matched()
+    post = np.linalg.inv(np.linalg.inv(S) + information)
+    G = grid - grid.mean(axis=0)
+    return float(np.sqrt(max(np.einsum("ij,jk,ik->", G, post, G) / len(G), 0.0)))
+
+
+def _design_setup(fp: FleetPrior, axis: str, step_c: float
+                  ) -> tuple[AxisPrior, np.ndarray, float]:
+    """The axis's prior, its design rows over the candidate temperatures (where the error is
+    averaged) and the weight of one point."""
+    ap = fp.axis(axis)
+    grid = shape_design(_candidates(fp, step_c), fp.t_ref, fp.scale, fp.degree)
+    return ap, grid, 1.0 / (ap.misfit_var + ap.sampling_var + 1e-300)
+
+
+#: Units drawn from a mixture prior to judge a design by simulation (fixed seed: the same
+#: plan every time).
+DESIGN_DRAWS = 400
+
+
+def _mixture_error(fp: FleetPrior, ap: AxisPrior, grid: np.ndarray, w0: float
+                   ) -> Callable[[list[float]], float]:
+    """Expected error of a design under a mixture prior, by simulation: units drawn from the
+    mixture, their points at the design's temperatures (the point error added), each one's
+    posterior shape (clusters reweighted by evidence, as :func:`posterior`) against its own
+    curve.  Unlike one Gaussian's, it depends on how well the points tell the clusters apart."""
+    rng = np.random.default_rng(0)
+    comp = rng.choice(ap.n_clusters, size=DESIGN_DRAWS, p=ap.weights)
+    z = rng.standard_normal((DESIGN_DRAWS, fp.degree))
+    beta = ap.means[comp] + np.einsum("nij,nj->ni", np.linalg.cholesky(ap.covs)[comp], z)
+    noise = rng.standard_normal((DESIGN_DRAWS, 64)) / math.sqrt(w0)
+    Gc = grid - grid.mean(axis=0)
+    sinv = np.linalg.inv(ap.covs)
+    consts = [float(mu @ si @ mu) + float(np.linalg.slogdet(S)[1])
+              for mu, si, S in zip(ap.means, sinv, ap.covs, strict=True)]
+
+    def err(temps: list[float]) -> float:
+        X = shape_design(np.asarray(temps), fp.t_ref, fp.scale, fp.degree)
+        Xc = X - X.mean(axis=0)
+        y = beta @ X.T + noise[:, :len(temps)]
+        yc = y - y.mean(axis=1, keepdims=True)
+        J, b = w0 * Xc.T @ Xc, w0 * yc @ Xc                       # (d, d), (draws, d)
+        logev, means = [], []
+        for mu, si, c in zip(ap.means, sinv, consts, strict=True):
+            A = si + J
+            m = np.linalg.solve(A, (si @ mu)[:, None] + b.T).T     # (draws, d)
+            q = w0 * np.sum(yc ** 2, axis=1) + c - np.einsum("ni,ij,nj->n", m, A, m)
+            logev.append(-0.5 * (q + np.linalg.slogdet(A)[1]))
+            means.append(m)
+        lw = np.log(ap.weights)[:, None] + np.asarray(logev)
+        wp = np.exp(lw - lw.max(axis=0))
+        wp /= wp.sum(axis=0)
+        shape = np.einsum("kn,kni->ni", wp, np.asarray(means))
+        e = (shape - beta) @ Gc.T
+        return float(np.sqrt(np.mean(e ** 2)))
+    return err
+
+
+def _axis_error(fp: FleetPrior, axis: str, step_c: float) -> Callable[[list[float]], float]:
+    """Expected error of ``axis``'s offset-free curve after one run's points at ``temps``
+    (exact for one cluster, where it does not depend on the values measured; by simulation
+    for a mixture, :func:`_mixture_error`)."""
+    ap, grid, w0 = _design_setup(fp, axis, step_c)
+    mixture = _mixture_error(fp, ap, grid, w0) if ap.n_clusters > 1 else None
+
+    def err(temps: list[float]) -> float:
+        if len(temps) < 2:
+            return expected_error(ap, np.zeros((fp.degree, fp.degree)), grid)
+        if mixture is not None:
+            return mixture(temps)
+        X = shape_design(np.asarray(temps), fp.t_ref, fp.scale, fp.degree)
+        return expected_error(ap, _run_information(X, np.full(len(temps), w0)), grid)
+    return err
+
+
+def _greedy(cost: Callable[[list[float]], float], cand: np.ndarray, measured_c: list[float],
+            n: int) -> list[float]:
+    """``n`` more temperatures, each lowering ``cost`` most (the first two as a pair when
+    nothing was measured: one point of one run only fixes its constant)."""
+    chosen = [float(t) for t in measured_c]
+    out: list[float] = []
+    while len(out) < n:
+        if not chosen:
+            pairs = [(a, b) for i, a in enumerate(cand) for b in cand[i + 1:]]
+            best = min(pairs, key=lambda ab: cost([float(ab[0]), float(ab[1])]))
+            pick = [float(best[0]), float(best[1])][:n - len(out)]
+        else:
+            pick = [float(min(cand, key=lambda t: cost(chosen + [float(t)])))]
+        chosen += pick
+        out += pick
+    return out
+
+
+def _candidates(fp: FleetPrior, step_c: float) -> np.ndarray:
+    return np.arange(fp.range_c[0], fp.range_c[1] + 1e-9, step_c)
+
+
+def next_temperatures(fp: FleetPrior, axis: str, measured_c: list[float], n: int, *,
+                      step_c: float = 2.5) -> list[float]:
+    """The ``n`` temperatures to measure next on one run of ``axis`` (greedy I-optimal)."""
+    return _greedy(_axis_error(fp, axis, step_c), _candidates(fp, step_c), measured_c, n)
+
+
+def typical_drift(fp: FleetPrior, axis: str) -> float:
+    """The fleet's mean curve's offset-free RMS over the range (the drift a test must learn)."""
+    mu, _ = fp.axis(axis).moment_matched()
+    curve = shape_design(np.linspace(*fp.range_c, 41), fp.t_ref, fp.scale, fp.degree) @ mu
+    return float(np.sqrt(np.mean((curve - curve.mean()) ** 2)))
+
+
+def soak_plan(fp: FleetPrior, n: int, *, measured_c: list[float] | None = None,
+                      step_c: float = 2.5) -> list[float]:
+    """One test for every axis: the ``n`` soak temperatures lowering most the sum over axes
+    of (expected error / the axis's typical drift)² — axes whose drift is below a point's own
+    error left out (nothing to learn there) — in rising order: soak them in that order, so
+    that a hysteresis stays on one branch (the prior's points are each a constant apart per
+    run, not per branch; measured, a test that turned back did worse)."""
+    costs = []
+    for ap in fp.axes:
+        typ = typical_drift(fp, ap.axis)
+        if typ > math.sqrt(ap.misfit_var + ap.sampling_var):
+            costs.append((_axis_error(fp, ap.axis, step_c), typ))
+    if not costs:
+        return [fp.range_c[0], fp.range_c[1]][:n]
+
+    def cost(temps: list[float]) -> float:
+        return sum((err(temps) / typ) ** 2 for err, typ in costs)
+    return sorted(_greedy(cost, _candidates(fp, step_c), list(measured_c or []), n))
+
+
+def design_errors(fp: FleetPrior, axis: str, *, max_points: int = 12, step_c: float = 2.5
+                  ) -> tuple[list[float], list[float]]:
+    """The first ``max_points`` temperatures of one run in :func:`next_temperatures` order,
+    and the expected error after 2 … ``max_points`` of them."""
+    ap, grid, w0 = _design_setup(fp, axis, step_c)
+    temps = next_temperatures(fp, axis, [], max_points, step_c=step_c)
+    errs = []
+    for k in range(2, max_points + 1):
+        X = shape_design(np.asarray(temps[:k]), fp.t_ref, fp.scale, fp.degree)
+        errs.append(expected_error(ap, _run_information(X, np.full(k, w0)), grid))
+    return temps, errs
+
+
+def points_needed(fp: FleetPrior, axis: str, target: float, *, max_points: int = 12,
+                  step_c: float = 2.5) -> tuple[int | None, list[float], list[float]]:
+    """Points of one run (in :func:`next_temperatures` order) for an expected error ≤ target.
+
+    Returns ``(n or None, temperatures, expected error after 2 … max_points points)``."""
+    temps, errs = design_errors(fp, axis, max_points=max_points, step_c=step_c)
+    return first_below(errs, target), temps, errs
+
+
+def first_below(errs: list[float], target: float) -> int | None:
+    """The number of points (errs[0] is after 2) whose expected error is ≤ target."""
+    return next((k + 2 for k, e in enumerate(errs) if e <= target), None)
