@@ -38,9 +38,7 @@ Decisions:
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -53,12 +51,12 @@ from ..core.errors import InputError
 from ..core.fileio import atomic_path, not_a_file
 from ..core.recording import MIN_SAMPLES, Dataset, Recording
 from ..core.recording import MIN_SAMPLES as MIN_SAMPLES_
+from .chunk_base import Continuity, Layout, RunTally, RunTimes, batches, parquet_file
 from .io import (
     DIGEST_KEY,
     FORMAT_VERSION,
     METADATA_KEY,
     PARQUET_SUFFIXES,
-    READ_OPTIONS,
     WRITE_OPTIONS,
     Digest,
     _str_dict,
@@ -69,81 +67,24 @@ from .io import (
     stored_digest,
 )
 from .logs import is_log
+from .mapped_chunks import discover, mapped_frames
 from .mapping import ColumnMapping
 from .tables import (
     GROUPS,
-    Mapped,
-    MapState,
-    map_frame,
-    native_mapping,
-    run_meta,
-    run_units,
-    sensor_kind_of,
 )
-from .text import Frame, iter_text_frames
 from .values import check_finite, check_time, float_values
 
-__all__ = ["DEFAULT_CHUNK_ROWS", "MEDIAN_SAMPLES", "Layout", "ParquetLayout", "RunTimes",
-           "open_parquet", "open_source", "iter_run_chunks", "run_times", "count_samples",
+__all__ = ["DEFAULT_CHUNK_ROWS", "open_parquet", "open_source", "iter_run_chunks", "run_times", "count_samples",
            "validate_layouts", "write_streamed"]
 
 #: Rows per chunk when a caller gives none (512 KiB per float64 column).
 DEFAULT_CHUNK_ROWS = 1 << 16
-#: A run's median sample step (its gap rule) is taken over this many first samples.
-MEDIAN_SAMPLES = 4096
-_READ = {"pre_buffer": False, "buffer_size": 1 << 20, **READ_OPTIONS}
-log = logging.getLogger("thermonet.data.tables")   # the whole-file reader's logger
-_ROLES = {"output": "outputs", "reference": "references", "drift": "drift", "proxy": "proxies"}
-
-
-@dataclass
-class RunTimes:
-    """A run's first and last time, its samples, its first :data:`MEDIAN_SAMPLES` time
-    steps' median and its temperature's extremes (None without a thermometer)."""
-
-    first: float
-    last: float
-    n: int
-    median_step: float
-    temperature: tuple[float, float] | None
-
-
-@dataclass
-class Layout:
-    """What a recording file holds: its runs (entries as in the ``thermonet`` metadata blob:
-    ``run_id``, ``device_id``, ``sensor_kind``, ``sample_rate_hz``, ``meta``, ``units``,
-    ``temperature``, the channel groups, ``n_samples``), its columns and its size.
-
-    ``kind`` is ``thermonet`` (the footer gave it all), ``parquet`` or ``text`` (a pass
-    over the file, through ``mapping``).  ``times`` (per run) is known after that pass, or
-    after :func:`run_times`."""
-
-    path: Path
-    runs: list[dict[str, Any]]
-    meta: dict[str, str]
-    columns: list[str]
-    num_rows: int
-    row_groups: list[int] = field(default_factory=list)
-    kind: str = "thermonet"
-    mapping: ColumnMapping | None = None
-    fmt: str = "parquet"
-    times: list[RunTimes] | None = None
-    digest: dict[str, str] | None = None     # a thermonet file's per-column SHA-256
-
-    @property
-    def is_fleet(self) -> bool:
-        if self.kind == "thermonet":
-            return "device" in self.columns
-        return len({e["device_id"] for e in self.runs}) > 1
-
-
-ParquetLayout = Layout   # the name of a thermonet Parquet file's layout before any file streamed
 
 
 def open_parquet(path: str | Path) -> Layout | None:
     """The layout of a thermonet Parquet file (footer only), or None without the blob."""
     path = Path(path)
-    pf = _parquet_file(path)
+    pf = parquet_file(path)
     blob = (pf.schema_arrow.metadata or {}).get(METADATA_KEY.encode())
     if blob is None:
         return None
@@ -165,16 +106,6 @@ def open_parquet(path: str | Path) -> Layout | None:
                   digest=stored_digest(path, md.metadata))
 
 
-def _parquet_file(path: Path) -> pq.ParquetFile:
-    why = not_a_file(path)
-    if why:
-        raise InputError.at(path, why)
-    try:
-        return pq.ParquetFile(path, **_READ)
-    except (pa.ArrowException, OSError) as err:
-        raise InputError.at(path, f"not a readable Parquet file ({err})") from err
-
-
 def open_source(path: str | Path, mapping: ColumnMapping | None = None, *,
                 chunk_rows: int = DEFAULT_CHUNK_ROWS) -> Layout:
     """The layout of any tabular recording: a thermonet Parquet file's from its footer
@@ -191,203 +122,8 @@ def open_source(path: str | Path, mapping: ColumnMapping | None = None, *,
             return layout
     layout = Layout(path=path, runs=[], meta={}, columns=[], num_rows=0,
                     kind="parquet" if fmt == "parquet" else "text", mapping=mapping, fmt=fmt)
-    _discover(layout, int(chunk_rows))
+    discover(layout, int(chunk_rows))
     return layout
-
-
-# ------------------------------------------------------------------ mapped files
-def _frames(layout: Layout, chunk_rows: int) -> Iterator[Frame]:
-    path = layout.path
-    if layout.fmt != "parquet":
-        yield from iter_text_frames(path, layout.mapping, "\t" if layout.fmt == "tsv" else None,
-                                    chunk_rows=chunk_rows,
-                                    float_columns=lambda names, n: _float_columns(
-                                        layout.mapping, names, n))
-        return
-    pf = _parquet_file(path)
-    names = list(pf.schema_arrow.names)
-    dup = [n for n in names if names.count(n) > 1]
-    if dup:
-        raise InputError.at(path, "duplicate column", column=dup[0])
-    row0 = 1
-    for batch in _batches(pf, path, chunk_rows, None):
-        yield Frame(path=path, data=batch.to_pandas(),
-                    rows=np.arange(row0, row0 + batch.num_rows), lines=None)
-        row0 += batch.num_rows
-
-
-def _float_columns(mapping: ColumnMapping | None, names: list[str] | None, n_fields: int
-                   ) -> set[str | int]:
-    """The columns of a text table that the mapping reads as numbers (without a mapping:
-    every column of the header but ``run`` and ``device``)."""
-    if mapping is None:
-        return set() if names is None else {n for n in names if n not in ("run", "device")}
-    cols = ([mapping.time.column] if mapping.time is not None else []) + \
-        [ch.column for ch in mapping.channels]
-    out: set[str | int] = set()
-    for c in cols:
-        if isinstance(c, int):
-            out.add(names[c] if names is not None and c < len(names) else c)
-        else:
-            out.add(c)
-    return out
-
-
-def _batches(pf: pq.ParquetFile, path: Path, chunk_rows: int, columns: list[str] | None
-             ) -> Iterator[pa.RecordBatch]:
-    """Record batches; a page that fails its checksum or cannot be decoded is one line."""
-    it = pf.iter_batches(batch_size=int(chunk_rows), columns=columns)
-    row0 = 1
-    while True:
-        try:
-            batch = next(it)
-        except StopIteration:
-            return
-        except (pa.ArrowException, OSError) as err:
-            raise InputError.at(path, f"damaged Parquet data after data row {row0 - 1} "
-                                f"({err}); the file is corrupt or truncated") from None
-        row0 += batch.num_rows
-        yield batch
-
-
-class _Continuity:
-    """Each run's last time, data row and file line: time checked across chunk edges."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.last: dict[Any, tuple[float, int, int | None]] = {}
-
-    def check(self, key: Any, name: str, t: np.ndarray, rows: np.ndarray,
-              lines: np.ndarray | None) -> None:
-        prev = self.last.get(key)
-        if prev is not None and t.size and t[0] <= prev[0]:
-            check_time(self.path, name, np.array([prev[0], t[0]]),
-                       np.array([prev[1], rows[0]]),
-                       None if lines is None or prev[2] is None
-                       else np.array([prev[2], lines[0]]))
-        if t.size:
-            self.last[key] = (float(t[-1]), int(rows[-1]),
-                              None if lines is None else int(lines[-1]))
-
-
-def _mapped_frames(layout: Layout, chunk_rows: int
-                   ) -> Iterator[tuple[Frame, Mapped | None,
-                                       list[tuple[tuple[str, str], np.ndarray,
-                                                  dict[str, np.ndarray]]]]]:
-    """Per chunk of a mapped file: the frame, its mapped rows (None: every row of it was
-    skipped) and its pieces ((device, run), data rows, {"time_s" and each channel: values}),
-    in file order, every value checked (time across chunk edges too)."""
-    state = MapState()
-    seen = _Continuity(layout.path)
-    for frame in _frames(layout, chunk_rows):
-        if layout.mapping is None:
-            layout.mapping = native_mapping(layout.path, list(frame.data.columns),
-                                            frame.numeric_header)
-        if len(frame.data) == 0:
-            yield frame, None, []
-            continue
-        m = map_frame(frame, layout.mapping, state)
-        pieces = []
-        for dev, run, sel in m.groups:
-            rows = m.rows[sel]
-            lines = None if m.lines is None else m.lines[sel]
-            t = m.time_s[sel]
-            seen.check((dev, run), m.t_label, t, rows, lines)
-            pieces.append(((dev, run), rows,
-                           {"time_s": t, **{k: v[sel] for k, v in m.channels.items()}}))
-        yield frame, m, pieces
-
-
-class _Tally:
-    """One run's counts, times and temperature extremes while the layout is discovered."""
-
-    def __init__(self) -> None:
-        self.n = 0
-        self.first = self.last = 0.0
-        self.head: list[np.ndarray] = []
-        self.have = 0
-        self.lo, self.hi = np.inf, -np.inf
-
-    def add(self, t: np.ndarray, temp: np.ndarray | None) -> None:
-        if self.n == 0:
-            self.first = float(t[0])
-        self.last = float(t[-1])
-        self.n += t.size
-        if self.have < MEDIAN_SAMPLES:
-            self.head.append(t[:MEDIAN_SAMPLES - self.have])
-            self.have += self.head[-1].size
-        if temp is not None:
-            self.lo, self.hi = min(self.lo, float(temp.min())), max(self.hi, float(temp.max()))
-
-    def times(self, has_temp: bool) -> RunTimes:
-        t = np.concatenate(self.head) if self.head else np.zeros(0)
-        med = float(np.median(np.diff(t))) if t.size > 1 else float("nan")
-        return RunTimes(self.first, self.last, self.n, med,
-                        (self.lo, self.hi) if has_temp else None)
-
-
-def _discover(layout: Layout, chunk_rows: int) -> None:
-    """One pass over a mapped file: its runs, their samples and skipped rows (counted as
-    the whole-file reader counts them), every value checked."""
-    tallies: dict[tuple[str, str], _Tally] = {}
-    numeric_header: list[str] = []
-    skipped_total = 0
-    skipped_lines: list[int] = []                       # the file's first 20
-    run_skipped: dict[tuple[str, str], list[int]] = {}  # with a run column: count, lines
-    n_rows = 0
-    for frame, m, pieces in _mapped_frames(layout, chunk_rows):
-        mapping = layout.mapping
-        assert mapping is not None
-        numeric_header = frame.numeric_header
-        skipped_total += len(frame.skipped_lines) if m is None else m.n_skipped
-        if len(skipped_lines) < 20:
-            skipped_lines += sorted(int(x) for x in frame.skipped_lines)[:20]
-        if m is not None and mapping.run_column is not None and m.bad_any.any():
-            # a row with a bad mapped cell belongs to the run its run cell names
-            at = np.asarray(frame.lines if frame.lines is not None else frame.rows)
-            devs = (frame.data[_column_label(frame, mapping.device_column)].astype(str)
-                    .str.strip().to_numpy() if mapping.device_column is not None
-                    else np.full(len(frame.data), mapping.device_id, dtype=object))
-            for i in np.flatnonzero(m.bad_any):
-                tally_skip = run_skipped.setdefault((str(devs[i]), str(m.run_all[i])), [0])
-                tally_skip[0] += 1
-                if len(tally_skip) <= 20:   # the count, then the first 20 lines
-                    tally_skip.append(int(at[i]))
-        for key, _rows, piece in pieces:
-            n_rows += piece["time_s"].size
-            tallies.setdefault(key, _Tally()).add(piece["time_s"], piece.get("temperature_c"))
-    mapping = layout.mapping
-    if mapping is None or not tallies:
-        raise InputError.at(layout.path, "no data rows")
-    roles: dict[str, list[str]] = {g: [] for g in GROUPS}
-    temperature = False
-    for ch in mapping.channels:
-        if ch.role == "temperature":
-            temperature = True
-        else:
-            roles[_ROLES[ch.role]].append(ch.name)
-    kind = sensor_kind_of(mapping)
-    runs, times = [], []
-    for (dev, run), tally in tallies.items():
-        mine = run_skipped.get((dev, run), [0])
-        skips = (skipped_total, skipped_lines) if mapping.run_column is None else \
-            (mine[0], mine[1:])
-        runs.append({"run_id": run, "device_id": dev, "sensor_kind": kind,
-                     "sample_rate_hz": mapping.sample_rate_hz,
-                     "meta": run_meta(mapping, layout.path, numeric_header, skips),
-                     "units": run_units(mapping), "temperature": temperature,
-                     **{g: list(v) for g, v in roles.items()}, "n_samples": tally.n})
-        times.append(tally.times(temperature))
-    if mapping.malformed_rows == "skip":
-        log.warning("%s: skipped %d malformed row(s)", layout.path, skipped_total)
-        layout.meta["skipped_rows"] = str(skipped_total)
-    layout.runs, layout.times, layout.num_rows = runs, times, n_rows
-    layout.columns = ["time_s", *[ch.name for ch in mapping.channels]]
-
-
-def _column_label(frame: Frame, column: str | int | None) -> Any:
-    labels = list(frame.data.columns)
-    return labels[column] if isinstance(column, int) else column
 
 
 # ------------------------------------------------------------------ thermonet files
@@ -415,15 +151,15 @@ def _thermonet_pieces(layout: Layout, cols: list[str], chunk_rows: int
     path = layout.path
     index = {(e["run_id"], e["device_id"] if layout.is_fleet else None): i
              for i, e in enumerate(layout.runs)}
-    seen = _Continuity(path)
-    pf = _parquet_file(path)
+    seen = Continuity(path)
+    pf = parquet_file(path)
     for name in cols:
         if pa.types.is_boolean(pf.schema_arrow.field(name).type):
             raise InputError.at(path, "a boolean column, not a measurement", column=name)
     keys = ["run"] + (["device"] if layout.is_fleet else [])
     row0 = 1
     digest = Digest() if layout.digest else None
-    for batch in _batches(pf, path, chunk_rows, keys + cols):
+    for batch in batches(pf, path, chunk_rows, keys + cols):
         rows_all = np.arange(row0, row0 + batch.num_rows)
         values = {c: float_values(path, c, batch.column(c), rows_all) for c in cols}
         if digest is not None:
@@ -474,7 +210,7 @@ def iter_run_chunks(layout: Layout, columns: Sequence[str], *,
         yield from _thermonet_pieces(layout, cols, int(chunk_rows))
         return
     index = {(e["device_id"], e["run_id"]): i for i, e in enumerate(layout.runs)}
-    for _, _, pieces in _mapped_frames(layout, int(chunk_rows)):
+    for _, _, pieces in mapped_frames(layout, int(chunk_rows)):
         for key, rows, piece in pieces:
             if key not in index:
                 raise InputError.at(path, f"run '{key[1]}' of unit '{key[0]}' appeared since "
@@ -522,7 +258,7 @@ def run_times(layout: Layout, chunk_rows: int = DEFAULT_CHUNK_ROWS) -> list[RunT
     thermonet file; known already from the layout pass of any other)."""
     if layout.times is not None:
         return layout.times
-    tallies = [_Tally() for _ in layout.runs]
+    tallies = [RunTally() for _ in layout.runs]
     temp = ["temperature_c"] if "temperature_c" in layout.columns else []
     for i, _, piece in iter_run_chunks(layout, temp, chunk_rows=chunk_rows):
         has = layout.runs[i]["temperature"]

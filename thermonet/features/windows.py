@@ -53,10 +53,9 @@ import numpy as np
 
 from ..core.errors import ConfigError, InputError
 from ..core.recording import GAP_FACTOR, Dataset, Recording, WindowStats
+from ..data.chunk_base import MEDIAN_SAMPLES, Layout
 from ..data.chunks import (
     DEFAULT_CHUNK_ROWS,
-    MEDIAN_SAMPLES,
-    Layout,
     count_samples,
     iter_run_chunks,
     open_source,

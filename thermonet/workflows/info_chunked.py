@@ -43,9 +43,9 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.recording import MIN_SAMPLES
+from ..data.chunk_base import Layout
 from ..data.chunks import (
     DEFAULT_CHUNK_ROWS,
-    Layout,
     iter_run_chunks,
     open_parquet,
     open_source,

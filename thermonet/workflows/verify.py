@@ -167,7 +167,6 @@ class Limits:
         return self
 
 
-
 def _need(pf: ParamFile, *names: str) -> None:
     for n in names:
         if n not in pf.params:
