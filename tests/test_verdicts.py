@@ -85,12 +85,21 @@ def test_ratio_interval_and_verdicts_on_known_ratios():
 
 
 def test_choose_one_standard_error_rule():
-    boot_best = np.linspace(0.40, 0.60, 1000)  # interval about [0.405, 0.595]
-    scores = {"rbf": (0.50, boot_best), "cubic": (0.55, boot_best + 0.05),
-              "linear": (0.80, boot_best + 0.3)}
+    """The single validation part's choice is the one rule (one_se): within one standard
+    error of the best's *paired* difference over the shared draws, the fewest parameters.
+    A candidate whose own interval overlaps the best's but which is worse on every draw by
+    more than the SE of the difference is not tied (the pairing is the point)."""
+    rng = np.random.default_rng(0)
+    common = rng.normal(0.50, 0.05, 1000)       # the draws' shared part (the same blocks)
+    scores = {"rbf": (0.50, common), "cubic": (0.55, common + 0.05 + rng.normal(0, 0.08, 1000)),
+              "linear": (0.80, common + 0.30 + rng.normal(0, 0.02, 1000))}
     chosen, tied, why = choose(scores, {"rbf": 99, "cubic": 12, "linear": 6})
     assert chosen == "cubic" and tied == ["cubic", "rbf"]
     assert why.startswith("tie:") and "fewest parameters" in why
+    # its interval overlaps rbf's (0.40-0.60), but it is 0.05 worse on every draw (SE 0.01)
+    scores["cubic"] = (0.55, common + 0.05 + rng.normal(0, 0.01, 1000))
+    chosen, tied, _ = choose(scores, {"rbf": 99, "cubic": 12, "linear": 6})
+    assert chosen == "rbf" and tied == []
     none, _, why = choose({"a": (1.0, np.ones(10))}, {"a": 2})
     assert none is None and "do no harm" in why
 

@@ -110,6 +110,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -117,7 +118,7 @@ import numpy as np
 from ..core.recording import contiguous_segments
 from .folds import DIRECTION_NAMES, TURN_FRACTION, Leg, deal, excursions, purged
 from .metrics import binned_peak_to_peak
-from .verdicts import DECISION_RTOL, LEVEL, above, below, draws, same
+from .verdicts import DECISION_RTOL, LEVEL, above, below, draws, one_se
 
 __all__ = ["FoldPlan", "CandidateOOF", "plan_folds", "purge_rule", "window_rule",
            "window_labels", "select", "Selection",
@@ -586,7 +587,6 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
     (:func:`select` records why once, ``held_back``: the training data hold one direction of
     change only, or no excursion could be held out); an axis's sentence names them only.
     """
-    order = {k: i for i, k in enumerate(axis_scores)}
     chosen: dict[str, str | None] = {}
     reason: dict[str, str] = {}
     for a, axis in enumerate(outputs):
@@ -606,28 +606,17 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
             elif gated:
                 reason[axis] = "raw: no candidate passes the gate against raw" + note
             continue
-        low = min(sc.values())
-        best = min((k for k, v in sc.items() if same(v, low)),
-                   key=lambda k: (n_params[k], order[k]))
-        if not below(sc[best], 1.0):
+        c = one_se(sc, {k: v[:, a] for k, v in axis_boots.items() if k in sc}, n_params,
+                   floor=partial(_worse_than, sc, baseline))
+        best = str(c.best)
+        if c.chosen is None:
             chosen[axis] = None
             reason[axis] = (f"raw: no candidate beats the raw output out of fold (best {best}: "
                             f"{sc[best]:.4g} of raw)") + note
             continue
-        base = sc.get(baseline or "")
-        eligible = []
-        for k, v in sc.items():
-            se = float(np.nanstd(axis_boots[k][:, a] - axis_boots[best][:, a]))
-            if k != best and base is not None and k != baseline and above(v, base):
-                continue
-            if below(v, 1.0) and (v - sc[best] <= se or same(v, sc[best])):
-                eligible.append(k)
-        fewest = min(n_params[k] for k in eligible)
-        pick = min((k for k in eligible if n_params[k] == fewest),
-                   key=lambda k: (sc[k], order[k]))
-        chosen[axis] = pick
+        pick = chosen[axis] = c.chosen
         if pick == best:
-            others = [k for k in eligible if k != pick]
+            others = c.tied[1:]
             reason[axis] = (f"{pick}: the best out of fold ({sc[pick]:.4g} of raw, {k_folds} "
                             "folds)" + (f"; within one SE: {', '.join(others)} (more "
                                         "parameters)" if others else ""))
@@ -637,6 +626,14 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
                             f"({n_params[pick]} vs {n_params[best]})")
         reason[axis] += note
     return chosen, reason
+
+
+def _worse_than(sc: Mapping[str, float], baseline: str | None, k: str) -> str:
+    """The per-axis floor of :func:`choose_per_axis`: a candidate other than the baseline
+    scoring above it on the axis is not taken for its simplicity."""
+    base = sc.get(baseline or "")
+    return ("worse than the baseline" if base is not None and k != baseline
+            and above(sc[k], base) else "")
 
 
 def _gate_axis(sc: dict[str, float], a: int, gate: Gate, baseline: str | None,
@@ -1068,59 +1065,46 @@ def _one_se(plan: FoldPlan, ok: Mapping[str, CandidateOOF], sc: _Scores,
     With a baseline, the gate first (:data:`GATE_RULE` on the mean over axes): a candidate
     not better than the baseline everywhere, or one held back before any score (``held``:
     candidate -> why, :func:`_held_back`), is not eligible."""
-    order = {k: i for i, k in enumerate(ok)}
-    finite = {k: v for k, v in sc.scores.items() if math.isfinite(v)}
+    scores = {k: float(sc.scores[k]) for k in ok if k in sc.scores}
     gated: dict[str, str] = {}
-    if baseline is not None and baseline in finite and sc.gate is not None:
-        for k in finite:
-            if k == baseline:
+    if baseline is not None and math.isfinite(scores.get(baseline, math.nan)) and \
+            sc.gate is not None:
+        for k, v in scores.items():
+            if k == baseline or not math.isfinite(v):
                 continue
             if held and k in held:
                 gated[k] = held[k]
             elif not sc.gate.passes(k, None, True):
                 gated[k] = (f"gate: not better than the baseline {baseline} everywhere (judged "
                             f"on < {MIN_GATE_FOLDS} folds, or its worst fold is worse)")
-    if not finite:
+    c = one_se(scores, sc.boots, {k: o.n_params for k, o in ok.items()}, held=gated,
+               floor=lambda k: _below_baseline(k, baseline, sc.axis_scores, outputs))
+    if c.status == "no candidate":
         return None, [], "no candidate has a finite out-of-fold score"
-    low = min(v for k, v in finite.items() if k not in gated)
-    best = min((k for k, v in finite.items() if same(v, low) and k not in gated),
-               key=lambda k: (ok[k].n_params, order[k]))
-    if not below(finite[best], 1.0):
+    for k in c.diff:
+        record["candidates"][k]["diff_to_best"] = c.diff[k]
+        record["candidates"][k]["se_of_diff"] = c.se[k]
+    for k, why in c.blocked.items():
+        record["candidates"][k]["not_eligible"] = why
+    best = str(c.best)
+    if c.chosen is None:
         reason = ("do no harm: no candidate beats the raw output on any axis out of fold "
-                  f"(best {best}: score ratio {finite[best]:.4g})")
+                  f"(best {best}: score ratio {scores[best]:.4g})")
         record["rule"] = reason
         return None, [], reason
-    eligible = []
-    for k, v in finite.items():
-        d = sc.boots[k] - sc.boots[best]
-        se = float(np.nanstd(d)) if k != best else 0.0
-        record["candidates"][k]["diff_to_best"] = v - finite[best]
-        record["candidates"][k]["se_of_diff"] = se
-        floor = gated.get(k) or ("" if k == best else
-                                 _below_baseline(k, baseline, sc.axis_scores, outputs))
-        if floor:
-            record["candidates"][k]["not_eligible"] = floor
-        elif below(v, 1.0) and (v - finite[best] <= se or same(v, finite[best])):
-            eligible.append(k)
-    fewest = min(ok[k].n_params for k in eligible)
-    cands_f = [k for k in eligible if ok[k].n_params == fewest]
-    low_c = min(finite[k] for k in cands_f)
-    chosen = min((k for k in cands_f if same(finite[k], low_c)), key=lambda k: order[k])
-    tied = sorted(eligible, key=lambda k: (ok[k].n_params, finite[k], order[k]))
-    tied = [chosen] + [k for k in tied if k != chosen] if len(eligible) > 1 else []
-    c = record["candidates"][chosen]
+    chosen, tied = c.chosen, c.tied
     if not tied:
-        reason = (f"chose {chosen}: lowest out-of-fold score ({finite[chosen]:.4g} of raw, "
+        reason = (f"chose {chosen}: lowest out-of-fold score ({scores[chosen]:.4g} of raw, "
                   f"{plan.k} folds)")
     elif chosen == best:
         reason = (f"tie: {', '.join(tied)} within one SE of the best out of fold; chose "
-                  f"{chosen}: the best ({finite[chosen]:.4g} of raw, {plan.k} folds) and the "
+                  f"{chosen}: the best ({scores[chosen]:.4g} of raw, {plan.k} folds) and the "
                   f"fewest parameters ({ok[chosen].n_params})")
     else:
         reason = (f"tie: {', '.join(tied)} within one SE of the best out of fold; chose "
-                  f"{chosen}: within one SE of {best} ({finite[chosen]:.4g} vs "
-                  f"{finite[best]:.4g} of raw, paired difference {c['diff_to_best']:.2g} ≤ SE "
-                  f"{c['se_of_diff']:.2g}, {plan.k} folds), the fewest parameters "
+                  f"{chosen}: within one SE of {best} ({scores[chosen]:.4g} vs "
+                  f"{scores[best]:.4g} of raw, paired difference {c.diff[chosen]:.2g} ≤ SE "
+                  f"{c.se[chosen]:.2g}, {plan.k} folds), the fewest parameters "
                   f"({ok[chosen].n_params} vs {ok[best].n_params})")
     record["rule"] = reason
     record["chosen"] = chosen

@@ -51,8 +51,9 @@ An axis is compensated by a family only where that family's *validation*
 verdict against raw is ``better``; elsewhere the model leaves it alone (drift 0)
 and the family's validation score counts 1 there.  A family's validation score
 is the mean over axes of those (masked) ratios.  Families whose validation
-score lies within the best family's 95 % interval are tied with it; among them
-the one with the fewest parameters is chosen (the one-standard-error rule).
+score lies within one standard error of the best's (the SE of their paired difference over
+the shared draws) are tied with it; among them the one with the fewest parameters is chosen
+(the one-standard-error rule, :func:`one_se`: the one rule of every choice).
 
 Decisions that do not depend on the CPU
 ---------------------------------------
@@ -74,7 +75,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -84,7 +85,8 @@ from ..core.recording import contiguous_segments
 
 __all__ = [
     "MIN_BLOCKS", "RESAMPLES", "LEVEL", "SEED", "BlockStats", "block_labels", "block_stats",
-    "pool", "draws", "ratio_interval", "verdict_of", "masked_scores", "choose",
+    "pool", "draws", "ratio_interval", "verdict_of", "masked_scores", "choose", "one_se",
+    "Choice",
     "DECISION_RTOL", "same", "below", "above",
     "apply_compensate_mask", "VerdictName",
 ]
@@ -311,14 +313,86 @@ def masked_scores(ratio: np.ndarray, boot: np.ndarray, compensate: np.ndarray
     return point, per_draw
 
 
+@dataclass(frozen=True)
+class Choice:
+    """What :func:`one_se` decided.
+
+    ``chosen``: the candidate that ships (None: ``status`` says why); ``best``: the lowest
+    score (ties within the decision margin: the fewest parameters, then the first listed);
+    ``tied``: the candidates within one standard error of the best, the chosen first (empty
+    when it stands alone); ``diff``/``se``: per finite candidate, its score minus the best's
+    and the standard error of their paired difference; ``blocked``: per candidate left out
+    before the rule (held back by the caller, or below the caller's floor), why."""
+
+    chosen: str | None
+    best: str | None
+    status: Literal["ok", "no candidate", "no harm"]
+    tied: list[str]
+    diff: dict[str, float]
+    se: dict[str, float]
+    blocked: dict[str, str]
+
+
+def one_se(scores: Mapping[str, float], boots: Mapping[str, np.ndarray] | None,
+           n_params: Mapping[str, int], *, held: Mapping[str, str] | None = None,
+           floor: Callable[[str], str] | None = None) -> Choice:
+    """The one choice rule, for every scope — the whole recording and each axis out of fold
+    (:func:`thermonet.scoring.selection.select`), the single validation part (:func:`choose`),
+    the sensor model and the fleet's units.
+
+    1. Candidates with a finite score, less those ``held`` back (candidate → why).
+    2. The best: the lowest score (scores within the decision margin are one score: the
+       fewest parameters, then the candidate listed first).
+    3. Do no harm: nothing unless the best beats raw (a score ratio below 1).
+    4. One standard error: every candidate below 1 whose score is within one SE of the best's
+       — the SE of their *paired* difference over the shared bootstrap draws ``boots``
+       (None: no draws, only scores the same as the best's) — and that ``floor`` does not
+       block (a reason string, e.g. worse than the baseline on an axis; never the best).
+    5. Among them the fewest parameters, then the lowest score, then the first listed.
+    """
+    order = {k: i for i, k in enumerate(scores)}
+    finite = {k: float(v) for k, v in scores.items() if math.isfinite(float(v))}
+    blocked = {k: why for k, why in (held or {}).items() if k in finite}
+    pool_ = {k: v for k, v in finite.items() if k not in blocked}
+    if not pool_:
+        return Choice(None, None, "no candidate", [], {}, {}, blocked)
+    low = min(pool_.values())
+    best = min((k for k, v in pool_.items() if same(v, low)), key=lambda k: (n_params[k], order[k]))
+    if not below(pool_[best], 1.0):
+        return Choice(None, best, "no harm", [], {}, {}, blocked)
+    diff: dict[str, float] = {}
+    se: dict[str, float] = {}
+    eligible = []
+    for k, v in finite.items():
+        se[k] = (float(np.nanstd(np.asarray(boots[k]) - np.asarray(boots[best])))
+                 if boots is not None and k != best else 0.0)
+        diff[k] = v - finite[best]
+        if k in blocked:
+            continue
+        why = "" if k == best or floor is None else floor(k)
+        if why:
+            blocked[k] = why
+        elif below(v, 1.0) and (diff[k] <= se[k] or same(v, finite[best])):
+            eligible.append(k)
+    fewest = min(n_params[k] for k in eligible)
+    cands = [k for k in eligible if n_params[k] == fewest]
+    low_c = min(finite[k] for k in cands)
+    chosen = min((k for k in cands if same(finite[k], low_c)), key=lambda k: order[k])
+    rest = sorted((k for k in eligible if k != chosen),
+                  key=lambda k: (n_params[k], finite[k], order[k]))
+    return Choice(chosen, best, "ok", [chosen, *rest] if rest else [], diff, se, blocked)
+
+
 def choose(scores: dict[str, tuple[float, np.ndarray]], n_params: dict[str, int]
            ) -> tuple[str | None, list[str], str]:
-    """The chosen family, the families tied with the best, and why.
+    """The single validation part's choice (:func:`one_se` on its block-bootstrap draws): the
+    chosen family, the families tied with it, and why.
 
     Parameters
     ----------
     scores : dict
-        Family label → (validation score, its bootstrap draws) from :func:`masked_scores`.
+        Family label → (validation score, its bootstrap draws) from :func:`masked_scores`
+        (the same block counts for every family: paired).
     n_params : dict
         Family label → trained parameter count.
 
@@ -327,39 +401,25 @@ def choose(scores: dict[str, tuple[float, np.ndarray]], n_params: dict[str, int]
     chosen : str or None
         None when no family beats raw on any axis (do no harm).
     tied : list of str
-        Families within the best one's interval (the best included), when more than one.
+        Families within one standard error of the best one (the chosen first), when more
+        than one.
     reason : str
     """
-    ok = {k: v for k, v in scores.items() if math.isfinite(v[0])}
-    if not ok:
+    c = one_se({k: v[0] for k, v in scores.items()}, {k: v[1] for k, v in scores.items()},
+               n_params)
+    if c.status == "no candidate":
         return None, [], "no family could be fitted"
-    order = {k: i for i, k in enumerate(ok)}        # config order: the last tie-breaker
-    low = min(v[0] for v in ok.values())
-    # the best: the lowest score, scores within the decision margin of it counting as equal
-    # (fewest parameters, then config order) -- never the last bits of a float
-    best = min((k for k, v in ok.items() if same(v[0], low)),
-               key=lambda k: (n_params[k], order[k]))
-    score, boot = ok[best]
-    if not below(score, 1.0):
+    if c.chosen is None:
         return None, [], ("do no harm: no family beats the raw output on any axis of the "
-                          f"validation data (best {best}: score ratio {score:.3g})")
-    q = 100.0 * (1.0 - LEVEL) / 2.0
-    upper = float(np.nanpercentile(boot, 100.0 - q))
-    tied = sorted((k for k, v in ok.items()
-                   if (v[0] <= upper or same(v[0], upper)) and below(v[0], 1.0)),
-                  key=lambda k: (n_params[k], ok[k][0], order[k]))
-    # fewest parameters; among those the lowest score, where "lower" beats the margin;
-    # scores the same within it go to the family listed first
-    cands = [k for k in tied if n_params[k] == n_params[tied[0]]]
-    low_c = min(ok[k][0] for k in cands)
-    chosen = min((k for k in cands if same(ok[k][0], low_c)), key=lambda k: order[k])
-    tied = [chosen] + [k for k in tied if k != chosen]
-    if len(tied) > 1:
-        return chosen, tied, (
-            f"tie: {', '.join(tied)} score within the {LEVEL:.0%} bootstrap interval of the "
-            f"best ({best}: {score:.3g}, up to {upper:.3g}); chose the fewest parameters "
-            f"({chosen}, {n_params[chosen]} params, score {ok[chosen][0]:.3g})")
-    return chosen, [], f"lowest validation score ratio ({score:.3g} of raw)"
+                          f"validation data (best {c.best}: score ratio "
+                          f"{scores[str(c.best)][0]:.3g})")
+    score = scores[c.chosen][0]
+    if c.tied:
+        return c.chosen, c.tied, (
+            f"tie: {', '.join(c.tied)} within one SE of the best on the validation data "
+            f"({c.best}: {scores[str(c.best)][0]:.3g}); chose the fewest parameters "
+            f"({c.chosen}, {n_params[c.chosen]} params, score {score:.3g})")
+    return c.chosen, [], f"lowest validation score ratio ({score:.3g} of raw)"
 
 
 def apply_compensate_mask(model: object, compensate: Sequence[bool]) -> bool:

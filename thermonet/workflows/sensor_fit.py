@@ -29,6 +29,7 @@ chooses, as before cross-validation, and a ``tune`` grid is recorded as not tune
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
@@ -38,6 +39,7 @@ import numpy as np
 from ..core.errors import ThermonetError
 from ..scoring.domain import in_domain, noise_widths
 from ..scoring.selection import CandidateOOF, point_label, select, tuning_choice
+from ..scoring.verdicts import one_se
 from ..training.config import CompareConfig, FamilyConfig, tune_points
 
 if TYPE_CHECKING:
@@ -140,6 +142,19 @@ def sensor_tune(plan: Any, pool: SensorPool, *, fam: FamilyConfig, spec: Any,
         oofs[point_label(chosen)]
 
 
+def _lowest(scored: dict[str, float], n_params: dict[str, int]) -> str | None:
+    """The single validation part's pick: the one rule (:func:`one_se`) without draws — the
+    lowest residual, scores within the decision margin one score (the fewest parameters,
+    then the first listed).  The residuals are scaled by raw's spread, not ratios to raw
+    (the sensor model is not masked per axis), so they are put below 1 for the rule's
+    do-no-harm step, which here must not apply; the scaling keeps every comparison (the
+    margin is relative)."""
+    top = max((v for v in scored.values() if math.isfinite(v)), default=math.nan)
+    if not math.isfinite(top) or top <= 0.0:
+        return min(scored, key=lambda k: scored[k]) if scored else None
+    return one_se({k: v / (2.0 * top) for k, v in scored.items()}, None, n_params).chosen
+
+
 def choose_sensor(cfg: CompareConfig, doc: dict[str, Any], plan: Any, note: str,
                   oofs: dict[str, Any], pool: SensorPool | None, outputs: Sequence[str]
                   ) -> None:
@@ -150,7 +165,7 @@ def choose_sensor(cfg: CompareConfig, doc: dict[str, Any], plan: Any, note: str,
     ok = {k: f for k, f in doc["families"].items() if f.get("status") == "ok"}
     on_val = all(f.get("val_score") is not None for f in ok.values())
     scored = {k: f["val_score"] if on_val else f["test_score"] for k, f in ok.items()}
-    single = min(scored, key=lambda k: scored[k]) if scored else None
+    single = _lowest(scored, {k: int(f.get("n_params") or 0) for k, f in ok.items()})
     single_why = (f"chose {single}: lowest {'validation' if on_val else 'test (no validation part)'}"
                   f" residual ({scored[single]:.4g}, each axis scaled by its raw error's standard"
                   " deviation)") if single is not None else "no family was fitted"
