@@ -69,7 +69,7 @@ from .learn_data import (
     missing_words,
     not_this_vehicle,
     read_cache,
-    reduce_or_refuse,
+    reduce_for_cache,
     reject_outliers,
     vehicle_key,
     vehicle_of,
@@ -147,12 +147,12 @@ def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
 
     def arrived(i: int, value: Any) -> None:
         k = todo[i]
-        doc = value if isinstance(value, dict) else {
-            "version": READER_VERSION, "path": str(files[k]),
-            "error": value.reason if isinstance(value, TaskFailure) else str(value)}
-        doc["path"] = str(files[k])
-        if isinstance(value, dict):     # a worker that failed is not an answer: not cached
-            write_cache(cache_path(out, digests[k]), doc)
+        if isinstance(value, tuple):    # the reduced log and its cache text, as made
+            doc, text = value
+            write_cache(cache_path(out, digests[k]), text)
+        else:                           # a worker that failed is not an answer: not cached
+            doc = {"version": READER_VERSION, "path": str(files[k]),
+                   "error": value.reason if isinstance(value, TaskFailure) else str(value)}
         take(k, doc)                    # folded: the log's windows are not held as such
         done[0] += 1
         rate = done[0] / max(time.monotonic() - start, 1e-9)
@@ -165,17 +165,17 @@ def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
             for i, k in enumerate(todo):
                 arrived(i, _reduce_here(files[k]))
         else:                           # each result handed to arrived, none held
-            run_tasks(reduce_or_refuse, [str(files[k]) for k in todo],
+            run_tasks(reduce_for_cache, [str(files[k]) for k in todo],
                       executor=executor,  # type: ignore[arg-type]
                       workers=workers, ray_address=ray_address, on_done=arrived, keep=False)
     return [lg for lg in logs if lg is not None], fold
 
 
-def _reduce_here(path: Path) -> dict[str, Any] | TaskFailure:
-    """:func:`~thermonet.workflows.learn_data.reduce_or_refuse` in this process; an
+def _reduce_here(path: Path) -> tuple[dict[str, Any], str] | TaskFailure:
+    """:func:`~thermonet.workflows.learn_data.reduce_for_cache` in this process; an
     unexpected error is the log's failure (not cached, read again next time), as a worker's."""
     try:
-        return reduce_or_refuse(str(path))
+        return reduce_for_cache(str(path))
     except Exception as err:  # noqa: BLE001 - one log's bug must not sink the job
         return TaskFailure(f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}")
 

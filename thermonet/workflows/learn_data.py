@@ -50,7 +50,7 @@ from ..core.fileio import atomic_write_text
 from ..data.logs.bias import BIAS_KINDS, BiasSeries, read_bias_log
 
 __all__ = ["WINDOW_S", "LAG_GRID_S", "OUTLIER_MADS", "READER_VERSION", "reduce_log",
-           "reduce_or_refuse", "compact", "cache_path", "InstanceWindows", "gather",
+           "reduce_or_refuse", "reduce_for_cache", "compact", "cache_path", "InstanceWindows", "gather",
            "WindowFold", "MAX_WINDOWS", "vehicle_key", "choose_lag", "reject_outliers",
            "coverage", "missing_words", "TARGET_RANGE_C", "MIN_BIN_FLIGHTS", "MIN_BIN_MINUTES"]
 
@@ -147,6 +147,16 @@ def reduce_or_refuse(path: str) -> dict[str, Any]:
         return {"version": READER_VERSION, "path": str(path), "error": str(err)}
 
 
+def reduce_for_cache(path: str) -> tuple[dict[str, Any], str]:
+    """:func:`reduce_or_refuse` as a worker returns it: the reduced log with its columns as
+    arrays (:func:`compact`, quick to send) and its cache entry's text, formatted in the worker
+    — the driver writes the text as it is and folds the arrays, so it formats no floats (a
+    log's ~35,000: 18 ms, a tenth of reading it)."""
+    doc = reduce_or_refuse(path)
+    text = json.dumps(doc)
+    return compact(doc), text
+
+
 def compact(doc: dict[str, Any]) -> dict[str, Any]:
     """A reduced log as the job holds it while the rest are read: each series's columns as
     numpy arrays (time, temperature and weights float64, the drifts float32 — a ULP of
@@ -175,8 +185,9 @@ def read_cache(path: Path) -> dict[str, Any] | None:
         else None
 
 
-def write_cache(path: Path, doc: dict[str, Any]) -> None:
-    atomic_write_text(path, json.dumps(doc))
+def write_cache(path: Path, doc: dict[str, Any] | str) -> None:
+    """The cache entry: a reduced log, or its JSON text already made."""
+    atomic_write_text(path, doc if isinstance(doc, str) else json.dumps(doc))
 
 
 @dataclass
