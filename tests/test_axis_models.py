@@ -293,7 +293,7 @@ def test_runtime_batch_step_and_step_block(composite, onnx_path):
 def test_runtime_refuses_an_axis_table_that_does_not_fit(onnx_path, tmp_path):
     import onnx
 
-    from thermonet.exporting.onnx_export import seal_onnx
+    from thermonet.exporting.onnx_seal import seal_onnx
 
     proto = onnx.load(str(onnx_path))
     for p in proto.metadata_props:

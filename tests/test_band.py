@@ -386,7 +386,7 @@ def test_a_damaged_band_is_refused_by_the_checkpoint_and_the_runtime(compared, t
     import onnx
 
     from thermonet.core.errors import InputError
-    from thermonet.exporting.onnx_export import seal_onnx
+    from thermonet.exporting.onnx_seal import seal_onnx
     from thermonet.training.checkpoint import load_checkpoint, save_checkpoint
 
     res, _, _ = compared

@@ -21,8 +21,8 @@ import torch
 from thermonet.core.errors import ExportError
 from thermonet.core.trainconfig import TrainConfig
 from thermonet.exporting import export_onnx
-from thermonet.exporting.onnx_export import DIGEST_KEY
 from thermonet.exporting.onnx_graph import direct_supported
+from thermonet.exporting.onnx_seal import DIGEST_KEY
 from thermonet.exporting.parity import float32_tolerance
 from thermonet.features import dynamics
 from thermonet.features.inputs import FeatureSpec

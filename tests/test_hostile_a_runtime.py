@@ -202,7 +202,7 @@ def _with_band(model_path: Path, tmp_path: Path, half: float, growth: float = 0.
 
     import onnx
 
-    from thermonet.exporting.onnx_export import seal_onnx
+    from thermonet.exporting.onnx_seal import seal_onnx
 
     band = {"level": 0.9, "signal": "temperature_c", "window_s": 60.0, "axes": {
         a: {"edges": [-20.0, 20.0, 60.0], "half_width": [0.002, half if a == "gyro_y" else

@@ -306,8 +306,8 @@ def runtime():
 
 @pytest.mark.parametrize("how", ["weight x1000", "weight 3e38", "device_id", "digest removed"])
 def test_the_runtime_refuses_an_edited_onnx_file(fitted, tmp_path, capsys, runtime, how):
-    from thermonet.exporting.onnx_export import DIGEST_KEY as ONNX_DIGEST
-    from thermonet.exporting.onnx_export import seal_onnx
+    from thermonet.exporting.onnx_seal import DIGEST_KEY as ONNX_DIGEST
+    from thermonet.exporting.onnx_seal import seal_onnx
 
     _, path = fitted
     good = tmp_path / "m.onnx"

@@ -183,7 +183,7 @@ def track(est: EstimatorState, uri: str | None, experiment: str) -> None:
             ckpt = est.save(Path(tmp) / f"{name}.pt")
             tracker.log_artifact(ckpt, "model")
             # the MLflow model users load: runs:/<id>/model (ONNX, signature, input example)
-            from ..exporting.onnx_export import log_onnx_model  # torch boundary
+            from ..exporting.onnx_mlflow import log_onnx_model  # lazy: only where a fit is tracked
 
             log_onnx_model(onnx_of_checkpoint(ckpt, Path(tmp) / f"{name}.onnx"),
                            run_id or "", tracker.uri)

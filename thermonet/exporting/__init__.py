@@ -161,8 +161,8 @@ register_format(ExportFormat(
 _LAZY = {
     "export_source": "source", "resolve_checkpoint": "source",
     "CompensatorGraph": "onnx_export", "export_onnx": "onnx_export",
-    "parity_check": "parity", "log_onnx_to_mlflow": "onnx_export",
-    "onnx_file_size": "onnx_export", "log_onnx_model": "onnx_export",
+    "parity_check": "parity", "log_onnx_to_mlflow": "onnx_mlflow",
+    "onnx_file_size": "onnx_export", "log_onnx_model": "onnx_mlflow",
     "onnx_of_checkpoint": "source",
     "export_c_header": "c_header", "render_c_header": "c_header",
     "AutopilotCoefficients": "autopilot", "autopilot_coefficients": "autopilot",

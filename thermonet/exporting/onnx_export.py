@@ -59,23 +59,20 @@ differ from torch by four times torch's own rounding error, never more.
 
 Integrity.  The file carries its own SHA-256 in ``metadata_props['thermonet_sha256']``:
 the digest of the file's bytes with those 64 hex digits written as zeros
-(:func:`seal_onnx`).  The runtime recomputes it after its metadata checks and
+(:func:`~thermonet.exporting.onnx_seal.seal_onnx`).  The runtime recomputes it after its metadata checks and
 refuses a file whose weights, graph or metadata were edited after export (a weight
-set to 3e38 by hand), or that carries no digest; :func:`seal_onnx` re-seals a file
-edited on purpose.
+set to 3e38 by hand), or that carries no digest; :func:`~thermonet.exporting.onnx_seal.seal_onnx`
+re-seals a file edited on purpose.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import tempfile
-import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from torch import nn
 
@@ -94,8 +91,9 @@ from ..core.names import (
 from ..core.version import __version__
 from ..models import DriftModel
 from ..models.composite import AxisModels, ShippedModel
-from ..tracking import global_tracking_uri
-from .onnx_graph import DIRECT, direct_proto, direct_supported
+from .onnx_mlflow import log_onnx_model
+from .onnx_seal import DIGEST_KEY, UNSEALED, seal_bytes, seal_onnx
+from .onnx_trace import OPSET, direct_or_traced
 from .parity import parity_check, trained_range
 from .recurrent import RecurrentGraph, recurrent_metadata, recurrent_parity_check
 
@@ -109,35 +107,18 @@ __all__ = [
     "family_name",
     "target_metadata",
     "onnx_file_size",
-    "log_onnx_to_mlflow",
     "log_onnx_model",
-    "mlflow_input_example",
-    "MLFLOW_MODEL_NAME",
-    "CHOSEN_ALIAS",
     "seal_onnx",
     "DIGEST_KEY",
 ]
+# log_onnx_model (onnx_mlflow) and seal_onnx (onnx_seal) stay importable from here:
+# workflows/compare_track.py imports the first, export/README.md names the second
 
 _log = logging.getLogger(__name__)
 
 
-# torch's exporter warns once per export that torchvision (not a dependency) is absent
-logging.getLogger("torch.onnx._internal.exporter._registration").setLevel(logging.ERROR)
-
-
-#: Metadata key of the file's own SHA-256 (see the module docstring and :func:`seal_onnx`).
-DIGEST_KEY = "thermonet_sha256"
-
-
-_UNSEALED = "0" * 64
-
-
 #: Format marker written to ``metadata_props['thermonet_format']`` (2: float64 raw/outputs).
 THERMONET_FORMAT = 2
-
-
-#: ONNX opset of the exported graph.
-OPSET = 18
 
 
 #: Units of the signals thermonet itself defines; proxies take theirs from metadata.
@@ -195,135 +176,6 @@ class CompensatorGraph(nn.Module):
         return raw.to(torch.float64) - drift, drift, flag
 
 
-def _strip_debug(proto: Any) -> None:
-    """Drop per-node debug annotations and intermediate shapes (size only; semantics kept)."""
-    for node in proto.graph.node:
-        del node.metadata_props[:]
-        node.doc_string = ""
-    for value in list(proto.graph.input) + list(proto.graph.output):
-        del value.metadata_props[:]
-    for init in proto.graph.initializer:
-        del init.metadata_props[:]
-    del proto.graph.value_info[:]
-    del proto.metadata_props[:]
-    proto.doc_string = ""
-
-
-def _dynamo_proto(graph: Any, example: tuple, names: list[str], out_names: list[str]) -> Any:
-    """The dynamo exporter's graph, optimised by onnxscript — or, when that graph is not
-    valid, the unoptimised export with its constants folded and its common subexpressions
-    merged (:func:`_fold_only`), or as exported.
-
-    onnxscript's rewriter fuses each ``Max``/``Min`` pair into a ``Clip`` whose bounds it
-    names after the clamped value; where one signal is clamped twice (a per-axis model: each
-    part clamps to its own trained range) the second pair of bounds is lost and the graph
-    references values nothing defines.  Every variant computes the same operations (the
-    export's parity check runs on the result).
-    """
-    import onnx
-
-    batch = torch.export.Dim("N")
-    # traced once (the trace is most of an export's seconds): the unoptimised graph is kept,
-    # then optimised in place as torch's own optimize=True would
-    program = torch.onnx.export(
-        graph, example, None, input_names=names, output_names=out_names,
-        opset_version=OPSET, dynamo=True, external_data=False, optimize=False,
-        # forward(*inputs): the varargs tuple is one argument
-        dynamic_shapes=(tuple({0: batch} for _ in names),), verbose=False)
-    if program is None:
-        raise ExportError("torch.onnx.export (dynamo) returned no program")
-    proto = program.model_proto
-    try:
-        program.optimize()
-        optimised = program.model_proto
-        onnx.checker.check_model(optimised)
-        return optimised
-    except Exception as err:  # noqa: BLE001 - an invalid optimised graph: fold the plain one
-        _log.info("optimised ONNX graph is invalid (%s); folding the unoptimised one instead",
-                  str(err).splitlines()[0] if str(err) else type(err).__name__)
-    try:
-        folded = _fold_only(proto)
-        onnx.checker.check_model(folded)
-        return folded
-    except Exception as err:  # noqa: BLE001 - any optimiser failure: keep the plain graph
-        _log.info("folding the unoptimised ONNX graph failed (%s); keeping it as exported",
-                  str(err).splitlines()[0] if str(err) else type(err).__name__)
-    return proto
-
-
-def _fold_only(proto: Any) -> Any:
-    """``proto`` with functions inlined, constants folded, constants lifted to (deduplicated)
-    initializers and common subexpressions merged: onnxscript's optimiser without its
-    pattern rewrites."""
-    import onnx_ir as ir
-    from onnx_ir.passes import common as cp
-    from onnxscript import optimizer
-
-    model = ir.serde.deserialize_model(proto)
-    cp.InlinePass()(model)
-    optimizer.fold_constants(model)
-    ir.passes.Sequential(
-        cp.RemoveUnusedNodesPass(),
-        cp.LiftConstantsToInitializersPass(lift_all_constants=True, size_limit=0),
-        cp.DeduplicateInitializersPass(), cp.CommonSubexpressionEliminationPass(),
-        cp.RemoveUnusedNodesPass(), cp.NameFixPass())(model)
-    return ir.serde.serialize_model(model)
-
-
-def _export_proto(graph: Any, exporter: str) -> tuple[Any, str]:
-    import onnx
-
-    n_ex = 4
-    example = tuple(torch.zeros(n_ex) for _ in graph.signals) + \
-        (torch.zeros(n_ex, len(graph.outputs), dtype=torch.float64),)
-    names = list(graph.signals) + ["raw"]
-    out_names = ["compensated", "drift", "out_of_range"]
-    if hasattr(graph, "extra_inputs"):  # a recurrent model's state (.recurrent)
-        example = example + graph.example_extra(n_ex)
-        names += graph.extra_inputs
-        out_names += graph.extra_outputs
-    errors = []
-    order = ["dynamo", "torchscript"] if exporter == "auto" else [exporter]
-    for kind in order:
-        try:
-            with warnings.catch_warnings():
-                # Both exporters warn about things that do not apply here (torchvision
-                # ops, the legacy path's deprecation); the result is checked by parity.
-                warnings.simplefilter("ignore")
-                if kind == "dynamo":
-                    proto = _dynamo_proto(graph, example, names, out_names)
-                else:
-                    with tempfile.TemporaryDirectory() as tmp:
-                        f = Path(tmp) / "m.onnx"
-                        torch.onnx.export(
-                            graph, example, str(f), input_names=names, output_names=out_names,
-                            opset_version=OPSET, dynamo=False, do_constant_folding=True,
-                            dynamic_axes={n: {0: "N"} for n in names + out_names})
-                        proto = onnx.load(str(f))
-            _strip_debug(proto)
-            return proto, kind
-        except Exception as exc:  # any exporter failure: record it, try the next exporter
-            errors.append(
-                f"{kind}: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
-            )
-            _log.warning("ONNX exporter '%s' failed: %s", kind, errors[-1])
-    raise ExportError("torch.onnx.export failed (" + "; ".join(errors) + ")")
-
-
-def _direct_or_traced(model: ShippedModel, graph: nn.Module, exporter: str) -> tuple[Any, str]:
-    """The graph built directly (:mod:`.onnx_graph`) where ``exporter`` is ``direct``, or
-    ``auto`` and the model's families have a direct graph; torch's exporters otherwise."""
-    if exporter in ("auto", "direct"):
-        why = direct_supported(model)
-        if why is None:
-            return direct_proto(model, OPSET), DIRECT
-        if exporter == "direct":
-            raise ExportError(f"no direct ONNX graph for this model: {why} (use exporter "
-                              "'auto', 'dynamo' or 'torchscript')")
-        exporter = "auto"
-    return _export_proto(graph, exporter)
-
-
 def _json(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=float)
 
@@ -374,7 +226,7 @@ def _metadata_props(model: ShippedModel, metadata: Mapping[str, Any], exporter: 
         "training_run_id": _json(meta.pop("training_run_id", meta.pop("run_id", ""))),
         "validation_metrics": _json(meta.pop("validation_metrics", {})),
         "data_hash": _json(meta.pop("data_hash", "")),
-        DIGEST_KEY: _UNSEALED,  # filled in by _seal_bytes once the file is written
+        DIGEST_KEY: UNSEALED,  # filled in by seal_bytes once the file is written
     }
     if isinstance(model, AxisModels):
         props.update(axis_models_metadata(model))
@@ -484,7 +336,7 @@ def export_onnx(model: ShippedModel, path: str | Path, *, metadata: Mapping[str,
             graph: nn.Module = RecurrentGraph(model).eval()
         else:
             graph = CompensatorGraph(model).eval()
-        proto, used = _direct_or_traced(model, graph, exporter)
+        proto, used = direct_or_traced(model, graph, exporter)
         for key, value in _metadata_props(model, metadata or {}, used).items():
             entry = proto.metadata_props.add()
             entry.key, entry.value = key, value
@@ -492,7 +344,7 @@ def export_onnx(model: ShippedModel, path: str | Path, *, metadata: Mapping[str,
         proto.producer_version = __version__
         with atomic_path(path) as tmp:
             onnx.save_model(proto, str(tmp), save_as_external_data=False)
-            _seal_bytes(Path(tmp))
+            seal_bytes(Path(tmp))
             onnx.checker.check_model(str(tmp))
             if check:
                 stats = (recurrent_parity_check(model, tmp, seed=seed)
@@ -505,147 +357,6 @@ def export_onnx(model: ShippedModel, path: str | Path, *, metadata: Mapping[str,
     return path
 
 
-def _seal_bytes(path: Path) -> str:
-    """Replace the zero placeholder of :data:`DIGEST_KEY` in the file at ``path`` by the
-    SHA-256 of the file's bytes (taken with the placeholder in place); return the digest."""
-    import hashlib
-
-    data = path.read_bytes()
-    marker = _UNSEALED.encode("ascii")
-    if data.count(marker) != 1:
-        raise ExportError(f"{path}: cannot seal the ONNX file (its digest placeholder occurs "
-                          f"{data.count(marker)} times)")
-    digest = hashlib.sha256(data).hexdigest()
-    path.write_bytes(data.replace(marker, digest.encode("ascii")))
-    return digest
-
-
-def seal_onnx(path: str | Path) -> str:
-    """Store a fresh integrity digest in the exported ONNX file at ``path``; return it.
-
-    For a file you trust that the runtime refuses for its digest (edited on purpose,
-    or exported before thermonet sealed its files).  Written atomically.
-    """
-    import onnx
-
-    path = Path(path)
-    proto = onnx.load(str(path))
-    props = [p for p in proto.metadata_props if p.key != DIGEST_KEY]
-    del proto.metadata_props[:]
-    proto.metadata_props.extend(props)
-    entry = proto.metadata_props.add()
-    entry.key, entry.value = DIGEST_KEY, _UNSEALED
-    with atomic_path(path) as tmp:
-        onnx.save_model(proto, str(tmp), save_as_external_data=False)
-        digest = _seal_bytes(Path(tmp))
-    return digest
-
-
 def onnx_file_size(path: str | Path) -> int:
     """Size of an exported file in bytes (for the size benchmark)."""
     return Path(path).stat().st_size
-
-
-#: The MLflow model name a thermonet run's ONNX model is logged under: ``runs:/<id>/model``.
-MLFLOW_MODEL_NAME = "model"
-#: The alias a registered version gets when ``compare`` chose it (``models:/NAME@chosen``).
-CHOSEN_ALIAS = "chosen"
-#: Rows of the input example logged with the model.
-_EXAMPLE_ROWS = 5
-
-
-def mlflow_input_example(path: str | Path) -> dict[str, np.ndarray]:
-    """An input the ONNX graph at ``path`` takes, as a dict of arrays: each signal across its
-    trained range (metadata ``trained_range``; ``time_s`` 0, 1, 2 … s), raw outputs 0."""
-    import onnx
-
-    model = onnx.load(str(path), load_external_data=False)
-    meta = {p.key: p.value for p in model.metadata_props}
-    ranges = json.loads(meta.get("trained_range", "{}") or "{}")
-    dtypes = {1: np.float32, 11: np.float64}
-    feeds: dict[str, np.ndarray] = {}
-    for inp in model.graph.input:
-        t = inp.type.tensor_type
-        dims = [d.dim_value if d.dim_value else _EXAMPLE_ROWS for d in t.shape.dim]
-        dtype = dtypes.get(t.elem_type, np.float32)
-        if inp.name in ranges:
-            lo, hi = (float(v) for v in ranges[inp.name])
-            col = np.linspace(lo, hi, _EXAMPLE_ROWS)
-            feeds[inp.name] = np.broadcast_to(col.reshape(-1, *[1] * (len(dims) - 1)),
-                                              dims).astype(dtype)
-        elif inp.name == "time_s":
-            feeds[inp.name] = np.arange(_EXAMPLE_ROWS, dtype=dtype).reshape(dims)
-        else:
-            feeds[inp.name] = np.zeros(dims, dtype=dtype)
-    return feeds
-
-
-def _pip_requirements() -> list[str]:
-    """What the logged model needs to run (given, not inferred: MLflow's inference of them
-    loads the model in a subprocess, which takes longer than the logging itself)."""
-    from importlib.metadata import version
-
-    return [f"{name}=={version(name)}" for name in ("onnx", "onnxruntime", "numpy")]
-
-
-def log_onnx_model(path: str | Path, run_id: str, tracking_uri: str, *,
-                   name: str = MLFLOW_MODEL_NAME, register: str | None = None) -> Any:
-    """Log the exported graph at ``path`` to MLflow run ``run_id`` as an MLflow ONNX model
-    named ``name`` (default ``model``: ``mlflow.pyfunc.load_model("runs:/<id>/model")`` loads
-    it), with its signature and an input example (:func:`mlflow_input_example`, the graph's
-    own outputs on it) and explicit pip requirements, served on the CPU.  ``register``:
-    also register it under that name, the new version aliased :data:`CHOSEN_ALIAS`.  The run
-    may be the active one (``compare``'s) or any other; the global tracking URI is restored.
-    Returns MLflow's ``ModelInfo``."""
-    import mlflow
-    import mlflow.onnx
-    import onnx
-    import onnxruntime as ort
-    from mlflow.models import infer_signature
-
-    path = Path(path)
-    if not path.is_file():
-        raise ExportError(f"{path}: no such ONNX file to log")
-    example = mlflow_input_example(path)
-    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    outputs = dict(zip([o.name for o in session.get_outputs()],
-                       session.run(None, example), strict=True))
-    signature = infer_signature(example, outputs)
-    with global_tracking_uri(tracking_uri):
-        active = mlflow.active_run()
-        own = active is None or active.info.run_id != run_id
-        if own:
-            mlflow.start_run(run_id=run_id, nested=active is not None)
-        try:
-            info = mlflow.onnx.log_model(
-                onnx.load(str(path)), name=name, signature=signature, input_example=example,
-                pip_requirements=_pip_requirements(),
-                onnx_execution_providers=["CPUExecutionProvider"],
-                registered_model_name=register)
-        finally:
-            if own:
-                mlflow.end_run()
-        if register:
-            version = getattr(info, "registered_model_version", None)
-            if version is not None:
-                mlflow.MlflowClient(tracking_uri=tracking_uri).set_registered_model_alias(
-                    register, CHOSEN_ALIAS, str(version))
-        return info
-
-
-def log_onnx_to_mlflow(path: str | Path, run_id: str, tracking_uri: str, *,
-                       artifact_path: str = "onnx") -> None:
-    """Log an exported file to an existing MLflow run, as a file and as an ONNX model.
-
-    The file goes under ``<artifact_path>/`` as is; :func:`log_onnx_model` adds the MLflow
-    model ``model`` (its ``MLmodel`` descriptor, signature and input example), so that
-    ``mlflow.pyfunc.load_model("runs:/<run_id>/model")`` and ``mlflow.onnx.load_model`` read it.
-    """
-    import mlflow
-
-    path = Path(path)
-    if not path.is_file():
-        raise ExportError(f"{path}: no such ONNX file to log")
-    client = mlflow.MlflowClient(tracking_uri=tracking_uri)
-    client.log_artifact(run_id, str(path), artifact_path=artifact_path)
-    log_onnx_model(path, run_id, tracking_uri)

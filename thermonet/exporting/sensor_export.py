@@ -38,7 +38,9 @@ from ..core.errors import ExportError
 from ..core.fileio import atomic_path
 from ..models.sensor import SensorModel, check_invertible
 from ..training.sensor import SENSOR_FORMAT, load_sensor
-from .onnx_export import _export_proto, _metadata_props, _seal_bytes
+from .onnx_export import _metadata_props
+from .onnx_seal import seal_bytes
+from .onnx_trace import export_proto
 from .sensor_c import export_sensor_c
 from .sensor_probe import PARITY_EPS32, probe
 
@@ -118,7 +120,7 @@ def export_sensor_onnx(model: SensorModel, path: str | Path, *,
     # the TorchScript exporter: the dynamo one writes an invalid graph for two DriftModels
     # reading the same inputs (onnxruntime: "Node input 'inputs_0_min_1' is not a graph
     # input"), measured with this repository's torch; parity below checks the result either way
-    proto, exporter = _export_proto(graph, "torchscript")
+    proto, exporter = export_proto(graph, "torchscript")
     # the bias model's metadata (signals, outputs, units, T_ref, trained range, digest), so
     # the torch-free runtime reads this file as it reads a bias model's, plus what makes it a
     # sensor model; "family" names the family of every element
@@ -134,7 +136,7 @@ def export_sensor_onnx(model: SensorModel, path: str | Path, *,
     out = Path(path)
     with atomic_path(out) as tmp:
         onnx.save_model(proto, str(tmp), save_as_external_data=False)
-        _seal_bytes(Path(tmp))
+        seal_bytes(Path(tmp))
         onnx.checker.check_model(str(tmp))
         parity = sensor_parity(model, tmp)
     return {"status": "ok", "path": str(out), "exporter": exporter, "parity": parity}

@@ -340,7 +340,7 @@ def _log_to_run(path: Path, run_id: str, tracking_uri: str | None, meta: dict) -
     """
     import logging
 
-    from .onnx_export import log_onnx_to_mlflow  # torch boundary (pyproject.toml): loads torch
+    from .onnx_mlflow import log_onnx_to_mlflow  # lazy: only where a file is logged to MLflow
 
     # Only where the user says: the flag, MLFLOW_TRACKING_URI, or the working directory's store.
     # Never a URI stored in the checkpoint: a file must not choose where thermonet connects.
