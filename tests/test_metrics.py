@@ -8,12 +8,11 @@ import math
 import numpy as np
 import pytest
 
+from thermonet.scoring.axis_metrics import AXIS_METRIC_KEYS, axis_metrics
 from thermonet.scoring.metrics import (
-    AXIS_METRIC_KEYS,
     IEEE952_FLICKER_FACTOR,
     MIN_ALLAN_SAMPLES,
     allan,
-    axis_metrics,
     bias_instability,
     bias_instability_detail,
     binned_means,

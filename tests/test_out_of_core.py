@@ -4,7 +4,7 @@ gives, and a comparison on those rows agrees with the comparison on the samples.
 
 Independent expectations: the whole file read into memory and averaged by
 :func:`thermonet.training.train.average_windows` (what every fit does); sums of squares
-computed per window straight from the samples; :func:`thermonet.scoring.metrics.axis_metrics`
+computed per window straight from the samples; :func:`thermonet.scoring.axis_metrics.axis_metrics`
 on the samples; the in-memory ``thermonet compare`` of the same file.
 """
 
@@ -23,7 +23,7 @@ from thermonet.core.recording import GAP_FACTOR, Dataset, Recording
 from thermonet.data.io import read_dataset, write_parquet
 from thermonet.features.inputs import signal_matrix
 from thermonet.features.windows import reduce_parquet
-from thermonet.scoring.metrics import axis_metrics, window_axis_metrics
+from thermonet.scoring.axis_metrics import axis_metrics, window_axis_metrics
 from thermonet.training.checkpoint import load_checkpoint
 from thermonet.training.config import config_from_mapping
 from thermonet.training.train import average_windows

@@ -31,7 +31,8 @@ from ..core.recording import Recording
 from ..core.trainconfig import TrainConfig
 from ..features.inputs import FeatureSpec, reference_values, resolve_gap_s, signals_for
 from ..features.target import FOUR_POSITION, Target
-from ..scoring.metrics import axis_metrics, rms, scale_factor_tempco_ppm_per_c, window_axis_metrics
+from ..scoring.axis_metrics import axis_metrics, window_axis_metrics
+from ..scoring.metrics import rms, scale_factor_tempco_ppm_per_c
 from ..scoring.verdicts import block_labels, block_stats
 from .parts import Part, build_part, fit_arrays, heating_keep, heating_only, join_parts, rows_of
 from .train import fit, predict
