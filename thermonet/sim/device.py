@@ -23,7 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ..features.dynamics import play_state
+from ..features.recurrences import play_state
 
 __all__ = [
     "Law", "Polynomial", "Lorentz", "Sinusoid", "LawSum",
@@ -252,7 +252,7 @@ def play_operator(x: np.ndarray, width: float) -> np.ndarray:
 
     The state follows ``x`` only once ``x`` has moved ``width/2`` past it, so
     the output is +1 while heating, −1 while cooling and keeps its last value
-    in a soak (memory).  The state is :func:`thermonet.features.dynamics.play_state` of
+    in a soak (memory).  The state is :func:`thermonet.features.recurrences.play_state` of
     half-width ``width/2`` — the same definition as the ``play_<w>`` model input
     (``play_<width/2>`` sees exactly this shape, in °C).
     """

@@ -43,7 +43,7 @@ from ..core.errors import InputError
 from ..data.firmware import FirmwareFit
 from ..data.logs import FlightLog, SensorInstance
 from ..data.logs.base import lend_thermometer
-from ..features.dynamics import lag_error
+from ..features.recurrences import lag_error
 from .firmware_fit import bin_means, running_median
 
 __all__ = ["DEFAULT_THERMOMETERS", "LAG_GRID_S", "CV_BLOCKS", "CV_FOLDS",
@@ -120,7 +120,7 @@ def lend_thermometers(log: FlightLog, choice: Mapping[str, str] | None = None
 def lagged(time_s: np.ndarray, temperature_c: np.ndarray, tau_s: float) -> np.ndarray:
     """``temperature_c`` through a first-order lag of ``tau_s`` (0: unchanged), started
     settled: :math:`\\mathrm{EMA}_\\tau(T) = T - \\mathrm{lag}_\\tau` of
-    :func:`thermonet.features.dynamics.lag_error` (the recurrence the runtime and the C
+    :func:`thermonet.features.recurrences.lag_error` (the recurrence the runtime and the C
     header compute)."""
     temp = np.asarray(temperature_c, dtype=np.float64)
     if tau_s <= 0 or temp.size == 0:
