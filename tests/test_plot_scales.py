@@ -21,12 +21,14 @@ from thermonet.reporting.plots import (
     OFF_SCALE,
     drift_vs_temperature_figure,
     plot_drift_vs_temperature,
+    time_unit,
+    y_limits,
+)
+from thermonet.reporting.residual_plots import (
     plot_residual_vs_temperature,
     plot_residual_vs_time,
     residual_vs_temperature_figure,
     residual_vs_time_figure,
-    time_unit,
-    y_limits,
 )
 from thermonet.scoring.metrics import binned_means
 
@@ -311,7 +313,8 @@ def test_high_rate_samples_are_drawn_as_a_binned_band(ramp):
     """The ramp's samples (more than the plots draw one by one) are a light band — mean ± sd
     in LIMIT_BINS equal bins, as numpy computes them bin by bin — not a cloud of dots that
     paints a solid block; in both the temperature and the time figure."""
-    from thermonet.reporting.plots import MAX_SCATTER_POINTS, band_of, drift_vs_temperature_figure
+    from thermonet.reporting.plots import MAX_SCATTER_POINTS, drift_vs_temperature_figure
+    from thermonet.reporting.residual_plots import band_of
 
     temp, target = ramp["temperature_c"], ramp["target"]
     assert temp.size > MAX_SCATTER_POINTS

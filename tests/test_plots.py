@@ -18,9 +18,8 @@ from thermonet.reporting.plots import (
     family_colours,
     plot_allan,
     plot_drift_vs_temperature,
-    plot_residual_vs_temperature,
-    plot_residual_vs_time,
 )
+from thermonet.reporting.residual_plots import plot_residual_vs_temperature, plot_residual_vs_time
 
 N = 50_000
 RATE_HZ = 10.0
