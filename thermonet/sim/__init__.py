@@ -76,17 +76,9 @@ from .device import (
 )
 from .fleet import simulate_fleet, unit_seed
 from .fourpos import four_position_estimates
+from .generator import RunTruth, SimConfig, Switches, TableConfig, simulate_run
 from .multiposition import IMU_MULTIPOSITION  # registers preset 'imu-multiposition'
-from .presets import (
-    PRESETS,
-    RunTruth,
-    SimConfig,
-    Switches,
-    TableConfig,
-    get_preset,
-    simulate,
-    simulate_run,
-)
+from .presets import PRESETS, get_preset, simulate
 
 __all__ = [
     "simulate", "simulate_run", "simulate_fleet", "unit_seed", "get_preset", "PRESETS",

@@ -37,10 +37,10 @@ from ..core.errors import ConfigError
 from ..core.recording import Dataset
 from .chamber import ChamberProfile, Ramp, Soak
 from .device import AnyLaw, LawSum, Lorentz, Polynomial, Sinusoid
+from .generator import SimConfig
 from .presets import (
     MAX_RUNS,
     MAX_SAMPLES,
-    SimConfig,
     _apply_overrides,
     get_preset,
     request_samples,

@@ -37,7 +37,8 @@ from .device import (
     ThermometerConfig,
     UnitSpreadConfig,
 )
-from .presets import PRESETS, SimConfig, TableConfig
+from .generator import SimConfig, TableConfig
+from .presets import PRESETS
 
 __all__ = ["IMU_MULTIPOSITION", "POSES", "RATE_DEG_S"]
 
