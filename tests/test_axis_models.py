@@ -386,10 +386,12 @@ def _compare_dir(composite, root, *, sha: str | None = None):
     ckpt = save_checkpoint(root / "models" / "per-axis.pt", composite, config={},
                            extra={"units": {"gyro_x": "deg/s", "gyro_y": "deg/s",
                                             "gyro_z": "deg/s", "acc_x": "m/s^2"}})
-    results = {"chosen": "per-axis", "families": {},
-               "per_axis": {"checkpoint": "models/per-axis.pt",
-                            "checkpoint_sha256": sha or sha256_file(ckpt),
-                            "axes": composite.axis_table(), "candidates": LABELS}}
+    results = {"schema": 3, "chosen": "per-axis",
+               "families": {"per-axis": {"family": "per-axis", "status": "ok",
+                                         "checkpoint": "models/per-axis.pt",
+                                         "checkpoint_sha256": sha or sha256_file(ckpt),
+                                         "params": {"axes": composite.axis_table()}}},
+               "selection": {"per_axis": {"candidates": LABELS}}}
     (root / "results.json").write_text(json.dumps(results))
     return root
 
@@ -442,9 +444,9 @@ def test_a_replaced_per_axis_checkpoint_or_a_missing_block_is_refused(composite,
     with pytest.raises(ExportError, match="does not match the SHA-256"):
         export_source(str(src), fmt="onnx", out=tmp_path / "out.onnx")
     results = json.loads((src / "results.json").read_text())
-    del results["per_axis"]
+    del results["families"]["per-axis"]
     (src / "results.json").write_text(json.dumps(results))
-    with pytest.raises(InputError, match="no 'per_axis' mapping"):
+    with pytest.raises(InputError, match="no 'families.per-axis' mapping"):
         export_source(str(src), fmt="onnx", out=tmp_path / "out.onnx")
     assert not (tmp_path / "out.onnx").exists()
 

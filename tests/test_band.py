@@ -264,7 +264,7 @@ def test_per_axis_band_is_each_owners_own(compared):
     res, _, _ = compared
     if res["chosen"] != "per-axis":
         pytest.skip("this device shipped one family")
-    owners = res["per_axis"]["axes"]
+    owners = res["families"]["per-axis"]["params"]["axes"]
     for axis, owner in owners.items():
         if owner is None:
             continue

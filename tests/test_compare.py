@@ -11,7 +11,8 @@ import pytest
 from conftest import toy_dataset
 from thermonet.data.io import write_parquet
 from thermonet.training.checkpoint import load_checkpoint
-from thermonet.training.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
+from thermonet.training.config import CompareConfig, FamilyConfig, TrainConfig
+from thermonet.training.config_sections import DataConfig
 from thermonet.training.train import predict
 from thermonet.workflows.compare import format_table, run_compare
 
@@ -53,7 +54,15 @@ def test_compare_recovers_quadratic_drift_and_writes_everything(tmp_path):
         "accuracy_vs_cost.png", "allan_gyro_x.png", "drift_vs_temperature_gyro_x.png",
         "residual_vs_temperature_gyro_x.png", "residual_vs_time_gyro_x.png"]
     assert (out / "report.html").stat().st_size > 10_000
-    assert on_disk["schema"] == 2
+    assert on_disk["schema"] == 3
+    # the typed result is the single source: results.json holds nothing outside it (read back
+    # and written again, the same document), and a schema-2 file reads to the same objects
+    from thermonet.reporting.results import ComparisonResult as Typed
+    assert Typed.from_json(on_disk).to_json() == on_disk
+    old = {**on_disk, "schema": 2, "per_axis": {"checkpoint": "models/per-axis.pt"}}
+    assert Typed.from_json(old).to_json() == on_disk
+    with pytest.raises(ValueError, match="key 'schema': 9"):
+        Typed.from_json({**on_disk, "schema": 9})
     # the cubic leaves the noise σ = 0.002 of a raw spread of about 0.06: far better than raw
     assert cubic["verdict"] == "better" and cubic["interval"][1] < 0.1
     assert cubic["compensate"] is True
@@ -312,7 +321,7 @@ def test_a_fit_that_raises_stops_the_others_and_is_reported(tmp_path, monkeypatc
 
 
 def test_drawers_that_cannot_be_started_leave_the_command_to_do_it_all(tmp_path, monkeypatch):
-    """No process to be had for the figure drawers (``Popen`` raises OSError): the command
+    """No process to be had for the figure drawers (the pool raises OSError): the command
     reads the data and draws the figures itself; the comparison is the same."""
     from thermonet.reporting import plot_workers
 
@@ -323,7 +332,7 @@ def test_drawers_that_cannot_be_started_leave_the_command_to_do_it_all(tmp_path,
     fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3})]
     here = run_compare(config(path, fams, workers=1), tmp_path / "here", track=False,
                        quiet=True)
-    monkeypatch.setattr(plot_workers, "Helper", refuse)
+    monkeypatch.setattr(plot_workers, "Helpers", refuse)
     refused = run_compare(config(path, fams, workers=2), tmp_path / "refused", track=False,
                           quiet=True)
     assert _numbers(refused) == _numbers(here)

@@ -15,12 +15,13 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.errors import ConfigError, ThermonetError
 from ..core.recording import Dataset
+from ..reporting.results import AxisResult, FamilyResult
+from ..reporting.results import ComparisonResult as TypedResult
 from .checks import flag, text, whole
 from .checks import path as a_path
 from .data import runs_of
@@ -35,37 +36,13 @@ __all__ = ["compare", "ComparisonResult", "SensorComparisonResult", "FamilySumma
            "AxisSummary"]
 
 
-@dataclass(frozen=True)
-class AxisSummary:
-    """One family on one axis of the held-out test data (``results.json`` ``axes``)."""
-
-    score_ratio: float | None       # offset-free score, family / raw (< 1 better)
-    interval: tuple[float | None, float | None]   # its 95 % block-bootstrap interval
-    verdict: str                    # better, worse, indistinguishable (against raw)
-    compensate: bool                # whether the shipped model compensates this axis
-    vs_baseline: dict[str, Any] | None
-    metrics: dict[str, Any]         # everything results.json holds for the axis
-
-
-@dataclass(frozen=True)
-class FamilySummary:
-    """One configured family of a comparison."""
-
-    name: str
-    family: str
-    inputs: list[str]
-    params: dict[str, Any]
-    status: str                     # "ok" or "failed"
-    reason: str | None
-    val_score: float | None
-    test_score: float | None
-    n_params: int | None
-    fit_seconds: float | None
-    axes: dict[str, AxisSummary] = field(default_factory=dict)
-
-    @property
-    def ok(self) -> bool:
-        return self.status == "ok"
+#: One family on one axis of the held-out test data: the comparison's own typed record
+#: (``score_ratio``, ``interval``, ``verdict``, ``compensate``, ``vs_baseline``, ``metrics``).
+AxisSummary = AxisResult
+#: One configured family of a comparison: the comparison's own typed record (``name``,
+#: ``family``, ``inputs``, ``params``, ``status``, ``reason``, ``val_score``, ``test_score``,
+#: ``n_params``, ``fit_seconds``, ``axes``; ``ok``).
+FamilySummary = FamilyResult
 
 
 class SensorComparisonResult:
@@ -111,7 +88,9 @@ class ComparisonResult:
         The family that ships (None: none beats raw; see ``chosen_reason``).
     chosen_reason : str
     baseline : str or None
-    families : dict of str to FamilySummary
+    families : dict of str to FamilyResult
+    record : thermonet.reporting.results.ComparisonResult
+        The whole comparison, typed (what ``results`` is the document of).
     warnings : list of str
     units : dict of str to str
     out : Path or None
@@ -124,13 +103,17 @@ class ComparisonResult:
         self.results = results
         self.out = out
         self._estimators = estimators
-        self.chosen: str | None = results.get("chosen")
-        self.chosen_reason: str = results.get("chosen_reason", "")
-        self.baseline: str | None = results.get("baseline")
-        self.warnings: list[str] = list(results.get("warnings") or [])
-        self.units: dict[str, str] = dict(results.get("units") or {})
-        self.families: dict[str, FamilySummary] = {
-            name: _family(name, f) for name, f in (results.get("families") or {}).items()}
+        try:
+            #: the comparison's typed record (thermonet.reporting.results), the one reader
+            self.record = TypedResult.from_json(results)
+        except ValueError as err:
+            raise ThermonetError(str(err)) from None
+        self.chosen: str | None = self.record.chosen
+        self.chosen_reason: str = self.record.chosen_reason
+        self.baseline: str | None = self.record.baseline
+        self.warnings: list[str] = list(self.record.warnings)
+        self.units: dict[str, str] = dict(self.record.units)
+        self.families: dict[str, FamilyResult] = dict(self.record.families)
 
     def __repr__(self) -> str:
         return (f"ComparisonResult(chosen={self.chosen!r}, families={list(self.families)}, "
@@ -164,21 +147,6 @@ class ComparisonResult:
         from ..workflows.compare import format_table  # lazy: importing it loads yaml
 
         return format_table(self.results)
-
-
-def _family(name: str, f: dict[str, Any]) -> FamilySummary:
-    axes = {}
-    for axis, a in (f.get("axes") or {}).items():
-        lo, hi = (list(a.get("interval") or [None, None]) + [None, None])[:2]
-        axes[axis] = AxisSummary(score_ratio=a.get("score_ratio"), interval=(lo, hi),
-                                 verdict=a.get("verdict", ""),
-                                 compensate=bool(a.get("compensate")),
-                                 vs_baseline=a.get("vs_baseline"), metrics=dict(a))
-    return FamilySummary(name=name, family=f.get("family", ""), inputs=list(f.get("inputs") or []),
-                         params=dict(f.get("params") or {}), status=f.get("status", ""),
-                         reason=f.get("reason"), val_score=f.get("val_score"),
-                         test_score=f.get("test_score"), n_params=f.get("n_params"),
-                         fit_seconds=f.get("fit_seconds"), axes=axes)
 
 
 def _config(config: Any) -> Any:

@@ -143,8 +143,7 @@ class Stage:
 
     def finish(self, results: dict[str, Any], clean: Callable[[Any], Any]) -> None:
         """Point ``results`` at the final checkpoint paths, add their SHA-256, rewrite the file."""
-        shipped = [results["per_axis"]] if isinstance(results.get("per_axis"), dict) else []
-        for fam in [*results.get("families", {}).values(), *shipped]:
+        for fam in results.get("families", {}).values():   # the per-axis model among them
             staged = fam.get("checkpoint")
             if staged:
                 fam["checkpoint_sha256"] = sha256_file(staged)

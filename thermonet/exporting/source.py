@@ -6,8 +6,9 @@ SOURCE is one of
   a comparison that chose none ("do no harm") refuses unless a family is named; one that
   chose a model per axis (``"chosen": "per-axis"``) gives its composite checkpoint
   ``models/per-axis.pt`` (:class:`~thermonet.models.composite.AxisModels`), recorded in
-  ``results.json`` as ``"per_axis": {"checkpoint": "models/per-axis.pt",
-  "checkpoint_sha256": "<hex>", "axes": {axis: label or null}, "candidates": [labels]}``;
+  ``results.json`` as the family ``"per-axis"`` (``checkpoint``, ``checkpoint_sha256``,
+  ``params.axes``: {axis: label or null}) with its candidates in
+  ``selection.per_axis.candidates`` (schema 3; a schema-2 file holds the same there);
 * a checkpoint file (``models/<family>.pt``);
 * an MLflow run id of a family's nested run (its ``model/<family>.pt``
   artifact is downloaded from the tracking store).
@@ -113,23 +114,30 @@ def _verified(p: Path, recorded: Any, results_file: Path, what: str, hint: str) 
 
 def _per_axis_checkpoint(path: Path, results_file: Path, results: dict) -> Path:
     """The per-axis composite of a compare directory (``models/per-axis.pt``), verified
-    against the ``per_axis`` block of ``results.json`` (module docstring) as a family's
+    against its family record in ``results.json`` (module docstring) as a family's
     checkpoint is: the path is fixed, the SHA-256 must match the recorded one."""
-    block = results.get("per_axis")
+    fams = results.get("families")
+    block = fams.get(PER_AXIS) if isinstance(fams, dict) else None
     if not isinstance(block, dict):
-        raise InputError(f"{results_file}: 'chosen' is '{PER_AXIS}' but there is no 'per_axis' "
-                         "mapping (checkpoint, checkpoint_sha256, axes, candidates)")
-    axes, candidates = block.get("axes"), block.get("candidates")
+        raise InputError(f"{results_file}: 'chosen' is '{PER_AXIS}' but there is no "
+                         f"'families.{PER_AXIS}' mapping (checkpoint, checkpoint_sha256, "
+                         "params.axes)")
+    sel = results.get("selection")
+    per_axis = sel.get("per_axis") if isinstance(sel, dict) else None
+    params = block.get("params")
+    axes = params.get("axes") if isinstance(params, dict) else None
+    candidates = per_axis.get("candidates") if isinstance(per_axis, dict) else None
     if not isinstance(candidates, list) or not isinstance(axes, dict):
-        raise InputError(f"{results_file}: key 'per_axis': expected 'axes' {{axis: label or "
-                         "null}} and 'candidates' [labels]")
+        raise InputError(f"{results_file}: keys 'families.{PER_AXIS}.params.axes' {{axis: "
+                         "label or null}} and 'selection.per_axis.candidates' [labels] expected")
     for c in candidates:
-        check_name(c, LABEL, f"{results_file}: key 'per_axis.candidates'")
+        check_name(c, LABEL, f"{results_file}: key 'selection.per_axis.candidates'")
     for axis, label in axes.items():
-        check_name(axis, AXIS, f"{results_file}: key 'per_axis.axes'")
+        check_name(axis, AXIS, f"{results_file}: key 'families.{PER_AXIS}.params.axes'")
         if label is not None and label not in candidates:
-            raise InputError(f"{results_file}: key 'per_axis.axes': axis '{axis}' names "
-                             f"'{str(label)[:64]}', not a candidate ({', '.join(candidates)})")
+            raise InputError(f"{results_file}: key 'families.{PER_AXIS}.params.axes': axis "
+                             f"'{axis}' names '{str(label)[:64]}', not a candidate "
+                             f"({', '.join(candidates)})")
     if not block.get("checkpoint"):
         raise ExportError(f"{results_file}: the per-axis model has no checkpoint")
     return _verified(path / "models" / f"{PER_AXIS}.pt", block.get("checkpoint_sha256"),

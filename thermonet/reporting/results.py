@@ -1,9 +1,9 @@
 """Typed records of a comparison and the ``results.json`` schema they serialise to.
 
-``results.json`` schema, version 2 (:data:`SCHEMA`)::
+``results.json`` schema, version 3 (:data:`SCHEMA`)::
 
     {
-      "schema": 2,
+      "schema": 3,
       "thermonet_version": str,
       "config": {...resolved config...},
       "device": str, "data_hash": str, "target": "drift" | "four-position",
@@ -55,6 +55,11 @@
           "folds": [per-fold metrics] (leave-one-run-out only)
         }
       },
+      "selection": {...},               # how the choice was made (thermonet.scoring.selection):
+                                        # folds, candidates, gate, "held_back": {"candidates",
+                                        # "why", "by_candidate"}, "per_axis": {"chosen": {axis:
+                                        # label | null}, "rule", "candidates", "gate"}
+      "band": {"model": name, ...} | absent,   # the shipped model's band (= its family's)
       "mlflow_run_id": str | null,
       "provenance": {                   # what was actually used (thermonet.workflows.compare)
         "data": {"kind": "files", "files": [{"path", "sha256"}], "mapping": {...} | null}
@@ -65,7 +70,12 @@
     }
 
 Non-finite floats are written as ``null``.  Schema 1 (before the offset-free
-score) had ``val_score`` as an msd ratio and no verdicts.
+score) had ``val_score`` as an msd ratio and no verdicts.  Schema 2 also named the per-axis
+model a third time, a top-level ``per_axis`` block (checkpoint, axes, candidates): schema 3
+names it once, ``families["per-axis"]`` (its checkpoint, ``checkpoint_sha256`` and
+``params.axes``) with ``selection.per_axis`` (the choice per axis, the candidates).
+:meth:`ComparisonResult.from_json` reads schemas 2 and 3 into the same typed objects (a
+schema-2 ``per_axis`` block is read and dropped: everything in it is in the other two).
 """
 
 from __future__ import annotations
@@ -76,10 +86,28 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SCHEMA", "Verdict", "AxisResult", "FamilyResult", "ComparisonResult", "clean"]
+__all__ = ["SCHEMA", "READABLE_SCHEMAS", "Verdict", "AxisResult", "FamilyResult", "ComparisonResult", "clean"]
 
 #: Version of the ``results.json`` layout written by this module.
-SCHEMA = 2
+SCHEMA = 3
+#: The versions :meth:`ComparisonResult.from_json` reads.
+READABLE_SCHEMAS = (2, 3)
+
+
+def _num(v: Any) -> float:
+    """A float read back from results.json (``null``: a non-finite value was written)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return float("nan")
+    return float(v)
+
+
+def _pair(v: Any) -> tuple[float, float]:
+    lo, hi = ((list(v) if isinstance(v, (list, tuple)) else []) + [None, None])[:2]
+    return _num(lo), _num(hi)
+
+
+def _dict(v: Any) -> dict[str, Any]:
+    return dict(v) if isinstance(v, dict) else {}
 
 
 def clean(obj: Any) -> Any:
@@ -109,6 +137,12 @@ class Verdict:
     def to_json(self) -> dict[str, Any]:
         return {"ratio": self.ratio, "interval": [self.low, self.high], "verdict": self.verdict}
 
+    @classmethod
+    def from_json(cls, d: Any) -> Verdict:
+        d = _dict(d)
+        lo, hi = _pair(d.get("interval"))
+        return cls(_num(d.get("ratio")), lo, hi, str(d.get("verdict") or ""))
+
 
 @dataclass
 class AxisResult:
@@ -135,6 +169,43 @@ class AxisResult:
         if self.offset_raw is not None:
             d.update(offset_raw=self.offset_raw, offset_comp=self.offset_comp)
         return d
+
+    #: The keys :meth:`to_json` writes from the typed fields (the rest are ``metrics``).
+    _TYPED = ("score_raw", "score_comp", "score_ratio", "interval", "verdict", "val_ratio",
+              "val_interval", "val_verdict", "compensate", "vs_baseline", "offset_raw",
+              "offset_comp")
+
+    @classmethod
+    def from_json(cls, d: Any) -> AxisResult:
+        d = _dict(d)
+        lo, hi = _pair(d.get("interval"))
+        vlo, vhi = _pair(d.get("val_interval"))
+        vs = d.get("vs_baseline")
+        offset = d.get("offset_raw")
+        return cls(score_raw=_num(d.get("score_raw")), score_comp=_num(d.get("score_comp")),
+                   test=Verdict(_num(d.get("score_ratio")), lo, hi, str(d.get("verdict") or "")),
+                   val=Verdict(_num(d.get("val_ratio")), vlo, vhi,
+                               str(d.get("val_verdict") or "")),
+                   compensate=bool(d.get("compensate")),
+                   vs_baseline=Verdict.from_json(vs) if isinstance(vs, dict) else None,
+                   offset_raw=None if offset is None else _num(offset),
+                   offset_comp=None if offset is None else _num(d.get("offset_comp")),
+                   metrics={k: v for k, v in d.items() if k not in cls._TYPED})
+
+    @property
+    def score_ratio(self) -> float:
+        """The held-out test score, this family / raw (< 1 better)."""
+        return self.test.ratio
+
+    @property
+    def interval(self) -> tuple[float, float]:
+        """Its 95 % block-bootstrap interval."""
+        return (self.test.low, self.test.high)
+
+    @property
+    def verdict(self) -> str:
+        """``better``, ``worse`` or ``indistinguishable`` against raw on the test data."""
+        return self.test.verdict
 
 
 @dataclass
@@ -163,10 +234,45 @@ class FamilyResult:
     tuned: dict[str, Any] = field(default_factory=dict)   # what the family chose itself
     cost: dict[str, int | None] | None = None             # Family.cost(): per sample on board
     band: dict[str, Any] | None = None   # the residual-drift band (thermonet.scoring.band)
+    checkpoint_sha256: str | None = None  # added where the output directory is finished
 
     @property
     def ok(self) -> bool:
         return self.status == "ok"
+
+    @property
+    def name(self) -> str:
+        """The family's label in the comparison (``families[name]``)."""
+        return self.label
+
+    @classmethod
+    def from_json(cls, label: str, d: Any) -> FamilyResult:
+        d = _dict(d)
+        folds = d.get("folds")
+        cost = d.get("cost")
+        band = d.get("band")
+        sha = d.get("checkpoint_sha256")
+        return cls(label=label, family=str(d.get("family") or ""),
+                   inputs=[str(x) for x in d.get("inputs") or []], params=_dict(d.get("params")),
+                   train_on=str(d.get("train_on") or ""), status=str(d.get("status") or ""),
+                   reason=None if d.get("reason") is None else str(d.get("reason")),
+                   fit_seconds=_num(d.get("fit_seconds")),
+                   n_params=int(_num(d.get("n_params"))) if math.isfinite(
+                       _num(d.get("n_params"))) else 0,
+                   best_epoch=int(_num(d.get("best_epoch"))) if math.isfinite(
+                       _num(d.get("best_epoch"))) else 0,
+                   val_score=_num(d.get("val_score")), val_interval=_pair(d.get("val_interval")),
+                   test_score=_num(d.get("test_score")),
+                   compensate_in_model=bool(d.get("compensate_in_model")),
+                   checkpoint=None if d.get("checkpoint") is None else str(d.get("checkpoint")),
+                   mlflow_run_id=d.get("mlflow_run_id") or None,
+                   outside_trained_range={k: _num(v) for k, v in
+                                          _dict(d.get("outside_trained_range")).items()},
+                   axes={a: AxisResult.from_json(x) for a, x in _dict(d.get("axes")).items()},
+                   folds=list(folds) if isinstance(folds, list) else None,
+                   tuned=_dict(d.get("tuned")), cost=dict(cost) if isinstance(cost, dict) else None,
+                   band=dict(band) if isinstance(band, dict) else None,
+                   checkpoint_sha256=str(sha) if isinstance(sha, str) else None)
 
     def to_json(self) -> dict[str, Any]:
         d: dict[str, Any] = {"family": self.family, "inputs": list(self.inputs),
@@ -186,6 +292,8 @@ class FamilyResult:
             d["folds"] = self.folds
         if self.band is not None:
             d["band"] = self.band
+        if self.checkpoint_sha256 is not None:
+            d["checkpoint_sha256"] = self.checkpoint_sha256
         return d
 
 
@@ -212,6 +320,9 @@ class ComparisonResult:
     warnings: list[str] = field(default_factory=list)
     mlflow_run_id: str | None = None
     thermonet_version: str = ""
+    band: dict[str, Any] | None = None          # the shipped model's: {"model": name, ...}
+    provenance: dict[str, Any] = field(default_factory=dict)  # what was actually used
+    schema: int = SCHEMA                        # the version read (from_json), else written
 
     def warn(self, text: str) -> None:
         """Add one warning (a plain sentence naming the axis, signal or key), once."""
@@ -231,4 +342,40 @@ class ComparisonResult:
             "warnings": list(self.warnings),
             "families": {k: f.to_json() for k, f in self.families.items()},
             "mlflow_run_id": self.mlflow_run_id,
+            **({"band": self.band} if self.band is not None else {}),
+            **({"provenance": self.provenance} if self.provenance else {}),
         })
+
+    @classmethod
+    def from_json(cls, doc: Any, source: str = "results.json") -> ComparisonResult:
+        """The typed result of a ``results.json`` document of schema 2 or 3 (module
+        docstring); anything else raises :class:`ValueError` naming ``source`` and the key."""
+        if not isinstance(doc, dict):
+            raise ValueError(f"{source}: not a comparison's results (a JSON object expected)")
+        schema = doc.get("schema")
+        if schema not in READABLE_SCHEMAS:
+            raise ValueError(f"{source}: key 'schema': {schema!r} is not a results.json schema "
+                             f"this version reads ({', '.join(map(str, READABLE_SCHEMAS))})")
+        fams = doc.get("families")
+        if not isinstance(fams, dict):
+            raise ValueError(f"{source}: key 'families': expected a mapping of family results")
+        band = doc.get("band")
+        chosen = doc.get("chosen")
+        return cls(config=_dict(doc.get("config")), device=str(doc.get("device") or ""),
+                   data_hash=str(doc.get("data_hash") or ""), target=str(doc.get("target") or ""),
+                   split=_dict(doc.get("split")),
+                   units={str(k): str(v) for k, v in _dict(doc.get("units")).items()},
+                   baseline=doc.get("baseline") if isinstance(doc.get("baseline"), str) else None,
+                   targets={str(k): str(v) for k, v in _dict(doc.get("targets")).items()},
+                   data=_dict(doc.get("data")), bootstrap=_dict(doc.get("bootstrap")),
+                   families={str(k): FamilyResult.from_json(str(k), v) for k, v in fams.items()},
+                   chosen=chosen if isinstance(chosen, str) else None,
+                   chosen_reason=str(doc.get("chosen_reason") or ""),
+                   selection=_dict(doc.get("selection")),
+                   tie=[str(x) for x in doc.get("tie") or []],
+                   uncompensated_axes=[str(x) for x in doc.get("uncompensated_axes") or []],
+                   warnings=[str(x) for x in doc.get("warnings") or []],
+                   mlflow_run_id=doc.get("mlflow_run_id") or None,
+                   thermonet_version=str(doc.get("thermonet_version") or ""),
+                   band=dict(band) if isinstance(band, dict) else None,
+                   provenance=_dict(doc.get("provenance")), schema=int(schema))

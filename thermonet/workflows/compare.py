@@ -327,20 +327,11 @@ def _judge_step(run: _Run, fitted: dict[str, Fitted]) -> dict[str, Any]:
             _save_per_axis(run.out, fitted, result, run.p, run.resolved, run.provenance,
                            run.p.units)
     extrapolation(fitted, result)
-    doc = result.to_json()
-    doc["provenance"] = run.provenance
-    shipped_band = (doc["families"].get(result.chosen) or {}).get("band") \
-        if result.chosen else None
-    if shipped_band is not None:
-        doc["band"] = {"model": result.chosen, **shipped_band}
-    shipped = doc["families"].get(PER_AXIS) if result.chosen == PER_AXIS else None
-    if shipped and shipped.get("checkpoint"):
-        # what `thermonet export DIR` reads (thermonet.exporting.source): the composite's
-        # file, its owners per axis and its candidates (the SHA-256 added when staged)
-        doc["per_axis"] = {"checkpoint": shipped["checkpoint"],
-                           "axes": dict(shipped["params"]["axes"]),
-                           "candidates": list(result.selection["per_axis"]["candidates"])}
-    return doc
+    result.provenance = run.provenance
+    shipped = result.families.get(result.chosen) if result.chosen else None
+    if shipped is not None and shipped.band is not None:
+        result.band = {"model": result.chosen, **shipped.band}
+    return result.to_json()
 
 
 def _write_step(run: _Run, fitted: dict[str, Fitted], doc: dict[str, Any],
