@@ -42,9 +42,9 @@ from thermonet.training.config import (  # noqa: E402
     CompareConfig,
     FamilyConfig,
     SplitConfig,
-    TrackingConfig,
     load_config,
 )
+from thermonet.training.config_sections import TrackingConfig  # noqa: E402
 from thermonet.workflows.calibrate import _lend_and_lag  # noqa: E402
 from thermonet.workflows.compare import run_compare  # noqa: E402
 from thermonet.workflows.firmware_fit import check_instance  # noqa: E402

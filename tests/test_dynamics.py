@@ -23,7 +23,7 @@ from thermonet.features import dynamics
 from thermonet.features.inputs import FeatureSpec, parse_feature, signals_for
 from thermonet.sim.device import play_operator
 from thermonet.training.checkpoint import load_checkpoint, save_checkpoint, seal_checkpoint
-from thermonet.training.config import FeatureConfig
+from thermonet.training.config_sections import FeatureConfig
 from thermonet.training.train import TrainConfig, fit
 from tolerances import assert_f32_close, assert_f64_close
 

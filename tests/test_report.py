@@ -14,7 +14,8 @@ import pytest
 from conftest import toy_dataset
 from thermonet.data.io import write_parquet
 from thermonet.reporting.report import VERDICT_COLOURS, render_report
-from thermonet.training.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
+from thermonet.training.config import CompareConfig, FamilyConfig, TrainConfig
+from thermonet.training.config_sections import DataConfig
 from thermonet.workflows.compare import run_compare
 
 

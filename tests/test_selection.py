@@ -240,7 +240,8 @@ def test_compare_chooses_out_of_fold_and_records_it(tmp_path):
     cross-validation over the pool (train + validation runs), never the test run."""
     from conftest import toy_dataset
     from thermonet.data.io import write_parquet
-    from thermonet.training.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
+    from thermonet.training.config import CompareConfig, FamilyConfig, TrainConfig
+    from thermonet.training.config_sections import DataConfig
     from thermonet.workflows.compare import format_table, run_compare
 
     path = write_parquet(toy_dataset(n_runs=4), tmp_path / "toy.parquet")

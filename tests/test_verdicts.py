@@ -26,7 +26,8 @@ from thermonet.scoring.verdicts import (
     verdict_of,
 )
 from thermonet.training.checkpoint import load_checkpoint
-from thermonet.training.config import CompareConfig, DataConfig, FamilyConfig, TrainConfig
+from thermonet.training.config import CompareConfig, FamilyConfig, TrainConfig
+from thermonet.training.config_sections import DataConfig
 from thermonet.training.train import predict
 from thermonet.workflows.compare import format_table, run_compare
 

@@ -21,7 +21,7 @@ from ..features.inputs import RATE, signal_matrix
 from ..features.target import CHANNEL, FOUR_POSITION, FOURPOS_SUFFIXES, Target, resolve_targets
 from ..sim import simulate
 from ..sim.fourpos import four_position_estimates
-from .config import DataConfig
+from .config_sections import DataConfig
 from .splits import Split, make_splits, stacked_times
 
 __all__ = ["Split", "Part", "load_data", "make_splits", "build_part", "data_hash",
