@@ -36,7 +36,7 @@ from common import save, table  # noqa: E402
 from thermonet.api.estimator import DriftEstimator  # noqa: E402
 from thermonet.core.recording import Dataset  # noqa: E402
 from thermonet.scoring.band import conformal_quantile, evaluate_tables  # noqa: E402
-from thermonet.scoring.selection import window_labels  # noqa: E402
+from thermonet.scoring.fold_plan import window_labels  # noqa: E402
 from thermonet.sim import simulate  # noqa: E402
 from thermonet.training.config import CompareConfig, load_config  # noqa: E402
 from thermonet.training.train import predict  # noqa: E402

@@ -23,7 +23,8 @@ from thermonet.scoring.band import (
     evaluate_tables,
     min_windows,
 )
-from thermonet.scoring.selection import CandidateOOF, plan_folds
+from thermonet.scoring.fold_plan import plan_folds
+from thermonet.scoring.selection import CandidateOOF
 from tolerances import assert_f32_close, assert_f64_close
 
 pytestmark = pytest.mark.numerics

@@ -8,14 +8,10 @@ import numpy as np
 import pytest
 
 from thermonet.core.recording import Recording
+from thermonet.scoring.fold_plan import plan_folds
 from thermonet.scoring.folds import excursions
-from thermonet.scoring.selection import (
-    CandidateOOF,
-    beats_in_every_fold,
-    one_direction,
-    plan_folds,
-    select,
-)
+from thermonet.scoring.gate import beats_in_every_fold, one_direction
+from thermonet.scoring.selection import CandidateOOF, select
 
 pytestmark = pytest.mark.numerics
 

@@ -12,8 +12,8 @@ from sklearn.model_selection import BaseCrossValidator, check_cv
 
 import thermonet
 from conftest import toy_dataset
+from thermonet.scoring.fold_plan import plan_folds
 from thermonet.scoring.folds import deal, purged
-from thermonet.scoring.selection import plan_folds
 
 pytestmark = pytest.mark.numerics
 

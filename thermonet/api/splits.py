@@ -5,7 +5,7 @@ scikit-learn's model-selection tools (``cross_val_score``, ``GridSearchCV``) ind
 ``X``; for a :class:`~thermonet.api.DriftEstimator` a row is one :class:`Recording` — a whole
 run, or a contiguous block of one cut by :func:`time_blocks`.  :class:`TimeBlockSplit` deals
 the rows to folds the way ``compare``'s model selection does
-(:func:`thermonet.scoring.selection.plan_folds`): blocks round-robin over the folds, shifted by
+(:func:`thermonet.scoring.fold_plan.plan_folds`): blocks round-robin over the folds, shifted by
 the run, so every fold's validation blocks sample the whole temperature history; whole runs
 one fold per run (leave one run out) when ``X`` is runs.  A sample is never separated from
 its block, and adjacent blocks are separated by ``purge_s`` seconds cut away from both:

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
-from .selection import window_labels
+from .fold_plan import window_labels
 
 __all__ = ["Band", "AxisBand", "min_windows", "conformal_quantile", "band_from_oof",
            "evaluate_tables", "DEFAULT_LEVEL", "DEFAULT_BINS", "display_units", "band_problem",
@@ -321,7 +321,7 @@ def band_from_oof(*, plan: Any, targets: Sequence[np.ndarray], times: Sequence[n
                   window_s: float | None = None) -> Band:
     """The band of a shipped model from out-of-fold predictions (module docstring).
 
-    ``plan``: the :class:`~thermonet.scoring.selection.FoldPlan`; ``targets``/``times``/
+    ``plan``: the :class:`~thermonet.scoring.fold_plan.FoldPlan`; ``targets``/``times``/
     ``temps``: per pool run, every row's target (n, A), time and band signal; ``oofs``: per
     output axis, the :class:`~thermonet.scoring.selection.CandidateOOF` of the candidate that
     ships it (None: the axis is raw); ``compensate``: per axis whether the shipped model

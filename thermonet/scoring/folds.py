@@ -3,7 +3,7 @@
 Two callers split data for cross-validation and both use this module, so a fold means the same
 thing everywhere:
 
-* ``compare``'s model selection (:func:`thermonet.scoring.selection.plan_folds`): the samples
+* ``compare``'s model selection (:func:`thermonet.scoring.fold_plan.plan_folds`): the samples
   of every pool run, labelled by their contiguous time block (or one label per run when whole
   runs are the folds), purged by :func:`purged` around each validation fold;
 * the API's scikit-learn cross-validator (:class:`thermonet.api.cv.TimeBlockSplit`, a

@@ -21,7 +21,7 @@ from ..data.diagnostics import input_warnings
 from ..features.dynamics import RATE_TAU_S, dynamic_signals, input_set_warnings
 from ..features.inputs import dynamic_signal, signals_for
 from ..features.target import Target, output_units
-from ..scoring.selection import plan_folds
+from ..scoring.fold_plan import plan_folds
 from ..training.config import (
     CompareConfig,
     check_families,
@@ -99,7 +99,7 @@ class Plan:
     units: dict[str, str]
     source: str
     warnings: list[str] = field(default_factory=list)
-    folds: Any = None                # thermonet.scoring.selection.FoldPlan of the last split's pool
+    folds: Any = None                # thermonet.scoring.fold_plan.FoldPlan of the last split's pool
     fold_note: str = ""              # why there is none (the single validation part decides)
 
 

@@ -106,7 +106,7 @@ class _Plan:
     split: Any                       # thermonet.training.splits.Split
     units: dict[str, str]
     doc: dict[str, Any]              # results.json, filled step by step
-    folds: Any = None                # thermonet.scoring.selection.FoldPlan of the pool
+    folds: Any = None                # thermonet.scoring.fold_plan.FoldPlan of the pool
     fold_note: str = ""
 
 

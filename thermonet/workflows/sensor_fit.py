@@ -2,7 +2,7 @@
 bias family is (:mod:`thermonet.workflows.compare_fit`).
 
 * **Folds** — the bias comparison's own plan (:func:`thermonet.workflows.compare_plan._fold_plan`
-  → :func:`thermonet.scoring.selection.plan_folds`): the split's pool (every run that is not
+  → :func:`thermonet.scoring.fold_plan.plan_folds`): the split's pool (every run that is not
   the test run, whole), whole runs left out where the test is a run of its own, blocks inside
   the runs with the purge where the test is blocks inside them (``time-blocks``).
 * **Out of fold** (:func:`sensor_oof`) — per fold, the sensor model (``fit_sensor``, no

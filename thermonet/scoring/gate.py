@@ -1,0 +1,218 @@
+"""The gate (:data:`GATE_RULE`): the baseline (the cubic) stays on an axis until a candidate
+beats it everywhere — better overall with a worst held-out fold no worse than the
+baseline's, judged on at least :data:`MIN_GATE_FOLDS` folds; a candidate reading the
+direction of change ships only where held-out excursions of both directions judged it, and
+nothing replaces the baseline on interleaved blocks (:func:`held_back`).  What the gate reads
+per candidate and fold is a :class:`Gate`; :mod:`thermonet.scoring.selection` applies it
+before the one choice rule (:func:`thermonet.scoring.verdicts.one_se`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .folds import DIRECTION_NAMES
+from .verdicts import DECISION_RTOL, above, below
+
+if TYPE_CHECKING:
+    from .fold_plan import FoldPlan
+    from .oof_pool import Pooled
+    from .selection import CandidateOOF
+
+__all__ = ["MIN_GATE_FOLDS", "GATE_RULE", "Gate", "one_direction", "worst_fold_not_worse",
+           "beats_in_every_fold", "gate_axis", "gate_note", "held_back", "held_back_record"]
+
+
+#: Folds a candidate must have been judged on (and beaten its reference on, each) to replace
+#: it: "better in every one of two folds" happens by chance one time in four.
+MIN_GATE_FOLDS = 3
+
+#: The gate, as results.json and the report state it.
+GATE_RULE = ("the baseline stays until beaten everywhere: a candidate replaces it on an axis "
+             f"only if it was judged on at least {MIN_GATE_FOLDS} folds, its out-of-fold ratio "
+             "is lower overall, and its worst fold is no worse than the baseline's worst fold "
+             f"(on the same folds; ties within {DECISION_RTOL:g} are not worse); a model reading "
+             "the direction of change must also have been judged on held-out excursions of both "
+             "directions; where the folds are interleaved blocks (no excursion could be held "
+             "out) the baseline is not replaced; where the baseline is worse than raw out of "
+             "fold, raw is the reference")
+
+
+def one_direction(directions: Sequence[int]) -> str:
+    """Why a direction-carrying candidate cannot be judged ("" where the pool holds heating
+    and cooling)."""
+    if len(set(directions)) >= 2:
+        return ""
+    if not directions:
+        return ("the training data hold no heating or cooling excursion (soaks only): a model "
+                "reading the rate, a lag or a hysteresis memory cannot be judged on one")
+    held, other = DIRECTION_NAMES[directions[0]], DIRECTION_NAMES[-directions[0]]
+    return (f"the training data hold only {held}: a model reading the rate, a lag or a "
+            f"hysteresis memory cannot be judged on {other}, so it does not ship over a static "
+            "model")
+
+
+def worst_fold_not_worse(cand: np.ndarray, ref: np.ndarray) -> bool:
+    """On the folds where both are finite (at least one), ``cand``'s worst fold is no worse
+    than ``ref``'s worst fold (ties within the decision margin are not worse): the minimax
+    reading of "beaten everywhere" — a challenger may trade one excursion against another, but
+    its worst held-out excursion must be no worse than the baseline's."""
+    both = np.isfinite(cand) & np.isfinite(ref)
+    if not both.any():
+        return False
+    return not above(float(np.max(cand[both])), float(np.max(ref[both])))
+
+
+def beats_in_every_fold(cand: np.ndarray, ref: np.ndarray) -> bool:
+    """``cand`` (per-fold ratios) is nowhere above ``ref`` (ties within the decision margin
+    are not worse) on the folds where both are finite, and there is at least one."""
+    both = np.isfinite(cand) & np.isfinite(ref)
+    if not both.any():
+        return False
+    return not any(above(float(c), float(r)) for c, r in zip(cand[both], ref[both], strict=True))
+
+
+@dataclass
+class Gate:
+    """What the gate (:data:`GATE_RULE`) reads, per candidate and fold: ``own`` (K, A), its
+    masked ratio to raw on its own domain; ``pair`` (K, A, 2), its and the baseline's masked
+    ratios to raw on the windows inside both domains; NaN where it was not judged on the fold
+    (fewer than two rows there); ``base_judged`` (K,): the baseline was judged on the fold."""
+
+    own: dict[str, np.ndarray]
+    pair: dict[str, np.ndarray]
+    base_judged: np.ndarray
+    fold_directions: list[set[int]] = field(default_factory=list)
+    directional: set[str] = field(default_factory=set)
+
+    @staticmethod
+    def of(pooled: Pooled, masks: Mapping[str, list[bool]], baseline: str | None,
+           fold_directions: Sequence[set[int]] = ()) -> Gate:
+        """The baseline's column is unmasked: on an axis where it is the reference it ships
+        (it is the reference only where it is not worse than raw out of fold)."""
+        A = pooled.pp_raw.size
+        K = len(pooled.base_judged)
+        own: dict[str, np.ndarray] = {}
+        pair: dict[str, np.ndarray] = {}
+        bmask = np.ones(A, dtype=bool)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for k, mask in masks.items():
+                keep = np.array(mask)
+                o = np.full((K, A), np.nan)
+                pr = np.full((K, A, 2), np.nan)
+                for f in range(K):
+                    g = pooled.gate_own[k][f]
+                    if g is not None:
+                        o[f] = np.where(keep, np.sqrt(g[0] / g[1]), 1.0)
+                    h = pooled.gate_pair[k][f]
+                    if h is not None:
+                        pr[f, :, 0] = np.where(keep, np.sqrt(h[0] / h[2]), 1.0)
+                        pr[f, :, 1] = np.where(bmask, np.sqrt(h[1] / h[2]), 1.0)
+                own[k], pair[k] = o, pr
+        return Gate(own, pair, np.array(pooled.base_judged, dtype=bool), list(fold_directions))
+
+    def passes(self, k: str, a: int | None, against_baseline: bool) -> bool:
+        """``k`` judged on at least :data:`MIN_GATE_FOLDS` folds and nowhere worse than its
+        reference on the folds where both were judged; a candidate reading the direction of
+        change also judged on a held-out excursion of every direction its reference was
+        judged on (a model reading the rate is not judged on heating where no fold trained it
+        on heating; ``a``: one axis; None: the mean over axes)."""
+        if against_baseline:
+            p = self.pair[k] if a is None else self.pair[k][:, a:a + 1]
+            c, b = p[:, :, 0].mean(axis=1), p[:, :, 1].mean(axis=1)
+            ref_judged = self.base_judged
+        else:
+            c = self.own[k].mean(axis=1) if a is None else self.own[k][:, a]
+            b = np.ones_like(c)
+            ref_judged = np.ones(c.size, dtype=bool)
+        judged = np.isfinite(c) & np.isfinite(b)
+        if int(judged.sum()) < MIN_GATE_FOLDS:
+            return False
+        if k in self.directional and self.fold_directions:
+            need = set().union(*(d for d, r in zip(self.fold_directions, ref_judged,
+                                                   strict=True) if r))
+            have = set().union(*(d for d, j in zip(self.fold_directions, judged, strict=True)
+                                 if j))
+            if not need <= have:
+                return False
+        return worst_fold_not_worse(c, b)
+
+
+def gate_axis(sc: dict[str, float], a: int, gate: Gate, baseline: str | None,
+               directional: set[str] | frozenset[str], base_ratio: float | None = None
+               ) -> tuple[dict[str, float], list[str]]:
+    """The candidates of axis ``a`` that pass the gate (the reference among them where it
+    compensates), and those it held back.  ``base_ratio``: the baseline's unmasked
+    out-of-fold ratio on the axis — it is the reference wherever it is below 1 (raw stays
+    the floor only where the cubic is worse than raw out of fold, not where it merely fails
+    to beat raw by one standard error)."""
+    base = baseline or ""
+    if base_ratio is not None and base in sc and below(base_ratio, 1.0):
+        sc = {**sc, base: min(sc[base], base_ratio)}
+    base_on = base in sc and below(sc[base], 1.0)
+    ref_score = sc[base] if base_on else 1.0
+    kept: dict[str, float] = {}
+    gated: list[str] = []
+    for k, v in sc.items():
+        if base_on and k == baseline:
+            kept[k] = v
+        elif k in directional:
+            gated.append(k)
+        elif k in gate.own and below(v, ref_score) and gate.passes(k, a, base_on):
+            kept[k] = v
+        elif k != baseline:
+            gated.append(k)
+    return kept, gated
+
+
+def gate_note(gated: list[str], directional: set[str] | frozenset[str]) -> str:
+    """What the gate held back on an axis, for the rule's sentence (the reason for the held
+    back ones is said once, in the selection's ``held_back``)."""
+    if not gated:
+        return ""
+    held = [k for k in gated if k not in directional]
+    parts = []
+    if held:
+        parts.append(f"not better everywhere: {', '.join(held)}")
+    dirs = [k for k in gated if k in directional]
+    if dirs:
+        parts.append(f"held back: {', '.join(dirs)}")
+    return " [gate: " + "; ".join(parts) + "]"
+
+
+def held_back(ok: Mapping[str, CandidateOOF], baseline: str | None, plan: FoldPlan,
+               gate: bool) -> dict[str, str]:
+    """Per candidate the gate holds back before any score is compared, why: one reading the
+    direction of change where the pool holds one direction only (:func:`one_direction`);
+    every challenger where the folds are interleaved blocks."""
+    if baseline is None or not gate:
+        return {}
+    one_way = one_direction(plan.directions)
+    held = {k: one_way for k, c in ok.items() if c.directional} if one_way else {}
+    if baseline in ok and plan.kind == "blocks":
+        # interleaved blocks judge interpolation between training data, never the next
+        # excursion: on a heating-only ramp, static candidates that beat the cubic in five of
+        # five such folds were 5–10 % worse than it on the cooling after (bench_selection.py
+        # --stress); so no excursion to hold out, no challenger
+        blocks = ("no excursion could be held out (the folds are interleaved blocks, which "
+                  "judge interpolation, not the next warm-up): the baseline stays")
+        for k in ok:
+            if k != baseline:
+                held[k] = f"{held[k]}; {blocks}" if k in held else blocks
+    return held
+
+
+def held_back_record(held: Mapping[str, str]) -> dict[str, Any]:
+    """results.json's ``held_back``: the candidates, each reason once with the candidates it
+    holds (``why``, one sentence per reason) and each candidate's (``by_candidate``)."""
+    groups: dict[str, list[str]] = {}
+    for k, why in held.items():
+        groups.setdefault(why, []).append(k)
+    if len(groups) == 1:
+        why = next(iter(groups))
+    else:
+        why = " | ".join(f"{', '.join(sorted(ks))}: {w}" for w, ks in groups.items())
+    return {"candidates": sorted(held), "why": why, "by_candidate": dict(held)}
