@@ -4,7 +4,7 @@
 line and the RBF on [ΔT, ΔT²] with the cubic tail (8 centres, ridge chosen by inner
 cross-validation).  Its centres came from scikit-learn's k-means, whose import (about 0.7 s:
 SciPy's statistics and pandas come with it) was a fifth of a calibration.  ``init: quantiles``
-(:func:`thermonet.models.rbf.quantile_centres`) places them at the quantiles of ΔT on the
+(:func:`thermonet.models.rbf_fit.quantile_centres`) places them at the quantiles of ΔT on the
 data's curve instead.  This benchmark fits both, side by side in one comparison, on
 
 * every instance calibrate compares on simulated ``fc-board`` boards (PX4 and ArduPilot

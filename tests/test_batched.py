@@ -6,9 +6,9 @@ oracles (numpy.linalg.lstsq, scipy.linalg.solve).
   system summed from its kept blocks) equals :func:`~thermonet.models.lstsq.least_squares` on
   the fold's rows alone, and numpy's SVD least squares; its ridge path (one eigendecomposition
   per fold) equals scipy's dense solve at every ridge.
-* The RBF tail's inner cross-validation (:func:`thermonet.models.rbf._ridge_path`: every ridge
+* The RBF tail's inner cross-validation (:func:`thermonet.models.rbf_fit.ridge_path`: every ridge
   of a width and fold from one SVD) equals the one-ridge-at-a-time augmented least squares it
-  replaced (:func:`thermonet.models.rbf._penalised`) and the penalised problem's stationarity
+  replaced (:func:`thermonet.models.rbf_fit.penalised`) and the penalised problem's stationarity
   system solved by scipy.
 
 Tolerances (tests/tolerances.py, float64): a solve's coefficients carry float64 rounding times
@@ -28,13 +28,13 @@ import torch
 from thermonet.features.inputs import FeatureSpec
 from thermonet.models.lstsq import BlockNormalEquations, least_squares
 from thermonet.models.poly import Poly
-from thermonet.models.rbf import (
+from thermonet.models.rbf_fit import (
     RIDGE_GRID,
-    _design,
-    _inner_folds,
-    _penalised,
-    _ridge_path,
-    _ridge_paths,
+    design,
+    inner_folds,
+    penalised,
+    ridge_path,
+    ridge_paths,
 )
 from thermonet.training.train import TrainConfig, fit
 from tolerances import EPS64, assert_f64_close
@@ -173,17 +173,17 @@ def _rbf_case(width: float) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray, 
     x = _standardised(np.column_stack([z[:, 0], z[:, 0] ** 2]))
     centres = x[np.linspace(0, N - 1, 12).astype(int)] + 0.01
     poly = np.column_stack([x[:, 0] ** k for k in range(1, 4)] + [np.ones(N)])
-    return _design(x, centres, width), poly, _targets(2)
+    return design(x, centres, width), poly, _targets(2)
 
 
 @pytest.mark.parametrize("width", [0.1, 0.4, 1.2])
 def test_rbf_ridge_path_equals_one_ridge_at_a_time(width: float) -> None:
     dz, poly, y = _rbf_case(width)
-    for tr, va in _inner_folds(N):
-        coef, score = _ridge_path(*dz, poly, y, RIDGE_GRID, tr)
+    for tr, va in inner_folds(N):
+        coef, score = ridge_path(*dz, poly, y, RIDGE_GRID, tr)
         err = score(va)                                         # (R, A)
         for i, lam in enumerate(RIDGE_GRID):
-            c1, s1 = _penalised(*dz, poly, y, lam, tr)          # the replaced per-ridge fit
+            c1, s1 = penalised(*dz, poly, y, lam, tr)          # the replaced per-ridge fit
             pred = np.hstack([dz[0], poly]) @ coef[i]
             pred1 = np.hstack([dz[0], poly]) @ c1
             # both are float64 minimisers of the same strictly convex problem; the Gaussian
@@ -199,9 +199,9 @@ def test_rbf_ridge_path_solves_the_stationarity_system() -> None:
     [[ΦᵀΦ + λ'K, ΦᵀP], [PᵀΦ, PᵀP]] [w; t] = [Φᵀy; Pᵀy] (scipy.linalg.solve), K the jittered
     kernel between centres (L Lᵀ), λ' = λ · tr(ΦᵀΦ)/J on the training rows."""
     (phi, chol), poly, y = _rbf_case(0.3)
-    tr, _ = _inner_folds(N)[2]
+    tr, _ = inner_folds(N)[2]
     lams = (1e-3, 1e-1, 10.0)
-    coef, _ = _ridge_path(phi, chol, poly, y, lams, tr)
+    coef, _ = ridge_path(phi, chol, poly, y, lams, tr)
     ph, p, yy = phi[tr], poly[tr], y[tr]
     k = chol @ chol.T
     j = phi.shape[1]
@@ -218,7 +218,7 @@ def test_rbf_ridge_path_solves_the_stationarity_system() -> None:
 def test_rbf_tail_fit_through_the_loop_keeps_its_choices() -> None:
     """End to end: the RBF with the cubic tail fitted by ``fit`` (its inner cross-validation
     now on the ridge path) reports one ridge per axis from the grid, and predicts what its
-    final per-axis penalised least squares (_penalised, unchanged) gives at those ridges."""
+    final per-axis penalised least squares (penalised, unchanged) gives at those ridges."""
     s = _signals()[:, :1]
     y = _targets(3)
     res = fit(family="rbf", inputs=["dT", "dT2"], outputs=["a", "b"], train=[(s, y)], val=None,
@@ -233,20 +233,20 @@ def test_rbf_tail_fit_through_the_loop_keeps_its_choices() -> None:
 
 def test_rbf_widths_stacked_are_each_widths_own_path() -> None:
     """The inner cross-validation solves every width of a fold in one stacked call
-    (_ridge_paths, with the widths' L⁻¹ given once): each width's coefficients and scores
-    are those of its own path (_ridge_path, itself checked against the per-ridge fit and
+    (ridge_paths, with the widths' L⁻¹ given once): each width's coefficients and scores
+    are those of its own path (ridge_path, itself checked against the per-ridge fit and
     scipy above) — the same factorisations, stacked, so equal to a few float64 ulps."""
     cases = [_rbf_case(w) for w in (0.2, 0.5, 1.1)]
     poly, y = cases[0][1], cases[0][2]
     phis = np.stack([c[0][0] for c in cases])
     chols = np.stack([c[0][1] for c in cases])
-    for tr, va in _inner_folds(N):
-        coef, score = _ridge_paths(phis, chols, poly, y, RIDGE_GRID, tr,
+    for tr, va in inner_folds(N):
+        coef, score = ridge_paths(phis, chols, poly, y, RIDGE_GRID, tr,
                                    l_inv=np.linalg.inv(chols))
         err = score(va)
         assert coef.shape[:2] == (3, len(RIDGE_GRID)) and err.shape == (3, len(RIDGE_GRID), 2)
         for k, (dz, _, _) in enumerate(cases):
-            c1, s1 = _ridge_path(*dz, poly, y, RIDGE_GRID, tr)
+            c1, s1 = ridge_path(*dz, poly, y, RIDGE_GRID, tr)
             full = np.hstack([dz[0], poly])
             for i in range(len(RIDGE_GRID)):
                 assert_f64_close(full @ coef[k, i], full @ c1[i], rtol=0,
@@ -256,13 +256,13 @@ def test_rbf_widths_stacked_are_each_widths_own_path() -> None:
 
 @pytest.mark.parametrize("n", [80, 81, 119, 200, 2001, 4567])
 def test_inner_folds_are_the_dealt_blocks_less_their_neighbours(n: int) -> None:
-    """_inner_folds by block arithmetic equals its definition with set operations: 40
+    """inner_folds by block arithmetic equals its definition with set operations: 40
     contiguous blocks dealt round-robin into 5 folds; a fold trains on every block that is
     neither one of its validation blocks nor next to one."""
-    from thermonet.models.rbf import INNER_BLOCKS, INNER_FOLDS
+    from thermonet.models.rbf_fit import INNER_BLOCKS, INNER_FOLDS
 
     block = np.minimum(np.arange(n) * INNER_BLOCKS // n, INNER_BLOCKS - 1)
-    folds = _inner_folds(n)
+    folds = inner_folds(n)
     assert len(folds) == INNER_FOLDS
     for f, (tr, va) in enumerate(folds):
         val_blocks = np.arange(f, INNER_BLOCKS, INNER_FOLDS)

@@ -172,10 +172,10 @@ def test_rbf_counts_distinct_rows_as_numpy_unique_does():
     """The RBF's fittability check counts the grid cells its inputs occupy by one sort of
     the rows: the count np.unique(axis=0) gives, on rows with repeats and ties in one
     column."""
-    from thermonet.models.rbf import _distinct_rows
+    from thermonet.models.rbf_fit import distinct_rows
 
     rng = np.random.default_rng(3)
     for shape in ((0, 2), (1, 1), (500, 1), (500, 2), (2000, 3)):
         a = np.floor(rng.uniform(0, 12, shape))
         want = np.unique(a, axis=0).shape[0] if a.size else 0
-        assert _distinct_rows(a) == want
+        assert distinct_rows(a) == want

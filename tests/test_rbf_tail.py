@@ -27,7 +27,8 @@ from numpy.polynomial import Polynomial
 from scipy.interpolate import RBFInterpolator
 
 from thermonet.core.errors import ConfigError
-from thermonet.models.rbf import RBF, RIDGE_GRID, quantile_centres
+from thermonet.models.rbf import RBF
+from thermonet.models.rbf_fit import RIDGE_GRID, quantile_centres
 from tolerances import DEPTH, EPS32, assert_f32_close
 
 pytestmark = pytest.mark.numerics
