@@ -119,6 +119,38 @@ def test_render_report_without_plots_and_with_a_failed_family():
     assert "a &lt;warning&gt;" in html and "<img" not in html
 
 
+def test_the_report_says_what_the_gate_held_back_and_why():
+    """issue 48: where the pool only heats, a model reading the rate is held back — the report
+    says so beside the candidate and once below the table, with the folds' note; a candidate
+    the gate found worse on a fold says its own reason."""
+    why_rate = ("the training data hold only heating: a model reading the rate, a lag or a "
+                "hysteresis memory cannot be judged on cooling")
+    sel = {"kind": "excursions", "folds": 3, "purge_s": 180.0, "window_s": 60.0,
+           "note": "2 heating legs, 1 cooling leg", "rule": "chose cubic",
+           "candidates": {
+               "cubic": {"status": "ok", "n_params": 4, "score": 0.3, "interval": [0.2, 0.4],
+                         "fold_scores": [0.3, 0.31, 0.29], "axes": {}},
+               "poly3-rate": {"status": "ok", "n_params": 8, "score": 0.2,
+                              "interval": [0.1, 0.3], "fold_scores": [0.2, 0.2, 0.2],
+                              "axes": {}, "not_eligible": why_rate},
+               "rbf": {"status": "ok", "n_params": 30, "score": 0.25, "interval": [0.2, 0.3],
+                       "fold_scores": [0.2, 0.4, 0.2], "axes": {},
+                       "not_eligible": "gate: not better than the baseline cubic everywhere"}},
+           "held_back": {"candidates": ["poly3-rate"], "why": why_rate,
+                         "by_candidate": {"poly3-rate": why_rate}}}
+    page = _Page()
+    page.feed(render_report({"device": "d", "units": {}, "baseline": "cubic", "chosen": "cubic",
+                             "chosen_reason": "chose cubic", "families": {},
+                             "selection": sel}))
+    html = "".join(page.cells)
+    assert "held back (below)" in page.cells
+    assert "gate: not better than the baseline cubic everywhere" in page.cells
+    text = render_report({"device": "d", "units": {}, "baseline": "cubic", "chosen": "cubic",
+                          "families": {}, "selection": sel})
+    assert f"<b>poly3-rate</b>: {why_rate}" in text and "Folds: 2 heating legs" in text
+    assert why_rate not in html                      # said once, below the table
+
+
 @pytest.mark.parametrize("members, listed", [
     ({"cubic": {}}, None),                      # no member was tuned: no line at all
     ({"cubic": {}, "poly3-rate": {"degree": 2, "tuning": {"grid": {"degree=2": 0.41},

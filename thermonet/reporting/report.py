@@ -165,29 +165,43 @@ def _selection_table(res: dict[str, Any]) -> str:
     sel = res.get("selection") or {}
     if not sel.get("candidates"):
         return f"<p class='small'>{_e(sel.get('note') or 'single validation part')}</p>"
+    held = (sel.get("held_back") or {}).get("by_candidate") or {}
     rows = []
     for name, c in sel["candidates"].items():
         if c.get("status") != "ok":
-            rows.append(f"<tr><td>{_e(name)}</td><td colspan='6'>not a candidate: "
+            rows.append(f"<tr><td>{_e(name)}</td><td colspan='7'>not a candidate: "
                         f"{_e(c.get('reason'))}</td></tr>")
             continue
         lo, hi = c.get("interval", [None, None])
         left = max(c.get("left_out_fraction") or [0.0])
         raw_axes = [a for a, v in c.get("axes", {}).items() if not v.get("compensate")]
+        why = c.get("not_eligible") or ""
         rows.append(f"<tr><td>{_e(name)}</td><td>{_e(c.get('n_params'))}</td>"
                     f"<td>{_num(c.get('score'), '.4g')} [{_num(lo, '.4g')}, {_num(hi, '.4g')}]"
                     f"</td><td>{_e(' '.join(_num(x) for x in c.get('fold_scores', [])))}</td>"
                     f"<td>{_num(c.get('diff_to_best'), '.2g')} ± {_num(c.get('se_of_diff'), '.2g')}"
                     f"</td><td>{_num(100 * left, '.2g')} %</td>"
-                    f"<td>{_e(', '.join(raw_axes) or '—')}</td></tr>")
+                    f"<td>{_e(', '.join(raw_axes) or '—')}</td>"
+                    f"<td>{_e('held back (below)' if why and why == held.get(name) else why or '—')}"
+                    "</td></tr>")
+    groups: dict[str, list[str]] = {}
+    for name, why in held.items():
+        groups.setdefault(why, []).append(name)
+    held_html = "".join(f"<li><b>{_e(', '.join(sorted(names)))}</b>: {_e(why)}</li>"
+                        for why, names in groups.items())
     return (f"<p class='small'>{_e(sel.get('kind', ''))}, {_e(sel.get('folds', ''))} folds, "
             f"purge {_num(sel.get('purge_s'))} s, score windows {_num(sel.get('window_s'))} s: "
             "the low-frequency residual out of fold over raw on the same windows (&lt; 1 better), "
-            "paired across candidates. " + _e(sel.get("rule", "")) + "</p>"
-            "<table><tr><th>candidate</th><th>params</th><th>out-of-fold score [95 %]</th>"
+            "paired across candidates. " + _e(sel.get("rule", ""))
+            + (f" Folds: {_e(sel['note'])}." if sel.get("note") else "") + "</p>"
+            + (f"<p class='small'>The gate: {_e(sel['gate'])}</p>"
+               if isinstance(sel.get("gate"), str) else "")
+            + "<table><tr><th>candidate</th><th>params</th><th>out-of-fold score [95 %]</th>"
             "<th>per fold</th><th>paired difference to the best ± SE</th>"
             "<th>most left out of a fold (outside its trained domain)</th>"
-            "<th>left raw</th></tr>" + "".join(rows) + "</table>")
+            "<th>left raw</th><th>not eligible (why)</th></tr>" + "".join(rows) + "</table>"
+            + (f"<p class='small'>Held back before any score was compared:</p><ul "
+               f"class='small'>{held_html}</ul>" if held_html else ""))
 
 
 def _per_axis_table(res: dict[str, Any]) -> str:
