@@ -42,10 +42,8 @@ from bench_export import DRIVER as X86_DRIVER  # noqa: E402
 from bench_export import callgrind_ir  # noqa: E402
 from common import OUT, git_rev, save, table  # noqa: E402
 from thermonet.exporting import render_c_header  # noqa: E402
-from thermonet.exporting.c_stream import (  # noqa: E402
-    float_path_slack,
-    stream_signature_has_proxies,
-)
+from thermonet.exporting.c_stream import float_path_slack  # noqa: E402
+from thermonet.exporting.c_stream_render import stream_signature_has_proxies  # noqa: E402
 from thermonet.exporting.mcu import Emulator, cross_compile, toolchain  # noqa: E402
 from thermonet.exporting.parity import float32_tolerance  # noqa: E402
 from thermonet.features import dynamics  # noqa: E402

@@ -200,7 +200,7 @@ def main_mcu() -> None:
     10 °C below to 10 °C above the trained range; and the emulated band against Python."""
     import struct
 
-    from thermonet.exporting.c_stream import stream_signature_has_proxies
+    from thermonet.exporting.c_stream_render import stream_signature_has_proxies
     from thermonet.exporting.mcu import Emulator, cross_compile
     from thermonet.scoring.band import shipped_band
 

@@ -23,7 +23,8 @@ import torch
 from conftest import load_runtime
 from thermonet.core.errors import ExportError
 from thermonet.core.trainconfig import TrainConfig
-from thermonet.exporting.c_stream import REAL_FLAGS, run_stream_c, step_signature_c
+from thermonet.exporting.c_stream import REAL_FLAGS, run_stream_c
+from thermonet.exporting.c_stream_render import step_signature_c
 from thermonet.exporting.sensor_c import (
     export_sensor_c,
     render_sensor_c,

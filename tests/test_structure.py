@@ -16,7 +16,7 @@ _C_TEXT = "emits generated C text: one template read top to bottom"
 #: "path:qualified name" -> why it may be longer
 ALLOWED: dict[str, str] = {
     "thermonet/exporting/c_recurrent.py:render_recurrent_stream_c": _C_TEXT,
-    "thermonet/exporting/c_stream.py:render_stream_c": _C_TEXT,
+    "thermonet/exporting/c_stream_render.py:render_stream_c": _C_TEXT,
     "thermonet/models/cgen.py:c_target_prelude": _C_TEXT,
     "thermonet/exporting/c_header.py:_render_single": _C_TEXT,
     "thermonet/exporting/c_header.py:render_axis_models_c": _C_TEXT,

@@ -40,15 +40,8 @@ import numpy as np
 from ..core.errors import ExportError
 from ..models.sequence import stream_relative
 from .c_driver import c_compiler, run_c_driver
-from .c_stream import (
-    REAL_FLAGS,
-    _proxies,
-    float_path_slack,
-    judge_step_parity,
-    run_stream_c,
-    step_signature_c,
-    step_time_guard_c,
-)
+from .c_stream import REAL_FLAGS, float_path_slack, judge_step_parity, run_stream_c
+from .c_stream_render import _proxies, step_signature_c, step_time_guard_c
 from .parity import check_drift_parity, check_points, trained_range
 from .recurrent import _tolerance, hidden_size, step_reference
 

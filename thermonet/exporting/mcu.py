@@ -171,7 +171,7 @@ def cross_compile(header_text: str, target: str, out_dir: str | Path, *,
     under :data:`STRICT_FLAGS` into ``out_dir``.
 
     ``has_proxies``: ``<prefix>_step`` takes a proxies argument
-    (:func:`.c_stream.stream_signature_has_proxies`).  ``extra``: more flags (e.g.
+    (:func:`.c_stream_render.stream_signature_has_proxies`).  ``extra``: more flags (e.g.
     ``-DTHERMONET_USE_DOUBLE`` to build the double path on a float target).  ``recurrent``:
     the header is a recurrent model's (``<prefix>_compensate_state``, :mod:`.c_recurrent`).
 

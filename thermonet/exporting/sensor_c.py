@@ -53,7 +53,8 @@ from ..features import dynamics
 from ..models.sensor import SensorModel, check_invertible
 from .c_driver import PARITY_DRIVER, c_compiler, run_c_driver
 from .c_header import _IDENT, _render_single
-from .c_stream import REAL_FLAGS, render_stream_block_c, render_stream_c, run_stream_c
+from .c_stream import REAL_FLAGS, run_stream_c
+from .c_stream_render import render_stream_block_c, render_stream_c
 from .sensor_probe import PARITY_EPS32, STREAM_RTOL, probe
 
 __all__ = ["render_sensor_c", "sensor_c_parity", "sensor_stream_parity", "sensor_sequence",
