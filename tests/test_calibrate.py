@@ -328,34 +328,34 @@ def _board_tasks(tmp_path: Path, names: tuple[str, ...], where: str) -> list[dic
 
 def test_instances_compared_in_a_helper_process_are_the_commands_comparisons(
         tmp_path: Path) -> None:
-    """calibrate's helper (``workers``; core.helpers, workflows.calibrate_compare) takes
-    instances from the back of the
+    """calibrate's helper (``workers``; core.helpers' process pool,
+    workflows.calibrate_compare) takes instances from the back of the
     list while the command takes them from the front: each comparison is the one the
     command alone makes, number for number, and ``--profile`` names what the helper did.
     The helper is waited for here, so that it surely takes part (in a command it imports
     while the logs are read, and helps from when it is ready)."""
-    import select
+    import time
 
     from thermonet.core import profile
-    from thermonet.core.helpers import Helper
+    from thermonet.core.helpers import Helpers
     from thermonet.workflows.calibrate_compare import HELPER_IMPORTS, compare_all
 
     names = ("gyro0", "acc0", "gyro1", "acc1", "baro0", "mag0")
     alone = compare_all(_board_tasks(tmp_path, names, "alone"))
-    with Helper(HELPER_IMPORTS) as helper:
+    with Helpers(1, HELPER_IMPORTS) as helper:
         while not helper.ready():
-            stream = helper.stream()
-            assert stream is not None, "the helper did not start"
-            select.select([stream], [], [], 1.0)
+            assert not helper.failed(), "the helper did not start"
+            time.sleep(0.05)
+        procs = list(helper._pool._processes.values())
         profile.reset()
         profile.enable()
         try:
-            side = compare_all(_board_tasks(tmp_path, names, "side"), [helper])
+            side = compare_all(_board_tasks(tmp_path, names, "side"), helper)
             helped = [n for n in profile.timings() if n.endswith("(helper)")]
         finally:
             profile.enable(False)
             profile.reset()
-        assert helper.stream() is None            # ended once the comparisons are done
+        assert all(not p.is_alive() for p in procs)   # ended once the comparisons are done
     assert helped                                  # it compared at least one instance
     assert list(side) == list(alone)
     for name in alone:
@@ -369,11 +369,11 @@ def test_a_helper_that_fails_leaves_its_work_to_the_command(tmp_path: Path, capf
     """A helper whose imports fail (here: a module that does not exist) never becomes
     ready and says nothing: the command compares every instance itself, and the result is
     the same."""
-    from thermonet.core.helpers import Helper
+    from thermonet.core.helpers import Helpers
     from thermonet.workflows.calibrate_compare import compare_all
 
-    with Helper(["thermonet.no_such_module"]) as broken:
-        got = compare_all(_board_tasks(tmp_path, ("gyro0", "acc0"), "a"), [broken])
+    with Helpers(1, ["thermonet.no_such_module"]) as broken:
+        got = compare_all(_board_tasks(tmp_path, ("gyro0", "acc0"), "a"), broken)
     want = compare_all(_board_tasks(tmp_path, ("gyro0", "acc0"), "b"))
     assert sorted(got) == ["acc0", "gyro0"]
     assert got == want
@@ -411,7 +411,7 @@ def test_how_many_helpers_calibrate_starts() -> None:
 
 def test_a_helper_that_cannot_be_started_leaves_the_command_to_do_it_all(
         tmp_path: Path, monkeypatch) -> None:
-    """No process to be had (a limit, a sandbox: ``Popen`` raises OSError): the
+    """No process to be had (a limit, a sandbox: the pool raises OSError): the
     calibration runs in the command alone, the same as with ``workers=1``."""
     from thermonet.workflows import calibrate as cal
 
@@ -422,7 +422,7 @@ def test_a_helper_that_cannot_be_started_leaves_the_command_to_do_it_all(
     board.instances = [i for i in board.instances if i.name in ("gyro0", "acc0")]
     log = write_log(board, tmp_path / "b.ulg")
     alone = calibrate(log, tmp_path / "alone", workers=1)
-    monkeypatch.setattr(cal, "Helper", refuse)
+    monkeypatch.setattr(cal, "Helpers", refuse)
     refused = calibrate(log, tmp_path / "refused", workers=2)
     for name in ("gyro0", "acc0"):
         a, r = alone["instances"][name], refused["instances"][name]

@@ -1,12 +1,16 @@
-"""Figures drawn by child processes (thermonet.reporting.plot_workers): the same files as drawn
-in the command, every error raised as the command would raise it, no child left behind."""
+"""Figures drawn by child processes (thermonet.reporting.plot_workers, on core.helpers' process
+pool): the same files as drawn in the command, every error raised as the command would raise
+it, no child left behind."""
 
 from __future__ import annotations
+
+import time
 
 import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
+from thermonet.core.helpers import Helpers, value_or_none
 from thermonet.reporting.colours import family_colours
 from thermonet.reporting.plot_workers import PlotWorkers, draw_here
 
@@ -29,14 +33,27 @@ def _jobs(out, n_series: int = 3):
     return jobs
 
 
+def _procs(helpers: Helpers | None) -> list:
+    """The pool's worker processes (started so far)."""
+    assert helpers is not None and helpers._pool is not None
+    return list(helpers._pool._processes.values())
+
+
+def _until_ready(h: Helpers) -> None:
+    deadline = time.monotonic() + 120
+    while not h.ready():
+        assert time.monotonic() < deadline and not h.failed(), "the helpers did not start"
+        time.sleep(0.02)
+
+
 def test_children_draw_the_figures_the_command_draws(tmp_path):
     here = draw_here(_jobs(tmp_path / "here"))
     with PlotWorkers(2) as drawers:
-        procs = [h._proc for h in drawers._helpers]
+        procs = _procs(drawers._helpers)
         assert len(procs) == 2
         there = drawers.draw(_jobs(tmp_path / "there"))
-        assert drawers._helpers == []                  # ended once they have drawn
-    assert all(p is not None and p.poll() is not None for p in procs)
+        assert drawers._helpers is None                # ended once they have drawn
+    assert all(not p.is_alive() for p in procs)
     assert [p.name for p in there] == [p.name for p in here]      # the order of the jobs
     for a, b in zip(here, there, strict=True):
         assert b.parent == tmp_path / "there"
@@ -49,76 +66,57 @@ def test_a_figure_that_fails_in_a_child_is_drawn_here_and_raises_as_here(tmp_pat
     jobs[2] = ("plot_residual_vs_temperature", bad)
     with PlotWorkers(2) as drawers, pytest.raises(ValueError, match=r"'compensated\['cubic'\]' has 5"):
         drawers.draw(jobs)
-    assert drawers._helpers == []
+    assert drawers._helpers is None
 
 
 def test_leaving_on_an_error_kills_the_children_at_once():
     drawers = PlotWorkers(2)
-    procs = [h._proc for h in drawers._helpers]
+    procs = _procs(drawers._helpers)
     with pytest.raises(RuntimeError), drawers:
         raise RuntimeError("the comparison failed before its figures")
-    assert all(p is not None and p.poll() is not None for p in procs)
+    assert procs and all(not p.is_alive() for p in procs)
 
 
 def test_one_worker_or_fewer_draws_in_this_process(tmp_path):
     drawers = PlotWorkers(1)
-    assert drawers._helpers == []
+    assert drawers._helpers is None
     assert [p.name for p in drawers.draw(_jobs(tmp_path, 1))] == ["res_0.png", "allan_0.png"]
 
 
-def test_a_helper_imports_first_then_runs_calls_and_reports_errors_in_one_line():
-    import select as sel
-
-    from thermonet.core.helpers import Helper, HelperGone
-
-    with Helper(["json"]) as h:
-        stream = h.stream()
-        assert stream is not None
-        while not h.ready():                       # event-driven: wait for its "ready"
-            sel.select([stream], [], [], 5.0)
-        h.submit("json", "dumps", obj={"b": [1, 2.5]}, sort_keys=True)
-        assert not h.ready()                       # busy until its result is taken
-        assert h.result() == (True, '{"b": [1, 2.5]}')
-        h.submit("json", "loads", s="{not json")
-        ok, line = h.result()
-        assert not ok and line.startswith("JSONDecodeError: ") and "\n" not in line
-        proc = h._proc
-        h.submit("os", "_exit", status=3)          # the child dies in the call
-        with pytest.raises(HelperGone):
-            h.result()
-        assert proc is not None and proc.poll() is not None and h.stream() is None
-        assert not h.ready()
+def test_helpers_import_first_then_run_calls_and_leave_a_failed_call_to_the_caller():
+    """A call that raises, or whose worker dies, gives None (the caller does that work,
+    where a genuine error is raised in its own one line); a dead worker breaks the pool:
+    every later call gives None, none hangs."""
+    with Helpers(1, ["json"]) as h:
+        _until_ready(h)
+        assert value_or_none(h.submit("json", "dumps", obj={"b": [1, 2.5]}, sort_keys=True)) \
+            == '{"b": [1, 2.5]}'
+        assert value_or_none(h.submit("json", "loads", s="{not json")) is None
+        procs = _procs(h)
+        assert value_or_none(h.submit("os", "_exit", status=3)) is None   # dies in the call
+        assert value_or_none(h.submit("json", "dumps", obj=[1])) is None
+        assert all(not p.is_alive() for p in procs)
+    assert h.failed() and not h.ready()
 
 
 def test_a_helpers_first_call_is_answered_before_its_imports():
-    """``first=``: the call is run as the child starts, before its imports — its reply (one
-    larger than a pipe holds, sent while the child imports) comes first, then the child says
-    it is ready and serves calls as any helper; a first call that raises comes back as one
-    line and the child still becomes ready."""
-    import select as sel
-
-    from thermonet.core.helpers import Helper
-
-    with Helper(["json"], first=("thermonet.core.names", "path_component",
-                                 {"name": "a/b"})) as h:
-        assert not h.ready()                       # the first call is in flight
-        ok, value = h.result()
-        assert ok and value == _path_component("a/b")
-        while not h.ready():
-            sel.select([h.stream()], [], [], 5.0)
-        h.submit("json", "dumps", obj=[1])
-        assert h.result() == (True, "[1]")
+    """``first=``: the call is run as the first worker starts, before its imports (they are
+    queued at :meth:`Helpers.start`); a value larger than a pipe holds comes back whole; a
+    first call that raises gives None and the workers still become ready."""
+    with Helpers(1, ["json"], first=("thermonet.core.names", "path_component",
+                                     {"name": "a/b"})) as h:
+        assert not h.ready()                       # nothing imported before start()
+        assert value_or_none(h.first) == _path_component("a/b")
+        h.start()
+        _until_ready(h)
+        assert value_or_none(h.submit("json", "dumps", obj=[1])) == "[1]"
     big = "x" * (1 << 20)                           # 1 MB: many times a pipe's buffer
-    with Helper(["json"], first=("builtins", "str", {"object": big})) as h:
-        assert h.result() == (True, big)
-        h.stream()
-        while not h.ready():
-            sel.select([h.stream()], [], [], 5.0)
-    with Helper(["json"], first=("json", "loads", {"s": "{"})) as h:
-        ok, line = h.result()
-        assert not ok and line.startswith("JSONDecodeError: ")
-        while not h.ready():
-            sel.select([h.stream()], [], [], 5.0)
+    with Helpers(1, ["json"], first=("builtins", "str", {"object": big})) as h:
+        assert value_or_none(h.first) == big
+    with Helpers(1, ["json"], first=("json", "loads", {"s": "{"})) as h:
+        assert value_or_none(h.first) is None
+        h.start()
+        _until_ready(h)
 
 
 def _path_component(name: str) -> str:
@@ -128,18 +126,18 @@ def _path_component(name: str) -> str:
 
 
 def test_a_first_call_pickle_cannot_carry_is_left_to_the_caller():
-    """A first call with an argument pickle refuses (a lambda) is refused before any process
-    starts (ValueError); the drawers then start without it and the caller does that work."""
-    from thermonet.core.helpers import Helper
-
+    """A first call with an argument pickle refuses (a lambda) gives None (the caller does
+    that work); the drawers still start and draw."""
     call = ("builtins", "len", {"obj": lambda: 0})
-    with pytest.raises(ValueError, match="cannot be sent"):
-        Helper(["json"], first=call)
+    with Helpers(1, ["json"], first=call) as h:
+        assert value_or_none(h.first) is None
+        h.start()
+        _until_ready(h)
+        assert value_or_none(h.submit("json", "dumps", obj=[3])) == "[3]"
     with PlotWorkers(2, first=call) as drawers:
-        assert not drawers.has_first and drawers.first_result() is None
-        assert len(drawers._helpers) == 1          # the other waits for start_rest
+        assert drawers.first_result() is None
         drawers.start_rest()
-        assert len(drawers._helpers) == 2
+        assert len(_procs(drawers._helpers)) == 2
 
 
 def test_with_a_first_call_the_other_drawers_start_later(tmp_path):
@@ -147,25 +145,19 @@ def test_with_a_first_call_the_other_drawers_start_later(tmp_path):
     ``start_rest`` (compare: once torch is imported) or, at the latest, when the figures
     are drawn — the same figures either way."""
     with PlotWorkers(2, first=("json", "dumps", {"obj": 1})) as drawers:
-        assert len(drawers._helpers) == 1 and drawers.first_result() == "1"
+        assert len(_procs(drawers._helpers)) == 1 and drawers.first_result() == "1"
         got = drawers.draw(_jobs(tmp_path, 2))
     assert [p.name for p in got] == [p.name for p in draw_here(_jobs(tmp_path / "here", 2))]
 
 
-def test_a_first_result_pickle_cannot_carry_comes_back_as_one_line():
-    """The first call's result cannot be pickled (a lock): the child says so in one
-    line instead of sending it, and still becomes ready and serves calls."""
-    import select as sel
-
-    from thermonet.core.helpers import Helper
-
-    with Helper(["json"], first=("threading", "Lock", {})) as h:
-        ok, line = h.result()
-        assert not ok and "cannot be sent" in line and "\n" not in line
-        while not h.ready():
-            sel.select([h.stream()], [], [], 5.0)
-        h.submit("json", "dumps", obj=[2])
-        assert h.result() == (True, "[2]")
+def test_a_first_result_pickle_cannot_carry_is_left_to_the_caller():
+    """The first call's result cannot be pickled (a lock): None, and the workers still
+    serve calls."""
+    with Helpers(1, ["json"], first=("threading", "Lock", {})) as h:
+        assert value_or_none(h.first) is None
+        h.start()
+        _until_ready(h)
+        assert value_or_none(h.submit("json", "dumps", obj=[2])) == "[2]"
 
 
 def test_what_a_call_logs_is_said_by_the_command_when_it_takes_the_result(caplog, capfd):
@@ -174,11 +166,30 @@ def test_what_a_call_logs_is_said_by_the_command_when_it_takes_the_result(caplog
     it takes the result, as if the call had run there."""
     import logging
 
-    from thermonet.core.helpers import Helper
-
     with caplog.at_level(logging.WARNING), \
-            Helper(["json"], first=("logging", "warning", {"msg": "said in the helper"})) as h:
-        assert h.result() == (True, None)
+            Helpers(1, ["json"], first=("logging", "warning", {"msg": "said in the helper"})) as h:
+        assert value_or_none(h.first) is None          # logging.warning returns None
     said = [(r.name, r.levelno, r.getMessage()) for r in caplog.records]
     assert said == [("root", logging.WARNING, "said in the helper")]
     assert "said in the helper" not in capfd.readouterr().err
+
+
+def test_a_script_without_a_main_guard_gets_no_workers(tmp_path):
+    """A ``spawn`` worker imports a main script run by path again: without
+    ``if __name__ == "__main__":`` its body would run in every worker, so none is started
+    there (the command draws alone); a guarded script, ``-c`` and ``-m`` get them."""
+    import subprocess
+    import sys
+
+    use = "from thermonet.reporting.plot_workers import PlotWorkers\n"
+    scripts = {"plain": use + "with PlotWorkers(2) as d:\n    print(d._helpers is not None)\n",
+               "guarded": use + "if __name__ == '__main__':\n    with PlotWorkers(2) as d:\n"
+                                "        print(d._helpers is not None)\n"}
+    got = {}
+    for name, text in scripts.items():
+        script = tmp_path / f"{name}.py"
+        script.write_text(text)
+        r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                           timeout=300)
+        got[name] = (r.returncode, r.stdout.strip(), "Traceback" in r.stderr)
+    assert got == {"plain": (0, "False", False), "guarded": (0, "True", False)}

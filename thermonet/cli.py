@@ -15,13 +15,11 @@ source line; ``-q`` silences them (:func:`main`, for every command).
 from __future__ import annotations
 
 import argparse
-import atexit
 import gc
 import json
 import os
 import signal
 import sys
-import threading
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -896,38 +894,17 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def run() -> None:
     """The ``thermonet`` command (console script, ``python -m thermonet``): :func:`main`,
-    then the process exits without the interpreter's last clean-up of its modules.
+    then the interpreter's own exit with its code.
 
-    Everything alive at the end is frozen (:func:`gc.freeze`): the interpreter's final
-    collections would otherwise walk every object torch, scikit-learn, pandas and
-    matplotlib created — 0.4-0.7 s after the command has finished, a tenth of a
-    calibration.  Then, where nothing but this thread is left running, the process ends
-    once its exit handlers (:mod:`atexit`: logging's flush, ``weakref.finalize``
-    callbacks such as temporary directories' removal) have run and stdout/stderr are
-    flushed (:func:`_exit_now`): what is skipped is the freeing of every module's objects,
-    memory the operating system reclaims anyway — ~0.08 s with torch loaded, 4 % of a
-    calibration.  Every file thermonet writes is closed before the command returns
-    (atomic writes).  With another thread still running the interpreter exits as usual,
-    waiting for it.  :func:`main` itself (what tests and embedding programs call) leaves
-    the collector and the interpreter alone.
+    Everything alive at the end is frozen first (:func:`gc.freeze`): the interpreter's
+    final collections would otherwise walk every object torch, pandas and matplotlib
+    created — 0.4-0.7 s after the command has finished, a tenth of a calibration.  Exit
+    handlers, finalizers and the flushing of output run as usual.  :func:`main` itself
+    (what tests and embedding programs call) leaves the collector alone.
     """
     rc = main()
     gc.freeze()
-    if threading.active_count() == 1:
-        _exit_now(rc)
     sys.exit(rc)
-
-
-def _exit_now(rc: int) -> None:
-    """End the process with ``rc`` as the interpreter would, less the freeing of its
-    modules: exit handlers first, then stdout and stderr flushed."""
-    atexit._run_exitfuncs()
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):   # a closed pipe (``| head``): nothing left to say
-            pass
-    os._exit(rc)
 
 
 if __name__ == "__main__":

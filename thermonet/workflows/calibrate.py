@@ -81,7 +81,7 @@ import numpy as np
 
 from ..core.errors import InputError, ThermonetError
 from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
-from ..core.helpers import Helper, HelperGone, value_or_none
+from ..core.helpers import Helpers, value_or_none
 from ..core.names import inside, path_components
 from ..core.outdir import KINDS, check_target, sha256_file, staged_output
 from ..core.profile import stage as profile_stage
@@ -279,33 +279,35 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 0):
         raise InputError(f"workers {workers!r}: a whole number >= 0 (0: one per CPU)")
-    with contextlib.ExitStack() as helpers:
-        started: list[Helper] = []
-        for k in range(helper_count(compare, workers)):
-            # the first reads the logs before its imports (a light module), while this
-            # process imports torch and the comparison: the logs off the way to the first
-            # comparison
-            first = ("thermonet.data.logs", "read_logs", {"paths": paths}) if k == 0 else None
-            try:
-                started.append(helpers.enter_context(Helper(HELPER_IMPORTS, first=first)))
-            except (OSError, ValueError, HelperGone):  # no process to be had (a limit, a sandbox)
-                break
+    helpers = None
+    n = helper_count(compare, workers)
+    if n:
+        # the first reads the logs before its imports (a light module), while this process
+        # imports torch and the comparison: the logs off the way to the first comparison
+        try:
+            helpers = Helpers(n, HELPER_IMPORTS,
+                              first=("thermonet.data.logs", "read_logs", {"paths": paths}))
+        except OSError:                  # no process to be had (a limit, a sandbox)
+            helpers = None
+    with helpers if helpers is not None else contextlib.nullcontext():
+        if helpers is not None:
+            helpers.start()              # the imports queued behind the first call
         return _calibrate(paths, out, compare=compare, overwrite=overwrite,
-                          mag_thermometers=mag_thermometers, helpers=started)
+                          mag_thermometers=mag_thermometers, helpers=helpers)
 
 
 def _calibrate(paths: list[str | Path], out: Path, *, compare: bool, overwrite: bool,
-               mag_thermometers: Mapping[str, str] | None, helpers: list[Helper]
+               mag_thermometers: Mapping[str, str] | None, helpers: Helpers | None
                ) -> dict[str, Any]:
     """:func:`calibrate` once its helpers (if any) are started: the first reads the logs
     while this process imports the comparison, then they import it too."""
     logs = None
-    if helpers:
+    if helpers is not None:
         with profile_stage("import torch and the comparison (a helper reads the log(s))"):
             import_comparison()
         with profile_stage("read the log(s) (in the helper)"):
             # one log per path, or None: read here, where a bad log is refused in its own words
-            logs = value_or_none(helpers[0], lambda v: isinstance(v, list) and len(v) == len(
+            logs = value_or_none(helpers.first, lambda v: isinstance(v, list) and len(v) == len(
                 paths) and all(isinstance(lg, FlightLog) for lg in v))
     if logs is None:
         with profile_stage("read the log(s)"):
@@ -579,7 +581,7 @@ def _judge_model_only(fit: FirmwareFit, inst: SensorInstance | None, autopilot: 
 
 def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: bool,
                     mags: dict[str, dict[str, Any]] | None = None,
-                    helpers: Sequence[Helper] = ()) -> dict[str, Any]:
+                    helpers: Helpers | None = None) -> dict[str, Any]:
     """The calibration, written into ``stage``; recorded paths name ``out``."""
     log = merge_logs(logs)
     source = ", ".join(str(lg.path) for lg in logs)

@@ -15,17 +15,16 @@ command takes them from the front.
 from __future__ import annotations
 
 import os
-import select
 import sys
 import threading
-from collections.abc import Sequence
+import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..core.errors import ThermonetError
-from ..core.helpers import Helper, usable_cores
+from ..core.helpers import Helpers, usable_cores, value_or_none
 from ..core.outdir import relocate_json
 from ..core.profile import stage as profile_stage
 from ..data.logs import SensorInstance
@@ -59,7 +58,7 @@ def import_comparison() -> None:
 
 def helper_count(compare: bool, workers: int | None) -> int:
     """How many helper processes (:mod:`thermonet.core.helpers`) to start: none without the
-    comparison or off POSIX (the command waits on their pipes with ``select``).  By default
+    comparison or off POSIX (the workers' signal mask, :mod:`thermonet.core.helpers`).  By default
     (``workers`` None or 0) also none where this process has torch loaded already — a
     program calibrating again, a test — whose comparisons start at once: a helper would be
     ready only after about a second of imports, to compare perhaps one instance of the
@@ -73,49 +72,46 @@ def helper_count(compare: bool, workers: int | None) -> int:
     return workers - 1
 
 
-def compare_all(tasks: list[dict[str, Any]], helpers: Sequence[Helper] = ()
+def compare_all(tasks: list[dict[str, Any]], helpers: Helpers | None = None
                 ) -> dict[str, dict[str, Any] | str]:
     """Every task's :func:`compare_or_why`, by instance name.
 
-    The command takes the tasks from the front of the list; per helper, a thread hands it
-    tasks from the back, one at a time, from the moment its imports are done (the thread
-    waits on the helper's pipe, so it costs the command nothing meanwhile).  The same
-    comparison either way (the same code on the same data: a test compares the two); a task
-    a helper did not finish — it raised, died, or was not ready before the command had done
-    the rest — is done here, where a genuine error is raised as it would have been.  Each
-    helper's task is a ``--profile`` stage ``<instance>: compare … (helper)``: its wall time
-    as the command waited for it."""
+    The command takes the tasks from the front of the list; per helper process, a thread
+    hands the pool tasks from the back, one at a time, from the moment a helper's imports
+    are done (the thread waits on the pool's futures, so it costs the command nothing
+    meanwhile).  The same comparison either way (the same code on the same data: a test
+    compares the two); a task a helper did not finish — it raised, died, or was not ready
+    before the command had done the rest — is done here, where a genuine error is raised
+    as it would have been.  Each helper's task is a ``--profile`` stage ``<instance>:
+    compare … (helper)``: its wall time as the command waited for it."""
     out: dict[int, dict[str, Any] | str] = {}
     lock = threading.Lock()
     edge = [0, len(tasks)]                      # [next from the front, one past the back]
 
-    def feed(h: Helper) -> None:
-        try:
-            while not h.ready():                # its imports: wait, unless the work is done
-                with lock:
-                    if edge[0] >= edge[1]:
-                        return
-                stream = h.stream()
-                if stream is None:
-                    return
-                select.select([stream], [], [], 0.05)
-            while True:
-                with lock:
-                    if edge[0] >= edge[1]:
-                        return
-                    edge[1] -= 1
-                    k = edge[1]
-                with profile_stage(f"{tasks[k]['inst'].name}: compare thermonet's families "
-                                   "(helper)"):
-                    h.submit(__name__, "compare_or_why", **tasks[k])
-                    ok, value = h.result()
-                if ok:
-                    out[k] = value
-        except Exception:  # noqa: BLE001 - whatever went wrong, the command does the task
-            return
+    def left() -> bool:
+        with lock:
+            return edge[0] < edge[1]
 
-    feeders = [threading.Thread(target=feed, args=(h,), daemon=True)
-               for h in (helpers if len(tasks) > 1 else ())]
+    def feed(h: Helpers) -> None:
+        while not h.ready():                    # its imports: wait, unless the work is done
+            if not left() or h.failed():
+                return
+            time.sleep(0.05)
+        while True:
+            with lock:
+                if edge[0] >= edge[1]:
+                    return
+                edge[1] -= 1
+                k = edge[1]
+            with profile_stage(f"{tasks[k]['inst'].name}: compare thermonet's families "
+                               "(helper)"):
+                value = value_or_none(h.submit(__name__, "compare_or_why", **tasks[k]))
+            if value is None:                   # raised or died: the command does the rest
+                return
+            out[k] = value
+
+    n = helpers.size if helpers is not None and len(tasks) > 1 else 0
+    feeders = [threading.Thread(target=feed, args=(helpers,), daemon=True) for _ in range(n)]
     for f in feeders:
         f.start()
     try:
@@ -134,8 +130,8 @@ def compare_all(tasks: list[dict[str, Any]], helpers: Sequence[Helper] = ()
     finally:
         # done (or interrupted): ended now, before the staging directory they write into is
         # removed or moved
-        for h in helpers:
-            h.kill()
+        if helpers is not None:
+            helpers.kill()
         for f in feeders:
             f.join()
     return {task["inst"].name: out[k] for k, task in enumerate(tasks)}
