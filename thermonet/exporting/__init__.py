@@ -111,7 +111,7 @@ class ExportFormat:
         range (finite, within the training targets' mean ± K std —
         :func:`thermonet.exporting.domain.check_output_range`), so no format writes a
         model whose drift is absurd; nothing is written when it is refused.  ``model`` is a
-        :class:`~thermonet.models.base.DriftModel` or a per-axis
+        :class:`~thermonet.models.drift_model.DriftModel` or a per-axis
         :class:`~thermonet.models.composite.AxisModels` (every built-in format takes both;
         the autopilot files only where each owned axis is a cubic on temperature).
         """

@@ -4,7 +4,7 @@ The ONNX graph of a recurrent model is one **step**, vectorised over N independe
 samples: inputs the signal columns (float32 [N]), ``raw`` (float64 [N, A]) and ``state``
 (float32 [N, H]); outputs ``compensated``, ``drift``, ``out_of_range`` as for every model,
 and ``state_out`` (float32 [N, H]) — :meth:`DriftModel.evaluate_state
-<thermonet.models.base.DriftModel.evaluate_state>`.  Which state a sample gets and which
+<thermonet.models.drift_model.DriftModel.evaluate_state>`.  Which state a sample gets and which
 signals (the running mean of its ``step_s`` window) is the stream's bookkeeping
 (:mod:`thermonet.models.sequence`), which the runtime (``export/thermonet_runtime.py``)
 and the C header's ``<prefix>_step`` repeat; the metadata key ``recurrent`` carries its

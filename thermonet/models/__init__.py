@@ -30,7 +30,8 @@ from .registry import (
 from .specs import FamilySpec
 
 if TYPE_CHECKING:
-    from .base import TINY, DriftModel, Family
+    from .base import TINY, Family
+    from .drift_model import DriftModel
     from .fuzzy import TSFuzzy
     from .gru import GRU
     from .linear import Linear
@@ -47,7 +48,7 @@ __all__ = ["MODELS", "FAMILIES", "register_family", "make_spec", "FamilySpec", "
            "MLP", "GRU"]
 
 _LAZY = {
-    "Family": "base", "DriftModel": "base", "TINY": "base",
+    "Family": "base", "DriftModel": "drift_model", "TINY": "base",
     "Linear": "linear", "Poly": "poly", "Lorentz": "lorentz", "TSFuzzy": "fuzzy", "RBF": "rbf",
     "MLP": "mlp", "GRU": "gru",
 }

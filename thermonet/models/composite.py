@@ -9,7 +9,7 @@ The per-axis choice (:func:`thermonet.scoring.selection.select`) may give gyro_x
     d_a(s) = \\sum_k m_{k,a}\\, d_{k,a}(s_k), \\qquad m_{k,a} = [\\text{part } k \\text{ owns
     axis } a]
 
-Each *part* is a complete :class:`~thermonet.models.base.DriftModel` fitted on every axis, whose
+Each *part* is a complete :class:`~thermonet.models.drift_model.DriftModel` fitted on every axis, whose
 ``compensate`` mask is set to the axes it owns (an axis no part owns is left raw).  A masked
 axis of a :class:`DriftModel` is exactly 0 for every finite input (its output coefficients are
 0, :mod:`thermonet.models.base`) and NaN for a NaN signal, so the sum is *exactly* the owning
@@ -45,7 +45,7 @@ from torch import nn
 
 from ..core.errors import ConfigError, ExportError
 from ..features.inputs import FeatureSpec
-from .base import DriftModel
+from .drift_model import DriftModel
 from .registry import PER_AXIS
 
 __all__ = ["AxisModels", "composable", "axis_owner_table", "PER_AXIS", "ShippedModel"]

@@ -52,7 +52,7 @@ large weights make the first gradient steps diverge); the fit is
 reproducible for a seed on one machine.
 
 Stateless evaluation (:meth:`drift`, what :meth:`DriftModel.forward
-<thermonet.models.base.DriftModel.forward>` computes on signals without time) is the
+<thermonet.models.drift_model.DriftModel.forward>` computes on signals without time) is the
 **steady state** after a long soak at those signals: the cell iterated
 :data:`SETTLE_STEPS` times from :math:`h = 0`; it places ``at-t-ref`` targets' zero and
 draws the family's drift curve.  The exports evaluate :meth:`drift_step` (state in,

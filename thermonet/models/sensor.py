@@ -14,7 +14,7 @@ compensation inverts it:
 .. math:: \\hat x = M(s)^{-1} (r - b(s))
 
 **One mechanism.**  :math:`b` and :math:`E` are two ordinary
-:class:`~thermonet.models.base.DriftModel` s built from any registered family: ``bias``
+:class:`~thermonet.models.drift_model.DriftModel` s built from any registered family: ``bias``
 with one output per sensor axis (output units), ``elements`` with one output per element of
 :math:`E` (dimensionless, named ``<kind>.m_<row><col>``).  So the Lorentz curve or the RBF
 serves for a scale factor as for a bias, with the same clamp to the trained range, the same
@@ -40,7 +40,7 @@ from torch import nn
 
 from ..core.errors import FitError, InputError
 from ..core.recording import output_kind
-from .base import DriftModel
+from .drift_model import DriftModel
 
 __all__ = ["MAX_CONDITION", "SensorModel", "triads_of", "element_names", "solve_columns",
            "check_invertible"]

@@ -13,7 +13,7 @@ raises the flag (a gap), as every clamped or non-finite one does.
 :func:`stream_windows` is the bookkeeping (numpy, float64 time), :func:`stream_relative`
 the evaluation (torch: the committed states by PyTorch's fused GRU over each segment's
 window means, the per-sample steps in one batch through :meth:`DriftModel.evaluate_state
-<thermonet.models.base.DriftModel.evaluate_state>`).  The training loop's windows
+<thermonet.models.drift_model.DriftModel.evaluate_state>`).  The training loop's windows
 (:func:`thermonet.training.recurrent.sequences`) are the same windows.
 """
 
@@ -29,7 +29,7 @@ from ..core.errors import InputError
 from ..features.dynamics import check_time
 
 if TYPE_CHECKING:
-    from .base import DriftModel
+    from .drift_model import DriftModel
 
 __all__ = ["StreamWindows", "stream_windows", "running_means", "stream_relative"]
 

@@ -4,7 +4,7 @@ Two questions share one answer.  The folds (:mod:`thermonet.scoring.selection`) 
 candidate only on the validation rows inside what its fold trained on; a shipped model with a
 dynamic input (rate, lag, hysteresis state) holds that input inside what it was trained on
 near the current temperature, in torch, ONNX and C alike (the guard,
-:meth:`thermonet.models.base.DriftModel.set_guard`).  Both are :class:`Envelope`: every
+:meth:`thermonet.models.drift_model.DriftModel.set_guard`).  Both are :class:`Envelope`: every
 signal's range and, for each dynamic input, its range near each temperature — *jointly*, so a
 cooling rate never trained at that temperature is outside although the rate and the
 temperature each lie in their own ranges.
@@ -64,7 +64,7 @@ class Envelope:
     used twice: the folds ask it of every validation row (:meth:`contains`, built once per
     fold by :meth:`of`), and every shipped model with a dynamic input carries its tables
     (:meth:`tables`) and holds the input inside them on board, in torch, ONNX and C alike
-    (:meth:`thermonet.models.base.DriftModel.standardise`)."""
+    (:meth:`thermonet.models.drift_model.DriftModel.standardise`)."""
 
     lo: np.ndarray
     hi: np.ndarray
