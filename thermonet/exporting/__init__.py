@@ -167,7 +167,7 @@ _LAZY = {
     "export_c_header": "c_header", "render_c_header": "c_header",
     "AutopilotCoefficients": "autopilot", "autopilot_coefficients": "autopilot",
     "export_px4_params": "autopilot", "export_ardupilot_params": "autopilot",
-    "read_px4_params": "autopilot", "read_ardupilot_params": "autopilot",
+    "read_px4_params": "autopilot_read", "read_ardupilot_params": "autopilot_read",
 }
 
 

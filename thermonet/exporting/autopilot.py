@@ -3,7 +3,8 @@
 Both autopilots compensate IMU offsets with a polynomial of degree 3 in the
 sensor temperature; thermonet's ``poly`` family of degree ≤ 3 on one input
 (``dT`` or ``T``) is exactly that model, so it can be written in their own
-parameter format.  Every other family is refused.
+parameter format.  Every other family is refused.  Reading the files back:
+:mod:`thermonet.exporting.autopilot_read`.
 
 PX4 (``src/modules/temperature_compensation/TemperatureCompensation.cpp``,
 ``TemperatureCompensation::calc_thermal_offsets_3D``, PX4-Autopilot commit
@@ -85,8 +86,6 @@ __all__ = [
     "export_px4_params",
     "export_ardupilot_params",
     "ekf_recommendation",
-    "read_px4_params",
-    "read_ardupilot_params",
 ]
 
 #: Multiply a value in this unit by the factor to get rad/s (gyro), m/s² (accel), Pa (baro) or
@@ -480,39 +479,3 @@ def export_ardupilot_params(model: ShippedModel, path: str | Path, *,
         Path(path), "\n".join(header + [f"{n}{sep}{v}" for n, v in rows]
                               + ekf_recommendation(band, output_units, "ardupilot")) + "\n"
     )
-
-
-def read_px4_params(path: str | Path) -> dict[str, float]:
-    """Parse a QGC ``.params`` file into ``{name: value}`` (comments skipped)."""
-    out: dict[str, float] = {}
-    for no, line in enumerate(Path(path).read_text().splitlines(), start=1):
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        parts = line.split()
-        if len(parts) != 5:
-            raise ExportError(f"{path}: line {no}: expected 5 fields "
-                              f"(Vehicle-Id Component-Id Name Value Type), got {len(parts)}")
-        out[parts[2]] = _number(path, no, parts[2], parts[3])
-    return out
-
-
-def read_ardupilot_params(path: str | Path) -> dict[str, float]:
-    """Parse ArduPilot ``NAME,VALUE`` or ``NAME VALUE`` lines into ``{name: value}``."""
-    out: dict[str, float] = {}
-    for no, line in enumerate(Path(path).read_text().splitlines(), start=1):
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        parts = line.replace(",", " ").split()
-        if len(parts) != 2:
-            raise ExportError(f"{path}: line {no}: expected NAME,VALUE, got {line!r}")
-        out[parts[0]] = _number(path, no, parts[0], parts[1])
-    return out
-
-
-def _number(path: str | Path, no: int, name: str, value: str) -> float:
-    """``value`` as a float; otherwise an error naming the file, the line and the parameter."""
-    try:
-        return float(value)
-    except ValueError:
-        raise ExportError(f"{path}: line {no}: parameter {name}: value {value[:40]!r} is not a "
-                          "number") from None

@@ -1,0 +1,50 @@
+"""PX4 and ArduPilot parameter files read back into ``{name: value}``: a QGroundControl
+``.params`` file (:func:`read_px4_params`: ``Vehicle-Id Component-Id Name Value Type`` lines)
+or ArduPilot's ``NAME,VALUE`` / ``NAME VALUE`` lines (:func:`read_ardupilot_params`), comments
+skipped, a line or value that is not one refused naming the file, the line and the parameter.
+What :mod:`thermonet.exporting.autopilot` writes; torch-free.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..core.errors import ExportError
+
+__all__ = ["read_px4_params", "read_ardupilot_params"]
+
+
+def read_px4_params(path: str | Path) -> dict[str, float]:
+    """Parse a QGC ``.params`` file into ``{name: value}`` (comments skipped)."""
+    out: dict[str, float] = {}
+    for no, line in enumerate(Path(path).read_text().splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        parts = line.split()
+        if len(parts) != 5:
+            raise ExportError(f"{path}: line {no}: expected 5 fields "
+                              f"(Vehicle-Id Component-Id Name Value Type), got {len(parts)}")
+        out[parts[2]] = _number(path, no, parts[2], parts[3])
+    return out
+
+
+def read_ardupilot_params(path: str | Path) -> dict[str, float]:
+    """Parse ArduPilot ``NAME,VALUE`` or ``NAME VALUE`` lines into ``{name: value}``."""
+    out: dict[str, float] = {}
+    for no, line in enumerate(Path(path).read_text().splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        parts = line.replace(",", " ").split()
+        if len(parts) != 2:
+            raise ExportError(f"{path}: line {no}: expected NAME,VALUE, got {line!r}")
+        out[parts[0]] = _number(path, no, parts[0], parts[1])
+    return out
+
+
+def _number(path: str | Path, no: int, name: str, value: str) -> float:
+    """``value`` as a float; otherwise an error naming the file, the line and the parameter."""
+    try:
+        return float(value)
+    except ValueError:
+        raise ExportError(f"{path}: line {no}: parameter {name}: value {value[:40]!r} is not a "
+                          "number") from None
