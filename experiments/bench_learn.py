@@ -112,23 +112,28 @@ def accuracy(seeds: list[int], counts: list[int]) -> None:
 
 
 #: ``python -c LEARN_CHILD OUT EXECUTOR WORKERS LOG...``: ``learn`` (``--no-compare``) in a
-#: fresh process; prints its wall seconds and its own peak resident memory, VmHWM of
-#: /proc/self/status, before ``learn`` (imports done) and after.  Not ``ru_maxrss``: a child's
+#: fresh process; prints its wall seconds, its own peak resident memory, VmHWM of
+#: /proc/self/status, before ``learn`` (imports done) and after, and the CPU seconds of the
+#: driver and of its pool workers (its children, joined when the pool closes).  Not ``ru_maxrss``: a child's
 #: starts from the forking parent's peak (Linux keeps it across exec), which here holds the
 #: simulator's flights.  The pool's workers are other processes: the driver's memory is this.
 LEARN_CHILD = """
-import json, sys, time
+import json, resource, sys, time
 from thermonet.workflows.learn import learn
 def hwm():
     for line in open("/proc/self/status"):
         if line.startswith("VmHWM:"):
             return int(line.split()[1]) / 1024.0
-before = hwm()
+def cpu(who):
+    r = resource.getrusage(who)
+    return r.ru_utime + r.ru_stime
+before, c0 = hwm(), cpu(resource.RUSAGE_SELF)
 t0 = time.perf_counter()
 learn(sys.argv[4:], sys.argv[1], executor=sys.argv[2], workers=int(sys.argv[3]),
       compare=False)
 print(json.dumps({"wall_s": time.perf_counter() - t0, "hwm_before_mb": before,
-                  "hwm_mb": hwm()}))
+                  "hwm_mb": hwm(), "driver_cpu_s": cpu(resource.RUSAGE_SELF) - c0,
+                  "workers_cpu_s": cpu(resource.RUSAGE_CHILDREN)}))
 """
 
 
@@ -168,12 +173,14 @@ def scaling(counts: list[int], workers: list[int], logs_dir: str | None, repeat:
             walls: dict[int, list[float]] = {w: [] for w in workers}
             hwm: dict[int, list[float]] = {w: [] for w in workers}
             start: dict[int, list[float]] = {w: [] for w in workers}
+            cpus: dict[int, list[tuple[float, float]]] = {w: [] for w in workers}
             for _ in range(repeat):
                 for w in workers:
                     got = _learn_child(paths[:n], Path(d) / f"out-{n}-{w}", executor, w)
                     walls[w].append(got["wall_s"])
                     hwm[w].append(got["hwm_mb"])
                     start[w].append(got["hwm_before_mb"])
+                    cpus[w].append((got["driver_cpu_s"], got["workers_cpu_s"]))
                     data.append({"logs": n, "workers": w, "executor": executor, **got})
                     print(data[-1], flush=True)
             for w in workers:
@@ -182,11 +189,13 @@ def scaling(counts: list[int], workers: list[int], logs_dir: str | None, repeat:
                 med = float(np.median(walls[w]))
                 rows.append([n, w, f"{med:.1f} ({min(walls[w]):.1f}–{max(walls[w]):.1f})",
                              f"{n / med:.2f}", f"{ratio:.2f}",
-                             f"{max(hwm[w]):.0f}", f"{max(start[w]):.0f}"])
+                             f"{max(hwm[w]):.0f}", f"{max(start[w]):.0f}",
+                             f"{np.median([c[0] for c in cpus[w]]):.1f}",
+                             f"{np.median([c[1] for c in cpus[w]]):.1f}"])
         minutes = float(np.mean([read_bias_log(p).duration_s for p in paths[:20]])) / 60.0
     md = table(["logs", "workers", "wall s: median (min–max)", "logs / s",
                 f"wall / {workers[0]} worker(s)'s", "driver peak MB (VmHWM)",
-                "of which at start (imports)"], rows)
+                "of which at start (imports)", "driver CPU s", "workers CPU s"], rows)
     md += (f"\n\n{executor} executor, {repeat} repeat(s) interleaved; flights of seed 1, "
            f"about {minutes:.0f} min each on average (the first 20).")
     print(md)

@@ -6,7 +6,8 @@ undone, invalid and unconverged samples rejected) — reduced to window means on
 pool or Ray, cached per log (:mod:`thermonet.workflows.learn_data`: a stopped job resumes
 without reading a log twice, a grown directory reads only its new logs) and folded at once
 into a bounded set of windows per instance (memory bounded by its cap, not by the logs),
-with the estimator's lag undone and divergences left out.  Then, per sensor instance (gyro, accelerometer):
+with the estimator's lag undone and divergences left out.  Then, per sensor instance (gyro,
+accelerometer):
 
 1. **The comparison** the chamber path runs (:func:`thermonet.workflows.compare.run_compare`,
    as ``calibrate`` does): the firmware's cubic as the baseline family, a line, the RBF with
