@@ -24,7 +24,8 @@ import torch
 
 from conftest import toy_dataset
 from thermonet.cli import main
-from thermonet.data.io import METADATA_KEY, write_parquet
+from thermonet.data.io import write_parquet
+from thermonet.data.parquet_format import METADATA_KEY
 from thermonet.training.checkpoint import seal_checkpoint
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -18,8 +18,8 @@ import pyarrow.parquet as pq
 
 from ..core.errors import InputError
 from ..core.fileio import not_a_file
-from .io import READ_OPTIONS
 from .mapping import ColumnMapping
+from .parquet_format import READ_OPTIONS
 from .values import check_time
 
 __all__ = ["MEDIAN_SAMPLES", "RunTimes", "Layout", "ParquetLayout", "RunTally", "Continuity",

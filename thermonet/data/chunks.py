@@ -20,7 +20,7 @@ the run changes, so each piece belongs to one run and arrives in file order:
 Every value is checked as the whole-file reader (:mod:`thermonet.data.io`) checks it —
 numeric, finite, and time strictly increasing within a run, across chunk edges too — and a
 bad one is named by column and 1-based data row, as there.  Parquet is read with its page
-checksums verified (thermonet writes them: :data:`thermonet.data.io.WRITE_OPTIONS`): a
+checksums verified (thermonet writes them: :data:`thermonet.data.parquet_format.WRITE_OPTIONS`): a
 damaged page is refused in one line, not read as other numbers.
 
 Decisions:
@@ -52,23 +52,20 @@ from ..core.fileio import atomic_path, not_a_file
 from ..core.recording import MIN_SAMPLES, Dataset, Recording
 from ..core.recording import MIN_SAMPLES as MIN_SAMPLES_
 from .chunk_base import Continuity, Layout, RunTally, RunTimes, batches, parquet_file
-from .io import (
-    DIGEST_KEY,
-    FORMAT_VERSION,
-    METADATA_KEY,
-    PARQUET_SUFFIXES,
-    WRITE_OPTIONS,
-    Digest,
-    _str_dict,
-    check_output_file,
-    check_run_ids,
-    file_format,
-    parse_blob,
-    stored_digest,
-)
+from .io import PARQUET_SUFFIXES, check_output_file, check_run_ids, file_format
 from .logs import is_log
 from .mapped_chunks import discover, mapped_frames
 from .mapping import ColumnMapping
+from .parquet_format import (
+    DIGEST_KEY,
+    FORMAT_VERSION,
+    METADATA_KEY,
+    WRITE_OPTIONS,
+    Digest,
+    parse_blob,
+    stored_digest,
+    str_dict,
+)
 from .tables import (
     GROUPS,
 )
@@ -315,13 +312,13 @@ def _streamed_schema(layouts: Sequence[Layout], entries: list[dict[str, Any]],
     if skipped:
         meta["skipped_rows"] = str(sum(skipped))
     blob: dict[str, Any] = {"format": "thermonet", "version": FORMAT_VERSION,
-                            "meta": _str_dict(meta, "dataset meta"), "runs": []}
+                            "meta": str_dict(meta, "dataset meta"), "runs": []}
     for e, rt in zip(entries, times, strict=True):
         blob["runs"].append({
             "run_id": e["run_id"], "device_id": e["device_id"], "sensor_kind": e["sensor_kind"],
             "sample_rate_hz": e["sample_rate_hz"],
-            "meta": _str_dict(e["meta"], f"run '{e['run_id']}' meta"),
-            "units": _str_dict(e["units"], f"run '{e['run_id']}' units"),
+            "meta": str_dict(e["meta"], f"run '{e['run_id']}' meta"),
+            "units": str_dict(e["units"], f"run '{e['run_id']}' units"),
             "temperature": e["temperature"], **{g: list(e[g]) for g in GROUPS},
             "n_samples": rt.n})
     schema = pa.schema(fields, metadata={METADATA_KEY: json.dumps(
