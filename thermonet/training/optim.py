@@ -10,6 +10,13 @@ Every fit steps through both (the point-wise families in
 :mod:`thermonet.training.train`, the GRU in :mod:`thermonet.training.recurrent`), so that
 training never imports ``torch._dynamo``; the parameters are those torch's own calls give,
 bit for bit (``tests/test_boundary.py`` fits both ways).
+
+Kept when issue 51 asked for torch's optimizers as they are, on a measurement: without it
+``thermonet compare`` on the whole-job bench (the two BMI270 soaks, default families; 2-core
+Intel Xeon VM, 5 paired runs) imports ``torch._dynamo`` — wall ×1.23 (1.04–1.42) pair by
+pair, +2.1 s CPU, +69 MB peak — above the 1 s the issue allows (``experiments/README.md``,
+the whole-job table).  ``calibrate`` runs no optimizer (its families are solved in closed
+form): unchanged either way.
 """
 
 from __future__ import annotations
