@@ -24,7 +24,7 @@ from thermonet.scoring.band import (
     min_windows,
 )
 from thermonet.scoring.fold_plan import plan_folds
-from thermonet.scoring.selection import CandidateOOF
+from thermonet.scoring.oof_pool import CandidateOOF
 from tolerances import assert_f32_close, assert_f64_close
 
 pytestmark = pytest.mark.numerics

@@ -12,7 +12,7 @@ import torch
 from conftest import pointwise_families
 from thermonet.core.errors import ExportError
 from thermonet.exporting import export_c_header, export_onnx, render_c_header
-from thermonet.exporting.c_header import PARITY_DRIVER
+from thermonet.exporting.c_driver import PARITY_DRIVER
 from thermonet.exporting.parity import float32_tolerance
 from thermonet.features.inputs import FeatureSpec
 from thermonet.models import MODELS
@@ -131,7 +131,7 @@ def test_header_refuses_fast_math(tmp_path):
 
 def test_export_compiles_and_checks_the_header_before_writing(tmp_path):
     """A header that does not evaluate the model is refused and nothing is written."""
-    from thermonet.exporting.c_header import c_parity_check
+    from thermonet.exporting.c_export import c_parity_check
 
     model = _model("rbf")
     stats = c_parity_check(model, render_c_header(model))

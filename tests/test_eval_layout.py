@@ -138,7 +138,7 @@ def test_mask_and_at_t_ref_folded_into_the_output_layer(models, family, tmp_path
     onnxruntime and C."""
     import onnxruntime as ort
 
-    from thermonet.exporting.c_header import c_parity_check
+    from thermonet.exporting.c_export import c_parity_check
 
     plain = models[family]
     model = copy.deepcopy(plain)

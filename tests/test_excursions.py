@@ -11,7 +11,8 @@ from thermonet.core.recording import Recording
 from thermonet.scoring.fold_plan import plan_folds
 from thermonet.scoring.folds import excursions
 from thermonet.scoring.gate import beats_in_every_fold, one_direction
-from thermonet.scoring.selection import CandidateOOF, select
+from thermonet.scoring.oof_pool import CandidateOOF
+from thermonet.scoring.selection import select
 
 pytestmark = pytest.mark.numerics
 

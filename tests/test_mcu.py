@@ -19,7 +19,7 @@ import torch
 
 from conftest import pointwise_families
 from thermonet.exporting import render_c_header
-from thermonet.exporting.c_header import c_parity_check
+from thermonet.exporting.c_export import c_parity_check
 from thermonet.exporting.c_stream import check_stream, float_path_slack, run_stream_c
 from thermonet.exporting.c_stream_render import stream_signature_has_proxies
 from thermonet.exporting.mcu import (

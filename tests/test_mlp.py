@@ -20,7 +20,8 @@ import torch
 
 from thermonet.core.errors import ConfigError
 from thermonet.exporting import export_c_header, export_onnx, render_c_header
-from thermonet.exporting.c_header import PARITY_DRIVER, c_parity_check
+from thermonet.exporting.c_driver import PARITY_DRIVER
+from thermonet.exporting.c_export import c_parity_check
 from thermonet.features.inputs import FeatureSpec
 from thermonet.models import MODELS, build_family
 from thermonet.models.cgen import c_constant_bytes

@@ -225,7 +225,8 @@ def test_a_tail_alone_reports_what_it_computes(tmp_path):
     errors in physical units, a C header without the Gaussian part that still evaluates the
     model; loaded back, it states the same and the width it tuned."""
     from thermonet import DriftEstimator
-    from thermonet.exporting.c_header import c_parity_check, render_c_header
+    from thermonet.exporting.c_export import c_parity_check
+    from thermonet.exporting.c_header import render_c_header
 
     rec = _three_cubics()
     rbf = DriftEstimator("rbf", ["dT", "dT2"], n_centres=16, tail=3, t_ref=25.0).fit(rec)

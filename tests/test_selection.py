@@ -8,7 +8,8 @@ import pytest
 from thermonet.core.recording import Recording
 from thermonet.scoring.domain import in_domain, noise_widths
 from thermonet.scoring.fold_plan import plan_folds, purge_rule, window_labels, window_rule
-from thermonet.scoring.selection import CandidateOOF, select
+from thermonet.scoring.oof_pool import CandidateOOF
+from thermonet.scoring.selection import select
 
 pytestmark = pytest.mark.numerics
 

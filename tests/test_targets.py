@@ -25,7 +25,7 @@ from thermonet.exporting import (
     export_px4_params,
     read_px4_params,
 )
-from thermonet.exporting.c_header import PARITY_DRIVER
+from thermonet.exporting.c_driver import PARITY_DRIVER
 from thermonet.features.inputs import FeatureSpec
 from thermonet.features.target import resolve_targets
 from thermonet.training.checkpoint import load_checkpoint, save_checkpoint, seal_checkpoint

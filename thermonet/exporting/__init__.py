@@ -164,7 +164,7 @@ _LAZY = {
     "parity_check": "parity", "log_onnx_to_mlflow": "onnx_mlflow",
     "onnx_file_size": "onnx_export", "log_onnx_model": "onnx_mlflow",
     "onnx_of_checkpoint": "source",
-    "export_c_header": "c_header", "render_c_header": "c_header",
+    "export_c_header": "c_export", "render_c_header": "c_header",
     "AutopilotCoefficients": "autopilot", "autopilot_coefficients": "autopilot",
     "export_px4_params": "autopilot", "export_ardupilot_params": "autopilot",
     "read_px4_params": "autopilot_read", "read_ardupilot_params": "autopilot_read",

@@ -16,14 +16,12 @@ import numpy as np
 from ..core.errors import ExportError
 from ..features import dynamics
 from .c_driver import c_compiler, run_c_driver
-
-# render_stream_c and render_stream_block_c: c_header.py imports them from here
-from .c_stream_render import _proxies, render_stream_block_c, render_stream_c
+from .c_stream_render import _proxies
 
 if TYPE_CHECKING:
     from ..models.composite import ShippedModel
 
-__all__ = ["render_stream_c", "render_stream_block_c", "STREAM_DRIVER", "STREAM_BLOCK_DRIVER",
+__all__ = ["STREAM_DRIVER", "STREAM_BLOCK_DRIVER",
            "run_stream_c", "check_stream", "REAL_FLAGS", "float_path_slack", "judge_step_parity"]
 
 #: compiler flags that select the header's arithmetic on the host (``real=``)

@@ -18,6 +18,7 @@ from ..core.errors import ExportError
 from ..models.composite import ShippedModel
 
 __all__ = ["PARITY_RTOL", "trained_range", "check_points", "float32_tolerance", "check_drift_parity",
+           "check_flags",
            "parity_check"]
 
 #: Relative parity tolerance (see the module docstring).
@@ -95,6 +96,21 @@ def check_drift_parity(model: ShippedModel, points: np.ndarray, got: np.ndarray,
     return err
 
 
+def check_flags(model: ShippedModel, points: np.ndarray, got: np.ndarray, *, what: str,
+                who: str) -> None:
+    """The out-of-range flag ``got`` at ``points`` is torch's exactly (inside the trained
+    range it is the joint guard's alone: a dynamic input outside what was trained near that
+    temperature), else :class:`ExportError` naming the first point that differs."""
+    with torch.no_grad():
+        want = model.out_of_range(torch.from_numpy(points)).numpy()
+    got = np.asarray(got).astype(bool)
+    if not np.array_equal(got, want):
+        k = int(np.argmax(got != want))
+        where = ", ".join(f"{s}={points[k, i]:.6g}" for i, s in enumerate(model.signals))
+        raise ExportError(f"{what} out_of_range flag differs from torch's at {where} "
+                          f"({who} {bool(got[k])}, torch {bool(want[k])})")
+
+
 def parity_check(model: ShippedModel, onnx_path: str | Path, *, seed: int = 0,
                  rtol: float = PARITY_RTOL) -> dict[str, float]:
     """Compare onnxruntime (CPU) with torch on the grid and the random points.
@@ -133,13 +149,7 @@ def parity_check(model: ShippedModel, onnx_path: str | Path, *, seed: int = 0,
     comp_err = np.abs(comp.astype(np.float64) - ((raw - const) - d_torch))
     if not bool(np.all(comp_err <= tol + 4 * np.finfo(np.float64).eps * np.abs(raw) + 1e-30)):
         raise ExportError("ONNX parity check failed: 'compensated' is not raw - drift")
-    with torch.no_grad():   # inside the range the flag is the guard's (dynamic inputs) alone
-        flag_torch = model.out_of_range(torch.from_numpy(points)).numpy()
-    if not np.array_equal(np.asarray(flag, dtype=bool), flag_torch):
-        k = int(np.argmax(np.asarray(flag, dtype=bool) != flag_torch))
-        where = ", ".join(f"{s}={points[k, i]:.6g}" for i, s in enumerate(model.signals))
-        raise ExportError(f"ONNX out_of_range flag differs from torch's at {where} "
-                          f"(onnxruntime {bool(flag[k])}, torch {bool(flag_torch[k])})")
+    check_flags(model, points, flag, what="ONNX", who="onnxruntime")
     # One signal at a time just outside each side of the range (the clamp: drift must
     # equal torch's clamped value), then NaN, +inf and -inf (drift must be NaN); the
     # flag must be set on every one of these rows.

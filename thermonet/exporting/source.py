@@ -313,7 +313,7 @@ def _onnx_with_metadata(model: ShippedModel, out: Path, request: ExportRequest) 
 def write_c(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     """``c``: the C99 header."""
     from ..scoring.band import shipped_band  # lazy: importing it loads numpy
-    from .c_header import export_c_header  # torch boundary (pyproject.toml): loads torch
+    from .c_export import export_c_header  # torch boundary (pyproject.toml): loads torch
 
     return export_c_header(model, out, band=shipped_band(request.extra))
 

@@ -19,8 +19,7 @@ from .verdicts import DECISION_RTOL, above, below
 
 if TYPE_CHECKING:
     from .fold_plan import FoldPlan
-    from .oof_pool import Pooled
-    from .selection import CandidateOOF
+    from .oof_pool import CandidateOOF, Pooled
 
 __all__ = ["MIN_GATE_FOLDS", "GATE_RULE", "Gate", "one_direction", "worst_fold_not_worse",
            "beats_in_every_fold", "gate_axis", "gate_note", "held_back", "held_back_record"]

@@ -1,4 +1,5 @@
-"""The folds' validation windows pooled for the choice (:func:`pool`, a :class:`Pooled`):
+"""Each candidate's out-of-fold predictions (:class:`CandidateOOF`) and the folds' validation
+windows pooled for the choice (:func:`pool`, a :class:`Pooled`):
 per candidate and fold, the offset-free sums of squares of its residual's window means on
 the windows inside every candidate's trained domain (the paired scores and their bootstrap
 units), on its own domain (its mask), against the baseline on the windows inside both (the
@@ -10,17 +11,34 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .fold_plan import FoldPlan, window_labels
 from .metrics import binned_peak_to_peak
 
-if TYPE_CHECKING:
-    from .selection import CandidateOOF
+__all__ = ["CandidateOOF", "Pooled", "pool", "pool_fold", "gate_sums", "window_ss", "binned_pp"]
 
-__all__ = ["Pooled", "pool", "pool_fold", "gate_sums", "window_ss", "binned_pp"]
+
+@dataclass
+class CandidateOOF:
+    """One candidate's out-of-fold predictions on the pool's validation rows.
+
+    ``rows[f]``: per pool run, the validation row indices of fold ``f`` (the same for every
+    candidate); ``pred[f]``: per pool run, the predicted drift (n_f, A); ``inside[f]``: per
+    pool run, the rows inside the candidate's trained domain; ``failed``: why a fold could not
+    be fitted (the candidate then takes no part in the choice).
+    """
+
+    label: str
+    n_params: int
+    pred: list[list[np.ndarray]] = field(default_factory=list)
+    inside: list[list[np.ndarray]] = field(default_factory=list)
+    failed: str | None = None
+    #: its inputs carry the direction of temperature change (rate, lag, hysteresis): it cannot
+    #: be judged for a direction the training data do not hold
+    directional: bool = False
+
 
 
 def window_ss(e: np.ndarray, wl: np.ndarray, units: np.ndarray, n_units: int

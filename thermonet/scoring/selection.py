@@ -125,31 +125,11 @@ from .gate import (
     held_back,
     held_back_record,
 )
-from .oof_pool import Pooled, pool
+from .oof_pool import CandidateOOF, Pooled, pool
 from .verdicts import LEVEL, above, below, draws, one_se
 
-__all__ = ["CandidateOOF", "select", "Selection",
+__all__ = ["select", "Selection",
            "choose_per_axis", "pp_guard", "point_label", "tuning_choice"]
-
-@dataclass
-class CandidateOOF:
-    """One candidate's out-of-fold predictions on the pool's validation rows.
-
-    ``rows[f]``: per pool run, the validation row indices of fold ``f`` (the same for every
-    candidate); ``pred[f]``: per pool run, the predicted drift (n_f, A); ``inside[f]``: per
-    pool run, the rows inside the candidate's trained domain; ``failed``: why a fold could not
-    be fitted (the candidate then takes no part in the choice).
-    """
-
-    label: str
-    n_params: int
-    pred: list[list[np.ndarray]] = field(default_factory=list)
-    inside: list[list[np.ndarray]] = field(default_factory=list)
-    failed: str | None = None
-    #: its inputs carry the direction of temperature change (rate, lag, hysteresis): it cannot
-    #: be judged for a direction the training data do not hold
-    directional: bool = False
-
 
 @dataclass
 class Selection:

@@ -29,7 +29,8 @@ from ..features.inputs import (
 )
 from ..reporting.results import FamilyResult
 from ..scoring.domain import Envelope, noise_widths
-from ..scoring.selection import CandidateOOF, point_label, select, tuning_choice
+from ..scoring.oof_pool import CandidateOOF
+from ..scoring.selection import point_label, select, tuning_choice
 from ..scoring.verdicts import pool
 from ..training.config import (
     CompareConfig,

@@ -38,7 +38,8 @@ import numpy as np
 
 from ..core.errors import ThermonetError
 from ..scoring.domain import in_domain, noise_widths
-from ..scoring.selection import CandidateOOF, point_label, select, tuning_choice
+from ..scoring.oof_pool import CandidateOOF
+from ..scoring.selection import point_label, select, tuning_choice
 from ..scoring.verdicts import one_se
 from ..training.config import CompareConfig, FamilyConfig, tune_points
 
