@@ -347,7 +347,7 @@ def test_a_hostile_pickle_is_named_never_loaded_unsafely(tmp_path, capsys, how):
     weights_only=False, and the code never runs."""
     import pickle
 
-    from thermonet.training.sensor import load_sensor
+    from thermonet.training.sensor_checkpoint import load_sensor
 
     marker = tmp_path / "ran"
     bad = tmp_path / "model.pt"

@@ -25,14 +25,8 @@ from thermonet.scoring.metrics import scale_factor_tempco_ppm_per_c
 from thermonet.scoring.sensor import soak_matrices
 from thermonet.sim import PRESETS, simulate
 from thermonet.training.pipeline import split_spec
-from thermonet.training.sensor import (
-    do_no_harm,
-    fit_sensor,
-    load_sensor,
-    save_sensor,
-    sensor_run,
-    steady_estimates,
-)
+from thermonet.training.sensor import do_no_harm, fit_sensor, sensor_run, steady_estimates
+from thermonet.training.sensor_checkpoint import load_sensor, save_sensor
 from tolerances import EPS32
 
 PRESET = PRESETS["imu-multiposition"]

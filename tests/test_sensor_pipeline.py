@@ -24,7 +24,8 @@ from thermonet.scoring.sensor import soak_matrices
 from thermonet.sim import PRESETS, simulate, simulate_fleet
 from thermonet.sim.fleet import MIN_GAIN_SIGMA, OUTLIER_SIGMAS
 from thermonet.training.config import config_from_mapping
-from thermonet.training.sensor import load_sensor, sensor_run
+from thermonet.training.sensor import sensor_run
+from thermonet.training.sensor_checkpoint import load_sensor
 from thermonet.training.splits import make_splits
 from thermonet.workflows.compare import run_compare
 

@@ -228,7 +228,7 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
                               plots=bool(plots) and out is not None,
                               workers=None if workers is None else int(workers))
         if results.get("model") == "sensor":
-            from ..training.sensor import load_sensor  # torch boundary
+            from ..training.sensor_checkpoint import load_sensor  # torch boundary
 
             models = {name: load_sensor(target / "models" / f"{name}.pt")[0]
                       for name, f in results["families"].items() if f.get("status") == "ok"}

@@ -17,7 +17,7 @@ compensates as ``compare``'s checkpoint ``models/<label>.pt`` does (tests/test_s
   error ``raw − ref`` as target: :math:`1 - \\text{mean}_a\\, \\text{var}(\\hat x_a - x_a) /
   \\text{var}(r_a - x_a)`, each source run about its own mean;
 * :meth:`~thermonet.api.DriftEstimator.save` writes a sensor checkpoint
-  (:func:`thermonet.training.sensor.save_sensor`, what ``compare`` writes), and
+  (:func:`thermonet.training.sensor_checkpoint.save_sensor`, what ``compare`` writes), and
   :meth:`~thermonet.api.DriftEstimator.load` reads one back as a sensor-mode estimator.
 
 The data needs ``ref_<output>`` channels (the known excitation); ``target`` must be
@@ -197,7 +197,8 @@ def variances(est: Any, data: Data, what: str) -> tuple[np.ndarray, np.ndarray]:
 
 def save(est: Any, path: str | os.PathLike[str]) -> Path:
     """The fitted sensor model as a sensor checkpoint (``compare``'s format)."""
-    from ..training.sensor import SensorFit, save_sensor  # torch boundary
+    from ..training.sensor import SensorFit  # torch boundary
+    from ..training.sensor_checkpoint import save_sensor  # torch boundary
 
     fitted = est.__dict__.get("sensor_fit_")
     if fitted is None:      # loaded: the model and what was kept
@@ -239,7 +240,7 @@ def is_sensor_checkpoint(path: str | os.PathLike[str]) -> bool:
     """Whether ``path`` holds a sensor checkpoint (its ``format``); False for anything else."""
     import torch
 
-    from ..training.sensor import SENSOR_FORMAT  # torch boundary
+    from ..training.sensor_checkpoint import SENSOR_FORMAT  # torch boundary
 
     try:
         payload = torch.load(Path(path), map_location="cpu", weights_only=True)
@@ -251,7 +252,7 @@ def is_sensor_checkpoint(path: str | os.PathLike[str]) -> bool:
 def load(cls: type[State], path: str | os.PathLike[str]) -> State:
     """A sensor-mode estimator fitted as the sensor checkpoint at ``path`` (also one
     ``compare`` wrote)."""
-    from ..training.sensor import load_sensor  # torch boundary
+    from ..training.sensor_checkpoint import load_sensor  # torch boundary
 
     model, payload = load_sensor(Path(path))
     extra = payload.get("extra") or {}

@@ -1,6 +1,6 @@
 """Exporting a full sensor model (``model: sensor``): ONNX, and the autopilot refusal.
 
-A sensor checkpoint (:func:`thermonet.training.sensor.save_sensor`, format
+A sensor checkpoint (:func:`thermonet.training.sensor_checkpoint.save_sensor`, format
 ``thermonet-sensor-1``) is recognised by :func:`is_sensor_checkpoint` before the bias-model
 loader sees it, and :func:`export_sensor_source` writes it:
 
@@ -37,7 +37,7 @@ from torch import nn
 from ..core.errors import ExportError
 from ..core.fileio import atomic_path
 from ..models.sensor import SensorModel, check_invertible
-from ..training.sensor import SENSOR_FORMAT, load_sensor
+from ..training.sensor_checkpoint import SENSOR_FORMAT, load_sensor
 from .onnx_export import _metadata_props
 from .onnx_seal import seal_bytes
 from .onnx_trace import export_proto

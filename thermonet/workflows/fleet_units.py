@@ -181,7 +181,7 @@ def physical_coefficients(model: Any, t0_c: float = COEF_T0_C) -> dict[str, floa
 
 
 def _load_sensor(path: str) -> Any:
-    from ..training.sensor import load_sensor  # torch boundary
+    from ..training.sensor_checkpoint import load_sensor  # torch boundary
 
     return load_sensor(path)[0]
 

@@ -30,7 +30,7 @@ The family that ships (``chosen``) is the out-of-fold choice
 (:mod:`thermonet.scoring.selection`: the one-SE rule, fewest parameters, do no harm;
 ``selection`` in results.json as in a bias comparison); without folds, the lowest validation
 residual.  Its checkpoint is ``models/<label>.pt``
-(:func:`thermonet.training.sensor.save_sensor`) and its ONNX graph ``model.onnx``
+(:func:`thermonet.training.sensor_checkpoint.save_sensor`) and its ONNX graph ``model.onnx``
 (:mod:`thermonet.exporting.sensor_export`, parity-checked against torch).
 
 Decisions: one split only (leave-one-run-out is refused: the verdicts would pool folds of
@@ -304,7 +304,7 @@ def _save(p: _Plan, fam: FamilyConfig, entry: dict[str, Any], full: Any, bias: A
     (what an autopilot can take)."""
     from ..exporting.sensor_export import bias_only_path  # torch boundary
     from ..training.checkpoint import save_checkpoint  # torch boundary
-    from ..training.sensor import save_sensor  # torch boundary
+    from ..training.sensor_checkpoint import save_sensor  # torch boundary
 
     ckpt = out / "models" / f"{fam.label}.pt"
     info = {"label": fam.label, "device_id": p.ds.device_id, "units": p.units}
@@ -354,7 +354,7 @@ def _track(cfg: CompareConfig, doc: dict[str, Any], histories: dict[str, list], 
 
 def _export_chosen(out: Path, entry: dict[str, Any]) -> dict[str, Any]:
     from ..exporting.sensor_export import export_sensor_onnx  # torch boundary
-    from ..training.sensor import load_sensor  # torch boundary
+    from ..training.sensor_checkpoint import load_sensor  # torch boundary
 
     model, payload = load_sensor(entry["checkpoint"])
     extra = payload.get("extra", {})
