@@ -1,0 +1,281 @@
+"""``thermonet simulate``, ``info`` and ``convert``: recordings written, summarised and
+converted (their options and handlers)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from ..core.errors import ThermonetError
+from ..core.fileio import refuse_overwriting_inputs
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from ..data.io import write_csv, write_parquet  # lazy: loads pandas, pyarrow, yaml
+    from ..data.logs import is_log  # lazy: off the --help path
+    from ..sim import simulate, simulate_fleet  # lazy: off the --help path
+    from ..sim.fcboard import BOARD_PRESETS, MAX_BOARD_RUNS  # lazy: off the --help path
+    from ..sim.presets import MAX_RUNS  # lazy: off the --help path
+
+    if args.preset == "fc-board-flights" or args.flights is not None or args.format:
+        return _simulate_flights(args)       # flights of one vehicle: logs with its estimator
+    if args.runs is not None and not 1 <= args.runs <= MAX_RUNS:
+        raise ThermonetError(f"--runs {args.runs}: not in 1..{MAX_RUNS} (the upper bound keeps "
+                             "a request within memory)")
+    if args.preset in BOARD_PRESETS:
+        # a board log is one board (--runs: several warm-ups of it): options it does not use
+        # are refused, not ignored
+        unused = [f"--{name} {value}" for name, value in (("units", args.units),
+                                                           ("outliers", args.outliers or None))
+                  if value is not None]
+        if unused:
+            raise ThermonetError(f"{unused[0]}: preset '{args.preset}' simulates one board "
+                                 "(one log per warm-up); it takes only --seed, --runs and --out")
+        if args.runs is not None and args.runs > MAX_BOARD_RUNS:
+            raise ThermonetError(f"--runs {args.runs}: preset '{args.preset}' writes at most "
+                                 f"{MAX_BOARD_RUNS} logs (one file per warm-up)")
+    if args.seed < 0:
+        raise ThermonetError(f"--seed {args.seed}: must be a non-negative integer")
+    if args.preset in BOARD_PRESETS or is_log(args.out):
+        return _simulate_board(args)
+    for opt in ("outliers", "clusters", "test"):
+        if args.units is None and getattr(args, opt):
+            raise ThermonetError(f"--{opt} needs --units (it shapes the units of a fleet)")
+    if args.units is None:
+        ds = simulate(args.preset, runs=args.runs, seed=args.seed)
+    else:
+        ds = simulate_fleet(args.preset, units=args.units, runs=args.runs, seed=args.seed,
+                            outliers=args.outliers, clusters=args.clusters, test=args.test)
+    path = (write_csv if Path(args.out).suffix.lower() == ".csv" else write_parquet)(ds, args.out)
+    n = sum(r.n_samples for r in ds)
+    fleet = f"{len(ds.unit_ids)} units ({args.outliers} outliers), " if args.units else ""
+    print(f"wrote {path}: preset {args.preset}, {fleet}{len(ds)} runs, {n} samples, "
+          f"outputs {', '.join(ds.axes)}")
+    return 0
+
+
+
+def _simulate_board(args: argparse.Namespace) -> int:
+    from ..data.logs import is_log  # lazy: off the --help path
+    from ..data.logs.writers import write_log  # lazy: off the --help path
+    from ..sim.fcboard import BOARD_PRESETS, simulate_board  # lazy: off the --help path
+
+    if args.preset not in BOARD_PRESETS:
+        raise ThermonetError(f"{args.out}: only the flight-controller presets "
+                             f"({', '.join(BOARD_PRESETS)}) are written as .ulg / .bin logs")
+    if not is_log(args.out):
+        raise ThermonetError(f"{args.out}: preset '{args.preset}' is a flight-controller log: "
+                             "write it as FILE.ulg (PX4) or FILE.bin (ArduPilot)")
+    out = Path(args.out)
+    autopilot = "px4" if out.suffix.lower() == ".ulg" else "ardupilot"
+    # --runs N: N logs of the same board (same ids and drift laws, new warm-ups and noise),
+    # FILE_run1.ulg .. FILE_runN.ulg; one log (no --runs, or --runs 1): FILE itself
+    paths = [out] if args.runs is None or args.runs == 1 else [
+        out.with_name(f"{out.stem}_run{k}{out.suffix}") for k in range(1, args.runs + 1)]
+    for run, target in enumerate(paths):
+        log = simulate_board(args.preset, autopilot=autopilot, seed=args.seed, run=run)
+        path = write_log(log, target)
+        print(f"wrote {path}: preset {args.preset} ({autopilot}), run {run + 1} of "
+              f"{len(paths)}, {len(log.instances)} sensor instances, "
+              f"{log.instances[0].n_samples} samples each")
+    return 0
+
+
+
+def _simulate_flights(args: argparse.Namespace) -> int:
+    """``simulate fc-board-flights --flights N --out DIR [--format ulg|bin]``."""
+    from ..data.logs.flight_writers import write_flight  # lazy: off the --help path
+    from ..sim.flights import simulate_flights  # lazy: off the --help path
+
+    if args.preset != "fc-board-flights":
+        raise ThermonetError(f"--flights / --format: only preset 'fc-board-flights' writes "
+                             f"flights (got '{args.preset}')")
+    if args.flights is None:
+        raise ThermonetError("fc-board-flights: give --flights N (the number of logs)")
+    unused = [f"--{name} {value}" for name, value in (("runs", args.runs), ("units", args.units))
+              if value is not None]
+    if unused:      # refused, not ignored
+        raise ThermonetError(f"{unused[0]}: fc-board-flights writes --flights N logs of one "
+                             "vehicle; it takes only --flights, --seed, --format and --out")
+    if args.seed < 0:
+        raise ThermonetError(f"--seed {args.seed}: must be a non-negative integer")
+    out = Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ThermonetError(f"{out}: --out must be a new or empty directory (one log a flight)")
+    ext = args.format or "ulg"
+    flights = simulate_flights(args.flights, seed=args.seed,
+                               autopilot="px4" if ext == "ulg" else "ardupilot")
+    for k, f in enumerate(flights):
+        write_flight(f.log, f.biases, out / f"flight{k + 1:04d}.{ext}")
+    print(f"wrote {out}: {len(flights)} flights of one vehicle (fc-board, seed {args.seed}) "
+          f"as .{ext}, ambient {min(f.ambient_c for f in flights):.0f}.."
+          f"{max(f.ambient_c for f in flights):.0f} °C")
+    return 0
+
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from ..data.logs import is_log  # lazy: off the --help path
+    from ..workflows.info import format_summary  # lazy: loads yaml
+
+    if any(is_log(f) for f in args.files):
+        from ..data.logs.info import format_log_summary, summarize_log  # lazy: off the --help path
+
+        if len(args.files) != 1 or args.mapping:
+            raise ThermonetError("info reads one flight-controller log at a time, with no "
+                                 "mapping")
+        s = summarize_log(args.files[0])
+        print(json.dumps(s, indent=2) if args.json else format_log_summary(s))
+        return 0
+    if args.chunk_rows is not None and args.chunk_rows < 1:
+        raise ThermonetError(f"--chunk-rows must be >= 1, got {args.chunk_rows}")
+    from ..data.chunks import DEFAULT_CHUNK_ROWS, open_source  # lazy: loads pandas, pyarrow, yaml
+    from ..data.mapping import load_mapping  # lazy: loads yaml
+    from ..workflows.info_chunked import summarize_parquet  # lazy: loads pandas, pyarrow, yaml
+
+    # every tabular file: one chunked pass (two for a file without thermonet's metadata),
+    # memory bounded by the chunk
+    chunk = args.chunk_rows or DEFAULT_CHUNK_ROWS
+    mapping = load_mapping(args.mapping) if args.mapping else None
+    summary = summarize_parquet([open_source(f, mapping, chunk_rows=chunk) for f in args.files],
+                                chunk_rows=chunk)
+    print(json.dumps(summary, indent=2, default=str) if args.json else format_summary(summary))
+    return 0
+
+
+
+def _cmd_convert(args: argparse.Namespace) -> int:
+    """Recordings (CSV, mapped files, Parquet) to one thermonet Parquet file, read and
+    written a chunk at a time (flight logs: read whole), or to a CSV with thermonet's column
+    names (``--out x.csv``: the input ``export/thermonet_runtime.py`` reads; read whole)."""
+    from ..data.chunks import (  # lazy: loads pandas, pyarrow, yaml
+        DEFAULT_CHUNK_ROWS,
+        open_source,
+        write_streamed,
+    )
+    from ..data.io import (  # lazy: loads pandas, pyarrow, yaml
+        read_datasets,
+        write_csv,
+        write_parquet,
+    )
+    from ..data.logs import is_log  # lazy: off the --help path
+    from ..data.mapping import load_mapping  # lazy: loads yaml
+
+    out = Path(args.out)
+    refuse_overwriting_inputs(out, [*args.files, *([args.mapping] if args.mapping else [])])
+    if out.exists() and not args.overwrite:
+        raise ThermonetError(f"{out}: already exists (give --overwrite to replace it)")
+    if args.chunk_rows is not None and args.chunk_rows < 1:
+        raise ThermonetError(f"--chunk-rows must be >= 1, got {args.chunk_rows}")
+    if out.suffix.lower() == ".csv" or any(is_log(f) for f in args.files):
+        # a .csv: the runtime's input (export/thermonet_runtime.py reads a CSV whole, so
+        # this one is read whole too); a flight log: read whole
+        ds = read_datasets(args.files, mapping=args.mapping)
+        (write_csv if out.suffix.lower() == ".csv" else write_parquet)(ds, out)
+        n_runs, n = len(ds), sum(r.n_samples for r in ds)
+    else:
+        chunk = args.chunk_rows or DEFAULT_CHUNK_ROWS
+        mapping = load_mapping(args.mapping) if args.mapping else None
+        layouts = [open_source(f, mapping, chunk_rows=chunk) for f in args.files]
+        n_runs, n = write_streamed(layouts, out, chunk_rows=chunk)
+    print(f"{n_runs} run(s), {n} samples -> {out}")
+    return 0
+
+
+
+def _preset_names() -> list[str]:
+    """Every simulator preset: the registry's (``thermonet.sim.presets.PRESETS``, filled as
+    :mod:`thermonet.sim` is imported), then the flight-controller boards."""
+    from ..sim import PRESETS  # lazy: numpy and the simulator, only for simulate's help
+    from ..sim.fcboard import BOARD_PRESETS  # lazy: as above
+
+    return [*PRESETS, *(b for b in BOARD_PRESETS if b not in PRESETS)]
+
+
+
+class _PresetsHelp(argparse.HelpFormatter):
+    """``simulate --help``: ``{presets}`` in a help text becomes the registry's presets,
+    looked up only when that help is shown (``thermonet --help`` and every command's start
+    import no simulator)."""
+
+    def _expand_help(self, action: argparse.Action) -> str:
+        text = super()._expand_help(action)
+        return text.replace("{presets}", " | ".join(_preset_names())) \
+            if "{presets}" in text else text
+
+
+
+def add_simulate(sub: Any) -> None:
+    """``thermonet simulate``: a study preset written as a recording."""
+    s = sub.add_parser("simulate", help="simulate a thermal-chamber test (a study preset)",
+                       formatter_class=_PresetsHelp,
+                       description="Simulate a thermal-chamber test from a study preset "
+                                   "and write it as a thermonet Parquet file (or, with --out "
+                                   "FILE.csv, as CSV: the runtime's input).")
+    s.add_argument("preset", help="{presets} (fc-board and fc-board-cycle: --out FILE.ulg "
+                                  "or FILE.bin)")
+    s.add_argument("--runs", type=int, default=None,
+                   help="number of runs (default: the preset's); fc-board: N logs of the same "
+                        "board, written as FILE itself when N is 1 and as FILE_run1 .. "
+                        "FILE_runN (beside FILE, its suffix kept) when N > 1")
+    s.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
+    s.add_argument("--flights", type=int, default=None,
+                   help="fc-board-flights: N flight logs of one vehicle across the seasons, "
+                        "written into the directory --out (for `thermonet learn`)")
+    s.add_argument("--format", choices=["ulg", "bin"], default=None,
+                   help="fc-board-flights: ulg (PX4, the default) or bin (ArduPilot)")
+    s.add_argument("--out", required=True,
+                   help="output .parquet file, or .csv (conventional column names, one row a "
+                        "sample: what export/thermonet_runtime.py reads); .ulg / .bin for fc-board")
+    s.add_argument("--units", type=int, default=None,
+                   help="simulate a fleet of N units (device ids <preset>-u000 …), each with "
+                        "the preset's unit-to-unit spread")
+    s.add_argument("--outliers", type=int, default=0,
+                   help="with --units: the last K units follow a drift law 10σ off the fleet's")
+    s.add_argument("--clusters", type=int, default=0,
+                   help="with --units: a structured fleet of K clusters of drift shapes "
+                        "(polynomial presets; for `thermonet prior`)")
+    s.add_argument("--test", default=None,
+                   help="with --units: a short production test instead of the preset's "
+                        "programme: soaks:T1,T2,... (20-min soaks) or ramp:FROM,TO,MINUTES")
+    s.set_defaults(func=_cmd_simulate)
+
+
+
+def add_info(sub: Any) -> None:
+    """``thermonet info``: what recordings hold."""
+    i = sub.add_parser("info", help="summarise recordings",
+                       description="Channels, units, runs, duration, rate, temperature span, "
+                                   "noise floor and binned peak-to-peak per channel.")
+    i.add_argument("files", nargs="+", help="recording files (one run per file unless the file "
+                                            "has a 'run' column)")
+    i.add_argument("--mapping", default=None, help="YAML column mapping (configs/data/*.yaml)")
+    i.add_argument("--json", action="store_true", help="print the summary as JSON")
+    i.add_argument("--chunk-rows", type=int, default=None, metavar="N",
+                   help="rows read at a time (default 65536; memory stays bounded by it, "
+                        "whatever the files' length)")
+    i.set_defaults(func=_cmd_info)
+
+
+
+def add_convert(sub: Any) -> None:
+    """``thermonet convert``: recordings to one thermonet Parquet file."""
+    v = sub.add_parser("convert", help="recordings to one thermonet Parquet file",
+                       description="Read recording files (CSV, a mapping's format, Parquet) "
+                                   "a chunk at a time and write them as one thermonet Parquet "
+                                   "file (row groups of about --chunk-rows rows): memory stays "
+                                   "bounded by one chunk, whatever the files' size; or, "
+                                   "with --out NAME.csv, as one CSV with thermonet's column "
+                                   "names, the input of export/thermonet_runtime.py (read "
+                                   "whole).")
+    v.add_argument("files", nargs="+", help="recording files (one run per file unless the file "
+                                            "has a 'run' column)")
+    v.add_argument("--mapping", default=None, help="YAML column mapping (configs/data/*.yaml)")
+    v.add_argument("--out", required=True, help="output .parquet file, or .csv (the runtime's input)")
+    v.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    v.add_argument("--chunk-rows", type=int, default=None, metavar="N",
+                   help="rows read (and written per row group) at a time (default 65536)")
+    v.set_defaults(func=_cmd_convert)
+
