@@ -60,20 +60,22 @@ from ..data.firmware import FirmwareFit, ardupilot_calibration_text, px4_calibra
 from ..data.logs import SensorInstance, is_log
 from .firmware_fit import PX4_MEDIAN_SAMPLES, fit_firmware
 from .learn_data import (
-    READER_VERSION,
-    WINDOW_S,
     InstanceWindows,
     WindowFold,
-    cache_path,
     choose_lag,
     coverage,
     missing_words,
     not_this_vehicle,
-    read_cache,
-    reduce_for_cache,
     reject_outliers,
     vehicle_key,
     vehicle_of,
+)
+from .learn_reduce import (
+    READER_VERSION,
+    WINDOW_S,
+    cache_path,
+    read_cache,
+    reduce_for_cache,
     write_cache,
 )
 from .magnetometer import fit_correction
@@ -173,7 +175,7 @@ def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
 
 
 def _reduce_here(path: Path) -> tuple[dict[str, Any], str] | TaskFailure:
-    """:func:`~thermonet.workflows.learn_data.reduce_for_cache` in this process; an
+    """:func:`~thermonet.workflows.learn_reduce.reduce_for_cache` in this process; an
     unexpected error is the log's failure (not cached, read again next time), as a worker's."""
     try:
         return reduce_for_cache(str(path))
