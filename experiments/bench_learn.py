@@ -40,7 +40,8 @@ from thermonet.data.logs.flight_writers import write_flight  # noqa: E402
 from thermonet.sim.fcboard import simulate_board  # noqa: E402
 from thermonet.sim.flights import simulate_flights  # noqa: E402
 from thermonet.workflows.firmware_fit import fit_firmware  # noqa: E402
-from thermonet.workflows.learn import binned_pp, learn  # noqa: E402
+from thermonet.workflows.learn import learn  # noqa: E402
+from thermonet.workflows.learn_fit import binned_pp  # noqa: E402
 from thermonet.workflows.magnetometer import fit_correction  # noqa: E402
 from thermonet.workflows.verify import Limits  # noqa: E402
 

@@ -23,7 +23,8 @@ from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
 from thermonet.sim.flights import EKF_TAU_S, simulate_flights
 from thermonet.workflows.firmware_fit import fit_firmware
-from thermonet.workflows.learn import binned_pp, learn
+from thermonet.workflows.learn import learn
+from thermonet.workflows.learn_fit import binned_pp
 from thermonet.workflows.magnetometer import fit_correction
 from thermonet.workflows.verify import Limits
 

@@ -20,8 +20,9 @@ from thermonet.data.firmware import FirmwareFit
 from thermonet.data.logs.flight_writers import write_flight
 from thermonet.sim.flights import EKF_TAU_S, simulate_flights
 from thermonet.workflows import learn_data
-from thermonet.workflows.learn import binned_pp, learn
+from thermonet.workflows.learn import learn
 from thermonet.workflows.learn_data import WindowFold, gather, vehicle_key
+from thermonet.workflows.learn_fit import binned_pp
 from thermonet.workflows.learn_reduce import LAG_GRID_S, WINDOW_S, reduce_log
 from thermonet.workflows.magnetometer import fit_correction
 from thermonet.workflows.verify import Limits
