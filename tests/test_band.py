@@ -363,7 +363,8 @@ def test_calibrate_writes_the_ekf_recommendation_beside_the_parameter_file(tmp_p
     from thermonet.data.logs.writers import write_log
     from thermonet.exporting import read_px4_params
     from thermonet.sim.fcboard import simulate_board
-    from thermonet.workflows.calibrate import EKF_FILE, calibrate
+    from thermonet.workflows.calibrate import calibrate
+    from thermonet.workflows.calibrate_files import EKF_FILE
 
     board = simulate_board("fc-board", autopilot="px4", seed=3, rate_hz=0.5)
     board.instances = [i for i in board.instances if i.name in ("gyro0", "acc0")]

@@ -19,7 +19,8 @@ from thermonet.cli import main
 from thermonet.data.logs import read_log
 from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
-from thermonet.workflows.calibrate import BEYOND_RANGE_C, calibrate
+from thermonet.workflows.calibrate import calibrate
+from thermonet.workflows.calibrate_held_out import BEYOND_RANGE_C
 from thermonet.workflows.verify import MARGIN, Limits, verify
 
 pytestmark = pytest.mark.numerics

@@ -34,7 +34,8 @@ from thermonet.core.recording import OUTPUT_NAME, Dataset, Recording
 from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
 from thermonet.training.config import CompareConfig, FamilyConfig
-from thermonet.workflows.calibrate import EKF_FILE, calibrate
+from thermonet.workflows.calibrate import calibrate
+from thermonet.workflows.calibrate_files import EKF_FILE
 from thermonet.workflows.fleet import FleetOptions, run_fleet
 from thermonet.workflows.fleet_units import sources_from_dataset
 

@@ -241,7 +241,7 @@ class SensorInstance:
         With a lag: the lent thermometer as read, before the lag (what a model with a
         ``lag_<tau>`` dynamic input takes as its temperature).
     starts : tuple of int
-        Several logs joined into one instance (``thermonet.workflows.calibrate.merge_logs``):
+        Several logs joined into one instance (``thermonet.workflows.calibrate_logs.merge_logs``):
         the sample index where each log after the first begins; a check that follows the
         signal in time (a magnetometer's motion) looks within each log, never across a
         join.  Empty: one log.
