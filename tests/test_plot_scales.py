@@ -43,7 +43,7 @@ STYLE = {"chosen": "rbf", "baseline": "cubic", "colours": COLOURS}
 
 @pytest.fixture(scope="module")
 def ramp():
-    """The plot inputs compare builds (workflows/compare.py ``_plots``): the test part's
+    """The plot inputs compare builds (workflows/compare_plots.py ``plot_jobs``): the test part's
     ``bin_by`` (temperature), ``time_s`` and ``target`` (the observed drift); per family its
     prediction on ``bin_by`` as the curve and ``target - prediction`` as the residual."""
     rng = np.random.default_rng(19)

@@ -306,7 +306,7 @@ def test_default_baseline_applies_only_where_a_cubic_exists(tmp_path):
 def test_a_ratio_that_is_not_1_never_prints_as_1(x, text):
     """The console's verdict cells: "better" and "indistinguishable" must not look alike
     (an interval [0.985, 0.99995] printed as [0.985, 1])."""
-    from thermonet.workflows.compare import ratio_text
+    from thermonet.reporting.report import ratio_text
 
     assert ratio_text(x) == text
 

@@ -15,7 +15,9 @@ The steps (:mod:`thermonet.workflows.compare_plan`, :mod:`thermonet.workflows.co
   parameters, do no harm), verdicts against raw and the baseline from a
   paired block bootstrap, warnings;
 * **write** — ``results.json`` (schema in :mod:`thermonet.reporting.results`),
-  plots, ``report.html`` (:mod:`thermonet.reporting.report`);
+  plots (:mod:`thermonet.workflows.compare_plots`), ``report.html``
+  (:mod:`thermonet.reporting.report`); the console's table, :func:`format_table`, is
+  :mod:`thermonet.workflows.compare_table`'s;
 * **track** — at the edge: MLflow is called by a child process only
   (:mod:`thermonet.workflows.compare_track`), which logs from what was written
   while the plots are drawn; no tracker call is woven through the steps above.
@@ -29,7 +31,6 @@ held-out blocks, and the checkpoint is the last fold's model.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -37,18 +38,14 @@ from typing import Any
 from ..core.errors import ConfigError, Interrupted, ThermonetError
 from ..core.fileio import atomic_write_text
 from ..core.helpers import usable_cores
-from ..core.names import path_component
 from ..core.outdir import staged_output
 from ..core.profile import stage
 from ..core.recording import Dataset
 from ..core.version import __version__
-from ..features.inputs import TEMPERATURE
 from ..models.registry import PER_AXIS
-from ..reporting.colours import family_colours
-from ..reporting.plot_workers import PlotJob, PlotWorkers
-from ..reporting.report import ratio_text, tuned_text, write_report
+from ..reporting.plot_workers import PlotWorkers
+from ..reporting.report import tuned_text, write_report
 from ..reporting.results import ComparisonResult
-from ..scoring.band import evaluate_tables
 from ..scoring.verdicts import LEVEL, MIN_BLOCKS, RESAMPLES, SEED, apply_compensate_mask
 from ..tracking import Tracker, check_store, default_tracking_uri
 from ..training.config import (
@@ -62,9 +59,11 @@ from .compare_band import family_band, per_axis_band
 from .compare_fit import FitQueue, Progress, family_workers
 from .compare_judge import Fitted, choose_and_judge, extrapolation
 from .compare_plan import PartCache, Plan, check_plan, data_summary, plan
+from .compare_plots import plot_jobs
+from .compare_table import format_table
 from .compare_track import TrackingSession, family_record
 from .provenance import data_source, family_config, resolved_config, resolved_yaml
-from .sensor import format_sensor_table, run_sensor
+from .sensor import run_sensor
 
 __all__ = ["run_compare", "format_table"]
 
@@ -345,7 +344,7 @@ def _write_step(run: _Run, fitted: dict[str, Fitted], doc: dict[str, Any],
                           resolved_yaml(run.resolved, run.provenance))
     run.tracking.log(out, doc, records)
     with stage("plots"):
-        plot_paths = drawers.draw(_plots(out, fitted, doc, run.p.ds)) if drawers else []
+        plot_paths = drawers.draw(plot_jobs(out, fitted, doc, run.p.ds)) if drawers else []
     with stage("write the report"):
         write_report(out / "report.html", doc, plot_paths)
     with stage("MLflow: the tracking step's remainder"):
@@ -409,194 +408,3 @@ def _save_per_axis(out: Path, fitted: dict[str, Fitted], result: ComparisonResul
     except ThermonetError as err:   # a NaN model is never saved
         r.status, r.reason = "failed", str(err)
         result.warn(f"the per-axis model could not be written: {err}")
-
-
-def _plots(out: Path, fitted: dict[str, Fitted], results: dict[str, Any],
-           ds: Dataset) -> list[PlotJob]:
-    """The PNG figures of the last fold's test data, every fitted family in its own colour:
-    per figure the function of :mod:`thermonet.reporting.plots` and its arguments."""
-    ok = {k: f for k, f in fitted.items() if f.model is not None and f.test_parts}
-    if not ok:
-        return []
-    paths: list[PlotJob] = []
-    part = next(iter(ok.values())).test_parts[-1]
-    colours = family_colours(list(fitted))
-    style: dict[str, Any] = {"chosen": results.get("chosen"), "baseline": results.get("baseline"),
-             "colours": colours}
-    x_label = "temperature (°C)" if ds[0].temperature_c is not None else \
-        f"{sorted(ds[0].proxies)[0]} ({ds[0].units.get(sorted(ds[0].proxies)[0], '') or 'proxy'})"
-    pdir = out / "plots"
-    for j, axis in enumerate(part.outputs):
-        unit = results["units"].get(axis, "")
-        curves = {label: (part.bin_by, f.test_preds[-1][:, j]) for label, f in ok.items()}
-        safe = path_component(axis.replace(".", "_"))  # a name from data, made a file name
-        paths.append(("plot_drift_vs_temperature", dict(
-            path=pdir / f"drift_vs_temperature_{safe}.png", temperature_c=part.bin_by,
-            observed_drift=part.target[:, j], curves=curves, axis=axis, units=unit,
-            bin_width=part.bin_width, x_label=x_label, **style)))
-        if results["target"] == "drift":
-            resid = {label: part.target[:, j] - f.test_preds[-1][:, j] for label, f in ok.items()}
-            paths.append(("plot_residual_vs_time", dict(
-                path=pdir / f"residual_vs_time_{safe}.png", time_s=part.time_s,
-                raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit,
-                **style)))
-            paths.append(("plot_residual_vs_temperature", dict(
-                path=pdir / f"residual_vs_temperature_{safe}.png", temperature_c=part.bin_by,
-                raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit,
-                bin_width=part.bin_width, x_label=x_label, band=_band_curve(results, axis,
-                                                                           part.bin_by),
-                **style)))
-            paths.append(("plot_allan", dict(
-                path=pdir / f"allan_{safe}.png", rate_hz=part.rate_hz,
-                raw_error=part.target[:, j], compensated=resid, axis=axis, units=unit,
-                **style)))
-    fams = results["families"]
-    points = {k: ((fams[k].get("cost") or {}).get("ops_per_sample"), fams[k].get("test_score"))
-              for k in ok if fams.get(k, {}).get("status") == "ok"}
-    if any(c is not None for c, _ in points.values()):
-        paths.append(("plot_accuracy_cost", dict(path=pdir / "accuracy_vs_cost.png",
-                                                 points=points, **style)))
-    return paths
-
-
-def _band_curve(results: dict[str, Any], axis: str, x: Any) -> Any:
-    """(grid, half-width) of the shipped model's band on ``axis`` over ``x``'s range, or None
-    (no band, or a band over another signal than the plot's x)."""
-    import numpy as np
-
-    band = results.get("band") or {}
-    t = (band.get("axes") or {}).get(axis)
-    xs = np.asarray(x, dtype=np.float64)
-    if t is None or band.get("signal") != TEMPERATURE or not np.isfinite(xs).any():
-        return None
-    grid = np.linspace(float(np.nanmin(xs)), float(np.nanmax(xs)), 400)
-    return grid, evaluate_tables(grid, t["edges"], t["half_width"], t["growth_below"],
-                                 t["growth_above"])
-
-
-_METRIC_COLS = ("pp_raw", "pp_comp", "drift_error_rms", "ppm_per_c_raw", "ppm_per_c_comp")
-
-
-def _ratio_cell(v: dict[str, Any] | None) -> str:
-    if not v or v.get("ratio") is None:
-        return f"{'-':>22}"
-    lo, hi = (x if x is not None else math.nan for x in v["interval"])
-    mark = {"better": "+", "worse": "!", "indistinguishable": "="}[v["verdict"]]
-    return f"{ratio_text(v['ratio']):>6} [{ratio_text(lo):>5},{ratio_text(hi):>5}] {mark}"
-
-
-def _fold_text(x: float | None, fmt: str = ".3g") -> str:
-    """A score for the table; ``–`` where a fold had no window inside the trained domain."""
-    return "–" if x is None or not math.isfinite(x) else format(x, fmt)
-
-
-def _name_width(names: Any) -> int:
-    """A name column's width: 14, or the longest name's (a long family name never shifts the
-    columns after it)."""
-    return max([14, *(len(str(n)) for n in names)])
-
-
-def _selection_lines(sel: dict[str, Any], width: int = 14) -> list[str]:
-    """The console's cross-validation block: each candidate's out-of-fold score, its folds and
-    why the gate held it back (names ``width`` wide, or the longest candidate's)."""
-    width = max(width, _name_width(sel["candidates"]))
-    held_by: dict[str, str] = dict((sel.get("held_back") or {}).get("by_candidate") or {})
-    lines: list[str] = []
-    lines.append(f"selection: {sel.get('kind')}, {sel.get('folds')} folds, purge "
-                 f"{sel.get('purge_s', 0):.0f} s, score windows {sel.get('window_s', 0):.0f} s "
-                 "(out-of-fold low-frequency residual / raw, [95 % interval], per fold)")
-    if sel.get("note"):
-        lines.append(f"  folds: {sel['note']}")
-    for name, c in sel["candidates"].items():
-        if c.get("status") != "ok":
-            lines.append(f"  {name:<{width}} not a candidate: {c.get('reason')}")
-            continue
-        lo, hi = c["interval"]
-        folds = " ".join(_fold_text(x) for x in c["fold_scores"])
-        why = c.get("not_eligible")
-        held = ("  (held back, below)" if why and why == held_by.get(name)
-                else f"  ({why})" if why else "")
-        lines.append(f"  {name:<{width}} {_fold_text(c['score'], '.4g')} "
-                     f"[{_fold_text(lo, '.4g')}, {_fold_text(hi, '.4g')}]  folds {folds}{held}")
-    groups: dict[str, list[str]] = {}
-    for name, why in held_by.items():
-        groups.setdefault(why, []).append(name)
-    if not groups and sel.get("held_back"):     # a results.json written before by_candidate
-        groups[sel["held_back"]["why"]] = list(sel["held_back"]["candidates"])
-    for why, names in groups.items():
-        lines.append(f"  held back: {', '.join(sorted(names))}: {why}")
-    return lines
-
-
-def format_table(results: dict[str, Any]) -> str:
-    """The comparison as a text table: family × axis, scores, verdicts, the ratio to the baseline.
-
-    ``vs raw`` and ``vs baseline`` are offset-free score ratios on the test
-    data with their 95 % bootstrap interval and verdict (+ better, ! worse,
-    = indistinguishable); ``comp`` says whether the axis is compensated.
-    """
-    if results.get("model") == "sensor":
-        return format_sensor_table(results)
-    fams = results["families"]
-    axes = list(results["units"])
-    cols = [c for c in _METRIC_COLS
-            if any(c in f.get("axes", {}).get(a, {}) for f in fams.values() for a in axes)]
-    base = results.get("baseline")
-    sel = results.get("selection") or {}
-    per_axis = sel.get("per_axis") or {}
-    # the name columns as wide as the longest family (or candidate) and axis name
-    nw = _name_width([*fams, *(sel.get("candidates") or {}),
-                      *((per_axis.get("chosen") or {}).values())])
-    aw = _name_width(axes)
-    head = (f"{'family':<{nw}} {'axis':<{aw}} {'fit s':>6} {'params':>6} {'val':>6} {'comp':>4} "
-            f"{'vs raw':>22} {'vs ' + (base or 'baseline'):>22} "
-            + " ".join(f"{c:>12}" for c in cols))
-    lines = [head, "-" * len(head)]
-    for name, f in fams.items():
-        if f["status"] != "ok":
-            lines.append(f"{name:<{nw}} not fitted: {f['reason']}")
-            continue
-        val = f.get("val_score")
-        for i, a in enumerate(axes):
-            m = f["axes"][a]
-            pre = (f"{name:<{nw}} {a:<{aw}} {f['fit_seconds']:6.2f} {f['n_params']:6d} "
-                   f"{(val if val is not None else math.nan):6.3g} ") if i == 0 else \
-                f"{'':<{nw}} {a:<{aw}} {'':>6} {'':>6} {'':>6} "
-            vs_raw = {"ratio": m.get("score_ratio"), "interval": m.get("interval", [None, None]),
-                      "verdict": m.get("verdict", "indistinguishable")}
-            raw_cell = None
-            if not m.get("compensate") and m.get("score_ratio") is not None:
-                # the model file's drift is 0 here: the shipped output is raw (ratio 1)
-                raw_cell = f"{'raw (fit ' + ratio_text(m['score_ratio']) + ')':>22}"
-            metrics = " ".join(f"{(m.get(c) if m.get(c) is not None else math.nan):12.4g}"
-                               for c in cols)
-            lines.append(pre + f"{'yes' if m.get('compensate') else 'no':>4} "
-                         f"{raw_cell or _ratio_cell(vs_raw)} {_ratio_cell(m.get('vs_baseline'))} "
-                         + metrics)
-    lines.append("")
-    if sel.get("candidates"):
-        lines += _selection_lines(sel, nw)
-    elif sel.get("note"):
-        lines.append(f"selection: {sel['note']}")
-    if per_axis.get("chosen") and results.get("chosen") is not None and \
-            "whole_recording" in sel:
-        lines.append("per axis (each axis its own model; the one-SE rule on that axis's paired "
-                     "out-of-fold scores, the baseline as the floor):")
-        for a, k in per_axis["chosen"].items():
-            lines.append(f"  {a:<{aw}} {k or 'raw':<{nw}} {per_axis['rule'].get(a, '')}")
-        whole = sel["whole_recording"]
-        lines.append(f"chosen: {results.get('chosen')} (one family for every axis would have "
-                     f"been {whole.get('chosen') or 'none'}: {whole.get('reason', '')})")
-    else:
-        lines.append(f"chosen: {results.get('chosen') or 'none'} — "
-                     f"{results.get('chosen_reason', '')}")
-        owners = {k for k in (per_axis.get("chosen") or {}).values() if k}
-        if results.get("chosen") is not None and owners == {results.get("chosen")}:
-            lines.append(f"per axis: every compensated axis chose {results['chosen']} on its "
-                         "own too (the same rule, axis by axis)")
-    if results.get("uncompensated_axes"):
-        lines.append(f"left uncompensated: {', '.join(results['uncompensated_axes'])}")
-    lines.append("scores: spread of the error about its mean on held-out data, family / raw "
-                 "(< 1 better); [95 % block-bootstrap interval]")
-    lines.append("units: " + ", ".join(f"{a} [{u}]" for a, u in results["units"].items()))
-    return "\n".join(lines)
