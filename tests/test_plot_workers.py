@@ -4,6 +4,7 @@ it, no child left behind."""
 
 from __future__ import annotations
 
+import os
 import time
 
 import matplotlib.image as mpimg
@@ -37,6 +38,26 @@ def _procs(helpers: Helpers | None) -> list:
     """The pool's worker processes (started so far)."""
     assert helpers is not None and helpers._pool is not None
     return list(helpers._pool._processes.values())
+
+
+def _until_gone(procs: list) -> bool:
+    """Whether every worker process has ended, waited for (at most 60 s): once a worker dies
+    the pool's own thread reaps it, and ``Process.is_alive`` asked from here meanwhile can
+    lose that race for the exit status and say "alive" for good — so the process table is
+    asked (a reaped pid is gone)."""
+    deadline = time.monotonic() + 60
+    while True:
+        alive = []
+        for p in procs:
+            try:
+                os.kill(p.pid, 0)
+            except ProcessLookupError:
+                continue
+            if p.exitcode is None:            # not reaped yet: a zombie or still running
+                alive.append(p)
+        if not alive or time.monotonic() > deadline:
+            return not alive
+        time.sleep(0.02)
 
 
 def _until_ready(h: Helpers) -> None:
@@ -95,7 +116,7 @@ def test_helpers_import_first_then_run_calls_and_leave_a_failed_call_to_the_call
         procs = _procs(h)
         assert value_or_none(h.submit("os", "_exit", status=3)) is None   # dies in the call
         assert value_or_none(h.submit("json", "dumps", obj=[1])) is None
-        assert all(not p.is_alive() for p in procs)
+        assert _until_gone(procs)
     assert h.failed() and not h.ready()
 
 

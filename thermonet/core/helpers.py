@@ -206,14 +206,16 @@ class Helpers:
         pool, self._pool = self._pool, None
         if pool is None:
             return
-        # the pool's own processes (ProcessPoolExecutor.kill_workers from Python 3.14)
+        # the pool's own processes (ProcessPoolExecutor.kill_workers from Python 3.14):
+        # killed first, then reaped by the pool's own thread alone (shutdown waits for it) —
+        # a second waiter (our join beside it) could lose the race for the exit status and
+        # leave the process object saying it still runs
         procs = list((getattr(pool, "_processes", None) or {}).values())
-        pool.shutdown(wait=False, cancel_futures=True)
         for p in procs:
             p.kill()
+        pool.shutdown(wait=True, cancel_futures=True)
         for p in procs:
             p.join()
-        pool.shutdown(wait=True)
 
     def __enter__(self) -> Helpers:
         return self
