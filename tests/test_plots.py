@@ -8,13 +8,12 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
+from thermonet.reporting.plot_style import _gap_breaks, _minmax_indices
 from thermonet.reporting.plots import (
     DPI,
     FIGSIZE_IN,
     MAX_LINE_POINTS,
     _binned,
-    _gap_breaks,
-    _minmax_indices,
     family_colours,
     plot_allan,
     plot_drift_vs_temperature,
