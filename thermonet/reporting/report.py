@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.fileio import atomic_write_text
+from ..scoring.gate import reason_groups
 
 __all__ = ["render_report", "write_report", "VERDICT_COLOURS", "ratio_text"]
 
@@ -184,11 +185,8 @@ def _selection_table(res: dict[str, Any]) -> str:
                     f"<td>{_e(', '.join(raw_axes) or '—')}</td>"
                     f"<td>{_e('held back (below)' if why and why == held.get(name) else why or '—')}"
                     "</td></tr>")
-    groups: dict[str, list[str]] = {}
-    for name, why in held.items():
-        groups.setdefault(why, []).append(name)
-    held_html = "".join(f"<li><b>{_e(', '.join(sorted(names)))}</b>: {_e(why)}</li>"
-                        for why, names in groups.items())
+    held_html = "".join(f"<li><b>{_e(', '.join(names))}</b>: {_e(why)}</li>"
+                        for why, names in reason_groups(held).items())
     return (f"<p class='small'>{_e(sel.get('kind', ''))}, {_e(sel.get('folds', ''))} folds, "
             f"purge {_num(sel.get('purge_s'))} s, score windows {_num(sel.get('window_s'))} s: "
             "the low-frequency residual out of fold over raw on the same windows (&lt; 1 better), "

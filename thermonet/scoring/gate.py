@@ -22,7 +22,8 @@ if TYPE_CHECKING:
     from .oof_pool import CandidateOOF, Pooled
 
 __all__ = ["MIN_GATE_FOLDS", "GATE_RULE", "Gate", "one_direction", "worst_fold_not_worse",
-           "beats_in_every_fold", "gate_axis", "gate_note", "held_back", "held_back_record"]
+           "beats_in_every_fold", "gate_axis", "gate_note", "held_back", "held_back_record",
+           "reason_groups"]
 
 
 #: Folds a candidate must have been judged on (and beaten its reference on, each) to replace
@@ -204,14 +205,22 @@ def held_back(ok: Mapping[str, CandidateOOF], baseline: str | None, plan: FoldPl
     return held
 
 
-def held_back_record(held: Mapping[str, str]) -> dict[str, Any]:
-    """results.json's ``held_back``: the candidates, each reason once with the candidates it
-    holds (``why``, one sentence per reason) and each candidate's (``by_candidate``)."""
+def reason_groups(held: Mapping[str, str]) -> dict[str, list[str]]:
+    """Each hold-back reason once (in the order first met) with the candidates it holds,
+    sorted: what results.json's ``why``, the console and the report say (``held``:
+    candidate -> why, results.json's ``held_back.by_candidate``)."""
     groups: dict[str, list[str]] = {}
     for k, why in held.items():
         groups.setdefault(why, []).append(k)
+    return {why: sorted(ks) for why, ks in groups.items()}
+
+
+def held_back_record(held: Mapping[str, str]) -> dict[str, Any]:
+    """results.json's ``held_back``: the candidates, each reason once with the candidates it
+    holds (``why``, one sentence per reason) and each candidate's (``by_candidate``)."""
+    groups = reason_groups(held)
     if len(groups) == 1:
         why = next(iter(groups))
     else:
-        why = " | ".join(f"{', '.join(sorted(ks))}: {w}" for w, ks in groups.items())
+        why = " | ".join(f"{', '.join(ks)}: {w}" for w, ks in groups.items())
     return {"candidates": sorted(held), "why": why, "by_candidate": dict(held)}

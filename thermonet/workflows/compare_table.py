@@ -9,6 +9,7 @@ import math
 from typing import Any
 
 from ..reporting.report import ratio_text
+from ..scoring.gate import reason_groups
 from .sensor import format_sensor_table
 
 __all__ = ["format_table"]
@@ -58,13 +59,11 @@ def _selection_lines(sel: dict[str, Any], width: int = 14) -> list[str]:
                 else f"  ({why})" if why else "")
         lines.append(f"  {name:<{width}} {_fold_text(c['score'], '.4g')} "
                      f"[{_fold_text(lo, '.4g')}, {_fold_text(hi, '.4g')}]  folds {folds}{held}")
-    groups: dict[str, list[str]] = {}
-    for name, why in held_by.items():
-        groups.setdefault(why, []).append(name)
+    groups = reason_groups(held_by)
     if not groups and sel.get("held_back"):     # a results.json written before by_candidate
-        groups[sel["held_back"]["why"]] = list(sel["held_back"]["candidates"])
+        groups[sel["held_back"]["why"]] = sorted(sel["held_back"]["candidates"])
     for why, names in groups.items():
-        lines.append(f"  held back: {', '.join(sorted(names))}: {why}")
+        lines.append(f"  held back: {', '.join(names)}: {why}")
     return lines
 
 
