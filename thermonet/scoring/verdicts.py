@@ -335,7 +335,7 @@ class Choice:
 
 def one_se(scores: Mapping[str, float], boots: Mapping[str, np.ndarray] | None,
            n_params: Mapping[str, int], *, held: Mapping[str, str] | None = None,
-           floor: Callable[[str], str] | None = None) -> Choice:
+           floor: Callable[[str], str] | None = None, raw: float | None = 1.0) -> Choice:
     """The one choice rule, for every scope — the whole recording and each axis out of fold
     (:func:`thermonet.scoring.selection.select`), the single validation part (:func:`choose`),
     the sensor model and the fleet's units.
@@ -343,8 +343,9 @@ def one_se(scores: Mapping[str, float], boots: Mapping[str, np.ndarray] | None,
     1. Candidates with a finite score, less those ``held`` back (candidate → why).
     2. The best: the lowest score (scores within the decision margin are one score: the
        fewest parameters, then the candidate listed first).
-    3. Do no harm: nothing unless the best beats raw (a score ratio below 1).
-    4. One standard error: every candidate below 1 whose score is within one SE of the best's
+    3. Do no harm: nothing unless the best beats raw (its score below ``raw``: 1 for a score
+       ratio to raw; None where the scores are no ratios to raw and no do-no-harm applies).
+    4. One standard error: every candidate below ``raw`` whose score is within one SE of the best's
        — the SE of their *paired* difference over the shared bootstrap draws ``boots``
        (None: no draws, only scores the same as the best's) — and that ``floor`` does not
        block (a reason string, e.g. worse than the baseline on an axis; never the best).
@@ -358,7 +359,7 @@ def one_se(scores: Mapping[str, float], boots: Mapping[str, np.ndarray] | None,
         return Choice(None, None, "no candidate", [], {}, {}, blocked)
     low = min(pool_.values())
     best = min((k for k, v in pool_.items() if same(v, low)), key=lambda k: (n_params[k], order[k]))
-    if not below(pool_[best], 1.0):
+    if raw is not None and not below(pool_[best], raw):
         return Choice(None, best, "no harm", [], {}, {}, blocked)
     diff: dict[str, float] = {}
     se: dict[str, float] = {}
@@ -372,7 +373,7 @@ def one_se(scores: Mapping[str, float], boots: Mapping[str, np.ndarray] | None,
         why = "" if k == best or floor is None else floor(k)
         if why:
             blocked[k] = why
-        elif below(v, 1.0) and (diff[k] <= se[k] or same(v, finite[best])):
+        elif (raw is None or below(v, raw)) and (diff[k] <= se[k] or same(v, finite[best])):
             eligible.append(k)
     fewest = min(n_params[k] for k in eligible)
     cands = [k for k in eligible if n_params[k] == fewest]

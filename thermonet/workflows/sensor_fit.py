@@ -29,7 +29,6 @@ chooses, as before cross-validation, and a ``tune`` grid is recorded as not tune
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
@@ -147,13 +146,8 @@ def _lowest(scored: dict[str, float], n_params: dict[str, int]) -> str | None:
     """The single validation part's pick: the one rule (:func:`one_se`) without draws — the
     lowest residual, scores within the decision margin one score (the fewest parameters,
     then the first listed).  The residuals are scaled by raw's spread, not ratios to raw
-    (the sensor model is not masked per axis), so they are put below 1 for the rule's
-    do-no-harm step, which here must not apply; the scaling keeps every comparison (the
-    margin is relative)."""
-    top = max((v for v in scored.values() if math.isfinite(v)), default=math.nan)
-    if not math.isfinite(top) or top <= 0.0:
-        return min(scored, key=lambda k: scored[k]) if scored else None
-    return one_se({k: v / (2.0 * top) for k, v in scored.items()}, None, n_params).chosen
+    (the sensor model is not masked per axis): no do-no-harm step (``raw=None``)."""
+    return one_se(scored, None, n_params, raw=None).chosen
 
 
 def choose_sensor(cfg: CompareConfig, doc: dict[str, Any], plan: Any, note: str,
