@@ -63,13 +63,11 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-
 def _raise_interrupted(signum: int, frame: object) -> None:
     # recorded too: where the raise lands inside a garbage-collection callback Python prints
     # "Exception ignored" and goes on; the training loops poll the record each epoch
     request_interrupt(signum)
     raise Interrupted(signum)
-
 
 
 def _show_warning(message: Warning | str, category: type[Warning], filename: str,
@@ -82,7 +80,6 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
         print(f"thermonet: warning: {text}", file=sys.stderr if file is None else file)
     except (OSError, ValueError):   # a closed stream: nothing left to say
         pass
-
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -131,7 +128,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                   + profile.report(startup), file=sys.stderr)
             profile.enable(False)
             profile.reset()
-
 
 
 def run() -> None:

@@ -26,7 +26,6 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-
 def _cmd_verify(args: argparse.Namespace) -> int:
     from ..workflows.verify import (  # lazy: off the --help path
         EXIT_FAILED,
@@ -47,7 +46,6 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         print(format_verify_report(doc), end="")
         print(f"report: {Path(args.out) / 'report.html'}")
     return 0 if doc["passed"] else EXIT_FAILED
-
 
 
 def add_calibrate(sub: Any) -> None:
@@ -83,7 +81,6 @@ def add_calibrate(sub: Any) -> None:
                      help="after the one line per instance, each instance's detail (its "
                           "verdict, held-out check per axis, notes: report.txt)")
     k.set_defaults(func=_cmd_calibrate)
-
 
 
 def add_verify(sub: Any) -> None:

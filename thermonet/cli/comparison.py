@@ -42,20 +42,16 @@ def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
     return 0
 
 
-
 def _cmd_compare(args: argparse.Namespace) -> int:
     return _compare_common(args)
-
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
     return _compare_common(args, only=args.family)
 
 
-
 _EXTENSIONS = {"onnx": ".onnx", "c": ".h", "px4-params": ".params",
                "ardupilot-params": ".parm"}
-
 
 
 def _export_all_units(args: argparse.Namespace) -> int:
@@ -104,7 +100,6 @@ def _export_all_units(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-
 def _cmd_export(args: argparse.Namespace) -> int:
     if args.all_units:
         return _export_all_units(args)
@@ -115,13 +110,11 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
-
 def _family_workers_arg(q: argparse.ArgumentParser) -> None:
     """``--workers``: families fitted side by side (``compare``, ``train``)."""
     q.add_argument("--workers", type=int, default=None, metavar="N",
                    help="families fitted side by side (default: the config's 'workers', "
                         "0 = one per CPU)")
-
 
 
 def add_compare(sub: Any) -> None:
@@ -142,7 +135,6 @@ def add_compare(sub: Any) -> None:
     tracking_args(t)
     _family_workers_arg(t)
     t.set_defaults(func=_cmd_train)
-
 
 
 def add_export(sub: Any) -> None:

@@ -27,7 +27,6 @@ def _cmd_learn(args: argparse.Namespace) -> int:
     return 0
 
 
-
 def _cmd_fleet(args: argparse.Namespace) -> int:
     from ..training.config import load_config  # lazy: loads yaml
     from ..training.loader import load_fleet_data  # lazy: loads yaml
@@ -72,7 +71,6 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
     return 0 if results["fleet"]["all_passed"] else EXIT_LIMITS_FAILED
 
 
-
 def _station_sources(args: argparse.Namespace, cfg: Any) -> list[Any]:
     """Units for ``prior`` / ``station``: simulated (``--units``) or the config's data."""
     from ..training.loader import load_fleet_data  # lazy: loads yaml
@@ -93,7 +91,6 @@ def _station_sources(args: argparse.Namespace, cfg: Any) -> list[Any]:
                                    runs=cfg.data.runs if getattr(args, "test", None) is None
                                    else None, seed=cfg.data.seed, outliers=args.outliers,
                                    clusters=args.clusters, test=getattr(args, "test", None))
-
 
 
 def _cmd_prior(args: argparse.Namespace) -> int:
@@ -122,7 +119,6 @@ def _cmd_prior(args: argparse.Namespace) -> int:
     return 0
 
 
-
 def _read_prior(path: str) -> Any:
     from ..scoring.prior import FleetPrior  # lazy: off the --help path
 
@@ -136,7 +132,6 @@ def _read_prior(path: str) -> Any:
     except (UnicodeDecodeError, ValueError) as err:
         raise ThermonetError(f"{p}: --prior: not JSON ({str(err).splitlines()[0]})") from None
     return FleetPrior.from_dict(data, str(p))
-
 
 
 def _cmd_station(args: argparse.Namespace) -> int:
@@ -160,7 +155,6 @@ def _cmd_station(args: argparse.Namespace) -> int:
     return 0 if res["summary"]["failed"] == 0 else EXIT_STATION_FAILED
 
 
-
 def _sim_unit_args(q: argparse.ArgumentParser, test: bool) -> None:
     q.add_argument("--units", type=int, default=None,
                    help="simulate N units of the config's preset instead of reading data")
@@ -170,7 +164,6 @@ def _sim_unit_args(q: argparse.ArgumentParser, test: bool) -> None:
     if test:
         q.add_argument("--test", default=None, help="with --units: the short test simulated "
                        "(soaks:T1,T2,... or ramp:FROM,TO,MINUTES)")
-
 
 
 def add_prior(sub: Any) -> None:
@@ -184,7 +177,6 @@ def add_prior(sub: Any) -> None:
     _sim_unit_args(q, test=False)
     q.add_argument("-q", "--quiet", action="store_true", help="no summary on stdout")
     q.set_defaults(func=_cmd_prior)
-
 
 
 def add_station(sub: Any) -> None:
@@ -205,7 +197,6 @@ def add_station(sub: Any) -> None:
     q.add_argument("--overwrite", action="store_true", help="replace a previous station output")
     q.add_argument("-q", "--quiet", action="store_true", help="no table on stdout")
     q.set_defaults(func=_cmd_station)
-
 
 
 def add_learn(sub: Any) -> None:
@@ -230,7 +221,6 @@ def add_learn(sub: Any) -> None:
     k.add_argument("--no-export", action="store_true", help="no ONNX / C of the chosen models")
     k.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
     k.set_defaults(func=_cmd_learn)
-
 
 
 def add_fleet(sub: Any) -> None:

@@ -56,7 +56,6 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-
 def _simulate_board(args: argparse.Namespace) -> int:
     from ..data.logs import is_log  # lazy: off the --help path
     from ..data.logs.writers import write_log  # lazy: off the --help path
@@ -81,7 +80,6 @@ def _simulate_board(args: argparse.Namespace) -> int:
               f"{len(paths)}, {len(log.instances)} sensor instances, "
               f"{log.instances[0].n_samples} samples each")
     return 0
-
 
 
 def _simulate_flights(args: argparse.Namespace) -> int:
@@ -115,7 +113,6 @@ def _simulate_flights(args: argparse.Namespace) -> int:
     return 0
 
 
-
 def _cmd_info(args: argparse.Namespace) -> int:
     from ..data.logs import is_log  # lazy: off the --help path
     from ..workflows.info import format_summary  # lazy: loads yaml
@@ -143,7 +140,6 @@ def _cmd_info(args: argparse.Namespace) -> int:
                                 chunk_rows=chunk)
     print(json.dumps(summary, indent=2, default=str) if args.json else format_summary(summary))
     return 0
-
 
 
 def _cmd_convert(args: argparse.Namespace) -> int:
@@ -184,7 +180,6 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
-
 def _preset_names() -> list[str]:
     """Every simulator preset: the registry's (``thermonet.sim.presets.PRESETS``, filled as
     :mod:`thermonet.sim` is imported), then the flight-controller boards."""
@@ -192,7 +187,6 @@ def _preset_names() -> list[str]:
     from ..sim.fcboard import BOARD_PRESETS  # lazy: as above
 
     return [*PRESETS, *(b for b in BOARD_PRESETS if b not in PRESETS)]
-
 
 
 class _PresetsHelp(argparse.HelpFormatter):
@@ -204,7 +198,6 @@ class _PresetsHelp(argparse.HelpFormatter):
         text = super()._expand_help(action)
         return text.replace("{presets}", " | ".join(_preset_names())) \
             if "{presets}" in text else text
-
 
 
 def add_simulate(sub: Any) -> None:
@@ -243,7 +236,6 @@ def add_simulate(sub: Any) -> None:
     s.set_defaults(func=_cmd_simulate)
 
 
-
 def add_info(sub: Any) -> None:
     """``thermonet info``: what recordings hold."""
     i = sub.add_parser("info", help="summarise recordings",
@@ -257,7 +249,6 @@ def add_info(sub: Any) -> None:
                    help="rows read at a time (default 65536; memory stays bounded by it, "
                         "whatever the files' length)")
     i.set_defaults(func=_cmd_info)
-
 
 
 def add_convert(sub: Any) -> None:

@@ -101,6 +101,12 @@ def _num(v: Any) -> float:
     return float(v)
 
 
+def _count(v: Any) -> int:
+    """A count read back from results.json (0 where it is missing or not a number)."""
+    x = _num(v)
+    return int(x) if math.isfinite(x) else 0
+
+
 def _pair(v: Any) -> tuple[float, float]:
     lo, hi = ((list(v) if isinstance(v, (list, tuple)) else []) + [None, None])[:2]
     return _num(lo), _num(hi)
@@ -257,10 +263,7 @@ class FamilyResult:
                    train_on=str(d.get("train_on") or ""), status=str(d.get("status") or ""),
                    reason=None if d.get("reason") is None else str(d.get("reason")),
                    fit_seconds=_num(d.get("fit_seconds")),
-                   n_params=int(_num(d.get("n_params"))) if math.isfinite(
-                       _num(d.get("n_params"))) else 0,
-                   best_epoch=int(_num(d.get("best_epoch"))) if math.isfinite(
-                       _num(d.get("best_epoch"))) else 0,
+                   n_params=_count(d.get("n_params")), best_epoch=_count(d.get("best_epoch")),
                    val_score=_num(d.get("val_score")), val_interval=_pair(d.get("val_interval")),
                    test_score=_num(d.get("test_score")),
                    compensate_in_model=bool(d.get("compensate_in_model")),
