@@ -45,7 +45,7 @@ from typing import Any
 from .core.errors import Interrupted, ThermonetError
 
 __all__ = ["Tracker", "default_tracking_uri", "flatten_params", "tidy_orphaned_runs",
-           "global_tracking_uri", "store_problem", "check_store"]
+           "end_runs_of", "global_tracking_uri", "store_problem", "check_store"]
 
 #: Tags identifying the process that owns a run (for :func:`tidy_orphaned_runs`).
 HOST_TAG, PID_TAG = "thermonet.host", "thermonet.pid"
@@ -181,6 +181,24 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _running_here(client: Any, experiment: str) -> list[tuple[Any, int | None]]:
+    """The runs of ``experiment`` left ``RUNNING`` by thermonet processes of this host, each
+    with the pid it is tagged with (None: not a number)."""
+    exp = client.get_experiment_by_name(experiment)
+    if exp is None:
+        return []
+    runs = client.search_runs([exp.experiment_id], filter_string=(
+        f"attributes.status = 'RUNNING' and tags.`{HOST_TAG}` = '{socket.gethostname()}'"),
+        max_results=1000)
+    out: list[tuple[Any, int | None]] = []
+    for run in runs:
+        try:
+            out.append((run, int(run.data.tags.get(PID_TAG, ""))))
+        except ValueError:
+            out.append((run, None))
+    return out
+
+
 def tidy_orphaned_runs(uri: str | None = None, experiment: str = "thermonet") -> list[str]:
     """Mark ``KILLED`` the runs left ``RUNNING`` by dead thermonet processes of this host.
 
@@ -192,24 +210,29 @@ def tidy_orphaned_runs(uri: str | None = None, experiment: str = "thermonet") ->
     import mlflow
 
     client = mlflow.MlflowClient(tracking_uri=uri or default_tracking_uri())
-    exp = client.get_experiment_by_name(experiment)
-    if exp is None:
-        return []
-    host = socket.gethostname()
     ended = []
-    runs = client.search_runs([exp.experiment_id], filter_string=(
-        f"attributes.status = 'RUNNING' and tags.`{HOST_TAG}` = '{host}'"), max_results=1000)
-    for run in runs:
-        try:
-            pid = int(run.data.tags.get(PID_TAG, ""))
-        except ValueError:
-            continue
-        if pid != os.getpid() and not _pid_alive(pid):
+    for run, pid in _running_here(client, experiment):
+        if pid is not None and pid != os.getpid() and not _pid_alive(pid):
             _retry(client.set_terminated, run.info.run_id, "KILLED")
             ended.append(run.info.run_id)
     if ended:
         _log.warning("marked %d run(s) KILLED: left RUNNING by dead process(es) on %s",
-                     len(ended), host)
+                     len(ended), socket.gethostname())
+    return ended
+
+
+def end_runs_of(uri: str, experiment: str, pid: int, status: str) -> list[str]:
+    """End with ``status`` the runs of this host still ``RUNNING`` that the process ``pid``
+    opened (its tag): a failing comparison's, ended by the command once its tracking
+    worker is stopped.  Returns their ids."""
+    import mlflow
+
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    ended = []
+    for run, tagged in _running_here(client, experiment):
+        if tagged == pid:
+            _retry(client.set_terminated, run.info.run_id, status)
+            ended.append(run.info.run_id)
     return ended
 
 

@@ -1,54 +1,65 @@
-"""A comparison's MLflow record, made at its edge by a child process.
+"""A comparison's MLflow record, made at its edge by a helper process.
 
 ``compare`` fits, judges and writes without calling MLflow.  Tracking is one step at the
-edge, run by a child process (``python -m thermonet.workflows.compare_track``) so that its
-cost — importing MLflow (~0.7 s), opening the store (~1 s), exporting the chosen model to
-ONNX and logging it (~3-4 s) — overlaps the comparison instead of delaying its report:
+edge, run in a helper process (:class:`thermonet.core.helpers.Helpers`: the standard
+library's process pool, one worker, as the figures' drawers and calibrate's helpers) so
+that its cost — importing MLflow (~0.7 s), opening the store (~1 s), exporting the chosen
+model to ONNX and logging it (~3-4 s) — overlaps the comparison instead of delaying its
+report:
 
-1. :meth:`TrackingSession.start` (before the plan) starts the child: it imports MLflow
+1. :meth:`TrackingSession.start` (before the plan) starts the worker: it imports MLflow
    while the data load;
-2. :meth:`TrackingSession.open` (after the plan) asks it to create the parent run and one
-   nested run per family, ``RUNNING``: their ids go into the checkpoints and
+2. :meth:`TrackingSession.open` (after the plan) calls :func:`open_runs` there: the parent
+   run and one nested run per family, ``RUNNING``; their ids go into the checkpoints and
    ``results.json`` (:meth:`TrackingSession.ids` waits for them only when first needed);
-3. :meth:`TrackingSession.log` (once ``results.json`` is written) hands it the record —
-   ``results.json``'s document, the run directory, and per family what the fit logged
-   (its per-epoch history and test metrics as fitted, before the judge rewrites the
-   uncompensated axes' metrics) — and it logs families, checkpoints, the out-of-fold
-   scores, the ``chosen`` tag, the chosen model (ONNX, :func:`log_chosen_model`),
-   ``results.json`` and ``config.resolved.yaml`` while the plots are drawn;
-4. :meth:`TrackingSession.finish` (once the report is written) hands it the report and
-   plots, waits for the runs to end ``FINISHED`` and returns its warnings.
+   then the worker imports what logging the chosen model needs (:func:`prewarm`);
+3. :meth:`TrackingSession.log` (once ``results.json`` is written) calls :func:`log_runs`
+   with the record — ``results.json``'s document, the run directory, and per family what
+   the fit logged (its per-epoch history and test metrics as fitted, before the judge
+   rewrites the uncompensated axes' metrics) — which logs families, checkpoints, the
+   out-of-fold scores, the ``chosen`` tag, the chosen model (ONNX,
+   :func:`log_chosen_model`), ``results.json`` and ``config.resolved.yaml`` while the
+   plots are drawn;
+4. :meth:`TrackingSession.finish` (once the report is written) calls :func:`finish_runs`
+   with the report and plots, which ends the runs ``FINISHED`` and returns its warnings.
 
 The runs' content is what the in-line tracking of earlier versions logged: the same
-params, metrics, tags (``mlflow.source.name`` is the command's, not the child's) and
-artifacts.  Robustness: the child runs in its own session (Ctrl-C reaches the command,
-not it); the command ends it on any failure (:meth:`TrackingSession.abort`: ``KILLED``
-when interrupted, ``FAILED`` otherwise); a child whose command was killed outright (its
-requests' pipe closed) exits and leaves the runs ``RUNNING``, tagged with the command's
-pid, for :func:`thermonet.tracking.tidy_orphaned_runs`, as before.  An MLflow failure in the child fails the
-comparison as an in-line one did, as one line (:class:`TrackingFailed`, exit 1), and the
-staged output is then removed: nothing half-written.
+params, metrics, tags (``mlflow.source.name`` is the command's, not the worker's) and
+artifacts.  Robustness: the worker is the helpers' (its own session, Ctrl-C ignored: the
+command alone stops); when the command fails or is interrupted,
+:meth:`TrackingSession.abort` ends the worker, then the command ends its own runs still
+``RUNNING`` — ``KILLED`` when interrupted, ``FAILED`` otherwise
+(:func:`thermonet.tracking.end_runs_of`, by the command's pid tag); a command killed
+outright takes its worker with it and leaves the runs ``RUNNING``, tagged with its pid,
+for :func:`thermonet.tracking.tidy_orphaned_runs`, as before.  An MLflow failure in the
+worker fails the comparison as an in-line one did, as one line (:class:`TrackingFailed`,
+exit 1), and the staged output is then removed: nothing half-written.  Where no helper
+process can be had (a script run by path without a ``__main__`` guard, a process limit),
+the same calls run in the command, in turn.
+
+Until issue 51 the worker was a child process of its own speaking JSON lines over its
+standard input and output (framing, replies, signal handling: ~110 lines more).
 """
 
 from __future__ import annotations
 
-import json
 import os
-import signal
-import subprocess
 import sys
 from collections.abc import Mapping
+from concurrent.futures import Future
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
-from ..core.errors import Interrupted, ThermonetError
+from ..core.errors import ThermonetError
+from ..core.helpers import Helpers
 from ..models.registry import PER_AXIS
-from ..tracking import HOST_TAG, PID_TAG, Tracker, _retry, flatten_params
+from ..tracking import HOST_TAG, PID_TAG, Tracker, _retry, end_runs_of, flatten_params
 
-__all__ = ["TrackingFailed", "TrackingSession", "family_record", "log_chosen_model"]
+__all__ = ["TrackingFailed", "TrackingSession", "family_record", "log_chosen_model",
+           "open_runs", "log_runs", "finish_runs", "prewarm"]
 
-#: Seconds an aborted child gets to end its runs before it is stopped.
-_ABORT_WAIT_S = 30.0
+#: The module whose functions the worker runs (by name: the command need not import them).
+_HERE = __name__
 
 
 class TrackingFailed(ThermonetError):
@@ -64,142 +75,139 @@ def family_record(fitted: bool, history: list[Mapping[str, Any]] | None,
             "checkpoint": checkpoint}
 
 
+def _first_line(err: BaseException) -> str:
+    return str(err).splitlines()[0] if str(err) else type(err).__name__
+
+
+class _InCommand:
+    """The helpers' ``submit`` where no helper process can be had: each call now, here."""
+
+    def submit(self, module: str, function: str, **kwargs: Any) -> Future[Any]:
+        f: Future[Any] = Future()
+        try:
+            f.set_result((getattr(sys.modules[module], function)(**kwargs), []))
+        except Exception as err:  # noqa: BLE001 - raised where the future is read
+            f.set_exception(err)
+        return f
+
+    def kill(self) -> None:
+        """Nothing runs elsewhere."""
+
+
 class TrackingSession:
-    """The command's side of the tracking child (nothing at all when tracking is off)."""
+    """The command's side of the tracking worker (nothing at all when tracking is off)."""
 
     def __init__(self, *, enabled: bool, uri: str, experiment: str,
                  register: str | None) -> None:
         self.enabled, self.uri, self.experiment, self.register = (enabled, uri, experiment,
                                                                    register)
-        self._proc: subprocess.Popen[str] | None = None
+        self._worker: Helpers | _InCommand | None = None
+        self._opened: Future[Any] | None = None
+        self._logged: Future[Any] | None = None
         self._ids: tuple[str | None, dict[str, str]] | None = None
-        self._open_sent = False
 
-    # ------------------------------------------------------------ command side
     def start(self) -> TrackingSession:
-        """Start the child (it imports MLflow meanwhile); nothing when tracking is off."""
+        """Start the worker (it imports MLflow meanwhile); nothing when tracking is off."""
         if not self.enabled:
             return self
-        root = str(Path(__file__).resolve().parents[2])   # this thermonet, not another
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(
-            [root, *filter(None, [os.environ.get("PYTHONPATH")])])}
-        self._proc = subprocess.Popen(
-            [sys.executable, "-m", "thermonet.workflows.compare_track"], env=env,
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-            start_new_session=True)   # Ctrl-C goes to the command, which ends the child
+        try:
+            self._worker = Helpers(1, preload=("mlflow",))
+        except OSError:                  # no helper process to be had: the command does it
+            self._worker = _InCommand()
         return self
 
     def open(self, name: str, params: Mapping[str, Any], tags: Mapping[str, str],
              families: list[tuple[str, Mapping[str, Any], Mapping[str, str]]]) -> None:
         """Ask for the parent run and one nested run per family (label, params, tags)."""
-        if self._proc is None:
+        if self._worker is None:
             return
-        self._send({"op": "open", "uri": self.uri, "experiment": self.experiment,
-                    "name": name, "params": params, "tags": dict(tags),
-                    "families": [[k, p, dict(t)] for k, p, t in families],
-                    "argv": list(sys.argv), "pid": os.getpid()})
-        self._open_sent = True
+        elsewhere = isinstance(self._worker, Helpers)
+        self._opened = self._worker.submit(_HERE, "open_runs", req={
+            "uri": self.uri, "experiment": self.experiment, "name": name,
+            "params": dict(params), "tags": dict(tags),
+            "families": [[k, dict(p), dict(t)] for k, p, t in families],
+            "argv": list(sys.argv), "pid": os.getpid(), "elsewhere": elsewhere})
+        if elsewhere:                    # while the command fits: what logging needs
+            self._worker.submit(_HERE, "prewarm")
 
     def ids(self) -> tuple[str | None, dict[str, str]]:
         """(parent run id, {family label: nested run id}); (None, {}) when tracking is off."""
         if self._ids is None:
-            if self._proc is None or not self._open_sent:
+            if self._opened is None:
                 self._ids = (None, {})
             else:
-                reply = self._receive()
+                reply = self._value(self._opened)
                 self._ids = (reply["parent"], dict(reply["families"]))
         return self._ids
 
     def log(self, out: Path, doc: Mapping[str, Any],
             families: Mapping[str, dict[str, Any]]) -> None:
         """Hand over the record (``results.json``'s document, the run directory, the
-        families' :func:`family_record`); the child logs it while the command goes on."""
-        if self._proc is None:
+        families' :func:`family_record`); the worker logs it while the command goes on."""
+        if self._worker is None:
             return
         self.ids()
-        self._send({"op": "log", "out": str(out), "doc": doc, "families": dict(families),
-                    "register": self.register})
+        self._logged = self._worker.submit(_HERE, "log_runs", req={
+            "out": str(out), "doc": dict(doc), "families": dict(families),
+            "register": self.register})
 
     def finish(self, report: Path | None, plots: list[Path]) -> list[str]:
-        """Hand over the report and plots; wait for the runs to end; the child's warnings."""
-        if self._proc is None:
+        """Hand over the report and plots; wait for the runs to end; the worker's warnings."""
+        if self._worker is None:
             return []
+        warnings: list[str] = []
+        if self._logged is not None:
+            warnings = list(self._value(self._logged))
         files = ([[str(report), None]] if report else []) + [[str(p), "plots"] for p in plots]
-        self._send({"op": "finish", "files": files})
-        reply = self._receive()
-        self._proc.wait()
-        self._proc = None
-        return list(reply.get("warnings", []))
+        self._value(self._worker.submit(_HERE, "finish_runs", files=files))
+        worker, self._worker = self._worker, None
+        worker.kill()
+        return warnings
 
     def abort(self, interrupted: bool) -> None:
-        """End the child's runs (``KILLED`` when interrupted, ``FAILED`` otherwise) and the
-        child; never raises (the command is already failing)."""
-        proc, self._proc = self._proc, None
-        if proc is None:
+        """End the worker, then the command's runs still ``RUNNING`` (``KILLED`` when
+        interrupted, ``FAILED`` otherwise); never raises (the command is already failing)."""
+        worker, self._worker = self._worker, None
+        if worker is None:
             return
+        worker.kill()
         try:
-            if interrupted:
-                proc.send_signal(signal.SIGTERM)   # now, even mid-export: ends its runs KILLED
-            else:
-                self._write(proc, {"op": "abort", "status": "FAILED"})
-            if proc.stdin is not None:
-                proc.stdin.close()
-            proc.wait(timeout=_ABORT_WAIT_S)
-        except (OSError, ValueError, subprocess.TimeoutExpired):
-            proc.kill()
-            proc.wait()
-
-    def _send(self, message: Mapping[str, Any]) -> None:
-        assert self._proc is not None
-        try:
-            self._write(self._proc, message)
-        except OSError:   # the child died: its reply (none) says so
+            end_runs_of(self.uri, self.experiment, os.getpid(),
+                        "KILLED" if interrupted else "FAILED")
+        except Exception:  # noqa: BLE001, S110 - left for tidy_orphaned_runs
             pass
 
-    @staticmethod
-    def _write(proc: subprocess.Popen[str], message: Mapping[str, Any]) -> None:
-        assert proc.stdin is not None
-        proc.stdin.write(json.dumps(message) + "\n")
-        proc.stdin.flush()
-
-    def _receive(self) -> dict[str, Any]:
-        assert self._proc is not None and self._proc.stdout is not None
-        line = self._proc.stdout.readline()
-        if not line:
-            code = self._proc.wait()
-            self._proc = None
-            raise TrackingFailed(f"MLflow tracking: the tracking process ended (exit {code})")
-        reply: dict[str, Any] = json.loads(line)
-        if not reply.get("ok"):
+    def _value(self, future: Future[Any]) -> Any:
+        """A call's value; its failure ends the tracking and is one :class:`TrackingFailed`."""
+        try:
+            value, _logged = future.result()
+        except Exception as err:  # noqa: BLE001 - MLflow's, the pool's: one line
             self.abort(interrupted=False)
-            raise TrackingFailed(f"MLflow tracking ({self.uri}): {reply.get('error')}")
-        return reply
+            raise TrackingFailed(f"MLflow tracking ({self.uri}): {_first_line(err)}"
+                                 ) from None
+        return value
 
 
-# ------------------------------------------------------------------ child side
-class _Child:
-    """The tracking child: the runs it opened, and the requests that fill and end them."""
+# ------------------------------------------------------------------ the worker's side
+class _Runs:
+    """The runs this worker opened, and the calls that fill and end them."""
 
-    def __init__(self) -> None:
-        self.tracker_type = Tracker
-        self.tracker: Any = None
-        self.mlflow: Any = None
+    def __init__(self, req: Mapping[str, Any]) -> None:
+        self.tracker = Tracker(enabled=True, uri=req["uri"], experiment=req["experiment"])
+        self.mlflow: Any = self.tracker._client()
         self.parent: str | None = None
         self.families: dict[str, str] = {}
         self.open_runs: list[str] = []
-        self.warnings: list[str] = []
 
     def open(self, req: Mapping[str, Any]) -> dict[str, Any]:
         """The parent run (fluent, active in this process) and the nested runs, created as
         MLflow's ``start_run`` creates them (same system tags), all left ``RUNNING``."""
-        from mlflow.tracking.context import registry
-
-        sys.argv = list(req["argv"])   # mlflow.source.name: the command's, not this child's
-        self.tracker = self.tracker_type(enabled=True, uri=req["uri"],
-                                         experiment=req["experiment"])
-        mlflow = self.mlflow = self.tracker._client()
         import socket
 
+        from mlflow.entities import Param, RunTag
+        from mlflow.tracking.context import registry
+
+        mlflow = self.mlflow
         owner = {HOST_TAG: socket.gethostname(), PID_TAG: str(req["pid"])}
         run = _retry(mlflow.start_run, run_name=req["name"], tags=owner)
         self.parent = run.info.run_id
@@ -215,15 +223,14 @@ class _Child:
             cid = child.info.run_id
             self.families[label] = cid
             self.open_runs.append(cid)
-            from mlflow.entities import Param, RunTag
-
             _retry(client.log_batch, cid, params=[
                 Param(k, v) for k, v in flatten_params(params).items()])
             _retry(client.log_batch, cid, tags=[RunTag(k, str(v)) for k, v in tags.items()])
         return {"parent": self.parent, "families": self.families}
 
-    def log(self, req: Mapping[str, Any]) -> None:
-        """Each family's run filled and ended, then the parent's record bar report and plots."""
+    def log(self, req: Mapping[str, Any]) -> list[str]:
+        """Each family's run filled and ended, then the parent's record bar report and
+        plots; the warnings (the chosen model not logged)."""
         tr, mlflow, doc = self.tracker, self.mlflow, req["doc"]
         for label, rec in req["families"].items():
             cid = self.families[label]
@@ -247,30 +254,49 @@ class _Child:
                         (doc.get("selection") or {}).get("candidates", {}).items()
                         if "score" in c})
         tr.set_tags({"chosen": doc.get("chosen") or "none"})
-        if self.parent:
-            warning = log_chosen_model(doc, tr.uri, self.parent, req["register"])
-            if warning:
-                self.warnings.append(warning)
+        warning = log_chosen_model(doc, tr.uri, self.parent, req["register"]) \
+            if self.parent else None
         out = Path(req["out"])
         tr.log_artifact(out / "results.json")
         tr.log_artifact(out / "config.resolved.yaml")
+        return [warning] if warning else []
 
-    def finish(self, req: Mapping[str, Any]) -> dict[str, Any]:
-        for path, folder in req["files"]:
-            self.tracker.log_artifact(path, folder)
-        self.end("FINISHED")
-        return {"warnings": self.warnings}
-
-    def end(self, status: str) -> None:
-        """End every run still open with ``status`` (the nested ones first)."""
-        if self.mlflow is None:
-            return
+    def finish(self, files: list[list[str | None]]) -> None:
+        """The report and plots logged; every run still open ended ``FINISHED``."""
+        for path, folder in files:
+            self.tracker.log_artifact(str(path), folder)
         client = self.mlflow.MlflowClient()
         for rid in [r for r in self.open_runs if r != self.parent]:
-            _retry(client.set_terminated, rid, status)
+            _retry(client.set_terminated, rid, "FINISHED")
         if self.parent in self.open_runs:
-            _retry(self.mlflow.end_run, status)
+            _retry(self.mlflow.end_run, "FINISHED")
         self.open_runs.clear()
+
+
+#: The worker's runs (one comparison per worker: its :func:`open_runs` made them).
+_RUNS: list[_Runs] = []
+
+
+def open_runs(req: Mapping[str, Any]) -> dict[str, Any]:
+    """In the worker: open the comparison's runs (:meth:`TrackingSession.open`).  A worker
+    of its own (``elsewhere``) takes the command's ``sys.argv`` (``mlflow.source.name``) and
+    sends what MLflow prints to standard error, as the in-line tracking's was shown."""
+    if req["elsewhere"]:
+        sys.argv = list(req["argv"])
+        sys.stdout.flush()
+        os.dup2(2, 1)
+    _RUNS[:] = [_Runs(req)]
+    return _RUNS[0].open(req)
+
+
+def log_runs(req: Mapping[str, Any]) -> list[str]:
+    """In the worker: fill and end the families' runs (:meth:`TrackingSession.log`)."""
+    return _RUNS[0].log(req)
+
+
+def finish_runs(files: list[list[str | None]]) -> None:
+    """In the worker: the last artifacts, and every run ended (:meth:`TrackingSession.finish`)."""
+    _RUNS.pop().finish(files)
 
 
 def log_chosen_model(doc: Mapping[str, Any], uri: str, run_id: str,
@@ -293,15 +319,15 @@ def log_chosen_model(doc: Mapping[str, Any], uri: str, run_id: str,
             path = onnx_of_checkpoint(ckpt, Path(tmp) / f"{chosen}.onnx")
             log_onnx_model(path, run_id, uri, register=register)
     except Exception as err:  # noqa: BLE001 - tracking is best effort; the files are written
-        return (f"the chosen model could not be logged to MLflow: "
-                f"{str(err).splitlines()[0] if str(err) else type(err).__name__}")
+        return f"the chosen model could not be logged to MLflow: {_first_line(err)}"
     return None
 
 
-def _prewarm() -> None:
-    """Import what exporting and logging the chosen model needs (torch, onnx, onnxruntime,
-    MLflow's ONNX flavour: ~2 s) while the command is still fitting, not after it wrote its
-    results; a module that cannot be imported is left to fail where it is used."""
+def prewarm() -> None:
+    """In the worker: import what exporting and logging the chosen model needs (torch,
+    onnx, onnxruntime, MLflow's ONNX flavour: ~2 s) while the command is still fitting, not
+    after it wrote its results; a module that cannot be imported is left to fail where it
+    is used."""
     import importlib
 
     for name in ("torch", "onnx", "onnxruntime", "mlflow.onnx", "mlflow.models",
@@ -310,93 +336,3 @@ def _prewarm() -> None:
             importlib.import_module(name)
         except Exception:  # noqa: BLE001, S112 - reported where it is used, if it is
             continue
-
-
-#: SIGTERMs the child received (its handler's exception can be swallowed where it lands in a
-#: garbage-collection callback, as the command's can: :func:`thermonet.core.errors.check_interrupted`)
-_SIGNALS: list[int] = []
-
-
-def _raise_interrupted(signum: int, frame: object) -> None:
-    _SIGNALS.append(signum)
-    raise Interrupted(signum)
-
-
-def _quiet_unraisable(hook: Any) -> Any:
-    """``sys.unraisablehook`` that stays silent on a swallowed :class:`Interrupted` (recorded
-    in :data:`_SIGNALS` already: the runs still end ``KILLED``) and hands on the rest."""
-    def unraisable(info: Any) -> None:
-        if not isinstance(info.exc_value, Interrupted):
-            hook(info)
-    return unraisable
-
-
-def _serve(requests: IO[str], replies: IO[str]) -> int:
-    """The child's loop: one JSON request a line, one JSON reply for ``open`` and ``finish``.
-    Any failure is replied (its first line) and ends the runs ``FAILED``; SIGTERM (the
-    command was interrupted) ends them ``KILLED``; a closed request pipe (the command was
-    killed without unwinding) leaves them ``RUNNING``, as the command's own runs were left,
-    for :func:`thermonet.tracking.tidy_orphaned_runs` (they carry the command's pid)."""
-    child: _Child | None = None
-    reply: dict[str, Any] | None
-    status: str | None = None   # the requests' pipe closed: the command died without unwinding
-    try:
-        child = _Child()
-        for line in requests:
-            req = json.loads(line)
-            try:
-                if req["op"] == "open":
-                    reply = child.open(req)
-                    replies.write(json.dumps({"ok": True, **reply}) + "\n")
-                    replies.flush()
-                    _prewarm()   # while the command fits: what logging the model imports
-                    reply = None
-                elif req["op"] == "log":
-                    child.log(req)
-                    reply = None
-                elif req["op"] == "finish":
-                    reply = child.finish(req)
-                else:   # abort
-                    status = req.get("status", "FAILED")
-                    break
-            except Exception as err:  # noqa: BLE001 - replied to the command, which fails
-                text = str(err).splitlines()[0] if str(err) else type(err).__name__
-                replies.write(json.dumps({"ok": False, "error": text}) + "\n")
-                replies.flush()
-                status = "FAILED"
-                break
-            if reply is not None:
-                replies.write(json.dumps({"ok": True, **reply}) + "\n")
-                replies.flush()
-            if req["op"] == "finish":
-                return 0
-    except Interrupted:
-        status = "KILLED"
-    finally:
-        if _SIGNALS and status != "FAILED":   # a SIGTERM whose exception was swallowed
-            status = "KILLED"
-        if child is not None and status is not None:
-            try:
-                child.end(status)
-            except Exception:  # noqa: BLE001, S110 - the command is failing already
-                pass
-    return 0
-
-
-def main() -> None:
-    """Entry point of the child: replies on a private copy of stdout; stdout itself (what
-    MLflow may print) goes to stderr, shown as the in-line tracking's was."""
-    signal.signal(signal.SIGTERM, _raise_interrupted)
-    sys.unraisablehook = _quiet_unraisable(sys.unraisablehook)
-    replies = os.fdopen(os.dup(1), "w")
-    os.dup2(2, 1)
-    code = _serve(sys.stdin, replies)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    # no exit handlers: MLflow's would end a run left RUNNING (its command was killed) as
-    # FINISHED; every other run has been ended explicitly
-    os._exit(code)
-
-
-if __name__ == "__main__":
-    main()
