@@ -158,19 +158,22 @@ def test_hyper_parameter_values_are_checked_without_torch(tmp_path):
 
 
 def test_the_rules_are_the_constructors(tmp_path):
-    """One table (thermonet.models.hyper) for the config and the families' constructors:
-    each built-in's constructor refuses what the config refuses, with the same words."""
+    """One declaration (each family's spec, thermonet.models.specs) for the config and the
+    families' constructors: each built-in's constructor refuses what the config refuses, with
+    the same words."""
     from thermonet.models import build_family
-    from thermonet.models.hyper import SPECS, HyperError, check_values
+    from thermonet.models.hyper import HyperError
     from thermonet.models.mlp import ACTIVATIONS
     from thermonet.models.registry import BUILTIN, family_signature
+    from thermonet.models.specs import RBF
 
-    assert set(SPECS) == set(BUILTIN)
-    for name in BUILTIN:                       # every hyper-parameter has a rule
-        assert set(family_signature(name).hyper) == set(SPECS[name]), name
-    assert set(ACTIVATIONS) == set(SPECS["mlp"]["activation"][0].split("one of ")[1].split(", "))
+    for name, spec in BUILTIN.items():         # every hyper-parameter has a rule
+        rules = spec.rules()
+        assert rules is not None and set(family_signature(name).hyper) == set(rules), name
+    said = BUILTIN["mlp"].rules()["activation"].said   # type: ignore[index]
+    assert set(ACTIVATIONS) == set(said.split("one of ")[1].split(", "))
     with pytest.raises(HyperError) as table:
-        check_values("rbf", {"width_scale": float("inf")})
+        RBF(width_scale=float("inf")).checked()
     with pytest.raises(HyperError) as built:
         build_family("rbf", n_inputs=1, n_outputs=1, hyper={"width_scale": float("inf")})
     assert str(table.value) == str(built.value) and built.value.key == "width_scale"

@@ -1,5 +1,5 @@
 """The package's layers: a config loads without torch, and a built-in family's torch-free spec
-(thermonet.models.specs) declares exactly the hyper-parameters, defaults and input limits of
+(thermonet.models.specs) is the one source of the hyper-parameters, defaults and input limits of
 the family class it builds."""
 
 from __future__ import annotations
@@ -45,15 +45,25 @@ def test_a_wrong_hyper_parameter_is_refused_without_torch(tmp_path):
 
 @pytest.mark.parametrize("name", list(BUILTIN))
 def test_the_spec_matches_the_class(name):
+    """The spec is the one source: the family class names it and takes from it its name, its
+    inputs, its hyper-parameters and their defaults (built with none given, it states the
+    spec's defaults as its rules store them), and refuses what the spec refuses."""
+    from thermonet.core.errors import ConfigError
     from thermonet.models.registry import family_signature, get_family
 
     spec = BUILTIN[name]
     cls = get_family(name)
-    params = inspect.signature(cls.__init__).parameters
-    hyper = {k: p.default for k, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY
-             and k not in ("n_inputs", "n_outputs")}
-    assert spec.key == name and spec.target == f"{cls.__module__}:{cls.__qualname__}"
-    assert spec.param_names() == tuple(hyper) == family_signature(name).hyper
-    assert spec.defaults() == hyper
+    assert cls.spec is spec and cls.name == spec.key == name
+    assert spec.target == f"{cls.__module__}:{cls.__qualname__}"
+    assert spec.param_names() == family_signature(name).hyper
     assert spec.max_inputs == cls.max_inputs == family_signature(name).max_inputs
     assert list(spec.default_inputs) == list(cls.default_inputs)
+    # no default written in the class: its constructor's only keywords are the shape's
+    params = inspect.signature(cls.__init__).parameters
+    assert [k for k, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY] == \
+        ["n_inputs", "n_outputs"]
+    stated = cls(n_inputs=1, n_outputs=1).hyper()
+    assert set(stated) <= set(spec.param_names())
+    assert stated == {k: v for k, v in spec().checked().items() if k in stated}
+    with pytest.raises(ConfigError, match=f"model '{name}': unknown hyper-parameter 'nope'"):
+        cls(n_inputs=1, n_outputs=1, nope=1)

@@ -13,7 +13,7 @@ de-standardisation folded into its last matrix product.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -117,12 +117,17 @@ def check_output_shape(fam: Family, z: torch.Tensor, label: str) -> None:
 class Family(nn.Module):
     """Core of one model family, in standardised units.
 
-    Subclasses set ``name`` and ``max_inputs``, take their hyper-parameters as
-    keyword-only arguments (stored, validated, turned into parameters of a
-    shape fixed by ``n_inputs``, ``n_outputs`` and the hyper-parameters so a
-    checkpoint's ``state_dict`` loads into a fresh instance), and implement
-    :meth:`forward`, :meth:`initialize`, :meth:`check_fittable` and
-    :meth:`hyper`.
+    A built-in family names its spec (``spec = specs.Poly``,
+    :mod:`thermonet.models.specs`), the one source of its ``name``, ``max_inputs``,
+    ``default_inputs``, hyper-parameters, their defaults and their rules: its constructor
+    takes ``**hyper`` and hands them to :meth:`take_hyper` (checked, the defaults filled
+    in, each stored under its name), and :meth:`hyper` states them back.  A plug-in may
+    instead set ``name`` and ``max_inputs`` and take its hyper-parameters as keyword-only
+    arguments (the generic spec is read from that signature) and implement :meth:`hyper`.
+    Either way the hyper-parameters are turned into parameters of a shape fixed by
+    ``n_inputs``, ``n_outputs`` and the hyper-parameters so a checkpoint's ``state_dict``
+    loads into a fresh instance; every family implements :meth:`forward`,
+    :meth:`initialize` and :meth:`check_fittable`.
 
     Parameters
     ----------
@@ -140,6 +145,16 @@ class Family(nn.Module):
     #: evaluated on a stream with time (:mod:`thermonet.models.sequence`), trained on
     #: sequences, and exported with its state as explicit inputs and outputs.
     recurrent: ClassVar[bool] = False
+    #: The family's spec class (a :class:`thermonet.models.specs.FamilySpec`), where it has
+    #: one: ``name``, ``max_inputs`` and ``default_inputs`` are then read from it.
+    spec: ClassVar[Any] = None
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        spec = cls.__dict__.get("spec")
+        if spec is not None:   # the spec is the one source of the name and the inputs
+            cls.name, cls.max_inputs = spec.key, spec.max_inputs
+            cls.default_inputs = list(spec.default_inputs)
 
     def __init__(self, *, n_inputs: int, n_outputs: int) -> None:
         super().__init__()
@@ -175,10 +190,22 @@ class Family(nn.Module):
         """Why this data cannot carry the family, or None when it can."""
         return None
 
+    def take_hyper(self, given: Mapping[str, Any]) -> dict[str, Any]:
+        """The hyper-parameters given to the constructor, through the family's :attr:`spec`
+        (:meth:`~thermonet.models.specs.FamilySpec.resolve`: an unknown name refused, the
+        defaults filled in, every value checked against its rule), each stored as an
+        attribute of the same name; returns them."""
+        values: dict[str, Any] = type(self).spec.resolve(given)
+        for key, value in values.items():
+            setattr(self, key, value)
+        return values
+
     def hyper(self) -> dict[str, Any]:
         """JSON-able hyper-parameters; ``type(self)(n_inputs=, n_outputs=, **hyper())``
-        rebuilds the same architecture."""
-        return {}
+        rebuilds the same architecture.  By default each of the spec's hyper-parameters
+        (:meth:`take_hyper` stored them); none for a family without a spec."""
+        spec = type(self).spec
+        return {} if spec is None else {k: getattr(self, k) for k in spec.param_names()}
 
     def coefficient_degree(self, inputs: Sequence[str]) -> int:
         """Degree of the polynomial in (T − t0) that summarises this family's curve as

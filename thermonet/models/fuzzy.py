@@ -31,9 +31,9 @@ import torch
 from torch import nn
 
 from ..core.errors import ConfigError
+from . import specs
 from .base import TINY, Family, as_numpy, distinct_levels, least_squares
 from .cgen import CBody, as_float32, c_array, c_float
-from .hyper import check_values
 
 __all__ = ["TSFuzzy"]
 
@@ -45,16 +45,13 @@ class TSFuzzy(Family):
     spacing: torch.Tensor
     bounds: torch.Tensor
 
-    name = "ts-fuzzy"
-    max_inputs = 1
-    default_inputs = ["T"]
+    spec = specs.Fuzzy     # name, inputs, hyper-parameters: their defaults and rules
+    n_sets: int
+    universe: list[float] | None
 
-    def __init__(self, *, n_inputs: int, n_outputs: int, n_sets: int = 6,
-                 universe: list[float] | None = None) -> None:
+    def __init__(self, *, n_inputs: int, n_outputs: int, **hyper: Any) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        v = check_values(self.name, {"n_sets": n_sets, "universe": universe})
-        self.n_sets = v["n_sets"]
-        self.universe = v["universe"]
+        n_sets = self.take_hyper(hyper)["n_sets"]
         self.slope = nn.Parameter(torch.zeros(n_outputs, n_sets))      # a_i
         self.intercept = nn.Parameter(torch.zeros(n_outputs, n_sets))  # b_i
         self.register_buffer("peaks", torch.linspace(-1.0, 1.0, n_sets))
@@ -160,6 +157,3 @@ class TSFuzzy(Family):
         with torch.no_grad():
             self.intercept.copy_(torch.as_tensor(coef[:self.n_sets].T))
             self.slope.copy_(torch.as_tensor(coef[self.n_sets:].T))
-
-    def hyper(self) -> dict[str, Any]:
-        return {"n_sets": self.n_sets, "universe": self.universe}

@@ -69,9 +69,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from . import specs
 from .base import Family, as_numpy, distinct_levels, least_squares, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array, c_exp, c_expm1
-from .hyper import check_values
 
 __all__ = ["GRU", "SETTLE_STEPS", "CELL_OPS"]
 
@@ -89,22 +89,20 @@ CELL_OPS = (4 + 4 + 1 + 4 + 2, 3)
 class GRU(Family):
     """One GRU layer of ``hidden`` units and a linear read-out, state carried in time."""
 
-    name = "gru"
-    max_inputs = None
-    default_inputs = ["dT"]
+    spec = specs.GRU       # name, inputs, hyper-parameters: their defaults and rules
+    hidden: int
+    step_s: float
+    gap_s: float
+    chunk: int
+    warmup: int
+    lr: float
+    weight_decay: float
     #: The family carries a state between samples (the exports stream it).
     recurrent: ClassVar[bool] = True
 
-    def __init__(self, *, n_inputs: int, n_outputs: int, hidden: int = 8, step_s: float = 10.0,
-                 gap_s: float = 60.0, chunk: int = 64, warmup: int = 30, lr: float = 3e-3,
-                 weight_decay: float = 1e-6) -> None:
+    def __init__(self, *, n_inputs: int, n_outputs: int, **hyper: Any) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        v = check_values(self.name, {"hidden": hidden, "step_s": step_s, "gap_s": gap_s,
-                                     "chunk": chunk, "warmup": warmup, "lr": lr,
-                                     "weight_decay": weight_decay})
-        self.hidden, self.step_s, self.gap_s = v["hidden"], v["step_s"], v["gap_s"]
-        self.chunk, self.warmup, self.lr = v["chunk"], v["warmup"], v["lr"]
-        self.weight_decay = v["weight_decay"]
+        self.take_hyper(hyper)
         self.rnn = nn.GRU(self.n_inputs, self.hidden, batch_first=True)
         self.weight = nn.Parameter(torch.zeros(n_outputs, self.hidden))
         self.bias = nn.Parameter(torch.zeros(n_outputs))
@@ -253,7 +251,3 @@ class GRU(Family):
             states, _ = self.scan(torch.as_tensor(as_numpy(x), dtype=torch.float32)[None])
         self.fit_readout(as_numpy(states[0]), as_numpy(y))
 
-    def hyper(self) -> dict[str, Any]:
-        return {"hidden": self.hidden, "step_s": self.step_s, "gap_s": self.gap_s,
-                "chunk": self.chunk, "warmup": self.warmup, "lr": self.lr,
-                "weight_decay": self.weight_decay}

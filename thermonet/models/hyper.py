@@ -1,27 +1,34 @@
-"""The built-in families' hyper-parameters: what each takes, checked without torch.
+"""The rules a family's hyper-parameter values follow, checked without torch.
 
-One table (:data:`SPECS`) says, per built-in family and hyper-parameter, which values are
-allowed; the family's constructor checks its arguments through it (:func:`check_values`)
-and so does a config before any data is read or torch is imported
-(:func:`thermonet.models.registry.check_hyper`, :func:`thermonet.training.config.check_families`).
-A value outside the rule is one :class:`HyperError` (a ``ConfigError``) naming the family
-and the key: ``poly: degree must be an integer in 1..12, got 99``; its ``key`` attribute
-lets a config name the dotted key (``families[0].params.degree``).  ``bool`` is never a
-number, and a number is never a ``bool``.
+A :class:`Rule` says in words which values a hyper-parameter takes and checks one value,
+returning it as the family stores it (``[lo, hi]`` a list of floats, an integer an ``int``):
+:func:`integer`, :func:`number`, :func:`boolean`, :func:`choice` and the built-in families' own
+(:func:`universe`, :func:`layer_sizes`, :func:`ridge`, :func:`bounded`).  Each family's spec
+(:mod:`thermonet.models.specs`) declares one next to each hyper-parameter's default, and the
+spec is the one source of both: the config loader checks values through it before any data is
+read or torch is imported, and the family's constructor checks its arguments through the same
+spec.  A value outside its rule is one :class:`HyperError` (a ``ConfigError``) naming the
+family and the key: ``poly: degree must be an integer in 1..12, got 99``; its ``key``
+attribute lets a config name the dotted key (``families[0].params.degree``).  ``bool`` is
+never a number, and a number is never a ``bool``.
 
-A plug-in family checks its own values in its constructor; the registry builds it to ask.
+A plug-in family made from a constructor alone checks its own values there; the registry
+builds it to ask.  A plug-in that declares a spec (:class:`thermonet.models.specs.FamilySpec`
+with :func:`~thermonet.models.specs.param`) gets its values checked like a built-in's.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from ..core.errors import ConfigError
 
-__all__ = ["HyperError", "SPECS", "check_values", "MLP_ACTIVATIONS", "MLP_MAX_LAYERS",
-           "MLP_MAX_WIDTH", "RBF_INITS"]
+__all__ = ["HyperError", "Invalid", "Rule", "check_rules", "integer", "number", "boolean",
+           "choice", "universe", "layer_sizes", "ridge", "bounded", "MLP_ACTIVATIONS",
+           "MLP_MAX_LAYERS", "MLP_MAX_WIDTH", "RBF_INITS"]
 
 #: The MLP's activations (:data:`thermonet.models.mlp.ACTIVATIONS` holds their gains).
 MLP_ACTIVATIONS = ("tanh", "relu", "silu")
@@ -39,136 +46,121 @@ class HyperError(ConfigError):
         self.family, self.key = family, key
 
 
-class _Bad(Exception):
-    """A value outside the rule (internal)."""
+class Invalid(Exception):
+    """Raised by a rule's check for a value outside the rule (:func:`check_rules` turns it into
+    a :class:`HyperError` in the rule's words)."""
+
+
+@dataclass(frozen=True)
+class Rule:
+    """Which values a hyper-parameter takes: ``said`` completes "``<key>`` must be …";
+    ``check`` returns the value as the family stores it, or raises :class:`Invalid`."""
+
+    said: str
+    check: Callable[[Any], Any]
 
 
 def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-def _integer(lo: int, hi: int, rule: str | None = None) -> tuple[str, Callable[[Any], Any]]:
+def integer(lo: int, hi: int, said: str | None = None) -> Rule:
+    """An ``int`` (never a ``bool``) in ``lo..hi``."""
     def check(v: Any) -> int:
         if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-            raise _Bad
+            raise Invalid
         return int(v)
-    return rule or f"an integer in {lo}..{hi}", check
+    return Rule(said or f"an integer in {lo}..{hi}", check)
 
 
-def _number(lo: float, hi: float, rule: str, *, lo_open: bool = False
-            ) -> tuple[str, Callable[[Any], Any]]:
+def number(lo: float, hi: float, said: str, *, lo_open: bool = False) -> Rule:
+    """A finite ``int`` or ``float`` (never a ``bool``) in ``[lo, hi]`` (``(lo, hi]`` with
+    ``lo_open``), stored as a ``float``."""
     def check(v: Any) -> float:
         if not _is_number(v) or not math.isfinite(v) or not lo <= v <= hi \
                 or (lo_open and v == lo):
-            raise _Bad
+            raise Invalid
         return float(v)
-    return rule, check
+    return Rule(said, check)
 
 
-def _boolean() -> tuple[str, Callable[[Any], Any]]:
+def boolean() -> Rule:
+    """``True`` or ``False`` only."""
     def check(v: Any) -> bool:
         if not isinstance(v, bool):
-            raise _Bad
+            raise Invalid
         return v
-    return "true or false", check
+    return Rule("true or false", check)
 
 
-def _choice(options: Sequence[str]) -> tuple[str, Callable[[Any], Any]]:
+def choice(options: Sequence[str]) -> Rule:
+    """One of the strings ``options``."""
     def check(v: Any) -> str:
         if not isinstance(v, str) or v not in options:
-            raise _Bad
+            raise Invalid
         return v
-    return f"one of {', '.join(options)}", check
+    return Rule(f"one of {', '.join(options)}", check)
 
 
-def _universe() -> tuple[str, Callable[[Any], Any]]:
+def universe() -> Rule:
+    """``[lo, hi]`` of finite numbers, ``lo < hi``, or ``None`` (the TS-fuzzy universe)."""
     def check(v: Any) -> list[float] | None:
         if v is None:
             return None
         if isinstance(v, (str, bytes, Mapping)) or not isinstance(v, Sequence) or len(v) != 2 \
                 or not all(_is_number(x) and math.isfinite(x) for x in v) or not v[0] < v[1]:
-            raise _Bad
+            raise Invalid
         return [float(v[0]), float(v[1])]
-    return "[lo, hi] with finite numbers lo < hi, or null (the trained range)", check
+    return Rule("[lo, hi] with finite numbers lo < hi, or null (the trained range)", check)
 
 
-def _hidden() -> tuple[str, Callable[[Any], Any]]:
+def layer_sizes() -> Rule:
+    """The MLP's hidden layer sizes: 1 … :data:`MLP_MAX_LAYERS` integers in
+    1..:data:`MLP_MAX_WIDTH`, stored as a list."""
     def check(v: Any) -> list[int]:
         if isinstance(v, (str, bytes, Mapping)) or not isinstance(v, Sequence) \
                 or not 1 <= len(v) <= MLP_MAX_LAYERS \
                 or any(isinstance(h, bool) or not isinstance(h, int)
                        or not 1 <= h <= MLP_MAX_WIDTH for h in v):
-            raise _Bad
+            raise Invalid
         return [int(h) for h in v]
-    return (f"a list of 1 … {MLP_MAX_LAYERS} layer sizes, each an integer in "
-            f"1..{MLP_MAX_WIDTH}"), check
+    return Rule(f"a list of 1 … {MLP_MAX_LAYERS} layer sizes, each an integer in "
+                f"1..{MLP_MAX_WIDTH}", check)
 
 
-def _ridge() -> tuple[str, Callable[[Any], Any]]:
+def ridge() -> Rule:
+    """``"cv"`` or a finite number ≥ 0 (the RBF's ridge)."""
     def check(v: Any) -> float | str:
         if v == "cv" and isinstance(v, str):
             return v
         if not _is_number(v) or not math.isfinite(v) or v < 0:
-            raise _Bad
+            raise Invalid
         return float(v)
-    return "'cv' or a finite number >= 0", check
+    return Rule("'cv' or a finite number >= 0", check)
 
 
-def _gru(lo: float, hi: float, integer: bool) -> tuple[str, Callable[[Any], Any]]:
-    kind = "an integer" if integer else "a number"
-    rule = f"{kind} in [{lo:g}, {hi:g}]"
-    if integer:
-        return _integer(int(lo), int(hi), rule)
-    return _number(lo, hi, rule)
+def bounded(lo: float, hi: float, integer_only: bool) -> Rule:
+    """An integer or a number in ``[lo, hi]``, said as such (the GRU's bounds)."""
+    kind = "an integer" if integer_only else "a number"
+    said = f"{kind} in [{lo:g}, {hi:g}]"
+    if integer_only:
+        return integer(int(lo), int(hi), said)
+    return number(lo, hi, said)
 
 
-#: Per built-in family: hyper-parameter -> (rule as said in errors, check returning the value).
-SPECS: dict[str, dict[str, tuple[str, Callable[[Any], Any]]]] = {
-    "linear": {},
-    "poly": {"degree": _integer(1, 12), "cross": _boolean()},
-    "lorentz": {"xc_margin": _number(0.0, 100.0, "a number in [0, 100] (fraction of the "
-                                     "data span)")},
-    "ts-fuzzy": {"n_sets": _integer(2, 64), "universe": _universe()},
-    "rbf": {"n_centres": _integer(1, 4096), "init": _choice(RBF_INITS),
-            "width_scale": _number(0.0, math.inf, "a finite number > 0", lo_open=True),
-            "tail": _integer(0, 3, "an integer in 0..3 (the degree of the polynomial in the "
-                                   "first input; 0: none)"),
-            "ridge": _ridge()},
-    "mlp": {"hidden": _hidden(), "activation": _choice(MLP_ACTIVATIONS),
-            "weight_decay": _number(0.0, math.inf, "a finite number >= 0")},
-    "gru": {"hidden": _gru(1, 64, True), "step_s": _gru(1e-3, 86400.0, False),
-            "gap_s": _gru(1e-3, 1e7, False), "chunk": _gru(2, 100_000, True),
-            "warmup": _gru(0, 100_000, True), "lr": _gru(1e-6, 1.0, False),
-            "weight_decay": _gru(0.0, 1e3, False)},
-}
-
-
-def _rbf_joint(values: dict[str, Any]) -> None:
-    if values.get("tail", 0) and values.get("init", "kmeans") == "random":
-        raise ConfigError("rbf: a polynomial tail needs init 'kmeans' or 'quantiles' (a "
-                          "closed-form fit)")
-
-
-#: Rules between hyper-parameters of one family (each given the values it was given).
-_JOINT: dict[str, Callable[[dict[str, Any]], None]] = {"rbf": _rbf_joint}
-
-
-def check_values(family: str, hyper: Mapping[str, Any]) -> dict[str, Any]:
-    """``hyper`` of built-in ``family`` checked against :data:`SPECS`, as the family stores
-    them (``[lo, hi]`` a list of floats, an integer an ``int``); a name the family does not
-    take passes through (the registry refuses it by name, naming the valid ones)."""
-    spec = SPECS[family]
+def check_rules(family: str, rules: Mapping[str, Rule], hyper: Mapping[str, Any]
+                ) -> dict[str, Any]:
+    """``hyper`` checked against ``rules`` (name -> :class:`Rule`), as the family stores them;
+    a name without a rule passes through unchanged.  The first value outside its rule is a
+    :class:`HyperError` naming ``family`` and the key."""
     out: dict[str, Any] = {}
     for key, value in hyper.items():
-        if key not in spec:
+        rule = rules.get(key)
+        if rule is None:
             out[key] = value
             continue
-        rule, check = spec[key]
         try:
-            out[key] = check(value)
-        except _Bad:
-            raise HyperError(family, key, rule, value) from None
-    joint = _JOINT.get(family)
-    if joint is not None:
-        joint(out)
+            out[key] = rule.check(value)
+        except Invalid:
+            raise HyperError(family, key, rule.said, value) from None
     return out

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from . import specs
 from .base import Family, as_numpy, distinct_levels, least_squares, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array
 
@@ -25,12 +26,11 @@ __all__ = ["Linear"]
 class Linear(Family):
     """:math:`\\hat y = W z + b`, ``W`` of shape (A, F)."""
 
-    name = "linear"
-    max_inputs = None
-    default_inputs = ["T"]
+    spec = specs.Linear    # name, inputs (no hyper-parameters)
 
-    def __init__(self, *, n_inputs: int, n_outputs: int) -> None:
+    def __init__(self, *, n_inputs: int, n_outputs: int, **hyper: Any) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
+        self.take_hyper(hyper)
         self.weight = nn.Parameter(torch.zeros(n_outputs, n_inputs))
         self.bias = nn.Parameter(torch.zeros(n_outputs))
 
@@ -84,9 +84,6 @@ class Linear(Family):
         bit) — it only cost up to ``patience`` L-BFGS epochs per fit, and the first one
         imported ``torch._dynamo`` (about a second)."""
         return False
-
-    def hyper(self) -> dict[str, Any]:
-        return {}
 
     def polynomial_form(self) -> np.ndarray | None:
         """A line is a degree-1 polynomial: :math:`[b_a, w_a]` when there is one input."""

@@ -26,9 +26,9 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from . import specs
 from .base import TINY, Family, as_numpy, distinct_levels
 from .cgen import CBody, as_float32, c_array
-from .hyper import check_values
 
 __all__ = ["Lorentz", "lorentzian"]
 
@@ -69,13 +69,12 @@ class Lorentz(Family):
     xc_lo: torch.Tensor      # buffers, declared for the type checker
     xc_hi: torch.Tensor
 
-    name = "lorentz"
-    max_inputs = 1
-    default_inputs = ["T"]
+    spec = specs.Lorentz   # name, inputs, hyper-parameters: their defaults and rules
+    xc_margin: float
 
-    def __init__(self, *, n_inputs: int, n_outputs: int, xc_margin: float = 1.0) -> None:
+    def __init__(self, *, n_inputs: int, n_outputs: int, **hyper: Any) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        self.xc_margin = check_values(self.name, {"xc_margin": xc_margin})["xc_margin"]
+        self.take_hyper(hyper)
         self.y0 = nn.Parameter(torch.zeros(n_outputs))
         self.amplitude = nn.Parameter(torch.zeros(n_outputs))
         self.center_raw = nn.Parameter(torch.zeros(n_outputs))
@@ -152,6 +151,3 @@ class Lorentz(Family):
             self.center_raw.copy_(torch.as_tensor(np.log(frac / (1 - frac))))
             # inverse softplus, stable for small and large w
             self.width_raw.copy_(torch.as_tensor(w + np.log(-np.expm1(-w))))
-
-    def hyper(self) -> dict[str, Any]:
-        return {"xc_margin": self.xc_margin}

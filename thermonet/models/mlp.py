@@ -52,9 +52,10 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from . import specs
 from .base import Family, as_numpy, distinct_levels, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array, c_exp, c_expm1
-from .hyper import MLP_MAX_LAYERS, MLP_MAX_WIDTH, check_values
+from .hyper import MLP_MAX_LAYERS, MLP_MAX_WIDTH
 
 __all__ = ["MLP", "ACTIVATIONS", "ACTIVATION_OPS"]
 
@@ -71,18 +72,14 @@ MAX_LAYERS, MAX_WIDTH = MLP_MAX_LAYERS, MLP_MAX_WIDTH
 class MLP(Family):
     """Dense network ``n_inputs → hidden[0] → … → hidden[-1] → n_outputs``."""
 
-    name = "mlp"
-    max_inputs = None
-    default_inputs = ["dT"]
+    spec = specs.MLP       # name, inputs, hyper-parameters: their defaults and rules
+    hidden: list[int]
+    activation: str
+    weight_decay: float
 
-    def __init__(self, *, n_inputs: int, n_outputs: int, hidden: Sequence[int] = (8, 8),
-                 activation: str = "tanh", weight_decay: float = 1e-6) -> None:
+    def __init__(self, *, n_inputs: int, n_outputs: int, **hyper: Any) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        v = check_values(self.name, {"hidden": hidden, "activation": activation,
-                                     "weight_decay": weight_decay})
-        self.hidden = v["hidden"]
-        self.activation = v["activation"]
-        self.weight_decay = v["weight_decay"]
+        self.take_hyper(hyper)
         sizes = [self.n_inputs, *self.hidden]
         self.weights = nn.ParameterList(
             [nn.Parameter(torch.zeros(n, m)) for m, n in zip(sizes[:-1], sizes[1:], strict=True)])
@@ -203,10 +200,6 @@ class MLP(Family):
         with torch.no_grad():
             self.weight.copy_(torch.as_tensor(coef[:-1].T))
             self.bias.copy_(torch.as_tensor(coef[-1]))
-
-    def hyper(self) -> dict[str, Any]:
-        return {"hidden": list(self.hidden), "activation": self.activation,
-                "weight_decay": self.weight_decay}
 
 
 def _ridge_with_bias(h: np.ndarray, y: np.ndarray, lam: float) -> np.ndarray:

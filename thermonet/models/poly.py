@@ -21,9 +21,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from . import specs
 from .base import Family, as_numpy, distinct_levels, least_squares, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array
-from .hyper import check_values
 
 __all__ = ["Poly", "monomials"]
 
@@ -43,16 +43,13 @@ def monomials(n_inputs: int, degree: int, cross: bool) -> list[tuple[int, ...]]:
 class Poly(Family):
     """Polynomial of degree ``degree`` in each input (cross terms with ``cross=True``)."""
 
-    name = "poly"
-    max_inputs = None
-    default_inputs = ["dT"]
+    spec = specs.Poly      # name, inputs, hyper-parameters: their defaults and rules
+    degree: int
+    cross: bool
 
-    def __init__(self, *, n_inputs: int, n_outputs: int, degree: int = 3,
-                 cross: bool = False) -> None:
+    def __init__(self, *, n_inputs: int, n_outputs: int, **hyper: Any) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        v = check_values(self.name, {"degree": degree, "cross": cross})
-        self.degree = v["degree"]
-        self.cross = v["cross"]
+        self.take_hyper(hyper)
         self.terms = monomials(n_inputs, self.degree, self.cross)
         self.weight = nn.Parameter(torch.zeros(n_outputs, len(self.terms)))
         self.bias = nn.Parameter(torch.zeros(n_outputs))
@@ -141,9 +138,6 @@ class Poly(Family):
     def trainable(self) -> bool:
         """False: the least-squares fit is final, as :meth:`.Linear.trainable` says."""
         return False
-
-    def hyper(self) -> dict[str, Any]:
-        return {"degree": self.degree, "cross": self.cross}
 
     def coefficient_degree(self, inputs: Sequence[str]) -> int:
         """Its own degree on ``T`` or ``dT`` alone (exact); a cubic summary otherwise."""

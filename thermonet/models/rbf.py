@@ -72,9 +72,10 @@ import numpy as np
 import torch
 from torch import nn
 
+from . import specs
 from .base import LOG_CLIP, TINY, Family, as_numpy, distinct_levels, least_squares, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array, c_exp
-from .hyper import RBF_INITS, check_values
+from .hyper import RBF_INITS
 from .rbf_fit import (
     INNER_BLOCKS,
     RIDGE_GRID,
@@ -95,21 +96,16 @@ _INITS = RBF_INITS
 class RBF(Family):
     """Gaussian RBF network with ``n_centres`` shared units."""
 
-    name = "rbf"
-    max_inputs = None
-    default_inputs = ["dT", "dT2"]
+    spec = specs.RBF       # name, inputs, hyper-parameters: their defaults and rules
+    n_centres: int
+    init: str
+    width_scale: float
+    tail: int
+    ridge: float | str
 
-    def __init__(self, *, n_inputs: int, n_outputs: int, n_centres: int = 16,
-                 init: str = "kmeans", width_scale: float = 1.0, tail: int = 0,
-                 ridge: float | str = "cv") -> None:
+    def __init__(self, *, n_inputs: int, n_outputs: int, **hyper: Any) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
-        v = check_values(self.name, {"n_centres": n_centres, "init": init,
-                                     "width_scale": width_scale, "tail": tail, "ridge": ridge})
-        self.n_centres = n_centres = v["n_centres"]
-        self.init = v["init"]
-        self.width_scale = v["width_scale"]
-        self.tail = v["tail"]
-        self.ridge = v["ridge"]
+        n_centres = self.take_hyper(hyper)["n_centres"]
         self.centres = nn.Parameter(torch.zeros(n_centres, n_inputs))
         self.log_sigma = nn.Parameter(torch.zeros(n_centres))
         self.weight = nn.Parameter(torch.zeros(n_outputs, n_centres))

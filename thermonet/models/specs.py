@@ -1,4 +1,5 @@
-"""Family specs: each model family as a small torch-free object of explicit keyword parameters.
+"""Family specs: each model family as a small torch-free object of explicit keyword parameters,
+the one source of its hyper-parameters, their defaults and their rules.
 
 A spec names one registered family and its hyper-parameters, nothing else: ``Poly(degree=3)``,
 ``RBF(n_centres=8, tail=3)``, ``Linear()``.  It is what the API takes
@@ -7,39 +8,67 @@ scikit-learn's ``get_params``/``set_params``/``clone``/``GridSearchCV``) and wha
 ``{family: poly, params: {degree: 3}}`` becomes (:func:`thermonet.models.registry.make_spec`),
 so the API and the config are checked by one rule.
 
+A spec class declares each hyper-parameter once, as a field with its default and its rule
+(:func:`param`, the rules of :mod:`thermonet.models.hyper`)::
+
+    class Poly(FamilySpec):
+        key, target = "poly", "thermonet.models.poly:Poly"
+        degree: int = param(default=3, rule=integer(1, 12))
+        cross: bool = param(default=False, rule=boolean())
+
+and everything else is derived from those fields: the keyword constructor (a dataclass's),
+:meth:`~FamilySpec.param_names`, :meth:`~FamilySpec.defaults`, :meth:`~FamilySpec.rules`, the
+config's torch-free checks and the torch family's own: a built-in family class names its spec
+(``spec = specs.Poly``) and takes from it its name, its inputs, its hyper-parameters' defaults
+and their checks (:meth:`FamilySpec.resolve`, :meth:`thermonet.models.base.Family.take_hyper`).
+
 A spec
 
 * stores its keywords and checks nothing when made (scikit-learn's rule: ``set_params`` and
   ``clone`` never raise on a value); :meth:`FamilySpec.check` checks them — names, the input
-  count against :attr:`~FamilySpec.max_inputs`, and values against
-  :mod:`thermonet.models.hyper` (a :class:`~thermonet.models.hyper.HyperError` naming the key);
+  count against :attr:`~FamilySpec.max_inputs`, and values against the declared rules (a
+  :class:`~thermonet.models.hyper.HyperError` naming the key);
 * knows its family's inputs: :attr:`~FamilySpec.max_inputs` and
   :attr:`~FamilySpec.default_inputs`;
 * builds the torch module (:meth:`FamilySpec.build`), importing torch only then — this module
   imports neither torch nor scikit-learn.
 
-One class per built-in family, named after its registry key (``ts-fuzzy`` is :class:`Fuzzy`);
-their defaults are the family constructors' own (``tests/test_specs.py`` holds them equal).  A
-plug-in family (entry-point group ``thermonet.families``) gets a generic spec made from its
-constructor's keyword-only arguments (:func:`spec_for_class`).
+One class per built-in family, named after its registry key (``ts-fuzzy`` is :class:`Fuzzy`).
+A plug-in family is either a spec of its own (declared as above, its ``target`` or
+``family_cls`` its torch class) or a torch family class alone, which gets a generic spec made
+from its constructor's keyword-only arguments (:func:`spec_for_class`); its constructor then
+checks its values.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import inspect
-from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any, ClassVar
+from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar, dataclass_transform
 
 from ..core.errors import ConfigError
-from .hyper import SPECS as RULES
-from .hyper import check_values
+from .hyper import (
+    MLP_ACTIVATIONS,
+    RBF_INITS,
+    Rule,
+    boolean,
+    bounded,
+    check_rules,
+    choice,
+    integer,
+    layer_sizes,
+    number,
+    ridge,
+    universe,
+)
 
 if TYPE_CHECKING:
     from .base import Family
 
 __all__ = ["FamilySpec", "Linear", "Poly", "Lorentz", "Fuzzy", "RBF", "MLP", "GRU", "BUILTIN_SPECS",
-           "spec_for_class", "SHAPE", "set_builder"]
+           "spec_for_class", "SHAPE", "set_builder", "param"]
 
 #: Keyword arguments of every family's constructor that are not hyper-parameters.
 SHAPE = ("n_inputs", "n_outputs")
@@ -60,9 +89,21 @@ def set_builder(builder: Callable[..., Family]) -> None:
     _builder = builder
 
 
+def param(*, default: Any, rule: Rule | None = None) -> Any:
+    """One hyper-parameter of a spec class: its ``default`` and its ``rule`` (a
+    :class:`~thermonet.models.hyper.Rule`; None: checked by building the family)."""
+    return dataclasses.field(default=default, metadata={"rule": rule})
+
+
+@dataclass_transform(kw_only_default=True, eq_default=False, field_specifiers=(param,))
 class FamilySpec:
     """One family and its hyper-parameters (module docstring).  Subclasses declare their
-    hyper-parameters as ``__init__`` keywords with defaults and store each under its name."""
+    hyper-parameters as fields, ``name: type = param(default=..., rule=...)``: each subclass is
+    made a keyword-only dataclass (its own ``__init__``, where it has one, is kept)."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        dataclasses.dataclass(kw_only=True, eq=False, repr=False)(cls)
 
     #: The registry name (``poly``, ``ts-fuzzy``...).
     key: ClassVar[str] = ""
@@ -120,19 +161,54 @@ class FamilySpec:
     # ---------------------------------------------------------------- checks, build
     def check(self, n_inputs: int | None = None, *, values: bool = True) -> dict[str, Any]:
         """Refuse too many inputs and (with ``values``) a value the family does not take;
-        returns the hyper-parameters.  A built-in's values are checked without torch
-        (:mod:`thermonet.models.hyper`); a plug-in's by building it (its constructor
-        checks them)."""
+        returns the hyper-parameters.  A spec whose every hyper-parameter has a rule (every
+        built-in's) checks its values without torch (:meth:`checked`); a generic plug-in's by
+        building it (its constructor checks them)."""
         if n_inputs is not None and self.max_inputs is not None and n_inputs > self.max_inputs:
             raise ConfigError(f"model '{self.key}' takes at most {self.max_inputs} input(s), "
                               f"got {n_inputs}")
         hyper = self.hyper()
         if values:
-            if self.key in RULES and type(self) in BUILTIN_SPECS:
-                check_values(self.key, hyper)
+            if self.rules() is not None:
+                self.checked()
             else:
                 self.build(n_inputs=max(int(n_inputs or 1), 1), n_outputs=1)
         return hyper
+
+    @classmethod
+    def rules(cls) -> dict[str, Rule] | None:
+        """Each hyper-parameter's rule, declared with :func:`param`; None where one has none,
+        and for a generic spec made from a constructor (the family's constructor checks)."""
+        if cls.family_cls is not None or not dataclasses.is_dataclass(cls):
+            return None
+        out = {f.name: f.metadata.get("rule") for f in dataclasses.fields(cls)}
+        if set(out) != set(cls.param_names()) or any(r is None for r in out.values()):
+            return None
+        return {k: r for k, r in out.items() if r is not None}
+
+    def joint(self, values: dict[str, Any]) -> None:
+        """A rule between hyper-parameters (each already checked): raise a ConfigError where
+        ``values`` break it.  None here; the RBF has one."""
+
+    def checked(self) -> dict[str, Any]:
+        """Every hyper-parameter checked against its rule, as the family stores it (``[lo,
+        hi]`` a list of floats, an integer an ``int``), then the joint rule; a value outside
+        is a :class:`~thermonet.models.hyper.HyperError` naming the family and the key."""
+        values = check_rules(self.key, self.rules() or {}, self.hyper())
+        self.joint(values)
+        return values
+
+    @classmethod
+    def resolve(cls, given: Mapping[str, Any]) -> dict[str, Any]:
+        """What a family's constructor does with its hyper-parameter keywords: a name the
+        family does not take is one :class:`ConfigError` naming the valid ones, a missing one
+        takes the spec's default, and every value is checked (:meth:`checked`)."""
+        valid = cls.param_names()
+        for key in given:
+            if key not in valid:
+                raise ConfigError(f"model '{cls.key}': unknown hyper-parameter '{key}' "
+                                  f"(valid: {', '.join(valid) or 'none'})")
+        return cls(**given).checked()
 
     #: The torch family class itself, where the spec was made from it (:func:`spec_for_class`).
     family_cls: ClassVar[type | None] = None
@@ -170,9 +246,6 @@ class Linear(FamilySpec):
     key, target = "linear", "thermonet.models.linear:Linear"
     max_inputs, default_inputs = None, ("T",)
 
-    def __init__(self) -> None:
-        pass
-
 
 class Poly(FamilySpec):
     """``poly``: a polynomial of ``degree`` (1..12) in the inputs; ``cross`` adds the
@@ -181,9 +254,8 @@ class Poly(FamilySpec):
     key, target = "poly", "thermonet.models.poly:Poly"
     max_inputs, default_inputs = None, ("dT",)
 
-    def __init__(self, *, degree: int = 3, cross: bool = False) -> None:
-        self.degree = degree
-        self.cross = cross
+    degree: int = param(default=3, rule=integer(1, 12))
+    cross: bool = param(default=False, rule=boolean())
 
 
 class Lorentz(FamilySpec):
@@ -193,8 +265,8 @@ class Lorentz(FamilySpec):
     key, target = "lorentz", "thermonet.models.lorentz:Lorentz"
     max_inputs, default_inputs = 1, ("T",)
 
-    def __init__(self, *, xc_margin: float = 1.0) -> None:
-        self.xc_margin = xc_margin
+    xc_margin: float = param(default=1.0, rule=number(
+        0.0, 100.0, "a number in [0, 100] (fraction of the data span)"))
 
 
 class Fuzzy(FamilySpec):
@@ -204,9 +276,8 @@ class Fuzzy(FamilySpec):
     key, target = "ts-fuzzy", "thermonet.models.fuzzy:TSFuzzy"
     max_inputs, default_inputs = 1, ("T",)
 
-    def __init__(self, *, n_sets: int = 6, universe: Sequence[float] | None = None) -> None:
-        self.n_sets = n_sets
-        self.universe = universe
+    n_sets: int = param(default=6, rule=integer(2, 64))
+    universe: Sequence[float] | None = param(default=None, rule=universe())
 
 
 class RBF(FamilySpec):
@@ -217,13 +288,19 @@ class RBF(FamilySpec):
     key, target = "rbf", "thermonet.models.rbf:RBF"
     max_inputs, default_inputs = None, ("dT", "dT2")
 
-    def __init__(self, *, n_centres: int = 16, init: str = "kmeans", width_scale: float = 1.0,
-                 tail: int = 0, ridge: float | str = "cv") -> None:
-        self.n_centres = n_centres
-        self.init = init
-        self.width_scale = width_scale
-        self.tail = tail
-        self.ridge = ridge
+    n_centres: int = param(default=16, rule=integer(1, 4096))
+    init: str = param(default="kmeans", rule=choice(RBF_INITS))
+    width_scale: float = param(default=1.0, rule=number(0.0, float("inf"), "a finite number > 0",
+                                                        lo_open=True))
+    tail: int = param(default=0, rule=integer(0, 3, "an integer in 0..3 (the degree of the "
+                                                    "polynomial in the first input; 0: none)"))
+    ridge: float | str = param(default="cv", rule=ridge())
+
+    def joint(self, values: dict[str, Any]) -> None:
+        """A tail needs a closed-form fit: ``init`` kmeans or quantiles."""
+        if values.get("tail", 0) and values.get("init", "kmeans") == "random":
+            raise ConfigError("rbf: a polynomial tail needs init 'kmeans' or 'quantiles' (a "
+                              "closed-form fit)")
 
 
 class MLP(FamilySpec):
@@ -233,11 +310,10 @@ class MLP(FamilySpec):
     key, target = "mlp", "thermonet.models.mlp:MLP"
     max_inputs, default_inputs = None, ("dT",)
 
-    def __init__(self, *, hidden: Sequence[int] = (8, 8), activation: str = "tanh",
-                 weight_decay: float = 1e-6) -> None:
-        self.hidden = hidden
-        self.activation = activation
-        self.weight_decay = weight_decay
+    hidden: Sequence[int] = param(default=(8, 8), rule=layer_sizes())
+    activation: str = param(default="tanh", rule=choice(MLP_ACTIVATIONS))
+    weight_decay: float = param(default=1e-6, rule=number(0.0, float("inf"),
+                                                          "a finite number >= 0"))
 
 
 class GRU(FamilySpec):
@@ -248,16 +324,13 @@ class GRU(FamilySpec):
     key, target = "gru", "thermonet.models.gru:GRU"
     max_inputs, default_inputs = None, ("dT",)
 
-    def __init__(self, *, hidden: int = 8, step_s: float = 10.0, gap_s: float = 60.0,
-                 chunk: int = 64, warmup: int = 30, lr: float = 3e-3,
-                 weight_decay: float = 1e-6) -> None:
-        self.hidden = hidden
-        self.step_s = step_s
-        self.gap_s = gap_s
-        self.chunk = chunk
-        self.warmup = warmup
-        self.lr = lr
-        self.weight_decay = weight_decay
+    hidden: int = param(default=8, rule=bounded(1, 64, True))
+    step_s: float = param(default=10.0, rule=bounded(1e-3, 86400.0, False))
+    gap_s: float = param(default=60.0, rule=bounded(1e-3, 1e7, False))
+    chunk: int = param(default=64, rule=bounded(2, 100_000, True))
+    warmup: int = param(default=30, rule=bounded(0, 100_000, True))
+    lr: float = param(default=3e-3, rule=bounded(1e-6, 1.0, False))
+    weight_decay: float = param(default=1e-6, rule=bounded(0.0, 1e3, False))
 
 
 #: The built-in families' specs, in the registry's order.
