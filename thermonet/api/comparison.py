@@ -227,22 +227,28 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
                               tracking_uri=tracking_uri, quiet=bool(quiet), dataset=dataset,
                               plots=bool(plots) and out is not None,
                               workers=None if workers is None else int(workers))
-        if results.get("model") == "sensor":
-            from ..training.sensor_checkpoint import load_sensor  # torch boundary
-
-            models = {name: load_sensor(target / "models" / f"{name}.pt")[0]
-                      for name, f in results["families"].items() if f.get("status") == "ok"}
-            return SensorComparisonResult(results, models, None if out is None else target)
-        estimators = _estimators(results, target)
+        # the model kind's result (by results.json's ``model``; a bias comparison has none)
+        return _RESULTS[results.get("model", "bias")](results, target,
+                                                      None if out is None else target)
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
-    return ComparisonResult(results, estimators, None if out is None else target)
 
 
-def _estimators(results: dict[str, Any], target: Path) -> dict[str, Any]:
-    """A :class:`DriftEstimator` per fitted family, loaded from its checkpoint in ``target``
-    (before a temporary ``target`` is removed)."""
+def _sensor_result(results: dict[str, Any], target: Path, out: Path | None
+                   ) -> SensorComparisonResult:
+    """A whole-sensor comparison: its fitted sensor models, loaded from ``target`` (before a
+    temporary ``target`` is removed)."""
+    from ..training.sensor_checkpoint import load_sensor  # torch boundary
+
+    models = {name: load_sensor(target / "models" / f"{name}.pt")[0]
+              for name, f in results["families"].items() if f.get("status") == "ok"}
+    return SensorComparisonResult(results, models, out)
+
+
+def _bias_result(results: dict[str, Any], target: Path, out: Path | None) -> ComparisonResult:
+    """A bias comparison: a :class:`DriftEstimator` per fitted family, loaded from its
+    checkpoint in ``target`` (before a temporary ``target`` is removed)."""
     estimators = {}
     for name, f in (results.get("families") or {}).items():
         ckpt = f.get("checkpoint")
@@ -251,4 +257,8 @@ def _estimators(results: dict[str, Any], target: Path) -> dict[str, Any]:
             if not path.is_absolute() or not path.exists():
                 path = target / "models" / f"{name}.pt"
             estimators[name] = DriftEstimator.load(path)
-    return estimators
+    return ComparisonResult(results, estimators, out)
+
+
+#: What ``compare`` returns per model kind, by results.json's ``model``.
+_RESULTS: dict[str, Any] = {"bias": _bias_result, "sensor": _sensor_result}

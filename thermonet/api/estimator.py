@@ -18,16 +18,13 @@ from ..data.diagnostics import TEMPERATURE_PLAUSIBLE_C
 from ..features.target import MODES, modelled_outputs, output_units
 from ..models.registry import PER_AXIS, make_spec, spec_of
 from ..models.specs import FamilySpec
-from ..training.splits import stack_blocks
-from . import sensor_mode
 from .checks import ArgumentTypeError, flag, gap, input_names, seconds, text
 from .checks import path as a_path
 from .data import Data, data_source, names_of, needs_outputs, runs_of, same_run, same_units
 from .family_keywords import FamilyKeywords, with_keywords
 from .fitted import FittedEstimator
+from .modes import check_model, load, mode_of
 from .parameters import STDERR_METHODS, parameter_table
-from .persistence import load
-from .persistence import track as track_fit
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -193,7 +190,7 @@ average_s, threads
         self.max_train_samples = max_train_samples
         self.average_s = average_s
         self.threads = threads
-        self.model = model           # "bias" or "sensor" (thermonet.api.sensor_mode)
+        self.model = model           # a kind of thermonet.api.modes.MODES
 
     # ------------------------------------------------------ scikit-learn's contract
     def set_params(self, **params: Any) -> DriftEstimator:
@@ -306,7 +303,7 @@ average_s, threads
         if not isinstance(self.stderr, str) or self.stderr not in STDERR_METHODS:
             raise ConfigError(f"stderr: {self.stderr!r} is not one of "
                               f"{', '.join(STDERR_METHODS)}")
-        sensor_mode.check_model(self)
+        check_model(self)
         config = self._train_config()
         inputs = self._resolved_inputs(spec)
         # the family's input count and hyper-parameter values, the config's own rule (a
@@ -363,8 +360,6 @@ average_s, threads
         FitError
             The data cannot carry the family (reason given).
         """
-        from ..training.pipeline import fit_split, split_parts, split_spec  # torch boundary
-
         if self.family == PER_AXIS:
             raise ConfigError("family 'per-axis': a model per axis is chosen by compare "
                               "(thermonet.api.compare) among fitted candidates, not fitted by "
@@ -373,24 +368,8 @@ average_s, threads
         flag(track, "fit(track)")
         text(tracking_uri, "fit(tracking_uri)", none=True, rule="an MLflow tracking URI")
         text(experiment, "fit(experiment)", rule="an MLflow experiment name")
-        if self.model == "sensor":
-            sensor_mode.fit(self, train, val, config=config, inputs=inputs, family=family,
-                            track=track or tracking_uri is not None)
-            return self
-        runs, val_runs, outputs, targets = self._training_data(train, val)
-        spec = split_spec(inputs, runs, t_ref=self.t_ref, window_min=self.t_ref_window_min,
-                          gap_s=self.gap_s, reference_for_targets=True)
-        val_rec = None
-        if val_runs is not None:
-            val_rec = stack_blocks(val_runs, "val") if len(val_runs) > 1 else val_runs[0]
-        parts = split_parts(spec, runs, outputs=outputs, target=targets, val=val_rec,
-                            train_on=self.train_on, gap_s=self.gap_s)
-        result = fit_split(parts, family=family.key, outputs=outputs, hyper=family.hyper(),
-                           config=config, target_modes=targets.modes)
-        self._learned(result, spec, targets, outputs, runs, val_runs, config)
-        self._parameter_table(parts, config)
-        if track or tracking_uri:
-            track_fit(self, tracking_uri, experiment)
+        mode_of(self).fit(self, train, val, config=config, inputs=inputs, family=family,
+                          track=track, tracking_uri=tracking_uri, experiment=experiment)
         return self
 
     def _training_data(self, train: Data, val: Data | None
@@ -468,6 +447,4 @@ average_s, threads
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DriftEstimator:
         """An estimator fitted as the checkpoint at ``path`` (also one ``compare`` wrote)."""
-        if sensor_mode.is_sensor_checkpoint(a_path(path, "load(path)")):  # type: ignore[arg-type]
-            return sensor_mode.load(cls, path)
         return load(cls, a_path(path, "load(path)"))  # type: ignore[arg-type]

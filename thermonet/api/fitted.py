@@ -5,7 +5,9 @@ report, save and export.
 fit or :meth:`~thermonet.api.DriftEstimator.load` set, :class:`~thermonet.api.state.EstimatorState`);
 :class:`~thermonet.api.DriftEstimator` is it with the constructor, scikit-learn's contract
 and the fit (:mod:`thermonet.api.estimator`).  :class:`NotFittedError` is what each method
-raises before a fit.
+raises before a fit.  Each method checks what every model kind shares, then calls its model
+kind's own body (:data:`thermonet.api.modes.MODES`, by ``model``: :mod:`~thermonet.api.bias_mode`
+or :mod:`~thermonet.api.sensor_mode`).
 """
 
 from __future__ import annotations
@@ -13,20 +15,17 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.errors import ConfigError, ThermonetError
-from ..core.recording import Dataset, Recording
-from ..features.inputs import signal_matrix
-from . import sensor_mode
+from ..core.recording import Recording
 from .checks import path as a_path
 from .checks import text, whole
-from .data import BLOCK_RUN, Data, needs_outputs, runs_of, same_units
-from .persistence import export, save
+from .data import Data
+from .modes import mode_of
 from .state import EstimatorState
 
 if TYPE_CHECKING:
@@ -47,7 +46,7 @@ class FittedEstimator(EstimatorState):
     """A fitted estimator's methods (module docstring); ``DriftEstimator`` is this class with
     its constructor and fit."""
 
-    model: str                   # "bias" or "sensor" (DriftEstimator.__init__)
+    model: str                   # a key of thermonet.api.modes.MODES (DriftEstimator.__init__)
 
     def _part(self, rec: Recording, spec: FeatureSpec, outputs: list[str]) -> Any:
         from ..training.parts import build_part  # lazy: loads yaml
@@ -91,52 +90,18 @@ class FittedEstimator(EstimatorState):
         that run alone).  Evaluated as on board: signals clamped to the trained range
         (``model_.out_of_range`` flags the samples outside it).
         """
-        model = self._check_fitted("predict")
-        from ..training.train import predict  # torch boundary
-
-        band = self.__dict__.get("band_")
-        if return_band and band is None:
+        self._check_fitted("predict")
+        if return_band and self.__dict__.get("band_") is None:
             raise ThermonetError("predict(return_band=True): this model carries no band (the "
                                  "band comes from compare's out-of-fold residuals: load a "
                                  "checkpoint compare wrote with selection.folds >= 2)")
-        if self.model == "sensor":
-            return sensor_mode.predict(self, data)
-        out, widths = [], []
-        for rec in runs_of(data, "predict", allow_empty=True):
-            same_units(rec, self.signal_units_, "predict", "the model was trained on it")
-            # the model's own signal order (a per-axis model's union of its parts' signals)
-            sig = signal_matrix(rec, list(model.signals), self.spec_.gap_s)
-            out.append(predict(model, sig, rec.time_s))
-            if return_band:
-                assert band is not None
-                col = list(model.signals).index(band.signal)
-                widths.append(band.evaluate(sig[:, col], self.outputs_))
-        drift = out[0] if len(out) == 1 else np.concatenate(out)
-        if return_band:
-            return drift, (widths[0] if len(widths) == 1 else np.concatenate(widths))
-        return drift
+        return mode_of(self).predict(self, data, return_band=return_band)
 
     def compensate(self, data: Data) -> Any:
         """``data`` with the predicted drift subtracted from each modelled output: a
         Recording for a Recording, a Dataset for a Dataset, a list for a list."""
         self._check_fitted("compensate")
-        if self.model == "sensor":
-            return sensor_mode.compensate(self, data)
-        if self.targets_.kind == "four-position":
-            raise ThermonetError("compensate: a four-position model predicts per-soak bias and "
-                                 "scale factor, not a drift to subtract sample by sample")
-        done = []
-        for rec in runs_of(data, "compensate", allow_empty=True):
-            needs_outputs(rec, self.outputs_, "compensate")
-            same_units(rec, self.units_, "compensate", "the model was trained in")
-            drift = self.predict(rec)
-            outputs = dict(rec.outputs)
-            for j, axis in enumerate(self.outputs_):
-                outputs[axis] = rec.outputs[axis] - drift[:, j]
-            done.append(replace(rec, outputs=outputs, run_id=f"{rec.run_id}[compensated]"))
-        if isinstance(data, Recording):
-            return done[0]
-        return Dataset(done) if isinstance(data, Dataset) else done
+        return mode_of(self).compensate(self, data)
 
     def score(self, data: Data, y: None = None, *,
               multioutput: str | Sequence[float] = "uniform_average") -> Any:
@@ -200,76 +165,22 @@ class FittedEstimator(EstimatorState):
 
     def _variances(self, data: Data, what: str) -> tuple[np.ndarray, np.ndarray]:
         """Per axis, the error's sum of squares after and before (each run about its mean)."""
-        from ..training.pipeline import residual_spread  # torch boundary
-        from ..training.train import predict  # torch boundary
-
-        model = self._check_fitted(what)
-        if self.model == "sensor":
-            return sensor_mode.variances(self, data, what)
-        sums: dict[str, list[np.ndarray]] = {}     # per source run: n, Σy, Σy², Σe, Σe²
-        for rec in runs_of(data, what):
-            needs_outputs(rec, self.outputs_, what)
-            same_units(rec, self.units_, what, "the model was trained in")
-            same_units(rec, self.signal_units_, what, "the model was trained on it")
-            part = self._part(rec, self.spec_, self.outputs_)
-            target = np.asarray(part.target, dtype=np.float64)
-            err = target - predict(model, part.signals, part.time_s)
-            acc = sums.setdefault(rec.meta.get(BLOCK_RUN, rec.run_id),
-                                  [np.zeros(target.shape[1]) for _ in range(5)])
-            # rows that are window means (thermonet.read(..., window_s=...)): each weighs its
-            # samples, and the spread inside it is added back (the target's, and the
-            # residual's from the model's slope: training.pipeline.residual_spread)
-            spread = residual_spread(model, part)
-            if part.weight is None or part.within_ss is None or spread is None:
-                terms = (np.full(target.shape[1], target.shape[0]), target.sum(0),
-                         (target ** 2).sum(0), err.sum(0), (err ** 2).sum(0))
-            else:
-                w = part.weight
-                terms = (np.full(target.shape[1], w.sum()), w @ target,
-                         w @ target ** 2 + part.within_ss.sum(0), w @ err,
-                         w @ err ** 2 + spread.sum(0))
-            for k, v in enumerate(terms):
-                acc[k] += v
-        raw = sum(a[2] - a[1] ** 2 / a[0] for a in sums.values())
-        comp = sum(a[4] - a[3] ** 2 / a[0] for a in sums.values())
-        return np.asarray(comp, dtype=np.float64), np.asarray(raw, dtype=np.float64)
+        self._check_fitted(what)
+        return mode_of(self).variances(self, data, what)
 
     # ------------------------------------------------------------ parameters
     def report(self) -> str:
         """A fit report in lmfit's manner: the family, data and fit, then per axis each
         parameter's value ± standard error and unit (:attr:`parameters_`)."""
         self._check_fitted("report")
-        if self.model == "sensor":
-            raise ConfigError("report(): a sensor model has no per-parameter table; its "
-                              "coefficients are model_.bias and model_.elements, and 'thermonet "
-                              "compare' with model: sensor writes its report.html")
-        table = self.parameters_
-        lines = [f"[[Model]] {self!r}",
-                 f"[[Fit]] inputs {', '.join(self.spec_.inputs)}; t_ref "
-                 f"{self.spec_.t_ref if self.spec_.t_ref is not None else '-'} °C; "
-                 f"{self.n_params_} parameters; best epoch {self.best_epoch_}",
-                 "[[Parameters]] (stderr: " + ("least squares, white residuals assumed"
-                                              if self.stderr == "ols" else
-                                              "moving-block residual bootstrap")
-                 + " — see thermonet.api.parameters)"]
-        for axis, rows in table.groupby("axis", sort=False):
-            lines.append(f"  {axis}:")
-            for r in rows.itertuples():
-                err = "" if not np.isfinite(r.stderr) else f" +/- {r.stderr:.4g}"
-                rel = "" if not (np.isfinite(r.stderr) and r.value) else \
-                    f" ({abs(r.stderr / r.value):.2%})"
-                lines.append(f"    {r.name:<12} {r.value: .6g}{err}{rel} {r.unit}")
-        return "\n".join(lines)
+        return mode_of(self).report(self)
 
     # ------------------------------ save, export (thermonet.api.persistence; load: DriftEstimator's)
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the fitted model as a thermonet checkpoint (atomic; loads with
         ``weights_only=True``; ``thermonet export`` reads it)."""
-        if self.model == "sensor":
-            self._check_fitted("save")
-            return sensor_mode.save(self, a_path(path, "save(path)"))  # type: ignore[arg-type]
-        return save(self, a_path(path, "save(path)"))  # type: ignore[arg-type]
-
+        self._check_fitted("save")
+        return mode_of(self).save(self, a_path(path, "save(path)"))  # type: ignore[arg-type]
 
     def export(self, path: str | os.PathLike[str], format: str = "onnx", *,
                device_id: int | None = None, instance: int | None = None) -> Path:
@@ -282,7 +193,5 @@ class FittedEstimator(EstimatorState):
         text(format, "export(format)", rule="a format name such as 'onnx'")
         whole(device_id, "export(device_id)", 0, none=True)
         whole(instance, "export(instance)", 0, none=True)
-        if self.model == "sensor":
-            self._check_fitted("export")
-            return sensor_mode.export(self, Path(path), format)
-        return export(self, path, format, device_id=device_id, instance=instance)
+        self._check_fitted("export")
+        return mode_of(self).export(self, path, format, device_id=device_id, instance=instance)

@@ -21,7 +21,11 @@ compensates as ``compare``'s checkpoint ``models/<label>.pt`` does (tests/test_s
   :meth:`~thermonet.api.DriftEstimator.load` reads one back as a sensor-mode estimator.
 
 The data needs ``ref_<output>`` channels (the known excitation); ``target`` must be
-``"drift"`` and ``train_on`` ``"all"`` (a scale factor needs every position).
+``"drift"`` and ``train_on`` ``"all"`` (a scale factor needs every position: the sensor
+kind's ``estimator_requires`` in :data:`thermonet.models.shipped.MODEL_KINDS`, checked by
+:func:`thermonet.api.modes.check_model`).  The estimator reaches these functions through
+:data:`thermonet.api.modes.MODES` (``"sensor"``), as it reaches
+:mod:`thermonet.api.bias_mode`'s for ``"bias"``: the same functions, each kind's bodies.
 """
 
 from __future__ import annotations
@@ -48,32 +52,15 @@ from .data import (
 )
 from .state import State
 
-__all__ = ["MODELS", "check_model", "fit", "predict", "compensate", "variances", "save", "load",
-           "export", "is_sensor_checkpoint"]
-
-#: What ``DriftEstimator(model=...)`` takes.
-MODELS = ("bias", "sensor")
-
-
-def check_model(est: Any) -> None:
-    """``model`` is one of :data:`MODELS`; a sensor model takes ``target="drift"`` and
-    ``train_on="all"`` only (one line naming the argument)."""
-    if not isinstance(est.model, str) or est.model not in MODELS:
-        raise ConfigError(f"model: {est.model!r} is not one of {', '.join(MODELS)}")
-    if est.model == "sensor":
-        if est.target != "drift":
-            raise ConfigError(f"target: {est.target!r} with model='sensor' (the sensor model's "
-                              "target is its references' error, raw − ref_<axis>: 'drift')")
-        if est.train_on != "all":
-            raise ConfigError(f"train_on: {est.train_on!r} with model='sensor' (its scale "
-                              "factor needs every position at every soak: 'all')")
+__all__ = ["fit", "predict", "compensate", "variances", "report", "save", "load", "export"]
 
 
 def fit(est: Any, train: Data, val: Data | None, *, config: Any, inputs: list[str],
-        family: Any, track: bool = False) -> None:
+        family: Any, track: bool = False, tracking_uri: str | None = None,
+        experiment: str = "") -> None:
     """Fit ``est`` as a sensor model (arguments already checked by the estimator; ``family``
-    its spec)."""
-    if track:
+    its spec); a sensor-mode fit is not tracked (``track`` or a ``tracking_uri`` refused)."""
+    if track or tracking_uri is not None:
         raise ConfigError("fit(track): a sensor-mode fit is not tracked; 'thermonet compare' "
                           "with model: sensor logs its families to MLflow")
     from ..models.sensor import triads_of  # torch boundary
@@ -151,8 +138,9 @@ def _arrays(est: Any, rec: Recording, what: str, *, refs: bool) -> Any:
     return SensorRun(sig, raw, raw, np.asarray(rec.time_s, dtype=np.float64), sig[:, 0])
 
 
-def predict(est: Any, data: Data) -> np.ndarray:
-    """The sensor's error ``raw − compensated`` (N, axes), float64, run after run."""
+def predict(est: Any, data: Data, *, return_band: bool = False) -> np.ndarray:
+    """The sensor's error ``raw − compensated`` (N, axes), float64, run after run (a sensor
+    model carries no band: the estimator refuses ``return_band`` before it comes here)."""
     out = []
     for rec in runs_of(data, "predict", allow_empty=True):
         r = _arrays(est, rec, "predict", refs=False)
@@ -195,6 +183,13 @@ def variances(est: Any, data: Data, what: str) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(comp, dtype=np.float64), np.asarray(raw, dtype=np.float64)
 
 
+def report(est: Any) -> str:
+    """Refused: a sensor model has no per-parameter table."""
+    raise ConfigError("report(): a sensor model has no per-parameter table; its "
+                      "coefficients are model_.bias and model_.elements, and 'thermonet "
+                      "compare' with model: sensor writes its report.html")
+
+
 def save(est: Any, path: str | os.PathLike[str]) -> Path:
     """The fitted sensor model as a sensor checkpoint (``compare``'s format)."""
     from ..training.sensor import SensorFit  # torch boundary
@@ -217,11 +212,13 @@ def save(est: Any, path: str | os.PathLike[str]) -> Path:
     return save_sensor(Path(path), fitted, family=family.key, hyper=family.hyper(), extra=extra)
 
 
-def export(est: Any, path: Path, fmt: str) -> Path:
-    """Export ``est`` as ``thermonet export`` exports compare's sensor checkpoint: through its
-    own writer (:func:`thermonet.exporting.sensor_export.export_sensor_source`: ONNX or the C
-    header, parity-checked before anything is written; the autopilot formats refused in one
-    line, as for a checkpoint)."""
+def export(est: Any, path: str | os.PathLike[str], fmt: str, *, device_id: int | None = None,
+           instance: int | None = None) -> Path:
+    """Export ``est`` as ``thermonet export`` exports compare's sensor checkpoint: saved,
+    loaded and handed to the format registry
+    (:func:`thermonet.exporting.sensor_export.export_sensor_source`: the registry's sensor
+    exporters, ONNX or the C header, parity-checked before anything is written); the
+    autopilot formats refused in one line naming the estimator's alternative."""
     import tempfile
 
     from ..exporting.sensor_export import export_sensor_source  # torch boundary
@@ -233,20 +230,7 @@ def export(est: Any, path: Path, fmt: str) -> Path:
 
     with tempfile.TemporaryDirectory() as tmp:
         ckpt = save(est, Path(tmp) / "sensor.pt")
-        return export_sensor_source(ckpt, fmt=fmt, out=path)
-
-
-def is_sensor_checkpoint(path: str | os.PathLike[str]) -> bool:
-    """Whether ``path`` holds a sensor checkpoint (its ``format``); False for anything else."""
-    import torch
-
-    from ..training.sensor_checkpoint import SENSOR_FORMAT  # torch boundary
-
-    try:
-        payload = torch.load(Path(path), map_location="cpu", weights_only=True)
-    except Exception:  # not ours to judge here: the bias loader says what is wrong
-        return False
-    return isinstance(payload, dict) and payload.get("format") == SENSOR_FORMAT
+        return export_sensor_source(ckpt, fmt=fmt, out=Path(path))
 
 
 def load(cls: type[State], path: str | os.PathLike[str]) -> State:

@@ -23,15 +23,16 @@ first access.
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
-from ..core.errors import InputError
+from ..core.errors import ExportError, InputError
+from ..models.shipped import ShippedModel, model_kind
 
 if TYPE_CHECKING:
-    from ..models.composite import ShippedModel
+    from ..models.composite import ShippedModel as DriftModels
 
 __all__ = [
     "ExportFormat", "ExportRequest", "Exporter", "FORMATS", "register_format", "get_format",
@@ -79,8 +80,9 @@ class ExportRequest:
         return dict(self.extra.get("units") or {})
 
 
-#: ``exporter(model, out, request) -> written path``.
-Exporter = Callable[["ShippedModel", Path, ExportRequest], Path]
+#: ``exporter(model, out, request) -> written path``: ``model`` a shipped model of the kind
+#: the exporter is registered for (:class:`thermonet.models.shipped.ShippedModel`).
+Exporter = Callable[[Any, Path, ExportRequest], Path]
 
 
 @dataclass(frozen=True)
@@ -94,12 +96,24 @@ class ExportFormat:
     name: str
     description: str
     exporter: str | Exporter
+    #: The exporters of the other model kinds (a shipped model's ``kind``,
+    #: :data:`thermonet.models.shipped.MODEL_KINDS`), by kind; ``exporter`` is the bias
+    #: kind's (a :class:`~thermonet.models.drift_model.DriftModel` or per-axis model).
+    kinds: Mapping[str, str | Exporter] = field(default_factory=dict)
 
-    def resolve(self) -> Exporter:
-        """The exporter function (importing its module when named as a string)."""
-        if not isinstance(self.exporter, str):
-            return self.exporter
-        module, _, attr = self.exporter.partition(":")
+    def resolve(self, kind: str = "bias", source: str | None = None) -> Exporter:
+        """The exporter function of the model kind ``kind`` (importing its module when named
+        as a string); an :class:`ExportError` naming ``source`` where this format has none
+        for the kind."""
+        exporters = {"bias": self.exporter, **self.kinds}
+        if kind not in exporters:
+            have = [f.name for f in FORMATS.values() if kind in {"bias", *f.kinds}]
+            raise ExportError(f"{source or 'model'}: format '{self.name}' is not available for "
+                              f"a {kind} model; export it as {' or '.join(have) or 'nothing'}")
+        exporter = exporters[kind]
+        if not isinstance(exporter, str):
+            return exporter
+        module, _, attr = exporter.partition(":")
         fn: Exporter = getattr(importlib.import_module(module), attr)
         return fn
 
@@ -118,9 +132,12 @@ class ExportFormat:
         from .domain import check_output_range  # lazy: importing it loads numpy
 
         request = request or ExportRequest()
-        check_output_range(model, units=request.output_units,
-                           source=request.source or f"model '{model.family_name}' (in memory)")
-        return self.resolve()(model, Path(out), request)
+        kind = getattr(model, "kind", "bias")
+        exporter = self.resolve(kind, request.source)
+        if model_kind(kind).output_range_checked:
+            check_output_range(cast("DriftModels", model), units=request.output_units,
+                               source=request.source or f"model '{model.family_name}' (in memory)")
+        return exporter(model, Path(out), request)
 
 
 #: Registered export formats, by name.
@@ -144,18 +161,22 @@ def get_format(name: str) -> ExportFormat:
                          ) from None
 
 
+_SENSOR = "thermonet.exporting.sensor_export"
 register_format(ExportFormat(
     "onnx", "ONNX graph with features, clamp and out-of-range flag (onnxruntime, "
-    "export/thermonet_runtime.py)", "thermonet.exporting.source:write_onnx"))
+    "export/thermonet_runtime.py)", "thermonet.exporting.source:write_onnx",
+    kinds={"sensor": f"{_SENSOR}:write_sensor_onnx"}))
 register_format(ExportFormat(
     "c", "C99 header: float32, no heap, only expf from libm",
-    "thermonet.exporting.source:write_c"))
+    "thermonet.exporting.source:write_c", kinds={"sensor": f"{_SENSOR}:write_sensor_c"}))
 register_format(ExportFormat(
     "px4-params", "PX4 thermal-calibration parameters TC_* (a polynomial of degree <= 3 in T; "
-    "needs --device-id)", "thermonet.exporting.source:write_px4_params"))
+    "needs --device-id)", "thermonet.exporting.source:write_px4_params",
+    kinds={"sensor": f"{_SENSOR}:refuse_px4_params"}))
 register_format(ExportFormat(
     "ardupilot-params", "ArduPilot INS_TCAL* parameters (a polynomial of degree <= 3 in T)",
-    "thermonet.exporting.source:write_ardupilot_params"))
+    "thermonet.exporting.source:write_ardupilot_params",
+    kinds={"sensor": f"{_SENSOR}:refuse_ardupilot_params"}))
 
 
 _LAZY = {

@@ -1,8 +1,11 @@
 """Exporting a full sensor model (``model: sensor``): ONNX, and the autopilot refusal.
 
-A sensor checkpoint (:func:`thermonet.training.sensor_checkpoint.save_sensor`, format
-``thermonet-sensor-1``) is recognised by :func:`is_sensor_checkpoint` before the bias-model
-loader sees it, and :func:`export_sensor_source` writes it:
+A sensor model (``kind`` ``sensor``; its checkpoint
+:func:`thermonet.training.sensor_checkpoint.save_sensor`, format ``thermonet-sensor-1``) is
+exported through the format registry as every model is
+(:meth:`thermonet.exporting.ExportFormat.write`): each format's exporter for the kind is
+here (:func:`write_sensor_onnx`, :func:`write_sensor_c`, the two refusals), and
+:func:`export_sensor_source` is a sensor checkpoint loaded and handed to the registry:
 
 ``onnx``
     The graph of :meth:`thermonet.models.sensor.SensorModel.columns` with the bias models'
@@ -37,15 +40,17 @@ from torch import nn
 from ..core.errors import ExportError
 from ..core.fileio import atomic_path
 from ..models.sensor import SensorModel, check_invertible
-from ..training.sensor_checkpoint import SENSOR_FORMAT, load_sensor
+from ..training.sensor_checkpoint import load_sensor
+from . import ExportRequest, get_format
 from .onnx_export import _metadata_props
 from .onnx_seal import seal_bytes
 from .onnx_trace import export_proto
 from .sensor_c import export_sensor_c
 from .sensor_probe import PARITY_EPS32, probe
 
-__all__ = ["SensorGraph", "is_sensor_checkpoint", "export_sensor_onnx", "sensor_parity",
-           "export_sensor_source", "bias_only_path"]
+__all__ = ["SensorGraph", "export_sensor_onnx", "sensor_parity", "export_sensor_source",
+           "bias_only_path", "write_sensor_onnx", "write_sensor_c", "refuse_px4_params",
+           "refuse_ardupilot_params"]
 
 class SensorGraph(nn.Module):
     """``forward(*signals, raw) -> (compensated, drift, out_of_range)`` (see module doc)."""
@@ -60,15 +65,6 @@ class SensorGraph(nn.Module):
         *signal_list, raw = inputs
         comp, flag = self.model.columns(signal_list, raw)
         return comp, raw.to(torch.float64) - comp, flag
-
-
-def is_sensor_checkpoint(path: str | Path) -> bool:
-    """Whether ``path`` holds a sensor model (read with ``weights_only``; False if unreadable)."""
-    try:
-        payload = torch.load(Path(path), map_location="cpu", weights_only=True)
-    except Exception:  # not ours to diagnose: the bias-model loader says what is wrong
-        return False
-    return isinstance(payload, dict) and payload.get("format") == SENSOR_FORMAT
 
 
 def bias_only_path(sensor_ckpt: str | Path) -> Path:
@@ -142,22 +138,42 @@ def export_sensor_onnx(model: SensorModel, path: str | Path, *,
     return {"status": "ok", "path": str(out), "exporter": exporter, "parity": parity}
 
 
-def export_sensor_source(ckpt: Path, *, fmt: str, out: str | Path) -> Path:
-    """``thermonet export`` of a sensor checkpoint (see the module docstring)."""
-    if fmt in ("px4-params", "ardupilot-params"):
-        alt = bias_only_path(ckpt)
-        raise ExportError(
-            f"{ckpt}: a sensor model (bias, scale factor and misalignment per triad) cannot be "
-            f"written as {fmt}: those parameters hold a bias polynomial per axis only; export "
-            f"the bias-only model fitted beside it: thermonet export {alt} --format {fmt}")
-    if fmt not in ("onnx", "c"):
-        raise ExportError(f"{ckpt}: format '{fmt}' is not available for a sensor model; "
-                          "export it as onnx or c")
-    model, payload = load_sensor(ckpt)
-    if fmt == "c":
-        return export_sensor_c(model, out)
-    extra = payload.get("extra", {})
+def write_sensor_onnx(model: SensorModel, out: Path, request: ExportRequest) -> Path:
+    """``onnx`` of a sensor model (the format registry's exporter for ``kind`` ``sensor``):
+    :func:`export_sensor_onnx` with the checkpoint's device id, units and validation score."""
+    extra = request.extra
     export_sensor_onnx(model, out, metadata={
         "device_id": extra.get("device_id", ""), "output_units": extra.get("units", {}),
         "validation_metrics": {"val_score": extra.get("val_score")}})
     return Path(out)
+
+
+def write_sensor_c(model: SensorModel, out: Path, request: ExportRequest) -> Path:
+    """``c`` of a sensor model: :func:`thermonet.exporting.sensor_c.export_sensor_c`."""
+    return export_sensor_c(model, out)
+
+
+def _refuse_autopilot(fmt: str, request: ExportRequest) -> Path:
+    source = request.source or "model"
+    raise ExportError(
+        f"{source}: a sensor model (bias, scale factor and misalignment per triad) cannot be "
+        f"written as {fmt}: those parameters hold a bias polynomial per axis only; export "
+        f"the bias-only model fitted beside it: thermonet export {bias_only_path(source)} "
+        f"--format {fmt}")
+
+
+def refuse_px4_params(model: SensorModel, out: Path, request: ExportRequest) -> Path:
+    """``px4-params`` of a sensor model: refused in one line naming the bias-only model
+    fitted beside it and the command that exports it."""
+    return _refuse_autopilot("px4-params", request)
+
+
+def refuse_ardupilot_params(model: SensorModel, out: Path, request: ExportRequest) -> Path:
+    """``ardupilot-params`` of a sensor model: refused as :func:`refuse_px4_params`."""
+    return _refuse_autopilot("ardupilot-params", request)
+
+
+def export_sensor_source(ckpt: Path, *, fmt: str, out: str | Path) -> Path:
+    """A sensor checkpoint exported through the format registry (the module docstring)."""
+    model, payload = load_sensor(ckpt)
+    return get_format(fmt).write(model, out, ExportRequest(meta=payload, source=str(ckpt)))

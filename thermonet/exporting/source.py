@@ -251,15 +251,9 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
                                   workdir=Path(tmp))
         # never written over what it reads: the checkpoint, the compare directory's results
         refuse_overwriting_inputs(out, [ckpt, source, Path(source) / "results.json"])
-        from ..training.checkpoint import load_checkpoint  # torch boundary
-        from .sensor_export import (  # torch boundary (pyproject.toml): loads torch
-            export_sensor_source,
-            is_sensor_checkpoint,
-        )
+        from ..training.sensor_checkpoint import load_shipped  # torch boundary
 
-        if is_sensor_checkpoint(ckpt):  # model: sensor: its own writer
-            return export_sensor_source(ckpt, fmt=fmt, out=out)
-        model, meta = load_checkpoint(ckpt)
+        model, meta = load_shipped(ckpt)     # any model kind, by its checkpoint's format
         named = str(ckpt) if Path(source).exists() else f"MLflow run '{source}' ({ckpt.name})"
     return export_format.write(model, out, ExportRequest(
         meta=meta, device_id=device_id, instance=instance, tracking_uri=tracking_uri,

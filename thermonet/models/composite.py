@@ -125,6 +125,8 @@ class AxisModels(nn.Module):
 
     #: The parts (an ``nn.ModuleList`` at run time, typed as what it holds).
     parts: list[DriftModel]
+    #: Its key in :data:`thermonet.models.shipped.MODEL_KINDS`: a drift to subtract per axis.
+    kind = "bias"
 
     def __init__(self, parts: Sequence[DriftModel], owner: Sequence[int | None],
                  labels: Sequence[str] | None = None) -> None:
@@ -270,6 +272,19 @@ class AxisModels(nn.Module):
     def forward(self, signals: torch.Tensor) -> torch.Tensor:
         r = self.relative(signals)
         return r + self.constant().to(r.dtype)
+
+    def compensated(self, signals: np.ndarray, raw: np.ndarray) -> np.ndarray:
+        """``raw − drift`` (N, A), float64: the :class:`~thermonet.models.shipped.ShippedModel`
+        operation (the parts are point-wise)."""
+        was_training = self.training
+        self.eval()
+        try:
+            with torch.no_grad():
+                drift = self.drift64(torch.as_tensor(np.asarray(signals, dtype=np.float64),
+                                                     dtype=torch.float32))
+        finally:
+            self.train(was_training)
+        return np.asarray(raw, dtype=np.float64) - drift.cpu().numpy()
 
 
 #: Any model thermonet fits and ships: one family, or a per-axis composite of several.

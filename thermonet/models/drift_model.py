@@ -65,7 +65,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, InputError
 from ..features.inputs import FeatureSpec, joint_columns
 from ..features.module import Features
 from ..features.target import MODE_CODES
@@ -113,6 +113,8 @@ class DriftModel(nn.Module):
     guard_lo: torch.Tensor
     guard_hi: torch.Tensor
     family: Family
+    #: Its key in :data:`thermonet.models.shipped.MODEL_KINDS` (a shipped model's kind).
+    kind = "bias"
 
     def __init__(self, *, family: Family, spec: FeatureSpec, outputs: list[str]) -> None:
         super().__init__()
@@ -302,6 +304,24 @@ class DriftModel(nn.Module):
                             ("y_std", y_std), ("sig_lo", sig_lo), ("sig_hi", sig_hi)):
             buf = getattr(self, name)
             buf.copy_(torch.as_tensor(np.asarray(value, dtype=np.float64), dtype=buf.dtype))
+
+    def compensated(self, signals: np.ndarray, raw: np.ndarray) -> np.ndarray:
+        """``raw − drift`` (N, A), float64, from signals (N, S) and raw outputs (N, A): the
+        :class:`~thermonet.models.shipped.ShippedModel` operation (point-wise; a recurrent
+        family's stream needs its times: :func:`thermonet.training.train.predict`)."""
+        if self.family.recurrent:
+            raise InputError(f"model '{self.family_name}' carries a state in time: compensate "
+                             "its stream with thermonet.training.train.predict(..., time_s)")
+        was_training = self.training
+        self.eval()
+        try:
+            with torch.no_grad():
+                drift = self.drift64(torch.as_tensor(np.asarray(signals, dtype=np.float64),
+                                                     dtype=torch.float32,
+                                                     device=self.sig_lo.device))
+        finally:
+            self.train(was_training)
+        return np.asarray(raw, dtype=np.float64) - drift.cpu().numpy()
 
     def out_of_range(self, signals: torch.Tensor | np.ndarray) -> torch.Tensor:
         """Bool (N,): the flag :meth:`evaluate` returns — true where a signal lies outside the

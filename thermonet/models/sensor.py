@@ -142,6 +142,9 @@ class SensorModel(nn.Module):
         self.elements = elements
         self.signals = list(bias.signals)
 
+    #: Its key in :data:`thermonet.models.shipped.MODEL_KINDS`.
+    kind = "sensor"
+
     @property
     def family_name(self) -> str:
         return self.bias.family_name
@@ -193,6 +196,16 @@ class SensorModel(nn.Module):
         with torch.no_grad():
             return self(torch.as_tensor(np.asarray(signals, dtype=np.float64)),
                         torch.as_tensor(np.asarray(raw, dtype=np.float64))).numpy()
+
+
+    def compensated(self, signals: np.ndarray, raw: np.ndarray) -> np.ndarray:
+        """:meth:`compensate`: the :class:`~thermonet.models.shipped.ShippedModel` operation."""
+        return self.compensate(signals, raw)
+
+    def out_of_range(self, signals: torch.Tensor | np.ndarray) -> torch.Tensor:
+        """Bool (N,): the bias model's flag, the one the ONNX graph and C header return (bias
+        and elements share the spec and the trained range)."""
+        return self.bias.out_of_range(signals)
 
 
 def check_invertible(model: SensorModel, signals: np.ndarray, *, what: str = "sensor model"

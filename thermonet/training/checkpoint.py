@@ -55,10 +55,11 @@ from ..features.inputs import FeatureSpec
 from ..features.target import MODE_CODES
 from ..models import DriftModel, build_family
 from ..models.composite import PER_AXIS, AxisModels, ShippedModel, composable
+from ..models.shipped import MODEL_KINDS
 from .checkpoint_payload import check_payload
 
 __all__ = ["save_checkpoint", "load_checkpoint", "seal_checkpoint", "checkpoint_digest",
-           "CHECKPOINT_FORMAT", "DIGEST_KEY"]
+           "checkpoint_kind", "CHECKPOINT_FORMAT", "DIGEST_KEY"]
 
 #: Bumped when the layout changes incompatibly.
 CHECKPOINT_FORMAT = 1
@@ -236,6 +237,19 @@ def seal_checkpoint(path: str | os.PathLike) -> Path:
 #: torch's weights-only refusals of a global ("Unsupported global: GLOBAL x", "unsupported
 #: GLOBAL x whose module is blocked"): the callable or class a pickle names.
 _UNSAFE_GLOBAL = re.compile(r"\bGLOBAL ([\w.]+)", re.IGNORECASE)
+
+
+def checkpoint_kind(path: str | os.PathLike) -> str:
+    """The model kind (a key of :data:`thermonet.models.shipped.MODEL_KINDS`) whose
+    checkpoint format the file at ``path`` carries: what loads it.  ``"bias"`` for a file it
+    cannot read or a format no kind names — the bias loader then says what is wrong."""
+    try:
+        payload = torch.load(Path(path), map_location="cpu", weights_only=True)
+    except Exception:  # not ours to diagnose here: the loader says what is wrong
+        return "bias"
+    fmt = payload.get("format", CHECKPOINT_FORMAT) if isinstance(payload, dict) else None
+    kinds = {k.checkpoint_format: name for name, k in MODEL_KINDS.items()}
+    return kinds.get(fmt, "bias") if isinstance(fmt, (int, str)) else "bias"
 
 
 def load_torch_file(path: Path, what: str = "checkpoint") -> Any:

@@ -30,6 +30,7 @@ from ..features.inputs import signals_for
 from ..features.target import MODES, modelled_outputs
 from ..models.hyper import HyperError
 from ..models.registry import make_spec
+from ..models.shipped import MODEL_KINDS
 from ..scoring.fleetstats import parse_limits
 from ..sim.presets import MAX_RUNS
 from .config_sections import (  # the other sections: their own module
@@ -227,14 +228,10 @@ def config_from_mapping(data: Any, *, source: str = "config") -> CompareConfig:
                           ">= 2 or remove band.level")
     _check_data(cfg.data, p)
     _check_target(cfg.target, p)
-    if cfg.model == "sensor" and cfg.target != "drift":
-        raise ConfigError(f"{p}: key 'target': model 'sensor' fits bias, scale factor and "
-                          f"misalignment against the reference channels itself; leave 'target' "
-                          f"at 'drift' (got {cfg.target!r})")
-    if cfg.model == "sensor" and cfg.tracking.register is not None:
-        raise ConfigError(f"{p}: key 'tracking.register': model 'sensor' logs its runs but "
-                          f"registers no model (a bias comparison registers its chosen one); "
-                          f"remove tracking.register")
+    for key, (want, why) in MODEL_KINDS[cfg.model].config_requires.items():  # the kind's data
+        got = _dotted(cfg, key)
+        if got != want:
+            raise ConfigError(f"{p}: key '{key}': " + why.format(got=got))
     if data.get("baseline") is not None and cfg.baseline not in labels:  # the default may lapse
         raise ConfigError(f"{p}: key 'baseline': no family named {cfg.baseline!r} (families: "
                           f"{', '.join(labels)})")
@@ -339,6 +336,13 @@ def _check_data(data: DataConfig, source: str) -> None:
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ConfigError(f"{source}: key 'data.{key}': {value!r} is not a whole number "
                               f">= {low}")
+
+
+def _dotted(cfg: Any, key: str) -> Any:
+    """The config's value at a dotted key (``tracking.register``)."""
+    for part in key.split("."):
+        cfg = getattr(cfg, part)
+    return cfg
 
 
 def _check_target(target: str | dict[str, str], source: str) -> None:

@@ -7,7 +7,7 @@ triads and what do-no-harm kept, sealed by the bias checkpoints' own SHA-256 dig
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import torch
 
@@ -17,12 +17,19 @@ from ..core.names import AXIS, FAMILY, check_name, check_names
 from ..features.inputs import FeatureSpec
 from ..models import DriftModel, build_family
 from ..models.sensor import SensorModel, element_names
-from .checkpoint import DIGEST_KEY, _check_digest, checkpoint_digest, load_torch_file
+from .checkpoint import (
+    DIGEST_KEY,
+    _check_digest,
+    checkpoint_digest,
+    checkpoint_kind,
+    load_checkpoint,
+    load_torch_file,
+)
 
 if TYPE_CHECKING:
     from .sensor import SensorFit
 
-__all__ = ["SENSOR_FORMAT", "save_sensor", "load_sensor"]
+__all__ = ["SENSOR_FORMAT", "save_sensor", "load_sensor", "load_shipped", "LOADERS"]
 
 
 #: ``format`` of a sensor-model checkpoint (``models/<label>.pt`` of a ``model: sensor`` run).
@@ -91,3 +98,15 @@ def load_sensor(path: str | Path) -> tuple[SensorModel, dict]:
                          ) from None
     model.eval()
     return model, {k: v for k, v in payload.items() if k != "state_dict"}
+
+
+#: Each model kind's checkpoint loader, by kind (:data:`thermonet.models.shipped.MODEL_KINDS`):
+#: ``loader(path) -> (model, metadata)``.
+LOADERS = {"bias": load_checkpoint, "sensor": load_sensor}
+
+
+def load_shipped(path: str | Path) -> tuple[Any, dict]:
+    """Any shipped model's checkpoint (:class:`~thermonet.models.shipped.ShippedModel`) and
+    its metadata, loaded by the kind its ``format`` names
+    (:func:`~thermonet.training.checkpoint.checkpoint_kind`)."""
+    return LOADERS[checkpoint_kind(path)](path)

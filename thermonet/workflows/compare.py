@@ -22,6 +22,12 @@ The steps (:mod:`thermonet.workflows.compare_plan`, :mod:`thermonet.workflows.co
   (:mod:`thermonet.workflows.compare_track`), which logs from what was written
   while the plots are drawn; no tracker call is woven through the steps above.
 
+The steps are a model kind's (:mod:`thermonet.workflows.steps`): :data:`PIPELINES` maps the
+config's ``model:`` to its class — ``bias``, the steps above; ``sensor``, the whole-sensor
+model's (:class:`thermonet.workflows.sensor.SensorSteps`) — and :func:`run_compare` runs
+whichever it names through the one driver, in the same staging directory, thread limits and
+figure helpers.
+
 :func:`run_compare` returns the ``results.json`` document as a dict.  With
 leave-one-run-out the per-axis metrics are means over folds, ``folds`` under
 each family holds the per-fold values, the verdicts pool every fold's
@@ -63,7 +69,8 @@ from .compare_plots import plot_jobs
 from .compare_table import format_table
 from .compare_track import TrackingSession, family_record
 from .provenance import data_source, family_config, resolved_config, resolved_yaml
-from .sensor import run_sensor
+from .sensor import SensorSteps
+from .steps import RunOptions, Steps, run_steps
 
 __all__ = ["run_compare", "format_table"]
 
@@ -91,19 +98,20 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
     """
     if cfg.tracking.enabled if track is None else track:   # a store that cannot be one,
         check_store(tracking_uri or cfg.tracking.uri or default_tracking_uri())  # at once
-    if cfg.model == "sensor":  # the full sensor model: its own fit and judgement
-        return run_sensor(cfg, out_dir, overwrite=overwrite, quiet=quiet, dataset=dataset,
-                          plots=plots, track=track, tracking_uri=tracking_uri)
-    check_plan(cfg, build=False)  # a config error said before any process starts (torch-free)
+    kind = PIPELINES[cfg.model]   # the model kind's five steps (thermonet.workflows.steps)
+    kind.check(cfg)  # a config error said before any process starts (torch-free)
     # the figures' drawers import matplotlib while the families fit (a core the fits leave
     # idle), then draw side by side — unless the comparison is to stay in one process
-    # (workers=1: a fleet's units, run side by side); the first starts now and reads the
-    # config's own data, before its imports, while this process imports torch: the reading
-    # off the way to the fits; the other starts once torch is imported
-    one_process = (cfg.workers if workers is None else workers) == 1
-    first = None if dataset is not None else (
+    # (workers=1: a fleet's units, run side by side) or its kind draws in this process; the
+    # first starts now and reads the config's own data, before its imports, while this
+    # process imports torch: the reading off the way to the fits; the other starts once
+    # torch is imported
+    one_process = (cfg.workers if workers is None else workers) == 1 or not kind.helpers
+    first = None if dataset is not None or not kind.helpers else (
         "thermonet.training.loader", "load_compare_data",
         {"cfg": cfg, "source": getattr(cfg, "_source", "config")})
+    options = RunOptions(track=track, tracking_uri=tracking_uri, quiet=quiet,
+                         progress=progress, dataset=dataset, plots=plots, workers=workers)
     with PlotWorkers(min(2, usable_cores()) if plots and not one_process else 0,
                      first=first) as drawers:
         from ..training.train import thread_limits  # torch boundary
@@ -114,12 +122,70 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
         # fits side by side must not lift it when one of them ends
         with thread_limits(cfg.train.threads), \
                 staged_output(out_dir, overwrite=overwrite) as stage:
-            results = _run_compare_in(cfg, stage.path, track=track,
-                                      tracking_uri=tracking_uri, quiet=quiet,
-                                      progress=progress, dataset=dataset, plots=plots,
-                                      workers=workers, drawers=drawers)
+            out = Path(stage.path)
+            if out.exists() and not out.is_dir():
+                raise ConfigError(f"{out}: --out must be a directory, and this is a file")
+            with drawers:
+                results = run_steps(kind(cfg, out, drawers=drawers, options=options))
             stage.finish(results, lambda doc: doc)
     return results
+
+
+class _BiasSteps:
+    """The five steps of a comparison of bias models (``model: bias``): plan, fit, judge,
+    write, then the MLflow record from what was written (the tracking child,
+    :mod:`thermonet.workflows.compare_track`, works while the plots are drawn); the figures
+    drawn by ``drawers``, whose first may have read the data."""
+
+    helpers = True
+
+    def __init__(self, cfg: CompareConfig, out: Path, *, drawers: PlotWorkers,
+                 options: RunOptions) -> None:
+        self.cfg, self.out, self.drawers, self.o = cfg, out, drawers, options
+        tracker = Tracker(enabled=cfg.tracking.enabled if options.track is None
+                          else options.track,
+                          uri=options.tracking_uri or cfg.tracking.uri,
+                          experiment=cfg.tracking.experiment)
+        self.tracking = TrackingSession(enabled=tracker.enabled, uri=tracker.uri,
+                                        experiment=tracker.experiment,
+                                        register=cfg.tracking.register).start()
+
+    @staticmethod
+    def check(cfg: CompareConfig) -> None:
+        check_plan(cfg, build=False)
+
+    def plan(self) -> None:
+        o = self.o
+        self.run = _plan_step(self.cfg, self.out, self.tracking, o.progress or Progress(o.quiet),
+                              dataset=o.dataset,
+                              options={"track": o.track, "tracking_uri": o.tracking_uri,
+                                       "workers": o.workers, "plots": o.plots},
+                              reader=self.drawers)
+
+    def fit(self) -> None:
+        self.fitted, self.records = _fit_step(self.run, self.o.workers)
+
+    def judge(self) -> None:
+        self.doc = _judge_step(self.run, self.fitted)
+
+    def write(self) -> None:
+        self.plot_paths = _write_step(self.run, self.fitted, self.doc, self.records,
+                                      drawers=self.drawers if self.o.plots else None)
+
+    def track(self) -> dict[str, Any]:
+        with stage("MLflow: the tracking step's remainder"):
+            for w in self.run.tracking.finish(self.out / "report.html", self.plot_paths):
+                self.run.result.warn(w)
+        for w in self.run.result.warnings:
+            self.run.progress.line(f"warning: {w}")
+        return self.doc
+
+    def abort(self, err: BaseException) -> None:
+        self.tracking.abort(interrupted=isinstance(err, (KeyboardInterrupt, Interrupted)))
+
+
+#: Each model kind's five steps, by the config's ``model:`` value.
+PIPELINES: dict[str, type[Steps]] = {"bias": _BiasSteps, "sensor": SensorSteps}
 
 
 @dataclass
@@ -135,39 +201,6 @@ class _Run:
     tags: dict[str, str]
     progress: Progress
     tracking: TrackingSession
-
-
-def _run_compare_in(cfg: CompareConfig, out_dir: str | Path, *, track: bool | None = None,
-                    tracking_uri: str | None = None, quiet: bool = False,
-                    progress: Progress | None = None, dataset: Dataset | None = None,
-                    plots: bool = True, workers: int | None = None,
-                    drawers: PlotWorkers) -> dict[str, Any]:
-    """The comparison itself, written into ``out_dir`` (a staging directory): plan, fit,
-    judge, write, then the MLflow record from what was written (the tracking child,
-    :mod:`thermonet.workflows.compare_track`, works while the plots are drawn); the
-    figures drawn by ``drawers``, whose first may have read the data."""
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"{out}: --out must be a directory, and this is a file")
-    tracker = Tracker(enabled=cfg.tracking.enabled if track is None else track,
-                      uri=tracking_uri or cfg.tracking.uri, experiment=cfg.tracking.experiment)
-    tracking = TrackingSession(enabled=tracker.enabled, uri=tracker.uri,
-                               experiment=tracker.experiment,
-                               register=cfg.tracking.register).start()
-    try:
-        with drawers:
-            run = _plan_step(cfg, out, tracking, progress or Progress(quiet), dataset=dataset,
-                             options={"track": track, "tracking_uri": tracking_uri,
-                                      "workers": workers, "plots": plots}, reader=drawers)
-            fitted, records = _fit_step(run, workers)
-            doc = _judge_step(run, fitted)
-            _write_step(run, fitted, doc, records, drawers=drawers if plots else None)
-    except BaseException as err:
-        tracking.abort(interrupted=isinstance(err, (KeyboardInterrupt, Interrupted)))
-        raise
-    for w in run.result.warnings:
-        run.progress.line(f"warning: {w}")
-    return doc
 
 
 def _plan_step(cfg: CompareConfig, out: Path, tracking: TrackingSession, progress: Progress,
@@ -334,9 +367,9 @@ def _judge_step(run: _Run, fitted: dict[str, Fitted]) -> dict[str, Any]:
 
 
 def _write_step(run: _Run, fitted: dict[str, Fitted], doc: dict[str, Any],
-                records: dict[str, Any], *, drawers: PlotWorkers | None) -> None:
+                records: dict[str, Any], *, drawers: PlotWorkers | None) -> list[Path]:
     """``results.json`` and ``config.resolved.yaml``, handed to the tracking child, then the
-    plots and ``report.html`` while it logs; its warnings join the results' (printed)."""
+    plots and ``report.html`` while it logs; returns the figures' paths."""
     out = run.out
     with stage("write results.json"):
         atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
@@ -347,9 +380,7 @@ def _write_step(run: _Run, fitted: dict[str, Fitted], doc: dict[str, Any],
         plot_paths = drawers.draw(plot_jobs(out, fitted, doc, run.p.ds)) if drawers else []
     with stage("write the report"):
         write_report(out / "report.html", doc, plot_paths)
-    with stage("MLflow: the tracking step's remainder"):
-        for w in run.tracking.finish(out / "report.html", plot_paths):
-            run.result.warn(w)
+    return plot_paths
 
 
 def _sealed(parameters: Any) -> dict[str, Any]:

@@ -68,14 +68,19 @@ def _selection_lines(sel: dict[str, Any], width: int = 14) -> list[str]:
 
 
 def format_table(results: dict[str, Any]) -> str:
+    """The comparison as a text table, its model kind's (:data:`TABLES`, by results.json's
+    ``model``; a bias comparison's has none): :func:`format_bias_table`, or the whole-sensor
+    model's :func:`~thermonet.workflows.sensor.format_sensor_table`."""
+    return TABLES[results.get("model", "bias")](results)
+
+
+def format_bias_table(results: dict[str, Any]) -> str:
     """The comparison as a text table: family × axis, scores, verdicts, the ratio to the baseline.
 
     ``vs raw`` and ``vs baseline`` are offset-free score ratios on the test
     data with their 95 % bootstrap interval and verdict (+ better, ! worse,
     = indistinguishable); ``comp`` says whether the axis is compensated.
     """
-    if results.get("model") == "sensor":
-        return format_sensor_table(results)
     fams = results["families"]
     axes = list(results["units"])
     cols = [c for c in _METRIC_COLS
@@ -139,3 +144,8 @@ def format_table(results: dict[str, Any]) -> str:
                  "(< 1 better); [95 % block-bootstrap interval]")
     lines.append("units: " + ", ".join(f"{a} [{u}]" for a, u in results["units"].items()))
     return "\n".join(lines)
+
+
+#: The console's table per model kind, by results.json's ``model`` (a bias comparison's
+#: results.json has none: ``bias``).
+TABLES = {"bias": format_bias_table, "sensor": format_sensor_table}

@@ -85,6 +85,7 @@ from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import _umask, atomic_write_text
 from ..core.names import inside, path_components
 from ..core.outdir import check_target, install
+from ..models.shipped import MODEL_KINDS
 from ..scoring.fleetstats import (
     fleet_html_fragment,
     judge_unit,
@@ -178,7 +179,7 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
         if not quiet:
             print(msg, flush=True)
 
-    say(f"thermonet fleet: {len(sources)} units{' (model: sensor)' if cfg.model == 'sensor' else ''}"
+    say(f"thermonet fleet: {len(sources)} units{MODEL_KINDS[cfg.model].banner}"
         f", executor {p.opts.executor}, fleet family {p.family}, leave-units-out in {p.k} "
         "groups")
 
@@ -338,10 +339,12 @@ def _track(cfg: CompareConfig, results: dict[str, Any], track: bool | None,
             with tracker.run(dev, tags=tags, nested=True) as rid:
                 u["mlflow_run_id"] = rid
                 if u.get("status") == "ok" and chosen:
-                    # a sensor model's axes carry verdicts and intervals too: numbers only
+                    # a kind whose axes carry verdicts and intervals too (the sensor model's):
+                    # numbers only (MODEL_KINDS: a bias comparison's results name no kind)
+                    numeric = MODEL_KINDS[u.get("model", "bias")].metrics_numeric_only
                     tracker.log_metrics({f"test/{a}/{k}": v for a, m in
                                          u["families"][chosen]["axes"].items()
                                          for k, v in m.items()
-                                         if u.get("model") != "sensor" or isinstance(v, float)})
+                                         if not numeric or isinstance(v, float)})
         (stage / "results.json").write_text(json.dumps(results, indent=2))
         tracker.log_artifact(stage / "results.json")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import shutil
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -180,6 +181,12 @@ def physical_coefficients(model: Any, t0_c: float = COEF_T0_C) -> dict[str, floa
     return out
 
 
+def _load_bias(path: str) -> Any:
+    from ..training.checkpoint import load_checkpoint  # torch boundary
+
+    return load_checkpoint(path)[0]
+
+
 def _load_sensor(path: str) -> Any:
     from ..training.sensor_checkpoint import load_sensor  # torch boundary
 
@@ -211,8 +218,6 @@ class UnitItem:
 
 def unit_task(item: UnitItem) -> dict[str, Any]:
     """One unit in a worker: compare in a private temp dir, return plain data."""
-    from ..training.checkpoint import load_checkpoint  # torch boundary
-
     ds = item.source.load(item.cfg)
     if ds.is_fleet:
         raise InputError(f"unit '{item.source.device_id}': its data holds several devices")
@@ -233,12 +238,10 @@ def unit_task(item: UnitItem) -> dict[str, Any]:
                                    "own_model": None}
         fam = results["families"].get(item.family)
         if fam and fam.get("status") == "ok" and fam.get("checkpoint"):
-            sensor = results.get("model") == "sensor"
-            own = _load_sensor(fam["checkpoint"]) if sensor else \
-                load_checkpoint(fam["checkpoint"])[0]
+            kind = UNIT_KINDS[results.get("model", "bias")]  # a bias comparison names none
+            own = kind.load(fam["checkpoint"])
             payload["own_model"] = own  # for leave-units-out, evaluated by the fold tasks
-            # a sensor model's curves: its bias b(T) per axis and each element of E(T)
-            curves = [own.bias, own.elements] if sensor else [own]
+            curves = kind.curves(own)
             payload["coefficients"] = {k: v for m in curves
                                        for k, v in physical_coefficients(m).items()}
             lo, hi = float(_buffer(curves[0], "sig_lo")[0]), float(_buffer(curves[0],
@@ -262,11 +265,17 @@ class FoldItem:
 def fold_task(item: FoldItem) -> dict[str, Any]:
     """Fit one fleet model of the fleet family on other units' calibration runs, and
     evaluate it on each held-out unit's test run next to the unit's own model."""
+    cfg = item.cfg
+    return UNIT_KINDS[cfg.model].fold_task(item, _family(cfg, item.family))
+
+
+def _bias_fold_task(item: FoldItem, fam: FamilyConfig) -> dict[str, Any]:
+    """:func:`fold_task` for ``model: bias``: one fleet model of the fleet family fitted on
+    the other units' calibration runs, and on each held-out unit's test run the standard
+    deviation of the residual with it and with the unit's own model."""
     from ..training.pipeline import fit_split, split_parts, split_spec  # torch boundary
 
-    cfg, fam = item.cfg, _family(item.cfg, item.family)
-    if cfg.model == "sensor":
-        return _sensor_fold_task(item, fam)
+    cfg = item.cfg
     train, val = [], []
     outputs: list[str] = []
     target: Any = cfg.target
@@ -365,3 +374,22 @@ def fold_items(cfg: CompareConfig, family: str, sources: list[UnitSource], k: in
             items.append(FoldItem(cfg=cfg, family=family, fold=f, sources=others,
                                    held_out=held))
     return items
+
+
+@dataclass(frozen=True)
+class UnitKind:
+    """What a fleet unit's model kind differs in: how its checkpoint loads, the curves its
+    physical coefficients are read from, and its leave-units-out fold task."""
+
+    load: Callable[[str], Any]
+    curves: Callable[[Any], list[Any]]
+    fold_task: Callable[[FoldItem, FamilyConfig], dict[str, Any]]
+
+
+#: A unit's model kind, by the config's ``model:`` value (results.json's ``model``).
+UNIT_KINDS: dict[str, UnitKind] = {
+    "bias": UnitKind(load=_load_bias, curves=lambda m: [m], fold_task=_bias_fold_task),
+    # a sensor model's curves: its bias b(T) per axis and each element of E(T)
+    "sensor": UnitKind(load=_load_sensor, curves=lambda m: [m.bias, m.elements],
+                       fold_task=_sensor_fold_task),
+}

@@ -1,6 +1,9 @@
 """``thermonet compare`` with ``model: sensor``: the full sensor model per family, judged.
 
-The run is five named steps (:func:`_run`): **plan** (:func:`_plan`: the data, its triads,
+The run is the five steps of every comparison (:class:`SensorSteps`, driven by
+:func:`thermonet.workflows.steps.run_steps` from
+:func:`thermonet.workflows.compare.run_compare`, in its staging directory and thread
+limits): **plan** (:func:`_plan`: the data, its triads,
 one train / validation / test split — never by random sample — and the bias comparison's
 cross-validation folds of the split's pool), **fit** (:func:`_fit_family`, per configured
 family), **judge** (:func:`_judge_test` per family on the held-out run, then
@@ -46,13 +49,12 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.errors import ConfigError, ThermonetError
 from ..core.fileio import atomic_write_text
-from ..core.outdir import staged_output
 from ..core.recording import Dataset
 from ..core.schema import to_dict
 from ..core.version import __version__
@@ -71,8 +73,12 @@ from ..training.parts import data_hash, load_data
 from ..training.splits import make_splits
 from .compare_plan import _check_baseline, _fold_plan
 from .sensor_fit import choose_sensor, sensor_oof, sensor_pool, sensor_tune
+from .steps import RunOptions
 
-__all__ = ["run_sensor", "format_sensor_table"]
+if TYPE_CHECKING:
+    from ..reporting.plot_workers import PlotWorkers
+
+__all__ = ["SensorSteps", "format_sensor_table"]
 
 
 def _score(comp_err: np.ndarray, raw_err: np.ndarray) -> float:
@@ -80,19 +86,6 @@ def _score(comp_err: np.ndarray, raw_err: np.ndarray) -> float:
     scale = np.std(raw_err, axis=0)
     scale = np.where(scale > 0, scale, 1.0)
     return float(np.mean((comp_err / scale) ** 2))
-
-
-def run_sensor(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = False,
-               quiet: bool = False, dataset: Dataset | None = None, plots: bool = True,
-               track: bool | None = None, tracking_uri: str | None = None) -> dict[str, Any]:
-    """Fit and judge every family as a sensor model; write ``out_dir``; return results.json."""
-    from ..training.train import thread_limits  # torch boundary
-
-    with thread_limits(cfg.train.threads), staged_output(out_dir, overwrite=overwrite) as stage:
-        results = _run(cfg, stage.path, quiet=quiet, dataset=dataset, plots=plots,
-                       track=track, tracking_uri=tracking_uri)
-        stage.finish(results, lambda doc: doc)
-    return results
 
 
 @dataclass
@@ -120,38 +113,73 @@ class _Fitted:
     pool: Any = None
 
 
-def _run(cfg: CompareConfig, out: Path, *, quiet: bool, dataset: Dataset | None,
-         plots: bool, track: bool | None, tracking_uri: str | None) -> dict[str, Any]:
-    say = (lambda s: None) if quiet else print
-    p = _plan(cfg, dataset)                                                   # 1. plan
-    say(f"thermonet compare (model: sensor): {p.ds.device_id} ({len(p.ds)} runs, triads "
-        f"{p.triads}), split {p.split.label}, "
-        + (f"{p.folds.k} cross-validation folds ({p.folds.kind})" if p.folds is not None
-           else p.fold_note))
-    (out / "models").mkdir(parents=True, exist_ok=True)
-    fits: dict[str, _Fitted] = {}
-    for fam in cfg.families:                                                  # 2. fit
-        fitted = _fit_family(p, fam, out, say)
-        if fitted is not None:
-            fits[fam.label] = fitted
-    if not fits:
-        reasons = {str(v.get("reason")) for v in p.doc["families"].values()}
-        raise ThermonetError("no family could be fitted as a sensor model: " + (
-            reasons.pop() if len(reasons) == 1 else "; ".join(
-                f"{k}: {v.get('reason')}" for k, v in p.doc["families"].items())))
-    pool = next((f.pool for f in fits.values() if f.pool is not None), None)
-    choose_sensor(cfg, p.doc, p.folds, p.fold_note,                          # 3. judge
-                  {k: f.oof for k, f in fits.items() if f.oof is not None}, pool, p.outputs)
-    say(f"  chosen: {p.doc['chosen'] or 'none'} ({p.doc['chosen_reason']})")
-    doc = p.doc
-    chosen = doc["families"].get(doc["chosen"]) if doc["chosen"] else None
-    doc["onnx"] = _export_chosen(out, chosen) if chosen else {
-        "status": "not written", "reason": doc["chosen_reason"]}
-    _write(out, doc, fits, plots=plots)                                       # 4. write
-    doc["mlflow_run_id"] = _track(cfg, doc, {k: f.history for k, f in fits.items()},  # 5.
-                                  p.ds.device_id, track=track, tracking_uri=tracking_uri)
-    atomic_write_text(out / "results.json", json.dumps(doc, indent=2))  # with the run ids
-    return doc
+class SensorSteps:
+    """The five steps of a whole-sensor comparison (``model: sensor``), run by
+    :func:`thermonet.workflows.steps.run_steps` as a bias comparison's are (module
+    docstring): its figure, one, is drawn in this process (``helpers`` False)."""
+
+    helpers = False
+
+    def __init__(self, cfg: CompareConfig, out: Path, *, drawers: PlotWorkers,
+                 options: RunOptions) -> None:
+        self.cfg, self.out, self.o = cfg, out, options
+        self.say = (lambda s: None) if options.quiet else print
+
+    @staticmethod
+    def check(cfg: CompareConfig) -> None:
+        """Nothing before the plan: its checks need the data (its triads, references)."""
+
+    def plan(self) -> None:
+        """1. The data, its triads, one split and the folds of its pool (:func:`_plan`)."""
+        self.p = p = _plan(self.cfg, self.o.dataset)
+        self.say(f"thermonet compare (model: sensor): {p.ds.device_id} ({len(p.ds)} runs, "
+                 f"triads {p.triads}), split {p.split.label}, "
+                 + (f"{p.folds.k} cross-validation folds ({p.folds.kind})"
+                    if p.folds is not None else p.fold_note))
+        (self.out / "models").mkdir(parents=True, exist_ok=True)
+
+    def fit(self) -> None:
+        """2. Every family fitted, judged on the test run and saved (:func:`_fit_family`)."""
+        p = self.p
+        self.fits: dict[str, _Fitted] = {}
+        for fam in self.cfg.families:
+            fitted = _fit_family(p, fam, self.out, self.say)
+            if fitted is not None:
+                self.fits[fam.label] = fitted
+        if not self.fits:
+            reasons = {str(v.get("reason")) for v in p.doc["families"].values()}
+            raise ThermonetError("no family could be fitted as a sensor model: " + (
+                reasons.pop() if len(reasons) == 1 else "; ".join(
+                    f"{k}: {v.get('reason')}" for k, v in p.doc["families"].items())))
+
+    def judge(self) -> None:
+        """3. The choice across families (:func:`choose_sensor`)."""
+        p, fits = self.p, self.fits
+        pool = next((f.pool for f in fits.values() if f.pool is not None), None)
+        choose_sensor(self.cfg, p.doc, p.folds, p.fold_note,
+                      {k: f.oof for k, f in fits.items() if f.oof is not None}, pool,
+                      p.outputs)
+        self.say(f"  chosen: {p.doc['chosen'] or 'none'} ({p.doc['chosen_reason']})")
+
+    def write(self) -> None:
+        """4. The chosen family's ONNX graph, results.json, its figure and report.html."""
+        doc = self.p.doc
+        chosen = doc["families"].get(doc["chosen"]) if doc["chosen"] else None
+        doc["onnx"] = _export_chosen(self.out, chosen) if chosen else {
+            "status": "not written", "reason": doc["chosen_reason"]}
+        _write(self.out, doc, self.fits, plots=self.o.plots)
+
+    def track(self) -> dict[str, Any]:
+        """5. MLflow (:func:`_track`), then results.json again with the run ids."""
+        doc, o = self.p.doc, self.o
+        doc["mlflow_run_id"] = _track(self.cfg, doc, {k: f.history for k, f in self.fits.items()},
+                                      self.p.ds.device_id, track=o.track,
+                                      tracking_uri=o.tracking_uri)
+        atomic_write_text(self.out / "results.json", json.dumps(doc, indent=2))
+        return doc
+
+    def abort(self, err: BaseException) -> None:
+        """Nothing to undo: its MLflow runs open and close within :meth:`track`."""
 
 
 def _plan(cfg: CompareConfig, dataset: Dataset | None) -> _Plan:
