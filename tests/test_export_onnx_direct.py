@@ -171,6 +171,16 @@ def test_direct_graph_equals_torch_export(models, case, tmp_path):
                      scale=scale + tol)
 
 
+def test_every_hand_built_graph_is_checked_here():
+    """Each family with a hand-built graph (onnx_graph's table) has a case above, so no
+    graph is written that is not compared with torch's export and the torch model — the one
+    source of the family's math."""
+    from thermonet.exporting import onnx_graph
+    from thermonet.models.registry import get_family
+
+    assert {get_family(family) for family, _, _ in SINGLE.values()} == set(onnx_graph._FAMILIES)
+
+
 def test_dynamic_batch_and_empty_batch(models, tmp_path):
     model = models["poly3-hyst"]
     path = export_onnx(model, tmp_path / "m.onnx")

@@ -1,8 +1,8 @@
 """The ONNX graph of the closed-form families built node by node (``onnx.helper``), no trace.
 
 torch's exporter traces the model (``torch.export``, decompositions, onnxscript's optimiser):
-about three seconds of a four-second ``thermonet export --format onnx``, for graphs of a dozen
-nodes.  The families that ship most — ``linear``, ``poly`` (on ΔT or with dynamic inputs:
+most of a ``thermonet export --format onnx`` (figures below), for graphs of a dozen nodes.
+The families that ship most — ``linear``, ``poly`` (on ΔT or with dynamic inputs:
 ``poly3-rate``, ``poly3-hyst``), ``rbf`` (with or without its polynomial tail), ``lorentz``, ``ts-fuzzy`` —
 and the per-axis composite of them (:class:`~thermonet.models.composite.AxisModels`) are
 written here directly from the model's parameters, with the operations of the graph torch's
@@ -22,11 +22,27 @@ exporter writes for the same model, in the same order:
 Every constant is computed by torch from the parameters exactly as the model computes it
 (:func:`~thermonet.models.base.output_layer`, :meth:`DriftModel.output_scaling`,
 :meth:`RBF.exponent`, :meth:`Lorentz.output_form`, :meth:`TSFuzzy.rules`), so the file holds the numbers torch's
-exporter would have folded.  A family not listed here, a subclass (it may override
-``drift``), or a model not in float32 has no direct graph (:func:`direct_supported` says
-why); ``export_onnx`` then uses torch's exporter.  Every file, direct or traced, passes the
-same parity check against torch before it is written, and ``tests/test_export_onnx_direct.py``
-compares each direct graph with torch's export of the same model.
+exporter would have folded; the polynomial terms and the RBF's tail are built by the family's
+own code (:meth:`Poly.term_columns`, :meth:`RBF.tail_columns`, given a ``Mul`` writer).  The
+family's math lives in its torch module; this graph is checked against it, never the reverse.
+
+Why keep a second writer at all: the time it saves is one a user waits through.  When it
+came in (commit ``fe27c27``, its note in ``experiments/README.md``): ``thermonet export
+--format onnx`` of the BMI270 soaks' per-axis choice (Lorentz + poly3-hyst + linear), median
+of 3, **5.92 s traced → 1.75 s direct** (the whole-job table since: 4.73 s for release
+``4846997``, 1.12 s now).  Re-measured on 2026-11-29 (a 2-core VM, load 2.4–4.3, fresh
+processes, 3 interleaved runs each) on the same composition: the ``export_onnx`` call
+**12.7 s traced → 0.65 s direct**, the whole process 19.6 → 4.1 s.  torch's trace imports
+``torch.onnx``, ``torch._dynamo`` and onnxscript and runs their optimiser for a graph of a
+few dozen nodes.  The other families (the MLP, the GRU, a plug-in) ship rarely enough that
+torch's trace is theirs: no hand-built graph for them.
+
+A family not listed here, a subclass (it may override ``drift``), or a model not in float32
+has no direct graph (:func:`direct_supported` says why); ``export_onnx`` then uses torch's
+exporter.  Every file, direct or traced, passes the same parity check against the torch
+model before it is written, and ``tests/test_export_onnx_direct.py`` compares each direct
+graph — every family of :data:`_FAMILIES`, a test holds them equal — with torch's export of
+the same model and with the torch model itself.
 """
 
 from __future__ import annotations
@@ -109,22 +125,16 @@ def _linear(g: _Graph, fam: Linear, z: list[str], scale: torch.Tensor, shift: to
     return g.op("Gemm", g.const(w, "lin_w"), g.stack(z), g.const(_column(b), "lin_b"))
 
 
+def _mul(g: _Graph) -> Callable[[str, str], str]:
+    """Two columns multiplied as a ``Mul`` node: what a family's own term code
+    (:meth:`Poly.term_columns`, :meth:`RBF.tail_columns`) is given to write the graph."""
+    return lambda a, b: g.op("Mul", a, b)
+
+
 def _poly(g: _Graph, fam: Poly, z: list[str], scale: torch.Tensor, shift: torch.Tensor) -> str:
-    # Poly.term_columns: each power once by repeated multiplication, then each term
-    powers = []
-    for c in z:
-        p = [c]
-        for _ in range(1, fam.degree):
-            p.append(g.op("Mul", p[-1], c))
-        powers.append(p)
-    terms = []
-    for exps in fam.terms:
-        term: str | None = None
-        for i, e in enumerate(exps):
-            if e:
-                term = powers[i][e - 1] if term is None else g.op("Mul", term, powers[i][e - 1])
-        assert term is not None  # every term has a positive exponent
-        terms.append(term)
+    # the family's own Poly.term_columns: each power once by repeated multiplication, then
+    # each term — as Mul nodes
+    terms = fam.term_columns(z, mul=_mul(g))
     w, b = output_layer(fam.weight, fam.bias, scale, shift)
     return g.op("Gemm", g.const(w, "poly_w"), g.stack(terms), g.const(_column(b), "poly_b"))
 
@@ -141,10 +151,7 @@ def _rbf(g: _Graph, fam: RBF, z: list[str], scale: torch.Tensor, shift: torch.Te
     w, c = output_layer(fam.weight, fam.bias, scale, shift)
     if fam.tail:
         w = torch.cat([w, fam.tail_weight * scale[:, None]], dim=1)
-        cols = [z[0]]
-        for _ in range(1, fam.tail):
-            cols.append(g.op("Mul", cols[-1], z[0]))
-        phi = g.op("Concat", phi, g.stack(cols), axis=0)
+        phi = g.op("Concat", phi, g.stack(fam.tail_columns(z[0], mul=_mul(g))), axis=0)
     return g.op("Gemm", g.const(w, "rbf_w"), phi, g.const(_column(c), "rbf_c"))
 
 

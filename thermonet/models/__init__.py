@@ -3,7 +3,8 @@
 ``FAMILIES`` maps the lowercase name a config uses to the family's torch-free spec class
 (:mod:`thermonet.models.specs`: ``Poly(degree=3)``, what ``DriftEstimator(family=...)`` and a
 config's ``{family: poly, params: {...}}`` both become); :func:`register_family` adds one.
-``MODELS`` maps the same names to the torch :class:`Family` subclass — the
+A family's hyper-parameters are declared once, in its spec, each with its default and rule
+(:func:`param`, the rules of :mod:`thermonet.models.hyper`).  ``MODELS`` maps the same names to the torch :class:`Family` subclass — the
 built-in ones (``linear``, ``poly``, ``lorentz``, ``ts-fuzzy``, ``rbf``, ``mlp``, ``gru``) and every
 family an installed package registers under the entry-point group ``thermonet.families``
 (:mod:`thermonet.models.registry`); tests parametrise over it, so registering a family is
@@ -27,7 +28,7 @@ from .registry import (
     models,
     register_family,
 )
-from .specs import FamilySpec
+from .specs import FamilySpec, param
 
 if TYPE_CHECKING:
     from .base import TINY, Family
@@ -42,7 +43,7 @@ if TYPE_CHECKING:
 
     MODELS: dict[str, type[Family]]
 
-__all__ = ["MODELS", "FAMILIES", "register_family", "make_spec", "FamilySpec", "get_family",
+__all__ = ["MODELS", "FAMILIES", "register_family", "make_spec", "FamilySpec", "param", "get_family",
            "build_family", "family_names", "ENTRY_POINT_GROUP",
            "Family", "DriftModel", "TINY", "Linear", "Poly", "Lorentz", "TSFuzzy", "RBF",
            "MLP", "GRU"]

@@ -23,6 +23,7 @@ from torch import nn
 from ..core.errors import ConfigError, ExportError, FitError
 from .cgen import CBody, c_constant_bytes
 from .lstsq import NormalEquations, least_squares
+from .specs import FamilySpec, declared_spec
 
 __all__ = ["TINY", "LOG_CLIP", "Family", "distinct_levels", "as_numpy",
            "least_squares", "NormalEquations", "output_layer", "check_output_shape"]
@@ -145,14 +146,18 @@ class Family(nn.Module):
     #: evaluated on a stream with time (:mod:`thermonet.models.sequence`), trained on
     #: sequences, and exported with its state as explicit inputs and outputs.
     recurrent: ClassVar[bool] = False
-    #: The family's spec class (a :class:`thermonet.models.specs.FamilySpec`), where it has
-    #: one: ``name``, ``max_inputs`` and ``default_inputs`` are then read from it.
-    spec: ClassVar[Any] = None
+    #: The family's spec class (:mod:`thermonet.models.specs`), where it has one: a built-in
+    #: names it (``spec = specs.Poly``); a class that declares its hyper-parameters in its own
+    #: body (``knee: float = param(default=25.0, rule=number(...))``) gets one made from
+    #: them (:func:`~thermonet.models.specs.declared_spec`).  ``name``, ``max_inputs`` and
+    #: ``default_inputs`` are then the spec's.
+    spec: ClassVar[type[FamilySpec] | None] = None
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        spec = cls.__dict__.get("spec")
+        spec = vars(cls).get("spec") or declared_spec(cls)
         if spec is not None:   # the spec is the one source of the name and the inputs
+            cls.spec = spec
             cls.name, cls.max_inputs = spec.key, spec.max_inputs
             cls.default_inputs = list(spec.default_inputs)
 
@@ -195,7 +200,11 @@ class Family(nn.Module):
         (:meth:`~thermonet.models.specs.FamilySpec.resolve`: an unknown name refused, the
         defaults filled in, every value checked against its rule), each stored as an
         attribute of the same name; returns them."""
-        values: dict[str, Any] = type(self).spec.resolve(given)
+        spec = type(self).spec
+        if spec is None:
+            raise TypeError(f"{type(self).__name__} declares no spec: take its hyper-parameters "
+                            "as keyword-only arguments instead")
+        values = spec.resolve(given)
         for key, value in values.items():
             setattr(self, key, value)
         return values

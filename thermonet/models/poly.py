@@ -13,7 +13,8 @@ rate, and cross terms multiply the parameter count for no documented gain.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import operator
+from collections.abc import Callable, Sequence
 from itertools import combinations_with_replacement
 from typing import Any
 
@@ -58,20 +59,24 @@ class Poly(Family):
         """Term matrix (N, n_terms), built by repeated multiplication (exports as Mul)."""
         return torch.stack(self.term_columns(list(z.unbind(1))), dim=1)
 
-    def term_columns(self, cols: Sequence[torch.Tensor]) -> list[torch.Tensor]:
-        """The terms as 1-D columns: powers by repeated multiplication, each power once."""
+    def term_columns(self, cols: Sequence[Any], mul: Callable[[Any, Any], Any] = operator.mul
+                     ) -> list[Any]:
+        """The terms as 1-D columns: powers by repeated multiplication, each power once.
+        ``mul`` multiplies two columns: ``*`` on tensors here; the hand-built ONNX graph
+        (:mod:`thermonet.exporting.onnx_graph`) passes one that writes a ``Mul`` node, so its
+        terms are built by this very code."""
         powers = []
         for c in cols:
             p = [c]
             for _ in range(1, self.degree):
-                p.append(p[-1] * c)
+                p.append(mul(p[-1], c))
             powers.append(p)
         out = []
         for exps in self.terms:
-            term: torch.Tensor | None = None
+            term: Any = None
             for i, e in enumerate(exps):
                 if e:
-                    term = powers[i][e - 1] if term is None else term * powers[i][e - 1]
+                    term = powers[i][e - 1] if term is None else mul(term, powers[i][e - 1])
             if term is not None:  # every term has a positive exponent
                 out.append(term)
         return out

@@ -65,7 +65,8 @@ chosen width and :math:`\\lambda_a`.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import operator
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -133,11 +134,14 @@ class RBF(Family):
         """:math:`1 / (2\\sigma_j^2)` (J,), with :math:`2 s_j` clipped to ±LOG_CLIP."""
         return 0.5 * torch.exp(-torch.clamp(2.0 * self.log_sigma, min=-LOG_CLIP, max=LOG_CLIP))
 
-    def tail_columns(self, z1: torch.Tensor) -> list[torch.Tensor]:
-        """z_1, z_1², … z_1^d by repeated multiplication (exports as Mul)."""
+    def tail_columns(self, z1: Any, mul: Callable[[Any, Any], Any] = operator.mul) -> list[Any]:
+        """z_1, z_1², … z_1^d by repeated multiplication (exports as Mul).  ``mul`` multiplies
+        two columns: ``*`` on tensors here; the hand-built ONNX graph
+        (:mod:`thermonet.exporting.onnx_graph`) passes one that writes a ``Mul`` node, so
+        its tail is built by this very code."""
         cols = [z1]
         for _ in range(1, self.tail):
-            cols.append(cols[-1] * z1)
+            cols.append(mul(cols[-1], z1))
         return cols
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:

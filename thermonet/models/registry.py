@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from .base import Family
 
 __all__ = ["FAMILIES", "BUILTIN", "ENTRY_POINT_GROUP", "PER_AXIS", "FamilySignature", "register_family",
+           "unregister_family",
            "family_names", "get_family", "spec_class", "make_spec", "spec_of", "build_family",
            "family_signature", "check_hyper", "models"]
 
@@ -64,7 +65,9 @@ FAMILIES: dict[str, type[FamilySpec]] = {}
 def register_family(spec: type, name: str | None = None) -> type:
     """Add a family to :data:`FAMILIES` under ``name`` (default: the spec's ``key``, or the
     family class's ``name``): a :class:`~thermonet.models.specs.FamilySpec` subclass, or a
-    :class:`~thermonet.models.Family` subclass (a generic spec is made from its constructor).
+    :class:`~thermonet.models.Family` subclass (its spec: the one it names or declares in its
+    body, :func:`~thermonet.models.specs.declared_spec`, else a generic one made from its
+    constructor).  A new family is thus one class and this one call.
     A name registered twice is a ``ValueError``.  Returns ``spec`` (usable as a decorator)."""
     if isinstance(spec, type) and issubclass(spec, FamilySpec):
         cls = spec
@@ -78,6 +81,19 @@ def register_family(spec: type, name: str | None = None) -> type:
         raise ValueError(f"model family {key!r} is already registered")
     FAMILIES[key] = cls
     return spec
+
+
+def unregister_family(name: str) -> None:
+    """Remove a family :func:`register_family` added (from :data:`FAMILIES`, and from the
+    dict of classes where it was made); a built-in cannot be removed (``ValueError``), an
+    unknown name is a ``KeyError``."""
+    if name in BUILTIN:
+        raise ValueError(f"model family {name!r} is built in")
+    del FAMILIES[name]
+    if _MODELS is not None:
+        _MODELS.pop(name, None)
+    for key in [k for k in _GENERIC if k[0] == name]:
+        del _GENERIC[key]
 
 
 for _spec in BUILTIN_SPECS:

@@ -46,7 +46,7 @@ import dataclasses
 import importlib
 import inspect
 from collections.abc import Callable, Mapping, Sequence
-from typing import TYPE_CHECKING, Any, ClassVar, dataclass_transform
+from typing import Any, ClassVar, dataclass_transform
 
 from ..core.errors import ConfigError
 from .hyper import (
@@ -64,11 +64,8 @@ from .hyper import (
     universe,
 )
 
-if TYPE_CHECKING:
-    from .base import Family
-
 __all__ = ["FamilySpec", "Linear", "Poly", "Lorentz", "Fuzzy", "RBF", "MLP", "GRU", "BUILTIN_SPECS",
-           "spec_for_class", "SHAPE", "set_builder", "param"]
+           "spec_for_class", "declared_spec", "SHAPE", "set_builder", "param"]
 
 #: Keyword arguments of every family's constructor that are not hyper-parameters.
 SHAPE = ("n_inputs", "n_outputs")
@@ -80,10 +77,12 @@ _KEYWORDS = (inspect.Parameter.KEYWORD_ONLY, inspect.Parameter.POSITIONAL_OR_KEY
 #: registered families and plug-ins and names a failing plug-in.  The registry sets it when
 #: it loads (it imports this module; this module never imports it, so the two are no circle),
 #: and it always loads first: ``thermonet.models`` imports it before any of its modules.
-_builder: Callable[..., Family] | None = None
+#: (A family is typed ``Any`` here: :mod:`thermonet.models.base` imports this module, for the
+#: spec a family class names or declares, so this one never imports it.)
+_builder: Callable[..., Any] | None = None
 
 
-def set_builder(builder: Callable[..., Family]) -> None:
+def set_builder(builder: Callable[..., Any]) -> None:
     """Make ``builder`` what :meth:`FamilySpec.build` calls (the registry's, once)."""
     global _builder
     _builder = builder
@@ -179,7 +178,7 @@ class FamilySpec:
     def rules(cls) -> dict[str, Rule] | None:
         """Each hyper-parameter's rule, declared with :func:`param`; None where one has none,
         and for a generic spec made from a constructor (the family's constructor checks)."""
-        if cls.family_cls is not None or not dataclasses.is_dataclass(cls):
+        if cls.from_constructor or not dataclasses.is_dataclass(cls):
             return None
         out = {f.name: f.metadata.get("rule") for f in dataclasses.fields(cls)}
         if set(out) != set(cls.param_names()) or any(r is None for r in out.values()):
@@ -210,12 +209,17 @@ class FamilySpec:
                                   f"(valid: {', '.join(valid) or 'none'})")
         return cls(**given).checked()
 
-    #: The torch family class itself, where the spec was made from it (:func:`spec_for_class`).
+    #: The torch family class itself, where the spec was made from it (:func:`spec_for_class`,
+    #: :func:`declared_spec`).
     family_cls: ClassVar[type | None] = None
+    #: Whether the spec was read from a constructor's signature (:func:`spec_for_class`): no
+    #: rules then, the family's constructor checks its values.
+    from_constructor: ClassVar[bool] = False
 
     @classmethod
-    def family_class(cls) -> type[Family]:
-        """The torch family class (imports it, and torch)."""
+    def family_class(cls) -> type:
+        """The torch family class, a :class:`thermonet.models.base.Family` (imports it, and
+        torch)."""
         if cls.family_cls is not None:
             return cls.family_cls
         module, _, attr = cls.target.partition(":")
@@ -224,7 +228,7 @@ class FamilySpec:
             obj = getattr(obj, part)
         return obj
 
-    def build(self, *, n_inputs: int, n_outputs: int) -> Family:
+    def build(self, *, n_inputs: int, n_outputs: int) -> Any:
         """The torch module for ``n_inputs`` inputs and ``n_outputs`` outputs (imports torch
         now) through the registry's :func:`~thermonet.models.registry.build_family`
         (:func:`set_builder`): a plug-in's failure is one line naming it (its guard)."""
@@ -337,10 +341,37 @@ class GRU(FamilySpec):
 BUILTIN_SPECS: tuple[type[FamilySpec], ...] = (Linear, Poly, Lorentz, Fuzzy, RBF, MLP, GRU)
 
 
+def declared_spec(cls: type) -> type[FamilySpec] | None:
+    """The spec a family class declares in its own body — its hyper-parameters as
+    :func:`param` fields (``knee: float = param(default=25.0, rule=number(...))``) — made into
+    a spec class of its ``name``, ``max_inputs`` and ``default_inputs`` (the fields move
+    there); None where the body declares none.  Reached as ``cls.spec``
+    (:class:`thermonet.models.base.Family` calls this when a subclass is defined)."""
+    own = {k: v for k, v in vars(cls).items() if isinstance(v, dataclasses.Field)}
+    if not own:
+        return None
+    hints = vars(cls).get("__annotations__", {})
+    for k in own:
+        delattr(cls, k)
+    name = str(getattr(cls, "name", "") or cls.__name__)
+    return type(cls.__name__, (FamilySpec,), {
+        **own, "__annotations__": {k: hints.get(k, "Any") for k in own},
+        "key": name, "target": f"{cls.__module__}:{cls.__qualname__}",
+        "max_inputs": getattr(cls, "max_inputs", None),
+        "default_inputs": tuple(getattr(cls, "default_inputs", ("dT",))), "family_cls": cls,
+        "__doc__": f"The spec of family {name!r}, declared in {cls.__qualname__}.",
+        "__module__": cls.__module__, "__qualname__": f"{cls.__qualname__}.spec"})
+
+
 def spec_for_class(key: str, cls: type, target: str = "") -> type[FamilySpec]:
-    """A generic spec class for a family class (a plug-in's): its hyper-parameters are the
+    """The spec class of a family class (a plug-in's): the one it declares (its own ``spec``,
+    :func:`declared_spec`), under ``key``; else a generic one whose hyper-parameters are the
     constructor's keyword-only arguments other than ``n_inputs``/``n_outputs``, with their
     defaults (read with :func:`inspect.signature` on the imported class)."""
+    own = vars(cls).get("spec")
+    if isinstance(own, type) and issubclass(own, FamilySpec):
+        return own if own.key == key else type(own.__name__, (own,), {
+            "key": key, "__module__": own.__module__, "__qualname__": own.__qualname__})
     sig = inspect.signature(cls.__init__)  # type: ignore[misc]
     params = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for name, p in sig.parameters.items()
               if p.kind is inspect.Parameter.KEYWORD_ONLY and name not in SHAPE]
@@ -362,6 +393,6 @@ def spec_for_class(key: str, cls: type, target: str = "") -> type[FamilySpec]:
     return type(getattr(cls, "__name__", "Family"), (FamilySpec,), {
         "__init__": __init__, "key": key, "target": target or f"{cls.__module__}:{cls.__qualname__}",
         "max_inputs": getattr(cls, "max_inputs", None),
-        "default_inputs": tuple(default_inputs), "family_cls": cls,
+        "default_inputs": tuple(default_inputs), "family_cls": cls, "from_constructor": True,
         "__doc__": f"The spec of family {key!r} ({cls.__module__}.{cls.__qualname__}).",
         "__module__": __name__})
