@@ -77,6 +77,7 @@ def test_each_shipped_model_implements_the_protocol_and_compensates_as_it_predic
     for model, kind in ((bias, "bias"), (composite, "bias"), (sensor, "sensor")):
         assert isinstance(model, ShippedModel)
         assert model.kind == kind and model.kind in MODEL_KINDS
+        assert list(model.inputs) == ["dT"] and list(model.outputs) == axes
         comp = model.compensated(sig, raw)
         assert comp.dtype == np.float64 and comp.shape == raw.shape
         assert not np.asarray(model.out_of_range(sig)).any()

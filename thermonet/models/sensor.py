@@ -150,6 +150,11 @@ class SensorModel(nn.Module):
         return self.bias.family_name
 
     @property
+    def inputs(self) -> list[str]:
+        """The family's inputs (``dT``, ...), its bias's and elements' alike."""
+        return list(self.bias.inputs)
+
+    @property
     def n_params(self) -> int:
         return self.bias.n_params + self.elements.n_params
 

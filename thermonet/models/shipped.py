@@ -9,7 +9,9 @@ those, loaded from the unit's checkpoint):
 
 * ``kind`` — its key in :data:`MODEL_KINDS` (``"bias"`` or ``"sensor"``), the one thing a
   caller looks up to find the pieces that differ;
-* ``outputs``, ``signals``, ``family_name``, ``n_params`` — what it computes, from what;
+* ``inputs``, ``signals``, ``outputs``, ``family_name``, ``n_params`` — what it computes
+  (its output axes), from what (the family's inputs; the signals it reads, in column
+  order);
 * ``compensated(signals, raw)`` — the compensated outputs (N, O), float64, NumPy in and out
   (point-wise: a recurrent family's stream in time is
   :func:`thermonet.training.train.predict` with the samples' times);
@@ -51,6 +53,9 @@ class ShippedModel(Protocol):
     kind: str
     outputs: list[str]
     signals: list[str]
+
+    @property
+    def inputs(self) -> list[str]: ...
 
     @property
     def family_name(self) -> str: ...
