@@ -13,11 +13,14 @@ to the fitted model's predictions.  It is unregistered afterwards.
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import onnx
 import onnxruntime as ort
 import pytest
 import torch
+from sklearn.base import clone
 
 import thermonet
 from thermonet.core.errors import ConfigError
@@ -112,6 +115,10 @@ def test_one_class_and_one_registration_make_a_family(hinge):
     with pytest.raises(ConfigError, match=r"model 'hinge': unknown hyper-parameter 'kne' "
                                           r"\(valid: knee\)"):
         registry.make_spec("hinge", {"kne": 3})
+    # a spec like the built-ins': scikit-learn's clone and pickle (found as Hinge.spec)
+    twin = pickle.loads(pickle.dumps(Hinge.spec(knee=3.0)))
+    assert twin == clone(Hinge.spec(knee=3.0)) == Hinge.spec(knee=3.0) and repr(twin) == \
+        "Hinge(knee=3.0)"
 
 
 @pytest.fixture(scope="module")
