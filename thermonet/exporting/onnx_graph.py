@@ -27,14 +27,15 @@ own code (:meth:`Poly.term_columns`, :meth:`RBF.tail_columns`, given a ``Mul`` w
 family's math lives in its torch module; this graph is checked against it, never the reverse.
 
 Why keep a second writer at all: the time it saves is one a user waits through.  When it
-came in (commit ``fe27c27``, its note in ``experiments/README.md``): ``thermonet export
+came in (commit ``fe27c27``, its note in ``experiments/README.md`` then): ``thermonet export
 --format onnx`` of the BMI270 soaks' per-axis choice (Lorentz + poly3-hyst + linear), median
 of 3, **5.92 s traced → 1.75 s direct** (the whole-job table since: 4.73 s for release
-``4846997``, 1.12 s now).  Re-measured on 2026-11-29 (a 2-core VM, load 2.4–4.3, fresh
-processes, 3 interleaved runs each) on the same composition: the ``export_onnx`` call
-**12.7 s traced → 0.65 s direct**, the whole process 19.6 → 4.1 s.  torch's trace imports
-``torch.onnx``, ``torch._dynamo`` and onnxscript and runs their optimiser for a graph of a
-few dozen nodes.  The other families (the MLP, the GRU, a plug-in) ship rarely enough that
+``4846997``, 1.12 s now).  Re-measured by ``experiments/bench_onnx_direct.py`` on
+2026-11-29 (the same composition fitted on ``patent-gyro``; a 2-core Xeon VM, load 3–4,
+fresh processes, 3 interleaved runs; ``experiments/README.md``, "Export"): the
+``export_onnx`` call **0.85 s direct against 11.0 s traced** (paired ratio 0.083), the whole
+process 3.9 against 15.3 s.  torch's trace imports ``torch.onnx``, ``torch._dynamo`` and
+onnxscript and runs their optimiser for a graph of a few dozen nodes.  The other families (the MLP, the GRU, a plug-in) ship rarely enough that
 torch's trace is theirs: no hand-built graph for them.
 
 A family not listed here, a subclass (it may override ``drift``), or a model not in float32
