@@ -157,6 +157,22 @@ def test_a_spec_builds_its_family_with_its_hyper_parameters(key):
             assert stated[name] == want, (name, stated[name], want)
 
 
+def test_the_documented_specs_are_the_declared_defaults():
+    """configs/README.md's table of specs (each written out with its defaults) states what
+    each spec declares: every cell, evaluated, is the spec with its declared defaults."""
+    from thermonet.models import specs
+
+    text = (ROOT / "configs" / "README.md").read_text(encoding="utf-8")
+    section = text.split("### Family specs: the same family in a config and in Python", 1)[1]
+    table = section.split("| key | spec", 1)[1].split("\n\n", 1)[0]
+    rows = table.splitlines()[2:]
+    cells = dict((c.strip().strip("`") for c in row.strip("|").split("|")[:2]) for row in rows)
+    assert list(cells) == list(SPECS)
+    for key, cell in cells.items():
+        made = eval(cell, vars(specs))                  # noqa: S307 - the docs' own text
+        assert type(made) is type(SPECS[key]) and made.get_params() == type(made).defaults(), key
+
+
 def test_a_spec_stores_its_keywords_and_checks_them_when_asked():
     spec = Poly(degree=40, cross="no")                 # stored as given (scikit-learn)
     assert spec.get_params() == {"degree": 40, "cross": "no"}
