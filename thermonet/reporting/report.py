@@ -21,12 +21,13 @@ from __future__ import annotations
 import base64
 import html
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from ..core.fileio import atomic_write_text
 from ..scoring.gate import reason_groups
+from .results import ComparisonResult, Verdict, read_result
 
 __all__ = ["render_report", "write_report", "VERDICT_COLOURS", "ratio_text"]
 
@@ -70,6 +71,11 @@ def ratio_text(x: float) -> str:
     return text
 
 
+def _finite(x: Any) -> bool:
+    """A number results.json writes as one (a non-finite float is written ``null``)."""
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+
 def _ratio(x: Any) -> str:
     """A ratio cell's number (:func:`ratio_text`); ``–`` where there is none."""
     if not isinstance(x, (int, float)) or not math.isfinite(x):
@@ -77,19 +83,18 @@ def _ratio(x: Any) -> str:
     return ratio_text(float(x))
 
 
-def _cell(v: dict[str, Any] | None, compensate: bool | None = None) -> str:
-    if not v or v.get("ratio") is None:
+def _cell(v: Verdict | None, compensate: bool | None = None) -> str:
+    if v is None or not _finite(v.ratio):     # results.json: null
         return "<td class='none'>–</td>"
-    verdict = v.get("verdict", "indistinguishable")
-    lo, hi = v.get("interval") or [None, None]
+    verdict, lo, hi = v.verdict, v.low, v.high
     if compensate is False:
         # what the model file holds: drift exactly 0 on this axis, so the shipped output is
         # the raw output (ratio 1); the fit's own figure is what masking it avoided
         return (f"<td style='background:{VERDICT_COLOURS.get('indistinguishable', '#ffffff')}'>"
                 f"<b>raw</b> (drift 0)<br>1<br><i>left uncompensated; the fit was "
-                f"{_e(verdict)} {_ratio(v['ratio'])}</i></td>")
+                f"{_e(verdict)} {_ratio(v.ratio)}</i></td>")
     colour = VERDICT_COLOURS.get(verdict, "#ffffff")
-    return (f"<td style='background:{colour}'><b>{_e(verdict)}</b><br>{_ratio(v['ratio'])} "
+    return (f"<td style='background:{colour}'><b>{_e(verdict)}</b><br>{_ratio(v.ratio)} "
             f"[{_ratio(lo)}, {_ratio(hi)}]</td>")
 
 
@@ -110,60 +115,56 @@ def _sensor_groups(axes: list[str]) -> list[list[str]]:
             for i in range(0, len(g), MAX_TABLE_AXES)]
 
 
-def _verdict_table(res: dict[str, Any]) -> str:
-    groups = _sensor_groups(list(res.get("units", {})))
+def _verdict_table(res: ComparisonResult) -> str:
+    groups = _sensor_groups(list(res.units))
     return "".join(_verdict_table_of(res, axes) for axes in groups)
 
 
-def _verdict_table_of(res: dict[str, Any], axes: list[str]) -> str:
-    base = res.get("baseline")
+def _verdict_table_of(res: ComparisonResult, axes: list[str]) -> str:
+    base = res.baseline
     head = "".join(f"<th>{_e(a)}<br>vs raw</th>" for a in axes)
     if base:
         head += "".join(f"<th>{_e(a)}<br>vs {_e(base)}</th>" for a in axes)
     rows = []
-    for name, f in res.get("families", {}).items():
-        label = _e(name) + (" <b>(chosen)</b>" if name == res.get("chosen") else "") + \
+    for name, f in res.families.items():
+        label = _e(name) + (" <b>(chosen)</b>" if name == res.chosen else "") + \
             (" <i>(baseline)</i>" if name == base else "")
-        if f.get("status") != "ok":
+        if not f.ok:
             span = len(axes) * (2 if base else 1) + 2
             rows.append(f"<tr><td>{label}</td><td colspan='{span}' class='none'>not fitted: "
-                        f"{_e(f.get('reason'))}</td></tr>")
+                        f"{_e(f.reason)}</td></tr>")
             continue
-        cells = []
-        for a in axes:
-            m = f["axes"][a]
-            cells.append(_cell({"ratio": m.get("score_ratio"), "interval": m.get("interval"),
-                                "verdict": m.get("verdict")}, m.get("compensate")))
+        cells = [_cell(f.axes[a].test, f.axes[a].compensate) for a in axes]
         if base:
-            cells += [_cell(f["axes"][a].get("vs_baseline")) for a in axes]
-        rows.append(f"<tr><td>{label}</td><td>{_num(f.get('n_params'), 'd')}</td>"
-                    f"<td>{_num(f.get('val_score'))}</td>{''.join(cells)}</tr>")
+            cells += [_cell(f.axes[a].vs_baseline) for a in axes]
+        rows.append(f"<tr><td>{label}</td><td>{_num(f.n_params, 'd')}</td>"
+                    f"<td>{_num(f.val_score)}</td>{''.join(cells)}</tr>")
     return ("<table><tr><th>family</th><th>params</th><th>validation score</th>" + head +
             "</tr>" + "".join(rows) + "</table>")
 
 
-def _scores_table(res: dict[str, Any]) -> str:
+def _scores_table(res: ComparisonResult) -> str:
     """Absolute offset-free scores and offsets per axis, in the axis' unit."""
     rows = []
-    for name, f in res.get("families", {}).items():
-        if f.get("status") != "ok":
+    for name, f in res.families.items():
+        if not f.ok:
             continue
-        for a, m in f["axes"].items():
-            unit = res.get("units", {}).get(a, "")
-            off = (f"{_num(m.get('offset_raw'))} → {_num(m.get('offset_comp'))}"
-                   if "offset_raw" in m else "<span class='none'>not meaningful</span>")
+        for a, m in f.axes.items():
+            unit = res.units.get(a, "")
+            off = (f"{_num(m.offset_raw)} → {_num(m.offset_comp)}"
+                   if m.offset_raw is not None else "<span class='none'>not meaningful</span>")
             rows.append(f"<tr><td>{_e(name)}</td><td>{_e(a)} [{_e(unit)}]</td>"
-                        f"<td>{_num(m.get('score_raw'))} → {_num(m.get('score_comp'))}</td>"
-                        f"<td>{_num(m.get('pp_raw'))} → {_num(m.get('pp_comp'))}</td>"
-                        f"<td>{off}</td><td>{'yes' if m.get('compensate') else 'no'}</td></tr>")
+                        f"<td>{_num(m.score_raw)} → {_num(m.score_comp)}</td>"
+                        f"<td>{_num(m.metrics.get('pp_raw'))} → {_num(m.metrics.get('pp_comp'))}"
+                        f"</td><td>{off}</td><td>{'yes' if m.compensate else 'no'}</td></tr>")
     return ("<table><tr><th>family</th><th>axis</th><th>score raw → compensated</th>"
             "<th>pp of binned means raw → compensated</th><th>offset raw → compensated</th>"
             "<th>compensated</th></tr>" + "".join(rows) + "</table>")
 
 
-def _selection_table(res: dict[str, Any]) -> str:
+def _selection_table(res: ComparisonResult) -> str:
     """The out-of-fold scores the choice rests on (thermonet.scoring.selection), per candidate."""
-    sel = res.get("selection") or {}
+    sel = res.selection
     if not sel.get("candidates"):
         return f"<p class='small'>{_e(sel.get('note') or 'single validation part')}</p>"
     held = (sel.get("held_back") or {}).get("by_candidate") or {}
@@ -202,9 +203,9 @@ def _selection_table(res: dict[str, Any]) -> str:
                f"class='small'>{held_html}</ul>" if held_html else ""))
 
 
-def _per_axis_table(res: dict[str, Any]) -> str:
+def _per_axis_table(res: ComparisonResult) -> str:
     """Each axis its own model: per axis the candidate chosen and the rule's sentence."""
-    sel = res.get("selection") or {}
+    sel = res.selection
     pa = sel.get("per_axis") or {}
     if not pa.get("chosen"):
         return ""
@@ -222,14 +223,14 @@ def _per_axis_table(res: dict[str, Any]) -> str:
             "<table><tr><th>axis</th><th>model</th><th>rule</th></tr>" + rows + "</table>")
 
 
-def _band_table(res: dict[str, Any]) -> str:
+def _band_table(res: ComparisonResult) -> str:
     """The shipped model's residual-drift band per axis (thermonet.scoring.band)."""
-    band = res.get("band") or {}
+    band = res.band or {}
     if band.get("status") != "ok":
-        note = ((res.get("families") or {}).get(res.get("chosen") or "", {}).get("band")
-                or {}).get("reason")
+        shipped = res.families.get(res.chosen or "")
+        note = ((shipped.band if shipped is not None else None) or {}).get("reason")
         return f"<p class='none'>no band{': ' + _e(note) if note else ''}</p>"
-    units = res.get("units") or {}
+    units = res.units
     disp = band.get("display") or {}
     filt = band.get("filter") or {}
     rows = []
@@ -268,11 +269,11 @@ def tuned_text(tuned: dict[str, Any]) -> str:
     return own + (f" (out-of-fold score: {scores})" if scores else "")
 
 
-def _tuning_list(res: dict[str, Any]) -> str:
+def _tuning_list(res: ComparisonResult) -> str:
     """Per family, the hyper-parameters chosen on the training folds and the rule's sentence."""
     items = []
-    for name, f in (res.get("families") or {}).items():
-        tuned = f.get("tuned") or {}
+    for name, f in res.families.items():
+        tuned = f.tuned
         rule = (tuned.get("tuning") or {}).get("rule", "")
         # the per-axis model's entry is {member: its tuned values}: each member that was tuned
         members = "; ".join(f"{k}: {t}" for k, v in tuned.items() if k != "tuning"
@@ -304,20 +305,20 @@ def _fold(fold: dict[str, Any]) -> str:
     return "; ".join(f"{k}: {names(v)}" for k, v in fold.items())
 
 
-def _data_table(res: dict[str, Any]) -> str:
+def _data_table(res: ComparisonResult) -> str:
     rows = []
-    for r in res.get("data", {}).get("runs", []):
+    for r in res.data.get("runs", []):
         span = (f"{_num(r.get('temperature_min_c'), '.1f')} … "
                 f"{_num(r.get('temperature_max_c'), '.1f')} °C"
                 if r.get("temperature_min_c") is not None else "no thermometer (proxy)")
         rows.append(f"<tr><td>{_e(r['run_id'])}</td><td>{_num(r['samples'], 'd')}</td>"
                     f"<td>{_duration(float(r['duration_s']))}</td><td>{_num(r['rate_hz'])} Hz</td>"
                     f"<td>{span}</td></tr>")
-    outside = res.get("data", {}).get("outside_trained_range", {})
+    outside = res.data.get("outside_trained_range", {})
     ext = ", ".join(f"{_e(k)}: {v:.0%}" for k, v in outside.items() if v is not None) or "–"
-    split = res.get("split", {})
+    split = res.split
     folds = "<br>".join(_e(_fold(f)) for f in split.get("folds", []))
-    st = res.get("data", {}).get("streamed")
+    st = res.data.get("streamed")
     streamed = "" if not isinstance(st, dict) else (
         f"streamed: {_num(st.get('samples'), 'd')} samples read in chunks of "
         f"{_num(st.get('chunk_rows'), 'd')} rows and reduced to "
@@ -351,39 +352,42 @@ def _provenance_html(prov: Any) -> str:
     return f"<p class='small'>{data}<br>tracking: {track}; options as given: {opts}</p>"
 
 
-def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
-    """The report page as one HTML string (plots read and embedded as base64 PNG)."""
-    chosen = results.get("chosen")
-    unc = results.get("uncompensated_axes") or []
-    boot = results.get("bootstrap", {})
-    chosen_axes = results.get("families", {}).get(chosen or "", {}).get("axes", {})
-    worse = [a for a, m in chosen_axes.items()
-             if m.get("compensate") and m.get("verdict") == "worse"]
+def render_report(results: ComparisonResult | Mapping[str, Any],
+                  plots: Sequence[Path] = ()) -> str:
+    """The report page as one HTML string (plots read and embedded as base64 PNG), of the
+    typed result, or of a ``results.json`` document read once (:func:`read_result`)."""
+    res = read_result(results)
+    chosen = res.chosen
+    unc = res.uncompensated_axes
+    boot = res.bootstrap
+    shipped = res.families.get(chosen or "")
+    worse = [a for a, m in (shipped.axes if shipped is not None else {}).items()
+             if m.compensate and m.verdict == "worse"]
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
-        f"<title>thermonet report — {_e(results.get('device', ''))}</title>",
+        f"<title>thermonet report — {_e(res.device)}</title>",
         f"<style>{_CSS}</style></head><body>",
-        f"<h1>thermonet comparison: {_e(results.get('device', ''))}</h1>",
-        f"<p class='small'>thermonet {_e(results.get('thermonet_version', ''))}, "
-        f"results schema {_e(results.get('schema'))}, data hash "
-        f"{_e(results.get('data_hash', ''))}, target {_e(results.get('target', ''))}</p>",
-        _provenance_html(results.get("provenance")),
+        f"<h1>thermonet comparison: {_e(res.device)}</h1>",
+        f"<p class='small'>thermonet {_e(res.thermonet_version)}, "
+        f"results schema {_e(res.schema)}, data hash "
+        f"{_e(res.data_hash)}, target {_e(res.target)}</p>",
+        _provenance_html(res.provenance),
         f"<div class='chosen'>Chosen: <b>{_e(chosen or 'none')}</b> — "
-        f"{_e(results.get('chosen_reason', ''))}"
+        f"{_e(res.chosen_reason)}"
         + (f"<br>Left uncompensated (drift 0): <b>{_e(', '.join(unc))}</b>" if unc else "")
         + (f"<br><span style='color:#b71c1c'>Worse than raw on the held-out test data: "
            f"<b>{_e(', '.join(worse))}</b></span>" if worse else "")
         + "</div>",
         "<h2>Warnings</h2>",
     ]
-    warnings = results.get("warnings") or []
+    warnings = res.warnings
     parts += [f"<div class='warn'>{_e(w)}</div>" for w in warnings] or \
         ["<p class='none'>none</p>"]
     parts += [
         "<h2>How the model was chosen (cross-validation on the training data)</h2>",
-        _selection_table(results),
-        _per_axis_table(results),
-        _tuning_list(results),
+        _selection_table(res),
+        _per_axis_table(res),
+        _tuning_list(res),
         "<h2>Verdicts on the held-out test data</h2>",
         "<p class='small'>Score: the spread of the error about its mean on held-out data "
         "(the temperature-dependent error; offsets removed). Cells: score ratio family / raw "
@@ -392,11 +396,11 @@ def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
         + _e(boot.get("resamples", "")) + " resamples]; &lt; 1 is better. An axis is "
         "compensated only where the family beats raw out of fold (or on the validation data "
         "where cross-validation could not run).</p>",
-        _verdict_table(results),
-        "<h2>Scores and offsets (test data)</h2>", _scores_table(results),
+        _verdict_table(res),
+        "<h2>Scores and offsets (test data)</h2>", _scores_table(res),
         "<h2>How wrong the corrected output stays: the residual-drift band</h2>",
-        _band_table(results),
-        "<h2>Data</h2>", _data_table(results),
+        _band_table(res),
+        "<h2>Data</h2>", _data_table(res),
     ]
     if plots:
         parts.append("<h2>Plots (last fold's test data)</h2>")
@@ -408,7 +412,8 @@ def render_report(results: dict[str, Any], plots: Sequence[Path] = ()) -> str:
     return "\n".join(parts)
 
 
-def write_report(path: str | Path, results: dict[str, Any], plots: Sequence[Path] = ()) -> Path:
+def write_report(path: str | Path, results: ComparisonResult | Mapping[str, Any],
+                 plots: Sequence[Path] = ()) -> Path:
     """Write :func:`render_report` to ``path`` atomically; returns the path."""
     path = Path(path)
     atomic_write_text(path, render_report(results, plots))

@@ -76,17 +76,25 @@ names it once, ``families["per-axis"]`` (its checkpoint, ``checkpoint_sha256`` a
 ``params.axes``) with ``selection.per_axis`` (the choice per axis, the candidates).
 :meth:`ComparisonResult.from_json` reads schemas 2 and 3 into the same typed objects (a
 schema-2 ``per_axis`` block is read and dropped: everything in it is in the other two).
+
+The typed result is the one source: a comparison builds a :class:`ComparisonResult`, its
+consumers in the same process (the console's table, the report, the figures, calibrate,
+learn, fleet, the API) read it as objects, and ``results.json`` is :meth:`~ComparisonResult.to_json`,
+written at the edge; a document from elsewhere (a file, a hand-written dict) is parsed once
+where it enters (:func:`read_result`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-__all__ = ["SCHEMA", "READABLE_SCHEMAS", "Verdict", "AxisResult", "FamilyResult", "ComparisonResult", "clean"]
+__all__ = ["SCHEMA", "READABLE_SCHEMAS", "Verdict", "AxisResult", "FamilyResult", "ComparisonResult",
+           "clean", "read_result"]
 
 #: Version of the ``results.json`` layout written by this module.
 SCHEMA = 3
@@ -187,15 +195,15 @@ class AxisResult:
         lo, hi = _pair(d.get("interval"))
         vlo, vhi = _pair(d.get("val_interval"))
         vs = d.get("vs_baseline")
-        offset = d.get("offset_raw")
         return cls(score_raw=_num(d.get("score_raw")), score_comp=_num(d.get("score_comp")),
                    test=Verdict(_num(d.get("score_ratio")), lo, hi, str(d.get("verdict") or "")),
                    val=Verdict(_num(d.get("val_ratio")), vlo, vhi,
                                str(d.get("val_verdict") or "")),
                    compensate=bool(d.get("compensate")),
                    vs_baseline=Verdict.from_json(vs) if isinstance(vs, dict) else None,
-                   offset_raw=None if offset is None else _num(offset),
-                   offset_comp=None if offset is None else _num(d.get("offset_comp")),
+                   # present (null: not finite) where the reference makes offsets meaningful
+                   offset_raw=_num(d["offset_raw"]) if "offset_raw" in d else None,
+                   offset_comp=_num(d.get("offset_comp")) if "offset_raw" in d else None,
                    metrics={k: v for k, v in d.items() if k not in cls._TYPED})
 
     @property
@@ -332,6 +340,21 @@ class ComparisonResult:
         if text not in self.warnings:
             self.warnings.append(text)
 
+    def settle(self) -> None:
+        """The free-form parts as ``results.json`` holds them (:func:`clean`: lists, Python
+        numbers, ``None`` for a non-finite one): the config, split, data, bootstrap, selection,
+        band and provenance, each family's params, tuned values, cost, band and folds and each
+        axis's metrics.  Once the comparison is judged, what a consumer reads of the result in
+        the same process is what it would read back from the file."""
+        for name in ("config", "split", "data", "bootstrap", "selection", "provenance"):
+            setattr(self, name, clean(getattr(self, name)))
+        self.band = clean(self.band)
+        for f in self.families.values():
+            f.params, f.tuned, f.cost = clean(f.params), clean(f.tuned), clean(f.cost)
+            f.band, f.folds = clean(f.band), clean(f.folds)
+            for a in f.axes.values():
+                a.metrics = clean(a.metrics)
+
     def to_json(self) -> dict[str, Any]:
         return clean({
             "schema": SCHEMA, "thermonet_version": self.thermonet_version,
@@ -382,3 +405,13 @@ class ComparisonResult:
                    thermonet_version=str(doc.get("thermonet_version") or ""),
                    band=dict(band) if isinstance(band, dict) else None,
                    provenance=_dict(doc.get("provenance")), schema=int(schema))
+
+
+def read_result(doc: ComparisonResult | Mapping[str, Any],
+                source: str = "results.json") -> ComparisonResult:
+    """``doc`` as the typed result: itself, or a ``results.json`` document parsed once
+    (:meth:`ComparisonResult.from_json`; one written by hand without ``schema`` or
+    ``families`` is read as this version's, with none)."""
+    if isinstance(doc, ComparisonResult):
+        return doc
+    return ComparisonResult.from_json({"schema": SCHEMA, "families": {}, **doc}, source)
