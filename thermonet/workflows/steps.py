@@ -14,14 +14,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, Union
 
 if TYPE_CHECKING:
     from ..core.recording import Dataset
     from ..reporting.plot_workers import PlotWorkers
+    from ..reporting.results import ComparisonResult
     from ..training.config import CompareConfig
 
-__all__ = ["RunOptions", "Steps", "run_steps"]
+__all__ = ["RunOptions", "Steps", "run_steps", "Outcome"]
+
+#: What a model kind's comparison returns: the typed result (a bias comparison,
+#: :class:`thermonet.reporting.results.ComparisonResult`), or the ``results.json`` document
+#: of a kind that has none (the whole-sensor model's).
+Outcome = Union["ComparisonResult", dict[str, Any]]
 
 
 @dataclass(frozen=True)
@@ -40,7 +46,7 @@ class RunOptions:
 class Steps(Protocol):
     """One model kind's comparison: constructed on the config, the (staging) output
     directory, the figure helpers and the options; then its five steps in order, each
-    keeping what the next needs; :meth:`track` returns the ``results.json`` document."""
+    keeping what the next needs; :meth:`track` returns its :data:`Outcome`."""
 
     #: Whether figures are drawn by helper processes (and the first reads the data).
     helpers: bool
@@ -60,14 +66,14 @@ class Steps(Protocol):
 
     def write(self) -> None: ...
 
-    def track(self) -> dict[str, Any]: ...
+    def track(self) -> Outcome: ...
 
     def abort(self, err: BaseException) -> None:
         """Undo what was started (an open MLflow run) when a step raised ``err``."""
 
 
-def run_steps(steps: Steps) -> dict[str, Any]:
-    """plan → fit → judge → write → track; returns the ``results.json`` document.  A step
+def run_steps(steps: Steps) -> Outcome:
+    """plan → fit → judge → write → track; returns the kind's :data:`Outcome`.  A step
     that raises aborts what the steps started (:meth:`Steps.abort`) and the error goes on."""
     try:
         steps.plan()
