@@ -83,7 +83,7 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 _ALIASES = {"rate": "rate_c_per_min"}
 #: Version of the ``dynamic_inputs`` metadata block this runtime computes.
 DYNAMIC_VERSION = 1
-_DYNAMIC_KINDS = {"rate": "tau_s", "lag": "tau_s", "play": "half_width_c"}
+_DYNAMIC_KINDS = {"rate": "tau_s", "lag": "tau_s", "delayed": "tau_s", "play": "half_width_c"}
 #: A CSV cell the command reads as a number: a decimal number (ASCII digits, optional sign,
 #: fraction and exponent), as CSV writers and pandas' reader mean one — never Python's
 #: literal syntax ('1_000'), other scripts' digits ('١٢٣'), hex or complex numbers.
@@ -264,6 +264,14 @@ def _g(h: np.ndarray) -> np.ndarray:
         return np.where(h > 0, -np.expm1(-h) / h, 1.0)
 
 
+def _ema_value(kind: str, temp: Any, e: Any, tau: float) -> Any:
+    """An EMA kind's value from the temperature and the lag state e: ``rate`` 60·e/τ
+    (°C/min), ``lag`` e, ``delayed`` T − e (°C)."""
+    if kind == "rate":
+        return 60.0 * e / tau
+    return temp - e if kind == "delayed" else e
+
+
 def dynamic_signals(time_s: Any, temperature_c: Any, dynamic: Mapping[str, Any],
                     stream: _Stream | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Every dynamic signal of one stream from time (s) and temperature (°C).
@@ -271,7 +279,7 @@ def dynamic_signals(time_s: Any, temperature_c: Any, dynamic: Mapping[str, Any],
     ``dynamic`` is the model's ``dynamic_inputs`` metadata.  With e = T − EMA_τ(T)
     (T linear between samples), h = Δt/τ and g(h) = (1 − e^(−h))/h:
     ``e_k = e_{k-1} + g(h)·[(T_k − T_{k-1}) − h·e_{k-1}]``; ``lag`` is e (°C),
-    ``rate`` is 60·e/τ (°C/min); ``play`` is T − P with
+    ``rate`` is 60·e/τ (°C/min), ``delayed`` is T − e (°C); ``play`` is T − P with
     ``P_k = min(max(P_{k-1}, T_k − w), T_k + w)`` (°C).  The first sample and the first
     after a gap (Δt since the last finite temperature > ``gap_s``) restart the state
     (e = 0, P = T); a NaN temperature gives NaN and leaves the state alone.
@@ -322,7 +330,7 @@ def dynamic_signals(time_s: Any, temperature_c: Any, dynamic: Mapping[str, Any],
             a = np.where(restart, 0.0, 1.0 - h * g)
             c = np.where(restart, 0.0, dT * g)
             e = _scan(_lin, a, c, (1.0, 0.0), y0)
-            col[valid] = 60.0 * e / tau if d["kind"] == "rate" else e
+            col[valid] = _ema_value(d["kind"], tempv, e, tau)
             last.append(float(e[-1]))
         out[d["signal"]] = col
     gap = np.zeros(t.size, dtype=bool)
@@ -387,7 +395,7 @@ class _Stream:
                     g = -math.expm1(-h) / h
                     e = self.state[j] + g * ((temp - self.temp_prev) - h * self.state[j])
                 self.state[j] = e
-                out[d["signal"]] = 60.0 * e / tau if d["kind"] == "rate" else e
+                out[d["signal"]] = float(_ema_value(d["kind"], temp, e, tau))
         self.started, self.t_prev, self.temp_prev = True, t, temp
         return out, gap
 

@@ -21,7 +21,10 @@ def test_default_is_the_simulator():
     cfg = load_config(None)
     assert cfg.data.preset == "patent-gyro"
     assert [f.label for f in cfg.families] == ["cubic", "linear", "lorentz", "ts-fuzzy", "rbf",
-                                               "poly3-rate", "poly3-hyst"]
+                                               "cubic-delayed-1min", "cubic-delayed-2min",
+                                               "cubic-delayed-5min", "poly3-rate", "poly3-hyst"]
+    assert [f.inputs for f in cfg.families[5:8]] == [["delayed_60"], ["delayed_120"],
+                                                     ["delayed_300"]]
     hyst = cfg.families[-1]
     assert hyst.inputs == ["dT", "rate", "play_1"] and hyst.params == {"degree": 3, "cross": True}
     # configs/default.yaml (make demo) names no families: it gets the same set

@@ -1,4 +1,4 @@
-"""Dynamic inputs (rate, lag_<tau>, play_<w>): one definition, computed identically in training
+"""Dynamic inputs (rate, lag_<tau>, delayed_<tau>, play_<w>): one definition, computed identically in training
 (vectorised), by the plain loop, by the torch-free runtime (batch and streaming) and by the C
 header's step(); constants round-trip through checkpoint, ONNX metadata and C header."""
 
@@ -128,7 +128,7 @@ def test_vectorised_equals_the_plain_loop_with_gaps_and_nan():
     temp = 20 + np.cumsum(rng.normal(0, 0.01, n))
     temp[[0, 17, 39999]] = np.nan
     temp[60000:60100] = np.nan                          # 10 s without temperature: a gap
-    names = ["rate", "lag_300", "play_0.2", "rate_5"]
+    names = ["rate", "lag_300", "play_0.2", "rate_5", "delayed_300"]
     fast, gap = dynamics.compute(t, temp, names, 1.0)
     slow, gap_ref = dynamics.reference_signals(t, temp, names, 1.0)
     for name in fast:
@@ -138,6 +138,8 @@ def test_vectorised_equals_the_plain_loop_with_gaps_and_nan():
     assert np.flatnonzero(gap).tolist() == [5000, 40000, 40002, 60100]
     assert fast["rate_c_per_min"][1] == 0.0              # start-up at the first finite sample
     assert fast["lag_300_c"][60100] == 0.0 and fast["play_0.2_c"][60100] == 0.0  # restart
+    # the delayed temperature is T − e of the same EMA, to the last bit of the subtraction
+    np.testing.assert_array_equal(fast["delayed_300_c"], temp - fast["lag_300_c"])
     # the runtime's own copy of the recurrences
     const = dynamics.constants(names, 1.0)
     mirror, gap_rt = rt.dynamic_signals(t, temp, const)
@@ -410,3 +412,55 @@ def test_at_t_ref_target_rests_with_dynamic_inputs_at_zero(trained):
         d = at_ref.drift64(torch.tensor(rest, dtype=torch.float64)).numpy()
     assert abs(d[0, 0]) < 1e-6           # zero at rest (float32 rounding), the +5 removed
     assert d[1, 0] == pytest.approx(0.01 * 20.0, abs=0.01)  # 0.01 /degC above T_ref
+
+
+def test_a_cubic_at_the_delayed_temperature_recovers_a_lagging_sensor_everywhere(tmp_path):
+    """A sensing element that lags its thermometer by a first-order τ = 300 s: its drift is a
+    cubic of E = EMA_τ(T).  ``poly`` on ``delayed_300`` alone, fitted on a fast cycle, recovers
+    that cubic's coefficients (polyfit of the truth in E as the independent oracle) and
+    corrects a slow cycle the fit never saw (heating and cooling at another rate) to the noise,
+    where the cubic in T is off by the lag times the slope; its domain is E's range alone (no
+    joint guard); torch, onnxruntime (batch, step) and the C header's step() agree."""
+    rng = np.random.default_rng(3)
+    coef = np.array([2e-6, -3e-4, 0.01, 0.05])          # drift = polyval(coef, E − 20)
+
+    def cycle(rate_c_per_min: float, n_cycles: int = 2):
+        period = 2 * 70.0 / rate_c_per_min * 60.0
+        t = np.arange(0.0, n_cycles * period, 5.0)
+        temp = _triangle(t, -10.0, 60.0, period)
+        e_t = dynamics.compute(t, temp, ["delayed_300"], 60.0)[0]["delayed_300_c"]
+        y = np.polyval(coef, e_t - 20.0) + rng.normal(0.0, 1e-4, t.size)
+        return t, temp, e_t, y
+
+    t, temp, e_t, y = cycle(1.5)
+    spec = FeatureSpec(inputs=["delayed_300"], t_ref=20.0, gap_s=60.0)
+    assert spec.signals == ["delayed_300_c"]
+    model = fit(family="poly", inputs=["delayed_300"], outputs=["gyro_x"],
+                train=[(e_t[:, None], y[:, None])], val=None, spec=spec,
+                hyper={"degree": 3}, config=TrainConfig(max_epochs=3)).model
+    assert not model.guarded and model.joint == []       # no joint envelope: E alone
+    oracle = np.polyfit(e_t - 20.0, y, 3)
+    grid = np.linspace(e_t.min(), e_t.max(), 61) - 20.0   # E's trained range (clamped past it)
+    with torch.no_grad():
+        got = model(torch.from_numpy(grid[:, None] + 20.0)).double().numpy()[:, 0]
+    np.testing.assert_allclose(got, np.polyval(oracle, grid), atol=2e-5, rtol=0)
+    np.testing.assert_allclose(oracle, coef, rtol=0.05, atol=5e-5)
+
+    t2, temp2, e2, y2 = cycle(0.5, 1)                   # a slow cycle: new rates, both ways
+    path = export_onnx(model, tmp_path / "d.onnx")
+    comp = rt.Compensator(path)
+    assert comp.needs == ["time_s", "temperature_c"]
+    batch = comp.compensate(temperature_c=temp2, raw=y2[:, None], time_s=t2)
+    inside = ~batch.out_of_range
+    assert inside.mean() > 0.9
+    left = batch.compensated[inside, 0]
+    in_t = np.polyval(np.polyfit(temp - 20.0, y, 3), temp2 - 20.0)
+    cubic_left = (y2 - in_t)[inside]
+    assert np.std(left) < 2e-4 < 0.2 * np.std(cubic_left)
+    stream = np.array([comp.step(t2[k], temp2[k], y2[k:k + 1]).drift[0] for k in range(500)])
+    np.testing.assert_allclose(stream, batch.drift[:500, 0], atol=1e-6, rtol=0)
+    header = render_c_header(model)
+    assert "thermonet_dyn_kind[THERMONET_N_DYNAMIC] = {3};" in header
+    c = run_stream_c(model, header, t2, temp2, y2[:, None])
+    np.testing.assert_allclose(c["drift"][:, 0], batch.drift[:, 0], atol=1e-5, rtol=0)
+    assert np.array_equal(c["flag"], batch.out_of_range)

@@ -321,7 +321,7 @@ def test_every_registry_is_a_dict_and_one_register_function(monkeypatch):
     with pytest.raises(ValueError, match="already registered"):
         dynamics.register_input(dynamics.Lag)
     assert {"poly", "gru"} <= set(registry.FAMILIES) and "runs" in SPLITS and "onnx" in FORMATS
-    assert set(dynamics.INPUTS) == {"rate", "lag", "play"}
+    assert set(dynamics.INPUTS) == {"rate", "lag", "delayed", "play"}
     # a new kind of dynamic input: registered, its names parse (with the constant required)
     monkeypatch.setattr(dynamics, "INPUTS", dict(dynamics.INPUTS))
 

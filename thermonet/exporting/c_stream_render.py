@@ -57,7 +57,7 @@ if TYPE_CHECKING:
 __all__ = ["render_stream_c", "render_stream_block_c", "stream_signature_has_proxies",
            "step_time_guard_c", "step_signature_c"]
 
-_KIND_CODE = {"rate": 0, "lag": 1, "play": 2}
+_KIND_CODE = {"rate": 0, "lag": 1, "play": 2, "delayed": 3}
 
 
 def _float(v: float) -> str:
@@ -93,7 +93,8 @@ def render_stream_c(model: ShippedModel, p: str) -> list[str]:
         lines += [
             f"#define {P}_GAP_S {gap_s!r} /* s: a longer step restarts the state, flag set */",
             f"#define {P}_GAP_US {gap_us}u /* the same in microseconds (integer time) */",
-            "/* kind: 0 rate (degC/min, tau s), 1 lag (degC, tau s), 2 play (degC, half-width) */",
+            "/* kind: 0 rate (degC/min, tau s), 1 lag (degC, tau s), 2 play (degC, half-width),"
+            " 3 delayed (degC, tau s) */",
             f"static const int {p}_dyn_kind[{P}_N_DYNAMIC] = "
             "{" + ", ".join(str(_KIND_CODE[d.kind]) for d in dyn) + "};",
             f"static const float {p}_dyn_param[{P}_N_DYNAMIC] = "
@@ -179,7 +180,8 @@ def render_stream_c(model: ShippedModel, p: str) -> list[str]:
             "            }",
             f"            for (j = 0; j < {P}_N_DYNAMIC; ++j) {{",
             f"                const float c = {p}_dyn_param[j], v = st->x[j];",
-            f"                s[{p}_dyn_signal[j]] = {p}_dyn_kind[j] == 2 ? T - v",
+            f"                s[{p}_dyn_signal[j]] = ({p}_dyn_kind[j] == 2 || {p}_dyn_kind[j] == 3)"
+            " ? T - v",
             f"                    : ({p}_dyn_kind[j] == 0 ? 60.0f * v / c : v);",
             "            }",
             "            st->started = 1;",

@@ -1,4 +1,5 @@
-"""Dynamic inputs: temperature rate, thermal lag and hysteresis memory, one definition each.
+"""Dynamic inputs: temperature rate, thermal lag, delayed temperature and hysteresis memory,
+one definition each.
 
 A *dynamic input* depends on the temperature's past, not only on its present
 value.  Each is a causal recurrence with O(1) state per sample — what a
@@ -14,6 +15,7 @@ feature             value                                        signal         
 ``rate``            :math:`\\dot T`, filtered, τ = 60 s            ``rate_c_per_min``      °C/min
 ``rate_<tau>``      the same with time constant ``tau`` s         ``rate_<tau>_c_per_min`` °C/min
 ``lag_<tau>``       :math:`T - \\mathrm{EMA}_\\tau(T)`              ``lag_<tau>_c``          °C
+``delayed_<tau>``   :math:`\\mathrm{EMA}_\\tau(T)`                  ``delayed_<tau>_c``      °C
 ``play_<w>``        :math:`T - P_w(T)`, play of half-width w °C   ``play_<w>_c``           °C
 =================== ============================================ ====================== =====
 
@@ -30,6 +32,14 @@ with :math:`T` linear between samples (exact for any sample interval
 float32 keeps its precision when :math:`h \\ll 1`).  On a ramp of slope
 :math:`r`, :math:`e \\to r\\tau`: ``lag_<tau>`` is the case-to-die gradient a
 thermometer with time constant τ lags behind.
+
+**Delayed temperature** is :math:`E = T - e`: the temperature a sensing element
+that lags its thermometer by a first-order τ sees.  A model of ``delayed_<tau>``
+alone (``cubic-delayed-3min`` in the default set: the cubic at E) is a function of
+one temperature, so its domain is E's trained range, with no joint envelope: on a
+new excursion at another rate or in the other direction E stays inside it, and a
+sensor that lags its thermometer is corrected as the physics says, where a cubic in
+T is off by the lag times the slope, with opposite signs heating and cooling.
 
 **Rate** is the time derivative of that filtered temperature,
 :math:`\\dot E = e/\\tau`, in °C/min: :math:`\\text{rate} = 60\\, e/\\tau_r`.  It is
@@ -73,7 +83,8 @@ from ..core.recording import GAP_FACTOR
 from .recurrences import lag_error, play_state
 
 __all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInput", "Rate",
-           "Lag", "Play", "INPUTS", "register_input", "compute", "DynamicStream", "parse_dynamic", "is_dynamic", "check_time",
+           "Lag", "Delayed", "Play", "INPUTS", "register_input", "compute", "DynamicStream",
+           "parse_dynamic", "is_dynamic", "check_time",
            "dynamic_signals", "default_gap_s", "constants", "from_constants",
            "reference_signals", "saturation_margin", "input_set_warnings",
            "SETTLE_TIME_CONSTANTS"]
@@ -127,6 +138,8 @@ class DynamicInput:
     unit: ClassVar[str] = "degC"
     #: Name of the field holding the recurrence's one constant (``tau_s``, ``half_width_c``).
     param_key: ClassVar[str] = ""
+    #: A temperature (°C about t_ref), not a difference or a rate (``delayed``).
+    is_temperature: ClassVar[bool] = False
 
     @property
     def signal(self) -> str:
@@ -142,18 +155,41 @@ class DynamicInput:
         return {"name": self.name, "kind": self.kind, "signal": self.signal,
                 "unit": self.unit, self.param_key: getattr(self, self.param_key)}
 
-    def from_state(self, temperature: np.ndarray, e: np.ndarray) -> np.ndarray:
+    def from_state(self, temperature: Any, e: Any) -> Any:
+        """The input's value from the temperature and the lag state e (the EMA kinds; arrays
+        or floats alike)."""
         raise NotImplementedError
+
+    @property
+    def memory_s(self) -> float:
+        """How long the input remembers (the folds' purge): τ for the EMA kinds, 0 for play."""
+        return 0.0
 
 
 @dataclass(frozen=True)
-class Rate(DynamicInput):
-    """Filtered dT/dt in °C/min: :math:`60\\, e_\\tau / \\tau`."""
+class _EMA(DynamicInput):
+    """An input of the lag state e of :math:`\\mathrm{EMA}_\\tau(T)` (rate, lag, delayed)."""
 
     tau_s: float = RATE_TAU_S
+    param_key: ClassVar[str] = "tau_s"
+
+    def from_state(self, temperature: Any, e: Any) -> Any:
+        return e
+
+    @property
+    def memory_s(self) -> float:
+        return float(self.tau_s)
+
+
+@dataclass(frozen=True)
+class Rate(_EMA):
+    """Filtered dT/dt in °C/min: :math:`60\\, e_\\tau / \\tau`."""
+
     kind: ClassVar[str] = "rate"
     unit: ClassVar[str] = "degC/min"
-    param_key: ClassVar[str] = "tau_s"
+
+    def from_state(self, temperature: Any, e: Any) -> Any:
+        return 60.0 * e / self.tau_s
 
     @property
     def signal(self) -> str:
@@ -161,12 +197,22 @@ class Rate(DynamicInput):
 
 
 @dataclass(frozen=True)
-class Lag(DynamicInput):
+class Lag(_EMA):
     """:math:`T - \\mathrm{EMA}_\\tau(T)` in °C."""
 
-    tau_s: float = RATE_TAU_S
     kind: ClassVar[str] = "lag"
-    param_key: ClassVar[str] = "tau_s"
+
+
+@dataclass(frozen=True)
+class Delayed(_EMA):
+    """:math:`\\mathrm{EMA}_\\tau(T) = T - e` in °C: the temperature delayed by a first-order
+    lag τ (a temperature, so a one-input model's parameters expand about t_ref)."""
+
+    kind: ClassVar[str] = "delayed"
+    is_temperature: ClassVar[bool] = True
+
+    def from_state(self, temperature: Any, e: Any) -> Any:
+        return temperature - e
 
 
 @dataclass(frozen=True)
@@ -208,6 +254,7 @@ def register_input(cls: type[DynamicInput], *, default: float | None = None
 
 register_input(Rate, default=RATE_TAU_S)
 register_input(Lag)
+register_input(Delayed)
 register_input(Play)
 
 
@@ -370,8 +417,7 @@ class DynamicStream:
                             if cont else None
                         cache[tau] = lag_error(tv, Tv, restart, tau, prev)
                         new[("e", tau)] = float(cache[tau][-1])
-                    e = cache[tau]
-                    col[valid] = 60.0 * e / tau if isinstance(d, Rate) else e
+                    col[valid] = d.from_state(Tv, cache[tau])
             out[d.signal] = col
         gap = np.zeros(n, dtype=bool)
         idx = np.flatnonzero(valid)
@@ -438,8 +484,7 @@ def reference_signals(time_s: Sequence[float], temperature_c: Sequence[float],
                 g = -math.expm1(-h) / h
                 state[j] = state[j] + g * ((T - T_prev) - h * state[j])
             v = state[j]
-            out[d.signal][k] = (T - v if isinstance(d, Play)
-                                else 60.0 * v / d.param if isinstance(d, Rate) else v)
+            out[d.signal][k] = T - v if isinstance(d, Play) else float(d.from_state(T, v))
         started, t_prev, T_prev = True, t, T
     return out, gap
 
@@ -467,10 +512,12 @@ def input_set_warnings(inputs_by_family: dict[str, list[str]],
         seen: dict[float, str] = {}
         for name in names:
             dyn = parse_dynamic(name)
-            if dyn is None or dyn.kind == "play":
+            if dyn is None or dyn.memory_s == 0.0:
                 continue
             tau = dyn.param
-            if tau in seen:
+            if dyn.is_temperature:      # T − e: a different signal from e (rate, lag)
+                pass
+            elif tau in seen:
                 out.append(f"family '{label}': inputs '{seen[tau]}' and '{name}' are the same "
                            f"signal up to a constant factor (one lag error of τ = {tau:g} s): "
                            "drop one")

@@ -10,7 +10,8 @@ family an installed package registers under the entry-point group ``thermonet.fa
 (:mod:`thermonet.models.registry`); tests parametrise over it, so registering a family is
 what makes it tested (fit, predict, save/load, ONNX parity).  The names here load on first
 access: the registry itself (:func:`get_family`, :func:`build_family`) is torch-free until a
-family is built, so a config is checked without loading torch.
+family is built, so a config is checked without loading torch; :func:`unregister_family`
+takes one out again.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from .registry import (
     make_spec,
     models,
     register_family,
+    unregister_family,
 )
 from .specs import FamilySpec, param
 
@@ -43,7 +45,7 @@ if TYPE_CHECKING:
 
     MODELS: dict[str, type[Family]]
 
-__all__ = ["MODELS", "FAMILIES", "register_family", "make_spec", "FamilySpec", "param", "get_family",
+__all__ = ["MODELS", "FAMILIES", "register_family", "unregister_family", "make_spec", "FamilySpec", "param", "get_family",
            "build_family", "family_names", "ENTRY_POINT_GROUP",
            "Family", "DriftModel", "TINY", "Linear", "Poly", "Lorentz", "TSFuzzy", "RBF",
            "MLP", "GRU"]

@@ -18,11 +18,16 @@ from ..core.recording import contiguous_segments
 from .folds import DIRECTION_NAMES, TURN_FRACTION, Leg, deal, excursions, purged
 
 __all__ = ["FoldPlan", "plan_folds", "purge_rule", "window_rule", "window_labels", "HOLD_OUT",
-           "EXCURSION_INSIDE", "MIN_FOLD_SAMPLES"]
+           "EXCURSION_INSIDE", "MIN_FOLD_SAMPLES", "MIN_GATE_FOLDS", "leg_rates"]
 
 
 #: Samples a fold needs in training and in validation.
 MIN_FOLD_SAMPLES = 20
+
+#: Folds a candidate must have been judged on (and beaten its reference on, each) to replace
+#: it (:mod:`thermonet.scoring.gate`): "better in every one of two folds" happens by chance
+#: one time in four.
+MIN_GATE_FOLDS = 3
 
 
 def window_rule(rate_hz: float, block_s: float | None) -> float:
@@ -43,7 +48,8 @@ class FoldPlan:
     and per fold a training mask (purged) per pool run.
 
     ``directions``: the directions of temperature change the pool holds (+1 heating, −1
-    cooling; :func:`thermonet.scoring.folds.excursions`); ``legs``: the excursions found, per
+    cooling; :func:`thermonet.scoring.folds.excursions`); ``rates``: each heating or cooling
+    leg's ramp rate (:func:`leg_rates`, the signal's units a second); ``legs``: the excursions found, per
     pool run, with the fold that holds each out (−1: always trained); ``note``: why the folds
     are not the excursions where they could not be."""
 
@@ -61,6 +67,7 @@ class FoldPlan:
     #: per fold, the directions of change its validation rows hold (excursion folds: their
     #: legs'; other folds: every direction of the pool)
     fold_directions: list[set[int]] = field(default_factory=list)
+    rates: list[float] = field(default_factory=list)
 
     def describe(self) -> dict[str, Any]:
         return {"kind": self.kind, "folds": self.k, "block_s": self.block_s,
@@ -109,6 +116,34 @@ def _directions(pool: Sequence[tuple[Any, np.ndarray]], legs: list[list[Leg]]) -
     return sorted(found, reverse=True)
 
 
+def leg_rates(pool: Sequence[tuple[Any, np.ndarray]], legs: list[list[Leg]],
+              temperatures: Sequence[np.ndarray | None] | None) -> list[float]:
+    """Each heating or cooling leg's ramp rate (signal units a second, so a thermometer in
+    raw counts serves as well): 80 % of its change over the time it took to go from 10 % to
+    90 % of the way (the soak that ends a leg, and its start, left out); only legs at least
+    half in the pool."""
+    out: list[float] = []
+    if temperatures is None:
+        return out
+    for (r, m), lj, temp in zip(pool, legs, temperatures, strict=True):
+        if temp is None:
+            continue
+        t = np.asarray(r.time_s, dtype=np.float64)
+        x = np.asarray(temp, dtype=np.float64)
+        for leg in lj:
+            span = leg.to_value - leg.from_value
+            if not leg.direction or not math.isfinite(span) or span == 0 or \
+                    np.asarray(m)[leg.start:leg.stop].mean() < 0.5:
+                continue
+            with np.errstate(invalid="ignore"):
+                done = (x[leg.start:leg.stop] - leg.from_value) / span
+            i10, i90 = int(np.argmax(done >= 0.1)), int(np.argmax(done >= 0.9))
+            dt = t[leg.start + i90] - t[leg.start + i10]
+            if (done >= 0.9).any() and dt > 0:
+                out.append(0.8 * abs(span) / dt)
+    return out
+
+
 def _what_legs_hold(legs: list[list[Leg]]) -> str:
     kinds = [DIRECTION_NAMES[leg.direction] for lj in legs for leg in lj]
     counts = {k: kinds.count(k) for k in ("heating", "cooling", "soak") if k in kinds}
@@ -116,14 +151,48 @@ def _what_legs_hold(legs: list[list[Leg]]) -> str:
                      for k, v in counts.items())
 
 
+def _split_lonely(legs: list[list[Leg]], temperatures: Sequence[np.ndarray | None] | None
+                  ) -> list[list[Leg]]:
+    """Where the pool holds both directions of change, a leg alone in its direction (one
+    cycle's heating) cut at its middle temperature into two legs of that direction: each can
+    then be held out with the other trained, so the direction is judged on temperatures the
+    fold only saw it take the other way (without the cut no fold can hold it out: the rest
+    would not hold its direction)."""
+    dirs = [leg.direction for lj in legs for leg in lj]
+    if temperatures is None or not {1, -1} <= set(dirs):
+        return legs
+    out = []
+    for j, lj in enumerate(legs):
+        temp = temperatures[j]
+        row = []
+        for leg in lj:
+            if leg.direction == 0 or dirs.count(leg.direction) > 1 or temp is None:
+                row.append(leg)
+                continue
+            mid = 0.5 * (leg.from_value + leg.to_value)
+            with np.errstate(invalid="ignore"):
+                past = (np.asarray(temp, dtype=np.float64)[leg.start:leg.stop] - mid) \
+                    * leg.direction >= 0
+            cut = leg.start + int(np.argmax(past))
+            if not past.any() or not leg.start < cut < leg.stop:
+                row.append(leg)
+                continue
+            row += [Leg(leg.start, cut, leg.direction, leg.from_value, mid),
+                    Leg(cut, leg.stop, leg.direction, mid, leg.to_value)]
+        out.append(row)
+    return out
+
+
 def _excursion_folds(pool: Sequence[tuple[Any, np.ndarray]], legs: list[list[Leg]],
                      temperatures: Sequence[np.ndarray | None] | None, folds: int
                      ) -> tuple[list[np.ndarray], list[np.ndarray], int, list[dict[str, Any]]] | str:
     """Leave excursions out: every usable leg — one that the rest of the pool spans (at least
     :data:`EXCURSION_INSIDE` of it inside their temperatures) and whose direction the rest
-    also holds — is one unit, dealt round-robin (in time order) to ``min(folds, legs)``
-    folds; its validation windows are grouped into ~8 bootstrap units by time.  Returns
+    also holds (a leg alone in its direction is first cut in two, :func:`_split_lonely`) —
+    is one unit, dealt round-robin (in time order) to ``min(folds, legs)`` folds; its
+    validation windows are grouped into ~8 bootstrap units by time.  Returns
     (fold_of, block_of, k, record) or the sentence saying why not."""
+    legs = _split_lonely(legs, temperatures)
     units = []       # (run, leg)
     for j, ((_, m), lj) in enumerate(zip(pool, legs, strict=True)):
         for leg in lj:
@@ -217,7 +286,10 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
     """Folds of ``pool`` ((recording, row mask) pairs), or None where K folds cannot be made.
 
     ``by_run``: with several runs, leave one run out (the test is a run the model never
-    saw).  Otherwise (one run, or a time-block split) ``hold_out`` says what a fold holds
+    saw; with two runs, two folds, on which the gate passes nothing: their excursions held
+    out instead fitted a cubic on one run's legs and the other's whole, so each run's turn-on
+    offset became a slope, worse than raw out of fold where the cubic was 3× better than raw
+    on the next run — ``bench_selection.py --stress``).  Otherwise (one run, or a time-block split) ``hold_out`` says what a fold holds
     out: ``excursions`` — whole thermal excursions found in ``temperatures`` (per pool run,
     the temperature signal of every row; :func:`thermonet.scoring.folds.excursions`), the
     next warm-up or cool-down a user's test will be, purged by the longest memory of any
@@ -284,7 +356,7 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
     else:
         fold_dirs = [set(directions) for _ in range(k)]
     return FoldPlan(fold_of, train_masks, k, kind, block_s, purge, win, block_of,
-                    directions, record, note, fold_dirs)
+                    directions, record, note, fold_dirs, leg_rates(pool, legs, temperatures))
 
 
 def window_labels(time_s: np.ndarray, window_s: float) -> np.ndarray:

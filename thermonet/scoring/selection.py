@@ -83,9 +83,10 @@ Before the one-SE rule (:data:`GATE_RULE`, :class:`Gate`): per axis the referenc
 baseline wherever its out-of-fold ratio is below 1, else raw; a candidate replaces it only if
 it was judged on at least :data:`MIN_GATE_FOLDS` folds, is lower overall, and its worst fold is
 no worse than the reference's worst fold (each fold scored on the windows inside both domains);
-a candidate reading the direction of change (rate, lag, hysteresis) must have been judged on
-held-out excursions of both directions and is held back where the pool holds one
-(:func:`one_direction`); on interleaved blocks (no excursion to hold out) nothing replaces the
+a candidate reading the direction of change (rate, lag, delayed temperature, hysteresis) must
+have been judged on held-out excursions of both directions and is held back where the pool
+holds one (:func:`one_direction`) or ramps at one rate (:func:`one_rate`: a lag and a
+hysteresis are the same correction there); on interleaved blocks (no excursion to hold out) nothing replaces the
 baseline.  The worst-fold (minimax) test was chosen over "better in every fold" on the stress
 bench (``bench_selection.py --stress``): the same axes never worse than the cubic, four times
 as many axes ≤ 0.8 of it.
@@ -196,6 +197,7 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
                     n_params: Mapping[str, int], outputs: Sequence[str], baseline: str | None,
                     k_folds: int, *, gate: Gate | None = None,
                     base_own: np.ndarray | None = None,
+                    base_mask: Sequence[bool] | None = None,
                     directional: set[str] | frozenset[str] = frozenset()
                     ) -> tuple[dict[str, str | None], dict[str, str]]:
     """Each axis its own candidate: the rule of :func:`select`, axis by axis.
@@ -223,7 +225,8 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
         gated: list[str] = []
         if gate is not None and sc:
             sc, gated = gate_axis(sc, a, gate, baseline, directional,
-                                   None if base_own is None else float(base_own[a]))
+                                   None if base_own is None else float(base_own[a]),
+                                   base_kept=bool(base_mask is not None and base_mask[a]))
         note = gate_note(gated, directional)
         if not sc:
             chosen[axis], reason[axis] = None, "no candidate has a finite out-of-fold score"
@@ -238,6 +241,12 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
         c = one_se(sc, {k: v[:, a] for k, v in axis_boots.items() if k in sc}, n_params,
                    floor=partial(_worse_than, sc, baseline))
         best = str(c.best)
+        if c.chosen is None and gate is not None and baseline in sc:
+            chosen[axis] = baseline          # the reference stays: nothing beat it, nor raw
+            reason[axis] = (f"{baseline}: the baseline stays — not worse than raw out of fold "
+                            f"({sc[baseline]:.4g} of raw), nothing passes the gate against it"
+                            ) + note
+            continue
         if c.chosen is None:
             chosen[axis] = None
             reason[axis] = (f"raw: no candidate beats the raw output out of fold (best {best}: "
@@ -274,7 +283,7 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
     ``baseline``: the candidate no simplification may fall below on any axis (the cubic);
     ``gate``: it stays until beaten everywhere (:data:`GATE_RULE`, :class:`Gate`), and a
     direction-carrying candidate is held back where the pool holds one direction only
-    (:func:`one_direction`).
+    (:func:`one_direction`) or one ramp rate (:func:`one_rate`).
 
     ``targets`` and ``times``: per pool run, the target (n, A) and time of every row;
     ``temperatures``: per pool run, the temperature of every row — with them, an axis is
@@ -296,6 +305,16 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
         return Selection(None, [], "no candidate could be fitted on every fold", {}, record)
     pooled = pool(plan, targets, times, ok, len(outputs), temperatures,
                    baseline if baseline in ok else None)
+    while not pooled.ns and len(ok) > 1:
+        # no window inside every candidate's domain: the candidate that covers the least is
+        # no candidate (a model with memory whose joint envelope no held-out excursion enters)
+        worst = max(ok, key=lambda k: float(np.mean(pooled.left_out[k])))
+        record["candidates"][worst] = {
+            "status": "failed", "reason": "no validation window inside its trained domain "
+            f"on any fold where the others have one (left out: {np.mean(pooled.left_out[worst]):.0%})"}
+        ok = {k: c for k, c in ok.items() if k != worst}
+        pooled = pool(plan, targets, times, ok, len(outputs), temperatures,
+                       baseline if baseline in ok else None)
     if not pooled.ns:
         return Selection(None, [], "no validation window inside every candidate's trained "
                          "domain", {}, record)
@@ -312,7 +331,7 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
     per_axis, per_axis_reason = choose_per_axis(
         sc.axis_scores, sc.axis_boots, {k: c.n_params for k, c in ok.items()}, outputs,
         baseline, plan.k, gate=sc.gate, directional=set(held),
-        base_own=sc.own_ratio.get(baseline or ""))
+        base_own=sc.own_ratio.get(baseline or ""), base_mask=sc.compensate.get(baseline or ""))
     record["per_axis"] = {"chosen": per_axis, "rule": per_axis_reason,
                           "gate": GATE_RULE if gate else None}
     chosen, tied, reason = _one_se(plan, ok, sc, outputs, baseline, record, held)
@@ -358,10 +377,17 @@ def _score(pooled: Pooled, ok: Mapping[str, CandidateOOF], outputs: Sequence[str
             iv = np.nanpercentile(boot_own, [q, 100 - q], axis=0)
             se_own = np.nanstd(boot_own, axis=0)
             # raw is the simplest candidate of every axis: it stays unless the candidate's
-            # paired improvement 1 − ratio exceeds one standard error (the one-SE rule)
+            # paired improvement 1 − ratio exceeds one standard error (the one-SE rule) —
+            # but for the baseline, which stays until it is worse than raw (its interval
+            # above 1): a cubic within the noise of raw is the autopilots' correction and
+            # what the user's test is measured against (a drift smaller than the turn-on
+            # spread cannot be told from raw out of fold, and is there on the next run)
             pp_ok = pp_guard(pooled.pp_cand[k], pooled.pp_raw) if guard else [True] * A
-            mask = [bool(below(float(ratio_own[a]) + float(se_own[a]), 1.0)) and pp_ok[a]
-                    for a in range(A)]
+            if k == baseline:
+                mask = [not above(float(iv[0, a]), 1.0) and pp_ok[a] for a in range(A)]
+            else:
+                mask = [bool(below(float(ratio_own[a]) + float(se_own[a]), 1.0)) and pp_ok[a]
+                        for a in range(A)]
             sc.compensate[k] = mask
             c_ss = pooled.total(pooled.ss[k])
             ratio = np.sqrt(c_ss.sum(0) / raw_ss.sum(0))

@@ -83,6 +83,12 @@ class FamilyConfig:
         return make_spec(self.family, {**self.params, **(point or {})})
 
 
+#: The default set's delays (minutes) of the cubic at the delayed temperature (a 1-2-5
+#: series): a sensing element a minute to five behind its thermometer (the package, the
+#: board); the folds are purged by 3 τ of the longest, so a longer one costs the folds data.
+DELAYS_MIN = (1, 2, 5)
+
+
 def _default_families() -> list[FamilyConfig]:
     """The recommended set a config gets when it names no families (configs/README.md, "Default families").
 
@@ -97,7 +103,10 @@ def _default_families() -> list[FamilyConfig]:
       of total degree ≤ 3 in ΔT and dT/dt: the cubic plus rate, rate², rate³ and the cross
       terms) and ``poly3-hyst`` (the same on [ΔT, dT/dt, play_1]: a hysteresis memory of
       half-width 1 °C that tells the heating from the cooling branch and keeps it through a
-      soak).  Both fit in closed form (least squares) in about a second; an RBF on dynamic
+      soak); ``cubic-delayed-1min``, ``-2min``, ``-5min``: the cubic at the temperature
+      delayed by a first-order lag of 1, 2 or 5 minutes (``delayed_<τ>``: a sensing element
+      that lags its thermometer; one input, so no joint envelope).  All fit in closed form
+      (least squares) in about a second; an RBF on dynamic
       inputs fits no better on the heat/cool benchmark and costs minutes, so it is not in the
       default set (name it in a config).
     """
@@ -111,6 +120,8 @@ def _default_families() -> list[FamilyConfig]:
         FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
                      params={"n_centres": 16, "tail": 3, "init": "quantiles"},
                      tune={"n_centres": [8, 16]}),
+        *(FamilyConfig(family="poly", name=f"cubic-delayed-{m}min", inputs=[f"delayed_{60 * m}"],
+                       params={"degree": 3}) for m in DELAYS_MIN),
         FamilyConfig(family="poly", name="poly3-rate", inputs=["dT", "rate"],
                      params={"degree": 3, "cross": True}, tune={"degree": [1, 2, 3]}),
         FamilyConfig(family="poly", name="poly3-hyst", inputs=["dT", "rate", "play_1"],

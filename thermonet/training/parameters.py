@@ -122,9 +122,9 @@ def _input_of(model: Any, signal_units: dict[str, str]) -> tuple[str, float, str
     """The one signal of a one-input model, its expansion point and its unit."""
     signal, _, _ = parse_feature(model.inputs[0])
     spec = model.spec
-    if signal == TEMPERATURE:
-        return signal, float(spec.t_ref) if spec.t_ref is not None else 0.0, "°C"
     dyn = dynamic_signal(signal)
+    if signal == TEMPERATURE or (dyn is not None and dyn.is_temperature):
+        return signal, float(spec.t_ref) if spec.t_ref is not None else 0.0, "°C"
     if dyn is not None:
         return signal, 0.0, "°C/min" if dyn.kind == "rate" else "°C"
     return signal, float(spec.proxy_ref.get(signal, 0.0)), signal_units.get(signal, "") or "1"

@@ -37,9 +37,11 @@ def _band(p: Plan, fitted: Sequence[Fitted | None], compensate: Sequence[bool],
         return _no_band(p, f"no out-of-fold residuals ({p.fold_note or 'selection.folds is 0'})")
     # temperature where the model reads it, else its first signal (a proxy: raw counts)
     sig = TEMPERATURE if TEMPERATURE in list(model.signals) else list(model.signals)[0]
-    src = next((f for f in fitted if f is not None), None)
-    if src is None or any(sig not in f.pool_signals for f in fitted if f is not None):
-        return _no_band(p, f"a candidate has no out-of-fold values of {sig}")
+    # every part's pool is the same rows: the signal's values from a part that reads it (a
+    # per-axis model's cubic at the delayed temperature reads no temperature_c itself)
+    src = next((f for f in fitted if f is not None and sig in f.pool_signals), None)
+    if src is None:
+        return _no_band(p, f"no candidate has out-of-fold values of {sig}")
     bad = [f.result.label for f in fitted if f is not None and
            (f.oof is None or f.oof.failed is not None)]
     if bad:

@@ -214,6 +214,8 @@ def per_axis_choice(sel: Any, cv: dict[str, Fitted], p: Plan,
     candidate, and the choice is made again without them (said in the record)."""
     from ..models.composite import composable  # torch boundary (pyproject.toml): loads torch
 
+    if "per_axis" not in sel.record:     # no choice was made at all (no common window)
+        return None
     owners = sel.per_axis
     labels = sorted({v for v in owners.values() if v is not None}, key=list(cv).index)
     if len(labels) > 1:

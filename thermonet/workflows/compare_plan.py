@@ -233,8 +233,8 @@ def _fold_plan(cfg: CompareConfig, splits: list[Split], source: str = "config"
     if cfg.target == "four-position":
         return None, ("the four-position target has one sample per soak: chosen on the "
                       "split's validation part")
-    tau = max((d.param for fam in cfg.families for d in dynamic_signals(fam.inputs)
-               if d.kind in ("rate", "lag")), default=0.0)
+    tau = max((d.memory_s for fam in cfg.families for d in dynamic_signals(fam.inputs)),
+              default=0.0)
     # the folds look like the test: whole runs left out where the test is a run of its own,
     # blocks inside the runs where the test is blocks inside them (a time-block split)
     try:
