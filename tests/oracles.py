@@ -19,6 +19,10 @@ through these functions checks thermonet against the vehicle, not against itself
 
 The peers' *calibration scripts* (``process_sensor_caldata.py``, ``tempcal_IMU.py``) are
 re-implemented in ``tests/test_autopilot_parity.py`` and ``experiments/px4_caldata_anchor.py``.
+
+Beside them, the dynamic inputs one sample at a time (:func:`dynamic_inputs_loop`): the
+recurrences of ``configs/README.md`` ("Dynamic inputs") in a plain loop, the names parsed here,
+none of :mod:`thermonet.features.dynamics` used — the oracle of its vectorised scans.
 """
 
 from __future__ import annotations
@@ -108,3 +112,49 @@ def ardupilot_offsets(p: Mapping[str, float], imu: int, kind: str, temp: np.ndar
             cols.append((c1 + (c2 + c3 * x) * x) * x * dtype(1e-6)
                         - (c1 + (c2 + c3 * xc) * xc) * xc * dtype(1e-6))
     return np.column_stack(cols)
+
+
+def dynamic_inputs_loop(time_s, temperature_c, names, gap_s):
+    """Every dynamic input of ``names`` (``rate``, ``rate_<τ>``, ``lag_<τ>``, ``delayed_<τ>``,
+    ``play_<w>``) one sample at a time: with e = T − EMA_τ(T) (T linear between samples),
+    e_k = e_{k−1} + g(h)·[(T_k − T_{k−1}) − h·e_{k−1}], h = Δt/τ, g = (1 − e^−h)/h; rate
+    60·e/τ (°C/min), lag e, delayed T − e; play T − P, P_k = min(max(P_{k−1}, T_k − w), T_k + w).
+    The first sample and the first after a gap (> ``gap_s`` since the last finite temperature)
+    restart (e = 0, P = T); a NaN temperature gives NaN and leaves the state.  Returns
+    ({signal name: values}, gap flags)."""
+    import math
+
+    specs = []
+    for name in names:
+        kind, _, value = name.partition("_")
+        if kind not in ("rate", "lag", "delayed", "play"):
+            continue
+        c = float(value) if value else 60.0
+        signal = ("rate_c_per_min" if name == "rate" else f"{name}_c_per_min") \
+            if kind == "rate" else f"{name}_c"
+        specs.append((kind, c, signal))
+    n = len(time_s)
+    out = {sig: np.full(n, np.nan) for _, _, sig in specs}
+    gap = np.zeros(n, dtype=bool)
+    started, t_prev, T_prev = False, 0.0, 0.0
+    state = [0.0] * len(specs)
+    for k in range(n):
+        t, T = float(time_s[k]), float(temperature_c[k])
+        if not math.isfinite(T):
+            continue
+        restart = not started or (t - t_prev) > gap_s
+        gap[k] = started and restart
+        for j, (kind, c, sig) in enumerate(specs):
+            if kind == "play":
+                state[j] = T if restart else min(max(state[j], T - c), T + c)
+                out[sig][k] = T - state[j]
+                continue
+            if restart:
+                state[j] = 0.0
+            else:
+                h = (t - t_prev) / c
+                state[j] += -math.expm1(-h) / h * ((T - T_prev) - h * state[j])
+            e = state[j]
+            out[sig][k] = {"rate": 60.0 * e / c, "lag": e, "delayed": T - e}[kind]
+        started, t_prev, T_prev = True, t, T
+    return out, gap

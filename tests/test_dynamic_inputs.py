@@ -2,7 +2,7 @@
 
 For each kind of dynamic input (``rate`` and ``rate_<tau>``, ``lag_<tau>``, ``play_<w>``, at
 several constants) the plain per-sample loop of the definition
-(:func:`thermonet.features.dynamics.reference_signals`) is the oracle for
+(``tests/oracles.py``'s :func:`dynamic_inputs_loop`) is the oracle for
 
 * the training computation (:func:`~thermonet.features.dynamics.compute`, a blocked scan),
 * the torch-free runtime's batch computation (``export/thermonet_runtime.py``: its own blocked
@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from conftest import load_runtime
+from oracles import dynamic_inputs_loop
 from thermonet.core.trainconfig import TrainConfig
 from thermonet.exporting import render_c_header
 from thermonet.exporting.c_stream import run_stream_c
@@ -81,7 +82,7 @@ def _assert_same(got: dict, gap_got: np.ndarray, ref: dict, gap_ref: np.ndarray,
 @pytest.mark.parametrize("n", [1, 2, 15, 16, 17, 255, 256, 257, 3000, 65535, 65536, 65537])
 def test_every_input_training_and_runtime_match_the_definition(n):
     t, temp = _sequence(n)
-    ref, gap_ref = dynamics.reference_signals(t, temp, INPUTS, GAP_S)
+    ref, gap_ref = dynamic_inputs_loop(t, temp, INPUTS, GAP_S)
     if n > 1000:   # the sequence does restart and miss samples on the block edges
         assert gap_ref.sum() >= 3 and np.isnan(temp).sum() >= 2
         assert np.nanmax(np.abs(ref["rate_30_c_per_min"])) > 0.5        # ≈ 1.2 °C/min ramps
@@ -106,7 +107,7 @@ def test_every_input_c_step_matches_the_definition():
     temperatures on block edges: float32 arithmetic, within float32 rounding of each signal."""
     n = 3000
     t, temp = _sequence(n, seed=1)
-    ref, gap_ref = dynamics.reference_signals(t, temp, INPUTS, GAP_S)
+    ref, gap_ref = dynamic_inputs_loop(t, temp, INPUTS, GAP_S)
     spec = FeatureSpec(inputs=INPUTS, gap_s=GAP_S)
     dyn = dynamics.dynamic_signals(INPUTS)
     outputs = [f"out_{k}" for k in range(len(dyn))]

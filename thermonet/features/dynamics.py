@@ -86,7 +86,7 @@ __all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInp
            "Lag", "Delayed", "Play", "INPUTS", "register_input", "compute", "DynamicStream",
            "parse_dynamic", "is_dynamic", "check_time",
            "dynamic_signals", "default_gap_s", "constants", "from_constants",
-           "reference_signals", "saturation_margin", "input_set_warnings",
+           "saturation_margin", "input_set_warnings",
            "SETTLE_TIME_CONSTANTS"]
 
 #: Time constant of ``rate`` (s).
@@ -454,39 +454,6 @@ def compute(time_s: np.ndarray, temperature_c: np.ndarray, inputs: Sequence[str]
     gap : (N,) bool, true at the first sample after a gap (start-up excluded)
     """
     return DynamicStream(inputs, gap_s).push(time_s, temperature_c)
-
-
-def reference_signals(time_s: Sequence[float], temperature_c: Sequence[float],
-                      inputs: Sequence[str], gap_s: float
-                      ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """The same as :func:`compute`, one sample at a time (plain loop; the tests' oracle)."""
-    check_time(np.asarray(time_s, dtype=np.float64))
-    dyn = dynamic_signals(inputs)
-    n = len(time_s)
-    out = {d.signal: np.full(n, np.nan) for d in dyn}
-    gap = np.zeros(n, dtype=bool)
-    started = False
-    t_prev = T_prev = 0.0
-    state: list[float] = [0.0] * len(dyn)
-    for k in range(n):
-        t, T = float(time_s[k]), float(temperature_c[k])
-        if not math.isfinite(T):
-            continue
-        restart = not started or (t - t_prev) > gap_s
-        gap[k] = started and restart
-        for j, d in enumerate(dyn):
-            if restart:
-                state[j] = T if isinstance(d, Play) else 0.0
-            elif isinstance(d, Play):
-                state[j] = min(max(state[j], T - d.half_width_c), T + d.half_width_c)
-            else:
-                h = (t - t_prev) / d.param
-                g = -math.expm1(-h) / h
-                state[j] = state[j] + g * ((T - T_prev) - h * state[j])
-            v = state[j]
-            out[d.signal][k] = T - v if isinstance(d, Play) else float(d.from_state(T, v))
-        started, t_prev, T_prev = True, t, T
-    return out, gap
 
 
 #: A time-constant input settles (its start-up transient falls below e⁻³ ≈ 5 %) in this many
