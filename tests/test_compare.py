@@ -100,6 +100,36 @@ def test_compare_recovers_quadratic_drift_and_writes_everything(tmp_path):
     assert "cubic" in format_table(res) and "chosen: cubic" in format_table(res)
 
 
+def test_the_typed_result_is_what_every_consumer_reads_and_what_was_written(tmp_path,
+                                                                            monkeypatch):
+    """issue 51: compare hands its typed result to the table, the report and the API — none
+    parses a document back (from_json is not called in the process that wrote it) — and the
+    result is the file: its document is results.json, its table and page those of the file."""
+    import thermonet
+    from thermonet.reporting.report import render_report
+    from thermonet.reporting.results import ComparisonResult as Typed
+    from thermonet.workflows.compare import compare_result
+
+    path = write_parquet(toy_dataset(), tmp_path / "toy.parquet")
+    fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
+            FamilyConfig(family="linear", name="linear")]
+
+    def no_parse(*a, **k):
+        raise AssertionError("a document parsed in the process that built the result")
+
+    with monkeypatch.context() as m:
+        m.setattr(Typed, "from_json", classmethod(no_parse))
+        res = compare_result(config(path, fams), tmp_path / "out", track=False, quiet=True,
+                             plots=False)
+        table, page = format_table(res), render_report(res)
+        api = thermonet.compare(config(path, fams), out=tmp_path / "api", plots=False)
+        assert api.record.chosen == res.chosen and api.table().startswith(table.split()[0])
+    assert isinstance(res, Typed) and res.families["cubic"].checkpoint_sha256
+    doc = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert res.to_json() == doc
+    assert format_table(doc) == table and render_report(doc) == page   # a file, read once
+
+
 def test_family_that_cannot_fit_is_reported_and_others_go_on(tmp_path):
     path = write_parquet(toy_dataset(soak_levels=[0.0, 20.0, 40.0]), tmp_path / "soaks.parquet")
     fams = [FamilyConfig(family="poly", name="poly6", params={"degree": 6}),

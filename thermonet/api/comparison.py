@@ -1,8 +1,9 @@
 """``thermonet.compare``: the command line's comparison from Python, with typed results.
 
-:func:`compare` runs :func:`thermonet.workflows.compare.run_compare` — the comparison
+:func:`compare` runs :func:`thermonet.workflows.compare.compare_result` — the comparison
 ``thermonet compare`` runs, nothing re-implemented — and returns a :class:`ComparisonResult`
-read from its ``results.json`` document: ``.chosen``, ``.families[name]`` (scores, verdicts,
+around its typed result (:class:`thermonet.reporting.results.ComparisonResult`, not read back
+from ``results.json``): ``.chosen``, ``.families[name]`` (scores, verdicts,
 per-axis metrics), ``.warnings``, ``.estimator(name)`` (a fitted
 :class:`~thermonet.api.DriftEstimator` loaded from the family's checkpoint) and ``.table()``
 (the command line's table).  Files are written only where ``out`` names a directory;
@@ -15,6 +16,8 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+from collections.abc import Mapping
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -80,7 +83,8 @@ class SensorComparisonResult:
 
 
 class ComparisonResult:
-    """What :func:`compare` returns; ``results`` is the ``results.json`` document itself.
+    """What :func:`compare` returns: the comparison's typed result (``record``), its fitted
+    estimators and where its files are; ``results`` is its ``results.json`` document.
 
     Attributes
     ----------
@@ -90,7 +94,8 @@ class ComparisonResult:
     baseline : str or None
     families : dict of str to FamilyResult
     record : thermonet.reporting.results.ComparisonResult
-        The whole comparison, typed (what ``results`` is the document of).
+        The whole comparison, typed (what ``results`` is the document of; a document given
+        in its place is read once).
     warnings : list of str
     units : dict of str to str
     out : Path or None
@@ -98,14 +103,14 @@ class ComparisonResult:
     results : dict
     """
 
-    def __init__(self, results: dict[str, Any], estimators: dict[str, DriftEstimator],
-                 out: Path | None) -> None:
-        self.results = results
+    def __init__(self, results: TypedResult | Mapping[str, Any],
+                 estimators: dict[str, DriftEstimator], out: Path | None) -> None:
         self.out = out
         self._estimators = estimators
         try:
-            #: the comparison's typed record (thermonet.reporting.results), the one reader
-            self.record = TypedResult.from_json(results)
+            #: the comparison's typed record (thermonet.reporting.results): compare's own
+            self.record = results if isinstance(results, TypedResult) else \
+                TypedResult.from_json(results)
         except ValueError as err:
             raise ThermonetError(str(err)) from None
         self.chosen: str | None = self.record.chosen
@@ -114,6 +119,11 @@ class ComparisonResult:
         self.warnings: list[str] = list(self.record.warnings)
         self.units: dict[str, str] = dict(self.record.units)
         self.families: dict[str, FamilyResult] = dict(self.record.families)
+
+    @cached_property
+    def results(self) -> dict[str, Any]:
+        """The ``results.json`` document (``record.to_json()``: what compare wrote)."""
+        return self.record.to_json()
 
     def __repr__(self) -> str:
         return (f"ComparisonResult(chosen={self.chosen!r}, families={list(self.families)}, "
@@ -146,7 +156,7 @@ class ComparisonResult:
         """The comparison as the command line prints it."""
         from ..workflows.compare import format_table  # lazy: importing it loads yaml
 
-        return format_table(self.results)
+        return format_table(self.record)
 
 
 def _config(config: Any) -> Any:
@@ -203,7 +213,7 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
     families, inputs and hyper-parameter names and values.
     """
     from ..training.config import check_families  # lazy: importing it loads yaml
-    from ..workflows.compare import run_compare  # lazy: importing it loads yaml
+    from ..workflows.compare import compare_result  # lazy: importing it loads yaml
 
     a_path(out, "compare(out)", none=True)
     flag(track, "compare(track)")
@@ -223,13 +233,12 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
     else:
         target = Path(out)
     try:
-        results = run_compare(cfg, target, overwrite=bool(overwrite), track=bool(track),
-                              tracking_uri=tracking_uri, quiet=bool(quiet), dataset=dataset,
-                              plots=bool(plots) and out is not None,
-                              workers=None if workers is None else int(workers))
-        # the model kind's result (by results.json's ``model``; a bias comparison has none)
-        return _RESULTS[results.get("model", "bias")](results, target,
-                                                      None if out is None else target)
+        results = compare_result(cfg, target, overwrite=bool(overwrite), track=bool(track),
+                                 tracking_uri=tracking_uri, quiet=bool(quiet),
+                                 dataset=dataset, plots=bool(plots) and out is not None,
+                                 workers=None if workers is None else int(workers))
+        # the model kind's result (by the config's ``model``): a bias comparison's is typed
+        return _RESULTS[cfg.model](results, target, None if out is None else target)
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -246,13 +255,13 @@ def _sensor_result(results: dict[str, Any], target: Path, out: Path | None
     return SensorComparisonResult(results, models, out)
 
 
-def _bias_result(results: dict[str, Any], target: Path, out: Path | None) -> ComparisonResult:
+def _bias_result(results: TypedResult, target: Path, out: Path | None) -> ComparisonResult:
     """A bias comparison: a :class:`DriftEstimator` per fitted family, loaded from its
     checkpoint in ``target`` (before a temporary ``target`` is removed)."""
     estimators = {}
-    for name, f in (results.get("families") or {}).items():
-        ckpt = f.get("checkpoint")
-        if f.get("status") == "ok" and ckpt:
+    for name, f in results.families.items():
+        ckpt = f.checkpoint
+        if f.ok and ckpt:
             path = Path(ckpt)
             if not path.is_absolute() or not path.exists():
                 path = target / "models" / f"{name}.pt"
@@ -260,5 +269,6 @@ def _bias_result(results: dict[str, Any], target: Path, out: Path | None) -> Com
     return ComparisonResult(results, estimators, out)
 
 
-#: What ``compare`` returns per model kind, by results.json's ``model``.
+#: What ``compare`` returns per model kind, by the config's ``model`` (a bias comparison's
+#: typed result; the whole-sensor model's ``results.json`` document).
 _RESULTS: dict[str, Any] = {"bias": _bias_result, "sensor": _sensor_result}

@@ -22,7 +22,7 @@ def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
     # the config is checked whole before the comparison machinery (torch) is imported:
     # a wrong key or value is refused in a fraction of a second
     cfg = load_config(args.config)
-    from ..workflows.compare import format_table, run_compare  # lazy: loads yaml
+    from ..workflows.compare import compare_result, format_table  # lazy: loads yaml
 
     if only is not None:
         fams = [f for f in cfg.families if f.label == only]
@@ -31,10 +31,10 @@ def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
                                  f"{', '.join(f.label for f in cfg.families)})")
         cfg.families = fams
         cfg.baseline = None
-    results = run_compare(cfg, args.out, overwrite=args.overwrite,
-                          track=False if args.no_track else None,
-                          tracking_uri=args.tracking_uri, quiet=args.quiet,
-                          plots=not args.no_plots, workers=args.workers)
+    results = compare_result(cfg, args.out, overwrite=args.overwrite,
+                             track=False if args.no_track else None,
+                             tracking_uri=args.tracking_uri, quiet=args.quiet,
+                             plots=not args.no_plots, workers=args.workers)
     if not args.quiet:
         print(format_table(results))
         print(f"\nresults: {Path(args.out) / 'results.json'}, report: "

@@ -34,7 +34,7 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -141,14 +141,15 @@ class Stage:
         self.out, self.path = out, path
         self.finished = False
 
-    def finish(self, results: dict[str, Any], clean: Callable[[Any], Any]) -> None:
-        """Point ``results`` at the final checkpoint paths, add their SHA-256, rewrite the file."""
-        for fam in results.get("families", {}).values():   # the per-axis model among them
-            staged = fam.get("checkpoint")
-            if staged:
-                fam["checkpoint_sha256"] = sha256_file(staged)
-                fam["checkpoint"] = str(self.out / "models" / Path(staged).name)
-        atomic_write_text(self.path / "results.json", json.dumps(clean(results), indent=2))
+    def final_checkpoint(self, staged: str) -> tuple[str, str]:
+        """Where the staged checkpoint ``staged`` will be once the output is moved, and its
+        SHA-256 (recorded in results.json as ``checkpoint`` and ``checkpoint_sha256``)."""
+        return str(self.out / "models" / Path(staged).name), sha256_file(staged)
+
+    def finish(self, results: dict[str, Any]) -> None:
+        """Write the finished ``results.json`` (a JSON-ready document, its checkpoints at
+        their final paths: :meth:`final_checkpoint`) and mark the stage complete."""
+        atomic_write_text(self.path / "results.json", json.dumps(results, indent=2))
         self.finished = True
 
     def done(self) -> None:

@@ -19,7 +19,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -28,6 +28,8 @@ from ..core.helpers import Helpers, usable_cores, value_or_none
 from ..core.outdir import relocate_json
 from ..core.profile import stage as profile_stage
 from ..data.logs import SensorInstance
+from ..reporting.results import ComparisonResult as TypedResult
+from ..reporting.results import clean
 from ..scoring.verdicts import below
 
 __all__ = ["BETTER_BY", "HELPER_IMPORTS", "MAX_WORKERS", "compare_all", "compare_or_why",
@@ -158,7 +160,7 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
         SplitConfig,
         TrackingConfig,
     )
-    from .compare import run_compare  # lazy: importing it loads yaml
+    from .compare import compare_result  # lazy: importing it loads yaml
 
     fw = ("px4-poly5" if inst.kind == "baro" else "px4-cubic") \
         if autopilot == "px4" or inst.kind == "mag" else "ardupilot-cubic"
@@ -203,28 +205,35 @@ def _compare(inst: SensorInstance, autopilot: str, out: Path, source: str,
     ds = inst.to_dataset(source).validate(source)
     # built inside calibrate's own staging directory (a fresh one on every run); no figures
     # per instance (the calibration's report has its own tables): the comparison is a verdict
-    res = run_compare(cfg, out, overwrite=True, track=False, quiet=True, dataset=ds,
-                      plots=False)
+    res = compare_result(cfg, out, overwrite=True, track=False, quiet=True, dataset=ds,
+                         plots=False)
     if final is not None:
         relocate_json(out / "results.json", out, final)
-    fams = res["families"]
-    summary: dict[str, Any] = {"dir": str(final or out), "chosen": res.get("chosen"),
-                               "chosen_reason": res.get("chosen_reason"), "firmware_family": fw,
+    return _summary(cast(TypedResult, res), fw, str(final or out))   # model: bias: typed
+
+
+def _summary(res: TypedResult, fw: str, where: str) -> dict[str, Any]:
+    """What calibrate keeps of one instance's comparison ``res`` (the firmware form ``fw``,
+    written to ``where``): the choice, the firmware form's band, per family its validation
+    score and held-out binned drift, raw and compensated, as results.json holds them."""
+    fams = res.families
+    summary: dict[str, Any] = {"dir": where, "chosen": res.chosen,
+                               "chosen_reason": res.chosen_reason, "firmware_family": fw,
                                "families": {}}
     # the firmware form's residual-drift band (thermonet.scoring.band): the EKF
     # recommendation written beside the parameter file
-    band = (fams.get(fw) or {}).get("band") or {}
+    band = (fams[fw].band if fw in fams else None) or {}
     if band.get("status") == "ok":
-        summary["band"] = {"units": dict(res.get("units") or {}), **band}
+        summary["band"] = {"units": dict(res.units), **band}
     for label, fr in fams.items():
-        if fr.get("status") != "ok":
-            summary["families"][label] = {"status": fr.get("status"), "reason": fr.get("reason")}
+        if not fr.ok:
+            summary["families"][label] = {"status": fr.status, "reason": fr.reason}
             continue
-        axes = fr["axes"]
+        axes = fr.axes
         summary["families"][label] = {
-            "status": "ok", "val_score": fr["val_score"],
-            "held_out_pp_raw": {a: m["pp_raw"] for a, m in axes.items()},
-            "held_out_pp_comp": {a: m["pp_comp"] for a, m in axes.items()}}
+            "status": "ok", "val_score": clean(fr.val_score),
+            "held_out_pp_raw": {a: m.metrics["pp_raw"] for a, m in axes.items()},
+            "held_out_pp_comp": {a: m.metrics["pp_comp"] for a, m in axes.items()}}
     return summary
 
 

@@ -28,7 +28,11 @@ model's (:class:`thermonet.workflows.sensor.SensorSteps`) — and :func:`run_com
 whichever it names through the one driver, in the same staging directory, thread limits and
 figure helpers.
 
-:func:`run_compare` returns the ``results.json`` document as a dict.  With
+:func:`compare_result` returns the typed result
+(:class:`~thermonet.reporting.results.ComparisonResult`; the whole-sensor model, its
+document), which the console's table, the report, calibrate, fleet, learn and the API read;
+``results.json`` is written from it at the edge (:meth:`ComparisonResult.to_json`), and
+:func:`run_compare` returns that document as a dict, for scripts that want it.  With
 leave-one-run-out the per-axis metrics are means over folds, ``folds`` under
 each family holds the per-fold values, the verdicts pool every fold's
 held-out blocks, and the checkpoint is the last fold's model.
@@ -44,7 +48,7 @@ from typing import Any
 from ..core.errors import ConfigError, Interrupted, ThermonetError
 from ..core.fileio import atomic_write_text
 from ..core.helpers import usable_cores
-from ..core.outdir import staged_output
+from ..core.outdir import Stage, staged_output
 from ..core.profile import stage
 from ..core.recording import Dataset
 from ..core.version import __version__
@@ -70,9 +74,9 @@ from .compare_table import format_table
 from .compare_track import TrackingSession, family_record
 from .provenance import data_source, family_config, resolved_config, resolved_yaml
 from .sensor import SensorSteps
-from .steps import RunOptions, Steps, run_steps
+from .steps import Outcome, RunOptions, Steps, run_steps
 
-__all__ = ["run_compare", "format_table"]
+__all__ = ["run_compare", "compare_result", "format_table"]
 
 
 def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = False,
@@ -80,7 +84,22 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
                 quiet: bool = False, progress: Progress | None = None,
                 dataset: Dataset | None = None, plots: bool = True,
                 workers: int | None = None) -> dict[str, Any]:
-    """Fit every family of ``cfg``, judge on held-out data, write ``out_dir``; return results.
+    """:func:`compare_result`, returned as the ``results.json`` document (a dict, as written;
+    :meth:`ComparisonResult.to_json`): the same arguments, the same files."""
+    res = compare_result(cfg, out_dir, overwrite=overwrite, track=track,
+                         tracking_uri=tracking_uri, quiet=quiet, progress=progress,
+                         dataset=dataset, plots=plots, workers=workers)
+    return res.to_json() if isinstance(res, ComparisonResult) else res
+
+
+def compare_result(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = False,
+                   track: bool | None = None, tracking_uri: str | None = None,
+                   quiet: bool = False, progress: Progress | None = None,
+                   dataset: Dataset | None = None, plots: bool = True,
+                   workers: int | None = None) -> Outcome:
+    """Fit every family of ``cfg``, judge on held-out data, write ``out_dir``; return the
+    typed result (:class:`~thermonet.reporting.results.ComparisonResult`; ``model: sensor``:
+    its ``results.json`` document, a dict).
 
     ``dataset`` replaces the configured data (benchmarks feed variants of one
     simulation this way); the config's ``data`` section is then ignored.
@@ -88,7 +107,6 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
     ``workers`` overrides the config's ``workers`` (families fitted side by side,
     :func:`family_workers`); ``workers=1`` also draws the figures in this process (else
     two child processes draw them, :mod:`thermonet.reporting.plot_workers`).
-    Returns the ``results.json`` document (:meth:`ComparisonResult.to_json`).
 
     The output appears whole or not at all (:mod:`thermonet.core.outdir`): it is
     built in a staging directory beside ``out_dir`` and moved into place when
@@ -127,8 +145,24 @@ def run_compare(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool = Fa
                 raise ConfigError(f"{out}: --out must be a directory, and this is a file")
             with drawers:
                 results = run_steps(kind(cfg, out, drawers=drawers, options=options))
-            stage.finish(results, lambda doc: doc)
+            _finish(stage, results)
     return results
+
+
+def _finish(stage: Stage, results: Outcome) -> None:
+    """The checkpoints' final paths and SHA-256 in the result (the per-axis model's among
+    them), and ``results.json`` written from it once more (:meth:`Stage.finish`)."""
+    if isinstance(results, ComparisonResult):
+        for fam in results.families.values():
+            if fam.checkpoint:
+                fam.checkpoint, fam.checkpoint_sha256 = stage.final_checkpoint(fam.checkpoint)
+        stage.finish(results.to_json())
+        return
+    for doc in results.get("families", {}).values():    # a kind without a typed result
+        if doc.get("checkpoint"):
+            doc["checkpoint"], doc["checkpoint_sha256"] = stage.final_checkpoint(
+                doc["checkpoint"])
+    stage.finish(results)
 
 
 class _BiasSteps:
@@ -166,19 +200,23 @@ class _BiasSteps:
         self.fitted, self.records = _fit_step(self.run, self.o.workers)
 
     def judge(self) -> None:
-        self.doc = _judge_step(self.run, self.fitted)
+        _judge_step(self.run, self.fitted)
 
     def write(self) -> None:
-        self.plot_paths = _write_step(self.run, self.fitted, self.doc, self.records,
+        self.plot_paths = _write_step(self.run, self.fitted, self.records,
                                       drawers=self.drawers if self.o.plots else None)
 
-    def track(self) -> dict[str, Any]:
+    def track(self) -> ComparisonResult:
+        result = self.run.result
         with stage("MLflow: the tracking step's remainder"):
-            for w in self.run.tracking.finish(self.out / "report.html", self.plot_paths):
-                self.run.result.warn(w)
-        for w in self.run.result.warnings:
+            # the tracking's own warnings are printed, not written: results.json (and the
+            # result, which is the file's) was logged before they could be known
+            late = [w for w in self.run.tracking.finish(self.out / "report.html",
+                                                        self.plot_paths)
+                    if w not in result.warnings]
+        for w in [*result.warnings, *dict.fromkeys(late)]:
             self.run.progress.line(f"warning: {w}")
-        return self.doc
+        return result
 
     def abort(self, err: BaseException) -> None:
         self.tracking.abort(interrupted=isinstance(err, (KeyboardInterrupt, Interrupted)))
@@ -340,9 +378,9 @@ def _save_family(run: _Run, fam: Any, f: Fitted, mask: list[bool], run_id: str |
     r.checkpoint = str(ckpt)
 
 
-def _judge_step(run: _Run, fitted: dict[str, Fitted]) -> dict[str, Any]:
+def _judge_step(run: _Run, fitted: dict[str, Fitted]) -> None:
     """Choose and judge (:func:`choose_and_judge`), the per-axis model where chosen, the
-    extrapolation warnings; returns the ``results.json`` document."""
+    extrapolation warnings: ``run.result`` complete."""
     result = run.result
     result.mlflow_run_id = run.tracking.ids()[0]
     n_val = next((f.val.n.size for f in fitted.values() if f.val is not None), 0)
@@ -363,23 +401,25 @@ def _judge_step(run: _Run, fitted: dict[str, Fitted]) -> dict[str, Any]:
     shipped = result.families.get(result.chosen) if result.chosen else None
     if shipped is not None and shipped.band is not None:
         result.band = {"model": result.chosen, **shipped.band}
-    return result.to_json()
+    result.settle()   # its free-form parts as results.json will hold them
 
 
-def _write_step(run: _Run, fitted: dict[str, Fitted], doc: dict[str, Any],
-                records: dict[str, Any], *, drawers: PlotWorkers | None) -> list[Path]:
-    """``results.json`` and ``config.resolved.yaml``, handed to the tracking child, then the
-    plots and ``report.html`` while it logs; returns the figures' paths."""
-    out = run.out
+def _write_step(run: _Run, fitted: dict[str, Fitted], records: dict[str, Any], *,
+                drawers: PlotWorkers | None) -> list[Path]:
+    """``results.json`` (the result's document, :meth:`ComparisonResult.to_json`: the edge)
+    and ``config.resolved.yaml``, the document handed to the tracking child, then the plots
+    and ``report.html`` from the result while it logs; returns the figures' paths."""
+    out, result = run.out, run.result
     with stage("write results.json"):
+        doc = result.to_json()
         atomic_write_text(out / "results.json", json.dumps(doc, indent=2))
         atomic_write_text(out / "config.resolved.yaml",
                           resolved_yaml(run.resolved, run.provenance))
-    run.tracking.log(out, doc, records)
+    run.tracking.log(out, doc, records)   # a child process's: the document, picklable
     with stage("plots"):
-        plot_paths = drawers.draw(plot_jobs(out, fitted, doc, run.p.ds)) if drawers else []
+        plot_paths = drawers.draw(plot_jobs(out, fitted, result, run.p.ds)) if drawers else []
     with stage("write the report"):
-        write_report(out / "report.html", doc, plot_paths)
+        write_report(out / "report.html", result, plot_paths)
     return plot_paths
 
 

@@ -19,11 +19,13 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.recording import Dataset, split_units
+from ..reporting.results import ComparisonResult as TypedResult
 from ..sim.fleet import simulate_fleet, unit_device_id
 from ..training.config import CompareConfig, FamilyConfig, outputs_of, train_config_of
 from ..training.loader import load_unit_file
 from ..training.parts import build_part, make_splits, targets_for
-from .compare import run_compare
+from .compare import compare_result
+from .steps import Outcome
 
 __all__ = ["UnitSource", "sources_from_dataset", "sources_from_files", "sources_from_simulation",
            "physical_coefficients", "COEF_T0_C", "UnitItem", "unit_task", "FoldItem",
@@ -224,9 +226,11 @@ def unit_task(item: UnitItem) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="thermonet-unit-"))
     try:
         udir = tmp / "unit"
-        results = run_compare(item.cfg, udir, dataset=ds, track=False, quiet=True,
-                              plots=item.plots,
-                              workers=1)   # units run side by side, not families
+        outcome = compare_result(item.cfg, udir, dataset=ds, track=False, quiet=True,
+                                 plots=item.plots,
+                                 workers=1)   # units run side by side, not families
+        # the unit's document: the fleet's results.json holds it (with the limits' verdicts)
+        results = outcome.to_json() if isinstance(outcome, TypedResult) else outcome
         files = {p.relative_to(udir).as_posix(): p.read_bytes()
                  for p in sorted(udir.rglob("*")) if p.is_file()}
         temps = [r.temperature_c for r in ds if r.temperature_c is not None]
@@ -236,10 +240,10 @@ def unit_task(item: UnitItem) -> dict[str, Any]:
                                    "temperature_span_c": span, "coefficients": {},
                                    "n_runs": len(ds), "temperature_range_c": None,
                                    "own_model": None}
-        fam = results["families"].get(item.family)
-        if fam and fam.get("status") == "ok" and fam.get("checkpoint"):
-            kind = UNIT_KINDS[results.get("model", "bias")]  # a bias comparison names none
-            own = kind.load(fam["checkpoint"])
+        ckpt = _checkpoint(outcome, item.family)
+        if ckpt:
+            kind = UNIT_KINDS[item.cfg.model]
+            own = kind.load(ckpt)
             payload["own_model"] = own  # for leave-units-out, evaluated by the fold tasks
             curves = kind.curves(own)
             payload["coefficients"] = {k: v for m in curves
@@ -251,6 +255,16 @@ def unit_task(item: UnitItem) -> dict[str, Any]:
         return payload
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _checkpoint(outcome: Outcome, family: str) -> str | None:
+    """The checkpoint of ``family`` where it was fitted: from the typed result (a bias
+    comparison's), or the whole-sensor model's document."""
+    if isinstance(outcome, TypedResult):
+        f = outcome.families.get(family)
+        return f.checkpoint if f is not None and f.ok else None
+    doc = outcome["families"].get(family) or {}
+    return doc.get("checkpoint") if doc.get("status") == "ok" else None
 
 
 @dataclass

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -18,6 +18,8 @@ from ..core.outdir import relocate_json
 from ..core.recording import Dataset, Recording
 from ..data.firmware import FirmwareFit
 from ..data.logs import SensorInstance
+from ..reporting.results import ComparisonResult as TypedResult
+from ..reporting.results import clean
 from .firmware_fit import PX4_MEDIAN_SAMPLES, fit_firmware
 from .learn_data import InstanceWindows, choose_lag, coverage, missing_words, reject_outliers
 from .learn_reduce import WINDOW_S
@@ -115,7 +117,7 @@ def _compare(inst: InstanceWindows, autopilot: str, where: Path) -> dict[str, An
         SplitConfig,
         TrackingConfig,
     )
-    from .compare import run_compare  # lazy: importing it loads yaml and the fit
+    from .compare import compare_result  # lazy: importing it loads yaml and the fit
 
     ds = _dataset(inst)
     if ds is None:
@@ -129,22 +131,23 @@ def _compare(inst: InstanceWindows, autopilot: str, where: Path) -> dict[str, An
             FamilyConfig(family="linear", name="linear", inputs=["dT"]),
             FamilyConfig(family="rbf", name="rbf", inputs=["dT", "dT2"],
                          params={"n_centres": 8, "tail": 3, "init": "quantiles"})])
-    res = run_compare(cfg, where, overwrite=True, track=False, quiet=True,
-                      dataset=ds.validate(inst.name), plots=False)
-    fams = res["families"]
-    summary: dict[str, Any] = {"status": "ok", "chosen": res.get("chosen"),
-                               "chosen_reason": res.get("chosen_reason"), "baseline": fw,
+    res = cast(TypedResult, compare_result(   # model: bias: the typed result
+        cfg, where, overwrite=True, track=False, quiet=True, dataset=ds.validate(inst.name),
+        plots=False))
+    fams = res.families
+    summary: dict[str, Any] = {"status": "ok", "chosen": res.chosen,
+                               "chosen_reason": res.chosen_reason, "baseline": fw,
                                "flights": len(ds), "test_flight": ds.run_ids[-1],
                                "families": {}}
-    band = (fams.get(fw) or {}).get("band") or {}
+    band = (fams[fw].band if fw in fams else None) or {}
     if band.get("status") == "ok":
         summary["band"] = band
     for label, fr in fams.items():
-        if fr.get("status") == "ok":
+        if fr.ok:     # as results.json holds them (clean: a non-finite score is None)
             summary["families"][label] = {
-                "val_score": fr["val_score"],
-                "held_out_pp_raw": {a: m["pp_raw"] for a, m in fr["axes"].items()},
-                "held_out_pp_comp": {a: m["pp_comp"] for a, m in fr["axes"].items()}}
+                "val_score": clean(fr.val_score),
+                "held_out_pp_raw": {a: m.metrics["pp_raw"] for a, m in fr.axes.items()},
+                "held_out_pp_comp": {a: m.metrics["pp_comp"] for a, m in fr.axes.items()}}
     return summary
 
 
