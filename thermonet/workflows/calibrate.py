@@ -29,7 +29,7 @@ For every sensor instance of PX4 ULogs or ArduPilot DataFlash logs of one board:
    m/s², **Pa** (the script's ×100 assumed hPa, PX4 issue #20051).
 3. **Side by side with thermonet's families**
    (:mod:`thermonet.workflows.calibrate_compare`), by calling
-   :func:`thermonet.workflows.compare.run_compare` on the instance (the firmware form as
+   :func:`thermonet.workflows.compare.compare_result` on the instance (the firmware form as
    the baseline family, a line, an RBF on [ΔT, ΔT²] with the cubic tail, its centres at
    ΔT's quantiles); judged on held-out
    contiguous time blocks (``split: time-blocks``), never random samples.

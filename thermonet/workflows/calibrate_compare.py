@@ -1,7 +1,7 @@
 """``thermonet calibrate``'s comparison: thermonet's families beside the firmware form, per
 sensor instance, and the instances compared side by side in helper processes.
 
-:func:`compare_or_why` runs :func:`thermonet.workflows.compare.run_compare` on one instance
+:func:`compare_or_why` runs :func:`thermonet.workflows.compare.compare_result` on one instance
 (the firmware's polynomial as the baseline family, a line, the RBF on [ΔT, ΔT²] with the
 cubic tail, its centres at ΔT's quantiles), judged on held-out contiguous time blocks;
 :func:`verdict` says whether the firmware form helps and what thermonet's best adds.

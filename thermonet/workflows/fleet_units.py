@@ -1,6 +1,6 @@
 """A fleet's units and the work done per unit: where each unit's runs come from
 (:class:`UnitSource`: a file, a split dataset, a simulation), the per-unit task (its own
-comparison, :func:`thermonet.workflows.compare.run_compare`, and the physical coefficients of
+comparison, :func:`thermonet.workflows.compare.compare_result`, and the physical coefficients of
 its model) and the per-fold task of leave-units-out (one pooled fleet model fitted through the
 one split pipeline, :mod:`thermonet.training.pipeline`, and judged on each held-out unit next to
 the unit's own model).  Tasks are plain picklable items, run by :mod:`thermonet.core.executors`.

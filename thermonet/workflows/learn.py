@@ -9,7 +9,7 @@ into a bounded set of windows per instance (memory bounded by its cap, not by th
 with the estimator's lag undone and divergences left out.  Then, per sensor instance (gyro,
 accelerometer):
 
-1. **The comparison** the chamber path runs (:func:`thermonet.workflows.compare.run_compare`,
+1. **The comparison** the chamber path runs (:func:`thermonet.workflows.compare.compare_result`,
    as ``calibrate`` does): the firmware's cubic as the baseline family, a line, the RBF with
    the cubic tail; **one flight = one run**, so the split holds out whole flights
    (``split: runs``: the last flight tests, the one before validates, the selection's folds

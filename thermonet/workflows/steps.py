@@ -3,7 +3,7 @@
 A model kind's comparison is a class with the five steps (:class:`Steps`), registered by the
 config's ``model:`` value in :data:`thermonet.workflows.compare.PIPELINES` (``bias``:
 compare's own, :mod:`thermonet.workflows.compare`; ``sensor``: the whole-sensor model,
-:class:`thermonet.workflows.sensor.SensorSteps`).  :func:`thermonet.workflows.compare.run_compare`
+:class:`thermonet.workflows.sensor.SensorSteps`).  :func:`thermonet.workflows.compare.compare_result`
 looks the class up, and runs the one driver (:func:`run_steps`) in the same staging
 directory, thread limits and figure helpers for every kind; what differs between the kinds
 is each class's steps and its data (:attr:`Steps.helpers`: whether the figures are drawn by
@@ -32,7 +32,7 @@ Outcome = Union["ComparisonResult", dict[str, Any]]
 
 @dataclass(frozen=True)
 class RunOptions:
-    """What a caller of ``run_compare`` chose, handed to every kind's steps."""
+    """What a caller of ``compare_result`` chose, handed to every kind's steps."""
 
     track: bool | None = None
     tracking_uri: str | None = None
