@@ -96,26 +96,19 @@ def test_excursion_folds_hold_out_whole_legs_purged_by_the_longest_memory():
         assert trained[dist > 1250.0].all()
 
 
-def test_a_leg_alone_in_its_direction_is_cut_in_two_and_each_half_held_out():
-    """One cycle (cooling, heating, cooling): its one heating leg could not be held out whole
-    (the rest would hold no heating), so it is cut at its middle temperature into two heating
-    legs, each held out with the other trained — four folds, heating judged on temperatures
-    the fold saw only cooling; a single ramp (one direction) is not cut and has nothing to
-    hold out: blocks under ``auto``, one line naming what the data hold under
-    ``excursions``."""
+def test_a_leg_whose_direction_the_rest_lacks_is_never_held_out():
+    """One cycle (cooling, heating, cooling): its one heating leg is not held out (the rest
+    holds no heating), so the two cooling legs are the folds and the heating leg always
+    trains; a single ramp has nothing to hold out: blocks under ``auto``, one line naming
+    what the data hold under ``excursions``."""
     t, temp = _trace([0.0, 0.3, 0.7, 1.0], [40.0, -10.0, 60.0, 30.0])
     rec = _rec(t, temp)
     mask = np.ones(t.size, dtype=bool)
     plan = plan_folds([(rec, mask)], folds=5, blocks_per_fold=8, tau_s=0.0,
                       temperatures=[temp])
-    assert plan is not None and plan.kind == "excursions" and plan.k == 4
+    assert plan is not None and plan.kind == "excursions" and plan.k == 2
     kinds = [(d["excursion"].split()[0], d["fold"]) for d in plan.legs]
-    assert kinds == [("cooling", 0), ("heating", 1), ("heating", 2), ("cooling", 3)]
-    first, second = plan.legs[1]["excursion"].split(), plan.legs[2]["excursion"].split()
-    mid = 0.5 * (float(first[1]) + float(second[3]))
-    assert float(first[3]) == float(second[1]) == pytest.approx(mid, abs=0.01)  # 4 digits
-    assert abs(mid - 25.0) < 1.0                 # the middle of -10 -> 60
-    assert plan.fold_directions[1] == plan.fold_directions[2] == {1}
+    assert kinds == [("cooling", 0), ("heating", -1), ("cooling", 1)]
     t1, ramp = _trace([0.0, 1.0], [10.0, 50.0], n=3000)
     one = _rec(t1, ramp)
     m1 = np.ones(t1.size, dtype=bool)
@@ -433,6 +426,10 @@ def test_heating_only_then_cooling_the_rule_before_ships_a_loser_the_gate_keeps_
     got = {}
     for rule in ("before", "gate"):
         cfg = CompareConfig()
+        # the default set without the cubics at the delayed temperature: those follow this
+        # preset's lag on the cooling too (bench_selection.py --stress), the rate and
+        # hysteresis models are what interleaved blocks pick and lose with
+        cfg.families = [f for f in cfg.families if not f.label.startswith("cubic-delayed")]
         cfg.split.strategy = "train-then-verify"
         if rule == "before":
             cfg.selection.hold_out, cfg.selection.gate = "blocks", False

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .fold_plan import MIN_GATE_FOLDS, FoldPlan
+from .fold_plan import MIN_GATE_FOLDS, RATE_SPREAD, FoldPlan
 from .folds import DIRECTION_NAMES
 from .verdicts import DECISION_RTOL, above, below
 
@@ -27,9 +27,6 @@ __all__ = ["MIN_GATE_FOLDS", "RATE_SPREAD", "GATE_RULE", "Gate", "one_direction"
            "reason_groups"]
 
 
-#: The pool's ramps must differ by this factor (fastest over slowest) for a model with memory
-#: to be judged at another rate than it was fitted at.
-RATE_SPREAD = 1.5
 
 #: The gate, as results.json and the report state it.
 GATE_RULE = ("the baseline stays until beaten everywhere: a candidate replaces it on an axis "

@@ -241,7 +241,7 @@ def _fold_plan(cfg: CompareConfig, splits: list[Split], source: str = "config"
         plan = plan_folds(splits[-1].pool, folds=sel.folds,
                           blocks_per_fold=sel.blocks_per_fold, tau_s=tau, purge_s=sel.purge_s,
                           window_s=sel.window_s, by_run=splits[-1].label != "time-blocks",
-                          hold_out=sel.hold_out,
+                          hold_out=sel.hold_out, gate=sel.gate,
                           temperatures=[_thermal_signal(cfg, r) for r, _ in splits[-1].pool])
     except ValueError as err:     # hold_out: excursions, and the data hold none to hold out
         raise ConfigError(f"{source}: key 'selection.hold_out': excursions, but the training "
