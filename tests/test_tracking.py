@@ -274,3 +274,42 @@ def test_a_tracking_uri_that_is_a_file_says_so_in_one_line(tmp_path, capsys, mon
                        "not a tracking store (a SQLite store is sqlite:///PATH, a server "
                        "http://HOST:PORT)"]
         assert not (tmp_path / out).exists()
+
+
+def test_where_no_helper_process_can_be_had_the_command_tracks_itself(tmp_path, monkeypatch):
+    """The MLflow worker is a helper process (core.helpers.Helpers); where none can be had (a
+    script without a ``__main__`` guard, a process limit: OSError) the same calls run in the
+    command, in turn — the same runs, every one FINISHED, the chosen model logged, and the
+    run ids in results.json."""
+    import thermonet
+    from thermonet.workflows import compare_track
+
+    def no_process(*args, **kwargs):
+        raise OSError("no helper process: refused for the test")
+
+    monkeypatch.setattr(compare_track, "Helpers", no_process)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    res = thermonet.compare({
+        "families": [{"name": "line", "family": "linear", "inputs": ["dT"]},
+                     {"name": "cubic", "family": "poly", "inputs": ["dT"],
+                      "params": {"degree": 3}}],
+        "tracking": {"uri": uri, "experiment": "inline"}},
+        data=thermonet.simulate("patent-gyro", runs=3, seed=0), out=tmp_path / "out",
+        track=True)
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    exp = client.get_experiment_by_name("inline")
+    runs = client.search_runs([exp.experiment_id])
+    names = {r.info.run_name: r for r in runs}
+    assert set(names) == {"line", "cubic", f"compare-{res.results['device']}"}
+    assert all(r.info.status == "FINISHED" for r in runs)
+    parent = names[f"compare-{res.results['device']}"]
+    assert res.results["mlflow_run_id"] == parent.info.run_id
+    logged = {a.path for a in client.list_artifacts(parent.info.run_id)}
+    assert {"results.json", "config.resolved.yaml", "report.html"} <= logged
+    mlflow.set_tracking_uri(uri)
+    try:     # the chosen model, as its run's MLflow model
+        local = mlflow.artifacts.download_artifacts(f"runs:/{parent.info.run_id}/model",
+                                                    dst_path=str(tmp_path / "dl"))
+    finally:
+        mlflow.set_tracking_uri(None)
+    assert list(Path(local).glob("*.onnx"))

@@ -102,6 +102,7 @@ class TrackingSession:
         self.enabled, self.uri, self.experiment, self.register = (enabled, uri, experiment,
                                                                    register)
         self._worker: Helpers | _InCommand | None = None
+        self._elsewhere = False                  # the worker is a process of its own
         self._opened: Future[Any] | None = None
         self._logged: Future[Any] | None = None
         self._ids: tuple[str | None, dict[str, str]] | None = None
@@ -111,7 +112,7 @@ class TrackingSession:
         if not self.enabled:
             return self
         try:
-            self._worker = Helpers(1, preload=("mlflow",))
+            self._worker, self._elsewhere = Helpers(1, preload=("mlflow",)), True
         except OSError:                  # no helper process to be had: the command does it
             self._worker = _InCommand()
         return self
@@ -121,7 +122,7 @@ class TrackingSession:
         """Ask for the parent run and one nested run per family (label, params, tags)."""
         if self._worker is None:
             return
-        elsewhere = isinstance(self._worker, Helpers)
+        elsewhere = self._elsewhere
         self._opened = self._worker.submit(_HERE, "open_runs", req={
             "uri": self.uri, "experiment": self.experiment, "name": name,
             "params": dict(params), "tags": dict(tags),
