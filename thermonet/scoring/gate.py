@@ -27,17 +27,16 @@ __all__ = ["MIN_GATE_FOLDS", "RATE_SPREAD", "GATE_RULE", "Gate", "one_direction"
            "reason_groups"]
 
 
-
 #: The gate, as results.json and the report state it.
 GATE_RULE = ("the baseline stays until beaten everywhere: a candidate replaces it on an axis "
              f"only if it was judged on at least {MIN_GATE_FOLDS} folds, its out-of-fold ratio "
              "is lower overall, and its worst fold is no worse than the baseline's worst fold "
              f"(on the same folds; ties within {DECISION_RTOL:g} are not worse); a model reading "
              "the direction of change must also have been judged on held-out excursions of both "
-             "directions and the training data must ramp at two rates or more (fastest at least "
-             f"{RATE_SPREAD:g}x the slowest); where the folds are interleaved blocks (no excursion could be held "
-             "out) the baseline is not replaced; where the baseline is worse than raw out of "
-             "fold, raw is the reference")
+             "directions and the training data must ramp at two rates or more (fastest at "
+             f"least {RATE_SPREAD:g}x the slowest); where the folds are interleaved blocks (no "
+             "excursion could be held out) the baseline is not replaced; where the baseline is "
+             "worse than raw out of fold (its interval above 1), raw is the reference")
 
 
 def one_direction(directions: Sequence[int]) -> str:
