@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .fold_plan import MIN_GATE_FOLDS, RATE_SPREAD, FoldPlan
+from .fold_plan import MIN_GATE_FOLDS, RATE_SPREAD, FoldPlan, rate_spread
 from .folds import DIRECTION_NAMES
 from .verdicts import DECISION_RTOL, above, below
 
@@ -33,10 +33,11 @@ GATE_RULE = ("the baseline stays until beaten everywhere: a candidate replaces i
              "is lower overall, and its worst fold is no worse than the baseline's worst fold "
              f"(on the same folds; ties within {DECISION_RTOL:g} are not worse); a model reading "
              "the direction of change must also have been judged on held-out excursions of both "
-             "directions and the training data must ramp at two rates or more (fastest at "
-             f"least {RATE_SPREAD:g}x the slowest); where the folds are interleaved blocks (no "
-             "excursion could be held out) the baseline is not replaced; where the baseline is "
-             "worse than raw out of fold (its interval above 1), raw is the reference")
+             "directions and the training data must ramp at two rates or more (their 90th "
+             f"percentile at least {RATE_SPREAD:g}x the 10th); where the folds are interleaved "
+             "blocks (no excursion could be held out) the baseline is not replaced; where the "
+             "baseline is worse than raw out of fold (its interval above 1), raw is the "
+             "reference")
 
 
 def one_direction(directions: Sequence[int]) -> str:
@@ -55,7 +56,8 @@ def one_direction(directions: Sequence[int]) -> str:
 
 def one_rate(rates: Sequence[float]) -> str:
     """Why a candidate with memory cannot be judged at another ramp rate ("" where the pool's
-    ramps differ by :data:`RATE_SPREAD` or more).  A lag's error grows with the rate and a
+    ramp rates spread by :data:`RATE_SPREAD` or more, :func:`rate_spread`).  A lag's error
+    grows with the rate and a
     hysteresis' does not: at one rate the two are the same correction, and which one the
     sensor has decides whether the model helps or harms at the next rate (``stress-imu``: a
     cubic at the delayed temperature fitted on one fast cycle was 0.24–0.48× the cubic's
@@ -63,11 +65,11 @@ def one_rate(rates: Sequence[float]) -> str:
     took for lag; ``bench_selection.py --stress``)."""
     if not rates:
         return ""
-    lo, hi = min(rates), max(rates)
-    if lo > 0 and hi / lo >= RATE_SPREAD:
+    spread = rate_spread(rates)
+    if spread >= RATE_SPREAD:
         return ""
-    return (f"the training data ramp at one rate (the fastest {hi / lo if lo > 0 else 1:.2g}x "
-            f"the slowest, under {RATE_SPREAD:g}x): a lag and a hysteresis cannot be told apart "
+    return (f"the training data ramp at one rate (their 90th percentile {spread:.2g}x the 10th, "
+            f"under {RATE_SPREAD:g}x): a lag and a hysteresis cannot be told apart "
             "there, so a model reading the rate, a lag, a delayed temperature or a hysteresis "
             "memory cannot be judged at another rate and does not ship over a static model")
 
