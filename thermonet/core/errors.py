@@ -8,7 +8,13 @@ row where it applies.  The CLI prints ``str(err)`` and exits with status 1.
 from __future__ import annotations
 
 __all__ = ["ThermonetError", "InputError", "ConfigError", "FitError", "ExportError",
-           "Interrupted"]
+           "Interrupted", "first_line"]
+
+
+def first_line(err: BaseException) -> str:
+    """What a caught error says, in one line: its message's first line, else its type's name
+    (a library's error quoted inside thermonet's own one-line message)."""
+    return str(err).splitlines()[0] if str(err) else type(err).__name__
 
 
 class ThermonetError(ValueError):

@@ -17,7 +17,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from ..core.errors import ExportError
+from ..core.errors import ExportError, first_line
 from ..models.composite import ShippedModel
 from .onnx_graph import DIRECT, direct_proto, direct_supported
 
@@ -79,14 +79,14 @@ def _dynamo_proto(graph: Any, example: tuple, names: list[str], out_names: list[
         return optimised
     except Exception as err:  # noqa: BLE001 - an invalid optimised graph: fold the plain one
         _log.info("optimised ONNX graph is invalid (%s); folding the unoptimised one instead",
-                  str(err).splitlines()[0] if str(err) else type(err).__name__)
+                  first_line(err))
     try:
         folded = _fold_only(proto)
         onnx.checker.check_model(folded)
         return folded
     except Exception as err:  # noqa: BLE001 - any optimiser failure: keep the plain graph
         _log.info("folding the unoptimised ONNX graph failed (%s); keeping it as exported",
-                  str(err).splitlines()[0] if str(err) else type(err).__name__)
+                  first_line(err))
     return proto
 
 

@@ -33,7 +33,7 @@ import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..core.errors import ExportError, InputError
+from ..core.errors import ExportError, InputError, first_line
 from ..core.fileio import not_a_file, refuse_overwriting_inputs
 from ..core.names import AXIS, LABEL, check_name
 from ..core.outdir import sha256_file
@@ -358,4 +358,4 @@ def _log_to_run(path: Path, run_id: str, tracking_uri: str | None, meta: dict) -
     except Exception as err:  # noqa: BLE001 - the file is written; tracking is best effort here
         logging.getLogger(__name__).warning(
             "wrote %s but could not log it to MLflow run %s at %s: %s",
-            path, run_id, uri, str(err).splitlines()[0] if str(err) else type(err).__name__)
+            path, run_id, uri, first_line(err))

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from ..core.errors import FitError, InputError
+from ..core.errors import FitError, InputError, first_line
 from ..core.fileio import atomic_path
 from ..core.names import AXIS, FAMILY, check_name, check_names
 from ..features.inputs import FeatureSpec
@@ -94,7 +94,7 @@ def load_sensor(path: str | Path) -> tuple[SensorModel, dict]:
         model.load_state_dict(payload["state_dict"])
     except (RuntimeError, KeyError, TypeError) as err:
         raise InputError(f"{p}: parameters do not match the stored family '{fam}' "
-                         f"({str(err).splitlines()[0] if str(err) else type(err).__name__})"
+                         f"({first_line(err)})"
                          ) from None
     model.eval()
     return model, {k: v for k, v in payload.items() if k != "state_dict"}

@@ -50,7 +50,7 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
-from ..core.errors import ThermonetError
+from ..core.errors import ThermonetError, first_line
 from ..core.helpers import Helpers
 from ..models.registry import PER_AXIS
 from ..tracking import HOST_TAG, PID_TAG, Tracker, _retry, end_runs_of, flatten_params
@@ -73,10 +73,6 @@ def family_record(fitted: bool, history: list[Mapping[str, Any]] | None,
     per-epoch ``history``, the final ``metrics`` and the ``checkpoint`` file (``model/``)."""
     return {"fitted": fitted, "history": list(history or []), "metrics": dict(metrics),
             "checkpoint": checkpoint}
-
-
-def _first_line(err: BaseException) -> str:
-    return str(err).splitlines()[0] if str(err) else type(err).__name__
 
 
 class _InCommand:
@@ -184,7 +180,7 @@ class TrackingSession:
             value, _logged = future.result()
         except Exception as err:  # noqa: BLE001 - MLflow's, the pool's: one line
             self.abort(interrupted=False)
-            raise TrackingFailed(f"MLflow tracking ({self.uri}): {_first_line(err)}"
+            raise TrackingFailed(f"MLflow tracking ({self.uri}): {first_line(err)}"
                                  ) from None
         return value
 
@@ -320,7 +316,7 @@ def log_chosen_model(doc: Mapping[str, Any], uri: str, run_id: str,
             path = onnx_of_checkpoint(ckpt, Path(tmp) / f"{chosen}.onnx")
             log_onnx_model(path, run_id, uri, register=register)
     except Exception as err:  # noqa: BLE001 - tracking is best effort; the files are written
-        return f"the chosen model could not be logged to MLflow: {_first_line(err)}"
+        return f"the chosen model could not be logged to MLflow: {first_line(err)}"
     return None
 
 
