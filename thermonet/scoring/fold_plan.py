@@ -306,7 +306,8 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
     saw; with two runs, two folds, on which the gate passes nothing: their excursions held
     out instead fitted a cubic on one run's legs and the other's whole, so each run's turn-on
     offset became a slope, worse than raw out of fold where the cubic was 3× better than raw
-    on the next run — ``bench_selection.py --stress``).  Otherwise (one run, or a time-block split) ``hold_out`` says what a fold holds
+    on the next run — ``bench_selection.py --stress``).  Otherwise (one run, or a time-block
+    split) ``hold_out`` says what a fold holds
     out: ``excursions`` — whole thermal excursions found in ``temperatures`` (per pool run,
     the temperature signal of every row; :func:`thermonet.scoring.folds.excursions`), the
     next warm-up or cool-down a user's test will be, purged by the longest memory of any

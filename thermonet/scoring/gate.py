@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .fold_plan import MIN_GATE_FOLDS, RATE_SPREAD, FoldPlan, rate_spread
+from .fold_plan import MIN_GATE_FOLDS, RATE_SPREAD, FoldPlan, memory_judgeable, rate_spread
 from .folds import DIRECTION_NAMES
 from .verdicts import DECISION_RTOL, above, below
 
@@ -63,11 +63,13 @@ def one_rate(rates: Sequence[float]) -> str:
     cubic at the delayed temperature fitted on one fast cycle was 0.24–0.48× the cubic's
     error on four axes of a slow cycle and 1.34–1.43× on ``gyro_x``, whose hysteresis it
     took for lag; ``bench_selection.py --stress``)."""
-    if not rates:
-        return ""
     spread = rate_spread(rates)
     if spread >= RATE_SPREAD:
         return ""
+    if np.isnan(spread):                # no leg whose rate could be timed
+        return ("no heating or cooling leg of the training data could be timed: a model "
+                "reading the rate, a lag, a delayed temperature or a hysteresis memory cannot "
+                "be judged at another rate and does not ship over a static model")
     return (f"the training data ramp at one rate (their 90th percentile {spread:.2g}x the 10th, "
             f"under {RATE_SPREAD:g}x): a lag and a hysteresis cannot be told apart "
             "there, so a model reading the rate, a lag, a delayed temperature or a hysteresis "
@@ -212,7 +214,9 @@ def held_back(ok: Mapping[str, CandidateOOF], baseline: str | None, plan: FoldPl
     every challenger where the folds are interleaved blocks."""
     if baseline is None or not gate:
         return {}
-    one_way = one_direction(plan.directions) or one_rate(plan.rates)
+    # the folds' purge follows the same test (fold_plan.memory_judgeable): one definition
+    one_way = "" if memory_judgeable(plan.directions, plan.rates) else (
+        one_direction(plan.directions) or one_rate(plan.rates))
     held = {k: one_way for k, c in ok.items() if c.directional} if one_way else {}
     if baseline in ok and plan.kind == "blocks":
         # interleaved blocks judge interpolation between training data, never the next
