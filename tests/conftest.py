@@ -8,6 +8,7 @@ the CPU and the kernels torch and numpy dispatch on it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 
@@ -56,8 +57,11 @@ REAL_DATA = Path(__file__).resolve().parent / "data" / "real"
 
 
 def toy_dataset(*, n_runs: int = 4, drift_scale: float = 1.0, noise: float = 0.002,
-                seed: int = 0, soak_levels: list[float] | None = None) -> Dataset:
-    """A 1-axis gyro on 2-hour ramps −20 → 50 °C, drift 0.05 + 0.01·ΔT − 2e-4·ΔT² deg/s.
+                seed: int = 0, soak_levels: list[float] | None = None,
+                law: Callable[[np.ndarray], np.ndarray] | None = None, dt_s: float = 1.0,
+                run_step_c: float = 0.2, device_id: str = "toy") -> Dataset:
+    """A 1-axis gyro on 2-hour ramps −20 → 50 °C (each run ``run_step_c`` warmer, a sample
+    every ``dt_s``), drift 0.05 + 0.01·ΔT − 2e-4·ΔT² deg/s — or ``law(T)``.
 
     With ``soak_levels`` the temperature steps through those levels instead
     (few distinct temperatures, for the can-not-fit cases).
@@ -65,19 +69,20 @@ def toy_dataset(*, n_runs: int = 4, drift_scale: float = 1.0, noise: float = 0.0
     rng = np.random.default_rng(seed)
     runs = []
     for k in range(n_runs):
-        t = np.arange(0.0, 2 * 3600.0, 1.0)
+        t = np.arange(0.0, 2 * 3600.0, dt_s)
         if soak_levels:
             temp = np.repeat(soak_levels, int(np.ceil(t.size / len(soak_levels))))[: t.size]
             temp = temp + rng.normal(0, 0.01, t.size)
         else:
-            temp = -20.0 + 70.0 * t / t[-1] + 0.2 * k
+            temp = -20.0 + 70.0 * t / t[-1] + run_step_c * k
         d = temp + 20.0
-        drift = drift_scale * (0.05 + 0.01 * d - 2e-4 * d ** 2)
+        drift = law(temp) if law is not None else \
+            drift_scale * (0.05 + 0.01 * d - 2e-4 * d ** 2)
         runs.append(Recording(
             time_s=t, temperature_c=temp,
             outputs={"gyro_x": drift + rng.normal(0.0, noise, t.size)},
             drift={"drift_gyro_x": drift}, units={"gyro_x": "deg/s", "temperature_c": "degC"},
-            device_id="toy", run_id=f"run{k}", sample_rate_hz=1.0))
+            device_id=device_id, run_id=f"run{k}", sample_rate_hz=1.0 / dt_s))
     return Dataset(runs)
 
 

@@ -23,8 +23,9 @@ import torch
 from sklearn.base import clone
 
 import thermonet
+from conftest import toy_dataset
 from thermonet.core.errors import ConfigError
-from thermonet.core.recording import Dataset, Recording
+from thermonet.core.recording import Dataset
 from thermonet.exporting import FORMATS
 from thermonet.models import Family, hyper, register_family, registry
 from thermonet.models.specs import param
@@ -77,18 +78,9 @@ def hinge():
 
 def _recordings(n_runs: int = 3, seed: int = 0) -> Dataset:
     """1-axis gyro on 2-hour ramps −20 → 50 °C (0.5 Hz), the hinge drift plus white noise."""
-    rng = np.random.default_rng(seed)
-    runs = []
-    for k in range(n_runs):
-        t = np.arange(0.0, 7200.0, 2.0)
-        temp = -20.0 + 70.0 * t / t[-1] + 0.3 * k
-        drift = A + B * temp + C * np.maximum(0.0, temp - KNEE)
-        runs.append(Recording(
-            time_s=t, temperature_c=temp,
-            outputs={"gyro_x": drift + rng.normal(0.0, NOISE, t.size)},
-            drift={"drift_gyro_x": drift}, units={"gyro_x": "deg/s", "temperature_c": "degC"},
-            device_id="hinge-toy", run_id=f"run{k}", sample_rate_hz=0.5))
-    return Dataset(runs)
+    return toy_dataset(n_runs=n_runs, seed=seed, noise=NOISE, dt_s=2.0, run_step_c=0.3,
+                       device_id="hinge-toy",
+                       law=lambda temp: A + B * temp + C * np.maximum(0.0, temp - KNEE))
 
 
 def test_one_class_and_one_registration_make_a_family(hinge):
