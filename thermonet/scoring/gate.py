@@ -47,11 +47,12 @@ def one_direction(directions: Sequence[int]) -> str:
         return ""
     if not directions:
         return ("the training data hold no heating or cooling excursion (soaks only): a model "
-                "reading the rate, a lag or a hysteresis memory cannot be judged on one")
+                "reading the rate, a lag, a delayed temperature or a hysteresis memory cannot be "
+                "judged on one")
     held, other = DIRECTION_NAMES[directions[0]], DIRECTION_NAMES[-directions[0]]
-    return (f"the training data hold only {held}: a model reading the rate, a lag or a "
-            f"hysteresis memory cannot be judged on {other}, so it does not ship over a static "
-            "model")
+    return (f"the training data hold only {held}: a model reading the rate, a lag, a delayed "
+            f"temperature or a hysteresis memory cannot be judged on {other}, so it does not "
+            "ship over a static model")
 
 
 def one_rate(rates: Sequence[float]) -> str:
