@@ -10,7 +10,12 @@ import pytest
 from thermonet.core.recording import Recording
 from thermonet.scoring.fold_plan import plan_folds
 from thermonet.scoring.folds import excursions
-from thermonet.scoring.gate import beats_in_every_fold, one_direction
+from thermonet.scoring.gate import (
+    TWO_FOLD_MARGIN,
+    beats_in_every_fold,
+    clear_on_each,
+    one_direction,
+)
 from thermonet.scoring.oof_pool import CandidateOOF
 from thermonet.scoring.selection import select
 
@@ -143,13 +148,13 @@ def test_a_config_asking_for_excursions_the_data_lack_is_one_line_and_nothing_wr
 
 # ------------------------------------------------------------------------------ the gate
 def _gate_case(errors: dict[str, list[float]], directional: frozenset[str] = frozenset(),
-               n_params: dict[str, int] | None = None, knots=None):
+               n_params: dict[str, int] | None = None, knots=None, folds: int = 5):
     """Excursion folds of ``_two_cycles``; the target is a slow drift plus white noise, and
     each candidate leaves, on fold f's validation rows, errors[label][f] of the drift's spread
     as a slow error of its own (seeded per candidate)."""
     rec = _two_cycles()
     mask = np.ones(rec.n_samples, dtype=bool)
-    plan = plan_folds([(rec, mask)], folds=5, blocks_per_fold=8, tau_s=0.0,
+    plan = plan_folds([(rec, mask)], folds=folds, blocks_per_fold=8, tau_s=0.0,
                       temperatures=[rec.temperature_c])
     assert plan is not None and plan.kind == "excursions"
     rng = np.random.default_rng(7)
@@ -275,6 +280,29 @@ def test_every_fold_means_ties_are_not_worse_and_unjudged_folds_do_not_count():
     assert not beats_in_every_fold(np.array([0.5, 0.71]), np.array([0.6, 0.7]))
     assert beats_in_every_fold(np.array([0.5, nan]), np.array([0.6, 0.7]))
     assert not beats_in_every_fold(np.array([nan, nan]), np.array([0.6, 0.7]))
+
+
+def test_on_two_folds_a_candidate_must_lead_on_each_by_the_margin():
+    """Two folds (two runs, each the other's new excursion): ``clear`` is 10 % better than the
+    cubic or more on both and replaces it; ``near`` is better on both and overall but by less
+    than the margin on one — a lead two folds can show by chance — and the cubic stays."""
+    assert TWO_FOLD_MARGIN == 0.9
+    nan = np.nan
+    assert clear_on_each(np.array([0.5, 0.9]), np.array([1.0, 1.0]))
+    assert not clear_on_each(np.array([0.5, 0.91]), np.array([1.0, 1.0]))
+    assert not clear_on_each(np.array([0.5, nan]), np.array([1.0, 1.0]))      # one fold judged
+    assert not clear_on_each(np.array([0.5, 0.5, 0.5]), np.array([1.0, 1.0, 1.0]))
+    for label, errs, ships in (("clear", [0.05, 0.08], True), ("near", [0.05, 0.098], False)):
+        plan, y, t, cands = _gate_case({"cubic": [0.10, 0.10], label: errs}, folds=2)
+        assert plan.k == 2
+        sel = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic")
+        folds = {k: np.array(sel.record["candidates"][k]["axes"]["gyro_x"]["fold_ratios"])
+                 for k in cands}
+        assert np.all(folds[label] < folds["cubic"])           # better on both folds
+        assert clear_on_each(folds[label], folds["cubic"]) is ships
+        assert sel.per_axis == {"gyro_x": label if ships else "cubic"}
+        if not ships:
+            assert sel.record["candidates"][label]["not_eligible"].startswith("gate:")
 
 
 def test_the_table_prints_a_fold_without_a_window():

@@ -18,17 +18,24 @@ from ..core.recording import contiguous_segments
 from .folds import DIRECTION_NAMES, TURN_FRACTION, Leg, deal, excursions, purged
 
 __all__ = ["FoldPlan", "plan_folds", "purge_rule", "window_rule", "window_labels", "HOLD_OUT",
-           "EXCURSION_INSIDE", "MIN_FOLD_SAMPLES", "MIN_GATE_FOLDS", "RATE_SPREAD", "leg_rates",
+           "EXCURSION_INSIDE", "MIN_FOLD_SAMPLES", "MIN_GATE_FOLDS", "RATE_SPREAD",
+           "TWO_FOLD_MARGIN", "leg_rates",
            "memory_judgeable", "rate_spread"]
 
 
 #: Samples a fold needs in training and in validation.
 MIN_FOLD_SAMPLES = 20
 
-#: Folds a candidate must have been judged on (and beaten its reference on, each) to replace
-#: it (:mod:`thermonet.scoring.gate`): "better in every one of two folds" happens by chance
+#: Folds a candidate must have been judged on to replace its reference with the worst-fold
+#: test alone (:mod:`thermonet.scoring.gate`): "better on both of two folds" happens by chance
 #: one time in four.
 MIN_GATE_FOLDS = 3
+
+#: On exactly two judged folds (two runs held out in turn: a fast and a slow cycle, each the
+#: other's new excursion) a candidate must be at least this much better than its reference on
+#: *each* (its ratio at most ``TWO_FOLD_MARGIN`` times the reference's): a whole run is
+#: thousands of windows, so a 10 % lead on both is not the coin toss a tie is.
+TWO_FOLD_MARGIN = 0.9
 
 #: The pool's ramp rates must spread by this factor (:func:`rate_spread`) for a model with
 #: memory to be judged at another rate than it was fitted at

@@ -1,6 +1,7 @@
 """The gate (:data:`GATE_RULE`): the baseline (the cubic) stays on an axis until a candidate
 beats it everywhere — better overall with a worst held-out fold no worse than the
-baseline's, judged on at least :data:`MIN_GATE_FOLDS` folds; a candidate reading the
+baseline's, judged on at least :data:`MIN_GATE_FOLDS` folds (on two, by
+:data:`TWO_FOLD_MARGIN` on each); a candidate reading the
 direction of change ships only where held-out excursions of both directions judged it, and
 nothing replaces the baseline on interleaved blocks (:func:`held_back`).  What the gate reads
 per candidate and fold is a :class:`Gate`; :mod:`thermonet.scoring.selection` applies it
@@ -14,15 +15,22 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .fold_plan import MIN_GATE_FOLDS, RATE_SPREAD, FoldPlan, memory_judgeable, rate_spread
+from .fold_plan import (
+    MIN_GATE_FOLDS,
+    RATE_SPREAD,
+    TWO_FOLD_MARGIN,
+    FoldPlan,
+    memory_judgeable,
+    rate_spread,
+)
 from .folds import DIRECTION_NAMES
 from .verdicts import DECISION_RTOL, above, below
 
 if TYPE_CHECKING:
     from .oof_pool import CandidateOOF, Pooled
 
-__all__ = ["MIN_GATE_FOLDS", "RATE_SPREAD", "GATE_RULE", "Gate", "one_direction", "one_rate",
-           "worst_fold_not_worse",
+__all__ = ["MIN_GATE_FOLDS", "RATE_SPREAD", "TWO_FOLD_MARGIN", "GATE_RULE", "Gate",
+           "one_direction", "one_rate", "worst_fold_not_worse", "clear_on_each",
            "beats_in_every_fold", "gate_axis", "gate_note", "held_back", "held_back_record",
            "reason_groups"]
 
@@ -31,7 +39,9 @@ __all__ = ["MIN_GATE_FOLDS", "RATE_SPREAD", "GATE_RULE", "Gate", "one_direction"
 GATE_RULE = ("the baseline stays until beaten everywhere: a candidate replaces it on an axis "
              f"only if it was judged on at least {MIN_GATE_FOLDS} folds, its out-of-fold ratio "
              "is lower overall, and its worst fold is no worse than the baseline's worst fold "
-             f"(on the same folds; ties within {DECISION_RTOL:g} are not worse); a model reading "
+             f"(on the same folds; ties within {DECISION_RTOL:g} are not worse); judged on two "
+             f"folds only (two runs), it must be at least {1 - TWO_FOLD_MARGIN:.0%} better on "
+             "each; a model reading "
              "the direction of change must also have been judged on held-out excursions of both "
              "directions and the training data must ramp at two rates or more (their 90th "
              f"percentile at least {RATE_SPREAD:g}x the 10th); where the folds are interleaved "
@@ -88,6 +98,14 @@ def worst_fold_not_worse(cand: np.ndarray, ref: np.ndarray) -> bool:
     return not above(float(np.max(cand[both])), float(np.max(ref[both])))
 
 
+def clear_on_each(cand: np.ndarray, ref: np.ndarray) -> bool:
+    """On exactly two folds where both are finite, ``cand`` is at most
+    :data:`TWO_FOLD_MARGIN` times ``ref`` on each: what two folds must show for a candidate to
+    replace its reference (two runs, each the other's new excursion)."""
+    both = np.isfinite(cand) & np.isfinite(ref)
+    return int(both.sum()) == 2 and bool(np.all(cand[both] <= TWO_FOLD_MARGIN * ref[both]))
+
+
 def beats_in_every_fold(cand: np.ndarray, ref: np.ndarray) -> bool:
     """``cand`` (per-fold ratios) is nowhere above ``ref`` (ties within the decision margin
     are not worse) on the folds where both are finite, and there is at least one."""
@@ -137,8 +155,9 @@ class Gate:
         return Gate(own, pair, np.array(pooled.base_judged, dtype=bool), list(fold_directions))
 
     def passes(self, k: str, a: int | None, against_baseline: bool) -> bool:
-        """``k`` judged on at least :data:`MIN_GATE_FOLDS` folds and nowhere worse than its
-        reference on the folds where both were judged; a candidate reading the direction of
+        """``k`` judged on at least :data:`MIN_GATE_FOLDS` folds (or on two, better than its
+        reference by :data:`TWO_FOLD_MARGIN` on each: :func:`clear_on_each`) and nowhere worse
+        than its reference on the folds where both were judged; a candidate reading the direction of
         change also judged on a held-out excursion of every direction its reference was
         judged on (a model reading the rate is not judged on heating where no fold trained it
         on heating; ``a``: one axis; None: the mean over axes)."""
@@ -151,7 +170,7 @@ class Gate:
             b = np.ones_like(c)
             ref_judged = np.ones(c.size, dtype=bool)
         judged = np.isfinite(c) & np.isfinite(b)
-        if int(judged.sum()) < MIN_GATE_FOLDS:
+        if int(judged.sum()) < MIN_GATE_FOLDS and not clear_on_each(c, b):
             return False
         if k in self.directional and self.fold_directions:
             need = set().union(*(d for d, r in zip(self.fold_directions, ref_judged,

@@ -81,7 +81,8 @@ The gate: the baseline stays until beaten everywhere
 ----------------------------------------------------
 Before the one-SE rule (:data:`GATE_RULE`, :class:`Gate`): per axis the reference is the
 baseline wherever its out-of-fold ratio is below 1, else raw; a candidate replaces it only if
-it was judged on at least :data:`MIN_GATE_FOLDS` folds, is lower overall, and its worst fold is
+it was judged on at least :data:`MIN_GATE_FOLDS` folds (on two, 10 % better on each:
+:func:`~thermonet.scoring.gate.clear_on_each`), is lower overall, and its worst fold is
 no worse than the reference's worst fold (each fold scored on the windows inside both domains);
 a candidate reading the direction of change (rate, lag, delayed temperature, hysteresis) must
 have been judged on held-out excursions of both directions and is held back where the pool
@@ -447,7 +448,8 @@ def _one_se(plan: FoldPlan, ok: Mapping[str, CandidateOOF], sc: _Scores,
                 gated[k] = held[k]
             elif not sc.gate.passes(k, None, True):
                 gated[k] = (f"gate: not better than the baseline {baseline} everywhere (judged "
-                            f"on < {MIN_GATE_FOLDS} folds, or its worst fold is worse)")
+                            f"on < {MIN_GATE_FOLDS} folds and not 10 % better on each of two, "
+                            "or its worst fold is worse)")
     c = one_se(scores, sc.boots, {k: o.n_params for k, o in ok.items()}, held=gated,
                floor=lambda k: _below_baseline(k, baseline, sc.axis_scores, outputs))
     if c.status == "no candidate":
