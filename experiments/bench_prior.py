@@ -16,6 +16,11 @@ unit is calibrated
   mixture), soaked in rising order;
 - **3 soaks alone**: the first test's points without the prior (its own cubic);
 - **ramp + prior**: 10 minutes of ramp at 1 °C/min (20 → 30 °C) and the prior;
+- **up-and-down ramp + prior**: 10 minutes of chamber cycle −20 → 75 → −20 °C (5 min each
+  way; the thermometer, lagging, sees about −20 → 55 → 12 °C), its fast samples paired
+  heating with cooling where the ramp is steady
+  (:func:`thermonet.scoring.prior_points.bin_points`), and the prior; and the same cycle in
+  40 min (20 min each way, 4.75 °C/min), long enough for the thermometer's rate to settle;
 
 and every calibration is judged on the unit's climate cycle: the RMS of its 1 °C-binned
 compensated error, offset-free.  Reported per axis: the median over
@@ -61,6 +66,8 @@ from thermonet.workflows.station import build_prior, unit_points  # noqa: E402
 
 PRESET, SEED, CLUSTERS, FOLDS = "consumer-imu", 5, 3, 5
 SOAKS, SOAKS_ENDS, RAMP = "soaks:-15,25,65", "soaks:-20,25,75", "ramp:20,30,10"
+#: up and down, 5 min each way (the chamber at 19 °C/min), and 20 min each way (4.75 °C/min)
+CYCLE, CYCLE_LONG = "cycle:-20,75,10", "cycle:-20,75,40"
 FULL = "soaks:-20,-10,0,10,20,30,40,50,60,70,75"
 CFG = config_from_mapping({"data": {"preset": PRESET},
                            "target": {"gyro": "zero", "acc": "at-t-ref"},
@@ -112,7 +119,7 @@ def leave_units_out(n_units: int) -> dict[str, Any]:
     ids = list(units)
     short = {k: split_units(simulate_fleet(PRESET, units=n_units, seed=SEED, clusters=CLUSTERS,
                                            test=k, unit_indices=list(range(n_units))))
-             for k in (SOAKS, SOAKS_ENDS, RAMP)}
+             for k in (SOAKS, SOAKS_ENDS, RAMP, CYCLE, CYCLE_LONG)}
     ratios: dict[str, dict[str, list[float]]] = {}
     for g in range(FOLDS):
         held = [d for i, d in enumerate(ids) if i % FOLDS == g]
@@ -134,7 +141,10 @@ def leave_units_out(n_units: int) -> dict[str, Any]:
                                              ("3 soaks at the ends + prior", SOAKS_ENDS, True),
                                              ("3 soaks at the plan + prior", "plan", True),
                                              ("3 soaks alone", SOAKS, False),
-                                             ("ramp + prior", RAMP, True)):
+                                             ("ramp + prior", RAMP, True),
+                                             ("up-and-down ramp + prior", CYCLE, True),
+                                             ("40-min up-and-down + prior", CYCLE_LONG,
+                                              True)):
                     pts, _, _, _ = unit_points(CFG, short[key][d], d)
                     shape = posterior(fp.axis(a), pts[a], t_ref=fp.t_ref,
                                       scale=fp.scale).shape if use_prior else _own(fp, pts[a])
@@ -211,7 +221,10 @@ def main() -> None:
                         r["3 soaks at the plan + prior"]["median"],
                         r["3 soaks at the plan + prior"]["p90"],
                         r["3 soaks alone"]["median"], r["ramp + prior"]["median"],
-                        r["ramp + prior"]["p90"], r["full (error)"]["median"]]
+                        r["ramp + prior"]["p90"], r["up-and-down ramp + prior"]["median"],
+                        r["up-and-down ramp + prior"]["p90"],
+                        r["40-min up-and-down + prior"]["median"],
+                        r["40-min up-and-down + prior"]["p90"], r["full (error)"]["median"]]
                        for ax, r in res.items()), key=lambda row: -row[1])
         data["plans"] = PLANS
         md.append(f"### Leave units out, {n} units ({time.perf_counter() - t0:.0f} s)\n\n"
@@ -220,7 +233,10 @@ def main() -> None:
                          "3 soaks at the ends+prior / full", "p90",
                          "3 soaks at the prior's plan+prior / full", "p90",
                          "3 soaks alone / full",
-                         "10-min ramp+prior / full", "p90", "full: error (median)"], rows))
+                         "10-min ramp+prior / full", "p90",
+                         "10-min up-and-down ramp+prior / full", "p90",
+                         "40-min up-and-down ramp+prior / full", "p90",
+                         "full: error (median)"], rows))
     n0 = int(a.units.split(",")[0])
     data["outliers"] = outliers(n0, a.new_units, a.new_outliers)
     o = data["outliers"]

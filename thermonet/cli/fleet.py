@@ -163,7 +163,7 @@ def _sim_unit_args(q: argparse.ArgumentParser, test: bool) -> None:
                    help="with --units: a structured fleet of K clusters of drift shapes")
     if test:
         q.add_argument("--test", default=None, help="with --units: the short test simulated "
-                       "(soaks:T1,T2,... or ramp:FROM,TO,MINUTES)")
+                       "(soaks:T1,T2,..., ramp:FROM,TO,MINUTES or cycle:FROM,TO,MINUTES)")
 
 
 def add_prior(sub: Any) -> None:

@@ -232,7 +232,8 @@ def add_simulate(sub: Any) -> None:
                         "(polynomial presets; for `thermonet prior`)")
     s.add_argument("--test", default=None,
                    help="with --units: a short production test instead of the preset's "
-                        "programme: soaks:T1,T2,... (20-min soaks) or ramp:FROM,TO,MINUTES")
+                        "programme: soaks:T1,T2,... (20-min soaks), ramp:FROM,TO,MINUTES or "
+                        "cycle:FROM,TO,MINUTES (up and back)")
     s.set_defaults(func=_cmd_simulate)
 
 

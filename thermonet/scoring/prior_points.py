@@ -1,6 +1,8 @@
 """The points a unit gives the fleet prior (:mod:`thermonet.scoring.prior`): one axis's
 1 °C-binned means (:func:`bin_points`: one point per contiguous stay in a bin, samples taken
-while the temperature moves too fast left out, each mean with its sampling variance), and the
+while the temperature moves too fast left out unless a steady ramp visits their bin both
+heating and cooling at matching rates — then the two directions' means are one paired point,
+the thermometer's lag cancelling — each mean with its sampling variance), and the
 design rows of the drift's shape on them (:func:`shape_design`: u, u², … of
 u = (T − t_ref) / scale; :func:`centred`: each run's constant profiled out).
 """
@@ -18,10 +20,13 @@ __all__ = ["BIN_C", "MIN_BIN_SAMPLES", "MAX_RATE_C_PER_MIN", "RATE_WINDOW_S", "P
 BIN_C = 1.0
 #: A 1 °C bin with fewer samples than this is not a point (a thermometer passing through).
 MIN_BIN_SAMPLES = 10
-#: Samples taken while the temperature changes faster than this are not points (°C/min;
-#: the calibration ramps the fleet prior is built from run at 1 °C/min or slower).
+#: Samples taken while the temperature changes faster than this are not points alone
+#: (°C/min; the calibration ramps the fleet prior is built from run at 1 °C/min or slower);
+#: a heating and cooling pair is a point when its net rate is within it, on a ramp whose
+#: rate changes by no more than it within RATE_WINDOW_S either side (:func:`bin_points`).
 MAX_RATE_C_PER_MIN = 1.2
-#: The temperature is smoothed over this window before its rate is taken (s).
+#: The temperature is smoothed over this window before its rate is taken (s); also the
+#: lag scale over which a paired sample's ramp must be steady.
 RATE_WINDOW_S = 60.0
 
 
@@ -50,41 +55,32 @@ class Points:
                         ("temperature_c", "value", "sampling_var", "run", "n_samples")))
 
 
-def _rate_c_per_min(t: np.ndarray, time_s: np.ndarray) -> np.ndarray:
-    """|dT/dt| in °C/min, the temperature smoothed over :data:`RATE_WINDOW_S` first."""
-    from scipy.ndimage import uniform_filter1d
+def _rate_c_per_min(t: np.ndarray, time_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """dT/dt in °C/min (signed: heating positive), the temperature smoothed over
+    :data:`RATE_WINDOW_S` first, and how much that rate changes within
+    :data:`RATE_WINDOW_S` either side of each sample (max − min, °C/min)."""
+    from scipy.ndimage import maximum_filter1d, minimum_filter1d, uniform_filter1d
 
-    dt = float(np.median(np.diff(time_s))) if time_s.size > 1 else 1.0
-    size = max(1, int(round(RATE_WINDOW_S / max(dt, 1e-9))))
-    ts = uniform_filter1d(t, size=min(size, t.size), mode="nearest")
-    return np.abs(np.gradient(ts, time_s)) * 60.0 if t.size > 1 else np.zeros_like(t)
+    if t.size < 2:
+        return np.zeros_like(t), np.zeros_like(t)
+    dt = float(np.median(np.diff(time_s)))
+    size = min(max(1, int(round(RATE_WINDOW_S / max(dt, 1e-9)))), t.size)
+    ts = uniform_filter1d(t, size=size, mode="nearest")
+    rate = np.gradient(ts, time_s) * 60.0
+    span = min(2 * size + 1, 2 * t.size - 1)
+    return rate, (maximum_filter1d(rate, span, mode="nearest") -
+                  minimum_filter1d(rate, span, mode="nearest"))
 
 
-def bin_points(temperature_c: np.ndarray, values: np.ndarray, *, time_s: np.ndarray | None = None,
-               run: int = 0, bin_c: float = BIN_C, min_samples: int = MIN_BIN_SAMPLES,
-               max_rate_c_per_min: float = MAX_RATE_C_PER_MIN) -> Points:
-    """Means of one run's visits to 1 °C bins (centred on whole degrees).
+def _empty() -> Points:
+    return Points(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, int), np.zeros(0, int))
 
-    A point is one contiguous stay in a bin: a soak is one point, a ramp one point per
-    degree, and a cycle's heating and cooling passes through a bin two points (a mean over
-    both would hide the hysteresis that a one-direction test then meets).  NaNs are dropped, and with ``time_s`` the samples taken while the temperature changed
-    faster than ``max_rate_c_per_min`` (the thermometer lags the die: a point taken while
-    the chamber jumps is wrong by the lag times the rate); bins under ``min_samples`` too.
-    The sampling variance of a mean is the bin's sample variance over its count (white
-    noise; correlated noise is in the fleet's misfit variance)."""
-    t = np.asarray(temperature_c, dtype=np.float64)
-    y = np.asarray(values, dtype=np.float64)
-    ok = np.isfinite(t) & np.isfinite(y)
-    if time_s is not None and ok.sum() > 1:
-        ts = np.asarray(time_s, dtype=np.float64)
-        rate = np.full(t.shape, np.inf)
-        rate[ok] = _rate_c_per_min(t[ok], ts[ok])
-        ok &= rate <= max_rate_c_per_min
-    t, y = t[ok], y[ok]
+
+def _visits(t: np.ndarray, y: np.ndarray, pos: np.ndarray, idx: np.ndarray,
+            run: int, min_samples: int) -> Points:
+    """One point per contiguous stay in a bin (``pos``: the samples' places in the run)."""
     if t.size == 0:
-        return Points(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, int), np.zeros(0, int))
-    idx = np.floor(t / bin_c + 0.5).astype(np.int64)   # bins centred on k·bin_c
-    pos = np.flatnonzero(ok)
+        return _empty()
     # a new visit where the bin changes or a sample was left out between two kept ones
     new = np.r_[True, (np.diff(idx) != 0) | (np.diff(pos) != 1)]
     inv = np.cumsum(new) - 1
@@ -92,8 +88,76 @@ def bin_points(temperature_c: np.ndarray, values: np.ndarray, *, time_s: np.ndar
     mt, my = np.bincount(inv, t) / n, np.bincount(inv, y) / n
     var = np.bincount(inv, (y - my[inv]) ** 2) / np.maximum(n - 1, 1)
     keep = n >= min_samples
-    return Points(mt[keep], my[keep], (var / n)[keep], np.full(int(keep.sum()), run),
-                  n[keep])
+    return Points(mt[keep], my[keep], (var / n)[keep], np.full(int(keep.sum()), run), n[keep])
+
+
+def _pairs(t: np.ndarray, y: np.ndarray, rate: np.ndarray, idx: np.ndarray, run: int,
+           min_samples: int, max_rate: float) -> Points:
+    """Fast samples' paired points: per bin, the mean of its heating samples' mean and its
+    cooling samples' mean, where both exist and their net rate is within ``max_rate``."""
+    up = rate > 0
+    pts: list[tuple[float, float, float, int]] = []
+    for b in np.unique(idx):
+        h, c = (idx == b) & up, (idx == b) & ~up
+        nh, nc = int(h.sum()), int(c.sum())
+        if nh == 0 or nc == 0 or nh + nc < min_samples or \
+                abs(rate[h].mean() + rate[c].mean()) / 2.0 > max_rate:
+            continue
+        mh, mc = y[h].mean(), y[c].mean()
+        pooled = (((y[h] - mh) ** 2).sum() + ((y[c] - mc) ** 2).sum()) / max(nh + nc - 2, 1)
+        pts.append(((t[h].mean() + t[c].mean()) / 2.0, (mh + mc) / 2.0,
+                    pooled * (1.0 / nh + 1.0 / nc) / 4.0, nh + nc))
+    if not pts:
+        return _empty()
+    a = np.array(pts)
+    return Points(a[:, 0], a[:, 1], a[:, 2], np.full(len(pts), run), a[:, 3].astype(int))
+
+
+def bin_points(temperature_c: np.ndarray, values: np.ndarray, *, time_s: np.ndarray | None = None,
+               run: int = 0, bin_c: float = BIN_C, min_samples: int = MIN_BIN_SAMPLES,
+               max_rate_c_per_min: float = MAX_RATE_C_PER_MIN, pair_fast: bool = True) -> Points:
+    """Means of one run's visits to 1 °C bins (centred on whole degrees).
+
+    A point is one contiguous stay in a bin: a soak is one point, a ramp one per degree, and
+    a cycle's heating and cooling passes through a bin two points (a mean over both would
+    hide the hysteresis that a one-direction test then meets).  NaNs are dropped; bins under
+    ``min_samples`` too.  The sampling variance of a mean is the bin's sample variance over
+    its count (white noise; correlated noise is in the fleet's misfit variance).
+
+    **Fast samples** (with ``time_s``: the temperature, smoothed over
+    :data:`RATE_WINDOW_S`, changing faster than ``max_rate_c_per_min``).  The thermometer
+    lags the die, so a sample taken at rate r is off by about (lag × r) in temperature: alone
+    it is no point.  Heating and cooling carry that error with opposite signs, so where one
+    run visits a bin both ways, the **paired point** — the mean of the bin's fast heating
+    samples' mean and its fast cooling samples' mean, the two directions weighted equally —
+    is off by the lag times the pair's *net* rate (the mean of the two directions' mean
+    signed rates).  That holds on a **steady** ramp only: the lag's error is τ·r − τ²·dr/dt,
+    and where the rate changes (a turn, a ramp's start and end) the second term has the same
+    sign both ways and does not cancel; so a fast sample pairs only where its rate changes by
+    at most ``max_rate_c_per_min`` within :data:`RATE_WINDOW_S` either side (the lag the
+    window assumes).  A pair is a point when its net rate is within ``max_rate_c_per_min``
+    (the protection a lone sample gets) and the two directions hold ``min_samples`` together;
+    its sampling variance is the pooled variance × (1/n_heat + 1/n_cool) / 4.  Fast samples
+    without such a partner are dropped (a one-way fast ramp gives no points).  A pair sits
+    between a hysteresis's two branches, where a slow cycle's two points show both.
+    ``pair_fast=False``: fast samples are always dropped."""
+    t = np.asarray(temperature_c, dtype=np.float64)
+    y = np.asarray(values, dtype=np.float64)
+    ok = np.isfinite(t) & np.isfinite(y)
+    fast = np.zeros(t.shape, bool)
+    rate, change = np.zeros(t.shape), np.zeros(t.shape)
+    if time_s is not None and ok.sum() > 1:
+        ts = np.asarray(time_s, dtype=np.float64)
+        rate[ok], change[ok] = _rate_c_per_min(t[ok], ts[ok])
+        fast = ok & (np.abs(rate) > max_rate_c_per_min)
+    idx = np.floor(np.where(ok, t, 0.0) / bin_c + 0.5).astype(np.int64)   # centred on k·bin_c
+    slow = ok & ~fast
+    parts = [_visits(t[slow], y[slow], np.flatnonzero(slow), idx[slow], run, min_samples)]
+    steady = fast & (change <= max_rate_c_per_min)
+    if pair_fast and steady.any():
+        parts.append(_pairs(t[steady], y[steady], rate[steady], idx[steady], run,
+                            min_samples, max_rate_c_per_min))
+    return Points.join(parts)
 
 
 def shape_design(temperature_c: np.ndarray, t_ref: float, scale: float,

@@ -22,7 +22,7 @@ from ``SeedSequence([seed, c, 7])`` — and every unit scatters each coefficient
 which move the coefficients together (correlated).  Presets whose bias laws are not
 polynomials are refused.  A short production test (:func:`short_test`, ``--test``)
 replaces the preset's chamber programme: ``soaks:T1,T2,…`` (20-min soaks, the chamber
-jumping between them) or ``ramp:FROM,TO,MINUTES``.
+jumping between them), ``ramp:FROM,TO,MINUTES`` or ``cycle:FROM,TO,MINUTES`` (up and back).
 
 Device ids are ``<preset>-u000``, ``<preset>-u001`` … (three digits at least).
 """
@@ -136,7 +136,10 @@ def structured_config(cfg: SimConfig, seed: int, unit: int, clusters: int) -> Si
 
 
 def short_test(spec: str) -> ChamberProfile:
-    """A short production test: ``soaks:T1,T2,…`` (°C) or ``ramp:FROM,TO,MINUTES``."""
+    """A short production test: ``soaks:T1,T2,…`` (°C), ``ramp:FROM,TO,MINUTES`` (a 2-min
+    soak at FROM, then one ramp) or ``cycle:FROM,TO,MINUTES`` (a 2-min soak at FROM, then
+    up to TO and back to FROM at one rate, MINUTES for both ways: its fast samples pair,
+    :func:`~thermonet.scoring.prior_points.bin_points`)."""
     kind, _, rest = str(spec).partition(":")
     try:
         vals = [float(v) for v in rest.split(",")] if rest else []
@@ -145,15 +148,20 @@ def short_test(spec: str) -> ChamberProfile:
     if kind == "soaks" and 1 <= len(vals) <= 20 and all(-60 <= v <= 150 for v in vals):
         return ChamberProfile(name=f"short test: soaks {rest} C", start_c=vals[0], segments=tuple(
             Soak(temperature_c=v, duration_h=SOAK_MIN / 60.0) for v in vals))
-    if kind == "ramp" and len(vals) == 3 and vals[2] > 0 and vals[0] != vals[1] and \
-            all(-60 <= v <= 150 for v in vals[:2]) and vals[2] <= 24 * 60:
+    if kind in ("ramp", "cycle") and len(vals) == 3 and vals[2] > 0 and vals[0] != vals[1] \
+            and all(-60 <= v <= 150 for v in vals[:2]) and vals[2] <= 24 * 60:
         a, b, minutes = vals
-        return ChamberProfile(name=f"short test: ramp {a:g} -> {b:g} C in {minutes:g} min",
-                              start_c=a, segments=(
-                                  Soak(temperature_c=a, duration_h=2.0 / 60.0),
-                                  Ramp(to_c=b, rate_c_per_h=abs(b - a) / minutes * 60.0)))
-    raise ConfigError(f"--test {spec!r}: expected soaks:T1,T2,... (°C, -60..150) or "
-                      "ramp:FROM,TO,MINUTES")
+        legs = 1 if kind == "ramp" else 2
+        rate = abs(b - a) * legs / minutes * 60.0
+        ramps = (Ramp(to_c=b, rate_c_per_h=rate),) + ((Ramp(to_c=a, rate_c_per_h=rate),)
+                                                       if legs == 2 else ())
+        what = f"{a:g} -> {b:g}" + (f" -> {a:g}" if legs == 2 else "")
+        return ChamberProfile(name=f"short test: {kind} {what} C in {minutes:g} min",
+                              start_c=a, segments=(Soak(temperature_c=a, duration_h=2.0 / 60.0),)
+                              + ramps)
+    raise ConfigError(f"--test {spec!r}: expected soaks:T1,T2,... (°C, -60..150), "
+                      "ramp:FROM,TO,MINUTES or cycle:FROM,TO,MINUTES (FROM != TO, -60..150 °C; "
+                      "0 < MINUTES <= 1440)")
 
 
 def simulate_fleet(preset: str | SimConfig, *, units: int, runs: int | None = None,
