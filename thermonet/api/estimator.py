@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
     from ..features.inputs import FeatureSpec
     from ..features.target import Target
-    from ..models.composite import ShippedModel
+    from ..models.composite import DriftModels
 
 __all__ = ["DriftEstimator"]
 
@@ -403,7 +403,7 @@ average_s, threads
                  runs: list[Recording], val_runs: list[Recording] | None,
                  config: TrainConfig) -> None:
         """The learned state (names ending in ``_``) from one split's fit."""
-        self.model_: ShippedModel = result.model
+        self.model_: DriftModels = result.model
         self.spec_: FeatureSpec = spec
         self.targets_: Target = targets
         self.n_features_in_: int = len(spec.inputs)

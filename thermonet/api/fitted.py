@@ -30,7 +30,7 @@ from .state import EstimatorState
 
 if TYPE_CHECKING:
     from ..features.inputs import FeatureSpec
-    from ..models.composite import ShippedModel
+    from ..models.composite import DriftModels
 
 __all__ = ["FittedEstimator", "NotFittedError", "MULTIOUTPUT"]
 
@@ -67,7 +67,7 @@ class FittedEstimator(EstimatorState):
         model = self._check_fitted("axis_models_")
         return model.axis_table() if isinstance(model, AxisModels) else None
 
-    def _check_fitted(self, what: str) -> ShippedModel:
+    def _check_fitted(self, what: str) -> DriftModels:
         model = self.__dict__.get("model_")
         if model is None:
             raise NotFittedError(f"this DriftEstimator({self.family!r}) is not fitted yet; "

@@ -26,7 +26,7 @@ from ..features.target import Target
 from ..models.specs import FamilySpec
 
 if TYPE_CHECKING:
-    from ..models.composite import ShippedModel
+    from ..models.composite import DriftModels
 
 __all__ = ["EstimatorState", "State"]
 
@@ -47,7 +47,7 @@ class EstimatorState(Params):
     t_ref_window_min: float
     stderr: str
     # -- set by fit (or load)
-    model_: ShippedModel
+    model_: DriftModels
     spec_: FeatureSpec
     outputs_: list[str]
     targets_: Target
@@ -70,7 +70,7 @@ class EstimatorState(Params):
     mlflow_run_id_: str
     fit_seconds_: float
 
-    def _check_fitted(self, what: str) -> ShippedModel:
+    def _check_fitted(self, what: str) -> DriftModels:
         """The fitted model, or :class:`~thermonet.api.fitted.NotFittedError`."""
         raise NotImplementedError
 

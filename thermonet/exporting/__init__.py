@@ -32,7 +32,7 @@ from ..core.errors import ExportError, InputError
 from ..models.shipped import ShippedModel, model_kind
 
 if TYPE_CHECKING:
-    from ..models.composite import ShippedModel as DriftModels
+    from ..models.composite import DriftModels
 
 __all__ = [
     "ExportFormat", "ExportRequest", "Exporter", "FORMATS", "register_format", "get_format",

@@ -73,7 +73,7 @@ from ..core.errors import ExportError
 from ..core.fileio import atomic_write_text
 from ..core.recording import output_kind
 from ..models import DriftModel
-from ..models.composite import AxisModels, ShippedModel
+from ..models.composite import AxisModels, DriftModels
 from ..scoring.band import Band
 from .onnx_export import family_name
 
@@ -238,7 +238,7 @@ def _polynomial_form(model: Any) -> np.ndarray:
     return form
 
 
-def autopilot_coefficients(model: ShippedModel, *, output_units: str | Mapping[str, str],
+def autopilot_coefficients(model: DriftModels, *, output_units: str | Mapping[str, str],
                            t_ref: float | None = None) -> AutopilotCoefficients:
     """Expand a polynomial model (degree ≤ 3, one input ``dT`` or ``T``) into SI cubic coefficients.
 
@@ -380,7 +380,7 @@ def ekf_recommendation(band: Mapping[str, Any] | None, output_units: str | Mappi
     return lines
 
 
-def export_px4_params(model: ShippedModel, path: str | Path, *, output_units: str | Mapping[str, str],
+def export_px4_params(model: DriftModels, path: str | Path, *, output_units: str | Mapping[str, str],
                       device_id: int | None = None, instance: int = 0,
                       band: Mapping[str, Any] | None = None) -> Path:
     """Write PX4 ``TC_G<i>_*`` / ``TC_A<i>_*`` / ``TC_B<i>_*`` / ``TC_M<i>_*`` (magnetometer,
@@ -434,7 +434,7 @@ def export_px4_params(model: ShippedModel, path: str | Path, *, output_units: st
     return atomic_write_text(Path(path), "\n".join(lines) + "\n")
 
 
-def export_ardupilot_params(model: ShippedModel, path: str | Path, *,
+def export_ardupilot_params(model: DriftModels, path: str | Path, *,
                             output_units: str | Mapping[str, str], imu: int = 1,
                             sep: str = ",", band: Mapping[str, Any] | None = None) -> Path:
     """Write ArduPilot ``INS_TCAL<n>_*`` parameters (``NAME,VALUE`` lines).

@@ -17,7 +17,7 @@ import torch
 from ..core.errors import ExportError
 from ..core.fileio import atomic_write_text
 from ..models import DriftModel
-from ..models.composite import ShippedModel
+from ..models.composite import DriftModels
 from .c_band import check_band_c, insert_band
 from .c_driver import PARITY_DRIVER, c_compiler, run_c_driver
 from .c_header import render_c_header
@@ -34,7 +34,7 @@ from .parity import (
 __all__ = ["export_c_header", "c_parity_check"]
 
 
-def c_parity_check(model: ShippedModel, header_text: str, *, prefix: str = "thermonet",
+def c_parity_check(model: DriftModels, header_text: str, *, prefix: str = "thermonet",
                    seed: int = 0, real: str = "auto") -> dict[str, float] | None:
     """Compile the header with the system C compiler and compare it with torch.
 
@@ -81,7 +81,7 @@ def c_parity_check(model: ShippedModel, header_text: str, *, prefix: str = "ther
     return {"n_points": float(n), "max_abs_diff": float(err.max())}
 
 
-def export_c_header(model: ShippedModel, path: str | Path, *, prefix: str = "thermonet",
+def export_c_header(model: DriftModels, path: str | Path, *, prefix: str = "thermonet",
                     check: bool = True, band: Mapping[str, Any] | None = None) -> Path:
     """Write the model as a C99 header (atomic: temp file + ``os.replace``).
 

@@ -69,7 +69,7 @@ from ..core.names import LABEL, c_comment, c_string, check_model_names, check_na
 from ..core.version import __version__
 from ..models import DriftModel
 from ..models.cgen import as_float32, c_array, c_float, c_target_prelude
-from ..models.composite import AxisModels, ShippedModel
+from ..models.composite import AxisModels, DriftModels
 from .c_recurrent import render_recurrent_stream_c
 from .c_stream_render import render_stream_block_c, render_stream_c
 from .onnx_export import check_model_finite, family_name
@@ -186,7 +186,7 @@ def _guard_c(model: DriftModel, p: str) -> tuple[list[str], list[str]]:
     return consts, body
 
 
-def render_c_header(model: ShippedModel, *, prefix: str = "thermonet") -> str:
+def render_c_header(model: DriftModels, *, prefix: str = "thermonet") -> str:
     """The header text for ``model`` (see :func:`export_c_header`); a per-axis model's is
     :func:`render_axis_models_c`."""
     if not _IDENT.fullmatch(prefix):

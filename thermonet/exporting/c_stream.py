@@ -19,7 +19,7 @@ from .c_driver import c_compiler, run_c_driver
 from .c_stream_render import _proxies
 
 if TYPE_CHECKING:
-    from ..models.composite import ShippedModel
+    from ..models.composite import DriftModels
 
 __all__ = ["STREAM_DRIVER", "STREAM_BLOCK_DRIVER",
            "run_stream_c", "check_stream", "REAL_FLAGS", "float_path_slack", "judge_step_parity"]
@@ -157,7 +157,7 @@ int main(int argc, char **argv)
 """
 
 
-def run_stream_c(model: ShippedModel, header_text: str, time_s: np.ndarray,
+def run_stream_c(model: DriftModels, header_text: str, time_s: np.ndarray,
                  temperature_c: np.ndarray, raw: np.ndarray, proxies: np.ndarray | None = None,
                  *, prefix: str = "thermonet", cflags: tuple[str, ...] = ("-O2",),
                  block: int | None = None) -> dict[str, np.ndarray]:
@@ -200,7 +200,7 @@ def run_stream_c(model: ShippedModel, header_text: str, time_s: np.ndarray,
             "ret": out["ret"]}
 
 
-def check_stream(model: ShippedModel, header_text: str, *, prefix: str = "thermonet",
+def check_stream(model: DriftModels, header_text: str, *, prefix: str = "thermonet",
                  seed: int = 0, rtol: float = 1e-4, real: str = "auto"
                  ) -> dict[str, float] | None:
     """Run ``<prefix>_step`` over a synthetic sequence and compare it with torch.
@@ -263,7 +263,7 @@ def check_stream(model: ShippedModel, header_text: str, *, prefix: str = "thermo
     return {"n_samples": float(n), "max_abs_diff": worst}
 
 
-def judge_step_parity(model: ShippedModel, got: dict[str, np.ndarray], raw: np.ndarray,
+def judge_step_parity(model: DriftModels, got: dict[str, np.ndarray], raw: np.ndarray,
                       want: np.ndarray, const: np.ndarray, t: np.ndarray, temp: np.ndarray, *,
                       real: str, rtol: float) -> float:
     """The C ``step()``'s output (``got``, from :func:`run_stream_c`) against torch's relative

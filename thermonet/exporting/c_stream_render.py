@@ -52,7 +52,7 @@ from ..features import dynamics
 from ..models.cgen import c_expm1
 
 if TYPE_CHECKING:
-    from ..models.composite import ShippedModel
+    from ..models.composite import DriftModels
 
 __all__ = ["render_stream_c", "render_stream_block_c", "stream_signature_has_proxies",
            "step_time_guard_c", "step_signature_c"]
@@ -64,17 +64,17 @@ def _float(v: float) -> str:
     return f"{float(np.float32(v)):.9e}f"
 
 
-def _proxies(model: ShippedModel) -> list[str]:
+def _proxies(model: DriftModels) -> list[str]:
     dyn = {d.signal for d in dynamics.dynamic_signals(model.inputs)}
     return [s for s in model.signals if s != "temperature_c" and s not in dyn]
 
 
-def stream_signature_has_proxies(model: ShippedModel) -> bool:
+def stream_signature_has_proxies(model: DriftModels) -> bool:
     """Whether ``<prefix>_step`` takes a ``proxies`` argument (the model reads proxies)."""
     return bool(_proxies(model))
 
 
-def render_stream_c(model: ShippedModel, p: str) -> list[str]:
+def render_stream_c(model: DriftModels, p: str) -> list[str]:
     """Lines of the state struct, ``<p>_init`` and ``<p>_step`` for ``model``."""
     P = p.upper()
     signals = list(model.signals)
@@ -236,7 +236,7 @@ def step_time_guard_c(P: str) -> list[str]:
     ]
 
 
-def render_stream_block_c(model: ShippedModel, p: str) -> list[str]:
+def render_stream_block_c(model: DriftModels, p: str) -> list[str]:
     """Lines of ``<p>_step_block``: ``n`` samples through ``<p>_step`` (module docstring).
 
     Generic over the state: it only calls ``step``, so whatever ``<p>_state`` holds is

@@ -32,7 +32,7 @@ import numpy as np
 from ..core.errors import ExportError
 
 if TYPE_CHECKING:
-    from ..models.composite import ShippedModel
+    from ..models.composite import DriftModels
 
 __all__ = ["MAX_STD", "check_output_range"]
 
@@ -41,7 +41,7 @@ __all__ = ["MAX_STD", "check_output_range"]
 MAX_STD = 1000.0
 
 
-def check_output_range(model: ShippedModel, *, source: str,
+def check_output_range(model: DriftModels, *, source: str,
                        units: Mapping[str, str] | None = None) -> None:
     """Refuse ``model`` unless its drift is finite and plausibly bounded on its trained range.
 

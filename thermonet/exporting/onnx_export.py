@@ -90,7 +90,7 @@ from ..core.names import (
 )
 from ..core.version import __version__
 from ..models import DriftModel
-from ..models.composite import AxisModels, ShippedModel
+from ..models.composite import AxisModels, DriftModels
 from .onnx_mlflow import log_onnx_model
 from .onnx_seal import DIGEST_KEY, UNSEALED, seal_bytes, seal_onnx
 from .onnx_trace import OPSET, direct_or_traced
@@ -125,7 +125,7 @@ THERMONET_FORMAT = 2
 SIGNAL_UNITS = {"temperature_c": "degC", "rate_c_per_min": "degC/min"}
 
 
-def family_name(model: ShippedModel) -> str:
+def family_name(model: DriftModels) -> str:
     """The registered family name of a DriftModel (``model.family`` is the family module)."""
     name = getattr(model, "family_name", None)
     if name is None:
@@ -133,7 +133,7 @@ def family_name(model: ShippedModel) -> str:
     return str(name)
 
 
-def check_model_finite(model: ShippedModel) -> None:
+def check_model_finite(model: DriftModels) -> None:
     """Refuse a model with a NaN/inf parameter or buffer (:class:`ExportError` naming it)."""
     for name, tensor in list(model.named_parameters()) + list(model.named_buffers()):
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
@@ -158,7 +158,7 @@ class CompensatorGraph(nn.Module):
     ``(compensated, drift, out_of_range)``.
     """
 
-    def __init__(self, model: ShippedModel) -> None:
+    def __init__(self, model: DriftModels) -> None:
         super().__init__()
         self.model = model
         self.signals = list(model.signals)
@@ -180,7 +180,7 @@ def _json(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=float)
 
 
-def _check_metadata(model: ShippedModel, meta: Mapping[str, Any]) -> None:
+def _check_metadata(model: DriftModels, meta: Mapping[str, Any]) -> None:
     """Names and provenance strings by :mod:`thermonet.core.names` before they enter the file.
 
     Structured values are JSON-encoded; plain strings (device id, run id, data
@@ -197,7 +197,7 @@ def _check_metadata(model: ShippedModel, meta: Mapping[str, Any]) -> None:
             check_units(meta[key], names, f"ONNX metadata '{key}'", error=ExportError)
 
 
-def _metadata_props(model: ShippedModel, metadata: Mapping[str, Any], exporter: str
+def _metadata_props(model: DriftModels, metadata: Mapping[str, Any], exporter: str
                     ) -> dict[str, str]:
     meta = dict(metadata)
     _check_metadata(model, meta)
@@ -261,7 +261,7 @@ def axis_models_metadata(model: AxisModels) -> dict[str, str]:
             "axis_model_parts": json.dumps(parts)}
 
 
-def target_metadata(model: ShippedModel) -> dict[str, str]:
+def target_metadata(model: DriftModels) -> dict[str, str]:
     """What each axis's drift is relative to, as metadata strings (ONNX, C comments).
 
     ``targets`` {axis: channel | zero | at-t-ref | four-position}, ``compensate``
@@ -280,7 +280,7 @@ def target_metadata(model: ShippedModel) -> dict[str, str]:
     }
 
 
-def export_onnx(model: ShippedModel, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
+def export_onnx(model: DriftModels, path: str | Path, *, metadata: Mapping[str, Any] | None = None,
                 check: bool = True, exporter: str = "auto", seed: int = 0) -> Path:
     """Export a drift model to ``path`` as a self-describing ONNX file.
 

@@ -56,7 +56,7 @@ import torch
 
 from ..models import DriftModel
 from ..models.base import TINY, output_layer
-from ..models.composite import AxisModels, ShippedModel
+from ..models.composite import AxisModels, DriftModels
 from ..models.fuzzy import TSFuzzy
 from ..models.linear import Linear
 from ..models.lorentz import Lorentz
@@ -201,7 +201,7 @@ def _part_unsupported(model: DriftModel) -> str | None:
     return None
 
 
-def direct_supported(model: ShippedModel) -> str | None:
+def direct_supported(model: DriftModels) -> str | None:
     """Why ``model`` has no direct graph (None when it has one: every part's family is
     ``linear``, ``poly``, ``rbf``, ``lorentz`` or ``ts-fuzzy``, in float32)."""
     parts = list(model.parts) if isinstance(model, AxisModels) else [model]
@@ -269,7 +269,7 @@ def _part(g: _Graph, model: DriftModel, signals: list[str], tag: str) -> tuple[s
     return drift, flag
 
 
-def direct_proto(model: ShippedModel, opset: int) -> Any:
+def direct_proto(model: DriftModels, opset: int) -> Any:
     """The ``ModelProto`` of :class:`~thermonet.exporting.onnx_export.CompensatorGraph` for
     ``model`` (inputs: one float32 [N] per signal, then ``raw`` float64 [N, A]; outputs
     ``compensated``, ``drift`` float64 [N, A], ``out_of_range`` bool [N]), built from its

@@ -18,7 +18,7 @@ import torch
 from torch import nn
 
 from ..core.errors import ExportError, first_line
-from ..models.composite import ShippedModel
+from ..models.composite import DriftModels
 from .onnx_graph import DIRECT, direct_proto, direct_supported
 
 __all__ = ["OPSET", "export_proto", "direct_or_traced"]
@@ -149,7 +149,7 @@ def export_proto(graph: Any, exporter: str) -> tuple[Any, str]:
     raise ExportError("torch.onnx.export failed (" + "; ".join(errors) + ")")
 
 
-def direct_or_traced(model: ShippedModel, graph: nn.Module, exporter: str) -> tuple[Any, str]:
+def direct_or_traced(model: DriftModels, graph: nn.Module, exporter: str) -> tuple[Any, str]:
     """The graph built directly (:mod:`.onnx_graph`) where ``exporter`` is ``direct``, or
     ``auto`` and the model's families have a direct graph; torch's exporters otherwise."""
     if exporter in ("auto", "direct"):

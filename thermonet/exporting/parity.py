@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from ..core.errors import ExportError
-from ..models.composite import ShippedModel
+from ..models.composite import DriftModels
 
 __all__ = ["PARITY_RTOL", "trained_range", "check_points", "float32_tolerance", "check_drift_parity",
            "check_flags",
@@ -32,7 +32,7 @@ GRID_POINTS = 201
 RANDOM_POINTS = 10_000
 
 
-def trained_range(model: ShippedModel) -> dict[str, tuple[float, float]]:
+def trained_range(model: DriftModels) -> dict[str, tuple[float, float]]:
     """Trained range ``{signal: (lo, hi)}`` from the model's ``sig_lo``/``sig_hi`` buffers."""
     lo = model.sig_lo.detach().cpu().double().numpy().reshape(-1)
     hi = model.sig_hi.detach().cpu().double().numpy().reshape(-1)
@@ -60,7 +60,7 @@ def check_points(ranges: Sequence[tuple[float, float]], seed: int) -> np.ndarray
     return np.concatenate([grid, rand]).astype(np.float32)
 
 
-def float32_tolerance(model: ShippedModel, points: np.ndarray, d_float32: np.ndarray, *,
+def float32_tolerance(model: DriftModels, points: np.ndarray, d_float32: np.ndarray, *,
                       rtol: float = PARITY_RTOL) -> np.ndarray:
     """Per-axis tolerance of a float32 evaluation of ``model`` at ``points``.
 
@@ -80,7 +80,7 @@ def float32_tolerance(model: ShippedModel, points: np.ndarray, d_float32: np.nda
     return np.maximum(rtol * np.abs(d_float32).max(axis=0), 4.0 * rounding)
 
 
-def check_drift_parity(model: ShippedModel, points: np.ndarray, got: np.ndarray,
+def check_drift_parity(model: DriftModels, points: np.ndarray, got: np.ndarray,
                        want: np.ndarray, tol: np.ndarray, *, what: str, who: str) -> np.ndarray:
     """``|got − want| ≤ tol`` per axis at every point, else :class:`ExportError` naming the
     worst point (signal values, axis, both drifts); returns the absolute errors."""
@@ -96,7 +96,7 @@ def check_drift_parity(model: ShippedModel, points: np.ndarray, got: np.ndarray,
     return err
 
 
-def check_flags(model: ShippedModel, points: np.ndarray, got: np.ndarray, *, what: str,
+def check_flags(model: DriftModels, points: np.ndarray, got: np.ndarray, *, what: str,
                 who: str) -> None:
     """The out-of-range flag ``got`` at ``points`` is torch's exactly (inside the trained
     range it is the joint guard's alone: a dynamic input outside what was trained near that
@@ -111,7 +111,7 @@ def check_flags(model: ShippedModel, points: np.ndarray, got: np.ndarray, *, wha
                           f"({who} {bool(got[k])}, torch {bool(want[k])})")
 
 
-def parity_check(model: ShippedModel, onnx_path: str | Path, *, seed: int = 0,
+def parity_check(model: DriftModels, onnx_path: str | Path, *, seed: int = 0,
                  rtol: float = PARITY_RTOL) -> dict[str, float]:
     """Compare onnxruntime (CPU) with torch on the grid and the random points.
 

@@ -48,7 +48,7 @@ from ..tracking import (
 from . import ExportFormat, ExportRequest, get_format
 
 if TYPE_CHECKING:
-    from ..models.composite import ShippedModel
+    from ..models.composite import DriftModels
     from . import ExportRequest
 
 __all__ = ["resolve_checkpoint", "export_source", "check_export_request", "check_out_file",
@@ -261,7 +261,7 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
 
 
 # ----------------------------------------------------- the built-in exporters
-def write_onnx(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
+def write_onnx(model: DriftModels, out: Path, request: ExportRequest) -> Path:
     """``onnx``: the graph with the checkpoint's metadata, logged to its training run."""
     path = _onnx_with_metadata(model, out, request)
     run_id = request.extra.get("mlflow_run_id")
@@ -279,7 +279,7 @@ def onnx_of_checkpoint(ckpt: str | os.PathLike[str], out: str | os.PathLike[str]
     return _onnx_with_metadata(model, Path(out), ExportRequest(meta=meta, source=str(ckpt)))
 
 
-def _onnx_with_metadata(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
+def _onnx_with_metadata(model: DriftModels, out: Path, request: ExportRequest) -> Path:
     from ..scoring.band import shipped_band  # lazy: importing it loads numpy
     from .onnx_export import export_onnx  # torch boundary (pyproject.toml): loads torch
 
@@ -304,7 +304,7 @@ def _onnx_with_metadata(model: ShippedModel, out: Path, request: ExportRequest) 
     return path
 
 
-def write_c(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
+def write_c(model: DriftModels, out: Path, request: ExportRequest) -> Path:
     """``c``: the C99 header."""
     from ..scoring.band import shipped_band  # lazy: importing it loads numpy
     from .c_export import export_c_header  # torch boundary (pyproject.toml): loads torch
@@ -312,7 +312,7 @@ def write_c(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
     return export_c_header(model, out, band=shipped_band(request.extra))
 
 
-def write_px4_params(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
+def write_px4_params(model: DriftModels, out: Path, request: ExportRequest) -> Path:
     """``px4-params``: PX4's TC_* parameter file (slot ``request.instance``, default 0)."""
     from ..scoring.band import shipped_band  # lazy: importing it loads numpy
     from .autopilot import export_px4_params  # torch boundary (pyproject.toml): loads torch
@@ -323,7 +323,7 @@ def write_px4_params(model: ShippedModel, out: Path, request: ExportRequest) -> 
                              instance=0 if request.instance is None else request.instance)
 
 
-def write_ardupilot_params(model: ShippedModel, out: Path, request: ExportRequest) -> Path:
+def write_ardupilot_params(model: DriftModels, out: Path, request: ExportRequest) -> Path:
     """``ardupilot-params``: ArduPilot's INS_TCAL* file (IMU ``request.instance``, default 1)."""
     from ..scoring.band import shipped_band  # lazy: importing it loads numpy
     from .autopilot import export_ardupilot_params  # torch boundary (pyproject.toml): loads torch

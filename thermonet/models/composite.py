@@ -48,7 +48,7 @@ from ..features.inputs import FeatureSpec
 from .drift_model import DriftModel
 from .registry import PER_AXIS
 
-__all__ = ["AxisModels", "composable", "axis_owner_table", "PER_AXIS", "ShippedModel"]
+__all__ = ["AxisModels", "composable", "axis_owner_table", "PER_AXIS", "DriftModels"]
 
 
 class _PerAxisFamily:
@@ -288,7 +288,7 @@ class AxisModels(nn.Module):
 
 
 #: Any model thermonet fits and ships: one family, or a per-axis composite of several.
-ShippedModel = DriftModel | AxisModels
+DriftModels = DriftModel | AxisModels
 
 
 def axis_owner_table(outputs: Sequence[str], owner: Sequence[int | None],

@@ -54,7 +54,7 @@ from ..core.fileio import atomic_path, not_a_file
 from ..features.inputs import FeatureSpec
 from ..features.target import MODE_CODES
 from ..models import DriftModel, build_family
-from ..models.composite import PER_AXIS, AxisModels, ShippedModel, composable
+from ..models.composite import PER_AXIS, AxisModels, DriftModels, composable
 from ..models.shipped import MODEL_KINDS
 from .checkpoint_payload import check_payload
 
@@ -147,7 +147,7 @@ def _plain(value: Any, where: str) -> Any:
                       "strings, lists and dicts can be stored")
 
 
-def save_checkpoint(path: str | os.PathLike, model: ShippedModel, *, config: dict,
+def save_checkpoint(path: str | os.PathLike, model: DriftModels, *, config: dict,
                     extra: dict | None = None, epoch: int | None = None,
                     best_val: float | None = None) -> Path:
     """Write ``model`` with its config to ``path`` atomically; return the path.
@@ -330,7 +330,7 @@ def _check_digest(path: Path, payload: dict) -> None:
                             "(edited or damaged after it was written); refusing to load it")
 
 
-def load_checkpoint(path: str | os.PathLike) -> tuple[ShippedModel, dict]:
+def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModels, dict]:
     """Rebuild the model saved by :func:`save_checkpoint` (``weights_only=True``).
 
     Returns
@@ -354,7 +354,7 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[ShippedModel, dict]:
                             f"reads format {CHECKPOINT_FORMAT}")
     _check_digest(path, payload)
     check_payload(path, payload)
-    model: ShippedModel
+    model: DriftModels
     if payload["family"] == PER_AXIS:
         model = _build_axis_models(path, payload)
     else:

@@ -40,7 +40,7 @@ from ..features.dynamics import dynamic_signals, saturation_margin
 from ..features.inputs import FeatureSpec
 from ..models import DriftModel, build_family
 from ..models.base import Family, check_output_shape
-from ..models.composite import ShippedModel
+from ..models.composite import DriftModels
 from ..models.sequence import stream_relative
 from ..scoring.domain import guard_tables
 from .optim import optimizer_step, optimizer_without_dynamo
@@ -429,7 +429,7 @@ def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
     return history, best_epoch, best_val
 
 
-def predict(model: ShippedModel, signals: np.ndarray, time_s: np.ndarray | None = None
+def predict(model: DriftModels, signals: np.ndarray, time_s: np.ndarray | None = None
             ) -> np.ndarray:
     """Drift (n, A), float64, from signals (n, S) in ``model.signals`` order.
 
