@@ -40,18 +40,21 @@ from __future__ import annotations
 
 import html
 import math
-from dataclasses import dataclass
-from typing import Any
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any, TypeVar
 
 import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.schema import from_dict
 
-__all__ = ["LimitSpec", "parse_limits", "limits_for", "judge_unit", "spread",
+__all__ = ["LimitSpec", "parse_limits", "limits_for", "merged_limits", "judge_unit", "spread",
            "robust_z", "flag_outliers", "ROBUST_Z_THRESHOLD", "MAD_TO_SIGMA",
            "MIN_UNITS_FOR_OUTLIERS",
            "fleet_html_fragment"]
+
+_L = TypeVar("_L")
 
 #: Units whose robust z-score exceeds this are flagged (Iglewicz & Hoaglin).
 ROBUST_Z_THRESHOLD = 3.5
@@ -96,11 +99,18 @@ def parse_limits(raw: Any, *, source: str = "config") -> dict[str, LimitSpec]:
     return out
 
 
+def merged_limits(limits: Mapping[str, _L], axis: str, kind: type[_L]) -> _L:
+    """The limits of ``axis``: its own entry over ``*``, key by key (``kind``: a dataclass
+    of optional limits, every field defaulting to None — a fleet's :class:`LimitSpec`, a
+    station's :class:`~thermonet.scoring.prior.StationLimit`)."""
+    base, own = limits.get("*", kind()), limits.get(axis, kind())
+    return kind(**{f.name: getattr(own, f.name) if getattr(own, f.name) is not None
+                   else getattr(base, f.name) for f in fields(kind)})  # type: ignore[arg-type]
+
+
 def limits_for(limits: dict[str, LimitSpec], axis: str) -> LimitSpec:
     """The limits of ``axis``: its own entry over ``*``, key by key."""
-    base, own = limits.get("*", LimitSpec()), limits.get(axis, LimitSpec())
-    return LimitSpec(**{k: getattr(own, k) if getattr(own, k) is not None else getattr(base, k)
-                        for k in LimitSpec.__dataclass_fields__})
+    return merged_limits(limits, axis, LimitSpec)
 
 
 def judge_unit(unit: dict[str, Any], limits: dict[str, LimitSpec]) -> dict[str, Any]:

@@ -54,7 +54,7 @@ from ..core.outdir import check_target, install
 from ..core.recording import Dataset, split_units
 from ..core.schema import from_dict
 from ..features.target import AT_T_REF, FOUR_POSITION, output_units
-from ..scoring.fleetstats import flag_outliers
+from ..scoring.fleetstats import flag_outliers, merged_limits
 from ..scoring.prior import (
     FLAG_P,
     MIN_UNITS,
@@ -326,9 +326,7 @@ def station_task(item: StationItem) -> dict[str, Any]:
 
 
 def _limit_for(limits: dict[str, StationLimit], axis: str) -> StationLimit:
-    base, own = limits.get("*", StationLimit()), limits.get(axis, StationLimit())
-    return StationLimit(**{k: getattr(own, k) if getattr(own, k) is not None else
-                           getattr(base, k) for k in StationLimit.__dataclass_fields__})
+    return merged_limits(limits, axis, StationLimit)
 
 
 def _c_idents(axes: list[str]) -> dict[str, str]:
