@@ -12,8 +12,9 @@ unit is calibrated
 - **3 soaks + prior**: a short test of three 20-min soaks and the prior, at −15, 25, 65 °C
   and at −20, 25, 75 °C (the range's ends and t_ref);
 - **3 soaks at the prior's plan + prior**: the three temperatures ``soak_plan`` chooses from
-  the fold's prior (greedy, the expected error of every axis by simulation under the
-  mixture), soaked in rising order;
+  the fold's prior (the range's ends, and the middle that lowers most the expected error of
+  every axis, by simulation under the mixture), soaked in rising order; and **at the free
+  plan** (``soak_plan(..., ends=False)``: all three by the expected error, the plan before);
 - **3 soaks alone**: the first test's points without the prior (its own cubic);
 - **ramp + prior**: 10 minutes of ramp at 1 °C/min (20 → 30 °C) and the prior;
 - **up-and-down ramp + prior**: 10 minutes of chamber cycle −20 → 75 → −20 °C (5 min each
@@ -100,7 +101,7 @@ def _own(fp: Any, pts: Any) -> np.ndarray | None:
         return None
 
 
-PLANS: dict[int, list[str]] = {}   # the prior's 3-soak plan per fold, per fleet size
+PLANS: dict[str, list[str]] = {}   # the prior's 3-soak plans per fold: '<units> <plan>'
 
 
 def _fleet(n_units: int, seed: int, **kw: Any) -> Dataset:
@@ -125,11 +126,12 @@ def leave_units_out(n_units: int) -> dict[str, Any]:
         held = [d for i, d in enumerate(ids) if i % FOLDS == g]
         train = _sweeps(Dataset(runs=[r for d in ids if d not in held for r in units[d]]))
         fp = build_prior(CFG, train, source="bench")
-        plan = "soaks:" + ",".join(f"{t:g}" for t in soak_plan(fp, 3))
-        PLANS.setdefault(n_units, []).append(plan)
-        short["plan"] = split_units(simulate_fleet(
-            PRESET, units=n_units, seed=SEED, clusters=CLUSTERS, test=plan,
-            unit_indices=[ids.index(d) for d in held]))
+        for key, ends in (("plan", True), ("free plan", False)):
+            plan = "soaks:" + ",".join(f"{t:g}" for t in soak_plan(fp, 3, ends=ends))
+            PLANS.setdefault(f"{n_units} {key}", []).append(plan)
+            short[key] = split_units(simulate_fleet(
+                PRESET, units=n_units, seed=SEED, clusters=CLUSTERS, test=plan,
+                unit_indices=[ids.index(d) for d in held]))
         for d in held:
             cal, test = units[d].runs
             cal_pts, _, _, _ = unit_points(CFG, Dataset(runs=[cal]), d)
@@ -140,6 +142,8 @@ def leave_units_out(n_units: int) -> dict[str, Any]:
                 for name, key, use_prior in (("3 soaks + prior", SOAKS, True),
                                              ("3 soaks at the ends + prior", SOAKS_ENDS, True),
                                              ("3 soaks at the plan + prior", "plan", True),
+                                             ("3 soaks at the free plan + prior", "free plan",
+                                              True),
                                              ("3 soaks alone", SOAKS, False),
                                              ("ramp + prior", RAMP, True),
                                              ("up-and-down ramp + prior", CYCLE, True),
@@ -220,6 +224,8 @@ def main() -> None:
                         r["3 soaks at the ends + prior"]["p90"],
                         r["3 soaks at the plan + prior"]["median"],
                         r["3 soaks at the plan + prior"]["p90"],
+                        r["3 soaks at the free plan + prior"]["median"],
+                        r["3 soaks at the free plan + prior"]["p90"],
                         r["3 soaks alone"]["median"], r["ramp + prior"]["median"],
                         r["ramp + prior"]["p90"], r["up-and-down ramp + prior"]["median"],
                         r["up-and-down ramp + prior"]["p90"],
@@ -228,10 +234,12 @@ def main() -> None:
                        for ax, r in res.items()), key=lambda row: -row[1])
         data["plans"] = PLANS
         md.append(f"### Leave units out, {n} units ({time.perf_counter() - t0:.0f} s)\n\n"
-                  f"the prior's plans: {'; '.join(PLANS.get(n, []))}\n\n" +
+                  f"the prior's plans: {'; '.join(PLANS.get(f'{n} plan', []))}; "
+                  f"free: {'; '.join(PLANS.get(f'{n} free plan', []))}\n\n" +
                   table(["axis", "3 soaks+prior / full (median)", "p90",
                          "3 soaks at the ends+prior / full", "p90",
                          "3 soaks at the prior's plan+prior / full", "p90",
+                         "3 soaks at the free plan+prior / full", "p90",
                          "3 soaks alone / full",
                          "10-min ramp+prior / full", "p90",
                          "10-min up-and-down ramp+prior / full", "p90",

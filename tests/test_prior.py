@@ -193,7 +193,14 @@ def test_one_test_for_every_axis_leaves_out_an_axis_without_drift() -> None:
                      with_flat.targets, 20, fp.unit_ids)
     solo = FleetPrior([drifting], 3, T_REF, SCALE, fp.range_c, {"gyro_x": "deg/s"},
                       {"gyro_x": "zero"}, 20, fp.unit_ids)
-    assert soak_plan(one, 3) == sorted(next_temperatures(solo, "gyro_x", [], 3))
+    # by the expected error alone, the plan is the one drifting axis's own design
+    assert soak_plan(one, 3, ends=False) == sorted(next_temperatures(solo, "gyro_x", [], 3))
+    # by default the range's ends are soaked and the middle chosen given them
+    mid = next_temperatures(solo, "gyro_x", [-20.0, 70.0], 1)
+    assert soak_plan(one, 3) == sorted([-20.0, 70.0] + mid) and -20.0 < mid[0] < 70.0
+    # an end already measured is not planned again
+    assert soak_plan(one, 2, measured_c=[-20.0]) == sorted(
+        [70.0] + next_temperatures(solo, "gyro_x", [-20.0, 70.0], 1))
 
 
 def test_points_needed_decrease_and_meet_their_target() -> None:

@@ -42,6 +42,9 @@ def test_prior_leaves_the_planted_outliers_out(prior: Path) -> None:
     assert data["n_units"] == 24 - len(data["excluded"]) and data["n_units"] >= 20
     assert set(data["axes"]) == {"gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"}
     assert data["range_c"] == [-20.0, 75.0]
+    # the 3-soak test for every axis: the range's ends and one middle temperature between them
+    plan = data["three_soak_plan_c"]
+    assert len(plan) == 3 and plan[0] == -20.0 and plan[2] == 75.0 and -20.0 < plan[1] < 75.0
     # the simulated gyro_y tempco is −0.003 °/s/K (c₁ of the preset): the prior's mean curve
     ax = data["axes"]["gyro_y"]
     slope = float(np.dot(ax["weights"], np.asarray(ax["means"])[:, 0])) / data["scale_c"]

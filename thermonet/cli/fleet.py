@@ -96,6 +96,7 @@ def _station_sources(args: argparse.Namespace, cfg: Any) -> list[Any]:
 def _cmd_prior(args: argparse.Namespace) -> int:
     from ..core.fileio import atomic_write_text  # lazy: off the --help path
     from ..core.recording import Dataset  # lazy: off the --help path
+    from ..scoring.prior_design import soak_plan  # lazy: off the --help path
     from ..training.config import load_config  # lazy: loads yaml
     from ..workflows.station import (  # lazy: off the --help path
         build_prior,
@@ -113,9 +114,10 @@ def _cmd_prior(args: argparse.Namespace) -> int:
     fp = build_prior(cfg, ds, source=str(args.config))
     data = fp.to_dict()
     data["summary"] = prior_summary(fp, parse_station_limits(cfg))
+    data["three_soak_plan_c"] = soak_plan(fp, 3)
     atomic_write_text(out, json.dumps(data, indent=2))
     if not args.quiet:
-        print(f"wrote {out}: " + format_prior(fp, data["summary"]))
+        print(f"wrote {out}: " + format_prior(fp, data["summary"], data["three_soak_plan_c"]))
     return 0
 
 

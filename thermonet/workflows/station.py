@@ -214,11 +214,16 @@ def _points_text(row: dict[str, Any]) -> str:
     return f"{row['points']} points ({', '.join(f'{t:g}' for t in row['temperatures_c'])} °C)"
 
 
-def format_prior(fp: FleetPrior, summary: dict[str, Any]) -> str:
-    """What ``thermonet prior`` prints: the prior, then per axis its clusters and the points a
-    test needs (:func:`prior_summary`)."""
+def format_prior(fp: FleetPrior, summary: dict[str, Any], plan: list[float] | None = None
+                 ) -> str:
+    """What ``thermonet prior`` prints: the prior, a three-soak test for every axis
+    (``plan``: :func:`~thermonet.scoring.prior_design.soak_plan`), then per axis its clusters
+    and the points a test needs (:func:`prior_summary`)."""
     lines = [f"prior of {fp.n_units} units ({len(fp.excluded)} left out), axes "
              f"{', '.join(fp.axis_names)}, {fp.range_c[0]:g} to {fp.range_c[1]:g} °C"]
+    if plan:
+        lines.append(f"  a 3-soak test for every axis: {', '.join(f'{t:g}' for t in plan)} °C, "
+                     "in that order (the range's ends, the middle the prior tells most by)")
     for axis, s in summary.items():
         head = f"  {axis}: {s['clusters']} cluster(s); "
         if s["typical_drift_rms"] < s["point_error"]:
