@@ -110,9 +110,18 @@ def test_refusals_are_one_line_and_write_nothing(
     _one_line_refusal(capsys, ["station", "acc.yaml", "--prior", str(prior), "--units", "2",
                                "--out", "st", "--executor", "serial"],
                       "the prior is of axes gyro_x")
+    _one_line_refusal(capsys, ["station", "new.yaml", "--prior", str(prior), "--units", "3",
+                               "--test", "soaks:-40,25", "--out", "st", "--executor", "serial"],
+                      "3 units ('consumer-imu-u000', 'consumer-imu-u001', …): measured -40.0 "
+                      "to ")
     _one_line_refusal(capsys, ["station", "new.yaml", "--prior", str(prior), "--units", "2",
                                "--test", "soaks:-40,25", "--out", "st", "--executor", "serial"],
                       "outside the fleet prior's range -20 to 75")
+    # a bad test spec is refused before any unit runs: said once, with no unit's progress
+    assert main(["station", "new.yaml", "--prior", str(prior), "--units", "3", "--test",
+                 "cycle:-20,75", "--out", "st", "--executor", "serial"]) == 1
+    out, err = capsys.readouterr()
+    assert "station:" not in out and err.count("cycle:-20,75") == 1 and "unit" not in err, err
     _one_line_refusal(capsys, ["station", "new.yaml", "--prior", "new.yaml", "--units", "2",
                                "--out", "st"], "--prior: not JSON")
     _one_line_refusal(capsys, ["station", "new.yaml", "--prior", str(prior), "--test",
@@ -177,3 +186,15 @@ def test_serial_and_process_pool_give_identical_units(prior: Path, tmp_path: Pat
 def test_serial_and_ray_give_identical_units(prior: Path, tmp_path: Path) -> None:
     """A real local Ray (its start-up is most of this test's time; `make test-slow`)."""
     _station_on(("serial", "ray"), prior, tmp_path)
+
+
+def test_failures_with_one_reason_are_said_once() -> None:
+    from thermonet.core.errors import failures_line
+
+    bad = [(f"u{i}", f"unit 'u{i}': measured -40 °C") for i in range(4)] + [("u9", "no data")]
+    assert failures_line(bad, "unit") == ("4 units ('u0', 'u1', …): measured -40 °C; "
+                                          "unit 'u9': no data")
+    assert failures_line(bad[:2], "unit") == "2 units ('u0', 'u1'): measured -40 °C"
+    many = [(f"u{i}", f"reason {i}") for i in range(7)]
+    line = failures_line(many, "unit", shown=5)
+    assert line.endswith("unit 'u4': reason 4 (and 2 more reasons)") and "u5" not in line

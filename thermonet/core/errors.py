@@ -8,13 +8,31 @@ row where it applies.  The CLI prints ``str(err)`` and exits with status 1.
 from __future__ import annotations
 
 __all__ = ["ThermonetError", "InputError", "ConfigError", "FitError", "ExportError",
-           "Interrupted", "first_line"]
+           "Interrupted", "first_line", "failures_line"]
 
 
 def first_line(err: BaseException) -> str:
     """What a caught error says, in one line: its message's first line, else its type's name
     (a library's error quoted inside thermonet's own one-line message)."""
     return str(err).splitlines()[0] if str(err) else type(err).__name__
+
+
+def failures_line(bad: list[tuple[str, str]], what: str, shown: int = 5) -> str:
+    """One line for several items that failed, ``bad`` = (name, reason): items failing for
+    the same reason are named once ("4 units ('u000', 'u001', …): measured …"; a reason's own
+    "<what> '<name>': " prefix is taken off to compare), at most ``shown`` reasons."""
+    groups: dict[str, list[str]] = {}
+    for name, reason in bad:
+        own = f"{what} '{name}': "
+        groups.setdefault(reason[len(own):] if reason.startswith(own) else reason,
+                          []).append(name)
+    parts = []
+    for reason, names in list(groups.items())[:shown]:
+        who = (f"{what} '{names[0]}'" if len(names) == 1 else f"{len(names)} {what}s (" +
+               ", ".join(f"'{n}'" for n in names[:2]) + (", …)" if len(names) > 2 else ")"))
+        parts.append(f"{who}: {reason}")
+    more = len(groups) - shown
+    return "; ".join(parts) + (f" (and {more} more reasons)" if more > 0 else "")
 
 
 class ThermonetError(ValueError):

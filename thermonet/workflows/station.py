@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError, InputError
+from ..core.errors import ConfigError, InputError, failures_line
 from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import _umask, atomic_write_text
 from ..core.names import c_comment, inside, path_components
@@ -444,13 +444,12 @@ def _run_units(cfg: CompareConfig, prior: FleetPrior, sources: list[UnitSource],
 
     payloads = run_tasks(station_task, items, executor=opts.executor,  # type: ignore[arg-type]
                          workers=opts.workers, ray_address=opts.ray_address, on_done=finished)
-    bad = [(s.device_id, p) for s, p in zip(sources, payloads, strict=True)
+    bad = [(s.device_id, p.reason) for s, p in zip(sources, payloads, strict=True)
            if isinstance(p, TaskFailure)]
     if bad:
-        raise InputError("; ".join(f"unit '{d}': {p.reason}" if not p.reason.startswith("unit ")
-                                   else p.reason for d, p in bad[:5]) +
-                         (f" (and {len(bad) - 5} more)" if len(bad) > 5 else ""))
+        raise InputError(failures_line(bad, "unit"))
     return {p["device_id"]: p for p in payloads}
+
 
 
 def _unit_summary(r: dict[str, Any], rel: str) -> dict[str, Any]:
