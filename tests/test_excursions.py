@@ -305,6 +305,20 @@ def test_on_two_folds_a_candidate_must_lead_on_each_by_the_margin():
             assert sel.record["candidates"][label]["not_eligible"].startswith("gate:")
 
 
+def test_a_simpler_candidate_within_one_se_of_the_cubic_does_not_replace_it():
+    """``line`` (2 parameters) is a hair better than the cubic (4) out of fold — inside the
+    noise: without the gate the fewest parameters win and it ships; with the gate it is the
+    best and passes the gate, yet the cubic stays, and the axis's sentence says why."""
+    plan, y, t, cands = _gate_case({"cubic": [0.10] * 5, "line": [0.0995] * 5},
+                                   n_params={"cubic": 4, "line": 2})
+    off = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic", gate=False)
+    assert off.per_axis == {"gyro_x": "line"}
+    on = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic")
+    assert on.per_axis == {"gyro_x": "cubic"}
+    assert on.per_axis_reason["gyro_x"].startswith("cubic: the baseline stays — the best out "
+                                                   "of fold, line, beats it by less than one SE")
+
+
 def test_the_table_prints_a_fold_without_a_window():
     """A fold with no validation window inside every candidate's domain has no score
     (results.json: null); the console table says so instead of failing (was a TypeError)."""

@@ -168,18 +168,24 @@ def test_do_no_harm_fires_on_an_axis_without_drift(tmp_path):
     assert "Left uncompensated (drift 0): <b>gyro_y</b>" in html
 
 
-def test_ties_are_called_ties_and_the_fewest_parameters_win(tmp_path):
+def test_ties_are_called_ties_and_the_fewest_parameters_win_unless_the_baseline_ties(tmp_path):
+    """The drift is a line: the three families are the same model on held-out data.  Without a
+    baseline the fewest parameters win (linear); with the cubic as the baseline it stays — a
+    challenger, a simpler one too, must beat it by more than one SE."""
     rng = np.random.default_rng(2)
     runs = [_run(f"run{k}", _ramp() + 0.2 * k, {"gyro_x": 0.004 * (_ramp() + 0.2 * k)},
                  noise=0.02, rng=rng) for k in range(4)]
     fams = [FamilyConfig(family="poly", name="cubic", params={"degree": 3}),
             FamilyConfig(family="poly", name="quadratic", params={"degree": 2}),
             FamilyConfig(family="linear", name="linear")]
+    (tmp_path / "alone").mkdir()
+    alone = _compare(tmp_path / "alone", Dataset(runs), fams)
+    assert alone["chosen"] == "linear" and set(alone["tie"]) == {"cubic", "quadratic", "linear"}
     res = _compare(tmp_path, Dataset(runs), fams, baseline="cubic")
-    # the drift is a line: the three families are the same model on held-out data
-    assert res["chosen"] == "linear"
+    assert res["chosen"] == "cubic"
     assert set(res["tie"]) == {"cubic", "quadratic", "linear"}
-    assert res["chosen_reason"].startswith("tie:")
+    assert res["chosen_reason"].startswith("tie:") and "the baseline cubic stays" in \
+        res["chosen_reason"]
     assert any(w.startswith("tie:") for w in res["warnings"])
     vs = res["families"]["linear"]["axes"]["gyro_x"]["vs_baseline"]
     assert vs["verdict"] == "indistinguishable" and vs["ratio"] == pytest.approx(1.0, abs=0.01)

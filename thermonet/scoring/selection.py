@@ -98,7 +98,8 @@ Each axis its own model
 best masked ratio must beat raw; the fewest parameters among the candidates within one SE of
 the best on that axis win; the baseline is the floor on that axis (a candidate better than the
 cubic by less than one SE loses to it: fewer parameters; a simpler one worse than the cubic
-there is not taken).  With the pool's temperatures, :func:`pp_guard` leaves raw every axis
+there is not taken; with the gate, a simpler one within one SE of the cubic does not replace
+it either: ``one_se(..., keep=baseline)``).  With the pool's temperatures, :func:`pp_guard` leaves raw every axis
 whose out-of-fold residual has a larger binned peak-to-peak than the raw output's (summed over
 the folds): the figure a user reads off the compensated signal must not get worse.
 
@@ -240,7 +241,8 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
                 reason[axis] = "raw: no candidate passes the gate against raw" + note
             continue
         c = one_se(sc, {k: v[:, a] for k, v in axis_boots.items() if k in sc}, n_params,
-                   floor=partial(_worse_than, sc, baseline))
+                   floor=partial(_worse_than, sc, baseline),
+                   keep=baseline if gate is not None else None)
         best = str(c.best)
         if c.chosen is None and gate is not None and baseline in sc:
             chosen[axis] = baseline          # the reference stays: nothing beat it, nor raw
@@ -259,6 +261,10 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
             reason[axis] = (f"{pick}: the best out of fold ({sc[pick]:.4g} of raw, {k_folds} "
                             "folds)" + (f"; within one SE: {', '.join(others)} (more "
                                         "parameters)" if others else ""))
+        elif pick == baseline and gate is not None:
+            reason[axis] = (f"{pick}: the baseline stays — the best out of fold, {best}, beats "
+                            f"it by less than one SE ({sc[best]:.4g} vs {sc[pick]:.4g} of raw, "
+                            f"{k_folds} folds)")
         else:
             reason[axis] = (f"{pick}: within one SE of the best, {best} ({sc[pick]:.4g} vs "
                             f"{sc[best]:.4g} of raw, {k_folds} folds), with fewer parameters "
@@ -451,7 +457,8 @@ def _one_se(plan: FoldPlan, ok: Mapping[str, CandidateOOF], sc: _Scores,
                             f"on < {MIN_GATE_FOLDS} folds and not 10 % better on each of two, "
                             "or its worst fold is worse)")
     c = one_se(scores, sc.boots, {k: o.n_params for k, o in ok.items()}, held=gated,
-               floor=lambda k: _below_baseline(k, baseline, sc.axis_scores, outputs))
+               floor=lambda k: _below_baseline(k, baseline, sc.axis_scores, outputs),
+               keep=baseline if sc.gate is not None else None)
     if c.status == "no candidate":
         return None, [], "no candidate has a finite out-of-fold score"
     for k in c.diff:
@@ -473,6 +480,10 @@ def _one_se(plan: FoldPlan, ok: Mapping[str, CandidateOOF], sc: _Scores,
         reason = (f"tie: {', '.join(tied)} within one SE of the best out of fold; chose "
                   f"{chosen}: the best ({scores[chosen]:.4g} of raw, {plan.k} folds) and the "
                   f"fewest parameters ({ok[chosen].n_params})")
+    elif chosen == baseline and sc.gate is not None:
+        reason = (f"tie: {', '.join(tied)} within one SE of the best out of fold; the baseline "
+                  f"{chosen} stays: {best} beats it by less than one SE ({scores[best]:.4g} vs "
+                  f"{scores[chosen]:.4g} of raw, {plan.k} folds)")
     else:
         reason = (f"tie: {', '.join(tied)} within one SE of the best out of fold; chose "
                   f"{chosen}: within one SE of {best} ({scores[chosen]:.4g} vs "

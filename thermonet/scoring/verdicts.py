@@ -335,7 +335,8 @@ class Choice:
 
 def one_se(scores: Mapping[str, float], boots: Mapping[str, np.ndarray] | None,
            n_params: Mapping[str, int], *, held: Mapping[str, str] | None = None,
-           floor: Callable[[str], str] | None = None, raw: float | None = 1.0) -> Choice:
+           floor: Callable[[str], str] | None = None, raw: float | None = 1.0,
+           keep: str | None = None) -> Choice:
     """The one choice rule, for every scope — the whole recording and each axis out of fold
     (:func:`thermonet.scoring.selection.select`), the single validation part (:func:`choose`),
     the sensor model and the fleet's units.
@@ -349,7 +350,9 @@ def one_se(scores: Mapping[str, float], boots: Mapping[str, np.ndarray] | None,
        — the SE of their *paired* difference over the shared bootstrap draws ``boots``
        (None: no draws, only scores the same as the best's) — and that ``floor`` does not
        block (a reason string, e.g. worse than the baseline on an axis; never the best).
-    5. Among them the fewest parameters, then the lowest score, then the first listed.
+    5. Among them ``keep`` (the baseline, where the gate holds it: a challenger must beat it
+       by more than one SE — a simpler one too), else the fewest parameters, then the lowest
+       score, then the first listed.
     """
     order = {k: i for i, k in enumerate(scores)}
     finite = {k: float(v) for k, v in scores.items() if math.isfinite(float(v))}
@@ -376,7 +379,7 @@ def one_se(scores: Mapping[str, float], boots: Mapping[str, np.ndarray] | None,
         elif (raw is None or below(v, raw)) and (diff[k] <= se[k] or same(v, finite[best])):
             eligible.append(k)
     fewest = min(n_params[k] for k in eligible)
-    cands = [k for k in eligible if n_params[k] == fewest]
+    cands = [keep] if keep in eligible else [k for k in eligible if n_params[k] == fewest]
     low_c = min(finite[k] for k in cands)
     chosen = min((k for k in cands if same(finite[k], low_c)), key=lambda k: order[k])
     rest = sorted((k for k in eligible if k != chosen),
