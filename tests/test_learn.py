@@ -246,3 +246,22 @@ def test_a_stopped_job_loses_no_log_read(tmp_path):
     doc = learn(paths, out, executor="serial", compare=False, say=lines.append)
     assert lines[0] == "5 logs: 3 read before (cache), 2 to read" and len(doc["logs"]) == 5
 
+
+
+def test_a_held_out_flight_beyond_the_others_says_the_firmware_holds_its_edge(tmp_path):
+    """Four flights, the last one hotter than the three others (the fc-board seed 1 vehicle):
+    on the accelerometers it lies wholly above what the others covered, where the firmware
+    clamps — its correction is a constant there, so no binned drift is cut, and the report
+    says why instead of printing an unexplained "x -> x"."""
+    from thermonet.workflows.learn import format_learn_report
+
+    paths = _write(simulate_flights(4, seed=1), tmp_path / "logs", ".ulg")
+    doc = learn(paths, tmp_path / "out", executor="serial", compare=False)
+    h = doc["instances"]["acc0"]["held_out"]
+    lo, hi = h["trained_c"]
+    assert h["outside_trained"] == 1.0 and lo < hi
+    assert h["pp_corrected"] == pytest.approx(h["pp_raw"], rel=1e-9)
+    assert f"100% of it outside the other flights' {lo:.1f}..{hi:.1f} °C" in format_learn_report(doc)
+    for d in doc["instances"].values():           # a share, wherever a flight was held out
+        if (d.get("held_out") or {}).get("status") == "judged":
+            assert 0.0 <= d["held_out"]["outside_trained"] <= 1.0

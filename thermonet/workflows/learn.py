@@ -341,6 +341,15 @@ def _json(obj: Any) -> Any:
     raise TypeError(type(obj).__name__)
 
 
+def _outside_note(h: dict[str, Any]) -> str:
+    """Where the held-out flight left the other flights' range (the firmware clamps there)."""
+    share, span = h.get("outside_trained") or 0.0, h.get("trained_c")
+    if share < 0.01 or not span:
+        return ""
+    return (f" ({share:.0%} of it outside the other flights' {span[0]:.1f}..{span[1]:.1f} °C, "
+            "where the firmware holds its edge value)")
+
+
 def _band_line(c: dict[str, Any]) -> list[str]:
     """The firmware form's residual-drift band (judged on whole flights held out) in one
     line: its half-widths over the flown range and how fast it grows outside it."""
@@ -372,7 +381,8 @@ def format_learn_report(doc: dict[str, Any]) -> str:
         if h.get("status") == "judged":
             lines.append(f"  held-out flight {Path(h['flight']).name}: binned drift p-p "
                          + ", ".join(f"{b:.3g} -> {a:.3g}" for b, a in zip(
-                             h["pp_raw"], h["pp_corrected"], strict=True)) + f" {unit}")
+                             h["pp_raw"], h["pp_corrected"], strict=True)) + f" {unit}"
+                         + _outside_note(h))
         c = d.get("compare") or {}
         if c.get("status") == "ok":
             lines.append(f"  comparison on whole flights: chosen {c.get('chosen')} "

@@ -78,7 +78,11 @@ def _firmware(inst: InstanceWindows, autopilot: str) -> dict[str, Any]:
     y = _target(inst, inst.drift[last])
     after = y - fit_correction(fit, temp)
     before_pp, after_pp = binned_pp(temp, y), binned_pp(temp, after)
+    # the firmware holds its edge value outside what the other flights covered: there the
+    # correction is a constant and cuts no binned drift (said, not hidden)
+    outside = float(np.mean((temp < fit.t_min) | (temp > fit.t_max))) if temp.size else 0.0
     out["held_out"] = {"status": "judged", "flight": inst.flights[int(flights[-1])],
+                       "trained_c": [fit.t_min, fit.t_max], "outside_trained": outside,
                        "pp_raw": before_pp, "pp_corrected": after_pp,
                        "cut": [b / a if a > 0 else math.inf for b, a in zip(
                            before_pp, after_pp, strict=True)]}
