@@ -142,6 +142,8 @@ def test_simulate_then_info_then_compare_then_export(thermonet, tmp_path):
     cfg = tmp_path / "c.yaml"
     cfg.write_text(f"data: {{paths: ['{sim}']}}\n"
                    "train: {max_epochs: 30, patience: 5, max_train_samples: 3000}\n"
+                   # one family ships whole: its training run is where the export is logged
+                   "selection: {per_axis: false}\n"
                    "families:\n"
                    "  - {name: cubic, family: poly, inputs: [dT], params: {degree: 3}}\n"
                    "  - {name: rbf, family: rbf, inputs: [dT, dT2], params: {n_centres: 8}}\n")
