@@ -98,6 +98,19 @@ def test_bad_cycle_specs_are_one_line_naming_the_value(spec: str) -> None:
     assert repr(spec) in msg and "cycle:FROM,TO,MINUTES" in msg and "\n" not in msg
 
 
+@pytest.mark.parametrize("spec,minutes", [("cycle:-20,75,0.001", "3.17"),
+                                          ("ramp:-20,75,1e-300", "1.58")])
+def test_a_ramp_no_chamber_can_run_is_refused_naming_the_minutes_needed(spec, minutes) -> None:
+    """95 °C in 0.001 min is 190,000 °C/min: a thermal shock, which the chamber model does
+    not simulate; the line says how many minutes the test needs at 60 °C/min."""
+    with pytest.raises(ConfigError) as e:
+        short_test(spec)
+    msg = str(e.value)
+    assert repr(spec) in msg and "above 60 °C/min" in msg and f"at least {minutes} minutes" \
+        in msg and "\n" not in msg
+    assert short_test("cycle:-20,75,3.2").segments[1].rate_c_per_h <= 60.0 * 60.0
+
+
 # ------------------------------------------------------------------ the pairing rule
 def test_two_way_fast_ramp_recovers_the_cubic_where_one_way_is_biased() -> None:
     rate = 6.0                                    # °C/min: 5× the one-way limit

@@ -67,6 +67,10 @@ UNIT_COEF_REL = 0.05
 CUBIC_REL = 0.01
 #: Minutes of each soak of a ``soaks:`` short test.
 SOAK_MIN = 20.0
+#: The fastest chamber ramp a ``ramp:`` or ``cycle:`` test may ask for (°C/min): rapid-rate
+#: chambers reach 15–30 °C/min; beyond that a test is a thermal shock (the part is moved, not
+#: the air ramped), which the chamber model does not simulate.
+MAX_CHAMBER_RATE_C_PER_MIN = 60.0
 #: The clusters' draw (fixed: a sensor type's clusters do not change with the fleet seed).
 CLUSTER_SEED = 2018
 
@@ -153,6 +157,11 @@ def short_test(spec: str) -> ChamberProfile:
         a, b, minutes = vals
         legs = 1 if kind == "ramp" else 2
         rate = abs(b - a) * legs / minutes * 60.0
+        if rate > MAX_CHAMBER_RATE_C_PER_MIN * 60.0:
+            raise ConfigError(f"--test {spec!r}: the chamber would ramp at {rate / 60.0:.3g} "
+                              f"°C/min, above {MAX_CHAMBER_RATE_C_PER_MIN:g} °C/min (a thermal "
+                              f"shock, not a ramp): give at least "
+                              f"{abs(b - a) * legs / MAX_CHAMBER_RATE_C_PER_MIN:.3g} minutes")
         ramps = (Ramp(to_c=b, rate_c_per_h=rate),) + ((Ramp(to_c=a, rate_c_per_h=rate),)
                                                        if legs == 2 else ())
         what = f"{a:g} -> {b:g}" + (f" -> {a:g}" if legs == 2 else "")
