@@ -33,8 +33,8 @@ MIN_GATE_FOLDS = 3
 
 #: On exactly two judged folds (two runs held out in turn: a fast and a slow cycle, each the
 #: other's new excursion) a candidate must be at least this much better than its reference on
-#: *each* (its ratio at most ``TWO_FOLD_MARGIN`` times the reference's): a whole run is
-#: thousands of windows, so a 10 % lead on both is not the coin toss a tie is.
+#: *each* (its ratio at most ``TWO_FOLD_MARGIN`` times the reference's): a margin, where a
+#: lead of any size on both is what a tie gives one time in four.
 TWO_FOLD_MARGIN = 0.9
 
 #: The pool's ramp rates must spread by this factor (:func:`rate_spread`) for a model with
