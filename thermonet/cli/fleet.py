@@ -87,10 +87,6 @@ def _station_sources(args: argparse.Namespace, cfg: Any) -> list[Any]:
     if cfg.data.paths:
         raise ThermonetError(f"{args.config}: --units simulates units of the config's preset; "
                              "this config reads files (data.paths)")
-    if getattr(args, "test", None) is not None:
-        from ..sim.fleet import short_test  # lazy: off the --help path
-
-        short_test(args.test)        # a bad spec: one line now, not one per unit's worker
     return sources_from_simulation(cfg.data.preset or "", units=args.units,
                                    runs=cfg.data.runs if getattr(args, "test", None) is None
                                    else None, seed=cfg.data.seed, outliers=args.outliers,

@@ -133,8 +133,9 @@ def sources_from_simulation(preset: str, *, units: int, runs: int | None = None,
 
     ``overrides`` go to the simulator (``sample_rate_hz=0.1``, ``white_noise=False``).
     """
+    # the arguments (a short test's spec too) checked here, once, before any worker starts
     simulate_fleet(preset, units=units, runs=1, seed=seed, outliers=outliers,
-                   unit_indices=[])  # checks the arguments here, before any worker starts
+                   unit_indices=[], **overrides)
     return [UnitSource(unit_device_id(preset, k, units),
                        sim={"preset": preset, "units": units, "runs": runs, "seed": seed,
                             "outliers": outliers, "unit_indices": [k], **overrides})
