@@ -198,7 +198,7 @@ def prior_summary(fp: FleetPrior, limits: dict[str, StationLimit] | None = None
             n = first_below(errs, frac * typical)
             rows.append({"target": frac * typical, "fraction_of_drift": frac, "points": n,
                          "temperatures_c": temps[:n] if n else None})
-        lim = _limit_for(limits, ap.axis).max_residual
+        lim = merged_limits(limits, ap.axis, StationLimit).max_residual
         if lim is not None:
             room = lim ** 2 - ap.misfit_var
             n = first_below(errs, math.sqrt(room)) if room > 0 else None
@@ -323,15 +323,11 @@ def station_task(item: StationItem) -> dict[str, Any]:
     check_compatible(fp, list(pts), targets, where, uom)
     for a in fp.axis_names:
         _check_range(fp, pts[a], where, a)
-    axes = {a: _axis_result(fp, a, pts[a], _limit_for(item.limits, a),
+    axes = {a: _axis_result(fp, a, pts[a], merged_limits(item.limits, a, StationLimit),
                             item.cfg.station.flag_unlike_fleet) for a in fp.axis_names}
     verdict = "PASS" if all(r["verdict"] == "PASS" for r in axes.values()) else "FAIL"
     return {"device_id": dev, "verdict": verdict, "axes": axes, "temperature_span_c": span,
             "runs": len(ds), "header": c_header(fp, dev, axes, verdict)}
-
-
-def _limit_for(limits: dict[str, StationLimit], axis: str) -> StationLimit:
-    return merged_limits(limits, axis, StationLimit)
 
 
 def _c_idents(axes: list[str]) -> dict[str, str]:
