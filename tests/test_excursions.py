@@ -189,7 +189,9 @@ def test_the_baseline_stays_unless_a_candidate_beats_it_everywhere():
     on = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic")
     assert on.per_axis == {"gyro_x": "cubic"} and on.chosen == "cubic"
     assert "not better everywhere: dyn" in on.per_axis_reason["gyro_x"]
-    assert on.record["candidates"]["dyn"]["not_eligible"].startswith("gate:")
+    why = on.record["candidates"]["dyn"]["not_eligible"]
+    assert why.startswith("gate:") and "its worst fold" in why        # the condition it failed
+    assert "two folds" not in why and "fewer than" not in why
     folds = on.record["candidates"]["dyn"]["axes"]["gyro_x"]["fold_ratios"]
     assert len(folds) == k and folds[3] > on.record["candidates"]["cubic"]["axes"]["gyro_x"][
         "fold_ratios"][3]
@@ -302,7 +304,9 @@ def test_on_two_folds_a_candidate_must_lead_on_each_by_the_margin():
         assert clear_on_each(folds[label], folds["cubic"]) is ships
         assert sel.per_axis == {"gyro_x": label if ships else "cubic"}
         if not ships:
-            assert sel.record["candidates"][label]["not_eligible"].startswith("gate:")
+            why = sel.record["candidates"][label]["not_eligible"]
+            assert why.startswith("gate:") and "judged on two folds, it is not 10% better" in why
+            assert "worst fold" not in why
 
 
 def test_a_simpler_candidate_within_one_se_of_the_cubic_does_not_replace_it():

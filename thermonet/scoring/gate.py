@@ -156,12 +156,19 @@ class Gate:
         return Gate(own, pair, np.array(pooled.base_judged, dtype=bool), list(fold_directions))
 
     def passes(self, k: str, a: int | None, against_baseline: bool) -> bool:
-        """``k`` judged on at least :data:`MIN_GATE_FOLDS` folds (or on two, better than its
-        reference by :data:`TWO_FOLD_MARGIN` on each: :func:`clear_on_each`) and nowhere worse
-        than its reference on the folds where both were judged; a candidate reading the direction of
+        """``k`` passes the gate against its reference (:meth:`refusal` is empty)."""
+        return not self.refusal(k, a, against_baseline)
+
+    def refusal(self, k: str, a: int | None, against_baseline: bool) -> str:
+        """Which condition of the gate ``k`` fails against its reference, "" where it passes:
+        judged on at least :data:`MIN_GATE_FOLDS` folds (or on two, better than its reference
+        by :data:`TWO_FOLD_MARGIN` on each: :func:`clear_on_each`) and nowhere worse than its
+        reference on the folds where both were judged; a candidate reading the direction of
         change also judged on a held-out excursion of every direction its reference was
         judged on (a model reading the rate is not judged on heating where no fold trained it
-        on heating; ``a``: one axis; None: the mean over axes)."""
+        on heating; ``a``: one axis; None: the mean over axes).  The first condition that
+        fails is named, with its figures."""
+        ref = "the baseline" if against_baseline else "raw"
         if against_baseline:
             p = self.pair[k] if a is None else self.pair[k][:, a:a + 1]
             c, b = p[:, :, 0].mean(axis=1), p[:, :, 1].mean(axis=1)
@@ -171,16 +178,28 @@ class Gate:
             b = np.ones_like(c)
             ref_judged = np.ones(c.size, dtype=bool)
         judged = np.isfinite(c) & np.isfinite(b)
-        if int(judged.sum()) < MIN_GATE_FOLDS and not clear_on_each(c, b):
-            return False
+        n = int(judged.sum())
+        if n < MIN_GATE_FOLDS and not clear_on_each(c, b):
+            if n == 2:
+                return (f"judged on two folds, it is not {1 - TWO_FOLD_MARGIN:.0%} better than "
+                        f"{ref} on each (" + ", ".join(
+                            f"{x:.3g} vs {y:.3g}" for x, y in zip(c[judged], b[judged],
+                                                                  strict=True)) + " of raw)")
+            return f"judged on {n} fold{'s' * (n != 1)}, fewer than {MIN_GATE_FOLDS}"
         if k in self.directional and self.fold_directions:
             need = set().union(*(d for d, r in zip(self.fold_directions, ref_judged,
                                                    strict=True) if r))
             have = set().union(*(d for d, j in zip(self.fold_directions, judged, strict=True)
                                  if j))
             if not need <= have:
-                return False
-        return worst_fold_not_worse(c, b)
+                return ("never judged on a held-out " + " or ".join(
+                    DIRECTION_NAMES[d] for d in sorted(need - have)) + " excursion")
+        if not worst_fold_not_worse(c, b):
+            if not judged.any():
+                return "judged on no fold beside its reference"
+            return (f"its worst fold ({np.max(c[judged]):.3g} of raw) is worse than {ref}'s "
+                    f"worst ({np.max(b[judged]):.3g})")
+        return ""
 
 
 def gate_axis(sc: dict[str, float], a: int, gate: Gate, baseline: str | None,

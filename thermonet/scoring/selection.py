@@ -121,7 +121,6 @@ import numpy as np
 from .fold_plan import FoldPlan
 from .gate import (
     GATE_RULE,
-    MIN_GATE_FOLDS,
     Gate,
     gate_axis,
     gate_note,
@@ -452,10 +451,8 @@ def _one_se(plan: FoldPlan, ok: Mapping[str, CandidateOOF], sc: _Scores,
                 continue
             if held and k in held:
                 gated[k] = held[k]
-            elif not sc.gate.passes(k, None, True):
-                gated[k] = (f"gate: not better than the baseline {baseline} everywhere (judged "
-                            f"on < {MIN_GATE_FOLDS} folds and not 10 % better on each of two, "
-                            "or its worst fold is worse)")
+            elif why := sc.gate.refusal(k, None, True):
+                gated[k] = f"gate: not better than the baseline {baseline} everywhere: {why}"
     c = one_se(scores, sc.boots, {k: o.n_params for k, o in ok.items()}, held=gated,
                floor=lambda k: _below_baseline(k, baseline, sc.axis_scores, outputs),
                keep=baseline if sc.gate is not None else None)
