@@ -162,7 +162,8 @@ def test_bad_options_are_usage_errors(argv, capsys):
 
 def test_simulate_help_lists_every_preset_of_the_registry(capsys, monkeypatch):
     """``simulate --help`` names every preset registered (thermonet.sim.presets.PRESETS,
-    filled as thermonet.sim loads) and the flight-controller boards, not a list typed once."""
+    filled as thermonet.sim loads), the flight-controller boards and the flights of one vehicle,
+    not a list typed once."""
     from thermonet.sim import PRESETS
     from thermonet.sim.fcboard import BOARD_PRESETS
 
@@ -173,7 +174,7 @@ def test_simulate_help_lists_every_preset_of_the_registry(capsys, monkeypatch):
     line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.strip()
                 .startswith("preset "))
     names = line.split(None, 1)[1].split(" (")[0].split(" | ")
-    assert names == [*PRESETS, *BOARD_PRESETS]
+    assert names == [*PRESETS, *BOARD_PRESETS, "fc-board-flights"]
     assert {"consumer-imu", "accel-ramp", "stress-imu", "imu-multiposition"} <= set(names)
 
 

@@ -106,3 +106,22 @@ def test_simulate_command_writes_the_flights(tmp_path, capsys):
     assert main(["simulate", "fc-board-flights", "--flights", "2", "--runs", "3", "--out",
                  str(tmp_path / "other")]) == 1
     assert "--runs 3" in capsys.readouterr().err and not (tmp_path / "other").exists()
+    # every option it does not use is refused by name, not ignored (--test, --clusters and
+    # --outliers were ignored: exit 0 and flights that never saw them)
+    for opt in (["--test", "soaks:1,2"], ["--clusters", "2"], ["--outliers", "1"]):
+        assert main(["simulate", "fc-board-flights", "--flights", "2", *opt, "--out",
+                     str(tmp_path / "other")]) == 1
+        err = capsys.readouterr().err
+        assert f"{opt[0]} {opt[1]}: fc-board-flights" in err and "takes only" in err
+        assert not (tmp_path / "other").exists()
+    # one flight's ambient is one temperature, not "-8..-8"
+    assert main(["simulate", "fc-board-flights", "--flights", "1", "--out",
+                 str(tmp_path / "one")]) == 0
+    line = capsys.readouterr().out
+    assert "1 flight of one vehicle" in line and ".." not in line.split("ambient")[1]
+    # an unknown preset lists every preset simulate writes, the flight-controller ones too
+    assert main(["simulate", "no-such", "--out", str(tmp_path / "x.parquet")]) == 1
+    err = capsys.readouterr().err
+    assert "unknown preset 'no-such'" in err
+    assert all(p in err for p in ("consumer-imu", "fc-board", "fc-board-cycle",
+                                  "fc-board-flights"))

@@ -11,6 +11,9 @@ from typing import Any
 from ..core.errors import ThermonetError
 from ..core.fileio import refuse_overwriting_inputs
 
+#: The preset that writes flights of one vehicle (logs with its estimator), not a run.
+FLIGHTS_PRESET = "fc-board-flights"
+
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from ..data.io import write_csv, write_parquet  # lazy: loads pandas, pyarrow, yaml
@@ -19,7 +22,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from ..sim.fcboard import BOARD_PRESETS, MAX_BOARD_RUNS  # lazy: off the --help path
     from ..sim.presets import MAX_RUNS  # lazy: off the --help path
 
-    if args.preset == "fc-board-flights" or args.flights is not None or args.format:
+    if args.preset == FLIGHTS_PRESET or args.flights is not None or args.format:
         return _simulate_flights(args)       # flights of one vehicle: logs with its estimator
     if args.runs is not None and not 1 <= args.runs <= MAX_RUNS:
         raise ThermonetError(f"--runs {args.runs}: not in 1..{MAX_RUNS} (the upper bound keeps "
@@ -27,12 +30,13 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.preset in BOARD_PRESETS:
         # a board log is one board (--runs: several warm-ups of it): options it does not use
         # are refused, not ignored
-        unused = [f"--{name} {value}" for name, value in (("units", args.units),
-                                                           ("outliers", args.outliers or None))
-                  if value is not None]
+        unused = _given(args, takes=("runs",))
         if unused:
             raise ThermonetError(f"{unused[0]}: preset '{args.preset}' simulates one board "
                                  "(one log per warm-up); it takes only --seed, --runs and --out")
+    elif args.preset.lower() not in _preset_names():
+        raise ThermonetError(f"unknown preset '{args.preset}' (valid: "
+                             f"{', '.join(_preset_names())})")
         if args.runs is not None and args.runs > MAX_BOARD_RUNS:
             raise ThermonetError(f"--runs {args.runs}: preset '{args.preset}' writes at most "
                                  f"{MAX_BOARD_RUNS} logs (one file per warm-up)")
@@ -87,13 +91,12 @@ def _simulate_flights(args: argparse.Namespace) -> int:
     from ..data.logs.flight_writers import write_flight  # lazy: off the --help path
     from ..sim.flights import simulate_flights  # lazy: off the --help path
 
-    if args.preset != "fc-board-flights":
+    if args.preset != FLIGHTS_PRESET:
         raise ThermonetError(f"--flights / --format: only preset 'fc-board-flights' writes "
                              f"flights (got '{args.preset}')")
     if args.flights is None:
         raise ThermonetError("fc-board-flights: give --flights N (the number of logs)")
-    unused = [f"--{name} {value}" for name, value in (("runs", args.runs), ("units", args.units))
-              if value is not None]
+    unused = _given(args, takes=("flights", "format"))
     if unused:      # refused, not ignored
         raise ThermonetError(f"{unused[0]}: fc-board-flights writes --flights N logs of one "
                              "vehicle; it takes only --flights, --seed, --format and --out")
@@ -107,10 +110,22 @@ def _simulate_flights(args: argparse.Namespace) -> int:
                                autopilot="px4" if ext == "ulg" else "ardupilot")
     for k, f in enumerate(flights):
         write_flight(f.log, f.biases, out / f"flight{k + 1:04d}.{ext}")
-    print(f"wrote {out}: {len(flights)} flights of one vehicle (fc-board, seed {args.seed}) "
-          f"as .{ext}, ambient {min(f.ambient_c for f in flights):.0f}.."
-          f"{max(f.ambient_c for f in flights):.0f} °C")
+    lo, hi = (f"{g(f.ambient_c for f in flights):.0f}" for g in (min, max))
+    print(f"wrote {out}: {len(flights)} flight{'s' * (len(flights) != 1)} of one vehicle "
+          f"(fc-board, seed {args.seed}) as .{ext}, ambient "
+          f"{lo if lo == hi else lo + '..' + hi} °C")
     return 0
+
+
+#: simulate's options beside the preset, --seed and --out, and their defaults (not given).
+_OPTIONS = {"runs": None, "units": None, "outliers": 0, "clusters": 0, "test": None,
+            "flights": None, "format": None}
+
+
+def _given(args: argparse.Namespace, takes: tuple[str, ...]) -> list[str]:
+    """The options given (not at their default) that a preset does not take, as typed."""
+    return [f"--{k} {getattr(args, k)}" for k, default in _OPTIONS.items()
+            if k not in takes and getattr(args, k) != default]
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -186,7 +201,7 @@ def _preset_names() -> list[str]:
     from ..sim import PRESETS  # lazy: numpy and the simulator, only for simulate's help
     from ..sim.fcboard import BOARD_PRESETS  # lazy: as above
 
-    return [*PRESETS, *(b for b in BOARD_PRESETS if b not in PRESETS)]
+    return [*PRESETS, *(b for b in (*BOARD_PRESETS, FLIGHTS_PRESET) if b not in PRESETS)]
 
 
 class _PresetsHelp(argparse.HelpFormatter):
@@ -208,7 +223,7 @@ def add_simulate(sub: Any) -> None:
                                    "and write it as a thermonet Parquet file (or, with --out "
                                    "FILE.csv, as CSV: the runtime's input).")
     s.add_argument("preset", help="{presets} (fc-board and fc-board-cycle: --out FILE.ulg "
-                                  "or FILE.bin)")
+                                  "or FILE.bin; fc-board-flights: --flights N --out DIR)")
     s.add_argument("--runs", type=int, default=None,
                    help="number of runs (default: the preset's); fc-board: N logs of the same "
                         "board, written as FILE itself when N is 1 and as FILE_run1 .. "
