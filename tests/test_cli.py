@@ -112,6 +112,11 @@ def test_bad_input_exits_1_with_one_line(thermonet, tmp_path):
     assert "bad.csv" in lines[0] and "gyro_x" in lines[0]
     r = thermonet("compare", tmp_path / "missing.yaml", "--out", tmp_path / "o")
     assert r.returncode == 1 and "missing.yaml" in r.stderr
+    # a negative --workers is refused as the config's 'workers' is (fleet, learn and
+    # station refuse theirs too), before any work: it was accepted
+    r = thermonet("compare", "--workers", "-5", "--out", tmp_path / "o")
+    assert r.returncode == 1 and "--workers -5: must be an integer >= 0" in r.stderr
+    assert not (tmp_path / "o").exists()
 
 
 def test_info_on_both_real_recordings(thermonet):

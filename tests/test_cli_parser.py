@@ -192,3 +192,24 @@ def test_python_dash_m_thermonet_runs_the_command_line(tmp_path):
     run = subprocess.run([sys.executable, "-m", "thermonet", "info", "nowhere.csv"],
                          capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert run.returncode == 1 and run.stderr.startswith("thermonet: error: nowhere.csv")
+
+
+def test_a_reader_that_leaves_stops_the_command_quietly(tmp_path):
+    """``thermonet info … | head``: the reader gone, the command stops as a Unix tool does —
+    status 128 + SIGPIPE, nothing on stderr (it printed "thermonet: error: : Broken pipe")."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    rec = tmp_path / "r.csv"
+    rec.write_text("time_s,temperature_c,gyro_x\n" + "".join(
+        f"{k},{20 + 0.01 * k},{0.001 * k}\n" for k in range(200)))
+    read, write = os.pipe()
+    os.close(read)                                   # the reader has left before any output
+    try:
+        run = subprocess.run([sys.executable, "-m", "thermonet", "info", str(rec)],
+                             stdout=write, stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write)
+    assert run.returncode == 128 + signal.SIGPIPE and run.stderr == ""

@@ -235,13 +235,19 @@ def test_fleet_recovers_coefficients_flags_the_outlier_and_judges_limits(tmp_pat
     assert {r.data.tags["verdict"] for r in children} == {"PASS"}
 
 
-def test_fleet_cli_exit_code_and_all_units_export(tmp_path, monkeypatch):
+def test_fleet_cli_exit_code_and_all_units_export(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     write_parquet(toy_fleet(GAINS[:3]), tmp_path / "f.parquet")
     (tmp_path / "c.yaml").write_text(
         "data: {paths: [f.parquet]}\n"
         "families:\n  - {name: cubic, family: poly, inputs: [dT], params: {degree: 3}}\n"
         "limits:\n  '*': {max_std: 0.0025}\n  gyro_x: {max_pp: 0.0001}\n")
+    # a negative --folds is named as typed (it also named fleet_units_max, never given)
+    assert main(["fleet", "c.yaml", "--out", "fl", "--executor", "serial", "--no-track", "-q",
+                 "--folds", "-1"]) == 1
+    err = capsys.readouterr().err
+    assert "--folds -1: must be ≥ 0" in err and "fleet_units_max" not in err
+    assert not (tmp_path / "fl").exists()
     rc = main(["fleet", "c.yaml", "--out", "fl", "--executor", "serial", "--no-track", "-q",
                "--folds", "0"])
     assert rc == EXIT_LIMITS_FAILED

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import os
 import signal
 import sys
 import warnings
@@ -115,6 +116,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ThermonetError as err:
         print(f"thermonet: error: {err}", file=sys.stderr)
         return 1
+    except BrokenPipeError:  # the reader left (`| head`): stop quietly, as a Unix tool does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())   # no flush error at exit
+        return 128 + int(signal.SIGPIPE)
     except OSError as err:  # a path that cannot be read or written: one line, not a traceback
         print(f"thermonet: error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
         return 1

@@ -21,6 +21,9 @@ def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
 
     # the config is checked whole before the comparison machinery (torch) is imported:
     # a wrong key or value is refused in a fraction of a second
+    if args.workers is not None and args.workers < 0:
+        raise ThermonetError(f"--workers {args.workers}: must be an integer >= 0 (0: one per "
+                             "CPU)")
     cfg = load_config(args.config)
     from ..workflows.compare import compare_result, format_table  # lazy: loads yaml
 

@@ -304,7 +304,8 @@ def file_format(path: Path, mapping: ColumnMapping | None) -> str:
             "csv" if ext in _TEXT or mapping is not None else ""
     if not fmt:
         raise InputError.at(path, f"unknown file type '{ext}' (thermonet reads .parquet, "
-                            ".csv, .tsv, .txt; for other files give a mapping with 'format')")
+                            ".csv, .tsv, .txt, and .ulg / .bin flight-controller logs; for other "
+                            "files give a mapping with 'format')")
     return fmt
 
 

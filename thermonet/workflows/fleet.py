@@ -227,9 +227,10 @@ def _plan(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource],
     dup = sorted({d for d in ids if ids.count(d) > 1})
     if dup:
         raise InputError(f"fleet: device id '{dup[0]}' given twice (device ids must be unique)")
-    if opts.folds < 0 or opts.fleet_units_max < 1:
-        raise ConfigError(f"fleet: folds must be ≥ 0 and fleet_units_max ≥ 1, got "
-                          f"{opts.folds}, {opts.fleet_units_max}")
+    if opts.folds < 0:
+        raise ConfigError(f"fleet: --folds {opts.folds}: must be ≥ 0 (0: no leave-units-out)")
+    if opts.fleet_units_max < 1:
+        raise ConfigError(f"fleet: fleet_units_max {opts.fleet_units_max}: must be ≥ 1")
     out = Path(out_dir)
     check_target(out, overwrite, "fleet")  # before any unit is fitted
     dirs = path_components(ids)            # a device id never becomes a path as it is
