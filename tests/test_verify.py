@@ -149,6 +149,18 @@ def test_calibrate_one_log_and_verify_it_on_another_with_limits(runs: dict[str, 
     assert held["status"] == "judged" and held["data"].startswith("time blocks 3, 7, 11, 15, 19")
     params = str(tmp_path / "cal" / "px4.params")
     assert main(["verify", params, third, "--out", str(tmp_path / "v"), "-q"]) == 0
+    assert json.loads((tmp_path / "v" / "results.json").read_text())["trained_on"] is None
+    # on the very log it was fitted on (found by its bytes in the calibration's results.json,
+    # copied under another name): a PASS on training data, and the report says so
+    twin = tmp_path / "renamed.ulg"
+    twin.write_bytes(Path(first).read_bytes())
+    capsys.readouterr()
+    assert main(["verify", params, str(twin), "--out", str(tmp_path / "vt")]) == 0
+    out = capsys.readouterr().out
+    assert f"warning: this log is {first}, which the parameters were fitted on" in out
+    assert "PASS (on its own training log)" in out
+    assert json.loads((tmp_path / "vt" / "results.json").read_text())["trained_on"] == first
+    assert "which the parameters were fitted on" in (tmp_path / "vt" / "report.html").read_text()
     # an impossible limit: every axis FAILs, exit 3, the report says which
     assert main(["verify", params, third, "--out", str(tmp_path / "v2"), "--min-cut", "1e6",
                  "--gyro-floor", "0", "--acc-floor", "0", "--baro-floor", "0",

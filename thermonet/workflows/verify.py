@@ -388,9 +388,11 @@ def verify(params_path: str | Path, log_path: str | Path, out_dir: str | Path, *
     check_target(out, overwrite, "verification")
     insts = evaluate(pf, log, limits)
     judged = [d for d in insts.values() if d["status"] == "judged"]
+    digest = sha256_file(log.path)
     doc = {"kind": "verification", "schema": 1, "thermonet_version": __version__,
            "params_file": str(pf.path), "log": str(log.path),
-           "log_sha256": sha256_file(log.path), "autopilot": log.autopilot,
+           "log_sha256": digest, "trained_on": trained_on(pf.path, digest),
+           "autopilot": log.autopilot,
            "limits": asdict(limits), "instances": insts,
            "passed": all(all(d["passed"]) for d in judged)
            and not any(d.get("offset_failures") for d in insts.values())}
@@ -401,6 +403,23 @@ def verify(params_path: str | Path, log_path: str | Path, out_dir: str | Path, *
         atomic_write_text(stage.path / "report.html", render_verify_html(doc))
         stage.done()
     return doc
+
+
+def trained_on(params_path: Path, digest: str) -> str | None:
+    """The log, by the name ``calibrate`` recorded, whose bytes (SHA-256 ``digest``) the
+    parameter file was fitted on, where the calibration's results.json lies beside it (None:
+    not one of them, or no readable record there — nothing read is trusted: a record that is
+    not calibrate's is ignored)."""
+    try:
+        rec = json.loads((params_path.parent / "results.json").read_text())
+    except (OSError, ValueError):
+        return None
+    names, sums = (rec.get(k) if isinstance(rec, dict) else None
+                   for k in ("logs", "logs_sha256"))
+    if not (isinstance(names, list) and isinstance(sums, list) and len(names) == len(sums)
+            and all(isinstance(x, str) for x in names + sums)):
+        return None
+    return next((n for n, h in zip(names, sums, strict=True) if h == digest), None)
 
 
 def _json_safe(obj: Any) -> Any:

@@ -13,7 +13,7 @@ from typing import Any
 from ..reporting.report import _CSS, VERDICT_COLOURS
 from .verify_params import KIND_UNITS
 
-__all__ = ["format_verify_report", "render_verify_html"]
+__all__ = ["format_verify_report", "render_verify_html", "trained_note"]
 
 
 def _g3(x: float | None) -> str:
@@ -42,7 +42,7 @@ def format_verify_report(doc: dict[str, Any]) -> str:
              f"limits: an axis passes when the binned drift is cut at least "
              f"{lim['min_cut']:g}x, or is left below "
              + ", ".join(f"{v:g} {KIND_UNITS.get(k, '')} ({k})" for k, v in lim["floor"].items()),
-             ""]
+             *([f"warning: {trained_note(doc)}"] if doc.get("trained_on") else []), ""]
     for name, d in doc["instances"].items():
         head = f"{name:<6} id {d['device_id']:<9}"
         if d["status"] != "judged":
@@ -54,8 +54,16 @@ def format_verify_report(doc: dict[str, Any]) -> str:
         lines.append(f"{head} slot {d['slot']}: binned drift p-p [{unit}] {axes}")
         lines += [f"       FAIL: {w}" for w in d.get("offset_failures") or []]
         lines += [f"       warning: {w}" for w in d["warnings"]]
-    lines += ["", "PASS" if doc["passed"] else "FAIL: see the axes marked FAIL"]
+    lines += ["", ("PASS" + (" (on its own training log)" if doc.get("trained_on") else ""))
+              if doc["passed"] else "FAIL: see the axes marked FAIL"]
     return "\n".join(lines) + "\n"
+
+
+def trained_note(doc: dict[str, Any]) -> str:
+    """Why a verdict on the calibration's own log is no verdict on a new excursion."""
+    return (f"this log is {doc['trained_on']}, which the parameters were fitted on (the "
+            "calibration's results.json says so): a check on training data, not on a new "
+            "warm-up — verify on another log")
 
 
 def render_verify_html(doc: dict[str, Any]) -> str:
@@ -82,6 +90,8 @@ def render_verify_html(doc: dict[str, Any]) -> str:
                         f"{_cut(c)}× {'PASS' if ok else 'FAIL'}</td>"
                         f"<td>{html.escape(warn)}</td></tr>")
     verdict = "PASS" if doc["passed"] else "FAIL"
+    if doc.get("trained_on"):
+        verdict += f" — {trained_note(doc)}"
     return ("<!DOCTYPE html><html><head><meta charset=\"utf-8\">"
             f"<title>thermonet verify: {html.escape(Path(doc['log']).name)}</title>"
             f"<style>{_CSS}</style></head><body>"
