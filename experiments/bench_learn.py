@@ -3,8 +3,9 @@
 ``python experiments/bench_learn.py [accuracy] [--seeds 0,1,2,3] [--flights 20,40]``
     Simulated vehicles (:mod:`thermonet.sim.flights`: the fc-board board of each seed flown
     across the seasons, PX4 ``.ulg`` and ArduPilot ``.bin``): ``thermonet learn`` on the first
-    N flights (``--no-compare``: the firmware form, what the parameter file carries), then
-    applied to 5 new flights of the same vehicle.  Per instance the estimator runs on
+    N flights, then applied to 5 new flights of the same vehicle: the firmware form (what
+    the parameter file carries) and the comparison's shipped model (``model.onnx`` through
+    ``export/thermonet_runtime.py``, torch-free).  Per instance the estimator runs on
     (gyro0/1, acc0/1) and axis, on each new flight: the 1 °C-binned peak-to-peak of the true
     drift left after the learned correction, over the raw drift's, and over what a chamber
     calibration of the same board leaves (``fit_firmware`` on ``simulate_board(seed)``, the
@@ -33,6 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "export"))
 from common import machine, save, table  # noqa: E402
 from thermonet.data.firmware import FirmwareFit  # noqa: E402
 from thermonet.data.logs.bias import read_bias_log  # noqa: E402
@@ -44,6 +46,7 @@ from thermonet.workflows.learn import learn  # noqa: E402
 from thermonet.workflows.learn_fit import binned_pp  # noqa: E402
 from thermonet.workflows.magnetometer import fit_correction  # noqa: E402
 from thermonet.workflows.verify import Limits  # noqa: E402
+from thermonet_runtime import Compensator  # noqa: E402
 
 EKF = ("gyro0", "gyro1", "acc0", "acc1")
 NEW_FLIGHTS = 5
@@ -63,28 +66,38 @@ def _one(seed: int, n: int, autopilot: str, tmp: Path) -> dict[str, Any]:
     logs.mkdir()
     paths = [write_flight(f.log, f.biases, logs / f"f{k:03d}{ext}")
              for k, f in enumerate(flights[:n])]
+    out = tmp / f"out-{autopilot}-{seed}-{n}"
     t0 = time.perf_counter()
-    doc = learn(paths, tmp / f"out-{autopilot}-{seed}-{n}", executor="serial", compare=False)
+    doc = learn(paths, out, executor="serial")
     wall = time.perf_counter() - t0
     board = simulate_board(seed=seed, autopilot=autopilot, rate_hz=0.2)
     floor = Limits().floor
-    vs_raw, vs_chamber, resid = [], [], []
+    r: dict[str, list[float]] = {k: [] for k in ("vs_raw", "vs_chamber", "in_floors", "model_vs_raw",
+                                                 "model_vs_chamber", "model_in_floors")}
     for f in flights[n:]:
         for inst in f.log.instances:
-            if inst.name not in EKF or doc["instances"][inst.name].get("firmware") is None:
+            d = doc["instances"].get(inst.name, {})
+            if inst.name not in EKF or d.get("firmware") is None:
                 continue
             temp, truth = inst.temperature_c, f.truth[inst.name]
-            learned = truth - fit_correction(_fit(doc["instances"][inst.name]), temp)
+            learned = truth - fit_correction(_fit(d), temp)
+            onnx = out / "instances" / inst.name / "model.onnx"
+            model = truth - Compensator(onnx).compensate(
+                np.asarray(temp, dtype=np.float64), np.zeros((temp.size, 3))).drift \
+                if onnx.exists() else np.full_like(truth, np.nan)
             ch = next(i for i in board.instances if i.name == inst.name)
             chamber = truth - fit_correction(fit_firmware(ch, autopilot), temp)
-            for raw, got, cal in zip(binned_pp(temp, truth), binned_pp(temp, learned),
-                                     binned_pp(temp, chamber), strict=True):
+            for raw, got, mod, cal in zip(binned_pp(temp, truth), binned_pp(temp, learned),
+                                          binned_pp(temp, model), binned_pp(temp, chamber),
+                                          strict=True):
                 if raw > floor[inst.kind]:
-                    vs_raw.append(got / raw)
-                    vs_chamber.append(got / cal)
-                    resid.append(got / floor[inst.kind])
-    return {"seed": seed, "flights": n, "autopilot": autopilot, "learn_s": wall,
-            "vs_raw": vs_raw, "vs_chamber": vs_chamber, "in_floors": resid,
+                    for key, v in (("", got), ("model_", mod)):
+                        r[key + "vs_raw"].append(v / raw)
+                        r[key + "vs_chamber"].append(v / cal)
+                        r[key + "in_floors"].append(v / floor[inst.kind])
+    return {"seed": seed, "flights": n, "autopilot": autopilot, "learn_s": wall, **r,
+            "chosen": {k: (doc["instances"][k].get("compare") or {}).get("chosen")
+                       for k in EKF},
             "lags": {k: doc["instances"][k]["lag_s"] for k in EKF},
             "rejected": sum(doc["instances"][k]["rejected_windows"] for k in EKF)}
 
@@ -102,14 +115,41 @@ def accuracy(seeds: list[int], counts: list[int]) -> None:
                                  f"{q(r['vs_raw'], 50):.3f} / {max(r['vs_raw']):.3f}",
                                  f"{q(r['vs_chamber'], 50):.2f} / {max(r['vs_chamber']):.2f}",
                                  f"{q(r['in_floors'], 50):.2f} / {max(r['in_floors']):.2f}",
+                                 f"{np.nanmedian(r['model_vs_chamber']):.2f} / "
+                                 f"{np.nanmax(r['model_vs_chamber']):.2f}",
+                                 " ".join(str(v) for v in r["chosen"].values()),
                                  " ".join(f"{v:g}" for v in r["lags"].values()),
                                  r["rejected"], f"{r['learn_s']:.1f}"])
                     print(rows[-1], flush=True)
     md = table(["autopilot", "flights", "seed", "axes", "left / raw (median / worst)",
                 "left / chamber (median / worst)", "left in floors (median / worst)",
-                "lags s (g0 g1 a0 a1)", "windows rejected", "learn s"], rows)
+                "comparison's model: left / chamber (median / worst)",
+                "chosen (g0 g1 a0 a1)", "lags s (g0 g1 a0 a1)", "windows rejected",
+                "learn s"], rows)
+    md = _summary(data) + "\n\n" + md
     print(md)
     save("bench_learn_accuracy", {"machine": machine(), "runs": data}, md)
+
+
+def _summary(data: list[dict[str, Any]]) -> str:
+    """Per autopilot and flight count, both forms over every seed: the share of axes
+    ≤ 0.3× raw, and ≤ 1.5× the chamber calibration or under verify's floor."""
+    rows = []
+    for ap in dict.fromkeys(r["autopilot"] for r in data):
+        for n in dict.fromkeys(r["flights"] for r in data):
+            runs = [r for r in data if r["autopilot"] == ap and r["flights"] == n]
+            for form, key in (("firmware form", ""), ("comparison (ONNX)", "model_")):
+                raw, ch, fl = (np.concatenate([r[key + k] for r in runs])
+                               for k in ("vs_raw", "vs_chamber", "in_floors"))
+                ok = np.isfinite(raw)
+                rows.append([ap, n, form, int(ok.sum()),
+                             f"{np.mean(raw[ok] <= 0.3):.1%}",
+                             f"{np.median(raw[ok]):.3f}, {np.percentile(raw[ok], 90):.3f}",
+                             f"{np.mean((ch[ok] <= 1.5) | (fl[ok] <= 1)):.1%}",
+                             f"{np.median(ch[ok]):.2f}, {np.percentile(ch[ok], 90):.2f}"])
+    return table(["autopilot", "flights", "form", "axes", "≤ 0.3× raw",
+                  "left / raw: median, 90th pct", "≤ 1.5× chamber or under the floor",
+                  "left / chamber: median, 90th pct"], rows)
 
 
 #: ``python -c LEARN_CHILD OUT EXECUTOR WORKERS LOG...``: ``learn`` (``--no-compare``) in a

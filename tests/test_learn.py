@@ -23,7 +23,8 @@ from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
 from thermonet.sim.flights import EKF_TAU_S, simulate_flights
 from thermonet.workflows.firmware_fit import fit_firmware
-from thermonet.workflows.learn import learn
+from thermonet.workflows.learn import format_learn_report, learn
+from thermonet.workflows.learn_data import ROBUST_S, InstanceWindows, median_within_flights
 from thermonet.workflows.learn_fit import binned_pp
 from thermonet.workflows.magnetometer import fit_correction
 from thermonet.workflows.verify import Limits
@@ -98,6 +99,39 @@ def test_divergences_are_rejected(tmp_path):
     assert all(doc["instances"][n]["status"] == "fitted" for n in EKF_INSTANCES)
 
 
+def test_every_fit_reads_each_flights_running_median_never_across_two():
+    """The windows every fit reads are each flight's running median (scipy's
+    ``median_filter``, ``mode="nearest"``, as the oracle), over kept windows in time order:
+    a flight's first windows (its coldest) take nothing of the flight before (its hottest);
+    windows left out stay out of every median."""
+    from scipy.ndimage import median_filter
+
+    g = np.random.default_rng(0)
+    n = 60
+    flight = np.repeat([1, 0], n)                      # stored out of flight order
+    time_s = np.concatenate([np.arange(n), np.arange(n)]) * 10.0 + 5.0
+    warm = np.linspace(0.0, 1.0, n)                    # each flight warms: drift 0 -> 1
+    drift = np.column_stack([np.concatenate([warm, warm])] * 3) + \
+        0.01 * g.standard_normal((2 * n, 3))
+    drift[n + 3] += 50.0                               # a burst the median removes
+    keep = np.ones(2 * n, dtype=bool)
+    keep[7] = False                                    # a divergence left out
+    inst = InstanceWindows(kind="gyro", device_id=1, name="gyro0", flights=["a", "b"],
+                           flight=flight, time_s=time_s, temp=20.0 + 30.0 * drift[:, 0],
+                           drifts={"0": drift.copy()}, weight=np.full(2 * n, 10.0),
+                           still=np.zeros(2 * n, dtype=bool), keep=keep, window_s=10.0)
+    span = median_within_flights(inst)
+    assert span == 31 and ROBUST_S == 310.0            # PX4's 31 samples, 10-s windows
+    got = inst.drift
+    for f in (0, 1):
+        sel = np.flatnonzero(keep & (flight == f))
+        want = median_filter(drift[sel], size=(span, 1), mode="nearest")
+        np.testing.assert_array_equal(got[sel], want)   # the same order statistics
+    assert got[7, 0] == drift[7, 0]                    # left out: untouched
+    assert np.all(np.abs(got[n:n + 5, 0]) < 0.2)       # a flight's start: its own cold values
+    assert abs(got[n + 3, 0]) < 0.2                    # the burst is gone
+
+
 def _bad_logs(root: Path) -> dict[str, Path]:
     """One log of each kind learn must refuse, each named for what it lacks."""
     root.mkdir(parents=True, exist_ok=True)
@@ -144,7 +178,7 @@ def test_bad_logs_one_line_each_good_ones_counted(tmp_path, capsys):
     assert "estimator_sensor_bias" in why["x_chamber.ulg"]
     assert "never converged" in why["x_never_converged.ulg"]
     assert "clock jumps" in why["x_clock_jump.ulg"]
-    assert "ardupilot log among px4" in why["x_ardupilot.bin"]
+    assert "an ArduPilot log among px4" in why["x_ardupilot.bin"]
     out = capsys.readouterr().out
     for p in bad.values():
         lines = [line for line in out.splitlines() if p.name in line]
@@ -183,6 +217,19 @@ def test_resume_from_the_cache_and_grow(tmp_path, capsys):
     assert any(c.startswith("gyro0: 5 -> 8 flights") for c in doc["changes"])
     assert "changed: flights: 5 -> 8" in captured.out
     assert first["instances"]["gyro0"]["firmware"] != doc["instances"]["gyro0"]["firmware"]
+    # a copy of a flight under another name is that flight once, not a ninth: refused in one
+    # line; nothing else changed, and the report says so rather than "8 -> 8"
+    (logs / "flight009.ulg").write_bytes((logs / "flight001.ulg").read_bytes())
+    assert main(["learn", str(logs), "--out", str(out), "--executor", "serial",
+                 "--no-compare"]) == 0
+    captured = capsys.readouterr()
+    assert "9 logs: 8 read before (cache), 0 to read, 1 the same as another" in captured.err
+    again = json.loads((out / "results.json").read_text())
+    assert len(again["logs"]) == 8 and len(again["refused"]) == 1
+    assert "the same log as" in again["refused"][0]["reason"]
+    assert "flight001.ulg" in again["refused"][0]["reason"]
+    assert again["changes"] == ["nothing (the same logs as before)"]
+    assert again["instances"]["gyro0"]["firmware"] == doc["instances"]["gyro0"]["firmware"]
 
 
 def test_coverage_map_says_what_is_missing(tmp_path):
@@ -198,6 +245,14 @@ def test_coverage_map_says_what_is_missing(tmp_path):
                            for w in d["missing"])
     total = sum(c["minutes"] for c in d["coverage"])
     assert math.isclose(total, d["minutes"], rel_tol=0.02)
+    # the console names exactly the supported bins (2 flights and 2 minutes each), holes
+    # left out, where it once printed the first to the last as if none were between
+    ok = {c["bin_c"] for c in d["coverage"] if c["flights"] >= 2 and c["minutes"] >= 2}
+    text = format_learn_report(doc).split("gyro0 (")[1]
+    line = next(x for x in text.splitlines() if x.strip().startswith("coverage: supported"))
+    spans = line.split("supported ")[1].removesuffix(" °C").split(", ")
+    named = {b for sp in spans for b in range(int(sp.split("..")[0]), int(sp.split("..")[1]))}
+    assert named == ok
 
 
 def test_comparison_on_whole_flights(tmp_path):

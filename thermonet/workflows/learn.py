@@ -61,6 +61,7 @@ from .learn_data import (
     InstanceWindows,
     WindowFold,
     not_this_vehicle,
+    supported_spans,
     vehicle_key,
     vehicle_of,
 )
@@ -128,12 +129,20 @@ def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
         logs[k] = {"index": k, **{key: doc.get(key) for key in (
             "path", "autopilot", "sensors", "board_id", "notes")}}
 
-    for k, d in enumerate(digests):
+    first: dict[str, int] = {}
+    for k, d in enumerate(digests):     # a log given twice is one flight, not two
+        if d in first:
+            logs[k] = {"index": k, "path": str(files[k]), "error": (
+                f"the same log as {files[first[d]]} (identical contents): read once")}
+            continue
+        first[d] = k
         doc = read_cache(cache_path(out, d))
         if doc is not None:
             take(k, doc)
     todo = [k for k in range(len(files)) if logs[k] is None]
-    say(f"{len(files)} logs: {len(files) - len(todo)} read before (cache), {len(todo)} to read")
+    twins = len(files) - len(first)
+    say(f"{len(files)} logs: {len(first) - len(todo)} read before (cache), {len(todo)} to read"
+        + (f", {twins} the same as another" if twins else ""))
     start, done = time.monotonic(), [0]
 
     def arrived(i: int, value: Any) -> None:
@@ -203,24 +212,28 @@ def _changes(old: dict[str, Any] | None, new: dict[str, Any]) -> list[str]:
     """What changed since the directory's previous results, in words."""
     if not old:
         return []
-    out = [f"flights: {len(old.get('logs', []))} -> {len(new['logs'])}"]
+    n_old, n_new = len(old.get("logs", [])), len(new["logs"])
+    out = [f"flights: {n_old} -> {n_new}"] if n_old != n_new else []
     for name, d in new["instances"].items():
         o = (old.get("instances") or {}).get(name)
         if not o:
             out.append(f"{name}: new")
             continue
         was, now = o.get("supported_c"), d.get("supported_c")
-        line = f"{name}: {o.get('flights')} -> {d.get('flights')} flights"
+        parts = [f"{o.get('flights')} -> {d.get('flights')} flights"] \
+            if o.get("flights") != d.get("flights") else []
         if was != now:
-            line += f", supported {_span(was)} -> {_span(now)}"
+            parts.append(f"supported {_span(was)} -> {_span(now)}")
         if o.get("firmware") and d.get("firmware"):
             grid = np.linspace(d["firmware"]["t_min"], d["firmware"]["t_max"], 50)
             fo, fn = (FirmwareFit(d["kind"], 0, x["t_ref"], x["t_min"], x["t_max"],
                                   np.asarray(x["coef"])) for x in (o["firmware"], d["firmware"]))
-            delta = np.abs(fit_correction(fn, grid) - fit_correction(fo, grid))
-            line += f", correction moved by up to {float(delta.max()):.3g} {UNITS[d['kind']]}"
-        out.append(line)
-    return out
+            delta = float(np.abs(fit_correction(fn, grid) - fit_correction(fo, grid)).max())
+            if delta > 0:
+                parts.append(f"correction moved by up to {delta:.3g} {UNITS[d['kind']]}")
+        if parts:
+            out.append(f"{name}: " + ", ".join(parts))
+    return out or ["nothing (the same logs as before)"]
 
 
 def _span(s: list[int] | None) -> str:
@@ -350,31 +363,41 @@ def _outside_note(h: dict[str, Any]) -> str:
             "where the firmware holds its edge value)")
 
 
-def _band_line(c: dict[str, Any]) -> list[str]:
+def _band_line(c: dict[str, Any], unit: str) -> list[str]:
     """The firmware form's residual-drift band (judged on whole flights held out) in one
-    line: its half-widths over the flown range and how fast it grows outside it."""
+    line, in ``unit`` as the instance's other lines (results.json also holds it in °/h or
+    mg): its half-widths over the flown range and how fast it grows outside it."""
     b = c.get("band")
-    if not isinstance(b, dict) or not b.get("display") or not b.get("axes"):
+    if not isinstance(b, dict) or not b.get("axes"):
         return []
-    disp = b["display"]
-    unit = next(iter(disp.values()))["unit"]
-    widths = [float(w) for a in disp.values() for w in a["half_width"]]
-    edges = next(iter(b["axes"].values()))["edges"]
-    grow = max(max(float(a["growth_below"]), float(a["growth_above"])) for a in disp.values())
+    axes = b["axes"].values()
+    widths = [float(w) for a in axes for w in a["half_width"]]
+    edges = next(iter(axes))["edges"]
+    grow = max(max(float(a["growth_below"]), float(a["growth_above"])) for a in axes)
     return [f"  band ({float(b['level']):.0%}, {c['baseline']}, whole flights held out): "
             f"±{min(widths):.3g}..{max(widths):.3g} {unit} over {edges[0]:.0f}..{edges[-1]:.0f} "
             f"°C, growing by up to {grow:.3g} {unit} per °C outside (not yet flown)"]
 
 
+def _supported(d: dict[str, Any]) -> str:
+    """The supported 1 °C bins as spans ("10..13, 36..39 °C"), or "nothing"."""
+    spans = supported_spans(d.get("coverage") or [])
+    return ", ".join(f"{a}..{b + 1}" for a, b in spans) + " °C" if spans else "nothing"
+
+
+def _n(k: int, word: str) -> str:
+    return f"{k} {word}{'s' * (k != 1)}"
+
+
 def format_learn_report(doc: dict[str, Any]) -> str:
     """The console summary: what was used and refused, per instance its fit, held-out check,
     coverage and what is missing, and what changed."""
-    lines = [f"thermonet learn: {len(doc['logs'])} logs used, {len(doc['refused'])} refused "
+    lines = [f"thermonet learn: {_n(len(doc['logs']), 'log')} used, {len(doc['refused'])} refused "
              f"({doc['autopilot']})"]
     lines += [f"  refused {r['log']}: {r['reason']}" for r in doc["refused"]]
     for name, d in doc["instances"].items():
         unit = UNITS[d["kind"]]
-        lines.append(f"{name} (id {d['device_id']}): {d['status']}, {d['flights']} flights, "
+        lines.append(f"{name} (id {d['device_id']}): {d['status']}, {_n(d['flights'], 'flight')}, "
                      f"{d['minutes']:g} min, lag {d['lag_s']:g} s, "
                      f"{d['rejected_windows']} windows rejected (diverged)")
         h = d.get("held_out") or {}
@@ -385,14 +408,15 @@ def format_learn_report(doc: dict[str, Any]) -> str:
                          + _outside_note(h))
         c = d.get("compare") or {}
         if c.get("status") == "ok":
-            lines.append(f"  comparison on whole flights: chosen {c.get('chosen')} "
+            chosen = c.get("chosen") or f"nothing ({c.get('chosen_reason')})"
+            lines.append(f"  comparison on whole flights: chosen {chosen} "
                          f"(baseline {c['baseline']}, test {c['test_flight']})")
-            lines += _band_line(c)
+            lines += _band_line(c, unit)
         elif c:
             lines.append(f"  comparison: {c.get('status')} ({c.get('reason')})")
         if d.get("reason"):
             lines.append(f"  {d['reason']}")
-        lines.append(f"  coverage: supported {_span(d.get('supported_c'))}")
+        lines.append(f"  coverage: supported {_supported(d)}")
         lines += [f"  {w}" for w in d.get("missing", [])]
     if doc.get("params_file"):
         lines.append(f"parameter file: {doc['params_file']}")

@@ -20,9 +20,15 @@ from ..data.firmware import FirmwareFit
 from ..data.logs import SensorInstance
 from ..reporting.results import ComparisonResult as TypedResult
 from ..reporting.results import clean
-from .firmware_fit import PX4_MEDIAN_SAMPLES, fit_firmware
-from .learn_data import InstanceWindows, choose_lag, coverage, missing_words, reject_outliers
-from .learn_reduce import WINDOW_S
+from .firmware_fit import fit_firmware
+from .learn_data import (
+    InstanceWindows,
+    choose_lag,
+    coverage,
+    median_within_flights,
+    missing_words,
+    reject_outliers,
+)
 from .magnetometer import fit_correction
 from .verify import Limits
 
@@ -60,20 +66,18 @@ def _asinstance_doc(inst: InstanceWindows, sel: np.ndarray) -> SensorInstance:
 
 
 def _firmware(inst: InstanceWindows, autopilot: str) -> dict[str, Any]:
-    """The firmware form on every kept window, and its check on the last flight.  PX4's
-    running median takes as many windows as span its 31 reader's windows (fewer once windows
-    are merged: else it would run across flights)."""
+    """The firmware form on every kept window, and its check on the last flight.  The windows
+    are already each flight's running median (:func:`median_within_flights`: PX4's filter,
+    within flights), so PX4's form filters no further."""
     keep = np.asarray(inst.keep)
     flights = np.unique(inst.flight[keep])
-    span = int(PX4_MEDIAN_SAMPLES * WINDOW_S / inst.window_s)
-    med = max(1, span - (1 - span % 2))             # the largest odd number within the span
-    out: dict[str, Any] = {"fit": fit_firmware(_asinstance_doc(inst, keep), autopilot, med)}
+    out: dict[str, Any] = {"fit": fit_firmware(_asinstance_doc(inst, keep), autopilot, 1)}
     if flights.size < 2:
         out["held_out"] = {"status": "not judged", "reason": "one flight: nothing to hold out"}
         return out
     last = keep & (inst.flight == flights[-1])
     train = keep & ~last
-    fit = fit_firmware(_asinstance_doc(inst, train), autopilot, med)
+    fit = fit_firmware(_asinstance_doc(inst, train), autopilot, 1)
     temp = inst.temp[last]
     y = _target(inst, inst.drift[last])
     after = y - fit_correction(fit, temp)
@@ -175,6 +179,7 @@ def instance_doc(inst: InstanceWindows, autopilot: str, stage: Path, do_compare:
     """One instance learned: lag, rejection, coverage, firmware form, comparison, export."""
     scores = choose_lag(inst)
     dropped = reject_outliers(inst)
+    median_within_flights(inst)
     cov = coverage(inst)
     span, words = missing_words(cov)
     keep = np.asarray(inst.keep)
