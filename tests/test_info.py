@@ -48,6 +48,29 @@ def test_summary_recovers_noise_and_drift():
     assert "0.00..10.00" in text and "10.00..20.00" in text
 
 
+def test_a_fleets_file_names_each_runs_unit(tmp_path):
+    """Runs of several units (a fleet's file, every run called ``run0``): the header counts
+    the units, the run table names each run's unit, the drift says it is pooled — streamed or
+    not; one unit's file stays as it was."""
+    from thermonet.data.io import write_parquet
+    from thermonet.workflows.info_chunked import summarize_parquet
+
+    runs = [_run("run0", 0.002, 10.0 * k, k) for k in range(3)]
+    for k, r in enumerate(runs):
+        r.device_id = f"imu-u{k:03d}"
+    write_parquet(Dataset(runs=runs), tmp_path / "fleet.parquet")
+    for s in (summarize(Dataset(runs=runs)), summarize_parquet(tmp_path / "fleet.parquet",
+                                                               chunk_rows=4096)):
+        assert [r["unit"] for r in s["runs"]] == ["imu-u000", "imu-u001", "imu-u002"]
+        lines = format_summary(s).splitlines()
+        assert lines[0].startswith("3 ") and "units (imu-u000 … imu-u002), 3 run(s)" in lines[0]
+        table = [ln.split() for ln in lines if ln.startswith("imu-u")]
+        assert [row[:2] for row in table] == [[f"imu-u00{k}", "run0"] for k in range(3)]
+        assert any("every unit pooled" in ln for ln in lines)
+    one = format_summary(summarize(Dataset(runs=[runs[0]])))
+    assert one.startswith("device imu-u000 (") and "pooled" not in one
+
+
 def test_summary_without_thermometer_reports_proxy():
     rng = np.random.default_rng(3)
     n = 500

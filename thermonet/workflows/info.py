@@ -73,7 +73,8 @@ def summarize(dataset: Dataset, *, bin_c: float = 1.0) -> dict[str, Any]:
     for r in runs:
         t = r.temperature_c
         run_rows.append({
-            "run_id": r.run_id, "samples": r.n_samples, "duration_s": r.duration_s,
+            "run_id": r.run_id, "unit": r.device_id, "samples": r.n_samples,
+            "duration_s": r.duration_s,
             "sample_rate_hz": r.effective_rate_hz,
             "temperature_min_c": None if t is None else float(t.min()),
             "temperature_max_c": None if t is None else float(t.max()),
@@ -156,8 +157,11 @@ def _table(header: list[str], rows: list[list[str]]) -> list[str]:
 
 def format_summary(summary: dict[str, Any]) -> str:
     """Render :func:`summarize`'s dict as readable text tables."""
-    out = [f"device {summary['device_id']} ({summary['sensor_kind']}), "
-           f"{summary['n_runs']} run(s)", ""]
+    units = list(dict.fromkeys(r.get("unit", summary["device_id"]) for r in summary["runs"]))
+    fleet = len(units) > 1        # a fleet's file: each run's unit named, the drift pooled
+    head = (f"{len(units)} {summary['sensor_kind']} units ({units[0]} … {units[-1]})" if fleet
+            else f"device {summary['device_id']} ({summary['sensor_kind']})")
+    out = [f"{head}, {summary['n_runs']} run(s)", ""]
     out += _table(["channel", "role", "unit"],
                   [[c["name"], c["role"], c["unit"]] for c in summary["channels"]])
     out.append("")
@@ -168,17 +172,19 @@ def format_summary(summary: dict[str, Any]) -> str:
         else:
             proxy = "; ".join(f"{k} {lo:.6g}..{hi:.6g}" for k, (lo, hi) in r["proxies"].items())
             temp = f"n/a (no °C thermometer; proxy: {proxy or 'none'})"
-        rows.append([r["run_id"], str(r["samples"]), f"{r['duration_s']:.1f}",
-                     f"{r['sample_rate_hz']:.4g}", temp,
+        rows.append([*([str(r.get("unit"))] if fleet else []), r["run_id"], str(r["samples"]),
+                     f"{r['duration_s']:.1f}", f"{r['sample_rate_hz']:.4g}", temp,
                      "" if r["skipped_rows"] is None else str(r["skipped_rows"])])
-    out += _table(["run", "samples", "duration s", "rate Hz", "temperature °C",
-                   "skipped rows"], rows)
+    out += _table([*(["unit"] if fleet else []), "run", "samples", "duration s", "rate Hz",
+                   "temperature °C", "skipped rows"], rows)
     out.append("")
     rows = [[o["name"], o["unit"], _fmt(o["noise_floor"]),
              _fmt(o["drift_peak_to_peak"]) if o["drift_peak_to_peak"] is not None
              else "n/a (no °C thermometer)"] for o in summary["outputs"]]
     out += _table(["output", "unit", "noise floor",
-                   f"drift p-p ({summary['bin_c']:g} °C bins)"], rows)
+                   f"drift p-p ({summary['bin_c']:g} °C bins"
+                   + (", every unit pooled: `thermonet fleet` fits each)" if fleet else ")")],
+                  rows)
     out.append(f"noise floor: {summary['noise_floor_basis']} (a standard deviation, not a "
                "density)")
     if summary["temperature_range_c"] is not None:

@@ -190,8 +190,8 @@ def _summarize(layouts: list[Layout], *, bin_c: float, chunk_rows: int) -> dict[
         e = r.entry
         temp = e["temperature"]
         run_rows.append({
-            "run_id": e["run_id"], "samples": r.n, "duration_s": r.t1 - r.t0,
-            "sample_rate_hz": r.rate_hz(),
+            "run_id": e["run_id"], "unit": e["device_id"], "samples": r.n,
+            "duration_s": r.t1 - r.t0, "sample_rate_hz": r.rate_hz(),
             "temperature_min_c": r.lo["temperature_c"] if temp else None,
             "temperature_max_c": r.hi["temperature_c"] if temp else None,
             "proxies": {k: [r.lo[k], r.hi[k]] for k in e["proxies"]},
