@@ -1,8 +1,12 @@
 """`thermonet prior` and `thermonet station` end to end on simulated structured fleets.
 
-The prior leaves the planted outliers out of the population; the station flags new units
-10 σ off their fleet and passes the others; the firmware header compiled with gcc gives the
-posterior polynomial (float32 tolerance); bad input is one line, exit 1, nothing written.
+The prior leaves the planted outliers out of the population (and, refusing a fleet left too
+small, names them); the station flags new units 10 σ off their fleet and passes the others,
+gives a unit with a whole climate cycle its verdict, says "not judged (why)" of a residual it
+cannot judge and puts the unit of measure on a residual; the firmware header compiled with
+gcc gives the posterior polynomial (float32 tolerance); bad input (a prior of other axes, a
+config of another t_ref, a soak repeated, an --out below a file) is one line, exit 1, nothing
+written, and comes before the work.
 """
 
 from __future__ import annotations
@@ -198,3 +202,107 @@ def test_failures_with_one_reason_are_said_once() -> None:
     many = [(f"u{i}", f"reason {i}") for i in range(7)]
     line = failures_line(many, "unit", shown=5)
     assert line.endswith("unit 'u4': reason 4 (and 2 more reasons)") and "u5" not in line
+
+
+def test_a_unit_with_a_whole_climate_cycle_gets_a_verdict(
+        prior: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The preset's own climate cycle (no --test): ~200 points per axis, once past the 64
+    point errors the mixture design drew when choosing a failed unit's next temperatures."""
+    monkeypatch.chdir(tmp_path)
+    Path("new.yaml").write_text(FLEET)
+    rc = main(["station", "new.yaml", "--prior", str(prior), "--units", "1", "--out", "cyc",
+               "--executor", "serial", "-q"])
+    res = json.loads(Path("cyc/results.json").read_text())
+    cal = json.loads(Path("cyc/units/consumer-imu-u000/calibration.json").read_text())
+    assert rc == (0 if res["summary"]["failed"] == 0 else 3)
+    fp = json.loads(prior.read_text())
+    for axis in fp["axes"]:
+        r = cal["axes"][axis]
+        assert r["points"] > 64 and r["held_out_rms"] is not None
+        assert r["verdict"] == ("PASS" if all(c["ok"] for c in r["checks"]) else "FAIL")
+        if r["verdict"] == "FAIL":    # two new temperatures inside the prior's range
+            nxt = r["next_temperatures_c"]
+            assert len(nxt) == 2 and all(fp["range_c"][0] <= t <= fp["range_c"][1] for t in nxt)
+
+
+def test_a_residual_not_judged_says_so_and_residuals_carry_their_unit(
+        prior: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.chdir(tmp_path)
+    Path("res.yaml").write_text(FLEET.replace("{max_tempco: 0.01}",
+                                              "{max_tempco: 0.01, max_residual: 0.05}"))
+    capsys.readouterr()
+    # one soak: one point per axis, nothing to hold out; the residual limit fails, saying why
+    assert main(["station", "res.yaml", "--prior", str(prior), "--units", "1", "--test",
+                 "soaks:25", "--out", "one", "--executor", "serial"]) == 3
+    out = capsys.readouterr().out
+    assert ("consumer-imu-u000: FAIL  held-out residual not judged (1 point)  "
+            "[gyro_x: max_residual: not judged (1 point)]") in out, out
+    cal = json.loads(Path("one/units/consumer-imu-u000/calibration.json").read_text())
+    gx = cal["axes"]["gyro_x"]
+    assert gx["held_out_rms"] is None and gx["held_out_not_judged"] == "1 point"
+    assert {"limit": "max_residual", "value": None, "max": 0.05, "ok": False,
+            "not_judged": "1 point"} in gx["checks"]
+    # three soaks: the worst held-out residual of results.json, in its axis's unit
+    main(["station", "res.yaml", "--prior", str(prior), "--units", "1", "--test",
+          "soaks:-10,25,60", "--out", "three", "--executor", "serial"])
+    out = capsys.readouterr().out
+    res = json.loads(Path("three/results.json").read_text())
+    axes = res["units"]["consumer-imu-u000"]["axes"]
+    worst = max(axes, key=lambda a: axes[a]["held_out_rms"])
+    unit = json.loads(prior.read_text())["units_of_measure"][worst]
+    assert unit in ("deg/s", "m/s^2")
+    assert f"worst held-out residual {worst} {axes[worst]['held_out_rms']:.3g} {unit}" in out
+
+
+def test_the_prior_and_the_config_must_agree_before_any_unit_runs(
+        prior: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.chdir(tmp_path)
+    Path("new.yaml").write_text(FLEET)
+    # the config's t_ref is not the prior's: refused before any unit runs (no progress line)
+    Path("t40.yaml").write_text(FLEET.replace("t_ref: 25.0", "t_ref: 40.0"))
+    _one_line_refusal(capsys, ["station", "t40.yaml", "--prior", str(prior), "--units", "3",
+                               "--test", "soaks:-15,25,65", "--out", "st", "--executor",
+                               "serial"],
+                      f"t40.yaml: key 'features.t_ref': 40 °C, and the prior ({prior}) is of "
+                      "t_ref 25 °C")
+    # a prior of the gyros only: the unit's accelerometers are not dropped silently
+    data = json.loads(prior.read_text())
+    for key in ("axes", "units_of_measure", "targets"):
+        data[key] = {a: v for a, v in data[key].items() if a.startswith("gyro")}
+    Path("gyro.json").write_text(json.dumps(data))
+    _one_line_refusal(capsys, ["station", "new.yaml", "--prior", "gyro.json", "--units", "2",
+                               "--test", "soaks:-10,25,60", "--out", "st", "--executor",
+                               "serial"],
+                      "the prior is of axes gyro_x, gyro_y, gyro_z; the data also hold acc_x, "
+                      "acc_y, acc_z")
+    # a soak test repeating a temperature in a row
+    _one_line_refusal(capsys, ["station", "new.yaml", "--prior", str(prior), "--units", "2",
+                               "--test", "soaks:30,30,30", "--out", "st"],
+                      "30 °C twice in a row is one longer soak")
+    assert not Path("st").exists()
+
+
+def test_prior_refusals_name_what_and_come_before_the_work(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    import thermonet.cli.fleet as cli_fleet
+
+    monkeypatch.chdir(tmp_path)
+    Path("new.yaml").write_text(FLEET)
+    # too few units left: which ones and why (the last 3 of 12 are the planted outliers)
+    assert main(["prior", "new.yaml", "--units", "12", "--outliers", "3", "--out",
+                 "p.json"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "9 remain after leaving out 3: " in err, err
+    assert all(f"'consumer-imu-u{i:03d}': robust outlier: " in err for i in (9, 10, 11)), err
+    assert not Path("p.json").exists()
+    Path("afile").write_text("not a directory\n")
+
+    def no_data(*_: object) -> None:
+        raise AssertionError("the units were read before --out was checked")
+    monkeypatch.setattr(cli_fleet, "_station_sources", no_data)
+    _one_line_refusal(capsys, ["prior", "new.yaml", "--units", "15", "--out", "afile/p.json"],
+                      f"afile/p.json: --out cannot be created: {tmp_path / 'afile'} is not a "
+                      "directory")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -93,6 +94,25 @@ def _station_sources(args: argparse.Namespace, cfg: Any) -> list[Any]:
                                    clusters=args.clusters, test=getattr(args, "test", None))
 
 
+def _prior_out(given: str) -> Path:
+    """``prior --out``, refused in one line before any unit is read or fitted when no file
+    can be written there: a directory, something not a regular file, a path below something
+    that is not a directory, or a directory that cannot be written."""
+    out = Path(given)
+    if out.is_dir():
+        raise ThermonetError(f"{out}: --out must be a file (prior.json), and this is a directory")
+    if os.path.lexists(out) and not out.is_file():
+        raise ThermonetError(f"{out}: --out is not a regular file (prior.json)")
+    for parent in out.absolute().parents:
+        if parent.is_dir():
+            if not os.access(parent, os.W_OK | os.X_OK):
+                raise ThermonetError(f"{out}: --out cannot be written: {parent} is not writable")
+            break
+        if os.path.lexists(parent):
+            raise ThermonetError(f"{out}: --out cannot be created: {parent} is not a directory")
+    return out
+
+
 def _cmd_prior(args: argparse.Namespace) -> int:
     from ..core.fileio import atomic_write_text  # lazy: off the --help path
     from ..core.recording import Dataset  # lazy: off the --help path
@@ -104,17 +124,16 @@ def _cmd_prior(args: argparse.Namespace) -> int:
         parse_station_limits,
         prior_summary,
     )
+    from ..workflows.station_prior import PLAN_SOAKS, PLAN_STEP_C  # lazy: off the --help path
 
     cfg = load_config(args.config)
-    out = Path(args.out)
-    if out.is_dir():
-        raise ThermonetError(f"{out}: --out must be a file (prior.json), and this is a directory")
+    out = _prior_out(args.out)
     sources = _station_sources(args, cfg)
     ds = Dataset(runs=[r for s in sources for r in s.load(cfg)])
     fp = build_prior(cfg, ds, source=str(args.config))
     data = fp.to_dict()
     data["summary"] = prior_summary(fp, parse_station_limits(cfg))
-    data["three_soak_plan_c"] = soak_plan(fp, 3)
+    data["three_soak_plan_c"] = soak_plan(fp, PLAN_SOAKS, step_c=PLAN_STEP_C)
     atomic_write_text(out, json.dumps(data, indent=2))
     if not args.quiet:
         print(f"wrote {out}: " + format_prior(fp, data["summary"], data["three_soak_plan_c"]))
@@ -149,7 +168,8 @@ def _cmd_station(args: argparse.Namespace) -> int:
     fp = _read_prior(args.prior)
     sources = _station_sources(args, cfg)
     res = run_station(cfg, fp, sources, Path(args.out), overwrite=args.overwrite,
-                      opts=StationOptions(args.executor, args.workers, args.ray_address),
+                      opts=StationOptions(args.executor, args.workers, args.ray_address,
+                                          args.prior),
                       say=(lambda *_: None) if args.quiet else print)
     if not args.quiet:
         print(format_station(res))

@@ -94,9 +94,12 @@ class StationLimit:
                                   or not math.isfinite(v) or v < 0):
                 raise ConfigError(f"key '{name}': must be a finite number ≥ 0, got {v!r}")
 
-    def checks(self, residual: float | None, tempco: float, noise: float
-               ) -> list[dict[str, Any]]:
-        """One check per limit set: ``{limit, value, max, ok}`` (no held-out value: fails)."""
+    def checks(self, residual: float | None, tempco: float, noise: float, *,
+               not_judged: str | None = None) -> list[dict[str, Any]]:
+        """One check per limit set: ``{limit, value, max, ok}``.  No held-out residual (too
+        few points to hold any out: ``not_judged`` says why) fails ``max_residual``: a limit
+        set is a promise the unit was checked, and that check could not be made; the check
+        then carries ``not_judged``."""
         out = []
         for name, value in (("max_residual", residual), ("max_tempco", abs(tempco)),
                             ("max_noise", noise)):
@@ -104,6 +107,8 @@ class StationLimit:
             if lim is not None:
                 out.append({"limit": name, "value": value, "max": lim,
                             "ok": value is not None and value <= lim})
+                if value is None:
+                    out[-1]["not_judged"] = not_judged or "no value"
         return out
 
 
@@ -406,11 +411,18 @@ def posterior(prior: AxisPrior, points: Points, *, t_ref: float, scale: float) -
 def check_compatible(fp: FleetPrior, axes: list[str], targets: dict[str, str],
                      where: str, units: dict[str, str] | None = None) -> None:
     """Refuse a unit whose axes, targets or units of measure are not the prior's (one line
-    naming both)."""
+    naming both).  The axes must be the same both ways: an axis the prior lacks would be
+    dropped from the unit's files without a word (a prior of another sensor kind); a unit
+    calibrated on some of its axes selects them with ``data.outputs``."""
     missing = [a for a in fp.axis_names if a not in axes]
     if missing:
         raise ConfigError(f"{where}: the prior is of axes {', '.join(fp.axis_names)}; the data "
                           f"lack {', '.join(missing)} (a prior of another sensor kind?)")
+    extra = [a for a in axes if a not in fp.axis_names]
+    if extra:
+        raise ConfigError(f"{where}: the prior is of axes {', '.join(fp.axis_names)}; the data "
+                          f"also hold {', '.join(extra)}, which it says nothing about (a prior "
+                          "of another sensor kind? data.outputs selects the prior's axes)")
     other = [a for a in fp.axis_names if targets.get(a) != fp.targets[a]]
     if other:
         a = other[0]

@@ -18,7 +18,7 @@ from .prior import AxisPrior, FleetPrior
 from .prior_points import shape_design
 
 __all__ = ["DESIGN_DRAWS", "expected_error", "next_temperatures", "typical_drift", "soak_plan",
-           "design_errors", "points_needed", "first_below"]
+           "plan_errors", "design_errors", "points_needed", "first_below"]
 
 
 def _run_information(X: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -47,6 +47,27 @@ def _design_setup(fp: FleetPrior, axis: str, step_c: float
 #: Units drawn from a mixture prior to judge a design by simulation (fixed seed: the same
 #: plan every time).
 DESIGN_DRAWS = 400
+#: Point-error columns a mixture design's draws get at once (more are drawn as a design
+#: needs them: :class:`_DrawNoise`).
+_NOISE_BLOCK = 64
+
+
+class _DrawNoise:
+    """Each draw's point errors, one column per temperature of a design, as many as a design
+    has (a unit's whole test can hold hundreds of points, a plan a few): the first
+    :data:`_NOISE_BLOCK` columns drawn at once, further columns one temperature at a time
+    from the same stream, so column j is the same whatever the design's length and designs
+    of every length are judged on the same draws."""
+
+    def __init__(self, rng: np.random.Generator, sd: float) -> None:
+        self._rng, self._sd = rng, sd
+        self._cols = rng.standard_normal((DESIGN_DRAWS, _NOISE_BLOCK)) / sd
+
+    def columns(self, n: int) -> np.ndarray:
+        if n > self._cols.shape[1]:
+            more = self._rng.standard_normal((n - self._cols.shape[1], DESIGN_DRAWS))
+            self._cols = np.hstack([self._cols, more.T / self._sd])
+        return self._cols[:, :n]
 
 
 def _mixture_error(fp: FleetPrior, ap: AxisPrior, grid: np.ndarray, w0: float
@@ -59,7 +80,7 @@ def _mixture_error(fp: FleetPrior, ap: AxisPrior, grid: np.ndarray, w0: float
     comp = rng.choice(ap.n_clusters, size=DESIGN_DRAWS, p=ap.weights)
     z = rng.standard_normal((DESIGN_DRAWS, fp.degree))
     beta = ap.means[comp] + np.einsum("nij,nj->ni", np.linalg.cholesky(ap.covs)[comp], z)
-    noise = rng.standard_normal((DESIGN_DRAWS, 64)) / math.sqrt(w0)
+    noise = _DrawNoise(rng, math.sqrt(w0))
     Gc = grid - grid.mean(axis=0)
     sinv = np.linalg.inv(ap.covs)
     consts = [float(mu @ si @ mu) + float(np.linalg.slogdet(S)[1])
@@ -68,7 +89,7 @@ def _mixture_error(fp: FleetPrior, ap: AxisPrior, grid: np.ndarray, w0: float
     def err(temps: list[float]) -> float:
         X = shape_design(np.asarray(temps), fp.t_ref, fp.scale, fp.degree)
         Xc = X - X.mean(axis=0)
-        y = beta @ X.T + noise[:, :len(temps)]
+        y = beta @ X.T + noise.columns(len(temps))
         yc = y - y.mean(axis=1, keepdims=True)
         J, b = w0 * Xc.T @ Xc, w0 * yc @ Xc                       # (d, d), (draws, d)
         logev, means = [], []
@@ -105,18 +126,27 @@ def _axis_error(fp: FleetPrior, axis: str, step_c: float) -> Callable[[list[floa
 
 
 def _greedy(cost: Callable[[list[float]], float], cand: np.ndarray, measured_c: list[float],
-            n: int) -> list[float]:
+            n: int, *, apart_c: float = 0.0) -> list[float]:
     """``n`` more temperatures, each lowering ``cost`` most (the first two as a pair when
-    nothing was measured: one point of one run only fixes its constant)."""
+    nothing was measured: one point of one run only fixes its constant).  With ``apart_c``,
+    a candidate closer than that to a temperature measured or chosen is not taken (a soak
+    plan's temperatures are distinct); fewer than ``n`` come back when none is left."""
     chosen = [float(t) for t in measured_c]
     out: list[float] = []
     while len(out) < n:
+        free = [float(t) for t in cand if all(abs(t - c) >= apart_c for c in chosen)] \
+            if apart_c > 0 else [float(t) for t in cand]
         if not chosen:
-            pairs = [(a, b) for i, a in enumerate(cand) for b in cand[i + 1:]]
-            best = min(pairs, key=lambda ab: cost([float(ab[0]), float(ab[1])]))
-            pick = [float(best[0]), float(best[1])][:n - len(out)]
+            pairs = [(a, b) for i, a in enumerate(free) for b in free[i + 1:]
+                     if b - a >= apart_c]
+            if not pairs:
+                break
+            best = min(pairs, key=lambda ab: cost([ab[0], ab[1]]))
+            pick = [best[0], best[1]][:n - len(out)]
+        elif free:
+            pick = [min(free, key=lambda t: cost(chosen + [t]))]
         else:
-            pick = [float(min(cand, key=lambda t: cost(chosen + [float(t)])))]
+            break
         chosen += pick
         out += pick
     return out
@@ -148,29 +178,56 @@ def soak_plan(fp: FleetPrior, n: int, *, measured_c: list[float] | None = None,
     With ``ends`` (the default) the first two are the ends of the fleet's range (those not
     already in ``measured_c``), and the rest lower most the sum over axes of (expected error /
     the axis's typical drift)² — axes whose drift is below a point's own error left out
-    (nothing to learn there).  The expected error is the prior's: a point's error, the
-    clusters and their spread, but no lag or hysteresis, and it rated a test that left an end
-    to the prior too well — on ``bench_prior.py`` (200 units, leave units out) the free plan
+    (nothing to learn there).  Every temperature of a plan is at least ``step_c`` from the
+    others and from ``measured_c`` (a soak repeated is one longer soak, not a point: the
+    error a point has beyond its sampling — hysteresis, lag — is not averaged away by
+    soaking there again, though the prior's arithmetic, which takes points as independent,
+    would rate it so), so the middle is an interior temperature; a range too narrow for
+    that, or no axis with a curve to learn, gives a shorter plan (its ends).
+
+    The expected error is the prior's: a point's error, the clusters and their spread, but
+    no lag or hysteresis, and it rated a test that left an end to the prior too well — on ``bench_prior.py`` (200 units, leave units out) the free plan
     (1.5 / 46.5 / 74 °C and the like) was 1.36–1.75× the full sweep's error on four axes
     where the ends and its chosen middle (−21 / 49–51.5 / 75 °C) were 1.04–1.36×.
     ``ends=False``: every temperature by the expected error alone (the plan before)."""
     measured = list(measured_c or [])
+    cost = _plan_cost(fp, step_c)
+    if cost is None:
+        return [fp.range_c[0], fp.range_c[1]][:n]
+    fixed: list[float] = []
+    if ends:
+        fixed = [t for t in fp.range_c if all(abs(t - m) >= step_c for m in measured)][:n]
+    more = _greedy(cost, _candidates(fp, step_c), measured + fixed, n - len(fixed),
+                   apart_c=step_c) if n > len(fixed) else []
+    return sorted(fixed + more)
+
+
+def _plan_cost(fp: FleetPrior, step_c: float) -> Callable[[list[float]], float] | None:
+    """The mean over the axes with a curve to learn (drift above a point's own error) of
+    (expected error / typical drift)² after one run at ``temps``; None without such an axis."""
     costs = []
     for ap in fp.axes:
         typ = typical_drift(fp, ap.axis)
         if typ > math.sqrt(ap.misfit_var + ap.sampling_var):
             costs.append((_axis_error(fp, ap.axis, step_c), typ))
     if not costs:
-        return [fp.range_c[0], fp.range_c[1]][:n]
-    fixed: list[float] = []
-    if ends:
-        fixed = [t for t in fp.range_c if all(abs(t - m) >= step_c for m in measured)][:n]
+        return None
 
     def cost(temps: list[float]) -> float:
-        return sum((err(temps) / typ) ** 2 for err, typ in costs)
-    more = _greedy(cost, _candidates(fp, step_c), measured + fixed, n - len(fixed)) \
-        if n > len(fixed) else []
-    return sorted(fixed + more)
+        return sum((err(temps) / typ) ** 2 for err, typ in costs) / len(costs)
+    return cost
+
+
+def plan_errors(fp: FleetPrior, plan: list[float], *, step_c: float = 2.5
+                ) -> tuple[float, float] | None:
+    """What a :func:`soak_plan`'s temperatures inside the range add: the expected error (RMS
+    over the axes with a curve to learn, each as a fraction of its typical drift) after the
+    plan's ends alone and after the whole plan; None without such an axis or ends."""
+    cost = _plan_cost(fp, step_c)
+    ends = [t for t in plan if t in fp.range_c]
+    if cost is None or len(ends) < 2:
+        return None
+    return math.sqrt(cost(ends)), math.sqrt(cost(list(plan)))
 
 
 def design_errors(fp: FleetPrior, axis: str, *, max_points: int = 12, step_c: float = 2.5

@@ -149,6 +149,11 @@ def short_test(spec: str) -> ChamberProfile:
         vals = [float(v) for v in rest.split(",")] if rest else []
     except ValueError:
         vals = []
+    again = [b for a, b in zip(vals, vals[1:], strict=False) if a == b]
+    if kind == "soaks" and again:
+        raise ConfigError(f"--test {spec!r}: {again[0]:g} °C twice in a row is one longer soak, "
+                          "not two points; give each soak once (a return to a temperature "
+                          "after another is a second point)")
     if kind == "soaks" and 1 <= len(vals) <= 20 and all(-60 <= v <= 150 for v in vals):
         return ChamberProfile(name=f"short test: soaks {rest} C", start_c=vals[0], segments=tuple(
             Soak(temperature_c=v, duration_h=SOAK_MIN / 60.0) for v in vals))

@@ -1,0 +1,160 @@
+"""The fleet prior's and the station's edge cases, on hand-made priors and fits (no simulation).
+
+A mixture design judged on a unit's whole climate cycle (hundreds of points) against the
+exact conjugate error of its identified cluster; a soak plan's temperatures distinct (a
+slope-only prior, whose error has a closed form, wants an end soaked twice); a plan too
+narrow for a middle says why; the units left out of a prior: not for differences under a
+point's own error on an axis with no curve, still for a curve where the fleet has none and
+for a robust outlier where the units do differ; a unit's axes the prior lacks refused; a
+held-out residual that cannot be judged says why; a soak test that repeats a temperature in a
+row refused.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from thermonet.core.errors import ConfigError
+from thermonet.scoring.prior import AxisPrior, FleetPrior, StationLimit, UnitFit, check_compatible
+from thermonet.scoring.prior_design import (
+    _axis_error,
+    expected_error,
+    next_temperatures,
+    plan_errors,
+    soak_plan,
+)
+from thermonet.scoring.prior_points import Points, shape_design
+from thermonet.sim.fleet import short_test
+from thermonet.workflows.station import _held_out
+from thermonet.workflows.station_prior import _outlier_units, format_prior, prior_summary
+
+T_REF, SCALE = 25.0, 50.0
+IDS = [f"u{i:03d}" for i in range(20)]
+
+
+def _fleet(axes: list[AxisPrior], range_c: tuple[float, float] = (-25.0, 75.0)) -> FleetPrior:
+    return FleetPrior(axes, 3, T_REF, SCALE, range_c, {a.axis: "deg/s" for a in axes},
+                      {a.axis: "zero" for a in axes}, 20, IDS)
+
+
+def test_a_mixture_design_takes_a_whole_climate_cycle() -> None:
+    """200 points (a climate cycle's bins) once broke the simulated design (noise drawn for
+    64); with the clusters far apart they identify the unit's cluster, so the simulated
+    error is the exact conjugate error of one Gaussian with that cluster's covariance."""
+    covs = np.array([np.eye(3) * 1e-4] * 2)
+    ap = AxisPrior("gyro_x", np.array([0.5, 0.5]), np.array([[0.1, 0, 0], [0, 0, 0.1]]), covs,
+                   1e-4, 0.0)
+    fp = _fleet([ap])
+    temps = [float(t) for t in np.linspace(-25.0, 75.0, 200)]
+    simulated = _axis_error(fp, "gyro_x", 2.5)(temps)
+    X = shape_design(np.array(temps), T_REF, SCALE, 3)
+    Xc = X - X.mean(axis=0)
+    grid = shape_design(np.arange(-25.0, 75.0 + 1e-9, 2.5), T_REF, SCALE, 3)
+    one = AxisPrior("gyro_x", np.ones(1), ap.means[:1], covs[:1], 1e-4, 0.0)
+    exact = expected_error(one, 1e4 * Xc.T @ Xc, grid)       # w0 = 1 / misfit_var
+    assert simulated == pytest.approx(exact, rel=0.1)          # 400 draws: ~4 % MC error
+    nxt = next_temperatures(fp, "gyro_x", temps, 2)
+    assert len(nxt) == 2 and all(-25.0 <= t <= 75.0 for t in nxt)
+
+
+def _slope_only(range_c: tuple[float, float], misfit: float = 1e-4) -> FleetPrior:
+    """Units differ in their slope alone: the curve's error after one run at temperatures
+    T_i is ∝ 1 / √(1/σ² + w0 Σ (u_i − ū)²), so the third point goes where Σ (u_i − ū)² is
+    largest — on an end again, by the prior's arithmetic."""
+    ap = AxisPrior("gyro_x", np.ones(1), np.array([[0.2, 0.0, 0.0]]),
+                   np.diag([0.01, 1e-10, 1e-10])[None], misfit, 0.0)
+    return _fleet([ap], range_c)
+
+
+def test_a_soak_plan_never_repeats_a_temperature() -> None:
+    fp = _slope_only((-20.0, 70.0))
+    plan = soak_plan(fp, 3)
+    assert len(plan) == 3 and plan[0] == -20.0 and plan[2] == 70.0      # was -20, -20, 70
+    # the middle: the interior candidate (2.5 °C grid, ≥ 2.5 °C from both ends) with the
+    # largest Σ (u − ū)², computed here directly
+    cand = np.arange(-17.5, 67.5 + 1e-9, 2.5)
+    spread = [np.var((np.array([-20.0, t, 70.0]) - T_REF) / SCALE) for t in cand]
+    best = {float(t) for t, s in zip(cand, spread, strict=True) if s >= max(spread) - 1e-12}
+    assert plan[1] in best and best == {-17.5, 67.5}
+    # what the middle adds is printed: the closed form's error ratio, ends alone → all three
+    before, after = plan_errors(fp, plan) or (0.0, 0.0)
+    var = [np.var((np.array(p) - T_REF) / SCALE) * len(p) for p in ([-20.0, 70.0], plan)]
+    ratio = np.sqrt((1 / 0.01 + 1e4 * var[0]) / (1 / 0.01 + 1e4 * var[1]))
+    assert after / before == pytest.approx(ratio, rel=1e-4)
+    # and the plan is distinct from what was measured too
+    assert all(abs(t - 30.0) >= 2.5 for t in soak_plan(fp, 3, measured_c=[30.0]))
+
+
+def test_a_range_too_narrow_for_a_middle_gives_two_soaks_and_says_why() -> None:
+    # candidates 20, 22.5: none 2.5 °C from both ends (a point's error small enough for the
+    # slope over 4 °C to be a curve to learn)
+    fp = _slope_only((20.0, 24.0), misfit=1e-8)
+    plan = soak_plan(fp, 3)
+    assert plan == [20.0, 24.0]
+    text = format_prior(fp, prior_summary(fp), plan)
+    assert "a 2-soak test for every axis: 20, 24 °C" in text
+    assert "not 3: the range 20 to 24 °C holds no other temperature 2.5 °C from its ends" in text
+
+
+def _fit(a1: float) -> UnitFit:
+    return UnitFit(np.array([a1, 0.0, 0.0]), np.eye(3) * 1e-12, 0.0, 200, (-20.0, 75.0))
+
+
+def test_units_are_left_out_for_what_a_point_can_see() -> None:
+    """gyro_z: no drift, the units' curves tiny (a spread of ~1e-4) against a point's own
+    error of 2.5e-3.  A unit 1.5 point errors off was left out by the robust z alone (z in
+    the tens); now only a curve where the fleet has none is.  acc_x: the units differ
+    (spread 0.05 ≫ its point error 1e-3) and a unit 10 spreads off is left out as before."""
+    rng = np.random.default_rng(0)
+    slopes_z = list(rng.normal(0.0, 1e-4, 13)) + [1.5 * 2.5e-3, 20 * 2.5e-3]
+    slopes_x = list(rng.normal(0.5, 0.05, 13)) + [0.5, 1.0]
+    ids = [f"u{i:03d}" for i in range(15)]
+    slopes_x[12], slopes_x[14] = slopes_x[14], slopes_x[12]      # the acc_x outlier: u012
+    fits = {d: {"gyro_z": _fit(z), "acc_x": _fit(x)}
+            for d, z, x in zip(ids, slopes_z, slopes_x, strict=True)}
+    out = _outlier_units(fits, {"gyro_z": 2.5e-3, "acc_x": 1e-3}, T_REF, SCALE,
+                         (-15.0, 75.0), 3)
+    assert set(out) == {"u012", "u014"}                    # u013 (1.5 point errors) kept
+    # u014 at 75 °C (u = 1, the largest |u| of the range -15 … 75 °C): its z is its
+    # distance from the median over a point's error
+    z = (slopes_z[14] - np.median(slopes_z)) / 2.5e-3
+    assert out["u014"].startswith(f"robust outlier: gyro_z@75C z={z:.1f}, ")
+    assert "acc_x@" in out["u012"]
+
+
+def test_a_unit_with_axes_the_prior_lacks_is_refused() -> None:
+    ap = AxisPrior("gyro_x", np.ones(1), np.zeros((1, 3)), np.eye(3)[None], 0.0, 0.0)
+    fp = _fleet([ap])
+    with pytest.raises(ConfigError, match="the prior is of axes gyro_x; the data also hold "
+                                          "acc_x, which it says nothing about"):
+        check_compatible(fp, ["gyro_x", "acc_x"], {"gyro_x": "zero", "acc_x": "at-t-ref"},
+                         "unit 'u1'", {"gyro_x": "deg/s", "acc_x": "m/s^2"})
+    check_compatible(fp, ["gyro_x"], {"gyro_x": "zero"}, "unit 'u1'", {"gyro_x": "deg/s"})
+
+
+def _pts(temps: list[float], runs: list[int]) -> Points:
+    n = len(temps)
+    return Points(np.array(temps), 1e-3 * np.array(temps), np.full(n, 1e-8),
+                  np.array(runs), np.full(n, 100))
+
+
+def test_a_residual_that_cannot_be_judged_says_why_and_fails_its_limit() -> None:
+    ap = AxisPrior("gyro_x", np.ones(1), np.zeros((1, 3)), np.eye(3)[None] * 1e-4, 1e-6, 0.0)
+    fp = _fleet([ap])
+    assert _held_out(fp, ap, _pts([25.0], [0])) == (None, "1 point")
+    assert _held_out(fp, ap, _pts([0.0, 50.0], [0, 1])) == (
+        None, "2 points, no run with points at two temperatures")
+    held, why = _held_out(fp, ap, _pts([0.0, 25.0, 50.0], [0, 0, 0]))
+    assert why is None and held is not None and held >= 0.0
+    check = StationLimit(max_residual=0.02).checks(None, 0.0, 0.0, not_judged="1 point")
+    assert check == [{"limit": "max_residual", "value": None, "max": 0.02, "ok": False,
+                      "not_judged": "1 point"}]
+
+
+def test_a_soak_test_repeating_a_temperature_in_a_row_is_refused() -> None:
+    for spec in ("soaks:30,30,30", "soaks:-10,25,25"):
+        with pytest.raises(ConfigError, match="twice in a row is one longer soak"):
+            short_test(spec)
+    # a return to a temperature after another is a second visit: allowed, three soaks
+    assert [s.temperature_c for s in short_test("soaks:25,60,25").segments] == [25.0, 60.0, 25.0]
