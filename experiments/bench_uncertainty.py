@@ -35,7 +35,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import save, table  # noqa: E402
 from thermonet.api.estimator import DriftEstimator  # noqa: E402
 from thermonet.core.recording import Dataset  # noqa: E402
-from thermonet.scoring.band import conformal_quantile, evaluate_tables  # noqa: E402
+from thermonet.scoring.band import (  # noqa: E402
+    conformal_quantile,
+    evaluate_tables,
+    outside_holds,
+    sample_directions,
+    window_directions,
+    window_rates,
+)
 from thermonet.scoring.fold_plan import window_labels  # noqa: E402
 from thermonet.sim import simulate  # noqa: E402
 from thermonet.training.config import CompareConfig, load_config  # noqa: E402
@@ -76,7 +83,11 @@ def _windows(est: DriftEstimator, rec: Any) -> dict[str, Any] | None:
     sums = np.zeros((u.size, vals.shape[1]))
     np.add.at(sums, inv, vals)
     means = sums / n[:, None]
-    return {"e": means[:, :-1], "x": means[:, -1], "n": n}
+    # each window's rate and whether it lies outside what the band states (holds_for)
+    rate = window_rates(np.asarray(part.time_s)[ok], x[ok], wl)
+    dirs = window_directions(sample_directions(x)[ok], wl)
+    return {"e": means[:, :-1], "x": means[:, -1], "n": n,
+            "outside": outside_holds(band.holds_for, rate, dirs)}
 
 
 def _judge(est: DriftEstimator, rec: Any) -> dict[str, Any]:
@@ -107,7 +118,10 @@ def _judge(est: DriftEstimator, rec: Any) -> dict[str, Any]:
                 oracle[m] = q if np.isfinite(q) else s[m].max()
         d = np.where(w["x"] < lo, lo - w["x"], w["x"] - hi)
         past = (d > 0) & (d <= EDGE_SPAN_C)
+        cov, off = s <= half, w["outside"]
         out[axis] = {"n": int(inr.sum()), "covered": int((s[inr] <= half[inr]).sum()),
+                     "n_stated": int((inr & ~off).sum()),
+                     "covered_stated": int((cov & inr & ~off).sum()),
                      "width": float(np.mean(half[inr])), "oracle": float(np.mean(oracle[inr])),
                      "n_past": int(past.sum()), "covered_past": int((s[past] <= half[past]).sum())}
     return out
@@ -174,10 +188,14 @@ def _pool(rows: list[dict[str, Any]]) -> dict[str, Any]:
               if v["oracle"] > 0]
     per_dev = [sum(v["covered"] for v in r["axes"].values()) /
                max(sum(v["n"] for v in r["axes"].values()), 1) for r in ok]
+    ns = sum(v.get("n_stated", 0) for r in ok for v in r["axes"].values())
+    cs = sum(v.get("covered_stated", 0) for r in ok for v in r["axes"].values())
     npast = sum(v["n_past"] for r in ok for v in r["axes"].values())
     cpast = sum(v["covered_past"] for r in ok for v in r["axes"].values())
     return {"devices": len(ok), "skipped": len(rows) - len(ok), "windows": n,
             "coverage": c / n if n else float("nan"),
+            "stated_windows": ns, "coverage_stated": cs / ns if ns else float("nan"),
+            "coverage_outside": (c - cs) / (n - ns) if n > ns else float("nan"),
             "coverage_device_min": min(per_dev) if per_dev else float("nan"),
             "width_over_oracle_median": float(np.median(ratios)) if ratios else float("nan"),
             "past_windows": npast, "past_coverage": cpast / npast if npast else float("nan")}
@@ -294,10 +312,24 @@ def main_stress() -> None:
     s = _pool(rows)
     md = ("Nominal 90 % band on new excursions (`stress-imu`, "
           f"{seeds} units, every split of `bench_selection.py --stress`)\n\n"
-          + table(["data", "devices", "windows", "coverage", "worst device", "width / oracle"],
+          + table(["data", "devices", "windows", "coverage", "worst device", "width / oracle",
+                   "windows where the band states it holds", "coverage there",
+                   "coverage elsewhere"],
                   [["stress-imu", s["devices"], s["windows"], s["coverage"],
-                    s["coverage_device_min"], s["width_over_oracle_median"]]]))
+                    s["coverage_device_min"], s["width_over_oracle_median"],
+                    s["stated_windows"], s["coverage_stated"], s["coverage_outside"]]])
+          + "\n\nPer split (every axis's windows):\n\n" + table(
+              ["split", "shipped", "windows", "coverage", "stated windows", "coverage there"],
+              [[r["device"], r.get("chosen", r.get("skipped")),
+                sum(v["n"] for v in r.get("axes", {}).values()),
+                _share(r, "covered", "n"), sum(v["n_stated"] for v in r.get("axes", {}).values()),
+                _share(r, "covered_stated", "n_stated")] for r in rows]))
     save("bench_uncertainty_stress", {"summary": s, "devices": rows}, md)
+
+
+def _share(row: dict[str, Any], num: str, den: str) -> str:
+    n = sum(v[den] for v in row.get("axes", {}).values())
+    return f"{sum(v[num] for v in row.get('axes', {}).values()) / n:.1%}" if n else "-"
 
 
 if __name__ == "__main__":

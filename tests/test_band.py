@@ -21,7 +21,12 @@ from thermonet.scoring.band import (
     band_problem,
     conformal_quantile,
     evaluate_tables,
+    holds_for,
     min_windows,
+    outside_holds,
+    sample_directions,
+    window_directions,
+    window_rates,
 )
 from thermonet.scoring.fold_plan import plan_folds
 from thermonet.scoring.oof_pool import CandidateOOF
@@ -149,6 +154,63 @@ def test_band_document_round_trip_and_figures(known):
                      np.asarray(band.axes["gyro_x"].half) * 3600.0)
     # the temperature rate: 60 °C over 24000 s, window means 60 s apart
     assert_f64_close(band.signal_rate, 60.0 / 23999.0, rtol=1e-6)
+
+
+def test_the_band_states_the_directions_and_rates_it_was_judged_on(known):
+    """The known run heats 60 °C in 23,999 s (0.15 °C/min), never cools: the band says it
+    was judged on heating up to that rate and never on cooling; a cooling window, or one
+    heating faster, lies outside what it states, a slower or a soak inside; the statement
+    survives the document's round trip; a proxy's band states nothing."""
+    run, band = known
+    assert_f64_close(band.holds_for["heating"], 3600.0 / 23999.0, rtol=1e-9)
+    assert band.holds_for["cooling"] is None
+    doc = json.loads(json.dumps(band.to_json()))
+    assert "never on cooling" in doc["holds_for"]["meaning"]
+    assert Band.from_json(doc).holds_for == band.holds_for
+    # per window: its rate and its excursion's direction — heating slower and faster than
+    # judged, a cooling, the soak after the cooling (still the cooling's excursion), and a
+    # run that never moves
+    rates = np.array([0.10, 0.20, -0.10, 0.0, 0.0])
+    dirs = np.array([1, 1, -1, -1, 0])
+    assert outside_holds(band.holds_for, rates, dirs).tolist() == [False, True, True, True,
+                                                                    False]
+    assert not outside_holds({}, rates, dirs).any()          # nothing stated: nothing flagged
+    plan = plan_folds([(run, np.ones(run.time_s.size, bool))], folds=5, blocks_per_fold=8,
+                      tau_s=0.0, window_s=60.0)
+    proxy = band_from_oof(plan=plan, targets=[run.y], times=[run.time_s], temps=[run.temp],
+                          oofs=[None], compensate=[False], ranges=[(T_LO, T_HI)],
+                          outputs=["gyro_x"], signal="freq_hz")
+    assert proxy.holds_for == {} and "holds_for" not in proxy.to_json()
+
+
+def test_window_rates_and_how_many_windows_judge_a_direction():
+    """Per window the least-squares slope (°C/min): a window heating at 1 °C/min and one
+    cooling at 2 °C/min, exactly; a direction needs min_windows(level) windows to be judged
+    (9 at 0.9): 8 cooling windows are not enough, 9 are, and the fastest of them is stated."""
+    t = np.arange(0.0, 120.0, 1.0)
+    temp = np.where(t < 60, 20.0 + t / 60.0, 21.0 - 2.0 * (t - 60.0) / 60.0)
+    got = window_rates(t, temp, (t // 60).astype(int))
+    assert_f64_close(got, [1.0, -2.0], rtol=1e-9)
+    assert min_windows(0.9) == 9
+    up, down = np.ones(20, np.int8), -np.ones(8, np.int8)
+    assert holds_for(np.r_[np.full(20, 0.5), np.full(8, -1.0)], np.r_[up, down], 0.9) == {
+        "heating": 0.5, "cooling": None}
+    nine = -np.ones(9, np.int8)
+    assert holds_for(np.r_[np.full(20, 0.5), -np.linspace(0.2, 1.0, 9)], np.r_[up, nine],
+                     0.9)["cooling"] == 1.0
+
+
+def test_a_windows_direction_is_its_excursions():
+    """A cycle cooling 25 → −10, a soak at −10, heating to 60: the soak belongs to the
+    cooling that ends there (its error is still the cooling's), whatever its own slope."""
+    t = np.arange(0.0, 9000.0, 10.0)
+    temp = np.interp(t, [0, 2100, 3000, 7200, 9000], [25, -10, -10, 60, 60])
+    d = sample_directions(temp)
+    assert d[t < 2100].tolist() == [-1] * int((t < 2100).sum())
+    assert set(d[(t > 2200) & (t < 2900)]) == {-1}              # the soak after the cooling
+    assert set(d[(t > 3200) & (t < 7000)]) == {1}
+    w = window_directions(d, (t // 600).astype(int))
+    assert w[:5].tolist() == [-1] * 5 and w[6:11].tolist() == [1] * 5
 
 
 # ---------------------------------------------------------------------------- refusals

@@ -248,7 +248,9 @@ def _band_table(res: ComparisonResult) -> str:
             f"of the folds that chose {_e(band.get('model', ''))}; a function of "
             f"{_e(band.get('signal', ''))}, per bin the conformal quantile, growing linearly "
             "past the trained range (configs/README.md, 'The residual-drift band').</p>"
-            "<table><tr><th>axis</th><th>unit</th><th>bin: half-width</th><th>half-width "
+            + (f"<p class='small'><b>Where it holds:</b> {_e(held)}.</p>" if (held := (
+                band.get("holds_for") or {}).get("meaning")) else "")
+            + "<table><tr><th>axis</th><th>unit</th><th>bin: half-width</th><th>half-width "
             "(°/h or mg)</th><th>growth below / above (per signal unit)</th><th>bias bound"
             "</th><th>bias rate</th></tr>" + "".join(rows) + "</table>")
 

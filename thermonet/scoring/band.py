@@ -35,6 +35,15 @@ How it is made
   of them), the conformal quantile of their excess ``(|r| − b(edge)) / distance`` if that is
   larger.  :math:`b(T) = b(\\text{edge}) + g\\,|T − \\text{edge}|` outside.
 
+* **What it was judged on** (:attr:`Band.holds_for`, where the signal is the temperature):
+  the directions of temperature change its calibration windows held (each window's
+  excursion's, :mod:`thermonet.scoring.band_rates`) and, per direction, the fastest of their
+  rates (°C/min, each window's least-squares slope).  A direction with fewer than
+  :func:`min_windows` windows was not judged.  A test window of an excursion in a direction
+  never judged, or faster than the fastest judged, is outside what the band states (a lag's error grows with the rate; a hysteresis flips with the direction): the
+  report says so, and ``bench_uncertainty.py stress`` measures the coverage inside and
+  outside these conditions.
+
 The band is what :class:`Band` holds and evaluates (:meth:`Band.evaluate`); the ONNX runtime
 (``export/thermonet_runtime.py``) and the C header evaluate the same tables.
 """
@@ -49,11 +58,22 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
+from .band_rates import (
+    holds_for,
+    holds_meaning,
+    min_windows,
+    outside_holds,
+    sample_directions,
+    window_directions,
+    window_means,
+    window_rates,
+)
 from .fold_plan import window_labels
 
 __all__ = ["Band", "AxisBand", "min_windows", "conformal_quantile", "band_from_oof",
            "evaluate_tables", "DEFAULT_LEVEL", "DEFAULT_BINS", "display_units", "band_problem",
-           "check_level", "shipped_band"]
+           "check_level", "shipped_band", "holds_for", "window_rates",
+           "outside_holds", "sample_directions", "window_directions"]
 
 DEFAULT_LEVEL = 0.9
 DEFAULT_BINS = 4
@@ -76,15 +96,6 @@ def display_units(unit: str) -> tuple[str, float] | None:
         return None
     name, si = _DISPLAY[kind[0]]
     return name, kind[1] / si
-
-
-def min_windows(level: float) -> int:
-    """The fewest scores whose finite-sample conformal quantile at ``level`` is finite:
-    the smallest n with ⌈(n + 1)·level⌉ ≤ n (9 for 0.9, 19 for 0.95)."""
-    n = 1
-    while math.ceil((n + 1) * level - 1e-9) > n:
-        n += 1
-    return n
 
 
 def conformal_quantile(scores: np.ndarray, level: float) -> float:
@@ -155,6 +166,10 @@ class Band:
     #: the 95th percentile of |d signal / dt| over the training runs' windows (signal unit
     #: per second): how fast the bias moves is the band's rate times this (EKF settings)
     signal_rate: float | None = None
+    #: °C/min: per direction ("heating", "cooling") the fastest calibration window's rate,
+    #: None where the direction was not judged (:func:`holds_for`); empty: not stated (a
+    #: band of a proxy signal, or one made before it was recorded)
+    holds_for: dict[str, float | None] = field(default_factory=dict)
 
     def evaluate(self, x: np.ndarray, outputs: Sequence[str] | None = None) -> np.ndarray:
         """Half-width (N, A) at signal values ``x`` (N,), in the outputs' units; columns in
@@ -199,6 +214,9 @@ class Band:
             doc["filter"] = self.filter_numbers()
         if figures:
             doc["display"] = figures
+        if self.holds_for:
+            doc["holds_for"] = {**{f"{k}_c_per_min": v for k, v in self.holds_for.items()},
+                                "meaning": holds_meaning(self.holds_for)}
         return doc
 
     @classmethod
@@ -208,9 +226,14 @@ class Band:
         if why:
             raise ValueError(why)
         rate = d.get("signal_rate_p95")
+        held = d.get("holds_for") if isinstance(d.get("holds_for"), Mapping) else {}
+        holds = {k: (float(held[f"{k}_c_per_min"]) if _finite(held.get(f"{k}_c_per_min"))
+                     and held[f"{k}_c_per_min"] >= 0 else None)
+                 for k in ("heating", "cooling")} if held else {}
         return cls(float(d["level"]), str(d["signal"]), float(d["window_s"]),
                    {a: AxisBand.from_json(b) for a, b in d["axes"].items()},
-                   dict(d.get("units", {})), float(rate) if _finite(rate) else None)  # type: ignore[arg-type]
+                   dict(d.get("units", {})), float(rate) if _finite(rate) else None,  # type: ignore[arg-type]
+                   holds)
 
 
 def shipped_band(extra: Mapping[str, Any]) -> dict[str, Any] | None:
@@ -261,15 +284,6 @@ def band_problem(d: Any) -> str | None:
 
 
 # ----------------------------------------------------------------------------- estimation
-def _window_means(values: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Means of ``values`` (n, C) per label, and the samples per window."""
-    u, inv = np.unique(labels, return_inverse=True)
-    n = np.bincount(inv, minlength=u.size).astype(np.float64)
-    sums = np.zeros((u.size, values.shape[1]))
-    np.add.at(sums, inv, values)
-    return sums / n[:, None], n
-
-
 def _bins(t: np.ndarray, lo: float, hi: float, bins: int, need: int) -> list[float]:
     """Equal-width edges over [lo, hi], bins merged until each holds ``need`` windows."""
     edges = list(np.linspace(lo, hi, max(int(bins), 1) + 1))
@@ -338,7 +352,7 @@ def band_from_oof(*, plan: Any, targets: Sequence[np.ndarray], times: Sequence[n
         key = id(oof)
         if key not in cache:
             cache[key] = _scores(plan, targets, times, temps, oof, win)
-        (s_in, t_in, y_in, f_in, s_out, t_out, d_out, edge_out) = cache[key]
+        (s_in, t_in, y_in, f_in, s_out, t_out, d_out, edge_out, _, _) = cache[key]
         comp = bool(compensate[a]) and oof is not None
         r_in = s_in[:, a] if comp else np.abs(y_in[:, a])
         r_out = s_out[:, a] if comp else None
@@ -375,7 +389,12 @@ def band_from_oof(*, plan: Any, targets: Sequence[np.ndarray], times: Sequence[n
                 rule = (f"excess rate of {rate.size} windows of folds that extrapolate "
                         f"({'quantile' if rate.size >= need else 'largest'})")
         axes[axis] = AxisBand(edges, half, n, float(grow[0]), float(grow[1]), rule)
-    return Band(level, signal, win, axes, dict(units or {}), _signal_rate(times, temps, win))
+    # what the calibration windows held, every shipped candidate's (a temperature's rates)
+    held = holds_for(np.concatenate([c[8] for c in cache.values()]),
+                     np.concatenate([c[9] for c in cache.values()]), level) \
+        if signal in ("temperature", "temperature_c") else {}
+    return Band(level, signal, win, axes, dict(units or {}), _signal_rate(times, temps, win),
+                held)
 
 
 def _signal_rate(times: Sequence[np.ndarray], temps: Sequence[np.ndarray], window_s: float
@@ -388,7 +407,7 @@ def _signal_rate(times: Sequence[np.ndarray], temps: Sequence[np.ndarray], windo
         ok = np.isfinite(t) & np.isfinite(x)
         if ok.sum() < 2:
             continue
-        m, _ = _window_means(np.column_stack([t[ok], x[ok]]), window_labels(t[ok], window_s))
+        m, _ = window_means(np.column_stack([t[ok], x[ok]]), window_labels(t[ok], window_s))
         dt = np.diff(m[:, 0])
         good = dt > 0
         rates.append(np.abs(np.diff(m[:, 1])[good] / dt[good]))
@@ -399,10 +418,14 @@ def _signal_rate(times: Sequence[np.ndarray], temps: Sequence[np.ndarray], windo
 def _scores(plan: Any, targets: Sequence[np.ndarray], times: Sequence[np.ndarray],
             temps: Sequence[np.ndarray], oof: Any, window_s: float) -> tuple[np.ndarray, ...]:
     """Per window of every fold: the residual's and the raw target's offset-free window means
-    (in the fold's trained domain), their temperature and fold; and the windows past the
-    fold's trained temperature range (score, temperature, distance, the fold's edge)."""
+    (in the fold's trained domain), their temperature and fold; the windows past the
+    fold's trained temperature range (score, temperature, distance, the fold's edge); and the
+    in-domain windows' rates of the signal (per minute, :func:`window_rates`) and their
+    excursions' directions (:func:`window_directions`)."""
     A = targets[0].shape[1]
-    s_in, t_in, y_in, f_in = [], [], [], []
+    s_in, t_in, y_in, f_in, v_in, g_in = [], [], [], [], [], []
+    # each run's excursions, on its whole continuous trace (a fold's rows are a part of it)
+    dirs = [sample_directions(np.asarray(x, dtype=np.float64)) for x in temps]
     s_out, t_out, d_out, e_out = [], [], [], []
     for f in range(plan.k):
         # the fold's trained temperature range
@@ -414,7 +437,7 @@ def _scores(plan: Any, targets: Sequence[np.ndarray], times: Sequence[np.ndarray
             continue
         flo = min(float(x.min()) for x in tr)
         fhi = max(float(x.max()) for x in tr)
-        res_w, raw_w, tw, nw, inside_w = [], [], [], [], []
+        res_w, raw_w, tw, nw, inside_w, rw, dw = [], [], [], [], [], [], []
         for j, fo in enumerate(plan.fold_of):
             rows = np.flatnonzero(fo == f)
             if rows.size == 0:
@@ -426,9 +449,12 @@ def _scores(plan: Any, targets: Sequence[np.ndarray], times: Sequence[np.ndarray
             ok = np.isfinite(y).all(axis=1) & np.isfinite(pred).all(axis=1) & np.isfinite(t)
             if not ok.any():
                 continue
-            wl = window_labels(np.asarray(times[j], dtype=np.float64)[rows], window_s)
+            tj = np.asarray(times[j], dtype=np.float64)[rows]
+            wl = window_labels(tj, window_s)
             vals = np.column_stack([y - pred, y, t, inside.astype(np.float64)])[ok]
-            means, n = _window_means(vals, wl[ok])
+            means, n = window_means(vals, wl[ok])
+            rw.append(window_rates(tj[ok], t[ok], wl[ok]))
+            dw.append(window_directions(dirs[j][rows][ok], wl[ok]))
             res_w.append(means[:, :A])
             raw_w.append(means[:, A:2 * A])
             tw.append(means[:, 2 * A])
@@ -437,7 +463,8 @@ def _scores(plan: Any, targets: Sequence[np.ndarray], times: Sequence[np.ndarray
         if not res_w:
             continue
         r, yv, t = np.vstack(res_w), np.vstack(raw_w), np.concatenate(tw)
-        n, ins = np.concatenate(nw), np.concatenate(inside_w)
+        n, ins, rate = np.concatenate(nw), np.concatenate(inside_w), np.concatenate(rw)
+        drn = np.concatenate(dw)
         if not ins.any():
             continue
         # offset-free about the fold's mean of its in-domain windows (sample-weighted)
@@ -447,6 +474,8 @@ def _scores(plan: Any, targets: Sequence[np.ndarray], times: Sequence[np.ndarray
         y_in.append(yv[ins] - ybar)
         t_in.append(t[ins])
         f_in.append(np.full(int(ins.sum()), f))
+        v_in.append(rate[ins])
+        g_in.append(drn[ins])
         past = ~ins & ((t < flo) | (t > fhi))
         if past.any():
             s_out.append(np.abs(r[past] - rbar))
@@ -460,4 +489,5 @@ def _scores(plan: Any, targets: Sequence[np.ndarray], times: Sequence[np.ndarray
         return np.zeros((0,) if cols is None else (0, cols))
     # y_in: the raw drift's signed window means (its slope; |y| is the raw axis's score)
     return (cat(s_in, A), cat(t_in, None), cat(y_in, A), cat(f_in, None),
-            cat(s_out, A), cat(t_out, None), cat(d_out, None), cat(e_out, None))
+            cat(s_out, A), cat(t_out, None), cat(d_out, None), cat(e_out, None),
+            cat(v_in, None), cat(g_in, None))
