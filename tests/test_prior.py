@@ -16,6 +16,7 @@ from scipy.stats import chi2, multivariate_normal
 
 from thermonet.core.errors import InputError
 from thermonet.scoring.prior import (
+    FLAG_P,
     MIN_UNITS,
     AxisPrior,
     FleetPrior,
@@ -149,6 +150,41 @@ def test_three_points_and_the_prior_beat_the_prior_alone_and_flag_a_stranger() -
                                                                             np.sqrt(np.diag(cov)))
     post = posterior(ap, _points([-15.0, 25.0, 65.0], stranger, np.zeros(3, int)),
                      t_ref=T_REF, scale=SCALE)
+    assert post.flagged and post.p_value is not None and post.p_value < 1e-6
+
+
+def test_a_long_test_is_flagged_on_its_shape_not_on_its_scatter() -> None:
+    """200 points (a climate cycle's worth): a unit of the fleet whose points scatter 30 %
+    more than the fleet's median misfit is not flagged (over 199 degrees of freedom the whole
+    prior predictive would: χ² of 1.69 × 199 has p ≈ 4e-9), a stranger 10 σ off is; the
+    shape's p-value equals the one computed independently — the unit's own least squares
+    (numpy's lstsq on its centred points), its residual variance, and scipy's χ² with d
+    degrees of freedom of its distance under N(μ, Σ + s²·(XᵀX/v)⁻¹)."""
+    rng = np.random.default_rng(11)
+    mu, cov, v = np.array([0.5, 0.2, -0.1]), np.diag([0.02, 0.01, 0.004]), 1e-5
+    ap = _one_cluster(mu, cov, v)
+    temps = np.linspace(-20.0, 70.0, 200)
+    X = shape_design(temps, T_REF, SCALE, 3)
+    assert chi2.sf(1.69 * 199, 199) < FLAG_P
+    flagged = 0
+    for _ in range(20):
+        beta = rng.multivariate_normal(mu, cov)
+        y = X @ beta + 0.3 + rng.normal(size=temps.size) * 1.3 * np.sqrt(v)
+        post = posterior(ap, _points(temps, y, np.zeros(temps.size, int)), t_ref=T_REF,
+                         scale=SCALE)
+        flagged += post.flagged
+        # the independent computation of the same p-value
+        Xc, yc = X - X.mean(axis=0), y - y.mean()
+        bhat, rss, *_ = np.linalg.lstsq(Xc, yc, rcond=None)
+        s2 = max(float(rss[0]) / v / (temps.size - 1 - 3), 1.0)
+        C = cov + s2 * v * np.linalg.inv(Xc.T @ Xc)
+        d2 = float((bhat - mu) @ np.linalg.solve(C, bhat - mu))
+        assert post.p_value == pytest.approx(chi2.sf(d2, 3), rel=1e-6)
+    assert flagged <= 1                       # 20 units of the fleet: none or one by chance
+    stranger = X @ (mu + 10 * np.sqrt(np.diag(cov))) + rng.normal(size=temps.size) * 1.3 * \
+        np.sqrt(v)
+    post = posterior(ap, _points(temps, stranger, np.zeros(temps.size, int)), t_ref=T_REF,
+                     scale=SCALE)
     assert post.flagged and post.p_value is not None and post.p_value < 1e-6
 
 

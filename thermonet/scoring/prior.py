@@ -30,7 +30,10 @@ prior), :math:`A_k = \\Sigma_k^{-1} + X_c^T W X_c`, :math:`m_k = A_k^{-1}(\\Sigm
 :math:`d_k^2 = y_c^T W y_c + \\mu_k^T\\Sigma_k^{-1}\\mu_k - m_k^T A_k m_k` is the unit's
 Mahalanobis distance from cluster *k* under its prior predictive, :math:`\\chi^2` with
 (points − runs) degrees of freedom: a unit unlike every cluster
-(:math:`\\max_k p_k <` :data:`FLAG_P`) is flagged even if its own fit is good.
+(:math:`\\max_k p_k <` :data:`FLAG_P`) is flagged even if its own fit is good.  A long test
+(:data:`SHAPE_TEST_DOF` residual degrees of freedom or more beyond the shape) is judged on its
+own shape instead (:func:`_shape_p_values`): over hundreds of points the whole predictive
+judges the scatter more than the shape, and flagged units of the prior's own fleet.
 
 **Which temperatures next** (Bayesian I-optimal design, Chaloner & Verdinelli 1995;
 :mod:`thermonet.scoring.prior_design`): the point that most lowers the posterior variance of
@@ -53,6 +56,7 @@ from ..core.errors import ConfigError, InputError
 from .prior_points import BIN_C, Points, centred, shape_design
 
 __all__ = ["PRIOR_SCHEMA", "MIN_UNITS", "MAX_CLUSTERS", "UNITS_PER_CLUSTER", "FLAG_P",
+           "SHAPE_TEST_DOF",
            "AxisPrior", "FleetPrior", "UnitFit", "fit_unit", "METHOD", "StationLimit",
            "check_compatible", "fit_population", "Posterior", "posterior"]
 
@@ -63,6 +67,12 @@ MIN_UNITS = 10
 MAX_CLUSTERS = 6
 #: A k-cluster mixture is tried only with at least this many units per cluster.
 UNITS_PER_CLUSTER = 15
+#: With at least this many residual degrees of freedom beyond the shape (a long test: a
+#: climate cycle, a slow ramp), the flag tests the unit's own shape against the clusters
+#: (:func:`posterior`); with fewer (a few soaks) the whole prior predictive.  Over hundreds of
+#: points the whole predictive flags every unit whose points scatter a little more than the
+#: fleet's median misfit (a climate-cycle unit of the prior's own fleet: p = 6e-6).
+SHAPE_TEST_DOF = 10
 #: A unit is flagged when its data are this unlikely under every cluster of the prior
 #: (3.3 σ: a station judges thousands of units, and at 0.01 one good unit in a hundred would
 #: fail by chance alone, more where the population is estimated from a few dozen units).
@@ -403,8 +413,31 @@ def posterior(prior: AxisPrior, points: Points, *, t_ref: float, scale: float) -
     wpost = np.exp(lw - lw.max())
     dof = int(points.value.size - points.n_runs)
     p = chi2.sf(np.asarray(d2), max(dof, 1)) if dof >= 1 else np.ones(len(d2))
+    if dof - d >= SHAPE_TEST_DOF:
+        p = _shape_p_values(prior, J, b, q0, dof - d)
     return Posterior(wpost / wpost.sum(), np.asarray(means), np.asarray(covs),
                      np.asarray(p, dtype=np.float64), dof)
+
+
+def _shape_p_values(prior: AxisPrior, J: np.ndarray, b: np.ndarray, q0: float, dof_r: int
+                    ) -> np.ndarray:
+    """Per cluster, P(χ²_d ≥ the unit's own shape's distance from it): the shape
+    β̂ = J⁻¹b with its covariance max(s², 1)·J⁻¹ (s²: the unit's residual over its assumed
+    point errors, per degree of freedom — a unit that scatters more than the fleet's median
+    misfit has a less certain shape, not a different one), against N(μ_k, Σ_k)."""
+    from scipy.stats import chi2
+
+    Ji = np.linalg.inv(J)
+    beta = Ji @ b
+    s2 = max((q0 - float(beta @ b)) / dof_r, 1.0)
+    out = []
+    for mu, S in zip(prior.means, prior.covs, strict=True):
+        diff = beta - mu
+        out.append(float(chi2.sf(float(diff @ np.linalg.solve(S + s2 * Ji, diff)),
+                                 mu.size)))
+    return np.asarray(out)
+
+
 
 
 # ------------------------------------------------------------------ a unit against the prior
