@@ -255,6 +255,26 @@ def test_coverage_map_says_what_is_missing(tmp_path):
     assert named == ok
 
 
+def test_an_instance_no_bin_supports_is_left_out_of_the_parameter_file(tmp_path):
+    """Four flights across the seasons: the accelerometers' windows (valid only once the
+    board has warmed) leave no 1 °C bin with 2 flights and 2 minutes, so their fit rests on
+    too little: left out of px4.params, saying why; the gyros with supported bins are in."""
+    paths = _write(simulate_flights(4, seed=1), tmp_path / "logs", ".ulg")
+    doc = learn(paths, tmp_path / "out", executor="serial", compare=False)
+    bare = [n for n, x in doc["instances"].items() if x["supported_c"] is None]
+    kept = [n for n, x in doc["instances"].items() if x["supported_c"] is not None]
+    assert {"acc0", "acc1"} <= set(bare) and {"gyro0", "gyro1"} <= set(kept)
+    params = (tmp_path / "out" / "px4.params").read_text()
+    ids = {n: str(x["device_id"]) for n, x in doc["instances"].items()}
+    for n in bare:
+        x = doc["instances"][n]
+        assert x["status"] == "skipped" and "no 1 °C bin has 2 flights" in x["reason"]
+        assert not any(ids[n] in ln for ln in params.splitlines() if "TC_A" in ln)
+    for n in ("gyro0", "gyro1"):
+        assert doc["instances"][n]["status"] == "fitted"
+        assert any(ids[n] in ln for ln in params.splitlines() if "TC_G" in ln)
+
+
 def test_comparison_on_whole_flights(tmp_path):
     """The comparison with one run per flight: 4 flights, the last tests (fast twin of the
     test below, without the export)."""

@@ -399,7 +399,7 @@ def format_learn_report(doc: dict[str, Any]) -> str:
         unit = UNITS[d["kind"]]
         lines.append(f"{name} (id {d['device_id']}): {d['status']}, {_n(d['flights'], 'flight')}, "
                      f"{d['minutes']:g} min, lag {d['lag_s']:g} s, "
-                     f"{d['rejected_windows']} windows rejected (diverged)")
+                     f"{_n(d['rejected_windows'], 'window')} rejected (diverged)")
         h = d.get("held_out") or {}
         if h.get("status") == "judged":
             lines.append(f"  held-out flight {Path(h['flight']).name}: binned drift p-p "

@@ -22,6 +22,8 @@ from ..reporting.results import ComparisonResult as TypedResult
 from ..reporting.results import clean
 from .firmware_fit import fit_firmware
 from .learn_data import (
+    MIN_BIN_FLIGHTS,
+    MIN_BIN_MINUTES,
     InstanceWindows,
     choose_lag,
     coverage,
@@ -209,6 +211,10 @@ def instance_doc(inst: InstanceWindows, autopilot: str, stage: Path, do_compare:
         d["status"], d["reason"] = "skipped", (
             "fitted on the other flights, the firmware form does not cut the drift of the "
             f"last flight ({Path(h['flight']).name}): left out of the parameter file")
+    elif span is None:      # nothing supports the fit: it would ship what no data stand for
+        d["status"], d["reason"] = "skipped", (
+            "left out of the parameter file: no 1 °C bin has "
+            f"{MIN_BIN_FLIGHTS} flights and {MIN_BIN_MINUTES:g} minutes yet (coverage below)")
     if do_compare:
         where = stage / "instances" / inst.name
         try:
