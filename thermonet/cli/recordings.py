@@ -34,12 +34,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         if unused:
             raise ThermonetError(f"{unused[0]}: preset '{args.preset}' simulates one board "
                                  "(one log per warm-up); it takes only --seed, --runs and --out")
-    elif args.preset.lower() not in _preset_names():
-        raise ThermonetError(f"unknown preset '{args.preset}' (valid: "
-                             f"{', '.join(_preset_names())})")
         if args.runs is not None and args.runs > MAX_BOARD_RUNS:
             raise ThermonetError(f"--runs {args.runs}: preset '{args.preset}' writes at most "
                                  f"{MAX_BOARD_RUNS} logs (one file per warm-up)")
+    elif args.preset.lower() not in _preset_names():
+        raise ThermonetError(f"unknown preset '{args.preset}' (valid: "
+                             f"{', '.join(_preset_names())})")
     if args.seed < 0:
         raise ThermonetError(f"--seed {args.seed}: must be a non-negative integer")
     if args.preset in BOARD_PRESETS or is_log(args.out):
