@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -94,27 +93,8 @@ def _station_sources(args: argparse.Namespace, cfg: Any) -> list[Any]:
                                    clusters=args.clusters, test=getattr(args, "test", None))
 
 
-def _prior_out(given: str) -> Path:
-    """``prior --out``, refused in one line before any unit is read or fitted when no file
-    can be written there: a directory, something not a regular file, a path below something
-    that is not a directory, or a directory that cannot be written."""
-    out = Path(given)
-    if out.is_dir():
-        raise ThermonetError(f"{out}: --out must be a file (prior.json), and this is a directory")
-    if os.path.lexists(out) and not out.is_file():
-        raise ThermonetError(f"{out}: --out is not a regular file (prior.json)")
-    for parent in out.absolute().parents:
-        if parent.is_dir():
-            if not os.access(parent, os.W_OK | os.X_OK):
-                raise ThermonetError(f"{out}: --out cannot be written: {parent} is not writable")
-            break
-        if os.path.lexists(parent):
-            raise ThermonetError(f"{out}: --out cannot be created: {parent} is not a directory")
-    return out
-
-
 def _cmd_prior(args: argparse.Namespace) -> int:
-    from ..core.fileio import atomic_write_text  # lazy: off the --help path
+    from ..core.fileio import atomic_write_text, check_out_file  # lazy: off the --help path
     from ..core.recording import Dataset  # lazy: off the --help path
     from ..scoring.prior_design import soak_plan  # lazy: off the --help path
     from ..training.config import load_config  # lazy: loads yaml
@@ -127,7 +107,7 @@ def _cmd_prior(args: argparse.Namespace) -> int:
     from ..workflows.station_prior import PLAN_SOAKS, PLAN_STEP_C  # lazy: off the --help path
 
     cfg = load_config(args.config)
-    out = _prior_out(args.out)
+    out = check_out_file(args.out)      # before any unit is read or fitted
     sources = _station_sources(args, cfg)
     ds = Dataset(runs=[r for s in sources for r in s.load(cfg)])
     fp = build_prior(cfg, ds, source=str(args.config))

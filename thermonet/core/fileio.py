@@ -10,7 +10,7 @@ from pathlib import Path
 
 from .errors import InputError
 
-__all__ = ["atomic_path", "atomic_write_text", "not_a_file", "same_file",
+__all__ = ["atomic_path", "atomic_write_text", "not_a_file", "check_out_file", "same_file",
            "refuse_overwriting_inputs"]
 
 
@@ -56,6 +56,26 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return Path(path)
+
+
+def check_out_file(out: str | os.PathLike[str]) -> Path:
+    """A command's ``--out`` file, refused in one line naming it before any work when no
+    file can be written there: a directory, something not a regular file, a path below
+    something that is not a directory, or a directory that cannot be written (missing
+    directories are created when the file is written)."""
+    path = Path(out)
+    if path.is_dir():
+        raise InputError(f"{path}: --out is a directory; give a file name")
+    if os.path.lexists(path) and not path.is_file():
+        raise InputError(f"{path}: --out {not_a_file(path, 'file')}")
+    for parent in path.absolute().parents:
+        if parent.is_dir():
+            if not os.access(parent, os.W_OK | os.X_OK):
+                raise InputError(f"{path}: --out cannot be written: {parent} is not writable")
+            break
+        if os.path.lexists(parent):
+            raise InputError(f"{path}: --out cannot be created: {parent} is not a directory")
+    return path
 
 
 def not_a_file(path: str | os.PathLike, what: str = "file") -> str | None:

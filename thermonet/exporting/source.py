@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.errors import ExportError, InputError, first_line
-from ..core.fileio import not_a_file, refuse_overwriting_inputs
+from ..core.fileio import check_out_file, not_a_file, refuse_overwriting_inputs
 from ..core.names import AXIS, LABEL, check_name
 from ..core.outdir import sha256_file
 from ..models.registry import PER_AXIS
@@ -188,23 +188,6 @@ def resolve_checkpoint(source: str, *, family: str | None = None,
 #: The calibration slot ``--instance`` names, by format: PX4's slot, ArduPilot's IMU number.
 _INSTANCES = {"px4-params": (0, 3, "PX4 calibration instance"),
               "ardupilot-params": (1, 3, "ArduPilot IMU number")}
-
-
-def check_out_file(out: str | Path) -> Path:
-    """An export's ``--out``, refused in one line naming it when no file can be written there:
-    a directory, or a path below something that is not a directory (missing directories are
-    created when the file is written)."""
-    path = Path(out)
-    if path.is_dir():
-        raise InputError(f"{path}: --out is a directory; give a file name")
-    if os.path.lexists(path) and not path.is_file():
-        raise InputError(f"{path}: --out {not_a_file(path, 'file')}")
-    for parent in path.absolute().parents:
-        if parent.is_dir():
-            break
-        if os.path.lexists(parent):
-            raise InputError(f"{path}: --out cannot be created: {parent} is not a directory")
-    return path
 
 
 def check_export_request(*, fmt: str, out: str | Path, family: str | None = None,
