@@ -158,3 +158,30 @@ def test_a_soak_test_repeating_a_temperature_in_a_row_is_refused() -> None:
             short_test(spec)
     # a return to a temperature after another is a second visit: allowed, three soaks
     assert [s.temperature_c for s in short_test("soaks:25,60,25").segments] == [25.0, 60.0, 25.0]
+
+
+def test_the_far_clusters_units_come_back_and_outliers_stay_out(monkeypatch):
+    """Consumer-imu fleets of three clusters, each unit an 11-soak sweep. The robust screen
+    reads each quantity as one population, so alone it leaves out clean members of a far
+    cluster. Checked against the mixture of the units it kept, a unit comes back where its
+    shape is like a cluster on every axis (the station's own flag). On bench_prior's
+    outlier-test prior (50 clean units) the screen alone left out 5 and at most 1 stays out
+    now; on a fleet of 50 + 5 units planted 10 σ off, the planted 5 stay out."""
+    from thermonet.sim import simulate_fleet
+    from thermonet.training.config import config_from_mapping
+    from thermonet.workflows import station_prior
+
+    cfg = config_from_mapping({"data": {"preset": "consumer-imu"},
+                               "target": {"gyro": "zero", "acc": "at-t-ref"},
+                               "features": {"t_ref": 25.0}}, source="test")
+    sweep = (short_test("soaks:-20,-10,0,10,20,30,40,50,60,70,75"),)
+    clean = simulate_fleet("consumer-imu", units=110, runs=1, seed=6, clusters=3, outliers=20,
+                           procedures=sweep, unit_indices=list(range(50)))
+    assert len(station_prior.build_prior(cfg, clean).excluded) <= 1
+    planted_ds = simulate_fleet("consumer-imu", units=55, runs=1, seed=6, clusters=3,
+                                outliers=5, procedures=sweep)
+    planted = {f"consumer-imu-u{k:03d}" for k in range(50, 55)}
+    fp = station_prior.build_prior(cfg, planted_ds)
+    assert planted <= set(fp.excluded) and len(set(fp.excluded) - planted) <= 1
+    monkeypatch.setattr(station_prior, "shape_p_values", lambda *a: np.zeros(1))
+    assert len(station_prior.build_prior(cfg, clean).excluded) == 5   # the screen alone

@@ -56,7 +56,7 @@ from ..core.errors import ConfigError, InputError
 from .prior_points import BIN_C, Points, centred, shape_design
 
 __all__ = ["PRIOR_SCHEMA", "MIN_UNITS", "MAX_CLUSTERS", "UNITS_PER_CLUSTER", "FLAG_P",
-           "SHAPE_TEST_DOF",
+           "SHAPE_TEST_DOF", "shape_p_values",
            "AxisPrior", "FleetPrior", "UnitFit", "fit_unit", "METHOD", "StationLimit",
            "check_compatible", "fit_population", "Posterior", "posterior"]
 
@@ -424,20 +424,24 @@ def _shape_p_values(prior: AxisPrior, J: np.ndarray, b: np.ndarray, q0: float, d
     """Per cluster, P(χ²_d ≥ the unit's own shape's distance from it): the shape
     β̂ = J⁻¹b with its covariance max(s², 1)·J⁻¹ (s²: the unit's residual over its assumed
     point errors, per degree of freedom — a unit that scatters more than the fleet's median
-    misfit has a less certain shape, not a different one), against N(μ_k, Σ_k)."""
-    from scipy.stats import chi2
-
+    misfit has a less certain shape, not a different one): :func:`shape_p_values`."""
     Ji = np.linalg.inv(J)
     beta = Ji @ b
     s2 = max((q0 - float(beta @ b)) / dof_r, 1.0)
+    return shape_p_values(prior, beta, s2 * Ji)
+
+
+def shape_p_values(prior: AxisPrior, shape: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Per cluster k, P(χ²_d ≥ (β − μ_k)ᵀ(Σ_k + C)⁻¹(β − μ_k)) for a unit's shape β with its
+    estimation covariance C: how unlike cluster k the unit is (the station's flag on a long
+    test, and which units a prior leaves out)."""
+    from scipy.stats import chi2
+
     out = []
     for mu, S in zip(prior.means, prior.covs, strict=True):
-        diff = beta - mu
-        out.append(float(chi2.sf(float(diff @ np.linalg.solve(S + s2 * Ji, diff)),
-                                 mu.size)))
+        diff = np.asarray(shape) - mu
+        out.append(float(chi2.sf(float(diff @ np.linalg.solve(S + cov, diff)), mu.size)))
     return np.asarray(out)
-
-
 
 
 # ------------------------------------------------------------------ a unit against the prior

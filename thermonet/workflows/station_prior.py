@@ -27,7 +27,16 @@ from ..scoring.fleetstats import (
     merged_limits,
     spread,
 )
-from ..scoring.prior import MIN_UNITS, AxisPrior, FleetPrior, StationLimit, fit_population, fit_unit
+from ..scoring.prior import (
+    FLAG_P,
+    MIN_UNITS,
+    AxisPrior,
+    FleetPrior,
+    StationLimit,
+    fit_population,
+    fit_unit,
+    shape_p_values,
+)
 from ..scoring.prior_design import design_errors, first_below, plan_errors, typical_drift
 from ..scoring.prior_points import BIN_C, Points, bin_points, shape_design
 from ..training.config import CompareConfig, outputs_of
@@ -175,16 +184,32 @@ def build_prior(cfg: CompareConfig, ds: Dataset, *, source: str = "") -> FleetPr
                          f"{len(kept)} remain after leaving out {len(excluded)}: "
                          + _left_out_line(excluded))
     targets, uom = meta[kept[0]]
+    axes = _population(targets, kept, fits, pts)
+    # a unit the robust screen left out comes back where its shape is like a cluster of the
+    # clean units' mixture on every axis (the station's own flag): the screen reads each
+    # quantity as one population, and left out the far cluster's members
+    back = [d for d in excluded if d in fits and all(
+        shape_p_values(ap, fits[d][ap.axis].shape, fits[d][ap.axis].cov).max() >= FLAG_P
+        for ap in axes)]
+    if back:
+        kept = [d for d in fits if d not in excluded or d in back]
+        excluded = {d: why for d, why in excluded.items() if d not in back}
+        axes = _population(targets, kept, fits, pts)
+    return FleetPrior(axes, degree, t_ref, scale, rng, uom, targets, len(kept), kept,
+                      excluded, source, BIN_C)
+
+
+def _population(targets: dict[str, str], kept: list[str], fits: dict[str, dict[str, Any]],
+                pts: dict[str, dict[str, Points]]) -> list[AxisPrior]:
+    """Per axis the mixture over the kept units' shapes, their misfit and sampling variance."""
     axes: list[AxisPrior] = []
     for a in targets:
-        shapes = np.array([fits[d][a].shape for d in kept])
-        w, means, covs = fit_population(shapes)
+        w, means, covs = fit_population(np.array([fits[d][a].shape for d in kept]))
         axes.append(AxisPrior(a, w, means, covs,
                               float(np.median([fits[d][a].misfit_var for d in kept])),
                               float(np.median([np.median(pts[d][a].sampling_var)
                                                for d in kept]))))
-    return FleetPrior(axes, degree, t_ref, scale, rng, uom, targets, len(kept), kept,
-                      excluded, source, BIN_C)
+    return axes
 
 
 def prior_summary(fp: FleetPrior, limits: dict[str, StationLimit] | None = None
