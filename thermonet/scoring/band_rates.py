@@ -22,6 +22,7 @@ from .folds import excursions
 __all__ = ["min_windows", "window_means", "window_rates", "holds_for",
            "holds_meaning", "outside_holds", "sample_directions", "window_directions"]
 
+
 def min_windows(level: float) -> int:
     """The fewest scores whose finite-sample conformal quantile at ``level`` is finite:
     the smallest n with ⌈(n + 1)·level⌉ ≤ n (9 for 0.9, 19 for 0.95)."""
