@@ -41,6 +41,7 @@ from thermonet.scoring.band import (  # noqa: E402
     outside_holds,
     sample_directions,
     window_directions,
+    window_means,
     window_rates,
 )
 from thermonet.scoring.fold_plan import window_labels  # noqa: E402
@@ -77,12 +78,7 @@ def _windows(est: DriftEstimator, rec: Any) -> dict[str, Any] | None:
     if ok.sum() < 2:
         return None
     wl = window_labels(np.asarray(part.time_s)[ok], band.window_s)
-    u, inv = np.unique(wl, return_inverse=True)
-    n = np.bincount(inv).astype(float)
-    vals = np.column_stack([e[ok], x[ok]])
-    sums = np.zeros((u.size, vals.shape[1]))
-    np.add.at(sums, inv, vals)
-    means = sums / n[:, None]
+    means, n = window_means(np.column_stack([e[ok], x[ok]]), wl)
     # each window's rate and whether it lies outside what the band states (holds_for)
     rate = window_rates(np.asarray(part.time_s)[ok], x[ok], wl)
     dirs = window_directions(sample_directions(x)[ok], wl)

@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..core.errors import ThermonetError
+from ..core.errors import ThermonetError, counted
 from ..core.fileio import refuse_overwriting_inputs
 
 #: The preset that writes flights of one vehicle (logs with its estimator), not a run.
@@ -111,7 +111,7 @@ def _simulate_flights(args: argparse.Namespace) -> int:
     for k, f in enumerate(flights):
         write_flight(f.log, f.biases, out / f"flight{k + 1:04d}.{ext}")
     lo, hi = (f"{g(f.ambient_c for f in flights):.0f}" for g in (min, max))
-    print(f"wrote {out}: {len(flights)} flight{'s' * (len(flights) != 1)} of one vehicle "
+    print(f"wrote {out}: {counted(len(flights), 'flight')} of one vehicle "
           f"(fc-board, seed {args.seed}) as .{ext}, ambient "
           f"{lo if lo == hi else lo + '..' + hi} °C")
     return 0

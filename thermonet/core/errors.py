@@ -8,13 +8,18 @@ row where it applies.  The CLI prints ``str(err)`` and exits with status 1.
 from __future__ import annotations
 
 __all__ = ["ThermonetError", "InputError", "ConfigError", "FitError", "ExportError",
-           "Interrupted", "first_line", "failures_line"]
+           "Interrupted", "first_line", "failures_line", "counted"]
 
 
 def first_line(err: BaseException) -> str:
     """What a caught error says, in one line: its message's first line, else its type's name
     (a library's error quoted inside thermonet's own one-line message)."""
     return str(err).splitlines()[0] if str(err) else type(err).__name__
+
+
+def counted(k: int, word: str) -> str:
+    """``k`` and ``word``, plural unless ``k`` is 1 ("1 flight", "3 flights")."""
+    return f"{k} {word}{'s' * (k != 1)}"
 
 
 def failures_line(bad: list[tuple[str, str]], what: str, shown: int = 5) -> str:

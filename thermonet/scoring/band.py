@@ -40,9 +40,9 @@ How it is made
   excursion's, :mod:`thermonet.scoring.band_rates`) and, per direction, the fastest of their
   rates (°C/min, each window's least-squares slope).  A direction with fewer than
   :func:`min_windows` windows was not judged.  A test window of an excursion in a direction
-  never judged, or faster than the fastest judged, is outside what the band states (a lag's error grows with the rate; a hysteresis flips with the direction): the
-  report says so, and ``bench_uncertainty.py stress`` measures the coverage inside and
-  outside these conditions.
+  never judged, or faster than the fastest judged, is outside what the band states (a lag's
+  error grows with the rate; a hysteresis flips with the direction): the report says so,
+  and ``bench_uncertainty.py stress`` measures the coverage inside and outside them.
 
 The band is what :class:`Band` holds and evaluates (:meth:`Band.evaluate`); the ONNX runtime
 (``export/thermonet_runtime.py``) and the C header evaluate the same tables.
@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.recording import TEMPERATURE
 from .band_rates import (
     holds_for,
     holds_meaning,
@@ -72,7 +73,7 @@ from .fold_plan import window_labels
 
 __all__ = ["Band", "AxisBand", "min_windows", "conformal_quantile", "band_from_oof",
            "evaluate_tables", "DEFAULT_LEVEL", "DEFAULT_BINS", "display_units", "band_problem",
-           "check_level", "shipped_band", "holds_for", "window_rates",
+           "check_level", "shipped_band", "holds_for", "window_means", "window_rates",
            "outside_holds", "sample_directions", "window_directions"]
 
 DEFAULT_LEVEL = 0.9
@@ -392,7 +393,7 @@ def band_from_oof(*, plan: Any, targets: Sequence[np.ndarray], times: Sequence[n
     # what the calibration windows held, every shipped candidate's (a temperature's rates)
     held = holds_for(np.concatenate([c[8] for c in cache.values()]),
                      np.concatenate([c[9] for c in cache.values()]), level) \
-        if signal in ("temperature", "temperature_c") else {}
+        if signal in ("temperature", TEMPERATURE) else {}
     return Band(level, signal, win, axes, dict(units or {}), _signal_rate(times, temps, win),
                 held)
 

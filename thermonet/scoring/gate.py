@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..core.errors import counted
 from .fold_plan import (
     MIN_GATE_FOLDS,
     RATE_SPREAD,
@@ -185,7 +186,7 @@ class Gate:
                         f"{ref} on each (" + ", ".join(
                             f"{x:.3g} vs {y:.3g}" for x, y in zip(c[judged], b[judged],
                                                                   strict=True)) + " of raw)")
-            return f"judged on {n} fold{'s' * (n != 1)}, fewer than {MIN_GATE_FOLDS}"
+            return f"judged on {counted(n, 'fold')}, fewer than {MIN_GATE_FOLDS}"
         if k in self.directional and self.fold_directions:
             need = set().union(*(d for d, r in zip(self.fold_directions, ref_judged,
                                                    strict=True) if r))

@@ -18,6 +18,7 @@ from .prior import AxisPrior, FleetPrior
 from .prior_points import shape_design
 
 __all__ = ["DESIGN_DRAWS", "expected_error", "next_temperatures", "typical_drift", "soak_plan",
+           "point_error", "has_curve",
            "plan_errors", "design_errors", "points_needed", "first_below"]
 
 
@@ -169,6 +170,17 @@ def typical_drift(fp: FleetPrior, axis: str) -> float:
     return float(np.sqrt(np.mean((curve - curve.mean()) ** 2)))
 
 
+def point_error(ap: AxisPrior) -> float:
+    """A point's own error on the axis: √(misfit variance + sampling variance)."""
+    return math.sqrt(ap.misfit_var + ap.sampling_var)
+
+
+def has_curve(fp: FleetPrior, axis: str) -> bool:
+    """Whether the axis has a curve to learn: its fleet's drift above a point's own error
+    (else a test only fixes its offset)."""
+    return typical_drift(fp, axis) > point_error(fp.axis(axis))
+
+
 def soak_plan(fp: FleetPrior, n: int, *, measured_c: list[float] | None = None,
               step_c: float = 2.5, ends: bool = True) -> list[float]:
     """One test for every axis: ``n`` soak temperatures, in rising order — soak them in that
@@ -207,9 +219,8 @@ def _plan_cost(fp: FleetPrior, step_c: float) -> Callable[[list[float]], float] 
     (expected error / typical drift)² after one run at ``temps``; None without such an axis."""
     costs = []
     for ap in fp.axes:
-        typ = typical_drift(fp, ap.axis)
-        if typ > math.sqrt(ap.misfit_var + ap.sampling_var):
-            costs.append((_axis_error(fp, ap.axis, step_c), typ))
+        if has_curve(fp, ap.axis):
+            costs.append((_axis_error(fp, ap.axis, step_c), typical_drift(fp, ap.axis)))
     if not costs:
         return None
 

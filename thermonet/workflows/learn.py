@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import InputError, ThermonetError
+from ..core.errors import InputError, ThermonetError, counted
 from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
 from ..core.outdir import sha256_file
@@ -385,21 +385,19 @@ def _supported(d: dict[str, Any]) -> str:
     return ", ".join(f"{a}..{b + 1}" for a, b in spans) + " °C" if spans else "nothing"
 
 
-def _n(k: int, word: str) -> str:
-    return f"{k} {word}{'s' * (k != 1)}"
-
-
 def format_learn_report(doc: dict[str, Any]) -> str:
     """The console summary: what was used and refused, per instance its fit, held-out check,
     coverage and what is missing, and what changed."""
-    lines = [f"thermonet learn: {_n(len(doc['logs']), 'log')} used, {len(doc['refused'])} refused "
+    lines = [f"thermonet learn: {counted(len(doc['logs']), 'log')} used, "
+             f"{len(doc['refused'])} refused "
              f"({doc['autopilot']})"]
     lines += [f"  refused {r['log']}: {r['reason']}" for r in doc["refused"]]
     for name, d in doc["instances"].items():
         unit = UNITS[d["kind"]]
-        lines.append(f"{name} (id {d['device_id']}): {d['status']}, {_n(d['flights'], 'flight')}, "
+        lines.append(f"{name} (id {d['device_id']}): {d['status']}, "
+                     f"{counted(d['flights'], 'flight')}, "
                      f"{d['minutes']:g} min, lag {d['lag_s']:g} s, "
-                     f"{_n(d['rejected_windows'], 'window')} rejected (diverged)")
+                     f"{counted(d['rejected_windows'], 'window')} rejected (diverged)")
         h = d.get("held_out") or {}
         if h.get("status") == "judged":
             lines.append(f"  held-out flight {Path(h['flight']).name}: binned drift p-p "

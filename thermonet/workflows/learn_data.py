@@ -385,8 +385,12 @@ def coverage(inst: InstanceWindows) -> list[dict[str, Any]]:
 def supported_spans(cov: list[dict[str, Any]]) -> list[tuple[int, int]]:
     """The 1 °C bins of :func:`coverage` with :data:`MIN_BIN_FLIGHTS` flights and
     :data:`MIN_BIN_MINUTES` minutes, consecutive ones as (first, last) bin."""
-    return _runs([c["bin_c"] for c in cov if c["flights"] >= MIN_BIN_FLIGHTS
-                  and c["minutes"] >= MIN_BIN_MINUTES])
+    return _runs(_supported_bins(cov))
+
+
+def _supported_bins(cov: list[dict[str, Any]]) -> list[int]:
+    return [c["bin_c"] for c in cov if c["flights"] >= MIN_BIN_FLIGHTS
+            and c["minutes"] >= MIN_BIN_MINUTES]
 
 
 def _runs(bins: list[int]) -> list[tuple[int, int]]:
@@ -403,7 +407,7 @@ def _runs(bins: list[int]) -> list[tuple[int, int]]:
 def missing_words(cov: list[dict[str, Any]]) -> tuple[tuple[int, int] | None, list[str]]:
     """The supported span (first and last supported bin, °C) and, in plain words, the
     temperatures of :data:`TARGET_RANGE_C` still missing and how to fill them."""
-    ok = [b for lo, hi in supported_spans(cov) for b in range(lo, hi + 1)]
+    ok = _supported_bins(cov)
     lo_t, hi_t = TARGET_RANGE_C
     if not ok:
         return None, [f"no 1 °C bin has {MIN_BIN_FLIGHTS} flights and {MIN_BIN_MINUTES:g} "
@@ -419,7 +423,8 @@ def missing_words(cov: list[dict[str, Any]]) -> tuple[tuple[int, int] | None, li
     holes = [b for b in range(lo, hi) if b not in ok]
     for a, b in _runs(holes):
         words.append(f"{a}..{b + 1} °C rests on fewer than {MIN_BIN_FLIGHTS} flights or "
-                     f"{MIN_BIN_MINUTES:g} minutes: fly once more around {round((a + b + 1) / 2)} °C")
+                     f"{MIN_BIN_MINUTES:g} minutes: fly once more around "
+                     f"{round((a + b + 1) / 2)} °C")
     return (lo, hi), words
 
 
@@ -440,7 +445,8 @@ def not_this_vehicle(lg: dict[str, Any], ap: str, sensors: dict[str, int],
                      board: str | None) -> str | None:
     """Why a reduced log is not of the vehicle (one phrase), or None when it is."""
     if lg["autopilot"] != ap:
-        return (f"{_AUTOPILOT.get(lg['autopilot'], 'a ' + str(lg['autopilot']))} log among {ap} logs: one vehicle, one autopilot "
+        other = _AUTOPILOT.get(lg["autopilot"], f"a {lg['autopilot']}")
+        return (f"{other} log among {ap} logs: one vehicle, one autopilot "
                 "(learn them in separate directories)")
     if lg["sensors"] != sensors:
         mine = ", ".join(f"{k} {v}" for k, v in sorted(lg["sensors"].items()))

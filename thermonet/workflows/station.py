@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError, InputError, failures_line
+from ..core.errors import ConfigError, InputError, counted, failures_line
 from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import _umask, atomic_write_text
 from ..core.names import c_comment, inside, path_components
@@ -107,7 +107,7 @@ def _held_out(fp: FleetPrior, ap: AxisPrior, p: Points) -> tuple[float | None, s
     None and why it cannot be judged: a point is judged only against its own run's other
     points (the run's constant is free), so a unit needs a run with points in two groups."""
     if p.value.size < 2:
-        return None, f"{p.value.size} point" + ("" if p.value.size == 1 else "s")
+        return None, counted(int(p.value.size), "point")
     order = np.argsort(p.temperature_c, kind="stable")
     groups = np.array_split(order, min(HELD_OUT_GROUPS, p.value.size))
     res: list[np.ndarray] = []

@@ -37,7 +37,14 @@ from ..scoring.prior import (
     fit_unit,
     shape_p_values,
 )
-from ..scoring.prior_design import design_errors, first_below, plan_errors, typical_drift
+from ..scoring.prior_design import (
+    design_errors,
+    first_below,
+    has_curve,
+    plan_errors,
+    point_error,
+    typical_drift,
+)
 from ..scoring.prior_points import BIN_C, Points, bin_points, shape_design
 from ..training.config import CompareConfig, outputs_of
 from ..training.parts import build_part, targets_for
@@ -235,7 +242,7 @@ def prior_summary(fp: FleetPrior, limits: dict[str, StationLimit] | None = None
             rows.append({"target": lim, "limit": "max_residual", "points": n,
                          "temperatures_c": temps[:n] if n else None})
         out[ap.axis] = {"clusters": ap.n_clusters, "typical_drift_rms": typical,
-                        "point_error": math.sqrt(ap.misfit_var + ap.sampling_var),
+                        "point_error": point_error(ap),
                         "points_needed": rows, "expected_error_after_2_to_12": errs}
     return out
 
@@ -253,7 +260,7 @@ def _plan_line(fp: FleetPrior, summary: dict[str, Any], plan: list[float]) -> st
         return head + (" (the range's ends, and the interior temperature the prior tells most "
                        "by" + (f": expected error {100 * errs[0]:.2g} → {100 * errs[1]:.2g} % "
                                "of the drift, RMS over the axes)" if errs else ")"))
-    if all(s["typical_drift_rms"] <= s["point_error"] for s in summary.values()):
+    if not any(has_curve(fp, axis) for axis in summary):
         why = ("no axis has a curve to learn (each one's drift is below a point's own error): "
                "the range's ends fix the offsets")
     else:
@@ -273,7 +280,7 @@ def format_prior(fp: FleetPrior, summary: dict[str, Any], plan: list[float] | No
         lines.append(_plan_line(fp, summary, plan))
     for axis, s in summary.items():
         head = f"  {axis}: {s['clusters']} cluster(s); "
-        if s["typical_drift_rms"] < s["point_error"]:
+        if not has_curve(fp, axis):
             lines.append(head + f"its drift ({s['typical_drift_rms']:.3g} RMS over the range) is "
                          f"below a point's own error ({s['point_error']:.3g}): a test fixes its "
                          "offset, there is no curve to learn")
