@@ -29,9 +29,11 @@ units of (short / full) and its 90th percentile, worst axis first.
 
 Outliers: a second fleet of the same draw with its last units 10 σ off
 (:func:`thermonet.sim.fleet.outlier_config`); the prior from its normal units, the station's
-"unlike its fleet" flag (any axis) on new units' 3-soak tests and on their climate cycle (a
-long test: hundreds of points, judged on the unit's own shape): recall on the outliers, false
-flags on the normal ones.
+"unlike its fleet" flag (any axis) on new units' 3-soak tests, their climate cycle (a long
+test: hundreds of points, judged on the unit's own shape) and their 40-min up-and-down, the
+prior built from the units' full sweeps or from their climate cycles: the share of units
+the prior can compare (a moving test against a prior of soaks is not compared), recall on
+the outliers, false flags on the normal ones, and both as if every unit were compared.
 
 Station: ``thermonet station --units N`` (each worker simulates its own unit's 3-soak test),
 process pool of 2, in a fresh process per size: wall time, units/min, and the peak RSS of the
@@ -65,6 +67,7 @@ from thermonet.sim.fleet import short_test  # noqa: E402
 from thermonet.sim.presets import get_preset  # noqa: E402
 from thermonet.training.config import config_from_mapping  # noqa: E402
 from thermonet.workflows.station import build_prior, unit_points  # noqa: E402
+from thermonet.workflows.station_prior import unit_test_kind  # noqa: E402
 
 PRESET, SEED, CLUSTERS, FOLDS = "consumer-imu", 5, 3, 5
 SOAKS, SOAKS_ENDS, RAMP = "soaks:-15,25,65", "soaks:-20,25,75", "ramp:20,30,10"
@@ -160,26 +163,42 @@ def leave_units_out(n_units: int) -> dict[str, Any]:
                 for k, v in r.items()} for a, r in ratios.items()}
 
 
-def outliers(n_units: int, n_new: int, n_out: int, test: str | None = SOAKS
-             ) -> dict[str, Any]:
+def outliers(n_units: int, n_new: int, n_out: int, test: str | None = SOAKS,
+             prior_from: str = "run0") -> dict[str, Any]:
     """The flag "unlike its fleet" on new units' ``test`` (None: the preset's own climate
-    cycle, 5.4 h, hundreds of points: the shape test), the prior from full sweeps."""
+    cycle, 5.4 h, hundreds of points: the shape test), the prior from the units' full sweeps
+    (``run0``), their climate cycles (``run1``) or a short test of theirs (its name).  A unit whose test the prior cannot judge
+    (:meth:`~thermonet.scoring.prior.FleetPrior.not_comparable`) is not compared; the flag
+    it would have raised is counted apart (``*_if_compared``)."""
     total = n_units + n_new
-    fleet = _fleet(total, SEED + 1, outliers=n_out, unit_indices=list(range(n_units)))
-    fp = build_prior(CFG, _sweeps(fleet), source="bench")
+    if prior_from.startswith("run"):
+        fleet = _fleet(total, SEED + 1, outliers=n_out, unit_indices=list(range(n_units)))
+        fleet = Dataset(runs=[r for r in fleet if r.run_id == prior_from])
+    else:      # the units' short test of that name
+        fleet = simulate_fleet(PRESET, units=total, seed=SEED + 1, clusters=CLUSTERS,
+                               outliers=n_out, test=prior_from,
+                               unit_indices=list(range(n_units)))
+    fp = build_prior(CFG, fleet, source="bench")
     new = split_units(simulate_fleet(PRESET, units=total, seed=SEED + 1, clusters=CLUSTERS,
                                      outliers=n_out, test=test,
                                      unit_indices=list(range(n_units, total))))
-    flagged = {}
+    flagged, compared = {}, {}
     for d, uds in new.items():
         pts, _, _, _ = unit_points(CFG, uds, d)
         flagged[d] = any(posterior(fp.axis(a), pts[a], t_ref=fp.t_ref, scale=fp.scale).flagged
                          for a in fp.axis_names)
+        compared[d] = fp.not_comparable(unit_test_kind(uds)) is None
     out_ids = [d for d, u in new.items() if u.runs[0].meta.get("outlier") == "1"]
     normal = [d for d in new if d not in out_ids]
-    return {"new_units": n_new, "outliers": len(out_ids),
-            "recall": sum(flagged[d] for d in out_ids) / max(len(out_ids), 1),
-            "false_flags": sum(flagged[d] for d in normal) / max(len(normal), 1),
+
+    def share(ids: list[str], rule: bool) -> float:
+        return sum(flagged[d] and (compared[d] or not rule) for d in ids) / max(len(ids), 1)
+
+    return {"new_units": n_new, "outliers": len(out_ids), "prior_tests": fp.test_kinds,
+            "compared": sum(compared.values()) / max(len(compared), 1),
+            "recall": share(out_ids, True), "false_flags": share(normal, True),
+            "recall_if_compared": share(out_ids, False),
+            "false_flags_if_compared": share(normal, False),
             "prior_excluded": len(fp.excluded)}
 
 
@@ -250,14 +269,22 @@ def main() -> None:
                          "40-min up-and-down ramp+prior / full", "p90",
                          "full: error (median)"], rows))
     n0 = int(a.units.split(",")[0])
-    data["outliers"] = outliers(n0, a.new_units, a.new_outliers)
-    o = data["outliers"]
-    data["outliers_long"] = outliers(n0, a.new_units, a.new_outliers, test=None)
-    ol = data["outliers_long"]
-    md.append(f"### Outliers\n\nprior of {n0} units (full sweeps); {o['new_units']} new units "
-              f"of which {o['outliers']} are 10 σ off: on a 3-soak test recall "
-              f"{o['recall']:.0%}, false flags {o['false_flags']:.1%}; on the climate cycle "
-              f"(5.4 h) recall {ol['recall']:.0%}, false flags {ol['false_flags']:.1%}")
+    cases = {"3 soaks, prior of sweeps": (SOAKS, "run0"),
+             "climate cycle, prior of sweeps": (None, "run0"),
+             "40-min up-and-down, prior of sweeps": (CYCLE_LONG, "run0"),
+             "3 soaks, prior of climate cycles": (SOAKS, "run1"),
+             "climate cycle, prior of climate cycles": (None, "run1"),
+             "3 soaks, prior of 40-min up-and-downs": (SOAKS, CYCLE_LONG),
+             "climate cycle, prior of 40-min up-and-downs": (None, CYCLE_LONG),
+             "40-min up-and-down, prior of 40-min up-and-downs": (CYCLE_LONG, CYCLE_LONG)}
+    data["outliers"] = {k: outliers(n0, a.new_units, a.new_outliers, test=t, prior_from=p)
+                        for k, (t, p) in cases.items()}
+    md.append(f"### Outliers\n\nprior of {n0} units; {a.new_units} new units of which "
+              f"{a.new_outliers} are 10 σ off\n\n" + table(
+                  ["test, prior", "compared", "recall", "false flags",
+                   "if compared: recall", "false flags"],
+                  [[k, o["compared"], o["recall"], o["false_flags"], o["recall_if_compared"],
+                    o["false_flags_if_compared"]] for k, o in data["outliers"].items()]))
     fp = build_prior(CFG, _sweeps(_fleet(n0, SEED)), source="bench")
     with tempfile.TemporaryDirectory() as tmp:
         for n in (int(v) for v in a.station_units.split(",")):

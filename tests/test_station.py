@@ -306,3 +306,52 @@ def test_prior_refusals_name_what_and_come_before_the_work(
     _one_line_refusal(capsys, ["prior", "new.yaml", "--units", "15", "--out", "afile/p.json"],
                       f"afile/p.json: --out cannot be created: {tmp_path / 'afile'} is not a "
                       "directory")
+
+
+def test_a_fast_test_is_not_compared_with_a_prior_of_soaks(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A prior built from soak sweeps records its tests ("soaks"); a unit's 40-min
+    up-and-down (fast ramps: points paired heating with cooling, a lag error no soak shows)
+    would be flagged on its own shape although it is of the same fleet (bench_prior: 100 % of
+    normal units), so its fleet comparison is not judged and fails nothing, and the console
+    says why; a soak test against the same prior is compared as before."""
+    from thermonet.scoring.prior import FleetPrior, posterior
+    from thermonet.training.config import config_from_mapping
+    from thermonet.workflows.station import unit_points
+
+    monkeypatch.chdir(tmp_path)
+    sweep = "soaks:-20,-5,10,25,40,55,75"
+    write_parquet(simulate_fleet("consumer-imu", units=12, seed=4, test=sweep), "sweeps.parquet")
+    Path("fleet.yaml").write_text(FLEET.replace("preset: consumer-imu, seed: 0, runs: 1",
+                                                "paths: [sweeps.parquet]"))
+    assert main(["prior", "fleet.yaml", "--out", "prior.json", "-q"]) == 0
+    doc = json.loads(Path("prior.json").read_text())
+    assert doc["test_kinds"] == {"soaks": doc["n_units"]}
+    Path("new.yaml").write_text(FLEET.replace("gyro_x: {max_tempco: 0.01}",
+                                              '"*": {max_noise: 1.0}'))
+    cycle = "cycle:-20,75,40"
+    assert main(["station", "new.yaml", "--prior", "prior.json", "--units", "2", "--test", cycle,
+                 "--out", "moving", "--executor", "serial"]) == 0
+    out = capsys.readouterr().out
+    res = json.loads(Path("moving/results.json").read_text())
+    assert res["summary"]["not_compared_with_fleet"] == ["consumer-imu-u000", "consumer-imu-u001"]
+    assert res["summary"]["flagged_unlike_fleet"] == []
+    assert res["units"]["consumer-imu-u000"]["test_kind"] == "fast ramps"
+    assert "2 units not compared with the fleet: a test of fast ramps, where the prior's units " \
+           f"ran soaks ({doc['n_units']} units)" in out
+    # without the rule the same units' shapes are flagged on some axis
+    fp = FleetPrior.from_dict(doc, "prior.json")
+    cfg = config_from_mapping({"data": {"preset": "consumer-imu"},
+                               "target": {"gyro": "zero", "acc": "at-t-ref"},
+                               "features": {"t_ref": 25.0}}, source="test")
+    unit = simulate_fleet("consumer-imu", units=1, seed=0, test=cycle)
+    pts, _, _, _ = unit_points(cfg, unit, "u")
+    assert any(posterior(fp.axis(a), pts[a], t_ref=fp.t_ref, scale=fp.scale).flagged
+               for a in fp.axis_names)
+    # a soak test is compared with the same prior
+    assert main(["station", "new.yaml", "--prior", "prior.json", "--units", "2", "--test",
+                 "soaks:-10,25,60", "--out", "soaked", "--executor", "serial", "-q"]) in (0, 3)
+    res = json.loads(Path("soaked/results.json").read_text())
+    assert res["summary"]["not_compared_with_fleet"] == []
+    assert {u["test_kind"] for u in res["units"].values()} == {"soaks"}

@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thermonet.core.errors import ConfigError
-from thermonet.scoring.prior import AxisPrior, FleetPrior, StationLimit, UnitFit, check_compatible
+from thermonet.core.errors import ConfigError, InputError
+from thermonet.scoring.prior import AxisPrior, FleetPrior, StationLimit, UnitFit
 from thermonet.scoring.prior_design import (
     _axis_error,
     expected_error,
@@ -27,7 +27,12 @@ from thermonet.scoring.prior_design import (
 from thermonet.scoring.prior_points import Points, shape_design
 from thermonet.sim.fleet import short_test
 from thermonet.workflows.station import _held_out
-from thermonet.workflows.station_prior import _outlier_units, format_prior, prior_summary
+from thermonet.workflows.station_prior import (
+    _outlier_units,
+    check_compatible,
+    format_prior,
+    prior_summary,
+)
 
 T_REF, SCALE = 25.0, 50.0
 IDS = [f"u{i:03d}" for i in range(20)]
@@ -183,5 +188,87 @@ def test_the_far_clusters_units_come_back_and_outliers_stay_out(monkeypatch):
     planted = {f"consumer-imu-u{k:03d}" for k in range(50, 55)}
     fp = station_prior.build_prior(cfg, planted_ds)
     assert planted <= set(fp.excluded) and len(set(fp.excluded) - planted) <= 1
-    monkeypatch.setattr(station_prior, "shape_p_values", lambda *a: np.zeros(1))
+    monkeypatch.setattr(station_prior, "shape_p_values", lambda *a, **k: np.zeros(1))
     assert len(station_prior.build_prior(cfg, clean).excluded) == 5   # the screen alone
+
+
+def _trace(legs: list[tuple[float, float]], dt: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
+    """A temperature trace of linear legs (°C/min, minutes) from 25 °C."""
+    temps, t = [25.0], 25.0
+    for rate, minutes in legs:
+        for _ in range(int(minutes * 60 / dt)):
+            t += rate * dt / 60.0
+            temps.append(t)
+    return np.arange(len(temps)) * dt, np.array(temps)
+
+
+@pytest.mark.parametrize("legs, kind", [
+    ([(0.0, 30), (1.0, 10), (0.0, 30), (1.0, 10), (0.0, 30)], "soaks"),
+    ([(0.5, 100)], "heating ramps"),
+    ([(-1.0, 40), (0.0, 5)], "cooling ramps"),
+    ([(-1.0, 45), (1.0, 90), (-1.0, 45)], "cycles"),
+    ([(-1.0, 45), (1.0, 90), (-1.0, 45), (0.0, 200)], "soaks"),
+    ([(-4.75, 20), (4.75, 20)], "fast ramps"),    # steady, so its points pair both ways
+])
+def test_a_tests_kind_is_the_motion_of_its_points(legs: list[tuple[float, float]],
+                                                 kind: str) -> None:
+    from thermonet.scoring.prior_points import motion_counts, test_kind
+
+    time_s, temp = _trace(legs)
+    assert test_kind(motion_counts(temp, time_s)) == kind
+
+
+def test_what_a_prior_compares_by_its_units_tests() -> None:
+    """A fast test only against a prior that holds fast tests, a slow one (soaks, slow ramps,
+    cycles) only against a prior that holds slow ones; a prior file that does not record its
+    tests compares every unit (files written before); a kind the prior cannot hold is
+    refused naming the key."""
+    fp = _fleet([AxisPrior("gyro_x", np.ones(1), np.zeros((1, 3)), np.eye(3)[None], 1e-4, 0.0)])
+    assert all(fp.not_comparable(k) is None for k in ("soaks", "fast ramps"))   # none recorded
+    fp.test_kinds = {"soaks": 20}
+    assert all(fp.not_comparable(k) is None for k in ("soaks", "cycles", "heating ramps"))
+    assert "a test of fast ramps, where the prior's units ran soaks (20 units)" in str(
+        fp.not_comparable("fast ramps"))
+    fp.test_kinds = {"fast ramps": 20}
+    assert fp.not_comparable("fast ramps") is None
+    assert all(fp.not_comparable(k) is not None for k in ("soaks", "cycles"))
+    fp.test_kinds = {"cycles": 19, "fast ramps": 1}
+    assert all(fp.not_comparable(k) is None for k in ("soaks", "cycles", "fast ramps"))
+    doc = fp.to_dict()
+    assert FleetPrior.from_dict(doc, "p.json").test_kinds == {"cycles": 19, "fast ramps": 1}
+    doc["test_kinds"] = {"wobbles": 3}
+    with pytest.raises(InputError, match="p.json.*test_kinds"):
+        FleetPrior.from_dict(doc, "p.json")
+
+
+def test_a_shape_is_judged_on_hotellings_predictive_not_chi2() -> None:
+    """A cluster's mean and covariance are estimated from its units, so a new unit's D² has
+    Hotelling's predictive law, n(n − d)/(d(n − 1)(n + 1))·D² ~ F(d, n − d), checked against a Monte
+    Carlo of the very situation (n units drawn, mean and covariance estimated, one more unit
+    judged); a prior of unknown size, and a unit the prior would take back, on χ²."""
+    from scipy.stats import chi2
+
+    from thermonet.scoring.prior import shape_p_values
+
+    n, d, reps = 16, 3, 20000
+    rng = np.random.default_rng(0)
+    units = rng.standard_normal((reps, n, d))
+    mean = units.mean(axis=1)
+    diff = units - mean[:, None]
+    cov = np.einsum("rni,rnj->rij", diff, diff) / (n - 1)
+    new = rng.standard_normal((reps, d)) - mean
+    d2 = np.einsum("ri,ri->r", new, np.linalg.solve(cov, new[..., None])[..., 0])
+    ap = AxisPrior("gyro_x", np.ones(1), np.zeros((1, d)), np.eye(d)[None], 1e-4, 0.0, n)
+    for q in (8.0, 20.0, 40.0):
+        p_mc = float((d2 > q).mean())
+        shape = np.array([np.sqrt(q), 0.0, 0.0])
+        p = float(shape_p_values(ap, shape, np.zeros((d, d)))[0])
+        assert abs(p - p_mc) < 4 * np.sqrt(p * (1 - p) / reps) + 1e-4
+        assert float(shape_p_values(ap, shape, np.zeros((d, d)), predictive=False)[0]) == \
+            pytest.approx(chi2.sf(q, d), rel=1e-9)
+    # D² = 30: χ² would flag it (p ≈ 1e-6), the predictive does not (p ≈ 0.003)
+    ap.n_units = 0
+    shape = np.array([np.sqrt(30.0), 0.0, 0.0])
+    assert shape_p_values(ap, shape, np.zeros((d, d)))[0] < 1e-3
+    ap.n_units = n
+    assert shape_p_values(ap, shape, np.zeros((d, d)))[0] > 1e-3

@@ -33,7 +33,10 @@ Mahalanobis distance from cluster *k* under its prior predictive, :math:`\\chi^2
 (:math:`\\max_k p_k <` :data:`FLAG_P`) is flagged even if its own fit is good.  A long test
 (:data:`SHAPE_TEST_DOF` residual degrees of freedom or more beyond the shape) is judged on its
 own shape instead (:func:`_shape_p_values`): over hundreds of points the whole predictive
-judges the scatter more than the shape, and flagged units of the prior's own fleet.
+judges the scatter more than the shape, and flagged units of the prior's own fleet; the
+shape's distance has Hotelling's predictive law, the clusters being estimated from a few
+dozen units (:func:`shape_p_values`).  A unit is compared only on a test of a kind its
+prior can judge (:meth:`FleetPrior.not_comparable`: fast ramps and slow tests apart).
 
 **Which temperatures next** (Bayesian I-optimal design, Chaloner & Verdinelli 1995;
 :mod:`thermonet.scoring.prior_design`): the point that most lowers the posterior variance of
@@ -52,13 +55,13 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError, InputError
-from .prior_points import BIN_C, Points, centred, shape_design
+from ..core.errors import ConfigError, InputError, counted
+from .prior_points import BIN_C, FAST_KIND, TEST_KINDS, Points, centred, shape_design
 
 __all__ = ["PRIOR_SCHEMA", "MIN_UNITS", "MAX_CLUSTERS", "UNITS_PER_CLUSTER", "FLAG_P",
            "SHAPE_TEST_DOF", "shape_p_values",
            "AxisPrior", "FleetPrior", "UnitFit", "fit_unit", "METHOD", "StationLimit",
-           "check_compatible", "fit_population", "Posterior", "posterior"]
+           "fit_population", "Posterior", "posterior"]
 
 PRIOR_SCHEMA = 1
 #: Fewer calibrated units than this: no prior (a covariance of a cubic's three shape
@@ -163,6 +166,7 @@ class AxisPrior:
     covs: np.ndarray           # (k, d, d)
     misfit_var: float
     sampling_var: float        # a typical bin's sampling variance in the fleet (for designs)
+    n_units: int = 0           # the units it was estimated from (0: unknown)
 
     @property
     def n_clusters(self) -> int:
@@ -236,6 +240,9 @@ class FleetPrior:
     excluded: dict[str, str] = field(default_factory=dict)   # unit id -> why
     source: str = ""
     bin_c: float = BIN_C
+    #: how many of its units ran each kind of test (:func:`~thermonet.scoring.prior_points.
+    #: test_kind`); empty in a prior written before it was recorded
+    test_kinds: dict[str, int] = field(default_factory=dict)
 
     def axis(self, name: str) -> AxisPrior:
         return next(a for a in self.axes if a.axis == name)
@@ -243,6 +250,32 @@ class FleetPrior:
     @property
     def axis_names(self) -> list[str]:
         return [a.axis for a in self.axes]
+
+    def not_comparable(self, kind: str) -> str | None:
+        """Why a unit whose test is of ``kind`` cannot be compared with this fleet, or None.
+
+        A fast ramp's points pair heating with cooling above 1.2 °C/min
+        (:func:`~thermonet.scoring.prior_points.bin_points`): the pair cancels the
+        thermometer's lag to first order, not the change of its rate, so its shape carries
+        an error no slow test's points do, and the reverse.  bench_prior (50 units, 40 new
+        of the fleet): a prior of full soak sweeps flags 100 % of their 40-min up-and-downs
+        (fast ramps); a prior of those flags 100 % of their 3-soak tests and 17.5 % of their
+        climate cycles; within a side, 0–2.5 % (soaks, slow cycles at 1 °C/min and ramps are
+        compared with one another).  So a fast test is compared only with a prior that holds
+        fast tests, a slow one only with a prior that holds slow ones.  A prior that does not
+        record its tests compares every unit, as before."""
+        if not self.test_kinds or kind in self.test_kinds:
+            return None
+        fast = {k == FAST_KIND for k in self.test_kinds}
+        if (kind == FAST_KIND) in fast:
+            return None
+        return (f"a test of {kind}, where the prior's units ran {self.kinds_text()}: a fast "
+                "ramp's paired points carry a lag error a slow test's do not (build the prior "
+                "from the station's test)")
+
+    def kinds_text(self) -> str:
+        """The prior's tests, e.g. "soaks (200 units)"; "" where it does not record them."""
+        return ", ".join(f"{k} ({counted(n, 'unit')})" for k, n in self.test_kinds.items())
 
     def physical(self, shape: np.ndarray) -> list[float]:
         """Coefficients c1 … cd of (T − t_ref)^k from a shape in normalised u."""
@@ -253,7 +286,7 @@ class FleetPrior:
                 "t_ref_c": self.t_ref, "scale_c": self.scale, "range_c": list(self.range_c),
                 "bin_c": self.bin_c, "units_of_measure": self.units, "targets": self.targets,
                 "n_units": self.n_units, "unit_ids": self.unit_ids, "excluded": self.excluded,
-                "source": self.source, "method": METHOD,
+                "source": self.source, "method": METHOD, "test_kinds": self.test_kinds,
                 "axes": {a.axis: {"weights": a.weights.tolist(), "means": a.means.tolist(),
                                   "covs": a.covs.tolist(), "misfit_var": a.misfit_var,
                                   "sampling_var": a.sampling_var} for a in self.axes}}
@@ -329,6 +362,11 @@ def _prior_from_dict(data: Any, source: str) -> FleetPrior:
     _need(isinstance(axes_raw, dict) and bool(axes_raw), source, "axes",
           "expected a mapping axis -> population")
     axes = [_axis_from_dict(str(n), v, deg, source) for n, v in axes_raw.items()]
+    n = data.get("n_units")
+    _need(isinstance(n, int) and not isinstance(n, bool) and n >= MIN_UNITS, source, "n_units",
+          f"expected an integer ≥ {MIN_UNITS}, got {n!r}")
+    for ap in axes:
+        ap.n_units = n
     maps = {}
     for key in ("units_of_measure", "targets"):
         m = data.get(key)
@@ -339,15 +377,17 @@ def _prior_from_dict(data: Any, source: str) -> FleetPrior:
     ids = data.get("unit_ids")
     _need(isinstance(ids, list) and all(isinstance(u, str) for u in ids), source, "unit_ids",
           "expected a list of unit ids")
-    n = data.get("n_units")
-    _need(isinstance(n, int) and not isinstance(n, bool) and n >= MIN_UNITS, source, "n_units",
-          f"expected an integer ≥ {MIN_UNITS}, got {n!r}")
     exc = data.get("excluded", {})
     _need(isinstance(exc, dict), source, "excluded", "expected a mapping unit -> reason")
+    kinds = data.get("test_kinds", {})
+    _need(isinstance(kinds, dict) and all(k in TEST_KINDS and isinstance(v, int) and
+                                          not isinstance(v, bool) and v > 0
+                                          for k, v in kinds.items()), source, "test_kinds",
+          f"expected a mapping of {', '.join(TEST_KINDS)} -> a count of units")
     return FleetPrior(axes, deg, nums["t_ref_c"], nums["scale_c"], (float(rng[0]),
                       float(rng[1])), maps["units_of_measure"], maps["targets"], n,
                       list(ids), {str(k): str(v) for k, v in exc.items()},
-                      str(data.get("source", "")), nums["bin_c"])
+                      str(data.get("source", "")), nums["bin_c"], dict(kinds))
 
 
 # ------------------------------------------------------------------ the posterior
@@ -431,42 +471,30 @@ def _shape_p_values(prior: AxisPrior, J: np.ndarray, b: np.ndarray, q0: float, d
     return shape_p_values(prior, beta, s2 * Ji)
 
 
-def shape_p_values(prior: AxisPrior, shape: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """Per cluster k, P(χ²_d ≥ (β − μ_k)ᵀ(Σ_k + C)⁻¹(β − μ_k)) for a unit's shape β with its
-    estimation covariance C: how unlike cluster k the unit is (the station's flag on a long
-    test, and which units a prior leaves out)."""
-    from scipy.stats import chi2
+def shape_p_values(prior: AxisPrior, shape: np.ndarray, cov: np.ndarray, *,
+                   predictive: bool = True) -> np.ndarray:
+    """Per cluster k, how unlike cluster k a unit's shape β (estimation covariance C) is:
+    D² = (β − μ_k)ᵀ(Σ_k + C)⁻¹(β − μ_k) (the station's flag on a long test, and which units a
+    prior takes back).
+
+    μ_k and Σ_k are estimated from the cluster's n_k units (its weight × the prior's units),
+    so a new unit's D² is Hotelling's, not χ²: n/(n+1)·D² ~ T²(d, n − 1), i.e.
+    n(n − d)/(d(n − 1)(n + 1))·D² ~ F(d, n − d) (the prediction region of a new draw from a
+    normal of estimated mean and covariance; Chew, JASA 61, 1966, §3).  With n_k = 16 and
+    d = 3, the 0.1 % point of D² is 37.5, where χ²₃'s is 16.3: the χ² test flagged 10 % of a fleet's own
+    units on their climate cycle (bench_prior, a prior of 50 units in three clusters).  A
+    prior that does not say how many units it holds (``n_units`` 0) is judged on χ²; so is
+    a unit the prior would take back (``predictive=False``: a small cluster's wide region
+    would let an outlier into the population every later unit is judged by)."""
+    from scipy.stats import chi2, f
 
     out = []
-    for mu, S in zip(prior.means, prior.covs, strict=True):
+    for w, mu, S in zip(prior.weights, prior.means, prior.covs, strict=True):
         diff = np.asarray(shape) - mu
-        out.append(float(chi2.sf(float(diff @ np.linalg.solve(S + cov, diff)), mu.size)))
+        d2, d = float(diff @ np.linalg.solve(S + cov, diff)), mu.size
+        n = float(w) * prior.n_units
+        if predictive and n > d + 1:
+            out.append(float(f.sf(n * (n - d) / (d * (n - 1) * (n + 1)) * d2, d, n - d)))
+        else:
+            out.append(float(chi2.sf(d2, d)))
     return np.asarray(out)
-
-
-# ------------------------------------------------------------------ a unit against the prior
-def check_compatible(fp: FleetPrior, axes: list[str], targets: dict[str, str],
-                     where: str, units: dict[str, str] | None = None) -> None:
-    """Refuse a unit whose axes, targets or units of measure are not the prior's (one line
-    naming both).  The axes must be the same both ways: an axis the prior lacks would be
-    dropped from the unit's files without a word (a prior of another sensor kind); a unit
-    calibrated on some of its axes selects them with ``data.outputs``."""
-    missing = [a for a in fp.axis_names if a not in axes]
-    if missing:
-        raise ConfigError(f"{where}: the prior is of axes {', '.join(fp.axis_names)}; the data "
-                          f"lack {', '.join(missing)} (a prior of another sensor kind?)")
-    extra = [a for a in axes if a not in fp.axis_names]
-    if extra:
-        raise ConfigError(f"{where}: the prior is of axes {', '.join(fp.axis_names)}; the data "
-                          f"also hold {', '.join(extra)}, which it says nothing about (a prior "
-                          "of another sensor kind? data.outputs selects the prior's axes)")
-    other = [a for a in fp.axis_names if targets.get(a) != fp.targets[a]]
-    if other:
-        a = other[0]
-        raise ConfigError(f"{where}: axis {a}: target '{targets.get(a)}' is not the prior's "
-                          f"'{fp.targets[a]}'")
-    other = [a for a in fp.axis_names if units is not None and units.get(a) != fp.units[a]]
-    if other:
-        a = other[0]
-        raise ConfigError(f"{where}: axis {a} is in '{units.get(a) if units else ''}', the "
-                          f"prior's in '{fp.units[a]}' (convert one of them first)")

@@ -14,7 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["BIN_C", "MIN_BIN_SAMPLES", "MAX_RATE_C_PER_MIN", "RATE_WINDOW_S", "Points",
-           "bin_points", "shape_design", "centred"]
+           "bin_points", "shape_design", "centred", "SOAK_RATE_C_PER_MIN", "TEST_KINDS",
+           "FAST_KIND",
+           "motion_counts", "test_kind"]
 
 #: The width (°C) of the bins a point is the mean of, centred on whole multiples.
 BIN_C = 1.0
@@ -28,6 +30,12 @@ MAX_RATE_C_PER_MIN = 1.2
 #: The temperature is smoothed over this window before its rate is taken (s); also the
 #: lag scale over which a paired sample's ramp must be steady.
 RATE_WINDOW_S = 60.0
+#: A sample whose smoothed temperature changes slower than this (°C/min) is on a soak.
+SOAK_RATE_C_PER_MIN = 0.1
+#: A test whose points pair heating with cooling above MAX_RATE_C_PER_MIN (:func:`test_kind`).
+FAST_KIND = "fast ramps"
+#: What a unit's test is (:func:`test_kind`): the kind of the samples its points are made of.
+TEST_KINDS = ("soaks", "heating ramps", "cooling ramps", "cycles", FAST_KIND)
 
 
 @dataclass
@@ -70,6 +78,40 @@ def _rate_c_per_min(t: np.ndarray, time_s: np.ndarray) -> tuple[np.ndarray, np.n
     span = min(2 * size + 1, 2 * t.size - 1)
     return rate, (maximum_filter1d(rate, span, mode="nearest") -
                   minimum_filter1d(rate, span, mode="nearest"))
+
+
+def motion_counts(temperature_c: np.ndarray, time_s: np.ndarray) -> np.ndarray:
+    """How many of a run's point-making samples (those :func:`bin_points` keeps: slow ones,
+    and fast ones on a steady ramp) were taken on a soak, heating, cooling (at most
+    :data:`MAX_RATE_C_PER_MIN`) and faster: ``[soak, heating, cooling, fast]``."""
+    t = np.asarray(temperature_c, dtype=np.float64)
+    ts = np.asarray(time_s, dtype=np.float64)
+    ok = np.isfinite(t) & np.isfinite(ts)
+    if ok.sum() < 2:
+        return np.array([int(ok.sum()), 0, 0, 0])
+    rate, change = _rate_c_per_min(t[ok], ts[ok])
+    slow = np.abs(rate) <= MAX_RATE_C_PER_MIN
+    soak = np.abs(rate) <= SOAK_RATE_C_PER_MIN
+    moving = slow & ~soak
+    return np.array([int(soak.sum()), int((moving & (rate > 0)).sum()),
+                     int((moving & (rate < 0)).sum()),
+                     int((~slow & (change <= MAX_RATE_C_PER_MIN)).sum())])
+
+
+def test_kind(counts: np.ndarray) -> str:
+    """A test's kind from its :func:`motion_counts` (summed over its runs): ``fast ramps``
+    where most of its samples are fast ones (their points pair heating with cooling:
+    :func:`bin_points`); else ``soaks`` where half or more sit on soaks; else ``cycles``
+    where the lesser direction holds a quarter of the moving samples or more, else
+    ``heating ramps`` / ``cooling ramps``."""
+    soak, heat, cool, fast = (int(x) for x in counts)
+    if fast > soak + heat + cool:
+        return FAST_KIND
+    if soak >= heat + cool:
+        return "soaks"
+    if min(heat, cool) >= 0.25 * (heat + cool):
+        return "cycles"
+    return "heating ramps" if heat >= cool else "cooling ramps"
 
 
 def _empty() -> Points:

@@ -18,7 +18,9 @@ units measured briefly (a few soaks, a short ramp) and, per unit and axis, gives
   (its run's constant from the others of its run) — a short test is judged on
   temperatures it did not fit, like every model;
 - the **distance from the fleet** (:attr:`thermonet.scoring.prior.Posterior.p_value`): a unit
-  unlike every cluster is flagged, and FAILs, even if it fits its own points;
+  unlike every cluster is flagged, and FAILs, even if it fits its own points — where its
+  test is of a kind the prior can judge (:meth:`~thermonet.scoring.prior.FleetPrior.
+  not_comparable`: a moving test against a prior of soaks is not compared, and says why);
 - PASS/FAIL against ``station.limits`` (held-out residual, tempco at t_ref, noise); a
   residual that cannot be judged (one point, or no run with points at two temperatures)
   is "not judged (why)", and fails ``max_residual`` where that limit is set;
@@ -63,17 +65,25 @@ from ..scoring.prior import (
     AxisPrior,
     FleetPrior,
     StationLimit,
-    check_compatible,
     posterior,
 )
 from ..scoring.prior_design import next_temperatures
 from ..scoring.prior_points import Points, shape_design
 from ..training.config import CompareConfig
 from .fleet_units import UnitSource
-from .station_prior import build_prior, config_t_ref, format_prior, prior_summary, unit_points
+from .station_prior import (
+    build_prior,
+    check_compatible,
+    config_t_ref,
+    format_prior,
+    prior_summary,
+    unit_points,
+    unit_test_kind,
+)
 
-__all__ = ["build_prior", "run_station", "prior_summary", "parse_station_limits", "format_station", "format_prior", "unit_points", "StationOptions", "HELD_OUT_GROUPS",
-           "EXIT_STATION_FAILED", "BAND_Z"]
+__all__ = ["build_prior", "run_station", "prior_summary", "parse_station_limits",
+           "format_station", "format_prior", "unit_points", "StationOptions",
+           "HELD_OUT_GROUPS", "EXIT_STATION_FAILED", "BAND_Z"]
 
 #: Contiguous temperature groups a unit's points are dealt into for its held-out residual.
 HELD_OUT_GROUPS = 3
@@ -130,7 +140,10 @@ def _held_out(fp: FleetPrior, ap: AxisPrior, p: Points) -> tuple[float | None, s
 
 
 def _axis_result(fp: FleetPrior, axis: str, p: Points, lim: StationLimit,
-                 flag: bool) -> dict[str, Any]:
+                 flag: bool, unlike_kind: str | None = None) -> dict[str, Any]:
+    """One axis of a unit; ``unlike_kind``: why its test cannot be compared with the fleet
+    (:meth:`~thermonet.scoring.prior.FleetPrior.not_comparable`): the flag is then not judged
+    and fails nothing."""
     ap = fp.axis(axis)
     post = posterior(ap, p, t_ref=fp.t_ref, scale=fp.scale)
     resid = p.value - shape_design(p.temperature_c, fp.t_ref, fp.scale, fp.degree) @ post.shape
@@ -145,14 +158,16 @@ def _axis_result(fp: FleetPrior, axis: str, p: Points, lim: StationLimit,
     noise = float(np.sqrt(np.median(p.sampling_var * p.n_samples)))
     checks = lim.checks(held, coeffs[1] if fp.degree >= 1 else 0.0, noise,
                         not_judged=unjudged)
-    if flag and post.flagged:
+    flagged = post.flagged and unlike_kind is None
+    if flag and flagged:
         checks.append({"limit": "like_its_fleet", "value": post.p_value, "min": FLAG_P,
                        "ok": False})
     ok = all(c["ok"] for c in checks)
     return {"coefficients": coeffs, "posterior_std": [0.0] + fp.physical(
                 np.sqrt(np.diag(post.cov))),
             "cluster_weights": post.weights.tolist(), "p_value": post.p_value,
-            "flagged_unlike_fleet": post.flagged, "held_out_rms": held,
+            "flagged_unlike_fleet": flagged, "fleet_not_compared": unlike_kind,
+            "held_out_rms": held,
             "held_out_not_judged": unjudged, "noise_std": noise,
             "points": int(p.value.size), "band_90": {"temperature_c": grid_t.tolist(),
                                                      "half_width": half.tolist()},
@@ -172,10 +187,13 @@ def station_task(item: StationItem) -> dict[str, Any]:
     check_compatible(fp, list(pts), targets, where, uom)
     for a in fp.axis_names:
         _check_range(fp, pts[a], where, a)
+    kind = unit_test_kind(ds)
+    unlike = fp.not_comparable(kind)
     axes = {a: _axis_result(fp, a, pts[a], merged_limits(item.limits, a, StationLimit),
-                            item.cfg.station.flag_unlike_fleet) for a in fp.axis_names}
+                            item.cfg.station.flag_unlike_fleet, unlike) for a in fp.axis_names}
     verdict = "PASS" if all(r["verdict"] == "PASS" for r in axes.values()) else "FAIL"
     return {"device_id": dev, "verdict": verdict, "axes": axes, "temperature_span_c": span,
+            "test_kind": kind,
             "runs": len(ds), "header": c_header(fp, dev, axes, verdict)}
 
 
@@ -315,11 +333,13 @@ def _run_units(cfg: CompareConfig, prior: FleetPrior, sources: list[UnitSource],
 def _unit_summary(r: dict[str, Any], rel: str) -> dict[str, Any]:
     """What results.json keeps of a unit: verdicts, held-out residuals, flags, its files."""
     return {"device_id": r["device_id"], "verdict": r["verdict"], "runs": r["runs"],
-            "temperature_span_c": r["temperature_span_c"], "files": rel,
+            "temperature_span_c": r["temperature_span_c"], "test_kind": r["test_kind"],
+            "files": rel,
             "axes": {a: {"verdict": x["verdict"], "held_out_rms": x["held_out_rms"],
                          "held_out_not_judged": x["held_out_not_judged"],
                          "p_value": x["p_value"],
                          "flagged_unlike_fleet": x["flagged_unlike_fleet"],
+                         "fleet_not_compared": x["fleet_not_compared"],
                          "failed": [c["limit"] for c in x["checks"] if not c["ok"]]}
                      for a, x in r["axes"].items()}}
 
@@ -334,6 +354,9 @@ def _summary(prior: FleetPrior, units: dict[str, dict[str, Any]],
                         "flagged_unlike_fleet": sorted(
                             d for d, u in units.items()
                             if any(a["flagged_unlike_fleet"] for a in u["axes"].values())),
+                        "not_compared_with_fleet": sorted(
+                            d for d, u in units.items()
+                            if any(a["fleet_not_compared"] for a in u["axes"].values())),
                         "seconds": seconds,
                         "units_per_minute": 60.0 * len(units) / max(seconds, 1e-9)}}
 
@@ -366,4 +389,9 @@ def format_station(results: dict[str, Any]) -> str:
     lines.append(f"{s['passed']} of {s['n_units']} units passed; "
                  f"{len(s['flagged_unlike_fleet'])} unlike their fleet; "
                  f"{s['units_per_minute']:.0f} units/min")
+    apart = s.get("not_compared_with_fleet") or []
+    if apart:
+        why = next(a["fleet_not_compared"] for a in results["units"][apart[0]]["axes"].values()
+                   if a["fleet_not_compared"])
+        lines.append(f"{counted(len(apart), 'unit')} not compared with the fleet: {why}")
     return "\n".join(lines)

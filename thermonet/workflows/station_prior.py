@@ -13,6 +13,7 @@ and writes the population (:mod:`thermonet.scoring.prior`); :func:`prior_summary
 from __future__ import annotations
 
 import math
+from collections import Counter
 from typing import Any
 
 import numpy as np
@@ -45,11 +46,19 @@ from ..scoring.prior_design import (
     point_error,
     typical_drift,
 )
-from ..scoring.prior_points import BIN_C, Points, bin_points, shape_design
+from ..scoring.prior_points import (
+    BIN_C,
+    Points,
+    bin_points,
+    motion_counts,
+    shape_design,
+    test_kind,
+)
 from ..training.config import CompareConfig, outputs_of
 from ..training.parts import build_part, targets_for
 
-__all__ = ["build_prior", "prior_summary", "format_prior", "unit_points", "config_t_ref",
+__all__ = ["build_prior", "prior_summary", "format_prior", "unit_points", "unit_test_kind",
+           "check_compatible", "config_t_ref",
            "TARGET_FRACTIONS", "PLAN_SOAKS", "PLAN_STEP_C"]
 
 #: The expected error :func:`points_needed` is asked for, as a fraction of the fleet's
@@ -96,6 +105,41 @@ def unit_points(cfg: CompareConfig, ds: Dataset, where: str
     units = output_units(outputs, ds.runs[0].units)
     return ({o: Points.join(p) for o, p in per_axis.items()},
             {o: target.mode(o) for o in outputs}, units, hi - lo if hi >= lo else 0.0)
+
+
+def unit_test_kind(ds: Dataset) -> str:
+    """What a unit's test is over its runs (:func:`~thermonet.scoring.prior_points.test_kind`):
+    soaks, heating or cooling ramps, or cycles."""
+    counts = sum((motion_counts(np.asarray(r.temperature_c, dtype=np.float64), r.time_s)
+                  for r in ds if r.temperature_c is not None), np.zeros(4, dtype=np.int64))
+    return test_kind(counts)
+
+
+def check_compatible(fp: FleetPrior, axes: list[str], targets: dict[str, str],
+                     where: str, units: dict[str, str] | None = None) -> None:
+    """Refuse a unit whose axes, targets or units of measure are not the prior's (one line
+    naming both).  The axes must be the same both ways: an axis the prior lacks would be
+    dropped from the unit's files without a word (a prior of another sensor kind); a unit
+    calibrated on some of its axes selects them with ``data.outputs``."""
+    missing = [a for a in fp.axis_names if a not in axes]
+    if missing:
+        raise ConfigError(f"{where}: the prior is of axes {', '.join(fp.axis_names)}; the data "
+                          f"lack {', '.join(missing)} (a prior of another sensor kind?)")
+    extra = [a for a in axes if a not in fp.axis_names]
+    if extra:
+        raise ConfigError(f"{where}: the prior is of axes {', '.join(fp.axis_names)}; the data "
+                          f"also hold {', '.join(extra)}, which it says nothing about (a prior "
+                          "of another sensor kind? data.outputs selects the prior's axes)")
+    other = [a for a in fp.axis_names if targets.get(a) != fp.targets[a]]
+    if other:
+        a = other[0]
+        raise ConfigError(f"{where}: axis {a}: target '{targets.get(a)}' is not the prior's "
+                          f"'{fp.targets[a]}'")
+    other = [a for a in fp.axis_names if units is not None and units.get(a) != fp.units[a]]
+    if other:
+        a = other[0]
+        raise ConfigError(f"{where}: axis {a} is in '{units.get(a) if units else ''}', the "
+                          f"prior's in '{fp.units[a]}' (convert one of them first)")
 
 
 def _range(spans: list[tuple[float, float]]) -> tuple[float, float]:
@@ -196,14 +240,16 @@ def build_prior(cfg: CompareConfig, ds: Dataset, *, source: str = "") -> FleetPr
     # clean units' mixture on every axis (the station's own flag): the screen reads each
     # quantity as one population, and left out the far cluster's members
     back = [d for d in excluded if d in fits and all(
-        shape_p_values(ap, fits[d][ap.axis].shape, fits[d][ap.axis].cov).max() >= FLAG_P
+        shape_p_values(ap, fits[d][ap.axis].shape, fits[d][ap.axis].cov,
+                       predictive=False).max() >= FLAG_P
         for ap in axes)]
     if back:
         kept = [d for d in fits if d not in excluded or d in back]
         excluded = {d: why for d, why in excluded.items() if d not in back}
         axes = _population(targets, kept, fits, pts)
+    kinds = Counter(unit_test_kind(units[d]) for d in kept)
     return FleetPrior(axes, degree, t_ref, scale, rng, uom, targets, len(kept), kept,
-                      excluded, source, BIN_C)
+                      excluded, source, BIN_C, dict(kinds.most_common()))
 
 
 def _population(targets: dict[str, str], kept: list[str], fits: dict[str, dict[str, Any]],
@@ -215,7 +261,7 @@ def _population(targets: dict[str, str], kept: list[str], fits: dict[str, dict[s
         axes.append(AxisPrior(a, w, means, covs,
                               float(np.median([fits[d][a].misfit_var for d in kept])),
                               float(np.median([np.median(pts[d][a].sampling_var)
-                                               for d in kept]))))
+                                               for d in kept])), len(kept)))
     return axes
 
 
@@ -275,7 +321,8 @@ def format_prior(fp: FleetPrior, summary: dict[str, Any], plan: list[float] | No
     (``plan``: :func:`~thermonet.scoring.prior_design.soak_plan`), then per axis its clusters
     and the points a test needs (:func:`prior_summary`)."""
     lines = [f"prior of {fp.n_units} units ({len(fp.excluded)} left out), axes "
-             f"{', '.join(fp.axis_names)}, {fp.range_c[0]:g} to {fp.range_c[1]:g} °C"]
+             f"{', '.join(fp.axis_names)}, {fp.range_c[0]:g} to {fp.range_c[1]:g} °C"
+             + (f"; their tests: {fp.kinds_text()}" if fp.test_kinds else "")]
     if plan:
         lines.append(_plan_line(fp, summary, plan))
     for axis, s in summary.items():
