@@ -596,7 +596,31 @@ def _meta_band(meta: Mapping[str, str], signals: list[str], outputs: list[str], 
                 not all(_finite_number(t.get(g)) and t[g] >= 0
                         for g in ("growth_below", "growth_above")):
             raise bad
+    held = b.get("holds_for", {})
+    if not isinstance(held, dict) or not all(
+            held.get(f"{k}_c_per_min") is None or (_finite_number(held[f"{k}_c_per_min"]) and
+                                                    held[f"{k}_c_per_min"] >= 0)
+            for k in ("heating", "cooling")):
+        raise RuntimeInputError(f"{path}: metadata 'band' key 'holds_for' is not a rate >= 0 "
+                                "or null per direction (heating_c_per_min, cooling_c_per_min)")
     return b
+
+
+def band_holds_rule(held: Mapping[str, Any], rate_c_per_min: Any, direction: Any
+                    ) -> np.ndarray:
+    """Where a band holds (thermonet.scoring.band_rates.outside_holds, the same rule, and
+    the C header's <prefix>_band_holds): a window of a temperature that never moved
+    (direction 0), or in a judged direction no faster than its judged rate (a NaN rate:
+    inside); a direction never judged (null) is outside.  Nothing stated: everywhere."""
+    r = np.abs(np.nan_to_num(np.asarray(rate_c_per_min, dtype=np.float64)))
+    d = np.asarray(direction)
+    out = np.ones(np.broadcast(r, d).shape, dtype=bool)
+    if not held:
+        return out
+    for name, sign in (("heating", 1), ("cooling", -1)):
+        top = held.get(f"{name}_c_per_min")
+        out &= ~((d == sign) & (True if top is None else r > top))
+    return out
 
 
 def band_tables(x: Any, edges: Sequence[float], half: Sequence[float], grow_lo: float,
@@ -1185,6 +1209,19 @@ class Compensator:
         cols = [band_tables(x, t["edges"], t["half_width"], t["growth_below"],
                             t["growth_above"]) for t in (b["axes"][a] for a in self.outputs)]
         return np.stack(cols, axis=-1)
+
+    def band_holds(self, rate_c_per_min: Any, direction: Any) -> np.ndarray:
+        """Whether the band holds for windows of this temperature rate (°C/min, a window's
+        least-squares slope over ``band_tables['window_s']``) and excursion direction (+1
+        heating since the last turn, −1 cooling, 0 a temperature that never moved): it was
+        judged up to ``band_tables['holds_for']``'s rate per direction, never in a direction
+        that is null there (:func:`band_holds_rule`).  A file whose band does not record it:
+        True everywhere.  Refused for a file without a band."""
+        b = self.band_tables
+        if b is None:
+            raise RuntimeInputError(f"{self.path}: this model file carries no band (export it "
+                                    "from a compare checkpoint made with cross-validation)")
+        return band_holds_rule(b.get("holds_for") or {}, rate_c_per_min, direction)
 
     def _with_band(self, res: Compensation, given: Mapping[str, Any]) -> Compensation:
         if self.band_tables is not None and self.band_tables["signal"] in given:

@@ -181,6 +181,32 @@ def test_the_band_states_the_directions_and_rates_it_was_judged_on(known):
                           oofs=[None], compensate=[False], ranges=[(T_LO, T_HI)],
                           outputs=["gyro_x"], signal="freq_hz")
     assert proxy.holds_for == {} and "holds_for" not in proxy.to_json()
+    _c_holds_as_python(band, rates, dirs)
+
+
+def _c_holds_as_python(band: Band, rates: np.ndarray, dirs: np.ndarray) -> None:
+    """The C header's ``<prefix>_band_holds`` gives the windows' verdicts; the export's own
+    check (``check_band_c``) passes it and refuses a header whose judged rate was changed."""
+    from thermonet.core.errors import ExportError
+    from thermonet.exporting.c_band import HOLDS_DRIVER, check_band_c, insert_band
+    from thermonet.exporting.c_driver import c_compiler, run_c_driver
+
+    cc = c_compiler()
+    assert cc is not None, "the C band needs a C compiler (gcc: the README's set-up)"
+    doc = band.to_json()
+    head = ("#ifndef THERMONET_MODEL_H\n#define THERMONET_MODEL_H\n#define THERMONET_N_AXES 1\n"
+            '#define THERMONET_AXIS_NAMES {"gyro_x"}\n#endif /* THERMONET_MODEL_H */\n')
+    text = insert_band(head, doc, "thermonet", ["gyro_x"], [band.signal])
+    assert "#define THERMONET_BAND_HOLDS_COOLING_C_PER_MIN -1.000000000e+00f" in text
+    rows = np.zeros(rates.size, dtype=[("r", np.float32), ("d", np.int32)])
+    rows["r"], rows["d"] = rates, dirs
+    got = run_c_driver(cc, text, HOLDS_DRIVER, rows, np.int32)
+    assert got.tolist() == [1, 0, 0, 0, 1]
+    check_band_c(doc, text, "thermonet")
+    bad = text.replace("HOLDS_HEATING_C_PER_MIN ", "HOLDS_HEATING_C_PER_MIN 2.0f * ", 1)
+    assert bad != text
+    with pytest.raises(ExportError, match="band_holds differs from Python"):
+        check_band_c(doc, bad, "thermonet")
 
 
 def test_window_rates_and_how_many_windows_judge_a_direction():

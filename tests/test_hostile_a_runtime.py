@@ -15,6 +15,7 @@ import math
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -196,8 +197,10 @@ def test_an_out_that_cannot_be_created_is_named_never_its_tmp(model_path: Path,
 
 
 # ------------------------------------------------------- a band no residual makes
-def _with_band(model_path: Path, tmp_path: Path, half: float, growth: float = 0.0) -> Path:
-    """The fixture's model exported again with a band (half-width ``half`` on gyro_y)."""
+def _with_band(model_path: Path, tmp_path: Path, half: float, growth: float = 0.0,
+               holds: Any = None) -> Path:
+    """The fixture's model exported again with a band (half-width ``half`` on gyro_y;
+    ``holds``: its ``holds_for`` block)."""
     import json
 
     import onnx
@@ -209,10 +212,12 @@ def _with_band(model_path: Path, tmp_path: Path, half: float, growth: float = 0.
                                                              0.003],
             "growth_below": 0.0, "growth_above": growth if a == "gyro_y" else 0.0}
         for a in AXES}}
+    if holds is not None:
+        band["holds_for"] = holds
     proto = onnx.load(str(model_path))
     entry = proto.metadata_props.add()
     entry.key, entry.value = "band", json.dumps(band)
-    path = tmp_path / f"band-{half:g}-{growth:g}.onnx"
+    path = tmp_path / f"band-{half:g}-{growth:g}{'-held' * (holds is not None)}.onnx"
     onnx.save_model(proto, str(path))
     seal_onnx(path)
     return path
@@ -245,3 +250,28 @@ def test_a_band_no_residual_makes_is_refused_in_one_line(model_path: Path,
             value = half if growth == 0 else growth * 80.0
             assert ratio == pytest.approx(value / scale, rel=1e-2)
             assert f"trained range ({scale:.4g})" in msg
+
+
+def test_where_the_band_holds_is_the_fit_times_rule_and_a_bad_statement_is_refused(
+        model_path: Path, tmp_path: Path) -> None:
+    """The runtime's ``band_holds`` gives thermonet's own verdict
+    (``scoring.band_rates.outside_holds``) on rates either side of the judged one, both
+    signs, NaN and every direction; a file whose band does not say where it holds: True
+    everywhere; a judged rate that is negative or not a number: refused in one line."""
+    from thermonet.scoring.band_rates import outside_holds
+
+    held = {"heating_c_per_min": 0.75, "cooling_c_per_min": None, "meaning": "..."}
+    comp = rt.Compensator(_with_band(model_path, tmp_path, 0.004, holds=held))
+    rates = np.tile([0.0, 0.5, 0.75, 0.7500001, 2.0, -0.5, -2.0, np.nan], 3)
+    dirs = np.repeat([-1, 0, 1], 8)
+    want = ~outside_holds({"heating": 0.75, "cooling": None}, rates, dirs)
+    assert comp.band_holds(rates, dirs).tolist() == want.tolist()
+    assert want.sum() == 8 + 5          # the never-moving ones, and heating up to 0.75
+    plain = rt.Compensator(_with_band(model_path, tmp_path, 0.004))
+    assert plain.band_holds(rates, dirs).all()
+    for bad in ({"heating_c_per_min": -1.0}, {"cooling_c_per_min": "fast"}, [0.5]):
+        path = _with_band(model_path, tmp_path, 0.004, holds=bad)
+        with pytest.raises(rt.RuntimeInputError) as err:
+            rt.Compensator(path)
+        assert str(err.value) == (f"{path}: metadata 'band' key 'holds_for' is not a rate >= 0 "
+                                  "or null per direction (heating_c_per_min, cooling_c_per_min)")

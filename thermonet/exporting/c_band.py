@@ -16,9 +16,10 @@ from ..core.errors import ExportError
 from ..core.names import c_comment
 from ..models.cgen import c_float
 from ..scoring.band import Band, evaluate_tables
+from ..scoring.band_rates import outside_holds
 from .c_driver import c_compiler, run_c_driver
 
-__all__ = ["render_band_c", "insert_band", "check_band_c", "BAND_DRIVER"]
+__all__ = ["render_band_c", "insert_band", "check_band_c", "BAND_DRIVER", "HOLDS_DRIVER"]
 
 BAND_DRIVER = r"""
 #include <stdio.h>
@@ -36,6 +37,30 @@ int main(int argc, char **argv) {
         if (fread(&x, sizeof x, 1, in) != 1) return 4;
         pfx_band(x, b);
         fwrite(b, sizeof(float), PFX_N_AXES, out);
+    }
+    fclose(in);
+    fclose(out);
+    return 0;
+}
+"""
+
+
+HOLDS_DRIVER = r"""
+#include <stdio.h>
+#include "model.h"
+/* in: int n, then n (float rate, int direction); out: n ints, pfx_band_holds */
+int main(int argc, char **argv) {
+    FILE *in, *out;
+    int n, i, d, h;
+    float r;
+    if (argc < 3) return 2;
+    in = fopen(argv[1], "rb");
+    out = fopen(argv[2], "wb");
+    if (!in || !out || fread(&n, sizeof n, 1, in) != 1) return 3;
+    for (i = 0; i < n; ++i) {
+        if (fread(&r, sizeof r, 1, in) != 1 || fread(&d, sizeof d, 1, in) != 1) return 4;
+        h = pfx_band_holds(r, d);
+        fwrite(&h, sizeof h, 1, out);
     }
     fclose(in);
     fclose(out);
@@ -97,6 +122,41 @@ def render_band_c(band: Mapping[str, Any], prefix: str, outputs: Sequence[str],
         "        return;",
         "    }",
         *_group_lines(b, p),
+        "}",
+        *_holds_lines(b, p),
+    ]
+
+
+def _holds_lines(b: Band, p: str) -> list[str]:
+    """``<prefix>_band_holds(rate, direction)``: where the band states its level
+    (:attr:`Band.holds_for`, :func:`~thermonet.scoring.band_rates.outside_holds`'s rule);
+    nothing for a band that does not record it."""
+    if not b.holds_for:
+        return []
+    P = p.upper()
+    top = {k: -1.0 if v is None else v for k, v in b.holds_for.items()}
+    return [
+        "",
+        "/* Where the band holds (configs/README.md, \"The residual-drift band\"): its level was",
+        " * judged on windows whose temperature moved at most this fast (deg C/min: a window's",
+        " * least-squares slope over the band's window) in the direction of their excursion",
+        " * (heating: the temperature rising since its last turn, the soak after a turn counted",
+        " * with the leg that ends there); negative: never judged in that direction, the band",
+        " * states nothing there.  A faster ramp or the other direction is outside it. */",
+        f"#define {P}_BAND_HOLDS_HEATING_C_PER_MIN {c_float(top.get('heating', -1.0))}",
+        f"#define {P}_BAND_HOLDS_COOLING_C_PER_MIN {c_float(top.get('cooling', -1.0))}",
+        "",
+        "/* 1 where the band holds for a window of this rate (deg C/min) and direction (+1",
+        " * heating, -1 cooling, 0 a temperature that never moved), else 0. */",
+        f"static inline int {p}_band_holds(float rate_c_per_min, int direction)",
+        "{",
+        "    float top, r;",
+        "    if (direction == 0) return 1;",
+        f"    top = direction > 0 ? {P}_BAND_HOLDS_HEATING_C_PER_MIN"
+        f" : {P}_BAND_HOLDS_COOLING_C_PER_MIN;",
+        "    if (top < 0.0f) return 0;",
+        "    r = rate_c_per_min < 0.0f ? -rate_c_per_min : rate_c_per_min;",
+        "    return !(r > top);   /* a NaN rate: inside, as Python's rule */",
         "}",
     ]
 
@@ -185,4 +245,28 @@ def check_band_c(band: Mapping[str, Any], text: str, prefix: str, *, seed: int =
     worst = float(rel.max()) if rel.size else 0.0
     if worst > 1e-5:
         raise ExportError(f"C band differs from Python by {worst:.3g} (relative)")
+    if b.holds_for:
+        _check_holds_c(cc, b, text, prefix)
     return worst
+
+
+def _check_holds_c(cc: str, b: Band, text: str, prefix: str) -> None:
+    """``<prefix>_band_holds`` against :func:`~thermonet.scoring.band_rates.outside_holds` on
+    rates either side of each judged rate (at its float32 value, and a float32 step past it),
+    both signs, NaN, and every direction: exactly equal (a comparison, no arithmetic)."""
+    tops = [float(np.float32(v)) for v in b.holds_for.values() if v is not None] + [1.0]
+    rates = [0.0, float("nan"), float("inf")]
+    for t in tops:
+        rates += [t, float(np.nextafter(np.float32(t), np.float32(np.inf))), t / 2, 2 * t]
+    rates += [-r for r in rates]
+    rows = np.zeros(3 * len(rates), dtype=[("r", np.float32), ("d", np.int32)])
+    rows["r"] = np.tile(np.asarray(rates, dtype=np.float32), 3)
+    rows["d"] = np.repeat(np.array([-1, 0, 1], dtype=np.int32), len(rates))
+    got = run_c_driver(cc, text, HOLDS_DRIVER, rows, np.int32, prefix=prefix,
+                       header="the C header's band", driver_name="the C band-holds driver")
+    held = {k: None if v is None else float(np.float32(v)) for k, v in b.holds_for.items()}
+    want = ~outside_holds(held, rows["r"].astype(np.float64), rows["d"])
+    if not np.array_equal(got.astype(bool), want):
+        i = int(np.flatnonzero(got.astype(bool) != want)[0])
+        raise ExportError(f"C band_holds differs from Python at rate {rows['r'][i]:g} °C/min, "
+                          f"direction {rows['d'][i]}")

@@ -247,6 +247,9 @@ def shipped_band(extra: Mapping[str, Any]) -> dict[str, Any] | None:
     return {"level": d["level"], "signal": d["signal"], "window_s": d["window_s"],
             **({"signal_rate_p95": d["signal_rate_p95"]} if _finite(d.get("signal_rate_p95"))
                else {}),
+            # where it holds (C: <prefix>_band_holds); Band.from_json reads it back
+            **({"holds_for": dict(d["holds_for"])} if isinstance(d.get("holds_for"), Mapping)
+               else {}),
             "axes": {a: {k: b[k] for k in ("edges", "half_width", "growth_below",
                                             "growth_above")}
                      for a, b in d["axes"].items()}}
