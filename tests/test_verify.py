@@ -248,6 +248,10 @@ def test_log_outside_the_calibrated_range_warns_per_instance(runs: dict[str, lis
     assert len(res["gyro0"]["warnings"]) == 1
     assert "outside the calibrated" in res["gyro0"]["warnings"][0]
     assert "holds the correction constant" in res["gyro0"]["warnings"][0]
+    # 15 °C hotter: past the top only, and the warning names that side alone (not "0.0 °C
+    # below")
+    assert "°C above)" in res["gyro0"]["warnings"][0]
+    assert "below" not in res["gyro0"]["warnings"][0]
     assert all(not d["warnings"] for n, d in res.items() if n != "gyro0")
 
 
@@ -278,3 +282,39 @@ def test_verify_reads_the_autopilots_own_files(runs: dict[str, list[Path]],
     assert all(all(res[f"gyro{k}"]["passed"]) for k in range(3))
     assert all("has no TC_" in d["warnings"][0] for d in res.values() if d["status"] == "judged")
     assert res["baro0"]["passed"] == [False] and res["baro0"]["cut"][0] < 0.1
+
+
+def test_a_calibration_not_applied_fails_and_a_pass_names_what_it_leaves_uncorrected(
+        runs: dict[str, list[Path]], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The file's gyro slots with TC_G_ENABLE 0 (the firmware applies none of them): FAIL,
+    exit 3, each gyro "not applied" (was: "not covered" and PASS); a file that calibrates
+    the accelerometers and barometer only: PASS, and the verdict names the sensors it leaves
+    uncorrected."""
+    first, _, third = (str(p) for p in runs[".ulg"])
+    assert main(["calibrate", first, "--out", str(tmp_path / "cal"), "--no-compare",
+                 "-q"]) == 0
+    text = (tmp_path / "cal" / "px4.params").read_text()
+    assert "TC_G_ENABLE\t1\t" in text
+    off = tmp_path / "off.params"
+    off.write_text(text.replace("TC_G_ENABLE\t1\t", "TC_G_ENABLE\t0\t"))
+    capsys.readouterr()
+    assert main(["verify", str(off), third, "--out", str(tmp_path / "v1")]) == 3
+    out = capsys.readouterr().out
+    doc = json.loads((tmp_path / "v1" / "results.json").read_text())
+    gyros = [n for n in doc["instances"] if n.startswith("gyro")]
+    assert gyros and all(doc["instances"][n]["status"] == "not applied" for n in gyros)
+    assert out.splitlines()[-2] == (f"FAIL: {', '.join(gyros)}: calibrated by the file but not "
+                                    "applied (ENABLE is not 1)")
+    # no gyro slot at all: the gyros are not covered, the rest judged and passing
+    no_gyro = tmp_path / "nogyro.params"
+    no_gyro.write_text("\n".join(ln for ln in text.splitlines()
+                                 if not ln.split("\t")[2:3] or
+                                 not ln.split("\t")[2].startswith("TC_G")) + "\n")
+    assert main(["verify", str(no_gyro), third, "--out", str(tmp_path / "v2")]) == 0
+    out = capsys.readouterr().out
+    doc = json.loads((tmp_path / "v2" / "results.json").read_text())
+    judged = [n for n, d in doc["instances"].items() if d["status"] == "judged"]
+    left = [n for n, d in doc["instances"].items() if d["status"] == "not covered"]
+    assert set(gyros) <= set(left) and judged
+    assert out.splitlines()[-2] == (f"PASS for {', '.join(judged)}; not covered by this file: "
+                                    f"{', '.join(left)} (their drift is not corrected)")

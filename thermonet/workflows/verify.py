@@ -55,7 +55,9 @@ why, never PASS: the same minimums as ``calibrate``'s
 :data:`~thermonet.workflows.firmware_fit.MIN_SAMPLES` = 200 samples and a
 :data:`~thermonet.workflows.firmware_fit.MIN_SPAN_C` = 10 °C temperature span, a
 thermometer, not every sample zero, not too damaged).  A sensor of the log that
-the file does not cover is ``not covered`` (listed, not judged).
+the file does not cover is ``not covered`` (listed, not judged, and named beside a PASS);
+one the file holds a slot for but does not apply (its kind's ENABLE is not 1) is ``not
+applied``, and FAILs: loaded, the file leaves it uncorrected.
 
 The file is checked whole before anything is applied, and refused in one line
 naming the file, the line and the parameter: a value that is not a number; a
@@ -75,9 +77,9 @@ and a log of which nothing can be judged (each instance's reason listed).  A log
 that leaves the calibrated range [TMIN, TMAX] by more than :data:`RANGE_SLACK_C`
 gets a warning per instance (the firmware holds the correction constant there).
 
-Exit status: 0 PASS (every judged axis of every judged instance passes, and at
-least one instance was judged); 3 FAIL (:data:`EXIT_FAILED`: some judged axis
-fails; the report marks it); 1 refused (bad input: the one line on stderr says
+Exit status: 0 PASS (every judged axis of every judged instance passes, at least one
+instance was judged, none ``not applied``); 3 FAIL (:data:`EXIT_FAILED`: some judged axis
+fails, or a calibration is not applied; the report marks it); 1 refused (bad input: the one line on stderr says
 why; nothing is written).
 """
 
@@ -167,6 +169,11 @@ class Limits:
         return self
 
 
+#: An instance the file holds a calibration for that the firmware does not apply (its
+#: ENABLE is not 1): the file, loaded, leaves it uncorrected, so the verification FAILs.
+DISABLED = "not applied"
+
+
 def _need(pf: ParamFile, *names: str) -> None:
     for n in names:
         if n not in pf.params:
@@ -180,7 +187,9 @@ def _slot(pf: ParamFile, inst: SensorInstance) -> tuple[int | None, str | None]:
         if slot is None:
             return None, f"no TC_{_PX4_LETTER[inst.kind]}*_ID equals its device id"
         if not pf.enabled[inst.kind]:
-            return None, f"TC_{_PX4_LETTER[inst.kind]}_ENABLE is not 1: the firmware applies none"
+            return None, (f"{DISABLED}: TC_{_PX4_LETTER[inst.kind]}{slot}_* apply to it, but "
+                          f"TC_{_PX4_LETTER[inst.kind]}_ENABLE is not 1: the firmware applies "
+                          "none")
         return slot, None
     if inst.kind == "baro":
         return None, "ArduPilot has no barometer temperature calibration"
@@ -195,7 +204,8 @@ def _slot(pf: ParamFile, inst: SensorInstance) -> tuple[int | None, str | None]:
     if f"imu{imu + 1}" not in pf.enabled:
         return None, f"the file has no INS_TCAL{imu + 1}_*"
     if not pf.enabled[f"imu{imu + 1}"]:
-        return None, f"INS_TCAL{imu + 1}_ENABLE is not 1: the firmware applies none"
+        return None, (f"{DISABLED}: INS_TCAL{imu + 1}_* apply to it, but INS_TCAL{imu + 1}_"
+                      "ENABLE is not 1: the firmware applies none")
     return imu, None
 
 
@@ -334,7 +344,9 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
             temp = np.asarray(inst.temperature_c, dtype=np.float64)
             d["log_range"] = [float(temp.min()), float(temp.max())]
         if slot is None:
-            d.update(status="not covered", reason=why)
+            status, _, reason = str(why).partition(": ") if str(why).startswith(DISABLED) \
+                else ("not covered", "", why)
+            d.update(status=status, reason=reason)
             out[inst.name] = d
             continue
         bad_offsets = offset_failures(pf, inst.kind, slot, limits)  # whatever the log
@@ -361,12 +373,13 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
             judged["passed"][j] = False
         below = t_min - float(temp.min())
         above = float(temp.max()) - t_max
-        if below > RANGE_SLACK_C or above > RANGE_SLACK_C:
+        past = [f"{v:.1f} °C {side}" for v, side in ((below, "below"), (above, "above"))
+                if v > RANGE_SLACK_C]
+        if past:
             d["warnings"].append(
                 f"the log spans {temp.min():.1f}..{temp.max():.1f} °C, outside the calibrated "
-                f"{t_min:.1f}..{t_max:.1f} °C (by {max(below, 0):.1f} °C below, "
-                f"{max(above, 0):.1f} °C above): the firmware holds the correction constant "
-                "there")
+                f"{t_min:.1f}..{t_max:.1f} °C (by {' and '.join(past)}): the firmware holds "
+                "the correction constant there")
         d.update(status="judged", reason=None, slot=slot, range=[t_min, t_max], **judged)
         out[inst.name] = d
     if refuse_unjudged and not any(d["status"] == "judged" for d in out.values()):
@@ -395,7 +408,8 @@ def verify(params_path: str | Path, log_path: str | Path, out_dir: str | Path, *
            "autopilot": log.autopilot,
            "limits": asdict(limits), "instances": insts,
            "passed": all(all(d["passed"]) for d in judged)
-           and not any(d.get("offset_failures") for d in insts.values())}
+           and not any(d.get("offset_failures") or d["status"] == DISABLED
+                       for d in insts.values())}
     with staged_output(out, overwrite=overwrite, kind="verification") as stage:
         atomic_write_text(stage.path / "results.json",
                           json.dumps(_json_safe(doc), indent=2, allow_nan=False))

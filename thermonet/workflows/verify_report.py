@@ -13,7 +13,7 @@ from typing import Any
 from ..reporting.report import _CSS, VERDICT_COLOURS
 from .verify_params import KIND_UNITS
 
-__all__ = ["format_verify_report", "render_verify_html", "trained_note"]
+__all__ = ["verdict_line", "format_verify_report", "render_verify_html", "trained_note"]
 
 
 def _g3(x: float | None) -> str:
@@ -54,9 +54,31 @@ def format_verify_report(doc: dict[str, Any]) -> str:
         lines.append(f"{head} slot {d['slot']}: binned drift p-p [{unit}] {axes}")
         lines += [f"       FAIL: {w}" for w in d.get("offset_failures") or []]
         lines += [f"       warning: {w}" for w in d["warnings"]]
-    lines += ["", ("PASS" + (" (on its own training log)" if doc.get("trained_on") else ""))
-              if doc["passed"] else "FAIL: see the axes marked FAIL"]
+    lines += ["", verdict_line(doc)]
     return "\n".join(lines) + "\n"
+
+
+def verdict_line(doc: dict[str, Any]) -> str:
+    """The verdict, with what it covers: PASS names the instances the file left uncorrected
+    (a file may calibrate some sensors only); FAIL says whether an axis failed or a
+    calibration the file holds is not applied (its ENABLE is not 1)."""
+    insts = doc["instances"]
+    names = lambda status: [n for n, d in insts.items() if d["status"] == status]  # noqa: E731
+    if not doc["passed"]:
+        off = names("not applied")
+        why = ["see the axes marked FAIL"] if any(
+            not all(d.get("passed", [True])) or d.get("offset_failures")
+            for d in insts.values()) else []
+        if off:
+            why.append(f"{', '.join(off)}: calibrated by the file but not applied (ENABLE is "
+                       "not 1)")
+        return "FAIL: " + "; ".join(why)
+    text = "PASS" + (" (on its own training log)" if doc.get("trained_on") else "")
+    left = names("not covered")
+    if left:
+        text += (f" for {', '.join(names('judged'))}; not covered by this file: "
+                 f"{', '.join(left)} (their drift is not corrected)")
+    return text
 
 
 def trained_note(doc: dict[str, Any]) -> str:
@@ -89,7 +111,7 @@ def render_verify_html(doc: dict[str, Any]) -> str:
                         f"</td><td style=\"background:{colour}\">"
                         f"{_cut(c)}× {'PASS' if ok else 'FAIL'}</td>"
                         f"<td>{html.escape(warn)}</td></tr>")
-    verdict = "PASS" if doc["passed"] else "FAIL"
+    verdict = verdict_line(doc)
     if doc.get("trained_on"):
         verdict += f" — {trained_note(doc)}"
     return ("<!DOCTYPE html><html><head><meta charset=\"utf-8\">"
