@@ -211,8 +211,10 @@ def c_header(fp: FleetPrior, dev: str, axes: dict[str, Any], verdict: str) -> st
     """The firmware's file: per axis the drift polynomial in (T − t_ref), Horner in float."""
     lines = ["/* thermonet station: temperature drift of one unit, posterior of the fleet prior",
              c_comment([f"unit {dev}: {verdict}",
-                        f"compensated = raw - drift(T); drift in the axis's unit, T in degC, "
-                        f"valid {fp.range_c[0]:g} to {fp.range_c[1]:g} degC"]) + " */",
+                        "compensated = raw - drift(T); drift in the axis's unit ("
+                        + ", ".join(f"{a} {fp.units.get(a, '?')}" for a in axes)
+                        + f"), T in degC, valid {fp.range_c[0]:g} to {fp.range_c[1]:g} degC"])
+             + " */",
              "#ifndef THERMONET_CAL_H", "#define THERMONET_CAL_H",
              f"#define THERMONET_CAL_T_REF {fp.t_ref!r}f",
              f"#define THERMONET_CAL_T_MIN {fp.range_c[0]!r}f",
@@ -362,15 +364,21 @@ def _summary(prior: FleetPrior, units: dict[str, dict[str, Any]],
 
 
 def _unit_line(dev: str, u: dict[str, Any], uom: dict[str, str]) -> str:
-    """A unit's verdict, its worst held-out residual (in its axis's unit) or why none could
+    """A unit's verdict, its worst held-out residual per unit of measure (°/s and m/s² are
+    not compared) or why none could
     be judged, and the limits it failed."""
     axes = u["axes"]
     judged = {a: r for a, r in axes.items() if r["held_out_rms"] is not None}
     unjudged = {a: r.get("held_out_not_judged") or "no value" for a, r in axes.items()
                 if r["held_out_rms"] is None}
     if judged:
-        a, r = max(judged.items(), key=lambda kv: kv[1]["held_out_rms"])
-        worst = f"worst held-out residual {a} {r['held_out_rms']:.3g} {uom.get(a, '')}".rstrip()
+        by_unit: dict[str, tuple[str, float]] = {}   # the worst axis of each unit of measure
+        for a, r in judged.items():
+            m = uom.get(a, "")
+            if m not in by_unit or r["held_out_rms"] > by_unit[m][1]:
+                by_unit[m] = (a, r["held_out_rms"])
+        worst = "worst held-out residual " + ", ".join(
+            f"{a} {v:.3g} {m}".rstrip() for m, (a, v) in by_unit.items())
         if unjudged:
             worst += f" ({', '.join(unjudged)} not judged)"
     else:

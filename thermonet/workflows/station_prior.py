@@ -327,16 +327,18 @@ def format_prior(fp: FleetPrior, summary: dict[str, Any], plan: list[float] | No
         lines.append(_plan_line(fp, summary, plan))
     for axis, s in summary.items():
         head = f"  {axis}: {s['clusters']} cluster(s); "
+        uom = fp.units.get(axis, "")
         if not has_curve(fp, axis):
-            lines.append(head + f"its drift ({s['typical_drift_rms']:.3g} RMS over the range) is "
-                         f"below a point's own error ({s['point_error']:.3g}): a test fixes its "
-                         "offset, there is no curve to learn")
+            lines.append(head + f"its drift ({s['typical_drift_rms']:.3g} {uom} RMS over the "
+                         f"range) is below a point's own error ({s['point_error']:.3g} {uom}): a "
+                         "test fixes its offset, there is no curve to learn")
             continue
         need = s["points_needed"][0]
         lines.append(head + (_points_text(need) if need["points"] else "more than 12 points") +
-                     f" for an expected error of 20 % of the fleet's drift ({need['target']:.3g})")
+                     f" for an expected error of 20 % of the fleet's drift "
+                     f"({need['target']:.3g} {uom})")
         for row in s["points_needed"][len(TARGET_FRACTIONS):]:
-            lines.append(f"    station.limits max_residual {row['target']:.3g}: " + (
+            lines.append(f"    station.limits max_residual {row['target']:.3g} {uom}: " + (
                 _points_text(row) if row["points"] else "not reachable within 12 points (the "
                 "fleet's misfit alone is about that large)"))
     return "\n".join(lines)
