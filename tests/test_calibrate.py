@@ -68,6 +68,9 @@ def test_autopilot_formula_on_the_written_file_cuts_true_drift(tmp_path: Path, a
         res = insts[name]["resolution"]
         assert insts[name]["status"] == "fitted" and res["step_c"] == 1.0
         assert "1 °C steps" in res["line"] and res["levels"] >= 40
+        unit = {"gyro2": "rad/s", "acc2": "m/s²"}[name]         # the firmware's units
+        worst = int(np.nanargmax(res["relative_error"]))
+        assert f"off by up to {res['max_error'][worst]:.3g} {unit} (" in res["line"]
         # max |P'| * step / 2: a whole-degree thermometer costs a few % of the drift
         assert all(0.0 < r < 0.2 for r in res["relative_error"])
     assert all("resolution" not in insts[n] for n in ("gyro0", "acc1", "baro0"))
@@ -244,6 +247,13 @@ def test_simulate_board_cli_writes_both_log_formats(tmp_path: Path,
     assert "FILE.ulg" in capsys.readouterr().err
     assert main(["simulate", "patent-gyro", "--out", str(tmp_path / "p.ulg")]) == 1
     assert "only the flight-controller presets" in capsys.readouterr().err
+    # one board, one autopilot: a PX4 and an ArduPilot log together, refused in one line
+    assert main(["calibrate", str(tmp_path / "b.ulg"), str(tmp_path / "b.BIN"), "--out",
+                 str(tmp_path / "mixed"), "--no-compare"]) == 1
+    assert capsys.readouterr().err.strip() == (
+        f"thermonet: error: {tmp_path / 'b.BIN'}: an ArduPilot log; {tmp_path / 'b.ulg'} is a "
+        "PX4 log (one board, one autopilot)")
+    assert not (tmp_path / "mixed").exists()
 
 
 def test_only_what_cannot_be_fitted_is_refused_with_the_reason() -> None:

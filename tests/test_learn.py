@@ -340,3 +340,22 @@ def test_a_held_out_flight_beyond_the_others_says_the_firmware_holds_its_edge(tm
     for d in doc["instances"].values():           # a share, wherever a flight was held out
         if (d.get("held_out") or {}).get("status") == "judged":
             assert 0.0 <= d["held_out"]["outside_trained"] <= 1.0
+
+
+def test_a_log_too_short_to_learn_from_says_no_parameter_file_yet(tmp_path, capsys):
+    """The real PX4 fixture (half a minute per sensor): read and kept, nothing fitted; the
+    console says there is no parameter file yet and that no bin is supported (was
+    "coverage: supported nothing" and no word of the file), in the singular where it is
+    one ("1 log", "1 flight")."""
+
+    log = Path(__file__).parent / "data" / "real" / "px4_sitl_bias_variance" / \
+        "sample_px4_events.ulg"
+    assert main(["learn", str(log), "--out", str(tmp_path / "out"), "--executor",
+                 "serial"]) == 0
+    cap = capsys.readouterr()
+    assert not list((tmp_path / "out").glob("*.params"))
+    assert "  coverage: no 1 °C bin supported yet" in cap.out.splitlines()
+    assert ("parameter file: none yet (no sensor could be fitted: fly more and run learn "
+            "again)") in cap.out.splitlines()
+    assert cap.err.splitlines()[0].startswith("1 log: 0 read before (cache), 1 to read")
+    assert "gyro0: learning from 1 flight" in cap.err.splitlines()

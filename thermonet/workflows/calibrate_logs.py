@@ -39,8 +39,10 @@ def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
     first = logs[0]
     for log in logs[1:]:
         if log.autopilot != first.autopilot:
-            raise InputError(f"{log.path}: a {log.autopilot} log; {first.path} is "
-                             f"{first.autopilot} (one board, one autopilot)")
+            name = {"px4": "a PX4", "ardupilot": "an ArduPilot"}
+            raise InputError(f"{log.path}: {name.get(log.autopilot, log.autopilot)} log; "
+                             f"{first.path} is {name.get(first.autopilot, first.autopilot)} "
+                             "log (one board, one autopilot)")
         if _board_ids(log) != _board_ids(first):
             def ids(lg: FlightLog) -> str:
                 return ", ".join(f"{n} {d}" for n, d in _board_ids(lg))

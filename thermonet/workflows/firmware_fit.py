@@ -48,6 +48,7 @@ import numpy as np
 from ..core.errors import ThermonetError
 from ..data.firmware import ARDUPILOT_TEMP_REFERENCE, FirmwareFit
 from ..data.logs import SensorInstance, temperature_step
+from .verify_params import KIND_UNITS
 
 __all__ = ["check_instance", "fit_firmware", "target", "bin_means", "moving_average",
            "running_median", "PX4_MEDIAN_SAMPLES",
@@ -291,7 +292,8 @@ def resolution_effect(inst: SensorInstance, fit: FirmwareFit) -> dict[str, Any] 
     worst = int(np.nanargmax(rel)) if np.any(np.isfinite(rel)) else 0
     line = (f"thermometer reports {step:g} °C steps: fitted on the means of its {levels} "
             f"reported temperatures; the firmware reads the same steps, so inside one the "
-            f"correction can be off by up to {err[worst]:.3g} ({100 * rel[worst]:.1f} % of the "
+            f"correction can be off by up to {err[worst]:.3g} {KIND_UNITS.get(fit.kind, '')} "
+            f"({100 * rel[worst]:.1f} % of the "
             "fitted drift) — a warning, not a refusal")
     return {"step_c": step, "levels": levels, "max_error": err, "relative_error": rel,
             "line": line}

@@ -141,7 +141,8 @@ def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
             take(k, doc)
     todo = [k for k in range(len(files)) if logs[k] is None]
     twins = len(files) - len(first)
-    say(f"{len(files)} logs: {len(first) - len(todo)} read before (cache), {len(todo)} to read"
+    say(f"{counted(len(files), 'log')}: {len(first) - len(todo)} read before (cache), "
+        f"{len(todo)} to read"
         + (f", {twins} the same as another" if twins else ""))
     start, done = time.monotonic(), [0]
 
@@ -327,7 +328,7 @@ def _learn_into(logs: list[dict[str, Any]], instances: Iterable[InstanceWindows]
     learned); the results document (without its changes)."""
     docs: dict[str, dict[str, Any]] = {}
     for inst in instances:
-        say(f"{inst.name}: learning from {np.unique(inst.flight).size} flights")
+        say(f"{inst.name}: learning from {counted(int(np.unique(inst.flight).size), 'flight')}")
         docs[inst.name] = instance_doc(inst, autopilot, stage, do_compare, do_export)
     header = [f"thermonet {__version__}: drift learned from {len(logs)} flight logs "
               "(estimator biases and still-gyro windows; no chamber)",
@@ -380,9 +381,9 @@ def _band_line(c: dict[str, Any], unit: str) -> list[str]:
 
 
 def _supported(d: dict[str, Any]) -> str:
-    """The supported 1 °C bins as spans ("10..13, 36..39 °C"), or "nothing"."""
+    """The supported 1 °C bins as spans ("10..13, 36..39 °C"), or "" where none is."""
     spans = supported_spans(d.get("coverage") or [])
-    return ", ".join(f"{a}..{b + 1}" for a, b in spans) + " °C" if spans else "nothing"
+    return ", ".join(f"{a}..{b + 1}" for a, b in spans) + " °C" if spans else ""
 
 
 def format_learn_report(doc: dict[str, Any]) -> str:
@@ -414,9 +415,14 @@ def format_learn_report(doc: dict[str, Any]) -> str:
             lines.append(f"  comparison: {c.get('status')} ({c.get('reason')})")
         if d.get("reason"):
             lines.append(f"  {d['reason']}")
-        lines.append(f"  coverage: supported {_supported(d)}")
+        spans = _supported(d)
+        lines.append(f"  coverage: supported {spans}" if spans else
+                     "  coverage: no 1 °C bin supported yet")
         lines += [f"  {w}" for w in d.get("missing", [])]
     if doc.get("params_file"):
         lines.append(f"parameter file: {doc['params_file']}")
+    else:   # exit 0 all the same: the logs were read and kept (cache) for the next run
+        lines.append("parameter file: none yet (no sensor could be fitted: fly more and run "
+                     "learn again)")
     lines += [f"changed: {c}" for c in doc.get("changes", [])]
     return "\n".join(lines) + "\n"
