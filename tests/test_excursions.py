@@ -4,6 +4,8 @@ plan_folds' ``hold_out``) and the gate that keeps the baseline until it is beate
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -191,6 +193,12 @@ def test_the_baseline_stays_unless_a_candidate_beats_it_everywhere():
     assert "not better everywhere: dyn" in on.per_axis_reason["gyro_x"]
     why = on.record["candidates"]["dyn"]["not_eligible"]
     assert why.startswith("gate:") and "its worst fold" in why        # the condition it failed
+    # with its figures and what they are: the paired windows' ratios, not the folds' scores
+    m = re.search(r"its worst fold \(([\d.]+) of raw\) is worse than the baseline's worst "
+                  r"\(([\d.]+) of raw\), on the windows both were judged on, the mean over the "
+                  r"axes$", why)
+    assert m and float(m[1]) == pytest.approx(0.12, rel=0.1) and \
+        float(m[2]) == pytest.approx(0.10, rel=0.1), why        # the planted 0.12 and 0.10
     assert "two folds" not in why and "fewer than" not in why
     folds = on.record["candidates"]["dyn"]["axes"]["gyro_x"]["fold_ratios"]
     assert len(folds) == k and folds[3] > on.record["candidates"]["cubic"]["axes"]["gyro_x"][

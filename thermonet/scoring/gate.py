@@ -183,7 +183,7 @@ class Gate:
         if n < MIN_GATE_FOLDS and not clear_on_each(c, b):
             if n == 2:
                 return (f"judged on two folds, it is not {1 - TWO_FOLD_MARGIN:.0%} better than "
-                        f"{ref} on each (" + ", ".join(
+                        f"{ref} on each (on the windows both were judged on: " + ", ".join(
                             f"{x:.3g} vs {y:.3g}" for x, y in zip(c[judged], b[judged],
                                                                   strict=True)) + " of raw)")
             return f"judged on {counted(n, 'fold')}, fewer than {MIN_GATE_FOLDS}"
@@ -198,8 +198,10 @@ class Gate:
         if not worst_fold_not_worse(c, b):
             if not judged.any():
                 return "judged on no fold beside its reference"
+            where = "windows both were judged on" + (", the mean over the axes" if a is None
+                                                     else "")
             return (f"its worst fold ({np.max(c[judged]):.3g} of raw) is worse than {ref}'s "
-                    f"worst ({np.max(b[judged]):.3g})")
+                    f"worst ({np.max(b[judged]):.3g} of raw), on the {where}")
         return ""
 
 
