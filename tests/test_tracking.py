@@ -240,12 +240,22 @@ def test_a_tracking_uri_that_is_a_file_says_so_in_one_line(tmp_path, capsys, mon
         f"{tmp_path} is a directory, not a SQLite database (give sqlite:///DIR/mlflow.db)")
     assert store_problem(f"sqlite:///{text}") == (
         f"{text} is a file but not a SQLite database (its first bytes say otherwise)")
-    # what can be a store is left to MLflow: a real or new SQLite file, an empty one,
-    # a directory (the file store, which MLflow itself refuses in its words), a server
+    # what can be a store is left to MLflow: a real or new SQLite file, an empty one, a
+    # server, a database, Databricks
     (tmp_path / "empty.db").touch()
     for ok in (f"sqlite:///{db}", f"sqlite:///{tmp_path / 'new.db'}", "sqlite:///empty.db",
-               str(tmp_path), "http://127.0.0.1:5000", "databricks"):
+               "http://127.0.0.1:5000", "databricks", "postgresql+psycopg2://u@h/db"):
         assert store_problem(ok) is None, ok
+    # MLflow's file store (a directory, or a path not there yet), which MLflow 3 refuses as
+    # "in maintenance mode" after the whole fit, and a scheme no store takes: refused first
+    assert store_problem(str(tmp_path)) == (
+        f"{tmp_path} names MLflow's file store (a bare path or file: URI), which this MLflow "
+        "no longer writes (a SQLite store is sqlite:///PATH, a server http://HOST:PORT)")
+    assert store_problem(str(tmp_path / "x" / "ml.db")) == (
+        f"{tmp_path / 'x' / 'ml.db'} names MLflow's file store (a bare path or file: URI), "
+        f"which this MLflow no longer writes (give sqlite:///{tmp_path / 'x' / 'ml.db'})")
+    assert store_problem("bogus://x") == ("no MLflow store takes the scheme 'bogus' (a SQLite "
+                                          "store is sqlite:///PATH, a server http://HOST:PORT)")
     with pytest.raises(ThermonetError, match=r"^MLflow tracking \(store\.txt\): "
                                              r"store\.txt is a file, not a tracking store"):
         Tracker(uri="store.txt")
@@ -254,14 +264,14 @@ def test_a_tracking_uri_that_is_a_file_says_so_in_one_line(tmp_path, capsys, mon
     cfg = tmp_path / "c.yaml"
     cfg.write_text("data: {preset: patent-gyro, runs: 3}\n"
                    "families:\n  - {name: line, family: linear, inputs: [dT]}\n")
-    for uri in ("store.txt", text.as_uri(), f"sqlite:///{text}"):
+    for uri in ("store.txt", text.as_uri(), f"sqlite:///{text}", "bogus://x"):
         capsys.readouterr()
         assert main(["compare", str(cfg), "--out", "o", "--tracking-uri", uri]) == 1
         out = capsys.readouterr()
         assert out.out == "" and len(out.err.strip().splitlines()) == 1, out
-        assert out.err.startswith(f"thermonet: error: MLflow tracking ({uri}): {text.name}"
-                                  if uri == "store.txt" else
-                                  f"thermonet: error: MLflow tracking ({uri}): {text}"), out.err
+        assert out.err.startswith(f"thermonet: error: MLflow tracking ({uri}): " + (
+            text.name if uri == "store.txt" else "no MLflow store" if uri == "bogus://x"
+            else str(text))), out.err
         assert "maintenance" not in out.err
         assert not (tmp_path / "o").exists() and not list(tmp_path.glob(".o*"))
     # fleet (before any unit is fitted) and export from a run id say the same

@@ -45,7 +45,8 @@ from typing import Any
 from .core.errors import Interrupted, ThermonetError
 
 __all__ = ["Tracker", "default_tracking_uri", "flatten_params", "tidy_orphaned_runs",
-           "end_runs_of", "global_tracking_uri", "store_problem", "check_store"]
+           "end_runs_of", "global_tracking_uri", "store_problem", "check_store",
+           "KNOWN_SCHEMES"]
 
 #: Tags identifying the process that owns a run (for :func:`tidy_orphaned_runs`).
 HOST_TAG, PID_TAG = "thermonet.host", "thermonet.pid"
@@ -94,27 +95,44 @@ def _is_sqlite(path: Path) -> bool:
         return False
 
 
-def store_problem(uri: str) -> str | None:
-    """Why the local tracking store ``uri`` names cannot be one (None: it may be; MLflow has
-    the last word).  Without importing MLflow: a bare path or ``file:`` URI naming a file
-    (MLflow would call it a file store "in maintenance mode"), a ``sqlite:///`` path that is
-    a directory, a FIFO or a device, or a file that is not a SQLite database."""
-    import stat
+#: The tracking URI schemes MLflow's own stores take (a server, a SQL database, Databricks);
+#: anything else failed inside MLflow after the whole fit.
+KNOWN_SCHEMES = ("sqlite", "http", "https", "postgresql", "mysql", "mssql", "databricks",
+                 "databricks-uc", "uc")
+_STORE_HINT = "a SQLite store is sqlite:///PATH, a server http://HOST:PORT"
 
-    local = _local_store(uri)
+
+def store_problem(uri: str) -> str | None:
+    """Why the tracking store ``uri`` names cannot be one (None: it may be; MLflow has the
+    last word).  Without importing MLflow, before any work: a scheme MLflow has no store for
+    (:data:`KNOWN_SCHEMES`); a bare path or ``file:`` URI (MLflow's file store, which MLflow
+    3 refuses as "in maintenance mode" — after the fit, where it was asked for); a
+    ``sqlite:///`` path that is a directory, a FIFO or a device, or a file that is not a
+    SQLite database."""
+    import stat
+    from urllib.parse import urlparse
+
+    local = None if uri in KNOWN_SCHEMES else _local_store(uri)   # "databricks": a profile
     if local is None:
+        scheme = urlparse(uri).scheme.split("+", 1)[0]
+        if scheme not in KNOWN_SCHEMES and uri not in KNOWN_SCHEMES:
+            return f"no MLflow store takes the scheme '{scheme}' ({_STORE_HINT})"
         return None
     kind, path = local
     try:
-        mode = path.stat().st_mode
+        mode: int | None = path.stat().st_mode
     except OSError:
-        return None   # not there yet (a new store), or MLflow's own words
+        mode = None   # not there yet (a new store), or MLflow's own words
     if kind == "file":
-        if stat.S_ISDIR(mode):
-            return None
-        hint = f" (a SQLite database: give sqlite:///{path})" if _is_sqlite(path) else \
-            " (a SQLite store is sqlite:///PATH, a server http://HOST:PORT)"
-        return f"{path} is a file, not a tracking store{hint}"
+        if mode is not None and not stat.S_ISDIR(mode):
+            hint = f" (a SQLite database: give sqlite:///{path})" if _is_sqlite(path) else \
+                f" ({_STORE_HINT})"
+            return f"{path} is a file, not a tracking store{hint}"
+        hint = f"give sqlite:///{path}" if path.suffix in (".db", ".sqlite") else _STORE_HINT
+        return (f"{path} names MLflow's file store (a bare path or file: URI), which this "
+                f"MLflow no longer writes ({hint})")
+    if mode is None:
+        return None
     if stat.S_ISDIR(mode):
         return f"{path} is a directory, not a SQLite database (give sqlite:///DIR/mlflow.db)"
     if not stat.S_ISREG(mode):
