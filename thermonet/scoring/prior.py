@@ -461,7 +461,7 @@ def posterior(prior: AxisPrior, points: Points, *, t_ref: float, scale: float) -
 
 def _shape_p_values(prior: AxisPrior, J: np.ndarray, b: np.ndarray, q0: float, dof_r: int
                     ) -> np.ndarray:
-    """Per cluster, P(χ²_d ≥ the unit's own shape's distance from it): the shape
+    """Per cluster, the p-value of the unit's own shape's distance from it: the shape
     β̂ = J⁻¹b with its covariance max(s², 1)·J⁻¹ (s²: the unit's residual over its assumed
     point errors, per degree of freedom — a unit that scatters more than the fleet's median
     misfit has a less certain shape, not a different one): :func:`shape_p_values`."""
@@ -481,8 +481,8 @@ def shape_p_values(prior: AxisPrior, shape: np.ndarray, cov: np.ndarray, *,
     so a new unit's D² is Hotelling's, not χ²: n/(n+1)·D² ~ T²(d, n − 1), i.e.
     n(n − d)/(d(n − 1)(n + 1))·D² ~ F(d, n − d) (the prediction region of a new draw from a
     normal of estimated mean and covariance; Chew, JASA 61, 1966, §3).  With n_k = 16 and
-    d = 3, the 0.1 % point of D² is 37.5, where χ²₃'s is 16.3: the χ² test flagged 10 % of a fleet's own
-    units on their climate cycle (bench_prior, a prior of 50 units in three clusters).  A
+    d = 3, the 0.1 % point of D² is 37.5, where χ²₃'s is 16.3: the χ² test flagged 10 % of a
+    fleet's own units on their climate cycle (bench_prior, 50 units in 3 clusters).  A
     prior that does not say how many units it holds (``n_units`` 0) is judged on χ²; so is
     a unit the prior would take back (``predictive=False``: a small cluster's wide region
     would let an outlier into the population every later unit is judged by)."""
