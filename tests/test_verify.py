@@ -186,12 +186,14 @@ def test_logs_of_two_boards_and_foreign_files_refused_in_one_line(
     assert main(["calibrate", first, "--out", str(tmp_path / "c"), "--no-compare", "-q"]) == 0
     params = str(tmp_path / "c" / "px4.params")
     for log, expect in ((other_path, "belongs to another board: its device ids 396825, 2424842"),
-                        (runs[".bin"][1], "is a PX4 parameter file")):
+                        (runs[".bin"][1], "is a PX4 parameter file; ")):
         assert main(["verify", params, str(log), "--out", str(tmp_path / "v")]) == 1
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and expect in err, err
         if "another board" in expect:
             assert "2424843" in err               # the log's ids named too
+        else:
+            assert err.endswith("is an ArduPilot log (verify needs the same autopilot)")
         assert not (tmp_path / "v").exists()
 
 

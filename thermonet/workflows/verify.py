@@ -321,9 +321,9 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
     """
     limits = limits or Limits()
     if pf.autopilot != log.autopilot:
-        name = {"px4": "PX4", "ardupilot": "ArduPilot"}
-        raise ThermonetError(f"{pf.path} is a {name[pf.autopilot]} parameter file; {log.path} "
-                             f"is a {name[log.autopilot]} log (verify needs the same autopilot)")
+        name = {"px4": "a PX4", "ardupilot": "an ArduPilot"}
+        raise ThermonetError(f"{pf.path} is {name[pf.autopilot]} parameter file; {log.path} "
+                             f"is {name[log.autopilot]} log (verify needs the same autopilot)")
     insts = [i for i in log.instances if i.kind in _PX4_LETTER]
     log_ids = sorted({i.device_id for i in insts})
     if pf.by_id and not any((i.kind, i.device_id) in pf.by_id for i in insts):
@@ -371,15 +371,7 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
         judged = judge_axes(temp, y, corr, inst.kind, limits)
         for j in bad_offsets:     # a constant the binned drift cannot see: FAILs the axis
             judged["passed"][j] = False
-        below = t_min - float(temp.min())
-        above = float(temp.max()) - t_max
-        past = [f"{v:.1f} °C {side}" for v, side in ((below, "below"), (above, "above"))
-                if v > RANGE_SLACK_C]
-        if past:
-            d["warnings"].append(
-                f"the log spans {temp.min():.1f}..{temp.max():.1f} °C, outside the calibrated "
-                f"{t_min:.1f}..{t_max:.1f} °C (by {' and '.join(past)}): the firmware holds "
-                "the correction constant there")
+        d["warnings"] += _range_warnings(temp, t_min, t_max)
         d.update(status="judged", reason=None, slot=slot, range=[t_min, t_max], **judged)
         out[inst.name] = d
     if refuse_unjudged and not any(d["status"] == "judged" for d in out.values()):
@@ -387,6 +379,17 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
         raise ThermonetError(f"{pf.path}: nothing of {log.path.name} can be judged "
                              f"({reasons or 'no gyro, accelerometer, barometer or magnetometer'})")
     return out
+
+
+def _range_warnings(temp: np.ndarray, t_min: float, t_max: float) -> list[str]:
+    """The log's span past the calibrated [t_min, t_max] by more than RANGE_SLACK_C, naming
+    only the side (or sides) it passes."""
+    past = [f"{v:.1f} °C {side}" for v, side in ((t_min - float(temp.min()), "below"),
+                                                  (float(temp.max()) - t_max, "above"))
+            if v > RANGE_SLACK_C]
+    return [f"the log spans {temp.min():.1f}..{temp.max():.1f} °C, outside the calibrated "
+            f"{t_min:.1f}..{t_max:.1f} °C (by {' and '.join(past)}): the firmware holds the "
+            "correction constant there"] if past else []
 
 
 def verify(params_path: str | Path, log_path: str | Path, out_dir: str | Path, *,
