@@ -98,7 +98,7 @@ def test_per_axis_with_one_family_is_one_line_naming_the_key():
                                           r"two or more families"):
         config_from_mapping({"families": [{"family": "poly", "params": {"degree": 3}}],
                              "selection": {"per_axis": True}})
-    with pytest.raises(ConfigError, match=r"key 'selection.per_axis': 'yes' is not bool"):
+    with pytest.raises(ConfigError, match=r"key 'selection.per_axis': expected true, false or null, got 'yes'"):
         config_from_mapping({"selection": {"per_axis": "yes"}})
 
 

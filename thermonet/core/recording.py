@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, counted
 
 __all__ = [
     "Recording",
@@ -88,7 +88,8 @@ def _as_1d(name: str, values: object, n: int | None, source: str) -> np.ndarray:
     if arr.ndim != 1:
         raise InputError.at(source, f"expected a 1-D series, got shape {arr.shape}", column=name)
     if n is not None and arr.shape[0] != n:
-        raise InputError.at(source, f"has {arr.shape[0]} samples, time has {n}", column=name)
+        raise InputError.at(source, f"has {counted(arr.shape[0], 'sample')}, time has {n}",
+                            column=name)
     bad = np.flatnonzero(~np.isfinite(arr))
     if bad.size:
         raise InputError.at(

@@ -17,8 +17,35 @@ from .errors import ConfigError
 __all__ = ["from_dict", "to_dict"]
 
 
+#: How a value of each plain type is asked for in a message: words, not Python's names.
+_WORDS: dict[Any, str] = {float: "a number", int: "a whole number", str: "text",
+                          type(None): "null", list: "a list", dict: "a mapping",
+                          Any: "any value"}
+
+
+def _alternatives(tp: Any) -> list[str]:
+    """What annotation ``tp`` accepts, in words, one entry per alternative (a union's and a
+    literal's alternatives listed each: ``float | Literal['start']`` → ``["a number",
+    "'start'"]``)."""
+    origin = typing.get_origin(tp)
+    if origin in (Union, types.UnionType):
+        return [w for alt in typing.get_args(tp) for w in _alternatives(alt)]
+    if origin is Literal:
+        return [repr(a) for a in typing.get_args(tp)]
+    if tp is bool:
+        return ["true", "false"]
+    if origin is not None:
+        tp = origin                         # list[str] → list, dict[str, Any] → dict
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
+        return ["a mapping"]
+    return [_WORDS.get(tp) or getattr(tp, "__name__", None) or str(tp).replace("typing.", "")]
+
+
 def _type_name(tp: Any) -> str:
-    return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
+    """What annotation ``tp`` accepts, in plain words: ``a whole number or null``,
+    ``a number or 'start'``, ``'a', 'b' or 'c'``."""
+    words = list(dict.fromkeys(_alternatives(tp)))
+    return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} or {words[-1]}"
 
 
 def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
@@ -34,8 +61,7 @@ def _coerce(value: Any, tp: Any, key: str, source: str) -> Any:
                 return _coerce(value, alt, key, source)
             except ConfigError as err:
                 errors.append(err)
-        raise ConfigError(f"{source}: key '{key}': {value!r} is not "
-                          f"{' or '.join(_type_name(a) for a in args)}")
+        raise ConfigError(f"{source}: key '{key}': expected {_type_name(tp)}, got {value!r}")
     if tp is type(None):
         if value is None:
             return None

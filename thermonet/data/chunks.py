@@ -47,13 +47,13 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from ..core.errors import InputError
+from ..core.errors import InputError, counted
 from ..core.fileio import atomic_path, not_a_file
 from ..core.recording import MIN_SAMPLES, Dataset, Recording
 from ..core.recording import MIN_SAMPLES as MIN_SAMPLES_
 from .chunk_base import Continuity, Layout, RunTally, RunTimes, batches, parquet_file
 from .io import PARQUET_SUFFIXES, check_output_file, check_run_ids, file_format
-from .logs import is_log
+from .logs import is_log_source
 from .mapped_chunks import discover, mapped_frames
 from .mapping import ColumnMapping
 from .parquet_format import (
@@ -226,7 +226,7 @@ def count_samples(paths: Sequence[str | Path], mapping: ColumnMapping | None = N
     for p in paths:
         path = Path(p)
 
-        if is_log(str(path).partition("#")[0]) or not_a_file(path):
+        if is_log_source(path) or not_a_file(path):
             return None
         try:
             fmt = file_format(path, mapping)
@@ -403,6 +403,6 @@ def write_streamed(layouts: Sequence[Layout], out: str | Path, *,
             writer.close()
         for (src, e), rt in zip(pairs, times, strict=True):
             if e.get("n_samples") is not None and int(e["n_samples"]) != rt.n:
-                raise InputError.at(src, f"run '{e['run_id']}': {rt.n} rows, its "
+                raise InputError.at(src, f"run '{e['run_id']}': {counted(rt.n, 'row')}, its "
                                     f"metadata says {e['n_samples']}")
     return len(entries), n_total

@@ -16,12 +16,13 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from ..core.errors import counted
 from ..core.recording import RATE, Dataset, contiguous_segments
 
 __all__ = ["TEMPERATURE_PLAUSIBLE_C", "MAX_RAMP_C_PER_MIN", "MAX_DURATION_S",
            "RATE_HZ_PLAUSIBLE", "RATE_HZ_POSSIBLE", "VALUE_PLAUSIBLE_MAX", "OUTSIDE_RANGE_WARN",
            "input_warnings", "run_warnings", "temperature_hint", "outside_fraction", "outside_distance",
-           "extrapolation_warnings"]
+           "RANGE_ROUNDING", "extrapolation_warnings"]
 
 #: Temperatures outside this range (°C) are implausible for a sensor test (Kelvin? m°C?).
 TEMPERATURE_PLAUSIBLE_C = (-100.0, 200.0)
@@ -146,29 +147,52 @@ def input_warnings(ds: Dataset, *, signals: Iterable[str] = (),
                 segs = contiguous_segments(r.time_s)
                 longest = max(float(r.time_s[s.stop - 1] - r.time_s[s.start]) for s in segs)
                 out.append(f"{name}: the rate input (dT/dt over {rate_window_s:g} s) is used on "
-                           f"data with gaps up to {gap:.3g} s and {len(segs)} contiguous "
-                           f"segments (longest {longest:.3g} s): dT/dt restarts at every gap "
-                           "and is noisy on short bursts")
+                           f"data with gaps up to {gap:.3g} s and "
+                           f"{counted(len(segs), 'contiguous segment')} (longest "
+                           f"{longest:.3g} s): dT/dt restarts at every gap and is noisy on "
+                           "short bursts")
     return out
 
 
+#: A sample within this fraction of the range's own magnitude beyond its edge is inside: the
+#: trained range is stored in float32 (a model's ``sig_lo`` / ``sig_hi``), whose rounding
+#: (about 6e-8 of the value) would otherwise put a soak at the range's edge outside it.
+RANGE_ROUNDING = 1e-6
+
+
+def _widened(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``[lo, hi]`` widened on each side by :data:`RANGE_ROUNDING` of its magnitude."""
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    tol = RANGE_ROUNDING * np.maximum(np.abs(lo), np.abs(hi))
+    tol = np.where(np.isfinite(tol), tol, 0.0)
+    return lo - tol, hi + tol
+
+
 def outside_fraction(signals: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """(S,) fraction of samples of each signal column outside ``[lo, hi]`` (NaN counts outside)."""
+    """(S,) fraction of samples of each signal column outside ``[lo, hi]`` (NaN counts
+    outside; a sample within float32 rounding of an edge, :data:`RANGE_ROUNDING`, inside)."""
     s = np.asarray(signals, dtype=np.float64)
     if s.shape[0] == 0:
         return np.zeros(s.shape[1])
-    inside = (s >= np.asarray(lo)[None, :]) & (s <= np.asarray(hi)[None, :])
+    lo, hi = _widened(lo, hi)
+    inside = (s >= lo[None, :]) & (s <= hi[None, :])
     return 1.0 - inside.mean(axis=0)
 
 
 def outside_distance(signals: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(S,) farthest distance of a sample of each signal column outside ``[lo, hi]`` (0 when
-    every finite sample is inside; NaN samples are not a distance)."""
+    every finite sample is inside, or within float32 rounding of an edge; NaN samples are
+    not a distance)."""
     s = np.asarray(signals, dtype=np.float64)
     if s.shape[0] == 0:
         return np.zeros(s.shape[1])
-    d = np.maximum(np.asarray(lo)[None, :] - s, s - np.asarray(hi)[None, :])
-    d = np.where(np.isfinite(d), d, 0.0)
+    wlo, whi = _widened(lo, hi)
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    beyond = (s < wlo[None, :]) | (s > whi[None, :])
+    d = np.maximum(lo[None, :] - s, s - hi[None, :])
+    d = np.where(np.isfinite(d) & beyond, d, 0.0)
     return np.maximum(d.max(axis=0), 0.0)
 
 
@@ -190,15 +214,16 @@ def extrapolation_warnings(fractions: dict[str, float], ranges: dict[str, tuple[
     for sig, frac in fractions.items():
         if frac >= OUTSIDE_RANGE_WARN:
             lo, hi = ranges.get(sig, (float("nan"), float("nan")))
+            # other signals (a raw-count proxy) carry no unit here: the number alone
+            unit = (units or {}).get(sig) or ("°C" if sig == "temperature_c" else "")
             far = ""
             if distances and distances.get(sig, 0.0) > 0.0:
                 d = distances[sig]
-                unit = (units or {}).get(sig) or ("°C" if sig == "temperature_c" else "")
-                # other signals (a raw-count proxy) carry no unit here: the number alone
                 span = hi - lo
                 rel = f" ({percent(d / span)} of the trained span)" if span > 0 else ""
                 far = f", up to {d:.3g}{' ' + unit if unit else ''} beyond it{rel}"
             out.append(f"extrapolation: {percent(frac)} of the test samples of {sig} lie outside the "
-                       f"trained range {lo:.4g} … {hi:.4g}{far}; the models clamp there, so "
+                       f"trained range {lo:.4g} … {hi:.4g}{' ' + unit if unit else ''}{far}; "
+                       "the models clamp there, so "
                        "those samples get the drift at the range's edge")
     return out

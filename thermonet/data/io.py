@@ -52,7 +52,7 @@ import pyarrow.parquet as pq
 from ..core.errors import InputError
 from ..core.fileio import atomic_path, not_a_file
 from ..core.recording import Dataset, Recording
-from .logs import is_log, read_log_instance
+from .logs import is_log_source, read_log_instance
 from .mapping import ColumnMapping, load_mapping
 from .parquet_format import (
     DIGEST_KEY,
@@ -211,7 +211,11 @@ def read_datasets(paths: Sequence[str | Path] | str | Path,
     """Read several files into one validated :class:`Dataset`.
 
     Each file gives one run (id: the mapping's ``run_id``, else the file stem)
-    unless it has a run column; thermonet Parquet files keep their runs.
+    unless it has a run column; thermonet Parquet files keep their runs; one sensor
+    instance of a flight-controller log (``LOG#gyro0``) is one run whose id is the log's
+    stem and the instance (``b_run1:gyro0``:
+    :func:`thermonet.data.logs.log_run_id`), so warm-ups of one board in several logs are
+    several runs of one unit.
     Skipped malformed rows are summed into ``Dataset.meta['skipped_rows']``.
     ``validate=False`` leaves the runs unvalidated (``fleet`` validates unit by
     unit, so that one bad unit fails alone).
@@ -251,16 +255,17 @@ def check_run_ids(ids: Sequence[tuple[str, str, str]]) -> None:
         key = (device_id, run_id)
         if key in seen:
             unit = f" of unit '{device_id}'" if several else ""
+            fix = ("a log's run id is its file name and instance: rename one of the logs"
+                   if is_log_source(source) else "set 'run_id' per file, rename the files, "
+                   "or give each unit its own device id")
             raise InputError.at(source, f"run id '{run_id}'{unit} already "
-                                f"used by {seen[key]} (a unit's run ids must be unique; set "
-                                "'run_id' per file, rename the files, or give each unit its "
-                                "own device id)")
+                                f"used by {seen[key]} (a unit's run ids must be unique; {fix})")
         seen[key] = source
 
 
 def _read_one(path: Path, mapping: ColumnMapping | None
               ) -> tuple[list[Recording], dict[str, str], int | None]:
-    if is_log(str(path).partition("#")[0]):
+    if is_log_source(path):
         if mapping is not None:
             raise InputError.at(path, "a flight-controller log is read with no mapping")
         ds = read_log_instance(path)

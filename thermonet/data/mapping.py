@@ -71,6 +71,7 @@ __all__ = [
     "TIME_UNITS",
     "FORMATS",
     "channel_role",
+    "case_slip",
     "default_unit",
     "load_mapping",
 ]
@@ -106,6 +107,19 @@ def channel_role(name: str, *, proxy: bool = False) -> str:
     if name.startswith("drift_") and OUTPUT_NAME.match(name[6:]):
         return "drift"
     return "proxy"
+
+
+def case_slip(name: str) -> str | None:
+    """The thermonet name ``name`` differs from in letter case only (``Gyro_X`` →
+    ``gyro_x``, ``temperature_C`` → ``temperature_c``, ``Time_s`` → ``time_s``), else None.
+    thermonet's names are lower case; a name it does not know is read as a temperature
+    proxy, so such a slip would otherwise drop an axis from the fit without a word."""
+    low = name.lower()
+    if low == name:
+        return None
+    known = low in _RESERVED or channel_role(low) in ("temperature", "output", "reference",
+                                                       "drift")
+    return low if known else None
 
 
 _KIND_UNITS = {"gyro": "deg/s", "acc": "g", "mag": "uT", "baro": "Pa", "out": "1"}
@@ -349,6 +363,11 @@ class _Parser:
                                "true or false")
             if proxy and name == "temperature_c":
                 raise self.fail(key + ".proxy", "temperature_c cannot be a proxy")
+            slip = case_slip(name)
+            if slip and not proxy:
+                raise self.fail(key, f"'{name}' is not a thermonet channel name: did you mean "
+                                f"'{slip}'? (names are lower case; to keep it as a proxy, "
+                                "say 'proxy: true')")
             unit = spec.get("unit")
             unit = default_unit(name, proxy=proxy) if unit is None else \
                 self.typed(key + ".unit", unit, (str,), "a unit string")

@@ -20,7 +20,7 @@ import pandas as pd
 
 from ..core.errors import InputError
 from ..core.recording import OUTPUT_NAME, Recording
-from .mapping import ChannelSpec, ColumnMapping, TimeSpec, default_unit
+from .mapping import ChannelSpec, ColumnMapping, TimeSpec, case_slip, default_unit
 from .text import Frame
 from .values import check_time, is_float
 
@@ -35,6 +35,12 @@ GROUPS = ("outputs", "references", "drift", "proxies")
 def native_mapping(path: Path, columns: list, numeric_header: Sequence[str] = ()
                     ) -> ColumnMapping:
     names = [str(c) for c in columns]
+    for n in names:     # 'Gyro_X' would be read as a proxy and its axis left out of the fit
+        slip = case_slip(n)
+        if slip and slip not in names:
+            raise InputError.at(path, f"not a thermonet column name: did you mean '{slip}'? "
+                                "(thermonet's names are lower case; rename the column, or "
+                                "describe the file with a mapping)", column=n)
     if "time_s" not in names or not any(OUTPUT_NAME.match(n) for n in names):
         hint = ("; its first line is all numbers, so the file has no header line: describe "
                 "it with a mapping with 'header: false' and columns by 0-based index"

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..core.errors import InputError
+from ..core.errors import InputError, counted
 from .mapping import ColumnMapping
 from .values import is_float
 
@@ -139,7 +139,7 @@ class _Records:
             line = self.first_line + self.count + self.extra
             raise InputError.at(self.path, f"file line {line}: a quoted cell opens on this "
                                 "line and never closes (a '\"' is missing; it would swallow "
-                                f"the {len(self.tail) - 1} lines after it)")
+                                f"the {counted(len(self.tail) - 1, 'line')} after it)")
 
     def extra_at(self, index: np.ndarray) -> np.ndarray:
         """Physical lines absorbed before each record ``index`` (0-based, counted from the

@@ -25,6 +25,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from ..core.errors import counted
 from ..core.fileio import atomic_write_text
 from ..scoring.gate import reason_groups
 from .results import ComparisonResult, Verdict, read_result
@@ -335,7 +336,8 @@ def _data_table(res: ComparisonResult) -> str:
 
 def _provenance_html(prov: Any) -> str:
     """What the comparison actually used: data files with their SHA-256 (or the simulator's
-    preset), tracking, options as given (results.json ``provenance``)."""
+    preset), tracking, the options given — those left at None (not given) are not listed
+    (results.json ``provenance``)."""
     if not isinstance(prov, dict) or not isinstance(prov.get("data"), dict):
         return ""
     src = prov["data"]
@@ -344,14 +346,19 @@ def _provenance_html(prov: Any) -> str:
         data = "data files: " + "; ".join(f"{_e(f.get('path'))} (sha256 {_e(f.get('sha256'))})"
                                           for f in files if isinstance(f, dict))
     elif src.get("kind") == "simulated":
-        data = (f"data simulated: preset {_e(src.get('preset'))}, {_e(src.get('runs'))} runs, "
+        runs = src.get("runs")
+        count = counted(runs, "run") if isinstance(runs, int) else f"{_e(runs)} runs"
+        data = (f"data simulated: preset {_e(src.get('preset'))}, {count}, "
                 f"seed {_e(src.get('seed'))}")
     else:
         data = f"data passed by the caller (device {_e(src.get('device'))})"
     t = prov.get("tracking") or {}
     track = f"MLflow at {_e(t.get('uri'))}" if t.get("enabled") else "off"
-    opts = ", ".join(f"{_e(k)}={_e(v)}" for k, v in (prov.get("options") or {}).items())
-    return f"<p class='small'>{data}<br>tracking: {track}; options as given: {opts}</p>"
+    # an option left at None was not given (the command's default applied)
+    opts = ", ".join(f"{_e(k)}={_e(v)}" for k, v in (prov.get("options") or {}).items()
+                     if v is not None)
+    given = f"options as given: {opts}" if opts else "options: the defaults (none given)"
+    return f"<p class='small'>{data}<br>tracking: {track}; {given}</p>"
 
 
 def render_report(results: ComparisonResult | Mapping[str, Any],

@@ -20,12 +20,13 @@ accel-ramp 2 Hz    noise-dominated on purpose: 14,400 samples per run
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 from typing import Any, cast
 
 import numpy as np
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, counted
 from ..core.recording import Dataset
 from .chamber import Approach, ChamberProfile, Ramp, Soak, staircase
 from .device import (
@@ -44,7 +45,8 @@ from .device import (
 )
 from .generator import SimConfig, Switches, TableConfig, simulate_run
 
-__all__ = ["PRESETS", "get_preset", "simulate", "MAX_RUNS", "MAX_SAMPLES", "request_samples"]
+__all__ = ["PRESETS", "get_preset", "preset_problem", "simulate", "MAX_RUNS", "MAX_SAMPLES",
+           "request_samples"]
 
 
 def _apply_overrides(cfg: SimConfig, overrides: dict[str, Any]) -> SimConfig:
@@ -76,12 +78,24 @@ def _apply_overrides(cfg: SimConfig, overrides: dict[str, Any]) -> SimConfig:
     return cfg
 
 
-def get_preset(name: str) -> SimConfig:
-    """The preset called ``name``; an unknown name raises ``ValueError`` listing the valid ones."""
+def preset_problem(name: object) -> str | None:
+    """Why ``name`` names no preset, with the closest one suggested ("unknown preset
+    'patent-gyr' (did you mean 'patent-gyro'? valid: …)"), or None when it names one."""
     key = str(name).lower()
-    if key not in PRESETS:
-        raise ConfigError(f"unknown preset '{name}' (valid: {', '.join(sorted(PRESETS))})")
-    return PRESETS[key]
+    if key in PRESETS:
+        return None
+    close = difflib.get_close_matches(key, list(PRESETS), n=1)
+    hint = f"did you mean '{close[0]}'? " if close else ""
+    return f"unknown preset '{name}' ({hint}valid: {', '.join(sorted(PRESETS))})"
+
+
+def get_preset(name: str) -> SimConfig:
+    """The preset called ``name``; an unknown name raises ``ConfigError`` suggesting the
+    closest and listing the valid ones (:func:`preset_problem`)."""
+    why = preset_problem(name)
+    if why:
+        raise ConfigError(why)
+    return PRESETS[str(name).lower()]
 
 
 #: Bounds of one simulation request: what it may allocate is known before it starts, so an
@@ -108,8 +122,8 @@ def _check_request_size(cfg: SimConfig, n_runs: int) -> None:
                           "(bounded so that a request cannot exhaust memory)")
     total = request_samples(cfg, n_runs)
     if total > MAX_SAMPLES:
-        raise ConfigError(f"{n_runs} runs of preset '{cfg.name}' are {total:,} samples, above the "
-                          f"limit of {MAX_SAMPLES:,} per simulation (bounded so that a request "
+        raise ConfigError(f"{counted(n_runs, 'run')} of preset '{cfg.name}' are {total:,} "
+                          f"samples, above the limit of {MAX_SAMPLES:,} per simulation (bounded so that a request "
                           "cannot exhaust memory)")
 
 

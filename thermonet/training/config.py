@@ -32,7 +32,7 @@ from ..models.hyper import HyperError
 from ..models.registry import make_spec
 from ..models.shipped import MODEL_KINDS
 from ..scoring.fleetstats import parse_limits
-from ..sim.presets import MAX_RUNS
+from ..sim.presets import MAX_RUNS, preset_problem
 from .config_sections import (  # the other sections: their own module
     BandConfig,
     DataConfig,
@@ -336,7 +336,12 @@ def tune_points(fam: FamilyConfig, source: str = "config", key: str = "families"
 
 
 def _check_data(data: DataConfig, source: str) -> None:
-    """Bounds of the ``data`` section that need no data: run count, seed."""
+    """Bounds of the ``data`` section that need no data: the preset's name (when no
+    ``paths`` are given: the preset is then simulated), run count, seed."""
+    if not data.paths and data.preset is not None:
+        why = preset_problem(data.preset)
+        if why:
+            raise ConfigError(f"{source}: key 'data.preset': {why}")
     if data.runs is not None and not 1 <= data.runs <= MAX_RUNS:
         raise ConfigError(f"{source}: key 'data.runs': {data.runs} is not in 1..{MAX_RUNS} "
                           "(the upper bound keeps a request within memory)")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core.errors import InputError
+from ...core.errors import InputError, counted
 from ...core.recording import Dataset, Recording
 
 __all__ = ["SensorInstance", "FlightLog", "AXES", "UNITS", "temperature_step", "screen_samples",
@@ -394,9 +394,11 @@ def byte_ranges_note(ranges: list[tuple[int, int]], size: int) -> str:
     total = sum(b - a for a, b in ranges)
     where = ", ".join(f"{a:,}..{b:,}" for a, b in ranges[:3]) + (", …" if len(ranges) > 3 else "")
     cut = "; the file ends inside a message: cut short?" if ranges[-1][1] >= size else ""
+    share = total / max(size, 1)
+    share_text = f"{share:.1%}" if share >= 0.001 else "under 0.1%"
     return (f"{len(ranges)} damaged stretch{'es' if len(ranges) > 1 else ''} not readable as "
-            f"messages, {total:,} bytes ({total / max(size, 1):.1%} of the file) skipped at "
-            f"bytes {where}{cut}")
+            f"messages, {total:,} byte{'s' * (total != 1)} ({share_text} of the file) skipped "
+            f"at bytes {where}{cut}")
 
 
 def time_gaps(instances: list[SensorInstance]) -> list[str]:
@@ -437,7 +439,7 @@ def drop_phantoms(instances: list[SensorInstance], autopilot: str) -> tuple[
             why = (f"instance number {inst.instance} (the autopilot logs "
                    f"0..{MAX_INSTANCE[autopilot]})")
         elif inst.n_samples < 20 and most >= 1000 and 100 * inst.n_samples < most:
-            why = f"{inst.n_samples} samples where another {inst.kind} has {most}"
+            why = f"{counted(inst.n_samples, 'sample')} where another {inst.kind} has {most}"
         else:
             keep.append(inst)
             continue

@@ -51,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.errors import InputError
+from ...core.errors import InputError, counted
 from ..firmware import ardupilot_correction
 from .base import (
     FlightLog,
@@ -218,7 +218,8 @@ def read_dataflash(path: str | Path) -> FlightLog:
     stop = re.search(r"unknown msg type \S+ \(\d+\) at (\d+)", index_chatter)
     chatter = io.StringIO()
     got = _read_messages(path, reader, stop is not None, chatter)
-    damage, unread = _damage(index_chatter, chatter.getvalue(), stop, got.skipped, size)
+    cut = _cut_short(reader, stop is not None)
+    damage, unread = _damage(index_chatter, chatter.getvalue(), stop, got.skipped, size, cut)
     instances = _instances(got.rows, got.params)
     have_imu = {idx for (group, idx) in got.rows if group == "imu"}
     instances += _tclr_instances(got.tclr, got.params, have_imu)
@@ -315,9 +316,41 @@ def _add_row(got: _Messages, mtype: str, d: dict[str, Any]) -> None:
             [d["TimeUS"] * 1e-6, d["Press"], d.get("Temp", np.nan)])
 
 
+def _cut_short(reader: Any, sequential: bool) -> tuple[int, int] | None:
+    """The [start, end of file) bytes of a last message the file ends inside (a log cut
+    short, as a download or a power loss leaves it), else None.
+
+    pymavlink stops there without a word (it takes the last 528 bytes of a log for
+    padding).  Through its index: the message that starts last, where it would end.  Read
+    message by message: the reader stops just past the cut message's header, or before the
+    last one or two bytes of a header.  A tail of a byte or two that starts no header is
+    padding, not a cut."""
+    size = int(reader.data_len)
+    data = reader.data_map
+    head = bytes([reader.HEAD1, reader.HEAD2])
+    if sequential:
+        at = int(reader.offset)
+        if at >= size:
+            return None
+        if at >= 3 and bytes(data[at - 3:at - 1]) == head and data[at - 1] in reader.formats:
+            return at - 3, size
+        return (at, size) if head.startswith(bytes(data[at:size])) else None
+    last = max(((offs[-1], t) for t, offs in enumerate(reader.offsets)
+                if offs and t in reader.formats), default=None)
+    if last is None:
+        return None
+    end = last[0] + int(reader.formats[last[1]].len)
+    if end > size:
+        return last[0], size
+    if end < size and size - end < len(head) + 1 and head.startswith(bytes(data[end:size])):
+        return end, size
+    return None
+
+
 def _damage(index_chatter: str, read_chatter: str, stop: re.Match[str] | None, skipped: int,
-            size: int) -> tuple[list[str], float]:
-    """The damage notes from pymavlink's chatter, and the fraction of the file unread."""
+            size: int, cut: tuple[int, int] | None = None) -> tuple[list[str], float]:
+    """The damage notes from pymavlink's chatter and a last message cut short (``cut``:
+    :func:`_cut_short`), and the fraction of the file unread."""
     damage: list[str] = []
     if stop is not None:   # the sequential pass reports every damaged stretch itself
         bad = _merge([(int(o), int(o) + int(n)) for n, o in re.findall(
@@ -327,10 +360,12 @@ def _damage(index_chatter: str, read_chatter: str, stop: re.Match[str] | None, s
     else:
         bad = _ranges([int(o) for o in re.findall(r"bad header .* at (\d+)",
                                                   index_chatter + read_chatter)])
+    if cut is not None:
+        bad = _merge([*bad, cut])
     if bad:
         damage.append(byte_ranges_note(bad, size))
     if skipped:
-        damage.append(f"{skipped} messages whose fields do not parse skipped")
+        damage.append(f"{counted(skipped, 'message')} whose fields do not parse skipped")
     return damage, sum(b - a for a, b in bad) / max(size, 1)
 
 

@@ -7,14 +7,20 @@ from typing import Any
 
 import numpy as np
 
-from . import read_log, temperature_step
+from ...core.errors import InputError, counted
+from . import read_log, split_instance, temperature_step
 from .base import UNITS
 
-__all__ = ["summarize_log", "format_log_summary"]
+__all__ = ["summarize_log", "format_log_summary", "AUTOPILOT_NAMES"]
+
+#: How each autopilot is written in prose.
+AUTOPILOT_NAMES = {"px4": "PX4", "ardupilot": "ArduPilot"}
 
 
 def summarize_log(path: str | Path) -> dict[str, Any]:
     """Per instance: kind, device id, samples, rate, temperature span and step, notes.
+
+    ``LOG#instance`` (``b.ulg#gyro0``) summarises that one instance of the log.
 
     Returns
     -------
@@ -27,9 +33,14 @@ def summarize_log(path: str | Path) -> dict[str, Any]:
         parameters the log carries: ``TC_*``, ``SYS_CAL_*``, ``INS_TCAL*``,
         ``AHRS_ORIENTATION``).
     """
-    log = read_log(path)
+    file, name = split_instance(path)
+    log = read_log(file)
+    insts = [i for i in log.instances if i.name == name] if name else log.instances
+    if not insts:
+        raise InputError.at(file, f"no sensor instance '{name}' (instances: "
+                            f"{', '.join(i.name for i in log.instances)})")
     rows = []
-    for inst in log.instances:
+    for inst in insts:
         t = inst.time_s
         temp = inst.temperature_c if inst.temperature_c is not None and inst.n_samples else None
         rows.append({
@@ -63,7 +74,8 @@ def format_log_summary(s: dict[str, Any]) -> str:
                      r["unit"]])
     widths = [max(len(h), *(len(x[i]) for x in rows)) for i, h in enumerate(head)]
     board = f", board {s['board_id']}" if s.get("board_id") else ""
-    out = [f"{s['log']}: {s['autopilot']} log{board}, {len(rows)} sensor instances", ""]
+    who = AUTOPILOT_NAMES.get(s["autopilot"], s["autopilot"])
+    out = [f"{s['log']}: {who} log{board}, {counted(len(rows), 'sensor instance')}", ""]
     out += ["  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)).rstrip()
             for line in [head, ["-" * w for w in widths]] + rows]
     notes = list(s.get("log_notes", [])) + [f"{r['name']}: {n}" for r in s["instances"]
