@@ -90,6 +90,10 @@ def test_results_checkpoint_and_report_record_what_was_used(on_files):
     assert payload["extra"]["mlflow_run_id"] == ""
     html = (out / "report.html").read_text()
     assert _sha(data) in html and "tracking: off" in html
+    # the resolved config's header: the options given, not those left unset (was
+    # "tracking_uri=None, workers=None")
+    head = (out / "config.resolved.yaml").read_text()
+    assert "# options as given: track=False, plots=False\n" in head
 
 
 def test_an_exported_onnx_file_names_its_checkpoint_and_data(on_files, tmp_path):

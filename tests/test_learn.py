@@ -214,7 +214,7 @@ def test_resume_from_the_cache_and_grow(tmp_path, capsys):
     assert "8 logs: 5 read before (cache), 3 to read" in captured.err
     doc = json.loads((out / "results.json").read_text())
     assert doc["changes"][0] == "flights: 5 -> 8"
-    assert any(c.startswith("gyro0: 5 -> 8 flights") for c in doc["changes"])
+    assert any(c.startswith("gyro0: flights 5 -> 8") for c in doc["changes"])
     assert "changed: flights: 5 -> 8" in captured.out
     assert first["instances"]["gyro0"]["firmware"] != doc["instances"]["gyro0"]["firmware"]
     # a copy of a flight under another name is that flight once, not a ninth: refused in one

@@ -45,7 +45,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from ..core.errors import ConfigError, Interrupted, ThermonetError
+from ..core.errors import ConfigError, Interrupted, ThermonetError, counted
 from ..core.fileio import atomic_write_text
 from ..core.helpers import usable_cores
 from ..core.outdir import Stage, staged_output
@@ -279,7 +279,7 @@ def _plan_step(cfg: CompareConfig, out: Path, tracking: TrackingSession, progres
     if cfg.tracking.register is not None and not tracking.enabled:  # off for this run only
         result.warn(f"tracking.register {cfg.tracking.register!r} is ignored: tracking is off "
                     f"for this comparison (--no-track), so no model is registered")
-    progress.line(f"thermonet compare: {ds.device_id} ({len(ds)} runs, outputs "
+    progress.line(f"thermonet compare: {ds.device_id} ({counted(len(ds), 'run')}, outputs "
                   f"{', '.join(p.outputs)}), split {result.split['strategy']}")
     _note_streamed(cfg, ds, result, progress)
     tracking.open(f"compare-{ds.device_id}", resolved, tags, [

@@ -221,7 +221,7 @@ def _changes(old: dict[str, Any] | None, new: dict[str, Any]) -> list[str]:
             out.append(f"{name}: new")
             continue
         was, now = o.get("supported_c"), d.get("supported_c")
-        parts = [f"{o.get('flights')} -> {d.get('flights')} flights"] \
+        parts = [f"flights {o.get('flights')} -> {d.get('flights')}"] \
             if o.get("flights") != d.get("flights") else []
         if was != now:
             parts.append(f"supported {_span(was)} -> {_span(now)}")
@@ -238,7 +238,7 @@ def _changes(old: dict[str, Any] | None, new: dict[str, Any]) -> list[str]:
 
 
 def _span(s: list[int] | None) -> str:
-    return f"{s[0]}..{s[1]} °C" if s else "nothing"
+    return f"{s[0]}..{s[1]} °C" if s else "no bin"
 
 
 def learn(paths: Sequence[str | Path], out_dir: str | Path, *, executor: str = "process",

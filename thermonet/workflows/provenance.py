@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from ..core.errors import counted
 from ..core.outdir import sha256_file
 from ..core.recording import Dataset
 from ..training.config import (
@@ -95,15 +96,16 @@ def resolved_yaml(resolved: dict[str, Any], provenance: dict[str, Any]) -> str:
             lines.append(f"# mapping: {src['mapping']['sha256'] or 'missing'}  "
                          f"{src['mapping']['path']}")
     elif src["kind"] == "simulated":
-        lines.append(f"# data: simulated, preset {src['preset']}, {src['runs']} runs, "
-                     f"seed {src['seed']}")
+        lines.append(f"# data: simulated, preset {src['preset']}, "
+                     f"{counted(int(src['runs']), 'run')}, seed {src['seed']}")
     else:
         lines.append(f"# data: a dataset passed by the caller (device {src['device']}, "
                      f"runs {', '.join(src['runs'])})")
     t = provenance["tracking"]
     lines.append("# tracking: " + (f"MLflow at {t['uri']}" if t["enabled"] else "off"))
-    lines.append("# options as given: " + ", ".join(f"{k}={v!r}" for k, v in
-                                                     provenance["options"].items()))
+    given = {k: v for k, v in provenance["options"].items() if v is not None}
+    lines.append("# options as given: " + (", ".join(f"{k}={v!r}" for k, v in given.items())
+                                           or "none (the defaults)"))
     return "\n".join(lines) + "\n" + _yaml_text(resolved)
 
 
