@@ -232,7 +232,7 @@ def test_fleet_of_three_sensor_units_with_an_outlier(tmp_path):
     cfg = config_from_mapping({"model": "sensor", "tracking": {"enabled": False},
                                "families": [{"family": "poly", "name": "cubic",
                                              "params": {"degree": 3}}],
-                               "limits": {"gyro": {"max_std": 0.01}}})
+                               "limits": {f"gyro_{a}": {"max_std": 0.01} for a in "xyz"}})
     res = run_fleet(cfg, tmp_path / "fleet", sources_from_dataset(ds), quiet=True, plots=False,
                     options=FleetOptions(executor="serial", folds=3))
     units = res["units"]

@@ -10,10 +10,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..core.errors import ThermonetError
+from ..core.errors import ThermonetError, failures_line
+from ..core.fileio import refuse_overwriting_inputs
 from ..core.names import path_components
 from ..exporting import FORMATS, export_source  # the registry only: no torch, no onnx
-from .options import tracking_args
+from .options import overwrite_arg, refuse_existing, tracking_args
 
 
 def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
@@ -57,18 +58,34 @@ _EXTENSIONS = {"onnx": ".onnx", "c": ".h", "px4-params": ".params",
                "ardupilot-params": ".parm"}
 
 
-def _export_all_units(args: argparse.Namespace) -> int:
-    """One file per unit of a fleet directory, ``OUT/<device_id><ext>``; each verified as a
-    single export is.  Units that cannot be exported are listed; exit 1 if any."""
-
-    src = Path(args.source)
+def _fleet_units(src: Path) -> dict[str, Any]:
+    """The units of the fleet directory ``src`` (its results.json's ``units``); a compare
+    directory, or anything else, refused in one line."""
     try:
-        units = json.loads((src / "results.json").read_text())["units"]
-        if not isinstance(units, dict):
-            raise TypeError("'units' is not a mapping")
-    except (OSError, ValueError, KeyError, TypeError) as err:
+        results = json.loads((src / "results.json").read_text())
+        if not isinstance(results, dict):
+            raise TypeError("not a mapping")
+    except (OSError, ValueError, TypeError) as err:
         raise ThermonetError(f"{src}: not a fleet directory (results.json with 'units': "
                              f"{err})") from None
+    if results.get("kind") != "fleet" and isinstance(results.get("families"), dict):
+        raise ThermonetError(f"{src}: a compare directory, not a fleet: export it without "
+                             "--all-units (--out a file)")
+    units = results.get("units")
+    if results.get("kind") != "fleet" or not isinstance(units, dict):
+        raise ThermonetError(f"{src}: not a fleet directory (its results.json is not a "
+                             "fleet's: no kind 'fleet' with a mapping of units)")
+    return units
+
+
+def _export_all_units(args: argparse.Namespace) -> int:
+    """One file per unit of a fleet directory, ``OUT/<device_id><ext>``; each verified as a
+    single export is.  Units that cannot be exported are listed; exit 1 if any; when none
+    was, one line says why and nothing is left (an --out made for them is removed)."""
+    from ..exporting.source import check_export_request  # lazy: as export_source
+
+    src = Path(args.source)
+    units = _fleet_units(src)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ThermonetError(f"{out}: --out must be a directory with --all-units")
@@ -83,29 +100,60 @@ def _export_all_units(args: argparse.Namespace) -> int:
         more = f" and {len(taken) - 1} more" if len(taken) > 1 else ""
         raise ThermonetError(f"{out}: already holds {taken[0]}{more}; --all-units writes only "
                              "new files: choose an empty --out or remove them")
+    for dev in list(units)[:1]:   # the options, once, before anything is written
+        check_export_request(fmt=args.format, out=out / f"{names[dev]}{ext}",
+                             family=args.family, device_id=args.device_id,
+                             instance=args.instance)
+    made = [d for d in (out, *out.parents) if not d.exists()]   # removed if nothing is written
     out.mkdir(parents=True, exist_ok=True)
-    failed = 0
-    for dev in units:
+    bad: list[tuple[str, str]] = []
+    alike: list[tuple[str, str]] = []   # the reasons with the unit's own directory taken off
+    for dev, unit in units.items():
         udir = src / "units" / names[dev]
-        if not udir.resolve().is_relative_to(src.resolve()) or not udir.is_dir():
-            print(f"thermonet: {dev}: skipped (no unit directory {udir})", file=sys.stderr)
-            failed += 1
-            continue
-        try:
-            path = export_source(str(udir), fmt=args.format, out=out / f"{names[dev]}{ext}",
-                                 family=args.family,
-                                 device_id=args.device_id, instance=args.instance)
-            print(f"wrote {path}")
-        except ThermonetError as err:
-            print(f"thermonet: {dev}: not exported: {err}", file=sys.stderr)
-            failed += 1
-    print(f"{len(units) - failed} of {len(units)} units exported to {out}")
-    return 1 if failed else 0
+        why = _export_unit(args, src, unit, udir, out / f"{names[dev]}{ext}")
+        if why is not None:
+            bad.append((dev, why))
+            alike.append((dev, why.replace(f"{udir}{os.sep}", "").replace(f"{udir}: ", "")))
+    if len(bad) == len(units):     # nothing written: the directories made for it go too
+        for d in made:
+            try:
+                d.rmdir()
+            except OSError:
+                break
+        raise ThermonetError(f"{src}: no unit exported, nothing written: "
+                             + failures_line(alike, "unit"))
+    for dev, why in bad:
+        print(f"thermonet: {dev}: {why}", file=sys.stderr)
+    print(f"{len(units) - len(bad)} of {len(units)} units exported to {out}")
+    return 1 if bad else 0
+
+
+def _export_unit(args: argparse.Namespace, src: Path, unit: Any, udir: Path, out: Path
+                 ) -> str | None:
+    """One unit of ``--all-units`` exported to ``out``: None when written, else why not."""
+    if isinstance(unit, dict) and unit.get("status") == "failed":
+        return f"skipped (the fleet could not calibrate it: {str(unit.get('reason'))[:200]})"
+    if not udir.resolve().is_relative_to(src.resolve()) or not udir.is_dir():
+        return f"skipped (no unit directory {udir})"
+    try:
+        path = export_source(str(udir), fmt=args.format, out=out, family=args.family,
+                             device_id=args.device_id, instance=args.instance)
+    except ThermonetError as err:
+        return f"not exported: {err}"
+    print(f"wrote {path}")
+    return None
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
     if args.all_units:
         return _export_all_units(args)
+    src = Path(args.source)
+    # an input named as --out is said as such, --overwrite or not (export_source checks the
+    # checkpoint it resolves again)
+    refuse_overwriting_inputs(args.out, [src, src / "results.json",
+                                         *(sorted((src / "models").glob("*.pt"))
+                                           if src.is_dir() else [])])
+    refuse_existing([Path(args.out)], args.overwrite)
     path = export_source(args.source, fmt=args.format, out=args.out, family=args.family,
                          tracking_uri=args.tracking_uri, device_id=args.device_id,
                          instance=args.instance)
@@ -156,7 +204,8 @@ def add_export(sub: Any) -> None:
                    help="output file (with --all-units: output directory)")
     e.add_argument("--all-units", action="store_true",
                    help="SOURCE is a fleet directory: write one file per unit, "
-                        "OUT/<device_id>.<ext>")
+                        "OUT/<device_id>.<ext> (only new files)")
+    overwrite_arg(e, "an existing --out file (without --all-units)")
     e.add_argument("--family", default=None, help="family name in a compare dir (default: chosen)")
     e.add_argument("--tracking-uri", default=None, help="MLflow URI for a run-id source")
     e.add_argument("--device-id", type=int, default=None,

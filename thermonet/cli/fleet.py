@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import ThermonetError
-from .options import tracking_args
+from .options import overwrite_arg, refuse_existing, tracking_args
 
 
 def _cmd_learn(args: argparse.Namespace) -> int:
@@ -108,6 +108,7 @@ def _cmd_prior(args: argparse.Namespace) -> int:
 
     cfg = load_config(args.config)
     out = check_out_file(args.out)      # before any unit is read or fitted
+    refuse_existing([out], args.overwrite)
     sources = _station_sources(args, cfg)
     ds = Dataset(runs=[r for s in sources for r in s.load(cfg)])
     fp = build_prior(cfg, ds, source=str(args.config))
@@ -176,6 +177,7 @@ def add_prior(sub: Any) -> None:
                                    "(configs/README.md#fleet-prior-and-station).")
     q.add_argument("config", help="comparison YAML whose data hold the calibrated units")
     q.add_argument("--out", required=True, help="the prior file to write (prior.json)")
+    overwrite_arg(q, "an existing prior file")
     _sim_unit_args(q, test=False)
     q.add_argument("-q", "--quiet", action="store_true", help="no summary on stdout")
     q.set_defaults(func=_cmd_prior)
@@ -241,7 +243,8 @@ def add_fleet(sub: Any) -> None:
     f.add_argument("--executor", choices=["process", "serial", "ray"], default="process",
                    help="process pool (default), this process, or a Ray cluster")
     f.add_argument("--workers", type=int, default=None,
-                   help="worker processes / local Ray CPUs (default: all cores)")
+                   help="worker processes / local Ray CPUs (default: all cores; 0: one per "
+                        "CPU this process may use, as compare)")
     f.add_argument("--ray-address", default=None,
                    help="Ray cluster address (default: start a local Ray)")
     f.add_argument("--family", default=None,

@@ -10,6 +10,7 @@ from typing import Any
 
 from ..core.errors import ThermonetError, counted
 from ..core.fileio import refuse_overwriting_inputs
+from .options import overwrite_arg, refuse_existing
 
 #: The preset that writes flights of one vehicle (logs with its estimator), not a run.
 FLIGHTS_PRESET = "fc-board-flights"
@@ -33,7 +34,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         unused = _given(args, takes=("runs",))
         if unused:
             raise ThermonetError(f"{unused[0]}: preset '{args.preset}' simulates one board "
-                                 "(one log per warm-up); it takes only --seed, --runs and --out")
+                                 "(one log per warm-up); it takes only --seed, --runs, --out "
+                                 "and --overwrite")
         if args.runs is not None and args.runs > MAX_BOARD_RUNS:
             raise ThermonetError(f"--runs {args.runs}: preset '{args.preset}' writes at most "
                                  f"{MAX_BOARD_RUNS} logs (one file per warm-up)")
@@ -47,6 +49,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     for opt in ("outliers", "clusters", "test"):
         if args.units is None and getattr(args, opt):
             raise ThermonetError(f"--{opt} needs --units (it shapes the units of a fleet)")
+    refuse_existing([Path(args.out)], args.overwrite)   # before anything is simulated
     if args.units is None:
         ds = simulate(args.preset, runs=args.runs, seed=args.seed)
     else:
@@ -54,9 +57,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                             outliers=args.outliers, clusters=args.clusters, test=args.test)
     path = (write_csv if Path(args.out).suffix.lower() == ".csv" else write_parquet)(ds, args.out)
     n = sum(r.n_samples for r in ds)
-    fleet = f"{len(ds.unit_ids)} units ({args.outliers} outliers), " if args.units else ""
-    print(f"wrote {path}: preset {args.preset}, {fleet}{len(ds)} runs, {n} samples, "
-          f"outputs {', '.join(ds.axes)}")
+    fleet = f"{counted(len(ds.unit_ids), 'unit')} ({counted(args.outliers, 'outlier')}), " \
+        if args.units else ""
+    print(f"wrote {path}: preset {args.preset}, {fleet}{counted(len(ds), 'run')}, "
+          f"{counted(n, 'sample')}, outputs {', '.join(ds.axes)}")
     return 0
 
 
@@ -77,6 +81,7 @@ def _simulate_board(args: argparse.Namespace) -> int:
     # FILE_run1.ulg .. FILE_runN.ulg; one log (no --runs, or --runs 1): FILE itself
     paths = [out] if args.runs is None or args.runs == 1 else [
         out.with_name(f"{out.stem}_run{k}{out.suffix}") for k in range(1, args.runs + 1)]
+    refuse_existing(paths, args.overwrite)
     for run, target in enumerate(paths):
         log = simulate_board(args.preset, autopilot=autopilot, seed=args.seed, run=run)
         path = write_log(log, target)
@@ -104,7 +109,9 @@ def _simulate_flights(args: argparse.Namespace) -> int:
         raise ThermonetError(f"--seed {args.seed}: must be a non-negative integer")
     out = Path(args.out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise ThermonetError(f"{out}: --out must be a new or empty directory (one log a flight)")
+        raise ThermonetError(f"{out}: --out must be a new or empty directory (one log a flight"
+                             + ("; --overwrite replaces no directory)" if args.overwrite
+                                else ")"))
     ext = args.format or "ulg"
     flights = simulate_flights(args.flights, seed=args.seed,
                                autopilot="px4" if ext == "ulg" else "ardupilot")
@@ -129,10 +136,10 @@ def _given(args: argparse.Namespace, takes: tuple[str, ...]) -> list[str]:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from ..data.logs import is_log  # lazy: off the --help path
+    from ..data.logs import is_log_source  # lazy: off the --help path
     from ..workflows.info import format_summary  # lazy: loads yaml
 
-    if any(is_log(f) for f in args.files):
+    if any(is_log_source(f) for f in args.files):      # a log, or LOG#instance
         from ..data.logs.info import format_log_summary, summarize_log  # lazy: off the --help path
 
         if len(args.files) != 1 or args.mapping:
@@ -171,16 +178,22 @@ def _cmd_convert(args: argparse.Namespace) -> int:
         write_csv,
         write_parquet,
     )
-    from ..data.logs import is_log  # lazy: off the --help path
+    from ..data.logs import is_log_source  # lazy: off the --help path
     from ..data.mapping import load_mapping  # lazy: loads yaml
 
     out = Path(args.out)
+    # what --out must be, said before whether it exists (--overwrite would not help)
+    if out.suffix.lower() not in (".parquet", ".pq", ".csv"):
+        raise ThermonetError(f"{out}: --out must end in .parquet (or .pq), a thermonet "
+                             "recording, or .csv, the runtime's input")
+    if out.is_dir():
+        raise ThermonetError(f"{out}: is a directory; --out names a .parquet or .csv file")
     refuse_overwriting_inputs(out, [*args.files, *([args.mapping] if args.mapping else [])])
     if out.exists() and not args.overwrite:
         raise ThermonetError(f"{out}: already exists (give --overwrite to replace it)")
     if args.chunk_rows is not None and args.chunk_rows < 1:
         raise ThermonetError(f"--chunk-rows must be >= 1, got {args.chunk_rows}")
-    if out.suffix.lower() == ".csv" or any(is_log(f) for f in args.files):
+    if out.suffix.lower() == ".csv" or any(is_log_source(f) for f in args.files):
         # a .csv: the runtime's input (export/thermonet_runtime.py reads a CSV whole, so
         # this one is read whole too); a flight log: read whole
         ds = read_datasets(args.files, mapping=args.mapping)
@@ -191,7 +204,7 @@ def _cmd_convert(args: argparse.Namespace) -> int:
         mapping = load_mapping(args.mapping) if args.mapping else None
         layouts = [open_source(f, mapping, chunk_rows=chunk) for f in args.files]
         n_runs, n = write_streamed(layouts, out, chunk_rows=chunk)
-    print(f"{n_runs} run(s), {n} samples -> {out}")
+    print(f"{n_runs} run(s), {counted(n, 'sample')} -> {out}")
     return 0
 
 
@@ -237,6 +250,7 @@ def add_simulate(sub: Any) -> None:
     s.add_argument("--out", required=True,
                    help="output .parquet file, or .csv (conventional column names, one row a "
                         "sample: what export/thermonet_runtime.py reads); .ulg / .bin for fc-board")
+    overwrite_arg(s, "an existing --out file (.parquet, .csv, .ulg / .bin logs)")
     s.add_argument("--units", type=int, default=None,
                    help="simulate a fleet of N units (device ids <preset>-u000 …), each with "
                         "the preset's unit-to-unit spread")

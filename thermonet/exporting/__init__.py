@@ -36,6 +36,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ExportFormat", "ExportRequest", "Exporter", "FORMATS", "register_format", "get_format",
+    "MAX_DEVICE_ID",
     "export_source", "resolve_checkpoint",
     "CompensatorGraph", "export_onnx", "parity_check", "log_onnx_to_mlflow", "onnx_file_size",
     "log_onnx_model", "onnx_of_checkpoint",
@@ -43,6 +44,11 @@ __all__ = [
     "AutopilotCoefficients", "autopilot_coefficients", "export_px4_params",
     "export_ardupilot_params", "read_px4_params", "read_ardupilot_params",
 ]
+
+
+#: The largest sensor device id: PX4's ``TC_*_ID`` and ArduPilot's ids are 32-bit (what
+#: ``thermonet verify`` reads back: :func:`thermonet.workflows.verify_params._device_id`).
+MAX_DEVICE_ID = 2 ** 32 - 1
 
 
 @dataclass(frozen=True)

@@ -72,9 +72,11 @@ from numpy.polynomial import polynomial as P
 from ..core.errors import ExportError
 from ..core.fileio import atomic_write_text
 from ..core.recording import output_kind
+from ..features.target import FOURPOS_SUFFIXES
 from ..models import DriftModel
 from ..models.composite import AxisModels, DriftModels
 from ..scoring.band import Band
+from . import MAX_DEVICE_ID
 from .onnx_export import family_name
 
 __all__ = [
@@ -83,6 +85,7 @@ __all__ = [
     "ARDUPILOT_SCALE",
     "AutopilotCoefficients",
     "autopilot_coefficients",
+    "check_offset_outputs",
     "export_px4_params",
     "export_ardupilot_params",
     "ekf_recommendation",
@@ -133,6 +136,17 @@ class AutopilotCoefficients:
     t_max: float
     coef: dict[str, np.ndarray] = field(default_factory=dict)
     present: dict[str, list[str]] = field(default_factory=dict)
+
+
+def check_offset_outputs(outputs: list[str], fmt: str = "PX4/ArduPilot parameters",
+                         source: str | None = None) -> None:
+    """Refuse a four-position model (``<axis>.bias`` and ``<axis>.scale``) in one line."""
+    both = [o for o in outputs if o.endswith(FOURPOS_SUFFIXES)]
+    if both:
+        raise ExportError(f"{source + ': ' if source else ''}a four-position model (bias and "
+                          f"scale factor per axis: {', '.join(both)}) cannot be written as {fmt}: "
+                          "PX4/ArduPilot files hold a per-axis offset polynomial in temperature; "
+                          "export it as ONNX or C (--format onnx or --format c)")
 
 
 def _unit_of(axis: str, units: str | Mapping[str, str]) -> str:
@@ -260,10 +274,10 @@ def autopilot_coefficients(model: DriftModels, *, output_units: str | Mapping[st
     Raises
     ------
     ExportError
-        A family without a polynomial form, a degree above 3, another input; an axis
-        that is not gyro/acc x/y/z;
-        a unit that does not match the axis kind.
+        A family without a polynomial form, a degree above 3, another input; a four-position
+        model; an axis that is not gyro/acc x/y/z; a unit that does not match the axis kind.
     """
+    check_offset_outputs(list(model.outputs))
     if isinstance(model, AxisModels):
         return _axis_models_coefficients(model, output_units=output_units, t_ref=t_ref)
     form = _polynomial_form(model)
@@ -407,10 +421,14 @@ def export_px4_params(model: DriftModels, path: str | Path, *, output_units: str
     if not 0 <= int(instance) <= 3:
         raise ExportError(f"PX4 calibration instance must be 0..3, got {instance}")
     co = autopilot_coefficients(model, output_units=output_units)
-    if device_id is None or isinstance(device_id, bool) or int(device_id) <= 0:
-        raise ExportError("PX4 applies TC_*_ parameters only to the sensor whose device id "
+    if device_id is None:
+        raise ExportError("PX4 applies TC_* parameters only to the sensor whose device id "
                           "equals TC_*_ID: give the sensor's device id (--device-id; read it "
-                          f"with 'listener sensor_gyro'), got {device_id!r}")
+                          "with 'listener sensor_gyro')")
+    if isinstance(device_id, bool) or not 1 <= int(device_id) <= MAX_DEVICE_ID:
+        raise ExportError(f"device id {device_id!r} is not a sensor device id (PX4 device ids "
+                          f"are 32-bit: 1..{MAX_DEVICE_ID})")
+    int32_id = int(device_id) - (1 << 32 if int(device_id) >= 1 << 31 else 0)  # as PX4's INT32
     lines = ["# Sensor thermal compensation parameters (thermonet, poly on temperature)",
              f"# family poly, T_ref {co.t_ref:g} degC, range [{co.t_min:g}, {co.t_max:g}] degC",
              "#",
@@ -420,7 +438,7 @@ def export_px4_params(model: DriftModels, path: str | Path, *, output_units: str
         t = _PX4_TYPE[kind]
         rows.append((f"TC_{t}_ENABLE", "1", 6))
         pre = f"TC_{t}{instance}_"
-        rows.append((pre + "ID", str(int(device_id)), 6))
+        rows.append((pre + "ID", str(int32_id), 6))
         rows += [(pre + "TMAX", _g(co.t_max), 9), (pre + "TMIN", _g(co.t_min), 9),
                  (pre + "TREF", _g(co.t_ref), 9)]
         if kind == "baro":          # TC_B<i>_X0..X5, Pa (calc_thermal_offsets_1D)

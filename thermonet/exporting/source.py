@@ -45,7 +45,7 @@ from ..tracking import (
     missing_store,
     store_problem,
 )
-from . import ExportFormat, ExportRequest, get_format
+from . import MAX_DEVICE_ID, ExportFormat, ExportRequest, get_format
 
 if TYPE_CHECKING:
     from ..models.composite import DriftModels
@@ -78,6 +78,10 @@ def _from_compare_dir(path: Path, family: str | None) -> Path:
     if isinstance(results, dict) and family in (None, PER_AXIS) and (
             family or results.get("chosen")) == PER_AXIS:
         return _per_axis_checkpoint(path, results_file, results)
+    if isinstance(results, dict) and results.get("kind") == "fleet":
+        raise InputError(f"{path}: a fleet directory, not one comparison: export every unit "
+                         f"with --all-units (--out a directory), or one unit from "
+                         f"{path / 'units'}/<device id>")
     fams = results.get("families") if isinstance(results, dict) else None
     if not isinstance(fams, dict) or not all(isinstance(v, dict) for v in fams.values()):
         raise InputError(f"{results_file}: key 'families': not a mapping of family results")
@@ -198,7 +202,8 @@ def check_export_request(*, fmt: str, out: str | Path, family: str | None = None
 
     The format (a name in :data:`FORMATS`), ``--out`` (:func:`check_out_file`), ``--family``
     (a family name), ``--tracking-uri`` (a store :func:`thermonet.tracking.check_store`
-    accepts), ``--device-id`` (positive) and ``--instance`` (PX4 0..3, ArduPilot 1..3).
+    accepts), ``--device-id`` (1..:data:`~thermonet.exporting.MAX_DEVICE_ID`; required for
+    ``px4-params``) and ``--instance`` (PX4 0..3, ArduPilot 1..3).
     """
     export_format = get_format(fmt)
     check_out_file(out)
@@ -206,12 +211,19 @@ def check_export_request(*, fmt: str, out: str | Path, family: str | None = None
         check_name(family, LABEL, "--family")
     if tracking_uri is not None:
         check_store(tracking_uri)   # the line compare and fleet say
-    if device_id is not None and (isinstance(device_id, bool) or int(device_id) <= 0):
-        raise InputError(f"--device-id must be the sensor's positive device id, got {device_id}")
+    if device_id is not None and (isinstance(device_id, bool)
+                                  or not 1 <= int(device_id) <= MAX_DEVICE_ID):
+        raise InputError(f"--device-id must be the sensor's positive device id, got "
+                         f"{device_id}: PX4 and ArduPilot device ids are 32-bit, "
+                         f"1..{MAX_DEVICE_ID}")
     if instance is not None and fmt in _INSTANCES:
         lo, hi, what = _INSTANCES[fmt]
         if isinstance(instance, bool) or not lo <= int(instance) <= hi:
             raise InputError(f"--instance: {what} must be {lo}..{hi}, got {instance}")
+    if device_id is None and fmt == "px4-params":
+        raise InputError("--device-id is required with --format px4-params: PX4 applies the "
+                         "TC_* parameters only to the sensor whose device id equals TC_*_ID "
+                         "(read it with 'listener sensor_gyro' / 'listener sensor_accel')")
     return export_format
 
 
@@ -298,8 +310,12 @@ def write_c(model: DriftModels, out: Path, request: ExportRequest) -> Path:
 def write_px4_params(model: DriftModels, out: Path, request: ExportRequest) -> Path:
     """``px4-params``: PX4's TC_* parameter file (slot ``request.instance``, default 0)."""
     from ..scoring.band import shipped_band  # lazy: importing it loads numpy
-    from .autopilot import export_px4_params  # torch boundary (pyproject.toml): loads torch
+    from .autopilot import (  # torch boundary (pyproject.toml): loads torch
+        check_offset_outputs,
+        export_px4_params,
+    )
 
+    check_offset_outputs(model.outputs, "px4-params", request.source)
     return export_px4_params(model, out, output_units=request.output_units,
                              band=shipped_band(request.extra),
                              device_id=request.device_id,
@@ -309,8 +325,12 @@ def write_px4_params(model: DriftModels, out: Path, request: ExportRequest) -> P
 def write_ardupilot_params(model: DriftModels, out: Path, request: ExportRequest) -> Path:
     """``ardupilot-params``: ArduPilot's INS_TCAL* file (IMU ``request.instance``, default 1)."""
     from ..scoring.band import shipped_band  # lazy: importing it loads numpy
-    from .autopilot import export_ardupilot_params  # torch boundary (pyproject.toml): loads torch
+    from .autopilot import (  # torch boundary (pyproject.toml): loads torch
+        check_offset_outputs,
+        export_ardupilot_params,
+    )
 
+    check_offset_outputs(model.outputs, "ardupilot-params", request.source)
     return export_ardupilot_params(model, out, output_units=request.output_units,
                                    band=shipped_band(request.extra),
                                    imu=1 if request.instance is None else request.instance)

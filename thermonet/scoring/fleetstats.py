@@ -19,7 +19,8 @@ the MAD is the gap to the nearer neighbour and z-scores run into thousands).
 
 Limits (the ``limits:`` config section) turn a unit's held-out results into
 PASS/FAIL, per output axis or ``"*"`` for every axis (an axis entry overrides
-``*`` key by key):
+``*`` key by key; an axis that is not an output of the data is refused,
+:func:`check_limit_axes`, rather than judging nothing):
 
 ``max_pp``
     maximum peak-to-peak of the 1 °C-binned compensated error (``pp_comp``), output unit;
@@ -49,9 +50,10 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.schema import from_dict
 
-__all__ = ["LimitSpec", "parse_limits", "limits_for", "merged_limits", "judge_unit", "spread",
-           "robust_z", "flag_outliers", "ROBUST_Z_THRESHOLD", "MAD_TO_SIGMA",
-           "MIN_UNITS_FOR_OUTLIERS",
+__all__ = ["LimitSpec", "parse_limits", "check_limit_axes", "limits_for", "merged_limits",
+           "judge_unit", "spread", "robust_z", "flag_outliers", "ROBUST_Z_THRESHOLD",
+           "MAD_TO_SIGMA",
+           "MIN_UNITS_FOR_OUTLIERS", "quantity_label",
            "fleet_html_fragment"]
 
 _L = TypeVar("_L")
@@ -97,6 +99,17 @@ def parse_limits(raw: Any, *, source: str = "config") -> dict[str, LimitSpec]:
             msg = str(err)
             raise ConfigError(msg if msg.startswith(source) else f"{source}: {msg}") from None
     return out
+
+
+def check_limit_axes(limits: Mapping[str, Any], outputs: list[str], *,
+                     source: str = "config") -> None:
+    """Refuse, in one line naming the key, a ``limits`` entry that is not ``*`` and not one of
+    ``outputs`` (the outputs the units' models fit): such limits would judge nothing, and
+    every unit would pass them."""
+    unknown = [a for a in limits if a != "*" and a not in outputs]
+    if unknown:
+        raise ConfigError(f"{source}: key 'limits.{unknown[0]}': not an output of the data "
+                          f"(its outputs: {', '.join(outputs) or 'none'}; '*' for every one)")
 
 
 def merged_limits(limits: Mapping[str, _L], axis: str, kind: type[_L]) -> _L:
@@ -222,6 +235,13 @@ def flag_outliers(quantities: dict[str, dict[str, float]],
     return {u: sorted(f, key=lambda d: -abs(d["z"])) for u, f in sorted(flags.items())}
 
 
+def quantity_label(name: str) -> str:
+    """A quantity's name as text shows it: ``cubic.acc_x.drift@-20C`` (the results.json key)
+    reads ``cubic.acc_x.drift@-20 °C``; other names are shown as they are."""
+    head, at, temp = name.rpartition(".drift@")
+    return f"{head}{at}{temp[:-1]} °C" if at and temp.endswith("C") else name
+
+
 def fleet_html_fragment(results: dict[str, Any], spread_png: str | None = None) -> str:
     """An HTML fragment for the report: the unit × axis verdict table and the spread plot.
 
@@ -250,7 +270,8 @@ def fleet_html_fragment(results: dict[str, Any], spread_png: str | None = None) 
         verdict = lim.get("verdict", "—")
         cls = {"PASS": "pass", "FAIL": "fail"}.get(verdict, "")
         why = "; ".join(lim.get("reasons", []))
-        out = ", ".join(f"{f['quantity']} z={f['z']:.1f}" for f in flagged.get(dev, []))
+        out = ", ".join(f"{quantity_label(f['quantity'])} z={f['z']:.1f}"
+                        for f in flagged.get(dev, []))
         rows.append(f"<tr><td>{e(dev)}</td><td>{e(str(u.get('chosen') or 'none'))}</td>"
                     + "".join(cells) + f'<td class="{cls}" title="{e(why)}">{e(verdict)}</td>'
                     f"<td>{e(out)}</td></tr>")

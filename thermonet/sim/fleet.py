@@ -211,16 +211,18 @@ def simulate_fleet(preset: str | SimConfig, *, units: int, runs: int | None = No
         cfg = dataclasses.replace(cfg, procedures=(short_test(test),), default_runs=1)
     for name, value in (("units", units), ("outliers", outliers), ("clusters", clusters)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-            raise ConfigError(f"{name} must be an integer, got {value!r}")
+            raise ConfigError(f"--{name} must be an integer, got {value!r}")
     if units < 1:
-        raise ConfigError(f"units must be at least 1, got {units}")
+        raise ConfigError(f"--units must be at least 1, got {units}")
     if units > MAX_UNITS:
         raise ConfigError(f"units={units} is above the limit of {MAX_UNITS:,} units per fleet "
                           "(bounded so that a request cannot exhaust memory)")
     if not 0 <= clusters <= units:
-        raise ConfigError(f"clusters must be between 0 and units ({units}), got {clusters}")
+        raise ConfigError(f"--clusters must be between 0 and units (--units {units}), got "
+                          f"{clusters}")
     if not 0 <= outliers <= units:
-        raise ConfigError(f"outliers must be between 0 and units ({units}), got {outliers}")
+        raise ConfigError(f"--outliers must be between 0 and units (--units {units}), got "
+                          f"{outliers}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
     indices = list(range(units)) if unit_indices is None else list(unit_indices)

@@ -77,16 +77,20 @@ import shutil
 import tempfile
 import time
 from dataclasses import dataclass
+from numbers import Integral
 from pathlib import Path
 from typing import Any, cast
 
 from ..core.errors import ConfigError, InputError
 from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import _umask, atomic_write_text
+from ..core.helpers import usable_cores
 from ..core.names import inside, path_components
 from ..core.outdir import check_target, install
+from ..features.target import modelled_outputs
 from ..models.shipped import MODEL_KINDS
 from ..scoring.fleetstats import (
+    check_limit_axes,
     fleet_html_fragment,
     judge_unit,
     parse_limits,
@@ -109,11 +113,16 @@ class FleetOptions:
     """How a fleet runs (see the module docstring)."""
 
     executor: str = "process"
-    workers: int | None = None
+    workers: int | None = None         # processes (None or 0: one per CPU)
     ray_address: str | None = None
     family: str | None = None          # fleet family label (default: baseline, else first)
     folds: int = 5                     # leave-units-out groups (0: skip)
     fleet_units_max: int = 20          # units per fleet fit
+
+    def __post_init__(self) -> None:   # before any unit is read: as compare's --workers
+        w = self.workers
+        if w is not None and (isinstance(w, bool) or not isinstance(w, Integral) or w < 0):
+            raise ConfigError(f"--workers {w}: must be an integer >= 0 (0: one per CPU)")
 
 
 # ------------------------------------------------------------------- driver
@@ -174,14 +183,11 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
     if cfg.tracking.enabled if track is None else track:   # refused before any unit is fitted
         check_store(tracking_uri or cfg.tracking.uri or default_tracking_uri())
     p = _plan(cfg, out_dir, sources, options or FleetOptions(), overwrite)    # 1. plan
+    stage = _stage(p.out)   # before any unit is fitted: an --out that cannot be made, refused
 
     def say(msg: str) -> None:
         if not quiet:
             print(msg, flush=True)
-
-    say(f"thermonet fleet: {len(sources)} units{MODEL_KINDS[cfg.model].banner}"
-        f", executor {p.opts.executor}, fleet family {p.family}, leave-units-out in {p.k} "
-        "groups")
 
     def progress(i: int, res: Any) -> None:
         status = f"failed: {res.reason}" if isinstance(res, TaskFailure) else \
@@ -189,11 +195,11 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
         say(f"  {p.ids[i]:<20} {status}")
 
     items = [UnitItem(cfg=cfg, source=s, family=p.family, plots=plots) for s in sources]
-    payloads = _tasks(p.opts, unit_task, items, progress)                    # 2. fit
-    stage = Path(tempfile.mkdtemp(prefix=f".{p.out.name}.", suffix=".partial",
-                                  dir=p.out.absolute().parent))
     try:
-        os.chmod(stage, 0o777 & ~_umask())
+        say(f"thermonet fleet: {len(sources)} units{MODEL_KINDS[cfg.model].banner}"
+            f", executor {p.opts.executor}, fleet family {p.family}, leave-units-out in {p.k} "
+            "groups")
+        payloads = _tasks(p.opts, unit_task, items, progress)                # 2. fit
         units, own = _collect(p, payloads, stage)
         summary = _judge(cfg, p, sources, units, own, stage, say)             # 3. judge
         summary["seconds"] = time.perf_counter() - t_start
@@ -207,9 +213,29 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
     return results
 
 
+def _stage(out: Path) -> Path:
+    """The staging directory beside ``out`` (its parents created), made before any unit is
+    fitted; an ``--out`` that cannot be created is refused in one line naming it."""
+    parent = out.absolute().parent
+    for d in (parent, *parent.parents):
+        if d.is_dir():
+            break
+        if os.path.lexists(d):
+            raise InputError(f"{out}: --out cannot be created: {d} is not a directory")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=parent))
+        os.chmod(stage, 0o777 & ~_umask())
+    except OSError as err:
+        raise InputError(f"{out}: --out cannot be created ({err.strerror or err})") from None
+    return stage
+
+
 def _tasks(opts: FleetOptions, fn: Any, todo: list[Any], on_done: Any = None) -> list[Any]:
-    """``fn`` over ``todo`` on the configured executor."""
-    return run_tasks(fn, todo, executor=cast(Any, opts.executor), workers=opts.workers,
+    """``fn`` over ``todo`` on the configured executor (``workers`` 0: one per CPU this
+    process may use, as ``compare --workers 0``)."""
+    workers = usable_cores() if opts.workers == 0 else opts.workers
+    return run_tasks(fn, todo, executor=cast(Any, opts.executor), workers=workers,
                      ray_address=opts.ray_address, on_done=on_done)
 
 
@@ -223,6 +249,11 @@ def _plan(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource],
     family = _fleet_family(cfg, opts.family, source)
     if not sources:
         raise InputError("fleet: no units in the data")
+    known = [s.axes for s in sources if s.axes is not None]
+    if known:   # the limits' axes against the outputs the units' models will fit
+        check_limit_axes(limits, list(dict.fromkeys(
+            o for axes in known for o in modelled_outputs(cfg.data.outputs or axes,
+                                                          cfg.target))), source=source)
     ids = [s.device_id for s in sources]
     dup = sorted({d for d in ids if ids.count(d) > 1})
     if dup:
@@ -234,7 +265,6 @@ def _plan(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource],
     out = Path(out_dir)
     check_target(out, overwrite, "fleet")  # before any unit is fitted
     dirs = path_components(ids)            # a device id never becomes a path as it is
-    out.absolute().parent.mkdir(parents=True, exist_ok=True)
     k = min(opts.folds, len(sources)) if len(sources) >= 2 else 0
     return _Plan(out, family, limits, ids, dirs, k, opts)
 
@@ -273,6 +303,10 @@ def _judge(cfg: CompareConfig, p: _Plan, sources: list[UnitSource], units: dict[
     """Leave units out (after the units: flagged outliers and failed units stay out of every
     fleet model — a production line would not build its fleet model on them), each unit's
     limits (its results.json rewritten with them) and the fleet summary."""
+    fitted = [o for u in units.values() if u["status"] == "ok" for o in u.get("units") or {}]
+    if fitted:   # where the plan could not tell the outputs (nothing is installed yet)
+        check_limit_axes(p.limits, list(dict.fromkeys(fitted)),
+                         source=getattr(cfg, "_source", "config"))
     flagged = set(fleet_summary(units, p.family, {}, p.limits)["outliers"])
     fold_info: dict[str, Any] = {}
     if p.k:

@@ -13,6 +13,7 @@ from ..scoring.fleetstats import (
     MIN_UNITS_FOR_OUTLIERS,
     ROBUST_Z_THRESHOLD,
     flag_outliers,
+    quantity_label,
     robust_z,
     spread,
 )
@@ -31,7 +32,7 @@ def _curve_points(ok: dict[str, Any], family: str) -> dict[str, dict[str, float]
     if not hi > lo:
         return {}
     out: dict[str, dict[str, float]] = {}
-    for t in np.round(np.linspace(lo, hi, 5), 1):
+    for t in np.round(np.linspace(lo, hi, 5), 1) + 0.0:   # + 0.0: no "-0" in a name
         for dev, u in ok.items():
             coefs: dict[str, dict[int, float]] = {}
             for name, v in u["coefficients"].items():
@@ -98,7 +99,7 @@ def format_fleet_table(results: dict[str, Any]) -> str:
         luo = (u.get("leave_units_out") or {}).get("axes") or {}
         ratios = [a["ratio"] for a in luo.values() if a.get("ratio") is not None]
         r = f"{max(ratios):9.3g}" if ratios else f"{'—':>9}"
-        flag = ", ".join(f"{f['quantity']} z={f['z']:.1f}" for f in
+        flag = ", ".join(f"{quantity_label(f['quantity'])} z={f['z']:.1f}" for f in
                          fleet["outliers"].get(dev, [])[:2])
         lines.append(f"{dev:<22} {u.get('status', ''):<7} {str(u.get('chosen') or 'none'):<10} "
                      f"{u['limits']['verdict']:<10} {r}  {flag}")

@@ -21,6 +21,7 @@ from ..core.errors import InputError
 from ..core.recording import Dataset, split_units
 from ..reporting.results import ComparisonResult as TypedResult
 from ..sim.fleet import simulate_fleet, unit_device_id
+from ..sim.presets import get_preset
 from ..training.config import CompareConfig, FamilyConfig, outputs_of, train_config_of
 from ..training.loader import load_unit_file
 from ..training.parts import build_part, make_splits, targets_for
@@ -46,6 +47,8 @@ class UnitSource:
     error: str | None = None            # why this unit's data cannot be used (it fails alone)
     path: str | None = None             # the unit's own thermonet Parquet file: the worker
     #                                     reads it (only the path crosses the network)
+    axes: list[str] | None = None       # its output channels where known before it is read
+    #                                     (the limits' axes are checked against them)
 
     def load(self, cfg: CompareConfig | None = None) -> Dataset:
         """The unit's runs; a file of more than ``cfg.data.in_memory_samples`` samples is
@@ -87,8 +90,8 @@ def sources_from_dataset(ds: Dataset, source: str = "") -> list[UnitSource]:
             bad[dev] = f"unit '{dev}': {err}"
     good = [r for r in ds.runs if r.device_id not in bad]
     units = split_units(Dataset(runs=good, meta=dict(ds.meta)).validate(source)) if good else {}
-    return [UnitSource(dev, error=bad[dev]) if dev in bad else UnitSource(dev, dataset=units[dev])
-            for dev in by_unit]
+    return [UnitSource(dev, error=bad[dev]) if dev in bad else
+            UnitSource(dev, dataset=units[dev], axes=list(units[dev].axes)) for dev in by_unit]
 
 
 def sources_from_files(paths: list[str]) -> list[UnitSource] | None:
@@ -123,7 +126,7 @@ def sources_from_files(paths: list[str]) -> list[UnitSource] | None:
                              f"{shape[1]} and units {shape[2]}; {first[0]} has "
                              f"{first[1][0]}, {first[1][1]} and {first[1][2]} (the units of "
                              "one fleet must carry the same channels)")
-        sources.append(UnitSource(e["device_id"], path=str(path)))
+        sources.append(UnitSource(e["device_id"], path=str(path), axes=list(e["outputs"])))
     return sources
 
 
@@ -136,9 +139,11 @@ def sources_from_simulation(preset: str, *, units: int, runs: int | None = None,
     # the arguments (a short test's spec too) checked here, once, before any worker starts
     simulate_fleet(preset, units=units, runs=1, seed=seed, outliers=outliers,
                    unit_indices=[], **overrides)
+    axes = [ax.name for ax in get_preset(preset).axes]   # the preset's output channels
     return [UnitSource(unit_device_id(preset, k, units),
                        sim={"preset": preset, "units": units, "runs": runs, "seed": seed,
-                            "outliers": outliers, "unit_indices": [k], **overrides})
+                            "outliers": outliers, "unit_indices": [k], **overrides},
+                       axes=list(axes))
             for k in range(units)]
 
 
