@@ -46,6 +46,10 @@ THERMONET = [PY, "-m", "thermonet.cli"]
 
 def _run(cmd: list[str]) -> dict[str, float]:
     """One fresh process: wall, CPU seconds and peak RSS (MB) of that child alone."""
+    if "export" in cmd and "--out" in cmd:   # export replaces a file only with --overwrite,
+        out = Path(cmd[cmd.index("--out") + 1])   # which a --before checkout may not know
+        if out.is_file():
+            out.unlink()
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(["/usr/bin/env", *cmd], capture_output=True, text=True, cwd=ROOT)
