@@ -312,6 +312,27 @@ def test_prior_refusals_name_what_and_come_before_the_work(
                       "directory")
 
 
+def test_a_station_out_that_cannot_be_made_is_named(prior: Path, tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """The station's --out under a file, or where no one (root included) can write: one
+    line naming it, never its staging directory (core.outdir.make_stage), nothing left."""
+    monkeypatch.chdir(tmp_path)
+    Path("new.yaml").write_text(FLEET)
+    Path("afile").write_text("not a directory\n")
+    _one_line_refusal(capsys, ["station", "new.yaml", "--prior", str(prior), "--units", "1",
+                               "--out", "afile/st", "--executor", "serial"],
+                      f"afile/st: --out cannot be created: {tmp_path / 'afile'} is not a "
+                      "directory")
+    assert Path("/proc/self").is_dir(), "Linux: /proc takes no new directory"
+    assert main(["station", "new.yaml", "--prior", str(prior), "--units", "1", "--out",
+                 "/proc/thermonet-st", "--executor", "serial"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(
+        "thermonet: error: /proc/thermonet-st: --out cannot be created (") and \
+        ".partial" not in err[0], err
+
+
 def test_a_fast_test_is_not_compared_with_a_prior_of_soaks(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:

@@ -39,10 +39,10 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from .errors import ThermonetError
+from .errors import InputError, ThermonetError
 from .fileio import _umask, atomic_write_text
 
-__all__ = ["staged_output", "is_comparison", "is_output", "check_target", "install",
+__all__ = ["staged_output", "is_comparison", "is_output", "check_target", "install", "make_stage",
            "relocate_json", "sha256_file", "Stage", "KINDS"]
 
 
@@ -190,6 +190,25 @@ def staged_output(out_dir: str | os.PathLike, *, overwrite: bool = False,
         install(stage, out, overwrite, kind)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+
+
+def make_stage(out: Path) -> Path:
+    """A staging directory beside ``out`` (its parents created), made before the work that
+    fills it; an ``--out`` that cannot be created is refused in one line naming it, never the
+    staging directory (fleet, station)."""
+    parent = out.absolute().parent
+    for d in (parent, *parent.parents):
+        if d.is_dir():
+            break
+        if os.path.lexists(d):
+            raise InputError(f"{out}: --out cannot be created: {d} is not a directory")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=parent))
+        os.chmod(stage, 0o777 & ~_umask())
+    except OSError as err:
+        raise InputError(f"{out}: --out cannot be created ({err.strerror or err})") from None
+    return stage
 
 
 def install(stage: Path, out: Path, overwrite: bool, kind: str = "comparison") -> None:

@@ -72,9 +72,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import shutil
-import tempfile
 import time
 from dataclasses import dataclass
 from numbers import Integral
@@ -83,10 +81,10 @@ from typing import Any, cast
 
 from ..core.errors import ConfigError, InputError
 from ..core.executors import TaskFailure, run_tasks
-from ..core.fileio import _umask, atomic_write_text
+from ..core.fileio import atomic_write_text
 from ..core.helpers import usable_cores
 from ..core.names import inside, path_components
-from ..core.outdir import check_target, install
+from ..core.outdir import check_target, install, make_stage
 from ..features.target import modelled_outputs
 from ..models.shipped import MODEL_KINDS
 from ..scoring.fleetstats import (
@@ -183,7 +181,7 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
     if cfg.tracking.enabled if track is None else track:   # refused before any unit is fitted
         check_store(tracking_uri or cfg.tracking.uri or default_tracking_uri())
     p = _plan(cfg, out_dir, sources, options or FleetOptions(), overwrite)    # 1. plan
-    stage = _stage(p.out)   # before any unit is fitted: an --out that cannot be made, refused
+    stage = make_stage(p.out)   # before any unit is fitted: an --out that cannot be made
 
     def say(msg: str) -> None:
         if not quiet:
@@ -211,24 +209,6 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
         shutil.rmtree(stage, ignore_errors=True)
     say(format_fleet_table(results))
     return results
-
-
-def _stage(out: Path) -> Path:
-    """The staging directory beside ``out`` (its parents created), made before any unit is
-    fitted; an ``--out`` that cannot be created is refused in one line naming it."""
-    parent = out.absolute().parent
-    for d in (parent, *parent.parents):
-        if d.is_dir():
-            break
-        if os.path.lexists(d):
-            raise InputError(f"{out}: --out cannot be created: {d} is not a directory")
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=parent))
-        os.chmod(stage, 0o777 & ~_umask())
-    except OSError as err:
-        raise InputError(f"{out}: --out cannot be created ({err.strerror or err})") from None
-    return stage
 
 
 def _tasks(opts: FleetOptions, fn: Any, todo: list[Any], on_done: Any = None) -> list[Any]:

@@ -42,9 +42,7 @@ before any unit runs.  Exit 3: some unit failed.
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,9 +52,9 @@ import numpy as np
 
 from ..core.errors import ConfigError, InputError, counted, failures_line
 from ..core.executors import TaskFailure, run_tasks
-from ..core.fileio import _umask, atomic_write_text
+from ..core.fileio import atomic_write_text
 from ..core.names import c_comment, inside, path_components
-from ..core.outdir import check_target, install
+from ..core.outdir import check_target, install, make_stage
 from ..core.schema import from_dict
 from ..features.target import AT_T_REF
 from ..scoring.fleetstats import merged_limits
@@ -284,11 +282,8 @@ def run_station(cfg: CompareConfig, prior: FleetPrior, sources: list[UnitSource]
     opts = opts or StationOptions()
     limits = _station_checks(cfg, prior, opts.prior_file)
     check_target(out, overwrite, "station")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial",
-                                  dir=out.absolute().parent))
+    stage = make_stage(out)     # before any unit runs: an --out that cannot be made, named
     try:
-        os.chmod(stage, 0o777 & ~_umask())
         t0 = time.perf_counter()
         units = _run_units(cfg, prior, sources, limits, stage, opts, say)
         results = _summary(prior, units, time.perf_counter() - t0)
