@@ -380,8 +380,11 @@ def test_unreachable_ray_is_one_clear_line():
 def test_executor_arguments_are_checked():
     with pytest.raises(ExecutorError, match="unknown executor 'dask'"):
         run_tasks(abs, [1], executor="dask")  # type: ignore[arg-type]
-    with pytest.raises(ExecutorError, match="--workers must be at least 1"):
-        run_tasks(abs, [1], workers=0)
+    with pytest.raises(ExecutorError, match=r"--workers must be at least 0 \(0: one per CPU\), "
+                                            "got -1"):
+        run_tasks(abs, [1], workers=-1)
+    # 0: one per CPU this process may use, as compare --workers 0 (station, learn, fleet)
+    assert run_tasks(abs, [-1, 2], workers=0) == [1, 2]
     with pytest.raises(InputError, match="device id 'x' given twice"):
         run_fleet(toy_config(), Path("unused"), [UnitSource("x"), UnitSource("x")], quiet=True)
 

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from .errors import ThermonetError
+from .helpers import usable_cores
 
 __all__ = ["EXECUTORS", "ExecutorError", "TaskFailure", "run_tasks", "pin_one_thread"]
 
@@ -251,7 +252,8 @@ def run_tasks(fn: Callable[[Any], Any], items: Sequence[Any], *,
         Picklable task descriptions.
     executor : {"process", "serial", "ray"}
     workers : int, optional
-        Processes (or local Ray CPUs); default ``os.cpu_count()``.
+        Processes (or local Ray CPUs); default ``os.cpu_count()``; 0: one per CPU this
+        process may use (:func:`~thermonet.core.helpers.usable_cores`, as ``compare``).
     ray_address : str, optional
         Ray cluster address; None starts a local Ray.
     on_done : callable(index, result), optional
@@ -270,8 +272,10 @@ def run_tasks(fn: Callable[[Any], Any], items: Sequence[Any], *,
     if executor not in EXECUTORS:
         raise ExecutorError(f"unknown executor '{executor}' (valid: {', '.join(EXECUTORS)})")
     n = (os.cpu_count() or 1) if workers is None else int(workers)
+    if n == 0:                    # as compare --workers 0: one per CPU this process may use
+        n = usable_cores()
     if n < 1:
-        raise ExecutorError(f"--workers must be at least 1, got {workers}")
+        raise ExecutorError(f"--workers must be at least 0 (0: one per CPU), got {workers}")
     if not items:
         return []
     if executor == "serial":

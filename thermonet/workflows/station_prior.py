@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError, InputError
+from ..core.errors import ConfigError, InputError, counted
 from ..core.recording import Dataset, split_units
 from ..features.target import FOUR_POSITION, output_units
 from ..scoring.fleetstats import (
@@ -326,7 +326,7 @@ def format_prior(fp: FleetPrior, summary: dict[str, Any], plan: list[float] | No
     if plan:
         lines.append(_plan_line(fp, summary, plan))
     for axis, s in summary.items():
-        head = f"  {axis}: {s['clusters']} cluster(s); "
+        head = f"  {axis}: {counted(s['clusters'], 'cluster')}; "
         uom = fp.units.get(axis, "")
         if not has_curve(fp, axis):
             lines.append(head + f"its drift ({s['typical_drift_rms']:.3g} {uom} RMS over the "
