@@ -57,6 +57,9 @@ _REFUSED_EXPORT = ("import sys\n"
     (["cmp", "--family", "nope", "--format", "onnx", "--out", "m.onnx"],
      "cmp/results.json: no family 'nope' (families: lin)"),
     (["cmp", "--family", "a/b", "--format", "c", "--out", "m.h"], "--family: 'a/b' is not"),
+    (["cmp/results.json", "--format", "c", "--out", "m.h"],
+     "cmp/results.json: a config or results file, not a compare directory, checkpoint (.pt) or "
+     "MLflow run id"),
     (["m.pt", "--format", "px4-params", "--instance", "7", "--out", "x.params"],
      "--instance: PX4 calibration instance must be 0..3, got 7"),
     (["m.pt", "--format", "ardupilot-params", "--instance", "0", "--out", "x.parm"],

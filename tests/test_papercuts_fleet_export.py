@@ -308,3 +308,16 @@ def test_simulate_fleet_sizes_name_the_flag(tmp_path, capsys, argv, line):
     assert main(["simulate", "accel", *argv, "--out", str(tmp_path / "z.parquet")]) == 1
     assert _line(capsys) == f"thermonet: error: {line}"
     assert list(tmp_path.iterdir()) == []
+
+
+def test_export_of_a_data_file_says_what_it_is(tmp_path, capsys):
+    """A recording given where a model is expected: one line saying it is data to compare
+    first (was torch's "Unsupported operand 80"), nothing written."""
+    data = tmp_path / "pg.parquet"
+    assert main(["simulate", "patent-gyro", "--runs", "1", "--out", str(data)]) == 0
+    capsys.readouterr()
+    assert main(["export", str(data), "--format", "onnx", "--out", str(tmp_path / "m.onnx")]) == 1
+    assert _line(capsys) == (f"thermonet: error: {data}: a data file, not a compare directory, "
+                             "checkpoint (.pt) or MLflow run id: run 'thermonet compare' on it "
+                             "first")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pg.parquet"]

@@ -181,12 +181,23 @@ def resolve_checkpoint(source: str, *, family: str | None = None,
     if p.is_dir():
         return _from_compare_dir(p, family)
     if p.is_file():
+        kind = next((k for k, sx in NOT_CHECKPOINTS.items() if p.suffix.lower() in sx), None)
+        if kind:   # torch's own words were "Unsupported operand 80"
+            raise InputError(f"{source}: {kind}, not a compare directory, checkpoint (.pt) or "
+                             "MLflow run id" + (": run 'thermonet compare' on it first"
+                                                if kind == "a data file" else ""))
         return p
     if p.exists():  # a FIFO, a device: say what it is (and never open a FIFO)
         raise InputError(f"{source}: {not_a_file(p, 'checkpoint file')}")
     if _RUN_ID.fullmatch(source):
         return _from_run_id(source, tracking_uri, workdir or Path(tempfile.mkdtemp()))
     raise InputError(f"{source}: no such compare directory, checkpoint file or MLflow run id")
+
+
+#: Files an export cannot start from, by suffix: what each is instead.
+NOT_CHECKPOINTS = {"a data file": (".parquet", ".pq", ".csv", ".tsv", ".txt", ".ulg", ".bin"),
+                   "an exported model": (".onnx", ".h", ".params", ".parm"),
+                   "a config or results file": (".yaml", ".yml", ".json")}
 
 
 #: The calibration slot ``--instance`` names, by format: PX4's slot, ArduPilot's IMU number.
