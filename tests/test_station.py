@@ -271,6 +271,13 @@ def test_the_prior_and_the_config_must_agree_before_any_unit_runs(
                                "serial"],
                       f"t40.yaml: key 'features.t_ref': 40 °C, and the prior ({prior}) is of "
                       "t_ref 25 °C")
+    # another target mode than the prior's: named by the config's key, before any unit runs
+    # (was: per unit, after each had run, naming neither the file nor the key)
+    Path("tgt.yaml").write_text(FLEET.replace("gyro: zero", "gyro: at-t-ref"))
+    _one_line_refusal(capsys, ["station", "tgt.yaml", "--prior", str(prior), "--units", "2",
+                               "--out", "st", "--executor", "serial"],
+                      f"tgt.yaml: key 'target.gyro': 'at-t-ref', and the prior ({prior}) is of "
+                      "target 'zero' on gyro_x")
     # a prior of the gyros only: the unit's accelerometers are not dropped silently
     data = json.loads(prior.read_text())
     for key in ("axes", "units_of_measure", "targets"):

@@ -44,6 +44,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -55,6 +56,7 @@ from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import atomic_write_text
 from ..core.names import c_comment, inside, path_components
 from ..core.outdir import check_target, install, make_stage
+from ..core.recording import output_kind
 from ..core.schema import from_dict
 from ..features.target import AT_T_REF
 from ..scoring.fleetstats import merged_limits
@@ -266,6 +268,13 @@ def _station_checks(cfg: CompareConfig, prior: FleetPrior, prior_file: str = ""
         raise ConfigError(f"{where}: key 'station.degree': {cfg.station.degree}, and the prior "
                           f"({of}) is of degree {prior.degree}: build the prior with the "
                           "station's degree")
+    spec = cfg.target if isinstance(cfg.target, Mapping) else {}
+    for a in prior.axis_names:     # a mode the config names (the default rests on the data)
+        key = a if a in spec else output_kind(a)
+        if key in spec and spec[key] != prior.targets[a]:
+            raise ConfigError(f"{where}: key 'target.{key}': '{spec[key]}', and the prior "
+                              f"({of}) is of target '{prior.targets[a]}' on {a}: build the "
+                              "prior with the station's targets, or set this one to the prior's")
     t_ref = config_t_ref(cfg)
     if t_ref is not None and t_ref != prior.t_ref:
         raise ConfigError(f"{where}: key 'features.t_ref': {t_ref:g} °C, and the prior ({of}) "
