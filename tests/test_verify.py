@@ -150,6 +150,14 @@ def test_calibrate_one_log_and_verify_it_on_another_with_limits(runs: dict[str, 
     params = str(tmp_path / "cal" / "px4.params")
     assert main(["verify", params, third, "--out", str(tmp_path / "v"), "-q"]) == 0
     assert json.loads((tmp_path / "v" / "results.json").read_text())["trained_on"] is None
+    # the calibration's own directory as --out: it says what the directory holds (was "holds
+    # no thermonet verification (no complete results.json)"), and leaves it as it was
+    before = sorted(p.name for p in (tmp_path / "cal").iterdir())
+    assert main(["verify", params, third, "--out", str(tmp_path / "cal"), "-q"]) == 1
+    assert capsys.readouterr().err.strip() == (
+        f"thermonet: error: {tmp_path / 'cal'}: --out holds a thermonet calibration, not a "
+        "verification; choose another --out")
+    assert sorted(p.name for p in (tmp_path / "cal").iterdir()) == before
     # on the very log it was fitted on (found by its bytes in the calibration's results.json,
     # copied under another name): a PASS on training data, and the report says so
     twin = tmp_path / "renamed.ulg"

@@ -126,7 +126,10 @@ def check_target(out: Path, overwrite: bool, kind: str = "comparison") -> None:
     if not any(out.iterdir()):
         return
     if not is_output(out, kind):
-        raise ThermonetError(f"{out}: --out is not empty and holds no thermonet {kind} "
+        other = next((k for k in KINDS if k != kind and is_output(out, k)), None)
+        raise ThermonetError(f"{out}: --out holds a thermonet {other}, not a {kind}; choose "
+                             "another --out" if other else
+                             f"{out}: --out is not empty and holds no thermonet {kind} "
                              "(no complete results.json); refusing to write into it")
     if not overwrite:
         raise ThermonetError(f"{out}: --out holds a previous {kind}; pass --overwrite to "
