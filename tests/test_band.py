@@ -317,9 +317,14 @@ def compared(tmp_path_factory):
 def test_the_band_says_what_the_folds_held_out(compared):
     """One consumer-imu cycle trains (the other tests): its legs are held out, so the band was
     measured on held-out excursions, and results.json says so beside every band."""
-    res, _, _ = compared
+    res, _, out = compared
     assert res["selection"]["kind"] == "excursions"
     assert res["families"]["cubic"]["band"]["judged_on"] == "whole thermal excursions held out"
+    # the report's band table: the navigation filter's figures in the axis's unit
+    page = (out / "report.html").read_text()
+    f = res["band"]["filter"]["gyro_x"]
+    unit = res["units"]["gyro_x"]
+    assert f"<td>{f['bound']:.3g} {unit}</td><td>{f['rate']:.3g} {unit}/°C</td>" in page
 
 
 @pytest.mark.slow   # a whole comparison

@@ -235,6 +235,8 @@ def _band_table(res: ComparisonResult) -> str:
     disp = band.get("display") or {}
     filt = band.get("filter") or {}
     rows = []
+    per = "/°C" if band.get("signal") in ("temperature", "temperature_c") else \
+        f" per {band.get('signal', 'signal')} unit"
     for a, t in band["axes"].items():
         bins = ", ".join(f"[{_num(lo)}, {_num(hi)}]: {_num(h)}" for lo, hi, h in
                          zip(t["edges"][:-1], t["edges"][1:], t["half_width"], strict=True))
@@ -243,8 +245,9 @@ def _band_table(res: ComparisonResult) -> str:
         f = filt.get(a) or {}
         rows.append(f"<tr><td>{_e(a)}</td><td>{_e(units.get(a, ''))}</td><td>{_e(bins)}</td>"
                     f"<td>{shown}</td><td>{_num(t['growth_below'])} / "
-                    f"{_num(t['growth_above'])}</td><td>{_num(f.get('bound'))}</td>"
-                    f"<td>{_num(f.get('rate'))}</td></tr>")
+                    f"{_num(t['growth_above'])}</td>"
+                    f"<td>{_num(f.get('bound'))} {_e(units.get(a, ''))}</td>"
+                    f"<td>{_num(f.get('rate'))} {_e(units.get(a, '') + per)}</td></tr>")
     return (f"<p class='small'>{_e(band.get('meaning', ''))}. From the out-of-fold residuals "
             f"of the folds that chose {_e(band.get('model', ''))}; a function of "
             f"{_e(band.get('signal', ''))}, per bin the conformal quantile, growing linearly "
