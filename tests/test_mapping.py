@@ -126,6 +126,12 @@ def test_fixed_sample_rate_and_header_by_name(tmp_path):
      r"key 'channels': no output channel"),
     ("sample_rate_hz: 50\nchannels:\n  temperature_c: {column: 1, unit: counts}\n"
      "  gyro_x: {column: 2}\n", r"temperature_c must be in degC, got 'counts'"),
+    ("sample_rate_hz: 50\nchannels:\n  gyro_x: {column: 1, unit: m/s^2}\n",
+     r"key 'channels\.gyro_x\.unit': 'm/s\^2' is a unit of acceleration, and gyro_x is a gyro "
+     r"channel \(its units: deg/s, deg/h, rad/s; or counts / 1 for raw values\)"),
+    ("sample_rate_hz: 50\nchannels:\n  acc_x: {column: 1}\n  ref_acc_x: {column: 2, unit: Pa}\n",
+     r"key 'channels\.ref_acc_x\.unit': 'Pa' is a unit of pressure, and ref_acc_x is an "
+     r"accelerometer channel \(its units: g, mg, m/s\^2;"),
     ("sample_rate_hz: 50\nmalformed_rows: ignore\nchannels:\n  gyro_x: {column: 1}\n",
      r"key 'malformed_rows': expected 'error' or 'skip', got 'ignore'"),
     ("- just\n- a list\n", r"must be a YAML mapping of keys, got list"),

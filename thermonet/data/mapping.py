@@ -123,6 +123,10 @@ def case_slip(name: str) -> str | None:
 
 
 _KIND_UNITS = {"gyro": "deg/s", "acc": "g", "mag": "uT", "baro": "Pa", "out": "1"}
+#: What each kind of channel measures (its unit's dimension, core.recording.KNOWN_UNITS).
+_KIND_DIMENSION = {"gyro": "rate", "acc": "acceleration", "mag": "field", "baro": "pressure"}
+_KIND_NAME = {"gyro": "a gyro", "acc": "an accelerometer", "mag": "a magnetometer",
+              "baro": "a barometer"}
 
 
 def default_unit(name: str, *, proxy: bool = False) -> str:
@@ -379,6 +383,16 @@ class _Parser:
                 raise self.fail(key, f"'{name}' is not a thermonet channel name "
                                 "(temperature_c, <kind>_<axis>, ref_…, drift_…); a proxy in "
                                 f"'{unit}' must say 'proxy: true' — or is it a misspelling?")
+            role = channel_role(name, proxy=proxy)
+            kind = OUTPUT_NAME.match(name.split("_", 1)[1] if role in ("reference", "drift")
+                                     else name)
+            what = kind.group(1) if kind and role != "proxy" else ""
+            dim = _KIND_DIMENSION.get(what)
+            if dim and KNOWN_UNITS[unit] not in (dim, "raw", "dimensionless"):
+                fits = ", ".join(u for u, d in KNOWN_UNITS.items() if d == dim)
+                raise self.fail(key + ".unit", f"'{unit}' is a unit of {KNOWN_UNITS[unit]}, and "
+                                f"{name} is {_KIND_NAME[what]} channel (its units: {fits}; "
+                                "or counts / 1 for raw values)")
             if name == "temperature_c" and unit != "degC":
                 raise self.fail(key + ".unit", f"temperature_c must be in degC, got '{unit}' "
                                 "(convert with scale/offset, or map it as a proxy)")
