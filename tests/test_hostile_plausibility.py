@@ -138,6 +138,14 @@ def test_info_warns_on_absurd_values_and_rates(tmp_path, capsys):
         warnings.simplefilter("error", RuntimeWarning)
         s = _info_json(f, capsys)
     assert any("gyro_x reaches 1e+306 deg/s" in w for w in s["warnings"]), s["warnings"]
+    # a gyro read 1e5 too large (4.8e6 °/s): under the any-unit cap (1e12), beyond any gyro
+    f = _temp_csv(tmp_path / "scaled.csv", temps, values=np.tile([4.8e6, -4.8e6], 300))
+    s = _info_json(f, capsys)
+    assert any(
+        "gyro_x reaches 4.8e+06 deg/s, beyond any plausible reading (|value| > 20000 deg/s); "
+        "a wrong unit or scale in the mapping" in w for w in s["warnings"]), s["warnings"]
+    f = _temp_csv(tmp_path / "fine.csv", temps, values=np.tile([1500.0, -1500.0], 300))
+    assert _info_json(f, capsys)["warnings"] == []              # 1500 °/s: a fast gyro
     f = _temp_csv(tmp_path / "slow.csv", temps, dt=1e300)
     s = _info_json(f, capsys)
     assert any("sample rate 1e-300 Hz is outside" in w for w in s["warnings"]), s["warnings"]

@@ -20,7 +20,8 @@ from ..core.errors import counted
 from ..core.recording import RATE, Dataset, contiguous_segments
 
 __all__ = ["TEMPERATURE_PLAUSIBLE_C", "MAX_RAMP_C_PER_MIN", "MAX_DURATION_S",
-           "RATE_HZ_PLAUSIBLE", "RATE_HZ_POSSIBLE", "VALUE_PLAUSIBLE_MAX", "OUTSIDE_RANGE_WARN",
+           "RATE_HZ_PLAUSIBLE", "RATE_HZ_POSSIBLE", "VALUE_PLAUSIBLE_MAX", "UNIT_PLAUSIBLE_MAX",
+           "OUTSIDE_RANGE_WARN",
            "input_warnings", "run_warnings", "temperature_hint", "outside_fraction", "outside_distance",
            "RANGE_ROUNDING", "extrapolation_warnings"]
 
@@ -39,6 +40,11 @@ RATE_HZ_POSSIBLE = (1e-6, 1e9)
 #: Output, reference or proxy values beyond this magnitude (in any unit thermonet knows:
 #: °/s, g, Pa, Hz, counts) suggest a wrong scale or a corrupt file.
 VALUE_PLAUSIBLE_MAX = 1e12
+#: Per unit of a physical channel, a magnitude no sensor of its kind reads (generous: a
+#: projectile's gyro, a shock accelerometer, a magnetometer beside a magnet, 100 bar): a
+#: reading beyond it is a wrong unit or scale (a gyro in millidegrees read as °/s).
+UNIT_PLAUSIBLE_MAX = {"deg/s": 2e4, "deg/h": 7.2e7, "rad/s": 350.0, "g": 1e5, "mg": 1e8,
+                      "m/s^2": 1e6, "T": 0.1, "uT": 1e5, "Pa": 1e7, "hPa": 1e5}
 #: Warn when at least this fraction of the test samples lies outside the trained range.
 OUTSIDE_RANGE_WARN = 0.01
 
@@ -80,11 +86,12 @@ def run_warnings(name: str, meta: dict[str, str], units: dict[str, str],
             out.append(f"{name}: temperature_c spans {lo:.4g} … {hi:.4g} °C, outside the "
                        f"plausible {lo_ok:g} … {hi_ok:g} °C ({temperature_hint(lo, hi)})")
     for ch, big in peaks.items():
-        if big > VALUE_PLAUSIBLE_MAX:
-            out.append(f"{name}: {ch} reaches {big:.4g} {units.get(ch, '')}".rstrip()
-                       + f", beyond any plausible reading (|value| > "
-                       f"{VALUE_PLAUSIBLE_MAX:g}); a wrong scale in the mapping, or a "
-                       "corrupt file?")
+        unit = units.get(ch, "")
+        top = UNIT_PLAUSIBLE_MAX.get(unit, VALUE_PLAUSIBLE_MAX)
+        if big > top:
+            out.append(f"{name}: {ch} reaches {big:.4g} {unit}".rstrip()
+                       + f", beyond any plausible reading (|value| > {top:g} {unit}".rstrip()
+                       + "); a wrong unit or scale in the mapping, or a corrupt file?")
     dur, rate = duration_s, rate_hz
     if dur > MAX_DURATION_S:
         out.append(f"{name}: time_s spans {dur / 86400.0:.3g} days; are the time stamps "
