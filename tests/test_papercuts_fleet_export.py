@@ -321,3 +321,21 @@ def test_export_of_a_data_file_says_what_it_is(tmp_path, capsys):
                              "checkpoint (.pt) or MLflow run id: run 'thermonet compare' on it "
                              "first")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pg.parquet"]
+
+
+@pytest.mark.parametrize("argv, line", [
+    (["--format", "ardupilot-params", "--device-id", "7"],
+     "--device-id applies to --format px4-params only (PX4's TC_*_ID); ardupilot-params follows "
+     "the IMU number: --instance"),
+    (["--format", "onnx", "--device-id", "7"],
+     "--device-id applies to --format px4-params only (PX4's TC_*_ID); onnx names no sensor"),
+    (["--format", "c", "--instance", "1"],
+     "--instance applies to --format px4-params and ardupilot-params only; c names no "
+     "calibration slot"),
+])
+def test_export_options_a_format_has_no_use_for_are_refused(tmp_path, capsys, argv, line):
+    """Was: taken and ignored without a word."""
+    assert main(["export", str(tmp_path / "nothing-read"), *argv, "--out",
+                 str(tmp_path / "x.out")]) == 1
+    assert _line(capsys) == f"thermonet: error: {line}"
+    assert list(tmp_path.iterdir()) == []

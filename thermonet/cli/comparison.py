@@ -145,6 +145,7 @@ def _export_unit(args: argparse.Namespace, src: Path, unit: Any, udir: Path, out
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
+    _options_apply(args)
     if args.all_units:
         return _export_all_units(args)
     src = Path(args.source)
@@ -159,6 +160,20 @@ def _cmd_export(args: argparse.Namespace) -> int:
                          instance=args.instance)
     print(f"wrote {path}")
     return 0
+
+
+def _options_apply(args: argparse.Namespace) -> None:
+    """--device-id and --instance given to a format that has no use for them: refused, not
+    ignored without a word (the Python API takes them for every format, so a loop may pass
+    them alike)."""
+    if args.device_id is not None and args.format != "px4-params":
+        raise ThermonetError(f"--device-id applies to --format px4-params only (PX4's "
+                             f"TC_*_ID); {args.format} " + (
+                                 "follows the IMU number: --instance"
+                                 if args.format == "ardupilot-params" else "names no sensor"))
+    if args.instance is not None and args.format not in ("px4-params", "ardupilot-params"):
+        raise ThermonetError(f"--instance applies to --format px4-params and "
+                             f"ardupilot-params only; {args.format} names no calibration slot")
 
 
 def _family_workers_arg(q: argparse.ArgumentParser) -> None:
