@@ -291,7 +291,7 @@ def test_checkpoint_round_trip_and_autopilot_refusal(fitted, tmp_path):
     with pytest.raises(ExportError, match=r"cannot be written as px4-params: those parameters "
                                           r"hold a bias polynomial per axis only; export the "
                                           r"bias-only model .*cubic\.bias-only\.pt"):
-        export_source(str(ckpt), fmt="px4-params", out=tmp_path / "x.params")
+        export_source(str(ckpt), fmt="px4-params", out=tmp_path / "x.params", device_id=1)
     with pytest.raises(ExportError, match="ardupilot-params"):
         export_source(str(ckpt), fmt="ardupilot-params", out=tmp_path / "x.parm")
     assert not (tmp_path / "x.params").exists()
