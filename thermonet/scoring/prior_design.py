@@ -17,7 +17,7 @@ import numpy as np
 from .prior import AxisPrior, FleetPrior
 from .prior_points import shape_design
 
-__all__ = ["DESIGN_DRAWS", "expected_error", "next_temperatures", "typical_drift", "soak_plan",
+__all__ = ["DESIGN_DRAWS", "SWEEP_STEP_C", "expected_error", "next_temperatures", "typical_drift", "soak_plan",
            "point_error", "has_curve",
            "plan_errors", "design_errors", "points_needed", "first_below"]
 
@@ -45,6 +45,9 @@ def _design_setup(fp: FleetPrior, axis: str, step_c: float
     return ap, grid, 1.0 / (ap.misfit_var + ap.sampling_var + 1e-300)
 
 
+#: A soak plan is judged against a sweep of the fleet's range soaked every this many °C (and
+#: at its top): the full calibration a short test stands in for (:func:`soak_plan`).
+SWEEP_STEP_C = 10.0
 #: Units drawn from a mixture prior to judge a design by simulation (fixed seed: the same
 #: plan every time).
 DESIGN_DRAWS = 400
@@ -188,9 +191,11 @@ def soak_plan(fp: FleetPrior, n: int, *, measured_c: list[float] | None = None,
     apart per run, not per branch; measured, a test that turned back did worse).
 
     With ``ends`` (the default) the first two are the ends of the fleet's range (those not
-    already in ``measured_c``), and the rest lower most the sum over axes of (expected error /
-    the axis's typical drift)² — axes whose drift is below a point's own error left out
-    (nothing to learn there).  Every temperature of a plan is at least ``step_c`` from the
+    already in ``measured_c``), and the rest lower most the worst axis's expected error over
+    what a sweep of the range every :data:`SWEEP_STEP_C` would leave — axes whose drift is
+    below a point's own error left out (nothing to learn there).  Worst axis first: on
+    ``bench_prior.py`` (leave units out) the mean over axes of (error / drift)², the rule
+    before, left acc_x at 1.33× the full sweep's error with 200 units (1.48× with 50).  Every temperature of a plan is at least ``step_c`` from the
     others and from ``measured_c`` (a soak repeated is one longer soak, not a point: the
     error a point has beyond its sampling — hysteresis, lag — is not averaged away by
     soaking there again, though the prior's arithmetic, which takes points as independent,
@@ -214,18 +219,30 @@ def soak_plan(fp: FleetPrior, n: int, *, measured_c: list[float] | None = None,
     return sorted(fixed + more)
 
 
-def _plan_cost(fp: FleetPrior, step_c: float) -> Callable[[list[float]], float] | None:
-    """The mean over the axes with a curve to learn (drift above a point's own error) of
-    (expected error / typical drift)² after one run at ``temps``; None without such an axis."""
-    costs = []
+def _axis_costs(fp: FleetPrior, step_c: float
+                ) -> list[tuple[Callable[[list[float]], float], float, float]]:
+    """Per axis with a curve to learn (drift above a point's own error): its expected error
+    after one run at given temperatures, its typical drift, and the expected error of a sweep
+    of the range every :data:`SWEEP_STEP_C` (and at its top)."""
+    sweep = [float(t) for t in np.arange(fp.range_c[0], fp.range_c[1], SWEEP_STEP_C)]
+    out = []
     for ap in fp.axes:
         if has_curve(fp, ap.axis):
-            costs.append((_axis_error(fp, ap.axis, step_c), typical_drift(fp, ap.axis)))
+            err = _axis_error(fp, ap.axis, step_c)
+            out.append((err, typical_drift(fp, ap.axis),
+                        max(err([*sweep, fp.range_c[1]]), 1e-300)))
+    return out
+
+
+def _plan_cost(fp: FleetPrior, step_c: float) -> Callable[[list[float]], float] | None:
+    """The worst, over the axes with a curve to learn, of the expected error after one run at
+    ``temps`` over a sweep's (what the plan stands in for); None without such an axis."""
+    costs = _axis_costs(fp, step_c)
     if not costs:
         return None
 
     def cost(temps: list[float]) -> float:
-        return sum((err(temps) / typ) ** 2 for err, typ in costs) / len(costs)
+        return max(err(temps) / full for err, _, full in costs)
     return cost
 
 
@@ -234,11 +251,14 @@ def plan_errors(fp: FleetPrior, plan: list[float], *, step_c: float = 2.5
     """What a :func:`soak_plan`'s temperatures inside the range add: the expected error (RMS
     over the axes with a curve to learn, each as a fraction of its typical drift) after the
     plan's ends alone and after the whole plan; None without such an axis or ends."""
-    cost = _plan_cost(fp, step_c)
+    costs = _axis_costs(fp, step_c)
     ends = [t for t in plan if t in fp.range_c]
-    if cost is None or len(ends) < 2:
+    if not costs or len(ends) < 2:
         return None
-    return math.sqrt(cost(ends)), math.sqrt(cost(list(plan)))
+
+    def rms(temps: list[float]) -> float:
+        return math.sqrt(sum((err(temps) / typ) ** 2 for err, typ, _ in costs) / len(costs))
+    return rms(ends), rms(list(plan))
 
 
 def design_errors(fp: FleetPrior, axis: str, *, max_points: int = 12, step_c: float = 2.5
