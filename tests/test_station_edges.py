@@ -206,6 +206,7 @@ def _trace(legs: list[tuple[float, float]], dt: float = 10.0) -> tuple[np.ndarra
     return np.arange(len(temps)) * dt, np.array(temps)
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("legs, kind", [
     ([(0.0, 30), (1.0, 10), (0.0, 30), (1.0, 10), (0.0, 30)], "soaks"),
     ([(0.5, 100)], "heating ramps"),
@@ -245,6 +246,7 @@ def test_what_a_prior_compares_by_its_units_tests() -> None:
         FleetPrior.from_dict(doc, "p.json")
 
 
+@pytest.mark.numerics
 def test_a_shape_is_judged_on_hotellings_predictive_not_chi2() -> None:
     """A cluster's mean and covariance are estimated from its units, so a new unit's D² has
     Hotelling's predictive law, n(n − d)/(d(n − 1)(n + 1))·D² ~ F(d, n − d), checked against a Monte
