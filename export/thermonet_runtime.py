@@ -611,12 +611,14 @@ def band_holds_rule(held: Mapping[str, Any], rate_c_per_min: Any, direction: Any
     """Where a band holds (thermonet.scoring.band_rates.outside_holds, the same rule, and
     the C header's <prefix>_band_holds): a window of a temperature that never moved
     (direction 0), or in a judged direction no faster than its judged rate (a NaN rate:
-    inside); a direction never judged (null) is outside.  Nothing stated: everywhere."""
+    inside); a direction never judged (null), or one that is not −1, 0 or +1, is outside.
+    Nothing stated: everywhere."""
     r = np.abs(np.nan_to_num(np.asarray(rate_c_per_min, dtype=np.float64)))
     d = np.asarray(direction)
     out = np.ones(np.broadcast(r, d).shape, dtype=bool)
     if not held:
         return out
+    out &= np.isin(d, (-1, 0, 1))
     for name, sign in (("heating", 1), ("cooling", -1)):
         top = held.get(f"{name}_c_per_min")
         out &= ~((d == sign) & (True if top is None else r > top))
@@ -1221,7 +1223,18 @@ class Compensator:
         if b is None:
             raise RuntimeInputError(f"{self.path}: this model file carries no band (export it "
                                     "from a compare checkpoint made with cross-validation)")
-        return band_holds_rule(b.get("holds_for") or {}, rate_c_per_min, direction)
+        try:
+            r = np.asarray(rate_c_per_min, dtype=np.float64)
+            d = np.asarray(direction, dtype=np.float64)
+            np.broadcast(r, d)
+        except (TypeError, ValueError):
+            raise RuntimeInputError("band_holds: rate_c_per_min and direction must be numbers "
+                                    "(or arrays of one shape)") from None
+        if not np.isin(d, (-1.0, 0.0, 1.0)).all():
+            bad = d[~np.isin(d, (-1.0, 0.0, 1.0))].ravel()[0]
+            raise RuntimeInputError(f"band_holds: direction {bad:g} is not -1 (cooling), 0 "
+                                    "(never moved) or +1 (heating)")
+        return band_holds_rule(b.get("holds_for") or {}, r, d)
 
     def _with_band(self, res: Compensation, given: Mapping[str, Any]) -> Compensation:
         if self.band_tables is not None and self.band_tables["signal"] in given:

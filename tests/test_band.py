@@ -202,6 +202,11 @@ def _c_holds_as_python(band: Band, rates: np.ndarray, dirs: np.ndarray) -> None:
     rows["r"], rows["d"] = rates, dirs
     got = run_c_driver(cc, text, HOLDS_DRIVER, rows, np.int32)
     assert got.tolist() == [1, 0, 0, 0, 1]
+    # a direction none of the three: not held, in C as in Python
+    odd = np.zeros(2, dtype=rows.dtype)
+    odd["r"], odd["d"] = 0.1, [2, -2]
+    assert run_c_driver(cc, text, HOLDS_DRIVER, odd, np.int32).tolist() == [0, 0]
+    assert outside_holds(band.holds_for, odd["r"].astype(float), odd["d"]).all()
     check_band_c(doc, text, "thermonet")
     bad = text.replace("HOLDS_HEATING_C_PER_MIN ", "HOLDS_HEATING_C_PER_MIN 2.0f * ", 1)
     assert bad != text

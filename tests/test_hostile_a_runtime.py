@@ -269,6 +269,18 @@ def test_where_the_band_holds_is_the_fit_times_rule_and_a_bad_statement_is_refus
     assert want.sum() == 8 + 5          # the never-moving ones, and heating up to 0.75
     plain = rt.Compensator(_with_band(model_path, tmp_path, 0.004))
     assert plain.band_holds(rates, dirs).all()
+    # a direction none of the three, or arrays of two shapes: one line (the C function
+    # answers 0 for such a direction; tests/test_band.py)
+    for rate, direction, why in ((0.5, 2, "direction 2 is not -1 (cooling), 0 (never moved) "
+                                           "or +1 (heating)"),
+                                 (0.5, "heating", "rate_c_per_min and direction must be "
+                                                  "numbers (or arrays of one shape)"),
+                                 ([0.5, 1.5], [-1, 1, 0], "rate_c_per_min and direction must "
+                                                          "be numbers (or arrays of one shape)")):
+        with pytest.raises(rt.RuntimeInputError) as err:
+            comp.band_holds(rate, direction)
+        assert str(err.value) == f"band_holds: {why}"
+    assert not rt.band_holds_rule(held, 0.5, 2)      # the rule itself: outside, as C says
     for bad in ({"heating_c_per_min": -1.0}, {"cooling_c_per_min": "fast"}, [0.5]):
         path = _with_band(model_path, tmp_path, 0.004, holds=bad)
         with pytest.raises(rt.RuntimeInputError) as err:

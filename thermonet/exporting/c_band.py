@@ -147,12 +147,14 @@ def _holds_lines(b: Band, p: str) -> list[str]:
         f"#define {P}_BAND_HOLDS_COOLING_C_PER_MIN {c_float(top.get('cooling', -1.0))}",
         "",
         "/* 1 where the band holds for a window of this rate (deg C/min) and direction (+1",
-        " * heating, -1 cooling, 0 a temperature that never moved), else 0. */",
+        " * heating, -1 cooling, 0 a temperature that never moved), else 0 (also for any other",
+        " * direction). */",
         f"static inline int {p}_band_holds(float rate_c_per_min, int direction)",
         "{",
         "    float top, r;",
         "    if (direction == 0) return 1;",
-        f"    top = direction > 0 ? {P}_BAND_HOLDS_HEATING_C_PER_MIN"
+        "    if (direction != 1 && direction != -1) return 0;",
+        f"    top = direction == 1 ? {P}_BAND_HOLDS_HEATING_C_PER_MIN"
         f" : {P}_BAND_HOLDS_COOLING_C_PER_MIN;",
         "    if (top < 0.0f) return 0;",
         "    r = rate_c_per_min < 0.0f ? -rate_c_per_min : rate_c_per_min;",
@@ -262,6 +264,9 @@ def _check_holds_c(cc: str, b: Band, text: str, prefix: str) -> None:
     rows = np.zeros(3 * len(rates), dtype=[("r", np.float32), ("d", np.int32)])
     rows["r"] = np.tile(np.asarray(rates, dtype=np.float32), 3)
     rows["d"] = np.repeat(np.array([-1, 0, 1], dtype=np.int32), len(rates))
+    extra = np.zeros(4, dtype=rows.dtype)            # directions that are none of the three
+    extra["r"], extra["d"] = 0.0, [2, -2, 7, -1000]
+    rows = np.concatenate([rows, extra])
     got = run_c_driver(cc, text, HOLDS_DRIVER, rows, np.int32, prefix=prefix,
                        header="the C header's band", driver_name="the C band-holds driver")
     held = {k: None if v is None else float(np.float32(v)) for k, v in b.holds_for.items()}

@@ -70,13 +70,14 @@ def outside_holds(held: Mapping[str, float | None], rates: np.ndarray,
                   directions: np.ndarray) -> np.ndarray:
     """Per window (signed rate °C/min, its excursion's direction): outside what the band
     states — an excursion in a direction never judged, or a window faster than the fastest
-    judged in its direction; a run that never moves (direction 0) is inside.  Nothing
-    stated: nothing outside."""
+    judged in its direction; a run that never moves (direction 0) is inside; a direction that
+    is not −1, 0 or +1 is outside.  Nothing stated: nothing outside."""
     r = np.asarray(rates, dtype=np.float64)
     d = np.asarray(directions)
     out = np.zeros(r.size, dtype=bool)
     if not held:
         return out
+    out |= ~np.isin(d, (-1, 0, 1))
     for name, sign in (("heating", 1), ("cooling", -1)):
         top = held.get(name)
         sel = d == sign
