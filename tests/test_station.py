@@ -67,6 +67,18 @@ def test_station_flags_strangers_passes_the_rest_and_writes_a_header(
     flagged = set(res["summary"]["flagged_unlike_fleet"])
     # no normal unit flagged; the outliers (recall measured by bench_prior.py) among the flags
     assert flagged and flagged <= {"consumer-imu-u004", "consumer-imu-u005"}
+    # the console says what failed: unlike its fleet, with the p-value (was "like_its_fleet")
+    from thermonet.workflows.station import format_station
+
+    dev = sorted(flagged)[0]
+    axis = next(a for a, r in res["units"][dev]["axes"].items() if r["flagged_unlike_fleet"])
+    line = next(ln for ln in format_station(res).splitlines() if ln.startswith(dev))
+    assert f"{axis}: unlike its fleet (p={res['units'][dev]['axes'][axis]['p_value']:.2g})" \
+        in line and "like_its_fleet" not in line, line
+    # the prior the station used: its file and digest (the config it was built from apart)
+    assert res["prior_file"] == str(prior) and res["prior"].endswith("fleet.yaml")
+    import hashlib
+    assert res["prior_sha256"] == hashlib.sha256(prior.read_bytes()).hexdigest()
     for dev in ("consumer-imu-u000", "consumer-imu-u001", "consumer-imu-u002"):
         assert res["units"][dev]["verdict"] == "PASS"
     assert res["units"]["consumer-imu-u000"]["files"] == "units/consumer-imu-u000"

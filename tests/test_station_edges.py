@@ -241,9 +241,18 @@ def test_what_a_prior_compares_by_its_units_tests() -> None:
     assert all(fp.not_comparable(k) is None for k in ("soaks", "cycles", "fast ramps"))
     doc = fp.to_dict()
     assert FleetPrior.from_dict(doc, "p.json").test_kinds == {"cycles": 19, "fast ramps": 1}
-    doc["test_kinds"] = {"wobbles": 3}
-    with pytest.raises(InputError, match="p.json.*test_kinds"):
-        FleetPrior.from_dict(doc, "p.json")
+    for kinds, named in (({"wobbles": 3}, "'wobbles': 3"), ({"soaks": 0}, "'soaks': 0"),
+                         ({"cycles": 2.0}, "'cycles': 2.0"), (["soaks"], "['soaks']")):
+        doc["test_kinds"] = kinds
+        with pytest.raises(InputError) as err:
+            FleetPrior.from_dict(doc, "p.json")
+        assert str(err.value).startswith(f"p.json: key 'test_kinds': {named} is not a test "
+                                         "kind (soaks, "), str(err.value)
+    # a prior of fast ramps plans soaks all the same, and says they are not compared with it
+    fp.test_kinds = {"fast ramps": 20}
+    text = format_prior(fp, prior_summary(fp), [-25.0, 25.0, 75.0])
+    assert "  note: a soak test is not compared with this fleet (a test of soaks, where the " \
+           "prior's units ran fast ramps (20 units)" in text
 
 
 @pytest.mark.numerics
@@ -278,3 +287,22 @@ def test_a_shape_is_judged_on_hotellings_predictive_not_chi2() -> None:
     assert shape_p_values(ap, shape, np.zeros((d, d)))[0] < 1e-3
     ap.n_units = n
     assert shape_p_values(ap, shape, np.zeros((d, d)))[0] > 1e-3
+
+
+def test_units_not_compared_for_two_reasons_get_a_line_each() -> None:
+    """The console's "not compared" line per reason with its count (it gave the first unit's
+    reason for all)."""
+    from thermonet.workflows.station import format_station
+
+    def unit(why: str | None) -> dict[str, object]:
+        return {"verdict": "PASS", "axes": {"gyro_x": {
+            "held_out_rms": 0.001, "held_out_not_judged": None, "p_value": 0.5,
+            "flagged_unlike_fleet": False, "fleet_not_compared": why, "failed": []}}}
+    units = {"u0": unit("a test of soaks, where …"), "u1": unit("a test of heating ramps, …"),
+             "u2": unit("a test of soaks, where …"), "u3": unit(None)}
+    res = {"units_of_measure": {"gyro_x": "deg/s"}, "units": units, "summary": {
+        "n_units": 4, "passed": 4, "flagged_unlike_fleet": [], "units_per_minute": 60.0,
+        "not_compared_with_fleet": ["u0", "u1", "u2"]}}
+    tail = format_station(res).splitlines()[-2:]
+    assert tail == ["2 units not compared with the fleet: a test of soaks, where …",
+                    "1 unit not compared with the fleet: a test of heating ramps, …"]

@@ -380,10 +380,10 @@ def _prior_from_dict(data: Any, source: str) -> FleetPrior:
     exc = data.get("excluded", {})
     _need(isinstance(exc, dict), source, "excluded", "expected a mapping unit -> reason")
     kinds = data.get("test_kinds", {})
-    _need(isinstance(kinds, dict) and all(k in TEST_KINDS and isinstance(v, int) and
-                                          not isinstance(v, bool) and v > 0
-                                          for k, v in kinds.items()), source, "test_kinds",
-          f"expected a mapping of {', '.join(TEST_KINDS)} -> a count of units")
+    bad = [f"{k!r}: {v!r}" for k, v in kinds.items() if k not in TEST_KINDS or not isinstance(
+        v, int) or isinstance(v, bool) or v < 1] if isinstance(kinds, dict) else [repr(kinds)]
+    _need(not bad, source, "test_kinds", f"{bad[0] if bad else ''} is not a test kind ("
+          f"{', '.join(TEST_KINDS)}) with a count of units ≥ 1")
     return FleetPrior(axes, deg, nums["t_ref_c"], nums["scale_c"], (float(rng[0]),
                       float(rng[1])), maps["units_of_measure"], maps["targets"], n,
                       list(ids), {str(k): str(v) for k, v in exc.items()},

@@ -55,7 +55,7 @@ from ..core.errors import ConfigError, InputError, counted, failures_line
 from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import atomic_write_text
 from ..core.names import c_comment, inside, path_components
-from ..core.outdir import check_target, install, make_stage
+from ..core.outdir import check_target, install, make_stage, sha256_file
 from ..core.recording import output_kind
 from ..core.schema import from_dict
 from ..features.target import AT_T_REF
@@ -295,7 +295,7 @@ def run_station(cfg: CompareConfig, prior: FleetPrior, sources: list[UnitSource]
     try:
         t0 = time.perf_counter()
         units = _run_units(cfg, prior, sources, limits, stage, opts, say)
-        results = _summary(prior, units, time.perf_counter() - t0)
+        results = _summary(prior, units, time.perf_counter() - t0, opts.prior_file)
         atomic_write_text(stage / "results.json", json.dumps(results, indent=2))
         install(stage, out, overwrite, "station")
     finally:
@@ -351,9 +351,11 @@ def _unit_summary(r: dict[str, Any], rel: str) -> dict[str, Any]:
 
 
 def _summary(prior: FleetPrior, units: dict[str, dict[str, Any]],
-             seconds: float) -> dict[str, Any]:
+             seconds: float, prior_file: str = "") -> dict[str, Any]:
     n_fail = sum(u["verdict"] != "PASS" for u in units.values())
+    digest = sha256_file(prior_file) if prior_file and Path(prior_file).is_file() else None
     return {"schema": 1, "kind": "station", "prior": prior.source,
+            "prior_file": prior_file or None, "prior_sha256": digest,
             "prior_units": prior.n_units, "units_of_measure": prior.units, "units": units,
             "summary": {"n_units": len(units), "passed": len(units) - n_fail,
                         "failed": n_fail,
@@ -387,8 +389,9 @@ def _unit_line(dev: str, u: dict[str, Any], uom: dict[str, str]) -> str:
             worst += f" ({', '.join(unjudged)} not judged)"
     else:
         worst = f"held-out residual not judged ({'; '.join(dict.fromkeys(unjudged.values()))})"
-    fails = [f"{a}: {lim}" + (f": not judged ({unjudged[a]})" if lim == "max_residual" and
-                              a in unjudged else "")
+    fails = [f"{a}: " + (f"unlike its fleet (p={r['p_value']:.2g})" if lim == "like_its_fleet"
+                         else lim + (f": not judged ({unjudged[a]})" if lim == "max_residual"
+                                     and a in unjudged else ""))
              for a, r in axes.items() for lim in r["failed"]]
     return f"{dev}: {u['verdict']}  {worst}" + (f"  [{'; '.join(fails[:3])}]" if fails else "")
 
@@ -401,9 +404,11 @@ def format_station(results: dict[str, Any]) -> str:
     lines.append(f"{s['passed']} of {s['n_units']} units passed; "
                  f"{len(s['flagged_unlike_fleet'])} unlike their fleet; "
                  f"{s['units_per_minute']:.0f} units/min")
-    apart = s.get("not_compared_with_fleet") or []
-    if apart:
-        why = next(a["fleet_not_compared"] for a in results["units"][apart[0]]["axes"].values()
+    by_reason: dict[str, int] = {}      # units of one test kind share their reason
+    for dev in s.get("not_compared_with_fleet") or []:
+        why = next(a["fleet_not_compared"] for a in results["units"][dev]["axes"].values()
                    if a["fleet_not_compared"])
-        lines.append(f"{counted(len(apart), 'unit')} not compared with the fleet: {why}")
+        by_reason[why] = by_reason.get(why, 0) + 1
+    lines += [f"{counted(n, 'unit')} not compared with the fleet: {why}"
+              for why, n in by_reason.items()]
     return "\n".join(lines)

@@ -325,6 +325,9 @@ def format_prior(fp: FleetPrior, summary: dict[str, Any], plan: list[float] | No
              + (f"; their tests: {fp.kinds_text()}" if fp.test_kinds else "")]
     if plan:
         lines.append(_plan_line(fp, summary, plan))
+        if why := fp.not_comparable("soaks"):    # a prior of fast ramps: said with the plan
+            lines.append(f"  note: a soak test is not compared with this fleet ({why}); its "
+                         "calibration and held-out check stand")
     for axis, s in summary.items():
         head = f"  {axis}: {counted(s['clusters'], 'cluster')}; "
         uom = fp.units.get(axis, "")
