@@ -10,6 +10,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from ..data.firmware import PX4_LETTER
 from ..reporting.report import _CSS, VERDICT_COLOURS
 from .verify_params import KIND_UNITS
 
@@ -51,11 +52,20 @@ def format_verify_report(doc: dict[str, Any]) -> str:
             continue
         axes = ", ".join(_axis_text(d, j) for j in range(len(d["passed"])))
         unit = KIND_UNITS.get(d["kind"], "")
-        lines.append(f"{head} slot {d['slot']}: binned drift p-p [{unit}] {axes}")
+        lines.append(f"{head} {_slot_name(doc['autopilot'], d)}: binned drift p-p [{unit}] "
+                     f"{axes}")
         lines += [f"       FAIL: {w}" for w in d.get("offset_failures") or []]
         lines += [f"       warning: {w}" for w in d["warnings"]]
     lines += ["", verdict_line(doc)]
     return "\n".join(lines) + "\n"
+
+
+def _slot_name(autopilot: str, d: dict[str, Any]) -> str:
+    """The parameters applied to an instance, named as the file names them: PX4's ``TC_G0``,
+    ArduPilot's ``INS_TCAL1`` (the slot is 0-based, ArduPilot's IMU numbers 1-based)."""
+    if autopilot == "ardupilot":
+        return f"INS_TCAL{d['slot'] + 1}"
+    return f"TC_{PX4_LETTER.get(d['kind'], '?')}{d['slot']}"
 
 
 def verdict_line(doc: dict[str, Any]) -> str:
@@ -77,7 +87,8 @@ def verdict_line(doc: dict[str, Any]) -> str:
     left = names("not covered")
     if left:
         text += (f" for {', '.join(names('judged'))}; not covered by this file: "
-                 f"{', '.join(left)} (their drift is not corrected)")
+                 f"{', '.join(left)} ({'its' if len(left) == 1 else 'their'} drift is not "
+                 "corrected)")
     return text
 
 
