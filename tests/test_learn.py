@@ -183,6 +183,9 @@ def test_bad_logs_one_line_each_good_ones_counted(tmp_path, capsys):
     for p in bad.values():
         lines = [line for line in out.splitlines() if p.name in line]
         assert len(lines) == 1, lines
+    # the parameter file as the results file is named (under --out), the instances in order
+    assert f"parameter file: {tmp_path / 'out' / doc['params_file']}" in out.splitlines()
+    assert list(doc["instances"]) == sorted(doc["instances"])
 
 
 def test_no_usable_log_is_one_line_and_nothing_written(tmp_path, capsys):

@@ -22,7 +22,7 @@ def _cmd_learn(args: argparse.Namespace) -> int:
                 ray_address=args.ray_address, compare=not args.no_compare,
                 export=not args.no_export, say=say)
     if not args.quiet:
-        print(format_learn_report(doc), end="")
+        print(format_learn_report(doc, args.out), end="")
         print(f"results: {Path(args.out) / 'results.json'}")
     return 0
 

@@ -327,10 +327,10 @@ def _learn_into(logs: list[dict[str, Any]], instances: Iterable[InstanceWindows]
     """Every instance learned into ``stage`` (one at a time: each one's windows dropped once
     learned); the results document (without its changes)."""
     docs: dict[str, dict[str, Any]] = {}
-    for inst in instances:
+    for inst in sorted(instances, key=lambda i: i.name):    # acc0, acc1, gyro0, gyro1, …
         say(f"{inst.name}: learning from {counted(int(np.unique(inst.flight).size), 'flight')}")
         docs[inst.name] = instance_doc(inst, autopilot, stage, do_compare, do_export)
-    header = [f"thermonet {__version__}: drift learned from {len(logs)} flight logs "
+    header = [f"thermonet {__version__}: drift learned from {counted(len(logs), 'flight log')} "
               "(estimator biases and still-gyro windows; no chamber)",
               "redo the autopilot's gyro and accelerometer calibration after loading it"]
     params = None
@@ -386,7 +386,7 @@ def _supported(d: dict[str, Any]) -> str:
     return ", ".join(f"{a}..{b + 1}" for a, b in spans) + " °C" if spans else ""
 
 
-def format_learn_report(doc: dict[str, Any]) -> str:
+def format_learn_report(doc: dict[str, Any], out_dir: str | Path | None = None) -> str:
     """The console summary: what was used and refused, per instance its fit, held-out check,
     coverage and what is missing, and what changed."""
     lines = [f"thermonet learn: {counted(len(doc['logs']), 'log')} used, "
@@ -420,7 +420,7 @@ def format_learn_report(doc: dict[str, Any]) -> str:
                      "  coverage: no 1 °C bin supported yet")
         lines += [f"  {w}" for w in d.get("missing", [])]
     if doc.get("params_file"):
-        lines.append(f"parameter file: {doc['params_file']}")
+        lines.append(f"parameter file: {Path(out_dir or '') / doc['params_file']}")
     else:   # exit 0 all the same: the logs were read and kept (cache) for the next run
         lines.append("parameter file: none yet (no sensor could be fitted: fly more and run "
                      "learn again)")
