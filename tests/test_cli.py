@@ -199,6 +199,6 @@ def test_simulate_then_info_then_compare_then_export(thermonet, tmp_path):
     # a gyro model leaves the accelerometer's calibration alone
     assert "INS_TCAL1_GYR1_X," in text and "INS_TCAL1_ACC" not in text
     r = thermonet("export", tmp_path / "out", "--family", "rbf", "--format", "px4-params",
-                  "--out", tmp_path / "p.params")
+                  "--device-id", "2490378", "--out", tmp_path / "p.params")
     assert r.returncode == 1 and "one input, dT or T" in r.stderr
     assert not (tmp_path / "p.params").exists()
