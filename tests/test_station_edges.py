@@ -123,13 +123,16 @@ def test_units_are_left_out_for_what_a_point_can_see() -> None:
     fits = {d: {"gyro_z": _fit(z), "acc_x": _fit(x)}
             for d, z, x in zip(ids, slopes_z, slopes_x, strict=True)}
     out = _outlier_units(fits, {"gyro_z": 2.5e-3, "acc_x": 1e-3}, T_REF, SCALE,
-                         (-15.0, 75.0), 3)
+                         (-15.0, 75.0), 3, {"gyro_z": "deg/s", "acc_x": "m/s^2"})
     assert set(out) == {"u012", "u014"}                    # u013 (1.5 point errors) kept
     # u014 at 75 °C (u = 1, the largest |u| of the range -15 … 75 °C): its z is its
     # distance from the median over a point's error
     z = (slopes_z[14] - np.median(slopes_z)) / 2.5e-3
-    assert out["u014"].startswith(f"robust outlier: gyro_z@75C z={z:.1f}, ")
-    assert "acc_x@" in out["u012"]
+    assert out["u014"].startswith(f"robust outlier: gyro_z at 75 °C z={z:.1f}, ")
+    # every figure in the axis's unit of measure
+    assert out["u014"].endswith("deg/s off the units' median (their spread 0.0025 deg/s, a "
+                                "point's own error 0.0025 deg/s)"), out["u014"]
+    assert "acc_x at " in out["u012"] and "m/s^2" in out["u012"]
 
 
 def test_a_unit_with_axes_the_prior_lacks_is_refused() -> None:
@@ -253,6 +256,10 @@ def test_what_a_prior_compares_by_its_units_tests() -> None:
     text = format_prior(fp, prior_summary(fp), [-25.0, 25.0, 75.0])
     assert "  note: a soak test is not compared with this fleet (a test of soaks, where the " \
            "prior's units ran fast ramps (20 units)" in text
+    # the units it left out are named with why (the first line only counted them)
+    fp.excluded = {"u9": "robust outlier: gyro_x at 75 °C z=9.1, …"}
+    assert "  left out: 'u9': robust outlier: gyro_x at 75 °C z=9.1, …" in \
+        format_prior(fp, prior_summary(fp)).splitlines()
 
 
 @pytest.mark.numerics

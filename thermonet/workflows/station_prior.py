@@ -160,7 +160,8 @@ def _point_errors(fits: dict[str, dict[str, Any]], pts: dict[str, dict[str, Poin
 
 
 def _outlier_units(fits: dict[str, dict[str, Any]], floors: dict[str, float], t_ref: float,
-                   scale: float, range_c: tuple[float, float], degree: int) -> dict[str, str]:
+                   scale: float, range_c: tuple[float, float], degree: int,
+                   uom: dict[str, str] | None = None) -> dict[str, str]:
     """Units whose curve at five temperatures is a robust outlier on some axis: off the
     units' median by more than :data:`~thermonet.scoring.fleetstats.ROBUST_Z_THRESHOLD`
     times their spread (1.4826 × MAD, as fleets flag), the spread never taken below a
@@ -188,9 +189,11 @@ def _outlier_units(fits: dict[str, dict[str, Any]], floors: dict[str, float], t_
         for dev, v in values.items():
             z = (v - s["median"]) / sd if sd > 0 else 0.0
             if abs(z) > ROBUST_Z_THRESHOLD and abs(z) > abs(found.get(dev, (0.0, ""))[0]):
-                found[dev] = (z, f"robust outlier: {q} z={z:.1f}, {v - s['median']:+.3g} off "
-                                 f"the units' median (their spread {sd:.3g}, a point's own "
-                                 f"error {floor:.3g})")
+                axis, _, at = q.partition("@")
+                u = f" {(uom or {}).get(axis, '')}".rstrip()
+                found[dev] = (z, f"robust outlier: {axis} at {at[:-1]} °C z={z:.1f}, "
+                                 f"{v - s['median']:+.3g}{u} off the units' median (their "
+                                 f"spread {sd:.3g}{u}, a point's own error {floor:.3g}{u})")
     return {dev: found[dev][1] for dev in sorted(found)}
 
 
@@ -228,7 +231,7 @@ def build_prior(cfg: CompareConfig, ds: Dataset, *, source: str = "") -> FleetPr
             excluded[dev] = str(err)
     if fits:
         excluded.update(_outlier_units(fits, _point_errors(fits, pts), t_ref, scale, rng,
-                                       degree))
+                                       degree, meta[next(iter(fits))][1]))
     kept = [d for d in fits if d not in excluded]
     if len(kept) < MIN_UNITS:
         raise InputError(f"{where}: a fleet prior needs at least {MIN_UNITS} calibrated units; "
@@ -323,6 +326,8 @@ def format_prior(fp: FleetPrior, summary: dict[str, Any], plan: list[float] | No
     lines = [f"prior of {fp.n_units} units ({len(fp.excluded)} left out), axes "
              f"{', '.join(fp.axis_names)}, {fp.range_c[0]:g} to {fp.range_c[1]:g} °C"
              + (f"; their tests: {fp.kinds_text()}" if fp.test_kinds else "")]
+    if fp.excluded:
+        lines.append(f"  left out: {_left_out_line(fp.excluded)}")
     if plan:
         lines.append(_plan_line(fp, summary, plan))
         if why := fp.not_comparable("soaks"):    # a prior of fast ramps: said with the plan
