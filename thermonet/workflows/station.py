@@ -20,7 +20,8 @@ units measured briefly (a few soaks, a short ramp) and, per unit and axis, gives
 - the **distance from the fleet** (:attr:`thermonet.scoring.prior.Posterior.p_value`): a unit
   unlike every cluster is flagged, and FAILs, even if it fits its own points — where its
   test is of a kind the prior can judge (:meth:`~thermonet.scoring.prior.FleetPrior.
-  not_comparable`: a moving test against a prior of soaks is not compared, and says why);
+  not_comparable`: a fast ramp against a prior of slow tests, or the reverse, is not
+  compared, and says why);
 - PASS/FAIL against ``station.limits`` (held-out residual, tempco at t_ref, noise); a
   residual that cannot be judged (one point, or no run with points at two temperatures)
   is "not judged (why)", and fails ``max_residual`` where that limit is set;
