@@ -220,10 +220,10 @@ def _trace(legs: list[tuple[float, float]], dt: float = 10.0) -> tuple[np.ndarra
 ])
 def test_a_tests_kind_is_the_motion_of_its_points(legs: list[tuple[float, float]],
                                                  kind: str) -> None:
-    from thermonet.scoring.prior_points import motion_counts, test_kind
+    from thermonet.scoring.prior_points import kind_of_test, motion_counts
 
     time_s, temp = _trace(legs)
-    assert test_kind(motion_counts(temp, time_s)) == kind
+    assert kind_of_test(motion_counts(temp, time_s)) == kind
 
 
 def test_what_a_prior_compares_by_its_units_tests() -> None:

@@ -241,7 +241,7 @@ class FleetPrior:
     source: str = ""
     bin_c: float = BIN_C
     #: how many of its units ran each kind of test (:func:`~thermonet.scoring.prior_points.
-    #: test_kind`); empty in a prior written before it was recorded
+    #: kind_of_test`); empty in a prior written before it was recorded
     test_kinds: dict[str, int] = field(default_factory=dict)
 
     def axis(self, name: str) -> AxisPrior:

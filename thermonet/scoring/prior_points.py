@@ -16,7 +16,7 @@ import numpy as np
 __all__ = ["BIN_C", "MIN_BIN_SAMPLES", "MAX_RATE_C_PER_MIN", "RATE_WINDOW_S", "Points",
            "bin_points", "shape_design", "centred", "SOAK_RATE_C_PER_MIN", "TEST_KINDS",
            "FAST_KIND",
-           "motion_counts", "test_kind"]
+           "motion_counts", "kind_of_test"]
 
 #: The width (°C) of the bins a point is the mean of, centred on whole multiples.
 BIN_C = 1.0
@@ -32,9 +32,11 @@ MAX_RATE_C_PER_MIN = 1.2
 RATE_WINDOW_S = 60.0
 #: A sample whose smoothed temperature changes slower than this (°C/min) is on a soak.
 SOAK_RATE_C_PER_MIN = 0.1
-#: A test whose points pair heating with cooling above MAX_RATE_C_PER_MIN (:func:`test_kind`).
+#: A test whose points pair heating with cooling above MAX_RATE_C_PER_MIN
+#: (:func:`kind_of_test`).
 FAST_KIND = "fast ramps"
-#: What a unit's test is (:func:`test_kind`): the kind of the samples its points are made of.
+#: What a unit's test is (:func:`kind_of_test`): the kind of the samples its points are
+#: made of.
 TEST_KINDS = ("soaks", "heating ramps", "cooling ramps", "cycles", FAST_KIND)
 
 
@@ -98,7 +100,7 @@ def motion_counts(temperature_c: np.ndarray, time_s: np.ndarray) -> np.ndarray:
                      int((~slow & (change <= MAX_RATE_C_PER_MIN)).sum())])
 
 
-def test_kind(counts: np.ndarray) -> str:
+def kind_of_test(counts: np.ndarray) -> str:
     """A test's kind from its :func:`motion_counts` (summed over its runs): ``fast ramps``
     where most of its samples are fast ones (their points pair heating with cooling:
     :func:`bin_points`); else ``soaks`` where half or more sit on soaks; else ``cycles``

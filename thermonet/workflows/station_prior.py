@@ -50,9 +50,9 @@ from ..scoring.prior_points import (
     BIN_C,
     Points,
     bin_points,
+    kind_of_test,
     motion_counts,
     shape_design,
-    test_kind,
 )
 from ..training.config import CompareConfig, outputs_of
 from ..training.parts import build_part, targets_for
@@ -108,11 +108,11 @@ def unit_points(cfg: CompareConfig, ds: Dataset, where: str
 
 
 def unit_test_kind(ds: Dataset) -> str:
-    """What a unit's test is over its runs (:func:`~thermonet.scoring.prior_points.test_kind`):
-    soaks, heating or cooling ramps, or cycles."""
+    """What a unit's test is over its runs (:func:`~thermonet.scoring.prior_points.
+    kind_of_test`): soaks, heating or cooling ramps, cycles, or fast ramps."""
     counts = sum((motion_counts(np.asarray(r.temperature_c, dtype=np.float64), r.time_s)
                   for r in ds if r.temperature_c is not None), np.zeros(4, dtype=np.int64))
-    return test_kind(counts)
+    return kind_of_test(counts)
 
 
 def check_compatible(fp: FleetPrior, axes: list[str], targets: dict[str, str],
