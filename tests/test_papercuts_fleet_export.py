@@ -339,3 +339,21 @@ def test_export_options_a_format_has_no_use_for_are_refused(tmp_path, capsys, ar
                  str(tmp_path / "x.out")]) == 1
     assert _line(capsys) == f"thermonet: error: {line}"
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, line", [
+    (["station", "c.yaml", "--prior", "p.json", "--out", ""], "--out is empty: give a path"),
+    (["prior", "c.yaml", "--out", " "], "--out is empty: give a path"),
+    (["station", "c.yaml", "--prior", "", "--out", "st"], "--prior is empty: give a path"),
+    (["station", "c.yaml", "--prior", ".", "--out", "st"],
+     ".: --prior is a directory; give the prior file (prior.json)"),
+])
+def test_an_empty_path_or_a_directory_for_a_file_is_named(tmp_path, monkeypatch, capsys, argv,
+                                                         line):
+    """Was: "" read as "." ("--out is not empty …"), a directory for --prior "no such file"."""
+    monkeypatch.chdir(tmp_path)
+    Path("c.yaml").write_text("data: {preset: consumer-imu, runs: 1}\n"
+                              "target: {gyro: zero, acc: at-t-ref}\n")
+    assert main(argv) == 1
+    assert _line(capsys) == f"thermonet: error: {line}"
+    assert [p.name for p in tmp_path.iterdir()] == ["c.yaml"]

@@ -86,6 +86,11 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    for opt in ("out", "prior", "mapping"):      # "" would be read as "." (or fail later)
+        value = getattr(args, opt, None)
+        if isinstance(value, str) and not value.strip():
+            print(f"thermonet: error: --{opt} is empty: give a path", file=sys.stderr)
+            return 1
     previous: dict[signal.Signals, Any] = {}
     try:
         # SIGINT and SIGTERM both unwind like Ctrl-C (finally blocks run, runs end KILLED,

@@ -125,6 +125,8 @@ def _read_prior(path: str) -> Any:
     from ..scoring.prior import FleetPrior  # lazy: off the --help path
 
     p = Path(path)
+    if p.is_dir():
+        raise ThermonetError(f"{p}: --prior is a directory; give the prior file (prior.json)")
     if not p.is_file():
         raise ThermonetError(f"{p}: --prior: no such file (write one with `thermonet prior`)")
     if p.stat().st_size > 16_000_000:
