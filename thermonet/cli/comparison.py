@@ -100,8 +100,8 @@ def _export_all_units(args: argparse.Namespace) -> int:
         more = f" and {len(taken) - 1} more" if len(taken) > 1 else ""
         raise ThermonetError(f"{out}: already holds {taken[0]}{more}; --all-units writes only "
                              "new files: choose an empty --out or remove them")
-    for dev in list(units)[:1]:   # the options, once, before anything is written
-        check_export_request(fmt=args.format, out=out / f"{names[dev]}{ext}",
+    if units:   # the options, once, before anything is written
+        check_export_request(fmt=args.format, out=out / f"{names[next(iter(units))]}{ext}",
                              family=args.family, device_id=args.device_id,
                              instance=args.instance)
     made = [d for d in (out, *out.parents) if not d.exists()]   # removed if nothing is written

@@ -189,8 +189,7 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     if out.is_dir():
         raise ThermonetError(f"{out}: is a directory; --out names a .parquet or .csv file")
     refuse_overwriting_inputs(out, [*args.files, *([args.mapping] if args.mapping else [])])
-    if out.exists() and not args.overwrite:
-        raise ThermonetError(f"{out}: already exists (give --overwrite to replace it)")
+    refuse_existing([out], args.overwrite)
     if args.chunk_rows is not None and args.chunk_rows < 1:
         raise ThermonetError(f"--chunk-rows must be >= 1, got {args.chunk_rows}")
     if out.suffix.lower() == ".csv" or any(is_log_source(f) for f in args.files):

@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 __all__ = [
     "ExportFormat", "ExportRequest", "Exporter", "FORMATS", "register_format", "get_format",
     "MAX_DEVICE_ID",
+    "is_device_id",
     "export_source", "resolve_checkpoint",
     "CompensatorGraph", "export_onnx", "parity_check", "log_onnx_to_mlflow", "onnx_file_size",
     "log_onnx_model", "onnx_of_checkpoint",
@@ -49,6 +50,12 @@ __all__ = [
 #: The largest sensor device id: PX4's ``TC_*_ID`` and ArduPilot's ids are 32-bit (what
 #: ``thermonet verify`` reads back: :func:`thermonet.workflows.verify_params._device_id`).
 MAX_DEVICE_ID = 2 ** 32 - 1
+
+
+def is_device_id(value: Any) -> bool:
+    """A PX4 / ArduPilot sensor device id: a number whose integer is in
+    1..:data:`MAX_DEVICE_ID` (not a bool)."""
+    return not isinstance(value, bool) and 1 <= int(value) <= MAX_DEVICE_ID
 
 
 @dataclass(frozen=True)

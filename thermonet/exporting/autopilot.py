@@ -76,7 +76,7 @@ from ..features.target import FOURPOS_SUFFIXES
 from ..models import DriftModel
 from ..models.composite import AxisModels, DriftModels
 from ..scoring.band import Band
-from . import MAX_DEVICE_ID
+from . import MAX_DEVICE_ID, is_device_id
 from .onnx_export import family_name
 
 __all__ = [
@@ -425,7 +425,7 @@ def export_px4_params(model: DriftModels, path: str | Path, *, output_units: str
         raise ExportError("PX4 applies TC_* parameters only to the sensor whose device id "
                           "equals TC_*_ID: give the sensor's device id (--device-id; read it "
                           "with 'listener sensor_gyro')")
-    if isinstance(device_id, bool) or not 1 <= int(device_id) <= MAX_DEVICE_ID:
+    if not is_device_id(device_id):
         raise ExportError(f"device id {device_id!r} is not a sensor device id (PX4 device ids "
                           f"are 32-bit: 1..{MAX_DEVICE_ID})")
     int32_id = int(device_id) - (1 << 32 if int(device_id) >= 1 << 31 else 0)  # as PX4's INT32

@@ -45,7 +45,7 @@ from ..tracking import (
     missing_store,
     store_problem,
 )
-from . import MAX_DEVICE_ID, ExportFormat, ExportRequest, get_format
+from . import MAX_DEVICE_ID, ExportFormat, ExportRequest, get_format, is_device_id
 
 if TYPE_CHECKING:
     from ..models.composite import DriftModels
@@ -222,8 +222,7 @@ def check_export_request(*, fmt: str, out: str | Path, family: str | None = None
         check_name(family, LABEL, "--family")
     if tracking_uri is not None:
         check_store(tracking_uri)   # the line compare and fleet say
-    if device_id is not None and (isinstance(device_id, bool)
-                                  or not 1 <= int(device_id) <= MAX_DEVICE_ID):
+    if device_id is not None and not is_device_id(device_id):
         raise InputError(f"--device-id must be the sensor's positive device id, got "
                          f"{device_id}: PX4 and ArduPilot device ids are 32-bit, "
                          f"1..{MAX_DEVICE_ID}")

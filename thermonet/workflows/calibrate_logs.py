@@ -12,6 +12,7 @@ import numpy as np
 from ..core.errors import InputError
 from ..core.recording import GAP_FACTOR
 from ..data.logs import FlightLog, SensorInstance
+from ..data.logs.info import autopilot_article
 from .firmware_fit import FIT_KINDS
 
 __all__ = ["merge_logs", "held_out_blocks", "HELD_OUT_BLOCKS", "HELD_OUT_EVERY"]
@@ -39,9 +40,8 @@ def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
     first = logs[0]
     for log in logs[1:]:
         if log.autopilot != first.autopilot:
-            name = {"px4": "a PX4", "ardupilot": "an ArduPilot"}
-            raise InputError(f"{log.path}: {name.get(log.autopilot, log.autopilot)} log; "
-                             f"{first.path} is {name.get(first.autopilot, first.autopilot)} "
+            raise InputError(f"{log.path}: {autopilot_article(log.autopilot)} log; "
+                             f"{first.path} is {autopilot_article(first.autopilot)} "
                              "log (one board, one autopilot)")
         if _board_ids(log) != _board_ids(first):
             def ids(lg: FlightLog) -> str:

@@ -82,7 +82,6 @@ from typing import Any, cast
 from ..core.errors import ConfigError, InputError
 from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import atomic_write_text
-from ..core.helpers import usable_cores
 from ..core.names import inside, path_components
 from ..core.outdir import check_target, install, make_stage
 from ..features.target import modelled_outputs
@@ -213,9 +212,8 @@ def run_fleet(cfg: CompareConfig, out_dir: str | Path, sources: list[UnitSource]
 
 def _tasks(opts: FleetOptions, fn: Any, todo: list[Any], on_done: Any = None) -> list[Any]:
     """``fn`` over ``todo`` on the configured executor (``workers`` 0: one per CPU this
-    process may use, as ``compare --workers 0``)."""
-    workers = usable_cores() if opts.workers == 0 else opts.workers
-    return run_tasks(fn, todo, executor=cast(Any, opts.executor), workers=workers,
+    process may use, :func:`~thermonet.core.executors.run_tasks`)."""
+    return run_tasks(fn, todo, executor=cast(Any, opts.executor), workers=opts.workers,
                      ray_address=opts.ray_address, on_done=on_done)
 
 

@@ -54,6 +54,7 @@ from typing import Any
 import numpy as np
 
 from ..data.logs.bias import BIAS_KINDS
+from ..data.logs.info import autopilot_article
 from .firmware_fit import PX4_MEDIAN_SAMPLES, running_median
 from .learn_reduce import LAG_GRID_S, WINDOW_S
 
@@ -428,7 +429,6 @@ def missing_words(cov: list[dict[str, Any]]) -> tuple[tuple[int, int] | None, li
     return (lo, hi), words
 
 
-_AUTOPILOT = {"px4": "a PX4", "ardupilot": "an ArduPilot"}
 
 
 def vehicle_of(logs: list[dict[str, Any]]) -> tuple[str, dict[str, int], str | None]:
@@ -445,7 +445,7 @@ def not_this_vehicle(lg: dict[str, Any], ap: str, sensors: dict[str, int],
                      board: str | None) -> str | None:
     """Why a reduced log is not of the vehicle (one phrase), or None when it is."""
     if lg["autopilot"] != ap:
-        other = _AUTOPILOT.get(lg["autopilot"], f"a {lg['autopilot']}")
+        other = autopilot_article(lg["autopilot"])
         return (f"{other} log among {ap} logs: one vehicle, one autopilot "
                 "(learn them in separate directories)")
     if lg["sensors"] != sensors:

@@ -106,6 +106,7 @@ from ..data.firmware import (
     px4_offsets_3d,
 )
 from ..data.logs import FlightLog, SensorInstance, read_log
+from ..data.logs.info import autopilot_article
 from ..scoring.metrics import binned_peak_to_peak
 from .firmware_fit import check_instance, target
 from .verify_params import (
@@ -321,9 +322,9 @@ def evaluate(pf: ParamFile, log: FlightLog, limits: Limits | None = None, *,
     """
     limits = limits or Limits()
     if pf.autopilot != log.autopilot:
-        name = {"px4": "a PX4", "ardupilot": "an ArduPilot"}
-        raise ThermonetError(f"{pf.path} is {name[pf.autopilot]} parameter file; {log.path} "
-                             f"is {name[log.autopilot]} log (verify needs the same autopilot)")
+        raise ThermonetError(f"{pf.path} is {autopilot_article(pf.autopilot)} parameter "
+                             f"file; {log.path} is {autopilot_article(log.autopilot)} log "
+                             "(verify needs the same autopilot)")
     insts = [i for i in log.instances if i.kind in _PX4_LETTER]
     log_ids = sorted({i.device_id for i in insts})
     if pf.by_id and not any((i.kind, i.device_id) in pf.by_id for i in insts):

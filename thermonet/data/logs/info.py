@@ -11,10 +11,15 @@ from ...core.errors import InputError, counted
 from . import read_log, split_instance, temperature_step
 from .base import UNITS
 
-__all__ = ["summarize_log", "format_log_summary", "AUTOPILOT_NAMES"]
+__all__ = ["summarize_log", "format_log_summary", "AUTOPILOT_NAMES", "autopilot_article"]
 
 #: How each autopilot is written in prose.
 AUTOPILOT_NAMES = {"px4": "PX4", "ardupilot": "ArduPilot"}
+
+
+def autopilot_article(name: str) -> str:
+    """An autopilot's name in prose with its article: "a PX4", "an ArduPilot"."""
+    return {"px4": "a PX4", "ardupilot": "an ArduPilot"}.get(name, f"a {name}")
 
 
 def summarize_log(path: str | Path) -> dict[str, Any]:
