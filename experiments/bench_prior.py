@@ -23,6 +23,11 @@ unit is calibrated
   (:func:`thermonet.scoring.prior_points.bin_points`), and the prior; and the same cycle in
   40 min (20 min each way, 4.75 °C/min), long enough for the thermometer's rate to settle;
 
+- **through the fleet's test**: the prior's units ran the short test too (the 3 soaks, the
+  10-min ramp, the 10-min up-and-down) beside their sweep, and the prior learns how that
+  test reads a unit's drift curve (:mod:`thermonet.scoring.prior_map`: regression
+  calibration); each held-out unit is calibrated through that map from its own run of it;
+
 and every calibration is judged on the unit's climate cycle: the RMS of its 1 °C-binned
 compensated error, offset-free.  Reported per axis: the median over
 units of (short / full) and its 90th percentile, worst axis first.
@@ -31,7 +36,9 @@ Outliers: a second fleet of the same draw with its last units 10 σ off
 (:func:`thermonet.sim.fleet.outlier_config`); the prior from its normal units, the station's
 "unlike its fleet" flag (any axis) on new units' 3-soak tests, their climate cycle (a long
 test: hundreds of points, judged on the unit's own shape) and their 40-min up-and-down, the
-prior built from the units' full sweeps or from their climate cycles: the share of units
+prior built from the units' full sweeps or from their climate cycles, and the 3 soaks and
+the 10-min up-and-down through the fleet's map of them (the prior from the units' sweeps and
+those tests): the share of units
 the prior can compare (a moving test against a prior of soaks is not compared), recall on
 the outliers, false flags on the normal ones, and both as if every unit were compared.
 
@@ -59,7 +66,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import git_rev, save, table  # noqa: E402
 from thermonet.core.recording import Dataset, split_units  # noqa: E402
-from thermonet.scoring.prior import fit_unit, posterior  # noqa: E402
+from thermonet.scoring.prior import fit_unit, posterior, posterior_from_stats  # noqa: E402
 from thermonet.scoring.prior_design import soak_plan  # noqa: E402
 from thermonet.scoring.prior_points import shape_design  # noqa: E402
 from thermonet.sim import simulate_fleet  # noqa: E402
@@ -67,7 +74,7 @@ from thermonet.sim.fleet import short_test  # noqa: E402
 from thermonet.sim.presets import get_preset  # noqa: E402
 from thermonet.training.config import config_from_mapping  # noqa: E402
 from thermonet.workflows.station import build_prior, unit_points  # noqa: E402
-from thermonet.workflows.station_prior import unit_test_kind  # noqa: E402
+from thermonet.workflows.station_prior import unit_test_kind, unit_windows  # noqa: E402
 
 PRESET, SEED, CLUSTERS, FOLDS = "consumer-imu", 5, 3, 5
 SOAKS, SOAKS_ENDS, RAMP = "soaks:-15,25,65", "soaks:-20,25,75", "ramp:20,30,10"
@@ -105,6 +112,24 @@ def _own(fp: Any, pts: Any) -> np.ndarray | None:
         return None
 
 
+def _through_map(fp: Any, run: Any) -> dict[str, Any]:
+    """Each axis's posterior of a unit's short test through the fleet's map of it
+    (:mod:`thermonet.scoring.prior_map`); the test must be the map's."""
+    tm = fp.test_map
+    why = tm.mismatch(np.asarray(run.time_s), np.asarray(run.temperature_c, dtype=float))
+    if why is not None:
+        raise SystemExit(f"bench_prior: a unit's test is not the map's: {why}")
+    vals, _ = unit_windows(CFG, run, fp.axis_names, tm.window_s, tm.n_windows)
+    return {a: posterior_from_stats(fp.axis(a), *tm.stats(a, tm.centred(vals[:, j])))
+            for j, a in enumerate(fp.axis_names)}
+
+
+#: the short tests the fleet's map is learned for (the prior's units ran each beside their
+#: sweep): column name -> test
+MAPPED = {"3 soaks through the fleet's test": SOAKS, "10-min ramp through the fleet's test": RAMP,
+          "10-min up-and-down through the fleet's test": CYCLE}
+
+
 PLANS: dict[str, list[str]] = {}   # the prior's 3-soak plans per fold: '<units> <plan>'
 
 
@@ -130,6 +155,9 @@ def leave_units_out(n_units: int) -> dict[str, Any]:
         held = [d for i, d in enumerate(ids) if i % FOLDS == g]
         train = _sweeps(Dataset(runs=[r for d in ids if d not in held for r in units[d]]))
         fp = build_prior(CFG, train, source="bench")
+        mapped = {name: build_prior(CFG, train, source="bench", short=Dataset(
+                      runs=[r for d in ids if d not in held for r in short[key][d]]))
+                  for name, key in MAPPED.items()}
         for key, ends in (("plan", True), ("free plan", False)):
             plan = "soaks:" + ",".join(f"{t:g}" for t in soak_plan(fp, 3, ends=ends))
             PLANS.setdefault(f"{n_units} {key}", []).append(plan)
@@ -139,6 +167,8 @@ def leave_units_out(n_units: int) -> dict[str, Any]:
         for d in held:
             cal, test = units[d].runs
             cal_pts, _, _, _ = unit_points(CFG, Dataset(runs=[cal]), d)
+            through = {name: _through_map(fpm, short[MAPPED[name]][d].runs[0])
+                       for name, fpm in mapped.items()}
             for j, a in enumerate(fp.axis_names):
                 full = _own(fp, cal_pts[a])
                 e_full = _judge(fp, full, test, a, j)
@@ -158,13 +188,16 @@ def leave_units_out(n_units: int) -> dict[str, Any]:
                                       scale=fp.scale).shape if use_prior else _own(fp, pts[a])
                     e = _judge(fp, shape, test, a, j) if shape is not None else np.inf
                     row.setdefault(name, []).append(e / e_full if e_full > 0 else np.nan)
+                for name, posts in through.items():
+                    e = _judge(fp, posts[a].shape, test, a, j)
+                    row.setdefault(name, []).append(e / e_full if e_full > 0 else np.nan)
                 row.setdefault("full (error)", []).append(e_full)
     return {a: {k: {"median": float(np.nanmedian(v)), "p90": float(np.nanpercentile(v, 90))}
                 for k, v in r.items()} for a, r in ratios.items()}
 
 
 def outliers(n_units: int, n_new: int, n_out: int, test: str | None = SOAKS,
-             prior_from: str = "run0") -> dict[str, Any]:
+             prior_from: str = "run0", mapped: bool = False) -> dict[str, Any]:
     """The flag "unlike its fleet" on new units' ``test`` (None: the preset's own climate
     cycle, 5.4 h, hundreds of points: the shape test), the prior from the units' full sweeps
     (``run0``), their climate cycles (``run1``) or a short test of theirs (its name).  A unit whose test the prior cannot judge
@@ -178,16 +211,20 @@ def outliers(n_units: int, n_new: int, n_out: int, test: str | None = SOAKS,
         fleet = simulate_fleet(PRESET, units=total, seed=SEED + 1, clusters=CLUSTERS,
                                outliers=n_out, test=prior_from,
                                unit_indices=list(range(n_units)))
-    fp = build_prior(CFG, fleet, source="bench")
+    fp = build_prior(CFG, fleet, source="bench", short=simulate_fleet(
+        PRESET, units=total, seed=SEED + 1, clusters=CLUSTERS, outliers=n_out, test=test,
+        unit_indices=list(range(n_units))) if mapped else None)
     new = split_units(simulate_fleet(PRESET, units=total, seed=SEED + 1, clusters=CLUSTERS,
                                      outliers=n_out, test=test,
                                      unit_indices=list(range(n_units, total))))
     flagged, compared = {}, {}
     for d, uds in new.items():
         pts, _, _, _ = unit_points(CFG, uds, d)
-        flagged[d] = any(posterior(fp.axis(a), pts[a], t_ref=fp.t_ref, scale=fp.scale).flagged
-                         for a in fp.axis_names)
-        compared[d] = fp.not_comparable(unit_test_kind(uds)) is None
+        posts = _through_map(fp, uds.runs[0]) if mapped else {
+            a: posterior(fp.axis(a), pts[a], t_ref=fp.t_ref, scale=fp.scale)
+            for a in fp.axis_names}
+        flagged[d] = any(p.flagged for p in posts.values())
+        compared[d] = mapped or fp.not_comparable(unit_test_kind(uds)) is None
     out_ids = [d for d, u in new.items() if u.runs[0].meta.get("outlier") == "1"]
     normal = [d for d in new if d not in out_ids]
 
@@ -253,7 +290,9 @@ def main() -> None:
                         r["ramp + prior"]["p90"], r["up-and-down ramp + prior"]["median"],
                         r["up-and-down ramp + prior"]["p90"],
                         r["40-min up-and-down + prior"]["median"],
-                        r["40-min up-and-down + prior"]["p90"], r["full (error)"]["median"]]
+                        r["40-min up-and-down + prior"]["p90"],
+                        *[r[name][q] for name in MAPPED for q in ("median", "p90")],
+                        r["full (error)"]["median"]]
                        for ax, r in res.items()), key=lambda row: -row[1])
         data["plans"] = PLANS
         md.append(f"### Leave units out, {n} units ({time.perf_counter() - t0:.0f} s)\n\n"
@@ -267,6 +306,7 @@ def main() -> None:
                          "10-min ramp+prior / full", "p90",
                          "10-min up-and-down ramp+prior / full", "p90",
                          "40-min up-and-down ramp+prior / full", "p90",
+                         *[h for name in MAPPED for h in (f"{name} / full", "p90")],
                          "full: error (median)"], rows))
     n0 = int(a.units.split(",")[0])
     cases = {"3 soaks, prior of sweeps": (SOAKS, "run0"),
@@ -276,9 +316,11 @@ def main() -> None:
              "climate cycle, prior of climate cycles": (None, "run1"),
              "3 soaks, prior of 40-min up-and-downs": (SOAKS, CYCLE_LONG),
              "climate cycle, prior of 40-min up-and-downs": (None, CYCLE_LONG),
-             "40-min up-and-down, prior of 40-min up-and-downs": (CYCLE_LONG, CYCLE_LONG)}
-    data["outliers"] = {k: outliers(n0, a.new_units, a.new_outliers, test=t, prior_from=p)
-                        for k, (t, p) in cases.items()}
+             "40-min up-and-down, prior of 40-min up-and-downs": (CYCLE_LONG, CYCLE_LONG),
+             "3 soaks through the fleet's test": (SOAKS, "run0", True),
+             "10-min up-and-down through the fleet's test": (CYCLE, "run0", True)}
+    data["outliers"] = {k: outliers(n0, a.new_units, a.new_outliers, test=c[0], prior_from=c[1],
+                                    mapped=len(c) > 2) for k, c in cases.items()}
     md.append(f"### Outliers\n\nprior of {n0} units; {a.new_units} new units of which "
               f"{a.new_outliers} are 10 σ off\n\n" + table(
                   ["test, prior", "compared", "recall", "false flags",

@@ -25,6 +25,7 @@ from thermonet.scoring.prior import (
     posterior,
 )
 from thermonet.scoring.prior_design import next_temperatures, points_needed, soak_plan
+from thermonet.scoring.prior_io import prior_from_dict
 from thermonet.scoring.prior_points import Points, bin_points, shape_design
 
 T_REF, SCALE = 25.0, 50.0
@@ -251,7 +252,7 @@ def test_points_needed_decrease_and_meet_their_target() -> None:
 def test_prior_file_round_trip_and_refusals() -> None:
     fp = _prior_for_design(3)
     data = fp.to_dict()
-    back = FleetPrior.from_dict(data, "p.json")
+    back = prior_from_dict(data, "p.json")
     assert np.array_equal(back.axes[0].covs, fp.axes[0].covs) and back.range_c == fp.range_c
     for key, value, words in (
             ("kind", "fleet", "not a thermonet fleet prior"),
@@ -259,14 +260,14 @@ def test_prior_file_round_trip_and_refusals() -> None:
             ("n_units", 3, "key 'n_units'"),
             ("range_c", [70.0, -20.0], "key 'range_c'")):
         with pytest.raises(InputError, match=words):
-            FleetPrior.from_dict({**data, key: value}, "p.json")
+            prior_from_dict({**data, key: value}, "p.json")
     bad = {**data, "axes": {"gyro_x": {**data["axes"]["gyro_x"],
                                        "covs": [[[1.0, 2.0, 0], [2.0, 1.0, 0], [0, 0, 1.0]]]}}}
     with pytest.raises(InputError, match="p.json: key 'axes.gyro_x.covs': .*positive definite"):
-        FleetPrior.from_dict(bad, "p.json")
+        prior_from_dict(bad, "p.json")
     nan = {**data, "axes": {"gyro_x": {**data["axes"]["gyro_x"], "misfit_var": float("nan")}}}
     with pytest.raises(InputError, match="misfit_var"):
-        FleetPrior.from_dict(nan, "p.json")
+        prior_from_dict(nan, "p.json")
 
 
 def test_a_mixture_design_is_judged_on_telling_its_clusters_apart() -> None:

@@ -164,10 +164,11 @@ def test_refusals_are_one_line_and_write_nothing(
 
 
 def test_points_needed_for_a_residual_limit(prior: Path) -> None:
-    from thermonet.scoring.prior import FleetPrior, StationLimit
+    from thermonet.scoring.prior import StationLimit
+    from thermonet.scoring.prior_io import prior_from_dict
     from thermonet.workflows.station import prior_summary
 
-    fp = FleetPrior.from_dict(json.loads(prior.read_text()), str(prior))
+    fp = prior_from_dict(json.loads(prior.read_text()), str(prior))
     misfit = fp.axis("gyro_y").misfit_var
     for lim, expect_none in ((0.5 * np.sqrt(misfit), True), (100 * np.sqrt(misfit), False)):
         row = prior_summary(fp, {"gyro_y": StationLimit(max_residual=float(lim))}
@@ -360,7 +361,8 @@ def test_a_fast_test_is_not_compared_with_a_prior_of_soaks(
     would be flagged on its own shape although it is of the same fleet (bench_prior: 100 % of
     normal units), so its fleet comparison is not judged and fails nothing, and the console
     says why; a soak test against the same prior is compared as before."""
-    from thermonet.scoring.prior import FleetPrior, posterior
+    from thermonet.scoring.prior import posterior
+    from thermonet.scoring.prior_io import prior_from_dict
     from thermonet.training.config import config_from_mapping
     from thermonet.workflows.station import unit_points
 
@@ -385,7 +387,7 @@ def test_a_fast_test_is_not_compared_with_a_prior_of_soaks(
     assert "2 units not compared with the fleet: a test of fast ramps, where the prior's units " \
            f"ran soaks ({doc['n_units']} units)" in out
     # without the rule the same units' shapes are flagged on some axis
-    fp = FleetPrior.from_dict(doc, "prior.json")
+    fp = prior_from_dict(doc, "prior.json")
     cfg = config_from_mapping({"data": {"preset": "consumer-imu"},
                                "target": {"gyro": "zero", "acc": "at-t-ref"},
                                "features": {"t_ref": 25.0}}, source="test")

@@ -26,6 +26,7 @@ from thermonet.scoring.prior_design import (
     plan_errors,
     soak_plan,
 )
+from thermonet.scoring.prior_io import prior_from_dict
 from thermonet.scoring.prior_points import Points, shape_design
 from thermonet.sim.fleet import short_test
 from thermonet.workflows.station import _held_out
@@ -243,12 +244,12 @@ def test_what_a_prior_compares_by_its_units_tests() -> None:
     fp.test_kinds = {"cycles": 19, "fast ramps": 1}
     assert all(fp.not_comparable(k) is None for k in ("soaks", "cycles", "fast ramps"))
     doc = fp.to_dict()
-    assert FleetPrior.from_dict(doc, "p.json").test_kinds == {"cycles": 19, "fast ramps": 1}
+    assert prior_from_dict(doc, "p.json").test_kinds == {"cycles": 19, "fast ramps": 1}
     for kinds, named in (({"wobbles": 3}, "'wobbles': 3"), ({"soaks": 0}, "'soaks': 0"),
                          ({"cycles": 2.0}, "'cycles': 2.0"), (["soaks"], "['soaks']")):
         doc["test_kinds"] = kinds
         with pytest.raises(InputError) as err:
-            FleetPrior.from_dict(doc, "p.json")
+            prior_from_dict(doc, "p.json")
         assert str(err.value).startswith(f"p.json: key 'test_kinds': {named} is not a test "
                                          "kind (soaks, "), str(err.value)
     # a prior of fast ramps plans soaks all the same, and says they are not compared with it

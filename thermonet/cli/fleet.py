@@ -93,6 +93,34 @@ def _station_sources(args: argparse.Namespace, cfg: Any) -> list[Any]:
                                    clusters=args.clusters, test=getattr(args, "test", None))
 
 
+def _short_tests(args: argparse.Namespace, cfg: Any) -> Any:
+    """The prior's units' short tests (``--short-test``): simulated by the spec with
+    ``--units`` (the same units), else read from the file with the config's mapping."""
+    import dataclasses
+
+    from ..core.recording import Dataset  # lazy: off the --help path
+    from ..training.loader import load_fleet_data  # lazy: loads yaml
+    from ..workflows.fleet_units import sources_from_simulation  # lazy: off the --help path
+
+    spec = args.short_test
+    if spec is None:
+        return None
+    if not spec:
+        raise ThermonetError("--short-test is empty: give the units' short tests (a file, or "
+                             "with --units a test such as cycle:-20,75,10)")
+    if args.units is not None:
+        sources = sources_from_simulation(cfg.data.preset or "", units=args.units,
+                                          seed=cfg.data.seed, outliers=args.outliers,
+                                          clusters=args.clusters, test=spec)
+        return Dataset(runs=[r for s in sources for r in s.load(cfg)])
+    if not Path(spec).is_file():
+        raise ThermonetError(f"{spec}: --short-test: no such file (the prior's units' short "
+                             "tests, one run per unit; with --units, a test such as "
+                             "cycle:-20,75,10)")
+    data = dataclasses.replace(cfg.data, paths=[spec], preset=None)
+    return load_fleet_data(dataclasses.replace(cfg, data=data), source=spec)
+
+
 def _cmd_prior(args: argparse.Namespace) -> int:
     from ..core.fileio import atomic_write_text, check_out_file  # lazy: off the --help path
     from ..core.recording import Dataset  # lazy: off the --help path
@@ -111,7 +139,7 @@ def _cmd_prior(args: argparse.Namespace) -> int:
     refuse_existing([out], args.overwrite)
     sources = _station_sources(args, cfg)
     ds = Dataset(runs=[r for s in sources for r in s.load(cfg)])
-    fp = build_prior(cfg, ds, source=str(args.config))
+    fp = build_prior(cfg, ds, source=str(args.config), short=_short_tests(args, cfg))
     data = fp.to_dict()
     data["summary"] = prior_summary(fp, parse_station_limits(cfg))
     data["three_soak_plan_c"] = soak_plan(fp, PLAN_SOAKS, step_c=PLAN_STEP_C)
@@ -122,7 +150,7 @@ def _cmd_prior(args: argparse.Namespace) -> int:
 
 
 def _read_prior(path: str) -> Any:
-    from ..scoring.prior import FleetPrior  # lazy: off the --help path
+    from ..scoring.prior_io import prior_from_dict  # lazy: off the --help path
 
     p = Path(path)
     if p.is_dir():
@@ -135,7 +163,7 @@ def _read_prior(path: str) -> Any:
         data = json.loads(p.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, ValueError) as err:
         raise ThermonetError(f"{p}: --prior: not JSON ({str(err).splitlines()[0]})") from None
-    return FleetPrior.from_dict(data, str(p))
+    return prior_from_dict(data, str(p))
 
 
 def _cmd_station(args: argparse.Namespace) -> int:
@@ -181,6 +209,11 @@ def add_prior(sub: Any) -> None:
     q.add_argument("--out", required=True, help="the prior file to write (prior.json)")
     overwrite_arg(q, "an existing prior file")
     _sim_unit_args(q, test=False)
+    q.add_argument("--short-test", default=None,
+                   help="the same units' short tests, one run per unit (a file read with the "
+                        "config's mapping; with --units, a test simulated: soaks:..., ramp:... "
+                        "or cycle:...): the prior learns how that test reads each unit's "
+                        "drift, and the station calibrates new units through it")
     q.add_argument("-q", "--quiet", action="store_true", help="no summary on stdout")
     q.set_defaults(func=_cmd_prior)
 

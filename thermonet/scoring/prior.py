@@ -56,12 +56,13 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, InputError, counted
-from .prior_points import BIN_C, FAST_KIND, TEST_KINDS, Points, centred, shape_design
+from .prior_map import TestMap
+from .prior_points import BIN_C, FAST_KIND, Points, centred, shape_design
 
 __all__ = ["PRIOR_SCHEMA", "MIN_UNITS", "MAX_CLUSTERS", "UNITS_PER_CLUSTER", "FLAG_P",
            "SHAPE_TEST_DOF", "shape_p_values",
            "AxisPrior", "FleetPrior", "UnitFit", "fit_unit", "METHOD", "StationLimit",
-           "fit_population", "Posterior", "posterior"]
+           "fit_population", "Posterior", "posterior", "posterior_from_stats"]
 
 PRIOR_SCHEMA = 1
 #: Fewer calibrated units than this: no prior (a covariance of a cubic's three shape
@@ -243,6 +244,9 @@ class FleetPrior:
     #: how many of its units ran each kind of test (:func:`~thermonet.scoring.prior_points.
     #: kind_of_test`); empty in a prior written before it was recorded
     test_kinds: dict[str, int] = field(default_factory=dict)
+    #: the fleet's short test (:mod:`thermonet.scoring.prior_map`), where its pilot units
+    #: ran one beside their calibration; None otherwise
+    test_map: TestMap | None = None
 
     def axis(self, name: str) -> AxisPrior:
         return next(a for a in self.axes if a.axis == name)
@@ -289,105 +293,8 @@ class FleetPrior:
                 "source": self.source, "method": METHOD, "test_kinds": self.test_kinds,
                 "axes": {a.axis: {"weights": a.weights.tolist(), "means": a.means.tolist(),
                                   "covs": a.covs.tolist(), "misfit_var": a.misfit_var,
-                                  "sampling_var": a.sampling_var} for a in self.axes}}
-
-    @staticmethod
-    def from_dict(data: Any, source: str) -> FleetPrior:
-        """A prior read from a file, checked whole: every error names the file and key."""
-        return _prior_from_dict(data, source)
-
-
-def _need(cond: bool, source: str, key: str, what: str) -> None:
-    if not cond:
-        raise InputError(f"{source}: key '{key}': {what}")
-
-
-def _finite_array(v: Any, shape: tuple[int, ...], source: str, key: str) -> np.ndarray:
-    try:
-        a = np.asarray(v, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{source}: key '{key}': not an array of numbers") from None
-    _need(a.shape == shape, source, key, f"expected shape {shape}, got {a.shape}")
-    _need(bool(np.isfinite(a).all()), source, key, "holds a value that is not finite")
-    return a
-
-
-def _axis_from_dict(name: str, v: Any, degree: int, source: str) -> AxisPrior:
-    key = f"axes.{name}"
-    _need(isinstance(v, dict), source, key, "expected a mapping")
-    w = np.asarray(v.get("weights", []), dtype=np.float64) if isinstance(
-        v.get("weights"), list) else np.zeros(0)
-    k = w.size
-    _need(1 <= k <= MAX_CLUSTERS, source, f"{key}.weights",
-          f"expected 1 to {MAX_CLUSTERS} cluster weights")
-    w = _finite_array(v["weights"], (k,), source, f"{key}.weights")
-    _need(bool((w > 0).all()) and abs(w.sum() - 1) < 1e-6, source, f"{key}.weights",
-          "weights must be positive and sum to 1")
-    means = _finite_array(v.get("means"), (k, degree), source, f"{key}.means")
-    covs = _finite_array(v.get("covs"), (k, degree, degree), source, f"{key}.covs")
-    for c in covs:
-        _need(bool(np.allclose(c, c.T, rtol=1e-9, atol=0)), source, f"{key}.covs",
-              "a covariance is not symmetric")
-        _need(bool(np.linalg.eigvalsh(c).min() > 0), source, f"{key}.covs",
-              "a covariance is not positive definite")
-    out = []
-    for sub in ("misfit_var", "sampling_var"):
-        x = v.get(sub)
-        _need(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-              and x >= 0, source, f"{key}.{sub}", f"expected a finite number ≥ 0, got {x!r}")
-        out.append(float(x))
-    return AxisPrior(name, w, means, covs, out[0], out[1])
-
-
-def _prior_from_dict(data: Any, source: str) -> FleetPrior:
-    _need(isinstance(data, dict), source, "(top)", "expected a JSON object")
-    _need(data.get("kind") == "fleet-prior", source, "kind",
-          "this is not a thermonet fleet prior (kind must be 'fleet-prior')")
-    _need(data.get("schema") == PRIOR_SCHEMA, source, "schema",
-          f"schema {data.get('schema')!r} is not {PRIOR_SCHEMA}")
-    deg = data.get("degree")
-    _need(isinstance(deg, int) and not isinstance(deg, bool) and 1 <= deg <= MAX_DEGREE,
-          source, "degree", f"expected 1 to {MAX_DEGREE}, got {deg!r}")
-    nums = {}
-    for key in ("t_ref_c", "scale_c", "bin_c"):
-        x = data.get(key)
-        _need(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x),
-              source, key, f"expected a finite number, got {x!r}")
-        nums[key] = float(x)
-    _need(nums["scale_c"] > 0 and nums["bin_c"] > 0, source, "scale_c",
-          "scale_c and bin_c must be positive")
-    rng = _finite_array(data.get("range_c"), (2,), source, "range_c")
-    _need(rng[1] > rng[0], source, "range_c", "the range's high end is not above its low end")
-    axes_raw = data.get("axes")
-    _need(isinstance(axes_raw, dict) and bool(axes_raw), source, "axes",
-          "expected a mapping axis -> population")
-    axes = [_axis_from_dict(str(n), v, deg, source) for n, v in axes_raw.items()]
-    n = data.get("n_units")
-    _need(isinstance(n, int) and not isinstance(n, bool) and n >= MIN_UNITS, source, "n_units",
-          f"expected an integer ≥ {MIN_UNITS}, got {n!r}")
-    for ap in axes:
-        ap.n_units = n
-    maps = {}
-    for key in ("units_of_measure", "targets"):
-        m = data.get(key)
-        _need(isinstance(m, dict) and set(m) == set(axes_raw) and
-              all(isinstance(x, str) for x in m.values()), source, key,
-              "expected one string per axis of 'axes'")
-        maps[key] = dict(m)
-    ids = data.get("unit_ids")
-    _need(isinstance(ids, list) and all(isinstance(u, str) for u in ids), source, "unit_ids",
-          "expected a list of unit ids")
-    exc = data.get("excluded", {})
-    _need(isinstance(exc, dict), source, "excluded", "expected a mapping unit -> reason")
-    kinds = data.get("test_kinds", {})
-    bad = [f"{k!r}: {v!r}" for k, v in kinds.items() if k not in TEST_KINDS or not isinstance(
-        v, int) or isinstance(v, bool) or v < 1] if isinstance(kinds, dict) else [repr(kinds)]
-    _need(not bad, source, "test_kinds", f"{bad[0] if bad else ''} is not a test kind ("
-          f"{', '.join(TEST_KINDS)}) with a count of units ≥ 1")
-    return FleetPrior(axes, deg, nums["t_ref_c"], nums["scale_c"], (float(rng[0]),
-                      float(rng[1])), maps["units_of_measure"], maps["targets"], n,
-                      list(ids), {str(k): str(v) for k, v in exc.items()},
-                      str(data.get("source", "")), nums["bin_c"], dict(kinds))
+                                  "sampling_var": a.sampling_var} for a in self.axes},
+                "short_test": None if self.test_map is None else self.test_map.to_dict()}
 
 
 # ------------------------------------------------------------------ the posterior
@@ -428,14 +335,22 @@ def _weights_var(prior: AxisPrior, points: Points) -> np.ndarray:
 
 def posterior(prior: AxisPrior, points: Points, *, t_ref: float, scale: float) -> Posterior:
     """The unit's posterior given its points (see the module docstring)."""
+    X = shape_design(points.temperature_c, t_ref, scale, prior.means.shape[1])
+    w = _weights_var(prior, points)
+    Xc, yc = centred(X, points.value, w, points.run)
+    return posterior_from_stats(prior, Xc.T @ (w[:, None] * Xc), Xc.T @ (w * yc),
+                                float(yc @ (w * yc)), int(points.value.size - points.n_runs))
+
+
+def posterior_from_stats(prior: AxisPrior, J: np.ndarray, b: np.ndarray, q0: float,
+                         dof: int) -> Posterior:
+    """The posterior from a weighted design's sufficient statistics ``J = XᵀWX``,
+    ``b = XᵀWy``, ``q0 = yᵀWy`` (constants profiled out) and its residual degrees of
+    freedom: the points' (:func:`posterior`) or a short test's through the fleet's map
+    (:meth:`thermonet.scoring.prior_map.TestMap.stats`)."""
     from scipy.stats import chi2
 
     d = prior.means.shape[1]
-    X = shape_design(points.temperature_c, t_ref, scale, d)
-    w = _weights_var(prior, points)
-    Xc, yc = centred(X, points.value, w, points.run)
-    J, b = Xc.T @ (w[:, None] * Xc), Xc.T @ (w * yc)
-    q0 = float(yc @ (w * yc))
     logev, means, covs, d2 = [], [], [], []
     for mu, S in zip(prior.means, prior.covs, strict=True):
         Si = np.linalg.inv(S)
@@ -451,7 +366,6 @@ def posterior(prior: AxisPrior, points: Points, *, t_ref: float, scale: float) -
         d2.append(max(q, 0.0))
     lw = np.log(prior.weights) + np.asarray(logev)
     wpost = np.exp(lw - lw.max())
-    dof = int(points.value.size - points.n_runs)
     p = chi2.sf(np.asarray(d2), max(dof, 1)) if dof >= 1 else np.ones(len(d2))
     if dof - d >= SHAPE_TEST_DOF:
         p = _shape_p_values(prior, J, b, q0, dof - d)

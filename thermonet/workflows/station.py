@@ -57,7 +57,7 @@ from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import atomic_write_text
 from ..core.names import c_comment, inside, path_components
 from ..core.outdir import check_target, install, make_stage, sha256_file
-from ..core.recording import output_kind
+from ..core.recording import Dataset, output_kind
 from ..core.schema import from_dict
 from ..features.target import AT_T_REF
 from ..scoring.fleetstats import merged_limits
@@ -67,8 +67,10 @@ from ..scoring.prior import (
     FleetPrior,
     StationLimit,
     posterior,
+    posterior_from_stats,
 )
 from ..scoring.prior_design import next_temperatures
+from ..scoring.prior_map import TestMap
 from ..scoring.prior_points import Points, shape_design
 from ..training.config import CompareConfig
 from .fleet_units import UnitSource
@@ -80,6 +82,7 @@ from .station_prior import (
     prior_summary,
     unit_points,
     unit_test_kind,
+    unit_windows,
 )
 
 __all__ = ["build_prior", "run_station", "prior_summary", "parse_station_limits",
@@ -140,13 +143,52 @@ def _held_out(fp: FleetPrior, ap: AxisPrior, p: Points) -> tuple[float | None, s
     return float(np.sqrt(np.mean(np.concatenate(res) ** 2))), None
 
 
+def _held_out_map(tm: TestMap, ap: AxisPrior, f: np.ndarray) -> tuple[float | None, str | None]:
+    """The short test's windows dealt into :data:`HELD_OUT_GROUPS` contiguous stretches of
+    time, each predicted through the fleet's map from the prior and the other windows (a
+    constant from the others): RMS of the held-out windows' residuals."""
+    idx = np.flatnonzero(np.isfinite(f))
+    if idx.size < HELD_OUT_GROUPS + 2:
+        return None, f"{idx.size} windows of the short test"
+    res: list[np.ndarray] = []
+    for g in np.array_split(idx, HELD_OUT_GROUPS):
+        train = f.copy()
+        train[g] = np.nan
+        pred = tm.predict(ap.axis, posterior_from_stats(ap, *tm.stats(ap.axis, train)).shape)
+        rest = np.setdiff1d(idx, g)
+        res.append(f[g] - pred[g] - float(np.mean(f[rest] - pred[rest])))
+    return float(np.sqrt(np.mean(np.concatenate(res) ** 2))), None
+
+
+def _map_windows(cfg: CompareConfig, fp: FleetPrior, ds: Dataset
+                 ) -> tuple[dict[str, np.ndarray], str | None]:
+    """A unit's centred window means per axis where its test is the fleet's short test
+    (:meth:`~thermonet.scoring.prior_map.TestMap.mismatch`), or why it is not (``{}``
+    and None: the prior has no map)."""
+    tm = fp.test_map
+    if tm is None:
+        return {}, None
+    if len(ds) != 1:
+        return {}, f"its data hold {len(ds)} runs, the fleet's short test is one"
+    run = ds.runs[0]
+    why = tm.mismatch(np.asarray(run.time_s), np.asarray(run.temperature_c, dtype=np.float64))
+    if why is not None:
+        return {}, why
+    values, _ = unit_windows(cfg, run, fp.axis_names, tm.window_s, tm.n_windows)
+    return {a: tm.centred(values[:, j]) for j, a in enumerate(fp.axis_names)}, None
+
+
 def _axis_result(fp: FleetPrior, axis: str, p: Points, lim: StationLimit,
-                 flag: bool, unlike_kind: str | None = None) -> dict[str, Any]:
+                 flag: bool, unlike_kind: str | None = None,
+                 f_map: np.ndarray | None = None) -> dict[str, Any]:
     """One axis of a unit; ``unlike_kind``: why its test cannot be compared with the fleet
     (:meth:`~thermonet.scoring.prior.FleetPrior.not_comparable`): the flag is then not judged
-    and fails nothing."""
+    and fails nothing; ``f_map``: its centred window means where its test is the fleet's
+    short test (the posterior and the held-out residual are then through its map)."""
     ap = fp.axis(axis)
-    post = posterior(ap, p, t_ref=fp.t_ref, scale=fp.scale)
+    tm = fp.test_map
+    post = (posterior_from_stats(ap, *tm.stats(axis, f_map)) if tm is not None and
+            f_map is not None else posterior(ap, p, t_ref=fp.t_ref, scale=fp.scale))
     resid = p.value - shape_design(p.temperature_c, fp.t_ref, fp.scale, fp.degree) @ post.shape
     consts = [float(np.mean(resid[p.run == r])) for r in np.unique(p.run)]
     c0 = 0.0 if fp.targets[axis] == AT_T_REF else float(np.mean(consts))
@@ -155,7 +197,8 @@ def _axis_result(fp: FleetPrior, axis: str, p: Points, lim: StationLimit,
     G = shape_design(grid_t, fp.t_ref, fp.scale, fp.degree)
     G -= G.mean(axis=0)
     half = BAND_Z * np.sqrt(np.einsum("ij,jk,ik->i", G, post.cov, G) + ap.misfit_var)
-    held, unjudged = _held_out(fp, ap, p)
+    held, unjudged = (_held_out_map(tm, ap, f_map) if tm is not None and f_map is not None
+                      else _held_out(fp, ap, p))
     noise = float(np.sqrt(np.median(p.sampling_var * p.n_samples)))
     checks = lim.checks(held, coeffs[1] if fp.degree >= 1 else 0.0, noise,
                         not_judged=unjudged)
@@ -189,12 +232,15 @@ def station_task(item: StationItem) -> dict[str, Any]:
     for a in fp.axis_names:
         _check_range(fp, pts[a], where, a)
     kind = unit_test_kind(ds)
-    unlike = fp.not_comparable(kind)
+    windows, not_map = _map_windows(item.cfg, fp, ds)
+    unlike = None if windows else fp.not_comparable(kind)   # the map is the fleet's own test
     axes = {a: _axis_result(fp, a, pts[a], merged_limits(item.limits, a, StationLimit),
-                            item.cfg.station.flag_unlike_fleet, unlike) for a in fp.axis_names}
+                            item.cfg.station.flag_unlike_fleet, unlike, windows.get(a))
+            for a in fp.axis_names}
     verdict = "PASS" if all(r["verdict"] == "PASS" for r in axes.values()) else "FAIL"
     return {"device_id": dev, "verdict": verdict, "axes": axes, "temperature_span_c": span,
-            "test_kind": kind,
+            "test_kind": kind, "short_test_map": "used" if windows else
+            (f"not used: {not_map}" if not_map else None),
             "runs": len(ds), "header": c_header(fp, dev, axes, verdict)}
 
 
@@ -341,7 +387,7 @@ def _unit_summary(r: dict[str, Any], rel: str) -> dict[str, Any]:
     """What results.json keeps of a unit: verdicts, held-out residuals, flags, its files."""
     return {"device_id": r["device_id"], "verdict": r["verdict"], "runs": r["runs"],
             "temperature_span_c": r["temperature_span_c"], "test_kind": r["test_kind"],
-            "files": rel,
+            "short_test_map": r["short_test_map"], "files": rel,
             "axes": {a: {"verdict": x["verdict"], "held_out_rms": x["held_out_rms"],
                          "held_out_not_judged": x["held_out_not_judged"],
                          "p_value": x["p_value"],
@@ -412,4 +458,11 @@ def format_station(results: dict[str, Any]) -> str:
         by_reason[why] = by_reason.get(why, 0) + 1
     lines += [f"{counted(n, 'unit')} not compared with the fleet: {why}"
               for why, n in by_reason.items()]
+    maps = [u.get("short_test_map") for u in results["units"].values()]
+    if any(maps):
+        used = maps.count("used")
+        lines.append(f"{used} of {len(maps)} calibrated through the fleet's short test"
+                     + "".join(f"; {counted(maps.count(m), 'unit')} from their points ("
+                               f"{m.removeprefix('not used: ')})"
+                               for m in dict.fromkeys(maps) if m and m != "used"))
     return "\n".join(lines)

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError, InputError, counted
-from ..core.recording import Dataset, split_units
+from ..core.recording import Dataset, Recording, split_units
 from ..features.target import FOUR_POSITION, output_units
 from ..scoring.fleetstats import (
     MAD_TO_SIGMA,
@@ -46,6 +46,7 @@ from ..scoring.prior_design import (
     point_error,
     typical_drift,
 )
+from ..scoring.prior_map import MIN_MAP_UNITS, TestMap, fit_test_map, map_window_s, window_means
 from ..scoring.prior_points import (
     BIN_C,
     Points,
@@ -58,6 +59,7 @@ from ..training.config import CompareConfig, outputs_of
 from ..training.parts import build_part, targets_for
 
 __all__ = ["build_prior", "prior_summary", "format_prior", "unit_points", "unit_test_kind",
+           "unit_windows",
            "check_compatible", "config_t_ref",
            "TARGET_FRACTIONS", "PLAN_SOAKS", "PLAN_STEP_C"]
 
@@ -204,8 +206,11 @@ def _left_out_line(excluded: dict[str, str]) -> str:
     return "; ".join(shown) + (f"; and {more} more" if more > 0 else "")
 
 
-def build_prior(cfg: CompareConfig, ds: Dataset, *, source: str = "") -> FleetPrior:
-    """The fleet prior of ``ds``'s units (see the module docstring)."""
+def build_prior(cfg: CompareConfig, ds: Dataset, *, source: str = "",
+                short: Dataset | None = None) -> FleetPrior:
+    """The fleet prior of ``ds``'s units (see the module docstring); with ``short``, the
+    same units' short tests (one run each), the map of that test
+    (:mod:`thermonet.scoring.prior_map`)."""
     where = getattr(cfg, "_source", "config")
     units = split_units(ds)
     if len(units) < MIN_UNITS:
@@ -251,8 +256,51 @@ def build_prior(cfg: CompareConfig, ds: Dataset, *, source: str = "") -> FleetPr
         excluded = {d: why for d, why in excluded.items() if d not in back}
         axes = _population(targets, kept, fits, pts)
     kinds = Counter(unit_test_kind(units[d]) for d in kept)
+    test_map = None if short is None else _fit_map(cfg, short, {d: fits[d] for d in kept},
+                                                  list(targets), where)
     return FleetPrior(axes, degree, t_ref, scale, rng, uom, targets, len(kept), kept,
-                      excluded, source, BIN_C, dict(kinds.most_common()))
+                      excluded, source, BIN_C, dict(kinds.most_common()), test_map)
+
+
+def unit_windows(cfg: CompareConfig, run: Recording, axes: list[str], window_s: float,
+                 n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A short test's window means (``(n, axes)``: each axis's target) and window
+    temperatures (``(n,)``) from its first sample (:func:`~thermonet.scoring.prior_map.
+    window_means`)."""
+    target = targets_for(Dataset(runs=[run]), cfg.target, axes)
+    part = build_part(run, signals=["temperature_c"], outputs=axes, target=target)
+    temp = np.asarray(run.temperature_c, dtype=np.float64)
+    got = window_means(np.asarray(run.time_s, dtype=np.float64),
+                       np.column_stack([part.target, temp]), window_s, n)
+    return got[:, :-1], got[:, -1]
+
+
+def _fit_map(cfg: CompareConfig, short: Dataset, fits: dict[str, dict[str, Any]],
+             axes: list[str], where: str) -> TestMap:
+    """The fleet's short test (:mod:`thermonet.scoring.prior_map`) from the kept units'
+    fits and their short tests (one run each, matched by device id)."""
+    tests = split_units(short)
+    pilots = [d for d in fits if d in tests]
+    if len(pilots) < MIN_MAP_UNITS:
+        raise InputError(f"{where}: the short tests hold {counted(len(pilots), 'unit')} of the "
+                         f"prior's {len(fits)} (by device id; theirs: "
+                         f"{', '.join(list(tests)[:3])}{', …' if len(tests) > 3 else ''}); a "
+                         f"map of the test needs {MIN_MAP_UNITS}")
+    several = [d for d in pilots if len(tests[d].runs) != 1]
+    if several:
+        raise InputError(f"{where}: unit '{several[0]}': its short test holds "
+                         f"{len(tests[several[0]].runs)} runs; give each unit's test as one run")
+    runs = [tests[d].runs[0] for d in pilots]
+    durations = [float(np.ptp(np.asarray(r.time_s, dtype=np.float64))) for r in runs]
+    window_s = map_window_s(float(np.median(durations)))
+    n = int(np.median(durations) // window_s)
+    got = [unit_windows(cfg, r, axes, window_s, n) for r in runs]
+    shapes = {a: np.array([fits[d][a].shape for d in pilots]) for a in axes}
+    try:
+        return fit_test_map(shapes, np.stack([g[0] for g in got]),
+                            np.stack([g[1] for g in got]), window_s, axes)
+    except InputError as err:
+        raise InputError(f"{where}: the short tests: {err}") from None
 
 
 def _population(targets: dict[str, str], kept: list[str], fits: dict[str, dict[str, Any]],
@@ -328,6 +376,11 @@ def format_prior(fp: FleetPrior, summary: dict[str, Any], plan: list[float] | No
              + (f"; their tests: {fp.kinds_text()}" if fp.test_kinds else "")]
     if fp.excluded:
         lines.append(f"  left out: {_left_out_line(fp.excluded)}")
+    if (tm := fp.test_map) is not None:
+        lines.append(f"  its short test, learned from {counted(tm.n_units, 'unit')} that ran it "
+                     f"beside their calibration: {tm.n_windows * tm.window_s / 60.0:.3g} min "
+                     f"({tm.trace_c.min():.0f} to {tm.trace_c.max():.0f} °C); a new unit that "
+                     "runs it is calibrated through it")
     if plan:
         lines.append(_plan_line(fp, summary, plan))
         if why := fp.not_comparable("soaks"):    # a prior of fast ramps: said with the plan
