@@ -242,3 +242,33 @@ def test_too_few_pilot_units_are_refused_with_their_count() -> None:
     with pytest.raises(InputError, match="the short tests hold 4 units of the prior's 1[0-2] "
                                          r"\(by device id"):
         build_prior(cfg, ds, source="c.yaml", short=Dataset(runs=list(short)))
+
+
+def test_a_pilot_unit_on_another_test_is_left_out_of_the_map() -> None:
+    rng = np.random.default_rng(5)
+    n = 8
+    A, f0 = rng.normal(size=(n, D)), rng.normal(size=n)
+    B, F = _pilots(rng, 30, A, f0, noise=1e-3)
+    temps = np.tile(np.linspace(-20.0, 60.0, n), (30, 1))
+    temps[3] += np.where(np.arange(n) == 5, 6.0, 0.0)      # one window 6 °C off: another test
+    temps[4] += 4.0                                         # 4 °C off throughout: within 5
+    tm = fit_test_map({"x": B}, F[:, :, None], temps, 30.0, ["x"])
+    assert tm.n_units == 29
+
+
+def test_a_short_test_in_other_units_than_the_calibration_is_refused() -> None:
+    from thermonet.core.recording import Dataset
+    from thermonet.sim import simulate_fleet
+    from thermonet.training.config import config_from_mapping
+    from thermonet.workflows.station_prior import build_prior
+
+    cfg = config_from_mapping({"data": {"preset": "consumer-imu"},
+                               "target": {"gyro": "zero", "acc": "at-t-ref"},
+                               "features": {"t_ref": 25.0}}, source="c.yaml")
+    ds = simulate_fleet("consumer-imu", units=12, seed=0, test="soaks:-20,25,75",
+                        sample_rate_hz=0.2)
+    runs = list(simulate_fleet("consumer-imu", units=12, seed=0, test="cycle:-20,75,10"))
+    runs[0].units = {**runs[0].units, "gyro_x": "rad/s"}
+    with pytest.raises(InputError, match=r"unit 'consumer-imu-u000': its short test's gyro_x "
+                                         r"is in 'rad/s', its calibration's in 'deg/s'"):
+        build_prior(cfg, ds, source="c.yaml", short=Dataset(runs=runs))

@@ -67,6 +67,9 @@ MAX_WINDOWS = 60
 #: this many of their standard deviations of theirs, and within TRACE_FLOOR_C at least.
 TRACE_SIGMAS = 4.0
 TRACE_FLOOR_C = 1.0
+#: A pilot unit whose window temperatures stray further than this (°C) from the pilots'
+#: median at some window ran another test: it is left out of the map.
+PILOT_TRACE_C = 5.0
 #: A window is a value where at least this share of its samples are finite.
 MIN_WINDOW_SHARE = 0.5
 
@@ -196,11 +199,17 @@ def fit_test_map(shapes: dict[str, np.ndarray], windows: np.ndarray, temps: np.n
                  window_s: float, axes: list[str]) -> TestMap:
     """The map from pilot units' full-calibration shapes (per axis ``(units, d)``) and their
     short tests' window means (``(units, n, axes)``, raw) and window temperatures
-    (``(units, n)``).  A unit missing a window is left out of the map."""
+    (``(units, n)``).  A unit missing a window, or whose window temperatures stray more than
+    :data:`PILOT_TRACE_C` from the pilots' median (another test), is left out of the map;
+    :attr:`TestMap.n_units` says how many it holds."""
     from sklearn.covariance import LedoitWolf
 
     n = temps.shape[1]
     keep = np.isfinite(windows).all(axis=(1, 2)) & np.isfinite(temps).all(axis=1)
+    if keep.any():      # a unit whose chamber ran another test is not the line's test
+        with np.errstate(invalid="ignore"):
+            off = np.abs(temps - np.median(temps[keep], axis=0)).max(axis=1)
+        keep &= off <= PILOT_TRACE_C
     if keep.sum() < MIN_MAP_UNITS or n < 3:
         raise InputError(f"{int(keep.sum())} of the prior's units have a complete short test "
                          f"({n} windows of {window_s:g} s); a map of the test needs "

@@ -257,7 +257,7 @@ def build_prior(cfg: CompareConfig, ds: Dataset, *, source: str = "",
         axes = _population(targets, kept, fits, pts)
     kinds = Counter(unit_test_kind(units[d]) for d in kept)
     test_map = None if short is None else _fit_map(cfg, short, {d: fits[d] for d in kept},
-                                                  list(targets), where)
+                                                  list(targets), uom, where)
     return FleetPrior(axes, degree, t_ref, scale, rng, uom, targets, len(kept), kept,
                       excluded, source, BIN_C, dict(kinds.most_common()), test_map)
 
@@ -276,7 +276,7 @@ def unit_windows(cfg: CompareConfig, run: Recording, axes: list[str], window_s: 
 
 
 def _fit_map(cfg: CompareConfig, short: Dataset, fits: dict[str, dict[str, Any]],
-             axes: list[str], where: str) -> TestMap:
+             axes: list[str], uom: dict[str, str], where: str) -> TestMap:
     """The fleet's short test (:mod:`thermonet.scoring.prior_map`) from the kept units'
     fits and their short tests (one run each, matched by device id)."""
     tests = split_units(short)
@@ -291,6 +291,13 @@ def _fit_map(cfg: CompareConfig, short: Dataset, fits: dict[str, dict[str, Any]]
         raise InputError(f"{where}: unit '{several[0]}': its short test holds "
                          f"{len(tests[several[0]].runs)} runs; give each unit's test as one run")
     runs = [tests[d].runs[0] for d in pilots]
+    for d, r in zip(pilots, runs, strict=True):
+        its = output_units(axes, r.units)
+        other = [a for a in axes if its.get(a) != uom.get(a)]
+        if other:
+            raise InputError(f"{where}: unit '{d}': its short test's {other[0]} is in "
+                             f"'{its.get(other[0])}', its calibration's in "
+                             f"'{uom.get(other[0])}' (convert one of them first)")
     durations = [float(np.ptp(np.asarray(r.time_s, dtype=np.float64))) for r in runs]
     window_s = map_window_s(float(np.median(durations)))
     n = int(np.median(durations) // window_s)
