@@ -570,7 +570,7 @@ def _meta_axis_models(meta: Mapping[str, str], outputs: list[str], path: Path
 
 
 def _finite_number(x: Any) -> bool:
-    return not isinstance(x, bool) and isinstance(x, int | float) and math.isfinite(x)
+    return not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x)
 
 
 def _meta_band(meta: Mapping[str, str], signals: list[str], outputs: list[str], path: Path
@@ -592,7 +592,7 @@ def _meta_band(meta: Mapping[str, str], signals: list[str], outputs: list[str], 
             t.get("half_width") if isinstance(t, dict) else None
         if not isinstance(e, list) or not isinstance(h, list) or len(e) < 2 or \
                 len(h) != len(e) - 1 or not all(_finite_number(x) for x in e + h) or \
-                any(x2 <= x1 for x1, x2 in zip(e[:-1], e[1:], strict=True)) or min(h) < 0 or \
+                any(x2 <= x1 for x1, x2 in zip(e[:-1], e[1:])) or min(h) < 0 or \
                 not all(_finite_number(t.get(g)) and t[g] >= 0
                         for g in ("growth_below", "growth_above")):
             raise bad
@@ -628,14 +628,15 @@ def band_holds_rule(held: Mapping[str, Any], rate_c_per_min: Any, direction: Any
 def band_tables(x: Any, edges: Sequence[float], half: Sequence[float], grow_lo: float,
                 grow_hi: float) -> np.ndarray:
     """The band at ``x``: piecewise constant over ``edges``, growing linearly past them,
-    NaN at NaN (thermonet.scoring.band.evaluate_tables, the same rule)."""
+    NaN at NaN and at ±inf — a missing or broken reading, as the C header's
+    ``<prefix>_band`` (thermonet.scoring.band.evaluate_tables, the same rule inside)."""
     x = np.asarray(x, dtype=np.float64)
     e = np.asarray(edges, dtype=np.float64)
     h = np.asarray(half, dtype=np.float64)
     k = np.clip(np.searchsorted(e[1:-1], x, side="right"), 0, h.size - 1)
     out = np.where(x < e[0], h[0] + grow_lo * (e[0] - x),
                    np.where(x > e[-1], h[-1] + grow_hi * (x - e[-1]), h[k]))
-    return np.where(np.isnan(x), np.nan, out)
+    return np.where(np.isfinite(x), out, np.nan)
 
 
 def _meta_ranges(meta: Mapping[str, str], path: Path) -> dict[str, list[float]]:
@@ -875,8 +876,10 @@ class Compensator:
         if arr.dtype.kind not in "fiu":
             raise RuntimeInputError(f"input '{name}' has dtype {arr.dtype}; expected numbers")
         # Explicit cast to the graph input's type (float32 signals, float64 raw from format 2):
-        # onnxruntime refuses any other
-        return arr.astype(dtype)
+        # onnxruntime refuses any other.  A value beyond float32 (1e39) becomes ±inf, which
+        # the graph flags with a NaN drift as any non-finite signal: no numpy warning for it
+        with np.errstate(over="ignore"):
+            return arr.astype(dtype)
 
     # -- evaluation ---------------------------------------------------------------------------
     def compensate(self, temperature_c: Any = None, raw: Any = None, *, time_s: Any = None,
@@ -1041,8 +1044,9 @@ class Compensator:
     def _run_step(self, signals: np.ndarray, raw: np.ndarray, state: np.ndarray
                   ) -> list[np.ndarray]:
         rec = self.recurrent or {}
-        feeds = {name: np.ascontiguousarray(signals[:, i], dtype=np.float32)
-                 for i, name in enumerate(self.signals)}
+        with np.errstate(over="ignore"):    # beyond float32: ±inf, flagged by the graph
+            feeds = {name: np.ascontiguousarray(signals[:, i], dtype=np.float32)
+                     for i, name in enumerate(self.signals)}
         feeds[RAW_INPUT] = np.ascontiguousarray(raw)
         feeds[rec["state_input"]] = np.ascontiguousarray(state, dtype=np.float32)
         return list(self._session.run(None, feeds))
@@ -1063,7 +1067,7 @@ class Compensator:
                                                  float(rec["step_s"]), float(rec["gap_s"]))
         starts = np.flatnonzero(np.append(True, window[1:] != window[:-1]))
         h = np.zeros(int(rec["hidden"]), dtype=np.float32)
-        for a, b in zip(starts, np.append(starts[1:], idx.size), strict=True):
+        for a, b in zip(starts, np.append(starts[1:], idx.size)):
             rows = idx[a:b]
             vals = sig[rows]
             mean = vals[0] + np.cumsum(vals - vals[0], axis=0) / np.arange(1, b - a + 1)[:, None]
@@ -1199,10 +1203,11 @@ class Compensator:
 
     def band(self, signal: Any) -> np.ndarray:
         """Half-width of the residual-drift band (A,) for one value or (N, A) for an array of
-        the band's signal (``band_tables['signal']``, temperature where the model reads it):
-        a window mean of the corrected output's residual lies within ± it of the run's mean
-        residual for ``band_tables['level']`` of the windows on runs like the training
-        runs; wider past the trained range; NaN at NaN.  Refused for a file without one."""
+        the band's signal (``band_tables['signal']``: temperature for most models, another
+        signal such as ``freq_hz`` for a model on a proxy, in that signal's unit): a window
+        mean of the corrected output's residual lies within ± it of the run's mean residual
+        for ``band_tables['level']`` of the windows on runs like the training runs; wider past
+        the trained range; NaN at NaN or ±inf.  Refused for a file without one."""
         b = self.band_tables
         if b is None:
             raise RuntimeInputError(f"{self.path}: this model file carries no band (export it "
@@ -1290,28 +1295,71 @@ def _check_regular(path: Path, what: str) -> None:
         raise RuntimeInputError(f"{path}: is {kind}, not a {what}")
 
 
-def _read_csv(
-    path: Path, needed: list[str]
-) -> tuple[list[str], list[list[str]], dict[str, np.ndarray]]:
+#: Files the command cannot read, by their first bytes: what each is, and what ``thermonet
+#: convert`` needs beside the file to read it (a log's sensor instance, a mapping).
+_BINARY = ((b"PAR1", "a Parquet file", "", ""),
+           (b"\x89HDF\r\n\x1a\n", "an HDF5 file", "", " --mapping MAP"),
+           (b"ULog", "a PX4 ULog flight log", "#<instance>", ""))
+
+
+def _to_csv(path: Path, instance: str = "", mapping: str = "") -> str:
+    """How to make the CSV this runtime reads from a recording it cannot: thermonet (not
+    this runtime) reads them all."""
+    out = path.with_suffix(".csv") if path.suffix.lower() != ".csv" else path.with_name(
+        f"{path.stem}_comma.csv")
+    return f"thermonet convert {path}{instance}{mapping} --out {out} writes one"
+
+
+def _csv_text(path: Path) -> str:
+    """The file's text: a UTF-8 CSV; a Parquet or other binary recording, a BOM or another
+    encoding refused in one line saying what it is and what to do."""
     _check_regular(path, "CSV file")
     try:
         data = path.read_bytes()
     except OSError as exc:
         raise RuntimeInputError(f"{path}: cannot read ({exc.strerror})") from None
+    for magic, what, instance, mapping in _BINARY:
+        if data.startswith(magic):
+            raise RuntimeInputError(f"{path}: {what}, not CSV; this runtime reads CSV only "
+                                    f"(numpy and onnxruntime, no other reader): "
+                                    f"{_to_csv(path, instance, mapping)}")
     if data.startswith(b"\xef\xbb\xbf"):
         raise RuntimeInputError(f"{path}: starts with a UTF-8 byte-order mark; save it as plain "
                                 "UTF-8 CSV without BOM")
     try:
-        text = data.decode("utf-8")
+        return data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise RuntimeInputError(f"{path}: not UTF-8 text (byte {exc.start})") from None
-    rows = list(csv.reader(text.splitlines()))
+        raise RuntimeInputError(f"{path}: not UTF-8 text (byte {exc.start}): not a CSV file, "
+                                "or saved in another encoding; save it as UTF-8 CSV") from None
+
+
+def _csv_header(path: Path, first: list[str]) -> list[str]:
+    """The header's column names: another separator (';', a tab) or a name given twice
+    refused in one line naming it."""
+    if len(first) == 1:
+        for sep, name in ((";", "';'"), ("\t", "tabs (a tab-separated file)")):
+            if sep in first[0]:
+                raise RuntimeInputError(f"{path}: the header is separated by {name}; this "
+                                        "runtime reads comma-separated CSV: save it with ',' "
+                                        f"as the separator ({_to_csv(path)})")
+    header = [h.strip() for h in first]
+    seen: dict[str, int] = {}
+    for j, name in enumerate(header):
+        if name and name in seen:   # empty names: a trailing separator, never read
+            raise RuntimeInputError(f"{path}: column '{name}': duplicate column in the header "
+                                    f"(columns {seen[name] + 1} and {j + 1}); rename or remove "
+                                    "one")
+        seen[name] = j
+    return header
+
+
+def _read_csv(
+    path: Path, needed: list[str]
+) -> tuple[list[str], list[list[str]], dict[str, np.ndarray]]:
+    rows = list(csv.reader(_csv_text(path).splitlines()))
     if not rows:
         raise RuntimeInputError(f"{path}: empty file (expected a header row)")
-    if len(rows[0]) == 1 and ";" in rows[0][0]:
-        raise RuntimeInputError(f"{path}: the header is separated by ';'; this runtime reads "
-                                "comma-separated CSV")
-    header = [h.strip() for h in rows[0]]
+    header = _csv_header(path, rows[0])
     body = [r for r in rows[1:] if any(c.strip() for c in r)]
     for name in needed:
         if name not in header:
@@ -1321,6 +1369,10 @@ def _read_csv(
         if len(row) > len(header) and any(c.strip() for c in row[len(header):]):
             raise RuntimeInputError(f"{path}: row {i + 2}: {len(row)} cells, the header has "
                                     f"{len(header)}")
+        if len(row) < len(header):  # a missing sample is an empty cell, never a short row
+            raise RuntimeInputError(f"{path}: row {i + 2}: {len(row)} cells, the header has "
+                                    f"{len(header)}: a truncated row (write an empty cell for "
+                                    "a missing sample)")
         del row[len(header):]
     cols: dict[str, np.ndarray] = {}
     for name in needed:
@@ -1328,9 +1380,8 @@ def _read_csv(
         values = np.empty(len(body), dtype=np.float64)
         for i, row in enumerate(body):
             # an empty cell (or nan, NA …) is a missing sample: NaN out, flag set
-            cell = row[j] if j < len(row) else ""
             try:
-                values[i] = parse_number(cell)
+                values[i] = parse_number(row[j])
             except ValueError as exc:
                 # row numbers as a spreadsheet shows them: header is row 1
                 raise RuntimeInputError(f"{path}: column '{name}', row {i + 2}: "
@@ -1378,6 +1429,38 @@ def _check_out(out: Path) -> None:
     if not parent.is_dir():
         what = "does not exist" if not os.path.lexists(parent) else "is not a directory"
         raise RuntimeInputError(f"{out}: cannot be created: its directory {parent} {what}")
+
+
+#: Temperatures (°C) outside this range are implausible for a sensor (Kelvin? °F? m°C?):
+#: thermonet.data.diagnostics.TEMPERATURE_PLAUSIBLE_C, whose hint ``thermonet info`` gives.
+TEMPERATURE_PLAUSIBLE_C = (-100.0, 200.0)
+
+
+def temperature_hint(lo: float, hi: float) -> str:
+    """What a temperature span outside :data:`TEMPERATURE_PLAUSIBLE_C` may be in: every unit
+    (Kelvin, °F, m°C) whose conversion lands the whole span in the plausible range
+    (thermonet.data.diagnostics.temperature_hint, the same rule; checked by its tests)."""
+    lo_ok, hi_ok = TEMPERATURE_PLAUSIBLE_C
+    hints = []
+    if lo > 0.0 and lo_ok <= lo - 273.15 and hi - 273.15 <= hi_ok:
+        hints.append("Kelvin? subtract 273.15")
+    if lo_ok <= (lo - 32.0) * 5.0 / 9.0 and (hi - 32.0) * 5.0 / 9.0 <= hi_ok:
+        hints.append("°F? subtract 32, then multiply by 5/9")
+    if max(abs(lo), abs(hi)) > 1000.0 and lo_ok <= lo / 1000.0 and hi / 1000.0 <= hi_ok:
+        hints.append("m°C? divide by 1000")
+    return "; or ".join(hints) if hints else "check the temperature column's unit and scale"
+
+
+def _temperature_warning(path: Path, temp: np.ndarray) -> str | None:
+    """A line for a temperature column whose finite values leave the plausible range (a file
+    in Kelvin: every row out of the trained range, a plausible-looking run otherwise)."""
+    finite = temp[np.isfinite(temp)]
+    lo_ok, hi_ok = TEMPERATURE_PLAUSIBLE_C
+    if finite.size == 0 or (finite.min() >= lo_ok and finite.max() <= hi_ok):
+        return None
+    lo, hi = float(finite.min()), float(finite.max())
+    return (f"{path}: column 'temperature_c' spans {lo:.4g} … {hi:.4g} °C, outside the "
+            f"plausible {lo_ok:g} … {hi_ok:g} °C ({temperature_hint(lo, hi)})")
 
 
 #: The column naming each row's run (``thermonet convert --out x.csv`` writes it): the rows of
@@ -1494,6 +1577,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 + ([] if band is None else [repr(float(v)) for v in band[i]]))
         tmp.replace(args.out)
         written = False
+        warning = _temperature_warning(args.input, cols["temperature_c"]) if \
+            "temperature_c" in cols else None
     except _Stopped as exc:
         print(f"thermonet_runtime: stopped by {signal.Signals(exc.signum).name}; {args.out} not "
               "written", file=sys.stderr)
@@ -1510,6 +1595,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             tmp.unlink(missing_ok=True)
         for sig, handler in previous.items():
             signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+    if warning is not None:
+        print(f"thermonet_runtime: warning: {warning}", file=sys.stderr)
     n_flag = int(np.count_nonzero(res.out_of_range))
     print(f"{len(body)} rows compensated with {comp.family} model; {n_flag} out of range "
           f"-> {args.out}")

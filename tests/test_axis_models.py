@@ -510,6 +510,29 @@ def test_header_cross_compiles_for_cortex_m(composite, header, tmp_path):
             assert build.libm == [], (target, build.libm)
 
 
+def test_header_names_its_own_file_and_refuses_fast_math_once(composite, header, tmp_path):
+    """The first line names the file written (was ``/* thermonet.h: …`` whatever --out
+    was), each part says whose part it is, and the -ffast-math refusal names no file (was
+    ``thermonet_part0.h``, which does not exist) and is said once, however many parts."""
+    import subprocess
+
+    lines = header.splitlines()
+    assert lines[0].startswith("/* model.h: temperature-drift compensation")
+    assert "thermonet_part0.h" not in header and "thermonet.h" not in header
+    assert "/* part 0 (" in header and ") of this per-axis model: " in header
+    # the model id is the same whatever the file is called: only the first line names it
+    from thermonet.exporting import render_c_header
+
+    assert render_c_header(composite, file_name="other.h").splitlines()[1:] == lines[1:]
+    (tmp_path / "model.h").write_text(header)
+    (tmp_path / "use.c").write_text('#include "model.h"\nint main(void) { return 0; }\n')
+    fast = subprocess.run(["gcc", "-std=c99", "-Ofast", "-c", "use.c", "-o", "use.o"],
+                          capture_output=True, text=True, cwd=tmp_path)
+    errors = [ln for ln in fast.stderr.splitlines() if "#error" in ln and "error:" in ln]
+    assert fast.returncode != 0 and len(errors) == 1, fast.stderr
+    assert "a thermonet header must not be compiled with -ffast-math / -Ofast" in errors[0]
+
+
 def test_parts_whose_union_puts_temperature_second(parts, tmp_path):
     """The first part reads only the rate: the union's signals are [rate, temperature], not
     the order a single spec would give; every path reads them by the model's own order."""

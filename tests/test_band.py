@@ -184,6 +184,39 @@ def test_the_band_states_the_directions_and_rates_it_was_judged_on(known):
     _c_holds_as_python(band, rates, dirs)
 
 
+def test_the_band_is_nan_at_an_infinite_signal_in_the_runtime_as_in_c(known):
+    """The docs: NaN for a NaN or infinite signal (a missing or broken reading).  The C
+    header's ``thermonet_band`` gave NaN at ±inf, the runtime inf (was: NaN at NaN only, so
+    the CSV command wrote ``inf`` beside a row of NaN drift).  Both on the same tables, with
+    finite points past each edge as the check that nothing else moved."""
+    from thermonet.exporting.c_band import BAND_DRIVER, insert_band
+    from thermonet.exporting.c_driver import c_compiler, run_c_driver
+
+    rt = load_runtime()
+    e, h = [0.0, 10.0, 20.0], [1.0, 2.0]
+    x = np.array([np.inf, -np.inf, np.nan, -5.0, 5.0, 25.0])
+    got = rt.band_tables(x, e, h, 0.1, 0.3)
+    assert np.isnan(got[:3]).all()
+    assert_f64_close(got[3:], np.array([1.0 + 0.5, 1.0, 2.0 + 1.5]))
+    _, band = known
+    doc = band.to_json()
+    t = doc["axes"]["gyro_x"]
+    cc = c_compiler()
+    assert cc is not None, "the C band needs a C compiler (gcc: the README's set-up)"
+    head = ("#ifndef THERMONET_MODEL_H\n#define THERMONET_MODEL_H\n#define THERMONET_N_AXES 1\n"
+            '#define THERMONET_AXIS_NAMES {"gyro_x"}\n#endif /* THERMONET_MODEL_H */\n')
+    text = insert_band(head, doc, "thermonet", ["gyro_x"], [band.signal])
+    pts = np.array([np.inf, -np.inf, np.nan, T_LO - 5.0, (T_LO + T_HI) / 2, T_HI + 5.0],
+                   dtype=np.float32)
+    rows = np.zeros(pts.size, dtype=[("x", np.float32)])
+    rows["x"] = pts
+    c_out = run_c_driver(cc, text, BAND_DRIVER, rows, [("b", np.float32, 1)])["b"][:, 0]
+    py = rt.band_tables(pts.astype(np.float64), t["edges"], t["half_width"],
+                        t["growth_below"], t["growth_above"])
+    assert np.isnan(c_out[:3]).all() and np.isnan(py[:3]).all()
+    assert_f32_close(c_out[3:].astype(np.float64), py[3:], "affine")
+
+
 def _c_holds_as_python(band: Band, rates: np.ndarray, dirs: np.ndarray) -> None:
     """The C header's ``<prefix>_band_holds`` gives the windows' verdicts; the export's own
     check (``check_band_c``) passes it and refuses a header whose judged rate was changed."""

@@ -127,6 +127,12 @@ def test_header_refuses_fast_math(tmp_path):
     )
     assert fast.returncode != 0 and "fast-math" in fast.stderr
     assert header.name == "thermonet_model.h"
+    # the first line names the file written (was "thermonet.h" whatever --out was); the
+    # refusal names none (a per-axis header's named "thermonet_part0.h", no such file)
+    text = header.read_text()
+    assert text.startswith("/* thermonet_model.h: temperature-drift compensation")
+    assert "#error \"a thermonet header must not be compiled with -ffast-math" in text
+    assert "thermonet.h" not in text
 
 
 def test_export_compiles_and_checks_the_header_before_writing(tmp_path):
@@ -143,3 +149,107 @@ def test_export_compiles_and_checks_the_header_before_writing(tmp_path):
         c_parity_check(model, stale)
     out = export_c_header(model, tmp_path / "ok.h")  # a fresh header passes its own check
     assert out.is_file()
+
+
+UNITS_DRIVER = r"""
+#include <stdio.h>
+#include "imu.h"
+int main(void) {
+    static const char *const names[] = THERMONET_AXIS_NAMES;
+    static const char *const units[] = THERMONET_AXIS_UNITS;
+    int a;
+    for (a = 0; a < THERMONET_N_AXES; ++a) printf("%s=%s\n", names[a], units[a]);
+    return 0;
+}
+"""
+
+
+def test_header_states_each_axis_unit(tmp_path):
+    """raw, drift and compensated are in the model's unit, which only the ONNX metadata said
+    (``output_units``): the header says it per axis in its comment and as
+    ``<PREFIX>_AXIS_UNITS`` (a string per axis, the order of ``_AXIS_NAMES``), from the
+    checkpoint's units through the format registry, as ``thermonet export`` writes it."""
+    from thermonet.exporting import FORMATS, ExportRequest
+
+    model = _model("poly")
+    units = {"acc_x": "m/s^2", "acc_y": "g"}
+    path = FORMATS["c"].write(model, tmp_path / "imu.h",
+                              ExportRequest(meta={"extra": {"units": units}}))
+    text = path.read_text()
+    assert '#define THERMONET_AXIS_UNITS {"m/s^2", "g"}' in text
+    assert ("units of raw, drift and compensated (THERMONET_AXIS_UNITS): acc_x m/s^2, acc_y g;"
+            in text)
+    (tmp_path / "units.c").write_text(UNITS_DRIVER)
+    subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-o", "units", "units.c",
+                    "-lm"], check=True, cwd=tmp_path, capture_output=True)
+    got = subprocess.run([str(tmp_path / "units")], capture_output=True, text=True, check=True)
+    assert got.stdout.splitlines() == ["acc_x=m/s^2", "acc_y=g"]
+    # a model without recorded units: empty strings, and the comment says so
+    bare = render_c_header(model)
+    assert '#define THERMONET_AXIS_UNITS {"", ""}' in bare
+    assert "acc_x (not recorded), acc_y (not recorded)" in bare
+
+
+def _compile_together(tmp_path, *headers: str) -> subprocess.CompletedProcess:
+    src = tmp_path / "both.c"
+    src.write_text("".join(f'#include "{h}"\n' for h in headers) + "int main(void) { return 0; }\n")
+    return subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wundef",
+                           "-Werror", "-O2", "-c", "both.c", "-o", "both.o"], cwd=tmp_path,
+                          capture_output=True, text=True)
+
+
+def test_two_models_under_one_prefix_are_a_compile_error(tmp_path):
+    """Two exported headers with the default prefix share the include guard
+    ``THERMONET_MODEL_H``: the second was skipped without a word (its model silently not
+    there).  Another model under the same prefix is now an ``#error`` naming the prefix and
+    what to do; the same header twice, or the same model in two files, still compiles (read
+    once); another prefix (``ExportRequest.prefix``, what ``export_source(prefix=)`` passes)
+    compiles beside it."""
+    from thermonet.exporting import FORMATS, ExportRequest
+
+    poly, linear = _model("poly"), _model("linear")
+    export_c_header(poly, tmp_path / "a.h")
+    export_c_header(poly, tmp_path / "a_copy.h")
+    export_c_header(linear, tmp_path / "b.h")
+    FORMATS["c"].write(linear, tmp_path / "imu1.h", ExportRequest(prefix="imu1"))
+    for pair in (("a.h", "a.h"), ("a.h", "a_copy.h"), ("a.h", "imu1.h"), ("b.h", "imu1.h")):
+        ok = _compile_together(tmp_path, *pair)
+        assert ok.returncode == 0, (pair, ok.stderr)
+    clash = _compile_together(tmp_path, "a.h", "b.h")
+    assert clash.returncode != 0
+    errors = [ln for ln in clash.stderr.splitlines() if "error:" in ln]
+    assert len(errors) == 1 and errors[0].startswith("b.h:"), clash.stderr
+    assert ("#error \"two thermonet headers of different models use the prefix 'thermonet': "
+            "export one of them again under another prefix" in errors[0])
+    assert "static inline int imu1_compensate(" in (tmp_path / "imu1.h").read_text()
+
+
+def test_prefix_is_for_c_only_and_a_c_identifier(tmp_path):
+    """``prefix`` of an export (``export_source``; the CLI's ``--prefix``) is refused for a
+    format without C symbols, and where it is not a C identifier, in one line, before
+    anything is read."""
+    from thermonet.core.errors import InputError
+    from thermonet.exporting.source import check_export_request, export_source
+
+    with pytest.raises(InputError, match=r"^--prefix applies to --format c only \(the C "
+                                         r"symbols' prefix\); onnx has no symbols$"):
+        check_export_request(fmt="onnx", out=tmp_path / "m.onnx", prefix="imu0")
+    with pytest.raises(InputError, match=r"^--prefix '9imu' is not a C identifier"):
+        export_source(str(tmp_path / "nothing"), fmt="c", out=tmp_path / "m.h", prefix="9imu")
+    assert check_export_request(fmt="c", out=tmp_path / "m.h", prefix="imu0").name == "c"
+
+
+def test_the_c_formats_description_says_what_the_header_holds():
+    """``thermonet export --help`` lists each format's description: the C one said "float32,
+    no heap, only expf from libm" where raw/drift are double on a host and expm1f is used
+    too.  Each claim of the description is checked against a written header."""
+    from thermonet.exporting import FORMATS
+
+    text = FORMATS["c"].description
+    assert "only expf" not in text
+    for claim in ("float32", "no heap", "double", "expf/expm1f", "float on a single-precision"):
+        assert claim in text, claim
+    header = render_c_header(_model("rbf"))
+    assert "typedef double thermonet_real_t;" in header and "typedef float thermonet_real_t;" \
+        in header
+    assert "expm1f(" in header and "expf(" in header and "malloc" not in header

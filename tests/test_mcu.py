@@ -416,6 +416,77 @@ def test_readme_example_builds_for_every_target(models, tmp_path):
     subprocess.run(["gcc", *strict, "-o", str(tmp_path / "host.o")], check=True, cwd=tmp_path)
 
 
+def _markdown_c_block(path: Path, marker: str) -> str:
+    """The fenced ```c block of ``path`` that holds ``marker`` (the test fails without one)."""
+    text = path.read_text(encoding="utf-8")
+    blocks = [b.split("```", 1)[0] for b in text.split("```c\n")[1:]]
+    found = [b for b in blocks if marker in b]
+    assert len(found) == 1, f"{path}: {len(found)} C blocks hold {marker!r}"
+    return found[0]
+
+
+HOST_RUN = r"""
+#include <math.h>
+#include <stdio.h>
+int main(void)
+{
+    int32_t c1[THERMONET_N_AXES], c2[THERMONET_N_AXES];
+    float o1[THERMONET_N_AXES], o2[THERMONET_N_AXES];
+    int a, r1, r2, again, missing;
+    for (a = 0; a < THERMONET_N_AXES; ++a) { c1[a] = 1000 * (a + 1); c2[a] = -328 * (a + 2); }
+    thermonet_init(&tc);
+    r1 = imu_sample(1000000u, 25.0f, c1, o1);
+    again = imu_sample(1000000u, 25.0f, c1, o1);       /* the same time: refused */
+    printf("%d %d %d\n", r1, again, isnan(o1[0]) != 0);
+    thermonet_init(&tc);
+    r2 = imu_sample(1000000u, 25.0f, c2, o2);
+    missing = imu_sample(2000000u, (float)NAN, c2, o1);  /* a missing temperature */
+    printf("%d %d %d\n", r2, missing, isnan(o1[0]) != 0);
+    thermonet_init(&tc);
+    r1 = imu_sample(1000000u, 25.0f, c1, o1);
+    for (a = 0; a < THERMONET_N_AXES; ++a)   /* the same drift: out differs by counts/scale */
+        printf("%.9g %.9g\n", (double)(o1[a] - o2[a]), (double)(c1[a] - c2[a]) / 16.4);
+    return r1;
+}
+"""
+
+
+def test_export_readmes_example_converts_counts_and_never_leaves_out_stale(models, tmp_path):
+    """export/README.md's sensor-driver example (was: counts passed as the model's unit, and
+    ``out[]`` left holding the previous sample's values when ``thermonet_step`` refused one)
+    builds under the strict flags on every target, and on the host: a refused sample and a
+    missing temperature give NaN ``out[]`` and say so by the return value, and ``out[]`` is
+    in the model's unit (two samples in one state differ by their counts / 16.4)."""
+    root = Path(__file__).resolve().parents[1]
+    example = _markdown_c_block(root / "export" / "README.md", "int imu_sample(")
+    assert "COUNTS_PER_UNIT" in example and "THERMONET_AXIS_UNITS" in example
+    model = models["poly", "stream"]
+    assert not stream_signature_has_proxies(model)
+    (tmp_path / "thermonet_model.h").write_text(render_c_header(model))
+    proto = ("int imu_sample(uint64_t t_us, float temp_c, const int32_t counts[THERMONET_N_AXES]"
+             ", float out[THERMONET_N_AXES]);\n")
+    src = tmp_path / "driver.c"
+    src.write_text(example.replace("int imu_sample(", proto + "int imu_sample(", 1))
+    tools = toolchain()
+    strict = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wshadow", "-Wdouble-promotion",
+              "-Wconversion", "-Werror", "-O2"]
+    for target, flags in TARGETS.items():
+        subprocess.run([tools["gcc"], *flags, *strict, "-c", str(src), "-o",
+                        str(tmp_path / f"{target}.o")], check=True, cwd=tmp_path)
+    (tmp_path / "run.c").write_text(example + HOST_RUN)
+    for real in ("", "-DTHERMONET_USE_FLOAT"):
+        exe = tmp_path / f"run{real}"
+        subprocess.run(["gcc", "-std=c99", "-O2", *([real] if real else []), "-o", str(exe),
+                        "run.c", "-lm"], check=True, cwd=tmp_path)
+        got = subprocess.run([str(exe)], capture_output=True, text=True, cwd=tmp_path)
+        lines = got.stdout.splitlines()
+        assert lines[0] == "0 -1 1" and lines[1] == "0 1 1", (real, got.stdout)
+        diff = np.array([[float(v) for v in ln.split()] for ln in lines[2:]])
+        assert diff.shape == (len(model.outputs), 2)
+        # float path: raw and out are floats; counts / 16.4 ~ 100 units: a few float ulps
+        np.testing.assert_allclose(diff[:, 0], diff[:, 1], rtol=1e-6)
+
+
 def test_two_headers_in_one_translation_unit(models, tmp_path):
     """One header per IMU, different prefixes, included together: the shared type, time
     type and fast exponentials are defined once (THERMONET_REAL_T_DEFINED)."""

@@ -336,3 +336,216 @@ def test_a_multi_run_csv_restarts_the_state_at_each_run(tmp_path, capsys):
                    "began at row 2); a run's rows must be together — the state restarts at "
                    "each run")
     assert not out.exists()
+
+
+# ---- the Python the runtime's docs promise (export/README.md: "Python ≥ 3.9") ----------------
+#: What a 3.9 interpreter lacks and its parser does not see (the parser with feature_version
+#: (3, 9) refuses match statements, parenthesised context managers, except*): keyword
+#: arguments (function name -> keyword), names and attributes added in 3.10 or later.
+_NEWER_KEYWORDS = {"zip": "strict", "dataclass": "slots", "field": "kw_only"}
+_NEWER_NAMES = {"aiter", "anext", "EncodingWarning", "ExceptionGroup", "BaseExceptionGroup",
+                "pairwise", "TypeAlias", "ParamSpec", "Concatenate", "TypeGuard", "Self",
+                "Never", "LiteralString", "assert_never", "reveal_type", "StrEnum", "tomllib",
+                "TypeVarTuple", "Unpack", "Required", "NotRequired", "override"}
+_NEWER_ATTRIBUTES = {"bit_count", "add_note", "batched"}
+_MIN_PYTHON = (3, 9)
+
+
+def _newer_than_39(source: str) -> list[str]:
+    """Every construct of ``source`` that a Python 3.9 interpreter refuses or lacks, as
+    'line N: what' (empty when it runs there).  Annotations are not evaluated under
+    ``from __future__ import annotations`` (PEP 563), so ``X | Y`` there is fine; anywhere
+    else a ``|`` between types (``isinstance(x, int | float)``) raises TypeError on 3.9."""
+    import ast
+
+    found: list[str] = []
+    try:
+        tree = ast.parse(source, feature_version=_MIN_PYTHON)
+    except SyntaxError as exc:
+        return [f"line {exc.lineno}: {exc.msg}"]
+    future = any(isinstance(n, ast.ImportFrom) and n.module == "__future__" and
+                 any(a.name == "annotations" for a in n.names) for n in tree.body)
+    annotations: set[int] = set()
+    for node in ast.walk(tree):
+        ann = [getattr(node, "returns", None), getattr(node, "annotation", None)]
+        for a in ann:
+            if a is not None and future:
+                annotations.update(id(n) for n in ast.walk(a))
+
+    def type_like(n: ast.AST) -> bool:
+        return (isinstance(n, ast.Constant) and n.value is None) or isinstance(
+            n, (ast.Name, ast.Attribute, ast.Subscript)) or (
+            isinstance(n, ast.BinOp) and isinstance(n.op, ast.BitOr) and type_like(n.left)
+            and type_like(n.right))
+
+    for node in ast.walk(tree):
+        if id(node) in annotations:
+            continue
+        line = getattr(node, "lineno", "?")
+        if isinstance(node, ast.BinOp) and isinstance(node.op, ast.BitOr) and type_like(node):
+            # numbers and arrays are or-ed too (flags | gap): a union is one of builtins' types,
+            # None or a typing name on either side
+            names = {n.id for n in ast.walk(node) if isinstance(n, ast.Name)} | {
+                "None" for n in ast.walk(node) if isinstance(n, ast.Constant) and n.value is None}
+            if names & {"int", "float", "str", "bytes", "bool", "complex", "list", "dict",
+                        "tuple", "set", "frozenset", "type", "object", "None", "Any"}:
+                found.append(f"line {line}: a union 'X | Y' evaluated at run time (3.10+)")
+        elif isinstance(node, ast.Call):
+            f = node.func
+            fname = f.id if isinstance(f, ast.Name) else f.attr if isinstance(
+                f, ast.Attribute) else ""
+            kw = _NEWER_KEYWORDS.get(fname)
+            if kw is not None and any(k.arg == kw for k in node.keywords):
+                found.append(f"line {line}: {fname}({kw}=...) (3.10+)")
+        elif isinstance(node, ast.Name) and node.id in _NEWER_NAMES:
+            found.append(f"line {line}: {node.id} (3.10+)")
+        elif isinstance(node, ast.Attribute) and node.attr in _NEWER_ATTRIBUTES | _NEWER_NAMES:
+            found.append(f"line {line}: .{node.attr} (3.10+)")
+        elif isinstance(node, ast.alias) and node.name.split(".")[0] in _NEWER_NAMES:
+            found.append(f"line {line}: import {node.name} (3.10+)")
+    return found
+
+
+def test_the_checker_finds_what_a_39_interpreter_refuses():
+    """The check itself, on known text: each construct that crashed the runtime on 3.9 (was
+    ``isinstance(x, int | float)`` and ``zip(..., strict=True)``), a match statement, and
+    the same union inside annotations (not evaluated: fine)."""
+    head = "from __future__ import annotations\n"
+    assert _newer_than_39(head + "ok = isinstance(1, int | float)\n") == [
+        "line 2: a union 'X | Y' evaluated at run time (3.10+)"]
+    assert _newer_than_39(head + "p = list(zip([1], [2], strict=True))\n") == [
+        "line 2: zip(strict=...) (3.10+)"]
+    assert "only supported in Python 3.10" in _newer_than_39(
+        head + "match 1:\n    case 1:\n        pass\n")[0]
+    assert _newer_than_39(head + "from itertools import pairwise\n") == [
+        "line 2: import pairwise (3.10+)"]
+    fine = head + ("def f(x: int | None) -> dict[str, int] | None:\n"
+                   "    y: float | None = None\n    return isinstance(x, (int, float)) and "
+                   "(x | 1)\n")
+    assert _newer_than_39(fine) == []
+    # without the __future__ import an annotation is evaluated: a union there fails on 3.9
+    assert _newer_than_39("def f(x: int | None):\n    pass\n") == [
+        "line 1: a union 'X | Y' evaluated at run time (3.10+)"]
+
+
+def test_the_runtime_runs_on_the_python_its_docs_promise():
+    """export/README.md promises "any Linux with Python ≥ 3.9": the runtime has nothing a 3.9
+    interpreter refuses or lacks (was: ``isinstance(x, int | float)`` and ``zip(strict=)``
+    crashed loading any file with a band, and running any recurrent model)."""
+    source = RUNTIME.read_text(encoding="utf-8")
+    readme = (RUNTIME.parent / "README.md").read_text(encoding="utf-8")
+    assert "Python ≥ 3.9" in readme       # the promise checked here; change both together
+    assert "from __future__ import annotations" in source
+    assert _newer_than_39(source) == []
+
+
+# ---- the CSV command's input: what `thermonet info` refuses or hints, the runtime too --------
+def _cli(model: Path, src: Path, out: Path, capsys) -> tuple[int, str, str]:
+    """``rt.main`` on ``src`` with every warning an error (a numpy warning is a leak)."""
+    import warnings
+
+    capsys.readouterr()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        code = rt.main([str(model), str(src), "--out", str(out)])
+    got = capsys.readouterr()
+    return code, got.out, got.err
+
+
+def test_short_rows_and_duplicate_columns_are_refused_in_one_line(model_path, tmp_path, capsys):
+    """A truncated row (fewer cells than the header) and a column named twice are refused,
+    naming the file, the row or column and what was expected, nothing written (was: the
+    missing cells read as NaN and the first of two columns used, exit 0)."""
+    out = tmp_path / "o.csv"
+    src = tmp_path / "short.csv"
+    src.write_text("temperature_c,gyro_x,gyro_y,gyro_z\n20,1,2,3\n21,1\n")
+    assert _cli(model_path, src, out, capsys)[::2] == (1, (
+        f"thermonet_runtime: {src}: row 3: 2 cells, the header has 4: a truncated row (write "
+        "an empty cell for a missing sample)\n"))
+    src.write_text("temperature_c,gyro_x,gyro_y,gyro_z,gyro_x\n20,1,2,3,4\n")
+    assert _cli(model_path, src, out, capsys)[::2] == (1, (
+        f"thermonet_runtime: {src}: column 'gyro_x': duplicate column in the header (columns 2 "
+        "and 5); rename or remove one\n"))
+    assert not out.exists()
+    # an empty cell is still a missing sample (NaN, flag set), and so is a trailing separator
+    src.write_text("temperature_c,gyro_x,gyro_y,gyro_z,\n,1,2,3,\n20,1,2,3,\n")
+    code, _, err = _cli(model_path, src, out, capsys)
+    assert code == 0, err
+    rows = list(csv.DictReader(out.open(newline="")))
+    assert [r["out_of_range"] for r in rows] == ["1", "0"] and rows[0]["gyro_x_comp"] == "nan"
+
+
+def test_other_separators_and_parquet_say_what_the_file_is(model_path, tmp_path, capsys):
+    """A tab-separated file (was: "missing column 'temperature_c'") and a Parquet, HDF5 or
+    ULog file (was: "not UTF-8 text (byte 11)") say what they are and how to get the CSV."""
+    out = tmp_path / "o.csv"
+    tsv = tmp_path / "rec.tsv"
+    tsv.write_text("temperature_c\tgyro_x\tgyro_y\tgyro_z\n20\t1\t2\t3\n")
+    assert _cli(model_path, tsv, out, capsys)[::2] == (1, (
+        f"thermonet_runtime: {tsv}: the header is separated by tabs (a tab-separated file); "
+        "this runtime reads comma-separated CSV: save it with ',' as the separator "
+        f"(thermonet convert {tsv} --out {tmp_path / 'rec.csv'} writes one)\n"))
+    semi = tmp_path / "rec.csv"
+    semi.write_text("temperature_c;gyro_x;gyro_y;gyro_z\n20;1;2;3\n")
+    err = _cli(model_path, semi, out, capsys)[2]
+    assert "separated by ';'" in err and f"--out {tmp_path / 'rec_comma.csv'} writes one" in err
+    for name, magic, what, args in (
+            ("rec.parquet", b"PAR1\x15\x04", "a Parquet file", ""),
+            ("rec.h5", b"\x89HDF\r\n\x1a\n\x00", "an HDF5 file", " --mapping MAP"),
+            ("log.ulg", b"ULog\x01\x12", "a PX4 ULog flight log", "#<instance>")):
+        path = tmp_path / name
+        path.write_bytes(magic + bytes(range(128, 256)))
+        code, _, err = _cli(model_path, path, out, capsys)
+        assert (code, err) == (1, (
+            f"thermonet_runtime: {path}: {what}, not CSV; this runtime reads CSV only (numpy "
+            f"and onnxruntime, no other reader): thermonet convert {path}{args} --out "
+            f"{path.with_suffix('.csv')} writes one\n"))
+    assert not out.exists()
+
+
+def test_kelvin_temperatures_get_infos_hint(model_path, tmp_path, capsys):
+    """A temperature column in Kelvin runs (every row out of the trained range, flagged) and
+    says so in one warning line with ``thermonet info``'s hint (was: silent, exit 0)."""
+    from thermonet.data.diagnostics import TEMPERATURE_PLAUSIBLE_C, temperature_hint
+
+    src = tmp_path / "kelvin.csv"
+    # -20 … 150 °C in Kelvin (too hot for °F: 150 °C read as °F would still be 217 °C)
+    src.write_text("temperature_c,gyro_x,gyro_y,gyro_z\n253.15,1,2,3\n423.15,1,2,3\n")
+    code, printed, err = _cli(model_path, src, tmp_path / "o.csv", capsys)
+    assert code == 0 and "2 out of range" in printed
+    assert err == (f"thermonet_runtime: warning: {src}: column 'temperature_c' spans 253.2 … "
+                   "423.1 °C, outside the plausible -100 … 200 °C (Kelvin? subtract 273.15)\n")
+    # the runtime's copy of the rule is thermonet's (its own message where nothing fits)
+    assert rt.TEMPERATURE_PLAUSIBLE_C == TEMPERATURE_PLAUSIBLE_C
+    for lo, hi in ((283.15, 323.15), (14.0, 122.0), (-20e3, 60e3), (150.0, 400.0), (-300, 0),
+                   (0.0, 1e39)):
+        want = temperature_hint(lo, hi)
+        got = rt.temperature_hint(lo, hi)
+        assert got == want or (want.startswith("check the mapping") and
+                               got == "check the temperature column's unit and scale")
+    # a plausible column: no warning
+    src.write_text("temperature_c,gyro_x,gyro_y,gyro_z\n-20,1,2,3\n60,1,2,3\n")
+    assert _cli(model_path, src, tmp_path / "o.csv", capsys)[2] == ""
+
+
+def test_a_temperature_beyond_float32_is_flagged_without_a_numpy_warning(model_path, tmp_path,
+                                                                           capsys):
+    """1e39 is a float64 but beyond float32 (the graph's signal type): read as +inf, so NaN
+    drift and the flag, as the docs say of a non-finite signal — and no numpy
+    ``RuntimeWarning: overflow`` on stderr (was leaked), in the command and the API."""
+    import warnings
+
+    src = tmp_path / "big.csv"
+    src.write_text("temperature_c,gyro_x,gyro_y,gyro_z\n1e39,1,2,3\n-1e39,1,2,3\n20,1,2,3\n")
+    code, _, err = _cli(model_path, src, tmp_path / "o.csv", capsys)
+    assert code == 0 and "RuntimeWarning" not in err and "overflow" not in err
+    rows = list(csv.DictReader((tmp_path / "o.csv").open(newline="")))
+    assert [r["out_of_range"] for r in rows] == ["1", "1", "0"]
+    assert all(r[f"{a}_drift"] == "nan" for r in rows[:2] for a in AXES)
+    comp = rt.Compensator(model_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = comp.compensate(temperature_c=np.array([1e39, 20.0]), raw=np.zeros((2, 3)))
+        one = comp.step(0.0, 1e39, np.zeros(3))
+    assert res.out_of_range.tolist() == [True, False] and np.isnan(res.drift[0]).all()
+    assert one.out_of_range and np.isnan(one.drift).all()

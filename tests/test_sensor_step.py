@@ -256,7 +256,7 @@ def test_export_checks_step_on_both_paths_and_catches_a_broken_one(fitted, tmp_p
     name, model, _ = fitted
     out = export_sensor_c(model, tmp_path / "imu.h", prefix="imu")
     text = out.read_text()
-    assert text == render_sensor_c(model, prefix="imu")
+    assert text == render_sensor_c(model, prefix="imu", file_name="imu.h")
     for real in ("double", "float"):
         stats = sensor_stream_parity(model, text, prefix="imu", real=real)
         assert stats["max_error_over_tolerance"] <= 1.0

@@ -11,7 +11,9 @@ one :func:`register_format` line below.
 * ``onnx`` — an ONNX file with the features, the clamp to the trained range and
   the out-of-range flag inside the graph, checked against torch with
   onnxruntime before it is written (run it with ``export/thermonet_runtime.py``);
-* ``c`` — a dependency-free C99 header, float32, no heap;
+* ``c`` — a C99 header, no heap: the model in float32, raw and drift in double on a host
+  or a double-precision FPU (``expf``/``expm1f`` from libm) and in float on a
+  single-precision microcontroller (its own ``expf``/``expm1f``, no libm);
 * ``px4-params`` / ``ardupilot-params`` — the autopilots' own thermal-calibration
   parameter files, for a family that has a polynomial form in one temperature input.
 
@@ -76,6 +78,8 @@ class ExportRequest:
     source : str or None
         Where the model came from (its checkpoint file), named in errors; None for
         an in-memory model.
+    prefix : str or None
+        The C symbols' prefix (``c``; None: ``thermonet``).
     """
 
     meta: dict[str, Any] = field(default_factory=dict)
@@ -83,6 +87,7 @@ class ExportRequest:
     instance: int | None = None
     tracking_uri: str | None = None
     source: str | None = None
+    prefix: str | None = None
 
     @property
     def extra(self) -> dict[str, Any]:
@@ -180,7 +185,8 @@ register_format(ExportFormat(
     "export/thermonet_runtime.py)", "thermonet.exporting.source:write_onnx",
     kinds={"sensor": f"{_SENSOR}:write_sensor_onnx"}))
 register_format(ExportFormat(
-    "c", "C99 header: float32, no heap, only expf from libm",
+    "c", "C99 header, no heap: the model in float32; raw/drift double on a host (libm "
+    "expf/expm1f), float on a single-precision MCU (no libm)",
     "thermonet.exporting.source:write_c", kinds={"sensor": f"{_SENSOR}:write_sensor_c"}))
 register_format(ExportFormat(
     "px4-params", "PX4 thermal-calibration parameters TC_* (a polynomial of degree <= 3 in T; "

@@ -82,7 +82,8 @@ def c_parity_check(model: DriftModels, header_text: str, *, prefix: str = "therm
 
 
 def export_c_header(model: DriftModels, path: str | Path, *, prefix: str = "thermonet",
-                    check: bool = True, band: Mapping[str, Any] | None = None) -> Path:
+                    check: bool = True, band: Mapping[str, Any] | None = None,
+                    units: Mapping[str, str] | None = None) -> Path:
     """Write the model as a C99 header (atomic: temp file + ``os.replace``).
 
     Parameters
@@ -93,8 +94,10 @@ def export_c_header(model: DriftModels, path: str | Path, *, prefix: str = "ther
     path : str or Path
         Destination ``.h``.
     prefix : str
-        Prefix of every symbol (``<prefix>_compensate``, ``<PREFIX>_N_AXES``);
-        a C identifier.
+        Prefix of every symbol (``<prefix>_compensate``, ``<PREFIX>_N_AXES``, the include
+        guard ``<PREFIX>_MODEL_H`` and id ``<PREFIX>_MODEL_ID``); a C identifier.  Two
+        headers in one program need two prefixes: a second header of another model under
+        the same prefix is a compile error (:func:`.c_header.guard_open`).
     check : bool
         Compile the header and compare it with torch before writing
         (:func:`c_parity_check`, and for dynamic inputs the streaming ``step()`` on a
@@ -113,8 +116,10 @@ def export_c_header(model: DriftModels, path: str | Path, *, prefix: str = "ther
 
     ``band``: the residual-drift band's tables (:func:`thermonet.scoring.band.shipped_band`):
     written as constants with ``<prefix>_band()`` (:mod:`.c_band`), checked against Python.
+    ``units``: per axis the unit of raw and drift (the checkpoint's ``units``), written in
+    the comment and as ``<PREFIX>_AXIS_UNITS``.  The first line names the file written.
     """
-    text = render_c_header(model, prefix=prefix)
+    text = render_c_header(model, prefix=prefix, units=units, file_name=Path(path).name)
     checks: list[Callable[[], object]] = []
     if band is not None:
         text = insert_band(text, band, prefix, list(model.outputs), list(model.signals))

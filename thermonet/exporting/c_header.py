@@ -60,7 +60,9 @@ largest drift): only summation order and ``expf`` rounding differ.
 
 from __future__ import annotations
 
+import hashlib
 import re
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -74,9 +76,72 @@ from .c_recurrent import render_recurrent_stream_c
 from .c_stream_render import render_stream_block_c, render_stream_c
 from .onnx_export import check_model_finite, family_name
 
-__all__ = ["render_c_header", "render_axis_models_c"]
+__all__ = ["render_c_header", "render_axis_models_c", "guard_open", "seal_header",
+           "units_lines", "units_comment", "FAST_MATH_REFUSAL"]
 
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+#: Stands for the header's model id in the text the id is the digest of (:func:`seal_header`).
+_MODEL_ID = "@THERMONET_MODEL_ID@"
+
+#: The fast-math refusal every model body carries, said once however many bodies a header
+#: holds (a per-axis model's parts, a sensor model's two), naming no file.
+FAST_MATH_REFUSAL = [
+    "/* The NaN/inf test (v - v == 0) is folded away under fast-math, which would turn a",
+    " * broken thermometer into a plausible correction: refuse to compile that way. */",
+    "#if defined(__FAST_MATH__) && !defined(THERMONET_FAST_MATH_REFUSED)",
+    "#define THERMONET_FAST_MATH_REFUSED",
+    "#error \"a thermonet header must not be compiled with -ffast-math / -Ofast (it would fold "
+    "away the test for NaN and infinite inputs): build the file that includes it without "
+    "them\"",
+    "#endif",
+]
+
+
+def guard_open(p: str, guard: str) -> list[str]:
+    """The include guard ``guard`` and the model's id ``<P>_MODEL_ID``: the same header
+    included twice is read once, and a header of **another** model under the same prefix
+    (two exports left at the default prefix) is a compile error — the guard alone would
+    skip it without a word.  :func:`seal_header` writes the id."""
+    P = p.upper()
+    return [
+        f"/* {P}_MODEL_ID: this model's id (a digest of the header below its first line). A",
+        " * header of another model with the same prefix cannot be included beside it. */",
+        f"#if defined({P}_MODEL_ID) && {P}_MODEL_ID != {_MODEL_ID}",
+        f"#error \"two thermonet headers of different models use the prefix '{p}': export one "
+        "of them again under another prefix (export_c_header(prefix=...))\"",
+        "#endif",
+        f"#ifndef {guard}",
+        f"#define {guard}",
+        f"#define {P}_MODEL_ID {_MODEL_ID}",
+    ]
+
+
+def seal_header(text: str) -> str:
+    """``text`` with its model id written (:func:`guard_open`): the first 32 bits of the
+    SHA-256 of the text after its first line (the title, which names the file), so the same
+    model under the same prefix has the same id whatever its file is called, and another
+    model (or the same one with other units) another.  A band's tables, inserted after
+    (:func:`.c_band.insert_band`), are not in it: they do not change the compensation."""
+    body = text.split("\n", 1)[-1]
+    digest = hashlib.sha256(body.replace(_MODEL_ID, "").encode("utf-8")).hexdigest()[:8]
+    return text.replace(_MODEL_ID, f"0x{digest}UL")
+
+
+def units_lines(P: str, outputs: Sequence[str], units: Mapping[str, str] | None
+                ) -> list[str]:
+    """``<P>_AXIS_UNITS``: per axis, in the order of ``<P>_AXIS_NAMES``, the unit of
+    ``raw``, ``drift`` and ``compensated`` (the unit the model was trained in: convert a
+    sensor's counts to it before the call); "" where the model does not record one."""
+    got = [str((units or {}).get(a) or "") for a in outputs]
+    return [f"#define {P}_AXIS_UNITS {{" + ", ".join(c_string(u) for u in got) + "}"]
+
+
+def units_comment(P: str, outputs: Sequence[str], units: Mapping[str, str] | None
+                  ) -> list[str]:
+    """The header comment's lines saying each axis's unit (:func:`units_lines`)."""
+    got = [f"{a} {(units or {}).get(a) or '(not recorded)'}" for a in outputs]
+    return [f" * units of raw, drift and compensated ({P}_AXIS_UNITS): {c_comment(got)};",
+            " * convert the sensor's output (counts) to them before the call."]
 
 
 _f = c_float
@@ -186,19 +251,28 @@ def _guard_c(model: DriftModel, p: str) -> tuple[list[str], list[str]]:
     return consts, body
 
 
-def render_c_header(model: DriftModels, *, prefix: str = "thermonet") -> str:
+def render_c_header(model: DriftModels, *, prefix: str = "thermonet",
+                    units: Mapping[str, str] | None = None, file_name: str | None = None
+                    ) -> str:
     """The header text for ``model`` (see :func:`export_c_header`); a per-axis model's is
-    :func:`render_axis_models_c`."""
+    :func:`render_axis_models_c`.  ``units``: per axis the unit of raw and drift (the
+    checkpoint's; written as ``<PREFIX>_AXIS_UNITS`` and in the comment); ``file_name``: the
+    file it is written to, named in its first line (nothing else depends on it)."""
     if not _IDENT.fullmatch(prefix):
         raise ExportError(f"C prefix {prefix!r} is not a C identifier")
     if isinstance(model, AxisModels):
-        return render_axis_models_c(model, prefix=prefix)
-    return _render_single(model, prefix, stream=True)
+        text = render_axis_models_c(model, prefix=prefix, units=units, file_name=file_name)
+    else:
+        text = _render_single(model, prefix, stream=True, units=units, title=file_name)
+    return seal_header(text)
 
 
-def _render_single(model: DriftModel, prefix: str, *, stream: bool) -> str:
+def _render_single(model: DriftModel, prefix: str, *, stream: bool,
+                   units: Mapping[str, str] | None = None, title: str | None = None) -> str:
     """One family's header; ``stream=False`` leaves out the state struct, ``init``, ``step``
-    and ``step_block`` (a per-axis model's part: the composite streams once for all)."""
+    and ``step_block`` (a per-axis model's part: the composite streams once for all).
+    ``title`` names the file (or the part) in the first line.  Its model id is written by
+    :func:`seal_header` on the whole header."""
     check_model_names(model, error=ExportError)  # names reach C source: checked, then escaped
     check_model_finite(model)
     family = family_name(model)
@@ -218,32 +292,30 @@ def _render_single(model: DriftModel, prefix: str, *, stream: bool) -> str:
     comp_axes = list(model.compensated_axes)
     targets = ", ".join(f"{o} {m}{'' if c else ' (uncompensated: drift 0)'}"
                         for o, m, c in zip(outputs, modes, comp_axes, strict=True))
+    name = c_comment(title) if title else "thermonet header"
     lines = [
-        f"/* {p}.h: temperature-drift compensation, generated by thermonet {__version__}.",
+        f"/* {name}: temperature-drift compensation, generated by thermonet {__version__}.",
         f" * family: {c_comment(family)}; inputs (features): {c_comment(model.inputs)};",
         f" * T_ref: {t_ref if t_ref is not None else 'n/a'} degC.",
         f" * signals: {c_comment(signals)}; axes: {c_comment(outputs)}.",
         f" * drift relative to (per axis): {c_comment(targets)}.",
+        *units_comment(P, outputs, units),
         " * compensated = raw - drift (thermonet_real_t: double, or float on a single-precision",
         " * FPU); returns 1 when a signal is outside the trained range (drift evaluated at the",
         " * clamped value) or not finite (drift = NaN). */",
-        f"#ifndef {guard}",
-        f"#define {guard}",
+        *guard_open(p, guard),
         "",
         "#include <math.h>",
         *c_target_prelude(),
         "",
-        "/* The NaN/inf test (v - v == 0) is folded away under fast-math, which would turn a",
-        " * broken thermometer into a plausible correction: refuse to compile that way. */",
-        "#if defined(__FAST_MATH__)",
-        f"#error \"{p}.h must not be compiled with -ffast-math / -Ofast (non-finite inputs)\"",
-        "#endif",
+        *FAST_MATH_REFUSAL,
         "",
         f"#define {P}_N_SIGNALS {len(signals)}",
         f"#define {P}_N_FEATURES {len(model.inputs)}",
         f"#define {P}_N_AXES {len(outputs)}",
         f"#define {P}_SIGNAL_NAMES {names(signals)}",
         f"#define {P}_AXIS_NAMES {names(outputs)}",
+        *units_lines(P, outputs, units),
         "",
         _array(f"{p}_sig_lo", _t(model.sig_lo)),
         _array(f"{p}_sig_hi", _t(model.sig_hi)),
@@ -294,7 +366,9 @@ def _render_single(model: DriftModel, prefix: str, *, stream: bool) -> str:
 
 
 
-def render_axis_models_c(model: AxisModels, *, prefix: str = "thermonet") -> str:
+def render_axis_models_c(model: AxisModels, *, prefix: str = "thermonet",
+                         units: Mapping[str, str] | None = None, file_name: str | None = None
+                         ) -> str:
     """A per-axis model's header: one ``<prefix>_compensate`` over the union of the signals
     and one streaming ``<prefix>_step``/``step_block`` (one state struct: the union's dynamic
     inputs), the interface of every header.
@@ -319,22 +393,26 @@ def render_axis_models_c(model: AxisModels, *, prefix: str = "thermonet") -> str
     names = lambda xs: "{" + ", ".join(c_string(x) for x in xs) + "}"  # noqa: E731
     table = ", ".join(f"{a} {'raw (drift 0)' if k is None else f'part {k} ' + model.labels[k]}"
                       for a, k in zip(outputs, model.owner, strict=True))
-    parts = [_render_single(part, f"{p}_part{k}", stream=False)
+    # the parts' titles name no file: the model id (:func:`seal_header`) is the digest of
+    # everything below the first line, the same whatever the file is called
+    parts = [_render_single(part, f"{p}_part{k}", stream=False, units=units,
+                            title=f"part {k} ({model.labels[k]}) of this per-axis model")
              for k, part in enumerate(model.parts)]
     modes = ", ".join(f"{o} {m}" for o, m in zip(outputs, model.target_modes, strict=True))
     listed = ", ".join(f"{k} {lab} ({part.family_name})"
                        for k, (lab, part) in enumerate(zip(model.labels, model.parts,
                                                            strict=True)))
     body = [
-        f"/* {p}.h: temperature-drift compensation, generated by thermonet {__version__}.",
+        f"/* {c_comment(file_name) if file_name else 'thermonet header'}: temperature-drift "
+        f"compensation, generated by thermonet {__version__}.",
         f" * family: per-axis: each axis computed by its own candidate: {c_comment(table)}.",
         f" * parts: {c_comment(listed)}.",
         f" * signals: {c_comment(signals)}; axes: {c_comment(outputs)}.",
         f" * drift relative to (per axis): {c_comment(modes)}.",
+        *units_comment(P, outputs, units),
         " * compensated = raw - drift; returns 1 when a signal is outside a part's trained",
         " * range (drift evaluated at the clamped value) or not finite (drift = NaN). */",
-        f"#ifndef {guard}",
-        f"#define {guard}",
+        *guard_open(p, guard),
         "",
         *parts,
         f"#define {P}_N_SIGNALS {n_s}",
@@ -342,6 +420,7 @@ def render_axis_models_c(model: AxisModels, *, prefix: str = "thermonet") -> str
         f"#define {P}_N_PARTS {len(model.parts)}",
         f"#define {P}_SIGNAL_NAMES {names(signals)}",
         f"#define {P}_AXIS_NAMES {names(outputs)}",
+        *units_lines(P, outputs, units),
         "",
         *_signature(p, False),
         "{",
@@ -379,4 +458,4 @@ def render_axis_models_c(model: AxisModels, *, prefix: str = "thermonet") -> str
         f"#endif /* {guard} */",
         "",
     ]
-    return "\n".join(body)
+    return seal_header("\n".join(body))

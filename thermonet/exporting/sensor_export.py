@@ -149,8 +149,10 @@ def write_sensor_onnx(model: SensorModel, out: Path, request: ExportRequest) -> 
 
 
 def write_sensor_c(model: SensorModel, out: Path, request: ExportRequest) -> Path:
-    """``c`` of a sensor model: :func:`thermonet.exporting.sensor_c.export_sensor_c`."""
-    return export_sensor_c(model, out)
+    """``c`` of a sensor model: :func:`thermonet.exporting.sensor_c.export_sensor_c`, with
+    the checkpoint's units and the request's prefix."""
+    return export_sensor_c(model, out, prefix=request.prefix or "thermonet",
+                           units=request.output_units)
 
 
 def _refuse_autopilot(fmt: str, request: ExportRequest) -> Path:

@@ -51,7 +51,8 @@ if TYPE_CHECKING:
     from ..models.composite import DriftModels
     from . import ExportRequest
 
-__all__ = ["resolve_checkpoint", "export_source", "check_export_request", "check_out_file",
+__all__ = ["resolve_checkpoint", "export_source", "check_export_request", "check_prefix",
+           "check_out_file",
            "write_onnx", "write_c", "write_px4_params", "write_ardupilot_params"]
 
 _RUN_ID = re.compile(r"[0-9a-f]{32}")
@@ -200,6 +201,22 @@ NOT_CHECKPOINTS = {"a data file": (".parquet", ".pq", ".csv", ".tsv", ".txt", ".
                    "a config or results file": (".yaml", ".yml", ".json")}
 
 
+_C_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def check_prefix(fmt: str, prefix: str | None) -> None:
+    """``--prefix``: for ``c`` only (refused for another format, not ignored), a C
+    identifier (what every symbol and the include guard start with)."""
+    if prefix is None:
+        return
+    if fmt != "c":
+        raise InputError(f"--prefix applies to --format c only (the C symbols' prefix); "
+                         f"{fmt} has no symbols")
+    if not isinstance(prefix, str) or _C_IDENT.fullmatch(prefix) is None:
+        raise InputError(f"--prefix {str(prefix)[:64]!r} is not a C identifier (letters, "
+                         "digits and '_', not starting with a digit), e.g. imu0")
+
+
 #: The calibration slot ``--instance`` names, by format: PX4's slot, ArduPilot's IMU number.
 _INSTANCES = {"px4-params": (0, 3, "PX4 calibration instance"),
               "ardupilot-params": (1, 3, "ArduPilot IMU number")}
@@ -207,16 +224,19 @@ _INSTANCES = {"px4-params": (0, 3, "PX4 calibration instance"),
 
 def check_export_request(*, fmt: str, out: str | Path, family: str | None = None,
                          tracking_uri: str | None = None, device_id: int | None = None,
-                         instance: int | None = None) -> ExportFormat:
+                         instance: int | None = None, prefix: str | None = None
+                         ) -> ExportFormat:
     """Every argument of an export checked, in one line naming it, before the source is read
     and before torch or MLflow is imported; returns the format.
 
     The format (a name in :data:`FORMATS`), ``--out`` (:func:`check_out_file`), ``--family``
     (a family name), ``--tracking-uri`` (a store :func:`thermonet.tracking.check_store`
     accepts), ``--device-id`` (1..:data:`~thermonet.exporting.MAX_DEVICE_ID`; required for
-    ``px4-params``) and ``--instance`` (PX4 0..3, ArduPilot 1..3).
+    ``px4-params``), ``--instance`` (PX4 0..3, ArduPilot 1..3) and ``--prefix`` (``c``
+    only: a C identifier).
     """
     export_format = get_format(fmt)
+    check_prefix(fmt, prefix)
     check_out_file(out)
     if family is not None:
         check_name(family, LABEL, "--family")
@@ -239,18 +259,19 @@ def check_export_request(*, fmt: str, out: str | Path, family: str | None = None
 
 def export_source(source: str, *, fmt: str, out: str | Path, family: str | None = None,
                   tracking_uri: str | None = None, device_id: int | None = None,
-                  instance: int | None = None) -> Path:
+                  instance: int | None = None, prefix: str | None = None) -> Path:
     """Export the model SOURCE designates as ``fmt`` to ``out``; return the written path.
 
     ``fmt`` is a name in :data:`thermonet.exporting.FORMATS`.  ``device_id``
     (PX4's ``TC_*_ID``) and ``instance`` (PX4 slot 0–3, default 0; ArduPilot
-    IMU 1–3, default 1) apply to the autopilot formats.
+    IMU 1–3, default 1) apply to the autopilot formats; ``prefix`` (default
+    ``thermonet``) to ``c``: every symbol's prefix, one per header in a program.
     """
     # every argument, then the source, before anything heavy is imported: torch only to load
     # the model, MLflow only to fetch a run id's checkpoint (check_export_request)
     export_format = check_export_request(fmt=fmt, out=out, family=family,
                                          tracking_uri=tracking_uri, device_id=device_id,
-                                         instance=instance)
+                                         instance=instance, prefix=prefix)
     with tempfile.TemporaryDirectory() as tmp:
         ckpt = resolve_checkpoint(source, family=family, tracking_uri=tracking_uri,
                                   workdir=Path(tmp))
@@ -262,7 +283,7 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
         named = str(ckpt) if Path(source).exists() else f"MLflow run '{source}' ({ckpt.name})"
     return export_format.write(model, out, ExportRequest(
         meta=meta, device_id=device_id, instance=instance, tracking_uri=tracking_uri,
-        source=named))
+        source=named, prefix=prefix))
 
 
 # ----------------------------------------------------- the built-in exporters
@@ -314,7 +335,8 @@ def write_c(model: DriftModels, out: Path, request: ExportRequest) -> Path:
     from ..scoring.band import shipped_band  # lazy: importing it loads numpy
     from .c_export import export_c_header  # torch boundary (pyproject.toml): loads torch
 
-    return export_c_header(model, out, band=shipped_band(request.extra))
+    return export_c_header(model, out, band=shipped_band(request.extra),
+                           units=request.output_units, prefix=request.prefix or "thermonet")
 
 
 def write_px4_params(model: DriftModels, out: Path, request: ExportRequest) -> Path:
