@@ -65,6 +65,7 @@ def _pilots(rng: np.random.Generator, n_units: int, A: np.ndarray, f0: np.ndarra
     return B, F
 
 
+@pytest.mark.numerics
 def test_a_known_linear_response_is_recovered() -> None:
     rng = np.random.default_rng(1)
     n = 12
@@ -82,6 +83,7 @@ def test_a_known_linear_response_is_recovered() -> None:
     assert np.diag(m.cov) == pytest.approx(1e-6 * (1 - 1 / n), rel=0.3)
 
 
+@pytest.mark.numerics
 def test_the_map_update_is_the_points_update_where_the_map_is_their_design() -> None:
     """A map whose response is the points' own design (A = their shape rows, f0 = 0, β̄ = 0,
     independent windows of the points' error) must give the points' posterior exactly: the
@@ -123,6 +125,7 @@ def _lagging_units(rng: np.random.Generator, n_units: int, tau_s: float
     return B, R, thermo, t
 
 
+@pytest.mark.numerics
 def test_a_lagging_sensor_is_calibrated_through_the_map_not_by_its_points() -> None:
     """The thermometer leads the die by 40 s on a 18 °C/min ramp: a curve fitted against the
     thermometer is off by the lag; the map, learned from pilot units whose shapes are known,
@@ -155,6 +158,7 @@ def _one_map(n: int = 5) -> TestMap:
                                       rng.normal(size=D), c @ c.T + np.eye(n - 1))}, 12)
 
 
+@pytest.mark.numerics
 def test_the_map_reads_back_exactly_and_every_bad_key_is_named() -> None:
     tm = _one_map()
     data = json.loads(json.dumps(tm.to_dict()))
