@@ -202,3 +202,15 @@ def test_simulate_then_info_then_compare_then_export(thermonet, tmp_path):
                   "--device-id", "2490378", "--out", tmp_path / "p.params")
     assert r.returncode == 1 and "one input, dT or T" in r.stderr
     assert not (tmp_path / "p.params").exists()
+
+
+def test_train_names_itself_in_its_banner(thermonet, tmp_path):
+    """``thermonet train`` printed ``thermonet compare: …`` as its first line."""
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("data: {preset: accel-ramp}\nfamilies: [{name: cubic, family: poly, "
+                   "params: {degree: 3}}, {name: lin, family: linear}]\n")
+    r = thermonet("train", cfg, "--family", "lin", "--out", tmp_path / "o", "--no-track",
+                  "--no-plots")
+    assert r.returncode == 0, r.stderr
+    first = r.stderr.splitlines()[0]                # the progress lines go to stderr
+    assert first.startswith("thermonet train: accel-ramp (1 run, outputs acc_x)"), first

@@ -79,6 +79,16 @@ def test_duplicate_family_names(tmp_path):
         load_config(write(tmp_path, text))
 
 
+def test_a_family_with_no_inputs_is_refused_when_the_config_loads(tmp_path):
+    """Not after the data are read, under families[0].params with an output count."""
+    text = "families: [{name: a, family: poly, inputs: []}]\n"
+    with pytest.raises(ConfigError) as err:
+        load_config(write(tmp_path, text))
+    msg = str(err.value)
+    assert msg == (f"{tmp_path / 'c.yaml'}: key 'families[0].inputs': an empty list; name at "
+                   "least one input (such as [dT]), or leave the key out for [dT]")
+
+
 def test_missing_and_invalid_yaml(tmp_path):
     with pytest.raises(ConfigError, match="config file not found"):
         load_config(tmp_path / "nope.yaml")

@@ -94,6 +94,19 @@ def test_names_signals_and_constants():
         FeatureConfig(rate_window_s=60.0)
 
 
+def test_the_unknown_input_error_lists_every_accepted_form():
+    """The list of valid inputs comes from one source (the registry): each form it names is
+    accepted with a number in place of its constant, delayed_<tau> included (was left out)."""
+    with pytest.raises(ConfigError) as err:
+        FeatureSpec(inputs=["foo"])
+    listed = str(err.value).split("(valid: ", 1)[1].rstrip(")").split(", ")
+    assert listed == ["T", "dT", "dT2", "rate", "rate_<tau>", "lag_<tau>", "delayed_<tau>",
+                      "play_<w>", "d_<proxy>", "d_<proxy>2"]
+    for form in listed:
+        name = form.replace("<tau>", "30").replace("<w>", "0.5").replace("<proxy>", "freq_hz")
+        parse_feature(name)                                  # accepted: no error
+
+
 def test_known_values_exact_for_any_sample_interval():
     """On a ramp of slope r from rest: lag = rτ(1 − e^(−t/τ)) exactly, even with jittered dt
     (T is linear between samples); rate = 60·lag/τ; play = ±w once T moved 2w, memory in a soak."""

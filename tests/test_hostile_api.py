@@ -454,3 +454,20 @@ def test_save_load_and_export_paths(fitted: thermonet.DriftEstimator, where, tmp
 def test_export_arguments(fitted: thermonet.DriftEstimator, kwargs, argument, tmp_path) -> None:
     _refused(lambda: fitted.export(tmp_path / "m.onnx", **kwargs), argument)
     assert not (tmp_path / "m.onnx").exists()
+
+
+def test_compare_into_a_previous_comparison_names_the_python_option(tmp_path) -> None:
+    """A second ``thermonet.compare(cfg, data=ds, out=D)`` said "pass --overwrite", the
+    command line's spelling: the API names its own (``overwrite=True``, ``compare(out)``),
+    and ``overwrite=True`` then replaces it."""
+    cfg = {"families": [{"name": "cubic", "family": "poly", "params": {"degree": 3}}],
+           "tracking": {"enabled": False}}
+    ds = toy_dataset(n_runs=3)
+    out = tmp_path / "cmp"
+    thermonet.compare(cfg, data=ds, out=out, plots=False)
+    msg = _refused(lambda: thermonet.compare(cfg, data=ds, out=out, plots=False), str(out))
+    assert msg == (f"{out}: compare(out) holds a previous comparison; pass overwrite=True to "
+                   "replace it, or choose another compare(out)")
+    assert "--" not in msg
+    assert thermonet.compare(cfg, data=ds, out=out, plots=False, overwrite=True).chosen == \
+        "cubic"

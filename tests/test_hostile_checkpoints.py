@@ -381,6 +381,27 @@ def test_a_damaged_pickle_is_not_readable_without_torchs_advice(tmp_path):
     assert "weights_only" not in str(err.value) and "\n" not in str(err.value)
 
 
+def test_an_onnx_file_given_as_a_checkpoint_is_said_to_be_one(fitted, tmp_path):
+    """DriftEstimator.load("m.onnx") said "not a readable checkpoint (… Unsupported operand
+    8)": it now says the file is an ONNX file and what to load instead — by its content too
+    (an ONNX file named .pt), while a damaged pickle named .onnx stays unreadable."""
+    est, _ = fitted
+    onnx = est.export(tmp_path / "m.onnx")
+    renamed = tmp_path / "m.pt"
+    renamed.write_bytes(onnx.read_bytes())
+    for path in (onnx, renamed):
+        with pytest.raises(InputError) as err:
+            thermonet.DriftEstimator.load(path)
+        assert str(err.value) == (
+            f"{path}: an ONNX file (an exported model), not a thermonet checkpoint: load the "
+            ".pt checkpoint it was exported from (compare's models/<label>.pt, "
+            "DriftEstimator.save), or run the ONNX file with export/thermonet_runtime.py")
+    junk = tmp_path / "junk.onnx"
+    junk.write_bytes(b"\x80\x04not a pickle")
+    with pytest.raises(InputError, match=r"junk\.onnx: not a readable checkpoint \("):
+        load_checkpoint(junk)
+
+
 def test_a_library_warning_reaches_the_console_as_one_line_of_thermonets(tmp_path, capsys):
     """torch warns (a UserWarning with its file and source line, as Python prints it) while
     reading a plain pickle given to export: the console shows it as one line in

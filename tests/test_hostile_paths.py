@@ -512,3 +512,17 @@ def test_export_all_units_never_replaces_a_file_already_there(hostile_fleet: Pat
                  "--out", str(out)]) == 0
     capsys.readouterr()
     assert (out / "README").read_text() == "mine" and (out / "good-unit.h").is_file()
+    # --overwrite replaces the units' own files (only theirs), never a link in their place
+    (out / "good-unit.h").write_text("/* stale */")
+    assert main(["export", str(hostile_fleet), "--all-units", "--format", "c",
+                 "--out", str(out), "--overwrite"]) == 0
+    capsys.readouterr()
+    assert "thermonet" in (out / "good-unit.h").read_text()
+    assert (out / "README").read_text() == "mine"
+    (out / "good-unit.h").unlink()
+    (out / "good-unit.h").symlink_to(out / "README")
+    assert main(["export", str(hostile_fleet), "--all-units", "--format", "c",
+                 "--out", str(out), "--overwrite"]) == 1
+    assert "already holds good-unit.h (not a plain file: never replaced)" in _one_line(
+        capsys.readouterr().err)
+    assert (out / "README").read_text() == "mine"

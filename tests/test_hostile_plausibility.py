@@ -185,13 +185,13 @@ def test_impossible_mapping_settings_refused_in_one_line(tmp_path, capsys, setti
     ("features: {t_ref: .nan}", "key 'features.t_ref': nan °C"),
     ("features: {t_ref: 300.0}", "key 'features.t_ref': 300.0 °C"),   # Kelvin
     ("features: {t_ref_window_min: 0}", "key 'features.t_ref_window_min'"),
-    ("train: {lr: .inf}", "train.lr must be a finite number > 0, got inf"),
+    ("train: {lr: .inf}", "key 'train.lr': must be a finite number > 0, got inf"),
     ("train: {max_epochs: 1000000000000}",
-     "train.max_epochs must be an integer in 0..1,000,000,000"),
-    ("train: {average_s: 1.0e+300}", "train.average_s must be a finite number >= 0 and <= 86400"),
-    ("train: {threads: 100000}", "train.threads must be an integer in 0..1,024"),
+     "key 'train.max_epochs': must be an integer in 0..1,000,000,000"),
+    ("train: {average_s: 1.0e+300}", "key 'train.average_s': must be a finite number >= 0 and <= 86400"),
+    ("train: {threads: 100000}", "key 'train.threads': must be an integer in 0..1,024"),
     ("families: [{family: poly, name: c, inputs: [dT], train: {average_s: 1.0e+9}}]",
-     "train.average_s"),
+     "key 'families[0].train.average_s': must be a finite number >= 0"),
 ])
 def test_impossible_config_settings_refused_before_anything_runs(tmp_path, capsys, section,
                                                                   expect):

@@ -85,6 +85,28 @@ def test_native_csv_without_mapping(tmp_path):
     assert r.effective_rate_hz == pytest.approx(2.0)
 
 
+def test_a_csv_keeps_the_device_id_and_names_the_units_it_cannot_carry(tmp_path):
+    """``write_csv`` (``convert``/``simulate --out x.csv``): the device id is a ``device``
+    column the reader takes back (was lost to 'device'); a channel in a unit other than its
+    default is named in one warning — read back it would be in the default unit (rad/s as
+    deg/s: 57x off) — and the file is written (the runtime's CSV is in the model's units)."""
+    from thermonet.data.io import write_csv
+
+    ds = Dataset(runs=[_dataset()[0]])         # one run: run b's empty cells read as errors
+    back = read_dataset(write_csv(ds, tmp_path / "same.csv"))
+    assert back.unit_ids == ["hrg-7"] and back.run_ids == ["soak_a"]
+    np.testing.assert_array_equal(back["soak_a"].outputs["gyro_x"], ds["soak_a"].outputs["gyro_x"])
+    assert back["soak_a"].units["gyro_x"] == "deg/s"
+    rad = Dataset(runs=[_dataset()[0]])
+    rad[0].units["gyro_y"] = "rad/s"
+    with pytest.warns(UserWarning) as got:
+        write_csv(rad, tmp_path / "rad.csv")
+    assert [str(w.message) for w in got] == [
+        f"{tmp_path / 'rad.csv'}: a CSV carries no units: gyro_y in rad/s (read back as "
+        "deg/s); read it with a mapping that names the units, or write Parquet (it keeps them)"]
+    assert read_dataset(tmp_path / "rad.csv")[0].units["gyro_y"] == "deg/s"
+
+
 def test_native_tsv_with_run_column_and_foreign_parquet(tmp_path):
     n = 30
     df = pd.DataFrame({"run": ["cold"] * n + ["hot"] * n,

@@ -151,6 +151,36 @@ def test_missing_mapping_file(tmp_path):
         load_mapping(tmp_path / "absent.yaml")
 
 
+def test_a_parquet_file_read_as_text_names_the_mapping_format_that_did_it(tmp_path):
+    """A Parquet file read with a mapping whose ``format: csv`` said only "not UTF-8 text":
+    the message now says what the file is and which key made it read as text; a Parquet file
+    named .csv names its extension."""
+    from thermonet.data.io import write_parquet
+    from thermonet.sim import simulate
+
+    pq = write_parquet(simulate("accel", runs=1, seed=0), tmp_path / "a.parquet")
+    mapping = _yaml(tmp_path, """\
+        format: csv
+        time: {column: time_s, unit: s}
+        channels:
+          temperature_c: {column: temperature_c, unit: degC}
+          acc_x: {column: acc_x, unit: g}
+    """)
+    with pytest.raises(InputError) as err:
+        read_dataset(pq, mapping=mapping)
+    msg = str(err.value)
+    assert msg.startswith(f"{pq}: not UTF-8 text (byte ")
+    assert msg.endswith(f": a Parquet file (it starts with 'PAR1'), read as text because the "
+                        f"mapping {mapping} says 'format: csv'; set its format to parquet (or "
+                        "auto)")
+    renamed = tmp_path / "a.csv"
+    renamed.write_bytes(pq.read_bytes())
+    with pytest.raises(InputError, match=r"a Parquet file \(it starts with 'PAR1'\), read as "
+                                         r"text because of its extension '\.csv'; rename it "
+                                         r"to \.parquet$"):
+        read_dataset(renamed)
+
+
 NOTE_MAPPING = """\
     time: {column: t, unit: s}
     channels:

@@ -261,7 +261,7 @@ def test_simulate_replaces_a_file_only_with_overwrite(tmp_path, capsys):
     assert mine.read_text() == "mine\n"
     assert main([*argv, "--overwrite"]) == 0
     assert capsys.readouterr().out.startswith(f"wrote {mine}: preset accel, 1 run, ")
-    assert mine.read_text().startswith("run,time_s,temperature_c,acc_x,")
+    assert mine.read_text().startswith("run,device,time_s,temperature_c,acc_x,")   # + its id
     # a board's logs: each one it would write is checked before any is simulated
     (tmp_path / "b_run2.ulg").write_text("mine")
     assert main(["simulate", "fc-board", "--runs", "2", "--out", str(tmp_path / "b.ulg")]) == 1
@@ -332,6 +332,11 @@ def test_export_of_a_data_file_says_what_it_is(tmp_path, capsys):
     (["--format", "c", "--instance", "1"],
      "--instance applies to --format px4-params and ardupilot-params only; c names no "
      "calibration slot"),
+    (["--format", "onnx", "--prefix", "imu1"],
+     "--prefix applies to --format c only (the C symbols' prefix); onnx has no symbols"),
+    (["--format", "c", "--prefix", "1imu"],
+     "--prefix '1imu' is not a C identifier (letters, digits and '_', not starting with a "
+     "digit), e.g. imu0"),
 ])
 def test_export_options_a_format_has_no_use_for_are_refused(tmp_path, capsys, argv, line):
     """Was: taken and ignored without a word."""
@@ -357,3 +362,12 @@ def test_an_empty_path_or_a_directory_for_a_file_is_named(tmp_path, monkeypatch,
     assert main(argv) == 1
     assert _line(capsys) == f"thermonet: error: {line}"
     assert [p.name for p in tmp_path.iterdir()] == ["c.yaml"]
+
+
+def test_export_c_prefix_names_every_symbol(cubic_compare, tmp_path, capsys):
+    """``--prefix``: two IMUs' headers in one program need their own symbols and guard (the
+    default prefix twice is a compile error: exporting.c_header.guard_open)."""
+    assert main(["export", str(cubic_compare), "--format", "c", "--prefix", "imu1",
+                 "--out", str(tmp_path / "imu1.h")]) == 0
+    text = (tmp_path / "imu1.h").read_text()
+    assert "IMU1_N_AXES" in text and "imu1_step(" in text and "THERMONET_N_AXES" not in text

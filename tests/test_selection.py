@@ -298,3 +298,72 @@ def test_a_time_block_split_of_several_runs_deals_blocks_inside_every_run():
     for f in range(5):                       # every fold validates in both runs
         assert all((fo == f).any() for fo in blocks.fold_of)
         assert all(m.any() for m in blocks.train_masks[f])
+
+
+def test_fewer_folds_than_asked_are_said_in_the_note():
+    """selection.folds: 3 over a pool of two runs split by run gives two folds (one run left
+    out each): the plan's note (results.json's selection.note, the console's "folds:" line)
+    says so and why; as many runs as folds, no note."""
+    runs = [_cycle(1200, seed=s) for s in range(2)]
+    pool = [(r, np.ones(r.n_samples, dtype=bool)) for r in runs]
+    plan = plan_folds(pool, folds=3, blocks_per_fold=8, tau_s=0.0)
+    assert plan is not None and plan.k == 2
+    assert plan.note == ("2 folds, not 3 (selection.folds): the split is by run, so each fold "
+                         "leaves one whole run out, and the training data hold 2 runs")
+    assert plan.describe()["note"] == plan.note
+    same = plan_folds(pool, folds=2, blocks_per_fold=8, tau_s=0.0)
+    assert same is not None and same.k == 2 and same.note == ""
+
+
+@pytest.mark.parametrize("selection, key, why", [
+    # one run held out per fold, each one 2 h stretch: one 100000 s window a fold, no spread
+    ({"window_s": 100000.0}, "selection.window_s",
+     "100000 s windows are longer than the validation data hold: a fold's score is the "
+     "spread of two or more window means (the longest validation stretch of each of the 3 "
+     "folds: 7199, 7199, 7199 s); use at most 3599.5 s, or remove the key (the rule gives "
+     "60 s here)"),
+])
+def test_a_window_the_folds_cannot_hold_is_refused_before_fitting(tmp_path, selection, key,
+                                                                   why):
+    """An over-long selection.window_s was leaked numpy warnings and "chosen: none", exit 0:
+    now one line naming the key and what the data hold, nothing written."""
+    from conftest import toy_dataset
+    from thermonet.core.errors import ConfigError
+    from thermonet.training.config import config_from_mapping
+    from thermonet.workflows.compare import run_compare
+
+    cfg = config_from_mapping({"families": [{"name": "cubic", "family": "poly",
+                                             "params": {"degree": 3}}],
+                               "selection": selection, "tracking": {"enabled": False}})
+    with pytest.raises(ConfigError) as err:
+        run_compare(cfg, tmp_path / "out", dataset=toy_dataset(n_runs=4), track=False,
+                    quiet=True, plots=False)
+    assert str(err.value) == f"config: key '{key}': {why}"
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_purge_that_leaves_no_training_data_is_refused_naming_purge_s(tmp_path):
+    """One run's excursions held out, purged by selection.purge_s = 1e6 s on each side: no
+    training data is left in any fold — was "too little training data for 5 folds" without
+    the cause; now one line naming selection.purge_s, nothing written."""
+    from thermonet.core.errors import ConfigError
+    from thermonet.sim import simulate
+    from thermonet.training.config import config_from_mapping
+    from thermonet.workflows.compare import run_compare
+
+    ds = simulate("consumer-imu", runs=1, seed=0, sample_rate_hz=0.2)
+    for purge, window in ((1e6, None), (None, 1e5)):
+        cfg = config_from_mapping({
+            "data": {"outputs": ["gyro_x"]},
+            "families": [{"name": "cubic", "family": "poly", "params": {"degree": 3}}],
+            "selection": {"purge_s": purge, "window_s": window},
+            "tracking": {"enabled": False}})
+        with pytest.raises(ConfigError) as err:
+            run_compare(cfg, tmp_path / "out", dataset=ds, track=False, quiet=True,
+                        plots=False)
+        msg = str(err.value)
+        key = "purge_s" if purge else "window_s"
+        assert msg.startswith(f"config: key 'selection.{key}': ") and "\n" not in msg
+        assert "leave" in msg and "too little training data for 2 cross-validation folds" \
+            in msg, msg
+        assert not (tmp_path / "out").exists()

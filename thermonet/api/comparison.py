@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.errors import ConfigError, ThermonetError
+from ..core.outdir import check_target
 from ..core.recording import Dataset
 from ..reporting.results import AxisResult, FamilyResult
 from ..reporting.results import ComparisonResult as TypedResult
@@ -232,6 +233,8 @@ def compare(config: Any = None, data: Any = None, out: str | os.PathLike[str] | 
         target = tmp / "out"
     else:
         target = Path(out)
+        # refused in the API's words (compare(out), overwrite=True), not the command line's
+        check_target(target, bool(overwrite), names=("compare(out)", "overwrite=True"))
     try:
         results = compare_result(cfg, target, overwrite=bool(overwrite), track=bool(track),
                                  tracking_uri=tracking_uri, quiet=bool(quiet),

@@ -254,7 +254,11 @@ average_s, threads
                               f"({', '.join(_TRAIN_KEYS)}), got {type(base).__name__}; or set "
                               "them as keywords (DriftEstimator(..., max_epochs=5))")
         overrides = {k: getattr(self, k) for k in _TRAIN_KEYS if getattr(self, k) is not None}
-        return replace(config, **overrides) if overrides else config
+        try:
+            return replace(config, **overrides) if overrides else config
+        except ConfigError as err:   # a keyword's value: named first, as every argument is
+            key, sep, why = str(err).removeprefix("key '").partition("': ")
+            raise ConfigError(f"{key}: {why}" if sep else str(err)) from None
 
     def _family_spec(self) -> FamilySpec:
         """``family`` as a spec (a name: its spec with the defaults); an unknown family or

@@ -38,7 +38,8 @@ def _compare_common(args: argparse.Namespace, only: str | None = None) -> int:
     results = compare_result(cfg, args.out, overwrite=args.overwrite,
                              track=False if args.no_track else None,
                              tracking_uri=args.tracking_uri, quiet=args.quiet,
-                             plots=not args.no_plots, workers=args.workers)
+                             plots=not args.no_plots, workers=args.workers,
+                             command="compare" if only is None else "train")
     if not args.quiet:
         print(format_table(results))
         print(f"\nresults: {Path(args.out) / 'results.json'}, report: "
@@ -93,17 +94,20 @@ def _export_all_units(args: argparse.Namespace) -> int:
     # file name as `fleet` gave its unit directory (thermonet.core.names.path_component)
     names = path_components(units)
     ext = _EXTENSIONS.get(args.format, "." + args.format)
-    # file names come from the data, so a file already there is never replaced: it may be
-    # the user's (refused before anything is written)
+    # file names come from the data, so a file already there is replaced only with
+    # --overwrite, and never one that is not a plain file (refused before anything is written)
     taken = [f"{names[d]}{ext}" for d in units if os.path.lexists(out / f"{names[d]}{ext}")]
-    if taken:
-        more = f" and {len(taken) - 1} more" if len(taken) > 1 else ""
-        raise ThermonetError(f"{out}: already holds {taken[0]}{more}; --all-units writes only "
-                             "new files: choose an empty --out or remove them")
+    odd = [t for t in taken if (out / t).is_symlink() or not (out / t).is_file()]
+    if odd or (taken and not args.overwrite):
+        first = (odd or taken)[0]
+        more = f" and {len(odd or taken) - 1} more" if len(odd or taken) > 1 else ""
+        raise ThermonetError(f"{out}: already holds {first}{more}" + (
+            " (not a plain file: never replaced); choose another --out" if odd else
+            "; choose an empty --out, remove them, or pass --overwrite to replace them"))
     if units:   # the options, once, before anything is written
         check_export_request(fmt=args.format, out=out / f"{names[next(iter(units))]}{ext}",
                              family=args.family, device_id=args.device_id,
-                             instance=args.instance)
+                             instance=args.instance, prefix=args.prefix)
     made = [d for d in (out, *out.parents) if not d.exists()]   # removed if nothing is written
     out.mkdir(parents=True, exist_ok=True)
     bad: list[tuple[str, str]] = []
@@ -137,7 +141,8 @@ def _export_unit(args: argparse.Namespace, src: Path, unit: Any, udir: Path, out
         return f"skipped (no unit directory {udir})"
     try:
         path = export_source(str(udir), fmt=args.format, out=out, family=args.family,
-                             device_id=args.device_id, instance=args.instance)
+                             device_id=args.device_id, instance=args.instance,
+                             prefix=args.prefix)
     except ThermonetError as err:
         return f"not exported: {err}"
     print(f"wrote {path}")
@@ -157,13 +162,13 @@ def _cmd_export(args: argparse.Namespace) -> int:
     refuse_existing([Path(args.out)], args.overwrite)
     path = export_source(args.source, fmt=args.format, out=args.out, family=args.family,
                          tracking_uri=args.tracking_uri, device_id=args.device_id,
-                         instance=args.instance)
+                         instance=args.instance, prefix=args.prefix)
     print(f"wrote {path}")
     return 0
 
 
 def _options_apply(args: argparse.Namespace) -> None:
-    """--device-id and --instance given to a format that has no use for them: refused, not
+    """--device-id, --instance and --prefix given to a format that has no use for them: refused, not
     ignored without a word (the Python API takes them for every format, so a loop may pass
     them alike)."""
     if args.device_id is not None and args.format != "px4-params":
@@ -174,6 +179,9 @@ def _options_apply(args: argparse.Namespace) -> None:
     if args.instance is not None and args.format not in ("px4-params", "ardupilot-params"):
         raise ThermonetError(f"--instance applies to --format px4-params and "
                              f"ardupilot-params only; {args.format} names no calibration slot")
+    from ..exporting.source import check_prefix  # lazy: off the --help path
+
+    check_prefix(args.format, args.prefix)
 
 
 def _family_workers_arg(q: argparse.ArgumentParser) -> None:
@@ -219,8 +227,11 @@ def add_export(sub: Any) -> None:
                    help="output file (with --all-units: output directory)")
     e.add_argument("--all-units", action="store_true",
                    help="SOURCE is a fleet directory: write one file per unit, "
-                        "OUT/<device_id>.<ext> (only new files)")
-    overwrite_arg(e, "an existing --out file (without --all-units)")
+                        "OUT/<device_id>.<ext>")
+    overwrite_arg(e, "an existing --out file (with --all-units: the units' files in --out)")
+    e.add_argument("--prefix", default=None, metavar="NAME",
+                   help="c: the prefix of every C symbol (default thermonet); one per header "
+                        "in a program")
     e.add_argument("--family", default=None, help="family name in a compare dir (default: chosen)")
     e.add_argument("--tracking-uri", default=None, help="MLflow URI for a run-id source")
     e.add_argument("--device-id", type=int, default=None,

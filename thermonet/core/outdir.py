@@ -116,25 +116,28 @@ def is_output(path: Path, kind: str) -> bool:
         and "autopilot" in data
 
 
-def check_target(out: Path, overwrite: bool, kind: str = "comparison") -> None:
+def check_target(out: Path, overwrite: bool, kind: str = "comparison", *,
+                 names: tuple[str, str] = ("--out", "--overwrite")) -> None:
     """Refuse an ``--out`` that is a file, or a non-empty directory that is not a previous
-    output of ``kind`` (or is one and ``overwrite`` is false): one line naming it."""
+    output of ``kind`` (or is one and ``overwrite`` is false): one line naming it.  ``names``:
+    how the caller spells the two options (the Python API: ``compare(out)`` and
+    ``overwrite=True``), so the message names what the user can give."""
+    o, w = names
     if not out.exists():
         return
     if not out.is_dir():
-        raise ThermonetError(f"{out}: --out must be a directory, and this is a file")
+        raise ThermonetError(f"{out}: {o} must be a directory, and this is a file")
     if not any(out.iterdir()):
         return
     if not is_output(out, kind):
         other = next((k for k in KINDS if k != kind and is_output(out, k)), None)
-        raise ThermonetError(f"{out}: --out holds a thermonet {other}, not a {kind}; choose "
-                             "another --out" if other else
-                             f"{out}: --out is not empty and holds no thermonet {kind} "
+        raise ThermonetError(f"{out}: {o} holds a thermonet {other}, not a {kind}; choose "
+                             f"another {o}" if other else
+                             f"{out}: {o} is not empty and holds no thermonet {kind} "
                              "(no complete results.json); refusing to write into it")
     if not overwrite:
-        raise ThermonetError(f"{out}: --out holds a previous {kind}; pass --overwrite to "
-                             "replace it, or choose another --out")
-
+        raise ThermonetError(f"{out}: {o} holds a previous {kind}; pass {w} to replace it, "
+                             f"or choose another {o}")
 
 
 class Stage:

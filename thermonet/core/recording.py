@@ -28,6 +28,7 @@ __all__ = [
     "Recording",
     "WindowStats",
     "Dataset",
+    "DEFAULT_DEVICE",
     "OUTPUT_NAME",
     "KNOWN_UNITS",
     "MIN_SAMPLES",
@@ -39,6 +40,9 @@ __all__ = [
     "output_kind",
     "split_units",
 ]
+
+#: The device id of a recording that names none.
+DEFAULT_DEVICE = "device"
 
 #: An output channel is ``<kind>_<axis>``: ``gyro_x``, ``acc_z``, ``mag_y``, ``baro_p`` (a
 #: barometer's pressure: the absolute value is the weather, only its change with T is drift).
@@ -206,7 +210,7 @@ class Recording:
     proxies: dict[str, np.ndarray] = field(default_factory=dict)
     drift: dict[str, np.ndarray] = field(default_factory=dict)
     units: dict[str, str] = field(default_factory=dict)
-    device_id: str = "device"
+    device_id: str = DEFAULT_DEVICE
     sensor_kind: str = "gyro"
     run_id: str = "run0"
     sample_rate_hz: float | None = None
@@ -411,7 +415,7 @@ class Dataset:
 
     @property
     def device_id(self) -> str:
-        return self.runs[0].device_id if self.runs else "device"
+        return self.runs[0].device_id if self.runs else DEFAULT_DEVICE
 
     @property
     def unit_ids(self) -> list[str]:

@@ -8,6 +8,7 @@ annotation (unions, literals, lists, nested dataclasses); every error is one
 from __future__ import annotations
 
 import dataclasses
+import re
 import types
 import typing
 from typing import Any, Literal, Union
@@ -114,7 +115,19 @@ def from_dict(cls: type, data: Any, *, source: str = "config", prefix: str = "")
     try:
         return cls(**kwargs)
     except ConfigError as err:  # a dataclass's own value check: add the file name
-        raise ConfigError(f"{source}: {err}") from None
+        raise ConfigError(f"{source}: {_under(str(err), prefix)}") from None
+
+
+def _under(msg: str, prefix: str) -> str:
+    """A dataclass's own message (``key 'max_pp': …``, ``key 'train.lr': …``) with its key
+    where the config holds it: under ``prefix`` (``limits.*.max_pp``), its own section name
+    replaced by the prefix's path (``families[0].train.lr``)."""
+    m = re.match(r"key '([^']*)'", msg)
+    if not prefix or m is None or m[1] == prefix or m[1].startswith(prefix + "."):
+        return msg
+    head = prefix.rsplit(".", 1)[-1] + "."
+    key = m[1][len(head):] if m[1].startswith(head) else m[1]
+    return f"key '{prefix}.{key}'{msg[m.end():]}"
 
 
 def to_dict(obj: Any) -> Any:

@@ -81,10 +81,10 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         if self.optimizer not in _OPTIMIZERS:
-            raise ConfigError(f"train.optimizer must be one of {', '.join(_OPTIMIZERS)}, "
+            raise ConfigError(f"key 'train.optimizer': must be one of {', '.join(_OPTIMIZERS)}, "
                               f"got {self.optimizer!r}")
         if self.device not in _DEVICES:
-            raise ConfigError(f"train.device must be one of {', '.join(_DEVICES)}, "
+            raise ConfigError(f"key 'train.device': must be one of {', '.join(_DEVICES)}, "
                               f"got {self.device!r}")
         # upper bounds: a setting beyond them is no training anyone means (1e12 epochs,
         # windows longer than a day), refused before anything runs; a huge lr is left to
@@ -93,14 +93,14 @@ class TrainConfig:
                             ("max_train_samples", 10, 50_000_000), ("threads", 0, 1024)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-                raise ConfigError(f"train.{key} must be an integer in {lo}..{hi:,}, got {v!r}")
+                raise ConfigError(f"key 'train.{key}': must be an integer in {lo}..{hi:,}, got {v!r}")
         for key, top in (("lr", math.inf), ("min_delta", 1.0), ("average_s", 86400.0)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
                     or v < 0 or (key == "lr" and v == 0) or v > top:
-                raise ConfigError(f"train.{key} must be a finite number "
+                raise ConfigError(f"key 'train.{key}': must be a finite number "
                                   f"{'> 0' if key == 'lr' else '>= 0'}"
                                   f"{f' and <= {top:g}' if math.isfinite(top) else ''}, "
                                   f"got {v!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int):
-            raise ConfigError(f"train.seed must be an integer, got {self.seed!r}")
+            raise ConfigError(f"key 'train.seed': must be an integer, got {self.seed!r}")

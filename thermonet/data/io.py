@@ -51,9 +51,9 @@ import pyarrow.parquet as pq
 
 from ..core.errors import InputError
 from ..core.fileio import atomic_path, not_a_file
-from ..core.recording import Dataset, Recording
+from ..core.recording import DEFAULT_DEVICE, Dataset, Recording
 from .logs import is_log_source, read_log_instance
-from .mapping import ColumnMapping, load_mapping
+from .mapping import ColumnMapping, default_unit, load_mapping
 from .parquet_format import (
     DIGEST_KEY,
     FORMAT_VERSION,
@@ -127,13 +127,21 @@ def write_csv(dataset: Dataset, path: str | Path) -> Path:
     column names (``run``, ``time_s``, ``temperature_c``, the outputs …; an absent value is an
     empty cell), atomically; return the path.  It reads back without a mapping, and it is the
     input ``export/thermonet_runtime.py`` takes (each run's rows one sequence: the runtime
-    restarts a model's dynamic state at each run)."""
+    restarts a model's dynamic state at each run).  The device id is a ``device`` column
+    (read back by the reader); a channel in a unit other than its default is named in a
+    warning (:func:`_warn_other_units`: a CSV carries no units)."""
     import pyarrow.csv as pacsv
 
     path = check_output_file(path, (".csv",))
     for run in dataset:
         run.validate()
+    _warn_other_units(dataset, path)
     table = _to_table(dataset).replace_schema_metadata(None)
+    if "device" not in table.column_names and any(r.device_id != DEFAULT_DEVICE
+                                                  for r in dataset):
+        # the device id read back (the reader's 'device' column): not lost to the default
+        table = table.add_column(1, "device", pa.array(
+            np.concatenate([[r.device_id] * r.n_samples for r in dataset]), pa.string()))
     with atomic_path(path, make_parents=False) as tmp:
         # plain cells (channel names are letters, digits and '_'); a run id is quoted only
         # where it needs it (a comma, a quote)
@@ -145,6 +153,28 @@ def write_csv(dataset: Dataset, path: str | Path) -> Path:
         except pa.ArrowInvalid:
             pacsv.write_csv(table, tmp)
     return path
+
+
+def _warn_other_units(dataset: Dataset, path: Path) -> None:
+    """A CSV carries no units: thermonet reads every conventional column back in its default
+    unit (:func:`~thermonet.data.mapping.default_unit`), so the channels in another (rad/s
+    read back as deg/s: 57x off) are named in one warning with how to read them back.  The
+    file is still written: the runtime's CSV is in the model's own units, whatever they are."""
+    other: dict[str, tuple[str, str]] = {}
+    for r in dataset:
+        for name in (["temperature_c"] if r.temperature_c is not None else []) + [
+                k for g in GROUPS for k in getattr(r, g)]:
+            unit = r.units.get(name)
+            want = default_unit(name, proxy=name in r.proxies)
+            if unit and unit != want:
+                other.setdefault(name, (unit, want))
+    if other:
+        import warnings
+
+        said = ", ".join(f"{n} in {u} (read back as {w})" for n, (u, w) in other.items())
+        warnings.warn(f"{path}: a CSV carries no units: {said}; read it with a mapping that "
+                      "names the units, or write Parquet (it keeps them)", UserWarning,
+                      stacklevel=3)
 
 
 def _to_table(dataset: Dataset) -> pa.Table:

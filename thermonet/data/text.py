@@ -232,6 +232,38 @@ def _first_records(path: Path, sep: str | None, skip: int, chunk_rows: int | Non
     return src, sep, joined
 
 
+#: The first bytes of binary files a text reader may be pointed at by a mapping's format or
+#: a file's extension, and what each is.
+_BINARY_MAGIC = {b"PAR1": ("Parquet", "parquet"), b"\x89HDF": ("HDF5", None),
+                 b"ULog": ("PX4 ULog", None)}
+
+
+def _not_text(err: InputError, path: Path, mapping: ColumnMapping | None) -> InputError:
+    """``err`` where a binary file was read as text ("not UTF-8 text"): what the file is and
+    what made it read as text — the mapping's ``format`` or the file's extension."""
+    if "not UTF-8 text" not in str(err):
+        return err
+    try:
+        with path.open("rb") as f:
+            head = f.read(4)
+    except OSError:
+        return err
+    kind = next((v for k, v in _BINARY_MAGIC.items() if head.startswith(k)), None)
+    if kind is None:
+        return err
+    name, fmt = kind
+    fix = f"set its format to {fmt} (or auto)" if fmt else "a mapping reads CSV, TSV or Parquet"
+    if mapping is not None and mapping.format in ("csv", "tsv"):
+        why = f"the mapping {mapping.source} says 'format: {mapping.format}'; {fix}"
+    else:
+        why = (f"of its extension '{path.suffix}'; rename it to .parquet" if fmt else
+               f"of its extension '{path.suffix}'") + (" or set the mapping's format to "
+                                                       f"{fmt}" if fmt and mapping else "")
+    start = head.decode("ascii", "backslashreplace")
+    return InputError(f"{err}: a {name} file (it starts with '{start}'), read as text because "
+                      f"{why}")
+
+
 def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None, *,
                      chunk_rows: int | None,
                      float_columns: Callable[[list[str] | None, int], set[str | int]] | None
@@ -252,7 +284,10 @@ def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None,
     malformed = mapping.malformed_rows if mapping else "error"
     if mapping is not None and mapping.separator is not None:
         sep = mapping.separator
-    src, sep, joined = _first_records(path, sep, skip, chunk_rows)
+    try:
+        src, sep, joined = _first_records(path, sep, skip, chunk_rows)
+    except InputError as err:
+        raise _not_text(err, path, mapping) from None
     lines, blocks = src.lines, src.blocks
     records = list(csv.reader(lines, delimiter=sep))
     names: list[str] | None = None

@@ -60,6 +60,7 @@ __all__ = [
     "RATE",
     "FeatureSpec",
     "parse_feature",
+    "valid_inputs",
     "signals_for",
     "dynamic_signal",
     "joint_columns",
@@ -83,8 +84,8 @@ def parse_feature(name: str) -> tuple[str, bool, bool]:
     Raises
     ------
     ConfigError
-        For a name that is none of ``T, dT, dT2, rate, rate_<tau>, lag_<tau>, play_<w>,
-        d_<proxy>, d_<proxy>2``.
+        For a name that is none of :func:`valid_inputs` (``T, dT, dT2, rate, rate_<tau>,
+        lag_<tau>, delayed_<tau>, play_<w>, d_<proxy>, d_<proxy>2``).
     """
     if name in _TEMPERATURE_FEATURES:
         rel, sq = _TEMPERATURE_FEATURES[name]
@@ -99,8 +100,13 @@ def parse_feature(name: str) -> tuple[str, bool, bool]:
                 raise ConfigError(f"input '{name}': empty proxy name")
             return proxy[:-1], True, True
         return proxy, True, False
-    raise ConfigError(f"unknown model input '{name}' (valid: T, dT, dT2, rate, rate_<tau>, "
-                      "lag_<tau>, play_<w>, d_<proxy>, d_<proxy>2)")
+    raise ConfigError(f"unknown model input '{name}' (valid: {', '.join(valid_inputs())})")
+
+
+def valid_inputs() -> list[str]:
+    """Every form a model input may take, from one source: the temperature features, the
+    dynamic inputs' registry (:func:`thermonet.features.dynamics.input_forms`), a proxy's."""
+    return [*_TEMPERATURE_FEATURES, *dynamics.input_forms(), "d_<proxy>", "d_<proxy>2"]
 
 
 def signals_for(inputs: Iterable[str]) -> list[str]:

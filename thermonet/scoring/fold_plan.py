@@ -14,12 +14,13 @@ from typing import Any
 
 import numpy as np
 
+from ..core.errors import counted
 from ..core.recording import contiguous_segments
 from .folds import DIRECTION_NAMES, TURN_FRACTION, Leg, deal, excursions, purged
 
 __all__ = ["FoldPlan", "plan_folds", "purge_rule", "window_rule", "window_labels", "HOLD_OUT",
            "EXCURSION_INSIDE", "MIN_FOLD_SAMPLES", "MIN_GATE_FOLDS", "RATE_SPREAD",
-           "TWO_FOLD_MARGIN", "leg_rates",
+           "TWO_FOLD_MARGIN", "leg_rates", "validation_stretches",
            "memory_judgeable", "rate_spread"]
 
 
@@ -72,7 +73,8 @@ class FoldPlan:
     cooling; :func:`thermonet.scoring.folds.excursions`); ``rates``: each heating or cooling
     leg's ramp rate (:func:`leg_rates`, the signal's units a second); ``legs``: the excursions found, per
     pool run, with the fold that holds each out (−1: always trained); ``note``: why the folds
-    are not the excursions where they could not be."""
+    are not the excursions where they could not be, or why they are fewer than
+    ``selection.folds`` asked for."""
 
     fold_of: list[np.ndarray]
     train_masks: list[list[np.ndarray]]
@@ -339,34 +341,11 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
     rates = leg_rates(pool, legs, temperatures)
     if gate and not memory_judgeable(directions, rates):
         tau_s = 0.0
-    fold_of: list[np.ndarray] = []
-    block_of: list[np.ndarray] = []
-    note = ""
-    record: list[dict[str, Any]] = []
-    exc = None
-    if not (len(pool) >= 2 and by_run) and hold_out != "blocks":
-        got = _excursion_folds(pool, legs, temperatures, folds)
-        if isinstance(got, str):
-            if hold_out == "excursions":
-                raise ValueError(got)
-            note = f"blocks, not excursions: {got}"
-        else:
-            exc = got
-    if len(pool) >= 2 and by_run:
-        kind, k, block_s = "leave-one-run-out", len(pool), None
-        fold_of, block_of = _leave_one_run_out(pool, times)
-        win = window_s if window_s is not None else window_rule(rate, None)
-    elif exc is not None:
-        kind, block_s = "excursions", None
-        fold_of, block_of, k, record = exc
-        win = window_s if window_s is not None else window_rule(rate, None)
-    else:
-        kind, k = "blocks", folds
-        dealt = _blocks(pool, times, folds, blocks_per_fold)
-        if dealt is None:
-            return None
-        fold_of, block_of, block_s = dealt
-        win = window_s if window_s is not None else window_rule(rate, block_s)
+    cut = _cut(pool, times, legs, temperatures, folds, blocks_per_fold, by_run, hold_out)
+    if cut is None:
+        return None
+    kind, k, block_s, fold_of, block_of, record, note = cut
+    win = window_s if window_s is not None else window_rule(rate, block_s)
     purge = purge_s if purge_s is not None else purge_rule(tau_s, win, block_s)
     train_masks = _train_masks(pool, fold_of, times, k, purge, kind != "leave-one-run-out")
     if train_masks is None:
@@ -380,6 +359,60 @@ def plan_folds(pool: Sequence[tuple[Any, np.ndarray]], *, folds: int, blocks_per
         fold_dirs = [set(directions) for _ in range(k)]
     return FoldPlan(fold_of, train_masks, k, kind, block_s, purge, win, block_of,
                     directions, record, note, fold_dirs, rates)
+
+
+def _cut(pool: Sequence[tuple[Any, np.ndarray]], times: list[np.ndarray],
+         legs: list[list[Leg]], temperatures: Sequence[np.ndarray | None] | None, folds: int,
+         blocks_per_fold: int, by_run: bool, hold_out: str) -> tuple[
+        str, int, float | None, list[np.ndarray], list[np.ndarray], list[dict[str, Any]],
+        str] | None:
+    """What :func:`plan_folds` holds out: (kind, K, block_s, fold_of, block_of, the legs'
+    record, the note), or None where blocks cannot be dealt.  The note says why the folds are
+    not the excursions, or why there are fewer than ``folds`` (one per training run; fewer
+    excursions that can be held out): never a silent reduction."""
+    if len(pool) >= 2 and by_run:
+        fold_of, block_of = _leave_one_run_out(pool, times)
+        k = len(pool)
+        note = "" if k == folds else (
+            f"{k} folds, not {folds} (selection.folds): the split is by run, so each fold "
+            f"leaves one whole run out, and the training data hold {counted(k, 'run')}")
+        return "leave-one-run-out", k, None, fold_of, block_of, [], note
+    note = ""
+    if hold_out != "blocks":
+        got = _excursion_folds(pool, legs, temperatures, folds)
+        if not isinstance(got, str):
+            fold_of, block_of, k, record = got
+            usable = sum(1 for leg in record if leg["fold"] >= 0)
+            if k < folds:
+                note = (f"{k} folds, not {folds} (selection.folds): the training data hold "
+                        f"{counted(usable, 'excursion')} that can be held out")
+            return "excursions", k, None, fold_of, block_of, record, note
+        if hold_out == "excursions":
+            raise ValueError(got)
+        note = f"blocks, not excursions: {got}"
+    dealt = _blocks(pool, times, folds, blocks_per_fold)
+    if dealt is None:
+        return None
+    return "blocks", folds, dealt[2], dealt[0], dealt[1], [], note
+
+
+def validation_stretches(plan: FoldPlan, times: Sequence[np.ndarray]
+                         ) -> tuple[list[int], list[float]]:
+    """Per fold, the score windows of ``plan.window_s`` its validation rows fall into (all of
+    them: before any candidate's domain) and its longest contiguous validation stretch in
+    seconds.  A fold scores the spread of its window means: with one window it has none."""
+    windows = [0] * plan.k
+    longest = [0.0] * plan.k
+    for fo, t in zip(plan.fold_of, times, strict=True):
+        t = np.asarray(t, dtype=np.float64)
+        for f in range(plan.k):
+            tv = t[fo == f]
+            if tv.size == 0:
+                continue
+            windows[f] += int(np.unique(window_labels(tv, plan.window_s)).size)
+            longest[f] = max(longest[f], max(float(tv[s][-1] - tv[s][0])
+                                             for s in contiguous_segments(tv) if tv[s].size))
+    return windows, longest
 
 
 def window_labels(time_s: np.ndarray, window_s: float) -> np.ndarray:

@@ -80,9 +80,10 @@ are paired:
 The gate: the baseline stays until beaten everywhere
 ----------------------------------------------------
 Before the one-SE rule (:data:`GATE_RULE`, :class:`Gate`): per axis the reference is the
-baseline wherever its out-of-fold ratio is below 1, else raw; a candidate replaces it only if
-it was judged on at least :data:`MIN_GATE_FOLDS` folds (on two, 10 % better on each:
-:func:`~thermonet.scoring.gate.clear_on_each`), is lower overall, and its worst fold is
+baseline unless it is worse than raw out of fold (:func:`~thermonet.scoring.gate.gate_axis`),
+then raw; a candidate replaces it only if it was judged on at least :data:`MIN_GATE_FOLDS`
+folds (on two, 10 % better on each: :func:`~thermonet.scoring.gate.clear_on_each`), is
+lower overall, and its worst fold is
 no worse than the reference's worst fold (each fold scored on the windows inside both domains);
 a candidate reading the direction of change (rate, lag, delayed temperature, hysteresis) must
 have been judged on held-out excursions of both directions and is held back where the pool
@@ -122,10 +123,12 @@ from .fold_plan import FoldPlan
 from .gate import (
     GATE_RULE,
     Gate,
+    base_worse_than_raw,
     gate_axis,
     gate_note,
     held_back,
     held_back_record,
+    pp_not_worse_note,
 )
 from .oof_pool import CandidateOOF, Pooled, pool
 from .verdicts import LEVEL, above, below, draws, one_se
@@ -199,6 +202,7 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
                     k_folds: int, *, gate: Gate | None = None,
                     base_own: np.ndarray | None = None,
                     base_mask: Sequence[bool] | None = None,
+                    base_pp: np.ndarray | None = None,
                     directional: set[str] | frozenset[str] = frozenset()
                     ) -> tuple[dict[str, str | None], dict[str, str]]:
     """Each axis its own candidate: the rule of :func:`select`, axis by axis.
@@ -233,9 +237,8 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
             chosen[axis], reason[axis] = None, "no candidate has a finite out-of-fold score"
             base_a = axis_scores.get(baseline or "")
             if base_a is not None and not below(float(base_a[a]), 1.0):
-                reason[axis] = (f"raw: the baseline {baseline} does not beat raw out of fold "
-                                f"({float(base_a[a]):.4g} of raw) and no "
-                                "candidate passes the gate against raw") + note
+                reason[axis] = "raw: " + base_worse_than_raw(
+                    str(baseline), base_a if base_own is None else base_own, base_pp, a) + note
             elif gated:
                 reason[axis] = "raw: no candidate passes the gate against raw" + note
             continue
@@ -269,6 +272,9 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
                             f"{sc[best]:.4g} of raw, {k_folds} folds), with fewer parameters "
                             f"({n_params[pick]} vs {n_params[best]})")
         reason[axis] += note
+    for a, axis in enumerate(outputs):      # the baseline kept by its score, not its guard
+        if base_pp is not None and baseline is not None and chosen[axis] == baseline:
+            reason[axis] += pp_not_worse_note(baseline, float(base_pp[a]))
     return chosen, reason
 
 
@@ -337,7 +343,9 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
     per_axis, per_axis_reason = choose_per_axis(
         sc.axis_scores, sc.axis_boots, {k: c.n_params for k, c in ok.items()}, outputs,
         baseline, plan.k, gate=sc.gate, directional=set(held),
-        base_own=sc.own_ratio.get(baseline or ""), base_mask=sc.compensate.get(baseline or ""))
+        base_own=sc.own_ratio.get(baseline or ""), base_mask=sc.compensate.get(baseline or ""),
+        base_pp=pooled.pp_cand[baseline] / np.where(pooled.pp_raw > 0, pooled.pp_raw, np.nan)
+        if baseline in ok and temperatures is not None else None)
     record["per_axis"] = {"chosen": per_axis, "rule": per_axis_reason,
                           "gate": GATE_RULE if gate else None}
     chosen, tied, reason = _one_se(plan, ok, sc, outputs, baseline, record, held)

@@ -259,24 +259,55 @@ def load_torch_file(path: Path, what: str = "checkpoint") -> Any:
     never with torch's advice to load it again unsafely (``weights_only=False``)."""
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as err:
-        text = str(err)
-        glob = _UNSAFE_GLOBAL.search(text)
-        name = glob.group(1) if glob else _pickle_global(path)
-        if name:
-            raise InputError.at(path, f"not a thermonet {what}: it is a pickle that names "
-                                f"Python code to run or a class to rebuild ({name}), "
-                                f"which a {what} never holds (an unsafe pickle); refused "
-                                "unread, nothing in it was run") from None
-        detail = text.split("WeightsUnpickler error:", 1)[-1].strip().splitlines()
-        detail = [d for d in detail if d.strip() and "weights_only" not in d]
-        raise InputError.at(path, f"not a readable {what} (not a pickle of tensors and plain "
-                            f"data{': ' + detail[0].strip() if detail else ''})") from None
     except Exception as err:  # torch raises several unrelated types for a bad file
-        first = str(err).splitlines()[0] if str(err) else ""
-        first = "" if "weights_only" in first else first
-        raise InputError.at(path, f"not a readable {what} ({type(err).__name__}"
-                            f"{': ' + first if first else ''})") from None
+        raise _refusal(path, what, err) from None
+
+
+def _refusal(path: Path, what: str, err: Exception) -> InputError:
+    """Why torch could not load ``path`` as a ``what``, in one line: an ONNX file said to be
+    one (:func:`_is_onnx`), an unsafe or foreign pickle (:func:`_unreadable`), else torch's
+    first line."""
+    if _is_onnx(path):
+        return InputError.at(path, f"an ONNX file (an exported model), not a thermonet {what}: "
+                             "load the .pt checkpoint it was exported from (compare's "
+                             "models/<label>.pt, DriftEstimator.save), or run the ONNX file "
+                             "with export/thermonet_runtime.py")
+    if isinstance(err, pickle.UnpicklingError):
+        return _unreadable(path, what, err)
+    first = str(err).splitlines()[0] if str(err) else ""
+    first = "" if "weights_only" in first else first
+    return InputError.at(path, f"not a readable {what} ({type(err).__name__}"
+                         f"{': ' + first if first else ''})")
+
+
+def _is_onnx(path: Path) -> bool:
+    """Whether ``path`` is an ONNX model: a protobuf ModelProto's first fields (``ir_version``,
+    a varint: 0x08 and one byte, then ``producer_name``: 0x12), or the name ``.onnx`` on a
+    file that is neither a zip ('PK', torch's format) nor a pickle (0x80)."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(3)
+    except OSError:
+        return False
+    if len(head) == 3 and head[0] == 0x08 and head[1] < 0x80 and head[2] == 0x12:
+        return True
+    return path.suffix.lower() == ".onnx" and not head.startswith((b"PK", b"\x80"))
+
+
+def _unreadable(path: Path, what: str, err: pickle.UnpicklingError) -> InputError:
+    """A pickle torch's safe loader refused, in one line of thermonet's own."""
+    text = str(err)
+    glob = _UNSAFE_GLOBAL.search(text)
+    name = glob.group(1) if glob else _pickle_global(path)
+    if name:
+        return InputError.at(path, f"not a thermonet {what}: it is a pickle that names "
+                             f"Python code to run or a class to rebuild ({name}), "
+                             f"which a {what} never holds (an unsafe pickle); refused "
+                             "unread, nothing in it was run")
+    detail = text.split("WeightsUnpickler error:", 1)[-1].strip().splitlines()
+    detail = [d for d in detail if d.strip() and "weights_only" not in d]
+    return InputError.at(path, f"not a readable {what} (not a pickle of tensors and plain "
+                         f"data{': ' + detail[0].strip() if detail else ''})")
 
 
 def _pickle_global(path: Path) -> str | None:

@@ -267,6 +267,9 @@ def check_families(cfg: CompareConfig, *, source: str = "config", build: bool = 
             raise ConfigError(f"{source}: key '{key}.name': {fam.label[:60]!r} is not a safe "
                               "family name (letters, digits, '_', '.', '-', not starting with "
                               "'.' or '-', at most 64 characters)")
+        if isinstance(fam.inputs, list) and not fam.inputs:   # every model reads one or more
+            raise ConfigError(f"{source}: key '{key}.inputs': an empty list; name at least one "
+                              "input (such as [dT]), or leave the key out for [dT]")
         if len(set(fam.inputs)) != len(fam.inputs):
             raise ConfigError(f"{source}: key '{key}.inputs': {fam.inputs} names an input twice")
         from_dict(TrainConfig, {**to_dict(cfg.train), **fam.train}, source=source,

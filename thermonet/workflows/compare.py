@@ -96,7 +96,7 @@ def compare_result(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool =
                    track: bool | None = None, tracking_uri: str | None = None,
                    quiet: bool = False, progress: Progress | None = None,
                    dataset: Dataset | None = None, plots: bool = True,
-                   workers: int | None = None) -> Outcome:
+                   workers: int | None = None, command: str = "compare") -> Outcome:
     """Fit every family of ``cfg``, judge on held-out data, write ``out_dir``; return the
     typed result (:class:`~thermonet.reporting.results.ComparisonResult`; ``model: sensor``:
     its ``results.json`` document, a dict).
@@ -104,6 +104,7 @@ def compare_result(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool =
     ``dataset`` replaces the configured data (benchmarks feed variants of one
     simulation this way); the config's ``data`` section is then ignored.
     ``plots=False`` writes no PNG files (the report then has no figures).
+    ``command``: the command the progress banner names (``thermonet train: …``).
     ``workers`` overrides the config's ``workers`` (families fitted side by side,
     :func:`family_workers`); ``workers=1`` also draws the figures in this process (else
     two child processes draw them, :mod:`thermonet.reporting.plot_workers`).
@@ -129,7 +130,8 @@ def compare_result(cfg: CompareConfig, out_dir: str | Path, *, overwrite: bool =
         "thermonet.training.loader", "load_compare_data",
         {"cfg": cfg, "source": getattr(cfg, "_source", "config")})
     options = RunOptions(track=track, tracking_uri=tracking_uri, quiet=quiet,
-                         progress=progress, dataset=dataset, plots=plots, workers=workers)
+                         progress=progress, dataset=dataset, plots=plots, workers=workers,
+                         command=command)
     with PlotWorkers(min(2, usable_cores()) if plots and not one_process else 0,
                      first=first) as drawers:
         from ..training.train import thread_limits  # torch boundary
@@ -194,7 +196,7 @@ class _BiasSteps:
                               dataset=o.dataset,
                               options={"track": o.track, "tracking_uri": o.tracking_uri,
                                        "workers": o.workers, "plots": o.plots},
-                              reader=self.drawers)
+                              reader=self.drawers, command=o.command)
 
     def fit(self) -> None:
         self.fitted, self.records = _fit_step(self.run, self.o.workers)
@@ -243,7 +245,7 @@ class _Run:
 
 def _plan_step(cfg: CompareConfig, out: Path, tracking: TrackingSession, progress: Progress,
                *, dataset: Dataset | None, options: dict[str, Any],
-               reader: PlotWorkers | None = None) -> _Run:
+               reader: PlotWorkers | None = None, command: str = "compare") -> _Run:
     """Plan (data, targets, splits; :func:`plan`), the result's frame, the provenance, and
     the MLflow runs asked for (their ids are needed by the checkpoints); the data as the
     helper read it where ``reader`` was given that first call (read here if it could not)."""
@@ -279,7 +281,7 @@ def _plan_step(cfg: CompareConfig, out: Path, tracking: TrackingSession, progres
     if cfg.tracking.register is not None and not tracking.enabled:  # off for this run only
         result.warn(f"tracking.register {cfg.tracking.register!r} is ignored: tracking is off "
                     f"for this comparison (--no-track), so no model is registered")
-    progress.line(f"thermonet compare: {ds.device_id} ({counted(len(ds), 'run')}, outputs "
+    progress.line(f"thermonet {command}: {ds.device_id} ({counted(len(ds), 'run')}, outputs "
                   f"{', '.join(p.outputs)}), split {result.split['strategy']}")
     _note_streamed(cfg, ds, result, progress)
     tracking.open(f"compare-{ds.device_id}", resolved, tags, [

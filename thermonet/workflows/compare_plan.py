@@ -8,6 +8,7 @@ each family is fitted on are built once and shared (:class:`PartCache`).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +22,7 @@ from ..data.diagnostics import input_warnings
 from ..features.dynamics import RATE_TAU_S, dynamic_signals, input_set_warnings
 from ..features.inputs import dynamic_signal, signals_for
 from ..features.target import Target, output_units
-from ..scoring.fold_plan import plan_folds
+from ..scoring.fold_plan import plan_folds, validation_stretches, window_rule
 from ..training.config import (
     CompareConfig,
     check_families,
@@ -237,19 +238,60 @@ def _fold_plan(cfg: CompareConfig, splits: list[Split], source: str = "config"
               default=0.0)
     # the folds look like the test: whole runs left out where the test is a run of its own,
     # blocks inside the runs where the test is blocks inside them (a time-block split)
+    pool = splits[-1].pool
+    plan_of = functools.partial(
+        plan_folds, pool, folds=sel.folds, blocks_per_fold=sel.blocks_per_fold, tau_s=tau,
+        window_s=sel.window_s, by_run=splits[-1].label != "time-blocks",
+        hold_out=sel.hold_out, gate=sel.gate,
+        temperatures=[_thermal_signal(cfg, r) for r, _ in pool])
+    # a purge the user set (or a window, which the purge follows) that leaves too little
+    # training data where the rule's would not is the config's doing: said by its key, not
+    # as a fallback to the validation part
+    key = "purge_s" if sel.purge_s else "window_s" if sel.window_s is not None else ""
+    ruled = None
     try:
-        plan = plan_folds(splits[-1].pool, folds=sel.folds,
-                          blocks_per_fold=sel.blocks_per_fold, tau_s=tau, purge_s=sel.purge_s,
-                          window_s=sel.window_s, by_run=splits[-1].label != "time-blocks",
-                          hold_out=sel.hold_out, gate=sel.gate,
-                          temperatures=[_thermal_signal(cfg, r) for r, _ in splits[-1].pool])
+        plan = plan_of(purge_s=sel.purge_s)
+        if plan is None and key:
+            ruled = plan_of(**({"purge_s": None} if key == "purge_s" else
+                               {"purge_s": sel.purge_s, "window_s": None}))
     except ValueError as err:     # hold_out: excursions, and the data hold none to hold out
         raise ConfigError(f"{source}: key 'selection.hold_out': excursions, but the training "
                           f"data hold {err}") from None
+    if ruled is not None:
+        _refuse_windows(sel, ruled, pool, source, purged=key)
     if plan is None:
         return None, (f"too little training data for {sel.folds} cross-validation folds: "
                       "chosen on the split's validation part")
+    if sel.window_s is not None:
+        _refuse_windows(sel, plan, pool, source)
     return plan, ""
+
+
+def _refuse_windows(sel: Any, plan: Any, pool: list[Any], source: str,
+                    purged: str = "") -> None:
+    """One line naming ``selection.purge_s`` or ``selection.window_s`` where the value set
+    leaves a fold too little training data (``purged``: that key; ``plan``: the folds by the
+    rule in its place, which could be made) or too few score windows (two or more in every
+    fold: a fold scores the spread of its window means), with what the data hold."""
+    windows, longest = validation_stretches(plan, [r.time_s for r, _ in pool])
+    rate = float(np.median([r.effective_rate_hz for r, _ in pool]))
+    hold = (f"the longest validation stretch of each of the {plan.k} folds: "
+            + ", ".join(f"{x:.6g}" for x in longest) + " s")
+    if purged == "purge_s":
+        raise ConfigError(
+            f"{source}: key 'selection.purge_s': {sel.purge_s:g} s purged on each side of every "
+            f"validation stretch leaves too little training data for {plan.k} "
+            f"cross-validation folds ({hold}); use a shorter purge, or remove the key "
+            "(the rule: max(3 τ, window_s))")
+    if purged or min(windows) < 2:
+        why = ("purged on each side of every validation stretch (the purge follows the "
+               f"window) leave too little training data for {plan.k} cross-validation folds"
+               if purged else "are longer than the validation data hold: a fold's score is "
+               "the spread of two or more window means")
+        raise ConfigError(
+            f"{source}: key 'selection.window_s': {sel.window_s:g} s windows {why} ({hold}); "
+            f"use at most {min(longest) / 2:.6g} s, or remove the key (the rule gives "
+            f"{window_rule(rate, plan.block_s):g} s here)")
 
 
 def data_summary(ds: Dataset) -> list[dict[str, Any]]:

@@ -41,6 +41,9 @@ class RunOptions:
     dataset: Dataset | None = None
     plots: bool = True
     workers: int | None = None
+    #: the command that asked (``compare``, ``train``): the banner's first word after
+    #: ``thermonet``
+    command: str = "compare"
 
 
 class Steps(Protocol):
