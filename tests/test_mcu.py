@@ -378,18 +378,19 @@ def test_emulated_fast_exp_fused_within_its_documented_error(tmp_path):
 
 # ------------------------------------------------------------------ the README's example
 README_EXAMPLE = r"""#include "thermonet_model.h"      /* thermonet export runs/demo --format c --out ... */
-
+#define COUNTS_PER_UNIT ((thermonet_real_t)16.4)  /* per unit of THERMONET_AXIS_UNITS */
 static thermonet_state tc;        /* thermonet_init(&tc) once, at start-up */
-
-void imu_sample(uint64_t t_us, float temp_c, const int32_t counts[THERMONET_N_AXES],
-                float out[THERMONET_N_AXES])
+/* 0; 1 out of range (no temperature: out[] NaN); -1 a refused sample (out[] NaN) */
+int imu_sample(uint64_t t_us, float temp_c, const int32_t counts[THERMONET_N_AXES],
+               float out[THERMONET_N_AXES])
 {
     thermonet_real_t raw[THERMONET_N_AXES], comp[THERMONET_N_AXES], drift[THERMONET_N_AXES];
-    int a, out_of_range;
-    for (a = 0; a < THERMONET_N_AXES; ++a) raw[a] = (thermonet_real_t)counts[a];
-    if (thermonet_step(&tc, THERMONET_TIME_FROM_US(t_us), temp_c, raw, comp, drift,
-                       &out_of_range) == 0)
-        for (a = 0; a < THERMONET_N_AXES; ++a) out[a] = (float)comp[a];
+    int a, out_of_range, ret;
+    for (a = 0; a < THERMONET_N_AXES; ++a) raw[a] = (thermonet_real_t)counts[a] / COUNTS_PER_UNIT;
+    ret = thermonet_step(&tc, THERMONET_TIME_FROM_US(t_us), temp_c, raw, comp, drift,
+                         &out_of_range);
+    for (a = 0; a < THERMONET_N_AXES; ++a) out[a] = (float)comp[a];
+    return ret < 0 ? -1 : out_of_range;
 }
 """
 
@@ -404,8 +405,8 @@ def test_readme_example_builds_for_every_target(models, tmp_path):
     (tmp_path / "thermonet_model.h").write_text(render_c_header(model))
     src = tmp_path / "driver.c"
     src.write_text(README_EXAMPLE.replace(
-        "void imu_sample(", "void imu_sample(uint64_t t_us, float temp_c, "
-        "const int32_t counts[THERMONET_N_AXES], float out[THERMONET_N_AXES]);\nvoid imu_sample(",
+        "int imu_sample(", "int imu_sample(uint64_t t_us, float temp_c, "
+        "const int32_t counts[THERMONET_N_AXES], float out[THERMONET_N_AXES]);\nint imu_sample(",
         1))
     tools = toolchain()
     strict = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wshadow", "-Wdouble-promotion",
