@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -230,17 +231,24 @@ def test_prior_with_a_short_test_and_a_station_through_it(tmp_path: Path,
     assert "from their points (at " in out and "not the same test)" in out
 
 
-def test_too_few_pilot_units_are_refused_with_their_count() -> None:
-    from thermonet.core.recording import Dataset
+def _twelve_units() -> tuple[Any, Any]:
+    """A config and 12 simulated units' 3-soak calibrations (a prior's data)."""
     from thermonet.sim import simulate_fleet
     from thermonet.training.config import config_from_mapping
-    from thermonet.workflows.station_prior import build_prior
 
     cfg = config_from_mapping({"data": {"preset": "consumer-imu"},
                                "target": {"gyro": "zero", "acc": "at-t-ref"},
                                "features": {"t_ref": 25.0}}, source="c.yaml")
-    ds = simulate_fleet("consumer-imu", units=12, seed=0, test="soaks:-20,25,75",
-                        sample_rate_hz=0.2)
+    return cfg, simulate_fleet("consumer-imu", units=12, seed=0, test="soaks:-20,25,75",
+                               sample_rate_hz=0.2)
+
+
+def test_too_few_pilot_units_are_refused_with_their_count() -> None:
+    from thermonet.core.recording import Dataset
+    from thermonet.sim import simulate_fleet
+    from thermonet.workflows.station_prior import build_prior
+
+    cfg, ds = _twelve_units()
     short = simulate_fleet("consumer-imu", units=12, seed=0, test="cycle:-20,75,10",
                            unit_indices=list(range(4)))
     with pytest.raises(InputError, match="the short tests hold 4 units of the prior's 1[0-2] "
@@ -263,14 +271,9 @@ def test_a_pilot_unit_on_another_test_is_left_out_of_the_map() -> None:
 def test_a_short_test_in_other_units_than_the_calibration_is_refused() -> None:
     from thermonet.core.recording import Dataset
     from thermonet.sim import simulate_fleet
-    from thermonet.training.config import config_from_mapping
     from thermonet.workflows.station_prior import build_prior
 
-    cfg = config_from_mapping({"data": {"preset": "consumer-imu"},
-                               "target": {"gyro": "zero", "acc": "at-t-ref"},
-                               "features": {"t_ref": 25.0}}, source="c.yaml")
-    ds = simulate_fleet("consumer-imu", units=12, seed=0, test="soaks:-20,25,75",
-                        sample_rate_hz=0.2)
+    cfg, ds = _twelve_units()
     runs = list(simulate_fleet("consumer-imu", units=12, seed=0, test="cycle:-20,75,10"))
     runs[0].units = {**runs[0].units, "gyro_x": "rad/s"}
     with pytest.raises(InputError, match=r"unit 'consumer-imu-u000': its short test's gyro_x "
