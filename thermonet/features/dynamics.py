@@ -83,7 +83,7 @@ from ..core.recording import GAP_FACTOR
 from .recurrences import lag_error, play_state
 
 __all__ = ["RATE_TAU_S", "DEFAULT_GAP_S", "GAP_FACTOR", "TimeError", "DynamicInput", "Rate",
-           "Lag", "Delayed", "Play", "INPUTS", "input_forms", "register_input", "compute", "DynamicStream",
+           "Lag", "Delayed", "Play", "INPUTS", "register_input", "compute", "DynamicStream",
            "parse_dynamic", "is_dynamic", "check_time",
            "dynamic_signals", "default_gap_s", "constants", "from_constants",
            "saturation_margin", "input_set_warnings",
@@ -256,22 +256,6 @@ register_input(Rate, default=RATE_TAU_S)
 register_input(Lag)
 register_input(Delayed)
 register_input(Play)
-
-
-#: How a kind's constant is written in :func:`input_forms` (``lag_<tau>``, ``play_<w>``).
-_PLACEHOLDERS = {"tau_s": "tau", "half_width_c": "w"}
-
-
-def input_forms() -> list[str]:
-    """Every dynamic input's name forms, from the registry (:data:`INPUTS`, so a kind
-    registered later is listed too): ``rate``, ``rate_<tau>``, ``lag_<tau>``,
-    ``delayed_<tau>``, ``play_<w>`` — what an error listing the valid inputs names."""
-    out = []
-    for kind, (cls, default) in INPUTS.items():
-        if default is not None:
-            out.append(kind)
-        out.append(f"{kind}_<{_PLACEHOLDERS.get(cls.param_key, cls.param_key)}>")
-    return out
 
 
 def parse_dynamic(name: str) -> DynamicInput | None:

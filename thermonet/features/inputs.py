@@ -103,10 +103,27 @@ def parse_feature(name: str) -> tuple[str, bool, bool]:
     raise ConfigError(f"unknown model input '{name}' (valid: {', '.join(valid_inputs())})")
 
 
+#: How a dynamic kind's constant is written in :func:`_dynamic_forms` (``lag_<tau>``, ``play_<w>``).
+_PLACEHOLDERS = {"tau_s": "tau", "half_width_c": "w"}
+
+
+def _dynamic_forms() -> list[str]:
+    """Every dynamic input's name forms, from the registry (:data:`~thermonet.features.
+    dynamics.INPUTS`, so a kind registered later is listed too): ``rate``, ``rate_<tau>``,
+    ``lag_<tau>``, ``delayed_<tau>``, ``play_<w>`` — what an error listing the valid inputs
+    names."""
+    out = []
+    for kind, (cls, default) in dynamics.INPUTS.items():
+        if default is not None:
+            out.append(kind)
+        out.append(f"{kind}_<{_PLACEHOLDERS.get(cls.param_key, cls.param_key)}>")
+    return out
+
+
 def valid_inputs() -> list[str]:
     """Every form a model input may take, from one source: the temperature features, the
-    dynamic inputs' registry (:func:`thermonet.features.dynamics.input_forms`), a proxy's."""
-    return [*_TEMPERATURE_FEATURES, *dynamics.input_forms(), "d_<proxy>", "d_<proxy>2"]
+    dynamic inputs' registry (:func:`_dynamic_forms`), a proxy's."""
+    return [*_TEMPERATURE_FEATURES, *_dynamic_forms(), "d_<proxy>", "d_<proxy>2"]
 
 
 def signals_for(inputs: Iterable[str]) -> list[str]:
