@@ -119,18 +119,23 @@ def test_cli_info_streams_a_thermonet_parquet_file(recording, capsys):
     assert "--chunk-rows must be >= 1, got 0" in capsys.readouterr().err
 
 
-def test_a_file_the_whole_reader_refuses_is_refused_with_the_same_line(tmp_path):
-    """Dataset-level checks (here: a temperature span below the minimum) run on the chunked
-    pass's per-run extremes and channels: the same one line as the whole-file reader."""
+def test_a_span_too_small_for_a_model_is_summarised_and_said(tmp_path, capsys):
+    """A temperature span below what a model needs: the whole-file reader (what compare
+    reads) refuses it in one line; ``info`` summarises the file — checking a file is what it
+    is for — and says in a warning what compare would refuse (was: info refused it too)."""
     soak = _run("soak", 0.002, 20.0, 4, 10.0)
     soak.temperature_c = 20.0 + 0.01 * np.sin(np.arange(soak.n_samples) / 100.0)
     path = write_parquet(Dataset(runs=[soak]), tmp_path / "soak.parquet")
     with pytest.raises(InputError) as whole:
         read_dataset(path)
-    with pytest.raises(InputError) as chunked:
-        summarize_parquet(path, chunk_rows=1000)
-    assert "temperature spans only" in str(whole.value)
-    assert str(chunked.value) == str(whole.value)
+    assert "temperature spans only 0.02 °C over all runs" in str(whole.value)
+    got = summarize_parquet(path, chunk_rows=1000)
+    assert got["runs"][0]["samples"] == soak.n_samples
+    assert got["warnings"][-1] == (
+        "the temperature spans only 0.02 °C over all runs: a model needs at least 1 °C "
+        "(compare and train refuse these data; load several soaks together)")
+    assert main(["info", str(path)]) == 0
+    assert "warning: the temperature spans only 0.02 °C" in capsys.readouterr().out
 
 
 def test_convert_a_csv_once_then_read_it_in_chunks(tmp_path, capsys):

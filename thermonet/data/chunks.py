@@ -266,12 +266,15 @@ def run_times(layout: Layout, chunk_rows: int = DEFAULT_CHUNK_ROWS) -> list[RunT
 
 
 def validate_layouts(layouts: Sequence[Layout],
-                     temperature: Sequence[tuple[float, float] | None]) -> None:
+                     temperature: Sequence[tuple[float, float] | None], *,
+                     min_span_c: float | None = None) -> None:
     """``Dataset.validate`` on a skeleton of every run of ``layouts`` — its channels, units
     and metadata with ``MIN_SAMPLES`` placeholder samples whose temperature spans the run's
     own extremes (``temperature``, per run) — so files the whole-file reader refuses (runs
     that differ in channels or units, too little temperature span) are refused with the
-    same line without holding their samples."""
+    same line without holding their samples.  ``min_span_c``: the span asked of the runs
+    together (None: a model's, :data:`~thermonet.core.recording.MIN_TEMPERATURE_SPAN_C`;
+    ``info`` asks none: it summarises what a model could not fit, and says so)."""
     k = MIN_SAMPLES
     skeleton = []
     entries = [(lay, e) for lay in layouts for e in lay.runs]
@@ -292,7 +295,10 @@ def validate_layouts(layouts: Sequence[Layout],
         for key, v in lay.meta.items():
             meta.setdefault(key, v)
     source = str(layouts[0].path) if len(layouts) == 1 else ""
-    Dataset(runs=skeleton, meta=meta).validate(source)
+    if min_span_c is None:
+        Dataset(runs=skeleton, meta=meta).validate(source)
+    else:
+        Dataset(runs=skeleton, meta=meta).validate(source, min_span_c=min_span_c)
 
 
 def _streamed_schema(layouts: Sequence[Layout], entries: list[dict[str, Any]],

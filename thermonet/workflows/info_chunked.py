@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.recording import MIN_SAMPLES
+from ..core.recording import MIN_SAMPLES, MIN_TEMPERATURE_SPAN_C
 from ..data.chunk_base import Layout
 from ..data.chunks import (
     DEFAULT_CHUNK_ROWS,
@@ -180,8 +180,9 @@ def _summarize(layouts: list[Layout], *, bin_c: float, chunk_rows: int) -> dict[
         if e["temperature"]:
             _bin_drift(bins, piece, e, bin_c)
     _check_counts(runs, layouts)
-    validate_layouts(layouts, [(r.lo["temperature_c"], r.hi["temperature_c"])
-                               if r.entry["temperature"] else None for r in runs])
+    spans = [(r.lo["temperature_c"], r.hi["temperature_c"]) if r.entry["temperature"]
+             else None for r in runs]
+    validate_layouts(layouts, spans, min_span_c=0.0)   # a span too small is said, not refused
     channels = [{"name": n, "role": "time" if n == "time_s" else
                  ("proxy" if any(n in e["proxies"] for e in entries) else channel_role(n)),
                  "unit": units[n]} for n in names]
@@ -203,6 +204,7 @@ def _summarize(layouts: list[Layout], *, bin_c: float, chunk_rows: int) -> dict[
         peaks = {k: r.peak[k] for g in ("outputs", "references", "proxies") for k in e[g]}
         warnings += run_warnings(f"run '{e['run_id']}'", e["meta"], e["units"], span, peaks,
                                  r.t1 - r.t0, r.rate_hz())
+    warnings += _span_warning(spans)
     outputs = _output_rows(runs, bins, units, has_temp)
     t_rows = [r for r in run_rows if r["temperature_min_c"] is not None]
     t_range = [min(r["temperature_min_c"] for r in t_rows),
@@ -272,3 +274,16 @@ def _num(x: float) -> float | None:
     x = float(x)
     return x if math.isfinite(x) else None
 
+
+def _span_warning(spans: list[tuple[float, float] | None]) -> list[str]:
+    """The line a temperature span too small for a model gets (``compare`` refuses such
+    data: :meth:`~thermonet.core.recording.Dataset.validate`); ``info`` summarises it."""
+    got = [s for s in spans if s is not None]
+    if not got or len(got) != len(spans):
+        return []
+    span = max(s[1] for s in got) - min(s[0] for s in got)
+    if span >= MIN_TEMPERATURE_SPAN_C:
+        return []
+    return [f"the temperature spans only {span:.3g} °C over all runs: a model needs at least "
+            f"{MIN_TEMPERATURE_SPAN_C:g} °C (compare and train refuse these data; load several "
+            "soaks together)"]
