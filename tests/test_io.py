@@ -229,3 +229,14 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path):
     with pytest.raises(InputError, match="is a directory"):
         write_parquet(_dataset(), tmp_path / "dir.parquet")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dir.parquet", "out.parquet"]
+
+
+def test_a_dataset_prints_one_line_per_run_not_its_arrays():
+    """``print(thermonet.read(...))`` said every array of every run (a new user's pass)."""
+    ds = _dataset()
+    text = repr(ds)
+    assert text.splitlines()[0] == f"Dataset({len(ds)} runs"
+    assert len(text.splitlines()) == len(ds) + 1 and "array(" not in text
+    first = ds[0]
+    assert repr(first).startswith(f"Recording(run '{first.run_id}' of unit "
+                                  f"'{first.device_id}', {first.n_samples} samples")

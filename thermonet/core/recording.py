@@ -277,6 +277,14 @@ class Recording:
                                     column="temperature_c")
         return self
 
+    def __repr__(self) -> str:
+        """One line, not every array (``print(thermonet.read(...))``)."""
+        t = self.temperature_c
+        span = "" if t is None or not np.isfinite(t).any() else \
+            f", {np.nanmin(t):.4g}..{np.nanmax(t):.4g} °C"
+        return (f"Recording(run '{self.run_id}' of unit '{self.device_id}', {self.n_samples} "
+                f"samples{span}, outputs {', '.join(self.outputs) or 'none'})")
+
     # ------------------------------------------------------------ properties
     @property
     def n_samples(self) -> int:
@@ -349,6 +357,11 @@ class Dataset:
                 where = f" of unit '{r.device_id}'" if self.is_fleet else ""
                 raise InputError(f"duplicate run id '{r.run_id}'{where} in dataset")
             seen.add((r.device_id, r.run_id))
+
+    def __repr__(self) -> str:
+        """One line per run, not every array (``print(thermonet.read(...))``)."""
+        return (f"Dataset({len(self.runs)} run{'s' if len(self.runs) != 1 else ''}"
+                + "".join(f"\n  {r!r}" for r in self.runs) + ")")
 
     def __iter__(self) -> Iterator[Recording]:
         return iter(self.runs)
