@@ -323,3 +323,26 @@ def test_where_no_helper_process_can_be_had_the_command_tracks_itself(tmp_path, 
     finally:
         mlflow.set_tracking_uri(None)
     assert list(Path(local).glob("*.onnx"))
+
+
+def test_the_shipped_per_axis_models_figures_go_on_the_parent_run(tmp_path):
+    """A per-axis model has no run of its own: its held-out figures (every number of its axes'
+    records in results.json) go on the comparison's run as ``shipped/test/<axis>/<metric>``,
+    readable from a real store like a family's ``test/<axis>/<metric>`` (a new user's pass:
+    the parent had only cv/*/score)."""
+    from thermonet.workflows.compare_track import shipped_metrics
+
+    doc = {"chosen": "per-axis", "families": {"per-axis": {"axes": {
+        "gyro_x": {"score_ratio": 0.5, "rms_comp": 0.02, "verdict": "better", "compensate": True,
+                   "interval": [0.4, 0.6]},
+        "gyro_y": {"score_ratio": 1.0, "rms_comp": 0.03, "compensate": False}}}}}
+    got = shipped_metrics(doc)
+    assert got == {"shipped/test/gyro_x/score_ratio": 0.5, "shipped/test/gyro_x/rms_comp": 0.02,
+                   "shipped/test/gyro_y/score_ratio": 1.0, "shipped/test/gyro_y/rms_comp": 0.03}
+    assert shipped_metrics({"families": {"cubic": {}}}) == {}
+    uri = f"sqlite:///{tmp_path / 'm.db'}"
+    tr = Tracker(uri=uri, experiment="t")
+    with tr.run("compare", params={}) as rid:
+        tr.log_metrics(got)
+    logged = mlflow.tracking.MlflowClient(tracking_uri=uri).get_run(rid).data.metrics
+    assert logged == got

@@ -56,7 +56,7 @@ from ..models.registry import PER_AXIS
 from ..tracking import HOST_TAG, PID_TAG, Tracker, _retry, end_runs_of, flatten_params
 
 __all__ = ["TrackingFailed", "TrackingSession", "family_record", "log_chosen_model",
-           "open_runs", "log_runs", "finish_runs", "prewarm"]
+           "open_runs", "log_runs", "finish_runs", "prewarm", "shipped_metrics"]
 
 #: The module whose functions the worker runs (by name: the command need not import them).
 _HERE = __name__
@@ -73,6 +73,15 @@ def family_record(fitted: bool, history: list[Mapping[str, Any]] | None,
     per-epoch ``history``, the final ``metrics`` and the ``checkpoint`` file (``model/``)."""
     return {"fitted": fitted, "history": list(history or []), "metrics": dict(metrics),
             "checkpoint": checkpoint}
+
+
+def shipped_metrics(doc: Mapping[str, Any]) -> dict[str, float]:
+    """The shipped per-axis model's held-out figures for the parent run,
+    ``shipped/test/<axis>/<metric>``: it has no run of its own, where each family's are on
+    its run as ``test/<axis>/<metric>`` (every number of its axes' records in results.json)."""
+    axes = ((doc.get("families") or {}).get(PER_AXIS) or {}).get("axes") or {}
+    return {f"shipped/test/{a}/{k}": float(v) for a, m in axes.items() for k, v in m.items()
+            if isinstance(v, (int, float)) and not isinstance(v, bool)}
 
 
 class _InCommand:
@@ -247,6 +256,7 @@ class _Runs:
             if doc.get("chosen") == PER_AXIS else None
         if per_axis:
             tr.log_artifact(per_axis, "model")
+            tr.log_metrics(shipped_metrics(doc))
         tr.log_metrics({f"cv/{k}/score": c["score"] for k, c in
                         (doc.get("selection") or {}).get("candidates", {}).items()
                         if "score" in c})
