@@ -1353,26 +1353,34 @@ def _csv_header(path: Path, first: list[str]) -> list[str]:
     return header
 
 
+def _row(i: int, lines: Sequence[int]) -> str:
+    """Data row ``i`` (0-based) as thermonet's readers name a row: the 1-based data row and
+    the file line it starts on (blank lines are skipped, a header is line 1)."""
+    return f"row {i + 1} (file line {lines[i]})"
+
+
 def _read_csv(
     path: Path, needed: list[str]
-) -> tuple[list[str], list[list[str]], dict[str, np.ndarray]]:
-    rows = list(csv.reader(_csv_text(path).splitlines()))
+) -> tuple[list[str], list[list[str]], dict[str, np.ndarray], list[int]]:
+    reader = csv.reader(_csv_text(path).splitlines())
+    rows = [(reader.line_num, r) for r in reader]   # the line a row ends on: one line each
     if not rows:
         raise RuntimeInputError(f"{path}: empty file (expected a header row)")
-    header = _csv_header(path, rows[0])
-    body = [r for r in rows[1:] if any(c.strip() for c in r)]
+    header = _csv_header(path, rows[0][1])
+    kept = [(n, r) for n, r in rows[1:] if any(c.strip() for c in r)]
+    body, lines = [r for _, r in kept], [n for n, _ in kept]
     for name in needed:
         if name not in header:
             raise RuntimeInputError(f"{path}: missing column '{name}' (needs {', '.join(needed)})")
     for i, row in enumerate(body):
         # a trailing separator gives an empty extra cell; anything more is a misaligned row
         if len(row) > len(header) and any(c.strip() for c in row[len(header):]):
-            raise RuntimeInputError(f"{path}: row {i + 2}: {len(row)} cells, the header has "
-                                    f"{len(header)}")
+            raise RuntimeInputError(f"{path}: {_row(i, lines)}: {len(row)} cells, the header "
+                                    f"has {len(header)}")
         if len(row) < len(header):  # a missing sample is an empty cell, never a short row
-            raise RuntimeInputError(f"{path}: row {i + 2}: {len(row)} cells, the header has "
-                                    f"{len(header)}: a truncated row (write an empty cell for "
-                                    "a missing sample)")
+            raise RuntimeInputError(f"{path}: {_row(i, lines)}: {len(row)} cells, the header "
+                                    f"has {len(header)}: a truncated row (write an empty cell "
+                                    "for a missing sample)")
         del row[len(header):]
     cols: dict[str, np.ndarray] = {}
     for name in needed:
@@ -1383,11 +1391,10 @@ def _read_csv(
             try:
                 values[i] = parse_number(row[j])
             except ValueError as exc:
-                # row numbers as a spreadsheet shows them: header is row 1
-                raise RuntimeInputError(f"{path}: column '{name}', row {i + 2}: "
+                raise RuntimeInputError(f"{path}: column '{name}', {_row(i, lines)}: "
                                         f"{exc}") from None
         cols[name] = values
-    return header, body, cols
+    return header, body, cols, lines
 
 
 class _Stopped(BaseException):
@@ -1469,7 +1476,8 @@ def _temperature_warning(path: Path, temp: np.ndarray) -> str | None:
 RUN_COLUMN = "run"
 
 
-def _run_slices(path: Path, header: list[str], body: list[list[str]]) -> list[slice]:
+def _run_slices(path: Path, header: list[str], body: list[list[str]], lines: Sequence[int]
+                ) -> list[slice]:
     """The rows of each run, in file order: consecutive rows with the same :data:`RUN_COLUMN`
     cell (all rows, one run, in a file without that column).  A run whose rows are not
     together is refused, naming the row where it comes back."""
@@ -1485,9 +1493,9 @@ def _run_slices(path: Path, header: list[str], body: list[list[str]]) -> list[sl
             continue
         if ids[start] in first:
             raise RuntimeInputError(
-                f"{path}: column '{RUN_COLUMN}', row {start + 2}: run {ids[start]!r} again (its "
-                f"rows began at row {first[ids[start]] + 2}); a run's rows must be together — "
-                "the state restarts at each run")
+                f"{path}: column '{RUN_COLUMN}', {_row(start, lines)}: run {ids[start]!r} again "
+                f"(its rows began at {_row(first[ids[start]], lines)}); a run's rows must be "
+                "together — the state restarts at each run")
         first[ids[start]] = start
         out.append(slice(start, i))
         start = i
@@ -1495,7 +1503,7 @@ def _run_slices(path: Path, header: list[str], body: list[list[str]]) -> list[sl
 
 
 def _compensate_runs(comp: Compensator, path: Path, runs: list[slice], raw: np.ndarray,
-                     given: Mapping[str, np.ndarray]) -> Compensation:
+                     given: Mapping[str, np.ndarray], lines: Sequence[int]) -> Compensation:
     """:meth:`Compensator.compensate` on each run's rows (each a sequence of its own: the
     state starts afresh at its first row), the results joined in file order; a time that is
     not finite and increasing within a run is refused naming its column and row."""
@@ -1505,10 +1513,10 @@ def _compensate_runs(comp: Compensator, path: Path, runs: list[slice], raw: np.n
         if "time_s" in sub:
             try:
                 _check_time(sub["time_s"])
-            except RuntimeInputError as exc:  # name the column and the row as a spreadsheet does
+            except RuntimeInputError as exc:  # name the column and the row
                 k = rows.start + int(str(exc).split("sample ", 1)[1].split(":", 1)[0])
                 reason = str(exc).split(": ", 2)[-1]
-                raise RuntimeInputError(f"{path}: column 'time_s', row {k + 2}: "
+                raise RuntimeInputError(f"{path}: column 'time_s', {_row(k, lines)}: "
                                         f"{reason}") from None
         parts.append(comp.compensate(raw=raw[rows], **sub))
     if len(parts) == 1:
@@ -1550,12 +1558,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         _refuse_inputs(args.out, tmp, [args.model, args.input])
         _check_out(args.out)
         comp = Compensator(args.model, threads=args.threads)
-        header, body, cols = _read_csv(args.input, comp.needs + comp.outputs)
+        header, body, cols, lines = _read_csv(args.input, comp.needs + comp.outputs)
         raw = np.stack([cols[a] for a in comp.outputs], axis=1) if body else \
             np.zeros((0, len(comp.outputs)))
         given = {s: cols[s] for s in comp.needs}
-        res = _compensate_runs(comp, args.input, _run_slices(args.input, header, body), raw,
-                               given)
+        res = _compensate_runs(comp, args.input, _run_slices(args.input, header, body, lines),
+                               raw, given, lines)
         # the residual-drift band where the file carries one (metadata 'band'): per axis, the
         # half-width at the row's band signal — how far the compensated value may still be off
         band = res.band

@@ -214,12 +214,12 @@ def test_cli_bad_input_exits_1(model_path, tmp_path):
     src.write_text("temperature_c,gyro_x,gyro_y,gyro_z\n20,0,0,0\nhot,0,0,0\n")
     proc = _run_cli(str(model_path), str(src), "--out", str(tmp_path / "o.csv"))
     assert proc.returncode == 1
-    assert "column 'temperature_c', row 3: not a number 'hot'" in proc.stderr
+    assert "column 'temperature_c', row 2 (file line 3): not a number 'hot'" in proc.stderr
     assert not (tmp_path / "o.csv").exists()
     # a misaligned row (more cells than the header) and an output fed back in are refused
     src.write_text("temperature_c,gyro_x,gyro_y,gyro_z\n20,0,0,0,\n21,0,0,0,5\n")
     proc = _run_cli(str(model_path), str(src), "--out", str(tmp_path / "o.csv"))
-    assert proc.returncode == 1 and "row 3: 5 cells, the header has 4" in proc.stderr
+    assert proc.returncode == 1 and "row 2 (file line 3): 5 cells, the header has 4" in proc.stderr
     src.write_text("temperature_c,gyro_x,gyro_y,gyro_z,gyro_x_comp\n20,0,0,0,1\n")
     proc = _run_cli(str(model_path), str(src), "--out", str(tmp_path / "o.csv"))
     assert proc.returncode == 1 and "already has output column(s) ['gyro_x_comp']" in proc.stderr
@@ -332,9 +332,9 @@ def test_a_multi_run_csv_restarts_the_state_at_each_run(tmp_path, capsys):
     capsys.readouterr()
     assert rt.main([str(model), str(on), "--out", str(out)]) == 1
     err = capsys.readouterr().err.strip()
-    assert err == (f"thermonet_runtime: {on}: column 'run', row 6: run 'run0' again (its rows "
-                   "began at row 2); a run's rows must be together — the state restarts at "
-                   "each run")
+    assert err == (f"thermonet_runtime: {on}: column 'run', row 5 (file line 6): run 'run0' "
+                   "again (its rows began at row 1 (file line 2)); a run's rows must be together "
+                   "— the state restarts at each run")
     assert not out.exists()
 
 
@@ -460,8 +460,12 @@ def test_short_rows_and_duplicate_columns_are_refused_in_one_line(model_path, tm
     src = tmp_path / "short.csv"
     src.write_text("temperature_c,gyro_x,gyro_y,gyro_z\n20,1,2,3\n21,1\n")
     assert _cli(model_path, src, out, capsys)[::2] == (1, (
-        f"thermonet_runtime: {src}: row 3: 2 cells, the header has 4: a truncated row (write "
-        "an empty cell for a missing sample)\n"))
+        f"thermonet_runtime: {src}: row 2 (file line 3): 2 cells, the header has 4: a truncated "
+        "row (write an empty cell for a missing sample)\n"))
+    # rows named as thermonet's readers name them: the data row, and the file line (a blank
+    # line is skipped: they differ)
+    src.write_text("temperature_c,gyro_x,gyro_y,gyro_z\n20,1,2,3\n\n21,1\n")
+    assert f"{src}: row 2 (file line 4): 2 cells" in _cli(model_path, src, out, capsys)[2]
     src.write_text("temperature_c,gyro_x,gyro_y,gyro_z,gyro_x\n20,1,2,3,4\n")
     assert _cli(model_path, src, out, capsys)[::2] == (1, (
         f"thermonet_runtime: {src}: column 'gyro_x': duplicate column in the header (columns 2 "
