@@ -215,6 +215,10 @@ def test_the_band_is_nan_at_an_infinite_signal_in_the_runtime_as_in_c(known):
                         t["growth_below"], t["growth_above"])
     assert np.isnan(c_out[:3]).all() and np.isnan(py[:3]).all()
     assert_f32_close(c_out[3:].astype(np.float64), py[3:], "affine")
+    # and the package's own band (DriftEstimator.predict(return_band=True), the report) the same
+    own = band.evaluate(pts.astype(np.float64), ["gyro_x"])[:, 0]
+    assert np.isnan(own[:3]).all()
+    assert_f64_close(own[3:], py[3:])
 
 
 def _c_holds_as_python(band: Band, rates: np.ndarray, dirs: np.ndarray) -> None:

@@ -142,7 +142,8 @@ def evaluate_tables(x: np.ndarray, edges: Sequence[float] | np.ndarray,
                     half: Sequence[float] | np.ndarray,
                     grow_lo: float, grow_hi: float) -> np.ndarray:
     """The band at ``x`` (N,): piecewise constant over ``edges``, growing linearly past them;
-    NaN where ``x`` is NaN.  (The runtime and the C header evaluate the same rule.)"""
+    NaN where ``x`` is NaN or infinite.  (The runtime and the C header evaluate the same
+    rule.)"""
     x = np.asarray(x, dtype=np.float64)
     e = np.asarray(edges, dtype=np.float64)
     h = np.asarray(half, dtype=np.float64)
@@ -151,7 +152,7 @@ def evaluate_tables(x: np.ndarray, edges: Sequence[float] | np.ndarray,
     below, above = x < e[0], x > e[-1]
     out[below] = h[0] + grow_lo * (e[0] - x[below])
     out[above] = h[-1] + grow_hi * (x[above] - e[-1])
-    out[np.isnan(x)] = np.nan
+    out[~np.isfinite(x)] = np.nan
     return out
 
 
