@@ -397,6 +397,11 @@ def test_workers_must_be_a_whole_number(tmp_path: Path, capsys) -> None:
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "workers -1" in err[0]
     assert not (tmp_path / "c").exists()
+    # above the most this machine can use (each helper loads torch): refused, not started
+    assert main(["calibrate", str(log), "--out", str(tmp_path / "c"), "--workers", "100"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("thermonet: error: --workers 100: more processes")
+    assert not (tmp_path / "c").exists()
 
 
 def test_how_many_helpers_calibrate_starts() -> None:

@@ -163,3 +163,29 @@ def test_the_same_log_twice_is_refused_in_one_line(tmp_path: Path,
     write_log(simulate_board("fc-board", autopilot="px4", seed=2, rate_hz=0.5, run=1), other)
     assert main(["calibrate", str(path), str(other), "--out", str(tmp_path / "ok"),
                  "--no-compare", "-q"]) == 0
+
+
+def test_a_file_holding_an_axis_that_fails_the_held_out_check_says_so_before_loading() -> None:
+    """An axis graded ``fails`` stays in the file (its correction cuts the drift, less than
+    verify asks): the summary said verify "may FAIL" it and then "Load the parameter file
+    only on board ..." as if all were well.  It now says verify will FAIL it and advises a
+    wider warm-up before loading; a file with marginal axes only keeps the plain advice."""
+    from thermonet.workflows.calibrate_report import format_summary
+
+    held = {"status": "judged", "cut": [9.0, 2.0, 4.0], "grades": ["fine", "fails", "marginal"],
+            "pp_raw": [1.0, 1.0, 1.0], "pp_corrected": [0.11, 0.5, 0.25]}
+    doc = {"log": "b.ulg", "logs": ["b.ulg"], "autopilot": "px4", "params_file": "c/px4.params",
+           "board_id": "B1", "instances": {"gyro0": {"kind": "gyro", "device_id": 7,
+                                                     "status": "fitted", "slot": 0,
+                                                     "held_out": held}}}
+    text = format_summary(doc)
+    assert ("1 of 3 fitted axes pass with margin; 1 marginal — `thermonet verify` on a new log "
+            "may FAIL them; 1 fail it — `thermonet verify` on a new log will FAIL them too "
+            "(see 'held out' in the detail)") in text
+    assert "The parameter file holds 1 axis that fails the held-out check" in text
+    assert "calibrate again with it before loading" in text
+    assert "\nLoad the parameter file only" not in text
+    held["grades"] = ["fine", "marginal", "marginal"]
+    text = format_summary(doc)
+    assert "will FAIL" not in text
+    assert "\nLoad the parameter file only on board B1, whose sensors are" in text

@@ -70,9 +70,10 @@ FULL = {
                  "clusters": 3, "test": "ramp:20,30,10", "executor": "ray", "workers": 2,
                  "ray_address": "r:1", "overwrite": True, "quiet": True}),
     "learn": (["a.ulg", "d", "--out", "o", "--executor", "serial", "--workers", "2",
-               "--ray-address", "r:1", "--no-compare", "--no-export", "-q"],
+               "--ray-address", "r:1", "--no-compare", "--no-export", "-q", "--overwrite"],
               {"logs": ["a.ulg", "d"], "out": "o", "executor": "serial", "workers": 2,
-               "ray_address": "r:1", "no_compare": True, "no_export": True, "quiet": True}),
+               "ray_address": "r:1", "no_compare": True, "no_export": True, "quiet": True,
+               "overwrite": True}),
 }
 
 #: per command: (the fewest arguments it takes, the defaults of every other option)
@@ -111,7 +112,7 @@ MINIMAL = {
                  "overwrite": False, "quiet": False}),
     "learn": (["d", "--out", "o"],
               {"executor": "process", "workers": None, "ray_address": None,
-               "no_compare": False, "no_export": False, "quiet": False}),
+               "no_compare": False, "no_export": False, "quiet": False, "overwrite": False}),
 }
 
 

@@ -251,3 +251,28 @@ def test_screen_samples_rules():
     pause = np.r_[np.arange(50.0), 500.0 + np.arange(50.0)]
     keep, notes = screen_samples("acc", pause, np.full((100, 3), 9.8), steps)
     assert keep.all() and notes == []
+
+
+@pytest.mark.parametrize("ext", [".ulg", ".bin"])
+def test_a_clock_that_jumps_back_is_refused_naming_the_jump(tmp_path, capsys, ext):
+    """The board's clock set back by 600 s after its 1000th sample (the writer keeps each
+    sensor's own order, as a logger writes it): sorting once interleaved the 10 minutes
+    before the jump with those after it, silently; now calibrate refuses the log in one
+    line naming the jump, as learn does."""
+    autopilot = "px4" if ext == ".ulg" else "ardupilot"
+    log = simulate_board(seed=0, rate_hz=1.0, autopilot=autopilot)
+    t_jump = float(log.instances[0].time_s[999])
+    for inst in log.instances:
+        inst.time_s = inst.time_s.copy()
+        inst.time_s[1000:] -= 600.0
+    path = write_log(log, tmp_path / f"jump{ext}")
+    with pytest.raises(InputError, match=rf"the clock jumps back by 599\.0 s at t = "
+                                         rf"{t_jump:.1f} s \("):
+        read_log(path)
+    assert main(["calibrate", str(path), "--out", str(tmp_path / "cal"), "--no-compare"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{path}: the clock jumps back by 599.0 s" in err[0]
+    assert not (tmp_path / "cal").exists()
+    # the same samples in time order are the board's log, read as before
+    assert len(read_log(write_log(simulate_board(seed=0, rate_hz=1.0, autopilot=autopilot),
+                                  tmp_path / f"ok{ext}")).instances) == len(log.instances)

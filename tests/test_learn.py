@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from thermonet.cli import main
+from thermonet.core.errors import ThermonetError
 from thermonet.data.firmware import FirmwareFit
 from thermonet.data.logs.flight_writers import write_flight
 from thermonet.data.logs.writers import write_log
@@ -362,3 +363,107 @@ def test_a_log_too_short_to_learn_from_says_no_parameter_file_yet(tmp_path, caps
             "again)") in cap.out.splitlines()
     assert cap.err.splitlines()[0].startswith("1 log: 0 read before (cache), 1 to read")
     assert "gyro0: learning from 1 flight" in cap.err.splitlines()
+
+
+def test_a_sensor_not_learned_is_not_written_and_the_report_says_so(tmp_path, capsys):
+    """ArduPilot: the estimator runs on IMUs 1 and 2, IMU 3's gyro is learned from still
+    windows, its accelerometer from nothing.  INS_TCAL3 holds both: the file once wrote
+    INS_TCAL3_ACC* = 0, which wipes the board's accelerometer calibration when loaded (and
+    verify then FAILed acc2 1.0x).  Now only the gyro's coefficients are written (as
+    ``export`` writes a gyro model), with the device ids and board id calibrate writes; the
+    console names acc2 as not learned and why; verify leaves acc2 "not covered" and refuses
+    the file on another board of the same model."""
+    from thermonet.sim.fcboard import board_id
+    from thermonet.workflows.verify import evaluate, read_param_file
+
+    _write(simulate_flights(10, seed=0, autopilot="ardupilot"), tmp_path / "logs", ".bin")
+    assert main(["learn", str(tmp_path / "logs"), "--out", str(tmp_path / "out"), "--executor",
+                 "serial", "--no-compare"]) == 0
+    out = capsys.readouterr().out
+    doc = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert doc["instances"]["gyro2"]["status"] == "fitted" and "acc2" not in doc["instances"]
+    (miss,) = doc["not_learned"]
+    assert miss["name"] == "acc2" and "EK3_IMU_MASK" in miss["reason"]
+    assert miss["parameter_file"] == "INS_TCAL3_ACC* are not written: the board keeps its own"
+    assert (f"acc2 (id {miss['device_id']}): not learned — {miss['reason']}; "
+            f"{miss['parameter_file']}") in out.splitlines()
+    text = (tmp_path / "out" / "ardupilot.parm").read_text()
+    names = [ln.split(",")[0] for ln in text.splitlines() if not ln.startswith("#")]
+    assert not [n for n in names if n.startswith("INS_TCAL3_ACC")]
+    assert len([n for n in names if n.startswith("INS_TCAL3_GYR")]) == 9
+    assert len([n for n in names if n.startswith("INS_TCAL1_ACC")]) == 9
+    gyro2 = doc["instances"]["gyro2"]["device_id"]
+    assert f"# device ids: INS_TCAL3 gyro {gyro2} acc 0" in text.splitlines()
+    assert f"# board id: {board_id(0, 'ardupilot')}" in text.splitlines()
+    pf = read_param_file(tmp_path / "out" / "ardupilot.parm")
+    res = evaluate(pf, simulate_board(seed=0, autopilot="ardupilot", rate_hz=0.2))
+    assert res["acc2"]["status"] == "not covered" and "INS_TCAL3_ACC*" in res["acc2"]["reason"]
+    assert res["gyro2"]["status"] == "judged"
+    with pytest.raises(ThermonetError, match="belongs to another board"):
+        evaluate(pf, simulate_board(seed=1, autopilot="ardupilot", rate_hz=0.2))
+    # PX4: no barometer is learned, so none is written (once: TC_B_ENABLE 0 and every TC_B
+    # slot cleared, wiping a chamber calibration of the barometer)
+    doc = learn(_write(simulate_flights(4, seed=2), tmp_path / "px4", ".ulg"),
+                tmp_path / "out4", executor="serial", compare=False, export=False)
+    params = (tmp_path / "out4" / "px4.params").read_text()
+    assert "TC_G0_ID" in params and "TC_B" not in params
+    assert f"# board id: {board_id(2, 'px4')}" in params.splitlines()
+
+
+def test_a_run_again_says_what_it_drops_and_refuses_another_vehicle(tmp_path):
+    """Run again with only the new logs: the logs given are the flights learned (the cache
+    only spares reading), and a warning names the flights learned before that are left out
+    and how to keep them (was a silent "flights: 4 -> 2").  Logs of another board of the
+    same model: refused in one line, the directory as it was (was: silently replaced).
+    results.json records each log's SHA-256, so verify knows a log the file was learned
+    from."""
+    from thermonet.core.errors import InputError
+    from thermonet.core.outdir import sha256_file
+    from thermonet.workflows.verify import trained_on
+
+    logs = tmp_path / "logs"
+    paths = _write(simulate_flights(4, seed=5), logs, ".ulg")
+    out = tmp_path / "out"
+    first = learn(paths, out, executor="serial", compare=False, export=False)
+    assert first["logs_sha256"] == [sha256_file(p) for p in paths] and not first["warnings"]
+    assert trained_on(out / "px4.params", sha256_file(paths[1])) == str(paths[1])
+    said: list[str] = []
+    doc = learn(paths[2:], out, executor="serial", compare=False, export=False, say=said.append)
+    (warning,) = doc["warnings"]
+    assert warning.startswith("2 flights learned before (of 4) are not among the logs given "
+                              "and left out of this fit: flight001.ulg, flight002.ulg")
+    assert f"(thermonet learn {logs} NEW_LOGS --out {out})" in warning
+    assert f"warning: {warning}" in said and f"warning: {warning}" in format_learn_report(doc)
+    assert doc["changes"][0] == "flights: 4 -> 2"
+    before = (out / "results.json").read_bytes()
+    twin = _write(simulate_flights(2, seed=25), tmp_path / "twin", ".ulg")
+    with pytest.raises(InputError, match=r"out: learned before from another vehicle \(of board "):
+        learn(twin, out, executor="serial", compare=False, export=False)
+    assert (out / "results.json").read_bytes() == before
+    doc = learn(twin, out, executor="serial", compare=False, export=False, overwrite=True)
+    assert doc["logs"] == [str(p) for p in twin] and not doc["warnings"]
+
+
+def test_a_fit_supported_over_a_degree_is_not_written(tmp_path):
+    """Six ArduPilot flights support IMU 3's gyro only at −1..0 °C (two flights and two
+    minutes a bin): a cubic there is an offset's guess the autopilot would carry across its
+    whole clamp — written, verify failed it at 3.0x on a bench warm-up (a new user's pass).
+    Under learn_data.MIN_SUPPORTED_SPAN_C it is left out, saying its span; the instances
+    supported wider are written as before."""
+    from thermonet.workflows.learn_data import MIN_SUPPORTED_SPAN_C
+
+    _write(simulate_flights(6, seed=0, autopilot="ardupilot"), tmp_path / "logs", ".bin")
+    doc = learn([tmp_path / "logs"], tmp_path / "out", executor="serial", compare=False,
+                export=False)
+    g2 = doc["instances"]["gyro2"]
+    lo, hi = g2["supported_c"]
+    assert hi - lo < MIN_SUPPORTED_SPAN_C and g2["status"] == "skipped"
+    assert g2["reason"].startswith(f"left out of the parameter file: supported only at "
+                                   f"{lo}..{hi} °C (under 5 °C)")
+    names = [ln.split(",")[0] for ln in (tmp_path / "out" / "ardupilot.parm").read_text()
+             .splitlines() if not ln.startswith("#")]
+    assert not [n for n in names if n.startswith("INS_TCAL3_")]
+    wide = [k for k, v in doc["instances"].items() if v["status"] == "fitted"]
+    assert wide and all(doc["instances"][k]["supported_c"][1] -
+                        doc["instances"][k]["supported_c"][0] >= MIN_SUPPORTED_SPAN_C
+                        for k in wide)

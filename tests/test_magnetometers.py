@@ -403,3 +403,38 @@ def test_a_thermometer_in_kelvin_is_named_kelvin_not_damage(
         line = next(ln for ln in out if ln.startswith(f"{name} "))
         assert "LEFT OUT — its thermometer reads" in line and ": kelvin (" in line, line
     assert next(ln for ln in out if ln.startswith("gyro0 ")).count("fitted") >= 1
+
+
+def test_a_magnetometer_lent_two_thermometers_is_refused() -> None:
+    """``--mag-thermometer mag1=baro0 --mag-thermometer mag1=gyro0`` silently took the last;
+    now one line naming both (the same one twice is no conflict)."""
+    from thermonet.core.errors import InputError
+    from thermonet.workflows.magnetometer import parse_thermometers
+
+    with pytest.raises(InputError) as err:
+        parse_thermometers(["mag1=baro0", "mag1=gyro0"])
+    assert str(err.value) == ("--mag-thermometer 'mag1=gyro0': mag1 is already lent baro0's "
+                              "thermometer (--mag-thermometer mag1=baro0): name one "
+                              "thermometer per magnetometer")
+    assert parse_thermometers(["mag1=baro0", "mag1=baro0"]) == {"mag1": "baro0"}
+
+
+def test_a_firmware_form_left_out_names_the_axis_it_fails_and_never_says_it_is_enough() -> None:
+    """The verdict of a firmware form that does not cut every held-out axis said "the
+    firmware form is enough" beside "LEFT OUT — does not reduce the drift" (cut 14.0x,
+    9.6x, 0.6x); it now names the axis it fails and recommends nothing."""
+    from thermonet.workflows.calibrate_compare import verdict
+
+    fams = {"px4-cubic": {"status": "ok", "val_score": 0.5,
+                          "held_out_pp_raw": {"mag_x": 1.4, "mag_y": 0.96, "mag_z": 0.3},
+                          "held_out_pp_comp": {"mag_x": 0.1, "mag_y": 0.1, "mag_z": 0.5}},
+            "linear": {"status": "ok", "val_score": 0.45}}
+    ok, line = verdict({"firmware_family": "px4-cubic", "chosen": "linear", "dir": "d",
+                        "families": fams})
+    assert not ok and line.endswith("cut 14.0x, 9.6x, 0.6x (val score ratio 0.5); it does "
+                                    "not cut mag_z 0.6x")
+    fams["px4-cubic"]["held_out_pp_comp"]["mag_z"] = 0.03
+    ok, line = verdict({"firmware_family": "px4-cubic", "chosen": "linear", "dir": "d",
+                        "families": fams})
+    assert ok and line.endswith("the firmware form is enough")
+

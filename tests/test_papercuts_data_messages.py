@@ -270,3 +270,27 @@ def test_float32_rounding_of_the_trained_range_is_not_outside_it():
     (warning,) = extrapolation_warnings({"temperature_c": 0.5},
                                         {"temperature_c": (float(lo[0]), float(hi[0]))})
     assert "outside the trained range 253.1 … 323.1 °C; the models clamp there" in warning
+
+
+def test_one_instance_of_a_log_where_a_command_reads_them_all(tmp_path, capsys):
+    """``calibrate 'x.ulg#gyro0'`` / ``verify … 'log.ulg#gyro0'`` said "flight-controller log
+    not found" of a log that exists; ``info a.ulg b.ulg`` said "with no mapping" when none
+    was given.  Each now names its real cause."""
+    log = write_log(simulate_board(seed=3, rate_hz=0.2), tmp_path / "b.ulg")
+    with pytest.raises(InputError) as err:
+        read_log(f"{log}#gyro0")
+    assert str(err.value) == (f"{log}#gyro0: '#gyro0' (one sensor instance) is not accepted "
+                              "here: this command reads every instance of a log — give the log "
+                              f"itself, {log}")
+    for argv in (["calibrate", f"{log}#gyro0", "--out", str(tmp_path / "c")],
+                 ["verify", str(tmp_path / "x.params"), f"{log}#gyro0", "--out",
+                  str(tmp_path / "v")]):
+        (tmp_path / "x.params").write_text("1\t1\tTC_G0_ID\t0\t6\n")
+        assert main(argv) == 1
+        err_line = capsys.readouterr().err.strip()
+        assert "'#gyro0' (one sensor instance) is not accepted here" in err_line, err_line
+    assert main(["info", str(log), str(log)]) == 1
+    assert capsys.readouterr().err.strip() == ("thermonet: error: info reads one "
+                                               "flight-controller log at a time (2 files "
+                                               "given): run it once per log")
+

@@ -225,6 +225,34 @@ def test_export_of_a_fleet_directory_points_to_all_units(fourpos_fleet, tmp_path
     assert list(tmp_path.iterdir()) == []
 
 
+def test_export_of_a_calibrate_directory_says_what_to_use(tmp_path, capsys):
+    """A calibrate directory given to export was "results.json: key 'families': not a
+    mapping of family results": it now says what the directory is and what to use — its
+    parameter file as it is, or one instance's comparison with the firmware family."""
+    from thermonet.data.logs.writers import write_log
+    from thermonet.sim.fcboard import simulate_board
+    from thermonet.workflows.calibrate import calibrate
+
+    log = write_log(simulate_board(seed=2, rate_hz=0.5, autopilot="ardupilot"),
+                    tmp_path / "b.bin")
+    cal = tmp_path / "cal"
+    calibrate(log, cal, compare=False)
+    argv = ["export", str(cal), "--format", "ardupilot-params", "--out", str(tmp_path / "a.parm")]
+    assert main(argv) == 1
+    assert _line(capsys) == (f"thermonet: error: {cal}: a calibrate directory (one parameter "
+                             f"file for every sensor), not one comparison: load its parameter "
+                             f"file {cal / 'ardupilot.parm'} as it is; it holds no per-instance "
+                             "comparison to export (run it without --no-compare for "
+                             "instances/<name>/)")
+    for name in ("gyro0", "acc0"):           # what calibrate's comparison leaves there
+        (cal / "instances" / name).mkdir(parents=True)
+    assert main(argv) == 1
+    assert _line(capsys).endswith(f"as it is, or export one instance's comparison: thermonet "
+                                  f"export {cal / 'instances' / 'acc0'} --family ardupilot-cubic "
+                                  "(instances: acc0, gyro0)")
+    assert not (tmp_path / "a.parm").exists()
+
+
 def test_export_all_units_that_exports_nothing_leaves_nothing(fourpos_fleet, tmp_path, capsys):
     out = tmp_path / "a" / "px4"
     assert main(["export", str(fourpos_fleet), "--all-units", "--format", "px4-params",

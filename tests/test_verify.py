@@ -19,6 +19,7 @@ import pytest
 
 from oracles import px4_offsets, px4_slot, read_params
 from thermonet.cli import main
+from thermonet.core.errors import InputError
 from thermonet.data.logs import read_log
 from thermonet.data.logs.writers import write_log
 from thermonet.sim.fcboard import simulate_board
@@ -339,3 +340,84 @@ def test_a_calibration_not_applied_fails_and_a_pass_names_what_it_leaves_uncorre
     # each judged instance names the parameters applied to it as the file does
     assert any(ln.startswith("acc0 ") and " TC_A0: binned drift p-p" in ln
                for ln in out.splitlines()), out
+
+
+def test_a_file_with_one_sensor_of_an_imu_is_judged_on_it_and_leaves_the_other(
+        runs: dict[str, list[Path]], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """ArduPilot's INS_TCAL<n> holds one IMU's gyro and accelerometer; a file with only the
+    gyro's (what ``export`` writes for a gyro model, so loading it leaves the accelerometer's
+    calibration alone) is judged on the gyro — the same cut as the whole tempcal_IMU.py file
+    gives it — and the accelerometer is "not covered", named in the PASS line (was refused:
+    "parameter INS_TCAL1_ACC1_X is missing").  Half an accelerometer group, or a group that
+    enables nothing, is still refused in one line."""
+    from test_autopilot_parity import _tempcal_imu
+
+    first, _, third = runs[".bin"]
+    full = _tempcal_imu(first)
+    whole = tmp_path / "whole.parm"
+    whole.write_text("".join(f"{k} {v}\n" for k, v in full.items()) + "INS_TCAL1_ENABLE 1\n")
+    gyro = tmp_path / "gyro.parm"
+    rows = {k: v for k, v in full.items() if k.startswith("INS_TCAL1_") and "_ACC" not in k}
+    gyro.write_text("".join(f"{k},{v}\n" for k, v in rows.items()) + "INS_TCAL1_ENABLE,1\n")
+    pf = read_param_file(gyro)
+    assert pf.kinds == {"imu1": {"gyro"}}
+    res = evaluate(pf, read_log(third))
+    ref = evaluate(read_param_file(whole), read_log(third))
+    assert res["gyro0"]["status"] == "judged"
+    assert res["gyro0"]["cut"] == pytest.approx(ref["gyro0"]["cut"], rel=1e-12)
+    assert res["acc0"]["status"] == "not covered"
+    assert "INS_TCAL1_ACC*" in res["acc0"]["reason"]
+    assert main(["verify", str(gyro), str(third), "--out", str(tmp_path / "v")]) == 0
+    last = capsys.readouterr().out.splitlines()[-2]
+    assert last.startswith("PASS for gyro0; not covered by this file: ") and "acc0" in last
+    half = tmp_path / "half.parm"
+    half.write_text(gyro.read_text() + f"INS_TCAL1_ACC1_X,{full['INS_TCAL1_ACC1_X']}\n")
+    with pytest.raises(InputError, match="parameter INS_TCAL1_ACC1_Y is missing"):
+        read_param_file(half)
+    empty = tmp_path / "empty.parm"
+    empty.write_text("INS_TCAL1_ENABLE,1\nINS_TCAL1_TMIN,0\nINS_TCAL1_TMAX,50\n")
+    with pytest.raises(InputError, match="line 1: parameter INS_TCAL1_ENABLE = 1 but the file "
+                                         "has none of INS_TCAL1_GYR"):
+        read_param_file(empty)
+
+
+def test_a_flight_log_is_refused_as_moving(tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """verify judges a still warm-up: on a flight (the gyro still in about a third of its
+    10-s windows, learn's test of stillness) every axis read ~1.0x FAIL with no hint; now
+    one line, exit 1, nothing written.  The chamber warm-up of the same board passes the
+    test (every window still)."""
+    from thermonet.data.logs.flight_writers import write_flight
+    from thermonet.sim.flights import simulate_flights
+    from thermonet.workflows.verify_motion import moving_log
+
+    flight = simulate_flights(1, seed=4)[0]
+    log = write_flight(flight.log, flight.biases, tmp_path / "flight.ulg")
+    board = write_log(simulate_board(seed=4), tmp_path / "board.ulg")
+    assert moving_log(read_log(board)) is None
+    assert moving_log(read_log(log)).startswith("the vehicle moves: gyro")
+    assert main(["calibrate", str(board), "--out", str(tmp_path / "cal"), "--no-compare",
+                 "-q"]) == 0
+    capsys.readouterr()
+    assert main(["verify", str(tmp_path / "cal" / "px4.params"), str(log), "--out",
+                 str(tmp_path / "v")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"thermonet: error: {log}: the vehicle moves: ")
+    assert "verify judges a warm-up at rest" in err[0] and not (tmp_path / "v").exists()
+
+
+def test_a_pass_names_what_the_file_calibrates_but_the_log_could_not_judge() -> None:
+    """The PASS line named the judged and the uncovered instances only: the ones the file
+    calibrates that the log could not judge (a damaged gyro) are named too, with why."""
+    from thermonet.workflows.verify_report import verdict_line
+
+    why = "too damaged: 40% of its samples dropped"
+    insts = {"acc0": {"status": "judged"}, "gyro0": {"status": "not judged", "reason": why},
+             "gyro1": {"status": "not judged", "reason": why},
+             "mag1": {"status": "not covered", "reason": "no TC_M*_ID equals its device id"}}
+    assert verdict_line({"passed": True, "instances": insts}) == (
+        f"PASS for acc0; not judged: gyro0, gyro1 ({why}); not covered by this file: mag1 "
+        "(its drift is not corrected)")
+    insts["acc0"] = {"status": "judged", "passed": [False]}
+    assert verdict_line({"passed": False, "instances": insts}) == (
+        f"FAIL: see the axes marked FAIL; not judged: gyro0, gyro1 ({why})")

@@ -417,6 +417,34 @@ def test_the_exporters_readers_name_file_line_and_parameter(tmp_path: Path, line
     assert str(err.value) == f"{path}: line 3: parameter {name}: value 'abc' is not a number"
 
 
+@pytest.mark.parametrize("ap", ["px4", "ardupilot"])
+def test_a_byte_order_mark_is_read_and_a_line_of_neither_format_says_both(
+        board: dict[str, dict[str, Path]], tmp_path: Path, ap: str) -> None:
+    """Windows Notepad saves a UTF-8 byte-order mark: the file was refused ("line 1: expected
+    NAME,VALUE, got '\\ufeff# thermonet …'", ArduPilot's syntax for a PX4 file).  It is read
+    as the same file without it, by verify and by the exporters' readers; a first line of
+    neither format names both."""
+    import thermonet.exporting as exporting
+    from thermonet.core.errors import InputError
+    from thermonet.workflows.verify import read_param_file
+
+    src = board[ap]["params"]
+    bom = tmp_path / src.name
+    bom.write_bytes(b"\xef\xbb\xbf" + src.read_bytes())
+    assert read_param_file(bom).params == read_param_file(src).params
+    reader = exporting.read_px4_params if ap == "px4" else exporting.read_ardupilot_params
+    assert reader(bom) == reader(src)
+    assert main(["verify", str(bom), str(board[ap]["log"]), "--out", str(tmp_path / "v"),
+                 "-q"]) == 0
+    junk = tmp_path / "junk.params"
+    junk.write_text("\ufeff# notes\nTC_G0_ID = 5\n")
+    with pytest.raises(InputError) as err:
+        read_param_file(junk)
+    assert str(err.value) == (f"{junk}: line 2: 'TC_G0_ID = 5' is neither a PX4 parameter line "
+                              "(Vehicle-Id Component-Id Name Value Type, tab-separated) nor an "
+                              "ArduPilot one (NAME,VALUE or NAME VALUE)")
+
+
 # An offset at TREF (PX4's X0) beyond what a thermal calibration can hold, per kind: the
 # parameter, its value, the instance, the axis and the bound in the report's line.
 OFFSETS = [("TC_M0_X0_0", "5", "mag0", 0, "5 gauss (500 µT)", "beyond the 65 µT"),

@@ -20,7 +20,7 @@ def _cmd_learn(args: argparse.Namespace) -> int:
     say = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     doc = learn(args.logs, args.out, executor=args.executor, workers=args.workers,
                 ray_address=args.ray_address, compare=not args.no_compare,
-                export=not args.no_export, say=say)
+                export=not args.no_export, say=say, overwrite=args.overwrite)
     if not args.quiet:
         print(format_learn_report(doc, args.out), end="")
         print(f"results: {Path(args.out) / 'results.json'}")
@@ -258,6 +258,8 @@ def add_learn(sub: Any) -> None:
     k.add_argument("--no-compare", action="store_true",
                    help="the firmware form only (no comparison of the families)")
     k.add_argument("--no-export", action="store_true", help="no ONNX / C of the chosen models")
+    k.add_argument("--overwrite", action="store_true",
+                   help="replace what --out learned for another vehicle")
     k.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
     k.set_defaults(func=_cmd_learn)
 

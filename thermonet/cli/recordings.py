@@ -142,9 +142,12 @@ def _cmd_info(args: argparse.Namespace) -> int:
     if any(is_log_source(f) for f in args.files):      # a log, or LOG#instance
         from ..data.logs.info import format_log_summary, summarize_log  # lazy: off the --help path
 
-        if len(args.files) != 1 or args.mapping:
-            raise ThermonetError("info reads one flight-controller log at a time, with no "
-                                 "mapping")
+        if len(args.files) != 1:
+            raise ThermonetError(f"info reads one flight-controller log at a time "
+                                 f"({len(args.files)} files given): run it once per log")
+        if args.mapping:
+            raise ThermonetError(f"--mapping {args.mapping}: a flight-controller log takes no "
+                                 "mapping (its topics name every column)")
         s = summarize_log(args.files[0])
         print(json.dumps(s, indent=2) if args.json else format_log_summary(s))
         return 0

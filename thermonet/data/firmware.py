@@ -147,10 +147,13 @@ def ardupilot_correction(params: Mapping[str, float], kind: str, temperature_c: 
     return out
 
 
-def px4_calibration_text(fits: Mapping[str, list[FirmwareFit]], *, header: list[str]) -> str:
+def px4_calibration_text(fits: Mapping[str, list[FirmwareFit]], *, header: list[str],
+                         fitted_kinds_only: bool = False) -> str:
     """A QGC ``.params`` file with every ``TC_G*``, ``TC_A*``, ``TC_B*`` slot, and every
     ``TC_M*`` slot when ``fits`` has a ``mag`` entry (the log has magnetometers; an empty
-    list writes ``TC_M_ENABLE`` 0 and cleared slots).
+    list writes ``TC_M_ENABLE`` 0 and cleared slots).  ``fitted_kinds_only``: a kind with no
+    fit is not written at all (``thermonet learn``, which never learns a barometer: its
+    ``TC_B*`` are left as the board has them, not disabled and cleared).
 
     ``fits[kind]`` lists the fitted instances in slot order; the remaining
     slots (up to 4) are written with ID 0 and zero coefficients, so that a
@@ -162,6 +165,8 @@ def px4_calibration_text(fits: Mapping[str, list[FirmwareFit]], *, header: list[
     rows: list[tuple[str, str, int]] = []
     kinds = [("acc", "A"), ("baro", "B"), ("gyro", "G")] + ([("mag", "M")] if "mag" in fits
                                                             else [])
+    if fitted_kinds_only:
+        kinds = [(kind, t) for kind, t in kinds if fits.get(kind)]
     for kind, t in kinds:
         kind_fits = list(fits.get(kind, []))
         if any(f.thermometer for f in kind_fits):
@@ -199,14 +204,26 @@ def ardupilot_calibration_text(imus: Mapping[int, Mapping[str, FirmwareFit]], *,
                                header: list[str]) -> str:
     """ArduPilot ``INS_TCAL<n>_*`` lines (``NAME,VALUE``) for each fitted IMU (0-based keys).
 
-    ``INS_TCAL_OPTIONS`` is not written (left as the board has it).  A sensor
-    of a fitted IMU that was not fitted gets zero coefficients (no correction).
+    ``INS_TCAL_OPTIONS`` is not written (left as the board has it).  Only the sensors fitted
+    are written: ``INS_TCAL<n>`` holds one IMU's gyro *and* accelerometer, and zeros for the
+    one not fitted would wipe the calibration the board holds for it when the file is loaded
+    (as ``thermonet export`` writes a gyro-only model); a comment line names what is left
+    alone.  After the header, one ``# device ids: INS_TCAL<n> gyro G acc A`` line per IMU (0:
+    that sensor is not in the file), which ``thermonet verify`` matches the log's sensors by.
     """
     lines = [f"# {h}" for h in header]
+    lines += [f"# device ids: INS_TCAL{idx + 1} gyro "
+              f"{imus[idx]['gyro'].device_id if 'gyro' in imus[idx] else 0} acc "
+              f"{imus[idx]['acc'].device_id if 'acc' in imus[idx] else 0}" for idx in sorted(imus)]
     for idx in sorted(imus):
         pair = imus[idx]
         if not 0 <= idx <= 2:
             raise ExportError(f"ArduPilot has INS_TCAL1..3; IMU index {idx} has no slot")
+        lines += [f"# INS_TCAL{idx + 1}_{_AP_TYPE[k]}*: not written ({k} of IMU {idx + 1} not "
+                  "fitted): the board keeps its own values" for k in ("acc", "gyro")
+                  if k not in pair]
+    for idx in sorted(imus):
+        pair = imus[idx]
         first = next(iter(pair.values()))
         t_min = min(f.t_min for f in pair.values())
         t_max = max(f.t_max for f in pair.values())
@@ -217,11 +234,11 @@ def ardupilot_calibration_text(imus: Mapping[int, Mapping[str, FirmwareFit]], *,
             raise ExportError("ArduPilot coefficients must be relative to 35 degC")
         pre = f"INS_TCAL{idx + 1}_"
         lines += [f"{pre}ENABLE,1", f"{pre}TMIN,{_g(t_min)}", f"{pre}TMAX,{_g(t_max)}"]
-        for kind in ("acc", "gyro"):
-            fit = pair.get(kind)
+        for kind in (k for k in ("acc", "gyro") if k in pair):
+            fit = pair[kind]
             for k in (1, 2, 3):
                 for i, ax in enumerate(_AXES):
-                    v = fit.coef[i, k] * ARDUPILOT_SCALE if fit is not None else 0.0
+                    v = fit.coef[i, k] * ARDUPILOT_SCALE
                     if not math.isfinite(v):
                         raise ExportError("an ArduPilot coefficient is not finite; nothing written")
                     lines.append(f"{pre}{_AP_TYPE[kind]}{k}_{ax.upper()},{_g(v)}")

@@ -17,7 +17,7 @@ __all__ = ["read_px4_params", "read_ardupilot_params"]
 def read_px4_params(path: str | Path) -> dict[str, float]:
     """Parse a QGC ``.params`` file into ``{name: value}`` (comments skipped)."""
     out: dict[str, float] = {}
-    for no, line in enumerate(Path(path).read_text().splitlines(), start=1):
+    for no, line in enumerate(_text(path).splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         parts = line.split()
@@ -31,7 +31,7 @@ def read_px4_params(path: str | Path) -> dict[str, float]:
 def read_ardupilot_params(path: str | Path) -> dict[str, float]:
     """Parse ArduPilot ``NAME,VALUE`` or ``NAME VALUE`` lines into ``{name: value}``."""
     out: dict[str, float] = {}
-    for no, line in enumerate(Path(path).read_text().splitlines(), start=1):
+    for no, line in enumerate(_text(path).splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         parts = line.replace(",", " ").split()
@@ -39,6 +39,11 @@ def read_ardupilot_params(path: str | Path) -> dict[str, float]:
             raise ExportError(f"{path}: line {no}: expected NAME,VALUE, got {line!r}")
         out[parts[0]] = _number(path, no, parts[0], parts[1])
     return out
+
+
+def _text(path: str | Path) -> str:
+    """The file's text; a UTF-8 byte-order mark (Windows Notepad writes one) is dropped."""
+    return Path(path).read_text(encoding="utf-8-sig")
 
 
 def _number(path: str | Path, no: int, name: str, value: str) -> float:

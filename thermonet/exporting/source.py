@@ -84,6 +84,8 @@ def _from_compare_dir(path: Path, family: str | None) -> Path:
                          f"with --all-units (--out a directory), or one unit from "
                          f"{path / 'units'}/<device id>")
     fams = results.get("families") if isinstance(results, dict) else None
+    if isinstance(results, dict) and fams is None and isinstance(results.get("instances"), dict):
+        raise InputError(_calibration_dir(path, results))
     if not isinstance(fams, dict) or not all(isinstance(v, dict) for v in fams.values()):
         raise InputError(f"{results_file}: key 'families': not a mapping of family results")
     listed = ", ".join(str(k)[:64] for k in fams)
@@ -101,6 +103,24 @@ def _from_compare_dir(path: Path, family: str | None) -> Path:
     return _verified(path / "models" / f"{name}.pt", fams[name].get("checkpoint_sha256"),
                      results_file, f"family '{name}'", "written by an older thermonet? re-run "
                      "compare")
+
+
+def _calibration_dir(path: Path, results: dict[str, Any]) -> str:
+    """Why a ``calibrate`` / ``learn`` directory is not one comparison, and what to export:
+    its parameter file as it is, or one instance's comparison with the firmware family."""
+    what = "a learn" if results.get("kind") == "learn" else "a calibrate"
+    params = results.get("params_file")
+    name = Path(str(params)).name if params else None
+    use = f"load its parameter file {path / name} as it is" if name else ""
+    insts = sorted(p.name for p in (path / "instances").glob("*") if p.is_dir())[:12]
+    family = "ardupilot-cubic" if results.get("autopilot") == "ardupilot" else "px4-cubic"
+    head = f"{path}: {what} directory (one parameter file for every sensor), not one comparison"
+    if not insts:
+        return (f"{head}: {use + '; ' if use else ''}it holds no per-instance comparison to "
+                "export (run it without --no-compare for instances/<name>/)")
+    return (f"{head}: {use + ', or ' if use else ''}export one instance's comparison: "
+            f"thermonet export {path / 'instances' / insts[0]} --family {family} (instances: "
+            f"{', '.join(insts)})")
 
 
 def _verified(p: Path, recorded: Any, results_file: Path, what: str, hint: str) -> Path:

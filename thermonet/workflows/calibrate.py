@@ -83,7 +83,7 @@ import numpy as np
 
 from ..core.errors import InputError, ThermonetError
 from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
-from ..core.helpers import Helpers, value_or_none
+from ..core.helpers import Helpers, usable_cores, value_or_none
 from ..core.names import inside, path_components
 from ..core.outdir import KINDS, check_target, sha256_file, staged_output
 from ..core.profile import stage as profile_stage
@@ -92,6 +92,7 @@ from ..data.firmware import PX4_SLOTS
 from ..data.logs import FlightLog, SensorInstance, read_log, temperature_step
 from .calibrate_compare import (
     HELPER_IMPORTS,
+    MAX_WORKERS,
     compare_all,
     helper_count,
     import_comparison,
@@ -174,6 +175,12 @@ def calibrate(log_path: str | Path | Sequence[str | Path], out_dir: str | Path, 
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 0):
         raise InputError(f"workers {workers!r}: a whole number >= 0 (0: one per CPU)")
+    most = max(usable_cores(), MAX_WORKERS)
+    if workers is not None and workers > most:   # each one imports torch (~250 MB)
+        raise InputError(f"--workers {workers}: more processes than this machine's "
+                         f"{usable_cores()} usable CPUs (each loads torch, ~250 MB): give at "
+                         f"most {most} (0: one per CPU, at most {MAX_WORKERS}; 1: this one "
+                         "alone)")
     helpers = None
     n = helper_count(compare, workers)
     if n:

@@ -243,15 +243,23 @@ def verdict(summary: dict[str, Any]) -> tuple[bool, str]:
     f = summary["families"].get(fw, {})
     if f.get("status") != "ok":
         return False, f"the firmware form could not be fitted ({f.get('reason')})"
+    axes = list(f["held_out_pp_raw"])
     raw = np.array(list(f["held_out_pp_raw"].values()))
     comp = np.array(list(f["held_out_pp_comp"].values()))
     cut = raw / np.maximum(comp, 1e-300)
+    # "helps" beyond the decision margin (thermonet.scoring.verdicts.DECISION_RTOL), never by rounding
+    helps = below(f["val_score"], 1.0) and all(below(c, r) for c, r in zip(comp, raw, strict=True))
     # the comparison's own split, to rank the families: what verify will demand is the
     # held-out check's grade (fine / marginal / fails), not this
     line = (f"{fw} on the comparison's held-out blocks (ranking the families; the held-out "
             f"check below is verify's test): binned drift p-p cut "
             f"{', '.join(f'{c:.1f}x' for c in cut)}"
             f" (val score ratio {f['val_score']:.3g})")
+    if not helps:       # say where it fails, and nothing that reads as a recommendation
+        worse = [f"{a} {c:.1f}x" for a, c, r, m in zip(axes, cut, raw, comp, strict=True)
+                 if not below(m, r)]
+        line += (f"; it does not cut {', '.join(worse)}" if worse else
+                 f"; its val score ratio {f['val_score']:.3g} is not below 1")
     chosen = summary.get("chosen")
     if chosen and chosen != fw:
         other = summary["families"][chosen]
@@ -259,9 +267,7 @@ def verdict(summary: dict[str, Any]) -> tuple[bool, str]:
             line += (f"; thermonet's {chosen} does better on validation "
                      f"({other['val_score']:.3g}), which the parameter file cannot carry — "
                      f"export it as ONNX or C from {summary['dir']}")
-        else:
+        elif helps:
             line += (f"; thermonet's best ({chosen}, {other['val_score']:.3g}) is within "
                      f"{100 * (1 - BETTER_BY):.0f} % of it: the firmware form is enough")
-    # "helps" beyond the decision margin (thermonet.scoring.verdicts.DECISION_RTOL), never by rounding
-    helps = below(f["val_score"], 1.0) and all(below(c, r) for c, r in zip(comp, raw, strict=True))
     return helps, line

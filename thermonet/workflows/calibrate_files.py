@@ -50,11 +50,8 @@ def params_text(log: FlightLog, fitted: list[InstanceResult], header: list[str]
     for r in fitted:
         assert r.fit is not None
         imus.setdefault(by_inst[r.name].instance, {})[r.kind] = r.fit
-    # the device ids each INS_TCAL<n> was fitted for (thermonet verify matches by them)
-    ids = [f"device ids: INS_TCAL{k + 1} gyro {pair['gyro'].device_id if 'gyro' in pair else 0}"
-           f" acc {pair['acc'].device_id if 'acc' in pair else 0}"
-           for k, pair in sorted(imus.items())]
-    return ardupilot_calibration_text(imus, header=header + ids), "ardupilot.parm"
+    # with the device ids each INS_TCAL<n> was fitted for (thermonet verify matches by them)
+    return ardupilot_calibration_text(imus, header=header), "ardupilot.parm"
 
 
 #: The EKF noise recommendation written beside the parameter file (never loaded by it).

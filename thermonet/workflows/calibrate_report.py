@@ -208,19 +208,35 @@ def summary_table(doc: dict[str, Any]) -> list[str]:
 
 
 def _totals(doc: dict[str, Any]) -> list[str]:
-    """How many fitted axes pass the held-out check with margin, and the loading advice."""
+    """How many fitted axes pass the held-out check with margin, and the loading advice —
+    which, where an axis in the file fails that check, says so first."""
     lines: list[str] = []
     graded = [g for d in doc["instances"].values() if d["status"] in ("fitted", "model only")
               for g in (d.get("held_out") or {}).get("grades") or []]
+    fails = sum(1 for d in doc["instances"].values() if d["status"] == "fitted"
+                for g in (d.get("held_out") or {}).get("grades") or [] if g == "fails")
     if graded:
-        weak = {g: graded.count(g) for g in ("marginal", "fails") if g in graded}
+        weak = []
+        if "marginal" in graded:
+            weak.append(f"{graded.count('marginal')} marginal — `thermonet verify` on a new log "
+                        "may FAIL them")
+        if "fails" in graded:
+            weak.append(f"{graded.count('fails')} fail it — `thermonet verify` on a new log "
+                        "will FAIL them too")
         lines += ["", f"held-out check (verify's test, limits and floors): {graded.count('fine')} "
                   f"of {len(graded)} fitted axes pass with margin" + (
-                      "; " + ", ".join(f"{n} {g}" for g, n in weak.items())
-                      + " — `thermonet verify` on a new log may FAIL them (see 'held out' "
-                      "in the detail)" if weak else "")]
+                      "; " + "; ".join(weak) + " (see 'held out' in the detail)" if weak else "")]
     board = f"on board {doc['board_id']}, whose sensors are" if doc.get("board_id") else \
         "for a board whose sensors are"
+    if fails:
+        lines += ["", f"The parameter file holds {fails} "
+                  f"{'axis that fails' if fails == 1 else 'axes that fail'} the held-out "
+                  "check (corrected, less than verify asks): log a warm-up "
+                  "over a wider range (colder start, hotter end) and calibrate again with it "
+                  "before loading. If you load this one, load it only "
+                  f"{board} the device ids above; reboot after loading; re-run the ordinary "
+                  "gyro/accel calibration."]
+        return lines
     lines += ["", f"Load the parameter file only {board} the device ids above; reboot after "
               "loading; re-run the ordinary gyro/accel calibration."]
     return lines

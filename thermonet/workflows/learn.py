@@ -25,7 +25,15 @@ accelerometer):
    ``calibrate`` writes them), ``DIR/instances/<name>/`` (the comparison, with
    ``model.onnx`` and ``model.h`` of its chosen model), ``DIR/results.json``,
    ``DIR/report.txt``, and the **coverage map**: per 1 °C bin the flights and minutes that
-   support it, and the temperatures still missing in plain words.
+   support it, and the temperatures still missing in plain words.  The parameter file
+   carries calibrate's header lines (``# board id:``, ArduPilot's ``# device ids:``) and
+   only what was learned: a sensor no log reveals is named with why (``not_learned``), its
+   ArduPilot ``INS_TCAL<n>_ACC*``/``GYR*`` not written, a PX4 kind with nothing learned (the
+   barometer) left as the board has it.
+
+Run again on the same ``DIR``, the logs given are the flights learned
+(:mod:`thermonet.workflows.learn_previous`: the flights learned before and not given are
+named in a warning; logs of another vehicle are refused).
 
 The target is the chamber path's: the gyro's drift as it is (its offset included), the
 accelerometer's less its median (gravity and the stored offsets are not drift).  After
@@ -61,11 +69,11 @@ from .learn_data import (
     InstanceWindows,
     WindowFold,
     not_this_vehicle,
-    supported_spans,
     vehicle_key,
     vehicle_of,
 )
 from .learn_fit import UNITS, instance_doc
+from .learn_previous import check_previous, not_learned, previous
 from .learn_reduce import (
     READER_VERSION,
     cache_path,
@@ -73,6 +81,7 @@ from .learn_reduce import (
     reduce_for_cache,
     write_cache,
 )
+from .learn_report import format_learn_report
 from .magnetometer import fit_correction
 
 __all__ = ["learn", "format_learn_report", "find_logs"]
@@ -126,7 +135,7 @@ def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
             logs[k] = {"index": k, "path": doc["path"], "error": doc["error"]}
             return
         fold.add(k, doc)
-        logs[k] = {"index": k, **{key: doc.get(key) for key in (
+        logs[k] = {"index": k, "sha256": digests[k], **{key: doc.get(key) for key in (
             "path", "autopilot", "sensors", "board_id", "notes")}}
 
     first: dict[str, int] = {}
@@ -204,8 +213,8 @@ def _params_text(autopilot: str, docs: dict[str, dict[str, Any]], header: list[s
         fits.setdefault(d["kind"], []).append(fit)
         if name[-1].isdigit():
             imus.setdefault(int(name[-1]), {})[d["kind"]] = fit
-    if autopilot == "px4":
-        return px4_calibration_text(fits, header=header), "px4.params"
+    if autopilot == "px4":   # a kind not learned (the barometer) is left as the board has it
+        return px4_calibration_text(fits, header=header, fitted_kinds_only=True), "px4.params"
     return ardupilot_calibration_text(imus, header=header), "ardupilot.parm"
 
 
@@ -243,7 +252,8 @@ def _span(s: list[int] | None) -> str:
 
 def learn(paths: Sequence[str | Path], out_dir: str | Path, *, executor: str = "process",
           workers: int | None = None, ray_address: str | None = None, compare: bool = True,
-          export: bool = True, say: Callable[[str], None] | None = None) -> dict[str, Any]:
+          export: bool = True, say: Callable[[str], None] | None = None,
+          overwrite: bool = False) -> dict[str, Any]:
     """Learn every sensor instance's drift from the logs; write ``out_dir``; return results.
 
     ``paths``: logs and directories of logs (:func:`find_logs`), one vehicle.  ``executor``
@@ -251,6 +261,12 @@ def learn(paths: Sequence[str | Path], out_dir: str | Path, *, executor: str = "
     :func:`thermonet.core.executors.run_tasks`).  ``compare`` / ``export``: run the
     comparison per instance, and export its chosen model as ONNX and C.  ``say`` receives
     the progress lines (None: silent).
+
+    Run again on the same ``out_dir``: **the logs given are the flights learned** (the cache
+    only spares reading a log again), so give the earlier logs with the new ones; a flight
+    learned before and not given is left out, with a warning naming it
+    (:mod:`thermonet.workflows.learn_previous`).  Logs of another vehicle than the one
+    ``out_dir`` learned before are refused (InputError) unless ``overwrite``.
     """
     say = say or (lambda _line: None)
     files = find_logs(paths)
@@ -283,14 +299,19 @@ def learn(paths: Sequence[str | Path], out_dir: str | Path, *, executor: str = "
             shutil.rmtree(out, ignore_errors=True)
         raise ThermonetError("no log to learn from: " + "; ".join(
             f"{Path(p).name}: {w}" for p, w in refused))
+    old = None if overwrite else previous(out)
+    warnings = check_previous(old, out, ap, sensors, board, logs)
+    for w in warnings:
+        say(f"warning: {w}")
     instances = fold.instances({vehicle_key(lg) for lg in logs}, [lg["index"] for lg in logs],
                                [lg["path"] for lg in logs], sensors)
-    old = _previous(out)
     stage = out / ".staging"
     shutil.rmtree(stage, ignore_errors=True)
     stage.mkdir(parents=True)
     try:
-        doc = _learn_into(logs, instances, refused, ap, stage, compare, export, say)
+        doc = _learn_into(logs, instances, refused, (ap, sensors, board), stage, compare,
+                          export, say)
+        doc["warnings"] = warnings
         doc["changes"] = _changes(old, doc)
         atomic_write_text(stage / "report.txt", format_learn_report(doc))
         atomic_write_text(stage / "results.json", json.dumps(doc, indent=2, default=_json))
@@ -298,14 +319,6 @@ def learn(paths: Sequence[str | Path], out_dir: str | Path, *, executor: str = "
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     return doc
-
-
-def _previous(out: Path) -> dict[str, Any] | None:
-    try:
-        doc = json.loads((out / "results.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return doc if isinstance(doc, dict) and doc.get("kind") == "learn" else None
 
 
 def _install(stage: Path, out: Path) -> None:
@@ -322,10 +335,13 @@ def _install(stage: Path, out: Path) -> None:
 
 
 def _learn_into(logs: list[dict[str, Any]], instances: Iterable[InstanceWindows],
-                refused: list[tuple[str, str]], autopilot: str, stage: Path, do_compare: bool,
-                do_export: bool, say: Callable[[str], None]) -> dict[str, Any]:
+                refused: list[tuple[str, str]], vehicle: tuple[str, dict[str, int], str | None],
+                stage: Path, do_compare: bool, do_export: bool, say: Callable[[str], None]
+                ) -> dict[str, Any]:
     """Every instance learned into ``stage`` (one at a time: each one's windows dropped once
-    learned); the results document (without its changes)."""
+    learned); the results document (without its warnings and changes).  ``vehicle``:
+    autopilot, device ids by instance, board id (:func:`vehicle_of`)."""
+    autopilot, sensors, board = vehicle
     docs: dict[str, dict[str, Any]] = {}
     for inst in sorted(instances, key=lambda i: i.name):    # acc0, acc1, gyro0, gyro1, …
         say(f"{inst.name}: learning from {counted(int(np.unique(inst.flight).size), 'flight')}")
@@ -333,6 +349,7 @@ def _learn_into(logs: list[dict[str, Any]], instances: Iterable[InstanceWindows]
     header = [f"thermonet {__version__}: drift learned from {counted(len(logs), 'flight log')} "
               "(estimator biases and still-gyro windows; no chamber)",
               "redo the autopilot's gyro and accelerometer calibration after loading it"]
+    header += [f"board id: {board}"] if board else []     # verify matches by it, as calibrate's
     params = None
     if any(d["status"] == "fitted" for d in docs.values()):
         text, fname = _params_text(autopilot, docs, header)
@@ -340,8 +357,11 @@ def _learn_into(logs: list[dict[str, Any]], instances: Iterable[InstanceWindows]
         params = fname
     return {"kind": "learn", "schema": 1, "thermonet_version": __version__,
             "autopilot": autopilot, "logs": [lg["path"] for lg in logs],
+            "logs_sha256": [lg["sha256"] for lg in logs],
+            "vehicle": {"autopilot": autopilot, "sensors": sensors, "board_id": board},
             "refused": [{"log": p, "reason": w} for p, w in refused],
             "params_file": params, "instances": docs,
+            "not_learned": not_learned(sensors, docs, autopilot),
             "log_notes": sorted({n for lg in logs for n in lg.get("notes", [])})}
 
 
@@ -353,76 +373,3 @@ def _json(obj: Any) -> Any:
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     raise TypeError(type(obj).__name__)
-
-
-def _outside_note(h: dict[str, Any]) -> str:
-    """Where the held-out flight left the other flights' range (the firmware clamps there)."""
-    share, span = h.get("outside_trained") or 0.0, h.get("trained_c")
-    if share < 0.01 or not span:
-        return ""
-    return (f" ({share:.0%} of it outside the other flights' {span[0]:.1f}..{span[1]:.1f} °C, "
-            "where the firmware holds its edge value)")
-
-
-def _band_line(c: dict[str, Any], unit: str) -> list[str]:
-    """The firmware form's residual-drift band (judged on whole flights held out) in one
-    line, in ``unit`` as the instance's other lines (results.json also holds it in °/h or
-    mg): its half-widths over the flown range and how fast it grows outside it."""
-    b = c.get("band")
-    if not isinstance(b, dict) or not b.get("axes"):
-        return []
-    axes = b["axes"].values()
-    widths = [float(w) for a in axes for w in a["half_width"]]
-    edges = next(iter(axes))["edges"]
-    grow = max(max(float(a["growth_below"]), float(a["growth_above"])) for a in axes)
-    return [f"  band ({float(b['level']):.0%}, {c['baseline']}, whole flights held out): "
-            f"±{min(widths):.3g}..{max(widths):.3g} {unit} over {edges[0]:.0f}..{edges[-1]:.0f} "
-            f"°C, growing by up to {grow:.3g} {unit} per °C outside (not yet flown)"]
-
-
-def _supported(d: dict[str, Any]) -> str:
-    """The supported 1 °C bins as spans ("10..13, 36..39 °C"), or "" where none is."""
-    spans = supported_spans(d.get("coverage") or [])
-    return ", ".join(f"{a}..{b + 1}" for a, b in spans) + " °C" if spans else ""
-
-
-def format_learn_report(doc: dict[str, Any], out_dir: str | Path | None = None) -> str:
-    """The console summary: what was used and refused, per instance its fit, held-out check,
-    coverage and what is missing, and what changed."""
-    lines = [f"thermonet learn: {counted(len(doc['logs']), 'log')} used, "
-             f"{len(doc['refused'])} refused "
-             f"({doc['autopilot']})"]
-    lines += [f"  refused {r['log']}: {r['reason']}" for r in doc["refused"]]
-    for name, d in doc["instances"].items():
-        unit = UNITS[d["kind"]]
-        lines.append(f"{name} (id {d['device_id']}): {d['status']}, "
-                     f"{counted(d['flights'], 'flight')}, "
-                     f"{d['minutes']:g} min, lag {d['lag_s']:g} s, "
-                     f"{counted(d['rejected_windows'], 'window')} rejected (diverged)")
-        h = d.get("held_out") or {}
-        if h.get("status") == "judged":
-            lines.append(f"  held-out flight {Path(h['flight']).name}: binned drift p-p "
-                         + ", ".join(f"{b:.3g} -> {a:.3g}" for b, a in zip(
-                             h["pp_raw"], h["pp_corrected"], strict=True)) + f" {unit}"
-                         + _outside_note(h))
-        c = d.get("compare") or {}
-        if c.get("status") == "ok":
-            chosen = c.get("chosen") or f"nothing ({c.get('chosen_reason')})"
-            lines.append(f"  comparison on whole flights: chosen {chosen} "
-                         f"(baseline {c['baseline']}, test {c['test_flight']})")
-            lines += _band_line(c, unit)
-        elif c:
-            lines.append(f"  comparison: {c.get('status')} ({c.get('reason')})")
-        if d.get("reason"):
-            lines.append(f"  {d['reason']}")
-        spans = _supported(d)
-        lines.append(f"  coverage: supported {spans}" if spans else
-                     "  coverage: no 1 °C bin supported yet")
-        lines += [f"  {w}" for w in d.get("missing", [])]
-    if doc.get("params_file"):
-        lines.append(f"parameter file: {Path(out_dir or '') / doc['params_file']}")
-    else:   # exit 0 all the same: the logs were read and kept (cache) for the next run
-        lines.append("parameter file: none yet (no sensor could be fitted: fly more and run "
-                     "learn again)")
-    lines += [f"changed: {c}" for c in doc.get("changes", [])]
-    return "\n".join(lines) + "\n"

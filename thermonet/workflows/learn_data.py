@@ -79,6 +79,11 @@ TARGET_RANGE_C = (-10.0, 60.0)
 #: A 1 °C bin is supported with at least this many flights and minutes.
 MIN_BIN_FLIGHTS = 2
 MIN_BIN_MINUTES = 2.0
+#: A fit whose supported bins span less than this (°C, first to last) is not written: a cubic
+#: over a degree or two is an offset's guess, and the autopilot would carry it across its
+#: whole clamp (a 6-flight ArduPilot vehicle's IMU 3, supported at −1..0 °C only, wrote a
+#: gyro fit that verify failed at 3.0x on a bench warm-up).
+MIN_SUPPORTED_SPAN_C = 5.0
 
 
 @dataclass

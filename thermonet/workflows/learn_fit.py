@@ -24,6 +24,7 @@ from .firmware_fit import fit_firmware
 from .learn_data import (
     MIN_BIN_FLIGHTS,
     MIN_BIN_MINUTES,
+    MIN_SUPPORTED_SPAN_C,
     InstanceWindows,
     choose_lag,
     coverage,
@@ -215,6 +216,11 @@ def instance_doc(inst: InstanceWindows, autopilot: str, stage: Path, do_compare:
         d["status"], d["reason"] = "skipped", (
             "left out of the parameter file: no 1 °C bin has "
             f"{MIN_BIN_FLIGHTS} flights and {MIN_BIN_MINUTES:g} minutes yet (coverage below)")
+    elif span[1] - span[0] < MIN_SUPPORTED_SPAN_C:
+        d["status"], d["reason"] = "skipped", (
+            f"left out of the parameter file: supported only at {span[0]}..{span[1]} °C "
+            f"(under {MIN_SUPPORTED_SPAN_C:g} °C): a cubic there is an offset's guess that "
+            "the autopilot would carry across its clamp (coverage below)")
     if do_compare:
         where = stage / "instances" / inst.name
         try:

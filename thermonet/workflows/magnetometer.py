@@ -68,6 +68,11 @@ def parse_thermometers(specs: Sequence[str]) -> dict[str, str]:
             raise InputError(f"--mag-thermometer {spec!r}: expected MAG=THERMOMETER, e.g. "
                              "mag1=baro0 (a magnetometer instance and the instance whose "
                              "thermometer it borrows)")
+        if mag.strip() in out and out[mag.strip()] != donor.strip():
+            raise InputError(f"--mag-thermometer {spec!r}: {mag.strip()} is already lent "
+                             f"{out[mag.strip()]}'s thermometer (--mag-thermometer "
+                             f"{mag.strip()}={out[mag.strip()]}): name one thermometer per "
+                             "magnetometer")
         out[mag.strip()] = donor.strip()
     return out
 

@@ -22,6 +22,13 @@ The firmware's formula (:mod:`thermonet.data.firmware`):
   subtracted.  IMU n is matched by device id when the file names the ids (a full
   dump's ``INS_GYR_ID``/``INS_ACC2_ID``…, or thermonet's ``# device ids:`` line);
   ``tempcal_IMU.py`` writes none, and then IMU n is the log's IMU n (said in the report).
+  A group may hold one of its IMU's two sensors (``export`` of a gyro model): the other is
+  ``not covered`` (loaded, the file leaves its calibration as the board has it).
+
+The log must be a warm-up at rest (:func:`~thermonet.workflows.verify_motion.moving_log`,
+learn's test of stillness): in flight every 1 °C bin holds the vehicle's motion and every
+axis reads uncorrected, so a log whose gyros are still in under 80 % of their windows is
+refused in one line.
 
 Judged per instance and axis on the log: the binned drift (peak-to-peak of the
 1 °C-binned means of the output; accel and baro less their median) before and
@@ -109,7 +116,9 @@ from ..data.logs import FlightLog, SensorInstance, read_log
 from ..data.logs.info import autopilot_article
 from ..scoring.metrics import binned_peak_to_peak
 from .firmware_fit import check_instance, target
+from .verify_motion import moving_log
 from .verify_params import (
+    AP_SENSOR,
     FLOAT32_MAX,
     KIND_UNITS,
     RANGE_SLACK_C,
@@ -198,6 +207,8 @@ def _slot(pf: ParamFile, inst: SensorInstance) -> tuple[int | None, str | None]:
         return None, "ArduPilot has no magnetometer temperature calibration"
     if pf.by_id:
         imu = pf.by_id.get((inst.kind, inst.device_id))
+        if imu is None and inst.kind not in pf.kinds.get(f"imu{inst.instance + 1}", {inst.kind}):
+            imu = inst.instance           # its IMU's group is there, without this sensor
         if imu is None:
             return None, "no IMU of the file has its device id"
     else:
@@ -207,6 +218,9 @@ def _slot(pf: ParamFile, inst: SensorInstance) -> tuple[int | None, str | None]:
     if not pf.enabled[f"imu{imu + 1}"]:
         return None, (f"{DISABLED}: INS_TCAL{imu + 1}_* apply to it, but INS_TCAL{imu + 1}_"
                       "ENABLE is not 1: the firmware applies none")
+    if inst.kind not in pf.kinds.get(f"imu{imu + 1}", {inst.kind}):
+        return None, (f"the file has no INS_TCAL{imu + 1}_{AP_SENSOR[inst.kind]}*: loaded, it "
+                      "leaves this sensor's calibration as the board has it")
     return imu, None
 
 
@@ -403,9 +417,17 @@ def verify(params_path: str | Path, log_path: str | Path, out_dir: str | Path, *
     out = Path(out_dir)
     refuse_overwriting_inputs(out, [pf.path, log.path], owned=KINDS["verification"])
     check_target(out, overwrite, "verification")
+    digest = sha256_file(log.path)
+    moving = moving_log(log)
+    if moving:
+        fitted = trained_on(pf.path, digest)
+        raise InputError(f"{log.path}: {moving}"
+                         + (" (and the file was fitted on it)" if fitted else "")
+                         + " — verify judges a warm-up at rest (the drift against temperature, "
+                         "which motion hides): give a log of the vehicle still while it warms "
+                         "up, e.g. powered on from cold on the bench")
     insts = evaluate(pf, log, limits)
     judged = [d for d in insts.values() if d["status"] == "judged"]
-    digest = sha256_file(log.path)
     doc = {"kind": "verification", "schema": 1, "thermonet_version": __version__,
            "params_file": str(pf.path), "log": str(log.path),
            "log_sha256": digest, "trained_on": trained_on(pf.path, digest),
@@ -424,10 +446,10 @@ def verify(params_path: str | Path, log_path: str | Path, out_dir: str | Path, *
 
 
 def trained_on(params_path: Path, digest: str) -> str | None:
-    """The log, by the name ``calibrate`` recorded, whose bytes (SHA-256 ``digest``) the
-    parameter file was fitted on, where the calibration's results.json lies beside it (None:
-    not one of them, or no readable record there — nothing read is trusted: a record that is
-    not calibrate's is ignored)."""
+    """The log, by the name ``calibrate`` or ``learn`` recorded, whose bytes (SHA-256
+    ``digest``) the parameter file was fitted on, where that run's results.json lies beside it
+    (None: not one of them, or no readable record there — nothing read is trusted: a record
+    without matching ``logs`` and ``logs_sha256`` lists is ignored)."""
     try:
         rec = json.loads((params_path.parent / "results.json").read_text())
     except (OSError, ValueError):

@@ -21,7 +21,7 @@ from ..data.firmware import PX4_LETTER, PX4_SLOTS
 from ..data.logs.base import TEMPERATURE_RANGE_C
 
 __all__ = ["ParamFile", "read_param_file", "KIND_UNITS", "RANGE_SLACK_C", "PLAUSIBLE_C",
-           "FLOAT32_MAX"]
+           "FLOAT32_MAX", "AP_SENSOR"]
 
 _PX4_LETTER = PX4_LETTER
 
@@ -31,6 +31,8 @@ RANGE_SLACK_C = 0.5
 #: magnetometer in µT, its TC_M* coefficients in gauss).
 KIND_UNITS = {"gyro": "rad/s", "acc": "m/s²", "baro": "Pa", "mag": "µT"}
 _AP_ID = {"gyro": "INS_GYR{}_ID", "acc": "INS_ACC{}_ID"}
+#: ArduPilot's coefficient group of each sensor kind within ``INS_TCAL<n>_``.
+AP_SENSOR = {"gyro": "GYR", "acc": "ACC"}
 _AP_IDS_LINE = re.compile(r"^#\s*device ids:\s*INS_TCAL(\d)\s+gyro\s+(\d+)\s+acc\s+(\d+)")
 #: thermonet's header line naming the board a file was fitted on (``FlightLog.board_id``).
 _BOARD_LINE = re.compile(r"^#\s*board id:\s*(\S.*?)\s*$")
@@ -60,6 +62,10 @@ class ParamFile:
     line_of: dict[str, int] = field(default_factory=dict)
     #: The board the file was fitted on (thermonet's ``# board id:`` line), else None.
     board_id: str | None = None
+    #: ArduPilot: the sensor kinds each enabled ``INS_TCAL<n>`` writes ("imu<n>" -> gyro,
+    #: acc): a file may hold one of an IMU's two (``export`` of a gyro model), leaving the
+    #: other's parameters as the board has them.
+    kinds: dict[str, set[str]] = field(default_factory=dict)
 
     def where(self, name: str) -> str:
         """``FILE: line N`` of parameter ``name`` (the file alone when it has no line)."""
@@ -137,14 +143,19 @@ def read_param_file(path: str | Path) -> ParamFile:
     why = not_a_file(p)
     if why:
         raise InputError(f"{p}: {why}")
-    try:
-        text = p.read_text()
+    try:   # utf-8-sig: a byte-order mark (Windows Notepad saves one) is not a character
+        text = p.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as err:
         raise InputError(f"{p}: cannot be read as a parameter file ({err})") from err
     first = _first_param_line(text)
     if first is None:
         raise InputError(f"{p}: no parameter lines")
     autopilot = "px4" if len(first.split()) == 5 else "ardupilot"
+    if autopilot == "ardupilot" and len(first.replace(",", " ").split()) != 2:
+        no = text.splitlines().index(first) + 1
+        raise InputError(f"{p}: line {no}: {first.strip()[:80]!r} is neither a PX4 parameter "
+                         "line (Vehicle-Id Component-Id Name Value Type, tab-separated) nor an "
+                         "ArduPilot one (NAME,VALUE or NAME VALUE)")
     params, line_of = _parse(p, text, autopilot)
     board = next((m.group(1) for m in map(_BOARD_LINE.match, text.splitlines()) if m), None)
     pf = ParamFile(p, autopilot, params, {}, {}, line_of, board)
@@ -153,61 +164,91 @@ def read_param_file(path: str | Path) -> ParamFile:
             raise InputError(f"{pf.where(name)}: parameter {name} is {v}: not a finite number "
                              "(the firmware would turn every corrected sample into NaN or inf)")
     if autopilot == "px4":
-        if not any(k.startswith("TC_") for k in params):
-            raise InputError(f"{p}: no PX4 thermal calibration (TC_*) parameters")
-        for kind, t in _PX4_LETTER.items():
-            # process_sensor_caldata.py writes no TC_<k>_ENABLE (its procedure sets them to 1
-            # on the board first): absent means enabled, said per instance
-            pf.enabled[kind] = params.get(f"TC_{t}_ENABLE", 1.0) == 1.0
-            for s in range(PX4_SLOTS):
-                if f"TC_{t}{s}_ID" not in params:
-                    continue
-                dev = _device_id(pf, f"TC_{t}{s}_ID")
-                if not dev:
-                    continue                       # ID 0: the firmware applies the slot to none
-                if (kind, dev) in pf.by_id:
-                    other = f"TC_{t}{pf.by_id[(kind, dev)]}_ID"
-                    raise InputError(f"{pf.where(f'TC_{t}{s}_ID')}: parameter TC_{t}{s}_ID names "
-                                     f"device {dev}, as {other} (line {line_of[other]}) does: "
-                                     "which slot applies is ambiguous")
-                pf.by_id[(kind, dev)] = s
-                _check_slot(pf, f"TC_{t}{s}_", _px4_coefficients(t, s), reference=True)
+        _px4_slots(pf)
     else:
-        imus = [n for n in (1, 2, 3) if f"INS_TCAL{n}_ENABLE" in params]
-        if not imus:
-            raise InputError(f"{p}: no ArduPilot thermal calibration (INS_TCAL<n>_*) parameters")
-        owner: dict[tuple[str, int], tuple[int, str]] = {}
-
-        def claim(kind: str, dev: int, imu: int, what: str) -> None:
-            if (kind, dev) in owner and owner[(kind, dev)][0] != imu:
-                raise InputError(f"{p}: {what} names {kind} device {dev} for IMU {imu}, "
-                                 f"{owner[(kind, dev)][1]} for IMU {owner[(kind, dev)][0]}: "
-                                 "which IMU applies is ambiguous")
-            owner[(kind, dev)] = (imu, what)
-
-        for n in imus:
-            pf.enabled[f"imu{n}"] = params[f"INS_TCAL{n}_ENABLE"] == 1.0
-            for kind, fmt in _AP_ID.items():
-                name = fmt.format("" if n == 1 else n)
-                if name not in params:
-                    continue
-                dev = _device_id(pf, name)
-                if dev:
-                    claim(kind, dev, n, f"{name} (line {line_of[name]})")
-                    pf.by_id[(kind, dev)] = n - 1
-            if pf.enabled[f"imu{n}"]:
-                pre = f"INS_TCAL{n}_"
-                _check_slot(pf, pre, [f"{pre}{s}{k}_{a}" for s in ("GYR", "ACC")
-                                      for k in (1, 2, 3) for a in "XYZ"], reference=False)
-        for no, line in enumerate(text.splitlines(), start=1):
-            m = _AP_IDS_LINE.match(line.strip())
-            if m:
-                n = int(m.group(1))
-                for kind, dev in (("gyro", int(m.group(2))), ("acc", int(m.group(3)))):
-                    if dev:
-                        claim(kind, dev, n, f"line {no} (# device ids)")
-                        pf.by_id[(kind, dev)] = n - 1
+        _ardupilot_imus(pf, text)
     return pf
+
+
+def _px4_slots(pf: ParamFile) -> None:
+    """A PX4 file's slots: which device each applies to (``by_id``), what is enabled, each
+    slot the firmware applies checked (:func:`_check_slot`)."""
+    p, params, line_of = pf.path, pf.params, pf.line_of
+    if not any(k.startswith("TC_") for k in params):
+        raise InputError(f"{p}: no PX4 thermal calibration (TC_*) parameters")
+    for kind, t in _PX4_LETTER.items():
+        # process_sensor_caldata.py writes no TC_<k>_ENABLE (its procedure sets them to 1
+        # on the board first): absent means enabled, said per instance
+        pf.enabled[kind] = params.get(f"TC_{t}_ENABLE", 1.0) == 1.0
+        for s in range(PX4_SLOTS):
+            if f"TC_{t}{s}_ID" not in params:
+                continue
+            dev = _device_id(pf, f"TC_{t}{s}_ID")
+            if not dev:
+                continue                       # ID 0: the firmware applies the slot to none
+            if (kind, dev) in pf.by_id:
+                other = f"TC_{t}{pf.by_id[(kind, dev)]}_ID"
+                raise InputError(f"{pf.where(f'TC_{t}{s}_ID')}: parameter TC_{t}{s}_ID names "
+                                 f"device {dev}, as {other} (line {line_of[other]}) does: "
+                                 "which slot applies is ambiguous")
+            pf.by_id[(kind, dev)] = s
+            _check_slot(pf, f"TC_{t}{s}_", _px4_coefficients(t, s), reference=True)
+
+
+def _ardupilot_imus(pf: ParamFile, text: str) -> None:
+    """An ArduPilot file's IMUs: which devices each applies to (``by_id``: a dump's
+    ``INS_*_ID``, thermonet's ``# device ids:`` lines), what is enabled, the sensors each
+    enabled IMU writes (``kinds``), each checked (:func:`_check_slot`)."""
+    p, params, line_of = pf.path, pf.params, pf.line_of
+    imus = [n for n in (1, 2, 3) if f"INS_TCAL{n}_ENABLE" in params]
+    if not imus:
+        raise InputError(f"{p}: no ArduPilot thermal calibration (INS_TCAL<n>_*) parameters")
+    owner: dict[tuple[str, int], tuple[int, str]] = {}
+
+    def claim(kind: str, dev: int, imu: int, what: str) -> None:
+        if (kind, dev) in owner and owner[(kind, dev)][0] != imu:
+            raise InputError(f"{p}: {what} names {kind} device {dev} for IMU {imu}, "
+                             f"{owner[(kind, dev)][1]} for IMU {owner[(kind, dev)][0]}: "
+                             "which IMU applies is ambiguous")
+        owner[(kind, dev)] = (imu, what)
+
+    for n in imus:
+        pf.enabled[f"imu{n}"] = params[f"INS_TCAL{n}_ENABLE"] == 1.0
+        for kind, fmt in _AP_ID.items():
+            name = fmt.format("" if n == 1 else n)
+            if name not in params:
+                continue
+            dev = _device_id(pf, name)
+            if dev:
+                claim(kind, dev, n, f"{name} (line {line_of[name]})")
+                pf.by_id[(kind, dev)] = n - 1
+        if pf.enabled[f"imu{n}"]:
+            pf.kinds[f"imu{n}"] = _ardupilot_kinds(pf, n)
+            pre = f"INS_TCAL{n}_"
+            _check_slot(pf, pre, [f"{pre}{AP_SENSOR[kind]}{k}_{a}"
+                                  for kind in sorted(pf.kinds[f"imu{n}"])
+                                  for k in (1, 2, 3) for a in "XYZ"], reference=False)
+    for no, line in enumerate(text.splitlines(), start=1):
+        m = _AP_IDS_LINE.match(line.strip())
+        if m:
+            n = int(m.group(1))
+            for kind, dev in (("gyro", int(m.group(2))), ("acc", int(m.group(3)))):
+                if dev:
+                    claim(kind, dev, n, f"line {no} (# device ids)")
+                    pf.by_id[(kind, dev)] = n - 1
+
+
+def _ardupilot_kinds(pf: ParamFile, n: int) -> set[str]:
+    """The sensors ``INS_TCAL<n>`` writes: a kind with any of its nine coefficients (the
+    rest then required by :func:`_check_slot`); refused where it writes neither."""
+    pre = f"INS_TCAL{n}_"
+    kinds = {kind for kind, s in AP_SENSOR.items()
+             if any(f"{pre}{s}{k}_{a}" in pf.params for k in (1, 2, 3) for a in "XYZ")}
+    if not kinds:
+        raise InputError(f"{pf.where(pre + 'ENABLE')}: parameter {pre}ENABLE = 1 but the file "
+                         f"has none of {pre}GYR* / {pre}ACC* (the coefficients it enables): "
+                         "the board would apply whatever values it has")
+    return kinds
 
 
 def _px4_coefficients(t: str, s: int) -> list[str]:

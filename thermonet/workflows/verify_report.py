@@ -68,12 +68,24 @@ def _slot_name(autopilot: str, d: dict[str, Any]) -> str:
     return f"TC_{PX4_LETTER.get(d['kind'], '?')}{d['slot']}"
 
 
+def _unjudged(insts: dict[str, dict[str, Any]]) -> str:
+    """The instances the file calibrates that the log could not judge, grouped by why:
+    ``not judged: gyro0, gyro1 (why)``; "" where there are none."""
+    why: dict[str, list[str]] = {}
+    for n, d in insts.items():
+        if d["status"] == "not judged":
+            why.setdefault(str(d.get("reason") or "no reason given"), []).append(n)
+    return "; ".join(f"{', '.join(names)} ({reason})" for reason, names in why.items())
+
+
 def verdict_line(doc: dict[str, Any]) -> str:
-    """The verdict, with what it covers: PASS names the instances the file left uncorrected
-    (a file may calibrate some sensors only); FAIL says whether an axis failed or a
-    calibration the file holds is not applied (its ENABLE is not 1)."""
+    """The verdict, with what it covers: PASS names the instances it was judged on, those the
+    file calibrates that the log could not judge (and why) and those the file leaves
+    uncorrected (a file may calibrate some sensors only); FAIL says whether an axis failed
+    or a calibration the file holds is not applied (its ENABLE is not 1)."""
     insts = doc["instances"]
     names = lambda status: [n for n, d in insts.items() if d["status"] == status]  # noqa: E731
+    unjudged = _unjudged(insts)
     if not doc["passed"]:
         off = names("not applied")
         why = ["see the axes marked FAIL"] if any(
@@ -82,21 +94,26 @@ def verdict_line(doc: dict[str, Any]) -> str:
         if off:
             why.append(f"{', '.join(off)}: calibrated by the file but not applied (ENABLE is "
                        "not 1)")
+        if unjudged:
+            why.append(f"not judged: {unjudged}")
         return "FAIL: " + "; ".join(why)
     text = "PASS" + (" (on its own training log)" if doc.get("trained_on") else "")
     left = names("not covered")
+    if left or unjudged:
+        text += f" for {', '.join(names('judged'))}"
+    if unjudged:
+        text += f"; not judged: {unjudged}"
     if left:
-        text += (f" for {', '.join(names('judged'))}; not covered by this file: "
-                 f"{', '.join(left)} ({'its' if len(left) == 1 else 'their'} drift is not "
-                 "corrected)")
+        text += (f"; not covered by this file: {', '.join(left)} "
+                 f"({'its' if len(left) == 1 else 'their'} drift is not corrected)")
     return text
 
 
 def trained_note(doc: dict[str, Any]) -> str:
     """Why a verdict on the calibration's own log is no verdict on a new excursion."""
     return (f"this log is {doc['trained_on']}, which the parameters were fitted on (the "
-            "calibration's results.json says so): a check on training data, not on a new "
-            "warm-up — verify on another log")
+            "results.json of the calibrate or learn run beside the file says so): a check on "
+            "training data, not on a new warm-up — verify on another log")
 
 
 def render_verify_html(doc: dict[str, Any]) -> str:

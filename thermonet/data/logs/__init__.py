@@ -49,7 +49,13 @@ def is_log_source(path: str | Path) -> bool:
 
 
 def read_log(path: str | Path) -> FlightLog:
-    """Read a PX4 ULog or an ArduPilot DataFlash log (by suffix)."""
+    """Read a PX4 ULog or an ArduPilot DataFlash log (by suffix); ``LOG#instance`` (one
+    instance, what ``fit`` and ``info`` read) is refused, naming the log to give instead."""
+    file, name = split_instance(path)
+    if name:
+        raise InputError.at(path, f"'#{name}' (one sensor instance) is not accepted here: this "
+                            f"command reads every instance of a log — give the log itself, "
+                            f"{file}")
     kind = LOG_SUFFIXES.get(Path(path).suffix.lower())
     why = not_a_file(path, "flight-controller log")  # a directory, FIFO or device by name
     if why:

@@ -23,7 +23,8 @@ from ...core.recording import Dataset, Recording
 __all__ = ["SensorInstance", "FlightLog", "AXES", "UNITS", "temperature_step", "screen_samples",
            "drop_phantoms", "MAX_DAMAGED_FRACTION", "MAX_UNREAD_FRACTION", "FULL_SCALE",
            "TEMPERATURE_RANGE_C", "TEMPERATURE_SPIKE_C", "MAX_INSTANCE", "time_gaps",
-           "byte_ranges_note", "UT_PER_GAUSS", "lend_thermometer"]
+           "byte_ranges_note", "UT_PER_GAUSS", "lend_thermometer", "MAX_CLOCK_BACK_S",
+           "clock_jump_back"]
 
 #: Output channels per sensor kind.
 AXES = {"gyro": ("x", "y", "z"), "acc": ("x", "y", "z"), "mag": ("x", "y", "z"), "baro": ("p",)}
@@ -399,6 +400,26 @@ def byte_ranges_note(ranges: list[tuple[int, int]], size: int) -> str:
     return (f"{len(ranges)} damaged stretch{'es' if len(ranges) > 1 else ''} not readable as "
             f"messages, {total:,} byte{'s' * (total != 1)} ({share_text} of the file) skipped "
             f"at bytes {where}{cut}")
+
+
+#: A sensor's clock stepping back by more than this (s), once damaged samples are dropped,
+#: is a clock jump: sorted, two stretches of time would interleave (the readers refuse it).
+MAX_CLOCK_BACK_S = 1.0
+
+
+def clock_jump_back(time_s: np.ndarray, what: str) -> str | None:
+    """The largest step back of a sensor's clock (in the log's own order, damaged samples
+    already dropped) beyond :data:`MAX_CLOCK_BACK_S`, in words naming ``what``; else None."""
+    t = np.asarray(time_s, dtype=np.float64)
+    if t.size < 2:
+        return None
+    dt = np.diff(t)
+    k = int(np.argmin(dt))
+    if dt[k] >= -MAX_CLOCK_BACK_S:
+        return None
+    return (f"the clock jumps back by {-dt[k]:.1f} s at t = {t[k]:.1f} s ({what}): sorted, the "
+            "samples before and after the jump would interleave — record the warm-up again, "
+            "or cut the log at the jump and give the parts as separate logs")
 
 
 def time_gaps(instances: list[SensorInstance]) -> list[str]:

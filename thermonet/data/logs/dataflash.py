@@ -57,6 +57,7 @@ from .base import (
     FlightLog,
     SensorInstance,
     byte_ranges_note,
+    clock_jump_back,
     drop_phantoms,
     flag_kelvin,
     screen_samples,
@@ -220,7 +221,7 @@ def read_dataflash(path: str | Path) -> FlightLog:
     got = _read_messages(path, reader, stop is not None, chatter)
     cut = _cut_short(reader, stop is not None)
     damage, unread = _damage(index_chatter, chatter.getvalue(), stop, got.skipped, size, cut)
-    instances = _instances(got.rows, got.params)
+    instances = _instances(got.rows, got.params, path)
     have_imu = {idx for (group, idx) in got.rows if group == "imu"}
     instances += _tclr_instances(got.tclr, got.params, have_imu)
     instances, phantoms = drop_phantoms(instances, "ardupilot")
@@ -370,7 +371,7 @@ def _damage(index_chatter: str, read_chatter: str, stop: re.Match[str] | None, s
 
 
 def _instances(rows: dict[tuple[str, int], list[list[float]]],
-               params: dict[str, float]) -> list[SensorInstance]:
+               params: dict[str, float], path: Path) -> list[SensorInstance]:
     """The sensor instances of the IMU, BARO and MAG rows, damaged samples dropped and
     counted, sorted in time."""
     orient = int(params.get("AHRS_ORIENTATION", 0))
@@ -383,6 +384,7 @@ def _instances(rows: dict[tuple[str, int], list[list[float]]],
             raw, mag_notes = _mag_raw(params, idx, a[:, 1:4], a[:, 4:7], a[:, 7:10])
             raw = raw * _UT_PER_MGAUSS
             keep, dropped = screen_samples("mag", a[:, 0], raw, None)
+            _refuse_jump(path, a[keep, 0], f"MAG instance {idx}")
             order = np.argsort(a[keep, 0], kind="stable")
             inst = SensorInstance("mag", idx, _id(params, "mag", idx), a[keep, 0][order], None,
                                   raw[keep][order], notes=[
@@ -398,6 +400,7 @@ def _instances(rows: dict[tuple[str, int], list[list[float]]],
             dropped += [x for x in dropped2 if x not in dropped]
             keep &= keep2
         a = a[keep]
+        _refuse_jump(path, a[:, 0], f"{'BARO' if group == 'baro' else 'IMU'} instance {idx}")
         a = a[np.argsort(a[:, 0], kind="stable")]
         t, temp = a[:, 0], a[:, -1]
         temperature = temp if has_temp and a.shape[0] else None
@@ -413,6 +416,13 @@ def _instances(rows: dict[tuple[str, int], list[list[float]]],
             flag_kelvin(inst)
             instances.append(inst)
     return instances
+
+
+def _refuse_jump(path: Path, time_s: np.ndarray, what: str) -> None:
+    """Refuse (one line naming the log) a clock that steps back (:func:`clock_jump_back`)."""
+    jump = clock_jump_back(time_s, what)
+    if jump:
+        raise InputError.at(path, jump)
 
 
 def _imu_instances(params: dict[str, float], idx: int, a: np.ndarray,

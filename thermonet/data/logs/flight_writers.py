@@ -44,6 +44,7 @@ from .writers import (
     _df,
     _df_head,
     _df_imu_records,
+    _in_time,
     _ulog_info,
     _ulog_start,
     _umsg,
@@ -154,16 +155,17 @@ def _ulog_bytes(log: FlightLog, biases: list[EstimatorBias], old: bool) -> bytes
             streams.append(("sensor_gyro" if inst.kind == "gyro" else "sensor_accel",
                             inst.instance, _sensor_rows(inst)))
     streams += [("estimator_sensor_bias", b.estimator, _bias_rows(b, old)) for b in biases]
-    records: list[tuple[int, int, bytes]] = []
+    written: list[list[tuple[int, int, bytes]]] = []
     for msg_id, (topic, multi, rows) in enumerate(streams):
         out += _umsg(b"A", struct.pack("<BH", multi, msg_id) + topic.encode())
         fmt = _struct(formats[topic])
+        records = []
         for us, vals in rows:
             body = struct.pack(fmt, us, *vals) if topic == "estimator_sensor_bias" else \
                 struct.pack(fmt, *vals)
             records.append((us, msg_id, _umsg(b"D", struct.pack("<H", msg_id) + body)))
-    records.sort(key=lambda r: (r[0], r[1]))
-    out += b"".join(r[2] for r in records)
+        written.append(records)
+    out += b"".join(r[2] for r in _in_time(written))
     return bytes(out)
 
 
@@ -185,19 +187,20 @@ def _centi(v: float) -> int:
 
 def _dataflash_bytes(log: FlightLog, biases: list[EstimatorBias]) -> bytes:
     out = _df_head(_DF_FORMATS, log)
-    records = _df_imu_records(log)
+    streams = _df_imu_records(log)
     deg = 180.0 / math.pi
     for b in biases:
         us = np.round(b.time_s * 1e6).astype(np.int64)
+        xkf1, xkf2 = [], []
         for i in range(b.time_s.size):
             gx, gy, gz = (_centi(float(v) * deg) for v in b.gyro_bias[i])
             ax, ay, az = (_centi(float(v)) for v in b.accel_bias[i])
-            records.append((int(us[i]), 10 + b.estimator, _df(66, struct.pack(
+            xkf1.append((int(us[i]), 10 + b.estimator, _df(66, struct.pack(
                 "<QBhhH7fhhhi", int(us[i]), b.estimator, 0, 0, 0, *([0.0] * 7), gx, gy, gz, 0))))
-            records.append((int(us[i]), 20 + b.estimator, _df(67, struct.pack(
+            xkf2.append((int(us[i]), 20 + b.estimator, _df(67, struct.pack(
                 "<QB5h9h", int(us[i]), b.estimator, ax, ay, az, 0, 0, *([0] * 9)))))
-    records.sort(key=lambda r: (r[0], r[1]))
-    out += b"".join(r[2] for r in records)
+        streams += [xkf1, xkf2]
+    out += b"".join(r[2] for r in _in_time(streams))
     return bytes(out)
 
 

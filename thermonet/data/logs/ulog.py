@@ -46,6 +46,7 @@ from .base import (
     FlightLog,
     SensorInstance,
     byte_ranges_note,
+    clock_jump_back,
     drop_phantoms,
     flag_kelvin,
     screen_samples,
@@ -139,7 +140,7 @@ def _pyulog_damage(chatter: str, ulog: Any, skipped: list[tuple[int, int]], size
 
 
 def _instance(d: Any, kind: str, fields: tuple[str, ...],
-              params: dict[str, float]) -> SensorInstance:
+              params: dict[str, float], path: Path) -> SensorInstance:
     """One logged instance of a sensor topic: SI units (hPa and gauss converted), damaged
     samples dropped and counted, its most frequent device id, sorted in time."""
     data = d.data
@@ -171,6 +172,9 @@ def _instance(d: Any, kind: str, fields: tuple[str, ...],
     if dev is not None:
         ids, counts = np.unique(dev[keep] if keep.any() else dev, return_counts=True)
         device_id = int(ids[np.argmax(counts)])
+    jump = clock_jump_back(t[keep], f"{d.name} instance {d.multi_id}")
+    if jump:
+        raise InputError.at(path, jump)
     order = np.argsort(t[keep], kind="stable")
     inst = SensorInstance(
         kind=kind, instance=int(d.multi_id), device_id=device_id,
@@ -228,7 +232,7 @@ def read_ulog(path: str | Path) -> FlightLog:
         if missing:
             raise InputError.at(path, f"topic {d.name} instance {d.multi_id} has no field "
                                 f"'{missing[0]}'")
-        instances.append(_instance(d, kind, fields, params))
+        instances.append(_instance(d, kind, fields, params, path))
     instances, phantoms = drop_phantoms(instances, "px4")
     return FlightLog(path=path, autopilot="px4", instances=instances, params=params,
                      notes=time_gaps(instances), damage=damage + phantoms,

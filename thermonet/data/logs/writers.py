@@ -27,8 +27,11 @@ with a board id also ``MSG`` (``QZ``: TimeUS, Message), its system-id line.
 
 from __future__ import annotations
 
+import heapq
 import struct
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -93,7 +96,7 @@ def _ulog_bytes(log: FlightLog) -> bytes:
         else:
             k = f"float {name}".encode()
             out += _umsg(b"P", bytes([len(k)]) + k + struct.pack("<f", float(value)))
-    records: list[tuple[int, bytes]] = []
+    streams: list[list[tuple[int, bytes]]] = []
     for msg_id, inst in enumerate(log.instances):
         if inst.kind not in formats:
             continue
@@ -104,14 +107,24 @@ def _ulog_bytes(log: FlightLog) -> bytes:
         us = np.round(inst.time_s * 1e6).astype(np.int64)
         values = inst.values / UT_PER_GAUSS if inst.kind == "mag" else inst.values
         extra: tuple[int | bool, ...] = (0, False) if inst.kind == "mag" else ()
+        records: list[tuple[int, bytes]] = []
         for i in range(inst.n_samples):
             body = struct.pack(fmt, int(us[i]), int(us[i]), inst.device_id,
                                *[float(v) for v in values[i]], float(temp[i]), *extra)
             records.append((int(us[i]), _umsg(b"D", struct.pack("<H", msg_id) + body)))
-    records.sort(key=lambda r: r[0])
-    for _, rec in records:
+        streams.append(records)
+    for _, rec in _in_time(streams):
         out += rec
     return bytes(out)
+
+
+def _in_time(streams: list[list[Any]]) -> Iterator[Any]:
+    """The records of every stream (one per sensor instance, each in its own order) merged
+    by time, as a logger writes them: a stream whose clock steps back keeps its own order
+    (the file shows the jump, as a real log does), where sorting every record would
+    interleave the stretches before and after it.  On streams in time order it is that sort
+    (stable: a tie keeps the streams' order)."""
+    return heapq.merge(*streams, key=lambda r: r[:-1])
 
 
 def _df(mtype: int, payload: bytes) -> bytes:
@@ -141,9 +154,10 @@ def _df_head(formats: dict[int, DfFormat], log: FlightLog) -> bytearray:
     return out
 
 
-def _df_imu_records(log: FlightLog) -> list[tuple[int, int, bytes]]:
-    """``IMU`` records (type 65) of every gyro/accelerometer pair: (µs, instance, bytes)."""
-    records: list[tuple[int, int, bytes]] = []
+def _df_imu_records(log: FlightLog) -> list[list[tuple[int, int, bytes]]]:
+    """``IMU`` records (type 65) of every gyro/accelerometer pair: (µs, instance, bytes), one
+    stream per IMU."""
+    streams: list[list[tuple[int, int, bytes]]] = []
     imus: dict[int, dict[str, SensorInstance]] = {}
     for inst in log.instances:
         if inst.kind in ("gyro", "acc"):
@@ -154,11 +168,10 @@ def _df_imu_records(log: FlightLog) -> list[tuple[int, int, bytes]]:
         g, a = pair["gyro"], pair["acc"]
         temp = g.temperature_c if g.temperature_c is not None else np.zeros(g.n_samples)
         us = np.round(g.time_s * 1e6).astype(np.int64)
-        for i in range(g.n_samples):
-            records.append((int(us[i]), k, _df(65, struct.pack(
-                "<QB7f", int(us[i]), k, *[float(v) for v in g.values[i]],
-                *[float(v) for v in a.values[i]], float(temp[i])))))
-    return records
+        streams.append([(int(us[i]), k, _df(65, struct.pack(
+            "<QB7f", int(us[i]), k, *[float(v) for v in g.values[i]],
+            *[float(v) for v in a.values[i]], float(temp[i])))) for i in range(g.n_samples)])
+    return streams
 
 
 def _dataflash_bytes(log: FlightLog) -> bytes:
@@ -170,26 +183,24 @@ def _dataflash_bytes(log: FlightLog) -> bytes:
     if log.board_id:
         defs[91] = _DF_MSG
     out = _df_head(defs, log)
-    records = _df_imu_records(log)
+    streams = _df_imu_records(log)
     for inst in log.instances:
         if inst.kind != "baro":
             continue
         temp = inst.temperature_c if inst.temperature_c is not None else np.zeros(inst.n_samples)
         us = np.round(inst.time_s * 1e6).astype(np.int64)
-        for i in range(inst.n_samples):
-            records.append((int(us[i]), 10 + inst.instance, _df(66, struct.pack(
-                "<QBff", int(us[i]), inst.instance, float(inst.values[i, 0]), float(temp[i])))))
+        streams.append([(int(us[i]), 10 + inst.instance, _df(66, struct.pack(
+            "<QBff", int(us[i]), inst.instance, float(inst.values[i, 0]), float(temp[i]))))
+            for i in range(inst.n_samples)])
     for inst in log.instances:
         if inst.kind != "mag":
             continue
         mgauss = np.round(inst.values * 10.0).astype(np.int64)   # µT -> milligauss
         us = np.round(inst.time_s * 1e6).astype(np.int64)
-        for i in range(inst.n_samples):
-            records.append((int(us[i]), 20 + inst.instance, _df(67, struct.pack(
-                "<QB9hBI", int(us[i]), inst.instance, *[int(v) for v in mgauss[i]],
-                0, 0, 0, 0, 0, 0, 1, 0))))
-    records.sort(key=lambda r: (r[0], r[1]))
-    for _, _, rec in records:
+        streams.append([(int(us[i]), 20 + inst.instance, _df(67, struct.pack(
+            "<QB9hBI", int(us[i]), inst.instance, *[int(v) for v in mgauss[i]],
+            0, 0, 0, 0, 0, 0, 1, 0))) for i in range(inst.n_samples)])
+    for _, _, rec in _in_time(streams):
         out += rec
     return bytes(out)
 
