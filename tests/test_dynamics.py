@@ -173,7 +173,7 @@ def test_bad_time_is_refused_everywhere(trained, bad, what, tmp_path):
     comp = rt.Compensator(path)
     with pytest.raises(rt.RuntimeInputError, match=what):
         comp.compensate(temperature_c=temp, raw=np.zeros((len(bad), 2)), time_s=bad)
-    # CSV: one line naming the column and the spreadsheet row; nothing written
+    # CSV: one line naming the column, the data row and its file line; nothing written
     src, out = tmp_path / "in.csv", tmp_path / "out.csv"
     with src.open("w", newline="") as fh:
         w = csv.writer(fh)
@@ -182,8 +182,9 @@ def test_bad_time_is_refused_everywhere(trained, bad, what, tmp_path):
             w.writerow(["" if np.isnan(v) else v, 20.0, 0.0, 0.0])
     proc = subprocess.run([sys.executable, str(RUNTIME), str(path), str(src), "--out", str(out)],
                           capture_output=True, text=True)
-    row = int(re.search(r"sample (\d+)", what).group(1)) + 2
-    assert proc.returncode == 1 and f"column 'time_s', row {row}" in proc.stderr
+    row = int(re.search(r"sample (\d+)", what).group(1)) + 1     # the data row, 1-based
+    assert proc.returncode == 1 and \
+        f"column 'time_s', row {row} (file line {row + 1})" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and not out.exists()
 
 

@@ -117,7 +117,8 @@ def test_cli_refuses_python_literals_naming_column_and_row(model_path: Path, tmp
     assert proc.returncode == 1
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
-    assert f"{src}: column '{column}', row {row}: " in lines[0]
+    # named as thermonet's readers name a row: the data row, then its file line (header: 1)
+    assert f"{src}: column '{column}', row {row - 1} (file line {row}): " in lines[0]
     assert repr(cell.strip(" \t")) in lines[0]
     assert not (tmp_path / "out.csv").exists()
 
