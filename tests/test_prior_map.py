@@ -279,3 +279,29 @@ def test_a_short_test_in_other_units_than_the_calibration_is_refused() -> None:
     with pytest.raises(InputError, match=r"unit 'consumer-imu-u000': its short test's gyro_x "
                                          r"is in 'rad/s', its calibration's in 'deg/s'"):
         build_prior(cfg, ds, source="c.yaml", short=Dataset(runs=runs))
+
+
+def test_prior_reads_the_short_tests_from_a_file(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """A line's real route: the pilots' calibrations in one file, their short tests in
+    another (a device id per run), matched by device id; a missing file named."""
+    from thermonet.data.io import write_parquet
+    from thermonet.sim import simulate_fleet
+
+    write_parquet(simulate_fleet("consumer-imu", units=14, seed=3, test="soaks:-20,0,25,50,75"),
+                  tmp_path / "sweeps.parquet")
+    write_parquet(simulate_fleet("consumer-imu", units=14, seed=3, test="cycle:-20,75,10"),
+                  tmp_path / "tests.parquet")
+    (tmp_path / "p.yaml").write_text(f"data: {{paths: ['{tmp_path / 'sweeps.parquet'}']}}\n"
+                                     "target: {gyro: zero, acc: at-t-ref}\n"
+                                     "features: {t_ref: 25.0}\n")
+    assert main(["prior", str(tmp_path / "p.yaml"), "--short-test",
+                 str(tmp_path / "tests.parquet"), "--out", str(tmp_path / "p.json")]) == 0
+    data = json.loads((tmp_path / "p.json").read_text())
+    # every unit the prior kept ran the test: the map holds them all, matched by device id
+    assert data["short_test"]["n_units"] == data["n_units"] >= 10
+    assert f"its short test, learned from {data['n_units']} units" in capsys.readouterr().out
+    assert main(["prior", str(tmp_path / "p.yaml"), "--short-test", str(tmp_path / "no.parquet"),
+                 "--out", str(tmp_path / "q.json")]) == 1
+    assert f"{tmp_path / 'no.parquet'}: --short-test: no such file" in capsys.readouterr().err
+    assert not (tmp_path / "q.json").exists()
