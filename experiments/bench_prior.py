@@ -73,8 +73,8 @@ from thermonet.sim import simulate_fleet  # noqa: E402
 from thermonet.sim.fleet import short_test  # noqa: E402
 from thermonet.sim.presets import get_preset  # noqa: E402
 from thermonet.training.config import config_from_mapping  # noqa: E402
-from thermonet.workflows.station import build_prior, unit_points  # noqa: E402
-from thermonet.workflows.station_prior import unit_test_kind, unit_windows  # noqa: E402
+from thermonet.workflows.station import build_prior, map_windows, unit_points  # noqa: E402
+from thermonet.workflows.station_prior import unit_test_kind  # noqa: E402
 
 PRESET, SEED, CLUSTERS, FOLDS = "consumer-imu", 5, 3, 5
 SOAKS, SOAKS_ENDS, RAMP = "soaks:-15,25,65", "soaks:-20,25,75", "ramp:20,30,10"
@@ -114,14 +114,13 @@ def _own(fp: Any, pts: Any) -> np.ndarray | None:
 
 def _through_map(fp: Any, run: Any) -> dict[str, Any]:
     """Each axis's posterior of a unit's short test through the fleet's map of it
-    (:mod:`thermonet.scoring.prior_map`); the test must be the map's."""
-    tm = fp.test_map
-    why = tm.mismatch(np.asarray(run.time_s), np.asarray(run.temperature_c, dtype=float))
+    (:func:`thermonet.workflows.station.map_windows`, as the station reads it); the test must
+    be the map's."""
+    windows, why = map_windows(CFG, fp, Dataset(runs=[run]))
     if why is not None:
         raise SystemExit(f"bench_prior: a unit's test is not the map's: {why}")
-    vals, _ = unit_windows(CFG, run, fp.axis_names, tm.window_s, tm.n_windows)
-    return {a: posterior_from_stats(fp.axis(a), *tm.stats(a, tm.centred(vals[:, j])))
-            for j, a in enumerate(fp.axis_names)}
+    tm = fp.test_map
+    return {a: posterior_from_stats(fp.axis(a), *tm.stats(a, f)) for a, f in windows.items()}
 
 
 #: the short tests the fleet's map is learned for (the prior's units ran each beside their

@@ -87,7 +87,7 @@ from .station_prior import (
 
 __all__ = ["build_prior", "run_station", "prior_summary", "parse_station_limits",
            "format_station", "format_prior", "unit_points", "StationOptions",
-           "HELD_OUT_GROUPS", "EXIT_STATION_FAILED", "BAND_Z"]
+           "HELD_OUT_GROUPS", "EXIT_STATION_FAILED", "BAND_Z", "map_windows"]
 
 #: Contiguous temperature groups a unit's points are dealt into for its held-out residual.
 HELD_OUT_GROUPS = 3
@@ -160,7 +160,7 @@ def _held_out_map(tm: TestMap, ap: AxisPrior, f: np.ndarray) -> tuple[float | No
     return float(np.sqrt(np.mean(np.concatenate(res) ** 2))), None
 
 
-def _map_windows(cfg: CompareConfig, fp: FleetPrior, ds: Dataset
+def map_windows(cfg: CompareConfig, fp: FleetPrior, ds: Dataset
                  ) -> tuple[dict[str, np.ndarray], str | None]:
     """A unit's centred window means per axis where its test is the fleet's short test
     (:meth:`~thermonet.scoring.prior_map.TestMap.mismatch`), or why it is not (``{}``
@@ -232,7 +232,7 @@ def station_task(item: StationItem) -> dict[str, Any]:
     for a in fp.axis_names:
         _check_range(fp, pts[a], where, a)
     kind = unit_test_kind(ds)
-    windows, not_map = _map_windows(item.cfg, fp, ds)
+    windows, not_map = map_windows(item.cfg, fp, ds)
     unlike = None if windows else fp.not_comparable(kind)   # the map is the fleet's own test
     axes = {a: _axis_result(fp, a, pts[a], merged_limits(item.limits, a, StationLimit),
                             item.cfg.station.flag_unlike_fleet, unlike, windows.get(a))
