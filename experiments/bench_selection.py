@@ -314,7 +314,7 @@ def main_stress() -> None:
     seeds = int(os.environ.get("BENCH_STRESS_SEEDS", "2"))
     for seed in range(seeds):
         for name, ds in stress_splits(seed):
-            for rule in ("new", "before"):
+            for rule in os.environ.get("BENCH_STRESS_RULES", "new,before").split(","):
                 t0 = time.perf_counter()
                 res = _run(_stress_config(name, ds, rule == "new"), ds)
                 r = _axis_ratios(res)
@@ -354,7 +354,8 @@ def main_stress() -> None:
     md = ("`stress-imu` (sensing element 7 min behind its thermometer, fast and slow cycles), "
           f"{seeds} units at 0.1 Hz, every new-excursion split; shipped / cubic per axis on the "
           "held-out run (an axis shipped raw counts as raw).\n\n"
-          + table(head, [summary("new"), summary("before")])
+          + table(head, [summary(r) for r in ("new", "before")
+                         if any(x["rule"] == r for x in rows)])
           + "\n\nEach split's worst axis, worst first:\n\n"
           + table(["split", "rule", "folds", "worst axis", "shipped there", "shipped / cubic",
                    "every axis"], body))

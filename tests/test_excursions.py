@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 
 from thermonet.core.recording import Recording
-from thermonet.scoring.fold_plan import plan_folds
+from thermonet.scoring.fold_plan import MEMORY_STEP, memory_share, plan_folds
 from thermonet.scoring.folds import excursions
 from thermonet.scoring.gate import (
     TWO_FOLD_MARGIN,
     beats_in_every_fold,
     clear_on_each,
     one_direction,
+    one_rate,
 )
 from thermonet.scoring.oof_pool import CandidateOOF
 from thermonet.scoring.selection import select
@@ -154,7 +155,7 @@ def _gate_case(errors: dict[str, list[float]], directional: frozenset[str] = fro
     """Excursion folds of ``_two_cycles``; the target is a slow drift plus white noise, and
     each candidate leaves, on fold f's validation rows, errors[label][f] of the drift's spread
     as a slow error of its own (seeded per candidate)."""
-    rec = _two_cycles()
+    rec = _two_cycles() if knots is None else _rec(*_trace(*knots, n=14400))
     mask = np.ones(rec.n_samples, dtype=bool)
     plan = plan_folds([(rec, mask)], folds=folds, blocks_per_fold=8, tau_s=0.0,
                       temperatures=[rec.temperature_c])
@@ -524,3 +525,38 @@ def test_heating_only_then_cooling_the_rule_before_ships_a_loser_the_gate_keeps_
     assert gate["selection"]["directions"] == ["heating"]
     assert "only heating" in gate["selection"]["held_back"]["why"]
     np.testing.assert_allclose(_shipped_over_cubic(gate), 1.0, rtol=1e-12)
+
+
+def test_at_one_rate_a_step_toward_memory_is_judged_where_a_full_model_is_held_back():
+    """Two cycles at one ramp rate: a lag and a hysteresis are the same correction there, so a
+    model with memory is held back (it could be worse than the cubic at another rate) — but a
+    candidate reading its memory for at most MEMORY_STEP of its drift (a ``poly`` ``mix``) is
+    judged, and ships where it beats the cubic on every excursion.  A pool that only heats
+    holds both back."""
+    plan, y, t, cands = _gate_case({"cubic": [0.10] * 5, "lagged": [0.02] * 5,
+                                    "step": [0.05] * 5},
+                                   directional=frozenset({"lagged", "step"}),
+                                   knots=([0.0, 0.2, 0.4, 0.6, 0.8, 1.0],
+                                          [0.0, 60.0, 0.0, 60.0, 0.0, 60.0]))
+    assert sorted(set(plan.directions)) == [-1, 1]
+    assert one_rate(plan.rates)                           # the two cycles ramp at one rate
+    cands["step"].memory_share = MEMORY_STEP
+    sel = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic")
+    assert sel.record["held_back"]["candidates"] == ["lagged"]
+    assert "one rate" in sel.record["held_back"]["by_candidate"]["lagged"]
+    assert sel.per_axis == {"gyro_x": "step"}
+    # a larger share of memory is a full model: held back like it
+    cands["step"].memory_share = MEMORY_STEP + 0.01
+    sel = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic")
+    assert sel.record["held_back"]["candidates"] == ["lagged", "step"]
+    assert sel.per_axis == {"gyro_x": "cubic"}
+    # one direction: nothing with memory is judged, a step neither
+    assert "only heating" in one_direction([1])
+
+
+def test_memory_share_reads_the_mix_weights_on_inputs_with_memory():
+    assert memory_share(["dT"], None) == 0.0
+    assert memory_share(["dT", "rate"], None) == 1.0
+    assert memory_share(["delayed_300"], None) == 1.0
+    assert memory_share(["dT", "delayed_300"], [0.75, 0.25]) == pytest.approx(0.25, abs=1e-15)
+    assert memory_share(["delayed_300", "dT"], [0.75, 0.25]) == pytest.approx(0.75, abs=1e-15)

@@ -58,6 +58,27 @@ def test_poly_recovers_cubic_on_dT():
     np.testing.assert_allclose(got, c, rtol=1e-3)
 
 
+def test_poly_mix_is_the_weighted_sum_of_each_inputs_polynomial_fitted_alone():
+    """``mix: [w1, w2]``: each input's cubic fitted alone by least squares (numpy's polyfit
+    as the oracle), the model their weighted sum; the weights must be one per input, summing
+    to 1, with no cross terms."""
+    dT = T - 25.0
+    y = 1e-3 * dT + 2e-6 * dT ** 3 + 0.02 * np.sin(dT / 9.0)
+    w = [0.25, 0.75]
+    res = _fit("poly", ["dT", "dT2"], y, hyper={"degree": 3, "mix": w}, max_epochs=50)
+    want = (w[0] * np.polyval(np.polyfit(dT, y, 3), dT)
+            + w[1] * np.polyval(np.polyfit(dT ** 2, y, 3), dT ** 2))
+    got = predict(res.model, T[:, None])[:, 0]
+    # float32 evaluation of a drift of spread ~0.1: 1e-5 of its spread
+    np.testing.assert_allclose(got, want, atol=1e-5 * np.ptp(y))
+    assert np.abs(got - y).max() > 100 * 1e-5 * np.ptp(y)        # not the joint fit of y
+    for bad, why in (({"mix": [0.5, 0.6]}, "summing to 1"),
+                     ({"mix": [0.5, 0.5], "cross": True}, "cross false"),
+                     ({"mix": [1.0]}, "summing to 1")):
+        with pytest.raises(ConfigError, match=f"poly: mix must .*{why}"):
+            build_family("poly", n_inputs=2, n_outputs=1, hyper={"degree": 3, **bad})
+
+
 def test_lorentz_recovers_centre_width_amplitude():
     y0, amp, xc, w = 0.002, 0.3, 18.0, 22.0   # g, g·°C, °C, °C
     y = y0 + (2 * amp / np.pi) * w / (4 * (T - xc) ** 2 + w ** 2)

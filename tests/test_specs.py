@@ -175,13 +175,13 @@ def test_the_documented_specs_are_the_declared_defaults():
 
 def test_a_spec_stores_its_keywords_and_checks_them_when_asked():
     spec = Poly(degree=40, cross="no")                 # stored as given (scikit-learn)
-    assert spec.get_params() == {"degree": 40, "cross": "no"}
+    assert spec.get_params() == {"degree": 40, "cross": "no", "mix": None}
     with pytest.raises(ConfigError, match=r"^poly: degree must be an integer in 1\.\.12, got 40$"):
         spec.check(1)
     with pytest.raises(ConfigError, match=r"model 'lorentz' takes at most 1 input\(s\), got 2"):
         Lorentz().check(2)
     with pytest.raises(ConfigError, match=r"model 'poly': unknown hyper-parameter 'degre' "
-                                          r"\(valid: degree, cross\)"):
+                                          r"\(valid: degree, cross, mix\)"):
         Poly().set_params(degre=3)
     with pytest.raises(TypeError):
         Poly(degre=3)                                   # a constructor of explicit keywords

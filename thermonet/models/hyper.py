@@ -27,7 +27,7 @@ from typing import Any
 from ..core.errors import ConfigError
 
 __all__ = ["HyperError", "Invalid", "Rule", "check_rules", "integer", "number", "boolean",
-           "choice", "universe", "layer_sizes", "ridge", "bounded", "MLP_ACTIVATIONS",
+           "choice", "universe", "layer_sizes", "ridge", "bounded", "weights", "MLP_ACTIVATIONS",
            "MLP_MAX_LAYERS", "MLP_MAX_WIDTH", "RBF_INITS"]
 
 #: The MLP's activations (:data:`thermonet.models.mlp.ACTIVATIONS` holds their gains).
@@ -137,6 +137,20 @@ def ridge() -> Rule:
             raise Invalid
         return float(v)
     return Rule("'cv' or a finite number >= 0", check)
+
+
+def weights() -> Rule:
+    """``None``, or a list of two or more weights in [0, 1] summing to 1 (within 1e-9),
+    stored as floats (the polynomial's ``mix``)."""
+    def check(v: Any) -> list[float] | None:
+        if v is None:
+            return None
+        if isinstance(v, (str, bytes, Mapping)) or not isinstance(v, Sequence) or len(v) < 2 \
+                or not all(_is_number(x) and math.isfinite(x) and 0 <= x <= 1 for x in v) \
+                or abs(sum(v) - 1.0) > 1e-9:
+            raise Invalid
+        return [float(x) for x in v]
+    return Rule("null or a list of one weight in [0, 1] per input, summing to 1", check)
 
 
 def bounded(lo: float, hi: float, integer_only: bool) -> Rule:

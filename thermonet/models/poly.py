@@ -9,6 +9,19 @@ With several inputs, by default each input contributes its own powers
 thermal models are built from one temperature-like input plus, at most, a
 rate, and cross terms multiply the parameter count for no documented gain.
 ``cross=True`` uses every monomial of total degree 1…n instead.
+
+**A mix** (``mix=[w_1, …, w_m]``, one weight per input, summing to 1, no cross
+terms): each input's polynomial is fitted *alone* (least squares, its own
+constant) and the model is their weighted sum,
+
+.. math:: \\hat y_a = \\sum_i w_i \\Big(b_{a,i} + \\sum_{k=1}^{n} c_{a,i,k}\\, z_i^k\\Big)
+
+— the same terms as the additive polynomial, so it evaluates, exports and
+guards as one.  The default set's ``cubic-delayed-<m>min-third`` is
+``mix=[2/3, 1/3]`` on [ΔT, ``delayed_<τ>``]: a third of the way from the cubic
+in ΔT to the cubic at the delayed temperature, the step a model with memory
+may take where the training data ramp at one rate (configs/README.md, "A step
+toward memory at one rate").
 """
 
 from __future__ import annotations
@@ -25,6 +38,7 @@ from torch import nn
 from . import specs
 from .base import Family, as_numpy, distinct_levels, least_squares, output_layer
 from .cgen import CBody, as_float32, c_affine, c_array
+from .hyper import HyperError
 
 __all__ = ["Poly", "monomials"]
 
@@ -47,10 +61,14 @@ class Poly(Family):
     spec = specs.Poly      # name, inputs, hyper-parameters: their defaults and rules
     degree: int
     cross: bool
+    mix: list[float] | None
 
     def __init__(self, *, n_inputs: int, n_outputs: int, **hyper: Any) -> None:
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
         self.take_hyper(hyper)
+        if self.mix is not None and (self.cross or len(self.mix) != n_inputs):
+            raise HyperError("poly", "mix", f"one weight per input ({n_inputs}) with cross "
+                             "false", self.mix)
         self.terms = monomials(n_inputs, self.degree, self.cross)
         self.weight = nn.Parameter(torch.zeros(n_outputs, len(self.terms)))
         self.bias = nn.Parameter(torch.zeros(n_outputs))
@@ -135,7 +153,16 @@ class Poly(Family):
                    x_mean: np.ndarray | None = None, x_std: np.ndarray | None = None) -> None:
         with torch.no_grad():
             d = as_numpy(self.design(torch.as_tensor(as_numpy(x))))
-        coef = least_squares(np.hstack([d, np.ones((d.shape[0], 1))]), as_numpy(y))
+        one = np.ones((d.shape[0], 1))
+        if self.mix is None:
+            coef = least_squares(np.hstack([d, one]), as_numpy(y))
+        else:       # each input's polynomial alone (its own constant), then weighted
+            n = self.degree
+            coef = np.zeros((d.shape[1] + 1, as_numpy(y).shape[1]))
+            for i, w in enumerate(self.mix):
+                alone = least_squares(np.hstack([d[:, i * n:(i + 1) * n], one]), as_numpy(y))
+                coef[i * n:(i + 1) * n] = w * alone[:-1]
+                coef[-1] += w * alone[-1]
         with torch.no_grad():
             self.weight.copy_(torch.as_tensor(coef[:-1].T))
             self.bias.copy_(torch.as_tensor(coef[-1]))

@@ -62,6 +62,7 @@ from .hyper import (
     number,
     ridge,
     universe,
+    weights,
 )
 
 __all__ = ["FamilySpec", "Linear", "Poly", "Lorentz", "Fuzzy", "RBF", "MLP", "GRU", "BUILTIN_SPECS",
@@ -253,13 +254,16 @@ class Linear(FamilySpec):
 
 class Poly(FamilySpec):
     """``poly``: a polynomial of ``degree`` (1..12) in the inputs; ``cross`` adds the
-    monomials mixing several inputs (total degree ≤ ``degree``)."""
+    monomials mixing several inputs (total degree ≤ ``degree``); ``mix`` (one weight per
+    input, summing to 1; no cross terms) fits each input's polynomial alone and ships their
+    weighted sum (:class:`thermonet.models.poly.Poly`)."""
 
     key, target = "poly", "thermonet.models.poly:Poly"
     max_inputs, default_inputs = None, ("dT",)
 
     degree: int = param(default=3, rule=integer(1, 12))
     cross: bool = param(default=False, rule=boolean())
+    mix: list[float] | None = param(default=None, rule=weights())
 
 
 class Lorentz(FamilySpec):

@@ -16,12 +16,13 @@ import numpy as np
 
 from ..core.errors import counted
 from ..core.recording import contiguous_segments
+from ..features.dynamics import dynamic_signals
 from .folds import DIRECTION_NAMES, TURN_FRACTION, Leg, deal, excursions, purged
 
 __all__ = ["FoldPlan", "plan_folds", "purge_rule", "window_rule", "window_labels", "HOLD_OUT",
            "EXCURSION_INSIDE", "MIN_FOLD_SAMPLES", "MIN_GATE_FOLDS", "RATE_SPREAD",
            "TWO_FOLD_MARGIN", "leg_rates", "validation_stretches",
-           "memory_judgeable", "rate_spread"]
+           "memory_judgeable", "rate_spread", "MEMORY_STEP", "memory_share"]
 
 
 #: Samples a fold needs in training and in validation.
@@ -44,6 +45,32 @@ TWO_FOLD_MARGIN = 0.9
 #: thermometer's lag at a leg's ends), a sinusoidal cycle by 1.5, a fast and a slow cycle by 3
 #: (``stress-imu``, ``consumer-imu``, ``patent-gyro`` and tests/test_per_axis.py's device).
 RATE_SPREAD = 1.3
+
+
+#: Where the pool ramps at one rate (both directions held), a candidate whose share of the
+#: drift read from inputs with memory is at most this (a ``poly`` ``mix``: a third of the way
+#: from the cubic to the cubic at the delayed temperature) is judged, where a full model with
+#: memory is held back.  At one rate a lag (its error ∝ the rate) and a hysteresis (its error
+#: the same at any rate) are the same correction c; at another rate r' = ρ r the full step
+#: corrects ρ c where the sensor needs ρ c (a lag) or c (a hysteresis): |1 − ρ| c off, worse
+#: than no correction beyond ρ = 2.  A step w corrects w ρ c: (1 − w) ρ c off a lag,
+#: |1 − w ρ| c off a hysteresis — no worse than the static model up to ρ = 2 / w under either.
+#: A half step was tried first (``bench_selection.py --stress``, fitted on one cycle, tested
+#: on one 3× slower): 1.055× and 1.016× the cubic on the axis with a hysteresis of its own,
+#: whose cubic curve the lag also bends; a third kept every axis at or under the cubic.
+MEMORY_STEP = 1.0 / 3.0
+
+
+def memory_share(inputs: Sequence[str], mix: Sequence[float] | None) -> float:
+    """The share of a candidate's drift read from inputs with memory (rate, lag, delayed
+    temperature, hysteresis): 0 without one, 1 for a joint fit, a ``mix``'s weights on them
+    (:data:`MEMORY_STEP`)."""
+    dyn = [bool(dynamic_signals([i])) for i in inputs]
+    if not any(dyn):
+        return 0.0
+    if mix is None or len(mix) != len(inputs):
+        return 1.0
+    return float(sum(w for w, d in zip(mix, dyn, strict=True) if d))
 
 
 def memory_judgeable(directions: Sequence[int], rates: Sequence[float]) -> bool:

@@ -38,6 +38,9 @@ class CandidateOOF:
     #: its inputs carry the direction of temperature change (rate, lag, hysteresis): it cannot
     #: be judged for a direction the training data do not hold
     directional: bool = False
+    #: the share of its drift that reads those inputs: 1 for a model with memory, the mix's
+    #: weight on them for a step toward memory (:data:`thermonet.scoring.fold_plan.MEMORY_STEP`)
+    memory_share: float = 1.0
 
 
 

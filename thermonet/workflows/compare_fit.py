@@ -29,6 +29,7 @@ from ..features.inputs import (
 )
 from ..reporting.results import FamilyResult
 from ..scoring.domain import Envelope, noise_widths
+from ..scoring.fold_plan import memory_share
 from ..scoring.oof_pool import CandidateOOF
 from ..scoring.selection import point_label, select, tuning_choice
 from ..scoring.verdicts import pool
@@ -325,6 +326,7 @@ def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: An
         oof, whole = _oof(p, fam, tcfg, spec, parts, on_epoch)
     oof.label, oof.n_params = fam.label, out.n_select
     oof.directional = bool(dynamic_signals(fam.inputs))
+    oof.memory_share = memory_share(fam.inputs, fam.params.get("mix"))
     out.oof = oof
     out.pool_targets = [q.target for q in whole]
     out.pool_times = [q.time_s for q in whole]
