@@ -192,3 +192,25 @@ def test_metadata_naming_a_column_the_file_lacks_is_one_line(recording, tmp_path
     assert main(["convert", str(bad), "--out", str(out)]) == 1
     assert capsys.readouterr().err == f"thermonet: error: {line}\n"
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["bad.parquet"]
+
+
+def test_units_that_differ_across_files_name_the_file_given(tmp_path, capsys):
+    """Two thermonet files whose runs differ in a unit: the message names the file passed
+    (was the CSV the Parquet had been converted from, a file the user never gave), streamed
+    (``info``) and whole (``read_datasets``); the recorded origin stays in the run's meta."""
+    from thermonet.data.io import read_datasets
+
+    files = []
+    for name, unit in (("day1", "hPa"), ("day2", "Pa")):
+        run = _run(name, 0.01, 10.0 + 20 * len(files), len(files), 10.0, n=200)
+        run.units["gyro_y"] = "deg/h" if unit == "Pa" else "deg/s"
+        run.meta = {"source": f"/elsewhere/{name}_origin.csv"}
+        files.append(write_parquet(Dataset(runs=[run]), tmp_path / f"{name}.parquet"))
+    want = (f"{files[1]}, column 'gyro_y': run 'day2' is in 'deg/h', run 'day1' in 'deg/s' "
+            "(convert one with a mapping scale)")
+    assert main(["info", *map(str, files)]) == 1
+    assert capsys.readouterr().err.strip() == f"thermonet: error: {want}"
+    with pytest.raises(InputError) as err:
+        read_datasets(files)
+    assert str(err.value) == want
+    assert read_dataset(files[0])[0].meta["source"] == "/elsewhere/day1_origin.csv"

@@ -240,3 +240,37 @@ def test_a_dataset_prints_one_line_per_run_not_its_arrays():
     first = ds[0]
     assert repr(first).startswith(f"Recording(run '{first.run_id}' of unit "
                                   f"'{first.device_id}', {first.n_samples} samples")
+
+
+def test_convert_to_csv_writes_the_units_it_is_read_back_in(tmp_path, capsys):
+    """``thermonet convert --out x.csv`` of a channel in a non-default unit (hPa: read back
+    as Pa, 100x off before) writes it in the default unit and says so in one line; a unit
+    with no known conversion (a proxy in Pa) is refused in one line, nothing written."""
+    from thermonet.cli import main
+
+    n = 40
+    src = tmp_path / "lab.csv"
+    src.write_text("t;temp;gx;p\n" + "".join(
+        f"{10.0 * i};{10 + 0.5 * i};{0.01 * i};{1012.5 + 0.1 * i}\n" for i in range(n)))
+    mapping = tmp_path / "m.yaml"
+    mapping.write_text("time: {column: t, unit: s}\nchannels:\n  temperature_c: {column: temp}\n"
+                       "  gyro_x: {column: gx, unit: rad/s}\n  baro_p: {column: p, unit: hPa}\n")
+    out = tmp_path / "x.csv"
+    assert main(["convert", str(src), "--mapping", str(mapping), "--out", str(out)]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert said[0] == (f"{out}: written in the default units a CSV is read back in: "
+                       "gyro_x rad/s -> deg/s, baro_p hPa -> Pa")
+    back = read_dataset(out)[0]
+    assert back.units["baro_p"] == "Pa" and back.units["gyro_x"] == "deg/s"
+    np.testing.assert_allclose(back.outputs["baro_p"], 100 * (1012.5 + 0.1 * np.arange(n)),
+                               rtol=1e-15)
+    np.testing.assert_allclose(back.outputs["gyro_x"], np.degrees(0.01 * np.arange(n)),
+                               rtol=1e-15)
+    mapping.write_text(mapping.read_text() + "  p_raw: {column: p, unit: Pa, proxy: true}\n")
+    bad = tmp_path / "y.csv"
+    assert main(["convert", str(src), "--mapping", str(mapping), "--out", str(bad)]) == 1
+    assert capsys.readouterr().err.strip() == (
+        f"thermonet: error: {bad}, column 'p_raw': p_raw is in 'Pa', which has no conversion "
+        "to 'counts', the unit a CSV (it carries none) is read back in: write a .parquet file "
+        "instead (it keeps the units)")
+    assert not bad.exists()

@@ -115,8 +115,8 @@ def test_fixed_sample_rate_and_header_by_name(tmp_path):
      r"key 'header': expected true or false"),
     ("sample_rate_hz: 50\nchannels:\n  gyro_x: {column: 1, unit: deg/sec}\n",
      r"key 'channels\.gyro_x\.unit': unknown unit 'deg/sec' \(known:"),
-    ("time: {column: 0, unit: min}\nchannels:\n  gyro_x: {column: 1}\n",
-     r"key 'time\.unit': unknown time unit 'min' \(known: s, ms, us"),
+    ("time: {column: 0, unit: days}\nchannels:\n  gyro_x: {column: 1}\n",
+     r"key 'time\.unit': unknown time unit 'days' \(known: s, ms, us, µs, μs, min, h\)"),
     ("time: {column: 0}\nsample_rate_hz: 50\nchannels:\n  gyro_x: {column: 1}\n",
      r"key 'time': give exactly one of 'time'"),
     ("channels:\n  gyro_x: {column: 1}\n", r"key 'time': give exactly one of"),
@@ -274,3 +274,212 @@ def test_a_quoted_cell_left_open_to_the_end_is_one_line(tmp_path):
             "is missing; it would swallow the 21 lines after it)")
     for chunk in (None, 5, 11, 100):
         assert _refusal(path, mp, chunk) == want
+
+
+# ------------------------------------------------------------- a European chamber logger
+# Its habits: a banner, ';' separators, bracketed units in the headers, a trailing ';'.
+
+LAB_HEADER = ["Zeit [s]", "Temp [°F]", "Gyro X [°/s]", "Druck [hPa]"]
+LAB_MAPPING = """\
+    separator: ";"
+    skip_lines: 2
+    time: {{column: "{time}", unit: {unit}}}
+    channels:
+      temperature_c: {{column: "Temp [°F]", unit: degC, scale: 0.5555555556,
+                      offset: -17.7777777778}}
+      gyro_x: {{column: "Gyro X [°/s]", unit: deg/s}}
+      baro_p: {{column: "Druck [hPa]", unit: hPa}}
+    {extra}
+"""
+
+
+def _lab(tmp_path, *, header=None, trail="", row_trail=";", n=40, name="lab.csv",
+         time_scale=1.0, cell=None):
+    """A chamber logger's file: 2 banner lines, a header, ``n`` rows every 30 s from 14 °F
+    (-10 °C) up 2 °F a row; ``cell`` (row index, text) replaces a row's temperature."""
+    rows = [f"{30.0 * i / time_scale:.17g};{14 + 2 * i:.2f};{0.01 + 0.001 * i:.5f};"
+            f"{1012.5 + 0.1 * i:.2f}" for i in range(n)]
+    if cell is not None:
+        parts = rows[cell[0]].split(";")
+        parts[1] = cell[1]
+        rows[cell[0]] = ";".join(parts)
+    head = ";".join(header or LAB_HEADER) + trail
+    path = tmp_path / name
+    path.write_text("# ThermoLog TL-500\n# Kammer: VT 4002\n" + head + "\n"
+                    + "\n".join(r + row_trail for r in rows) + "\n", encoding="utf-8")
+    return path
+
+
+def _lab_map(tmp_path, time="Zeit [s]", unit="s", extra="", name="lab.yaml"):
+    return _yaml(tmp_path, LAB_MAPPING.format(time=time, unit=unit, extra=extra), name)
+
+
+def _both(path, mapping, chunk_rows=7):
+    """The whole-file read and the streamed layout pass (``chunk_rows`` lines a chunk)."""
+    from thermonet.data.chunks import open_source
+
+    ds = read_dataset(path, mapping)
+    layout = open_source(path, load_mapping(mapping), chunk_rows=chunk_rows)
+    return ds, layout
+
+
+@pytest.mark.parametrize("trail", ["", ";"])
+def test_one_trailing_separator_on_the_rows_is_no_column(tmp_path, trail):
+    """A trailing ';' on every data row (the header with or without one) was "expected 4
+    fields, found 5", and malformed_rows: skip then dropped every row: read as no column,
+    whole and streamed (the streamed fast parser and its fallback alike)."""
+    path = _lab(tmp_path, trail=trail)
+    ds, layout = _both(path, _lab_map(tmp_path))
+    r = ds[0]
+    assert r.n_samples == 40 == layout.times[0].n
+    np.testing.assert_allclose(r.outputs["baro_p"], 1012.5 + 0.1 * np.arange(40), atol=1e-9)
+    np.testing.assert_allclose(r.time_s, 30.0 * np.arange(40))
+
+
+def test_every_row_skipped_says_how_many_and_why(tmp_path):
+    """skip_lines one short reads a banner line as a one-field header: the error no longer
+    advises malformed_rows: skip, and where skip was set, "no data rows" says what happened."""
+    path = _lab(tmp_path)
+    short = "separator: ';'\nskip_lines: 1\nsample_rate_hz: 0.5\nchannels:\n  gyro_x: {column: 2}\n"
+    with pytest.raises(InputError) as err:
+        read_dataset(path, _yaml(tmp_path, short))
+    assert str(err.value) == (f"{path}, row 1: expected 1 field (the header line has one), "
+                              "found 4 (file line 3); is skip_lines right (a banner line "
+                              "read as the header?), or the separator?")
+    with pytest.raises(InputError) as err:
+        read_dataset(path, _yaml(tmp_path, short + "malformed_rows: skip\n"))
+    assert str(err.value) == (f"{path}: no data rows: all 41 rows skipped as malformed "
+                              "(expected 1 field, found 5, 4); are skip_lines and the "
+                              "separator right?")
+
+
+def test_empty_and_repeated_header_names_the_mapping_does_not_read(tmp_path):
+    """Two trailing separators (two empty names) and a name twice ('Reserve [V]') in columns
+    the mapping never reads are read past; a repeated name it reads is refused, and without a
+    mapping empty names are named as such (was "column '': duplicate column")."""
+    header = LAB_HEADER + ["Reserve [V]", "Reserve [V]"]
+    path = _lab(tmp_path, header=header, trail=";;", row_trail=";0;0;;")
+    assert _both(path, _lab_map(tmp_path))[0][0].n_samples == 40
+    dup = _lab(tmp_path, header=[*LAB_HEADER[:3], "Gyro X [°/s]"], name="dup.csv")
+    with pytest.raises(InputError) as err:
+        read_dataset(dup, _lab_map(tmp_path))
+    assert str(err.value) == (f"{dup}, column 'Gyro X [°/s]': duplicate column in the header "
+                              "(the mapping reads it; rename one in the file)")
+    native = tmp_path / "native.csv"
+    native.write_text("time_s,gyro_x,temperature_c,,\n0,1,20,,\n")
+    with pytest.raises(InputError) as err:
+        read_dataset(native)
+    assert str(err.value) == (f"{native}: header fields 4, 5 are empty (file line 1: a "
+                              "separator too many at the end of the header line?)")
+
+
+def test_n_fields_that_contradicts_the_header_is_refused(tmp_path):
+    path = _lab(tmp_path, trail=";")
+    mp = _lab_map(tmp_path, extra="n_fields: 7")
+    with pytest.raises(InputError) as err:
+        read_dataset(path, mp)
+    assert str(err.value) == (f"{path}: mapping key 'n_fields' is 7, but the header line has "
+                              "4 fields (with a header, leave n_fields out: the header sets "
+                              f"it; mapping {mp})")
+    assert read_dataset(path, _lab_map(tmp_path, extra="n_fields: 5", name="m5.yaml"))[0] \
+        .n_samples == 40                      # the header's count with its trailing field
+
+
+@pytest.mark.parametrize("unit,scale", [("min", 60.0), ("h", 3600.0)])
+def test_time_in_minutes_and_hours(tmp_path, unit, scale):
+    path = _lab(tmp_path, header=["Zeit [x]", *LAB_HEADER[1:]], time_scale=scale)
+    ds, layout = _both(path, _lab_map(tmp_path, time="Zeit [x]", unit=unit))
+    np.testing.assert_allclose(ds[0].time_s, 30.0 * np.arange(40), rtol=1e-12)
+    assert layout.times[0].last == pytest.approx(30.0 * 39, rel=1e-12)
+
+
+@pytest.mark.parametrize("cell,time,hint", [
+    ((3, "20,03"), "Zeit [s]", "; thermonet reads '.' as the decimal mark: convert the file "
+     "(e.g. export it with '.' decimals in the logger's or spreadsheet's locale setting)"),
+    (None, "Uhrzeit", "; time in a CSV must be numeric (time.unit s, ms, us, min or h since "
+     "the start), not clock or date text: export elapsed time, or give sample_rate_hz instead "
+     "of time"),
+])
+def test_decimal_comma_and_clock_text_say_what_to_do(tmp_path, cell, time, hint):
+    path = _lab(tmp_path, cell=cell, header=[time, *LAB_HEADER[1:]])
+    if cell is None:   # clock text in the time column
+        text = path.read_text().replace("\n0;", "\n10:00:00;", 1)
+        path.write_text(text)
+    with pytest.raises(InputError) as err:
+        read_dataset(path, _lab_map(tmp_path, time=time))
+    column, value = ("Temp [°F]", "20,03") if cell else (time, "10:00:00")
+    row = 4 if cell else 1
+    assert str(err.value) == (f"{path}, column '{column}', row {row}: non-numeric cell "
+                              f"'{value}' (file line {row + 3}){hint}")
+
+
+@pytest.mark.parametrize("chunk_rows", [None, 5])
+def test_not_utf8_names_the_file_line_and_the_fix(tmp_path, chunk_rows):
+    from thermonet.data.text import iter_text_frames
+
+    path = tmp_path / "cp1252.csv"
+    path.write_bytes("# Prüfling\n".encode() + "# Kammer: Vötsch\n".encode("cp1252")
+                     + b"time_s;gyro_x\n" + b"0;1\n" * 20)
+    with pytest.raises(InputError) as err:
+        list(iter_text_frames(path, None, None, chunk_rows=chunk_rows))
+    assert str(err.value) == (f"{path}: not UTF-8 text (byte 23, file line 2, 0xf6): the file "
+                              "must be UTF-8 (or plain ASCII); save or export it as UTF-8")
+
+
+def test_a_header_unit_other_than_the_mappings_is_one_warning(tmp_path):
+    """A header's bracketed unit that contradicts the mapping's, with no scale or offset
+    (°F read as degC, Pa as hPa, rad/s as deg/s), is one warning naming the file, the columns
+    and both units; the converted °F column and agreeing units are not named."""
+    from thermonet.data.diagnostics import input_warnings
+
+    header = ["Zeit [s]", "Temp [°F]", "Gyro X [°/s]", "Druck [Pa]", "Rate (rad/s)",
+              "Heat [°F]"]
+    path = _lab(tmp_path, header=header, row_trail=";0.5;68")
+    mp = _yaml(tmp_path, """\
+        separator: ";"
+        skip_lines: 2
+        time: {column: "Zeit [s]", unit: s}
+        channels:
+          temperature_c: {column: "Temp [°F]", unit: degC, scale: 0.5555555556,
+                          offset: -17.7777777778}
+          gyro_x: {column: "Gyro X [°/s]", unit: deg/s}
+          gyro_y: {column: "Rate (rad/s)", unit: deg/s}
+          baro_p: {column: "Druck [Pa]", unit: hPa}
+          t_chip: {column: "Heat [°F]", unit: degC, proxy: true}
+    """)
+    ds = read_dataset(path, mp)
+    want = (f"run 'lab': in {path} the headers name other units than the mapping ('Rate "
+            "(rad/s)' says rad/s, mapped as deg/s; 'Druck [Pa]' says Pa, mapped as hPa; "
+            "'Heat [°F]' says °F, mapped as degC); is the mapping's unit right? (convert with "
+            "scale/offset where the header is)")
+    assert [w for w in input_warnings(ds) if "headers name" in w] == [want]
+    assert "header_units" not in read_dataset(_lab(tmp_path, name="ok.csv"),
+                                              _lab_map(tmp_path))[0].meta
+
+
+@pytest.mark.parametrize("tz", ["Europe/Berlin", None])
+def test_parquet_date_time_stamps_zoned_or_not(tmp_path, tz):
+    """A Parquet time column of zoned stamps (was a TypeError from pandas) is read through
+    UTC: across the night clocks went forward in Berlin the samples stay 60 s apart."""
+    import pandas as pd
+
+    stamps = pd.date_range("2024-03-31 00:30", periods=120, freq="60s", tz="UTC")
+    stamps = stamps.tz_convert(tz) if tz else stamps.tz_localize(None)
+    path = tmp_path / "zoned.parquet"
+    pd.DataFrame({"Zeitstempel": stamps, "Temp [°C]": np.linspace(10, 40, 120),
+                  "gx": np.linspace(0, 1, 120)}).to_parquet(path)
+    mp = _yaml(tmp_path, """\
+        time: {column: Zeitstempel, unit: s}
+        channels:
+          temperature_c: {column: "Temp [°C]", unit: degC}
+          gyro_x: {column: gx, unit: deg/s}
+    """)
+    ds, layout = _both(path, mp, chunk_rows=50)
+    np.testing.assert_allclose(ds[0].time_s, 60.0 * np.arange(120), rtol=1e-12)
+    assert (layout.times[0].first, layout.times[0].last) == (0.0, pytest.approx(60.0 * 119))
+
+
+def test_no_skipped_rows_no_warning(tmp_path, caplog):
+    with caplog.at_level(logging.WARNING, logger="thermonet.data.tables"):
+        _both(_lab(tmp_path), _lab_map(tmp_path, extra="malformed_rows: skip"))
+    assert "malformed" not in caplog.text

@@ -294,3 +294,54 @@ def test_one_instance_of_a_log_where_a_command_reads_them_all(tmp_path, capsys):
                                                "flight-controller log at a time (2 files "
                                                "given): run it once per log")
 
+
+
+# ------------------------------------------------------------------ a lab engineer's first day
+
+def test_two_files_of_one_name_say_what_a_config_can_do(tmp_path):
+    """Two days' 'log.csv' in dated folders are one run id twice; the advice was "set
+    'run_id' per file", which one data.mapping cannot do."""
+    files = []
+    for day in ("2024-03-05", "2024-03-06"):
+        (tmp_path / day).mkdir()
+        files.append(tmp_path / day / "log.csv")
+        files[-1].write_text("time_s,temperature_c,gyro_x\n" + "".join(
+            f"{i},{20 + i},{0.1 * i}\n" for i in range(20)))
+    with pytest.raises(InputError) as err:
+        read_datasets(files)
+    assert str(err.value) == (
+        f"{files[1]}: run id 'log' already used by {files[0]} (a unit's run ids must be "
+        "unique; a file's run id is the mapping's run_id where it sets one, else the file "
+        "name without its extension: rename or copy one file under another name, leave "
+        "run_id out of a mapping that reads several files, or map a run_column)")
+
+
+def test_a_relative_mapping_not_found_names_where_it_was_looked_for(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(MappingError) as err:
+        load_mapping("maps/lab.yaml")
+    assert str(err.value) == (
+        f"maps/lab.yaml: mapping file not found (a relative path is resolved against the "
+        f"current directory {tmp_path}, a config's data.mapping as --mapping; give it from "
+        "there, or absolute)")
+
+
+def test_a_mapping_given_as_a_config_and_a_csv_to_calibrate(tmp_path, capsys):
+    mapping = tmp_path / "map2.yaml"
+    mapping.write_text("format: csv\nseparator: ';'\nsample_rate_hz: 0.5\n"
+                       "channels:\n  gyro_x: {column: 1}\n")
+    with pytest.raises(ConfigError) as err:
+        config_from_mapping({"format": "csv", "separator": ";", "channels": {}},
+                            source=str(mapping))
+    assert str(err.value).endswith(
+        "; this looks like a column mapping, not a config: name it under data.mapping in a "
+        "config (with data.paths), or pass it with --mapping to thermonet info/convert")
+    assert str(err.value).startswith(f"{mapping}: key 'format': unknown key (known: ")
+    assert main(["compare", str(mapping), "--out", str(tmp_path / "o")]) == 1
+    assert "this looks like a column mapping" in _err(capsys)
+    csv = tmp_path / "day1.csv"
+    csv.write_text("time_s,gyro_x\n0,1\n")
+    assert main(["calibrate", str(csv), "--out", str(tmp_path / "c")]) == 1
+    assert _err(capsys) == (f"thermonet: error: {csv}: not a flight-controller log (expected "
+                            ".ulg or .bin); for a chamber recording (CSV, Parquet) use "
+                            "thermonet compare with a config (README)")

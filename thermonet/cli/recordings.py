@@ -177,6 +177,7 @@ def _cmd_convert(args: argparse.Namespace) -> int:
         write_streamed,
     )
     from ..data.io import (  # lazy: loads pandas, pyarrow, yaml
+        in_default_units,
         read_datasets,
         write_csv,
         write_parquet,
@@ -199,6 +200,12 @@ def _cmd_convert(args: argparse.Namespace) -> int:
         # a .csv: the runtime's input (export/thermonet_runtime.py reads a CSV whole, so
         # this one is read whole too); a flight log: read whole
         ds = read_datasets(args.files, mapping=args.mapping)
+        if out.suffix.lower() == ".csv":
+            # a CSV carries no units: each channel written in the unit it is read back in
+            ds, converted = in_default_units(ds, out)
+            if converted:
+                print(f"{out}: written in the default units a CSV is read back in: "
+                      f"{', '.join(converted)}")
         (write_csv if out.suffix.lower() == ".csv" else write_parquet)(ds, out)
         n_runs, n = len(ds), sum(r.n_samples for r in ds)
     else:

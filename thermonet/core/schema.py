@@ -110,12 +110,28 @@ def from_dict(cls: type, data: Any, *, source: str = "config", prefix: str = "")
         dotted = f"{prefix}.{key}" if prefix else str(key)
         if key not in names:
             raise ConfigError(f"{source}: key '{dotted}': unknown key (known: "
-                              f"{', '.join(sorted(names))})")
+                              f"{', '.join(sorted(names))})" + _mapping_hint(data, names, prefix))
         kwargs[key] = _coerce(value, hints[key], dotted, source)
     try:
         return cls(**kwargs)
     except ConfigError as err:  # a dataclass's own value check: add the file name
         raise ConfigError(f"{source}: {_under(str(err), prefix)}") from None
+
+
+#: Top-level keys of a column mapping (:mod:`thermonet.data.mapping`) no config has.
+_MAPPING_KEYS = {"channels", "time", "separator", "format", "skip_lines", "header", "n_fields",
+                 "malformed_rows", "sample_rate_hz", "run_column", "device_column"}
+
+
+def _mapping_hint(data: dict, names: set[str], prefix: str) -> str:
+    """A column mapping given where a comparison config (its ``data`` and ``families``
+    sections) was expected: say so, and where a mapping goes."""
+    mine = _MAPPING_KEYS & {str(k) for k in data}
+    if prefix or not {"data", "families"} <= names or not ("channels" in mine or
+                                                           len(mine) > 1):
+        return ""
+    return ("; this looks like a column mapping, not a config: name it under data.mapping in "
+            "a config (with data.paths), or pass it with --mapping to thermonet info/convert")
 
 
 def _under(msg: str, prefix: str) -> str:

@@ -289,7 +289,8 @@ def validate_layouts(layouts: Sequence[Layout],
             drift={n: zeros for n in e["drift"]}, proxies={n: zeros for n in e["proxies"]},
             units=dict(e["units"]), device_id=e["device_id"], sensor_kind=e["sensor_kind"],
             run_id=e["run_id"], sample_rate_hz=e["sample_rate_hz"],
-            meta={"source": str(lay.path), **dict(e["meta"])}))
+            # the file given, not the origin a thermonet file recorded: what a message names
+            meta={**dict(e["meta"]), "source": str(lay.path)}))
     meta: dict[str, str] = {}
     for lay in layouts:
         for key, v in lay.meta.items():

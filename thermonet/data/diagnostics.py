@@ -80,6 +80,10 @@ def run_warnings(name: str, meta: dict[str, str], units: dict[str, str],
         out.append(f"{name}: the header line of {meta.get('source', 'the file')} ({first}"
                    " …) is all numbers: a file without a header, whose first sample was "
                    "read as column names? set 'header: false' in the mapping")
+    if meta.get("header_units"):
+        out.append(f"{name}: in {meta.get('source', 'the file')} the headers name other "
+                   f"units than the mapping ({meta['header_units']}); is the mapping's unit "
+                   "right? (convert with scale/offset where the header is)")
     if temperature is not None:
         lo, hi = temperature[0], temperature[1]
         if lo < lo_ok or hi > hi_ok:

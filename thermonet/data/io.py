@@ -39,6 +39,7 @@ Parquet table); the message also gives the physical file line for text files.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections import Counter
 from collections.abc import Sequence
@@ -53,7 +54,7 @@ from ..core.errors import InputError
 from ..core.fileio import atomic_path, not_a_file
 from ..core.recording import DEFAULT_DEVICE, Dataset, Recording
 from .logs import is_log_source, read_log_instance
-from .mapping import ColumnMapping, default_unit, load_mapping
+from .mapping import ColumnMapping, default_unit, load_mapping, unit_factor
 from .parquet_format import (
     DIGEST_KEY,
     FORMAT_VERSION,
@@ -69,7 +70,7 @@ from .tables import GROUPS, apply_mapping, native_mapping
 from .text import Frame, read_text
 from .values import check_finite, check_time, float_values
 
-__all__ = ["write_parquet", "write_csv", "read_dataset", "read_datasets", "check_run_ids",
+__all__ = ["write_parquet", "write_csv", "in_default_units", "read_dataset", "read_datasets", "check_run_ids",
            "file_format", "check_output_file", "PARQUET_SUFFIXES"]
 
 
@@ -153,6 +154,41 @@ def write_csv(dataset: Dataset, path: str | Path) -> Path:
         except pa.ArrowInvalid:
             pacsv.write_csv(table, tmp)
     return path
+
+
+def in_default_units(dataset: Dataset, path: str | Path) -> tuple[Dataset, list[str]]:
+    """``dataset`` with every channel in its default unit (:func:`default_unit`, what a CSV
+    is read back in: a CSV carries no units) for ``thermonet convert --out x.csv``, and
+    ``<channel> <unit> -> <default>`` for each channel converted (the factors of
+    :data:`~thermonet.data.mapping.UNIT_IN_DEFAULT`).
+
+    Raises
+    ------
+    InputError
+        A channel in a unit with no known conversion to its default (raw counts as a
+        gyro, a proxy in volts), named with the advice to write Parquet, which keeps units.
+    """
+    said: dict[str, str] = {}
+    runs = []
+    for r in dataset:
+        units = dict(r.units)
+        groups: dict[str, Any] = {g: dict(getattr(r, g)) for g in GROUPS}
+        for g, chans in groups.items():
+            for name, values in chans.items():
+                unit, want = r.units.get(name), default_unit(name, proxy=g == "proxies")
+                if not unit or unit == want:
+                    continue
+                factor = unit_factor(unit, want)
+                if factor is None:
+                    raise InputError.at(path, f"{name} is in '{unit}', which has no "
+                                        f"conversion to '{want}', the unit a CSV (it carries "
+                                        "none) is read back in: write a .parquet file "
+                                        "instead (it keeps the units)", column=name)
+                chans[name] = np.asarray(values, dtype=np.float64) * factor
+                units[name] = want
+                said.setdefault(name, f"{name} {unit} -> {want}")
+        runs.append(dataclasses.replace(r, **groups, units=units))
+    return Dataset(runs=runs, meta=dict(dataset.meta)), list(said.values())
 
 
 def _warn_other_units(dataset: Dataset, path: Path) -> None:
@@ -257,24 +293,40 @@ def read_datasets(paths: Sequence[str | Path] | str | Path,
     if mapping is not None and not isinstance(mapping, ColumnMapping):
         mapping = load_mapping(mapping)
     runs: list[Recording] = []
+    given: list[str | None] = []   # the table each run was read from (a message names it)
     meta: dict[str, str] = {}
     skipped: int | None = None
     for p in paths:
         file_runs, file_meta, n_skipped = _read_one(Path(p), mapping)
         runs += file_runs
+        given += [None if is_log_source(p) else str(p)] * len(file_runs)
         for k, v in file_meta.items():
             meta.setdefault(k, v)
         if n_skipped is not None:
             skipped = (skipped or 0) + n_skipped
     if skipped is not None:
         meta["skipped_rows"] = str(skipped)
-    check_run_ids([(r.device_id, r.run_id, r.meta.get("source", "")) for r in runs])
+    check_run_ids([(r.device_id, r.run_id, g or r.meta.get("source", ""))
+                   for r, g in zip(runs, given, strict=True)])
     source = str(paths[0]) if len(paths) == 1 else ""
     if not validate:
         if not runs:
             raise InputError.at(source, "no runs")
         return Dataset(runs=runs, meta=meta)
-    return Dataset(runs=runs, meta=meta).validate(source)
+    # a thermonet file's runs keep the origin it recorded ('source'); a message names the
+    # file given, so it stands in while the runs are checked
+    kept: list[str | None] = [r.meta.get("source") for r in runs]
+    for r, g in zip(runs, given, strict=True):
+        if g is not None:
+            r.meta["source"] = g
+    try:
+        return Dataset(runs=runs, meta=meta).validate(source)
+    finally:
+        for r, was in zip(runs, kept, strict=True):
+            if was is None:
+                r.meta.pop("source", None)
+            else:
+                r.meta["source"] = was
 
 
 def check_run_ids(ids: Sequence[tuple[str, str, str]]) -> None:
@@ -286,8 +338,10 @@ def check_run_ids(ids: Sequence[tuple[str, str, str]]) -> None:
         if key in seen:
             unit = f" of unit '{device_id}'" if several else ""
             fix = ("a log's run id is its file name and instance: rename one of the logs"
-                   if is_log_source(source) else "set 'run_id' per file, rename the files, "
-                   "or give each unit its own device id")
+                   if is_log_source(source) else "a file's run id is the mapping's "
+                   "run_id where it sets one, else the file name without its extension: "
+                   "rename or copy one file under another name, leave run_id out of a "
+                   "mapping that reads several files, or map a run_column")
             raise InputError.at(source, f"run id '{run_id}'{unit} already "
                                 f"used by {seen[key]} (a unit's run ids must be unique; {fix})")
         seen[key] = source

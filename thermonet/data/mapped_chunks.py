@@ -154,7 +154,8 @@ def discover(layout: Layout, chunk_rows: int) -> None:
                      **{g: list(v) for g, v in roles.items()}, "n_samples": tally.n})
         times.append(tally.times(temperature))
     if mapping.malformed_rows == "skip":
-        log.warning("%s: skipped %d malformed row(s)", layout.path, skipped_total)
+        if skipped_total:
+            log.warning("%s: skipped %d malformed row(s)", layout.path, skipped_total)
         layout.meta["skipped_rows"] = str(skipped_total)
     layout.runs, layout.times, layout.num_rows = runs, times, n_rows
     layout.columns = ["time_s", *[ch.name for ch in mapping.channels]]

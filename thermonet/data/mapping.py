@@ -21,7 +21,7 @@ Schema
                             # logged and kept in Dataset.meta['skipped_rows']
     time:                   # either a time column ...
       column: "time (ms)"   # a header name, or a 0-based index
-      unit: ms              # s | ms | us (µs accepted)
+      unit: ms              # s | ms | us | min | h (µs accepted)
     sample_rate_hz: 50.0    # ... or a fixed rate when there is no time column:
                             # t = (data row - 1) / rate, so a skipped row leaves a gap
     run_column: null        # optional column whose values split the file into runs
@@ -73,11 +73,15 @@ __all__ = [
     "channel_role",
     "case_slip",
     "default_unit",
+    "UNIT_IN_DEFAULT",
+    "unit_factor",
+    "header_unit_clashes",
     "load_mapping",
 ]
 
 #: Time units a mapping may name, as seconds per unit.
-TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6}
+TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6,
+                                "min": 60.0, "h": 3600.0}
 #: Values of the ``format`` key.
 FORMATS = ("auto", "csv", "tsv", "parquet")
 _MALFORMED = ("error", "skip")
@@ -129,6 +133,50 @@ _KIND_NAME = {"gyro": "a gyro", "acc": "an accelerometer", "mag": "a magnetomete
               "baro": "a barometer"}
 
 
+#: A value in each unit of a physical channel is this many of its dimension's default unit
+#: (:func:`default_unit`: rate deg/s, acceleration g, field uT, pressure Pa).
+UNIT_IN_DEFAULT: dict[str, float] = {
+    "deg/s": 1.0, "deg/h": 1.0 / 3600.0, "rad/s": 180.0 / math.pi,
+    "g": 1.0, "mg": 1e-3, "m/s^2": 1.0 / 9.80665, "T": 1e6, "uT": 1.0, "Pa": 1.0, "hPa": 100.0}
+
+
+def unit_factor(unit: str, want: str) -> float | None:
+    """The factor that turns a value in ``unit`` into ``want`` (1 when equal), or None where no
+    conversion is known (other dimensions, raw counts, a unit outside
+    :data:`UNIT_IN_DEFAULT`)."""
+    if unit == want:
+        return 1.0
+    if unit in UNIT_IN_DEFAULT and want in UNIT_IN_DEFAULT and \
+            KNOWN_UNITS[unit] == KNOWN_UNITS[want]:
+        return UNIT_IN_DEFAULT[unit] / UNIT_IN_DEFAULT[want]
+    return None
+
+
+#: Units a column header may carry in brackets, as written by loggers, and the unit each
+#: is (``degF``/``K`` are temperatures thermonet does not take: ``temperature_c`` is °C).
+_HEADER_UNIT = {"°C": "degC", "degC": "degC", "°F": "degF", "degF": "degF", "K": "K",
+                "Kelvin": "K", "°/s": "deg/s", "dps": "deg/s", "°/h": "deg/h",
+                "m/s²": "m/s^2", "m/s2": "m/s^2", "µT": "uT", "μT": "uT", "mbar": "hPa",
+                **{u: u for u in KNOWN_UNITS if u not in ("s", "1")}}
+_HEADER_BRACKET = re.compile(r"[\[(]\s*([^\[\]()]+?)\s*[\])]\s*$")
+
+
+def header_unit_clashes(mapping: ColumnMapping) -> list[str]:
+    """The mapped columns whose header names a unit in brackets (``Temp [°F]``, ``Druck
+    (hPa)``) that is a recognised unit other than the channel's, read with no scale or offset
+    (a channel with either converts on purpose): ``'<column>' says <unit>, mapped as <unit>``
+    each.  Headers are free text: this is for a warning, not a refusal."""
+    out = []
+    for ch in mapping.channels:
+        if not isinstance(ch.column, str) or (ch.scale, ch.offset) != (1.0, 0.0):
+            continue
+        m = _HEADER_BRACKET.search(ch.column)
+        said = _HEADER_UNIT.get(m.group(1)) if m else None
+        if said is not None and said != ch.unit:
+            out.append(f"'{ch.column}' says {m.group(1) if m else said}, mapped as {ch.unit}")
+    return out
+
+
 def default_unit(name: str, *, proxy: bool = False) -> str:
     """Unit assumed when none is given: ``degC`` for temperature, ``deg/s`` gyro,
     ``g`` acc, ``uT`` mag, ``1`` out; proxies ``Hz`` (``*_hz``), ``counts``
@@ -171,7 +219,7 @@ class ChannelSpec:
 
 @dataclass(frozen=True, kw_only=True)
 class TimeSpec:
-    """The time column and its unit (``s``, ``ms``, ``us``)."""
+    """The time column and its unit (``s``, ``ms``, ``us``, ``min``, ``h``)."""
 
     column: str | int
     unit: str = "s"
@@ -213,6 +261,9 @@ def load_mapping(path: str | Path) -> ColumnMapping:
     path = Path(path)
     why = not_a_file(path, "mapping file")
     if why:
+        if why.endswith("not found") and not path.is_absolute():
+            why += (f" (a relative path is resolved against the current directory {Path.cwd()}"
+                    ", a config's data.mapping as --mapping; give it from there, or absolute)")
         raise MappingError.at(path, why)
     try:
         raw = load_yaml(path)

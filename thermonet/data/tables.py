@@ -10,6 +10,7 @@ does not increase is refused with the file, the column and the line.
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +21,14 @@ import pandas as pd
 
 from ..core.errors import InputError
 from ..core.recording import OUTPUT_NAME, Recording
-from .mapping import ChannelSpec, ColumnMapping, TimeSpec, case_slip, default_unit
+from .mapping import (
+    ChannelSpec,
+    ColumnMapping,
+    TimeSpec,
+    case_slip,
+    default_unit,
+    header_unit_clashes,
+)
 from .text import Frame
 from .values import check_time, is_float
 
@@ -169,6 +177,8 @@ def _stamp_units(cells: Any, mapping: ColumnMapping, state: MapState) -> np.ndar
     """A date/time (or time-delta) column as the time column's units since the recording's
     first stamp (kept in ``state`` across frames); NaN where a stamp is missing."""
     assert mapping.time is not None
+    if isinstance(cells.dtype, pd.DatetimeTZDtype):   # zoned stamps: UTC (times are relative)
+        cells = cells.dt.tz_convert("UTC").dt.tz_localize(None)
     stamps = cells.astype("datetime64[ns]") if pd.api.types.is_datetime64_any_dtype(
         cells) else cells.astype("timedelta64[ns]")
     ns = stamps.to_numpy().astype("int64").astype(np.float64)
@@ -195,8 +205,10 @@ def map_frame(frame: Frame, mapping: ColumnMapping, state: MapState | None = Non
             what = ("empty cell" if str(cell).strip() == "" else
                     f"non-finite value {str(cell).strip()!r}" if is_float(cell) else
                     f"non-numeric cell {str(cell).strip()!r}")
-            raise InputError.at(path, what + _line(frame, i), column=_label(label),
-                                row=int(frame.rows[i]))
+            is_time = mapping.time is not None and label == _resolve(
+                frame, mapping.time.column, "time.column")
+            raise InputError.at(path, what + _line(frame, i) + _cell_hint(str(cell), is_time),
+                                column=_label(label), row=int(frame.rows[i]))
         n_skipped += int(bad_any.sum())
         frame.skipped_lines += list(np.asarray(frame.lines if frame.lines is not None
                                                else frame.rows)[bad_any])
@@ -248,6 +260,9 @@ def run_meta(mapping: ColumnMapping, path: Path, numeric_header: Sequence[str],
         meta["mapping"] = mapping.source
     if numeric_header:  # diagnostics.input_warnings suggests 'header: false'
         meta["numeric_header"] = ",".join(list(numeric_header)[:8])
+    clashes = header_unit_clashes(mapping)
+    if clashes:         # diagnostics.run_warnings names them
+        meta["header_units"] = "; ".join(clashes)
     if mapping.malformed_rows == "skip" and skips is not None:
         meta["skipped_rows"] = str(skips[0])
         # The first few only: enough to find them in an editor, short in a log.
@@ -263,7 +278,7 @@ def apply_mapping(frame: Frame, mapping: ColumnMapping) -> tuple[list[Recording]
     """The whole file's frame as recordings, one per (device, run)."""
     m = map_frame(frame, mapping)
     path = frame.path
-    if mapping.malformed_rows == "skip":
+    if mapping.malformed_rows == "skip" and m.n_skipped:
         log.warning("%s: skipped %d malformed row(s)", path, m.n_skipped)
     roles = {"output": "outputs", "reference": "references", "drift": "drift",
              "proxy": "proxies"}
@@ -297,6 +312,25 @@ def _id_column(frame: Frame, column: str | int, key: str, what: str,
         raise InputError.at(frame.path, f"empty {what}" + _line(frame, i),
                             column=_label(label), row=int(frame.rows[i]))
     return np.asarray(cells.astype(str).str.strip().to_numpy(), dtype=object)
+
+
+_DECIMAL_COMMA = re.compile(r"[+-]?[0-9.]*[0-9],[0-9]+")
+_CLOCK = re.compile(r"([0-9]{4}-[0-9]{2}-[0-9]{2}|[0-9]{1,2}\.[0-9]{1,2}\.[0-9]{2,4}|"
+                    r"[0-9]{1,2}:[0-9]{2})")
+
+
+def _cell_hint(cell: str, is_time: bool) -> str:
+    """What a non-numeric cell most likely is, and what to do (a decimal comma, clock or
+    date text in the time column); "" when it looks like neither."""
+    text = cell.strip()
+    if _DECIMAL_COMMA.fullmatch(text):
+        return ("; thermonet reads '.' as the decimal mark: convert the file (e.g. export it "
+                "with '.' decimals in the logger's or spreadsheet's locale setting)")
+    if is_time and _CLOCK.search(text):
+        return ("; time in a CSV must be numeric (time.unit s, ms, us, min or h since the "
+                "start), not clock or date text: export elapsed time, or give sample_rate_hz "
+                "instead of time")
+    return ""
 
 
 def _label(label: str | int) -> str:

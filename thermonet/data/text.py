@@ -19,7 +19,7 @@ import pandas as pd
 
 from ..core.errors import InputError, counted
 from .mapping import ColumnMapping
-from .values import is_float
+from .values import all_skipped_message, field_count_message, is_float, not_utf8
 
 __all__ = ["Frame", "read_text", "iter_text_frames"]
 
@@ -50,14 +50,15 @@ def _text_lines(path: Path, chunk_rows: int | None) -> Iterator[tuple[list[str],
     """Blocks of at most ``chunk_rows`` physical lines (None: all) and the file offset of
     each block's first byte; a byte that is not UTF-8 is named by its file offset."""
     if chunk_rows is None:
+        raw = path.read_bytes()
         try:
             # utf-8-sig drops the byte-order mark spreadsheet exports put before the header.
-            text = path.read_text(encoding="utf-8-sig")
+            text = raw.decode("utf-8-sig")
         except UnicodeDecodeError as err:
-            raise InputError.at(path, f"not UTF-8 text (byte {err.start})") from err
+            raise not_utf8(path, err, 0, raw, 1) from err
         yield text.splitlines(), 0
         return
-    offset = 0
+    offset, line = 0, 1
     with path.open("rb") as f:
         while True:
             block = list(itertools.islice(f, chunk_rows))
@@ -67,9 +68,10 @@ def _text_lines(path: Path, chunk_rows: int | None) -> Iterator[tuple[list[str],
             try:
                 text = raw.decode("utf-8-sig" if offset == 0 else "utf-8")
             except UnicodeDecodeError as err:
-                raise InputError.at(path, f"not UTF-8 text (byte {offset + err.start})") from err
+                raise not_utf8(path, err, offset, raw, line) from err
             yield text.splitlines(), offset
             offset += len(raw)
+            line += len(block)
 
 
 #: Appended to a block of lines when grouping them into records: csv takes it into the last
@@ -171,9 +173,14 @@ class _Pending:
 
 
 def _read_header(path: Path, src: _Pending, records: list[list[str]], sep: str,
-                 first_data: int) -> tuple[list[str], list[list[str]], int]:
-    """The header's column names (blank lines before it skipped, duplicates refused); the
-    records after it; the physical line of the first data row."""
+                 first_data: int, used: set[str] | None
+                 ) -> tuple[list[str], list[list[str]], int, bool]:
+    """The header's column names (blank lines before it skipped); the records after it; the
+    physical line of the first data row; whether the header ended in one empty name (a
+    trailing separator, dropped: rows may then end in one empty field too).
+
+    A name twice is refused where ``used`` (the names a mapping reads; None: every name) holds
+    it; else the second is renamed ``<name> #<field>`` (a column no one reads)."""
     lines = src.lines
     while True:
         while records and not records[0]:  # blank lines before the header
@@ -188,17 +195,38 @@ def _read_header(path: Path, src: _Pending, records: list[list[str]], sep: str,
     names = [c.strip() for c in records.pop(0)]
     lines.pop(0)
     first_data += 1
+    trailing = len(names) > 1 and names[-1] == "" and names[-2] != ""
+    if trailing:
+        names.pop()
+    empty = [i + 1 for i, n in enumerate(names) if n == ""]
+    if len(empty) > 1 and (used is None or "" in used):
+        raise InputError.at(path, f"header fields {', '.join(map(str, empty))} are empty "
+                            f"(file line {first_data - 1}: a separator too many at the end of "
+                            "the header line?)")
     dup = [n for n, c in Counter(names).items() if c > 1]
-    if dup:
-        raise InputError.at(path, "duplicate column in the header", column=dup[0])
-    return names, records, first_data
+    if any(n in used for n in dup) if used is not None else dup:
+        bad = [n for n in dup if used is None or n in used][0]
+        raise InputError.at(path, "duplicate column in the header (the mapping reads it; "
+                            "rename one in the file)", column=bad)
+    seen: set[str] = set()
+    for i, n in enumerate(names):
+        if n in seen:
+            names[i] = f"{n} #{i}"
+        seen.add(names[i])
+    return names, records, first_data, trailing
 
 
 def _field_count(path: Path, names: list[str] | None, mapping: ColumnMapping | None,
                  records: list[list[str]]) -> int:
     """Fields per well-formed row: the header's, else the mapping's ``n_fields``, else the
-    most common count of the first records."""
+    most common count of the first records.  A mapping's ``n_fields`` other than the header's
+    field count (with or without a trailing empty one) is refused."""
     if names is not None:
+        if mapping is not None and mapping.n_fields is not None and \
+                mapping.n_fields not in (len(names), len(names) + 1):
+            raise InputError.at(path, f"mapping key 'n_fields' is {mapping.n_fields}, but the "
+                                f"header line has {len(names)} fields (with a header, leave "
+                                f"n_fields out: the header sets it; mapping {mapping.source})")
         return len(names)
     if mapping is not None and mapping.n_fields is not None:
         return mapping.n_fields
@@ -293,7 +321,8 @@ def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None,
     names: list[str] | None = None
     first_data = skip + 1  # physical line of data row 1, before the header shift
     if header:
-        names, records, first_data = _read_header(path, src, records, sep, first_data)
+        names, records, first_data, _ = _read_header(path, src, records, sep, first_data,
+                                                     _used_names(mapping))
     lead = first_data - skip - 1   # records before data row 1 (blank lines, the header)
 
     def line_of(i: np.ndarray) -> np.ndarray:
@@ -306,6 +335,7 @@ def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None,
         float_columns(names, n_fields)
     base = 0   # index of this frame's first record among all records after the header
     any_rows = False
+    found: Counter[int] = Counter()   # field counts of the rows skipped for it
     first: list[list[str]] | None = records
     while True:
         step = max(len(lines) if chunk_rows is None else int(chunk_rows), 1)
@@ -317,7 +347,7 @@ def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None,
             if frame is None:
                 recs = recs if recs is not None else list(csv.reader(part, delimiter=sep))
                 frame = _frame(path, part, recs, base, line_of, names, n_fields, sep,
-                               malformed, numeric)
+                               malformed, numeric, found)
             base += len(part) if recs is None else len(recs)
             if frame is not None:
                 any_rows = any_rows or frame.rows.size > 0
@@ -330,7 +360,17 @@ def iter_text_frames(path: Path, mapping: ColumnMapping | None, sep: str | None,
         if not lines:
             break
     if not any_rows:
-        raise InputError.at(path, "no data rows")
+        raise InputError.at(path, "no data rows" + all_skipped_message(found, n_fields))
+
+
+def _used_names(mapping: ColumnMapping | None) -> set[str] | None:
+    """The header names a mapping reads (None without a mapping: every name is read)."""
+    if mapping is None:
+        return None
+    cols = [mapping.run_column, mapping.device_column] + [ch.column for ch in mapping.channels]
+    if mapping.time is not None:
+        cols.append(mapping.time.column)
+    return {c for c in cols if isinstance(c, str)}
 
 
 def _fast_frame(path: Path, lines: list[str], base: int,
@@ -354,6 +394,9 @@ def _fast_frame(path: Path, lines: list[str], base: int,
     keys = [str(x) for x in labels]
     if len(set(keys)) != len(keys):
         return None
+    if all(ln.endswith(sep) for ln in lines):   # a logger's trailing separator on every row
+        lines = [ln[:-1] for ln in lines]
+        text = "\n".join(lines)
     try:
         table = pacsv.read_csv(
             io.BytesIO(text.encode("utf-8")),
@@ -387,20 +430,26 @@ def _fast_frame(path: Path, lines: list[str], base: int,
 def _frame(path: Path, lines: list[str], records: list[list[str]], base: int,
            line_of: Callable[[np.ndarray], np.ndarray], names: list[str] | None,
            n_fields: int, sep: str, malformed: str,
-           numeric: list[str]) -> Frame | None:
+           numeric: list[str], found: Counter[int] | None = None) -> Frame | None:
     """One frame of text records (``base``: the index of the first among all data records),
-    or None when every record of it is blank or skipped."""
+    or None when every record of it is blank or skipped.  A row of ``n_fields`` + 1 fields
+    whose last is empty (a logger's trailing separator) is a row of ``n_fields``; the field
+    counts of rows skipped for theirs are tallied in ``found``."""
     keep: list[int] = []
     skipped_lines: list[int] = []
+    lines = list(lines)
     for i, rec in enumerate(records):
         if not rec:
             continue  # blank lines carry no sample
-        if len(rec) != n_fields:
+        if len(rec) == n_fields + 1 and rec[-1] == "" and lines[i].endswith(sep):
+            lines[i] = lines[i][:-1]
+        elif len(rec) != n_fields:
             if malformed == "error":
-                raise InputError.at(path, f"expected {n_fields} fields, found {len(rec)} "
-                                    f"(file line {int(line_of(np.asarray(base + i)))}; set "
-                                    "malformed_rows: "
-                                    "skip in a mapping to drop such rows)", row=base + i + 1)
+                raise InputError.at(path, field_count_message(
+                    n_fields, len(rec), int(line_of(np.asarray(base + i))), names),
+                    row=base + i + 1)
+            if found is not None:
+                found[len(rec)] += 1
             skipped_lines.append(int(line_of(np.asarray(base + i))))
             continue
         keep.append(i)

@@ -64,7 +64,10 @@ def read_log(path: str | Path) -> FlightLog:
         return read_ulog(path)
     if kind == "dataflash":
         return read_dataflash(path)
-    raise InputError.at(path, "not a flight-controller log (expected .ulg or .bin)")
+    hint = ("; for a chamber recording (CSV, Parquet) use thermonet compare with a config "
+            "(README)" if Path(path).suffix.lower() in (".csv", ".tsv", ".txt", ".parquet", ".pq")
+            else "")
+    raise InputError.at(path, "not a flight-controller log (expected .ulg or .bin)" + hint)
 
 
 def read_logs(paths: list[str | Path]) -> list[FlightLog]:
