@@ -112,8 +112,10 @@ def test_an_exported_onnx_file_names_its_checkpoint_and_data(on_files, tmp_path)
 def test_a_mapping_and_several_files_are_each_recorded(tmp_path, capsys):
     ds = toy_dataset(n_runs=3)
     files = [_csv(tmp_path / f"r{k}.csv", ds[k], header=False) for k in range(3)]
+    with files[1].open("a") as f:                   # two rows the mapping skips
+        f.write("1e9,abc,0.1\n1e9,2\n")
     mapping = tmp_path / "m.yaml"
-    mapping.write_text("header: false\ntime: {column: 0, unit: s}\n"
+    mapping.write_text("header: false\ntime: {column: 0, unit: s}\nmalformed_rows: skip\n"
                        "channels:\n  temperature_c: {column: 1}\n  gyro_x: {column: 2}\n")
     cfg = tmp_path / "c.yaml"
     cfg.write_text(f"data: {{paths: {[str(f) for f in files]}, mapping: '{mapping}'}}\n{FAMILY}")
@@ -122,6 +124,8 @@ def test_a_mapping_and_several_files_are_each_recorded(tmp_path, capsys):
     prov = json.loads((tmp_path / "out" / "results.json").read_text())["provenance"]["data"]
     assert [f["sha256"] for f in prov["files"]] == [_sha(f) for f in files]
     assert prov["mapping"] == {"path": str(mapping), "sha256": _sha(mapping)}
+    assert prov["skipped_rows"] == 2            # said where the data's provenance is
+    assert "2 malformed rows skipped" in (tmp_path / "out" / "report.html").read_text()
     text = (tmp_path / "out" / "config.resolved.yaml").read_text()
     assert f"# mapping: {_sha(mapping)}  {mapping}" in text
 

@@ -348,6 +348,9 @@ def _provenance_html(prov: Any) -> str:
         files = list(src.get("files") or []) + ([src["mapping"]] if src.get("mapping") else [])
         data = "data files: " + "; ".join(f"{_e(f.get('path'))} (sha256 {_e(f.get('sha256'))})"
                                           for f in files if isinstance(f, dict))
+        if isinstance(src.get("skipped_rows"), int) and src["skipped_rows"] > 0:
+            data += (f"; {counted(src['skipped_rows'], 'malformed row')} skipped "
+                     "(the mapping's malformed_rows: skip)")
     elif src.get("kind") == "simulated":
         runs = src.get("runs")
         count = counted(runs, "run") if isinstance(runs, int) else f"{_e(runs)} runs"

@@ -45,8 +45,11 @@ def data_source(cfg: CompareConfig, ds: Dataset | None, *, given: bool) -> dict[
         return {"kind": "dataset", "device": ds.device_id, "runs": [r.run_id for r in ds],
                 "preset": ds.meta.get("preset") or None, "sources": sources[:20]}
     if cfg.data.paths:
+        skipped = None if ds is None else ds.meta.get("skipped_rows")
         return {"kind": "files", "files": [file(p) for p in cfg.data.paths],
-                "mapping": None if cfg.data.mapping is None else file(cfg.data.mapping)}
+                "mapping": None if cfg.data.mapping is None else file(cfg.data.mapping),
+                # rows a mapping's ``malformed_rows: skip`` dropped (None: none could be)
+                "skipped_rows": None if skipped is None else int(skipped)}
     return {"kind": "simulated", "preset": cfg.data.preset,
             "runs": cfg.data.runs if ds is None else len(ds), "seed": cfg.data.seed}
 
