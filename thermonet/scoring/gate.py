@@ -50,7 +50,8 @@ GATE_RULE = ("the baseline stays until beaten everywhere: a candidate replaces i
              "the direction of change must also have been judged on held-out excursions of both "
              "directions and the training data must ramp at two rates or more (their 90th "
              f"percentile at least {RATE_SPREAD:g}x the 10th) — at one rate only a step toward "
-             "memory (at most a third of its drift read from it) is judged; where the folds "
+             f"memory (at most {MEMORY_STEP:.2g} of its drift read from it) is judged; where the "
+             "folds "
              "are interleaved "
              "blocks (no excursion could be held out) the baseline is not replaced; where the "
              "baseline is worse than raw out of fold (its score not below 1 and its interval "
@@ -92,8 +93,8 @@ def one_rate(rates: Sequence[float]) -> str:
             f"under {RATE_SPREAD:g}x): a lag and a hysteresis cannot be told apart "
             "there, so a model reading the rate, a lag, a delayed temperature or a hysteresis "
             "memory cannot be judged at another rate and does not ship over a static model "
-            "(a third of the step may: it is no worse than the static model at up to 6x the "
-            "rate either way)")
+            f"(a step of {MEMORY_STEP:.2g} may: it is no worse than the static model at up to "
+            f"{2 / MEMORY_STEP:.2g}x the rate either way)")
 
 
 def worst_fold_not_worse(cand: np.ndarray, ref: np.ndarray) -> bool:
@@ -256,10 +257,10 @@ def gate_axis(sc: dict[str, float], a: int, gate: Gate, baseline: str | None,
 
 
 def gate_with_draws(sc: dict[str, float], boots: dict[str, np.ndarray], a: int, gate: Gate,
-          baseline: str | None, directional: set[str] | frozenset[str],
-          base_own: np.ndarray | None, base_mask: Sequence[bool] | None,
-          base_unmasked: tuple[np.ndarray, np.ndarray] | None
-          ) -> tuple[dict[str, float], list[str]]:
+                    baseline: str | None, directional: set[str] | frozenset[str],
+                    base_own: np.ndarray | None, base_mask: Sequence[bool] | None,
+                    base_unmasked: tuple[np.ndarray, np.ndarray] | None
+                    ) -> tuple[dict[str, float], list[str]]:
     """:func:`gate_axis` on axis ``a``; where the baseline is the reference it ships
     unmasked, so its draws in ``boots`` become its unmasked ones (in place)."""
     score = None if base_unmasked is None else float(base_unmasked[0][a])
@@ -321,8 +322,8 @@ def held_back(ok: Mapping[str, CandidateOOF], baseline: str | None, plan: FoldPl
     # the folds' purge follows the same test (fold_plan.memory_judgeable): one definition
     one_way = "" if memory_judgeable(plan.directions, plan.rates) else (
         one_direction(plan.directions) or one_rate(plan.rates))
-    # one rate, both directions: a step toward memory is judged (fold_plan.MEMORY_STEP: at another rate
-    # it is no worse than the static model whether the sensor lags or has a hysteresis)
+    # one rate, both directions: a step toward memory is judged (fold_plan.MEMORY_STEP: at
+    # another rate it is no worse than the static model, the sensor lagging or not)
     rate_only = bool(one_way) and not one_direction(plan.directions)
     held = {k: one_way for k, c in ok.items() if c.directional
             and not (rate_only and c.memory_share <= MEMORY_STEP + 1e-12)} if one_way else {}
