@@ -22,9 +22,7 @@ def test_default_is_the_simulator():
     assert cfg.data.preset == "patent-gyro"
     assert [f.label for f in cfg.families] == ["cubic", "linear", "lorentz", "ts-fuzzy", "rbf",
                                                "cubic-delayed-1min", "cubic-delayed-2min",
-                                               "cubic-delayed-5min", "cubic-delayed-1min-third",
-                                               "cubic-delayed-2min-third", "cubic-delayed-5min-third",
-                                               "poly3-rate", "poly3-hyst"]
+                                               "cubic-delayed-5min", "poly3-rate", "poly3-hyst"]
     assert [f.inputs for f in cfg.families[5:8]] == [["delayed_60"], ["delayed_120"],
                                                      ["delayed_300"]]
     hyst = cfg.families[-1]

@@ -57,7 +57,8 @@ RATE_SPREAD = 1.3
 #: |1 − w ρ| c off a hysteresis — no worse than the static model up to ρ = 2 / w under either.
 #: A half step was tried first (``bench_selection.py --stress``, fitted on one cycle, tested
 #: on one 3× slower): 1.055× and 1.016× the cubic on the axis with a hysteresis of its own,
-#: whose cubic curve the lag also bends; a third kept every axis at or under the cubic.
+#: whose cubic curve the lag also bends; a third kept every axis at or under the cubic.  No
+#: default candidate is a step (configs/README.md, "A step toward memory at one rate").
 MEMORY_STEP = 1.0 / 3.0
 
 

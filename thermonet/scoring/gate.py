@@ -34,8 +34,7 @@ if TYPE_CHECKING:
 
 __all__ = ["MIN_GATE_FOLDS", "RATE_SPREAD", "TWO_FOLD_MARGIN", "GATE_RULE", "Gate",
            "one_direction", "one_rate", "worst_fold_not_worse", "clear_on_each",
-           "beats_in_every_fold", "base_worse_than_raw", "gate_with_draws", "pp_not_worse_note",
-           "gate_axis",
+           "beats_in_every_fold", "base_worse_than_raw", "pp_not_worse_note", "gate_axis",
            "gate_note", "held_back", "held_back_record", "reason_groups"]
 
 
@@ -51,8 +50,7 @@ GATE_RULE = ("the baseline stays until beaten everywhere: a candidate replaces i
              "directions and the training data must ramp at two rates or more (their 90th "
              f"percentile at least {RATE_SPREAD:g}x the 10th) — at one rate only a step toward "
              f"memory (at most {MEMORY_STEP:.2g} of its drift read from it) is judged; where the "
-             "folds "
-             "are interleaved "
+             "folds are interleaved "
              "blocks (no excursion could be held out) the baseline is not replaced; where the "
              "baseline is worse than raw out of fold (its score not below 1 and its interval "
              "above 1 or its binned peak-to-peak larger than raw's), raw is the reference")
@@ -215,18 +213,13 @@ class Gate:
 
 def gate_axis(sc: dict[str, float], a: int, gate: Gate, baseline: str | None,
                directional: set[str] | frozenset[str], base_ratio: float | None = None,
-               base_kept: bool = False, base_score: float | None = None
-               ) -> tuple[dict[str, float], list[str]]:
+               base_kept: bool = False) -> tuple[dict[str, float], list[str]]:
     """The candidates of axis ``a`` that pass the gate (the reference among them where it
     compensates), and those it held back.  ``base_ratio``: the baseline's unmasked
     out-of-fold ratio on the axis (its own domain) — it is the reference wherever that is
     below 1; ``base_kept``: the baseline's own mask (its interval reaches 1 *and* its binned
     peak-to-peak out of fold is no larger than raw's) — it is the reference there too, even
-    with a ratio not below 1 (a cubic within the noise of raw stays).  ``base_score``: the
-    baseline's unmasked ratio on the windows every candidate was judged on — where it is the
-    reference it ships unmasked, so that is its score against the challengers (on the same
-    windows as theirs: its own domain's ratio, on other windows, once made a cubic 0.91 of raw
-    read 0.32 beside a challenger's 0.56 and kept it; ``bench_selection.py --stress``).
+    with a ratio not below 1 (a cubic within the noise of raw stays).
 
     The decision (the promise: never worse than the cubic, raw only where the cubic is worse
     than raw out of fold): the cubic is worse than raw out of fold where its score does not
@@ -237,11 +230,10 @@ def gate_axis(sc: dict[str, float], a: int, gate: Gate, baseline: str | None,
     of both seeds — raw there was worse than the cubic (``tests/test_never_worse.py``).  The
     axis's sentence says so (:func:`pp_not_worse_note`)."""
     base = baseline or ""
-    base_on = base in sc and (below(sc[base], 1.0) or base_kept or (
-        base_ratio is not None and below(base_ratio, 1.0)))
-    if base_on and base_score is not None and math.isfinite(base_score):
-        sc = {**sc, base: base_score}
-    ref_score = min(sc[base], 1.0) if base_on else 1.0
+    if base_ratio is not None and base in sc and below(base_ratio, 1.0):
+        sc = {**sc, base: min(sc[base], base_ratio)}
+    base_on = base in sc and (below(sc[base], 1.0) or base_kept)
+    ref_score = sc[base] if base_on else 1.0
     kept: dict[str, float] = {}
     gated: list[str] = []
     for k, v in sc.items():
@@ -254,23 +246,6 @@ def gate_axis(sc: dict[str, float], a: int, gate: Gate, baseline: str | None,
         elif k != baseline:
             gated.append(k)
     return kept, gated
-
-
-def gate_with_draws(sc: dict[str, float], boots: dict[str, np.ndarray], a: int, gate: Gate,
-                    baseline: str | None, directional: set[str] | frozenset[str],
-                    base_own: np.ndarray | None, base_mask: Sequence[bool] | None,
-                    base_unmasked: tuple[np.ndarray, np.ndarray] | None
-                    ) -> tuple[dict[str, float], list[str]]:
-    """:func:`gate_axis` on axis ``a``; where the baseline is the reference it ships
-    unmasked, so its draws in ``boots`` become its unmasked ones (in place)."""
-    score = None if base_unmasked is None else float(base_unmasked[0][a])
-    sc, gated = gate_axis(sc, a, gate, baseline, directional,
-                          None if base_own is None else float(base_own[a]),
-                          base_kept=bool(base_mask is not None and base_mask[a]),
-                          base_score=score)
-    if base_unmasked is not None and baseline in sc and sc[baseline] == score:
-        boots[baseline] = base_unmasked[1][:, a]
-    return sc, gated
 
 
 def base_worse_than_raw(baseline: str, ratio: np.ndarray, pp_ratio: np.ndarray | None,

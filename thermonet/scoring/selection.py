@@ -124,8 +124,8 @@ from .gate import (
     GATE_RULE,
     Gate,
     base_worse_than_raw,
+    gate_axis,
     gate_note,
-    gate_with_draws,
     held_back,
     held_back_record,
     pp_not_worse_note,
@@ -203,8 +203,7 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
                     base_own: np.ndarray | None = None,
                     base_mask: Sequence[bool] | None = None,
                     base_pp: np.ndarray | None = None,
-                    directional: set[str] | frozenset[str] = frozenset(),
-                    base_unmasked: tuple[np.ndarray, np.ndarray] | None = None
+                    directional: set[str] | frozenset[str] = frozenset()
                     ) -> tuple[dict[str, str | None], dict[str, str]]:
     """Each axis its own candidate: the rule of :func:`select`, axis by axis.
 
@@ -229,10 +228,10 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
     for a, axis in enumerate(outputs):
         sc = {k: float(v[a]) for k, v in axis_scores.items() if math.isfinite(float(v[a]))}
         gated: list[str] = []
-        boots = {k: v[:, a] for k, v in axis_boots.items() if k in sc}
         if gate is not None and sc:
-            sc, gated = gate_with_draws(sc, boots, a, gate, baseline, directional, base_own, base_mask,
-                              base_unmasked)
+            sc, gated = gate_axis(sc, a, gate, baseline, directional,
+                                   None if base_own is None else float(base_own[a]),
+                                   base_kept=bool(base_mask is not None and base_mask[a]))
         note = gate_note(gated, directional)
         if not sc:
             chosen[axis], reason[axis] = None, "no candidate has a finite out-of-fold score"
@@ -243,7 +242,7 @@ def choose_per_axis(axis_scores: Mapping[str, np.ndarray], axis_boots: Mapping[s
             elif gated:
                 reason[axis] = "raw: no candidate passes the gate against raw" + note
             continue
-        c = one_se(sc, {k: v for k, v in boots.items() if k in sc}, n_params,
+        c = one_se(sc, {k: v[:, a] for k, v in axis_boots.items() if k in sc}, n_params,
                    floor=partial(_worse_than, sc, baseline),
                    keep=baseline if gate is not None else None)
         best = str(c.best)
@@ -345,7 +344,6 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
         sc.axis_scores, sc.axis_boots, {k: c.n_params for k, c in ok.items()}, outputs,
         baseline, plan.k, gate=sc.gate, directional=set(held),
         base_own=sc.own_ratio.get(baseline or ""), base_mask=sc.compensate.get(baseline or ""),
-        base_unmasked=sc.unmasked.get(baseline or ""),
         base_pp=pooled.pp_cand[baseline] / np.where(pooled.pp_raw > 0, pooled.pp_raw, np.nan)
         if baseline in ok and temperatures is not None else None)
     record["per_axis"] = {"chosen": per_axis, "rule": per_axis_reason,
@@ -371,8 +369,6 @@ class _Scores:
     gate: Gate | None = None
     #: per candidate, its unmasked out-of-fold ratio to raw per axis on its own domain
     own_ratio: dict[str, np.ndarray] = field(default_factory=dict)
-    #: per candidate, its unmasked ratio per axis on the common windows and its draws
-    unmasked: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
 def _score(pooled: Pooled, ok: Mapping[str, CandidateOOF], outputs: Sequence[str],
@@ -413,7 +409,6 @@ def _score(pooled: Pooled, ok: Mapping[str, CandidateOOF], outputs: Sequence[str
             keep = np.array(mask)
             sc.axis_scores[k] = np.where(keep, ratio, 1.0)
             sc.own_ratio[k] = ratio_own
-            sc.unmasked[k] = (ratio, boot)
             sc.scores[k] = float(np.mean(sc.axis_scores[k]))
             sc.axis_boots[k] = np.where(keep[None, :], boot, 1.0)
             sc.boots[k] = sc.axis_boots[k].mean(axis=1)

@@ -32,7 +32,6 @@ from ..models.hyper import HyperError
 from ..models.registry import make_spec
 from ..models.shipped import MODEL_KINDS
 from ..scoring.fleetstats import parse_limits
-from ..scoring.fold_plan import MEMORY_STEP
 from ..sim.presets import MAX_RUNS, preset_problem
 from .config_sections import (  # the other sections: their own module
     BandConfig,
@@ -106,10 +105,7 @@ def _default_families() -> list[FamilyConfig]:
       half-width 1 °C that tells the heating from the cooling branch and keeps it through a
       soak); ``cubic-delayed-1min``, ``-2min``, ``-5min``: the cubic at the temperature
       delayed by a first-order lag of 1, 2 or 5 minutes (``delayed_<τ>``: a sensing element
-      that lags its thermometer; one input, so no joint envelope); ``cubic-delayed-<m>min-third``:
-      a third of the way from the cubic to it (``mix``: each fitted alone, weighted), the step a
-      model with memory may take where the training data ramp at one rate
-      (:data:`thermonet.scoring.fold_plan.MEMORY_STEP`).  All fit in closed form
+      that lags its thermometer; one input, so no joint envelope).  All fit in closed form
       (least squares) in about a second; an RBF on dynamic
       inputs fits no better on the heat/cool benchmark and costs minutes, so it is not in the
       default set (name it in a config).
@@ -126,10 +122,6 @@ def _default_families() -> list[FamilyConfig]:
                      tune={"n_centres": [8, 16]}),
         *(FamilyConfig(family="poly", name=f"cubic-delayed-{m}min", inputs=[f"delayed_{60 * m}"],
                        params={"degree": 3}) for m in DELAYS_MIN),
-        *(FamilyConfig(family="poly", name=f"cubic-delayed-{m}min-third",
-                       inputs=["dT", f"delayed_{60 * m}"],
-                       params={"degree": 3, "mix": [1 - MEMORY_STEP, MEMORY_STEP]})
-          for m in DELAYS_MIN),
         FamilyConfig(family="poly", name="poly3-rate", inputs=["dT", "rate"],
                      params={"degree": 3, "cross": True}, tune={"degree": [1, 2, 3]}),
         FamilyConfig(family="poly", name="poly3-hyst", inputs=["dT", "rate", "play_1"],
