@@ -264,6 +264,41 @@ def test_fleet_cli_exit_code_and_all_units_export(tmp_path, monkeypatch, capsys)
     assert "toy-u001" in json.dumps(meta)
     assert main(["export", "fl", "--all-units", "--format", "c", "--out", "c"]) == 0
     assert len(list((tmp_path / "c").glob("toy-u00?.h"))) == 3
+    # per-unit autopilot files name their unit (a '#' comment both formats and both readers
+    # take), and the console says which unit each file is for
+    from thermonet.exporting.autopilot_read import read_ardupilot_params, read_px4_params
+    from thermonet.workflows.verify_params import read_param_file
+
+    capsys.readouterr()
+    assert main(["export", "fl", "--all-units", "--format", "px4-params", "--device-id",
+                 "2490378", "--out", "px4"]) == 0
+    out = capsys.readouterr().out
+    assert f"unit toy-u001: wrote {Path('px4') / 'toy-u001.params'}" in out.splitlines(), out
+    assert main(["export", "fl", "--all-units", "--format", "ardupilot-params", "--out",
+                 "ap"]) == 0
+    for f, read in ((Path("px4/toy-u001.params"), read_px4_params),
+                    (Path("ap/toy-u001.parm"), read_ardupilot_params)):
+        assert f.read_text().splitlines()[0] == "# unit toy-u001"
+        params = read(f)
+        assert params and "# unit" not in str(params)
+        assert read_param_file(f).params == params     # what verify reads
+
+
+def test_a_unit_a_files_metadata_lists_without_rows_is_named_with_the_file(tmp_path):
+    """A fleet file whose rows of one unit were dropped (its metadata still lists it) says
+    so, naming the file, instead of "too few samples: 0"."""
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    ds = simulate_fleet("patent-gyro", units=3, runs=1, seed=4, sample_rate_hz=0.05)
+    table = pq.read_table(write_parquet(ds, tmp_path / "f.parquet"))
+    drop = tmp_path / "drop.parquet"
+    pq.write_table(table.filter(pc.not_equal(table["device"], "patent-gyro-u001")), drop)
+    sources = sources_from_dataset(read_datasets([drop], validate=False), files=[str(drop)])
+    errors = {s.device_id: s.error for s in sources}
+    assert errors["patent-gyro-u000"] is None and errors["patent-gyro-u002"] is None
+    assert errors["patent-gyro-u001"] == (f"unit 'patent-gyro-u001': no rows in {drop} (the "
+                                          "file's metadata lists the unit)")
 
 
 # -------------------------------------------------------------- executors

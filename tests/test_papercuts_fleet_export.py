@@ -216,6 +216,21 @@ def test_export_all_units_of_a_compare_directory_is_refused(cubic_compare, tmp_p
     assert list(tmp_path.iterdir()) == []
 
 
+def test_export_all_units_of_a_station_directory_says_what_it_holds(tmp_path, capsys):
+    """A station's output was "not a fleet directory": it says what it is and offers."""
+    st = tmp_path / "st"
+    (st / "units" / "1001").mkdir(parents=True)
+    (st / "results.json").write_text(json.dumps({"schema": 1, "kind": "station", "units": {
+        "1001": {"verdict": "PASS", "files": "units/1001"}}}))
+    assert main(["export", str(st), "--all-units", "--format", "px4-params", "--out",
+                 str(tmp_path / "px4")]) == 1
+    assert _line(capsys) == (f"thermonet: error: {st}: a station directory, not a fleet: each "
+                             "unit's calibration is already written there (units/<id>/"
+                             "calibration.json and thermonet_cal.h, the firmware's C header); "
+                             "a station writes no autopilot parameters")
+    assert not (tmp_path / "px4").exists()
+
+
 def test_export_of_a_fleet_directory_points_to_all_units(fourpos_fleet, tmp_path, capsys):
     assert main(["export", str(fourpos_fleet), "--format", "onnx",
                  "--out", str(tmp_path / "f.onnx")]) == 1

@@ -9,6 +9,8 @@ I-optimal answer for a line; the prior file's checks.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from scipy.linalg import null_space
@@ -268,6 +270,42 @@ def test_prior_file_round_trip_and_refusals() -> None:
     nan = {**data, "axes": {"gyro_x": {**data["axes"]["gyro_x"], "misfit_var": float("nan")}}}
     with pytest.raises(InputError, match="misfit_var"):
         prior_from_dict(nan, "p.json")
+
+
+def test_a_prior_edited_by_hand_is_refused_naming_the_key() -> None:
+    """A string where a number belongs (NumPy would read "0.11" as 0.11), a unit count that
+    is not the units listed, and a content that no longer matches its digest."""
+    from thermonet.scoring.prior_io import check_digest, prior_digest
+
+    data = json.loads(json.dumps(_prior_for_design(3).to_dict()))
+    means = [[["0.11", 0.0, 0.0]]]
+    with pytest.raises(InputError, match=r"^p\.json: key 'axes\.gyro_x\.means': not an array "
+                                         r"of numbers \(a value is '0\.11'\)$"):
+        prior_from_dict({**data, "axes": {"gyro_x": {**data["axes"]["gyro_x"],
+                                                     "means": means[0]}}}, "p.json")
+    with pytest.raises(InputError, match="key 'range_c': not an array of numbers"):
+        prior_from_dict({**data, "range_c": ["-40", 85.0]}, "p.json")
+    with pytest.raises(InputError, match=r"^p\.json: key 'n_units': 500, and 'unit_ids' lists "
+                                         r"20 units"):
+        prior_from_dict({**data, "n_units": 500}, "p.json")
+    # the digest: sealed content reads back; one edit (a widened range) does not
+    sealed = {**data, "sha256": prior_digest(data)}
+    assert check_digest(sealed, "p.json") is None
+    assert prior_digest(sealed) == prior_digest(data)        # the digest is not its own input
+    with pytest.raises(InputError, match=r"^p\.json: its content does not match its sha256 "
+                                         r"\(edited by hand\?\)"):
+        check_digest({**sealed, "range_c": [-40.0, 85.0]}, "p.json")
+    assert "p.json: no sha256 of its content" in str(check_digest(data, "p.json"))
+
+
+def test_next_temperatures_never_repeat_a_measured_one() -> None:
+    """A unit that soaked at −20 °C was told to measure −20 °C twice: the next temperatures
+    keep soak_plan's separation from the measured ones and from each other."""
+    fp = _prior_for_design(3)
+    measured = [-20.0] * 5 + [25.0] * 5
+    nxt = next_temperatures(fp, "gyro_x", measured, 2)
+    assert len(nxt) == 2 and abs(nxt[0] - nxt[1]) >= 2.5
+    assert all(abs(t - m) >= 2.5 for t in nxt for m in measured), nxt
 
 
 def test_a_mixture_design_is_judged_on_telling_its_clusters_apart() -> None:

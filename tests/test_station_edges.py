@@ -62,8 +62,10 @@ def test_a_mixture_design_takes_a_whole_climate_cycle() -> None:
     one = AxisPrior("gyro_x", np.ones(1), ap.means[:1], covs[:1], 1e-4, 0.0)
     exact = expected_error(one, 1e4 * Xc.T @ Xc, grid)       # w0 = 1 / misfit_var
     assert simulated == pytest.approx(exact, rel=0.1)          # 400 draws: ~4 % MC error
-    nxt = next_temperatures(fp, "gyro_x", temps, 2)
+    nxt = next_temperatures(fp, "gyro_x", temps, 2, apart_c=0.0)   # the design alone
     assert len(nxt) == 2 and all(-25.0 <= t <= 75.0 for t in nxt)
+    # a point every 0.5 °C over the range: no temperature 2.5 °C from a measured one is left
+    assert next_temperatures(fp, "gyro_x", temps, 2) == []
 
 
 def _slope_only(range_c: tuple[float, float], misfit: float = 1e-4) -> FleetPrior:
@@ -314,3 +316,56 @@ def test_units_not_compared_for_two_reasons_get_a_line_each() -> None:
     tail = format_station(res).splitlines()[-2:]
     assert tail == ["2 units not compared with the fleet: a test of soaks, where …",
                     "1 unit not compared with the fleet: a test of heating ramps, …"]
+
+
+def test_a_dead_or_stuck_axis_and_what_is_not_one() -> None:
+    """Constant (std 0), piled up at an extreme (≥ 5 % of the samples at the max, held over
+    consecutive samples, its most frequent value): dead or stuck.  Not: noise, a coarsely
+    quantised noisy axis (its extremes are its rarest values), a clip on fewer than 5 %."""
+    from thermonet.workflows.station_checks import STUCK_SHARE, axis_dead
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(0.0, 0.01, 4000)
+    assert axis_dead([np.zeros(4000)]) == ("constant at 0 over the whole test (a dead or "
+                                          "saturated axis)")
+    assert axis_dead([np.full(10, 32.767), np.full(5, 32.767)]).startswith("constant at 32.767")
+    assert axis_dead([x]) is None
+    assert axis_dead([np.round(x / 0.01) * 0.01]) is None      # ±3 LSB of quantised noise
+    coarse = np.round(rng.normal(0.0, 0.4, 4000))   # 0.4 LSB: ~10 % at +1, held in a row,
+    assert (coarse == coarse.max()).mean() > STUCK_SHARE      # but 0 is its commonest value
+    assert axis_dead([coarse]) is None
+    clip = np.minimum(x, np.quantile(x, 0.9))
+    why = axis_dead([clip])
+    assert why is not None and why.startswith(f"stuck at {clip.max():.6g}, its maximum, on 10% "
+                                              "of the samples (") and "stuck axis)" in why
+    low = np.maximum(x, np.quantile(x, 0.08))
+    assert "its minimum, on 8% of the samples" in str(axis_dead([low]))
+    few = np.minimum(x, np.quantile(x, 1 - STUCK_SHARE / 2))   # 2.5 % clipped: not judged stuck
+    assert axis_dead([few]) is None
+
+
+def test_next_temperatures_keep_a_soak_plans_separation() -> None:
+    """A slope-only prior rates an end measured again best (its arithmetic takes points as
+    independent): the station's next temperature is then another, 2.5 °C away at least."""
+    fp = _slope_only((-20.0, 70.0))
+    assert next_temperatures(fp, "gyro_x", [-20.0, 70.0], 1, apart_c=0.0)[0] in (-20.0, 70.0)
+    nxt = next_temperatures(fp, "gyro_x", [-20.0, 70.0], 2)
+    assert len(nxt) == 2 and all(-17.5 <= t <= 67.5 for t in nxt)
+
+
+def test_a_failed_axis_says_where_to_measure_next_on_its_line() -> None:
+    from thermonet.workflows.station import format_station
+
+    def axis(nxt: list[float] | None, failed: list[str]) -> dict[str, object]:
+        return {"verdict": "FAIL" if failed else "PASS", "held_out_rms": 0.03,
+                "held_out_not_judged": None, "p_value": 0.5, "flagged_unlike_fleet": False,
+                "fleet_not_compared": None, "failed": failed, "next_temperatures_c": nxt}
+    units = {"u0": {"verdict": "FAIL", "runs": 1, "axes": {
+        "gyro_x": axis([-17.5, 47.5], ["max_residual"]), "gyro_y": axis([-17.5, 47.5],
+                                                                       ["max_residual"]),
+        "gyro_z": axis([], ["max_residual"]), "acc_x": axis(None, [])}}}
+    res = {"units_of_measure": {}, "units": units, "summary": {
+        "n_units": 1, "passed": 0, "flagged_unlike_fleet": [], "units_per_minute": 60.0}}
+    line = format_station(res).splitlines()[0]
+    assert line.endswith("  next -17.5, 47.5 °C (gyro_x, gyro_y); no temperature left to "
+                         "measure (its test covers the range) (gyro_z)"), line

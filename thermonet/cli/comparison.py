@@ -69,6 +69,11 @@ def _fleet_units(src: Path) -> dict[str, Any]:
     except (OSError, ValueError, TypeError) as err:
         raise ThermonetError(f"{src}: not a fleet directory (results.json with 'units': "
                              f"{err})") from None
+    if results.get("kind") == "station":
+        raise ThermonetError(f"{src}: a station directory, not a fleet: each unit's "
+                             "calibration is already written there (units/<id>/calibration."
+                             "json and thermonet_cal.h, the firmware's C header); a station "
+                             "writes no autopilot parameters")
     if results.get("kind") != "fleet" and isinstance(results.get("families"), dict):
         raise ThermonetError(f"{src}: a compare directory, not a fleet: export it without "
                              "--all-units (--out a file)")
@@ -114,7 +119,7 @@ def _export_all_units(args: argparse.Namespace) -> int:
     alike: list[tuple[str, str]] = []   # the reasons with the unit's own directory taken off
     for dev, unit in units.items():
         udir = src / "units" / names[dev]
-        why = _export_unit(args, src, unit, udir, out / f"{names[dev]}{ext}")
+        why = _export_unit(args, src, (dev, unit), udir, out / f"{names[dev]}{ext}")
         if why is not None:
             bad.append((dev, why))
             alike.append((dev, why.replace(f"{udir}{os.sep}", "").replace(f"{udir}: ", "")))
@@ -132,9 +137,11 @@ def _export_all_units(args: argparse.Namespace) -> int:
     return 1 if bad else 0
 
 
-def _export_unit(args: argparse.Namespace, src: Path, unit: Any, udir: Path, out: Path
-                 ) -> str | None:
-    """One unit of ``--all-units`` exported to ``out``: None when written, else why not."""
+def _export_unit(args: argparse.Namespace, src: Path, dev_unit: tuple[str, Any], udir: Path,
+                 out: Path) -> str | None:
+    """One unit of ``--all-units`` exported to ``out``: None when written, else why not; an
+    autopilot file gets a ``# unit <id>`` line, and the console names the unit."""
+    dev, unit = dev_unit
     if isinstance(unit, dict) and unit.get("status") == "failed":
         return f"skipped (the fleet could not calibrate it: {str(unit.get('reason'))[:200]})"
     if not udir.resolve().is_relative_to(src.resolve()) or not udir.is_dir():
@@ -145,7 +152,12 @@ def _export_unit(args: argparse.Namespace, src: Path, unit: Any, udir: Path, out
                              prefix=args.prefix)
     except ThermonetError as err:
         return f"not exported: {err}"
-    print(f"wrote {path}")
+    if args.format in ("px4-params", "ardupilot-params"):
+        from ..exporting.autopilot_read import stamp_unit  # lazy: torch-free, off --help
+
+        stamp_unit(path, dev)     # the file says which unit it is for
+    shown = "".join(ch if ch.isprintable() else "?" for ch in dev)   # an id from the data
+    print(f"unit {shown}: wrote {path}")
     return None
 
 

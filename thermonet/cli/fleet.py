@@ -58,7 +58,8 @@ def _cmd_fleet(args: argparse.Namespace) -> int:
         # driver reads the data and sends each unit's runs to its worker
         by_file = sources_from_files(cfg.data.paths) if cfg.data.paths and not (
             cfg.data.mapping or cfg.data.outputs) else None
-        sources = by_file or sources_from_dataset(load_fleet_data(cfg, source=str(args.config)))
+        sources = by_file or sources_from_dataset(load_fleet_data(cfg, source=str(args.config)),
+                                                  files=cfg.data.paths)
         for s in sources:
             if s.error is not None:  # that unit fails alone; the fleet goes on
                 print(f"thermonet: warning: {s.error}", file=sys.stderr)
@@ -83,7 +84,8 @@ def _station_sources(args: argparse.Namespace, cfg: Any) -> list[Any]:
         for opt in ("outliers", "clusters", "test"):
             if getattr(args, opt, None):
                 raise ThermonetError(f"--{opt} needs --units (it shapes simulated units)")
-        return sources_from_dataset(load_fleet_data(cfg, source=str(args.config)))
+        return sources_from_dataset(load_fleet_data(cfg, source=str(args.config)),
+                                    files=cfg.data.paths)
     if cfg.data.paths:
         raise ThermonetError(f"{args.config}: --units simulates units of the config's preset; "
                              "this config reads files (data.paths)")
@@ -125,6 +127,7 @@ def _cmd_prior(args: argparse.Namespace) -> int:
     from ..core.fileio import atomic_write_text, check_out_file  # lazy: off the --help path
     from ..core.recording import Dataset  # lazy: off the --help path
     from ..scoring.prior_design import soak_plan  # lazy: off the --help path
+    from ..scoring.prior_io import DIGEST_KEY, prior_digest  # lazy: off the --help path
     from ..training.config import load_config  # lazy: loads yaml
     from ..workflows.station import (  # lazy: off the --help path
         build_prior,
@@ -143,6 +146,8 @@ def _cmd_prior(args: argparse.Namespace) -> int:
     data = fp.to_dict()
     data["summary"] = prior_summary(fp, parse_station_limits(cfg))
     data["three_soak_plan_c"] = soak_plan(fp, PLAN_SOAKS, step_c=PLAN_STEP_C)
+    data = json.loads(json.dumps(data))       # the content as it will be read back
+    data[DIGEST_KEY] = prior_digest(data)
     atomic_write_text(out, json.dumps(data, indent=2))
     if not args.quiet:
         print(f"wrote {out}: " + format_prior(fp, data["summary"], data["three_soak_plan_c"]))
@@ -150,7 +155,7 @@ def _cmd_prior(args: argparse.Namespace) -> int:
 
 
 def _read_prior(path: str) -> Any:
-    from ..scoring.prior_io import prior_from_dict  # lazy: off the --help path
+    from ..scoring.prior_io import check_digest, prior_from_dict  # lazy: off the --help path
 
     p = Path(path)
     if p.is_dir():
@@ -163,7 +168,23 @@ def _read_prior(path: str) -> Any:
         data = json.loads(p.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, ValueError) as err:
         raise ThermonetError(f"{p}: --prior: not JSON ({str(err).splitlines()[0]})") from None
-    return prior_from_dict(data, str(p))
+    warning = check_digest(data, str(p))
+    fp = prior_from_dict(data, str(p))
+    if warning is not None:
+        print(f"thermonet: warning: {warning}", file=sys.stderr)
+    return fp
+
+
+def _check_station_data(path: str) -> None:
+    """A station config must name its units' data: without a ``data`` section the config's
+    defaults would simulate the default preset's units, not the line's."""
+    from ..core.yamlio import load_yaml  # lazy: loads yaml
+
+    raw = load_yaml(path)
+    data = raw.get("data") if isinstance(raw, dict) else None
+    if not isinstance(data, dict) or not (data.get("paths") or data.get("preset")):
+        raise ThermonetError(f"{path}: config names no data (data.paths or data.preset): "
+                             "the station calibrates the units whose data it is given")
 
 
 def _cmd_station(args: argparse.Namespace) -> int:
@@ -176,6 +197,7 @@ def _cmd_station(args: argparse.Namespace) -> int:
     )
 
     cfg = load_config(args.config)
+    _check_station_data(args.config)
     fp = _read_prior(args.prior)
     sources = _station_sources(args, cfg)
     res = run_station(cfg, fp, sources, Path(args.out), overwrite=args.overwrite,

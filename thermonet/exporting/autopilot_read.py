@@ -2,7 +2,9 @@
 ``.params`` file (:func:`read_px4_params`: ``Vehicle-Id Component-Id Name Value Type`` lines)
 or ArduPilot's ``NAME,VALUE`` / ``NAME VALUE`` lines (:func:`read_ardupilot_params`), comments
 skipped, a line or value that is not one refused naming the file, the line and the parameter.
-What :mod:`thermonet.exporting.autopilot` writes; torch-free.
+What :mod:`thermonet.exporting.autopilot` writes; torch-free.  :func:`stamp_unit` names the
+unit a per-unit file of a fleet is for in a ``# unit <id>`` comment line (both formats take
+``#`` comments, and both readers skip them).
 """
 
 from __future__ import annotations
@@ -10,8 +12,25 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..core.errors import ExportError
+from ..core.fileio import atomic_write_text
 
-__all__ = ["read_px4_params", "read_ardupilot_params"]
+__all__ = ["read_px4_params", "read_ardupilot_params", "stamp_unit", "unit_comment"]
+
+#: Characters of a unit id a comment line keeps (the rest of a long id is cut).
+UNIT_ID_CHARS = 120
+
+
+def unit_comment(unit_id: str) -> str:
+    """``# unit <id>``: the id's printable ASCII kept, anything else (a line break that would
+    end the comment) as ``?``."""
+    safe = "".join(ch if " " <= ch <= "~" else "?" for ch in str(unit_id)[:UNIT_ID_CHARS])
+    return f"# unit {safe}"
+
+
+def stamp_unit(path: str | Path, unit_id: str) -> Path:
+    """Put :func:`unit_comment` first in the parameter file at ``path`` (rewritten whole)."""
+    text = _text(path)
+    return atomic_write_text(Path(path), unit_comment(unit_id) + "\n" + text)
 
 
 def read_px4_params(path: str | Path) -> dict[str, float]:

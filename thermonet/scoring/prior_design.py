@@ -161,9 +161,18 @@ def _candidates(fp: FleetPrior, step_c: float) -> np.ndarray:
 
 
 def next_temperatures(fp: FleetPrior, axis: str, measured_c: list[float], n: int, *,
-                      step_c: float = 2.5) -> list[float]:
-    """The ``n`` temperatures to measure next on one run of ``axis`` (greedy I-optimal)."""
-    return _greedy(_axis_error(fp, axis, step_c), _candidates(fp, step_c), measured_c, n)
+                      step_c: float = 2.5, apart_c: float | None = None) -> list[float]:
+    """The ``n`` temperatures to measure next on one run of ``axis`` (greedy I-optimal).
+
+    Each at least ``apart_c`` (default ``step_c``, the separation :func:`soak_plan` keeps)
+    from a temperature measured or chosen: a soak repeated is one longer soak, not a new
+    point (the prior's arithmetic, which takes points as independent, would rate it so).
+    Fewer than ``n`` come back where the measured points leave no such candidate (a test
+    that covered the range every ``apart_c``); ``apart_c=0``: the design alone, repeats
+    allowed (:func:`design_errors`' points of one run)."""
+    sep = step_c if apart_c is None else apart_c
+    return _greedy(_axis_error(fp, axis, step_c), _candidates(fp, step_c), measured_c, n,
+                   apart_c=sep)
 
 
 def typical_drift(fp: FleetPrior, axis: str) -> float:
@@ -266,7 +275,7 @@ def design_errors(fp: FleetPrior, axis: str, *, max_points: int = 12, step_c: fl
     """The first ``max_points`` temperatures of one run in :func:`next_temperatures` order,
     and the expected error after 2 … ``max_points`` of them."""
     ap, grid, w0 = _design_setup(fp, axis, step_c)
-    temps = next_temperatures(fp, axis, [], max_points, step_c=step_c)
+    temps = next_temperatures(fp, axis, [], max_points, step_c=step_c, apart_c=0.0)
     errs = []
     for k in range(2, max_points + 1):
         X = shape_design(np.asarray(temps[:k]), fp.t_ref, fp.scale, fp.degree)

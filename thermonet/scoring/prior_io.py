@@ -1,9 +1,18 @@
 """A fleet prior read back from its file (:func:`prior_from_dict`, the inverse of
 :meth:`thermonet.scoring.prior.FleetPrior.to_dict`), checked whole: nothing read from a file
-is trusted, and every error names the file and the key."""
+is trusted, and every error names the file and the key.
+
+**Its digest** (:func:`prior_digest`): ``thermonet prior`` writes the SHA-256 of the file's
+canonical content (``json.dumps(sort_keys=True)`` of every key but ``sha256`` itself) as
+``sha256``; read back, a digest that does not match is refused (a prior edited by hand: a
+widened range, another unit count, would be trusted by every unit calibrated from it), and a
+prior without one (written before it was recorded) is read with a warning
+(:func:`check_digest`).  A number is a JSON number: ``"0.11"`` is refused, naming its key."""
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 from typing import Any
 
@@ -11,10 +20,35 @@ import numpy as np
 
 from ..core.errors import InputError
 from .prior import MAX_CLUSTERS, MAX_DEGREE, MIN_UNITS, PRIOR_SCHEMA, AxisPrior, FleetPrior
-from .prior_map import map_from_dict
+from .prior_map import map_from_dict, numbers_only
 from .prior_points import TEST_KINDS
 
-__all__ = ["prior_from_dict"]
+__all__ = ["prior_from_dict", "prior_digest", "check_digest", "DIGEST_KEY"]
+
+#: The key of a prior file's content digest.
+DIGEST_KEY = "sha256"
+
+
+def prior_digest(data: dict[str, Any]) -> str:
+    """The SHA-256 of a prior's canonical content: every key but :data:`DIGEST_KEY`, as
+    ``json.dumps(sort_keys=True)`` writes it."""
+    body = {k: v for k, v in data.items() if k != DIGEST_KEY}
+    return hashlib.sha256(json.dumps(body, sort_keys=True).encode("utf-8")).hexdigest()
+
+
+def check_digest(data: Any, source: str) -> str | None:
+    """Refuse a prior whose content does not match its digest; a warning (one line) for one
+    with no digest, None for one that matches."""
+    if not isinstance(data, dict):
+        return None          # prior_from_dict says what it is not
+    got = data.get(DIGEST_KEY)
+    if got is None:
+        return (f"{source}: no sha256 of its content (a prior written before it was "
+                "recorded): read unchecked; write it again with `thermonet prior` to seal it")
+    if not isinstance(got, str) or got != prior_digest(data):
+        raise InputError(f"{source}: its content does not match its sha256 (edited by hand?): "
+                         "write it again with `thermonet prior`")
+    return None
 
 
 def _need(cond: bool, source: str, key: str, what: str) -> None:
@@ -23,6 +57,9 @@ def _need(cond: bool, source: str, key: str, what: str) -> None:
 
 
 def _finite_array(v: Any, shape: tuple[int, ...], source: str, key: str) -> np.ndarray:
+    if not numbers_only(v):
+        raise InputError(f"{source}: key '{key}': not an array of numbers (a value is "
+                         f"{_first_non_number(v)!r})")
     try:
         a = np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError):
@@ -30,6 +67,12 @@ def _finite_array(v: Any, shape: tuple[int, ...], source: str, key: str) -> np.n
     _need(a.shape == shape, source, key, f"expected shape {shape}, got {a.shape}")
     _need(bool(np.isfinite(a).all()), source, key, "holds a value that is not finite")
     return a
+
+
+def _first_non_number(v: Any) -> Any:
+    if isinstance(v, list):
+        return next((_first_non_number(x) for x in v if not numbers_only(x)), v)
+    return v
 
 
 def _axis_from_dict(name: str, v: Any, degree: int, source: str) -> AxisPrior:
@@ -97,6 +140,8 @@ def prior_from_dict(data: Any, source: str) -> FleetPrior:
     ids = data.get("unit_ids")
     _need(isinstance(ids, list) and all(isinstance(u, str) for u in ids), source, "unit_ids",
           "expected a list of unit ids")
+    _need(len(ids) == n, source, "n_units", f"{n}, and 'unit_ids' lists {len(ids)} units: "
+          "a prior's unit count is the units it lists")
     exc = data.get("excluded", {})
     _need(isinstance(exc, dict), source, "excluded", "expected a mapping unit -> reason")
     kinds = data.get("test_kinds", {})

@@ -53,7 +53,7 @@ import numpy as np
 
 from ..core.errors import InputError
 
-__all__ = ["TestMap", "AxisMap", "fit_test_map", "window_means", "map_window_s",
+__all__ = ["TestMap", "numbers_only", "AxisMap", "fit_test_map", "window_means", "map_window_s",
            "map_from_dict", "MIN_MAP_UNITS", "MIN_WINDOW_S", "MAX_WINDOWS", "TRACE_SIGMAS",
            "TRACE_FLOOR_C"]
 
@@ -232,9 +232,17 @@ def fit_test_map(shapes: dict[str, np.ndarray], windows: np.ndarray, temps: np.n
 
 
 # ------------------------------------------------------------------ read back, checked
+def numbers_only(v: Any) -> bool:
+    """Whether ``v`` is a JSON number or nested lists of them (no strings, booleans, nulls:
+    NumPy would read the string "0.11" as 0.11, a prior file's hand edit)."""
+    if isinstance(v, list):
+        return all(numbers_only(x) for x in v)
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
 def _arr(v: Any, shape: tuple[int, ...], source: str, key: str) -> np.ndarray:
     try:
-        a = np.asarray(v, dtype=np.float64)
+        a = np.asarray(v, dtype=np.float64) if numbers_only(v) else np.empty(0)
     except (TypeError, ValueError):
         a = np.empty(0)
     if a.shape != shape or not np.isfinite(a).all():

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import shutil
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -71,19 +71,40 @@ class UnitSource:
         return simulate_fleet(**self.sim)
 
 
-def sources_from_dataset(ds: Dataset, source: str = "") -> list[UnitSource]:
+def _no_rows(dev: str, runs: list[Any], files: Sequence[str]) -> str | None:
+    """Why a unit is a name without data: a unit (or a run of it) a file's metadata lists
+    with no rows, naming the file; None where every run has rows."""
+    empty = [r for r in runs if r.n_samples == 0]
+    if not empty or not files:      # data not read from files: validation says "0 samples"
+        return None
+    src = str(empty[0].meta.get("source", ""))
+    where = (src if src in files else files[0] if len(files) == 1 else
+             f"its file (one of {', '.join(files)})")
+    if len(empty) == len(runs):   # "unit '<id>': " as the unit's other reasons begin
+        return f"unit '{dev}': no rows in {where} (the file's metadata lists the unit)"
+    return f"unit '{dev}': run '{empty[0].run_id}' has no rows in {where}"
+
+
+def sources_from_dataset(ds: Dataset, source: str = "", *, files: Sequence[str] = ()
+                         ) -> list[UnitSource]:
     """One source per unit of a dataset, each unit validated on its own.
 
     A unit whose runs fail validation (too few samples, no temperature span,
     bad time stamps …) becomes a source that fails with the reason, naming the
     unit, so the fleet goes on without it; the units left must agree with each
     other (same outputs, proxies and units of measure), else one line names both.
+    A unit (or run) with no rows at all says so, naming the file it was read from
+    (``files``: the data's paths).
     """
     by_unit: dict[str, list[Any]] = {}
     for r in ds.runs:
         by_unit.setdefault(r.device_id, []).append(r)
     bad: dict[str, str] = {}
     for dev, runs in by_unit.items():
+        why = _no_rows(dev, runs, [str(f) for f in files])
+        if why is not None:
+            bad[dev] = why
+            continue
         try:
             Dataset(runs=runs, meta=dict(ds.meta)).validate(source)
         except InputError as err:

@@ -25,7 +25,10 @@ units measured briefly (a few soaks, a short ramp) and, per unit and axis, gives
 - PASS/FAIL against ``station.limits`` (held-out residual, tempco at t_ref, noise); a
   residual that cannot be judged (one point, or no run with points at two temperatures)
   is "not judged (why)", and fails ``max_residual`` where that limit is set;
-- the **next temperatures** to measure for a unit that failed its residual limit;
+- a **dead or stuck axis** (constant, or piled up at an extreme:
+  :mod:`thermonet.workflows.station_checks`) FAILs its unit, and gets no firmware file;
+- the **next temperatures** to measure for a unit that failed its residual limit (a soak
+  plan's separation from those it measured);
 - ``DIR/units/<id>/calibration.json`` and ``thermonet_cal.h`` (the firmware's file: the
   polynomial per axis in (T − t_ref), evaluated by Horner in float) — written for every
   unit, with its verdict in both, as the unit finishes (``results.json`` keeps each unit's
@@ -37,7 +40,10 @@ each worker simulates its own unit, so a worker holds one unit at a time.  The d
 cannot judge (other axes — the prior's and the unit's must be the same — or targets,
 temperatures outside the fleet's range, no points) is one line naming it, exit 1, nothing
 written; so is a config whose ``features.t_ref`` or ``station.degree`` is not the prior's,
-before any unit runs.  Exit 3: some unit failed.
+before any unit runs; so are two units of identical outputs (one unit's data under two
+serial numbers), two runs of one unit with identical outputs, and a top-level ``limits``
+section (the station's are ``station.limits``).  Exit 3: some unit failed.  What
+``results.json`` keeps and the console prints: :mod:`thermonet.workflows.station_report`.
 """
 
 from __future__ import annotations
@@ -56,7 +62,7 @@ from ..core.errors import ConfigError, InputError, counted, failures_line
 from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import atomic_write_text
 from ..core.names import c_comment, inside, path_components
-from ..core.outdir import check_target, install, make_stage, sha256_file
+from ..core.outdir import check_target, install, make_stage
 from ..core.recording import Dataset, output_kind
 from ..core.schema import from_dict
 from ..features.target import AT_T_REF
@@ -74,6 +80,13 @@ from ..scoring.prior_map import TestMap
 from ..scoring.prior_points import Points, shape_design
 from ..training.config import CompareConfig
 from .fleet_units import UnitSource
+from .station_checks import (
+    check_station_config,
+    dead_axes,
+    identical_runs,
+    identical_units,
+    runs_of,
+)
 from .station_prior import (
     build_prior,
     check_compatible,
@@ -84,6 +97,7 @@ from .station_prior import (
     unit_test_kind,
     unit_windows,
 )
+from .station_report import DEAD_AXIS, format_station, station_summary, unit_summary
 
 __all__ = ["build_prior", "run_station", "prior_summary", "parse_station_limits",
            "format_station", "format_prior", "unit_points", "StationOptions",
@@ -180,11 +194,13 @@ def map_windows(cfg: CompareConfig, fp: FleetPrior, ds: Dataset
 
 def _axis_result(fp: FleetPrior, axis: str, p: Points, lim: StationLimit,
                  flag: bool, unlike_kind: str | None = None,
-                 f_map: np.ndarray | None = None) -> dict[str, Any]:
+                 f_map: np.ndarray | None = None, dead: str | None = None) -> dict[str, Any]:
     """One axis of a unit; ``unlike_kind``: why its test cannot be compared with the fleet
     (:meth:`~thermonet.scoring.prior.FleetPrior.not_comparable`): the flag is then not judged
     and fails nothing; ``f_map``: its centred window means where its test is the fleet's
-    short test (the posterior and the held-out residual are then through its map)."""
+    short test (the posterior and the held-out residual are then through its map);
+    ``dead``: why the axis is dead or stuck (:func:`~thermonet.workflows.station_checks.
+    dead_axes`): it fails, and gets no next temperatures (more points will not revive it)."""
     ap = fp.axis(axis)
     tm = fp.test_map
     post = (posterior_from_stats(ap, *tm.stats(axis, f_map)) if tm is not None and
@@ -206,6 +222,8 @@ def _axis_result(fp: FleetPrior, axis: str, p: Points, lim: StationLimit,
     if flag and flagged:
         checks.append({"limit": "like_its_fleet", "value": post.p_value, "min": FLAG_P,
                        "ok": False})
+    if dead is not None:
+        checks.insert(0, {"limit": DEAD_AXIS, "value": None, "ok": False, "why": dead})
     ok = all(c["ok"] for c in checks)
     return {"coefficients": coeffs, "posterior_std": [0.0] + fp.physical(
                 np.sqrt(np.diag(post.cov))),
@@ -215,8 +233,8 @@ def _axis_result(fp: FleetPrior, axis: str, p: Points, lim: StationLimit,
             "held_out_not_judged": unjudged, "noise_std": noise,
             "points": int(p.value.size), "band_90": {"temperature_c": grid_t.tolist(),
                                                      "half_width": half.tolist()},
-            "checks": checks, "verdict": "PASS" if ok else "FAIL",
-            "next_temperatures_c": None if ok else next_temperatures(
+            "checks": checks, "verdict": "PASS" if ok else "FAIL", "dead_axis": dead,
+            "next_temperatures_c": None if ok or dead is not None else next_temperatures(
                 fp, axis, p.temperature_c.tolist(), 2)}
 
 
@@ -234,14 +252,20 @@ def station_task(item: StationItem) -> dict[str, Any]:
     kind = unit_test_kind(ds)
     windows, not_map = map_windows(item.cfg, fp, ds)
     unlike = None if windows else fp.not_comparable(kind)   # the map is the fleet's own test
+    dead = dead_axes(ds, fp.axis_names)
     axes = {a: _axis_result(fp, a, pts[a], merged_limits(item.limits, a, StationLimit),
-                            item.cfg.station.flag_unlike_fleet, unlike, windows.get(a))
+                            item.cfg.station.flag_unlike_fleet, unlike, windows.get(a),
+                            dead.get(a))
             for a in fp.axis_names}
     verdict = "PASS" if all(r["verdict"] == "PASS" for r in axes.values()) else "FAIL"
+    # a dead axis's curve is no calibration: no firmware file claims one
+    header = None if dead else c_header(fp, dev, axes, verdict)
     return {"device_id": dev, "verdict": verdict, "axes": axes, "temperature_span_c": span,
             "test_kind": kind, "short_test_map": "used" if windows else
             (f"not used: {not_map}" if not_map else None),
-            "runs": len(ds), "header": c_header(fp, dev, axes, verdict)}
+            "runs": len(ds), "run_sources": runs_of(ds),
+            "firmware_header": "thermonet_cal.h" if header is not None else
+            "not written: " + "; ".join(dead.values()), "header": header}
 
 
 def _c_idents(axes: list[str]) -> dict[str, str]:
@@ -306,6 +330,7 @@ def _station_checks(cfg: CompareConfig, prior: FleetPrior, prior_file: str = ""
     """The config against the prior, before any unit runs (one line naming the key and both
     values): the limits' axes, the degree and t_ref; returns the limits."""
     where, of = getattr(cfg, "_source", "config"), prior_file or prior.source or "its file"
+    check_station_config(cfg)
     limits = parse_station_limits(cfg)
     unknown = [a for a in limits if a != "*" and a not in prior.axis_names]
     if unknown:
@@ -337,17 +362,29 @@ def run_station(cfg: CompareConfig, prior: FleetPrior, sources: list[UnitSource]
     """Calibrate every unit of ``sources`` with ``prior``; write ``out`` (module docstring)."""
     opts = opts or StationOptions()
     limits = _station_checks(cfg, prior, opts.prior_file)
+    _check_units_data(sources)
     check_target(out, overwrite, "station")
     stage = make_stage(out)     # before any unit runs: an --out that cannot be made, named
     try:
         t0 = time.perf_counter()
         units = _run_units(cfg, prior, sources, limits, stage, opts, say)
-        results = _summary(prior, units, time.perf_counter() - t0, opts.prior_file)
+        results = station_summary(prior, units, time.perf_counter() - t0, opts.prior_file)
         atomic_write_text(stage / "results.json", json.dumps(results, indent=2))
         install(stage, out, overwrite, "station")
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     return results
+
+
+def _check_units_data(sources: list[UnitSource]) -> None:
+    """The units' data read before any unit runs (a simulated unit is its own): one test
+    filed twice under a unit, one unit's data under two serial numbers — each refused in
+    one line naming both (:mod:`thermonet.workflows.station_checks`)."""
+    read = [(s.device_id, s.dataset) for s in sources
+            if s.dataset is not None and s.error is None]
+    for dev, ds in read:
+        identical_runs(dev, ds)
+    identical_units(read)
 
 
 def _run_units(cfg: CompareConfig, prior: FleetPrior, sources: list[UnitSource],
@@ -365,9 +402,11 @@ def _run_units(cfg: CompareConfig, prior: FleetPrior, sources: list[UnitSource],
             rel = ("units", dirs[r["device_id"]])
             udir = inside(stage, *rel)
             udir.mkdir(parents=True)
-            atomic_write_text(udir / "thermonet_cal.h", r.pop("header"))
+            header = r.pop("header")
+            if header is not None:
+                atomic_write_text(udir / "thermonet_cal.h", header)
             atomic_write_text(udir / "calibration.json", json.dumps(r, indent=2))
-            summary = _unit_summary(r, "/".join(rel))
+            summary = unit_summary(r, "/".join(rel))
             r.clear()
             r.update(summary)
         if done[0] % max(1, len(items) // 10) == 0 or done[0] == len(items):
@@ -380,89 +419,3 @@ def _run_units(cfg: CompareConfig, prior: FleetPrior, sources: list[UnitSource],
     if bad:
         raise InputError(failures_line(bad, "unit"))
     return {p["device_id"]: p for p in payloads}
-
-
-
-def _unit_summary(r: dict[str, Any], rel: str) -> dict[str, Any]:
-    """What results.json keeps of a unit: verdicts, held-out residuals, flags, its files."""
-    return {"device_id": r["device_id"], "verdict": r["verdict"], "runs": r["runs"],
-            "temperature_span_c": r["temperature_span_c"], "test_kind": r["test_kind"],
-            "short_test_map": r["short_test_map"], "files": rel,
-            "axes": {a: {"verdict": x["verdict"], "held_out_rms": x["held_out_rms"],
-                         "held_out_not_judged": x["held_out_not_judged"],
-                         "p_value": x["p_value"],
-                         "flagged_unlike_fleet": x["flagged_unlike_fleet"],
-                         "fleet_not_compared": x["fleet_not_compared"],
-                         "failed": [c["limit"] for c in x["checks"] if not c["ok"]]}
-                     for a, x in r["axes"].items()}}
-
-
-def _summary(prior: FleetPrior, units: dict[str, dict[str, Any]],
-             seconds: float, prior_file: str = "") -> dict[str, Any]:
-    n_fail = sum(u["verdict"] != "PASS" for u in units.values())
-    digest = sha256_file(prior_file) if prior_file and Path(prior_file).is_file() else None
-    return {"schema": 1, "kind": "station", "prior": prior.source,
-            "prior_file": prior_file or None, "prior_sha256": digest,
-            "prior_units": prior.n_units, "units_of_measure": prior.units, "units": units,
-            "summary": {"n_units": len(units), "passed": len(units) - n_fail,
-                        "failed": n_fail,
-                        "flagged_unlike_fleet": sorted(
-                            d for d, u in units.items()
-                            if any(a["flagged_unlike_fleet"] for a in u["axes"].values())),
-                        "not_compared_with_fleet": sorted(
-                            d for d, u in units.items()
-                            if any(a["fleet_not_compared"] for a in u["axes"].values())),
-                        "seconds": seconds,
-                        "units_per_minute": 60.0 * len(units) / max(seconds, 1e-9)}}
-
-
-def _unit_line(dev: str, u: dict[str, Any], uom: dict[str, str]) -> str:
-    """A unit's verdict, its worst held-out residual per unit of measure (°/s and m/s² are
-    not compared) or why none could
-    be judged, and the limits it failed."""
-    axes = u["axes"]
-    judged = {a: r for a, r in axes.items() if r["held_out_rms"] is not None}
-    unjudged = {a: r.get("held_out_not_judged") or "no value" for a, r in axes.items()
-                if r["held_out_rms"] is None}
-    if judged:
-        by_unit: dict[str, tuple[str, float]] = {}   # the worst axis of each unit of measure
-        for a, r in judged.items():
-            m = uom.get(a, "")
-            if m not in by_unit or r["held_out_rms"] > by_unit[m][1]:
-                by_unit[m] = (a, r["held_out_rms"])
-        worst = "worst held-out residual " + ", ".join(
-            f"{a} {v:.3g} {m}".rstrip() for m, (a, v) in by_unit.items())
-        if unjudged:
-            worst += f" ({', '.join(unjudged)} not judged)"
-    else:
-        worst = f"held-out residual not judged ({'; '.join(dict.fromkeys(unjudged.values()))})"
-    fails = [f"{a}: " + (f"unlike its fleet (p={r['p_value']:.2g})" if lim == "like_its_fleet"
-                         else lim + (f": not judged ({unjudged[a]})" if lim == "max_residual"
-                                     and a in unjudged else ""))
-             for a, r in axes.items() for lim in r["failed"]]
-    return f"{dev}: {u['verdict']}  {worst}" + (f"  [{'; '.join(fails[:3])}]" if fails else "")
-
-
-def format_station(results: dict[str, Any]) -> str:
-    """One line per unit: verdict, worst held-out residual, flags; then the totals."""
-    uom = results.get("units_of_measure") or {}
-    lines = [_unit_line(dev, u, uom) for dev, u in results["units"].items()]
-    s = results["summary"]
-    lines.append(f"{s['passed']} of {s['n_units']} units passed; "
-                 f"{len(s['flagged_unlike_fleet'])} unlike their fleet; "
-                 f"{s['units_per_minute']:.0f} units/min")
-    by_reason: dict[str, int] = {}      # units of one test kind share their reason
-    for dev in s.get("not_compared_with_fleet") or []:
-        why = next(a["fleet_not_compared"] for a in results["units"][dev]["axes"].values()
-                   if a["fleet_not_compared"])
-        by_reason[why] = by_reason.get(why, 0) + 1
-    lines += [f"{counted(n, 'unit')} not compared with the fleet: {why}"
-              for why, n in by_reason.items()]
-    maps = [u.get("short_test_map") for u in results["units"].values()]
-    if any(maps):
-        used = maps.count("used")
-        lines.append(f"{used} of {len(maps)} calibrated through the fleet's short test"
-                     + "".join(f"; {counted(maps.count(m), 'unit')} from their points ("
-                               f"{m.removeprefix('not used: ')})"
-                               for m in dict.fromkeys(maps) if m and m != "used"))
-    return "\n".join(lines)
