@@ -326,6 +326,22 @@ def test_a_relative_mapping_not_found_names_where_it_was_looked_for(tmp_path, mo
         "there, or absolute)")
 
 
+def test_a_configs_mapping_not_found_names_the_key(tmp_path, monkeypatch, capsys):
+    """``data.mapping`` naming no file: one line naming the key, the path and where a relative
+    path was looked for; exit 1, no output directory."""
+    monkeypatch.chdir(tmp_path)
+    csv = tmp_path / "day1.csv"
+    csv.write_text("time_s,temperature_c,gyro_x\n0,20,1\n1,21,1\n")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"data: {{paths: ['{csv}'], mapping: maps/lab.yaml}}\n")
+    assert main(["compare", str(cfg), "--out", str(tmp_path / "o"), "--no-track"]) == 1
+    assert _err(capsys) == (
+        "thermonet: error: key 'data.mapping': maps/lab.yaml: mapping file not found (a relative "
+        f"path is resolved against the current directory {tmp_path}; give it from there, or "
+        "absolute)")
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_mapping_given_as_a_config_and_a_csv_to_calibrate(tmp_path, capsys):
     mapping = tmp_path / "map2.yaml"
     mapping.write_text("format: csv\nseparator: ';'\nsample_rate_hz: 0.5\n"

@@ -17,13 +17,14 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import ConfigError
+from ..core.fileio import not_a_file
 from ..core.recording import Dataset
 from ..data.mapping import load_mapping
 from .config import CompareConfig, train_config_of
 from .parts import check_loaded, load_data
 
 __all__ = ["stream_samples", "load_compare_data", "load_fleet_data", "streamed_data",
-           "load_unit_file", "read_recordings"]
+           "load_unit_file", "read_recordings", "check_mapping_key"]
 
 
 def _mapping(mapping: Any) -> Any:
@@ -44,9 +45,25 @@ def stream_samples(paths: Sequence[str | Path], mapping: Any, limit: int) -> int
     return n if n is not None and n > limit else None
 
 
+def check_mapping_key(cfg: CompareConfig) -> None:
+    """A config's ``data.mapping`` that names no readable file: one line naming the key,
+    the path and the directory a relative path was resolved against (before any data is
+    read)."""
+    m = cfg.data.mapping
+    if not isinstance(m, (str, os.PathLike)):
+        return
+    why = not_a_file(Path(m), "mapping file")
+    if why:
+        where = "" if Path(m).is_absolute() else (
+            f" (a relative path is resolved against the current directory {Path.cwd()}; "
+            "give it from there, or absolute)")
+        raise ConfigError(f"key 'data.mapping': {m}: {why}{where}")
+
+
 def load_compare_data(cfg: CompareConfig, source: str = "config") -> Dataset:
     """A comparison's data: read whole, or — more than ``data.in_memory_samples`` samples
     in tabular files — :func:`streamed_data`."""
+    check_mapping_key(cfg)
     d = cfg.data
     n = stream_samples(d.paths, d.mapping, d.in_memory_samples)
     if n is None:
@@ -58,6 +75,7 @@ def load_fleet_data(cfg: CompareConfig, source: str = "config") -> Dataset:
     """A fleet's recordings when they are not one file per unit: read whole by the driver,
     which splits them into units (each unit's own file streams in its worker instead:
     :func:`load_unit_file`)."""
+    check_mapping_key(cfg)
     return load_data(cfg.data, source=source, allow_fleet=True)
 
 
