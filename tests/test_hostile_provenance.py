@@ -80,7 +80,7 @@ def test_results_checkpoint_and_report_record_what_was_used(on_files):
     prov = res["provenance"]
     assert prov["data"] == {"kind": "files", "files": [{"path": str(data),
                                                         "sha256": _sha(data)}],
-                            "mapping": None}
+                            "mapping": None, "skipped_rows": None}
     assert prov["options"] == {"track": False, "tracking_uri": None, "workers": None,
                                "plots": False}
     assert res["mlflow_run_id"] is None
