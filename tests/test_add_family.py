@@ -166,3 +166,13 @@ def test_unregistering_leaves_the_built_ins(hinge):
     with pytest.raises(ValueError, match="built in"):
         registry.unregister_family("poly")
     assert list(registry.BUILTIN) == list(registry.FAMILIES)[:len(registry.BUILTIN)]
+
+
+def test_registering_a_class_that_is_no_family_is_refused_in_one_line():
+    class NotAFamily:
+        name = "not-a-family"
+
+    with pytest.raises(ConfigError, match=r"^register_family: 'NotAFamily' is neither a "
+                       r"thermonet.models.Family subclass nor a family spec$"):
+        register_family(NotAFamily)
+    assert "not-a-family" not in registry.FAMILIES

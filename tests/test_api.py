@@ -202,3 +202,58 @@ def test_a_family_and_a_format_are_added_by_registration_only(toy_extensions, tm
 def test_registering_a_format_twice_is_refused():
     with pytest.raises(ValueError, match="'onnx' is already registered"):
         register_format(ExportFormat("onnx", "again", _write_npz))
+
+
+class _Knee(Family):
+    """A plug-in whose hyper-parameter is a keyword-only constructor argument (no spec, no
+    hyper()): a line, and a hinge from ``knee`` (°C) on."""
+
+    name, max_inputs, default_inputs = "toy-knee", 1, ["T"]
+
+    def __init__(self, *, n_inputs: int, n_outputs: int, knee: float = 25.0) -> None:
+        super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
+        self.knee = float(knee)
+        self.coef = nn.Parameter(torch.zeros(3, n_outputs))
+        self.register_buffer("_m", torch.zeros(()))
+        self.register_buffer("_s", torch.ones(()))
+
+    def _design(self, z: torch.Tensor) -> torch.Tensor:
+        k = (self.knee - self._m) / self._s
+        return torch.stack([z[:, 0] ** 0, z[:, 0], torch.relu(z[:, 0] - k)], 1)
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        return self._design(z) @ self.coef
+
+    def trainable(self) -> bool:
+        return False
+
+    def initialize(self, x, y, *, seed=0, x_mean=None, x_std=None) -> None:
+        self._m.fill_(float(x_mean[0]))
+        self._s.fill_(float(x_std[0]))
+        with torch.no_grad():
+            self.coef.copy_(torch.linalg.lstsq(self._design(x), y).solution)
+
+
+class _KneeForgot(_Knee):
+    name = "toy-knee-forgot"
+
+    def __init__(self, *, n_inputs: int, n_outputs: int, bend: float = 25.0) -> None:
+        super().__init__(n_inputs=n_inputs, n_outputs=n_outputs, knee=bend)   # not self.bend
+
+
+def test_a_plugins_keyword_only_hyper_parameter_survives_save_and_load(monkeypatch, tmp_path):
+    monkeypatch.setitem(MODELS, "toy-knee", _Knee)
+    monkeypatch.setitem(MODELS, "toy-knee-forgot", _KneeForgot)
+    ds = toy_dataset(n_runs=3, noise=0.0005)
+    est = thermonet.DriftEstimator("toy-knee", knee=0.0).fit(ds.runs[:2])
+    assert est.model_.family.hyper() == {"knee": 0.0}
+    back = thermonet.DriftEstimator.load(est.save(tmp_path / "knee.pt"))
+    assert back.model_.family.knee == 0.0            # not the default 25.0
+    np.testing.assert_allclose(back.predict(ds[2]), est.predict(ds[2]), rtol=0, atol=1e-6)
+    # a keyword-only argument it does not store under its name: refused at save, one line
+    forgot = thermonet.DriftEstimator("toy-knee-forgot", bend=0.0).fit(ds.runs[:2])
+    with pytest.raises(ConfigError, match=r"keyword-only argument 'bend' of _KneeForgot.__init__ "
+                       r"is not stored as an attribute .*store it \(self.bend = bend\) or "
+                       r"define hyper\(\)") as info:
+        forgot.save(tmp_path / "forgot.pt")
+    assert "\n" not in str(info.value) and not (tmp_path / "forgot.pt").exists()

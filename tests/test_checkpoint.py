@@ -117,3 +117,22 @@ def test_onnx_export_dynamic_batch_matches_torch(name, tmp_path):
         want = model(torch.as_tensor(pts)).numpy()
     assert got.shape == (1000, 2) and got.dtype == np.float32
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * np.abs(want).max())
+
+
+def test_parameters_of_another_shape_name_the_parameter_and_both_shapes(tmp_path):
+    from thermonet.training.checkpoint import seal_checkpoint
+
+    res, _ = _trained("poly")
+    path = save_checkpoint(tmp_path / "p.pt", res.model, config={})
+    payload = torch.load(path, weights_only=True)
+    degree = payload["hyper"]["degree"]
+    payload["hyper"]["degree"] = degree - 1       # rebuilt with one coefficient fewer
+    torch.save(payload, path)
+    seal_checkpoint(path)
+    with pytest.raises(InputError) as info:
+        load_checkpoint(path)
+    msg = str(info.value)
+    assert "\n" not in msg and "parameters do not match the stored family 'poly'" in msg
+    assert "is stored with shape (" in msg and ", the family rebuilt from the checkpoint " \
+        "has (" in msg, msg
+    assert "Error(s) in loading state_dict" not in msg

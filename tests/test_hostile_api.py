@@ -177,6 +177,31 @@ def test_empty_recordings_predict_empty_but_cannot_be_scored(fitted: thermonet.D
     _one_value_error(lambda: fitted.score(empty), "score: run 'run2' has no samples")
 
 
+def test_predict_refuses_outputs_in_another_unit_as_score_does(
+        fitted: thermonet.DriftEstimator, data: Dataset) -> None:
+    """The drift is in the training outputs' unit: a run carrying them in another is refused
+    by predict too, naming both units; a run without them is still predicted."""
+    rad = replace(data[2], units={**data[2].units, "gyro_x": "rad/s"})
+    for name in ("predict", "score", "compensate"):
+        msg = _one_value_error(lambda name=name: getattr(fitted, name)(rad), f"{name}:",
+                               "run 'run2' has gyro_x in 'rad/s', the model was trained in "
+                               "'deg/s'")
+        assert "in in" not in msg
+
+
+@pytest.mark.parametrize("unit", ["K", "degF", "counts"])
+def test_a_temperature_not_in_degc_is_refused_everywhere(fitted: thermonet.DriftEstimator,
+                                                         data: Dataset, unit: str) -> None:
+    """fit's rule (an unknown unit; the temperature in degC), one function for all four."""
+    rec = replace(data[2], units={**data[2].units, "temperature_c": unit})
+    said = f"unknown unit '{unit}'" if unit != "counts" else "temperature in 'counts', expected degC"
+    for name in ("predict", "score", "compensate"):
+        _one_value_error(lambda name=name: getattr(fitted, name)(rec),
+                         f"{name}, run 'run2', column 'temperature_c': {said}")
+    _one_value_error(lambda: thermonet.DriftEstimator("poly", ["dT"]).fit([rec]),
+                     f"fit(train), run 'run2', column 'temperature_c': {said}")
+
+
 def test_the_good_path_is_unchanged(fitted: thermonet.DriftEstimator, data: Dataset) -> None:
     drift = data[2].drift["drift_gyro_x"]
     inside = data[2].temperature_c <= data[1].temperature_c.max()
@@ -471,3 +496,12 @@ def test_compare_into_a_previous_comparison_names_the_python_option(tmp_path) ->
     assert "--" not in msg
     assert thermonet.compare(cfg, data=ds, out=out, plots=False, overwrite=True).chosen == \
         "cubic"
+
+
+def test_an_unknown_keyword_lists_both_sets_and_the_closest_name() -> None:
+    est = thermonet.DriftEstimator("mlp", max_epoch=3)
+    msg = _one_value_error(lambda: est.fit(None), "model 'mlp': unknown hyper-parameter "
+                           "'max_epoch' (valid: hidden, activation, weight_decay), nor an "
+                           "estimator keyword (inputs, t_ref, ", "max_epochs",
+                           "; did you mean 'max_epochs'?")
+    assert "self" not in msg

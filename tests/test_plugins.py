@@ -136,6 +136,7 @@ class Fam(Family):
 
     def __init__(self, *, n_inputs, n_outputs, scale=1.0):
         super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
+        self.scale = scale   # stored under its name: a checkpoint rebuilds the family
         {init}
         self.w = torch.nn.Parameter(torch.zeros(n_outputs))
 

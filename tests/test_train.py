@@ -6,6 +6,7 @@ import torch
 
 from thermonet.core.errors import ConfigError, FitError, InputError
 from thermonet.features.inputs import FeatureSpec
+from thermonet.models.base import Family
 from thermonet.training.train import TrainConfig, decimate, fit, predict
 
 #: run again under emulated CPUs (make test-cpus; tests/tolerances.py)
@@ -138,3 +139,48 @@ def test_config_and_shape_errors_name_the_key():
     res = _fit(family="linear", hyper={}, max_epochs=2)
     with pytest.raises(InputError, match=r"expected \(n, 1\)"):
         predict(res.model, np.zeros((4, 2)))
+
+
+def test_a_fit_leaves_the_callers_torch_random_state_as_it_was():
+    torch.manual_seed(11)
+    expected = torch.rand(4)
+    torch.manual_seed(11)
+    a = _fit(hyper={"n_centres": 6, "init": "random"}, max_epochs=5, seed=3)
+    np.testing.assert_array_equal(torch.rand(4).numpy(), expected.numpy())
+    # the fit's own seeded sequence is unchanged: whatever the caller's state, the same fit
+    torch.manual_seed(99)
+    b = _fit(hyper={"n_centres": 6, "init": "random"}, max_epochs=5, seed=3)
+    np.testing.assert_array_equal(predict(a.model, T[:, None]), predict(b.model, T[:, None]))
+
+
+class _Frozen(Family):
+    """A plug-in whose one parameter is frozen, trainable() left True."""
+
+    name, max_inputs = "toy-frozen", 1
+
+    def __init__(self, *, n_inputs: int, n_outputs: int, nan: bool = False) -> None:
+        super().__init__(n_inputs=n_inputs, n_outputs=n_outputs)
+        self.nan = bool(nan)
+        self.w = torch.nn.Parameter(torch.zeros(n_inputs, n_outputs), requires_grad=nan)
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        out = z @ self.w
+        return out * float("nan") if self.nan else out
+
+    def initialize(self, x, y, *, seed=0, x_mean=None, x_std=None) -> None:
+        pass
+
+
+def test_a_plugin_without_trainable_parameters_or_with_nan_output_is_told_why(monkeypatch):
+    from thermonet.models import MODELS
+
+    monkeypatch.setitem(MODELS, "toy-frozen", _Frozen)
+    with pytest.raises(FitError, match=r"^model 'toy-frozen': no trainable parameter, yet "
+                       r"trainable\(\) is True; a closed-form family returns False from "
+                       r"trainable\(\)$"):
+        _fit(family="toy-frozen", hyper={}, max_epochs=5)
+    with pytest.raises(FitError, match=r"^model 'toy-frozen': the family's own output is "
+                       r"NaN/inf on the first training rows after initialize\(\), before any "
+                       r"training step") as info:
+        _fit(family="toy-frozen", hyper={"nan": True}, max_epochs=5)
+    assert "lr" not in str(info.value)

@@ -59,6 +59,8 @@ def predict(est: Any, data: Data, *, return_band: bool = False) -> Any:
     model, band = est.model_, est.__dict__.get("band_")
     out, widths = [], []
     for rec in runs_of(data, "predict", allow_empty=True):
+        # the drift needs no output channel, but one the run carries is in the drift's unit
+        same_units(rec, est.units_, "predict", "the model was trained")
         same_units(rec, est.signal_units_, "predict", "the model was trained on it")
         # the model's own signal order (a per-axis model's union of its parts' signals)
         sig = signal_matrix(rec, list(model.signals), est.spec_.gap_s)
@@ -81,7 +83,7 @@ def compensate(est: Any, data: Data) -> Any:
     done = []
     for rec in runs_of(data, "compensate", allow_empty=True):
         needs_outputs(rec, est.outputs_, "compensate")
-        same_units(rec, est.units_, "compensate", "the model was trained in")
+        same_units(rec, est.units_, "compensate", "the model was trained")
         drift = est.predict(rec)
         outputs = dict(rec.outputs)
         for j, axis in enumerate(est.outputs_):
@@ -101,7 +103,7 @@ def variances(est: Any, data: Data, what: str) -> tuple[np.ndarray, np.ndarray]:
     sums: dict[str, list[np.ndarray]] = {}     # per source run: n, Σy, Σy², Σe, Σe²
     for rec in runs_of(data, what):
         needs_outputs(rec, est.outputs_, what)
-        same_units(rec, est.units_, what, "the model was trained in")
+        same_units(rec, est.units_, what, "the model was trained")
         same_units(rec, est.signal_units_, what, "the model was trained on it")
         part = est._part(rec, est.spec_, est.outputs_)
         target = np.asarray(part.target, dtype=np.float64)

@@ -10,15 +10,15 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError, ThermonetError
-from ..core.recording import Dataset, Recording
+from ..core.errors import ConfigError, InputError, ThermonetError
+from ..core.recording import KNOWN_UNITS, TEMPERATURE, Dataset, Recording
 from ..sim import simulate as _simulate
 from ..sim.presets import MAX_RUNS
 from .checks import gap, input_names, path, seconds, text, whole
 from .checks import paths as path_list
 
 __all__ = ["Data", "BLOCK_RUN", "BLOCK_INDEX", "runs_of", "data_source", "has_samples", "names_of",
-           "needs_outputs", "same_units", "same_run", "simulate", "read"]
+           "needs_outputs", "same_units", "known_units", "same_run", "simulate", "read"]
 
 #: ``meta`` key naming the run a time block was cut from (:func:`thermonet.api.time_blocks`).
 BLOCK_RUN = "block_of_run"
@@ -51,7 +51,24 @@ def runs_of(data: Any, what: str, *, allow_empty: bool = False) -> list[Recordin
             raise ThermonetError(f"{what}: {expected}; item {i} is a {type(r).__name__}")
         if not allow_empty:
             has_samples(r, what)
+        known_units(r, what)
     return runs
+
+
+def known_units(rec: Recording, what: str) -> None:
+    """Every unit ``rec`` states is one thermonet knows (fit's rule,
+    :meth:`~thermonet.core.recording.Recording.validate`, the same line), and its temperature
+    is in degC: a temperature in K or degF would be clamped to the trained range unseen.
+    :func:`runs_of` applies it to what fit, predict, score and compensate take."""
+    source = f"{what}, run '{rec.run_id}'"
+    for name, unit in rec.units.items():
+        if unit not in KNOWN_UNITS:
+            raise InputError.at(source, f"unknown unit '{unit}' (known: "
+                                f"{', '.join(sorted(KNOWN_UNITS))})", column=name)
+    unit = rec.units.get(TEMPERATURE, "")
+    if unit and KNOWN_UNITS[unit] != "temperature":
+        raise InputError.at(source, f"temperature in '{unit}', expected degC (convert it with "
+                            "a mapping scale and offset)", column=TEMPERATURE)
 
 
 def data_source(runs: list[Recording], val: list[Recording] | None) -> dict[str, Any]:

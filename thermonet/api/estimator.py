@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import inspect
 import os
 from collections.abc import Sequence
 from dataclasses import replace
@@ -16,7 +18,7 @@ from ..core.schema import from_dict
 from ..core.trainconfig import TrainConfig
 from ..data.diagnostics import TEMPERATURE_PLAUSIBLE_C
 from ..features.target import MODES, modelled_outputs, output_units
-from ..models.registry import PER_AXIS, make_spec, spec_of
+from ..models.registry import PER_AXIS, make_spec, spec_class, spec_of
 from ..models.specs import FamilySpec
 from .checks import ArgumentTypeError, flag, gap, input_names, seconds, text
 from .checks import path as a_path
@@ -275,6 +277,16 @@ average_s, threads
             raise ConfigError("rate_window_s was removed: 'rate' is a causal filtered derivative "
                               "with a 60 s time constant (thermonet.features.dynamics); use the "
                               "input 'rate_<tau>' (e.g. rate_30) for another time constant")
+        valid = spec_class(name).param_names()
+        for key in params:
+            if key not in valid:
+                own = [k for k in inspect.signature(type(self).__init__).parameters
+                       if k not in ("self", "family", "hyper")]
+                close = difflib.get_close_matches(key, [*valid, *own], n=1)
+                raise ConfigError(f"model '{name}': unknown hyper-parameter '{key}' (valid: "
+                                  f"{', '.join(valid) or 'none'}), nor an estimator keyword "
+                                  f"({', '.join(own)})"
+                                  + (f"; did you mean '{close[0]}'?" if close else ""))
         return make_spec(name, params)
 
     def _resolved_inputs(self, spec: FamilySpec) -> list[str]:

@@ -89,6 +89,13 @@ class FittedEstimator(EstimatorState):
         the runs' samples one run after the other (each run's dynamic inputs computed on
         that run alone).  Evaluated as on board: signals clamped to the trained range
         (``model_.out_of_range`` flags the samples outside it).
+
+        What ``data`` must carry: the model's signals (the temperature, a proxy) in the
+        units it was trained on, the temperature in degC (a unit thermonet does not know is
+        refused, as by ``fit``).  A drift model needs no output channel, so a run without
+        the model's outputs is predicted; one that carries them in another unit than the
+        training data's is refused, naming both (the drift would be in the wrong unit).  A
+        sensor model (``model="sensor"``) needs its outputs, as ``score`` does.
         """
         self._check_fitted("predict")
         if return_band and self.__dict__.get("band_") is None:

@@ -87,9 +87,12 @@ def fit(est: Any, train: Data, val: Data | None, *, config: Any, inputs: list[st
     if val_runs:
         rec = stack_blocks(val_runs, "val") if len(val_runs) > 1 else val_runs[0]
         va = sensor_run(rec, spec, outputs)
-    fitted = fit_sensor(family=family.key, spec=spec, outputs=outputs, triads=triads,
-                        train=[sensor_run(r, spec, outputs) for r in runs], val=va,
-                        hyper=family.hyper(), config=config)
+    from ..training.scaling import caller_rng_kept  # lazy: loads torch
+
+    with caller_rng_kept():     # the caller's torch random state as it was (as a bias fit)
+        fitted = fit_sensor(family=family.key, spec=spec, outputs=outputs, triads=triads,
+                            train=[sensor_run(r, spec, outputs) for r in runs], val=va,
+                            hyper=family.hyper(), config=config)
     _fitted(est, fitted.model, outputs, runs[0])
     est.sensor_fit_ = fitted
     est.train_config_ = config
@@ -128,7 +131,7 @@ def _arrays(est: Any, rec: Recording, what: str, *, refs: bool) -> Any:
     from ..training.sensor import SensorRun, sensor_run  # torch boundary
 
     needs_outputs(rec, est.outputs_, what)
-    same_units(rec, est.units_, what, "the model was trained in")
+    same_units(rec, est.units_, what, "the model was trained")
     same_units(rec, est.signal_units_, what, "the model was trained on it")
     if refs:
         return sensor_run(rec, est.spec_, est.outputs_)

@@ -23,7 +23,7 @@ from torch import nn
 from ..core.errors import ConfigError, ExportError, FitError
 from .cgen import CBody, c_constant_bytes
 from .lstsq import NormalEquations, least_squares
-from .specs import FamilySpec, declared_spec
+from .specs import FamilySpec, declared_spec, spec_for_class
 
 __all__ = ["TINY", "LOG_CLIP", "Family", "distinct_levels", "as_numpy",
            "least_squares", "NormalEquations", "output_layer", "check_output_shape"]
@@ -212,9 +212,23 @@ class Family(nn.Module):
     def hyper(self) -> dict[str, Any]:
         """JSON-able hyper-parameters; ``type(self)(n_inputs=, n_outputs=, **hyper())``
         rebuilds the same architecture.  By default each of the spec's hyper-parameters
-        (:meth:`take_hyper` stored them); none for a family without a spec."""
-        spec = type(self).spec
-        return {} if spec is None else {k: getattr(self, k) for k in spec.param_names()}
+        (:meth:`take_hyper` stored them); for a family without a spec, each of its
+        constructor's keyword-only arguments (the generic spec's,
+        :func:`~thermonet.models.specs.spec_for_class`) read back from the attribute of the
+        same name — one it does not store is a :class:`ConfigError` (a checkpoint could not
+        rebuild the family): store it under its name, or override this method."""
+        cls = type(self)
+        if cls.spec is not None:
+            return {k: getattr(self, k) for k in cls.spec.param_names()}
+        names = spec_for_class(self.name or cls.__name__, cls).param_names()
+        missing = [k for k in names if not hasattr(self, k)]
+        if missing:
+            raise ConfigError(
+                f"model family '{self.name or cls.__name__}': keyword-only argument "
+                f"'{missing[0]}' of {cls.__name__}.__init__ is not stored as an attribute "
+                f"of that name, so a checkpoint cannot rebuild the family; store it "
+                f"(self.{missing[0]} = {missing[0]}) or define hyper()")
+        return {k: getattr(self, k) for k in names}
 
     def coefficient_degree(self, inputs: Sequence[str]) -> int:
         """Degree of the polynomial in (T − t0) that summarises this family's curve as
@@ -321,4 +335,8 @@ class Family(nn.Module):
         return None
 
     def extra_repr(self) -> str:
-        return f"n_inputs={self.n_inputs}, n_outputs={self.n_outputs}, {self.hyper()}"
+        try:
+            hyper: object = self.hyper()
+        except ConfigError:   # a plug-in that does not store a hyper-parameter: said at save
+            hyper = "{?}"
+        return f"n_inputs={self.n_inputs}, n_outputs={self.n_outputs}, {hyper}"

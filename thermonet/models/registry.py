@@ -73,6 +73,11 @@ def register_family(spec: type, name: str | None = None) -> type:
         cls = spec
         key = name or spec.key
     else:
+        from .base import Family  # torch boundary: a family class is a torch module
+
+        if not (inspect.isclass(spec) and issubclass(spec, Family)):
+            raise ConfigError(f"register_family: {getattr(spec, '__name__', spec)!r} is neither a "
+                              "thermonet.models.Family subclass nor a family spec")
         key = name or str(getattr(spec, "name", ""))
         cls = spec_for_class(key, spec)
     if not key:

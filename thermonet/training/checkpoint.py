@@ -56,7 +56,7 @@ from ..features.target import MODE_CODES
 from ..models import DriftModel, build_family
 from ..models.composite import PER_AXIS, AxisModels, DriftModels, composable
 from ..models.shipped import MODEL_KINDS
-from .checkpoint_payload import check_payload
+from .checkpoint_payload import check_payload, state_mismatch
 
 __all__ = ["save_checkpoint", "load_checkpoint", "seal_checkpoint", "checkpoint_digest",
            "checkpoint_kind", "CHECKPOINT_FORMAT", "DIGEST_KEY"]
@@ -393,8 +393,9 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[DriftModels, dict]:
     try:
         model.load_state_dict(payload["state_dict"], strict=True)
     except RuntimeError as err:
+        said = state_mismatch(model, payload["state_dict"]) or str(err).splitlines()[0]
         raise InputError.at(path, "parameters do not match the stored family "
-                            f"'{payload['family']}' ({str(err).splitlines()[0]})") from err
+                            f"'{payload['family']}' ({said})") from err
     for part in model.parts if isinstance(model, AxisModels) else [model]:
         lo, hi = part.sig_lo.detach(), part.sig_hi.detach()
         bad = torch.isnan(lo) | torch.isnan(hi) | (lo > hi)

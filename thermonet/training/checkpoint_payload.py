@@ -29,7 +29,7 @@ from ..core.names import (
 from ..models.registry import PER_AXIS
 from ..scoring.band import band_problem
 
-__all__ = ["check_payload", "MAX_PARTS"]
+__all__ = ["check_payload", "state_mismatch", "MAX_PARTS"]
 
 
 def check_payload(path: Path, p: dict, prefix: str = "") -> None:
@@ -169,3 +169,19 @@ def _number(value: Any, where: str) -> None:
     """A metric: any real number (NaN/inf included: a metric may be undefined)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise InputError(f"{where}: {value!r} is not a number")
+
+
+def state_mismatch(model: Any, state: dict) -> str:
+    """The first difference between ``model``'s parameters and a stored ``state_dict``: a
+    parameter missing, one unexpected, or one whose shape differs (both shapes); ``""`` when
+    names and shapes agree."""
+    own = model.state_dict()
+    for name, tensor in own.items():
+        if name not in state:
+            return f"parameter '{name}' is missing"
+        theirs = getattr(state[name], "shape", None)
+        if theirs is not None and tuple(theirs) != tuple(tensor.shape):
+            return (f"parameter '{name}' is stored with shape {tuple(theirs)}, the family "
+                    f"rebuilt from the checkpoint has {tuple(tensor.shape)}")
+    extra = [k for k in state if k not in own]
+    return f"unexpected parameter '{extra[0]}'" if extra else ""

@@ -4,8 +4,10 @@ scale every family trains in, and early stopping."""
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -92,3 +94,29 @@ def seed_torch(seed: int, device: torch.device) -> None:
         torch.default_generator.manual_seed(int(seed))
     else:
         torch.manual_seed(int(seed))
+
+
+@contextlib.contextmanager
+def caller_rng_kept() -> Iterator[None]:
+    """torch's global random state as the caller left it, put back after the block: a fit
+    seeds torch's generator (:func:`seed_torch`) inside it and draws the same numbers, and a
+    caller's own ``torch.rand`` after the fit draws what it would have without it.  The CPU
+    generator is restored, and each CUDA device's once CUDA is initialised (a fit that
+    initialises it leaves its generator seeded)."""
+    devices = list(range(torch.cuda.device_count())) if torch.cuda.is_initialized() else []
+    with torch.random.fork_rng(devices=devices):
+        yield
+
+
+def nan_loss_said(fam: Any, zt: torch.Tensor, family: str, epoch: int, config: Any) -> str:
+    """Why a training loss is not finite: at epoch 0 (no step yet), where the family's own
+    output on the first rows is NaN/inf already, the family; else the optimizer's lr."""
+    if epoch == 0:
+        with torch.no_grad():
+            out = fam(zt[:7])
+        if not bool(torch.isfinite(out).all()):
+            return (f"model '{family}': the family's own output is NaN/inf on the first "
+                    "training rows after initialize(), before any training step (check its "
+                    "initialize() and forward())")
+    return (f"model '{family}': NaN loss at epoch {epoch} "
+            f"(optimizer {config.optimizer}, lr {config.lr:g}; try a lower lr)")

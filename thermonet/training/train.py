@@ -45,7 +45,7 @@ from ..models.sequence import stream_relative
 from ..scoring.domain import guard_tables
 from .optim import optimizer_step, optimizer_without_dynamo
 from .recurrent import fit_recurrent
-from .scaling import EarlyStopping, seed_torch, training_scaling
+from .scaling import EarlyStopping, caller_rng_kept, nan_loss_said, seed_torch, training_scaling
 
 __all__ = ["TrainConfig", "FitResult", "fit", "predict", "decimate", "average_windows",
            "rest_signals"]
@@ -220,7 +220,7 @@ def fit(*, family: str, inputs: list[str], outputs: list[str],
     ConfigError
         Unknown family / hyper-parameter, inputs not matching the spec.
     """
-    with thread_limits(config.threads):
+    with thread_limits(config.threads), caller_rng_kept():   # the caller's torch RNG kept
         return _fit(family=family, inputs=inputs, outputs=outputs, train=train, val=val,
                     spec=spec, hyper=hyper, config=config, on_epoch=on_epoch, target=target)
 
@@ -323,7 +323,6 @@ def _fit(*, family: str, inputs: list[str], outputs: list[str],
                      fit_seconds=time.perf_counter() - t0, n_params=model.n_params)
 
 
-
 def _fit_pointwise(model: DriftModel, runs: list, val_run: tuple | None, config: TrainConfig,
                    family: str, on_epoch: Callable | None, *, sig_lo: np.ndarray,
                    sig_hi: np.ndarray) -> tuple[list[dict], int, float | None, np.ndarray]:
@@ -402,6 +401,9 @@ def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
         # a closed-form fit that is final (linear, poly, the RBF's penalised tail): epoch 0
         config = replace(config, max_epochs=0)
     opt: torch.optim.Optimizer | None = None
+    if config.max_epochs > 0 and not params:
+        raise FitError(f"model '{family}': no trainable parameter, yet trainable() is True; "
+                       "a closed-form family returns False from trainable()")
     if config.max_epochs == 0:
         pass    # no step: no optimizer
     elif config.optimizer == "lbfgs":
@@ -417,8 +419,7 @@ def _fit_loop(fam: Family, zt: torch.Tensor, yt: torch.Tensor,
         train_loss = _valid_step(fam, zt, yt)
         val_loss = None if val is None else _valid_step(fam, *val)
         if not math.isfinite(train_loss) or (val_loss is not None and not math.isfinite(val_loss)):
-            raise FitError(f"model '{family}': NaN loss at epoch {epoch} "
-                           f"(optimizer {config.optimizer}, lr {config.lr:g}; try a lower lr)")
+            raise FitError(nan_loss_said(fam, zt, family, epoch, config))
         history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
         check_interrupted()     # a signal whose exception was lost (core.errors)
         if on_epoch is not None:
