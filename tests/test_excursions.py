@@ -560,3 +560,34 @@ def test_memory_share_reads_the_mix_weights_on_inputs_with_memory():
     assert memory_share(["delayed_300"], None) == 1.0
     assert memory_share(["dT", "delayed_300"], [0.75, 0.25]) == pytest.approx(0.25, abs=1e-15)
     assert memory_share(["delayed_300", "dT"], [0.75, 0.25]) == pytest.approx(0.75, abs=1e-15)
+
+
+def test_a_step_named_in_a_config_is_judged_at_one_rate(tmp_path):
+    """configs/README.md's example: a ``poly`` with ``mix: [0.6667, 0.3333]`` on [dT,
+    delayed_300], named in a config, is judged on one stress-imu cycle (one ramp rate, both
+    directions) where the full cubic at the delayed temperature is held back for the rate;
+    the record says so, and whatever ships is the cubic or a candidate the gate passed."""
+    from thermonet.core.recording import Dataset
+    from thermonet.sim import simulate
+    from thermonet.training.config import CompareConfig, FamilyConfig
+    from thermonet.workflows.compare import run_compare
+
+    (run,) = list(simulate("stress-imu", runs=1, seed=0, sample_rate_hz=0.1))
+    cfg = CompareConfig()
+    cfg.families = [
+        FamilyConfig(family="poly", name="cubic", inputs=["dT"], params={"degree": 3}),
+        FamilyConfig(family="poly", name="cubic-delayed-5min", inputs=["delayed_300"],
+                     params={"degree": 3}),
+        FamilyConfig(family="poly", name="cubic-delayed-5min-third",
+                     inputs=["dT", "delayed_300"],
+                     params={"degree": 3, "mix": [0.6667, 0.3333]})]
+    cfg.split.strategy = "time-blocks"
+    res = run_compare(cfg, tmp_path / "o", dataset=Dataset([run]), track=False, quiet=True,
+                      plots=False)
+    sel = res["selection"]
+    assert sel["kind"] == "excursions"
+    assert sel["held_back"]["candidates"] == ["cubic-delayed-5min"]
+    assert "one rate" in sel["held_back"]["why"]
+    assert sel["candidates"]["cubic-delayed-5min-third"]["status"] == "ok"
+    assert set((sel.get("per_axis") or {}).get("chosen", {}).values()) <= {
+        "cubic", "cubic-delayed-5min-third", None}
