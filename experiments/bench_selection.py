@@ -17,7 +17,8 @@ and always-cubic with every axis compensated (what PX4 and ArduPilot ship).
 ``--real``: only the honest splits of the real recordings (:func:`real_splits`); ``--simulated``:
 only the simulated devices; ``--stress``: the new-excursion stress bench (:func:`stress_splits`:
 ``stress-imu``, every split whose test is a new excursion, the new rule against the rule before
-on the same data); ``--states``: the dynamic inputs' state on held-out blocks carried in
+on the same data; ``BENCH_STRESS_SEEDS`` units, ``BENCH_STRESS_RULES`` which rules, default
+``new,before``); ``--states``: the dynamic inputs' state on held-out blocks carried in
 against restarted (:func:`main_states`); neither (``make bench``): the real splits and the
 simulated devices.
 
