@@ -85,7 +85,7 @@ from .station_checks import (
     dead_axes,
     identical_runs,
     identical_units,
-    runs_of,
+    run_sources,
 )
 from .station_prior import (
     build_prior,
@@ -263,7 +263,7 @@ def station_task(item: StationItem) -> dict[str, Any]:
     return {"device_id": dev, "verdict": verdict, "axes": axes, "temperature_span_c": span,
             "test_kind": kind, "short_test_map": "used" if windows else
             (f"not used: {not_map}" if not_map else None),
-            "runs": len(ds), "run_sources": runs_of(ds),
+            "runs": len(ds), "run_sources": run_sources(ds),
             "firmware_header": "thermonet_cal.h" if header is not None else
             "not written: " + "; ".join(dead.values()), "header": header}
 

@@ -34,7 +34,7 @@ from ..core.recording import Dataset, Recording
 from ..training.config import CompareConfig
 
 __all__ = ["STUCK_SHARE", "dead_axes", "axis_dead", "identical_units", "identical_runs",
-           "runs_of", "runs_line", "check_station_config"]
+           "run_sources", "runs_line", "check_station_config"]
 
 #: The share of an axis's samples at its maximum or minimum from which, held over
 #: consecutive samples and its most frequent value, the axis is stuck at that extreme.
@@ -139,7 +139,7 @@ def identical_runs(dev: str, ds: Dataset) -> None:
         seen.setdefault(key, r)
 
 
-def runs_of(ds: Dataset) -> list[dict[str, Any]]:
+def run_sources(ds: Dataset) -> list[dict[str, Any]]:
     """A unit's runs as results.json records them: id and where each came from (the file it
     was read from, or the origin a thermonet file recorded)."""
     return [{"run_id": r.run_id, "source": r.meta.get("source")} for r in ds.runs]
