@@ -368,3 +368,22 @@ def test_drawers_that_cannot_be_started_leave_the_command_to_do_it_all(tmp_path,
     assert _numbers(refused) == _numbers(here)
     assert sorted(p.name for p in (tmp_path / "refused" / "plots").glob("*.png")) == \
         sorted(p.name for p in (tmp_path / "here" / "plots").glob("*.png")) != []
+
+
+def test_implausible_lorentz_warns_only_where_it_ships(tmp_path):
+    """Every family's parameter table is made, so a Lorentz fitted to a straight drift (the
+    flank of a peak far outside the data: width ≫ span) carries the note in its rows; the
+    comparison warns about it only where that Lorentz is the model that ships."""
+    ds = toy_dataset(dt_s=10.0, law=lambda temp: 0.002 * (temp + 20.0))
+    path = write_parquet(ds, tmp_path / "line.parquet")
+    lor = FamilyConfig(family="lorentz", name="lorentz", params={"xc_margin": 4.0})
+    cub = FamilyConfig(family="poly", name="cubic", params={"degree": 3})
+    cfgs = [config(path, fams) for fams in ([cub, lor], [lor])]
+    for cfg in cfgs:     # long enough for the peak to leave the data (test_api_contract's)
+        cfg.train = TrainConfig(max_epochs=300, patience=50)
+    both, alone = (run_compare(cfg, tmp_path / name, track=False, quiet=True)
+                   for cfg, name in zip(cfgs, ("both", "alone"), strict=True))
+    assert both["chosen"] == "cubic" and alone["chosen"] == "lorentz"
+    assert not [w for w in both["warnings"] if "implausible" in w]
+    said = [w for w in alone["warnings"] if w.startswith("lorentz on gyro_x: implausible")]
+    assert len(said) == 1 and "× the trained span" in said[0]

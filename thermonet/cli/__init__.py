@@ -107,10 +107,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     clear_interrupt()
     caught = warnings.catch_warnings()   # the policy below holds for this command only
     caught.__enter__()
-    if getattr(args, "quiet", False):
-        warnings.simplefilter("ignore")  # -q: no warnings either
-    else:
-        warnings.showwarning = _show_warning
+    # -q silences progress and tables, never a warning: a unit clash or an extrapolation is
+    # what a script running quietly must still see (on stderr, one line each)
+    warnings.showwarning = _show_warning
     try:
         return int(args.func(args))
     except (KeyboardInterrupt, Interrupted) as err:

@@ -159,6 +159,35 @@ def choose_and_judge(fitted: dict[str, Fitted], result: ComparisonResult, p: Pla
     if chosen is None:
         return
     _warn_about_chosen(result, chosen)
+    for line in implausible_notes(ok, chosen, result.selection):
+        result.warn(line)
+
+
+def implausible_notes(ok: dict[str, Fitted], chosen: str, selection: Any) -> list[str]:
+    """The shipped model's parameters whose constants are implausible (a Lorentz's width far
+    beyond the data: :func:`~thermonet.training.parameters.implausible_lorentz`), one line
+    per axis: every family's table carries the note, only the shipped one warns."""
+    parts: dict[str, set[str] | None] = {chosen: None}
+    if chosen == PER_AXIS:      # each axis from the family that owns it (None: left raw)
+        owners = (selection or {}).get("per_axis", {}).get("chosen", {})
+        owned: dict[str, set[str]] = {}
+        for axis, fam in owners.items():
+            if fam is not None:
+                owned.setdefault(str(fam), set()).add(axis)
+        parts = {**owned}
+    lines = []
+    for fam, axes in parts.items():
+        f = ok.get(fam)
+        if f is None or f.parameters is None:
+            continue
+        seen: set[str] = set()
+        for row in f.parameters[0]:
+            axis, note = row.get("axis", ""), str(row.get("note", ""))
+            if note.startswith("implausible") and axis not in seen and \
+                    (axes is None or axis in axes):
+                seen.add(axis)
+                lines.append(f"{fam} on {axis}: {note.split(';')[0]}")
+    return lines
 
 
 def _judge_against_baseline(ok: dict[str, Fitted], p: Plan) -> None:
