@@ -61,6 +61,11 @@ def test_bad_arguments_are_refused_at_fit():
     ds = toy_dataset(n_runs=1)
     with pytest.raises(ConfigError, match="unknown model family 'spline'"):
         thermonet.DriftEstimator("spline").fit(ds)
+    # the default set's labels, which every result names, are said to be `poly`'s
+    for label in ("cubic", "cubic-delayed-2min", "poly3-rate"):
+        with pytest.raises(ConfigError, match=rf"unknown model family '{label}' .*labels of "
+                           r"the family 'poly': DriftEstimator\('poly', 'dT', degree=3\)"):
+            thermonet.DriftEstimator(label).fit(ds)
     with pytest.raises(ConfigError, match="'degre'"):
         thermonet.DriftEstimator("poly", degre=3).fit(ds)
     with pytest.raises(ConfigError, match="target: 'bias'"):

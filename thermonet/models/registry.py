@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import re
 import warnings
 from dataclasses import dataclass
 from importlib.metadata import EntryPoint, entry_points
@@ -162,7 +163,16 @@ def _guarded(name: str, doing: str, call: Any) -> Any:
 
 
 def _unknown(name: Any) -> ConfigError:
-    return ConfigError(f"unknown model family {name!r} (valid: {', '.join(family_names())})")
+    hint = ""
+    if isinstance(name, str) and re.fullmatch(r"(cubic|poly\d).*", name.strip().lower()):
+        # the default set's labels (cubic, cubic-delayed-2min, poly3-rate …) are what results
+        # and reports name; each is the family `poly` with its inputs and degree
+        hint = ("; the default set's 'cubic' and its other names are labels of the family "
+                "'poly': DriftEstimator('poly', 'dT', degree=3), in a config {family: poly, "
+                "name: cubic, inputs: [dT], params: {degree: 3}} (configs/README.md, "
+                "\"Default families\")")
+    return ConfigError(f"unknown model family {name!r} (valid: {', '.join(family_names())})"
+                       + hint)
 
 
 def _target(name: str) -> str:
