@@ -4,12 +4,16 @@ The prior leaves the planted outliers out of the population (and, refusing a fle
 small, names them); the station flags new units 10 σ off their fleet and passes the others,
 gives a unit with a whole climate cycle its verdict, says "not judged (why)" of a residual it
 cannot judge and puts the unit of measure on a residual; the firmware header compiled with
-gcc gives the posterior polynomial (float32 tolerance); bad input (a prior of other axes, a
-config of another t_ref, a soak repeated, an --out below a file) is one line, exit 1, nothing
-written, and comes before the work.  A line's own files (CSV with serial numbers): a dead or
-stuck axis fails, without a firmware file; one unit's data under two serials, or one test
-filed twice, is refused; a unit of two runs says so; a top-level ``limits``, a config with no
-data and a prior edited by hand (its sha256) are refused.
+gcc gives the posterior polynomial (float32 tolerance); bad input (a prior of other axes than
+the preset's, a config of another t_ref, a mapping's unit of measure or data.outputs not the
+prior's, a soak repeated, an --out below a file) is one line, exit 1, nothing written, and
+comes before the work.  A line's own files (CSV with serial numbers): a dead or stuck axis
+fails, without a firmware file; one unit's data under two serials, or one test filed twice,
+is refused; a unit of two runs says so; a top-level ``limits``, a config with no data and a
+prior edited by hand (its sha256) are refused.  A unit whose own data fail a check (outside
+the prior's range, a dead thermometer, a file in other units) FAILs alone with its reason and
+the others finish, on the process pool as in this process; a bug in a unit's task still
+stops the batch.
 """
 
 from __future__ import annotations
@@ -130,16 +134,22 @@ def test_refusals_are_one_line_and_write_nothing(
     _one_line_refusal(capsys, ["prior", "new.yaml", "--units", "5", "--out", "p.json"],
                       "a fleet prior needs at least 10 calibrated units")
     assert not Path("p.json").exists()
+    # the preset's axes are the config's: refused before any unit runs, naming the key
     _one_line_refusal(capsys, ["station", "acc.yaml", "--prior", str(prior), "--units", "2",
                                "--out", "st", "--executor", "serial"],
-                      "the prior is of axes gyro_x")
-    _one_line_refusal(capsys, ["station", "new.yaml", "--prior", str(prior), "--units", "3",
-                               "--test", "soaks:-40,25", "--out", "st", "--executor", "serial"],
-                      "3 units ('consumer-imu-u000', 'consumer-imu-u001', …): measured -40.0 "
-                      "to ")
-    _one_line_refusal(capsys, ["station", "new.yaml", "--prior", str(prior), "--units", "2",
-                               "--test", "soaks:-40,25", "--out", "st", "--executor", "serial"],
-                      "outside the fleet prior's range -20 to 75")
+                      f"acc.yaml: key 'data.preset' ('accel-ramp'): the prior ({prior}) is of "
+                      "axes gyro_x, gyro_y, gyro_z, acc_x, acc_y, acc_z; the data lack gyro_x")
+    # units measured outside the prior's range: each FAILs with the reason (was: exit 1 for
+    # the batch, nothing written)
+    assert main(["station", "new.yaml", "--prior", str(prior), "--units", "3", "--test",
+                 "soaks:-40,25", "--out", "cold", "--executor", "serial"]) == 3
+    out = capsys.readouterr().out
+    for k in range(3):
+        assert (f"consumer-imu-u{k:03d}: FAIL  not calibrated: measured -40.0 to 24.9 °C, "
+                "outside the fleet prior's range -20 to 75 °C (the prior says nothing there)"
+                ) in out.splitlines(), out
+    assert json.loads(Path("cold/results.json").read_text())["summary"]["not_calibrated"] == [
+        f"consumer-imu-u{k:03d}" for k in range(3)]
     # a bad test spec is refused before any unit runs: said once, with no unit's progress
     assert main(["station", "new.yaml", "--prior", str(prior), "--units", "3", "--test",
                  "cycle:-20,75", "--out", "st", "--executor", "serial"]) == 1
@@ -160,8 +170,14 @@ def test_refusals_are_one_line_and_write_nothing(
     write_parquet(ds, "rad.parquet")
     Path("rad.yaml").write_text(FLEET.replace("preset: consumer-imu, seed: 0, runs: 1",
                                               "paths: [rad.parquet]"))
-    _one_line_refusal(capsys, ["station", "rad.yaml", "--prior", str(prior), "--out", "st",
-                               "--executor", "serial"], "axis gyro_x is in 'rad/s', the prior's")
+    # a unit's own file in other units than the prior's: that unit FAILs, saying so
+    assert main(["station", "rad.yaml", "--prior", str(prior), "--out", "rad", "--executor",
+                 "serial", "-q"]) == 3
+    cal = json.loads(Path("rad/units/consumer-imu-u000/calibration.json").read_text())
+    assert cal["verdict"] == "FAIL" and cal["axes"] == {} and cal["error"] == (
+        "unit 'consumer-imu-u000': axis gyro_x is in 'rad/s', the prior's in 'deg/s' (convert "
+        "one of them first)")
+    assert not Path("rad/units/consumer-imu-u000/thermonet_cal.h").exists()
     Path("bad.yaml").write_text(FLEET.replace("gyro_x: {max_tempco", "gyro_q: {max_tempco"))
     _one_line_refusal(capsys, ["station", "bad.yaml", "--prior", str(prior), "--units", "2",
                                "--out", "st"], "station.limits.gyro_q")
@@ -306,8 +322,8 @@ def test_the_prior_and_the_config_must_agree_before_any_unit_runs(
     _one_line_refusal(capsys, ["station", "new.yaml", "--prior", "gyro.json", "--units", "2",
                                "--test", "soaks:-10,25,60", "--out", "st", "--executor",
                                "serial"],
-                      "the prior is of axes gyro_x, gyro_y, gyro_z; the data also hold acc_x, "
-                      "acc_y, acc_z")
+                      "new.yaml: key 'data.preset' ('consumer-imu'): the prior (gyro.json) is of "
+                      "axes gyro_x, gyro_y, gyro_z; the data also hold acc_x, acc_y, acc_z")
     # a soak test repeating a temperature in a row
     _one_line_refusal(capsys, ["station", "new.yaml", "--prior", str(prior), "--units", "2",
                                "--test", "soaks:30,30,30", "--out", "st"],
@@ -579,3 +595,124 @@ def test_a_prior_edited_by_hand_is_refused_and_an_unsealed_one_warned(
     assert err == ["thermonet: warning: old.json: no sha256 of its content (a prior written "
                    "before it was recorded): read unchecked; write it again with `thermonet "
                    "prior` to seal it"], err
+
+
+# ------------------------------------------------------------------ a unit's own failure
+def _unit_files(out: Path) -> dict[str, bytes]:
+    return {p.relative_to(out).as_posix(): p.read_bytes()
+            for p in sorted((out / "units").rglob("*")) if p.is_file()}
+
+
+def test_a_unit_whose_data_fail_a_check_fails_alone_and_the_others_finish(
+        prior: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A unit measured 30 °C colder than the prior's range and one whose thermometer reads
+    25.0 on every sample: each FAILs with its reason (calibration.json, its console line),
+    gets no firmware file, and the good units are calibrated and written; exit 3 — the same
+    files on the process pool as in this process."""
+    monkeypatch.chdir(tmp_path)
+    runs = _line_units(4)
+    runs[0].temperature_c = np.asarray(runs[0].temperature_c) - 30.0     # -45 … 35 °C
+    runs[1].temperature_c = np.full_like(runs[1].temperature_c, 25.0)    # a dead thermometer
+    _write_line(runs, "line.csv")
+    Path("line.yaml").write_text(_line_config("line.csv"))
+    capsys.readouterr()
+    assert main(["station", "line.yaml", "--prior", str(prior), "--out", "st",
+                 "--executor", "serial"]) == 3
+    out = capsys.readouterr().out
+    ids = [r.device_id for r in runs]
+    cold = (f"unit '{ids[0]}': measured -45.0 to 34.9 °C, outside the fleet prior's range -20 "
+            "to 75 °C (the prior says nothing there)")
+    dead = (f"unit '{ids[1]}': line.csv, column 'temperature_c': temperature spans only 0 °C "
+            "over all runs")
+    lines = out.splitlines()
+    assert f"{ids[0]}: FAIL  not calibrated: {cold.split(': ', 1)[1]}" in lines, out
+    assert any(ln.startswith(f"{ids[1]}: FAIL  not calibrated: {dead.split(': ', 1)[1]}")
+               for ln in lines), out
+    assert "2 of 4 units passed (2 not calibrated: their data failed a check); " in out, out
+    res = json.loads(Path("st/results.json").read_text())
+    s = res["summary"]
+    assert (s["n_units"], s["passed"], s["failed"]) == (4, 2, 2)
+    assert s["not_calibrated"] == sorted(ids[:2]) and s["dead_axes"] == []
+    for dev, why in ((ids[0], cold), (ids[1], dead)):
+        cal = json.loads(Path(f"st/units/{dev}/calibration.json").read_text())
+        assert cal["verdict"] == "FAIL" and cal["axes"] == {} and cal["error"].startswith(why)
+        assert cal["firmware_header"] == "not written: " + cal["error"]
+        assert res["units"][dev]["error"] == cal["error"] and res["units"][dev]["axes"] == {}
+        assert res["units"][dev]["files"] == f"units/{dev}"
+        assert sorted(p.name for p in Path(f"st/units/{dev}").iterdir()) == ["calibration.json"]
+    assert json.loads(Path(f"st/units/{ids[0]}/calibration.json").read_text())["runs"] == 1
+    for dev in ids[2:]:      # the good units: calibrated, judged, and their firmware files
+        u = res["units"][dev]
+        assert u["verdict"] == "PASS" and u["error"] is None, u
+        cal = json.loads(Path(f"st/units/{dev}/calibration.json").read_text())
+        assert -0.006 < cal["axes"]["gyro_y"]["coefficients"][1] < 0.0     # °/s/K
+        assert cal["axes"]["gyro_y"]["held_out_rms"] < 0.03
+        assert cal["firmware_header"] == "thermonet_cal.h"
+        assert f"unit {dev}: PASS" in Path(f"st/units/{dev}/thermonet_cal.h").read_text()
+    # the good units' files are what they would be without the failed units beside them
+    _write_line(runs[2:], "good.csv")
+    Path("good.yaml").write_text(_line_config("good.csv"))
+    assert main(["station", "good.yaml", "--prior", str(prior), "--out", "alone",
+                 "--executor", "serial", "-q"]) == 0
+    for dev in ids[2:]:
+        assert (Path(f"alone/units/{dev}/thermonet_cal.h").read_bytes()
+                == Path(f"st/units/{dev}/thermonet_cal.h").read_bytes())
+        assert (json.loads(Path(f"alone/units/{dev}/calibration.json").read_text())["axes"]
+                == json.loads(Path(f"st/units/{dev}/calibration.json").read_text())["axes"])
+    # the process pool: the same verdicts, reasons and files, byte for byte
+    assert main(["station", "line.yaml", "--prior", str(prior), "--out", "pool",
+                 "--executor", "process", "--workers", "2", "-q"]) == 3
+    assert _unit_files(Path("pool")) == _unit_files(Path("st"))
+
+
+def test_a_bug_in_one_units_task_still_stops_the_batch(
+        prior: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Only a unit's own data make its FAIL: any other error in its task (a bug) stops the
+    batch as before — one line naming the unit and the error, exit 1, nothing written."""
+    import thermonet.workflows.station as station
+
+    monkeypatch.chdir(tmp_path)
+    Path("new.yaml").write_text(FLEET)
+    kind = station.unit_test_kind
+
+    def broken(ds: Any) -> str:
+        if ds.runs[0].device_id == "consumer-imu-u001":
+            raise ZeroDivisionError("a bug")
+        return kind(ds)
+    monkeypatch.setattr(station, "unit_test_kind", broken)
+    _one_line_refusal(capsys, ["station", "new.yaml", "--prior", str(prior), "--units", "3",
+                               "--test", "soaks:-10,25,60", "--out", "st", "--executor",
+                               "serial"], "unit 'consumer-imu-u001': ZeroDivisionError: a bug")
+    assert not Path("st").exists()
+
+
+def test_a_config_whose_channels_contradict_the_prior_is_refused_before_any_unit_runs(
+        prior: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The mapping's unit of measure on an axis, or data.outputs, is every unit's: refused
+    in one line naming the key, both values and the prior, before any unit runs (no progress
+    line, no unit directory) — not once per unit after all had run."""
+    monkeypatch.chdir(tmp_path)
+    _write_line(_line_units(2), "line.csv")
+    Path("line.yaml").write_text(_line_config("line.csv"))
+    Path("map.yaml").write_text(LINE_MAP.replace("gx, unit: deg/s", "gx, unit: rad/s"))
+    capsys.readouterr()
+    assert main(["station", "line.yaml", "--prior", str(prior), "--out", "st",
+                 "--executor", "serial"]) == 1
+    out, err = capsys.readouterr()
+    assert err.strip().splitlines() == [
+        f"thermonet: error: line.yaml: key 'data.mapping' (map.yaml): gyro_x in 'rad/s', and "
+        f"the prior ({prior}) has gyro_x in 'deg/s' (convert one of them first: the channel's "
+        "scale, or the prior's data)"], err
+    assert "station:" not in out and not Path("st").exists()
+    Path("map.yaml").write_text(LINE_MAP)
+    Path("gyros.yaml").write_text(_line_config("line.csv").replace(
+        "mapping: map.yaml", "mapping: map.yaml, outputs: [gyro_x, gyro_y, gyro_z]"))
+    _one_line_refusal(capsys, ["station", "gyros.yaml", "--prior", str(prior), "--out", "st",
+                               "--executor", "serial"],
+                      f"gyros.yaml: key 'data.outputs' (gyro_x, gyro_y, gyro_z): the prior "
+                      f"({prior}) is of axes gyro_x, gyro_y, gyro_z, acc_x, acc_y, acc_z; the "
+                      "data lack acc_x, acc_y, acc_z")
+    assert not Path("st").exists()

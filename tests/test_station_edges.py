@@ -141,8 +141,9 @@ def test_units_are_left_out_for_what_a_point_can_see() -> None:
 def test_a_unit_with_axes_the_prior_lacks_is_refused() -> None:
     ap = AxisPrior("gyro_x", np.ones(1), np.zeros((1, 3)), np.eye(3)[None], 0.0, 0.0)
     fp = _fleet([ap])
-    with pytest.raises(ConfigError, match="the prior is of axes gyro_x; the data also hold "
-                                          "acc_x, which it says nothing about"):
+    # a unit's own data: an InputError, which FAILs that unit alone (station_task)
+    with pytest.raises(InputError, match="the prior is of axes gyro_x; the data also hold "
+                                         "acc_x, which it says nothing about"):
         check_compatible(fp, ["gyro_x", "acc_x"], {"gyro_x": "zero", "acc_x": "at-t-ref"},
                          "unit 'u1'", {"gyro_x": "deg/s", "acc_x": "m/s^2"})
     check_compatible(fp, ["gyro_x"], {"gyro_x": "zero"}, "unit 'u1'", {"gyro_x": "deg/s"})
@@ -369,3 +370,38 @@ def test_a_failed_axis_says_where_to_measure_next_on_its_line() -> None:
     line = format_station(res).splitlines()[0]
     assert line.endswith("  next -17.5, 47.5 °C (gyro_x, gyro_y); no temperature left to "
                          "measure (its test covers the range) (gyro_z)"), line
+
+
+def test_a_unit_not_calibrated_is_counted_failed_and_says_why() -> None:
+    """A unit whose data failed a check (no axes): FAIL in the summary, listed as not
+    calibrated, left out of the flags and the short-test count, its reason on its line."""
+    from thermonet.workflows.station_report import (
+        failed_unit,
+        format_station,
+        station_summary,
+        unit_summary,
+    )
+
+    fp = _fleet([AxisPrior("gyro_x", np.ones(1), np.zeros((1, 3)), np.eye(3)[None], 0.0, 0.0)])
+    bad = failed_unit("u1", "unit 'u1': measured -45.0 to 34.9 °C, outside the fleet prior's "
+                      "range -25 to 75 °C (the prior says nothing there)")
+    assert bad.pop("header") is None and bad["axes"] == {} and bad["runs"] is None
+    assert bad["firmware_header"] == "not written: " + bad["error"]
+    good = {"device_id": "u0", "verdict": "PASS", "runs": 1, "temperature_span_c": 50.0,
+            "test_kind": "soaks", "short_test_map": "used", "axes": {"gyro_x": {
+                "verdict": "PASS", "held_out_rms": 0.001, "held_out_not_judged": None,
+                "p_value": 0.5, "flagged_unlike_fleet": False, "fleet_not_compared": None,
+                "checks": []}}}
+    res = station_summary(fp, {"u0": unit_summary(good, "units/u0"),
+                               "u1": unit_summary(bad, "units/u1")}, 1.0)
+    s = res["summary"]
+    assert (s["n_units"], s["passed"], s["failed"]) == (2, 1, 1)
+    assert s["not_calibrated"] == ["u1"] and s["several_runs"] == [] and \
+        s["flagged_unlike_fleet"] == [] and s["dead_axes"] == []
+    assert res["units"]["u1"]["error"] == bad["error"] and res["units"]["u0"]["error"] is None
+    lines = format_station(res).splitlines()
+    assert lines[1] == ("u1: FAIL  not calibrated: measured -45.0 to 34.9 °C, outside the fleet "
+                        "prior's range -25 to 75 °C (the prior says nothing there)")
+    assert lines[2].startswith("1 of 2 units passed (1 not calibrated: their data failed a "
+                               "check); 0 unlike their fleet; ")
+    assert lines[3] == "1 of 1 calibrated through the fleet's short test"

@@ -246,7 +246,9 @@ def add_station(sub: Any) -> None:
                        description="Calibrate each unit of CONFIG's data from its short test "
                                    "and the fleet prior; judge it on held-out temperatures and "
                                    "against station.limits; write a file per unit. Exit 0: "
-                                   "every unit passed; 3: some unit failed; 1: bad input.")
+                                   "every unit passed; 3: some unit failed (one whose data "
+                                   "fail a check fails alone, with its reason; the others "
+                                   "finish); 1: bad input, nothing written.")
     q.add_argument("config", help="comparison YAML whose data hold the new units' tests")
     q.add_argument("--prior", required=True, help="prior file from `thermonet prior`")
     q.add_argument("--out", required=True, help="output directory")

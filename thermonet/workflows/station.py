@@ -36,13 +36,19 @@ units measured briefly (a few soaks, a short ramp) and, per unit and axis, gives
 
 Units run on the process pool, in this process, or on Ray (``--executor``); with ``--units N``
 each worker simulates its own unit, so a worker holds one unit at a time.  The driver writes
-``DIR`` in a staging directory moved into place at the end: a unit whose data the prior
-cannot judge (other axes — the prior's and the unit's must be the same — or targets,
-temperatures outside the fleet's range, no points) is one line naming it, exit 1, nothing
-written; so is a config whose ``features.t_ref`` or ``station.degree`` is not the prior's,
-before any unit runs; so are two units of identical outputs (one unit's data under two
-serial numbers), two runs of one unit with identical outputs, and a top-level ``limits``
-section (the station's are ``station.limits``).  Exit 3: some unit failed.  What
+``DIR`` in a staging directory moved into place at the end.  A unit whose own data the prior
+cannot judge (temperatures outside the fleet's range, no points, data that fail validation — a
+dead thermometer, no rows —, axes, targets or units of measure its file gives otherwise than
+the prior) FAILs with that reason (``error`` in its calibration.json, no firmware file, the
+reason on its console line) and the other units finish: exit 3.  Refused before any unit runs,
+one line naming the key and both values, exit 1, nothing written: what the config fixes of
+every unit against the prior (the axes of ``data.outputs``, of the preset or of the mapping —
+the prior's and the units' must be the same —, the preset's or the mapping's units of
+measure, a target mode it names, ``features.t_ref``, ``station.degree``); so are two units of
+identical outputs (one unit's data under two serial numbers), two runs of one unit with
+identical outputs, and a top-level ``limits`` section (the station's are ``station.limits``).
+A unit's task that fails otherwise (a bug, a worker that died) stops the batch: exit 1,
+nothing written.  Exit 3: some unit failed.  What
 ``results.json`` keeps and the console prints: :mod:`thermonet.workflows.station_report`.
 """
 
@@ -81,6 +87,7 @@ from ..scoring.prior_points import Points, shape_design
 from ..training.config import CompareConfig
 from .fleet_units import UnitSource
 from .station_checks import (
+    check_config_channels,
     check_station_config,
     dead_axes,
     identical_runs,
@@ -97,7 +104,13 @@ from .station_prior import (
     unit_test_kind,
     unit_windows,
 )
-from .station_report import DEAD_AXIS, format_station, station_summary, unit_summary
+from .station_report import (
+    DEAD_AXIS,
+    failed_unit,
+    format_station,
+    station_summary,
+    unit_summary,
+)
 
 __all__ = ["build_prior", "run_station", "prior_summary", "parse_station_limits",
            "format_station", "format_prior", "unit_points", "StationOptions",
@@ -239,10 +252,22 @@ def _axis_result(fp: FleetPrior, axis: str, p: Points, lim: StationLimit,
 
 
 def station_task(item: StationItem) -> dict[str, Any]:
-    """One new unit in a worker: its posterior, held-out check and files, as plain data."""
+    """One new unit in a worker: its posterior, held-out check and files, as plain data.  A
+    unit whose own data fail a check (an :class:`InputError`: outside the prior's range, no
+    point, a dead thermometer, axes or units not the prior's…) is a FAIL with that reason
+    (:func:`~thermonet.workflows.station_report.failed_unit`) on every executor; any other
+    error is raised (the batch stops: a bug is not a unit's verdict)."""
+    ds: Dataset | None = None
+    try:
+        ds = item.source.load(item.cfg)
+        return _calibrate(item, ds)
+    except InputError as err:
+        return failed_unit(item.source.device_id, str(err), ds)
+
+
+def _calibrate(item: StationItem, ds: Dataset) -> dict[str, Any]:
     fp, dev = item.prior, item.source.device_id
     where = f"unit '{dev}'"
-    ds = item.source.load(item.cfg)
     if ds.is_fleet:
         raise InputError(f"{where}: its data hold several devices")
     pts, targets, uom, span = unit_points(item.cfg, ds, where)
@@ -362,6 +387,7 @@ def run_station(cfg: CompareConfig, prior: FleetPrior, sources: list[UnitSource]
     """Calibrate every unit of ``sources`` with ``prior``; write ``out`` (module docstring)."""
     opts = opts or StationOptions()
     limits = _station_checks(cfg, prior, opts.prior_file)
+    check_config_channels(cfg, prior, sources, opts.prior_file or prior.source or "its file")
     _check_units_data(sources)
     check_target(out, overwrite, "station")
     stage = make_stage(out)     # before any unit runs: an --out that cannot be made, named
@@ -391,7 +417,9 @@ def _run_units(cfg: CompareConfig, prior: FleetPrior, sources: list[UnitSource],
                limits: dict[str, StationLimit], stage: Path, opts: StationOptions,
                say: Any) -> dict[str, dict[str, Any]]:
     """Every unit on the executor; each unit's files written into ``stage`` as it finishes
-    and only its summary kept (the driver's memory does not grow with the units' detail)."""
+    and only its summary kept (the driver's memory does not grow with the units' detail).  A
+    unit whose data failed a check is a FAIL result (:func:`station_task`); a task that
+    raised anything else (a bug) or whose worker died stops the batch, naming the units."""
     dirs = path_components([s.device_id for s in sources])
     items = [StationItem(cfg, prior, s, limits) for s in sources]
     done = [0]

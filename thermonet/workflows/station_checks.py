@@ -1,6 +1,7 @@
 """What a station checks of its units' data before it trusts them (:mod:`thermonet.workflows.
 station`): an axis that does not move, one unit's data under two serial numbers, one test
-filed twice under one unit, and the runs a unit of several runs was calibrated from.
+filed twice under one unit, the runs a unit of several runs was calibrated from, and what the
+config fixes of every unit's data against the prior (:func:`check_config_channels`).
 
 **A dead or stuck axis** (:func:`dead_axes`).  A live sensor's output has noise: over a
 whole thermal test no two of its float samples need be equal, and its extremes are its
@@ -25,16 +26,23 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.errors import ConfigError, InputError, counted
 from ..core.recording import Dataset, Recording
+from ..data.mapping import load_mapping
+from ..scoring.prior import FleetPrior
+from ..sim.presets import get_preset
 from ..training.config import CompareConfig
+from .station_prior import axes_mismatch
+
+if TYPE_CHECKING:
+    from .fleet_units import UnitSource
 
 __all__ = ["STUCK_SHARE", "dead_axes", "axis_dead", "identical_units", "identical_runs",
-           "run_sources", "runs_line", "check_station_config"]
+           "run_sources", "runs_line", "check_station_config", "check_config_channels"]
 
 #: The share of an axis's samples at its maximum or minimum from which, held over
 #: consecutive samples and its most frequent value, the axis is stuck at that extreme.
@@ -164,3 +172,50 @@ def check_station_config(cfg: CompareConfig) -> None:
         raise ConfigError(f"{where}: key 'limits': the station's limits go under "
                           "'station.limits' (top-level 'limits' are `thermonet fleet`'s, "
                           "which the station does not read)")
+
+
+def _config_channels(cfg: CompareConfig, sources: Sequence[UnitSource]
+                     ) -> tuple[str, dict[str, str]] | None:
+    """The output channels, with their units of measure, that the config fixes for every
+    unit, and the key that does (``key 'data.preset' ('consumer-imu')``): the preset its
+    units are simulated from, or the mapping its files are read with; None where the
+    units' own files say (a thermonet file records its channels and units)."""
+    sims = [s.sim for s in sources if s.sim is not None]
+    preset = (str(sims[0]["preset"]) if sims and len(sims) == len(sources) else
+              cfg.data.preset if not cfg.data.paths else None)
+    if preset:
+        return (f"key 'data.preset' ('{preset}')",
+                {ax.name: ax.unit for ax in get_preset(preset).axes})
+    m = cfg.data.mapping
+    if cfg.data.paths and isinstance(m, str) and Path(m).is_file():
+        return (f"key 'data.mapping' ({m})",
+                {ch.name: ch.unit for ch in load_mapping(m).channels if ch.role == "output"})
+    return None
+
+
+def check_config_channels(cfg: CompareConfig, fp: FleetPrior, sources: Sequence[UnitSource],
+                          prior_name: str) -> None:
+    """Refuse, before any unit runs, a config that gives every unit other axes than the
+    prior's (``data.outputs``, else the preset's or the mapping's output channels) or
+    another unit of measure on one (the preset's, the mapping's): one line naming the key,
+    both values and the prior.  What a unit's own file says is checked in its task, and
+    fails that unit alone (:func:`~thermonet.workflows.station_prior.check_compatible`)."""
+    where = getattr(cfg, "_source", "config")
+    fixed = _config_channels(cfg, sources)
+    if cfg.data.outputs:
+        key, axes = f"key 'data.outputs' ({', '.join(cfg.data.outputs)})", list(cfg.data.outputs)
+    elif fixed is not None:
+        key, axes = fixed[0], list(fixed[1])
+    else:
+        return
+    why = axes_mismatch(fp, axes, prior_name)
+    if why is not None:
+        raise ConfigError(f"{where}: {key}: {why}")
+    if fixed is None:
+        return
+    key, uom = fixed
+    for a in fp.axis_names:
+        if a in uom and uom[a] != fp.units.get(a):
+            raise ConfigError(f"{where}: {key}: {a} in '{uom[a]}', and the prior ({prior_name}) "
+                              f"has {a} in '{fp.units.get(a)}' (convert one of them first: the "
+                              "channel's scale, or the prior's data)")

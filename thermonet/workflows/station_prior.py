@@ -60,7 +60,7 @@ from ..training.parts import build_part, targets_for
 
 __all__ = ["build_prior", "prior_summary", "format_prior", "unit_points", "unit_test_kind",
            "unit_windows",
-           "check_compatible", "config_t_ref",
+           "check_compatible", "axes_mismatch", "config_t_ref",
            "TARGET_FRACTIONS", "PLAN_SOAKS", "PLAN_STEP_C"]
 
 #: The expected error :func:`points_needed` is asked for, as a fraction of the fleet's
@@ -117,31 +117,43 @@ def unit_test_kind(ds: Dataset) -> str:
     return kind_of_test(counts)
 
 
+def axes_mismatch(fp: FleetPrior, axes: list[str], prior_name: str = "") -> str | None:
+    """Why a unit of outputs ``axes`` cannot take the prior ``fp`` (their axes not the same
+    both ways), naming the prior's file where ``prior_name`` is given; None where they are."""
+    head = f"the prior{f' ({prior_name})' if prior_name else ''} is of axes " \
+        f"{', '.join(fp.axis_names)}; the data"
+    missing = [a for a in fp.axis_names if a not in axes]
+    if missing:
+        return f"{head} lack {', '.join(missing)} (a prior of another sensor kind?)"
+    extra = [a for a in axes if a not in fp.axis_names]
+    if extra:
+        return (f"{head} also hold {', '.join(extra)}, which it says nothing about (a prior of "
+                "another sensor kind? data.outputs selects the prior's axes)")
+    return None
+
+
 def check_compatible(fp: FleetPrior, axes: list[str], targets: dict[str, str],
                      where: str, units: dict[str, str] | None = None) -> None:
     """Refuse a unit whose axes, targets or units of measure are not the prior's (one line
-    naming both).  The axes must be the same both ways: an axis the prior lacks would be
-    dropped from the unit's files without a word (a prior of another sensor kind); a unit
-    calibrated on some of its axes selects them with ``data.outputs``."""
-    missing = [a for a in fp.axis_names if a not in axes]
-    if missing:
-        raise ConfigError(f"{where}: the prior is of axes {', '.join(fp.axis_names)}; the data "
-                          f"lack {', '.join(missing)} (a prior of another sensor kind?)")
-    extra = [a for a in axes if a not in fp.axis_names]
-    if extra:
-        raise ConfigError(f"{where}: the prior is of axes {', '.join(fp.axis_names)}; the data "
-                          f"also hold {', '.join(extra)}, which it says nothing about (a prior "
-                          "of another sensor kind? data.outputs selects the prior's axes)")
+    naming both; an :class:`InputError`: the unit's own data, which FAILs that unit — what
+    the config fixes for every unit is checked before any runs,
+    :func:`~thermonet.workflows.station_checks.check_config_channels`).  The axes must be
+    the same both ways: an axis the prior lacks would be dropped from the unit's files
+    without a word (a prior of another sensor kind); a unit calibrated on some of its axes
+    selects them with ``data.outputs``."""
+    why = axes_mismatch(fp, axes)
+    if why is not None:
+        raise InputError(f"{where}: {why}")
     other = [a for a in fp.axis_names if targets.get(a) != fp.targets[a]]
     if other:
         a = other[0]
-        raise ConfigError(f"{where}: axis {a}: target '{targets.get(a)}' is not the prior's "
-                          f"'{fp.targets[a]}'")
+        raise InputError(f"{where}: axis {a}: target '{targets.get(a)}' is not the prior's "
+                         f"'{fp.targets[a]}'")
     other = [a for a in fp.axis_names if units is not None and units.get(a) != fp.units[a]]
     if other:
         a = other[0]
-        raise ConfigError(f"{where}: axis {a} is in '{units.get(a) if units else ''}', the "
-                          f"prior's in '{fp.units[a]}' (convert one of them first)")
+        raise InputError(f"{where}: axis {a} is in '{units.get(a) if units else ''}', the "
+                         f"prior's in '{fp.units[a]}' (convert one of them first)")
 
 
 def _range(spans: list[tuple[float, float]]) -> tuple[float, float]:

@@ -2,7 +2,10 @@
 in ``results.json`` (:func:`unit_summary`), the run's (:func:`station_summary`) and the
 console's lines (:func:`format_station`): per unit its verdict, worst held-out residual,
 the limits it failed, a dead axis in words, and for a failed axis the temperatures to
-measure next; a unit built from several runs says which."""
+measure next; a unit built from several runs says which.  A unit whose own data failed a
+check before it could be calibrated (:func:`failed_unit`: measured outside the prior's range,
+a dead thermometer, no rows…) is a FAIL with its reason (``error``), no axes and no firmware
+file; ``summary.not_calibrated`` lists those units."""
 
 from __future__ import annotations
 
@@ -11,18 +14,35 @@ from typing import Any
 
 from ..core.errors import counted
 from ..core.outdir import sha256_file
+from ..core.recording import Dataset
 from ..scoring.prior import FleetPrior
-from .station_checks import runs_line
+from .station_checks import run_sources, runs_line
 
-__all__ = ["unit_summary", "station_summary", "format_station", "DEAD_AXIS"]
+__all__ = ["unit_summary", "station_summary", "format_station", "failed_unit", "DEAD_AXIS"]
 
 #: The check a dead or stuck axis fails (:func:`thermonet.workflows.station_checks.dead_axes`).
 DEAD_AXIS = "dead_axis"
 
 
+def failed_unit(dev: str, reason: str, ds: Dataset | None = None) -> dict[str, Any]:
+    """A unit whose own data failed a check before it was calibrated (``reason``, one
+    line): its verdict FAIL, no axes and no firmware file; ``ds``: its runs, where read."""
+    return {"device_id": dev, "verdict": "FAIL", "error": reason, "axes": {},
+            "runs": None if ds is None else len(ds),
+            "run_sources": [] if ds is None else run_sources(ds),
+            "temperature_span_c": None, "test_kind": None, "short_test_map": None,
+            "firmware_header": f"not written: {reason}", "header": None}
+
+
+def _reason(dev: str, u: dict[str, Any]) -> str:
+    """A failed unit's reason without its own "unit '<id>': " prefix (its line names it)."""
+    return str(u["error"]).removeprefix(f"unit '{dev}': ")
+
+
 def unit_summary(r: dict[str, Any], rel: str) -> dict[str, Any]:
     """What results.json keeps of a unit: verdicts, held-out residuals, flags, its files."""
-    return {"device_id": r["device_id"], "verdict": r["verdict"], "runs": r["runs"],
+    return {"device_id": r["device_id"], "verdict": r["verdict"], "error": r.get("error"),
+            "runs": r["runs"],
             "run_sources": r.get("run_sources", []),
             "temperature_span_c": r["temperature_span_c"], "test_kind": r["test_kind"],
             "short_test_map": r["short_test_map"], "files": rel,
@@ -56,7 +76,9 @@ def station_summary(prior: FleetPrior, units: dict[str, dict[str, Any]],
                         "dead_axes": sorted(
                             d for d, u in units.items()
                             if any(a.get("dead_axis") for a in u["axes"].values())),
-                        "several_runs": sorted(d for d, u in units.items() if u["runs"] > 1),
+                        "several_runs": sorted(d for d, u in units.items()
+                                               if (u["runs"] or 0) > 1),
+                        "not_calibrated": sorted(d for d, u in units.items() if u.get("error")),
                         "seconds": seconds,
                         "units_per_minute": 60.0 * len(units) / max(seconds, 1e-9)}}
 
@@ -87,7 +109,9 @@ def _fail_text(a: str, r: dict[str, Any], lim: str, unjudged: dict[str, str]) ->
 def _unit_line(dev: str, u: dict[str, Any], uom: dict[str, str]) -> str:
     """A unit's verdict, its worst held-out residual per unit of measure (°/s and m/s² are
     not compared) or why none could be judged, the limits it failed (a dead axis first, in
-    words) and where to measure next."""
+    words) and where to measure next; a unit not calibrated, its reason."""
+    if u.get("error"):
+        return f"{dev}: FAIL  not calibrated: {_reason(dev, u)}"
     axes = u["axes"]
     judged = {a: r for a, r in axes.items() if r["held_out_rms"] is not None}
     unjudged = {a: r.get("held_out_not_judged") or "no value" for a, r in axes.items()
@@ -120,7 +144,10 @@ def format_station(results: dict[str, Any]) -> str:
     lines += [ln for dev, u in results["units"].items()
               if (ln := runs_line(dev, u.get("run_sources") or [])) is not None]
     s = results["summary"]
-    lines.append(f"{s['passed']} of {s['n_units']} units passed; "
+    bad = s.get("not_calibrated") or []
+    lines.append(f"{s['passed']} of {s['n_units']} units passed"
+                 + (f" ({len(bad)} not calibrated: their data failed a check)" if bad else "")
+                 + "; "
                  f"{len(s['flagged_unlike_fleet'])} unlike their fleet; "
                  f"{s['units_per_minute']:.0f} units/min")
     by_reason: dict[str, int] = {}      # units of one test kind share their reason
@@ -130,7 +157,7 @@ def format_station(results: dict[str, Any]) -> str:
         by_reason[why] = by_reason.get(why, 0) + 1
     lines += [f"{counted(n, 'unit')} not compared with the fleet: {why}"
               for why, n in by_reason.items()]
-    maps = [u.get("short_test_map") for u in results["units"].values()]
+    maps = [u.get("short_test_map") for u in results["units"].values() if not u.get("error")]
     if any(maps):
         used = maps.count("used")
         lines.append(f"{used} of {len(maps)} calibrated through the fleet's short test"
