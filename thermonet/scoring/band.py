@@ -58,7 +58,8 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..core.recording import TEMPERATURE
+from ..core.recording import KNOWN_UNITS, TEMPERATURE
+from ..data.mapping import UNIT_IN_DEFAULT
 from .band_rates import (
     holds_for,
     holds_meaning,
@@ -82,21 +83,20 @@ DEFAULT_BINS = 4
 #: past its fold's edge or more: nearer, thermometer noise would make a rate of nothing.
 MIN_PAST = 0.02
 
-#: A unit's value in rad/s (gyro) or m/s² (acc), for the °/h and mg figures.
-_SI = {"rad/s": ("gyro", 1.0), "deg/s": ("gyro", math.pi / 180.0),
-       "dps": ("gyro", math.pi / 180.0), "deg/h": ("gyro", math.pi / 180.0 / 3600.0),
-       "m/s^2": ("acc", 1.0), "m/s2": ("acc", 1.0), "g": ("acc", 9.80665),
-       "mg": ("acc", 9.80665e-3)}
+#: Per dimension: the display kind and the SI value of its default unit (deg/s in rad/s,
+#: g in m/s²); a unit's SI value is its value in the default unit (``UNIT_IN_DEFAULT``)
+#: times that.
+_SI_OF_DEFAULT = {"rate": ("gyro", math.pi / 180.0), "acceleration": ("acc", 9.80665)}
 _DISPLAY = {"gyro": ("deg/h", math.pi / 180.0 / 3600.0), "acc": ("mg", 9.80665e-3)}
 
 
 def display_units(unit: str) -> tuple[str, float] | None:
     """(``deg/h`` or ``mg``, factor from ``unit``) for a gyro or accelerometer unit, else None."""
-    kind = _SI.get(unit)
-    if kind is None:
+    of = _SI_OF_DEFAULT.get(KNOWN_UNITS.get(unit, ""))
+    if of is None or unit not in UNIT_IN_DEFAULT:
         return None
-    name, si = _DISPLAY[kind[0]]
-    return name, kind[1] / si
+    name, si = _DISPLAY[of[0]]
+    return name, UNIT_IN_DEFAULT[unit] * of[1] / si
 
 
 def conformal_quantile(scores: np.ndarray, level: float) -> float:
