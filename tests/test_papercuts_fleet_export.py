@@ -440,3 +440,34 @@ def test_a_four_position_model_runs_as_export_readme_says(fourpos_fleet, accel_f
     # the model follows the soaks' own K0(T) and K1(T) to a tenth of their range over T
     assert np.all(np.abs(got - est[:, 1:]) < 0.1 * np.ptp(est[:, 1:], axis=0)), (got, est)
     assert abs(float(np.median(got[:, 1])) - 1.0) < 0.05     # a scale factor, not its change
+
+
+def test_export_of_a_held_back_family_says_so(tmp_path, capsys):
+    """A family the comparison's gate held back (toy ramps heat only: a model reading the rate
+    cannot be judged on cooling) is exported as asked with ``--family``, with one warning
+    saying it was held back and why; the baseline's export says nothing."""
+    from conftest import toy_dataset
+    from thermonet.workflows.compare import run_compare
+
+    cfg = CompareConfig(families=[
+        FamilyConfig(family="poly", name="cubic", inputs=["dT"], params={"degree": 3}),
+        FamilyConfig(family="poly", name="rate", inputs=["dT", "rate"], params={"degree": 2})],
+        baseline="cubic")
+    cfg.tracking.enabled = False
+    cfg.train.max_epochs = 20
+    res = run_compare(cfg, tmp_path / "cmp", dataset=toy_dataset(dt_s=10.0), quiet=True,
+                      plots=False)
+    why = res["selection"]["held_back"]["by_candidate"]["rate"]
+    assert why.startswith("the training data hold only heating")
+    capsys.readouterr()
+    assert main(["export", str(tmp_path / "cmp"), "--family", "rate", "--format", "onnx",
+                 "--out", str(tmp_path / "rate.onnx")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"thermonet: warning: {tmp_path / 'cmp' / 'results.json'}: family 'rate' "
+                   f"was held back by the comparison ({why}); exported as asked, but nothing "
+                   "showed it beats the baseline there, and its out_of_range flag is set "
+                   "wherever its dynamic inputs leave what training held"], err
+    assert (tmp_path / "rate.onnx").stat().st_size > 0
+    assert main(["export", str(tmp_path / "cmp"), "--family", "cubic", "--format", "onnx",
+                 "--out", str(tmp_path / "cubic.onnx")]) == 0
+    assert capsys.readouterr().err == ""

@@ -30,6 +30,7 @@ import json
 import os
 import re
 import tempfile
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -100,9 +101,29 @@ def _from_compare_dir(path: Path, family: str | None) -> Path:
     if not fams[name].get("checkpoint"):
         raise ExportError(f"{results_file}: family '{name}' has no checkpoint "
                           f"({str(fams[name].get('reason') or 'not fitted')[:200]})")
+    if family is not None:
+        _warn_held_back(results, name, results_file)
     return _verified(path / "models" / f"{name}.pt", fams[name].get("checkpoint_sha256"),
                      results_file, f"family '{name}'", "written by an older thermonet? re-run "
                      "compare")
+
+
+def _warn_held_back(results: dict[str, Any], name: str, results_file: Path) -> None:
+    """One warning where ``--family`` names a family the comparison's gate held back (it
+    could not be judged on these data: one direction or one rate of temperature change):
+    its file is written as asked, but its joint guard (the ``out_of_range`` flag) was set
+    wherever the training never went, and nothing showed it is better than the cubic."""
+    sel = results.get("selection")
+    held = sel.get("held_back") if isinstance(sel, dict) else None
+    by = held.get("by_candidate") if isinstance(held, dict) else None
+    why = by.get(name) if isinstance(by, dict) else None
+    if not isinstance(why, str) or not why:
+        return
+    text = "".join(ch if ch.isprintable() else "?" for ch in why)[:300]
+    warnings.warn(f"{results_file}: family '{name}' was held back by the comparison ({text}); "
+                  "exported as asked, but nothing showed it beats the baseline there, and its "
+                  "out_of_range flag is set wherever its dynamic inputs leave what training "
+                  "held", UserWarning, stacklevel=2)
 
 
 def _calibration_dir(path: Path, results: dict[str, Any]) -> str:
