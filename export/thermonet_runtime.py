@@ -610,12 +610,13 @@ def band_holds_rule(held: Mapping[str, Any], rate_c_per_min: Any, direction: Any
                     ) -> np.ndarray:
     """Where a band holds (thermonet.scoring.band_rates.outside_holds, the same rule, and
     the C header's <prefix>_band_holds): a window of a temperature that never moved
-    (direction 0), or in a judged direction no faster than its judged rate (a NaN rate:
-    inside); a direction never judged (null), or one that is not −1, 0 or +1, is outside.
-    Nothing stated: everywhere."""
-    r = np.abs(np.nan_to_num(np.asarray(rate_c_per_min, dtype=np.float64)))
+    (direction 0), or in a judged direction no faster than its judged rate; a direction
+    never judged (null), or one that is not −1, 0 or +1, is outside; so is a rate that is
+    not finite (NaN: unknown — a window of one time, a NaN temperature — or ±inf), whatever
+    the direction.  Nothing stated: wherever the rate is finite."""
+    r = np.abs(np.asarray(rate_c_per_min, dtype=np.float64))
     d = np.asarray(direction)
-    out = np.ones(np.broadcast(r, d).shape, dtype=bool)
+    out = np.broadcast_to(np.isfinite(r), np.broadcast(r, d).shape).copy()
     if not held:
         return out
     out &= np.isin(d, (-1, 0, 1))
@@ -1222,8 +1223,9 @@ class Compensator:
         least-squares slope over ``band_tables['window_s']``) and excursion direction (+1
         heating since the last turn, −1 cooling, 0 a temperature that never moved): it was
         judged up to ``band_tables['holds_for']``'s rate per direction, never in a direction
-        that is null there (:func:`band_holds_rule`).  A file whose band does not record it:
-        True everywhere.  Refused for a file without a band."""
+        that is null there (:func:`band_holds_rule`); False for a rate that is not finite
+        (NaN: unknown).  A file whose band does not record it: True wherever the rate is
+        finite.  Refused for a file without a band."""
         b = self.band_tables
         if b is None:
             raise RuntimeInputError(f"{self.path}: this model file carries no band (export it "
@@ -1470,6 +1472,39 @@ def _temperature_warning(path: Path, temp: np.ndarray) -> str | None:
             f"plausible {lo_ok:g} … {hi_ok:g} °C ({temperature_hint(lo, hi)})")
 
 
+def _time_warning(path: Path, time_s: np.ndarray, runs: Sequence[slice], gap_s: float
+                  ) -> str | None:
+    """A line for a ``time_s`` column whose median step is longer than the model's
+    ``gap_s`` (a file in milliseconds: the gap rule restarts the state and flags nearly
+    every row, and the run exits 0): how many rows come more than ``gap_s`` after the
+    previous row of their run, and the unit that would bring the median step within it."""
+    steps = np.concatenate([np.diff(time_s[r]) for r in runs] + [np.zeros(0)])
+    steps = steps[np.isfinite(steps)]
+    if steps.size == 0 or not float(np.median(steps)) > gap_s:
+        return None
+    med = float(np.median(steps))
+    n_gap, n = int(np.count_nonzero(steps > gap_s)), int(time_s.size)
+    unit = next((f"time_s in {name}? divide by {factor:g}" for name, factor in
+                 (("milliseconds", 1e3), ("microseconds", 1e6)) if med / factor <= gap_s),
+                "a log sparser than gap_s, or time_s in another unit")
+    return (f"{path}: column 'time_s': the gap rule (a step over the model's gap_s = "
+            f"{gap_s:g} s restarts the state, flag set) flags {n_gap} of {n} rows "
+            f"({100.0 * n_gap / max(n, 1):.0f} %); the median step is {med:.4g} s ({unit})")
+
+
+def _input_warnings(comp: Compensator, path: Path, cols: Mapping[str, np.ndarray],
+                    runs: Sequence[slice]) -> list[str]:
+    """The warning lines of a run that went through (a temperature or a time in another
+    unit): :func:`_temperature_warning`, :func:`_time_warning`."""
+    out = [_temperature_warning(path, cols["temperature_c"]) if "temperature_c" in cols
+           else None]
+    gap = (comp.dynamic or comp.recurrent or {}).get("gap_s")
+    if "time_s" in cols and gap is not None:
+        out.append(_time_warning(path, np.asarray(cols["time_s"], np.float64), runs,
+                                 float(gap)))
+    return [w for w in out if w is not None]
+
+
 #: The column naming each row's run (``thermonet convert --out x.csv`` writes it): the rows of
 #: a run are one sequence, and the dynamic inputs' (and a recurrent model's) state restarts at
 #: the first row of each run, as in training — never carried from one run's end into the next.
@@ -1562,8 +1597,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         raw = np.stack([cols[a] for a in comp.outputs], axis=1) if body else \
             np.zeros((0, len(comp.outputs)))
         given = {s: cols[s] for s in comp.needs}
-        res = _compensate_runs(comp, args.input, _run_slices(args.input, header, body, lines),
-                               raw, given, lines)
+        runs = _run_slices(args.input, header, body, lines)
+        res = _compensate_runs(comp, args.input, runs, raw, given, lines)
         # the residual-drift band where the file carries one (metadata 'band'): per axis, the
         # half-width at the row's band signal — how far the compensated value may still be off
         band = res.band
@@ -1585,8 +1620,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 + ([] if band is None else [repr(float(v)) for v in band[i]]))
         tmp.replace(args.out)
         written = False
-        warning = _temperature_warning(args.input, cols["temperature_c"]) if \
-            "temperature_c" in cols else None
+        warnings = _input_warnings(comp, args.input, cols, runs)
     except _Stopped as exc:
         print(f"thermonet_runtime: stopped by {signal.Signals(exc.signum).name}; {args.out} not "
               "written", file=sys.stderr)
@@ -1603,7 +1637,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             tmp.unlink(missing_ok=True)
         for sig, handler in previous.items():
             signal.signal(sig, signal.SIG_DFL if handler is None else handler)
-    if warning is not None:
+    for warning in warnings:
         print(f"thermonet_runtime: warning: {warning}", file=sys.stderr)
     n_flag = int(np.count_nonzero(res.out_of_range))
     print(f"{len(body)} rows compensated with {comp.family} model; {n_flag} out of range "

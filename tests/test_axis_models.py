@@ -531,6 +531,12 @@ def test_header_names_its_own_file_and_refuses_fast_math_once(composite, header,
     errors = [ln for ln in fast.stderr.splitlines() if "#error" in ln and "error:" in ln]
     assert fast.returncode != 0 and len(errors) == 1, fast.stderr
     assert "a thermonet header must not be compiled with -ffast-math / -Ofast" in errors[0]
+    # -ffinite-math-only alone: refused too, once however many parts
+    finite = subprocess.run(["gcc", "-std=c99", "-O2", "-ffinite-math-only", "-c", "use.c",
+                             "-o", "use.o"], capture_output=True, text=True, cwd=tmp_path)
+    errors = [ln for ln in finite.stderr.splitlines() if "#error" in ln and "error:" in ln]
+    assert finite.returncode != 0 and len(errors) == 1, finite.stderr
+    assert "must not be compiled with -ffinite-math-only" in errors[0]
 
 
 def test_parts_whose_union_puts_temperature_second(parts, tmp_path):

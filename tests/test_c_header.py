@@ -112,7 +112,8 @@ def test_header_text_and_refusals():
 
 
 def test_header_refuses_fast_math(tmp_path):
-    """-ffast-math would fold away the NaN test: the header must not compile that way."""
+    """-ffast-math (or -ffinite-math-only alone) would fold away the NaN test: the header
+    must not compile that way."""
     header = export_c_header(_model("poly"), tmp_path / "thermonet_model.h")
     src = tmp_path / "use.c"
     src.write_text('#include "thermonet_model.h"\nint main(void) { return 0; }\n')
@@ -126,6 +127,21 @@ def test_header_refuses_fast_math(tmp_path):
         cwd=tmp_path,
     )
     assert fast.returncode != 0 and "fast-math" in fast.stderr
+    # -ffinite-math-only alone (no __FAST_MATH__; __FINITE_MATH_ONLY__ is 1) folds the same
+    # test away: a NaN temperature gave a plausible clamped drift (was: compiled silently)
+    finite = subprocess.run(["gcc", "-std=c99", "-O2", "-ffinite-math-only", "-c", str(src),
+                             "-o", str(tmp_path / "c.o")], capture_output=True, text=True,
+                            cwd=tmp_path)
+    errors = [ln for ln in finite.stderr.splitlines() if "#error" in ln and "error:" in ln]
+    assert finite.returncode != 0 and len(errors) == 1, finite.stderr
+    assert "must not be compiled with -ffinite-math-only" in errors[0]
+    # -Ofast defines both: one #error, the fast-math one
+    assert "finite-math-only" not in fast.stderr
+    # and the flag turned off again is accepted (the refusal reads the macro's value)
+    off = subprocess.run(["gcc", "-std=c99", "-O2", "-ffinite-math-only",
+                          "-fno-finite-math-only", "-c", str(src), "-o", str(tmp_path / "d.o")],
+                         capture_output=True, text=True, cwd=tmp_path)
+    assert off.returncode == 0, off.stderr
     assert header.name == "thermonet_model.h"
     # the first line names the file written (was "thermonet.h" whatever --out was); the
     # refusal names none (a per-axis header's named "thermonet_part0.h", no such file)
@@ -220,7 +236,8 @@ def test_two_models_under_one_prefix_are_a_compile_error(tmp_path):
     errors = [ln for ln in clash.stderr.splitlines() if "error:" in ln]
     assert len(errors) == 1 and errors[0].startswith("b.h:"), clash.stderr
     assert ("#error \"two thermonet headers of different models use the prefix 'thermonet': "
-            "export one of them again under another prefix" in errors[0])
+            "export one of them again under another prefix (thermonet export ... --format c "
+            "--prefix NAME, or export_c_header(prefix=...))" in errors[0])
     assert "static inline int imu1_compensate(" in (tmp_path / "imu1.h").read_text()
 
 

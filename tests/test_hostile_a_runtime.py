@@ -257,8 +257,9 @@ def test_where_the_band_holds_is_the_fit_times_rule_and_a_bad_statement_is_refus
         model_path: Path, tmp_path: Path) -> None:
     """The runtime's ``band_holds`` gives thermonet's own verdict
     (``scoring.band_rates.outside_holds``) on rates either side of the judged one, both
-    signs, NaN and every direction; a file whose band does not say where it holds: True
-    everywhere; a judged rate that is negative or not a number: refused in one line."""
+    signs, NaN (never held) and every direction; a file whose band does not say where it
+    holds: True wherever the rate is finite; a judged rate that is negative or not a number:
+    refused in one line."""
     from thermonet.scoring.band_rates import outside_holds
 
     held = {"heating_c_per_min": 0.75, "cooling_c_per_min": None, "meaning": "..."}
@@ -267,9 +268,11 @@ def test_where_the_band_holds_is_the_fit_times_rule_and_a_bad_statement_is_refus
     dirs = np.repeat([-1, 0, 1], 8)
     want = ~outside_holds({"heating": 0.75, "cooling": None}, rates, dirs)
     assert comp.band_holds(rates, dirs).tolist() == want.tolist()
-    assert want.sum() == 8 + 5          # the never-moving ones, and heating up to 0.75
+    # the never-moving ones and heating up to 0.75, each but the NaN rate (unknown: never
+    # held)
+    assert want.sum() == 7 + 4
     plain = rt.Compensator(_with_band(model_path, tmp_path, 0.004))
-    assert plain.band_holds(rates, dirs).all()
+    assert plain.band_holds(rates, dirs).tolist() == np.isfinite(rates).tolist()
     # a direction none of the three, or arrays of two shapes: one line (the C function
     # answers 0 for such a direction; tests/test_band.py)
     for rate, direction, why in ((0.5, 2, "direction 2 is not -1 (cooling), 0 (never moved) "

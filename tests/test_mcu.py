@@ -121,6 +121,47 @@ def test_every_header_cross_compiles_float_only_where_the_fpu_is(models, family,
     assert "__aeabi_dadd" in forced.soft_double
 
 
+@pytest.mark.parametrize("family", pointwise_families())
+def test_m4f_builds_call_no_fmaf_at_any_optimisation_level(models, family, tmp_path):
+    """GCC expands a libm builtin called by its plain name (``fmaf``) inline only when
+    optimising: at -O0 the M4F build called newlib's ``fmaf`` (software, through double)
+    for every fused multiply-add.  The header's ``THERMONET_MAC`` is ``__builtin_fmaf`` under
+    GCC/clang: one ``vfma`` at -O0, -Og and -Os as at -O2, no ``fmaf`` and no soft-double
+    routine anywhere, and the same numbers (the emulated -O0 build is bit for bit the -O2
+    build).  The only call left at -O0 is the MLP's tanh's ``copysignf`` (a sign-bit copy in
+    newlib: no double; it is inlined from -Og on)."""
+    import shutil
+
+    objdump = shutil.which("arm-none-eabi-objdump")
+    assert objdump is not None, "arm-none-eabi-objdump (binutils-arm-none-eabi) is needed"
+    for kind in ("plain", "stream"):
+        model = models[family, kind]
+        text = render_c_header(model)
+        how = {"has_proxies": stream_signature_has_proxies(model)}
+        for opt in ("-O0", "-Og", "-Os"):
+            build = cross_compile(text, "cortex-m4f", tmp_path / kind / opt, opt=opt, **how)
+            assert "fmaf" not in build.undefined, (kind, opt, build.undefined)
+            assert build.soft_double == [] and build.libm == [], (kind, opt, build.undefined)
+            allowed = {"copysignf"} if family == "mlp" and opt == "-O0" else set()
+            assert set(build.undefined) <= allowed, (kind, opt, build.undefined)
+    # fused at -O0: vfma in the code (-std=c99 contracts nothing: only fmaf makes one) where
+    # the header multiplies-and-adds (the fast expf every family's float path carries)
+    asm = subprocess.run([objdump, "-d", str(tmp_path / "stream" / "-O0" / "mcu.o")],
+                         capture_output=True, text=True, check=True).stdout
+    assert "vfma.f32" in asm and "<fmaf>" not in asm
+    # the same numbers: the -O0 build against the -O2 build on the emulated M4F, exactly
+    model = models[family, "plain"]
+    text = render_c_header(model)
+    builds = [cross_compile(text, "cortex-m4f", tmp_path / f"emu{opt}", opt=opt,
+                            has_proxies=stream_signature_has_proxies(model))
+              for opt in ("-O0", "-O2")]
+    emus = [Emulator(b, len(model.signals), len(model.outputs)) for b in builds]
+    raw = np.round(model.constant().double().numpy())
+    for p in _sweep(model)[::8]:
+        o0, o2 = (e.evaluate(p, raw) for e in emus)
+        assert np.array_equal(o0.drift, o2.drift) and o0.flag == o2.flag, p
+
+
 def test_soft_double_names():
     names = ["__aeabi_dadd", "__aeabi_f2d", "__aeabi_d2f", "__aeabi_dcmpgt", "__aeabi_i2d",
              "__aeabi_ul2d", "__adddf3", "__extendsfdf2", "__aeabi_fadd", "__aeabi_f2iz",

@@ -532,6 +532,49 @@ def test_kelvin_temperatures_get_infos_hint(model_path, tmp_path, capsys):
     assert _cli(model_path, src, tmp_path / "o.csv", capsys)[2] == ""
 
 
+def test_time_in_milliseconds_gets_a_hint_with_the_share_of_gap_rows(tmp_path, capsys):
+    """time_s written in milliseconds (0, 1000, 2000 …) against a model with dynamic inputs
+    (gap_s 5 s): every step is a "gap", so the state restarts and 48 of 49 rows are flagged —
+    it runs (exit 0, as before) and now says so in one warning line: the share of rows the
+    gap rule flagged, the median step and the unit that fits (was: silent).  The same rows in
+    seconds: no warning, nothing flagged; in microseconds: that unit's hint."""
+    temp = np.linspace(0.0, 50.0, 2000)
+    t = np.arange(temp.size) * 2.0
+    spec = FeatureSpec(inputs=["dT", "lag_60"], t_ref=25.0, gap_s=5.0)
+    from thermonet.features import dynamics
+
+    lag = dynamics.compute(t, temp, ["lag_60"], 5.0)[0]["lag_60_c"]
+    model = fit(family="poly", inputs=["dT", "lag_60"], outputs=AXES,
+                train=[(np.column_stack([temp, lag]), _true_drift(temp))], val=None, spec=spec,
+                hyper={"degree": 1}, config=TrainConfig(max_epochs=1)).model
+    model.set_guard(None)     # no joint (T, lag) envelope: the flag is the range and the gaps
+    path = export_onnx(model, tmp_path / "lag.onnx")
+    assert rt.Compensator(path).dynamic["gap_s"] == 5.0
+    src = tmp_path / "ms.csv"
+
+    def write(scale: float) -> None:
+        rows = [f"{k * scale!r},{20.0 + 0.01 * k!r},1,2,3" for k in range(49)]
+        src.write_text("time_s,temperature_c,gyro_x,gyro_y,gyro_z\n" + "\n".join(rows) + "\n")
+
+    write(1000.0)
+    code, printed, err = _cli(path, src, tmp_path / "o.csv", capsys)
+    assert code == 0 and "48 out of range" in printed
+    assert err == (f"thermonet_runtime: warning: {src}: column 'time_s': the gap rule (a step "
+                   "over the model's gap_s = 5 s restarts the state, flag set) flags 48 of 49 "
+                   "rows (98 %); the median step is 1000 s (time_s in milliseconds? divide by "
+                   "1000)\n")
+    write(1.0)                                        # seconds: nothing to say
+    code, printed, err = _cli(path, src, tmp_path / "o.csv", capsys)
+    assert (code, err) == (0, "") and "0 out of range" in printed
+    write(1e6)
+    err = _cli(path, src, tmp_path / "o.csv", capsys)[2]
+    assert "flags 48 of 49 rows (98 %)" in err and "time_s in microseconds? divide by 1e+06" in err
+    # a model without a gap rule (no dynamic input) says nothing of time_s
+    assert rt._time_warning(src, np.arange(49) * 1000.0, [slice(0, 49)], 5.0) is not None
+    assert rt._input_warnings(rt.Compensator(path), src, {"time_s": np.arange(49.0)},
+                              [slice(0, 49)]) == []
+
+
 def test_a_temperature_beyond_float32_is_flagged_without_a_numpy_warning(model_path, tmp_path,
                                                                            capsys):
     """1e39 is a float64 but beyond float32 (the graph's signal type): read as +inf, so NaN

@@ -1,6 +1,8 @@
 """The residual-drift band in the C header (:mod:`thermonet.scoring.band`): its tables as
 constants, ``<prefix>_band(x, out)`` evaluating them as :meth:`~thermonet.scoring.band.Band.
-evaluate` does (float: a bound needs no double), and the numbers a navigation filter can use —
+evaluate` does (float: a bound needs no double), ``<prefix>_band_signal(st, temperature_c)``
+giving its ``x`` after a step (the step's delayed temperature for a model on one, which the
+thermometer does not give), and the numbers a navigation filter can use —
 per axis the residual bias bound and its rate of change with the band's signal
 (``<prefix>_band_bias_bound``, ``<prefix>_band_bias_rate``; configs/README.md, "The
 residual-drift band").  :func:`check_band_c` compiles it and compares it with Python."""
@@ -74,8 +76,13 @@ def _floats(xs: Sequence[float]) -> str:
 
 
 def render_band_c(band: Mapping[str, Any], prefix: str, outputs: Sequence[str],
-                  signals: Sequence[str]) -> list[str]:
-    """The header lines of ``band`` (:func:`thermonet.scoring.band.shipped_band`)."""
+                  signals: Sequence[str], dynamic: Sequence[Any] | None = None) -> list[str]:
+    """The header lines of ``band`` (:func:`thermonet.scoring.band.shipped_band`).
+
+    ``dynamic``: the header's streaming form's dynamic inputs
+    (:func:`thermonet.features.dynamics.dynamic_signals`, in the order of its
+    ``<prefix>_dyn_*`` arrays), given when the header has ``<prefix>_state``: then
+    ``<prefix>_band_signal`` (:func:`_signal_lines`); None: a bare header without one."""
     b = Band.from_json(band)
     if sorted(b.axes) != sorted(outputs) or b.signal not in signals:
         raise ExportError(f"the band's axes {list(b.axes)} / signal {b.signal!r} do not match "
@@ -87,12 +94,21 @@ def render_band_c(band: Mapping[str, Any], prefix: str, outputs: Sequence[str],
     half = [t.half + [t.half[-1]] * (kmax - len(t.half)) for t in b.axes.values()]
     nums = b.filter_numbers()
     rows = lambda m: "{" + ", ".join(_floats(r) for r in m) + "}"  # noqa: E731
+    accessor = _signal_lines(b.signal, p, dynamic)
+    arg = ([] if dynamic is None else
+           [" * x: that proxy's value, as given to the step."] if not accessor else
+           [f" * x: the temperature ({p}_band_signal(st, temperature_c) after {p}_step(): the",
+            " * same)."] if b.signal == "temperature_c" else
+           [f" * x: {p}_band_signal(st, temperature_c) after {p}_step(): the step's value of",
+            " * this signal, which the thermometer does not give (not temperature_c)."])
     return [
         f"/* Residual-drift band (thermonet.scoring.band): a {b.window_s:g} s window mean of the",
         f" * corrected output's residual lies within +-{p}_band() of the run's mean residual for",
         f" * {b.level:.0%} of windows on runs like the training runs (drift only: not noise, shocks,",
         " * aging or a run's constant offset); piecewise constant over bins of the signal",
-        f" * {c_comment(b.signal)}, growing linearly past the trained range. Output units. */",
+        f" * {c_comment(b.signal)}, growing linearly past the trained range. Output units.",
+        *arg,
+        " */",
         f"#define {P}_BAND_LEVEL {c_float(b.level)}",
         f"#define {P}_BAND_SIGNAL_INDEX {list(signals).index(b.signal)}",
         f"#define {P}_BAND_MAX_BINS {kmax}",
@@ -123,8 +139,51 @@ def render_band_c(band: Mapping[str, Any], prefix: str, outputs: Sequence[str],
         "    }",
         *_group_lines(b, p),
         "}",
+        *accessor,
         *_holds_lines(b, p),
     ]
+
+
+#: The step's value of each kind of dynamic input from the state (``v``: its ``x[j]``, ``c``:
+#: its constant; ``st->temp_prev``: the temperature just stepped) — the same expression as
+#: :func:`.c_stream_render.render_stream_c`'s, so the same float.
+_FROM_STATE = {"rate": "60.0f * v / c", "lag": "v", "play": "st->temp_prev - v",
+               "delayed": "st->temp_prev - v"}
+
+
+def _signal_lines(signal: str, p: str, dynamic: Sequence[Any] | None) -> list[str]:
+    """``<prefix>_band_signal(st, temperature_c)``: the ``x`` to give ``<prefix>_band`` for
+    the sample just stepped — the temperature itself where the band is on it, the dynamic
+    input ``step`` computed (the delayed temperature of ``cubic-delayed-2min``: the band's
+    signal is the model's first, :func:`thermonet.scoring.band.band_from_oof`) read back from
+    the state where it is on one, as ``step`` computed it (bit for bit).  Nothing for a band
+    on a proxy (the firmware has it: ``proxies[k]``) or a header without a state."""
+    if dynamic is None:
+        return []
+    dyn = {d.signal: (j, d) for j, d in enumerate(dynamic)}
+    head = [
+        "",
+        f"/* The x to give {p}_band() for the sample just given to {p}_step(st, time,",
+        " * temperature_c, ...) (a step that returned 0): the band's signal "
+        f"{c_comment(signal)}, as",
+    ]
+    sig = f"static inline float {p}_band_signal(const {p}_state *st, float temperature_c)"
+    if signal == "temperature_c":
+        return [*head, " * the step read it: temperature_c itself. */", sig, "{",
+                "    (void)st;", "    return temperature_c;", "}"]
+    if signal not in dyn:
+        return []
+    j, d = dyn[signal]
+    return [*head,
+            f" * the step computed it from time and temperature ({d.kind}, "
+            f"{c_comment(d.param_key)} {d.param:g}),",
+            " * read back from st; NaN for a non-finite temperature_c (the step's drift is",
+            " * NaN there too) or before the first step. */",
+            sig, "{",
+            f"    const float v = st->x[{j}]" + (f", c = {p}_dyn_param[{j}];" if d.kind == "rate"
+                                              else ";"),
+            "    if (!(temperature_c - temperature_c == 0.0f) || !st->started) return NAN;",
+            f"    return {_FROM_STATE[d.kind]};", "}"]
 
 
 def _holds_lines(b: Band, p: str) -> list[str]:
@@ -148,17 +207,18 @@ def _holds_lines(b: Band, p: str) -> list[str]:
         "",
         "/* 1 where the band holds for a window of this rate (deg C/min) and direction (+1",
         " * heating, -1 cooling, 0 a temperature that never moved), else 0 (also for any other",
-        " * direction). */",
+        " * direction, and for a rate that is not finite: NaN, an unknown rate, or inf). */",
         f"static inline int {p}_band_holds(float rate_c_per_min, int direction)",
         "{",
         "    float top, r;",
+        "    if (!(rate_c_per_min - rate_c_per_min == 0.0f)) return 0;   /* NaN or inf */",
         "    if (direction == 0) return 1;",
         "    if (direction != 1 && direction != -1) return 0;",
         f"    top = direction == 1 ? {P}_BAND_HOLDS_HEATING_C_PER_MIN"
         f" : {P}_BAND_HOLDS_COOLING_C_PER_MIN;",
         "    if (top < 0.0f) return 0;",
         "    r = rate_c_per_min < 0.0f ? -rate_c_per_min : rate_c_per_min;",
-        "    return !(r > top);   /* a NaN rate: inside, as Python's rule */",
+        "    return !(r > top);",
         "}",
     ]
 
@@ -189,12 +249,13 @@ def _group_lines(b: Any, p: str) -> list[str]:
 
 
 def insert_band(text: str, band: Mapping[str, Any], prefix: str, outputs: Sequence[str],
-                signals: Sequence[str]) -> str:
-    """``text`` (a header) with the band's lines before its closing include guard."""
+                signals: Sequence[str], dynamic: Sequence[Any] | None = None) -> str:
+    """``text`` (a header) with the band's lines before its closing include guard
+    (``dynamic``: :func:`render_band_c`'s)."""
     end = f"#endif /* {prefix.upper()}_MODEL_H */"
     if end not in text:
         raise ExportError("the header has no include guard to close the band before")
-    lines = "\n".join(render_band_c(band, prefix, outputs, signals))
+    lines = "\n".join(render_band_c(band, prefix, outputs, signals, dynamic))
     head, _, tail = text.rpartition(end)
     return head + lines + "\n\n" + end + tail
 
@@ -255,7 +316,8 @@ def check_band_c(band: Mapping[str, Any], text: str, prefix: str, *, seed: int =
 def _check_holds_c(cc: str, b: Band, text: str, prefix: str) -> None:
     """``<prefix>_band_holds`` against :func:`~thermonet.scoring.band_rates.outside_holds` on
     rates either side of each judged rate (at its float32 value, and a float32 step past it),
-    both signs, NaN, and every direction: exactly equal (a comparison, no arithmetic)."""
+    both signs, NaN and ±inf (never held), and every direction: exactly equal (a comparison,
+    no arithmetic)."""
     tops = [float(np.float32(v)) for v in b.holds_for.values() if v is not None] + [1.0]
     rates = [0.0, float("nan"), float("inf")]
     for t in tops:

@@ -16,6 +16,7 @@ import torch
 
 from ..core.errors import ExportError
 from ..core.fileio import atomic_write_text
+from ..features import dynamics
 from ..models import DriftModel
 from ..models.composite import DriftModels
 from .c_band import check_band_c, insert_band
@@ -115,16 +116,21 @@ def export_c_header(model: DriftModels, path: str | Path, *, prefix: str = "ther
         failed parity check (nothing is written then).
 
     ``band``: the residual-drift band's tables (:func:`thermonet.scoring.band.shipped_band`):
-    written as constants with ``<prefix>_band()`` (:mod:`.c_band`), checked against Python.
+    written as constants with ``<prefix>_band()`` and ``<prefix>_band_signal()`` (its
+    argument after a step: the delayed temperature of a model on one; :mod:`.c_band`),
+    checked against Python.
     ``units``: per axis the unit of raw and drift (the checkpoint's ``units``), written in
     the comment and as ``<PREFIX>_AXIS_UNITS``.  The first line names the file written.
     """
     text = render_c_header(model, prefix=prefix, units=units, file_name=Path(path).name)
     checks: list[Callable[[], object]] = []
-    if band is not None:
-        text = insert_band(text, band, prefix, list(model.outputs), list(model.signals))
-        checks.append(partial(check_band_c, band, text, prefix))
     recurrent = isinstance(model, DriftModel) and model.family.recurrent
+    if band is not None:
+        # the streaming form's dynamic inputs (a recurrent model's state keeps none of them):
+        # <prefix>_band_signal reads the band's from the state
+        dyn = [] if recurrent else dynamics.dynamic_signals(model.inputs)
+        text = insert_band(text, band, prefix, list(model.outputs), list(model.signals), dyn)
+        checks.append(partial(check_band_c, band, text, prefix))
     # both arithmetic paths: the host's double and the float path a single-precision
     # microcontroller compiles (-DTHERMONET_USE_FLOAT: float outputs, fast exp)
     for real in ("auto", "float"):

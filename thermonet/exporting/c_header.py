@@ -84,15 +84,26 @@ _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _MODEL_ID = "@THERMONET_MODEL_ID@"
 
 #: The fast-math refusal every model body carries, said once however many bodies a header
-#: holds (a per-axis model's parts, a sensor model's two), naming no file.
+#: holds (a per-axis model's parts, a sensor model's two), naming no file: -ffast-math /
+#: -Ofast (``__FAST_MATH__``), and -ffinite-math-only alone (``__FINITE_MATH_ONLY__`` is 1
+#: there, 0 otherwise on GCC and clang), which folds the same test away without
+#: ``__FAST_MATH__``.  -Ofast defines both: one ``#error``, the first.
 FAST_MATH_REFUSAL = [
-    "/* The NaN/inf test (v - v == 0) is folded away under fast-math, which would turn a",
-    " * broken thermometer into a plausible correction: refuse to compile that way. */",
+    "/* The NaN/inf test (v - v == 0) is folded away under fast-math or finite-math-only,",
+    " * which would turn a broken thermometer into a plausible correction: refuse to compile",
+    " * that way. */",
     "#if defined(__FAST_MATH__) && !defined(THERMONET_FAST_MATH_REFUSED)",
     "#define THERMONET_FAST_MATH_REFUSED",
     "#error \"a thermonet header must not be compiled with -ffast-math / -Ofast (it would fold "
     "away the test for NaN and infinite inputs): build the file that includes it without "
     "them\"",
+    "#elif defined(__FINITE_MATH_ONLY__) && !defined(THERMONET_FAST_MATH_REFUSED)",
+    "#if __FINITE_MATH_ONLY__",
+    "#define THERMONET_FAST_MATH_REFUSED",
+    "#error \"a thermonet header must not be compiled with -ffinite-math-only (it would fold "
+    "away the test for NaN and infinite inputs): build the file that includes it without "
+    "it\"",
+    "#endif",
     "#endif",
 ]
 
@@ -108,7 +119,8 @@ def guard_open(p: str, guard: str) -> list[str]:
         " * header of another model with the same prefix cannot be included beside it. */",
         f"#if defined({P}_MODEL_ID) && {P}_MODEL_ID != {_MODEL_ID}",
         f"#error \"two thermonet headers of different models use the prefix '{p}': export one "
-        "of them again under another prefix (export_c_header(prefix=...))\"",
+        "of them again under another prefix (thermonet export ... --format c --prefix NAME, "
+        "or export_c_header(prefix=...))\"",
         "#endif",
         f"#ifndef {guard}",
         f"#define {guard}",

@@ -71,17 +71,20 @@ def outside_holds(held: Mapping[str, float | None], rates: np.ndarray,
     """Per window (signed rate °C/min, its excursion's direction): outside what the band
     states — an excursion in a direction never judged, or a window faster than the fastest
     judged in its direction; a run that never moves (direction 0) is inside; a direction that
-    is not −1, 0 or +1 is outside.  Nothing stated: nothing outside."""
-    r = np.asarray(rates, dtype=np.float64)
+    is not −1, 0 or +1 is outside.  A rate that is not finite (NaN: unknown — a window of
+    one time, a NaN temperature) is outside whatever the direction: the band cannot say it
+    holds there.  Nothing stated: nothing else outside.  The runtime's ``band_holds_rule``
+    and the C header's ``<prefix>_band_holds`` are this rule (:mod:`.c_band` checks C)."""
+    r = np.asarray(rates, dtype=np.float64).reshape(-1)
     d = np.asarray(directions)
-    out = np.zeros(r.size, dtype=bool)
+    out = ~np.isfinite(r)
     if not held:
         return out
     out |= ~np.isin(d, (-1, 0, 1))
     for name, sign in (("heating", 1), ("cooling", -1)):
         top = held.get(name)
         sel = d == sign
-        out |= sel & (True if top is None else np.abs(np.nan_to_num(r)) > top)
+        out |= sel & (True if top is None else np.abs(r) > top)
     return out
 
 
