@@ -291,7 +291,7 @@ def test_a_cubic_beating_raw_by_score_stays_the_reference_though_its_guard_fails
     sel = select(plan, [y], [t], cands, ["gyro_x"], baseline="cubic", temperatures=[temp])
     axis = sel.record["candidates"]["cubic"]["axes"]["gyro_x"]
     assert axis["own_ratio"] < 1.0 and axis["pp_ratio"] > 1.0     # what the case is
-    assert axis["pp_guard"] is False and axis["compensate"] is False
+    assert axis["pp_guard"] is False and axis["compensate"] is True   # as the per-axis rule
     assert sel.per_axis == {"gyro_x": "cubic"}
     assert sel.per_axis_reason["gyro_x"].endswith(
         f"[cubic's binned peak-to-peak out of fold is {axis['pp_ratio']:.3g}x raw's, but its "

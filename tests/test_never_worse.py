@@ -85,3 +85,9 @@ def test_the_chosen_model_is_never_worse_than_the_cubic(case, spec, tmp_path):
     res = run_compare(cfg, tmp_path / "out", dataset=ds, track=False, quiet=True, plots=False)
     judged = _judged(res)
     assert judged and "worse" not in judged.values(), (case, res["chosen"], judged)
+    # the cubic's own mask follows the per-axis rule's reference: `export --family cubic`
+    # corrects every axis the per-axis model gives the cubic (consumer-imu's gyro_x: binned
+    # peak-to-peak above raw's out of fold, score below raw's)
+    per = (res["selection"].get("per_axis") or {}).get("chosen", {})
+    cubic = res["families"]["cubic"]["axes"]
+    assert all(cubic[a]["compensate"] for a, k in per.items() if k == "cubic"), (case, per)

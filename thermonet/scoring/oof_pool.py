@@ -80,7 +80,9 @@ class Pooled:
     """The folds' validation rows pooled per bootstrap unit (a validation block, numbered
     across folds): per-unit offset-free sums of squares of the window means on the windows
     common to every candidate (``ss``: ``"<raw>"`` and each candidate) and on each
-    candidate's own domain (``own_ss``, ``own_raw``), binned peak-to-peak sums, and the
+    candidate's own domain (``own_ss``, ``own_raw``), binned peak-to-peak sums (raw's on the
+    common windows, ``pp_raw``; each candidate's and raw's on the candidate's own domain,
+    ``pp_cand`` and ``pp_own_raw``: what its mask rests on, as its score does), and the
     fractions of rows left out of the domains."""
 
     ss: dict[str, list[np.ndarray]]
@@ -89,6 +91,7 @@ class Pooled:
     left_out: dict[str, list[float]]
     pp_raw: np.ndarray
     pp_cand: dict[str, np.ndarray]
+    pp_own_raw: dict[str, np.ndarray] = field(default_factory=dict)
     ns: list[np.ndarray] = field(default_factory=list)
     common_left: list[float] = field(default_factory=list)
     #: per candidate and fold, the gate's sums of squares (over the fold's units, per axis):
@@ -118,6 +121,7 @@ def pool(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.ndarr
     pooled = Pooled(ss={k: [] for k in ["<raw>", *ok]}, own_ss={k: [] for k in ok},
                      own_raw={k: [] for k in ok}, left_out={k: [] for k in ok},
                      pp_raw=np.zeros(n_axes), pp_cand={k: np.zeros(n_axes) for k in ok},
+                     pp_own_raw={k: np.zeros(n_axes) for k in ok},
                      gate_own={k: [] for k in ok}, gate_pair={k: [] for k in ok})
     for f in range(plan.k):
         parts = []
@@ -174,22 +178,24 @@ def pool_fold(pooled: Pooled, plan: FoldPlan, f: int,
     s_raw, n = window_ss(y[common], wl[common], un[common], n_units)
     pooled.ss["<raw>"].append(s_raw)
     pooled.ns.append(n)
-    tf = np.concatenate(t_all)[common] if t_all else None
-    if tf is not None:
-        pooled.pp_raw += binned_pp(tf, y[common])
+    t_fold = np.concatenate(t_all) if t_all else None
+    if t_fold is not None:
+        pooled.pp_raw += binned_pp(t_fold[common], y[common])
     for k in ok:
         e = np.concatenate(e_c[k])
         s, _ = window_ss(e[common], wl[common], un[common], n_units)
         pooled.ss[k].append(s)
-        if tf is not None:
-            pooled.pp_cand[k] += binned_pp(tf, e[common])
-        # the candidate's own domain, for its per-axis compensate decision
+        # the candidate's own domain, for its per-axis compensate decision (score and binned
+        # peak-to-peak alike: the same mask whichever candidates it is compared with)
         m = inside[k]
         if m.sum() >= 2:
             so, _ = window_ss(e[m], wl[m], un[m], n_units)
             sr, _ = window_ss(y[m], wl[m], un[m], n_units)
             pooled.own_ss[k].append(so)
             pooled.own_raw[k].append(sr)
+            if t_fold is not None:
+                pooled.pp_cand[k] += binned_pp(t_fold[m], e[m])
+                pooled.pp_own_raw[k] += binned_pp(t_fold[m], y[m])
 
 
 def gate_sums(pooled: Pooled, y: np.ndarray, wl: np.ndarray, un: np.ndarray,

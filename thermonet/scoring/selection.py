@@ -102,7 +102,10 @@ cubic by less than one SE loses to it: fewer parameters; a simpler one worse tha
 there is not taken; with the gate, a simpler one within one SE of the cubic does not replace
 it either: ``one_se(..., keep=baseline)``).  With the pool's temperatures, :func:`pp_guard` leaves raw every axis
 whose out-of-fold residual has a larger binned peak-to-peak than the raw output's (summed over
-the folds): the figure a user reads off the compensated signal must not get worse.
+the folds, on the candidate's own domain as its score: a mask is the same alone as beside any
+other candidates, so a family's own file compensates the axes the comparison gives it): the
+figure a user reads off the compensated signal must not get worse — but for the baseline where
+its score beats raw out of fold (it stays the reference there, :func:`gate_axis`).
 
 Where cross-validation cannot run (``selection.folds: 0``, the four-position target's one
 sample per soak, too little data for K folds) the split's single validation part decides, as
@@ -344,7 +347,8 @@ def select(plan: FoldPlan, targets: Sequence[np.ndarray], times: Sequence[np.nda
         sc.axis_scores, sc.axis_boots, {k: c.n_params for k, c in ok.items()}, outputs,
         baseline, plan.k, gate=sc.gate, directional=set(held),
         base_own=sc.own_ratio.get(baseline or ""), base_mask=sc.compensate.get(baseline or ""),
-        base_pp=pooled.pp_cand[baseline] / np.where(pooled.pp_raw > 0, pooled.pp_raw, np.nan)
+        base_pp=pooled.pp_cand[baseline] / np.where(pooled.pp_own_raw[baseline] > 0,
+                                                    pooled.pp_own_raw[baseline], np.nan)
         if baseline in ok and temperatures is not None else None)
     record["per_axis"] = {"chosen": per_axis, "rule": per_axis_reason,
                           "gate": GATE_RULE if gate else None}
@@ -396,9 +400,14 @@ def _score(pooled: Pooled, ok: Mapping[str, CandidateOOF], outputs: Sequence[str
             # above 1): a cubic within the noise of raw is the autopilots' correction and
             # what the user's test is measured against (a drift smaller than the turn-on
             # spread cannot be told from raw out of fold, and is there on the next run)
-            pp_ok = pp_guard(pooled.pp_cand[k], pooled.pp_raw) if guard else [True] * A
+            pp_ok = pp_guard(pooled.pp_cand[k], pooled.pp_own_raw[k]) if guard else [True] * A
             if k == baseline:
-                mask = [not above(float(iv[0, a]), 1.0) and pp_ok[a] for a in range(A)]
+                # its binned peak-to-peak alone does not set aside a baseline whose score
+                # beats raw out of fold: the per-axis rule's reference (gate.gate_axis), so
+                # `--family cubic` compensates the axes the per-axis model gives the cubic
+                mask = [not above(float(iv[0, a]), 1.0)
+                        and (pp_ok[a] or bool(below(float(ratio_own[a]), 1.0)))
+                        for a in range(A)]
             else:
                 mask = [bool(below(float(ratio_own[a]) + float(se_own[a]), 1.0)) and pp_ok[a]
                         for a in range(A)]
@@ -431,8 +440,9 @@ def _score(pooled: Pooled, ok: Mapping[str, CandidateOOF], outputs: Sequence[str
                              "own_se": float(se_own[i]),
                              "fold_ratios": [_finite_or_none(x)
                                              for x in sc.fold_axis[k][:, i]],
-                             **({"pp_ratio": float(pooled.pp_cand[k][i] / pooled.pp_raw[i])
-                                 if pooled.pp_raw[i] > 0 else None,
+                             **({"pp_ratio": float(pooled.pp_cand[k][i]
+                                                   / pooled.pp_own_raw[k][i])
+                                 if pooled.pp_own_raw[k][i] > 0 else None,
                                  "pp_guard": bool(pp_ok[i])} if guard else {}),
                              "compensate": bool(mask[i])} for i, a in enumerate(outputs)},
                 "left_out_fraction": pooled.left_out[k]}

@@ -340,8 +340,12 @@ def _cross_validate(out: Fitted, p: Plan, fam: FamilyConfig, tcfg: Any, spec: An
         col = spec.signals.index(TEMPERATURE)
         out.pool_temps = [q.signals[:, col] for q in whole]
     if oof.failed is None:
+        # the baseline's own mask by its rule in the comparison (raw only where it is worse
+        # than raw out of fold), on its own domain as there: its file ships what the
+        # comparison and the per-axis model give it
+        base = fam.label if fam.label == p.cfg.baseline else None
         own = select(p.folds, out.pool_targets, out.pool_times, {fam.label: oof}, p.outputs,
-                     temperatures=out.pool_temps or None)
+                     baseline=base, temperatures=out.pool_temps or None)
         out.cv_mask = own.compensate.get(fam.label)
 
 
