@@ -128,8 +128,8 @@ def test_m4f_builds_call_no_fmaf_at_any_optimisation_level(models, family, tmp_p
     for every fused multiply-add.  The header's ``THERMONET_MAC`` is ``__builtin_fmaf`` under
     GCC/clang: one ``vfma`` at -O0, -Og and -Os as at -O2, no ``fmaf`` and no soft-double
     routine anywhere, and the same numbers (the emulated -O0 build is bit for bit the -O2
-    build).  The only call left at -O0 is the MLP's tanh's ``copysignf`` (a sign-bit copy in
-    newlib: no double; it is inlined from -Og on)."""
+    build).  The tanh's sign copy is ``__builtin_copysignf`` likewise: nothing is called at
+    any level."""
     import shutil
 
     objdump = shutil.which("arm-none-eabi-objdump")
@@ -142,8 +142,7 @@ def test_m4f_builds_call_no_fmaf_at_any_optimisation_level(models, family, tmp_p
             build = cross_compile(text, "cortex-m4f", tmp_path / kind / opt, opt=opt, **how)
             assert "fmaf" not in build.undefined, (kind, opt, build.undefined)
             assert build.soft_double == [] and build.libm == [], (kind, opt, build.undefined)
-            allowed = {"copysignf"} if family == "mlp" and opt == "-O0" else set()
-            assert set(build.undefined) <= allowed, (kind, opt, build.undefined)
+            assert build.undefined == [], (kind, opt, build.undefined)
     # fused at -O0: vfma in the code (-std=c99 contracts nothing: only fmaf makes one) where
     # the header multiplies-and-adds (the fast expf every family's float path carries)
     asm = subprocess.run([objdump, "-d", str(tmp_path / "stream" / "-O0" / "mcu.o")],

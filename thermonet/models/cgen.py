@@ -138,6 +138,8 @@ _EXP_Q = ("4.999999404e-01f", "1.666652113e-01f", "4.166838899e-02f", "8.3687137
 C_EXPF = "THERMONET_EXPF"
 C_EXPM1F = "THERMONET_EXPM1F"
 C_MAC = "THERMONET_MAC"
+#: The sign-bit copy of a tanh in C (``__builtin_copysignf`` under GCC/clang).
+C_COPYSIGNF = "THERMONET_COPYSIGNF"
 
 
 def c_affine(out: str, weights: str, bias: str, n_out: int, terms: list[tuple[int, str]],
@@ -251,6 +253,13 @@ def c_target_prelude() -> list[str]:
         f"#define {C_MAC}(acc, w, x) fmaf((w), (x), (acc))",
         "#else",
         f"#define {C_MAC}(acc, w, x) ((acc) + (w) * (x))",
+        "#endif",
+        "/* copysignf: a sign-bit copy; GCC and clang inline __builtin_copysignf at every -O",
+        " * level (a plain copysignf is a call to libm's at -O0). */",
+        "#if defined(__GNUC__)",
+        f"#define {C_COPYSIGNF}(x, s) __builtin_copysignf((x), (s))",
+        "#else",
+        f"#define {C_COPYSIGNF}(x, s) copysignf((x), (s))",
         "#endif",
         "/* exp(x) = 2^k exp(r): k = round(x / ln 2) (rounded by the float addition of",
         " * 1.5 * 2^23, which leaves k in the low mantissa bits), r = x - k ln 2 (ln 2 = hi + lo,",

@@ -71,7 +71,7 @@ from torch import nn
 
 from . import specs
 from .base import Family, as_numpy, distinct_levels, least_squares, output_layer
-from .cgen import CBody, as_float32, c_affine, c_array, c_exp, c_expm1
+from .cgen import C_COPYSIGNF, CBody, as_float32, c_affine, c_array, c_exp, c_expm1
 
 __all__ = ["GRU", "SETTLE_STEPS", "CELL_OPS"]
 
@@ -181,7 +181,7 @@ class GRU(Family):
                   c_array(f"{p}_gru_b_hh", as_float32(b_hh)),
                   c_array(f"{p}_gru_wo", as_float32(wo)), c_array(f"{p}_gru_bo", as_float32(bo))]
         tanh = (f"{{ const float e = {c_expm1('-2.0f * fabsf(x)')}; "
-                "nn = copysignf(-e / (e + 2.0f), x); }")
+                f"nn = {C_COPYSIGNF}(-e / (e + 2.0f), x); }}")
         lines = ["    {", f"{ind}int j;", f"{ind}float gi[{3 * H}], gh[{3 * H}];",
                  c_affine("gi", f"{p}_gru_w_ih", f"{p}_gru_b_ih", 3 * H,
                           [(f, f"z[{f}]") for f in range(self.n_inputs)], ind),

@@ -54,7 +54,7 @@ from torch.nn import functional as F
 
 from . import specs
 from .base import Family, as_numpy, distinct_levels, output_layer
-from .cgen import CBody, as_float32, c_affine, c_array, c_exp, c_expm1
+from .cgen import C_COPYSIGNF, CBody, as_float32, c_affine, c_array, c_exp, c_expm1
 from .hyper import MLP_MAX_LAYERS, MLP_MAX_WIDTH
 
 __all__ = ["MLP", "ACTIVATIONS", "ACTIVATION_OPS"]
@@ -131,7 +131,7 @@ class MLP(Family):
         header: its signals are clamped and a non-finite one is handled after the body)."""
         if self.activation == "tanh":
             return (f"{{ const float e = {c_expm1(f'-2.0f * fabsf({var})')}; "
-                    f"{var} = copysignf(-e / (e + 2.0f), {var}); }}")
+                    f"{var} = {C_COPYSIGNF}(-e / (e + 2.0f), {var}); }}")
         if self.activation == "relu":
             return f"if ({var} < 0.0f) {var} = 0.0f;"
         return f"{var} = {var} / (1.0f + {c_exp(f'-{var}')});"
