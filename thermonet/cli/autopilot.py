@@ -57,7 +57,9 @@ def add_calibrate(sub: Any) -> None:
                                    "held-out blocks, write px4.params or ardupilot.parm, "
                                    "results.json, report.html and report.txt to --out.")
     k.add_argument("log", nargs="+",
-                   help="flight-controller log(s) recorded while the board warmed; several "
+                   help="flight-controller log(s) recorded while the board warmed at rest (a "
+                        "log of the vehicle moving is refused: flight logs are for thermonet "
+                        "learn); several "
                         "logs of one board: fitted on all but the last, checked on the last "
                         "with verify's test (one log: on a quarter of it in time blocks), the "
                         "files refitted on all; the same log twice is refused")

@@ -175,8 +175,25 @@ def _cmd_export(args: argparse.Namespace) -> int:
     path = export_source(args.source, fmt=args.format, out=args.out, family=args.family,
                          tracking_uri=args.tracking_uri, device_id=args.device_id,
                          instance=args.instance, prefix=args.prefix)
-    print(f"wrote {path}")
+    print(f"wrote {path}{_recorded_words(args.source, args.format)}")
     return 0
+
+
+def _recorded_words(source: str, fmt: str) -> str:
+    """`` (gyro1, device 3670050: IMU 2, as its calibration records)`` where an autopilot file
+    was written for the sensor an instance directory records, else ""."""
+    if fmt not in ("px4-params", "ardupilot-params"):
+        return ""
+    from ..data.firmware import PX4_LETTER  # lazy, as the rest: off the --help path
+    from ..exporting.autopilot_read import recorded_defaults, recorded_sensor  # torch-free
+
+    rec = recorded_sensor(source)
+    if rec is None:
+        return ""
+    _, slot = recorded_defaults(source, fmt, None, None)
+    where = f"TC_{PX4_LETTER[rec['kind']]}{slot}" if fmt == "px4-params" else \
+        f"IMU {slot}, INS_TCAL{slot}"
+    return f" ({rec['name']}, device {rec['device_id']}: {where}, as its calibration records)"
 
 
 def _options_apply(args: argparse.Namespace) -> None:
@@ -247,9 +264,12 @@ def add_export(sub: Any) -> None:
     e.add_argument("--family", default=None, help="family name in a compare dir (default: chosen)")
     e.add_argument("--tracking-uri", default=None, help="MLflow URI for a run-id source")
     e.add_argument("--device-id", type=int, default=None,
-                   help="px4-params: the sensor's device id (TC_*_ID; 'listener sensor_gyro')")
+                   help="px4-params: the sensor's device id (TC_*_ID; 'listener sensor_gyro'); "
+                        "from a calibrate/learn instances/<name> directory: its own, another "
+                        "refused")
     e.add_argument("--instance", type=int, default=None,
                    help="px4-params: calibration slot 0..3 (default 0); "
-                        "ardupilot-params: IMU 1..3 (default 1)")
+                        "ardupilot-params: IMU 1..3 (default 1); from a calibrate/learn "
+                        "instances/<name> directory: its sensor's, another refused")
     e.set_defaults(func=_cmd_export)
 

@@ -54,7 +54,9 @@ from ..core.errors import ExportError
 
 __all__ = ["FirmwareFit", "PX4_SLOTS", "PX4_PARAM_UNIT", "PX4_LETTER", "ARDUPILOT_TEMP_REFERENCE", "ARDUPILOT_SCALE",
            "px4_offsets_3d", "px4_offsets_1d", "ardupilot_correction",
-           "px4_calibration_text", "ardupilot_calibration_text"]
+           "px4_calibration_text", "ardupilot_calibration_text", "px4_slot_plan", "px4_vehicle_id",
+           "PX4_DEFAULT_VEHICLE_ID", "Px4Slot", "px4_active_slots", "EKF_PARAMS", "EKF_DEFAULTS", "EKF_FIRMWARE",
+           "ekf_bound_line"]
 
 #: PX4's slots per sensor kind (GYRO_COUNT_MAX, ACCEL_COUNT_MAX, BARO_COUNT_MAX = 4).
 PX4_SLOTS = 4
@@ -147,20 +149,119 @@ def ardupilot_correction(params: Mapping[str, float], kind: str, temperature_c: 
     return out
 
 
-def px4_calibration_text(fits: Mapping[str, list[FirmwareFit]], *, header: list[str],
-                         fitted_kinds_only: bool = False) -> str:
-    """A QGC ``.params`` file with every ``TC_G*``, ``TC_A*``, ``TC_B*`` slot, and every
-    ``TC_M*`` slot when ``fits`` has a ``mag`` entry (the log has magnetometers; an empty
-    list writes ``TC_M_ENABLE`` 0 and cleared slots).  ``fitted_kinds_only``: a kind with no
-    fit is not written at all (``thermonet learn``, which never learns a barometer: its
-    ``TC_B*`` are left as the board has them, not disabled and cleared).
+#: QGroundControl's ``ParameterManager::readParametersFromStream`` refuses a whole file at
+#: its first line whose Vehicle-Id is not the connected vehicle's MAVLink system id ("The
+#: parameters in the stream have been saved from System Id …"): the id the file is written
+#: with when no log records ``MAV_SYS_ID`` (PX4's default system id, 1).
+PX4_DEFAULT_VEHICLE_ID = 1
 
-    ``fits[kind]`` lists the fitted instances in slot order; the remaining
-    slots (up to 4) are written with ID 0 and zero coefficients, so that a
-    calibration left over from an earlier board can never be applied.
-    ``TC_<k>_ENABLE`` is 1 where at least one instance of the kind was fitted.
-    Magnetometer coefficients (µT) are written in gauss, as the firmware applies them
-    to ``sensor_mag``.
+
+def px4_vehicle_id(params: Mapping[str, float | None] | None, where: str = "the log"
+                   ) -> tuple[int, str]:
+    """The Vehicle-Id a QGC ``.params`` file is written with, and the comment saying why: the
+    log's ``MAV_SYS_ID`` (a MAVLink system id, 1..255) where ``params`` records one, else
+    :data:`PX4_DEFAULT_VEHICLE_ID`.  ``where``: what ``params`` are, in the comment."""
+    v = (params or {}).get("MAV_SYS_ID")
+    if v is not None and math.isfinite(v) and v == int(v) and 1 <= v <= 255:
+        return int(v), (f"Vehicle-Id {int(v)}: the vehicle's MAV_SYS_ID as the log records it "
+                        "(QGroundControl loads the file only onto that system id)")
+    said = "records no MAV_SYS_ID" if v is None else \
+        f"records MAV_SYS_ID {v:g}, not a MAVLink system id (1..255)"
+    return PX4_DEFAULT_VEHICLE_ID, (
+        f"Vehicle-Id {PX4_DEFAULT_VEHICLE_ID}: {where} {said} (PX4's default is 1); "
+        "QGroundControl refuses the whole file on a vehicle with another system id: set the "
+        "first column to yours")
+
+
+def px4_active_slots(params: Mapping[str, float], kind: str) -> list[int] | None:
+    """The device ids of the board's **active** PX4 slots of ``kind`` as a log's parameters
+    record them (``TC_<k><s>_ID``, s = 0..3; all 0 where ``TC_<k>_ENABLE`` is not 1: the
+    firmware applies none of them), or None where the log records no ``TC_<k>*``."""
+    t = _PX4_TYPE[kind]
+    if not any(k.startswith(f"TC_{t}") for k in params):
+        return None
+    on = params.get(f"TC_{t}_ENABLE", 1.0) == 1.0
+    return [int(params.get(f"TC_{t}{s}_ID", 0)) & 0xFFFFFFFF if on else 0
+            for s in range(PX4_SLOTS)]
+
+
+#: One PX4 slot of a kind's plan (:func:`px4_slot_plan`): the fit written there, a device id
+#: (int) whose slot is not written (the board keeps its own), or None (written cleared, ID 0).
+Px4Slot = FirmwareFit | int | None
+
+
+def px4_slot_plan(fits: list[FirmwareFit], board: list[int] | None = None,
+                  keep: set[int] | frozenset[int] = frozenset()) -> list[Px4Slot]:
+    """Which of PX4's :data:`PX4_SLOTS` slots of one kind each fit takes.
+
+    PX4 applies the first slot whose ``TC_*_ID`` equals a sensor's device id
+    (``TemperatureCompensation::set_sensor_id``).  With nothing to ``keep`` (the kind's
+    sensors all in ``fits``) the slots are rewritten whole: the fits in order, the rest
+    cleared.  Where sensors of the kind are ``keep`` (device ids left out of the file) and
+    ``board`` gives the slots' device ids as the board has them (the log's active
+    ``TC_<k><s>_ID``), a slot holding a kept id is not written (the board keeps its own), each
+    fit takes the slot the board already has for its id, else a free one, and the others are
+    cleared — so no two slots can name one device after loading.  Without ``board`` the slots
+    are rewritten whole (where a kept sensor's slot is is unknown: writing part of them could
+    leave a fitted sensor's old slot before its new one)."""
+    if len(fits) > PX4_SLOTS:
+        raise ExportError(f"PX4 has {PX4_SLOTS} calibration slots of a kind; {len(fits)} "
+                          "instances were fitted")
+    if not keep or board is None:
+        return [*fits, *[None] * (PX4_SLOTS - len(fits))]
+    ids = [int(d) for d in list(board)[:PX4_SLOTS]] + [0] * max(0, PX4_SLOTS - len(board))
+    plan: list[Px4Slot] = [d if d and d in keep else None for d in ids]
+    rest = []
+    for fit in fits:
+        s = next((s for s, d in enumerate(ids) if d == fit.device_id and plan[s] is None), None)
+        if s is None:
+            rest.append(fit)
+        else:
+            plan[s] = fit
+    for fit in rest:
+        s = next((s for s in range(PX4_SLOTS) if plan[s] is None), None)
+        if s is None:
+            raise ExportError(f"PX4 has {PX4_SLOTS} calibration slots of a kind: no free one "
+                              f"for device {fit.device_id} beside the slots the board keeps")
+        plan[s] = fit
+    return plan
+
+
+def _px4_slot_rows(kind: str, pre: str, fit: FirmwareFit | None) -> list[tuple[str, str, int]]:
+    """One slot's rows (``pre`` = ``TC_<k><s>_``): the fit's, or cleared (ID 0, zeros)."""
+    rows = [(pre + "ID", str(int(fit.device_id)) if fit else "0", 6),
+            (pre + "TMAX", _g(fit.t_max if fit else 0.0), 9),
+            (pre + "TMIN", _g(fit.t_min if fit else 0.0), 9),
+            (pre + "TREF", _g(fit.t_ref if fit else 0.0), 9)]
+    if kind == "baro":
+        rows += [(f"{pre}X{k}", _g(fit.coef[0, k] if fit is not None else 0.0), 9)
+                 for k in range(6)]
+        return rows
+    for k in range(4):
+        for i in range(3):
+            v = fit.coef[i, k] / PX4_PARAM_UNIT[kind] if fit is not None else 0.0
+            rows.append((f"{pre}X{k}_{i}", _g(v), 9))
+    return rows
+
+
+def px4_calibration_text(fits: Mapping[str, list[FirmwareFit]], *, header: list[str],
+                         fitted_kinds_only: bool = False,
+                         plans: Mapping[str, list[Px4Slot]] | None = None,
+                         vehicle_id: tuple[int, str] | None = None) -> str:
+    """A QGC ``.params`` file of ``TC_G*``, ``TC_A*``, ``TC_B*`` (and ``TC_M*`` when ``fits``
+    has a ``mag`` entry) slots.  ``fitted_kinds_only``: a kind with no fit is not written at
+    all — neither ``TC_<k>_ENABLE`` nor a slot: the board keeps its own (``calibrate`` and
+    ``learn``: a kind absent from the log, or all of whose sensors were left out, would
+    otherwise be disabled and cleared, wiping the board's calibration of it); without it
+    (``export``'s tests, older callers) such a kind is written disabled, every slot cleared.
+
+    ``fits[kind]`` lists the fitted instances in slot order, the remaining slots (up to 4)
+    written with ID 0 and zero coefficients, so that a calibration left over from an earlier
+    board can never be applied — unless ``plans[kind]`` (:func:`px4_slot_plan`) places them
+    and names the slots not to write.  ``TC_<k>_ENABLE`` is 1 where at least one instance of
+    the kind was fitted.  Magnetometer coefficients (µT) are written in gauss, as the
+    firmware applies them to ``sensor_mag``.  ``vehicle_id``: (id, comment) of
+    :func:`px4_vehicle_id` (default: 1, said so in the file).
     """
     rows: list[tuple[str, str, int]] = []
     kinds = [("acc", "A"), ("baro", "B"), ("gyro", "G")] + ([("mag", "M")] if "mag" in fits
@@ -172,31 +273,18 @@ def px4_calibration_text(fits: Mapping[str, list[FirmwareFit]], *, header: list[
         if any(f.thermometer for f in kind_fits):
             raise ExportError(f"a {kind} fitted on a lent thermometer cannot be a PX4 slot "
                               "(the firmware reads the sensor's own temperature)")
-        if len(kind_fits) > PX4_SLOTS:
-            raise ExportError(f"PX4 has {PX4_SLOTS} {kind} calibration slots; {len(kind_fits)} "
-                              "instances were fitted")
+        plan = (plans or {}).get(kind) or px4_slot_plan(kind_fits)
         rows.append((f"TC_{t}_ENABLE", "1" if kind_fits else "0", 6))
-        for slot in range(PX4_SLOTS):
-            fit = kind_fits[slot] if slot < len(kind_fits) else None
-            pre = f"TC_{t}{slot}_"
-            rows.append((pre + "ID", str(int(fit.device_id)) if fit else "0", 6))
-            rows += [(pre + "TMAX", _g(fit.t_max if fit else 0.0), 9),
-                     (pre + "TMIN", _g(fit.t_min if fit else 0.0), 9),
-                     (pre + "TREF", _g(fit.t_ref if fit else 0.0), 9)]
-            if kind == "baro":
-                for k in range(6):
-                    v = fit.coef[0, k] if fit is not None else 0.0
-                    rows.append((f"{pre}X{k}", _g(v), 9))
-            else:
-                for k in range(4):
-                    for i in range(3):
-                        v = fit.coef[i, k] / PX4_PARAM_UNIT[kind] if fit is not None else 0.0
-                        rows.append((f"{pre}X{k}_{i}", _g(v), 9))
+        for slot, what in enumerate(plan):
+            if not isinstance(what, int):          # a device id: its slot is not written
+                rows += _px4_slot_rows(kind, f"TC_{t}{slot}_", what)
     for _, value, ptype in rows:
         if ptype == 9 and not math.isfinite(float(value)):
             raise ExportError("a PX4 coefficient is not finite; nothing written")
-    lines = [f"# {h}" for h in header] + ["#", "# Vehicle-Id Component-Id Name Value Type"]
-    lines += [f"1\t1\t{name}\t{value}\t{ptype}" for name, value, ptype in rows]
+    vid, why = vehicle_id or px4_vehicle_id(None)
+    lines = [f"# {h}" for h in header] + [f"# {why}", "#",
+                                          "# Vehicle-Id Component-Id Name Value Type"]
+    lines += [f"{vid}\t1\t{name}\t{value}\t{ptype}" for name, value, ptype in rows]
     return "\n".join(lines) + "\n"
 
 
@@ -243,3 +331,41 @@ def ardupilot_calibration_text(imus: Mapping[int, Mapping[str, FirmwareFit]], *,
                         raise ExportError("an ArduPilot coefficient is not finite; nothing written")
                     lines.append(f"{pre}{_AP_TYPE[kind]}{k}_{ax.upper()},{_g(v)}")
     return "\n".join(lines) + "\n"
+
+
+#: The navigation filter's bias settings a band suggests, per autopilot and sensor kind:
+#: (bias process noise: the bias's rate of change, SI/s; initial bias uncertainty, SI).
+#: PX4 v1.14 EKF2 (``EKF2_GYR_B_NOISE`` rad/s², ``EKF2_ACC_B_NOISE`` m/s³: process noise for
+#: the IMU bias prediction, ``bias_sig = dt * value`` per step; ``EKF2_GBIAS_INIT`` rad/s,
+#: ``EKF2_ABIAS_INIT`` m/s²: initial bias uncertainty); ArduPilot 4.5 EKF3
+#: (``EK3_GBIAS_P_NSE`` rad/s/s, ``EK3_ABIAS_P_NSE`` m/s³: rate gyro / accelerometer bias
+#: stability; no initial-uncertainty parameter).
+EKF_PARAMS: dict[str, dict[str, tuple[str, str | None]]] = {
+    "px4": {"gyro": ("EKF2_GYR_B_NOISE", "EKF2_GBIAS_INIT"),
+            "acc": ("EKF2_ACC_B_NOISE", "EKF2_ABIAS_INIT")},
+    "ardupilot": {"gyro": ("EK3_GBIAS_P_NSE", None), "acc": ("EK3_ABIAS_P_NSE", None)}}
+EKF_FIRMWARE = {"px4": "PX4 v1.14 EKF2", "ardupilot": "ArduPilot 4.5 EKF3"}
+#: The autopilots' defaults of :data:`EKF_PARAMS`, in the same SI units, from their parameter
+#: definitions: PX4-Autopilot ``src/modules/ekf2/params_gyro_bias.yaml`` (``EKF2_GBIAS_INIT``
+#: 0.1 rad/s, ``EKF2_GYR_B_NOISE`` 0.001 rad/s²) and ``params_accel_bias.yaml``
+#: (``EKF2_ABIAS_INIT`` 0.2 m/s², ``EKF2_ACC_B_NOISE`` 0.003 m/s³), commit 15c4f088 (both
+#: real PX4 logs of ``tests/data/real``, 2019 hardware and 2024 SITL, record the gyro's two
+#: at these values); ArduPilot
+#: ``libraries/AP_NavEKF3/AP_NavEKF3.cpp`` (``GBIAS_P_NSE_DEFAULT`` 1.0E-03 rad/s²,
+#: ``ABIAS_P_NSE_DEFAULT`` 2.0E-02 m/s³, the same for every vehicle type), commit 003d2135.
+#: A recommendation is a lower bound: where the default already meets it, it says so.
+EKF_DEFAULTS: dict[str, float] = {
+    "EKF2_GBIAS_INIT": 0.1, "EKF2_GYR_B_NOISE": 1.0e-3,
+    "EKF2_ABIAS_INIT": 0.2, "EKF2_ACC_B_NOISE": 3.0e-3,
+    "EK3_GBIAS_P_NSE": 1.0e-3, "EK3_ABIAS_P_NSE": 2.0e-2}
+
+
+def ekf_bound_line(name: str, bound: float, unit: str, autopilot: str) -> str:
+    """``#   NAME >= bound (unit)`` (a line of ``thermonet.exporting.autopilot``'s
+    ``ekf_recommendation``) with the autopilot's default beside it and whether it already
+    satisfies the bound (:data:`EKF_DEFAULTS`)."""
+    default = EKF_DEFAULTS[name]
+    who = "PX4" if autopilot == "px4" else "ArduPilot"
+    verdict = ("no bound to check it against" if not math.isfinite(bound) else
+               "no change needed" if bound <= default else f"raise it to at least {_g(bound)}")
+    return f"#   {name} >= {_g(bound)} ({unit}); {who}'s default {default:g}: {verdict}"

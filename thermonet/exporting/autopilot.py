@@ -72,6 +72,7 @@ from numpy.polynomial import polynomial as P
 from ..core.errors import ExportError
 from ..core.fileio import atomic_write_text
 from ..core.recording import output_kind
+from ..data.firmware import EKF_DEFAULTS, EKF_FIRMWARE, EKF_PARAMS, ekf_bound_line, px4_vehicle_id
 from ..features.target import FOURPOS_SUFFIXES
 from ..models import DriftModel
 from ..models.composite import AxisModels, DriftModels
@@ -89,6 +90,8 @@ __all__ = [
     "export_px4_params",
     "export_ardupilot_params",
     "ekf_recommendation",
+    "EKF_DEFAULTS",
+    "EKF_PARAMS",
 ]
 
 #: Multiply a value in this unit by the factor to get rad/s (gyro), m/s² (accel), Pa (baro) or
@@ -338,20 +341,6 @@ def _g(v: float) -> str:
     return f"{float(v):.9g}"
 
 
-#: The navigation filter's bias settings a band suggests, per autopilot and sensor kind:
-#: (bias process noise: the bias's rate of change, SI/s; initial bias uncertainty, SI).
-#: PX4 v1.14 EKF2 (``EKF2_GYR_B_NOISE`` rad/s², ``EKF2_ACC_B_NOISE`` m/s³: process noise for
-#: the IMU bias prediction, ``bias_sig = dt * value`` per step; ``EKF2_GBIAS_INIT`` rad/s,
-#: ``EKF2_ABIAS_INIT`` m/s²: initial bias uncertainty); ArduPilot 4.5 EKF3
-#: (``EK3_GBIAS_P_NSE`` rad/s/s, ``EK3_ABIAS_P_NSE`` m/s³: rate gyro / accelerometer bias
-#: stability; no initial-uncertainty parameter).
-EKF_PARAMS: dict[str, dict[str, tuple[str, str | None]]] = {"px4": {"gyro": ("EKF2_GYR_B_NOISE", "EKF2_GBIAS_INIT"),
-                      "acc": ("EKF2_ACC_B_NOISE", "EKF2_ABIAS_INIT")},
-              "ardupilot": {"gyro": ("EK3_GBIAS_P_NSE", None),
-                            "acc": ("EK3_ABIAS_P_NSE", None)}}
-_EKF_FIRMWARE = {"px4": "PX4 v1.14 EKF2", "ardupilot": "ArduPilot 4.5 EKF3"}
-
-
 def ekf_recommendation(band: Mapping[str, Any] | None, output_units: str | Mapping[str, str],
                        autopilot: str) -> list[str]:
     """Comment lines recommending the EKF's bias noise settings from the residual-drift
@@ -376,19 +365,21 @@ def ekf_recommendation(band: Mapping[str, Any] | None, output_units: str | Mappi
         best[kind] = (max(old[0], noise), max(old[1], v["bound"] * si))
     if not best:
         return []
-    lines = ["#", f"# Recommendation only (not loaded; {_EKF_FIRMWARE[autopilot]} parameter "
+    lines = ["#", f"# Recommendation only (not loaded; {EKF_FIRMWARE[autopilot]} parameter "
                   "names): the residual drift left after this",
              f"# compensation, {b.level:.0%} band of {b.window_s:g} s window means out of fold "
              "(drift like the training runs', not shocks or aging).",
              f"# Bias rate = band slope x temperature rate "
              f"{'n/a' if rate is None else f'{rate * 60:.3g} degC/min'} (95th percentile in "
-             "training)."]
+             "training).",
+             "# Each is a lower bound, not a value to set: a setting below it makes the EKF "
+             "too confident in its bias."]
     for kind, (noise, bound) in best.items():
         pn, init = EKF_PARAMS[autopilot][kind]
         si_unit = "rad/s" if kind == "gyro" else "m/s^2"
-        lines.append(f"#   {pn} >= {_g(noise)} ({si_unit}/s)")
+        lines.append(ekf_bound_line(pn, noise, f"{si_unit}/s", autopilot))
         if init:
-            lines.append(f"#   {init} >= {_g(bound)} ({si_unit})")
+            lines.append(ekf_bound_line(init, bound, si_unit, autopilot))
         else:
             lines.append(f"#   residual {kind} bias bound {_g(bound)} {si_unit}")
     return lines
@@ -396,7 +387,8 @@ def ekf_recommendation(band: Mapping[str, Any] | None, output_units: str | Mappi
 
 def export_px4_params(model: DriftModels, path: str | Path, *, output_units: str | Mapping[str, str],
                       device_id: int | None = None, instance: int = 0,
-                      band: Mapping[str, Any] | None = None) -> Path:
+                      band: Mapping[str, Any] | None = None,
+                      mav_sys_id: float | None = None) -> Path:
     """Write PX4 ``TC_G<i>_*`` / ``TC_A<i>_*`` / ``TC_B<i>_*`` / ``TC_M<i>_*`` (magnetometer,
     gauss; PX4 v1.15+) parameters as a QGC ``.params`` file.
 
@@ -413,6 +405,11 @@ def export_px4_params(model: DriftModels, path: str | Path, *, output_units: str
         required (read it with ``listener sensor_gyro`` / ``sensor_accel``).
     instance : int
         Calibration slot 0..3.
+    mav_sys_id : float, optional
+        The vehicle's ``MAV_SYS_ID`` as its log recorded it (an instance directory of
+        ``calibrate`` / ``learn`` keeps it): the file's Vehicle-Id, which QGroundControl
+        requires to be the vehicle's; else 1, said in the file
+        (:func:`thermonet.data.firmware.px4_vehicle_id`).
 
     Returns
     -------
@@ -429,10 +426,10 @@ def export_px4_params(model: DriftModels, path: str | Path, *, output_units: str
         raise ExportError(f"device id {device_id!r} is not a sensor device id (PX4 device ids "
                           f"are 32-bit: 1..{MAX_DEVICE_ID})")
     int32_id = int(device_id) - (1 << 32 if int(device_id) >= 1 << 31 else 0)  # as PX4's INT32
+    vid, why = px4_vehicle_id({"MAV_SYS_ID": mav_sys_id}, "the model's calibration")
     lines = ["# Sensor thermal compensation parameters (thermonet, poly on temperature)",
              f"# family poly, T_ref {co.t_ref:g} degC, range [{co.t_min:g}, {co.t_max:g}] degC",
-             "#",
-             "# Vehicle-Id Component-Id Name Value Type"]
+             f"# {why}", "#", "# Vehicle-Id Component-Id Name Value Type"]
     rows: list[tuple[str, str, int]] = []
     for kind, coef in co.coef.items():
         t = _PX4_TYPE[kind]
@@ -447,7 +444,7 @@ def export_px4_params(model: DriftModels, path: str | Path, *, output_units: str
         for k in range(4):
             for i in range(3):
                 rows.append((f"{pre}X{k}_{i}", _g(coef[i, k]), 9))
-    lines += [f"1\t1\t{name}\t{value}\t{ptype}" for name, value, ptype in rows]
+    lines += [f"{vid}\t1\t{name}\t{value}\t{ptype}" for name, value, ptype in rows]
     lines += ekf_recommendation(band, output_units, "px4")
     return atomic_write_text(Path(path), "\n".join(lines) + "\n")
 

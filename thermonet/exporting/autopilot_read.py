@@ -4,17 +4,24 @@ or ArduPilot's ``NAME,VALUE`` / ``NAME VALUE`` lines (:func:`read_ardupilot_para
 skipped, a line or value that is not one refused naming the file, the line and the parameter.
 What :mod:`thermonet.exporting.autopilot` writes; torch-free.  :func:`stamp_unit` names the
 unit a per-unit file of a fleet is for in a ``# unit <id>`` comment line (both formats take
-``#`` comments, and both readers skip them).
+``#`` comments, and both readers skip them).  :func:`recorded_sensor` reads which sensor a
+model of a ``calibrate`` / ``learn`` instance directory was fitted on, and
+:func:`recorded_defaults` makes it ``export``'s default ``--device-id`` / ``--instance``.
 """
 
 from __future__ import annotations
 
+import json
+import re
 from pathlib import Path
+from typing import Any
 
-from ..core.errors import ExportError
+from ..core.errors import ExportError, InputError
 from ..core.fileio import atomic_write_text
+from . import is_device_id
 
-__all__ = ["read_px4_params", "read_ardupilot_params", "stamp_unit", "unit_comment"]
+__all__ = ["read_px4_params", "read_ardupilot_params", "stamp_unit", "unit_comment",
+           "recorded_sensor", "recorded_defaults"]
 
 #: Characters of a unit id a comment line keeps (the rest of a long id is cut).
 UNIT_ID_CHARS = 120
@@ -72,3 +79,68 @@ def _number(path: str | Path, no: int, name: str, value: str) -> float:
     except ValueError:
         raise ExportError(f"{path}: line {no}: parameter {name}: value {value[:40]!r} is not a "
                           "number") from None
+
+
+_INSTANCE_NAME = re.compile(r"(gyro|acc|baro|mag)(\d)")
+
+
+def recorded_sensor(source: str | Path) -> dict[str, Any] | None:
+    """The sensor a model of a ``calibrate`` / ``learn`` instance directory was fitted on
+    (``DIR/instances/<name>``, or a checkpoint in its ``models/``): ``name``, ``kind``,
+    ``index`` (the autopilot's instance: gyro1 → 1), ``device_id``, ``slot`` (the PX4 slot
+    calibrate's ``px4.params`` gave it, or None) and ``mav_sys_id`` (the vehicle's MAVLink
+    system id as its log recorded it, or None), as ``DIR/results.json`` records them and the
+    instance's own ``results.json`` confirms (its ``device``).  None for anything else — a
+    plain compare directory records no autopilot instance."""
+    p = Path(source)
+    where = p if p.is_dir() else p.parent.parent if p.parent.name == "models" else None
+    if where is None or where.parent.name != "instances":
+        return None
+    m = _INSTANCE_NAME.fullmatch(where.name)
+    try:
+        rec = json.loads((where.parent.parent / "results.json").read_text(encoding="utf-8"))
+        own = json.loads((where / "results.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    d = (rec.get("instances") or {}).get(where.name) if isinstance(rec, dict) and isinstance(
+        rec.get("instances"), dict) else None
+    if m is None or not isinstance(d, dict) or not isinstance(own, dict):
+        return None
+    dev = d.get("device_id")
+    if isinstance(dev, bool) or not isinstance(dev, int) or not is_device_id(dev) or str(
+            own.get("device")) != str(dev) or d.get("kind", m.group(1)) != m.group(1):
+        return None
+    slot, sys_id = d.get("slot"), rec.get("mav_sys_id")
+    return {"name": where.name, "kind": m.group(1), "index": int(m.group(2)),
+            "device_id": dev, "slot": slot if isinstance(slot, int) and not isinstance(
+                slot, bool) else None, "dir": where,
+            "mav_sys_id": sys_id if isinstance(sys_id, (int, float)) else None}
+
+
+def recorded_defaults(source: str, fmt: str, device_id: int | None, instance: int | None
+                       ) -> tuple[int | None, int | None]:
+    """``--device-id`` and ``--instance`` for an autopilot file of a model whose sensor is
+    recorded (:func:`recorded_sensor`): by default the recorded ones (PX4: its device id and
+    calibrate's slot, else its instance number; ArduPilot: IMU instance + 1); one given that
+    contradicts them is refused in one line naming both.  There is no override: the model is
+    that sensor's drift, and written for another it would correct that one with it."""
+    rec = recorded_sensor(source) if fmt in ("px4-params", "ardupilot-params") else None
+    if rec is None:
+        return device_id, instance
+    name, dev, where = rec["name"], rec["device_id"], rec["dir"]
+    if device_id is not None and int(device_id) != dev:
+        raise InputError(f"--device-id {device_id}: {where} is {name}'s model, fitted on device "
+                         f"{dev} (its calibration's results.json): it is that sensor's drift — "
+                         f"leave --device-id out (it defaults to {dev})")
+    if fmt == "px4-params":
+        want = rec["slot"] if rec["slot"] is not None else rec["index"]
+        what = f"slot {want}" + (" (its slot in the calibration's px4.params: another would "
+                                 "leave two slots naming one device)"
+                                 if rec["slot"] is not None else "")
+    else:
+        want, what = rec["index"] + 1, f"IMU {rec['index'] + 1} (INS_TCAL{rec['index'] + 1})"
+    if instance is not None and int(instance) != want and (fmt != "px4-params"
+                                                           or rec["slot"] is not None):
+        raise InputError(f"--instance {instance}: {where} is {name}'s model, {what}: it is that "
+                         f"sensor's drift — leave --instance out (it defaults to {want})")
+    return dev, want if instance is None else instance

@@ -47,6 +47,7 @@ from ..tracking import (
     store_problem,
 )
 from . import MAX_DEVICE_ID, ExportFormat, ExportRequest, get_format, is_device_id
+from .autopilot_read import recorded_defaults, recorded_sensor
 
 if TYPE_CHECKING:
     from ..models.composite import DriftModels
@@ -305,11 +306,16 @@ def export_source(source: str, *, fmt: str, out: str | Path, family: str | None 
 
     ``fmt`` is a name in :data:`thermonet.exporting.FORMATS`.  ``device_id``
     (PX4's ``TC_*_ID``) and ``instance`` (PX4 slot 0–3, default 0; ArduPilot
-    IMU 1–3, default 1) apply to the autopilot formats; ``prefix`` (default
+    IMU 1–3, default 1) apply to the autopilot formats — from an instance directory of
+    ``calibrate`` / ``learn`` (``DIR/instances/gyro1``) they default to the sensor it records,
+    and one that contradicts it is refused
+    (:func:`~thermonet.exporting.autopilot_read.recorded_defaults`); ``prefix`` (default
     ``thermonet``) to ``c``: every symbol's prefix, one per header in a program.
     """
     # every argument, then the source, before anything heavy is imported: torch only to load
-    # the model, MLflow only to fetch a run id's checkpoint (check_export_request)
+    # the model, MLflow only to fetch a run id's checkpoint (check_export_request); an
+    # instance directory's own sensor and slot by default, another refused
+    device_id, instance = recorded_defaults(source, fmt, device_id, instance)
     export_format = check_export_request(fmt=fmt, out=out, family=family,
                                          tracking_uri=tracking_uri, device_id=device_id,
                                          instance=instance, prefix=prefix)
@@ -389,10 +395,12 @@ def write_px4_params(model: DriftModels, out: Path, request: ExportRequest) -> P
     )
 
     check_offset_outputs(model.outputs, "px4-params", request.source)
+    rec = recorded_sensor(request.source) if request.source else None   # the vehicle's id
     return export_px4_params(model, out, output_units=request.output_units,
                              band=shipped_band(request.extra),
                              device_id=request.device_id,
-                             instance=0 if request.instance is None else request.instance)
+                             instance=0 if request.instance is None else request.instance,
+                             mav_sys_id=rec["mav_sys_id"] if rec else None)
 
 
 def write_ardupilot_params(model: DriftModels, out: Path, request: ExportRequest) -> Path:

@@ -2,6 +2,11 @@
 
 For every sensor instance of PX4 ULogs or ArduPilot DataFlash logs of one board:
 
+0. **A warm-up at rest** (:func:`refuse_moving`): a log in which the vehicle moves (verify's
+   own test, :func:`thermonet.workflows.verify_motion.moving_log`: its gyros still in under
+   80 % of their 10-s windows) is refused in one line naming the file, the share of time
+   still and ``thermonet learn``, the path for flight logs: in flight every temperature bin
+   holds the vehicle's turns and accelerations, which the fit would write as drift.
 1. **Checks** (:func:`thermonet.workflows.firmware_fit.check_instance`).  An instance
    is left out, with one line saying why, only when it cannot be fitted: no
    thermometer, fewer than ``MIN_SAMPLES`` samples, a temperature span under
@@ -61,10 +66,26 @@ For every sensor instance of PX4 ULogs or ArduPilot DataFlash logs of one board:
    boards over several seeds: an axis called ``fine`` PASSes ``thermonet verify`` on the
    board's next warm-up.
 5. **Files** (:mod:`thermonet.workflows.calibrate_files`): ``DIR/px4.params``
-   (QGroundControl, every TC_G/A/B slot) or ``DIR/ardupilot.parm`` (``INS_TCAL1..3_*`` and
-   a ``# device ids:`` comment per IMU, ``INS_TCAL_OPTIONS`` not written),
+   (QGroundControl, every slot of each kind with a fitted instance — but the slot the
+   board's active ``TC_*_ID`` in the log give an instance left out, which is kept, the fitted
+   ones taking the board's slots for them; a kind with none — not
+   in the log, or every instance left out — is not written at all, neither disabled nor
+   cleared: the board keeps its own, one line per kind says so; the Vehicle-Id is the log's
+   ``MAV_SYS_ID``, else 1, said in a comment) or ``DIR/ardupilot.parm`` (``INS_TCAL1..3_*``
+   and a ``# device ids:`` comment per IMU, ``INS_TCAL_OPTIONS`` not written),
    ``DIR/results.json``, ``DIR/report.txt`` and ``DIR/report.html``, per instance
    ``DIR/instances/<name>/`` (the comparison).
+6. **The advice** (:func:`~thermonet.workflows.calibrate_report.load_advice`, ``advice`` in
+   ``results.json``): load the file, not yet (an axis in it fails the held-out check), or
+   **not at all** where no instance in it could be judged on held-out data (each one
+   ``not judged``: too short, too narrow).  Such a file is still written, for inspection —
+   what was fitted and its header — but its header starts ``DO NOT LOAD``, the console,
+   ``report.txt`` and ``report.html`` say not to load it and what a log needs to be checked:
+   the held-out data need :data:`~thermonet.workflows.firmware_fit.MIN_SAMPLES` samples over
+   :data:`~thermonet.workflows.firmware_fit.MIN_SPAN_C`, so one log of fewer than
+   :data:`~thermonet.workflows.calibrate_logs.MIN_GRADED_LOG_SAMPLES` (800) samples per
+   sensor can never be graded.  The exit status stays 0 (a file was written; the advice is
+   the verdict).
 
 After writing, the parameter file is read back and applied to the logs through the
 autopilot's formula, the instance matched by device id (``firmware_check``): the
@@ -103,12 +124,18 @@ from .calibrate_files import (
     InstanceResult,
     ekf_text,
     json_default,
+    not_written,
     params_text,
     results_doc,
 )
 from .calibrate_held_out import apply_firmware, check_held_out
-from .calibrate_logs import merge_logs
-from .calibrate_report import format_report, format_summary, render_calibration_report
+from .calibrate_logs import MIN_GRADED_LOG_SAMPLES, merge_logs
+from .calibrate_report import (
+    format_report,
+    format_summary,
+    load_advice,
+    render_calibration_report,
+)
 from .firmware_fit import (
     FIT_KINDS,
     MIN_SAMPLES,
@@ -126,6 +153,7 @@ from .magnetometer import (
     with_lag,
 )
 from .verify import Limits, evaluate, judge_axes, read_param_file
+from .verify_motion import moving_log
 
 __all__ = ["calibrate", "fit_firmware", "check_instance", "apply_firmware", "merge_logs",
            "format_report", "format_summary", "render_calibration_report", "MIN_SPAN_C", "MIN_SAMPLES",
@@ -222,6 +250,8 @@ def _calibrate(paths: list[str | Path], out: Path, *, compare: bool, overwrite: 
                              f"{digest[:16]}…); give each log once — a log given twice is "
                              "counted twice, and checked on its own training data")
         seen[digest] = lg.path
+    for lg in logs:               # a flight: every bin holds the vehicle's motion (verify's test)
+        refuse_moving(lg)
     merge_logs(logs)                              # same board? (refused before anything else)
     with profile_stage("magnetometers: lend thermometers, fit the lag"):
         logs, mags = _lend_and_lag(logs, mag_thermometers)   # a bad --mag-thermometer: refused
@@ -231,6 +261,19 @@ def _calibrate(paths: list[str | Path], out: Path, *, compare: bool, overwrite: 
                               helpers=helpers)
         stage.done()
     return doc
+
+
+def refuse_moving(log: FlightLog) -> None:
+    """Refuse (one line: the file, the share of time still, ``thermonet learn``) a log in which
+    the vehicle moves — verify's own test (:func:`~thermonet.workflows.verify_motion.moving_log`):
+    in flight the gyro reads the turns and the accelerometer the accelerations, which a fit
+    against temperature would write into the parameter file as drift."""
+    moving = moving_log(log)
+    if moving:
+        raise InputError(f"{log.path}: {moving} — calibrate fits a warm-up at rest (the vehicle "
+                         "still while it warms, as verify judges one); for the drift of ordinary "
+                         f"flight logs use `thermonet learn {log.path.parent} --out DIR` (no "
+                         "chamber)")
 
 
 def _lend_and_lag(logs: list[FlightLog], choice: Mapping[str, str] | None
@@ -315,6 +358,12 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
                  f"{len(logs) - 1}, applied to {logs[-1].path.name})" if len(logs) > 1 else "")
               + "; see report.txt"]
     header += [f"board id: {log.board_id}"] if log.board_id else []   # verify matches by it
+    advice = load_advice({"instances": {r.name: {"status": r.status, **r.summary}
+                                        for r in results}, "board_id": log.board_id,
+                          "held_out_log": len(logs) > 1}, min_log_samples=MIN_GRADED_LOG_SAMPLES)
+    header += [] if advice["checked"] else [
+        "DO NOT LOAD: nothing in this file could be checked on held-out data (see report.txt); "
+        "written for inspection only"]
     header += [f"{r.name} (id {r.device_id}): {r.summary['resolution']['line']}"
                for r in fitted if "resolution" in r.summary]
     text, fname = params_text(log, fitted, header)
@@ -330,6 +379,8 @@ def _calibrate_into(logs: list[FlightLog], stage: Path, out: Path, *, compare: b
         r.summary["firmware_check"] = {k: c[k] for k in ("pp_raw", "pp_corrected", "cut")}
     _check_magnetometers(results, log)
     doc = results_doc(logs, results, out / param_path.name)
+    doc["advice"] = load_advice(doc, min_log_samples=MIN_GRADED_LOG_SAMPLES)
+    doc["not_written"] = not_written(log, fitted)
     atomic_write_text(stage / "results.json", json.dumps(doc, indent=2, default=json_default))
     atomic_write_text(stage / "report.txt", format_report(doc))
     atomic_write_text(stage / "report.html", render_calibration_report(doc, out, staged=stage))

@@ -13,9 +13,10 @@ from ..core.errors import InputError
 from ..core.recording import GAP_FACTOR
 from ..data.logs import FlightLog, SensorInstance
 from ..data.logs.info import autopilot_article
-from .firmware_fit import FIT_KINDS
+from .firmware_fit import FIT_KINDS, MIN_SAMPLES
 
-__all__ = ["merge_logs", "held_out_blocks", "HELD_OUT_BLOCKS", "HELD_OUT_EVERY"]
+__all__ = ["merge_logs", "held_out_blocks", "HELD_OUT_BLOCKS", "HELD_OUT_EVERY", "HELD_OUT_COUNT",
+           "MIN_GRADED_LOG_SAMPLES"]
 
 
 def _board_ids(log: FlightLog) -> list[tuple[str, int]]:
@@ -94,6 +95,14 @@ def merge_logs(logs: Sequence[FlightLog]) -> FlightLog:
 #: first or last block, so the fit is not extrapolated to them).
 HELD_OUT_BLOCKS = 20
 HELD_OUT_EVERY = 4
+#: How many of the :data:`HELD_OUT_BLOCKS` are held out (5: a quarter of the log).
+HELD_OUT_COUNT = sum(1 for b in range(HELD_OUT_BLOCKS) if b % HELD_OUT_EVERY == HELD_OUT_EVERY // 2)
+#: About the fewest samples (per instance, logged evenly in time) one log needs for its
+#: held-out blocks, a quarter of it, to reach the
+#: :data:`~thermonet.workflows.firmware_fit.MIN_SAMPLES` verify's test judges: 800 (the
+#: blocks' edges let 791 evenly logged samples through, 790 not): a log under it is not graded,
+#: and calibrate says not to load its file.
+MIN_GRADED_LOG_SAMPLES = -(-MIN_SAMPLES * HELD_OUT_BLOCKS // HELD_OUT_COUNT)
 
 
 def held_out_blocks(log: FlightLog) -> tuple[FlightLog, FlightLog]:

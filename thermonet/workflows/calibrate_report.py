@@ -9,8 +9,10 @@ from typing import Any
 
 from ..reporting.colours import GRADE_COLOURS
 from ..reporting.report import _CSS, VERDICT_COLOURS
+from .firmware_fit import MIN_SAMPLES, MIN_SPAN_C
 
-__all__ = ["format_report", "format_summary", "summary_table", "render_calibration_report"]
+__all__ = ["format_report", "format_summary", "summary_table", "render_calibration_report",
+           "load_advice"]
 
 _AXES = {"gyro": ("x", "y", "z"), "acc": ("x", "y", "z"), "baro": ("p",),
          "mag": ("x", "y", "z")}
@@ -122,7 +124,9 @@ def render_calibration_report(doc: dict[str, Any], out: Path, *, staged: Path | 
             f"<h1>Thermal calibration of {html.escape(names)} "
             f"({html.escape(doc['autopilot'])})</h1>"
             f"<p class=\"chosen\">Parameter file: {html.escape(Path(doc['params_file']).name)}"
-            " — load it only on the board whose device ids are listed below.</p>"
+            + (" — do not load it: nothing in it could be checked on held-out data (see the "
+               "report below)." if (doc.get("advice") or {}).get("load") == "no" else
+               " — load it only on the board whose device ids are listed below.") + "</p>"
             "<h2>Sensor instances</h2><table class=\"instances\"><tr><th>instance</th><th>kind</th>"
             "<th>device id</th><th>samples</th><th>temperature</th><th>result</th>"
             "<th>details</th></tr>" + "".join(rows) + "</table>"
@@ -207,15 +211,36 @@ def summary_table(doc: dict[str, Any]) -> list[str]:
         "out-of-fold score over the firmware form's, under 1 better, ONNX / C only)"]
 
 
-def _totals(doc: dict[str, Any]) -> list[str]:
-    """How many fitted axes pass the held-out check with margin, and the loading advice —
-    which, where an axis in the file fails that check, says so first."""
+def _unjudged(doc: dict[str, Any]) -> dict[str, str]:
+    """The parameter file's instances the held-out check could not judge, with why."""
+    return {n: str((d.get("held_out") or {}).get("reason") or "no held-out data")
+            for n, d in doc["instances"].items() if d["status"] == "fitted"
+            and (d.get("held_out") or {}).get("status") != "judged"}
+
+
+def _why_unjudged(unjudged: dict[str, str]) -> str:
+    """``acc0, gyro0: too few samples: 65 (need at least 200)``: the names per reason."""
+    by: dict[str, list[str]] = {}
+    for name, why in unjudged.items():
+        by.setdefault(why, []).append(name)
+    return "; ".join(f"{', '.join(names)}: {why}" for why, names in by.items())
+
+
+def load_advice(doc: dict[str, Any], *, min_log_samples: int | None = None) -> dict[str, Any]:
+    """Whether to load the parameter file, from the held-out check: ``load`` ``yes``, ``not
+    yet`` (an axis in the file fails the check) or ``no`` (nothing in the file could be
+    checked: every instance of it ``not judged`` — the file is still written, for inspection,
+    but must not be loaded before a longer warm-up is logged), ``checked`` (an axis of the
+    file was graded) and the console's ``lines``.  ``min_log_samples``: the fewest samples one
+    log needs to be graded at all (:data:`~thermonet.workflows.calibrate_logs.MIN_GRADED_LOG_SAMPLES`)."""
     lines: list[str] = []
     graded = [g for d in doc["instances"].values() if d["status"] in ("fitted", "model only")
               for g in (d.get("held_out") or {}).get("grades") or []]
     fails = sum(1 for d in doc["instances"].values() if d["status"] == "fitted"
                 for g in (d.get("held_out") or {}).get("grades") or [] if g == "fails")
-    if graded:
+    unjudged = _unjudged(doc)
+    in_file = sum(1 for d in doc["instances"].values() if d["status"] == "fitted")
+    if graded and len(unjudged) < in_file:
         weak = []
         if "marginal" in graded:
             weak.append(f"{graded.count('marginal')} marginal — `thermonet verify` on a new log "
@@ -223,11 +248,19 @@ def _totals(doc: dict[str, Any]) -> list[str]:
         if "fails" in graded:
             weak.append(f"{graded.count('fails')} fail it — `thermonet verify` on a new log "
                         "will FAIL them too")
+        if unjudged:
+            weak.append(f"not judged, so unchecked: {_why_unjudged(unjudged)}")
         lines += ["", f"held-out check (verify's test, limits and floors): {graded.count('fine')} "
                   f"of {len(graded)} fitted axes pass with margin" + (
                       "; " + "; ".join(weak) + " (see 'held out' in the detail)" if weak else "")]
     board = f"on board {doc['board_id']}, whose sensors are" if doc.get("board_id") else \
         "for a board whose sensors are"
+    if in_file and len(unjudged) == in_file:
+        return {"load": "no", "checked": False, "lines": [
+            "", "held-out check (verify's test): nothing could be checked — no instance in the "
+            f"parameter file could be judged on data it was not fitted on ({_why_unjudged(unjudged)})",
+            "", "Do not load the parameter file: nothing in it was checked (it is written for "
+            f"inspection only). Log a longer warm-up at rest and calibrate again: {_need(doc, min_log_samples)}."]}
     if fails:
         lines += ["", f"The parameter file holds {fails} "
                   f"{'axis that fails' if fails == 1 else 'axes that fail'} the held-out "
@@ -236,10 +269,32 @@ def _totals(doc: dict[str, Any]) -> list[str]:
                   "before loading. If you load this one, load it only "
                   f"{board} the device ids above; reboot after loading; re-run the ordinary "
                   "gyro/accel calibration."]
-        return lines
+        return {"load": "not yet", "checked": True, "lines": lines}
     lines += ["", f"Load the parameter file only {board} the device ids above; reboot after "
               "loading; re-run the ordinary gyro/accel calibration."]
-    return lines
+    return {"load": "yes", "checked": True, "lines": lines}
+
+
+def _need(doc: dict[str, Any], min_log_samples: int | None) -> str:
+    """What the held-out check needs to judge an instance, in the words of the run's logs."""
+    each = f"at least {MIN_SAMPLES} samples per sensor over at least {MIN_SPAN_C:g} °C"
+    if doc.get("held_out_log"):
+        return f"the last log given is held out whole and needs {each}"
+    whole = f"about {min_log_samples} samples per sensor or more, logged evenly" \
+        if min_log_samples else "four times that"
+    return (f"one log is judged on a quarter of it, which needs {each} — {whole} (a shorter "
+            "log can never be checked); or give a second warm-up log of the board, held out "
+            f"whole ({each})")
+
+
+def _totals(doc: dict[str, Any]) -> list[str]:
+    """How many fitted axes pass the held-out check with margin, and the loading advice —
+    which, where an axis in the file fails that check, says so first, and where nothing in the
+    file could be checked, says not to load it (:func:`load_advice`, as ``results.json``'s
+    ``advice`` records it).  Then each PX4 kind the file leaves as the board has it."""
+    advice = doc.get("advice") or load_advice(doc)
+    kept = doc.get("not_written") or []
+    return [*advice["lines"], *([""] + list(kept) if kept else [])]
 
 
 def format_summary(doc: dict[str, Any], detail: str = "") -> str:

@@ -29,7 +29,12 @@ accelerometer):
    carries calibrate's header lines (``# board id:``, ArduPilot's ``# device ids:``) and
    only what was learned: a sensor no log reveals is named with why (``not_learned``), its
    ArduPilot ``INS_TCAL<n>_ACC*``/``GYR*`` not written, a PX4 kind with nothing learned (the
-   barometer) left as the board has it.
+   barometer) left as the board has it, and within a PX4 kind a sensor left out or not
+   learned keeps its slot: the one the last log's active ``TC_<k><s>_ID`` gives it is not
+   written, and the fitted sensors take the slots the board has for them
+   (:func:`~thermonet.workflows.learn_previous.px4_plans`; where no log records the slots,
+   the kind is rewritten whole, and the console says the sensor then has no correction).
+   The Vehicle-Id is the logs' ``MAV_SYS_ID`` (else 1, said in the file).
 
 Run again on the same ``DIR``, the logs given are the flights learned
 (:mod:`thermonet.workflows.learn_previous`: the flights learned before and not given are
@@ -63,7 +68,13 @@ from ..core.executors import TaskFailure, run_tasks
 from ..core.fileio import atomic_write_text, refuse_overwriting_inputs
 from ..core.outdir import sha256_file
 from ..core.version import __version__
-from ..data.firmware import FirmwareFit, ardupilot_calibration_text, px4_calibration_text
+from ..data.firmware import (
+    PX4_LETTER,
+    FirmwareFit,
+    ardupilot_calibration_text,
+    px4_calibration_text,
+    px4_vehicle_id,
+)
 from ..data.logs import is_log
 from .learn_data import (
     InstanceWindows,
@@ -73,7 +84,7 @@ from .learn_data import (
     vehicle_of,
 )
 from .learn_fit import UNITS, instance_doc
-from .learn_previous import check_previous, not_learned, previous
+from .learn_previous import board_slots, check_previous, not_learned, previous, px4_plans
 from .learn_reduce import (
     READER_VERSION,
     cache_path,
@@ -136,7 +147,11 @@ def _read_all(files: list[Path], out: Path, executor: str, workers: int | None,
             return
         fold.add(k, doc)
         logs[k] = {"index": k, "sha256": digests[k], **{key: doc.get(key) for key in (
-            "path", "autopilot", "sensors", "board_id", "notes")}}
+            "path", "autopilot", "sensors", "board_id", "notes")},
+            # what px4.params is written against: the board's slots and its MAVLink system id
+            "tc": {n: v for n, v in (doc.get("params") or {}).items()
+                   if n.startswith("TC_") and n.endswith(("_ID", "_ENABLE"))
+                   or n == "MAV_SYS_ID"}}
 
     first: dict[str, int] = {}
     for k, d in enumerate(digests):     # a log given twice is one flight, not two
@@ -198,9 +213,13 @@ def _strip(line: str, path: Path) -> str:
     return line
 
 
-def _params_text(autopilot: str, docs: dict[str, dict[str, Any]], header: list[str]
-                 ) -> tuple[str, str]:
-    """The parameter file of the fitted instances (text, file name), slots by instance."""
+def _params_text(autopilot: str, docs: dict[str, dict[str, Any]], header: list[str],
+                 logs: list[dict[str, Any]], sensors: dict[str, int]
+                 ) -> tuple[str, str, dict[str, str]]:
+    """The parameter file of the fitted instances (text, file name) and, PX4, what it does
+    about each sensor not in it (:func:`~thermonet.workflows.learn_previous.px4_plans`: a
+    sensor left out keeps the slot the board has for it; a kind not learned, the barometer
+    always, is left as the board has it)."""
     fits: dict[str, list[FirmwareFit]] = {}
     imus: dict[int, dict[str, FirmwareFit]] = {}
     for name in sorted(docs, key=lambda n: (docs[n]["kind"], n)):
@@ -213,9 +232,21 @@ def _params_text(autopilot: str, docs: dict[str, dict[str, Any]], header: list[s
         fits.setdefault(d["kind"], []).append(fit)
         if name[-1].isdigit():
             imus.setdefault(int(name[-1]), {})[d["kind"]] = fit
-    if autopilot == "px4":   # a kind not learned (the barometer) is left as the board has it
-        return px4_calibration_text(fits, header=header, fitted_kinds_only=True), "px4.params"
-    return ardupilot_calibration_text(imus, header=header), "ardupilot.parm"
+    if autopilot != "px4":
+        return ardupilot_calibration_text(imus, header=header), "ardupilot.parm", {}
+    plans, words = px4_plans(fits, sensors, board_slots(logs))
+    header = [*header, *(f"TC_{PX4_LETTER[kind]}{s}_*: not written (device {x}, not in this "
+                         "file): the board keeps its own" for kind, plan in plans.items()
+                         for s, x in enumerate(plan) if isinstance(x, int))]
+    return px4_calibration_text(fits, header=header, fitted_kinds_only=True, plans=plans,
+                                vehicle_id=px4_vehicle_id({"MAV_SYS_ID": _sys_id(logs)})
+                                ), "px4.params", words
+
+
+def _sys_id(logs: list[dict[str, Any]]) -> float | None:
+    """The vehicle's ``MAV_SYS_ID`` as the last log recording it has it (None: none does)."""
+    return next((lg["tc"]["MAV_SYS_ID"] for lg in reversed(logs)
+                 if "MAV_SYS_ID" in (lg.get("tc") or {})), None)
 
 
 def _changes(old: dict[str, Any] | None, new: dict[str, Any]) -> list[str]:
@@ -350,18 +381,23 @@ def _learn_into(logs: list[dict[str, Any]], instances: Iterable[InstanceWindows]
               "(estimator biases and still-gyro windows; no chamber)",
               "redo the autopilot's gyro and accelerometer calibration after loading it"]
     header += [f"board id: {board}"] if board else []     # verify matches by it, as calibrate's
-    params = None
+    params: str | None = None
+    words: dict[str, str] = {}
     if any(d["status"] == "fitted" for d in docs.values()):
-        text, fname = _params_text(autopilot, docs, header)
+        text, fname, words = _params_text(autopilot, docs, header, logs, sensors)
         atomic_write_text(stage / fname, text)
         params = fname
+    for name, d in docs.items():      # left out: what the file does about its slot
+        if d["status"] != "fitted" and name in words:
+            d["parameter_file"] = words[name]
     return {"kind": "learn", "schema": 1, "thermonet_version": __version__,
             "autopilot": autopilot, "logs": [lg["path"] for lg in logs],
             "logs_sha256": [lg["sha256"] for lg in logs],
             "vehicle": {"autopilot": autopilot, "sensors": sensors, "board_id": board},
+            "mav_sys_id": _sys_id(logs),
             "refused": [{"log": p, "reason": w} for p, w in refused],
             "params_file": params, "instances": docs,
-            "not_learned": not_learned(sensors, docs, autopilot),
+            "not_learned": not_learned(sensors, docs, autopilot, words),
             "log_notes": sorted({n for lg in logs for n in lg.get("notes", [])})}
 
 

@@ -1,5 +1,6 @@
 """What ``thermonet learn`` (:mod:`thermonet.workflows.learn`) weighs besides the logs: the
-directory's previous results and the vehicle's sensors it could not learn.
+directory's previous results, the vehicle's sensors it could not learn, and the board's PX4
+slots (:func:`board_slots`, :func:`px4_plans`: a sensor not in the file keeps its slot).
 
 **The logs given are the flights learned.**  The directory's cache only spares reading a log
 again; a flight learned before that is not among the logs given is left out of the new fit
@@ -18,9 +19,10 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import InputError, counted
+from ..data.firmware import FirmwareFit, Px4Slot, px4_active_slots, px4_slot_plan
 from ..data.logs.info import autopilot_article
 
-__all__ = ["previous", "check_previous", "not_learned"]
+__all__ = ["previous", "check_previous", "not_learned", "board_slots", "px4_plans"]
 
 
 def previous(out: Path) -> dict[str, Any] | None:
@@ -89,12 +91,64 @@ def check_previous(old: dict[str, Any] | None, out: Path, ap: str, sensors: dict
             f"NEW_LOGS --out {out})"]
 
 
-def not_learned(sensors: dict[str, int], docs: dict[str, dict[str, Any]], autopilot: str
-                ) -> list[dict[str, Any]]:
+#: The PX4 kinds ``learn`` writes, with their parameter letter.
+_PX4_KINDS = {"gyro": "G", "acc": "A"}
+
+
+def board_slots(logs: list[dict[str, Any]]) -> dict[str, list[int] | None]:
+    """Per kind, the board's active PX4 slots (:func:`~thermonet.data.firmware.px4_active_slots`)
+    as the last log that records them has them, or None where no log records the kind's
+    ``TC_<k>*`` (where the board keeps a sensor's calibration is then unknown).  ``logs``: the
+    logs' summaries in the flights' order, each with the ``tc`` parameters its log recorded."""
+    out: dict[str, list[int] | None] = {}
+    for kind in _PX4_KINDS:
+        out[kind] = next((s for lg in reversed(logs)
+                          for s in [px4_active_slots(lg.get("tc") or {}, kind)]
+                          if s is not None), None)
+    return out
+
+
+def px4_plans(fits: dict[str, list[FirmwareFit]], sensors: dict[str, int],
+              board: dict[str, list[int] | None]
+              ) -> tuple[dict[str, list[Px4Slot]], dict[str, str]]:
+    """Where each fit goes in ``px4.params`` (:func:`~thermonet.data.firmware.px4_slot_plan`)
+    and, per sensor of the vehicle not in the file, what the file does about it: a kind with
+    nothing fitted is not written; within a written kind, a sensor left out keeps its slot
+    where the board's active slots (``board``, :func:`board_slots`) hold it — that slot is not
+    written — and the fits take the slots the board has for them."""
+    plans: dict[str, list[Px4Slot]] = {}
+    words: dict[str, str] = {}
+    for kind, t in _PX4_KINDS.items():
+        done = {f.device_id for f in fits.get(kind, [])}
+        out = {n: d for n, d in sensors.items() if n.rstrip("0123456789") == kind
+               and d not in done}
+        if not fits.get(kind):
+            words.update({n: f"TC_{t}* are not written: the board keeps its own" for n in out})
+            continue
+        plans[kind] = px4_slot_plan(fits[kind], board[kind], set(out.values()))
+        for name, dev in out.items():
+            slot = next((s for s, x in enumerate(plans[kind]) if x == dev
+                         and isinstance(x, int)), None)
+            if slot is not None:
+                words[name] = (f"TC_{t}{slot}_* are not written: the board keeps its own (its "
+                               f"slot, TC_{t}{slot}_ID {dev} in the last log)")
+            elif board[kind] is None:
+                words[name] = (f"px4.params rewrites the TC_{t} slots whole (no log records "
+                               f"TC_{t}*, so where the board keeps it is unknown): loaded, it "
+                               "has no thermal correction")
+            else:
+                words[name] = (f"no active TC_{t} slot of the board holds it (the last log's "
+                               f"TC_{t}_ENABLE / TC_{t}*_ID): it has no thermal correction, "
+                               "before loading or after")
+    return plans, words
+
+
+def not_learned(sensors: dict[str, int], docs: dict[str, dict[str, Any]], autopilot: str,
+                px4_words: dict[str, str] | None = None) -> list[dict[str, Any]]:
     """The vehicle's gyros and accelerometers no log revealed a drift of: per sensor its
-    name, device id, why, and what the parameter file does about it."""
+    name, device id, why, and what the parameter file does about it (PX4: ``px4_words``, as
+    :func:`px4_plans` says it)."""
     fitted = {n for n, d in docs.items() if d.get("status") == "fitted"}
-    kinds = {n.rstrip("0123456789") for n in fitted}
     imus = {n[-1] for n in fitted}
     mask = "EK3_IMU_MASK" if autopilot == "ardupilot" else "EKF2_MULTI_IMU"
     out = []
@@ -110,9 +164,7 @@ def not_learned(sensors: dict[str, int], docs: dict[str, dict[str, Any]], autopi
             then = (f"{group}_{'ACC' if kind == 'acc' else 'GYR'}* are not written: the board "
                     "keeps its own" if name[-1] in imus else f"no {group}_* in the file")
         else:
-            letter = "A" if kind == "acc" else "G"
-            then = (f"px4.params clears the other TC_{letter} slots: loaded, it has no thermal "
-                    "correction" if kind in kinds else
-                    f"TC_{letter}* are not written: the board keeps its own")
+            then = (px4_words or {}).get(name) or (
+                f"TC_{_PX4_KINDS[kind]}* are not written: the board keeps its own")
         out.append({"name": name, "device_id": dev, "reason": why, "parameter_file": then})
     return out

@@ -90,7 +90,7 @@ def reduce_log(path: str) -> dict[str, Any]:
     return {"version": READER_VERSION, "path": str(path), "autopilot": log.autopilot,
             "sensors": log.sensors, "board_id": log.board_id, "duration_s": log.duration_s,
             "params": {k: v for k, v in log.params.items() if k.startswith(
-                ("TC_", "CAL_", "INS_", "SENS_BOARD", "AHRS_ORIENT", "EK3_IMU"))},
+                ("TC_", "CAL_", "INS_", "SENS_BOARD", "AHRS_ORIENT", "EK3_IMU", "MAV_SYS_ID"))},
             "notes": log.notes, "series": series}
 
 

@@ -76,6 +76,8 @@ def format_learn_report(doc: dict[str, Any], out_dir: str | Path | None = None) 
             lines.append(f"  comparison: {c.get('status')} ({c.get('reason')})")
         if d.get("reason"):
             lines.append(f"  {d['reason']}")
+        if d.get("parameter_file"):
+            lines.append(f"  {d['parameter_file']}")
         spans = _supported(d)
         lines.append(f"  coverage: supported {spans}" if spans else
                      "  coverage: no 1 °C bin supported yet")
