@@ -463,6 +463,19 @@ def _line_config(*files: str) -> str:
                          f"paths: [{', '.join(files)}], mapping: map.yaml")
 
 
+def _station_of_line(runs, prior, capsys) -> str:
+    """``runs`` written as line.csv and calibrated by the station (serial): its stdout; a unit
+    failed (exit 3)."""
+    _write_line(runs, "line.csv")
+    Path("line.yaml").write_text(_line_config("line.csv"))
+    capsys.readouterr()
+    assert main(["station", "line.yaml", "--prior", str(prior), "--out", "st",
+                 "--executor", "serial"]) == 3
+    return capsys.readouterr().out
+
+
+
+
 def test_a_dead_or_stuck_axis_fails_and_gets_no_firmware_file(
         prior: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
@@ -475,12 +488,7 @@ def test_a_dead_or_stuck_axis_fails_and_gets_no_firmware_file(
     runs[1].outputs["gyro_z"] = np.full_like(runs[1].outputs["gyro_z"], 32.767)
     z = runs[2].outputs["gyro_z"]
     runs[2].outputs["gyro_z"] = np.minimum(z, np.quantile(z, 0.9))
-    _write_line(runs, "line.csv")
-    Path("line.yaml").write_text(_line_config("line.csv"))
-    capsys.readouterr()
-    assert main(["station", "line.yaml", "--prior", str(prior), "--out", "st",
-                 "--executor", "serial"]) == 3
-    out = capsys.readouterr().out
+    out = _station_of_line(runs, prior, capsys)
     ids = [r.device_id for r in runs]
     lines = {d: next(ln for ln in out.splitlines() if ln.startswith(f"{d}: ")) for d in ids}
     words = {ids[0]: "gyro_z: constant at 0 over the whole test (a dead or saturated axis)",
@@ -614,12 +622,7 @@ def test_a_unit_whose_data_fail_a_check_fails_alone_and_the_others_finish(
     runs = _line_units(4)
     runs[0].temperature_c = np.asarray(runs[0].temperature_c) - 30.0     # -45 … 35 °C
     runs[1].temperature_c = np.full_like(runs[1].temperature_c, 25.0)    # a dead thermometer
-    _write_line(runs, "line.csv")
-    Path("line.yaml").write_text(_line_config("line.csv"))
-    capsys.readouterr()
-    assert main(["station", "line.yaml", "--prior", str(prior), "--out", "st",
-                 "--executor", "serial"]) == 3
-    out = capsys.readouterr().out
+    out = _station_of_line(runs, prior, capsys)
     ids = [r.device_id for r in runs]
     cold = (f"unit '{ids[0]}': measured -45.0 to 34.9 °C, outside the fleet prior's range -20 "
             "to 75 °C (the prior says nothing there)")
