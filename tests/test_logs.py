@@ -293,3 +293,22 @@ def test_dataflash_tclr_used_when_no_imu_messages(tmp_path: Path) -> None:
     assert np.allclose(by["acc0"].values[0], [0.1, 0.2, -9.8], atol=1e-6)
     assert np.allclose(by["gyro0"].temperature_c, 20.0 + 0.1 * np.arange(50), atol=1e-5)
     assert "TCLR" in by["gyro0"].notes[0]
+
+
+@pytest.mark.parametrize("src, name, hint", [
+    ("px4_ulog_sample/sample_log_small.ulg", "log.bin",
+     "not an ArduPilot DataFlash log (no 0xA3 0x95 header): it starts as a PX4 ULog does "
+     "(name it .ulg)"),
+    ("ardupilot_bin_sample/test.BIN", "log.ulg",
+     "; it starts as an ArduPilot DataFlash log does (name it .bin)")])
+def test_a_log_under_the_other_autopilots_extension_is_told_so(
+        tmp_path: Path, src: str, name: str, hint: str,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A real ULog renamed .bin (or a real DataFlash log renamed .ulg) is refused in one line
+    that says which log it is and what to name it."""
+    path = tmp_path / name
+    path.write_bytes((Path(__file__).parent / "data" / "real" / src).read_bytes())
+    assert main(["info", str(path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"thermonet: error: {path}: ") and \
+        err[0].endswith(hint), err

@@ -205,7 +205,8 @@ def read_dataflash(path: str | Path) -> FlightLog:
     with open(path, "rb") as fh:
         head = fh.read(3)
     if len(head) < 3 or head[:2] != b"\xa3\x95":
-        raise InputError.at(path, "not an ArduPilot DataFlash log (no 0xA3 0x95 header)")
+        hint = ": it starts as a PX4 ULog does (name it .ulg)" if head == b"ULo" else ""
+        raise InputError.at(path, f"not an ArduPilot DataFlash log (no 0xA3 0x95 header){hint}")
     size = path.stat().st_size
     try:
         reader, index_chatter = _open_reader(path)

@@ -213,7 +213,9 @@ def read_ulog(path: str | Path) -> FlightLog:
         if magic == ULOG_MAGIC:  # a ULog header, then what pyulog cannot parse
             raise InputError.at(path, "damaged: a ULog header followed by data that cannot be "
                                 f"parsed as ULog messages ({why})") from None
-        raise InputError.at(path, f"not a readable ULog ({why})") from None
+        hint = ("; it starts as an ArduPilot DataFlash log does (name it .bin)"
+                if magic[:2] == b"\xa3\x95" else "")
+        raise InputError.at(path, f"not a readable ULog ({why}){hint}") from None
     damage = _pyulog_damage(chatter.getvalue(), ulog, skipped, size)
     unread = sum(b - a for a, b in skipped) / max(size, 1)
     params = {}
