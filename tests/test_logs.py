@@ -312,3 +312,17 @@ def test_a_log_under_the_other_autopilots_extension_is_told_so(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"thermonet: error: {path}: ") and \
         err[0].endswith(hint), err
+
+
+def test_info_says_when_no_temperature_ever_changes(capsys: pytest.CaptureFixture[str]) -> None:
+    """The real PX4 SITL log (every thermometer at 0 °C): info names the instances whose
+    temperature never changes, once; a real flight log's (its temperatures move) says nothing."""
+    real = Path(__file__).parent / "data" / "real"
+    assert main(["info", str(real / "px4_sitl_bias_variance" / "sample_px4_events.ulg")]) == 0
+    out = capsys.readouterr().out
+    said = [ln.strip() for ln in out.splitlines() if "never changes" in ln]
+    assert said == ["acc0, baro0, baro1, gyro0, mag0: the temperature never changes (the same "
+                    "value on every sample: a SITL log, or a thermometer stuck at one value): "
+                    "nothing to calibrate from"], out
+    assert main(["info", str(real / "px4_ulog_sample" / "sample_log_small.ulg")]) == 0
+    assert "never changes" not in capsys.readouterr().out

@@ -60,9 +60,14 @@ def summarize_log(path: str | Path) -> dict[str, Any]:
             "damaged_samples": inst.damaged, "untrusted": inst.untrusted})
     keep = ("TC_", "SYS_CAL_", "INS_TCAL", "AHRS_ORIENTATION")
     params = {k: v for k, v in sorted(log.params.items()) if k.startswith(keep)}
+    still = [r["name"] for r in rows if r["samples"] > 1 and r["temperature_min_c"] is not None
+             and r["temperature_max_c"] == r["temperature_min_c"]]
+    flat = ([f"{', '.join(still)}: the temperature never changes (the same value on every "
+             "sample: a SITL log, or a thermometer stuck at one value): nothing to calibrate "
+             "from"] if still else [])
     return {"log": str(log.path), "autopilot": log.autopilot, "board_id": log.board_id,
             "instances": rows,
-            "params": params, "log_notes": list(log.notes), "damage": list(log.damage)}
+            "params": params, "log_notes": list(log.notes) + flat, "damage": list(log.damage)}
 
 
 def format_log_summary(s: dict[str, Any]) -> str:
