@@ -44,7 +44,7 @@ def summarize_log(path: str | Path) -> dict[str, Any]:
     if not insts:
         raise InputError.at(file, f"no sensor instance '{name}' (instances: "
                             f"{', '.join(i.name for i in log.instances)})")
-    rows = []
+    rows: list[dict[str, Any]] = []
     for inst in insts:
         t = inst.time_s
         temp = inst.temperature_c if inst.temperature_c is not None and inst.n_samples else None
