@@ -387,3 +387,18 @@ def test_implausible_lorentz_warns_only_where_it_ships(tmp_path):
     assert not [w for w in both["warnings"] if "implausible" in w]
     said = [w for w in alone["warnings"] if w.startswith("lorentz on gyro_x: implausible")]
     assert len(said) == 1 and "× the trained span" in said[0]
+
+
+def test_a_comparison_leaves_the_warnings_filters_as_it_found_them(tmp_path):
+    """Families are fitted side by side in threads, where a ``warnings.catch_warnings`` is a
+    race (the filters are global: a thread restoring them can keep another's "ignore"): the
+    parameter tables once silenced Lorentz's note that way and left UserWarnings ignored for
+    the rest of the process. A comparison now adds no filter."""
+    import warnings
+
+    before = list(warnings.filters)
+    cfg = CompareConfig(train=FAST)      # the default set, a Lorentz among ten families
+    cfg.tracking.enabled = False
+    run_compare(cfg, tmp_path / "out", dataset=toy_dataset(dt_s=10.0), quiet=True,
+                plots=False, workers=2)
+    assert [f for f in warnings.filters if f not in before] == []

@@ -233,7 +233,8 @@ def _polynomial_rows(model: Any, units: dict[str, str], signal_units: dict[str, 
     return rows, cov
 
 
-def _lorentz_rows(model: Any, units: dict[str, str], signal_units: dict[str, str]
+def _lorentz_rows(model: Any, units: dict[str, str], signal_units: dict[str, str],
+                  warn: bool = True
                   ) -> list[dict[str, Any]]:
     import torch
 
@@ -260,7 +261,8 @@ def _lorentz_rows(model: Any, units: dict[str, str], signal_units: dict[str, str
                                   float(drift_pp[j]), unit, out)
         if why:
             note = f"{why}; {note}"
-            warnings.warn(f"lorentz on {axis}: {why}", UserWarning, stacklevel=2)
+            if warn:
+                warnings.warn(f"lorentz on {axis}: {why}", UserWarning, stacklevel=2)
         for name, value, u in (("y0", y0[j] + const[j], out),
                                ("amplitude", amplitude[j],
                                 out if unit in DIMENSIONLESS else f"{out}*{unit}"),
@@ -356,9 +358,12 @@ def _computed_note(value: float, stderr: float, note: str, method: str) -> str:
 def parameter_rows(model: Any, units: dict[str, str], signal_units: dict[str, str],
                    train: tuple[Any, ...] | None = None, *, method: str = "ols",
                    seed: int = 0, parts: Sequence[tuple[Rows, dict[str, np.ndarray]]]
-                   | None = None) -> tuple[Rows, dict[str, np.ndarray]]:
+                   | None = None, warn: bool = True) -> tuple[Rows, dict[str, np.ndarray]]:
     """:func:`parameter_table`'s rows and covariance, without pandas (what ``compare``
     and ``calibrate`` seal into their checkpoints: importing pandas costs ~0.3 s).
+    ``warn``: a Lorentz's implausible constants are also a warning (else only its rows'
+    note: ``compare`` warns for the model that ships alone, and fits families in threads,
+    where no warnings filter may be changed).
 
     A per-axis model (:class:`~thermonet.models.composite.AxisModels`) takes ``parts``:
     each part's own rows and covariance as its fit computed them (else its parts' rows
@@ -372,7 +377,7 @@ def parameter_rows(model: Any, units: dict[str, str], signal_units: dict[str, st
         rows: Rows = []
         for k, part in enumerate(model.parts):
             table, part_cov = parts[k] if parts is not None else parameter_rows(
-                part, units, signal_units, None, method=method, seed=seed)
+                part, units, signal_units, None, method=method, seed=seed, warn=warn)
             mine = [a for a, o in zip(model.outputs, model.owner, strict=True) if o == k]
             keep = {*mine, ""}
             rows += [{**r, "name": f"{model.labels[k]}.{r['name']}"} for r in table
@@ -383,7 +388,7 @@ def parameter_rows(model: Any, units: dict[str, str], signal_units: dict[str, st
     if poly is not None:
         rows, cov = poly
     elif model.family.name == "lorentz":
-        rows = _lorentz_rows(model, units, signal_units)
+        rows = _lorentz_rows(model, units, signal_units, warn)
     else:
         rows = (_rbf_rows(model, units, signal_units) if model.family.name == "rbf" else None) \
             or _raw_rows(model)

@@ -10,7 +10,6 @@ import math
 import sys
 import threading
 import time
-import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -240,14 +239,13 @@ def _parameters(p: Plan, model: Any, train_parts: list[Any], average_s: float) -
     what ``DriftEstimator(...).fit`` of the same runs states; sealed into the checkpoint."""
     arrays = [fit_arrays(q, average_s) for q in train_parts]
     signal_units = {s: p.ds[0].units.get(s, "") for s in p.ds[0].proxies}
-    with warnings.catch_warnings():
-        # every family's table is made; a family's implausible constants are its rows'
-        # note, and a warning only for the model that ships (compare_judge.implausible_notes)
-        warnings.simplefilter("ignore", UserWarning)
-        return parameter_rows(model, p.units, signal_units,
-                              train=(np.concatenate([a[0] for a in arrays]),
-                                     np.concatenate([a[1] for a in arrays]),
-                                     [a[0].shape[0] for a in arrays]), method="ols")
+    # every family's table is made (in threads: no warnings filter is touched); a family's
+    # implausible constants are its rows' note, and a warning only for the model that ships
+    # (compare_judge.implausible_notes)
+    return parameter_rows(model, p.units, signal_units,
+                          train=(np.concatenate([a[0] for a in arrays]),
+                                 np.concatenate([a[1] for a in arrays]),
+                                 [a[0].shape[0] for a in arrays]), method="ols", warn=False)
 
 
 def _refit(p: Plan, fam: FamilyConfig, tcfg: Any, split: Any, parts: PartCache,
