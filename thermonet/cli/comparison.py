@@ -185,12 +185,12 @@ def _recorded_words(source: str, fmt: str) -> str:
     if fmt not in ("px4-params", "ardupilot-params"):
         return ""
     from ..data.firmware import PX4_LETTER  # lazy, as the rest: off the --help path
-    from ..exporting.autopilot_read import recorded_defaults, recorded_sensor  # torch-free
+    from ..exporting.autopilot_read import recorded_sensor, recorded_slot  # torch-free
 
     rec = recorded_sensor(source)
     if rec is None:
         return ""
-    _, slot = recorded_defaults(source, fmt, None, None)
+    slot = recorded_slot(rec, fmt)
     where = f"TC_{PX4_LETTER[rec['kind']]}{slot}" if fmt == "px4-params" else \
         f"IMU {slot}, INS_TCAL{slot}"
     return f" ({rec['name']}, device {rec['device_id']}: {where}, as its calibration records)"

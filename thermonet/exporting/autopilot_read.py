@@ -21,7 +21,7 @@ from ..core.fileio import atomic_write_text
 from . import is_device_id
 
 __all__ = ["read_px4_params", "read_ardupilot_params", "stamp_unit", "unit_comment",
-           "recorded_sensor", "recorded_defaults"]
+           "recorded_sensor", "recorded_defaults", "recorded_slot"]
 
 #: Characters of a unit id a comment line keeps (the rest of a long id is cut).
 UNIT_ID_CHARS = 120
@@ -132,15 +132,23 @@ def recorded_defaults(source: str, fmt: str, device_id: int | None, instance: in
         raise InputError(f"--device-id {device_id}: {where} is {name}'s model, fitted on device "
                          f"{dev} (its calibration's results.json): it is that sensor's drift — "
                          f"leave --device-id out (it defaults to {dev})")
+    want = recorded_slot(rec, fmt)
     if fmt == "px4-params":
-        want = rec["slot"] if rec["slot"] is not None else rec["index"]
         what = f"slot {want}" + (" (its slot in the calibration's px4.params: another would "
                                  "leave two slots naming one device)"
                                  if rec["slot"] is not None else "")
     else:
-        want, what = rec["index"] + 1, f"IMU {rec['index'] + 1} (INS_TCAL{rec['index'] + 1})"
+        what = f"IMU {want} (INS_TCAL{want})"
     if instance is not None and int(instance) != want and (fmt != "px4-params"
                                                            or rec["slot"] is not None):
         raise InputError(f"--instance {instance}: {where} is {name}'s model, {what}: it is that "
                          f"sensor's drift — leave --instance out (it defaults to {want})")
     return dev, want if instance is None else instance
+
+
+def recorded_slot(rec: dict[str, Any], fmt: str) -> int:
+    """The slot an autopilot file of a recorded sensor (:func:`recorded_sensor`) is written
+    to: PX4, calibrate's slot, else its instance number; ArduPilot, IMU instance + 1."""
+    if fmt == "px4-params":
+        return int(rec["slot"]) if rec["slot"] is not None else int(rec["index"])
+    return int(rec["index"]) + 1
